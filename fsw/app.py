@@ -1,0 +1,25 @@
+"""Builds the flight software from its configuration: clock, executive, resources.
+
+Drivers are created here from the ``devices`` configuration (when present) and handed to
+tasks as resources, so tasks never open devices themselves and the same tasks run on the
+rover and on the bench.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fsw.executive.clock import Clock, MonotonicClock
+from fsw.executive.executive import Executive
+from fsw.executive.health import SoftwareWatchdog
+from fsw.settings import FswConfig
+
+
+def build_executive(cfg: FswConfig, clock: Clock | None = None,
+                    resources: dict[str, Any] | None = None,
+                    watchdog_timeout_s: float = 1.0) -> Executive:
+    """An executive for ``cfg`` on ``clock`` (real time by default) with a software watchdog."""
+    clock = clock or MonotonicClock()
+    res = dict(resources or {})
+    res.setdefault("watchdog", SoftwareWatchdog(clock, watchdog_timeout_s))
+    return Executive(cfg, clock, res)

@@ -1,0 +1,1 @@
+"""Protocols: sans-I/O state machines for the inter-robot link; the MAVLink adapter."""

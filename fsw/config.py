@@ -1,0 +1,207 @@
+"""Typed, validated, frozen configuration loaded from TOML.
+
+Each subsystem declares its configuration as a frozen dataclass next to the code that uses
+it; :func:`build` turns a TOML table into that dataclass and refuses anything it cannot
+vouch for: a missing required key, an unknown key, a wrong type or a value out of range.
+Every refusal is a :class:`ConfigError` that names the file, the dotted key and the reason
+in one line, so a command-line tool can print it and exit 2 instead of a traceback.
+
+Declaring a bounded field::
+
+    @dataclass(frozen=True)
+    class ExecutiveConfig:
+        frame_period_s: float = param(0.1, lo=0.001, hi=10.0, units="s")
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+import types
+import typing
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+
+_MISSING = dataclasses.MISSING
+
+
+class ConfigError(ValueError):
+    """A configuration problem, reported as ``file: key: reason`` on one line."""
+
+    def __init__(self, source: str, key: str, reason: str) -> None:
+        self.source = source
+        self.key = key
+        self.reason = reason
+        super().__init__(f"{source}: {key or '<top>'}: {reason}")
+
+
+def param(
+    default: Any = _MISSING,
+    *,
+    lo: float | None = None,
+    hi: float | None = None,
+    choices: tuple[Any, ...] | None = None,
+    units: str = "",
+    doc: str = "",
+) -> Any:
+    """A dataclass field with bounds, allowed choices, units and a description.
+
+    Leave ``default`` out to make the key required in the file.
+    """
+    meta = {"lo": lo, "hi": hi, "choices": choices, "units": units, "doc": doc}
+    if default is _MISSING:
+        return dataclasses.field(metadata=meta)
+    if isinstance(default, (list, dict, set)):
+        raise TypeError("use a tuple or a default_factory for mutable defaults")
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def load_toml(path: str | Path) -> dict[str, Any]:
+    """Read a TOML file, turning I/O and syntax errors into :class:`ConfigError`."""
+    p = Path(path)
+    try:
+        with p.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(str(p), "", "file not found") from None
+    except IsADirectoryError:
+        raise ConfigError(str(p), "", "is a directory, not a file") from None
+    except PermissionError:
+        raise ConfigError(str(p), "", "permission denied") from None
+    except OSError as exc:
+        raise ConfigError(str(p), "", f"unreadable ({exc.strerror or exc})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(str(p), "", f"not valid TOML ({exc})") from None
+    except UnicodeDecodeError:
+        raise ConfigError(str(p), "", "not UTF-8 text") from None
+
+
+def load(cls: type[T], path: str | Path, section: str | None = None) -> T:
+    """Load ``path`` (or one table of it) into the dataclass ``cls``."""
+    data: Any = load_toml(path)
+    if section is not None:
+        if section not in data:
+            raise ConfigError(str(path), section, "missing required table")
+        data = data[section]
+    return build(cls, data, source=str(path), prefix=section or "")
+
+
+def build(cls: type[T], data: Any, source: str = "<config>", prefix: str = "") -> T:
+    """Validate ``data`` against the dataclass ``cls`` and construct it."""
+    if not isinstance(data, Mapping):
+        raise ConfigError(source, prefix, f"expected a table, got {_tname(data)}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        key = _join(prefix, unknown[0])
+        raise ConfigError(source, key, f"unknown key (allowed: {', '.join(sorted(fields))})")
+    kwargs: dict[str, Any] = {}
+    for name, f in fields.items():
+        key = _join(prefix, name)
+        if name not in data:
+            if f.default is _MISSING and f.default_factory is _MISSING:
+                raise ConfigError(source, key, "missing required key")
+            continue
+        kwargs[name] = _convert(hints[name], data[name], source, key)
+        _check_bounds(f.metadata, kwargs[name], source, key)
+    try:
+        return cls(**kwargs)
+    except (ValueError, TypeError) as exc:  # __post_init__ cross-field checks
+        raise ConfigError(source, prefix, str(exc)) from None
+
+
+def _convert(tp: Any, value: Any, source: str, key: str) -> Any:
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if dataclasses.is_dataclass(tp):
+        return build(tp, value, source, key)  # type: ignore[arg-type]
+    if origin is typing.Literal:
+        if value not in args:
+            raise ConfigError(source, key, f"must be one of {list(args)}, got {value!r}")
+        return value
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        errors = []
+        for alt in args:
+            if alt is type(None):
+                continue
+            try:
+                return _convert(alt, value, source, key)
+            except ConfigError as exc:
+                errors.append(exc.reason)
+        raise ConfigError(source, key, " or ".join(errors))
+    if origin is tuple:
+        if not isinstance(value, list):
+            raise ConfigError(source, key, f"expected an array, got {_tname(value)}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_convert(args[0], v, source, f"{key}[{i}]") for i, v in enumerate(value))
+        if len(value) != len(args):
+            raise ConfigError(source, key, f"expected {len(args)} elements, got {len(value)}")
+        return tuple(_convert(a, v, source, f"{key}[{i}]") for i, (a, v) in enumerate(zip(args, value, strict=True)))
+    if origin is dict:
+        if not isinstance(value, Mapping):
+            raise ConfigError(source, key, f"expected a table, got {_tname(value)}")
+        return {str(k): _convert(args[1], v, source, _join(key, str(k))) for k, v in value.items()}
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(source, key, f"expected true or false, got {_tname(value)}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(source, key, f"expected an integer, got {_tname(value)}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(source, key, f"expected a number, got {_tname(value)}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(source, key, f"expected a string, got {_tname(value)}")
+        return value
+    if tp is Any:
+        return value
+    raise ConfigError(source, key, f"unsupported field type {tp!r}")  # a schema bug
+
+
+def _check_bounds(meta: Mapping[str, Any], value: Any, source: str, key: str) -> None:
+    lo, hi, choices = meta.get("lo"), meta.get("hi"), meta.get("choices")
+    units = meta.get("units") or ""
+    values = value if isinstance(value, tuple) else (value,)
+    for v in values:
+        if choices is not None and v not in choices:
+            raise ConfigError(source, key, f"must be one of {list(choices)}, got {v!r}")
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            if lo is not None and v < lo:
+                raise ConfigError(source, key, f"{v} {units} is below the minimum {lo} {units}".replace("  ", " "))
+            if hi is not None and v > hi:
+                raise ConfigError(source, key, f"{v} {units} is above the maximum {hi} {units}".replace("  ", " "))
+
+
+def describe(cls: type) -> list[dict[str, Any]]:
+    """Rows (key, type, default, units, bounds, doc) describing a config dataclass."""
+    rows = []
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        rows.append(
+            {
+                "key": f.name,
+                "type": getattr(hints[f.name], "__name__", str(hints[f.name])),
+                "default": None if f.default is _MISSING else f.default,
+                **{k: v for k, v in f.metadata.items() if v},
+            }
+        )
+    return rows
+
+
+def _join(prefix: str, name: str) -> str:
+    return f"{prefix}.{name}" if prefix else name
+
+
+def _tname(v: Any) -> str:
+    return {dict: "a table", list: "an array", str: "a string", bool: "a boolean",
+            int: "an integer", float: "a number"}.get(type(v), type(v).__name__)

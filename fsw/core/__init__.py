@@ -1,0 +1,1 @@
+"""Core algorithms: pure functions and small classes on arrays (no I/O, no clock)."""

@@ -1,0 +1,197 @@
+"""Localization: camera pose by PnP with covariance, its recursive estimate, and the Cliff-bot
+from its ArUco fiducials relative to the RECON-bot (ALGORITHM.md §5), plus the propagation
+of the pose covariance into every measured point (§1.2, the paper's EKF step).
+
+Pose convention (used by every function here): a camera pose is ``CameraPose(R, t)`` with
+``R`` camera-to-world and ``t`` the camera centre. Its uncertainty is a 6x6 covariance over
+the perturbation ``(dtheta, dt)``: ``R = exp([dtheta]x) R_hat`` (a small rotation about the
+*world* axes, radians) and ``t = t_hat + dt`` (metres, world frame).
+
+A world point measured in the camera frame, ``p = R c + t``, then has the covariance
+
+    P = J_pose Sigma_pose J_pose^T + R Sigma_c R^T,   J_pose = [ -[R c]x | I ]
+
+which is ``propagate_point_covariance``. The vertical component ``P[2, 2]`` is the ``vm`` of
+the fusion (§1.1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.config import param
+from fsw.core.geometry import CameraPose
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class LocalizationConfig:
+    """Fiducial detection, PnP noise and the pose filter (config ``[localization]``)."""
+
+    aruco_dictionary: str = param("DICT_4X4_50", doc="cv2.aruco predefined dictionary name")
+    corner_sigma_px: float = param(
+        0.3, lo=0.01, hi=10.0, units="px", doc="1-sigma image noise of a detected corner"
+    )
+    min_points: int = param(4, lo=4, hi=1000, doc="fewest 3-D/2-D pairs for a PnP solution")
+    max_reproj_px: float = param(
+        3.0, lo=0.1, hi=100.0, units="px", doc="reject a PnP solution whose RMS residual exceeds"
+    )
+    gate_chi2: float = param(
+        22.46, lo=1.0, hi=1e6, doc="chi-square gate (6 dof) of a pose update; 22.46 = 0.1 %"
+    )
+
+
+def skew(v: F64) -> F64:
+    """``[v]x`` for one vector (3,) or a stack (N, 3) -> (N, 3, 3)."""
+    v = np.asarray(v, dtype=np.float64)
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
+
+
+def so3_exp(w: F64) -> F64:
+    R, _ = cv2.Rodrigues(np.asarray(w, dtype=np.float64).reshape(3, 1))
+    return np.asarray(R)
+
+
+def so3_log(R: F64) -> F64:
+    w, _ = cv2.Rodrigues(np.asarray(R, dtype=np.float64))
+    return np.asarray(w).reshape(3)
+
+
+@dataclass(frozen=True)
+class PoseEstimate:
+    """A camera pose with its 6x6 covariance over ``(dtheta_world, dt_world)``."""
+
+    pose: CameraPose
+    cov: F64
+    rms_px: float = 0.0
+    n_points: int = 0
+
+    @property
+    def sigma_t_m(self) -> float:
+        """RMS position standard deviation (sqrt of the mean translation variance)."""
+        return float(np.sqrt(np.trace(self.cov[3:, 3:]) / 3.0))
+
+
+def pnp_jacobian(pose: CameraPose, pts_w: F64, K: F64) -> F64:
+    """d(u, v) / d(dtheta, dt): (2N, 6) for the world points ``pts_w`` seen from ``pose``.
+
+    ``p_c = R^T (p_w - t)``; perturbing gives ``dp_c = R^T [p_w - t]x dtheta - R^T dt``.
+    """
+    d = pts_w - pose.t
+    pc = d @ pose.R
+    fx, fy = K[0, 0], K[1, 1]
+    x, y, z = pc[:, 0], pc[:, 1], pc[:, 2]
+    n = pts_w.shape[0]
+    dproj = np.zeros((n, 2, 3))
+    dproj[:, 0, 0] = fx / z
+    dproj[:, 0, 2] = -fx * x / z**2
+    dproj[:, 1, 1] = fy / z
+    dproj[:, 1, 2] = -fy * y / z**2
+    Rt = pose.R.T
+    dpc = np.concatenate([Rt @ skew(d), np.broadcast_to(-Rt, (n, 3, 3))], axis=2)  # (n, 3, 6)
+    return np.einsum("nij,njk->nik", dproj, dpc).reshape(2 * n, 6)
+
+
+def solve_pnp(
+    pts_w: F64, pts_px: F64, K: F64, corner_sigma_px: float, square_marker: bool = False
+) -> PoseEstimate | None:
+    """Camera pose from ``n >= 4`` known world points and their image points (§5).
+
+    Least squares (OpenCV PnP, then Levenberg-Marquardt refinement); the covariance is the
+    Gauss-Newton one, ``sigma^2 (J^T J)^-1`` with ``sigma`` the larger of the configured
+    corner noise and the residual RMS. Returns None when the points cannot give a pose.
+    """
+    pts_w = np.asarray(pts_w, dtype=np.float64).reshape(-1, 3)
+    pts_px = np.asarray(pts_px, dtype=np.float64).reshape(-1, 2)
+    n = pts_w.shape[0]
+    if n < 4 or pts_px.shape[0] != n or not (np.isfinite(pts_w).all() and np.isfinite(pts_px).all()):
+        return None
+    flag = cv2.SOLVEPNP_IPPE_SQUARE if square_marker and n == 4 else cv2.SOLVEPNP_ITERATIVE
+    if flag == cv2.SOLVEPNP_ITERATIVE and n < 6:
+        flag = cv2.SOLVEPNP_SQPNP
+    try:
+        ok, rvec, tvec = cv2.solvePnP(pts_w, pts_px, K, None, flags=flag)
+        if not ok:
+            return None
+        rvec, tvec = cv2.solvePnPRefineLM(pts_w, pts_px, K, None, rvec, tvec)
+    except cv2.error:
+        return None
+    R_wc = so3_exp(rvec)
+    pose = CameraPose(R_wc.T, (-R_wc.T @ tvec.reshape(3)))
+    proj, _ = cv2.projectPoints(pts_w, rvec, tvec, K, None)
+    res = proj.reshape(-1, 2) - pts_px
+    rms = float(np.sqrt(np.mean(res**2)))
+    J = pnp_jacobian(pose, pts_w, K)
+    JtJ = J.T @ J
+    if np.linalg.cond(JtJ) > 1e12:
+        return None
+    sigma = max(corner_sigma_px, rms)
+    cov = sigma**2 * np.linalg.inv(JtJ)
+    return PoseEstimate(pose, 0.5 * (cov + cov.T), rms, n)
+
+
+@dataclass
+class RecursivePoseFilter:
+    """Recursive estimate of the camera pose mean and covariance (§5).
+
+    Each PnP solution is a measurement of the whole pose (measurement matrix I) fused by a
+    Kalman update in the tangent space; motion between views (odometry, mast) is a
+    ``predict`` with its process noise. An update whose innovation fails the chi-square
+    gate is refused and counted.
+    """
+
+    estimate: PoseEstimate
+    gate_chi2: float = 22.46
+    rejected: int = 0
+    updates: int = 0
+    history: list[float] = field(default_factory=list)
+
+    def predict(self, delta: CameraPose, process_cov: F64) -> PoseEstimate:
+        """Apply a relative motion (camera frame of the current pose) and add process noise."""
+        R0, t0 = self.estimate.pose.R, self.estimate.pose.t
+        pose = CameraPose(R0 @ delta.R, t0 + R0 @ delta.t)
+        self.estimate = PoseEstimate(pose, self.estimate.cov + process_cov)
+        return self.estimate
+
+    def update(self, meas: PoseEstimate) -> bool:
+        """Fuse one pose measurement; False (and counted) if it fails the gate."""
+        x = self.estimate
+        innov = np.concatenate(
+            [so3_log(meas.pose.R @ x.pose.R.T), meas.pose.t - x.pose.t]
+        )
+        S = x.cov + meas.cov
+        m2 = float(innov @ np.linalg.solve(S, innov))
+        if not np.isfinite(m2) or m2 > self.gate_chi2:
+            self.rejected += 1
+            return False
+        Kg = x.cov @ np.linalg.inv(S)
+        dx = Kg @ innov
+        pose = CameraPose(so3_exp(dx[:3]) @ x.pose.R, x.pose.t + dx[3:])
+        cov = (np.eye(6) - Kg) @ x.cov
+        self.estimate = PoseEstimate(pose, 0.5 * (cov + cov.T), meas.rms_px, meas.n_points)
+        self.updates += 1
+        self.history.append(self.estimate.sigma_t_m)
+        return True
+
+
+def propagate_point_covariance(pose: CameraPose, pose_cov: F64 | None, xyz_c: F64,
+                               cov_c: F64) -> tuple[F64, F64]:
+    """World points and their covariances, ``P = J_pose S_pose J_pose^T + R S_c R^T`` (§1.2)."""
+    R = pose.R
+    rc = xyz_c @ R.T
+    pts_w = rc + pose.t
+    P = np.einsum("ij,njk,lk->nil", R, cov_c, R)
+    if pose_cov is not None:
+        n = xyz_c.shape[0]
+        Jp = np.concatenate([-skew(rc), np.broadcast_to(np.eye(3), (n, 3, 3))], axis=2)
+        P = P + np.einsum("nij,jk,nlk->nil", Jp, pose_cov, Jp)
+    return pts_w, P

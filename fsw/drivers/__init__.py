@@ -1,0 +1,1 @@
+"""Device drivers: one device each; timeouts, retries, fault flags; no algorithm."""

@@ -1,0 +1,1 @@
+"""The cyclic executive: clock, rate groups, slack jobs, health, telemetry, commands."""

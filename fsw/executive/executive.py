@@ -1,0 +1,309 @@
+"""The cyclic executive: minor frames, rate groups, budgets, slips and slack jobs.
+
+Each minor frame ``k`` starts at ``k * period`` on the injected clock. Rate groups due on
+``k`` (``k % divisor == offset``) run their tasks in declared order; each activation is
+timed against the task's budget. Whatever time is left before the next frame runs slack
+jobs (:mod:`fsw.executive.jobs`). A frame whose work ends after the next frame's start is
+a *slip*, charged to the rate group that was running when the deadline passed. On the
+real-time clock, lateness up to ``lag_limit_frames`` is caught up back to back; beyond
+that the executive skips ahead and says so (cFS SCH). Overrun and slip events are
+throttled; each throttle reopens a slot every ``throttle_decay_frames`` good frames.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from typing import Any, ClassVar
+
+import numpy as np
+
+from fsw.executive.bus import Mailbox, SoftwareBus
+from fsw.executive.clock import Clock
+from fsw.executive.commands import Arg, CommandDef, CommandDispatcher, CommandError
+from fsw.executive.config import RateGroupConfig
+from fsw.executive.jobs import JobHandle, JobScheduler
+from fsw.executive.task import Task, TaskContext
+from fsw.executive.telemetry import Channel, EventDef, EventLog, Severity, TelemetryStore
+
+THROTTLED = ("OVERRUN", "SLIP")
+
+
+class ExecutiveComponent(Task):
+    """The executive's own channels, events and commands (component ``exec``)."""
+
+    KIND: ClassVar[str] = "executive"
+    CHANNELS = (
+        Channel("frame", "count", doc="minor frames run"),
+        Channel("lateness_ms", "ms", hi=2.0, doc="frame-start lateness (real time)"),
+        Channel("skipped_frames", "count", hi=0, doc="frames skipped past the lag limit"),
+        Channel("slips", "count", hi=0, doc="frames that overran into the next (all groups)"),
+        Channel("jobs_pending", "count", doc="slack jobs in progress"),
+        Channel("jobs_completed", "count"),
+        Channel("jobs_failed", "count", hi=0),
+        Channel("bus_drops", "count", hi=0, doc="messages dropped by full mailboxes"),
+    )
+    EVENTS = (
+        EventDef("SKIPPED", Severity.WARNING_HI, "executive {lag} frames behind; skipped ahead to frame {frame}", throttle=5),
+        EventDef("QUEUE_FULL", Severity.WARNING_LO, "mailbox {mailbox} full (depth {depth}, policy {policy}); {dropped} dropped", throttle=5),
+        EventDef("JOB_FAILED", Severity.WARNING_HI, "slack job {owner}.{job} failed: {error}", throttle=5),
+        EventDef("JOB_DONE", Severity.DIAGNOSTIC, "slack job {owner}.{job} done in {slices} slices, {busy_ms:.1f} ms"),
+        EventDef("TASK_ENABLED", Severity.ACTIVITY_HI, "task {target} enabled={enabled}"),
+    )
+    COMMANDS = (
+        CommandDef("SET_TASK_ENABLED", (Arg("target", str), Arg("enabled", bool)),
+                   doc="enable or disable a task's activation"),
+    )
+
+    def cmd_SET_TASK_ENABLED(self, target: str, enabled: bool) -> None:
+        exe: Executive = self.ctx.resources["executive"]
+        if target not in exe.tasks or target == "exec":
+            raise CommandError(f"no task {target!r}")
+        exe.enabled[target] = enabled
+        self.event("TASK_ENABLED", target=target, enabled=enabled)
+
+    def cmd_RESET_COUNTERS(self) -> None:
+        exe: Executive = self.ctx.resources["executive"]
+        exe.skipped_frames = exe.slips = 0
+        super().cmd_RESET_COUNTERS()
+
+
+class RateGroupComponent(Task):
+    """One rate group's timing: last/max execution time, cycles and slips."""
+
+    KIND: ClassVar[str] = "rate_group"
+    CHANNELS = (
+        Channel("cycles", "count"),
+        Channel("slips", "count", hi=0, doc="frames this group was running when the next tick came"),
+    )
+    EVENTS = (EventDef("SLIP", Severity.WARNING_HI, "rate group {task} slipped: frame {frame} ran {ms:.1f} ms of a {period_ms:.0f} ms period", throttle=5),)
+
+    def __init__(self, name: str, ctx: TaskContext, budget_s: float) -> None:
+        super().__init__(name, ctx, budget_s)
+        self.group: RateGroupConfig | None = None
+        self.members: list[Task] = []
+        self.slips = 0
+        self.good_frames = 0
+
+    def cmd_RESET_COUNTERS(self) -> None:
+        self.slips = 0
+        self.ctx.events.reset_throttle(f"{self.name}.SLIP")
+        super().cmd_RESET_COUNTERS()
+
+
+class Executive:
+    """Runs the schedule in ``cfg.executive`` on ``clock``."""
+
+    def __init__(self, cfg: Any, clock: Clock, resources: dict[str, Any] | None = None,
+                 timer: Callable[[], float] = time.perf_counter) -> None:
+        from fsw.executive.topology import components
+
+        ecfg = cfg.executive
+        self.cfg, self.ecfg, self.clock, self.timer = cfg, ecfg, clock, timer
+        self.period_s = ecfg.frame_period_s
+        self.telemetry = TelemetryStore()
+        self.events = EventLog(clock.now)
+        self.commands = CommandDispatcher(on_response=self._on_response)
+        self.jobs = JobScheduler()
+        self.bus = SoftwareBus(ecfg.queue_depth, on_drop=self._on_drop)
+        self.ctx = TaskContext(cfg, clock, self.telemetry, self.events, self.commands, self.bus,
+                               self.jobs, self.period_s, dict(resources or {}))
+        self.ctx.resources["executive"] = self
+        self.frame = 0
+        self.slips = 0
+        self.skipped_frames = 0
+        self.lateness_s: list[float] = []
+        self.tasks: dict[str, Task] = {}
+        self.enabled: dict[str, bool] = {}
+        self.groups: list[RateGroupComponent] = []
+        self._jobs_seen: set[int] = set()
+
+        budgets = {t.name: t.budget_ms / 1e3 for t in ecfg.tasks}
+        group_of = {t.name: t.group for t in ecfg.tasks}
+        for comp in components(cfg):
+            task = comp.cls(comp.name, self.ctx, budgets.get(comp.name, float("inf")))
+            self._register(task, comp.opcode_base)
+            self.tasks[comp.name] = task
+            self.enabled[comp.name] = True
+        by_name = {g.name: g for g in ecfg.groups}
+        for g in ecfg.groups:
+            rg = self.tasks[f"rg_{g.name}"]
+            assert isinstance(rg, RateGroupComponent)
+            rg.group = g
+            rg.members = [self.tasks[t.name] for t in ecfg.tasks if group_of[t.name] == g.name]
+            self.groups.append(rg)
+        for t in ecfg.tasks:
+            self.enabled[t.name] = t.enabled
+            assert t.group in by_name
+        self.exec_component = self.tasks["exec"]
+        for task in self.tasks.values():
+            task.setup()
+
+    # -- registration ---------------------------------------------------------------------
+    def _register(self, task: Task, opcode_base: int) -> None:
+        for ch in task.all_channels():
+            self.telemetry.register(f"{task.name}.{ch.name}", ch)
+        for ev in task.all_events():
+            if ev.name in THROTTLED:
+                ev = dataclasses.replace(ev, throttle=self.ecfg.event_throttle)
+            self.events.register(f"{task.name}.{ev.name}", ev)
+        for j, cd in enumerate(task.all_commands()):
+            handler = getattr(task, f"cmd_{cd.name}", None)
+            if handler is None:
+                raise TypeError(f"{type(task).__name__} declares {cd.name} but has no cmd_{cd.name}")
+            self.commands.register(f"{task.name}.{cd.name}", opcode_base + j, cd, handler)
+
+    def _on_response(self, req: Any, resp: Any) -> None:
+        owner = self.tasks.get(req.name.split(".", 1)[0])
+        if owner is None:
+            self.exec_component.cmd_errors += 1
+            owner = self.exec_component
+        elif resp.status.name == "OK":
+            owner.cmd_count += 1
+        else:
+            owner.cmd_errors += 1
+        if resp.status.name != "OK":
+            owner.event("COMMAND_REFUSED", command=req.name, status=resp.status.name, reason=resp.message)
+
+    def _on_drop(self, box: Mailbox[Any]) -> None:
+        self.exec_component.event("QUEUE_FULL", mailbox=box.name, depth=box.depth,
+                                  policy=box.policy, dropped=box.dropped)
+
+    # -- one frame ------------------------------------------------------------------------
+    def step(self) -> None:
+        """Run minor frame ``self.frame`` now, then advance the frame counter."""
+        k = self.frame
+        self.ctx.frame = k
+        period = self.period_s
+        t0 = self.timer()
+        slip_group: RateGroupComponent | None = None
+        for rg in self.groups:
+            assert rg.group is not None
+            if not rg.group.due(k) or not self.enabled[rg.name]:
+                continue
+            g0 = self.timer()
+            for task in rg.members:
+                if self.enabled[task.name]:
+                    self._activate(task, k)
+            rg.last_s = self.timer() - g0
+            rg.max_s = max(rg.max_s, rg.last_s)
+            rg.activations += 1
+            if slip_group is None and self.timer() - t0 > period:
+                slip_group = rg
+        self._run_slack(t0)
+        elapsed = self.timer() - t0
+        if slip_group is None and elapsed > period:
+            slip_group = self.groups[-1] if self.groups else None
+        self._account_slip(slip_group, k, elapsed)
+        self._publish(k)
+        self.frame = k + 1
+
+    def _activate(self, task: Task, k: int) -> None:
+        a0 = self.timer()
+        try:
+            task.run(k)
+        except Exception as exc:  # noqa: BLE001 - a task fault is an event, never a crash
+            task.exceptions += 1
+            task.event("EXCEPTION", error=f"{type(exc).__name__}: {exc}")
+        else:
+            task.answer_ping()
+        task.last_s = self.timer() - a0
+        task.max_s = max(task.max_s, task.last_s)
+        task.activations += 1
+        if task.last_s > task.budget_s:
+            task.overruns += 1
+            task.event("OVERRUN", ms=task.last_s * 1e3, budget_ms=task.budget_s * 1e3)
+        elif task.activations % self.ecfg.throttle_decay_frames == 0:
+            self.events.decay(f"{task.name}.OVERRUN")
+        task.publish_timing()
+
+    def _run_slack(self, t0: float) -> None:
+        if self.clock.realtime:
+            deadline = t0 + self.period_s - self.ecfg.slack_margin_s
+            while self.jobs.pending and self.timer() < deadline:
+                self._job_slice()
+        else:
+            for _ in range(self.ecfg.lockstep_job_slices):
+                if not self.jobs.pending:
+                    break
+                self._job_slice()
+
+    def _job_slice(self) -> None:
+        handle = self.jobs.run_slice()
+        if handle is not None and handle.done:
+            self._job_finished(handle)
+
+    def _job_finished(self, h: JobHandle) -> None:
+        ex = self.exec_component
+        if h.error is not None:
+            ex.event("JOB_FAILED", owner=h.owner, job=h.name, error=f"{type(h.error).__name__}: {h.error}")
+        else:
+            ex.event("JOB_DONE", owner=h.owner, job=h.name, slices=h.slices, busy_ms=h.busy_s * 1e3)
+
+    def _account_slip(self, rg: RateGroupComponent | None, k: int, elapsed: float) -> None:
+        if rg is not None:
+            rg.slips += 1
+            self.slips += 1
+            rg.good_frames = 0
+            rg.event("SLIP", frame=k, ms=elapsed * 1e3, period_ms=self.period_s * 1e3)
+        for g in self.groups:
+            if g is not rg:
+                g.good_frames += 1
+                if g.good_frames % self.ecfg.throttle_decay_frames == 0:
+                    self.events.decay(f"{g.name}.SLIP")
+
+    def _publish(self, k: int) -> None:
+        ex = self.exec_component
+        ex.tlm("frame", k)
+        ex.tlm("slips", self.slips)
+        ex.tlm("skipped_frames", self.skipped_frames)
+        ex.tlm("jobs_pending", self.jobs.pending)
+        ex.tlm("jobs_completed", self.jobs.completed)
+        ex.tlm("jobs_failed", self.jobs.failed)
+        ex.tlm("bus_drops", sum(b.dropped for b in self.bus.mailboxes()))
+        for rg in self.groups:
+            rg.tlm("cycles", rg.activations)
+            rg.tlm("slips", rg.slips)
+            rg.publish_timing()
+
+    # -- drivers of frames --------------------------------------------------------------------
+    def frame_start(self, k: int) -> float:
+        return k * self.period_s
+
+    def run_lockstep(self, frames: int, before_frame: Callable[[int], None] | None = None) -> None:
+        """Run ``frames`` frames on a stepped clock; ``before_frame(k)`` lets the simulator act."""
+        for _ in range(frames):
+            self.clock.sleep_until(self.frame_start(self.frame))
+            if before_frame is not None:
+                before_frame(self.frame)
+            self.step()
+
+    def run_realtime(self, frames: int | None = None, stop: Callable[[], bool] = lambda: False) -> None:
+        """Run on the real clock with absolute deadlines until ``frames`` ran or ``stop()``."""
+        start = self.clock.now()
+        base_frame = self.frame
+        n = 0
+        while (frames is None or n < frames) and not stop():
+            t_k = start + (self.frame - base_frame) * self.period_s
+            self.clock.sleep_until(t_k)
+            late = self.clock.now() - t_k
+            lag = int(late // self.period_s)
+            if lag > self.ecfg.lag_limit_frames:
+                self.frame += lag
+                self.skipped_frames += lag
+                self.exec_component.event("SKIPPED", lag=lag, frame=self.frame)
+                continue
+            self.lateness_s.append(late)
+            if len(self.lateness_s) > 100000:
+                del self.lateness_s[:50000]
+            self.exec_component.tlm("lateness_ms", late * 1e3)
+            self.step()
+            n += 1
+
+    def lateness_percentiles_ms(self) -> dict[str, float]:
+        arr = np.asarray(self.lateness_s) * 1e3
+        if arr.size == 0:
+            return {"p50": float("nan"), "p99": float("nan"), "max": float("nan")}
+        return {"p50": float(np.percentile(arr, 50)), "p99": float(np.percentile(arr, 99)),
+                "max": float(arr.max())}

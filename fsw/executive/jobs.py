@@ -1,0 +1,93 @@
+"""Slack jobs: long work resumed in bounded slices in each frame's slack.
+
+A job is a generator that yields after each bounded step and returns its result
+(``return value`` -> ``StopIteration.value``). The executive resumes jobs round-robin in
+the time left before the next frame (real time) or for a fixed number of slices per frame
+(stepped clock, so lockstep runs stay deterministic). The result, or the exception, lands
+in the :class:`JobHandle` that the submitting task holds and polls.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Callable, Generator
+from dataclasses import dataclass, field
+from typing import Any
+
+Job = Generator[Any, None, Any]
+
+
+@dataclass
+class JobHandle:
+    """What a task keeps of a job it submitted."""
+
+    name: str
+    owner: str
+    done: bool = False
+    result: Any = None
+    error: BaseException | None = None
+    slices: int = 0
+    busy_s: float = 0.0
+    cancelled: bool = False
+    on_done: Callable[[JobHandle], None] | None = field(default=None, repr=False)
+
+    def cancel(self) -> None:
+        self.cancelled = True
+
+
+class JobScheduler:
+    """Round-robin runner of slack jobs."""
+
+    def __init__(self, max_jobs: int = 16) -> None:
+        self.max_jobs = max_jobs
+        self._jobs: deque[tuple[JobHandle, Job]] = deque()
+        self.completed = 0
+        self.failed = 0
+
+    def submit(self, gen: Job, name: str, owner: str,
+               on_done: Callable[[JobHandle], None] | None = None) -> JobHandle:
+        if len(self._jobs) >= self.max_jobs:
+            raise RuntimeError(f"slack job queue full ({self.max_jobs}); {owner}.{name} refused")
+        handle = JobHandle(name, owner, on_done=on_done)
+        self._jobs.append((handle, gen))
+        return handle
+
+    @property
+    def pending(self) -> int:
+        return len(self._jobs)
+
+    def run_slice(self) -> JobHandle | None:
+        """Resume the next job for one step; returns its handle (None if idle)."""
+        while self._jobs:
+            handle, gen = self._jobs.popleft()
+            if handle.cancelled:
+                gen.close()
+                self._finish(handle, error=RuntimeError("cancelled"))
+                continue
+            t0 = time.perf_counter()
+            try:
+                next(gen)
+            except StopIteration as stop:
+                handle.busy_s += time.perf_counter() - t0
+                handle.slices += 1
+                self._finish(handle, result=stop.value)
+                return handle
+            except Exception as exc:  # noqa: BLE001 - a failing job is reported, not fatal
+                handle.busy_s += time.perf_counter() - t0
+                self._finish(handle, error=exc)
+                return handle
+            handle.busy_s += time.perf_counter() - t0
+            handle.slices += 1
+            self._jobs.append((handle, gen))
+            return handle
+        return None
+
+    def _finish(self, handle: JobHandle, result: Any = None, error: BaseException | None = None) -> None:
+        handle.done, handle.result, handle.error = True, result, error
+        if error is None:
+            self.completed += 1
+        else:
+            self.failed += 1
+        if handle.on_done is not None:
+            handle.on_done(handle)

@@ -1,0 +1,147 @@
+"""The task base class: declarations, counters, timing, pings and slack jobs.
+
+A task declares its ``CHANNELS``, ``EVENTS`` and ``COMMANDS`` as class data; the executive
+registers them under the instance name (``stereo.points``, ``stereo.NOOP``) and the ground
+dictionary is generated from them. Every task also has the common ones below (cFS: NOOP,
+RESET_COUNTERS; F Prime: execution-time channels, throttled overrun events). A task's
+handler for command ``X`` is its method ``cmd_X``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, ClassVar
+
+from fsw.executive.bus import Mailbox, Policy, SoftwareBus
+from fsw.executive.clock import Clock
+from fsw.executive.commands import CommandDef, CommandDispatcher
+from fsw.executive.jobs import Job, JobHandle, JobScheduler
+from fsw.executive.telemetry import Channel, EventDef, EventLog, Severity, TelemetryStore
+
+if TYPE_CHECKING:
+    from fsw.settings import FswConfig
+
+
+@dataclass
+class TaskContext:
+    """Everything a task may touch besides its own state."""
+
+    cfg: FswConfig
+    clock: Clock
+    telemetry: TelemetryStore
+    events: EventLog
+    commands: CommandDispatcher
+    bus: SoftwareBus
+    jobs: JobScheduler
+    frame_period_s: float
+    resources: dict[str, Any] = field(default_factory=dict)  # drivers, injected by the app
+    frame: int = 0
+
+
+COMMON_CHANNELS = (
+    Channel("exec_last_ms", "ms", doc="execution time of the last activation"),
+    Channel("exec_max_ms", "ms", doc="maximum execution time since reset"),
+    Channel("overruns", "count", hi=0, doc="activations over budget"),
+    Channel("cmds", "count", doc="commands accepted"),
+    Channel("cmd_errors", "count", hi=0, doc="commands refused or failed"),
+)
+COMMON_EVENTS = (
+    EventDef("OVERRUN", Severity.WARNING_LO, "{task} took {ms:.2f} ms, budget {budget_ms:.2f} ms", throttle=5),
+    EventDef("EXCEPTION", Severity.WARNING_HI, "{task} raised {error}", throttle=5),
+    EventDef("NOOP", Severity.ACTIVITY_HI, "{task} NOOP received"),
+    EventDef("COUNTERS_RESET", Severity.ACTIVITY_HI, "{task} counters reset"),
+    EventDef("COMMAND_REFUSED", Severity.COMMAND, "{command} -> {status}: {reason}", throttle=10),
+)
+COMMON_COMMANDS = (
+    CommandDef("NOOP", doc="does nothing but answer and raise an event"),
+    CommandDef("RESET_COUNTERS", doc="zero the command, error and overrun counters and the max execution time"),
+)
+
+
+class Task:
+    """Base of every executive task; subclasses override :meth:`run`."""
+
+    KIND: ClassVar[str] = ""
+    DOC: ClassVar[str] = ""
+    CHANNELS: ClassVar[tuple[Channel, ...]] = ()
+    EVENTS: ClassVar[tuple[EventDef, ...]] = ()
+    COMMANDS: ClassVar[tuple[CommandDef, ...]] = ()
+
+    def __init__(self, name: str, ctx: TaskContext, budget_s: float) -> None:
+        self.name = name
+        self.ctx = ctx
+        self.budget_s = budget_s
+        self.activations = 0
+        self.last_s = 0.0
+        self.max_s = 0.0
+        self.overruns = 0
+        self.cmd_count = 0
+        self.cmd_errors = 0
+        self.exceptions = 0
+        self.ping_sent = 0
+        self.ping_answered = 0
+        self.ping_answered_frame = 0
+        self.hung = False  # fault injection / self-diagnosis: a hung task stops answering pings
+
+    # -- declarations -------------------------------------------------------------------
+    @classmethod
+    def all_channels(cls) -> tuple[Channel, ...]:
+        return COMMON_CHANNELS + cls.CHANNELS
+
+    @classmethod
+    def all_events(cls) -> tuple[EventDef, ...]:
+        return COMMON_EVENTS + cls.EVENTS
+
+    @classmethod
+    def all_commands(cls) -> tuple[CommandDef, ...]:
+        return COMMON_COMMANDS + cls.COMMANDS
+
+    # -- the work -------------------------------------------------------------------------
+    def setup(self) -> None:
+        """Called once after every task is registered (subscribe to topics here)."""
+
+    def run(self, frame: int) -> None:
+        """One activation; keep it within ``budget_s``."""
+
+    def answer_ping(self) -> None:
+        """Called by the executive after a successful activation."""
+        if not self.hung and self.ping_answered != self.ping_sent:
+            self.ping_answered = self.ping_sent
+            self.ping_answered_frame = self.ctx.frame
+
+    def ping(self, key: int) -> None:
+        self.ping_sent = key
+
+    # -- helpers for subclasses -------------------------------------------------------------
+    def tlm(self, channel: str, value: float | int | str) -> None:
+        self.ctx.telemetry.write(f"{self.name}.{channel}", value, self.ctx.clock.now())
+
+    def event(self, name: str, **args: Any) -> None:
+        self.ctx.events.emit(f"{self.name}.{name}", task=self.name, **args)
+
+    def subscribe(self, topic: str, depth: int | None = None, policy: Policy = "drop_oldest") -> Mailbox[Any]:
+        return self.ctx.bus.subscribe(topic, self.name, depth, policy)
+
+    def publish(self, topic: str, msg: Any) -> None:
+        self.ctx.bus.publish(topic, msg)
+
+    def submit_job(self, gen: Job, name: str, on_done: Callable[[JobHandle], None] | None = None) -> JobHandle:
+        return self.ctx.jobs.submit(gen, name, self.name, on_done)
+
+    def publish_timing(self) -> None:
+        self.tlm("exec_last_ms", self.last_s * 1e3)
+        self.tlm("exec_max_ms", self.max_s * 1e3)
+        self.tlm("overruns", self.overruns)
+        self.tlm("cmds", self.cmd_count)
+        self.tlm("cmd_errors", self.cmd_errors)
+
+    # -- common commands -------------------------------------------------------------------
+    def cmd_NOOP(self) -> None:
+        self.event("NOOP")
+
+    def cmd_RESET_COUNTERS(self) -> None:
+        self.cmd_count = self.cmd_errors = self.overruns = self.exceptions = 0
+        self.max_s = 0.0
+        self.ctx.events.reset_throttle(f"{self.name}.OVERRUN")
+        self.event("COUNTERS_RESET")

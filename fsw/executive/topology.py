@@ -1,0 +1,64 @@
+"""The topology: which components exist, their classes, and their ids and opcodes.
+
+One function, :func:`components`, resolves the schedule in the config into component
+classes; the executive registers from it and ``safer-fsw dictionary`` prints from it, so
+names and ids are never kept in a second table. Ids are assigned in declaration order:
+component ``i`` gets command opcodes ``(i + 1) * 0x100 + j``.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from typing import Any
+
+from fsw.executive.task import Task
+from fsw.tasks.registry import KINDS
+
+
+@dataclass(frozen=True)
+class Component:
+    name: str
+    cls: type[Task]
+    opcode_base: int
+
+
+def task_class(kind: str) -> type[Task]:
+    """Resolve a task kind to its class (imported lazily)."""
+    if kind not in KINDS:
+        raise KeyError(f"unknown task kind {kind!r} (known: {', '.join(sorted(KINDS))})")
+    module, _, attr = KINDS[kind].partition(":")
+    cls = getattr(importlib.import_module(module), attr)
+    if not (isinstance(cls, type) and issubclass(cls, Task)):
+        raise TypeError(f"{KINDS[kind]} is not a Task")
+    return cls
+
+
+def components(cfg: Any) -> list[Component]:
+    """The executive, each rate group, then each configured task, in that order."""
+    from fsw.executive.executive import ExecutiveComponent, RateGroupComponent
+
+    out = [Component("exec", ExecutiveComponent, 0x100)]
+    for g in cfg.executive.groups:
+        out.append(Component(f"rg_{g.name}", RateGroupComponent, (len(out) + 1) * 0x100))
+    for t in cfg.executive.tasks:
+        out.append(Component(t.name, task_class(t.kind), (len(out) + 1) * 0x100))
+    return out
+
+
+def dictionary(cfg: Any) -> dict[str, Any]:
+    """The ground dictionary (channels, events, commands) generated from the declarations."""
+    chans, events, cmds = [], [], []
+    for comp in components(cfg):
+        for c in comp.cls.all_channels():
+            chans.append({"id": len(chans) + 1, "name": f"{comp.name}.{c.name}", "units": c.units,
+                          "lo": c.lo, "hi": c.hi, "doc": c.doc})
+        for e in comp.cls.all_events():
+            events.append({"id": len(events) + 1, "name": f"{comp.name}.{e.name}",
+                           "severity": e.severity.name, "format": e.fmt, "throttle": e.throttle})
+        for j, cd in enumerate(comp.cls.all_commands()):
+            cmds.append({"opcode": comp.opcode_base + j, "name": f"{comp.name}.{cd.name}", "doc": cd.doc,
+                         "args": [{"name": a.name, "type": a.kind.__name__, "lo": a.lo, "hi": a.hi,
+                                   "choices": list(a.choices) if a.choices else None, "units": a.units}
+                                  for a in cd.args]})
+    return {"channels": chans, "events": events, "commands": cmds}

@@ -1,0 +1,1 @@
+"""Executive tasks: thin wrappers that read inputs, call core, write outputs."""

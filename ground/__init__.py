@@ -1,0 +1,1 @@
+"""Ground tools: MAVLink listener, command sender, log plots."""
