@@ -15,9 +15,9 @@ from fsw.executive.health import SoftwareWatchdog
 from fsw.settings import FswConfig
 
 
-def build_executive(cfg: FswConfig, clock: Clock | None = None,
-                    resources: dict[str, Any] | None = None,
-                    watchdog_timeout_s: float = 1.0) -> Executive:
+def build_executive(
+    cfg: FswConfig, clock: Clock | None = None, resources: dict[str, Any] | None = None, watchdog_timeout_s: float = 1.0
+) -> Executive:
     """An executive for ``cfg`` on ``clock`` (real time by default) with a software watchdog."""
     clock = clock or MonotonicClock()
     res = dict(resources or {})

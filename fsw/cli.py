@@ -27,15 +27,19 @@ def cmd_run(args: argparse.Namespace) -> int:
         return 2
     exe = build_executive(cfg)
     frames = None if args.duration is None else max(1, round(args.duration / cfg.executive.frame_period_s))
-    print(f"safer-fsw: running {len(exe.tasks)} components at {1 / exe.period_s:.1f} Hz "
-          f"({'until interrupted' if frames is None else f'{frames} frames'}); config {args.config}")
+    print(
+        f"safer-fsw: running {len(exe.tasks)} components at {1 / exe.period_s:.1f} Hz "
+        f"({'until interrupted' if frames is None else f'{frames} frames'}); config {args.config}"
+    )
     try:
         exe.run_realtime(frames)
     except KeyboardInterrupt:
         print("safer-fsw: interrupted")
     lat = exe.lateness_percentiles_ms()
-    print(f"safer-fsw: {exe.frame} frames, slips {exe.slips}, skipped {exe.skipped_frames}, "
-          f"lateness p50 {lat['p50']:.3f} ms p99 {lat['p99']:.3f} ms max {lat['max']:.3f} ms")
+    print(
+        f"safer-fsw: {exe.frame} frames, slips {exe.slips}, skipped {exe.skipped_frames}, "
+        f"lateness p50 {lat['p50']:.3f} ms p99 {lat['p99']:.3f} ms max {lat['max']:.3f} ms"
+    )
     return 0
 
 
@@ -61,23 +65,36 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", metavar="COMMAND", required=True)
     fmt = argparse.ArgumentDefaultsHelpFormatter
 
-    r = sub.add_parser("run", help="run the flight software in real time", formatter_class=fmt,
-                       description="Start the executive and its tasks on the real-time clock.")
+    r = sub.add_parser(
+        "run",
+        help="run the flight software in real time",
+        formatter_class=fmt,
+        description="Start the executive and its tasks on the real-time clock.",
+    )
     r.add_argument("--config", default=str(DEFAULT_CONFIG), help="flight configuration (TOML)")
-    r.add_argument("--duration", type=float, default=None, metavar="S",
-                   help="stop after this many seconds (default: run until Ctrl-C)")
+    r.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="stop after this many seconds (default: run until Ctrl-C)",
+    )
     r.set_defaults(_run=cmd_run)
 
-    d = sub.add_parser("dictionary", help="print the command/telemetry/event dictionary as JSON",
-                       formatter_class=fmt,
-                       description="The ground dictionary, generated from the tasks' declarations.")
+    d = sub.add_parser(
+        "dictionary",
+        help="print the command/telemetry/event dictionary as JSON",
+        formatter_class=fmt,
+        description="The ground dictionary, generated from the tasks' declarations.",
+    )
     d.add_argument("--config", default=str(DEFAULT_CONFIG), help="flight configuration (TOML)")
     d.set_defaults(_run=cmd_dictionary)
 
     b = sub.add_parser("bench", help="benchmarks", description="Benchmarks that print figures.")
     bsub = b.add_subparsers(dest="what", metavar="WHAT", required=True)
-    be = bsub.add_parser("executive", formatter_class=fmt,
-                         help="executive overhead per frame and real-time frame-start lateness")
+    be = bsub.add_parser(
+        "executive", formatter_class=fmt, help="executive overhead per frame and real-time frame-start lateness"
+    )
     be.add_argument("--frames", type=int, default=600, help="real-time frames at 10 Hz")
     be.add_argument("--overhead-frames", type=int, default=20000, help="stepped frames for the overhead figure")
     be.set_defaults(_run=cmd_bench)

@@ -54,9 +54,7 @@ class CameraConfig:
     @property
     def K(self) -> F64:
         f = self.focal_px
-        return np.array(
-            [[f, 0.0, (self.width_px - 1) / 2.0], [0.0, f, (self.height_px - 1) / 2.0], [0, 0, 1.0]]
-        )
+        return np.array([[f, 0.0, (self.width_px - 1) / 2.0], [0.0, f, (self.height_px - 1) / 2.0], [0, 0, 1.0]])
 
 
 @dataclass(frozen=True)

@@ -189,9 +189,12 @@ def propagate_point_covariance(pose: CameraPose, pose_cov: F64 | None, xyz_c: F6
     R = pose.R
     rc = xyz_c @ R.T
     pts_w = rc + pose.t
-    P = np.einsum("ij,njk,lk->nil", R, cov_c, R)
+    P = np.matmul(np.matmul(R, cov_c), R.T)
     if pose_cov is not None:
-        n = xyz_c.shape[0]
-        Jp = np.concatenate([-skew(rc), np.broadcast_to(np.eye(3), (n, 3, 3))], axis=2)
-        P = P + np.einsum("nij,jk,nlk->nil", Jp, pose_cov, Jp)
+        S = np.asarray(pose_cov, dtype=np.float64)
+        A = skew(rc)  # J_pose = [-A | I]
+        ASrt = np.matmul(A, S[:3, 3:])
+        P += np.matmul(np.matmul(A, S[:3, :3]), A.transpose(0, 2, 1))
+        P -= ASrt + ASrt.transpose(0, 2, 1)
+        P += S[3:, 3:]
     return pts_w, P

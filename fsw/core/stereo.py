@@ -193,15 +193,17 @@ def stereo_covariance(
     disparity. With X = B du / d, Y = B dv / d, Z = f B / d the Jacobian rows are
     dX = (B/d, 0, -X/d), dY = (0, B/d, -Y/d), dZ = (0, 0, -Z/d).
     """
-    n = d.shape[0]
-    J = np.zeros((n, 3, 3))
-    J[:, 0, 0] = B / d
-    J[:, 1, 1] = B / d
-    J[:, 0, 2] = -B * du / d**2
-    J[:, 1, 2] = -B * dv / d**2
-    J[:, 2, 2] = -f * B / d**2
-    s = np.array([sigma_px**2, sigma_px**2, sigma_d**2])
-    return np.einsum("nij,j,nkj->nik", J, s, J)
+    a = B / d
+    x, y, z = a * du / d, a * dv / d, f * B / d**2  # -dX/dd, -dY/dd, -dZ/dd
+    sp2, sd2 = sigma_px**2, sigma_d**2
+    cov = np.empty((d.shape[0], 3, 3))
+    cov[:, 0, 0] = a * a * sp2 + x * x * sd2
+    cov[:, 1, 1] = a * a * sp2 + y * y * sd2
+    cov[:, 2, 2] = z * z * sd2
+    cov[:, 0, 1] = cov[:, 1, 0] = x * y * sd2
+    cov[:, 0, 2] = cov[:, 2, 0] = x * z * sd2
+    cov[:, 1, 2] = cov[:, 2, 1] = y * z * sd2
+    return cov
 
 
 def depth_sigma_m(range_m: F64 | float, camera: CameraConfig, sigma_d: float) -> F64:

@@ -19,8 +19,13 @@ Policy = Literal["drop_newest", "drop_oldest"]
 class Mailbox(Generic[M]):
     """A bounded FIFO with a drop policy and counters."""
 
-    def __init__(self, name: str, depth: int, policy: Policy = "drop_oldest",
-                 on_drop: Callable[[Mailbox[Any]], None] | None = None) -> None:
+    def __init__(
+        self,
+        name: str,
+        depth: int,
+        policy: Policy = "drop_oldest",
+        on_drop: Callable[[Mailbox[Any]], None] | None = None,
+    ) -> None:
         if depth < 1:
             raise ValueError("mailbox depth must be at least 1")
         if policy not in ("drop_newest", "drop_oldest"):
@@ -73,15 +78,15 @@ class Mailbox(Generic[M]):
 class SoftwareBus:
     """Publish/subscribe by topic name; each subscriber gets its own bounded mailbox."""
 
-    def __init__(self, default_depth: int = 8,
-                 on_drop: Callable[[Mailbox[Any]], None] | None = None) -> None:
+    def __init__(self, default_depth: int = 8, on_drop: Callable[[Mailbox[Any]], None] | None = None) -> None:
         self.default_depth = default_depth
         self.on_drop = on_drop
         self._subs: dict[str, list[Mailbox[Any]]] = {}
         self.published: dict[str, int] = {}
 
-    def subscribe(self, topic: str, subscriber: str, depth: int | None = None,
-                  policy: Policy = "drop_oldest") -> Mailbox[Any]:
+    def subscribe(
+        self, topic: str, subscriber: str, depth: int | None = None, policy: Policy = "drop_oldest"
+    ) -> Mailbox[Any]:
         box: Mailbox[Any] = Mailbox(f"{topic}->{subscriber}", depth or self.default_depth, policy, self.on_drop)
         self._subs.setdefault(topic, []).append(box)
         return box

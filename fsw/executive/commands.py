@@ -42,16 +42,17 @@ class Arg:
             if not isinstance(value, bool):
                 raise ValueError(f"{self.name}: expected true/false, got {value!r}")
         elif self.kind is int:
-            if isinstance(value, bool) or not (isinstance(value, int) or (isinstance(value, float) and value.is_integer())):
+            if isinstance(value, bool) or not (
+                isinstance(value, int) or (isinstance(value, float) and value.is_integer())
+            ):
                 raise ValueError(f"{self.name}: expected an integer, got {value!r}")
             value = int(value)
         elif self.kind is float:
             if isinstance(value, bool) or not isinstance(value, (int, float)) or value != value:
                 raise ValueError(f"{self.name}: expected a number, got {value!r}")
             value = float(value)
-        elif self.kind is str:
-            if not isinstance(value, str):
-                raise ValueError(f"{self.name}: expected a string, got {value!r}")
+        elif self.kind is str and not isinstance(value, str):
+            raise ValueError(f"{self.name}: expected a string, got {value!r}")
         if self.choices is not None and value not in self.choices:
             raise ValueError(f"{self.name}: must be one of {list(self.choices)}, got {value!r}")
         if isinstance(value, (int, float)) and not isinstance(value, bool):

@@ -45,9 +45,15 @@ class ExecutiveConfig:
     frame_period_s: float = param(0.1, lo=0.001, hi=10.0, units="s", doc="minor frame period")
     groups: tuple[RateGroupConfig, ...] = param(doc="rate groups, in execution order")
     tasks: tuple[TaskConfig, ...] = param(doc="tasks, in execution order within their group")
-    lag_limit_frames: int = param(3, lo=0, hi=1000, doc="frames behind that are caught up back to back; beyond, skip ahead")
-    slack_margin_s: float = param(0.005, lo=0.0, hi=1.0, units="s", doc="slack work stops this long before the next frame")
-    lockstep_job_slices: int = param(4, lo=1, hi=1000, doc="slack-job slices per frame on the stepped clock (deterministic)")
+    lag_limit_frames: int = param(
+        3, lo=0, hi=1000, doc="frames behind that are caught up back to back; beyond, skip ahead"
+    )
+    slack_margin_s: float = param(
+        0.005, lo=0.0, hi=1.0, units="s", doc="slack work stops this long before the next frame"
+    )
+    lockstep_job_slices: int = param(
+        4, lo=1, hi=1000, doc="slack-job slices per frame on the stepped clock (deterministic)"
+    )
     event_throttle: int = param(5, lo=1, hi=10000, doc="overrun/slip events emitted before the throttle closes")
     throttle_decay_frames: int = param(10, lo=1, hi=100000, doc="good frames that reopen one throttle slot")
     health_warn_frames: int = param(10, lo=1, hi=100000, doc="frames without a ping answer before WARNING_HI")

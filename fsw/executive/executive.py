@@ -45,15 +45,23 @@ class ExecutiveComponent(Task):
         Channel("bus_drops", "count", hi=0, doc="messages dropped by full mailboxes"),
     )
     EVENTS = (
-        EventDef("SKIPPED", Severity.WARNING_HI, "executive {lag} frames behind; skipped ahead to frame {frame}", throttle=5),
-        EventDef("QUEUE_FULL", Severity.WARNING_LO, "mailbox {mailbox} full (depth {depth}, policy {policy}); {dropped} dropped", throttle=5),
+        EventDef(
+            "SKIPPED", Severity.WARNING_HI, "executive {lag} frames behind; skipped ahead to frame {frame}", throttle=5
+        ),
+        EventDef(
+            "QUEUE_FULL",
+            Severity.WARNING_LO,
+            "mailbox {mailbox} full (depth {depth}, policy {policy}); {dropped} dropped",
+            throttle=5,
+        ),
         EventDef("JOB_FAILED", Severity.WARNING_HI, "slack job {owner}.{job} failed: {error}", throttle=5),
         EventDef("JOB_DONE", Severity.DIAGNOSTIC, "slack job {owner}.{job} done in {slices} slices, {busy_ms:.1f} ms"),
         EventDef("TASK_ENABLED", Severity.ACTIVITY_HI, "task {target} enabled={enabled}"),
     )
     COMMANDS = (
-        CommandDef("SET_TASK_ENABLED", (Arg("target", str), Arg("enabled", bool)),
-                   doc="enable or disable a task's activation"),
+        CommandDef(
+            "SET_TASK_ENABLED", (Arg("target", str), Arg("enabled", bool)), doc="enable or disable a task's activation"
+        ),
     )
 
     def cmd_SET_TASK_ENABLED(self, target: str, enabled: bool) -> None:
@@ -77,7 +85,14 @@ class RateGroupComponent(Task):
         Channel("cycles", "count"),
         Channel("slips", "count", hi=0, doc="frames this group was running when the next tick came"),
     )
-    EVENTS = (EventDef("SLIP", Severity.WARNING_HI, "rate group {task} slipped: frame {frame} ran {ms:.1f} ms of a {period_ms:.0f} ms period", throttle=5),)
+    EVENTS = (
+        EventDef(
+            "SLIP",
+            Severity.WARNING_HI,
+            "rate group {task} slipped: frame {frame} ran {ms:.1f} ms of a {period_ms:.0f} ms period",
+            throttle=5,
+        ),
+    )
 
     def __init__(self, name: str, ctx: TaskContext, budget_s: float) -> None:
         super().__init__(name, ctx, budget_s)
@@ -95,8 +110,13 @@ class RateGroupComponent(Task):
 class Executive:
     """Runs the schedule in ``cfg.executive`` on ``clock``."""
 
-    def __init__(self, cfg: Any, clock: Clock, resources: dict[str, Any] | None = None,
-                 timer: Callable[[], float] = time.perf_counter) -> None:
+    def __init__(
+        self,
+        cfg: Any,
+        clock: Clock,
+        resources: dict[str, Any] | None = None,
+        timer: Callable[[], float] = time.perf_counter,
+    ) -> None:
         from fsw.executive.topology import components
 
         ecfg = cfg.executive
@@ -105,10 +125,19 @@ class Executive:
         self.telemetry = TelemetryStore()
         self.events = EventLog(clock.now)
         self.commands = CommandDispatcher(on_response=self._on_response)
-        self.jobs = JobScheduler()
+        self.jobs = JobScheduler(timer=timer)
         self.bus = SoftwareBus(ecfg.queue_depth, on_drop=self._on_drop)
-        self.ctx = TaskContext(cfg, clock, self.telemetry, self.events, self.commands, self.bus,
-                               self.jobs, self.period_s, dict(resources or {}))
+        self.ctx = TaskContext(
+            cfg,
+            clock,
+            self.telemetry,
+            self.events,
+            self.commands,
+            self.bus,
+            self.jobs,
+            self.period_s,
+            dict(resources or {}),
+        )
         self.ctx.resources["executive"] = self
         self.frame = 0
         self.slips = 0
@@ -167,8 +196,9 @@ class Executive:
             owner.event("COMMAND_REFUSED", command=req.name, status=resp.status.name, reason=resp.message)
 
     def _on_drop(self, box: Mailbox[Any]) -> None:
-        self.exec_component.event("QUEUE_FULL", mailbox=box.name, depth=box.depth,
-                                  policy=box.policy, dropped=box.dropped)
+        self.exec_component.event(
+            "QUEUE_FULL", mailbox=box.name, depth=box.depth, policy=box.policy, dropped=box.dropped
+        )
 
     # -- one frame ------------------------------------------------------------------------
     def step(self) -> None:
@@ -305,5 +335,4 @@ class Executive:
         arr = np.asarray(self.lateness_s) * 1e3
         if arr.size == 0:
             return {"p50": float("nan"), "p99": float("nan"), "max": float("nan")}
-        return {"p50": float(np.percentile(arr, 50)), "p99": float(np.percentile(arr, 99)),
-                "max": float(arr.max())}
+        return {"p50": float(np.percentile(arr, 50)), "p99": float(np.percentile(arr, 99)), "max": float(arr.max())}

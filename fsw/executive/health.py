@@ -46,7 +46,9 @@ class HealthTask(Task):
     )
     EVENTS = (
         EventDef("TASK_LATE", Severity.WARNING_HI, "task {target} has not answered for {frames} frames"),
-        EventDef("TASK_HUNG", Severity.FATAL, "task {target} hung: no answer for {frames} frames; watchdog no longer stroked"),
+        EventDef(
+            "TASK_HUNG", Severity.FATAL, "task {target} hung: no answer for {frames} frames; watchdog no longer stroked"
+        ),
         EventDef("TASK_RECOVERED", Severity.ACTIVITY_HI, "task {target} answering again"),
     )
 

@@ -39,14 +39,14 @@ class JobHandle:
 class JobScheduler:
     """Round-robin runner of slack jobs."""
 
-    def __init__(self, max_jobs: int = 16) -> None:
+    def __init__(self, max_jobs: int = 16, timer: Callable[[], float] = time.perf_counter) -> None:
         self.max_jobs = max_jobs
+        self.timer = timer
         self._jobs: deque[tuple[JobHandle, Job]] = deque()
         self.completed = 0
         self.failed = 0
 
-    def submit(self, gen: Job, name: str, owner: str,
-               on_done: Callable[[JobHandle], None] | None = None) -> JobHandle:
+    def submit(self, gen: Job, name: str, owner: str, on_done: Callable[[JobHandle], None] | None = None) -> JobHandle:
         if len(self._jobs) >= self.max_jobs:
             raise RuntimeError(f"slack job queue full ({self.max_jobs}); {owner}.{name} refused")
         handle = JobHandle(name, owner, on_done=on_done)
@@ -65,19 +65,19 @@ class JobScheduler:
                 gen.close()
                 self._finish(handle, error=RuntimeError("cancelled"))
                 continue
-            t0 = time.perf_counter()
+            t0 = self.timer()
             try:
                 next(gen)
             except StopIteration as stop:
-                handle.busy_s += time.perf_counter() - t0
+                handle.busy_s += self.timer() - t0
                 handle.slices += 1
                 self._finish(handle, result=stop.value)
                 return handle
             except Exception as exc:  # noqa: BLE001 - a failing job is reported, not fatal
-                handle.busy_s += time.perf_counter() - t0
+                handle.busy_s += self.timer() - t0
                 self._finish(handle, error=exc)
                 return handle
-            handle.busy_s += time.perf_counter() - t0
+            handle.busy_s += self.timer() - t0
             handle.slices += 1
             self._jobs.append((handle, gen))
             return handle

@@ -48,17 +48,48 @@ def components(cfg: Any) -> list[Component]:
 
 def dictionary(cfg: Any) -> dict[str, Any]:
     """The ground dictionary (channels, events, commands) generated from the declarations."""
-    chans, events, cmds = [], [], []
+    chans: list[dict[str, Any]] = []
+    events: list[dict[str, Any]] = []
+    cmds: list[dict[str, Any]] = []
     for comp in components(cfg):
         for c in comp.cls.all_channels():
-            chans.append({"id": len(chans) + 1, "name": f"{comp.name}.{c.name}", "units": c.units,
-                          "lo": c.lo, "hi": c.hi, "doc": c.doc})
+            chans.append(
+                {
+                    "id": len(chans) + 1,
+                    "name": f"{comp.name}.{c.name}",
+                    "units": c.units,
+                    "lo": c.lo,
+                    "hi": c.hi,
+                    "doc": c.doc,
+                }
+            )
         for e in comp.cls.all_events():
-            events.append({"id": len(events) + 1, "name": f"{comp.name}.{e.name}",
-                           "severity": e.severity.name, "format": e.fmt, "throttle": e.throttle})
+            events.append(
+                {
+                    "id": len(events) + 1,
+                    "name": f"{comp.name}.{e.name}",
+                    "severity": e.severity.name,
+                    "format": e.fmt,
+                    "throttle": e.throttle,
+                }
+            )
         for j, cd in enumerate(comp.cls.all_commands()):
-            cmds.append({"opcode": comp.opcode_base + j, "name": f"{comp.name}.{cd.name}", "doc": cd.doc,
-                         "args": [{"name": a.name, "type": a.kind.__name__, "lo": a.lo, "hi": a.hi,
-                                   "choices": list(a.choices) if a.choices else None, "units": a.units}
-                                  for a in cd.args]})
+            cmds.append(
+                {
+                    "opcode": comp.opcode_base + j,
+                    "name": f"{comp.name}.{cd.name}",
+                    "doc": cd.doc,
+                    "args": [
+                        {
+                            "name": a.name,
+                            "type": a.kind.__name__,
+                            "lo": a.lo,
+                            "hi": a.hi,
+                            "choices": list(a.choices) if a.choices else None,
+                            "units": a.units,
+                        }
+                        for a in cd.args
+                    ],
+                }
+            )
     return {"channels": chans, "events": events, "commands": cmds}

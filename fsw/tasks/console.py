@@ -30,6 +30,9 @@ class ConsoleTask(Task):
     def run(self, frame: int) -> None:
         exe = self.ctx.resources["executive"]
         worst = max(((t.max_s, n) for n, t in exe.tasks.items() if n != "exec"), default=(0.0, "-"))
-        print(f"[{self.ctx.clock.now():9.2f}] frame {frame:6d}  slips {exe.slips}  "
-              f"overruns {sum(t.overruns for t in exe.tasks.values())}  "
-              f"jobs {exe.jobs.pending}  worst task {worst[1]} {worst[0] * 1e3:.2f} ms", file=self.out)
+        print(
+            f"[{self.ctx.clock.now():9.2f}] frame {frame:6d}  slips {exe.slips}  "
+            f"overruns {sum(t.overruns for t in exe.tasks.values())}  "
+            f"jobs {exe.jobs.pending}  worst task {worst[1]} {worst[0] * 1e3:.2f} ms",
+            file=self.out,
+        )

@@ -20,8 +20,11 @@ class BusyTask(Task):
 
     KIND: ClassVar[str] = "busy"
     CHANNELS = (Channel("work_ms", "ms", doc="commanded busy time per activation"),)
-    COMMANDS = (CommandDef("SET_WORK", (Arg("work_ms", float, lo=0.0, hi=10000.0, units="ms"),),
-                           doc="set the busy time per activation"),)
+    COMMANDS = (
+        CommandDef(
+            "SET_WORK", (Arg("work_ms", float, lo=0.0, hi=10000.0, units="ms"),), doc="set the busy time per activation"
+        ),
+    )
 
     def setup(self) -> None:
         self.work_s = 0.0

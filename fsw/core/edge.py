@@ -1,0 +1,263 @@
+"""The cliff edge from the elevation map (ALGORITHM.md §2).
+
+1. Edge points. The *safe region* is the mapped plateau: cells within ``plateau_tol_m`` of
+   the rover's ground height, in connected pieces of at least ``min_region_cells``. A safe
+   cell is an edge cell when, looking outward across its boundary in one of the eight grid
+   directions, the first mapped cell within ``search_m`` lies more than ``step_m`` lower
+   (cells in between may be unknown: the ground right under a drop is occluded from the
+   plateau). The edge point is placed on the cell's outer side, half a cell out. The plain
+   frontier of the map (safe cells next to unknown cells with no drop behind them) and holes
+   inside the plateau are not edges.
+2. Fits. Method 4/5: the best-fit non-convex polygon of the safe region (OpenCV contours,
+   then Douglas-Peucker simplification by ``simplify_m``); the edge is the part of its
+   boundary that runs along the edge points. Method 3: one straight segment, the total least
+   squares line through the edge points, spanning them.
+3. Every fit gives the edge as lines oriented with the safe side on the LEFT, the unsafe
+   region beyond it (a one-sided band ``keepout_depth_m`` deep, used by the geofence) and a
+   path along the edge set back into the safe side (the candidate rover positions of §3).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import shapely
+from numpy.typing import NDArray
+from scipy import ndimage
+from shapely.geometry import LineString, MultiLineString, Polygon
+from shapely.geometry.base import BaseGeometry
+
+from fsw.config import param
+from fsw.core.elevation_map import ElevationMap
+
+F64 = NDArray[np.float64]
+_DIRS = ((0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1), (-1, 0), (-1, 1))  # (dy, dx)
+
+
+@dataclass(frozen=True)
+class EdgeConfig:
+    """Edge extraction and fitting (config ``[edge]``)."""
+
+    step_m: float = param(0.10, lo=0.005, hi=10.0, units="m", doc="drop that makes an edge")
+    plateau_tol_m: float = param(
+        0.05, lo=0.001, hi=5.0, units="m", doc="a safe cell is within this of the ground height"
+    )
+    search_m: float = param(
+        0.6, lo=0.0, hi=10.0, units="m", doc="how far past the plateau to look for the drop"
+    )
+    min_region_cells: int = param(30, lo=1, hi=10**7, doc="smallest safe-region piece kept")
+    simplify_m: float = param(0.03, lo=0.0, hi=1.0, units="m", doc="polygon simplification")
+    match_m: float = param(
+        0.06, lo=0.0, hi=1.0, units="m", doc="polygon vertices this close to edge points are edge"
+    )
+    min_edge_len_m: float = param(0.15, lo=0.0, hi=100.0, units="m", doc="shorter runs dropped")
+    keepout_depth_m: float = param(
+        4.0, lo=0.1, hi=100.0, units="m", doc="depth of the unsafe band beyond the edge"
+    )
+    setback_m: float = param(
+        0.75, lo=0.0, hi=10.0, units="m", doc="path offset from the edge (body centre)"
+    )
+    path_spacing_m: float = param(0.25, lo=0.01, hi=10.0, units="m")
+
+
+@dataclass(frozen=True)
+class EdgeCells:
+    """Edge points (M, 2) world x, y, and the safe-region mask they bound."""
+
+    points_xy: F64
+    safe: NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class EdgeModel:
+    """A fitted edge. ``lines`` run with the safe side on their left."""
+
+    method: str  # "polygon" (Methods 4/5) or "line" (Method 3)
+    points_xy: F64
+    lines: MultiLineString
+    safe_polygon: Polygon | None
+
+    @property
+    def empty(self) -> bool:
+        return self.lines.is_empty
+
+    def unsafe_region(self, depth_m: float) -> BaseGeometry:
+        """The band beyond the edge (right of each line), ``depth_m`` deep."""
+        if self.empty:
+            return Polygon()
+        parts = [ln.buffer(-depth_m, single_sided=True, join_style="mitre")
+                 for ln in self.lines.geoms]
+        return shapely.union_all(parts)
+
+    def mean_distance_to(self, truth_xy: F64, step_m: float) -> float:
+        """Mean distance from points sampled every ``step_m`` along the fit to a polyline."""
+        if self.empty:
+            return float("nan")
+        pts = sample_lines(self.lines, step_m)
+        truth = LineString(np.asarray(truth_xy, dtype=np.float64))
+        return float(np.mean(shapely.distance(shapely.points(pts), truth)))
+
+
+def edge_cells(emap: ElevationMap, ground_z_m: float, cfg: EdgeConfig) -> EdgeCells:
+    """Edge points of the map: safe cells whose outward neighbour run ends in a drop (§2)."""
+    z = emap.z
+    mapped = emap.mapped & np.isfinite(z)
+    safe = mapped & (np.abs(z - ground_z_m) <= cfg.plateau_tol_m)
+    lab, nlab = ndimage.label(safe, structure=np.ones((3, 3)))
+    if nlab:
+        sizes = np.bincount(lab.ravel(), minlength=nlab + 1)
+        sizes[0] = 0
+        safe = sizes[lab] >= cfg.min_region_cells
+    lower = mapped & (z < ground_z_m - cfg.step_m)
+    unknown = ~mapped
+    k_max = max(1, int(round(cfg.search_m / emap.grid.cell)))
+    hit_dirs = np.zeros(z.shape + (2,))
+    for dy, dx in _DIRS:
+        reach = max(1, int(round(k_max / np.hypot(dy, dx))))
+        open_ = safe.copy()
+        found = np.zeros_like(safe)
+        for k in range(1, reach + 1):
+            nb_lower = _shift(lower, -k * dy, -k * dx)
+            nb_unknown = _shift(unknown, -k * dy, -k * dx)
+            found |= open_ & nb_lower
+            open_ &= nb_unknown
+            if not open_.any():
+                break
+        norm = np.hypot(dy, dx)
+        hit_dirs[found] += (dx / norm, dy / norm)
+    is_edge = np.linalg.norm(hit_dirs, axis=2) > 1e-9
+    iy, ix = np.nonzero(is_edge)
+    g = emap.grid
+    dvec = hit_dirs[iy, ix]
+    dvec /= np.linalg.norm(dvec, axis=1, keepdims=True)
+    px = g.x0 + (ix + 0.5) * g.cell + 0.5 * g.cell * dvec[:, 0]
+    py = g.y0 + (iy + 0.5) * g.cell + 0.5 * g.cell * dvec[:, 1]
+    return EdgeCells(np.column_stack([px, py]), safe)
+
+
+def _shift(a: NDArray[np.bool_], sy: int, sx: int) -> NDArray[np.bool_]:
+    """``out[i, j] = a[i - sy, j - sx]`` (False where out of range)."""
+    out = np.zeros_like(a)
+    ny, nx = a.shape
+    ys, yd = (slice(0, ny - sy), slice(sy, ny)) if sy >= 0 else (slice(-sy, ny), slice(0, ny + sy))
+    xs, xd = (slice(0, nx - sx), slice(sx, nx)) if sx >= 0 else (slice(-sx, nx), slice(0, nx + sx))
+    out[yd, xd] = a[ys, xs]
+    return out
+
+
+def fit_polygon(emap: ElevationMap, cells: EdgeCells, cfg: EdgeConfig) -> EdgeModel:
+    """Methods 4/5: non-convex polygon of the safe region; its edge part as lines (§2)."""
+    empty = EdgeModel("polygon", cells.points_xy, MultiLineString(), None)
+    if cells.points_xy.shape[0] < 2:
+        return empty
+    g = emap.grid
+    mask = cells.safe.astype(np.uint8)
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    polys = []
+    for c in contours:
+        if c.shape[0] < 3:
+            continue
+        xy = c.reshape(-1, 2).astype(np.float64)
+        # contour vertices are boundary cell centres; push them half a cell outward later
+        poly = Polygon(np.column_stack([g.x0 + (xy[:, 0] + 0.5) * g.cell,
+                                        g.y0 + (xy[:, 1] + 0.5) * g.cell])).buffer(0)
+        if not poly.is_empty:
+            polys.append(poly.buffer(0.5 * g.cell, join_style="mitre"))
+    if not polys:
+        return empty
+    region = shapely.union_all(polys).simplify(cfg.simplify_m)
+    geoms = list(getattr(region, "geoms", [region]))
+    edge_pts = shapely.points(cells.points_xy)
+    tree = shapely.STRtree(edge_pts)
+    runs = []
+    for poly in geoms:
+        poly = shapely.geometry.polygon.orient(poly, 1.0)  # CCW: inside on the left
+        ring = _densify(np.asarray(poly.exterior.coords), g.cell)
+        near = tree.query(shapely.points(ring), predicate="dwithin", distance=cfg.match_m)
+        flag = np.zeros(ring.shape[0], bool)
+        flag[np.unique(near[0])] = True
+        runs += _runs(ring, flag, cfg)
+    model_poly = geoms[0] if len(geoms) == 1 else max(geoms, key=lambda p: p.area)
+    return EdgeModel("polygon", cells.points_xy, MultiLineString(runs), model_poly)
+
+
+def _densify(ring: F64, step: float) -> F64:
+    line = LineString(ring)
+    n = max(2, int(np.ceil(line.length / step)) + 1)
+    return np.asarray(shapely.get_coordinates(
+        shapely.line_interpolate_point(line, np.linspace(0.0, line.length, n))))
+
+
+def _runs(ring: F64, flag: NDArray[np.bool_], cfg: EdgeConfig) -> list[LineString]:
+    """Maximal runs of flagged vertices along a closed ring, as simplified lines."""
+    if flag.all():
+        return [LineString(ring).simplify(cfg.simplify_m)]
+    start = int(np.argmin(flag))  # rotate so the ring starts on an unflagged vertex
+    ring, flag = np.roll(ring[:-1], -start, axis=0), np.roll(flag[:-1], -start)
+    edges = np.diff(np.concatenate([[0], flag.astype(np.int8), [0]]))
+    out = []
+    for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
+        if b - a >= 2:
+            ln = LineString(ring[a:b]).simplify(cfg.simplify_m)
+            if ln.length >= cfg.min_edge_len_m:
+                out.append(ln)
+    return out
+
+
+def fit_line(cells: EdgeCells, safe_xy: tuple[float, float]) -> EdgeModel:
+    """Method 3: the edge as one straight segment (total least squares), safe side on the left."""
+    pts = cells.points_xy
+    if pts.shape[0] < 2:
+        return EdgeModel("line", pts, MultiLineString(), None)
+    c = pts.mean(axis=0)
+    _, _, vt = np.linalg.svd(pts - c, full_matrices=False)
+    d = vt[0]
+    s = (pts - c) @ d
+    a, b = c + s.min() * d, c + s.max() * d
+    to_safe = np.asarray(safe_xy, dtype=np.float64) - c
+    if d[0] * to_safe[1] - d[1] * to_safe[0] < 0:  # safe point must be on the left
+        a, b = b, a
+    return EdgeModel("line", pts, MultiLineString([LineString([a, b])]), None)
+
+
+def sample_lines(lines: MultiLineString, step_m: float) -> F64:
+    out = []
+    for ln in lines.geoms:
+        n = max(2, int(np.ceil(ln.length / step_m)) + 1)
+        out.append(shapely.get_coordinates(
+            shapely.line_interpolate_point(ln, np.linspace(0.0, ln.length, n))))
+    return np.concatenate(out) if out else np.zeros((0, 2))
+
+
+def edge_path(model: EdgeModel, setback_m: float, spacing_m: float) -> F64:
+    """Rover poses ``(x, y, yaw)`` along the edge, ``setback_m`` into the safe side (§2, §3).
+
+    Each edge line is offset to its left; points closer than ``setback_m`` to any edge line
+    (inside corners of the offset) are dropped. Yaw follows the edge direction.
+    """
+    if model.empty:
+        return np.zeros((0, 3))
+    edge = model.lines
+    out = []
+    for ln in edge.geoms:
+        off = ln.offset_curve(setback_m, join_style="round")
+        for part in getattr(off, "geoms", [off]):
+            if part.is_empty or part.length == 0:
+                continue
+            n = max(2, int(np.floor(part.length / spacing_m)) + 1)
+            s = np.linspace(0.0, part.length, n)
+            p = shapely.get_coordinates(shapely.line_interpolate_point(part, s))
+            q = shapely.get_coordinates(
+                shapely.line_interpolate_point(part, np.minimum(s + 1e-3, part.length)))
+            r = shapely.get_coordinates(
+                shapely.line_interpolate_point(part, np.maximum(s - 1e-3, 0.0)))
+            t = q - r
+            yaw = np.arctan2(t[:, 1], t[:, 0])
+            out.append(np.column_stack([p, yaw]))
+    if not out:
+        return np.zeros((0, 3))
+    poses = np.concatenate(out)
+    dist = shapely.distance(shapely.points(poses[:, :2]), edge)
+    return np.asarray(poses[dist >= setback_m - 1e-6 - 0.01 * setback_m])

@@ -1,0 +1,236 @@
+"""The 2.5D elevation map and its fusion of measured points (ALGORITHM.md §1, §1.1, §3.4, §4).
+
+Cell state (arrays ``(ny, nx)``, index ``[iy, ix]`` as ``fsw.core.geometry.MapGrid``):
+``z`` fused elevation (m), ``var`` its variance (m^2), ``n`` merged measurements (capped by
+``n_max``), ``interest`` the interest function IF (starts at 1), ``misses`` unsuccessful
+measurements, ``outliers`` measurements refused by the gate.
+
+Unknown-cell convention: an unknown cell has ``z = NaN``, ``var = inf`` and ``n = 0``; it is
+*mapped* once ``n >= 1``. Nothing else marks a cell as known.
+
+One ``merge`` call is one view. Its points are first reduced per cell (a vectorized
+``np.bincount``): the inverse-variance mean of the points in the cell is the view's
+measurement ``zm`` of that cell. Points of one view in one cell share the camera pose error
+and overlapping matching windows, so their errors are correlated; with equicorrelation
+``rho`` (``point_correlation``) the measurement variance is ``vm = (1 + (k-1) rho) / sum(1/v)``
+for ``k`` points (``rho = 1``: the view counts as one measurement, ``rho = 0``: independent
+points). ``n`` counts views, not points.
+
+A point's vertical variance ``v`` is ``P_zz`` of its world covariance (§1.2) plus, when the
+full covariance is given, the slope term: a horizontal error ``dxy`` moves the point to
+terrain of another height, so the error in the cell's height is ``dz - g.dxy`` with ``g``
+the local gradient, ``v = P_zz - 2 g.P_xyz + g^T P_xy g``; and the cell-footprint term
+``|g|^2 cell^2 / 12`` (a point samples one spot of a sloping cell whose truth is its mean).
+
+The view's measurement is fused into the map by the 1-D Kalman update of §1.1; a
+measurement whose Mahalanobis distance ``|zm - z| / sqrt(var + vm)`` exceeds ``gate_sigma``
+is not averaged in: the cell's ``outliers`` count goes up and its ``var`` is multiplied by
+``outlier_var_factor`` so that a real change is accepted after a few views.
+
+Misses (§4, §3.4): given the visibility probability ``P_V`` of each cell for this view (or a
+boolean mask, ``P_V = 1``), every cell with ``P_V > 0`` that got no point has its interest
+multiplied by ``exp(-beta P_V)``; those with ``P_V >= miss_pv_threshold`` count a miss.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.config import param
+from fsw.core.geometry import MapGrid
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """Map fusion parameters (config ``[fusion]``)."""
+
+    n_max: int = param(10, lo=1, hi=100000, doc="cap of the merged-measurement count n")
+    gate_sigma: float = param(
+        3.0, lo=0.5, hi=100.0, units="sigma", doc="Mahalanobis gate of a cell measurement"
+    )
+    outlier_var_factor: float = param(
+        4.0, lo=1.0, hi=1e6, doc="a cell's variance is multiplied by this on an outlier"
+    )
+    point_correlation: float = param(
+        1.0, lo=0.0, hi=1.0, doc="error correlation of points of one view in one cell"
+    )
+    slope_term: bool = param(True, doc="add the slope and cell-footprint terms to the variance")
+    min_var_m2: float = param(1e-8, lo=0.0, hi=1.0, units="m^2", doc="variance floor per point")
+    max_var_m2: float = param(
+        0.25, lo=1e-8, hi=1e6, units="m^2", doc="points with a larger variance are dropped"
+    )
+    miss_pv_threshold: float = param(
+        0.5, lo=0.0, hi=1.0, doc="P_V at or above which a cell without a point counts a miss"
+    )
+    interest_beta: float = param(1.0, lo=0.0, hi=100.0, doc="interest decay rate beta (§3.4)")
+
+
+@dataclass(frozen=True)
+class MergeStats:
+    """What one ``merge`` did."""
+
+    points_in: int
+    points_used: int
+    cells_measured: int
+    cells_new: int
+    cells_fused: int
+    outliers: int
+    misses: int
+
+
+class ElevationMap:
+    """Elevation grid with variance, count, interest function and misses (§1)."""
+
+    def __init__(self, grid: MapGrid, cfg: FusionConfig | None = None) -> None:
+        self.grid = grid
+        self.cfg = cfg or FusionConfig()
+        self.n_max = self.cfg.n_max
+        shape = grid.shape
+        self.z = np.full(shape, np.nan)
+        self.var = np.full(shape, np.inf)
+        self.n = np.zeros(shape, np.int32)
+        self.interest = np.ones(shape)
+        self.misses = np.zeros(shape, np.int32)
+        self.outliers = np.zeros(shape, np.int32)
+
+    @property
+    def mapped(self) -> NDArray[np.bool_]:
+        return self.n >= 1
+
+    @property
+    def sigma(self) -> F64:
+        return np.sqrt(self.var)
+
+    def copy(self) -> ElevationMap:
+        out = ElevationMap(self.grid, self.cfg)
+        for name in ("z", "var", "n", "interest", "misses", "outliers"):
+            setattr(out, name, getattr(self, name).copy())
+        return out
+
+    def merge(
+        self,
+        xyz: F64,
+        var_z: F64 | None = None,
+        cov: F64 | None = None,
+        p_visible: NDArray[np.floating] | NDArray[np.bool_] | None = None,
+    ) -> MergeStats:
+        """Fuse one view's world points (§1.1) and record its misses (§4).
+
+        ``xyz`` (N, 3) world points; either ``var_z`` (N,) vertical variances or ``cov``
+        (N, 3, 3) world covariances (enables the slope term). ``p_visible`` (ny, nx): the
+        probability that each cell was visible in this view, or a boolean mask.
+        """
+        xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+        n_in = xyz.shape[0]
+        if cov is not None:
+            cov = np.asarray(cov, dtype=np.float64).reshape(-1, 3, 3)
+            if cov.shape[0] != n_in:
+                raise ValueError(f"cov has {cov.shape[0]} rows for {n_in} points")
+            v = cov[:, 2, 2].copy()
+        elif var_z is not None:
+            v = np.asarray(var_z, dtype=np.float64).reshape(-1).copy()
+            if v.shape[0] != n_in:
+                raise ValueError(f"var_z has {v.shape[0]} rows for {n_in} points")
+        else:
+            raise ValueError("merge needs var_z or cov")
+        g = self.grid
+        iy, ix, inside = g.cell_index(xyz[:, 0], xyz[:, 1])
+        ok = inside & np.isfinite(xyz).all(axis=1) & np.isfinite(v) & (v >= 0)
+        ok &= v <= self.cfg.max_var_m2
+        flat = (iy * g.nx + ix)[ok]
+        z = xyz[ok, 2]
+        v = np.maximum(v[ok], self.cfg.min_var_m2)
+        size = g.nx * g.ny
+        if cov is not None and self.cfg.slope_term and flat.size:
+            v = self._slope_variance(flat, z, v, cov[ok])
+        w = 1.0 / v
+        sw = np.bincount(flat, w, size)
+        swz = np.bincount(flat, w * z, size)
+        k = np.bincount(flat, minlength=size)
+        cells = np.flatnonzero(k)
+        zm = swz[cells] / sw[cells]
+        rho = self.cfg.point_correlation
+        vm = (1.0 + (k[cells] - 1) * rho) / sw[cells]
+        new, fused, outl = self._fuse(cells, zm, vm)
+        n_miss = 0
+        if p_visible is not None:
+            n_miss = self.record_misses(p_visible, hit=k.reshape(g.shape) > 0)
+        return MergeStats(n_in, int(flat.size), int(cells.size), new, fused, outl, n_miss)
+
+    def _slope_variance(self, flat: NDArray[np.intp], z: F64, v: F64, cov: F64) -> F64:
+        """Per-point vertical variance with the slope and footprint terms (module docstring)."""
+        g = self.grid
+        size = g.nx * g.ny
+        w = 1.0 / v
+        sw = np.bincount(flat, w, size)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            zc = (np.bincount(flat, w * z, size) / sw).reshape(g.shape)
+        zc = np.where(np.isnan(zc), self.z, zc)
+        gy, gx = _nan_gradient(zc, g.cell)
+        gxp, gyp = gx.reshape(-1)[flat], gy.reshape(-1)[flat]
+        slope_v = (
+            v
+            - 2.0 * (gxp * cov[:, 0, 2] + gyp * cov[:, 1, 2])
+            + gxp * gxp * cov[:, 0, 0] + 2.0 * gxp * gyp * cov[:, 0, 1] + gyp * gyp * cov[:, 1, 1]
+        )
+        footprint = (gxp * gxp + gyp * gyp) * g.cell**2 / 12.0
+        return np.maximum(slope_v, self.cfg.min_var_m2) + footprint
+
+    def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64) -> tuple[int, int, int]:
+        """Inverse-variance update of the given flat cells with a Mahalanobis gate (§1.1)."""
+        z, var, n = self.z.reshape(-1), self.var.reshape(-1), self.n.reshape(-1)
+        z0, v0, n0 = z[cells], var[cells], n[cells]
+        empty = n0 == 0
+        with np.errstate(invalid="ignore"):
+            d = np.abs(zm - z0) / np.sqrt(v0 + vm)
+        outlier = ~empty & (d > self.cfg.gate_sigma)
+        inlier = ~empty & ~outlier
+        z_new = np.where(empty, zm, z0)
+        v_new = np.where(empty, vm, v0)
+        zi, vi, mi, vmi = z0[inlier], v0[inlier], zm[inlier], vm[inlier]
+        z_new[inlier] = (vmi * zi + vi * mi) / (vi + vmi)
+        v_new[inlier] = vi * vmi / (vi + vmi)
+        v_new[outlier] = v0[outlier] * self.cfg.outlier_var_factor
+        z[cells], var[cells] = z_new, v_new
+        n[cells] = np.where(outlier, n0, np.minimum(n0 + 1, self.n_max))
+        self.outliers.reshape(-1)[cells[outlier]] += 1
+        return int(empty.sum()), int(inlier.sum()), int(outlier.sum())
+
+    def record_misses(
+        self,
+        p_visible: NDArray[np.floating] | NDArray[np.bool_],
+        hit: NDArray[np.bool_],
+    ) -> int:
+        """Interest decay and miss count for cells expected visible that got no point (§3.4)."""
+        pv = np.asarray(p_visible)
+        if pv.shape != self.grid.shape:
+            raise ValueError(f"p_visible must have shape {self.grid.shape}, got {pv.shape}")
+        pv = pv.astype(np.float64)
+        if not np.isfinite(pv).all() or pv.min() < 0.0 or pv.max() > 1.0:
+            raise ValueError("p_visible must lie in [0, 1]")
+        empty = ~hit & (pv > 0.0)
+        self.interest[empty] *= np.exp(-self.cfg.interest_beta * pv[empty])
+        missed = empty & (pv >= self.cfg.miss_pv_threshold)
+        self.misses[missed] += 1
+        return int(missed.sum())
+
+
+def _nan_gradient(zc: F64, cell_m: float) -> tuple[F64, F64]:
+    """Central-difference gradient (d/dy, d/dx) that falls back to one-sided next to NaNs."""
+    pad = np.pad(zc, 1, constant_values=np.nan)
+    c = pad[1:-1, 1:-1]
+    out = []
+    xp, xm = pad[1:-1, 2:], pad[1:-1, :-2]
+    yp, ym = pad[2:, 1:-1], pad[:-2, 1:-1]
+    for p, m in ((yp, ym), (xp, xm)):
+        central = (p - m) / (2.0 * cell_m)
+        fwd = (p - c) / cell_m
+        bwd = (c - m) / cell_m
+        gr = np.where(np.isnan(central), np.where(np.isnan(fwd), bwd, fwd), central)
+        out.append(np.nan_to_num(gr, nan=0.0))
+    return out[0], out[1]

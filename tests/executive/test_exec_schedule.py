@@ -1,0 +1,283 @@
+"""Issue 2: rate groups, budgets, overruns, slips, slack jobs, health and the watchdog.
+
+All on the stepped clock with an injected execution timer, so the tests are exact and
+independent of machine load.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import pytest
+
+from fsw.config import build
+from fsw.executive.clock import SteppedClock
+from fsw.executive.executive import Executive
+from fsw.executive.health import SoftwareWatchdog
+from fsw.executive.task import Task
+from fsw.settings import FswConfig
+from fsw.tasks import registry
+
+
+class FakeTimer:
+    """Execution-time source that tasks advance explicitly ("CPU time" they burn)."""
+
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+TIMER = FakeTimer()
+
+
+class RecorderTask(Task):
+    KIND: ClassVar[str] = "test_recorder"
+    cost_s: ClassVar[dict[str, float]] = {}
+    log: ClassVar[list[tuple[int, str]]] = []
+
+    def run(self, frame: int) -> None:
+        RecorderTask.log.append((frame, self.name))
+        TIMER.t += RecorderTask.cost_s.get(self.name, 0.0)
+
+
+class FailingTask(Task):
+    KIND: ClassVar[str] = "test_failing"
+
+    def run(self, frame: int) -> None:
+        raise RuntimeError("device unplugged")
+
+
+registry.KINDS["test_recorder"] = f"{__name__}:RecorderTask"
+registry.KINDS["test_failing"] = f"{__name__}:FailingTask"
+
+
+def make_cfg(groups: list[dict[str, Any]], tasks: list[dict[str, Any]], **execu: Any) -> FswConfig:
+    data = {"executive": {"frame_period_s": 0.1, "groups": groups, "tasks": tasks, **execu}}
+    return build(FswConfig, data, source="<test>")
+
+
+def make_exec(cfg: FswConfig, **res: Any) -> Executive:
+    RecorderTask.log.clear()
+    RecorderTask.cost_s.clear()
+    TIMER.t = 0.0
+    return Executive(cfg, SteppedClock(), resources=res, timer=TIMER)
+
+
+def task(name: str, group: str, kind: str = "test_recorder", budget_ms: float = 10.0) -> dict[str, Any]:
+    return {"name": name, "kind": kind, "group": group, "budget_ms": budget_ms}
+
+
+@pytest.mark.parametrize(("divisor", "offset"), [(1, 0), (2, 1), (5, 0), (5, 3), (10, 7)])
+def test_rate_group_firing_pattern(divisor: int, offset: int) -> None:
+    """Issue 2, item 5: a group runs exactly on frames k with k % divisor == offset."""
+    cfg = make_cfg([{"name": "g", "divisor": divisor, "offset": offset}], [task("a", "g")])
+    exe = make_exec(cfg)
+    exe.run_lockstep(40)
+    assert [f for f, _ in RecorderTask.log] == [k for k in range(40) if k % divisor == offset]
+
+
+def test_tasks_run_in_declared_order_across_groups() -> None:
+    """Issue 2, item 5: groups in declared order, tasks in declared order inside each."""
+    cfg = make_cfg(
+        [{"name": "fast", "divisor": 1}, {"name": "slow", "divisor": 2, "offset": 0}],
+        [task("s1", "slow"), task("f1", "fast"), task("f2", "fast")],
+    )
+    exe = make_exec(cfg)
+    exe.run_lockstep(2)
+    assert RecorderTask.log == [(0, "f1"), (0, "f2"), (0, "s1"), (1, "f1"), (1, "f2")]
+
+
+def test_overrun_counted_evented_throttled_and_decaying() -> None:
+    """Issue 2: an injected overrun is counted and evented; the throttle saturates and decays."""
+    cfg = make_cfg(
+        [{"name": "g", "divisor": 1}], [task("t", "g", budget_ms=5.0)], event_throttle=3, throttle_decay_frames=4
+    )
+    exe = make_exec(cfg)
+    RecorderTask.cost_s["t"] = 0.008  # 8 ms against a 5 ms budget
+    exe.run_lockstep(10)
+    t = exe.tasks["t"]
+    assert t.overruns == 10
+    assert exe.events.count("t.OVERRUN") == 10  # counters exact while throttled
+    emitted = [e for e in exe.events.history if e.name == "t.OVERRUN"]
+    assert len(emitted) == 3  # throttle saturated at 3
+    assert exe.events.suppressed("t.OVERRUN") == 7
+    assert exe.telemetry.get("t.overruns") == 10
+    assert exe.telemetry.limit_state("t.overruns") == "high"
+    # Good frames reopen the throttle: one slot per 4 good activations.
+    RecorderTask.cost_s["t"] = 0.001
+    exe.run_lockstep(8)
+    assert not exe.events.throttled("t.OVERRUN")
+    RecorderTask.cost_s["t"] = 0.008
+    exe.run_lockstep(1)
+    assert len([e for e in exe.events.history if e.name == "t.OVERRUN"]) == 4
+    # The max is resettable by command.
+    assert exe.tasks["t"].max_s == pytest.approx(0.008)
+    from fsw.executive.commands import CommandRequest, CommandStatus
+
+    resp = exe.commands.dispatch(CommandRequest("t.RESET_COUNTERS", {}))
+    assert resp.status is CommandStatus.OK
+    assert exe.tasks["t"].max_s == 0.0 and exe.tasks["t"].overruns == 0
+
+
+def test_slip_detected_and_charged_to_running_group() -> None:
+    """Issue 2: a frame whose work runs past the next tick is a slip of the group running then."""
+    cfg = make_cfg(
+        [{"name": "fast", "divisor": 1}, {"name": "slow", "divisor": 4, "offset": 2}],
+        [task("f", "fast"), task("s", "slow", budget_ms=200.0)],
+    )
+    exe = make_exec(cfg)
+    RecorderTask.cost_s.update({"f": 0.01, "s": 0.15})
+    exe.run_lockstep(8)
+    assert exe.slips == 2  # frames 2 and 6
+    assert exe.tasks["rg_slow"].slips == 2 and exe.tasks["rg_fast"].slips == 0
+    assert exe.events.count("rg_slow.SLIP") == 2
+    assert exe.telemetry.get("exec.slips") == 2
+
+
+def test_two_second_slack_job_completes_while_10hz_task_never_misses() -> None:
+    """Issue 2, item 6: a 2 s job runs in slices; the 10 Hz foreground never misses a frame."""
+    cfg = make_cfg([{"name": "fast", "divisor": 1}], [task("fg", "fast")], lockstep_job_slices=2)
+    exe = make_exec(cfg)
+    RecorderTask.cost_s["fg"] = 0.02
+
+    def job() -> Any:
+        total = 0
+        for i in range(80):  # 80 slices x 25 ms = 2 s of work
+            TIMER.t += 0.025
+            total += i
+            yield i
+        return total
+
+    handle = exe.tasks["fg"].submit_job(job(), "long")
+    exe.run_lockstep(60)
+    assert handle.done and handle.error is None and handle.result == sum(range(80))
+    assert handle.busy_s == pytest.approx(2.0)
+    assert handle.slices == 81  # 80 yields + the final resume that returns
+    assert [f for f, n in RecorderTask.log if n == "fg"] == list(range(60))
+    assert exe.slips == 0
+    assert exe.events.count("exec.JOB_DONE") == 1
+
+
+def test_failing_job_is_reported_not_fatal() -> None:
+    """Issue 2, item 6: an exception in a job lands in its handle and raises an event."""
+    cfg = make_cfg([{"name": "fast", "divisor": 1}], [task("fg", "fast")])
+    exe = make_exec(cfg)
+
+    def bad() -> Any:
+        yield 1
+        raise ValueError("singular matrix")
+
+    h = exe.tasks["fg"].submit_job(bad(), "bad")
+    exe.run_lockstep(3)
+    assert h.done and isinstance(h.error, ValueError)
+    assert exe.events.count("exec.JOB_FAILED") == 1
+
+
+def test_hung_task_detected_and_watchdog_starves() -> None:
+    """Issue 2, item 7: health warns then declares a hung task fatal; strokes stop."""
+    cfg = make_cfg(
+        [{"name": "fast", "divisor": 1}, {"name": "slow", "divisor": 10, "offset": 3}],
+        [task("worker", "fast"), task("health", "slow", kind="health")],
+        health_warn_frames=10,
+        health_fatal_frames=30,
+    )
+    clock = SteppedClock()
+    wd = SoftwareWatchdog(clock, timeout_s=1.5)
+    exe = Executive(cfg, clock, resources={"watchdog": wd}, timer=TIMER)
+    exe.run_lockstep(100)
+    assert not wd.expired() and wd.strokes == 10
+    exe.tasks["worker"].hung = True
+    exe.run_lockstep(100)
+    assert exe.events.count("health.TASK_LATE") == 1
+    assert exe.events.count("health.TASK_HUNG") == 1
+    assert wd.expired()
+    assert exe.telemetry.get("health.tasks_fatal") == 1
+    exe.tasks["worker"].hung = False
+    exe.run_lockstep(20)
+    assert exe.events.count("health.TASK_RECOVERED") == 1 and not wd.expired()
+
+
+def test_task_raising_every_frame_is_caught_and_detected() -> None:
+    """Issue 2, items 7/8: exceptions are events (throttled), never crashes; health sees it."""
+    cfg = make_cfg(
+        [{"name": "fast", "divisor": 1}],
+        [task("bad", "fast", kind="test_failing"), task("health", "fast", kind="health")],
+        health_warn_frames=5,
+        health_fatal_frames=10,
+    )
+    exe = make_exec(cfg)
+    exe.run_lockstep(30)
+    assert exe.tasks["bad"].exceptions == 30
+    assert exe.events.count("bad.EXCEPTION") == 30
+    assert exe.events.count("health.TASK_HUNG") == 1
+
+
+def test_stalled_executive_stops_stroking_watchdog() -> None:
+    """Issue 2, item 7: if frames stop running the watchdog expires."""
+    cfg = make_cfg([{"name": "fast", "divisor": 1}], [task("health", "fast", kind="health")])
+    clock = SteppedClock()
+    wd = SoftwareWatchdog(clock, timeout_s=0.5)
+    exe = Executive(cfg, clock, resources={"watchdog": wd}, timer=TIMER)
+    exe.run_lockstep(10)
+    assert not wd.expired()
+    clock.advance(2.0)  # the executive is stuck: time passes, no frame runs
+    assert wd.expired()
+
+
+def test_disable_task_by_command() -> None:
+    """Issue 2, item 8: executive command SET_TASK_ENABLED."""
+    from fsw.executive.commands import CommandRequest, CommandStatus
+
+    cfg = make_cfg([{"name": "fast", "divisor": 1}], [task("a", "fast")])
+    exe = make_exec(cfg)
+    r = exe.commands.dispatch(CommandRequest("exec.SET_TASK_ENABLED", {"target": "a", "enabled": False}))
+    assert r.status is CommandStatus.OK
+    exe.run_lockstep(3)
+    assert RecorderTask.log == []
+    r = exe.commands.dispatch(CommandRequest("exec.SET_TASK_ENABLED", {"target": "zz", "enabled": True}))
+    assert r.status is CommandStatus.EXECUTION_ERROR
+
+
+def test_realtime_clock_absolute_deadlines() -> None:
+    """Issue 2, item 4: frame k starts at start + k*period; a late frame is counted, not drifted."""
+    from fsw.executive.clock import MonotonicClock
+
+    cfg = make_cfg([{"name": "fast", "divisor": 1}], [task("a", "fast")], frame_period_s=0.01, lag_limit_frames=2)
+    exe = Executive(cfg, MonotonicClock())
+    RecorderTask.log.clear()
+    clock = exe.clock
+    t0 = clock.now()
+    exe.run_realtime(20)
+    elapsed = clock.now() - t0
+    assert 0.19 <= elapsed < 0.5  # 20 frames of 10 ms: no accumulated drift beyond one frame
+    assert len(exe.lateness_s) == 20
+
+
+def test_realtime_skip_ahead_past_lag_limit() -> None:
+    """Issue 2, item 5: bounded catch-up; past the lag limit the executive skips and says so."""
+    import time
+
+    from fsw.executive.clock import MonotonicClock
+
+    class Stall(Task):
+        KIND: ClassVar[str] = "test_stall"
+
+        def run(self, frame: int) -> None:
+            if frame == 2:
+                time.sleep(0.08)  # 8 frames of 10 ms
+
+    registry.KINDS["test_stall"] = f"{__name__}:Stall"
+    globals()["Stall"] = Stall
+    cfg = make_cfg(
+        [{"name": "fast", "divisor": 1}],
+        [task("st", "fast", kind="test_stall", budget_ms=50)],
+        frame_period_s=0.01,
+        lag_limit_frames=2,
+    )
+    exe = Executive(cfg, MonotonicClock())
+    exe.run_realtime(10)
+    assert exe.skipped_frames >= 5
+    assert exe.events.count("exec.SKIPPED") == 1
+    assert exe.slips >= 1
