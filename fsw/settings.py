@@ -10,8 +10,19 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from fsw.comm.link import LinkConfig
+from fsw.comm.mavlink_config import MavlinkConfig
 from fsw.config import build, load_toml
+from fsw.core.checkpoint import CheckpointConfig
+from fsw.core.edge import EdgeConfig
+from fsw.core.elevation_map import FusionConfig
+from fsw.core.fiducials import CliffbotLayout
+from fsw.core.geofence import GeofenceConfig
 from fsw.core.geometry import CameraConfig, MapGridConfig, MastConfig, RoverConfig
+from fsw.core.localization import LocalizationConfig
+from fsw.core.mapcodec import CodecConfig
+from fsw.core.nbv import NbvConfig
+from fsw.core.stereo import StereoConfig
 from fsw.executive.config import ExecutiveConfig
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "fsw.toml"
@@ -26,6 +37,17 @@ class FswConfig:
     camera: CameraConfig = field(default_factory=CameraConfig)
     mast: MastConfig = field(default_factory=MastConfig)
     map: MapGridConfig = field(default_factory=MapGridConfig)
+    stereo: StereoConfig = field(default_factory=StereoConfig)
+    fusion: FusionConfig = field(default_factory=FusionConfig)
+    localization: LocalizationConfig = field(default_factory=LocalizationConfig)
+    cliffbot: CliffbotLayout = field(default_factory=CliffbotLayout)
+    edge: EdgeConfig = field(default_factory=EdgeConfig)
+    geofence: GeofenceConfig = field(default_factory=GeofenceConfig)
+    checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
+    mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
+    codec: CodecConfig = field(default_factory=CodecConfig)
+    link: LinkConfig = field(default_factory=LinkConfig)
+    nbv: NbvConfig = field(default_factory=NbvConfig)
 
 
 def load_settings(path: str | Path = DEFAULT_CONFIG) -> FswConfig:

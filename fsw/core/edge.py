@@ -12,9 +12,9 @@
    then Douglas-Peucker simplification by ``simplify_m``); the edge is the part of its
    boundary that runs along the edge points. Method 3: one straight segment, the total least
    squares line through the edge points, spanning them.
-3. Every fit gives the edge as lines oriented with the safe side on the LEFT, the unsafe
-   region beyond it (a one-sided band ``keepout_depth_m`` deep, used by the geofence) and a
-   path along the edge set back into the safe side (the candidate rover positions of §3).
+3. Every fit gives the edge as lines oriented with the safe side on the LEFT, a signed
+   distance to it (positive on the safe side; used by the geofence) and a path along the
+   edge set back into the safe side (the candidate rover positions of §3).
 """
 
 from __future__ import annotations
@@ -27,7 +27,6 @@ import shapely
 from numpy.typing import NDArray
 from scipy import ndimage
 from shapely.geometry import LineString, MultiLineString, Polygon
-from shapely.geometry.base import BaseGeometry
 
 from fsw.config import param
 from fsw.core.elevation_map import ElevationMap
@@ -53,9 +52,6 @@ class EdgeConfig:
         0.06, lo=0.0, hi=1.0, units="m", doc="polygon vertices this close to edge points are edge"
     )
     min_edge_len_m: float = param(0.15, lo=0.0, hi=100.0, units="m", doc="shorter runs dropped")
-    keepout_depth_m: float = param(
-        4.0, lo=0.1, hi=100.0, units="m", doc="depth of the unsafe band beyond the edge"
-    )
     setback_m: float = param(
         0.75, lo=0.0, hi=10.0, units="m", doc="path offset from the edge (body centre)"
     )
@@ -83,13 +79,56 @@ class EdgeModel:
     def empty(self) -> bool:
         return self.lines.is_empty
 
-    def unsafe_region(self, depth_m: float) -> BaseGeometry:
-        """The band beyond the edge (right of each line), ``depth_m`` deep."""
+    def barrier(self, extend_m: float) -> MultiLineString:
+        """The edge lines, each extended straight by ``extend_m`` past both ends (the edge is
+        taken to go on beyond where the map saw it)."""
+        out = []
+        for ln in self.lines.geoms:
+            c = np.asarray(ln.coords)
+            if extend_m > 0 and len(c) >= 2:
+                t0, t1 = c[0] - c[1], c[-1] - c[-2]
+                c = np.vstack([c[0] + extend_m * t0 / max(np.hypot(*t0), 1e-12), c,
+                               c[-1] + extend_m * t1 / max(np.hypot(*t1), 1e-12)])
+            out.append(LineString(c))
+        return MultiLineString(out)
+
+    def signed_distance(self, xy: F64, extend_m: float = 0.0) -> F64:
+        """Distance of points to the (extended) edge, positive on the safe side (§2).
+
+        The side is that of the nearest point of the edge: the segment's left normal, or at
+        a vertex the mean of its two segments' normals, so bays and capes of a non-convex
+        edge are classified correctly (a one-sided buffer would spill across a narrow bay).
+        """
+        pts = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         if self.empty:
-            return Polygon()
-        parts = [ln.buffer(-depth_m, single_sided=True, join_style="mitre")
-                 for ln in self.lines.geoms]
-        return shapely.union_all(parts)
+            return np.full(pts.shape[0], np.inf)
+        a_l, b_l, na_l, nb_l = [], [], [], []
+        for ln in self.barrier(extend_m).geoms:
+            c = np.asarray(ln.coords)
+            seg = c[1:] - c[:-1]
+            nrm = np.column_stack([-seg[:, 1], seg[:, 0]])
+            nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+            vn = np.vstack([nrm[:1], nrm[:-1] + nrm[1:], nrm[-1:]])  # vertex pseudo-normals
+            a_l.append(c[:-1])
+            b_l.append(c[1:])
+            na_l.append(vn[:-1])
+            nb_l.append(vn[1:])
+        a, b = np.concatenate(a_l), np.concatenate(b_l)
+        na, nb = np.concatenate(na_l), np.concatenate(nb_l)
+        ab = b - a
+        L2 = np.maximum((ab**2).sum(1), 1e-18)
+        ap = pts[:, None, :] - a[None]
+        t = np.clip((ap * ab[None]).sum(2) / L2[None], 0.0, 1.0)  # (M, K)
+        near = a[None] + t[..., None] * ab[None]
+        d2 = ((pts[:, None, :] - near) ** 2).sum(2)
+        j = np.argmin(d2, axis=1)
+        m = np.arange(pts.shape[0])
+        tj = t[m, j]
+        seg_n = np.column_stack([-ab[j, 1], ab[j, 0]])
+        n = np.where((tj <= 0.0)[:, None], na[j], np.where((tj >= 1.0)[:, None], nb[j], seg_n))
+        side = np.sign(((pts - near[m, j]) * n).sum(1))
+        side[side == 0] = 1.0
+        return np.asarray(side * np.sqrt(d2[m, j]))
 
     def mean_distance_to(self, truth_xy: F64, step_m: float) -> float:
         """Mean distance from points sampled every ``step_m`` along the fit to a polyline."""

@@ -59,7 +59,11 @@ class FusionConfig:
     point_correlation: float = param(
         1.0, lo=0.0, hi=1.0, doc="error correlation of points of one view in one cell"
     )
-    slope_term: bool = param(True, doc="add the slope and cell-footprint terms to the variance")
+    slope_term: bool = param(True, doc="add the slope term (horizontal error times gradient)")
+    footprint_term: bool = param(True, doc="add |gradient|^2 cell^2 / 12 per point")
+    subcell_term: bool = param(
+        True, doc="add the points' spread in the cell beyond their noise (sub-cell relief)"
+    )
     min_var_m2: float = param(1e-8, lo=0.0, hi=1.0, units="m^2", doc="variance floor per point")
     max_var_m2: float = param(
         0.25, lo=1e-8, hi=1e6, units="m^2", doc="points with a larger variance are dropped"
@@ -146,16 +150,22 @@ class ElevationMap:
         z = xyz[ok, 2]
         v = np.maximum(v[ok], self.cfg.min_var_m2)
         size = g.nx * g.ny
-        if cov is not None and self.cfg.slope_term and flat.size:
+        if cov is not None and (self.cfg.slope_term or self.cfg.footprint_term) and flat.size:
             v = self._slope_variance(flat, z, v, cov[ok])
         w = 1.0 / v
         sw = np.bincount(flat, w, size)
         swz = np.bincount(flat, w * z, size)
         k = np.bincount(flat, minlength=size)
         cells = np.flatnonzero(k)
-        zm = swz[cells] / sw[cells]
+        kc, swc = k[cells], sw[cells]
+        zm = swz[cells] / swc
         rho = self.cfg.point_correlation
-        vm = (1.0 + (k[cells] - 1) * rho) / sw[cells]
+        vm = (1.0 + (kc - 1) * rho) / swc
+        if self.cfg.subcell_term:
+            swz2 = np.bincount(flat, w * (z - zm[np.searchsorted(cells, flat)]) ** 2, size)
+            spread = swz2[cells] / swc  # weighted variance of the points about their mean
+            excess = np.maximum(spread - kc / swc, 0.0) * kc / np.maximum(kc - 1, 1)
+            vm = vm + np.where(kc >= 2, excess, 0.0)
         new, fused, outl = self._fuse(cells, zm, vm)
         n_miss = 0
         if p_visible is not None:
@@ -173,13 +183,15 @@ class ElevationMap:
         zc = np.where(np.isnan(zc), self.z, zc)
         gy, gx = _nan_gradient(zc, g.cell)
         gxp, gyp = gx.reshape(-1)[flat], gy.reshape(-1)[flat]
-        slope_v = (
-            v
-            - 2.0 * (gxp * cov[:, 0, 2] + gyp * cov[:, 1, 2])
-            + gxp * gxp * cov[:, 0, 0] + 2.0 * gxp * gyp * cov[:, 0, 1] + gyp * gyp * cov[:, 1, 1]
-        )
-        footprint = (gxp * gxp + gyp * gyp) * g.cell**2 / 12.0
-        return np.maximum(slope_v, self.cfg.min_var_m2) + footprint
+        out = v
+        if self.cfg.slope_term:
+            out = (v - 2.0 * (gxp * cov[:, 0, 2] + gyp * cov[:, 1, 2])
+                   + gxp * gxp * cov[:, 0, 0] + 2.0 * gxp * gyp * cov[:, 0, 1]
+                   + gyp * gyp * cov[:, 1, 1])
+        out = np.maximum(out, self.cfg.min_var_m2)
+        if self.cfg.footprint_term:
+            out = out + (gxp * gxp + gyp * gyp) * g.cell**2 / 12.0
+        return out
 
     def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64) -> tuple[int, int, int]:
         """Inverse-variance update of the given flat cells with a Mahalanobis gate (§1.1)."""

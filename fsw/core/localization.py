@@ -56,14 +56,14 @@ def skew(v: F64) -> F64:
     return out
 
 
-def so3_exp(w: F64) -> F64:
+def so3_exp(w: NDArray[np.floating] | cv2.typing.MatLike) -> F64:
     R, _ = cv2.Rodrigues(np.asarray(w, dtype=np.float64).reshape(3, 1))
-    return np.asarray(R)
+    return np.asarray(R, dtype=np.float64)
 
 
 def so3_log(R: F64) -> F64:
     w, _ = cv2.Rodrigues(np.asarray(R, dtype=np.float64))
-    return np.asarray(w).reshape(3)
+    return np.asarray(w, dtype=np.float64).reshape(3)
 
 
 @dataclass(frozen=True)

@@ -8,4 +8,5 @@ KINDS: dict[str, str] = {
     "noop": "fsw.tasks.noop:NoopTask",
     "busy": "fsw.tasks.noop:BusyTask",
     "console": "fsw.tasks.console:ConsoleTask",
+    "mavlink": "fsw.tasks.mavlink_task:MavlinkTask",
 }

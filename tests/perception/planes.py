@@ -44,7 +44,7 @@ def render_plane(
         img = cv2.remap(tex, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
         if flat_box is not None:
             x0, x1, y0, y1 = flat_box
-            img[(X >= x0) & (X <= x1) & (Y >= y0) & (Y <= y1)] = 128.0
+            img[(x0 <= X) & (x1 >= X) & (y0 <= Y) & (y1 >= Y)] = 128.0
         img[s <= 0] = 0.0
         img = img + rng.normal(0, noise_sigma, img.shape)
         out.append(np.clip(np.round(img), 0, 255).astype(np.uint8))

@@ -1,0 +1,128 @@
+"""The RECON-bot to Cliff-bot map link: configuration and the parts both ends share.
+
+ALGORITHM.md §6.6 ("transmit to the Cliff-bot with handshaking and checksums"), built as a
+CFDP class 2 style reliable transfer over a lossy, bandwidth-capped datagram radio:
+
+* :class:`~fsw.comm.link_sender.LinkSender` (RECON-bot) and
+  :class:`~fsw.comm.link_receiver.LinkReceiver` (Cliff-bot) are sans-I/O state machines:
+  ``receive(datagram, now_s)`` takes bytes in, ``poll(now_s)`` returns the datagrams to send
+  now, ``next_deadline_s()`` says when to call ``poll`` again. No sockets, no clock, no
+  threads, so the same code runs in lockstep over a simulated channel, over UDP and over
+  a serial radio modem (``fsw.drivers.radio``).
+* Packet formats: ``fsw.comm.link_packets``; state machines and timers: docs/link.md.
+
+Both ends pace their output to ``rate_bps`` with :class:`Pacer` and report what happens
+as :class:`LinkEvent` records in a bounded queue.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+from fsw.config import param
+
+
+@dataclass(frozen=True)
+class LinkConfig:
+    """Map link parameters (``[link]`` in config/fsw.toml)."""
+
+    transport: str = param("inproc://radio", doc="radio URL: inproc://NAME, udp://HOST:PORT, "
+                           "serial:PORT@BAUD (see fsw.drivers.radio)")
+    peer: str = param("", doc="udp only: the other end's udp://HOST:PORT (empty: reply to sender)")
+    rate_bps: float = param(9600.0, lo=300.0, hi=1e8, units="bit/s",
+                            doc="radio bit rate; every packet is paced to it")
+    segment_bytes: int = param(464, lo=16, hi=8192, units="B", doc="map bytes per DATA packet")
+    max_map_bytes: int = param(1 << 22, lo=1024, hi=1 << 28, units="B",
+                               doc="largest map a receiver accepts (bounds its memory)")
+    offer_retry_s: float = param(2.0, lo=0.05, hi=60.0, units="s",
+                                 doc="first OFFER retry; doubles up to max_backoff_s")
+    max_backoff_s: float = param(16.0, lo=0.1, hi=600.0, units="s")
+    status_period_s: float = param(1.0, lo=0.05, hi=60.0, units="s",
+                                   doc="receiver: STATUS at least this often while data flows")
+    min_status_interval_s: float = param(0.25, lo=0.0, hi=10.0, units="s",
+                                         doc="receiver: STATUS at most this often (PING excepted)")
+    keepalive_s: float = param(5.0, lo=0.1, hi=600.0, units="s",
+                               doc="receiver: STATUS keep-alive on an idle open session")
+    ping_period_s: float = param(1.0, lo=0.05, hi=60.0, units="s",
+                                 doc="sender: PING period while waiting for feedback")
+    stall_timeout_s: float = param(5.0, lo=0.1, hi=600.0, units="s",
+                                   doc="sender: no feedback this long = outage; pause data, PING")
+    reorder_slack_s: float = param(0.25, lo=0.0, hi=60.0, units="s",
+                                   doc="sender: a segment is lost once one sent this much later arrived")
+    give_up_s: float = param(900.0, lo=1.0, hi=86400.0, units="s",
+                             doc="either end: no packet from the peer this long ends the session")
+    fin_linger_s: float = param(30.0, lo=0.0, hi=3600.0, units="s",
+                                doc="receiver: repeat FIN until FIN_ACK or this long")
+    max_bitmap_bytes: int = param(64, lo=1, hi=255, units="B",
+                                  doc="selective-ack window in a STATUS (8 segments per byte)")
+    max_restarts: int = param(3, lo=0, hi=100, doc="sender: resends after a hash mismatch")
+
+    def __post_init__(self) -> None:
+        if self.max_backoff_s < self.offer_retry_s:
+            raise ValueError("max_backoff_s must be at least offer_retry_s")
+        if self.max_map_bytes > 0xFFFF * self.segment_bytes:
+            raise ValueError("max_map_bytes needs more than 65535 segments of segment_bytes")
+
+
+@dataclass(frozen=True)
+class LinkEvent:
+    """Something the operator should know; ``name`` matches the radio task's event table."""
+
+    time_s: float
+    name: str
+    args: dict[str, Any] = field(default_factory=dict)
+
+
+class EventQueue:
+    """Bounded event queue (oldest dropped first; ``dropped`` counts them)."""
+
+    def __init__(self, maxlen: int = 64) -> None:
+        self._q: deque[LinkEvent] = deque(maxlen=maxlen)
+        self.dropped = 0
+
+    def emit(self, now_s: float, name: str, **args: Any) -> None:
+        if len(self._q) == self._q.maxlen:
+            self.dropped += 1
+        self._q.append(LinkEvent(now_s, name, args))
+
+    def pop_all(self) -> list[LinkEvent]:
+        out = list(self._q)
+        self._q.clear()
+        return out
+
+
+class Pacer:
+    """Strict pacing to ``rate_bps``: a packet of ``n`` bytes occupies ``8 n / rate`` seconds."""
+
+    def __init__(self, rate_bps: float) -> None:
+        self.rate_bps = rate_bps
+        self.free_at_s = float("-inf")
+
+    def ready(self, now_s: float) -> bool:
+        return now_s >= self.free_at_s
+
+    def consume(self, nbytes: int, now_s: float) -> None:
+        self.free_at_s = max(self.free_at_s, now_s) + 8.0 * nbytes / self.rate_bps
+
+
+@dataclass
+class LinkStats:
+    """Counters both ends keep (telemetry)."""
+
+    packets_out: int = 0
+    bytes_out: int = 0
+    packets_in: int = 0
+    bad_packets: int = 0  # CRC, format
+    foreign_packets: int = 0  # valid but for another session or state
+    data_sent: int = 0
+    retransmits: int = 0
+    duplicates: int = 0
+    statuses: int = 0
+    pings: int = 0
+
+    def count_out(self, datagram: bytes) -> bytes:
+        self.packets_out += 1
+        self.bytes_out += len(datagram)
+        return datagram

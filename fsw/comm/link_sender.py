@@ -1,0 +1,295 @@
+"""Sending end of the map link (RECON-bot), sans-I/O (ALGORITHM.md §6.6; docs/link.md).
+
+States: ``IDLE -> OFFERING -> SENDING -> DONE``, or ``REJECTED`` / ``FAILED``.
+
+* OFFERING: OFFER (map id, size, segment size, SHA-256) repeated with exponential backoff
+  until ACCEPT (or a STATUS, if the ACCEPT was lost) or REJECT.
+* SENDING: DATA packets paced to the bit rate: retransmissions first (lowest segment
+  first), then new segments in order. Every transmission carries a serial; each STATUS
+  echoes the serial of the last packet that reached the receiver, and a segment that is
+  not acknowledged although a packet sent ``reorder_slack_s`` after it arrived is lost
+  (time-based loss detection as TCP RACK, RFC 8985) and queued for retransmission. When
+  all segments are out, a PING (right away, then every ``ping_period_s``) asks for a STATUS
+  so tail losses are found within a round trip.
+* Outage: no feedback for ``stall_timeout_s`` pauses data and sends only PINGs; the first
+  STATUS after the outage says exactly which segments are missing, so nothing that
+  arrived is sent again. No feedback for ``give_up_s``: FAILED.
+* DONE on FIN(VERIFIED) (answered with FIN_ACK, also for repeated FINs); FIN(HASH_MISMATCH)
+  restarts the transfer, at most ``max_restarts`` times.
+
+Memory: the map itself plus a few bytes per segment and a 1024-entry serial ring.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import heapq
+from enum import Enum
+
+from fsw.comm import link_packets as lp
+from fsw.comm.link import EventQueue, LinkConfig, LinkStats, Pacer
+
+_RING = 1024
+_NEVER = float("-inf")
+
+
+class SenderState(Enum):
+    IDLE = "idle"
+    OFFERING = "offering"
+    SENDING = "sending"
+    DONE = "done"
+    REJECTED = "rejected"
+    FAILED = "failed"
+
+
+class LinkSender:
+    """Sends one map at a time; see the module docstring for the protocol."""
+
+    def __init__(self, cfg: LinkConfig, session: int = 1) -> None:
+        self.cfg = cfg
+        self.session = session & 0xFFFF
+        self.state = SenderState.IDLE
+        self.stats = LinkStats()
+        self.events = EventQueue()
+        self._pacer = Pacer(cfg.rate_bps)
+        self._data = b""
+        self._map_id = 0
+        self._n = 0
+        self._acked = bytearray()
+        self._last_sent: list[float] = []
+        self._lost: list[int] = []  # heap of segments to retransmit
+        self._queued = bytearray()
+        self._next_new = 0
+        self._serial = 0
+        self._ring_serial = [-1] * _RING
+        self._ring_time = [0.0] * _RING
+        self._rack_s = _NEVER
+        self.srtt_s: float | None = None
+        self._n_acked = 0
+        self._cum = 0
+        self._restarts = 0
+        self._start_s = 0.0
+        self._last_feedback_s = 0.0
+        self._next_offer_s = 0.0
+        self._backoff_s = cfg.offer_retry_s
+        self._offer_sent_s = _NEVER
+        self._next_ping_s = _NEVER
+        self._data_since_ping = False
+        self._fin_acks = 0
+
+    # -- public API ------------------------------------------------------------------------
+    def start(self, map_id: int, data: bytes, now_s: float) -> None:
+        """Begin offering ``data`` (one map container) as map ``map_id``."""
+        if not 1 <= len(data) <= self.cfg.max_map_bytes:
+            raise ValueError(f"map of {len(data)} bytes outside 1..{self.cfg.max_map_bytes}")
+        self._data = bytes(data)
+        self._map_id = map_id & 0xFFFFFFFF
+        self._n = -(-len(data) // self.cfg.segment_bytes)
+        self._digest = hashlib.sha256(self._data).digest()
+        self._reset_progress()
+        self.state = SenderState.OFFERING
+        self._start_s = self._last_feedback_s = now_s
+        self._next_offer_s = now_s
+        self._backoff_s = self.cfg.offer_retry_s
+        self.events.emit(now_s, "OFFERED", map_id=self._map_id, size=len(data), segments=self._n)
+
+    @property
+    def progress(self) -> tuple[int, int]:
+        """(segments acknowledged, segments in the map)."""
+        return self._n_acked, self._n
+
+    @property
+    def finished(self) -> bool:
+        return self.state in (SenderState.DONE, SenderState.REJECTED, SenderState.FAILED)
+
+    def receive(self, datagram: bytes, now_s: float) -> None:
+        """Handle one datagram from the radio (anything invalid is counted and dropped)."""
+        self.stats.packets_in += 1
+        try:
+            pkt = lp.decode(datagram)
+        except lp.PacketError:
+            self.stats.bad_packets += 1
+            return
+        if pkt.session != self.session or self.state is SenderState.IDLE:
+            self.stats.foreign_packets += 1
+            return
+        if isinstance(pkt, lp.Fin) and pkt.map_id == self._map_id:
+            self._on_fin(pkt, now_s)
+        elif self.state not in (SenderState.OFFERING, SenderState.SENDING):
+            self.stats.foreign_packets += 1
+        elif isinstance(pkt, lp.Accept) and pkt.map_id == self._map_id:
+            self._on_accept(now_s)
+        elif isinstance(pkt, lp.Reject) and pkt.map_id == self._map_id:
+            self.state = SenderState.REJECTED
+            self.events.emit(now_s, "REJECTED", map_id=self._map_id, reason=pkt.reason.name)
+        elif isinstance(pkt, lp.Status):
+            if self.state is SenderState.OFFERING:
+                self._on_accept(now_s)
+            self._on_status(pkt, now_s)
+        else:
+            self.stats.foreign_packets += 1
+
+    def poll(self, now_s: float, max_bytes: int | None = None) -> list[bytes]:
+        """Datagrams to send now, within pacing and an optional byte budget."""
+        out: list[bytes] = []
+        used = 0
+        self._check_timeouts(now_s)
+        while self._pacer.ready(now_s):
+            if max_bytes is not None and used + self.cfg.segment_bytes + lp.DATA_OVERHEAD > max_bytes:
+                break
+            pkt = self._next_packet(now_s)
+            if pkt is None:
+                break
+            self._pacer.consume(len(pkt), now_s)
+            used += len(pkt)
+            out.append(self.stats.count_out(pkt))
+        return out
+
+    def next_deadline_s(self) -> float | None:
+        """When ``poll`` next has something to do (None: nothing until a packet arrives)."""
+        s = self.state
+        if s is SenderState.IDLE or (self.finished and not self._fin_acks):
+            return None
+        if self._fin_acks:
+            return self._pacer.free_at_s
+        if s is SenderState.OFFERING:
+            return max(self._next_offer_s, self._pacer.free_at_s)
+        cand = [self._last_feedback_s + self.cfg.give_up_s]
+        stalled = self._stalled(self._pacer.free_at_s)
+        if not stalled and (self._lost or self._next_new < self._n):
+            cand.append(self._pacer.free_at_s)
+        else:
+            ping_at = self._next_ping_s if stalled or not self._data_since_ping else _NEVER
+            cand.append(max(ping_at, self._pacer.free_at_s))
+        if not stalled:
+            cand.append(self._last_feedback_s + self.cfg.stall_timeout_s)
+        return min(cand)
+
+    # -- internals ---------------------------------------------------------------------------
+    def _reset_progress(self) -> None:
+        self._acked = bytearray(self._n)
+        self._queued = bytearray(self._n)
+        self._last_sent = [_NEVER] * self._n
+        self._lost = []
+        self._next_new = 0
+        self._n_acked = 0
+        self._cum = 0
+        self._rack_s = _NEVER
+        self._data_since_ping = False
+
+    def _stalled(self, now_s: float) -> bool:
+        return now_s - self._last_feedback_s > self.cfg.stall_timeout_s
+
+    def _check_timeouts(self, now_s: float) -> None:
+        if self.state in (SenderState.OFFERING, SenderState.SENDING) and \
+                now_s - self._last_feedback_s > self.cfg.give_up_s:
+            self.state = SenderState.FAILED
+            self.events.emit(now_s, "LINK_LOST", map_id=self._map_id,
+                             silent_s=round(now_s - self._last_feedback_s, 1))
+
+    def _next_packet(self, now_s: float) -> bytes | None:
+        if self._fin_acks:
+            self._fin_acks -= 1
+            return lp.encode(lp.FinAck(self.session, self._map_id))
+        if self.state is SenderState.OFFERING:
+            if now_s < self._next_offer_s:
+                return None
+            self._next_offer_s = now_s + self._backoff_s
+            self._backoff_s = min(2 * self._backoff_s, self.cfg.max_backoff_s)
+            self._offer_sent_s = now_s
+            return lp.encode(lp.Offer(self.session, self._map_id, len(self._data),
+                                      self.cfg.segment_bytes, self._digest))
+        if self.state is not SenderState.SENDING:
+            return None
+        stalled = self._stalled(now_s)
+        if not stalled:
+            while self._lost:
+                seq = heapq.heappop(self._lost)
+                self._queued[seq] = 0
+                if not self._acked[seq]:
+                    self.stats.retransmits += 1
+                    return self._data_packet(seq, now_s)
+            if self._next_new < self._n:
+                self._next_new += 1
+                return self._data_packet(self._next_new - 1, now_s)
+        if now_s >= self._next_ping_s or (self._data_since_ping and not stalled):
+            self._data_since_ping = False
+            self._next_ping_s = now_s + self.cfg.ping_period_s
+            self.stats.pings += 1
+            return lp.encode(lp.Ping(self.session, self._take_serial(now_s),
+                                     self._next_new >= self._n))
+        return None
+
+    def _take_serial(self, now_s: float) -> int:
+        s = self._serial
+        self._serial = (s + 1) & 0xFFFF
+        self._ring_serial[s % _RING] = s
+        self._ring_time[s % _RING] = now_s
+        return s
+
+    def _data_packet(self, seq: int, now_s: float) -> bytes:
+        seg = self.cfg.segment_bytes
+        self._last_sent[seq] = now_s
+        self._data_since_ping = True
+        self.stats.data_sent += 1
+        return lp.encode(lp.Data(self.session, seq, self._take_serial(now_s),
+                                 self._data[seq * seg:(seq + 1) * seg]))
+
+    def _on_accept(self, now_s: float) -> None:
+        if self.state is not SenderState.OFFERING:
+            return
+        self.state = SenderState.SENDING
+        self._last_feedback_s = now_s
+        if self._offer_sent_s > _NEVER:
+            self.srtt_s = now_s - self._offer_sent_s
+        self.events.emit(now_s, "ACCEPTED", map_id=self._map_id)
+
+    def _on_status(self, st: lp.Status, now_s: float) -> None:
+        self.stats.statuses += 1
+        self._last_feedback_s = now_s
+        if st.highest > self._n:
+            self.stats.foreign_packets += 1
+            return
+        for seq in range(self._cum, st.cum):
+            self._ack(seq)
+        self._cum = max(self._cum, st.cum)
+        window_end = min(st.cum + 8 * len(st.bitmap), self._n)
+        for i in range(window_end - st.cum):
+            if st.bitmap[i >> 3] >> (i & 7) & 1:
+                self._ack(st.cum + i)
+        if st.echo_serial is not None and self._ring_serial[st.echo_serial % _RING] == st.echo_serial:
+            sent_s = self._ring_time[st.echo_serial % _RING]
+            self._rack_s = max(self._rack_s, sent_s)
+            rtt = now_s - sent_s
+            self.srtt_s = rtt if self.srtt_s is None else 0.875 * self.srtt_s + 0.125 * rtt
+        limit = self._rack_s - self.cfg.reorder_slack_s
+        for seq in range(st.cum, self._next_new):
+            known = seq < window_end or seq >= st.highest
+            if known and not self._acked[seq] and not self._queued[seq] \
+                    and self._last_sent[seq] < limit:
+                self._queued[seq] = 1
+                heapq.heappush(self._lost, seq)
+
+    def _ack(self, seq: int) -> None:
+        if not self._acked[seq]:
+            self._acked[seq] = 1
+            self._n_acked += 1
+
+    def _on_fin(self, fin: lp.Fin, now_s: float) -> None:
+        self._last_feedback_s = now_s
+        if fin.status is lp.FinStatus.VERIFIED:
+            self._fin_acks = min(self._fin_acks + 1, 4)
+            if self.state is not SenderState.DONE:
+                self.state = SenderState.DONE
+                self._n_acked = self._n
+                self.events.emit(now_s, "DELIVERED", map_id=self._map_id, size=len(self._data),
+                                 seconds=round(now_s - self._start_s, 3))
+        elif self.state is SenderState.SENDING:
+            self._restarts += 1
+            if self._restarts > self.cfg.max_restarts:
+                self.state = SenderState.FAILED
+                self.events.emit(now_s, "HASH_MISMATCH_GIVE_UP", map_id=self._map_id)
+            else:
+                self._reset_progress()
+                self.events.emit(now_s, "HASH_MISMATCH_RESEND", map_id=self._map_id,
+                                 attempt=self._restarts)

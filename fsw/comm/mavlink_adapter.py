@@ -1,0 +1,184 @@
+"""The MAVLink adapter: the executive's telemetry, events and commands <-> MAVLink 2 frames.
+
+Sans-I/O (STYLE.md, h11): the task hands it uplink bytes, the time and a view of the
+executive; it returns authenticated commands and the downlink frames of this activation,
+never more than ``budget_bytes_per_frame`` bytes. Downlink priorities, highest first:
+
+1. COMMAND_ACK;  2. HEARTBEAT (1 Hz);  3. STATUSTEXT of FATAL/WARNING events;
+4. SYS_STATUS, LOCAL_POSITION_NED + ATTITUDE (rover), GIMBAL_DEVICE_ATTITUDE_STATUS (mast);
+5. other STATUSTEXT;  6. NAMED_VALUE_FLOAT/INT channels;  7. map preview image packets.
+
+Whatever does not fit waits for the next activation at the same priority.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+from fsw.comm import mavlink_telemetry as tm
+from fsw.comm.mavlink_commands import Reason
+from fsw.comm.mavlink_config import MavlinkConfig
+from fsw.comm.mavlink_dialect import mavlink, new_codec
+from fsw.comm.mavlink_downlink import (ChannelSample, ChannelScheduler, EventQueue, Packer, Periodic,
+                                       TokenBucket)
+from fsw.comm.mavlink_image import ImageSender
+from fsw.comm.mavlink_signing import SignatureVerifier
+from fsw.comm.mavlink_uplink import CommandIn, Uplink, UplinkBatch
+from fsw.executive.telemetry import Event, Severity
+
+_UINT16_MAX = 65535
+
+
+@dataclass(frozen=True)
+class VehicleView:
+    """What the task read from the executive for this activation's downlink."""
+
+    time_s: float
+    mission_state: Any = None
+    fatal: bool = False
+    simulated: bool = False
+    load_dpercent: int = 0
+    slips: int = 0
+    overruns: int = 0
+    position: tuple[float, float, float] | None = None  # world x, y, z (m)
+    rpy: tuple[float, float, float] | None = None  # roll, pitch, yaw (rad, z-up world)
+    mast: tuple[float, float] | None = None  # pan, tilt (rad)
+    channels: tuple[ChannelSample, ...] = ()
+
+
+class MavlinkAdapter:
+    """One ground link's protocol state: codec, signing, queues, schedules and counters."""
+
+    def __init__(self, cfg: MavlinkConfig, key: bytes | None, signing_ts: int) -> None:
+        self.cfg = cfg
+        self.budget_bytes = cfg.budget_bytes_per_frame  # settable by command (SET_BUDGET)
+        self.codec = new_codec(cfg.system_id, cfg.component_id)
+        if key is not None and cfg.sign_downlink:
+            self.codec.signing.secret_key = key
+            self.codec.signing.sign_outgoing = True
+            self.codec.signing.link_id = cfg.link_id
+            self.codec.signing.timestamp = signing_ts
+        self.verifier = SignatureVerifier(key, cfg.signing_max_age_s)
+        self.uplink = Uplink(self.verifier, cfg.system_id, cfg.component_id)
+        self.packer = Packer(self.codec)
+        self.events = EventQueue(cfg.statustext_queue, Severity[cfg.statustext_min_severity],
+                                 TokenBucket(cfg.statustext_rate_hz, cfg.statustext_burst))
+        self.channels = ChannelScheduler(cfg.channel_period_s, cfg.channel_refresh_s)
+        self.images = ImageSender()
+        self._acks: deque[mavlink.MAVLink_command_ack_message] = deque(maxlen=64)
+        self.acks_dropped = 0
+        self._due = {"heartbeat": Periodic(cfg.heartbeat_period_s), "sys_status": Periodic(cfg.sys_status_period_s),
+                     "pose": Periodic(cfg.pose_period_s), "mast": Periodic(cfg.mast_period_s)}
+        self._next_image_s = 0.0
+        self._chunk_id = 0
+        self._last_pose: tuple[float, VehicleView] | None = None
+        self.tx_frames = 0
+        self.tx_bytes = 0
+        self.last_frame_bytes = 0
+        self.max_frame_bytes = 0
+
+    # -- uplink -----------------------------------------------------------------------------
+    def receive(self, data: bytes, now_ts: int) -> UplinkBatch:
+        batch = self.uplink.feed(data, now_ts)
+        if self.codec.signing.sign_outgoing:  # never sign behind what the ground has seen
+            self.codec.signing.timestamp = max(self.codec.signing.timestamp, now_ts,
+                                               self.verifier.newest_timestamp() + 1)
+        return batch
+
+    def ack(self, cmd: CommandIn, result: int, reason: Reason, opcode: int) -> None:
+        if len(self._acks) == self._acks.maxlen:
+            self.acks_dropped += 1
+        self._acks.append(mavlink.MAVLink_command_ack_message(
+            cmd.command_id, result, int(reason), opcode, cmd.src_system, cmd.src_component))
+
+    # -- inputs for the downlink ----------------------------------------------------------------
+    def push_event(self, ev: Event) -> None:
+        self.events.push(ev)
+
+    def image_wanted(self, now_s: float) -> bool:
+        """True when a new map preview would be accepted now (encode it only then)."""
+        return not self.images.busy and now_s >= self._next_image_s
+
+    def offer_image(self, now_s: float, data: bytes, width: int, height: int, kind: int) -> None:
+        self.images.offer(data, width, height, kind, self.cfg.image_quality)
+        self._next_image_s = now_s + self.cfg.image_period_s
+
+    # -- downlink -------------------------------------------------------------------------------
+    def plan(self, v: VehicleView) -> list[bytes]:
+        """The frames of this activation, in priority order, within the byte budget."""
+        p, now, ms = self.packer, v.time_s, int(v.time_s * 1000) & 0xFFFFFFFF
+        p.begin(self.budget_bytes)
+        while self._acks and p.offer([self._acks[0]]):
+            self._acks.popleft()
+        if self._due["heartbeat"].due(now) and p.offer([tm.heartbeat(v.mission_state, v.fatal, v.simulated)]):
+            self._due["heartbeat"].done(now)
+        self.events.bucket.refill(now)
+        self._events(Severity.WARNING_LO)
+        if self._due["sys_status"].due(now) and p.offer([self._sys_status(v)]):
+            self._due["sys_status"].done(now)
+        if self._due["pose"].due(now) and (v.position is not None or v.rpy is not None) \
+                and p.offer(self._pose(ms, now, v)):
+            self._due["pose"].done(now)
+            self._remember_pose(now, v)
+        if self._due["mast"].due(now) and v.mast is not None and p.offer([tm.mast_attitude(ms, *v.mast)]):
+            self._due["mast"].done(now)
+        self._events(Severity.DIAGNOSTIC)
+        for s in self.channels.due(now, v.channels):
+            msg = tm.named_value(ms, s.key, s.value)
+            if msg is None:
+                continue
+            if not p.offer([msg]):
+                break
+            self.channels.mark(now, s)
+        while (msg := self.images.peek()) is not None and p.offer([msg]):
+            self.images.consume()
+        self.tx_frames += len(p.frames)
+        self.tx_bytes += p.used
+        self.last_frame_bytes = p.used
+        self.max_frame_bytes = max(self.max_frame_bytes, p.used)
+        return p.frames
+
+    def _events(self, worst_allowed: Severity) -> None:
+        while (ev := self.events.head()) is not None and ev.severity <= worst_allowed:
+            if self.events.bucket.tokens < 1.0:
+                return
+            self._chunk_id = self._chunk_id % _UINT16_MAX + 1
+            if not self.packer.offer(tm.statustext(ev.severity, f"{ev.name}: {ev.text}", self._chunk_id)):
+                return
+            self.events.bucket.take()
+            self.events.pop()
+
+    def _sys_status(self, v: VehicleView) -> mavlink.MAVLink_sys_status_message:
+        u = self.uplink.counters
+        total = u.frames + u.bad_frames
+        drop_cpct = int(10000 * u.bad_frames / total) if total else 0
+
+        def c16(n: int) -> int:
+            return max(0, min(_UINT16_MAX, int(n)))
+
+        return mavlink.MAVLink_sys_status_message(
+            0, 0, 0, c16(min(v.load_dpercent, 1000)), _UINT16_MAX, -1, -1, c16(drop_cpct), c16(u.bad_frames),
+            c16(v.slips), c16(v.overruns), c16(self.uplink.rejected()), c16(self.events.dropped), 0, 0, 0)
+
+    def _pose(self, ms: int, now: float, v: VehicleView) -> list[mavlink.MAVLink_message]:
+        """LOCAL_POSITION_NED and ATTITUDE; velocities and rates by difference of samples."""
+        vel, rates = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+        if self._last_pose is not None and now > self._last_pose[0]:
+            dt, prev = now - self._last_pose[0], self._last_pose[1]
+            if v.position is not None and prev.position is not None:
+                a, b = v.position, prev.position
+                vel = ((a[0] - b[0]) / dt, (a[1] - b[1]) / dt, (a[2] - b[2]) / dt)
+            if v.rpy is not None and prev.rpy is not None:
+                a, b = v.rpy, prev.rpy
+                rates = (tm.wrap_pi(a[0] - b[0]) / dt, tm.wrap_pi(a[1] - b[1]) / dt, tm.wrap_pi(a[2] - b[2]) / dt)
+        out: list[mavlink.MAVLink_message] = []
+        if v.position is not None:
+            out.append(tm.local_position_ned(ms, v.position, vel))
+        if v.rpy is not None:
+            out.append(tm.attitude(ms, v.rpy, rates))
+        return out
+
+    def _remember_pose(self, now: float, v: VehicleView) -> None:
+        self._last_pose = (now, v)

@@ -1,0 +1,180 @@
+"""Downlink scheduling: a per-frame byte budget filled in priority order, with rate limits.
+
+* :class:`Packer` packs messages into wire frames only while they fit the frame's budget
+  (exact sizes: MAVLink 2 trims trailing zero payload bytes, signing adds 13). A message
+  that does not fit is *not* packed, so sequence numbers and signing timestamps never skip:
+  a gap in ``seq`` at the ground always means a lost frame.
+* :class:`EventQueue` holds events for STATUSTEXT: most severe first, bounded (the least
+  severe, newest, is dropped when full), released through a token bucket. Its counters are
+  exact: ``seen = sent + dropped + filtered + queued``.
+* :class:`ChannelScheduler` chooses which telemetry channels go next: a channel at most
+  every ``period_s``; channels out of their limits first, then changed ones, then the
+  longest unsent; unchanged values are refreshed every ``refresh_s``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from fsw.comm.mavlink_dialect import SIGNATURE_LEN, mavlink, new_codec
+from fsw.executive.telemetry import Event, Severity
+
+
+class Packer:
+    """Packs messages with the link's codec within ``budget`` bytes per frame."""
+
+    def __init__(self, codec: mavlink.MAVLink) -> None:
+        self.codec = codec
+        self._sizer = new_codec(codec.srcSystem, codec.srcComponent)
+        self.frames: list[bytes] = []
+        self.used = 0
+        self.budget = 0
+        self.deferred = 0
+
+    def begin(self, budget: int) -> None:
+        self.frames, self.used, self.budget = [], 0, budget
+
+    def size(self, msg: mavlink.MAVLink_message) -> int:
+        signed = SIGNATURE_LEN if self.codec.signing.sign_outgoing else 0
+        return len(msg.pack(self._sizer)) + signed
+
+    def offer(self, msgs: Sequence[mavlink.MAVLink_message]) -> bool:
+        """Pack all of ``msgs`` if together they fit the remaining budget, else none."""
+        need = sum(self.size(m) for m in msgs)
+        if self.used + need > self.budget:
+            self.deferred += 1
+            return False
+        for m in msgs:
+            buf = m.pack(self.codec)
+            self.codec.seq = (self.codec.seq + 1) % 256
+            self.frames.append(bytes(buf))
+            self.used += len(buf)
+        return True
+
+    @property
+    def remaining(self) -> int:
+        return self.budget - self.used
+
+
+@dataclass
+class TokenBucket:
+    rate_hz: float
+    burst: int
+    tokens: float = 0.0
+    last_s: float | None = None
+
+    def refill(self, now_s: float) -> None:
+        if self.last_s is None:
+            self.tokens = float(self.burst)
+        else:
+            self.tokens = min(float(self.burst), self.tokens + (now_s - self.last_s) * self.rate_hz)
+        self.last_s = now_s
+
+    def take(self) -> bool:
+        if self.tokens >= 1.0:
+            self.tokens -= 1.0
+            return True
+        return False
+
+
+@dataclass
+class EventQueue:
+    """Bounded, severity-ordered events waiting for STATUSTEXT."""
+
+    depth: int
+    min_severity: Severity
+    bucket: TokenBucket
+    seen: int = 0
+    sent: int = 0
+    dropped: int = 0
+    filtered: int = 0
+    _items: list[tuple[int, int, Event]] = field(default_factory=list)
+    _seq: int = 0
+
+    def push(self, ev: Event) -> None:
+        self.seen += 1
+        if ev.severity > self.min_severity:
+            self.filtered += 1
+            return
+        self._seq += 1
+        self._items.append((int(ev.severity), self._seq, ev))
+        if len(self._items) > self.depth:
+            worst = max(self._items, key=lambda it: (it[0], it[1]))
+            self._items.remove(worst)
+            self.dropped += 1
+
+    def head(self) -> Event | None:
+        if not self._items:
+            return None
+        return min(self._items, key=lambda it: (it[0], it[1]))[2]
+
+    def pop(self) -> None:
+        best = min(self._items, key=lambda it: (it[0], it[1]))
+        self._items.remove(best)
+        self.sent += 1
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+
+@dataclass(frozen=True)
+class ChannelSample:
+    key: str  # NAMED_VALUE name
+    value: Any
+    out_of_limits: bool
+
+
+@dataclass
+class ChannelScheduler:
+    period_s: float
+    refresh_s: float
+    last: dict[str, tuple[float, Any]] = field(default_factory=dict)  # key -> (time sent, value)
+    sent: int = 0
+
+    def due(self, now_s: float, samples: Iterable[ChannelSample]) -> list[ChannelSample]:
+        """Samples worth sending now, best first (deterministic order)."""
+        ranked = []
+        for s in samples:
+            prev = self.last.get(s.key)
+            if prev is None:
+                ranked.append(((0 if s.out_of_limits else 1, 0, -math.inf, s.key), s))
+                continue
+            age = now_s - prev[0]
+            if age < self.period_s - 1e-9:
+                continue
+            changed = not _same(prev[1], s.value)
+            if not changed and age < self.refresh_s - 1e-9:
+                continue
+            ranked.append(((0 if s.out_of_limits else 1, 0 if changed else 1, prev[0], s.key), s))
+        ranked.sort(key=lambda r: r[0])
+        return [s for _, s in ranked]
+
+    def mark(self, now_s: float, sample: ChannelSample) -> None:
+        self.last[sample.key] = (now_s, sample.value)
+        self.sent += 1
+
+
+def _same(a: Any, b: Any) -> bool:
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    try:
+        return bool(a == b)
+    except (TypeError, ValueError):
+        return False
+
+
+@dataclass
+class Periodic:
+    """A message due every ``period_s`` (average rate kept, no burst after a stall)."""
+
+    period_s: float
+    next_s: float = 0.0
+
+    def due(self, now_s: float) -> bool:
+        return now_s >= self.next_s - 1e-9
+
+    def done(self, now_s: float) -> None:
+        self.next_s = max(self.next_s + self.period_s, now_s + 0.5 * self.period_s)

@@ -1,0 +1,189 @@
+"""The rover's CAN application layer, sans I/O: frames of ``config/rover.dbc`` <-> typed values.
+
+Both ends use it: the flight motor driver (``fsw.drivers.can_motors``) and the emulated motor
+controllers of the bench (``hil_sim.hw.motor_controllers``). Frame ids, layouts and scales come
+from the DBC (read with cantools); this module adds only what a DBC cannot say:
+
+* the axis table: twelve motor controllers, ``{DRIVE,STEER,SHOULDER}_{FL,FR,RL,RR}``, whose
+  frames are ``<AXIS>_CMD`` (0x200 + node), ``<AXIS>_STATUS`` (0x180 + node) and
+  ``<AXIS>_HEARTBEAT`` (0x700 + node), plus ``ESTOP`` (0x000) and ``FSW_HEARTBEAT`` (0x701);
+* the end-to-end protection of COMMAND, STATUS and ESTOP frames (AUTOSAR E2E profile 1 style):
+  a 4-bit alive ``Counter`` and a ``Checksum`` byte, CRC-8/SAE-J1850 over the frame id (two
+  bytes, little-endian) and every data byte but the last, stored in the last byte.
+
+Nothing here raises on bad input from the wire: :meth:`RoverCan.decode` returns a
+:class:`Bad` with the reason, so callers count and event it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cantools
+from crccheck.crc import Crc8SaeJ1850
+
+WHEELS = ("FL", "FR", "RL", "RR")
+KINDS = ("DRIVE", "STEER", "SHOULDER")
+AXES = tuple(f"{k}_{w}" for k in KINDS for w in WHEELS)
+NMT_STATES = {0: "BootUp", 4: "Stopped", 5: "Operational", 127: "PreOperational"}
+STATE_BOOTUP, STATE_STOPPED, STATE_OPERATIONAL, STATE_PREOP = 0, 4, 5, 127
+FAULT_BITS = ("FaultTimeout", "FaultLimit", "FaultOvercurrent", "FaultEStop", "FaultDriver")
+POSITION_WRAP_RAD = 1048.576  # the 20-bit Position signal at 0.001 rad wraps with this period
+DEFAULT_DBC = Path(__file__).resolve().parent.parent.parent / "config" / "rover.dbc"
+
+
+def crc8(data: bytes) -> int:
+    """CRC-8/SAE-J1850 (poly 0x1D, init 0xFF, xorout 0xFF)."""
+    return int(Crc8SaeJ1850.calc(data))
+
+
+def e2e_checksum(frame_id: int, data: bytes) -> int:
+    """The Checksum byte of a protected frame: CRC-8 over the id and all data bytes but the last."""
+    return crc8(bytes((frame_id & 0xFF, (frame_id >> 8) & 0xFF)) + bytes(data[:-1]))
+
+
+def wrap_position(pos_rad: float) -> float:
+    """A joint position folded into the Position signal's range (it wraps like an encoder)."""
+    half = POSITION_WRAP_RAD / 2
+    return (pos_rad + half) % POSITION_WRAP_RAD - half
+
+
+@dataclass(frozen=True)
+class AxisCommand:
+    """A decoded ``<AXIS>_CMD``: ``setpoint`` is rad/s for DRIVE, rad for STEER and SHOULDER."""
+
+    axis: str
+    setpoint: float
+    enable: bool
+    clear_faults: bool
+    counter: int
+
+
+@dataclass(frozen=True)
+class AxisStatus:
+    """A decoded ``<AXIS>_STATUS``; ``faults`` is the set of fault-bit names that are set."""
+
+    axis: str
+    position_rad: float
+    velocity_radps: float
+    current_a: float
+    enabled: bool
+    faults: frozenset[str]
+    counter: int
+
+
+@dataclass(frozen=True)
+class Heartbeat:
+    node: str  # "FSW" or an axis name
+    state: int
+
+
+@dataclass(frozen=True)
+class EStop:
+    engage: bool
+    counter: int
+
+
+@dataclass(frozen=True)
+class Bad:
+    """A frame that could not be accepted, and why (``unknown_id``, ``dlc``, ``checksum``, ...)."""
+
+    frame_id: int
+    reason: str
+    detail: str = ""
+
+
+Decoded = AxisCommand | AxisStatus | Heartbeat | EStop | Bad
+
+
+class RoverCan:
+    """Encoder/decoder for every frame of the rover DBC."""
+
+    def __init__(self, dbc_path: str | Path = DEFAULT_DBC) -> None:
+        self.db = cantools.database.load_file(str(dbc_path))
+        self._msg = {m.name: m for m in self.db.messages}
+        missing = [n for n in self._required() if n not in self._msg]
+        if missing:
+            raise ValueError(f"{dbc_path}: DBC lacks frames {', '.join(missing[:4])}")
+        # frame id -> (kind, node, message)
+        self.route: dict[int, tuple[str, str, Any]] = {}
+        for axis in AXES:
+            for kind in ("CMD", "STATUS", "HEARTBEAT"):
+                m = self._msg[f"{axis}_{kind}"]
+                self.route[m.frame_id] = (kind, axis, m)
+        self.route[self._msg["ESTOP"].frame_id] = ("ESTOP", "FSW", self._msg["ESTOP"])
+        self.route[self._msg["FSW_HEARTBEAT"].frame_id] = ("HEARTBEAT", "FSW", self._msg["FSW_HEARTBEAT"])
+        self.node_id = {axis: self._msg[f"{axis}_HEARTBEAT"].frame_id - 0x700 for axis in AXES}
+        self.node_id["FSW"] = self._msg["FSW_HEARTBEAT"].frame_id - 0x700
+
+    @staticmethod
+    def _required() -> list[str]:
+        names = ["ESTOP", "FSW_HEARTBEAT"]
+        for axis in AXES:
+            names += [f"{axis}_CMD", f"{axis}_STATUS", f"{axis}_HEARTBEAT"]
+        return names
+
+    def frame_id(self, name: str) -> int:
+        return int(self._msg[name].frame_id)
+
+    # -- encoding -----------------------------------------------------------------------------
+    def _protected(self, name: str, signals: dict[str, Any]) -> tuple[int, bytes]:
+        msg = self._msg[name]
+        data = bytearray(msg.encode({**signals, "Checksum": 0}, strict=False))
+        data[-1] = e2e_checksum(msg.frame_id, bytes(data))
+        return msg.frame_id, bytes(data)
+
+    def encode_command(self, axis: str, setpoint: float, enable: bool, clear_faults: bool,
+                       counter: int) -> tuple[int, bytes]:
+        sig = "VelocityCmd" if axis.startswith("DRIVE") else "PositionCmd"
+        lim = 32.767 if sig == "VelocityCmd" else 3.2767
+        value = float(setpoint) if math.isfinite(setpoint) else 0.0
+        return self._protected(f"{axis}_CMD", {sig: max(-lim, min(lim, value)), "Enable": int(enable),
+                                               "ClearFaults": int(clear_faults), "Counter": counter & 0xF})
+
+    def encode_status(self, axis: str, position_rad: float, velocity_radps: float, current_a: float,
+                      enabled: bool, faults: set[str] | frozenset[str], counter: int) -> tuple[int, bytes]:
+        sig: dict[str, Any] = {
+            "Position": wrap_position(position_rad),
+            "Velocity": max(-32.768, min(32.767, velocity_radps)),
+            "Current": max(-12.8, min(12.7, current_a)),
+            "Enabled": int(enabled), "Counter": counter & 0xF,
+        }
+        sig.update({b: int(b in faults) for b in FAULT_BITS})
+        return self._protected(f"{axis}_STATUS", sig)
+
+    def encode_heartbeat(self, node: str, state: int) -> tuple[int, bytes]:
+        msg = self._msg["FSW_HEARTBEAT" if node == "FSW" else f"{node}_HEARTBEAT"]
+        return msg.frame_id, bytes(msg.encode({"State": state}))
+
+    def encode_estop(self, engage: bool, counter: int) -> tuple[int, bytes]:
+        return self._protected("ESTOP", {"Engage": int(engage), "Counter": counter & 0xF})
+
+    # -- decoding -----------------------------------------------------------------------------
+    def decode(self, frame_id: int, data: bytes, is_extended: bool = False) -> Decoded:
+        """Decode one received frame; never raises on bad input."""
+        route = None if is_extended else self.route.get(frame_id)
+        if route is None:
+            return Bad(frame_id, "unknown_id", f"id 0x{frame_id:03X}{' (extended)' if is_extended else ''}")
+        kind, node, msg = route
+        if len(data) != msg.length:
+            return Bad(frame_id, "dlc", f"{msg.name}: {len(data)} bytes, expected {msg.length}")
+        if kind != "HEARTBEAT" and data[-1] != e2e_checksum(frame_id, data):
+            return Bad(frame_id, "checksum", f"{msg.name}: checksum 0x{data[-1]:02X} "
+                       f"!= 0x{e2e_checksum(frame_id, data):02X}")
+        try:
+            s = msg.decode(bytes(data), decode_choices=False, scaling=True)
+        except Exception as exc:  # noqa: BLE001 - cantools errors vary by version; a bad frame is data
+            return Bad(frame_id, "decode", f"{msg.name}: {exc}")
+        if kind == "CMD":
+            sp = s["VelocityCmd"] if "VelocityCmd" in s else s["PositionCmd"]
+            return AxisCommand(node, float(sp), bool(s["Enable"]), bool(s["ClearFaults"]), int(s["Counter"]))
+        if kind == "STATUS":
+            return AxisStatus(node, float(s["Position"]), float(s["Velocity"]), float(s["Current"]),
+                              bool(s["Enabled"]), frozenset(b for b in FAULT_BITS if s[b]), int(s["Counter"]))
+        if kind == "ESTOP":
+            return EStop(bool(s["Engage"]), int(s["Counter"]))
+        return Heartbeat(node, int(s["State"]))

@@ -1,0 +1,53 @@
+"""Acquire and merge one view (ALGORITHM.md §4): stereo points, their world covariance
+(§1.2: stereo noise plus the camera pose covariance from §5), fusion into the map (§1.1)
+and the misses of the cells that were expected visible but got no point (§3.4).
+
+The executive's perception task calls ``acquire`` with a captured pair and the current
+camera pose estimate; the HIL bench and the tests call it with rendered pairs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.core.elevation_map import ElevationMap, MergeStats
+from fsw.core.localization import PoseEstimate, propagate_point_covariance
+from fsw.core.stereo import StereoMatcher
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ViewPoints:
+    """One view's points in the world frame with their 3x3 covariances."""
+
+    xyz_w: F64
+    cov_w: F64
+    valid_px: int  # pixels that produced a point (before any stride)
+
+
+@dataclass(frozen=True)
+class AcquireResult:
+    points: ViewPoints
+    merge: MergeStats
+
+
+def view_points(matcher: StereoMatcher, left: NDArray[np.uint8], right: NDArray[np.uint8],
+                camera: PoseEstimate, stride_px: int = 1) -> ViewPoints:
+    """Stereo points of one pair, in the world, with stereo and pose covariance (§1.2)."""
+    sp = matcher.points(left, right, stride_px)
+    xyz_w, cov_w = propagate_point_covariance(camera.pose, camera.cov, sp.xyz_c, sp.cov_c)
+    return ViewPoints(xyz_w, cov_w, int(sp.valid.sum()))
+
+
+def acquire(matcher: StereoMatcher, emap: ElevationMap, left: NDArray[np.uint8],
+            right: NDArray[np.uint8], camera: PoseEstimate,
+            p_visible: NDArray[np.floating] | NDArray[np.bool_] | None = None,
+            stride_px: int = 1) -> AcquireResult:
+    """Match, triangulate, transform and fuse one view; record its misses (§4)."""
+    pts = view_points(matcher, left, right, camera, stride_px)
+    stats = emap.merge(pts.xyz_w, cov=pts.cov_w, p_visible=p_visible)
+    return AcquireResult(pts, stats)

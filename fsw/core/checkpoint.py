@@ -1,0 +1,116 @@
+"""Map checkpoint format: the elevation map (ALGORITHM.md §1) as checksummed bytes.
+
+Pure encode/decode (no I/O, as ``fsw/core`` requires); ``fsw.drivers.map_store`` writes
+them atomically and loads the newest good one. Layout, all little-endian::
+
+    b"SAFERMAP"  u16 version  u32 header_len  header (UTF-8 JSON)  body  sha256(all before)
+
+The header holds the grid, ``n_max``, the sequence number, the mission time and, per array
+(``z var n interest misses outliers``), its dtype and shape; ``body_len`` is the length
+of the zstandard-compressed concatenation of the arrays. Any truncation, bit flip, wrong
+magic or version, inconsistent header or array shape raises ``CheckpointError`` with the
+reason; nothing half-decoded is ever returned.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+import zstandard
+
+from fsw.config import param
+from fsw.core.elevation_map import ElevationMap, FusionConfig
+from fsw.core.geometry import MapGrid
+
+MAGIC = b"SAFERMAP"
+VERSION = 1
+_HEAD = struct.Struct("<8sHI")
+_DIGEST = 32
+_ARRAYS = (("z", "<f8"), ("var", "<f8"), ("n", "<i4"), ("interest", "<f8"),
+           ("misses", "<i4"), ("outliers", "<i4"))
+_MAX_HEADER = 1 << 16
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that cannot be trusted (truncated, corrupt, wrong version)."""
+
+
+@dataclass(frozen=True)
+class CheckpointConfig:
+    """Map checkpoints (config ``[checkpoint]``)."""
+
+    directory: str = param("out/checkpoints", doc="where checkpoints are written")
+    period_s: float = param(60.0, lo=1.0, hi=86400.0, units="s", doc="periodic save interval")
+    keep: int = param(3, lo=2, hi=100, doc="checkpoints kept (the newest and its fallbacks)")
+    compression_level: int = param(3, lo=1, hi=19, doc="zstandard level")
+
+
+@dataclass(frozen=True)
+class CheckpointMeta:
+    seq: int
+    time_s: float
+
+
+def encode(emap: ElevationMap, seq: int, time_s: float, level: int = 3) -> bytes:
+    """The map as checkpoint bytes."""
+    g = emap.grid
+    raw = b"".join(np.ascontiguousarray(getattr(emap, name), dtype=dt).tobytes()
+                   for name, dt in _ARRAYS)
+    body = zstandard.ZstdCompressor(level=level).compress(raw)
+    header = json.dumps({
+        "grid": [g.x0, g.y0, g.cell, g.nx, g.ny], "n_max": emap.n_max, "seq": int(seq),
+        "time_s": float(time_s), "body_len": len(body), "raw_len": len(raw),
+        "arrays": [[name, dt] for name, dt in _ARRAYS],
+    }).encode()
+    blob = _HEAD.pack(MAGIC, VERSION, len(header)) + header + body
+    return blob + hashlib.sha256(blob).digest()
+
+
+def decode(data: bytes, cfg: FusionConfig | None = None) -> tuple[ElevationMap, CheckpointMeta]:
+    """Checkpoint bytes back to a map; ``CheckpointError`` if they cannot be trusted."""
+    if len(data) < _HEAD.size + _DIGEST:
+        raise CheckpointError(f"truncated: {len(data)} bytes is shorter than any checkpoint")
+    magic, version, hlen = _HEAD.unpack_from(data)
+    if magic != MAGIC:
+        raise CheckpointError("not a map checkpoint (bad magic)")
+    if hashlib.sha256(data[:-_DIGEST]).digest() != data[-_DIGEST:]:
+        raise CheckpointError("checksum mismatch (truncated or corrupt)")
+    if version != VERSION:
+        raise CheckpointError(f"unsupported version {version} (this build reads {VERSION})")
+    if hlen > _MAX_HEADER or _HEAD.size + hlen > len(data) - _DIGEST:
+        raise CheckpointError("header length out of range")
+    try:
+        h = json.loads(data[_HEAD.size:_HEAD.size + hlen])
+        x0, y0, cell, nx, ny = h["grid"]
+        grid = MapGrid(float(x0), float(y0), float(cell), int(nx), int(ny))
+        body = data[_HEAD.size + hlen:-_DIGEST]
+        if len(body) != h["body_len"]:
+            raise CheckpointError("body length does not match the header")
+        raw = zstandard.ZstdDecompressor().decompress(body, max_output_size=int(h["raw_len"]))
+        names = [tuple(a) for a in h["arrays"]]
+        seq, time_s, n_max = int(h["seq"]), float(h["time_s"]), int(h["n_max"])
+    except CheckpointError:
+        raise
+    except (KeyError, TypeError, ValueError, zstandard.ZstdError) as exc:
+        raise CheckpointError(f"malformed header or body ({exc})") from None
+    if not (1 <= nx <= 8192 and 1 <= ny <= 8192 and cell > 0):
+        raise CheckpointError(f"grid {nx}x{ny} cells of {cell} m is out of range")
+    if names != [tuple(a) for a in _ARRAYS]:
+        raise CheckpointError("unexpected array list")
+    sizes = [nx * ny * np.dtype(dt).itemsize for _, dt in _ARRAYS]
+    if len(raw) != sum(sizes):
+        raise CheckpointError("array data has the wrong size for the grid")
+    base = cfg or FusionConfig()
+    if base.n_max != n_max:
+        base = FusionConfig(**{**base.__dict__, "n_max": n_max})
+    emap = ElevationMap(grid, base)
+    off = 0
+    for (name, dt), size in zip(_ARRAYS, sizes, strict=True):
+        arr = np.frombuffer(raw, dtype=dt, count=nx * ny, offset=off).reshape(ny, nx)
+        setattr(emap, name, arr.astype(np.dtype(dt).newbyteorder("=")))
+        off += size
+    return emap, CheckpointMeta(seq, time_s)

@@ -1,0 +1,153 @@
+"""Geofence: no motion command may take a wheel across the cliff edge (ALGORITHM.md §2).
+
+A motion command goes from rover pose A to pose B ``(x, y, yaw)``. The rover is taken to
+move with x, y and yaw interpolated linearly (shortest turn), sampled every
+``sample_step_m`` / ``sample_step_deg``. Each wheel's contact patch (a rectangle
+``wheel_diameter_m`` long and ``wheel_width_m`` wide at the wheel centre) sweeps the union
+of the convex hulls of consecutive samples. The command is allowed only if every swept
+wheel patch stays on the safe side of the fitted edge and at least ``margin_m`` away from
+it. The edge is taken to continue straight for ``extend_m`` past the ends the map saw
+(``EdgeModel.barrier``). The test is exact for polygons: a swept patch that keeps
+``margin_m`` from the barrier lies wholly on one side of it, and the side of one of its
+points (``EdgeModel.signed_distance``) is the side of all. The verdict names the reason, the
+wheel and the clearance.
+
+Without a fitted edge the geofence refuses (unless ``allow_without_edge``): the flow of
+ALGORITHM.md §2 finds the edge before the rover moves.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+from shapely.geometry.base import BaseGeometry
+
+from fsw.config import param
+from fsw.core.edge import EdgeModel
+from fsw.core.geometry import RoverConfig
+
+WHEELS = ("front_left", "front_right", "rear_left", "rear_right")
+
+
+@dataclass(frozen=True)
+class GeofenceConfig:
+    """Geofence parameters (config ``[geofence]``)."""
+
+    margin_m: float = param(0.15, lo=0.0, hi=5.0, units="m", doc="wheel to edge clearance")
+    wheel_width_m: float = param(0.12, lo=0.01, hi=1.0, units="m")
+    extend_m: float = param(
+        1.0, lo=0.0, hi=100.0, units="m", doc="the edge is taken to go on this far past its ends"
+    )
+    sample_step_m: float = param(0.05, lo=0.001, hi=1.0, units="m")
+    sample_step_deg: float = param(5.0, lo=0.1, hi=90.0, units="deg")
+    allow_without_edge: bool = param(False, doc="allow motion before any edge is mapped")
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The geofence's answer to one motion command."""
+
+    allowed: bool
+    reason: str
+    clearance_m: float  # smallest wheel-to-edge distance; negative beyond it (inf: no edge)
+    wheel: str = ""  # the wheel closest to the edge
+
+
+class Geofence:
+    """Checks motion commands against the current edge model."""
+
+    def __init__(self, cfg: GeofenceConfig, rover: RoverConfig) -> None:
+        self.cfg = cfg
+        self.rover = rover
+        self._edge: EdgeModel | None = None
+        self._barrier: BaseGeometry | None = None
+        self.rejections = 0
+
+    def set_edge(self, model: EdgeModel | None) -> None:
+        """Use a new edge fit (None or an empty fit: no edge known)."""
+        if model is None or model.empty:
+            self._edge = self._barrier = None
+        else:
+            self._edge = model
+            self._barrier = model.barrier(self.cfg.extend_m)
+            shapely.prepare(self._barrier)
+
+    def wheel_centres(self, poses: np.ndarray) -> np.ndarray:
+        """(S, 4, 2) wheel centres for (S, 3) poses, in the order of ``WHEELS``."""
+        hx, hy = self.rover.wheelbase_m / 2.0, self.rover.track_m / 2.0
+        local = np.array([[hx, hy], [hx, -hy], [-hx, hy], [-hx, -hy]])
+        return _transform(local[None, :, :], poses)
+
+    def swept_wheels(self, a: tuple[float, float, float], b: tuple[float, float, float]
+                     ) -> list[BaseGeometry]:
+        """The area each wheel patch sweeps from pose ``a`` to pose ``b``."""
+        poses = self._samples(a, b)
+        hl, hw = self.rover.wheel_diameter_m / 2.0, self.cfg.wheel_width_m / 2.0
+        patch = np.array([[hl, hw], [hl, -hw], [-hl, -hw], [-hl, hw]])
+        centres = self.wheel_centres(poses)  # (S, 4, 2)
+        yaw = poses[:, 2]
+        c, s = np.cos(yaw), np.sin(yaw)
+        rot = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)  # (S, 2, 2)
+        corners = centres[:, :, None, :] + np.einsum("sij,kj->ski", rot, patch)[:, None]
+        out = []
+        for w in range(len(WHEELS)):
+            cw = corners[:, w]  # (S, 4, 2)
+            pairs = np.concatenate([cw[:-1], cw[1:]], axis=1) if len(cw) > 1 else cw
+            hulls = shapely.convex_hull(shapely.multipoints(pairs))
+            out.append(shapely.union_all(hulls))
+        return out
+
+    def check(self, a: tuple[float, float, float], b: tuple[float, float, float]) -> Verdict:
+        """Allow or reject the motion from ``a`` to ``b``; the reason says why."""
+        pa, pb = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+        if pa.shape != (3,) or pb.shape != (3,) or not (np.isfinite(pa).all()
+                                                        and np.isfinite(pb).all()):
+            self.rejections += 1
+            return Verdict(False, "rejected: poses must be finite (x, y, yaw) triples",
+                           float("nan"))
+        if self._edge is None or self._barrier is None:
+            if self.cfg.allow_without_edge:
+                return Verdict(True, "allowed: no cliff edge mapped", math.inf)
+            self.rejections += 1
+            return Verdict(False, "rejected: no cliff edge mapped yet", math.inf)
+        swept = self.swept_wheels(tuple(pa), tuple(pb))
+        dist = np.array([self._barrier.distance(g) for g in swept])
+        for w, geom in enumerate(swept):
+            if dist[w] >= self.cfg.margin_m:  # wholly on one side: test one point of each part
+                parts = getattr(geom, "geoms", [geom])
+                reps = shapely.get_coordinates([p.representative_point() for p in parts])
+                if (self._edge.signed_distance(reps, self.cfg.extend_m) < 0).any():
+                    self.rejections += 1
+                    return Verdict(False, f"rejected: wheel {WHEELS[w]} is beyond the edge",
+                                   -float(dist[w]), WHEELS[w])
+        w = int(np.argmin(dist))
+        clear = float(dist[w])
+        if clear < self.cfg.margin_m:
+            self.rejections += 1
+            where = "crosses the edge" if clear == 0.0 else (
+                f"comes within {clear:.3f} m of the edge")
+            return Verdict(False, f"rejected: wheel {WHEELS[w]} {where} "
+                           f"(margin {self.cfg.margin_m:.2f} m)", clear, WHEELS[w])
+        return Verdict(True, f"allowed: clearance {clear:.3f} m (wheel {WHEELS[w]})",
+                       clear, WHEELS[w])
+
+    def _samples(self, a: tuple[float, float, float], b: tuple[float, float, float]
+                 ) -> np.ndarray:
+        dyaw = (b[2] - a[2] + math.pi) % (2.0 * math.pi) - math.pi
+        dist = math.hypot(b[0] - a[0], b[1] - a[1])
+        n = max(1, math.ceil(dist / self.cfg.sample_step_m),
+                math.ceil(abs(math.degrees(dyaw)) / self.cfg.sample_step_deg))
+        s = np.linspace(0.0, 1.0, n + 1)
+        return np.column_stack([a[0] + s * (b[0] - a[0]), a[1] + s * (b[1] - a[1]),
+                                a[2] + s * dyaw])
+
+
+def _transform(local: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """Body-frame points (1, K, 2) to world for each pose (S, 3) -> (S, K, 2)."""
+    c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+    x = poses[:, 0:1] + c * local[..., 0] - s * local[..., 1]
+    y = poses[:, 1:2] + s * local[..., 0] + c * local[..., 1]
+    return np.stack([x, y], axis=-1)

@@ -1,0 +1,325 @@
+"""The five mapping methods of the paper and an oracle, behind one interface (ALGORITHM.md §7).
+
+``planner.next_view(state) -> CandidateView | None`` (None: nothing reachable to do), or
+``planner.search(state)``, a generator that yields between bounded steps (one camera centre
+each) so the executive can run the search in frame slack, and returns the view.
+
+1. ``RasterPlanner(sweep=False)``: raster scan without yaw. The operator's plan is made once,
+   at the first call: stations equally spaced along the edge path from the rover's position
+   toward the longer remaining part, the mast fixed: pan square to the path toward the drop,
+   lift at maximum, and the tilt that maximises the view's footprint on the expected floor
+   (the ROI floor seen so far, or ``raster_floor_drop_m`` below the rover). Spacing: the
+   footprint's length along the path times ``1 - raster_overlap_frac`` (consecutive views
+   just overlap), reduced if needed so the ``n_views`` steps fit on the path.
+2. ``RasterPlanner(sweep=True)``: raster scan with yaw: ``raster_pans_per_station`` pan views
+   at each station, a pan step of ``hfov * (1 - overlap)`` around the same centre; stations
+   spaced by the sweep's footprint along the path the same way; the same number of views.
+3. ``InformationPlanner(straight_edge=True)``: information-based, the edge path straightened
+   to one segment (total least squares through the path points, spanning them).
+4. ``InformationPlanner()``: information-based on the polygon edge's path.
+5. ``InformationPlanner(use_interest=True)``: Method 4 with P_V pre-multiplied by the
+   interest function.
+Oracle: ``InformationPlanner`` rating with the true terrain (sigma ``oracle_sigma_m``) and the
+true texture (a textureless cell is worth nothing): an upper bound for analysis.
+
+A raster view whose station the geofence refuses is moved to the nearest reachable path point
+within half a spacing, else skipped. Information planners only rate reachable stations
+(``view_candidates.path_stations``). No planner proposes a pose outside the mast limits.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Generator
+from dataclasses import dataclass, field
+
+import numpy as np
+import shapely
+from numpy.typing import NDArray
+from shapely.geometry import LineString, Point
+
+from fsw.core.geometry import CameraConfig, CameraPose, MastConfig, camera_pose_from_rover
+from fsw.core.nbv import (
+    MapLike,
+    NbvConfig,
+    localization_sigma,
+    motion_cost,
+    rate_station,
+    utility,
+)
+from fsw.core.view_candidates import (
+    CandidateView,
+    MotionCheck,
+    Pose3,
+    along_extent,
+    as_polyline,
+    footprint,
+    joint_grid,
+    path_stations,
+)
+from fsw.core.visibility import F64, Terrain, in_view, terrain_from_heights, terrain_from_map
+
+METHODS = ("1", "2", "3", "4", "5", "oracle")
+
+
+@dataclass(frozen=True)
+class PlannerState:
+    """What a planner reads each step. ``path`` is the edge-following rover path (N, 2|3)."""
+
+    map: MapLike
+    rover: Pose3
+    joints: Pose3
+    path: F64
+    motion_ok: MotionCheck
+    edge_xy: F64 | None = None  # the fitted edge's points: which side the drop is on
+    ground_z_m: float = 0.0
+    sigma_loc_m: float = 0.0
+    landmarks_xyz: F64 = field(default_factory=lambda: np.zeros((0, 3)))
+
+
+SearchGen = Generator[None, None, CandidateView | None]
+
+
+class Planner(ABC):
+    """Common interface of the §7 methods."""
+
+    name: str = ""
+
+    def next_view(self, state: PlannerState) -> CandidateView | None:
+        gen = self.search(state)
+        while True:
+            try:
+                next(gen)
+            except StopIteration as stop:
+                return stop.value  # type: ignore[no-any-return]
+
+    @abstractmethod
+    def search(self, state: PlannerState) -> SearchGen: ...
+
+
+class RasterPlanner(Planner):
+    """Methods 1 and 2 (see the module docstring)."""
+
+    def __init__(self, sweep: bool, n_views: int, cfg: NbvConfig, camera: CameraConfig,
+                 mast: MastConfig) -> None:
+        self.sweep, self.n_views = sweep, int(n_views)
+        self.cfg, self.camera, self.mast = cfg, camera, mast
+        self.name = "2" if sweep else "1"
+        self.plan: list[CandidateView] | None = None
+        self.spacing_m = 0.0
+        self._next = 0
+        self._path = np.zeros((0, 2))
+
+    def search(self, state: PlannerState) -> SearchGen:
+        if self.plan is None:
+            self.plan = self._make_plan(state)
+        yield None
+        while self._next < len(self.plan):
+            view = self.plan[self._next]
+            self._next += 1
+            placed = self._reachable(view, state)
+            if placed is not None:
+                return placed
+        return None
+
+    def _make_plan(self, state: PlannerState) -> list[CandidateView]:
+        xy = as_polyline(state.path)
+        if xy.shape[0] < 2 or self.n_views < 1:
+            return []
+        self._path = xy
+        line = LineString(xy)
+        s_now = float(line.project(Point(state.rover[0], state.rover[1])))
+        forward = s_now <= line.length - s_now
+        direction = 1.0 if forward else -1.0
+        remaining = line.length - s_now if forward else s_now
+        side = _drop_side(line, s_now, direction, state.edge_xy)
+        per_station = self.cfg.raster_pans_per_station if self.sweep else 1
+        step = math.radians(self.camera.hfov_deg) * (1.0 - self.cfg.raster_overlap_frac)
+        centre = side * math.pi / 2.0
+        pans = [centre + (i - (per_station - 1) / 2.0) * step for i in range(per_station)]
+        lift = self.mast.lift_max_m
+        floor_z = _floor_estimate(state, self.cfg)
+        start, tangent = _point_and_heading(line, s_now, direction)
+        rover0 = (float(start[0]), float(start[1]), tangent)
+        tilt = best_floor_tilt(rover0, centre, lift, floor_z, state.ground_z_m, self.camera,
+                               self.mast)
+        joints = [self.mast.clamp(p, tilt, lift) for p in pans]
+        union = shapely.union_all([footprint(camera_pose_from_rover(rover0, j, self.mast,
+                                                                    state.ground_z_m),
+                                             self.camera, floor_z) for j in joints])
+        lo, hi = along_extent(union, start, np.array([math.cos(tangent), math.sin(tangent)]))
+        n_stations = math.ceil(self.n_views / per_station)
+        spacing = (hi - lo) * (1.0 - self.cfg.raster_overlap_frac)
+        if n_stations > 1:
+            spacing = min(spacing, remaining / (n_stations - 1))
+        self.spacing_m = spacing
+        plan = []
+        for k in range(n_stations):
+            p, yaw = _point_and_heading(line, s_now + direction * k * spacing, direction)
+            for j in joints:
+                plan.append(CandidateView((float(p[0]), float(p[1]), yaw), j, method=self.name))
+        return plan[: self.n_views]
+
+    def _reachable(self, view: CandidateView, state: PlannerState) -> CandidateView | None:
+        if _close(view.rover, state.rover) or state.motion_ok(state.rover, view.rover):
+            return view
+        line = LineString(self._path)
+        s0 = float(line.project(Point(view.rover[0], view.rover[1])))
+        direction = 1.0 if math.cos(view.rover[2] - _tangent(line, s0)) >= 0 else -1.0
+        for ds in sorted(np.arange(-self.spacing_m / 2, self.spacing_m / 2 + 1e-9, 0.05), key=abs):
+            p, yaw = _point_and_heading(line, s0 + ds, direction)
+            rover = (float(p[0]), float(p[1]), yaw)
+            if state.motion_ok(state.rover, rover):
+                return CandidateView(rover, view.joints, method=view.method)
+        return None
+
+
+class InformationPlanner(Planner):
+    """Methods 3, 4, 5 and the oracle: the reachable candidate of highest utility (§3.5)."""
+
+    def __init__(self, name: str, cfg: NbvConfig, camera: CameraConfig, mast: MastConfig, *,
+                 use_interest: bool = False, straight_edge: bool = False,
+                 truth_z_m: F64 | None = None, textured: NDArray[np.bool_] | None = None) -> None:
+        self.name, self.cfg, self.camera, self.mast = name, cfg, camera, mast
+        self.use_interest, self.straight_edge = use_interest, straight_edge
+        self._truth_z = truth_z_m
+        self._textured = None if textured is None else np.asarray(textured, bool).astype(float)
+        self._truth_terrain: Terrain | None = None
+        self.last_stations = 0
+
+    def _terrain(self, emap: MapLike) -> tuple[Terrain, F64 | None]:
+        if self._truth_z is None:
+            terrain = terrain_from_map(emap.z, emap.var, emap.grid, self.cfg.visibility)
+            return terrain, (emap.interest if self.use_interest else None)
+        if self._truth_terrain is None:
+            z = np.asarray(self._truth_z, dtype=np.float64)
+            z = np.where(np.isfinite(z), z, np.nanmin(z) if np.isfinite(z).any() else 0.0)
+            self._truth_terrain = terrain_from_heights(z, emap.grid, self.cfg.oracle_sigma_m)
+        return self._truth_terrain, self._textured
+
+    def search(self, state: PlannerState) -> SearchGen:
+        cfg = self.cfg
+        terrain, interest = self._terrain(state.map)
+        path = straighten(state.path) if self.straight_edge else state.path
+        stations = path_stations(path, state.rover, state.motion_ok, cfg.station_spacing_m,
+                                 cfg.max_travel_m)
+        self.last_stations = len(stations)
+        pans, tilts, lifts = joint_grid(self.mast, cfg.pan_step_deg, cfg.tilts_deg, cfg.lifts_m)
+        current = np.array([*state.rover, *state.joints], dtype=np.float64)
+        best: CandidateView | None = None
+        pp, tt = np.meshgrid(pans, tilts, indexing="ij")
+        for st in stations:
+            for lift in lifts:
+                cam = camera_pose_from_rover(st.rover, (0.0, 0.0, float(lift)), self.mast,
+                                             state.ground_z_m).t
+                cam_xyz = (float(cam[0]), float(cam[1]), float(cam[2]))
+                yaws = st.rover[2] + pans
+                r = rate_station(terrain, cam_xyz, yaws, tilts, state.map.n, state.map.n_max,
+                                 interest, self.camera, cfg.visibility)
+                poses = np.column_stack([np.tile(st.rover, (pp.size, 1)), pp.ravel(), tt.ravel(),
+                                         np.full(pp.size, lift)])
+                d = motion_cost(poses, current, cfg)
+                rng = landmark_range(cam_xyz, yaws, tilts, state.landmarks_xyz, self.camera)
+                sig = localization_sigma(np.full(pp.size, st.travel_m), state.sigma_loc_m,
+                                         rng.ravel(), cfg)
+                u = utility(r.info_bits.ravel(), d, sig, cfg)
+                k = int(np.argmax(u))
+                if best is None or u[k] > best.utility:
+                    best = CandidateView(
+                        st.rover, (float(pp.ravel()[k]), float(tt.ravel()[k]), float(lift)),
+                        float(r.info_bits.ravel()[k]), float(r.expected_new_cells.ravel()[k]),
+                        float(d[k]), float(sig[k]), float(u[k]), self.name)
+                yield None
+        return best
+
+
+def landmark_range(cam_xyz: tuple[float, float, float], yaws: F64, tilts: F64,
+                   landmarks_xyz: F64, camera: CameraConfig) -> F64:
+    """(P, T) range to the nearest landmark inside each view (inf if none)."""
+    out = np.full((yaws.size, tilts.size), np.inf)
+    lm = np.asarray(landmarks_xyz, dtype=np.float64).reshape(-1, 3)
+    if lm.shape[0] == 0:
+        return out
+    for p, yaw in enumerate(yaws):
+        for t, tilt in enumerate(tilts):
+            pose = CameraPose.from_pan_tilt(*cam_xyz, float(yaw), float(tilt))
+            vis = in_view(pose, camera, lm)
+            if vis.any():
+                out[p, t] = float(np.linalg.norm(lm[vis] - pose.t, axis=1).min())
+    return out
+
+
+def straighten(path: F64) -> F64:
+    """Method 3's path: one straight segment (total least squares) spanning the path points."""
+    xy = as_polyline(path)
+    if xy.shape[0] < 2:
+        return xy
+    c = xy.mean(axis=0)
+    _, _, vt = np.linalg.svd(xy - c, full_matrices=False)
+    d = vt[0] if np.dot(vt[0], xy[-1] - xy[0]) >= 0 else -vt[0]
+    s = (xy - c) @ d
+    return np.vstack([c + s.min() * d, c + s.max() * d])
+
+
+def best_floor_tilt(rover: Pose3, pan: float, lift: float, floor_z_m: float, ground_z_m: float,
+                    camera: CameraConfig, mast: MastConfig) -> float:
+    """The tilt (1 deg grid within limits) whose footprint on the floor plane is largest."""
+    tilts = np.radians(np.arange(mast.tilt_min_deg, min(mast.tilt_max_deg, 0.0) + 1e-9, 1.0))
+    areas = [footprint(camera_pose_from_rover(rover, (pan, float(t), lift), mast, ground_z_m),
+                       camera, floor_z_m).area for t in tilts]
+    return float(tilts[int(np.argmax(areas))])
+
+
+def _floor_estimate(state: PlannerState, cfg: NbvConfig) -> float:
+    z = state.map.z
+    low = z[np.isfinite(z) & (z < state.ground_z_m - 0.1)]
+    if low.size >= 100:
+        return float(np.median(low))
+    return state.ground_z_m - cfg.raster_floor_drop_m
+
+
+def _drop_side(line: LineString, s: float, direction: float, edge_xy: F64 | None) -> float:
+    """+1 if the drop is left of the travel direction, -1 if right."""
+    if edge_xy is not None and len(edge_xy) > 0:
+        p, yaw = _point_and_heading(line, s, direction)
+        q = shapely.get_coordinates(shapely.shortest_line(Point(p), shapely.multipoints(
+            np.asarray(edge_xy, dtype=np.float64)[:, :2])))[-1]
+        cross = math.cos(yaw) * (q[1] - p[1]) - math.sin(yaw) * (q[0] - p[0])
+        return 1.0 if cross > 0 else -1.0
+    return -direction  # edge.edge_path convention: the edge is right of the path direction
+
+
+def _tangent(line: LineString, s: float) -> float:
+    a = line.interpolate(max(0.0, min(line.length, s - 0.01)))
+    b = line.interpolate(max(0.0, min(line.length, s + 0.01)))
+    return math.atan2(b.y - a.y, b.x - a.x)
+
+
+def _point_and_heading(line: LineString, s: float, direction: float) -> tuple[F64, float]:
+    s = max(0.0, min(line.length, s))
+    p = line.interpolate(s)
+    yaw = _tangent(line, s) + (0.0 if direction > 0 else math.pi)
+    return np.array([p.x, p.y]), math.atan2(math.sin(yaw), math.cos(yaw))
+
+
+def _close(a: Pose3, b: Pose3) -> bool:
+    return math.hypot(a[0] - b[0], a[1] - b[1]) < 1e-6 and abs(
+        math.remainder(a[2] - b[2], 2 * math.pi)) < 1e-6
+
+
+def make_planner(method: str, n_views: int, cfg: NbvConfig, camera: CameraConfig,
+                 mast: MastConfig, truth_z_m: F64 | None = None,
+                 textured: NDArray[np.bool_] | None = None) -> Planner:
+    """Planner for a §7 method id ``"1"``..``"5"`` or ``"oracle"`` (needs the truth arrays)."""
+    if method in ("1", "2"):
+        return RasterPlanner(method == "2", n_views, cfg, camera, mast)
+    if method in ("3", "4", "5"):
+        return InformationPlanner(method, cfg, camera, mast, use_interest=method == "5",
+                                  straight_edge=method == "3")
+    if method == "oracle":
+        if truth_z_m is None or textured is None:
+            raise ValueError("the oracle planner needs the true terrain and texture arrays")
+        return InformationPlanner("oracle", cfg, camera, mast, truth_z_m=truth_z_m,
+                                  textured=textured)
+    raise ValueError(f"unknown method {method!r} (one of {', '.join(METHODS)})")

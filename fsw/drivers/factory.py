@@ -1,0 +1,147 @@
+"""Device configuration (``[devices]``) and the factory that opens the flight drivers from it.
+
+The same flight code runs on the rover and on the bench; only these strings differ:
+
+==================  ==========================  ==========================================
+key                 rover                       bench
+==================  ==========================  ==========================================
+``can_interface``   ``socketcan`` (``can0``)    ``virtual`` (lockstep), ``udp_multicast``
+``serial_url``      ``/dev/ttyS1``              ``/dev/pts/N`` (pty), ``socket://H:P``
+``camera_source``   ``cv:0,1``                  ``sim`` (lockstep), ``tcp://H:P``
+==================  ==========================  ==========================================
+
+:func:`open_devices` returns the drivers as executive resources (``motors``, ``mast``,
+``camera``). A bench in the same process may hand in already-open endpoints (resources
+``can_bus``, ``mast_port``, ``camera_source``), which are used instead of opening the
+configured ones. Opening never raises for an absent device: the driver starts faulted and
+retries (its events say why), so the flight software boots without its hardware.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from fsw.config import param
+
+REPO_ROOT = Path(__file__).resolve().parent.parent.parent
+
+
+@dataclass(frozen=True)
+class DevicesConfig:
+    """Where the flight drivers find their hardware, and their timeouts."""
+
+    can_interface: str = param("none", choices=("none", "virtual", "udp_multicast", "socketcan"),
+                               doc="python-can interface of the motor bus")
+    can_channel: str = param("safer", doc="virtual: bus name; udp_multicast: group address; socketcan: can0")
+    can_udp_port: int = param(43113, lo=1024, hi=65535, doc="udp_multicast port")
+    can_dbc: str = param("config/rover.dbc", doc="CAN database (relative paths: to the repository root)")
+    can_status_timeout_s: float = param(0.5, lo=0.05, hi=60.0, units="s", doc="no STATUS for this long: fault")
+    can_heartbeat_timeout_s: float = param(2.5, lo=0.1, hi=60.0, units="s", doc="no heartbeat: node lost")
+    can_heartbeat_period_s: float = param(1.0, lo=0.05, hi=60.0, units="s", doc="flight computer heartbeat")
+    serial_url: str = param("none", doc="mast port: device or pty path, socket://HOST:PORT, loop://, none")
+    serial_baud: int = param(115200, lo=1200, hi=4000000, units="bit/s")
+    mast_ack_timeout_s: float = param(0.3, lo=0.01, hi=10.0, units="s", doc="wait for ACK before a retry")
+    mast_retries: int = param(3, lo=0, hi=20, doc="retransmissions before a command is given up")
+    mast_state_timeout_s: float = param(1.0, lo=0.05, hi=60.0, units="s", doc="no STATE report: fault")
+    camera_source: str = param("none", doc="none | sim | tcp://HOST:PORT | cv:LEFT,RIGHT")
+    camera_timeout_s: float = param(2.0, lo=0.05, hi=60.0, units="s", doc="no pair after a trigger: fault")
+    error_hold_s: float = param(2.0, lo=0.0, hi=600.0, units="s", doc="a transient error flag stays this long")
+    reconnect_period_s: float = param(2.0, lo=0.1, hi=600.0, units="s", doc="retry period for absent devices")
+
+    def __post_init__(self) -> None:
+        cs = self.camera_source
+        if not (cs in ("none", "sim") or cs.startswith(("tcp://", "cv:"))):
+            raise ValueError(f"camera_source {cs!r}: expected none, sim, tcp://HOST:PORT or cv:LEFT,RIGHT")
+        if cs.startswith("tcp://") and not cs.rpartition(":")[2].isdigit():
+            raise ValueError(f"camera_source {cs!r}: the port must be a number")
+
+
+def dbc_path(cfg: DevicesConfig) -> Path:
+    p = Path(cfg.can_dbc)
+    return p if p.is_absolute() else REPO_ROOT / p
+
+
+def can_bus_kwargs(cfg: DevicesConfig) -> dict[str, Any]:
+    """Keyword arguments of ``can.Bus`` for the configured interface."""
+    kw: dict[str, Any] = {"interface": cfg.can_interface, "channel": cfg.can_channel}
+    if cfg.can_interface == "udp_multicast":
+        kw.update(port=cfg.can_udp_port, fd=False)
+    return kw
+
+
+def open_devices(cfg: DevicesConfig, provided: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Drivers for the configured devices, keyed ``motors``, ``mast``, ``camera``."""
+    import can
+
+    from fsw.comm.rover_can import RoverCan
+    from fsw.drivers.camera import CameraDriver, make_source
+    from fsw.drivers.can_motors import CanMotorDriver
+    from fsw.drivers.mast_serial import MastSerialDriver
+
+    provided = provided or {}
+    out: dict[str, Any] = {}
+    if cfg.can_interface != "none" or "can_bus" in provided:
+        def open_bus() -> can.BusABC:
+            return can.Bus(**can_bus_kwargs(cfg))
+
+        bus = provided.get("can_bus")
+        error = None
+        if bus is None:
+            try:
+                bus = open_bus()
+            except Exception as exc:  # noqa: BLE001 - the driver starts faulted and retries
+                bus, error = None, exc
+        motors = CanMotorDriver(bus, RoverCan(dbc_path(cfg)), status_timeout_s=cfg.can_status_timeout_s,
+                                heartbeat_timeout_s=cfg.can_heartbeat_timeout_s,
+                                heartbeat_period_s=cfg.can_heartbeat_period_s, error_hold_s=cfg.error_hold_s,
+                                reconnect_period_s=cfg.reconnect_period_s,
+                                opener=None if "can_bus" in provided else open_bus)
+        if error is not None:
+            motors._event("CAN_NO_BUS", error=f"{type(error).__name__}: {error}")
+        out["motors"] = motors
+    if cfg.serial_url != "none" or "mast_port" in provided:
+        def open_port() -> Any:
+            import serial
+
+            return serial.serial_for_url(cfg.serial_url, baudrate=cfg.serial_baud, timeout=0,
+                                         write_timeout=0.1)
+
+        port = provided.get("mast_port")
+        perr = None
+        if port is None:
+            try:
+                port = open_port()
+            except Exception as exc:  # noqa: BLE001 - the driver starts faulted and retries
+                port, perr = None, exc
+        mast = MastSerialDriver(port, ack_timeout_s=cfg.mast_ack_timeout_s, retries=cfg.mast_retries,
+                                state_timeout_s=cfg.mast_state_timeout_s, error_hold_s=cfg.error_hold_s,
+                                reconnect_period_s=cfg.reconnect_period_s,
+                                opener=None if "mast_port" in provided else open_port,
+                                name=cfg.serial_url if "mast_port" not in provided else "bench")
+        if perr is not None:
+            mast._event("MAST_PORT_ERROR", port=cfg.serial_url, error=f"{type(perr).__name__}: {perr}")
+        out["mast"] = mast
+    if cfg.camera_source != "none":
+        try:
+            source = make_source(cfg.camera_source, provided.get("camera_source"))
+            cerr = None
+        except Exception as exc:  # noqa: BLE001 - e.g. an OpenCV device that is absent
+            source, cerr = None, exc
+        cam = CameraDriver(source, cfg.camera_timeout_s, cfg.error_hold_s)
+        if cerr is not None:
+            cam._event("CAMERA_LINK_ERROR", error=f"{type(cerr).__name__}: {cerr}")
+        out["camera"] = cam
+    return out
+
+
+def close_devices(resources: dict[str, Any]) -> None:
+    """Close the drivers :func:`open_devices` made (idempotent)."""
+    for key in ("motors", "mast", "camera"):
+        drv = resources.get(key)
+        if drv is not None:
+            try:
+                drv.close()
+            except Exception:  # noqa: BLE001, S110 - best effort at shutdown
+                pass

@@ -1,0 +1,48 @@
+"""Map previews for the ground: a 2-D map array -> a small JPEG for MAVLink image transfer.
+
+Topic contract (``[mavlink] map_preview_topic``, default ``map.preview``): a 2-D numpy array
+in map orientation (index ``[iy, ix]``, row 0 = lowest y; fsw/core/geometry.py), either
+float elevation in metres with NaN where unknown, or a uint8 image. The preview is flipped
+so that +y (the world's "north") is up, scaled so its longest side is at most ``max_px``,
+elevations stretched to 1..255 over the known cells (0 = unknown), and JPEG encoded.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import cv2
+import numpy as np
+
+
+class PreviewError(ValueError):
+    """The published object cannot be turned into a preview."""
+
+
+def encode_preview(obj: Any, max_px: int, quality: int) -> tuple[bytes, int, int]:
+    """``(jpeg_bytes, width, height)``; raises :class:`PreviewError` with the reason."""
+    arr = np.asarray(obj)
+    if arr.ndim != 2 or arr.shape[0] < 1 or arr.shape[1] < 1:
+        raise PreviewError(f"expected a 2-D array, got shape {arr.shape}")
+    if arr.dtype == np.uint8:
+        img = arr
+    elif arr.dtype.kind in "fiu":
+        z = arr.astype(np.float64)
+        known = np.isfinite(z)
+        img = np.zeros(z.shape, np.uint8)
+        if known.any():
+            lo, hi = float(z[known].min()), float(z[known].max())
+            span = hi - lo if hi > lo else 1.0
+            img[known] = (1.0 + 254.0 * (z[known] - lo) / span).round().astype(np.uint8)
+    else:
+        raise PreviewError(f"unsupported dtype {arr.dtype}")
+    img = np.ascontiguousarray(img[::-1])
+    h, w = img.shape
+    scale = min(1.0, max_px / max(h, w))
+    if scale < 1.0:
+        w, h = max(1, round(w * scale)), max(1, round(h * scale))
+        img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+    ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise PreviewError("JPEG encoding failed")
+    return buf.tobytes(), w, h

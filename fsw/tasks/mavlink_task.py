@@ -1,0 +1,324 @@
+"""The ground-link task: MAVLink 2 telemetry, events and map previews down; signed commands up.
+
+Thin (ARCHITECTURE.md, tasks): each activation reads the transport, lets the sans-I/O
+adapter (fsw/comm/mavlink_adapter.py) authenticate and decode, dispatches accepted commands
+through the executive's dictionary and acknowledges them, then sends the adapter's frames
+for this activation (within ``[mavlink] budget_bytes_per_frame``) and logs every frame sent
+and received to the .tlog. Operator documentation: docs/ground.md.
+
+Resources (optional, injected by the app or a test): ``mavlink_link`` (a transport; else
+the task opens ``[mavlink] url``), ``mavlink_tlog`` (a path or binary stream; else
+``tlog_path``), ``unix_time`` (a callable giving Unix seconds for signing and the .tlog).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import Any, BinaryIO, ClassVar
+
+from fsw.comm.mavlink_adapter import MavlinkAdapter, VehicleView
+from fsw.comm.mavlink_commands import RESULT_OF_STATUS, Reason, decode_args
+from fsw.comm.mavlink_dialect import MAV_CMD_DICTIONARY, mavlink, signing_timestamp
+from fsw.comm.mavlink_downlink import ChannelSample
+from fsw.comm.mavlink_signing import KeyFileError, Verdict, load_key
+from fsw.comm.mavlink_telemetry import DICT_CRC_KEY, channel_key, dictionary_crc
+from fsw.comm.mavlink_tlog import TlogWriter
+from fsw.comm.mavlink_uplink import CommandIn
+from fsw.drivers.mavlink_transport import TransportError, open_transport
+from fsw.executive.commands import Arg, CommandDef, CommandRequest, CommandStatus
+from fsw.executive.task import Task
+from fsw.executive.telemetry import Channel, Event, EventDef, Severity
+from fsw.tasks.mavlink_preview import PreviewError, encode_preview
+
+_REASON_OF_VERDICT = {Verdict.UNSIGNED: Reason.UNSIGNED, Verdict.BAD_SIGNATURE: Reason.BAD_SIGNATURE,
+                      Verdict.REPLAY: Reason.REPLAY, Verdict.STALE: Reason.STALE, Verdict.NO_KEY: Reason.NO_KEY}
+_THROTTLED = ("AUTH_REJECTED", "RX_BAD", "TRANSPORT_FAULT", "TLOG_ERROR", "PREVIEW_BAD", "CMD_BAD_ARGS")
+
+
+class MavlinkTask(Task):
+    KIND: ClassVar[str] = "mavlink"
+    DOC: ClassVar[str] = "MAVLink 2 ground link: telemetry, events, map previews; signed commands."
+    CHANNELS = (
+        Channel("gcs_link", "bool", lo=1, doc="1 while a ground HEARTBEAT was heard within gcs_timeout_s"),
+        Channel("tx_bytes", "B", doc="downlink bytes packed since start"),
+        Channel("tx_frames", "count"),
+        Channel("frame_bytes", "B", doc="downlink bytes of the last activation (<= budget)"),
+        Channel("frame_bytes_max", "B", doc="largest activation so far (<= budget)"),
+        Channel("tx_errors", "count", hi=0, doc="frames the transport could not send"),
+        Channel("deferred", "count", doc="messages postponed by the byte budget"),
+        Channel("rx_bytes", "B"),
+        Channel("rx_frames", "count"),
+        Channel("rx_bad", "count", doc="corrupt uplink frames (CRC, length, prefix)"),
+        Channel("cmds_accepted", "count", doc="authenticated commands answered ACCEPTED"),
+        Channel("cmds_refused", "count", doc="authenticated commands answered DENIED/FAILED/UNSUPPORTED"),
+        Channel("auth_unsigned", "count", hi=0, doc="commands refused: unsigned"),
+        Channel("auth_bad_signature", "count", hi=0, doc="commands refused: wrong key or corrupted"),
+        Channel("auth_replay", "count", hi=0, doc="commands refused: timestamp not newer (replay)"),
+        Channel("auth_stale", "count", hi=0, doc="commands refused: new stream with an old timestamp"),
+        Channel("auth_no_key", "count", hi=0, doc="commands refused: no key loaded"),
+        Channel("events_sent", "count", doc="events sent as STATUSTEXT"),
+        Channel("events_dropped", "count", hi=0, doc="events lost to a full downlink queue"),
+        Channel("images_sent", "count", doc="map previews completely sent"),
+        Channel("tlog_records", "count"),
+        Channel("budget_bytes", "B", doc="current downlink budget per activation"),
+    )
+    EVENTS = (
+        EventDef("AUTH_REJECTED", Severity.WARNING_HI, "command 0x{opcode:x} from {src} rejected: {verdict}", throttle=10),
+        EventDef("KEY_LOADED", Severity.ACTIVITY_HI, "signing key loaded from {path}; commands must be signed"),
+        EventDef("KEY_MISSING", Severity.WARNING_HI, "no signing key ({reason}); every command will be refused"),
+        EventDef("KEY_PERMISSIONS", Severity.WARNING_LO, "key file {path} is readable by group or others"),
+        EventDef("LINK_UP", Severity.ACTIVITY_HI, "ground station {src} heard"),
+        EventDef("LINK_LOST", Severity.WARNING_LO, "no ground HEARTBEAT for {timeout_s:.1f} s"),
+        EventDef("RX_BAD", Severity.WARNING_LO, "{n} bad uplink frame(s): {reason}", throttle=5),
+        EventDef("TRANSPORT_FAULT", Severity.WARNING_HI, "{url}: {fault}", throttle=5),
+        EventDef("CMD_UNSUPPORTED", Severity.COMMAND, "MAV_CMD {command} from {src} unsupported"),
+        EventDef("CMD_BAD_ARGS", Severity.COMMAND, "{command}: {reason}", throttle=10),
+        EventDef("EVENTS_DROPPED", Severity.WARNING_LO, "{n} events were not downlinked (queue full)"),
+        EventDef("TLOG_ERROR", Severity.WARNING_HI, "tlog {path}: {error}", throttle=3),
+        EventDef("PREVIEW_BAD", Severity.WARNING_LO, "map preview refused: {reason}", throttle=5),
+        EventDef("BUDGET_SET", Severity.ACTIVITY_HI, "downlink budget {budget_bytes} B per activation"),
+    )
+    COMMANDS = (
+        CommandDef("SET_BUDGET", (Arg("budget_bytes", int, lo=280, hi=1_000_000, units="B"),),
+                   doc="change the downlink byte budget per activation (e.g. for a degraded radio)"),
+    )
+
+    # -- start-up ----------------------------------------------------------------------------
+    def setup(self) -> None:
+        cfg = self.cfg = self.ctx.cfg.mavlink
+        res = self.ctx.resources
+        self._unix = res.get("unix_time", time.time)
+        self._epoch_s = float(self._unix()) - self.ctx.clock.now()
+        self._early: list[Event] | None = []  # events of our own start-up, before the adapter exists
+        self.ctx.events.listeners.append(self._on_event)
+        key = self._load_key(cfg.key_file)
+        self.adapter = MavlinkAdapter(cfg, key, signing_timestamp(self._unix()))
+        for ev in self._early or ():
+            self.adapter.push_event(ev)
+        self._early = None
+        self.link = res.get("mavlink_link")
+        self._fault: str | None = None
+        if self.link is None:
+            try:
+                self.link = open_transport(cfg.url, cfg.baud)
+            except TransportError as exc:
+                self._set_fault(str(exc))
+        self.tlog = self._open_tlog(res.get("mavlink_tlog", cfg.tlog_path))
+        self._preview_box = self.subscribe(cfg.map_preview_topic, depth=1, policy="drop_oldest")
+        self._preview: Any = None
+        telemetry = self.ctx.telemetry
+        self._keys = {name: channel_key(i, name) for name, i in telemetry.ids.items()}
+        self._dict_crc = dictionary_crc((i, name) for name, i in telemetry.ids.items())
+        self._fatal_chans = [n for n in telemetry.defs if n.endswith(".tasks_fatal")]
+        self._gcs_heard_s: float | None = None
+        self._link_up = False
+        self._seq = 0
+        self._cmd_counts = {"accepted": 0, "refused": 0}
+        self._dropped_reported = 0
+        self._next_decay_s = 1.0
+
+    def _load_key(self, path: str) -> bytes | None:
+        if not path:
+            self.event("KEY_MISSING", reason="no key_file configured")
+            return None
+        try:
+            key, private = load_key(path)
+        except KeyFileError as exc:
+            self.event("KEY_MISSING", reason=str(exc))
+            return None
+        if not private:
+            self.event("KEY_PERMISSIONS", path=path)
+        self.event("KEY_LOADED", path=path)
+        return key
+
+    def _open_tlog(self, target: Any) -> TlogWriter | None:
+        if not target:
+            return None
+        if hasattr(target, "write"):
+            return TlogWriter(target)
+        try:
+            Path(target).parent.mkdir(parents=True, exist_ok=True)
+            stream: BinaryIO = open(target, "ab")  # noqa: SIM115 - lives as long as the task
+        except OSError as exc:
+            self.event("TLOG_ERROR", path=str(target), error=exc.strerror or str(exc))
+            return None
+        return TlogWriter(stream)
+
+    def _on_event(self, ev: Event) -> None:
+        if self._early is not None:
+            self._early.append(ev)
+        else:
+            self.adapter.push_event(ev)
+
+    # -- one activation --------------------------------------------------------------------------
+    def run(self, frame: int) -> None:
+        now, unix = self.ctx.clock.now(), float(self._unix())
+        stamp = self._epoch_s + now
+        data = b""
+        if self.link is not None:
+            data = self.link.recv(self.cfg.rx_max_bytes_per_frame)
+        batch = self.adapter.receive(data, signing_timestamp(unix))
+        self._log(stamp, batch.frames)
+        if batch.bad:
+            self.event("RX_BAD", n=len(batch.bad), reason=batch.bad[0])
+        if batch.heartbeats:
+            if not self._link_up:
+                self.event("LINK_UP", src="%d/%d" % batch.heartbeats[0])
+            self._gcs_heard_s, self._link_up = now, True
+        elif self._link_up and self._gcs_heard_s is not None and now - self._gcs_heard_s > self.cfg.gcs_timeout_s:
+            self._link_up = False
+            self.event("LINK_LOST", timeout_s=self.cfg.gcs_timeout_s)
+        for cmd in batch.commands:
+            self._command(cmd)
+        q = self.adapter.events
+        if not len(q) and q.dropped > self._dropped_reported:
+            self.event("EVENTS_DROPPED", n=q.dropped - self._dropped_reported)
+            self._dropped_reported = q.dropped
+        self._take_preview(now)
+        frames = self.adapter.plan(self._view(now))
+        if self.link is not None:
+            for f in frames:
+                self.link.send(f)
+            self._set_fault(self.link.fault)
+        self._log(stamp, frames)
+        if now >= self._next_decay_s:
+            self._next_decay_s = now + 1.0
+            for name in _THROTTLED:
+                self.ctx.events.decay(f"{self.name}.{name}")
+        self._publish()
+
+    def _command(self, cmd: CommandIn) -> None:
+        p1 = cmd.param1
+        opcode = int(p1) if math.isfinite(p1) and p1.is_integer() and 0 <= p1 < 2**24 else 0
+        src = f"{cmd.src_system}/{cmd.src_component}"
+        if cmd.verdict is not Verdict.OK:
+            self.event("AUTH_REJECTED", opcode=opcode, src=src, verdict=cmd.verdict.value)
+            self.adapter.ack(cmd, mavlink.MAV_RESULT_DENIED, _REASON_OF_VERDICT[cmd.verdict], opcode)
+            return
+        self._seq += 1
+        if cmd.command_id != MAV_CMD_DICTIONARY:
+            self.event("CMD_UNSUPPORTED", command=cmd.command_id, src=src)
+            self._cmd_counts["refused"] += 1
+            self.adapter.ack(cmd, mavlink.MAV_RESULT_UNSUPPORTED, Reason.NONE, opcode)
+            return
+        commands = self.ctx.commands
+        name = commands.name_of(opcode) if opcode else None
+        if name is None:  # let the dispatcher refuse it, so counters and events stay uniform
+            commands.dispatch(CommandRequest(f"opcode {p1!r}", {}, self._seq, f"mavlink:{src}"))
+            self._cmd_counts["refused"] += 1
+            self.adapter.ack(cmd, mavlink.MAV_RESULT_DENIED, Reason.UNKNOWN_OPCODE, opcode)
+            return
+        try:
+            args = decode_args(commands.definitions()[name][1], cmd.params)
+        except ValueError as exc:
+            self.event("CMD_BAD_ARGS", command=name, reason=str(exc))
+            self._cmd_counts["refused"] += 1
+            self.adapter.ack(cmd, mavlink.MAV_RESULT_DENIED, Reason.BAD_ARGUMENTS, opcode)
+            return
+        resp = commands.dispatch(CommandRequest(name, args, self._seq, f"mavlink:{src}"))
+        ok = resp.status is CommandStatus.OK
+        self._cmd_counts["accepted" if ok else "refused"] += 1
+        reason = Reason.VALIDATION if resp.status is CommandStatus.VALIDATION_ERROR else Reason.NONE
+        self.adapter.ack(cmd, RESULT_OF_STATUS[resp.status], reason, opcode)
+
+    def _take_preview(self, now: float) -> None:
+        latest = self._preview_box.latest()
+        if latest is not None:
+            self._preview = latest
+        if self._preview is None or not self.adapter.image_wanted(now):
+            return
+        obj, self._preview = self._preview, None
+        try:
+            data, w, h = encode_preview(obj, self.cfg.image_max_px, self.cfg.image_quality)
+            self.adapter.offer_image(now, data, w, h, mavlink.MAVLINK_DATA_STREAM_IMG_JPEG)
+        except (PreviewError, ValueError) as exc:
+            self.event("PREVIEW_BAD", reason=str(exc))
+
+    def _view(self, now: float) -> VehicleView:
+        store, exe = self.ctx.telemetry, self.ctx.resources.get("executive")
+        samples = [ChannelSample(DICT_CRC_KEY, self._dict_crc, False)]
+        for name, cv in store.values.items():
+            if cv.value is not None and not isinstance(cv.value, str):
+                samples.append(ChannelSample(self._keys[name], cv.value, store.limit_state(name) in ("low", "high")))
+        load = slips = overruns = 0
+        if exe is not None:
+            prev = self.ctx.frame - 1
+            busy_s = sum(g.last_s for g in exe.groups if g.group is not None and g.group.due(prev))
+            load = int(1000 * busy_s / exe.period_s)
+            slips, overruns = exe.slips, sum(t.overruns for t in exe.tasks.values())
+        x, y, z, roll, pitch, yaw = (self._value(c) for c in self.cfg.pose_channels)
+        pan, tilt = (self._value(c) for c in self.cfg.mast_channels)
+        state = store.values[self.cfg.mission_state_channel].value \
+            if self.cfg.mission_state_channel in store.values else None
+        return VehicleView(
+            now, state, any((store.get(n) or 0) > 0 for n in self._fatal_chans), not self.ctx.clock.realtime,
+            load, slips, overruns,
+            (x, y, z or 0.0) if x is not None and y is not None else None,
+            (roll or 0.0, pitch or 0.0, yaw) if yaw is not None else None,
+            (pan, tilt or 0.0) if pan is not None else None, tuple(samples))
+
+    def _value(self, name: str) -> float | None:
+        """A pose channel's value in SI units (``deg`` channels converted), None if absent."""
+        store = self.ctx.telemetry
+        if not name or name not in store.values:
+            return None
+        v = store.values[name].value
+        if v is None or isinstance(v, str) or not math.isfinite(float(v)):
+            return None
+        return math.radians(float(v)) if store.defs[name].units == "deg" else float(v)
+
+    def _log(self, stamp: float, frames: list[bytes]) -> None:
+        if self.tlog is None or not frames:
+            return
+        errors = self.tlog.errors
+        for f in frames:
+            self.tlog.write(stamp, f)
+        self.tlog.flush()
+        if self.tlog.errors > errors:
+            self.event("TLOG_ERROR", path=str(getattr(self.tlog.stream, "name", "?")), error="write failed")
+
+    def _set_fault(self, fault: str | None) -> None:
+        if fault and fault != self._fault:
+            self.event("TRANSPORT_FAULT", url=self.cfg.url, fault=fault)
+        self._fault = fault
+
+    def _publish(self) -> None:
+        a, u, v = self.adapter, self.adapter.uplink.counters, self.adapter.verifier.counts
+        self.tlm("gcs_link", int(self._link_up))
+        self.tlm("tx_bytes", a.tx_bytes)
+        self.tlm("tx_frames", a.tx_frames)
+        self.tlm("frame_bytes", a.last_frame_bytes)
+        self.tlm("frame_bytes_max", a.max_frame_bytes)
+        self.tlm("tx_errors", self.link.tx_errors if self.link is not None else 0)
+        self.tlm("deferred", a.packer.deferred)
+        self.tlm("rx_bytes", u.bytes)
+        self.tlm("rx_frames", u.frames)
+        self.tlm("rx_bad", u.bad_frames + u.parser_resets)
+        self.tlm("cmds_accepted", self._cmd_counts["accepted"])
+        self.tlm("cmds_refused", self._cmd_counts["refused"])
+        self.tlm("auth_unsigned", v[Verdict.UNSIGNED])
+        self.tlm("auth_bad_signature", v[Verdict.BAD_SIGNATURE])
+        self.tlm("auth_replay", v[Verdict.REPLAY])
+        self.tlm("auth_stale", v[Verdict.STALE])
+        self.tlm("auth_no_key", v[Verdict.NO_KEY])
+        self.tlm("events_sent", a.events.sent)
+        self.tlm("events_dropped", a.events.dropped)
+        self.tlm("images_sent", a.images.images_sent)
+        self.tlm("tlog_records", self.tlog.records if self.tlog is not None else 0)
+        self.tlm("budget_bytes", a.budget_bytes)
+
+    # -- commands ------------------------------------------------------------------------------
+    def cmd_SET_BUDGET(self, budget_bytes: int) -> None:
+        self.adapter.budget_bytes = budget_bytes
+        self.event("BUDGET_SET", budget_bytes=budget_bytes)
+
+    def close(self) -> None:
+        """Flush and close the .tlog and the transport (end of a bench run)."""
+        if self.tlog is not None:
+            self.tlog.close()
+            self.tlog = None
+        if self.link is not None:
+            self.link.close()
+            self.link = None

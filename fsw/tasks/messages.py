@@ -1,0 +1,110 @@
+"""Messages on the software bus between the mission tasks (topic names and payloads).
+
+The sensing cycle (docs/architecture.md): ``mission`` asks ``camera`` for a view, the
+pair goes to ``perception`` which fuses it into the map and re-fits the edge, ``nbv``
+rates candidate views on a snapshot of the map, ``motion`` moves the wheels and the mast.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.core.geometry import CameraPose
+
+# Topic names (one place, so a typo is an import error, not a silent loss).
+CAMERA_REQUEST = "camera.request"
+CAMERA_FRAME = "camera.frame"
+MAP_UPDATED = "map.updated"
+NAV_POSE = "nav.pose"
+NBV_REQUEST = "nbv.request"
+NBV_RESULT = "nbv.result"
+MAP_PREVIEW = "map.preview"
+
+
+@dataclass(frozen=True)
+class NavPose:
+    """The rover pose estimate (x, y, yaw) with its 3x3 covariance, and the mast joints."""
+
+    time_s: float
+    x: float
+    y: float
+    yaw: float
+    cov: NDArray[np.float64]
+    joints: tuple[float, float, float]  # pan, tilt (rad), lift (m)
+    moving: bool = False
+
+
+@dataclass(frozen=True)
+class CaptureRequest:
+    """Ask for one stereo pair; ``p_visible`` is the planner's P_V of the view (for misses)."""
+
+    view_id: int
+    p_visible: NDArray[np.float64] | None = None
+    expected_new_cells: float = float("nan")
+
+
+@dataclass(frozen=True)
+class CameraFrame:
+    """A stereo pair with the camera pose estimate at capture time (ALGORITHM.md §4)."""
+
+    view_id: int
+    time_s: float
+    left: NDArray[np.uint8]
+    right: NDArray[np.uint8]
+    pose: CameraPose
+    pose_cov: NDArray[np.float64]  # 6x6, rotation vector (rad) then translation (m)
+    p_visible: NDArray[np.float64] | None = None
+    expected_new_cells: float = float("nan")
+
+
+@dataclass(frozen=True)
+class MapUpdate:
+    """What one merged view did to the map, and a snapshot for planning."""
+
+    view_id: int
+    time_s: float
+    mapped_cells: int
+    new_cells: int
+    points: int
+    misses: int
+    expected_new_cells: float
+    snapshot: Any  # ElevationMap copy
+    edge: Any = None  # EdgeModel of the polygon fit (Methods 4/5)
+    edge_line: Any = None  # EdgeModel of the straight-segment fit (Method 3)
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+# Motion (fsw/tasks/motion.py): requests from the sequencer, one status per request outcome.
+MOTION_REQUEST = "motion.request"
+MOTION_STATUS = "motion.status"
+
+
+@dataclass(frozen=True)
+class MotionRequest:
+    """A move for the motion task. ``kind``: ``drive`` (``distance_m``, signed), ``turn``
+    (``angle_rad``, CCW +), ``goto`` (``target`` = x, y, yaw in the odometry frame; yaw NaN:
+    arrive with the travel heading), ``mast`` (``joints`` = pan, tilt rad, lift m), ``stop``.
+    ``speed`` (m/s or rad/s) 0 takes the configured default."""
+
+    request_id: int
+    kind: str
+    distance_m: float = 0.0
+    angle_rad: float = 0.0
+    target: tuple[float, float, float] | None = None
+    joints: tuple[float, float, float] | None = None
+    speed: float = 0.0
+
+
+@dataclass(frozen=True)
+class MotionStatus:
+    """Outcome of a :class:`MotionRequest`: ``done``, ``aborted`` or ``refused`` (with a reason)."""
+
+    request_id: int
+    kind: str
+    state: str
+    reason: str = ""
+    time_s: float = 0.0

@@ -1,0 +1,144 @@
+"""``safer-ground listen URL``: a live terminal view of the rover over MAVLink.
+
+Plain ANSI (no curses): the screen is redrawn in place on a terminal; when stdout is not a
+terminal (a pipe, a file), only the final screen is printed at exit, which is how the
+capture in docs/ground.md was made. Shows the link (heartbeat age, rate, lost frames,
+reconnections), mode, pose and mast, SYS_STATUS, per-task timing against budgets, every
+channel coloured by its limits, and the latest events coloured by severity.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+
+from ground.dictionary import GroundDictionary
+from ground.state import SEVERITY_NAMES, GroundState
+
+HELP = "live terminal view: mode, events, channels coloured by limits, task timing"
+RESET, BOLD, DIM = "\x1b[0m", "\x1b[1m", "\x1b[2m"
+RED, YELLOW, GREEN, CYAN = "\x1b[31m", "\x1b[33m", "\x1b[32m", "\x1b[36m"
+SEV_COLOUR = {0: RED + BOLD, 1: RED + BOLD, 2: RED + BOLD, 3: RED, 4: YELLOW, 5: CYAN, 6: "", 7: DIM}
+
+
+class Painter:
+    def __init__(self, colour: bool) -> None:
+        self.colour = colour
+
+    def __call__(self, text: str, style: str) -> str:
+        return f"{style}{text}{RESET}" if self.colour and style else text
+
+
+def render(st: GroundState, d: GroundDictionary, url: str, now: float, paint: Painter,
+           reconnects: int = 0, error: str | None = None, timeout_s: float = 3.0, n_events: int = 12) -> str:
+    """The whole screen as text (pure: the tests and the docs capture use it)."""
+    out: list[str] = []
+    age = None if st.heartbeat_s is None else now - st.heartbeat_s
+    if age is None:
+        link = paint("WAITING for a heartbeat", YELLOW)
+    elif age > timeout_s:
+        link = paint(f"LINK LOST (no heartbeat for {age:.1f} s)", RED + BOLD)
+    else:
+        link = paint("LINK UP", GREEN + BOLD) + f" heartbeat {age:.1f} s ago"
+    out.append(f"{paint('safer-ground', BOLD)} {url}  {link}  sys {st.system_id or '-'}  "
+               f"{st.rate_bps(now) / 1000:.1f} kbit/s  lost {st.loss_pct():.1f} %  reconnects {reconnects}")
+    if error:
+        out.append(paint(f"  link error: {error}", RED))
+    hb = st.heartbeat
+    flags = []
+    if hb is not None:
+        for bit, name in ((128, "armed"), (4, "auto"), (32, "HIL")):
+            if hb.base_mode & bit:
+                flags.append(name)
+    dict_state = {None: paint("waiting", DIM), True: paint("ok", GREEN),
+                  False: paint("MISMATCH (showing raw keys)", RED)}[st.dictionary_ok]
+    out.append(f"Mode {paint(st.mode(), BOLD)}  status {st.status()}  {' '.join(flags)}   "
+               f"dictionary {d.source}: {dict_state}")
+    pose = "-"
+    if st.position_ned is not None:
+        n, e, dn = st.position_ned
+        yaw = "" if st.yaw_ned is None else f"  yaw {math.degrees(-st.yaw_ned):6.1f} deg"
+        pose = f"x {n:6.2f}  y {-e:6.2f}  z {-dn:5.2f} m{yaw}"
+    mast = "-" if st.mast is None else f"pan {math.degrees(st.mast[0]):6.1f}  tilt {math.degrees(st.mast[1]):6.1f} deg"
+    out.append(f"Pose {pose}   Mast {mast}")
+    s = st.sys_status
+    if s is not None:
+        out.append(f"System load {s.load / 10:5.1f} %  slips {s.errors_count1}  overruns {s.errors_count2}  "
+                   f"comm errors {s.errors_comm}  auth rejected {s.errors_count3}  events dropped {s.errors_count4}")
+    out.append("")
+    out.append(paint(f"{'task':<14}{'last ms':>9}{'max ms':>9}{'budget':>9}{'overruns':>10}", BOLD))
+    for task, budget in d.budgets_ms.items():
+        last = st.channels.get(f"{task}.exec_last_ms", (math.nan, 0))[0]
+        mx = st.channels.get(f"{task}.exec_max_ms", (math.nan, 0))[0]
+        ovr = st.channels.get(f"{task}.overruns", (math.nan, 0))[0]
+        style = RED if (mx == mx and mx > budget) or (ovr == ovr and ovr > 0) else ""
+        out.append(paint(f"{task:<14}{last:9.3f}{mx:9.3f}{budget:9.2f}{ovr:10.0f}", style))
+    out.append("")
+    out.append(paint("channels (red: out of limits, dim: older than 10 s)", BOLD))
+    cells = []
+    for name in sorted(st.channels):
+        value, t = st.channels[name]
+        info = d.by_name(name) if st.dictionary_ok is not False else None
+        style = ""
+        if info is not None and info.limit_state(value) != "ok":
+            style = RED + BOLD
+        elif now - t > 10.0:
+            style = DIM
+        text = f"{name[:26]:<26} {value:>12.6g} {info.units if info else '':<5}"
+        cells.append(paint(text, style))
+    for i in range(0, len(cells), 2):
+        out.append("  ".join(cells[i:i + 2]))
+    out.append("")
+    out.append(paint("events (newest last)", BOLD))
+    for ev in list(st.events)[-n_events:]:
+        sev = SEVERITY_NAMES.get(ev.severity, str(ev.severity))
+        out.append(paint(f"{now - ev.time_s:6.1f} s ago  {sev:<9} {ev.text}", SEV_COLOUR.get(ev.severity, "")))
+    return "\n".join(out)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("url", help="udpin:HOST:PORT (rover sends here, the default rover url is "
+                               "udpout:127.0.0.1:14550), udpout:HOST:PORT (rover listens) or serial:DEVICE")
+    p.add_argument("--baud", type=int, default=57600, help="serial line rate")
+    p.add_argument("--refresh", type=float, default=0.5, metavar="S", help="screen refresh period")
+    p.add_argument("--timeout", type=float, default=3.0, metavar="S", help="heartbeat age that counts as link lost")
+    p.add_argument("--duration", type=float, default=None, metavar="S", help="exit after S seconds (default: Ctrl-C)")
+    p.add_argument("--no-color", action="store_true", help="no ANSI colours")
+
+
+def run(args: argparse.Namespace, d: GroundDictionary) -> int:
+    from ground.link import GroundLink, LinkError
+
+    if args.refresh <= 0 or args.timeout <= 0 or (args.duration is not None and args.duration < 0):
+        print("safer-ground listen: --refresh, --timeout and --duration must be positive", file=sys.stderr)
+        return 2
+    try:
+        link = GroundLink(args.url, args.baud)
+    except LinkError as exc:
+        print(f"safer-ground listen: {exc}", file=sys.stderr)
+        return 2
+    tty = sys.stdout.isatty()
+    paint = Painter(tty and not args.no_color)
+    st = GroundState(d)
+    t0 = time.monotonic()
+    next_draw = t0
+    try:
+        while args.duration is None or time.monotonic() - t0 < args.duration:
+            msg = link.recv(timeout_s=min(0.1, args.refresh))
+            now = time.monotonic()
+            if msg is not None:
+                st.feed(msg, now)
+            if tty and now >= next_draw:
+                next_draw = now + args.refresh
+                screen = render(st, d, args.url, now, paint, link.reconnects, link.error, args.timeout)
+                sys.stdout.write("\x1b[H\x1b[2J" + screen + "\n")
+                sys.stdout.flush()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        link.close()
+    if not tty:
+        print(render(st, d, args.url, time.monotonic(), paint, link.reconnects, link.error, args.timeout))
+    return 0

@@ -1,0 +1,156 @@
+"""``safer-map``: the map codec on the command line (ALGORITHM.md §6; docs/quadtree.md).
+
+    safer-map encode IN.npy OUT.sqm [--wheel-diameter M] [--max-error M] [--cell-m M]
+    safer-map decode IN.sqm OUT.npy
+    safer-map info IN.sqm
+
+Maps are ``.npy`` arrays of float32 metres, NaN = unknown. Defaults (wheel diameter, cell
+size, codec settings) come from ``config/fsw.toml`` (``[rover]``, ``[map]``, ``[codec]``).
+Bad or truncated input, or a bad config, prints one line ``safer-map: error: ...`` and
+exits 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from fsw.config import ConfigError, build, load_toml
+from fsw.core.geometry import MapGridConfig, RoverConfig
+from fsw.core.mapcodec import CodecConfig, MapCodecError, decode_map, encode_map
+from fsw.settings import DEFAULT_CONFIG
+
+PROG = "safer-map"
+
+
+class UsageError(Exception):
+    """Bad input: reported on one line, exit 2."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog=PROG,
+        description="Encode an elevation map (.npy float32 metres, NaN = unknown) into the "
+        "compressed quadtree container sent to the Cliff-bot, decode it back, or describe it. "
+        "Every known cell of the decoded map is within the error bound of the original.",
+        epilog="Exit codes: 0 ok, 2 bad usage, input file or config.")
+    p.add_argument("--config", default=str(DEFAULT_CONFIG),
+                   help="flight config for defaults ([rover], [map], [codec])")
+    sub = p.add_subparsers(dest="cmd", metavar="COMMAND", required=True)
+    e = sub.add_parser("encode", help="compress a .npy map into a map container",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    e.add_argument("input", type=Path, help=".npy file, 2-D float, metres, NaN = unknown")
+    e.add_argument("output", type=Path, help="container file to write")
+    e.add_argument("--wheel-diameter", type=float, metavar="M",
+                   help="rover wheel diameter in metres (default: [rover] wheel_diameter_m)")
+    e.add_argument("--max-error", type=float, metavar="M",
+                   help="error bound in metres (default: [codec] error_bound_wheels x wheel)")
+    e.add_argument("--cell-m", type=float, metavar="M", help="cell size (default: [map] cell_m)")
+    d = sub.add_parser("decode", help="rebuild the .npy map from a container")
+    d.add_argument("input", type=Path, help="container file")
+    d.add_argument("output", type=Path, help=".npy file to write (float32, NaN = unknown)")
+    i = sub.add_parser("info", help="print a container's header and sizes")
+    i.add_argument("input", type=Path, help="container file")
+    return p
+
+
+def _read_bytes(path: Path) -> bytes:
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise UsageError(f"{path}: cannot read ({exc.strerror or exc})") from None
+
+
+def _load_npy(path: Path) -> np.ndarray:
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(6)
+    except OSError as exc:
+        raise UsageError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if head != b"\x93NUMPY":
+        raise UsageError(f"{path}: not a .npy file (bad magic)")
+    try:
+        z = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as exc:
+        raise UsageError(f"{path}: not a readable .npy array ({exc})") from None
+    if not isinstance(z, np.ndarray) or z.ndim != 2 or 0 in z.shape:
+        raise UsageError(f"{path}: expected a non-empty 2-D array, got shape {getattr(z, 'shape', '?')}")
+    if not (np.issubdtype(z.dtype, np.floating) or np.issubdtype(z.dtype, np.integer)):
+        raise UsageError(f"{path}: expected float elevations, got dtype {z.dtype}")
+    return z
+
+
+def _positive(name: str, v: float | None) -> None:
+    if v is not None and not (v > 0 and np.isfinite(v)):
+        raise UsageError(f"{name} must be a positive number of metres, got {v}")
+
+
+def cmd_encode(args: argparse.Namespace) -> int:
+    data = load_toml(args.config)
+    rover = build(RoverConfig, data.get("rover", {}), args.config, "rover")
+    grid = build(MapGridConfig, data.get("map", {}), args.config, "map")
+    codec = build(CodecConfig, data.get("codec", {}), args.config, "codec")
+    for name in ("wheel_diameter", "max_error", "cell_m"):
+        _positive("--" + name.replace("_", "-"), getattr(args, name))
+    wheel = args.wheel_diameter or rover.wheel_diameter_m
+    cell = args.cell_m or grid.cell_m
+    z = _load_npy(args.input)
+    try:
+        enc = encode_map(z, cell_m=cell, wheel_diameter_m=wheel, cfg=codec,
+                         error_bound_m=args.max_error)
+    except ValueError as exc:
+        raise UsageError(f"{args.input}: {exc}") from None
+    try:
+        args.output.write_bytes(enc.data)
+    except OSError as exc:
+        raise UsageError(f"{args.output}: cannot write ({exc.strerror or exc})") from None
+    t = enc.tree
+    print(f"{args.output}: {z.shape[0]}x{z.shape[1]} cells -> {len(enc.data)} bytes; "
+          f"{t.n_leaves} leaves (reduction {t.reduction_factor:.1f}x); max error "
+          f"{enc.max_error_m:.4f} m (bound {args.max_error or codec.error_bound_wheels * wheel:.4f} m)")
+    return 0
+
+
+def cmd_decode(args: argparse.Namespace) -> int:
+    dec = decode_map(_read_bytes(args.input))
+    try:
+        np.save(args.output, dec.z)
+    except OSError as exc:
+        raise UsageError(f"{args.output}: cannot write ({exc.strerror or exc})") from None
+    known = int(np.isfinite(dec.z).sum())
+    print(f"{args.output}: {dec.header.ny}x{dec.header.nx} cells, {known} known, "
+          f"max error bound {dec.header.error_bound_m:.4f} m")
+    return 0
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    raw = _read_bytes(args.input)
+    dec = decode_map(raw)
+    h = dec.header
+    known = int(np.isfinite(dec.z).sum())
+    rows = [("bytes", len(raw)), ("cells", f"{h.ny} x {h.nx} ({known} known)"),
+            ("cell_m", f"{h.cell_m:.4g}"), ("wheel_diameter_m", f"{h.wheel_diameter_m:.4g}"),
+            ("error_bound_m", f"{h.error_bound_m:.4g}"), ("quant_step_m", f"{h.quant_step_m:.4g}"),
+            ("leaves", h.n_leaves), ("reduction", f"{h.ny * h.nx / max(1, h.n_leaves):.1f}x"),
+            ("split_rule", h.split_rule), ("leaf_value", h.leaf_value),
+            ("bits_per_cell", f"{8 * len(raw) / (h.ny * h.nx):.4f}")]
+    for k, v in rows:
+        print(f"{k:18s} {v}")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return {"encode": cmd_encode, "decode": cmd_decode, "info": cmd_info}[args.cmd](args)
+    except (UsageError, MapCodecError, ConfigError) as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,177 @@
+"""``safer-hil bench nbv``: speed and accuracy of next-view rating (ALGORITHM.md §3.1, §3.2)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+HELP = "candidate poses rated per second and P_V error of the fast kernel vs the brute force"
+DESCRIPTION = (
+    "Builds a realistic partially mapped 256x256 state (lab scenario, or the built-in "
+    "synthetic scene: a start panorama plus a few information-based views), then (1) rates "
+    "every candidate pose of one Method 5 search (stations along the edge path within "
+    "max_travel_m x the mast pan/tilt/lift grid of [nbv]) and prints poses rated per second, "
+    "with the per-station split between the P_V kernel and the per-view field-of-view sums; "
+    "(2) for a sample of those poses compares the kernel's P_V of every cell in the view with "
+    "the brute-force reference (visibility.pv_reference) and prints the mean absolute error "
+    "and the brute-force cost per pose. Runs in one process on one core (numpy). Exit 2 on a "
+    "bad config file."
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenario", choices=("lab", "synthetic"), default="lab",
+                   help="terrain truth the map state is built from")
+    p.add_argument("--seed", type=int, default=0, help="scene and noise seed")
+    p.add_argument("--config", type=Path, default=None,
+                   help="flight config TOML (default: config/fsw.toml)")
+    p.add_argument("--warmup-views", type=int, default=4,
+                   help="information-based views merged after the panorama")
+    p.add_argument("--ref-poses", type=int, default=6,
+                   help="poses checked against the brute-force reference")
+    p.add_argument("--rays", type=int, default=None,
+                   help="override nbv.visibility.rays_per_turn")
+    p.add_argument("--repeat", type=int, default=2, help="timed searches (the best is reported)")
+    p.add_argument("--json", type=Path, default=None, help="also write the figures to this file")
+
+
+def run(args: argparse.Namespace) -> int:
+    import dataclasses
+    import math
+
+    import numpy as np
+
+    from fsw.config import ConfigError
+    from fsw.core.geometry import MapGrid
+    from fsw.core.nbv import rate_station
+    from fsw.core.planners import InformationPlanner, PlannerState
+    from fsw.core.view_candidates import CandidateView, joint_grid, path_stations
+    from fsw.core.visibility import (
+        cell_points,
+        horizontal_reach_m,
+        in_view,
+        pv_reference,
+        terrain_from_map,
+    )
+    from fsw.core.visibility_kernel import pv_fast
+    from fsw.settings import DEFAULT_CONFIG, load_settings
+    from hil_sim import nbv_scene
+
+    for name in ("warmup_views", "ref_poses", "repeat"):
+        if getattr(args, name) < (1 if name == "repeat" else 0):
+            print(f"bench nbv: --{name.replace('_', '-')} must be >= 0 (repeat >= 1)",
+                  file=sys.stderr)
+            return 2
+    try:
+        settings = load_settings(args.config or DEFAULT_CONFIG)
+    except ConfigError as err:
+        print(str(err), file=sys.stderr)
+        return 2
+    cfg = settings.nbv
+    if args.rays is not None:
+        if not 256 <= args.rays <= 65536:
+            print("bench nbv: --rays must be within 256..65536", file=sys.stderr)
+            return 2
+        cfg = dataclasses.replace(cfg, visibility=dataclasses.replace(
+            cfg.visibility, rays_per_turn=args.rays))
+    vis, camera, mast = cfg.visibility, settings.camera, settings.mast
+    grid = MapGrid.from_config(settings.map)
+
+    if args.scenario == "lab":
+        truth, textured, edge = nbv_scene.lab_truth(grid, args.seed)
+    else:
+        truth, textured = nbv_scene.synthetic_terrain(grid, args.seed)
+        edge = nbv_scene.synthetic_edge()
+    path = nbv_scene.edge_offset_path(edge, settings.edge.setback_m)
+    emap = nbv_scene.panorama_map(truth, textured, grid, camera, mast, (0.0, 0.0, 0.0),
+                                  args.seed, fusion=settings.fusion)
+    rng = np.random.default_rng(args.seed)
+    planner = InformationPlanner("5", cfg, camera, mast, use_interest=True)
+    rover, joints = (0.0, 0.0, 0.0), (0.0, 0.0, mast.lift_max_m)
+    for _ in range(args.warmup_views):
+        state = PlannerState(emap, rover, joints, path, lambda a, b: True, edge_xy=edge)
+        view = planner.next_view(state)
+        if view is None:
+            break
+        rover, joints = view.rover, view.joints
+        nbv_scene.simulated_view(emap, truth, textured, view.camera_pose(mast), camera, rng, vis)
+    state = PlannerState(emap, rover, joints, path, lambda a, b: True, edge_xy=edge)
+    pans, tilts, lifts = joint_grid(mast, cfg.pan_step_deg, cfg.tilts_deg, cfg.lifts_m)
+
+    # (1) Speed: one full Method 5 search, end to end.
+    wall = []
+    for _ in range(args.repeat):
+        t0 = time.perf_counter()
+        best = planner.next_view(state)
+        wall.append(time.perf_counter() - t0)
+    n_poses = planner.last_stations * lifts.size * pans.size * tilts.size
+    search_s = min(wall)
+    terrain = terrain_from_map(emap.z, emap.var, grid, vis)
+    cam0 = (best.camera_pose(mast).t if best else np.array([rover[0], rover[1], 1.5]))
+    cam_xyz = (float(cam0[0]), float(cam0[1]), float(cam0[2]))
+    t0 = time.perf_counter()
+    rate_station(terrain, cam_xyz, rover[2] + pans, tilts, emap.n, emap.n_max, emap.interest,
+                 camera, vis)
+    station_s = time.perf_counter() - t0
+    reach = horizontal_reach_m(camera)
+    xs, ys = grid.centers()
+    near = np.nonzero(((xs - cam_xyz[0]) ** 2 + (ys - cam_xyz[1]) ** 2 <= reach**2)
+                      & (emap.n < emap.n_max))
+    t0 = time.perf_counter()
+    pv_fast(terrain, cam_xyz, near[0], near[1], vis)
+    kernel_s = time.perf_counter() - t0
+
+    # (2) Accuracy against the brute force, on sampled candidate poses.
+    stations = path_stations(path, rover, lambda a, b: True, cfg.station_spacing_m,
+                             cfg.max_travel_m)
+    cands = [CandidateView(st.rover, (float(p), float(t), float(lv)))
+             for st in stations for p in pans for t in tilts for lv in lifts]
+    picks = rng.choice(len(cands), size=min(args.ref_poses, len(cands)), replace=False)
+    errs, ref_s, cells = [], [], 0
+    for k in picks:
+        pose = cands[int(k)].camera_pose(mast)
+        iy, ix = np.nonzero(np.ones(grid.shape, bool))
+        sel = in_view(pose, camera, cell_points(terrain, iy, ix))
+        if not sel.any():
+            continue
+        c = (float(pose.t[0]), float(pose.t[1]), float(pose.t[2]))
+        t0 = time.perf_counter()
+        ref = pv_reference(terrain, c, iy[sel], ix[sel])
+        ref_s.append(time.perf_counter() - t0)
+        fast = pv_fast(terrain, c, iy[sel], ix[sel], vis)
+        errs.append(np.abs(fast - ref))
+        cells += int(sel.sum())
+    err = np.concatenate(errs) if errs else np.zeros(0)
+
+    fig = {
+        "scenario": args.scenario, "seed": args.seed, "mapped_cells": int(emap.mapped.sum()),
+        "stations": planner.last_stations, "poses": int(n_poses),
+        "search_s": search_s, "poses_per_s": n_poses / search_s,
+        "station_rating_s": station_s, "station_kernel_s": kernel_s,
+        "station_cells": int(near[0].size), "views_per_station": int(pans.size * tilts.size),
+        "rays_per_turn": vis.rays_per_turn,
+        "ref_poses": len(errs), "ref_cells": cells,
+        "pv_mae": float(err.mean()) if err.size else math.nan,
+        "pv_p95": float(np.quantile(err, 0.95)) if err.size else math.nan,
+        "pv_max": float(err.max()) if err.size else math.nan,
+        "ref_s_per_pose": float(np.mean(ref_s)) if ref_s else math.nan,
+    }
+    print(f"map state: {args.scenario} seed {args.seed}, {fig['mapped_cells']} of "
+          f"{grid.nx * grid.ny} cells mapped (panorama + {args.warmup_views} views)")
+    print(f"candidates: {fig['stations']} stations x {lifts.size} lift x {pans.size} pan x "
+          f"{tilts.size} tilt = {n_poses} poses")
+    print(f"rated {n_poses} poses in {search_s:.3f} s: {fig['poses_per_s']:.0f} poses/s "
+          f"(goal >= 200)")
+    print(f"  per station: {1e3 * station_s:.0f} ms = P_V kernel {1e3 * kernel_s:.0f} ms "
+          f"({fig['station_cells']} cells, {vis.rays_per_turn} rays/turn) + view sums "
+          f"and values for {fig['views_per_station']} pan/tilt views")
+    print(f"P_V vs brute force: {fig['ref_poses']} poses, {cells} cells in view: mean abs error "
+          f"{fig['pv_mae']:.4f} (goal <= 0.05), p95 {fig['pv_p95']:.3f}, max {fig['pv_max']:.3f}")
+    print(f"brute force: {fig['ref_s_per_pose']:.2f} s per pose "
+          f"({fig['ref_s_per_pose'] * fig['poses_per_s']:.0f}x the fast rating per pose)")
+    if args.json:
+        args.json.write_text(json.dumps(fig, indent=2))
+    return 0

@@ -1,0 +1,241 @@
+"""Emulated wheel motor controllers: the CAN end of the twelve axes of the true rover.
+
+Each controller behaves as a real one on the bus (frames of ``config/rover.dbc``):
+
+* STATUS every ``status_period_s`` (joint position, velocity, current, Enabled, fault bits,
+  alive counter, checksum) and a HEARTBEAT every ``heartbeat_period_s`` (NMT state);
+* a COMMAND with a bad checksum or length is counted and ignored;
+* Enable=1 with no latched fault drives the axis to the set-point; the set-point is clipped
+  to the controller's limits and FaultLimit is reported while it is;
+* no COMMAND for ``command_timeout_s`` while enabled -> stop, FaultTimeout (latched);
+* ESTOP Engage=1 -> every axis stops, FaultEStop (latched); ClearFaults clears latched bits
+  once the cause is gone;
+* over-current (a stalled wheel) -> stop, FaultOvercurrent (latched); an injected driver
+  fault -> FaultDriver while it lasts, the motor coasts;
+* bus-off (injected): no reception, no transmission; on return the node boots again.
+
+Frames cross :class:`hil_sim.faults.FaultInjector` in both directions (drop, delay, corrupt).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import can
+
+from fsw.comm.rover_can import (
+    AXES,
+    STATE_BOOTUP,
+    STATE_OPERATIONAL,
+    STATE_PREOP,
+    STATE_STOPPED,
+    AxisCommand,
+    Bad,
+    EStop,
+    RoverCan,
+)
+from fsw.config import param
+from hil_sim.faults import FaultInjector
+from hil_sim.rover_truth import RoverTruth
+
+
+@dataclass(frozen=True)
+class MotorControllerConfig:
+    status_period_s: float = param(0.1, lo=0.005, hi=10.0, units="s")
+    heartbeat_period_s: float = param(1.0, lo=0.05, hi=60.0, units="s")
+    command_timeout_s: float = param(0.5, lo=0.02, hi=60.0, units="s")
+    max_drive_radps: float = param(3.0, lo=0.1, hi=30.0, units="rad/s", doc="drive set-point limit")
+    steer_limit_deg: float = param(95.0, lo=1.0, hi=180.0, units="deg", doc="steer set-point limit (+-)")
+    shoulder_min_deg: float = param(5.0, lo=-90.0, hi=90.0, units="deg")
+    shoulder_max_deg: float = param(55.0, lo=-90.0, hi=90.0, units="deg")
+    overcurrent_a: float = param(10.0, lo=0.1, hi=12.7, units="A")
+
+
+class _Axis:
+    def __init__(self, name: str, index: int) -> None:
+        self.name, self.kind, self.index = name, name.split("_")[0], index
+        self.enabled = False
+        self.latched: set[str] = set()
+        self.limit = False
+        self.setpoint = 0.0
+        self.t_cmd = -math.inf
+        self.state = STATE_BOOTUP
+        self.counter = 0
+        self.last_cmd_counter: int | None = None
+
+
+class MotorControllerBank:
+    """All twelve controllers on one python-can bus, driving a :class:`RoverTruth`."""
+
+    def __init__(self, bus: can.BusABC, codec: RoverCan, rover: RoverTruth, cfg: MotorControllerConfig,
+                 faults: FaultInjector | None = None) -> None:
+        self.bus, self.codec, self.rover, self.cfg = bus, codec, rover, cfg
+        self.faults = faults or FaultInjector()
+        self.axes = {name: _Axis(name, i % 4) for i, name in enumerate(AXES)}
+        self.estop = False
+        self._t_status = -math.inf
+        self._t_hb = -math.inf
+        self._was_off = False
+        self._delayed: list[tuple[float, int, int, bytes, bool]] = []  # (due, order, id, data, to_fsw)
+        self._order = 0
+        self.rx_commands = self.rx_bad = self.rx_other = self.tx_frames = 0
+        self.fsw_heartbeats = 0
+
+    # -- reception --------------------------------------------------------------------------
+    def receive(self, now: float) -> None:
+        """Drain the bus and act on commands and e-stops (nothing while bus-off)."""
+        off = self.faults.bus_off()
+        while True:
+            msg = self.bus.recv(timeout=0.0)
+            if msg is None:
+                break
+            if off:
+                continue
+            axis = self.codec.route.get(msg.arbitration_id, ("", None, None))[1]
+            fate, data, delay = self.faults.can_frame(axis, False, bytes(msg.data))
+            if fate == "drop":
+                continue
+            if delay:
+                self._queue(now + delay, msg.arbitration_id, data, False)
+            else:
+                self._on_frame(msg.arbitration_id, data, msg.is_extended_id, now)
+        for frame_id, data in self._due(now, to_fsw=False):
+            self._on_frame(frame_id, data, False, now)
+        if off:
+            self._was_off = True
+
+    def _on_frame(self, frame_id: int, data: bytes, extended: bool, now: float) -> None:
+        d = self.codec.decode(frame_id, data, extended)
+        if isinstance(d, Bad):
+            self.rx_bad += 1
+        elif isinstance(d, AxisCommand):
+            self.rx_commands += 1
+            self._on_command(self.axes[d.axis], d, now)
+        elif isinstance(d, EStop):
+            self.estop = d.engage
+            if d.engage:
+                for ax in self.axes.values():
+                    ax.enabled = False
+                    ax.latched.add("FaultEStop")
+        elif getattr(d, "node", "") == "FSW":
+            self.fsw_heartbeats += 1
+        else:
+            self.rx_other += 1  # statuses and heartbeats: our own traffic echoed back
+
+    def _on_command(self, ax: _Axis, cmd: AxisCommand, now: float) -> None:
+        ax.t_cmd = now
+        ax.last_cmd_counter = cmd.counter
+        if cmd.clear_faults:
+            ax.latched.discard("FaultTimeout")
+            ax.latched.discard("FaultOvercurrent")
+            if not self.estop:
+                ax.latched.discard("FaultEStop")
+        blocked = bool(ax.latched) or self.estop or self.faults.motor_fault(ax.name) == "driver"
+        if not cmd.enable or blocked:
+            ax.enabled = False
+            ax.state = STATE_STOPPED if blocked else STATE_PREOP
+            return
+        lo, hi = self._limits(ax.kind)
+        ax.limit = not (lo <= cmd.setpoint <= hi)
+        ax.setpoint = min(hi, max(lo, cmd.setpoint))
+        ax.enabled = True
+        ax.state = STATE_OPERATIONAL
+
+    def _limits(self, kind: str) -> tuple[float, float]:
+        c = self.cfg
+        if kind == "DRIVE":
+            return -c.max_drive_radps, c.max_drive_radps
+        if kind == "STEER":
+            s = math.radians(c.steer_limit_deg)
+            return -s, s
+        return math.radians(c.shoulder_min_deg), math.radians(c.shoulder_max_deg)
+
+    # -- actuation --------------------------------------------------------------------------
+    def actuate(self, now: float) -> None:
+        """Timeouts, injected faults and set-points into the rover truth (before it steps)."""
+        r = self.rover
+        for ax in self.axes.values():
+            if ax.enabled and now - ax.t_cmd > self.cfg.command_timeout_s:
+                ax.enabled = False
+                ax.latched.add("FaultTimeout")
+                ax.state = STATE_STOPPED
+            mode = self.faults.motor_fault(ax.name)
+            if ax.kind == "DRIVE":
+                r.stalled[ax.index] = mode == "stall"
+                r.drive_fault[ax.index] = mode == "driver"
+                if r.drive_current[ax.index] > self.cfg.overcurrent_a:
+                    ax.latched.add("FaultOvercurrent")
+                    ax.enabled = False
+                r.omega_cmd[ax.index] = ax.setpoint if ax.enabled else 0.0
+            elif ax.kind == "STEER":
+                r.steer_cmd[ax.index] = ax.setpoint if ax.enabled and not mode else r.steer[ax.index]
+            else:
+                r.shoulder_cmd[ax.index] = ax.setpoint if ax.enabled and not mode else r.shoulder[ax.index]
+
+    # -- transmission -----------------------------------------------------------------------
+    def transmit(self, now: float) -> None:
+        """Statuses and heartbeats when due, and frames whose injected delay has passed."""
+        if self.faults.bus_off():
+            return
+        if self._was_off:  # back from bus-off: the nodes reboot
+            self._was_off = False
+            for ax in self.axes.values():
+                ax.state = STATE_BOOTUP
+            self._t_hb = -math.inf
+        if now - self._t_status >= self.cfg.status_period_s - 1e-9:
+            self._t_status = now
+            for ax in self.axes.values():
+                self._send_status(ax, now)
+        if now - self._t_hb >= self.cfg.heartbeat_period_s - 1e-9:
+            self._t_hb = now
+            for ax in self.axes.values():
+                self._emit(ax.name, *self.codec.encode_heartbeat(ax.name, ax.state), now)
+                if ax.state == STATE_BOOTUP:
+                    ax.state = STATE_PREOP
+        for frame_id, data in self._due(now, to_fsw=True):
+            self._send(frame_id, data, now)
+
+    def _send_status(self, ax: _Axis, now: float) -> None:
+        r, i = self.rover, ax.index
+        if ax.kind == "DRIVE":
+            pos, vel, cur = r.drive_angle[i], r.omega[i], r.drive_current[i]
+        elif ax.kind == "STEER":
+            pos, vel, cur = r.steer[i], 0.0, r.steer_current[i]
+        else:
+            pos, vel, cur = r.shoulder[i], 0.0, r.shoulder_current[i]
+        faults = set(ax.latched)
+        if ax.limit:
+            faults.add("FaultLimit")
+        if self.faults.motor_fault(ax.name) == "driver":
+            faults.add("FaultDriver")
+        ax.counter = (ax.counter + 1) & 0xF
+        self._emit(ax.name, *self.codec.encode_status(ax.name, float(pos), float(vel), float(cur),
+                                                      ax.enabled, faults, ax.counter), now)
+
+    def _emit(self, axis: str, frame_id: int, data: bytes, now: float) -> None:
+        fate, data, delay = self.faults.can_frame(axis, True, data)
+        if fate == "drop":
+            return
+        if delay:
+            self._queue(now + delay, frame_id, data, True)
+        else:
+            self._send(frame_id, data, now)
+
+    def _send(self, frame_id: int, data: bytes, now: float) -> None:
+        msg = can.Message(arbitration_id=frame_id, data=data, is_extended_id=False, timestamp=now)
+        try:
+            self.bus.send(msg)
+            self.tx_frames += 1
+        except can.CanError:
+            pass  # a full or closed bus loses the frame, as on a real wire
+
+    def _queue(self, due: float, frame_id: int, data: bytes, to_fsw: bool) -> None:
+        self._order += 1
+        self._delayed.append((due, self._order, frame_id, data, to_fsw))
+
+    def _due(self, now: float, to_fsw: bool) -> list[tuple[int, bytes]]:
+        ready = sorted(d for d in self._delayed if d[4] == to_fsw and d[0] <= now + 1e-9)
+        if ready:
+            self._delayed = [d for d in self._delayed if not (d[4] == to_fsw and d[0] <= now + 1e-9)]
+        return [(d[2], d[3]) for d in ready]

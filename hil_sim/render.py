@@ -1,0 +1,193 @@
+"""The stereo renderer: what the RECON-bot's cameras see of a :class:`World`.
+
+A pinhole stereo pair (``fsw.core.geometry.CameraConfig``: resolution, focal length from
+the horizontal field of view, baseline; the right camera ``baseline_m`` along the left
+camera's ``x``) renders grayscale ``uint8`` images with exact occlusion:
+
+* the terrain by coarse-to-fine ray casting into the truth heightfield
+  (``hil_sim.world.raytrace``; ALGORITHM.md §4 consumes the images);
+* the Cliff-bot (box faces and ArUco plates) as planar quads intersected analytically and
+  supersampled (``marker_supersample`` squared rays per pixel), so marker corners land with
+  sub-pixel accuracy for the PnP of ALGORITHM.md §5;
+* brightness = albedo (with baked sun shading) times ``exposure``, plus a 2.5 mm detail
+  texture that fades out with pixel footprint (no aliasing), plus optional Gaussian sensor
+  noise of ``noise_sigma`` grey levels from a generator seeded with ``seed``.
+
+The same renderer with the same seed and the same sequence of calls gives identical images.
+Method, figures and timings: docs/world.md, "Renderer"; ``safer-hil bench render``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.core.geometry import CameraConfig, CameraPose
+from hil_sim.world.cliffbot import Quad
+from hil_sim.world.config import TextureConfig
+from hil_sim.world.noise import fractal_noise
+from hil_sim.world.raytrace import Heightfield, cast_image, pixel_rays, sample
+from hil_sim.world.texture import sun_vector
+from hil_sim.world.world import World
+
+F32 = NDArray[np.float32]
+F64 = NDArray[np.float64]
+U8 = NDArray[np.uint8]
+
+SKY_DN = 190.0           # grey level where a ray meets no terrain
+DETAIL_CELL_M = 0.0025   # detail texture cell
+DETAIL_TILE = 512        # detail texture tile side (cells); it repeats every 1.28 m
+
+
+class StereoRenderer:
+    """Renders stereo pairs and depth maps of ``world`` for camera poses (left camera)."""
+
+    def __init__(self, world: World, camera: CameraConfig, noise_sigma: float = 0.0,
+                 seed: int = 0, *, exposure: float = 1.3,
+                 marker_supersample: int = 4) -> None:
+        if not (noise_sigma >= 0.0 and math.isfinite(noise_sigma)):
+            raise ValueError(f"noise_sigma must be >= 0 grey levels, got {noise_sigma}")
+        if marker_supersample < 1:
+            raise ValueError("marker_supersample must be at least 1")
+        self.world = world
+        self.camera = camera
+        self.noise_sigma = float(noise_sigma)
+        self.exposure = float(exposure)
+        self.supersample = int(marker_supersample)
+        self._hf = Heightfield.from_array(world.ground, world.x0, world.y0, world.cell_m)
+        self._texture = world.config.texture if world.config is not None else TextureConfig()
+        self._sun = sun_vector(self._texture)
+        tile_rng = np.random.default_rng([world.seed, 77])
+        self._fine = fractal_noise((DETAIL_TILE, DETAIL_TILE), DETAIL_CELL_M, tile_rng, beta=1.0,
+                                   min_wavelength_m=0.005, max_wavelength_m=0.01)
+        self._mid = fractal_noise((DETAIL_TILE, DETAIL_TILE), DETAIL_CELL_M, tile_rng, beta=1.0,
+                                  min_wavelength_m=0.01, max_wavelength_m=0.025)
+        self._rng = np.random.default_rng(seed)
+
+    # -- public API -------------------------------------------------------------------
+    def render(self, pose: CameraPose) -> tuple[U8, U8]:
+        """Left and right grayscale images ``(H, W)`` for the left-camera ``pose``."""
+        left, _ = self.render_view(pose)
+        right, _ = self.render_view(pose.right(self.camera.baseline_m))
+        return self._to_u8(left), self._to_u8(right)
+
+    def render_depth(self, pose: CameraPose) -> F32:
+        """Range along the optical axis (metres) per pixel of the camera at ``pose``; NaN
+        where the ray meets nothing."""
+        return self.render_view(pose)[1]
+
+    def render_view(self, pose: CameraPose) -> tuple[F32, F32]:
+        """One camera, noise free: ``(intensity in grey levels (float32), depth)``."""
+        cam = self.camera
+        c, R, K = np.asarray(pose.t, float), np.asarray(pose.R, float), cam.K
+        w, h = cam.width_px, cam.height_px
+        depth, rays = cast_image(self._hf, c, R, K, w, h)
+        image = self._shade_terrain(c, rays, depth, K[0, 0])
+        self._draw_quads(image, depth, rays, c, R, K)
+        return image, depth
+
+    # -- terrain ----------------------------------------------------------------------
+    def _shade_terrain(self, c: F64, rays: F32, depth: F32, focal_px: float) -> F32:
+        hit = ~np.isnan(depth)
+        t = np.where(hit, depth, 0.0).astype(np.float32)
+        x = np.float32(c[0]) + t * rays[..., 0]
+        y = np.float32(c[1]) + t * rays[..., 1]
+        px, py = self._hf.to_pixel(x, y)
+        albedo = sample(self.world.albedo, px, py)
+        amp = sample(self.world.detail, px, py)
+        footprint = t / np.float32(focal_px)  # metres per pixel on a facing surface
+        w_fine = np.clip(2.0 - footprint / DETAIL_CELL_M, 0.0, 1.0)
+        w_mid = np.clip(2.0 - footprint / (2 * DETAIL_CELL_M), 0.0, 1.0)
+        tx = np.mod(x / DETAIL_CELL_M, DETAIL_TILE).astype(np.float32)
+        ty = np.mod(y / DETAIL_CELL_M, DETAIL_TILE).astype(np.float32)
+        detail = (w_fine * sample(self._fine, tx, ty, wrap=True)
+                  + w_mid * sample(self._mid, tx, ty, wrap=True))
+        gain = 1.0 + np.float32(self._texture.detail_contrast * 0.7) * amp * detail
+        value = np.float32(255.0 * self.exposure) * albedo * gain
+        return np.where(hit, value, np.float32(SKY_DN)).astype(np.float32)
+
+    # -- the Cliff-bot ----------------------------------------------------------------
+    def _draw_quads(self, image: F32, depth: F32, rays: F32, c: F64, R: F64, K: F64) -> None:
+        """Overlay the Cliff-bot's quads with a depth test against the terrain: the body one
+        ray per pixel, the fiducial plates supersampled."""
+        h, w = image.shape
+        plain, fine = [], []
+        for q in self.world.cliffbot.quads:
+            if not q.two_sided and float((c - q.p0) @ q.normal) <= 0.0:
+                continue  # seen from behind: hidden by the body (back-face culling)
+            box = self._bbox(q, c, R, K, w, h)
+            if box is not None:
+                (fine if q.fiducial else plain).append((q, box))
+        for q, (u0, v0, u1, v1) in plain:
+            t_q, v_q = self._hit_quad(q, c, rays[v0:v1, u0:u1])
+            closer = t_q < np.nan_to_num(depth[v0:v1, u0:u1], nan=np.inf)
+            image[v0:v1, u0:u1][closer] = v_q[closer]
+            depth[v0:v1, u0:u1][closer] = t_q[closer]
+        for q, box in fine:
+            self._draw_supersampled(image, depth, q, box, c, R, K)
+
+    def _draw_supersampled(self, image: F32, depth: F32, q: Quad,
+                           box: tuple[int, int, int, int], c: F64, R: F64, K: F64) -> None:
+        """Draw one quad with ``supersample**2`` rays per pixel over its pixel box."""
+        u0, v0, u1, v1 = box
+        ss = self.supersample
+        sub = (np.arange(ss) + 0.5) / ss - 0.5
+        us = (np.arange(u0, u1)[:, None] + sub[None, :]).reshape(-1)
+        vs = (np.arange(v0, v1)[:, None] + sub[None, :]).reshape(-1)
+        t_q, v_q = self._hit_quad(q, c, pixel_rays(R, K, us, vs))
+        hh, ww = v1 - v0, u1 - u0
+        t_under = np.repeat(np.repeat(np.nan_to_num(depth[v0:v1, u0:u1], nan=np.inf), ss, 0),
+                            ss, 1)
+        closer = t_q < t_under
+        val = np.where(closer, v_q, np.repeat(np.repeat(image[v0:v1, u0:u1], ss, 0), ss, 1))
+        image[v0:v1, u0:u1] = val.reshape(hh, ss, ww, ss).mean(axis=(1, 3))
+        t_best = np.where(closer, t_q, t_under)
+        if ss % 2:  # an odd grid has a sample at the pixel centre: take its depth
+            t_c = t_best[ss // 2::ss, ss // 2::ss]
+        else:
+            t_c = t_best.reshape(hh, ss, ww, ss).min(axis=(1, 3))
+        depth[v0:v1, u0:u1] = np.where(np.isfinite(t_c), t_c, np.nan)
+
+    def _hit_quad(self, q: Quad, c: F64, rays: F32) -> tuple[F32, F32]:
+        """Depth (inf where missed) and grey level of the quad along each ray."""
+        n = q.normal
+        eu = q.eu / (q.eu @ q.eu)
+        ev = q.ev / (q.ev @ q.ev)
+        proj = rays @ np.column_stack([n, eu, ev]).astype(np.float32)  # (..., 3)
+        dn, da, db = proj[..., 0], proj[..., 1], proj[..., 2]
+        rel = c - q.p0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.float32(-(rel @ n)) / dn
+            a = np.float32(rel @ eu) + t * da
+            b = np.float32(rel @ ev) + t * db
+        ok = (t > 0) & (a >= 0) & (a < 1) & (b >= 0) & (b < 1)
+        if not q.two_sided:
+            ok &= dn < 0
+        th, tw = q.texture.shape
+        row = np.clip((np.where(ok, b, 0) * th).astype(np.intp), 0, th - 1)
+        col = np.clip((np.where(ok, a, 0) * tw).astype(np.intp), 0, tw - 1)
+        shade = self._texture.ambient + (1 - self._texture.ambient) * max(0.0, float(n @ self._sun))
+        value = q.texture[row, col] * np.float32(255.0 * self.exposure * shade)
+        return np.where(ok, t, np.float32(np.inf)), value
+
+    @staticmethod
+    def _bbox(q: Quad, c: F64, R: F64, K: F64, w: int, h: int) -> tuple[int, int, int, int] | None:
+        """Pixel box ``(u0, v0, u1, v1)`` that contains the quad's image, or None if unseen."""
+        pc = (q.corners - c) @ R
+        if (pc[:, 2] <= 1e-3).all():
+            return None
+        if (pc[:, 2] <= 1e-3).any():
+            return (0, 0, w, h)  # straddles the camera plane: test every pixel
+        u = K[0, 0] * pc[:, 0] / pc[:, 2] + K[0, 2]
+        v = K[1, 1] * pc[:, 1] / pc[:, 2] + K[1, 2]
+        u0, u1 = max(0, int(math.floor(u.min())) - 1), min(w, int(math.ceil(u.max())) + 2)
+        v0, v1 = max(0, int(math.floor(v.min())) - 1), min(h, int(math.ceil(v.max())) + 2)
+        return None if u0 >= u1 or v0 >= v1 else (u0, v0, u1, v1)
+
+    # -- sensor -----------------------------------------------------------------------
+    def _to_u8(self, image: F32) -> U8:
+        if self.noise_sigma > 0.0:
+            image = image + self._rng.normal(0.0, self.noise_sigma, image.shape).astype(np.float32)
+        return np.clip(np.rint(image), 0, 255).astype(np.uint8)

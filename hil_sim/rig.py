@@ -1,0 +1,119 @@
+"""The bench's hardware rig: world truth and hardware models stepped together.
+
+One :class:`HardwareRig` holds the true rover and mast (physics, terrain) and, apart from
+them, the hardware models that turn that truth into bytes: the twelve CAN motor controllers,
+the serial mast controller and the camera (a render function of the true camera pose). Both
+bench modes use it: the lockstep bench (:mod:`hil_sim.bench`) steps it between executive
+frames; ``safer-hil serve`` steps it in real time. Hardware parameters come from
+``config/hil_hardware.toml`` (:class:`HardwareConfig`).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import can
+import numpy as np
+
+from fsw.comm.rover_can import RoverCan
+from fsw.config import build, load_toml, param
+from fsw.core.geometry import CameraPose
+from fsw.settings import FswConfig
+from hil_sim.faults import FaultInjector
+from hil_sim.hw.mast_controller import MastController, MastControllerConfig
+from hil_sim.hw.motor_controllers import MotorControllerBank, MotorControllerConfig
+from hil_sim.mast_truth import MastTruth, MastTruthConfig
+from hil_sim.rover_truth import FlatTerrain, RoverTruth, RoverTruthConfig
+
+DEFAULT_HARDWARE = Path(__file__).resolve().parent.parent / "config" / "hil_hardware.toml"
+
+
+@dataclass(frozen=True)
+class CameraModelConfig:
+    noise_sigma: float = param(-1.0, lo=-1.0, hi=50.0, doc="sensor noise, grey levels; negative: the scenario's")
+
+
+@dataclass(frozen=True)
+class HardwareConfig:
+    """Parameters of the simulated hardware (``config/hil_hardware.toml``)."""
+
+    rover: RoverTruthConfig = field(default_factory=RoverTruthConfig)
+    mast: MastTruthConfig = field(default_factory=MastTruthConfig)
+    motors: MotorControllerConfig = field(default_factory=MotorControllerConfig)
+    mast_controller: MastControllerConfig = field(default_factory=MastControllerConfig)
+    camera: CameraModelConfig = field(default_factory=CameraModelConfig)
+
+
+def load_hardware(path: str | Path = DEFAULT_HARDWARE) -> HardwareConfig:
+    """Load and validate the hardware config; raises ``ConfigError``."""
+    return build(HardwareConfig, load_toml(path), source=str(path))
+
+
+class HardwareRig:
+    """True rover + mast and their CAN, serial and camera models."""
+
+    def __init__(self, world: Any, fsw: FswConfig, hw: HardwareConfig, seed: int, can_bus: can.BusABC,
+                 serial_port: Any, faults: FaultInjector | None = None, dbc: str | Path | None = None) -> None:
+        self.world, self.fsw, self.hw, self.seed = world, fsw, hw, seed
+        self.faults = faults or FaultInjector(seed)
+        terrain = world if world is not None else FlatTerrain()
+        start = tuple(getattr(world, "rover_start", (0.0, 0.0, 0.0)))
+        self.rover = RoverTruth(terrain, fsw.rover, hw.rover, seed, start)  # type: ignore[arg-type]
+        self.mast = MastTruth(fsw.mast, hw.mast, seed + 1)
+        self.codec = RoverCan(dbc) if dbc is not None else RoverCan()
+        self.motors = MotorControllerBank(can_bus, self.codec, self.rover, hw.motors, self.faults)
+        self.mast_ctrl = MastController(serial_port, self.mast, hw.mast_controller, self.faults)
+        self.lock = threading.Lock()
+        self.now = 0.0
+        self._renderer: Any = None
+        self.start_pose = self.rover.pose
+
+    def step(self, now: float, dt_s: float) -> None:
+        """Advance the hardware to ``now``: read commands, move the truth ``dt_s``, report."""
+        with self.lock:
+            self.faults.update(now)
+            self.motors.receive(now)
+            self.motors.actuate(now)
+            self.mast_ctrl.receive(now)
+            self.mast_ctrl.actuate()
+            if dt_s > 0:
+                self.rover.step(dt_s)
+                self.mast.step(dt_s)
+            self.now = now
+            self.motors.transmit(now)
+            self.mast_ctrl.transmit(now)
+
+    # -- the camera -------------------------------------------------------------------------
+    def camera_pose(self) -> CameraPose:
+        r = self.rover
+        origin = np.array([r.x, r.y, r.z])
+        return self.mast.camera_pose(origin, r.body_rotation())
+
+    def render_pair(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """The stereo pair the true cameras see now (the pose is read under the rig lock)."""
+        if self.world is None:
+            raise RuntimeError("no world to render (flat terrain only)")
+        if self._renderer is None:
+            from hil_sim.render import StereoRenderer
+
+            sigma = self.hw.camera.noise_sigma
+            if sigma < 0:
+                sigma = float(getattr(self.world, "noise_sigma", 2.0))
+            self._renderer = StereoRenderer(self.world, self.fsw.camera, sigma, self.seed)
+        with self.lock:
+            pose, t = self.camera_pose(), self.now
+        left, right = self._renderer.render(pose)
+        return left, right, t
+
+    # -- reporting --------------------------------------------------------------------------
+    def truth(self) -> dict[str, float]:
+        r, m = self.rover, self.mast
+        pan, tilt, lift = m.true_joints
+        return {"t_s": self.now, "x_m": r.x, "y_m": r.y, "z_m": r.z, "yaw_deg": math.degrees(r.yaw),
+                "pitch_deg": math.degrees(r.pitch), "roll_deg": math.degrees(r.roll),
+                "odometer_m": r.odometer_m, "pan_deg": math.degrees(pan), "tilt_deg": math.degrees(tilt),
+                "lift_m": lift, "max_wheel_drop_m": r.max_wheel_drop_m}

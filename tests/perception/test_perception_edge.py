@@ -1,0 +1,170 @@
+"""Cliff edge (ALGORITHM.md §2): points, polygon and line fits, path, and the geofence."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fsw.core.edge import EdgeConfig, edge_cells, edge_path, fit_line, fit_polygon
+from fsw.core.elevation_map import ElevationMap
+from fsw.core.geofence import Geofence, GeofenceConfig
+from fsw.core.geometry import MapGrid, MapGridConfig, RoverConfig
+
+GRID = MapGrid.from_config(MapGridConfig())
+
+
+def true_edge_y(x: np.ndarray) -> np.ndarray:
+    """A wavy edge with a bay (notch into the plateau) around x = 3."""
+    return -0.8 + 0.1 * np.sin(2.0 * x) + 0.5 * np.exp(-(((x - 3.0) / 0.35) ** 4))
+
+
+def synthetic_map(shadow_m: float = 0.3, x_max: float = 5.0) -> ElevationMap:
+    """Plateau z=0 above the edge, pit z=-0.4 below it, an occluded band under the lip."""
+    X, Y = GRID.centers()
+    ey = true_edge_y(X)
+    m = ElevationMap(GRID)
+    known = ((ey <= Y) | (ey - shadow_m > Y)) & (x_max > X) & (Y < 1.2)
+    m.z[known] = np.where(ey <= Y, 0.0, -0.4)[known]
+    m.var[known] = 1e-4
+    m.n[known] = 1
+    return m
+
+
+TRUTH = np.column_stack([np.linspace(-0.5, 7.0, 2000), true_edge_y(np.linspace(-0.5, 7.0, 2000))])
+
+
+def test_polygon_fit_follows_a_non_convex_edge() -> None:
+    """Issue 4, item 4: polygon (Methods 4/5) within a cell of a wavy edge with a bay; the
+    straight segment (Method 3) is far worse; the map frontier is not taken as an edge."""
+    m = synthetic_map()
+    cfg = EdgeConfig()
+    cells = edge_cells(m, 0.0, cfg)
+    poly = fit_polygon(m, cells, cfg)
+    line = fit_line(cells, (0.5, 0.0))
+    d_poly = poly.mean_distance_to(TRUTH, GRID.cell)
+    d_line = line.mean_distance_to(TRUTH, GRID.cell)
+    assert d_poly <= 1.0 * GRID.cell
+    assert d_line > 3 * d_poly
+    # no edge points on the map frontier (x = 5 boundary, y = 1.2 boundary)
+    assert cells.points_xy[:, 0].max() < 5.0 and cells.points_xy[:, 1].max() < -0.2
+    assert poly.safe_polygon is not None and poly.safe_polygon.contains(
+        __import__("shapely").geometry.Point(1.0, 0.0))
+
+
+def test_drop_seen_across_a_long_occlusion_gap() -> None:
+    """§2: the ground under the drop is occluded; the drop is found within search_m."""
+    m = synthetic_map(shadow_m=0.45)
+    cells = edge_cells(m, 0.0, EdgeConfig(search_m=0.6))
+    assert len(cells.points_xy) > 100
+    none = edge_cells(m, 0.0, EdgeConfig(search_m=0.3))
+    # too short a search: no evidence of a drop, except where the bay's walls make the
+    # horizontal gap shorter than the vertical shadow band
+    assert len(none.points_xy) < 0.2 * len(cells.points_xy)
+
+
+def test_hole_in_plateau_is_not_an_edge() -> None:
+    """An unmapped hole inside the plateau (no stereo match) is not a cliff edge."""
+    m = synthetic_map()
+    X, Y = GRID.centers()
+    hole = (np.hypot(X - 1.5, Y - 0.2) < 0.2)
+    m.z[hole], m.var[hole], m.n[hole] = np.nan, np.inf, 0
+    cells = edge_cells(m, 0.0, EdgeConfig())
+    d = np.hypot(cells.points_xy[:, 0] - 1.5, cells.points_xy[:, 1] - 0.2)
+    assert (d > 0.3).all()
+
+
+def test_empty_map_gives_empty_edge() -> None:
+    m = ElevationMap(GRID)
+    cfg = EdgeConfig()
+    cells = edge_cells(m, 0.0, cfg)
+    assert fit_polygon(m, cells, cfg).empty and fit_line(cells, (0, 0)).empty
+    assert edge_path(fit_polygon(m, cells, cfg), 0.7, 0.25).shape == (0, 3)
+
+
+def test_path_is_set_back_on_the_safe_side() -> None:
+    """§2: candidate positions follow the edge, setback_m into the plateau."""
+    m = synthetic_map()
+    cfg = EdgeConfig()
+    poly = fit_polygon(m, edge_cells(m, 0.0, cfg), cfg)
+    path = edge_path(poly, 0.75, 0.25)
+    assert len(path) > 10
+    import shapely
+    d = shapely.distance(shapely.points(path[:, :2]), poly.lines)
+    assert (d >= 0.74).all()
+    assert (path[:, 1] > true_edge_y(path[:, 0])).all()  # plateau side
+    assert np.median(np.abs(np.cos(path[:, 2]))) > 0.8  # heading along the edge (+-x)
+
+
+@pytest.fixture(scope="module")
+def fence() -> Geofence:
+    m = synthetic_map()
+    cfg = EdgeConfig()
+    gf = Geofence(GeofenceConfig(margin_m=0.15), RoverConfig())
+    gf.set_edge(fit_polygon(m, edge_cells(m, 0.0, cfg), cfg))
+    return gf
+
+
+def test_geofence_allows_motion_along_the_plateau(fence: Geofence) -> None:
+    """Issue 4, item 4: safe moves are allowed, with the clearance in the reason."""
+    v = fence.check((0.5, 0.3, 0.0), (1.5, 0.3, 0.0))
+    assert v.allowed and "clearance" in v.reason and v.clearance_m > 0.15
+
+
+def test_geofence_rejects_crossing_and_margin(fence: Geofence) -> None:
+    """A command that takes a wheel across the edge, or inside the margin, is rejected."""
+    v = fence.check((1.0, 0.3, -math.pi / 2), (1.0, -1.2, -math.pi / 2))
+    assert not v.allowed and "crosses the edge" in v.reason and v.wheel
+    # end pose with the front wheels 0.1 m from the lip: inside the 0.15 m margin
+    y_end = float(true_edge_y(np.array([1.0]))[0]) + 0.35 + 0.05 + 0.1
+    v = fence.check((1.0, 0.3, -math.pi / 2), (1.0, y_end, -math.pi / 2))
+    assert not v.allowed and "within" in v.reason and 0.0 < v.clearance_m < 0.15
+
+
+def test_geofence_checks_the_swept_footprint_not_just_end_poses(fence: Geofence) -> None:
+    """Both end poses are safe but the straight drive cuts across the bay at x ~ 3."""
+    a, b = (1.8, -0.15, 0.0), (4.2, -0.15, 0.0)
+    assert fence.check(a, a).allowed and fence.check(b, b).allowed
+    v = fence.check(a, b)
+    assert not v.allowed
+
+
+def test_geofence_turn_in_place_sweeps_the_wheels() -> None:
+    """A turn in place near a straight edge: the wheel arcs are checked at every sample."""
+    m = synthetic_map()
+    cells = edge_cells(m, 0.0, EdgeConfig())
+    gf = Geofence(GeofenceConfig(margin_m=0.05), RoverConfig())
+    gf.set_edge(fit_line(cells, (0.5, 0.5)))
+    y0 = float(np.mean(cells.points_xy[:, 1])) + 0.55
+    # heading along the edge the wheels clear it; sideways the diagonal would not
+    assert gf.check((1.0, y0, 0.0), (1.0, y0, 0.0)).allowed
+    assert not gf.check((1.0, y0, 0.0), (1.0, y0, math.pi)).allowed
+
+
+def test_geofence_refuses_bad_input_and_unknown_edge() -> None:
+    gf = Geofence(GeofenceConfig(), RoverConfig())
+    v = gf.check((0, 0, 0), (1, 0, 0))
+    assert not v.allowed and "no cliff edge" in v.reason
+    v = gf.check((0, float("nan"), 0), (1, 0, 0))
+    assert not v.allowed and "finite" in v.reason
+    v = gf.check((0, 0), (1, 0, 0))  # type: ignore[arg-type]
+    assert not v.allowed
+    assert gf.rejections == 3
+    assert Geofence(GeofenceConfig(allow_without_edge=True), RoverConfig()).check(
+        (0, 0, 0), (1, 0, 0)).allowed
+
+
+def test_signed_distance_classifies_bay_and_plateau(fence: Geofence) -> None:
+    """§2: the side is that of the nearest edge point, so a narrow bay does not spill over."""
+    m = synthetic_map()
+    cfg = EdgeConfig()
+    poly = fit_polygon(m, edge_cells(m, 0.0, cfg), cfg)
+    pts = np.array([[3.0, -0.6],   # inside the bay (pit)
+                    [3.6, -0.5],   # plateau just east of the bay
+                    [1.0, 0.5],    # plateau
+                    [1.0, -2.0]])  # pit
+    sd = poly.signed_distance(pts)
+    assert sd[0] < 0 and sd[1] > 0 and sd[2] > 0 and sd[3] < 0
+    v = fence.check((1.0, -2.5, 0.0), (1.5, -2.5, 0.0))  # wholly in the pit, far from the lip
+    assert not v.allowed and "beyond the edge" in v.reason and v.clearance_m < 0

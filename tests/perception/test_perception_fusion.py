@@ -1,0 +1,182 @@
+"""Elevation-map fusion (ALGORITHM.md §1.1, §3.4, §4): properties and the reduction."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from fsw.core.elevation_map import ElevationMap, FusionConfig
+from fsw.core.geometry import MapGrid
+
+GRID = MapGrid(0.0, 0.0, 0.1, 4, 3)
+CELL_XY = (0.15, 0.15)  # cell [1, 1]
+
+
+def one_point_merge(m: ElevationMap, z: float, var: float) -> None:
+    m.merge(np.array([[CELL_XY[0], CELL_XY[1], z]]), var_z=np.array([var]))
+
+
+meas = st.tuples(st.floats(-0.05, 0.05), st.floats(1e-4, 4e-4))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(meas, min_size=2, max_size=8), st.randoms(use_true_random=False))
+def test_fusion_is_order_independent(ms: list[tuple[float, float]], rnd) -> None:
+    """Issue 4, done-when 6: inlier measurements fused in any order give the same cell."""
+    cfg = FusionConfig(gate_sigma=100.0, n_max=100)
+    a, b = ElevationMap(GRID, cfg), ElevationMap(GRID, cfg)
+    shuffled = list(ms)
+    rnd.shuffle(shuffled)
+    for z, v in ms:
+        one_point_merge(a, z, v)
+    for z, v in shuffled:
+        one_point_merge(b, z, v)
+    assert a.z[1, 1] == pytest.approx(b.z[1, 1], abs=1e-12)
+    assert a.var[1, 1] == pytest.approx(b.var[1, 1], rel=1e-9)
+    # and both equal the closed-form inverse-variance mean
+    w = np.array([1.0 / v for _, v in ms])
+    zs = np.array([z for z, _ in ms])
+    assert a.z[1, 1] == pytest.approx(float((w * zs).sum() / w.sum()), abs=1e-12)
+    assert a.var[1, 1] == pytest.approx(float(1.0 / w.sum()), rel=1e-9)
+    assert a.n[1, 1] == len(ms)
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.floats(-1, 1), st.floats(1e-6, 1.0), st.floats(1e-6, 1.0), st.floats(-2.9, 2.9))
+def test_variance_never_increases_on_an_inlier(z0: float, v0: float, vm: float, k: float) -> None:
+    """Issue 4, done-when 6: an inlier never increases the variance (and n grows by one)."""
+    m = ElevationMap(GRID, FusionConfig(gate_sigma=3.0, max_var_m2=10.0))
+    one_point_merge(m, z0, v0)
+    before = m.var[1, 1]
+    zm = z0 + k * math.sqrt(v0 + vm)  # inside the 3-sigma gate
+    one_point_merge(m, zm, vm)
+    assert m.var[1, 1] <= before
+    assert m.var[1, 1] <= vm + 1e-15
+    assert m.n[1, 1] == 2 and m.outliers[1, 1] == 0
+    lo, hi = min(z0, zm), max(z0, zm)
+    assert lo - 1e-12 <= m.z[1, 1] <= hi + 1e-12
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.floats(-1, 1), st.floats(1e-6, 0.01), st.floats(1e-6, 0.01), st.floats(3.2, 50.0),
+       st.sampled_from([-1.0, 1.0]))
+def test_outlier_gate_refuses_and_inflates(z0: float, v0: float, vm: float, k: float,
+                                           sign: float) -> None:
+    """Issue 4, done-when 6: a measurement beyond the gate is counted, not averaged in, and
+    inflates the cell's variance by outlier_var_factor."""
+    cfg = FusionConfig(gate_sigma=3.0, outlier_var_factor=4.0)
+    m = ElevationMap(GRID, cfg)
+    one_point_merge(m, z0, v0)
+    stats = m.merge(np.array([[CELL_XY[0], CELL_XY[1], z0 + sign * k * math.sqrt(v0 + vm)]]),
+                    var_z=np.array([vm]))
+    assert stats.outliers == 1
+    assert m.z[1, 1] == pytest.approx(z0, abs=1e-12)
+    assert m.var[1, 1] == pytest.approx(4.0 * v0)
+    assert m.n[1, 1] == 1 and m.outliers[1, 1] == 1
+
+
+def test_repeated_outliers_eventually_accept_a_real_change() -> None:
+    """§1.1 choice: a cell that really changed is accepted after a few inflations."""
+    m = ElevationMap(GRID, FusionConfig(gate_sigma=3.0, outlier_var_factor=4.0))
+    one_point_merge(m, 0.0, 1e-4)
+    for _ in range(6):
+        one_point_merge(m, 0.3, 1e-4)
+    assert m.z[1, 1] > 0.25 and m.outliers[1, 1] >= 1
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 10_000), st.floats(0.0, 1.0))
+def test_vectorized_reduction_matches_a_loop(seed: int, rho: float) -> None:
+    """The bincount reduction equals a per-cell reference loop (k points, correlation rho)."""
+    rng = np.random.default_rng(seed)
+    n = 60
+    xyz = np.column_stack([rng.uniform(-0.05, 0.45, n), rng.uniform(-0.05, 0.35, n),
+                           rng.normal(0, 0.01, n)])
+    v = rng.uniform(1e-5, 1e-4, n)
+    m = ElevationMap(GRID, FusionConfig(point_correlation=rho))
+    stats = m.merge(xyz, var_z=v)
+    iy, ix, inside = GRID.cell_index(xyz[:, 0], xyz[:, 1])
+    assert stats.points_used == inside.sum()
+    for cy in range(GRID.ny):
+        for cx in range(GRID.nx):
+            sel = inside & (iy == cy) & (ix == cx)
+            if not sel.any():
+                assert math.isnan(m.z[cy, cx]) and m.var[cy, cx] == math.inf
+                assert m.n[cy, cx] == 0
+                continue
+            w = 1.0 / v[sel]
+            k = sel.sum()
+            assert m.z[cy, cx] == pytest.approx((w * xyz[sel, 2]).sum() / w.sum(), abs=1e-12)
+            assert m.var[cy, cx] == pytest.approx((1 + (k - 1) * rho) / w.sum(), rel=1e-9)
+            assert m.n[cy, cx] == 1
+
+
+def test_unknown_cells_and_count_cap() -> None:
+    """§1: unknown = NaN/inf/0; n counts views and is capped by n_max."""
+    m = ElevationMap(GRID, FusionConfig(n_max=3))
+    assert np.isnan(m.z).all() and np.isinf(m.var).all() and not m.mapped.any()
+    assert (m.interest == 1.0).all() and (m.misses == 0).all()
+    for _ in range(5):
+        one_point_merge(m, 0.0, 1e-4)
+    assert m.n[1, 1] == 3 and m.mapped.sum() == 1
+    assert m.var[1, 1] == pytest.approx(1e-4 / 5)
+
+
+def test_bad_points_are_dropped_not_merged() -> None:
+    """Bad input: NaN, negative or huge variance, or off-grid points never touch the map."""
+    m = ElevationMap(GRID)
+    xyz = np.array([[0.15, 0.15, np.nan], [0.15, 0.15, 0.0], [9.0, 9.0, 0.0], [0.25, 0.15, 0.0],
+                    [0.05, 0.05, 0.0]])
+    stats = m.merge(xyz, var_z=np.array([1e-4, -1.0, 1e-4, 1e6, np.nan]))
+    assert stats.points_in == 5 and stats.points_used == 0 and not m.mapped.any()
+    with pytest.raises(ValueError, match="rows"):
+        m.merge(np.zeros((3, 3)), var_z=np.ones(2))
+    with pytest.raises(ValueError, match="var_z or cov"):
+        m.merge(np.zeros((3, 3)))
+
+
+def test_misses_decay_interest_by_visibility() -> None:
+    """§3.4/§4: cells expected visible without a point get IF *= exp(-beta P_V); misses count
+    those with P_V >= threshold; a cell that got a point is untouched."""
+    cfg = FusionConfig(interest_beta=2.0, miss_pv_threshold=0.5)
+    m = ElevationMap(GRID, cfg)
+    pv = np.zeros(GRID.shape)
+    pv[1, 1] = 1.0  # gets a point below
+    pv[0, 0] = 0.9
+    pv[2, 3] = 0.1  # likely occluded: barely penalised, no miss
+    stats = m.merge(np.array([[0.15, 0.15, 0.0]]), var_z=np.array([1e-4]), p_visible=pv)
+    assert stats.misses == 1
+    assert m.misses[0, 0] == 1 and m.misses[2, 3] == 0 and m.misses[1, 1] == 0
+    assert m.interest[0, 0] == pytest.approx(math.exp(-1.8))
+    assert m.interest[2, 3] == pytest.approx(math.exp(-0.2))
+    assert m.interest[1, 1] == 1.0 and m.interest[0, 1] == 1.0
+    mask = np.zeros(GRID.shape, bool)
+    mask[0, 0] = True
+    m.merge(np.zeros((0, 3)), var_z=np.zeros(0), p_visible=mask)
+    assert m.misses[0, 0] == 2 and m.interest[0, 0] == pytest.approx(math.exp(-3.8))
+    with pytest.raises(ValueError, match="shape"):
+        m.merge(np.zeros((0, 3)), var_z=np.zeros(0), p_visible=np.ones((2, 2)))
+    with pytest.raises(ValueError, match=r"\[0, 1\]"):
+        m.merge(np.zeros((0, 3)), var_z=np.zeros(0), p_visible=np.full(GRID.shape, 2.0))
+
+
+def test_slope_term_inflates_variance_on_slopes_only() -> None:
+    """§1.2: with full covariances a horizontal error on a slope adds vertical variance."""
+    grid = MapGrid(0.0, 0.0, 0.1, 10, 10)
+    xs, ys = np.meshgrid(np.arange(10) * 0.1 + 0.05, np.arange(10) * 0.1 + 0.05)
+    cov = np.zeros((100, 3, 3))
+    cov[:, 0, 0] = cov[:, 1, 1] = 0.01**2
+    cov[:, 2, 2] = 0.002**2
+    flat = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(100)])
+    slope = flat.copy()
+    slope[:, 2] = 0.5 * slope[:, 0]  # gradient 0.5 along x
+    a, b = ElevationMap(grid), ElevationMap(grid)
+    a.merge(flat, cov=cov)
+    b.merge(slope, cov=cov)
+    assert a.var[5, 5] == pytest.approx(0.002**2)
+    expect = 0.002**2 + 0.25 * 0.01**2 + 0.25 * 0.1**2 / 12.0
+    assert b.var[5, 5] == pytest.approx(expect, rel=1e-6)
