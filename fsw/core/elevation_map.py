@@ -59,6 +59,9 @@ class FusionConfig:
     point_correlation: float = param(
         1.0, lo=0.0, hi=1.0, doc="error correlation of points of one view in one cell"
     )
+    view_correlation: float = param(
+        0.0, lo=0.0, hi=1.0, doc="part of a view's variance common to all views of a cell"
+    )
     slope_term: bool = param(True, doc="add the slope term (horizontal error times gradient)")
     footprint_term: bool = param(True, doc="add |gradient|^2 cell^2 / 12 per point")
     subcell_term: bool = param(
@@ -101,6 +104,7 @@ class ElevationMap:
         self.interest = np.ones(shape)
         self.misses = np.zeros(shape, np.int32)
         self.outliers = np.zeros(shape, np.int32)
+        self.var_common = np.zeros(shape)  # part of var common to all views (see _fuse)
 
     @property
     def mapped(self) -> NDArray[np.bool_]:
@@ -112,7 +116,7 @@ class ElevationMap:
 
     def copy(self) -> ElevationMap:
         out = ElevationMap(self.grid, self.cfg)
-        for name in ("z", "var", "n", "interest", "misses", "outliers"):
+        for name in ("z", "var", "n", "interest", "misses", "outliers", "var_common"):
             setattr(out, name, getattr(self, name).copy())
         return out
 
@@ -194,9 +198,17 @@ class ElevationMap:
         return out
 
     def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64) -> tuple[int, int, int]:
-        """Inverse-variance update of the given flat cells with a Mahalanobis gate (§1.1)."""
+        """Inverse-variance update of the given flat cells with a Mahalanobis gate (§1.1).
+
+        The part ``c = view_correlation`` of every view's variance is common to all views
+        of the cell and does not average out: the map keeps it apart (``var_common``, the
+        smallest seen) and fuses only the independent rest, ``var = var_indep + var_common``.
+        With ``c = 0`` this is exactly the 1-D Kalman update of §1.1.
+        """
+        c = self.cfg.view_correlation
         z, var, n = self.z.reshape(-1), self.var.reshape(-1), self.n.reshape(-1)
-        z0, v0, n0 = z[cells], var[cells], n[cells]
+        vcom = self.var_common.reshape(-1)
+        z0, v0, n0, vc0 = z[cells], var[cells], n[cells], vcom[cells]
         empty = n0 == 0
         with np.errstate(invalid="ignore"):
             d = np.abs(zm - z0) / np.sqrt(v0 + vm)
@@ -204,11 +216,17 @@ class ElevationMap:
         inlier = ~empty & ~outlier
         z_new = np.where(empty, zm, z0)
         v_new = np.where(empty, vm, v0)
-        zi, vi, mi, vmi = z0[inlier], v0[inlier], zm[inlier], vm[inlier]
+        vc_new = np.where(empty, c * vm, vc0)
+        zi, vi, mi, vmi, vci = z0[inlier], v0[inlier], zm[inlier], vm[inlier], vc0[inlier]
         z_new[inlier] = (vmi * zi + vi * mi) / (vi + vmi)
-        v_new[inlier] = vi * vmi / (vi + vmi)
+        ind0, ind_m = vi - vci, (1.0 - c) * vmi
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ind = np.where(ind0 + ind_m > 0, ind0 * ind_m / (ind0 + ind_m), 0.0)
+        vc_new[inlier] = np.minimum(vci, c * vmi)
+        v_new[inlier] = ind + vc_new[inlier]
         v_new[outlier] = v0[outlier] * self.cfg.outlier_var_factor
-        z[cells], var[cells] = z_new, v_new
+        vc_new[outlier] = vc0[outlier] * self.cfg.outlier_var_factor
+        z[cells], var[cells], vcom[cells] = z_new, v_new, vc_new
         n[cells] = np.where(outlier, n0, np.minimum(n0 + 1, self.n_max))
         self.outliers.reshape(-1)[cells[outlier]] += 1
         return int(empty.sum()), int(inlier.sum()), int(outlier.sum())

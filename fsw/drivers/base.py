@@ -27,6 +27,7 @@ class DriverBase:
         self._held_until: dict[int, float] = {}
         self._events: deque[tuple[str, dict[str, Any]]] = deque(maxlen=max_events)
         self.events_dropped = 0
+        self.last_poll_s: float | None = None  # time of the last poll(), so a task can tell
 
     # -- events -----------------------------------------------------------------------------
     def _event(self, name: str, **args: Any) -> None:

@@ -196,6 +196,7 @@ class CameraDriver(DriverBase):
         return self._seq
 
     def poll(self, now: float) -> None:
+        self.last_poll_s = now
         self._expire_holds(now)
         if self.source is None:
             return

@@ -158,6 +158,7 @@ class CanMotorDriver(DriverBase):
     # -- reception and supervision ---------------------------------------------------------------
     def poll(self, now: float, max_frames: int = 1000) -> None:
         """Drain received frames and update faults; call once per frame before using ``axes``."""
+        self.last_poll_s = now
         if self._t_start is None:
             self._t_start = now
         self._expire_holds(now)

@@ -116,6 +116,7 @@ class MastSerialDriver(DriverBase):
     # -- I/O --------------------------------------------------------------------------------
     def poll(self, now: float) -> None:
         """Read and handle what arrived, run timeouts/retries and send the next command."""
+        self.last_poll_s = now
         if self._t_start is None:
             self._t_start = now
         self._expire_holds(now)

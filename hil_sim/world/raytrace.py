@@ -185,7 +185,7 @@ def _brackets(tc: F32, factor: int, lo: F32, hi: F32) -> tuple[F32, F32]:
     b = np.where(some_miss, hi, np.minimum(hi, far + margin))
     # A ray entering the slab beyond its neighbours' hits still searches a little (and, if
     # that finds nothing, the rest of its interval: see _first_hits).
-    b = np.maximum(b, np.minimum(a + 0.05, hi))
+    b = np.where(b > a, b, np.minimum(a + 0.05, hi))
     b = np.where(n_miss > 3.5, -np.inf, b)  # a block of sky stays sky
     return a.astype(np.float32), b.astype(np.float32)
 

@@ -1,0 +1,80 @@
+"""The next-view task: runs the configured planner's search as a slack job (ALGORITHM.md §3).
+
+The mission sequencer publishes a ``PlannerState`` on ``nbv.request``; this task resumes the
+planner's search generator in frame slack (one camera centre per slice) and publishes the
+chosen ``CandidateView`` (or ``None``: nothing reachable worth doing) on ``nbv.result``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar
+
+from fsw.core.planners import PlannerState, make_planner
+from fsw.executive.jobs import JobHandle
+from fsw.executive.task import Task
+from fsw.executive.telemetry import Channel, EventDef, Severity
+from fsw.tasks.messages import NBV_REQUEST, NBV_RESULT
+
+
+class NbvTask(Task):
+    KIND: ClassVar[str] = "nbv"
+    DOC: ClassVar[str] = "Next-view selection by expected new information (slack job)."
+    CHANNELS = (
+        Channel("searches", "count"),
+        Channel("search_ms", "ms", doc="busy time of the last search"),
+        Channel("search_slices", "count"),
+        Channel("best_info_bits", "bit", doc="H of the chosen view (Eq 3)"),
+        Channel("expected_new_cells", "cells"),
+        Channel("best_utility", ""),
+    )
+    EVENTS = (
+        EventDef("VIEW_CHOSEN", Severity.ACTIVITY_LO,
+                 "next view ({x:.2f}, {y:.2f}, {yaw_deg:.0f} deg) pan {pan_deg:.0f} tilt {tilt_deg:.0f}: "
+                 "H {bits:.0f} bit, {cells:.0f} cells expected"),
+        EventDef("NO_VIEW", Severity.ACTIVITY_HI, "no reachable view worth taking"),
+        EventDef("SEARCH_FAILED", Severity.WARNING_HI, "view search failed: {error}", throttle=5),
+    )
+
+    def setup(self) -> None:
+        cfg = self.ctx.cfg
+        mission = cfg.mission
+        truth = self.ctx.resources.get("oracle_truth")  # only the bench provides it (oracle)
+        self.planner = make_planner(
+            mission.method, mission.max_steps, cfg.nbv, cfg.camera, cfg.mast,
+            truth_z_m=None if truth is None else truth["z"],
+            textured=None if truth is None else truth["textured"],
+        )
+        self.requests = self.subscribe(NBV_REQUEST, depth=1, policy="drop_oldest")
+        self.job: JobHandle | None = None
+        self.searches = 0
+
+    def run(self, frame: int) -> None:
+        if self.job is not None and self.job.done:
+            self._finish(self.job)
+            self.job = None
+        if self.job is None:
+            state: PlannerState | None = self.requests.get()
+            if state is not None:
+                self.job = self.submit_job(self.planner.search(state), "search")
+
+    def _finish(self, h: JobHandle) -> None:
+        self.searches += 1
+        self.tlm("searches", self.searches)
+        self.tlm("search_ms", h.busy_s * 1e3)
+        self.tlm("search_slices", h.slices)
+        if h.error is not None:
+            self.event("SEARCH_FAILED", error=f"{type(h.error).__name__}: {h.error}")
+            self.publish(NBV_RESULT, None)
+            return
+        view: Any = h.result
+        if view is None:
+            self.event("NO_VIEW")
+        else:
+            self.tlm("best_info_bits", view.info_bits)
+            self.tlm("expected_new_cells", view.expected_new_cells)
+            self.tlm("best_utility", view.utility)
+            self.event("VIEW_CHOSEN", x=view.rover[0], y=view.rover[1], yaw_deg=math.degrees(view.rover[2]),
+                       pan_deg=math.degrees(view.joints[0]), tilt_deg=math.degrees(view.joints[1]),
+                       bits=view.info_bits, cells=view.expected_new_cells)
+        self.publish(NBV_RESULT, view)

@@ -1,0 +1,146 @@
+"""The perception task: owns the elevation map; fuses each stereo pair and re-fits the edge.
+
+A ``CameraFrame`` from the camera task becomes a slack job (ALGORITHM.md §4): stereo
+matching, triangulation with covariance and propagation of the camera pose covariance
+(§1.2), fusion into the map with misses (§1.1, §3.4), then the edge fits of §2 (the
+non-convex polygon of Methods 4/5 and the straight segment of Method 3). Each step is one
+slice, so the 10 Hz foreground keeps its deadlines. The result is published on
+``map.updated`` with a snapshot of the map for the planner. Checkpoints are written
+through the map store at ``checkpoint.period_s`` and on command.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Generator
+from typing import Any, ClassVar
+
+from fsw.core.edge import edge_cells, fit_line, fit_polygon
+from fsw.core.elevation_map import ElevationMap
+from fsw.core.geometry import MapGrid
+from fsw.core.localization import propagate_point_covariance
+from fsw.core.stereo import StereoMatcher
+from fsw.executive.commands import CommandDef, CommandError
+from fsw.executive.jobs import JobHandle
+from fsw.executive.task import Task
+from fsw.executive.telemetry import Channel, EventDef, Severity
+from fsw.tasks.messages import CAMERA_FRAME, MAP_UPDATED, CameraFrame, MapUpdate
+
+
+class PerceptionTask(Task):
+    KIND: ClassVar[str] = "perception"
+    DOC: ClassVar[str] = "Stereo, fusion into the elevation map, cliff-edge fits (slack jobs)."
+    CHANNELS = (
+        Channel("mapped_cells", "cells", doc="cells with n >= 1"),
+        Channel("views", "count", doc="views merged"),
+        Channel("last_points", "points"),
+        Channel("last_new_cells", "cells"),
+        Channel("last_misses", "cells"),
+        Channel("last_outliers", "cells"),
+        Channel("edge_points", "points", doc="edge points found in the map"),
+        Channel("job_ms", "ms", doc="busy time of the last view's slack job"),
+    )
+    EVENTS = (
+        EventDef("VIEW_MERGED", Severity.ACTIVITY_LO,
+                 "view {view}: {points} points, {new} new cells, {misses} misses, {mapped} mapped"),
+        EventDef("VIEW_FAILED", Severity.WARNING_HI, "view {view} could not be merged: {error}", throttle=5),
+        EventDef("CHECKPOINT_SAVED", Severity.ACTIVITY_LO, "map checkpoint {seq} saved ({kib:.0f} KiB)"),
+        EventDef("CHECKPOINT_FAILED", Severity.WARNING_HI, "map checkpoint failed: {error}", throttle=3),
+        EventDef("CHECKPOINT_LOADED", Severity.ACTIVITY_HI, "map restored from checkpoint {seq}"),
+    )
+    COMMANDS = (
+        CommandDef("CHECKPOINT", doc="save a map checkpoint now"),
+        CommandDef("CLEAR_MAP", doc="forget the map (start a new survey)"),
+    )
+
+    def setup(self) -> None:
+        cfg = self.ctx.cfg
+        self.matcher = StereoMatcher(cfg.stereo, cfg.camera)
+        self.map = ElevationMap(MapGrid.from_config(cfg.map), cfg.fusion)
+        self.frames = self.subscribe(CAMERA_FRAME, depth=2, policy="drop_oldest")
+        self.job: JobHandle | None = None
+        self.views = 0
+        self.store = self.ctx.resources.get("map_store")
+        self._last_checkpoint_s = self.ctx.clock.now()
+        self._ckpt_seq = 0
+        if self.store is not None:
+            self._restore()
+
+    def run(self, frame: int) -> None:
+        if self.job is not None and self.job.done:
+            self._finish(self.job)
+            self.job = None
+        if self.job is None:
+            msg = self.frames.get()
+            if msg is not None:
+                self.job = self.submit_job(self._merge_view(msg), f"view{msg.view_id}")
+        now = self.ctx.clock.now()
+        if self.store is not None and now - self._last_checkpoint_s >= self.ctx.cfg.checkpoint.period_s:
+            self._checkpoint()
+
+    def _merge_view(self, fr: CameraFrame) -> Generator[None, None, MapUpdate]:
+        """The slack job of one view: one bounded step per slice."""
+        pts = self.matcher.points(fr.left, fr.right)
+        yield
+        xyz_w, cov_w = propagate_point_covariance(fr.pose, fr.pose_cov, pts.xyz_c, pts.cov_c)
+        yield
+        stats = self.map.merge(xyz_w, cov=cov_w, p_visible=fr.p_visible)
+        yield
+        ecfg = self.ctx.cfg.edge
+        cells = edge_cells(self.map, 0.0, ecfg)  # ground = the plateau under the start pose
+        yield
+        poly = fit_polygon(self.map, cells, ecfg)
+        line = fit_line(cells, (float(fr.pose.t[0]), float(fr.pose.t[1])))
+        self.views += 1
+        return MapUpdate(
+            view_id=fr.view_id, time_s=fr.time_s, mapped_cells=int(self.map.mapped.sum()),
+            new_cells=stats.cells_new, points=stats.points_used, misses=stats.misses,
+            expected_new_cells=fr.expected_new_cells, snapshot=self.map.copy(), edge=poly,
+            edge_line=line, extra={"outliers": stats.outliers, "edge_points": int(cells.points_xy.shape[0])},
+        )
+
+    def _finish(self, h: JobHandle) -> None:
+        if h.error is not None:
+            self.event("VIEW_FAILED", view=h.name, error=f"{type(h.error).__name__}: {h.error}")
+            return
+        up: MapUpdate = h.result
+        self.publish(MAP_UPDATED, up)
+        self.tlm("mapped_cells", up.mapped_cells)
+        self.tlm("views", self.views)
+        self.tlm("last_points", up.points)
+        self.tlm("last_new_cells", up.new_cells)
+        self.tlm("last_misses", up.misses)
+        self.tlm("last_outliers", up.extra["outliers"])
+        self.tlm("edge_points", up.extra["edge_points"])
+        self.tlm("job_ms", h.busy_s * 1e3)
+        self.event("VIEW_MERGED", view=up.view_id, points=up.points, new=up.new_cells,
+                   misses=up.misses, mapped=up.mapped_cells)
+
+    # -- checkpoints ---------------------------------------------------------------------
+    def _checkpoint(self) -> None:
+        self._last_checkpoint_s = self.ctx.clock.now()
+        self._ckpt_seq += 1
+        try:
+            path = self.store.save(self.map, self._ckpt_seq, self._last_checkpoint_s)
+        except OSError as exc:
+            self.event("CHECKPOINT_FAILED", error=str(exc))
+            raise CommandError(f"checkpoint failed: {exc}") from None
+        self.event("CHECKPOINT_SAVED", seq=self._ckpt_seq, kib=path.stat().st_size / 1024)
+
+    def _restore(self) -> None:
+        loaded: Any = self.store.load_latest()
+        for path, reason in loaded.skipped:
+            self.event("CHECKPOINT_FAILED", error=f"{path}: {reason}")
+        if loaded.emap is not None and loaded.emap.grid == self.map.grid:
+            self.map = loaded.emap
+            self._ckpt_seq = loaded.meta.seq
+            self.event("CHECKPOINT_LOADED", seq=loaded.meta.seq)
+
+    def cmd_CHECKPOINT(self) -> None:
+        if self.store is None:
+            raise CommandError("no map store configured")
+        self._checkpoint()
+
+    def cmd_CLEAR_MAP(self) -> None:
+        if self.job is not None and not self.job.done:
+            raise CommandError("a view is being merged; try again")
+        self.map = ElevationMap(self.map.grid, self.ctx.cfg.fusion)
