@@ -22,4 +22,10 @@ def build_executive(
     clock = clock or MonotonicClock()
     res = dict(resources or {})
     res.setdefault("watchdog", SoftwareWatchdog(clock, watchdog_timeout_s))
+    devices = getattr(cfg, "devices", None)
+    if devices is not None:  # drivers from [devices]; a bench may hand in open endpoints
+        from fsw.drivers.factory import open_devices
+
+        for key, drv in open_devices(devices, res).items():
+            res.setdefault(key, drv)
     return Executive(cfg, clock, res)

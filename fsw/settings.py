@@ -23,7 +23,11 @@ from fsw.core.localization import LocalizationConfig
 from fsw.core.mapcodec import CodecConfig
 from fsw.core.nbv import NbvConfig
 from fsw.core.stereo import StereoConfig
+from fsw.drivers.factory import DevicesConfig
 from fsw.executive.config import ExecutiveConfig
+from fsw.tasks.camera import CaptureConfig
+from fsw.tasks.mission import MissionConfig
+from fsw.tasks.motion import MotionConfig
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "fsw.toml"
 
@@ -48,6 +52,10 @@ class FswConfig:
     codec: CodecConfig = field(default_factory=CodecConfig)
     link: LinkConfig = field(default_factory=LinkConfig)
     nbv: NbvConfig = field(default_factory=NbvConfig)
+    devices: DevicesConfig = field(default_factory=DevicesConfig)
+    motion: MotionConfig = field(default_factory=MotionConfig)
+    capture: CaptureConfig = field(default_factory=CaptureConfig)
+    mission: MissionConfig = field(default_factory=MissionConfig)
 
 
 def load_settings(path: str | Path = DEFAULT_CONFIG) -> FswConfig:

@@ -7,6 +7,7 @@ send, and its ``gcs_link`` channel goes up), and reopens the connection after an
 
 from __future__ import annotations
 
+import contextlib
 import time
 from typing import Any
 
@@ -80,10 +81,8 @@ class GroundLink:
 
     def _drop(self, why: str) -> None:
         self.error = why
-        try:
+        with contextlib.suppress(Exception):  # closing a broken connection
             self.conn.close()
-        except Exception:  # noqa: BLE001 - closing a broken connection
-            pass
         self.conn = None
         self._next_retry = time.monotonic() + self.retry_s
 

@@ -3,7 +3,7 @@
 Feeds the log's DATA_TRANSMISSION_HANDSHAKE + ENCAPSULATED_DATA messages (from the rover)
 to the same reassembler the live view uses, decodes the chosen image (JPEG/PNG/PGM/BMP) and
 writes it as PNG, optionally enlarged and false-coloured (unknown cells, value 0, stay
-black). Exit code 1 when the log holds no complete preview.
+black, grey levels below 8). Exit code 1 when the log holds no complete preview.
 """
 
 from __future__ import annotations
@@ -43,6 +43,7 @@ def run(args: argparse.Namespace, d: GroundDictionary) -> int:
     import numpy as np
 
     from fsw.comm.mavlink_tlog import TlogError
+    from fsw.tasks.mavlink_preview import UNKNOWN_BELOW
     from ground.tlog import load_messages
 
     if args.scale < 1 or args.scale > 64:
@@ -74,7 +75,7 @@ def run(args: argparse.Namespace, d: GroundDictionary) -> int:
         img = cv2.resize(img, None, fx=args.scale, fy=args.scale, interpolation=cv2.INTER_NEAREST)
     if not args.gray:
         colour = cv2.applyColorMap(img, cv2.COLORMAP_VIRIDIS)
-        colour[img == 0] = 0
+        colour[img < UNKNOWN_BELOW] = 0
         img = colour
     if not cv2.imwrite(args.out, img):
         print(f"safer-ground map: cannot write {args.out}", file=sys.stderr)

@@ -16,8 +16,9 @@ from typing import Any
 
 from fsw.comm.mavlink_commands import Reason, encode_args, parse_cli_value, result_name
 from fsw.comm.mavlink_dialect import MAV_CMD_DICTIONARY, mavlink
-from fsw.comm.mavlink_signing import KeyFileError, load_key
+from fsw.comm.mavlink_signing import load_key
 from ground.dictionary import GroundDictionary
+from ground.link import GCS_SYSTEM_ID
 
 HELP = "send one signed command and wait for its COMMAND_ACK (exit code reflects it)"
 EXIT_ACCEPTED, EXIT_REFUSED, EXIT_USAGE, EXIT_TIMEOUT = 0, 1, 2, 3
@@ -31,7 +32,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="link (default: the rover's url from the config turned around: rover "
                         "udpout:H:P -> udpin:H:P, rover udpin:H:P -> udpout:H:P)")
     p.add_argument("--baud", type=int, default=57600, help="serial line rate")
-    p.add_argument("--timeout", type=float, default=3.0, metavar="S", help="wait this long for the heartbeat and for the ACK")
+    p.add_argument("--timeout", type=float, default=3.0, metavar="S",
+                   help="wait this long for the heartbeat and for the ACK")
     p.add_argument("--retries", type=int, default=0,
                    help="resend after a timeout (new signature; may run the command twice if only the ACK was lost)")
     p.add_argument("--link-id", type=int, default=1, help="signing link id of this ground station")
@@ -90,7 +92,8 @@ def run(args: argparse.Namespace, d: GroundDictionary) -> int:
 
 def _exchange(link: Any, key: bytes, args: argparse.Namespace, name: str, opcode: int, params: list[float]) -> int:
     conn = link.conn
-    conn.setup_signing(key, sign_outgoing=True, link_id=args.link_id)
+    # see the rover whatever key signs its downlink; the ACK's own authenticity is reported
+    conn.setup_signing(key, sign_outgoing=True, link_id=args.link_id, allow_unsigned_callback=lambda mav, msg_id: True)
     deadline = time.monotonic() + args.timeout
     hb = None
     while hb is None and time.monotonic() < deadline:
@@ -109,7 +112,8 @@ def _exchange(link: Any, key: bytes, args: argparse.Namespace, name: str, opcode
             reason = Reason(ack.progress).name if ack.progress in Reason._value2member_map_ else str(ack.progress)
             detail = f" ({reason.lower().replace('_', ' ')})" if ack.result != mavlink.MAV_RESULT_ACCEPTED \
                 and ack.progress else ""
-            print(f"{name} (opcode 0x{opcode:x}) -> {result}{detail}")
+            auth = "" if getattr(ack, "_signed", False) else "  [ACK not signed with this key]"
+            print(f"{name} (opcode 0x{opcode:x}) -> {result}{detail}{auth}")
             return EXIT_ACCEPTED if ack.result == mavlink.MAV_RESULT_ACCEPTED else EXIT_REFUSED
     print(f"safer-ground send: no COMMAND_ACK for {name} within {args.timeout:g} s "
           f"({args.retries + 1} attempt(s))", file=sys.stderr)
@@ -122,12 +126,11 @@ def _wait_ack(link: Any, opcode: int, deadline: float) -> Any:
         if msg is None:
             continue
         kind = msg.get_type()
-        if kind == "COMMAND_ACK" and msg.command == MAV_CMD_DICTIONARY and msg.result_param2 == opcode:
+        if kind == "COMMAND_ACK" and msg.command == MAV_CMD_DICTIONARY and msg.result_param2 == opcode \
+                and msg.target_system in (0, GCS_SYSTEM_ID):
             return msg
         if kind == "STATUSTEXT" and msg.severity <= mavlink.MAV_SEVERITY_NOTICE:
             text = msg.text.decode("utf-8", "replace") if isinstance(msg.text, bytes) else msg.text
             print(f"  rover: {text}")
     return None
 
-
-__all__ = ["HELP", "KeyFileError", "add_arguments", "ground_url", "parse_args_for", "run"]

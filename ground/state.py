@@ -43,7 +43,7 @@ class GroundState:
     events: deque[EventLine] = field(default_factory=lambda: deque(maxlen=200))
     images: ImageReceiver = field(default_factory=ImageReceiver)
     frames: int = 0
-    bytes: int = 0
+    rx_bytes: int = 0
     lost: int = 0
     _seq: int | None = None
     _chunks: dict[int, list[bytes]] = field(default_factory=dict)
@@ -62,7 +62,7 @@ class GroundState:
             return
         n = len(msg.get_msgbuf())
         self.frames += 1
-        self.bytes += n
+        self.rx_bytes += n
         self._rate.append((t, n))
         if self._seq is not None:
             self.lost += (hdr.seq - self._seq - 1) % 256

@@ -19,6 +19,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("", "render"): "hil_sim.commands.render",
     ("", "serve"): "hil_sim.commands.serve",
     ("bench", "render"): "hil_sim.commands.bench_render",
+    ("bench", "lockstep"): "hil_sim.commands.bench_lockstep",
     ("bench", "perception"): "hil_sim.commands.bench_perception",
     ("bench", "nbv"): "hil_sim.commands.bench_nbv",
     ("bench", "codec"): "hil_sim.commands.bench_codec",

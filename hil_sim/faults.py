@@ -30,8 +30,17 @@ import numpy as np
 from fsw.comm.rover_can import AXES
 from fsw.config import ConfigError, build, load_toml, param
 
-KINDS = ("can_drop", "can_delay", "can_corrupt", "bus_off", "motor_fault", "serial_noise",
-         "serial_disconnect", "camera_dropout", "mast_stall")
+KINDS = (
+    "can_drop",
+    "can_delay",
+    "can_corrupt",
+    "bus_off",
+    "motor_fault",
+    "serial_noise",
+    "serial_disconnect",
+    "camera_dropout",
+    "mast_stall",
+)
 
 
 @dataclass(frozen=True)
@@ -45,7 +54,9 @@ class FaultSpec:
     delay_s: float = param(0.0, lo=0.0, hi=60.0, units="s", doc="can_delay: hold time")
     direction: str = param("both", choices=("both", "to_fsw", "from_fsw"), doc="CAN faults: which frames")
     target: str = param("", doc="CAN faults: one axis' frames only; motor_fault: the axis")
-    mode: str = param("", choices=("", "driver", "stall", "status", "silent"), doc="motor_fault / camera_dropout variant")
+    mode: str = param(
+        "", choices=("", "driver", "stall", "status", "silent"), doc="motor_fault / camera_dropout variant"
+    )
 
     def __post_init__(self) -> None:
         if self.target and self.target not in AXES:
@@ -121,8 +132,14 @@ class FaultInjector:
 
     def _can_faults(self, axis: str | None, to_fsw: bool) -> list[FaultSpec]:
         want = "to_fsw" if to_fsw else "from_fsw"
-        return [f for f in self.faults if f.kind in ("can_drop", "can_delay", "can_corrupt") and f.active(self.now)
-                and f.direction in ("both", want) and (not f.target or f.target == axis)]
+        return [
+            f
+            for f in self.faults
+            if f.kind in ("can_drop", "can_delay", "can_corrupt")
+            and f.active(self.now)
+            and f.direction in ("both", want)
+            and (not f.target or f.target == axis)
+        ]
 
     def _corrupt(self, data: bytes) -> bytes:
         if len(data) > 1 and self.rng.random() < 0.25:

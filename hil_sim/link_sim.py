@@ -9,6 +9,7 @@ Used by the link tests, ``safer-hil experiment link`` and the Cliff-bot demo.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from fsw.comm.link import LinkConfig, LinkEvent
@@ -28,6 +29,7 @@ class TransferResult:
     forward: DirectionStats
     reverse: DirectionStats
     events: list[tuple[str, LinkEvent]] = field(default_factory=list)
+    idle_steps: int = 0  # steps where a deadline was due but nothing happened (should be 0)
 
     @property
     def goodput_bps(self) -> float:
@@ -39,8 +41,14 @@ class TransferResult:
 def run_transfer(
     data: bytes, link: LinkConfig, channel: RadioChannelConfig, seed: int = 0,
     *, map_id: int = 1, session: int = 1, t_max_s: float = 7200.0, max_steps: int = 2_000_000,
+    tamper: Callable[[str, bytes], bytes | None] | None = None,
 ) -> TransferResult:
-    """Send ``data`` from the RECON-bot to the Cliff-bot; stop when both ends are done."""
+    """Send ``data`` from the RECON-bot to the Cliff-bot; stop when both ends are done.
+
+    ``tamper(side, datagram)`` is the fault-injection backdoor: it sees every datagram
+    arriving at ``side`` ("a" sender, "b" receiver) and returns it, a changed copy, or None
+    to drop it.
+    """
     ch = RadioChannel(channel, seed)
     tx, rx = LinkSender(link, session), LinkReceiver(link)
     t = 0.0
@@ -48,11 +56,13 @@ def run_transfer(
     delivered: bytes | None = None
     delivered_s: float | None = None
     events: list[tuple[str, LinkEvent]] = []
+    idle_steps = 0
     for _ in range(max_steps):
-        for d in ch.receive("a", t):
-            tx.receive(d, t)
-        for d in ch.receive("b", t):
-            rx.receive(d, t)
+        for side, end in (("a", tx), ("b", rx)):
+            for d in ch.receive(side, t):
+                d2 = tamper(side, d) if tamper is not None else d
+                if d2 is not None:
+                    end.receive(d2, t)
         for d in tx.poll(t):
             ch.send("a", d, t)
         for d in rx.poll(t):
@@ -70,10 +80,13 @@ def run_transfer(
         if not nxt:
             break
         t_next = min(nxt)
-        t = t_next if t_next > t else t + 1e-6  # a deadline already due: make progress anyway
+        if t_next <= t:  # a deadline already due yet nothing happened: step on, count it
+            idle_steps += 1
+            t_next = t + 1e-3
+        t = t_next
         if t > t_max_s:
             break
     return TransferResult(
         delivered=delivered, delivered_s=delivered_s, sender_state=tx.state, end_s=t,
         sender_stats=vars(tx.stats).copy(), receiver_stats=vars(rx.stats).copy(),
-        forward=ch.stats("a"), reverse=ch.stats("b"), events=events)
+        forward=ch.stats("a"), reverse=ch.stats("b"), events=events, idle_steps=idle_steps)

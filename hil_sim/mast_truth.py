@@ -39,8 +39,9 @@ class MastTruth:
         rng = np.random.default_rng(seed)
         self.q = np.array(mast.clamp(math.radians(cfg.park_pan_deg), math.radians(cfg.park_tilt_deg), cfg.park_lift_m))
         self.target = self.q.copy()
-        self.offset = np.array([math.radians(cfg.pan_offset_sigma_deg), math.radians(cfg.tilt_offset_sigma_deg),
-                                cfg.lift_offset_sigma_m]) * rng.standard_normal(3)
+        self.offset = np.array(
+            [math.radians(cfg.pan_offset_sigma_deg), math.radians(cfg.tilt_offset_sigma_deg), cfg.lift_offset_sigma_m]
+        ) * rng.standard_normal(3)
         self.rates = np.array([math.radians(mast.pan_rate_dps), math.radians(mast.tilt_rate_dps), mast.lift_rate_mps])
         self.stalled = False
         self.travel = np.zeros(3)  # accumulated |motion| per joint

@@ -102,3 +102,65 @@ def pit_view_poses(world: World, mast: MastConfig, n: int, *, x_span_m: float = 
             rng.uniform(-1, 1) * jitter_deg)
         poses.append(camera_pose_from_rover(rover, mast.clamp(pan, tilt, lift_m), mast))
     return poses
+
+
+def edge_pass_poses(world: World, mast: MastConfig, stops_x_m: tuple[float, ...] = (
+        0.0, 1.5, 3.0, 4.5), pans_deg: tuple[float, ...] = (-50.0, -90.0, -130.0),
+        tilt_deg: float = -40.0, lift_m: float = 0.3) -> list[CameraPose]:
+    """A pass along the edge: the rover stops at ``stops_x_m`` past its start (along its
+    heading) and looks over the drop at each pan angle (the panorama of ALGORITHM.md §2)."""
+    x0, y0, yaw = world.rover_start
+    return [camera_pose_from_rover((x0 + dx * math.cos(yaw), y0 + dx * math.sin(yaw), yaw),
+                                   (math.radians(pan), math.radians(tilt_deg), lift_m), mast,
+                                   world.plateau_z)
+            for dx in stops_x_m for pan in pans_deg]
+
+
+def calibration_figure(path: str, panels: list[tuple[str, F64, F64]]) -> None:
+    """PNG of predicted sigma against actual error: per panel ``(title, error, sigma)``, the
+    RMS error in bins of predicted sigma against the identity, and the histogram of
+    ``error / sigma`` against the unit normal."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, len(panels), figsize=(5.2 * len(panels), 9), squeeze=False)
+    for col, (title, err, sig) in enumerate(panels):
+        ax = axes[0, col]
+        edges = np.geomspace(sig.min(), sig.max() * 1.0001, 16)
+        idx = np.clip(np.searchsorted(edges, sig, side="right") - 1, 0, len(edges) - 2)
+        xs, ys = [], []
+        for b in range(len(edges) - 1):
+            sel = idx == b
+            if sel.sum() >= 20:
+                xs.append(np.sqrt(np.mean(sig[sel] ** 2)))
+                ys.append(np.sqrt(np.mean(err[sel] ** 2)))
+        ax.scatter(100 * sig, 100 * np.maximum(np.abs(err), 1e-4), s=2, alpha=0.15,
+                   color="0.5", label="cells: |error| vs sigma")
+        ax.plot(100 * np.array(xs), 100 * np.array(ys), "o-", color="C3",
+                label="RMS error per sigma bin (>= 20 cells)")
+        lo, hi = 100 * sig.min() / 1.5, 100 * sig.max() * 1.5
+        ax.plot([lo, hi], [lo, hi], "k--", lw=1, label="error = sigma")
+        ax.plot([lo, hi], [2 * lo, 2 * hi], ":", color="k", lw=1, label="error = 2 sigma")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlim(lo, hi)
+        ax.set_ylim(lo / 20, 4 * hi)
+        ax.set_xlabel("predicted sigma (cm)")
+        ax.set_ylabel("|elevation error| (cm)")
+        within = 100 * float(np.mean(np.abs(err) <= 2 * sig))
+        ax.set_title(f"{title}\n{err.size} cells, RMS {100 * np.sqrt(np.mean(err**2)):.2f} cm, "
+                     f"{within:.1f} % within 2 sigma", fontsize=10)
+        ax.legend(fontsize=8, loc="upper left")
+        ax = axes[1, col]
+        r = np.clip(err / sig, -5, 5)
+        ax.hist(r, bins=np.linspace(-5, 5, 61), density=True, color="C0", alpha=0.7,
+                label="error / sigma")
+        g = np.linspace(-5, 5, 200)
+        ax.plot(g, np.exp(-0.5 * g * g) / math.sqrt(2 * math.pi), "k-", label="unit normal")
+        ax.set_xlabel("normalised error (error / sigma), clipped to +-5")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)

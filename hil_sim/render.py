@@ -60,10 +60,12 @@ class StereoRenderer:
         self._texture = world.config.texture if world.config is not None else TextureConfig()
         self._sun = sun_vector(self._texture)
         tile_rng = np.random.default_rng([world.seed, 77])
-        self._fine = fractal_noise((DETAIL_TILE, DETAIL_TILE), DETAIL_CELL_M, tile_rng, beta=1.0,
-                                   min_wavelength_m=0.005, max_wavelength_m=0.01)
-        self._mid = fractal_noise((DETAIL_TILE, DETAIL_TILE), DETAIL_CELL_M, tile_rng, beta=1.0,
-                                  min_wavelength_m=0.01, max_wavelength_m=0.025)
+        fine = fractal_noise((DETAIL_TILE, DETAIL_TILE), DETAIL_CELL_M, tile_rng, beta=1.0,
+                             min_wavelength_m=0.005, max_wavelength_m=0.01)
+        mid = fractal_noise((DETAIL_TILE, DETAIL_TILE), DETAIL_CELL_M, tile_rng, beta=1.0,
+                            min_wavelength_m=0.01, max_wavelength_m=0.025)
+        self._detail_tile = np.ascontiguousarray(np.stack([fine, mid], axis=-1))
+        self._surface = np.ascontiguousarray(np.stack([world.albedo, world.detail], axis=-1))
         self._rng = np.random.default_rng(seed)
 
     # -- public API -------------------------------------------------------------------
@@ -95,15 +97,15 @@ class StereoRenderer:
         x = np.float32(c[0]) + t * rays[..., 0]
         y = np.float32(c[1]) + t * rays[..., 1]
         px, py = self._hf.to_pixel(x, y)
-        albedo = sample(self.world.albedo, px, py)
-        amp = sample(self.world.detail, px, py)
+        surface = sample(self._surface, px, py)  # albedo and detail amplitude
+        albedo, amp = surface[..., 0], surface[..., 1]
         footprint = t / np.float32(focal_px)  # metres per pixel on a facing surface
         w_fine = np.clip(2.0 - footprint / DETAIL_CELL_M, 0.0, 1.0)
         w_mid = np.clip(2.0 - footprint / (2 * DETAIL_CELL_M), 0.0, 1.0)
         tx = np.mod(x / DETAIL_CELL_M, DETAIL_TILE).astype(np.float32)
         ty = np.mod(y / DETAIL_CELL_M, DETAIL_TILE).astype(np.float32)
-        detail = (w_fine * sample(self._fine, tx, ty, wrap=True)
-                  + w_mid * sample(self._mid, tx, ty, wrap=True))
+        tiles = sample(self._detail_tile, tx, ty, wrap=True)
+        detail = w_fine * tiles[..., 0] + w_mid * tiles[..., 1]
         gain = 1.0 + np.float32(self._texture.detail_contrast * 0.7) * amp * detail
         value = np.float32(255.0 * self.exposure) * albedo * gain
         return np.where(hit, value, np.float32(SKY_DN)).astype(np.float32)
@@ -113,7 +115,8 @@ class StereoRenderer:
         """Overlay the Cliff-bot's quads with a depth test against the terrain: the body one
         ray per pixel, the fiducial plates supersampled."""
         h, w = image.shape
-        plain, fine = [], []
+        plain: list[tuple[Quad, tuple[int, int, int, int]]] = []
+        fine: list[tuple[Quad, tuple[int, int, int, int]]] = []
         for q in self.world.cliffbot.quads:
             if not q.two_sided and float((c - q.p0) @ q.normal) <= 0.0:
                 continue  # seen from behind: hidden by the body (back-face culling)
@@ -144,10 +147,9 @@ class StereoRenderer:
         val = np.where(closer, v_q, np.repeat(np.repeat(image[v0:v1, u0:u1], ss, 0), ss, 1))
         image[v0:v1, u0:u1] = val.reshape(hh, ss, ww, ss).mean(axis=(1, 3))
         t_best = np.where(closer, t_q, t_under)
-        if ss % 2:  # an odd grid has a sample at the pixel centre: take its depth
-            t_c = t_best[ss // 2::ss, ss // 2::ss]
-        else:
-            t_c = t_best.reshape(hh, ss, ww, ss).min(axis=(1, 3))
+        # An odd grid has a sample at the pixel centre: its depth; else the nearest sample.
+        t_c = (t_best[ss // 2::ss, ss // 2::ss] if ss % 2
+               else t_best.reshape(hh, ss, ww, ss).min(axis=(1, 3)))
         depth[v0:v1, u0:u1] = np.where(np.isfinite(t_c), t_c, np.nan)
 
     def _hit_quad(self, q: Quad, c: F64, rays: F32) -> tuple[F32, F32]:
@@ -189,5 +191,6 @@ class StereoRenderer:
     # -- sensor -----------------------------------------------------------------------
     def _to_u8(self, image: F32) -> U8:
         if self.noise_sigma > 0.0:
-            image = image + self._rng.normal(0.0, self.noise_sigma, image.shape).astype(np.float32)
+            noise = self._rng.standard_normal(image.shape, dtype=np.float32)
+            image = image + np.float32(self.noise_sigma) * noise
         return np.clip(np.rint(image), 0, 255).astype(np.uint8)

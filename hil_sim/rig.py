@@ -56,8 +56,17 @@ def load_hardware(path: str | Path = DEFAULT_HARDWARE) -> HardwareConfig:
 class HardwareRig:
     """True rover + mast and their CAN, serial and camera models."""
 
-    def __init__(self, world: Any, fsw: FswConfig, hw: HardwareConfig, seed: int, can_bus: can.BusABC,
-                 serial_port: Any, faults: FaultInjector | None = None, dbc: str | Path | None = None) -> None:
+    def __init__(
+        self,
+        world: Any,
+        fsw: FswConfig,
+        hw: HardwareConfig,
+        seed: int,
+        can_bus: can.BusABC,
+        serial_port: Any,
+        faults: FaultInjector | None = None,
+        dbc: str | Path | None = None,
+    ) -> None:
         self.world, self.fsw, self.hw, self.seed = world, fsw, hw, seed
         self.faults = faults or FaultInjector(seed)
         terrain = world if world is not None else FlatTerrain()
@@ -113,7 +122,17 @@ class HardwareRig:
     def truth(self) -> dict[str, float]:
         r, m = self.rover, self.mast
         pan, tilt, lift = m.true_joints
-        return {"t_s": self.now, "x_m": r.x, "y_m": r.y, "z_m": r.z, "yaw_deg": math.degrees(r.yaw),
-                "pitch_deg": math.degrees(r.pitch), "roll_deg": math.degrees(r.roll),
-                "odometer_m": r.odometer_m, "pan_deg": math.degrees(pan), "tilt_deg": math.degrees(tilt),
-                "lift_m": lift, "max_wheel_drop_m": r.max_wheel_drop_m}
+        return {
+            "t_s": self.now,
+            "x_m": r.x,
+            "y_m": r.y,
+            "z_m": r.z,
+            "yaw_deg": math.degrees(r.yaw),
+            "pitch_deg": math.degrees(r.pitch),
+            "roll_deg": math.degrees(r.roll),
+            "odometer_m": r.odometer_m,
+            "pan_deg": math.degrees(pan),
+            "tilt_deg": math.degrees(tilt),
+            "lift_m": lift,
+            "max_wheel_drop_m": r.max_wheel_drop_m,
+        }

@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from fsw.config import param
 from fsw.core.geometry import RoverConfig
-from fsw.core.wheel_kinematics import body_motion, body_motion_matrix, integrate_pose, wheel_positions
+from fsw.core.wheel_kinematics import body_motion, body_motion_matrix, integrate_pose
 
 F64 = NDArray[np.float64]
 
@@ -54,8 +54,9 @@ class RoverTruthConfig:
     shoulder_rate_dps: float = param(15.0, lo=0.1, hi=360.0, units="deg/s")
     shoulder_min_deg: float = param(0.0, lo=-90.0, hi=90.0, units="deg", doc="mechanical shoulder stop")
     shoulder_max_deg: float = param(60.0, lo=-90.0, hi=90.0, units="deg")
-    shoulder_nominal_deg: float = param(30.0, lo=-90.0, hi=90.0, units="deg",
-                                        doc="leg angle from vertical at which the wheels sit at +-wheelbase/2")
+    shoulder_nominal_deg: float = param(
+        30.0, lo=-90.0, hi=90.0, units="deg", doc="leg angle from vertical at which the wheels sit at +-wheelbase/2"
+    )
     leg_length_m: float = param(0.4, lo=0.05, hi=2.0, units="m", doc="shoulder to wheel axle")
     slip_mean: float = param(0.02, lo=-0.5, hi=0.9, doc="mean longitudinal slip (fraction of the rolled distance lost)")
     slip_bias_sigma: float = param(0.01, lo=0.0, hi=0.5, doc="per-wheel constant slip spread")
@@ -73,8 +74,14 @@ class RoverTruthConfig:
 class RoverTruth:
     """State and integration of the true rover; wheel arrays are ordered FL, FR, RL, RR."""
 
-    def __init__(self, terrain: Terrain, rover: RoverConfig, cfg: RoverTruthConfig, seed: int,
-                 start: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
+    def __init__(
+        self,
+        terrain: Terrain,
+        rover: RoverConfig,
+        cfg: RoverTruthConfig,
+        seed: int,
+        start: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> None:
         self.terrain, self.rover, self.cfg = terrain, rover, cfg
         self.r = rover.wheel_diameter_m / 2.0
         rng = np.random.default_rng(seed)
@@ -102,6 +109,8 @@ class RoverTruth:
         self.z = self.pitch = self.roll = 0.0
         self.odometer_m = 0.0
         self.max_wheel_drop_m = 0.0
+        self._pinv_key: np.ndarray | None = None
+        self._pinv = np.zeros((3, 8))
         self._settle()
 
     # -- set-points (from the motor controllers) -------------------------------------------------
@@ -116,6 +125,7 @@ class RoverTruth:
         n = max(1, math.ceil(dt_s / self.cfg.substep_s - 1e-9))
         for _ in range(n):
             self._substep(dt_s / n)
+        self._settle()  # terrain contact once per step: the body moves millimetres per sub-step
 
     def _substep(self, dt: float) -> None:
         c = self.cfg
@@ -130,25 +140,33 @@ class RoverTruth:
         self.steer = np.clip(self.steer + steer_step, -stop, stop)
         dsh = math.radians(c.shoulder_rate_dps) * dt
         sh_step = np.clip(self.shoulder_cmd - self.shoulder, -dsh, dsh)
-        self.shoulder = np.clip(self.shoulder + sh_step, math.radians(c.shoulder_min_deg),
-                                math.radians(c.shoulder_max_deg))
+        self.shoulder = np.clip(
+            self.shoulder + sh_step, math.radians(c.shoulder_min_deg), math.radians(c.shoulder_max_deg)
+        )
         # slip: per-wheel bias + AR(1) fluctuation
         a = math.exp(-dt / c.slip_corr_time_s)
         self.slip_noise = a * self.slip_noise + c.slip_noise_sigma * math.sqrt(1 - a * a) * self._rng.standard_normal(4)
         slip = np.clip(c.slip_mean + self.slip_bias + self.slip_noise, -0.2, 0.9)
         roll = self.omega * self.r * dt * (1.0 - slip) * math.cos(self.pitch)
-        motion = body_motion(roll, self.steer + self.steer_offset, body_motion_matrix(self.wheel_xy()))
+        if self._pinv_key is None or not np.array_equal(self._pinv_key, self.shoulder):
+            self._pinv_key, self._pinv = self.shoulder.copy(), body_motion_matrix(self.wheel_xy())
+        motion = body_motion(roll, self.steer + self.steer_offset, self._pinv)
         self.x, self.y, self.yaw = integrate_pose((self.x, self.y, self.yaw), motion)
         self.odometer_m += math.hypot(float(motion[0]), float(motion[1]))
         self.drive_angle += self.omega * dt
         alpha = np.abs(self.omega - prev) / dt
         grade = abs(math.tan(self.pitch))
-        self.drive_current = (c.current_idle_a + c.current_per_radps_a * np.abs(self.omega)
-                              + c.current_per_radps2_a * alpha + c.current_per_grade_a * grade * (np.abs(self.omega) > 0))
-        self.drive_current = np.where(self.stalled & (np.abs(self.omega_cmd) > 0), c.stall_current_a, self.drive_current)
-        self.steer_current = 0.2 + 1.5 * (np.abs(steer_step) > 1e-9)
-        self.shoulder_current = 0.5 + 2.0 * (np.abs(sh_step) > 1e-9)
-        self._settle()
+        self.drive_current = (
+            c.current_idle_a
+            + c.current_per_radps_a * np.abs(self.omega)
+            + c.current_per_radps2_a * alpha
+            + c.current_per_grade_a * grade * (np.abs(self.omega) > 0)
+        )
+        self.drive_current = np.where(
+            self.stalled & (np.abs(self.omega_cmd) > 0), c.stall_current_a, self.drive_current
+        )
+        self.steer_current = np.where(np.abs(steer_step) > 1e-9, 1.7, 0.2)  # slewing vs holding, A
+        self.shoulder_current = np.where(np.abs(sh_step) > 1e-9, 2.5, 0.5)
 
     def _settle(self) -> None:
         """Body height, pitch and roll from the terrain under the four wheels."""

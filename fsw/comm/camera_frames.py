@@ -45,8 +45,7 @@ def encode_request(seq: int) -> bytes:
     return struct.pack(REQ_FMT, REQ_MAGIC, seq & 0xFFFFFFFF)
 
 
-def encode_reply(seq: int, status: int, t_capture_s: float,
-                 left: U8 | None = None, right: U8 | None = None) -> bytes:
+def encode_reply(seq: int, status: int, t_capture_s: float, left: U8 | None = None, right: U8 | None = None) -> bytes:
     if status == OK:
         if left is None or right is None or left.shape != right.shape or left.ndim != 2:
             raise ValueError("an OK reply needs two 2-D images of one shape")
@@ -55,8 +54,9 @@ def encode_reply(seq: int, status: int, t_capture_s: float,
     else:
         h = w = 0
         payload = b""
-    hdr = struct.pack(HDR_FMT, REPLY_MAGIC, seq & 0xFFFFFFFF, status, w, h, float(t_capture_s),
-                      len(payload), zlib.crc32(payload))
+    hdr = struct.pack(
+        HDR_FMT, REPLY_MAGIC, seq & 0xFFFFFFFF, status, w, h, float(t_capture_s), len(payload), zlib.crc32(payload)
+    )
     return hdr + payload
 
 

@@ -101,7 +101,7 @@ class Pacer:
         self.free_at_s = float("-inf")
 
     def ready(self, now_s: float) -> bool:
-        return now_s >= self.free_at_s
+        return now_s >= self.free_at_s - 1e-9
 
     def consume(self, nbytes: int, now_s: float) -> None:
         self.free_at_s = max(self.free_at_s, now_s) + 8.0 * nbytes / self.rate_bps

@@ -2,11 +2,11 @@
 
 States: ``IDLE -> RECEIVING -> COMPLETE -> IDLE``.
 
-* An OFFER within ``max_map_bytes`` is accepted (ACCEPT, then a STATUS); a bigger or
-  malformed one is REJECTed. An OFFER for the map already partly held (same SHA-256, size
-  and segment size, e.g. after the sender restarted) resumes it: the STATUS that follows
-  the ACCEPT lists what is already here, so none of it is sent again. An OFFER for a map
-  already delivered is answered with FIN(VERIFIED).
+* An OFFER within ``max_map_bytes`` is accepted (ACCEPT); a bigger one is REJECTed. An
+  OFFER for the map already partly held (same SHA-256, size and segment size: a repeated
+  OFFER, or the sender restarted with a new session) is answered with a STATUS instead,
+  which accepts it and lists what is already here, so none of it is sent again. An OFFER
+  for a map already delivered is answered with FIN(VERIFIED).
 * DATA is checked (segment number, length) and stored once; duplicates are counted. A
   STATUS (cumulative ack, highest segment, a selective-ack bitmap of up to
   ``8 * max_bitmap_bytes`` segments, and the serial of the last packet seen) goes out when
@@ -28,6 +28,8 @@ from enum import Enum
 
 from fsw.comm import link_packets as lp
 from fsw.comm.link import EventQueue, LinkConfig, LinkStats, Pacer
+
+_EPS = 1e-9  # deadlines are met within this (float rounding of t0 + period)
 
 
 class ReceiverState(Enum):
@@ -158,18 +160,18 @@ class LinkReceiver:
             if cur is not None and cur.session != offer.session:
                 self.events.emit(now_s, "RESUMED", map_id=offer.map_id, held=self._n_rx)
             self._offer = offer
-        else:
-            self._offer = offer
-            self._buf = bytearray(offer.size)
-            self._have = bytearray(offer.n_segments)
-            self._n_rx = self._cum = self._highest = 0
-            self._echo = None
-            self._all_sent = False
-            self._start_s = now_s
-            self.state = ReceiverState.RECEIVING
-            self.events.emit(now_s, "OFFER_ACCEPTED", map_id=offer.map_id, size=offer.size)
+            self._status_now = True  # a STATUS accepts and says what is already here
+            return
+        self._offer = offer
+        self._buf = bytearray(offer.size)
+        self._have = bytearray(offer.n_segments)
+        self._n_rx = self._cum = self._highest = 0
+        self._echo = None
+        self._all_sent = False
+        self._start_s = now_s
+        self.state = ReceiverState.RECEIVING
+        self.events.emit(now_s, "OFFER_ACCEPTED", map_id=offer.map_id, size=offer.size)
         self._replies.append(lp.encode(lp.Accept(offer.session, offer.map_id)))
-        self._status_now = True
 
     def _on_data(self, d: lp.Data, now_s: float) -> None:
         offer = self._offer
@@ -227,7 +229,7 @@ class LinkReceiver:
     def _next_packet(self, now_s: float) -> bytes | None:
         if self._replies:
             return self._replies.pop(0)
-        since = now_s - self._last_status_s
+        since = now_s - self._last_status_s + _EPS
         if self._fin is not None and (self._status_now or self.state is ReceiverState.COMPLETE
                                       and since >= self.cfg.status_period_s):
             fin = self._fin

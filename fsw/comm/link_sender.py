@@ -31,6 +31,7 @@ from fsw.comm.link import EventQueue, LinkConfig, LinkStats, Pacer
 
 _RING = 1024
 _NEVER = float("-inf")
+_EPS = 1e-9  # deadlines are met within this (float rounding of t0 + period)
 
 
 class SenderState(Enum):
@@ -76,6 +77,7 @@ class LinkSender:
         self._next_ping_s = _NEVER
         self._data_since_ping = False
         self._fin_acks = 0
+        self._now_s = 0.0  # time of the last receive/poll call
 
     # -- public API ------------------------------------------------------------------------
     def start(self, map_id: int, data: bytes, now_s: float) -> None:
@@ -88,10 +90,18 @@ class LinkSender:
         self._digest = hashlib.sha256(self._data).digest()
         self._reset_progress()
         self.state = SenderState.OFFERING
-        self._start_s = self._last_feedback_s = now_s
+        self._start_s = self._last_feedback_s = self._now_s = now_s
         self._next_offer_s = now_s
         self._backoff_s = self.cfg.offer_retry_s
         self.events.emit(now_s, "OFFERED", map_id=self._map_id, size=len(data), segments=self._n)
+
+    @property
+    def map_id(self) -> int:
+        return self._map_id
+
+    @property
+    def map_bytes(self) -> int:
+        return len(self._data)
 
     @property
     def progress(self) -> tuple[int, int]:
@@ -105,6 +115,7 @@ class LinkSender:
     def receive(self, datagram: bytes, now_s: float) -> None:
         """Handle one datagram from the radio (anything invalid is counted and dropped)."""
         self.stats.packets_in += 1
+        self._now_s = max(self._now_s, now_s)
         try:
             pkt = lp.decode(datagram)
         except lp.PacketError:
@@ -133,6 +144,7 @@ class LinkSender:
         """Datagrams to send now, within pacing and an optional byte budget."""
         out: list[bytes] = []
         used = 0
+        self._now_s = max(self._now_s, now_s)
         self._check_timeouts(now_s)
         while self._pacer.ready(now_s):
             if max_bytes is not None and used + self.cfg.segment_bytes + lp.DATA_OVERHEAD > max_bytes:
@@ -153,9 +165,10 @@ class LinkSender:
         if self._fin_acks:
             return self._pacer.free_at_s
         if s is SenderState.OFFERING:
-            return max(self._next_offer_s, self._pacer.free_at_s)
+            return min(max(self._next_offer_s, self._pacer.free_at_s),
+                       self._last_feedback_s + self.cfg.give_up_s)
         cand = [self._last_feedback_s + self.cfg.give_up_s]
-        stalled = self._stalled(self._pacer.free_at_s)
+        stalled = self._stalled(self._now_s)
         if not stalled and (self._lost or self._next_new < self._n):
             cand.append(self._pacer.free_at_s)
         else:
@@ -178,7 +191,7 @@ class LinkSender:
         self._data_since_ping = False
 
     def _stalled(self, now_s: float) -> bool:
-        return now_s - self._last_feedback_s > self.cfg.stall_timeout_s
+        return now_s - self._last_feedback_s >= self.cfg.stall_timeout_s - _EPS
 
     def _check_timeouts(self, now_s: float) -> None:
         if self.state in (SenderState.OFFERING, SenderState.SENDING) and \
@@ -192,7 +205,7 @@ class LinkSender:
             self._fin_acks -= 1
             return lp.encode(lp.FinAck(self.session, self._map_id))
         if self.state is SenderState.OFFERING:
-            if now_s < self._next_offer_s:
+            if now_s < self._next_offer_s - _EPS:
                 return None
             self._next_offer_s = now_s + self._backoff_s
             self._backoff_s = min(2 * self._backoff_s, self.cfg.max_backoff_s)
@@ -209,10 +222,12 @@ class LinkSender:
                 if not self._acked[seq]:
                     self.stats.retransmits += 1
                     return self._data_packet(seq, now_s)
+            while self._next_new < self._n and self._acked[self._next_new]:
+                self._next_new += 1  # already there (a resumed transfer)
             if self._next_new < self._n:
                 self._next_new += 1
                 return self._data_packet(self._next_new - 1, now_s)
-        if now_s >= self._next_ping_s or (self._data_since_ping and not stalled):
+        if now_s >= self._next_ping_s - _EPS or (self._data_since_ping and not stalled):
             self._data_since_ping = False
             self._next_ping_s = now_s + self.cfg.ping_period_s
             self.stats.pings += 1

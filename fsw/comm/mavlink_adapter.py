@@ -21,8 +21,7 @@ from fsw.comm import mavlink_telemetry as tm
 from fsw.comm.mavlink_commands import Reason
 from fsw.comm.mavlink_config import MavlinkConfig
 from fsw.comm.mavlink_dialect import mavlink, new_codec
-from fsw.comm.mavlink_downlink import (ChannelSample, ChannelScheduler, EventQueue, Packer, Periodic,
-                                       TokenBucket)
+from fsw.comm.mavlink_downlink import ChannelSample, ChannelScheduler, EventQueue, Packer, Periodic, TokenBucket
 from fsw.comm.mavlink_image import ImageSender
 from fsw.comm.mavlink_signing import SignatureVerifier
 from fsw.comm.mavlink_uplink import CommandIn, Uplink, UplinkBatch
@@ -73,6 +72,7 @@ class MavlinkAdapter:
                      "pose": Periodic(cfg.pose_period_s), "mast": Periodic(cfg.mast_period_s)}
         self._next_image_s = 0.0
         self._chunk_id = 0
+        self._text: deque[mavlink.MAVLink_statustext_message] = deque()  # chunks of the event being sent
         self._last_pose: tuple[float, VehicleView] | None = None
         self.tx_frames = 0
         self.tx_bytes = 0
@@ -80,8 +80,8 @@ class MavlinkAdapter:
         self.max_frame_bytes = 0
 
     # -- uplink -----------------------------------------------------------------------------
-    def receive(self, data: bytes, now_ts: int) -> UplinkBatch:
-        batch = self.uplink.feed(data, now_ts)
+    def receive(self, data: bytes, now_ts: int, packet_end: bool = False) -> UplinkBatch:
+        batch = self.uplink.feed(data, now_ts, packet_end)
         if self.codec.signing.sign_outgoing:  # never sign behind what the ground has seen
             self.codec.signing.timestamp = max(self.codec.signing.timestamp, now_ts,
                                                self.verifier.newest_timestamp() + 1)
@@ -141,13 +141,18 @@ class MavlinkAdapter:
         return p.frames
 
     def _events(self, worst_allowed: Severity) -> None:
-        while (ev := self.events.head()) is not None and ev.severity <= worst_allowed:
-            if self.events.bucket.tokens < 1.0:
+        """STATUSTEXT for queued events up to ``worst_allowed``; the chunks of a long text may
+        span activations, so no event is too long for the smallest budget."""
+        while True:
+            while self._text and self.packer.offer([self._text[0]]):
+                self._text.popleft()
+            if self._text:
+                return
+            ev = self.events.head()
+            if ev is None or ev.severity > worst_allowed or not self.events.bucket.take():
                 return
             self._chunk_id = self._chunk_id % _UINT16_MAX + 1
-            if not self.packer.offer(tm.statustext(ev.severity, f"{ev.name}: {ev.text}", self._chunk_id)):
-                return
-            self.events.bucket.take()
+            self._text.extend(tm.statustext(ev.severity, f"{ev.name}: {ev.text}", self._chunk_id))
             self.events.pop()
 
     def _sys_status(self, v: VehicleView) -> mavlink.MAVLink_sys_status_message:
@@ -158,8 +163,10 @@ class MavlinkAdapter:
         def c16(n: int) -> int:
             return max(0, min(_UINT16_MAX, int(n)))
 
+        # no sensor claimed present; health all ones = nothing unhealthy (an all-zero health word
+        # reads as failed sensors, e.g. "fence breach" in MAVProxy)
         return mavlink.MAVLink_sys_status_message(
-            0, 0, 0, c16(min(v.load_dpercent, 1000)), _UINT16_MAX, -1, -1, c16(drop_cpct), c16(u.bad_frames),
+            0, 0, 0xFFFFFFFF, c16(min(v.load_dpercent, 1000)), _UINT16_MAX, -1, -1, c16(drop_cpct), c16(u.bad_frames),
             c16(v.slips), c16(v.overruns), c16(self.uplink.rejected()), c16(self.events.dropped), 0, 0, 0)
 
     def _pose(self, ms: int, now: float, v: VehicleView) -> list[mavlink.MAVLink_message]:

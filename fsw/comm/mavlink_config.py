@@ -54,10 +54,13 @@ class MavlinkConfig:
                                          doc="least severe event sent as STATUSTEXT")
     mission_state_channel: str = param("mission.state",
                                        doc="channel whose value sets the HEARTBEAT mode fields")
+    pose_topic: str = param("nav.pose", doc="bus topic of the pose estimate (x, y, yaw rad; joints = pan, "
+                                            "tilt rad, lift m); preferred over pose_channels once heard")
     pose_channels: tuple[str, ...] = param(
-        ("nav.x_m", "nav.y_m", "nav.z_m", "nav.roll_rad", "nav.pitch_rad", "nav.yaw_rad"),
-        doc="rover pose x, y, z (world, z up), roll, pitch, yaw (CCW from +x); '' = not available")
-    mast_channels: tuple[str, ...] = param(("mast.pan_rad", "mast.tilt_rad"),
+        ("motion.odo_x_m", "motion.odo_y_m", "", "", "", "motion.odo_yaw_deg"),
+        doc="rover pose x, y, z (world, z up), roll, pitch, yaw (CCW from +x); '' = not available; "
+            "angles in rad, or deg when the channel's units say so")
+    mast_channels: tuple[str, ...] = param(("devices.mast_pan_deg", "devices.mast_tilt_deg"),
                                            doc="mast pan (CCW +) and tilt (up +) channels")
     map_preview_topic: str = param("map.preview",
                                    doc="bus topic with 2-D map previews (float elevation, NaN "

@@ -79,13 +79,21 @@ def load_key(path: str | Path) -> tuple[bytes, bool]:
     return key, not (mode & (stat.S_IRWXG | stat.S_IRWXO))
 
 
-def write_key(path: str | Path) -> bytes:
-    """Create a new random key file readable by its owner only (``safer-ground keygen``)."""
-    key = os.urandom(KEY_LEN)
+def write_key(path: str | Path, key: bytes | None = None) -> bytes:
+    """Create a key file readable by its owner only (``safer-ground keygen``); random unless
+    ``key`` is given. Refuses to overwrite (FileExistsError)."""
+    key = os.urandom(KEY_LEN) if key is None else key
+    if len(key) != KEY_LEN:
+        raise KeyFileError(f"a key has {KEY_LEN} bytes, got {len(key)}")
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
     with os.fdopen(fd, "w") as fh:
         fh.write(key.hex() + "\n")
     return key
+
+
+def key_from_passphrase(passphrase: str) -> bytes:
+    """MAVProxy's key for ``signing key PASSPHRASE``: SHA-256 of the passphrase."""
+    return hashlib.sha256(passphrase.encode("utf-8")).digest()
 
 
 def frame_signature(key: bytes, frame_without_sig: bytes) -> bytes:

@@ -23,11 +23,11 @@ from fsw.comm.mavlink_dialect import mavlink
 from fsw.executive.telemetry import Severity
 
 #: custom_mode = index in this table (docs/ground.md, "Modes"); 255 = a state not listed here.
-MISSION_STATES = ("IDLE", "INIT", "LOCALIZE", "PANORAMA", "EDGE", "SELECT_VIEW", "MOVE",
-                  "ACQUIRE", "TRANSMIT", "DONE", "SAFE")
+#: The mission sequencer's states (fsw/tasks/mission.py STATES; a test keeps them equal).
+MISSION_STATES = ("IDLE", "INIT", "SELECT", "MOVE", "POINT", "ACQUIRE", "TRANSMIT", "DONE", "SAFE")
 UNKNOWN_MODE = 255
 _IDLE_STATES = {"IDLE", "DONE"}
-_MOVING_STATES = {"LOCALIZE", "PANORAMA", "EDGE", "SELECT_VIEW", "MOVE", "ACQUIRE"}  # actuators live
+_MOVING_STATES = {"INIT", "MOVE", "POINT"}  # wheels or mast may move: SAFETY_ARMED
 
 MAV_SEVERITY_OF = {
     Severity.FATAL: mavlink.MAV_SEVERITY_EMERGENCY,

@@ -56,7 +56,9 @@ class Uplink:
         self._parser = new_codec(system_id, component_id)
         self.counters = UplinkCounters()
 
-    def feed(self, data: bytes, now_ts: int) -> UplinkBatch:
+    def feed(self, data: bytes, now_ts: int, packet_end: bool = False) -> UplinkBatch:
+        """Parse ``data``; ``packet_end``: it was a whole datagram, so a frame left incomplete
+        at its end is garbage (counted) and the parser starts clean on the next one."""
         out = UplinkBatch()
         if not data:
             return out
@@ -70,6 +72,10 @@ class Uplink:
             return out
         for msg in msgs:
             self._one(msg, now_ts, out)
+        if packet_end and self._parser.buf_len() > 0:
+            self.counters.bad_frames += 1
+            out.bad.append(f"{self._parser.buf_len()} bytes of an incomplete frame at the end of a datagram")
+            self._parser = new_codec(self.system_id, self.component_id)
         return out
 
     def _one(self, msg: mavlink.MAVLink_message, now_ts: int, out: UplinkBatch) -> None:

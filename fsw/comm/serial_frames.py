@@ -35,11 +35,23 @@ CRC_LEN = 2
 MAX_PAYLOAD = 64
 
 MOVE, STOP, QUERY, CLEAR_FAULT, ACK, NAK, STATE = 0x01, 0x02, 0x03, 0x04, 0x81, 0x82, 0x83
-TYPE_NAMES = {MOVE: "MOVE", STOP: "STOP", QUERY: "QUERY", CLEAR_FAULT: "CLEAR_FAULT",
-              ACK: "ACK", NAK: "NAK", STATE: "STATE"}
+TYPE_NAMES = {
+    MOVE: "MOVE",
+    STOP: "STOP",
+    QUERY: "QUERY",
+    CLEAR_FAULT: "CLEAR_FAULT",
+    ACK: "ACK",
+    NAK: "NAK",
+    STATE: "STATE",
+}
 NAK_BAD_CRC, NAK_BAD_LENGTH, NAK_UNKNOWN_TYPE, NAK_OUT_OF_LIMITS, NAK_FAULTED = 1, 2, 3, 4, 5
-NAK_REASONS = {NAK_BAD_CRC: "bad CRC", NAK_BAD_LENGTH: "bad length", NAK_UNKNOWN_TYPE: "unknown type",
-               NAK_OUT_OF_LIMITS: "out of limits", NAK_FAULTED: "controller faulted"}
+NAK_REASONS = {
+    NAK_BAD_CRC: "bad CRC",
+    NAK_BAD_LENGTH: "bad length",
+    NAK_UNKNOWN_TYPE: "unknown type",
+    NAK_OUT_OF_LIMITS: "out of limits",
+    NAK_FAULTED: "controller faulted",
+}
 STATE_MOVING, STATE_AT_TARGET, STATE_FAULT, STATE_LIMIT = 0x01, 0x02, 0x04, 0x08
 
 _FORMATS = {MOVE: "<iii", STOP: "", QUERY: "", CLEAR_FAULT: "", ACK: "<BB", NAK: "<BBB", STATE: "<iiiB"}
@@ -170,8 +182,7 @@ class MastState:
 
 
 Message = Move | Stop | Query | ClearFault | Ack | Nak | MastState
-_TYPE_OF = {Move: MOVE, Stop: STOP, Query: QUERY, ClearFault: CLEAR_FAULT, Ack: ACK, Nak: NAK,
-            MastState: STATE}
+_TYPE_OF = {Move: MOVE, Stop: STOP, Query: QUERY, ClearFault: CLEAR_FAULT, Ack: ACK, Nak: NAK, MastState: STATE}
 
 
 def _micro(v: float) -> int:
@@ -184,8 +195,7 @@ def encode_message(msg: Message, seq: int) -> bytes:
     if isinstance(msg, Move):
         payload = struct.pack("<iii", _micro(msg.pan_rad), _micro(msg.tilt_rad), _micro(msg.lift_m))
     elif isinstance(msg, MastState):
-        payload = struct.pack("<iiiB", _micro(msg.pan_rad), _micro(msg.tilt_rad), _micro(msg.lift_m),
-                              msg.flags & 0xFF)
+        payload = struct.pack("<iiiB", _micro(msg.pan_rad), _micro(msg.tilt_rad), _micro(msg.lift_m), msg.flags & 0xFF)
     elif isinstance(msg, Ack):
         payload = struct.pack("<BB", msg.seq & 0xFF, msg.type & 0xFF)
     elif isinstance(msg, Nak):
@@ -212,4 +222,5 @@ def parse_message(frame: Frame) -> Message | FrameError:
         return Ack(v[0], v[1])
     if t == NAK:
         return Nak(v[0], v[1], v[2])
-    return {STOP: Stop(), QUERY: Query(), CLEAR_FAULT: ClearFault()}[t]
+    empty: dict[int, Message] = {STOP: Stop(), QUERY: Query(), CLEAR_FAULT: ClearFault()}
+    return empty[t]

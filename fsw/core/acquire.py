@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.elevation_map import ElevationMap, MergeStats
-from fsw.core.localization import PoseEstimate, propagate_point_covariance
+from fsw.core.localization import PoseEstimate, point_covariance_parts
 from fsw.core.stereo import StereoMatcher
 
 F64 = NDArray[np.float64]
@@ -25,7 +25,8 @@ class ViewPoints:
     """One view's points in the world frame with their 3x3 covariances."""
 
     xyz_w: F64
-    cov_w: F64
+    cov_w: F64  # total: stereo plus pose
+    cov_pose_w: F64 | None  # the pose part alone (common to the view), None if pose exact
     valid_px: int  # pixels that produced a point (before any stride)
 
 
@@ -39,8 +40,11 @@ def view_points(matcher: StereoMatcher, left: NDArray[np.uint8], right: NDArray[
                 camera: PoseEstimate, stride_px: int = 1) -> ViewPoints:
     """Stereo points of one pair, in the world, with stereo and pose covariance (§1.2)."""
     sp = matcher.points(left, right, stride_px)
-    xyz_w, cov_w = propagate_point_covariance(camera.pose, camera.cov, sp.xyz_c, sp.cov_c)
-    return ViewPoints(xyz_w, cov_w, int(sp.valid.sum()))
+    exact = not np.any(camera.cov)
+    xyz_w, cov_s, cov_p = point_covariance_parts(
+        camera.pose, None if exact else camera.cov, sp.xyz_c, sp.cov_c)
+    total = cov_s if cov_p is None else cov_s + cov_p
+    return ViewPoints(xyz_w, total, cov_p, int(sp.valid.sum()))
 
 
 def acquire(matcher: StereoMatcher, emap: ElevationMap, left: NDArray[np.uint8],
@@ -49,5 +53,5 @@ def acquire(matcher: StereoMatcher, emap: ElevationMap, left: NDArray[np.uint8],
             stride_px: int = 1) -> AcquireResult:
     """Match, triangulate, transform and fuse one view; record its misses (§4)."""
     pts = view_points(matcher, left, right, camera, stride_px)
-    stats = emap.merge(pts.xyz_w, cov=pts.cov_w, p_visible=p_visible)
+    stats = emap.merge(pts.xyz_w, cov=pts.cov_w, p_visible=p_visible, cov_common=pts.cov_pose_w)
     return AcquireResult(pts, stats)

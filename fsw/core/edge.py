@@ -1,7 +1,7 @@
 """The cliff edge from the elevation map (ALGORITHM.md §2).
 
 1. Edge points. The *safe region* is the mapped plateau: cells within ``plateau_tol_m`` of
-   the rover's ground height, in connected pieces of at least ``min_region_cells``. A safe
+   the rover's ground height, in the connected piece nearest the rover. A safe
    cell is an edge cell when, looking outward across its boundary in one of the eight grid
    directions, the first mapped cell within ``search_m`` lies more than ``step_m`` lower
    (cells in between may be unknown: the ground right under a drop is occluded from the
@@ -41,12 +41,15 @@ class EdgeConfig:
 
     step_m: float = param(0.10, lo=0.005, hi=10.0, units="m", doc="drop that makes an edge")
     plateau_tol_m: float = param(
-        0.05, lo=0.001, hi=5.0, units="m", doc="a safe cell is within this of the ground height"
+        0.03, lo=0.001, hi=5.0, units="m", doc="a safe cell is within this of the ground height"
     )
     search_m: float = param(
-        0.6, lo=0.0, hi=10.0, units="m", doc="how far past the plateau to look for the drop"
+        1.5, lo=0.0, hi=10.0, units="m", doc="how far past the plateau to look for the drop"
     )
     min_region_cells: int = param(30, lo=1, hi=10**7, doc="smallest safe-region piece kept")
+    join_m: float = param(
+        0.6, lo=0.0, hi=5.0, units="m", doc="plateau pieces closer than this are one piece"
+    )
     simplify_m: float = param(0.03, lo=0.0, hi=1.0, units="m", doc="polygon simplification")
     match_m: float = param(
         0.06, lo=0.0, hi=1.0, units="m", doc="polygon vertices this close to edge points are edge"
@@ -139,16 +142,43 @@ class EdgeModel:
         return float(np.mean(shapely.distance(shapely.points(pts), truth)))
 
 
-def edge_cells(emap: ElevationMap, ground_z_m: float, cfg: EdgeConfig) -> EdgeCells:
-    """Edge points of the map: safe cells whose outward neighbour run ends in a drop (§2)."""
+def safe_region(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float, float],
+                cfg: EdgeConfig) -> NDArray[np.bool_]:
+    """The mapped plateau the rover stands on: cells within ``plateau_tol_m`` of its ground,
+    in the connected piece nearest ``seed_xy`` (pieces closer than ``join_m`` count as one).
+    Level ground that is not connected to the rover (the top of a box in the pit, a
+    floor beyond the far side of the pit) is not safe ground."""
+    z = emap.z
+    level = emap.mapped & np.isfinite(z) & (np.abs(z - ground_z_m) <= cfg.plateau_tol_m)
+    if not level.any():
+        return level
+    r = int(round(cfg.join_m / (2.0 * emap.grid.cell)))
+    joined = ndimage.binary_closing(level, np.ones((2 * r + 1, 2 * r + 1)), border_value=0) \
+        if r > 0 else level
+    lab, _ = ndimage.label(joined | level, structure=np.ones((3, 3)))
+    lab = np.where(level, lab, 0)
+    sizes = np.bincount(lab.ravel())
+    big = sizes[lab] >= cfg.min_region_cells
+    big &= lab > 0
+    if not big.any():
+        return big
+    g = emap.grid
+    iy, ix = np.nonzero(big)
+    d2 = (g.x0 + (ix + 0.5) * g.cell - seed_xy[0]) ** 2 + (g.y0 + (iy + 0.5) * g.cell
+                                                          - seed_xy[1]) ** 2
+    nearest = lab[iy[np.argmin(d2)], ix[np.argmin(d2)]]
+    return np.asarray(lab == nearest)
+
+
+def edge_cells(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float, float],
+               cfg: EdgeConfig) -> EdgeCells:
+    """Edge points of the map: safe cells whose outward neighbour run ends in a drop (§2).
+
+    ``ground_z_m`` is the height of the ground the rover stands on and ``seed_xy`` a point
+    of it (the rover's position)."""
     z = emap.z
     mapped = emap.mapped & np.isfinite(z)
-    safe = mapped & (np.abs(z - ground_z_m) <= cfg.plateau_tol_m)
-    lab, nlab = ndimage.label(safe, structure=np.ones((3, 3)))
-    if nlab:
-        sizes = np.bincount(lab.ravel(), minlength=nlab + 1)
-        sizes[0] = 0
-        safe = sizes[lab] >= cfg.min_region_cells
+    safe = safe_region(emap, ground_z_m, seed_xy, cfg)
     lower = mapped & (z < ground_z_m - cfg.step_m)
     unknown = ~mapped
     k_max = max(1, int(round(cfg.search_m / emap.grid.cell)))

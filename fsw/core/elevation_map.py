@@ -17,7 +17,8 @@ for ``k`` points (``rho = 1``: the view counts as one measurement, ``rho = 0``: 
 points). ``n`` counts views, not points.
 
 A point's vertical variance ``v`` is ``P_zz`` of its world covariance (§1.2) plus, when the
-full covariance is given, the slope term: a horizontal error ``dxy`` moves the point to
+full covariance is given, the slope term (gradient ``g`` from this view's own cell means, so
+a view's measurement does not depend on the map it is fused into): a horizontal error ``dxy`` moves the point to
 terrain of another height, so the error in the cell's height is ``dz - g.dxy`` with ``g``
 the local gradient, ``v = P_zz - 2 g.P_xyz + g^T P_xy g``; and the cell-footprint term
 ``|g|^2 cell^2 / 12`` (a point samples one spot of a sloping cell whose truth is its mean).
@@ -57,10 +58,10 @@ class FusionConfig:
         4.0, lo=1.0, hi=1e6, doc="a cell's variance is multiplied by this on an outlier"
     )
     point_correlation: float = param(
-        1.0, lo=0.0, hi=1.0, doc="error correlation of points of one view in one cell"
+        0.5, lo=0.0, hi=1.0, doc="error correlation of points of one view in one cell"
     )
     view_correlation: float = param(
-        0.0, lo=0.0, hi=1.0, doc="part of a view's variance common to all views of a cell"
+        0.3, lo=0.0, hi=0.9, doc="part of a view's variance common to all views of a cell"
     )
     slope_term: bool = param(True, doc="add the slope term (horizontal error times gradient)")
     footprint_term: bool = param(True, doc="add |gradient|^2 cell^2 / 12 per point")
@@ -126,76 +127,91 @@ class ElevationMap:
         var_z: F64 | None = None,
         cov: F64 | None = None,
         p_visible: NDArray[np.floating] | NDArray[np.bool_] | None = None,
+        cov_common: F64 | None = None,
     ) -> MergeStats:
         """Fuse one view's world points (§1.1) and record its misses (§4).
 
         ``xyz`` (N, 3) world points; either ``var_z`` (N,) vertical variances or ``cov``
-        (N, 3, 3) world covariances (enables the slope term). ``p_visible`` (ny, nx): the
+        (N, 3, 3) world covariances (enables the slope term). ``cov_common`` (N, 3, 3) is
+        the part of ``cov`` shared by every point of the view (the camera pose term of
+        §1.2); it is averaged, not reduced, within a cell. ``p_visible`` (ny, nx): the
         probability that each cell was visible in this view, or a boolean mask.
         """
         xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
         n_in = xyz.shape[0]
+        # the six distinct entries xx xy xz yy yz zz of each covariance, as strided views
+        c6: tuple[F64, ...] | None = None
+        cc6: tuple[F64, ...] | None = None
         if cov is not None:
-            cov = np.asarray(cov, dtype=np.float64).reshape(-1, 3, 3)
-            if cov.shape[0] != n_in:
-                raise ValueError(f"cov has {cov.shape[0]} rows for {n_in} points")
-            v = cov[:, 2, 2].copy()
+            c6 = _sym6(_rows(cov, n_in, "cov"))
+            v = c6[5]
         elif var_z is not None:
-            v = np.asarray(var_z, dtype=np.float64).reshape(-1).copy()
-            if v.shape[0] != n_in:
-                raise ValueError(f"var_z has {v.shape[0]} rows for {n_in} points")
+            v = _rows(var_z, n_in, "var_z").reshape(-1)
         else:
             raise ValueError("merge needs var_z or cov")
+        if cov_common is not None:
+            if cov is None:
+                raise ValueError("cov_common needs cov")
+            cc6 = _sym6(_rows(cov_common, n_in, "cov_common"))
         g = self.grid
-        iy, ix, inside = g.cell_index(xyz[:, 0], xyz[:, 1])
-        ok = inside & np.isfinite(xyz).all(axis=1) & np.isfinite(v) & (v >= 0)
-        ok &= v <= self.cfg.max_var_m2
-        flat = (iy * g.nx + ix)[ok]
-        z = xyz[ok, 2]
-        v = np.maximum(v[ok], self.cfg.min_var_m2)
         size = g.nx * g.ny
-        if cov is not None and (self.cfg.slope_term or self.cfg.footprint_term) and flat.size:
-            v = self._slope_variance(flat, z, v, cov[ok])
+        inv = 1.0 / g.cell
+        with np.errstate(invalid="ignore"):
+            fx = (xyz[:, 0] - g.x0) * inv  # >= 0 where inside, so truncation below is floor
+            fy = (xyz[:, 1] - g.y0) * inv
+            ok = (fx >= 0) & (fx < g.nx) & (fy >= 0) & (fy < g.ny) & np.isfinite(xyz[:, 2])
+            ok &= (v >= 0) & (v <= self.cfg.max_var_m2)  # False for NaN too
+        if not ok.all():
+            fx, fy, xyz, v = fx[ok], fy[ok], xyz[ok], v[ok]
+            c6 = None if c6 is None else tuple(c[ok] for c in c6)
+            cc6 = None if cc6 is None else tuple(c[ok] for c in cc6)
+        flat = fy.astype(np.intp) * g.nx + fx.astype(np.intp)
+        z = xyz[:, 2]
+        v = np.maximum(v, self.cfg.min_var_m2)
+        # per cell: the inverse-variance mean of the points (weights from P_zz)
         w = 1.0 / v
-        sw = np.bincount(flat, w, size)
-        swz = np.bincount(flat, w * z, size)
         k = np.bincount(flat, minlength=size)
+        sw = np.bincount(flat, w, size)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            zm_dense = np.bincount(flat, w * z, size) / sw
+        vc: F64 | float = 0.0
+        if c6 is not None and flat.size:
+            gy, gx = _nan_gradient(zm_dense.reshape(g.shape), g.cell)
+            grad = (gx.reshape(-1)[flat], gy.reshape(-1)[flat])
+            v = self._vertical_variance(grad, c6, footprint=True)
+            if cc6 is not None:
+                vc = np.minimum(self._vertical_variance(grad, cc6, footprint=False),
+                                v - self.cfg.min_var_m2)
         cells = np.flatnonzero(k)
-        kc, swc = k[cells], sw[cells]
-        zm = swz[cells] / swc
-        rho = self.cfg.point_correlation
-        vm = (1.0 + (kc - 1) * rho) / swc
+        kc, swc, zm = k[cells], sw[cells], zm_dense[cells]
+        swi = np.bincount(flat, 1.0 / (v - vc), size)[cells]  # the independent (stereo) part
+        vm = (1.0 + (kc - 1) * self.cfg.point_correlation) / swi
+        if cc6 is not None:
+            vm += np.bincount(flat, w * vc, size)[cells] / swc  # common part: averaged
         if self.cfg.subcell_term:
-            swz2 = np.bincount(flat, w * (z - zm[np.searchsorted(cells, flat)]) ** 2, size)
-            spread = swz2[cells] / swc  # weighted variance of the points about their mean
-            excess = np.maximum(spread - kc / swc, 0.0) * kc / np.maximum(kc - 1, 1)
-            vm = vm + np.where(kc >= 2, excess, 0.0)
+            dev2 = (z - zm_dense[flat]) ** 2
+            spread = np.bincount(flat, w * dev2, size)[cells] / swc  # weighted point spread
+            excess = np.maximum(spread - kc / swi, 0.0) * kc / np.maximum(kc - 1, 1)
+            vm += np.where(kc >= 2, excess, 0.0)
         new, fused, outl = self._fuse(cells, zm, vm)
         n_miss = 0
         if p_visible is not None:
             n_miss = self.record_misses(p_visible, hit=k.reshape(g.shape) > 0)
         return MergeStats(n_in, int(flat.size), int(cells.size), new, fused, outl, n_miss)
 
-    def _slope_variance(self, flat: NDArray[np.intp], z: F64, v: F64, cov: F64) -> F64:
-        """Per-point vertical variance with the slope and footprint terms (module docstring)."""
-        g = self.grid
-        size = g.nx * g.ny
-        w = 1.0 / v
-        sw = np.bincount(flat, w, size)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            zc = (np.bincount(flat, w * z, size) / sw).reshape(g.shape)
-        zc = np.where(np.isnan(zc), self.z, zc)
-        gy, gx = _nan_gradient(zc, g.cell)
-        gxp, gyp = gx.reshape(-1)[flat], gy.reshape(-1)[flat]
-        out = v
+    def _vertical_variance(self, grad: tuple[F64, F64], c6: tuple[F64, ...],
+                           footprint: bool) -> F64:
+        """Per-point variance of the cell height: ``P_zz`` with the slope term and, if asked,
+        the footprint term (module docstring). ``c6``: xx xy xz yy yz zz per point."""
+        gx, gy = grad
+        xx, xy, xz, yy, yz, zz = c6
+        out = zz
         if self.cfg.slope_term:
-            out = (v - 2.0 * (gxp * cov[:, 0, 2] + gyp * cov[:, 1, 2])
-                   + gxp * gxp * cov[:, 0, 0] + 2.0 * gxp * gyp * cov[:, 0, 1]
-                   + gyp * gyp * cov[:, 1, 1])
+            out = zz - 2.0 * (gx * xz + gy * yz) + gx * (gx * xx + 2.0 * gy * xy) + gy * gy * yy
         out = np.maximum(out, self.cfg.min_var_m2)
-        if self.cfg.footprint_term:
-            out = out + (gxp * gxp + gyp * gyp) * g.cell**2 / 12.0
-        return out
+        if footprint and self.cfg.footprint_term:
+            out += (gx * gx + gy * gy) * (self.grid.cell**2 / 12.0)
+        return np.asarray(out)
 
     def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64) -> tuple[int, int, int]:
         """Inverse-variance update of the given flat cells with a Mahalanobis gate (§1.1).
@@ -218,8 +234,9 @@ class ElevationMap:
         v_new = np.where(empty, vm, v0)
         vc_new = np.where(empty, c * vm, vc0)
         zi, vi, mi, vmi, vci = z0[inlier], v0[inlier], zm[inlier], vm[inlier], vc0[inlier]
-        z_new[inlier] = (vmi * zi + vi * mi) / (vi + vmi)
         ind0, ind_m = vi - vci, (1.0 - c) * vmi
+        wi = ind0 / (1.0 - c)  # 1 / (the summed weight of the views fused so far)
+        z_new[inlier] = (vmi * zi + wi * mi) / (wi + vmi)
         with np.errstate(invalid="ignore", divide="ignore"):
             ind = np.where(ind0 + ind_m > 0, ind0 * ind_m / (ind0 + ind_m), 0.0)
         vc_new[inlier] = np.minimum(vci, c * vmi)
@@ -248,6 +265,19 @@ class ElevationMap:
         missed = empty & (pv >= self.cfg.miss_pv_threshold)
         self.misses[missed] += 1
         return int(missed.sum())
+
+
+def _sym6(cov: F64) -> tuple[F64, ...]:
+    """xx xy xz yy yz zz of (N, 3, 3) covariances, as views (no copy)."""
+    c = cov.reshape(-1, 9)
+    return tuple(c[:, i] for i in (0, 1, 2, 4, 5, 8))
+
+
+def _rows(a: F64, n: int, name: str) -> F64:
+    arr = np.asarray(a, dtype=np.float64)
+    if arr.shape[:1] != (n,):
+        raise ValueError(f"{name} has {arr.shape[:1]} rows for {n} points")
+    return arr
 
 
 def _nan_gradient(zc: F64, cell_m: float) -> tuple[F64, F64]:

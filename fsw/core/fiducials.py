@@ -8,7 +8,10 @@ one too (the known baseline fixes the scale much better than one 40-pixel marker
 The body pose in the world is then ``T_world_body = T_world_cam * T_cam_body``, with the
 covariance of both factors propagated (module ``fsw.core.localization`` conventions).
 
-Detection uses ``cv2.aruco.ArucoDetector`` with sub-pixel corner refinement.
+Detection uses ``cv2.aruco.ArucoDetector``. Corner refinement matters: on the bench images
+the ``subpix`` and ``contour`` refinements put corners 0.3-0.8 px inside the marker, which
+reads as a target 1-2 cm too far at 3 m; ``apriltag`` (edge-line fit) is unbiased to
+0.05 px and is the default (docs/perception.md, "Fiducials").
 """
 
 from __future__ import annotations
@@ -24,14 +27,16 @@ from fsw.core.geometry import CameraPose
 from fsw.core.localization import (
     LocalizationConfig,
     PoseEstimate,
+    pnp_candidates,
     pnp_jacobian,
     skew,
     so3_exp,
-    solve_pnp,
 )
 
 F64 = NDArray[np.float64]
 _S45 = float(np.sqrt(0.5))
+_REFINE = {"none": cv2.aruco.CORNER_REFINE_NONE, "subpix": cv2.aruco.CORNER_REFINE_SUBPIX,
+           "contour": cv2.aruco.CORNER_REFINE_CONTOUR, "apriltag": cv2.aruco.CORNER_REFINE_APRILTAG}
 
 
 @dataclass(frozen=True)
@@ -105,7 +110,7 @@ class CliffbotLocalizer:
         except AttributeError:
             raise ValueError(f"unknown ArUco dictionary {cfg.aruco_dictionary!r}") from None
         params = cv2.aruco.DetectorParameters()
-        params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+        params.cornerRefinementMethod = _REFINE[cfg.corner_refinement]
         self.detector = cv2.aruco.ArucoDetector(dictionary, params)
 
     def detect(self, image: NDArray[np.uint8]) -> dict[int, F64]:
@@ -128,43 +133,47 @@ class CliffbotLocalizer:
         ids = sorted(seen_l)
         obj = np.concatenate([self.corners[i] for i in ids])
         img = np.concatenate([seen_l[i] for i in ids])
-        # Camera pose in the body frame (PnP: the body is the "world" of the problem).
-        est = solve_pnp(obj, img, self.K, self.cfg.corner_sigma_px, square_marker=len(ids) == 1)
-        if est is None or est.rms_px > self.cfg.max_reproj_px:
+        # Camera pose in the body frame (PnP: the body is the "world" of the problem). One
+        # marker alone is planar and has a mirror solution; the right image settles it.
+        cands = pnp_candidates(obj, img, self.K, self.cfg.corner_sigma_px)
+        cands = [c for c in cands if c.rms_px <= self.cfg.max_reproj_px]
+        if not cands:
             return None
-        if right is not None:
-            seen_r = self.detect(right)
-            both = [i for i in ids if i in seen_r]
-            if both:
-                est = self._refine_stereo(est, obj, img, np.concatenate(
-                    [self.corners[i] for i in both]), np.concatenate([seen_r[i] for i in both]))
+        seen_r = self.detect(right) if right is not None else {}
+        both = [i for i in ids if i in seen_r]
+        if both:
+            obj_r = np.concatenate([self.corners[i] for i in both])
+            img_r = np.concatenate([seen_r[i] for i in both])
+            cands = [self._refine_stereo(c, obj, img, obj_r, img_r) for c in cands]
+        est = min(cands, key=lambda c: c.rms_px)
+        if not np.isfinite(est.rms_px) or est.rms_px > self.cfg.max_reproj_px:
+            return None
         return _compose(camera, est, tuple(ids))
 
     def _refine_stereo(self, est: PoseEstimate, obj_l: F64, img_l: F64, obj_r: F64,
                        img_r: F64, iters: int = 10) -> PoseEstimate:
         """Gauss-Newton over the left and right corners together (known baseline)."""
         pose = est.pose
-        sigma = self.cfg.corner_sigma_px
-        J = np.zeros((0, 6))
-        res = np.zeros(0)
-        for _ in range(iters):
-            right = pose.right(self.baseline_m)
-            Jl = pnp_jacobian(pose, obj_l, self.K)
+
+        def residual_and_jacobian(p: CameraPose) -> tuple[F64, F64]:
+            right = p.right(self.baseline_m)
             # right centre = C + B R e_x: a rotation dtheta moves it by -[B R e_x]x dtheta
             T = np.eye(6)
-            T[3:, :3] = -skew(self.baseline_m * pose.R[:, 0])
-            Jr = pnp_jacobian(right, obj_r, self.K) @ T
-            res = np.concatenate([(_project(pose, obj_l, self.K) - img_l).ravel(),
+            T[3:, :3] = -skew(self.baseline_m * p.R[:, 0])
+            J = np.vstack([pnp_jacobian(p, obj_l, self.K), pnp_jacobian(right, obj_r, self.K) @ T])
+            res = np.concatenate([(_project(p, obj_l, self.K) - img_l).ravel(),
                                   (_project(right, obj_r, self.K) - img_r).ravel()])
-            J = np.vstack([Jl, Jr])
+            return res, J
+
+        res, J = residual_and_jacobian(pose)
+        for _ in range(iters):
             step = np.linalg.lstsq(J, -res, rcond=None)[0]
             pose = CameraPose(so3_exp(step[:3]) @ pose.R, pose.t + step[3:])
+            res, J = residual_and_jacobian(pose)
             if np.linalg.norm(step) < 1e-10:
                 break
         rms = float(np.sqrt(np.mean(res**2)))
-        if rms > self.cfg.max_reproj_px:
-            return est
-        cov = max(sigma, rms) ** 2 * np.linalg.inv(J.T @ J)
+        cov = max(self.cfg.corner_sigma_px, rms) ** 2 * np.linalg.inv(J.T @ J)
         return PoseEstimate(pose, 0.5 * (cov + cov.T), rms, est.n_points + obj_r.shape[0])
 
 

@@ -45,15 +45,16 @@ class Step:
 
 def _grid(ys: I64, xs: I64, offsets: tuple[tuple[int, int], ...], shape: tuple[int, int]) -> Step:
     ny, nx = shape
-    yy, xx = np.meshgrid(ys, xs, indexing="ij")
-    yy, xx = yy.ravel(), xx.ravel()
+    gy, gx = np.meshgrid(ys, xs, indexing="ij")
+    yy, xx = gy.ravel(), gx.ravel()
     nbr = np.empty((4, yy.size), np.int64)
     ok = np.empty((4, yy.size), bool)
     for k, (dy, dx) in enumerate(offsets):
         y, x = yy + dy, xx + dx
         ok[k] = (y >= 0) & (y < ny) & (x >= 0) & (x < nx)
         nbr[k] = np.where(ok[k], y * nx + x, ny * nx)
-    return Step(pts=yy * nx + xx, nbr=nbr, full=ok.all(axis=0), count=ok.sum(axis=0))
+    full: NDArray[np.bool_] = np.asarray(ok.all(axis=0))
+    return Step(pts=yy * nx + xx, nbr=nbr, full=full, count=ok.sum(axis=0))
 
 
 @lru_cache(maxsize=8)

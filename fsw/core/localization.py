@@ -34,8 +34,12 @@ class LocalizationConfig:
     """Fiducial detection, PnP noise and the pose filter (config ``[localization]``)."""
 
     aruco_dictionary: str = param("DICT_4X4_50", doc="cv2.aruco predefined dictionary name")
+    corner_refinement: str = param(
+        "apriltag", choices=("none", "subpix", "contour", "apriltag"),
+        doc="ArUco corner refinement (apriltag: unbiased edge-line fit)",
+    )
     corner_sigma_px: float = param(
-        0.3, lo=0.01, hi=10.0, units="px", doc="1-sigma image noise of a detected corner"
+        0.8, lo=0.01, hi=10.0, units="px", doc="1-sigma image noise of a detected corner"
     )
     min_points: int = param(4, lo=4, hi=1000, doc="fewest 3-D/2-D pairs for a PnP solution")
     max_reproj_px: float = param(
@@ -101,42 +105,60 @@ def pnp_jacobian(pose: CameraPose, pts_w: F64, K: F64) -> F64:
     return np.einsum("nij,njk->nik", dproj, dpc).reshape(2 * n, 6)
 
 
-def solve_pnp(
-    pts_w: F64, pts_px: F64, K: F64, corner_sigma_px: float, square_marker: bool = False
-) -> PoseEstimate | None:
+def solve_pnp(pts_w: F64, pts_px: F64, K: F64, corner_sigma_px: float) -> PoseEstimate | None:
     """Camera pose from ``n >= 4`` known world points and their image points (§5).
 
     Least squares (OpenCV PnP, then Levenberg-Marquardt refinement); the covariance is the
     Gauss-Newton one, ``sigma^2 (J^T J)^-1`` with ``sigma`` the larger of the configured
     corner noise and the residual RMS. Returns None when the points cannot give a pose.
     """
+    cands = pnp_candidates(pts_w, pts_px, K, corner_sigma_px)
+    return min(cands, key=lambda e: e.rms_px) if cands else None
+
+
+def pnp_candidates(pts_w: F64, pts_px: F64, K: F64, corner_sigma_px: float
+                   ) -> list[PoseEstimate]:
+    """Every PnP solution worth considering: two for a planar target (IPPE; the mirror
+    ambiguity of one small marker), one otherwise (SQPnP). Each is LM-refined."""
     pts_w = np.asarray(pts_w, dtype=np.float64).reshape(-1, 3)
     pts_px = np.asarray(pts_px, dtype=np.float64).reshape(-1, 2)
     n = pts_w.shape[0]
-    if n < 4 or pts_px.shape[0] != n or not (np.isfinite(pts_w).all() and np.isfinite(pts_px).all()):
-        return None
-    flag = cv2.SOLVEPNP_IPPE_SQUARE if square_marker and n == 4 else cv2.SOLVEPNP_ITERATIVE
-    if flag == cv2.SOLVEPNP_ITERATIVE and n < 6:
-        flag = cv2.SOLVEPNP_SQPNP
+    if n < 4 or pts_px.shape[0] != n or not (np.isfinite(pts_w).all()
+                                             and np.isfinite(pts_px).all()):
+        return []
+    sv = np.linalg.svd(pts_w - pts_w.mean(axis=0), compute_uv=False)
+    planar = sv[2] <= 1e-6 * max(sv[0], 1e-12)
+    flag = cv2.SOLVEPNP_IPPE if planar else cv2.SOLVEPNP_SQPNP
+    out = []
     try:
-        ok, rvec, tvec = cv2.solvePnP(pts_w, pts_px, K, None, flags=flag)
-        if not ok:
-            return None
-        rvec, tvec = cv2.solvePnPRefineLM(pts_w, pts_px, K, None, rvec, tvec)
+        count, rvecs, tvecs, _ = cv2.solvePnPGeneric(pts_w, pts_px, K, None, flags=flag)
+        for rvec, tvec in zip(rvecs[:count], tvecs[:count], strict=True):
+            rvec, tvec = cv2.solvePnPRefineLM(pts_w, pts_px, K, None, rvec, tvec)
+            est = _pnp_estimate(pts_w, pts_px, K, corner_sigma_px, rvec, tvec)
+            if est is not None:
+                out.append(est)
     except cv2.error:
-        return None
+        return []
+    return out
+
+
+def _pnp_estimate(pts_w: F64, pts_px: F64, K: F64, corner_sigma_px: float,
+                  rvec: cv2.typing.MatLike, tvec: cv2.typing.MatLike) -> PoseEstimate | None:
     R_wc = so3_exp(rvec)
-    pose = CameraPose(R_wc.T, (-R_wc.T @ tvec.reshape(3)))
+    t = np.asarray(tvec, dtype=np.float64).reshape(3)
+    pose = CameraPose(R_wc.T, -R_wc.T @ t)
+    if (pose.world_to_camera(pts_w)[:, 2] <= 0).any():
+        return None
     proj, _ = cv2.projectPoints(pts_w, rvec, tvec, K, None)
     res = proj.reshape(-1, 2) - pts_px
     rms = float(np.sqrt(np.mean(res**2)))
     J = pnp_jacobian(pose, pts_w, K)
     JtJ = J.T @ J
-    if np.linalg.cond(JtJ) > 1e12:
+    if not np.isfinite(JtJ).all() or np.linalg.cond(JtJ) > 1e12:
         return None
     sigma = max(corner_sigma_px, rms)
     cov = sigma**2 * np.linalg.inv(JtJ)
-    return PoseEstimate(pose, 0.5 * (cov + cov.T), rms, n)
+    return PoseEstimate(pose, 0.5 * (cov + cov.T), rms, pts_w.shape[0])
 
 
 @dataclass
@@ -186,15 +208,25 @@ class RecursivePoseFilter:
 def propagate_point_covariance(pose: CameraPose, pose_cov: F64 | None, xyz_c: F64,
                                cov_c: F64) -> tuple[F64, F64]:
     """World points and their covariances, ``P = J_pose S_pose J_pose^T + R S_c R^T`` (§1.2)."""
+    pts_w, P, P_pose = point_covariance_parts(pose, pose_cov, xyz_c, cov_c)
+    return pts_w, P if P_pose is None else P + P_pose
+
+
+def point_covariance_parts(pose: CameraPose, pose_cov: F64 | None, xyz_c: F64, cov_c: F64
+                           ) -> tuple[F64, F64, F64 | None]:
+    """World points, their stereo covariance ``R S_c R^T`` and their pose covariance
+    ``J_pose S_pose J_pose^T`` (None without a pose covariance), kept apart because the
+    pose part is common to every point of the view (§1.2)."""
     R = pose.R
     rc = xyz_c @ R.T
     pts_w = rc + pose.t
     P = np.matmul(np.matmul(R, cov_c), R.T)
-    if pose_cov is not None:
-        S = np.asarray(pose_cov, dtype=np.float64)
-        A = skew(rc)  # J_pose = [-A | I]
-        ASrt = np.matmul(A, S[:3, 3:])
-        P += np.matmul(np.matmul(A, S[:3, :3]), A.transpose(0, 2, 1))
-        P -= ASrt + ASrt.transpose(0, 2, 1)
-        P += S[3:, 3:]
-    return pts_w, P
+    if pose_cov is None:
+        return pts_w, P, None
+    S = np.asarray(pose_cov, dtype=np.float64)
+    A = skew(rc)  # J_pose = [-A | I]
+    ASrt = np.matmul(A, S[:3, 3:])
+    Pp = np.matmul(np.matmul(A, S[:3, :3]), A.transpose(0, 2, 1))
+    Pp -= ASrt + ASrt.transpose(0, 2, 1)
+    Pp += S[3:, 3:]
+    return pts_w, P, Pp

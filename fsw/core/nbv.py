@@ -2,7 +2,10 @@
 
 * Expected new information of a pose (§3.2, paper Eq 3), with the interest function (§3.4,
   Eq 5) pre-multiplied into the visibility when the method uses it:
-  ``H(c) = sum_{i in view(c)} (n_max - n_i)/n_max * h2(IF_i * P_V(i) / 2)``, bits.
+  ``H(c) = sum_{i in view(c)} (n_max - n_i)/n_max * h2(IF_i * P_V(i) / 2)``, bits. Eq 3's
+  ``n_max`` is ``info_n_max`` (default 2: a cell seen once is worth half a new one, twice
+  nothing), not the map's fusion cap (10), under which a cell seen once would still be worth
+  90 % of an unmapped one and the planner would rather re-measure than explore.
   Alongside it, ``expected_new_cells = sum_{i in view(c), n_i = 0} IF_i * P_V(i)``: the
   expected number of cells the view maps for the first time (what the paper's Figure 8 plots
   against the obtained count).
@@ -16,12 +19,14 @@
 
 Rating is per *station* (a camera centre): ``visibility_kernel.pv_fast`` gives P_V of every
 cell the station could see, once; each pan/tilt then only masks those cells by its field of
-view and depth of field (:func:`view_sums`).
+view and depth of field (:func:`view_sums`). The ``*_steps`` generators do the same work in
+bounded steps of a few milliseconds for the executive's slack jobs.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Generator
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -38,7 +43,7 @@ from fsw.core.visibility import (
     in_view,
     terrain_from_map,
 )
-from fsw.core.visibility_kernel import pv_fast
+from fsw.core.visibility_kernel import pv_fast, pv_fast_steps, run_to_end
 
 
 class MapLike(Protocol):
@@ -63,6 +68,8 @@ class NbvConfig:
     a_pan: float = param(3.65, lo=0.0, hi=1e6, units="s^2/rad^2", doc="Eq 9 weight of mast pan")
     a_tilt: float = param(3.65, lo=0.0, hi=1e6, units="s^2/rad^2", doc="Eq 9 weight of tilt")
     a_lift: float = param(400.0, lo=0.0, hi=1e6, units="s^2/m^2", doc="Eq 9 weight of lift")
+    info_n_max: int = param(2, lo=0, hi=100000,
+                            doc="n_max of Eq 3's weight (n_max - n)/n_max; 0: the map's n_max")
     station_spacing_m: float = param(0.25, lo=0.01, hi=10.0, units="m", doc="stations on the path")
     max_travel_m: float = param(2.5, lo=0.0, hi=100.0, units="m", doc="farthest station per step")
     pan_step_deg: float = param(20.0, lo=1.0, hi=180.0, units="deg", doc="pan grid step")
@@ -115,6 +122,12 @@ def view_sums(rel: F64, values: F64, yaws: F64, tilts: F64, camera: CameraConfig
     optical-axis world yaw in ``yaws`` (P,) with every tilt in ``tilts`` (T,). Returns
     (P, T, V). Camera frame as ``geometry.rotation_from_yaw_tilt`` (no roll).
     """
+    return run_to_end(view_sums_steps(rel, values, yaws, tilts, camera))
+
+
+def view_sums_steps(rel: F64, values: F64, yaws: F64, tilts: F64, camera: CameraConfig
+                    ) -> Generator[None, None, F64]:
+    """:func:`view_sums`, yielding after each tilt."""
     rho = np.hypot(rel[:, 0], rel[:, 1]).astype(np.float32)
     phi = np.arctan2(rel[:, 1], rel[:, 0])
     dz = rel[:, 2].astype(np.float32)
@@ -129,6 +142,7 @@ def view_sums(rel: F64, values: F64, yaws: F64, tilts: F64, camera: CameraConfig
     vals = np.ascontiguousarray(values.T, dtype=np.float32)
     out = np.empty((yaws.size, tilts.size, values.shape[1]))
     for j, tau in enumerate(tilts):
+        yield None
         ct, st = np.float32(math.cos(tau)), np.float32(math.sin(tau))
         zc = along * ct + (dz * st)[:, None]
         yc = along * st - (dz * ct)[:, None]
@@ -151,6 +165,15 @@ def rate_station(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws: F6
                  n: NDArray[np.integer], n_max: int, interest: F64 | None, camera: CameraConfig,
                  cfg: VisibilityConfig) -> StationRating:
     """Rate all pan/tilt views (world yaws x tilts) from one camera centre (§3.1, §3.2)."""
+    return run_to_end(rate_station_steps(terrain, cam_xyz, yaws, tilts, n, n_max, interest,
+                                         camera, cfg))
+
+
+def rate_station_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws: F64,
+                       tilts: F64, n: NDArray[np.integer], n_max: int, interest: F64 | None,
+                       camera: CameraConfig, cfg: VisibilityConfig
+                       ) -> Generator[None, None, StationRating]:
+    """:func:`rate_station` in bounded steps (for the executive's slack jobs)."""
     g = terrain.grid
     reach = horizontal_reach_m(camera)
     x_c = g.x0 + (np.arange(g.nx) + 0.5) * g.cell
@@ -163,12 +186,13 @@ def rate_station(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws: F6
     if iy.size == 0:
         zero = np.zeros((yaws.size, tilts.size))
         return StationRating(zero, zero.copy(), 0)
-    pv = pv_fast(terrain, cam_xyz, iy, ix, cfg)
+    pv = yield from pv_fast_steps(terrain, cam_xyz, iy, ix, cfg)
     bits, new = cell_values(pv, n[iy, ix], n_max, None if interest is None else interest[iy, ix])
     keep = (bits > 1e-6) | (new > 1e-6)
     rel = np.column_stack([x_c[ix[keep]] - cam_xyz[0], y_c[iy[keep]] - cam_xyz[1],
                            terrain.elev_m[iy[keep], ix[keep]] - cam_xyz[2]])
-    sums = view_sums(rel, np.column_stack([bits[keep], new[keep]]), yaws, tilts, camera)
+    sums = yield from view_sums_steps(rel, np.column_stack([bits[keep], new[keep]]), yaws,
+                                      tilts, camera)
     return StationRating(sums[..., 0], sums[..., 1], int(iy.size))
 
 
@@ -217,6 +241,11 @@ def utility(info_bits: F64, motion: F64, sigma_loc_m: F64, cfg: NbvConfig) -> F6
     """§3.5: ``U = H - w_d d - w_l sigma_loc``."""
     return np.asarray(info_bits) - cfg.w_motion * np.asarray(motion) - cfg.w_loc * np.asarray(
         sigma_loc_m)
+
+
+def info_n_max(emap: MapLike, cfg: NbvConfig) -> int:
+    """The ``n_max`` of Eq 3: ``cfg.info_n_max``, or the map's cap when that is 0."""
+    return int(cfg.info_n_max) if cfg.info_n_max > 0 else int(emap.n_max)
 
 
 def end_reason(step: int, best_info_bits: float | None, mapped_fraction: float,

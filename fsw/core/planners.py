@@ -1,8 +1,9 @@
 """The five mapping methods of the paper and an oracle, behind one interface (ALGORITHM.md §7).
 
 ``planner.next_view(state) -> CandidateView | None`` (None: nothing reachable to do), or
-``planner.search(state)``, a generator that yields between bounded steps (one camera centre
-each) so the executive can run the search in frame slack, and returns the view.
+``planner.search(state)``, a generator that yields between bounded steps (a geofence check, a
+chunk of rays, a block of ray samples, one tilt's field-of-view sums: a few ms each here) so
+the executive can run the search in frame slack, and returns the view.
 
 1. ``RasterPlanner(sweep=False)``: raster scan without yaw. The operator's plan is made once,
    at the first call: stations equally spaced along the edge path from the rover's position
@@ -43,9 +44,10 @@ from fsw.core.geometry import CameraConfig, CameraPose, MastConfig, camera_pose_
 from fsw.core.nbv import (
     MapLike,
     NbvConfig,
+    info_n_max,
     localization_sigma,
     motion_cost,
-    rate_station,
+    rate_station_steps,
     utility,
 )
 from fsw.core.view_candidates import (
@@ -56,7 +58,7 @@ from fsw.core.view_candidates import (
     as_polyline,
     footprint,
     joint_grid,
-    path_stations,
+    path_stations_steps,
 )
 from fsw.core.visibility import F64, Terrain, in_view, terrain_from_heights, terrain_from_map
 
@@ -186,7 +188,8 @@ class InformationPlanner(Planner):
         self._truth_z = truth_z_m
         self._textured = None if textured is None else np.asarray(textured, bool).astype(float)
         self._truth_terrain: Terrain | None = None
-        self.last_stations = 0
+        self.last_stations = 0  # stations rated by the last search
+        self.last_centres = 0  # camera centres (stations x lifts) rated by the last search
 
     def _terrain(self, emap: MapLike) -> tuple[Terrain, F64 | None]:
         if self._truth_z is None:
@@ -201,12 +204,15 @@ class InformationPlanner(Planner):
     def search(self, state: PlannerState) -> SearchGen:
         cfg = self.cfg
         terrain, interest = self._terrain(state.map)
+        yield None
         path = straighten(state.path) if self.straight_edge else state.path
-        stations = path_stations(path, state.rover, state.motion_ok, cfg.station_spacing_m,
-                                 cfg.max_travel_m)
+        stations = yield from path_stations_steps(path, state.rover, state.motion_ok,
+                                                  cfg.station_spacing_m, cfg.max_travel_m)
         self.last_stations = len(stations)
+        self.last_centres = 0
         pans, tilts, lifts = joint_grid(self.mast, cfg.pan_step_deg, cfg.tilts_deg, cfg.lifts_m)
         current = np.array([*state.rover, *state.joints], dtype=np.float64)
+        n_max = info_n_max(state.map, cfg)
         best: CandidateView | None = None
         pp, tt = np.meshgrid(pans, tilts, indexing="ij")
         for st in stations:
@@ -215,8 +221,8 @@ class InformationPlanner(Planner):
                                              state.ground_z_m).t
                 cam_xyz = (float(cam[0]), float(cam[1]), float(cam[2]))
                 yaws = st.rover[2] + pans
-                r = rate_station(terrain, cam_xyz, yaws, tilts, state.map.n, state.map.n_max,
-                                 interest, self.camera, cfg.visibility)
+                r = yield from rate_station_steps(terrain, cam_xyz, yaws, tilts, state.map.n,
+                                                  n_max, interest, self.camera, cfg.visibility)
                 poses = np.column_stack([np.tile(st.rover, (pp.size, 1)), pp.ravel(), tt.ravel(),
                                          np.full(pp.size, lift)])
                 d = motion_cost(poses, current, cfg)
@@ -230,7 +236,7 @@ class InformationPlanner(Planner):
                         st.rover, (float(pp.ravel()[k]), float(tt.ravel()[k]), float(lift)),
                         float(r.info_bits.ravel()[k]), float(r.expected_new_cells.ravel()[k]),
                         float(d[k]), float(sig[k]), float(u[k]), self.name)
-                yield None
+                self.last_centres += 1
         return best
 
 

@@ -26,6 +26,7 @@ Cells beyond the map edge belong to no quad's statistics, so any map shape works
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -93,17 +94,23 @@ def tree_depth(shape: tuple[int, int]) -> int:
 
 
 def lowpass(z: F32 | F64, sigma_cells: float) -> F64:
-    """NaN-aware Gaussian low-pass (ALGORITHM.md §6.1); unknown cells stay NaN."""
+    """NaN-aware Gaussian low-pass (ALGORITHM.md §6.1); unknown cells stay NaN.
+
+    Normalised convolution: blur of the known values over blur of the known mask (float32;
+    the result steers the split rule and the leaf means, never the error bound).
+    """
     known = np.isfinite(z)
-    out = np.where(known, z, 0.0).astype(np.float64)
     if sigma_cells <= 0:
-        return np.where(known, out, np.nan)
-    w = known.astype(np.float64)
-    num = cv2.GaussianBlur(out, (0, 0), sigma_cells, borderType=cv2.BORDER_REPLICATE)
-    den = cv2.GaussianBlur(w, (0, 0), sigma_cells, borderType=cv2.BORDER_REPLICATE)
+        return np.where(known, z, np.nan).astype(np.float64)
+    zf = np.where(known, z, 0.0).astype(np.float32)
+    num = cv2.GaussianBlur(zf, (0, 0), sigma_cells, borderType=cv2.BORDER_REPLICATE)
+    if known.all():
+        return num.astype(np.float64)
+    den = cv2.GaussianBlur(known.astype(np.float32), (0, 0), sigma_cells,
+                           borderType=cv2.BORDER_REPLICATE)
     with np.errstate(invalid="ignore", divide="ignore"):
         sm = num / den
-    return np.where(known & (den > 1e-9), sm, np.where(known, out, np.nan))
+    return np.where(known, np.where(den > 1e-6, sm, zf), np.nan).astype(np.float64)
 
 
 def decimate(p: F64, footprint_cells: int, max_height_m: float) -> F64:
@@ -119,12 +126,13 @@ def decimate(p: F64, footprint_cells: int, max_height_m: float) -> F64:
     return np.where(known & small, closed, p)
 
 
-def _pool(a: F64, fn: np.ufunc, fill: float) -> F64:
-    """2x2 reduction of a level grid to the next level up (odd edges padded with ``fill``)."""
-    h, w = a.shape
+def _pool(a: NDArray[Any], fn: np.ufunc, fill: float) -> NDArray[Any]:
+    """2x2 reduction over the last two axes (odd edges padded with ``fill``)."""
+    h, w = a.shape[-2:]
     if h % 2 or w % 2:
-        a = np.pad(a, ((0, h % 2), (0, w % 2)), constant_values=fill)
-    return fn(fn(a[0::2, 0::2], a[1::2, 0::2]), fn(a[0::2, 1::2], a[1::2, 1::2]))
+        pad = [(0, 0)] * (a.ndim - 2) + [(0, h % 2), (0, w % 2)]
+        a = np.pad(a, pad, constant_values=fill)
+    return fn(fn(a[..., 0::2, 0::2], a[..., 1::2, 0::2]), fn(a[..., 0::2, 1::2], a[..., 1::2, 1::2]))
 
 
 _C = np.arange(4097, dtype=np.float64)
@@ -141,12 +149,16 @@ class EntropyPyramid:
     """
 
     def __init__(self, bins: I64, known: B) -> None:
-        self._bins = np.where(known, bins, -1)
         ny, nx = bins.shape
         nb = int(bins[known].max()) + 1 if known.any() else 1
+        small: Any = np.int16 if nb < 2**15 else np.int64
+        self._bins: NDArray[Any] = np.where(known, bins, -1).astype(small)
         h2, w2 = -(-ny // 4), -(-nx // 4)
-        iy, ix = np.nonzero(known)
-        key = bins[iy, ix] * (h2 * w2) + (iy >> 2) * w2 + (ix >> 2)
+        it: Any = np.int32 if nb * h2 * w2 < 2**31 else np.int64
+        rows: NDArray[Any] = (np.arange(ny, dtype=it) >> 2) * w2
+        cols: NDArray[Any] = np.arange(nx, dtype=it) >> 2
+        key: NDArray[Any] = bins.astype(it) * (h2 * w2) + (rows[:, None] + cols[None, :])
+        key = key.ravel() if known.all() else key[known]
         self._counts = np.bincount(key, minlength=nb * h2 * w2).reshape(nb, h2, w2)
         self._level = 2
 
@@ -176,13 +188,14 @@ class EntropyPyramid:
         h, w = b.shape
         if h % 2 or w % 2:
             b = np.pad(b, ((0, h % 2), (0, w % 2)), constant_values=-1)
-        quads = [b[0::2, 0::2], b[1::2, 0::2], b[0::2, 1::2], b[1::2, 1::2]]
+        quads: list[NDArray[Any]] = [b[0::2, 0::2], b[1::2, 0::2], b[0::2, 1::2], b[1::2, 1::2]]
         lut = np.log2(np.array([1.0, 1.0, 2.0, 3.0, 4.0]))
         s = np.zeros(quads[0].shape)
         n = np.zeros(quads[0].shape)
         for qi in quads:
-            same = sum(((qi == qj) & (qj >= 0)).astype(np.int8) for qj in quads)
-            s += np.where(qi >= 0, lut[same], 0.0)
+            same = (qi == quads[0]).view(np.int8) + (qi == quads[1]).view(np.int8) \
+                + (qi == quads[2]).view(np.int8) + (qi == quads[3]).view(np.int8)
+            s += np.where(qi >= 0, lut[same], 0.0)  # an unknown cell (-1) only equals unknowns
             n += qi >= 0
         return np.maximum(np.log2(np.maximum(n, 1)) - s / np.maximum(n, 1), 0.0)
 
@@ -225,20 +238,18 @@ def build_quadtree(
     if known0.any():
         bins[known0] = np.floor((d[known0] - np.nanmin(d)) / wheel_diameter_m).astype(np.int64)
 
-    # Bottom-up statistics per level: min/max of the original, sums of the decimated map.
-    zmin = [np.where(known0, z64, np.inf)]
-    zmax = [np.where(known0, z64, -np.inf)]
-    nkn = [known0.astype(np.float64)]
-    nunk = [(~known0).astype(np.float64)]
+    # Bottom-up statistics per level: min and max of the original (as min of z and of -z),
+    # known and unknown cell counts, sum of the decimated map over known cells.
+    ext = [np.stack([np.where(known0, z64, np.inf), np.where(known0, -z64, np.inf)])]
+    cnt = [np.stack([known0, ~known0]).astype(np.int32)]
     dsum = [np.where(known0, d, 0.0)]
     for _ in range(L):
-        zmin.append(_pool(zmin[-1], np.minimum, np.inf))
-        zmax.append(_pool(zmax[-1], np.maximum, -np.inf))
-        nkn.append(_pool(nkn[-1], np.add, 0.0))
-        nunk.append(_pool(nunk[-1], np.add, 0.0))
+        ext.append(_pool(ext[-1], np.minimum, np.inf))
+        cnt.append(_pool(cnt[-1], np.add, 0))
         dsum.append(_pool(dsum[-1], np.add, 0.0))
-    lo = [mx - error_bound_m for mx in zmax]
-    hi = [mn + error_bound_m for mn in zmin]
+    nkn = [c[0] for c in cnt]
+    lo = [-e[1] - error_bound_m for e in ext]
+    hi = [e[0] + error_bound_m for e in ext]
 
     def feasible(lv: int) -> B:
         if quant_step_m <= 0:
@@ -248,11 +259,11 @@ def build_quadtree(
             c_hi = np.floor((hi[lv] - z_offset_m) / quant_step_m)
         return c_lo <= c_hi
 
-    want: list[B] = [np.zeros(zmin[0].shape, bool)]
+    want: list[B] = [np.zeros(shape, bool)]
     pyramid = EntropyPyramid(bins, known0) if split_rule == "entropy" else None
-    ent_child = np.zeros(zmin[0].shape)
+    ent_child = np.zeros(shape)
     for lv in range(1, L + 1):
-        rule = ((nkn[lv] > 0) & (nunk[lv] > 0)) | ((nkn[lv] > 0) & ~feasible(lv))
+        rule = (nkn[lv] > 0) & ((cnt[lv][1] > 0) | ~feasible(lv))
         if pyramid is not None:
             ent = pyramid.level(lv)
             rule |= _pool(ent_child, np.maximum, 0.0) > ent + 1e-9
@@ -265,7 +276,7 @@ def build_quadtree(
     for lv in range(L, -1, -1):
         split[lv] = exists[lv] & want[lv] if lv > 0 else np.zeros_like(exists[0])
         if lv > 0:
-            h, w = zmin[lv - 1].shape
+            h, w = nkn[lv - 1].shape
             exists[lv - 1] = np.repeat(np.repeat(split[lv], 2, axis=0), 2, axis=1)[:h, :w]
 
     lvls, iys, ixs, known_l, mean_l, lo_l, hi_l = [], [], [], [], [], [], []

@@ -71,7 +71,7 @@ class StereoConfig:
         4.0, lo=0.0, hi=255.0, units="grey/px",
         doc="minimum mean |d I/dx| over the block window; below it the pixel gives no point",
     )
-    texture_window_px: int = param(9, lo=3, hi=31, units="px", doc="odd texture window side")
+    texture_window_px: int = param(5, lo=3, hi=31, units="px", doc="odd texture window side")
     border_px: int = param(4, lo=0, hi=64, units="px", doc="image border that gives no points")
     sigma_disparity_px: float = param(
         0.2, lo=0.01, hi=5.0, units="px", doc="1-sigma sub-pixel disparity noise (calibrated)"

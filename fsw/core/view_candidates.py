@@ -14,7 +14,7 @@ closer to the current heading (the rover may drive either way along the path).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,6 +23,7 @@ from shapely.geometry import LineString, MultiPoint, Point, Polygon
 
 from fsw.core.geometry import CameraConfig, CameraPose, MastConfig, camera_pose_from_rover
 from fsw.core.visibility import F64
+from fsw.core.visibility_kernel import run_to_end
 
 Pose3 = tuple[float, float, float]
 MotionCheck = Callable[[Pose3, Pose3], bool]
@@ -59,7 +60,12 @@ class Station:
 
 def as_polyline(path: F64) -> F64:
     """``(N, 2)`` x, y of a path given as (N, 2) or (N, 3) rows, duplicate points removed."""
-    p = np.asarray(path, dtype=np.float64).reshape(len(path), -1)[:, :2]
+    p = np.asarray(path, dtype=np.float64)
+    if p.size == 0:
+        return np.zeros((0, 2))
+    if p.ndim != 2 or p.shape[1] not in (2, 3) or not np.isfinite(p).all():
+        raise ValueError(f"a path must be finite (N, 2) or (N, 3) rows, got shape {p.shape}")
+    p = p[:, :2]
     if p.shape[0] < 2:
         return p
     keep = np.concatenate([[True], np.hypot(*np.diff(p, axis=0).T) > 1e-9])
@@ -84,7 +90,13 @@ def _heading(tangent: float, current: float) -> float:
 def path_stations(path: F64, rover_now: Pose3, motion_ok: MotionCheck, spacing_m: float,
                   max_travel_m: float) -> list[Station]:
     """Reachable, geofence-checked stations along ``path`` (see the module docstring)."""
-    now = Station(tuple(float(v) for v in rover_now), 0.0)  # type: ignore[arg-type]
+    return run_to_end(path_stations_steps(path, rover_now, motion_ok, spacing_m, max_travel_m))
+
+
+def path_stations_steps(path: F64, rover_now: Pose3, motion_ok: MotionCheck, spacing_m: float,
+                        max_travel_m: float) -> Generator[None, None, list[Station]]:
+    """:func:`path_stations`, yielding after each geofence check."""
+    now = Station((float(rover_now[0]), float(rover_now[1]), float(rover_now[2])), 0.0)
     xy = as_polyline(path)
     if xy.shape[0] < 2:
         return [now]
@@ -100,7 +112,9 @@ def path_stations(path: F64, rover_now: Pose3, motion_ok: MotionCheck, spacing_m
         prev = now.rover
         for i in sel:
             st = (float(pts[i, 0]), float(pts[i, 1]), _heading(float(tangent[i]), rover_now[2]))
-            if not motion_ok(prev, st):
+            ok = motion_ok(prev, st)
+            yield None
+            if not ok:
                 break
             out.append(Station(st, abs(float(s[i]) - s_now) + off_m))
             prev = st

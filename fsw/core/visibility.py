@@ -55,7 +55,7 @@ class VisibilityConfig:
     prior_smooth_m: float = param(
         0.3, lo=0.0, hi=10.0, units="m", doc="radius of the prior's interpolation of known cells")
     prior_corr_len_m: float = param(
-        0.3, lo=0.001, hi=10.0, units="m",
+        1.0, lo=0.001, hi=100.0, units="m",
         doc="correlation length of unknown terrain; unknown factors get exponent cell/this")
     default_elevation_m: float = param(
         0.0, lo=-1000.0, hi=1000.0, units="m", doc="prior elevation when nothing is mapped")

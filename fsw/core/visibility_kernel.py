@@ -31,6 +31,8 @@ Design (measured speed and accuracy in docs/nbv.md):
 from __future__ import annotations
 
 import math
+from collections.abc import Generator
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -43,7 +45,9 @@ _XMIN, _XMAX, _NPER = -9.0, 6.0, 256  # log Phi table range (sigma) and steps pe
 _TABLE = log_ndtr(np.arange(_XMIN, _XMAX, 1.0 / _NPER) + 0.5 / _NPER).astype(np.float32)
 _TABLE[-1] = 0.0  # arguments >= _XMAX: factor 1
 _NT = _TABLE.size
-_BLOCK_PAIRS = 1 << 18
+_BLOCK_PAIRS = 1 << 18  # (target, sample) pairs per step: a few ms
+_RAYS_PER_STEP = 512  # rays traced per step: a few ms
+T = TypeVar("T")
 
 
 def bin_rays(grid: MapGrid, cam_xy: tuple[float, float], angles: F64, rmax_m: float
@@ -85,6 +89,22 @@ def bin_rays(grid: MapGrid, cam_xy: tuple[float, float], angles: F64, rmax_m: fl
 def pv_fast(terrain: Terrain, cam_xyz: tuple[float, float, float], iy: IDX, ix: IDX,
             cfg: VisibilityConfig) -> F64:
     """P_V of the cells ``(iy, ix)`` seen from camera centre ``cam_xyz`` (no FOV culling)."""
+    return run_to_end(pv_fast_steps(terrain, cam_xyz, iy, ix, cfg))
+
+
+def run_to_end(gen: Generator[None, None, T]) -> T:
+    """Drive a step generator to its end and return its value."""
+    while True:
+        try:
+            next(gen)
+        except StopIteration as stop:
+            return stop.value  # type: ignore[no-any-return]
+
+
+def pv_fast_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], iy: IDX, ix: IDX,
+                  cfg: VisibilityConfig) -> Generator[None, None, F64]:
+    """:func:`pv_fast` as a generator that yields after each bounded step (a chunk of rays or
+    a block of pairs, a few ms each) so a slack job can spread it over frames."""
     g = terrain.grid
     cx, cy, cz = (float(v) for v in cam_xyz)
     iy = np.asarray(iy, dtype=np.intp).ravel()
@@ -98,40 +118,52 @@ def pv_fast(terrain: Terrain, cam_xyz: tuple[float, float, float], iy: IDX, ix: 
     theta = np.arctan2(ddy, ddx)
     nbin = int(cfg.rays_per_turn)
     dth = 2.0 * math.pi / nbin
-    bins = np.rint(theta / dth).astype(np.int64) % nbin
-    used, ray = np.unique(bins, return_inverse=True)
-    rm, cell = bin_rays(g, (cx, cy), used * dth, float(big_r.max()) + g.cell)
-    nray, ncol = rm.shape
-
-    inv, off, wgt = terrain.packed()
-    inv_s = inv[cell]
-    a_s = (np.float32(cz) * inv_s + off[cell]) * np.float32(_NPER) - np.float32(_XMIN * _NPER)
-    b_s = rm * inv_s * np.float32(_NPER)
-    w_s = wgt[cell]
-    # Running minimum of the slope below which a sample is negligible (step 4).
-    with np.errstate(divide="ignore", invalid="ignore"):
-        q = (a_s - np.float32((cfg.prune_z - _XMIN) * _NPER)) / b_s
-    q[~np.isfinite(q) | (w_s == 0)] = np.inf
-    np.minimum.accumulate(q, axis=1, out=q)
-
+    used, ray = np.unique(np.rint(theta / dth).astype(np.int64) % nbin, return_inverse=True)
     half = 0.5 * g.cell / np.maximum(np.abs(np.cos(theta)), np.abs(np.sin(theta)))
     slope = (cz - terrain.elev_m[iy, ix]) / np.maximum(big_r, 1e-9)
-    row_r = np.arange(nray) * (float(rm.max()) + 1.0)
-    k = np.searchsorted((rm + row_r[:, None]).ravel(), row_r[ray] + big_r - half) - ray * ncol
-    row_q = np.arange(nray) * 4.0e6
-    neg_q = np.clip(-q, -1.0e6, 1.0e6).astype(np.float64) + row_q[:, None]
-    first = np.minimum(np.searchsorted(neg_q.ravel(), row_q[ray] - slope) - ray * ncol, k)
-    win = k - first
-    base = ray * ncol + first
+    by_ray = np.argsort(ray, kind="stable")
+    rmax = float(big_r.max()) + g.cell
+    inv, off, wgt = terrain.packed()
+    base = np.zeros(iy.size, np.int64)
+    win = np.zeros(iy.size, np.int64)
+    parts: list[tuple[F32, F32, F32]] = []
+    offset = 0
+    for r0 in range(0, used.size, _RAYS_PER_STEP):
+        r1 = min(used.size, r0 + _RAYS_PER_STEP)
+        rm, cell = bin_rays(g, (cx, cy), used[r0:r1] * dth, rmax)
+        nray, ncol = rm.shape
+        inv_s = inv[cell]
+        a_s = (np.float32(cz) * inv_s + off[cell]) * np.float32(_NPER) - np.float32(_XMIN * _NPER)
+        b_s = rm * inv_s * np.float32(_NPER)
+        w_s = wgt[cell]
+        # Running minimum of the slope below which a sample is negligible (step 4).
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = (a_s - np.float32((cfg.prune_z - _XMIN) * _NPER)) / b_s
+        q[~np.isfinite(q) | (w_s == 0)] = np.inf
+        np.minimum.accumulate(q, axis=1, out=q)
+        t = by_ray[np.searchsorted(ray[by_ray], r0):np.searchsorted(ray[by_ray], r1)]
+        lr = ray[t] - r0
+        row_r = np.arange(nray) * (float(rm.max()) + 1.0)
+        k = np.searchsorted((rm + row_r[:, None]).ravel(), row_r[lr] + big_r[t] - half[t])
+        k -= lr * ncol
+        row_q = np.arange(nray) * 4.0e6
+        neg_q = np.clip(-q, -1.0e6, 1.0e6).astype(np.float64) + row_q[:, None]
+        first = np.minimum(np.searchsorted(neg_q.ravel(), row_q[lr] - slope[t]) - lr * ncol, k)
+        win[t] = k - first
+        base[t] = offset + lr * ncol + first
+        parts.append((a_s.ravel(), b_s.ravel(), w_s.ravel()))
+        offset += nray * ncol
+        yield None
 
-    flat_a = np.append(a_s.ravel(), np.float32(1e9))
-    flat_b = np.append(b_s.ravel(), np.float32(0.0))
-    flat_w = np.append(w_s.ravel(), np.float32(0.0))
-    dummy = nray * ncol
+    flat_a = np.concatenate([p[0] for p in parts] + [np.array([1e9], np.float32)])
+    flat_b = np.concatenate([p[1] for p in parts] + [np.zeros(1, np.float32)])
+    flat_w = np.concatenate([p[2] for p in parts] + [np.zeros(1, np.float32)])
+    dummy = offset
     slope32 = slope.astype(np.float32)
     order = np.argsort(win, kind="stable")
     win_sorted = win[order]
     s0, n = int(np.searchsorted(win_sorted, 1)), iy.size
+    yield None
     while s0 < n:
         cost = np.arange(1, n - s0 + 1) * win_sorted[s0:]
         s1 = min(n, s0 + max(64, int(np.searchsorted(cost, _BLOCK_PAIRS, "right"))))
@@ -144,4 +176,5 @@ def pv_fast(terrain: Terrain, cam_xyz: tuple[float, float, float], iy: IDX, ix: 
         vals = np.take(_TABLE, x.astype(np.int32))
         out[idx] = np.exp(np.einsum("ij,ij->i", vals, np.take(flat_w, flat)))
         s0 = s1
+        yield None
     return out

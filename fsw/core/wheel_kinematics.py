@@ -37,8 +37,9 @@ def wheel_velocities(vx: float, vy: float, wz: float, wheel_xy: F64) -> F64:
     return np.column_stack([vx - wz * wheel_xy[:, 1], vy + wz * wheel_xy[:, 0]])
 
 
-def wheel_commands(vx: float, vy: float, wz: float, wheel_xy: F64, wheel_radius_m: float,
-                   steer_hold: F64 | None = None) -> tuple[F64, F64]:
+def wheel_commands(
+    vx: float, vy: float, wz: float, wheel_xy: F64, wheel_radius_m: float, steer_hold: F64 | None = None
+) -> tuple[F64, F64]:
     """Steer angles (rad) and wheel rates (rad/s) that realise the body twist.
 
     A wheel that need not move keeps ``steer_hold`` (default 0).

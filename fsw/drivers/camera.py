@@ -119,11 +119,11 @@ class OpenCvSource:
     def request(self, seq: int) -> None:
         cv2 = self._cv2
         ok = [c.grab() for c in self.caps]
-        imgs = [c.retrieve()[1] if g else None for c, g in zip(self.caps, ok, strict=True)]
+        imgs: list[Any] = [c.retrieve()[1] if g else None for c, g in zip(self.caps, ok, strict=True)]
         if any(i is None for i in imgs):
             self._out.append(CameraReply(seq, cf.DROPOUT, float("nan"), None, None))
             return
-        gray = [i if i.ndim == 2 else cv2.cvtColor(i, cv2.COLOR_BGR2GRAY) for i in imgs]
+        gray = [np.asarray(i if i.ndim == 2 else cv2.cvtColor(i, cv2.COLOR_BGR2GRAY), np.uint8) for i in imgs]
         self._out.append(CameraReply(seq, cf.OK, float("nan"), gray[0], gray[1]))
 
     def receive(self) -> list[CameraReply]:
@@ -144,7 +144,7 @@ def make_source(spec: str, provided: Any = None) -> FrameSource | None:
             return None
         return provided if hasattr(provided, "request") else CallableSource(provided)
     if spec.startswith("tcp://"):
-        host, _, port = spec[len("tcp://"):].rpartition(":")
+        host, _, port = spec[len("tcp://") :].rpartition(":")
         return SocketSource(host or "127.0.0.1", int(port))
     if spec.startswith("cv:"):
         left, _, right = spec[3:].partition(",")
@@ -155,8 +155,12 @@ def make_source(spec: str, provided: Any = None) -> FrameSource | None:
 class CameraDriver(DriverBase):
     """One outstanding capture at a time, with timeout, dropout and link supervision."""
 
-    FAULTS: ClassVar[dict[str, int]] = {"timeout": F_TIMEOUT, "dropout": F_DROPOUT, "link": F_LINK,
-                                        "bad_data": F_BAD_DATA}
+    FAULTS: ClassVar[dict[str, int]] = {
+        "timeout": F_TIMEOUT,
+        "dropout": F_DROPOUT,
+        "link": F_LINK,
+        "bad_data": F_BAD_DATA,
+    }
     EVENTS: ClassVar[tuple[EventDef, ...]] = (
         EventDef("CAMERA_TIMEOUT", Severity.WARNING_HI, "camera: no pair for capture {seq} after {timeout_s:.1f} s"),
         EventDef("CAMERA_DROPOUT", Severity.WARNING_LO, "camera: capture {seq} returned {status}", throttle=5),

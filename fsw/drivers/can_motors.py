@@ -36,7 +36,7 @@ from fsw.drivers.base import DriverBase
 from fsw.executive.telemetry import EventDef, Severity
 
 F_BAD_FRAMES, F_TX, F_STATUS_TIMEOUT, F_NODE_LOST = 0x01, 0x02, 0x04, 0x08
-F_BUS_SILENT, F_MOTOR, F_ESTOP, F_NO_BUS = 0x10, 0x20, 0x40, 0x80
+F_BUS_SILENT, F_MOTOR, F_ESTOP, F_NO_BUS, F_LOST_FRAMES = 0x10, 0x20, 0x40, 0x80, 0x100
 #: faults that make motion unsafe (bad or lost frames alone only degrade)
 CRITICAL = F_TX | F_STATUS_TIMEOUT | F_NODE_LOST | F_BUS_SILENT | F_MOTOR | F_ESTOP | F_NO_BUS
 
@@ -63,9 +63,16 @@ class CanMotorDriver(DriverBase):
     """Commands, status, supervision and e-stop for the motor controllers in ``codec``'s DBC."""
 
     FAULTS: ClassVar[dict[str, int]] = {
-        "bad_frames": F_BAD_FRAMES, "tx_error": F_TX, "status_timeout": F_STATUS_TIMEOUT,
-        "node_lost": F_NODE_LOST, "bus_silent": F_BUS_SILENT, "motor_fault": F_MOTOR,
-        "estop": F_ESTOP, "no_bus": F_NO_BUS}
+        "bad_frames": F_BAD_FRAMES,
+        "tx_error": F_TX,
+        "status_timeout": F_STATUS_TIMEOUT,
+        "node_lost": F_NODE_LOST,
+        "bus_silent": F_BUS_SILENT,
+        "motor_fault": F_MOTOR,
+        "estop": F_ESTOP,
+        "no_bus": F_NO_BUS,
+        "lost_frames": F_LOST_FRAMES,
+    }
     EVENTS: ClassVar[tuple[EventDef, ...]] = (
         EventDef("CAN_BAD_FRAME", Severity.WARNING_LO, "CAN frame refused ({reason}): {detail}", throttle=5),
         EventDef("CAN_FRAMES_LOST", Severity.WARNING_LO, "{axis}: {lost} status frame(s) lost", throttle=5),
@@ -74,18 +81,29 @@ class CanMotorDriver(DriverBase):
         EventDef("CAN_NODE_ONLINE", Severity.ACTIVITY_HI, "{axis} heartbeat: {state}"),
         EventDef("CAN_NODE_LOST", Severity.WARNING_HI, "{axis}: no heartbeat for {age_s:.1f} s"),
         EventDef("CAN_STATUS_TIMEOUT", Severity.WARNING_HI, "{axis}: no status for {age_s:.2f} s"),
-        EventDef("CAN_BUS_SILENT", Severity.WARNING_HI,
-                 "no valid frame from any controller for {age_s:.2f} s (bus-off, cable or power)"),
+        EventDef(
+            "CAN_BUS_SILENT",
+            Severity.WARNING_HI,
+            "no valid frame from any controller for {age_s:.2f} s (bus-off, cable or power)",
+        ),
         EventDef("CAN_BUS_RECOVERED", Severity.ACTIVITY_HI, "motor controllers heard again"),
         EventDef("MOTOR_FAULT", Severity.WARNING_HI, "{axis} reports {faults}"),
         EventDef("MOTOR_FAULT_CLEARED", Severity.ACTIVITY_HI, "{axis} fault bits clear"),
         EventDef("ESTOP", Severity.WARNING_HI, "emergency stop {action}"),
     )
 
-    def __init__(self, bus: can.BusABC | None, codec: RoverCan, *, status_timeout_s: float = 0.5,
-                 heartbeat_timeout_s: float = 2.5, heartbeat_period_s: float = 1.0,
-                 error_hold_s: float = 2.0, reconnect_period_s: float = 2.0,
-                 opener: Callable[[], can.BusABC] | None = None) -> None:
+    def __init__(
+        self,
+        bus: can.BusABC | None,
+        codec: RoverCan,
+        *,
+        status_timeout_s: float = 0.5,
+        heartbeat_timeout_s: float = 2.5,
+        heartbeat_period_s: float = 1.0,
+        error_hold_s: float = 2.0,
+        reconnect_period_s: float = 2.0,
+        opener: Callable[[], can.BusABC] | None = None,
+    ) -> None:
         super().__init__(error_hold_s)
         self.bus, self.codec, self.opener = bus, codec, opener
         self.status_timeout_s, self.heartbeat_timeout_s = status_timeout_s, heartbeat_timeout_s
@@ -204,6 +222,7 @@ class CanMotorDriver(DriverBase):
             lost = (s.counter - st.counter - 1) & 0xF
             if lost:
                 self.rx_lost += lost
+                self._hold(F_LOST_FRAMES, now)
                 self._event("CAN_FRAMES_LOST", axis=s.axis, lost=lost)
             delta = (s.position_rad - st.raw_position + POSITION_WRAP_RAD / 2) % POSITION_WRAP_RAD
             st.position_rad += delta - POSITION_WRAP_RAD / 2

@@ -19,6 +19,7 @@ retries (its events say why), so the flight software boots without its hardware.
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -32,8 +33,9 @@ REPO_ROOT = Path(__file__).resolve().parent.parent.parent
 class DevicesConfig:
     """Where the flight drivers find their hardware, and their timeouts."""
 
-    can_interface: str = param("none", choices=("none", "virtual", "udp_multicast", "socketcan"),
-                               doc="python-can interface of the motor bus")
+    can_interface: str = param(
+        "none", choices=("none", "virtual", "udp_multicast", "socketcan"), doc="python-can interface of the motor bus"
+    )
     can_channel: str = param("safer", doc="virtual: bus name; udp_multicast: group address; socketcan: can0")
     can_udp_port: int = param(43113, lo=1024, hi=65535, doc="udp_multicast port")
     can_dbc: str = param("config/rover.dbc", doc="CAN database (relative paths: to the repository root)")
@@ -83,6 +85,7 @@ def open_devices(cfg: DevicesConfig, provided: dict[str, Any] | None = None) -> 
     provided = provided or {}
     out: dict[str, Any] = {}
     if cfg.can_interface != "none" or "can_bus" in provided:
+
         def open_bus() -> can.BusABC:
             return can.Bus(**can_bus_kwargs(cfg))
 
@@ -93,20 +96,25 @@ def open_devices(cfg: DevicesConfig, provided: dict[str, Any] | None = None) -> 
                 bus = open_bus()
             except Exception as exc:  # noqa: BLE001 - the driver starts faulted and retries
                 bus, error = None, exc
-        motors = CanMotorDriver(bus, RoverCan(dbc_path(cfg)), status_timeout_s=cfg.can_status_timeout_s,
-                                heartbeat_timeout_s=cfg.can_heartbeat_timeout_s,
-                                heartbeat_period_s=cfg.can_heartbeat_period_s, error_hold_s=cfg.error_hold_s,
-                                reconnect_period_s=cfg.reconnect_period_s,
-                                opener=None if "can_bus" in provided else open_bus)
+        motors = CanMotorDriver(
+            bus,
+            RoverCan(dbc_path(cfg)),
+            status_timeout_s=cfg.can_status_timeout_s,
+            heartbeat_timeout_s=cfg.can_heartbeat_timeout_s,
+            heartbeat_period_s=cfg.can_heartbeat_period_s,
+            error_hold_s=cfg.error_hold_s,
+            reconnect_period_s=cfg.reconnect_period_s,
+            opener=None if "can_bus" in provided else open_bus,
+        )
         if error is not None:
             motors._event("CAN_NO_BUS", error=f"{type(error).__name__}: {error}")
         out["motors"] = motors
     if cfg.serial_url != "none" or "mast_port" in provided:
+
         def open_port() -> Any:
             import serial
 
-            return serial.serial_for_url(cfg.serial_url, baudrate=cfg.serial_baud, timeout=0,
-                                         write_timeout=0.1)
+            return serial.serial_for_url(cfg.serial_url, baudrate=cfg.serial_baud, timeout=0, write_timeout=0.1)
 
         port = provided.get("mast_port")
         perr = None
@@ -115,11 +123,16 @@ def open_devices(cfg: DevicesConfig, provided: dict[str, Any] | None = None) -> 
                 port = open_port()
             except Exception as exc:  # noqa: BLE001 - the driver starts faulted and retries
                 port, perr = None, exc
-        mast = MastSerialDriver(port, ack_timeout_s=cfg.mast_ack_timeout_s, retries=cfg.mast_retries,
-                                state_timeout_s=cfg.mast_state_timeout_s, error_hold_s=cfg.error_hold_s,
-                                reconnect_period_s=cfg.reconnect_period_s,
-                                opener=None if "mast_port" in provided else open_port,
-                                name=cfg.serial_url if "mast_port" not in provided else "bench")
+        mast = MastSerialDriver(
+            port,
+            ack_timeout_s=cfg.mast_ack_timeout_s,
+            retries=cfg.mast_retries,
+            state_timeout_s=cfg.mast_state_timeout_s,
+            error_hold_s=cfg.error_hold_s,
+            reconnect_period_s=cfg.reconnect_period_s,
+            opener=None if "mast_port" in provided else open_port,
+            name=cfg.serial_url if "mast_port" not in provided else "bench",
+        )
         if perr is not None:
             mast._event("MAST_PORT_ERROR", port=cfg.serial_url, error=f"{type(perr).__name__}: {perr}")
         out["mast"] = mast
@@ -141,7 +154,5 @@ def close_devices(resources: dict[str, Any]) -> None:
     for key in ("motors", "mast", "camera"):
         drv = resources.get(key)
         if drv is not None:
-            try:
+            with contextlib.suppress(Exception):  # best effort at shutdown
                 drv.close()
-            except Exception:  # noqa: BLE001, S110 - best effort at shutdown
-                pass

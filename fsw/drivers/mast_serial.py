@@ -21,6 +21,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol
 
+import serial
+
 from fsw.comm import serial_frames as sf
 from fsw.drivers.base import DriverBase
 from fsw.executive.telemetry import EventDef, Severity
@@ -47,8 +49,14 @@ class _Pending:
 class MastSerialDriver(DriverBase):
     """Commands with ACK/retry, joint reports and supervision of the mast controller."""
 
-    FAULTS: ClassVar[dict[str, int]] = {"bad_frames": F_BAD_FRAMES, "nak": F_NAK, "no_ack": F_NO_ACK,
-                                        "silent": F_SILENT, "port": F_PORT, "controller": F_CONTROLLER}
+    FAULTS: ClassVar[dict[str, int]] = {
+        "bad_frames": F_BAD_FRAMES,
+        "nak": F_NAK,
+        "no_ack": F_NO_ACK,
+        "silent": F_SILENT,
+        "port": F_PORT,
+        "controller": F_CONTROLLER,
+    }
     EVENTS: ClassVar[tuple[EventDef, ...]] = (
         EventDef("MAST_BAD_FRAME", Severity.WARNING_LO, "mast serial: {reason} (seq {seq})", throttle=5),
         EventDef("MAST_NAK", Severity.WARNING_LO, "mast refused {type} seq {seq}: {reason}", throttle=5),
@@ -61,10 +69,18 @@ class MastSerialDriver(DriverBase):
         EventDef("MAST_CONTROLLER_OK", Severity.ACTIVITY_HI, "mast controller fault clear"),
     )
 
-    def __init__(self, port: SerialPort | None, *, ack_timeout_s: float = 0.3, retries: int = 3,
-                 state_timeout_s: float = 1.0, error_hold_s: float = 2.0,
-                 reconnect_period_s: float = 2.0, opener: Callable[[], SerialPort] | None = None,
-                 name: str = "mast") -> None:
+    def __init__(
+        self,
+        port: SerialPort | None,
+        *,
+        ack_timeout_s: float = 0.3,
+        retries: int = 3,
+        state_timeout_s: float = 1.0,
+        error_hold_s: float = 2.0,
+        reconnect_period_s: float = 2.0,
+        opener: Callable[[], SerialPort] | None = None,
+        name: str = "mast",
+    ) -> None:
         super().__init__(error_hold_s)
         self.port, self.opener, self.name = port, opener, name
         self.ack_timeout_s, self.retries = ack_timeout_s, retries
@@ -81,6 +97,7 @@ class MastSerialDriver(DriverBase):
         self.acks = self.naks = self.retransmits = self.no_acks = 0
         self.tx_bytes = self.rx_bytes = 0
         self._seen_bad = 0
+        self._read_failures = 0
         self.last_result: str = ""  # "ack", "nak: ...", "no_ack" of the last finished command
         if port is None:
             self._set(F_PORT)
@@ -124,9 +141,12 @@ class MastSerialDriver(DriverBase):
             self._try_reopen(now)
         if self.port is not None:
             try:
-                data = self.port.read(4096)
+                data = self._read()
+                self._read_failures = 0
             except Exception as exc:  # noqa: BLE001 - SerialException/OSError: a device fault
-                self._port_failed(now, exc)
+                self._read_failures += 1
+                if self._read_failures >= 3:  # one empty-but-ready read can be a pty race
+                    self._port_failed(now, exc)
                 data = b""
             if data:
                 self.rx_bytes += len(data)
@@ -136,6 +156,14 @@ class MastSerialDriver(DriverBase):
         if self._pending is None and self._queue and self.port is not None:
             self._send_new(self._queue.popleft(), now)
         self._supervise(now)
+
+    def _read(self) -> bytes:
+        port = self.port
+        assert port is not None
+        if isinstance(port, serial.Serial):  # a tty: read exactly what the driver has queued
+            n = port.in_waiting
+            return port.read(n) if n else b""
+        return port.read(4096)
 
     def _on_item(self, item: sf.Frame | sf.FrameError, now: float) -> None:
         if isinstance(item, sf.FrameError):
@@ -254,9 +282,16 @@ class MastSerialDriver(DriverBase):
 
     def counters(self) -> dict[str, Any]:
         d = self.decoder
-        return {"acks": self.acks, "naks": self.naks, "retransmits": self.retransmits,
-                "no_acks": self.no_acks, "crc_errors": d.crc_errors, "length_errors": d.length_errors,
-                "garbage_bytes": d.garbage_bytes, "frames": d.frames}
+        return {
+            "acks": self.acks,
+            "naks": self.naks,
+            "retransmits": self.retransmits,
+            "no_acks": self.no_acks,
+            "crc_errors": d.crc_errors,
+            "length_errors": d.length_errors,
+            "garbage_bytes": d.garbage_bytes,
+            "frames": d.frames,
+        }
 
     def close(self) -> None:
         if self.port is not None:

@@ -1,7 +1,9 @@
 """The ground link's byte transport: UDP (``udpin`` / ``udpout``) or a serial radio.
 
-One device, no protocol: non-blocking ``recv`` of at most ``max_bytes`` and ``send`` of one
-frame (one UDP datagram per MAVLink frame, as MAVProxy and QGroundControl expect). Errors
+One device, no protocol: non-blocking ``recv`` of at most ``max_bytes`` as a list of chunks
+(one per UDP datagram, ``packetized = True``: a frame never spans two; one chunk of the
+serial byte stream) and ``send`` of one frame (one UDP datagram per MAVLink frame, as
+MAVProxy and QGroundControl expect). Errors
 never raise: they set ``fault`` (a one-line reason), are counted, and the serial port is
 reopened after ``reopen_s``. URLs follow pymavlink's spelling:
 
@@ -14,6 +16,7 @@ reopened after ``reopen_s``. URLs follow pymavlink's spelling:
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import socket
 import time
@@ -23,12 +26,13 @@ UDP_MAX = 65535
 
 
 class Transport(Protocol):
+    packetized: bool
     fault: str | None
     tx_frames: int
     tx_errors: int
     rx_bytes: int
 
-    def recv(self, max_bytes: int) -> bytes: ...
+    def recv(self, max_bytes: int) -> list[bytes]: ...
     def send(self, frame: bytes) -> bool: ...
     def close(self) -> None: ...
 
@@ -38,6 +42,8 @@ class TransportError(ValueError):
 
 
 class UdpTransport:
+    packetized = True
+
     def __init__(self, mode: str, host: str, port: int, peer_timeout_s: float = 30.0, max_peers: int = 8) -> None:
         self.mode, self.addr = mode, (host, port)
         self.peer_timeout_s, self.max_peers = peer_timeout_s, max_peers
@@ -46,8 +52,7 @@ class UdpTransport:
         self.tx_frames = self.tx_errors = self.rx_bytes = self.refused = 0
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
-            if mode == "udpin":
-                self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            if mode == "udpin":  # no SO_REUSEADDR: a second rover on the port must fail, not share it
                 self.sock.bind(self.addr)
             else:
                 self.addr = (socket.gethostbyname(host), port)
@@ -60,7 +65,7 @@ class UdpTransport:
     def local_port(self) -> int:
         return int(self.sock.getsockname()[1])
 
-    def recv(self, max_bytes: int) -> bytes:
+    def recv(self, max_bytes: int) -> list[bytes]:
         chunks: list[bytes] = []
         n = 0
         while n < max_bytes:
@@ -79,7 +84,7 @@ class UdpTransport:
             chunks.append(data)
             n += len(data)
         self.rx_bytes += n
-        return b"".join(chunks)
+        return chunks
 
     def _heard(self, addr: tuple[str, int]) -> None:
         now = time.monotonic()
@@ -113,6 +118,8 @@ class UdpTransport:
 
 
 class SerialTransport:
+    packetized = False
+
     def __init__(self, device: str, baud: int, reopen_s: float = 2.0) -> None:
         self.device, self.baud, self.reopen_s = device, baud, reopen_s
         self.fault: str | None = None
@@ -137,26 +144,24 @@ class SerialTransport:
     def _lost(self, what: str, exc: Exception) -> None:
         self.fault = f"{what}: {exc}"
         if self.port is not None:
-            try:
+            with contextlib.suppress(Exception):  # closing a dead port
                 self.port.close()
-            except Exception:  # noqa: BLE001 - closing a dead port
-                pass
         self.port = None
         self._next_open = time.monotonic() + self.reopen_s
 
-    def recv(self, max_bytes: int) -> bytes:
+    def recv(self, max_bytes: int) -> list[bytes]:
         if self.port is None:
             if time.monotonic() < self._next_open or not self._open():
-                return b""
+                return []
             self.reopens += 1
         assert self.port is not None
         try:
             data = bytes(self.port.read(min(max_bytes, max(self.port.in_waiting, 1))))
         except Exception as exc:  # noqa: BLE001 - pyserial raises several types on unplug
             self._lost("read", exc)
-            return b""
+            return []
         self.rx_bytes += len(data)
-        return data
+        return [data] if data else []
 
     def send(self, frame: bytes) -> bool:
         if self.port is None:

@@ -220,11 +220,15 @@ class UdpRadio(RadioPort):
 class SerialRadio(RadioPort):
     """A serial radio modem through pyserial, COBS-framed packets."""
 
-    def __init__(self, port: str, baud: int = 9600, max_buffer: int = 65536) -> None:
-        import serial  # pyserial; imported here so other transports do not need it
-
+    def __init__(self, port: str, baud: int = 9600, max_buffer: int = 65536,
+                 ser: Any = None) -> None:
+        """Open ``port`` at ``baud``, or use ``ser``, an already open pyserial-like object."""
         super().__init__(f"serial:{port}@{baud}")
-        self.ser = serial.serial_for_url(port, baudrate=baud, timeout=0, write_timeout=1.0)
+        if ser is None:
+            import serial  # pyserial; imported here so other transports do not need it
+
+            ser = serial.serial_for_url(port, baudrate=baud, timeout=0, write_timeout=1.0)
+        self.ser = ser
         self._buf = bytearray()
         self._frames: deque[bytes] = deque()
         self._max_buffer = max_buffer

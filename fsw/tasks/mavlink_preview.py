@@ -2,9 +2,11 @@
 
 Topic contract (``[mavlink] map_preview_topic``, default ``map.preview``): a 2-D numpy array
 in map orientation (index ``[iy, ix]``, row 0 = lowest y; fsw/core/geometry.py), either
-float elevation in metres with NaN where unknown, or a uint8 image. The preview is flipped
+float elevation in metres with NaN where unknown, or a uint8 image; or an object with such
+an array as ``z`` (an ``ElevationMap``). The preview is flipped
 so that +y (the world's "north") is up, scaled so its longest side is at most ``max_px``,
-elevations stretched to 1..255 over the known cells (0 = unknown), and JPEG encoded.
+elevations stretched to 16..255 over the known cells (0 = unknown; the ground reads < 8 as
+unknown, so JPEG noise does not turn low ground into holes), and JPEG encoded.
 """
 
 from __future__ import annotations
@@ -15,12 +17,18 @@ import cv2
 import numpy as np
 
 
+KNOWN_MIN = 16  # known elevations span 16..255, unknown is 0: the gap survives JPEG noise
+UNKNOWN_BELOW = 8  # the ground reads grey levels below this as unknown
+
+
 class PreviewError(ValueError):
     """The published object cannot be turned into a preview."""
 
 
 def encode_preview(obj: Any, max_px: int, quality: int) -> tuple[bytes, int, int]:
     """``(jpeg_bytes, width, height)``; raises :class:`PreviewError` with the reason."""
+    if hasattr(obj, "z"):  # an elevation map object (fsw.core.elevation_map.ElevationMap)
+        obj = obj.z
     arr = np.asarray(obj)
     if arr.ndim != 2 or arr.shape[0] < 1 or arr.shape[1] < 1:
         raise PreviewError(f"expected a 2-D array, got shape {arr.shape}")
@@ -33,7 +41,7 @@ def encode_preview(obj: Any, max_px: int, quality: int) -> tuple[bytes, int, int
         if known.any():
             lo, hi = float(z[known].min()), float(z[known].max())
             span = hi - lo if hi > lo else 1.0
-            img[known] = (1.0 + 254.0 * (z[known] - lo) / span).round().astype(np.uint8)
+            img[known] = (KNOWN_MIN + (255 - KNOWN_MIN) * (z[known] - lo) / span).round().astype(np.uint8)
     else:
         raise PreviewError(f"unsupported dtype {arr.dtype}")
     img = np.ascontiguousarray(img[::-1])

@@ -37,6 +37,19 @@ _REASON_OF_VERDICT = {Verdict.UNSIGNED: Reason.UNSIGNED, Verdict.BAD_SIGNATURE: 
 _THROTTLED = ("AUTH_REJECTED", "RX_BAD", "TRANSPORT_FAULT", "TLOG_ERROR", "PREVIEW_BAD", "CMD_BAD_ARGS")
 
 
+def _pose_from_message(msg: Any) -> tuple[Any, ...] | None:
+    """``(x, y, yaw, pan, tilt)`` from a pose message (fsw.tasks.messages.NavPose or alike);
+    pan/tilt None without ``joints``; None for anything that is not a finite pose."""
+    try:
+        x, y, yaw = float(msg.x), float(msg.y), float(msg.yaw)
+        joints = getattr(msg, "joints", None)
+        pan, tilt = (float(joints[0]), float(joints[1])) if joints is not None else (None, None)
+    except (AttributeError, TypeError, ValueError, IndexError):
+        return None
+    values = (x, y, yaw, pan, tilt)
+    return values if all(v is None or math.isfinite(v) for v in values) else None
+
+
 class MavlinkTask(Task):
     KIND: ClassVar[str] = "mavlink"
     DOC: ClassVar[str] = "MAVLink 2 ground link: telemetry, events, map previews; signed commands."
@@ -65,8 +78,10 @@ class MavlinkTask(Task):
         Channel("budget_bytes", "B", doc="current downlink budget per activation"),
     )
     EVENTS = (
-        EventDef("AUTH_REJECTED", Severity.WARNING_HI, "command 0x{opcode:x} from {src} rejected: {verdict}", throttle=10),
+        EventDef("AUTH_REJECTED", Severity.WARNING_HI, "command 0x{opcode:x} from {src} rejected: {verdict}",
+                 throttle=10),
         EventDef("KEY_LOADED", Severity.ACTIVITY_HI, "signing key loaded from {path}; commands must be signed"),
+        EventDef("KEY_NONE", Severity.ACTIVITY_HI, "no key_file configured: ground commands are refused"),
         EventDef("KEY_MISSING", Severity.WARNING_HI, "no signing key ({reason}); every command will be refused"),
         EventDef("KEY_PERMISSIONS", Severity.WARNING_LO, "key file {path} is readable by group or others"),
         EventDef("LINK_UP", Severity.ACTIVITY_HI, "ground station {src} heard"),
@@ -108,6 +123,8 @@ class MavlinkTask(Task):
         self.tlog = self._open_tlog(res.get("mavlink_tlog", cfg.tlog_path))
         self._preview_box = self.subscribe(cfg.map_preview_topic, depth=1, policy="drop_oldest")
         self._preview: Any = None
+        self._pose_box = self.subscribe(cfg.pose_topic, depth=1, policy="drop_oldest")
+        self._pose_msg: tuple[Any, ...] | None = None
         telemetry = self.ctx.telemetry
         self._keys = {name: channel_key(i, name) for name, i in telemetry.ids.items()}
         self._dict_crc = dictionary_crc((i, name) for name, i in telemetry.ids.items())
@@ -118,10 +135,11 @@ class MavlinkTask(Task):
         self._cmd_counts = {"accepted": 0, "refused": 0}
         self._dropped_reported = 0
         self._next_decay_s = 1.0
+        self._next_flush_s = 0.0
 
     def _load_key(self, path: str) -> bytes | None:
         if not path:
-            self.event("KEY_MISSING", reason="no key_file configured")
+            self.event("KEY_NONE")
             return None
         try:
             key, private = load_key(path)
@@ -156,22 +174,13 @@ class MavlinkTask(Task):
     def run(self, frame: int) -> None:
         now, unix = self.ctx.clock.now(), float(self._unix())
         stamp = self._epoch_s + now
-        data = b""
-        if self.link is not None:
-            data = self.link.recv(self.cfg.rx_max_bytes_per_frame)
-        batch = self.adapter.receive(data, signing_timestamp(unix))
-        self._log(stamp, batch.frames)
-        if batch.bad:
-            self.event("RX_BAD", n=len(batch.bad), reason=batch.bad[0])
-        if batch.heartbeats:
-            if not self._link_up:
-                self.event("LINK_UP", src="%d/%d" % batch.heartbeats[0])
-            self._gcs_heard_s, self._link_up = now, True
-        elif self._link_up and self._gcs_heard_s is not None and now - self._gcs_heard_s > self.cfg.gcs_timeout_s:
+        chunks = self.link.recv(self.cfg.rx_max_bytes_per_frame) if self.link is not None else []
+        packetized = bool(getattr(self.link, "packetized", False))
+        for chunk in chunks:
+            self._uplink(chunk, signing_timestamp(unix), packetized, stamp, now)
+        if self._link_up and self._gcs_heard_s is not None and now - self._gcs_heard_s > self.cfg.gcs_timeout_s:
             self._link_up = False
             self.event("LINK_LOST", timeout_s=self.cfg.gcs_timeout_s)
-        for cmd in batch.commands:
-            self._command(cmd)
         q = self.adapter.events
         if not len(q) and q.dropped > self._dropped_reported:
             self.event("EVENTS_DROPPED", n=q.dropped - self._dropped_reported)
@@ -188,6 +197,18 @@ class MavlinkTask(Task):
             for name in _THROTTLED:
                 self.ctx.events.decay(f"{self.name}.{name}")
         self._publish()
+
+    def _uplink(self, chunk: bytes, now_ts: int, packetized: bool, stamp: float, now: float) -> None:
+        batch = self.adapter.receive(chunk, now_ts, packetized)
+        self._log(stamp, batch.frames)
+        if batch.bad:
+            self.event("RX_BAD", n=len(batch.bad), reason=batch.bad[0])
+        if batch.heartbeats:
+            if not self._link_up:
+                self.event("LINK_UP", src="{}/{}".format(*batch.heartbeats[0]))
+            self._gcs_heard_s, self._link_up = now, True
+        for cmd in batch.commands:
+            self._command(cmd)
 
     def _command(self, cmd: CommandIn) -> None:
         p1 = cmd.param1
@@ -250,6 +271,13 @@ class MavlinkTask(Task):
             slips, overruns = exe.slips, sum(t.overruns for t in exe.tasks.values())
         x, y, z, roll, pitch, yaw = (self._value(c) for c in self.cfg.pose_channels)
         pan, tilt = (self._value(c) for c in self.cfg.mast_channels)
+        msg = self._pose_box.latest()
+        if msg is not None:
+            self._pose_msg = _pose_from_message(msg) or self._pose_msg
+        if self._pose_msg is not None:  # the estimate on the bus wins over channels
+            x, y, yaw = self._pose_msg[:3]
+            if self._pose_msg[3] is not None:
+                pan, tilt = self._pose_msg[3:]
         state = store.values[self.cfg.mission_state_channel].value \
             if self.cfg.mission_state_channel in store.values else None
         return VehicleView(
@@ -275,7 +303,9 @@ class MavlinkTask(Task):
         errors = self.tlog.errors
         for f in frames:
             self.tlog.write(stamp, f)
-        self.tlog.flush()
+        if stamp >= self._next_flush_s:  # buffered: one write(2) per second, not per frame
+            self._next_flush_s = stamp + 1.0
+            self.tlog.flush()
         if self.tlog.errors > errors:
             self.event("TLOG_ERROR", path=str(getattr(self.tlog.stream, "name", "?")), error="write failed")
 

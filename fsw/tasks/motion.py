@@ -69,16 +69,21 @@ class MotionTask(Task):
     DOC: ClassVar[str] = "Wheel and mast moves through the drivers; odometry; motion fault handling."
     CHANNELS = (
         Channel("state", doc="IDLE, STEER, DRIVE, TURN or ESTOP"),
-        Channel("odo_x_m", "m"), Channel("odo_y_m", "m"), Channel("odo_yaw_deg", "deg"),
+        Channel("odo_x_m", "m"),
+        Channel("odo_y_m", "m"),
+        Channel("odo_yaw_deg", "deg"),
         Channel("odo_path_m", "m", doc="distance driven"),
         Channel("cmd_speed", "m/s or rad/s", doc="commanded speed of the active segment"),
         Channel("remaining", "m or deg", doc="left of the active segment"),
         Channel("mast_busy", "bool"),
-        Channel("moves_done", "count"), Channel("moves_aborted", "count", hi=0),
+        Channel("moves_done", "count"),
+        Channel("moves_aborted", "count", hi=0),
     )
     EVENTS = (
         EventDef("MOVE_STARTED", Severity.ACTIVITY_HI, "{kind} request {rid}: {what}"),
-        EventDef("MOVE_DONE", Severity.ACTIVITY_HI, "{kind} request {rid} done; odometry ({x:.3f}, {y:.3f}) m, {yaw:.1f} deg"),
+        EventDef(
+            "MOVE_DONE", Severity.ACTIVITY_HI, "{kind} request {rid} done; odometry ({x:.3f}, {y:.3f}) m, {yaw:.1f} deg"
+        ),
         EventDef("MOVE_ABORTED", Severity.WARNING_HI, "{kind} request {rid} aborted: {reason}"),
         EventDef("MOVE_REFUSED", Severity.WARNING_LO, "{kind} request {rid} refused: {reason}", throttle=5),
         EventDef("MAST_POINTED", Severity.ACTIVITY_HI, "mast at pan {pan:.2f} tilt {tilt:.2f} deg lift {lift:.3f} m"),
@@ -88,22 +93,44 @@ class MotionTask(Task):
         EventDef("ODOMETRY_SET", Severity.ACTIVITY_HI, "odometry set to ({x:.3f}, {y:.3f}) m, {yaw:.1f} deg"),
     )
     COMMANDS = (
-        CommandDef("DRIVE", (Arg("distance_m", float, -20.0, 20.0, units="m"),
-                             Arg("speed_mps", float, 0.0, 5.0, units="m/s")), "drive straight; speed 0: default"),
-        CommandDef("TURN", (Arg("angle_deg", float, -720.0, 720.0, units="deg"),
-                            Arg("rate_dps", float, 0.0, 360.0, units="deg/s")), "turn in place, CCW +; rate 0: default"),
-        CommandDef("GOTO", (Arg("x_m", float, -1e4, 1e4, units="m"), Arg("y_m", float, -1e4, 1e4, units="m"),
-                            Arg("yaw_deg", float, -360.0, 360.0, units="deg"), Arg("use_yaw", bool)),
-                   "turn, drive, turn to a pose in the odometry frame"),
-        CommandDef("POINT_MAST", (Arg("pan_deg", float, -180.0, 180.0, units="deg"),
-                                  Arg("tilt_deg", float, -90.0, 90.0, units="deg"),
-                                  Arg("lift_m", float, 0.0, 2.0, units="m")), "move the mast joints"),
+        CommandDef(
+            "DRIVE",
+            (Arg("distance_m", float, -20.0, 20.0, units="m"), Arg("speed_mps", float, 0.0, 5.0, units="m/s")),
+            "drive straight; speed 0: default",
+        ),
+        CommandDef(
+            "TURN",
+            (Arg("angle_deg", float, -720.0, 720.0, units="deg"), Arg("rate_dps", float, 0.0, 360.0, units="deg/s")),
+            "turn in place, CCW +; rate 0: default",
+        ),
+        CommandDef(
+            "GOTO",
+            (
+                Arg("x_m", float, -1e4, 1e4, units="m"),
+                Arg("y_m", float, -1e4, 1e4, units="m"),
+                Arg("yaw_deg", float, -360.0, 360.0, units="deg"),
+                Arg("use_yaw", bool),
+            ),
+            "turn, drive, turn to a pose in the odometry frame",
+        ),
+        CommandDef(
+            "POINT_MAST",
+            (
+                Arg("pan_deg", float, -180.0, 180.0, units="deg"),
+                Arg("tilt_deg", float, -90.0, 90.0, units="deg"),
+                Arg("lift_m", float, 0.0, 2.0, units="m"),
+            ),
+            "move the mast joints",
+        ),
         CommandDef("SET_SHOULDERS", (Arg("angle_deg", float, -90.0, 90.0, units="deg"),), "all four shoulder joints"),
         CommandDef("STOP", doc="stop the wheels and the mast; drop the active move"),
         CommandDef("ESTOP", (Arg("engage", bool),), "broadcast the CAN emergency stop (or release it)"),
         CommandDef("CLEAR_FAULTS", doc="clear latched motor controller and mast faults"),
-        CommandDef("SET_ODOMETRY", (Arg("x_m", float, -1e4, 1e4), Arg("y_m", float, -1e4, 1e4),
-                                    Arg("yaw_deg", float, -360.0, 360.0)), "reset the dead-reckoned pose"),
+        CommandDef(
+            "SET_ODOMETRY",
+            (Arg("x_m", float, -1e4, 1e4), Arg("y_m", float, -1e4, 1e4), Arg("yaw_deg", float, -360.0, 360.0)),
+            "reset the dead-reckoned pose",
+        ),
     )
 
     def setup(self) -> None:
@@ -164,7 +191,9 @@ class MotionTask(Task):
             return
         pos = np.array([s.position_rad for s in drive])
         if self._last_drive is not None:
-            motion = wk.body_motion((pos - self._last_drive) * self.r, np.array([s.position_rad for s in steer]), self.pinv)
+            motion = wk.body_motion(
+                (pos - self._last_drive) * self.r, np.array([s.position_rad for s in steer]), self.pinv
+            )
             self.pose = wk.integrate_pose(self.pose, motion)
             self.path_m += math.hypot(motion[0], motion[1])
             self.turned_rad += abs(motion[2])
@@ -210,8 +239,11 @@ class MotionTask(Task):
         seg.cmd = speed
         self.tlm("cmd_speed", speed)
         v = math.copysign(speed, rem)
-        _, rates = wk.wheel_commands(v, 0.0, 0.0, self.wheel_xy, self.r) if seg.kind == "drive" else \
-            wk.wheel_commands(0.0, 0.0, v, self.wheel_xy, self.r, seg.steer)
+        _, rates = (
+            wk.wheel_commands(v, 0.0, 0.0, self.wheel_xy, self.r)
+            if seg.kind == "drive"
+            else wk.wheel_commands(0.0, 0.0, v, self.wheel_xy, self.r, seg.steer)
+        )
         return rates
 
     # -- starting and ending moves --------------------------------------------------------
@@ -317,7 +349,11 @@ class MotionTask(Task):
         if q is None or mast.busy:
             return
         tol = math.radians(self.mcfg.mast_tolerance_deg)
-        if abs(q[0] - goal[0]) <= tol and abs(q[1] - goal[1]) <= tol and abs(q[2] - goal[2]) <= self.mcfg.mast_lift_tolerance_m:
+        if (
+            abs(q[0] - goal[0]) <= tol
+            and abs(q[1] - goal[1]) <= tol
+            and abs(q[2] - goal[2]) <= self.mcfg.mast_lift_tolerance_m
+        ):
             self.mast_goal = None
             self.done += 1
             self.event("MAST_POINTED", pan=math.degrees(q[0]), tilt=math.degrees(q[1]), lift=q[2])
@@ -325,9 +361,18 @@ class MotionTask(Task):
 
     def _publish(self, now: float, mast: mast_serial.MastSerialDriver | None) -> None:
         x, y, yaw = self.pose
-        self.tlm("state", "ESTOP" if (m := self.ctx.resources.get("motors")) is not None and getattr(m, "estopped", False)
-                 else (self.segments[0].kind.upper() if self.segments and self.segments[0].phase == "move"
-                       else "STEER" if self.segments else "IDLE"))
+        self.tlm(
+            "state",
+            "ESTOP"
+            if (m := self.ctx.resources.get("motors")) is not None and getattr(m, "estopped", False)
+            else (
+                self.segments[0].kind.upper()
+                if self.segments and self.segments[0].phase == "move"
+                else "STEER"
+                if self.segments
+                else "IDLE"
+            ),
+        )
         self.tlm("odo_x_m", x)
         self.tlm("odo_y_m", y)
         self.tlm("odo_yaw_deg", math.degrees(yaw))
@@ -338,21 +383,41 @@ class MotionTask(Task):
         s_xy = self.mcfg.odo_sigma_per_m * self.path_m
         s_yaw = self.mcfg.odo_yaw_sigma_per_rad * self.turned_rad + self.mcfg.odo_sigma_per_m * self.path_m
         joints = mast.joints if mast is not None and mast.joints is not None else (math.nan,) * 3
-        self.publish(NAV_POSE, NavPose(now, x, y, yaw, np.diag([s_xy**2, s_xy**2, s_yaw**2]), joints,
-                                       moving=self.active is not None or self.mast_goal is not None))
+        self.publish(
+            NAV_POSE,
+            NavPose(
+                now,
+                x,
+                y,
+                yaw,
+                np.diag([s_xy**2, s_xy**2, s_yaw**2]),
+                joints,
+                moving=self.active is not None or self.mast_goal is not None,
+            ),
+        )
 
     # -- requests and commands --------------------------------------------------------------
     def _on_request(self, req: MotionRequest, now: float) -> None:
         try:
             if req.kind == "drive":
-                self._start(req.request_id, "drive", self._drive_segments(req.distance_m, req.speed), f"{req.distance_m:.3f} m")
+                self._start(
+                    req.request_id, "drive", self._drive_segments(req.distance_m, req.speed), f"{req.distance_m:.3f} m"
+                )
             elif req.kind == "turn":
-                self._start(req.request_id, "turn", self._turn_segments(req.angle_rad, req.speed),
-                            f"{math.degrees(req.angle_rad):.1f} deg")
+                self._start(
+                    req.request_id,
+                    "turn",
+                    self._turn_segments(req.angle_rad, req.speed),
+                    f"{math.degrees(req.angle_rad):.1f} deg",
+                )
             elif req.kind == "goto" and req.target is not None:
                 x, y, yaw = req.target
-                self._start(req.request_id, "goto", self._goto_segments(x, y, None if math.isnan(yaw) else yaw, req.speed),
-                            f"to ({x:.3f}, {y:.3f})")
+                self._start(
+                    req.request_id,
+                    "goto",
+                    self._goto_segments(x, y, None if math.isnan(yaw) else yaw, req.speed),
+                    f"to ({x:.3f}, {y:.3f})",
+                )
             elif req.kind == "mast" and req.joints is not None:
                 self._point_mast(req.request_id, *req.joints)
             elif req.kind == "stop":
@@ -368,7 +433,9 @@ class MotionTask(Task):
         self._start(-1, "drive", self._drive_segments(distance_m, speed_mps), f"{distance_m:.3f} m")
 
     def cmd_TURN(self, angle_deg: float, rate_dps: float) -> None:
-        self._start(-1, "turn", self._turn_segments(math.radians(angle_deg), math.radians(rate_dps)), f"{angle_deg:.1f} deg")
+        self._start(
+            -1, "turn", self._turn_segments(math.radians(angle_deg), math.radians(rate_dps)), f"{angle_deg:.1f} deg"
+        )
 
     def cmd_GOTO(self, x_m: float, y_m: float, yaw_deg: float, use_yaw: bool) -> None:
         segs = self._goto_segments(x_m, y_m, math.radians(yaw_deg) if use_yaw else None, 0.0)

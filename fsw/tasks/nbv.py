@@ -37,14 +37,7 @@ class NbvTask(Task):
     )
 
     def setup(self) -> None:
-        cfg = self.ctx.cfg
-        mission = cfg.mission
-        truth = self.ctx.resources.get("oracle_truth")  # only the bench provides it (oracle)
-        self.planner = make_planner(
-            mission.method, mission.max_steps, cfg.nbv, cfg.camera, cfg.mast,
-            truth_z_m=None if truth is None else truth["z"],
-            textured=None if truth is None else truth["textured"],
-        )
+        self.planner: Any = None
         self.requests = self.subscribe(NBV_REQUEST, depth=1, policy="drop_oldest")
         self.job: JobHandle | None = None
         self.searches = 0
@@ -56,7 +49,18 @@ class NbvTask(Task):
         if self.job is None:
             state: PlannerState | None = self.requests.get()
             if state is not None:
-                self.job = self.submit_job(self.planner.search(state), "search")
+                self.job = self.submit_job(self._search(state), "search")
+
+    def _search(self, state: PlannerState) -> Any:
+        if self.planner is None:  # built on first use: the bench injects the oracle's truth late
+            cfg = self.ctx.cfg
+            truth = self.ctx.resources.get("oracle_truth")  # only the bench has it (oracle)
+            self.planner = make_planner(
+                cfg.mission.method, cfg.nbv.max_steps, cfg.nbv, cfg.camera, cfg.mast,
+                truth_z_m=None if truth is None else truth["z"],
+                textured=None if truth is None else truth["textured"],
+            )
+        return (yield from self.planner.search(state))
 
     def _finish(self, h: JobHandle) -> None:
         self.searches += 1

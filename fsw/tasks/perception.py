@@ -86,10 +86,11 @@ class PerceptionTask(Task):
         stats = self.map.merge(xyz_w, cov=cov_w, p_visible=fr.p_visible)
         yield
         ecfg = self.ctx.cfg.edge
-        cells = edge_cells(self.map, 0.0, ecfg)  # ground = the plateau under the start pose
+        here = (float(fr.pose.t[0]), float(fr.pose.t[1]))  # the camera stands over the plateau
+        cells = edge_cells(self.map, 0.0, here, ecfg)  # ground = the plateau under the start pose
         yield
         poly = fit_polygon(self.map, cells, ecfg)
-        line = fit_line(cells, (float(fr.pose.t[0]), float(fr.pose.t[1])))
+        line = fit_line(cells, here)
         self.views += 1
         return MapUpdate(
             view_id=fr.view_id, time_s=fr.time_s, mapped_cells=int(self.map.mapped.sum()),

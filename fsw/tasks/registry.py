@@ -9,4 +9,11 @@ KINDS: dict[str, str] = {
     "busy": "fsw.tasks.noop:BusyTask",
     "console": "fsw.tasks.console:ConsoleTask",
     "mavlink": "fsw.tasks.mavlink_task:MavlinkTask",
+    "devices": "fsw.tasks.devices:DevicesTask",
+    "motion": "fsw.tasks.motion:MotionTask",
+    "radio": "fsw.tasks.radio_task:RadioTask",
+    "camera": "fsw.tasks.camera:CameraTask",
+    "perception": "fsw.tasks.perception:PerceptionTask",
+    "nbv": "fsw.tasks.nbv:NbvTask",
+    "mission": "fsw.tasks.mission:MissionTask",
 }

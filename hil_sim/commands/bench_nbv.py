@@ -35,6 +35,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rays", type=int, default=None,
                    help="override nbv.visibility.rays_per_turn")
     p.add_argument("--repeat", type=int, default=2, help="timed searches (the best is reported)")
+    p.add_argument("--expected-check", type=int, default=0, metavar="N",
+                   help="also compare expected new cells (sum of P_V over unmapped cells in "
+                        "view) with the cells an ideal stereo view of N random candidates maps")
     p.add_argument("--json", type=Path, default=None, help="also write the figures to this file")
 
 
@@ -46,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
 
     from fsw.config import ConfigError
     from fsw.core.geometry import MapGrid
-    from fsw.core.nbv import rate_station
+    from fsw.core.nbv import predicted_visibility, rate_station
     from fsw.core.planners import InformationPlanner, PlannerState
     from fsw.core.view_candidates import CandidateView, joint_grid, path_stations
     from fsw.core.visibility import (
@@ -60,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     from fsw.settings import DEFAULT_CONFIG, load_settings
     from hil_sim import nbv_scene
 
-    for name in ("warmup_views", "ref_poses", "repeat"):
+    for name in ("warmup_views", "ref_poses", "repeat", "expected_check"):
         if getattr(args, name) < (1 if name == "repeat" else 0):
             print(f"bench nbv: --{name.replace('_', '-')} must be >= 0 (repeat >= 1)",
                   file=sys.stderr)
@@ -102,10 +105,19 @@ def run(args: argparse.Namespace) -> int:
     pans, tilts, lifts = joint_grid(mast, cfg.pan_step_deg, cfg.tilts_deg, cfg.lifts_m)
 
     # (1) Speed: one full Method 5 search, end to end.
-    wall = []
+    wall, step_max = [], 0.0
     for _ in range(args.repeat):
+        gen = planner.search(state)
         t0 = time.perf_counter()
-        best = planner.next_view(state)
+        while True:
+            t1 = time.perf_counter()
+            try:
+                next(gen)
+            except StopIteration as stop:
+                best = stop.value
+                break
+            finally:
+                step_max = max(step_max, time.perf_counter() - t1)
         wall.append(time.perf_counter() - t0)
     n_poses = planner.last_stations * lifts.size * pans.size * tilts.size
     search_s = min(wall)
@@ -146,10 +158,20 @@ def run(args: argparse.Namespace) -> int:
         cells += int(sel.sum())
     err = np.concatenate(errs) if errs else np.zeros(0)
 
+    exp_obt = []
+    for k in rng.choice(len(cands), size=min(args.expected_check, len(cands)), replace=False):
+        pose = cands[int(k)].camera_pose(mast)
+        expected = float(predicted_visibility(emap, pose, camera, vis)[~emap.mapped].sum())
+        trial = emap.copy()
+        before = int(trial.mapped.sum())
+        nbv_scene.simulated_view(trial, truth, textured, pose, camera, rng, vis)
+        exp_obt.append((expected, float(trial.mapped.sum() - before)))
+    eo = np.array(exp_obt).reshape(-1, 2)
+
     fig = {
         "scenario": args.scenario, "seed": args.seed, "mapped_cells": int(emap.mapped.sum()),
         "stations": planner.last_stations, "poses": int(n_poses),
-        "search_s": search_s, "poses_per_s": n_poses / search_s,
+        "search_s": search_s, "search_step_max_s": step_max, "poses_per_s": n_poses / search_s,
         "station_rating_s": station_s, "station_kernel_s": kernel_s,
         "station_cells": int(near[0].size), "views_per_station": int(pans.size * tilts.size),
         "rays_per_turn": vis.rays_per_turn,
@@ -158,6 +180,10 @@ def run(args: argparse.Namespace) -> int:
         "pv_p95": float(np.quantile(err, 0.95)) if err.size else math.nan,
         "pv_max": float(err.max()) if err.size else math.nan,
         "ref_s_per_pose": float(np.mean(ref_s)) if ref_s else math.nan,
+        "expected_check_views": int(eo.shape[0]),
+        "expected_over_obtained": float(eo[:, 0].sum() / max(eo[:, 1].sum(), 1.0)),
+        "expected_mean_abs_rel": float(np.abs(eo[:, 0] - eo[:, 1]).sum()
+                                       / max(eo[:, 1].sum(), 1.0)),
     }
     print(f"map state: {args.scenario} seed {args.seed}, {fig['mapped_cells']} of "
           f"{grid.nx * grid.ny} cells mapped (panorama + {args.warmup_views} views)")
@@ -165,6 +191,7 @@ def run(args: argparse.Namespace) -> int:
           f"{tilts.size} tilt = {n_poses} poses")
     print(f"rated {n_poses} poses in {search_s:.3f} s: {fig['poses_per_s']:.0f} poses/s "
           f"(goal >= 200)")
+    print(f"  longest search step (slack-job slice): {1e3 * step_max:.1f} ms")
     print(f"  per station: {1e3 * station_s:.0f} ms = P_V kernel {1e3 * kernel_s:.0f} ms "
           f"({fig['station_cells']} cells, {vis.rays_per_turn} rays/turn) + view sums "
           f"and values for {fig['views_per_station']} pan/tilt views")
@@ -172,6 +199,10 @@ def run(args: argparse.Namespace) -> int:
           f"{fig['pv_mae']:.4f} (goal <= 0.05), p95 {fig['pv_p95']:.3f}, max {fig['pv_max']:.3f}")
     print(f"brute force: {fig['ref_s_per_pose']:.2f} s per pose "
           f"({fig['ref_s_per_pose'] * fig['poses_per_s']:.0f}x the fast rating per pose)")
+    if eo.shape[0]:
+        print(f"expected vs obtained new cells (ideal stereo), {eo.shape[0]} random views: "
+              f"sum ratio {fig['expected_over_obtained']:.2f}, mean |exp - obt| / obt "
+              f"{fig['expected_mean_abs_rel']:.2f}")
     if args.json:
         args.json.write_text(json.dumps(fig, indent=2))
     return 0

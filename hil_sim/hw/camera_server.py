@@ -19,6 +19,7 @@ import contextlib
 import socket
 import threading
 from collections.abc import Callable
+
 import numpy as np
 
 from fsw.comm import camera_frames as cf
@@ -74,8 +75,9 @@ class SimCameraLink:
 class CameraServer:
     """TCP camera server for multi-process mode (``tcp://HOST:PORT`` on the flight side)."""
 
-    def __init__(self, render: RenderFn, faults: FaultInjector | None = None,
-                 host: str = "127.0.0.1", port: int = 0) -> None:
+    def __init__(
+        self, render: RenderFn, faults: FaultInjector | None = None, host: str = "127.0.0.1", port: int = 0
+    ) -> None:
         self.render, self.faults = render, faults or FaultInjector()
         self.listener = socket.create_server((host, port))
         self.listener.settimeout(0.2)

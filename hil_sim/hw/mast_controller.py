@@ -31,8 +31,9 @@ class MastControllerConfig:
 class MastController:
     """Device side of the mast serial line."""
 
-    def __init__(self, port: Any, mast: MastTruth, cfg: MastControllerConfig,
-                 faults: FaultInjector | None = None) -> None:
+    def __init__(
+        self, port: Any, mast: MastTruth, cfg: MastControllerConfig, faults: FaultInjector | None = None
+    ) -> None:
         self.port, self.mast, self.cfg = port, mast, cfg
         self.faults = faults or FaultInjector()
         self.decoder = sf.FrameDecoder()
@@ -116,8 +117,12 @@ class MastController:
         m = self.mast
         tol = math.radians(self.cfg.at_target_tol_deg)
         at = all(abs(a - b) <= t for a, b, t in zip(m.q, m.target, (tol, tol, 1e-4), strict=True))
-        flags = (sf.STATE_MOVING * m.moving) | (sf.STATE_AT_TARGET * at) \
-            | (sf.STATE_FAULT * self.fault_latched) | (sf.STATE_LIMIT * self.limit_hit)
+        flags = (
+            (sf.STATE_MOVING * m.moving)
+            | (sf.STATE_AT_TARGET * at)
+            | (sf.STATE_FAULT * self.fault_latched)
+            | (sf.STATE_LIMIT * self.limit_hit)
+        )
         return sf.MastState(*m.encoder, flags)
 
     def transmit(self, now: float) -> None:

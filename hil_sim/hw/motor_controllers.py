@@ -20,6 +20,7 @@ Frames cross :class:`hil_sim.faults.FaultInjector` in both directions (drop, del
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import can
@@ -68,8 +69,14 @@ class _Axis:
 class MotorControllerBank:
     """All twelve controllers on one python-can bus, driving a :class:`RoverTruth`."""
 
-    def __init__(self, bus: can.BusABC, codec: RoverCan, rover: RoverTruth, cfg: MotorControllerConfig,
-                 faults: FaultInjector | None = None) -> None:
+    def __init__(
+        self,
+        bus: can.BusABC,
+        codec: RoverCan,
+        rover: RoverTruth,
+        cfg: MotorControllerConfig,
+        faults: FaultInjector | None = None,
+    ) -> None:
         self.bus, self.codec, self.rover, self.cfg = bus, codec, rover, cfg
         self.faults = faults or FaultInjector()
         self.axes = {name: _Axis(name, i % 4) for i, name in enumerate(AXES)}
@@ -81,15 +88,22 @@ class MotorControllerBank:
         self._order = 0
         self.rx_commands = self.rx_bad = self.rx_other = self.tx_frames = 0
         self.fsw_heartbeats = 0
+        self.tap: Callable[[can.Message], None] | None = None  # sees every received frame (a bus logger)
 
     # -- reception --------------------------------------------------------------------------
     def receive(self, now: float) -> None:
         """Drain the bus and act on commands and e-stops (nothing while bus-off)."""
         off = self.faults.bus_off()
-        while True:
-            msg = self.bus.recv(timeout=0.0)
+        for _ in range(10000):
+            try:
+                msg = self.bus.recv(timeout=0.0)
+            except (can.CanError, OSError, ValueError):  # e.g. an undecodable datagram on udp_multicast
+                self.rx_bad += 1
+                continue
             if msg is None:
                 break
+            if self.tap is not None:
+                self.tap(msg)
             if off:
                 continue
             axis = self.codec.route.get(msg.arbitration_id, ("", None, None))[1]
@@ -210,8 +224,11 @@ class MotorControllerBank:
         if self.faults.motor_fault(ax.name) == "driver":
             faults.add("FaultDriver")
         ax.counter = (ax.counter + 1) & 0xF
-        self._emit(ax.name, *self.codec.encode_status(ax.name, float(pos), float(vel), float(cur),
-                                                      ax.enabled, faults, ax.counter), now)
+        self._emit(
+            ax.name,
+            *self.codec.encode_status(ax.name, float(pos), float(vel), float(cur), ax.enabled, faults, ax.counter),
+            now,
+        )
 
     def _emit(self, axis: str, frame_id: int, data: bytes, now: float) -> None:
         fate, data, delay = self.faults.can_frame(axis, True, data)

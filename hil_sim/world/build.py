@@ -37,11 +37,11 @@ class TruthGrid:
 
     @property
     def xs(self) -> F64:
-        return self.x0 + (np.arange(self.nx) + 0.5) * self.cell_m
+        return np.asarray(self.x0 + (np.arange(self.nx) + 0.5) * self.cell_m, np.float64)
 
     @property
     def ys(self) -> F64:
-        return self.y0 + (np.arange(self.ny) + 0.5) * self.cell_m
+        return np.asarray(self.y0 + (np.arange(self.ny) + 0.5) * self.cell_m, np.float64)
 
     def mesh(self) -> tuple[F32, F32]:
         gx, gy = np.meshgrid(self.xs.astype(np.float32), self.ys.astype(np.float32))

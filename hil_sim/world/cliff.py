@@ -31,7 +31,7 @@ def build_cliff(cfg: ScenarioConfig, seed: int) -> World:
     d = y_edge.astype(np.float32)[None, :] - gy           # horizontal distance past the edge
     tan_face = math.tan(math.radians(cl.face_slope_deg))
     run = cl.drop_m / tan_face                            # horizontal extent of the face
-    rough = fractal_noise(gx.shape, grid.cell_m, rng, beta=2.2, min_wavelength_m=0.03,
+    rough = fractal_noise(gx.shape, grid.cell_m, rng, beta=2.2, min_wavelength_m=0.12,
                           max_wavelength_m=1.0)
     face = -tan_face * (d + np.float32(cl.face_roughness_m) * rough)
     relief = fractal_noise(gx.shape, grid.cell_m, rng, beta=2.8, min_wavelength_m=0.05,
@@ -51,7 +51,8 @@ def build_cliff(cfg: ScenarioConfig, seed: int) -> World:
     rock_id = np.full(ground.shape, -1, np.int32)
     if k_max > 0:
         place_viking_rocks(ground, grid.x0, grid.y0, grid.cell_m, min(k_max, 0.5), rng,
-                           cl.d_min_m, cl.d_max_m, weight=local_k / k_max, rock_id=rock_id)
+                           cl.d_min_m, cl.d_max_m, weight=(local_k / k_max).astype(np.float32),
+                           rock_id=rock_id)
     on_top = d <= 0
     ground[on_top] = 0.0  # the plateau stays level
     rock_id[on_top] = -1

@@ -182,8 +182,8 @@ def build_cliffbot(
     ]
     quads: list[Quad] = []
     for p0, eu, ev in body:
-        tex = np.clip(0.42 + 0.08 * rng.standard_normal((48, 48)), 0.2, 0.7).astype(np.float32)
-        tex = cv2.GaussianBlur(tex, (3, 3), 0.8)
+        raw = np.clip(0.42 + 0.08 * rng.standard_normal((48, 48)), 0.2, 0.7).astype(np.float32)
+        tex = np.asarray(cv2.GaussianBlur(raw, (3, 3), 0.8), np.float32)
         quads.append(Quad(to_world(p0), eu @ rot.T, ev @ rot.T, tex))
     s45 = math.sqrt(0.5)
     centers = [  # (panel centre, right, down) in body frame; front normal = down x right

@@ -61,20 +61,21 @@ def build_lab(cfg: ScenarioConfig, seed: int) -> World:
 
 def _piles(ground: F32, grid, lab: LabConfig, rng: np.random.Generator,  # type: ignore[no-untyped-def]
            rock_id: NDArray[np.int32], first_id: int) -> None:
-    """Each pile: a low mound of gravel, then three layers of rocks stacked on it."""
+    """Each pile: a low mound of gravel with three layers of rocks stacked on it, scaled so
+    its top stands ``height`` above the sand."""
     gx, gy = grid.mesh()
     for x, y, radius, height in lab.piles:
         r2 = ((gx - x) ** 2 + (gy - y) ** 2) / (radius * radius)
-        ground += (0.35 * height * np.exp(-2.5 * r2) * (r2 < 1.5)).astype(np.float32)
-        for layer, (count, spread) in enumerate(((28, 0.95), (14, 0.6), (6, 0.3))):
+        layer = (0.35 * np.exp(-2.5 * r2) * (r2 < 1.5)).astype(np.float32)
+        for level, (count, spread) in enumerate(((28, 0.95), (14, 0.6), (6, 0.3))):
             rr = radius * spread * np.sqrt(rng.random(count))
             th = rng.uniform(0, 2 * np.pi, count)
-            d = rng.uniform(0.08, 0.26, count) * (1.0 - 0.15 * layer)
-            h = d * rng.uniform(0.4, 0.6, count) * min(1.0, height / 0.3)
-            stamp_rocks(ground, grid.x0, grid.y0, grid.cell_m, x + rr * np.cos(th),
+            d = rng.uniform(0.08, 0.26, count) * (1.0 - 0.15 * level)
+            h = d * rng.uniform(0.4, 0.6, count)
+            stamp_rocks(layer, grid.x0, grid.y0, grid.cell_m, x + rr * np.cos(th),
                         y + rr * np.sin(th), d, h, rng, rock_id=rock_id, first_id=first_id)
             first_id += count
-
+        ground += layer * np.float32(height / max(float(layer.max()), 1e-6))
 
 def _blob(gx: F32, gy: F32, lab: LabConfig, rng: np.random.Generator) -> NDArray[np.bool_]:
     """An irregular round patch: radius modulated by a few random harmonics."""

@@ -33,9 +33,14 @@ IDX = NDArray[np.intp]
 
 T_NEAR_M = 0.05           # nothing nearer than this is drawn
 TOP_SAMPLES = 256         # samples per ray of the coarsest level
-LEVELS = (16, 4, 1)       # block sizes, coarse to fine
+LEVELS = (16, 4, 2, 1)    # block sizes, coarse to fine
+# Interpolate the last level where the depth error dt it costs stays under this times t^2:
+# the disparity error is then f * B * dt / t^2, 0.02 px for f * B = 100 px m.
+SMOOTH_TOL_PER_M = 2e-4
+_LAPLACE = np.array([[0, 1, 0], [1, -4, 1], [0, 1, 0]], np.float32)
 REFINE_ITERATIONS = 2
 _MAX_ROWS = 32000         # cv2.remap needs destination sides below 32767
+_ROW = 4096
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,20 +68,32 @@ class Heightfield:
                 ((y - self.y0) / self.cell_m - 0.5).astype(np.float32))
 
 
-def sample(src: F32, px: F32, py: F32, *, wrap: bool = False) -> F32:
-    """Bilinear lookup of ``src`` at fractional pixel coordinates (1-D or 2-D, same shape)."""
+def sample(src: NDArray[np.float32], px: F32, py: F32, *, wrap: bool = False) -> F32:
+    """Bilinear lookup of ``src`` (``(h, w)`` or ``(h, w, channels)``) at fractional pixel
+    coordinates of any (equal) shape; the result has that shape (plus the channels).
+
+    The coordinates are packed into rows of ``_ROW`` (``cv2.remap`` is fastest on wide
+    images and needs sides below 32767)."""
     shape = px.shape
-    if px.size == 0:
-        return np.zeros(shape, np.float32)
-    if px.ndim != 2 or px.shape[1] >= 32767:
-        px, py = px.reshape(-1, 1), py.reshape(-1, 1)
-    px, py = np.ascontiguousarray(px, np.float32), np.ascontiguousarray(py, np.float32)
+    chans = src.shape[2:]
+    n = px.size
+    if n == 0:
+        return np.zeros(shape + chans, np.float32)
+    rows = -(-n // _ROW)
+    mx = np.empty(rows * _ROW, np.float32)
+    my = np.empty(rows * _ROW, np.float32)
+    mx[:n] = px.reshape(-1)
+    my[:n] = py.reshape(-1)
+    mx[n:] = 0.0
+    my[n:] = 0.0
+    mx2, my2 = mx.reshape(rows, _ROW), my.reshape(rows, _ROW)
     border = cv2.BORDER_WRAP if wrap else cv2.BORDER_REPLICATE
-    out = np.empty(px.shape, np.float32)
-    for r in range(0, px.shape[0], _MAX_ROWS):
-        out[r:r + _MAX_ROWS] = cv2.remap(src, px[r:r + _MAX_ROWS], py[r:r + _MAX_ROWS],
-                                         cv2.INTER_LINEAR, borderMode=border)
-    return out.reshape(shape)
+    out = np.empty((rows, _ROW) + chans, np.float32)
+    for r in range(0, rows, _MAX_ROWS):
+        out[r:r + _MAX_ROWS] = cv2.remap(src, mx2[r:r + _MAX_ROWS], my2[r:r + _MAX_ROWS],
+                                         cv2.INTER_LINEAR, borderMode=border).reshape(
+                                             (-1, _ROW) + chans)
+    return out.reshape((-1,) + chans)[:n].reshape(shape + chans)
 
 
 def pixel_rays(R: F64, K: F64, us: F64, vs: F64) -> F32:
@@ -115,55 +132,105 @@ def ray_intervals(hf: Heightfield, c: F64, d: F32) -> tuple[F32, F32]:
 class _Rays:
     """Rays from one centre in grid coordinates: ``px = px0 + t * dpx`` and so on."""
 
-    def __init__(self, hf: Heightfield, c: F64, d: F32) -> None:
+    def __init__(self, hf: Heightfield, c: F64, d: F32 | None,
+                 parts: tuple[F32, F32, F32] | None = None) -> None:
         self.hf = hf
+        self.c = c
         self.px0 = np.float32((c[0] - hf.x0) / hf.cell_m - 0.5)
         self.py0 = np.float32((c[1] - hf.y0) / hf.cell_m - 0.5)
         self.z0 = np.float32(c[2])
-        inv = np.float32(1.0 / hf.cell_m)
-        self.dpx = d[:, 0] * inv
-        self.dpy = d[:, 1] * inv
-        self.dz = np.ascontiguousarray(d[:, 2])
-
-    def above(self, idx: IDX, t: F32) -> F32:
-        """Height of rays ``idx`` above the terrain at parameters ``t`` (``(m,)``/``(m, n)``)."""
-        if t.ndim == 2:
-            dpx, dpy, dz = self.dpx[idx, None], self.dpy[idx, None], self.dz[idx, None]
+        if parts is not None:
+            self.dpx, self.dpy, self.dz = parts
         else:
-            dpx, dpy, dz = self.dpx[idx], self.dpy[idx], self.dz[idx]
-        h = sample(self.hf.z, t * dpx + self.px0, t * dpy + self.py0)
-        return t * dz + (self.z0 - h)
+            assert d is not None
+            inv = np.float32(1.0 / hf.cell_m)
+            self.dpx = np.ascontiguousarray(d[:, 0] * inv)
+            self.dpy = np.ascontiguousarray(d[:, 1] * inv)
+            self.dz = np.ascontiguousarray(d[:, 2])
+
+    def subset(self, idx: IDX) -> _Rays:
+        return _Rays(self.hf, self.c, None, (self.dpx[idx], self.dpy[idx], self.dz[idx]))
+
+    def above(self, t: F32) -> F32:
+        """Height above the terrain at parameters ``t``: ``(m,)`` or ``(n, m)`` (samples
+        first, so numpy's inner loops run along the rays)."""
+        h = sample(self.hf.z, t * self.dpx + self.px0, t * self.dpy + self.py0)
+        f = t * self.dz
+        f += self.z0
+        f -= h
+        return f
 
 
 def cast_image(hf: Heightfield, c: F64, R: F64, K: F64, width: int, height: int,
                levels: tuple[int, ...] = LEVELS) -> tuple[F32, F32]:
     """Depth (range along the optical axis) of each pixel's first terrain hit (NaN if none)
     and the pixel rays ``(height, width, 3)`` (world directions with camera ``z`` = 1)."""
-    if not levels or levels[-1] != 1:
-        raise ValueError(f"levels must end with 1 (single pixels), got {levels}")
+    if not levels or levels[-1] != 1 or any(
+            a <= b for a, b in zip(levels[:-1], levels[1:], strict=True)):
+        raise ValueError(f"levels must decrease to 1 (single pixels), got {levels}")
     c = np.asarray(c, float)
     prev: F32 | None = None
     prev_step = 0
-    for step in levels:
+    for step in levels[:-1]:
         wl, hl = -(-width // step), -(-height // step)
         off = (step - 1) / 2.0
-        d = pixel_rays(R, K, step * np.arange(wl) + off, step * np.arange(hl) + off)
+        d = pixel_rays(R, K, (step * np.arange(wl) + off).astype(np.float64),
+                       (step * np.arange(hl) + off).astype(np.float64))
         lo, hi = ray_intervals(hf, c, d)
         rays = _Rays(hf, c, d.reshape(-1, 3))
         if prev is None:
             t = _first_hits(rays, lo.reshape(-1), hi.reshape(-1), fixed=TOP_SAMPLES)
         else:
-            a, b = _brackets(prev, prev_step // step, lo, hi)
+            near, far, n_miss = _neighbour_hits(prev, prev_step // step, hl, wl)
+            a, b = _bracket(near, far, n_miss, lo, hi)
             t = _first_hits(rays, a.reshape(-1), b.reshape(-1), own=(lo.reshape(-1),
                                                                       hi.reshape(-1)))
         prev, prev_step = t.reshape(hl, wl), step
-    assert prev is not None
-    return prev, d
+    d = pixel_rays(R, K, np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+    if prev is None:
+        lo, hi = ray_intervals(hf, c, d)
+        t = _first_hits(_Rays(hf, c, d.reshape(-1, 3)), lo.reshape(-1), hi.reshape(-1),
+                        fixed=TOP_SAMPLES)
+        return t.reshape(height, width), d
+    return _finest(hf, c, d, prev, prev_step), d
 
 
-def _brackets(tc: F32, factor: int, lo: F32, hi: F32) -> tuple[F32, F32]:
-    """Search interval of each finer ray: between the nearest and farthest hit of the 2 x 2
-    coarser rays whose centres enclose it, with a small margin."""
+def _finest(hf: Heightfield, c: F64, d: F32, tc: F32, factor: int) -> F32:
+    """Full-resolution depth from the previous level: where that level's inverse depth is
+    locally affine (interpolation error under ``SMOOTH_TOL_PER_M * t^2``) the pixels
+    interpolate it; the rest (edges, silhouettes, rough ground, sky) cast their own rays."""
+    height, width = d.shape[:2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = (1.0 / tc).astype(np.float32)
+        lap = cv2.filter2D(inv, -1, _LAPLACE, borderType=cv2.BORDER_REPLICATE)
+        # Linear interpolation of 1/t at mid-points errs by |lap| / 8 (in 1/t), i.e. by
+        # |lap| t^2 / 8 in depth; lap is over the coarse spacing, the pixels half-way.
+        rough = ~(np.abs(lap) * (factor * factor / 32.0) <= SMOOTH_TOL_PER_M)  # NaN: rough
+    rough_u8 = cv2.dilate(rough.astype(np.uint8), np.ones((3, 3), np.uint8),
+                          borderType=cv2.BORDER_REPLICATE)
+    hl, wl = tc.shape
+    inv_full = cv2.resize(np.nan_to_num(inv, nan=0.0), (wl * factor, hl * factor),
+                          interpolation=cv2.INTER_LINEAR)[:height, :width]
+    with np.errstate(divide="ignore"):
+        t = (1.0 / inv_full).astype(np.float32)
+    mask = np.repeat(np.repeat(rough_u8, factor, 0), factor, 1)[:height, :width].astype(bool)
+    mask |= ~np.isfinite(t)
+    idx = np.flatnonzero(mask)
+    t_flat = t.reshape(-1)
+    t_flat[idx] = np.nan
+    if idx.size:
+        dsel = d.reshape(-1, 3)[idx]
+        lo, hi = ray_intervals(hf, c, dsel)
+        near, far, n_miss = (x.reshape(-1)[idx] for x in
+                             _neighbour_hits(tc, factor, height, width))
+        a, b = _bracket(near, far, n_miss, lo, hi)
+        t_flat[idx] = _first_hits(_Rays(hf, c, dsel), a, b, own=(lo, hi))
+    return t
+
+
+def _neighbour_hits(tc: F32, factor: int, h: int, w: int) -> tuple[F32, F32, F32]:
+    """Per finer ray ``(h, w)``: nearest and farthest hit of the 2 x 2 coarser rays whose
+    centres enclose it, and how many of those missed."""
     miss = np.isnan(tc)
     kernel = np.ones((2, 2), np.uint8)
     pad = ((0, 1), (0, 1))  # the last coarse row/column encloses the image border alone
@@ -174,11 +241,16 @@ def _brackets(tc: F32, factor: int, lo: F32, hi: F32) -> tuple[F32, F32]:
     n_miss = cv2.filter2D(np.pad(miss, pad, mode="edge").astype(np.float32), -1,
                           np.ones((2, 2), np.float32), anchor=(0, 0),
                           borderType=cv2.BORDER_REPLICATE)
-    h, w = lo.shape
     off = (factor - 1) / 2.0
     iv = np.clip(np.floor((np.arange(h) - off) / factor).astype(np.intp), 0, tc.shape[0] - 1)
     iu = np.clip(np.floor((np.arange(w) - off) / factor).astype(np.intp), 0, tc.shape[1] - 1)
-    near, far, n_miss = (x[iv[:, None], iu[None, :]] for x in (near, far, n_miss))
+    pick = (iv[:, None], iu[None, :])
+    return (near[pick].astype(np.float32), far[pick].astype(np.float32),
+            n_miss[pick].astype(np.float32))
+
+
+def _bracket(near: F32, far: F32, n_miss: F32, lo: F32, hi: F32) -> tuple[F32, F32]:
+    """Search interval from the neighbours' hits, within the ray's own ``[lo, hi]``."""
     some_miss = n_miss > 0.5
     margin = 0.002 + 0.002 * np.where(some_miss, 0.0, far)
     a = np.where(some_miss, lo, np.maximum(lo, near - margin))
@@ -209,7 +281,7 @@ def _first_hits(rays: _Rays, a: F32, b: F32, *, fixed: int = 0,
             groups = [(int(k), todo[n == k]) for k in np.unique(n)]
         retry: list[IDX] = []
         for n_s, idx in groups:
-            t, status = _march(rays, idx, a[idx], b[idx], n_s)
+            t, status = _march(rays.subset(idx), a[idx], b[idx], n_s)
             t_out[idx] = t
             if own is None:
                 continue
@@ -224,36 +296,49 @@ def _first_hits(rays: _Rays, a: F32, b: F32, *, fixed: int = 0,
     return t_out
 
 
-def _march(rays: _Rays, idx: IDX, a: F32, b: F32, n: int) -> tuple[F32, NDArray[np.int8]]:
+def _march(rays: _Rays, a: F32, b: F32, n: int) -> tuple[F32, NDArray[np.int8]]:
     """Sample ``n`` points per ray in ``[a, b]``; status 0 hit, 1 under at ``a``, 2 none."""
-    s = np.linspace(0.0, 1.0, n, dtype=np.float32)
-    t = a[:, None] + (b - a)[:, None] * s[None, :]
-    f = rays.above(idx, t)
+    s = np.linspace(0.0, 1.0, n, dtype=np.float32)[:, None]
+    t = a + (b - a) * s                      # (n, m)
+    f = rays.above(t)
     below = f <= 0.0
-    k = below.argmax(axis=1)
-    rows = np.arange(t.shape[0])
-    has = below[rows, k]
+    k = below.argmax(axis=0)
+    cols = np.arange(t.shape[1])
+    has = below[k, cols]
     status = np.where(has, np.where(k == 0, 1, 0), 2).astype(np.int8)
     t_hit = np.where(status == 1, a, np.nan).astype(np.float32)
     sel = np.nonzero(status == 0)[0]
     if sel.size:
-        k1 = k[sel]
-        t_hit[sel] = _refine(rays, idx[sel], t[sel, k1 - 1], f[sel, k1 - 1], t[sel, k1],
-                             f[sel, k1])
+        k1, c1 = k[sel], cols[sel]
+        t_hit[sel] = _refine(rays.subset(sel), t[k1 - 1, c1], f[k1 - 1, c1], t[k1, c1],
+                             f[k1, c1])
     return t_hit, status
 
 
-def _refine(rays: _Rays, idx: IDX, t1: F32, f1: F32, t2: F32, f2: F32) -> F32:
+def _refine(rays: _Rays, t1: F32, f1: F32, t2: F32, f2: F32) -> F32:
     """Illinois regula falsi between ``t1`` (above, ``f1 > 0``) and ``t2`` (below)."""
     for _ in range(REFINE_ITERATIONS):
-        denom = f1 - f2
-        tn = np.where(denom > 1e-12, t1 + f1 * (t2 - t1) / np.maximum(denom, 1e-12), t2)
-        fn = rays.above(idx, tn.astype(np.float32))
+        tn = _secant(t1, f1, t2, f2)
+        fn = rays.above(tn)
         up = fn > 0
-        f2 = np.where(up, f2 * 0.5, f2)  # Illinois: halve the end that stays
-        f1 = np.where(up, f1, f1 * 0.5)
-        t1, f1 = np.where(up, tn, t1), np.where(up, fn, f1)
-        t2, f2 = np.where(up, t2, tn), np.where(up, f2, fn)
+        # Replace the end on the same side as the new point; halve the other (Illinois).
+        t1 = np.where(up, tn, t1)
+        t2 = np.where(up, t2, tn)
+        f1, f2 = np.where(up, fn, f1 * 0.5), np.where(up, f2 * 0.5, fn)
+    return _secant(t1, f1, t2, f2)
+
+
+def _secant(t1: F32, f1: F32, t2: F32, f2: F32) -> F32:
     denom = f1 - f2
-    t = np.where(denom > 1e-12, t1 + f1 * (t2 - t1) / np.maximum(denom, 1e-12), t2)
-    return t.astype(np.float32)
+    ok = denom > 1e-12
+    return np.where(ok, t1 + f1 * (t2 - t1) / np.where(ok, denom, 1.0), t2).astype(np.float32)
+
+
+def cast_rays(hf: Heightfield, c: F64, d: F32, samples: int = 1024) -> F32:
+    """First terrain hit (``t`` along ``d``; NaN if none) of arbitrary rays ``(n, 3)`` from
+    ``c``: a dense fixed-step search, for a few rays (figures, checks), not whole images."""
+    d = np.ascontiguousarray(np.asarray(d, np.float32).reshape(-1, 3))
+    c = np.asarray(c, float)
+    lo, hi = ray_intervals(hf, c, d)
+    hi = np.minimum(hi, lo + 100.0)
+    return _first_hits(_Rays(hf, c, d), lo, hi, fixed=samples)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import struct
 import zlib
 
@@ -39,7 +40,7 @@ maps = st.integers(1, 40).flatmap(lambda ny: st.integers(1, 40).flatmap(
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(z=maps, bound=st.sampled_from([0.003, 0.05, 0.2, 1.0]),
        rule=st.sampled_from(["entropy", "bound"]), mode=st.sampled_from(["predictive", "mean"]),
-       qf=st.sampled_from([0.25, 0.5, 1.0, 2.0]))
+       qf=st.sampled_from([0.05, 0.25, 0.5, 1.0]))
 def test_round_trip_bound_holds_on_every_cell(z, bound, rule, mode, qf):
     """Issue 6, done-when 3: hypothesis round trip incl. NaNs; bound holds on every known cell."""
     _check(z, bound, CodecConfig(split_rule=rule, leaf_value=mode, quant_step_fraction=qf))
@@ -138,10 +139,8 @@ def test_corruption_bad_magic_and_version(container):
 def test_decoder_never_crashes_on_garbage(blob):
     """Issue 6, item 4: arbitrary bytes (even with a valid CRC) only ever raise MapCodecError."""
     for data in (blob, b"SQMC\x01" + blob, _with_crc(b"SQMC\x01" + blob)):
-        try:
+        with contextlib.suppress(MapCodecError):
             decode_map(data)
-        except MapCodecError:
-            pass
 
 
 def test_consistent_header_with_lying_streams_is_caught(container):

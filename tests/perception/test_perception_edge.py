@@ -40,7 +40,7 @@ def test_polygon_fit_follows_a_non_convex_edge() -> None:
     straight segment (Method 3) is far worse; the map frontier is not taken as an edge."""
     m = synthetic_map()
     cfg = EdgeConfig()
-    cells = edge_cells(m, 0.0, cfg)
+    cells = edge_cells(m, 0.0, (1.0, 0.5), cfg)
     poly = fit_polygon(m, cells, cfg)
     line = fit_line(cells, (0.5, 0.0))
     d_poly = poly.mean_distance_to(TRUTH, GRID.cell)
@@ -56,9 +56,9 @@ def test_polygon_fit_follows_a_non_convex_edge() -> None:
 def test_drop_seen_across_a_long_occlusion_gap() -> None:
     """§2: the ground under the drop is occluded; the drop is found within search_m."""
     m = synthetic_map(shadow_m=0.45)
-    cells = edge_cells(m, 0.0, EdgeConfig(search_m=0.6))
+    cells = edge_cells(m, 0.0, (1.0, 0.5), EdgeConfig(search_m=0.6))
     assert len(cells.points_xy) > 100
-    none = edge_cells(m, 0.0, EdgeConfig(search_m=0.3))
+    none = edge_cells(m, 0.0, (1.0, 0.5), EdgeConfig(search_m=0.3))
     # too short a search: no evidence of a drop, except where the bay's walls make the
     # horizontal gap shorter than the vertical shadow band
     assert len(none.points_xy) < 0.2 * len(cells.points_xy)
@@ -70,7 +70,7 @@ def test_hole_in_plateau_is_not_an_edge() -> None:
     X, Y = GRID.centers()
     hole = (np.hypot(X - 1.5, Y - 0.2) < 0.2)
     m.z[hole], m.var[hole], m.n[hole] = np.nan, np.inf, 0
-    cells = edge_cells(m, 0.0, EdgeConfig())
+    cells = edge_cells(m, 0.0, (1.0, 0.5), EdgeConfig())
     d = np.hypot(cells.points_xy[:, 0] - 1.5, cells.points_xy[:, 1] - 0.2)
     assert (d > 0.3).all()
 
@@ -78,7 +78,7 @@ def test_hole_in_plateau_is_not_an_edge() -> None:
 def test_empty_map_gives_empty_edge() -> None:
     m = ElevationMap(GRID)
     cfg = EdgeConfig()
-    cells = edge_cells(m, 0.0, cfg)
+    cells = edge_cells(m, 0.0, (1.0, 0.5), cfg)
     assert fit_polygon(m, cells, cfg).empty and fit_line(cells, (0, 0)).empty
     assert edge_path(fit_polygon(m, cells, cfg), 0.7, 0.25).shape == (0, 3)
 
@@ -87,7 +87,7 @@ def test_path_is_set_back_on_the_safe_side() -> None:
     """§2: candidate positions follow the edge, setback_m into the plateau."""
     m = synthetic_map()
     cfg = EdgeConfig()
-    poly = fit_polygon(m, edge_cells(m, 0.0, cfg), cfg)
+    poly = fit_polygon(m, edge_cells(m, 0.0, (1.0, 0.5), cfg), cfg)
     path = edge_path(poly, 0.75, 0.25)
     assert len(path) > 10
     import shapely
@@ -102,7 +102,7 @@ def fence() -> Geofence:
     m = synthetic_map()
     cfg = EdgeConfig()
     gf = Geofence(GeofenceConfig(margin_m=0.15), RoverConfig())
-    gf.set_edge(fit_polygon(m, edge_cells(m, 0.0, cfg), cfg))
+    gf.set_edge(fit_polygon(m, edge_cells(m, 0.0, (1.0, 0.5), cfg), cfg))
     return gf
 
 
@@ -133,7 +133,7 @@ def test_geofence_checks_the_swept_footprint_not_just_end_poses(fence: Geofence)
 def test_geofence_turn_in_place_sweeps_the_wheels() -> None:
     """A turn in place near a straight edge: the wheel arcs are checked at every sample."""
     m = synthetic_map()
-    cells = edge_cells(m, 0.0, EdgeConfig())
+    cells = edge_cells(m, 0.0, (1.0, 0.5), EdgeConfig())
     gf = Geofence(GeofenceConfig(margin_m=0.05), RoverConfig())
     gf.set_edge(fit_line(cells, (0.5, 0.5)))
     y0 = float(np.mean(cells.points_xy[:, 1])) + 0.55
@@ -159,7 +159,7 @@ def test_signed_distance_classifies_bay_and_plateau(fence: Geofence) -> None:
     """§2: the side is that of the nearest edge point, so a narrow bay does not spill over."""
     m = synthetic_map()
     cfg = EdgeConfig()
-    poly = fit_polygon(m, edge_cells(m, 0.0, cfg), cfg)
+    poly = fit_polygon(m, edge_cells(m, 0.0, (1.0, 0.5), cfg), cfg)
     pts = np.array([[3.0, -0.6],   # inside the bay (pit)
                     [3.6, -0.5],   # plateau just east of the bay
                     [1.0, 0.5],    # plateau

@@ -1,0 +1,397 @@
+"""The mission sequencer (paper Figure 4; ALGORITHM.md §2-§4, §6).
+
+    INIT -> PANORAMA -> [SELECT -> MOVE -> POINT -> ACQUIRE] until the end criterion (§3.6)
+         -> TRANSMIT -> DONE;   any state -> SAFE on a driver fault or a geofence refusal.
+
+Each view is a sequence of requests to the other tasks over the software bus: the motion
+task drives to the rover pose (``goto``), then points the mast; the camera task takes the
+pair; the perception task merges it and re-fits the edge; the next-view task rates the
+candidates on the new map. Before any wheel move the geofence checks the swept footprint
+against the polygon edge (§2): a refusal is an event and SAFE, never a crossing. Step 0 is
+the panorama from the start pose (the same for every method); steps 1..N are the
+planner's. Each step is recorded (``records``) for the run summary.
+
+SAFE: wheels and mast stopped, mast parked, an event; then wait for ``RESUME`` (or, with
+``safe_recover_s`` > 0, resume by itself after that long without a new fault).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from fsw.config import param
+from fsw.core.edge import EdgeModel, edge_path
+from fsw.core.geofence import Geofence
+from fsw.core.geometry import MapGrid
+from fsw.core.nbv import end_reason, predicted_visibility
+from fsw.core.planners import METHODS, PlannerState
+from fsw.core.view_candidates import CandidateView
+from fsw.executive.commands import CommandDef, CommandError
+from fsw.executive.task import Task
+from fsw.executive.telemetry import Channel, EventDef, Severity
+from fsw.tasks.radio_task import RADIO_SEND, RadioSendRequest
+from fsw.tasks.messages import (
+    CAMERA_REQUEST,
+    MAP_UPDATED,
+    MOTION_REQUEST,
+    MOTION_STATUS,
+    NAV_POSE,
+    NBV_REQUEST,
+    NBV_RESULT,
+    CaptureRequest,
+    MapUpdate,
+    MotionRequest,
+    MotionStatus,
+    NavPose,
+)
+
+STATES = ("IDLE", "INIT", "SELECT", "MOVE", "POINT", "ACQUIRE", "TRANSMIT", "DONE", "SAFE")
+
+
+@dataclass(frozen=True, kw_only=True)
+class MissionConfig:
+    """The mapping mission (config ``[mission]``)."""
+
+    method: str = param("5", choices=METHODS, doc="mapping method of ALGORITHM.md §7 (1-5, oracle)")
+    auto_start: bool = param(True, doc="start at boot; otherwise wait for START")
+    panorama_pans_deg: tuple[float, ...] = param((-90.0,), lo=-180.0, hi=180.0, units="deg",
+                                                 doc="mast pans of the step-0 panorama")
+    panorama_tilt_deg: float = param(-35.0, lo=-90.0, hi=30.0, units="deg")
+    panorama_lift_m: float = param(0.5, lo=0.0, hi=2.0, units="m")
+    park_joints: tuple[float, float, float] = param((0.0, -30.0, 0.0), doc="SAFE mast pose: pan deg, tilt deg, lift m")
+    capture_retries: int = param(2, lo=0, hi=20, doc="retries of a pair that did not arrive")
+    step_timeout_s: float = param(300.0, lo=1.0, hi=1e5, units="s", doc="longest wait for one request")
+    transmit: bool = param(True, doc="send the map to the Cliff-bot at the end")
+    safe_recover_s: float = param(0.0, lo=0.0, hi=1e5, units="s", doc="0: SAFE waits for RESUME")
+
+
+@dataclass
+class StepRecord:
+    """One imaging step of the run summary (docs/experiments.md, summary.json)."""
+
+    step: int
+    mapped_cells: int
+    expected_new_cells: float
+    obtained_new_cells: int
+    pose: dict[str, float]
+    wall_s: float
+    sim_s: float
+
+
+class MissionTask(Task):
+    KIND: ClassVar[str] = "mission"
+    DOC: ClassVar[str] = "Mission sequencer: panorama, next view, move, acquire, transmit; SAFE on faults."
+    CHANNELS = (
+        Channel("state", doc=", ".join(STATES)),
+        Channel("state_code", "", doc="index of the state in the list above"),
+        Channel("step", "count", doc="imaging steps done"),
+        Channel("mapped_cells", "cells"),
+        Channel("edge_violations", "count", hi=0, doc="moves refused by the geofence"),
+        Channel("safe_entries", "count", hi=0),
+    )
+    EVENTS = (
+        EventDef("STATE", Severity.ACTIVITY_HI, "mission {old} -> {new}"),
+        EventDef("STEP", Severity.ACTIVITY_HI, "step {step}: {mapped} cells mapped (+{new}, expected {exp:.0f})"),
+        EventDef("END", Severity.ACTIVITY_HI, "mapping ends: {reason}"),
+        EventDef("GEOFENCE", Severity.WARNING_HI, "move to ({x:.2f}, {y:.2f}) refused: {reason}"),
+        EventDef("SAFE", Severity.WARNING_HI, "SAFE mode: {reason}"),
+        EventDef("RETRY", Severity.WARNING_LO, "{what} failed ({reason}); retry {n}", throttle=5),
+        EventDef("TRANSMITTED", Severity.ACTIVITY_HI, "map transmission ended: {state}"),
+    )
+    COMMANDS = (
+        CommandDef("START", doc="start the mission (from IDLE or DONE)"),
+        CommandDef("ABORT", doc="stop mapping, enter SAFE"),
+        CommandDef("RESUME", doc="leave SAFE and continue where the mission stood"),
+    )
+
+    def setup(self) -> None:
+        cfg = self.ctx.cfg
+        self.mcfg: MissionConfig = cfg.mission
+        self.grid = MapGrid.from_config(cfg.map)
+        self.geofence = Geofence(cfg.geofence, cfg.rover)
+        self.nav_box = self.subscribe(NAV_POSE, depth=1)
+        self.status_box = self.subscribe(MOTION_STATUS, depth=8)
+        self.map_box = self.subscribe(MAP_UPDATED, depth=4)
+        self.nbv_box = self.subscribe(NBV_RESULT, depth=2)
+        self.nav: NavPose | None = None
+        self.state = "IDLE"
+        self.resume_state = "SELECT"
+        self.records: list[StepRecord] = []
+        self.step = 0
+        self.view: CandidateView | None = None
+        self.pending: list[CandidateView] = []
+        self.latest: MapUpdate | None = None
+        self.edge: EdgeModel | None = None
+        self.request_id = 0
+        self.waiting_for: int | None = None
+        self.deadline = math.inf
+        self.retries = 0
+        self.edge_violations = 0
+        self.safe_entries = 0
+        self.end: str | None = None
+        self.t_wall0 = time.perf_counter()
+        self._safe_since = 0.0
+        self._auto_start = self.mcfg.auto_start
+
+    # -- plumbing ---------------------------------------------------------------------------
+    def _goto(self, new: str) -> None:
+        if new != self.state:
+            self.event("STATE", old=self.state, new=new)
+            self.state = new
+        self.tlm("state", new)
+        self.tlm("state_code", STATES.index(new))
+
+    def _request(self, **kw: Any) -> None:
+        self.request_id += 1
+        self.waiting_for = self.request_id
+        self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
+        self.publish(MOTION_REQUEST, MotionRequest(self.request_id, **kw))
+
+    def _motion_outcome(self) -> MotionStatus | None:
+        for st in self.status_box.drain():
+            if st.request_id == self.waiting_for:
+                self.waiting_for = None
+                return st
+        return None
+
+    def _timed_out(self) -> bool:
+        return self.ctx.clock.now() > self.deadline
+
+    # -- the cycle ------------------------------------------------------------------------------
+    def run(self, frame: int) -> None:
+        if self._auto_start:
+            self._auto_start = False
+            self._goto("INIT")
+        self.nav = self.nav_box.latest() or self.nav
+        for up in self.map_box.drain():
+            self._on_map(up)
+        handler = getattr(self, f"_state_{self.state.lower()}")
+        handler()
+        self.tlm("step", self.step)
+        self.tlm("edge_violations", self.edge_violations)
+        self.tlm("safe_entries", self.safe_entries)
+        if self.latest is not None:
+            self.tlm("mapped_cells", self.latest.mapped_cells)
+
+    def _state_idle(self) -> None:
+        pass
+
+    def _state_done(self) -> None:
+        pass
+
+    def _state_init(self) -> None:
+        if self.nav is None:
+            return  # wait for the first pose estimate
+        m = self.mcfg
+        rover = (self.nav.x, self.nav.y, self.nav.yaw)
+        self.pending = [CandidateView(rover, (math.radians(p), math.radians(m.panorama_tilt_deg), m.panorama_lift_m),
+                                      method="panorama") for p in m.panorama_pans_deg]
+        self.step = 0
+        self._next_view()
+
+    def _next_view(self) -> None:
+        """Take the next pending view (panorama), or ask the planner for one."""
+        if self.pending:
+            self.view = self.pending.pop(0)
+            self._start_move()
+            return
+        reason = self._end_reason()
+        if reason is not None:
+            self._finish_mapping(reason)
+            return
+        self._goto("SELECT")
+        self.publish(NBV_REQUEST, self._planner_state())
+        self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
+
+    def _state_select(self) -> None:
+        if self.nbv_box.dropped and len(self.nbv_box) == 0 and self._timed_out():
+            self._enter_safe("next-view search timed out")
+            return
+        if len(self.nbv_box) == 0:
+            if self._timed_out():
+                self._enter_safe("next-view search timed out")
+            return
+        view: CandidateView | None = self.nbv_box.get()
+        if view is None:
+            self._finish_mapping("no reachable view worth taking")
+            return
+        self.view = view
+        self._start_move()
+
+    def _start_move(self) -> None:
+        assert self.view is not None and self.nav is not None
+        here = (self.nav.x, self.nav.y, self.nav.yaw)
+        there = self.view.rover
+        if math.hypot(there[0] - here[0], there[1] - here[1]) < 0.02 and abs(
+                math.remainder(there[2] - here[2], math.tau)) < math.radians(1.0):
+            self._start_point()
+            return
+        self.geofence.set_edge(self.edge)
+        verdict = self.geofence.check(here, there)
+        if not verdict.allowed:
+            self.edge_violations += 1
+            self.event("GEOFENCE", x=there[0], y=there[1], reason=verdict.reason)
+            self._enter_safe(f"geofence refused the move: {verdict.reason}")
+            return
+        self._goto("MOVE")
+        self._request(kind="goto", target=there)
+
+    def _state_move(self) -> None:
+        st = self._motion_outcome()
+        if st is None:
+            if self._timed_out():
+                self._enter_safe("rover move timed out")
+            return
+        if st.state != "done":
+            self._enter_safe(f"rover move {st.state}: {st.reason}")
+            return
+        self._start_point()
+
+    def _start_point(self) -> None:
+        assert self.view is not None
+        self._goto("POINT")
+        self._request(kind="mast", joints=self.view.joints)
+
+    def _state_point(self) -> None:
+        st = self._motion_outcome()
+        if st is None:
+            if self._timed_out():
+                self._enter_safe("mast move timed out")
+            return
+        if st.state != "done":
+            self._enter_safe(f"mast move {st.state}: {st.reason}")
+            return
+        self._capture()
+
+    def _capture(self) -> None:
+        assert self.view is not None
+        pv = None
+        if self.latest is not None:
+            pose = self.view.camera_pose(self.ctx.cfg.mast)
+            pv = predicted_visibility(self.latest.snapshot, pose, self.ctx.cfg.camera, self.ctx.cfg.nbv.visibility)
+        self._goto("ACQUIRE")
+        self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
+        self._acquire_view_id = self.step
+        self.publish(CAMERA_REQUEST, CaptureRequest(self.step, pv, self.view.expected_new_cells))
+
+    def _state_acquire(self) -> None:
+        if self._timed_out():
+            if self.retries < self.mcfg.capture_retries:
+                self.retries += 1
+                self.event("RETRY", what=f"view {self.step}", reason="no merged pair", n=self.retries)
+                self._capture()
+            else:
+                self._enter_safe("no stereo pair after retries")
+
+    def _on_map(self, up: MapUpdate) -> None:
+        prev = self.latest
+        self.latest = up
+        if up.edge is not None and not up.edge.empty:
+            self.edge = up.edge
+        if self.state != "ACQUIRE" or up.view_id != self.step:
+            return
+        self.retries = 0
+        assert self.view is not None
+        before = prev.mapped_cells if prev is not None else 0
+        rec = StepRecord(
+            step=self.step, mapped_cells=up.mapped_cells,
+            expected_new_cells=float(self.view.expected_new_cells), obtained_new_cells=up.mapped_cells - before,
+            pose={"x": self.view.rover[0], "y": self.view.rover[1], "yaw": self.view.rover[2],
+                  "pan": self.view.joints[0], "tilt": self.view.joints[1], "lift": self.view.joints[2]},
+            wall_s=time.perf_counter() - self.t_wall0, sim_s=self.ctx.clock.now())
+        if self.pending:  # panorama views accumulate into step 0
+            if self.records and self.records[-1].step == self.step:
+                self.records[-1] = rec
+            else:
+                self.records.append(rec)
+            self._next_view()
+            return
+        if self.records and self.records[-1].step == self.step:
+            rec.obtained_new_cells = up.mapped_cells - (self.records[-2].mapped_cells if len(self.records) > 1 else 0)
+            self.records[-1] = rec
+        else:
+            self.records.append(rec)
+        self.event("STEP", step=self.step, mapped=up.mapped_cells, new=rec.obtained_new_cells,
+                   exp=rec.expected_new_cells)
+        self.step += 1
+        self._next_view()
+
+    # -- planning inputs -------------------------------------------------------------------
+    def _planner_state(self) -> PlannerState:
+        assert self.nav is not None and self.latest is not None
+        cfg = self.ctx.cfg
+        path = edge_path(self.edge, cfg.edge.setback_m, cfg.edge.path_spacing_m) if self.edge is not None \
+            else np.zeros((0, 3))
+        self.geofence.set_edge(self.edge)
+        sigma = float(np.sqrt(max(0.0, (self.nav.cov[0, 0] + self.nav.cov[1, 1]) / 2)))
+        return PlannerState(
+            map=self.latest.snapshot, rover=(self.nav.x, self.nav.y, self.nav.yaw), joints=self.nav.joints,
+            path=path, motion_ok=lambda a, b: self.geofence.check(a, b).allowed,
+            edge_xy=None if self.edge is None else self.edge.points_xy, ground_z_m=0.0, sigma_loc_m=sigma)
+
+    def _end_reason(self) -> str | None:
+        if self.latest is None:
+            return "no map"
+        mapped_fraction = 0.0
+        if self.edge is not None and not self.edge.empty:
+            X, Y = self.grid.centers()
+            below = self.edge.signed_distance(np.column_stack([X.ravel(), Y.ravel()])) < 0
+            roi = below.reshape(self.grid.shape)
+            if roi.any():
+                mapped_fraction = float((self.latest.snapshot.mapped & roi).sum() / roi.sum())
+        return end_reason(self.step - 1, None, mapped_fraction, self.ctx.cfg.nbv)
+
+    # -- the end -------------------------------------------------------------------------------
+    def _finish_mapping(self, reason: str) -> None:
+        self.end = reason
+        self.event("END", reason=reason)
+        if self.mcfg.transmit and "radio" in self.ctx.resources.get("executive").tasks:
+            self._goto("TRANSMIT")
+            self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
+            self.publish(RADIO_SEND, RadioSendRequest(map_id=1))
+        else:
+            self._goto("DONE")
+
+    def _state_transmit(self) -> None:
+        state = self.ctx.telemetry.get("radio.state")
+        if state in ("done", "rejected", "failed") or self._timed_out():
+            self.event("TRANSMITTED", state=state if not self._timed_out() else "timeout")
+            self._goto("DONE")
+
+    # -- SAFE ----------------------------------------------------------------------------------
+    def _enter_safe(self, reason: str) -> None:
+        self.safe_entries += 1
+        self.resume_state = self.state
+        self.event("SAFE", reason=reason)
+        self._goto("SAFE")
+        self._safe_since = self.ctx.clock.now()
+        p = self.mcfg.park_joints
+        self.publish(MOTION_REQUEST, MotionRequest(0, "stop"))
+        self.publish(MOTION_REQUEST, MotionRequest(0, "mast", joints=(math.radians(p[0]), math.radians(p[1]), p[2])))
+        self.waiting_for = None
+
+    def _state_safe(self) -> None:
+        if self.mcfg.safe_recover_s > 0 and self.ctx.clock.now() - self._safe_since >= self.mcfg.safe_recover_s:
+            self.cmd_RESUME()
+
+    def cmd_START(self) -> None:
+        if self.state not in ("IDLE", "DONE"):
+            raise CommandError(f"mission already running ({self.state})")
+        self._goto("INIT")
+
+    def cmd_ABORT(self) -> None:
+        if self.state in ("IDLE", "DONE", "SAFE"):
+            raise CommandError(f"nothing to abort ({self.state})")
+        self._enter_safe("aborted by command")
+
+    def cmd_RESUME(self) -> None:
+        if self.state != "SAFE":
+            raise CommandError("not in SAFE")
+        self._goto("SELECT")
+        self.pending.clear()
+        self._next_view()

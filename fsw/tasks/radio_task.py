@@ -1,0 +1,180 @@
+"""The radio task: sends the map to the Cliff-bot over the map link (ALGORITHM.md §6).
+
+Thin (ARCHITECTURE.md, tasks). It keeps the latest map snapshot (``map.updated``); a
+``SEND_MAP`` command or a :class:`RadioSendRequest` on ``radio.send`` (the mission's last
+step) encodes that snapshot in a slack job (quadtree + codec, ``fsw.core.mapcodec``, the
+wheel diameter from ``[rover]``) and hands the container to the sans-I/O
+:class:`~fsw.comm.link_sender.LinkSender`. Every activation it feeds the radio's datagrams
+to the link and sends what the link's pacing allows, never more than its byte budget
+(``[link] rate_bps`` over two activation periods), then reports the link's events and
+counters. The radio is the ``radio_port`` resource, or ``[link] transport`` opened here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from fsw.comm.link_packets import DATA_OVERHEAD
+from fsw.comm.link_sender import LinkSender, SenderState
+from fsw.core.mapcodec import encode_map
+from fsw.drivers.radio import RadioPort, open_radio
+from fsw.executive.commands import Arg, CommandDef
+from fsw.executive.task import Task
+from fsw.executive.telemetry import Channel, EventDef, Severity
+from fsw.tasks.messages import MAP_UPDATED
+
+RADIO_SEND = "radio.send"
+
+
+@dataclass(frozen=True)
+class RadioSendRequest:
+    """Ask the radio task to encode the latest map and send it as ``map_id``."""
+
+    map_id: int
+
+
+class RadioTask(Task):
+    KIND: ClassVar[str] = "radio"
+    DOC: ClassVar[str] = "Map link to the Cliff-bot: encode the map, send it within a byte budget."
+    CHANNELS = (
+        Channel("state", doc="link sender state: idle, offering, sending, done, rejected, failed"),
+        Channel("acked_pct", "%", doc="segments of the current map acknowledged"),
+        Channel("map_bytes", "B", doc="size of the map being sent"),
+        Channel("tx_bytes", "B", doc="radio bytes sent since start"),
+        Channel("frame_bytes", "B", doc="bytes sent in the last activation (<= budget)"),
+        Channel("retransmits", "count"),
+        Channel("bad_packets", "count", hi=0, doc="datagrams refused (CRC, format)"),
+        Channel("radio_faults", "count", hi=0, doc="radio driver fault word"),
+        Channel("srtt_ms", "ms", doc="smoothed round-trip time of the link"),
+        Channel("maps_delivered", "count"),
+    )
+    EVENTS = (
+        EventDef("ENCODED", Severity.ACTIVITY_HI, "map {map_id}: {cells} cells -> {bytes} B, "
+                 "{leaves} leaves, max error {max_error_m:.3f} m"),
+        EventDef("ENCODE_FAILED", Severity.WARNING_HI, "map {map_id} not encoded: {error}"),
+        EventDef("NO_MAP", Severity.WARNING_LO, "no map to send yet"),
+        EventDef("BUSY", Severity.WARNING_LO, "map {map_id} refused: map {current} still in transfer"),
+        EventDef("OFFERED", Severity.ACTIVITY_LO, "map {map_id}: offered {size} B in {segments} segments"),
+        EventDef("ACCEPTED", Severity.ACTIVITY_LO, "map {map_id}: the Cliff-bot accepted"),
+        EventDef("REJECTED", Severity.WARNING_HI, "map {map_id}: the Cliff-bot rejected it ({reason})"),
+        EventDef("DELIVERED", Severity.ACTIVITY_HI, "map {map_id}: {size} B delivered and verified in {seconds} s"),
+        EventDef("LINK_LOST", Severity.WARNING_HI, "map {map_id}: no answer for {silent_s} s, transfer failed"),
+        EventDef("HASH_MISMATCH_RESEND", Severity.WARNING_LO, "map {map_id}: hash mismatch, resend {attempt}"),
+        EventDef("HASH_MISMATCH_GIVE_UP", Severity.WARNING_HI, "map {map_id}: hash mismatch, gave up"),
+        EventDef("RADIO_ERROR", Severity.WARNING_LO, "radio: {text}", throttle=5),
+    )
+    COMMANDS = (
+        CommandDef("SEND_MAP", (Arg("map_id", int, lo=0, hi=2**32 - 1),),
+                   doc="encode the latest map and send it to the Cliff-bot"),
+        CommandDef("ABORT", doc="stop the current transfer"),
+    )
+
+    def setup(self) -> None:
+        cfg = self.ctx.cfg
+        self.link_cfg = cfg.link
+        port = self.ctx.resources.get("radio_port")
+        if port is None:
+            port = open_radio(cfg.link.transport, cfg.link.peer)
+        self.port: RadioPort = port
+        self.sender = LinkSender(cfg.link, session=1)
+        self.session = 1
+        self.snapshot: Any = None
+        self.maps_delivered = 0
+        self.encoding: int | None = None
+        period = self.ctx.frame_period_s * max(1, self._divisor())
+        self.budget_bytes = max(int(cfg.link.rate_bps / 8 * period * 2),
+                                cfg.link.segment_bytes + DATA_OVERHEAD)
+        self.map_box = self.subscribe(MAP_UPDATED, depth=1)
+        self.send_box = self.subscribe(RADIO_SEND, depth=4)
+
+    def _divisor(self) -> int:
+        cfg = self.ctx.cfg.executive
+        task = next((t for t in cfg.tasks if t.name == self.name), None)
+        group = next((g for g in cfg.groups if task is not None and g.name == task.group), None)
+        return group.divisor if group is not None else 1
+
+    # -- commands ------------------------------------------------------------------------------
+    def cmd_SEND_MAP(self, map_id: int) -> None:
+        self._request(map_id)
+
+    def cmd_ABORT(self) -> None:
+        self.sender = LinkSender(self.link_cfg, session=self._next_session())
+
+    # -- the work --------------------------------------------------------------------------------
+    def run(self, frame: int) -> None:
+        now = self.ctx.clock.now()
+        upd = self.map_box.latest()
+        if upd is not None:
+            self.snapshot = upd.snapshot
+        for req in self.send_box.drain():
+            self._request(req.map_id)
+        d = self.port.recv(0.0, now)
+        while d is not None:
+            self.sender.receive(d, now)
+            d = self.port.recv(0.0, now)
+        sent = 0
+        for pkt in self.sender.poll(now, max_bytes=self.budget_bytes):
+            if self.port.send(pkt, now):
+                sent += len(pkt)
+        for ev in self.sender.events.pop_all():
+            if ev.name == "DELIVERED":
+                self.maps_delivered += 1
+            self.event(ev.name, **ev.args)
+        for name, args in self.port.drain_events():
+            self.event("RADIO_ERROR", text=f"{name} {args.get('error', '')}")
+        self._telemetry(sent)
+
+    def _telemetry(self, sent: int) -> None:
+        s = self.sender
+        acked, total = s.progress
+        self.tlm("state", s.state.value)
+        self.tlm("acked_pct", 100.0 * acked / total if total else 0.0)
+        self.tlm("map_bytes", s.map_bytes)
+        self.tlm("tx_bytes", s.stats.bytes_out)
+        self.tlm("frame_bytes", sent)
+        self.tlm("retransmits", s.stats.retransmits)
+        self.tlm("bad_packets", s.stats.bad_packets)
+        self.tlm("radio_faults", self.port.faults)
+        self.tlm("srtt_ms", (s.srtt_s or 0.0) * 1e3)
+        self.tlm("maps_delivered", self.maps_delivered)
+
+    def _next_session(self) -> int:
+        self.session = self.session % 0xFFFF + 1
+        return self.session
+
+    def _request(self, map_id: int) -> None:
+        busy = self.sender.state in (SenderState.OFFERING, SenderState.SENDING)
+        if busy or self.encoding is not None:
+            self.event("BUSY", map_id=map_id, current=self.encoding if self.encoding is not None
+                       else self.sender.map_id)
+            return
+        if self.snapshot is None:
+            self.event("NO_MAP")
+            return
+        z = np.asarray(self.snapshot.z, np.float32).copy()
+        cell_m = float(self.snapshot.grid.cell)
+        self.encoding = map_id
+
+        def job() -> Any:
+            yield
+            return encode_map(z, cell_m=cell_m, wheel_diameter_m=self.ctx.cfg.rover.wheel_diameter_m,
+                              cfg=self.ctx.cfg.codec)
+
+        self.submit_job(job(), f"encode_map_{map_id}", on_done=lambda h: self._encoded(map_id, h))
+
+    def _encoded(self, map_id: int, handle: Any) -> None:
+        self.encoding = None
+        if handle.error is not None:
+            self.event("ENCODE_FAILED", map_id=map_id, error=str(handle.error))
+            return
+        enc = handle.result
+        self.event("ENCODED", map_id=map_id, cells=int(np.prod(enc.tree.shape)), bytes=len(enc.data),
+                   leaves=enc.tree.n_leaves, max_error_m=enc.max_error_m)
+        if len(enc.data) > self.link_cfg.max_map_bytes:
+            self.event("ENCODE_FAILED", map_id=map_id, error="container larger than max_map_bytes")
+            return
+        self.sender = LinkSender(self.link_cfg, session=self._next_session())
+        self.sender.start(map_id, enc.data, self.ctx.clock.now())

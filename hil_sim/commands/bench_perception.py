@@ -1,0 +1,230 @@
+"""``safer-hil bench perception``: speed of the perception chain, and with ``--plot`` the
+variance calibration of the map (ALGORITHM.md §1, §2, §4; docs/perception.md).
+
+Prints, from real runs on rendered pairs of the scenario:
+  * stereo ms per pair (SGBM, filters, triangulation with covariance; 640x480);
+  * points merged per second (one view's world points fused into a fresh map, and a
+    300 000-point batch into the default 256x256 map; target <= 50 ms);
+  * edge fit ms (edge points, polygon and straight-line fits, the set-back path) on the map
+    of a pass along the edge;
+  * checkpoint ms (encode, atomic write with fsync and rename, load and verify).
+Timings are medians of ``--repeats`` runs after a warm-up; on a shared machine they are
+noisy. ``--plot PNG`` also renders ten views of one pit patch and writes the calibration
+figure of predicted sigma against actual error (one view and ten fused), printing the
+calibration figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+HELP = "stereo ms per pair, points merged per second, edge fit ms, checkpoint ms (--plot: PNG)"
+MERGE_TARGET_MS = 50.0
+BATCH_POINTS = 300_000
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenario", default="lab", help="world (hil_sim.world.load_scenario spec)")
+    p.add_argument("--seed", type=int, default=0, help="world and camera-noise seed")
+    p.add_argument("--repeats", type=int, default=5, help="timed runs per figure")
+    p.add_argument("--config", default=None, help="flight config (default config/fsw.toml)")
+    p.add_argument("--plot", default=None, metavar="PNG",
+                   help="also write the variance calibration figure here (e.g. "
+                        "docs/img/perception_calibration.png)")
+
+
+def _median_ms(fn, repeats: int) -> float:  # type: ignore[no-untyped-def]
+    import statistics
+    import time
+
+    fn()  # warm-up
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(1e3 * (time.perf_counter() - t0))
+    return statistics.median(times)
+
+
+def run(args: argparse.Namespace) -> int:
+    import tempfile
+
+    import numpy as np
+
+    from fsw.config import ConfigError
+    from fsw.core import checkpoint
+    from fsw.core.acquire import view_points
+    from fsw.core.edge import edge_cells, edge_path, fit_line, fit_polygon
+    from fsw.core.elevation_map import ElevationMap
+    from fsw.core.geometry import MapGrid
+    from fsw.core.localization import PoseEstimate
+    from fsw.core.stereo import StereoMatcher
+    from fsw.drivers.map_store import MapStore
+    from fsw.settings import DEFAULT_CONFIG, load_settings
+    from hil_sim.perception_eval import edge_pass_poses, pit_view_poses
+    from hil_sim.render import StereoRenderer
+    from hil_sim.world import load_scenario
+
+    if args.repeats < 1:
+        print("safer-hil bench perception: --repeats must be >= 1")
+        return 2
+    try:
+        cfg = load_settings(args.config or DEFAULT_CONFIG)
+        world = load_scenario(args.scenario, args.seed)
+    except (ConfigError, ValueError) as err:
+        print(f"safer-hil bench perception: {err}")
+        return 2
+    grid = MapGrid.from_config(world.map_grid)
+    rend = StereoRenderer(world, cfg.camera, world.noise_sigma, seed=args.seed)
+    matcher = StereoMatcher(cfg.stereo, cfg.camera)
+    exact = np.zeros((6, 6))
+    pose = pit_view_poses(world, cfg.mast, 1)[0]
+    left, right = rend.render(pose)
+    cam = cfg.camera
+    print(f"scenario {world.name} seed {world.seed}, camera {cam.width_px}x{cam.height_px}, "
+          f"SGBM {cfg.stereo.mode} {cfg.stereo.num_disparities_px} disparities, "
+          f"map {grid.nx}x{grid.ny} cells of {100 * grid.cell:g} cm; medians of {args.repeats}")
+
+    ms = _median_ms(lambda: matcher.points(left, right), args.repeats)
+    pts = view_points(matcher, left, right, PoseEstimate(pose, exact))
+    print(f"stereo                {ms:8.1f} ms per pair  ({len(pts.xyz_w)} points)")
+
+    def merge_view() -> None:
+        ElevationMap(grid, cfg.fusion).merge(pts.xyz_w, cov=pts.cov_w)
+
+    ms = _median_ms(merge_view, args.repeats)
+    print(f"merge one view        {ms:8.1f} ms  = {len(pts.xyz_w) / ms / 1e3:6.2f} M points/s")
+    rng = np.random.default_rng(0)
+    X, Y = grid.centers()
+    pick = rng.integers(0, grid.nx * grid.ny, BATCH_POINTS)
+    batch = np.column_stack([X.ravel()[pick] + rng.uniform(-0.015, 0.015, BATCH_POINTS),
+                             Y.ravel()[pick] + rng.uniform(-0.015, 0.015, BATCH_POINTS),
+                             rng.normal(0.0, 0.01, BATCH_POINTS)])
+    cov = np.zeros((BATCH_POINTS, 3, 3))
+    cov[:, 0, 0] = cov[:, 1, 1] = 1e-5
+    cov[:, 2, 2] = 1e-4
+
+    def merge_batch() -> None:
+        ElevationMap(grid, cfg.fusion).merge(batch, cov=cov)
+
+    ms = _median_ms(merge_batch, args.repeats)
+    verdict = "meets" if ms <= MERGE_TARGET_MS else "MISSES"
+    print(f"merge {BATCH_POINTS} points {ms:8.1f} ms  = {BATCH_POINTS / ms / 1e3:6.2f} M points/s "
+          f"({verdict} the {MERGE_TARGET_MS:g} ms target)")
+
+    emap = ElevationMap(grid, cfg.fusion)
+    for p in edge_pass_poses(world, cfg.mast):
+        emap.merge(*_pair_points(rend, matcher, p, exact))
+    seed_xy = world.rover_start[:2]
+
+    def fit() -> None:
+        cells = edge_cells(emap, world.plateau_z, seed_xy, cfg.edge)
+        poly = fit_polygon(emap, cells, cfg.edge)
+        fit_line(cells, seed_xy)
+        edge_path(poly, cfg.edge.setback_m, cfg.edge.path_spacing_m)
+
+    ms = _median_ms(fit, args.repeats)
+    cells = edge_cells(emap, world.plateau_z, seed_xy, cfg.edge)
+    poly = fit_polygon(emap, cells, cfg.edge)
+    print(f"edge fit              {ms:8.1f} ms  ({len(cells.points_xy)} edge points, "
+          f"{poly.lines.length:.2f} m of polygon edge, after {len(edge_pass_poses(world, cfg.mast))}"
+          " views)")
+
+    with tempfile.TemporaryDirectory() as tmp:
+        store = MapStore(checkpoint.CheckpointConfig(directory=tmp, keep=3))
+        seq = iter(range(10**6))
+        ms_enc = _median_ms(lambda: checkpoint.encode(emap, 0, 0.0), args.repeats)
+        ms_save = _median_ms(lambda: store.save(emap, next(seq), 0.0), args.repeats)
+        ms_load = _median_ms(store.load_latest, args.repeats)
+        size = store.paths()[-1].stat().st_size
+    print(f"checkpoint            {ms_save:8.1f} ms save (encode {ms_enc:.1f} ms, fsync, rename), "
+          f"{ms_load:.1f} ms load+verify, {size / 1024:.0f} KiB")
+
+    if args.plot:
+        return _calibration(args, cfg, world, grid, rend, matcher, exact)
+    return 0
+
+
+def _pair_points(rend, matcher, pose, exact):  # type: ignore[no-untyped-def]
+    from fsw.core.acquire import view_points
+    from fsw.core.localization import PoseEstimate
+
+    left, right = rend.render(pose)
+    pts = view_points(matcher, left, right, PoseEstimate(pose, exact))
+    return pts.xyz_w, None, pts.cov_w
+
+
+def _calibration(args, cfg, world, grid, rend, matcher, exact) -> int:  # type: ignore[no-untyped-def]
+    import math
+    from pathlib import Path
+
+    import numpy as np
+
+    from fsw.core.elevation_map import ElevationMap
+    from fsw.core.geometry import CameraPose
+    from fsw.core.localization import point_covariance_parts, so3_exp
+    from hil_sim.perception_eval import (
+        calibration,
+        calibration_figure,
+        cell_range_m,
+        pit_view_poses,
+    )
+
+    truth = world.truth_on_grid(grid)
+    panels = []
+
+    def panel(title: str, emap: ElevationMap, sel: np.ndarray) -> None:
+        ok = sel & np.isfinite(truth) & emap.mapped
+        panels.append((f"{world.name}: {title}", emap.z[ok] - truth[ok], np.sqrt(emap.var[ok])))
+
+    pose = pit_view_poses(world, cfg.mast, 1)[0]
+    xyz, _, cov = _pair_points(rend, matcher, pose, exact)
+    one = ElevationMap(grid, cfg.fusion)
+    one.merge(xyz, cov=cov)
+    r = cell_range_m(grid, truth, pose)
+    near = (r >= 2.0) & (r <= 4.0)
+    print("calibration (cells at 2-4 m):")
+    print(f"  one view, true pose: {calibration(one.z, one.var, truth, one.mapped & near).line()}")
+    panel("one view, true pose (2-4 m)", one, near)
+
+    # the pose term: the same view seen from poses drawn from a pose covariance
+    S = np.diag([math.radians(0.2) ** 2] * 3 + [0.01**2] * 3)
+    xyz_c, cov_c = pose.world_to_camera(xyz), np.matmul(np.matmul(pose.R.T, cov), pose.R)
+    rng = np.random.default_rng(args.seed)
+    errs, sigs = [], []
+    for _ in range(25):
+        dx = np.sqrt(np.diag(S)) * rng.normal(size=6)
+        est = CameraPose(so3_exp(dx[:3]) @ pose.R, pose.t + dx[3:])
+        pts, cs, cp = point_covariance_parts(est, S, xyz_c, cov_c)
+        m = ElevationMap(grid, cfg.fusion)
+        m.merge(pts, cov=cs + cp, cov_common=cp)
+        ok = m.mapped & near & np.isfinite(truth)
+        errs.append(m.z[ok] - truth[ok])
+        sigs.append(np.sqrt(m.var[ok]))
+    err, sig = np.concatenate(errs), np.concatenate(sigs)
+    print(f"  one view, pose sigma 0.2 deg / 1 cm, 25 draws: RMS error "
+          f"{100 * np.sqrt(np.mean(err**2)):.2f} cm, |err| <= 2 sigma for "
+          f"{100 * np.mean(np.abs(err) <= 2 * sig):.1f} % of {err.size} cell-draws")
+    panels.append((f"{world.name}: one view, pose 0.2 deg / 1 cm (25 draws)", err, sig))
+
+    fused = ElevationMap(grid, cfg.fusion)
+    masks = []
+    for i, p in enumerate(pit_view_poses(world, cfg.mast, 10, seed=1)):
+        xyz, _, cov = _pair_points(rend, matcher, p, exact)
+        m = ElevationMap(grid, cfg.fusion)
+        m.merge(xyz, cov=cov)
+        fused.merge(xyz, cov=cov)
+        rr = cell_range_m(grid, truth, p)
+        masks.append(m.mapped & (rr >= 2.0) & (rr <= 4.0))
+        print(f"  view {i} of 10: {calibration(m.z, m.var, truth, masks[-1]).line()}")
+    common = np.all(masks, axis=0)
+    print(f"  10 views fused: {calibration(fused.z, fused.var, truth, common).line()}")
+    panel("10 views fused (cells seen by all)", fused, common)
+    try:
+        Path(args.plot).parent.mkdir(parents=True, exist_ok=True)
+        calibration_figure(args.plot, panels)
+    except OSError as err:
+        print(f"safer-hil bench perception: cannot write {args.plot}: {err}")
+        return 2
+    print(f"wrote {args.plot}")
+    return 0

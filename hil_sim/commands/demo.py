@@ -1,0 +1,23 @@
+"""``safer-hil demo``: the default mission (lab, method 5) end to end; prints where its report is."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+HELP = "the default HIL mission end to end (lab scenario, method 5, 20 steps)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--steps", type=int, default=20, help="imaging steps after the panorama")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", type=Path, default=Path("out/demo"), help="report directory")
+
+
+def run(args: argparse.Namespace) -> int:
+    from fsw.settings import DEFAULT_CONFIG
+    from hil_sim.commands import run as run_cmd
+
+    ns = argparse.Namespace(scenario="lab", method="5", steps=args.steps, seed=args.seed, out=args.out,
+                            config=str(DEFAULT_CONFIG), no_transmit=False)
+    return run_cmd.run(ns)

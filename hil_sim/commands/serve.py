@@ -1,0 +1,185 @@
+"""``safer-hil serve``: the multi-process, real-time bench. This process plays the hardware.
+
+It steps the hardware rig (true rover and mast over the scenario's terrain, the twelve CAN
+motor controllers, the serial mast controller) on the real-time clock and serves:
+
+* CAN on python-can ``udp_multicast`` (group and port below; loopback on one machine);
+* the mast's serial line on a pty (``/dev/pts/N``, optionally symlinked) or on
+  ``socket://127.0.0.1:PORT``;
+* rendered stereo pairs on ``tcp://127.0.0.1:PORT`` (:mod:`fsw.comm.camera_frames`).
+
+It prints the endpoints and writes a flight config (``--flight-config``: the base config with
+its ``[devices]`` table pointing at them), so the flight software connects with unchanged
+code: ``safer-fsw run --config FILE``. The true state is printed every ``--report-period``
+seconds and at exit as ``TRUTH {json}``. Stop with Ctrl-C (or SIGTERM) or ``--duration``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import time
+from pathlib import Path
+
+HELP = "multi-process real-time bench: play the hardware over udp_multicast CAN, a pty/socket and a camera socket"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--scenario", default="lab", help="world spec (lab, cliff, mars, file:PATH) or 'flat' (level ground, no camera)"
+    )
+    p.add_argument("--seed", type=int, default=0, help="seed of world, truth errors and faults")
+    p.add_argument("--config", default=None, help="flight config the hardware is sized from (default config/fsw.toml)")
+    p.add_argument("--hardware", default=None, help="hardware config (default config/hil_hardware.toml)")
+    p.add_argument("--faults", default=None, help="TOML file with [[faults]] tables to inject")
+    p.add_argument("--can-channel", default="239.74.163.2", help="udp_multicast group address")
+    p.add_argument("--can-port", type=int, default=43113, help="udp_multicast port")
+    p.add_argument("--serial", choices=("pty", "tcp"), default="pty", help="mast serial line transport")
+    p.add_argument("--serial-port", type=int, default=0, help="tcp: port to listen on (0: any free)")
+    p.add_argument("--pty-link", default=None, help="pty: also make this symlink to the slave device")
+    p.add_argument("--camera-port", type=int, default=0, help="camera server port (0: any free)")
+    p.add_argument("--rate-hz", type=float, default=50.0, help="hardware model update rate")
+    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
+    p.add_argument("--report-period", type=float, default=1.0, metavar="S", help="truth report period (0: none)")
+    p.add_argument(
+        "--flight-config", default=None, metavar="FILE", help="write the flight config for these endpoints here"
+    )
+    p.add_argument("--can-log", default=None, metavar="FILE", help="record the CAN traffic (.log/.asc/.blf)")
+
+
+def devices_table(base: dict, endpoints: dict) -> str:
+    """The ``[devices]`` TOML table: the base config's values with the endpoints set."""
+    values = {**base, **endpoints}
+    lines = ["[devices]  # written by safer-hil serve"]
+    for k, v in values.items():
+        lines.append(f"{k} = {json.dumps(v) if isinstance(v, str) else repr(v).lower() if isinstance(v, bool) else v}")
+    return "\n".join(lines) + "\n"
+
+
+def write_flight_config(base_path: Path, out: Path, endpoints: dict) -> None:
+    """Copy ``base_path`` to ``out`` with its ``[devices]`` table replaced (comments kept)."""
+    import tomllib
+
+    text = base_path.read_text()
+    base = tomllib.loads(text).get("devices", {})
+    lines = text.splitlines(keepends=True)
+    start = next((i for i, ln in enumerate(lines) if ln.strip().startswith("[devices]")), None)
+    table = devices_table(base, endpoints)
+    if start is None:
+        new = text + "\n" + table
+    else:
+        end = next((j for j in range(start + 1, len(lines)) if lines[j].lstrip().startswith("[")), len(lines))
+        new = "".join(lines[:start]) + table + "\n" + "".join(lines[end:])
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(new)
+
+
+def run(args: argparse.Namespace) -> int:
+    import can
+
+    from fsw.config import ConfigError
+    from fsw.settings import DEFAULT_CONFIG, load_settings
+    from hil_sim.faults import FaultInjector, load_faults
+    from hil_sim.hw.camera_server import CameraServer
+    from hil_sim.hw.ports import PtyDevicePort, TcpDevicePort
+    from hil_sim.rig import DEFAULT_HARDWARE, HardwareRig, load_hardware
+
+    if args.rate_hz <= 0 or (args.duration is not None and args.duration <= 0):
+        print("safer-hil serve: --rate-hz and --duration must be positive", file=sys.stderr)
+        return 2
+    base_cfg = Path(args.config or DEFAULT_CONFIG)
+    try:
+        fsw = load_settings(base_cfg)
+        hw = load_hardware(args.hardware or DEFAULT_HARDWARE)
+        faults = load_faults(args.faults) if args.faults else ()
+        world = None
+        if args.scenario != "flat":
+            from hil_sim.world import load_scenario
+
+            world = load_scenario(args.scenario, args.seed)
+    except (ConfigError, ValueError) as err:
+        print(f"safer-hil serve: {err}", file=sys.stderr)
+        return 2
+    try:
+        bus = can.Bus(interface="udp_multicast", channel=args.can_channel, port=args.can_port, fd=False)
+    except (can.CanError, OSError, ValueError) as err:
+        print(f"safer-hil serve: cannot open udp_multicast {args.can_channel}:{args.can_port}: {err}", file=sys.stderr)
+        return 2
+    port = PtyDevicePort(args.pty_link) if args.serial == "pty" else TcpDevicePort("127.0.0.1", args.serial_port)
+    serial_url = port.path if isinstance(port, PtyDevicePort) else port.url
+    injector = FaultInjector(args.seed, faults)
+    rig = HardwareRig(world, fsw, hw, args.seed, bus, port, injector)
+    camera = (
+        CameraServer(rig.render_pair, injector, "127.0.0.1", args.camera_port).start() if world is not None else None
+    )
+    logger = can.Logger(args.can_log) if args.can_log else None
+    if logger is not None:  # udp_multicast delivers every frame on the bus, ours included
+        rig.motors.tap = logger.on_message_received
+    endpoints = {
+        "can_interface": "udp_multicast",
+        "can_channel": args.can_channel,
+        "can_udp_port": args.can_port,
+        "serial_url": serial_url,
+        "camera_source": f"tcp://{camera.address[0]}:{camera.address[1]}" if camera else "none",
+    }
+    print(f"safer-hil serve: hardware up (scenario {args.scenario}, seed {args.seed}, {args.rate_hz:g} Hz)")
+    print(f"  CAN     udp_multicast group {args.can_channel} port {args.can_port} (DBC config/rover.dbc)")
+    print(f"  serial  {serial_url}" + (f" (link {args.pty_link})" if args.pty_link else ""))
+    print(f"  camera  {endpoints['camera_source']}")
+    if args.flight_config:
+        write_flight_config(base_cfg, Path(args.flight_config), endpoints)
+        print(f"  flight  safer-fsw run --config {args.flight_config}")
+    print("READY", flush=True)
+
+    stop = {"flag": False}
+
+    def _stop(*_: object) -> None:
+        stop["flag"] = True
+
+    signal.signal(signal.SIGTERM, _stop)
+    signal.signal(signal.SIGINT, _stop)
+    period = 1.0 / args.rate_hz
+    t0 = time.monotonic()
+    k, t_prev, t_report = 0, 0.0, 0.0
+    try:
+        while not stop["flag"]:
+            k += 1
+            deadline = t0 + k * period
+            time.sleep(max(0.0, deadline - time.monotonic()))
+            now = time.monotonic() - t0
+            rig.step(now, now - t_prev)
+            t_prev = now
+            if args.report_period and now - t_report >= args.report_period:
+                t_report = now
+                tr = rig.truth()
+                print(
+                    f"[{now:8.2f}] x {tr['x_m']:.3f} y {tr['y_m']:.3f} yaw {tr['yaw_deg']:.1f} deg  "
+                    f"pan {tr['pan_deg']:.1f} tilt {tr['tilt_deg']:.1f} lift {tr['lift_m']:.3f}  "
+                    f"can rx {rig.motors.rx_commands} tx {rig.motors.tx_frames}  mast acks {rig.mast_ctrl.acks}",
+                    flush=True,
+                )
+            if args.duration is not None and now >= args.duration:
+                break
+    finally:
+        print(
+            "TRUTH "
+            + json.dumps(
+                {
+                    **rig.truth(),
+                    "can_commands": rig.motors.rx_commands,
+                    "can_bad": rig.motors.rx_bad,
+                    "mast_moves": rig.mast_ctrl.moves,
+                    "camera_served": camera.served if camera else 0,
+                }
+            ),
+            flush=True,
+        )
+        if camera is not None:
+            camera.close()
+        port.close()
+        bus.shutdown()
+        if logger is not None:
+            logger.stop()
+    return 0

@@ -1,0 +1,191 @@
+"""One lockstep mission on the bench, and its summary (``safer-hil run``, ``make demo``).
+
+The flight executive with its full schedule (config/fsw.toml) runs against the hardware rig
+in lockstep (``hil_sim.bench.LockstepBench``); the radio runs through the seeded channel
+model to the Cliff-bot receiver. The runner only watches: it never steers the flight code.
+It records, per imaging step, what the mission task recorded, and from the world truth the
+map error and any wheel over the drop (an edge violation).
+
+``summary.json`` schema (stable; docs/experiments.md): ``schema`` (1), ``scenario``,
+``method``, ``seed``, ``steps`` (list of ``{step, mapped_cells, expected_new_cells,
+obtained_new_cells, pose{x,y,yaw,pan,tilt,lift}, wall_s, sim_s}``), ``map_rmse_m``,
+``edge_violations``, ``geofence_refusals``, ``slips``, ``overruns``, ``task_max_ms``
+({task: ms}), ``end_reason``, ``final_state``, ``mapped_cells``, ``frames``, ``sim_s``,
+``wall_s``, ``cliffbot`` (the Cliff-bot's report, or null), ``files``. Wall-clock fields:
+``wall_s`` (top level and per step) and ``task_max_ms``; everything else is a function of
+the inputs and the seed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fsw.core.geometry import MapGrid
+from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
+
+WALL_CLOCK_FIELDS = ("wall_s", "task_max_ms")
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    scenario: str = "lab"
+    method: str = "5"
+    steps: int = 20
+    seed: int = 0
+    config: str = str(DEFAULT_CONFIG)
+    transmit: bool = True
+    out: Path | None = None
+
+
+def mission_config(spec: RunSpec, world: Any) -> FswConfig:
+    """The flight configuration of the run: the file, with the scenario's map and the method."""
+    cfg = load_settings(spec.config)
+    mav = cfg.mavlink
+    if spec.out is not None:
+        mav = dataclasses.replace(mav, tlog_path=str(spec.out / "fsw.tlog"))
+    ckpt = cfg.checkpoint
+    if spec.out is not None:
+        ckpt = dataclasses.replace(ckpt, directory=str(spec.out / "checkpoints"))
+    return dataclasses.replace(
+        cfg, map=world.map_grid, mavlink=mav, checkpoint=ckpt,
+        mission=dataclasses.replace(cfg.mission, method=spec.method, transmit=spec.transmit, auto_start=True),
+        nbv=dataclasses.replace(cfg.nbv, max_steps=spec.steps))
+
+
+def run_mission(spec: RunSpec, progress: Callable[[int, int, str], None] | None = None,
+                max_sim_s: float | None = None) -> dict[str, Any]:
+    """Run one mission to DONE (or SAFE, or the time limit) and return its summary."""
+    from hil_sim.bench import LockstepBench
+    from hil_sim.cliffbot_receiver import Cliffbot
+    from hil_sim.radio_channel import ChannelPort, RadioChannel, RadioChannelConfig
+    from hil_sim.world import load_scenario
+
+    t_wall = time.perf_counter()
+    world = load_scenario(spec.scenario, seed=spec.seed)
+    cfg = mission_config(spec, world)
+    grid = MapGrid.from_config(cfg.map)
+    truth = world.truth_on_grid(grid)
+    oracle = {"z": truth, "textured": ~world.textureless_on_grid(grid)}
+    channel = RadioChannel(RadioChannelConfig(), seed=spec.seed)
+    clock_box: list[Callable[[], float]] = []
+
+    def now() -> float:
+        return clock_box[0]() if clock_box else 0.0
+
+    port_flight = ChannelPort(channel, "a", now)
+    if spec.out is not None:
+        spec.out.mkdir(parents=True, exist_ok=True)
+    with LockstepBench(cfg, world, seed=spec.seed, quiet=True,
+                       resources={"radio_port": port_flight, "oracle_truth": oracle}) as bench:
+        clock_box.append(bench.clock.now)
+        cliffbot = Cliffbot(cfg.link, ChannelPort(channel, "b", now), out_dir=spec.out)
+        mission = bench.exe.tasks["mission"]
+        perception = bench.exe.tasks["perception"]
+        limit_s = max_sim_s if max_sim_s is not None else 120.0 + 90.0 * (spec.steps + 1) + 1200.0
+        violations = 0
+        last_step = -1
+        while bench.clock.now() < limit_s:
+            bench.run(1)
+            if mission.state == "TRANSMIT" and 1 not in cliffbot.originals:
+                cliffbot.originals[1] = perception.map.z.astype(np.float32)
+            cliffbot.step(bench.clock.now())
+            violations += _wheels_over_drop(bench.rig, world, cfg)
+            if progress is not None and mission.step != last_step:
+                last_step = mission.step
+                progress(mission.step, spec.steps, mission.state)
+            if mission.state in ("DONE", "SAFE"):
+                break
+        exe = bench.exe
+        emap = perception.map
+        mapped = emap.mapped & np.isfinite(truth)
+        rmse = float(np.sqrt(np.mean((emap.z[mapped] - truth[mapped]) ** 2))) if mapped.any() else None
+        summary: dict[str, Any] = {
+            "schema": 1,
+            "scenario": spec.scenario,
+            "method": spec.method,
+            "seed": spec.seed,
+            "steps": [dataclasses.asdict(r) for r in mission.records],
+            "map_rmse_m": rmse,
+            "edge_violations": violations,
+            "geofence_refusals": mission.edge_violations,
+            "slips": exe.slips,
+            "overruns": sum(t.overruns for t in exe.tasks.values()),
+            "task_max_ms": {n: round(t.max_s * 1e3, 3) for n, t in exe.tasks.items()},
+            "end_reason": mission.end,
+            "final_state": mission.state,
+            "mapped_cells": int(emap.mapped.sum()),
+            "frames": exe.frame,
+            "sim_s": round(bench.clock.now(), 3),
+            "wall_s": round(time.perf_counter() - t_wall, 3),
+            "cliffbot": dataclasses.asdict(cliffbot.reports[-1]) if cliffbot.reports else None,
+            "files": {},
+        }
+        if spec.out is not None:
+            summary["files"] = write_outputs(spec.out, summary, emap, truth, grid)
+    return summary
+
+
+def _wheels_over_drop(rig: Any, world: Any, cfg: FswConfig) -> int:
+    """1 if any wheel's contact point is over the drop (true terrain below the plateau)."""
+    xs, ys = rig.rover.world_wheel_xy()
+    z = np.asarray(world.height_at(np.asarray(xs), np.asarray(ys)))
+    return int(bool((z < world.plateau_z - cfg.edge.step_m).any()))
+
+
+def write_outputs(out: Path, summary: dict[str, Any], emap: Any, truth: Any, grid: MapGrid) -> dict[str, str]:
+    """summary.json and the PNGs: map, variance, error, coverage over steps."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    files = {"summary": "summary.json", "map": "map.png", "coverage": "coverage.png"}
+    ext = grid.extent
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.6), constrained_layout=True)
+    for ax, data, title, cmap in (
+        (axes[0], emap.z, "elevation (m)", "terrain"),
+        (axes[1], np.sqrt(emap.var), "sigma (m)", "magma"),
+        (axes[2], emap.z - truth, "error vs truth (m)", "coolwarm"),
+    ):
+        kw = {"vmin": -0.05, "vmax": 0.05} if "error" in title else {}
+        if "sigma" in title:
+            kw = {"vmin": 0.0, "vmax": 0.03}
+        im = ax.imshow(np.where(emap.mapped, data, np.nan), origin="lower", extent=ext, cmap=cmap, **kw)
+        ax.set_title(title)
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        fig.colorbar(im, ax=ax, shrink=0.8)
+    for r in summary["steps"]:
+        axes[0].plot(r["pose"]["x"], r["pose"]["y"], "k^", ms=5)
+    fig.suptitle(f"{summary['scenario']} method {summary['method']} seed {summary['seed']}: "
+                 f"{summary['mapped_cells']} cells mapped")
+    fig.savefig(out / files["map"], dpi=90)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(6, 4), constrained_layout=True)
+    st = summary["steps"]
+    ax.plot([r["step"] for r in st], [r["mapped_cells"] for r in st], "o-", label="mapped cells")
+    ax.bar([r["step"] for r in st], [r["obtained_new_cells"] for r in st], alpha=0.3, label="obtained new")
+    ax.plot([r["step"] for r in st], [r["expected_new_cells"] for r in st], "x--", label="expected new (H)")
+    ax.set_xlabel("stereo imaging step")
+    ax.set_ylabel("cells")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.savefig(out / files["coverage"], dpi=90)
+    plt.close(fig)
+    (out / files["summary"]).write_text(json.dumps(summary, indent=2) + "\n")
+    return files
+
+
+def strip_wall_clock(summary: dict[str, Any]) -> dict[str, Any]:
+    """The summary without its wall-clock fields (for determinism checks)."""
+    out = {k: v for k, v in summary.items() if k not in WALL_CLOCK_FIELDS}
+    out["steps"] = [{k: v for k, v in s.items() if k not in WALL_CLOCK_FIELDS} for s in summary["steps"]]
+    return out

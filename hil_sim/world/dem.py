@@ -1,0 +1,129 @@
+"""The ``file:PATH`` scenario: any user elevation model, with a texture generated for it.
+
+Accepted files: ``.npy`` (a 2-D float array of metres, ``[iy, ix]`` with row 0 at the lowest
+``y``, as ``fsw.core.geometry.MapGrid``) or a 16-bit grayscale ``.png`` (metres =
+``count * z_scale_m + z_offset_m``; row 0 is the largest ``y`` when ``png_north_up``). The DEM
+is placed with its corner at ``(x_min_m, y_min_m)``; DEMs coarser than 1 cm are resampled
+(bilinear) to 1 cm or finer. The rover starts at ``[rover_start]``; the plateau is the ground
+connected to it within ``plateau_tol_m`` of its height, and the true edge is that plateau's
+boundary (walked with the plateau on its left). The map grid covers the DEM.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.core.geometry import MapGridConfig
+from hil_sim.world.build import TruthGrid, finish_world, plateau_mask
+from hil_sim.world.config import MAX_TRUTH_CELLS, FileDemConfig, ScenarioConfig, ScenarioError
+from hil_sim.world.world import World
+
+F32 = NDArray[np.float32]
+F64 = NDArray[np.float64]
+MAX_CELL_M = 0.01
+
+
+def read_dem(fc: FileDemConfig) -> F32:
+    """The DEM in metres, ``[iy, ix]`` with row 0 at the lowest ``y``; ScenarioError if bad."""
+    path = Path(fc.path)
+    if not path.is_file():
+        raise ScenarioError(f"{path}: DEM file not found")
+    suffix = path.suffix.lower()
+    if suffix == ".npy":
+        try:
+            arr = np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise ScenarioError(f"{path}: not a readable .npy array ({exc})") from None
+        if arr.ndim != 2 or arr.dtype.kind not in "fiu":
+            raise ScenarioError(f"{path}: expected a 2-D numeric array, got {arr.dtype} "
+                                f"with shape {arr.shape}")
+        dem = arr.astype(np.float32) + np.float32(fc.z_offset_m)
+    elif suffix == ".png":
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise ScenarioError(f"{path}: not a readable PNG")
+        if img.ndim != 2 or img.dtype != np.uint16:
+            raise ScenarioError(f"{path}: expected a 16-bit grayscale PNG, got {img.dtype} "
+                                f"with shape {img.shape}")
+        dem = img.astype(np.float32) * np.float32(fc.z_scale_m) + np.float32(fc.z_offset_m)
+        if fc.png_north_up:
+            dem = dem[::-1].copy()
+    else:
+        raise ScenarioError(f"{path}: unsupported DEM type {suffix!r} (use .npy or 16-bit .png)")
+    if min(dem.shape) < 8:
+        raise ScenarioError(f"{path}: DEM {dem.shape} is too small (at least 8 x 8)")
+    if not np.isfinite(dem).all():
+        raise ScenarioError(f"{path}: DEM has NaN or infinite heights")
+    return dem
+
+
+def build_from_dem(cfg: ScenarioConfig, seed: int) -> World:
+    fc = cfg.file or FileDemConfig()
+    if not fc.path:
+        raise ScenarioError("file scenario needs a path: file:PATH")
+    dem = read_dem(fc)
+    factor = max(1, math.ceil(fc.cell_m / MAX_CELL_M - 1e-9))
+    ny, nx = dem.shape[0] * factor, dem.shape[1] * factor
+    if ny * nx > MAX_TRUTH_CELLS or max(ny, nx) >= 32767:
+        raise ScenarioError(f"{fc.path}: DEM {dem.shape} at {fc.cell_m} m would need a "
+                            f"{ny} x {nx} truth grid at 1 cm (too large; crop it)")
+    if factor > 1:
+        dem = np.asarray(cv2.resize(dem, (nx, ny), interpolation=cv2.INTER_LINEAR), np.float32)
+    grid = TruthGrid(fc.x_min_m, fc.y_min_m, fc.cell_m / factor, nx, ny)
+    rs = cfg.rover_start
+    ix, iy = int((rs.x_m - grid.x0) / grid.cell_m), int((rs.y_m - grid.y0) / grid.cell_m)
+    if not (0 <= ix < nx and 0 <= iy < ny):
+        raise ScenarioError(f"{fc.path}: the rover start ({rs.x_m}, {rs.y_m}) is outside the "
+                            f"DEM (x {grid.x0}..{grid.x0 + nx * grid.cell_m:.2f}, "
+                            f"y {grid.y0}..{grid.y0 + ny * grid.cell_m:.2f})")
+    plateau_z = float(dem[iy, ix])
+    plateau = plateau_mask(grid, dem, (rs.x_m, rs.y_m), plateau_z, fc.plateau_tol_m)
+    edge = plateau_edge(plateau, grid)
+    cell = cfg.map.cell_m
+    map_grid = MapGridConfig(origin_x_m=grid.x0, origin_y_m=grid.y0, cell_m=cell,
+                             nx=max(2, min(8192, int(nx * grid.cell_m / cell))),
+                             ny=max(2, min(8192, int(ny * grid.cell_m / cell))))
+    rng = np.random.default_rng([seed, 4])
+    return finish_world(cfg, f"file:{Path(fc.path).name}", seed, grid, dem, rng,
+                        edge_xy=edge, plateau_z=plateau_z, map_grid=map_grid,
+                        plateau_tol_m=fc.plateau_tol_m)
+
+
+def plateau_edge(plateau: NDArray[np.bool_], grid: TruthGrid) -> F64:
+    """The plateau's boundary inside the DEM as one polyline with the plateau on its left
+    (the longest boundary run that does not follow the DEM's border); ``(0, 2)`` if none."""
+    mask = plateau.astype(np.uint8)
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return np.zeros((0, 2))
+    pts = max(contours, key=len)[:, 0, :]  # (N, 2) as (ix, iy)
+    ny, nx = plateau.shape
+    inner = (pts[:, 0] > 0) & (pts[:, 0] < nx - 1) & (pts[:, 1] > 0) & (pts[:, 1] < ny - 1)
+    if not inner.any():
+        return np.zeros((0, 2))
+    # Longest cyclic run of inner points.
+    shift = int(np.argmin(inner)) if not inner.all() else 0
+    run_pts, flags = np.roll(pts, -shift, axis=0), np.roll(inner, -shift)
+    edges = np.diff(np.concatenate([[0], flags.astype(np.int8), [0]]))
+    starts, ends = np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]
+    longest = int(np.argmax(ends - starts))
+    s0, length = int(starts[longest]), int(ends[longest] - starts[longest])
+    seg = run_pts[s0:s0 + length].astype(float)
+    xy = np.column_stack([grid.x0 + (seg[:, 0] + 0.5) * grid.cell_m,
+                          grid.y0 + (seg[:, 1] + 0.5) * grid.cell_m])
+    step = max(1, round(0.02 / grid.cell_m))
+    xy = xy[::step]
+    if len(xy) >= 2:
+        mid = len(xy) // 2
+        d = xy[min(mid + 1, len(xy) - 1)] - xy[max(mid - 1, 0)]
+        left = np.array([-d[1], d[0]]) / max(np.hypot(*d), 1e-12)
+        probe = xy[mid] + 3 * grid.cell_m * left
+        jx, jy = int((probe[0] - grid.x0) / grid.cell_m), int((probe[1] - grid.y0) / grid.cell_m)
+        if not (0 <= jx < nx and 0 <= jy < ny and plateau[jy, jx]):
+            xy = xy[::-1]
+    return np.asarray(xy, float)

@@ -1,0 +1,140 @@
+"""A synthetic mission for the ground-link tests and the docs capture (not a test file).
+
+``DemoMissionTask`` stands in for the mission sequencer, motion and perception tasks until
+a bench run exists: it walks through mission states, drives a pose along +x, pans the
+mast, grows ``mapped_cells`` and publishes an elevation preview on ``map.preview``.
+``build(...)`` makes an executive (SteppedClock) with health, demo and mavlink tasks.
+
+Run as a script to leave a .tlog and feed a live ``safer-ground listen``::
+
+    python tests/ground/ground_demo.py --url udpin:127.0.0.1:14560 --seconds 60 --tlog /tmp/demo.tlog
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from fsw.config import build as build_cfg
+from fsw.executive.clock import SteppedClock
+from fsw.executive.executive import Executive
+from fsw.executive.task import Task
+from fsw.executive.telemetry import Channel, EventDef, Severity
+from fsw.settings import FswConfig
+from fsw.tasks.registry import KINDS
+
+STATES = ("INIT", "SELECT", "MOVE", "POINT", "ACQUIRE", "SELECT", "MOVE", "POINT", "ACQUIRE", "TRANSMIT", "DONE")
+
+
+class DemoMissionTask(Task):
+    KIND: ClassVar[str] = "ground_demo"
+    CHANNELS = (
+        Channel("state", doc="mission state name"),
+        Channel("x_m", "m"), Channel("y_m", "m"), Channel("yaw_deg", "deg"),
+        Channel("pan_deg", "deg"), Channel("tilt_deg", "deg"),
+        Channel("mapped_cells", "cells"),
+        Channel("temperature_c", "C", lo=-20.0, hi=40.0, doc="goes out of limits on purpose"),
+    )
+    EVENTS = (EventDef("STATE", Severity.ACTIVITY_HI, "mission state {state}"),)
+
+    def setup(self) -> None:
+        self.k = 0
+        self.state = ""
+
+    def run(self, frame: int) -> None:
+        t = self.ctx.clock.now()
+        state = STATES[min(int(t // 3.0), len(STATES) - 1)]
+        if state != self.state:
+            self.state = state
+            self.event("STATE", state=state)
+        self.tlm("state", state)
+        self.tlm("x_m", 0.05 * t)
+        self.tlm("y_m", 0.1 * math.sin(0.2 * t))
+        self.tlm("yaw_deg", 10.0 * math.sin(0.1 * t))
+        self.tlm("pan_deg", 60.0 * math.sin(0.3 * t))
+        self.tlm("tilt_deg", -30.0)
+        self.tlm("mapped_cells", int(400 * t))
+        self.tlm("temperature_c", 30.0 + t)
+        if frame % 50 == 0:
+            self.publish("map.preview", preview(t))
+
+
+def preview(t: float) -> np.ndarray:
+    """A 96 x 128 elevation map: a sloped plateau, a step edge and an unknown far region."""
+    yy, xx = np.mgrid[0:96, 0:128]
+    z = np.where(yy > 48 + 6 * np.sin(xx / 9.0), 0.0, -0.4) + 0.002 * xx
+    z = z.astype(np.float64)
+    z[:, int(min(127, 20 + 3 * t)):] = np.nan
+    return z
+
+
+def config(url: str, key_file: str = "", tlog: str = "", budget: int = 600, extra: dict[str, Any] | None = None,
+           frame_period_s: float = 0.1) -> FswConfig:
+    mav = {"url": url, "key_file": key_file, "tlog_path": tlog, "budget_bytes_per_frame": budget,
+           "mission_state_channel": "demo.state",
+           "pose_channels": ["demo.x_m", "demo.y_m", "", "", "", "demo.yaw_deg"],
+           "mast_channels": ["demo.pan_deg", "demo.tilt_deg"], "image_period_s": 2.0}
+    mav.update(extra or {})
+    data = {"executive": {"frame_period_s": frame_period_s,
+                          "groups": [{"name": "fast", "divisor": 1}, {"name": "slow", "divisor": 10, "offset": 3}],
+                          "tasks": [{"name": "demo", "kind": "ground_demo", "group": "fast", "budget_ms": 5.0},
+                                    {"name": "mavlink", "kind": "mavlink", "group": "fast", "budget_ms": 10.0},
+                                    {"name": "health", "kind": "health", "group": "slow", "budget_ms": 5.0}]},
+            "mavlink": mav}
+    return build_cfg(FswConfig, data, source="<ground-demo>")
+
+
+DEMO_KIND = ("ground_demo", "ground_demo:DemoMissionTask")
+
+
+def register() -> None:
+    """Make the demo kind known (tests use monkeypatch instead, so it does not leak)."""
+    KINDS.setdefault(*DEMO_KIND)
+
+
+def build(cfg: FswConfig, resources: dict[str, Any] | None = None) -> Executive:
+    return Executive(cfg, SteppedClock(), resources)
+
+
+def main() -> int:
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--url", default="udpin:127.0.0.1:14560")
+    ap.add_argument("--seconds", type=float, default=30.0, help="real seconds to run (lockstep paced 1:1)")
+    ap.add_argument("--tlog", default="")
+    ap.add_argument("--key", default="")
+    args = ap.parse_args()
+    register()
+    exe = build(config(args.url, args.key, args.tlog))
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < args.seconds:
+        exe.run_lockstep(1)
+        time.sleep(max(0.0, t0 + exe.frame * exe.period_s - time.monotonic()))
+    exe.tasks["mavlink"].close()  # type: ignore[attr-defined]
+    return 0
+
+
+def command_frame(key: bytes | None, opcode: int, params: tuple[float, ...] = (0.0,) * 6, link_id: int = 1,
+                  ts: int | None = None, target: tuple[int, int] = (1, 1), command: int | None = None) -> bytes:
+    """A COMMAND_LONG from a ground station (255/190), signed with ``key`` unless None."""
+    from fsw.comm.mavlink_dialect import MAV_CMD_DICTIONARY, mavlink, new_codec, signing_timestamp
+
+    mav = new_codec(255, 190)
+    if key is not None:
+        mav.signing.secret_key, mav.signing.sign_outgoing = key, True
+        mav.signing.link_id = link_id
+        mav.signing.timestamp = signing_timestamp(time.time()) if ts is None else ts
+    msg = mavlink.MAVLink_command_long_message(target[0], target[1], MAV_CMD_DICTIONARY if command is None else command,
+                                               0, float(opcode), *params)
+    return bytes(msg.pack(mav))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

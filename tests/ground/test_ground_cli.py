@@ -1,0 +1,176 @@
+"""Issue 7, item 4: ``safer-ground`` listen / send / plot / map / keygen: help, exit codes,
+bad input, and each subcommand against a lockstep rover on loopback."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import cv2
+import ground_demo
+import pytest
+from conftest import RoverThread, free_udp_port, write_config
+
+from fsw.settings import load_settings
+from ground.cli import main
+
+
+def _code(argv: list[str]) -> int:
+    try:
+        return main(argv)
+    except SystemExit as exc:  # argparse usage errors
+        return int(exc.code or 0)
+
+
+def test_console_script_help() -> None:
+    """Issue 7, item 4: the installed ``safer-ground`` explains itself."""
+    exe = Path(sys.executable).parent / "safer-ground"
+    out = subprocess.run([str(exe), "--help"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and all(w in out.stdout for w in ("listen", "send", "plot", "map", "keygen"))
+
+
+def test_usage_errors_and_bad_files(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Exit code 2 on usage errors, bad files and bad configuration; one clear line, no traceback."""
+    garbage = tmp_path / "garbage.tlog"
+    garbage.write_bytes(bytes(range(256)) * 4)
+    empty = tmp_path / "empty.tlog"
+    empty.write_bytes(b"")
+    badkey = tmp_path / "bad.key"
+    badkey.write_text("not a key")
+    goodkey = tmp_path / "good.key"
+    assert _code(["keygen", str(goodkey)]) == 0 and oct(goodkey.stat().st_mode & 0o777) == "0o600"
+    cases = [
+        [], ["send", "exec.NOOP"], ["plot", str(garbage)], ["frobnicate"],
+        ["plot", str(tmp_path / "missing.tlog"), "--out", str(tmp_path / "p")],
+        ["plot", str(garbage), "--out", str(tmp_path / "p")],
+        ["plot", str(empty), "--out", str(tmp_path / "p")],
+        ["map", str(garbage), "--out", str(tmp_path / "m.png")],
+        ["map", str(tmp_path), "--out", str(tmp_path / "m.png")],
+        ["send", "exec.NOOP", "--key", str(badkey)],
+        ["send", "exec.NOOP", "--key", str(tmp_path / "nokey")],
+        ["send", "exec.NO_SUCH", "--key", str(goodkey)],
+        ["send", "exec.SET_TASK_ENABLED", "health", "maybe", "--key", str(goodkey)],
+        ["send", "mavlink.SET_BUDGET", "--key", str(goodkey)],
+        ["keygen", str(goodkey)],
+        ["--config", str(tmp_path / "none.toml"), "listen", "udpin:127.0.0.1:1"],
+        ["--config", str(badkey), "listen", "udpin:127.0.0.1:1"],
+        ["listen", "bogus:url"],
+    ]
+    for argv in cases:
+        assert _code(argv) == 2, argv
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "not a .tlog" in err and "expected 64 hex digits" in err
+
+
+@pytest.mark.slow
+def test_plot_and_map_from_a_run(tmp_path: Path, key_file: Path, demo_kind: None,
+                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 7, item 4: plot writes task timing, slips, mapped cells, link and channel PNGs;
+    map writes the reassembled preview."""
+    tlog = tmp_path / "run.tlog"
+    cfg_file = write_config(tmp_path / "rover.toml", {"url": "udpout:127.0.0.1:9", "key_file": str(key_file),
+                                                      "tlog_path": str(tlog), "image_period_s": 2.0})
+    exe = ground_demo.build(load_settings(cfg_file))
+    exe.run_lockstep(150)
+    exe.tasks["mavlink"].close()  # type: ignore[attr-defined]
+    out = tmp_path / "plots"
+    assert main(["--config", str(cfg_file), "plot", str(tlog), "--out", str(out)]) == 0
+    for name in ("task_timing.png", "slips.png", "mapped_cells.png", "link.png", "channels.png"):
+        img = cv2.imread(str(out / name))
+        assert img is not None and img.shape[0] > 200, name
+    png = tmp_path / "map.png"
+    assert main(["--config", str(cfg_file), "map", str(tlog), "--out", str(png), "--scale", "2"]) == 0
+    assert cv2.imread(str(png)).shape == (192, 256, 3)
+    assert main(["--config", str(cfg_file), "map", str(tlog), "--out", str(png), "--index", "99"]) == 2
+    text = capsys.readouterr().out
+    assert "task_timing.png" in text and "complete" in text
+
+
+def test_keygen_from_passphrase(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The key MAVProxy derives from ``signing key PASSPHRASE`` (SHA-256), for shared use."""
+    import hashlib
+    import io
+
+    from fsw.comm.mavlink_signing import load_key
+
+    monkeypatch.setattr(sys, "stdin", io.StringIO("correct horse battery\n"))
+    assert main(["keygen", str(tmp_path / "p.key"), "--passphrase-stdin"]) == 0
+    assert load_key(tmp_path / "p.key")[0] == hashlib.sha256(b"correct horse battery").digest()
+    monkeypatch.setattr(sys, "stdin", io.StringIO("short\n"))
+    assert main(["keygen", str(tmp_path / "q.key"), "--passphrase-stdin"]) == 2
+
+
+def _budget(exe: Any) -> int:
+    return int(exe.tasks["mavlink"].adapter.budget_bytes)
+
+
+def test_send_signed_command(tmp_path: Path, key_file: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 7, item 4: ``send`` signs, waits for COMMAND_ACK; exit 0 accepted, 1 refused,
+    3 when nobody answers."""
+    port = free_udp_port()
+    cfg_file = write_config(tmp_path / "rover.toml", {"url": f"udpin:127.0.0.1:{port}", "key_file": str(key_file)},
+                            demo=False)
+    exe = ground_demo.build(load_settings(cfg_file))
+    other = tmp_path / "other.key"
+    main(["keygen", str(other)])
+    base = ["--config", str(cfg_file), "send"]
+    with RoverThread(exe):
+        assert main(base + ["mavlink.SET_BUDGET", "budget_bytes=400", "--key", str(key_file)]) == 0
+        assert _budget(exe) == 400
+        assert main(base + ["mavlink.set_budget", "500", "--key", str(other), "--link-id", "3"]) == 1
+        assert main(base + ["exec.SET_TASK_ENABLED", "nope", "true", "--key", str(key_file)]) == 1
+    assert _budget(exe) == 400
+    out = capsys.readouterr().out
+    assert "ACCEPTED" in out and "DENIED (bad signature)" in out and "FAILED" in out
+    assert main(base + ["exec.NOOP", "--key", str(key_file), "--timeout", "0.3"]) == 3
+
+
+def test_listen_live_view_and_relink(tmp_path: Path, key_file: Path, demo_kind: None,
+                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 7, item 4: the live view shows mode, pose, task timing, channels and events,
+    and picks the rover up again after the link was lost (rover restarted)."""
+    port = free_udp_port()
+    cfg_file = write_config(tmp_path / "rover.toml", {"url": f"udpout:127.0.0.1:{port}", "key_file": str(key_file)})
+    cfg = load_settings(cfg_file)
+    import threading
+
+    def rover_life() -> None:
+        with RoverThread(ground_demo.build(cfg)):
+            time.sleep(1.0)
+        time.sleep(1.0)  # link lost
+        with RoverThread(ground_demo.build(cfg)):
+            time.sleep(1.2)
+
+    life = threading.Thread(target=rover_life, daemon=True)
+    life.start()
+    rc = main(["--config", str(cfg_file), "listen", f"udpin:127.0.0.1:{port}", "--duration", "3.0",
+               "--timeout", "0.6", "--no-color"])
+    life.join(timeout=5)
+    screen = capsys.readouterr().out
+    assert rc == 0
+    assert "LINK UP" in screen and "dictionary" in screen and ": ok" in screen
+    assert "Mode " in screen and "Pose x" in screen and "Mast pan" in screen
+    assert "mavlink.tx_bytes" in screen and "demo.temperature_c" in screen
+    assert "demo.STATE: mission state" in screen
+    assert "health" in screen.split("task")[1]  # task timing table
+
+
+def test_render_link_lost_and_colours(key_file: Path) -> None:
+    """The view marks a lost link and colours out-of-limit channels red."""
+    from fsw.comm.mavlink_dialect import mavlink, new_codec
+    from ground.dictionary import load_dictionary
+    from ground.listen import RED, Painter, render
+    from ground.state import GroundState
+
+    d = load_dictionary()
+    st = GroundState(d)
+    codec = new_codec(1, 1)
+    for msg in (mavlink.MAVLink_heartbeat_message(10, 0, 1, 0, 3, 3),
+                mavlink.MAVLink_named_value_int_message(0, b"dict_crc", d.crc),
+                mavlink.MAVLink_named_value_int_message(0, b"3:overruns", 2)):
+        st.feed(new_codec(2, 2).parse_buffer(msg.pack(codec))[0], 10.0)
+    screen = render(st, d, "udpin:x", 20.0, Painter(True))
+    assert "LINK LOST" in screen and RED in screen and "exec.overruns" in screen

@@ -1,0 +1,205 @@
+"""The §7 planners: raster baselines' spacing and overlap, information planners, safety."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fsw.core.elevation_map import ElevationMap
+from fsw.core.geometry import CameraConfig, MapGrid, MastConfig, camera_pose_from_rover
+from fsw.core.nbv import NbvConfig
+from fsw.core.planners import (
+    InformationPlanner,
+    PlannerState,
+    RasterPlanner,
+    make_planner,
+    straighten,
+)
+from fsw.core.view_candidates import CandidateView, along_extent, footprint, path_stations
+from fsw.core.visibility import cell_points, in_view, terrain_from_map
+from hil_sim.nbv_scene import edge_offset_path, panorama_map, synthetic_edge, synthetic_terrain
+
+GRID = MapGrid(x0=-0.5, y0=-3.5, cell=0.04, nx=110, ny=100)
+CAM, MAST = CameraConfig(), MastConfig()
+FAST = NbvConfig(max_travel_m=1.0, pan_step_deg=30.0, tilts_deg=(-30.0, -50.0))
+
+
+def _ok(a: tuple, b: tuple) -> bool:
+    return True
+
+
+def _straight_state(length_m: float) -> PlannerState:
+    emap = ElevationMap(MapGrid(0.0, -4.0, 0.1, 20, 20))
+    path = np.array([[0.0, 0.0], [length_m, 0.0]])
+    edge = np.array([[0.0, -0.75], [length_m, -0.75]])
+    return PlannerState(emap, (0.0, 0.0, 0.0), (0.0, 0.0, 0.5), path, _ok, edge_xy=edge)
+
+
+def _run(planner, state: PlannerState, n: int) -> list[CandidateView]:
+    out = []
+    for _ in range(n):
+        v = planner.next_view(state)
+        if v is None:
+            break
+        out.append(v)
+        state = PlannerState(state.map, v.rover, v.joints, state.path, state.motion_ok,
+                             state.edge_xy, state.ground_z_m)
+    return out
+
+
+def _along_footprints(views: list[CandidateView], floor_z: float) -> list[tuple[float, float]]:
+    return [along_extent(footprint(v.camera_pose(MAST), CAM, floor_z), np.zeros(2),
+                         np.array([1.0, 0.0])) for v in views]
+
+
+def test_raster_without_yaw_spacing_and_overlap() -> None:
+    """Issue 5 item 3, Method 1: equally spaced stations whose consecutive views overlap by
+    ``raster_overlap_frac`` of the footprint along the path; fixed mast pointing square to the
+    path toward the drop, lift at maximum; exactly n views."""
+    cfg = NbvConfig(raster_overlap_frac=0.1)
+    planner = RasterPlanner(False, 5, cfg, CAM, MAST)
+    views = _run(planner, _straight_state(40.0), 8)
+    assert len(views) == 5
+    xs = np.array([v.rover[0] for v in views])
+    assert np.allclose(np.diff(xs), planner.spacing_m) and planner.spacing_m > 1.0
+    assert {v.joints for v in views} == {views[0].joints}
+    pan, tilt, lift = views[0].joints
+    assert pan == pytest.approx(-math.pi / 2) and tilt < 0 and lift == MAST.lift_max_m
+    ext = _along_footprints(views, -cfg.raster_floor_drop_m)
+    width = ext[0][1] - ext[0][0]
+    for (_, hi), (lo, _) in zip(ext[:-1], ext[1:], strict=True):
+        assert (hi - lo) / width == pytest.approx(cfg.raster_overlap_frac, abs=0.01)
+
+
+def test_raster_with_yaw_sweeps_pan_and_spaces_the_sweeps() -> None:
+    """Issue 5 item 3, Method 2: pans_per_station pan views at each station, pan step
+    hfov (1 - overlap); the sweeps' union footprints overlap by the same fraction."""
+    cfg = NbvConfig(raster_overlap_frac=0.1, raster_pans_per_station=3)
+    planner = RasterPlanner(True, 9, cfg, CAM, MAST)
+    views = _run(planner, _straight_state(60.0), 12)
+    assert len(views) == 9
+    pans = np.array([v.joints[0] for v in views]).reshape(3, 3)
+    step = math.radians(CAM.hfov_deg) * 0.9
+    assert np.allclose(np.diff(pans, axis=1), step) and np.allclose(pans[:, 1], -math.pi / 2)
+    xs = np.array([v.rover[0] for v in views]).reshape(3, 3)
+    assert np.allclose(xs, xs[:, :1]) and np.allclose(np.diff(xs[:, 0]), planner.spacing_m)
+    ext = _along_footprints(views, -cfg.raster_floor_drop_m)
+    union = [(min(e[0] for e in ext[3 * k:3 * k + 3]), max(e[1] for e in ext[3 * k:3 * k + 3]))
+             for k in range(3)]
+    width = union[0][1] - union[0][0]
+    assert (union[0][1] - union[1][0]) / width == pytest.approx(0.1, abs=0.01)
+
+
+def test_raster_spacing_shrinks_to_fit_the_path() -> None:
+    """Issue 5 item 3: on a short path the n stations are spread over it (more overlap,
+    never past its end)."""
+    planner = RasterPlanner(False, 5, NbvConfig(), CAM, MAST)
+    views = _run(planner, _straight_state(3.0), 5)
+    assert [round(v.rover[0], 6) for v in views] == [0.0, 0.75, 1.5, 2.25, 3.0]
+
+
+def _synthetic_state(motion_ok=_ok) -> PlannerState:
+    truth, textured = synthetic_terrain(GRID, seed=7)
+    emap = panorama_map(truth, textured, GRID, CAM, MAST, (0.0, 0.0, 0.0))
+    edge = synthetic_edge(-0.5, 3.9)
+    return PlannerState(emap, (0.0, 0.0, 0.0), (0.0, 0.0, 0.5),
+                        edge_offset_path(edge, 0.75), motion_ok, edge_xy=edge)
+
+
+def _fence(a: tuple, b: tuple) -> bool:
+    """A stand-in geofence: no pose beyond x = 1.3 m or below y = -0.35 m."""
+    return b[0] <= 1.3 and b[1] >= -0.35
+
+
+@pytest.mark.parametrize("method", ["1", "2", "3", "4", "5"])
+def test_planners_never_propose_unsafe_or_unreachable_poses(method: str) -> None:
+    """Issue 5 item 3: every proposed pose passes the geofence from where the rover is and
+    its joints are within the mast limits."""
+    state = _synthetic_state(_fence)
+    planner = make_planner(method, 6, FAST, CAM, MAST)
+    views = _run(planner, state, 6)
+    assert views, "the planner found nothing to do"
+    rover = state.rover
+    for v in views:
+        assert v.rover == rover or _fence(rover, v.rover)
+        assert MAST.within_limits(*v.joints)
+        rover = v.rover
+
+
+def test_information_planner_rates_and_prefers_new_terrain() -> None:
+    """Issue 5 items 1, 3: Method 4 picks a reachable view with positive H and expected new
+    cells; the search yields in small steps (issue 5 item 5: slack job); it is deterministic."""
+    state = _synthetic_state()
+    planner = make_planner("4", 1, FAST, CAM, MAST)
+    gen = planner.search(state)
+    yields = 0
+    try:
+        while True:
+            next(gen)
+            yields += 1
+    except StopIteration as stop:
+        view = stop.value
+    assert planner.last_stations >= 3
+    # bounded steps: at least one per geofence check, chunk of rays and tilt of each centre
+    assert yields >= planner.last_centres * (1 + len(FAST.tilts_deg)) + planner.last_stations - 1
+    assert view.info_bits > 50 and view.expected_new_cells > 20
+    assert view.utility == pytest.approx(view.info_bits - FAST.w_motion * view.motion_cost
+                                         - FAST.w_loc * view.sigma_loc_m)
+    assert make_planner("4", 1, FAST, CAM, MAST).next_view(state) == view
+
+
+def test_interest_function_steers_method5_away_from_a_missed_region() -> None:
+    """§3.4 / Method 5: when a region's interest has decayed, Method 5 looks elsewhere while
+    Method 4 keeps looking at it."""
+    state = _synthetic_state()
+    v4 = make_planner("4", 1, FAST, CAM, MAST).next_view(state)
+    terrain = terrain_from_map(state.map.z, state.map.var, GRID, FAST.visibility)
+    iy, ix = np.nonzero(np.ones(GRID.shape, bool))
+    seen4 = in_view(v4.camera_pose(MAST), CAM, cell_points(terrain, iy, ix)).reshape(GRID.shape)
+    state.map.interest[seen4 & ~state.map.mapped] = 0.01
+    v5 = make_planner("5", 1, FAST, CAM, MAST).next_view(state)
+    seen5 = in_view(v5.camera_pose(MAST), CAM, cell_points(terrain, iy, ix)).reshape(GRID.shape)
+    assert (seen5 & seen4).sum() < 0.5 * seen4.sum()
+
+
+def test_oracle_needs_truth_and_rates_with_it() -> None:
+    """Oracle planner: refuses to run without the truth; with it, rates textured cells only."""
+    with pytest.raises(ValueError, match="true terrain"):
+        make_planner("oracle", 1, FAST, CAM, MAST)
+    with pytest.raises(ValueError, match="unknown method"):
+        make_planner("7", 1, FAST, CAM, MAST)
+    truth, textured = synthetic_terrain(GRID, seed=7)
+    oracle = make_planner("oracle", 1, FAST, CAM, MAST, truth_z_m=truth, textured=textured)
+    assert isinstance(oracle, InformationPlanner)
+    view = oracle.next_view(_synthetic_state())
+    assert view is not None and view.expected_new_cells > 20
+
+
+def test_stations_follow_the_path_and_stop_at_the_geofence() -> None:
+    """§3 candidates: stations every station_spacing_m within max_travel_m, headings along the
+    path (closest to the current heading), none past a refused leg; the current pose first."""
+    path = np.array([[0.0, 0.0], [4.0, 0.0]])
+    st = path_stations(path, (1.0, 0.1, math.pi), lambda a, b: b[0] <= 2.0, 0.25, 1.5)
+    assert st[0].rover == (1.0, 0.1, math.pi) and st[0].travel_m == 0.0
+    xs = sorted(s.rover[0] for s in st[1:])
+    assert xs[0] == pytest.approx(0.0) and xs[-1] == pytest.approx(2.0)
+    assert all(abs(abs(s.rover[2]) - math.pi) < 1e-9 for s in st[1:])
+    assert path_stations(np.zeros((0, 2)), (0.0, 0.0, 0.0), _ok, 0.25, 1.0)[0].travel_m == 0.0
+
+
+def test_method3_straightens_the_edge_path() -> None:
+    """Method 3: the edge path becomes one total-least-squares segment spanning it."""
+    path = edge_offset_path(synthetic_edge(-0.5, 3.9), 0.75)
+    seg = straighten(path)
+    assert seg.shape == (2, 2)
+    d = seg[1] - seg[0]
+    assert d[0] > 0 and abs(d[1]) < 0.2 * d[0]
+
+
+def test_camera_pose_of_a_view_uses_the_mast_model() -> None:
+    """A CandidateView's camera pose is geometry.camera_pose_from_rover of its pose."""
+    v = CandidateView((1.0, 2.0, 0.3), (0.2, -0.4, 0.25))
+    ref = camera_pose_from_rover((1.0, 2.0, 0.3), (0.2, -0.4, 0.25), MAST)
+    assert np.allclose(v.camera_pose(MAST).t, ref.t) and np.allclose(v.camera_pose(MAST).R, ref.R)
