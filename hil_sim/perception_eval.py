@@ -124,6 +124,7 @@ def calibration_figure(path: str, panels: list[tuple[str, F64, F64]]) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FormatStrFormatter, NullFormatter
 
     fig, axes = plt.subplots(2, len(panels), figsize=(5.2 * len(panels), 9), squeeze=False)
     for col, (title, err, sig) in enumerate(panels):
@@ -145,6 +146,9 @@ def calibration_figure(path: str, panels: list[tuple[str, F64, F64]]) -> None:
         ax.plot([lo, hi], [2 * lo, 2 * hi], ":", color="k", lw=1, label="error = 2 sigma")
         ax.set_xscale("log")
         ax.set_yscale("log")
+        for axis in (ax.xaxis, ax.yaxis):
+            axis.set_minor_formatter(NullFormatter())
+            axis.set_major_formatter(FormatStrFormatter("%g"))
         ax.set_xlim(lo, hi)
         ax.set_ylim(lo / 20, 4 * hi)
         ax.set_xlabel("predicted sigma (cm)")

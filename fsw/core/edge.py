@@ -152,10 +152,9 @@ def safe_region(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float, flo
     level = emap.mapped & np.isfinite(z) & (np.abs(z - ground_z_m) <= cfg.plateau_tol_m)
     if not level.any():
         return level
-    r = int(round(cfg.join_m / (2.0 * emap.grid.cell)))
-    joined = ndimage.binary_closing(level, np.ones((2 * r + 1, 2 * r + 1)), border_value=0) \
-        if r > 0 else level
-    lab, _ = ndimage.label(joined | level, structure=np.ones((3, 3)))
+    # grow every piece by join_m / 2: pieces closer than join_m touch and share a label
+    grown = ndimage.distance_transform_edt(~level) <= cfg.join_m / (2.0 * emap.grid.cell)
+    lab, _ = ndimage.label(grown | level, structure=np.ones((3, 3)))
     lab = np.where(level, lab, 0)
     sizes = np.bincount(lab.ravel())
     big = sizes[lab] >= cfg.min_region_cells
@@ -179,41 +178,35 @@ def edge_cells(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float, floa
     z = emap.z
     mapped = emap.mapped & np.isfinite(z)
     safe = safe_region(emap, ground_z_m, seed_xy, cfg)
-    lower = mapped & (z < ground_z_m - cfg.step_m)
-    unknown = ~mapped
+    # per cell: 0 unknown, 1 lower by more than a step, 2 anything else known (or off-grid)
+    code = np.where(mapped, np.where(z < ground_z_m - cfg.step_m, 1, 2), 0).astype(np.int8)
+    code = np.pad(code, 1, constant_values=2)
+    # only safe cells on the boundary of the safe region can be edge cells
+    inner = ndimage.binary_erosion(safe, np.ones((3, 3)), border_value=0)
+    cy, cx = np.nonzero(safe & ~inner)
     k_max = max(1, int(round(cfg.search_m / emap.grid.cell)))
-    hit_dirs = np.zeros(z.shape + (2,))
+    hit = np.zeros((cy.size, 2))
+    ny, nx = z.shape
     for dy, dx in _DIRS:
-        reach = max(1, int(round(k_max / np.hypot(dy, dx))))
-        open_ = safe.copy()
-        found = np.zeros_like(safe)
-        for k in range(1, reach + 1):
-            nb_lower = _shift(lower, -k * dy, -k * dx)
-            nb_unknown = _shift(unknown, -k * dy, -k * dx)
-            found |= open_ & nb_lower
-            open_ &= nb_unknown
+        norm = float(np.hypot(dy, dx))
+        open_ = np.ones(cy.size, bool)
+        found = np.zeros(cy.size, bool)
+        for k in range(1, max(1, int(round(k_max / norm))) + 1):
+            yy = np.clip(cy + k * dy, -1, ny) + 1
+            xx = np.clip(cx + k * dx, -1, nx) + 1
+            at = code[yy, xx]
+            found |= open_ & (at == 1)
+            open_ &= at == 0
             if not open_.any():
                 break
-        norm = np.hypot(dy, dx)
-        hit_dirs[found] += (dx / norm, dy / norm)
-    is_edge = np.linalg.norm(hit_dirs, axis=2) > 1e-9
-    iy, ix = np.nonzero(is_edge)
+        hit[found] += (dx / norm, dy / norm)
+    is_edge = np.linalg.norm(hit, axis=1) > 1e-9
+    iy, ix, dvec = cy[is_edge], cx[is_edge], hit[is_edge]
     g = emap.grid
-    dvec = hit_dirs[iy, ix]
     dvec /= np.linalg.norm(dvec, axis=1, keepdims=True)
     px = g.x0 + (ix + 0.5) * g.cell + 0.5 * g.cell * dvec[:, 0]
     py = g.y0 + (iy + 0.5) * g.cell + 0.5 * g.cell * dvec[:, 1]
     return EdgeCells(np.column_stack([px, py]), safe)
-
-
-def _shift(a: NDArray[np.bool_], sy: int, sx: int) -> NDArray[np.bool_]:
-    """``out[i, j] = a[i - sy, j - sx]`` (False where out of range)."""
-    out = np.zeros_like(a)
-    ny, nx = a.shape
-    ys, yd = (slice(0, ny - sy), slice(sy, ny)) if sy >= 0 else (slice(-sy, ny), slice(0, ny + sy))
-    xs, xd = (slice(0, nx - sx), slice(sx, nx)) if sx >= 0 else (slice(-sx, nx), slice(0, nx + sx))
-    out[yd, xd] = a[ys, xs]
-    return out
 
 
 def fit_polygon(emap: ElevationMap, cells: EdgeCells, cfg: EdgeConfig) -> EdgeModel:

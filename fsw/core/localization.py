@@ -41,7 +41,6 @@ class LocalizationConfig:
     corner_sigma_px: float = param(
         0.8, lo=0.01, hi=10.0, units="px", doc="1-sigma image noise of a detected corner"
     )
-    min_points: int = param(4, lo=4, hi=1000, doc="fewest 3-D/2-D pairs for a PnP solution")
     max_reproj_px: float = param(
         3.0, lo=0.1, hi=100.0, units="px", doc="reject a PnP solution whose RMS residual exceeds"
     )

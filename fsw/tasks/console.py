@@ -17,7 +17,7 @@ class ConsoleTask(Task):
     KIND: ClassVar[str] = "console"
     DOC: ClassVar[str] = "Prints a telemetry summary line per activation and every event."
 
-    out: TextIO = sys.stdout
+    out: TextIO | None = None  # None: whatever sys.stdout is when printing
 
     def setup(self) -> None:
         self.ctx.events.listeners.append(self._on_event)
@@ -25,7 +25,7 @@ class ConsoleTask(Task):
 
     def _on_event(self, ev: Event) -> None:
         if ev.severity <= self.min_severity:
-            print(f"[{ev.time_s:9.2f}] {ev.severity.name:<11} {ev.name}: {ev.text}", file=self.out)
+            print(f"[{ev.time_s:9.2f}] {ev.severity.name:<11} {ev.name}: {ev.text}", file=self.out or sys.stdout)
 
     def run(self, frame: int) -> None:
         exe = self.ctx.resources["executive"]
@@ -34,5 +34,5 @@ class ConsoleTask(Task):
             f"[{self.ctx.clock.now():9.2f}] frame {frame:6d}  slips {exe.slips}  "
             f"overruns {sum(t.overruns for t in exe.tasks.values())}  "
             f"jobs {exe.jobs.pending}  worst task {worst[1]} {worst[0] * 1e3:.2f} ms",
-            file=self.out,
+            file=self.out or sys.stdout,
         )

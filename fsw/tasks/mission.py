@@ -392,6 +392,9 @@ class MissionTask(Task):
     def cmd_RESUME(self) -> None:
         if self.state != "SAFE":
             raise CommandError("not in SAFE")
-        self._goto("SELECT")
         self.pending.clear()
+        if self.latest is None:  # nothing mapped yet: start again with the panorama
+            self._goto("INIT")
+            return
+        self._goto("SELECT")
         self._next_view()

@@ -47,6 +47,7 @@ def _median_ms(fn, repeats: int) -> float:  # type: ignore[no-untyped-def]
 
 
 def run(args: argparse.Namespace) -> int:
+    import sys
     import tempfile
 
     import numpy as np
@@ -66,13 +67,13 @@ def run(args: argparse.Namespace) -> int:
     from hil_sim.world import load_scenario
 
     if args.repeats < 1:
-        print("safer-hil bench perception: --repeats must be >= 1")
+        print("safer-hil bench perception: --repeats must be >= 1", file=sys.stderr)
         return 2
     try:
         cfg = load_settings(args.config or DEFAULT_CONFIG)
         world = load_scenario(args.scenario, args.seed)
     except (ConfigError, ValueError) as err:
-        print(f"safer-hil bench perception: {err}")
+        print(f"safer-hil bench perception: {err}", file=sys.stderr)
         return 2
     grid = MapGrid.from_config(world.map_grid)
     rend = StereoRenderer(world, cfg.camera, world.noise_sigma, seed=args.seed)
@@ -156,6 +157,7 @@ def _pair_points(rend, matcher, pose, exact):  # type: ignore[no-untyped-def]
 
 def _calibration(args, cfg, world, grid, rend, matcher, exact) -> int:  # type: ignore[no-untyped-def]
     import math
+    import sys
     from pathlib import Path
 
     import numpy as np
@@ -224,7 +226,7 @@ def _calibration(args, cfg, world, grid, rend, matcher, exact) -> int:  # type: 
         Path(args.plot).parent.mkdir(parents=True, exist_ok=True)
         calibration_figure(args.plot, panels)
     except OSError as err:
-        print(f"safer-hil bench perception: cannot write {args.plot}: {err}")
+        print(f"safer-hil bench perception: cannot write {args.plot}: {err}", file=sys.stderr)
         return 2
     print(f"wrote {args.plot}")
     return 0

@@ -14,7 +14,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-HELP = "goodput vs packet loss (0-30 %) and bit error rate at 9600 bit/s, with capacity lines"
+HELP = "goodput vs packet loss (0 to 0.3) and bit error rate at 9600 bit/s, with capacity lines"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -39,6 +39,7 @@ LEVELS = (16, 4, 2, 1)    # block sizes, coarse to fine
 SMOOTH_TOL_PER_M = 2e-4
 _LAPLACE = np.array([[0, 1, 0], [1, -4, 1], [0, 1, 0]], np.float32)
 REFINE_ITERATIONS = 2
+MIN_LOG2_SAMPLES = 2       # at least 2**2 samples per bracket
 _MAX_ROWS = 32000         # cv2.remap needs destination sides below 32767
 _ROW = 4096
 
@@ -97,16 +98,20 @@ def sample(src: NDArray[np.float32], px: F32, py: F32, *, wrap: bool = False) ->
 
 
 def pixel_rays(R: F64, K: F64, us: F64, vs: F64) -> F32:
-    """World directions ``(len(vs), len(us), 3)`` of pixel rays, scaled so camera ``z`` = 1."""
+    """World directions ``(len(vs), len(us), 3)`` of pixel rays, scaled so camera ``z`` = 1.
+
+    The result is a view of a ``(3, rows, cols)`` array: each component ``d[..., k]`` is
+    contiguous, which is how the ray caster reads it."""
     f, cx, cy = K[0, 0], K[0, 2], K[1, 2]
-    xn = ((us - cx) / f).astype(np.float32)[None, :, None]
-    yn = ((vs - cy) / K[1, 1]).astype(np.float32)[:, None, None]
+    xn = ((us - cx) / f).astype(np.float32)[None, :]
+    yn = ((vs - cy) / K[1, 1]).astype(np.float32)[:, None]
     r = R.astype(np.float32)
-    out = np.empty((yn.shape[0], xn.shape[1], 3), np.float32)
-    np.multiply(xn, r[:, 0], out=out)
-    out += yn * r[:, 1]
-    out += r[:, 2]
-    return out
+    out = np.empty((3, yn.shape[0], xn.shape[1]), np.float32)
+    for k in range(3):
+        np.multiply(xn, r[k, 0], out=out[k])
+        out[k] += yn * r[k, 1]
+        out[k] += r[k, 2]
+    return np.moveaxis(out, 0, -1)
 
 
 def ray_intervals(hf: Heightfield, c: F64, d: F32) -> tuple[F32, F32]:
@@ -139,14 +144,12 @@ class _Rays:
         self.px0 = np.float32((c[0] - hf.x0) / hf.cell_m - 0.5)
         self.py0 = np.float32((c[1] - hf.y0) / hf.cell_m - 0.5)
         self.z0 = np.float32(c[2])
-        if parts is not None:
-            self.dpx, self.dpy, self.dz = parts
-        else:
+        if parts is None:
             assert d is not None
+            parts = (d[..., 0].reshape(-1), d[..., 1].reshape(-1), d[..., 2].reshape(-1))
             inv = np.float32(1.0 / hf.cell_m)
-            self.dpx = np.ascontiguousarray(d[:, 0] * inv)
-            self.dpy = np.ascontiguousarray(d[:, 1] * inv)
-            self.dz = np.ascontiguousarray(d[:, 2])
+            parts = (parts[0] * inv, parts[1] * inv, np.ascontiguousarray(parts[2]))
+        self.dpx, self.dpy, self.dz = parts
 
     def subset(self, idx: IDX) -> _Rays:
         return _Rays(self.hf, self.c, None, (self.dpx[idx], self.dpy[idx], self.dz[idx]))
@@ -177,11 +180,12 @@ def cast_image(hf: Heightfield, c: F64, R: F64, K: F64, width: int, height: int,
         d = pixel_rays(R, K, (step * np.arange(wl) + off).astype(np.float64),
                        (step * np.arange(hl) + off).astype(np.float64))
         lo, hi = ray_intervals(hf, c, d)
-        rays = _Rays(hf, c, d.reshape(-1, 3))
+        rays = _Rays(hf, c, d)
         if prev is None:
             t = _first_hits(rays, lo.reshape(-1), hi.reshape(-1), fixed=TOP_SAMPLES)
         else:
-            near, far, n_miss = _neighbour_hits(prev, prev_step // step, hl, wl)
+            rr, cc = np.meshgrid(np.arange(hl), np.arange(wl), indexing="ij")
+            near, far, n_miss = _neighbour_hits(prev, prev_step // step, rr, cc)
             a, b = _bracket(near, far, n_miss, lo, hi)
             t = _first_hits(rays, a.reshape(-1), b.reshape(-1), own=(lo.reshape(-1),
                                                                       hi.reshape(-1)))
@@ -189,7 +193,7 @@ def cast_image(hf: Heightfield, c: F64, R: F64, K: F64, width: int, height: int,
     d = pixel_rays(R, K, np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
     if prev is None:
         lo, hi = ray_intervals(hf, c, d)
-        t = _first_hits(_Rays(hf, c, d.reshape(-1, 3)), lo.reshape(-1), hi.reshape(-1),
+        t = _first_hits(_Rays(hf, c, d), lo.reshape(-1), hi.reshape(-1),
                         fixed=TOP_SAMPLES)
         return t.reshape(height, width), d
     return _finest(hf, c, d, prev, prev_step), d
@@ -219,18 +223,17 @@ def _finest(hf: Heightfield, c: F64, d: F32, tc: F32, factor: int) -> F32:
     t_flat = t.reshape(-1)
     t_flat[idx] = np.nan
     if idx.size:
-        dsel = d.reshape(-1, 3)[idx]
+        dsel = np.stack([d[..., k].reshape(-1)[idx] for k in range(3)], axis=-1)
         lo, hi = ray_intervals(hf, c, dsel)
-        near, far, n_miss = (x.reshape(-1)[idx] for x in
-                             _neighbour_hits(tc, factor, height, width))
+        near, far, n_miss = _neighbour_hits(tc, factor, idx // width, idx % width)
         a, b = _bracket(near, far, n_miss, lo, hi)
         t_flat[idx] = _first_hits(_Rays(hf, c, dsel), a, b, own=(lo, hi))
     return t
 
 
-def _neighbour_hits(tc: F32, factor: int, h: int, w: int) -> tuple[F32, F32, F32]:
-    """Per finer ray ``(h, w)``: nearest and farthest hit of the 2 x 2 coarser rays whose
-    centres enclose it, and how many of those missed."""
+def _neighbour_hits(tc: F32, factor: int, rows: IDX, cols: IDX) -> tuple[F32, F32, F32]:
+    """For finer rays at ``(rows, cols)``: nearest and farthest hit of the 2 x 2 coarser
+    rays whose centres enclose each, and how many of those missed."""
     miss = np.isnan(tc)
     kernel = np.ones((2, 2), np.uint8)
     pad = ((0, 1), (0, 1))  # the last coarse row/column encloses the image border alone
@@ -242,11 +245,9 @@ def _neighbour_hits(tc: F32, factor: int, h: int, w: int) -> tuple[F32, F32, F32
                           np.ones((2, 2), np.float32), anchor=(0, 0),
                           borderType=cv2.BORDER_REPLICATE)
     off = (factor - 1) / 2.0
-    iv = np.clip(np.floor((np.arange(h) - off) / factor).astype(np.intp), 0, tc.shape[0] - 1)
-    iu = np.clip(np.floor((np.arange(w) - off) / factor).astype(np.intp), 0, tc.shape[1] - 1)
-    pick = (iv[:, None], iu[None, :])
-    return (near[pick].astype(np.float32), far[pick].astype(np.float32),
-            n_miss[pick].astype(np.float32))
+    iv = np.clip(np.floor((rows - off) / factor).astype(np.intp), 0, tc.shape[0] - 1)
+    iu = np.clip(np.floor((cols - off) / factor).astype(np.intp), 0, tc.shape[1] - 1)
+    return near[iv, iu], far[iv, iu], n_miss[iv, iu]
 
 
 def _bracket(near: F32, far: F32, n_miss: F32, lo: F32, hi: F32) -> tuple[F32, F32]:
@@ -277,8 +278,10 @@ def _first_hits(rays: _Rays, a: F32, b: F32, *, fixed: int = 0,
         else:
             span = b[todo] - a[todo]
             need = span / (0.004 + 0.004 * (a[todo] + 0.5 * span))
-            n = np.clip(2 ** np.ceil(np.log2(np.maximum(need, 1.0))), 4, 1024).astype(int)
-            groups = [(int(k), todo[n == k]) for k in np.unique(n)]
+            level = np.clip(np.ceil(np.log2(np.maximum(need, 1.0))), MIN_LOG2_SAMPLES, 10
+                            ).astype(np.intp)
+            present = np.nonzero(np.bincount(level, minlength=11))[0]
+            groups = [(2 ** int(k), todo[level == k]) for k in present]
         retry: list[IDX] = []
         for n_s, idx in groups:
             t, status = _march(rays.subset(idx), a[idx], b[idx], n_s)
@@ -337,7 +340,7 @@ def _secant(t1: F32, f1: F32, t2: F32, f2: F32) -> F32:
 def cast_rays(hf: Heightfield, c: F64, d: F32, samples: int = 1024) -> F32:
     """First terrain hit (``t`` along ``d``; NaN if none) of arbitrary rays ``(n, 3)`` from
     ``c``: a dense fixed-step search, for a few rays (figures, checks), not whole images."""
-    d = np.ascontiguousarray(np.asarray(d, np.float32).reshape(-1, 3))
+    d = np.asarray(d, np.float32).reshape(-1, 3)
     c = np.asarray(c, float)
     lo, hi = ray_intervals(hf, c, d)
     hi = np.minimum(hi, lo + 100.0)

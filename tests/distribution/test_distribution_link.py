@@ -25,7 +25,6 @@ def _payload(n: int, seed: int = 0) -> bytes:
     return np.random.default_rng(seed).integers(0, 256, n, dtype=np.uint8).tobytes()
 
 
-@pytest.mark.slow
 def test_bit_exact_in_100_of_100_harsh_runs():
     """Issue 6, done-when 4: 30 % loss, BER 1e-5, duplication, reordering: 100/100 bit-exact."""
     data = _payload(12000)
@@ -37,7 +36,6 @@ def test_bit_exact_in_100_of_100_harsh_runs():
         assert r.idle_steps == 0, "every deadline the link reports leads to an action"
 
 
-@pytest.mark.slow
 def test_resume_after_60_s_outage_in_100_of_100_runs():
     """Issue 6, done-when 4: a 60 s outage mid-transfer; what arrived is not sent again."""
     data = _payload(24000)

@@ -1,0 +1,160 @@
+"""``safer-hil experiment coverage``: the paper's Figures 7 and 8 (ALGORITHM.md §7).
+
+Runs the five mapping methods and the oracle over several seeds as full lockstep missions
+(``hil_sim.mission_run``), then writes ``coverage.csv`` (one row per run and step),
+``coverage.md`` (mapped cells at the last step per method: mean, spread, ratio to Method 1
+and to the oracle), ``fig7_coverage.png`` (mapped cells against imaging steps, mean and
+min-max band over seeds) and ``fig8_expected_vs_obtained.png`` (expected against obtained
+new cells per step for Methods 3 and 5). Each run's own summary lands in
+``DIR/runs/<method>_seed<k>/``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any
+
+HELP = "mapped cells vs imaging steps for methods 1-5 and the oracle (paper Figures 7 and 8)"
+METHODS = ("1", "2", "3", "4", "5", "oracle")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenario", default="lab", help="lab, cliff, mars or file:PATH")
+    p.add_argument("--steps", type=int, default=20, help="imaging steps after the panorama")
+    p.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per method")
+    p.add_argument("--methods", default=",".join(METHODS), help="comma-separated subset")
+    p.add_argument("--jobs", type=int, default=2, help="missions run in parallel (processes)")
+    p.add_argument("--out", type=Path, default=Path("out/coverage"), help="output directory")
+
+
+def _one(scenario: str, method: str, steps: int, seed: int, out: str) -> dict[str, Any]:
+    from hil_sim.mission_run import RunSpec, run_mission
+
+    return run_mission(RunSpec(scenario, method, steps, seed, transmit=False, out=Path(out)))
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    bad = [m for m in methods if m not in METHODS]
+    if bad or args.seeds < 1 or args.steps < 1 or args.jobs < 1:
+        print(f"safer-hil experiment coverage: bad arguments ({bad or 'seeds/steps/jobs must be >= 1'})",
+              file=sys.stderr)
+        return 2
+    args.out.mkdir(parents=True, exist_ok=True)
+    runs = [(m, s) for s in range(args.seeds) for m in methods]
+    results: dict[tuple[str, int], dict[str, Any]] = {}
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool, \
+            tqdm(total=len(runs), desc=f"coverage {args.scenario}", unit="mission") as bar:
+        futs = {pool.submit(_one, args.scenario, m, args.steps, s, str(args.out / "runs" / f"{m}_seed{s}")): (m, s)
+                for m, s in runs}
+        for fut in as_completed(futs):
+            m, s = futs[fut]
+            results[(m, s)] = fut.result()
+            bar.set_postfix_str(f"method {m} seed {s}: {results[(m, s)]['mapped_cells']} cells")
+            bar.update()
+    write_report(args.out, args.scenario, args.steps, methods, args.seeds, results)
+    print((args.out / "coverage.md").read_text())
+    return 0
+
+
+def curves(results: dict[tuple[str, int], dict[str, Any]], method: str, seeds: int, steps: int) -> Any:
+    """(seeds, steps+1) mapped cells per step; a run that ended early keeps its last value."""
+    import numpy as np
+
+    out = np.zeros((seeds, steps + 1))
+    for s in range(seeds):
+        recs = {r["step"]: r["mapped_cells"] for r in results[(method, s)]["steps"]}
+        last = 0
+        for k in range(steps + 1):
+            last = recs.get(k, last)
+            out[s, k] = last
+    return out
+
+
+def write_report(out: Path, scenario: str, steps: int, methods: list[str], seeds: int,
+                 results: dict[tuple[str, int], dict[str, Any]]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    with (out / "coverage.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["scenario", "method", "seed", "step", "mapped_cells", "expected_new_cells",
+                    "obtained_new_cells", "x", "y", "yaw", "pan", "tilt", "lift"])
+        for (m, s), r in sorted(results.items()):
+            for st in r["steps"]:
+                p = st["pose"]
+                w.writerow([scenario, m, s, st["step"], st["mapped_cells"], round(st["expected_new_cells"], 1),
+                            st["obtained_new_cells"], *(round(p[k], 4) for k in ("x", "y", "yaw", "pan", "tilt", "lift"))])
+    final = {m: curves(results, m, seeds, steps)[:, -1] for m in methods}
+    ref1 = final["1"].mean() if "1" in final else float("nan")
+    refo = final["oracle"].mean() if "oracle" in final else float("nan")
+    lines = [f"# Coverage, {scenario} scenario, {steps} steps, {seeds} seeds", "",
+             "| method | mapped cells at last step (mean) | min | max | vs Method 1 | vs oracle | "
+             "edge violations | slips | map RMSE (cm) |", "|---|---|---|---|---|---|---|---|---|"]
+    for m in methods:
+        f = final[m]
+        runs = [results[(m, s)] for s in range(seeds)]
+        rmse = [r["map_rmse_m"] for r in runs if r["map_rmse_m"] is not None]
+        lines.append(f"| {m} | {f.mean():.0f} | {f.min():.0f} | {f.max():.0f} | {f.mean() / ref1:.2f}x | "
+                     f"{f.mean() / refo:.2f} | {sum(r['edge_violations'] for r in runs)} | "
+                     f"{sum(r['slips'] for r in runs)} | {100 * np.mean(rmse):.2f} |")
+    for m in ("3", "5"):
+        if m in methods:
+            exp, obt = _expected_obtained(results, m, seeds)
+            lines.append("")
+            lines.append(f"Method {m}: expected vs obtained new cells per step (mean over seeds, steps 1..): "
+                         + ", ".join(f"{e:.0f}/{o:.0f}" for e, o in zip(exp, obt, strict=True)))
+    (out / "coverage.md").write_text("\n".join(lines) + "\n")
+    (out / "coverage.json").write_text(json.dumps(
+        {m: {"final_mean": float(final[m].mean()), "final": final[m].tolist()} for m in methods}, indent=2))
+
+    fig, ax = plt.subplots(figsize=(7, 4.5), constrained_layout=True)
+    for m in methods:
+        c = curves(results, m, seeds, steps)
+        k = np.arange(steps + 1)
+        ax.plot(k, c.mean(0), "o-", ms=3, label=f"method {m}" if m != "oracle" else "oracle")
+        ax.fill_between(k, c.min(0), c.max(0), alpha=0.15)
+    ax.set_xlabel("stereo imaging step")
+    ax.set_ylabel("mapped grid cells")
+    ax.set_title(f"Figure 7: mapped cells vs steps ({scenario}, {seeds} seeds, band = min-max)")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.savefig(out / "fig7_coverage.png", dpi=100)
+    plt.close(fig)
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True, sharey=True)
+    for ax, m in zip(axes, ("3", "5"), strict=True):
+        if m not in methods:
+            continue
+        exp, obt = _expected_obtained(results, m, seeds)
+        k = np.arange(1, len(exp) + 1)
+        ax.plot(k, exp, "x--", label="expected new cells (H)")
+        ax.plot(k, obt, "o-", label="obtained new cells")
+        ax.set_title(f"Method {m}")
+        ax.set_xlabel("stereo imaging step")
+        ax.grid(alpha=0.3)
+        ax.legend()
+    axes[0].set_ylabel("cells")
+    fig.suptitle("Figure 8: expected vs obtained new cells (mean over seeds)")
+    fig.savefig(out / "fig8_expected_vs_obtained.png", dpi=100)
+    plt.close(fig)
+
+
+def _expected_obtained(results: dict[tuple[str, int], dict[str, Any]], method: str, seeds: int) -> tuple[Any, Any]:
+    import numpy as np
+
+    rows = [[(r["expected_new_cells"], r["obtained_new_cells"]) for r in results[(method, s)]["steps"] if r["step"] >= 1]
+            for s in range(seeds)]
+    n = min(len(r) for r in rows) if rows else 0
+    arr = np.array([r[:n] for r in rows], dtype=float).reshape(len(rows), n, 2)
+    return arr[..., 0].mean(0), arr[..., 1].mean(0)

@@ -1,0 +1,98 @@
+"""``safer-map`` and the distribution experiments/bench as commands (issue 6, items 4, 10, 11)."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ground.map_cli import main as safer_map
+from hil_sim.cli import main as safer_hil
+
+
+@pytest.fixture
+def npy(tmp_path: Path, viking_map: np.ndarray) -> Path:
+    z = viking_map.copy()
+    z[5:40, 100:180] = np.nan
+    p = tmp_path / "m.npy"
+    np.save(p, z)
+    return p
+
+
+def test_encode_decode_info_round_trip(tmp_path: Path, npy: Path, capsys):
+    """Issue 6, item 4: encode / decode / info; the bound holds, NaN stays NaN."""
+    out, back = tmp_path / "m.sqm", tmp_path / "back.npy"
+    assert safer_map(["encode", str(npy), str(out), "--wheel-diameter", "0.1", "--cell-m", "0.02"]) == 0
+    assert safer_map(["decode", str(out), str(back)]) == 0
+    assert safer_map(["info", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "leaves" in text and "error_bound_m" in text
+    z, r = np.load(npy), np.load(back)
+    assert r.dtype == np.float32 and np.array_equal(np.isnan(z), np.isnan(r))
+    k = np.isfinite(z)
+    assert np.abs(r[k] - z[k]).max() <= 0.1
+    assert safer_map(["encode", str(npy), str(out), "--max-error", "0.02"]) == 0
+    assert np.abs(np.load(npy)[k] - z[k]).max() == 0.0  # input untouched
+
+
+@pytest.mark.parametrize("case", ["truncated", "garbage", "missing", "npy_3d", "npy_text", "not_npy",
+                                  "bad_option", "bad_config"])
+def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, npy: Path, case: str, capsys):
+    """Issue 6, item 4: bad or truncated input -> one clear line on stderr, exit code 2."""
+    good = tmp_path / "good.sqm"
+    assert safer_map(["encode", str(npy), str(good)]) == 0
+    capsys.readouterr()
+    bad = tmp_path / "bad"
+    argv = ["decode", str(bad), str(tmp_path / "o.npy")]
+    if case == "truncated":
+        bad.write_bytes(good.read_bytes()[:-10])
+    elif case == "garbage":
+        bad.write_bytes(b"\x00" * 500)
+    elif case == "missing":
+        pass
+    elif case == "npy_3d":
+        np.save(tmp_path / "c.npy", np.zeros((2, 2, 2)))
+        argv = ["encode", str(tmp_path / "c.npy"), str(bad)]
+    elif case == "npy_text":
+        np.save(tmp_path / "t.npy", np.array([["a", "b"]]))
+        argv = ["encode", str(tmp_path / "t.npy"), str(bad)]
+    elif case == "not_npy":
+        bad.write_text("hello")
+        argv = ["encode", str(bad), str(tmp_path / "x.sqm")]
+    elif case == "bad_option":
+        argv = ["encode", str(npy), str(bad), "--wheel-diameter", "-3"]
+    elif case == "bad_config":
+        cfg = tmp_path / "c.toml"
+        cfg.write_text("[codec]\nsplit_rule = 'magic'\n")
+        argv = ["--config", str(cfg), "encode", str(npy), str(bad)]
+    assert safer_map(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("safer-map: error:")
+
+
+def test_help_explains(capsys):
+    """Issue 6, item 4: --help."""
+    with pytest.raises(SystemExit) as exc:
+        safer_map(["--help"])
+    assert exc.value.code == 0
+    assert "NaN = unknown" in capsys.readouterr().out
+
+
+def test_experiments_and_bench_run_small(tmp_path: Path, capsys):
+    """Issue 6, items 10-11: the experiments compute their tables from real runs (small)."""
+    red = tmp_path / "red"
+    assert safer_hil(["experiment", "reduction", "--maps", "2", "--size", "64", "--dh", "2", "8",
+                      "--out", str(red)]) == 0
+    rows = list(csv.DictReader((red / "reduction.csv").open()))
+    assert len(rows) == 4 and all(float(r["max_error_m"]) <= float(r["bound_m"]) for r in rows)
+    assert (red / "fig12_reduction.png").stat().st_size > 5000
+    assert (red / "fig13_transmitted.png").exists() and "jpegls_q2e" in (red / "report.md").read_text()
+    link = tmp_path / "link"
+    assert safer_hil(["experiment", "link", "--bytes", "3000", "--seeds", "2", "--losses", "0", "0.1",
+                      "--bers", "1e-5", "--out", str(link)]) == 0
+    rows = list(csv.DictReader((link / "link_goodput.csv").open()))
+    assert [r["bit_exact"] for r in rows] == ["2/2"] * 3
+    assert safer_hil(["bench", "codec", "--size", "64", "--repeat", "2"]) == 0
+    assert "encode ms" in capsys.readouterr().out
