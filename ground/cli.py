@@ -48,8 +48,9 @@ def _keygen(path: str, from_stdin: bool) -> int:
     key = None
     if from_stdin:
         passphrase = sys.stdin.readline().strip()
-        if len(passphrase) < 8:
-            print("safer-ground keygen: the passphrase needs at least 8 characters", file=sys.stderr)
+        if len(passphrase) < 8 or not passphrase.isascii() or any(c.isspace() for c in passphrase):
+            print("safer-ground keygen: the passphrase must be one ASCII word of at least 8 characters "
+                  "(MAVProxy's `signing key` takes one word)", file=sys.stderr)
             return 2
         key = key_from_passphrase(passphrase)
     try:

@@ -81,16 +81,21 @@ def visible_cells(grid: MapGrid, truth: F64, pose: CameraPose, camera: CameraCon
 def pit_view_poses(world: World, mast: MastConfig, n: int, *, x_span_m: float = 1.2,
                    pan_deg: float = -90.0, tilt_deg: float = -30.0, lift_m: float = 0.3,
                    jitter_deg: float = 4.0, seed: int = 0) -> list[CameraPose]:
-    """``n`` views of the same patch of the pit from the plateau: the rover steps along the
-    edge over ``x_span_m`` and re-aims the mast at one point (pan/tilt jittered a few
+    """``n`` views of the same patch of the low ground (pit, cliff foot) from the plateau:
+    the rover steps along the edge over ``x_span_m`` and re-aims the mast at the point where
+    the first view's axis meets the median low-ground height (pan/tilt jittered a few
     degrees), as repeated acquisitions of one area would."""
     rng = np.random.default_rng(seed)
     x0, y0, yaw = world.rover_start
     probe = camera_pose_from_rover((x0, y0, yaw), (math.radians(pan_deg), math.radians(tilt_deg),
                                                    lift_m), mast)
     fwd = probe.R[:, 2]
-    s = (world.plateau_z - 0.4 - probe.t[2]) / fwd[2]
+    low = world.ground[world.ground < world.plateau_z - 0.1]
+    floor_z = float(np.median(low)) if low.size else world.plateau_z
+    s = (floor_z - probe.t[2]) / fwd[2]
     target = probe.t + s * fwd  # where the first view looks, on the pit floor
+    if not (np.isfinite(s) and s > 0):
+        raise ValueError("the first view does not look down onto the low ground")
     poses = []
     for i in range(n):
         dx = 0.0 if n == 1 else x_span_m * (i / (n - 1) - 0.5)
@@ -119,7 +124,10 @@ def edge_pass_poses(world: World, mast: MastConfig, stops_x_m: tuple[float, ...]
 def calibration_figure(path: str, panels: list[tuple[str, F64, F64]]) -> None:
     """PNG of predicted sigma against actual error: per panel ``(title, error, sigma)``, the
     RMS error in bins of predicted sigma against the identity, and the histogram of
-    ``error / sigma`` against the unit normal."""
+    ``error / sigma`` against the unit normal. Panels without cells are left out."""
+    panels = [p for p in panels if p[1].size]
+    if not panels:
+        raise ValueError("no cells to plot")
     import matplotlib
 
     matplotlib.use("Agg")

@@ -24,6 +24,7 @@ Memory: one buffer of the offered size (at most ``max_map_bytes``) and one byte 
 from __future__ import annotations
 
 import hashlib
+from collections import deque
 from enum import Enum
 
 from fsw.comm import link_packets as lp
@@ -60,7 +61,7 @@ class LinkReceiver:
         self._status_due = False
         self._status_now = False
         self._new_data = False
-        self._replies: list[bytes] = []
+        self._replies: deque[bytes] = deque(maxlen=8)  # ACCEPT/REJECT answers (bounded)
         self._fin: lp.Fin | None = None
         self._fin_until_s = 0.0
         self._delivered: list[tuple[int, bytes]] = []
@@ -228,7 +229,7 @@ class LinkReceiver:
 
     def _next_packet(self, now_s: float) -> bytes | None:
         if self._replies:
-            return self._replies.pop(0)
+            return self._replies.popleft()
         since = now_s - self._last_status_s + _EPS
         if self._fin is not None and (self._status_now or self.state is ReceiverState.COMPLETE
                                       and since >= self.cfg.status_period_s):

@@ -156,7 +156,7 @@ class SerialTransport:
             self.reopens += 1
         assert self.port is not None
         try:
-            data = bytes(self.port.read(min(max_bytes, max(self.port.in_waiting, 1))))
+            data = bytes(self.port.read(max_bytes))  # timeout=0: what is there, at once
         except Exception as exc:  # noqa: BLE001 - pyserial raises several types on unplug
             self._lost("read", exc)
             return []

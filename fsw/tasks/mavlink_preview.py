@@ -16,7 +16,6 @@ from typing import Any
 import cv2
 import numpy as np
 
-
 KNOWN_MIN = 16  # known elevations span 16..255, unknown is 0: the gap survives JPEG noise
 UNKNOWN_BELOW = 8  # the ground reads grey levels below this as unknown
 

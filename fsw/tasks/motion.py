@@ -234,6 +234,8 @@ class MotionTask(Task):
             self.segments.popleft()
             if not self.segments:
                 self._finish()
+            else:  # the next segment's steering time starts now, not when the move began
+                self.segments[0].t_phase = now
             return np.zeros(4)
         speed = max(vmin, min(seg.speed, math.sqrt(2.0 * acc * abs(rem)), seg.cmd + acc * dt))
         seg.cmd = speed

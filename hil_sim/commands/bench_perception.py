@@ -28,6 +28,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="world and camera-noise seed")
     p.add_argument("--repeats", type=int, default=5, help="timed runs per figure")
     p.add_argument("--config", default=None, help="flight config (default config/fsw.toml)")
+    p.add_argument("--range-m", type=float, nargs=2, default=(2.0, 4.0), metavar=("MIN", "MAX"),
+                   help="calibration over cells at this range from the camera, m")
     p.add_argument("--plot", default=None, metavar="PNG",
                    help="also write the variance calibration figure here (e.g. "
                         "docs/img/perception_calibration.png)")
@@ -66,8 +68,9 @@ def run(args: argparse.Namespace) -> int:
     from hil_sim.render import StereoRenderer
     from hil_sim.world import load_scenario
 
-    if args.repeats < 1:
-        print("safer-hil bench perception: --repeats must be >= 1", file=sys.stderr)
+    if args.repeats < 1 or not 0.0 <= args.range_m[0] < args.range_m[1]:
+        print("safer-hil bench perception: --repeats must be >= 1 and --range-m MIN < MAX",
+              file=sys.stderr)
         return 2
     try:
         cfg = load_settings(args.config or DEFAULT_CONFIG)
@@ -184,10 +187,11 @@ def _calibration(args, cfg, world, grid, rend, matcher, exact) -> int:  # type: 
     one = ElevationMap(grid, cfg.fusion)
     one.merge(xyz, cov=cov)
     r = cell_range_m(grid, truth, pose)
-    near = (r >= 2.0) & (r <= 4.0)
-    print("calibration (cells at 2-4 m):")
+    r0, r1 = args.range_m
+    near = (r >= r0) & (r <= r1)
+    print(f"calibration (cells at {r0:g}-{r1:g} m):")
     print(f"  one view, true pose: {calibration(one.z, one.var, truth, one.mapped & near).line()}")
-    panel("one view, true pose (2-4 m)", one, near)
+    panel(f"one view, true pose ({r0:g}-{r1:g} m)", one, near)
 
     # the pose term: the same view seen from poses drawn from a pose covariance
     S = np.diag([math.radians(0.2) ** 2] * 3 + [0.01**2] * 3)
@@ -217,7 +221,7 @@ def _calibration(args, cfg, world, grid, rend, matcher, exact) -> int:  # type: 
         m.merge(xyz, cov=cov)
         fused.merge(xyz, cov=cov)
         rr = cell_range_m(grid, truth, p)
-        masks.append(m.mapped & (rr >= 2.0) & (rr <= 4.0))
+        masks.append(m.mapped & (rr >= r0) & (rr <= r1))
         print(f"  view {i} of 10: {calibration(m.z, m.var, truth, masks[-1]).line()}")
     common = np.all(masks, axis=0)
     print(f"  10 views fused: {calibration(fused.z, fused.var, truth, common).line()}")
@@ -225,7 +229,7 @@ def _calibration(args, cfg, world, grid, rend, matcher, exact) -> int:  # type: 
     try:
         Path(args.plot).parent.mkdir(parents=True, exist_ok=True)
         calibration_figure(args.plot, panels)
-    except OSError as err:
+    except (OSError, ValueError) as err:
         print(f"safer-hil bench perception: cannot write {args.plot}: {err}", file=sys.stderr)
         return 2
     print(f"wrote {args.plot}")

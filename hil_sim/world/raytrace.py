@@ -247,7 +247,8 @@ def _neighbour_hits(tc: F32, factor: int, rows: IDX, cols: IDX) -> tuple[F32, F3
     off = (factor - 1) / 2.0
     iv = np.clip(np.floor((rows - off) / factor).astype(np.intp), 0, tc.shape[0] - 1)
     iu = np.clip(np.floor((cols - off) / factor).astype(np.intp), 0, tc.shape[1] - 1)
-    return near[iv, iu], far[iv, iu], n_miss[iv, iu]
+    return (np.asarray(near[iv, iu], np.float32), np.asarray(far[iv, iu], np.float32),
+            np.asarray(n_miss[iv, iu], np.float32))
 
 
 def _bracket(near: F32, far: F32, n_miss: F32, lo: F32, hi: F32) -> tuple[F32, F32]:

@@ -12,7 +12,7 @@ from typing import Any
 import cv2
 import ground_demo
 import pytest
-from conftest import RoverThread, free_udp_port, write_config
+from ground_demo import RoverThread, free_udp_port, write_config
 
 from fsw.settings import load_settings
 from ground.cli import main
@@ -96,11 +96,12 @@ def test_keygen_from_passphrase(tmp_path: Path, monkeypatch: pytest.MonkeyPatch)
 
     from fsw.comm.mavlink_signing import load_key
 
-    monkeypatch.setattr(sys, "stdin", io.StringIO("correct horse battery\n"))
+    monkeypatch.setattr(sys, "stdin", io.StringIO("correcthorsebattery\n"))
     assert main(["keygen", str(tmp_path / "p.key"), "--passphrase-stdin"]) == 0
-    assert load_key(tmp_path / "p.key")[0] == hashlib.sha256(b"correct horse battery").digest()
-    monkeypatch.setattr(sys, "stdin", io.StringIO("short\n"))
-    assert main(["keygen", str(tmp_path / "q.key"), "--passphrase-stdin"]) == 2
+    assert load_key(tmp_path / "p.key")[0] == hashlib.sha256(b"correcthorsebattery").digest()
+    for bad in ("short\n", "two words here\n"):
+        monkeypatch.setattr(sys, "stdin", io.StringIO(bad))
+        assert main(["keygen", str(tmp_path / "q.key"), "--passphrase-stdin"]) == 2
 
 
 def _budget(exe: Any) -> int:

@@ -45,9 +45,7 @@ def _assert_alive(exe: Any, link: Any, key: bytes) -> None:
 def test_random_bytes(datagrams: list[bytes], stream: bool, key_file: Path, demo_kind: None) -> None:
     """Issue 7, done-when 4: arbitrary datagrams (or one serial byte stream) are refused and
     counted, never a crash."""
-    from conftest import MemoryLink
-
-    link = MemoryLink(packetized=not stream)
+    link = ground_demo.MemoryLink(packetized=not stream)
     exe = _rover(key_file, link)
     seeded = [b"\xfd" + d for d in datagrams[::2]] + [b"\xfe" + d for d in datagrams[1::2]]  # look like frames
     link.inbox.extend(seeded)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import ground_demo
 import pytest
-from conftest import RoverThread, free_udp_port, write_config
+from ground_demo import RoverThread, free_udp_port, write_config
 
 from fsw.comm.mavlink_tlog import read_tlog
 from fsw.settings import load_settings

@@ -14,10 +14,11 @@ import pytest
 from fsw.drivers.mavlink_transport import SerialTransport, TransportError, UdpTransport, open_transport
 
 
-def _recv(t, n: int = 1, timeout_s: float = 2.0) -> list[bytes]:  # type: ignore[no-untyped-def]
+def _recv(t, n: int = 1, timeout_s: float = 2.0, nbytes: int = 0) -> list[bytes]:  # type: ignore[no-untyped-def]
+    """``n`` chunks (datagrams), or chunks until ``nbytes`` bytes (a byte stream)."""
     got: list[bytes] = []
     deadline = time.monotonic() + timeout_s
-    while len(got) < n and time.monotonic() < deadline:
+    while (len(got) < n or sum(map(len, got)) < nbytes) and time.monotonic() < deadline:
         got += t.recv(65536)
         time.sleep(0.005)
     return got
@@ -63,11 +64,17 @@ def test_serial_over_pty() -> None:
     t = open_transport(f"serial:{os.ttyname(slave)}", 57600)
     assert isinstance(t, SerialTransport) and not t.packetized
     os.write(master, b"\xfd\x01\x02\x03")
-    assert b"".join(_recv(t)) == b"\xfd\x01\x02\x03"
+    assert b"".join(_recv(t, nbytes=4)) == b"\xfd\x01\x02\x03"
     assert t.send(b"\xfdabc")
     assert os.read(master, 100) == b"\xfdabc"
+    os.close(master)  # the radio goes away: a fault flag, no exception, reopen attempts later
+    deadline = time.monotonic() + 2.0
+    while t.fault is None and time.monotonic() < deadline:
+        t.recv(100)
+        t.send(b"\xfdx")
+        time.sleep(0.01)
+    assert t.fault is not None and t.recv(100) == []
     t.close()
-    os.close(master)
     os.close(slave)
     with pytest.raises(TransportError):
         open_transport("serial:/dev/does-not-exist", 57600)

@@ -63,3 +63,19 @@ def test_mission_commands_validated() -> None:
         assert b.command("mission.ABORT").status.name == "EXECUTION_ERROR"
         assert b.command("mission.START").status.name == "OK"
         assert b.command("mission.START").status.name == "EXECUTION_ERROR"
+
+
+def test_goto_longer_than_steer_timeout_completes() -> None:
+    """Regression: each segment of a GOTO (turn, drive, turn) gets its own steering time."""
+    from hil_sim.bench import LockstepBench
+
+    cfg = load_settings()
+    cfg = dataclasses.replace(cfg, mission=dataclasses.replace(cfg.mission, auto_start=False),
+                              motion=dataclasses.replace(cfg.motion, steer_timeout_s=2.0))
+    with LockstepBench(cfg, None, seed=0, quiet=True, camera=False) as b:
+        b.run(20)
+        assert b.command("motion.GOTO", x_m=0.5, y_m=0.3, yaw_deg=-20.0, use_yaw=True).status.name == "OK"
+        b.run_until(lambda: bool(b.events("motion.MOVE_DONE") or b.events("motion.MOVE_ABORTED")), 600)
+        assert b.events("motion.MOVE_DONE") and not b.events("motion.MOVE_ABORTED")
+        x, y, yaw = b.rig.rover.pose
+        assert abs(x - 0.5) < 0.05 and abs(y - 0.3) < 0.05

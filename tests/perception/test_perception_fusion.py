@@ -183,3 +183,37 @@ def test_slope_term_inflates_variance_on_slopes_only() -> None:
     assert a.var[5, 5] == pytest.approx(0.002**2)
     expect = 0.002**2 + 0.25 * 0.01**2 + 0.25 * 0.1**2 / 12.0
     assert b.var[5, 5] == pytest.approx(expect, rel=1e-6)
+
+
+def test_common_pose_variance_is_not_averaged_away() -> None:
+    """§1.2: the pose part of the variance is shared by every point of a view, so a cell
+    with k points keeps all of it, while the stereo part shrinks as (1 + (k-1) rho) / k."""
+    cfg = FusionConfig(point_correlation=0.0, subcell_term=False, slope_term=False,
+                       footprint_term=False)
+    k = 16
+    xyz = np.column_stack([np.full(k, 0.15), np.full(k, 0.15), np.zeros(k)])
+    cov = np.zeros((k, 3, 3))
+    common = np.zeros((k, 3, 3))
+    common[:, 2, 2] = 4e-4
+    cov[:, 2, 2] = 1e-4 + 4e-4
+    m = ElevationMap(GRID, cfg)
+    m.merge(xyz, cov=cov, cov_common=common)
+    assert m.var[1, 1] == pytest.approx(1e-4 / k + 4e-4)
+    with pytest.raises(ValueError, match="cov_common needs cov"):
+        m.merge(xyz, var_z=np.ones(k), cov_common=common)
+
+
+def test_subcell_spread_beyond_noise_adds_variance() -> None:
+    """A cell whose points spread far more than their noise (a step inside the cell) gets
+    that spread as variance; points that agree within their noise add nothing."""
+    cfg = FusionConfig(point_correlation=1.0, view_correlation=0.0)
+    agree = np.column_stack([np.full(10, 0.15), np.full(10, 0.15), np.zeros(10)])
+    step = agree.copy()
+    step[:5, 2] = 0.2  # half the points on top of a 20 cm step
+    a, b = ElevationMap(GRID, cfg), ElevationMap(GRID, cfg)
+    a.merge(agree, var_z=np.full(10, 1e-4))
+    b.merge(step, var_z=np.full(10, 1e-4))
+    assert a.var[1, 1] == pytest.approx(1e-4)
+    assert b.z[1, 1] == pytest.approx(0.1)
+    spread = 0.1**2 * 10 / 9
+    assert b.var[1, 1] == pytest.approx(1e-4 + spread - 1e-4 * 10 / 9, rel=1e-6)
