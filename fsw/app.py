@@ -22,6 +22,10 @@ def build_executive(
     clock = clock or MonotonicClock()
     res = dict(resources or {})
     res.setdefault("watchdog", SoftwareWatchdog(clock, watchdog_timeout_s))
+    if "map_store" not in res and cfg.checkpoint.directory:
+        from fsw.drivers.map_store import MapStore
+
+        res["map_store"] = MapStore(cfg.checkpoint, cfg.fusion)
     devices = getattr(cfg, "devices", None)
     if devices is not None:  # drivers from [devices]; a bench may hand in open endpoints
         from fsw.drivers.factory import open_devices

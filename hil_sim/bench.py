@@ -83,7 +83,8 @@ class LockstepBench:
         )
         self.cfg = dataclasses.replace(fsw, devices=devices)
         self.clock = SteppedClock()
-        provided: dict[str, Any] = {"mast_port": flight_port, **(resources or {})}
+        # No map store unless the caller brings one: a bench run never restores another's map.
+        provided: dict[str, Any] = {"mast_port": flight_port, "map_store": None, **(resources or {})}
         if self.camera is not None:
             provided["camera_source"] = self.camera
         self.exe: Executive = build_executive(self.cfg, self.clock, provided)

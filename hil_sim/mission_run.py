@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -29,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from fsw.core.geometry import MapGrid
+from fsw.drivers.map_store import MapStore
 from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
 
 WALL_CLOCK_FIELDS = ("wall_s", "task_max_ms")
@@ -55,13 +57,18 @@ def mission_config(spec: RunSpec, world: Any) -> FswConfig:
     if spec.out is not None:
         ckpt = dataclasses.replace(ckpt, directory=str(spec.out / "checkpoints"))
     return dataclasses.replace(
-        cfg, map=world.map_grid, mavlink=mav, checkpoint=ckpt,
+        cfg,
+        map=world.map_grid,
+        mavlink=mav,
+        checkpoint=ckpt,
         mission=dataclasses.replace(cfg.mission, method=spec.method, transmit=spec.transmit, auto_start=True),
-        nbv=dataclasses.replace(cfg.nbv, max_steps=spec.steps))
+        nbv=dataclasses.replace(cfg.nbv, max_steps=spec.steps),
+    )
 
 
-def run_mission(spec: RunSpec, progress: Callable[[int, int, str], None] | None = None,
-                max_sim_s: float | None = None) -> dict[str, Any]:
+def run_mission(
+    spec: RunSpec, progress: Callable[[int, int, str], None] | None = None, max_sim_s: float | None = None
+) -> dict[str, Any]:
     """Run one mission to DONE (or SAFE, or the time limit) and return its summary."""
     from hil_sim.bench import LockstepBench
     from hil_sim.cliffbot_receiver import Cliffbot
@@ -81,10 +88,12 @@ def run_mission(spec: RunSpec, progress: Callable[[int, int, str], None] | None 
         return clock_box[0]() if clock_box else 0.0
 
     port_flight = ChannelPort(channel, "a", now)
+    resources: dict[str, Any] = {"radio_port": port_flight, "oracle_truth": oracle}
     if spec.out is not None:
         spec.out.mkdir(parents=True, exist_ok=True)
-    with LockstepBench(cfg, world, seed=spec.seed, quiet=True,
-                       resources={"radio_port": port_flight, "oracle_truth": oracle}) as bench:
+        shutil.rmtree(spec.out / "checkpoints", ignore_errors=True)  # a new mission starts a new map
+        resources["map_store"] = MapStore(cfg.checkpoint, cfg.fusion)
+    with LockstepBench(cfg, world, seed=spec.seed, quiet=True, resources=resources) as bench:
         clock_box.append(bench.clock.now)
         cliffbot = Cliffbot(cfg.link, ChannelPort(channel, "b", now), out_dir=spec.out)
         mission = bench.exe.tasks["mission"]
@@ -165,8 +174,10 @@ def write_outputs(out: Path, summary: dict[str, Any], emap: Any, truth: Any, gri
         fig.colorbar(im, ax=ax, shrink=0.8)
     for r in summary["steps"]:
         axes[0].plot(r["pose"]["x"], r["pose"]["y"], "k^", ms=5)
-    fig.suptitle(f"{summary['scenario']} method {summary['method']} seed {summary['seed']}: "
-                 f"{summary['mapped_cells']} cells mapped")
+    fig.suptitle(
+        f"{summary['scenario']} method {summary['method']} seed {summary['seed']}: "
+        f"{summary['mapped_cells']} cells mapped"
+    )
     fig.savefig(out / files["map"], dpi=90)
     plt.close(fig)
     fig, ax = plt.subplots(figsize=(6, 4), constrained_layout=True)

@@ -31,8 +31,9 @@ class CaptureConfig:
     lift_sigma_m: float = param(0.002, lo=0.0, hi=0.1, units="m", doc="lift sigma")
 
 
-def camera_pose_covariance(nav: NavPose, mast: MastConfig, joint_sigma: tuple[float, float, float]
-                           ) -> tuple[CameraPose, np.ndarray]:
+def camera_pose_covariance(
+    nav: NavPose, mast: MastConfig, joint_sigma: tuple[float, float, float]
+) -> tuple[CameraPose, np.ndarray]:
     """Camera pose and its 6x6 covariance from the rover pose, joints and their sigmas (§1.2).
 
     The Jacobian of (rotation vector, centre) with respect to (x, y, yaw, pan, tilt, lift) is
@@ -67,7 +68,9 @@ class CameraTask(Task):
     EVENTS = (
         EventDef("CAPTURED", Severity.ACTIVITY_LO, "pair {seq} for view {view} ({ms:.0f} ms)"),
         EventDef("NO_POSE", Severity.WARNING_HI, "no pose estimate yet; capture for view {view} dropped", throttle=3),
-        EventDef("CAMERA_MISSING", Severity.WARNING_HI, "no camera driver; capture for view {view} dropped", throttle=3),
+        EventDef(
+            "CAMERA_MISSING", Severity.WARNING_HI, "no camera driver; capture for view {view} dropped", throttle=3
+        ),
     )
 
     def setup(self) -> None:
@@ -108,9 +111,19 @@ class CameraTask(Task):
         js = math.radians(cfg.capture.joint_sigma_deg)
         pose, cov = camera_pose_covariance(self.nav, cfg.mast, (js, js, cfg.capture.lift_sigma_m))
         self.captures += 1
-        self.publish(CAMERA_FRAME, CameraFrame(
-            view_id=req.view_id, time_s=reply.t_capture_s, left=reply.left, right=reply.right, pose=pose,
-            pose_cov=cov, p_visible=req.p_visible, expected_new_cells=req.expected_new_cells))
+        self.publish(
+            CAMERA_FRAME,
+            CameraFrame(
+                view_id=req.view_id,
+                time_s=reply.t_capture_s,
+                left=reply.left,
+                right=reply.right,
+                pose=pose,
+                pose_cov=cov,
+                p_visible=req.p_visible,
+                expected_new_cells=req.expected_new_cells,
+            ),
+        )
         self.tlm("captures", self.captures)
         self.tlm("capture_latency_ms", latency_s * 1e3)
         self.tlm("pose_sigma_m", float(np.sqrt(np.trace(cov[3:, 3:]))))

@@ -18,12 +18,10 @@ import time
 from pathlib import Path
 from typing import Any, BinaryIO, ClassVar
 
-from fsw.comm.mavlink_adapter import MavlinkAdapter, VehicleView
+from fsw.comm.mavlink_adapter import MavlinkAdapter
 from fsw.comm.mavlink_commands import RESULT_OF_STATUS, Reason, decode_args
 from fsw.comm.mavlink_dialect import MAV_CMD_DICTIONARY, mavlink, signing_timestamp
-from fsw.comm.mavlink_downlink import ChannelSample
 from fsw.comm.mavlink_signing import KeyFileError, Verdict, load_key
-from fsw.comm.mavlink_telemetry import DICT_CRC_KEY, channel_key, dictionary_crc
 from fsw.comm.mavlink_tlog import TlogWriter
 from fsw.comm.mavlink_uplink import CommandIn
 from fsw.drivers.mavlink_transport import TransportError, open_transport
@@ -31,23 +29,11 @@ from fsw.executive.commands import Arg, CommandDef, CommandRequest, CommandStatu
 from fsw.executive.task import Task
 from fsw.executive.telemetry import Channel, Event, EventDef, Severity
 from fsw.tasks.mavlink_preview import PreviewError, encode_preview
+from fsw.tasks.mavlink_view import ViewBuilder
 
 _REASON_OF_VERDICT = {Verdict.UNSIGNED: Reason.UNSIGNED, Verdict.BAD_SIGNATURE: Reason.BAD_SIGNATURE,
                       Verdict.REPLAY: Reason.REPLAY, Verdict.STALE: Reason.STALE, Verdict.NO_KEY: Reason.NO_KEY}
 _THROTTLED = ("AUTH_REJECTED", "RX_BAD", "TRANSPORT_FAULT", "TLOG_ERROR", "PREVIEW_BAD", "CMD_BAD_ARGS")
-
-
-def _pose_from_message(msg: Any) -> tuple[Any, ...] | None:
-    """``(x, y, yaw, pan, tilt)`` from a pose message (fsw.tasks.messages.NavPose or alike);
-    pan/tilt None without ``joints``; None for anything that is not a finite pose."""
-    try:
-        x, y, yaw = float(msg.x), float(msg.y), float(msg.yaw)
-        joints = getattr(msg, "joints", None)
-        pan, tilt = (float(joints[0]), float(joints[1])) if joints is not None else (None, None)
-    except (AttributeError, TypeError, ValueError, IndexError):
-        return None
-    values = (x, y, yaw, pan, tilt)
-    return values if all(v is None or math.isfinite(v) for v in values) else None
 
 
 class MavlinkTask(Task):
@@ -106,7 +92,8 @@ class MavlinkTask(Task):
         res = self.ctx.resources
         self._unix = res.get("unix_time", time.time)
         self._epoch_s = float(self._unix()) - self.ctx.clock.now()
-        self._early: list[Event] | None = []  # events of our own start-up, before the adapter exists
+        # events so far (other tasks' start-up) and our own until the adapter exists go down first
+        self._early: list[Event] | None = list(self.ctx.events.history)
         self.ctx.events.listeners.append(self._on_event)
         key = self._load_key(cfg.key_file)
         self.adapter = MavlinkAdapter(cfg, key, signing_timestamp(self._unix()))
@@ -123,12 +110,7 @@ class MavlinkTask(Task):
         self.tlog = self._open_tlog(res.get("mavlink_tlog", cfg.tlog_path))
         self._preview_box = self.subscribe(cfg.map_preview_topic, depth=1, policy="drop_oldest")
         self._preview: Any = None
-        self._pose_box = self.subscribe(cfg.pose_topic, depth=1, policy="drop_oldest")
-        self._pose_msg: tuple[Any, ...] | None = None
-        telemetry = self.ctx.telemetry
-        self._keys = {name: channel_key(i, name) for name, i in telemetry.ids.items()}
-        self._dict_crc = dictionary_crc((i, name) for name, i in telemetry.ids.items())
-        self._fatal_chans = [n for n in telemetry.defs if n.endswith(".tasks_fatal")]
+        self._views = ViewBuilder(self.ctx, cfg, self.subscribe(cfg.pose_topic, depth=1, policy="drop_oldest"))
         self._gcs_heard_s: float | None = None
         self._link_up = False
         self._seq = 0
@@ -186,7 +168,7 @@ class MavlinkTask(Task):
             self.event("EVENTS_DROPPED", n=q.dropped - self._dropped_reported)
             self._dropped_reported = q.dropped
         self._take_preview(now)
-        frames = self.adapter.plan(self._view(now))
+        frames = self.adapter.plan(self._views.build(now))
         if self.link is not None:
             for f in frames:
                 self.link.send(f)
@@ -256,46 +238,6 @@ class MavlinkTask(Task):
             self.adapter.offer_image(now, data, w, h, mavlink.MAVLINK_DATA_STREAM_IMG_JPEG)
         except (PreviewError, ValueError) as exc:
             self.event("PREVIEW_BAD", reason=str(exc))
-
-    def _view(self, now: float) -> VehicleView:
-        store, exe = self.ctx.telemetry, self.ctx.resources.get("executive")
-        samples = [ChannelSample(DICT_CRC_KEY, self._dict_crc, False)]
-        for name, cv in store.values.items():
-            if cv.value is not None and not isinstance(cv.value, str):
-                samples.append(ChannelSample(self._keys[name], cv.value, store.limit_state(name) in ("low", "high")))
-        load = slips = overruns = 0
-        if exe is not None:
-            prev = self.ctx.frame - 1
-            busy_s = sum(g.last_s for g in exe.groups if g.group is not None and g.group.due(prev))
-            load = int(1000 * busy_s / exe.period_s)
-            slips, overruns = exe.slips, sum(t.overruns for t in exe.tasks.values())
-        x, y, z, roll, pitch, yaw = (self._value(c) for c in self.cfg.pose_channels)
-        pan, tilt = (self._value(c) for c in self.cfg.mast_channels)
-        msg = self._pose_box.latest()
-        if msg is not None:
-            self._pose_msg = _pose_from_message(msg) or self._pose_msg
-        if self._pose_msg is not None:  # the estimate on the bus wins over channels
-            x, y, yaw = self._pose_msg[:3]
-            if self._pose_msg[3] is not None:
-                pan, tilt = self._pose_msg[3:]
-        state = store.values[self.cfg.mission_state_channel].value \
-            if self.cfg.mission_state_channel in store.values else None
-        return VehicleView(
-            now, state, any((store.get(n) or 0) > 0 for n in self._fatal_chans), not self.ctx.clock.realtime,
-            load, slips, overruns,
-            (x, y, z or 0.0) if x is not None and y is not None else None,
-            (roll or 0.0, pitch or 0.0, yaw) if yaw is not None else None,
-            (pan, tilt or 0.0) if pan is not None else None, tuple(samples))
-
-    def _value(self, name: str) -> float | None:
-        """A pose channel's value in SI units (``deg`` channels converted), None if absent."""
-        store = self.ctx.telemetry
-        if not name or name not in store.values:
-            return None
-        v = store.values[name].value
-        if v is None or isinstance(v, str) or not math.isfinite(float(v)):
-            return None
-        return math.radians(float(v)) if store.defs[name].units == "deg" else float(v)
 
     def _log(self, stamp: float, frames: list[bytes]) -> None:
         if self.tlog is None or not frames:

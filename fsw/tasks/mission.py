@@ -34,7 +34,6 @@ from fsw.core.view_candidates import CandidateView
 from fsw.executive.commands import CommandDef, CommandError
 from fsw.executive.task import Task
 from fsw.executive.telemetry import Channel, EventDef, Severity
-from fsw.tasks.radio_task import RADIO_SEND, RadioSendRequest
 from fsw.tasks.messages import (
     CAMERA_REQUEST,
     MAP_UPDATED,
@@ -49,6 +48,7 @@ from fsw.tasks.messages import (
     MotionStatus,
     NavPose,
 )
+from fsw.tasks.radio_task import RADIO_SEND, RadioSendRequest
 
 STATES = ("IDLE", "INIT", "SELECT", "MOVE", "POINT", "ACQUIRE", "TRANSMIT", "DONE", "SAFE")
 
@@ -59,8 +59,9 @@ class MissionConfig:
 
     method: str = param("5", choices=METHODS, doc="mapping method of ALGORITHM.md §7 (1-5, oracle)")
     auto_start: bool = param(True, doc="start at boot; otherwise wait for START")
-    panorama_pans_deg: tuple[float, ...] = param((-90.0,), lo=-180.0, hi=180.0, units="deg",
-                                                 doc="mast pans of the step-0 panorama")
+    panorama_pans_deg: tuple[float, ...] = param(
+        (-90.0,), lo=-180.0, hi=180.0, units="deg", doc="mast pans of the step-0 panorama"
+    )
     panorama_tilt_deg: float = param(-35.0, lo=-90.0, hi=30.0, units="deg")
     panorama_lift_m: float = param(0.5, lo=0.0, hi=2.0, units="m")
     park_joints: tuple[float, float, float] = param((0.0, -30.0, 0.0), doc="SAFE mast pose: pan deg, tilt deg, lift m")
@@ -189,8 +190,12 @@ class MissionTask(Task):
             return  # wait for the first pose estimate
         m = self.mcfg
         rover = (self.nav.x, self.nav.y, self.nav.yaw)
-        self.pending = [CandidateView(rover, (math.radians(p), math.radians(m.panorama_tilt_deg), m.panorama_lift_m),
-                                      method="panorama") for p in m.panorama_pans_deg]
+        self.pending = [
+            CandidateView(
+                rover, (math.radians(p), math.radians(m.panorama_tilt_deg), m.panorama_lift_m), method="panorama"
+            )
+            for p in m.panorama_pans_deg
+        ]
         self.step = 0
         self._next_view()
 
@@ -228,7 +233,8 @@ class MissionTask(Task):
         here = (self.nav.x, self.nav.y, self.nav.yaw)
         there = self.view.rover
         if math.hypot(there[0] - here[0], there[1] - here[1]) < 0.02 and abs(
-                math.remainder(there[2] - here[2], math.tau)) < math.radians(1.0):
+            math.remainder(there[2] - here[2], math.tau)
+        ) < math.radians(1.0):
             self._start_point()
             return
         self.geofence.set_edge(self.edge)
@@ -299,11 +305,21 @@ class MissionTask(Task):
         assert self.view is not None
         before = prev.mapped_cells if prev is not None else 0
         rec = StepRecord(
-            step=self.step, mapped_cells=up.mapped_cells,
-            expected_new_cells=float(self.view.expected_new_cells), obtained_new_cells=up.mapped_cells - before,
-            pose={"x": self.view.rover[0], "y": self.view.rover[1], "yaw": self.view.rover[2],
-                  "pan": self.view.joints[0], "tilt": self.view.joints[1], "lift": self.view.joints[2]},
-            wall_s=time.perf_counter() - self.t_wall0, sim_s=self.ctx.clock.now())
+            step=self.step,
+            mapped_cells=up.mapped_cells,
+            expected_new_cells=float(self.view.expected_new_cells),
+            obtained_new_cells=up.mapped_cells - before,
+            pose={
+                "x": self.view.rover[0],
+                "y": self.view.rover[1],
+                "yaw": self.view.rover[2],
+                "pan": self.view.joints[0],
+                "tilt": self.view.joints[1],
+                "lift": self.view.joints[2],
+            },
+            wall_s=time.perf_counter() - self.t_wall0,
+            sim_s=self.ctx.clock.now(),
+        )
         if self.pending:  # panorama views accumulate into step 0
             if self.records and self.records[-1].step == self.step:
                 self.records[-1] = rec
@@ -316,8 +332,9 @@ class MissionTask(Task):
             self.records[-1] = rec
         else:
             self.records.append(rec)
-        self.event("STEP", step=self.step, mapped=up.mapped_cells, new=rec.obtained_new_cells,
-                   exp=rec.expected_new_cells)
+        self.event(
+            "STEP", step=self.step, mapped=up.mapped_cells, new=rec.obtained_new_cells, exp=rec.expected_new_cells
+        )
         self.step += 1
         self._next_view()
 
@@ -325,14 +342,23 @@ class MissionTask(Task):
     def _planner_state(self) -> PlannerState:
         assert self.nav is not None and self.latest is not None
         cfg = self.ctx.cfg
-        path = edge_path(self.edge, cfg.edge.setback_m, cfg.edge.path_spacing_m) if self.edge is not None \
+        path = (
+            edge_path(self.edge, cfg.edge.setback_m, cfg.edge.path_spacing_m)
+            if self.edge is not None
             else np.zeros((0, 3))
+        )
         self.geofence.set_edge(self.edge)
         sigma = float(np.sqrt(max(0.0, (self.nav.cov[0, 0] + self.nav.cov[1, 1]) / 2)))
         return PlannerState(
-            map=self.latest.snapshot, rover=(self.nav.x, self.nav.y, self.nav.yaw), joints=self.nav.joints,
-            path=path, motion_ok=lambda a, b: self.geofence.check(a, b).allowed,
-            edge_xy=None if self.edge is None else self.edge.points_xy, ground_z_m=0.0, sigma_loc_m=sigma)
+            map=self.latest.snapshot,
+            rover=(self.nav.x, self.nav.y, self.nav.yaw),
+            joints=self.nav.joints,
+            path=path,
+            motion_ok=lambda a, b: self.geofence.check(a, b).allowed,
+            edge_xy=None if self.edge is None else self.edge.points_xy,
+            ground_z_m=0.0,
+            sigma_loc_m=sigma,
+        )
 
     def _end_reason(self) -> str | None:
         if self.latest is None:
@@ -350,7 +376,7 @@ class MissionTask(Task):
     def _finish_mapping(self, reason: str) -> None:
         self.end = reason
         self.event("END", reason=reason)
-        if self.mcfg.transmit and "radio" in self.ctx.resources.get("executive").tasks:
+        if self.mcfg.transmit and "radio" in self.ctx.resources["executive"].tasks:
             self._goto("TRANSMIT")
             self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
             self.publish(RADIO_SEND, RadioSendRequest(map_id=1))

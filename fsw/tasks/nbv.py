@@ -29,9 +29,12 @@ class NbvTask(Task):
         Channel("best_utility", ""),
     )
     EVENTS = (
-        EventDef("VIEW_CHOSEN", Severity.ACTIVITY_LO,
-                 "next view ({x:.2f}, {y:.2f}, {yaw_deg:.0f} deg) pan {pan_deg:.0f} tilt {tilt_deg:.0f}: "
-                 "H {bits:.0f} bit, {cells:.0f} cells expected"),
+        EventDef(
+            "VIEW_CHOSEN",
+            Severity.ACTIVITY_LO,
+            "next view ({x:.2f}, {y:.2f}, {yaw_deg:.0f} deg) pan {pan_deg:.0f} tilt {tilt_deg:.0f}: "
+            "H {bits:.0f} bit, {cells:.0f} cells expected",
+        ),
         EventDef("NO_VIEW", Severity.ACTIVITY_HI, "no reachable view worth taking"),
         EventDef("SEARCH_FAILED", Severity.WARNING_HI, "view search failed: {error}", throttle=5),
     )
@@ -56,7 +59,11 @@ class NbvTask(Task):
             cfg = self.ctx.cfg
             truth = self.ctx.resources.get("oracle_truth")  # only the bench has it (oracle)
             self.planner = make_planner(
-                cfg.mission.method, cfg.nbv.max_steps, cfg.nbv, cfg.camera, cfg.mast,
+                cfg.mission.method,
+                cfg.nbv.max_steps,
+                cfg.nbv,
+                cfg.camera,
+                cfg.mast,
                 truth_z_m=None if truth is None else truth["z"],
                 textured=None if truth is None else truth["textured"],
             )
@@ -78,7 +85,14 @@ class NbvTask(Task):
             self.tlm("best_info_bits", view.info_bits)
             self.tlm("expected_new_cells", view.expected_new_cells)
             self.tlm("best_utility", view.utility)
-            self.event("VIEW_CHOSEN", x=view.rover[0], y=view.rover[1], yaw_deg=math.degrees(view.rover[2]),
-                       pan_deg=math.degrees(view.joints[0]), tilt_deg=math.degrees(view.joints[1]),
-                       bits=view.info_bits, cells=view.expected_new_cells)
+            self.event(
+                "VIEW_CHOSEN",
+                x=view.rover[0],
+                y=view.rover[1],
+                yaw_deg=math.degrees(view.rover[2]),
+                pan_deg=math.degrees(view.joints[0]),
+                tilt_deg=math.degrees(view.joints[1]),
+                bits=view.info_bits,
+                cells=view.expected_new_cells,
+            )
         self.publish(NBV_RESULT, view)

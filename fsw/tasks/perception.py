@@ -40,8 +40,11 @@ class PerceptionTask(Task):
         Channel("job_ms", "ms", doc="busy time of the last view's slack job"),
     )
     EVENTS = (
-        EventDef("VIEW_MERGED", Severity.ACTIVITY_LO,
-                 "view {view}: {points} points, {new} new cells, {misses} misses, {mapped} mapped"),
+        EventDef(
+            "VIEW_MERGED",
+            Severity.ACTIVITY_LO,
+            "view {view}: {points} points, {new} new cells, {misses} misses, {mapped} mapped",
+        ),
         EventDef("VIEW_FAILED", Severity.WARNING_HI, "view {view} could not be merged: {error}", throttle=5),
         EventDef("CHECKPOINT_SAVED", Severity.ACTIVITY_LO, "map checkpoint {seq} saved ({kib:.0f} KiB)"),
         EventDef("CHECKPOINT_FAILED", Severity.WARNING_HI, "map checkpoint failed: {error}", throttle=3),
@@ -59,7 +62,7 @@ class PerceptionTask(Task):
         self.frames = self.subscribe(CAMERA_FRAME, depth=2, policy="drop_oldest")
         self.job: JobHandle | None = None
         self.views = 0
-        self.store = self.ctx.resources.get("map_store")
+        self.store: Any = self.ctx.resources.get("map_store")
         self._last_checkpoint_s = self.ctx.clock.now()
         self._ckpt_seq = 0
         if self.store is not None:
@@ -93,10 +96,17 @@ class PerceptionTask(Task):
         line = fit_line(cells, here)
         self.views += 1
         return MapUpdate(
-            view_id=fr.view_id, time_s=fr.time_s, mapped_cells=int(self.map.mapped.sum()),
-            new_cells=stats.cells_new, points=stats.points_used, misses=stats.misses,
-            expected_new_cells=fr.expected_new_cells, snapshot=self.map.copy(), edge=poly,
-            edge_line=line, extra={"outliers": stats.outliers, "edge_points": int(cells.points_xy.shape[0])},
+            view_id=fr.view_id,
+            time_s=fr.time_s,
+            mapped_cells=int(self.map.mapped.sum()),
+            new_cells=stats.cells_new,
+            points=stats.points_used,
+            misses=stats.misses,
+            expected_new_cells=fr.expected_new_cells,
+            snapshot=self.map.copy(),
+            edge=poly,
+            edge_line=line,
+            extra={"outliers": stats.outliers, "edge_points": int(cells.points_xy.shape[0])},
         )
 
     def _finish(self, h: JobHandle) -> None:
@@ -113,8 +123,9 @@ class PerceptionTask(Task):
         self.tlm("last_outliers", up.extra["outliers"])
         self.tlm("edge_points", up.extra["edge_points"])
         self.tlm("job_ms", h.busy_s * 1e3)
-        self.event("VIEW_MERGED", view=up.view_id, points=up.points, new=up.new_cells,
-                   misses=up.misses, mapped=up.mapped_cells)
+        self.event(
+            "VIEW_MERGED", view=up.view_id, points=up.points, new=up.new_cells, misses=up.misses, mapped=up.mapped_cells
+        )
 
     # -- checkpoints ---------------------------------------------------------------------
     def _checkpoint(self) -> None:

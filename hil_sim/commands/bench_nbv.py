@@ -187,6 +187,7 @@ def run(args: argparse.Namespace) -> int:
         "expected_over_obtained": float(eo[:, 0].sum() / max(eo[:, 1].sum(), 1.0)),
         "expected_mean_abs_rel": float(np.abs(eo[:, 0] - eo[:, 1]).sum()
                                        / max(eo[:, 1].sum(), 1.0)),
+        "expected_corr": float(np.corrcoef(eo.T)[0, 1]) if eo.shape[0] > 2 else math.nan,
     }
     print(f"map state: {args.scenario} seed {args.seed}, {fig['mapped_cells']} of "
           f"{grid.nx * grid.ny} cells mapped (panorama + {args.warmup_views} views)")
@@ -206,7 +207,7 @@ def run(args: argparse.Namespace) -> int:
     if eo.shape[0]:
         print(f"expected vs obtained new cells (ideal stereo), {eo.shape[0]} random views: "
               f"sum ratio {fig['expected_over_obtained']:.2f}, mean |exp - obt| / obt "
-              f"{fig['expected_mean_abs_rel']:.2f}")
+              f"{fig['expected_mean_abs_rel']:.2f}, correlation {fig['expected_corr']:.2f}")
     if args.json:
         args.json.write_text(json.dumps(fig, indent=2))
     return 0

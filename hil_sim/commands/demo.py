@@ -18,6 +18,13 @@ def run(args: argparse.Namespace) -> int:
     from fsw.settings import DEFAULT_CONFIG
     from hil_sim.commands import run as run_cmd
 
-    ns = argparse.Namespace(scenario="lab", method="5", steps=args.steps, seed=args.seed, out=args.out,
-                            config=str(DEFAULT_CONFIG), no_transmit=False)
+    ns = argparse.Namespace(
+        scenario="lab",
+        method="5",
+        steps=args.steps,
+        seed=args.seed,
+        out=args.out,
+        config=str(DEFAULT_CONFIG),
+        no_transmit=False,
+    )
     return run_cmd.run(ns)

@@ -44,16 +44,21 @@ def run(args: argparse.Namespace) -> int:
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     bad = [m for m in methods if m not in METHODS]
     if bad or args.seeds < 1 or args.steps < 1 or args.jobs < 1:
-        print(f"safer-hil experiment coverage: bad arguments ({bad or 'seeds/steps/jobs must be >= 1'})",
-              file=sys.stderr)
+        print(
+            f"safer-hil experiment coverage: bad arguments ({bad or 'seeds/steps/jobs must be >= 1'})", file=sys.stderr
+        )
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
     runs = [(m, s) for s in range(args.seeds) for m in methods]
     results: dict[tuple[str, int], dict[str, Any]] = {}
-    with ProcessPoolExecutor(max_workers=args.jobs) as pool, \
-            tqdm(total=len(runs), desc=f"coverage {args.scenario}", unit="mission") as bar:
-        futs = {pool.submit(_one, args.scenario, m, args.steps, s, str(args.out / "runs" / f"{m}_seed{s}")): (m, s)
-                for m, s in runs}
+    with (
+        ProcessPoolExecutor(max_workers=args.jobs) as pool,
+        tqdm(total=len(runs), desc=f"coverage {args.scenario}", unit="mission") as bar,
+    ):
+        futs = {
+            pool.submit(_one, args.scenario, m, args.steps, s, str(args.out / "runs" / f"{m}_seed{s}")): (m, s)
+            for m, s in runs
+        }
         for fut in as_completed(futs):
             m, s = futs[fut]
             results[(m, s)] = fut.result()
@@ -78,8 +83,9 @@ def curves(results: dict[tuple[str, int], dict[str, Any]], method: str, seeds: i
     return out
 
 
-def write_report(out: Path, scenario: str, steps: int, methods: list[str], seeds: int,
-                 results: dict[tuple[str, int], dict[str, Any]]) -> None:
+def write_report(
+    out: Path, scenario: str, steps: int, methods: list[str], seeds: int, results: dict[tuple[str, int], dict[str, Any]]
+) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -88,35 +94,69 @@ def write_report(out: Path, scenario: str, steps: int, methods: list[str], seeds
 
     with (out / "coverage.csv").open("w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["scenario", "method", "seed", "step", "mapped_cells", "expected_new_cells",
-                    "obtained_new_cells", "x", "y", "yaw", "pan", "tilt", "lift"])
+        w.writerow(
+            [
+                "scenario",
+                "method",
+                "seed",
+                "step",
+                "mapped_cells",
+                "expected_new_cells",
+                "obtained_new_cells",
+                "x",
+                "y",
+                "yaw",
+                "pan",
+                "tilt",
+                "lift",
+            ]
+        )
         for (m, s), r in sorted(results.items()):
             for st in r["steps"]:
                 p = st["pose"]
-                w.writerow([scenario, m, s, st["step"], st["mapped_cells"], round(st["expected_new_cells"], 1),
-                            st["obtained_new_cells"], *(round(p[k], 4) for k in ("x", "y", "yaw", "pan", "tilt", "lift"))])
+                w.writerow(
+                    [
+                        scenario,
+                        m,
+                        s,
+                        st["step"],
+                        st["mapped_cells"],
+                        round(st["expected_new_cells"], 1),
+                        st["obtained_new_cells"],
+                        *(round(p[k], 4) for k in ("x", "y", "yaw", "pan", "tilt", "lift")),
+                    ]
+                )
     final = {m: curves(results, m, seeds, steps)[:, -1] for m in methods}
     ref1 = final["1"].mean() if "1" in final else float("nan")
     refo = final["oracle"].mean() if "oracle" in final else float("nan")
-    lines = [f"# Coverage, {scenario} scenario, {steps} steps, {seeds} seeds", "",
-             "| method | mapped cells at last step (mean) | min | max | vs Method 1 | vs oracle | "
-             "edge violations | slips | map RMSE (cm) |", "|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        f"# Coverage, {scenario} scenario, {steps} steps, {seeds} seeds",
+        "",
+        "| method | mapped cells at last step (mean) | min | max | vs Method 1 | vs oracle | "
+        "edge violations | slips | map RMSE (cm) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for m in methods:
         f = final[m]
         runs = [results[(m, s)] for s in range(seeds)]
         rmse = [r["map_rmse_m"] for r in runs if r["map_rmse_m"] is not None]
-        lines.append(f"| {m} | {f.mean():.0f} | {f.min():.0f} | {f.max():.0f} | {f.mean() / ref1:.2f}x | "
-                     f"{f.mean() / refo:.2f} | {sum(r['edge_violations'] for r in runs)} | "
-                     f"{sum(r['slips'] for r in runs)} | {100 * np.mean(rmse):.2f} |")
+        lines.append(
+            f"| {m} | {f.mean():.0f} | {f.min():.0f} | {f.max():.0f} | {f.mean() / ref1:.2f}x | "
+            f"{f.mean() / refo:.2f} | {sum(r['edge_violations'] for r in runs)} | "
+            f"{sum(r['slips'] for r in runs)} | {100 * np.mean(rmse):.2f} |"
+        )
     for m in ("3", "5"):
         if m in methods:
             exp, obt = _expected_obtained(results, m, seeds)
             lines.append("")
-            lines.append(f"Method {m}: expected vs obtained new cells per step (mean over seeds, steps 1..): "
-                         + ", ".join(f"{e:.0f}/{o:.0f}" for e, o in zip(exp, obt, strict=True)))
+            lines.append(
+                f"Method {m}: expected vs obtained new cells per step (mean over seeds, steps 1..): "
+                + ", ".join(f"{e:.0f}/{o:.0f}" for e, o in zip(exp, obt, strict=True))
+            )
     (out / "coverage.md").write_text("\n".join(lines) + "\n")
-    (out / "coverage.json").write_text(json.dumps(
-        {m: {"final_mean": float(final[m].mean()), "final": final[m].tolist()} for m in methods}, indent=2))
+    (out / "coverage.json").write_text(
+        json.dumps({m: {"final_mean": float(final[m].mean()), "final": final[m].tolist()} for m in methods}, indent=2)
+    )
 
     fig, ax = plt.subplots(figsize=(7, 4.5), constrained_layout=True)
     for m in methods:
@@ -153,8 +193,10 @@ def write_report(out: Path, scenario: str, steps: int, methods: list[str], seeds
 def _expected_obtained(results: dict[tuple[str, int], dict[str, Any]], method: str, seeds: int) -> tuple[Any, Any]:
     import numpy as np
 
-    rows = [[(r["expected_new_cells"], r["obtained_new_cells"]) for r in results[(method, s)]["steps"] if r["step"] >= 1]
-            for s in range(seeds)]
+    rows = [
+        [(r["expected_new_cells"], r["obtained_new_cells"]) for r in results[(method, s)]["steps"] if r["step"] >= 1]
+        for s in range(seeds)
+    ]
     n = min(len(r) for r in rows) if rows else 0
     arr = np.array([r[:n] for r in rows], dtype=float).reshape(len(rows), n, 2)
     return arr[..., 0].mean(0), arr[..., 1].mean(0)

@@ -19,8 +19,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from fsw.settings import DEFAULT_CONFIG
 
     p.add_argument("--scenario", default="lab", help="lab, cliff, mars or file:PATH")
-    p.add_argument("--method", default="5", choices=("1", "2", "3", "4", "5", "oracle"),
-                   help="mapping method (ALGORITHM.md §7)")
+    p.add_argument(
+        "--method", default="5", choices=("1", "2", "3", "4", "5", "oracle"), help="mapping method (ALGORITHM.md §7)"
+    )
     p.add_argument("--steps", type=int, default=20, help="imaging steps after the panorama")
     p.add_argument("--seed", type=int, default=0, help="seed of world, hardware and radio")
     p.add_argument("--out", type=Path, default=Path("out/run"), help="report directory")
@@ -58,11 +59,15 @@ def run(args: argparse.Namespace) -> int:
     bar.n = bar.total
     bar.close()
     cb = s["cliffbot"]
-    print(f"{s['mapped_cells']} cells mapped in {len(s['steps']) - 1} steps; map RMSE "
-          f"{(s['map_rmse_m'] or float('nan')) * 100:.2f} cm; edge violations {s['edge_violations']}; "
-          f"slips {s['slips']}; end: {s['end_reason']} ({s['final_state']})")
+    print(
+        f"{s['mapped_cells']} cells mapped in {len(s['steps']) - 1} steps; map RMSE "
+        f"{(s['map_rmse_m'] or float('nan')) * 100:.2f} cm; edge violations {s['edge_violations']}; "
+        f"slips {s['slips']}; end: {s['end_reason']} ({s['final_state']})"
+    )
     if cb is not None:
-        print(f"Cliff-bot: map {cb['map_id']} {'decoded' if cb['decoded'] else 'NOT decoded'}, "
-              f"{cb['container_bytes']} B, max error {cb['max_error_m']} m")
+        print(
+            f"Cliff-bot: map {cb['map_id']} {'decoded' if cb['decoded'] else 'NOT decoded'}, "
+            f"{cb['container_bytes']} B, max error {cb['max_error_m']} m"
+        )
     print(f"report: {args.out / 'summary.json'} (map.png, coverage.png, fsw.tlog)")
     return 0 if s["final_state"] == "DONE" else 1

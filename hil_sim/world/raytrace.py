@@ -219,6 +219,10 @@ def _finest(hf: Heightfield, c: F64, d: F32, tc: F32, factor: int) -> F32:
         t = (1.0 / inv_full).astype(np.float32)
     mask = np.repeat(np.repeat(rough_u8, factor, 0), factor, 1)[:height, :width].astype(bool)
     mask |= ~np.isfinite(t)
+    # Pixels outside the outermost coarse centres would be extrapolated: cast them.
+    off = (factor - 1) / 2.0
+    mask[:, (np.arange(width) < off) | (np.arange(width) > (wl - 1) * factor + off)] = True
+    mask[(np.arange(height) < off) | (np.arange(height) > (hl - 1) * factor + off), :] = True
     idx = np.flatnonzero(mask)
     t_flat = t.reshape(-1)
     t_flat[idx] = np.nan
@@ -257,9 +261,10 @@ def _bracket(near: F32, far: F32, n_miss: F32, lo: F32, hi: F32) -> tuple[F32, F
     margin = 0.002 + 0.002 * np.where(some_miss, 0.0, far)
     a = np.where(some_miss, lo, np.maximum(lo, near - margin))
     b = np.where(some_miss, hi, np.minimum(hi, far + margin))
-    # A ray entering the slab beyond its neighbours' hits still searches a little (and, if
-    # that finds nothing, the rest of its interval: see _first_hits).
-    b = np.where(b > a, b, np.minimum(a + 0.05, hi))
+    # Neighbours' hits outside this ray's own interval (it enters the slab later, or leaves
+    # the world sooner, e.g. past the last coarse ray at the image border): search it all.
+    empty = b <= a
+    a, b = np.where(empty, lo, a), np.where(empty, hi, b)
     b = np.where(n_miss > 3.5, -np.inf, b)  # a block of sky stays sky
     return a.astype(np.float32), b.astype(np.float32)
 

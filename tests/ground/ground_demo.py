@@ -4,6 +4,9 @@
 a bench run exists: it walks through mission states, drives a pose along +x, pans the
 mast, grows ``mapped_cells`` and publishes an elevation preview on ``map.preview``.
 ``build(...)`` makes an executive (SteppedClock) with health, demo and mavlink tasks.
+Also the tests' helpers: ``command_frame`` (a COMMAND_LONG from a ground station),
+``MemoryLink`` (an in-memory transport), ``write_config`` (a TOML for ``--config``),
+``free_udp_port`` and ``RoverThread`` (a lockstep rover paced in a background thread).
 
 Run as a script to leave a .tlog and feed a live ``safer-ground listen``::
 

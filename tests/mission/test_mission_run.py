@@ -19,8 +19,11 @@ def test_same_seed_same_summary(tmp_path: Path) -> None:
     b = run_mission(RunSpec("lab", "5", steps=1, seed=4, transmit=True, out=tmp_path / "b"))
     assert a["final_state"] == "DONE", a["end_reason"]
     assert len(a["steps"]) == 2 and a["steps"][1]["mapped_cells"] > a["steps"][0]["mapped_cells"] > 1000
-    assert strip_wall_clock(a) == strip_wall_clock(json.loads((tmp_path / "b" / "summary.json").read_text())) \
+    assert (
+        strip_wall_clock(a)
+        == strip_wall_clock(json.loads((tmp_path / "b" / "summary.json").read_text()))
         == strip_wall_clock(b)
+    )
     assert a["edge_violations"] == 0
     assert a["map_rmse_m"] is not None and a["map_rmse_m"] < 0.05
     # The map reached the Cliff-bot intact within the codec's bound (ALGORITHM.md §6).
@@ -70,8 +73,11 @@ def test_goto_longer_than_steer_timeout_completes() -> None:
     from hil_sim.bench import LockstepBench
 
     cfg = load_settings()
-    cfg = dataclasses.replace(cfg, mission=dataclasses.replace(cfg.mission, auto_start=False),
-                              motion=dataclasses.replace(cfg.motion, steer_timeout_s=2.0))
+    cfg = dataclasses.replace(
+        cfg,
+        mission=dataclasses.replace(cfg.mission, auto_start=False),
+        motion=dataclasses.replace(cfg.motion, steer_timeout_s=2.0),
+    )
     with LockstepBench(cfg, None, seed=0, quiet=True, camera=False) as b:
         b.run(20)
         assert b.command("motion.GOTO", x_m=0.5, y_m=0.3, yaw_deg=-20.0, use_yaw=True).status.name == "OK"

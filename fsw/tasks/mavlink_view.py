@@ -1,0 +1,91 @@
+"""What the ground link reads from the executive each activation: a ``VehicleView``.
+
+Telemetry channels (numeric ones, with their limit state, keyed for NAMED_VALUE), the
+dictionary CRC, the mission state, health, load/slips/overruns, and the pose and mast: from
+the pose estimate on the bus (``[mavlink] pose_topic``, ``fsw.tasks.messages.NavPose``) once
+one was heard, else from the configured channels (``deg`` channels converted to radians).
+Absent channels give absent messages, never an error (docs/ground.md).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from fsw.comm.mavlink_adapter import VehicleView
+from fsw.comm.mavlink_config import MavlinkConfig
+from fsw.comm.mavlink_downlink import ChannelSample
+from fsw.comm.mavlink_telemetry import DICT_CRC_KEY, channel_key, dictionary_crc
+from fsw.executive.bus import Mailbox
+from fsw.executive.task import TaskContext
+
+
+def pose_from_message(msg: Any) -> tuple[Any, ...] | None:
+    """``(x, y, yaw, pan, tilt)`` from a pose message (NavPose or alike); pan/tilt None
+    without ``joints``; None for anything that is not a finite pose."""
+    try:
+        x, y, yaw = float(msg.x), float(msg.y), float(msg.yaw)
+        joints = getattr(msg, "joints", None)
+        pan, tilt = (float(joints[0]), float(joints[1])) if joints is not None else (None, None)
+    except (AttributeError, TypeError, ValueError, IndexError):
+        return None
+    values = (x, y, yaw, pan, tilt)
+    return values if all(v is None or math.isfinite(v) for v in values) else None
+
+
+class ViewBuilder:
+    """Builds the adapter's input from the task context (one per ground-link task)."""
+
+    def __init__(self, ctx: TaskContext, cfg: MavlinkConfig, pose_box: Mailbox[Any]) -> None:
+        self.ctx, self.cfg, self.pose_box = ctx, cfg, pose_box
+        store = ctx.telemetry
+        self.keys = {name: channel_key(i, name) for name, i in store.ids.items()}
+        self.dict_crc = dictionary_crc((i, name) for name, i in store.ids.items())
+        self.fatal_channels = [n for n in store.defs if n.endswith(".tasks_fatal")]
+        self.pose: tuple[Any, ...] | None = None  # the last good pose message
+
+    def build(self, now: float) -> VehicleView:
+        store, exe = self.ctx.telemetry, self.ctx.resources.get("executive")
+        samples = [ChannelSample(DICT_CRC_KEY, self.dict_crc, False)]
+        for name, cv in store.values.items():
+            if cv.value is not None and not isinstance(cv.value, str):
+                samples.append(ChannelSample(self.keys[name], cv.value, store.limit_state(name) in ("low", "high")))
+        load = slips = overruns = 0
+        if exe is not None:
+            prev = self.ctx.frame - 1
+            busy_s = sum(g.last_s for g in exe.groups if g.group is not None and g.group.due(prev))
+            load = int(1000 * busy_s / exe.period_s)
+            slips, overruns = exe.slips, sum(t.overruns for t in exe.tasks.values())
+        x, y, z, roll, pitch, yaw = (self.value(c) for c in self.cfg.pose_channels)
+        pan, tilt = (self.value(c) for c in self.cfg.mast_channels)
+        msg = self.pose_box.latest()
+        if msg is not None:
+            self.pose = pose_from_message(msg) or self.pose
+        if self.pose is not None:  # the estimate on the bus wins over channels
+            x, y, yaw = self.pose[:3]
+            if self.pose[3] is not None:
+                pan, tilt = self.pose[3:]
+        chan = self.cfg.mission_state_channel
+        state = store.values[chan].value if chan in store.values else None
+        fatal = any((store.get(n) or 0) > 0 for n in self.fatal_channels)
+        return VehicleView(
+            now, state, fatal, not self.ctx.clock.realtime, load, slips, overruns,
+            (x, y, z or 0.0) if x is not None and y is not None else None,
+            (roll or 0.0, pitch or 0.0, yaw) if yaw is not None else None,
+            (pan, tilt or 0.0) if pan is not None else None, tuple(samples))
+
+    def value(self, name: str) -> float | None:
+        """A channel's value in SI units (``deg`` converted), None if absent or not a number."""
+        store = self.ctx.telemetry
+        if not name or name not in store.values:
+            return None
+        v = store.values[name].value
+        if v is None or isinstance(v, str):
+            return None
+        try:
+            f = float(v)
+        except (TypeError, ValueError, OverflowError):
+            return None
+        if not math.isfinite(f):
+            return None
+        return math.radians(f) if store.defs[name].units == "deg" else f
