@@ -85,6 +85,12 @@ class LockstepBench:
         self.clock = SteppedClock()
         # No map store unless the caller brings one: a bench run never restores another's map.
         provided: dict[str, Any] = {"mast_port": flight_port, "map_store": None, **(resources or {})}
+        # A radio of its own (unless the caller brings one), so benches never share an end.
+        self._own_radio = None
+        if "radio_port" not in provided:
+            from fsw.drivers.radio import open_radio
+
+            self._own_radio = provided["radio_port"] = open_radio(f"inproc://{self.channel}-radio")
         if self.camera is not None:
             provided["camera_source"] = self.camera
         self.exe: Executive = build_executive(self.cfg, self.clock, provided)
@@ -138,6 +144,8 @@ class LockstepBench:
         from fsw.drivers.factory import close_devices
 
         close_devices(self.exe.ctx.resources)
+        if self._own_radio is not None:
+            self._own_radio.close()
         for bus in (self.sim_bus, self._tap):
             if bus is not None:
                 bus.shutdown()

@@ -12,8 +12,9 @@ obtained_new_cells, pose{x,y,yaw,pan,tilt,lift}, wall_s, sim_s}``), ``map_rmse_m
 ``edge_violations``, ``geofence_refusals``, ``slips``, ``overruns``, ``task_max_ms``
 ({task: ms}), ``end_reason``, ``final_state``, ``mapped_cells``, ``frames``, ``sim_s``,
 ``wall_s``, ``cliffbot`` (the Cliff-bot's report, or null), ``files``. Wall-clock fields:
-``wall_s`` (top level and per step) and ``task_max_ms``; everything else is a function of
-the inputs and the seed.
+``wall_s`` (top level and per step), ``task_max_ms``, and ``slips`` and ``overruns`` (both
+compare measured execution time with the period and budgets); everything else is a
+function of the inputs and the seed.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from fsw.core.geometry import MapGrid
 from fsw.drivers.map_store import MapStore
 from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
 
-WALL_CLOCK_FIELDS = ("wall_s", "task_max_ms")
+WALL_CLOCK_FIELDS = ("wall_s", "task_max_ms", "slips", "overruns")
 
 
 @dataclass(frozen=True)
@@ -113,6 +114,8 @@ def run_mission(
             if mission.state in ("DONE", "SAFE"):
                 break
         exe = bench.exe
+        if "mavlink" in exe.tasks:
+            exe.tasks["mavlink"].close()  # flush and close the .tlog
         emap = perception.map
         mapped = emap.mapped & np.isfinite(truth)
         rmse = float(np.sqrt(np.mean((emap.z[mapped] - truth[mapped]) ** 2))) if mapped.any() else None
@@ -134,12 +137,23 @@ def run_mission(
             "frames": exe.frame,
             "sim_s": round(bench.clock.now(), 3),
             "wall_s": round(time.perf_counter() - t_wall, 3),
-            "cliffbot": dataclasses.asdict(cliffbot.reports[-1]) if cliffbot.reports else None,
+            "cliffbot": _cliffbot_report(cliffbot, spec.out),
             "files": {},
         }
+        summary = json.loads(json.dumps(summary))  # exactly what summary.json holds
         if spec.out is not None:
             summary["files"] = write_outputs(spec.out, summary, emap, truth, grid)
     return summary
+
+
+def _cliffbot_report(cliffbot: Any, out: Path | None) -> dict[str, Any] | None:
+    """The Cliff-bot's last report, its figure named relative to the run directory."""
+    if not cliffbot.reports:
+        return None
+    rep = dataclasses.asdict(cliffbot.reports[-1])
+    if rep.get("png") and out is not None:
+        rep["png"] = Path(rep["png"]).name
+    return rep
 
 
 def _wheels_over_drop(rig: Any, world: Any, cfg: FswConfig) -> int:
@@ -191,6 +205,7 @@ def write_outputs(out: Path, summary: dict[str, Any], emap: Any, truth: Any, gri
     ax.grid(alpha=0.3)
     fig.savefig(out / files["coverage"], dpi=90)
     plt.close(fig)
+    summary["files"] = files
     (out / files["summary"]).write_text(json.dumps(summary, indent=2) + "\n")
     return files
 

@@ -66,7 +66,8 @@ class MavlinkAdapter:
                                  TokenBucket(cfg.statustext_rate_hz, cfg.statustext_burst))
         self.channels = ChannelScheduler(cfg.channel_period_s, cfg.channel_refresh_s)
         self.images = ImageSender()
-        self._acks: deque[mavlink.MAVLink_command_ack_message] = deque(maxlen=64)
+        # bounded; a flood of commands beyond it loses ACKs, counted (acks_dropped channel)
+        self._acks: deque[mavlink.MAVLink_command_ack_message] = deque(maxlen=1024)
         self.acks_dropped = 0
         self._due = {"heartbeat": Periodic(cfg.heartbeat_period_s), "sys_status": Periodic(cfg.sys_status_period_s),
                      "pose": Periodic(cfg.pose_period_s), "mast": Periodic(cfg.mast_period_s)}
@@ -82,10 +83,15 @@ class MavlinkAdapter:
     # -- uplink -----------------------------------------------------------------------------
     def receive(self, data: bytes, now_ts: int, packet_end: bool = False) -> UplinkBatch:
         batch = self.uplink.feed(data, now_ts, packet_end)
-        if self.codec.signing.sign_outgoing:  # never sign behind what the ground has seen
+        self._clock_signing(now_ts)
+        return batch
+
+    def _clock_signing(self, now_ts: int) -> None:
+        """Our signing time follows the clock (a ground station refuses a new stream more than a
+        minute old) and never falls behind a timestamp the ground has used."""
+        if self.codec.signing.sign_outgoing:
             self.codec.signing.timestamp = max(self.codec.signing.timestamp, now_ts,
                                                self.verifier.newest_timestamp() + 1)
-        return batch
 
     def ack(self, cmd: CommandIn, result: int, reason: Reason, opcode: int) -> None:
         if len(self._acks) == self._acks.maxlen:
@@ -106,8 +112,10 @@ class MavlinkAdapter:
         self._next_image_s = now_s + self.cfg.image_period_s
 
     # -- downlink -------------------------------------------------------------------------------
-    def plan(self, v: VehicleView) -> list[bytes]:
-        """The frames of this activation, in priority order, within the byte budget."""
+    def plan(self, v: VehicleView, now_ts: int = 0) -> list[bytes]:
+        """The frames of this activation, in priority order, within the byte budget;
+        ``now_ts`` is the signing time (10 us units since 2015) of this activation."""
+        self._clock_signing(now_ts)
         p, now, ms = self.packer, v.time_s, int(v.time_s * 1000) & 0xFFFFFFFF
         p.begin(self.budget_bytes)
         while self._acks and p.offer([self._acks[0]]):

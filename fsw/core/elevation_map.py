@@ -16,12 +16,17 @@ and overlapping matching windows, so their errors are correlated; with equicorre
 for ``k`` points (``rho = 1``: the view counts as one measurement, ``rho = 0``: independent
 points). ``n`` counts views, not points.
 
-A point's vertical variance ``v`` is ``P_zz`` of its world covariance (§1.2) plus, when the
-full covariance is given, the slope term (gradient ``g`` from this view's own cell means, so
-a view's measurement does not depend on the map it is fused into): a horizontal error ``dxy`` moves the point to
-terrain of another height, so the error in the cell's height is ``dz - g.dxy`` with ``g``
-the local gradient, ``v = P_zz - 2 g.P_xyz + g^T P_xy g``; and the cell-footprint term
-``|g|^2 cell^2 / 12`` (a point samples one spot of a sloping cell whose truth is its mean).
+A point's vertical variance ``v`` is ``P_zz`` of its world covariance (§1.2) or, when the
+full covariance is given, the larger of that and the slope term: a horizontal error ``dxy``
+moves the point to terrain of another height, so the error in the cell's height is
+``dz - g.dxy`` with ``g`` the local gradient (from this view's own cell means, so a view's
+measurement does not depend on the map it is fused into), ``P_zz - 2 g.P_xyz + g^T P_xy g``.
+(On a slope facing the camera that is below ``P_zz``; a gradient from noisy cell means is not
+trusted to lower the variance.) Optionally the footprint term ``|g|^2 cell^2 / 12`` (one
+point samples one spot of a sloping cell whose truth is its mean); off by default because
+the sub-cell term measures the same thing from the points: the spread of a view's points in
+a cell beyond their noise is added to the cell's measurement variance (a step or a rock edge
+inside the cell). All of it is calibrated against the bench truth in docs/perception.md.
 
 The view's measurement is fused into the map by the 1-D Kalman update of §1.1; a
 measurement whose Mahalanobis distance ``|zm - z| / sqrt(var + vm)`` exceeds ``gate_sigma``
@@ -58,13 +63,13 @@ class FusionConfig:
         4.0, lo=1.0, hi=1e6, doc="a cell's variance is multiplied by this on an outlier"
     )
     point_correlation: float = param(
-        0.5, lo=0.0, hi=1.0, doc="error correlation of points of one view in one cell"
+        0.3, lo=0.0, hi=1.0, doc="error correlation of points of one view in one cell"
     )
     view_correlation: float = param(
-        0.3, lo=0.0, hi=0.9, doc="part of a view's variance common to all views of a cell"
+        0.4, lo=0.0, hi=0.9, doc="part of a view's variance common to all views of a cell"
     )
     slope_term: bool = param(True, doc="add the slope term (horizontal error times gradient)")
-    footprint_term: bool = param(True, doc="add |gradient|^2 cell^2 / 12 per point")
+    footprint_term: bool = param(False, doc="add |gradient|^2 cell^2 / 12 per point")
     subcell_term: bool = param(
         True, doc="add the points' spread in the cell beyond their noise (sub-cell relief)"
     )
@@ -207,7 +212,8 @@ class ElevationMap:
         xx, xy, xz, yy, yz, zz = c6
         out = zz
         if self.cfg.slope_term:
-            out = zz - 2.0 * (gx * xz + gy * yz) + gx * (gx * xx + 2.0 * gy * xy) + gy * gy * yy
+            slope = zz - 2.0 * (gx * xz + gy * yz) + gx * (gx * xx + 2.0 * gy * xy) + gy * gy * yy
+            out = np.maximum(zz, slope)  # a noisy gradient must not talk the variance down
         out = np.maximum(out, self.cfg.min_var_m2)
         if footprint and self.cfg.footprint_term:
             out += (gx * gx + gy * gy) * (self.grid.cell**2 / 12.0)

@@ -148,7 +148,8 @@ def view_sums_steps(rel: F64, values: F64, yaws: F64, tilts: F64, camera: Camera
         yc = along * st - (dz * ct)[:, None]
         ok = ((zc >= camera.min_range_m) & (zc <= camera.max_range_m)
               & (lateral <= zc * tan_h) & (np.abs(yc) <= zc * tan_v))
-        out[:, j, :] = (vals @ ok.astype(np.float32)).T
+        # einsum, not matmul: multithreaded BLAS on small products spins on a busy machine
+        out[:, j, :] = np.einsum("vn,np->pv", vals, ok.astype(np.float32))
     return out
 
 

@@ -73,8 +73,15 @@ class StereoConfig:
     )
     texture_window_px: int = param(5, lo=3, hi=31, units="px", doc="odd texture window side")
     border_px: int = param(4, lo=0, hi=64, units="px", doc="image border that gives no points")
+    refine_iterations: int = param(
+        1, lo=0, hi=5, doc="Lucas-Kanade sub-pixel refinement steps after SGBM (0: none)"
+    )
+    refine_window_px: int = param(5, lo=3, hi=21, units="px", doc="odd refinement window side")
+    refine_max_step_px: float = param(
+        0.5, lo=0.05, hi=2.0, units="px", doc="a larger refinement step drops the pixel"
+    )
     sigma_disparity_px: float = param(
-        0.2, lo=0.01, hi=5.0, units="px", doc="1-sigma sub-pixel disparity noise (calibrated)"
+        0.15, lo=0.01, hi=5.0, units="px", doc="1-sigma sub-pixel disparity noise (calibrated)"
     )
     sigma_pixel_px: float = param(
         0.3, lo=0.0, hi=5.0, units="px", doc="1-sigma pixel localisation noise on u and v"
@@ -83,8 +90,9 @@ class StereoConfig:
     def __post_init__(self) -> None:
         if self.num_disparities_px % 16:
             raise ValueError("num_disparities_px must be a multiple of 16")
-        if self.block_size_px % 2 == 0 or self.texture_window_px % 2 == 0:
-            raise ValueError("block_size_px and texture_window_px must be odd")
+        if self.block_size_px % 2 == 0 or self.texture_window_px % 2 == 0 or (
+                self.refine_window_px % 2 == 0):
+            raise ValueError("block_size_px, texture_window_px and refine_window_px must be odd")
         if self.p2 <= self.p1:
             raise ValueError("p2 must exceed p1")
 
@@ -139,7 +147,44 @@ class StereoMatcher:
         # SGBM cannot match the left columns that have no partner in the right image.
         bad[:, : self.cfg.min_disparity_px + self.cfg.num_disparities_px] = True
         disp[bad] = np.nan
+        if self.cfg.refine_iterations:
+            disp = self.refine(left, right, disp)
         return disp
+
+    def refine(self, left: U8, right: U8, disp: F64) -> F64:
+        """Sub-pixel refinement: Lucas-Kanade steps on the SSD over the refinement window.
+
+        SGBM interpolates its sub-pixel disparity from three integer costs, which pulls it
+        toward integers ("pixel locking", up to 0.15 px here, the same for every pixel of a
+        cell and so not averaged out). A step ``dd = -sum(Ix e) / sum(Ix^2)`` on the right
+        image resampled at the current disparity removes most of that bias; a step is kept
+        only where it lowers the window's SSD (docs/perception.md, "Stereo").
+        """
+        h, w = left.shape
+        lf, rf = left.astype(np.float32), right.astype(np.float32)
+        uu, vv = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+        ok = np.isfinite(disp)
+        d = np.where(ok, disp, 0.0).astype(np.float32)
+        win = (self.cfg.refine_window_px, self.cfg.refine_window_px)
+        rw = cv2.remap(rf, uu - d, vv, cv2.INTER_LINEAR)
+        e = lf - rw
+        ssd = cv2.boxFilter(e * e, -1, win, normalize=False)
+        for _ in range(self.cfg.refine_iterations):
+            ix = np.asarray(cv2.Sobel(rw, cv2.CV_32F, 1, 0, ksize=3), np.float32) / 8.0
+            num = cv2.boxFilter(np.asarray(ix * e, np.float32), -1, win, normalize=False)
+            den = cv2.boxFilter(np.asarray(ix * ix, np.float32), -1, win, normalize=False)
+            step = -num / np.maximum(den, 1e-6)
+            # SGBM's own sub-pixel error is under 0.2 px where it matched well; a larger
+            # step means the window disagrees with the match: the pixel is ambiguous
+            ok &= np.abs(step) <= self.cfg.refine_max_step_px
+            cand = d + np.clip(step, -0.5, 0.5)
+            rw2 = cv2.remap(rf, uu - cand, vv, cv2.INTER_LINEAR)
+            e2 = lf - rw2
+            ssd2 = cv2.boxFilter(e2 * e2, -1, win, normalize=False)
+            better = ssd2 < ssd
+            d = np.where(better, cand, d)
+            rw, e, ssd = np.where(better, rw2, rw), np.where(better, e2, e), np.minimum(ssd, ssd2)
+        return np.where(ok, d.astype(np.float64), np.nan)
 
     def textured(self, image: U8) -> NDArray[np.bool_]:
         """Pixels whose window has enough horizontal gradient to be matched."""

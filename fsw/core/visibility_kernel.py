@@ -1,7 +1,7 @@
 """Fast P_V kernel: every target cell around one camera centre at once (ALGORITHM.md §3.1).
 
 Computes the same quantity as ``visibility.pv_reference`` (read its module docstring for the
-model), about 50x faster, for all cells a station can see. Many candidate poses share a
+model), about 10x faster per cell, for all cells a station can see. Many candidate poses share a
 camera centre and differ only in pan/tilt, so ``nbv`` calls this once per centre and then
 masks the result by each pan/tilt's field of view.
 

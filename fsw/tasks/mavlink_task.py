@@ -47,6 +47,7 @@ class MavlinkTask(Task):
         Channel("frame_bytes_max", "B", doc="largest activation so far (<= budget)"),
         Channel("tx_errors", "count", hi=0, doc="frames the transport could not send"),
         Channel("deferred", "count", doc="messages postponed by the byte budget"),
+        Channel("acks_dropped", "count", hi=0, doc="COMMAND_ACKs lost to a command flood (queue of 1024)"),
         Channel("rx_bytes", "B"),
         Channel("rx_frames", "count"),
         Channel("rx_bad", "count", doc="corrupt uplink frames (CRC, length, prefix)"),
@@ -168,7 +169,7 @@ class MavlinkTask(Task):
             self.event("EVENTS_DROPPED", n=q.dropped - self._dropped_reported)
             self._dropped_reported = q.dropped
         self._take_preview(now)
-        frames = self.adapter.plan(self._views.build(now))
+        frames = self.adapter.plan(self._views.build(now), signing_timestamp(unix))
         if self.link is not None:
             for f in frames:
                 self.link.send(f)
@@ -265,6 +266,7 @@ class MavlinkTask(Task):
         self.tlm("frame_bytes_max", a.max_frame_bytes)
         self.tlm("tx_errors", self.link.tx_errors if self.link is not None else 0)
         self.tlm("deferred", a.packer.deferred)
+        self.tlm("acks_dropped", a.acks_dropped)
         self.tlm("rx_bytes", u.bytes)
         self.tlm("rx_frames", u.frames)
         self.tlm("rx_bad", u.bad_frames + u.parser_resets)

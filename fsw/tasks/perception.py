@@ -14,6 +14,8 @@ from __future__ import annotations
 from collections.abc import Generator
 from typing import Any, ClassVar
 
+import numpy as np
+
 from fsw.core.edge import edge_cells, fit_line, fit_polygon
 from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import MapGrid
@@ -24,6 +26,8 @@ from fsw.executive.jobs import JobHandle
 from fsw.executive.task import Task
 from fsw.executive.telemetry import Channel, EventDef, Severity
 from fsw.tasks.messages import CAMERA_FRAME, MAP_UPDATED, CameraFrame, MapUpdate
+
+PROPAGATE_CHUNK = 20000  # points per slice of the covariance propagation (~20 ms here)
 
 
 class PerceptionTask(Task):
@@ -82,10 +86,19 @@ class PerceptionTask(Task):
 
     def _merge_view(self, fr: CameraFrame) -> Generator[None, None, MapUpdate]:
         """The slack job of one view: one bounded step per slice."""
-        pts = self.matcher.points(fr.left, fr.right)
+        disp = self.matcher.disparity(fr.left, fr.right)
         yield
-        xyz_w, cov_w = propagate_point_covariance(fr.pose, fr.pose_cov, pts.xyz_c, pts.cov_c)
+        pts = self.matcher.triangulate(disp)
         yield
+        xyz_parts, cov_parts = [], []
+        for a in range(0, len(pts), PROPAGATE_CHUNK):  # the pose term (§1.2), in bounded slices
+            b = a + PROPAGATE_CHUNK
+            x, c = propagate_point_covariance(fr.pose, fr.pose_cov, pts.xyz_c[a:b], pts.cov_c[a:b])
+            xyz_parts.append(x)
+            cov_parts.append(c)
+            yield
+        xyz_w = np.concatenate(xyz_parts) if xyz_parts else np.zeros((0, 3))
+        cov_w = np.concatenate(cov_parts) if cov_parts else np.zeros((0, 3, 3))
         stats = self.map.merge(xyz_w, cov=cov_w, p_visible=fr.p_visible)
         yield
         ecfg = self.ctx.cfg.edge

@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
 
     from fsw.config import ConfigError
     from fsw.core.geometry import MapGrid
-    from fsw.core.nbv import predicted_visibility, rate_station
+    from fsw.core.nbv import info_n_max, predicted_visibility, rate_station
     from fsw.core.planners import InformationPlanner, PlannerState
     from fsw.core.view_candidates import CandidateView, joint_grid, path_stations
     from fsw.core.visibility import (
@@ -105,13 +105,13 @@ def run(args: argparse.Namespace) -> int:
     pans, tilts, lifts = joint_grid(mast, cfg.pan_step_deg, cfg.tilts_deg, cfg.lifts_m)
 
     # (1) Speed: one full Method 5 search, end to end.
-    wall, step_max, n_steps = [], 0.0, 0
+    wall, cpu, step_max, n_steps = [], [], 0.0, 0
     for _ in range(args.repeat):
         gen = planner.search(state)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         n_steps = 0
         while True:
-            t1 = time.perf_counter()
+            c1 = time.process_time()
             n_steps += 1
             try:
                 next(gen)
@@ -119,24 +119,26 @@ def run(args: argparse.Namespace) -> int:
                 best = stop.value
                 break
             finally:
-                step_max = max(step_max, time.perf_counter() - t1)
+                step_max = max(step_max, time.process_time() - c1)
         wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
     n_poses = planner.last_stations * lifts.size * pans.size * tilts.size
-    search_s = min(wall)
+    search_s, search_cpu_s = min(wall), min(cpu)
     terrain = terrain_from_map(emap.z, emap.var, grid, vis)
     cam0 = (best.camera_pose(mast).t if best else np.array([rover[0], rover[1], 1.5]))
     cam_xyz = (float(cam0[0]), float(cam0[1]), float(cam0[2]))
-    t0 = time.perf_counter()
-    rate_station(terrain, cam_xyz, rover[2] + pans, tilts, emap.n, emap.n_max, emap.interest,
+    n_max = info_n_max(emap, cfg)
+    c0 = time.process_time()
+    rate_station(terrain, cam_xyz, rover[2] + pans, tilts, emap.n, n_max, emap.interest,
                  camera, vis)
-    station_s = time.perf_counter() - t0
+    station_s = time.process_time() - c0
     reach = horizontal_reach_m(camera)
     xs, ys = grid.centers()
     near = np.nonzero(((xs - cam_xyz[0]) ** 2 + (ys - cam_xyz[1]) ** 2 <= reach**2)
-                      & (emap.n < emap.n_max))
-    t0 = time.perf_counter()
+                      & (emap.n < n_max) & (emap.interest > 0))
+    c0 = time.process_time()
     pv_fast(terrain, cam_xyz, near[0], near[1], vis)
-    kernel_s = time.perf_counter() - t0
+    kernel_s = time.process_time() - c0
 
     # (2) Accuracy against the brute force, on sampled candidate poses.
     stations = path_stations(path, rover, lambda a, b: True, cfg.station_spacing_m,
@@ -173,7 +175,8 @@ def run(args: argparse.Namespace) -> int:
     fig = {
         "scenario": args.scenario, "seed": args.seed, "mapped_cells": int(emap.mapped.sum()),
         "stations": planner.last_stations, "poses": int(n_poses),
-        "search_s": search_s, "search_step_max_s": step_max,
+        "search_s": search_s, "search_cpu_s": search_cpu_s,
+        "cpu_poses_per_s": n_poses / search_cpu_s, "search_step_max_cpu_s": step_max,
         "search_steps": n_steps, "poses_per_s": n_poses / search_s,
         "station_rating_s": station_s, "station_kernel_s": kernel_s,
         "station_cells": int(near[0].size), "views_per_station": int(pans.size * tilts.size),
@@ -193,11 +196,12 @@ def run(args: argparse.Namespace) -> int:
           f"{grid.nx * grid.ny} cells mapped (panorama + {args.warmup_views} views)")
     print(f"candidates: {fig['stations']} stations x {lifts.size} lift x {pans.size} pan x "
           f"{tilts.size} tilt = {n_poses} poses")
-    print(f"rated {n_poses} poses in {search_s:.3f} s: {fig['poses_per_s']:.0f} poses/s "
-          f"(goal >= 200)")
+    print(f"rated {n_poses} poses in {search_s:.3f} s wall, {search_cpu_s:.3f} s CPU: "
+          f"{fig['poses_per_s']:.0f} poses/s wall, {fig['cpu_poses_per_s']:.0f} poses/s CPU "
+          f"(goal >= 200; wall time counts other processes on a shared machine)")
     print(f"  search in {n_steps} bounded steps (slack-job slices), longest "
-          f"{1e3 * step_max:.1f} ms")
-    print(f"  per station: {1e3 * station_s:.0f} ms = P_V kernel {1e3 * kernel_s:.0f} ms "
+          f"{1e3 * step_max:.1f} ms CPU")
+    print(f"  per station (CPU): {1e3 * station_s:.0f} ms = P_V kernel {1e3 * kernel_s:.0f} ms "
           f"({fig['station_cells']} cells, {vis.rays_per_turn} rays/turn) + view sums "
           f"and values for {fig['views_per_station']} pan/tilt views")
     print(f"P_V vs brute force: {fig['ref_poses']} poses, {cells} cells in view: mean abs error "

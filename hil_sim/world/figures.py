@@ -130,7 +130,8 @@ def write_doc_figures(outdir: Path) -> dict[str, float]:
     r = StereoRenderer(lab, cam, 2.0, 0)
     left, right = r.render(p)
     depth = r.render_depth(p)
-    sgbm = cv2.StereoSGBM_create(minDisparity=0, numDisparities=128, blockSize=5, P1=200,
+    sgbm = cv2.StereoSGBM_create(  # type: ignore[attr-defined]
+        minDisparity=0, numDisparities=128, blockSize=5, P1=200,
                                  P2=800, uniquenessRatio=10, speckleWindowSize=100,
                                  speckleRange=2, mode=cv2.StereoSGBM_MODE_SGBM_3WAY)
     disp = sgbm.compute(left, right).astype(np.float32) / 16.0

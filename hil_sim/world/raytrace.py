@@ -21,17 +21,16 @@ camera-frame ``z`` component is 1, i.e. range along the optical axis.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+
+from hil_sim.world.rays import Heightfield, pixel_rays, ray_intervals, sample
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
 IDX = NDArray[np.intp]
 
-T_NEAR_M = 0.05           # nothing nearer than this is drawn
 TOP_SAMPLES = 256         # samples per ray of the coarsest level
 LEVELS = (16, 4, 2, 1)    # block sizes, coarse to fine
 # Interpolate the last level where the depth error dt it costs stays under this times t^2:
@@ -40,98 +39,6 @@ SMOOTH_TOL_PER_M = 2e-4
 _LAPLACE = np.array([[0, 1, 0], [1, -4, 1], [0, 1, 0]], np.float32)
 REFINE_ITERATIONS = 2
 MIN_LOG2_SAMPLES = 2       # at least 2**2 samples per bracket
-_MAX_ROWS = 32000         # cv2.remap needs destination sides below 32767
-_ROW = 4096
-
-
-@dataclass(frozen=True, eq=False)
-class Heightfield:
-    """A terrain grid for ray casting: cell ``(iy, ix)`` has its centre at
-    ``(x0 + (ix + 0.5) * cell_m, y0 + (iy + 0.5) * cell_m)``."""
-
-    z: F32
-    x0: float
-    y0: float
-    cell_m: float
-    z_min: float
-    z_max: float
-
-    @staticmethod
-    def from_array(z: F32, x0: float, y0: float, cell_m: float) -> Heightfield:
-        z = np.ascontiguousarray(z, dtype=np.float32)
-        if max(z.shape) >= 32767:
-            raise ValueError(f"heightfield {z.shape} too large for cv2.remap (< 32767 a side)")
-        return Heightfield(z, x0, y0, cell_m, float(z.min()), float(z.max()))
-
-    def to_pixel(self, x: F32 | F64, y: F32 | F64) -> tuple[F32, F32]:
-        """World ``(x, y)`` to fractional grid coordinates for ``cv2.remap``."""
-        return (((x - self.x0) / self.cell_m - 0.5).astype(np.float32),
-                ((y - self.y0) / self.cell_m - 0.5).astype(np.float32))
-
-
-def sample(src: NDArray[np.float32], px: F32, py: F32, *, wrap: bool = False) -> F32:
-    """Bilinear lookup of ``src`` (``(h, w)`` or ``(h, w, channels)``) at fractional pixel
-    coordinates of any (equal) shape; the result has that shape (plus the channels).
-
-    The coordinates are packed into rows of ``_ROW`` (``cv2.remap`` is fastest on wide
-    images and needs sides below 32767)."""
-    shape = px.shape
-    chans = src.shape[2:]
-    n = px.size
-    if n == 0:
-        return np.zeros(shape + chans, np.float32)
-    rows = -(-n // _ROW)
-    mx = np.empty(rows * _ROW, np.float32)
-    my = np.empty(rows * _ROW, np.float32)
-    mx[:n] = px.reshape(-1)
-    my[:n] = py.reshape(-1)
-    mx[n:] = 0.0
-    my[n:] = 0.0
-    mx2, my2 = mx.reshape(rows, _ROW), my.reshape(rows, _ROW)
-    border = cv2.BORDER_WRAP if wrap else cv2.BORDER_REPLICATE
-    out = np.empty((rows, _ROW) + chans, np.float32)
-    for r in range(0, rows, _MAX_ROWS):
-        out[r:r + _MAX_ROWS] = cv2.remap(src, mx2[r:r + _MAX_ROWS], my2[r:r + _MAX_ROWS],
-                                         cv2.INTER_LINEAR, borderMode=border).reshape(
-                                             (-1, _ROW) + chans)
-    return out.reshape((-1,) + chans)[:n].reshape(shape + chans)
-
-
-def pixel_rays(R: F64, K: F64, us: F64, vs: F64) -> F32:
-    """World directions ``(len(vs), len(us), 3)`` of pixel rays, scaled so camera ``z`` = 1.
-
-    The result is a view of a ``(3, rows, cols)`` array: each component ``d[..., k]`` is
-    contiguous, which is how the ray caster reads it."""
-    f, cx, cy = K[0, 0], K[0, 2], K[1, 2]
-    xn = ((us - cx) / f).astype(np.float32)[None, :]
-    yn = ((vs - cy) / K[1, 1]).astype(np.float32)[:, None]
-    r = R.astype(np.float32)
-    out = np.empty((3, yn.shape[0], xn.shape[1]), np.float32)
-    for k in range(3):
-        np.multiply(xn, r[k, 0], out=out[k])
-        out[k] += yn * r[k, 1]
-        out[k] += r[k, 2]
-    return np.moveaxis(out, 0, -1)
-
-
-def ray_intervals(hf: Heightfield, c: F64, d: F32) -> tuple[F32, F32]:
-    """``[t_lo, t_hi]`` of each ray inside the terrain's slab and box (empty if lo >= hi)."""
-    ny, nx = hf.z.shape
-    lo = np.full(d.shape[:-1], T_NEAR_M, np.float32)
-    hi = np.full(d.shape[:-1], np.inf, np.float32)
-    bounds = ((hf.x0 + 0.5 * hf.cell_m, hf.x0 + (nx - 0.5) * hf.cell_m),
-              (hf.y0 + 0.5 * hf.cell_m, hf.y0 + (ny - 0.5) * hf.cell_m),
-              (hf.z_min - 1e-3, hf.z_max + 1e-3))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for axis, (b0, b1) in enumerate(bounds):
-            da = d[..., axis]
-            t0 = (b0 - c[axis]) / da
-            t1 = (b1 - c[axis]) / da
-            parallel = np.abs(da) < 1e-9
-            inside = (b0 <= c[axis]) & (c[axis] <= b1)
-            lo = np.where(parallel, np.where(inside, lo, np.inf), np.maximum(lo, np.minimum(t0, t1)))
-            hi = np.where(parallel, hi, np.minimum(hi, np.maximum(t0, t1)))
-    return lo.astype(np.float32), hi.astype(np.float32)
 
 
 class _Rays:
@@ -351,3 +258,6 @@ def cast_rays(hf: Heightfield, c: F64, d: F32, samples: int = 1024) -> F32:
     lo, hi = ray_intervals(hf, c, d)
     hi = np.minimum(hi, lo + 100.0)
     return _first_hits(_Rays(hf, c, d), lo, hi, fixed=samples)
+
+
+__all__ = ["Heightfield", "cast_image", "cast_rays", "pixel_rays", "ray_intervals", "sample"]

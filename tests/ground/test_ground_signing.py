@@ -90,3 +90,23 @@ def test_stream_table_is_bounded() -> None:
     for link in range(10):
         assert v.verify(command_frame(KEY, 0x101, link_id=link, ts=now + link), 255, 190, now) is Verdict.OK
     assert len(v.streams) == 4
+
+
+def test_downlink_signing_time_follows_the_clock() -> None:
+    """Our frames carry the current signing time, so a ground station that verifies them
+    (pymavlink with the key) accepts a new stream even an hour into the run."""
+    from fsw.comm.mavlink_adapter import MavlinkAdapter, VehicleView
+    from fsw.comm.mavlink_config import MavlinkConfig
+    from fsw.comm.mavlink_dialect import new_codec
+
+    t0 = signing_timestamp(1.7e9)
+    a = MavlinkAdapter(MavlinkConfig(), KEY, t0)
+    a.plan(VehicleView(0.0), t0)
+    hour_later = t0 + 3600 * 100_000
+    frames = a.plan(VehicleView(3600.0), hour_later)
+    fields = signature_fields(frames[0])
+    assert fields is not None and fields[1] >= hour_later
+    ground = new_codec(255, 190)
+    ground.signing.secret_key, ground.signing.timestamp = KEY, hour_later
+    msgs = ground.parse_buffer(frames[0])
+    assert msgs and msgs[0].get_type() == "HEARTBEAT" and msgs[0]._signed

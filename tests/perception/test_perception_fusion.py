@@ -181,8 +181,17 @@ def test_slope_term_inflates_variance_on_slopes_only() -> None:
     a.merge(flat, cov=cov)
     b.merge(slope, cov=cov)
     assert a.var[5, 5] == pytest.approx(0.002**2)
-    expect = 0.002**2 + 0.25 * 0.01**2 + 0.25 * 0.1**2 / 12.0
-    assert b.var[5, 5] == pytest.approx(expect, rel=1e-6)
+    assert b.var[5, 5] == pytest.approx(0.002**2 + 0.25 * 0.01**2, rel=1e-6)
+    c = ElevationMap(grid, FusionConfig(footprint_term=True))
+    c.merge(slope, cov=cov)
+    assert c.var[5, 5] == pytest.approx(0.002**2 + 0.25 * 0.01**2 + 0.25 * 0.1**2 / 12, rel=1e-6)
+    # a horizontal error along the ray can cancel on a slope facing the camera; a noisy
+    # gradient must not talk the variance below P_zz
+    cov_facing = cov.copy()
+    cov_facing[:, 0, 2] = cov_facing[:, 2, 0] = 0.9 * 0.01 * 0.002
+    d = ElevationMap(grid)
+    d.merge(slope, cov=cov_facing)
+    assert d.var[5, 5] >= 0.002**2
 
 
 def test_common_pose_variance_is_not_averaged_away() -> None:
