@@ -6,7 +6,7 @@ them atomically and loads the newest good one. Layout, all little-endian::
     b"SAFERMAP"  u16 version  u32 header_len  header (UTF-8 JSON)  body  sha256(all before)
 
 The header holds the grid, ``n_max``, the sequence number, the mission time and, per array
-(``z var n interest misses outliers``), its dtype and shape; ``body_len`` is the length
+(``z var n interest misses outliers var_common``), its dtype and shape; ``body_len`` is the length
 of the zstandard-compressed concatenation of the arrays. Any truncation, bit flip, wrong
 magic or version, inconsistent header or array shape raises ``CheckpointError`` with the
 reason; nothing half-decoded is ever returned.
@@ -31,7 +31,7 @@ VERSION = 1
 _HEAD = struct.Struct("<8sHI")
 _DIGEST = 32
 _ARRAYS = (("z", "<f8"), ("var", "<f8"), ("n", "<i4"), ("interest", "<f8"),
-           ("misses", "<i4"), ("outliers", "<i4"))
+           ("misses", "<i4"), ("outliers", "<i4"), ("var_common", "<f8"))
 _MAX_HEADER = 1 << 16
 
 

@@ -19,7 +19,7 @@ import numpy as np
 from fsw.core.edge import edge_cells, fit_line, fit_polygon
 from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import MapGrid
-from fsw.core.localization import propagate_point_covariance
+from fsw.core.localization import point_covariance_parts
 from fsw.core.stereo import StereoMatcher
 from fsw.executive.commands import CommandDef, CommandError
 from fsw.executive.jobs import JobHandle
@@ -90,16 +90,20 @@ class PerceptionTask(Task):
         yield
         pts = self.matcher.triangulate(disp)
         yield
-        xyz_parts, cov_parts = [], []
-        for a in range(0, len(pts), PROPAGATE_CHUNK):  # the pose term (§1.2), in bounded slices
+        xyz_l, cov_l, pose_l = [], [], []
+        for a in range(0, len(pts), PROPAGATE_CHUNK):  # world covariance (§1.2) in bounded slices
             b = a + PROPAGATE_CHUNK
-            x, c = propagate_point_covariance(fr.pose, fr.pose_cov, pts.xyz_c[a:b], pts.cov_c[a:b])
-            xyz_parts.append(x)
-            cov_parts.append(c)
+            xyz, cov_s, cov_p = point_covariance_parts(fr.pose, fr.pose_cov, pts.xyz_c[a:b], pts.cov_c[a:b])
+            xyz_l.append(xyz)
+            cov_l.append(cov_s if cov_p is None else cov_s + cov_p)
+            if cov_p is not None:
+                pose_l.append(cov_p)
             yield
-        xyz_w = np.concatenate(xyz_parts) if xyz_parts else np.zeros((0, 3))
-        cov_w = np.concatenate(cov_parts) if cov_parts else np.zeros((0, 3, 3))
-        stats = self.map.merge(xyz_w, cov=cov_w, p_visible=fr.p_visible)
+        xyz_w = np.concatenate(xyz_l) if xyz_l else np.zeros((0, 3))
+        cov_w = np.concatenate(cov_l) if cov_l else np.zeros((0, 3, 3))
+        # The pose term is common to every point of the view: it must not average down in a cell.
+        cov_common = np.concatenate(pose_l) if pose_l and len(pose_l) == len(cov_l) else None
+        stats = self.map.merge(xyz_w, cov=cov_w, p_visible=fr.p_visible, cov_common=cov_common)
         yield
         ecfg = self.ctx.cfg.edge
         here = (float(fr.pose.t[0]), float(fr.pose.t[1]))  # the camera stands over the plateau

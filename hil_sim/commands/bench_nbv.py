@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+_DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "config" / "fsw.toml"
 HELP = "candidate poses rated per second and P_V error of the fast kernel vs the brute force"
 DESCRIPTION = (
     "Builds a realistic partially mapped 256x256 state (lab scenario, or the built-in "
@@ -26,8 +27,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", choices=("lab", "synthetic"), default="lab",
                    help="terrain truth the map state is built from")
     p.add_argument("--seed", type=int, default=0, help="scene and noise seed")
-    p.add_argument("--config", type=Path, default=None,
-                   help="flight config TOML (default: config/fsw.toml)")
+    p.add_argument("--config", type=Path, default=_DEFAULT_CONFIG,
+                   help="flight config TOML ([nbv], [camera], [mast], [map], [fusion], [edge])")
     p.add_argument("--warmup-views", type=int, default=4,
                    help="information-based views merged after the panorama")
     p.add_argument("--ref-poses", type=int, default=6,
@@ -60,16 +61,16 @@ def run(args: argparse.Namespace) -> int:
         terrain_from_map,
     )
     from fsw.core.visibility_kernel import pv_fast
-    from fsw.settings import DEFAULT_CONFIG, load_settings
+    from fsw.settings import load_settings
     from hil_sim import nbv_scene
 
-    for name in ("warmup_views", "ref_poses", "repeat", "expected_check"):
+    for name in ("seed", "warmup_views", "ref_poses", "repeat", "expected_check"):
         if getattr(args, name) < (1 if name == "repeat" else 0):
-            print(f"bench nbv: --{name.replace('_', '-')} must be >= 0 (repeat >= 1)",
+            print(f"bench nbv: --{name.replace('_', '-')} must be >= {int(name == 'repeat')}",
                   file=sys.stderr)
             return 2
     try:
-        settings = load_settings(args.config or DEFAULT_CONFIG)
+        settings = load_settings(args.config)
     except ConfigError as err:
         print(str(err), file=sys.stderr)
         return 2
@@ -213,5 +214,9 @@ def run(args: argparse.Namespace) -> int:
               f"sum ratio {fig['expected_over_obtained']:.2f}, mean |exp - obt| / obt "
               f"{fig['expected_mean_abs_rel']:.2f}, correlation {fig['expected_corr']:.2f}")
     if args.json:
-        args.json.write_text(json.dumps(fig, indent=2))
+        try:
+            args.json.write_text(json.dumps(fig, indent=2))
+        except OSError as exc:
+            print(f"bench nbv: cannot write {args.json}: {exc.strerror or exc}", file=sys.stderr)
+            return 2
     return 0

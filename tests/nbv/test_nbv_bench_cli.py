@@ -28,6 +28,7 @@ def test_bench_nbv_bad_input_exits_2(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert main(["bench", "nbv", "--config", str(bad)]) == 2
     assert "w_motion" in capsys.readouterr().err
     assert main(["bench", "nbv", "--rays", "10"]) == 2
+    assert main(["bench", "nbv", "--seed", "-1"]) == 2
     with pytest.raises(SystemExit) as exc:
         main(["bench", "nbv", "--scenario", "moon"])
     assert exc.value.code == 2

@@ -29,7 +29,7 @@ def filled_map(seed: int = 0) -> ElevationMap:
 
 def assert_same(a: ElevationMap, b: ElevationMap) -> None:
     assert a.grid == b.grid and a.n_max == b.n_max
-    for name in ("z", "var", "n", "interest", "misses", "outliers"):
+    for name in ("z", "var", "n", "interest", "misses", "outliers", "var_common"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
 
 

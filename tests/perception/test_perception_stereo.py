@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from planes import render_plane, texture
+from perception_planes import render_plane, texture
 
 from fsw.config import ConfigError, build
 from fsw.core.geometry import CameraConfig, CameraPose
