@@ -32,6 +32,7 @@ from fsw.config import param
 from fsw.core.elevation_map import ElevationMap
 
 F64 = NDArray[np.float64]
+END_TANGENT_M = 0.3  # length over which an edge line's end direction is taken (barrier)
 _DIRS = ((0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1), (-1, 0), (-1, 1))  # (dy, dx)
 
 
@@ -89,7 +90,12 @@ class EdgeModel:
         for ln in self.lines.geoms:
             c = np.asarray(ln.coords)
             if extend_m > 0 and len(c) >= 2:
-                t0, t1 = c[0] - c[1], c[-1] - c[-2]
+                # Extend along the end's overall direction (over END_TANGENT_M), not the last
+                # segment's: a short hook at the end of a fit must not swing the extension.
+                span = min(END_TANGENT_M, ln.length / 2.0)
+                p0 = np.asarray(ln.interpolate(span).coords[0])
+                p1 = np.asarray(ln.interpolate(ln.length - span).coords[0])
+                t0, t1 = c[0] - p0, c[-1] - p1
                 c = np.vstack([c[0] + extend_m * t0 / max(np.hypot(*t0), 1e-12), c,
                                c[-1] + extend_m * t1 / max(np.hypot(*t1), 1e-12)])
             out.append(LineString(c))

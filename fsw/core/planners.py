@@ -9,9 +9,12 @@ the executive can run the search in frame slack, and returns the view.
    at the first call: stations equally spaced along the edge path from the rover's position
    toward the longer remaining part, the mast fixed: pan square to the path toward the drop,
    lift at maximum, and the tilt that maximises the view's footprint on the expected floor
-   (the ROI floor seen so far, or ``raster_floor_drop_m`` below the rover). Spacing: the
+   (the ROI floor seen so far, or ``raster_floor_drop_m`` below the rover), steepened if
+   needed so the edge lip stays in the image (each view also maps the edge to drive along). Spacing: the
    footprint's length along the path times ``1 - raster_overlap_frac`` (consecutive views
-   just overlap), reduced if needed so the ``n_views`` steps fit on the path.
+   just overlap), reduced if needed so the ``n_views`` steps fit in the region of interest.
+   The path is the edge path as far as it is known, continued straight past its end to the
+   map's extent (the operator scans the whole region, assuming the edge goes on).
 2. ``RasterPlanner(sweep=True)``: raster scan with yaw: ``raster_pans_per_station`` pan views
    at each station, a pan step of ``hfov * (1 - overlap)`` around the same centre; stations
    spaced by the sweep's footprint along the path the same way; the same number of views.
@@ -110,12 +113,17 @@ class RasterPlanner(Planner):
         self.name = "2" if sweep else "1"
         self.plan: list[CandidateView] | None = None
         self.spacing_m = 0.0
+        self._start_xy: tuple[float, float] | None = None
+        self._direction = 1.0
+        self._offsets: list[float] = []
         self._next = 0
         self._path = np.zeros((0, 2))
 
     def search(self, state: PlannerState) -> SearchGen:
         if self.plan is None:
             self.plan = self._make_plan(state)
+        else:
+            self._follow_edge(state)
         yield None
         while self._next < len(self.plan):
             view = self.plan[self._next]
@@ -125,15 +133,36 @@ class RasterPlanner(Planner):
                 return placed
         return None
 
+    def _follow_edge(self, state: PlannerState) -> None:
+        """Re-place the stations still to come on the edge path as now known, at the same
+        distances along it from the start (the operator follows the edge as it is revealed)."""
+        xy = as_polyline(state.path)
+        if xy.shape[0] < 2 or self.plan is None or self._start_xy is None:
+            return
+        known = LineString(xy)
+        forward = self._direction > 0
+        line = _extend_across_roi(known, forward, state)
+        s0 = float(line.project(Point(*self._start_xy)))
+        self._path = np.asarray(line.coords)
+        for i in range(self._next, len(self.plan)):
+            v = self.plan[i]
+            p, yaw = _point_and_heading(line, s0 + self._direction * self._offsets[i], self._direction)
+            self.plan[i] = CandidateView((float(p[0]), float(p[1]), yaw), v.joints, method=v.method)
+
     def _make_plan(self, state: PlannerState) -> list[CandidateView]:
         xy = as_polyline(state.path)
         if xy.shape[0] < 2 or self.n_views < 1:
             return []
-        self._path = xy
-        line = LineString(xy)
-        s_now = float(line.project(Point(state.rover[0], state.rover[1])))
-        forward = s_now <= line.length - s_now
+        known = LineString(xy)
+        s_known = float(known.project(Point(state.rover[0], state.rover[1])))
+        side0, t0 = _point_and_heading(known, s_known, 1.0)
+        forward = _roi_reach(state, side0, t0) >= _roi_reach(state, side0, t0 + math.pi)
         direction = 1.0 if forward else -1.0
+        # The operator scans the whole region of interest: the edge path as far as it is known,
+        # then straight on across the map's extent (the edge is taken to go on, as the geofence does).
+        line = _extend_across_roi(known, forward, state)
+        self._path = np.asarray(line.coords)
+        s_now = float(line.project(Point(state.rover[0], state.rover[1])))
         remaining = line.length - s_now if forward else s_now
         side = _drop_side(line, s_now, direction, state.edge_xy)
         per_station = self.cfg.raster_pans_per_station if self.sweep else 1
@@ -146,6 +175,7 @@ class RasterPlanner(Planner):
         rover0 = (float(start[0]), float(start[1]), tangent)
         tilt = best_floor_tilt(rover0, centre, lift, floor_z, state.ground_z_m, self.camera,
                                self.mast)
+        tilt = min(tilt, lip_tilt(rover0, centre, lift, state, self.camera, self.mast))
         joints = [self.mast.clamp(p, tilt, lift) for p in pans]
         union = shapely.union_all([footprint(camera_pose_from_rover(rover0, j, self.mast,
                                                                     state.ground_z_m),
@@ -157,10 +187,12 @@ class RasterPlanner(Planner):
             spacing = min(spacing, remaining / (n_stations - 1))
         self.spacing_m = spacing
         plan = []
+        self._start_xy, self._direction, self._offsets = (float(start[0]), float(start[1])), direction, []
         for k in range(n_stations):
             p, yaw = _point_and_heading(line, s_now + direction * k * spacing, direction)
             for j in joints:
                 plan.append(CandidateView((float(p[0]), float(p[1]), yaw), j, method=self.name))
+                self._offsets.append(k * spacing)
         return plan[: self.n_views]
 
     def _reachable(self, view: CandidateView, state: PlannerState) -> CandidateView | None:
@@ -277,12 +309,46 @@ def best_floor_tilt(rover: Pose3, pan: float, lift: float, floor_z_m: float, gro
     return float(tilts[int(np.argmax(areas))])
 
 
+def lip_tilt(rover: Pose3, pan: float, lift: float, state: PlannerState, camera: CameraConfig,
+             mast: MastConfig, margin_m: float = 0.1) -> float:
+    """The tilt that keeps the edge lip (the nearest fitted edge point, less ``margin_m``) just
+    inside the bottom of the image, so each raster view also maps the edge it drives along."""
+    if state.edge_xy is None or len(state.edge_xy) == 0:
+        return 0.0
+    cam = camera_pose_from_rover(rover, (pan, 0.0, lift), mast, state.ground_z_m).t
+    dist = float(np.min(np.hypot(state.edge_xy[:, 0] - cam[0], state.edge_xy[:, 1] - cam[1])))
+    depression = math.atan2(cam[2] - state.ground_z_m, max(dist - margin_m, 0.05))
+    return float(np.clip(camera.vfov_rad / 2.0 - depression, math.radians(mast.tilt_min_deg),
+                         math.radians(mast.tilt_max_deg)))
+
+
 def _floor_estimate(state: PlannerState, cfg: NbvConfig) -> float:
     z = state.map.z
     low = z[np.isfinite(z) & (z < state.ground_z_m - 0.1)]
     if low.size >= 100:
         return float(np.median(low))
     return state.ground_z_m - cfg.raster_floor_drop_m
+
+
+def _roi_reach(state: PlannerState, start: F64, heading: float) -> float:
+    """How far the map (the region of interest) reaches from ``start`` along ``heading``."""
+    g = state.map.grid
+    xs, ys = (g.x0, g.x0 + g.nx * g.cell), (g.y0, g.y0 + g.ny * g.cell)
+    corners = np.array([(x, y) for x in xs for y in ys]) - np.asarray(start, dtype=np.float64)
+    return float(max(0.0, (corners @ np.array([math.cos(heading), math.sin(heading)])).max()))
+
+
+def _extend_across_roi(line: LineString, forward: bool, state: PlannerState) -> LineString:
+    """The path continued straight past its end (in the travel direction) to the map's edge."""
+    c = np.asarray(line.coords)
+    end, prev = (c[-1], c[-2]) if forward else (c[0], c[1])
+    d = end - prev
+    heading = math.atan2(d[1], d[0])
+    reach = _roi_reach(state, end, heading)
+    if reach <= 0.0:
+        return line
+    tip = end + reach * np.array([math.cos(heading), math.sin(heading)])
+    return LineString(np.vstack([c, tip]) if forward else np.vstack([tip, c]))
 
 
 def _drop_side(line: LineString, s: float, direction: float, edge_xy: F64 | None) -> float:
