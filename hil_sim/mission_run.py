@@ -132,6 +132,7 @@ def run_mission(
             "overruns": sum(t.overruns for t in exe.tasks.values()),
             "task_max_ms": {n: round(t.max_s * 1e3, 3) for n, t in exe.tasks.items()},
             "end_reason": mission.end,
+            "safe_reason": mission.safe_reason,
             "final_state": mission.state,
             "mapped_cells": int(emap.mapped.sum()),
             "frames": exe.frame,

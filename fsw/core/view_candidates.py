@@ -112,7 +112,8 @@ def path_stations_steps(path: F64, rover_now: Pose3, motion_ok: MotionCheck, spa
         prev = now.rover
         for i in sel:
             st = (float(pts[i, 0]), float(pts[i, 1]), _heading(float(tangent[i]), rover_now[2]))
-            ok = motion_ok(prev, st)
+            # The hop along the path, and the straight move the mission will command from here.
+            ok = motion_ok(prev, st) and (prev == now.rover or motion_ok(now.rover, st))
             yield None
             if not ok:
                 break

@@ -120,7 +120,6 @@ class CameraTask(Task):
                 right=reply.right,
                 pose=pose,
                 pose_cov=cov,
-                p_visible=req.p_visible,
                 expected_new_cells=req.expected_new_cells,
             ),
         )

@@ -40,10 +40,9 @@ class NavPose:
 
 @dataclass(frozen=True)
 class CaptureRequest:
-    """Ask for one stereo pair; ``p_visible`` is the planner's P_V of the view (for misses)."""
+    """Ask for one stereo pair for view ``view_id`` (the planner's expected new cells ride along)."""
 
     view_id: int
-    p_visible: NDArray[np.float64] | None = None
     expected_new_cells: float = float("nan")
 
 
@@ -57,7 +56,6 @@ class CameraFrame:
     right: NDArray[np.uint8]
     pose: CameraPose
     pose_cov: NDArray[np.float64]  # 6x6, rotation vector (rad) then translation (m)
-    p_visible: NDArray[np.float64] | None = None
     expected_new_cells: float = float("nan")
 
 

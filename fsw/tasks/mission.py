@@ -28,7 +28,7 @@ from fsw.config import param
 from fsw.core.edge import EdgeModel, edge_path
 from fsw.core.geofence import Geofence
 from fsw.core.geometry import MapGrid
-from fsw.core.nbv import end_reason, predicted_visibility
+from fsw.core.nbv import end_reason
 from fsw.core.planners import METHODS, PlannerState
 from fsw.core.view_candidates import CandidateView
 from fsw.executive.commands import CommandDef, CommandError
@@ -121,7 +121,6 @@ class MissionTask(Task):
         self.nbv_box = self.subscribe(NBV_RESULT, depth=2)
         self.nav: NavPose | None = None
         self.state = "IDLE"
-        self.resume_state = "SELECT"
         self.records: list[StepRecord] = []
         self.step = 0
         self.view: CandidateView | None = None
@@ -135,6 +134,7 @@ class MissionTask(Task):
         self.edge_violations = 0
         self.safe_entries = 0
         self.end: str | None = None
+        self.safe_reason: str | None = None
         self.t_wall0 = time.perf_counter()
         self._safe_since = 0.0
         self._auto_start = self.mcfg.auto_start
@@ -214,9 +214,6 @@ class MissionTask(Task):
         self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
 
     def _state_select(self) -> None:
-        if self.nbv_box.dropped and len(self.nbv_box) == 0 and self._timed_out():
-            self._enter_safe("next-view search timed out")
-            return
         if len(self.nbv_box) == 0:
             if self._timed_out():
                 self._enter_safe("next-view search timed out")
@@ -276,14 +273,9 @@ class MissionTask(Task):
 
     def _capture(self) -> None:
         assert self.view is not None
-        pv = None
-        if self.latest is not None:
-            pose = self.view.camera_pose(self.ctx.cfg.mast)
-            pv = predicted_visibility(self.latest.snapshot, pose, self.ctx.cfg.camera, self.ctx.cfg.nbv.visibility)
         self._goto("ACQUIRE")
         self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
-        self._acquire_view_id = self.step
-        self.publish(CAMERA_REQUEST, CaptureRequest(self.step, pv, self.view.expected_new_cells))
+        self.publish(CAMERA_REQUEST, CaptureRequest(self.step, self.view.expected_new_cells))
 
     def _state_acquire(self) -> None:
         if self._timed_out():
@@ -295,7 +287,6 @@ class MissionTask(Task):
                 self._enter_safe("no stereo pair after retries")
 
     def _on_map(self, up: MapUpdate) -> None:
-        prev = self.latest
         self.latest = up
         if up.edge is not None and not up.edge.empty:
             self.edge = up.edge
@@ -303,39 +294,28 @@ class MissionTask(Task):
             return
         self.retries = 0
         assert self.view is not None
-        before = prev.mapped_cells if prev is not None else 0
+        # New cells of the step: against the map at the end of the previous step (the panorama
+        # views all belong to step 0, which replaces its record as each view lands).
+        base = next((r.mapped_cells for r in reversed(self.records) if r.step < self.step), 0)
+        rover, joints = self.view.rover, self.view.joints
         rec = StepRecord(
             step=self.step,
             mapped_cells=up.mapped_cells,
             expected_new_cells=float(self.view.expected_new_cells),
-            obtained_new_cells=up.mapped_cells - before,
-            pose={
-                "x": self.view.rover[0],
-                "y": self.view.rover[1],
-                "yaw": self.view.rover[2],
-                "pan": self.view.joints[0],
-                "tilt": self.view.joints[1],
-                "lift": self.view.joints[2],
-            },
+            obtained_new_cells=up.mapped_cells - base,
+            pose=dict(zip(("x", "y", "yaw", "pan", "tilt", "lift"), (*rover, *joints), strict=True)),
             wall_s=time.perf_counter() - self.t_wall0,
             sim_s=self.ctx.clock.now(),
         )
-        if self.pending:  # panorama views accumulate into step 0
-            if self.records and self.records[-1].step == self.step:
-                self.records[-1] = rec
-            else:
-                self.records.append(rec)
-            self._next_view()
-            return
         if self.records and self.records[-1].step == self.step:
-            rec.obtained_new_cells = up.mapped_cells - (self.records[-2].mapped_cells if len(self.records) > 1 else 0)
             self.records[-1] = rec
         else:
             self.records.append(rec)
-        self.event(
-            "STEP", step=self.step, mapped=up.mapped_cells, new=rec.obtained_new_cells, exp=rec.expected_new_cells
-        )
-        self.step += 1
+        if not self.pending:  # the step is complete (the panorama's only after its last view)
+            self.event(
+                "STEP", step=self.step, mapped=up.mapped_cells, new=rec.obtained_new_cells, exp=rec.expected_new_cells
+            )
+            self.step += 1
         self._next_view()
 
     # -- planning inputs -------------------------------------------------------------------
@@ -392,7 +372,7 @@ class MissionTask(Task):
     # -- SAFE ----------------------------------------------------------------------------------
     def _enter_safe(self, reason: str) -> None:
         self.safe_entries += 1
-        self.resume_state = self.state
+        self.safe_reason = reason
         self.event("SAFE", reason=reason)
         self._goto("SAFE")
         self._safe_since = self.ctx.clock.now()

@@ -1,7 +1,7 @@
 """The perception task: owns the elevation map; fuses each stereo pair and re-fits the edge.
 
-A ``CameraFrame`` from the camera task becomes a slack job (ALGORITHM.md §4): stereo
-matching, triangulation with covariance and propagation of the camera pose covariance
+A ``CameraFrame`` from the camera task becomes a slack job (ALGORITHM.md §4): the view's
+P_V on the map before the merge (§3.1, for the misses), stereo matching, triangulation with covariance and propagation of the camera pose covariance
 (§1.2), fusion into the map with misses (§1.1, §3.4), then the edge fits of §2 (the
 non-convex polygon of Methods 4/5 and the straight segment of Method 3). Each step is one
 slice, so the 10 Hz foreground keeps its deadlines. The result is published on
@@ -20,6 +20,7 @@ from fsw.core.edge import edge_cells, fit_line, fit_polygon
 from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import MapGrid
 from fsw.core.localization import point_covariance_parts
+from fsw.core.nbv import predicted_visibility
 from fsw.core.stereo import StereoMatcher
 from fsw.executive.commands import CommandDef, CommandError
 from fsw.executive.jobs import JobHandle
@@ -86,6 +87,13 @@ class PerceptionTask(Task):
 
     def _merge_view(self, fr: CameraFrame) -> Generator[None, None, MapUpdate]:
         """The slack job of one view: one bounded step per slice."""
+        # Which cells this view was expected to see (P_V on the map before the merge, §3.1):
+        # those that get no point count a miss and lose interest (§3.4, §4).
+        cfg = self.ctx.cfg
+        p_visible = None
+        if self.map.mapped.any():
+            p_visible = predicted_visibility(self.map, fr.pose, cfg.camera, cfg.nbv.visibility)
+            yield
         disp = self.matcher.disparity(fr.left, fr.right)
         yield
         pts = self.matcher.triangulate(disp)
@@ -103,7 +111,7 @@ class PerceptionTask(Task):
         cov_w = np.concatenate(cov_l) if cov_l else np.zeros((0, 3, 3))
         # The pose term is common to every point of the view: it must not average down in a cell.
         cov_common = np.concatenate(pose_l) if pose_l and len(pose_l) == len(cov_l) else None
-        stats = self.map.merge(xyz_w, cov=cov_w, p_visible=fr.p_visible, cov_common=cov_common)
+        stats = self.map.merge(xyz_w, cov=cov_w, p_visible=p_visible, cov_common=cov_common)
         yield
         ecfg = self.ctx.cfg.edge
         here = (float(fr.pose.t[0]), float(fr.pose.t[1]))  # the camera stands over the plateau
