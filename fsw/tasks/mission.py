@@ -27,7 +27,6 @@ import numpy as np
 from fsw.config import param
 from fsw.core.edge import EdgeModel, edge_path
 from fsw.core.geofence import Geofence
-from fsw.core.geometry import MapGrid
 from fsw.core.nbv import end_reason
 from fsw.core.planners import METHODS, PlannerState
 from fsw.core.view_candidates import CandidateView
@@ -113,7 +112,6 @@ class MissionTask(Task):
     def setup(self) -> None:
         cfg = self.ctx.cfg
         self.mcfg: MissionConfig = cfg.mission
-        self.grid = MapGrid.from_config(cfg.map)
         self.geofence = Geofence(cfg.geofence, cfg.rover)
         self.nav_box = self.subscribe(NAV_POSE, depth=1)
         self.status_box = self.subscribe(MOTION_STATUS, depth=8)
@@ -341,16 +339,11 @@ class MissionTask(Task):
         )
 
     def _end_reason(self) -> str | None:
+        """§3.6: the step limit, or the region of interest mapped (estimated by perception)."""
         if self.latest is None:
             return "no map"
-        mapped_fraction = 0.0
-        if self.edge is not None and not self.edge.empty:
-            X, Y = self.grid.centers()
-            below = self.edge.signed_distance(np.column_stack([X.ravel(), Y.ravel()])) < 0
-            roi = below.reshape(self.grid.shape)
-            if roi.any():
-                mapped_fraction = float((self.latest.snapshot.mapped & roi).sum() / roi.sum())
-        return end_reason(self.step - 1, None, mapped_fraction, self.ctx.cfg.nbv)
+        fraction = float(self.latest.extra.get("roi_mapped_fraction", 0.0))
+        return end_reason(self.step - 1, None, fraction, self.ctx.cfg.nbv)
 
     # -- the end -------------------------------------------------------------------------------
     def _finish_mapping(self, reason: str) -> None:

@@ -1,12 +1,13 @@
 """The perception task: owns the elevation map; fuses each stereo pair and re-fits the edge.
 
 A ``CameraFrame`` from the camera task becomes a slack job (ALGORITHM.md §4): the view's
-P_V on the map before the merge (§3.1, for the misses), stereo matching, triangulation with covariance and propagation of the camera pose covariance
-(§1.2), fusion into the map with misses (§1.1, §3.4), then the edge fits of §2 (the
-non-convex polygon of Methods 4/5 and the straight segment of Method 3). Each step is one
-slice, so the 10 Hz foreground keeps its deadlines. The result is published on
-``map.updated`` with a snapshot of the map for the planner. Checkpoints are written
-through the map store at ``checkpoint.period_s`` and on command.
+P_V on the map before the merge (§3.1, for the misses), stereo matching, triangulation
+with covariance and propagation of the camera pose covariance (§1.2), fusion into the map
+with misses (§1.1, §3.4), the edge fits of §2 (the non-convex polygon of Methods 4/5 and
+the straight segment of Method 3) and the mapped fraction of the region of interest (§3.6).
+Each step is one slice, so the 10 Hz foreground keeps its deadlines. The result is
+published on ``map.updated`` with a snapshot of the map for the planner. Checkpoints are
+written through the map store at ``checkpoint.period_s`` and on command.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from fsw.core.edge import edge_cells, fit_line, fit_polygon
+from fsw.core.edge import EdgeModel, edge_cells, fit_line, fit_polygon
 from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import MapGrid
 from fsw.core.localization import point_covariance_parts
@@ -27,6 +28,21 @@ from fsw.executive.jobs import JobHandle
 from fsw.executive.task import Task
 from fsw.executive.telemetry import Channel, EventDef, Severity
 from fsw.tasks.messages import CAMERA_FRAME, MAP_UPDATED, CameraFrame, MapUpdate
+
+ROI_STRIDE = 4  # the region-of-interest fraction is estimated on every 4th cell each way
+
+
+def roi_mapped_fraction(emap: ElevationMap, edge: EdgeModel) -> float:
+    """Mapped fraction of the region of interest: the cells beyond the edge (§2, §3.6)."""
+    if edge.empty:
+        return 0.0
+    X, Y = emap.grid.centers()
+    s = (slice(None, None, ROI_STRIDE), slice(None, None, ROI_STRIDE))
+    below = edge.signed_distance(np.column_stack([X[s].ravel(), Y[s].ravel()])) < 0
+    if not below.any():
+        return 0.0
+    return float(emap.mapped[s].ravel()[below].mean())
+
 
 PROPAGATE_CHUNK = 20000  # points per slice of the covariance propagation (~20 ms here)
 
@@ -118,7 +134,9 @@ class PerceptionTask(Task):
         cells = edge_cells(self.map, 0.0, here, ecfg)  # ground = the plateau under the start pose
         yield
         poly = fit_polygon(self.map, cells, ecfg)
+        yield
         line = fit_line(cells, here)
+        roi_fraction = roi_mapped_fraction(self.map, poly)
         self.views += 1
         return MapUpdate(
             view_id=fr.view_id,
@@ -131,7 +149,8 @@ class PerceptionTask(Task):
             snapshot=self.map.copy(),
             edge=poly,
             edge_line=line,
-            extra={"outliers": stats.outliers, "edge_points": int(cells.points_xy.shape[0])},
+            extra={"outliers": stats.outliers, "edge_points": int(cells.points_xy.shape[0]),
+                   "roi_mapped_fraction": roi_fraction},
         )
 
     def _finish(self, h: JobHandle) -> None:
