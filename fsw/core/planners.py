@@ -64,6 +64,7 @@ from fsw.core.view_candidates import (
     path_stations_steps,
 )
 from fsw.core.visibility import F64, Terrain, in_view, terrain_from_heights, terrain_from_map
+from fsw.core.visibility_kernel import run_to_end
 
 METHODS = ("1", "2", "3", "4", "5", "oracle")
 
@@ -121,14 +122,14 @@ class RasterPlanner(Planner):
 
     def search(self, state: PlannerState) -> SearchGen:
         if self.plan is None:
-            self.plan = self._make_plan(state)
+            self.plan = yield from self._make_plan(state)
         else:
             self._follow_edge(state)
         yield None
         while self._next < len(self.plan):
             view = self.plan[self._next]
             self._next += 1
-            placed = self._reachable(view, state)
+            placed = yield from self._reachable(view, state)
             if placed is not None:
                 return placed
         return None
@@ -149,7 +150,8 @@ class RasterPlanner(Planner):
             p, yaw = _point_and_heading(line, s0 + self._direction * self._offsets[i], self._direction)
             self.plan[i] = CandidateView((float(p[0]), float(p[1]), yaw), v.joints, method=v.method)
 
-    def _make_plan(self, state: PlannerState) -> list[CandidateView]:
+    def _make_plan(self, state: PlannerState) -> Generator[None, None, list[CandidateView]]:
+        """The operator's plan, made once; yields between bounded steps (one tilt each)."""
         xy = as_polyline(state.path)
         if xy.shape[0] < 2 or self.n_views < 1:
             return []
@@ -173,8 +175,8 @@ class RasterPlanner(Planner):
         floor_z = _floor_estimate(state, self.cfg)
         start, tangent = _point_and_heading(line, s_now, direction)
         rover0 = (float(start[0]), float(start[1]), tangent)
-        tilt = best_floor_tilt(rover0, centre, lift, floor_z, state.ground_z_m, self.camera,
-                               self.mast)
+        tilt = yield from best_floor_tilt_steps(rover0, centre, lift, floor_z, state.ground_z_m,
+                                                self.camera, self.mast)
         tilt = min(tilt, lip_tilt(rover0, centre, lift, state, self.camera, self.mast))
         joints = [self.mast.clamp(p, tilt, lift) for p in pans]
         union = shapely.union_all([footprint(camera_pose_from_rover(rover0, j, self.mast,
@@ -195,9 +197,13 @@ class RasterPlanner(Planner):
                 self._offsets.append(k * spacing)
         return plan[: self.n_views]
 
-    def _reachable(self, view: CandidateView, state: PlannerState) -> CandidateView | None:
+    def _reachable(self, view: CandidateView, state: PlannerState
+                   ) -> Generator[None, None, CandidateView | None]:
+        """The view, or the nearest reachable path point within half a spacing (one geofence
+        check per step)."""
         if _close(view.rover, state.rover) or state.motion_ok(state.rover, view.rover):
             return view
+        yield None
         line = LineString(self._path)
         s0 = float(line.project(Point(view.rover[0], view.rover[1])))
         direction = 1.0 if math.cos(view.rover[2] - _tangent(line, s0)) >= 0 else -1.0
@@ -206,6 +212,7 @@ class RasterPlanner(Planner):
             rover = (float(p[0]), float(p[1]), yaw)
             if state.motion_ok(state.rover, rover):
                 return CandidateView(rover, view.joints, method=view.method)
+            yield None
         return None
 
 
@@ -303,9 +310,19 @@ def straighten(path: F64) -> F64:
 def best_floor_tilt(rover: Pose3, pan: float, lift: float, floor_z_m: float, ground_z_m: float,
                     camera: CameraConfig, mast: MastConfig) -> float:
     """The tilt (1 deg grid within limits) whose footprint on the floor plane is largest."""
+    return run_to_end(best_floor_tilt_steps(rover, pan, lift, floor_z_m, ground_z_m, camera, mast))
+
+
+def best_floor_tilt_steps(rover: Pose3, pan: float, lift: float, floor_z_m: float,
+                          ground_z_m: float, camera: CameraConfig, mast: MastConfig
+                          ) -> Generator[None, None, float]:
+    """:func:`best_floor_tilt`, yielding after each tilt (a slack-job step)."""
     tilts = np.radians(np.arange(mast.tilt_min_deg, min(mast.tilt_max_deg, 0.0) + 1e-9, 1.0))
-    areas = [footprint(camera_pose_from_rover(rover, (pan, float(t), lift), mast, ground_z_m),
-                       camera, floor_z_m).area for t in tilts]
+    areas = []
+    for t in tilts:
+        areas.append(footprint(camera_pose_from_rover(rover, (pan, float(t), lift), mast,
+                                                      ground_z_m), camera, floor_z_m).area)
+        yield None
     return float(tilts[int(np.argmax(areas))])
 
 
