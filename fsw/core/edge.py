@@ -55,7 +55,7 @@ class EdgeConfig:
     match_m: float = param(
         0.06, lo=0.0, hi=1.0, units="m", doc="polygon vertices this close to edge points are edge"
     )
-    min_edge_len_m: float = param(0.15, lo=0.0, hi=100.0, units="m", doc="shorter runs dropped")
+    min_edge_len_m: float = param(0.3, lo=0.0, hi=100.0, units="m", doc="shorter runs dropped")
     setback_m: float = param(
         0.75, lo=0.0, hi=10.0, units="m", doc="path offset from the edge (body centre)"
     )

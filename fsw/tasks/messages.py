@@ -72,7 +72,6 @@ class MapUpdate:
     expected_new_cells: float
     snapshot: Any  # ElevationMap copy
     edge: Any = None  # EdgeModel of the polygon fit (Methods 4/5)
-    edge_line: Any = None  # EdgeModel of the straight-segment fit (Method 3)
     extra: dict[str, Any] = field(default_factory=dict)
 
 

@@ -3,8 +3,9 @@
 A ``CameraFrame`` from the camera task becomes a slack job (ALGORITHM.md §4): the view's
 P_V on the map before the merge (§3.1, for the misses), stereo matching, triangulation
 with covariance and propagation of the camera pose covariance (§1.2), fusion into the map
-with misses (§1.1, §3.4), the edge fits of §2 (the non-convex polygon of Methods 4/5 and
-the straight segment of Method 3) and the mapped fraction of the region of interest (§3.6).
+with misses (§1.1, §3.4), the non-convex polygon fit of the edge (§2; the geofence and the
+edge path use it for every method, Method 3 straightens the path in its planner) and the
+mapped fraction of the region of interest (§3.6).
 Each step is one slice, so the 10 Hz foreground keeps its deadlines. The result is
 published on ``map.updated`` with a snapshot of the map for the planner. Checkpoints are
 written through the map store at ``checkpoint.period_s`` and on command.
@@ -17,7 +18,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from fsw.core.edge import EdgeModel, edge_cells, fit_line, fit_polygon
+from fsw.core.edge import EdgeModel, edge_cells, fit_polygon
 from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import MapGrid
 from fsw.core.localization import point_covariance_parts
@@ -135,7 +136,6 @@ class PerceptionTask(Task):
         yield
         poly = fit_polygon(self.map, cells, ecfg)
         yield
-        line = fit_line(cells, here)
         roi_fraction = roi_mapped_fraction(self.map, poly)
         self.views += 1
         return MapUpdate(
@@ -148,7 +148,6 @@ class PerceptionTask(Task):
             expected_new_cells=fr.expected_new_cells,
             snapshot=self.map.copy(),
             edge=poly,
-            edge_line=line,
             extra={"outliers": stats.outliers, "edge_points": int(cells.points_xy.shape[0]),
                    "roi_mapped_fraction": roi_fraction},
         )

@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
 
     def progress(step: int, total: int, state: str) -> None:
         bar.n = min(step, total + 1)
-        bar.set_postfix_str(state)
+        bar.set_postfix_str(state, refresh=False)
         bar.refresh()
 
     try:
