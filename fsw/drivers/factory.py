@@ -73,6 +73,17 @@ def can_bus_kwargs(cfg: DevicesConfig) -> dict[str, Any]:
     return kw
 
 
+def _provided_or_open(provided: dict[str, Any], key: str, opener: Any) -> tuple[Any, Exception | None]:
+    """The endpoint a bench handed in, else a freshly opened one; if opening fails, no endpoint
+    and the error (the driver then starts faulted and retries)."""
+    if provided.get(key) is not None:
+        return provided[key], None
+    try:
+        return opener(), None
+    except Exception as exc:  # noqa: BLE001 - the driver starts faulted and retries
+        return None, exc
+
+
 def open_devices(cfg: DevicesConfig, provided: dict[str, Any] | None = None) -> dict[str, Any]:
     """Drivers for the configured devices, keyed ``motors``, ``mast``, ``camera``."""
     import can
@@ -89,13 +100,7 @@ def open_devices(cfg: DevicesConfig, provided: dict[str, Any] | None = None) -> 
         def open_bus() -> can.BusABC:
             return can.Bus(**can_bus_kwargs(cfg))
 
-        bus = provided.get("can_bus")
-        error = None
-        if bus is None:
-            try:
-                bus = open_bus()
-            except Exception as exc:  # noqa: BLE001 - the driver starts faulted and retries
-                bus, error = None, exc
+        bus, error = _provided_or_open(provided, "can_bus", open_bus)
         motors = CanMotorDriver(
             bus,
             RoverCan(dbc_path(cfg)),
@@ -116,13 +121,7 @@ def open_devices(cfg: DevicesConfig, provided: dict[str, Any] | None = None) -> 
 
             return serial.serial_for_url(cfg.serial_url, baudrate=cfg.serial_baud, timeout=0, write_timeout=0.1)
 
-        port = provided.get("mast_port")
-        perr = None
-        if port is None:
-            try:
-                port = open_port()
-            except Exception as exc:  # noqa: BLE001 - the driver starts faulted and retries
-                port, perr = None, exc
+        port, perr = _provided_or_open(provided, "mast_port", open_port)
         mast = MastSerialDriver(
             port,
             ack_timeout_s=cfg.mast_ack_timeout_s,

@@ -22,7 +22,6 @@ MAP_UPDATED = "map.updated"
 NAV_POSE = "nav.pose"
 NBV_REQUEST = "nbv.request"
 NBV_RESULT = "nbv.result"
-MAP_PREVIEW = "map.preview"
 
 
 @dataclass(frozen=True)
