@@ -25,15 +25,26 @@ BIN = Path(sys.executable).parent
 
 
 def _read_until(proc: subprocess.Popen[str], marker: str, timeout_s: float) -> list[str]:
+    """Lines of ``proc``'s stdout up to the one starting with ``marker``.
+
+    Reads the raw descriptor: ``select`` on a buffered text stream misses lines that the
+    stream already pulled into its buffer, so two lines arriving in one chunk would stall."""
     lines: list[str] = []
+    buf = b""
     deadline = time.monotonic() + timeout_s
     assert proc.stdout is not None
+    fd = proc.stdout.fileno()
     while time.monotonic() < deadline:
-        ready, _, _ = select.select([proc.stdout], [], [], 0.2)
-        if ready:
-            line = proc.stdout.readline()
-            if not line:
-                break
+        ready, _, _ = select.select([fd], [], [], 0.2)
+        if not ready:
+            continue
+        chunk = os.read(fd, 4096)
+        if not chunk:
+            break
+        buf += chunk
+        while b"\n" in buf:
+            raw, buf = buf.split(b"\n", 1)
+            line = raw.decode(errors="replace") + "\n"
             lines.append(line)
             if line.startswith(marker):
                 return lines
