@@ -54,6 +54,35 @@ def truth_grid(cfg: ScenarioConfig) -> TruthGrid:
     return TruthGrid(w.x_min_m, w.y_min_m, w.cell_m, nx, ny)
 
 
+def textureless_mask(grid: TruthGrid, regions: tuple[tuple[float, float, float, float], ...],
+                     seed: int) -> NDArray[np.bool_]:
+    """True inside the ``[texture] textureless_regions``: each an ellipse (centre x, y;
+    semi-axes rx, ry) whose radius is modulated by a few random harmonics, so the boundary is
+    irregular like a patch of fine sand or silt. Each region draws from its own stream
+    (``seed``, region index), so adding one leaves the rest of the world unchanged."""
+    gx, gy = grid.mesh()
+    mask = np.zeros(gx.shape, bool)
+    for i, (x, y, rx, ry) in enumerate(regions):
+        if rx <= 0.0 or ry <= 0.0:
+            raise ScenarioError(f"textureless region {i}: semi-axes must be > 0, got {rx}, {ry}")
+        rng = np.random.default_rng([seed, 11, i])
+        u, v = (gx - x) / rx, (gy - y) / ry
+        theta = np.arctan2(v, u)
+        wobble = np.zeros_like(theta)
+        for harmonic in (2, 3, 5):
+            wobble += rng.uniform(0.04, 0.1) * np.cos(harmonic * theta + rng.uniform(0, 2 * np.pi))
+        mask |= np.hypot(u, v) < 1.0 + wobble
+    return mask
+
+
+def dilate(mask: NDArray[np.bool_], cells: int) -> NDArray[np.bool_]:
+    """``mask`` grown by a disc of ``cells`` radius."""
+    import cv2
+
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * cells + 1, 2 * cells + 1))
+    return np.asarray(cv2.dilate(mask.astype(np.uint8), k).astype(bool))
+
+
 def edge_curve(xs: F64, rng: np.random.Generator, mean_y: float, wiggle_m: float,
                wavelength_m: float) -> F64:
     """An irregular edge line ``y(x)`` sampled at ``xs`` (a smooth random curve)."""
@@ -73,7 +102,7 @@ def finish_world(
     edge_xy: F64,
     plateau_z: float,
     rock_id: NDArray[np.int32] | None = None,
-    textureless: NDArray[np.bool_] | None = None,
+    textureless: NDArray[np.bool_] | None = None,  # None: the [texture] regions everywhere
     map_grid: MapGridConfig | None = None,
     plateau_tol_m: float = 0.01,
 ) -> World:
@@ -96,7 +125,7 @@ def finish_world(
     height = ground.copy()
     cliffbot.stamp_height(height, grid.x0, grid.y0, grid.cell_m)
     if textureless is None:
-        textureless = np.zeros(ground.shape, bool)
+        textureless = textureless_mask(grid, cfg.texture.textureless_regions, seed)
     albedo, detail = make_texture(ground, grid.cell_m, cfg.texture, rng, rock_id=rock_id,
                                   textureless=textureless)
     plateau = plateau_mask(grid, ground, (rs.x_m, rs.y_m), plateau_z, plateau_tol_m)

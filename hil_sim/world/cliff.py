@@ -6,7 +6,9 @@ line near ``y = edge_y_m``; a rough rock face about ``face_slope_deg`` (75 degre
 drops ``drop_m``; below, the ground slopes gently away and carries a rock jumble: rocks
 drawn from the Viking size-frequency model (``mars.py``) with a coverage that is highest at
 the cliff foot (``jumble_k``) and decays with distance (``jumble_decay_m``) to
-``background_k``.
+``background_k``. Flats of fine silt (``[texture] textureless_regions``, kept to the ground
+past the cliff foot and free of rocks) give stereo no correspondence, as the regions that
+made the paper's field result differ between Methods 4 and 5 (ALGORITHM.md §3.4, §7).
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import math
 
 import numpy as np
 
-from hil_sim.world.build import edge_curve, finish_world, truth_grid
+from hil_sim.world.build import dilate, edge_curve, finish_world, textureless_mask, truth_grid
 from hil_sim.world.config import CliffConfig, ScenarioConfig
 from hil_sim.world.mars import place_viking_rocks
 from hil_sim.world.noise import fractal_noise
@@ -46,7 +48,8 @@ def build_cliff(cfg: ScenarioConfig, seed: int) -> World:
     local_k = np.where(d > 0.5 * run, local_k, 0.0)
     cb = cfg.cliffbot
     clear = np.hypot(gx - cb.x_m, gy - cb.y_m) < 0.6 * math.hypot(cb.length_m, cb.width_m) + 0.2
-    local_k = np.where(clear, 0.0, local_k).astype(np.float32)
+    silt = (d > run + 0.1) & textureless_mask(grid, cfg.texture.textureless_regions, seed)
+    local_k = np.where(clear | dilate(silt, int(0.15 / grid.cell_m)), 0.0, local_k).astype(np.float32)
     k_max = float(local_k.max())
     rock_id = np.full(ground.shape, -1, np.int32)
     if k_max > 0:
@@ -58,4 +61,4 @@ def build_cliff(cfg: ScenarioConfig, seed: int) -> World:
     rock_id[on_top] = -1
     edge = np.column_stack([grid.xs, y_edge])[:: max(1, round(0.02 / grid.cell_m))]
     return finish_world(cfg, "cliff", seed, grid, ground, rng, edge_xy=edge, plateau_z=0.0,
-                        rock_id=rock_id, plateau_tol_m=0.005)
+                        rock_id=rock_id, textureless=silt, plateau_tol_m=0.005)

@@ -95,6 +95,10 @@ class TextureConfig:
     sun_elevation_deg: float = param(50.0, lo=5.0, hi=90.0, units="deg")
     ambient: float = param(0.35, lo=0.0, hi=1.0, doc="light not from the sun (baked shading)")
     textureless_albedo: float = param(0.62, lo=0.0, hi=1.0)
+    textureless_regions: tuple[tuple[float, float, float, float], ...] = param(
+        (), doc="regions of uniform surface where stereo finds no match: centre x, y and "
+                "semi-axes along x, y (m) of an irregular ellipse; the scenario keeps them on "
+                "the ground below the edge (docs/world.md)")
 
 
 @dataclass(frozen=True)
@@ -111,9 +115,6 @@ class LabConfig:
     pit_x_max_m: float = param(7.0, units="m")
     pit_y_min_m: float = param(-6.5, units="m")
     sand_relief_m: float = param(0.012, lo=0.0, hi=0.2, units="m")
-    textureless_x_m: float = param(0.7, units="m", doc="centre of the textureless patch")
-    textureless_y_m: float = param(-3.3, units="m")
-    textureless_radius_m: float = param(1.0, lo=0.1, hi=5.0, units="m")
     piles: tuple[tuple[float, float, float, float], ...] = param(
         ((3.6, -3.2, 0.6, 0.3), (5.4, -2.0, 0.5, 0.25), (4.6, -5.0, 0.7, 0.35)),
         doc="rock piles: x, y, radius, height (m)")

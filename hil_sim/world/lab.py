@@ -5,8 +5,10 @@ irregular step edge about ``drop_m`` high running along ``+x`` near ``y = edge_y
 wiggle plus a bay cut into the plateau, so the edge is neither straight nor convex); below it
 a recessed sandpit (``x`` from ``pit_x_min_m`` to ``pit_x_max_m``, ``y`` from ``pit_y_min_m``
 to the edge) with rippled sand, a few pebbles, three rock piles and, in its left (low ``x``)
-part, an irregular patch of uniform sand with no texture at all, where stereo cannot match
-(the paper's Method 3 chases it, Method 5 loses interest: ALGORITHM.md §3.4).
+region, uniform sand with no texture at all where stereo cannot match (``[texture]
+textureless_regions``; the paper: "the left region of the sandpit yields poor data (due to
+lack of stereo correspondence)": its Method 3 chases it, Method 5 loses interest,
+ALGORITHM.md §3.4, §7).
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from hil_sim.world.build import edge_curve, finish_world, truth_grid
+from hil_sim.world.build import dilate, edge_curve, finish_world, textureless_mask, truth_grid
 from hil_sim.world.config import LabConfig, ScenarioConfig
 from hil_sim.world.mars import place_viking_rocks
 from hil_sim.world.noise import fractal_noise
@@ -44,10 +46,10 @@ def build_lab(cfg: ScenarioConfig, seed: int) -> World:
     ramp = -lab.drop_m * np.maximum(d_wall, 0.0) / lab.face_width_m  # the face, steep
     ground = np.where(d_wall > 0, np.maximum(floor, ramp), 0.0).astype(np.float32)
     deep = d_wall > lab.face_width_m + 0.05  # pit floor clear of the walls
-    textureless = deep & _blob(gx, gy, lab, rng)
+    textureless = deep & textureless_mask(grid, cfg.texture.textureless_regions, seed)
     rock_id = np.full(ground.shape, -1, np.int32)
     # Pebbles on the sand (not on the textureless patch), then the three piles.
-    pebbles = (deep & ~_dilate(textureless, int(0.15 / grid.cell_m))).astype(np.float32)
+    pebbles = (deep & ~dilate(textureless, int(0.15 / grid.cell_m))).astype(np.float32)
     n_peb = place_viking_rocks(ground, grid.x0, grid.y0, grid.cell_m, 0.015, rng, 0.03, 0.12,
                                weight=pebbles, rock_id=rock_id)
     _piles(ground, grid, lab, rng, rock_id, n_peb)
@@ -76,23 +78,6 @@ def _piles(ground: F32, grid, lab: LabConfig, rng: np.random.Generator,  # type:
                         y + rr * np.sin(th), d, h, rng, rock_id=rock_id, first_id=first_id)
             first_id += count
         ground += layer * np.float32(height / max(float(layer.max()), 1e-6))
-
-def _blob(gx: F32, gy: F32, lab: LabConfig, rng: np.random.Generator) -> NDArray[np.bool_]:
-    """An irregular round patch: radius modulated by a few random harmonics."""
-    theta = np.arctan2(gy - lab.textureless_y_m, gx - lab.textureless_x_m)
-    r = np.hypot(gx - lab.textureless_x_m, gy - lab.textureless_y_m)
-    wobble = np.zeros_like(theta)
-    for harmonic in (2, 3, 5):
-        wobble += rng.uniform(0.04, 0.1) * np.cos(harmonic * theta + rng.uniform(0, 2 * np.pi))
-    return np.asarray(r < lab.textureless_radius_m * (1.0 + wobble))
-
-
-def _dilate(mask: NDArray[np.bool_], cells: int) -> NDArray[np.bool_]:
-    import cv2
-
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * cells + 1, 2 * cells + 1))
-    return cv2.dilate(mask.astype(np.uint8), k).astype(bool)
-
 
 def _edge_polyline(xs: np.ndarray, y_edge: np.ndarray, lab: LabConfig) -> np.ndarray:
     """The top of the step, walked along +x (plateau on the left: safe_side_sign = +1)."""

@@ -151,6 +151,36 @@ def test_cliff_face_and_edge():
     assert np.percentile(below, 99.5) - np.median(below) > 0.15  # a rock jumble
 
 
+def test_cliff_silt_flats_are_textureless_rock_free_and_below_the_foot():
+    """Issue 5 (cliff, Methods 4 vs 5): the cliff world's ``textureless_regions`` are silt
+    flats: constant albedo, no rocks on them, only on the ground past the cliff foot; without
+    them the same ground is textured."""
+    w = load_scenario("cliff")
+    tl = w.textureless
+    area = tl.sum() * w.cell_m**2
+    assert 4.0 < area < 7.0
+    assert np.ptp(w.albedo[tl]) == 0.0
+    assert w.ground[tl].max() < -1.5  # all below the 1.5 m face
+    assert (w.height[tl] == w.ground[tl]).all()  # nothing stands on them (no Cliff-bot)
+    # No rocks: inside the flats (clear of the largest rocks' reach from outside) the ground
+    # is the bare floor of the same world built without any rocks.
+    rockless = load_scenario("cliff?jumble_k=0&background_k=0")
+    inner = cv2.erode(tl.astype(np.uint8), np.ones((101, 101), np.uint8)).astype(bool)
+    assert inner.sum() > 5000
+    assert np.array_equal(w.ground[inner], rockless.ground[inner])
+    assert not np.array_equal(w.ground, rockless.ground)  # there are rocks elsewhere
+    bare = load_scenario("cliff?textureless_regions=[]")
+    assert not bare.textureless.any() and np.ptp(bare.albedo[tl]) > 0.05
+
+
+def test_textureless_regions_are_validated():
+    """A region with a non-positive semi-axis is refused with one line, not a traceback."""
+    with pytest.raises(ScenarioError, match="semi-axes must be > 0"):
+        load_scenario("lab?textureless_regions=[[1.0,-3.0,0.0,1.0]]")
+    with pytest.raises(ConfigError):
+        load_scenario("lab?textureless_regions=[[1.0,-3.0]]")
+
+
 def test_mars_scenario_and_override():
     """Issue 3 item 1 (mars): Viking rocks with coverage k and a seed; k from the spec."""
     a = load_scenario("mars?k=0.16", seed=1)
