@@ -20,6 +20,11 @@ from hil_sim.world import World
 
 F64 = NDArray[np.float64]
 
+# The perception checks (issue 4) look from the rover start into the pit's left part. They
+# need textured sand and a textureless patch's rim in the same views, so they use the lab with
+# a 1 m patch there; the mapping experiments use the paper's whole left region (docs/world.md).
+PERCEPTION_LAB = "lab?textureless_regions=[[0.7,-3.3,1.0,1.0]]"
+
 
 @dataclass(frozen=True)
 class Calibration:

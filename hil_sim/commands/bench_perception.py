@@ -18,13 +18,17 @@ from __future__ import annotations
 
 import argparse
 
+from hil_sim.perception_eval import PERCEPTION_LAB
+
 HELP = "stereo ms per pair, points merged per second, edge fit ms, checkpoint ms (--plot: PNG)"
 MERGE_TARGET_MS = 50.0
 BATCH_POINTS = 300_000
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scenario", default="lab", help="world (hil_sim.world.load_scenario spec)")
+    p.add_argument("--scenario", default=PERCEPTION_LAB,
+                   help="world (hil_sim.world.load_scenario spec; default: the lab with a 1 m "
+                        "textureless patch, as tests/perception)")
     p.add_argument("--seed", type=int, default=0, help="world and camera-noise seed")
     p.add_argument("--repeats", type=int, default=5, help="timed runs per figure")
     p.add_argument("--config", default=None, help="flight config (default config/fsw.toml)")

@@ -7,6 +7,10 @@ and to the oracle), ``fig7_coverage.png`` (mapped cells against imaging steps, m
 min-max band over seeds) and ``fig8_expected_vs_obtained.png`` (expected against obtained
 new cells per step for Methods 3 and 5). Each run's own summary lands in
 ``DIR/runs/<method>_seed<k>/``.
+
+``coverage.md`` and ``coverage.json`` end with the paper's claims (issue 5, "Done when")
+checked against these runs: each claim whose methods were run, its measured value, its
+target and whether it is met (:func:`claims`).
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ import csv
 import json
 import sys
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -59,14 +64,82 @@ def run(args: argparse.Namespace) -> int:
             pool.submit(_one, args.scenario, m, args.steps, s, str(args.out / "runs" / f"{m}_seed{s}")): (m, s)
             for m, s in runs
         }
+        failed: list[str] = []
         for fut in as_completed(futs):
             m, s = futs[fut]
-            results[(m, s)] = fut.result()
-            bar.set_postfix_str(f"method {m} seed {s}: {results[(m, s)]['mapped_cells']} cells")
+            try:
+                results[(m, s)] = fut.result()
+            except Exception as exc:  # noqa: BLE001 - one failed mission is reported, the rest go on
+                failed.append(f"method {m} seed {s}: {type(exc).__name__}: {exc}")
+                bar.set_postfix_str(f"method {m} seed {s}: FAILED")
+            else:
+                bar.set_postfix_str(f"method {m} seed {s}: {results[(m, s)]['mapped_cells']} cells")
             bar.update()
+    if failed:
+        print("safer-hil experiment coverage: missions failed, no report written:\n  " + "\n  ".join(failed),
+              file=sys.stderr)
+        return 1
     write_report(args.out, args.scenario, args.steps, methods, args.seeds, results)
     print((args.out / "coverage.md").read_text())
     return 0
+
+
+@dataclass(frozen=True)
+class Claim:
+    """One of the paper's claims (issue 5) checked against the runs."""
+
+    text: str
+    value: float
+    target: str
+    met: bool
+    detail: str
+
+
+def claims(results: dict[tuple[str, int], dict[str, Any]], methods: list[str], seeds: int,
+           steps: int) -> list[Claim]:
+    """The issue-5 claims that the methods run allow checking, with the measured values.
+
+    Mapped cells are means over seeds at the last step. "Expected tracks obtained" compares the
+    sums over every imaging step of every seed; "falls toward zero" compares Method 3's mean
+    obtained and expected new cells over its last five steps."""
+    final = {m: float(curves(results, m, seeds, steps)[:, -1].mean()) for m in methods}
+    out: list[Claim] = []
+
+    def ratio(a: str, b: str, target: float, text: str) -> None:
+        if a in final and b in final and final[b] > 0:
+            r = final[a] / final[b]
+            out.append(Claim(text, r, f">= {target:g}", r >= target, f"{final[a]:.0f} / {final[b]:.0f}"))
+
+    ratio("5", "1", 10.0, "Method 5 maps >= 10x the cells of Method 1")
+    ratio("5", "oracle", 0.9, "Method 5 reaches >= 0.9 x the oracle")
+    ratio("5", "3", 1.3, "Method 5 maps >= 30 % more than Method 3")
+    if "4" in final and "5" in final:
+        r = final["5"] / final["4"] if final["4"] > 0 else float("inf")
+        out.append(Claim("Method 5 maps more than Method 4", r, "> 1", r > 1.0,
+                         f"{final['5']:.0f} / {final['4']:.0f}"))
+    if "5" in methods:
+        exp, obt = _sums(results, "5", seeds)
+        r = exp / obt if obt > 0 else float("inf")
+        out.append(Claim("Method 5's expected new cells track its obtained within 25 %", r,
+                         "0.75 .. 1.25", 0.75 <= r <= 1.25, f"sum expected {exp:.0f} / obtained {obt:.0f}"))
+    if "3" in methods:
+        exp_m, obt_m = _expected_obtained(results, "3", seeds)
+        if len(exp_m) >= 5 and exp_m[-5:].mean() > 0:
+            e5, o5 = float(exp_m[-5:].mean()), float(obt_m[-5:].mean())
+            out.append(Claim("Method 3's obtained new cells fall toward zero while its expected stay high",
+                             o5 / e5, "<= 0.1 (last 5 steps)", o5 / e5 <= 0.1,
+                             f"last 5 steps: expected {e5:.0f}, obtained {o5:.0f} per step"))
+    runs = list(results.values())
+    viol = sum(int(r["edge_violations"]) for r in runs)
+    out.append(Claim("No edge violation in any run", viol, "0", viol == 0, f"{len(runs)} missions"))
+    slips = sum(int(r["slips"]) for r in runs)
+    out.append(Claim("Zero slips at 10 Hz", slips, "0", slips == 0, f"{len(runs)} missions"))
+    return out
+
+
+def _sums(results: dict[tuple[str, int], dict[str, Any]], method: str, seeds: int) -> tuple[float, float]:
+    steps = [st for s in range(seeds) for st in results[(method, s)]["steps"] if st["step"] >= 1]
+    return float(sum(st["expected_new_cells"] for st in steps)), float(sum(st["obtained_new_cells"] for st in steps))
 
 
 def curves(results: dict[tuple[str, int], dict[str, Any]], method: str, seeds: int, steps: int) -> Any:
@@ -153,9 +226,22 @@ def write_report(
                 f"Method {m}: expected vs obtained new cells per step (mean over seeds, steps 1..): "
                 + ", ".join(f"{e:.0f}/{o:.0f}" for e, o in zip(exp, obt, strict=True))
             )
+    checked = claims(results, methods, seeds, steps)
+    lines += ["", "## The paper's claims (issue 5)", "", "| claim | measured | target | |", "|---|---|---|---|"]
+    for c in checked:
+        lines.append(f"| {c.text} | {c.value:.3g} ({c.detail}) | {c.target} | {'met' if c.met else 'NOT MET'} |")
     (out / "coverage.md").write_text("\n".join(lines) + "\n")
     (out / "coverage.json").write_text(
-        json.dumps({m: {"final_mean": float(final[m].mean()), "final": final[m].tolist()} for m in methods}, indent=2)
+        json.dumps(
+            {
+                "scenario": scenario,
+                "steps": steps,
+                "seeds": seeds,
+                "methods": {m: {"final_mean": float(final[m].mean()), "final": final[m].tolist()} for m in methods},
+                "claims": [asdict(c) for c in checked],
+            },
+            indent=2,
+        )
     )
 
     fig, ax = plt.subplots(figsize=(7, 4.5), constrained_layout=True)

@@ -24,6 +24,7 @@ from fsw.core.localization import PoseEstimate, so3_exp, so3_log
 from fsw.core.stereo import StereoMatcher
 from fsw.settings import FswConfig, load_settings
 from hil_sim.perception_eval import (
+    PERCEPTION_LAB,
     calibration,
     cell_range_m,
     edge_pass_poses,
@@ -44,7 +45,7 @@ def cfg() -> FswConfig:
 
 @pytest.fixture(scope="module")
 def lab(cfg: FswConfig) -> tuple[World, StereoRenderer, MapGrid, np.ndarray]:
-    world = load_scenario("lab")
+    world = load_scenario(PERCEPTION_LAB)
     grid = MapGrid.from_config(world.map_grid)
     return world, StereoRenderer(world, cfg.camera, world.noise_sigma, seed=0), grid, \
         world.truth_on_grid(grid)
@@ -148,7 +149,7 @@ def test_pose_covariance_is_propagated_honestly(cfg, lab, ten_views) -> None:
 def test_cliffbot_fiducials_at_3_m(cfg) -> None:
     """Issue 4, done-when 3: the Cliff-bot seen at about 3 m is located within 2 cm and 1 deg
     (RECON-bot = origin, from its ArUco markers, left and right images)."""
-    world = load_scenario("lab")
+    world = load_scenario(PERCEPTION_LAB)
     cb = world.cliffbot
     rend = StereoRenderer(world, cfg.camera, world.noise_sigma, seed=3)
     base = camera_pose_from_rover(world.rover_start, (0.0, 0.0, 0.3), cfg.mast)
