@@ -199,24 +199,29 @@ def write_report(
                         *(round(p[k], 4) for k in ("x", "y", "yaw", "pan", "tilt", "lift")),
                     ]
                 )
-    final = {m: curves(results, m, seeds, steps)[:, -1] for m in methods}
+    curve = {m: curves(results, m, seeds, steps) for m in methods}
+    final = {m: c[:, -1] for m, c in curve.items()}
+    added = {m: c[:, -1] - c[:, 0] for m, c in curve.items()}  # by the imaging steps (panorama excluded)
     ref1 = final["1"].mean() if "1" in final else float("nan")
+    add1 = added["1"].mean() if "1" in added else float("nan")
     refo = final["oracle"].mean() if "oracle" in final else float("nan")
     lines = [
         f"# Coverage, {scenario} scenario, {steps} steps, {seeds} seeds",
         "",
         "| method | mapped cells at last step (mean) | min | max | vs Method 1 | vs oracle | "
-        "edge violations | slips | map RMSE (cm) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "added by steps 1.. (mean) | added vs Method 1 | steps taken (mean) | edge violations | slips | "
+        "map RMSE (cm) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for m in methods:
         f = final[m]
         runs = [results[(m, s)] for s in range(seeds)]
         rmse = [r["map_rmse_m"] for r in runs if r["map_rmse_m"] is not None]
+        taken = np.mean([max(st["step"] for st in r["steps"]) for r in runs])
         lines.append(
             f"| {m} | {f.mean():.0f} | {f.min():.0f} | {f.max():.0f} | {f.mean() / ref1:.2f}x | "
-            f"{f.mean() / refo:.2f} | {sum(r['edge_violations'] for r in runs)} | "
-            f"{sum(r['slips'] for r in runs)} | {100 * np.mean(rmse):.2f} |"
+            f"{f.mean() / refo:.2f} | {added[m].mean():.0f} | {added[m].mean() / add1:.2f}x | {taken:.1f} | "
+            f"{sum(r['edge_violations'] for r in runs)} | {sum(r['slips'] for r in runs)} | {100 * np.mean(rmse):.2f} |"
         )
     for m in ("3", "5"):
         if m in methods:

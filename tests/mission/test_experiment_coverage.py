@@ -65,7 +65,10 @@ def test_claims_are_computed_from_the_runs() -> None:
 def test_report_files(tmp_path: Path) -> None:
     write_report(tmp_path, "lab", 6, ["1", "3", "5", "oracle"], 2, _results(m3_late=5))
     md = (tmp_path / "coverage.md").read_text()
-    assert "| 5 | 13000 |" in md and "## The paper's claims (issue 5)" in md
+    # mean, min, max, vs Method 1, vs oracle, added after the panorama, added vs Method 1, steps
+    assert "| 5 | 13000 | 13000 | 13000 | 10.00x | 0.96 | 12000 | 40.00x | 6.0 |" in md
+    assert "| 1 | 1300 | 1300 | 1300 | 1.00x | 0.10 | 300 | 1.00x | 3.0 |" in md
+    assert "## The paper's claims (issue 5)" in md
     assert md.count("| met |") + md.count("| NOT MET |") == 7
     data = json.loads((tmp_path / "coverage.json").read_text())
     assert data["methods"]["1"]["final"] == [1300.0, 1300.0]
