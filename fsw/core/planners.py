@@ -5,19 +5,36 @@
 chunk of rays, a block of ray samples, one tilt's field-of-view sums: a few ms each here) so
 the executive can run the search in frame slack, and returns the view.
 
-1. ``RasterPlanner(sweep=False)``: raster scan without yaw. The operator's plan is made once,
-   at the first call: stations equally spaced along the edge path from the rover's position
-   toward the longer remaining part, the mast fixed: pan square to the path toward the drop,
-   lift at maximum, and the tilt that maximises the view's footprint on the expected floor
-   (the ROI floor seen so far, or ``raster_floor_drop_m`` below the rover), steepened if
-   needed so the edge lip stays in the image (each view also maps the edge to drive along). Spacing: the
-   footprint's length along the path times ``1 - raster_overlap_frac`` (consecutive views
-   just overlap), reduced if needed so the ``n_views`` steps fit in the region of interest.
-   The path is the edge path as far as it is known, continued straight past its end to the
-   map's extent (the operator scans the whole region, assuming the edge goes on).
-2. ``RasterPlanner(sweep=True)``: raster scan with yaw: ``raster_pans_per_station`` pan views
-   at each station, a pan step of ``hfov * (1 - overlap)`` around the same centre; stations
-   spaced by the sweep's footprint along the path the same way; the same number of views.
+1. ``RasterPlanner(sweep=False)``: raster scan without yaw, set up once at the first call as
+   a competent operator would. Row 1 runs along the edge path from the rover toward the
+   longer remaining part, the mast fixed: pan square to the path toward the drop, lift at
+   maximum, and the tilt that maximises the view's footprint on the expected floor (the ROI
+   floor seen so far, or ``raster_floor_drop_m`` below the rover), steepened if needed so
+   the edge lip stays in the image (each view also maps the edge to drive along). Spacing:
+   the footprint's length along the path times ``1 - raster_overlap_frac`` (consecutive
+   views just overlap), reduced if needed so the ``n_views`` steps fit in the region of
+   interest. The path is the edge path as far as it is known, continued straight past its
+   ends to the map's extent (the operator scans the whole region, assuming the edge goes
+   on); it is re-read at every call, so the stations follow the edge as it is revealed.
+   Each station is one spacing on from the last one along the path; if the geofence
+   refuses the move there, the station is the farthest path point toward it (0.05 m steps)
+   that it allows, at least a quarter spacing on (the operator advances as far as is safe;
+   that view reveals the edge ahead and the row goes on). When no such point exists (the
+   reachable part of the path, or the path itself, ends) the row ends and the next row
+   begins where the rover stands: back the other way along the path (the rover keeps its
+   heading and backs up, so the pan stays toward the drop) at the next tilt band out (the
+   band whose footprint overlaps the last one's across the path by ``raster_overlap_frac``
+   of its width; bands end where one would add less than a quarter of the last band's
+   width: the range limit), spaced by the band's along-path width where its new ground
+   starts, less the overlap, reduced so the stations left (split evenly over the bands
+   left) spread over the path to its far end. After the farthest band a new pass starts
+   from the first band. So every one of the ``n_views`` steps is a view; the pointing
+   within a row never changes (Method 1 has no yaw). If the geofence allows no move at all
+   from where the rover stands, the rows shrink to mast-only views there.
+2. ``RasterPlanner(sweep=True)``: raster scan with yaw: the same rows, with
+   ``raster_pans_per_station`` pan views at each station, a pan step of
+   ``hfov * (1 - overlap)`` around the same centre; stations spaced by the sweep's (union)
+   footprint along the path the same way; the same number of views.
 3. ``InformationPlanner(straight_edge=True)``: information-based, the edge path straightened
    to one segment (total least squares through the path points, spanning them).
 4. ``InformationPlanner()``: information-based on the polygon edge's path.
@@ -26,8 +43,8 @@ the executive can run the search in frame slack, and returns the view.
 Oracle: ``InformationPlanner`` rating with the true terrain (sigma ``oracle_sigma_m``) and the
 true texture (a textureless cell is worth nothing): an upper bound for analysis.
 
-A raster view whose station the geofence refuses is moved to the nearest reachable path point
-within half a spacing, else skipped. Information planners only rate reachable stations
+Every raster station passes the geofence from the rover's pose (``motion_ok``), or is the
+rover's pose itself. Information planners only rate reachable stations
 (``view_candidates.path_stations``). No planner proposes a pose outside the mast limits.
 """
 
@@ -42,6 +59,7 @@ import numpy as np
 import shapely
 from numpy.typing import NDArray
 from shapely.geometry import LineString, Point
+from shapely.geometry.base import BaseGeometry
 
 from fsw.core.geometry import CameraConfig, CameraPose, MastConfig, camera_pose_from_rover
 from fsw.core.nbv import (
@@ -104,6 +122,18 @@ class Planner(ABC):
     def search(self, state: PlannerState) -> SearchGen: ...
 
 
+@dataclass
+class _Row:
+    """One raster row: a pass along the path at one tilt band."""
+
+    direction: float  # +1: along the path's own order, -1: against it
+    joints: list[Pose3]  # the row's mast poses (Method 1: one; Method 2: the pan sweep)
+    spacing_m: float
+    stations: int  # stations allotted to the row
+    band: int  # index in RasterPlanner.bands
+    taken: int = 0  # stations placed so far
+
+
 class RasterPlanner(Planner):
     """Methods 1 and 2 (see the module docstring)."""
 
@@ -112,49 +142,66 @@ class RasterPlanner(Planner):
         self.sweep, self.n_views = sweep, int(n_views)
         self.cfg, self.camera, self.mast = cfg, camera, mast
         self.name = "2" if sweep else "1"
-        self.plan: list[CandidateView] | None = None
-        self.spacing_m = 0.0
-        self._start_xy: tuple[float, float] | None = None
-        self._direction = 1.0
-        self._offsets: list[float] = []
-        self._next = 0
-        self._path = np.zeros((0, 2))
+        self.spacing_m = 0.0  # the first row's station spacing
+        self.bands: list[tuple[float, float]] = []  # (tilt rad, station spacing m), near to far
+        self.rows: list[_Row] = []  # rows begun so far; the last is the current one
+        self.given = 0  # views handed out
+        self._ready = False
+        self._pans: list[float] = []
+        self._lift = 0.0
+        self._heading_dir = 1.0  # the rover faces the first row's direction throughout
+        self._last_xy: tuple[float, float] = (0.0, 0.0)  # the last station
+        self._station: Pose3 | None = None
+        self._sweep_i = 0
+
+    @property
+    def per_station(self) -> int:
+        return len(self._pans) if self._pans else 1
 
     def search(self, state: PlannerState) -> SearchGen:
-        if self.plan is None:
-            self.plan = yield from self._make_plan(state)
-        else:
-            self._follow_edge(state)
+        if not self._ready:
+            self._ready = True
+            yield from self._setup(state)
         yield None
-        while self._next < len(self.plan):
-            view = self.plan[self._next]
-            self._next += 1
-            placed = yield from self._reachable(view, state)
-            if placed is not None:
-                return placed
+        while self._ready and self.given < self.n_views and self.rows:
+            row = self.rows[-1]
+            if self._station is not None and self._sweep_i < len(row.joints):
+                return self._sweep_view(row, state)  # the rest of the station's pan sweep
+            self._station = None
+            if row.taken < row.stations:
+                station = yield from self._next_station(row, state)
+                if station is not None:
+                    self._station, self._sweep_i = station, 0
+                    row.taken += 1
+                    continue
+            if not self._next_row(state):
+                return None
         return None
 
-    def _follow_edge(self, state: PlannerState) -> None:
-        """Re-place the stations still to come on the edge path as now known, at the same
-        distances along it from the start (the operator follows the edge as it is revealed)."""
-        xy = as_polyline(state.path)
-        if xy.shape[0] < 2 or self.plan is None or self._start_xy is None:
-            return
-        known = LineString(xy)
-        forward = self._direction > 0
-        line = _extend_across_roi(known, forward, state)
-        s0 = float(line.project(Point(*self._start_xy)))
-        self._path = np.asarray(line.coords)
-        for i in range(self._next, len(self.plan)):
-            v = self.plan[i]
-            p, yaw = _point_and_heading(line, s0 + self._direction * self._offsets[i], self._direction)
-            self.plan[i] = CandidateView((float(p[0]), float(p[1]), yaw), v.joints, method=v.method)
+    def _sweep_view(self, row: _Row, state: PlannerState) -> CandidateView:
+        assert self._station is not None
+        rover = self._station
+        if self._sweep_i > 0 and not _close(rover, state.rover) and not state.motion_ok(
+                state.rover, rover):
+            rover = state.rover  # already at the station: pan only
+        view = CandidateView(rover, row.joints[self._sweep_i], method=self.name)
+        self._sweep_i += 1
+        self.given += 1
+        return view
 
-    def _make_plan(self, state: PlannerState) -> Generator[None, None, list[CandidateView]]:
-        """The operator's plan, made once; yields between bounded steps (one tilt each)."""
+    def _line(self, state: PlannerState) -> LineString | None:
+        """The edge path as now known, continued straight across the map at both ends."""
+        xy = as_polyline(state.path)
+        if xy.shape[0] < 2:
+            return None
+        return _extend_across_roi(_extend_across_roi(LineString(xy), True, state), False, state)
+
+    def _setup(self, state: PlannerState) -> Generator[None, None, None]:
+        """The operator's set-up, made once: direction, pointing, tilt bands, first row."""
         xy = as_polyline(state.path)
         if xy.shape[0] < 2 or self.n_views < 1:
-            return []
+            self._ready = False
+            return
         known = LineString(xy)
         s_known = float(known.project(Point(state.rover[0], state.rover[1])))
         side0, t0 = _point_and_heading(known, s_known, 1.0)
@@ -162,58 +209,136 @@ class RasterPlanner(Planner):
         direction = 1.0 if forward else -1.0
         # The operator scans the whole region of interest: the edge path as far as it is known,
         # then straight on across the map's extent (the edge is taken to go on, as the geofence does).
-        line = _extend_across_roi(known, forward, state)
-        self._path = np.asarray(line.coords)
+        line = self._line(state)
+        assert line is not None
         s_now = float(line.project(Point(state.rover[0], state.rover[1])))
         remaining = line.length - s_now if forward else s_now
         side = _drop_side(line, s_now, direction, state.edge_xy)
         per_station = self.cfg.raster_pans_per_station if self.sweep else 1
         step = math.radians(self.camera.hfov_deg) * (1.0 - self.cfg.raster_overlap_frac)
         centre = side * math.pi / 2.0
-        pans = [centre + (i - (per_station - 1) / 2.0) * step for i in range(per_station)]
-        lift = self.mast.lift_max_m
+        self._pans = [centre + (i - (per_station - 1) / 2.0) * step for i in range(per_station)]
+        self._lift = self.mast.lift_max_m
         floor_z = _floor_estimate(state, self.cfg)
         start, tangent = _point_and_heading(line, s_now, direction)
         rover0 = (float(start[0]), float(start[1]), tangent)
-        tilt = yield from best_floor_tilt_steps(rover0, centre, lift, floor_z, state.ground_z_m,
-                                                self.camera, self.mast)
-        tilt = min(tilt, lip_tilt(rover0, centre, lift, state, self.camera, self.mast))
-        joints = [self.mast.clamp(p, tilt, lift) for p in pans]
-        union = shapely.union_all([footprint(camera_pose_from_rover(rover0, j, self.mast,
-                                                                    state.ground_z_m),
-                                             self.camera, floor_z) for j in joints])
-        lo, hi = along_extent(union, start, np.array([math.cos(tangent), math.sin(tangent)]))
+        tilt = yield from best_floor_tilt_steps(rover0, centre, self._lift, floor_z,
+                                                state.ground_z_m, self.camera, self.mast)
+        tilt = min(tilt, lip_tilt(rover0, centre, self._lift, state, self.camera, self.mast))
+        along = np.array([math.cos(tangent), math.sin(tangent)])
+        across = np.array([math.cos(tangent + centre), math.sin(tangent + centre)])
+        union = self._union(rover0, tilt, floor_z, state.ground_z_m)
+        lo, hi = along_extent(union, start, along)
+        fp_spacing = (hi - lo) * (1.0 - self.cfg.raster_overlap_frac)
+        self.bands = [(tilt, fp_spacing)]
+        self.bands += (yield from self._outer_bands(rover0, tilt, floor_z, state.ground_z_m,
+                                                   start, along, across))
         n_stations = math.ceil(self.n_views / per_station)
-        spacing = (hi - lo) * (1.0 - self.cfg.raster_overlap_frac)
+        spacing = fp_spacing
         if n_stations > 1:
             spacing = min(spacing, remaining / (n_stations - 1))
         self.spacing_m = spacing
-        plan = []
-        self._start_xy, self._direction, self._offsets = (float(start[0]), float(start[1])), direction, []
-        for k in range(n_stations):
-            p, yaw = _point_and_heading(line, s_now + direction * k * spacing, direction)
-            for j in joints:
-                plan.append(CandidateView((float(p[0]), float(p[1]), yaw), j, method=self.name))
-                self._offsets.append(k * spacing)
-        return plan[: self.n_views]
+        self._heading_dir = direction
+        self._last_xy = (float(start[0]), float(start[1]))
+        self.rows = [_Row(direction, self._joints(tilt), spacing, n_stations, 0)]
 
-    def _reachable(self, view: CandidateView, state: PlannerState
-                   ) -> Generator[None, None, CandidateView | None]:
-        """The view, or the nearest reachable path point within half a spacing (one geofence
-        check per step)."""
-        if _close(view.rover, state.rover) or state.motion_ok(state.rover, view.rover):
-            return view
-        yield None
-        line = LineString(self._path)
-        s0 = float(line.project(Point(view.rover[0], view.rover[1])))
-        direction = 1.0 if math.cos(view.rover[2] - _tangent(line, s0)) >= 0 else -1.0
-        for ds in sorted(np.arange(-self.spacing_m / 2, self.spacing_m / 2 + 1e-9, 0.05), key=abs):
-            p, yaw = _point_and_heading(line, s0 + ds, direction)
-            rover = (float(p[0]), float(p[1]), yaw)
-            if state.motion_ok(state.rover, rover):
-                return CandidateView(rover, view.joints, method=view.method)
+    def _joints(self, tilt: float) -> list[Pose3]:
+        return [self.mast.clamp(p, tilt, self._lift) for p in self._pans]
+
+    def _union(self, rover: Pose3, tilt: float, floor_z: float, ground_z: float) -> BaseGeometry:
+        return shapely.union_all([footprint(camera_pose_from_rover(rover, j, self.mast, ground_z),
+                                            self.camera, floor_z) for j in self._joints(tilt)])
+
+    def _outer_bands(self, rover: Pose3, tilt: float, floor_z: float, ground_z: float,
+                     start: F64, along: F64, across: F64
+                     ) -> Generator[None, None, list[tuple[float, float]]]:
+        """The tilt bands beyond the first row's, each overlapping the one before by
+        ``raster_overlap_frac`` of its width across the path; the bands end where a higher
+        tilt would add less than a quarter of the previous band's width (range limit)."""
+        overlap = self.cfg.raster_overlap_frac
+        top = math.radians(min(self.mast.tilt_max_deg, 0.0))
+        out: list[tuple[float, float]] = []
+        lo_p, hi_p = along_extent(self._union(rover, tilt, floor_z, ground_z), start, across)
+        while True:
+            best: tuple[float, float, float] | None = None  # tilt, across extent lo, hi
+            t = tilt + math.radians(1.0)
+            while t <= top + 1e-9:
+                lo, hi = along_extent(self._union(rover, t, floor_z, ground_z), start, across)
+                yield None
+                if hi > lo and lo <= hi_p - overlap * (hi_p - lo_p):
+                    best = (t, lo, hi)
+                t += math.radians(1.0)
+            if best is None or best[2] - hi_p < 0.25 * (hi_p - lo_p):
+                return out
+            t, lo, hi = best
+            # Spacing: the band's along-path width where it starts to be new ground (its
+            # narrowest part not covered by the band before), less the overlap.
+            cut = LineString([start + hi_p * across - 100.0 * along,
+                              start + hi_p * across + 100.0 * along])
+            union = self._union(rover, t, floor_z, ground_z)
+            pts = shapely.get_coordinates(union.intersection(cut))
+            if len(pts) == 0:
+                pts = shapely.get_coordinates(union)
+            proj = (pts - start) @ along
+            out.append((t, float(proj.max() - proj.min()) * (1.0 - overlap)))
+            tilt, lo_p, hi_p = t, lo, hi
+
+    def _next_row(self, state: PlannerState) -> bool:
+        """Begin the next row: back the other way along the path at the next tilt band out
+        (after the farthest band, a new pass from the first), the stations left split evenly
+        over the bands left in the pass, spread over the path to its far end (more overlap,
+        never a gap). False if no views are left or there is no path."""
+        line = self._line(state)
+        left = math.ceil((self.n_views - self.given) / self.per_station)
+        if line is None or left < 1 or not self.bands:
+            return False
+        prev = self.rows[-1]
+        band = (prev.band + 1) % len(self.bands)
+        direction = -prev.direction
+        stations = math.ceil(left / (len(self.bands) - band))
+        tilt, fp_spacing = self.bands[band]
+        s_now = float(line.project(Point(state.rover[0], state.rover[1])))
+        length = line.length - s_now if direction > 0 else s_now
+        spacing = fp_spacing if stations < 2 else min(fp_spacing, length / (stations - 1))
+        self._last_xy = (float(state.rover[0]), float(state.rover[1]))
+        self._station = None
+        self.rows.append(_Row(direction, self._joints(tilt), spacing, stations, band))
+        return True
+
+    def _next_station(self, row: _Row, state: PlannerState) -> Generator[None, None, Pose3 | None]:
+        """The row's next station: one spacing on from the last along the path as now known;
+        if the geofence refuses the move there, the farthest reachable point toward it, at
+        least a quarter spacing on (the operator advances as far as is safe and the view
+        reveals the edge ahead); None when the path's end or the reachable part is used up."""
+        line = self._line(state)
+        if line is None:
+            return None
+        s_last = float(line.project(Point(*self._last_xy)))
+        if row.taken == 0:
+            if len(self.rows) > 1:  # a new row starts where the last one ended
+                return state.rover
+            p, yaw = _point_and_heading(line, s_last, self._heading_dir)
+            st = (float(p[0]), float(p[1]), yaw)
+            ok = _close(st, state.rover) or state.motion_ok(state.rover, st)
             yield None
-        return None
+            self._last_xy = (st[0], st[1]) if ok else (state.rover[0], state.rover[1])
+            return st if ok else state.rover
+        d = row.direction
+        s_target = min(line.length, max(0.0, s_last + d * row.spacing_m))
+        min_advance = max(row.spacing_m / 4.0, 1e-3)
+        k = 0
+        while True:
+            s = s_target - d * 0.05 * k
+            if d * (s - s_last) < min_advance - 1e-9:
+                return None
+            p, yaw = _point_and_heading(line, s, self._heading_dir)
+            st = (float(p[0]), float(p[1]), yaw)
+            ok = _close(st, state.rover) or state.motion_ok(state.rover, st)
+            yield None
+            if ok:
+                self._last_xy = (st[0], st[1])
+                return st
+            k += 1
 
 
 class InformationPlanner(Planner):

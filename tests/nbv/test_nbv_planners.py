@@ -6,14 +6,19 @@ import math
 
 import numpy as np
 import pytest
+import shapely
+from shapely.geometry import LineString, MultiLineString
 
+from fsw.core.edge import EdgeModel, edge_path
 from fsw.core.elevation_map import ElevationMap
-from fsw.core.geometry import CameraConfig, MapGrid, MastConfig, camera_pose_from_rover
+from fsw.core.geofence import Geofence, GeofenceConfig
+from fsw.core.geometry import CameraConfig, MapGrid, MastConfig, RoverConfig, camera_pose_from_rover
 from fsw.core.nbv import NbvConfig
 from fsw.core.planners import (
     InformationPlanner,
     PlannerState,
     RasterPlanner,
+    _close,
     make_planner,
     straighten,
 )
@@ -203,3 +208,51 @@ def test_camera_pose_of_a_view_uses_the_mast_model() -> None:
     v = CandidateView((1.0, 2.0, 0.3), (0.2, -0.4, 0.25))
     ref = camera_pose_from_rover((1.0, 2.0, 0.3), (0.2, -0.4, 0.25), MAST)
     assert np.allclose(v.camera_pose(MAST).t, ref.t) and np.allclose(v.camera_pose(MAST).R, ref.R)
+
+
+def _lab_edge(x_max: float) -> np.ndarray:
+    """The lab scenario's step edge (config/scenarios/lab.toml, without the wiggle): y = -0.8
+    from x = -0.5 to 7, with the bay cut 0.3 m into the plateau at x = 3.3 (0.9 m wide),
+    clipped at ``x_max`` (the part the views have seen)."""
+    pts = [(-0.5, -0.8), (2.85, -0.8), (2.85, -0.5), (3.75, -0.5), (3.75, -0.8), (7.0, -0.8)]
+    line = LineString(pts)
+    clip = line.intersection(shapely.box(-10.0, -10.0, max(x_max, -0.4), 10.0))
+    return np.asarray(getattr(clip, "geoms", [clip])[0].coords)
+
+
+@pytest.mark.parametrize("sweep", [False, True])
+def test_raster_on_the_lab_edge_uses_every_step_and_passes_the_geofence(sweep: bool) -> None:
+    """Issue: the raster baselines get the same number of imaging steps as the other methods.
+    A closed loop on the lab's edge shape with the real geofence and edge path: each view
+    reveals the edge up to 0.8 m past the camera's station; the geofence takes the edge to go
+    on straight past the revealed end (``extend_m``) and refuses stations beyond it (the bay's
+    corner holds the rover back). The raster still yields a view for every one of its steps,
+    each move allowed by the geofence from where the rover stood (or no move)."""
+    gf = Geofence(GeofenceConfig(), RoverConfig())
+    emap = ElevationMap(MapGrid(-0.5, -6.5, 0.03, 256, 256))
+    n = 20
+    planner = RasterPlanner(sweep, n, NbvConfig(), CAM, MAST)
+    rover, seen, views = (0.0, 0.0, 0.0), 0.8, []
+    for _ in range(n + 3):
+        edge = _lab_edge(seen)
+        model = EdgeModel("polygon", edge, MultiLineString([edge]), None)
+        gf.set_edge(model)
+        state = PlannerState(emap, rover, (0.0, 0.0, 0.5), edge_path(model, 0.75, 0.25),
+                             lambda a, b: gf.check(a, b).allowed, edge_xy=edge)
+        v = planner.next_view(state)
+        if v is None:
+            break
+        assert _close(v.rover, rover) or gf.check(rover, v.rover).allowed
+        assert MAST.within_limits(*v.joints)
+        views.append(v)
+        rover = v.rover
+        seen = max(seen, rover[0] + 0.8)
+    assert len(views) == n
+    pans = {round(v.joints[0], 9) for v in views}
+    assert len(pans) == (3 if sweep else 1)  # Method 1 never pans; Method 2 sweeps 3 pans
+    if not sweep:  # advancing as far as is safe carried row 1 past the bay to the pit's end
+        assert max(v.rover[0] for v in views) > 3.75 + 2.0 and len(planner.rows) == 1
+    else:  # the sweep's longer spacing parks it beside the bay's corner, within the margin of
+        # the corner once seen: the geofence allows no move, so later rows are mast-only
+        assert len(planner.rows) >= 2 and planner.rows[1].direction == -planner.rows[0].direction
+        assert max(v.rover[0] for v in views) > 2.0
