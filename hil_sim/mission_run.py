@@ -10,7 +10,8 @@ map error and any wheel over the drop (an edge violation).
 ``method``, ``seed``, ``steps`` (list of ``{step, mapped_cells, expected_new_cells,
 obtained_new_cells, pose{x,y,yaw,pan,tilt,lift}, wall_s, sim_s}``), ``map_rmse_m``,
 ``edge_violations``, ``geofence_refusals``, ``slips``, ``overruns``, ``task_max_ms``
-({task: ms}), ``end_reason``, ``final_state``, ``mapped_cells``, ``frames``, ``sim_s``,
+({task: ms}, plus ``slack_slice`` and ``slack_slice.<task>``: the longest slack-job slice),
+``end_reason``, ``final_state``, ``mapped_cells``, ``frames``, ``sim_s``,
 ``wall_s``, ``cliffbot`` (the Cliff-bot's report, or null), ``files``. Wall-clock fields:
 ``wall_s`` (top level and per step), ``task_max_ms``, and ``slips`` and ``overruns`` (both
 compare measured execution time with the period and budgets); everything else is a
@@ -130,7 +131,7 @@ def run_mission(
             "geofence_refusals": mission.edge_violations,
             "slips": exe.slips,
             "overruns": sum(t.overruns for t in exe.tasks.values()),
-            "task_max_ms": {n: round(t.max_s * 1e3, 3) for n, t in exe.tasks.items()},
+            "task_max_ms": task_max_ms(exe),
             "end_reason": mission.end,
             "safe_reason": mission.safe_reason,
             "final_state": mission.state,
@@ -145,6 +146,16 @@ def run_mission(
         if spec.out is not None:
             summary["files"] = write_outputs(spec.out, summary, emap, truth, grid)
     return summary
+
+
+def task_max_ms(exe: Any) -> dict[str, float]:
+    """Max execution time per task and rate group, plus the longest slack-job slice overall
+    (``slack_slice``) and per submitting task (``slack_slice.<task>``), ms."""
+    out = {n: round(t.max_s * 1e3, 3) for n, t in exe.tasks.items()}
+    out["slack_slice"] = round(exe.jobs.max_slice_s * 1e3, 3)
+    for owner, s in sorted(exe.jobs.max_slice_by_owner.items()):
+        out[f"slack_slice.{owner}"] = round(s * 1e3, 3)
+    return out
 
 
 def _cliffbot_report(cliffbot: Any, out: Path | None) -> dict[str, Any] | None:

@@ -19,6 +19,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Generator
 from dataclasses import dataclass
 
 import cv2
@@ -181,9 +182,22 @@ def edge_cells(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float, floa
 
     ``ground_z_m`` is the height of the ground the rover stands on and ``seed_xy`` a point
     of it (the rover's position)."""
+    gen = edge_cells_steps(emap, ground_z_m, seed_xy, cfg)
+    while True:
+        try:
+            next(gen)
+        except StopIteration as stop:
+            return stop.value  # type: ignore[no-any-return]
+
+
+def edge_cells_steps(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float, float],
+                     cfg: EdgeConfig) -> Generator[None, None, EdgeCells]:
+    """:func:`edge_cells` for a slack job: yields after the safe region and after each half
+    of the outward directions."""
     z = emap.z
     mapped = emap.mapped & np.isfinite(z)
     safe = safe_region(emap, ground_z_m, seed_xy, cfg)
+    yield None
     # per cell: 0 unknown, 1 lower by more than a step, 2 anything else known (or off-grid)
     code = np.where(mapped, np.where(z < ground_z_m - cfg.step_m, 1, 2), 0).astype(np.int8)
     code = np.pad(code, 1, constant_values=2)
@@ -193,7 +207,9 @@ def edge_cells(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float, floa
     k_max = max(1, int(round(cfg.search_m / emap.grid.cell)))
     hit = np.zeros((cy.size, 2))
     ny, nx = z.shape
-    for dy, dx in _DIRS:
+    for i, (dy, dx) in enumerate(_DIRS):
+        if i and i % 4 == 0:
+            yield None
         norm = float(np.hypot(dy, dx))
         open_ = np.ones(cy.size, bool)
         found = np.zeros(cy.size, bool)

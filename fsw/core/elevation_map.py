@@ -40,6 +40,7 @@ multiplied by ``exp(-beta P_V)``; those with ``P_V >= miss_pv_threshold`` count 
 
 from __future__ import annotations
 
+from collections.abc import Generator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -142,6 +143,27 @@ class ElevationMap:
         §1.2); it is averaged, not reduced, within a cell. ``p_visible`` (ny, nx): the
         probability that each cell was visible in this view, or a boolean mask.
         """
+        gen = self.merge_steps(xyz, var_z, cov, p_visible, cov_common)
+        while True:
+            try:
+                next(gen)
+            except StopIteration as stop:
+                return stop.value  # type: ignore[no-any-return]
+
+    def merge_steps(
+        self,
+        xyz: F64,
+        var_z: F64 | None = None,
+        cov: F64 | None = None,
+        p_visible: NDArray[np.floating] | NDArray[np.bool_] | None = None,
+        cov_common: F64 | None = None,
+        chunk: int | None = None,
+    ) -> Generator[None, None, MergeStats]:
+        """:meth:`merge` for a slack job: the points go through in chunks of ``chunk``
+        (None: all at once), yielding after each, in two passes (the per-cell means, then
+        the per-point variances that need the gradient of those means). The per-cell sums
+        are the same; only their floating-point summation order depends on ``chunk``. The
+        map is only written in the last step."""
         xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
         n_in = xyz.shape[0]
         # the six distinct entries xx xy xz yy yz zz of each covariance, as strided views
@@ -149,60 +171,140 @@ class ElevationMap:
         cc6: tuple[F64, ...] | None = None
         if cov is not None:
             c6 = _sym6(_rows(cov, n_in, "cov"))
-            v = c6[5]
+            v_all = c6[5]
         elif var_z is not None:
-            v = _rows(var_z, n_in, "var_z").reshape(-1)
+            v_all = _rows(var_z, n_in, "var_z").reshape(-1)
         else:
             raise ValueError("merge needs var_z or cov")
         if cov_common is not None:
             if cov is None:
                 raise ValueError("cov_common needs cov")
             cc6 = _sym6(_rows(cov_common, n_in, "cov_common"))
+        step = max(1, n_in if chunk is None else int(chunk))
+        chunks = []
+        for a in range(0, max(n_in, 1), step):
+            sl = slice(a, a + step)
+            chunks.append((xyz[sl], v_all[sl], None if c6 is None else tuple(c[sl] for c in c6),
+                           None if cc6 is None else tuple(c[sl] for c in cc6)))
+        return (yield from self._merge_chunks(chunks, n_in, p_visible, chunk))
+
+    def merge_parts_steps(
+        self,
+        parts: Sequence[tuple[F64, F64, F64 | None]],
+        p_visible: NDArray[np.floating] | NDArray[np.bool_] | None = None,
+        step_points: int = 50000,
+    ) -> Generator[None, None, MergeStats]:
+        """:meth:`merge` of one view whose points come in parts ``(xyz, cov, cov_common)``
+        (as a slack job propagates them), without joining them into one array first;
+        yields once at least ``step_points`` points went through a pass since the last
+        yield. ``cov_common`` is None in every part or in none."""
+        chunks = []
+        n_in = 0
+        common = {pc is None for _, _, pc in parts}
+        if len(common) > 1:
+            raise ValueError("cov_common must be given for every part or for none")
+        for xyz, cov, cov_common in parts:
+            xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+            n = xyz.shape[0]
+            c6 = _sym6(_rows(cov, n, "cov"))
+            cc6 = None if cov_common is None else _sym6(_rows(cov_common, n, "cov_common"))
+            chunks.append((xyz, c6[5], c6, cc6))
+            n_in += n
+        if not chunks:
+            chunks.append((np.zeros((0, 3)), np.zeros(0), tuple(np.zeros(0) for _ in range(6)), None))
+        return (yield from self._merge_chunks(chunks, n_in, p_visible, step_points))
+
+    def _merge_chunks(
+        self,
+        chunks: Sequence[tuple[F64, F64, tuple[F64, ...] | None, tuple[F64, ...] | None]],
+        n_in: int,
+        p_visible: NDArray[np.floating] | NDArray[np.bool_] | None,
+        step_points: int | None,
+    ) -> Generator[None, None, MergeStats]:
+        """The merge proper over chunks ``(xyz, P_zz or var_z, cov6 or None, common6 or None)``;
+        yields once ``step_points`` points went through since the last yield (None: never)."""
+        budget = [0]
+
+        def due(n: int) -> bool:
+            budget[0] += n
+            if step_points is None or budget[0] < step_points:
+                return False
+            budget[0] = 0
+            return True
+
+        has_cov = chunks[0][2] is not None
+        has_common = chunks[0][3] is not None
         g = self.grid
         size = g.nx * g.ny
         inv = 1.0 / g.cell
-        with np.errstate(invalid="ignore"):
-            fx = (xyz[:, 0] - g.x0) * inv  # >= 0 where inside, so truncation below is floor
-            fy = (xyz[:, 1] - g.y0) * inv
-            ok = (fx >= 0) & (fx < g.nx) & (fy >= 0) & (fy < g.ny) & np.isfinite(xyz[:, 2])
-            ok &= (v >= 0) & (v <= self.cfg.max_var_m2)  # False for NaN too
-        if not ok.all():
-            fx, fy, xyz, v = fx[ok], fy[ok], xyz[ok], v[ok]
-            c6 = None if c6 is None else tuple(c[ok] for c in c6)
-            cc6 = None if cc6 is None else tuple(c[ok] for c in cc6)
-        flat = fy.astype(np.intp) * g.nx + fx.astype(np.intp)
-        z = xyz[:, 2]
-        v = np.maximum(v, self.cfg.min_var_m2)
-        # per cell: the inverse-variance mean of the points (weights from P_zz)
-        w = 1.0 / v
-        k = np.bincount(flat, minlength=size)
-        sw = np.bincount(flat, w, size)
+        # pass 1: per cell, the inverse-variance mean of the points (weights from P_zz)
+        k = np.zeros(size, np.int64)
+        sw = np.zeros(size)
+        swz = np.zeros(size)
+        parts: list[tuple[NDArray[np.intp], F64, F64, F64, tuple[F64, ...] | None,
+                          tuple[F64, ...] | None]] = []
+        for p, v, pc6, pcc6 in chunks:
+            with np.errstate(invalid="ignore"):
+                fx = (p[:, 0] - g.x0) * inv  # >= 0 where inside, so truncation below is floor
+                fy = (p[:, 1] - g.y0) * inv
+                ok = (fx >= 0) & (fx < g.nx) & (fy >= 0) & (fy < g.ny) & np.isfinite(p[:, 2])
+                ok &= (v >= 0) & (v <= self.cfg.max_var_m2)  # False for NaN too
+            if not ok.all():
+                fx, fy, p, v = fx[ok], fy[ok], p[ok], v[ok]
+                pc6 = None if pc6 is None else tuple(c[ok] for c in pc6)
+                pcc6 = None if pcc6 is None else tuple(c[ok] for c in pcc6)
+            flat = fy.astype(np.intp) * g.nx + fx.astype(np.intp)
+            z = p[:, 2]
+            v = np.maximum(v, self.cfg.min_var_m2)
+            w = 1.0 / v
+            k += np.bincount(flat, minlength=size)
+            sw += np.bincount(flat, w, size)
+            swz += np.bincount(flat, w * z, size)
+            parts.append((flat, z, v, w, pc6, pcc6))
+            if due(p.shape[0]):
+                yield None
         with np.errstate(invalid="ignore", divide="ignore"):
-            zm_dense = np.bincount(flat, w * z, size) / sw
-        vc: F64 | float = 0.0
-        if c6 is not None and flat.size:
+            zm_dense = swz / sw
+        grad_cells: tuple[F64, F64] | None = None
+        if has_cov and any(pt[0].size for pt in parts):
             gy, gx = _nan_gradient(zm_dense.reshape(g.shape), g.cell)
-            grad = (gx.reshape(-1)[flat], gy.reshape(-1)[flat])
-            v = self._vertical_variance(grad, c6, footprint=True)
-            if cc6 is not None:
-                vc = np.minimum(self._vertical_variance(grad, cc6, footprint=False),
-                                v - self.cfg.min_var_m2)
+            grad_cells = (gx.reshape(-1), gy.reshape(-1))
+        # pass 2: per point, the variance of the cell height (slope term) and its sums
+        swi = np.zeros(size)
+        swvc = np.zeros(size)
+        swdev = np.zeros(size)
+        n_used = 0
+        for flat, z, v, w, pc6, pcc6 in parts:
+            n_used += flat.size
+            vc: F64 | float = 0.0
+            if pc6 is not None and grad_cells is not None:
+                grad = (grad_cells[0][flat], grad_cells[1][flat])
+                v = self._vertical_variance(grad, pc6, footprint=True)
+                if pcc6 is not None:
+                    vc = np.minimum(self._vertical_variance(grad, pcc6, footprint=False),
+                                    v - self.cfg.min_var_m2)
+            swi += np.bincount(flat, 1.0 / (v - vc), size)  # the independent (stereo) part
+            if has_common:
+                swvc += np.bincount(flat, w * vc, size)
+            if self.cfg.subcell_term:
+                swdev += np.bincount(flat, w * (z - zm_dense[flat]) ** 2, size)
+            if due(flat.size):
+                yield None
         cells = np.flatnonzero(k)
         kc, swc, zm = k[cells], sw[cells], zm_dense[cells]
-        swi = np.bincount(flat, 1.0 / (v - vc), size)[cells]  # the independent (stereo) part
-        vm = (1.0 + (kc - 1) * self.cfg.point_correlation) / swi
-        if cc6 is not None:
-            vm += np.bincount(flat, w * vc, size)[cells] / swc  # common part: averaged
+        swi_c = swi[cells]
+        vm = (1.0 + (kc - 1) * self.cfg.point_correlation) / swi_c
+        if has_common:
+            vm += swvc[cells] / swc  # common part: averaged
         if self.cfg.subcell_term:
-            dev2 = (z - zm_dense[flat]) ** 2
-            spread = np.bincount(flat, w * dev2, size)[cells] / swc  # weighted point spread
-            excess = np.maximum(spread - kc / swi, 0.0) * kc / np.maximum(kc - 1, 1)
+            spread = swdev[cells] / swc  # weighted point spread
+            excess = np.maximum(spread - kc / swi_c, 0.0) * kc / np.maximum(kc - 1, 1)
             vm += np.where(kc >= 2, excess, 0.0)
         new, fused, outl = self._fuse(cells, zm, vm)
         n_miss = 0
         if p_visible is not None:
             n_miss = self.record_misses(p_visible, hit=k.reshape(g.shape) > 0)
-        return MergeStats(n_in, int(flat.size), int(cells.size), new, fused, outl, n_miss)
+        return MergeStats(n_in, n_used, int(cells.size), new, fused, outl, n_miss)
 
     def _vertical_variance(self, grad: tuple[F64, F64], c6: tuple[F64, ...],
                            footprint: bool) -> F64:

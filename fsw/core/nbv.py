@@ -43,7 +43,7 @@ from fsw.core.visibility import (
     in_view,
     terrain_from_map,
 )
-from fsw.core.visibility_kernel import pv_fast, pv_fast_steps, run_to_end
+from fsw.core.visibility_kernel import pv_fast_steps, run_to_end
 
 
 class MapLike(Protocol):
@@ -127,7 +127,7 @@ def view_sums(rel: F64, values: F64, yaws: F64, tilts: F64, camera: CameraConfig
 
 def view_sums_steps(rel: F64, values: F64, yaws: F64, tilts: F64, camera: CameraConfig
                     ) -> Generator[None, None, F64]:
-    """:func:`view_sums`, yielding after each tilt."""
+    """:func:`view_sums`, yielding after the set-up and after each tilt."""
     rho = np.hypot(rel[:, 0], rel[:, 1]).astype(np.float32)
     phi = np.arctan2(rel[:, 1], rel[:, 0])
     dz = rel[:, 2].astype(np.float32)
@@ -150,6 +150,7 @@ def view_sums_steps(rel: F64, values: F64, yaws: F64, tilts: F64, camera: Camera
               & (lateral <= zc * tan_h) & (np.abs(yc) <= zc * tan_v))
         # einsum, not matmul: multithreaded BLAS on small products spins on a busy machine
         out[:, j, :] = np.einsum("vn,np->pv", vals, ok.astype(np.float32))
+    yield None  # the last tilt is a step of its own, apart from what the caller does next
     return out
 
 
@@ -201,7 +202,15 @@ def predicted_visibility(emap: MapLike, pose: CameraPose, camera: CameraConfig,
                          cfg: VisibilityConfig) -> F64:
     """P_V of every map cell for one camera pose, zero outside the view (the ``p_visible``
     that ``ElevationMap.merge`` uses to record misses and decay the interest, §3.4, §4)."""
+    return run_to_end(predicted_visibility_steps(emap, pose, camera, cfg))
+
+
+def predicted_visibility_steps(emap: MapLike, pose: CameraPose, camera: CameraConfig,
+                               cfg: VisibilityConfig) -> Generator[None, None, F64]:
+    """:func:`predicted_visibility` in bounded steps (the terrain prior, the field of view,
+    then ``pv_fast_steps``), for the perception job."""
     terrain = terrain_from_map(emap.z, emap.var, emap.grid, cfg)
+    yield None
     g = emap.grid
     iy, ix = np.nonzero(np.ones(g.shape, bool))
     pts = np.column_stack([g.x0 + (ix + 0.5) * g.cell, g.y0 + (iy + 0.5) * g.cell,
@@ -209,8 +218,9 @@ def predicted_visibility(emap: MapLike, pose: CameraPose, camera: CameraConfig,
     vis = in_view(pose, camera, pts)
     out = np.zeros(g.shape)
     if vis.any():
+        yield None
         cam = (float(pose.t[0]), float(pose.t[1]), float(pose.t[2]))
-        out[iy[vis], ix[vis]] = pv_fast(terrain, cam, iy[vis], ix[vis], cfg)
+        out[iy[vis], ix[vis]] = yield from pv_fast_steps(terrain, cam, iy[vis], ix[vis], cfg)
     return out
 
 

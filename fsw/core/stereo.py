@@ -24,7 +24,9 @@ A pixel gives no point unless the match is trustworthy. The filters, in order:
 
 from __future__ import annotations
 
+from collections.abc import Generator
 from dataclasses import dataclass
+from typing import TypeVar
 
 import cv2
 import numpy as np
@@ -35,6 +37,7 @@ from fsw.core.geometry import CameraConfig
 
 F64 = NDArray[np.float64]
 U8 = NDArray[np.uint8]
+T = TypeVar("T")
 
 _MODES = {
     "sgbm": cv2.StereoSGBM_MODE_SGBM,
@@ -67,6 +70,13 @@ class StereoConfig:
         100, lo=0, hi=10000, units="px", doc="blobs smaller than this are removed (0 disables)"
     )
     speckle_range_px: int = param(2, lo=0, hi=64, units="px", doc="disparity step inside a blob")
+    band_rows_px: int = param(
+        120, lo=0, hi=4096, units="px",
+        doc="SGBM runs on horizontal bands of this many rows, one slack-job slice each (0: whole image)",
+    )
+    band_margin_px: int = param(
+        48, lo=0, hi=512, units="px", doc="rows of context matched above each band and cropped off",
+    )
     texture_threshold: float = param(
         4.0, lo=0.0, hi=255.0, units="grey/px",
         doc="minimum mean |d I/dx| over the block window; below it the pixel gives no point",
@@ -118,6 +128,9 @@ class StereoMatcher:
         self.cfg = cfg
         self.camera = camera
         win = cfg.block_size_px * cfg.block_size_px
+        # The speckle filter is connected-component labelling over the whole image: it runs
+        # once on the stitched bands (as SGBM itself runs it after its median filter), so
+        # the matcher proper has it off.
         self._sgbm = cv2.StereoSGBM.create(
             minDisparity=cfg.min_disparity_px,
             numDisparities=cfg.num_disparities_px,
@@ -127,15 +140,48 @@ class StereoMatcher:
             disp12MaxDiff=cfg.disp12_max_diff_px,
             preFilterCap=cfg.pre_filter_cap,
             uniquenessRatio=cfg.uniqueness_ratio_pct,
-            speckleWindowSize=cfg.speckle_window_px,
+            speckleWindowSize=0,
             speckleRange=cfg.speckle_range_px,
             mode=_MODES[cfg.mode],
         )
 
     def disparity(self, left: U8, right: U8) -> F64:
         """Disparity in pixels for each left pixel; NaN where no trustworthy match."""
+        return _run(self.disparity_steps(left, right))
+
+    def bands(self, height: int) -> list[tuple[int, int, int, int]]:
+        """The SGBM bands of an image ``height`` rows high: ``(start, end, src_start, src_end)``.
+
+        Rows ``start:end`` of the disparity come from matching rows ``src_start:src_end``:
+        ``band_margin_px`` rows of context above (the top-down cost paths start there, not
+        at the band) and ``block_size_px // 2 + 2`` below (the matching window and SGBM's
+        3x3 median filter); the context rows are cropped off.
+        """
+        rows = self.cfg.band_rows_px or height
+        below = self.cfg.block_size_px // 2 + 2
+        out = []
+        for start in range(0, height, rows):
+            end = min(height, start + rows)
+            src0 = 0 if start == 0 else max(0, start - self.cfg.band_margin_px)
+            out.append((start, end, src0, min(height, end + below)))
+        return out
+
+    def disparity_steps(self, left: U8, right: U8) -> Generator[None, None, F64]:
+        """:meth:`disparity` as a slack-job generator: it yields after each SGBM band (a
+        bounded share of the pair) and returns the same disparity as :meth:`disparity`."""
         self._check_pair(left, right)
-        raw = self._sgbm.compute(left, right)
+        raw = np.empty(left.shape, np.int16)
+        for start, end, src0, src1 in self.bands(left.shape[0]):
+            part = self._sgbm.compute(left[src0:src1], right[src0:src1])
+            raw[start:end] = part[start - src0:end - src0]
+            yield None
+        if self.cfg.speckle_window_px > 0:
+            cv2.filterSpeckles(
+                raw,
+                (self.cfg.min_disparity_px - 1) * cv2.StereoMatcher_DISP_SCALE,
+                self.cfg.speckle_window_px,
+                self.cfg.speckle_range_px * cv2.StereoMatcher_DISP_SCALE,
+            )
         disp = raw.astype(np.float64) / cv2.StereoMatcher_DISP_SCALE
         bad = raw <= (self.cfg.min_disparity_px - 1) * cv2.StereoMatcher_DISP_SCALE
         bad |= disp <= 0.0
@@ -200,6 +246,11 @@ class StereoMatcher:
 
     def triangulate(self, disp: F64, stride_px: int = 1) -> StereoPoints:
         """3-D points and covariances from a disparity image (NaN = no match)."""
+        return _run(self.triangulate_steps(disp, stride_px))
+
+    def triangulate_steps(self, disp: F64, stride_px: int = 1) -> Generator[None, None, StereoPoints]:
+        """:meth:`triangulate`, yielding after each band of ``band_rows_px`` rows; the points
+        come in the same (row-major) order with the same values."""
         cam = self.camera
         f, B = cam.focal_px, cam.baseline_m
         K = cam.K
@@ -211,15 +262,24 @@ class StereoMatcher:
             keep = np.zeros_like(valid)
             keep[::stride_px, ::stride_px] = True
             valid &= keep
-        v, u = np.nonzero(valid)
-        d = disp[v, u]
-        u = u.astype(np.float64)
-        v = v.astype(np.float64)
-        z = f * B / d
-        xyz = np.column_stack([(u - cx) * z / f, (v - cy) * z / f, z])
-        cov = stereo_covariance(u - cx, v - cy, d, f, B, self.cfg.sigma_pixel_px,
-                                self.cfg.sigma_disparity_px)
-        return StereoPoints(xyz, cov, np.column_stack([u, v]), d, valid)
+        parts: list[tuple[F64, F64, F64, F64]] = []
+        for start, end, _, _ in self.bands(disp.shape[0]):
+            v, u = np.nonzero(valid[start:end])
+            v = v + start
+            d = disp[v, u]
+            u = u.astype(np.float64)
+            v = v.astype(np.float64)
+            z = f * B / d
+            xyz = np.column_stack([(u - cx) * z / f, (v - cy) * z / f, z])
+            cov = stereo_covariance(u - cx, v - cy, d, f, B, self.cfg.sigma_pixel_px,
+                                    self.cfg.sigma_disparity_px)
+            parts.append((xyz, cov, np.column_stack([u, v]), d))
+            yield None
+        if len(parts) == 1:
+            xyz, cov, uv, d = parts[0]
+        else:
+            xyz, cov, uv, d = (np.concatenate([p[i] for p in parts]) for i in range(4))
+        return StereoPoints(xyz, cov, uv, d, valid)
 
     def _check_pair(self, left: U8, right: U8) -> None:
         shape = (self.camera.height_px, self.camera.width_px)
@@ -227,6 +287,15 @@ class StereoMatcher:
             if not isinstance(img, np.ndarray) or img.dtype != np.uint8 or img.shape != shape:
                 got = getattr(img, "shape", None), getattr(img, "dtype", type(img).__name__)
                 raise ValueError(f"{name} image must be uint8 of shape {shape}, got {got}")
+
+
+def _run(gen: Generator[None, None, T]) -> T:
+    """Drive a step generator to its end and return its value."""
+    while True:
+        try:
+            next(gen)
+        except StopIteration as stop:
+            return stop.value  # type: ignore[no-any-return]
 
 
 def stereo_covariance(

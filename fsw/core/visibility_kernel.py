@@ -128,6 +128,7 @@ def pv_fast_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], iy: IDX
     win = np.zeros(iy.size, np.int64)
     parts: list[tuple[F32, F32, F32]] = []
     offset = 0
+    yield None  # the set-up above is a step of its own (it sorts every target)
     for r0 in range(0, used.size, _RAYS_PER_STEP):
         r1 = min(used.size, r0 + _RAYS_PER_STEP)
         rm, cell = bin_rays(g, (cx, cy), used[r0:r1] * dth, rmax)

@@ -59,6 +59,9 @@ class ExecutiveConfig:
     health_warn_frames: int = param(10, lo=1, hi=100000, doc="frames without a ping answer before WARNING_HI")
     health_fatal_frames: int = param(30, lo=1, hi=100000, doc="frames without a ping answer before FATAL")
     queue_depth: int = param(8, lo=1, hi=100000, doc="default software-bus mailbox depth")
+    opencv_threads: int = param(
+        1, lo=1, hi=64, doc="OpenCV worker threads for the whole process (cv2.setNumThreads), set at start-up"
+    )
 
     def __post_init__(self) -> None:
         names = [g.name for g in self.groups]

@@ -17,6 +17,7 @@ import time
 from collections.abc import Callable
 from typing import Any, ClassVar
 
+import cv2
 import numpy as np
 
 from fsw.executive.bus import Mailbox, SoftwareBus
@@ -42,6 +43,7 @@ class ExecutiveComponent(Task):
         Channel("jobs_pending", "count", doc="slack jobs in progress"),
         Channel("jobs_completed", "count"),
         Channel("jobs_failed", "count", hi=0),
+        Channel("slice_max_ms", "ms", doc="longest slack-job slice since start or RESET_COUNTERS"),
         Channel("bus_drops", "count", hi=0, doc="messages dropped by full mailboxes"),
     )
     EVENTS = (
@@ -55,7 +57,11 @@ class ExecutiveComponent(Task):
             throttle=5,
         ),
         EventDef("JOB_FAILED", Severity.WARNING_HI, "slack job {owner}.{job} failed: {error}", throttle=5),
-        EventDef("JOB_DONE", Severity.DIAGNOSTIC, "slack job {owner}.{job} done in {slices} slices, {busy_ms:.1f} ms"),
+        EventDef(
+            "JOB_DONE",
+            Severity.DIAGNOSTIC,
+            "slack job {owner}.{job} done in {slices} slices, {busy_ms:.1f} ms (longest slice {max_slice_ms:.1f} ms)",
+        ),
         EventDef("TASK_ENABLED", Severity.ACTIVITY_HI, "task {target} enabled={enabled}"),
     )
     COMMANDS = (
@@ -74,6 +80,7 @@ class ExecutiveComponent(Task):
     def cmd_RESET_COUNTERS(self) -> None:
         exe: Executive = self.ctx.resources["executive"]
         exe.skipped_frames = exe.slips = 0
+        exe.jobs.reset_max()
         super().cmd_RESET_COUNTERS()
 
 
@@ -121,6 +128,9 @@ class Executive:
 
         ecfg = cfg.executive
         self.cfg, self.ecfg, self.clock, self.timer = cfg, ecfg, clock, timer
+        # OpenCV's worker pool is process-wide: the flight computer has one core, and two bench
+        # missions sharing a 2-core machine must not each spread a slice over both cores.
+        cv2.setNumThreads(ecfg.opencv_threads)
         self.period_s = ecfg.frame_period_s
         self.telemetry = TelemetryStore()
         self.events = EventLog(clock.now)
@@ -269,7 +279,14 @@ class Executive:
         if h.error is not None:
             ex.event("JOB_FAILED", owner=h.owner, job=h.name, error=f"{type(h.error).__name__}: {h.error}")
         else:
-            ex.event("JOB_DONE", owner=h.owner, job=h.name, slices=h.slices, busy_ms=h.busy_s * 1e3)
+            ex.event(
+                "JOB_DONE",
+                owner=h.owner,
+                job=h.name,
+                slices=h.slices,
+                busy_ms=h.busy_s * 1e3,
+                max_slice_ms=h.max_slice_s * 1e3,
+            )
 
     def _account_slip(self, rg: RateGroupComponent | None, k: int, elapsed: float) -> None:
         if rg is not None:
@@ -291,6 +308,7 @@ class Executive:
         ex.tlm("jobs_pending", self.jobs.pending)
         ex.tlm("jobs_completed", self.jobs.completed)
         ex.tlm("jobs_failed", self.jobs.failed)
+        ex.tlm("slice_max_ms", self.jobs.max_slice_s * 1e3)
         ex.tlm("bus_drops", sum(b.dropped for b in self.bus.mailboxes()))
         for rg in self.groups:
             rg.tlm("cycles", rg.activations)

@@ -29,6 +29,7 @@ class JobHandle:
     error: BaseException | None = None
     slices: int = 0
     busy_s: float = 0.0
+    max_slice_s: float = 0.0  # longest single slice (resume to yield) of this job
     cancelled: bool = False
     on_done: Callable[[JobHandle], None] | None = field(default=None, repr=False)
 
@@ -45,6 +46,10 @@ class JobScheduler:
         self._jobs: deque[tuple[JobHandle, Job]] = deque()
         self.completed = 0
         self.failed = 0
+        self.last_slice_s = 0.0  # the last slice run, any job
+        self.max_slice_s = 0.0  # the longest slice run, any job (reset_max clears it)
+        self.max_slice_owner = ""  # the task whose job ran it
+        self.max_slice_by_owner: dict[str, float] = {}  # the longest slice per submitting task
 
     def submit(self, gen: Job, name: str, owner: str, on_done: Callable[[JobHandle], None] | None = None) -> JobHandle:
         if len(self._jobs) >= self.max_jobs:
@@ -69,19 +74,32 @@ class JobScheduler:
             try:
                 next(gen)
             except StopIteration as stop:
-                handle.busy_s += self.timer() - t0
-                handle.slices += 1
+                self._account(handle, self.timer() - t0)
                 self._finish(handle, result=stop.value)
                 return handle
             except Exception as exc:  # noqa: BLE001 - a failing job is reported, not fatal
-                handle.busy_s += self.timer() - t0
+                self._account(handle, self.timer() - t0)
                 self._finish(handle, error=exc)
                 return handle
-            handle.busy_s += self.timer() - t0
-            handle.slices += 1
+            self._account(handle, self.timer() - t0)
             self._jobs.append((handle, gen))
             return handle
         return None
+
+    def _account(self, handle: JobHandle, dt: float) -> None:
+        handle.busy_s += dt
+        handle.slices += 1
+        handle.max_slice_s = max(handle.max_slice_s, dt)
+        self.last_slice_s = dt
+        if dt > self.max_slice_s:
+            self.max_slice_s, self.max_slice_owner = dt, handle.owner
+        if dt > self.max_slice_by_owner.get(handle.owner, 0.0):
+            self.max_slice_by_owner[handle.owner] = dt
+
+    def reset_max(self) -> None:
+        """Forget the longest slice seen (``exec.RESET_COUNTERS``)."""
+        self.max_slice_s, self.max_slice_owner = 0.0, ""
+        self.max_slice_by_owner.clear()
 
     def _finish(self, handle: JobHandle, result: Any = None, error: BaseException | None = None) -> None:
         handle.done, handle.result, handle.error = True, result, error

@@ -6,7 +6,7 @@ with covariance and propagation of the camera pose covariance (§1.2), fusion in
 with misses (§1.1, §3.4), the non-convex polygon fit of the edge (§2; the geofence and the
 edge path use it for every method, Method 3 straightens the path in its planner) and the
 mapped fraction of the region of interest (§3.6).
-Each step is one slice, so the 10 Hz foreground keeps its deadlines. The result is
+Each step is one slice of a few to ~20 ms, so the 10 Hz foreground keeps its deadlines. The result is
 published on ``map.updated`` with a snapshot of the map for the planner. Checkpoints are
 written through the map store at ``checkpoint.period_s`` and on command.
 """
@@ -18,11 +18,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from fsw.core.edge import EdgeModel, edge_cells, fit_polygon
+from fsw.core.edge import EdgeModel, edge_cells_steps, fit_polygon
 from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import MapGrid
 from fsw.core.localization import point_covariance_parts
-from fsw.core.nbv import predicted_visibility
+from fsw.core.nbv import predicted_visibility_steps
 from fsw.core.stereo import StereoMatcher
 from fsw.executive.commands import CommandDef, CommandError
 from fsw.executive.jobs import JobHandle
@@ -45,7 +45,8 @@ def roi_mapped_fraction(emap: ElevationMap, edge: EdgeModel) -> float:
     return float(emap.mapped[s].ravel()[below].mean())
 
 
-PROPAGATE_CHUNK = 20000  # points per slice of the covariance propagation (~20 ms here)
+PROPAGATE_CHUNK = 10000  # points per slice of the covariance propagation (~5 ms here)
+MERGE_STEP_POINTS = 50000  # points per slice of each pass of the map merge (a few ms)
 
 
 class PerceptionTask(Task):
@@ -103,40 +104,39 @@ class PerceptionTask(Task):
             self._checkpoint()
 
     def _merge_view(self, fr: CameraFrame) -> Generator[None, None, MapUpdate]:
-        """The slack job of one view: one bounded step per slice."""
+        """The slack job of one view: one bounded step per slice (a few to ~20 ms here).
+
+        Every long stage is itself a step generator: P_V in ray chunks, SGBM in row bands,
+        triangulation per band, the covariance propagation and both passes of the merge in
+        point chunks, the edge search in halves; nothing runs a whole stage in one slice.
+        """
         # Which cells this view was expected to see (P_V on the map before the merge, §3.1):
         # those that get no point count a miss and lose interest (§3.4, §4).
         cfg = self.ctx.cfg
         p_visible = None
         if self.map.mapped.any():
-            p_visible = predicted_visibility(self.map, fr.pose, cfg.camera, cfg.nbv.visibility)
+            p_visible = yield from predicted_visibility_steps(self.map, fr.pose, cfg.camera, cfg.nbv.visibility)
             yield
-        disp = self.matcher.disparity(fr.left, fr.right)
+        disp = yield from self.matcher.disparity_steps(fr.left, fr.right)
         yield
-        pts = self.matcher.triangulate(disp)
-        yield
-        xyz_l, cov_l, pose_l = [], [], []
+        pts = yield from self.matcher.triangulate_steps(disp)
+        parts = []
         for a in range(0, len(pts), PROPAGATE_CHUNK):  # world covariance (§1.2) in bounded slices
             b = a + PROPAGATE_CHUNK
             xyz, cov_s, cov_p = point_covariance_parts(fr.pose, fr.pose_cov, pts.xyz_c[a:b], pts.cov_c[a:b])
-            xyz_l.append(xyz)
-            cov_l.append(cov_s if cov_p is None else cov_s + cov_p)
-            if cov_p is not None:
-                pose_l.append(cov_p)
+            # The pose term is common to every point of the view: it must not average down in a cell.
+            parts.append((xyz, cov_s if cov_p is None else cov_s + cov_p, cov_p))
             yield
-        xyz_w = np.concatenate(xyz_l) if xyz_l else np.zeros((0, 3))
-        cov_w = np.concatenate(cov_l) if cov_l else np.zeros((0, 3, 3))
-        # The pose term is common to every point of the view: it must not average down in a cell.
-        cov_common = np.concatenate(pose_l) if pose_l and len(pose_l) == len(cov_l) else None
-        stats = self.map.merge(xyz_w, cov=cov_w, p_visible=p_visible, cov_common=cov_common)
+        stats = yield from self.map.merge_parts_steps(parts, p_visible=p_visible, step_points=MERGE_STEP_POINTS)
         yield
         ecfg = self.ctx.cfg.edge
         here = (float(fr.pose.t[0]), float(fr.pose.t[1]))  # the camera stands over the plateau
-        cells = edge_cells(self.map, 0.0, here, ecfg)  # ground = the plateau under the start pose
+        cells = yield from edge_cells_steps(self.map, 0.0, here, ecfg)  # ground: the plateau at the start
         yield
         poly = fit_polygon(self.map, cells, ecfg)
         yield
         roi_fraction = roi_mapped_fraction(self.map, poly)
+        yield
         self.views += 1
         return MapUpdate(
             view_id=fr.view_id,

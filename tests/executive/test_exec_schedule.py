@@ -160,6 +160,35 @@ def test_two_second_slack_job_completes_while_10hz_task_never_misses() -> None:
     assert exe.events.count("exec.JOB_DONE") == 1
 
 
+def test_longest_slack_slice_is_recorded_per_job_per_task_and_overall() -> None:
+    """The longest slice (resume to yield) of each job, of each submitting task and overall:
+    in the handle, the JOB_DONE event, ``exec.slice_max_ms``; RESET_COUNTERS clears it."""
+    from fsw.executive.commands import CommandRequest, CommandStatus
+
+    cfg = make_cfg([{"name": "fast", "divisor": 1}], [task("a", "fast"), task("b", "fast")])
+    exe = make_exec(cfg)
+
+    def job(costs: list[float]) -> Any:
+        for c in costs:
+            TIMER.t += c
+            yield None
+        return len(costs)
+
+    ha = exe.tasks["a"].submit_job(job([0.004, 0.012, 0.003]), "ja")
+    hb = exe.tasks["b"].submit_job(job([0.007, 0.002]), "jb")
+    exe.run_lockstep(10)
+    assert ha.done and hb.done
+    assert ha.max_slice_s == pytest.approx(0.012) and hb.max_slice_s == pytest.approx(0.007)
+    assert exe.jobs.max_slice_s == pytest.approx(0.012) and exe.jobs.max_slice_owner == "a"
+    assert exe.jobs.max_slice_by_owner == pytest.approx({"a": 0.012, "b": 0.007})
+    assert exe.telemetry.get("exec.slice_max_ms") == pytest.approx(12.0)
+    done = [e.text for e in exe.events.history if e.name == "exec.JOB_DONE"]
+    assert any("a.ja" in t and "longest slice 12.0 ms" in t for t in done), done
+    resp = exe.commands.dispatch(CommandRequest("exec.RESET_COUNTERS", {}))
+    assert resp.status is CommandStatus.OK
+    assert exe.jobs.max_slice_s == 0.0 and exe.jobs.max_slice_by_owner == {}
+
+
 def test_failing_job_is_reported_not_fatal() -> None:
     """Issue 2, item 6: an exception in a job lands in its handle and raises an event."""
     cfg = make_cfg([{"name": "fast", "divisor": 1}], [task("fg", "fast")])
