@@ -14,7 +14,7 @@ the executive can run the search in frame slack, and returns the view.
    the footprint's length along the path times ``1 - raster_overlap_frac`` (consecutive
    views just overlap), reduced if needed so the ``n_views`` steps fit in the region of
    interest. The path is the edge path as far as it is known, continued straight past its
-   ends to the map's extent (the operator scans the whole region, assuming the edge goes
+   ends to where they leave the map (the operator scans the whole region, assuming the edge goes
    on); it is re-read at every call, so the stations follow the edge as it is revealed.
    Each station is one spacing on from the last one along the path; if the geofence
    refuses the move there, the station is the farthest path point toward it (0.05 m steps)
@@ -208,7 +208,7 @@ class RasterPlanner(Planner):
         forward = _roi_reach(state, side0, t0) >= _roi_reach(state, side0, t0 + math.pi)
         direction = 1.0 if forward else -1.0
         # The operator scans the whole region of interest: the edge path as far as it is known,
-        # then straight on across the map's extent (the edge is taken to go on, as the geofence does).
+        # then straight on to where it leaves the map (the edge is taken to go on, as the geofence does).
         line = self._line(state)
         assert line is not None
         s_now = float(line.project(Point(state.rover[0], state.rover[1])))
@@ -480,13 +480,33 @@ def _roi_reach(state: PlannerState, start: F64, heading: float) -> float:
     return float(max(0.0, (corners @ np.array([math.cos(heading), math.sin(heading)])).max()))
 
 
+def _roi_exit(state: PlannerState, start: F64, heading: float) -> float:
+    """How far a ray from ``start`` along ``heading`` runs before it leaves the map's rectangle
+    (0 if it does not run inside it)."""
+    g = state.map.grid
+    lo = np.array([g.x0, g.y0])
+    hi = lo + np.array([g.nx, g.ny]) * g.cell
+    d = np.array([math.cos(heading), math.sin(heading)])
+    p = np.asarray(start, dtype=np.float64)
+    t0, t1 = 0.0, math.inf
+    for k in range(2):
+        if abs(d[k]) < 1e-12:
+            if not lo[k] <= p[k] <= hi[k]:
+                return 0.0
+            continue
+        a, b = (lo[k] - p[k]) / d[k], (hi[k] - p[k]) / d[k]
+        t0, t1 = max(t0, min(a, b)), min(t1, max(a, b))
+    return float(t1) if t1 > t0 else 0.0
+
+
 def _extend_across_roi(line: LineString, forward: bool, state: PlannerState) -> LineString:
-    """The path continued straight past its end (in the travel direction) to the map's edge."""
+    """The path continued straight past its end (in the travel direction) to where it leaves
+    the map's rectangle."""
     c = np.asarray(line.coords)
     end, prev = (c[-1], c[-2]) if forward else (c[0], c[1])
     d = end - prev
     heading = math.atan2(d[1], d[0])
-    reach = _roi_reach(state, end, heading)
+    reach = _roi_exit(state, end, heading)
     if reach <= 0.0:
         return line
     tip = end + reach * np.array([math.cos(heading), math.sin(heading)])
