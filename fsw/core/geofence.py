@@ -14,6 +14,13 @@ wheel and the clearance.
 
 Without a fitted edge the geofence refuses (unless ``allow_without_edge``): the flow of
 ALGORITHM.md §2 finds the edge before the rover moves.
+
+Recovery (``recover_inside_margin``): a new edge fit can put the rover, standing still,
+inside the margin (a longer or re-shaped edge, or its straight continuation past a fresh end,
+now passes close by). Refusing every move would box the rover in for good, so a rover that
+stands inside the margin, with every wheel still on the safe side, may make a move whose swept
+wheels never come closer to the edge than they are at its start: it can back away or move
+along, never closer. Such a verdict says "recovering".
 """
 
 from __future__ import annotations
@@ -30,6 +37,7 @@ from fsw.core.edge import EdgeModel
 from fsw.core.geometry import RoverConfig
 
 WHEELS = ("front_left", "front_right", "rear_left", "rear_right")
+RECOVERY_TOL_M = 1e-4  # a recovering move may come this much closer than its start (sampling round-off)
 
 
 @dataclass(frozen=True)
@@ -44,6 +52,9 @@ class GeofenceConfig:
     sample_step_m: float = param(0.05, lo=0.001, hi=1.0, units="m")
     sample_step_deg: float = param(5.0, lo=0.1, hi=90.0, units="deg")
     allow_without_edge: bool = param(False, doc="allow motion before any edge is mapped")
+    recover_inside_margin: bool = param(
+        True, doc="a rover already inside the margin may make moves that never come closer to the edge"
+    )
 
 
 @dataclass(frozen=True)
@@ -116,7 +127,7 @@ class Geofence:
         swept = self.swept_wheels(tuple(pa), tuple(pb))
         dist = np.array([self._barrier.distance(g) for g in swept])
         for w, geom in enumerate(swept):
-            if dist[w] >= self.cfg.margin_m:  # wholly on one side: test one point of each part
+            if dist[w] > 0.0:  # wholly on one side: test one point of each part
                 parts = getattr(geom, "geoms", [geom])
                 reps = shapely.get_coordinates([p.representative_point() for p in parts])
                 if (self._edge.signed_distance(reps, self.cfg.extend_m) < 0).any():
@@ -125,6 +136,11 @@ class Geofence:
                                    -float(dist[w]), WHEELS[w])
         w = int(np.argmin(dist))
         clear = float(dist[w])
+        if 0.0 < clear < self.cfg.margin_m and self.cfg.recover_inside_margin:
+            start = min(self._barrier.distance(g) for g in self.swept_wheels(tuple(pa), tuple(pa)))
+            if clear >= start - RECOVERY_TOL_M:
+                return Verdict(True, f"allowed: recovering inside the margin: clearance {clear:.3f} m, "
+                               f"never below the start's {start:.3f} m (wheel {WHEELS[w]})", clear, WHEELS[w])
         if clear < self.cfg.margin_m:
             self.rejections += 1
             where = "crosses the edge" if clear == 0.0 else (
