@@ -31,6 +31,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         f"safer-fsw: running {len(exe.tasks)} components at {1 / exe.period_s:.1f} Hz "
         f"({'until interrupted' if frames is None else f'{frames} frames'}); config {args.config}"
     )
+    exe.freeze_heap()  # no full garbage collection walks the start-up heap inside a frame
     try:
         exe.run_realtime(frames)
     except KeyboardInterrupt:

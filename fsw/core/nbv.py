@@ -127,7 +127,9 @@ def view_sums(rel: F64, values: F64, yaws: F64, tilts: F64, camera: CameraConfig
 
 def view_sums_steps(rel: F64, values: F64, yaws: F64, tilts: F64, camera: CameraConfig
                     ) -> Generator[None, None, F64]:
-    """:func:`view_sums`, yielding after the set-up and after each tilt."""
+    """:func:`view_sums`, yielding before the set-up (the caller's work before it is a step
+    of its own), after it and after each tilt."""
+    yield None
     rho = np.hypot(rel[:, 0], rel[:, 1]).astype(np.float32)
     phi = np.arctan2(rel[:, 1], rel[:, 0])
     dz = rel[:, 2].astype(np.float32)

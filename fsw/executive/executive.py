@@ -13,6 +13,7 @@ throttled; each throttle reopens a slot every ``throttle_decay_frames`` good fra
 from __future__ import annotations
 
 import dataclasses
+import gc
 import time
 from collections.abc import Callable
 from typing import Any, ClassVar
@@ -44,6 +45,7 @@ class ExecutiveComponent(Task):
         Channel("jobs_completed", "count"),
         Channel("jobs_failed", "count", hi=0),
         Channel("slice_max_ms", "ms", doc="longest slack-job slice since start or RESET_COUNTERS"),
+        Channel("frame_max_ms", "ms", doc="longest frame (foreground + slack) since start or RESET_COUNTERS"),
         Channel("bus_drops", "count", hi=0, doc="messages dropped by full mailboxes"),
     )
     EVENTS = (
@@ -80,6 +82,7 @@ class ExecutiveComponent(Task):
     def cmd_RESET_COUNTERS(self) -> None:
         exe: Executive = self.ctx.resources["executive"]
         exe.skipped_frames = exe.slips = 0
+        exe.frame_max_s = 0.0
         exe.jobs.reset_max()
         super().cmd_RESET_COUNTERS()
 
@@ -151,6 +154,7 @@ class Executive:
         self.ctx.resources["executive"] = self
         self.frame = 0
         self.slips = 0
+        self.frame_max_s = 0.0  # longest frame's work (foreground + slack), s
         self.skipped_frames = 0
         self.lateness_s: list[float] = []
         self.tasks: dict[str, Task] = {}
@@ -178,6 +182,20 @@ class Executive:
         self.exec_component = self.tasks["exec"]
         for task in self.tasks.values():
             task.setup()
+
+    @staticmethod
+    def freeze_heap() -> None:
+        """Collect once, then move every live object out of the garbage collector's reach
+        (``gc.freeze``): the start-up heap (modules, tasks, maps) is then never traversed
+        again, so a full collection during a frame costs a few ms, not tens. Call it after
+        start-up, before the first frame; :func:`thaw_heap` undoes it."""
+        gc.collect()
+        gc.freeze()
+
+    @staticmethod
+    def thaw_heap() -> None:
+        """Give the frozen objects back to the garbage collector (end of a bench run)."""
+        gc.unfreeze()
 
     # -- registration ---------------------------------------------------------------------
     def _register(self, task: Task, opcode_base: int) -> None:
@@ -233,6 +251,7 @@ class Executive:
                 slip_group = rg
         self._run_slack(t0)
         elapsed = self.timer() - t0
+        self.frame_max_s = max(self.frame_max_s, elapsed)
         if slip_group is None and elapsed > period:
             slip_group = self.groups[-1] if self.groups else None
         self._account_slip(slip_group, k, elapsed)
@@ -309,6 +328,7 @@ class Executive:
         ex.tlm("jobs_completed", self.jobs.completed)
         ex.tlm("jobs_failed", self.jobs.failed)
         ex.tlm("slice_max_ms", self.jobs.max_slice_s * 1e3)
+        ex.tlm("frame_max_ms", self.frame_max_s * 1e3)
         ex.tlm("bus_drops", sum(b.dropped for b in self.bus.mailboxes()))
         for rg in self.groups:
             rg.tlm("cycles", rg.activations)

@@ -165,7 +165,7 @@ def test_longest_slack_slice_is_recorded_per_job_per_task_and_overall() -> None:
     in the handle, the JOB_DONE event, ``exec.slice_max_ms``; RESET_COUNTERS clears it."""
     from fsw.executive.commands import CommandRequest, CommandStatus
 
-    cfg = make_cfg([{"name": "fast", "divisor": 1}], [task("a", "fast"), task("b", "fast")])
+    cfg = make_cfg([{"name": "fast", "divisor": 1}], [task("a", "fast"), task("b", "fast")], lockstep_job_slices=1)
     exe = make_exec(cfg)
 
     def job(costs: list[float]) -> Any:
@@ -182,11 +182,13 @@ def test_longest_slack_slice_is_recorded_per_job_per_task_and_overall() -> None:
     assert exe.jobs.max_slice_s == pytest.approx(0.012) and exe.jobs.max_slice_owner == "a"
     assert exe.jobs.max_slice_by_owner == pytest.approx({"a": 0.012, "b": 0.007})
     assert exe.telemetry.get("exec.slice_max_ms") == pytest.approx(12.0)
+    assert exe.frame_max_s == pytest.approx(0.012)  # one slice per frame; the foreground costs nothing
+    assert exe.telemetry.get("exec.frame_max_ms") == pytest.approx(12.0)
     done = [e.text for e in exe.events.history if e.name == "exec.JOB_DONE"]
     assert any("a.ja" in t and "longest slice 12.0 ms" in t for t in done), done
     resp = exe.commands.dispatch(CommandRequest("exec.RESET_COUNTERS", {}))
     assert resp.status is CommandStatus.OK
-    assert exe.jobs.max_slice_s == 0.0 and exe.jobs.max_slice_by_owner == {}
+    assert exe.jobs.max_slice_s == 0.0 and exe.jobs.max_slice_by_owner == {} and exe.frame_max_s == 0.0
 
 
 def test_failing_job_is_reported_not_fatal() -> None:
