@@ -28,12 +28,15 @@ import shapely
 from numpy.typing import NDArray
 from scipy import ndimage
 from shapely.geometry import LineString, MultiLineString, Polygon
+from shapely.geometry.base import BaseGeometry
 
 from fsw.config import param
 from fsw.core.elevation_map import ElevationMap
 
 F64 = NDArray[np.float64]
 END_TANGENT_M = 0.3  # length over which an edge line's end direction is taken (barrier)
+BRIDGE_M = 0.25  # edge runs this close along the polygon boundary are one run (fit_polygon)
+CLIP_INSIDE_M = 0.05  # a barrier extension stops where it gets this deep into the safe polygon
 _DIRS = ((0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1), (-1, 0), (-1, 1))  # (dy, dx)
 
 
@@ -86,7 +89,14 @@ class EdgeModel:
 
     def barrier(self, extend_m: float) -> MultiLineString:
         """The edge lines, each extended straight by ``extend_m`` past both ends (the edge is
-        taken to go on beyond where the map saw it)."""
+        taken to go on beyond where the map saw it). An extension stops where it enters the
+        mapped plateau (``safe_polygon`` shrunk by ``CLIP_INSIDE_M``): the map saw level ground
+        there, so the edge does not go on across it (a hooked end would otherwise swing its
+        continuation over the plateau, behind the rover)."""
+        inner = None
+        if self.safe_polygon is not None and extend_m > 0:
+            inner = self.safe_polygon.buffer(-CLIP_INSIDE_M)
+            inner = None if inner.is_empty else inner
         out = []
         for ln in self.lines.geoms:
             c = np.asarray(ln.coords)
@@ -96,9 +106,10 @@ class EdgeModel:
                 span = min(END_TANGENT_M, ln.length / 2.0)
                 p0 = np.asarray(ln.interpolate(span).coords[0])
                 p1 = np.asarray(ln.interpolate(ln.length - span).coords[0])
-                t0, t1 = c[0] - p0, c[-1] - p1
-                c = np.vstack([c[0] + extend_m * t0 / max(np.hypot(*t0), 1e-12), c,
-                               c[-1] + extend_m * t1 / max(np.hypot(*t1), 1e-12)])
+                e0 = _extension(c[0], c[0] - p0, extend_m, inner)
+                e1 = _extension(c[-1], c[-1] - p1, extend_m, inner)
+                c = np.vstack([e0[None] if e0 is not None else np.zeros((0, 2)), c,
+                               e1[None] if e1 is not None else np.zeros((0, 2))])
             out.append(LineString(c))
         return MultiLineString(out)
 
@@ -147,6 +158,20 @@ class EdgeModel:
         pts = sample_lines(self.lines, step_m)
         truth = LineString(np.asarray(truth_xy, dtype=np.float64))
         return float(np.mean(shapely.distance(shapely.points(pts), truth)))
+
+
+def _extension(end: F64, t: F64, extend_m: float, inner: BaseGeometry | None) -> F64 | None:
+    """The far point of the straight extension from ``end`` along ``t``: ``extend_m`` out, or
+    where it first enters ``inner`` (None: it would start inside)."""
+    t = t / max(float(np.hypot(*t)), 1e-12)
+    length = extend_m
+    if inner is not None:
+        s = np.linspace(0.0, extend_m, max(2, int(np.ceil(extend_m / 0.01)) + 1))
+        q = end[None] + s[:, None] * t[None]
+        hit = np.flatnonzero(shapely.contains_xy(inner, q[:, 0], q[:, 1]))
+        if hit.size:
+            length = float(s[hit[0] - 1]) if hit[0] > 0 else 0.0
+    return end + length * t if length > 1e-9 else None
 
 
 def safe_region(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float, float],
@@ -275,7 +300,11 @@ def _densify(ring: F64, step: float) -> F64:
 
 
 def _runs(ring: F64, flag: NDArray[np.bool_], cfg: EdgeConfig) -> list[LineString]:
-    """Maximal runs of flagged vertices along a closed ring, as simplified lines."""
+    """Maximal runs of flagged vertices along a closed ring, as simplified lines. Runs less
+    than ``BRIDGE_M`` apart along the ring are one run: a small spike or cleft of the polygon
+    at the lip (a vertex just beyond ``match_m``) must not break the edge into pieces, each
+    with a fresh end whose straight continuation (``EdgeModel.barrier``) cuts the plateau."""
+    flag = _bridge(ring, flag, BRIDGE_M)
     if flag.all():
         return [LineString(ring).simplify(cfg.simplify_m)]
     start = int(np.argmin(flag))  # rotate so the ring starts on an unflagged vertex
@@ -287,6 +316,28 @@ def _runs(ring: F64, flag: NDArray[np.bool_], cfg: EdgeConfig) -> list[LineStrin
             ln = LineString(ring[a:b]).simplify(cfg.simplify_m)
             if ln.length >= cfg.min_edge_len_m:
                 out.append(ln)
+    return out
+
+
+def _bridge(ring: F64, flag: NDArray[np.bool_], gap_m: float) -> NDArray[np.bool_]:
+    """``flag`` (one per vertex of the closed ``ring``) with every unflagged gap between two
+    flagged vertices whose path along the ring is shorter than ``gap_m`` flagged too."""
+    n = ring.shape[0] - 1  # ring[-1] repeats ring[0]
+    f = flag[:n].copy()
+    if f.all() or not f.any():
+        return flag
+    seg = np.hypot(*(ring[1:] - ring[:-1]).T)  # seg[i]: vertex i to i + 1
+    start = int(np.argmax(f))  # walk the ring from a flagged vertex
+    order = (start + np.arange(n + 1)) % n
+    last = 0  # position (in ``order``) of the last flagged vertex
+    for k in range(1, n + 1):
+        if f[order[k]]:
+            if k - last > 1 and seg[order[last:k]].sum() < gap_m:
+                f[order[last + 1:k]] = True
+            last = k
+    out = flag.copy()
+    out[:n] = f
+    out[n:] = f[0]
     return out
 
 

@@ -3,11 +3,24 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
+import shapely
+from shapely.geometry import LineString, MultiLineString, Polygon
+from shapely.geometry.polygon import orient
 
-from fsw.core.edge import EdgeConfig, edge_cells, edge_path, fit_line, fit_polygon
+from fsw.core.edge import (
+    EdgeConfig,
+    EdgeModel,
+    _densify,
+    _runs,
+    edge_cells,
+    edge_path,
+    fit_line,
+    fit_polygon,
+)
 from fsw.core.elevation_map import ElevationMap
 from fsw.core.geofence import Geofence, GeofenceConfig
 from fsw.core.geometry import MapGrid, MapGridConfig, RoverConfig
@@ -184,3 +197,47 @@ def test_signed_distance_classifies_bay_and_plateau(fence: Geofence) -> None:
     assert sd[0] < 0 and sd[1] > 0 and sd[2] > 0 and sd[3] < 0
     v = fence.check((1.0, -2.5, 0.0), (1.5, -2.5, 0.0))  # wholly in the pit, far from the lip
     assert not v.allowed and "beyond the edge" in v.reason and v.clearance_m < 0
+
+
+CLIFF_STEP0 = Path(__file__).parent / "data" / "cliff_step0_edge.npz"
+
+
+def _cliff_step0() -> tuple[EdgeModel, np.ndarray, np.ndarray]:
+    """The cliff scenario's edge after the step-0 panorama (seed 0): the safe polygon, the
+    edge points, and the two edge runs the fit then gave (split at a small spike of the
+    polygon at x = 1.25; the second run starts with a hook back west)."""
+    d = np.load(CLIFF_STEP0)
+    model = EdgeModel("polygon", d["points_xy"],
+                      MultiLineString([LineString(d["run0"]), LineString(d["run1"])]),
+                      Polygon(d["polygon_xy"]))
+    return model, d["points_xy"], d["polygon_xy"]
+
+
+def test_cliff_step0_edge_is_one_run() -> None:
+    """Issue: the polygon's edge runs are not split by a spike a few cm past ``match_m``."""
+    cfg = EdgeConfig()
+    _, pts, ring = _cliff_step0()
+    poly = orient(Polygon(ring), 1.0)
+    ring = _densify(np.asarray(poly.exterior.coords), GRID.cell)
+    tree = shapely.STRtree(shapely.points(pts))
+    near = tree.query(shapely.points(ring), predicate="dwithin", distance=cfg.match_m)
+    flag = np.zeros(ring.shape[0], bool)
+    flag[np.unique(near[0])] = True
+    runs = _runs(ring, flag, cfg)
+    assert len(runs) == 1 and runs[0].length > 3.0
+
+
+def test_cliff_step0_barrier_does_not_cut_the_plateau() -> None:
+    """Issue: on the cliff after step 0 the geofence refused moves well back from the true
+    edge ("wheel rear_right is beyond the edge"): the straight continuation of the hooked
+    start of an edge run swung back across the mapped plateau. An extension stops where it
+    enters the safe polygon; the pit and the unmapped continuations stay refused."""
+    model, _, _ = _cliff_step0()
+    fence = Geofence(GeofenceConfig(), RoverConfig())
+    fence.set_edge(model)
+    for b in [(1.14, -0.20, -0.17), (-0.26, -0.27, 0.10), (0.02, -0.23, 0.04)]:
+        assert fence.check((0.0, 0.0, 0.0), b).allowed, b
+    assert model.signed_distance(np.array([[0.3, -0.5], [-0.3, -0.35]]), 1.0).min() > 0.3
+    # still refused: into the pit, past the edge's ends along the drop, within the margin
+    for b in [(0.5, -1.4, 0.0), (-1.2, -1.2, 0.0), (2.9, -1.2, 0.0), (0.5, -0.55, 0.0)]:
+        assert not fence.check((0.0, -0.2, 0.0), b).allowed, b
