@@ -32,6 +32,7 @@ from shapely.geometry.base import BaseGeometry
 
 from fsw.config import param
 from fsw.core.elevation_map import ElevationMap
+from fsw.core.steps import run_to_end
 
 F64 = NDArray[np.float64]
 END_TANGENT_M = 0.3  # length over which an edge line's end direction is taken (barrier)
@@ -207,12 +208,7 @@ def edge_cells(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float, floa
 
     ``ground_z_m`` is the height of the ground the rover stands on and ``seed_xy`` a point
     of it (the rover's position)."""
-    gen = edge_cells_steps(emap, ground_z_m, seed_xy, cfg)
-    while True:
-        try:
-            next(gen)
-        except StopIteration as stop:
-            return stop.value  # type: ignore[no-any-return]
+    return run_to_end(edge_cells_steps(emap, ground_z_m, seed_xy, cfg))
 
 
 def edge_cells_steps(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float, float],

@@ -48,6 +48,7 @@ from numpy.typing import NDArray
 
 from fsw.config import param
 from fsw.core.geometry import MapGrid
+from fsw.core.steps import run_to_end
 
 F64 = NDArray[np.float64]
 
@@ -143,12 +144,7 @@ class ElevationMap:
         §1.2); it is averaged, not reduced, within a cell. ``p_visible`` (ny, nx): the
         probability that each cell was visible in this view, or a boolean mask.
         """
-        gen = self.merge_steps(xyz, var_z, cov, p_visible, cov_common)
-        while True:
-            try:
-                next(gen)
-            except StopIteration as stop:
-                return stop.value  # type: ignore[no-any-return]
+        return run_to_end(self.merge_steps(xyz, var_z, cov, p_visible, cov_common))
 
     def merge_steps(
         self,

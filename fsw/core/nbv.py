@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 
 from fsw.config import param
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
+from fsw.core.steps import run_to_end
 from fsw.core.visibility import (
     F64,
     Terrain,
@@ -43,7 +44,7 @@ from fsw.core.visibility import (
     in_view,
     terrain_from_map,
 )
-from fsw.core.visibility_kernel import pv_fast_steps, run_to_end
+from fsw.core.visibility_kernel import pv_fast_steps
 
 
 class MapLike(Protocol):

@@ -71,6 +71,7 @@ from fsw.core.nbv import (
     rate_station_steps,
     utility,
 )
+from fsw.core.steps import run_to_end
 from fsw.core.view_candidates import (
     CandidateView,
     MotionCheck,
@@ -82,7 +83,6 @@ from fsw.core.view_candidates import (
     path_stations_steps,
 )
 from fsw.core.visibility import F64, Terrain, in_view, terrain_from_heights, terrain_from_map
-from fsw.core.visibility_kernel import run_to_end
 
 METHODS = ("1", "2", "3", "4", "5", "oracle")
 
@@ -111,12 +111,7 @@ class Planner(ABC):
     name: str = ""
 
     def next_view(self, state: PlannerState) -> CandidateView | None:
-        gen = self.search(state)
-        while True:
-            try:
-                next(gen)
-            except StopIteration as stop:
-                return stop.value  # type: ignore[no-any-return]
+        return run_to_end(self.search(state))
 
     @abstractmethod
     def search(self, state: PlannerState) -> SearchGen: ...

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 from collections.abc import Generator
 from dataclasses import dataclass
-from typing import TypeVar
 
 import cv2
 import numpy as np
@@ -34,10 +33,10 @@ from numpy.typing import NDArray
 
 from fsw.config import param
 from fsw.core.geometry import CameraConfig
+from fsw.core.steps import run_to_end
 
 F64 = NDArray[np.float64]
 U8 = NDArray[np.uint8]
-T = TypeVar("T")
 
 _MODES = {
     "sgbm": cv2.StereoSGBM_MODE_SGBM,
@@ -147,7 +146,7 @@ class StereoMatcher:
 
     def disparity(self, left: U8, right: U8) -> F64:
         """Disparity in pixels for each left pixel; NaN where no trustworthy match."""
-        return _run(self.disparity_steps(left, right))
+        return run_to_end(self.disparity_steps(left, right))
 
     def bands(self, height: int) -> list[tuple[int, int, int, int]]:
         """The SGBM bands of an image ``height`` rows high: ``(start, end, src_start, src_end)``.
@@ -246,7 +245,7 @@ class StereoMatcher:
 
     def triangulate(self, disp: F64, stride_px: int = 1) -> StereoPoints:
         """3-D points and covariances from a disparity image (NaN = no match)."""
-        return _run(self.triangulate_steps(disp, stride_px))
+        return run_to_end(self.triangulate_steps(disp, stride_px))
 
     def triangulate_steps(self, disp: F64, stride_px: int = 1) -> Generator[None, None, StereoPoints]:
         """:meth:`triangulate`, yielding after each band of ``band_rows_px`` rows; the points
@@ -287,15 +286,6 @@ class StereoMatcher:
             if not isinstance(img, np.ndarray) or img.dtype != np.uint8 or img.shape != shape:
                 got = getattr(img, "shape", None), getattr(img, "dtype", type(img).__name__)
                 raise ValueError(f"{name} image must be uint8 of shape {shape}, got {got}")
-
-
-def _run(gen: Generator[None, None, T]) -> T:
-    """Drive a step generator to its end and return its value."""
-    while True:
-        try:
-            next(gen)
-        except StopIteration as stop:
-            return stop.value  # type: ignore[no-any-return]
 
 
 def stereo_covariance(

@@ -22,8 +22,8 @@ import shapely
 from shapely.geometry import LineString, MultiPoint, Point, Polygon
 
 from fsw.core.geometry import CameraConfig, CameraPose, MastConfig, camera_pose_from_rover
+from fsw.core.steps import run_to_end
 from fsw.core.visibility import F64
-from fsw.core.visibility_kernel import run_to_end
 
 Pose3 = tuple[float, float, float]
 MotionCheck = Callable[[Pose3, Pose3], bool]

@@ -32,13 +32,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Generator
-from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.special import log_ndtr
 
 from fsw.core.geometry import MapGrid
+from fsw.core.steps import run_to_end
 from fsw.core.visibility import F32, F64, IDX, Terrain, VisibilityConfig
 
 _XMIN, _XMAX, _NPER = -9.0, 6.0, 256  # log Phi table range (sigma) and steps per sigma
@@ -47,7 +47,6 @@ _TABLE[-1] = 0.0  # arguments >= _XMAX: factor 1
 _NT = _TABLE.size
 _BLOCK_PAIRS = 1 << 18  # (target, sample) pairs per step: a few ms
 _RAYS_PER_STEP = 512  # rays traced per step: a few ms
-T = TypeVar("T")
 
 
 def bin_rays(grid: MapGrid, cam_xy: tuple[float, float], angles: F64, rmax_m: float
@@ -90,15 +89,6 @@ def pv_fast(terrain: Terrain, cam_xyz: tuple[float, float, float], iy: IDX, ix: 
             cfg: VisibilityConfig) -> F64:
     """P_V of the cells ``(iy, ix)`` seen from camera centre ``cam_xyz`` (no FOV culling)."""
     return run_to_end(pv_fast_steps(terrain, cam_xyz, iy, ix, cfg))
-
-
-def run_to_end(gen: Generator[None, None, T]) -> T:
-    """Drive a step generator to its end and return its value."""
-    while True:
-        try:
-            next(gen)
-        except StopIteration as stop:
-            return stop.value  # type: ignore[no-any-return]
 
 
 def pv_fast_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], iy: IDX, ix: IDX,
