@@ -18,9 +18,9 @@ ALGORITHM.md §2 finds the edge before the rover moves.
 Recovery (``recover_inside_margin``): a new edge fit can put the rover, standing still,
 inside the margin (a longer or re-shaped edge, or its straight continuation past a fresh end,
 now passes close by). Refusing every move would box the rover in for good, so a rover that
-stands inside the margin, with every wheel still on the safe side, may make a move whose swept
-wheels never come closer to the edge than they are at its start: it can back away or move
-along, never closer. Such a verdict says "recovering".
+stands inside the margin, with every wheel still on the safe side, may make a move that ends
+outside the margin and whose swept wheels never come closer to the edge on the way than they
+are at its start: it can back away, never closer. Such a verdict says "recovering".
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ class GeofenceConfig:
     sample_step_deg: float = param(5.0, lo=0.1, hi=90.0, units="deg")
     allow_without_edge: bool = param(False, doc="allow motion before any edge is mapped")
     recover_inside_margin: bool = param(
-        True, doc="a rover already inside the margin may make moves that never come closer to the edge"
+        True, doc="a rover already inside the margin may move out of it, never coming closer to the edge"
     )
 
 
@@ -137,10 +137,12 @@ class Geofence:
         w = int(np.argmin(dist))
         clear = float(dist[w])
         if 0.0 < clear < self.cfg.margin_m and self.cfg.recover_inside_margin:
-            start = min(self._barrier.distance(g) for g in self.swept_wheels(tuple(pa), tuple(pa)))
-            if clear >= start - RECOVERY_TOL_M:
-                return Verdict(True, f"allowed: recovering inside the margin: clearance {clear:.3f} m, "
-                               f"never below the start's {start:.3f} m (wheel {WHEELS[w]})", clear, WHEELS[w])
+            start, end = (min(self._barrier.distance(g) for g in self.swept_wheels(p, p))
+                          for p in (tuple(pa), tuple(pb)))
+            if clear >= start - RECOVERY_TOL_M and end >= self.cfg.margin_m:
+                return Verdict(True, f"allowed: recovering out of the margin: clearance {clear:.3f} m on the "
+                               f"way, never below the start's {start:.3f} m; {end:.3f} m at the end "
+                               f"(wheel {WHEELS[w]})", clear, WHEELS[w])
         if clear < self.cfg.margin_m:
             self.rejections += 1
             where = "crosses the edge" if clear == 0.0 else (

@@ -137,6 +137,11 @@ def claims(results: dict[tuple[str, int], dict[str, Any]], methods: list[str], s
     return out
 
 
+def _ratio(a: float, b: float, unit: str = "") -> str:
+    """``a / b`` for the table, or "-" when the reference method was not run."""
+    return f"{a / b:.2f}{unit}" if b == b and b > 0 else "-"
+
+
 def _sums(results: dict[tuple[str, int], dict[str, Any]], method: str, seeds: int) -> tuple[float, float]:
     steps = [st for s in range(seeds) for st in results[(method, s)]["steps"] if st["step"] >= 1]
     return float(sum(st["expected_new_cells"] for st in steps)), float(sum(st["obtained_new_cells"] for st in steps))
@@ -219,8 +224,8 @@ def write_report(
         rmse = [r["map_rmse_m"] for r in runs if r["map_rmse_m"] is not None]
         taken = np.mean([max(st["step"] for st in r["steps"]) for r in runs])
         lines.append(
-            f"| {m} | {f.mean():.0f} | {f.min():.0f} | {f.max():.0f} | {f.mean() / ref1:.2f}x | "
-            f"{f.mean() / refo:.2f} | {added[m].mean():.0f} | {added[m].mean() / add1:.2f}x | {taken:.1f} | "
+            f"| {m} | {f.mean():.0f} | {f.min():.0f} | {f.max():.0f} | {_ratio(f.mean(), ref1, 'x')} | "
+            f"{_ratio(f.mean(), refo)} | {added[m].mean():.0f} | {_ratio(added[m].mean(), add1, 'x')} | {taken:.1f} | "
             f"{sum(r['edge_violations'] for r in runs)} | {sum(r['slips'] for r in runs)} | {100 * np.mean(rmse):.2f} |"
         )
     for m in ("3", "5"):

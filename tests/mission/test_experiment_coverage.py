@@ -65,12 +65,12 @@ def test_claims_are_computed_from_the_runs() -> None:
 def test_report_files(tmp_path: Path) -> None:
     write_report(tmp_path, "lab", 6, ["1", "3", "5", "oracle"], 2, _results(m3_late=5))
     md = (tmp_path / "coverage.md").read_text()
+    data = json.loads((tmp_path / "coverage.json").read_text())
     # mean, min, max, vs Method 1, vs oracle, added after the panorama, added vs Method 1, steps
     assert "| 5 | 13000 | 13000 | 13000 | 10.00x | 0.96 | 12000 | 40.00x | 6.0 |" in md
     assert "| 1 | 1300 | 1300 | 1300 | 1.00x | 0.10 | 300 | 1.00x | 3.0 |" in md
     assert "## The paper's claims (issue 5)" in md
     assert md.count("| met |") + md.count("| NOT MET |") == 7
-    data = json.loads((tmp_path / "coverage.json").read_text())
     assert data["methods"]["1"]["final"] == [1300.0, 1300.0]
     assert len(data["claims"]) == 7
     rows = (tmp_path / "coverage.csv").read_text().splitlines()
@@ -85,3 +85,11 @@ def test_bad_arguments_exit_2(argv: list[str], tmp_path: Path) -> None:
         rc = hil_main(["experiment", "coverage", "--out", str(tmp_path), *argv])
         raise SystemExit(rc)
     assert e.value.code == 2
+
+
+def test_table_without_the_reference_methods(tmp_path: Path) -> None:
+    """Run without Method 1 and the oracle (the cliff's 4-vs-5 run): their ratios read "-"."""
+    write_report(tmp_path, "cliff", 6, ["3", "5"], 2, _results(m3_late=5))
+    md = (tmp_path / "coverage.md").read_text()
+    assert "| 5 | 13000 | 13000 | 13000 | - | - | 12000 | - | 6.0 |" in md
+    assert "nan" not in md

@@ -156,9 +156,9 @@ def test_geofence_turn_in_place_sweeps_the_wheels() -> None:
 
 
 def test_geofence_lets_a_rover_inside_the_margin_back_away_but_never_closer(fence: Geofence) -> None:
-    """A new edge fit can leave the standing rover inside the margin: it may move away from the
-    edge or along it without coming closer (recovering); any move closer is still refused, and
-    with recovery off every move from there is refused."""
+    """A new edge fit can leave the standing rover inside the margin: it may move out of the
+    margin without coming closer on the way (recovering); a move closer, or one that stays
+    inside, is still refused, and with recovery off every move from there is refused."""
     y_in = float(true_edge_y(np.array([1.0]))[0]) + 0.35 + 0.05 + 0.1  # front wheels ~0.1 m off the lip
     here = (1.0, y_in, -math.pi / 2)
     assert not fence.check((1.0, 0.3, -math.pi / 2), here).allowed  # it may not drive in there
@@ -166,6 +166,8 @@ def test_geofence_lets_a_rover_inside_the_margin_back_away_but_never_closer(fenc
     assert away.allowed and "recovering" in away.reason and 0.0 < away.clearance_m < 0.15
     closer = fence.check(here, (1.0, y_in - 0.05, -math.pi / 2))
     assert not closer.allowed and "within" in closer.reason
+    inside = fence.check(here, (1.0, y_in + 0.02, -math.pi / 2))  # away, but still inside the margin
+    assert not inside.allowed and "within" in inside.reason
     strict = Geofence(GeofenceConfig(margin_m=0.15, recover_inside_margin=False), RoverConfig())
     strict.set_edge(fence._edge)
     assert not strict.check(here, (1.0, y_in + 0.3, -math.pi / 2)).allowed
