@@ -8,6 +8,7 @@ disparity nearly equals the whole-image one and is as accurate against the truth
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 import pytest
@@ -89,15 +90,7 @@ def test_banded_disparity_nearly_equals_whole_image_on_rendered_lab_pair(cfg, la
 def test_disparity_steps_yield_once_per_band_and_triangulation_is_unchanged(cfg, lab_pairs) -> None:
     m = StereoMatcher(cfg.stereo, cfg.camera)
     _, _, left, right, _ = lab_pairs[0]
-    gen = m.disparity_steps(left, right)
-    yields = 0
-    while True:
-        try:
-            next(gen)
-            yields += 1
-        except StopIteration as stop:
-            disp = stop.value
-            break
+    yields, disp = _drain(m.disparity_steps(left, right))
     assert yields == len(m.bands(left.shape[0])) == 4
     assert np.array_equal(disp, m.disparity(left, right), equal_nan=True)
     whole = StereoMatcher(dataclasses.replace(cfg.stereo, band_rows_px=0), cfg.camera)
@@ -123,15 +116,7 @@ def test_chunked_merge_equals_one_shot_merge() -> None:
     s1 = one.merge(xyz, cov=cov, p_visible=pv, cov_common=cov_p)
     parts = [(xyz[i:i + 7000], cov[i:i + 7000], cov_p[i:i + 7000]) for i in range(0, n, 7000)]
     chunked = ElevationMap(grid)
-    gen = chunked.merge_parts_steps(parts, p_visible=pv, step_points=7000)
-    yields = 0
-    while True:
-        try:
-            next(gen)
-            yields += 1
-        except StopIteration as stop:
-            s2 = stop.value
-            break
+    yields, s2 = _drain(chunked.merge_parts_steps(parts, p_visible=pv, step_points=7000))
     assert yields >= 2 * (len(parts) - 1)  # both passes, part by part (the short last one joins the next)
     assert s1 == s2
     m = one.mapped
@@ -152,17 +137,20 @@ def test_perception_job_yields_many_bounded_steps_per_view(cfg, lab_pairs) -> No
     counts = []
     for view_id, (_, pose, left, right, _) in enumerate(lab_pairs):
         fr = CameraFrame(view_id, 0.0, left, right, pose, np.zeros((6, 6)))
-        gen = task._merge_view(fr)
-        yields = 0
-        while True:
-            try:
-                next(gen)
-                yields += 1
-            except StopIteration as stop:
-                update = stop.value
-                break
+        yields, update = _drain(task._merge_view(fr))
         counts.append(yields)
         chunks = -(-update.points // PROPAGATE_CHUNK)
         assert update.points > 50000
         assert yields >= 2 * bands + chunks + 6, (yields, bands, chunks)
     assert counts[1] > counts[0]  # P_V of the second view in steps too
+
+
+def _drain(gen: Any) -> tuple[int, Any]:
+    """Run a step generator to its end: (how many times it yielded, its value)."""
+    yields = 0
+    while True:
+        try:
+            next(gen)
+        except StopIteration as stop:
+            return yields, stop.value
+        yields += 1
