@@ -427,16 +427,11 @@ def straighten(path: F64) -> F64:
     return np.vstack([c + s.min() * d, c + s.max() * d])
 
 
-def best_floor_tilt(rover: Pose3, pan: float, lift: float, floor_z_m: float, ground_z_m: float,
-                    camera: CameraConfig, mast: MastConfig) -> float:
-    """The tilt (1 deg grid within limits) whose footprint on the floor plane is largest."""
-    return run_to_end(best_floor_tilt_steps(rover, pan, lift, floor_z_m, ground_z_m, camera, mast))
-
-
 def best_floor_tilt_steps(rover: Pose3, pan: float, lift: float, floor_z_m: float,
                           ground_z_m: float, camera: CameraConfig, mast: MastConfig
                           ) -> Generator[None, None, float]:
-    """:func:`best_floor_tilt`, yielding after each tilt (a slack-job step)."""
+    """The tilt (1 deg grid within limits) whose footprint on the floor plane is largest;
+    yields after each tilt (a slack-job step)."""
     tilts = np.radians(np.arange(mast.tilt_min_deg, min(mast.tilt_max_deg, 0.0) + 1e-9, 1.0))
     areas = []
     for t in tilts:

@@ -46,7 +46,6 @@ class JobScheduler:
         self._jobs: deque[tuple[JobHandle, Job]] = deque()
         self.completed = 0
         self.failed = 0
-        self.last_slice_s = 0.0  # the last slice run, any job
         self.max_slice_s = 0.0  # the longest slice run, any job (reset_max clears it)
         self.max_slice_owner = ""  # the task whose job ran it
         self.max_slice_by_owner: dict[str, float] = {}  # the longest slice per submitting task
@@ -90,7 +89,6 @@ class JobScheduler:
         handle.busy_s += dt
         handle.slices += 1
         handle.max_slice_s = max(handle.max_slice_s, dt)
-        self.last_slice_s = dt
         if dt > self.max_slice_s:
             self.max_slice_s, self.max_slice_owner = dt, handle.owner
         if dt > self.max_slice_by_owner.get(handle.owner, 0.0):
