@@ -9,9 +9,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from fsw.executive.clock import Clock, MonotonicClock
 from fsw.executive.executive import Executive
 from fsw.executive.health import SoftwareWatchdog
+from fsw.framework.clock import Clock, MonotonicClock
 from fsw.settings import FswConfig
 
 

@@ -7,7 +7,7 @@ import json
 import sys
 from collections.abc import Sequence
 
-from fsw.config import ConfigError
+from fsw.framework.params import ConfigError
 from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
 
 

@@ -1,7 +1,7 @@
 """The flight software's whole configuration: one frozen object built from one TOML file.
 
 Each section's dataclass lives beside the code that uses it; this module only assembles
-them. ``load_settings(path)`` validates everything up front (``fsw.config``) so a bad file
+them. ``load_settings(path)`` validates everything up front (``fsw.framework.params``) so a bad file
 is refused with one line naming the file, the key and the reason.
 """
 
@@ -12,7 +12,6 @@ from pathlib import Path
 
 from fsw.comm.link import LinkConfig
 from fsw.comm.mavlink_config import MavlinkConfig
-from fsw.config import build, load_toml
 from fsw.core.checkpoint import CheckpointConfig
 from fsw.core.edge import EdgeConfig
 from fsw.core.elevation_map import FusionConfig
@@ -24,7 +23,8 @@ from fsw.core.mapcodec import CodecConfig
 from fsw.core.nbv import NbvConfig
 from fsw.core.stereo import StereoConfig
 from fsw.drivers.factory import DevicesConfig
-from fsw.executive.config import ExecutiveConfig
+from fsw.framework.params import build, load_toml
+from fsw.framework.schedule import ExecutiveConfig
 from fsw.tasks.camera import CaptureConfig
 from fsw.tasks.mission import MissionConfig
 from fsw.tasks.motion import MotionConfig

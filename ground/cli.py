@@ -69,7 +69,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args._module is None:
         return _keygen(args.file, args.passphrase_stdin)
-    from fsw.config import ConfigError
+    from fsw.framework.params import ConfigError
     from ground.dictionary import load_dictionary
 
     try:

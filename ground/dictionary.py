@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from fsw.comm.mavlink_telemetry import dictionary_crc, parse_channel_key
-from fsw.executive.commands import CommandDef
+from fsw.framework.commands import CommandDef
 from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
 
 
@@ -68,7 +68,7 @@ class GroundDictionary:
 
 
 def load_dictionary(path: str | Path = DEFAULT_CONFIG) -> GroundDictionary:
-    """Raises ``fsw.config.ConfigError`` for a bad file (CLIs print it and exit 2)."""
+    """Raises ``fsw.framework.params.ConfigError`` for a bad file (CLIs print it and exit 2)."""
     from fsw.executive.topology import components
 
     cfg = load_settings(path)

@@ -28,9 +28,9 @@ from typing import Any
 import can
 
 from fsw.app import build_executive
-from fsw.executive.clock import SteppedClock
-from fsw.executive.commands import CommandRequest, CommandResponse
 from fsw.executive.executive import Executive
+from fsw.framework.clock import SteppedClock
+from fsw.framework.commands import CommandRequest, CommandResponse
 from fsw.settings import FswConfig
 from hil_sim.faults import FaultInjector, FaultSpec
 from hil_sim.hw.camera_server import SimCameraLink

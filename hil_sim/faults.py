@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from fsw.comm.rover_can import AXES
-from fsw.config import ConfigError, build, load_toml, param
+from fsw.framework.params import ConfigError, build, load_toml, param
 
 KINDS = (
     "can_drop",

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.config import param
 from fsw.core.geometry import CameraPose, MastConfig, rotation_from_yaw_tilt
+from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
 

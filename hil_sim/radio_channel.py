@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fsw.config import param
 from fsw.drivers.radio import RadioPort
+from fsw.framework.params import param
 
 
 @dataclass(frozen=True)

@@ -20,8 +20,8 @@ import can
 import numpy as np
 
 from fsw.comm.rover_can import RoverCan
-from fsw.config import build, load_toml, param
 from fsw.core.geometry import CameraPose
+from fsw.framework.params import build, load_toml, param
 from fsw.settings import FswConfig
 from hil_sim.faults import FaultInjector
 from hil_sim.hw.mast_controller import MastController, MastControllerConfig

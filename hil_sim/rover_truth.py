@@ -22,9 +22,9 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.config import param
 from fsw.core.geometry import RoverConfig
 from fsw.core.wheel_kinematics import body_motion, body_motion_matrix, integrate_pose
+from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
 

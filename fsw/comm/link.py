@@ -21,7 +21,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
-from fsw.config import param
+from fsw.framework.params import param
 
 
 @dataclass(frozen=True)

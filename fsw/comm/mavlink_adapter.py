@@ -25,7 +25,7 @@ from fsw.comm.mavlink_downlink import ChannelSample, ChannelScheduler, EventQueu
 from fsw.comm.mavlink_image import ImageSender
 from fsw.comm.mavlink_signing import SignatureVerifier
 from fsw.comm.mavlink_uplink import CommandIn, Uplink, UplinkBatch
-from fsw.executive.telemetry import Event, Severity
+from fsw.framework.telemetry import Event, Severity
 
 _UINT16_MAX = 65535
 

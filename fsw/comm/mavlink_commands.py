@@ -25,7 +25,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from fsw.comm.mavlink_dialect import mavlink
-from fsw.executive.commands import Arg, CommandDef, CommandStatus
+from fsw.framework.commands import Arg, CommandDef, CommandStatus
 
 N_ARG_PARAMS = 6  # param2..param7
 BYTES_PER_PARAM = 3

@@ -9,7 +9,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from fsw.config import param
+from fsw.framework.params import param
 
 SEVERITY_NAMES = ("FATAL", "WARNING_HI", "WARNING_LO", "COMMAND", "ACTIVITY_HI", "ACTIVITY_LO", "DIAGNOSTIC")
 _URL = re.compile(r"^(udpin|udpout):[^:]+:\d{1,5}$|^serial:.+$")

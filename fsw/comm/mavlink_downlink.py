@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from fsw.comm.mavlink_dialect import SIGNATURE_LEN, mavlink, new_codec
-from fsw.executive.telemetry import Event, Severity
+from fsw.framework.telemetry import Event, Severity
 
 
 class Packer:

@@ -20,7 +20,7 @@ from collections.abc import Iterable
 from typing import Any
 
 from fsw.comm.mavlink_dialect import mavlink
-from fsw.executive.telemetry import Severity
+from fsw.framework.telemetry import Severity
 
 #: custom_mode = index in this table (docs/ground.md, "Modes"); 255 = a state not listed here.
 #: The mission sequencer's states (fsw/tasks/mission.py STATES; a test keeps them equal).

@@ -22,9 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 import zstandard
 
-from fsw.config import param
 from fsw.core.elevation_map import ElevationMap, FusionConfig
 from fsw.core.geometry import MapGrid
+from fsw.framework.params import param
 
 MAGIC = b"SAFERMAP"
 VERSION = 1

@@ -30,9 +30,9 @@ from scipy import ndimage
 from shapely.geometry import LineString, MultiLineString, Polygon
 from shapely.geometry.base import BaseGeometry
 
-from fsw.config import param
 from fsw.core.elevation_map import ElevationMap
 from fsw.core.steps import run_to_end
+from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
 END_TANGENT_M = 0.3  # length over which an edge line's end direction is taken (barrier)

@@ -46,9 +46,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.config import param
 from fsw.core.geometry import MapGrid
 from fsw.core.steps import run_to_end
+from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
 

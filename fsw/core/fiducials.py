@@ -22,7 +22,6 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.config import param
 from fsw.core.geometry import CameraPose
 from fsw.core.localization import (
     LocalizationConfig,
@@ -32,6 +31,7 @@ from fsw.core.localization import (
     skew,
     so3_exp,
 )
+from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
 _S45 = float(np.sqrt(0.5))

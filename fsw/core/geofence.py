@@ -32,9 +32,9 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
-from fsw.config import param
 from fsw.core.edge import EdgeModel
 from fsw.core.geometry import RoverConfig
+from fsw.framework.params import param
 
 WHEELS = ("front_left", "front_right", "rear_left", "rear_right")
 RECOVERY_TOL_M = 1e-4  # a recovering move may come this much closer than its start (sampling round-off)

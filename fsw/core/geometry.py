@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.config import param
+from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
 

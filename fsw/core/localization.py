@@ -23,8 +23,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.config import param
 from fsw.core.geometry import CameraPose
+from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
 

@@ -27,10 +27,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.config import param
 from fsw.core import hint
 from fsw.core.mapformat import Header, MapCodecError, compressor, pack, unpack
 from fsw.core.quadtree import Quadtree, build_quadtree, tree_depth
+from fsw.framework.params import param
 
 F32 = NDArray[np.float32]
 I64 = NDArray[np.int64]

@@ -33,7 +33,6 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.config import param
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
 from fsw.core.steps import run_to_end
 from fsw.core.visibility import (
@@ -45,6 +44,7 @@ from fsw.core.visibility import (
     terrain_from_map,
 )
 from fsw.core.visibility_kernel import pv_fast_steps
+from fsw.framework.params import param
 
 
 class MapLike(Protocol):

@@ -1,5 +1,5 @@
 """Step generators: long computations written as generators that yield between bounded steps,
-so the executive can run them as slack jobs (fsw/executive/jobs.py); the same code runs at
+so the executive can run them as slack jobs (fsw/framework/jobs.py); the same code runs at
 once where time does not matter (tests, benches) through :func:`run_to_end`."""
 
 from __future__ import annotations

@@ -31,9 +31,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.config import param
 from fsw.core.geometry import CameraConfig
 from fsw.core.steps import run_to_end
+from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
 U8 = NDArray[np.uint8]

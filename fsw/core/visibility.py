@@ -38,8 +38,8 @@ from numpy.typing import NDArray
 from scipy import ndimage
 from scipy.special import log_ndtr
 
-from fsw.config import param
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
+from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
 F32 = NDArray[np.float32]

@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections import deque
 from typing import Any, ClassVar
 
-from fsw.executive.telemetry import EventDef
+from fsw.framework.telemetry import EventDef
 
 
 class DriverBase:

@@ -24,7 +24,7 @@ import numpy as np
 from fsw.comm import camera_frames as cf
 from fsw.comm.camera_frames import CameraReply
 from fsw.drivers.base import DriverBase
-from fsw.executive.telemetry import EventDef, Severity
+from fsw.framework.telemetry import EventDef, Severity
 
 F_TIMEOUT, F_DROPOUT, F_LINK, F_BAD_DATA = 0x01, 0x02, 0x04, 0x08
 

@@ -33,7 +33,7 @@ from fsw.comm.rover_can import (
     RoverCan,
 )
 from fsw.drivers.base import DriverBase
-from fsw.executive.telemetry import EventDef, Severity
+from fsw.framework.telemetry import EventDef, Severity
 
 F_BAD_FRAMES, F_TX, F_STATUS_TIMEOUT, F_NODE_LOST = 0x01, 0x02, 0x04, 0x08
 F_BUS_SILENT, F_MOTOR, F_ESTOP, F_NO_BUS, F_LOST_FRAMES = 0x10, 0x20, 0x40, 0x80, 0x100

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from fsw.config import param
+from fsw.framework.params import param
 
 REPO_ROOT = Path(__file__).resolve().parent.parent.parent
 

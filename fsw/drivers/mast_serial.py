@@ -25,7 +25,7 @@ import serial
 
 from fsw.comm import serial_frames as sf
 from fsw.drivers.base import DriverBase
-from fsw.executive.telemetry import EventDef, Severity
+from fsw.framework.telemetry import EventDef, Severity
 
 F_BAD_FRAMES, F_NAK, F_NO_ACK, F_SILENT, F_PORT, F_CONTROLLER = 0x01, 0x02, 0x04, 0x08, 0x10, 0x20
 CRITICAL = F_NO_ACK | F_SILENT | F_PORT | F_CONTROLLER

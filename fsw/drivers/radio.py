@@ -32,7 +32,7 @@ from urllib.parse import urlsplit
 from cobs import cobs
 
 from fsw.drivers.base import DriverBase
-from fsw.executive.telemetry import EventDef, Severity
+from fsw.framework.telemetry import EventDef, Severity
 
 MAX_DATAGRAM = 8192
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import time
 
-from fsw.config import build
-from fsw.executive.clock import MonotonicClock, SteppedClock
 from fsw.executive.executive import Executive
+from fsw.framework.clock import MonotonicClock, SteppedClock
+from fsw.framework.params import build
 from fsw.settings import FswConfig
 
 

@@ -3,7 +3,7 @@
 Each minor frame ``k`` starts at ``k * period`` on the injected clock. Rate groups due on
 ``k`` (``k % divisor == offset``) run their tasks in declared order; each activation is
 timed against the task's budget. Whatever time is left before the next frame runs slack
-jobs (:mod:`fsw.executive.jobs`). A frame whose work ends after the next frame's start is
+jobs (:mod:`fsw.framework.jobs`). A frame whose work ends after the next frame's start is
 a *slip*, charged to the rate group that was running when the deadline passed. On the
 real-time clock, lateness up to ``lag_limit_frames`` is caught up back to back; beyond
 that the executive skips ahead and says so (cFS SCH). Overrun and slip events are
@@ -21,13 +21,13 @@ from typing import Any, ClassVar
 import cv2
 import numpy as np
 
-from fsw.executive.bus import Mailbox, SoftwareBus
-from fsw.executive.clock import Clock
-from fsw.executive.commands import Arg, CommandDef, CommandDispatcher, CommandError
-from fsw.executive.config import RateGroupConfig
-from fsw.executive.jobs import JobHandle, JobScheduler
-from fsw.executive.task import Task, TaskContext
-from fsw.executive.telemetry import Channel, EventDef, EventLog, Severity, TelemetryStore
+from fsw.framework.bus import Mailbox, SoftwareBus
+from fsw.framework.clock import Clock
+from fsw.framework.commands import Arg, CommandDef, CommandDispatcher, CommandError
+from fsw.framework.jobs import JobHandle, JobScheduler
+from fsw.framework.schedule import RateGroupConfig
+from fsw.framework.task import Task, TaskContext
+from fsw.framework.telemetry import Channel, EventDef, EventLog, Severity, TelemetryStore
 
 THROTTLED = ("OVERRUN", "SLIP")
 

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 from typing import ClassVar, Protocol
 
-from fsw.executive.clock import Clock
-from fsw.executive.task import Task
-from fsw.executive.telemetry import Channel, EventDef, Severity
+from fsw.framework.clock import Clock
+from fsw.framework.task import Task
+from fsw.framework.telemetry import Channel, EventDef, Severity
 
 
 class Watchdog(Protocol):

@@ -12,7 +12,7 @@ import importlib
 from dataclasses import dataclass
 from typing import Any
 
-from fsw.executive.task import Task
+from fsw.framework.task import Task
 from fsw.tasks.registry import KINDS
 
 

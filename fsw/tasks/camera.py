@@ -15,11 +15,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from fsw.config import param
 from fsw.core.geometry import CameraPose, MastConfig, camera_pose_from_rover
 from fsw.core.localization import so3_log
-from fsw.executive.task import Task
-from fsw.executive.telemetry import Channel, EventDef, Severity
+from fsw.framework.params import param
+from fsw.framework.task import Task
+from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.messages import CAMERA_FRAME, CAMERA_REQUEST, NAV_POSE, CameraFrame, CaptureRequest, NavPose
 
 

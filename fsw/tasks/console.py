@@ -9,8 +9,8 @@ from __future__ import annotations
 import sys
 from typing import ClassVar, TextIO
 
-from fsw.executive.task import Task
-from fsw.executive.telemetry import Event, Severity
+from fsw.framework.task import Task
+from fsw.framework.telemetry import Event, Severity
 
 
 class ConsoleTask(Task):

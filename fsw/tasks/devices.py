@@ -15,8 +15,8 @@ from typing import Any, ClassVar
 from fsw.drivers.camera import CameraDriver
 from fsw.drivers.can_motors import CanMotorDriver
 from fsw.drivers.mast_serial import MastSerialDriver
-from fsw.executive.task import Task
-from fsw.executive.telemetry import Channel
+from fsw.framework.task import Task
+from fsw.framework.telemetry import Channel
 
 DRIVERS = (("motors", CanMotorDriver), ("mast", MastSerialDriver), ("camera", CameraDriver))
 

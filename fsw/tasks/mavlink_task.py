@@ -25,9 +25,9 @@ from fsw.comm.mavlink_signing import KeyFileError, Verdict, load_key
 from fsw.comm.mavlink_tlog import TlogWriter
 from fsw.comm.mavlink_uplink import CommandIn
 from fsw.drivers.mavlink_transport import TransportError, open_transport
-from fsw.executive.commands import Arg, CommandDef, CommandRequest, CommandStatus
-from fsw.executive.task import Task
-from fsw.executive.telemetry import Channel, Event, EventDef, Severity
+from fsw.framework.commands import Arg, CommandDef, CommandRequest, CommandStatus
+from fsw.framework.task import Task
+from fsw.framework.telemetry import Channel, Event, EventDef, Severity
 from fsw.tasks.mavlink_preview import PreviewError, encode_preview
 from fsw.tasks.mavlink_view import ViewBuilder
 

@@ -16,8 +16,8 @@ from fsw.comm.mavlink_adapter import VehicleView
 from fsw.comm.mavlink_config import MavlinkConfig
 from fsw.comm.mavlink_downlink import ChannelSample
 from fsw.comm.mavlink_telemetry import DICT_CRC_KEY, channel_key, dictionary_crc
-from fsw.executive.bus import Mailbox
-from fsw.executive.task import TaskContext
+from fsw.framework.bus import Mailbox
+from fsw.framework.task import TaskContext
 
 
 def pose_from_message(msg: Any) -> tuple[Any, ...] | None:

@@ -24,15 +24,15 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from fsw.config import param
 from fsw.core.edge import EdgeModel, edge_path
 from fsw.core.geofence import Geofence
 from fsw.core.nbv import end_reason
 from fsw.core.planners import METHODS, PlannerState
 from fsw.core.view_candidates import CandidateView
-from fsw.executive.commands import CommandDef, CommandError
-from fsw.executive.task import Task
-from fsw.executive.telemetry import Channel, EventDef, Severity
+from fsw.framework.commands import CommandDef, CommandError
+from fsw.framework.params import param
+from fsw.framework.task import Task
+from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.messages import (
     CAMERA_REQUEST,
     MAP_UPDATED,

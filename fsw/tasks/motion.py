@@ -22,12 +22,12 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from fsw.config import param
 from fsw.core import wheel_kinematics as wk
 from fsw.drivers import can_motors, mast_serial
-from fsw.executive.commands import Arg, CommandDef, CommandError
-from fsw.executive.task import Task
-from fsw.executive.telemetry import Channel, EventDef, Severity
+from fsw.framework.commands import Arg, CommandDef, CommandError
+from fsw.framework.params import param
+from fsw.framework.task import Task
+from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.messages import MOTION_REQUEST, MOTION_STATUS, NAV_POSE, MotionRequest, MotionStatus, NavPose
 
 WHEELS = wk.WHEEL_ORDER

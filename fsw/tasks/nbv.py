@@ -11,9 +11,9 @@ import math
 from typing import Any, ClassVar
 
 from fsw.core.planners import PlannerState, make_planner
-from fsw.executive.jobs import JobHandle
-from fsw.executive.task import Task
-from fsw.executive.telemetry import Channel, EventDef, Severity
+from fsw.framework.jobs import JobHandle
+from fsw.framework.task import Task
+from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.messages import NBV_REQUEST, NBV_RESULT
 
 

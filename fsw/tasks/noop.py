@@ -5,9 +5,9 @@ from __future__ import annotations
 import time
 from typing import ClassVar
 
-from fsw.executive.commands import Arg, CommandDef
-from fsw.executive.task import Task
-from fsw.executive.telemetry import Channel
+from fsw.framework.commands import Arg, CommandDef
+from fsw.framework.task import Task
+from fsw.framework.telemetry import Channel
 
 
 class NoopTask(Task):

@@ -24,10 +24,10 @@ from fsw.core.geometry import MapGrid
 from fsw.core.localization import point_covariance_parts
 from fsw.core.nbv import predicted_visibility_steps
 from fsw.core.stereo import StereoMatcher
-from fsw.executive.commands import CommandDef, CommandError
-from fsw.executive.jobs import JobHandle
-from fsw.executive.task import Task
-from fsw.executive.telemetry import Channel, EventDef, Severity
+from fsw.framework.commands import CommandDef, CommandError
+from fsw.framework.jobs import JobHandle
+from fsw.framework.task import Task
+from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.messages import CAMERA_FRAME, MAP_UPDATED, CameraFrame, MapUpdate
 
 ROI_STRIDE = 4  # the region-of-interest fraction is estimated on every 4th cell each way

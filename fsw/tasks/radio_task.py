@@ -21,9 +21,9 @@ from fsw.comm.link_packets import DATA_OVERHEAD
 from fsw.comm.link_sender import LinkSender, SenderState
 from fsw.core.mapcodec import encode_map
 from fsw.drivers.radio import RadioPort, open_radio
-from fsw.executive.commands import Arg, CommandDef
-from fsw.executive.task import Task
-from fsw.executive.telemetry import Channel, EventDef, Severity
+from fsw.framework.commands import Arg, CommandDef
+from fsw.framework.task import Task
+from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.messages import MAP_UPDATED
 
 RADIO_SEND = "radio.send"

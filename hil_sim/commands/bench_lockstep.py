@@ -72,7 +72,7 @@ def _run(cfg, world, seed: int, seconds: float, capture_period: float) -> dict[s
 
 
 def run(args: argparse.Namespace) -> int:
-    from fsw.config import ConfigError
+    from fsw.framework.params import ConfigError
     from fsw.settings import DEFAULT_CONFIG, load_settings
     from hil_sim.world import load_scenario
 

@@ -48,7 +48,6 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from fsw.config import ConfigError
     from fsw.core.geometry import MapGrid
     from fsw.core.nbv import info_n_max, predicted_visibility, rate_station
     from fsw.core.planners import InformationPlanner, PlannerState
@@ -61,6 +60,7 @@ def run(args: argparse.Namespace) -> int:
         terrain_from_map,
     )
     from fsw.core.visibility_kernel import pv_fast
+    from fsw.framework.params import ConfigError
     from fsw.settings import load_settings
     from hil_sim import nbv_scene
 

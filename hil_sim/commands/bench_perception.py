@@ -58,7 +58,6 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from fsw.config import ConfigError
     from fsw.core import checkpoint
     from fsw.core.acquire import view_points
     from fsw.core.edge import edge_cells, edge_path, fit_line, fit_polygon
@@ -67,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
     from fsw.core.localization import PoseEstimate
     from fsw.core.stereo import StereoMatcher
     from fsw.drivers.map_store import MapStore
+    from fsw.framework.params import ConfigError
     from fsw.settings import DEFAULT_CONFIG, load_settings
     from hil_sim.perception_eval import edge_pass_poses, pit_view_poses
     from hil_sim.render import StereoRenderer

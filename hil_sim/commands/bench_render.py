@@ -51,8 +51,8 @@ def run(args: argparse.Namespace) -> int:
     import statistics
     import time
 
-    from fsw.config import ConfigError
     from fsw.core.geometry import camera_pose_from_rover
+    from fsw.framework.params import ConfigError
     from fsw.settings import DEFAULT_CONFIG, load_settings
     from hil_sim.commands.render import aim_at
     from hil_sim.render import StereoRenderer

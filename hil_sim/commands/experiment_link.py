@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
 
     from fsw.comm.link import LinkConfig
     from fsw.comm.link_packets import DATA_OVERHEAD
-    from fsw.config import ConfigError, build, load_toml
+    from fsw.framework.params import ConfigError, build, load_toml
     from fsw.settings import DEFAULT_CONFIG
     from hil_sim.link_sim import run_transfer
     from hil_sim.radio_channel import RadioChannelConfig

@@ -88,8 +88,8 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from fsw.config import ConfigError, build, load_toml
     from fsw.core.mapcodec import CodecConfig, encode_map
+    from fsw.framework.params import ConfigError, build, load_toml
     from fsw.settings import DEFAULT_CONFIG
     from hil_sim.cliffbot_receiver import write_figure13
     from hil_sim.world.mars import viking_heightfield

@@ -86,8 +86,8 @@ def run(args: argparse.Namespace) -> int:
     import cv2
     import numpy as np
 
-    from fsw.config import ConfigError
     from fsw.core.geometry import camera_pose_from_rover
+    from fsw.framework.params import ConfigError
     from fsw.settings import DEFAULT_CONFIG, load_settings
     from hil_sim.render import StereoRenderer
     from hil_sim.world import load_scenario

@@ -32,7 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from fsw.config import ConfigError
+    from fsw.framework.params import ConfigError
     from hil_sim.mission_run import RunSpec, run_mission
 
     if args.steps < 0:

@@ -79,7 +79,7 @@ def write_flight_config(base_path: Path, out: Path, endpoints: dict) -> None:
 def run(args: argparse.Namespace) -> int:
     import can
 
-    from fsw.config import ConfigError
+    from fsw.framework.params import ConfigError
     from fsw.settings import DEFAULT_CONFIG, load_settings
     from hil_sim.faults import FaultInjector, load_faults
     from hil_sim.hw.camera_server import CameraServer

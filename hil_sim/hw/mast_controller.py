@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from fsw.comm import serial_frames as sf
-from fsw.config import param
+from fsw.framework.params import param
 from hil_sim.faults import FaultInjector
 from hil_sim.mast_truth import MastTruth
 

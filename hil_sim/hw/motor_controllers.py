@@ -36,7 +36,7 @@ from fsw.comm.rover_can import (
     EStop,
     RoverCan,
 )
-from fsw.config import param
+from fsw.framework.params import param
 from hil_sim.faults import FaultInjector
 from hil_sim.rover_truth import RoverTruth
 

@@ -4,7 +4,7 @@ A scenario file has the tables ``[scenario]`` (kind, default seed and camera noi
 ``[world]`` (the truth grid), ``[rover_start]``, ``[map]`` (the FSW map grid that suits the
 scenario, a ``fsw.core.geometry.MapGridConfig``), ``[cliffbot]``, ``[texture]`` and one table
 named after its kind (``[lab]``, ``[cliff]``, ``[mars]`` or ``[file]``). Every key is
-validated by ``fsw.config.build``; a bad file is refused with ``file: key: reason``.
+validated by ``fsw.framework.params.build``; a bad file is refused with ``file: key: reason``.
 
 A scenario spec names a file and may override keys, URL-query style:
 ``lab``, ``mars?k=0.16``, ``cliff?cliff.drop_m=2.0``, ``file:dem.png?z_scale_m=0.001``, or
@@ -19,8 +19,8 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from fsw.config import ConfigError, build, load_toml, param
 from fsw.core.geometry import MapGridConfig
+from fsw.framework.params import ConfigError, build, load_toml, param
 
 SCENARIO_DIR = Path(__file__).resolve().parents[2] / "config" / "scenarios"
 KINDS = ("lab", "cliff", "mars", "file")

@@ -17,7 +17,7 @@ def load_scenario(spec: str, seed: int | None = 0) -> World:
     each optionally followed by ``?key=value&...`` overrides) built with ``seed``.
 
     ``seed=None`` takes the scenario file's default seed. Raises :class:`ScenarioError` or
-    ``fsw.config.ConfigError`` (both ``ValueError``) with a one-line reason on bad input.
+    ``fsw.framework.params.ConfigError`` (both ``ValueError``) with a one-line reason on bad input.
     """
     if not isinstance(spec, str) or not spec.strip():
         raise ScenarioError("empty scenario spec (try: lab, cliff, mars, file:PATH)")

@@ -13,12 +13,12 @@ import numpy as np
 
 from fsw.comm.link import LinkConfig
 from fsw.comm.link_sender import LinkSender, SenderState
-from fsw.config import build
 from fsw.core.mapcodec import encode_map
 from fsw.drivers.radio import UdpRadio
-from fsw.executive.clock import SteppedClock
-from fsw.executive.commands import CommandRequest, CommandStatus
 from fsw.executive.executive import Executive
+from fsw.framework.clock import SteppedClock
+from fsw.framework.commands import CommandRequest, CommandStatus
+from fsw.framework.params import build
 from fsw.settings import FswConfig
 from fsw.tasks.messages import MAP_UPDATED, MapUpdate
 from hil_sim.cliffbot_receiver import Cliffbot

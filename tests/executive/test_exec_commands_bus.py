@@ -7,12 +7,12 @@ from typing import Any, ClassVar
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fsw.config import build
-from fsw.executive.bus import Mailbox
-from fsw.executive.clock import SteppedClock
-from fsw.executive.commands import Arg, CommandDef, CommandError, CommandRequest, CommandStatus
 from fsw.executive.executive import Executive
-from fsw.executive.task import Task
+from fsw.framework.bus import Mailbox
+from fsw.framework.clock import SteppedClock
+from fsw.framework.commands import Arg, CommandDef, CommandError, CommandRequest, CommandStatus
+from fsw.framework.params import build
+from fsw.framework.task import Task
 from fsw.settings import FswConfig
 from fsw.tasks import registry
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from fsw.cli import main
-from fsw.config import ConfigError
+from fsw.framework.params import ConfigError
 from fsw.settings import DEFAULT_CONFIG, load_settings
 
 GOOD = DEFAULT_CONFIG.read_text()

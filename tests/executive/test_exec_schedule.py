@@ -10,11 +10,11 @@ from typing import Any, ClassVar
 
 import pytest
 
-from fsw.config import build
-from fsw.executive.clock import SteppedClock
 from fsw.executive.executive import Executive
 from fsw.executive.health import SoftwareWatchdog
-from fsw.executive.task import Task
+from fsw.framework.clock import SteppedClock
+from fsw.framework.params import build
+from fsw.framework.task import Task
 from fsw.settings import FswConfig
 from fsw.tasks import registry
 
@@ -114,7 +114,7 @@ def test_overrun_counted_evented_throttled_and_decaying() -> None:
     assert len([e for e in exe.events.history if e.name == "t.OVERRUN"]) == 4
     # The max is resettable by command.
     assert exe.tasks["t"].max_s == pytest.approx(0.008)
-    from fsw.executive.commands import CommandRequest, CommandStatus
+    from fsw.framework.commands import CommandRequest, CommandStatus
 
     resp = exe.commands.dispatch(CommandRequest("t.RESET_COUNTERS", {}))
     assert resp.status is CommandStatus.OK
@@ -163,7 +163,7 @@ def test_two_second_slack_job_completes_while_10hz_task_never_misses() -> None:
 def test_longest_slack_slice_is_recorded_per_job_per_task_and_overall() -> None:
     """The longest slice (resume to yield) of each job, of each submitting task and overall:
     in the handle, the JOB_DONE event, ``exec.slice_max_ms``; RESET_COUNTERS clears it."""
-    from fsw.executive.commands import CommandRequest, CommandStatus
+    from fsw.framework.commands import CommandRequest, CommandStatus
 
     cfg = make_cfg([{"name": "fast", "divisor": 1}], [task("a", "fast"), task("b", "fast")], lockstep_job_slices=1)
     exe = make_exec(cfg)
@@ -259,7 +259,7 @@ def test_stalled_executive_stops_stroking_watchdog() -> None:
 
 def test_disable_task_by_command() -> None:
     """Issue 2, item 8: executive command SET_TASK_ENABLED."""
-    from fsw.executive.commands import CommandRequest, CommandStatus
+    from fsw.framework.commands import CommandRequest, CommandStatus
 
     cfg = make_cfg([{"name": "fast", "divisor": 1}], [task("a", "fast")])
     exe = make_exec(cfg)
@@ -273,7 +273,7 @@ def test_disable_task_by_command() -> None:
 
 def test_realtime_clock_absolute_deadlines() -> None:
     """Issue 2, item 4: frame k starts at start + k*period; a late frame is counted, not drifted."""
-    from fsw.executive.clock import MonotonicClock
+    from fsw.framework.clock import MonotonicClock
 
     cfg = make_cfg([{"name": "fast", "divisor": 1}], [task("a", "fast")], frame_period_s=0.01, lag_limit_frames=2)
     exe = Executive(cfg, MonotonicClock())
@@ -290,7 +290,7 @@ def test_realtime_skip_ahead_past_lag_limit() -> None:
     """Issue 2, item 5: bounded catch-up; past the lag limit the executive skips and says so."""
     import time
 
-    from fsw.executive.clock import MonotonicClock
+    from fsw.framework.clock import MonotonicClock
 
     class Stall(Task):
         KIND: ClassVar[str] = "test_stall"

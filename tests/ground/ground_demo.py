@@ -23,11 +23,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from fsw.config import build as build_cfg
-from fsw.executive.clock import SteppedClock
 from fsw.executive.executive import Executive
-from fsw.executive.task import Task
-from fsw.executive.telemetry import Channel, EventDef, Severity
+from fsw.framework.clock import SteppedClock
+from fsw.framework.params import build as build_cfg
+from fsw.framework.task import Task
+from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.settings import FswConfig
 from fsw.tasks.registry import KINDS
 

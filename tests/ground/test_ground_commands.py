@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from fsw.comm.mavlink_commands import Reason, decode_args, encode_args, string_capacity
 from fsw.comm.mavlink_dialect import mavlink, new_codec
-from fsw.executive.commands import Arg, CommandDef
+from fsw.framework.commands import Arg, CommandDef
 
 CDEF = CommandDef("X", (Arg("n", int, -1000, 1000), Arg("gain", float), Arg("on", bool),
                         Arg("mode", str, choices=("fast", "slow", "safe")), Arg("target", str)))

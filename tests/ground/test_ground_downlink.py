@@ -97,7 +97,7 @@ def test_adapter_is_deterministic() -> None:
     from fsw.comm.mavlink_adapter import MavlinkAdapter, VehicleView
     from fsw.comm.mavlink_config import MavlinkConfig
     from fsw.comm.mavlink_downlink import ChannelSample
-    from fsw.executive.telemetry import Event, Severity
+    from fsw.framework.telemetry import Event, Severity
 
     runs = []
     for _ in range(2):

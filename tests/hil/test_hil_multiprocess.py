@@ -113,7 +113,7 @@ def test_serve_and_flight_processes_move_a_motor_and_the_mast(tmp_path: Path) ->
 
 
 def _requests() -> list:  # type: ignore[type-arg]
-    from fsw.executive.commands import CommandRequest
+    from fsw.framework.commands import CommandRequest
 
     return [
         CommandRequest("motion.DRIVE", {"distance_m": 0.3, "speed_mps": 0.0}, 1),

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from shapely.geometry import Polygon
 
-from fsw.config import ConfigError
 from fsw.core.fiducials import CliffbotLayout
 from fsw.core.geometry import MapGrid
+from fsw.framework.params import ConfigError
 from hil_sim.world import ScenarioError, load_scenario
 from hil_sim.world.config import load_scenario_config
 from hil_sim.world.scenarios import build_world

@@ -9,7 +9,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fsw.config import ConfigError, build
 from fsw.core.elevation_map import ElevationMap, FusionConfig
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid, MastConfig
 from fsw.core.nbv import (
@@ -31,6 +30,7 @@ from fsw.core.visibility import (
     pv_reference,
     terrain_from_map,
 )
+from fsw.framework.params import ConfigError, build
 from hil_sim.nbv_scene import panorama_map, synthetic_terrain
 
 GRID = MapGrid(x0=-0.5, y0=-3.5, cell=0.04, nx=110, ny=100)

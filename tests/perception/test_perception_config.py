@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fsw.config import ConfigError, build
 from fsw.core.checkpoint import CheckpointConfig
 from fsw.core.edge import EdgeConfig
 from fsw.core.elevation_map import FusionConfig
@@ -14,6 +13,7 @@ from fsw.core.fiducials import CliffbotLayout
 from fsw.core.geofence import GeofenceConfig
 from fsw.core.localization import LocalizationConfig
 from fsw.core.stereo import StereoConfig
+from fsw.framework.params import ConfigError, build
 from fsw.settings import load_settings
 from hil_sim.world.cliffbot import build_cliffbot
 

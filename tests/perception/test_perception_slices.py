@@ -16,8 +16,8 @@ import pytest
 from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import CameraConfig
 from fsw.core.stereo import StereoConfig, StereoMatcher
-from fsw.executive.clock import SteppedClock
 from fsw.executive.executive import Executive
+from fsw.framework.clock import SteppedClock
 from fsw.settings import FswConfig, load_settings
 from fsw.tasks.messages import CameraFrame
 from fsw.tasks.perception import PROPAGATE_CHUNK

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from perception_planes import render_plane, texture
 
-from fsw.config import ConfigError, build
 from fsw.core.geometry import CameraConfig, CameraPose
 from fsw.core.localization import propagate_point_covariance
 from fsw.core.stereo import StereoConfig, StereoMatcher, depth_sigma_m, stereo_covariance
+from fsw.framework.params import ConfigError, build
 
 CAM = CameraConfig(width_px=320, height_px=240)
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from fsw.config import param
+from fsw.framework.params import param
 
 
 @dataclass(frozen=True)

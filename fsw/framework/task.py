@@ -13,11 +13,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar
 
-from fsw.executive.bus import Mailbox, Policy, SoftwareBus
-from fsw.executive.clock import Clock
-from fsw.executive.commands import CommandDef, CommandDispatcher
-from fsw.executive.jobs import Job, JobHandle, JobScheduler
-from fsw.executive.telemetry import Channel, EventDef, EventLog, Severity, TelemetryStore
+from fsw.framework.bus import Mailbox, Policy, SoftwareBus
+from fsw.framework.clock import Clock
+from fsw.framework.commands import CommandDef, CommandDispatcher
+from fsw.framework.jobs import Job, JobHandle, JobScheduler
+from fsw.framework.telemetry import Channel, EventDef, EventLog, Severity, TelemetryStore
 
 if TYPE_CHECKING:
     from fsw.settings import FswConfig
