@@ -1,6 +1,6 @@
 """Fixtures of the ground-link tests: a signing key, the demo task kind, an in-memory link.
 
-Helpers live in ``ground_demo`` (a unique module name): ``conftest`` is not importable by
+Helpers live in ``tests/support/ground_demo.py`` (a unique module name): ``conftest`` is not importable by
 name in a suite with several conftest files."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "support"))
 
 import ground_demo  # noqa: E402
 from ground_demo import MemoryLink  # noqa: E402

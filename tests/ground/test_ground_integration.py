@@ -18,7 +18,7 @@ from fsw.comm.mavlink_commands import Reason
 from fsw.comm.mavlink_dialect import mavlink
 from fsw.executive.topology import dictionary
 
-HERE = Path(__file__).resolve().parent
+HERE = Path(__file__).resolve().parent.parent / "support"
 MAVLOGDUMP = Path(sys.executable).parent / "mavlogdump.py"
 
 
