@@ -5,10 +5,12 @@ from __future__ import annotations
 import dataclasses
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from fsw.settings import load_settings
+from fsw.tasks.messages import MOTION_REQUEST
 from hil_sim.mission_run import RunSpec, mission_config, run_mission, strip_wall_clock
 
 
@@ -53,19 +55,48 @@ def test_mast_stall_sends_mission_to_safe() -> None:
         assert r.status.name == "EXECUTION_ERROR"  # already running
 
 
+def _phase(b: Any) -> str:
+    """The mission's phase by name (a plain string today, an Enum's name once phases are typed)."""
+    state = b.exe.tasks["mission"].state
+    return str(getattr(state, "name", state))
+
+
 def test_mission_commands_validated() -> None:
-    """Every mission command is answered: START only from IDLE/DONE, RESUME only from SAFE."""
+    """Every mission command is answered exactly once with the one right status, and leaves the
+    sequencer in the one right phase: START only from IDLE/DONE, ABORT only while running (-> SAFE,
+    motion stopped), RESUME only from SAFE (nothing mapped yet: back to INIT)."""
     from hil_sim.bench import LockstepBench
 
     cfg = load_settings()
     cfg = dataclasses.replace(cfg, mission=dataclasses.replace(cfg.mission, auto_start=False))
     with LockstepBench(cfg, None, seed=0, quiet=True, camera=False) as b:
         b.run(2)
-        assert b.tlm("mission.state") is None or b.exe.tasks["mission"].state == "IDLE"
-        assert b.command("mission.RESUME").status.name == "EXECUTION_ERROR"
-        assert b.command("mission.ABORT").status.name == "EXECUTION_ERROR"
-        assert b.command("mission.START").status.name == "OK"
-        assert b.command("mission.START").status.name == "EXECUTION_ERROR"
+        mission = b.exe.tasks["mission"]
+        assert _phase(b) == "IDLE" and mission.safe_entries == 0
+        steps = [
+            ("RESUME", "EXECUTION_ERROR", "IDLE"),  # not in SAFE
+            ("ABORT", "EXECUTION_ERROR", "IDLE"),  # nothing to abort
+            ("START", "OK", "INIT"),
+            ("START", "EXECUTION_ERROR", "INIT"),  # already running
+            ("RESUME", "EXECUTION_ERROR", "INIT"),  # not in SAFE
+            ("ABORT", "OK", "SAFE"),
+            ("ABORT", "EXECUTION_ERROR", "SAFE"),  # already safe
+            ("START", "EXECUTION_ERROR", "SAFE"),  # not from SAFE
+            ("RESUME", "OK", "INIT"),  # nothing mapped yet: the panorama again
+        ]
+        moves = b.exe.bus.subscribe(MOTION_REQUEST, "test.moves", depth=16)
+        answered = b.exe.commands.dispatched
+        for i, (name, status, phase) in enumerate(steps):
+            refused = len(b.events("mission.COMMAND_REFUSED"))
+            r = b.command(f"mission.{name}")
+            assert (r.status.name, _phase(b)) == (status, phase), (i, name, r.message)
+            assert b.exe.commands.dispatched == answered + i + 1  # exactly one answer
+            assert len(b.events("mission.COMMAND_REFUSED")) == refused + (status != "OK")
+            assert b.tlm("mission.state") == (None if phase == "IDLE" else phase)  # published on change
+        assert mission.safe_entries == 1 and mission.safe_reason == "aborted by command"
+        assert [e.text for e in b.events("mission.SAFE")] == ["SAFE mode: aborted by command"]
+        # ABORT stopped the wheels and parked the mast; no other command asked for a move.
+        assert [(m.request_id, m.kind) for m in moves.drain()] == [(0, "stop"), (0, "mast")]
 
 
 def test_goto_longer_than_steer_timeout_completes() -> None:
