@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from typing import Any, ClassVar
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -38,7 +40,12 @@ class ArmTask(Task):
         raise ZeroDivisionError("bug")
 
 
-registry.KINDS["test_arm"] = f"{__name__}:ArmTask"
+@pytest.fixture(autouse=True, scope="module")
+def _arm_kind() -> Iterator[None]:
+    """The test kind is known to the registry for this module only (``registry.KINDS`` is restored)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setitem(registry.KINDS, "test_arm", f"{__name__}:ArmTask")
+        yield
 
 
 def make() -> Executive:
