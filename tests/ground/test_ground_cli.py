@@ -3,16 +3,16 @@ bad input, and each subcommand against a lockstep rover on loopback."""
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
 import cv2
 import ground_demo
 import pytest
-from ground_demo import RoverThread, free_udp_port, write_config
+from ground_demo import MemoryLink, RoverThread, free_udp_port, write_config
 
 from fsw.settings import load_settings
 from ground.cli import main
@@ -129,34 +129,83 @@ def test_send_signed_command(tmp_path: Path, key_file: Path, capsys: pytest.Capt
     assert main(base + ["exec.NOOP", "--key", str(key_file), "--timeout", "0.3"]) == 3
 
 
+class SteppedGround:
+    """Ground time and the ground link of ``listen``, stepped: no sockets, threads or sleeps.
+
+    ``lives`` are the ground-time intervals in which a rover runs (a fresh lockstep executive
+    each: a restart). Each ``recv`` hands over the next message the rover sent or, with none
+    queued, runs the live rover one frame (0.01 s of ground time: 10x real time, as
+    ``RoverThread``) or, with no rover, lets the receive timeout pass. ``monotonic`` is the
+    clock ``listen`` reads, so its screens depend on the script only."""
+
+    def __init__(self, cfg: Any, lives: list[tuple[float, float]], monkeypatch: pytest.MonkeyPatch) -> None:
+        from fsw.comm.mavlink_dialect import new_codec
+
+        self.cfg, self.lives, self.t = cfg, lives, 0.0
+        self.codec = new_codec(255, 190)
+        self.queue: list[Any] = []
+        self.rovers: dict[int, tuple[Any, MemoryLink]] = {}
+        self.reconnects, self.error = 0, None
+        self.links: list[MemoryLink] = []
+        monkeypatch.setattr("fsw.tasks.mavlink_task.open_transport", self._open_transport)
+
+    def _open_transport(self, url: str, baud: int) -> MemoryLink:
+        self.links.append(MemoryLink())
+        return self.links[-1]
+
+    def __call__(self, url: str, baud: int) -> SteppedGround:  # stands in for GroundLink(url, baud)
+        return self
+
+    def monotonic(self) -> float:
+        return self.t
+
+    def recv(self, timeout_s: float) -> Any:
+        if not self.queue:
+            life = next((i for i, (a, b) in enumerate(self.lives) if a <= self.t < b), None)
+            if life is None:
+                self.t += timeout_s
+                return None
+            if life not in self.rovers:
+                exe = ground_demo.build(self.cfg)
+                self.rovers[life] = (exe, self.links[-1])
+            exe, link = self.rovers[life]
+            exe.run_lockstep(1)
+            self.t += 0.01
+            for frame in link.sent[-1]:
+                self.queue.extend(m for m in self.codec.parse_buffer(frame) or [] if m.get_type() != "BAD_DATA")
+        return self.queue.pop(0) if self.queue else None
+
+    def close(self) -> None:
+        for exe, _ in self.rovers.values():
+            exe.tasks["mavlink"].close()
+
+
 def test_listen_live_view_and_relink(tmp_path: Path, key_file: Path, demo_kind: None,
-                                     capsys: pytest.CaptureFixture[str]) -> None:
+                                     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     """Issue 7, item 4: the live view shows mode, pose, task timing, channels and events,
-    and picks the rover up again after the link was lost (rover restarted)."""
-    port = free_udp_port()
-    cfg_file = write_config(tmp_path / "rover.toml", {"url": f"udpout:127.0.0.1:{port}", "key_file": str(key_file)})
-    cfg = load_settings(cfg_file)
-    import threading
+    marks the link lost while the rover is silent, and picks it up again after a restart.
+    Stepped: a rover for 1 s, silence for 1 s, a restarted rover for 1 s, a screen every 0.1 s."""
+    import types
 
-    def rover_life() -> None:
-        with RoverThread(ground_demo.build(cfg)):
-            time.sleep(1.0)
-        time.sleep(1.0)  # link lost
-        with RoverThread(ground_demo.build(cfg)):
-            time.sleep(1.2)
-
-    life = threading.Thread(target=rover_life, daemon=True)
-    life.start()
-    rc = main(["--config", str(cfg_file), "listen", f"udpin:127.0.0.1:{port}", "--duration", "3.0",
-               "--timeout", "0.6", "--no-color"])
-    life.join(timeout=5)
-    screen = capsys.readouterr().out
-    assert rc == 0
-    assert "LINK UP" in screen and "dictionary" in screen and ": ok" in screen
-    assert "Mode " in screen and "Pose x" in screen and "Mast pan" in screen
-    assert "mavlink.tx_bytes" in screen and "demo.temperature_c" in screen
-    assert "demo.STATE: mission state" in screen
-    assert "health" in screen.split("task")[1]  # task timing table
+    cfg_file = write_config(tmp_path / "rover.toml", {"url": "udpout:127.0.0.1:9", "key_file": str(key_file)})
+    ground = SteppedGround(load_settings(cfg_file), [(0.0, 1.0), (2.0, 3.0)], monkeypatch)
+    monkeypatch.setattr("ground.link.GroundLink", ground)
+    monkeypatch.setattr("ground.listen.time", types.SimpleNamespace(monotonic=ground.monotonic))
+    monkeypatch.setattr(sys.stdout, "isatty", lambda: True)  # one screen per refresh
+    rc = main(["--config", str(cfg_file), "listen", "udpin:127.0.0.1:9", "--duration", "3.0",
+               "--timeout", "0.6", "--refresh", "0.1", "--no-color"])
+    assert rc == 0 and len(ground.rovers) == 2
+    screens = [sc for sc in capsys.readouterr().out.split("\x1b[H\x1b[2J") if sc.strip()]
+    state = ["UP" if "LINK UP" in sc else "LOST" if "LINK LOST" in sc else "WAIT" for sc in screens]
+    # Up from the first screen while the first rover runs; lost once its last heartbeat is
+    # older than 0.6 s (the silence from t = 1 s); up again with the restarted rover (t = 2 s).
+    assert re.fullmatch(r"U{12,}L{3,}U{5,}", "".join(x[0] for x in state)), state
+    last = screens[-1]
+    assert "dictionary" in last and ": ok" in last
+    assert "Mode " in last and "Pose x" in last and "Mast pan" in last
+    assert "mavlink.tx_bytes" in last and "demo.temperature_c" in last
+    assert "demo.STATE: mission state" in last
+    assert "health" in last.split("task")[1]  # task timing table
 
 
 def test_render_link_lost_and_colours(key_file: Path) -> None:
