@@ -25,9 +25,7 @@ from fsw.core.stereo import StereoConfig
 from fsw.drivers.factory import DevicesConfig
 from fsw.framework.params import build, load_toml
 from fsw.framework.schedule import ExecutiveConfig
-from fsw.tasks.camera import CaptureConfig
-from fsw.tasks.mission import MissionConfig
-from fsw.tasks.motion import MotionConfig
+from fsw.tasks.sections import CaptureConfig, MissionConfig, MotionConfig
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "fsw.toml"
 

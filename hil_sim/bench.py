@@ -28,6 +28,7 @@ from typing import Any
 import can
 
 from fsw.app import build_executive
+from fsw.drivers.resources import Endpoints, Resources
 from fsw.executive.executive import Executive
 from fsw.framework.clock import SteppedClock
 from fsw.framework.commands import CommandRequest, CommandResponse
@@ -64,7 +65,7 @@ class LockstepBench:
         camera: bool = True,
         quiet: bool = False,
         render: Any = None,
-        resources: dict[str, Any] | None = None,
+        resources: Resources | None = None,
     ) -> None:
         self.channel = f"safer-bench-{os.getpid()}-{next(_ids)}"
         self.faults = FaultInjector(seed, faults)
@@ -84,16 +85,15 @@ class LockstepBench:
         self.cfg = dataclasses.replace(fsw, devices=devices)
         self.clock = SteppedClock()
         # No map store unless the caller brings one: a bench run never restores another's map.
-        provided: dict[str, Any] = {"mast_port": flight_port, "map_store": None, **(resources or {})}
+        res = resources or Resources()
         # A radio of its own (unless the caller brings one), so benches never share an end.
         self._own_radio = None
-        if "radio_port" not in provided:
+        if res.radio_port is None:
             from fsw.drivers.radio import open_radio
 
-            self._own_radio = provided["radio_port"] = open_radio(f"inproc://{self.channel}-radio")
-        if self.camera is not None:
-            provided["camera_source"] = self.camera
-        self.exe: Executive = build_executive(self.cfg, self.clock, provided)
+            self._own_radio = res.radio_port = open_radio(f"inproc://{self.channel}-radio")
+        ends = Endpoints(mast_port=flight_port, camera_source=self.camera)
+        self.exe: Executive = build_executive(self.cfg, self.clock, res, ends, map_store=False)
         self._t_last = 0.0
         self._seq = itertools.count(1)
         if quiet:  # silence console-style tasks (they print every event to stdout)
@@ -143,7 +143,7 @@ class LockstepBench:
     def close(self) -> None:
         from fsw.drivers.factory import close_devices
 
-        close_devices(self.exe.ctx.resources)
+        close_devices(self.exe.ctx.res)
         if self._own_radio is not None:
             self._own_radio.close()
         for bus in (self.sim_bus, self._tap):

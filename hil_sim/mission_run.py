@@ -34,6 +34,7 @@ import numpy as np
 
 from fsw.core.geometry import MapGrid
 from fsw.drivers.map_store import MapStore
+from fsw.drivers.resources import OracleTruth, Resources
 from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
 
 WALL_CLOCK_FIELDS = ("wall_s", "task_max_ms", "slips", "overruns")
@@ -83,7 +84,7 @@ def run_mission(
     cfg = mission_config(spec, world)
     grid = MapGrid.from_config(cfg.map)
     truth = world.truth_on_grid(grid)
-    oracle = {"z": truth, "textured": ~world.textureless_on_grid(grid)}
+    oracle = OracleTruth(z_m=truth, textured=~world.textureless_on_grid(grid))
     channel = RadioChannel(RadioChannelConfig(), seed=spec.seed)
     clock_box: list[Callable[[], float]] = []
 
@@ -91,11 +92,11 @@ def run_mission(
         return clock_box[0]() if clock_box else 0.0
 
     port_flight = ChannelPort(channel, "a", now)
-    resources: dict[str, Any] = {"radio_port": port_flight, "oracle_truth": oracle}
+    resources = Resources(radio_port=port_flight, oracle_truth=oracle)
     if spec.out is not None:
         spec.out.mkdir(parents=True, exist_ok=True)
         shutil.rmtree(spec.out / "checkpoints", ignore_errors=True)  # a new mission starts a new map
-        resources["map_store"] = MapStore(cfg.checkpoint, cfg.fusion)
+        resources.map_store = MapStore(cfg.checkpoint, cfg.fusion)
     with LockstepBench(cfg, world, seed=spec.seed, quiet=True, resources=resources) as bench:
         clock_box.append(bench.clock.now)
         cliffbot = Cliffbot(cfg.link, ChannelPort(channel, "b", now), out_dir=spec.out)

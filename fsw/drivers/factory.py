@@ -10,21 +10,25 @@ key                 rover                       bench
 ``camera_source``   ``cv:0,1``                  ``sim`` (lockstep), ``tcp://H:P``
 ==================  ==========================  ==========================================
 
-:func:`open_devices` returns the drivers as executive resources (``motors``, ``mast``,
-``camera``). A bench in the same process may hand in already-open endpoints (resources
-``can_bus``, ``mast_port``, ``camera_source``), which are used instead of opening the
-configured ones. Opening never raises for an absent device: the driver starts faulted and
-retries (its events say why), so the flight software boots without its hardware.
+:func:`open_devices` opens the drivers into the typed ``Resources`` (``motors``, ``mast``,
+``camera``). A bench in the same process may hand in already-open ``Endpoints`` (a CAN bus,
+a serial port, a frame source), which are used instead of opening the configured ones.
+Opening never raises for an absent device: the driver starts faulted and retries (its events
+say why), so the flight software boots without its hardware.
 """
 
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
+from fsw.drivers.resources import Endpoints, Resources
 from fsw.framework.params import param
+
+T = TypeVar("T")
 
 REPO_ROOT = Path(__file__).resolve().parent.parent.parent
 
@@ -73,35 +77,36 @@ def can_bus_kwargs(cfg: DevicesConfig) -> dict[str, Any]:
     return kw
 
 
-def _provided_or_open(provided: dict[str, Any], key: str, opener: Any) -> tuple[Any, Exception | None]:
+def _provided_or_open(provided: T | None, opener: Callable[[], T]) -> tuple[T | None, Exception | None]:
     """The endpoint a bench handed in, else a freshly opened one; if opening fails, no endpoint
     and the error (the driver then starts faulted and retries)."""
-    if provided.get(key) is not None:
-        return provided[key], None
+    if provided is not None:
+        return provided, None
     try:
         return opener(), None
     except Exception as exc:  # noqa: BLE001 - the driver starts faulted and retries
         return None, exc
 
 
-def open_devices(cfg: DevicesConfig, provided: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Drivers for the configured devices, keyed ``motors``, ``mast``, ``camera``."""
+def open_devices(cfg: DevicesConfig, res: Resources | None = None, endpoints: Endpoints | None = None) -> Resources:
+    """Open the configured drivers into ``res`` (``motors``, ``mast``, ``camera``), using the
+    bench's ``endpoints`` where it brought them; a driver already in ``res`` is kept."""
     import can
 
     from fsw.comm.rover_can import RoverCan
     from fsw.drivers.camera import CameraDriver, make_source
     from fsw.drivers.can_motors import CanMotorDriver
-    from fsw.drivers.mast_serial import MastSerialDriver
+    from fsw.drivers.mast_serial import MastSerialDriver, SerialPort
 
-    provided = provided or {}
-    out: dict[str, Any] = {}
-    if cfg.can_interface != "none" or "can_bus" in provided:
+    res = res or Resources()
+    ends = endpoints or Endpoints()
+    if res.motors is None and (cfg.can_interface != "none" or ends.can_bus is not None):
 
         def open_bus() -> can.BusABC:
             return can.Bus(**can_bus_kwargs(cfg))
 
-        bus, error = _provided_or_open(provided, "can_bus", open_bus)
-        motors = CanMotorDriver(
+        bus, error = _provided_or_open(ends.can_bus, open_bus)
+        res.motors = CanMotorDriver(
             bus,
             RoverCan(dbc_path(cfg)),
             status_timeout_s=cfg.can_status_timeout_s,
@@ -109,49 +114,48 @@ def open_devices(cfg: DevicesConfig, provided: dict[str, Any] | None = None) -> 
             heartbeat_period_s=cfg.can_heartbeat_period_s,
             error_hold_s=cfg.error_hold_s,
             reconnect_period_s=cfg.reconnect_period_s,
-            opener=None if "can_bus" in provided else open_bus,
+            opener=None if ends.can_bus is not None else open_bus,
         )
         if error is not None:
-            motors._event("CAN_NO_BUS", error=f"{type(error).__name__}: {error}")
-        out["motors"] = motors
-    if cfg.serial_url != "none" or "mast_port" in provided:
+            res.motors._event("CAN_NO_BUS", error=f"{type(error).__name__}: {error}")
+    if res.mast is None and (cfg.serial_url != "none" or ends.mast_port is not None):
 
-        def open_port() -> Any:
+        def open_port() -> SerialPort:
             import serial
 
-            return serial.serial_for_url(cfg.serial_url, baudrate=cfg.serial_baud, timeout=0, write_timeout=0.1)
+            port: SerialPort = serial.serial_for_url(
+                cfg.serial_url, baudrate=cfg.serial_baud, timeout=0, write_timeout=0.1
+            )
+            return port
 
-        port, perr = _provided_or_open(provided, "mast_port", open_port)
-        mast = MastSerialDriver(
+        port, perr = _provided_or_open(ends.mast_port, open_port)
+        res.mast = MastSerialDriver(
             port,
             ack_timeout_s=cfg.mast_ack_timeout_s,
             retries=cfg.mast_retries,
             state_timeout_s=cfg.mast_state_timeout_s,
             error_hold_s=cfg.error_hold_s,
             reconnect_period_s=cfg.reconnect_period_s,
-            opener=None if "mast_port" in provided else open_port,
-            name=cfg.serial_url if "mast_port" not in provided else "bench",
+            opener=None if ends.mast_port is not None else open_port,
+            name=cfg.serial_url if ends.mast_port is None else "bench",
         )
         if perr is not None:
-            mast._event("MAST_PORT_ERROR", port=cfg.serial_url, error=f"{type(perr).__name__}: {perr}")
-        out["mast"] = mast
-    if cfg.camera_source != "none":
+            res.mast._event("MAST_PORT_ERROR", port=cfg.serial_url, error=f"{type(perr).__name__}: {perr}")
+    if res.camera is None and cfg.camera_source != "none":
         try:
-            source = make_source(cfg.camera_source, provided.get("camera_source"))
+            source = make_source(cfg.camera_source, ends.camera_source)
             cerr = None
         except Exception as exc:  # noqa: BLE001 - e.g. an OpenCV device that is absent
             source, cerr = None, exc
-        cam = CameraDriver(source, cfg.camera_timeout_s, cfg.error_hold_s)
+        res.camera = CameraDriver(source, cfg.camera_timeout_s, cfg.error_hold_s)
         if cerr is not None:
-            cam._event("CAMERA_LINK_ERROR", error=f"{type(cerr).__name__}: {cerr}")
-        out["camera"] = cam
-    return out
+            res.camera._event("CAMERA_LINK_ERROR", error=f"{type(cerr).__name__}: {cerr}")
+    return res
 
 
-def close_devices(resources: dict[str, Any]) -> None:
+def close_devices(res: Resources) -> None:
     """Close the drivers :func:`open_devices` made (idempotent)."""
-    for key in ("motors", "mast", "camera"):
-        drv = resources.get(key)
+    for drv in (res.motors, res.mast, res.camera):
         if drv is not None:
             with contextlib.suppress(Exception):  # best effort at shutdown
                 drv.close()

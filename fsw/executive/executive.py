@@ -15,106 +15,25 @@ from __future__ import annotations
 import dataclasses
 import gc
 import time
-from collections.abc import Callable
-from typing import Any, ClassVar
+from collections.abc import Callable, Mapping
+from typing import Any
 
 import cv2
 import numpy as np
 
+from fsw.drivers.resources import Resources
+from fsw.executive.components import RateGroupComponent
+from fsw.executive.topology import components
 from fsw.framework.bus import Mailbox, SoftwareBus
 from fsw.framework.clock import Clock
-from fsw.framework.commands import Arg, CommandDef, CommandDispatcher, CommandError
+from fsw.framework.commands import CommandDispatcher, CommandRequest, CommandResponse
 from fsw.framework.jobs import JobHandle, JobScheduler
-from fsw.framework.schedule import RateGroupConfig
-from fsw.framework.task import Task, TaskContext
-from fsw.framework.telemetry import Channel, EventDef, EventLog, Severity, TelemetryStore
+from fsw.framework.task import Task
+from fsw.framework.telemetry import EventLog, TelemetryStore
+from fsw.settings import FswConfig
+from fsw.tasks.base import FlightContext
 
 THROTTLED = ("OVERRUN", "SLIP")
-
-
-class ExecutiveComponent(Task):
-    """The executive's own channels, events and commands (component ``exec``)."""
-
-    KIND: ClassVar[str] = "executive"
-    CHANNELS = (
-        Channel("frame", "count", doc="minor frames run"),
-        Channel("lateness_ms", "ms", hi=2.0, doc="frame-start lateness (real time)"),
-        Channel("skipped_frames", "count", hi=0, doc="frames skipped past the lag limit"),
-        Channel("slips", "count", hi=0, doc="frames that overran into the next (all groups)"),
-        Channel("jobs_pending", "count", doc="slack jobs in progress"),
-        Channel("jobs_completed", "count"),
-        Channel("jobs_failed", "count", hi=0),
-        Channel("slice_max_ms", "ms", doc="longest slack-job slice since start or RESET_COUNTERS"),
-        Channel("frame_max_ms", "ms", doc="longest frame (foreground + slack) since start or RESET_COUNTERS"),
-        Channel("bus_drops", "count", hi=0, doc="messages dropped by full mailboxes"),
-    )
-    EVENTS = (
-        EventDef(
-            "SKIPPED", Severity.WARNING_HI, "executive {lag} frames behind; skipped ahead to frame {frame}", throttle=5
-        ),
-        EventDef(
-            "QUEUE_FULL",
-            Severity.WARNING_LO,
-            "mailbox {mailbox} full (depth {depth}, policy {policy}); {dropped} dropped",
-            throttle=5,
-        ),
-        EventDef("JOB_FAILED", Severity.WARNING_HI, "slack job {owner}.{job} failed: {error}", throttle=5),
-        EventDef(
-            "JOB_DONE",
-            Severity.DIAGNOSTIC,
-            "slack job {owner}.{job} done in {slices} slices, {busy_ms:.1f} ms (longest slice {max_slice_ms:.1f} ms)",
-        ),
-        EventDef("TASK_ENABLED", Severity.ACTIVITY_HI, "task {target} enabled={enabled}"),
-    )
-    COMMANDS = (
-        CommandDef(
-            "SET_TASK_ENABLED", (Arg("target", str), Arg("enabled", bool)), doc="enable or disable a task's activation"
-        ),
-    )
-
-    def cmd_SET_TASK_ENABLED(self, target: str, enabled: bool) -> None:
-        exe: Executive = self.ctx.resources["executive"]
-        if target not in exe.tasks or target == "exec":
-            raise CommandError(f"no task {target!r}")
-        exe.enabled[target] = enabled
-        self.event("TASK_ENABLED", target=target, enabled=enabled)
-
-    def cmd_RESET_COUNTERS(self) -> None:
-        exe: Executive = self.ctx.resources["executive"]
-        exe.skipped_frames = exe.slips = 0
-        exe.frame_max_s = 0.0
-        exe.jobs.reset_max()
-        super().cmd_RESET_COUNTERS()
-
-
-class RateGroupComponent(Task):
-    """One rate group's timing: last/max execution time, cycles and slips."""
-
-    KIND: ClassVar[str] = "rate_group"
-    CHANNELS = (
-        Channel("cycles", "count"),
-        Channel("slips", "count", hi=0, doc="frames this group was running when the next tick came"),
-    )
-    EVENTS = (
-        EventDef(
-            "SLIP",
-            Severity.WARNING_HI,
-            "rate group {task} slipped: frame {frame} ran {ms:.1f} ms of a {period_ms:.0f} ms period",
-            throttle=5,
-        ),
-    )
-
-    def __init__(self, name: str, ctx: TaskContext, budget_s: float) -> None:
-        super().__init__(name, ctx, budget_s)
-        self.group: RateGroupConfig | None = None
-        self.members: list[Task] = []
-        self.slips = 0
-        self.good_frames = 0
-
-    def cmd_RESET_COUNTERS(self) -> None:
-        self.slips = 0
-        self.ctx.events.reset_throttle(f"{self.name}.SLIP")
-        super().cmd_RESET_COUNTERS()
 
 
 class Executive:
@@ -122,13 +41,11 @@ class Executive:
 
     def __init__(
         self,
-        cfg: Any,
+        cfg: FswConfig,
         clock: Clock,
-        resources: dict[str, Any] | None = None,
+        resources: Resources | None = None,
         timer: Callable[[], float] = time.perf_counter,
     ) -> None:
-        from fsw.executive.topology import components
-
         ecfg = cfg.executive
         self.cfg, self.ecfg, self.clock, self.timer = cfg, ecfg, clock, timer
         # OpenCV's worker pool is process-wide: the flight computer has one core, and two bench
@@ -140,18 +57,18 @@ class Executive:
         self.commands = CommandDispatcher(on_response=self._on_response)
         self.jobs = JobScheduler(timer=timer)
         self.bus = SoftwareBus(ecfg.queue_depth, on_drop=self._on_drop)
-        self.ctx = TaskContext(
-            cfg,
-            clock,
-            self.telemetry,
-            self.events,
-            self.commands,
-            self.bus,
-            self.jobs,
-            self.period_s,
-            dict(resources or {}),
+        self.ctx = FlightContext(
+            clock=clock,
+            telemetry=self.telemetry,
+            events=self.events,
+            commands=self.commands,
+            bus=self.bus,
+            jobs=self.jobs,
+            runtime=self,
+            frame_period_s=self.period_s,
+            cfg=cfg,
+            res=resources or Resources(),
         )
-        self.ctx.resources["executive"] = self
         self.frame = 0
         self.slips = 0
         self.frame_max_s = 0.0  # longest frame's work (foreground + slack), s
@@ -180,6 +97,7 @@ class Executive:
             self.enabled[t.name] = t.enabled
             assert t.group in by_name
         self.exec_component = self.tasks["exec"]
+        self._divisor = {t.name: rg.group.divisor for rg in self.groups if rg.group for t in rg.members}
         for task in self.tasks.values():
             task.setup()
 
@@ -197,6 +115,24 @@ class Executive:
         """Give the frozen objects back to the garbage collector (end of a bench run)."""
         gc.unfreeze()
 
+    # -- the runtime as components see it (fsw.framework.task.Runtime) -----------------------
+    def is_enabled(self, name: str) -> bool:
+        return self.enabled.get(name, False)
+
+    def set_enabled(self, name: str, enabled: bool) -> None:
+        self.enabled[name] = enabled
+
+    def schedule(self) -> Mapping[str, int]:
+        return self._divisor
+
+    def busy_s(self, frame: int) -> float:
+        return sum(g.last_s for g in self.groups if g.group is not None and g.group.due(frame))
+
+    def reset_counters(self) -> None:
+        self.skipped_frames = self.slips = 0
+        self.frame_max_s = 0.0
+        self.jobs.reset_max()
+
     # -- registration ---------------------------------------------------------------------
     def _register(self, task: Task, opcode_base: int) -> None:
         for ch in task.all_channels():
@@ -211,7 +147,7 @@ class Executive:
                 raise TypeError(f"{type(task).__name__} declares {cd.name} but has no cmd_{cd.name}")
             self.commands.register(f"{task.name}.{cd.name}", opcode_base + j, cd, handler)
 
-    def _on_response(self, req: Any, resp: Any) -> None:
+    def _on_response(self, req: CommandRequest, resp: CommandResponse) -> None:
         owner = self.tasks.get(req.name.split(".", 1)[0])
         if owner is None:
             self.exec_component.cmd_errors += 1

@@ -9,34 +9,13 @@ so a hung task, or a stalled executive that no longer runs this task, lets it ex
 
 from __future__ import annotations
 
-from typing import ClassVar, Protocol
+from typing import ClassVar
 
-from fsw.framework.clock import Clock
-from fsw.framework.task import Task
 from fsw.framework.telemetry import Channel, EventDef, Severity
+from fsw.tasks.base import FlightTask
 
 
-class Watchdog(Protocol):
-    def stroke(self) -> None: ...
-
-
-class SoftwareWatchdog:
-    """A watchdog timer on a clock: expired once ``timeout_s`` passes without a stroke."""
-
-    def __init__(self, clock: Clock, timeout_s: float) -> None:
-        self.clock, self.timeout_s = clock, timeout_s
-        self.last_stroke_s = clock.now()
-        self.strokes = 0
-
-    def stroke(self) -> None:
-        self.last_stroke_s = self.clock.now()
-        self.strokes += 1
-
-    def expired(self) -> bool:
-        return self.clock.now() - self.last_stroke_s > self.timeout_s
-
-
-class HealthTask(Task):
+class HealthTask(FlightTask):
     KIND: ClassVar[str] = "health"
     DOC: ClassVar[str] = "Pings every task; strokes the watchdog while all are alive."
     CHANNELS = (
@@ -57,18 +36,15 @@ class HealthTask(Task):
         self.warn_frames, self.fatal_frames = e.health_warn_frames, e.health_fatal_frames
         self.state: dict[str, str] = {}
         self.strokes = 0
-        exe = self.ctx.resources["executive"]
-        self._divisor = {}
-        for rg in exe.groups:
-            for t in rg.members:
-                self._divisor[t.name] = rg.group.divisor
+        runtime = self.ctx.runtime
+        self._divisor = dict(runtime.schedule())
 
     def run(self, frame: int) -> None:
-        exe = self.ctx.resources["executive"]
+        runtime = self.ctx.runtime
         n_warn = n_fatal = 0
         for name, div in self._divisor.items():
-            task = exe.tasks[name]
-            if task is self or not exe.enabled[name]:
+            task = runtime.tasks[name]
+            if task is self or not runtime.is_enabled(name):
                 self.state.pop(name, None)
                 continue
             task.ping(frame)
@@ -92,7 +68,7 @@ class HealthTask(Task):
                 self.state[name] = now
             n_warn += now == "warn"
             n_fatal += now == "fatal"
-        watchdog = self.ctx.resources.get("watchdog")
+        watchdog = self.ctx.res.watchdog
         if n_fatal == 0 and watchdog is not None:
             watchdog.stroke()
             self.strokes += 1

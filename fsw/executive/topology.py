@@ -12,7 +12,9 @@ import importlib
 from dataclasses import dataclass
 from typing import Any
 
+from fsw.executive.components import ExecutiveComponent, RateGroupComponent
 from fsw.framework.task import Task
+from fsw.settings import FswConfig
 from fsw.tasks.registry import KINDS
 
 
@@ -34,10 +36,8 @@ def task_class(kind: str) -> type[Task]:
     return cls
 
 
-def components(cfg: Any) -> list[Component]:
+def components(cfg: FswConfig) -> list[Component]:
     """The executive, each rate group, then each configured task, in that order."""
-    from fsw.executive.executive import ExecutiveComponent, RateGroupComponent
-
     out = [Component("exec", ExecutiveComponent, 0x100)]
     for g in cfg.executive.groups:
         out.append(Component(f"rg_{g.name}", RateGroupComponent, (len(out) + 1) * 0x100))
@@ -46,7 +46,7 @@ def components(cfg: Any) -> list[Component]:
     return out
 
 
-def dictionary(cfg: Any) -> dict[str, Any]:
+def dictionary(cfg: FswConfig) -> dict[str, Any]:
     """The ground dictionary (channels, events, commands) generated from the declarations."""
     chans: list[dict[str, Any]] = []
     events: list[dict[str, Any]] = []

@@ -9,9 +9,9 @@ handler for command ``X`` is its method ``cmd_X``.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar, Protocol
 
 from fsw.framework.bus import Mailbox, Policy, SoftwareBus
 from fsw.framework.clock import Clock
@@ -19,23 +19,53 @@ from fsw.framework.commands import CommandDef, CommandDispatcher
 from fsw.framework.jobs import Job, JobHandle, JobScheduler
 from fsw.framework.telemetry import Channel, EventDef, EventLog, Severity, TelemetryStore
 
-if TYPE_CHECKING:
-    from fsw.settings import FswConfig
+
+class Runtime(Protocol):
+    """The executive as its components see it."""
+
+    @property
+    def period_s(self) -> float: ...
+
+    @property
+    def slips(self) -> int: ...
+
+    @property
+    def tasks(self) -> Mapping[str, Task]: ...
+
+    @property
+    def jobs(self) -> JobScheduler: ...
+
+    def is_enabled(self, name: str) -> bool: ...
+
+    def set_enabled(self, name: str, enabled: bool) -> None: ...
+
+    def schedule(self) -> Mapping[str, int]:
+        """The scheduled tasks in run order (group by group), each with its group's divisor."""
+        ...
+
+    def busy_s(self, frame: int) -> float:
+        """Foreground time of the rate groups that ran on ``frame``, s."""
+        ...
+
+    def reset_counters(self) -> None:
+        """Zero the executive's slip, skip, frame and slice maxima (RESET_COUNTERS on ``exec``)."""
+        ...
 
 
-@dataclass
+
+@dataclass(kw_only=True)
 class TaskContext:
-    """Everything a task may touch besides its own state."""
+    """Everything a task may touch besides its own state (the flight tasks' context adds the
+    configuration and the drivers: ``fsw.tasks.base.FlightContext``)."""
 
-    cfg: FswConfig
     clock: Clock
     telemetry: TelemetryStore
     events: EventLog
     commands: CommandDispatcher
     bus: SoftwareBus
     jobs: JobScheduler
+    runtime: Runtime
     frame_period_s: float
-    resources: dict[str, Any] = field(default_factory=dict)  # drivers, injected by the app
     frame: int = 0
 
 

@@ -10,25 +10,15 @@ mast kinematics (ALGORITHM.md §1.2: the pose term of each point's covariance).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 
 from fsw.core.geometry import CameraPose, MastConfig, camera_pose_from_rover
 from fsw.core.localization import so3_log
-from fsw.framework.params import param
-from fsw.framework.task import Task
 from fsw.framework.telemetry import Channel, EventDef, Severity
+from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import CAMERA_FRAME, CAMERA_REQUEST, NAV_POSE, CameraFrame, CaptureRequest, NavPose
-
-
-@dataclass(frozen=True)
-class CaptureConfig:
-    """Camera pose uncertainty from the mast (config ``[capture]``)."""
-
-    joint_sigma_deg: float = param(0.2, lo=0.0, hi=10.0, units="deg", doc="pan and tilt encoder sigma")
-    lift_sigma_m: float = param(0.002, lo=0.0, hi=0.1, units="m", doc="lift sigma")
 
 
 def camera_pose_covariance(
@@ -56,7 +46,7 @@ def camera_pose_covariance(
     return pose, J @ sigma @ J.T
 
 
-class CameraTask(Task):
+class CameraTask(FlightTask):
     KIND: ClassVar[str] = "camera"
     DOC: ClassVar[str] = "Captures stereo pairs on request and tags them with the camera pose."
     CHANNELS = (
@@ -82,7 +72,7 @@ class CameraTask(Task):
 
     def run(self, frame: int) -> None:
         self.nav = self.nav_box.latest() or self.nav
-        cam: Any = self.ctx.resources.get("camera")
+        cam = self.ctx.res.camera
         now = self.ctx.clock.now()
         if self.waiting is None:
             req: CaptureRequest | None = self.requests.get()

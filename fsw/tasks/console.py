@@ -9,11 +9,11 @@ from __future__ import annotations
 import sys
 from typing import ClassVar, TextIO
 
-from fsw.framework.task import Task
 from fsw.framework.telemetry import Event, Severity
+from fsw.tasks.base import FlightTask
 
 
-class ConsoleTask(Task):
+class ConsoleTask(FlightTask):
     KIND: ClassVar[str] = "console"
     DOC: ClassVar[str] = "Prints a telemetry summary line per activation and every event."
 
@@ -28,7 +28,7 @@ class ConsoleTask(Task):
             print(f"[{ev.time_s:9.2f}] {ev.severity.name:<11} {ev.name}: {ev.text}", file=self.out or sys.stdout)
 
     def run(self, frame: int) -> None:
-        exe = self.ctx.resources["executive"]
+        exe = self.ctx.runtime
         worst = max(((t.max_s, n) for n, t in exe.tasks.items() if n != "exec"), default=(0.0, "-"))
         print(
             f"[{self.ctx.clock.now():9.2f}] frame {frame:6d}  slips {exe.slips}  "

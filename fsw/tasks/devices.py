@@ -15,13 +15,13 @@ from typing import Any, ClassVar
 from fsw.drivers.camera import CameraDriver
 from fsw.drivers.can_motors import CanMotorDriver
 from fsw.drivers.mast_serial import MastSerialDriver
-from fsw.framework.task import Task
 from fsw.framework.telemetry import Channel
+from fsw.tasks.base import FlightTask
 
 DRIVERS = (("motors", CanMotorDriver), ("mast", MastSerialDriver), ("camera", CameraDriver))
 
 
-class DevicesTask(Task):
+class DevicesTask(FlightTask):
     KIND: ClassVar[str] = "devices"
     DOC: ClassVar[str] = "Polls the CAN motor, serial mast and camera drivers; events and telemetry."
     CHANNELS = (
@@ -48,8 +48,9 @@ class DevicesTask(Task):
     EVENTS = CanMotorDriver.EVENTS + MastSerialDriver.EVENTS + CameraDriver.EVENTS
 
     def setup(self) -> None:
-        res = self.ctx.resources
-        self.drivers: list[tuple[str, Any]] = [(k, res[k]) for k, cls in DRIVERS if isinstance(res.get(k), cls)]
+        res = self.ctx.res
+        pairs: list[tuple[str, Any]] = [("motors", res.motors), ("mast", res.mast), ("camera", res.camera)]
+        self.drivers = [(k, d) for k, d in pairs if d is not None]
 
     def run(self, frame: int) -> None:
         now = self.ctx.clock.now()

@@ -14,7 +14,6 @@ the task opens ``[mavlink] url``), ``mavlink_tlog`` (a path or binary stream; el
 from __future__ import annotations
 
 import math
-import time
 from pathlib import Path
 from typing import Any, BinaryIO, ClassVar
 
@@ -26,8 +25,8 @@ from fsw.comm.mavlink_tlog import TlogWriter
 from fsw.comm.mavlink_uplink import CommandIn
 from fsw.drivers.mavlink_transport import TransportError, open_transport
 from fsw.framework.commands import Arg, CommandDef, CommandRequest, CommandStatus
-from fsw.framework.task import Task
 from fsw.framework.telemetry import Channel, Event, EventDef, Severity
+from fsw.tasks.base import FlightTask
 from fsw.tasks.mavlink_preview import PreviewError, encode_preview
 from fsw.tasks.mavlink_view import ViewBuilder
 
@@ -36,7 +35,7 @@ _REASON_OF_VERDICT = {Verdict.UNSIGNED: Reason.UNSIGNED, Verdict.BAD_SIGNATURE: 
 _THROTTLED = ("AUTH_REJECTED", "RX_BAD", "TRANSPORT_FAULT", "TLOG_ERROR", "PREVIEW_BAD", "CMD_BAD_ARGS")
 
 
-class MavlinkTask(Task):
+class MavlinkTask(FlightTask):
     KIND: ClassVar[str] = "mavlink"
     DOC: ClassVar[str] = "MAVLink 2 ground link: telemetry, events, map previews; signed commands."
     CHANNELS = (
@@ -90,8 +89,8 @@ class MavlinkTask(Task):
     # -- start-up ----------------------------------------------------------------------------
     def setup(self) -> None:
         cfg = self.cfg = self.ctx.cfg.mavlink
-        res = self.ctx.resources
-        self._unix = res.get("unix_time", time.time)
+        res = self.ctx.res
+        self._unix = res.unix_time
         self._epoch_s = float(self._unix()) - self.ctx.clock.now()
         # events so far (other tasks' start-up) and our own until the adapter exists go down first
         self._early: list[Event] | None = list(self.ctx.events.history)
@@ -101,14 +100,14 @@ class MavlinkTask(Task):
         for ev in self._early or ():
             self.adapter.push_event(ev)
         self._early = None
-        self.link = res.get("mavlink_link")
+        self.link = res.mavlink_link
         self._fault: str | None = None
         if self.link is None:
             try:
                 self.link = open_transport(cfg.url, cfg.baud)
             except TransportError as exc:
                 self._set_fault(str(exc))
-        self.tlog = self._open_tlog(res.get("mavlink_tlog", cfg.tlog_path))
+        self.tlog = self._open_tlog(cfg.tlog_path if res.mavlink_tlog is None else res.mavlink_tlog)
         self._preview_box = self.subscribe(cfg.map_preview_topic, depth=1, policy="drop_oldest")
         self._preview: Any = None
         self._views = ViewBuilder(self.ctx, cfg, self.subscribe(cfg.pose_topic, depth=1, policy="drop_oldest"))

@@ -17,7 +17,7 @@ from fsw.comm.mavlink_config import MavlinkConfig
 from fsw.comm.mavlink_downlink import ChannelSample
 from fsw.comm.mavlink_telemetry import DICT_CRC_KEY, channel_key, dictionary_crc
 from fsw.framework.bus import Mailbox
-from fsw.framework.task import TaskContext
+from fsw.tasks.base import FlightContext
 
 
 def pose_from_message(msg: Any) -> tuple[Any, ...] | None:
@@ -36,7 +36,7 @@ def pose_from_message(msg: Any) -> tuple[Any, ...] | None:
 class ViewBuilder:
     """Builds the adapter's input from the task context (one per ground-link task)."""
 
-    def __init__(self, ctx: TaskContext, cfg: MavlinkConfig, pose_box: Mailbox[Any]) -> None:
+    def __init__(self, ctx: FlightContext, cfg: MavlinkConfig, pose_box: Mailbox[Any]) -> None:
         self.ctx, self.cfg, self.pose_box = ctx, cfg, pose_box
         store = ctx.telemetry
         self.keys = {name: channel_key(i, name) for name, i in store.ids.items()}
@@ -45,17 +45,13 @@ class ViewBuilder:
         self.pose: tuple[Any, ...] | None = None  # the last good pose message
 
     def build(self, now: float) -> VehicleView:
-        store, exe = self.ctx.telemetry, self.ctx.resources.get("executive")
+        store, runtime = self.ctx.telemetry, self.ctx.runtime
         samples = [ChannelSample(DICT_CRC_KEY, self.dict_crc, False)]
         for name, cv in store.values.items():
             if cv.value is not None and not isinstance(cv.value, str):
                 samples.append(ChannelSample(self.keys[name], cv.value, store.limit_state(name) in ("low", "high")))
-        load = slips = overruns = 0
-        if exe is not None:
-            prev = self.ctx.frame - 1
-            busy_s = sum(g.last_s for g in exe.groups if g.group is not None and g.group.due(prev))
-            load = int(1000 * busy_s / exe.period_s)
-            slips, overruns = exe.slips, sum(t.overruns for t in exe.tasks.values())
+        load = int(1000 * runtime.busy_s(self.ctx.frame - 1) / runtime.period_s)
+        slips, overruns = runtime.slips, sum(t.overruns for t in runtime.tasks.values())
         x, y, z, roll, pitch, yaw = (self.value(c) for c in self.cfg.pose_channels)
         pan, tilt = (self.value(c) for c in self.cfg.mast_channels)
         msg = self.pose_box.latest()

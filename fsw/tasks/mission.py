@@ -27,12 +27,11 @@ import numpy as np
 from fsw.core.edge import EdgeModel, edge_path
 from fsw.core.geofence import Geofence
 from fsw.core.nbv import end_reason
-from fsw.core.planners import METHODS, PlannerState
+from fsw.core.planners import PlannerState
 from fsw.core.view_candidates import CandidateView
 from fsw.framework.commands import CommandDef, CommandError
-from fsw.framework.params import param
-from fsw.framework.task import Task
 from fsw.framework.telemetry import Channel, EventDef, Severity
+from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import (
     CAMERA_REQUEST,
     MAP_UPDATED,
@@ -48,26 +47,9 @@ from fsw.tasks.messages import (
     NavPose,
 )
 from fsw.tasks.radio_task import RADIO_SEND, RadioSendRequest
+from fsw.tasks.sections import MissionConfig
 
 STATES = ("IDLE", "INIT", "SELECT", "MOVE", "POINT", "ACQUIRE", "TRANSMIT", "DONE", "SAFE")
-
-
-@dataclass(frozen=True, kw_only=True)
-class MissionConfig:
-    """The mapping mission (config ``[mission]``)."""
-
-    method: str = param("5", choices=METHODS, doc="mapping method of ALGORITHM.md §7 (1-5, oracle)")
-    auto_start: bool = param(True, doc="start at boot; otherwise wait for START")
-    panorama_pans_deg: tuple[float, ...] = param(
-        (-90.0,), lo=-180.0, hi=180.0, units="deg", doc="mast pans of the step-0 panorama"
-    )
-    panorama_tilt_deg: float = param(-35.0, lo=-90.0, hi=30.0, units="deg")
-    panorama_lift_m: float = param(0.5, lo=0.0, hi=2.0, units="m")
-    park_joints: tuple[float, float, float] = param((0.0, -30.0, 0.0), doc="SAFE mast pose: pan deg, tilt deg, lift m")
-    capture_retries: int = param(2, lo=0, hi=20, doc="retries of a pair that did not arrive")
-    step_timeout_s: float = param(300.0, lo=1.0, hi=1e5, units="s", doc="longest wait for one request")
-    transmit: bool = param(True, doc="send the map to the Cliff-bot at the end")
-    safe_recover_s: float = param(0.0, lo=0.0, hi=1e5, units="s", doc="0: SAFE waits for RESUME")
 
 
 @dataclass
@@ -83,7 +65,7 @@ class StepRecord:
     sim_s: float
 
 
-class MissionTask(Task):
+class MissionTask(FlightTask):
     KIND: ClassVar[str] = "mission"
     DOC: ClassVar[str] = "Mission sequencer: panorama, next view, move, acquire, transmit; SAFE on faults."
     CHANNELS = (
@@ -349,7 +331,7 @@ class MissionTask(Task):
     def _finish_mapping(self, reason: str) -> None:
         self.end = reason
         self.event("END", reason=reason)
-        if self.mcfg.transmit and "radio" in self.ctx.resources["executive"].tasks:
+        if self.mcfg.transmit and "radio" in self.ctx.runtime.tasks:
             self._goto("TRANSMIT")
             self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
             self.publish(RADIO_SEND, RadioSendRequest(map_id=1))

@@ -18,37 +18,20 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import ClassVar, TypeVar
 
 import numpy as np
 
 from fsw.core import wheel_kinematics as wk
 from fsw.drivers import can_motors, mast_serial
 from fsw.framework.commands import Arg, CommandDef, CommandError
-from fsw.framework.params import param
-from fsw.framework.task import Task
 from fsw.framework.telemetry import Channel, EventDef, Severity
+from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import MOTION_REQUEST, MOTION_STATUS, NAV_POSE, MotionRequest, MotionStatus, NavPose
+from fsw.tasks.sections import MotionConfig
 
 WHEELS = wk.WHEEL_ORDER
-
-
-@dataclass(frozen=True)
-class MotionConfig:
-    drive_speed_mps: float = param(0.15, lo=0.005, hi=5.0, units="m/s", doc="default drive speed")
-    turn_rate_dps: float = param(15.0, lo=0.5, hi=360.0, units="deg/s", doc="default turn rate")
-    accel_mps2: float = param(0.2, lo=0.01, hi=10.0, units="m/s^2")
-    yaw_accel_dps2: float = param(30.0, lo=1.0, hi=1000.0, units="deg/s^2")
-    min_speed_mps: float = param(0.01, lo=0.0, hi=1.0, units="m/s", doc="creep speed near the goal")
-    steer_tolerance_deg: float = param(2.0, lo=0.1, hi=20.0, units="deg", doc="steered before driving")
-    steer_timeout_s: float = param(4.0, lo=0.1, hi=60.0, units="s")
-    position_tolerance_m: float = param(0.005, lo=0.0005, hi=0.5, units="m")
-    yaw_tolerance_deg: float = param(0.3, lo=0.01, hi=10.0, units="deg")
-    mast_tolerance_deg: float = param(0.3, lo=0.01, hi=10.0, units="deg")
-    mast_lift_tolerance_m: float = param(0.003, lo=0.0001, hi=0.1, units="m")
-    mast_timeout_s: float = param(20.0, lo=0.5, hi=600.0, units="s")
-    odo_sigma_per_m: float = param(0.02, lo=0.0, hi=1.0, units="m/m", doc="odometry sigma growth per metre")
-    odo_yaw_sigma_per_rad: float = param(0.02, lo=0.0, hi=1.0, units="rad/rad")
+D = TypeVar("D")
 
 
 @dataclass
@@ -64,7 +47,7 @@ class _Segment:
     cmd: float = 0.0  # last commanded speed (ramp)
 
 
-class MotionTask(Task):
+class MotionTask(FlightTask):
     KIND: ClassVar[str] = "motion"
     DOC: ClassVar[str] = "Wheel and mast moves through the drivers; odometry; motion fault handling."
     CHANNELS = (
@@ -135,7 +118,7 @@ class MotionTask(Task):
 
     def setup(self) -> None:
         cfg = self.ctx.cfg
-        self.mcfg: MotionConfig = getattr(cfg, "motion", MotionConfig())
+        self.mcfg: MotionConfig = cfg.motion
         self.r = cfg.rover.wheel_diameter_m / 2.0
         self.wheel_xy = wk.wheel_positions(cfg.rover)
         self.pinv = wk.body_motion_matrix(self.wheel_xy)
@@ -152,19 +135,16 @@ class MotionTask(Task):
 
     # -- devices ----------------------------------------------------------------------------
     def _motors(self) -> can_motors.CanMotorDriver | None:
-        return self._device("motors", can_motors.CanMotorDriver)
+        return self._warn_absent("motors", self.ctx.res.motors)
 
     def _mast(self) -> mast_serial.MastSerialDriver | None:
-        return self._device("mast", mast_serial.MastSerialDriver)
+        return self._warn_absent("mast", self.ctx.res.mast)
 
-    def _device(self, key: str, cls: type) -> Any:
-        d = self.ctx.resources.get(key)
-        if isinstance(d, cls):
-            return d
-        if key not in self._warned:
+    def _warn_absent(self, key: str, driver: D | None) -> D | None:
+        if driver is None and key not in self._warned:
             self._warned.add(key)
             self.event("NO_DEVICE", device=key)
-        return None
+        return driver
 
     # -- the frame --------------------------------------------------------------------------
     def run(self, frame: int) -> None:
@@ -366,7 +346,7 @@ class MotionTask(Task):
         self.tlm(
             "state",
             "ESTOP"
-            if (m := self.ctx.resources.get("motors")) is not None and getattr(m, "estopped", False)
+            if (m := self.ctx.res.motors) is not None and m.estopped
             else (
                 self.segments[0].kind.upper()
                 if self.segments and self.segments[0].phase == "move"

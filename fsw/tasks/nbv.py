@@ -12,12 +12,12 @@ from typing import Any, ClassVar
 
 from fsw.core.planners import PlannerState, make_planner
 from fsw.framework.jobs import JobHandle
-from fsw.framework.task import Task
 from fsw.framework.telemetry import Channel, EventDef, Severity
+from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import NBV_REQUEST, NBV_RESULT
 
 
-class NbvTask(Task):
+class NbvTask(FlightTask):
     KIND: ClassVar[str] = "nbv"
     DOC: ClassVar[str] = "Next-view selection by expected new information (slack job)."
     CHANNELS = (
@@ -57,15 +57,15 @@ class NbvTask(Task):
     def _search(self, state: PlannerState) -> Any:
         if self.planner is None:  # built on first use: the bench injects the oracle's truth late
             cfg = self.ctx.cfg
-            truth = self.ctx.resources.get("oracle_truth")  # only the bench has it (oracle)
+            truth = self.ctx.res.oracle_truth  # only the bench has it (oracle)
             self.planner = make_planner(
                 cfg.mission.method,
                 cfg.nbv.max_steps,
                 cfg.nbv,
                 cfg.camera,
                 cfg.mast,
-                truth_z_m=None if truth is None else truth["z"],
-                textured=None if truth is None else truth["textured"],
+                truth_z_m=None if truth is None else truth.z_m,
+                textured=None if truth is None else truth.textured,
             )
         return (yield from self.planner.search(state))
 

@@ -14,7 +14,7 @@ written through the map store at ``checkpoint.period_s`` and on command.
 from __future__ import annotations
 
 from collections.abc import Generator
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
@@ -24,10 +24,11 @@ from fsw.core.geometry import MapGrid
 from fsw.core.localization import point_covariance_parts
 from fsw.core.nbv import predicted_visibility_steps
 from fsw.core.stereo import StereoMatcher
+from fsw.drivers.map_store import MapStore
 from fsw.framework.commands import CommandDef, CommandError
 from fsw.framework.jobs import JobHandle
-from fsw.framework.task import Task
 from fsw.framework.telemetry import Channel, EventDef, Severity
+from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import CAMERA_FRAME, MAP_UPDATED, CameraFrame, MapUpdate
 
 ROI_STRIDE = 4  # the region-of-interest fraction is estimated on every 4th cell each way
@@ -49,7 +50,7 @@ PROPAGATE_CHUNK = 10000  # points per slice of the covariance propagation (~5 ms
 MERGE_STEP_POINTS = 50000  # points per slice of each pass of the map merge (a few ms)
 
 
-class PerceptionTask(Task):
+class PerceptionTask(FlightTask):
     KIND: ClassVar[str] = "perception"
     DOC: ClassVar[str] = "Stereo, fusion into the elevation map, cliff-edge fits (slack jobs)."
     CHANNELS = (
@@ -85,11 +86,11 @@ class PerceptionTask(Task):
         self.frames = self.subscribe(CAMERA_FRAME, depth=2, policy="drop_oldest")
         self.job: JobHandle | None = None
         self.views = 0
-        self.store: Any = self.ctx.resources.get("map_store")
+        self.store = self.ctx.res.map_store
         self._last_checkpoint_s = self.ctx.clock.now()
         self._ckpt_seq = 0
         if self.store is not None:
-            self._restore()
+            self._restore(self.store)
 
     def run(self, frame: int) -> None:
         if self.job is not None and self.job.done:
@@ -101,7 +102,7 @@ class PerceptionTask(Task):
                 self.job = self.submit_job(self._merge_view(msg), f"view{msg.view_id}")
         now = self.ctx.clock.now()
         if self.store is not None and now - self._last_checkpoint_s >= self.ctx.cfg.checkpoint.period_s:
-            self._checkpoint()
+            self._checkpoint(self.store)
 
     def _merge_view(self, fr: CameraFrame) -> Generator[None, None, MapUpdate]:
         """The slack job of one view: one bounded step per slice (a few to ~20 ms here).
@@ -171,21 +172,21 @@ class PerceptionTask(Task):
         )
 
     # -- checkpoints ---------------------------------------------------------------------
-    def _checkpoint(self) -> None:
+    def _checkpoint(self, store: MapStore) -> None:
         self._last_checkpoint_s = self.ctx.clock.now()
         self._ckpt_seq += 1
         try:
-            path = self.store.save(self.map, self._ckpt_seq, self._last_checkpoint_s)
+            path = store.save(self.map, self._ckpt_seq, self._last_checkpoint_s)
         except OSError as exc:
             self.event("CHECKPOINT_FAILED", error=str(exc))
             raise CommandError(f"checkpoint failed: {exc}") from None
         self.event("CHECKPOINT_SAVED", seq=self._ckpt_seq, kib=path.stat().st_size / 1024)
 
-    def _restore(self) -> None:
-        loaded: Any = self.store.load_latest()
+    def _restore(self, store: MapStore) -> None:
+        loaded = store.load_latest()
         for path, reason in loaded.skipped:
             self.event("CHECKPOINT_FAILED", error=f"{path}: {reason}")
-        if loaded.emap is not None and loaded.emap.grid == self.map.grid:
+        if loaded.emap is not None and loaded.meta is not None and loaded.emap.grid == self.map.grid:
             self.map = loaded.emap
             self._ckpt_seq = loaded.meta.seq
             self.event("CHECKPOINT_LOADED", seq=loaded.meta.seq)
@@ -193,7 +194,7 @@ class PerceptionTask(Task):
     def cmd_CHECKPOINT(self) -> None:
         if self.store is None:
             raise CommandError("no map store configured")
-        self._checkpoint()
+        self._checkpoint(self.store)
 
     def cmd_CLEAR_MAP(self) -> None:
         if self.job is not None and not self.job.done:

@@ -22,8 +22,8 @@ from fsw.comm.link_sender import LinkSender, SenderState
 from fsw.core.mapcodec import encode_map
 from fsw.drivers.radio import RadioPort, open_radio
 from fsw.framework.commands import Arg, CommandDef
-from fsw.framework.task import Task
 from fsw.framework.telemetry import Channel, EventDef, Severity
+from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import MAP_UPDATED
 
 RADIO_SEND = "radio.send"
@@ -36,7 +36,7 @@ class RadioSendRequest:
     map_id: int
 
 
-class RadioTask(Task):
+class RadioTask(FlightTask):
     KIND: ClassVar[str] = "radio"
     DOC: ClassVar[str] = "Map link to the Cliff-bot: encode the map, send it within a byte budget."
     CHANNELS = (
@@ -75,7 +75,7 @@ class RadioTask(Task):
     def setup(self) -> None:
         cfg = self.ctx.cfg
         self.link_cfg = cfg.link
-        port = self.ctx.resources.get("radio_port")
+        port = self.ctx.res.radio_port
         if port is None:
             port = open_radio(cfg.link.transport, cfg.link.peer)
         self.port: RadioPort = port

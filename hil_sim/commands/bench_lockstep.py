@@ -46,7 +46,7 @@ def _run(cfg, world, seed: int, seconds: float, capture_period: float) -> dict[s
             if not b.tlm("motion.mast_busy"):
                 b.command("motion.POINT_MAST", pan_deg=pan, tilt_deg=-30.0, lift_m=0.3)
                 pan = -pan
-            cam = b.exe.ctx.resources.get("camera")
+            cam = b.exe.ctx.res.camera
             if cam is not None and b.clock.now() >= next_capture:
                 cam.trigger(b.clock.now())
                 next_capture += capture_period

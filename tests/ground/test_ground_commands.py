@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 
 from fsw.comm.mavlink_commands import Reason, decode_args, encode_args, string_capacity
 from fsw.comm.mavlink_dialect import mavlink, new_codec
+from fsw.drivers.resources import Resources
 from fsw.framework.commands import Arg, CommandDef
 
 CDEF = CommandDef("X", (Arg("n", int, -1000, 1000), Arg("gain", float), Arg("on", bool),
@@ -67,7 +68,7 @@ def test_command_paths_and_acks(key_file: Path, demo_kind: None, memory_link) ->
     UNSUPPORTED, each answered exactly once with the opcode in result_param2."""
     key = bytes.fromhex(key_file.read_text())
     exe = ground_demo.build(ground_demo.config("udpout:127.0.0.1:9", str(key_file)),
-                            {"mavlink_link": memory_link})
+                            Resources(mavlink_link=memory_link))
     ops = {name: op for name, (op, _) in exe.commands.definitions().items()}
     ok, denied, failed = mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_DENIED, mavlink.MAV_RESULT_FAILED
     budget = ops["mavlink.SET_BUDGET"]
@@ -100,7 +101,7 @@ def test_command_paths_and_acks(key_file: Path, demo_kind: None, memory_link) ->
 def test_no_key_refuses_everything(demo_kind: None, memory_link, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     """Issue 7, item 2: without a key (none configured, or unreadable) no command runs."""
     for key_file in ("", str(tmp_path / "missing.key")):
-        exe = ground_demo.build(ground_demo.config("udpout:127.0.0.1:9", key_file), {"mavlink_link": memory_link})
+        exe = ground_demo.build(ground_demo.config("udpout:127.0.0.1:9", key_file), Resources(mavlink_link=memory_link))
         op = exe.commands.definitions()["demo.NOOP"][0]
         acks = _run(exe, memory_link, [command_frame(bytes(32), op), command_frame(None, op)])
         denied = mavlink.MAV_RESULT_DENIED

@@ -14,6 +14,7 @@ import pytest
 
 from fsw.comm.mavlink_dialect import new_codec
 from fsw.comm.mavlink_image import ImageReceiver
+from fsw.drivers.resources import Resources
 
 
 def _decode(link: Any, period_s: float) -> list[tuple[float, int, Any]]:
@@ -33,7 +34,7 @@ def test_budget_priorities_and_rates(budget: int, key_file: Path, demo_kind: Non
     """Issue 7, done-when 5: no activation exceeds the budget, even under an event flood and a
     map preview; HEARTBEAT keeps 1 Hz; a channel is never sent faster than channel_period_s."""
     exe = ground_demo.build(ground_demo.config("udpout:127.0.0.1:9", str(key_file), budget=budget),
-                            {"mavlink_link": memory_link, "unix_time": lambda: 1.7e9})
+                            Resources(mavlink_link=memory_link, unix_time=lambda: 1.7e9))
     def flood(k: int) -> None:
         if 50 <= k < 100:
             for i in range(20):
@@ -75,7 +76,8 @@ def test_budget_priorities_and_rates(budget: int, key_file: Path, demo_kind: Non
 def test_map_preview_transfer(key_file: Path, demo_kind: None, memory_link: Any) -> None:
     """Issue 7, item 1: map previews arrive whole through DATA_TRANSMISSION_HANDSHAKE +
     ENCAPSULATED_DATA and decode to the published map, north up."""
-    exe = ground_demo.build(ground_demo.config("udpout:127.0.0.1:9", str(key_file)), {"mavlink_link": memory_link})
+    exe = ground_demo.build(ground_demo.config("udpout:127.0.0.1:9", str(key_file)),
+                            Resources(mavlink_link=memory_link))
     exe.run_lockstep(120)
     rx = ImageReceiver()
     for _, _, m in _decode(memory_link, 0.1):
@@ -121,7 +123,8 @@ def test_pose_mast_and_mode(key_file: Path, demo_kind: None, memory_link: Any) -
     """Issue 7, item 1: pose in NED, mast attitude, HEARTBEAT mode from the mission state."""
     from fsw.comm.mavlink_telemetry import MISSION_STATES, mast_pan_tilt
 
-    exe = ground_demo.build(ground_demo.config("udpout:127.0.0.1:9", str(key_file)), {"mavlink_link": memory_link})
+    exe = ground_demo.build(ground_demo.config("udpout:127.0.0.1:9", str(key_file)),
+                            Resources(mavlink_link=memory_link))
     exe.run_lockstep(200)  # 20 s of rover time: MOVE
     msgs = _decode(memory_link, 0.1)
     hb = [m for _, _, m in msgs if m.get_type() == "HEARTBEAT"][-1]
@@ -145,7 +148,8 @@ def test_pose_topic_wins_over_channels(key_file: Path, demo_kind: None, memory_l
     from fsw.comm.mavlink_telemetry import mast_pan_tilt
     from fsw.tasks.messages import NAV_POSE, NavPose
 
-    exe = ground_demo.build(ground_demo.config("udpout:127.0.0.1:9", str(key_file)), {"mavlink_link": memory_link})
+    exe = ground_demo.build(ground_demo.config("udpout:127.0.0.1:9", str(key_file)),
+                            Resources(mavlink_link=memory_link))
     exe.run_lockstep(5)
     exe.bus.publish(NAV_POSE, NavPose(0.5, 2.0, -1.0, 0.5, np.eye(3), (0.25, -0.5, 0.1)))
     exe.run_lockstep(10)

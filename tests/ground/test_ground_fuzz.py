@@ -14,6 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from fsw.comm.mavlink_dialect import mavlink, new_codec
+from fsw.drivers.resources import Resources
 
 
 def _acks(link: Any) -> list[int]:
@@ -25,7 +26,7 @@ def _acks(link: Any) -> list[int]:
 
 
 def _rover(key_file: Path, link: Any) -> Any:
-    return ground_demo.build(ground_demo.config("udpout:127.0.0.1:9", str(key_file)), {"mavlink_link": link})
+    return ground_demo.build(ground_demo.config("udpout:127.0.0.1:9", str(key_file)), Resources(mavlink_link=link))
 
 
 def _assert_alive(exe: Any, link: Any, key: bytes) -> None:

@@ -59,7 +59,7 @@ def test_fault_is_detected_without_crashing(
             assert b.command("motion.POINT_MAST", pan_deg=40.0, tilt_deg=-20.0, lift_m=0.1).status.name == "OK"
         b.faults.inject(kind, start_s=b.clock.now(), duration_s=2.0, **args)
         seen = 0
-        camera = b.exe.ctx.resources["camera"]
+        camera = b.exe.ctx.res.camera
         for _ in range(30):
             if activity == "camera" and not camera.busy:
                 camera.trigger(b.clock.now())

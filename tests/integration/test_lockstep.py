@@ -43,7 +43,7 @@ def test_drive_two_metres_along_the_plateau_and_point_the_mast(tmp_path: Path) -
         assert abs(lift - 0.2) <= LIFT_M
         if world is not None:
             assert b.rig.rover.max_wheel_drop_m < 0.01  # stayed on the plateau
-            cam = b.exe.ctx.resources["camera"]
+            cam = b.exe.ctx.res.camera
             cam.trigger(b.clock.now())
             b.run(2)
             pair = cam.take()

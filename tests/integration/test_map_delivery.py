@@ -15,6 +15,7 @@ from fsw.comm.link import LinkConfig
 from fsw.comm.link_sender import LinkSender, SenderState
 from fsw.core.mapcodec import encode_map
 from fsw.drivers.radio import UdpRadio
+from fsw.drivers.resources import Resources
 from fsw.executive.executive import Executive
 from fsw.framework.clock import SteppedClock
 from fsw.framework.commands import CommandRequest, CommandStatus
@@ -114,7 +115,7 @@ def test_radio_task_sends_the_map_within_its_byte_budget():
     cfg = _exe_cfg()
     clock = SteppedClock()
     ch = RadioChannel(RadioChannelConfig(loss=0.1), seed=1)
-    exe = Executive(cfg, clock, resources={"radio_port": ChannelPort(ch, "a", clock.now)})
+    exe = Executive(cfg, clock, resources=Resources(radio_port=ChannelPort(ch, "a", clock.now)))
     bot = Cliffbot(cfg.link, ChannelPort(ch, "b", clock.now))
     z = _map()
     snap = SimpleNamespace(z=z.astype(np.float64), grid=SimpleNamespace(cell=0.03))

@@ -102,7 +102,7 @@ def test_serve_and_flight_processes_move_a_motor_and_the_mast(tmp_path: Path) ->
             assert exe.telemetry.get("motion.moves_done") == 2
             assert exe.telemetry.get("motion.odo_x_m") == pytest.approx(0.3, abs=0.01)
         finally:
-            close_devices(exe.ctx.resources)
+            close_devices(exe.ctx.res)
     finally:
         serve.send_signal(signal.SIGINT)
         out, _ = serve.communicate(timeout=20)

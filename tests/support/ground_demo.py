@@ -23,6 +23,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from fsw.drivers.resources import Resources
 from fsw.executive.executive import Executive
 from fsw.framework.clock import SteppedClock
 from fsw.framework.params import build as build_cfg
@@ -100,7 +101,7 @@ def register() -> None:
     KINDS.setdefault(*DEMO_KIND)
 
 
-def build(cfg: FswConfig, resources: dict[str, Any] | None = None) -> Executive:
+def build(cfg: FswConfig, resources: Resources | None = None) -> Executive:
     return Executive(cfg, SteppedClock(), resources)
 
 
@@ -239,7 +240,7 @@ def bench(n: int, key_file: str) -> int:
             key_file = f"{tmp}/rover.key"
             write_key(key_file)
         link = MemoryLink()
-        exe = build(config("udpout:127.0.0.1:9", key_file, f"{tmp}/bench.tlog"), {"mavlink_link": link})
+        exe = build(config("udpout:127.0.0.1:9", key_file, f"{tmp}/bench.tlog"), Resources(mavlink_link=link))
         task = exe.tasks["mavlink"]
         ms = []
         for _ in range(n):

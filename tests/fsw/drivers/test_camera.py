@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from fsw.drivers import camera as cam
-from fsw.drivers.factory import DevicesConfig, open_devices
+from fsw.drivers.factory import DevicesConfig, close_devices, open_devices
 from hil_sim.faults import FaultInjector
 from hil_sim.hw.camera_server import CameraServer, SimCameraLink
 
@@ -88,13 +88,13 @@ def test_absent_devices_start_faulted_and_never_raise() -> None:
         )
     )
     try:
-        mast = devs["mast"]
+        mast = devs.mast
+        assert mast is not None and devs.camera is not None
         mast.poll(0.0)
         assert mast.has(0x10) and any(n == "MAST_PORT_ERROR" for n, _ in mast.drain_events())
-        c = devs["camera"]
+        c = devs.camera
         c.trigger(0.0)
         c.poll(0.1)
         assert c.fault
     finally:
-        for d in devs.values():
-            d.close()
+        close_devices(devs)

@@ -10,11 +10,12 @@ from typing import Any, ClassVar
 
 import pytest
 
+from fsw.drivers.resources import Resources
 from fsw.executive.executive import Executive
-from fsw.executive.health import SoftwareWatchdog
 from fsw.framework.clock import SteppedClock
 from fsw.framework.params import build
 from fsw.framework.task import Task
+from fsw.framework.watchdog import SoftwareWatchdog
 from fsw.settings import FswConfig
 from fsw.tasks import registry
 
@@ -62,7 +63,7 @@ def make_exec(cfg: FswConfig, **res: Any) -> Executive:
     RecorderTask.log.clear()
     RecorderTask.cost_s.clear()
     TIMER.t = 0.0
-    return Executive(cfg, SteppedClock(), resources=res, timer=TIMER)
+    return Executive(cfg, SteppedClock(), resources=Resources(**res), timer=TIMER)
 
 
 def task(name: str, group: str, kind: str = "test_recorder", budget_ms: float = 10.0) -> dict[str, Any]:
@@ -216,7 +217,7 @@ def test_hung_task_detected_and_watchdog_starves() -> None:
     )
     clock = SteppedClock()
     wd = SoftwareWatchdog(clock, timeout_s=1.5)
-    exe = Executive(cfg, clock, resources={"watchdog": wd}, timer=TIMER)
+    exe = Executive(cfg, clock, resources=Resources(watchdog=wd), timer=TIMER)
     exe.run_lockstep(100)
     assert not wd.expired() and wd.strokes == 10
     exe.tasks["worker"].hung = True
@@ -250,7 +251,7 @@ def test_stalled_executive_stops_stroking_watchdog() -> None:
     cfg = make_cfg([{"name": "fast", "divisor": 1}], [task("health", "fast", kind="health")])
     clock = SteppedClock()
     wd = SoftwareWatchdog(clock, timeout_s=0.5)
-    exe = Executive(cfg, clock, resources={"watchdog": wd}, timer=TIMER)
+    exe = Executive(cfg, clock, resources=Resources(watchdog=wd), timer=TIMER)
     exe.run_lockstep(10)
     assert not wd.expired()
     clock.advance(2.0)  # the executive is stuck: time passes, no frame runs

@@ -1,0 +1,63 @@
+"""What the app (or a bench) hands the flight tasks: open drivers, stores and hooks, typed.
+
+The app opens the drivers from ``[devices]`` (``fsw.drivers.factory``) into a
+:class:`Resources`; a bench in the same process may bring already-open :class:`Endpoints`
+(a python-can bus, a serial port, a frame source) instead, or its own radio port and the
+oracle's truth. Every field is optional: a task whose device is absent starts without it and
+says so (its events), never with a ``KeyError``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, BinaryIO
+
+import numpy as np
+
+from fsw.framework.watchdog import Watchdog
+
+if TYPE_CHECKING:
+    import can
+
+    from fsw.drivers.camera import CameraDriver, FrameSource
+    from fsw.drivers.can_motors import CanMotorDriver
+    from fsw.drivers.map_store import MapStore
+    from fsw.drivers.mast_serial import MastSerialDriver, SerialPort
+    from fsw.drivers.mavlink_transport import Transport
+    from fsw.drivers.radio import RadioPort
+
+
+@dataclass(frozen=True)
+class OracleTruth:
+    """The true terrain on the map grid, for the oracle planner (ALGORITHM.md §7): only a
+    bench has it."""
+
+    z_m: np.ndarray
+    textured: np.ndarray
+
+
+@dataclass
+class Endpoints:
+    """Already-open device ends a bench hands in, used instead of opening ``[devices]``."""
+
+    can_bus: can.BusABC | None = None
+    mast_port: SerialPort | None = None
+    camera_source: FrameSource | None = None
+
+
+@dataclass
+class Resources:
+    """The drivers and hooks of one flight-software instance."""
+
+    motors: CanMotorDriver | None = None
+    mast: MastSerialDriver | None = None
+    camera: CameraDriver | None = None
+    radio_port: RadioPort | None = None
+    map_store: MapStore | None = None
+    watchdog: Watchdog | None = None
+    mavlink_link: Transport | None = None
+    mavlink_tlog: str | BinaryIO | None = None  # None: the configured path
+    unix_time: Callable[[], float] = field(default=time.time)
+    oracle_truth: OracleTruth | None = None
