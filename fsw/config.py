@@ -101,7 +101,7 @@ def build(cls: type[T], data: Any, source: str = "<config>", prefix: str = "") -
     """Validate ``data`` against the dataclass ``cls`` and construct it."""
     if not isinstance(data, Mapping):
         raise ConfigError(source, prefix, f"expected a table, got {_tname(data)}")
-    hints = _hints(cls)
+    hints = _hints(cls)  # type: ignore[arg-type]
     fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
     unknown = sorted(set(data) - set(fields))
     if unknown:
