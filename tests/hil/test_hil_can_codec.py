@@ -5,11 +5,12 @@ from __future__ import annotations
 import os
 
 import cantools
-from crccheck.crc import Crc8SaeJ1850
+from crccheck.crc import Crc8Autosar, Crc16Dnp
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fsw.comm.rover_can import AXES, DEFAULT_DBC, AxisCommand, AxisStatus, Bad, RoverCan, crc8, wrap_position
+from fsw.comm.e2e import CRCS
+from fsw.comm.rover_can import AXES, DEFAULT_DBC, AxisCommand, AxisStatus, Bad, RoverCan, wrap_position
 
 CODEC = RoverCan()
 
@@ -31,11 +32,11 @@ def test_dbc_defines_every_frame_with_documented_node_ids() -> None:
     assert len(db.messages) == 3 * len(AXES) + 2
 
 
-def test_crc8_matches_reference_implementation() -> None:
-    """The table CRC-8/SAE-J1850 equals crccheck's (the E2E checksum of every frame)."""
+def test_e2e_crcs_match_reference_implementation() -> None:
+    """The E2E CRCs (fastcrc) equal crccheck's CRC-8/AUTOSAR and CRC-16/DNP."""
     for n in range(64):
-        data = os.urandom(n % 10)
-        assert crc8(data) == Crc8SaeJ1850.calc(data)
+        data = os.urandom(n % 12)
+        assert CRCS[8](data) == Crc8Autosar.calc(data) and CRCS[16](data) == Crc16Dnp.calc(data)
 
 
 @settings(max_examples=60, deadline=None)
