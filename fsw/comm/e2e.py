@@ -13,8 +13,9 @@ carries its own protection, which the receiving application checks:
     "CRC8H2F"), Hamming distance 4 up to 119 data bits (Koopman): every 1-, 2- and 3-bit
     error of a 9-byte protected input is detected (CRC-8/SAE-J1850, used before, misses
     362 of the 3-bit patterns at that length);
-  - 16 bits: CRC-16/DNP (poly 0x3D65, reflected, init 0, xorout 0xFFFF), Hamming distance
-    >= 6 at these lengths; used for the frames that make the rover move (COMMAND, ESTOP).
+  - 16 bits: CRC-16/DNP (poly 0x3D65, reflected, init 0, xorout 0xFFFF): no undetected error
+    pattern of up to 4 bits at these lengths (counted exhaustively by ``safer-hil bench e2e``);
+    used for the frames that make the rover move (COMMAND, ESTOP).
 
 * reserved bits: every payload bit that no DBC signal covers must be zero.
 
