@@ -96,7 +96,11 @@ class RoverCan:
     """Encoder/decoder for every frame of the rover DBC."""
 
     def __init__(self, dbc_path: str | Path = DEFAULT_DBC) -> None:
-        db = cantools.database.load_file(str(dbc_path))
+        try:
+            db = cantools.database.load_file(str(dbc_path))
+        except (OSError, cantools.database.UnsupportedDatabaseFormatError) as exc:
+            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc).splitlines()[0]
+            raise ValueError(f"{dbc_path}: not a readable CAN database ({reason})") from None
         if not isinstance(db, cantools.database.can.Database):
             raise ValueError(f"{dbc_path}: not a CAN database")
         self.db = db
@@ -115,7 +119,10 @@ class RoverCan:
         self.node_id = {axis: self._msg[f"{axis}_HEARTBEAT"].frame_id - 0x700 for axis in AXES}
         self.node_id["FSW"] = self._msg["FSW_HEARTBEAT"].frame_id - 0x700
         #: frame id -> E2E layout, for every frame of the DBC (ValueError if one is unprotected)
-        self.e2e: dict[int, E2ELayout] = {m.frame_id: E2ELayout.from_message(m) for m in db.messages}
+        try:
+            self.e2e: dict[int, E2ELayout] = {m.frame_id: E2ELayout.from_message(m) for m in db.messages}
+        except ValueError as exc:
+            raise ValueError(f"{dbc_path}: {exc}") from None
 
     @staticmethod
     def _required() -> list[str]:

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from fsw.config import param
+from fsw.config import ConfigError, param
 
 REPO_ROOT = Path(__file__).resolve().parent.parent.parent
 
@@ -103,10 +103,14 @@ def open_devices(cfg: DevicesConfig, provided: dict[str, Any] | None = None) -> 
         def open_bus() -> can.BusABC:
             return can.Bus(**can_bus_kwargs(cfg))
 
+        try:
+            codec = RoverCan(dbc_path(cfg))
+        except ValueError as exc:  # unreadable, or a frame without the E2E convention (docs/hil.md)
+            raise ConfigError(str(dbc_path(cfg)), "devices.can_dbc", str(exc).split(": ", 1)[-1]) from None
         bus, error = _provided_or_open(provided, "can_bus", open_bus)
         motors = CanMotorDriver(
             bus,
-            RoverCan(dbc_path(cfg)),
+            codec,
             status_timeout_s=cfg.can_status_timeout_s,
             heartbeat_timeout_s=cfg.can_heartbeat_timeout_s,
             heartbeat_period_s=cfg.can_heartbeat_period_s,
