@@ -25,7 +25,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     cfg = _load(args.config)
     if cfg is None:
         return 2
-    exe = build_executive(cfg)
+    try:
+        exe = build_executive(cfg)
+    except ConfigError as err:  # e.g. the CAN database named by [devices] can_dbc
+        print(f"safer-fsw: config error: {err}", file=sys.stderr)
+        return 2
     frames = None if args.duration is None else max(1, round(args.duration / cfg.executive.frame_period_s))
     print(
         f"safer-fsw: running {len(exe.tasks)} components at {1 / exe.period_s:.1f} Hz "

@@ -59,7 +59,7 @@ class MavlinkAdapter:
             self.codec.signing.sign_outgoing = True
             self.codec.signing.link_id = cfg.link_id
             self.codec.signing.timestamp = signing_ts
-        self.verifier = SignatureVerifier(key, cfg.signing_max_age_s)
+        self.verifier = SignatureVerifier(key, cfg.signing_max_age_s, max_future_s=cfg.signing_max_future_s)
         self.uplink = Uplink(self.verifier, cfg.system_id, cfg.component_id)
         self.packer = Packer(self.codec)
         self.events = EventQueue(cfg.statustext_queue, Severity[cfg.statustext_min_severity],
@@ -85,6 +85,12 @@ class MavlinkAdapter:
         batch = self.uplink.feed(data, now_ts, packet_end)
         self._clock_signing(now_ts)
         return batch
+
+    def restore_window(self, streams: dict[tuple[int, int, int], int], now_ts: int) -> None:
+        """A saved replay window (after a restart); our own signing time moves past it too."""
+        self.verifier.restore(streams)
+        self.verifier.changed = False
+        self._clock_signing(now_ts)
 
     def _clock_signing(self, now_ts: int) -> None:
         """Our signing time follows the clock (a ground station refuses a new stream more than a

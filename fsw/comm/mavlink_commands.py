@@ -41,6 +41,7 @@ class Reason(enum.IntEnum):
     REPLAY = 3
     STALE = 4
     NO_KEY = 5
+    FUTURE = 6
     BAD_ARGUMENTS = 10
     UNKNOWN_OPCODE = 11
     VALIDATION = 12

@@ -31,6 +31,12 @@ class MavlinkConfig:
     sign_downlink: bool = param(True, doc="sign outgoing frames too (13 bytes each) when a key is loaded")
     signing_max_age_s: float = param(60.0, lo=1.0, hi=86400.0, units="s",
                                      doc="a new signed stream older than this is refused as stale")
+    signing_max_future_s: float = param(60.0, lo=0.1, hi=86400.0, units="s",
+                                        doc="a signed command dated further ahead of our clock is refused "
+                                            "(FUTURE), counted and evented")
+    signing_state_file: str = param("", doc="where the replay window (newest timestamp per signed stream) "
+                                            "is saved atomically to survive restarts; '' = KEY_FILE.replay.json "
+                                            "next to the key (the window belongs to the key)")
     budget_bytes_per_frame: int = param(600, lo=280, hi=1_000_000, units="B",
                                         doc="downlink bytes per activation of the task, all frames "
                                             "included (>= one maximal 280-byte frame)")

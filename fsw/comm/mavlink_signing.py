@@ -14,7 +14,14 @@ ground station. A frame is refused as
   its stream ``(link_id, system, component)``;
 * ``STALE`` - a valid signature opening a new stream with a timestamp more than
   ``max_age_s`` behind our signing time (spec: one minute);
+* ``FUTURE`` - a valid signature whose timestamp is more than ``max_future_s`` ahead of our
+  signing time. Accepting it would move the stream's window far ahead and lock out the
+  stream's correctly timed commands as replays (a ground clock set days ahead did that);
+  the window is not touched;
 * ``NO_KEY`` - no key was loaded, so nothing can be authenticated.
+
+The per-stream window (:attr:`SignatureVerifier.streams`) survives a restart through
+``fsw.drivers.signing_store``: :attr:`SignatureVerifier.changed` says when to save it.
 """
 
 from __future__ import annotations
@@ -43,6 +50,7 @@ class Verdict(enum.Enum):
     REPLAY = "REPLAY"
     STALE = "STALE"
     NO_KEY = "NO_KEY"
+    FUTURE = "FUTURE"
 
 
 def parse_key(data: bytes) -> bytes:
@@ -120,6 +128,8 @@ class SignatureVerifier:
     streams: dict[tuple[int, int, int], int] = field(default_factory=dict)
     counts: dict[Verdict, int] = field(default_factory=lambda: dict.fromkeys(Verdict, 0))
     max_streams: int = 64
+    max_future_s: float = 60.0
+    changed: bool = False  # the window moved since the owner last saved it (owner clears it)
 
     def verify(self, frame: bytes, system_id: int, component_id: int, now_ts: int) -> Verdict:
         """Judge one whole frame (as received); ``now_ts`` is our signing time (10 us units)."""
@@ -137,6 +147,8 @@ class SignatureVerifier:
         if not hmac.compare_digest(expected, frame[-6:]):
             return Verdict.BAD_SIGNATURE
         link_id, ts = fields
+        if ts > now_ts + int(self.max_future_s * 100_000):
+            return Verdict.FUTURE
         stream = (link_id, system_id, component_id)
         last = self.streams.get(stream)
         if last is not None and ts <= last:
@@ -147,7 +159,13 @@ class SignatureVerifier:
             # bounded memory: forget the stream that has been quiet longest (oldest timestamp)
             del self.streams[min(self.streams, key=self.streams.__getitem__)]
         self.streams[stream] = ts
+        self.changed = True
         return Verdict.OK
+
+    def restore(self, streams: dict[tuple[int, int, int], int]) -> None:
+        """Take a saved window (after a restart): a replay of an older command stays a REPLAY."""
+        for stream, ts in streams.items():
+            self.streams[stream] = max(ts, self.streams.get(stream, 0))
 
     def newest_timestamp(self) -> int:
         """Highest accepted timestamp (our signing time never falls behind it)."""

@@ -7,9 +7,10 @@ from the DBC (read with cantools); this module adds only what a DBC cannot say:
 * the axis table: twelve motor controllers, ``{DRIVE,STEER,SHOULDER}_{FL,FR,RL,RR}``, whose
   frames are ``<AXIS>_CMD`` (0x200 + node), ``<AXIS>_STATUS`` (0x180 + node) and
   ``<AXIS>_HEARTBEAT`` (0x700 + node), plus ``ESTOP`` (0x000) and ``FSW_HEARTBEAT`` (0x701);
-* the end-to-end protection of COMMAND, STATUS and ESTOP frames (AUTOSAR E2E profile 1 style):
-  a 4-bit alive ``Counter`` and a ``Checksum`` byte, CRC-8/SAE-J1850 over the frame id (two
-  bytes, little-endian) and every data byte but the last, stored in the last byte.
+* the end-to-end protection of every frame (:mod:`fsw.comm.e2e`, laid out by the DBC's
+  ``Counter`` and ``Checksum`` signals): encoders take the alive counter and fill the CRC;
+  :meth:`RoverCan.decode` refuses a wrong length, a wrong checksum and set reserved bits.
+  The counter *sequence* is the receiver's business (:class:`fsw.comm.e2e.SequenceChecker`).
 
 Nothing here raises on bad input from the wire: :meth:`RoverCan.decode` returns a
 :class:`Bad` with the reason, so callers count and event it.
@@ -24,6 +25,8 @@ from typing import Any
 
 import cantools
 
+from fsw.comm.e2e import E2ELayout
+
 WHEELS = ("FL", "FR", "RL", "RR")
 KINDS = ("DRIVE", "STEER", "SHOULDER")
 AXES = tuple(f"{k}_{w}" for k in KINDS for w in WHEELS)
@@ -32,36 +35,6 @@ STATE_BOOTUP, STATE_STOPPED, STATE_OPERATIONAL, STATE_PREOP = 0, 4, 5, 127
 FAULT_BITS = ("FaultTimeout", "FaultLimit", "FaultOvercurrent", "FaultEStop", "FaultDriver")
 POSITION_WRAP_RAD = 1048.576  # the 20-bit Position signal at 0.001 rad wraps with this period
 DEFAULT_DBC = Path(__file__).resolve().parent.parent.parent / "config" / "rover.dbc"
-
-
-def _crc8_table(poly: int = 0x1D) -> bytes:
-    table = bytearray(256)
-    for i in range(256):
-        c = i
-        for _ in range(8):
-            c = ((c << 1) ^ poly) & 0xFF if c & 0x80 else (c << 1) & 0xFF
-        table[i] = c
-    return bytes(table)
-
-
-_CRC8 = _crc8_table()
-
-
-def crc8(data: bytes) -> int:
-    """CRC-8/SAE-J1850 (poly 0x1D, init 0xFF, xorout 0xFF), table driven.
-
-    ``crccheck.crc.Crc8SaeJ1850`` is the reference (the tests compare); it is pure Python and
-    about ten times slower than this table, which matters at hundreds of frames a second.
-    """
-    c = 0xFF
-    for b in data:
-        c = _CRC8[c ^ b]
-    return c ^ 0xFF
-
-
-def e2e_checksum(frame_id: int, data: bytes) -> int:
-    """The Checksum byte of a protected frame: CRC-8 over the id and all data bytes but the last."""
-    return crc8(bytes((frame_id & 0xFF, (frame_id >> 8) & 0xFF)) + bytes(data[:-1]))
 
 
 def wrap_position(pos_rad: float) -> float:
@@ -98,6 +71,7 @@ class AxisStatus:
 class Heartbeat:
     node: str  # "FSW" or an axis name
     state: int
+    counter: int
 
 
 @dataclass(frozen=True)
@@ -108,7 +82,7 @@ class EStop:
 
 @dataclass(frozen=True)
 class Bad:
-    """A frame that could not be accepted, and why (``unknown_id``, ``dlc``, ``checksum``, ...)."""
+    """A frame that could not be accepted, and why (``unknown_id``, ``dlc``, ``checksum``, ``reserved``...)."""
 
     frame_id: int
     reason: str
@@ -122,7 +96,11 @@ class RoverCan:
     """Encoder/decoder for every frame of the rover DBC."""
 
     def __init__(self, dbc_path: str | Path = DEFAULT_DBC) -> None:
-        db = cantools.database.load_file(str(dbc_path))
+        try:
+            db = cantools.database.load_file(str(dbc_path))
+        except (OSError, cantools.database.UnsupportedDatabaseFormatError) as exc:
+            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc).splitlines()[0]
+            raise ValueError(f"{dbc_path}: not a readable CAN database ({reason})") from None
         if not isinstance(db, cantools.database.can.Database):
             raise ValueError(f"{dbc_path}: not a CAN database")
         self.db = db
@@ -140,6 +118,11 @@ class RoverCan:
         self.route[self._msg["FSW_HEARTBEAT"].frame_id] = ("HEARTBEAT", "FSW", self._msg["FSW_HEARTBEAT"])
         self.node_id = {axis: self._msg[f"{axis}_HEARTBEAT"].frame_id - 0x700 for axis in AXES}
         self.node_id["FSW"] = self._msg["FSW_HEARTBEAT"].frame_id - 0x700
+        #: frame id -> E2E layout, for every frame of the DBC (ValueError if one is unprotected)
+        try:
+            self.e2e: dict[int, E2ELayout] = {m.frame_id: E2ELayout.from_message(m) for m in db.messages}
+        except ValueError as exc:
+            raise ValueError(f"{dbc_path}: {exc}") from None
 
     @staticmethod
     def _required() -> list[str]:
@@ -152,11 +135,10 @@ class RoverCan:
         return int(self._msg[name].frame_id)
 
     # -- encoding -----------------------------------------------------------------------------
-    def _protected(self, name: str, signals: dict[str, Any]) -> tuple[int, bytes]:
+    def _protected(self, name: str, signals: dict[str, Any], counter: int) -> tuple[int, bytes]:
         msg = self._msg[name]
-        data = bytearray(msg.encode({**signals, "Checksum": 0}, strict=False))
-        data[-1] = e2e_checksum(msg.frame_id, bytes(data))
-        return msg.frame_id, bytes(data)
+        data = msg.encode({**signals, "Counter": 0, "Checksum": 0}, strict=False)
+        return msg.frame_id, self.e2e[msg.frame_id].protect(data, counter)
 
     def encode_command(
         self, axis: str, setpoint: float, enable: bool, clear_faults: bool, counter: int
@@ -170,8 +152,8 @@ class RoverCan:
                 sig: max(-lim, min(lim, value)),
                 "Enable": int(enable),
                 "ClearFaults": int(clear_faults),
-                "Counter": counter & 0xF,
             },
+            counter,
         )
 
     def encode_status(
@@ -189,17 +171,15 @@ class RoverCan:
             "Velocity": max(-32.768, min(32.767, velocity_radps)),
             "Current": max(-12.8, min(12.7, current_a)),
             "Enabled": int(enabled),
-            "Counter": counter & 0xF,
         }
         sig.update({b: int(b in faults) for b in FAULT_BITS})
-        return self._protected(f"{axis}_STATUS", sig)
+        return self._protected(f"{axis}_STATUS", sig, counter)
 
-    def encode_heartbeat(self, node: str, state: int) -> tuple[int, bytes]:
-        msg = self._msg["FSW_HEARTBEAT" if node == "FSW" else f"{node}_HEARTBEAT"]
-        return msg.frame_id, bytes(msg.encode({"State": state}))
+    def encode_heartbeat(self, node: str, state: int, counter: int) -> tuple[int, bytes]:
+        return self._protected("FSW_HEARTBEAT" if node == "FSW" else f"{node}_HEARTBEAT", {"State": state}, counter)
 
     def encode_estop(self, engage: bool, counter: int) -> tuple[int, bytes]:
-        return self._protected("ESTOP", {"Engage": int(engage), "Counter": counter & 0xF})
+        return self._protected("ESTOP", {"Engage": int(engage)}, counter)
 
     # -- decoding -----------------------------------------------------------------------------
     def decode(self, frame_id: int, data: bytes, is_extended: bool = False) -> Decoded:
@@ -208,12 +188,9 @@ class RoverCan:
         if route is None:
             return Bad(frame_id, "unknown_id", f"id 0x{frame_id:03X}{' (extended)' if is_extended else ''}")
         kind, node, msg = route
-        if len(data) != msg.length:
-            return Bad(frame_id, "dlc", f"{msg.name}: {len(data)} bytes, expected {msg.length}")
-        if kind != "HEARTBEAT" and data[-1] != e2e_checksum(frame_id, data):
-            return Bad(
-                frame_id, "checksum", f"{msg.name}: checksum 0x{data[-1]:02X} != 0x{e2e_checksum(frame_id, data):02X}"
-            )
+        refused = self.e2e[frame_id].verify(bytes(data))
+        if refused is not None:
+            return Bad(frame_id, *refused)
         try:
             s = msg.decode(bytes(data), decode_choices=False, scaling=True)
         except Exception as exc:  # noqa: BLE001 - cantools errors vary by version; a bad frame is data
@@ -233,4 +210,4 @@ class RoverCan:
             )
         if kind == "ESTOP":
             return EStop(bool(s["Engage"]), int(s["Counter"]))
-        return Heartbeat(node, int(s["State"]))
+        return Heartbeat(node, int(s["State"]), int(s["Counter"]))

@@ -2,13 +2,17 @@
 
 Frame (all multi-byte fields little-endian except the CRC)::
 
-    0xA5 0x5A | LEN | SEQ | TYPE | PAYLOAD (LEN bytes, <= 64) | CRC16 (big-endian)
+    0xA5 0x5A | LEN | SEQ | TYPE | PAYLOAD (LEN bytes, <= 64) | CRC32 (big-endian)
 
-``CRC16`` is CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF; ``binascii.crc_hqx``) over
-``LEN SEQ TYPE PAYLOAD``. :class:`FrameDecoder` takes bytes in any chunking and returns whole
-frames; on garbage, a bad CRC or an impossible length it drops one byte and hunts for the next
-sync pair, so a corrupted frame never swallows the good one behind it (resync). It counts what
-it threw away and never raises on line noise.
+``CRC32`` is CRC-32/ISO-HDLC (IEEE 802.3, poly 0x04C11DB7; ``zlib.crc32``) over
+``LEN SEQ TYPE PAYLOAD``: Hamming distance >= 5 at these lengths (<= 568 bits, Koopman), so
+every 1-4 bit error of SEQ, TYPE, payload or CRC is caught; an error in LEN or SYNC reframes
+and is caught with probability 1 - 2^-32, and so is frame-shaped noise (the former CRC-16 let
+2 of 25,000 random frames through in ``safer-hil bench e2e``). :class:`FrameDecoder` takes
+bytes in any chunking and returns whole frames; on garbage, a bad CRC or an impossible length
+it drops one byte and hunts for the next sync pair, so a corrupted frame never swallows the
+good one behind it (resync; a corrupted LEN delays it until LEN + 9 bytes have arrived). It
+counts what it threw away and never raises on line noise.
 
 Messages (``TYPE``: payload):
 
@@ -25,13 +29,13 @@ Messages (``TYPE``: payload):
 
 from __future__ import annotations
 
-import binascii
 import struct
+import zlib
 from dataclasses import dataclass
 
 SYNC = b"\xa5\x5a"
 HEADER_LEN = 5  # sync(2) len seq type
-CRC_LEN = 2
+CRC_LEN = 4
 MAX_PAYLOAD = 64
 
 MOVE, STOP, QUERY, CLEAR_FAULT, ACK, NAK, STATE = 0x01, 0x02, 0x03, 0x04, 0x81, 0x82, 0x83
@@ -57,9 +61,9 @@ STATE_MOVING, STATE_AT_TARGET, STATE_FAULT, STATE_LIMIT = 0x01, 0x02, 0x04, 0x08
 _FORMATS = {MOVE: "<iii", STOP: "", QUERY: "", CLEAR_FAULT: "", ACK: "<BB", NAK: "<BBB", STATE: "<iiiB"}
 
 
-def crc16(data: bytes) -> int:
-    """CRC-16/CCITT-FALSE."""
-    return binascii.crc_hqx(data, 0xFFFF)
+def frame_crc(data: bytes) -> int:
+    """CRC-32/ISO-HDLC (``zlib.crc32``)."""
+    return zlib.crc32(data)
 
 
 @dataclass(frozen=True)
@@ -82,7 +86,7 @@ def encode_frame(seq: int, type_: int, payload: bytes = b"") -> bytes:
     if len(payload) > MAX_PAYLOAD:
         raise ValueError(f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD}")
     body = bytes((len(payload), seq & 0xFF, type_ & 0xFF)) + payload
-    return SYNC + body + crc16(body).to_bytes(2, "big")
+    return SYNC + body + frame_crc(body).to_bytes(CRC_LEN, "big")
 
 
 class FrameDecoder:
@@ -123,7 +127,7 @@ class FrameDecoder:
             if len(buf) < total:
                 break
             body = bytes(buf[2 : HEADER_LEN + n])
-            if crc16(body) != int.from_bytes(buf[HEADER_LEN + n : total], "big"):
+            if frame_crc(body) != int.from_bytes(buf[HEADER_LEN + n : total], "big"):
                 self.crc_errors += 1
                 out.append(FrameError("bad_crc", seq, typ))
                 del buf[:1]

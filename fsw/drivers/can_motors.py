@@ -6,8 +6,10 @@ The driver only moves bytes and supervises; what to command is the motion task's
 
 * ``transmit(now)`` sends every axis its COMMAND frame (the latest setpoint, Enable, a
   one-shot ClearFaults, the alive counter), and the flight computer's heartbeat at its period.
-* ``poll(now)`` drains the bus, decodes STATUS and HEARTBEAT frames (E2E checksum checked,
-  lost frames found from counter jumps; the position is unwrapped) and supervises: status
+* ``poll(now)`` drains the bus, decodes STATUS and HEARTBEAT frames (end-to-end protection,
+  :mod:`fsw.comm.e2e`: checksum and reserved bits in the codec, then the alive counter per
+  frame id here -- a repeated counter or a jump beyond ``e2e_max_delta`` is refused, smaller
+  jumps count lost frames; the position is unwrapped) and supervises: status
   timeout per axis, heartbeat loss per node, the whole bus silent (bus-off, cable), fault bits
   reported by a controller, send failures. Every finding is a fault bit and an event.
 * ``estop(engage)`` broadcasts the emergency stop; while engaged commands go out disabled.
@@ -23,6 +25,7 @@ from typing import Any, ClassVar
 
 import can
 
+from fsw.comm.e2e import SequenceChecker
 from fsw.comm.rover_can import (
     AXES,
     NMT_STATES,
@@ -76,6 +79,9 @@ class CanMotorDriver(DriverBase):
     EVENTS: ClassVar[tuple[EventDef, ...]] = (
         EventDef("CAN_BAD_FRAME", Severity.WARNING_LO, "CAN frame refused ({reason}): {detail}", throttle=5),
         EventDef("CAN_FRAMES_LOST", Severity.WARNING_LO, "{axis}: {lost} status frame(s) lost", throttle=5),
+        EventDef(
+            "CAN_E2E_SEQUENCE", Severity.WARNING_LO, "{frame} refused: alive counter {verdict} ({counter})", throttle=5
+        ),
         EventDef("CAN_TX_ERROR", Severity.WARNING_HI, "CAN send failed: {error}", throttle=5),
         EventDef("CAN_NO_BUS", Severity.WARNING_HI, "CAN bus cannot be opened: {error}", throttle=3),
         EventDef("CAN_NODE_ONLINE", Severity.ACTIVITY_HI, "{axis} heartbeat: {state}"),
@@ -102,6 +108,7 @@ class CanMotorDriver(DriverBase):
         heartbeat_period_s: float = 1.0,
         error_hold_s: float = 2.0,
         reconnect_period_s: float = 2.0,
+        e2e_max_delta: int = 3,
         opener: Callable[[], can.BusABC] | None = None,
     ) -> None:
         super().__init__(error_hold_s)
@@ -118,7 +125,11 @@ class CanMotorDriver(DriverBase):
         self._t_start: float | None = None
         self._t_any_rx: float | None = None
         self._t_reopen = -1e9
-        self.rx_frames = self.rx_bad = self.rx_lost = self.rx_echo = 0
+        self._hb_counter = 0
+        # alive-counter state per frame id; a silence longer than the timeout re-initialises it
+        self._seq_status = SequenceChecker(e2e_max_delta, status_timeout_s)
+        self._seq_heartbeat = SequenceChecker(e2e_max_delta, heartbeat_timeout_s)
+        self.rx_frames = self.rx_bad = self.rx_lost = self.rx_echo = self.rx_e2e_seq = 0
         self.tx_frames = self.tx_errors = 0
         if bus is None:
             self._set(F_NO_BUS)
@@ -154,7 +165,8 @@ class CanMotorDriver(DriverBase):
             self._send(*self.codec.encode_command(axis, sp or 0.0, enable, clear, counter), now)
         if self._t_hb_sent is None or now - self._t_hb_sent >= self.heartbeat_period_s:
             self._t_hb_sent = now
-            self._send(*self.codec.encode_heartbeat("FSW", 5 if not self.estopped else 4), now)
+            self._hb_counter = (self._hb_counter + 1) & 0xF
+            self._send(*self.codec.encode_heartbeat("FSW", 5 if not self.estopped else 4, self._hb_counter), now)
             if self.estopped:
                 self._send_estop(now)  # repeat while engaged: a controller that rebooted learns it
 
@@ -203,8 +215,12 @@ class CanMotorDriver(DriverBase):
             self._bad(now, d.reason, d.detail)
             return
         if isinstance(d, AxisStatus):
+            if not self._in_sequence(self._seq_status, frame_id, d.counter, now, d.axis):
+                return
             self._on_status(d, now)
         elif isinstance(d, Heartbeat) and d.node != "FSW":
+            if not self._in_sequence(self._seq_heartbeat, frame_id, d.counter, now, None):
+                return
             st = self.axes[d.node]
             if st.lost or st.t_heartbeat is None or st.nmt_state != d.state:
                 self._event("CAN_NODE_ONLINE", axis=d.node, state=NMT_STATES.get(d.state, str(d.state)))
@@ -216,14 +232,25 @@ class CanMotorDriver(DriverBase):
             return
         self.rx_frames += 1
 
+    def _in_sequence(self, seq: SequenceChecker, frame_id: int, counter: int, now: float, axis: str | None) -> bool:
+        """The E2E counter check; a refused frame is counted (``rx_bad``, ``rx_e2e_seq``) and evented."""
+        verdict, lost = seq.check(frame_id, counter, now)
+        if lost and axis is not None:
+            self.rx_lost += lost
+            self._hold(F_LOST_FRAMES, now)
+            self._event("CAN_FRAMES_LOST", axis=axis, lost=lost)
+        if verdict.accepted:
+            return True
+        self.rx_bad += 1
+        self.rx_e2e_seq += 1
+        self._hold(F_BAD_FRAMES, now)
+        name = self.codec.e2e[frame_id].name
+        self._event("CAN_E2E_SEQUENCE", frame=name, verdict=verdict.value, counter=counter)
+        return False
+
     def _on_status(self, s: AxisStatus, now: float) -> None:
         st = self.axes[s.axis]
         if st.counter is not None:
-            lost = (s.counter - st.counter - 1) & 0xF
-            if lost:
-                self.rx_lost += lost
-                self._hold(F_LOST_FRAMES, now)
-                self._event("CAN_FRAMES_LOST", axis=s.axis, lost=lost)
             delta = (s.position_rad - st.raw_position + POSITION_WRAP_RAD / 2) % POSITION_WRAP_RAD
             st.position_rad += delta - POSITION_WRAP_RAD / 2
         else:

@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from fsw.drivers.resources import Endpoints, Resources
-from fsw.framework.params import param
+from fsw.framework.params import ConfigError, param
 
 T = TypeVar("T")
 
@@ -46,6 +46,9 @@ class DevicesConfig:
     can_status_timeout_s: float = param(0.5, lo=0.05, hi=60.0, units="s", doc="no STATUS for this long: fault")
     can_heartbeat_timeout_s: float = param(2.5, lo=0.1, hi=60.0, units="s", doc="no heartbeat: node lost")
     can_heartbeat_period_s: float = param(1.0, lo=0.05, hi=60.0, units="s", doc="flight computer heartbeat")
+    can_e2e_max_delta: int = param(
+        3, lo=1, hi=14, doc="E2E alive counter: largest accepted jump (frames lost + 1); beyond, the frame is refused"
+    )
     serial_url: str = param("none", doc="mast port: device or pty path, socket://HOST:PORT, loop://, none")
     serial_baud: int = param(115200, lo=1200, hi=4000000, units="bit/s")
     mast_ack_timeout_s: float = param(0.3, lo=0.01, hi=10.0, units="s", doc="wait for ACK before a retry")
@@ -105,15 +108,20 @@ def open_devices(cfg: DevicesConfig, res: Resources | None = None, endpoints: En
         def open_bus() -> can.BusABC:
             return can.Bus(**can_bus_kwargs(cfg))
 
+        try:
+            codec = RoverCan(dbc_path(cfg))
+        except ValueError as exc:  # unreadable, or a frame without the E2E convention (docs/hil.md)
+            raise ConfigError(str(dbc_path(cfg)), "devices.can_dbc", str(exc).split(": ", 1)[-1]) from None
         bus, error = _provided_or_open(ends.can_bus, open_bus)
         res.motors = CanMotorDriver(
             bus,
-            RoverCan(dbc_path(cfg)),
+            codec,
             status_timeout_s=cfg.can_status_timeout_s,
             heartbeat_timeout_s=cfg.can_heartbeat_timeout_s,
             heartbeat_period_s=cfg.can_heartbeat_period_s,
             error_hold_s=cfg.error_hold_s,
             reconnect_period_s=cfg.reconnect_period_s,
+            e2e_max_delta=cfg.can_e2e_max_delta,
             opener=None if ends.can_bus is not None else open_bus,
         )
         if error is not None:

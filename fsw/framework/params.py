@@ -2,7 +2,10 @@
 
 Each subsystem declares its configuration as a frozen dataclass next to the code that uses
 it; :func:`build` turns a TOML table into that dataclass and refuses anything it cannot
-vouch for: a missing required key, an unknown key, a wrong type or a value out of range.
+vouch for: a missing required key, an unknown key, a wrong type, a value out of range or a
+number that is not finite (TOML allows ``nan``, ``inf`` and ``-inf``; NaN fails every range
+comparison, so it is refused before any bound is checked, and an infinity is refused unless
+the field declares ``allow_inf=True`` and documents what an infinite value means).
 Every refusal is a :class:`ConfigError` that names the file, the dotted key and the reason
 in one line, so a command-line tool can print it and exit 2 instead of a traceback.
 
@@ -16,6 +19,8 @@ Declaring a bounded field::
 from __future__ import annotations
 
 import dataclasses
+import functools
+import math
 import tomllib
 import types
 import typing
@@ -46,12 +51,15 @@ def param(
     choices: tuple[Any, ...] | None = None,
     units: str = "",
     doc: str = "",
+    allow_inf: bool = False,
 ) -> Any:
     """A dataclass field with bounds, allowed choices, units and a description.
 
-    Leave ``default`` out to make the key required in the file.
+    Leave ``default`` out to make the key required in the file. Numbers must be finite;
+    ``allow_inf=True`` admits ``inf``/``-inf`` (say in ``doc`` what infinity means, e.g.
+    "none"); NaN is never admitted.
     """
-    meta = {"lo": lo, "hi": hi, "choices": choices, "units": units, "doc": doc}
+    meta = {"lo": lo, "hi": hi, "choices": choices, "units": units, "doc": doc, "allow_inf": allow_inf}
     if default is _MISSING:
         return dataclasses.field(metadata=meta)
     if isinstance(default, (list, dict, set)):
@@ -93,7 +101,7 @@ def build(cls: type[T], data: Any, source: str = "<config>", prefix: str = "") -
     """Validate ``data`` against the dataclass ``cls`` and construct it."""
     if not isinstance(data, Mapping):
         raise ConfigError(source, prefix, f"expected a table, got {_tname(data)}")
-    hints = typing.get_type_hints(cls)
+    hints = _hints(cls)  # type: ignore[arg-type]
     fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
     unknown = sorted(set(data) - set(fields))
     if unknown:
@@ -106,7 +114,7 @@ def build(cls: type[T], data: Any, source: str = "<config>", prefix: str = "") -
             if f.default is _MISSING and f.default_factory is _MISSING:
                 raise ConfigError(source, key, "missing required key")
             continue
-        kwargs[name] = _convert(hints[name], data[name], source, key)
+        kwargs[name] = _convert(hints[name], data[name], source, key, bool(f.metadata.get("allow_inf")))
         _check_bounds(f.metadata, kwargs[name], source, key)
     try:
         return cls(**kwargs)
@@ -114,7 +122,12 @@ def build(cls: type[T], data: Any, source: str = "<config>", prefix: str = "") -
         raise ConfigError(source, prefix, str(exc)) from None
 
 
-def _convert(tp: Any, value: Any, source: str, key: str) -> Any:
+@functools.cache
+def _hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls)
+
+
+def _convert(tp: Any, value: Any, source: str, key: str, allow_inf: bool = False) -> Any:
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
     if dataclasses.is_dataclass(tp):
@@ -126,12 +139,15 @@ def _convert(tp: Any, value: Any, source: str, key: str) -> Any:
     if origin in (typing.Union, types.UnionType):
         if value is None and type(None) in args:
             return None
+        alts = [a for a in args if a is not type(None)]
+        if len(alts) == 1:  # Optional[X]: X's own error, with its exact key
+            return _convert(alts[0], value, source, key, allow_inf)
         errors = []
         for alt in args:
             if alt is type(None):
                 continue
             try:
-                return _convert(alt, value, source, key)
+                return _convert(alt, value, source, key, allow_inf)
             except ConfigError as exc:
                 errors.append(exc.reason)
         raise ConfigError(source, key, " or ".join(errors))
@@ -139,14 +155,16 @@ def _convert(tp: Any, value: Any, source: str, key: str) -> Any:
         if not isinstance(value, list):
             raise ConfigError(source, key, f"expected an array, got {_tname(value)}")
         if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_convert(args[0], v, source, f"{key}[{i}]") for i, v in enumerate(value))
+            return tuple(_convert(args[0], v, source, f"{key}[{i}]", allow_inf) for i, v in enumerate(value))
         if len(value) != len(args):
             raise ConfigError(source, key, f"expected {len(args)} elements, got {len(value)}")
-        return tuple(_convert(a, v, source, f"{key}[{i}]") for i, (a, v) in enumerate(zip(args, value, strict=True)))
+        return tuple(
+            _convert(a, v, source, f"{key}[{i}]", allow_inf) for i, (a, v) in enumerate(zip(args, value, strict=True))
+        )
     if origin is dict:
         if not isinstance(value, Mapping):
             raise ConfigError(source, key, f"expected a table, got {_tname(value)}")
-        return {str(k): _convert(args[1], v, source, _join(key, str(k))) for k, v in value.items()}
+        return {str(k): _convert(args[1], v, source, _join(key, str(k)), allow_inf) for k, v in value.items()}
     if tp is bool:
         if not isinstance(value, bool):
             raise ConfigError(source, key, f"expected true or false, got {_tname(value)}")
@@ -158,12 +176,13 @@ def _convert(tp: Any, value: Any, source: str, key: str) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(source, key, f"expected a number, got {_tname(value)}")
-        return float(value)
+        return _finite(float(value), source, key, allow_inf)
     if tp is str:
         if not isinstance(value, str):
             raise ConfigError(source, key, f"expected a string, got {_tname(value)}")
         return value
     if tp is Any:
+        _no_nan_inside(value, source, key)
         return value
     raise ConfigError(source, key, f"unsupported field type {tp!r}")  # a schema bug
 
@@ -180,6 +199,26 @@ def _check_bounds(meta: Mapping[str, Any], value: Any, source: str, key: str) ->
                 raise ConfigError(source, key, f"{v} {units} is below the minimum {lo} {units}".replace("  ", " "))
             if hi is not None and v > hi:
                 raise ConfigError(source, key, f"{v} {units} is above the maximum {hi} {units}".replace("  ", " "))
+
+
+def _finite(v: float, source: str, key: str, allow_inf: bool) -> float:
+    if math.isnan(v):
+        raise ConfigError(source, key, "nan is not a number (a NaN passes no range check)")
+    if math.isinf(v) and not allow_inf:
+        raise ConfigError(source, key, f"{v} is not allowed (the value must be finite)")
+    return v
+
+
+def _no_nan_inside(value: Any, source: str, key: str) -> None:
+    """Free-form (``Any``) values may hold numbers too: refuse NaN and infinities anywhere in them."""
+    if isinstance(value, float):
+        _finite(value, source, key, False)
+    elif isinstance(value, Mapping):
+        for k, v in value.items():
+            _no_nan_inside(v, source, _join(key, str(k)))
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            _no_nan_inside(v, source, f"{key}[{i}]")
 
 
 def describe(cls: type) -> list[dict[str, Any]]:

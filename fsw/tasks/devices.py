@@ -27,7 +27,9 @@ class DevicesTask(FlightTask):
     CHANNELS = (
         Channel("can_faults", "bits", hi=0, doc="CanMotorDriver.FAULTS word"),
         Channel("can_rx", "frames", doc="valid frames received"),
-        Channel("can_bad", "frames", hi=0, doc="frames refused (checksum, length, unknown id)"),
+        Channel(
+            "can_bad", "frames", hi=0, doc="frames refused (E2E checksum or counter, reserved bits, length, unknown id)"
+        ),
         Channel("can_lost", "frames", hi=0, doc="status frames lost (counter jumps)"),
         Channel("can_tx", "frames"),
         Channel("can_tx_errors", "count", hi=0),

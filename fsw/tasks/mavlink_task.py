@@ -23,6 +23,7 @@ from fsw.comm.mavlink_dialect import MAV_CMD_DICTIONARY, mavlink, signing_timest
 from fsw.comm.mavlink_signing import KeyFileError, Verdict, load_key
 from fsw.comm.mavlink_tlog import TlogWriter
 from fsw.comm.mavlink_uplink import CommandIn
+from fsw.drivers import signing_store
 from fsw.drivers.mavlink_transport import TransportError, open_transport
 from fsw.framework.commands import Arg, CommandDef, CommandRequest, CommandStatus
 from fsw.framework.telemetry import Channel, Event, EventDef, Severity
@@ -31,8 +32,10 @@ from fsw.tasks.mavlink_preview import PreviewError, encode_preview
 from fsw.tasks.mavlink_view import ViewBuilder
 
 _REASON_OF_VERDICT = {Verdict.UNSIGNED: Reason.UNSIGNED, Verdict.BAD_SIGNATURE: Reason.BAD_SIGNATURE,
-                      Verdict.REPLAY: Reason.REPLAY, Verdict.STALE: Reason.STALE, Verdict.NO_KEY: Reason.NO_KEY}
-_THROTTLED = ("AUTH_REJECTED", "RX_BAD", "TRANSPORT_FAULT", "TLOG_ERROR", "PREVIEW_BAD", "CMD_BAD_ARGS")
+                      Verdict.REPLAY: Reason.REPLAY, Verdict.STALE: Reason.STALE, Verdict.NO_KEY: Reason.NO_KEY,
+                      Verdict.FUTURE: Reason.FUTURE}
+_THROTTLED = ("AUTH_REJECTED", "RX_BAD", "TRANSPORT_FAULT", "TLOG_ERROR", "PREVIEW_BAD", "CMD_BAD_ARGS",
+              "WINDOW_SAVE_ERROR")
 
 
 class MavlinkTask(FlightTask):
@@ -57,6 +60,7 @@ class MavlinkTask(FlightTask):
         Channel("auth_replay", "count", hi=0, doc="commands refused: timestamp not newer (replay)"),
         Channel("auth_stale", "count", hi=0, doc="commands refused: new stream with an old timestamp"),
         Channel("auth_no_key", "count", hi=0, doc="commands refused: no key loaded"),
+        Channel("auth_future", "count", hi=0, doc="commands refused: timestamp beyond signing_max_future_s ahead"),
         Channel("events_sent", "count", doc="events sent as STATUSTEXT"),
         Channel("events_dropped", "count", hi=0, doc="events lost to a full downlink queue"),
         Channel("images_sent", "count", doc="map previews completely sent"),
@@ -70,6 +74,10 @@ class MavlinkTask(FlightTask):
         EventDef("KEY_NONE", Severity.ACTIVITY_HI, "no key_file configured: ground commands are refused"),
         EventDef("KEY_MISSING", Severity.WARNING_HI, "no signing key ({reason}); every command will be refused"),
         EventDef("KEY_PERMISSIONS", Severity.WARNING_LO, "key file {path} is readable by group or others"),
+        EventDef("WINDOW_LOADED", Severity.ACTIVITY_LO, "replay window of {n} signed stream(s) restored from {path}"),
+        EventDef("WINDOW_BAD", Severity.WARNING_HI, "replay window not restored ({reason}); commands older "
+                                                    "than signing_max_age_s are still refused"),
+        EventDef("WINDOW_SAVE_ERROR", Severity.WARNING_HI, "replay window not saved to {path}: {error}", throttle=3),
         EventDef("LINK_UP", Severity.ACTIVITY_HI, "ground station {src} heard"),
         EventDef("LINK_LOST", Severity.WARNING_LO, "no ground HEARTBEAT for {timeout_s:.1f} s"),
         EventDef("RX_BAD", Severity.WARNING_LO, "{n} bad uplink frame(s): {reason}", throttle=5),
@@ -97,6 +105,8 @@ class MavlinkTask(FlightTask):
         self.ctx.events.listeners.append(self._on_event)
         key = self._load_key(cfg.key_file)
         self.adapter = MavlinkAdapter(cfg, key, signing_timestamp(self._unix()))
+        self._window_path = (cfg.signing_state_file or str(signing_store.default_path(cfg.key_file))) if key else ""
+        self._restore_window()
         for ev in self._early or ():
             self.adapter.push_event(ev)
         self._early = None
@@ -132,6 +142,27 @@ class MavlinkTask(FlightTask):
             self.event("KEY_PERMISSIONS", path=path)
         self.event("KEY_LOADED", path=path)
         return key
+
+    def _restore_window(self) -> None:
+        if not self._window_path:
+            return
+        streams, problem = signing_store.load(self._window_path)
+        if problem is not None:
+            self.event("WINDOW_BAD", reason=problem)
+        elif streams:
+            self.event("WINDOW_LOADED", n=len(streams), path=self._window_path)
+        self.adapter.restore_window(streams, signing_timestamp(self._unix()))
+
+    def _save_window(self) -> None:
+        v = self.adapter.verifier
+        if not (self._window_path and v.changed):
+            return
+        try:
+            signing_store.save(self._window_path, v.streams)
+        except OSError as exc:
+            self.event("WINDOW_SAVE_ERROR", path=self._window_path, error=exc.strerror or str(exc))
+            return  # still changed: retried on the next activation
+        v.changed = False
 
     def _open_tlog(self, target: Any) -> TlogWriter | None:
         if not target:
@@ -182,6 +213,7 @@ class MavlinkTask(FlightTask):
 
     def _uplink(self, chunk: bytes, now_ts: int, packetized: bool, stamp: float, now: float) -> None:
         batch = self.adapter.receive(chunk, now_ts, packetized)
+        self._save_window()  # saved before any accepted command acts: a crash cannot forget it
         self._log(stamp, batch.frames)
         if batch.bad:
             self.event("RX_BAD", n=len(batch.bad), reason=batch.bad[0])
@@ -276,6 +308,7 @@ class MavlinkTask(FlightTask):
         self.tlm("auth_replay", v[Verdict.REPLAY])
         self.tlm("auth_stale", v[Verdict.STALE])
         self.tlm("auth_no_key", v[Verdict.NO_KEY])
+        self.tlm("auth_future", v[Verdict.FUTURE])
         self.tlm("events_sent", a.events.sent)
         self.tlm("events_dropped", a.events.dropped)
         self.tlm("images_sent", a.images.images_sent)

@@ -3,8 +3,12 @@
 Each controller behaves as a real one on the bus (frames of ``config/rover.dbc``):
 
 * STATUS every ``status_period_s`` (joint position, velocity, current, Enabled, fault bits,
-  alive counter, checksum) and a HEARTBEAT every ``heartbeat_period_s`` (NMT state);
-* a COMMAND with a bad checksum or length is counted and ignored;
+  alive counter, checksum) and a HEARTBEAT every ``heartbeat_period_s`` (NMT state, alive
+  counter, checksum): every frame end-to-end protected (``fsw.comm.e2e``);
+* a frame with a bad checksum, set reserved bits or a wrong length is counted and ignored; a
+  COMMAND (or an ESTOP release) whose alive counter repeats or jumps beyond ``e2e_max_delta``
+  is counted and ignored too -- a stale, duplicated or reordered command never moves a wheel.
+  An ESTOP *engage* with a good checksum is obeyed whatever its counter (the safe direction);
 * Enable=1 with no latched fault drives the axis to the set-point; the set-point is clipped
   to the controller's limits and FaultLimit is reported while it is;
 * no COMMAND for ``command_timeout_s`` while enabled -> stop, FaultTimeout (latched);
@@ -25,6 +29,7 @@ from dataclasses import dataclass
 
 import can
 
+from fsw.comm.e2e import SequenceChecker
 from fsw.comm.rover_can import (
     AXES,
     STATE_BOOTUP,
@@ -34,6 +39,7 @@ from fsw.comm.rover_can import (
     AxisCommand,
     Bad,
     EStop,
+    Heartbeat,
     RoverCan,
 )
 from fsw.framework.params import param
@@ -51,6 +57,7 @@ class MotorControllerConfig:
     shoulder_min_deg: float = param(5.0, lo=-90.0, hi=90.0, units="deg")
     shoulder_max_deg: float = param(55.0, lo=-90.0, hi=90.0, units="deg")
     overcurrent_a: float = param(10.0, lo=0.1, hi=12.7, units="A")
+    e2e_max_delta: int = param(3, lo=1, hi=14, doc="largest accepted alive-counter jump of a COMMAND or ESTOP")
 
 
 class _Axis:
@@ -63,6 +70,7 @@ class _Axis:
         self.t_cmd = -math.inf
         self.state = STATE_BOOTUP
         self.counter = 0
+        self.hb_counter = 0
         self.last_cmd_counter: int | None = None
 
 
@@ -87,7 +95,10 @@ class MotorControllerBank:
         self._delayed: list[tuple[float, int, int, bytes, bool]] = []  # (due, order, id, data, to_fsw)
         self._order = 0
         self.rx_commands = self.rx_bad = self.rx_other = self.tx_frames = 0
+        self.rx_e2e_seq = 0  # frames refused by the alive-counter check (repeated, out of sequence)
         self.fsw_heartbeats = 0
+        self._seq_cmd = SequenceChecker(cfg.e2e_max_delta, cfg.command_timeout_s)
+        self._seq_other = SequenceChecker(cfg.e2e_max_delta, 2.5 * cfg.heartbeat_period_s)
         self.tap: Callable[[can.Message], None] | None = None  # sees every received frame (a bus logger)
 
     # -- reception --------------------------------------------------------------------------
@@ -124,18 +135,29 @@ class MotorControllerBank:
         if isinstance(d, Bad):
             self.rx_bad += 1
         elif isinstance(d, AxisCommand):
-            self.rx_commands += 1
-            self._on_command(self.axes[d.axis], d, now)
+            if self._in_sequence(self._seq_cmd, frame_id, d.counter, now):
+                self.rx_commands += 1
+                self._on_command(self.axes[d.axis], d, now)
         elif isinstance(d, EStop):
-            self.estop = d.engage
-            if d.engage:
+            in_seq = self._in_sequence(self._seq_other, frame_id, d.counter, now)
+            if d.engage:  # fail-safe: a protected engage is obeyed even out of sequence
+                self.estop = True
                 for ax in self.axes.values():
                     ax.enabled = False
                     ax.latched.add("FaultEStop")
-        elif getattr(d, "node", "") == "FSW":
-            self.fsw_heartbeats += 1
+            elif in_seq:
+                self.estop = False
+        elif isinstance(d, Heartbeat) and d.node == "FSW":
+            if self._in_sequence(self._seq_other, frame_id, d.counter, now):
+                self.fsw_heartbeats += 1
         else:
             self.rx_other += 1  # statuses and heartbeats: our own traffic echoed back
+
+    def _in_sequence(self, seq: SequenceChecker, frame_id: int, counter: int, now: float) -> bool:
+        verdict, _lost = seq.check(frame_id, counter, now)
+        if not verdict.accepted:
+            self.rx_e2e_seq += 1
+        return verdict.accepted
 
     def _on_command(self, ax: _Axis, cmd: AxisCommand, now: float) -> None:
         ax.t_cmd = now
@@ -204,7 +226,8 @@ class MotorControllerBank:
         if now - self._t_hb >= self.cfg.heartbeat_period_s - 1e-9:
             self._t_hb = now
             for ax in self.axes.values():
-                self._emit(ax.name, *self.codec.encode_heartbeat(ax.name, ax.state), now)
+                ax.hb_counter = (ax.hb_counter + 1) & 0xF
+                self._emit(ax.name, *self.codec.encode_heartbeat(ax.name, ax.state, ax.hb_counter), now)
                 if ax.state == STATE_BOOTUP:
                     ax.state = STATE_PREOP
         for frame_id, data in self._due(now, to_fsw=True):

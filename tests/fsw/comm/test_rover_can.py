@@ -5,11 +5,22 @@ from __future__ import annotations
 import os
 
 import cantools
-from crccheck.crc import Crc8SaeJ1850
-from hypothesis import given, settings
+from crccheck.crc import Crc8Autosar, Crc16Dnp
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from fsw.comm.rover_can import AXES, DEFAULT_DBC, AxisCommand, AxisStatus, Bad, RoverCan, crc8, wrap_position
+from fsw.comm.e2e import CRCS
+from fsw.comm.rover_can import (
+    AXES,
+    DEFAULT_DBC,
+    AxisCommand,
+    AxisStatus,
+    Bad,
+    EStop,
+    Heartbeat,
+    RoverCan,
+    wrap_position,
+)
 
 CODEC = RoverCan()
 
@@ -31,11 +42,11 @@ def test_dbc_defines_every_frame_with_documented_node_ids() -> None:
     assert len(db.messages) == 3 * len(AXES) + 2
 
 
-def test_crc8_matches_reference_implementation() -> None:
-    """The table CRC-8/SAE-J1850 equals crccheck's (the E2E checksum of every frame)."""
+def test_e2e_crcs_match_reference_implementation() -> None:
+    """The E2E CRCs (fastcrc) equal crccheck's CRC-8/AUTOSAR and CRC-16/DNP."""
     for n in range(64):
-        data = os.urandom(n % 10)
-        assert crc8(data) == Crc8SaeJ1850.calc(data)
+        data = os.urandom(n % 12)
+        assert CRCS[8](data) == Crc8Autosar.calc(data) and CRCS[16](data) == Crc16Dnp.calc(data)
 
 
 @settings(max_examples=60, deadline=None)
@@ -67,11 +78,39 @@ def test_status_roundtrip_with_position_wrap(axis: str, pos: float, vel: float, 
     assert abs(d.velocity_radps - vel) <= 0.0011 and abs(d.current_a - cur) <= 0.051
 
 
-@settings(max_examples=80, deadline=None)
-@given(fid=st.integers(0, 0x7FF), data=st.binary(max_size=8), ext=st.booleans())
-def test_decode_never_raises_on_arbitrary_frames(fid: int, data: bytes, ext: bool) -> None:
-    """Bad CAN frames are data (a reason), never an exception."""
-    CODEC.decode(fid, data, ext)
+_VALID = [
+    CODEC.encode_command("DRIVE_RL", -1.5, True, True, 9),
+    CODEC.encode_status("STEER_FR", 3.0, 0.5, 1.0, True, {"FaultLimit"}, 2),
+    CODEC.encode_heartbeat("FSW", 5, 15),
+    CODEC.encode_estop(False, 0),
+]
+
+
+@settings(max_examples=300, deadline=None)
+@example(fid=_VALID[0][0], data=_VALID[0][1], ext=False)
+@example(fid=_VALID[1][0], data=_VALID[1][1], ext=False)
+@example(fid=_VALID[2][0], data=_VALID[2][1], ext=False)
+@example(fid=_VALID[3][0], data=_VALID[3][1], ext=False)
+@given(fid=st.sampled_from(sorted(CODEC.e2e)) | st.integers(0, 0x7FF), data=st.binary(max_size=8), ext=st.booleans())
+def test_arbitrary_frames_are_refused_unless_canonical(fid: int, data: bytes, ext: bool) -> None:
+    """req(12.7): bad CAN frames are data (a reason), never an exception, and never accepted:
+    a frame the decoder accepts re-encodes to exactly the same bytes (it is a genuine frame)."""
+    d = CODEC.decode(fid, data, ext)
+    if isinstance(d, Bad):
+        return
+    assert not ext and len(data) == CODEC.e2e[fid].length
+    if isinstance(d, AxisCommand):
+        again = CODEC.encode_command(d.axis, d.setpoint, d.enable, d.clear_faults, d.counter)
+    elif isinstance(d, AxisStatus):
+        again = CODEC.encode_status(
+            d.axis, d.position_rad, d.velocity_radps, d.current_a, d.enabled, d.faults, d.counter
+        )
+    elif isinstance(d, Heartbeat):
+        again = CODEC.encode_heartbeat(d.node, d.state, d.counter)
+    else:
+        assert isinstance(d, EStop)
+        again = CODEC.encode_estop(d.engage, d.counter)
+    assert again == (fid, data)
 
 
 def test_corrupted_or_truncated_frames_are_refused_with_a_reason() -> None:

@@ -8,6 +8,7 @@ from hypothesis import strategies as st
 
 from fsw.comm import camera_frames as cf
 from fsw.comm import serial_frames as sf
+from hil_sim import frame_fuzz as ff
 
 messages = st.one_of(
     st.builds(sf.Move, st.floats(-3, 3), st.floats(-1.5, 1.5), st.floats(0, 1)),
@@ -42,18 +43,45 @@ def test_frames_survive_garbage_and_any_chunking(msgs: list[sf.Message], garbage
     for i in range(0, len(stream), cut):
         got += [x for x in dec.feed(stream[i : i + cut]) if isinstance(x, sf.Frame)]
     parsed = [sf.parse_message(f) for f in got]
-    # garbage may itself contain a valid-looking frame only with a 1/65536 CRC chance: demand ours in order
+    # garbage may itself contain a valid-looking frame only with a 2^-32 CRC chance: demand ours in order
     ours = [p for p in parsed if any(_close(p, m) for m in msgs)]  # type: ignore[arg-type]
     assert len(ours) >= len(msgs)
 
 
 @settings(max_examples=100, deadline=None)
-@given(data=st.binary(max_size=300))
-def test_decoder_never_raises_on_noise(data: bytes) -> None:
+@given(data=st.binary(max_size=300), sync_at=st.lists(st.integers(0, 300), max_size=4))
+def test_noise_yields_no_frame_and_the_next_valid_frame_is_parsed(data: bytes, sync_at: list[int]) -> None:
+    """req(12.7): noise (with sync pairs planted so the CRC path is reached) then a valid frame.
+
+    Nothing but a frame whose exact encoding is in the noise may come out of it, and the valid
+    frame behind the noise is parsed once enough bytes follow to settle any false length.
+    """
+    noise = bytearray(data)
+    for i in sync_at:
+        noise[min(i, len(noise)) : min(i, len(noise))] = sf.SYNC
+    good = sf.encode_message(sf.Move(0.5, -0.25, 0.125), 77)
+    filler = sf.encode_message(sf.Query(), 78) * 11
     dec = sf.FrameDecoder()
-    for item in dec.feed(data):
-        if isinstance(item, sf.Frame):
-            sf.parse_message(item)
+    out = dec.feed(bytes(noise) + good + filler)
+    frames = [f for f in out if isinstance(f, sf.Frame)]
+    assert any(f.seq == 77 and sf.parse_message(f) == sf.Move(0.5, -0.25, 0.125) for f in frames)
+    for f in frames:
+        enc = sf.encode_frame(f.seq, f.type, f.payload)
+        assert enc in bytes(noise) or enc in (good, filler[: len(enc)]), f
+    if sync_at:
+        assert dec.crc_errors + dec.length_errors + dec.frames > 0  # the sync pairs were examined
+
+
+def test_serial_bit_flip_fuzz_accepts_no_corrupted_frame() -> None:
+    """req(12.7): valid frames with 1-3 flipped bits: none accepted, the next valid frame parsed."""
+    r = ff.serial_bit_flips(cases=1500, seed=21)
+    assert r.cases == 1500 and r.accepted == 0 and r.missed_next == 0
+
+
+def test_serial_random_frames_are_refused() -> None:
+    """req(12.7): frame-shaped noise (sync, length, random body and CRC): none accepted."""
+    r = ff.serial_random_frames(cases=3000, seed=22)
+    assert r.cases == 3000 and r.accepted == 0 and r.missed_next == 0
 
 
 def test_corrupted_frame_does_not_swallow_the_next_one() -> None:

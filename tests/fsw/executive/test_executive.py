@@ -6,6 +6,7 @@ independent of machine load.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from typing import Any, ClassVar
 
 import pytest
@@ -50,8 +51,42 @@ class FailingTask(Task):
         raise RuntimeError("device unplugged")
 
 
-registry.KINDS["test_recorder"] = f"{__name__}:RecorderTask"
-registry.KINDS["test_failing"] = f"{__name__}:FailingTask"
+class JumpClock:
+    """A real-time clock (``realtime = True``) whose time moves only when told: ``sleep_until``
+    jumps to the deadline and a :class:`StallTask` burns time on it. Also the execution timer,
+    so lateness, catch-up, skips and slips follow from the script, not from the machine."""
+
+    realtime = True
+
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def now(self) -> float:
+        return self.t
+
+    def __call__(self) -> float:
+        return self.t
+
+    def sleep_until(self, t: float) -> None:
+        self.t = max(self.t, t)
+
+
+class StallTask(Task):
+    KIND: ClassVar[str] = "test_stall"
+    clock: ClassVar[JumpClock] = JumpClock()
+    stall_s: ClassVar[dict[int, float]] = {}
+
+    def run(self, frame: int) -> None:
+        StallTask.clock.t += StallTask.stall_s.get(frame, 0.0)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _test_kinds() -> Iterator[None]:
+    """The test task kinds, known to the registry for this module only (``KINDS`` is restored)."""
+    with pytest.MonkeyPatch.context() as mp:
+        for cls in (RecorderTask, FailingTask, StallTask):
+            mp.setitem(registry.KINDS, cls.KIND, f"{__name__}:{cls.__name__}")
+        yield
 
 
 def make_cfg(groups: list[dict[str, Any]], tasks: list[dict[str, Any]], **execu: Any) -> FswConfig:
@@ -287,29 +322,37 @@ def test_realtime_clock_absolute_deadlines() -> None:
     assert len(exe.lateness_s) == 20
 
 
-def test_realtime_skip_ahead_past_lag_limit() -> None:
-    """Issue 2, item 5: bounded catch-up; past the lag limit the executive skips and says so."""
-    import time
-
-    from fsw.framework.clock import MonotonicClock
-
-    class Stall(Task):
-        KIND: ClassVar[str] = "test_stall"
-
-        def run(self, frame: int) -> None:
-            if frame == 2:
-                time.sleep(0.08)  # 8 frames of 10 ms
-
-    registry.KINDS["test_stall"] = f"{__name__}:Stall"
-    globals()["Stall"] = Stall
+def _stalled_exec(stall_s: dict[int, float]) -> Executive:
+    StallTask.clock, StallTask.stall_s = JumpClock(), stall_s
     cfg = make_cfg(
         [{"name": "fast", "divisor": 1}],
         [task("st", "fast", kind="test_stall", budget_ms=50)],
         frame_period_s=0.01,
         lag_limit_frames=2,
     )
-    exe = Executive(cfg, MonotonicClock())
+    return Executive(cfg, StallTask.clock, timer=StallTask.clock)
+
+
+def test_realtime_skip_ahead_past_lag_limit() -> None:
+    """Issue 2, item 5: bounded catch-up; past the lag limit the executive skips and says so.
+    Frame 2 takes 85 ms of a 10 ms period: frame 3 would start 7.5 periods late (limit 2), so
+    the executive skips 7 frames once, runs frame 10 on time and goes on from there."""
+    exe = _stalled_exec({2: 0.085})
     exe.run_realtime(10)
-    assert exe.skipped_frames >= 5
+    assert exe.skipped_frames == 7 and exe.frame == 17
     assert exe.events.count("exec.SKIPPED") == 1
-    assert exe.slips >= 1
+    assert [e.text for e in exe.events.history if e.name == "exec.SKIPPED"] == [
+        "executive 7 frames behind; skipped ahead to frame 10"
+    ]
+    assert exe.slips == 1 and exe.tasks["st"].overruns == 1
+    assert exe.lateness_s == pytest.approx([0.0, 0.0, 0.0] + [0.005] + [0.0] * 6, abs=1e-9)
+
+
+def test_realtime_late_frames_within_the_lag_limit_catch_up() -> None:
+    """Issue 2, item 5: up to ``lag_limit_frames`` late, frames run back to back (no skip):
+    frame 2 takes 25 ms, frames 3 and 4 start 15 and 5 ms late, frame 5 is on time again."""
+    exe = _stalled_exec({2: 0.025})
+    exe.run_realtime(8)
+    assert exe.skipped_frames == 0 and exe.events.count("exec.SKIPPED") == 0 and exe.frame == 8
+    assert exe.lateness_s == pytest.approx([0.0, 0.0, 0.0, 0.015, 0.005, 0.0, 0.0, 0.0], abs=1e-9)
+    assert exe.slips == 1

@@ -1,0 +1,177 @@
+"""Fuzzing of the protected frames (CAN end-to-end protection, serial mast framing), sans I/O.
+
+Used by ``safer-hil bench e2e`` (the 25,000-case figures) and by the tests (smaller counts).
+Inputs are generated so they reach the checksum path: valid frames of every kind, then
+mutated by 1-3 flipped bits; and random frames. What must never happen is counted:
+
+* CAN (every message of the DBC, laid out by ``fsw.comm.e2e``): a frame with 1-3 flipped
+  bits (payload or identifier) that :meth:`fsw.comm.rover_can.RoverCan.decode` accepts; a
+  random frame (random identifier, length and bytes) that it accepts;
+* serial (``fsw.comm.serial_frames``): a frame that the decoder returns but that was never
+  sent (a corrupted frame taken as good), and a valid frame after the corrupted one that is
+  not parsed (a corrupted frame swallowing the next).
+
+:func:`undetected_patterns` proves the CAN figure rather than sampling it: a CRC is linear,
+so an error pattern escapes the checksum exactly when the XOR of its bits' syndromes is 0,
+whatever the frame's content; it counts every such pattern of a given weight over the
+identifier and payload bits of one layout (flips of reserved bits are always refused).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from fsw.comm import serial_frames as sf
+from fsw.comm.e2e import E2ELayout
+from fsw.comm.rover_can import Bad, RoverCan
+
+ID_BITS = 11
+
+
+@dataclass
+class FuzzCount:
+    cases: int = 0
+    accepted: int = 0  # must stay 0 (random CAN payloads on valid ids: see residual_rate)
+    missed_next: int = 0  # serial only: a valid frame after the corrupted one that was not parsed
+
+    def line(self, what: str) -> str:
+        extra = f", next valid frame missed {self.missed_next}" if what.startswith("serial") else ""
+        return f"{what}: {self.cases} cases, {self.accepted} accepted{extra}"
+
+
+def random_valid_can(layout: E2ELayout, rng: np.random.Generator) -> bytes:
+    """A valid frame of ``layout``'s message: random bits in every signal, counter, checksum."""
+    used = ((1 << (8 * layout.length)) - 1) & ~layout.reserved_mask
+    word = int.from_bytes(rng.bytes(layout.length), "little") & used
+    return layout.protect(word.to_bytes(layout.length, "little"), int(rng.integers(16)))
+
+
+def can_bit_flips(codec: RoverCan, cases: int, seed: int, max_flips: int = 3) -> FuzzCount:
+    """Valid frames of every DBC message in turn, 1..max_flips distinct bits flipped (id or payload)."""
+    rng = np.random.default_rng(seed)
+    layouts = sorted(codec.e2e.values(), key=lambda lay: lay.data_id)
+    out = FuzzCount()
+    for i in range(cases):
+        lay = layouts[i % len(layouts)]
+        data = random_valid_can(lay, rng)
+        if isinstance(codec.decode(lay.data_id, data), Bad):
+            raise AssertionError(f"{lay.name}: a valid frame was refused")  # the generator is wrong
+        nbits = ID_BITS + 8 * lay.length
+        flips = rng.choice(nbits, size=int(rng.integers(1, max_flips + 1)), replace=False)
+        fid, word = lay.data_id, int.from_bytes(data, "little")
+        for b in flips:
+            if b < ID_BITS:
+                fid ^= 1 << int(b)
+            else:
+                word ^= 1 << int(b - ID_BITS)
+        out.cases += 1
+        out.accepted += not isinstance(codec.decode(fid, word.to_bytes(lay.length, "little")), Bad)
+    return out
+
+
+def can_random_frames(codec: RoverCan, cases: int, seed: int, valid_ids_only: bool = False) -> FuzzCount:
+    """Random frames: any 11-bit id, any length 0..8, random bytes (or: DBC ids and lengths only)."""
+    rng = np.random.default_rng(seed)
+    layouts = list(codec.e2e.values())
+    out = FuzzCount()
+    for _ in range(cases):
+        if valid_ids_only:
+            lay = layouts[int(rng.integers(len(layouts)))]
+            fid, n = lay.data_id, lay.length
+        else:
+            fid, n = int(rng.integers(1 << ID_BITS)), int(rng.integers(9))
+        out.cases += 1
+        out.accepted += not isinstance(codec.decode(fid, rng.bytes(n)), Bad)
+    return out
+
+
+def residual_rate(layout: E2ELayout) -> float:
+    """Chance that a random payload on ``layout``'s id passes checksum and reserved bits."""
+    return 2.0 ** -(layout.crc_bits + bin(layout.reserved_mask).count("1"))
+
+
+def undetected_patterns(layout: E2ELayout, weight: int) -> tuple[int, int]:
+    """(undetected, total) error patterns of ``weight`` bits over the id and non-reserved payload bits."""
+    base = bytes(layout.length)
+    k, n = layout.checksum_byte, layout.checksum_bytes
+    ref = layout.crc(base)
+    positions: list[int] = []
+    syndromes: list[int] = []
+    for b in range(ID_BITS):  # an id bit: the same payload checked under another data id
+        other = dataclasses.replace(layout, data_id=layout.data_id ^ (1 << b))
+        positions.append(b)
+        syndromes.append(other.crc(base) ^ ref)
+    for b in range(8 * layout.length):
+        if (layout.reserved_mask >> b) & 1:
+            continue
+        flipped = bytearray(base)
+        flipped[b // 8] ^= 1 << (b % 8)
+        stored = int.from_bytes(flipped[k : k + n], "little")
+        positions.append(ID_BITS + b)
+        syndromes.append(stored ^ layout.crc(bytes(flipped)) ^ ref)  # change of (stored ^ computed)
+    s = np.array(syndromes, dtype=np.int64)
+    total = undetected = 0
+    for combo in _chunks(len(s), weight):
+        x = np.bitwise_xor.reduce(s[combo], axis=1)
+        total += len(combo)
+        undetected += int(np.count_nonzero(x == 0))
+    return undetected, total
+
+
+def _chunks(n: int, weight: int, size: int = 200_000) -> Iterator[np.ndarray]:
+    it = itertools.combinations(range(n), weight)
+    while block := list(itertools.islice(it, size)):
+        yield np.array(block, dtype=np.int64)
+
+
+# -- serial framing -------------------------------------------------------------------------
+def _random_message(rng: np.random.Generator) -> sf.Message:
+    kind = int(rng.integers(7))
+    f = [float(x) for x in rng.uniform(-2.0, 2.0, 3)]
+    b = [int(x) for x in rng.integers(256, size=3)]
+    options: list[sf.Message] = [
+        sf.Move(*f), sf.Stop(), sf.Query(), sf.ClearFault(), sf.Ack(b[0], b[1]), sf.Nak(*b), sf.MastState(*f, b[0])
+    ]
+    return options[kind]
+
+
+def serial_bit_flips(cases: int, seed: int, max_flips: int = 3) -> FuzzCount:
+    """``A | B with 1..max_flips bits flipped | C | filler``: only A, C and the filler may come out."""
+    rng = np.random.default_rng(seed)
+    out = FuzzCount()
+    query = sf.encode_message(sf.Query(), 4)
+    filler = query * ((sf.MAX_PAYLOAD + sf.HEADER_LEN + sf.CRC_LEN) // len(query) + 1)  # flushes a bad LEN
+    for _ in range(cases):
+        a = sf.encode_message(_random_message(rng), 1)
+        b = bytearray(sf.encode_message(_random_message(rng), 2))
+        c = sf.encode_message(_random_message(rng), 3)
+        for bit in rng.choice(8 * len(b), size=int(rng.integers(1, max_flips + 1)), replace=False):
+            b[int(bit) // 8] ^= 1 << (int(bit) % 8)
+        sent = {a, c, query}
+        got = [x for x in sf.FrameDecoder().feed(a + bytes(b) + c + filler) if isinstance(x, sf.Frame)]
+        out.cases += 1
+        out.accepted += sum(1 for g in got if sf.encode_frame(g.seq, g.type, g.payload) not in sent)
+        out.missed_next += not any(g.seq == 3 for g in got)
+    return out
+
+
+def serial_random_frames(cases: int, seed: int) -> FuzzCount:
+    """Frame-shaped noise (sync, random length/seq/type/payload/CRC) followed by one valid frame."""
+    rng = np.random.default_rng(seed)
+    out = FuzzCount()
+    good = sf.encode_message(sf.Stop(), 9)
+    query = sf.encode_message(sf.Query(), 4)
+    filler = query * ((sf.MAX_PAYLOAD + sf.HEADER_LEN + sf.CRC_LEN) // len(query) + 1)
+    for _ in range(cases):
+        n = int(rng.integers(sf.MAX_PAYLOAD + 1))
+        noise = sf.SYNC + bytes([n]) + rng.bytes(2 + n + sf.CRC_LEN)
+        got = [x for x in sf.FrameDecoder().feed(noise + good + filler) if isinstance(x, sf.Frame)]
+        out.cases += 1
+        out.accepted += sum(1 for g in got if sf.encode_frame(g.seq, g.type, g.payload) not in (good, query))
+        out.missed_next += not any(g.seq == 9 for g in got)
+    return out
