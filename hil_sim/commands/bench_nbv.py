@@ -56,13 +56,13 @@ def run(args: argparse.Namespace) -> int:
         cell_points,
         horizontal_reach_m,
         in_view,
-        pv_reference,
         terrain_from_map,
     )
     from fsw.core.visibility_kernel import pv_fast
     from fsw.framework.params import ConfigError
     from fsw.settings import load_settings
     from hil_sim import nbv_scene
+    from hil_sim.pv_oracle import pv_reference
 
     for name in ("seed", "warmup_views", "ref_poses", "repeat", "expected_check"):
         if getattr(args, name) < (1 if name == "repeat" else 0):

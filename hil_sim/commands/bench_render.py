@@ -54,9 +54,9 @@ def run(args: argparse.Namespace) -> int:
     from fsw.core.geometry import camera_pose_from_rover
     from fsw.framework.params import ConfigError
     from fsw.settings import DEFAULT_CONFIG, load_settings
-    from hil_sim.commands.render import aim_at
     from hil_sim.render import StereoRenderer
     from hil_sim.world import load_scenario
+    from hil_sim.world.world import aim_at
 
     if args.repeats < 1 or args.noise < 0:
         print("safer-hil bench render: --repeats must be >= 1 and --noise >= 0")

@@ -92,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
     from hil_sim.render import StereoRenderer
     from hil_sim.world import load_scenario
     from hil_sim.world.figures import elevation_figure
+    from hil_sim.world.world import aim_at
 
     try:
         cfg = load_settings(args.config or DEFAULT_CONFIG)
@@ -143,21 +144,3 @@ def run(args: argparse.Namespace) -> int:
           f"{np.nanmin(depth) if seen.any() else float('nan'):.2f}.."
           f"{np.nanmax(depth) if seen.any() else float('nan'):.2f} m)")
     return 0
-
-
-def aim_at(world, rover_xy_yaw, mast):  # type: ignore[no-untyped-def]
-    """Mast joints (pan, tilt, lift 0.3 m) that point the camera at the Cliff-bot's centre."""
-    import math
-
-    from fsw.core.geometry import camera_pose_from_rover
-
-    x, y, yaw = rover_xy_yaw
-    lift = min(max(0.3, mast.lift_min_m), mast.lift_max_m)
-    cam = camera_pose_from_rover((x, y, yaw), (0.0, 0.0, lift), mast, world.plateau_z).t
-    cb = world.cliffbot
-    target = (cb.x, cb.y, cb.z + 0.5 * cb.height_m)
-    dx, dy, dz = target[0] - cam[0], target[1] - cam[1], target[2] - cam[2]
-    pan = math.atan2(dy, dx) - yaw
-    pan = math.atan2(math.sin(pan), math.cos(pan))
-    tilt = math.atan2(dz, math.hypot(dx, dy))
-    return mast.clamp(pan, tilt, lift)

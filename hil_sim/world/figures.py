@@ -101,9 +101,9 @@ def write_doc_figures(outdir: Path) -> dict[str, float]:
     import matplotlib.pyplot as plt
 
     from fsw.core.geometry import MastConfig, camera_pose_from_rover
-    from hil_sim.commands.render import aim_at
     from hil_sim.render import StereoRenderer
     from hil_sim.world import load_scenario
+    from hil_sim.world.world import aim_at
 
     outdir.mkdir(parents=True, exist_ok=True)
     cam, mast = CameraConfig(), MastConfig()

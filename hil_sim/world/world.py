@@ -14,13 +14,14 @@ height at the cell centre; :meth:`World.height_at` interpolates bilinearly betwe
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.core.geometry import MapGrid, MapGridConfig
+from fsw.core.geometry import MapGrid, MapGridConfig, MastConfig, camera_pose_from_rover
 from hil_sim.world.cliffbot import CliffbotTruth
 
 F32 = NDArray[np.float32]
@@ -139,3 +140,17 @@ def readonly(*arrays: np.ndarray) -> None:
     """Mark arrays read-only (worlds are cached and shared between callers)."""
     for a in arrays:
         a.flags.writeable = False
+
+
+def aim_at(world: World, rover_xy_yaw: tuple[float, float, float], mast: MastConfig) -> tuple[float, float, float]:
+    """Mast joints (pan, tilt, lift 0.3 m) that point the camera at the Cliff-bot's centre."""
+    x, y, yaw = rover_xy_yaw
+    lift = min(max(0.3, mast.lift_min_m), mast.lift_max_m)
+    cam = camera_pose_from_rover((x, y, yaw), (0.0, 0.0, lift), mast, world.plateau_z).t
+    cb = world.cliffbot
+    target = (cb.x, cb.y, cb.z + 0.5 * cb.height_m)
+    dx, dy, dz = target[0] - cam[0], target[1] - cam[1], target[2] - cam[2]
+    pan = math.atan2(dy, dx) - yaw
+    pan = math.atan2(math.sin(pan), math.cos(pan))
+    tilt = math.atan2(dz, math.hypot(dx, dy))
+    return mast.clamp(pan, tilt, lift)

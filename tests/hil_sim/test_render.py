@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 
 from fsw.core.geometry import CameraConfig, CameraPose, MastConfig, camera_pose_from_rover
-from hil_sim.commands.render import aim_at
 from hil_sim.render import StereoRenderer
 from hil_sim.world import load_scenario
 from hil_sim.world.raytrace import Heightfield, cast_rays, pixel_rays
+from hil_sim.world.world import aim_at
 
 WALL = (2.0, 2.1, -0.5, 0.5, 0.3)  # x0, x1, y0, y1, height (m)
 DOTS = np.array([(x, y) for x in np.arange(1.0, 3.51, 0.5) for y in np.arange(-1.5, 1.51, 0.5)])

@@ -15,12 +15,12 @@ from fsw.core.visibility import (
     Terrain,
     VisibilityConfig,
     in_view,
-    pv_reference,
     terrain_from_heights,
     terrain_from_map,
 )
 from fsw.core.visibility_kernel import pv_fast
 from hil_sim.nbv_scene import panorama_map, synthetic_terrain
+from hil_sim.pv_oracle import pv_reference
 
 GRID = MapGrid(x0=-0.5, y0=-3.5, cell=0.04, nx=110, ny=100)
 VIS = VisibilityConfig()
