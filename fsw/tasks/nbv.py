@@ -10,7 +10,8 @@ from __future__ import annotations
 import math
 from typing import Any, ClassVar
 
-from fsw.core.planners import PlannerState, make_planner
+from fsw.core.methods import make_planner
+from fsw.core.planners import PlannerState
 from fsw.framework.jobs import JobHandle
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.base import FlightTask

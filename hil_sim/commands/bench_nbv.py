@@ -49,8 +49,9 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from fsw.core.geometry import MapGrid
+    from fsw.core.info_planners import InformationPlanner
     from fsw.core.nbv import info_n_max, predicted_visibility, rate_station
-    from fsw.core.planners import InformationPlanner, PlannerState
+    from fsw.core.planners import PlannerState
     from fsw.core.view_candidates import CandidateView, joint_grid, path_stations
     from fsw.core.visibility import (
         cell_points,

@@ -13,15 +13,11 @@ from fsw.core.edge import EdgeModel, edge_path
 from fsw.core.elevation_map import ElevationMap
 from fsw.core.geofence import Geofence, GeofenceConfig
 from fsw.core.geometry import CameraConfig, MapGrid, MastConfig, RoverConfig, camera_pose_from_rover
+from fsw.core.info_planners import InformationPlanner, straighten
+from fsw.core.methods import make_planner
 from fsw.core.nbv import NbvConfig
-from fsw.core.planners import (
-    InformationPlanner,
-    PlannerState,
-    RasterPlanner,
-    _close,
-    make_planner,
-    straighten,
-)
+from fsw.core.planners import PlannerState
+from fsw.core.raster_planners import RasterPlanner, _close
 from fsw.core.view_candidates import CandidateView, along_extent, footprint, path_stations
 from fsw.core.visibility import cell_points, in_view, terrain_from_map
 from hil_sim.nbv_scene import edge_offset_path, panorama_map, synthetic_edge, synthetic_terrain

@@ -1,0 +1,121 @@
+"""Methods 3, 4, 5 and the oracle of ALGORITHM.md §7: information-based view selection.
+
+Every reachable station along the edge path (``view_candidates.path_stations``) is rated by
+its expected information (§3-§4, ``fsw.core.nbv``); Method 3 straightens the path, Method 5
+weighs P_V by the interest function, the oracle rates with the true terrain and texture.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.core.geometry import CameraConfig, CameraPose, MastConfig, camera_pose_from_rover
+from fsw.core.nbv import (
+    MapLike,
+    NbvConfig,
+    info_n_max,
+    localization_sigma,
+    motion_cost,
+    rate_station_steps,
+    utility,
+)
+from fsw.core.planners import Planner, PlannerState, SearchGen
+from fsw.core.view_candidates import (
+    CandidateView,
+    as_polyline,
+    joint_grid,
+    path_stations_steps,
+)
+from fsw.core.visibility import F64, Terrain, in_view, terrain_from_heights, terrain_from_map
+
+
+class InformationPlanner(Planner):
+    """Methods 3, 4, 5 and the oracle: the reachable candidate of highest utility (§3.5)."""
+
+    def __init__(self, name: str, cfg: NbvConfig, camera: CameraConfig, mast: MastConfig, *,
+                 use_interest: bool = False, straight_edge: bool = False,
+                 truth_z_m: F64 | None = None, textured: NDArray[np.bool_] | None = None) -> None:
+        self.name, self.cfg, self.camera, self.mast = name, cfg, camera, mast
+        self.use_interest, self.straight_edge = use_interest, straight_edge
+        self._truth_z = truth_z_m
+        self._textured = None if textured is None else np.asarray(textured, bool).astype(float)
+        self._truth_terrain: Terrain | None = None
+        self.last_stations = 0  # stations rated by the last search
+        self.last_centres = 0  # camera centres (stations x lifts) rated by the last search
+
+    def _terrain(self, emap: MapLike) -> tuple[Terrain, F64 | None]:
+        if self._truth_z is None:
+            terrain = terrain_from_map(emap.z, emap.var, emap.grid, self.cfg.visibility)
+            return terrain, (emap.interest if self.use_interest else None)
+        if self._truth_terrain is None:
+            z = np.asarray(self._truth_z, dtype=np.float64)
+            z = np.where(np.isfinite(z), z, np.nanmin(z) if np.isfinite(z).any() else 0.0)
+            self._truth_terrain = terrain_from_heights(z, emap.grid, self.cfg.oracle_sigma_m)
+        return self._truth_terrain, self._textured
+
+    def search(self, state: PlannerState) -> SearchGen:
+        cfg = self.cfg
+        terrain, interest = self._terrain(state.map)
+        yield None
+        path = straighten(state.path) if self.straight_edge else state.path
+        stations = yield from path_stations_steps(path, state.rover, state.motion_ok,
+                                                  cfg.station_spacing_m, cfg.max_travel_m)
+        self.last_stations = len(stations)
+        self.last_centres = 0
+        pans, tilts, lifts = joint_grid(self.mast, cfg.pan_step_deg, cfg.tilts_deg, cfg.lifts_m)
+        current = np.array([*state.rover, *state.joints], dtype=np.float64)
+        n_max = info_n_max(state.map, cfg)
+        best: CandidateView | None = None
+        pp, tt = np.meshgrid(pans, tilts, indexing="ij")
+        for st in stations:
+            for lift in lifts:
+                cam = camera_pose_from_rover(st.rover, (0.0, 0.0, float(lift)), self.mast,
+                                             state.ground_z_m).t
+                cam_xyz = (float(cam[0]), float(cam[1]), float(cam[2]))
+                yaws = st.rover[2] + pans
+                r = yield from rate_station_steps(terrain, cam_xyz, yaws, tilts, state.map.n,
+                                                  n_max, interest, self.camera, cfg.visibility)
+                poses = np.column_stack([np.tile(st.rover, (pp.size, 1)), pp.ravel(), tt.ravel(),
+                                         np.full(pp.size, lift)])
+                d = motion_cost(poses, current, cfg)
+                rng = landmark_range(cam_xyz, yaws, tilts, state.landmarks_xyz, self.camera)
+                sig = localization_sigma(np.full(pp.size, st.travel_m), state.sigma_loc_m,
+                                         rng.ravel(), cfg)
+                u = utility(r.info_bits.ravel(), d, sig, cfg)
+                k = int(np.argmax(u))
+                if best is None or u[k] > best.utility:
+                    best = CandidateView(
+                        st.rover, (float(pp.ravel()[k]), float(tt.ravel()[k]), float(lift)),
+                        float(r.info_bits.ravel()[k]), float(r.expected_new_cells.ravel()[k]),
+                        float(d[k]), float(sig[k]), float(u[k]), self.name)
+                self.last_centres += 1
+        return best
+
+
+def landmark_range(cam_xyz: tuple[float, float, float], yaws: F64, tilts: F64,
+                   landmarks_xyz: F64, camera: CameraConfig) -> F64:
+    """(P, T) range to the nearest landmark inside each view (inf if none)."""
+    out = np.full((yaws.size, tilts.size), np.inf)
+    lm = np.asarray(landmarks_xyz, dtype=np.float64).reshape(-1, 3)
+    if lm.shape[0] == 0:
+        return out
+    for p, yaw in enumerate(yaws):
+        for t, tilt in enumerate(tilts):
+            pose = CameraPose.from_pan_tilt(*cam_xyz, float(yaw), float(tilt))
+            vis = in_view(pose, camera, lm)
+            if vis.any():
+                out[p, t] = float(np.linalg.norm(lm[vis] - pose.t, axis=1).min())
+    return out
+
+
+def straighten(path: F64) -> F64:
+    """Method 3's path: one straight segment (total least squares) spanning the path points."""
+    xy = as_polyline(path)
+    if xy.shape[0] < 2:
+        return xy
+    c = xy.mean(axis=0)
+    _, _, vt = np.linalg.svd(xy - c, full_matrices=False)
+    d = vt[0] if np.dot(vt[0], xy[-1] - xy[0]) >= 0 else -vt[0]
+    s = (xy - c) @ d
+    return np.vstack([c + s.min() * d, c + s.max() * d])
