@@ -55,6 +55,8 @@ class LinkConfig:
                              doc="either end: no packet from the peer this long ends the session")
     fin_linger_s: float = param(30.0, lo=0.0, hi=3600.0, units="s",
                                 doc="receiver: repeat FIN until FIN_ACK or this long")
+    close_tries: int = param(8, lo=1, hi=1000,
+                             doc="sender: FIN_ACKs at most (one per FIN) before it gives up the close")
     max_bitmap_bytes: int = param(64, lo=1, hi=255, units="B",
                                   doc="selective-ack window in a STATUS (8 segments per byte)")
     max_restarts: int = param(3, lo=0, hi=100, doc="sender: resends after a hash mismatch")
