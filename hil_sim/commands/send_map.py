@@ -40,7 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--session", type=int, default=1, help="link session id (1 .. 65535)")
     p.add_argument("--timeout", type=float, default=600.0, help="give up after this many seconds")
     p.add_argument("--rate-bps", type=float, default=None, help="radio bit rate (default: [link])")
-    p.add_argument("--linger-s", type=float, default=3.0,
+    p.add_argument("--linger-s", type=float, default=5.0,
                    help="after delivery, answer FINs until none came for this long")
 
 
