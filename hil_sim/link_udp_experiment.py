@@ -37,12 +37,14 @@ class UdpRunSpec:
     duplicate: float
     reorder: float
     reorder_delay_s: float
-    outage: tuple[float, float] | None  # (start_s after the relay started, duration_s)
+    outage: tuple[float, float] | None  # (start_s after the first datagram, duration_s)
     rate_bps: float
     latency_s: float
     payload_bytes: int
     config: str | None
     timeout_s: float
+    linger_s: float = 5.0  # the sender answers FINs until none came for this long
+    idle_exit_s: float = 5.0  # the relay stops after this long without a datagram
 
 
 def _cmd(*args: str) -> list[str]:
@@ -61,7 +63,7 @@ def _json_lines(text: str) -> list[dict[str, Any]]:
     return out
 
 
-def _first_line(proc: subprocess.Popen[str], timeout_s: float) -> dict[str, Any]:
+def _first_line(proc: subprocess.Popen[str], name: str, timeout_s: float) -> dict[str, Any]:
     """The first JSON line of a child (it prints its address there), within ``timeout_s``."""
     assert proc.stdout is not None
     import selectors
@@ -69,11 +71,11 @@ def _first_line(proc: subprocess.Popen[str], timeout_s: float) -> dict[str, Any]
     sel = selectors.DefaultSelector()
     sel.register(proc.stdout, selectors.EVENT_READ)
     if not sel.select(timeout_s):
-        raise RuntimeError(f"{proc.args[3]} printed nothing within {timeout_s} s")
+        raise RuntimeError(f"{name} printed nothing within {timeout_s} s")
     line = proc.stdout.readline()
     v = json.loads(line) if line.strip() else {}
     if not isinstance(v, dict):
-        raise RuntimeError(f"{proc.args[3]}: unexpected first line {line!r}")
+        raise RuntimeError(f"{name}: unexpected first line {line!r}")
     return v
 
 
@@ -96,20 +98,21 @@ def run_udp(spec: UdpRunSpec) -> dict[str, Any]:
                                *common), stdout=subprocess.PIPE, text=True)
     procs: list[subprocess.Popen[str]] = [cb]
     try:
-        cb_url = _first_line(cb, 30.0)["listening"]
+        cb_url = _first_line(cb, "cliffbot", 30.0)["listening"]
         relay_args = ["--b-peer", cb_url, "--rate-bps", str(spec.rate_bps), "--latency-s",
                       str(spec.latency_s), "--loss", str(spec.loss), "--ber", str(spec.ber),
                       "--duplicate", str(spec.duplicate), "--reorder", str(spec.reorder),
                       "--reorder-delay-s", str(spec.reorder_delay_s), "--seed", str(spec.seed),
-                      "--duration", str(spec.timeout_s), "--idle-exit", "5"]
+                      "--duration", str(spec.timeout_s), "--idle-exit", str(spec.idle_exit_s)]
         if spec.outage is not None:
             relay_args += ["--outage", str(spec.outage[0]), str(spec.outage[1])]
         relay = subprocess.Popen(_cmd("relay", *relay_args), stdout=subprocess.PIPE, text=True)
         procs.append(relay)
-        a_url = _first_line(relay, 30.0)["a"]
+        a_url = _first_line(relay, "relay", 30.0)["a"]
         rover = subprocess.Popen(_cmd("send-map", "--peer", a_url, "--bytes", str(spec.payload_bytes),
                                       "--seed", "0", "--timeout", str(spec.timeout_s),
-                                      "--rate-bps", str(spec.rate_bps), *common),
+                                      "--rate-bps", str(spec.rate_bps), "--linger-s", str(spec.linger_s),
+                                      *common),
                                  stdout=subprocess.PIPE, text=True)
         procs.append(rover)
         t_begin = time.monotonic()
@@ -137,7 +140,7 @@ def _row(spec: UdpRunSpec, rover: list[dict[str, Any]], cb: list[dict[str, Any]]
     start = next((r for r in rover if "started_wall_s" in r), {})
     result = next((r for r in rover if "result" in r), {})
     report = next((r for r in cb if "verified_wall_s" in r), {})
-    rel = next((r["relay"] for r in relay if "relay" in r), {})
+    rel: dict[str, Any] = next((r["relay"] for r in relay if "relay" in r), {})
     closed = next((r for r in cb if r.get("event") == "CLOSED"), {})
     seg = LinkConfig().segment_bytes
     row: dict[str, Any] = {"loss": spec.loss, "seed": spec.seed, "bit_exact": False,

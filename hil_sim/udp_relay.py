@@ -6,7 +6,8 @@ Every datagram that arrives on one side goes through the bench's seeded channel 
 latency, loss, bit errors, duplication, hold-back reordering and outage windows) on the
 relay's monotonic clock, and leaves from the other side when the model says it arrives. So
 the UDP bench and the lockstep simulation share one definition of every impairment; only
-the clock differs (wall time here, so a run is seeded but not bit-for-bit repeatable:
+the clock differs (wall time from the first datagram here, so outage windows count from
+the start of the transfer, so a run is seeded but not bit-for-bit repeatable:
 packet timing on a loaded machine decides which random draw meets which packet).
 
 Side ``a``'s peer is whoever sent to it last (the rover binds anywhere); side ``b``'s peer
@@ -29,7 +30,7 @@ LOOPBACK = "127.0.0.1"
 
 @dataclass
 class RelayResult:
-    started_wall_s: float  # time.time() at the relay's t = 0 (outage windows count from it)
+    started_wall_s: float  # time.time() of the first datagram: t = 0 of the channel and its outages
     run_s: float
     a_to_b: dict[str, int]
     b_to_a: dict[str, int]
@@ -61,14 +62,15 @@ class UdpRelay:
 
     def run(self, duration_s: float, idle_exit_s: float) -> RelayResult:
         """Relay until ``duration_s`` or ``idle_exit_s`` of silence after the first datagram."""
-        t0 = time.monotonic()
+        start = time.monotonic()
+        t0 = start  # channel time 0: moved to the first datagram when it arrives
         wall0 = time.time()
         last_rx: float | None = None
         by_sock = {s.fileno(): side for side, s in self.socks.items()}
         stopped = "duration"
         while True:
             now = time.monotonic() - t0
-            if now >= duration_s:
+            if time.monotonic() - start >= duration_s:
                 break
             if last_rx is not None and now - last_rx >= idle_exit_s:
                 stopped = "idle"
@@ -76,6 +78,8 @@ class UdpRelay:
             nxt = self.channel.next_arrival_s()
             wait = 0.05 if nxt is None else min(0.05, max(0.0, nxt - now))
             ready, _, _ = select.select(list(self.socks.values()), [], [], wait)
+            if last_rx is None and ready:
+                t0, wall0 = time.monotonic(), time.time()
             now = time.monotonic() - t0
             for s in ready:
                 side = by_sock[s.fileno()]
@@ -99,7 +103,7 @@ class UdpRelay:
                         self.socks[side].sendto(data, peer)
                     except OSError:
                         self.send_errors += 1
-        return RelayResult(wall0, round(time.monotonic() - t0, 3),
+        return RelayResult(wall0, round(time.monotonic() - start, 3),
                            asdict(self.channel.stats("a")), asdict(self.channel.stats("b")), stopped)
 
 

@@ -52,7 +52,7 @@ class LinkReceiver:
         self.state = ReceiverState.IDLE
         self.stats = LinkStats()
         self.events = EventQueue()
-        self._pacer = Pacer(cfg.rate_bps)
+        self._pacer = Pacer(cfg.rate_bps, cfg.pacing_catchup_s)
         self._offer: lp.Offer | None = None
         self._buf = bytearray()
         self._have = bytearray()

@@ -55,7 +55,7 @@ class LinkSender:
         self.state = SenderState.IDLE
         self.stats = LinkStats()
         self.events = EventQueue()
-        self._pacer = Pacer(cfg.rate_bps)
+        self._pacer = Pacer(cfg.rate_bps, cfg.pacing_catchup_s)
         self._data = b""
         self._map_id = 0
         self._n = 0

@@ -45,7 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--reorder", type=float, default=0.1, help="udp: reordering probability")
     p.add_argument("--reorder-delay-s", type=float, default=0.5, help="udp: longest hold-back")
     p.add_argument("--outage", type=float, nargs=2, default=[20.0, 20.0], metavar=("START_S", "DURATION_S"),
-                   help="udp: outage window after the relay starts (duration 0: none)")
+                   help="udp: outage window from the first datagram (duration 0: none)")
     p.add_argument("--jobs", type=int, default=2, help="udp: transfers run at the same time")
     p.add_argument("--timeout", type=float, default=400.0, help="udp: bound of one transfer, s")
     p.add_argument("--latency-s", type=float, default=0.05, help="one-way latency")

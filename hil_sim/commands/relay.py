@@ -34,7 +34,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--reorder", type=float, default=0.0, help="probability a packet is held back")
     p.add_argument("--reorder-delay-s", type=float, default=0.5, help="longest hold-back")
     p.add_argument("--outage", type=float, nargs=2, action="append", default=[],
-                   metavar=("START_S", "DURATION_S"), help="no link in this window (repeatable)")
+                   metavar=("START_S", "DURATION_S"),
+                   help="no link in this window, counted from the first datagram (repeatable)")
     p.add_argument("--seed", type=int, default=0, help="seed of the impairments")
     p.add_argument("--duration", type=float, default=600.0, help="stop after this many seconds")
     p.add_argument("--idle-exit", type=float, default=10.0,

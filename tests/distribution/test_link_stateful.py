@@ -156,6 +156,6 @@ class LinkPair(RuleBasedStateMachine):
         assert not self.rx.closing
 
 
-LinkPair.TestCase.settings = settings(max_examples=150, stateful_step_count=60, deadline=None,
+LinkPair.TestCase.settings = settings(max_examples=100, stateful_step_count=60, deadline=None,
                                       suppress_health_check=[HealthCheck.too_slow])
 TestLinkPair = LinkPair.TestCase
