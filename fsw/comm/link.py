@@ -33,7 +33,7 @@ class LinkConfig:
     peer: str = param("", doc="udp only: the other end's udp://HOST:PORT (empty: reply to sender)")
     rate_bps: float = param(9600.0, lo=300.0, hi=1e8, units="bit/s",
                             doc="radio bit rate; every packet is paced to it")
-    pacing_catchup_s: float = param(0.0, lo=0.0, hi=1.0, units="s",
+    pacing_catchup_s: float = param(0.05, lo=0.0, hi=1.0, units="s",
                                     doc="a packet sent up to this late does not delay the next "
                                     "(driver wake-up jitter); 0 = strict pacing")
     segment_bytes: int = param(464, lo=16, hi=8192, units="B", doc="map bytes per DATA packet")
@@ -48,7 +48,7 @@ class LinkConfig:
                                          doc="receiver: STATUS at most this often (PING excepted)")
     keepalive_s: float = param(5.0, lo=0.1, hi=600.0, units="s",
                                doc="receiver: STATUS keep-alive on an idle open session")
-    ping_period_s: float = param(1.0, lo=0.05, hi=60.0, units="s",
+    ping_period_s: float = param(0.5, lo=0.05, hi=60.0, units="s",
                                  doc="sender: PING period while waiting for feedback")
     stall_timeout_s: float = param(5.0, lo=0.1, hi=600.0, units="s",
                                    doc="sender: no feedback this long = outage; pause data, PING")
