@@ -321,7 +321,9 @@ class LinkSender:
                 self._close_given_up = True
                 self.events.emit(now_s, "CLOSE_GIVEN_UP", map_id=self._map_id,
                                  fin_acks=self._fin_acks_sent)
-        elif self.state is SenderState.SENDING:
+        elif self.state is SenderState.SENDING and self._next_new >= self._n:
+            # A mismatch needs every segment at the receiver, so one reported before this
+            # attempt sent every segment is a duplicate or stale copy of the last one.
             self._restarts += 1
             if self._restarts > self.cfg.max_restarts:
                 self.state = SenderState.FAILED

@@ -8,7 +8,8 @@ and lets time pass. After every step:
 * the receiver never hands out a map other than the one sent (never a corrupt map);
 * the sender never reports DELIVERED before the receiver has verified the whole map;
 * neither end is lingering past its bound (the receiver's close ends ``fin_linger_s``
-  after verification; a DONE sender has no timer once its FIN_ACKs are out).
+  after verification, or after the last OFFER of that map: a restarted sender gets its
+  FIN; a DONE sender has no timer once its FIN_ACKs are out).
 
 ``settle`` heals the channel (every packet delivered, in order, on time) and checks the
 liveness bound: once the receiver has the map, the sender is DONE within two PING periods
@@ -25,6 +26,7 @@ from hypothesis import HealthCheck, event, settings
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, invariant, precondition, rule
 
+from fsw.comm import link_packets as lp
 from fsw.comm.link import LinkConfig
 from fsw.comm.link_receiver import LinkReceiver
 from fsw.comm.link_sender import LinkSender, SenderState
@@ -45,6 +47,7 @@ class LinkPair(RuleBasedStateMachine):
         self.flight: dict[str, list[bytes]] = {"tx": [], "rx": []}  # packets going to tx / rx
         self.rx_has_map_s: float | None = None
         self.forged = False
+        self.last_offer_s = float("-inf")  # an OFFER of the delivered map restarts the linger
 
     @rule(data=st.binary(min_size=1, max_size=6 * CFG.segment_bytes))
     @precondition(lambda self: not self.data)
@@ -59,6 +62,12 @@ class LinkPair(RuleBasedStateMachine):
         self._observe()
 
     def _deliver(self, to: str, datagram: bytes) -> None:
+        if to == "rx":
+            try:
+                if isinstance(lp.decode(datagram), lp.Offer):
+                    self.last_offer_s = self.t
+            except lp.PacketError:
+                pass
         (self.tx if to == "tx" else self.rx).receive(datagram, self.t)
         self._observe()
 
@@ -117,7 +126,8 @@ class LinkPair(RuleBasedStateMachine):
     def close_is_bounded(self) -> None:
         if self.rx.closing:
             assert self.rx_has_map_s is not None
-            assert self.t - self.rx_has_map_s <= CFG.fin_linger_s + 1e-6
+            since = self.t - max(self.rx_has_map_s, self.last_offer_s)
+            assert since <= CFG.fin_linger_s + 1e-6, "the receiver lingers past fin_linger_s"
         if self.tx.state is SenderState.DONE:  # no timer but a FIN_ACK owed (one packet time)
             deadline = self.tx.next_deadline_s()
             assert deadline is None or deadline <= self.t + 0.05
