@@ -146,3 +146,17 @@ def test_delivered_sender_has_no_timer_left() -> None:
     assert tx.state is SenderState.DONE
     tx.poll(t + 1.0)
     assert tx.next_deadline_s() is None
+
+
+def test_every_sender_event_is_declared_by_the_radio_task() -> None:
+    """The radio task forwards every LinkSender event; an undeclared one would raise in flight."""
+    import inspect
+    import re
+
+    from fsw.comm import link_sender
+    from fsw.tasks.radio_task import RadioTask
+
+    emitted = set(re.findall(r'events\.emit\(\s*now_s,\s*"(\w+)"', inspect.getsource(link_sender)))
+    assert {"DELIVERED", "CLOSE_GIVEN_UP", "LINK_LOST"} <= emitted
+    declared = {e.name for e in RadioTask.EVENTS}
+    assert emitted <= declared, emitted - declared
