@@ -7,22 +7,16 @@ the decoded map against the original when it knows it, and returns a
 :class:`CliffbotReport`; :func:`write_figure13` draws the paper's Figure 13 (original beside
 received, lighter = higher).
 
-As a separate process (for the UDP bench)::
-
-    python -m hil_sim.cliffbot_receiver --listen udp://127.0.0.1:47600 --out out/cliffbot \\
-        [--original map.npy] [--count 1] [--timeout 120]
-
-prints one JSON report per map and exits 0 when ``--count`` maps arrived (1 on timeout).
+As a separate process: ``safer-hil cliffbot`` (``hil_sim/commands/cliffbot.py``; the old
+``python -m hil_sim.cliffbot_receiver`` still runs it). It prints one JSON line per link
+event and per map and exits 0 once ``--count`` maps arrived and the link's close has ended.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
-import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +25,7 @@ from numpy.typing import NDArray
 from fsw.comm.link import LinkConfig
 from fsw.comm.link_receiver import LinkReceiver
 from fsw.core.mapcodec import MapCodecError, decode_map
-from fsw.drivers.radio import RadioPort, open_radio
+from fsw.drivers.radio import RadioPort
 
 
 @dataclass(frozen=True)
@@ -52,13 +46,15 @@ class Cliffbot:
     """Receiver, decoder and reporter; ``step(now_s)`` pumps the radio once."""
 
     def __init__(self, link: LinkConfig, port: RadioPort, out_dir: Path | None = None,
-                 originals: dict[int, NDArray[np.float32]] | None = None) -> None:
+                 originals: dict[int, NDArray[np.float32]] | None = None,
+                 decode: bool = True) -> None:
         self.rx = LinkReceiver(link)
         self.port = port
         self.out_dir = out_dir
         self.originals = originals or {}
         self.reports: list[CliffbotReport] = []
         self.maps: dict[int, NDArray[np.float32]] = {}
+        self.decode = decode
 
     def step(self, now_s: float, timeout_s: float = 0.0) -> list[CliffbotReport]:
         d = self.port.recv(timeout_s, now_s)
@@ -67,15 +63,22 @@ class Cliffbot:
             d = self.port.recv(0.0, now_s)
         for pkt in self.rx.poll(now_s):
             self.port.send(pkt, now_s)
+        return [rep for rep, _ in self.collect()]
+
+    def collect(self) -> list[tuple[CliffbotReport, bytes]]:
+        """Report every map the link verified since the last call, with its bytes."""
         new = []
         got = self.rx.take_map()
         while got is not None:
-            new.append(self._report(*got))
+            new.append((self._report(*got), got[1]))
             got = self.rx.take_map()
-        self.reports += new
+        self.reports += [rep for rep, _ in new]
         return new
 
     def _report(self, map_id: int, data: bytes) -> CliffbotReport:
+        if not self.decode:
+            return CliffbotReport(map_id, len(data), False, "not decoded (--no-decode)", (0, 0), 0,
+                                  0.0, None, None, "")
         try:
             dec = decode_map(data)
         except MapCodecError as exc:
@@ -126,44 +129,10 @@ def write_figure13(original: NDArray[np.floating], received: NDArray[np.floating
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m hil_sim.cliffbot_receiver",
-                                description="Bench Cliff-bot: receive maps over a radio, verify, "
-                                "decode, report (one JSON line per map) and draw Figure 13.")
-    p.add_argument("--listen", required=True, help="radio URL, e.g. udp://127.0.0.1:47600")
-    p.add_argument("--peer", default="", help="udp: the RECON-bot's udp://HOST:PORT")
-    p.add_argument("--out", type=Path, default=Path("out/cliffbot"), help="PNG/npy directory")
-    p.add_argument("--original", type=Path, help=".npy original map (for the error check)")
-    p.add_argument("--map-id", type=int, default=1, help="map id the original belongs to")
-    p.add_argument("--count", type=int, default=1, help="exit after this many maps")
-    p.add_argument("--timeout", type=float, default=120.0, help="give up after this many seconds")
-    p.add_argument("--rate-bps", type=float, default=LinkConfig().rate_bps, help="radio bit rate")
-    args = p.parse_args(argv)
-    originals = {}
-    if args.original is not None:
-        try:
-            originals[args.map_id] = np.load(args.original, allow_pickle=False).astype(np.float32)
-        except (OSError, ValueError) as exc:
-            print(f"cliffbot: error: {args.original}: {exc}", file=sys.stderr)
-            return 2
-    try:
-        port = open_radio(args.listen, args.peer)
-    except (ValueError, OSError) as exc:
-        print(f"cliffbot: error: {exc}", file=sys.stderr)
-        return 2
-    bot = Cliffbot(LinkConfig(rate_bps=args.rate_bps), port, args.out, originals)
-    print(json.dumps({"listening": args.listen}), flush=True)
-    t0 = time.monotonic()
-    linger_until = None
-    with port:
-        while time.monotonic() - t0 < args.timeout:
-            now = time.monotonic() - t0
-            for rep in bot.step(now, timeout_s=0.02):
-                print(json.dumps(asdict(rep)), flush=True)
-            if len(bot.reports) >= args.count and linger_until is None:
-                linger_until = now + 1.0  # let the FIN / FIN_ACK exchange finish
-            if linger_until is not None and now >= linger_until:
-                return 0
-    return 0 if len(bot.reports) >= args.count else 1
+    """``python -m hil_sim.cliffbot_receiver ARGS`` = ``safer-hil cliffbot ARGS``."""
+    from hil_sim.cli import main as hil_main
+
+    return hil_main(["cliffbot", *(sys.argv[1:] if argv is None else argv)])
 
 
 if __name__ == "__main__":

@@ -30,6 +30,8 @@ class TransferResult:
     reverse: DirectionStats
     events: list[tuple[str, LinkEvent]] = field(default_factory=list)
     idle_steps: int = 0  # steps where a deadline was due but nothing happened (should be 0)
+    sender_done_s: float | None = None  # when the sender got the whole-map acknowledgement
+    receiver_closed_s: float | None = None  # when the receiver's close ended (close=True runs)
 
     @property
     def goodput_bps(self) -> float:
@@ -41,9 +43,12 @@ class TransferResult:
 def run_transfer(
     data: bytes, link: LinkConfig, channel: RadioChannelConfig, seed: int = 0,
     *, map_id: int = 1, session: int = 1, t_max_s: float = 7200.0, max_steps: int = 2_000_000,
-    tamper: Callable[[str, bytes], bytes | None] | None = None,
+    tamper: Callable[[str, bytes], bytes | None] | None = None, close: bool = False,
 ) -> TransferResult:
     """Send ``data`` from the RECON-bot to the Cliff-bot; stop when both ends are done.
+
+    With ``close`` the run goes on until the receiver's close has ended too (FIN_ACK or
+    ``fin_linger_s``), so the close itself can be checked.
 
     ``tamper(side, datagram)`` is the fault-injection backdoor: it sees every datagram
     arriving at ``side`` ("a" sender, "b" receiver) and returns it, a changed copy, or None
@@ -57,6 +62,7 @@ def run_transfer(
     delivered_s: float | None = None
     events: list[tuple[str, LinkEvent]] = []
     idle_steps = 0
+    closed_s: float | None = None
     for _ in range(max_steps):
         for side, end in (("a", tx), ("b", rx)):
             for d in ch.receive(side, t):
@@ -70,8 +76,12 @@ def run_transfer(
         got = rx.take_map()
         if got is not None and delivered is None:
             delivered, delivered_s = got[1], t
-        events += [("tx", e) for e in tx.events.pop_all()] + [("rx", e) for e in rx.events.pop_all()]
-        if tx.finished and delivered is not None and ch.next_arrival_s() is None:
+        rx_events = rx.events.pop_all()
+        if closed_s is None and any(e.name == "CLOSED" for e in rx_events):
+            closed_s = t
+        events += [("tx", e) for e in tx.events.pop_all()] + [("rx", e) for e in rx_events]
+        if tx.finished and delivered is not None and ch.next_arrival_s() is None \
+                and not (close and rx.closing):
             break
         if tx.finished and tx.state is not SenderState.DONE:
             break
@@ -89,4 +99,5 @@ def run_transfer(
     return TransferResult(
         delivered=delivered, delivered_s=delivered_s, sender_state=tx.state, end_s=t,
         sender_stats=vars(tx.stats).copy(), receiver_stats=vars(rx.stats).copy(),
-        forward=ch.stats("a"), reverse=ch.stats("b"), events=events, idle_steps=idle_steps)
+        forward=ch.stats("a"), reverse=ch.stats("b"), events=events, idle_steps=idle_steps,
+        sender_done_s=tx.delivered_s, receiver_closed_s=closed_s)

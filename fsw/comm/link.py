@@ -33,6 +33,9 @@ class LinkConfig:
     peer: str = param("", doc="udp only: the other end's udp://HOST:PORT (empty: reply to sender)")
     rate_bps: float = param(9600.0, lo=300.0, hi=1e8, units="bit/s",
                             doc="radio bit rate; every packet is paced to it")
+    pacing_catchup_s: float = param(0.05, lo=0.0, hi=1.0, units="s",
+                                    doc="a packet sent up to this late does not delay the next "
+                                    "(driver wake-up jitter); 0 = strict pacing")
     segment_bytes: int = param(464, lo=16, hi=8192, units="B", doc="map bytes per DATA packet")
     max_map_bytes: int = param(1 << 22, lo=1024, hi=1 << 28, units="B",
                                doc="largest map a receiver accepts (bounds its memory)")
@@ -45,7 +48,7 @@ class LinkConfig:
                                          doc="receiver: STATUS at most this often (PING excepted)")
     keepalive_s: float = param(5.0, lo=0.1, hi=600.0, units="s",
                                doc="receiver: STATUS keep-alive on an idle open session")
-    ping_period_s: float = param(1.0, lo=0.05, hi=60.0, units="s",
+    ping_period_s: float = param(0.5, lo=0.05, hi=60.0, units="s",
                                  doc="sender: PING period while waiting for feedback")
     stall_timeout_s: float = param(5.0, lo=0.1, hi=600.0, units="s",
                                    doc="sender: no feedback this long = outage; pause data, PING")
@@ -55,6 +58,8 @@ class LinkConfig:
                              doc="either end: no packet from the peer this long ends the session")
     fin_linger_s: float = param(30.0, lo=0.0, hi=3600.0, units="s",
                                 doc="receiver: repeat FIN until FIN_ACK or this long")
+    close_tries: int = param(8, lo=1, hi=1000,
+                             doc="sender: FIN_ACKs at most (one per FIN) before it gives up the close")
     max_bitmap_bytes: int = param(64, lo=1, hi=255, units="B",
                                   doc="selective-ack window in a STATUS (8 segments per byte)")
     max_restarts: int = param(3, lo=0, hi=100, doc="sender: resends after a hash mismatch")
@@ -94,17 +99,24 @@ class EventQueue:
 
 
 class Pacer:
-    """Strict pacing to ``rate_bps``: a packet of ``n`` bytes occupies ``8 n / rate`` seconds."""
+    """Pacing to ``rate_bps``: a packet of ``n`` bytes occupies ``8 n / rate`` seconds.
 
-    def __init__(self, rate_bps: float) -> None:
+    ``catchup_s`` > 0 makes it a token bucket of that depth: a packet sent late by up to
+    ``catchup_s`` (a driver that woke late) is charged from when it was due, so wake-up
+    jitter does not lower the long-run rate; the rate itself is never exceeded by more
+    than ``catchup_s`` worth of bytes.
+    """
+
+    def __init__(self, rate_bps: float, catchup_s: float = 0.0) -> None:
         self.rate_bps = rate_bps
+        self.catchup_s = catchup_s
         self.free_at_s = float("-inf")
 
     def ready(self, now_s: float) -> bool:
         return now_s >= self.free_at_s - 1e-9
 
     def consume(self, nbytes: int, now_s: float) -> None:
-        self.free_at_s = max(self.free_at_s, now_s) + 8.0 * nbytes / self.rate_bps
+        self.free_at_s = max(self.free_at_s, now_s - self.catchup_s) + 8.0 * nbytes / self.rate_bps
 
 
 @dataclass

@@ -14,9 +14,14 @@ States: ``IDLE -> RECEIVING -> COMPLETE -> IDLE``.
   every ``keepalive_s`` on an idle open session; never more often than
   ``min_status_interval_s`` except for PINGs.
 * When every segment is in, the whole map's SHA-256 must equal the offer's before the map
-  is accepted (``take_map``); then FIN(VERIFIED) is repeated until FIN_ACK or
-  ``fin_linger_s``. On a mismatch the buffer is discarded and FIN(HASH_MISMATCH) asks the
-  sender to start again.
+  is accepted (``take_map``); then FIN(VERIFIED), the whole-map acknowledgement, is sent
+  at once. The close: COMPLETE lingers, answering every packet of the session with the
+  FIN and repeating it every ``status_period_s``, until FIN_ACK or ``fin_linger_s`` (event
+  CLOSED either way); no state of the receiver waits for ``give_up_s`` once the map is
+  verified. Afterwards a PING or DATA of a session whose map was verified (the last four)
+  is still answered with FIN(VERIFIED), so a sender that missed every FIN learns of the
+  delivery whenever it asks. On a mismatch the buffer is discarded and FIN(HASH_MISMATCH)
+  asks the sender to start again.
 
 Memory: one buffer of the offered size (at most ``max_map_bytes``) and one byte per segment.
 """
@@ -47,7 +52,7 @@ class LinkReceiver:
         self.state = ReceiverState.IDLE
         self.stats = LinkStats()
         self.events = EventQueue()
-        self._pacer = Pacer(cfg.rate_bps)
+        self._pacer = Pacer(cfg.rate_bps, cfg.pacing_catchup_s)
         self._offer: lp.Offer | None = None
         self._buf = bytearray()
         self._have = bytearray()
@@ -65,6 +70,7 @@ class LinkReceiver:
         self._fin: lp.Fin | None = None
         self._fin_until_s = 0.0
         self._delivered: list[tuple[int, bytes]] = []
+        self._verified: deque[tuple[int, int]] = deque(maxlen=4)  # (session, map id) verified
         self._start_s = 0.0
 
     # -- public API ------------------------------------------------------------------------
@@ -88,20 +94,19 @@ class LinkReceiver:
         if isinstance(pkt, lp.Offer):
             self._on_offer(pkt, now_s)
             return
-        if self._offer is None or pkt.session != self._offer.session:
-            self.stats.foreign_packets += 1
+        if self.state is ReceiverState.IDLE or self._offer is None \
+                or pkt.session != self._offer.session:
+            if not (isinstance(pkt, (lp.Data, lp.Ping)) and self._answer_verified(pkt.session)):
+                self.stats.foreign_packets += 1
             return
         self._last_rx_s = now_s
         if self.state is ReceiverState.COMPLETE:
             if isinstance(pkt, lp.FinAck):
-                self.state = ReceiverState.IDLE
-                self._fin = None
+                self._close(now_s, "fin_ack")
             elif isinstance(pkt, (lp.Data, lp.Ping)):
                 self._status_now = True  # answer with the FIN again
             return
-        if self.state is not ReceiverState.RECEIVING:
-            self.stats.foreign_packets += 1
-        elif isinstance(pkt, lp.Data):
+        if isinstance(pkt, lp.Data):
             self._on_data(pkt, now_s)
         elif isinstance(pkt, lp.Ping):
             self.stats.pings += 1
@@ -122,6 +127,11 @@ class LinkReceiver:
             self._pacer.consume(len(pkt), now_s)
             out.append(self.stats.count_out(pkt))
         return out
+
+    @property
+    def closing(self) -> bool:
+        """True while a verified map's close lingers (until FIN_ACK or ``fin_linger_s``)."""
+        return self.state is ReceiverState.COMPLETE
 
     def next_deadline_s(self) -> float | None:
         """When ``poll`` next has something to do (None: nothing until a packet arrives)."""
@@ -164,6 +174,8 @@ class LinkReceiver:
             self._status_now = True  # a STATUS accepts and says what is already here
             return
         self._offer = offer
+        for old in [v for v in self._verified if v[0] == offer.session]:
+            self._verified.remove(old)  # the session number is in use again
         self._buf = bytearray(offer.size)
         self._have = bytearray(offer.n_segments)
         self._n_rx = self._cum = self._highest = 0
@@ -205,6 +217,7 @@ class LinkReceiver:
         if hashlib.sha256(self._buf).digest() == offer.sha256:
             self._delivered = (self._delivered + [(offer.map_id, bytes(self._buf))])[-4:]
             self.state = ReceiverState.COMPLETE
+            self._verified.append((offer.session, offer.map_id))
             self._fin = lp.Fin(offer.session, offer.map_id, lp.FinStatus.VERIFIED)
             self.events.emit(now_s, "MAP_VERIFIED", map_id=offer.map_id, size=offer.size,
                              seconds=round(now_s - self._start_s, 3))
@@ -223,9 +236,24 @@ class LinkReceiver:
             self.state = ReceiverState.IDLE
             self._offer = None
             self._buf, self._have = bytearray(), bytearray()
-        if self.state is ReceiverState.COMPLETE and now_s > self._fin_until_s:
-            self.state = ReceiverState.IDLE
-            self._fin = None
+        if self.state is ReceiverState.COMPLETE and now_s >= self._fin_until_s - _EPS:
+            self._close(now_s, "linger")
+
+    def _close(self, now_s: float, how: str) -> None:
+        """End the linger of a verified map (FIN_ACK came, or ``fin_linger_s`` passed)."""
+        self.state = ReceiverState.IDLE
+        self._fin = None
+        self._status_now = False
+        offer = self._offer
+        self.events.emit(now_s, "CLOSED", map_id=offer.map_id if offer else 0, how=how)
+
+    def _answer_verified(self, session: int) -> bool:
+        """Answer a packet of an already verified map's session with FIN(VERIFIED)."""
+        for sess, map_id in self._verified:
+            if sess == session:
+                self._replies.append(lp.encode(lp.Fin(sess, map_id, lp.FinStatus.VERIFIED)))
+                return True
+        return False
 
     def _next_packet(self, now_s: float) -> bytes | None:
         if self._replies:

@@ -14,7 +14,10 @@ States: ``IDLE -> OFFERING -> SENDING -> DONE``, or ``REJECTED`` / ``FAILED``.
 * Outage: no feedback for ``stall_timeout_s`` pauses data and sends only PINGs; the first
   STATUS after the outage says exactly which segments are missing, so nothing that
   arrived is sent again. No feedback for ``give_up_s``: FAILED.
-* DONE on FIN(VERIFIED) (answered with FIN_ACK, also for repeated FINs); FIN(HASH_MISMATCH)
+* DONE on FIN(VERIFIED), the whole-map acknowledgement: the map is delivered at once (event
+  DELIVERED), whatever else is still in flight. DONE has no timer: it only answers each FIN
+  with a FIN_ACK, at most ``close_tries`` of them; a FIN after that gives up the close (event
+  CLOSE_GIVEN_UP) and is ignored, the receiver ends its linger by itself. FIN(HASH_MISMATCH)
   restarts the transfer, at most ``max_restarts`` times.
 
 Memory: the map itself plus a few bytes per segment and a 1024-entry serial ring.
@@ -52,7 +55,7 @@ class LinkSender:
         self.state = SenderState.IDLE
         self.stats = LinkStats()
         self.events = EventQueue()
-        self._pacer = Pacer(cfg.rate_bps)
+        self._pacer = Pacer(cfg.rate_bps, cfg.pacing_catchup_s)
         self._data = b""
         self._map_id = 0
         self._n = 0
@@ -76,7 +79,10 @@ class LinkSender:
         self._offer_sent_s = _NEVER
         self._next_ping_s = _NEVER
         self._data_since_ping = False
-        self._fin_acks = 0
+        self._fin_acks = 0  # FIN_ACKs owed (one per FIN(VERIFIED) received)
+        self._fin_acks_sent = 0
+        self._close_given_up = False
+        self.delivered_s: float | None = None  # when the whole-map acknowledgement arrived
         self._now_s = 0.0  # time of the last receive/poll call
 
     # -- public API ------------------------------------------------------------------------
@@ -89,6 +95,9 @@ class LinkSender:
         self._n = -(-len(data) // self.cfg.segment_bytes)
         self._digest = hashlib.sha256(self._data).digest()
         self._reset_progress()
+        self._fin_acks = self._fin_acks_sent = 0
+        self._close_given_up = False
+        self.delivered_s = None
         self.state = SenderState.OFFERING
         self._start_s = self._last_feedback_s = self._now_s = now_s
         self._next_offer_s = now_s
@@ -107,6 +116,11 @@ class LinkSender:
     def progress(self) -> tuple[int, int]:
         """(segments acknowledged, segments in the map)."""
         return self._n_acked, self._n
+
+    @property
+    def close_given_up(self) -> bool:
+        """True once ``close_tries`` FIN_ACKs were spent and another FIN still came."""
+        return self._close_given_up
 
     @property
     def finished(self) -> bool:
@@ -203,6 +217,7 @@ class LinkSender:
     def _next_packet(self, now_s: float) -> bytes | None:
         if self._fin_acks:
             self._fin_acks -= 1
+            self._fin_acks_sent += 1
             return lp.encode(lp.FinAck(self.session, self._map_id))
         if self.state is SenderState.OFFERING:
             if now_s < self._next_offer_s - _EPS:
@@ -293,13 +308,22 @@ class LinkSender:
     def _on_fin(self, fin: lp.Fin, now_s: float) -> None:
         self._last_feedback_s = now_s
         if fin.status is lp.FinStatus.VERIFIED:
-            self._fin_acks = min(self._fin_acks + 1, 4)
             if self.state is not SenderState.DONE:
                 self.state = SenderState.DONE
                 self._n_acked = self._n
+                self._lost = []
+                self.delivered_s = now_s
                 self.events.emit(now_s, "DELIVERED", map_id=self._map_id, size=len(self._data),
                                  seconds=round(now_s - self._start_s, 3))
-        elif self.state is SenderState.SENDING:
+            if self._fin_acks_sent + self._fin_acks < self.cfg.close_tries:
+                self._fin_acks += 1
+            elif not self._close_given_up:
+                self._close_given_up = True
+                self.events.emit(now_s, "CLOSE_GIVEN_UP", map_id=self._map_id,
+                                 fin_acks=self._fin_acks_sent)
+        elif self.state is SenderState.SENDING and self._next_new >= self._n:
+            # A mismatch needs every segment at the receiver, so one reported before this
+            # attempt sent every segment is a duplicate or stale copy of the last one.
             self._restarts += 1
             if self._restarts > self.cfg.max_restarts:
                 self.state = SenderState.FAILED

@@ -65,6 +65,8 @@ class RadioTask(FlightTask):
         EventDef("HASH_MISMATCH_RESEND", Severity.WARNING_LO, "map {map_id}: hash mismatch, resend {attempt}"),
         EventDef("HASH_MISMATCH_GIVE_UP", Severity.WARNING_HI, "map {map_id}: hash mismatch, gave up"),
         EventDef("RADIO_ERROR", Severity.WARNING_LO, "radio: {text}", throttle=5),
+        EventDef("CLOSE_GIVEN_UP", Severity.WARNING_LO, "map {map_id}: delivered; the Cliff-bot "
+                 "still repeats FIN after {fin_acks} FIN_ACKs, close given up"),
     )
     COMMANDS = (
         CommandDef("SEND_MAP", (Arg("map_id", int, lo=0, hi=2**32 - 1),),

@@ -6,6 +6,12 @@ model (``hil_sim.radio_channel``) on a simulated clock, ``--seeds`` runs per poi
 Cliff-bot accepted the verified map. Capacity lines: ``rate x (1 - loss)`` for packet loss,
 ``rate x (1 - PER)`` for bit errors, with ``PER = 1 - (1 - BER) ** (8 x packet bytes)``.
 Writes ``link_goodput.csv``, ``link_goodput.png`` and ``report.md`` into ``--out``.
+
+``--transport udp`` runs the same link over real loopback sockets instead: the Cliff-bot,
+an impairment relay and the RECON-bot's sender as three processes
+(``hil_sim.link_udp_experiment``), ``--seeds`` runs per ``--losses`` point with
+``--ber``, ``--duplicate``, ``--reorder`` and an ``--outage``, and writes ``udp_runs.csv``
+and ``udp_report.md`` (per run and per loss, with the lockstep simulation of the same seeds).
 """
 
 from __future__ import annotations
@@ -15,16 +21,33 @@ from pathlib import Path
 from typing import Any
 
 HELP = "goodput vs packet loss (0 to 0.3) and bit error rate at 9600 bit/s, with capacity lines"
+DESCRIPTION = (
+    "Map-link goodput. --transport sim (default): the lockstep simulation, a grid of loss and "
+    "BER points (--losses, --bers, --seeds). --transport udp: the RECON-bot's sender and the "
+    "Cliff-bot's receiver as separate processes over 127.0.0.1 UDP through the project's "
+    "impairment relay (loss, --ber, --duplicate, --reorder, --outage, --rate-bps), --seeds "
+    "runs per --losses point (defaults 0.1 and 0.3, 5 runs), table per run in udp_report.md."
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rate-bps", type=float, default=9600.0, help="radio bit rate")
     p.add_argument("--bytes", type=int, default=65536, help="map bytes per transfer")
-    p.add_argument("--losses", type=float, nargs="+",
-                   default=[0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3], help="packet loss points")
+    p.add_argument("--transport", choices=("sim", "udp"), default="sim",
+                   help="sim: lockstep simulation; udp: three processes over loopback UDP")
+    p.add_argument("--losses", type=float, nargs="+", default=None,
+                   help="packet loss points (sim: 0 to 0.3 by 0.05; udp: 0.1 0.3)")
     p.add_argument("--bers", type=float, nargs="+", default=[0.0, 1e-6, 1e-5, 3e-5, 1e-4],
                    help="bit error rate points (at zero loss)")
-    p.add_argument("--seeds", type=int, default=10, help="runs per point")
+    p.add_argument("--seeds", type=int, default=None, help="runs per point (sim 10, udp 5)")
+    p.add_argument("--ber", type=float, default=3e-5, help="udp: bit error rate of every run")
+    p.add_argument("--duplicate", type=float, default=0.1, help="udp: duplication probability")
+    p.add_argument("--reorder", type=float, default=0.1, help="udp: reordering probability")
+    p.add_argument("--reorder-delay-s", type=float, default=0.5, help="udp: longest hold-back")
+    p.add_argument("--outage", type=float, nargs=2, default=[20.0, 20.0], metavar=("START_S", "DURATION_S"),
+                   help="udp: outage window from the first datagram (duration 0: none)")
+    p.add_argument("--jobs", type=int, default=2, help="udp: transfers run at the same time")
+    p.add_argument("--timeout", type=float, default=400.0, help="udp: bound of one transfer, s")
     p.add_argument("--latency-s", type=float, default=0.05, help="one-way latency")
     p.add_argument("--config", default=None, help="flight config for [link] (default config/fsw.toml)")
     p.add_argument("--out", type=Path, default=Path("out/experiments/link"), help="output dir")
@@ -49,6 +72,10 @@ def run(args: argparse.Namespace) -> int:
     except (ConfigError, ValueError) as exc:
         print(f"safer-hil: error: {exc}")
         return 2
+    if args.transport == "udp":
+        return _run_udp(args, link)
+    args.losses = args.losses or [0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3]
+    args.seeds = args.seeds or 10
     if args.bytes < 1 or args.seeds < 1 or not all(0 <= x < 1 for x in args.losses + args.bers):
         print("safer-hil: error: need --bytes >= 1, --seeds >= 1, loss and BER in [0, 1)")
         return 2
@@ -132,3 +159,37 @@ def _report(rows: list[dict[str, Any]], args: argparse.Namespace, link: Any) -> 
                      f"| {r['goodput_min_bps']:.0f} | {r['goodput_max_bps']:.0f} | {r['ratio_median']:.3f} "
                      f"| {r['ratio_min']:.3f} | {r['bit_exact']} |")
     return "\n".join(lines) + "\n"
+
+
+def _run_udp(args: argparse.Namespace, link: Any) -> int:
+    import math
+
+    import numpy as np
+
+    from hil_sim.link_udp_experiment import UdpRunSpec, run_all, sim_ratio, write_tables
+
+    losses = args.losses or [0.1, 0.3]
+    seeds = args.seeds or 5
+    nums = [*losses, args.ber, args.duplicate, args.reorder, args.reorder_delay_s, *args.outage,
+            args.timeout, args.rate_bps, args.latency_s]
+    if not all(math.isfinite(x) for x in nums) or not all(0 <= x < 1 for x in
+                                                          [*losses, args.ber, args.duplicate, args.reorder]) \
+            or seeds < 1 or args.jobs < 1 or args.bytes < 1 or args.timeout <= 0 or min(args.outage) < 0:
+        print("safer-hil: error: udp needs finite values, loss/BER/duplicate/reorder in [0, 1), "
+              "--seeds, --jobs, --bytes >= 1, --timeout > 0, --outage >= 0")
+        return 2
+    outage = (args.outage[0], args.outage[1]) if args.outage[1] > 0 else None
+    specs = [UdpRunSpec(loss, seed, args.ber, args.duplicate, args.reorder, args.reorder_delay_s,
+                        outage, args.rate_bps, args.latency_s, args.bytes, args.config, args.timeout)
+             for loss in losses for seed in range(seeds)]
+    rows = run_all(specs, args.jobs)
+    data = np.random.default_rng(0).integers(0, 256, args.bytes, dtype=np.uint8).tobytes()
+    for spec, row in zip(specs, rows, strict=True):
+        row["sim_ratio"] = round(sim_ratio(spec, link, data), 4)
+    header = (f"# Map link over loopback UDP ({args.rate_bps:g} bit/s, {args.bytes} B, BER {args.ber:g}, "
+              f"duplicate {args.duplicate:g}, reorder {args.reorder:g}, outage {outage}, "
+              f"segment {link.segment_bytes} B)")
+    print(write_tables(rows, args.out, header))
+    print(f"wrote {args.out}/udp_runs.csv, udp_report.md")
+    ok = all(r["bit_exact"] for r in rows)
+    return 0 if ok else 1
