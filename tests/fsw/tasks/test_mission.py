@@ -22,6 +22,7 @@ from task_rig import TaskRig, task_config
 from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import MapGrid
 from fsw.core.view_candidates import CandidateView
+from fsw.tasks import messages
 from fsw.tasks.messages import (
     CAMERA_REQUEST,
     MAP_UPDATED,
@@ -36,6 +37,7 @@ from fsw.tasks.messages import (
 )
 
 STEP_TIMEOUT_S = 2.0  # 20 frames
+OUTCOME: Any = getattr(messages, "MoveOutcome", str)  # a motion outcome from its name
 
 
 def _cfg() -> Any:
@@ -72,7 +74,8 @@ class Mission:
                                            (0.0, math.radians(-30.0), 0.0)))
 
     def motion_reply(self, request_id: int, kind: str, state: str = "done") -> None:
-        self.rig.publish(MOTION_STATUS, MotionStatus(request_id, kind, state, "" if state == "done" else "test"))
+        reason = "" if state == "done" else "test"
+        self.rig.publish(MOTION_STATUS, MotionStatus(request_id, kind, OUTCOME(state), reason))
 
     def map_update(self, view_id: int) -> None:
         emap = ElevationMap(GRID)
