@@ -20,12 +20,13 @@ from fsw.core.geofence import GeofenceConfig
 from fsw.core.geometry import CameraConfig, MapGridConfig, MastConfig, RoverConfig
 from fsw.core.localization import LocalizationConfig
 from fsw.core.mapcodec import CodecConfig
+from fsw.core.motion_profile import MotionConfig
 from fsw.core.nbv import NbvConfig
 from fsw.core.stereo import StereoConfig
 from fsw.drivers.factory import DevicesConfig
 from fsw.framework.params import build, load_toml
 from fsw.framework.schedule import ExecutiveConfig
-from fsw.tasks.sections import CaptureConfig, MissionConfig, MotionConfig
+from fsw.tasks.sections import CaptureConfig, MissionConfig
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "fsw.toml"
 

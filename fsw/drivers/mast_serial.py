@@ -297,3 +297,25 @@ class MastSerialDriver(DriverBase):
         if self.port is not None:
             self.port.close()
             self.port = None
+
+
+def move_progress(
+    mast: MastSerialDriver,
+    goal: tuple[float, float, float],
+    elapsed_s: float,
+    tolerance_rad: float,
+    lift_tolerance_m: float,
+    timeout_s: float,
+) -> str:
+    """``"arrived"``, ``"moving"`` or why the mast move failed (faults, NAK, no ACK, timeout)."""
+    if mast.faults & CRITICAL:
+        return "mast faults: " + ",".join(mast.fault_names())
+    if mast.last_result.startswith(("nak", "no_ack")) and not mast.busy:
+        return mast.last_result
+    if elapsed_s > timeout_s:
+        return f"not at target after {timeout_s:.0f} s"
+    q = mast.joints
+    if q is None or mast.busy:
+        return "moving"
+    near = abs(q[0] - goal[0]) <= tolerance_rad and abs(q[1] - goal[1]) <= tolerance_rad
+    return "arrived" if near and abs(q[2] - goal[2]) <= lift_tolerance_m else "moving"

@@ -8,6 +8,7 @@ rates candidate views on a snapshot of the map, ``motion`` moves the wheels and 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
@@ -95,12 +96,20 @@ class MotionRequest:
     speed: float = 0.0
 
 
+class MoveOutcome(StrEnum):
+    """How a motion request ended."""
+
+    DONE = "done"
+    ABORTED = "aborted"
+    REFUSED = "refused"
+
+
 @dataclass(frozen=True)
 class MotionStatus:
     """Outcome of a :class:`MotionRequest`: ``done``, ``aborted`` or ``refused`` (with a reason)."""
 
     request_id: int
     kind: str
-    state: str
+    state: MoveOutcome
     reason: str = ""
     time_s: float = 0.0

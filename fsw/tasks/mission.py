@@ -44,6 +44,7 @@ from fsw.tasks.messages import (
     MapUpdate,
     MotionRequest,
     MotionStatus,
+    MoveOutcome,
     NavPose,
 )
 from fsw.tasks.radio_task import RADIO_SEND, RadioSendRequest
@@ -230,7 +231,7 @@ class MissionTask(FlightTask):
             if self._timed_out():
                 self._enter_safe("rover move timed out")
             return
-        if st.state != "done":
+        if st.state != MoveOutcome.DONE:
             self._enter_safe(f"rover move {st.state}: {st.reason}")
             return
         self._start_point()
@@ -246,7 +247,7 @@ class MissionTask(FlightTask):
             if self._timed_out():
                 self._enter_safe("mast move timed out")
             return
-        if st.state != "done":
+        if st.state != MoveOutcome.DONE:
             self._enter_safe(f"mast move {st.state}: {st.reason}")
             return
         self._capture()

@@ -1,6 +1,7 @@
 """Moves the wheels (CAN motor driver) and the mast (serial driver); keeps the odometry.
 
-Thin: the kinematics are ``fsw.core.wheel_kinematics``; the drivers do the bytes. Moves come
+Thin: the motion profile is ``fsw.core.motion_profile``, the dead reckoning
+``fsw.core.odometry``, the kinematics ``fsw.core.wheel_kinematics``; the drivers do the bytes. Moves come
 as ground commands (DRIVE, TURN, GOTO, POINT_MAST, STOP, ESTOP, CLEAR_FAULTS, ...) or as
 ``MotionRequest`` messages on ``motion.request`` (the mission sequencer; ALGORITHM.md §3:
 "move (mast + wheels)"), each answered once on ``motion.status``. A wheel move is a list of
@@ -17,34 +18,29 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
 from typing import ClassVar, TypeVar
 
 import numpy as np
 
+from fsw.core import motion_profile as mp
 from fsw.core import wheel_kinematics as wk
+from fsw.core.odometry import Odometry
 from fsw.drivers import can_motors, mast_serial
 from fsw.framework.commands import Arg, CommandDef, CommandError
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.base import FlightTask
-from fsw.tasks.messages import MOTION_REQUEST, MOTION_STATUS, NAV_POSE, MotionRequest, MotionStatus, NavPose
-from fsw.tasks.sections import MotionConfig
+from fsw.tasks.messages import (
+    MOTION_REQUEST,
+    MOTION_STATUS,
+    NAV_POSE,
+    MotionRequest,
+    MotionStatus,
+    MoveOutcome,
+    NavPose,
+)
 
 WHEELS = wk.WHEEL_ORDER
 D = TypeVar("D")
-
-
-@dataclass
-class _Segment:
-    kind: str  # "drive" | "turn"
-    amount: float  # m or rad, signed
-    speed: float  # m/s or rad/s
-    steer: np.ndarray
-    phase: str = "steer"
-    t_phase: float = 0.0
-    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    yaw_acc0: float = 0.0
-    cmd: float = 0.0  # last commanded speed (ramp)
 
 
 class MotionTask(FlightTask):
@@ -118,14 +114,11 @@ class MotionTask(FlightTask):
 
     def setup(self) -> None:
         cfg = self.ctx.cfg
-        self.mcfg: MotionConfig = cfg.motion
+        self.mcfg: mp.MotionConfig = cfg.motion
         self.r = cfg.rover.wheel_diameter_m / 2.0
         self.wheel_xy = wk.wheel_positions(cfg.rover)
-        self.pinv = wk.body_motion_matrix(self.wheel_xy)
-        self.pose = (0.0, 0.0, 0.0)
-        self.path_m = self.turned_rad = self.yaw_acc = 0.0
-        self._last_drive: np.ndarray | None = None
-        self.segments: deque[_Segment] = deque()
+        self.odo = Odometry(self.r, wk.body_motion_matrix(self.wheel_xy))
+        self.segments: deque[mp.Segment] = deque()
         self.active: tuple[int, str] | None = None  # (request id, kind) of the wheel move
         self.mast_goal: tuple[int, tuple[float, float, float], float] | None = None
         self.steer_hold = np.zeros(4)
@@ -169,16 +162,7 @@ class MotionTask(FlightTask):
         steer = [motors.axes[f"STEER_{w}"] for w in WHEELS]
         if any(s.t_status is None for s in drive + steer):
             return
-        pos = np.array([s.position_rad for s in drive])
-        if self._last_drive is not None:
-            motion = wk.body_motion(
-                (pos - self._last_drive) * self.r, np.array([s.position_rad for s in steer]), self.pinv
-            )
-            self.pose = wk.integrate_pose(self.pose, motion)
-            self.path_m += math.hypot(motion[0], motion[1])
-            self.turned_rad += abs(motion[2])
-            self.yaw_acc += float(motion[2])
-        self._last_drive = pos
+        self.odo.update(np.array([s.position_rad for s in drive]), np.array([s.position_rad for s in steer]))
 
     def _control(self, motors: can_motors.CanMotorDriver, now: float) -> None:
         seg = self.segments[0] if self.segments else None
@@ -190,35 +174,26 @@ class MotionTask(FlightTask):
                 motors.set_setpoint(f"DRIVE_{w}", float(rates[i]))
                 motors.set_setpoint(f"STEER_{w}", float(self.steer_hold[i]))
 
-    def _segment(self, seg: _Segment, motors: can_motors.CanMotorDriver, now: float) -> np.ndarray:
+    def _segment(self, seg: mp.Segment, motors: can_motors.CanMotorDriver, now: float) -> np.ndarray:
         c = self.mcfg
         self.steer_hold = seg.steer
         if seg.phase == "steer":
             meas = np.array([motors.axes[f"STEER_{w}"].position_rad for w in WHEELS])
             if np.all(np.abs(meas - seg.steer) <= math.radians(c.steer_tolerance_deg)):
-                seg.phase, seg.t_phase, seg.origin, seg.yaw_acc0 = "move", now, self.pose, self.yaw_acc
+                seg.phase, seg.t_phase, seg.origin, seg.yaw_acc0 = "move", now, self.odo.pose, self.odo.yaw_acc
             elif now - seg.t_phase > c.steer_timeout_s:
                 self._abort(f"steering not reached in {c.steer_timeout_s:.1f} s")
             return np.zeros(4)
-        dt = self.ctx.frame_period_s
-        if seg.kind == "drive":
-            x0, y0, h0 = seg.origin
-            done = (self.pose[0] - x0) * math.cos(h0) + (self.pose[1] - y0) * math.sin(h0)
-            rem, tol, acc, vmin = seg.amount - done, c.position_tolerance_m, c.accel_mps2, c.min_speed_mps
-        else:
-            rem = seg.amount - (self.yaw_acc - seg.yaw_acc0)
-            tol, acc = math.radians(c.yaw_tolerance_deg), math.radians(c.yaw_accel_dps2)
-            vmin = c.min_speed_mps / float(np.hypot(*self.wheel_xy[0]))
+        rem, tol, acc, vmin = mp.remaining(seg, self.odo.pose, self.odo.yaw_acc, c, self.wheel_xy)
         self.tlm("remaining", rem if seg.kind == "drive" else math.degrees(rem))
-        if rem * math.copysign(1.0, seg.amount) <= tol:
+        if mp.arrived(seg, rem, tol):
             self.segments.popleft()
             if not self.segments:
                 self._finish()
             else:  # the next segment's steering time starts now, not when the move began
                 self.segments[0].t_phase = now
             return np.zeros(4)
-        speed = max(vmin, min(seg.speed, math.sqrt(2.0 * acc * abs(rem)), seg.cmd + acc * dt))
-        seg.cmd = speed
+        speed = mp.ramp_speed(seg, rem, acc, vmin, self.ctx.frame_period_s)
         self.tlm("cmd_speed", speed)
         v = math.copysign(speed, rem)
         _, rates = (
@@ -238,7 +213,7 @@ class MotionTask(FlightTask):
         if motors.faults & can_motors.CRITICAL:
             raise CommandError("motor faults: " + ",".join(motors.fault_names()) + " (CLEAR_FAULTS)")
 
-    def _start(self, rid: int, kind: str, segs: list[tuple[str, float, float]], what: str) -> None:
+    def _start(self, rid: int, kind: str, segs: mp.SegmentPlan, what: str) -> None:
         self._refuse_if_unsafe()
         if self.active is not None:
             self._abort("superseded")
@@ -248,7 +223,7 @@ class MotionTask(FlightTask):
                 steer = np.zeros(4)
             else:
                 steer, _ = wk.wheel_commands(0.0, 0.0, 1.0, self.wheel_xy, self.r)
-            self.segments.append(_Segment(skind, amount, speed, steer, t_phase=now))
+            self.segments.append(mp.Segment(skind, amount, speed, steer, t_phase=now))
         self.active = (rid, kind)
         self.event("MOVE_STARTED", kind=kind, rid=rid, what=what)
         if not self.segments:
@@ -260,9 +235,9 @@ class MotionTask(FlightTask):
         rid, kind = self.active
         self.active = None
         self.done += 1
-        x, y, yaw = self.pose
+        x, y, yaw = self.odo.pose
         self.event("MOVE_DONE", kind=kind, rid=rid, x=x, y=y, yaw=math.degrees(yaw))
-        self._status(rid, kind, "done")
+        self._status(rid, kind, MoveOutcome.DONE)
 
     def _abort(self, reason: str) -> None:
         self.segments.clear()
@@ -272,32 +247,10 @@ class MotionTask(FlightTask):
         self.active = None
         self.aborted += 1
         self.event("MOVE_ABORTED", kind=kind, rid=rid, reason=reason)
-        self._status(rid, kind, "aborted", reason)
+        self._status(rid, kind, MoveOutcome.ABORTED, reason)
 
-    def _status(self, rid: int, kind: str, state: str, reason: str = "") -> None:
-        self.publish(MOTION_STATUS, MotionStatus(rid, kind, state, reason, self.ctx.clock.now()))
-
-    def _drive_segments(self, distance: float, speed: float) -> list[tuple[str, float, float]]:
-        return [("drive", distance, speed or self.mcfg.drive_speed_mps)]
-
-    def _turn_segments(self, angle: float, rate: float) -> list[tuple[str, float, float]]:
-        return [("turn", angle, rate or math.radians(self.mcfg.turn_rate_dps))]
-
-    def _goto_segments(self, x: float, y: float, yaw: float | None, speed: float) -> list[tuple[str, float, float]]:
-        px, py, pyaw = self.pose
-        dist, heading = math.hypot(x - px, y - py), math.atan2(y - py, x - px)
-        turn1 = wk.wrap_angle(heading - pyaw)
-        if abs(turn1) > math.pi / 2:  # closer to back up than to turn around
-            turn1, dist = wk.wrap_angle(turn1 - math.pi), -dist
-        segs: list[tuple[str, float, float]] = []
-        if dist > self.mcfg.position_tolerance_m or -dist > self.mcfg.position_tolerance_m:
-            if abs(turn1) > math.radians(self.mcfg.yaw_tolerance_deg):
-                segs += self._turn_segments(turn1, 0.0)
-            segs += self._drive_segments(dist, speed)
-            pyaw += turn1
-        if yaw is not None and abs(wk.wrap_angle(yaw - pyaw)) > math.radians(self.mcfg.yaw_tolerance_deg):
-            segs += self._turn_segments(wk.wrap_angle(yaw - pyaw), 0.0)
-        return segs
+    def _status(self, rid: int, kind: str, outcome: MoveOutcome, reason: str = "") -> None:
+        self.publish(MOTION_STATUS, MotionStatus(rid, kind, outcome, reason, self.ctx.clock.now()))
 
     def _point_mast(self, rid: int, pan: float, tilt: float, lift: float) -> None:
         mast = self._mast()
@@ -314,35 +267,26 @@ class MotionTask(FlightTask):
         if self.mast_goal is None or mast is None:
             return
         rid, goal, t0 = self.mast_goal
-        fail = ""
-        if mast.faults & mast_serial.CRITICAL:
-            fail = "mast faults: " + ",".join(mast.fault_names())
-        elif mast.last_result.startswith(("nak", "no_ack")) and not mast.busy:
-            fail = mast.last_result
-        elif now - t0 > self.mcfg.mast_timeout_s:
-            fail = f"not at target after {self.mcfg.mast_timeout_s:.0f} s"
-        if fail:
-            self.mast_goal = None
-            self.aborted += 1
-            self.event("MOVE_ABORTED", kind="mast", rid=rid, reason=fail)
-            self._status(rid, "mast", "aborted", fail)
+        c = self.mcfg
+        verdict = mast_serial.move_progress(
+            mast, goal, now - t0, math.radians(c.mast_tolerance_deg), c.mast_lift_tolerance_m, c.mast_timeout_s
+        )
+        if verdict == "moving":
             return
-        q = mast.joints
-        if q is None or mast.busy:
-            return
-        tol = math.radians(self.mcfg.mast_tolerance_deg)
-        if (
-            abs(q[0] - goal[0]) <= tol
-            and abs(q[1] - goal[1]) <= tol
-            and abs(q[2] - goal[2]) <= self.mcfg.mast_lift_tolerance_m
-        ):
-            self.mast_goal = None
+        self.mast_goal = None
+        if verdict == "arrived":
+            assert mast.joints is not None
+            q = mast.joints
             self.done += 1
             self.event("MAST_POINTED", pan=math.degrees(q[0]), tilt=math.degrees(q[1]), lift=q[2])
-            self._status(rid, "mast", "done")
+            self._status(rid, "mast", MoveOutcome.DONE)
+        else:
+            self.aborted += 1
+            self.event("MOVE_ABORTED", kind="mast", rid=rid, reason=verdict)
+            self._status(rid, "mast", MoveOutcome.ABORTED, verdict)
 
     def _publish(self, now: float, mast: mast_serial.MastSerialDriver | None) -> None:
-        x, y, yaw = self.pose
+        x, y, yaw = self.odo.pose
         self.tlm(
             "state",
             "ESTOP"
@@ -358,12 +302,10 @@ class MotionTask(FlightTask):
         self.tlm("odo_x_m", x)
         self.tlm("odo_y_m", y)
         self.tlm("odo_yaw_deg", math.degrees(yaw))
-        self.tlm("odo_path_m", self.path_m)
+        self.tlm("odo_path_m", self.odo.path_m)
         self.tlm("mast_busy", int(self.mast_goal is not None))
         self.tlm("moves_done", self.done)
         self.tlm("moves_aborted", self.aborted)
-        s_xy = self.mcfg.odo_sigma_per_m * self.path_m
-        s_yaw = self.mcfg.odo_yaw_sigma_per_rad * self.turned_rad + self.mcfg.odo_sigma_per_m * self.path_m
         joints = mast.joints if mast is not None and mast.joints is not None else (math.nan,) * 3
         self.publish(
             NAV_POSE,
@@ -372,56 +314,50 @@ class MotionTask(FlightTask):
                 x,
                 y,
                 yaw,
-                np.diag([s_xy**2, s_xy**2, s_yaw**2]),
+                self.odo.covariance(self.mcfg),
                 joints,
                 moving=self.active is not None or self.mast_goal is not None,
             ),
         )
 
     # -- requests and commands --------------------------------------------------------------
+    def _drive(self, rid: int, distance_m: float, speed_mps: float) -> None:
+        self._start(rid, "drive", mp.drive_plan(distance_m, speed_mps, self.mcfg), f"{distance_m:.3f} m")
+
+    def _turn(self, rid: int, angle_rad: float, rate_rps: float) -> None:
+        self._start(rid, "turn", mp.turn_plan(angle_rad, rate_rps, self.mcfg), f"{math.degrees(angle_rad):.1f} deg")
+
+    def _goto(self, rid: int, x: float, y: float, yaw: float | None, speed_mps: float) -> None:
+        self._start(rid, "goto", mp.goto_plan(self.odo.pose, x, y, yaw, speed_mps, self.mcfg), f"to ({x:.3f}, {y:.3f})")
+
     def _on_request(self, req: MotionRequest, now: float) -> None:
         try:
             if req.kind == "drive":
-                self._start(
-                    req.request_id, "drive", self._drive_segments(req.distance_m, req.speed), f"{req.distance_m:.3f} m"
-                )
+                self._drive(req.request_id, req.distance_m, req.speed)
             elif req.kind == "turn":
-                self._start(
-                    req.request_id,
-                    "turn",
-                    self._turn_segments(req.angle_rad, req.speed),
-                    f"{math.degrees(req.angle_rad):.1f} deg",
-                )
+                self._turn(req.request_id, req.angle_rad, req.speed)
             elif req.kind == "goto" and req.target is not None:
                 x, y, yaw = req.target
-                self._start(
-                    req.request_id,
-                    "goto",
-                    self._goto_segments(x, y, None if math.isnan(yaw) else yaw, req.speed),
-                    f"to ({x:.3f}, {y:.3f})",
-                )
+                self._goto(req.request_id, x, y, None if math.isnan(yaw) else yaw, req.speed)
             elif req.kind == "mast" and req.joints is not None:
                 self._point_mast(req.request_id, *req.joints)
             elif req.kind == "stop":
                 self.cmd_STOP()
-                self._status(req.request_id, "stop", "done")
+                self._status(req.request_id, "stop", MoveOutcome.DONE)
             else:
                 raise CommandError(f"malformed request kind {req.kind!r}")
         except (CommandError, ValueError) as exc:
             self.event("MOVE_REFUSED", kind=req.kind, rid=req.request_id, reason=str(exc))
-            self._status(req.request_id, req.kind, "refused", str(exc))
+            self._status(req.request_id, req.kind, MoveOutcome.REFUSED, str(exc))
 
     def cmd_DRIVE(self, distance_m: float, speed_mps: float) -> None:
-        self._start(-1, "drive", self._drive_segments(distance_m, speed_mps), f"{distance_m:.3f} m")
+        self._drive(-1, distance_m, speed_mps)
 
     def cmd_TURN(self, angle_deg: float, rate_dps: float) -> None:
-        self._start(
-            -1, "turn", self._turn_segments(math.radians(angle_deg), math.radians(rate_dps)), f"{angle_deg:.1f} deg"
-        )
+        self._turn(-1, math.radians(angle_deg), math.radians(rate_dps))
 
     def cmd_GOTO(self, x_m: float, y_m: float, yaw_deg: float, use_yaw: bool) -> None:
-        segs = self._goto_segments(x_m, y_m, math.radians(yaw_deg) if use_yaw else None, 0.0)
-        self._start(-1, "goto", segs, f"to ({x_m:.3f}, {y_m:.3f})")
+        self._goto(-1, x_m, y_m, math.radians(yaw_deg) if use_yaw else None, 0.0)
 
     def cmd_POINT_MAST(self, pan_deg: float, tilt_deg: float, lift_m: float) -> None:
         self._point_mast(-1, math.radians(pan_deg), math.radians(tilt_deg), lift_m)
@@ -460,6 +396,5 @@ class MotionTask(FlightTask):
         self.event("FAULTS_CLEARED")
 
     def cmd_SET_ODOMETRY(self, x_m: float, y_m: float, yaw_deg: float) -> None:
-        self.pose = (x_m, y_m, math.radians(yaw_deg))
-        self.path_m = self.turned_rad = 0.0
+        self.odo.reset((x_m, y_m, math.radians(yaw_deg)))
         self.event("ODOMETRY_SET", x=x_m, y=y_m, yaw=yaw_deg)

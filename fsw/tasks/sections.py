@@ -1,4 +1,4 @@
-"""The configuration sections the flight tasks own: ``[capture]``, ``[motion]``, ``[mission]``.
+"""The configuration sections the flight tasks own: ``[capture]``, ``[mission]``.
 
 They live apart from the task modules so that ``fsw.settings`` can assemble the whole
 configuration below the tasks (a task imports the settings, never the other way round).
@@ -19,24 +19,6 @@ class CaptureConfig:
 
     joint_sigma_deg: float = param(0.2, lo=0.0, hi=10.0, units="deg", doc="pan and tilt encoder sigma")
     lift_sigma_m: float = param(0.002, lo=0.0, hi=0.1, units="m", doc="lift sigma")
-
-
-@dataclass(frozen=True)
-class MotionConfig:
-    drive_speed_mps: float = param(0.15, lo=0.005, hi=5.0, units="m/s", doc="default drive speed")
-    turn_rate_dps: float = param(15.0, lo=0.5, hi=360.0, units="deg/s", doc="default turn rate")
-    accel_mps2: float = param(0.2, lo=0.01, hi=10.0, units="m/s^2")
-    yaw_accel_dps2: float = param(30.0, lo=1.0, hi=1000.0, units="deg/s^2")
-    min_speed_mps: float = param(0.01, lo=0.0, hi=1.0, units="m/s", doc="creep speed near the goal")
-    steer_tolerance_deg: float = param(2.0, lo=0.1, hi=20.0, units="deg", doc="steered before driving")
-    steer_timeout_s: float = param(4.0, lo=0.1, hi=60.0, units="s")
-    position_tolerance_m: float = param(0.005, lo=0.0005, hi=0.5, units="m")
-    yaw_tolerance_deg: float = param(0.3, lo=0.01, hi=10.0, units="deg")
-    mast_tolerance_deg: float = param(0.3, lo=0.01, hi=10.0, units="deg")
-    mast_lift_tolerance_m: float = param(0.003, lo=0.0001, hi=0.1, units="m")
-    mast_timeout_s: float = param(20.0, lo=0.5, hi=600.0, units="s")
-    odo_sigma_per_m: float = param(0.02, lo=0.0, hi=1.0, units="m/m", doc="odometry sigma growth per metre")
-    odo_yaw_sigma_per_rad: float = param(0.02, lo=0.0, hi=1.0, units="rad/rad")
 
 
 @dataclass(frozen=True, kw_only=True)
