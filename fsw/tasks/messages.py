@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from fsw.comm.link_sender import SenderState
 from fsw.core.geometry import CameraPose
 
 # Topic names (one place, so a typo is an import error, not a silent loss).
@@ -23,6 +24,8 @@ MAP_UPDATED = "map.updated"
 NAV_POSE = "nav.pose"
 NBV_REQUEST = "nbv.request"
 NBV_RESULT = "nbv.result"
+RADIO_SEND = "radio.send"
+RADIO_STATUS = "radio.status"
 
 
 @dataclass(frozen=True)
@@ -113,3 +116,22 @@ class MotionStatus:
     state: MoveOutcome
     reason: str = ""
     time_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class RadioSendRequest:
+    """Ask the radio task to encode the latest map and send it as ``map_id``."""
+
+    map_id: int
+
+
+@dataclass(frozen=True)
+class RadioStatus:
+    """The map link's sender state, published by the radio task whenever it changes."""
+
+    state: SenderState
+    time_s: float
+
+    @property
+    def finished(self) -> bool:
+        return self.state in (SenderState.DONE, SenderState.REJECTED, SenderState.FAILED)

@@ -40,14 +40,17 @@ from fsw.tasks.messages import (
     NAV_POSE,
     NBV_REQUEST,
     NBV_RESULT,
+    RADIO_SEND,
+    RADIO_STATUS,
     CaptureRequest,
     MapUpdate,
     MotionRequest,
     MotionStatus,
     MoveOutcome,
     NavPose,
+    RadioSendRequest,
+    RadioStatus,
 )
-from fsw.tasks.radio_task import RADIO_SEND, RadioSendRequest
 from fsw.tasks.sections import MissionConfig
 
 STATES = ("IDLE", "INIT", "SELECT", "MOVE", "POINT", "ACQUIRE", "TRANSMIT", "DONE", "SAFE")
@@ -100,6 +103,8 @@ class MissionTask(FlightTask):
         self.status_box = self.subscribe(MOTION_STATUS, depth=8)
         self.map_box = self.subscribe(MAP_UPDATED, depth=4)
         self.nbv_box = self.subscribe(NBV_RESULT, depth=2)
+        self.radio_box = self.subscribe(RADIO_STATUS, depth=4)
+        self.radio: RadioStatus | None = None
         self.nav: NavPose | None = None
         self.state = "IDLE"
         self.records: list[StepRecord] = []
@@ -340,8 +345,11 @@ class MissionTask(FlightTask):
             self._goto("DONE")
 
     def _state_transmit(self) -> None:
-        state = self.ctx.telemetry.get("radio.state")
-        if state in ("done", "rejected", "failed") or self._timed_out():
+        for status in self.radio_box.drain():
+            self.radio = status
+        finished = self.radio is not None and self.radio.finished
+        if finished or self._timed_out():
+            state = self.radio.state.value if self.radio is not None else None
             self.event("TRANSMITTED", state=state if not self._timed_out() else "timeout")
             self._goto("DONE")
 

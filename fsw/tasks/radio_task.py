@@ -12,7 +12,6 @@ counters. The radio is the ``radio_port`` resource, or ``[link] transport`` open
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
@@ -24,16 +23,7 @@ from fsw.drivers.radio import RadioPort, open_radio
 from fsw.framework.commands import Arg, CommandDef
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.base import FlightTask
-from fsw.tasks.messages import MAP_UPDATED
-
-RADIO_SEND = "radio.send"
-
-
-@dataclass(frozen=True)
-class RadioSendRequest:
-    """Ask the radio task to encode the latest map and send it as ``map_id``."""
-
-    map_id: int
+from fsw.tasks.messages import MAP_UPDATED, RADIO_SEND, RADIO_STATUS, RadioStatus
 
 
 class RadioTask(FlightTask):
@@ -91,6 +81,7 @@ class RadioTask(FlightTask):
                                 cfg.link.segment_bytes + DATA_OVERHEAD)
         self.map_box = self.subscribe(MAP_UPDATED, depth=1)
         self.send_box = self.subscribe(RADIO_SEND, depth=4)
+        self._published_state: SenderState | None = None
 
     def _divisor(self) -> int:
         cfg = self.ctx.cfg.executive
@@ -133,6 +124,9 @@ class RadioTask(FlightTask):
         s = self.sender
         acked, total = s.progress
         self.tlm("state", s.state.value)
+        if s.state is not self._published_state:
+            self._published_state = s.state
+            self.publish(RADIO_STATUS, RadioStatus(s.state, self.ctx.clock.now()))
         self.tlm("acked_pct", 100.0 * acked / total if total else 0.0)
         self.tlm("map_bytes", s.map_bytes)
         self.tlm("tx_bytes", s.stats.bytes_out)

@@ -15,8 +15,7 @@ from fsw.core.geometry import MapGrid
 from fsw.core.mapcodec import decode_map
 from fsw.drivers.radio import InProcRadio
 from fsw.drivers.resources import Resources
-from fsw.tasks.messages import MAP_UPDATED, MapUpdate
-from fsw.tasks.radio_task import RADIO_SEND, RadioSendRequest
+from fsw.tasks.messages import MAP_UPDATED, RADIO_SEND, MapUpdate, RadioSendRequest
 
 CFG = task_config(("radio", "radio"))
 GRID = MapGrid(0.0, 0.0, 0.05, 64, 48)
