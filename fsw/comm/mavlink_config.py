@@ -66,7 +66,7 @@ class MavlinkConfig:
         ("motion.odo_x_m", "motion.odo_y_m", "", "", "", "motion.odo_yaw_deg"),
         doc="rover pose x, y, z (world, z up), roll, pitch, yaw (CCW from +x); '' = not available; "
             "angles in rad, or deg when the channel's units say so")
-    mast_channels: tuple[str, ...] = param(("devices.mast_pan_deg", "devices.mast_tilt_deg"),
+    mast_channels: tuple[str, ...] = param(("mast_drv.pan_deg", "mast_drv.tilt_deg"),
                                            doc="mast pan (CCW +) and tilt (up +) channels")
     map_preview_topic: str = param("map.preview",
                                    doc="bus topic with 2-D map previews (float elevation, NaN "

@@ -1,16 +1,17 @@
-"""Polls the device drivers once per frame: their events become executive events, their
-counters and fault words telemetry.
+"""Device components: one per driver, polled once per frame; the driver's events become
+executive events, its counters and fault word telemetry.
 
-The drivers (resources ``motors``, ``mast``, ``camera`` made by ``fsw.drivers.factory``)
-never see the executive; this task is their voice. Schedule it first in the fast group so
-every other task of the frame reads fresh device state. A driver that is not configured is
-simply absent: its channels stay empty.
+The drivers (``ctx.res.motors``, ``mast``, ``camera``, opened by ``fsw.drivers.factory``)
+never see the executive; each component here is its driver's voice (F Prime: a driver
+component per device). Schedule them first in the fast group so every other task of the
+frame reads fresh device state. A driver that is not configured is simply absent: its
+component runs, polls nothing, and its channels stay empty.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Generic, Protocol, TypeVar
 
 from fsw.drivers.camera import CameraDriver
 from fsw.drivers.can_motors import CanMotorDriver
@@ -18,72 +19,110 @@ from fsw.drivers.mast_serial import MastSerialDriver
 from fsw.framework.telemetry import Channel
 from fsw.tasks.base import FlightTask
 
-DRIVERS = (("motors", CanMotorDriver), ("mast", MastSerialDriver), ("camera", CameraDriver))
+class PolledDriver(Protocol):
+    def poll(self, now: float) -> None: ...
+
+    def drain_events(self) -> list[tuple[str, dict[str, Any]]]: ...
 
 
-class DevicesTask(FlightTask):
-    KIND: ClassVar[str] = "devices"
-    DOC: ClassVar[str] = "Polls the CAN motor, serial mast and camera drivers; events and telemetry."
-    CHANNELS = (
-        Channel("can_faults", "bits", hi=0, doc="CanMotorDriver.FAULTS word"),
-        Channel("can_rx", "frames", doc="valid frames received"),
-        Channel(
-            "can_bad", "frames", hi=0, doc="frames refused (E2E checksum or counter, reserved bits, length, unknown id)"
-        ),
-        Channel("can_lost", "frames", hi=0, doc="status frames lost (counter jumps)"),
-        Channel("can_tx", "frames"),
-        Channel("can_tx_errors", "count", hi=0),
-        Channel("nodes_online", "count", lo=12, doc="motor controllers with a live heartbeat"),
-        Channel("axes_faulted", "count", hi=0, doc="motor controllers reporting fault bits"),
-        Channel("mast_faults", "bits", hi=0, doc="MastSerialDriver.FAULTS word"),
-        Channel("mast_pan_deg", "deg"),
-        Channel("mast_tilt_deg", "deg"),
-        Channel("mast_lift_m", "m"),
-        Channel("mast_crc_errors", "count", hi=0),
-        Channel("mast_retransmits", "count"),
-        Channel("mast_naks", "count"),
-        Channel("cam_faults", "bits", hi=0, doc="CameraDriver.FAULTS word"),
-        Channel("cam_frames", "count"),
-        Channel("cam_timeouts", "count", hi=0),
-        Channel("cam_dropouts", "count", hi=0),
-    )
-    EVENTS = CanMotorDriver.EVENTS + MastSerialDriver.EVENTS + CameraDriver.EVENTS
+D = TypeVar("D", bound=PolledDriver)
+
+
+class DeviceTask(FlightTask, Generic[D]):
+    """Polls one driver: events out, then :meth:`telemetry`."""
 
     def setup(self) -> None:
-        res = self.ctx.res
-        pairs: list[tuple[str, Any]] = [("motors", res.motors), ("mast", res.mast), ("camera", res.camera)]
-        self.drivers = [(k, d) for k, d in pairs if d is not None]
+        self.driver: D | None = self.find_driver()
+
+    def find_driver(self) -> D | None:
+        raise NotImplementedError
 
     def run(self, frame: int) -> None:
-        now = self.ctx.clock.now()
-        for key, drv in self.drivers:
-            drv.poll(now)
-            for name, args in drv.drain_events():
-                self.event(name, **args)
-            getattr(self, f"_tlm_{key}")(drv)
+        drv = self.driver
+        if drv is None:
+            return
+        drv.poll(self.ctx.clock.now())
+        for name, args in drv.drain_events():
+            self.event(name, **args)
+        self.telemetry(drv)
 
-    def _tlm_motors(self, m: CanMotorDriver) -> None:
-        self.tlm("can_faults", m.faults)
-        self.tlm("can_rx", m.rx_frames)
-        self.tlm("can_bad", m.rx_bad)
-        self.tlm("can_lost", m.rx_lost)
-        self.tlm("can_tx", m.tx_frames)
-        self.tlm("can_tx_errors", m.tx_errors)
+    def telemetry(self, drv: D) -> None:
+        raise NotImplementedError
+
+
+class CanMotorsDevice(DeviceTask[CanMotorDriver]):
+    KIND: ClassVar[str] = "can_motors_device"
+    DOC: ClassVar[str] = "Polls the CAN motor-controller driver; its events and telemetry."
+    CHANNELS = (
+        Channel("faults", "bits", hi=0, doc="CanMotorDriver.FAULTS word"),
+        Channel("rx", "frames", doc="valid frames received"),
+        Channel("bad", "frames", hi=0, doc="frames refused (checksum, counter, length, unknown id)"),
+        Channel("lost", "frames", hi=0, doc="status frames lost (counter jumps)"),
+        Channel("tx", "frames"),
+        Channel("tx_errors", "count", hi=0),
+        Channel("nodes_online", "count", lo=12, doc="motor controllers with a live heartbeat"),
+        Channel("axes_faulted", "count", hi=0, doc="motor controllers reporting fault bits"),
+    )
+    EVENTS = CanMotorDriver.EVENTS
+
+    def find_driver(self) -> CanMotorDriver | None:
+        return self.ctx.res.motors
+
+    def telemetry(self, m: CanMotorDriver) -> None:
+        self.tlm("faults", m.faults)
+        self.tlm("rx", m.rx_frames)
+        self.tlm("bad", m.rx_bad)
+        self.tlm("lost", m.rx_lost)
+        self.tlm("tx", m.tx_frames)
+        self.tlm("tx_errors", m.tx_errors)
         self.tlm("nodes_online", sum(1 for s in m.axes.values() if s.t_heartbeat is not None and not s.lost))
         self.tlm("axes_faulted", sum(1 for s in m.axes.values() if s.faults))
 
-    def _tlm_mast(self, m: MastSerialDriver) -> None:
-        self.tlm("mast_faults", m.faults)
-        if m.joints is not None:
-            self.tlm("mast_pan_deg", math.degrees(m.joints[0]))
-            self.tlm("mast_tilt_deg", math.degrees(m.joints[1]))
-            self.tlm("mast_lift_m", m.joints[2])
-        self.tlm("mast_crc_errors", m.decoder.crc_errors)
-        self.tlm("mast_retransmits", m.retransmits)
-        self.tlm("mast_naks", m.naks)
 
-    def _tlm_camera(self, c: CameraDriver) -> None:
-        self.tlm("cam_faults", c.faults)
-        self.tlm("cam_frames", c.frames)
-        self.tlm("cam_timeouts", c.timeouts)
-        self.tlm("cam_dropouts", c.dropouts)
+class MastDevice(DeviceTask[MastSerialDriver]):
+    KIND: ClassVar[str] = "mast_device"
+    DOC: ClassVar[str] = "Polls the serial mast driver; its events and telemetry."
+    CHANNELS = (
+        Channel("faults", "bits", hi=0, doc="MastSerialDriver.FAULTS word"),
+        Channel("pan_deg", "deg"),
+        Channel("tilt_deg", "deg"),
+        Channel("lift_m", "m"),
+        Channel("crc_errors", "count", hi=0),
+        Channel("retransmits", "count"),
+        Channel("naks", "count"),
+    )
+    EVENTS = MastSerialDriver.EVENTS
+
+    def find_driver(self) -> MastSerialDriver | None:
+        return self.ctx.res.mast
+
+    def telemetry(self, m: MastSerialDriver) -> None:
+        self.tlm("faults", m.faults)
+        if m.joints is not None:
+            self.tlm("pan_deg", math.degrees(m.joints[0]))
+            self.tlm("tilt_deg", math.degrees(m.joints[1]))
+            self.tlm("lift_m", m.joints[2])
+        self.tlm("crc_errors", m.decoder.crc_errors)
+        self.tlm("retransmits", m.retransmits)
+        self.tlm("naks", m.naks)
+
+
+class CameraDevice(DeviceTask[CameraDriver]):
+    KIND: ClassVar[str] = "camera_device"
+    DOC: ClassVar[str] = "Polls the stereo camera driver; its events and telemetry."
+    CHANNELS = (
+        Channel("faults", "bits", hi=0, doc="CameraDriver.FAULTS word"),
+        Channel("frames", "count"),
+        Channel("timeouts", "count", hi=0),
+        Channel("dropouts", "count", hi=0),
+    )
+    EVENTS = CameraDriver.EVENTS
+
+    def find_driver(self) -> CameraDriver | None:
+        return self.ctx.res.camera
+
+    def telemetry(self, c: CameraDriver) -> None:
+        self.tlm("faults", c.faults)
+        self.tlm("frames", c.frames)
+        self.tlm("timeouts", c.timeouts)
+        self.tlm("dropouts", c.dropouts)

@@ -64,8 +64,8 @@ def test_fault_is_detected_without_crashing(
             if activity == "camera" and not camera.busy:
                 camera.trigger(b.clock.now())
             b.run(1)
-            seen |= int(b.tlm(f"devices.{word}_faults"))
-        assert seen & bit, f"fault bit 0x{bit:X} never set in devices.{word}_faults"
+            seen |= int(b.tlm(f"{word}_drv.faults"))
+        assert seen & bit, f"fault bit 0x{bit:X} never set in {word}_drv.faults"
         assert b.events(f".{event}"), f"no {event} event"
         assert not b.events(".EXCEPTION") and b.exe.frame == b.exe.frame  # executive alive
         if activity == "drive" and bit & cm.CRITICAL:
@@ -77,7 +77,7 @@ def test_fault_is_detected_without_crashing(
         if word == "can":
             assert b.command("motion.DRIVE", distance_m=0.1, speed_mps=0.0).status.name == "OK"
             b.run_until(lambda: b.tlm("motion.state") == "IDLE", 80)
-            assert not int(b.tlm("devices.can_faults")) & cm.CRITICAL
+            assert not int(b.tlm("can_drv.faults")) & cm.CRITICAL
 
 
 def test_bad_frames_on_the_bus_are_counted_never_raised() -> None:
@@ -93,7 +93,7 @@ def test_bad_frames_on_the_bus_are_counted_never_raised() -> None:
         for m in junk:
             b.sim_bus.send(m)
         b.run(2)
-        assert int(b.tlm("devices.can_bad")) == len(junk) and b.events(".CAN_BAD_FRAME")
+        assert int(b.tlm("can_drv.bad")) == len(junk) and b.events(".CAN_BAD_FRAME")
         assert not b.events(".EXCEPTION")
 
 

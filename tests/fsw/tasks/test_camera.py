@@ -14,7 +14,7 @@ from fsw.drivers.resources import Resources
 from fsw.tasks.camera import camera_pose_covariance
 from fsw.tasks.messages import CAMERA_FRAME, CAMERA_REQUEST, NAV_POSE, CaptureRequest, NavPose
 
-CFG = task_config(("devices", "devices"), ("camera", "camera"))
+CFG = task_config(("cam_drv", "camera_device"), ("camera", "camera"))
 NAV = NavPose(0.0, 1.0, 2.0, 0.3, np.diag([1e-4, 1e-4, 1e-5]), (0.2, -0.6, 0.4))
 
 
@@ -77,11 +77,11 @@ def test_a_dropout_frees_the_task_for_the_next_request() -> None:
     rig.publish(CAMERA_REQUEST, CaptureRequest(1))
     rig.run(3)
     assert not frames.drain() and rig.tlm("camera.pending") == 0
-    assert rig.tlm("devices.cam_dropouts") == 1 and len(rig.events("devices.CAMERA_DROPOUT")) == 1
+    assert rig.tlm("cam_drv.dropouts") == 1 and len(rig.events("cam_drv.CAMERA_DROPOUT")) == 1
     rig.publish(CAMERA_REQUEST, CaptureRequest(2))
     rig.run(3)
     assert [f.view_id for f in frames.drain()] == [2]
-    assert len(rig.events("devices.CAMERA_RECOVERED")) == 1 and rig.tlm("devices.cam_frames") == 1
+    assert len(rig.events("cam_drv.CAMERA_RECOVERED")) == 1 and rig.tlm("cam_drv.frames") == 1
 
 
 def test_a_silent_source_times_out() -> None:
@@ -101,5 +101,5 @@ def test_a_silent_source_times_out() -> None:
     rig.run(3)
     assert rig.tlm("camera.pending") == 1
     rig.run(5)
-    assert rig.tlm("camera.pending") == 0 and rig.tlm("devices.cam_timeouts") == 1
-    assert len(rig.events("devices.CAMERA_TIMEOUT")) == 1
+    assert rig.tlm("camera.pending") == 0 and rig.tlm("cam_drv.timeouts") == 1
+    assert len(rig.events("cam_drv.CAMERA_TIMEOUT")) == 1
