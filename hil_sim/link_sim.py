@@ -12,9 +12,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from fsw.comm.link import LinkConfig, LinkEvent
+from fsw.comm.link import LinkConfig
 from fsw.comm.link_receiver import LinkReceiver
 from fsw.comm.link_sender import LinkSender, SenderState
+from fsw.framework.events import PendingEvent
 from hil_sim.radio_channel import DirectionStats, RadioChannel, RadioChannelConfig
 
 
@@ -28,7 +29,7 @@ class TransferResult:
     receiver_stats: dict[str, int]
     forward: DirectionStats
     reverse: DirectionStats
-    events: list[tuple[str, LinkEvent]] = field(default_factory=list)
+    events: list[tuple[str, PendingEvent]] = field(default_factory=list)
     idle_steps: int = 0  # steps where a deadline was due but nothing happened (should be 0)
     sender_done_s: float | None = None  # when the sender got the whole-map acknowledgement
     receiver_closed_s: float | None = None  # when the receiver's close ended (close=True runs)
@@ -60,7 +61,7 @@ def run_transfer(
     tx.start(map_id, data, t)
     delivered: bytes | None = None
     delivered_s: float | None = None
-    events: list[tuple[str, LinkEvent]] = []
+    events: list[tuple[str, PendingEvent]] = []
     idle_steps = 0
     closed_s: float | None = None
     for _ in range(max_steps):

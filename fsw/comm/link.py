@@ -12,14 +12,12 @@ CFDP class 2 style reliable transfer over a lossy, bandwidth-capped datagram rad
 * Packet formats: ``fsw.comm.link_packets``; state machines and timers: docs/link.md.
 
 Both ends pace their output to ``rate_bps`` with :class:`Pacer` and report what happens
-as :class:`LinkEvent` records in a bounded queue.
+as :class:`PendingEvent` records in a bounded queue.
 """
 
 from __future__ import annotations
 
-from collections import deque
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
 from fsw.framework.params import param
 
@@ -69,33 +67,6 @@ class LinkConfig:
             raise ValueError("max_backoff_s must be at least offer_retry_s")
         if self.max_map_bytes > 0xFFFF * self.segment_bytes:
             raise ValueError("max_map_bytes needs more than 65535 segments of segment_bytes")
-
-
-@dataclass(frozen=True)
-class LinkEvent:
-    """Something the operator should know; ``name`` matches the radio task's event table."""
-
-    time_s: float
-    name: str
-    args: dict[str, Any] = field(default_factory=dict)
-
-
-class EventQueue:
-    """Bounded event queue (oldest dropped first; ``dropped`` counts them)."""
-
-    def __init__(self, maxlen: int = 64) -> None:
-        self._q: deque[LinkEvent] = deque(maxlen=maxlen)
-        self.dropped = 0
-
-    def emit(self, now_s: float, name: str, **args: Any) -> None:
-        if len(self._q) == self._q.maxlen:
-            self.dropped += 1
-        self._q.append(LinkEvent(now_s, name, args))
-
-    def pop_all(self) -> list[LinkEvent]:
-        out = list(self._q)
-        self._q.clear()
-        return out
 
 
 class Pacer:

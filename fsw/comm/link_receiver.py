@@ -33,7 +33,8 @@ from collections import deque
 from enum import Enum
 
 from fsw.comm import link_packets as lp
-from fsw.comm.link import EventQueue, LinkConfig, LinkStats, Pacer
+from fsw.comm.link import LinkConfig, LinkStats, Pacer
+from fsw.framework.events import EventSink
 
 _EPS = 1e-9  # deadlines are met within this (float rounding of t0 + period)
 
@@ -51,7 +52,7 @@ class LinkReceiver:
         self.cfg = cfg
         self.state = ReceiverState.IDLE
         self.stats = LinkStats()
-        self.events = EventQueue()
+        self.events = EventSink()
         self._pacer = Pacer(cfg.rate_bps, cfg.pacing_catchup_s)
         self._offer: lp.Offer | None = None
         self._buf = bytearray()

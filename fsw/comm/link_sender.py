@@ -30,7 +30,8 @@ import heapq
 from enum import Enum
 
 from fsw.comm import link_packets as lp
-from fsw.comm.link import EventQueue, LinkConfig, LinkStats, Pacer
+from fsw.comm.link import LinkConfig, LinkStats, Pacer
+from fsw.framework.events import EventSink
 
 _RING = 1024
 _NEVER = float("-inf")
@@ -54,7 +55,7 @@ class LinkSender:
         self.session = session & 0xFFFF
         self.state = SenderState.IDLE
         self.stats = LinkStats()
-        self.events = EventQueue()
+        self.events = EventSink()
         self._pacer = Pacer(cfg.rate_bps, cfg.pacing_catchup_s)
         self._data = b""
         self._map_id = 0

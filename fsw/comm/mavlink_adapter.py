@@ -21,7 +21,7 @@ from fsw.comm import mavlink_telemetry as tm
 from fsw.comm.mavlink_commands import Reason
 from fsw.comm.mavlink_config import MavlinkConfig
 from fsw.comm.mavlink_dialect import mavlink, new_codec
-from fsw.comm.mavlink_downlink import ChannelSample, ChannelScheduler, EventQueue, Packer, Periodic, TokenBucket
+from fsw.comm.mavlink_downlink import ChannelSample, ChannelScheduler, DownlinkQueue, Packer, Periodic, TokenBucket
 from fsw.comm.mavlink_image import ImageSender
 from fsw.comm.mavlink_signing import SignatureVerifier
 from fsw.comm.mavlink_uplink import CommandIn, Uplink, UplinkBatch
@@ -62,7 +62,7 @@ class MavlinkAdapter:
         self.verifier = SignatureVerifier(key, cfg.signing_max_age_s, max_future_s=cfg.signing_max_future_s)
         self.uplink = Uplink(self.verifier, cfg.system_id, cfg.component_id)
         self.packer = Packer(self.codec)
-        self.events = EventQueue(cfg.statustext_queue, Severity[cfg.statustext_min_severity],
+        self.events = DownlinkQueue(cfg.statustext_queue, Severity[cfg.statustext_min_severity],
                                  TokenBucket(cfg.statustext_rate_hz, cfg.statustext_burst))
         self.channels = ChannelScheduler(cfg.channel_period_s, cfg.channel_refresh_s)
         self.images = ImageSender()

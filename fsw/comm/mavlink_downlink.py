@@ -4,8 +4,9 @@
   (exact sizes: MAVLink 2 trims trailing zero payload bytes, signing adds 13). A message
   that does not fit is *not* packed, so sequence numbers and signing timestamps never skip:
   a gap in ``seq`` at the ground always means a lost frame.
-* :class:`EventQueue` holds events for STATUSTEXT: most severe first, bounded (the least
-  severe, newest, is dropped when full), released through a token bucket. Its counters are
+* :class:`DownlinkQueue` holds executive events waiting for STATUSTEXT (a priority queue,
+  not an event sink): most severe first, bounded (the least severe, newest, is dropped when
+  full), released through a token bucket. Its counters are
   exact: ``seen = sent + dropped + filtered + queued``.
 * :class:`ChannelScheduler` chooses which telemetry channels go next: a channel at most
   every ``period_s``; channels out of their limits first, then changed ones, then the
@@ -81,7 +82,7 @@ class TokenBucket:
 
 
 @dataclass
-class EventQueue:
+class DownlinkQueue:
     """Bounded, severity-ordered events waiting for STATUSTEXT."""
 
     depth: int

@@ -9,9 +9,10 @@ a fault is visible in telemetry for a while but does not latch on line noise.
 
 from __future__ import annotations
 
-from collections import deque
+import math
 from typing import Any, ClassVar
 
+from fsw.framework.events import EventSink
 from fsw.framework.telemetry import EventDef
 
 
@@ -25,21 +26,20 @@ class DriverBase:
         self.faults = 0
         self.error_hold_s = error_hold_s
         self._held_until: dict[int, float] = {}
-        self._events: deque[tuple[str, dict[str, Any]]] = deque(maxlen=max_events)
-        self.events_dropped = 0
+        self._events = EventSink(max_events)
         self.last_poll_s: float | None = None  # time of the last poll(), so a task can tell
 
     # -- events -----------------------------------------------------------------------------
     def _event(self, name: str, **args: Any) -> None:
-        if len(self._events) == self._events.maxlen:
-            self.events_dropped += 1
-        self._events.append((name, args))
+        self._events.emit(self.last_poll_s if self.last_poll_s is not None else math.nan, name, **args)
 
     def drain_events(self) -> list[tuple[str, dict[str, Any]]]:
         """Events raised since the last call, oldest first."""
-        out = list(self._events)
-        self._events.clear()
-        return out
+        return [(ev.name, ev.args) for ev in self._events.pop_all()]
+
+    @property
+    def events_dropped(self) -> int:
+        return self._events.dropped
 
     # -- faults -----------------------------------------------------------------------------
     def _set(self, bit: int, on: bool = True) -> None:

@@ -19,6 +19,7 @@ from fsw.drivers.mast_serial import MastSerialDriver
 from fsw.framework.telemetry import Channel
 from fsw.tasks.base import FlightTask
 
+
 class PolledDriver(Protocol):
     def poll(self, now: float) -> None: ...
 
