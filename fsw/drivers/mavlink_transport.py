@@ -19,7 +19,6 @@ from __future__ import annotations
 import contextlib
 import errno
 import socket
-import time
 from typing import Protocol
 
 UDP_MAX = 65535
@@ -32,8 +31,8 @@ class Transport(Protocol):
     tx_errors: int
     rx_bytes: int
 
-    def recv(self, max_bytes: int) -> list[bytes]: ...
-    def send(self, frame: bytes) -> bool: ...
+    def recv(self, max_bytes: int, now_s: float) -> list[bytes]: ...
+    def send(self, frame: bytes, now_s: float) -> bool: ...
     def close(self) -> None: ...
 
 
@@ -65,7 +64,7 @@ class UdpTransport:
     def local_port(self) -> int:
         return int(self.sock.getsockname()[1])
 
-    def recv(self, max_bytes: int) -> list[bytes]:
+    def recv(self, max_bytes: int, now_s: float) -> list[bytes]:
         chunks: list[bytes] = []
         n = 0
         while n < max_bytes:
@@ -80,21 +79,20 @@ class UdpTransport:
                 self.fault = f"recv: {exc.strerror or exc}"
                 break
             if self.mode == "udpin":
-                self._heard(addr)
+                self._heard(addr, now_s)
             chunks.append(data)
             n += len(data)
         self.rx_bytes += n
         return chunks
 
-    def _heard(self, addr: tuple[str, int]) -> None:
-        now = time.monotonic()
+    def _heard(self, addr: tuple[str, int], now: float) -> None:
         self.peers[addr] = now
         for a in [a for a, t in self.peers.items() if now - t > self.peer_timeout_s]:
             del self.peers[a]
         while len(self.peers) > self.max_peers:
             del self.peers[min(self.peers, key=self.peers.__getitem__)]
 
-    def send(self, frame: bytes) -> bool:
+    def send(self, frame: bytes, now_s: float) -> bool:
         targets = list(self.peers) if self.mode == "udpin" else [self.addr]
         ok = bool(targets)
         for addr in targets:
@@ -126,44 +124,44 @@ class SerialTransport:
         self.tx_frames = self.tx_errors = self.rx_bytes = self.reopens = 0
         self._next_open = 0.0
         self.port = None
-        if not self._open():
+        if not self._open(0.0):
             raise TransportError(f"serial:{device}: {self.fault}")
 
-    def _open(self) -> bool:
+    def _open(self, now_s: float) -> bool:
         import serial
 
         try:
             self.port = serial.serial_for_url(self.device, baudrate=self.baud, timeout=0, write_timeout=0)
         except (serial.SerialException, OSError, ValueError) as exc:
             self.port, self.fault = None, f"open: {exc}"
-            self._next_open = time.monotonic() + self.reopen_s
+            self._next_open = now_s + self.reopen_s
             return False
         self.fault = None
         return True
 
-    def _lost(self, what: str, exc: Exception) -> None:
+    def _lost(self, what: str, exc: Exception, now_s: float) -> None:
         self.fault = f"{what}: {exc}"
         if self.port is not None:
             with contextlib.suppress(Exception):  # closing a dead port
                 self.port.close()
         self.port = None
-        self._next_open = time.monotonic() + self.reopen_s
+        self._next_open = now_s + self.reopen_s
 
-    def recv(self, max_bytes: int) -> list[bytes]:
+    def recv(self, max_bytes: int, now_s: float) -> list[bytes]:
         if self.port is None:
-            if time.monotonic() < self._next_open or not self._open():
+            if now_s < self._next_open or not self._open(now_s):
                 return []
             self.reopens += 1
         assert self.port is not None
         try:
             data = bytes(self.port.read(max_bytes))  # timeout=0: what is there, at once
         except Exception as exc:  # noqa: BLE001 - pyserial raises several types on unplug
-            self._lost("read", exc)
+            self._lost("read", exc, now_s)
             return []
         self.rx_bytes += len(data)
         return [data] if data else []
 
-    def send(self, frame: bytes) -> bool:
+    def send(self, frame: bytes, now_s: float) -> bool:
         if self.port is None:
             self.tx_errors += 1
             return False
@@ -173,7 +171,7 @@ class SerialTransport:
             if type(exc).__name__ == "SerialTimeoutException":
                 self.tx_errors += 1
                 return False
-            self._lost("write", exc)
+            self._lost("write", exc, now_s)
             self.tx_errors += 1
             return False
         if n is not None and n != len(frame):

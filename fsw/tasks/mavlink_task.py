@@ -187,7 +187,7 @@ class MavlinkTask(FlightTask):
     def run(self, frame: int) -> None:
         now, unix = self.ctx.clock.now(), float(self._unix())
         stamp = self._epoch_s + now
-        chunks = self.link.recv(self.cfg.rx_max_bytes_per_frame) if self.link is not None else []
+        chunks = self.link.recv(self.cfg.rx_max_bytes_per_frame, now) if self.link is not None else []
         packetized = bool(getattr(self.link, "packetized", False))
         for chunk in chunks:
             self._uplink(chunk, signing_timestamp(unix), packetized, stamp, now)
@@ -202,7 +202,7 @@ class MavlinkTask(FlightTask):
         frames = self.adapter.plan(self._views.build(now), signing_timestamp(unix))
         if self.link is not None:
             for f in frames:
-                self.link.send(f)
+                self.link.send(f, now)
             self._set_fault(self.link.fault)
         self._log(stamp, frames)
         if now >= self._next_decay_s:

@@ -19,7 +19,7 @@ def _recv(t, n: int = 1, timeout_s: float = 2.0, nbytes: int = 0) -> list[bytes]
     got: list[bytes] = []
     deadline = time.monotonic() + timeout_s
     while (len(got) < n or sum(map(len, got)) < nbytes) and time.monotonic() < deadline:
-        got += t.recv(65536)
+        got += t.recv(65536, time.monotonic())
         time.sleep(0.005)
     return got
 
@@ -29,11 +29,11 @@ def test_udpin_and_udpout_back_to_back() -> None:
     accepts replies; one datagram per frame."""
     server = open_transport("udpin:127.0.0.1:0")
     assert isinstance(server, UdpTransport) and server.packetized
-    assert server.send(b"nobody yet") is False  # no peer heard: nothing sent, no exception
+    assert server.send(b"nobody yet", 0.0) is False  # no peer heard: nothing sent, no exception
     client = open_transport(f"udpout:127.0.0.1:{server.local_port}")
-    assert client.send(b"\xfdhello") and client.send(b"\xfdworld")
+    assert client.send(b"\xfdhello", 0.0) and client.send(b"\xfdworld", 0.0)
     assert _recv(server, 2) == [b"\xfdhello", b"\xfdworld"]
-    assert server.send(b"\xfdreply")
+    assert server.send(b"\xfdreply", 0.0)
     assert _recv(client) == [b"\xfdreply"]
     server.close()
     client.close()
@@ -46,8 +46,8 @@ def test_udpout_without_listener_and_bad_urls() -> None:
     probe.close()
     t = open_transport(f"udpout:127.0.0.1:{port}")
     for _ in range(3):
-        t.send(b"x")
-        t.recv(100)  # ICMP port unreachable comes back as ECONNREFUSED: counted, not raised
+        t.send(b"x", 0.0)
+        t.recv(100, 0.0)  # ICMP port unreachable comes back as ECONNREFUSED: counted, not raised
     t.close()
     for url in ("udp:1.2.3.4:5", "udpin:127.0.0.1:x", "serial:", "tcp:127.0.0.1:5760"):
         with pytest.raises(TransportError):
@@ -65,15 +65,15 @@ def test_serial_over_pty() -> None:
     assert isinstance(t, SerialTransport) and not t.packetized
     os.write(master, b"\xfd\x01\x02\x03")
     assert b"".join(_recv(t, nbytes=4)) == b"\xfd\x01\x02\x03"
-    assert t.send(b"\xfdabc")
+    assert t.send(b"\xfdabc", 0.0)
     assert os.read(master, 100) == b"\xfdabc"
     os.close(master)  # the radio goes away: a fault flag, no exception, reopen attempts later
     deadline = time.monotonic() + 2.0
     while t.fault is None and time.monotonic() < deadline:
-        t.recv(100)
-        t.send(b"\xfdx")
+        t.recv(100, 0.0)
+        t.send(b"\xfdx", 0.0)
         time.sleep(0.01)
-    assert t.fault is not None and t.recv(100) == []
+    assert t.fault is not None and t.recv(100, 0.0) == []
     t.close()
     os.close(slave)
     with pytest.raises(TransportError):

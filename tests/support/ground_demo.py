@@ -155,14 +155,14 @@ class MemoryLink:
         self.fault: str | None = None
         self.tx_frames = self.tx_errors = self.rx_bytes = 0
 
-    def recv(self, max_bytes: int) -> list[bytes]:
+    def recv(self, max_bytes: int, now_s: float = 0.0) -> list[bytes]:
         self.sent.append([])  # recv starts each activation
         chunks, self.inbox = self.inbox, []
         if not self.packetized and chunks:
             chunks = [b"".join(chunks)]
         return chunks
 
-    def send(self, frame: bytes) -> bool:
+    def send(self, frame: bytes, now_s: float = 0.0) -> bool:
         self.sent[-1].append(frame)
         self.tx_frames += 1
         return True
