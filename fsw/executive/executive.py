@@ -16,7 +16,6 @@ import dataclasses
 import gc
 import time
 from collections.abc import Callable, Mapping
-from typing import Any
 
 import cv2
 import numpy as np
@@ -159,7 +158,7 @@ class Executive:
         if resp.status.name != "OK":
             owner.event("COMMAND_REFUSED", command=req.name, status=resp.status.name, reason=resp.message)
 
-    def _on_drop(self, box: Mailbox[Any]) -> None:
+    def _on_drop(self, box: Mailbox[object]) -> None:
         self.exec_component.event(
             "QUEUE_FULL", mailbox=box.name, depth=box.depth, policy=box.policy, dropped=box.dropped
         )

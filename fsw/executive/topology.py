@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
-from typing import Any
 
 from fsw.executive.components import ExecutiveComponent, RateGroupComponent
 from fsw.framework.task import Task
@@ -46,11 +45,11 @@ def components(cfg: FswConfig) -> list[Component]:
     return out
 
 
-def dictionary(cfg: FswConfig) -> dict[str, Any]:
+def dictionary(cfg: FswConfig) -> dict[str, object]:
     """The ground dictionary (channels, events, commands) generated from the declarations."""
-    chans: list[dict[str, Any]] = []
-    events: list[dict[str, Any]] = []
-    cmds: list[dict[str, Any]] = []
+    chans: list[dict[str, object]] = []
+    events: list[dict[str, object]] = []
+    cmds: list[dict[str, object]] = []
     for comp in components(cfg):
         for c in comp.cls.all_channels():
             chans.append(

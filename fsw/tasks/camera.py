@@ -10,12 +10,14 @@ mast kinematics (ALGORITHM.md §1.2: the pose term of each point's covariance).
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
+from numpy.typing import NDArray
 
 from fsw.core.geometry import CameraPose, MastConfig, camera_pose_from_rover
 from fsw.core.localization import so3_log
+from fsw.drivers.camera import CameraReply
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import CAMERA_FRAME, CAMERA_REQUEST, NAV_POSE, CameraFrame, CaptureRequest, NavPose
@@ -23,7 +25,7 @@ from fsw.tasks.messages import CAMERA_FRAME, CAMERA_REQUEST, NAV_POSE, CameraFra
 
 def camera_pose_covariance(
     nav: NavPose, mast: MastConfig, joint_sigma: tuple[float, float, float]
-) -> tuple[CameraPose, np.ndarray]:
+) -> tuple[CameraPose, NDArray[np.float64]]:
     """Camera pose and its 6x6 covariance from the rover pose, joints and their sigmas (§1.2).
 
     The Jacobian of (rotation vector, centre) with respect to (x, y, yaw, pan, tilt, lift) is
@@ -58,6 +60,7 @@ class CameraTask(FlightTask):
     EVENTS = (
         EventDef("CAPTURED", Severity.ACTIVITY_LO, "pair {seq} for view {view} ({ms:.0f} ms)"),
         EventDef("NO_POSE", Severity.WARNING_HI, "no pose estimate yet; capture for view {view} dropped", throttle=3),
+        EventDef("EMPTY_PAIR", Severity.WARNING_HI, "a reply without images for view {view}; dropped", throttle=3),
         EventDef(
             "CAMERA_MISSING", Severity.WARNING_HI, "no camera driver; capture for view {view} dropped", throttle=3
         ),
@@ -93,9 +96,12 @@ class CameraTask(FlightTask):
                 self.waiting = None  # timed out or dropped: the driver evented it; mission retries
         self.tlm("pending", 0 if self.waiting is None else 1)
 
-    def _publish(self, reply: Any, req: CaptureRequest, latency_s: float) -> None:
+    def _publish(self, reply: CameraReply, req: CaptureRequest, latency_s: float) -> None:
         if self.nav is None:
             self.event("NO_POSE", view=req.view_id)
+            return
+        if reply.left is None or reply.right is None:
+            self.event("EMPTY_PAIR", view=req.view_id)
             return
         cfg = self.ctx.cfg
         js = math.radians(cfg.capture.joint_sigma_deg)

@@ -11,7 +11,7 @@ component runs, polls nothing, and its channels stay empty.
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar, Generic, Protocol, TypeVar
+from typing import ClassVar, Generic, Protocol, TypeVar
 
 from fsw.drivers.camera import CameraDriver
 from fsw.drivers.can_motors import CanMotorDriver
@@ -23,7 +23,7 @@ from fsw.tasks.base import FlightTask
 class PolledDriver(Protocol):
     def poll(self, now: float) -> None: ...
 
-    def drain_events(self) -> list[tuple[str, dict[str, Any]]]: ...
+    def drain_events(self) -> list[tuple[str, dict[str, object]]]: ...
 
 
 D = TypeVar("D", bound=PolledDriver)

@@ -11,10 +11,10 @@ unknown, so JPEG noise does not turn low ground into holes), and JPEG encoded.
 
 from __future__ import annotations
 
-from typing import Any
-
 import cv2
 import numpy as np
+
+from fsw.core.elevation_map import ElevationMap
 
 KNOWN_MIN = 16  # known elevations span 16..255, unknown is 0: the gap survives JPEG noise
 UNKNOWN_BELOW = 8  # the ground reads grey levels below this as unknown
@@ -24,9 +24,9 @@ class PreviewError(ValueError):
     """The published object cannot be turned into a preview."""
 
 
-def encode_preview(obj: Any, max_px: int, quality: int) -> tuple[bytes, int, int]:
+def encode_preview(obj: object, max_px: int, quality: int) -> tuple[bytes, int, int]:
     """``(jpeg_bytes, width, height)``; raises :class:`PreviewError` with the reason."""
-    if hasattr(obj, "z"):  # an elevation map object (fsw.core.elevation_map.ElevationMap)
+    if isinstance(obj, ElevationMap):
         obj = obj.z
     arr = np.asarray(obj)
     if arr.ndim != 2 or arr.shape[0] < 1 or arr.shape[1] < 1:

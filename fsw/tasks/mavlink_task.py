@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, BinaryIO, ClassVar
+from typing import BinaryIO, ClassVar
 
 from fsw.comm.mavlink_adapter import MavlinkAdapter
 from fsw.comm.mavlink_commands import RESULT_OF_STATUS, Reason, decode_args
@@ -119,7 +119,7 @@ class MavlinkTask(FlightTask):
                 self._set_fault(str(exc))
         self.tlog = self._open_tlog(cfg.tlog_path if res.mavlink_tlog is None else res.mavlink_tlog)
         self._preview_box = self.subscribe(cfg.map_preview_topic, depth=1, policy="drop_oldest")
-        self._preview: Any = None
+        self._preview: object = None
         self._views = ViewBuilder(self.ctx, cfg, self.subscribe(cfg.pose_topic, depth=1, policy="drop_oldest"))
         self._gcs_heard_s: float | None = None
         self._link_up = False
@@ -164,10 +164,10 @@ class MavlinkTask(FlightTask):
             return  # still changed: retried on the next activation
         v.changed = False
 
-    def _open_tlog(self, target: Any) -> TlogWriter | None:
+    def _open_tlog(self, target: str | BinaryIO) -> TlogWriter | None:
         if not target:
             return None
-        if hasattr(target, "write"):
+        if not isinstance(target, str):
             return TlogWriter(target)
         try:
             Path(target).parent.mkdir(parents=True, exist_ok=True)

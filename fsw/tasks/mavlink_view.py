@@ -10,7 +10,6 @@ Absent channels give absent messages, never an error (docs/ground.md).
 from __future__ import annotations
 
 import math
-from typing import Any
 
 from fsw.comm.mavlink_adapter import VehicleView
 from fsw.comm.mavlink_config import MavlinkConfig
@@ -19,30 +18,32 @@ from fsw.comm.mavlink_telemetry import DICT_CRC_KEY, channel_key, dictionary_crc
 from fsw.framework.bus import Mailbox
 from fsw.tasks.base import FlightContext
 
+PoseTuple = tuple[float, float, float, float | None, float | None]  # x, y, yaw, pan, tilt
 
-def pose_from_message(msg: Any) -> tuple[Any, ...] | None:
+
+def pose_from_message(msg: object) -> PoseTuple | None:
     """``(x, y, yaw, pan, tilt)`` from a pose message (NavPose or alike); pan/tilt None
     without ``joints``; None for anything that is not a finite pose."""
     try:
-        x, y, yaw = float(msg.x), float(msg.y), float(msg.yaw)
+        x, y, yaw = (float(getattr(msg, k)) for k in ("x", "y", "yaw"))
         joints = getattr(msg, "joints", None)
         pan, tilt = (float(joints[0]), float(joints[1])) if joints is not None else (None, None)
     except (AttributeError, TypeError, ValueError, IndexError):
         return None
-    values = (x, y, yaw, pan, tilt)
+    values: PoseTuple = (x, y, yaw, pan, tilt)
     return values if all(v is None or math.isfinite(v) for v in values) else None
 
 
 class ViewBuilder:
     """Builds the adapter's input from the task context (one per ground-link task)."""
 
-    def __init__(self, ctx: FlightContext, cfg: MavlinkConfig, pose_box: Mailbox[Any]) -> None:
+    def __init__(self, ctx: FlightContext, cfg: MavlinkConfig, pose_box: Mailbox[object]) -> None:
         self.ctx, self.cfg, self.pose_box = ctx, cfg, pose_box
         store = ctx.telemetry
         self.keys = {name: channel_key(i, name) for name, i in store.ids.items()}
         self.dict_crc = dictionary_crc((i, name) for name, i in store.ids.items())
         self.fatal_channels = [n for n in store.defs if n.endswith(".tasks_fatal")]
-        self.pose: tuple[Any, ...] | None = None  # the last good pose message
+        self.pose: PoseTuple | None = None  # the last good pose message
 
     def build(self, now: float) -> VehicleView:
         store, runtime = self.ctx.telemetry, self.ctx.runtime

@@ -7,14 +7,15 @@ rates candidate views on a snapshot of the map, ``motion`` moves the wheels and 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import StrEnum
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from fsw.comm.link_sender import SenderState
+from fsw.core.edge import EdgeModel
+from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import CameraPose
 
 # Topic names (one place, so a typo is an import error, not a silent loss).
@@ -73,9 +74,11 @@ class MapUpdate:
     points: int
     misses: int
     expected_new_cells: float
-    snapshot: Any  # ElevationMap copy
-    edge: Any = None  # EdgeModel of the polygon fit (Methods 4/5)
-    extra: dict[str, Any] = field(default_factory=dict)
+    snapshot: ElevationMap  # a copy, safe to read while the map goes on
+    edge: EdgeModel | None = None  # the polygon fit (Methods 4/5)
+    outliers: int = 0  # points refused as outliers (§4)
+    edge_points: int = 0  # edge cells found in this view
+    roi_mapped_fraction: float = 0.0  # of the region of interest (the §3.6 end criterion)
 
 
 # Motion (fsw/tasks/motion.py): requests from the sequencer, one status per request outcome.

@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
@@ -133,11 +133,16 @@ class MissionTask(FlightTask):
         self.tlm("state", new)
         self.tlm("state_code", STATES.index(new))
 
-    def _request(self, **kw: Any) -> None:
+    def _request(
+        self,
+        kind: str,
+        target: tuple[float, float, float] | None = None,
+        joints: tuple[float, float, float] | None = None,
+    ) -> None:
         self.request_id += 1
         self.waiting_for = self.request_id
         self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
-        self.publish(MOTION_REQUEST, MotionRequest(self.request_id, **kw))
+        self.publish(MOTION_REQUEST, MotionRequest(self.request_id, kind, target=target, joints=joints))
 
     def _motion_outcome(self) -> MotionStatus | None:
         for st in self.status_box.drain():
@@ -330,7 +335,7 @@ class MissionTask(FlightTask):
         """§3.6: the step limit, or the region of interest mapped (estimated by perception)."""
         if self.latest is None:
             return "no map"
-        fraction = float(self.latest.extra.get("roi_mapped_fraction", 0.0))
+        fraction = self.latest.roi_mapped_fraction
         return end_reason(self.step - 1, None, fraction, self.ctx.cfg.nbv)
 
     # -- the end -------------------------------------------------------------------------------

@@ -1,17 +1,14 @@
 """Moves the wheels (CAN motor driver) and the mast (serial driver); keeps the odometry.
 
-Thin: the motion profile is ``fsw.core.motion_profile``, the dead reckoning
-``fsw.core.odometry``, the kinematics ``fsw.core.wheel_kinematics``; the drivers do the bytes. Moves come
-as ground commands (DRIVE, TURN, GOTO, POINT_MAST, STOP, ESTOP, CLEAR_FAULTS, ...) or as
+Thin: the profile is ``fsw.core.motion_profile``, dead reckoning ``fsw.core.odometry``, the
+kinematics ``fsw.core.wheel_kinematics``; the drivers do the bytes. Moves come as ground
+commands (DRIVE, TURN, GOTO, POINT_MAST, STOP, ESTOP, CLEAR_FAULTS, ...) or as
 ``MotionRequest`` messages on ``motion.request`` (the mission sequencer; ALGORITHM.md §3:
-"move (mast + wheels)"), each answered once on ``motion.status``. A wheel move is a list of
-segments, each *steer* (wheels to their angles, drive stopped) then *move* (drive or turn in
-place on a trapezoidal profile, closed on odometry). A critical driver fault aborts the move
-and stops the drives; moves are refused until CLEAR_FAULTS. Every frame the task publishes
-the dead-reckoned pose with a growing covariance and the mast joints on ``nav.pose``
-(the §5 localization refines it) and sends the commands (``motors.transmit``).
-
-Schedule it after ``devices`` in the fast group (it polls the drivers itself otherwise).
+"move (mast + wheels)"), each answered once on ``motion.status`` (a ``MoveOutcome``). A
+critical driver fault aborts the move and stops the drives; moves are refused until
+CLEAR_FAULTS. Every frame the task publishes the dead-reckoned pose with its covariance and
+the mast joints on ``nav.pose`` and sends the commands (``motors.transmit``). Schedule it
+after the device components in the fast group (it polls the drivers itself otherwise).
 """
 
 from __future__ import annotations
@@ -21,6 +18,7 @@ from collections import deque
 from typing import ClassVar, TypeVar
 
 import numpy as np
+from numpy.typing import NDArray
 
 from fsw.core import motion_profile as mp
 from fsw.core import wheel_kinematics as wk
@@ -174,7 +172,7 @@ class MotionTask(FlightTask):
                 motors.set_setpoint(f"DRIVE_{w}", float(rates[i]))
                 motors.set_setpoint(f"STEER_{w}", float(self.steer_hold[i]))
 
-    def _segment(self, seg: mp.Segment, motors: can_motors.CanMotorDriver, now: float) -> np.ndarray:
+    def _segment(self, seg: mp.Segment, motors: can_motors.CanMotorDriver, now: float) -> NDArray[np.float64]:
         c = self.mcfg
         self.steer_hold = seg.steer
         if seg.phase == "steer":

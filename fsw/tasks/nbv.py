@@ -8,10 +8,11 @@ chosen ``CandidateView`` (or ``None``: nothing reachable worth doing) on ``nbv.r
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar
+from typing import ClassVar
 
 from fsw.core.methods import make_planner
-from fsw.core.planners import PlannerState
+from fsw.core.planners import Planner, PlannerState, SearchGen
+from fsw.core.view_candidates import CandidateView
 from fsw.framework.jobs import JobHandle
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.base import FlightTask
@@ -41,7 +42,7 @@ class NbvTask(FlightTask):
     )
 
     def setup(self) -> None:
-        self.planner: Any = None
+        self.planner: Planner | None = None
         self.requests = self.subscribe(NBV_REQUEST, depth=1, policy="drop_oldest")
         self.job: JobHandle | None = None
         self.searches = 0
@@ -55,7 +56,7 @@ class NbvTask(FlightTask):
             if state is not None:
                 self.job = self.submit_job(self._search(state), "search")
 
-    def _search(self, state: PlannerState) -> Any:
+    def _search(self, state: PlannerState) -> SearchGen:
         if self.planner is None:  # built on first use: the bench injects the oracle's truth late
             cfg = self.ctx.cfg
             truth = self.ctx.res.oracle_truth  # only the bench has it (oracle)
@@ -79,7 +80,7 @@ class NbvTask(FlightTask):
             self.event("SEARCH_FAILED", error=f"{type(h.error).__name__}: {h.error}")
             self.publish(NBV_RESULT, None)
             return
-        view: Any = h.result
+        view: CandidateView | None = h.result
         if view is None:
             self.event("NO_VIEW")
         else:

@@ -149,8 +149,9 @@ class PerceptionTask(FlightTask):
             expected_new_cells=fr.expected_new_cells,
             snapshot=self.map.copy(),
             edge=poly,
-            extra={"outliers": stats.outliers, "edge_points": int(cells.points_xy.shape[0]),
-                   "roi_mapped_fraction": roi_fraction},
+            outliers=stats.outliers,
+            edge_points=int(cells.points_xy.shape[0]),
+            roi_mapped_fraction=roi_fraction,
         )
 
     def _finish(self, h: JobHandle) -> None:
@@ -164,8 +165,8 @@ class PerceptionTask(FlightTask):
         self.tlm("last_points", up.points)
         self.tlm("last_new_cells", up.new_cells)
         self.tlm("last_misses", up.misses)
-        self.tlm("last_outliers", up.extra["outliers"])
-        self.tlm("edge_points", up.extra["edge_points"])
+        self.tlm("last_outliers", up.outliers)
+        self.tlm("edge_points", up.edge_points)
         self.tlm("job_ms", h.busy_s * 1e3)
         self.event(
             "VIEW_MERGED", view=up.view_id, points=up.points, new=up.new_cells, misses=up.misses, mapped=up.mapped_cells

@@ -12,15 +12,18 @@ counters. The radio is the ``radio_port`` resource, or ``[link] transport`` open
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from collections.abc import Generator
+from typing import ClassVar
 
 import numpy as np
 
 from fsw.comm.link_packets import DATA_OVERHEAD
 from fsw.comm.link_sender import LinkSender, SenderState
-from fsw.core.mapcodec import encode_map
+from fsw.core.elevation_map import ElevationMap
+from fsw.core.mapcodec import EncodedMap, encode_map
 from fsw.drivers.radio import RadioPort, open_radio
 from fsw.framework.commands import Arg, CommandDef
+from fsw.framework.jobs import JobHandle
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import MAP_UPDATED, RADIO_SEND, RADIO_STATUS, RadioStatus
@@ -73,7 +76,7 @@ class RadioTask(FlightTask):
         self.port: RadioPort = port
         self.sender = LinkSender(cfg.link, session=1)
         self.session = 1
-        self.snapshot: Any = None
+        self.snapshot: ElevationMap | None = None
         self.maps_delivered = 0
         self.encoding: int | None = None
         period = self.ctx.frame_period_s * max(1, self._divisor())
@@ -154,19 +157,19 @@ class RadioTask(FlightTask):
         cell_m = float(self.snapshot.grid.cell)
         self.encoding = map_id
 
-        def job() -> Any:
+        def job() -> Generator[None, None, EncodedMap]:
             yield
             return encode_map(z, cell_m=cell_m, wheel_diameter_m=self.ctx.cfg.rover.wheel_diameter_m,
                               cfg=self.ctx.cfg.codec)
 
         self.submit_job(job(), f"encode_map_{map_id}", on_done=lambda h: self._encoded(map_id, h))
 
-    def _encoded(self, map_id: int, handle: Any) -> None:
+    def _encoded(self, map_id: int, handle: JobHandle) -> None:
         self.encoding = None
         if handle.error is not None:
             self.event("ENCODE_FAILED", map_id=map_id, error=str(handle.error))
             return
-        enc = handle.result
+        enc: EncodedMap = handle.result
         self.event("ENCODED", map_id=map_id, cells=int(np.prod(enc.tree.shape)), bytes=len(enc.data),
                    leaves=enc.tree.n_leaves, max_error_m=enc.max_error_m)
         if len(enc.data) > self.link_cfg.max_map_bytes:
