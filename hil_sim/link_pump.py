@@ -53,10 +53,18 @@ def pump_once(end: LinkEnd, port: RadioPort, clock: Callable[[], float], max_wai
     return n
 
 
-def load_link_config(path: str | Path | None) -> LinkConfig:
-    """``[link]`` of a flight config (default config/fsw.toml); ConfigError if invalid."""
+def load_link_config(path: str | Path | None, rate_bps: float | None = None) -> LinkConfig:
+    """``[link]`` of a flight config (default config/fsw.toml), its bit rate replaced by
+    ``rate_bps`` when given; ``ConfigError`` (or ``ValueError`` for a bad rate) if invalid."""
+    import math
+
     from fsw.framework.params import build, load_toml
     from fsw.settings import DEFAULT_CONFIG
 
     src = str(path or DEFAULT_CONFIG)
-    return build(LinkConfig, load_toml(src).get("link", {}), src, "link")
+    link = build(LinkConfig, load_toml(src).get("link", {}), src, "link")
+    if rate_bps is None:
+        return link
+    if not (math.isfinite(rate_bps) and rate_bps >= 300):
+        raise ValueError("--rate-bps must be a finite number >= 300")
+    return LinkConfig(**{**vars(link), "rate_bps": rate_bps})

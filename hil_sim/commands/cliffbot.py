@@ -48,7 +48,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from fsw.comm.link import LinkConfig
     from fsw.drivers.radio import open_radio
     from fsw.framework.params import ConfigError
     from hil_sim.cliffbot_receiver import Cliffbot
@@ -61,11 +60,7 @@ def run(args: argparse.Namespace) -> int:
     if args.count < 1 or not (math.isfinite(args.timeout) and args.timeout > 0):
         return fail("need --count >= 1 and a finite --timeout > 0")
     try:
-        link = load_link_config(args.config)
-        if args.rate_bps is not None:
-            if not (math.isfinite(args.rate_bps) and args.rate_bps >= 300):
-                return fail("--rate-bps must be a finite number >= 300")
-            link = LinkConfig(**{**vars(link), "rate_bps": args.rate_bps})
+        link = load_link_config(args.config, args.rate_bps)
     except (ConfigError, ValueError) as exc:
         return fail(str(exc))
     originals = {}

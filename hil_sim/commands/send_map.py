@@ -47,7 +47,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from fsw.comm.link import LinkConfig
     from fsw.comm.link_sender import LinkSender, SenderState
     from fsw.drivers.radio import open_radio
     from fsw.framework.params import ConfigError
@@ -61,11 +60,7 @@ def run(args: argparse.Namespace) -> int:
     if not finite or not 0 <= args.map_id < 2**32 or not 1 <= args.session <= 0xFFFF:
         return fail("need finite --timeout, --linger-s > 0, --map-id in 0..2**32-1, --session in 1..65535")
     try:
-        link = load_link_config(args.config)
-        if args.rate_bps is not None:
-            if not (math.isfinite(args.rate_bps) and args.rate_bps >= 300):
-                return fail("--rate-bps must be a finite number >= 300")
-            link = LinkConfig(**{**vars(link), "rate_bps": args.rate_bps})
+        link = load_link_config(args.config, args.rate_bps)
     except (ConfigError, ValueError) as exc:
         return fail(str(exc))
     if args.file is not None:
