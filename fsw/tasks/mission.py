@@ -13,22 +13,24 @@ planner's. Each step is recorded (``records``) for the run summary.
 
 SAFE: wheels and mast stopped, mast parked, an event; then wait for ``RESUME`` (or, with
 ``safe_recover_s`` > 0, resume by itself after that long without a new fault).
+
+Checkpoints (``fsw.tasks.mission_checkpoint``): when a step completes, and on entering SAFE
+or DONE, the map of the step and the mission state go to the map store as one snapshot; at
+start-up a mission found there continues at the next step (or stays SAFE/DONE).
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 
-from fsw.config import param
 from fsw.core.edge import EdgeModel, edge_path
 from fsw.core.geofence import Geofence
 from fsw.core.nbv import end_reason
-from fsw.core.planners import METHODS, PlannerState
+from fsw.core.planners import PlannerState
 from fsw.core.view_candidates import CandidateView
 from fsw.executive.commands import CommandDef, CommandError
 from fsw.executive.task import Task
@@ -47,40 +49,12 @@ from fsw.tasks.messages import (
     MotionStatus,
     NavPose,
 )
+from fsw.tasks.mission_checkpoint import resume_mission, save
+from fsw.tasks.mission_state import STATES, MissionConfig, MissionPhase, StepRecord
 from fsw.tasks.radio_task import RADIO_SEND, RadioSendRequest
 
-STATES = ("IDLE", "INIT", "SELECT", "MOVE", "POINT", "ACQUIRE", "TRANSMIT", "DONE", "SAFE")
+__all__ = ["STATES", "MissionConfig", "MissionPhase", "MissionTask", "StepRecord"]
 
-
-@dataclass(frozen=True, kw_only=True)
-class MissionConfig:
-    """The mapping mission (config ``[mission]``)."""
-
-    method: str = param("5", choices=METHODS, doc="mapping method of ALGORITHM.md §7 (1-5, oracle)")
-    auto_start: bool = param(True, doc="start at boot; otherwise wait for START")
-    panorama_pans_deg: tuple[float, ...] = param(
-        (-90.0,), lo=-180.0, hi=180.0, units="deg", doc="mast pans of the step-0 panorama"
-    )
-    panorama_tilt_deg: float = param(-35.0, lo=-90.0, hi=30.0, units="deg")
-    panorama_lift_m: float = param(0.5, lo=0.0, hi=2.0, units="m")
-    park_joints: tuple[float, float, float] = param((0.0, -30.0, 0.0), doc="SAFE mast pose: pan deg, tilt deg, lift m")
-    capture_retries: int = param(2, lo=0, hi=20, doc="retries of a pair that did not arrive")
-    step_timeout_s: float = param(300.0, lo=1.0, hi=1e5, units="s", doc="longest wait for one request")
-    transmit: bool = param(True, doc="send the map to the Cliff-bot at the end")
-    safe_recover_s: float = param(0.0, lo=0.0, hi=1e5, units="s", doc="0: SAFE waits for RESUME")
-
-
-@dataclass
-class StepRecord:
-    """One imaging step of the run summary (docs/experiments.md, summary.json)."""
-
-    step: int
-    mapped_cells: int
-    expected_new_cells: float
-    obtained_new_cells: int
-    pose: dict[str, float]
-    wall_s: float
-    sim_s: float
 
 
 class MissionTask(Task):
@@ -102,6 +76,10 @@ class MissionTask(Task):
         EventDef("SAFE", Severity.WARNING_HI, "SAFE mode: {reason}"),
         EventDef("RETRY", Severity.WARNING_LO, "{what} failed ({reason}); retry {n}", throttle=5),
         EventDef("TRANSMITTED", Severity.ACTIVITY_HI, "map transmission ended: {state}"),
+        EventDef("CHECKPOINT_SAVED", Severity.ACTIVITY_LO, "step {step} checkpoint {seq} saved ({kib:.0f} KiB)"),
+        EventDef("CHECKPOINT_FAILED", Severity.WARNING_HI, "mission checkpoint failed: {error}", throttle=3),
+        EventDef("RESUMED", Severity.ACTIVITY_HI, "mission resumed from checkpoint {seq}: step {step}, {phase}"),
+        EventDef("RESUME_REFUSED", Severity.WARNING_HI, "checkpoint not resumed ({reason}); waiting for START"),
     )
     COMMANDS = (
         CommandDef("START", doc="start the mission (from IDLE or DONE)"),
@@ -118,7 +96,7 @@ class MissionTask(Task):
         self.map_box = self.subscribe(MAP_UPDATED, depth=4)
         self.nbv_box = self.subscribe(NBV_RESULT, depth=2)
         self.nav: NavPose | None = None
-        self.state = "IDLE"
+        self.state = MissionPhase.IDLE
         self.records: list[StepRecord] = []
         self.step = 0
         self.view: CandidateView | None = None
@@ -136,13 +114,16 @@ class MissionTask(Task):
         self.t_wall0 = time.perf_counter()
         self._safe_since = 0.0
         self._auto_start = self.mcfg.auto_start
+        self._republish: MapUpdate | None = None
+        resume_mission(self)
 
     # -- plumbing ---------------------------------------------------------------------------
     def _goto(self, new: str) -> None:
+        new = MissionPhase(new)
         if new != self.state:
-            self.event("STATE", old=self.state, new=new)
+            self.event("STATE", old=str(self.state), new=str(new))
             self.state = new
-        self.tlm("state", new)
+        self.tlm("state", str(new))
         self.tlm("state_code", STATES.index(new))
 
     def _request(self, **kw: Any) -> None:
@@ -166,6 +147,9 @@ class MissionTask(Task):
         if self._auto_start:
             self._auto_start = False
             self._goto("INIT")
+        if self._republish is not None:  # a resumed mission's map, for the radio task
+            self.publish(MAP_UPDATED, self._republish)
+            self._republish = None
         self.nav = self.nav_box.latest() or self.nav
         for up in self.map_box.drain():
             self._on_map(up)
@@ -314,6 +298,7 @@ class MissionTask(Task):
                 "STEP", step=self.step, mapped=up.mapped_cells, new=rec.obtained_new_cells, exp=rec.expected_new_cells
             )
             self.step += 1
+            save(self, MissionPhase.SELECT)  # the step's map and state, one snapshot
         self._next_view()
 
     # -- planning inputs -------------------------------------------------------------------
@@ -355,12 +340,14 @@ class MissionTask(Task):
             self.publish(RADIO_SEND, RadioSendRequest(map_id=1))
         else:
             self._goto("DONE")
+            save(self, MissionPhase.DONE)
 
     def _state_transmit(self) -> None:
         state = self.ctx.telemetry.get("radio.state")
         if state in ("done", "rejected", "failed") or self._timed_out():
             self.event("TRANSMITTED", state=state if not self._timed_out() else "timeout")
             self._goto("DONE")
+            save(self, MissionPhase.DONE)
 
     # -- SAFE ----------------------------------------------------------------------------------
     def _enter_safe(self, reason: str) -> None:
@@ -368,6 +355,7 @@ class MissionTask(Task):
         self.safe_reason = reason
         self.event("SAFE", reason=reason)
         self._goto("SAFE")
+        save(self, MissionPhase.SAFE)
         self._safe_since = self.ctx.clock.now()
         p = self.mcfg.park_joints
         self.publish(MOTION_REQUEST, MotionRequest(0, "stop"))

@@ -29,6 +29,7 @@ from fsw.executive.commands import Arg, CommandDef, CommandError
 from fsw.executive.task import Task
 from fsw.executive.telemetry import Channel, EventDef, Severity
 from fsw.tasks.messages import MOTION_REQUEST, MOTION_STATUS, NAV_POSE, MotionRequest, MotionStatus, NavPose
+from fsw.tasks.mission_state import restored_section
 
 WHEELS = wk.WHEEL_ORDER
 
@@ -149,6 +150,20 @@ class MotionTask(Task):
         self.done = self.aborted = 0
         self.requests = self.subscribe(MOTION_REQUEST, depth=8)
         self._warned: set[str] = set()
+        if (st := restored_section(self.ctx, self.name)) is not None:  # a resumed mission
+            self.restore_state(st)
+
+    def checkpoint_state(self) -> dict[str, Any]:
+        """The dead-reckoned pose and its growth terms (a resumed mission continues them; the
+        encoder baseline is taken afresh from the first status after the restart)."""
+        return {"pose": list(self.pose), "path_m": self.path_m, "turned_rad": self.turned_rad,
+                "yaw_acc": self.yaw_acc, "done": self.done, "aborted": self.aborted}
+
+    def restore_state(self, st: dict[str, Any]) -> None:
+        x, y, yaw = (float(v) for v in st["pose"])
+        self.pose = (x, y, yaw)
+        self.path_m, self.turned_rad, self.yaw_acc = float(st["path_m"]), float(st["turned_rad"]), float(st["yaw_acc"])
+        self.done, self.aborted = int(st["done"]), int(st["aborted"])
 
     # -- devices ----------------------------------------------------------------------------
     def _motors(self) -> can_motors.CanMotorDriver | None:
