@@ -7,8 +7,9 @@ injector's generator, the radio channel's generator, the bench clock and frame. 
 software knows nothing of this: the bench registers ``checkpoint_hooks["bench"]`` as a
 resource, the sequencer stores what it returns in the same checkpoint as the map
 (``fsw.tasks.mission_checkpoint``), and ``restore_bench`` puts it back before the first
-resumed frame. The hardware *models* (CAN controllers, serial mast controller, camera link)
-restart from power-on like the flight computer does, as after a real power cycle.
+resumed frame. The CAN motor controllers and the serial mast controller are separate nodes
+that go on running while the flight computer restarts, so their state (enabled, set-points,
+latched faults, status timing) is restored too; the flight software's drivers start afresh.
 
 State is taken generically from an object's plain attributes (numbers, booleans, strings,
 None, numeric numpy arrays, numpy generators); references to other objects are not state.
@@ -37,6 +38,8 @@ def attrs_state(obj: Any, only: tuple[str, ...] | None = None) -> dict[str, Any]
             out[k] = {"rng": v.bit_generator.state}
         elif isinstance(v, np.ndarray) and v.dtype.kind in "biuf":
             out[k] = {"array": v.tolist(), "dtype": v.dtype.str}
+        elif isinstance(v, (set, frozenset)) and all(isinstance(e, str) for e in v):
+            out[k] = {"set": sorted(v)}
         elif v is None or isinstance(v, (bool, int, float, str)):
             out[k] = {"v": v}
         elif isinstance(v, (np.floating, np.integer, np.bool_)):
@@ -51,6 +54,8 @@ def restore_attrs(obj: Any, state: dict[str, Any]) -> None:
             raise BenchStateError(f"{type(obj).__name__} has no attribute {k!r}")
         if "rng" in d:
             getattr(obj, k).bit_generator.state = d["rng"]
+        elif "set" in d:
+            setattr(obj, k, set(d["set"]))
         elif "array" in d:
             setattr(obj, k, np.asarray(d["array"], dtype=np.dtype(d["dtype"])))
         else:
@@ -64,7 +69,9 @@ _ONLY: dict[str, tuple[str, ...]] = {"renderer": ("_rng",), "faults": ("rng",)}
 def _parts(bench: Any, extra: dict[str, Any]) -> dict[str, Any]:
     """The stateful objects of a bench run, by name."""
     rig = bench.rig
-    parts: dict[str, Any] = {"rover": rig.rover, "mast": rig.mast, "faults": bench.faults}
+    parts: dict[str, Any] = {"rover": rig.rover, "mast": rig.mast, "faults": bench.faults,
+                             "motors": rig.motors, "mast_ctrl": rig.mast_ctrl}
+    parts.update({f"axis.{name}": ax for name, ax in rig.motors.axes.items()})
     if rig.world is not None and bench.camera is not None:
         parts["renderer"] = rig.renderer()
     parts.update(extra)

@@ -10,11 +10,13 @@ from __future__ import annotations
 import math
 from typing import Any, ClassVar
 
+from fsw.core.planner_state import planner_state, restore_planner
 from fsw.core.planners import PlannerState, make_planner
 from fsw.executive.jobs import JobHandle
 from fsw.executive.task import Task
 from fsw.executive.telemetry import Channel, EventDef, Severity
 from fsw.tasks.messages import NBV_REQUEST, NBV_RESULT
+from fsw.tasks.mission_state import restored_section
 
 
 class NbvTask(Task):
@@ -44,6 +46,18 @@ class NbvTask(Task):
         self.requests = self.subscribe(NBV_REQUEST, depth=1, policy="drop_oldest")
         self.job: JobHandle | None = None
         self.searches = 0
+        self._planner_restore: dict[str, Any] | None = None
+        if (st := restored_section(self.ctx, self.name)) is not None:  # a resumed mission
+            self.restore_state(st)
+
+    def checkpoint_state(self) -> dict[str, Any]:
+        """The search count and the planner's plan (``fsw.core.planner_state``)."""
+        planner = None if self.planner is None else planner_state(self.planner)
+        return {"searches": self.searches, "planner": planner or self._planner_restore}
+
+    def restore_state(self, st: dict[str, Any]) -> None:
+        self.searches = int(st["searches"])
+        self._planner_restore = st["planner"]  # applied when the planner is built
 
     def run(self, frame: int) -> None:
         if self.job is not None and self.job.done:
@@ -67,6 +81,9 @@ class NbvTask(Task):
                 truth_z_m=None if truth is None else truth["z"],
                 textured=None if truth is None else truth["textured"],
             )
+            if self._planner_restore is not None:
+                restore_planner(self.planner, self._planner_restore)
+                self._planner_restore = None
         return (yield from self.planner.search(state))
 
     def _finish(self, h: JobHandle) -> None:
