@@ -41,6 +41,7 @@ class LoadResult:
     path: Path | None
     skipped: list[tuple[Path, str]] = field(default_factory=list)
     stale_removed: int = 0  # temporary files of interrupted saves removed at start-up
+    errors: list[str] = field(default_factory=list)  # task sections that could not be restored
 
     @property
     def state(self) -> dict[str, Any] | None:

@@ -87,6 +87,8 @@ def resume(m: Any) -> MissionPhase | None:
     loaded = store.restore()
     if loaded.state is None or loaded.emap is None:
         return None
+    if loaded.errors:
+        raise StateError("task state unusable: " + "; ".join(loaded.errors))
     try:
         s = check_schema(loaded.state, fingerprint(m.ctx.cfg))
         phase = MissionPhase(s["phase"])

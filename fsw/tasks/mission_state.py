@@ -192,3 +192,18 @@ def restored_section(ctx: Any, name: str) -> dict[str, Any] | None:
     tasks = state.get("tasks")
     sec = tasks.get(name) if isinstance(tasks, dict) else None
     return sec if isinstance(sec, dict) else None
+
+
+def restore_into(task: Any) -> bool:
+    """Restore ``task`` from its section of the start-up checkpoint, if any. A section the task
+    cannot use leaves the task fresh and is recorded on the load result (``errors``); the
+    sequencer then refuses the resume with an event naming it."""
+    sec = restored_section(task.ctx, task.name)
+    if sec is None:
+        return False
+    try:
+        task.restore_state(sec)
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        task.ctx.resources["map_store"].restore().errors.append(f"{task.name}: {type(exc).__name__}: {exc}")
+        return False
+    return True

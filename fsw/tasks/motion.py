@@ -29,7 +29,7 @@ from fsw.executive.commands import Arg, CommandDef, CommandError
 from fsw.executive.task import Task
 from fsw.executive.telemetry import Channel, EventDef, Severity
 from fsw.tasks.messages import MOTION_REQUEST, MOTION_STATUS, NAV_POSE, MotionRequest, MotionStatus, NavPose
-from fsw.tasks.mission_state import restored_section
+from fsw.tasks.mission_state import restore_into
 
 WHEELS = wk.WHEEL_ORDER
 RESUME_ENCODER_TOL_RAD = 0.05  # a resumed baseline is kept if the first reading is this close
@@ -152,8 +152,7 @@ class MotionTask(Task):
         self.requests = self.subscribe(MOTION_REQUEST, depth=8)
         self._warned: set[str] = set()
         self._resume_drive: np.ndarray | None = None
-        if (st := restored_section(self.ctx, self.name)) is not None:  # a resumed mission
-            self.restore_state(st)
+        restore_into(self)  # a resumed mission (fsw.tasks.mission_state)
 
     def checkpoint_state(self) -> dict[str, Any]:
         """The dead-reckoned pose, its growth terms and the drive encoder baseline (a resumed

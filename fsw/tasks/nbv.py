@@ -16,7 +16,7 @@ from fsw.executive.jobs import JobHandle
 from fsw.executive.task import Task
 from fsw.executive.telemetry import Channel, EventDef, Severity
 from fsw.tasks.messages import NBV_REQUEST, NBV_RESULT
-from fsw.tasks.mission_state import restored_section
+from fsw.tasks.mission_state import restore_into
 
 
 class NbvTask(Task):
@@ -47,8 +47,7 @@ class NbvTask(Task):
         self.job: JobHandle | None = None
         self.searches = 0
         self._planner_restore: dict[str, Any] | None = None
-        if (st := restored_section(self.ctx, self.name)) is not None:  # a resumed mission
-            self.restore_state(st)
+        restore_into(self)  # a resumed mission (fsw.tasks.mission_state)
 
     def checkpoint_state(self) -> dict[str, Any]:
         """The search count and the planner's plan (``fsw.core.planner_state``)."""

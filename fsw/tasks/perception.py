@@ -33,7 +33,7 @@ from fsw.executive.jobs import JobHandle
 from fsw.executive.task import Task
 from fsw.executive.telemetry import Channel, EventDef, Severity
 from fsw.tasks.messages import CAMERA_FRAME, MAP_UPDATED, CameraFrame, MapUpdate
-from fsw.tasks.mission_state import restored_section
+from fsw.tasks.mission_state import restore_into
 
 ROI_STRIDE = 4  # the region-of-interest fraction is estimated on every 4th cell each way
 
@@ -200,8 +200,7 @@ class PerceptionTask(Task):
             return
         self.map = loaded.emap.copy()
         self.event("CHECKPOINT_LOADED", seq=loaded.meta.seq)
-        if (st := restored_section(self.ctx, self.name)) is not None:
-            self.restore_state(st)
+        restore_into(self)  # a resumed mission (fsw.tasks.mission_state)
 
     def checkpoint_state(self) -> dict[str, Any]:
         """What a resumed mission needs besides the map (``fsw.tasks.mission_state``)."""
