@@ -72,7 +72,7 @@ def save(m: Any, phase: MissionPhase) -> None:
         return
     try:
         path = store.save_next(m.latest.snapshot, m.ctx.clock.now(), mission_state(m, phase))
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, TypeError) as exc:
         m.event("CHECKPOINT_FAILED", error=f"{type(exc).__name__}: {exc}")
         return
     m.event("CHECKPOINT_SAVED", step=m.step, seq=store.seq, kib=path.stat().st_size / 1024)
