@@ -68,25 +68,33 @@ def run(args: argparse.Namespace) -> int:
             return 2
     out = spec.out
     assert out is not None
-    bar = tqdm(total=spec.steps + 1, desc=f"{spec.scenario} method {spec.method}", unit="step")
+    bars: list[tqdm] = []  # made at the first step, so a refusal before it is one line
 
     def progress(step: int, total: int, state: str) -> None:
+        if not bars:
+            bars.append(tqdm(total=total + 1, desc=f"{spec.scenario} method {spec.method}", unit="step"))
+        bar = bars[0]
         bar.n = min(step, total + 1)
         bar.set_postfix_str(state, refresh=False)
         bar.refresh()
 
+    def close_bar(done: bool) -> None:
+        if bars:
+            if done:
+                bars[0].n = bars[0].total
+            bars[0].close()
+
     try:
         s = run_mission(spec, progress, mode=mode)
     except ConfigError as err:
-        bar.close()
+        close_bar(False)
         print(f"safer-hil run: config error: {err}", file=sys.stderr)
         return 2
-    except ValueError as err:  # e.g. an unknown or unreadable scenario
-        bar.close()
+    except ValueError as err:  # e.g. an unknown or unreadable scenario, an unusable checkpoint
+        close_bar(False)
         print(f"safer-hil run: {err}", file=sys.stderr)
         return 2
-    bar.n = bar.total
-    bar.close()
+    close_bar(True)
     cb = s["cliffbot"]
     print(
         f"{s['mapped_cells']} cells mapped in {len(s['steps']) - 1} steps; map RMSE "

@@ -85,15 +85,22 @@ def test_sigkill_mid_mission_then_resume(tmp_path: Path) -> None:
     _same_maps(tmp_path / "ref", out)
 
 
-def test_resume_refusals_are_one_line_and_exit_2(tmp_path: Path) -> None:
-    """No manifest, a corrupt checkpoint, a manifest for another mission: one line, exit 2."""
+def test_resume_refusals_are_one_line_and_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """No manifest, a malformed manifest, only corrupt checkpoints: one line, exit 2."""
     from hil_sim.cli import main
 
+    def one_line() -> str:
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and err.startswith("safer-hil run: "), err
+        return err
+
     assert main(["run", "--resume", str(tmp_path / "nothing")]) == 2
+    assert "no mission to resume" in one_line()
     out = tmp_path / "bad"
     (out / "checkpoints").mkdir(parents=True)
     (out / "run.json").write_text('{"schema": 1, "spec": {"scenario": "lab"}}')
     assert main(["run", "--resume", str(out)]) == 2  # manifest lacks keys
+    assert "unreadable" in one_line()
     (out / "run.json").write_text(
         '{"schema": 1, "spec": {"scenario": "lab", "method": "5", "steps": 1, "seed": 0, '
         '"config": "config/fsw.toml", "transmit": false, "out": "x"}}'
@@ -101,7 +108,9 @@ def test_resume_refusals_are_one_line_and_exit_2(tmp_path: Path) -> None:
     (out / "checkpoints" / "map_0000000001.ckpt").write_bytes(b"SAFERMAP garbage")
     with pytest.raises(ValueError, match="no usable checkpoint"):
         run_mission(RunSpec("lab", "5", 1, 0, transmit=False, out=out), mode="resume")
+    capsys.readouterr()
     assert main(["run", "--resume", str(out)]) == 2
+    assert "no usable checkpoint" in one_line()
 
 
 def test_layers_cover_the_checkpoint_format() -> None:
