@@ -118,8 +118,7 @@ class MissionTask(Task):
         resume_mission(self)
 
     # -- plumbing ---------------------------------------------------------------------------
-    def _goto(self, new: str) -> None:
-        new = MissionPhase(new)
+    def _goto(self, new: MissionPhase) -> None:
         if new != self.state:
             self.event("STATE", old=str(self.state), new=str(new))
             self.state = new
@@ -146,7 +145,7 @@ class MissionTask(Task):
     def run(self, frame: int) -> None:
         if self._auto_start:
             self._auto_start = False
-            self._goto("INIT")
+            self._goto(MissionPhase.INIT)
         if self._republish is not None:  # a resumed mission's map, for the radio task
             self.publish(MAP_UPDATED, self._republish)
             self._republish = None
@@ -191,7 +190,7 @@ class MissionTask(Task):
         if reason is not None:
             self._finish_mapping(reason)
             return
-        self._goto("SELECT")
+        self._goto(MissionPhase.SELECT)
         self.publish(NBV_REQUEST, self._planner_state())
         self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
 
@@ -223,7 +222,7 @@ class MissionTask(Task):
             self.event("GEOFENCE", x=there[0], y=there[1], reason=verdict.reason)
             self._enter_safe(f"geofence refused the move: {verdict.reason}")
             return
-        self._goto("MOVE")
+        self._goto(MissionPhase.MOVE)
         self._request(kind="goto", target=there)
 
     def _state_move(self) -> None:
@@ -239,7 +238,7 @@ class MissionTask(Task):
 
     def _start_point(self) -> None:
         assert self.view is not None
-        self._goto("POINT")
+        self._goto(MissionPhase.POINT)
         self._request(kind="mast", joints=self.view.joints)
 
     def _state_point(self) -> None:
@@ -255,7 +254,7 @@ class MissionTask(Task):
 
     def _capture(self) -> None:
         assert self.view is not None
-        self._goto("ACQUIRE")
+        self._goto(MissionPhase.ACQUIRE)
         self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
         self.publish(CAMERA_REQUEST, CaptureRequest(self.step, self.view.expected_new_cells))
 
@@ -272,7 +271,7 @@ class MissionTask(Task):
         self.latest = up
         if up.edge is not None and not up.edge.empty:
             self.edge = up.edge
-        if self.state != "ACQUIRE" or up.view_id != self.step:
+        if self.state != MissionPhase.ACQUIRE or up.view_id != self.step:
             return
         self.retries = 0
         assert self.view is not None
@@ -335,18 +334,18 @@ class MissionTask(Task):
         self.end = reason
         self.event("END", reason=reason)
         if self.mcfg.transmit and "radio" in self.ctx.resources["executive"].tasks:
-            self._goto("TRANSMIT")
+            self._goto(MissionPhase.TRANSMIT)
             self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
             self.publish(RADIO_SEND, RadioSendRequest(map_id=1))
         else:
-            self._goto("DONE")
+            self._goto(MissionPhase.DONE)
             save(self, MissionPhase.DONE)
 
     def _state_transmit(self) -> None:
         state = self.ctx.telemetry.get("radio.state")
         if state in ("done", "rejected", "failed") or self._timed_out():
             self.event("TRANSMITTED", state=state if not self._timed_out() else "timeout")
-            self._goto("DONE")
+            self._goto(MissionPhase.DONE)
             save(self, MissionPhase.DONE)
 
     # -- SAFE ----------------------------------------------------------------------------------
@@ -354,7 +353,7 @@ class MissionTask(Task):
         self.safe_entries += 1
         self.safe_reason = reason
         self.event("SAFE", reason=reason)
-        self._goto("SAFE")
+        self._goto(MissionPhase.SAFE)
         save(self, MissionPhase.SAFE)
         self._safe_since = self.ctx.clock.now()
         p = self.mcfg.park_joints
@@ -367,21 +366,21 @@ class MissionTask(Task):
             self.cmd_RESUME()
 
     def cmd_START(self) -> None:
-        if self.state not in ("IDLE", "DONE"):
+        if self.state not in (MissionPhase.IDLE, MissionPhase.DONE):
             raise CommandError(f"mission already running ({self.state})")
-        self._goto("INIT")
+        self._goto(MissionPhase.INIT)
 
     def cmd_ABORT(self) -> None:
-        if self.state in ("IDLE", "DONE", "SAFE"):
+        if self.state in (MissionPhase.IDLE, MissionPhase.DONE, MissionPhase.SAFE):
             raise CommandError(f"nothing to abort ({self.state})")
         self._enter_safe("aborted by command")
 
     def cmd_RESUME(self) -> None:
-        if self.state != "SAFE":
+        if self.state != MissionPhase.SAFE:
             raise CommandError("not in SAFE")
         self.pending.clear()
         if self.latest is None:  # nothing mapped yet: start again with the panorama
-            self._goto("INIT")
+            self._goto(MissionPhase.INIT)
             return
-        self._goto("SELECT")
+        self._goto(MissionPhase.SELECT)
         self._next_view()
