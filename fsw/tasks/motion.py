@@ -28,11 +28,11 @@ from fsw.drivers import can_motors, mast_serial
 from fsw.executive.commands import Arg, CommandDef, CommandError
 from fsw.executive.task import Task
 from fsw.executive.telemetry import Channel, EventDef, Severity
+from fsw.tasks import motion_state
 from fsw.tasks.messages import MOTION_REQUEST, MOTION_STATUS, NAV_POSE, MotionRequest, MotionStatus, NavPose
 from fsw.tasks.mission_state import restore_into
 
 WHEELS = wk.WHEEL_ORDER
-RESUME_ENCODER_TOL_RAD = 0.05  # a resumed baseline is kept if the first reading is this close
 
 
 @dataclass(frozen=True)
@@ -154,29 +154,9 @@ class MotionTask(Task):
         self._resume_drive: np.ndarray | None = None
         restore_into(self)  # a resumed mission (fsw.tasks.mission_state)
 
-    def checkpoint_state(self) -> dict[str, Any]:
-        """The dead-reckoned pose, its growth terms and the drive encoder baseline (a resumed
-        mission continues them; the baseline only if the first encoder reading after the
-        restart agrees with it, i.e. the controllers kept their counts; see ``_odometry``)."""
-        last = None if self._last_drive is None else self._last_drive.tolist()
-        motors = self._motors()
-        return {"pose": list(self.pose), "path_m": self.path_m, "turned_rad": self.turned_rad,
-                "yaw_acc": self.yaw_acc, "done": self.done, "aborted": self.aborted, "last_drive": last,
-                "steer_hold": self.steer_hold.tolist(),
-                "setpoints": None if motors is None else dict(motors.setpoints)}
-
-    def restore_state(self, st: dict[str, Any]) -> None:
-        last = st.get("last_drive")
-        self._resume_drive = None if last is None else np.asarray(last, dtype=np.float64).reshape(len(WHEELS))
-        x, y, yaw = (float(v) for v in st["pose"])
-        self.pose = (x, y, yaw)
-        self.path_m, self.turned_rad, self.yaw_acc = float(st["path_m"]), float(st["turned_rad"]), float(st["yaw_acc"])
-        self.done, self.aborted = int(st["done"]), int(st["aborted"])
-        self.steer_hold = np.asarray(st["steer_hold"], dtype=np.float64).reshape(len(WHEELS))
-        motors = self._motors()
-        if motors is not None and st["setpoints"] is not None:  # hold what was held (wheels still)
-            for axis, sp in st["setpoints"].items():
-                motors.set_setpoint(axis, None if sp is None else float(sp))
+    # A resumed mission's odometry, encoder baseline and held set-points (fsw/tasks/motion_state.py).
+    checkpoint_state = motion_state.checkpoint_state
+    restore_state = motion_state.restore_state
 
     # -- devices ----------------------------------------------------------------------------
     def _motors(self) -> can_motors.CanMotorDriver | None:
@@ -219,9 +199,7 @@ class MotionTask(Task):
             return
         pos = np.array([s.position_rad for s in drive])
         if self._resume_drive is not None:  # resumed: keep the baseline if the counts survived
-            if np.all(np.abs(pos - self._resume_drive) < RESUME_ENCODER_TOL_RAD):
-                self._last_drive = self._resume_drive
-            self._resume_drive = None
+            self._last_drive, self._resume_drive = motion_state.resumed_baseline(pos, self._resume_drive), None
         if self._last_drive is not None:
             motion = wk.body_motion(
                 (pos - self._last_drive) * self.r, np.array([s.position_rad for s in steer]), self.pinv
