@@ -56,7 +56,6 @@ from fsw.tasks.radio_task import RADIO_SEND, RadioSendRequest
 __all__ = ["STATES", "MissionConfig", "MissionPhase", "MissionTask", "StepRecord"]
 
 
-
 class MissionTask(Task):
     KIND: ClassVar[str] = "mission"
     DOC: ClassVar[str] = "Mission sequencer: panorama, next view, move, acquire, transmit; SAFE on faults."
