@@ -87,6 +87,15 @@ def has_mission(out: Path) -> bool:
     return (out / MANIFEST).exists() or (ck.is_dir() and any(ck.glob("map_*.ckpt")) or any(ck.glob(".map_*.tmp")))
 
 
+def finished(out: Path) -> bool:
+    """True if the mission in ``out`` ended (its newest checkpoint is DONE) and has its report."""
+    from fsw.core.checkpoint import CheckpointConfig
+
+    state = MapStore(CheckpointConfig(directory=str(out / "checkpoints"))).load_latest().state
+    mission = state.get("mission") if state else None
+    return isinstance(mission, dict) and mission.get("phase") == "DONE" and (out / "summary.json").exists()
+
+
 def write_manifest(spec: RunSpec) -> None:
     assert spec.out is not None
     d = {k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(spec).items()}

@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from fsw.config import ConfigError
-    from hil_sim.mission_run import RunSpec, has_mission, read_manifest, run_mission
+    from hil_sim.mission_run import RunSpec, finished, has_mission, read_manifest, run_mission
 
     if args.steps < 0:
         print("safer-hil run: --steps must be >= 0", file=sys.stderr)
@@ -59,6 +59,9 @@ def run(args: argparse.Namespace) -> int:
             print(f"safer-hil run: {err}", file=sys.stderr)
             return 2
         mode = "resume"
+        if finished(resume):
+            print(f"safer-hil run: the mission in {resume} has finished; report: {resume / 'summary.json'}")
+            return 0
     else:
         spec = RunSpec(args.scenario, args.method, args.steps, args.seed, args.config, not args.no_transmit, args.out)
         mode = "fresh" if getattr(args, "fresh", False) else "new"

@@ -83,6 +83,8 @@ def test_sigkill_mid_mission_then_resume(tmp_path: Path) -> None:
     assert res.returncode == 0, res.stderr[-500:]
     assert not list((out / "checkpoints").glob(".map_*.tmp"))
     _same_maps(tmp_path / "ref", out)
+    done = subprocess.run(resume_cmd(out), capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and "has finished" in done.stdout  # not flown again
 
 
 def test_resume_refusals_are_one_line_and_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
