@@ -4,8 +4,8 @@ After each imaging step the sequencer (``fsw.tasks.mission``) writes ONE checkpo
 the map of that step and everything needed to continue from it: the step and phase, the
 step records, the pose estimate and its covariance, the edge model (§2), the last map update
 (mapped cells, the region-of-interest fraction of §3.6), the counters, each task's own
-state (``Task.checkpoint_state``/``restore_state`` where a task has one: odometry, planner,
-view counts) and the sections that resources registered as ``checkpoint_hooks`` (the HIL
+state (the ``checkpoint_state``/``restore_state`` methods of the tasks that have them:
+odometry, planner, view counts) and the sections that resources registered as ``checkpoint_hooks`` (the HIL
 bench's truth and random generators, so a lockstep resume continues the same run). The
 interest function (§3.4) is a map layer and travels with the map.
 
@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 import shapely
+import shapely.errors
 from shapely.geometry import MultiLineString, Polygon
 
 from fsw.config import param
@@ -114,8 +115,11 @@ def edge_to_json(edge: EdgeModel | None) -> dict[str, Any] | None:
 def edge_from_json(d: dict[str, Any] | None) -> EdgeModel | None:
     if d is None:
         return None
-    lines = shapely.from_wkb(d["lines"])
-    poly = None if d["safe_polygon"] is None else shapely.from_wkb(d["safe_polygon"])
+    try:
+        lines = shapely.from_wkb(d["lines"])
+        poly = None if d["safe_polygon"] is None else shapely.from_wkb(d["safe_polygon"])
+    except shapely.errors.ShapelyError as exc:
+        raise StateError(f"edge model geometry unreadable ({exc})") from None
     if not isinstance(lines, MultiLineString) or not (poly is None or isinstance(poly, Polygon)):
         raise StateError("edge model geometry of the wrong type")
     pts = np.asarray(d["points_xy"], dtype=np.float64).reshape(-1, 2)

@@ -191,7 +191,7 @@ def test_done_and_safe_missions_stay_so(tmp_path: Path, phase: str) -> None:
     assert exe.tasks["mission"].state == phase
 
 
-@pytest.mark.parametrize("damage", ["fingerprint", "schema", "phase", "records", "tasks"])
+@pytest.mark.parametrize("damage", ["fingerprint", "schema", "phase", "records", "tasks", "edge"])
 def test_incompatible_or_malformed_state_is_an_event_not_a_crash(tmp_path: Path, damage: str) -> None:
     """Refused with RESUME_REFUSED; the mission waits for START instead of starting over."""
     cfg = small_cfg(tmp_path)
@@ -202,6 +202,8 @@ def test_incompatible_or_malformed_state_is_an_event_not_a_crash(tmp_path: Path,
         state["schema"] = 99
     elif damage == "phase":
         state["mission"]["phase"] = "MOVE"
+    elif damage == "edge":
+        state["mission"]["edge"] = {"method": "polygon", "points_xy": [], "lines": "00ff", "safe_polygon": None}
     elif damage == "records":
         state["mission"]["records"] = [{"step": "x"}]
     else:
