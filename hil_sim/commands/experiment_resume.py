@@ -38,6 +38,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the mission (world, hardware, radio)")
     p.add_argument("--kills", type=int, default=10, help="SIGKILLs during the mission")
     p.add_argument("--kill-seed", type=int, default=0, help="seed of the kill moments")
+    p.add_argument("--max-delay", type=float, default=0.0, metavar="S",
+                   help="kill each process uniformly within 1..S s of its start (0: 1.6 x the reference's "
+                   "wall time / kills)")
     p.add_argument("--config", default=str(DEFAULT_CONFIG), help="flight configuration (TOML)")
     p.add_argument("--out", type=Path, default=Path("out/resume"), help="output directory")
 
@@ -97,8 +100,8 @@ def compare_maps(ref_out: Path, out: Path) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    if args.kills < 0 or args.steps < 0:
-        print("safer-hil experiment resume: --kills and --steps must be >= 0", file=sys.stderr)
+    if args.kills < 0 or args.steps < 0 or not args.max_delay >= 0:
+        print("safer-hil experiment resume: --kills, --steps and --max-delay must be >= 0", file=sys.stderr)
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
     mission = ["--scenario", args.scenario, "--method", args.method, "--steps", str(args.steps),
@@ -114,7 +117,8 @@ def run(args: argparse.Namespace) -> int:
         return 1
     print(f"reference: {ref_wall_s:.1f} s wall, {args.steps} steps, seed {args.seed}")
     rng = np.random.default_rng(args.kill_seed)
-    delays = rng.uniform(1.0, max(2.0, 1.6 * ref_wall_s / max(1, args.kills)), args.kills)
+    hi = args.max_delay if args.max_delay > 0 else 1.6 * ref_wall_s / max(1, args.kills)
+    delays = rng.uniform(1.0, max(2.0, hi), args.kills)
     kills: list[dict[str, Any]] = []
     proc = start(run_cmd(out, "--fresh", *mission), log)
     print(f"{'kill':>4} {'at s':>6} {'shown':>5} {'ckpt':>4} {'lost':>4} {'tmp':>3}")
