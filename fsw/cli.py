@@ -74,7 +74,9 @@ def build_parser() -> argparse.ArgumentParser:
         "run",
         help="run the flight software in real time",
         formatter_class=fmt,
-        description="Start the executive and its tasks on the real-time clock.",
+        description="Start the executive and its tasks on the real-time clock. A mission found in the "
+        "[checkpoint] directory (written after each imaging step) continues at the step where it "
+        "stopped; an unusable one is reported as an event and the mission waits for START.",
     )
     r.add_argument("--config", default=str(DEFAULT_CONFIG), help="flight configuration (TOML)")
     r.add_argument(

@@ -66,7 +66,11 @@ class LockstepBench:
         quiet: bool = False,
         render: Any = None,
         resources: Resources | None = None,
+        start: tuple[float, int] | None = None,
     ) -> None:
+        """``start``: (clock s, first frame) of a resumed run (docs/hil.md, "Resuming a mission"):
+        the clock starts at the time of the frame that wrote the checkpoint, and the executive
+        runs the next frame first; the flight tasks restore themselves from the map store."""
         self.channel = f"safer-bench-{os.getpid()}-{next(_ids)}"
         self.faults = FaultInjector(seed, faults)
         self.sim_bus = can.Bus(interface="virtual", channel=self.channel, receive_own_messages=False)
@@ -83,7 +87,7 @@ class LockstepBench:
             camera_source="sim" if self.camera is not None else "none",
         )
         self.cfg = dataclasses.replace(fsw, devices=devices)
-        self.clock = SteppedClock()
+        self.clock = SteppedClock(start[0] if start is not None else 0.0)
         # No map store unless the caller brings one: a bench run never restores another's map.
         res = resources or Resources()
         # A radio of its own (unless the caller brings one), so benches never share an end.
@@ -94,7 +98,9 @@ class LockstepBench:
             self._own_radio = res.radio_port = open_radio(f"inproc://{self.channel}-radio")
         ends = Endpoints(mast_port=flight_port, camera_source=self.camera)
         self.exe: Executive = build_executive(self.cfg, self.clock, res, ends, map_store=False)
-        self._t_last = 0.0
+        self._t_last = self.clock.now()
+        if start is not None:
+            self.exe.frame = int(start[1])
         self._seq = itertools.count(1)
         if quiet:  # silence console-style tasks (they print every event to stdout)
             for task in self.exe.tasks.values():

@@ -30,6 +30,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("experiment", "coverage"): "hil_sim.commands.experiment_coverage",
     ("experiment", "reduction"): "hil_sim.commands.experiment_reduction",
     ("experiment", "link"): "hil_sim.commands.experiment_link",
+    ("experiment", "resume"): "hil_sim.commands.experiment_resume",
 }
 
 GROUP_HELP = {

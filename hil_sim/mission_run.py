@@ -17,13 +17,19 @@ the longest slack-job slice),
 ``wall_s`` (top level and per step), ``task_max_ms``, and ``slips`` and ``overruns`` (both
 compare measured execution time with the period and budgets); everything else is a
 function of the inputs and the seed.
+
+Resuming (docs/hil.md, "Resuming a mission"): the run writes ``run.json`` (its ``RunSpec``)
+and, after each imaging step, a checkpoint with the map, the mission state and the bench's
+truth and random generators (``hil_sim.resume_state``). ``mode="resume"`` continues a killed
+run from its newest good checkpoint, deterministically: the same seed gives the same map as
+an uninterrupted run. ``mode="new"`` refuses an out directory that holds a mission
+(``MissionExistsError``); ``mode="fresh"`` deletes it first.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -38,6 +44,12 @@ from fsw.drivers.resources import OracleTruth, Resources
 from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
 
 WALL_CLOCK_FIELDS = ("wall_s", "task_max_ms", "slips", "overruns")
+MANIFEST = "run.json"
+MODES = ("new", "fresh", "resume")
+
+
+class MissionExistsError(ValueError):
+    """The out directory holds a mission and neither resuming nor starting afresh was asked."""
 
 
 @dataclass(frozen=True)
@@ -70,13 +82,91 @@ def mission_config(spec: RunSpec, world: Any) -> FswConfig:
     )
 
 
+def has_mission(out: Path) -> bool:
+    """True if ``out`` holds a mission: its manifest or any checkpoint (or temporary) file."""
+    ck = out / "checkpoints"
+    return (out / MANIFEST).exists() or (ck.is_dir() and any(ck.glob("map_*.ckpt")) or any(ck.glob(".map_*.tmp")))
+
+
+def finished(out: Path) -> bool:
+    """True if the mission in ``out`` ended (its newest checkpoint is DONE) and has its report."""
+    from fsw.core.checkpoint import CheckpointConfig
+
+    state = MapStore(CheckpointConfig(directory=str(out / "checkpoints"))).load_latest().state
+    mission = state.get("mission") if state else None
+    return isinstance(mission, dict) and mission.get("phase") == "DONE" and (out / "summary.json").exists()
+
+
+def write_manifest(spec: RunSpec) -> None:
+    assert spec.out is not None
+    d = {k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(spec).items()}
+    tmp = spec.out / (MANIFEST + ".tmp")
+    tmp.write_text(json.dumps({"schema": 1, "spec": d}, indent=2) + "\n")
+    tmp.replace(spec.out / MANIFEST)
+
+
+def read_manifest(out: Path) -> RunSpec:
+    """The ``RunSpec`` of the mission in ``out``; ``ValueError`` with the reason if unusable."""
+    path = out / MANIFEST
+    try:
+        d = json.loads(path.read_text())["spec"]
+        return RunSpec(str(d["scenario"]), str(d["method"]), int(d["steps"]), int(d["seed"]), str(d["config"]),
+                       bool(d["transmit"]), out)
+    except FileNotFoundError:
+        raise ValueError(f"{out} holds no mission to resume (no {MANIFEST})") from None
+    except (OSError, KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path} is unreadable ({type(exc).__name__}: {exc})") from None
+
+
+def _prepare_store(spec: RunSpec, cfg: FswConfig, mode: str) -> tuple[MapStore | None, tuple[float, int] | None,
+                                                                     dict[str, Any] | None]:
+    """The run's map store, and for a resume the bench start (clock, frame) and bench state."""
+    from fsw.tasks.mission_state import StateError, check_schema, fingerprint
+
+    if spec.out is None:
+        return None, None, None
+    if mode not in MODES:
+        raise ValueError(f"unknown mode {mode!r}")
+    spec.out.mkdir(parents=True, exist_ok=True)
+    store = MapStore(cfg.checkpoint, cfg.fusion)
+    if mode == "new" and has_mission(spec.out):
+        raise MissionExistsError(f"{spec.out} holds a mission; --resume {spec.out} continues it, --fresh deletes it")
+    if mode != "resume":
+        store.clear()
+        write_manifest(spec)
+        return store, None, None
+    loaded = store.restore()
+    if loaded.emap is None and loaded.skipped:
+        reasons = "; ".join(f"{p.name}: {r}" for p, r in loaded.skipped)
+        raise ValueError(f"no usable checkpoint in {store.dir} ({reasons})")
+    if loaded.state is None:  # stopped before its first step ended: that step starts again
+        store.clear()
+        return MapStore(cfg.checkpoint, cfg.fusion), None, None
+    try:
+        check_schema(loaded.state, fingerprint(cfg))
+        bench = loaded.state["hooks"]["bench"]
+        start = (float(loaded.state["time_s"]), int(loaded.state["frame"]) + 1)
+    except StateError as exc:
+        raise ValueError(f"checkpoint {loaded.path} cannot be resumed: {exc}") from None
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"checkpoint {loaded.path} has no usable bench state ({exc})") from None
+    return store, start, bench
+
+
 def run_mission(
-    spec: RunSpec, progress: Callable[[int, int, str], None] | None = None, max_sim_s: float | None = None
+    spec: RunSpec,
+    progress: Callable[[int, int, str], None] | None = None,
+    max_sim_s: float | None = None,
+    mode: str = "new",
 ) -> dict[str, Any]:
-    """Run one mission to DONE (or SAFE, or the time limit) and return its summary."""
+    """Run one mission to DONE (or SAFE, or the time limit) and return its summary.
+
+    ``mode``: "new" (refuse an out directory holding a mission), "fresh" (delete it first) or
+    "resume" (continue it from its newest good checkpoint; module docstring)."""
     from hil_sim.bench import LockstepBench
     from hil_sim.cliffbot_receiver import Cliffbot
     from hil_sim.radio_channel import ChannelPort, RadioChannel, RadioChannelConfig
+    from hil_sim.resume_state import BenchStateError, bench_state, restore_bench
     from hil_sim.world import load_scenario
 
     t_wall = time.perf_counter()
@@ -93,17 +183,26 @@ def run_mission(
 
     port_flight = ChannelPort(channel, "a", now)
     resources = Resources(radio_port=port_flight, oracle_truth=oracle)
-    if spec.out is not None:
-        spec.out.mkdir(parents=True, exist_ok=True)
-        shutil.rmtree(spec.out / "checkpoints", ignore_errors=True)  # a new mission starts a new map
-        resources.map_store = MapStore(cfg.checkpoint, cfg.fusion)
-    with LockstepBench(cfg, world, seed=spec.seed, quiet=True, resources=resources) as bench:
+    store, start, saved_bench = _prepare_store(spec, cfg, mode)
+    counters = {"violations": 0}
+    bench_box: list[Any] = []
+    if store is not None:
+        resources.map_store = store
+        resources.checkpoint_hooks = {
+            "bench": lambda: bench_state(bench_box[0], {"channel": channel}, counters),
+        }
+    with LockstepBench(cfg, world, seed=spec.seed, quiet=True, resources=resources, start=start) as bench:
+        bench_box.append(bench)
         clock_box.append(bench.clock.now)
+        if saved_bench is not None:
+            try:
+                counters.update(restore_bench(bench, saved_bench, {"channel": channel}))
+            except BenchStateError as exc:
+                raise ValueError(f"checkpoint cannot be resumed: {exc}") from None
         cliffbot = Cliffbot(cfg.link, ChannelPort(channel, "b", now), out_dir=spec.out)
         mission = bench.exe.tasks["mission"]
         perception = bench.exe.tasks["perception"]
         limit_s = max_sim_s if max_sim_s is not None else 120.0 + 90.0 * (spec.steps + 1) + 1200.0
-        violations = 0
         last_step = -1
         bench.exe.freeze_heap()  # as the flight start-up does (safer-fsw run)
         try:
@@ -112,7 +211,7 @@ def run_mission(
                 if mission.state == "TRANSMIT" and 1 not in cliffbot.originals:
                     cliffbot.originals[1] = perception.map.z.astype(np.float32)
                 cliffbot.step(bench.clock.now())
-                violations += _wheels_over_drop(bench.rig, world, cfg)
+                counters["violations"] += _wheels_over_drop(bench.rig, world, cfg)
                 if progress is not None and mission.step != last_step:
                     last_step = mission.step
                     progress(mission.step, spec.steps, mission.state)
@@ -133,7 +232,7 @@ def run_mission(
             "seed": spec.seed,
             "steps": [dataclasses.asdict(r) for r in mission.records],
             "map_rmse_m": rmse,
-            "edge_violations": violations,
+            "edge_violations": counters["violations"],
             "geofence_refusals": mission.edge_violations,
             "slips": exe.slips,
             "overruns": sum(t.overruns for t in exe.tasks.values()),

@@ -106,6 +106,14 @@ class HardwareRig:
         """The stereo pair the true cameras see now (the pose is read under the rig lock)."""
         if self.world is None:
             raise RuntimeError("no world to render (flat terrain only)")
+        renderer = self.renderer()
+        with self.lock:
+            pose, t = self.camera_pose(), self.now
+        left, right = renderer.render(pose)
+        return left, right, t
+
+    def renderer(self) -> Any:
+        """The stereo renderer of the world (built on first use)."""
         if self._renderer is None:
             from hil_sim.render import StereoRenderer
 
@@ -113,10 +121,7 @@ class HardwareRig:
             if sigma < 0:
                 sigma = float(getattr(self.world, "noise_sigma", 2.0))
             self._renderer = StereoRenderer(self.world, self.fsw.camera, sigma, self.seed)
-        with self.lock:
-            pose, t = self.camera_pose(), self.now
-        left, right = self._renderer.render(pose)
-        return left, right, t
+        return self._renderer
 
     # -- reporting --------------------------------------------------------------------------
     def truth(self) -> dict[str, float]:

@@ -7,20 +7,29 @@ old set of checkpoints or the new one, never a half-written file under a final n
 the newest ``keep`` checkpoints stay. ``load_latest`` tries checkpoints newest first and
 skips any that fail ``fsw.core.checkpoint.decode`` (truncated, corrupt), reporting each one
 it skipped, so a bad newest checkpoint falls back to the previous one.
+
+A checkpoint may carry the mission state with its map (``save(..., state=...)``: one file,
+one checksum, so a map and a mission state of different steps never pair up). ``restore``
+is the start-up load: it first removes the temporary files a kill during ``save`` left
+behind (``remove_stale``), then loads the newest good checkpoint once and keeps the result
+for every task that restores from it (docs/hil.md, "Resuming a mission").
 """
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from fsw.core.checkpoint import CheckpointConfig, CheckpointError, CheckpointMeta, decode, encode
 from fsw.core.elevation_map import ElevationMap, FusionConfig
 
 _NAME = re.compile(r"^map_(\d{10})\.ckpt$")
+_TEMP = re.compile(r"^\.map_.*\.tmp$")
 
 
 @dataclass
@@ -31,6 +40,13 @@ class LoadResult:
     meta: CheckpointMeta | None
     path: Path | None
     skipped: list[tuple[Path, str]] = field(default_factory=list)
+    stale_removed: int = 0  # temporary files of interrupted saves removed at start-up
+    errors: list[str] = field(default_factory=list)  # task sections that could not be restored
+
+    @property
+    def state(self) -> dict[str, Any] | None:
+        """The mission state saved with the map (None: none, or a map-only checkpoint)."""
+        return None if self.meta is None else self.meta.state
 
 
 class MapStore:
@@ -40,6 +56,9 @@ class MapStore:
         self.cfg = cfg
         self.fusion = fusion
         self.dir = Path(cfg.directory)
+        self.seq = 0  # the highest sequence number saved or found
+        self.last_save_s = -math.inf  # mission time of the last save (any writer)
+        self._restored: LoadResult | None = None
 
     def paths(self) -> list[Path]:
         """Checkpoint files, oldest first (by sequence number)."""
@@ -48,11 +67,11 @@ class MapStore:
         found = [(int(m.group(1)), p) for p in self.dir.iterdir() if (m := _NAME.match(p.name))]
         return [p for _, p in sorted(found)]
 
-    def save(self, emap: ElevationMap, seq: int, time_s: float) -> Path:
+    def save(self, emap: ElevationMap, seq: int, time_s: float, state: dict[str, Any] | None = None) -> Path:
         """Write one checkpoint atomically; raises ``OSError`` if the device fails."""
         if not 0 <= seq < 10**10:
             raise ValueError(f"sequence number {seq} out of range")
-        data = encode(emap, seq, time_s, self.cfg.compression_level)
+        data = encode(emap, seq, time_s, self.cfg.compression_level, state)
         self.dir.mkdir(parents=True, exist_ok=True)
         final = self.dir / f"map_{seq:010d}.ckpt"
         fd, tmp = tempfile.mkstemp(prefix=".map_", suffix=".tmp", dir=self.dir)
@@ -66,9 +85,48 @@ class MapStore:
             Path(tmp).unlink(missing_ok=True)
             raise
         self._fsync_dir()
+        self.seq = max(self.seq, seq)
+        self.last_save_s = time_s
         for old in self.paths()[: -self.cfg.keep]:
             old.unlink(missing_ok=True)
         return final
+
+    def save_next(self, emap: ElevationMap, time_s: float, state: dict[str, Any] | None = None) -> Path:
+        """``save`` under the next sequence number (after every one saved or on the device)."""
+        found = self.paths()
+        last = int(_NAME.match(found[-1].name).group(1)) if found else 0  # type: ignore[union-attr]
+        return self.save(emap, max(self.seq, last) + 1, time_s, state)
+
+    def remove_stale(self) -> int:
+        """Remove temporary files that a kill or power cut during ``save`` left behind."""
+        if not self.dir.is_dir():
+            return 0
+        n = 0
+        for p in self.dir.iterdir():
+            if _TEMP.match(p.name):
+                p.unlink(missing_ok=True)
+                n += 1
+        return n
+
+    def restore(self) -> LoadResult:
+        """The start-up load (stale temporaries removed first), done once and kept."""
+        if self._restored is None:
+            stale = self.remove_stale()
+            self._restored = self.load_latest()
+            self._restored.stale_removed = stale
+            if self._restored.meta is not None:
+                self.seq = max(self.seq, self._restored.meta.seq)
+        return self._restored
+
+    def clear(self) -> int:
+        """Delete every checkpoint and temporary file (a new survey); returns files removed."""
+        n = self.remove_stale()
+        for p in self.paths():
+            p.unlink(missing_ok=True)
+            n += 1
+        self.seq = 0
+        self._restored = None
+        return n
 
     def load_latest(self) -> LoadResult:
         """The newest checkpoint that decodes; earlier ones are fallbacks."""

@@ -12,7 +12,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, BinaryIO
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 import numpy as np
 
@@ -61,3 +61,6 @@ class Resources:
     mavlink_tlog: str | BinaryIO | None = None  # None: the configured path
     unix_time: Callable[[], float] = field(default=time.time)
     oracle_truth: OracleTruth | None = None
+    # Extra sections a mission checkpoint carries (``fsw.tasks.mission_state``): a bench puts its
+    # world truth and random generators here so a lockstep resume continues the same run.
+    checkpoint_hooks: dict[str, Callable[[], dict[str, Any]]] = field(default_factory=dict)

@@ -13,13 +13,16 @@ planner's. Each step is recorded (``records``) for the run summary.
 
 SAFE: wheels and mast stopped, mast parked, an event; then wait for ``RESUME`` (or, with
 ``safe_recover_s`` > 0, resume by itself after that long without a new fault).
+
+Checkpoints (``fsw.tasks.mission_checkpoint``): when a step completes, and on entering SAFE
+or DONE, the map of the step and the mission state go to the map store as one snapshot; at
+start-up a mission found there continues at the next step (or stays SAFE/DONE).
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
@@ -51,22 +54,9 @@ from fsw.tasks.messages import (
     RadioSendRequest,
     RadioStatus,
 )
+from fsw.tasks.mission_checkpoint import resume_mission, save
+from fsw.tasks.mission_state import STATES, MissionPhase, StepRecord
 from fsw.tasks.sections import MissionConfig
-
-STATES = ("IDLE", "INIT", "SELECT", "MOVE", "POINT", "ACQUIRE", "TRANSMIT", "DONE", "SAFE")
-
-
-@dataclass
-class StepRecord:
-    """One imaging step of the run summary (docs/experiments.md, summary.json)."""
-
-    step: int
-    mapped_cells: int
-    expected_new_cells: float
-    obtained_new_cells: int
-    pose: dict[str, float]
-    wall_s: float
-    sim_s: float
 
 
 class MissionTask(FlightTask):
@@ -88,6 +78,10 @@ class MissionTask(FlightTask):
         EventDef("SAFE", Severity.WARNING_HI, "SAFE mode: {reason}"),
         EventDef("RETRY", Severity.WARNING_LO, "{what} failed ({reason}); retry {n}", throttle=5),
         EventDef("TRANSMITTED", Severity.ACTIVITY_HI, "map transmission ended: {state}"),
+        EventDef("CHECKPOINT_SAVED", Severity.ACTIVITY_LO, "step {step} checkpoint {seq} saved ({kib:.0f} KiB)"),
+        EventDef("CHECKPOINT_FAILED", Severity.WARNING_HI, "mission checkpoint failed: {error}", throttle=3),
+        EventDef("RESUMED", Severity.ACTIVITY_HI, "mission resumed from checkpoint {seq}: step {step}, {phase}"),
+        EventDef("RESUME_REFUSED", Severity.WARNING_HI, "checkpoint not resumed ({reason}); waiting for START"),
     )
     COMMANDS = (
         CommandDef("START", doc="start the mission (from IDLE or DONE)"),
@@ -106,7 +100,7 @@ class MissionTask(FlightTask):
         self.radio_box = self.subscribe(RADIO_STATUS, depth=4)
         self.radio: RadioStatus | None = None
         self.nav: NavPose | None = None
-        self.state = "IDLE"
+        self.state = MissionPhase.IDLE
         self.records: list[StepRecord] = []
         self.step = 0
         self.view: CandidateView | None = None
@@ -124,13 +118,15 @@ class MissionTask(FlightTask):
         self.t_wall0 = time.perf_counter()
         self._safe_since = 0.0
         self._auto_start = self.mcfg.auto_start
+        self._republish: MapUpdate | None = None
+        resume_mission(self)
 
     # -- plumbing ---------------------------------------------------------------------------
-    def _goto(self, new: str) -> None:
+    def _goto(self, new: MissionPhase) -> None:
         if new != self.state:
-            self.event("STATE", old=self.state, new=new)
+            self.event("STATE", old=str(self.state), new=str(new))
             self.state = new
-        self.tlm("state", new)
+        self.tlm("state", str(new))
         self.tlm("state_code", STATES.index(new))
 
     def _request(
@@ -158,7 +154,10 @@ class MissionTask(FlightTask):
     def run(self, frame: int) -> None:
         if self._auto_start:
             self._auto_start = False
-            self._goto("INIT")
+            self._goto(MissionPhase.INIT)
+        if self._republish is not None:  # a resumed mission's map, for the radio task
+            self.publish(MAP_UPDATED, self._republish)
+            self._republish = None
         self.nav = self.nav_box.latest() or self.nav
         for up in self.map_box.drain():
             self._on_map(up)
@@ -200,7 +199,7 @@ class MissionTask(FlightTask):
         if reason is not None:
             self._finish_mapping(reason)
             return
-        self._goto("SELECT")
+        self._goto(MissionPhase.SELECT)
         self.publish(NBV_REQUEST, self._planner_state())
         self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
 
@@ -232,7 +231,7 @@ class MissionTask(FlightTask):
             self.event("GEOFENCE", x=there[0], y=there[1], reason=verdict.reason)
             self._enter_safe(f"geofence refused the move: {verdict.reason}")
             return
-        self._goto("MOVE")
+        self._goto(MissionPhase.MOVE)
         self._request(kind="goto", target=there)
 
     def _state_move(self) -> None:
@@ -248,7 +247,7 @@ class MissionTask(FlightTask):
 
     def _start_point(self) -> None:
         assert self.view is not None
-        self._goto("POINT")
+        self._goto(MissionPhase.POINT)
         self._request(kind="mast", joints=self.view.joints)
 
     def _state_point(self) -> None:
@@ -264,7 +263,7 @@ class MissionTask(FlightTask):
 
     def _capture(self) -> None:
         assert self.view is not None
-        self._goto("ACQUIRE")
+        self._goto(MissionPhase.ACQUIRE)
         self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
         self.publish(CAMERA_REQUEST, CaptureRequest(self.step, self.view.expected_new_cells))
 
@@ -281,7 +280,7 @@ class MissionTask(FlightTask):
         self.latest = up
         if up.edge is not None and not up.edge.empty:
             self.edge = up.edge
-        if self.state != "ACQUIRE" or up.view_id != self.step:
+        if self.state != MissionPhase.ACQUIRE or up.view_id != self.step:
             return
         self.retries = 0
         assert self.view is not None
@@ -307,6 +306,7 @@ class MissionTask(FlightTask):
                 "STEP", step=self.step, mapped=up.mapped_cells, new=rec.obtained_new_cells, exp=rec.expected_new_cells
             )
             self.step += 1
+            save(self, MissionPhase.SELECT)  # the step's map and state, one snapshot
         self._next_view()
 
     # -- planning inputs -------------------------------------------------------------------
@@ -343,11 +343,12 @@ class MissionTask(FlightTask):
         self.end = reason
         self.event("END", reason=reason)
         if self.mcfg.transmit and "radio" in self.ctx.runtime.tasks:
-            self._goto("TRANSMIT")
+            self._goto(MissionPhase.TRANSMIT)
             self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
             self.publish(RADIO_SEND, RadioSendRequest(map_id=1))
         else:
-            self._goto("DONE")
+            self._goto(MissionPhase.DONE)
+            save(self, MissionPhase.DONE)
 
     def _state_transmit(self) -> None:
         for status in self.radio_box.drain():
@@ -356,14 +357,16 @@ class MissionTask(FlightTask):
         if finished or self._timed_out():
             state = self.radio.state.value if self.radio is not None else None
             self.event("TRANSMITTED", state=state if not self._timed_out() else "timeout")
-            self._goto("DONE")
+            self._goto(MissionPhase.DONE)
+            save(self, MissionPhase.DONE)
 
     # -- SAFE ----------------------------------------------------------------------------------
     def _enter_safe(self, reason: str) -> None:
         self.safe_entries += 1
         self.safe_reason = reason
         self.event("SAFE", reason=reason)
-        self._goto("SAFE")
+        self._goto(MissionPhase.SAFE)
+        save(self, MissionPhase.SAFE)
         self._safe_since = self.ctx.clock.now()
         p = self.mcfg.park_joints
         self.publish(MOTION_REQUEST, MotionRequest(0, "stop"))
@@ -375,21 +378,21 @@ class MissionTask(FlightTask):
             self.cmd_RESUME()
 
     def cmd_START(self) -> None:
-        if self.state not in ("IDLE", "DONE"):
+        if self.state not in (MissionPhase.IDLE, MissionPhase.DONE):
             raise CommandError(f"mission already running ({self.state})")
-        self._goto("INIT")
+        self._goto(MissionPhase.INIT)
 
     def cmd_ABORT(self) -> None:
-        if self.state in ("IDLE", "DONE", "SAFE"):
+        if self.state in (MissionPhase.IDLE, MissionPhase.DONE, MissionPhase.SAFE):
             raise CommandError(f"nothing to abort ({self.state})")
         self._enter_safe("aborted by command")
 
     def cmd_RESUME(self) -> None:
-        if self.state != "SAFE":
+        if self.state != MissionPhase.SAFE:
             raise CommandError("not in SAFE")
         self.pending.clear()
         if self.latest is None:  # nothing mapped yet: start again with the panorama
-            self._goto("INIT")
+            self._goto(MissionPhase.INIT)
             return
-        self._goto("SELECT")
+        self._goto(MissionPhase.SELECT)
         self._next_view()

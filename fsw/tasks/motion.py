@@ -26,6 +26,7 @@ from fsw.core.odometry import Odometry
 from fsw.drivers import can_motors, mast_serial
 from fsw.framework.commands import Arg, CommandDef, CommandError
 from fsw.framework.telemetry import Channel, EventDef, Severity
+from fsw.tasks import motion_state
 from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import (
     MOTION_REQUEST,
@@ -36,6 +37,7 @@ from fsw.tasks.messages import (
     MoveOutcome,
     NavPose,
 )
+from fsw.tasks.mission_state import restore_into
 
 WHEELS = wk.WHEEL_ORDER
 D = TypeVar("D")
@@ -123,6 +125,11 @@ class MotionTask(FlightTask):
         self.done = self.aborted = 0
         self.requests = self.subscribe(MOTION_REQUEST, depth=8)
         self._warned: set[str] = set()
+        restore_into(self)  # a resumed mission (fsw.tasks.mission_state)
+
+    # A resumed mission's odometry, encoder baseline and held set-points (fsw/tasks/motion_state.py).
+    checkpoint_state = motion_state.checkpoint_state
+    restore_state = motion_state.restore_state
 
     # -- devices ----------------------------------------------------------------------------
     def _motors(self) -> can_motors.CanMotorDriver | None:

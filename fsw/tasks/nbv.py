@@ -11,12 +11,14 @@ import math
 from typing import ClassVar
 
 from fsw.core.methods import make_planner
+from fsw.core.planner_state import planner_state, restore_planner
 from fsw.core.planners import Planner, PlannerState, SearchGen
 from fsw.core.view_candidates import CandidateView
 from fsw.framework.jobs import JobHandle
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import NBV_REQUEST, NBV_RESULT
+from fsw.tasks.mission_state import JsonDict, restore_into
 
 
 class NbvTask(FlightTask):
@@ -46,6 +48,17 @@ class NbvTask(FlightTask):
         self.requests = self.subscribe(NBV_REQUEST, depth=1, policy="drop_oldest")
         self.job: JobHandle | None = None
         self.searches = 0
+        self._planner_restore: JsonDict | None = None
+        restore_into(self)  # a resumed mission (fsw.tasks.mission_state)
+
+    def checkpoint_state(self) -> JsonDict:
+        """The search count and the planner's plan (``fsw.core.planner_state``)."""
+        planner = None if self.planner is None else planner_state(self.planner)
+        return {"searches": self.searches, "planner": planner or self._planner_restore}
+
+    def restore_state(self, st: JsonDict) -> None:
+        self.searches = int(st["searches"])
+        self._planner_restore = st["planner"]  # applied when the planner is built
 
     def run(self, frame: int) -> None:
         if self.job is not None and self.job.done:
@@ -69,6 +82,9 @@ class NbvTask(FlightTask):
                 truth_z_m=None if truth is None else truth.z_m,
                 textured=None if truth is None else truth.textured,
             )
+            if self._planner_restore is not None:
+                restore_planner(self.planner, self._planner_restore)
+                self._planner_restore = None
         return (yield from self.planner.search(state))
 
     def _finish(self, h: JobHandle) -> None:

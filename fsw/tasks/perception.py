@@ -7,8 +7,11 @@ with misses (§1.1, §3.4), the non-convex polygon fit of the edge (§2; the geo
 edge path use it for every method, Method 3 straightens the path in its planner) and the
 mapped fraction of the region of interest (§3.6).
 Each step is one slice of a few to ~20 ms, so the 10 Hz foreground keeps its deadlines. The result is
-published on ``map.updated`` with a snapshot of the map for the planner. Checkpoints are
-written through the map store at ``checkpoint.period_s`` and on command.
+published on ``map.updated`` with a snapshot of the map for the planner. The mission
+sequencer checkpoints each step's map with its state (``fsw.tasks.mission_checkpoint``); this
+task also writes map-only checkpoints through the map store on command and at
+``checkpoint.period_s`` when nothing was saved for that long, never while a merge is under
+way (the map would be half-merged). At start-up it restores the newest good checkpoint's map.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from fsw.framework.jobs import JobHandle
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import CAMERA_FRAME, MAP_UPDATED, CameraFrame, MapUpdate
+from fsw.tasks.mission_state import restore_into
 
 ROI_STRIDE = 4  # the region-of-interest fraction is estimated on every 4th cell each way
 
@@ -73,6 +77,7 @@ class PerceptionTask(FlightTask):
         EventDef("CHECKPOINT_SAVED", Severity.ACTIVITY_LO, "map checkpoint {seq} saved ({kib:.0f} KiB)"),
         EventDef("CHECKPOINT_FAILED", Severity.WARNING_HI, "map checkpoint failed: {error}", throttle=3),
         EventDef("CHECKPOINT_LOADED", Severity.ACTIVITY_HI, "map restored from checkpoint {seq}"),
+        EventDef("STALE_REMOVED", Severity.WARNING_LO, "{n} temporary checkpoint file(s) of interrupted saves removed"),
     )
     COMMANDS = (
         CommandDef("CHECKPOINT", doc="save a map checkpoint now"),
@@ -88,7 +93,6 @@ class PerceptionTask(FlightTask):
         self.views = 0
         self.store = self.ctx.res.map_store
         self._last_checkpoint_s = self.ctx.clock.now()
-        self._ckpt_seq = 0
         if self.store is not None:
             self._restore(self.store)
 
@@ -101,8 +105,10 @@ class PerceptionTask(FlightTask):
             if msg is not None:
                 self.job = self.submit_job(self._merge_view(msg), f"view{msg.view_id}")
         now = self.ctx.clock.now()
-        if self.store is not None and now - self._last_checkpoint_s >= self.ctx.cfg.checkpoint.period_s:
-            self._checkpoint(self.store)
+        if self.store is not None and self.job is None:
+            last_s = max(self._last_checkpoint_s, self.store.last_save_s)
+            if now - last_s >= self.ctx.cfg.checkpoint.period_s:
+                self._checkpoint(self.store)
 
     def _merge_view(self, fr: CameraFrame) -> Generator[None, None, MapUpdate]:
         """The slack job of one view: one bounded step per slice (a few to ~20 ms here).
@@ -175,26 +181,41 @@ class PerceptionTask(FlightTask):
     # -- checkpoints ---------------------------------------------------------------------
     def _checkpoint(self, store: MapStore) -> None:
         self._last_checkpoint_s = self.ctx.clock.now()
-        self._ckpt_seq += 1
         try:
-            path = store.save(self.map, self._ckpt_seq, self._last_checkpoint_s)
+            path = store.save_next(self.map, self._last_checkpoint_s)
         except OSError as exc:
             self.event("CHECKPOINT_FAILED", error=str(exc))
             raise CommandError(f"checkpoint failed: {exc}") from None
-        self.event("CHECKPOINT_SAVED", seq=self._ckpt_seq, kib=path.stat().st_size / 1024)
+        self.event("CHECKPOINT_SAVED", seq=store.seq, kib=path.stat().st_size / 1024)
 
     def _restore(self, store: MapStore) -> None:
-        loaded = store.load_latest()
+        loaded = store.restore()
+        if loaded.stale_removed:
+            self.event("STALE_REMOVED", n=loaded.stale_removed)
         for path, reason in loaded.skipped:
             self.event("CHECKPOINT_FAILED", error=f"{path}: {reason}")
-        if loaded.emap is not None and loaded.meta is not None and loaded.emap.grid == self.map.grid:
-            self.map = loaded.emap
-            self._ckpt_seq = loaded.meta.seq
-            self.event("CHECKPOINT_LOADED", seq=loaded.meta.seq)
+        if loaded.emap is None:
+            return
+        if loaded.emap.grid != self.map.grid:
+            self.event("CHECKPOINT_FAILED", error=f"{loaded.path}: map grid differs from the configuration; not used")
+            return
+        self.map = loaded.emap.copy()
+        self.event("CHECKPOINT_LOADED", seq=loaded.meta.seq if loaded.meta is not None else -1)
+        restore_into(self)  # a resumed mission (fsw.tasks.mission_state)
+
+    def checkpoint_state(self) -> dict[str, int]:
+        """What a resumed mission needs besides the map (``fsw.tasks.mission_state``)."""
+        return {"views": self.views}
+
+    def restore_state(self, state: dict[str, int]) -> None:
+        self.views = int(state["views"])
+        self.tlm("views", self.views)
 
     def cmd_CHECKPOINT(self) -> None:
         if self.store is None:
             raise CommandError("no map store configured")
+        if self.job is not None and not self.job.done:
+            raise CommandError("a view is being merged; try again")
         self._checkpoint(self.store)
 
     def cmd_CLEAR_MAP(self) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-HELP = "the default HIL mission end to end (lab scenario, method 5, 20 steps)"
+HELP = "the default HIL mission end to end (lab scenario, method 5, 20 steps; replaces the last demo)"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -26,5 +26,6 @@ def run(args: argparse.Namespace) -> int:
         out=args.out,
         config=str(DEFAULT_CONFIG),
         no_transmit=False,
+        fresh=True,  # a demo always starts a new mission (the previous demo's report is replaced)
     )
     return run_cmd.run(ns)

@@ -40,7 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _one(scenario: str, method: str, steps: int, seed: int, out: str) -> dict[str, Any]:
     from hil_sim.mission_run import RunSpec, run_mission
 
-    return run_mission(RunSpec(scenario, method, steps, seed, transmit=False, out=Path(out)))
+    return run_mission(RunSpec(scenario, method, steps, seed, transmit=False, out=Path(out)), mode="fresh")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -11,7 +11,10 @@ DESCRIPTION = (
     "Run the flight software against the HIL bench in lockstep: the full mission (panorama, "
     "next-view selection, moves, stereo, map fusion, transmission to the Cliff-bot). Writes "
     "DIR/summary.json (schema in docs/experiments.md), map.png, coverage.png, the Cliff-bot's "
-    "received-map figure and the flight software's fsw.tlog."
+    "received-map figure and the flight software's fsw.tlog. After each imaging step the map, "
+    "the mission state and the bench's truth are checkpointed in DIR/checkpoints; a killed run "
+    "continues with --resume DIR (same result as an uninterrupted run). An out directory that "
+    "holds a mission is refused unless --resume or --fresh is given."
 )
 
 
@@ -27,37 +30,74 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=Path("out/run"), help="report directory")
     p.add_argument("--config", default=str(DEFAULT_CONFIG), help="flight configuration (TOML)")
     p.add_argument("--no-transmit", action="store_true", help="skip sending the map to the Cliff-bot")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument(
+        "--resume",
+        type=Path,
+        metavar="DIR",
+        default=None,
+        help="continue the killed mission in DIR at the step where it stopped (scenario, method, "
+        "steps, seed and config come from DIR/run.json; the options above are ignored)",
+    )
+    g.add_argument("--fresh", action="store_true", help="delete the mission already in --out and start a new one")
 
 
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from fsw.framework.params import ConfigError
-    from hil_sim.mission_run import RunSpec, run_mission
+    from hil_sim.mission_run import RunSpec, finished, has_mission, read_manifest, run_mission
 
     if args.steps < 0:
         print("safer-hil run: --steps must be >= 0", file=sys.stderr)
         return 2
-    spec = RunSpec(args.scenario, args.method, args.steps, args.seed, args.config, not args.no_transmit, args.out)
-    bar = tqdm(total=args.steps + 1, desc=f"{args.scenario} method {args.method}", unit="step")
+    resume = getattr(args, "resume", None)
+    if resume is not None:
+        try:
+            spec = read_manifest(resume)
+        except ValueError as err:
+            print(f"safer-hil run: {err}", file=sys.stderr)
+            return 2
+        mode = "resume"
+        if finished(resume):
+            print(f"safer-hil run: the mission in {resume} has finished; report: {resume / 'summary.json'}")
+            return 0
+    else:
+        spec = RunSpec(args.scenario, args.method, args.steps, args.seed, args.config, not args.no_transmit, args.out)
+        mode = "fresh" if getattr(args, "fresh", False) else "new"
+        if mode == "new" and has_mission(args.out):
+            print(f"safer-hil run: {args.out} holds a mission; --resume {args.out} continues it, "
+                  "--fresh deletes it", file=sys.stderr)
+            return 2
+    out = spec.out
+    assert out is not None
+    bars: list[tqdm] = []  # made at the first step, so a refusal before it is one line
 
     def progress(step: int, total: int, state: str) -> None:
+        if not bars:
+            bars.append(tqdm(total=total + 1, desc=f"{spec.scenario} method {spec.method}", unit="step"))
+        bar = bars[0]
         bar.n = min(step, total + 1)
         bar.set_postfix_str(state, refresh=False)
         bar.refresh()
 
+    def close_bar(done: bool) -> None:
+        if bars:
+            if done:
+                bars[0].n = bars[0].total
+            bars[0].close()
+
     try:
-        s = run_mission(spec, progress)
+        s = run_mission(spec, progress, mode=mode)
     except ConfigError as err:
-        bar.close()
+        close_bar(False)
         print(f"safer-hil run: config error: {err}", file=sys.stderr)
         return 2
-    except ValueError as err:  # e.g. an unknown or unreadable scenario
-        bar.close()
+    except ValueError as err:  # e.g. an unknown or unreadable scenario, an unusable checkpoint
+        close_bar(False)
         print(f"safer-hil run: {err}", file=sys.stderr)
         return 2
-    bar.n = bar.total
-    bar.close()
+    close_bar(True)
     cb = s["cliffbot"]
     print(
         f"{s['mapped_cells']} cells mapped in {len(s['steps']) - 1} steps; map RMSE "
@@ -69,5 +109,5 @@ def run(args: argparse.Namespace) -> int:
             f"Cliff-bot: map {cb['map_id']} {'decoded' if cb['decoded'] else 'NOT decoded'}, "
             f"{cb['container_bytes']} B, max error {cb['max_error_m']} m"
         )
-    print(f"report: {args.out / 'summary.json'} (map.png, coverage.png, fsw.tlog)")
+    print(f"report: {out / 'summary.json'} (map.png, coverage.png, fsw.tlog)")
     return 0 if s["final_state"] == "DONE" else 1

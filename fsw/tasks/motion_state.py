@@ -1,0 +1,38 @@
+"""The motion task's part of a mission checkpoint (docs/hil.md, "Resuming a mission").
+
+What a resumed mission needs from the motion task (``fsw.tasks.motion``): the dead-reckoned
+pose and its sigma growth terms (the covariance of ``nav.pose`` is a function of them), the
+move counters, the steering held between moves and the motor set-points held, so the wheels
+are commanded as before the restart, and the drive encoder baseline. The baseline is kept only
+if the first reading after the restart agrees with it within ``RESUME_ENCODER_TOL_RAD`` (the
+controllers kept their counts and the rover stood still); otherwise it is taken afresh from
+that reading, so a controller that rebooted with its counts at zero is never a jump.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+
+def checkpoint_state(self: Any) -> dict[str, Any]:
+    """The odometry (``fsw.core.odometry.Odometry.state``), move counters, held steering and
+    motor set-points of the motion task."""
+    motors = self._motors()
+    return {**self.odo.state(), "done": self.done, "aborted": self.aborted,
+            "steer_hold": self.steer_hold.tolist(),
+            "setpoints": None if motors is None else dict(motors.setpoints)}
+
+
+def restore_state(self: Any, st: dict[str, Any]) -> None:
+    last = st.get("last_drive")
+    x, y, yaw = (float(v) for v in st["pose"])
+    self.odo.restore((x, y, yaw), float(st["path_m"]), float(st["turned_rad"]), float(st["yaw_acc"]),
+                     None if last is None else np.asarray(last, dtype=np.float64).reshape(4))
+    self.done, self.aborted = int(st["done"]), int(st["aborted"])
+    self.steer_hold = np.asarray(st["steer_hold"], dtype=np.float64).reshape(4)
+    motors = self._motors()
+    if motors is not None and st["setpoints"] is not None:  # hold what was held (wheels still)
+        for axis, sp in st["setpoints"].items():
+            motors.set_setpoint(axis, None if sp is None else float(sp))
