@@ -10,8 +10,8 @@ key                 rover                       bench
 ``camera_source``   ``cv:0,1``                  ``sim`` (lockstep), ``tcp://H:P``
 ==================  ==========================  ==========================================
 
-:func:`open_devices` returns the drivers as executive resources (``motors``, ``mast``,
-``camera``). A bench in the same process may hand in already-open endpoints (resources
+:func:`open_devices` returns the drivers as executive resources (``motors``, ``imu`` (the
+attitude sensor on the motor bus), ``mast``, ``camera``). A bench in the same process may hand in already-open endpoints (resources
 ``can_bus``, ``mast_port``, ``camera_source``), which are used instead of opening the
 configured ones. Opening never raises for an absent device: the driver starts faulted and
 retries (its events say why), so the flight software boots without its hardware.
@@ -47,6 +47,11 @@ class DevicesConfig:
     mast_ack_timeout_s: float = param(0.3, lo=0.01, hi=10.0, units="s", doc="wait for ACK before a retry")
     mast_retries: int = param(3, lo=0, hi=20, doc="retransmissions before a command is given up")
     mast_state_timeout_s: float = param(1.0, lo=0.05, hi=60.0, units="s", doc="no STATE report: fault")
+    imu: bool = param(True, doc="the attitude sensor (IMU_ATTITUDE) on the CAN bus")
+    imu_timeout_s: float = param(0.5, lo=0.02, hi=60.0, units="s", doc="no valid IMU frame: attitude unknown")
+    imu_stuck_frames: int = param(5, lo=2, hi=1000, doc="frames with a frozen alive counter: stuck sensor")
+    imu_average_s: float = param(1.0, lo=0.0, hi=60.0, units="s", doc="attitude = mean of the samples this old")
+    imu_sigma_deg: float = param(0.1, lo=0.0, hi=10.0, units="deg", doc="attitude bias sigma (calibration)")
     camera_source: str = param("none", doc="none | sim | tcp://HOST:PORT | cv:LEFT,RIGHT")
     camera_timeout_s: float = param(2.0, lo=0.05, hi=60.0, units="s", doc="no pair after a trigger: fault")
     error_hold_s: float = param(2.0, lo=0.0, hi=600.0, units="s", doc="a transient error flag stays this long")
@@ -85,12 +90,14 @@ def _provided_or_open(provided: dict[str, Any], key: str, opener: Any) -> tuple[
 
 
 def open_devices(cfg: DevicesConfig, provided: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Drivers for the configured devices, keyed ``motors``, ``mast``, ``camera``."""
+    """Drivers for the configured devices, keyed ``motors``, ``imu``, ``mast``, ``camera``."""
     import can
 
     from fsw.comm.rover_can import RoverCan
     from fsw.drivers.camera import CameraDriver, make_source
+    from fsw.comm.imu_can import ImuCan
     from fsw.drivers.can_motors import CanMotorDriver
+    from fsw.drivers.imu_can import ImuDriver
     from fsw.drivers.mast_serial import MastSerialDriver
 
     provided = provided or {}
@@ -114,6 +121,11 @@ def open_devices(cfg: DevicesConfig, provided: dict[str, Any] | None = None) -> 
         if error is not None:
             motors._event("CAN_NO_BUS", error=f"{type(error).__name__}: {error}")
         out["motors"] = motors
+        if cfg.imu:
+            imu = ImuDriver(ImuCan(dbc_path(cfg)), timeout_s=cfg.imu_timeout_s, stuck_frames=cfg.imu_stuck_frames,
+                            average_s=cfg.imu_average_s, sigma_deg=cfg.imu_sigma_deg, error_hold_s=cfg.error_hold_s)
+            imu.attach(motors)
+            out["imu"] = imu
     if cfg.serial_url != "none" or "mast_port" in provided:
 
         def open_port() -> Any:
@@ -150,7 +162,7 @@ def open_devices(cfg: DevicesConfig, provided: dict[str, Any] | None = None) -> 
 
 def close_devices(resources: dict[str, Any]) -> None:
     """Close the drivers :func:`open_devices` made (idempotent)."""
-    for key in ("motors", "mast", "camera"):
+    for key in ("imu", "motors", "mast", "camera"):
         drv = resources.get(key)
         if drv is not None:
             with contextlib.suppress(Exception):  # best effort at shutdown

@@ -14,16 +14,17 @@ from typing import Any, ClassVar
 
 from fsw.drivers.camera import CameraDriver
 from fsw.drivers.can_motors import CanMotorDriver
+from fsw.drivers.imu_can import ImuDriver
 from fsw.drivers.mast_serial import MastSerialDriver
 from fsw.executive.task import Task
 from fsw.executive.telemetry import Channel
 
-DRIVERS = (("motors", CanMotorDriver), ("mast", MastSerialDriver), ("camera", CameraDriver))
+DRIVERS = (("motors", CanMotorDriver), ("imu", ImuDriver), ("mast", MastSerialDriver), ("camera", CameraDriver))
 
 
 class DevicesTask(Task):
     KIND: ClassVar[str] = "devices"
-    DOC: ClassVar[str] = "Polls the CAN motor, serial mast and camera drivers; events and telemetry."
+    DOC: ClassVar[str] = "Polls the CAN motor and attitude, serial mast and camera drivers; events and telemetry."
     CHANNELS = (
         Channel("can_faults", "bits", hi=0, doc="CanMotorDriver.FAULTS word"),
         Channel("can_rx", "frames", doc="valid frames received"),
@@ -33,6 +34,13 @@ class DevicesTask(Task):
         Channel("can_tx_errors", "count", hi=0),
         Channel("nodes_online", "count", lo=12, doc="motor controllers with a live heartbeat"),
         Channel("axes_faulted", "count", hi=0, doc="motor controllers reporting fault bits"),
+        Channel("imu_faults", "bits", hi=0, doc="ImuDriver.FAULTS word"),
+        Channel("imu_roll_deg", "deg", doc="body roll from the attitude sensor (left side up +)"),
+        Channel("imu_pitch_deg", "deg", doc="body pitch from the attitude sensor (nose up +)"),
+        Channel("imu_sigma_deg", "deg", doc="1-sigma of the attitude (roll and pitch RMS)"),
+        Channel("imu_frames", "frames"),
+        Channel("imu_bad", "frames", hi=0, doc="attitude frames refused (checksum, length)"),
+        Channel("imu_lost", "frames", hi=0, doc="attitude frames lost (counter jumps)"),
         Channel("mast_faults", "bits", hi=0, doc="MastSerialDriver.FAULTS word"),
         Channel("mast_pan_deg", "deg"),
         Channel("mast_tilt_deg", "deg"),
@@ -45,7 +53,7 @@ class DevicesTask(Task):
         Channel("cam_timeouts", "count", hi=0),
         Channel("cam_dropouts", "count", hi=0),
     )
-    EVENTS = CanMotorDriver.EVENTS + MastSerialDriver.EVENTS + CameraDriver.EVENTS
+    EVENTS = CanMotorDriver.EVENTS + ImuDriver.EVENTS + MastSerialDriver.EVENTS + CameraDriver.EVENTS
 
     def setup(self) -> None:
         res = self.ctx.resources
@@ -68,6 +76,17 @@ class DevicesTask(Task):
         self.tlm("can_tx_errors", m.tx_errors)
         self.tlm("nodes_online", sum(1 for s in m.axes.values() if s.t_heartbeat is not None and not s.lost))
         self.tlm("axes_faulted", sum(1 for s in m.axes.values() if s.faults))
+
+    def _tlm_imu(self, d: ImuDriver) -> None:
+        self.tlm("imu_faults", d.faults)
+        self.tlm("imu_frames", d.rx_frames)
+        self.tlm("imu_bad", d.rx_bad)
+        self.tlm("imu_lost", d.rx_lost)
+        att = d.attitude(self.ctx.clock.now())
+        if att is not None:
+            self.tlm("imu_roll_deg", math.degrees(att.roll))
+            self.tlm("imu_pitch_deg", math.degrees(att.pitch))
+            self.tlm("imu_sigma_deg", math.degrees(math.sqrt(float(att.cov.trace()) / 2)))
 
     def _tlm_mast(self, m: MastSerialDriver) -> None:
         self.tlm("mast_faults", m.faults)

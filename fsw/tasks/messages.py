@@ -26,7 +26,9 @@ NBV_RESULT = "nbv.result"
 
 @dataclass(frozen=True)
 class NavPose:
-    """The rover pose estimate (x, y, yaw) with its 3x3 covariance, and the mast joints."""
+    """The rover pose estimate (x, y, yaw) with its 3x3 covariance, and the mast joints; the
+    body attitude (roll, pitch, rad), height ``z_m`` and their 3x3 covariance ``att_cov``
+    (ALGORITHM.md §5.1; None: level at z = 0, as before the attitude sensor)."""
 
     time_s: float
     x: float
@@ -35,6 +37,11 @@ class NavPose:
     cov: NDArray[np.float64]
     joints: tuple[float, float, float]  # pan, tilt (rad), lift (m)
     moving: bool = False
+    roll: float = 0.0
+    pitch: float = 0.0
+    z_m: float = 0.0
+    att_cov: NDArray[np.float64] | None = None  # (roll, pitch, z)
+    attitude_valid: bool = False
 
 
 @dataclass(frozen=True)

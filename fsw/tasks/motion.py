@@ -24,6 +24,7 @@ import numpy as np
 
 from fsw.config import param
 from fsw.core import wheel_kinematics as wk
+from fsw.core.attitude import AttitudeTracker
 from fsw.drivers import can_motors, mast_serial
 from fsw.executive.commands import Arg, CommandDef, CommandError
 from fsw.executive.task import Task
@@ -141,6 +142,8 @@ class MotionTask(Task):
         self.pinv = wk.body_motion_matrix(self.wheel_xy)
         self.pose = (0.0, 0.0, 0.0)
         self.path_m = self.turned_rad = self.yaw_acc = 0.0
+        cap = cfg.capture
+        self.attitude = AttitudeTracker(cap.unknown_attitude_sigma_deg, cap.z_sigma_per_m)
         self._last_drive: np.ndarray | None = None
         self.segments: deque[_Segment] = deque()
         self.active: tuple[int, str] | None = None  # (request id, kind) of the wheel move
@@ -194,6 +197,7 @@ class MotionTask(Task):
             motion = wk.body_motion(
                 (pos - self._last_drive) * self.r, np.array([s.position_rad for s in steer]), self.pinv
             )
+            self.attitude.integrate(motion, self.pose[2])
             self.pose = wk.integrate_pose(self.pose, motion)
             self.path_m += math.hypot(motion[0], motion[1])
             self.turned_rad += abs(motion[2])
@@ -385,6 +389,9 @@ class MotionTask(Task):
         s_xy = self.mcfg.odo_sigma_per_m * self.path_m
         s_yaw = self.mcfg.odo_yaw_sigma_per_rad * self.turned_rad + self.mcfg.odo_sigma_per_m * self.path_m
         joints = mast.joints if mast is not None and mast.joints is not None else (math.nan,) * 3
+        imu = self.ctx.resources.get("imu")
+        self.attitude.update(imu.attitude(now) if imu is not None else None)
+        att = self.attitude.state()
         self.publish(
             NAV_POSE,
             NavPose(
@@ -395,6 +402,11 @@ class MotionTask(Task):
                 np.diag([s_xy**2, s_xy**2, s_yaw**2]),
                 joints,
                 moving=self.active is not None or self.mast_goal is not None,
+                roll=att.roll,
+                pitch=att.pitch,
+                z_m=att.z_m,
+                att_cov=att.cov,
+                attitude_valid=att.valid,
             ),
         )
 
@@ -482,4 +494,5 @@ class MotionTask(Task):
     def cmd_SET_ODOMETRY(self, x_m: float, y_m: float, yaw_deg: float) -> None:
         self.pose = (x_m, y_m, math.radians(yaw_deg))
         self.path_m = self.turned_rad = 0.0
+        self.attitude.reset()
         self.event("ODOMETRY_SET", x=x_m, y=y_m, yaw=yaw_deg)

@@ -89,6 +89,7 @@ class MotorControllerBank:
         self.rx_commands = self.rx_bad = self.rx_other = self.tx_frames = 0
         self.fsw_heartbeats = 0
         self.tap: Callable[[can.Message], None] | None = None  # sees every received frame (a bus logger)
+        self.ignore_ids: set[int] = set()  # frames of other devices on the bus (e.g. the IMU's)
 
     # -- reception --------------------------------------------------------------------------
     def receive(self, now: float) -> None:
@@ -104,7 +105,7 @@ class MotorControllerBank:
                 break
             if self.tap is not None:
                 self.tap(msg)
-            if off:
+            if off or msg.arbitration_id in self.ignore_ids:
                 continue
             axis = self.codec.route.get(msg.arbitration_id, ("", None, None))[1]
             fate, data, delay = self.faults.can_frame(axis, False, bytes(msg.data))
