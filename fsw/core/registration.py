@@ -29,6 +29,7 @@ correction implausible against the prior (chi-square gate).
 from __future__ import annotations
 
 import math
+from collections.abc import Generator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -37,6 +38,7 @@ from numpy.typing import NDArray
 from fsw.config import param
 from fsw.core.geometry import CameraPose, MapGrid
 from fsw.core.localization import so3_exp
+from fsw.core.steps import run_to_end
 
 F64 = NDArray[np.float64]
 
@@ -127,9 +129,16 @@ def register_points(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, gri
                     ref: NDArray[np.bool_], cfg: RegistrationConfig) -> Registration:
     """Register a view's world points ``pts_w`` (their stereo covariances ``cov_w``, (N, 3, 3))
     against the map; ``pose`` / ``pose_cov`` are the view's prior (§5.1)."""
+    return run_to_end(register_steps(pts_w, cov_w, pose, pose_cov, grid, z, var, ref, cfg))
+
+
+def register_steps(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, grid: MapGrid, z: F64, var: F64,
+                   ref: NDArray[np.bool_], cfg: RegistrationConfig) -> Generator[None, None, Registration]:
+    """:func:`register_points` as a step generator: one Gauss-Newton iteration per step."""
     if not ref.any():
         return Registration("reference", "empty map")
     pts_w = np.asarray(pts_w, dtype=np.float64)
+    z, var = np.where(ref, z, 0.0), np.where(ref, var, 0.0)  # only reference cells are ever read
     keep = np.isfinite(pts_w).all(axis=1)
     _, _, _, _, on = _surface(grid, z, var, ref, pts_w[:, 0], pts_w[:, 1])
     idx = np.flatnonzero(keep & on)
@@ -168,6 +177,7 @@ def register_points(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, gri
         b = (J * w[:, None]).T @ r[used] * scale
         step = np.linalg.solve(N + P_inv, -(b + P_inv @ d))
         d = d + step
+        yield
         if np.abs(step[:3]).max() < 1e-7 and np.abs(step[3:]).max() < 1e-6:
             break
     cov = np.linalg.inv(N + P_inv)
