@@ -103,11 +103,11 @@ class ImuDriver(DriverBase):
                 self._event("IMU_FRAMES_LOST", lost=lost)
         self.counter, self.repeats, self.last = d.counter, 0, d
         self.rx_frames += 1
+        was_bad = self.faults & UNUSABLE
         if d.self_test_fail != self.has(F_SELF_TEST):
             self._set(F_SELF_TEST, d.self_test_fail)
             if d.self_test_fail:
                 self._event("IMU_SELF_TEST")
-        was_bad = self.faults & UNUSABLE
         self._set(F_STUCK, False)
         self._set(F_TIMEOUT, False)
         self.t_valid = now
