@@ -104,8 +104,8 @@ def _surface(grid: MapGrid, z: F64, var: F64, ref: NDArray[np.bool_], x: F64, y:
              ) -> tuple[F64, F64, F64, F64, NDArray[np.bool_]]:
     """Bilinear map height, its gradient and variance at ``(x, y)``; valid where the four
     surrounding cell centres are reference cells."""
-    fx = (x - grid.x0) / grid.cell - 0.5
-    fy = (y - grid.y0) / grid.cell - 0.5
+    fx = np.nan_to_num((x - grid.x0) / grid.cell - 0.5, nan=-1.0, posinf=-1.0, neginf=-1.0)
+    fy = np.nan_to_num((y - grid.y0) / grid.cell - 0.5, nan=-1.0, posinf=-1.0, neginf=-1.0)
     ix, iy = np.floor(fx).astype(np.intp), np.floor(fy).astype(np.intp)
     ok = (ix >= 0) & (iy >= 0) & (ix < grid.nx - 1) & (iy < grid.ny - 1)
     ix, iy = np.where(ok, ix, 0), np.where(ok, iy, 0)
