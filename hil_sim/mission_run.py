@@ -236,6 +236,8 @@ def write_outputs(out: Path, summary: dict[str, Any], emap: Any, truth: Any, gri
     ax.grid(alpha=0.3)
     fig.savefig(out / files["coverage"], dpi=90)
     plt.close(fig)
+    files["error"] = "map_error.npy"  # map minus truth on mapped cells (NaN elsewhere), float32
+    np.save(out / files["error"], np.where(emap.mapped, emap.z - truth, np.nan).astype(np.float32))
     summary["files"] = files
     (out / files["summary"]).write_text(json.dumps(summary, indent=2) + "\n")
     return files

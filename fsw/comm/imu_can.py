@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, cast
 
 import cantools
 
@@ -78,7 +79,7 @@ class ImuCan:
         if data[-1] != want:
             return Bad(frame_id, "checksum", f"{MSG}: checksum 0x{data[-1]:02X} != 0x{want:02X}")
         try:
-            s = self.msg.decode(bytes(data), decode_choices=False, scaling=True)
+            s = cast(dict[str, Any], self.msg.decode(bytes(data), decode_choices=False, scaling=True))
         except Exception as exc:  # noqa: BLE001 - cantools errors vary by version; a bad frame is data
             return Bad(frame_id, "decode", f"{MSG}: {exc}")
         return ImuAttitude(float(s["Roll"]), float(s["Pitch"]), float(s["YawRate"]),

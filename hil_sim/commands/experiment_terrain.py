@@ -84,12 +84,14 @@ def baseline_config(out: Path) -> str:
 def _one(spec: str, method: str, steps: int, seed: int, config: str, out: str) -> dict[str, Any]:
     from hil_sim.mission_run import RunSpec, run_mission
 
-    return run_mission(RunSpec(spec, method, steps, seed, config=config, transmit=False, out=Path(out)))
+    s = run_mission(RunSpec(spec, method, steps, seed, config=config, transmit=False, out=Path(out)))
+    s["_dir"] = out
+    return s
 
 
 def row(label: str, s: dict[str, Any]) -> dict[str, Any]:
     q, reg = s["map_quality"], s.get("registration", [])
-    return {
+    return {"_dir": s.get("_dir", ""),
         "run": label, "start_roll_deg": s["start_attitude_deg"][0], "start_pitch_deg": s["start_attitude_deg"][1],
         "cells": q["cells"], **{k: q[k] for k in COLUMNS}, "seam_max_m": q["seam_max_m"],
         "stations": q["stations"], "registered": sum(r["status"] == "registered" for r in reg),
@@ -148,7 +150,10 @@ def run(args: argparse.Namespace) -> int:
                 continue
             print("  ".join(f"{k}={_fmt(v)}" for k, v in rows[-1].items()), flush=True)
     rows.sort(key=lambda r: r["run"])
+    dirs = {r["run"]: r.pop("_dir") for r in rows}
     _report(rows, args.out)
+    if args.baseline:
+        error_figure(rows, dirs, args.out / "terrain_error_maps.png")
     return 0 if len(rows) == len(runs) else 1
 
 
@@ -170,6 +175,35 @@ def _report(rows: list[dict[str, Any]], out: Path) -> None:
     (out / "terrain.md").write_text(text)
     (out / "terrain.json").write_text(json.dumps(rows, indent=1) + "\n")
     print(text)
+
+
+def error_figure(rows: list[dict[str, Any]], dirs: dict[str, str], path: Path) -> None:
+    """PNG: map minus truth before (level pose chain) and after (attitude + registration),
+    one row per mission that ran both, on one colour scale."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    by = {r["run"]: r for r in rows}
+    pairs = [(k.rsplit("|", 1)[0]) for k in by if k.endswith("|before") and k[:-7] + "|new" in by]
+    if not pairs:
+        return
+    fig, axes = plt.subplots(len(pairs), 2, figsize=(10, 4.4 * len(pairs)), squeeze=False, constrained_layout=True)
+    for i, base in enumerate(pairs):
+        for j, tag in enumerate(("before", "new")):
+            r, ax = by[f"{base}|{tag}"], axes[i, j]
+            err = np.load(Path(dirs[f"{base}|{tag}"]) / "map_error.npy")
+            im = ax.imshow(err, origin="lower", cmap="coolwarm", vmin=-0.1, vmax=0.1)
+            ax.set_title(f"{base} {'before: level rover' if tag == 'before' else 'attitude + registration'}\n"
+                         f"RMS {100 * r['rms_m']:.2f} cm, tilt {r['tilt_err_deg']:.2f} deg, "
+                         f"seam {_fmt(None if r['seam_m'] is None else 100 * r['seam_m'])} cm, "
+                         f"2-sigma {100 * r['within_2sigma']:.1f} %", fontsize=9)
+            ax.set_xticks([])
+            ax.set_yticks([])
+        fig.colorbar(im, ax=axes[i, :].tolist(), shrink=0.8, label="map - truth (m)")
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
 
 
 def _worst(key: str) -> Any:
