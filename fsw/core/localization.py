@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from scipy.spatial.transform import Rotation
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from fsw.config import param
 from fsw.core.geometry import CameraPose

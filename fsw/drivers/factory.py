@@ -11,7 +11,8 @@ key                 rover                       bench
 ==================  ==========================  ==========================================
 
 :func:`open_devices` returns the drivers as executive resources (``motors``, ``imu`` (the
-attitude sensor on the motor bus), ``mast``, ``camera``). A bench in the same process may hand in already-open endpoints (resources
+attitude sensor on the motor bus), ``mast``, ``camera``). A bench in the same process may
+hand in already-open endpoints (resources
 ``can_bus``, ``mast_port``, ``camera_source``), which are used instead of opening the
 configured ones. Opening never raises for an absent device: the driver starts faulted and
 retries (its events say why), so the flight software boots without its hardware.
@@ -93,9 +94,9 @@ def open_devices(cfg: DevicesConfig, provided: dict[str, Any] | None = None) -> 
     """Drivers for the configured devices, keyed ``motors``, ``imu``, ``mast``, ``camera``."""
     import can
 
+    from fsw.comm.imu_can import ImuCan
     from fsw.comm.rover_can import RoverCan
     from fsw.drivers.camera import CameraDriver, make_source
-    from fsw.comm.imu_can import ImuCan
     from fsw.drivers.can_motors import CanMotorDriver
     from fsw.drivers.imu_can import ImuDriver
     from fsw.drivers.mast_serial import MastSerialDriver

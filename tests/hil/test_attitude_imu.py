@@ -112,8 +112,11 @@ def test_driver_attitude_is_truth_plus_the_sensor_bias() -> None:
         b.shutdown()
 
 
-@pytest.mark.parametrize("mode,bit,event", [("stuck", imu.F_STUCK, "IMU_STUCK"), ("dropout", imu.F_TIMEOUT, "IMU_TIMEOUT"),
-                                            ("selftest", imu.F_SELF_TEST, "IMU_SELF_TEST")])
+@pytest.mark.parametrize("mode,bit,event", [
+    ("stuck", imu.F_STUCK, "IMU_STUCK"),
+    ("dropout", imu.F_TIMEOUT, "IMU_TIMEOUT"),
+    ("selftest", imu.F_SELF_TEST, "IMU_SELF_TEST"),
+])
 def test_sensor_fault_is_detected_and_the_attitude_withheld(mode: str, bit: int, event: str) -> None:
     """Fault: a stuck sensor (frames repeated, counter frozen), a dropout and a failed
     self-test each set a fault bit and an event, and no attitude is given until it recovers."""
