@@ -17,12 +17,16 @@ normal matrix says which). Gauss-Newton, a few iterations, residuals gated aroun
 median against their sigma and a robust (MAD) scale.
 
 Points of one view are not independent (shared matching windows, the same surface patch),
-so the data information is scaled down to ``n_eff`` points (choice). The correction is
-relative to the map; its covariance is the posterior ``(J^T W J n_eff/n + Sigma^-1)^-1``.
+so the data information is scaled down to ``n_eff`` points (choice), and the weights are
+scaled by the robust a posteriori variance factor ``s^2`` of the residuals (the map's
+variance includes the pose error common to all its cells, which does not blur the surface
+being fitted). The correction is relative to the map; its covariance is the posterior
+``(J^T W J n_eff/n / s^2 + Sigma^-1)^-1``.
 
 Refused (the view is merged with its pose covariance inflated instead): fewer than
 ``min_points`` points on reference cells (too little overlap), data that do not fix height,
-roll and pitch to ``max_sigma_m`` (ill-conditioned), a fit whose residual stays large, or a
+roll and pitch (ill-conditioned: the normal matrix of height and tilt times the lever arm
+has a condition number above ``max_condition``), a fit whose residual stays large, or a
 correction implausible against the prior (chi-square gate).
 """
 
@@ -48,14 +52,17 @@ class RegistrationConfig:
     """Map registration of each view (config ``[registration]``)."""
 
     enabled: bool = param(True, doc="register views against the map before merging")
-    ref_max_sigma_m: float = param(0.03, lo=0.001, hi=1.0, units="m", doc="map cells this good are the reference")
+    ref_max_sigma_m: float = param(
+        0.03, lo=0.001, hi=1.0, units="m", doc="map cells this good (or the better half) are the reference"
+    )
     min_points: int = param(300, lo=10, hi=10**7, doc="fewer points on reference cells: not registered")
     max_points: int = param(8000, lo=100, hi=10**7, doc="points used (an even subsample)")
     n_eff: int = param(100, lo=1, hi=10**7, doc="independent points the data are worth at most")
     iterations: int = param(6, lo=1, hi=50, doc="Gauss-Newton iterations")
     gate_sigma: float = param(3.0, lo=1.0, hi=100.0, units="sigma", doc="residual gate")
-    max_sigma_m: float = param(0.02, lo=1e-4, hi=1.0, units="m",
-                               doc="data must fix height and tilt (times the lever) to this")
+    max_condition: float = param(
+        1e4, lo=10.0, hi=1e12, doc="height/tilt normal matrix (tilt times the lever) worse conditioned: refused"
+    )
     max_residual_sigma: float = param(3.0, lo=0.5, hi=100.0, units="sigma",
                                       doc="RMS normalised residual of the fit above this: refused")
     gate_chi2: float = param(50.0, lo=1.0, hi=1e9, doc="correction against the prior (6 dof) above this: refused")
@@ -121,8 +128,15 @@ def _surface(grid: MapGrid, z: F64, var: F64, ref: NDArray[np.bool_], x: F64, y:
 
 
 def reference_cells(z: F64, var: F64, n: NDArray[np.integer], cfg: RegistrationConfig) -> NDArray[np.bool_]:
-    """Map cells good enough to register against: mapped, finite, sigma below the limit."""
-    return np.asarray((n >= 1) & np.isfinite(z) & (var <= cfg.ref_max_sigma_m**2))
+    """Map cells good enough to register against: mapped, finite, and sigma below
+    ``ref_max_sigma_m`` or in the better-measured half of the map (choice: a map whose every
+    cell carries a large common pose error, e.g. begun while the attitude was unknown, is
+    still a consistent surface to align to)."""
+    known = (n >= 1) & np.isfinite(z) & np.isfinite(var)
+    if not known.any():
+        return np.asarray(known)
+    limit = max(cfg.ref_max_sigma_m**2, float(np.median(var[known])))
+    return np.asarray(known & (var <= limit))
 
 
 def register_points(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, grid: MapGrid, z: F64, var: F64,
@@ -136,7 +150,7 @@ def register_steps(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, grid
                    ref: NDArray[np.bool_], cfg: RegistrationConfig) -> Generator[None, None, Registration]:
     """:func:`register_points` as a step generator: one Gauss-Newton iteration per step."""
     if not ref.any():
-        return Registration("reference", "empty map")
+        return Registration("reference", "empty map: this view begins it")
     pts_w = np.asarray(pts_w, dtype=np.float64)
     z, var = np.where(ref, z, 0.0), np.where(ref, var, 0.0)  # only reference cells are ever read
     keep = np.isfinite(pts_w).all(axis=1)
@@ -171,7 +185,10 @@ def register_steps(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, grid
             return Registration("unregistered", f"too few consistent points ({int(used.sum())})",
                                 points=int(used.sum()))
         J = np.column_stack([np.cross(q, a), a])[used]  # d r / d (dtheta, dt)
-        w = 1.0 / sig2[used]
+        # A posteriori variance factor (robust): the map's variance includes the pose error
+        # common to all its cells, which does not blur the surface the view is fitted to.
+        s2 = float(np.clip((1.4826 * np.median(np.abs(r[used] - med) / np.sqrt(sig2[used]))) ** 2, 0.01, 100.0))
+        w = 1.0 / (s2 * sig2[used])
         scale = min(1.0, cfg.n_eff / float(used.sum()))
         N = (J * w[:, None]).T @ J * scale
         b = (J * w[:, None]).T @ r[used] * scale
@@ -182,16 +199,16 @@ def register_steps(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, grid
             break
     cov = np.linalg.inv(N + P_inv)
     cov = 0.5 * (cov + cov.T)
-    res_sigma = float(np.sqrt(np.mean(r[used] ** 2 / sig2[used])))
+    res_sigma = float(np.sqrt(np.mean(r[used] ** 2 / sig2[used])))  # against the predicted sigmas
     prior_sd = np.sqrt(np.maximum(np.diag(S), 1e-20))
     constrained = tuple(bool(c) for c in np.sqrt(np.maximum(np.diag(cov), 0.0)) < 0.5 * prior_sd)
     out = Registration("registered", "", d, cov, int(used.sum()), res_sigma, constrained)
-    # Does the data fix height, roll and pitch? Its information there, rotations times the lever.
+    # Does the data fix height, roll and pitch together? Its information there, tilt times the lever.
     lever = float(np.sqrt(np.mean(np.sum(q0[used][:, :2] ** 2, axis=1))))
     sub, unit = [0, 1, 5], np.array([lever, lever, 1.0])
     N3 = N[np.ix_(sub, sub)] / np.outer(unit, unit)
-    lam = float(np.linalg.eigvalsh(N3).min())
-    if not lam > 0 or 1.0 / math.sqrt(lam) > cfg.max_sigma_m:
+    lam = np.linalg.eigvalsh(N3)
+    if not lam[0] > 0 or lam[-1] / lam[0] > cfg.max_condition:
         out.status, out.reason = "unregistered", "ill-conditioned: height and tilt not fixed by the overlap"
     elif res_sigma > cfg.max_residual_sigma:
         out.status, out.reason = "unregistered", f"residual {res_sigma:.1f} sigma after the fit"
