@@ -56,7 +56,7 @@ class RegistrationConfig:
         0.03, lo=0.001, hi=1.0, units="m", doc="map cells this good (or the better half) are the reference"
     )
     min_points: int = param(300, lo=10, hi=10**7, doc="fewer points on reference cells: not registered")
-    max_points: int = param(8000, lo=100, hi=10**7, doc="points used (an even subsample)")
+    max_points: int = param(4000, lo=100, hi=10**7, doc="points used (an even subsample)")
     n_eff: int = param(100, lo=1, hi=10**7, doc="independent points the data are worth at most")
     iterations: int = param(6, lo=1, hi=50, doc="Gauss-Newton iterations")
     gate_sigma: float = param(3.0, lo=1.0, hi=100.0, units="sigma", doc="residual gate")
@@ -148,7 +148,8 @@ def register_points(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, gri
 
 def register_steps(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, grid: MapGrid, z: F64, var: F64,
                    ref: NDArray[np.bool_], cfg: RegistrationConfig) -> Generator[None, None, Registration]:
-    """:func:`register_points` as a step generator: one Gauss-Newton iteration per step."""
+    """:func:`register_points` as a step generator: the point selection, then one Gauss-Newton
+    iteration per step."""
     if not ref.any():
         return Registration("reference", "empty map: this view begins it")
     pts_w = np.asarray(pts_w, dtype=np.float64)
@@ -160,6 +161,7 @@ def register_steps(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, grid
         return Registration("unregistered", f"too little overlap: {idx.size} points on the map", points=int(idx.size))
     if idx.size > cfg.max_points:
         idx = idx[np.linspace(0, idx.size - 1, cfg.max_points).astype(np.intp)]
+    yield  # the selection above is one slice, each iteration below another
     q0 = pts_w[idx] - pose.t
     cov_p = np.asarray(cov_w, dtype=np.float64)[idx]
     S = np.asarray(pose_cov, dtype=np.float64)

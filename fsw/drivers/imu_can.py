@@ -113,6 +113,8 @@ class ImuDriver(DriverBase):
         self.t_valid = now
         if not d.self_test_fail:
             self.samples.append((now, math.radians(d.roll_deg), math.radians(d.pitch_deg)))
+        while self.samples and now - self.samples[0][0] > self.average_s:
+            self.samples.popleft()
         if was_bad and not self.faults & UNUSABLE:
             self._event("IMU_RECOVERED")
 
