@@ -122,7 +122,10 @@ def run(args: argparse.Namespace) -> int:
     from hil_sim.world import ScenarioError
 
     scenarios = args.scenario or ["mars"]
-    configs = {"new": str(DEFAULT_CONFIG)}
+    args.out.mkdir(parents=True, exist_ok=True)
+    frozen = args.out / "fsw.toml"  # the flight config as it was at the start, for every mission
+    frozen.write_text(DEFAULT_CONFIG.read_text())
+    configs = {"new": str(frozen)}
     if args.baseline:
         configs["before"] = baseline_config(args.out)
     runs = []
