@@ -24,7 +24,7 @@ import numpy as np
 from fsw.core.edge import EdgeModel, edge_cells_steps, fit_polygon
 from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import MapGrid
-from fsw.core.localization import point_covariance_parts
+from fsw.core.localization import point_covariance_parts, so3_log
 from fsw.core.nbv import predicted_visibility_steps
 from fsw.core.registration import Registration, apply_correction, inflate, reference_cells, register_steps
 from fsw.core.stereo import StereoMatcher
@@ -51,6 +51,7 @@ def roi_mapped_fraction(emap: ElevationMap, edge: EdgeModel) -> float:
 
 PROPAGATE_CHUNK = 10000  # points per slice of the covariance propagation (~5 ms here)
 MERGE_STEP_POINTS = 50000  # points per slice of each pass of the map merge (a few ms)
+STATION_TOL_M = 0.03  # views whose camera centres are this close share a station (registration)
 
 
 class PerceptionTask(Task):
@@ -110,6 +111,7 @@ class PerceptionTask(Task):
         self.last_update: MapUpdate | None = None
         self.unregistered = 0
         self.anchor_cov: np.ndarray | None = None  # pose covariance of the view that began the map
+        self.station: tuple[np.ndarray, np.ndarray] | None = None  # (camera centre, correction) of the last fit
         self.registrations: deque[dict[str, Any]] = deque(maxlen=1000)  # per view (mission summary)
         self.store: Any = self.ctx.resources.get("map_store")
         self._last_checkpoint_s = self.ctx.clock.now()
@@ -187,26 +189,41 @@ class PerceptionTask(Task):
 
         Registered: the correction's covariance (relative to the map) plus the covariance of
         the view that began the map (the map's own frame error). Not registered: the prior
-        pose covariance inflated. The first view of a map is its reference.
+        pose covariance inflated. The first view of a map is its reference. A view from the
+        station of the last registered view starts from that view's correction (the body
+        pose error it found holds until the rover moves), registered or not.
         """
         rcfg = self.ctx.cfg.registration
         if not rcfg.enabled:
             return Registration("off", "disabled in config"), fr.pose, fr.pose_cov
+        # Views from the station of the last registered view (same camera centre: the rover has
+        # not moved; pan and tilt turn the head about it) start from that view's correction.
+        d0 = np.zeros(6)
+        if self.station is not None and float(np.linalg.norm(fr.pose.t - self.station[0])) < STATION_TOL_M:
+            d0 = self.station[1]
+        prior = apply_correction(fr.pose, d0)
         n = len(pts)
         sel = np.linspace(0, n - 1, min(n, 4 * rcfg.max_points)).astype(np.intp) if n else np.zeros(0, np.intp)
-        xyz_w, cov_w, _ = point_covariance_parts(fr.pose, None, pts.xyz_c[sel], pts.cov_c[sel])
+        xyz_w, cov_w, _ = point_covariance_parts(prior, None, pts.xyz_c[sel], pts.cov_c[sel])
         ref = reference_cells(self.map.z, self.map.var, self.map.n, rcfg)
         yield
-        reg = yield from register_steps(xyz_w, cov_w, fr.pose, fr.pose_cov, self.map.grid, self.map.z,
+        reg = yield from register_steps(xyz_w, cov_w, prior, fr.pose_cov, self.map.grid, self.map.z,
                                         self.map.var, ref, rcfg)
         if reg.status == "reference":
             if self.anchor_cov is None:
                 self.anchor_cov = np.asarray(fr.pose_cov, dtype=np.float64)
             return reg, fr.pose, fr.pose_cov
         if reg.status != "registered":
-            return reg, fr.pose, inflate(fr.pose_cov, rcfg)
+            if d0.any():
+                reg.reason += "; the station's correction applied"
+                reg.correction = d0
+            return reg, prior, inflate(fr.pose_cov, rcfg)
+        pose = apply_correction(prior, reg.correction)
+        total = np.r_[so3_log(pose.R @ fr.pose.R.T), pose.t - fr.pose.t]
+        self.station = (fr.pose.t.copy(), total)
+        reg.correction = total
         anchor = self.anchor_cov if self.anchor_cov is not None else np.zeros((6, 6))
-        return reg, apply_correction(fr.pose, reg.correction), reg.cov + anchor
+        return reg, pose, reg.cov + anchor
 
     def _view_cells(self, parts: list[tuple[np.ndarray, np.ndarray, Any]]) -> tuple[np.ndarray, np.ndarray]:
         """The view's own mean height per cell it measured (flat cell index, metres): what a
@@ -290,3 +307,4 @@ class PerceptionTask(Task):
             raise CommandError("a view is being merged; try again")
         self.map = ElevationMap(self.map.grid, self.ctx.cfg.fusion)
         self.anchor_cov = None
+        self.station = None

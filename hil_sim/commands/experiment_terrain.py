@@ -151,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
             except Exception as exc:  # noqa: BLE001 - one failed mission is reported, the rest go on
                 print(f"{label}: FAILED {type(exc).__name__}: {exc}", file=sys.stderr)
                 continue
-            print("  ".join(f"{k}={_fmt(v)}" for k, v in rows[-1].items()), flush=True)
+            print("  ".join(f"{k}={_fmt(v)}" for k, v in rows[-1].items() if k != "_dir"), flush=True)
     rows.sort(key=lambda r: r["run"])
     dirs = {r["run"]: r.pop("_dir") for r in rows}
     _report(rows, args.out)
