@@ -34,7 +34,8 @@ COLUMNS = ("rms_m", "tilt_err_deg", "seam_m", "within_2sigma")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scenario", action="append", help="scenario spec (repeatable; default: mars)")
+    p.add_argument("--scenario", action="append",
+                   help="scenario spec: mars, cliff, lab, file:PATH?... (repeatable; default: mars)")
     p.add_argument("--seeds", default="0", help="comma-separated seeds")
     p.add_argument("--slopes", default="0", help="comma-separated slopes in degrees added to the ground")
     p.add_argument("--azimuth-deg", type=float, default=-120.0, help="direction the added slope falls toward")
@@ -119,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
         print("safer-hil experiment terrain: need seeds, slopes in 0..30 deg, steps and jobs >= 1", file=sys.stderr)
         return 2
     from fsw.settings import DEFAULT_CONFIG
-    from hil_sim.world import ScenarioError
+    from hil_sim.world import load_scenario
 
     scenarios = args.scenario or ["mars"]
     args.out.mkdir(parents=True, exist_ok=True)
@@ -131,13 +132,14 @@ def run(args: argparse.Namespace) -> int:
     runs = []
     try:
         for sc in scenarios:
+            load_scenario(sc, seed=seeds[0])  # a bad spec: one line and exit 2, before any mission
             for seed in seeds:
                 for slope in slopes:
                     spec = sc if slope == 0 else tilted_spec(sc, seed, slope, args.azimuth_deg, args.out / "dems")
                     for tag, cfg in configs.items():
                         label = f"{sc}|slope{slope:g}|seed{seed}|{tag}"
                         runs.append((label, spec, seed, cfg, label.replace("|", "_").replace(":", "_")))
-    except ScenarioError as exc:
+    except ValueError as exc:  # ScenarioError, ConfigError: bad spec or DEM
         print(f"safer-hil experiment terrain: {exc}", file=sys.stderr)
         return 2
     rows: list[dict[str, Any]] = []
