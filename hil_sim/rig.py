@@ -80,7 +80,7 @@ class HardwareRig:
         self.codec = RoverCan(dbc) if dbc is not None else RoverCan()
         self.motors = MotorControllerBank(can_bus, self.codec, self.rover, hw.motors, self.faults)
         self.imu = ImuDevice(can_bus, ImuCan(dbc) if dbc is not None else ImuCan(), self.rover, hw.imu,
-                             seed + 2, self.faults)
+                             seed, self.faults)
         self.motors.ignore_ids.add(self.imu.codec.frame_id)  # its frames echo back on udp_multicast
         self.mast_ctrl = MastController(serial_port, self.mast, hw.mast_controller, self.faults)
         self.lock = threading.Lock()

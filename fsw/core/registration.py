@@ -189,7 +189,7 @@ def register_steps(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, grid
         J = np.column_stack([np.cross(q, a), a])[used]  # d r / d (dtheta, dt)
         # A posteriori variance factor (robust): the map's variance includes the pose error
         # common to all its cells, which does not blur the surface the view is fitted to.
-        s2 = float(np.clip((1.4826 * np.median(np.abs(r[used] - med) / np.sqrt(sig2[used]))) ** 2, 0.01, 100.0))
+        s2 = float(np.clip((1.4826 * np.median(np.abs(r[used] - med) / np.sqrt(sig2[used]))) ** 2, 0.25, 100.0))
         w = 1.0 / (s2 * sig2[used])
         scale = min(1.0, cfg.n_eff / float(used.sum()))
         N = (J * w[:, None]).T @ J * scale

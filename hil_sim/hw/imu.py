@@ -44,7 +44,7 @@ class ImuDevice:
                  faults: FaultInjector | None = None) -> None:
         self.bus, self.codec, self.rover, self.cfg = bus, codec, rover, cfg
         self.faults = faults or FaultInjector()
-        self.rng = np.random.default_rng(seed)
+        self.rng = np.random.default_rng([seed, codec.frame_id])  # its own stream, not another device's
         self.bias_deg = self.rng.normal(0.0, cfg.bias_sigma_deg, 2)  # roll, pitch
         self.counter = 0
         self._t_sent = -math.inf
