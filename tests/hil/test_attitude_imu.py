@@ -169,24 +169,3 @@ def test_lockstep_attitude_reaches_the_pose_estimate_and_the_motor_driver_ignore
         st = motion.attitude.state()
         assert not st.valid and math.sqrt(st.cov[0, 0]) >= math.radians(4.9)
         assert b.events(".IMU_TIMEOUT")
-
-
-def test_registration_fix_moves_the_odometry_and_its_sigma() -> None:
-    """A nav.correction from the perception task (map registration, §5.1) shifts the motion
-    task's pose estimate and body height, restarts the odometry sigma growth from the fix's
-    sigma, and is evented."""
-    from fsw.tasks.messages import NAV_CORRECTION, NavCorrection
-
-    with bench() as b:
-        b.run(5)
-        motion = b.exe.tasks["motion"]
-        motion.pose, motion.path_fix_m = (2.0, 0.0, 0.0), 2.0
-        fix = NavCorrection(0.0, (1.0, 0.0, 0.0), 0.03, -0.02, math.radians(1.0), 0.04, (1e-6, 1e-6, 1e-6, 4e-6))
-        motion.publish(NAV_CORRECTION, fix)
-        b.run(2)
-        x, y, yaw = motion.pose
-        assert x == pytest.approx(1.03 + math.cos(math.radians(1.0)), abs=1e-6)
-        assert y == pytest.approx(-0.02 + math.sin(math.radians(1.0)), abs=1e-6)
-        assert yaw == pytest.approx(math.radians(1.0), abs=1e-9)
-        assert motion.attitude.z_m == pytest.approx(0.04) and motion.path_fix_m == 0.0
-        assert b.events(".POSE_FIXED")

@@ -153,24 +153,3 @@ def test_registration_runs_in_bounded_steps_and_rejects_garbage() -> None:
         reg: Registration = stop.value
     assert 2 <= steps <= CFG.iterations + 1 and reg.status == "registered"
     assert abs(reg.correction[5] - 0.02) < 0.004
-
-
-def test_camera_correction_moves_the_rover_pose_estimate() -> None:
-    """A registration's camera correction is the body's too (§5.1): a pure yaw correction
-    about the camera centre moves a body origin 0.3 m behind it sideways by 0.3 * dyaw, and
-    the dead-reckoned path since the fix turns with it about the fix point."""
-    from fsw.core.registration import body_correction, shift_pose
-
-    cam = CameraPose(np.eye(3), np.array([1.3, 0.0, 1.5]))
-    dyaw = math.radians(1.0)
-    d = np.r_[0.0, 0.0, dyaw, 0.01, -0.02, 0.005]
-    dx, dy, dz_yaw, dz, var = body_correction(cam, d, np.diag([1e-6] * 6), (1.0, 0.0, 0.0))
-    assert dz_yaw == pytest.approx(dyaw)
-    assert dx == pytest.approx(0.01 + 0.3 * (1 - math.cos(dyaw)), abs=1e-9)
-    assert dy == pytest.approx(-0.02 - 0.3 * math.sin(dyaw), abs=1e-9)
-    assert dz == pytest.approx(0.005, abs=1e-12)
-    assert var[0] > 1e-6 and var[2] == pytest.approx(1e-6)  # the lever adds rotation variance
-    # the rover drove 2 m on from the fix point along +x: that leg turns by dyaw too
-    x, y, yaw = shift_pose((3.0, 0.0, 0.0), (1.0, 0.0, 0.0), dx, dy, dyaw)
-    assert x == pytest.approx(1.0 + dx + 2 * math.cos(dyaw)) and y == pytest.approx(dy + 2 * math.sin(dyaw))
-    assert yaw == pytest.approx(dyaw)
