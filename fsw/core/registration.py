@@ -101,30 +101,6 @@ def apply_correction(pose: CameraPose, d: F64) -> CameraPose:
     return CameraPose(so3_exp(d[:3]) @ pose.R, pose.t + d[3:])
 
 
-def body_correction(pose: CameraPose, d: F64, cov: F64, body_xyz: tuple[float, float, float]
-                    ) -> tuple[float, float, float, float, tuple[float, float, float, float]]:
-    """The rover body's correction ``(dx, dy, dyaw, dz)`` and the variances of (x, y, yaw, z)
-    implied by a camera pose correction ``d`` (about the camera centre) with covariance ``cov``:
-    the body origin moves as ``p' = c + exp(dtheta) (p - c) + dt``; yaw by ``dtheta_z``."""
-    p = np.asarray(body_xyz, dtype=np.float64)
-    moved = pose.t + so3_exp(d[:3]) @ (p - pose.t) + d[3:]
-    lever = p - pose.t  # the body origin's offset moves with the rotation: J = [-[lever]x | I]
-    J = np.hstack([-np.array([[0, -lever[2], lever[1]], [lever[2], 0, -lever[0]], [-lever[1], lever[0], 0]]),
-                   np.eye(3)])
-    P = J @ cov @ J.T
-    var = (float(P[0, 0]), float(P[1, 1]), float(cov[2, 2]), float(P[2, 2]))
-    return float(moved[0] - p[0]), float(moved[1] - p[1]), float(d[2]), float(moved[2] - p[2]), var
-
-
-def shift_pose(pose: tuple[float, float, float], at: tuple[float, float, float], dx: float, dy: float,
-               dyaw: float) -> tuple[float, float, float]:
-    """A dead-reckoned pose corrected by a fix found at ``at``: the path since ``at`` turns
-    with the heading correction about that point, which moves by ``(dx, dy)``."""
-    c, s = math.cos(dyaw), math.sin(dyaw)
-    vx, vy = pose[0] - at[0], pose[1] - at[1]
-    return (at[0] + dx + c * vx - s * vy, at[1] + dy + s * vx + c * vy, pose[2] + dyaw)
-
-
 def inflate(cov: F64, cfg: RegistrationConfig) -> F64:
     """The pose covariance of a view that could not be registered."""
     add = np.r_[np.full(3, math.radians(cfg.inflate_rot_deg) ** 2), np.full(3, cfg.inflate_pos_m**2)]

@@ -134,7 +134,6 @@ class CameraTask(Task):
                 pose=pose,
                 pose_cov=cov,
                 expected_new_cells=req.expected_new_cells,
-                rover=(self.nav.x, self.nav.y, self.nav.yaw, self.nav.z_m),
             ),
         )
         self.tlm("captures", self.captures)

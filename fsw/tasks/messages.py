@@ -22,7 +22,6 @@ MAP_UPDATED = "map.updated"
 NAV_POSE = "nav.pose"
 NBV_REQUEST = "nbv.request"
 NBV_RESULT = "nbv.result"
-NAV_CORRECTION = "nav.correction"
 
 
 @dataclass(frozen=True)
@@ -64,22 +63,6 @@ class CameraFrame:
     pose: CameraPose
     pose_cov: NDArray[np.float64]  # 6x6, rotation vector (rad) then translation (m)
     expected_new_cells: float = float("nan")
-    rover: tuple[float, float, float, float] | None = None  # body x, y, yaw, z of the estimate used
-
-
-@dataclass(frozen=True)
-class NavCorrection:
-    """A registration's correction of the rover pose estimate (ALGORITHM.md §5.1): at the
-    estimate ``at`` (x, y, yaw) of a view's capture, the body was really ``(dx, dy)`` (m),
-    ``dyaw`` (rad) and ``dz`` (m) off; ``var`` the variances of (x, y, yaw, z) after it."""
-
-    time_s: float
-    at: tuple[float, float, float]
-    dx: float
-    dy: float
-    dyaw: float
-    dz: float
-    var: tuple[float, float, float, float]
 
 
 @dataclass(frozen=True)

@@ -25,21 +25,11 @@ import numpy as np
 from fsw.config import param
 from fsw.core import wheel_kinematics as wk
 from fsw.core.attitude import AttitudeTracker
-from fsw.core.registration import shift_pose
 from fsw.drivers import can_motors, mast_serial
 from fsw.executive.commands import Arg, CommandDef, CommandError
 from fsw.executive.task import Task
 from fsw.executive.telemetry import Channel, EventDef, Severity
-from fsw.tasks.messages import (
-    MOTION_REQUEST,
-    MOTION_STATUS,
-    NAV_CORRECTION,
-    NAV_POSE,
-    MotionRequest,
-    MotionStatus,
-    NavCorrection,
-    NavPose,
-)
+from fsw.tasks.messages import MOTION_REQUEST, MOTION_STATUS, NAV_POSE, MotionRequest, MotionStatus, NavPose
 
 WHEELS = wk.WHEEL_ORDER
 
@@ -92,8 +82,6 @@ class MotionTask(Task):
     )
     EVENTS = (
         EventDef("MOVE_STARTED", Severity.ACTIVITY_HI, "{kind} request {rid}: {what}"),
-        EventDef("POSE_FIXED", Severity.ACTIVITY_LO,
-                 "pose estimate corrected by map registration: {dx_cm:+.1f}, {dy_cm:+.1f} cm, yaw {dyaw:+.2f} deg"),
         EventDef(
             "MOVE_DONE", Severity.ACTIVITY_HI, "{kind} request {rid} done; odometry ({x:.3f}, {y:.3f}) m, {yaw:.1f} deg"
         ),
@@ -154,9 +142,6 @@ class MotionTask(Task):
         self.pinv = wk.body_motion_matrix(self.wheel_xy)
         self.pose = (0.0, 0.0, 0.0)
         self.path_m = self.turned_rad = self.yaw_acc = 0.0
-        self.path_fix_m = self.turned_fix_rad = 0.0  # since the last registration fix (§5.1)
-        self.fix_var = (0.0, 0.0)  # (xy, yaw) variance of that fix
-        self.fixes = self.subscribe(NAV_CORRECTION, depth=4)
         cap = cfg.capture
         self.attitude = AttitudeTracker(cap.unknown_attitude_sigma_deg, cap.z_sigma_per_m)
         self._last_drive: np.ndarray | None = None
@@ -200,18 +185,7 @@ class MotionTask(Task):
             self._control(motors, now)
             motors.transmit(now)
         self._track_mast(mast, now)
-        while (fix := self.fixes.get()) is not None:
-            self._apply_fix(fix)
         self._publish(now, mast)
-
-    def _apply_fix(self, fix: NavCorrection) -> None:
-        """A registration found the pose estimate off at a capture (ALGORITHM.md §5.1)."""
-        self.pose = shift_pose(self.pose, fix.at, fix.dx, fix.dy, fix.dyaw)
-        self.attitude.z_m += fix.dz
-        self.attitude.z_sigma_m = math.sqrt(max(fix.var[3], 0.0))
-        self.fix_var = (0.5 * (fix.var[0] + fix.var[1]), fix.var[2])
-        self.path_fix_m = self.turned_fix_rad = 0.0
-        self.event("POSE_FIXED", dx_cm=100 * fix.dx, dy_cm=100 * fix.dy, dyaw=math.degrees(fix.dyaw))
 
     def _odometry(self, motors: can_motors.CanMotorDriver) -> None:
         drive = [motors.axes[f"DRIVE_{w}"] for w in WHEELS]
@@ -227,8 +201,6 @@ class MotionTask(Task):
             self.pose = wk.integrate_pose(self.pose, motion)
             self.path_m += math.hypot(motion[0], motion[1])
             self.turned_rad += abs(motion[2])
-            self.path_fix_m += math.hypot(motion[0], motion[1])
-            self.turned_fix_rad += abs(motion[2])
             self.yaw_acc += float(motion[2])
         self._last_drive = pos
 
@@ -414,9 +386,8 @@ class MotionTask(Task):
         self.tlm("mast_busy", int(self.mast_goal is not None))
         self.tlm("moves_done", self.done)
         self.tlm("moves_aborted", self.aborted)
-        s_xy = math.hypot(self.mcfg.odo_sigma_per_m * self.path_fix_m, math.sqrt(self.fix_var[0]))
-        s_yaw = math.hypot(self.mcfg.odo_yaw_sigma_per_rad * self.turned_fix_rad
-                           + self.mcfg.odo_sigma_per_m * self.path_fix_m, math.sqrt(self.fix_var[1]))
+        s_xy = self.mcfg.odo_sigma_per_m * self.path_m
+        s_yaw = self.mcfg.odo_yaw_sigma_per_rad * self.turned_rad + self.mcfg.odo_sigma_per_m * self.path_m
         joints = mast.joints if mast is not None and mast.joints is not None else (math.nan,) * 3
         imu = self.ctx.resources.get("imu")
         self.attitude.update(imu.attitude(now) if imu is not None else None)
@@ -522,7 +493,6 @@ class MotionTask(Task):
 
     def cmd_SET_ODOMETRY(self, x_m: float, y_m: float, yaw_deg: float) -> None:
         self.pose = (x_m, y_m, math.radians(yaw_deg))
-        self.path_m = self.turned_rad = self.path_fix_m = self.turned_fix_rad = 0.0
-        self.fix_var = (0.0, 0.0)
+        self.path_m = self.turned_rad = 0.0
         self.attitude.reset()
         self.event("ODOMETRY_SET", x=x_m, y=y_m, yaw=yaw_deg)

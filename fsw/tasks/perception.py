@@ -24,22 +24,15 @@ import numpy as np
 from fsw.core.edge import EdgeModel, edge_cells_steps, fit_polygon
 from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import MapGrid
-from fsw.core.localization import point_covariance_parts
+from fsw.core.localization import point_covariance_parts, so3_log
 from fsw.core.nbv import predicted_visibility_steps
-from fsw.core.registration import (
-    Registration,
-    apply_correction,
-    body_correction,
-    inflate,
-    reference_cells,
-    register_steps,
-)
+from fsw.core.registration import Registration, apply_correction, inflate, reference_cells, register_steps
 from fsw.core.stereo import StereoMatcher
 from fsw.executive.commands import CommandDef, CommandError
 from fsw.executive.jobs import JobHandle
 from fsw.executive.task import Task
 from fsw.executive.telemetry import Channel, EventDef, Severity
-from fsw.tasks.messages import CAMERA_FRAME, MAP_UPDATED, NAV_CORRECTION, CameraFrame, MapUpdate, NavCorrection
+from fsw.tasks.messages import CAMERA_FRAME, MAP_UPDATED, CameraFrame, MapUpdate
 
 ROI_STRIDE = 4  # the region-of-interest fraction is estimated on every 4th cell each way
 
@@ -58,6 +51,7 @@ def roi_mapped_fraction(emap: ElevationMap, edge: EdgeModel) -> float:
 
 PROPAGATE_CHUNK = 10000  # points per slice of the covariance propagation (~5 ms here)
 MERGE_STEP_POINTS = 50000  # points per slice of each pass of the map merge (a few ms)
+STATION_TOL_M = 0.03  # views whose camera centres are this close share a station (registration)
 
 
 class PerceptionTask(Task):
@@ -117,6 +111,7 @@ class PerceptionTask(Task):
         self.last_update: MapUpdate | None = None
         self.unregistered = 0
         self.anchor_cov: np.ndarray | None = None  # pose covariance of the view that began the map
+        self.station: tuple[np.ndarray, np.ndarray] | None = None  # (camera centre, correction) of the last fit
         self.registrations: deque[dict[str, Any]] = deque(maxlen=1000)  # per view (mission summary)
         self.store: Any = self.ctx.resources.get("map_store")
         self._last_checkpoint_s = self.ctx.clock.now()
@@ -154,11 +149,6 @@ class PerceptionTask(Task):
         yield
         pts = yield from self.matcher.triangulate_steps(disp)
         reg, pose, pose_cov = yield from self._register(fr, pts)
-        fix = None
-        if reg.status == "registered" and fr.rover is not None:  # the rover pose estimate was off too
-            dx, dy, dyaw, dz, var = body_correction(fr.pose, reg.correction, reg.cov, (fr.rover[0], fr.rover[1],
-                                                                                      fr.rover[3]))
-            fix = NavCorrection(fr.time_s, (fr.rover[0], fr.rover[1], fr.rover[2]), dx, dy, dyaw, dz, var)
         parts = []
         for a in range(0, len(pts), PROPAGATE_CHUNK):  # world covariance (§1.2) in bounded slices
             b = a + PROPAGATE_CHUNK
@@ -191,8 +181,7 @@ class PerceptionTask(Task):
             edge=poly,
             extra={"outliers": stats.outliers, "edge_points": int(cells.points_xy.shape[0]),
                    "roi_mapped_fraction": roi_fraction, "registration": {"view": fr.view_id, **reg.summary()},
-                   "view_cells": view_cells, "camera_xyz": tuple(float(v) for v in pose.t),
-                   "nav_correction": fix},
+                   "view_cells": view_cells, "camera_xyz": tuple(float(v) for v in pose.t)},
         )
 
     def _register(self, fr: CameraFrame, pts: Any) -> Generator[None, None, tuple[Registration, Any, np.ndarray]]:
@@ -200,14 +189,19 @@ class PerceptionTask(Task):
 
         Registered: the correction's covariance (relative to the map) plus the covariance of
         the view that began the map (the map's own frame error). Not registered: the prior
-        pose covariance inflated. The first view of a map is its reference. A registered
-        view's correction is also the rover pose estimate's (``nav.correction``, applied by
-        the motion task), so the next views start from the corrected pose.
+        pose covariance inflated. The first view of a map is its reference. A view from the
+        station of the last registered view starts from that view's correction (the body
+        pose error it found holds until the rover moves), registered or not.
         """
         rcfg = self.ctx.cfg.registration
         if not rcfg.enabled:
             return Registration("off", "disabled in config"), fr.pose, fr.pose_cov
-        prior = fr.pose
+        # Views from the station of the last registered view (same camera centre: the rover has
+        # not moved; pan and tilt turn the head about it) start from that view's correction.
+        d0 = np.zeros(6)
+        if self.station is not None and float(np.linalg.norm(fr.pose.t - self.station[0])) < STATION_TOL_M:
+            d0 = self.station[1]
+        prior = apply_correction(fr.pose, d0)
         n = len(pts)
         sel = np.linspace(0, n - 1, min(n, 4 * rcfg.max_points)).astype(np.intp) if n else np.zeros(0, np.intp)
         xyz_w, cov_w, _ = point_covariance_parts(prior, None, pts.xyz_c[sel], pts.cov_c[sel])
@@ -220,9 +214,16 @@ class PerceptionTask(Task):
                 self.anchor_cov = np.asarray(fr.pose_cov, dtype=np.float64)
             return reg, fr.pose, fr.pose_cov
         if reg.status != "registered":
+            if d0.any():
+                reg.reason += "; the station's correction applied"
+                reg.correction = d0
             return reg, prior, inflate(fr.pose_cov, rcfg)
+        pose = apply_correction(prior, reg.correction)
+        total = np.r_[so3_log(pose.R @ fr.pose.R.T), pose.t - fr.pose.t]
+        self.station = (fr.pose.t.copy(), total)
+        reg.correction = total
         anchor = self.anchor_cov if self.anchor_cov is not None else np.zeros((6, 6))
-        return reg, apply_correction(prior, reg.correction), reg.cov + anchor
+        return reg, pose, reg.cov + anchor
 
     def _view_cells(self, parts: list[tuple[np.ndarray, np.ndarray, Any]]) -> tuple[np.ndarray, np.ndarray]:
         """The view's own mean height per cell it measured (flat cell index, metres): what a
@@ -243,8 +244,6 @@ class PerceptionTask(Task):
             return
         up: MapUpdate = h.result
         self.last_update = up
-        if up.extra.get("nav_correction") is not None:
-            self.publish(NAV_CORRECTION, up.extra["nav_correction"])  # before the map: the planner's next pose
         self.publish(MAP_UPDATED, up)
         self.tlm("mapped_cells", up.mapped_cells)
         self.tlm("views", self.views)
@@ -308,3 +307,4 @@ class PerceptionTask(Task):
             raise CommandError("a view is being merged; try again")
         self.map = ElevationMap(self.map.grid, self.ctx.cfg.fusion)
         self.anchor_cov = None
+        self.station = None
