@@ -22,6 +22,7 @@ from fsw.core.localization import LocalizationConfig
 from fsw.core.mapcodec import CodecConfig
 from fsw.core.motion_profile import MotionConfig
 from fsw.core.nbv import NbvConfig
+from fsw.core.registration import RegistrationConfig
 from fsw.core.stereo import StereoConfig
 from fsw.drivers.factory import DevicesConfig
 from fsw.framework.params import build, load_toml
@@ -42,6 +43,7 @@ class FswConfig:
     map: MapGridConfig = field(default_factory=MapGridConfig)
     stereo: StereoConfig = field(default_factory=StereoConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
+    registration: RegistrationConfig = field(default_factory=RegistrationConfig)
     localization: LocalizationConfig = field(default_factory=LocalizationConfig)
     cliffbot: CliffbotLayout = field(default_factory=CliffbotLayout)
     edge: EdgeConfig = field(default_factory=EdgeConfig)

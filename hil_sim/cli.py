@@ -31,6 +31,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("experiment", "reduction"): "hil_sim.commands.experiment_reduction",
     ("experiment", "link"): "hil_sim.commands.experiment_link",
     ("experiment", "resume"): "hil_sim.commands.experiment_resume",
+    ("experiment", "terrain"): "hil_sim.commands.experiment_terrain",
 }
 
 GROUP_HELP = {

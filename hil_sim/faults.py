@@ -16,7 +16,10 @@ computer, from it, or both (``direction``) and optionally one axis' frames (``ta
 ``stall``: the wheel is blocked and over-current trips); ``serial_noise`` (corrupt a fraction
 ``rate`` of bytes and insert garbage, both directions); ``serial_disconnect`` (nothing crosses
 the line); ``camera_dropout`` (capture requests go unanswered, or with ``mode = "status"`` are
-answered DROPOUT); ``mast_stall`` (the mast joints do not move; the controller reports a fault).
+answered DROPOUT); ``mast_stall`` (the mast joints do not move; the controller reports a fault);
+``imu_fault`` (the attitude sensor, ``hil_sim.hw.imu``: ``mode`` ``stuck`` repeats its last
+frame, ``dropout`` (default) sends nothing, ``selftest`` flags a failed self-test). CAN faults
+may target the sensor's frames with ``target = "IMU"``.
 """
 
 from __future__ import annotations
@@ -40,7 +43,9 @@ KINDS = (
     "serial_disconnect",
     "camera_dropout",
     "mast_stall",
+    "imu_fault",
 )
+CAN_TARGETS = (*AXES, "IMU")
 
 
 @dataclass(frozen=True)
@@ -55,13 +60,14 @@ class FaultSpec:
     direction: str = param("both", choices=("both", "to_fsw", "from_fsw"), doc="CAN faults: which frames")
     target: str = param("", doc="CAN faults: one axis' frames only; motor_fault: the axis")
     mode: str = param(
-        "", choices=("", "driver", "stall", "status", "silent"), doc="motor_fault / camera_dropout variant"
+        "", choices=("", "driver", "stall", "status", "silent", "stuck", "dropout", "selftest"),
+        doc="motor_fault / camera_dropout / imu_fault variant",
     )
 
     def __post_init__(self) -> None:
-        if self.target and self.target not in AXES:
-            raise ValueError(f"target {self.target!r} is not an axis ({', '.join(AXES)})")
-        if self.kind == "motor_fault" and not self.target:
+        if self.target and self.target not in CAN_TARGETS:
+            raise ValueError(f"target {self.target!r} is not an axis or IMU ({', '.join(CAN_TARGETS)})")
+        if self.kind == "motor_fault" and self.target not in AXES:
             raise ValueError("motor_fault needs a target axis")
 
     def active(self, now: float) -> bool:
@@ -191,6 +197,13 @@ class FaultInjector:
         if not act:
             return ""
         return "status" if act[0].mode == "status" else "silent"
+
+    def imu_fault(self) -> str:
+        """``""`` or the active attitude-sensor fault mode (``stuck``, ``dropout``, ``selftest``)."""
+        act = self.active("imu_fault")
+        if not act:
+            return ""
+        return act[0].mode if act[0].mode in ("stuck", "selftest") else "dropout"
 
     def mast_stalled(self) -> bool:
         return self.any("mast_stall")

@@ -13,6 +13,9 @@ obtained_new_cells, pose{x,y,yaw,pan,tilt,lift}, wall_s, sim_s}``), ``map_rmse_m
 ({task: ms}, plus ``frame``: the longest frame, and ``slack_slice``, ``slack_slice.<task>``:
 the longest slack-job slice),
 ``end_reason``, ``final_state``, ``mapped_cells``, ``frames``, ``sim_s``,
+``start_attitude_deg`` (true roll, pitch at the start), ``registration`` (per view: status,
+correction, sigmas; ``fsw.core.registration``), ``map_quality`` (RMS, fitted tilt, station
+seams, 2-sigma fraction; ``hil_sim.terrain_eval``),
 ``wall_s``, ``cliffbot`` (the Cliff-bot's report, or null), ``files``. Wall-clock fields:
 ``wall_s`` (top level and per step), ``task_max_ms``, and ``slips`` and ``overruns`` (both
 compare measured execution time with the period and budgets); everything else is a
@@ -42,6 +45,7 @@ from fsw.core.geometry import MapGrid
 from fsw.drivers.map_store import MapStore
 from fsw.drivers.resources import OracleTruth, Resources
 from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
+from hil_sim.terrain_eval import map_quality
 
 WALL_CLOCK_FIELDS = ("wall_s", "task_max_ms", "slips", "overruns")
 MANIFEST = "run.json"
@@ -204,6 +208,8 @@ def run_mission(
         perception = bench.exe.tasks["perception"]
         limit_s = max_sim_s if max_sim_s is not None else 120.0 + 90.0 * (spec.steps + 1) + 1200.0
         last_step = -1
+        views: list[Any] = []  # (camera xyz, cell index, z) per merged view, for the seams
+        start_att = (round(bench.rig.truth()["roll_deg"], 3), round(bench.rig.truth()["pitch_deg"], 3))
         bench.exe.freeze_heap()  # as the flight start-up does (safer-fsw run)
         try:
             while bench.clock.now() < limit_s:
@@ -212,6 +218,10 @@ def run_mission(
                     cliffbot.originals[1] = perception.map.z.astype(np.float32)
                 cliffbot.step(bench.clock.now())
                 counters["violations"] += _wheels_over_drop(bench.rig, world, cfg)
+                up = perception.last_update
+                fresh = up is not None and (not views or views[-1][3] is not up)
+                if fresh and up is not None and up.camera_xyz is not None and up.view_cells is not None:
+                    views.append((up.camera_xyz, *up.view_cells, up))
                 if progress is not None and mission.step != last_step:
                     last_step = mission.step
                     progress(mission.step, spec.steps, mission.state)
@@ -245,6 +255,9 @@ def run_mission(
             "sim_s": round(bench.clock.now(), 3),
             "wall_s": round(time.perf_counter() - t_wall, 3),
             "cliffbot": _cliffbot_report(cliffbot, spec.out),
+            "start_attitude_deg": list(start_att),
+            "registration": list(perception.registrations),
+            "map_quality": map_quality(emap, truth, [v[:3] for v in views]),
             "files": {},
         }
         summary = json.loads(json.dumps(summary))  # exactly what summary.json holds
@@ -324,6 +337,8 @@ def write_outputs(out: Path, summary: dict[str, Any], emap: Any, truth: Any, gri
     ax.grid(alpha=0.3)
     fig.savefig(out / files["coverage"], dpi=90)
     plt.close(fig)
+    files["error"] = "map_error.npy"  # map minus truth on mapped cells (NaN elsewhere), float32
+    np.save(out / files["error"], np.where(emap.mapped, emap.z - truth, np.nan).astype(np.float32))
     summary["files"] = files
     (out / files["summary"]).write_text(json.dumps(summary, indent=2) + "\n")
     return files

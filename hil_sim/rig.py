@@ -2,7 +2,8 @@
 
 One :class:`HardwareRig` holds the true rover and mast (physics, terrain) and, apart from
 them, the hardware models that turn that truth into bytes: the twelve CAN motor controllers,
-the serial mast controller and the camera (a render function of the true camera pose). Both
+the CAN attitude sensor (:mod:`hil_sim.hw.imu`), the serial mast controller and the camera
+(a render function of the true camera pose). Both
 bench modes use it: the lockstep bench (:mod:`hil_sim.bench`) steps it between executive
 frames; ``safer-hil serve`` steps it in real time. Hardware parameters come from
 ``config/hil_hardware.toml`` (:class:`HardwareConfig`).
@@ -19,11 +20,13 @@ from typing import Any
 import can
 import numpy as np
 
+from fsw.comm.imu_can import ImuCan
 from fsw.comm.rover_can import RoverCan
 from fsw.core.geometry import CameraPose
 from fsw.framework.params import build, load_toml, param
 from fsw.settings import FswConfig
 from hil_sim.faults import FaultInjector
+from hil_sim.hw.imu import ImuConfig, ImuDevice
 from hil_sim.hw.mast_controller import MastController, MastControllerConfig
 from hil_sim.hw.motor_controllers import MotorControllerBank, MotorControllerConfig
 from hil_sim.mast_truth import MastTruth, MastTruthConfig
@@ -46,6 +49,7 @@ class HardwareConfig:
     motors: MotorControllerConfig = field(default_factory=MotorControllerConfig)
     mast_controller: MastControllerConfig = field(default_factory=MastControllerConfig)
     camera: CameraModelConfig = field(default_factory=CameraModelConfig)
+    imu: ImuConfig = field(default_factory=ImuConfig)
 
 
 def load_hardware(path: str | Path = DEFAULT_HARDWARE) -> HardwareConfig:
@@ -75,6 +79,9 @@ class HardwareRig:
         self.mast = MastTruth(fsw.mast, hw.mast, seed + 1)
         self.codec = RoverCan(dbc) if dbc is not None else RoverCan()
         self.motors = MotorControllerBank(can_bus, self.codec, self.rover, hw.motors, self.faults)
+        self.imu = ImuDevice(can_bus, ImuCan(dbc) if dbc is not None else ImuCan(), self.rover, hw.imu,
+                             seed, self.faults)
+        self.motors.ignore_ids.add(self.imu.codec.frame_id)  # its frames echo back on udp_multicast
         self.mast_ctrl = MastController(serial_port, self.mast, hw.mast_controller, self.faults)
         self.lock = threading.Lock()
         self.now = 0.0
@@ -94,6 +101,7 @@ class HardwareRig:
                 self.mast.step(dt_s)
             self.now = now
             self.motors.transmit(now)
+            self.imu.transmit(now)
             self.mast_ctrl.transmit(now)
 
     # -- the camera -------------------------------------------------------------------------

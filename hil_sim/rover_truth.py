@@ -22,7 +22,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.core.geometry import RoverConfig
+from fsw.core.geometry import RoverConfig, body_rotation
 from fsw.core.wheel_kinematics import body_motion, body_motion_matrix, integrate_pose
 from fsw.framework.params import param
 
@@ -189,14 +189,9 @@ class RoverTruth:
         return self.x + c * xy[:, 0] - s * xy[:, 1], self.y + s * xy[:, 0] + c * xy[:, 1]
 
     def body_rotation(self) -> F64:
-        """Body-to-world rotation: yaw about z, then pitch (nose up +), then roll (left side up +)."""
-        cy, sy = math.cos(self.yaw), math.sin(self.yaw)
-        cp, sp = math.cos(-self.pitch), math.sin(-self.pitch)
-        cr, sr = math.cos(self.roll), math.sin(self.roll)
-        rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1.0]])
-        ry = np.array([[cp, 0, sp], [0, 1.0, 0], [-sp, 0, cp]])
-        rx = np.array([[1.0, 0, 0], [0, cr, -sr], [0, sr, cr]])
-        return rz @ ry @ rx
+        """Body-to-world rotation: yaw about z, then pitch (nose up +), then roll (left side up +)
+        (``fsw.core.geometry.body_rotation``, the flight software's convention)."""
+        return body_rotation(self.yaw, self.pitch, self.roll)
 
     @property
     def pose(self) -> tuple[float, float, float]:

@@ -4,7 +4,11 @@ Conventions used everywhere in ``fsw`` and ``hil_sim`` (see docs/architecture.md
 
 * World / map frame: right-handed, metres, ``z`` up. The RECON-bot's start pose is the
   origin with its heading along ``+x`` (ALGORITHM.md §5: one robot is the origin).
-* Rover pose: ``(x, y, yaw)``; yaw is counter-clockwise from ``+x``, radians.
+* Rover pose: ``(x, y, yaw)``; yaw is counter-clockwise from ``+x``, radians. Its attitude
+  (ALGORITHM.md §5.1) is ``(roll, pitch)``: pitch nose up positive, roll left side up
+  positive; the body-to-world rotation is ``Rz(yaw) Ry(-pitch) Rx(roll)``
+  (:func:`body_rotation`), and the body origin is the ground under the body centre at
+  height ``z``.
 * Camera frame: OpenCV's: ``x`` right, ``y`` down, ``z`` forward (optical axis). The left
   camera is the reference; the right camera sits ``baseline_m`` along the camera ``+x``.
 * Camera pointing: ``pan`` (yaw of the optical axis relative to the rover heading, CCW
@@ -150,18 +154,43 @@ def rotation_from_yaw_tilt(yaw: float, tilt: float) -> F64:
     return np.column_stack([right, down, fwd])
 
 
+def body_rotation(yaw: float, pitch: float, roll: float) -> F64:
+    """Body-to-world rotation of the rover (ALGORITHM.md §5.1): ``Rz(yaw) Ry(-pitch) Rx(roll)``.
+
+    Yaw about world ``z`` (CCW +), then pitch about the body's left axis with the nose up
+    positive, then roll about the body's forward axis with the left side up positive. Full
+    rotation matrices, no small-angle approximation.
+    """
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    cp, sp = math.cos(-pitch), math.sin(-pitch)
+    cr, sr = math.cos(roll), math.sin(roll)
+    rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+    return rz @ ry @ rx
+
+
 def camera_pose_from_rover(
     rover_xy_yaw: tuple[float, float, float],
     joints: tuple[float, float, float],
     mast: MastConfig,
     ground_z_m: float = 0.0,
+    attitude: tuple[float, float] = (0.0, 0.0),
 ) -> CameraPose:
-    """Left-camera pose from the rover pose ``(x, y, yaw)`` and mast joints ``(pan, tilt, lift)``.
+    """Left-camera pose from the rover pose ``(x, y, yaw)``, the mast joints ``(pan, tilt,
+    lift)`` and the body attitude ``(roll, pitch)`` (ALGORITHM.md §5.1).
 
-    The rover is taken level at ground height ``ground_z_m`` (the plateau it drives on).
+    The chain is world <- body (x, y, ``ground_z_m``, yaw, pitch, roll) <- mast base (its
+    offset in the body frame) <- pan <- tilt <- lift <- camera. With no attitude the rover is
+    level at ``ground_z_m`` (the plateau it drives on).
     """
     x, y, yaw = rover_xy_yaw
     pan, tilt, lift = joints
+    roll, pitch = attitude
+    if roll != 0.0 or pitch != 0.0:
+        Rb = body_rotation(yaw, pitch, roll)
+        t = np.array([x, y, ground_z_m]) + Rb @ np.array([mast.base_x_m, mast.base_y_m, mast.base_z_m + lift])
+        return CameraPose(Rb @ rotation_from_yaw_tilt(pan, tilt), t)
     c, s = math.cos(yaw), math.sin(yaw)
     bx = x + c * mast.base_x_m - s * mast.base_y_m
     by = y + s * mast.base_x_m + c * mast.base_y_m

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from fsw.core.geometry import CameraPose
 from fsw.framework.params import param
@@ -65,8 +66,9 @@ def so3_exp(w: NDArray[np.floating] | cv2.typing.MatLike) -> F64:
 
 
 def so3_log(R: F64) -> F64:
-    w, _ = cv2.Rodrigues(np.asarray(R, dtype=np.float64))
-    return np.asarray(w, dtype=np.float64).reshape(3)
+    """Rotation vector of ``R``, exact for small angles too (``cv2.Rodrigues`` returns zero
+    below about 1e-5 rad, which zeroed every numerical Jacobian taken with such steps)."""
+    return np.asarray(Rotation.from_matrix(np.asarray(R, dtype=np.float64)).as_rotvec(), dtype=np.float64)
 
 
 @dataclass(frozen=True)

@@ -32,8 +32,10 @@ class Odometry:
         self._last_drive: NDArray[np.float64] | None = None
         self._resume_drive: NDArray[np.float64] | None = None  # a restored encoder baseline
 
-    def update(self, drive_rad: NDArray[np.float64], steer_rad: NDArray[np.float64]) -> None:
-        """Integrate the motion since the previous wheel positions (the first call only records)."""
+    def update(self, drive_rad: NDArray[np.float64], steer_rad: NDArray[np.float64]) -> NDArray[np.float64] | None:
+        """Integrate the motion since the previous wheel positions (the first call only records);
+        returns the body motion ``(dx, dy, dyaw)`` in the body frame, or None on the first call."""
+        motion: NDArray[np.float64] | None = None
         if self._resume_drive is not None:  # resumed: keep the baseline if the counts survived
             saved, self._resume_drive = self._resume_drive, None
             agree = bool(np.all(np.abs(drive_rad - saved) < RESUME_ENCODER_TOL_RAD))
@@ -45,6 +47,7 @@ class Odometry:
             self.turned_rad += abs(motion[2])
             self.yaw_acc += float(motion[2])
         self._last_drive = drive_rad
+        return motion
 
     def reset(self, pose: Pose3) -> None:
         """Set the pose (SET_ODOMETRY); the accumulated error starts again from zero."""

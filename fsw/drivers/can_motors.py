@@ -15,6 +15,8 @@ The driver only moves bytes and supervises; what to command is the motion task's
 * ``estop(engage)`` broadcasts the emergency stop; while engaged commands go out disabled.
 
 Own frames echoed back by the bus (``udp_multicast`` receives its own traffic) are ignored.
+Frames of other devices on the same bus (the attitude sensor, ``fsw.drivers.imu_can``) go to
+the callback registered for their id in ``listeners``, with the receive time.
 """
 
 from __future__ import annotations
@@ -130,6 +132,7 @@ class CanMotorDriver(DriverBase):
         self._seq_status = SequenceChecker(e2e_max_delta, status_timeout_s)
         self._seq_heartbeat = SequenceChecker(e2e_max_delta, heartbeat_timeout_s)
         self.rx_frames = self.rx_bad = self.rx_lost = self.rx_echo = self.rx_e2e_seq = 0
+        self.listeners: dict[int, Callable[[bytes, float], None]] = {}  # frame id -> another driver
         self.tx_frames = self.tx_errors = 0
         if bus is None:
             self._set(F_NO_BUS)
@@ -210,6 +213,10 @@ class CanMotorDriver(DriverBase):
         self._supervise(now)
 
     def _on_frame(self, data: bytes, frame_id: int, extended: bool, now: float) -> None:
+        listener = None if extended else self.listeners.get(frame_id)
+        if listener is not None:
+            listener(data, now)
+            return
         d = self.codec.decode(frame_id, data, extended)
         if isinstance(d, Bad):
             self._bad(now, d.reason, d.detail)

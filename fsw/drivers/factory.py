@@ -10,11 +10,12 @@ key                 rover                       bench
 ``camera_source``   ``cv:0,1``                  ``sim`` (lockstep), ``tcp://H:P``
 ==================  ==========================  ==========================================
 
-:func:`open_devices` opens the drivers into the typed ``Resources`` (``motors``, ``mast``,
-``camera``). A bench in the same process may hand in already-open ``Endpoints`` (a CAN bus,
-a serial port, a frame source), which are used instead of opening the configured ones.
-Opening never raises for an absent device: the driver starts faulted and retries (its events
-say why), so the flight software boots without its hardware.
+:func:`open_devices` opens the drivers into the typed ``Resources`` (``motors``, ``imu`` (the
+attitude sensor on the motor bus), ``mast``, ``camera``). A bench in the same process may hand
+in already-open ``Endpoints`` (a CAN bus, a serial port, a frame source), which are used
+instead of opening the configured ones. Opening never raises for an absent device: the driver
+starts faulted and retries (its events say why), so the flight software boots without its
+hardware.
 """
 
 from __future__ import annotations
@@ -54,6 +55,11 @@ class DevicesConfig:
     mast_ack_timeout_s: float = param(0.3, lo=0.01, hi=10.0, units="s", doc="wait for ACK before a retry")
     mast_retries: int = param(3, lo=0, hi=20, doc="retransmissions before a command is given up")
     mast_state_timeout_s: float = param(1.0, lo=0.05, hi=60.0, units="s", doc="no STATE report: fault")
+    imu: bool = param(True, doc="the attitude sensor (IMU_ATTITUDE) on the CAN bus")
+    imu_timeout_s: float = param(0.5, lo=0.02, hi=60.0, units="s", doc="no valid IMU frame: attitude unknown")
+    imu_stuck_frames: int = param(5, lo=2, hi=1000, doc="frames with a frozen alive counter: stuck sensor")
+    imu_average_s: float = param(1.0, lo=0.0, hi=60.0, units="s", doc="attitude = mean of the samples this old")
+    imu_sigma_deg: float = param(0.1, lo=0.0, hi=10.0, units="deg", doc="attitude bias sigma (calibration)")
     camera_source: str = param("none", doc="none | sim | tcp://HOST:PORT | cv:LEFT,RIGHT")
     camera_timeout_s: float = param(2.0, lo=0.05, hi=60.0, units="s", doc="no pair after a trigger: fault")
     error_hold_s: float = param(2.0, lo=0.0, hi=600.0, units="s", doc="a transient error flag stays this long")
@@ -92,13 +98,15 @@ def _provided_or_open(provided: T | None, opener: Callable[[], T]) -> tuple[T | 
 
 
 def open_devices(cfg: DevicesConfig, res: Resources | None = None, endpoints: Endpoints | None = None) -> Resources:
-    """Open the configured drivers into ``res`` (``motors``, ``mast``, ``camera``), using the
-    bench's ``endpoints`` where it brought them; a driver already in ``res`` is kept."""
+    """Open the configured drivers into ``res`` (``motors``, ``imu``, ``mast``, ``camera``), using
+    the bench's ``endpoints`` where it brought them; a driver already in ``res`` is kept."""
     import can
 
+    from fsw.comm.imu_can import ImuCan
     from fsw.comm.rover_can import RoverCan
     from fsw.drivers.camera import CameraDriver, make_source
     from fsw.drivers.can_motors import CanMotorDriver
+    from fsw.drivers.imu_can import ImuDriver
     from fsw.drivers.mast_serial import MastSerialDriver, SerialPort
 
     res = res or Resources()
@@ -126,6 +134,10 @@ def open_devices(cfg: DevicesConfig, res: Resources | None = None, endpoints: En
         )
         if error is not None:
             res.motors._event("CAN_NO_BUS", error=f"{type(error).__name__}: {error}")
+        if cfg.imu and res.imu is None:
+            res.imu = ImuDriver(ImuCan(dbc_path(cfg)), timeout_s=cfg.imu_timeout_s, stuck_frames=cfg.imu_stuck_frames,
+                                average_s=cfg.imu_average_s, sigma_deg=cfg.imu_sigma_deg, error_hold_s=cfg.error_hold_s)
+            res.imu.attach(res.motors)
     if res.mast is None and (cfg.serial_url != "none" or ends.mast_port is not None):
 
         def open_port() -> SerialPort:
@@ -163,7 +175,7 @@ def open_devices(cfg: DevicesConfig, res: Resources | None = None, endpoints: En
 
 def close_devices(res: Resources) -> None:
     """Close the drivers :func:`open_devices` made (idempotent)."""
-    for drv in (res.motors, res.mast, res.camera):
+    for drv in (res.imu, res.motors, res.mast, res.camera):
         if drv is not None:
             with contextlib.suppress(Exception):  # best effort at shutdown
                 drv.close()

@@ -23,6 +23,7 @@ if TYPE_CHECKING:
 
     from fsw.drivers.camera import CameraDriver, FrameSource
     from fsw.drivers.can_motors import CanMotorDriver
+    from fsw.drivers.imu_can import ImuDriver
     from fsw.drivers.map_store import MapStore
     from fsw.drivers.mast_serial import MastSerialDriver, SerialPort
     from fsw.drivers.mavlink_transport import Transport
@@ -52,6 +53,7 @@ class Resources:
     """The drivers and hooks of one flight-software instance."""
 
     motors: CanMotorDriver | None = None
+    imu: ImuDriver | None = None  # the attitude sensor (on the motor bus)
     mast: MastSerialDriver | None = None
     camera: CameraDriver | None = None
     radio_port: RadioPort | None = None

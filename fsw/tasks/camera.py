@@ -26,25 +26,32 @@ from fsw.tasks.messages import CAMERA_FRAME, CAMERA_REQUEST, NAV_POSE, CameraFra
 def camera_pose_covariance(
     nav: NavPose, mast: MastConfig, joint_sigma: tuple[float, float, float]
 ) -> tuple[CameraPose, NDArray[np.float64]]:
-    """Camera pose and its 6x6 covariance from the rover pose, joints and their sigmas (§1.2).
+    """Camera pose and its 6x6 covariance from the rover pose, attitude, joints and their
+    sigmas (§1.2, §5.1: the chain world <- body <- mast base <- pan <- tilt <- lift <- camera).
 
-    The Jacobian of (rotation vector, centre) with respect to (x, y, yaw, pan, tilt, lift) is
-    taken by central differences of the mast kinematics.
+    The Jacobian of (rotation vector, centre) with respect to (x, y, yaw, pan, tilt, lift,
+    roll, pitch, z) is taken by central differences of the mast kinematics.
     """
-    q0 = np.array([nav.x, nav.y, nav.yaw, *nav.joints], dtype=np.float64)
-    pose = camera_pose_from_rover((q0[0], q0[1], q0[2]), (q0[3], q0[4], q0[5]), mast)
-    J = np.zeros((6, 6))
-    for i, h in enumerate((1e-4, 1e-4, 1e-5, 1e-5, 1e-5, 1e-4)):
+    q0 = np.array([nav.x, nav.y, nav.yaw, *nav.joints, nav.roll, nav.pitch, nav.z_m], dtype=np.float64)
+
+    def chain(q: NDArray[np.float64]) -> CameraPose:
+        return camera_pose_from_rover((q[0], q[1], q[2]), (q[3], q[4], q[5]), mast, q[8], (q[6], q[7]))
+
+    pose = chain(q0)
+    J = np.zeros((6, 9))
+    for i, h in enumerate((1e-4, 1e-4, 1e-5, 1e-5, 1e-5, 1e-4, 1e-5, 1e-5, 1e-4)):
         cols = []
         for s in (h, -h):
             q = q0.copy()
             q[i] += s
-            p = camera_pose_from_rover((q[0], q[1], q[2]), (q[3], q[4], q[5]), mast)
+            p = chain(q)
             cols.append(np.concatenate([so3_log(p.R @ pose.R.T), p.t]))
         J[:, i] = (cols[0] - cols[1]) / (2 * h)
-    sigma = np.zeros((6, 6))
+    sigma = np.zeros((9, 9))
     sigma[:3, :3] = np.asarray(nav.cov, dtype=np.float64)[:3, :3]
-    sigma[3:, 3:] = np.diag(np.square(joint_sigma))
+    sigma[3:6, 3:6] = np.diag(np.square(joint_sigma))
+    if nav.att_cov is not None:
+        sigma[6:, 6:] = np.asarray(nav.att_cov, dtype=np.float64).reshape(3, 3)
     return pose, J @ sigma @ J.T
 
 

@@ -1,5 +1,5 @@
-"""Device components: one per driver, polled once per frame; the driver's events become
-executive events, its counters and fault word telemetry.
+"""Device components: one per driver (motors, attitude sensor, mast, cameras), polled once per
+frame; the driver's events become executive events, its counters and fault word telemetry.
 
 The drivers (``ctx.res.motors``, ``mast``, ``camera``, opened by ``fsw.drivers.factory``)
 never see the executive; each component here is its driver's voice (F Prime: a driver
@@ -15,6 +15,7 @@ from typing import ClassVar, Generic, Protocol, TypeVar
 
 from fsw.drivers.camera import CameraDriver
 from fsw.drivers.can_motors import CanMotorDriver
+from fsw.drivers.imu_can import ImuDriver
 from fsw.drivers.mast_serial import MastSerialDriver
 from fsw.framework.telemetry import Channel
 from fsw.tasks.base import FlightTask
@@ -78,6 +79,35 @@ class CanMotorsDevice(DeviceTask[CanMotorDriver]):
         self.tlm("tx_errors", m.tx_errors)
         self.tlm("nodes_online", sum(1 for s in m.axes.values() if s.t_heartbeat is not None and not s.lost))
         self.tlm("axes_faulted", sum(1 for s in m.axes.values() if s.faults))
+
+
+class ImuDevice(DeviceTask[ImuDriver]):
+    KIND: ClassVar[str] = "imu_device"
+    DOC: ClassVar[str] = "Polls the attitude-sensor driver (frames arrive on the motor bus); events and telemetry."
+    CHANNELS = (
+        Channel("faults", "bits", hi=0, doc="ImuDriver.FAULTS word"),
+        Channel("roll_deg", "deg", doc="body roll from the attitude sensor (left side up +)"),
+        Channel("pitch_deg", "deg", doc="body pitch from the attitude sensor (nose up +)"),
+        Channel("sigma_deg", "deg", doc="1-sigma of the attitude (roll and pitch RMS)"),
+        Channel("frames", "frames"),
+        Channel("bad", "frames", hi=0, doc="attitude frames refused (checksum, counter, length)"),
+        Channel("lost", "frames", hi=0, doc="attitude frames lost (counter jumps)"),
+    )
+    EVENTS = ImuDriver.EVENTS
+
+    def find_driver(self) -> ImuDriver | None:
+        return self.ctx.res.imu
+
+    def telemetry(self, d: ImuDriver) -> None:
+        self.tlm("faults", d.faults)
+        self.tlm("frames", d.rx_frames)
+        self.tlm("bad", d.rx_bad)
+        self.tlm("lost", d.rx_lost)
+        att = d.attitude(self.ctx.clock.now())
+        if att is not None:
+            self.tlm("roll_deg", math.degrees(att.roll))
+            self.tlm("pitch_deg", math.degrees(att.pitch))
+            self.tlm("sigma_deg", math.degrees(math.sqrt(float(att.cov.trace()) / 2)))
 
 
 class MastDevice(DeviceTask[MastSerialDriver]):

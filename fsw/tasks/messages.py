@@ -17,6 +17,7 @@ from fsw.comm.link_sender import SenderState
 from fsw.core.edge import EdgeModel
 from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import CameraPose
+from fsw.core.registration import RegistrationSummary
 
 # Topic names (one place, so a typo is an import error, not a silent loss).
 CAMERA_REQUEST = "camera.request"
@@ -31,7 +32,9 @@ RADIO_STATUS = "radio.status"
 
 @dataclass(frozen=True)
 class NavPose:
-    """The rover pose estimate (x, y, yaw) with its 3x3 covariance, and the mast joints."""
+    """The rover pose estimate (x, y, yaw) with its 3x3 covariance, and the mast joints; the
+    body attitude (roll, pitch, rad), height ``z_m`` and their 3x3 covariance ``att_cov``
+    (ALGORITHM.md §5.1; None: level at z = 0, as before the attitude sensor)."""
 
     time_s: float
     x: float
@@ -40,6 +43,11 @@ class NavPose:
     cov: NDArray[np.float64]
     joints: tuple[float, float, float]  # pan, tilt (rad), lift (m)
     moving: bool = False
+    roll: float = 0.0
+    pitch: float = 0.0
+    z_m: float = 0.0
+    att_cov: NDArray[np.float64] | None = None  # (roll, pitch, z)
+    attitude_valid: bool = False
 
 
 @dataclass(frozen=True)
@@ -79,6 +87,9 @@ class MapUpdate:
     outliers: int = 0  # points refused as outliers (§4)
     edge_points: int = 0  # edge cells found in this view
     roi_mapped_fraction: float = 0.0  # of the region of interest (the §3.6 end criterion)
+    registration: RegistrationSummary | None = None  # the view's registration (§5.1, perception)
+    view_cells: tuple[NDArray[np.intp], NDArray[np.float64]] | None = None  # flat cell index, mean height (m)
+    camera_xyz: tuple[float, float, float] | None = None  # the (registered) camera centre
 
 
 # Motion (fsw/tasks/motion.py): requests from the sequencer, one status per request outcome.

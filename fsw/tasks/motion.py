@@ -22,10 +22,11 @@ from numpy.typing import NDArray
 
 from fsw.core import motion_profile as mp
 from fsw.core import wheel_kinematics as wk
+from fsw.core.attitude import AttitudeTracker
 from fsw.core.odometry import Odometry
 from fsw.drivers import can_motors, mast_serial
-from fsw.framework.commands import Arg, CommandDef, CommandError
-from fsw.framework.telemetry import Channel, EventDef, Severity
+from fsw.framework.commands import CommandError
+from fsw.tasks import motion_dictionary as md
 from fsw.tasks import motion_state
 from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import (
@@ -46,71 +47,7 @@ D = TypeVar("D")
 class MotionTask(FlightTask):
     KIND: ClassVar[str] = "motion"
     DOC: ClassVar[str] = "Wheel and mast moves through the drivers; odometry; motion fault handling."
-    CHANNELS = (
-        Channel("state", doc="IDLE, STEER, DRIVE, TURN or ESTOP"),
-        Channel("odo_x_m", "m"),
-        Channel("odo_y_m", "m"),
-        Channel("odo_yaw_deg", "deg"),
-        Channel("odo_path_m", "m", doc="distance driven"),
-        Channel("cmd_speed", "m/s or rad/s", doc="commanded speed of the active segment"),
-        Channel("remaining", "m or deg", doc="left of the active segment"),
-        Channel("mast_busy", "bool"),
-        Channel("moves_done", "count"),
-        Channel("moves_aborted", "count", hi=0),
-    )
-    EVENTS = (
-        EventDef("MOVE_STARTED", Severity.ACTIVITY_HI, "{kind} request {rid}: {what}"),
-        EventDef(
-            "MOVE_DONE", Severity.ACTIVITY_HI, "{kind} request {rid} done; odometry ({x:.3f}, {y:.3f}) m, {yaw:.1f} deg"
-        ),
-        EventDef("MOVE_ABORTED", Severity.WARNING_HI, "{kind} request {rid} aborted: {reason}"),
-        EventDef("MOVE_REFUSED", Severity.WARNING_LO, "{kind} request {rid} refused: {reason}", throttle=5),
-        EventDef("MAST_POINTED", Severity.ACTIVITY_HI, "mast at pan {pan:.2f} tilt {tilt:.2f} deg lift {lift:.3f} m"),
-        EventDef("ESTOP_COMMANDED", Severity.WARNING_HI, "emergency stop {action} by command"),
-        EventDef("FAULTS_CLEARED", Severity.ACTIVITY_HI, "motor and mast faults cleared by command"),
-        EventDef("NO_DEVICE", Severity.WARNING_HI, "motion: no {device} driver configured"),
-        EventDef("ODOMETRY_SET", Severity.ACTIVITY_HI, "odometry set to ({x:.3f}, {y:.3f}) m, {yaw:.1f} deg"),
-    )
-    COMMANDS = (
-        CommandDef(
-            "DRIVE",
-            (Arg("distance_m", float, -20.0, 20.0, units="m"), Arg("speed_mps", float, 0.0, 5.0, units="m/s")),
-            "drive straight; speed 0: default",
-        ),
-        CommandDef(
-            "TURN",
-            (Arg("angle_deg", float, -720.0, 720.0, units="deg"), Arg("rate_dps", float, 0.0, 360.0, units="deg/s")),
-            "turn in place, CCW +; rate 0: default",
-        ),
-        CommandDef(
-            "GOTO",
-            (
-                Arg("x_m", float, -1e4, 1e4, units="m"),
-                Arg("y_m", float, -1e4, 1e4, units="m"),
-                Arg("yaw_deg", float, -360.0, 360.0, units="deg"),
-                Arg("use_yaw", bool),
-            ),
-            "turn, drive, turn to a pose in the odometry frame",
-        ),
-        CommandDef(
-            "POINT_MAST",
-            (
-                Arg("pan_deg", float, -180.0, 180.0, units="deg"),
-                Arg("tilt_deg", float, -90.0, 90.0, units="deg"),
-                Arg("lift_m", float, 0.0, 2.0, units="m"),
-            ),
-            "move the mast joints",
-        ),
-        CommandDef("SET_SHOULDERS", (Arg("angle_deg", float, -90.0, 90.0, units="deg"),), "all four shoulder joints"),
-        CommandDef("STOP", doc="stop the wheels and the mast; drop the active move"),
-        CommandDef("ESTOP", (Arg("engage", bool),), "broadcast the CAN emergency stop (or release it)"),
-        CommandDef("CLEAR_FAULTS", doc="clear latched motor controller and mast faults"),
-        CommandDef(
-            "SET_ODOMETRY",
-            (Arg("x_m", float, -1e4, 1e4), Arg("y_m", float, -1e4, 1e4), Arg("yaw_deg", float, -360.0, 360.0)),
-            "reset the dead-reckoned pose",
-        ),
-    )
+    CHANNELS, EVENTS, COMMANDS = md.CHANNELS, md.EVENTS, md.COMMANDS
 
     def setup(self) -> None:
         cfg = self.ctx.cfg
@@ -118,6 +55,8 @@ class MotionTask(FlightTask):
         self.r = cfg.rover.wheel_diameter_m / 2.0
         self.wheel_xy = wk.wheel_positions(cfg.rover)
         self.odo = Odometry(self.r, wk.body_motion_matrix(self.wheel_xy))
+        cap = cfg.capture
+        self.attitude = AttitudeTracker(cap.unknown_attitude_sigma_deg, cap.z_sigma_per_m)
         self.segments: deque[mp.Segment] = deque()
         self.active: tuple[int, str] | None = None  # (request id, kind) of the wheel move
         self.mast_goal: tuple[int, tuple[float, float, float], float] | None = None
@@ -167,7 +106,10 @@ class MotionTask(FlightTask):
         steer = [motors.axes[f"STEER_{w}"] for w in WHEELS]
         if any(s.t_status is None for s in drive + steer):
             return
-        self.odo.update(np.array([s.position_rad for s in drive]), np.array([s.position_rad for s in steer]))
+        yaw0 = self.odo.pose[2]
+        motion = self.odo.update(np.array([s.position_rad for s in drive]), np.array([s.position_rad for s in steer]))
+        if motion is not None:
+            self.attitude.integrate(motion, yaw0)
 
     def _control(self, motors: can_motors.CanMotorDriver, now: float) -> None:
         seg = self.segments[0] if self.segments else None
@@ -312,6 +254,9 @@ class MotionTask(FlightTask):
         self.tlm("moves_done", self.done)
         self.tlm("moves_aborted", self.aborted)
         joints = mast.joints if mast is not None and mast.joints is not None else (math.nan,) * 3
+        imu = self.ctx.res.imu
+        self.attitude.update(imu.attitude(now) if imu is not None else None)
+        att = self.attitude.state()
         self.publish(
             NAV_POSE,
             NavPose(
@@ -322,6 +267,11 @@ class MotionTask(FlightTask):
                 self.odo.covariance(self.mcfg),
                 joints,
                 moving=self.active is not None or self.mast_goal is not None,
+                roll=att.roll,
+                pitch=att.pitch,
+                z_m=att.z_m,
+                att_cov=att.cov,
+                attitude_valid=att.valid,
             ),
         )
 
@@ -402,4 +352,5 @@ class MotionTask(FlightTask):
 
     def cmd_SET_ODOMETRY(self, x_m: float, y_m: float, yaw_deg: float) -> None:
         self.odo.reset((x_m, y_m, math.radians(yaw_deg)))
+        self.attitude.reset()
         self.event("ODOMETRY_SET", x=x_m, y=y_m, yaw=yaw_deg)

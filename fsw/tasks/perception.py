@@ -2,7 +2,9 @@
 
 A ``CameraFrame`` from the camera task becomes a slack job (ALGORITHM.md §4): the view's
 P_V on the map before the merge (§3.1, for the misses), stereo matching, triangulation
-with covariance and propagation of the camera pose covariance (§1.2), fusion into the map
+with covariance, registration of the view against the map (§5.1: its pose corrected, or
+its pose covariance inflated when it cannot be registered), propagation of the camera pose
+covariance (§1.2), fusion into the map
 with misses (§1.1, §3.4), the non-convex polygon fit of the edge (§2; the geofence and the
 edge path use it for every method, Method 3 straightens the path in its planner) and the
 mapped fraction of the region of interest (§3.6).
@@ -16,17 +18,27 @@ way (the map would be half-merged). At start-up it restores the newest good chec
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Generator
 from typing import ClassVar
 
 import numpy as np
+from numpy.typing import NDArray
 
 from fsw.core.edge import EdgeModel, edge_cells_steps, fit_polygon
 from fsw.core.elevation_map import ElevationMap
-from fsw.core.geometry import MapGrid
-from fsw.core.localization import point_covariance_parts
+from fsw.core.geometry import CameraPose, MapGrid
+from fsw.core.localization import point_covariance_parts, so3_log
 from fsw.core.nbv import predicted_visibility_steps
-from fsw.core.stereo import StereoMatcher
+from fsw.core.registration import (
+    Registration,
+    RegistrationSummary,
+    apply_correction,
+    inflate,
+    reference_cells,
+    register_steps,
+)
+from fsw.core.stereo import StereoMatcher, StereoPoints
 from fsw.drivers.map_store import MapStore
 from fsw.framework.commands import CommandDef, CommandError
 from fsw.framework.jobs import JobHandle
@@ -52,6 +64,10 @@ def roi_mapped_fraction(emap: ElevationMap, edge: EdgeModel) -> float:
 
 PROPAGATE_CHUNK = 10000  # points per slice of the covariance propagation (~5 ms here)
 MERGE_STEP_POINTS = 50000  # points per slice of each pass of the map merge (a few ms)
+STATION_TOL_M = 0.03  # views whose camera centres are this close share a station (registration)
+
+
+ViewPart = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]  # xyz, cov, common cov
 
 
 class PerceptionTask(FlightTask):
@@ -66,12 +82,30 @@ class PerceptionTask(FlightTask):
         Channel("last_outliers", "cells"),
         Channel("edge_points", "points", doc="edge points found in the map"),
         Channel("job_ms", "ms", doc="busy time of the last view's slack job"),
+        Channel("reg_status", doc="registration of the last view: registered, reference, unregistered, off"),
+        Channel("reg_points", "points", doc="points of the last view aligned to the map"),
+        Channel("reg_dz_m", "m", doc="height correction of the last view"),
+        Channel("reg_dtilt_deg", "deg", doc="tilt correction of the last view (roll, pitch RSS)"),
+        Channel("reg_dyaw_deg", "deg", doc="yaw correction of the last view"),
+        Channel("reg_dxy_m", "m", doc="horizontal correction of the last view"),
+        Channel("reg_sigma_z_m", "m", doc="height sigma of the last view's correction"),
+        Channel("reg_unregistered", "count", hi=0, doc="views merged with an inflated pose covariance"),
     )
     EVENTS = (
         EventDef(
             "VIEW_MERGED",
             Severity.ACTIVITY_LO,
             "view {view}: {points} points, {new} new cells, {misses} misses, {mapped} mapped",
+        ),
+        EventDef(
+            "VIEW_REGISTERED",
+            Severity.ACTIVITY_LO,
+            "view {view} registered on {points} points: dz {dz_cm:+.1f} cm, droll {droll:+.2f}, dpitch "
+            "{dpitch:+.2f}, dyaw {dyaw:+.2f} deg, dxy {dxy_cm:.1f} cm (sigma z {sz_cm:.2f} cm)",
+        ),
+        EventDef(
+            "VIEW_NOT_REGISTERED", Severity.WARNING_LO,
+            "view {view} not registered ({reason}): merged with its pose covariance inflated", throttle=10,
         ),
         EventDef("VIEW_FAILED", Severity.WARNING_HI, "view {view} could not be merged: {error}", throttle=5),
         EventDef("CHECKPOINT_SAVED", Severity.ACTIVITY_LO, "map checkpoint {seq} saved ({kib:.0f} KiB)"),
@@ -91,6 +125,11 @@ class PerceptionTask(FlightTask):
         self.frames = self.subscribe(CAMERA_FRAME, depth=2, policy="drop_oldest")
         self.job: JobHandle | None = None
         self.views = 0
+        self.last_update: MapUpdate | None = None
+        self.unregistered = 0
+        self.anchor_cov: NDArray[np.float64] | None = None  # pose covariance of the view that began the map
+        self.station: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None  # (camera centre, correction)
+        self.registrations: deque[RegistrationSummary] = deque(maxlen=1000)  # per view (mission summary)
         self.store = self.ctx.res.map_store
         self._last_checkpoint_s = self.ctx.clock.now()
         if self.store is not None:
@@ -127,13 +166,16 @@ class PerceptionTask(FlightTask):
         disp = yield from self.matcher.disparity_steps(fr.left, fr.right)
         yield
         pts = yield from self.matcher.triangulate_steps(disp)
+        reg, pose, pose_cov = yield from self._register(fr, pts)
         parts = []
         for a in range(0, len(pts), PROPAGATE_CHUNK):  # world covariance (§1.2) in bounded slices
             b = a + PROPAGATE_CHUNK
-            xyz, cov_s, cov_p = point_covariance_parts(fr.pose, fr.pose_cov, pts.xyz_c[a:b], pts.cov_c[a:b])
+            xyz, cov_s, cov_p = point_covariance_parts(pose, pose_cov, pts.xyz_c[a:b], pts.cov_c[a:b])
             # The pose term is common to every point of the view: it must not average down in a cell.
             parts.append((xyz, cov_s if cov_p is None else cov_s + cov_p, cov_p))
             yield
+        view_cells = self._view_cells(parts)
+        yield
         stats = yield from self.map.merge_parts_steps(parts, p_visible=p_visible, step_points=MERGE_STEP_POINTS)
         yield
         ecfg = self.ctx.cfg.edge
@@ -158,13 +200,73 @@ class PerceptionTask(FlightTask):
             outliers=stats.outliers,
             edge_points=int(cells.points_xy.shape[0]),
             roi_mapped_fraction=roi_fraction,
+            registration=reg.summary(fr.view_id),
+            view_cells=view_cells,
+            camera_xyz=(float(pose.t[0]), float(pose.t[1]), float(pose.t[2])),
         )
+
+    def _register(
+        self, fr: CameraFrame, pts: StereoPoints
+    ) -> Generator[None, None, tuple[Registration, CameraPose, NDArray[np.float64]]]:
+        """Align the view to the map (§5.1): the corrected pose and the covariance to merge with.
+
+        Registered: the correction's covariance (relative to the map) plus the covariance of
+        the view that began the map (the map's own frame error). Not registered: the prior
+        pose covariance inflated. The first view of a map is its reference. A view from the
+        station of the last registered view starts from that view's correction (the body
+        pose error it found holds until the rover moves), registered or not.
+        """
+        rcfg = self.ctx.cfg.registration
+        if not rcfg.enabled:
+            return Registration("off", "disabled in config"), fr.pose, fr.pose_cov
+        # Views from the station of the last registered view (same camera centre: the rover has
+        # not moved; pan and tilt turn the head about it) start from that view's correction.
+        d0 = np.zeros(6)
+        if self.station is not None and float(np.linalg.norm(fr.pose.t - self.station[0])) < STATION_TOL_M:
+            d0 = self.station[1]
+        prior = apply_correction(fr.pose, d0)
+        n = len(pts)
+        sel = np.linspace(0, n - 1, min(n, 4 * rcfg.max_points)).astype(np.intp) if n else np.zeros(0, np.intp)
+        xyz_w, cov_w, _ = point_covariance_parts(prior, None, pts.xyz_c[sel], pts.cov_c[sel])
+        ref = reference_cells(self.map.z, self.map.var, self.map.n, rcfg)
+        yield
+        reg = yield from register_steps(xyz_w, cov_w, prior, fr.pose_cov, self.map.grid, self.map.z,
+                                        self.map.var, ref, rcfg)
+        if reg.status == "reference":
+            if self.anchor_cov is None:
+                self.anchor_cov = np.asarray(fr.pose_cov, dtype=np.float64)
+            return reg, fr.pose, fr.pose_cov
+        if reg.status != "registered":
+            if d0.any():
+                reg.reason += "; the station's correction applied"
+                reg.correction = d0
+            return reg, prior, inflate(fr.pose_cov, rcfg)
+        pose = apply_correction(prior, reg.correction)
+        total = np.r_[so3_log(pose.R @ fr.pose.R.T), pose.t - fr.pose.t]
+        self.station = (fr.pose.t.copy(), total)
+        reg.correction = total
+        anchor = self.anchor_cov if self.anchor_cov is not None else np.zeros((6, 6))
+        return reg, pose, reg.cov + anchor
+
+    def _view_cells(self, parts: list[ViewPart]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+        """The view's own mean height per cell it measured (flat cell index, metres): what a
+        station contributed, for the seam checks of the bench and the ground."""
+        g = self.map.grid
+        xyz = np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3))
+        iy, ix, inside = g.cell_index(xyz[:, 0], xyz[:, 1])
+        inside &= np.isfinite(xyz[:, 2])
+        flat = (iy * g.nx + ix)[inside]
+        cnt = np.bincount(flat, minlength=g.nx * g.ny)
+        tot = np.bincount(flat, weights=xyz[inside, 2], minlength=g.nx * g.ny)
+        idx = np.flatnonzero(cnt)
+        return idx.astype(np.int32), (tot[idx] / cnt[idx]).astype(np.float32)
 
     def _finish(self, h: JobHandle) -> None:
         if h.error is not None:
             self.event("VIEW_FAILED", view=h.name, error=f"{type(h.error).__name__}: {h.error}")
             return
         up: MapUpdate = h.result
+        self.last_update = up
         self.publish(MAP_UPDATED, up)
         self.tlm("mapped_cells", up.mapped_cells)
         self.tlm("views", self.views)
@@ -174,9 +276,30 @@ class PerceptionTask(FlightTask):
         self.tlm("last_outliers", up.outliers)
         self.tlm("edge_points", up.edge_points)
         self.tlm("job_ms", h.busy_s * 1e3)
+        if up.registration is not None:
+            self._report_registration(up.registration)
         self.event(
             "VIEW_MERGED", view=up.view_id, points=up.points, new=up.new_cells, misses=up.misses, mapped=up.mapped_cells
         )
+
+    def _report_registration(self, r: RegistrationSummary) -> None:
+        self.registrations.append(r)
+        self.tlm("reg_status", r["status"])
+        self.tlm("reg_points", r["points"])
+        if r["status"] == "registered":
+            sig = r["sigma"]
+            self.tlm("reg_dz_m", r["dz_m"])
+            self.tlm("reg_dtilt_deg", float(np.hypot(r["droll_deg"], r["dpitch_deg"])))
+            self.tlm("reg_dyaw_deg", r["dyaw_deg"])
+            self.tlm("reg_dxy_m", float(np.hypot(r["dx_m"], r["dy_m"])))
+            self.tlm("reg_sigma_z_m", sig[5])
+            self.event("VIEW_REGISTERED", view=r["view"], points=r["points"], dz_cm=100 * r["dz_m"],
+                       droll=r["droll_deg"], dpitch=r["dpitch_deg"], dyaw=r["dyaw_deg"],
+                       dxy_cm=100 * float(np.hypot(r["dx_m"], r["dy_m"])), sz_cm=100 * sig[5])
+        elif r["status"] == "unregistered":
+            self.unregistered += 1
+            self.tlm("reg_unregistered", self.unregistered)
+            self.event("VIEW_NOT_REGISTERED", view=r["view"], reason=r["reason"])
 
     # -- checkpoints ---------------------------------------------------------------------
     def _checkpoint(self, store: MapStore) -> None:
@@ -222,3 +345,5 @@ class PerceptionTask(FlightTask):
         if self.job is not None and not self.job.done:
             raise CommandError("a view is being merged; try again")
         self.map = ElevationMap(self.map.grid, self.ctx.cfg.fusion)
+        self.anchor_cov = None
+        self.station = None

@@ -10,6 +10,7 @@ KINDS: dict[str, str] = {
     "console": "fsw.tasks.console:ConsoleTask",
     "mavlink": "fsw.tasks.mavlink_task:MavlinkTask",
     "can_motors_device": "fsw.tasks.devices:CanMotorsDevice",
+    "imu_device": "fsw.tasks.devices:ImuDevice",
     "mast_device": "fsw.tasks.devices:MastDevice",
     "camera_device": "fsw.tasks.devices:CameraDevice",
     "motion": "fsw.tasks.motion:MotionTask",

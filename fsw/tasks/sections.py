@@ -19,6 +19,12 @@ class CaptureConfig:
 
     joint_sigma_deg: float = param(0.2, lo=0.0, hi=10.0, units="deg", doc="pan and tilt encoder sigma")
     lift_sigma_m: float = param(0.002, lo=0.0, hi=0.1, units="m", doc="lift sigma")
+    unknown_attitude_sigma_deg: float = param(
+        5.0, lo=0.1, hi=90.0, units="deg", doc="roll/pitch sigma while the attitude sensor is faulted or absent"
+    )
+    z_sigma_per_m: float = param(
+        0.02, lo=0.0, hi=1.0, units="m/m", doc="dead-reckoned body height: sigma per metre climbed"
+    )
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -100,6 +100,7 @@ class MotorControllerBank:
         self._seq_cmd = SequenceChecker(cfg.e2e_max_delta, cfg.command_timeout_s)
         self._seq_other = SequenceChecker(cfg.e2e_max_delta, 2.5 * cfg.heartbeat_period_s)
         self.tap: Callable[[can.Message], None] | None = None  # sees every received frame (a bus logger)
+        self.ignore_ids: set[int] = set()  # frames of other devices on the bus (e.g. the IMU's)
 
     # -- reception --------------------------------------------------------------------------
     def receive(self, now: float) -> None:
@@ -115,7 +116,7 @@ class MotorControllerBank:
                 break
             if self.tap is not None:
                 self.tap(msg)
-            if off:
+            if off or msg.arbitration_id in self.ignore_ids:
                 continue
             axis = self.codec.route.get(msg.arbitration_id, ("", None, None))[1]
             fate, data, delay = self.faults.can_frame(axis, False, bytes(msg.data))

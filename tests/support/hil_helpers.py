@@ -10,7 +10,7 @@ from typing import Any
 from fsw.settings import load_settings
 from hil_sim.bench import LockstepBench
 
-HW_TASKS = ("health", "can_drv", "mast_drv", "cam_drv", "motion")
+HW_TASKS = ("health", "can_drv", "imu_drv", "mast_drv", "cam_drv", "motion")
 
 
 def only_hw_tasks(c: Any) -> Any:

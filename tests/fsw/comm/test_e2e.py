@@ -35,7 +35,7 @@ def _distinct_layouts() -> list[E2ELayout]:
 def test_every_frame_of_the_dbc_carries_counter_and_checksum() -> None:
     """req(12.3): every message, heartbeats included; motion frames get the 16-bit CRC."""
     db = cantools.database.load_file(str(DEFAULT_DBC))
-    assert len(CODEC.e2e) == len(db.messages) == 3 * len(AXES) + 2
+    assert len(CODEC.e2e) == len(db.messages) == 3 * len(AXES) + 3  # + ESTOP, FSW_HEARTBEAT, IMU_ATTITUDE
     for m in db.messages:
         lay = CODEC.e2e[m.frame_id]
         moves = m.name.endswith("_CMD") or m.name == "ESTOP"

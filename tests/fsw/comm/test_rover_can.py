@@ -39,7 +39,7 @@ def test_dbc_defines_every_frame_with_documented_node_ids() -> None:
         assert db.get_message_by_name(f"{axis}_HEARTBEAT").frame_id == 0x700 + node
         status = {s.name for s in db.get_message_by_name(f"{axis}_STATUS").signals}
         assert {"Position", "Velocity", "Current", "FaultTimeout", "FaultLimit", "FaultDriver"} <= status
-    assert len(db.messages) == 3 * len(AXES) + 2
+    assert len(db.messages) == 3 * len(AXES) + 3  # + IMU_ATTITUDE (issue 13)
 
 
 def test_e2e_crcs_match_reference_implementation() -> None:

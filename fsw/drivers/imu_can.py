@@ -1,0 +1,149 @@
+"""Flight driver of the rover's attitude sensor (inclinometer/IMU) on the rover CAN bus.
+
+The sensor shares the motor bus: the motor driver (``fsw.drivers.can_motors``) drains the
+bus and hands every ``IMU_ATTITUDE`` frame to this driver (``CanMotorDriver.listeners``), so
+one bus handle serves both, on the rover (socketcan) as on the bench (virtual, udp_multicast).
+
+* Each frame is checked end to end (:mod:`fsw.comm.imu_can`: length, CRC-8, alive counter):
+  a bad frame is refused and counted; a counter jump counts lost frames; a counter that
+  stops advancing for ``stuck_frames`` frames is a STUCK sensor (a hung device repeating its
+  buffer); no valid frame for ``timeout_s`` is a TIMEOUT (dropout, cable); a SelfTestFail
+  flag is a SELF_TEST fault. Each finding is a fault bit and an event.
+* :meth:`attitude` gives the body roll and pitch (ALGORITHM.md §5.1: the gravity direction at
+  rest) as the mean of the fresh samples of the last ``average_s`` and its covariance: the
+  sensor's stated bias variance (``sigma_deg``, from its calibration) plus the sample
+  variance over the number of samples. While any fault is set it returns None: the caller
+  must then treat the attitude as unknown (``fsw.core.attitude``), never as level.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.comm.imu_can import ImuAttitude, ImuCan
+from fsw.drivers.base import DriverBase
+from fsw.framework.telemetry import EventDef, Severity
+
+F_BAD_FRAMES, F_TIMEOUT, F_STUCK, F_SELF_TEST, F_LOST_FRAMES = 0x01, 0x02, 0x04, 0x08, 0x10
+#: faults that make the attitude unusable (bad or lost frames alone only degrade)
+UNUSABLE = F_TIMEOUT | F_STUCK | F_SELF_TEST
+
+
+@dataclass(frozen=True)
+class Attitude:
+    """Body roll and pitch (rad) with their 2x2 covariance (rad^2) from ``samples`` frames."""
+
+    roll: float
+    pitch: float
+    cov: NDArray[np.float64]
+    samples: int
+    time_s: float
+
+
+class ImuDriver(DriverBase):
+    """Supervision and averaging of the ``IMU_ATTITUDE`` frames the motor driver passes on."""
+
+    FAULTS: ClassVar[dict[str, int]] = {
+        "bad_frames": F_BAD_FRAMES, "timeout": F_TIMEOUT, "stuck": F_STUCK,
+        "self_test": F_SELF_TEST, "lost_frames": F_LOST_FRAMES,
+    }
+    EVENTS: ClassVar[tuple[EventDef, ...]] = (
+        EventDef("IMU_BAD_FRAME", Severity.WARNING_LO, "IMU frame refused ({reason}): {detail}", throttle=5),
+        EventDef("IMU_FRAMES_LOST", Severity.WARNING_LO, "IMU: {lost} frame(s) lost", throttle=5),
+        EventDef("IMU_TIMEOUT", Severity.WARNING_HI, "IMU: no valid frame for {age_s:.2f} s; attitude unknown"),
+        EventDef("IMU_STUCK", Severity.WARNING_HI, "IMU: alive counter stuck at {counter} for {frames} frames"),
+        EventDef("IMU_SELF_TEST", Severity.WARNING_HI, "IMU reports a failed self-test"),
+        EventDef("IMU_RECOVERED", Severity.ACTIVITY_HI, "IMU attitude valid again"),
+    )
+
+    def __init__(self, codec: ImuCan, *, timeout_s: float = 0.5, stuck_frames: int = 5,
+                 average_s: float = 1.0, sigma_deg: float = 0.1, error_hold_s: float = 2.0) -> None:
+        super().__init__(error_hold_s)
+        self.codec = codec
+        self.timeout_s, self.stuck_frames, self.average_s = timeout_s, stuck_frames, average_s
+        self.sigma_rad = math.radians(sigma_deg)
+        self.samples: deque[tuple[float, float, float]] = deque(maxlen=4096)  # (t, roll, pitch) rad
+        self.counter: int | None = None
+        self.repeats = 0
+        self.t_valid: float | None = None
+        self.t_start: float | None = None
+        self.rx_frames = self.rx_bad = self.rx_lost = 0
+        self.last: ImuAttitude | None = None
+
+    def attach(self, motors: Any) -> None:
+        """Receive ``IMU_ATTITUDE`` from the motor driver that owns the bus."""
+        motors.listeners[self.codec.frame_id] = self.on_frame
+
+    # -- reception --------------------------------------------------------------------------
+    def on_frame(self, data: bytes, now: float) -> None:
+        d = self.codec.decode(self.codec.frame_id, data)
+        if not isinstance(d, ImuAttitude):
+            self.rx_bad += 1
+            self._hold(F_BAD_FRAMES, now)
+            self._event("IMU_BAD_FRAME", reason=d.reason, detail=d.detail)
+            return
+        if self.counter is not None and d.counter == self.counter:
+            self.repeats += 1
+            if self.repeats >= self.stuck_frames - 1 and not self.has(F_STUCK):
+                self._set(F_STUCK)
+                self.samples.clear()
+                self._event("IMU_STUCK", counter=d.counter, frames=self.repeats + 1)
+            return
+        if self.counter is not None:
+            lost = (d.counter - self.counter - 1) & 0xF
+            if lost:
+                self.rx_lost += lost
+                self._hold(F_LOST_FRAMES, now)
+                self._event("IMU_FRAMES_LOST", lost=lost)
+        self.counter, self.repeats, self.last = d.counter, 0, d
+        self.rx_frames += 1
+        was_bad = self.faults & UNUSABLE
+        if d.self_test_fail != self.has(F_SELF_TEST):
+            self._set(F_SELF_TEST, d.self_test_fail)
+            if d.self_test_fail:
+                self._event("IMU_SELF_TEST")
+        self._set(F_STUCK, False)
+        self._set(F_TIMEOUT, False)
+        self.t_valid = now
+        if not d.self_test_fail:
+            self.samples.append((now, math.radians(d.roll_deg), math.radians(d.pitch_deg)))
+        while self.samples and now - self.samples[0][0] > self.average_s:
+            self.samples.popleft()
+        if was_bad and not self.faults & UNUSABLE:
+            self._event("IMU_RECOVERED")
+
+    def poll(self, now: float) -> None:
+        """Supervise (timeout, held bits); the frames arrive through the motor driver's poll."""
+        self.last_poll_s = now
+        if self.t_start is None:
+            self.t_start = now
+        self._expire_holds(now)
+        age = now - (self.t_valid if self.t_valid is not None else self.t_start)
+        if age > self.timeout_s and not self.has(F_TIMEOUT):
+            self._set(F_TIMEOUT)
+            self.samples.clear()
+            self._event("IMU_TIMEOUT", age_s=age)
+
+    # -- the estimate -----------------------------------------------------------------------
+    def attitude(self, now: float) -> Attitude | None:
+        """Mean roll and pitch of the last ``average_s`` with covariance; None when unusable."""
+        if self.faults & UNUSABLE:
+            return None
+        fresh = [s for s in self.samples if now - s[0] <= self.average_s]
+        if not fresh:
+            return None
+        a = np.asarray(fresh)[:, 1:]
+        mean = a.mean(axis=0)
+        n = a.shape[0]
+        sample_var = a.var(axis=0, ddof=1) / n if n > 1 else np.full(2, self.sigma_rad**2)
+        cov = np.diag(self.sigma_rad**2 + sample_var)
+        return Attitude(float(mean[0]), float(mean[1]), cov, n, now)
+
+    def close(self) -> None:
+        """Nothing to release: the motor driver owns the bus."""

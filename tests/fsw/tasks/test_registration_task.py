@@ -1,0 +1,86 @@
+"""Registration inside the perception job on rendered views (issue 13, item 2): the first
+view is the map's reference, a second view carrying a known pose error is corrected before
+it is merged (event, telemetry, summary record), and a view with no overlap is merged with
+its pose covariance inflated, never silently."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+
+from fsw.core.geometry import CameraPose
+from fsw.core.localization import so3_exp, so3_log
+from fsw.core.registration import inflate
+from fsw.executive.executive import Executive
+from fsw.framework.clock import SteppedClock
+from fsw.settings import load_settings
+from fsw.tasks.messages import CameraFrame
+from hil_sim.perception_eval import PERCEPTION_LAB, pit_view_poses
+from hil_sim.render import StereoRenderer
+from hil_sim.world import load_scenario
+
+pytestmark = pytest.mark.slow
+PRIOR = np.diag([math.radians(0.6) ** 2] * 3 + [0.04**2] * 3)
+
+
+def _drain(gen: Any) -> Any:
+    while True:
+        try:
+            next(gen)
+        except StopIteration as stop:
+            return stop.value
+
+
+@pytest.fixture(scope="module")
+def setup() -> Any:
+    cfg = load_settings()
+    world = load_scenario(PERCEPTION_LAB)
+    rend = StereoRenderer(world, cfg.camera, world.noise_sigma, seed=0)
+    poses = pit_view_poses(world, cfg.mast, 3, x_span_m=0.6, seed=2)
+    pairs = [rend.render(p) for p in poses]
+    exe = Executive(dataclasses.replace(cfg, map=world.map_grid), SteppedClock())
+    return exe, poses, pairs
+
+
+def test_injected_pose_error_is_corrected_before_the_merge(setup: Any) -> None:
+    exe, poses, pairs = setup
+    task = exe.tasks["perception"]
+    up0 = _drain(task._merge_view(CameraFrame(0, 0.0, *pairs[0], poses[0], PRIOR)))
+    assert up0.registration["status"] == "reference"
+    # view 1 as its pose estimate has it: pitched 0.4 deg and 3 cm too high
+    d_err = np.r_[0.0, math.radians(0.4), 0.0, 0.0, 0.0, 0.03]
+    wrong = CameraPose(so3_exp(-d_err[:3]) @ poses[1].R, poses[1].t - d_err[3:])
+    up1 = _drain(task._merge_view(CameraFrame(1, 0.0, *pairs[1], wrong, PRIOR)))
+    r = up1.registration
+    assert r["status"] == "registered", r["reason"]
+    fixed = np.array(up1.camera_xyz)
+    assert np.linalg.norm(fixed - poses[1].t) < 0.012  # was 3 cm off
+    before = math.degrees(float(np.linalg.norm(so3_log(wrong.R @ poses[1].R.T))))
+    corrected = so3_exp(np.radians([r["droll_deg"], r["dpitch_deg"], r["dyaw_deg"]])) @ wrong.R
+    after = math.degrees(float(np.linalg.norm(so3_log(corrected @ poses[1].R.T))))
+    assert before == pytest.approx(0.4, abs=1e-6) and after < 0.15, after
+    task._report_registration(r)
+    assert exe.telemetry.get("perception.reg_status") == "registered"
+    assert any(e.name.endswith("VIEW_REGISTERED") for e in exe.events.history)
+    assert task.registrations[-1]["view"] == 1
+
+
+def test_view_without_overlap_is_merged_inflated_and_reported(setup: Any) -> None:
+    exe, poses, pairs = setup
+    task = exe.tasks["perception"]
+    # the pit pair seen from a pose 6 m away: none of its points fall on the map
+    far = CameraPose(poses[2].R, poses[2].t + np.array([6.0, 0.0, 0.0]))
+    pts = _drain(task.matcher.triangulate_steps(_drain(task.matcher.disparity_steps(*pairs[2]))))
+    reg, pose, cov = _drain(task._register(CameraFrame(2, 0.0, *pairs[2], far, PRIOR), pts))
+    assert reg.status == "unregistered" and "overlap" in reg.reason
+    np.testing.assert_allclose(cov, inflate(PRIOR, exe.cfg.registration))
+    assert pose is not None and np.allclose(pose.t, far.t)
+    n_before = task.unregistered
+    task._report_registration(reg.summary(2))
+    assert task.unregistered == n_before + 1
+    assert exe.telemetry.get("perception.reg_status") == "unregistered"
+    assert any(e.name.endswith("VIEW_NOT_REGISTERED") for e in exe.events.history)
