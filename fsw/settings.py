@@ -2,7 +2,9 @@
 
 Each section's dataclass lives beside the code that uses it; this module only assembles
 them. ``load_settings(path)`` validates everything up front (``fsw.config``) so a bad file
-is refused with one line naming the file, the key and the reason.
+is refused with one line naming the file, the key and the reason; that includes the
+stereo calibration file ``[camera] calibration_file`` names (``fsw.core.stereo_calibration``):
+missing or inconsistent, it is a start-up error like any bad key.
 """
 
 from __future__ import annotations
@@ -12,7 +14,8 @@ from pathlib import Path
 
 from fsw.comm.link import LinkConfig
 from fsw.comm.mavlink_config import MavlinkConfig
-from fsw.config import build, load_toml
+from fsw.config import ConfigError, build, load_toml
+from fsw.core.calibrate import CalibrationConfig
 from fsw.core.checkpoint import CheckpointConfig
 from fsw.core.edge import EdgeConfig
 from fsw.core.elevation_map import FusionConfig
@@ -23,6 +26,7 @@ from fsw.core.localization import LocalizationConfig
 from fsw.core.mapcodec import CodecConfig
 from fsw.core.nbv import NbvConfig
 from fsw.core.stereo import StereoConfig
+from fsw.core.stereo_calibration import CalibrationError, StereoCalibration, load_calibration
 from fsw.drivers.factory import DevicesConfig
 from fsw.executive.config import ExecutiveConfig
 from fsw.tasks.camera import CaptureConfig
@@ -56,8 +60,33 @@ class FswConfig:
     motion: MotionConfig = field(default_factory=MotionConfig)
     capture: CaptureConfig = field(default_factory=CaptureConfig)
     mission: MissionConfig = field(default_factory=MissionConfig)
+    calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
+
+
+def calibration_path(cfg: FswConfig) -> Path | None:
+    """The calibration file ``[camera] calibration_file`` names (None: no rectification)."""
+    name = cfg.camera.calibration_file
+    if not name:
+        return None
+    p = Path(name)
+    return p if p.is_absolute() else DEFAULT_CONFIG.parent.parent / p
+
+
+def load_stereo_calibration(cfg: FswConfig, source: str = "") -> StereoCalibration | None:
+    """The camera's calibration, validated against its image size; ``ConfigError`` if it
+    is missing or inconsistent (None when no file is configured)."""
+    path = calibration_path(cfg)
+    if path is None:
+        return None
+    try:
+        return load_calibration(path, cfg.camera.width_px, cfg.camera.height_px)
+    except CalibrationError as err:
+        raise ConfigError(source or "config", "camera.calibration_file", str(err)) from None
 
 
 def load_settings(path: str | Path = DEFAULT_CONFIG) -> FswConfig:
-    """Load and validate a flight configuration file; raises ``ConfigError``."""
-    return build(FswConfig, load_toml(path), source=str(path))
+    """Load and validate a flight configuration file (and the calibration file it names);
+    raises ``ConfigError``."""
+    cfg = build(FswConfig, load_toml(path), source=str(path))
+    load_stereo_calibration(cfg, str(path))
+    return cfg

@@ -1,7 +1,9 @@
 """The perception task: owns the elevation map; fuses each stereo pair and re-fits the edge.
 
 A ``CameraFrame`` from the camera task becomes a slack job (ALGORITHM.md §4): the view's
-P_V on the map before the merge (§3.1, for the misses), stereo matching, triangulation
+P_V on the map before the merge (§3.1, for the misses), rectification of the raw pair when
+the camera has a calibration file (``fsw.core.rectify``: maps built once here at start-up,
+the pair remapped in row bands), stereo matching, triangulation
 with covariance and propagation of the camera pose covariance (§1.2), fusion into the map
 with misses (§1.1, §3.4), the non-convex polygon fit of the edge (§2; the geofence and the
 edge path use it for every method, Method 3 straightens the path in its planner) and the
@@ -23,11 +25,13 @@ from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import MapGrid
 from fsw.core.localization import point_covariance_parts
 from fsw.core.nbv import predicted_visibility_steps
+from fsw.core.rectify import Rectifier
 from fsw.core.stereo import StereoMatcher
 from fsw.executive.commands import CommandDef, CommandError
 from fsw.executive.jobs import JobHandle
 from fsw.executive.task import Task
 from fsw.executive.telemetry import Channel, EventDef, Severity
+from fsw.settings import load_stereo_calibration
 from fsw.tasks.messages import CAMERA_FRAME, MAP_UPDATED, CameraFrame, MapUpdate
 
 ROI_STRIDE = 4  # the region-of-interest fraction is estimated on every 4th cell each way
@@ -80,7 +84,10 @@ class PerceptionTask(Task):
 
     def setup(self) -> None:
         cfg = self.ctx.cfg
-        self.matcher = StereoMatcher(cfg.stereo, cfg.camera)
+        cal = load_stereo_calibration(cfg)  # ConfigError if missing or inconsistent
+        # rectified onto the configured pinhole camera, so P_V and the planner see the same one
+        self.rectifier = None if cal is None else Rectifier(cal, cfg.camera.K)
+        self.matcher = StereoMatcher(cfg.stereo, cfg.camera, None if cal is None else self.rectifier.camera)
         self.map = ElevationMap(MapGrid.from_config(cfg.map), cfg.fusion)
         self.frames = self.subscribe(CAMERA_FRAME, depth=2, policy="drop_oldest")
         self.job: JobHandle | None = None
@@ -117,7 +124,10 @@ class PerceptionTask(Task):
         if self.map.mapped.any():
             p_visible = yield from predicted_visibility_steps(self.map, fr.pose, cfg.camera, cfg.nbv.visibility)
             yield
-        disp = yield from self.matcher.disparity_steps(fr.left, fr.right)
+        left, right = fr.left, fr.right
+        if self.rectifier is not None:
+            left, right = yield from self.rectifier.rectify_steps(left, right, cfg.stereo.band_rows_px)
+        disp = yield from self.matcher.disparity_steps(left, right)
         yield
         pts = yield from self.matcher.triangulate_steps(disp)
         parts = []
