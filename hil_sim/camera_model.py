@@ -96,7 +96,7 @@ class TrueCameras:
 
     @property
     def ideal(self) -> bool:
-        return self.dist == (None, None) and np.array_equal(self.right_rotation, np.eye(3))
+        return all(d is None for d in self.dist) and np.array_equal(self.right_rotation, np.eye(3))
 
     def right_pose(self, left: CameraPose) -> CameraPose:
         """The right camera's pose for the left camera's pose ``left``."""

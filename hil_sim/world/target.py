@@ -14,17 +14,21 @@ are a function of the seed only.
 
 from __future__ import annotations
 
+from typing import Any
+
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.calibrate import CalibrationConfig
-from fsw.core.geometry import CameraPose
+from fsw.core.geometry import CameraPose, camera_pose_from_rover
+from fsw.settings import FswConfig
 from hil_sim.camera_model import TrueCameras
 from hil_sim.world.cliffbot import MARKER_ALBEDO, Quad
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
+U8 = NDArray[np.uint8]
 
 TEXELS_PER_SQUARE = 120
 MARGIN_SQUARES = 0.5
@@ -68,13 +72,13 @@ def target_poses(cfg: CalibrationConfig, cameras: TrueCameras, n: int, seed: int
     corners_b = np.array([[-bw / 2, -bh / 2, 0], [bw / 2, -bh / 2, 0], [bw / 2, bh / 2, 0], [-bw / 2, bh / 2, 0]])
     grid = [(gx, gy) for gy in (0.2, 0.5, 0.8) for gx in (0.2, 0.5, 0.8)]
     out: list[tuple[F64, F64]] = []
-    attempts = 0
+    tries = 0  # for the current view
     while len(out) < n:
-        attempts += 1
-        if attempts > 200 * n:
+        tries += 1
+        if tries > 2000:
             raise RuntimeError("cannot place the target inside both images: is it too large?")
         gx, gy = grid[len(out) % len(grid)]
-        shrink = min(1.0, 40.0 / attempts ** 0.5)  # creep toward the centre if it keeps falling out
+        shrink = max(0.0, 1.0 - tries / 400.0)  # creep toward the centre if it keeps falling out
         u = w * (0.5 + (gx - 0.5) * shrink) + rng.uniform(-0.04, 0.04) * w
         v = h * (0.5 + (gy - 0.5) * shrink) + rng.uniform(-0.04, 0.04) * h
         rng_m = rng.uniform(0.8, 1.5)
@@ -91,4 +95,22 @@ def target_poses(cfg: CalibrationConfig, cameras: TrueCameras, n: int, seed: int
             inside &= bool(((px >= IMAGE_MARGIN_PX) & (px <= [w - 1 - IMAGE_MARGIN_PX, h - 1 - IMAGE_MARGIN_PX])).all())
         if inside:
             out.append((R_cb, centre))
+            tries = 0
+    return out
+
+
+def render_target_pairs(world: Any, fsw: FswConfig, cameras: TrueCameras, n: int, seed: int,
+                        noise_sigma: float) -> list[tuple[str, U8, U8]]:
+    """``n`` stereo pairs ``(name, left, right)`` of the target at :func:`target_poses`,
+    seen by the cameras on the mast at the rover's start (pan 0, tilt 0, lift 0.5 m)."""
+    from hil_sim.render import StereoRenderer
+
+    pose = camera_pose_from_rover(tuple(world.rover_start), (0.0, 0.0, 0.5), fsw.mast,
+                                  float(world.plateau_z))
+    rend = StereoRenderer(world, fsw.camera, noise_sigma, seed, cameras=cameras)
+    tex = board_texture(fsw.calibration)
+    out = []
+    for i, (R_cb, centre) in enumerate(target_poses(fsw.calibration, cameras, n, seed)):
+        left, right = rend.render(pose, (board_quad(fsw.calibration, pose, R_cb, centre, tex),))
+        out.append((f"{i:02d}", left, right))
     return out
