@@ -41,8 +41,8 @@ def _pairs(directory: Path, lp: str, rp: str) -> list[tuple[str, Path, Path]]:
     if not directory.is_dir():
         raise ValueError(f"{directory}: not a directory")
     files = sorted(p for p in directory.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-    lefts = {p.name[len(lp):]: p for p in files if p.name.startswith(lp)}
-    rights = {p.name[len(rp):]: p for p in files if p.name.startswith(rp)}
+    lefts = {p.stem[len(lp):]: p for p in files if p.name.startswith(lp)}
+    rights = {p.stem[len(rp):]: p for p in files if p.name.startswith(rp)}
     if not lefts:
         raise ValueError(f"{directory}: no images named {lp}*")
     unpaired = sorted(set(lefts) ^ set(rights))
@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
 
     try:
-        cfg = load_settings(args.config)
+        cfg = load_settings(args.config, check_calibration=False)  # it makes that file
     except ConfigError as err:
         return fail(f"config error: {err}")
     try:

@@ -84,9 +84,11 @@ def load_stereo_calibration(cfg: FswConfig, source: str = "") -> StereoCalibrati
         raise ConfigError(source or "config", "camera.calibration_file", str(err)) from None
 
 
-def load_settings(path: str | Path = DEFAULT_CONFIG) -> FswConfig:
-    """Load and validate a flight configuration file (and the calibration file it names);
-    raises ``ConfigError``."""
+def load_settings(path: str | Path = DEFAULT_CONFIG, check_calibration: bool = True) -> FswConfig:
+    """Load and validate a flight configuration file (and, unless ``check_calibration`` is
+    false, as for the tools that make one, the calibration file it names); raises
+    ``ConfigError``."""
     cfg = build(FswConfig, load_toml(path), source=str(path))
-    load_stereo_calibration(cfg, str(path))
+    if check_calibration:
+        load_stereo_calibration(cfg, str(path))
     return cfg

@@ -44,7 +44,7 @@ def load_bench(scenario: str, seed: int, config: str, hardware: str) -> tuple[An
     from hil_sim.rig import load_hardware
     from hil_sim.world import load_scenario
 
-    cfg = load_settings(config)
+    cfg = load_settings(config, check_calibration=False)
     hw = load_hardware(hardware)
     world = load_scenario(scenario, seed)
     noise = hw.camera.noise_sigma if hw.camera.noise_sigma >= 0 else float(world.noise_sigma)

@@ -27,6 +27,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=Path("out/run"), help="report directory")
     p.add_argument("--config", default=str(DEFAULT_CONFIG), help="flight configuration (TOML)")
     p.add_argument("--no-transmit", action="store_true", help="skip sending the map to the Cliff-bot")
+    p.add_argument("--camera", default="config", choices=("config", "ideal", "raw"),
+                   help="config: the cameras of hil_hardware.toml, rectified with fsw.toml's calibration file; "
+                        "ideal: the ideal pinhole pair, no calibration; raw: the real cameras fed to stereo "
+                        "without rectification")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -38,7 +42,8 @@ def run(args: argparse.Namespace) -> int:
     if args.steps < 0:
         print("safer-hil run: --steps must be >= 0", file=sys.stderr)
         return 2
-    spec = RunSpec(args.scenario, args.method, args.steps, args.seed, args.config, not args.no_transmit, args.out)
+    spec = RunSpec(args.scenario, args.method, args.steps, args.seed, args.config, not args.no_transmit, args.out,
+                   camera=getattr(args, "camera", "config"))
     bar = tqdm(total=args.steps + 1, desc=f"{args.scenario} method {args.method}", unit="step")
 
     def progress(step: int, total: int, state: str) -> None:
