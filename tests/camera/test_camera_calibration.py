@@ -51,7 +51,9 @@ def test_calibration_recovers_the_renderer_truth(bench) -> None:  # type: ignore
     det = TargetDetector(CalibrationConfig())
     rms_dv, _, n = vertical_disparity_px(held, Rectifier(cal, load_settings().camera.K), det)
     raw_dv, _, _ = vertical_disparity_px(held, None, det)
-    assert n > 60 and rms_dv <= 0.25 < 2.0 < raw_dv
+    floor_dv, _, _ = vertical_disparity_px(held, Rectifier(truth, load_settings().camera.K), det)
+    # 12 views here (the bench's 18 give 0.19 px); the floor is the corner detection noise
+    assert n > 60 and floor_dv < rms_dv <= 0.3 < 2.0 < raw_dv
 
 
 def test_an_outlier_view_is_rejected(bench) -> None:  # type: ignore[no-untyped-def]
