@@ -53,6 +53,7 @@ def _pairs(directory: Path, lp: str, rp: str) -> list[tuple[str, Path, Path]]:
 
 def run(args: argparse.Namespace) -> int:
     import cv2
+    import numpy as np
 
     from fsw.config import ConfigError
     from fsw.core.calibrate import CalibrationInputError, calibrate_stereo
@@ -76,9 +77,10 @@ def run(args: argparse.Namespace) -> int:
     for key, lpath, rpath in names:
         imgs = []
         for path in (lpath, rpath):
-            img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-            if img is None:
+            raw = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+            if raw is None:
                 return fail(f"{path}: unreadable image")
+            img = np.asarray(raw, dtype=np.uint8)
             if img.shape != (cam.height_px, cam.width_px):
                 return fail(f"{path}: {img.shape[1]}x{img.shape[0]} image, the camera is "
                             f"{cam.width_px}x{cam.height_px} ([camera] of {args.config})")

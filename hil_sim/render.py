@@ -11,7 +11,8 @@ right camera is slightly rotated and off the nominal baseline, and the two expos
 * the terrain by coarse-to-fine ray casting into the truth heightfield
   (``hil_sim.world.raytrace``; ALGORITHM.md §4 consumes the images);
 * the Cliff-bot (box faces and ArUco plates) and, on request, a calibration target
-  (``hil_sim.world.target``) as planar quads intersected analytically and supersampled (``marker_supersample`` squared rays per pixel), so marker corners land with
+  (``hil_sim.world.target``) as planar quads intersected analytically and supersampled
+  (``marker_supersample`` squared rays per pixel), so marker corners land with
   sub-pixel accuracy for the PnP of ALGORITHM.md §5;
 * brightness = albedo (with baked sun shading) times ``exposure``, plus a 2.5 mm detail
   texture that fades out with pixel footprint (no aliasing), plus optional Gaussian sensor

@@ -146,12 +146,13 @@ def calibrate_stereo(pairs: Sequence[tuple[str, U8, U8]], cfg: CalibrationConfig
             f"({len(pairs) - len(views)} without the target in both images)")
     wh = (size[1], size[0])
     flags = cv2.CALIB_FIX_K3 if cfg.fix_k3 else 0
-    Ks, Ds = [], []
+    Ks: list[F64] = []
+    Ds: list[F64] = []
     for side in (0, 1):
         _, K, D, _, _ = cv2.calibrateCamera([o for o, _ in mono[side]], [p for _, p in mono[side]],
-                                            wh, None, None, flags=flags)
-        Ks.append(K)
-        Ds.append(D)
+                                            wh, np.eye(3), np.zeros(5), flags=flags)
+        Ks.append(np.asarray(K, np.float64))
+        Ds.append(np.asarray(D, np.float64))
     used = list(range(len(views)))
     while True:
         rms, K1, D1, K2, D2, R, T, per_view = _stereo(views, used, Ks, Ds, wh, flags)
@@ -184,11 +185,11 @@ def _stereo(views: list[tuple[str, F32, F32, F32]], used: list[int], Ks: list[F6
     sel = [views[i] for i in used]
     out = cv2.stereoCalibrateExtended(
         [v[1] for v in sel], [v[2] for v in sel], [v[3] for v in sel], Ks[0].copy(), Ds[0].copy(),
-        Ks[1].copy(), Ds[1].copy(), wh, None, None, flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS,
-        criteria=crit)
-    rms, K1, D1, K2, D2, R, T = out[:7]
+        Ks[1].copy(), Ds[1].copy(), wh, np.eye(3), np.zeros((3, 1)),
+        flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS, criteria=crit)
+    K1, D1, K2, D2, R, T = (np.asarray(m, np.float64) for m in out[1:7])
     per_view = np.asarray(out[-1], np.float64).reshape(len(sel), 2)
-    return float(rms), K1, D1, K2, D2, R, T.reshape(3, 1), per_view
+    return float(out[0]), K1, D1, K2, D2, R, T.reshape(3, 1), per_view
 
 
 def _view_errors(views: list[tuple[str, F32, F32, F32]], cal: StereoCalibration) -> list[tuple[float, float]]:

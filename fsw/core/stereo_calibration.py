@@ -62,9 +62,9 @@ class StereoCalibration:
         """``(R1, R2, P1, P2, Q)`` of ``cv2.stereoRectify`` (zero disparity at infinity,
         ``alpha = 0``: every rectified pixel has a source pixel in both images)."""
         size = (self.width_px, self.height_px)
-        R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
-            self.K1, self.D1, self.K2, self.D2, size, self.R, self.T,
-            flags=cv2.CALIB_ZERO_DISPARITY, alpha=0.0)
+        out = cv2.stereoRectify(self.K1, self.D1, self.K2, self.D2, size, self.R, self.T,
+                                flags=cv2.CALIB_ZERO_DISPARITY, alpha=0.0)
+        R1, R2, P1, P2, Q = (np.asarray(m, dtype=np.float64) for m in out[:5])
         return R1, R2, P1, P2, Q
 
 
@@ -94,17 +94,26 @@ def load_calibration(path: str | Path, width_px: int, height_px: int) -> StereoC
     if not path.is_file():
         raise CalibrationError(f"{path}: calibration file not found")
     try:
+        with path.open("rb") as fh:
+            head = fh.read(9)
+    except OSError as exc:
+        raise CalibrationError(f"{path}: unreadable ({exc.strerror or exc})") from None
+    if not head.startswith(b"%YAML"):
+        raise CalibrationError(f"{path}: not an OpenCV FileStorage YAML (no %YAML header)")
+    try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except cv2.error as exc:
+    except (cv2.error, SystemError) as exc:  # the parser's errors surface as either
         raise CalibrationError(f"{path}: not an OpenCV FileStorage file ({_first_line(exc)})") from None
     if not fs.isOpened():
         raise CalibrationError(f"{path}: not an OpenCV FileStorage file")
     try:
         size = [_read_int(fs, path, k) for k in ("image_width", "image_height")]
-        mats = {k: _read_mat(fs, path, k, shape) for k, shape in _SHAPES.items()}
+        mats = {k: _required(_read_mat(fs, path, k, shape)) for k, shape in _SHAPES.items()}
         stored = {k: _read_mat(fs, path, k, shape, required=False) for k, shape in _RECT_SHAPES.items()}
         rms = fs.getNode("rms_px").real() if not fs.getNode("rms_px").empty() else float("nan")
         views = int(fs.getNode("views").real()) if not fs.getNode("views").empty() else 0
+    except (cv2.error, SystemError) as exc:
+        raise CalibrationError(f"{path}: unreadable node ({_first_line(exc)})") from None
     finally:
         fs.release()
     if (size[0], size[1]) != (width_px, height_px):
@@ -130,6 +139,11 @@ def load_calibration(path: str | Path, width_px: int, height_px: int) -> StereoC
     return cal
 
 
+def _required(mat: F64 | None) -> F64:
+    assert mat is not None  # _read_mat raised for a missing required node
+    return mat
+
+
 def _first_line(exc: Exception) -> str:
     text = str(exc).strip().splitlines()
     return text[-1].strip() if text else type(exc).__name__
@@ -152,10 +166,10 @@ def _read_mat(fs: cv2.FileStorage, path: Path, key: str, shape: tuple[int, int],
         if required:
             raise CalibrationError(f"{path}: {key} missing")
         return None
-    mat = node.mat()
-    if mat is None:
+    raw = node.mat()
+    if raw is None:
         raise CalibrationError(f"{path}: {key} is not a matrix")
-    mat = np.asarray(mat, np.float64)
+    mat: F64 = np.array(raw, dtype=np.float64)
     if mat.size == shape[0] * shape[1] and 1 in shape:
         mat = mat.reshape(shape)  # a distortion row or column vector, either way
     if mat.shape != shape:

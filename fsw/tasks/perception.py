@@ -87,7 +87,7 @@ class PerceptionTask(Task):
         cal = load_stereo_calibration(cfg)  # ConfigError if missing or inconsistent
         # rectified onto the configured pinhole camera, so P_V and the planner see the same one
         self.rectifier = None if cal is None else Rectifier(cal, cfg.camera.K)
-        self.matcher = StereoMatcher(cfg.stereo, cfg.camera, None if cal is None else self.rectifier.camera)
+        self.matcher = StereoMatcher(cfg.stereo, cfg.camera, None if self.rectifier is None else self.rectifier.camera)
         self.map = ElevationMap(MapGrid.from_config(cfg.map), cfg.fusion)
         self.frames = self.subscribe(CAMERA_FRAME, depth=2, policy="drop_oldest")
         self.job: JobHandle | None = None
