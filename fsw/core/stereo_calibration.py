@@ -130,6 +130,9 @@ def load_calibration(path: str | Path, width_px: int, height_px: int) -> StereoC
         raise CalibrationError(f"{path}: R is not a rotation matrix")
     if not np.linalg.norm(mats["T"]) > 1e-6:
         raise CalibrationError(f"{path}: T has no baseline")
+    right_centre = -R.T @ mats["T"]  # in the left camera frame: it must lie along +x
+    if not right_centre[0, 0] > 0.5 * np.linalg.norm(mats["T"]):
+        raise CalibrationError(f"{path}: the right camera is not to the right of the left one (pair swapped?)")
     cal = StereoCalibration(width_px, height_px, **mats, rms_px=float(rms), views=views)
     present = {k: v for k, v in stored.items() if v is not None}
     if present:

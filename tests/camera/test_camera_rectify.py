@@ -81,6 +81,7 @@ MAT = "!!opencv-matrix\n   rows: {r}\n   cols: {c}\n   dt: d\n   data: [ {d} ]"
     ("K1", MAT.format(r=3, c=3, d=".nan, 0., 320., 0., 690., 240., 0., 0., 1."), "K1 has non-finite values"),
     ("R", MAT.format(r=3, c=3, d="2., 0., 0., 0., 1., 0., 0., 0., 1."), "R is not a rotation"),
     ("T", MAT.format(r=3, c=1, d="0., 0., 0."), "T has no baseline"),
+    ("T", MAT.format(r=3, c=1, d="0.15, 0., 0."), "pair swapped"),
     ("P1", MAT.format(r=3, c=4, d="700., 0., 320., 0., 0., 700., 240., 0., 0., 0., 1., 0."), "stored P1 disagrees"),
     ("image_height", "\"tall\"", "image_height missing or not an integer"),
 ])
