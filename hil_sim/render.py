@@ -152,7 +152,7 @@ class StereoRenderer:
         sub = (np.arange(ss) + 0.5) / ss - 0.5
         us = (np.arange(u0, u1)[:, None] + sub[None, :]).reshape(-1)
         vs = (np.arange(v0, v1)[:, None] + sub[None, :]).reshape(-1)
-        rays = pixel_rays(R, self.cameras.K[which], us, vs, self.cameras.dist[which])
+        rays = pixel_rays(R, self.cameras.K[which], us, vs, self.cameras.dist[which], cache=False)
         t_q, v_q = self._hit_quad(q, c, rays, exposure)
         hh, ww = v1 - v0, u1 - u0
         t_under = np.repeat(np.repeat(np.nan_to_num(depth[v0:v1, u0:u1], nan=np.inf), ss, 0),
