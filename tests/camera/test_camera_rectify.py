@@ -6,11 +6,14 @@ terrain from a distorted, misaligned pair that unrectified stereo gets wrong."""
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from fsw.cli import main as fsw_main
 from fsw.config import ConfigError
@@ -185,3 +188,45 @@ def test_ideal_model_is_the_nominal_pinhole_pair() -> None:
     ideal = TrueCameras.from_config(CAM, dataclasses.replace(CameraModelConfig(), model="ideal", k1=-0.2))
     assert ideal.ideal and ideal.baseline_m == CAM.baseline_m
     np.testing.assert_array_equal(ideal.K[1], CAM.K)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_fuzzed_calibration_files_load_or_fail_cleanly(cams: TrueCameras, tmp_path: Path, data) -> None:  # type: ignore[no-untyped-def]
+    """Truncated, bit-flipped or digit-edited files: a clean CalibrationError or a calibration
+    that passed every check, never another exception."""
+    good = tmp_path / "good.yaml"
+    if not good.exists():
+        save_calibration(good, cams.truth())
+    raw = bytearray(good.read_bytes())
+    for _ in range(data.draw(st.integers(1, 4))):
+        kind = data.draw(st.sampled_from(["number", "number", "number", "flip", "digit", "cut"]))
+        if kind == "number":  # keeps the file parseable: reaches the checks behind the parser
+            spans = [m.span() for m in re.finditer(rb"-?\d+\.?\d*(?:e[-+]?\d+)?", bytes(raw))]
+            if not spans:
+                continue
+            a, b = data.draw(st.sampled_from(spans))
+            value = data.draw(st.one_of(st.sampled_from([".nan", ".inf", "-.inf", "0.", "-1.", "1e300"]),
+                                        st.floats(-2000, 2000).map(repr)))
+            raw[a:b] = value.encode()
+            continue
+        i = data.draw(st.integers(0, len(raw) - 1))
+        if kind == "flip":
+            raw[i] ^= 1 << data.draw(st.integers(0, 7))
+        elif kind == "digit":
+            raw[i:i + 1] = data.draw(st.sampled_from([b"9", b"-", b".", b"e", b"nan", b" ", b"]"]))
+        else:
+            del raw[i:]
+            if not raw:
+                break
+    bad = tmp_path / "fuzz.yaml"
+    bad.write_bytes(bytes(raw))
+    try:
+        cal = load_calibration(bad, 640, 480)
+    except CalibrationError as err:
+        assert "\n" not in str(err) and str(bad) in str(err)
+        return
+    for name in ("K1", "D1", "K2", "D2", "R", "T"):
+        assert np.isfinite(getattr(cal, name)).all()
+    np.testing.assert_allclose(cal.R @ cal.R.T, np.eye(3), atol=1e-6)
+    Rectifier(cal, CAM.K)  # usable: the maps build
