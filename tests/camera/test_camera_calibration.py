@@ -52,8 +52,10 @@ def test_calibration_recovers_the_renderer_truth(bench) -> None:  # type: ignore
     rms_dv, _, n = vertical_disparity_px(held, Rectifier(cal, load_settings().camera.K), det)
     raw_dv, _, _ = vertical_disparity_px(held, None, det)
     floor_dv, _, _ = vertical_disparity_px(held, Rectifier(truth, load_settings().camera.K), det)
-    # 12 views here (the bench's 18 give 0.19 px); the floor is the corner detection noise
-    assert n > 60 and floor_dv < rms_dv <= 0.3 < 2.0 < raw_dv
+    # 12 views here (the bench's 18 give 0.18 px); the true calibration gives about the same:
+    # the corner detector's noise and pose-dependent bias (docs/perception.md, Limits)
+    assert n > 60 and rms_dv <= 0.3 < 2.0 < raw_dv
+    assert abs(rms_dv - floor_dv) <= 0.1
 
 
 def test_an_outlier_view_is_rejected(bench) -> None:  # type: ignore[no-untyped-def]
