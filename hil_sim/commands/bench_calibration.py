@@ -8,6 +8,8 @@ prints, against the renderer's truth (``hil_sim.camera_model.TrueCameras.truth``
   * the vertical disparity of matched features after rectification (px RMS): the target's
     corners detected again in the *rectified* images of ``--holdout`` new pairs (poses not
     used by the calibration), through the flight software's own ``fsw.core.rectify``;
+  * the range error of those corners triangulated through the rectification (the flight
+    software's ``f``, ``B``, ``R1``) against their true positions, %;
   * rectification ms per 640x480 pair (two ``cv2.remap`` with ``CV_16SC2`` maps).
 Targets (issue 14): RMS <= 0.3 px, vertical disparity <= 0.2 px, focal within 0.5 %,
 baseline within 1 %. ``--write FILE`` also writes the calibration (how
