@@ -110,8 +110,9 @@ def load_calibration(path: str | Path, width_px: int, height_px: int) -> StereoC
         size = [_read_int(fs, path, k) for k in ("image_width", "image_height")]
         mats = {k: _required(_read_mat(fs, path, k, shape)) for k, shape in _SHAPES.items()}
         stored = {k: _read_mat(fs, path, k, shape, required=False) for k, shape in _RECT_SHAPES.items()}
-        rms = fs.getNode("rms_px").real() if not fs.getNode("rms_px").empty() else float("nan")
-        views = int(fs.getNode("views").real()) if not fs.getNode("views").empty() else 0
+        rms_node, views_node = fs.getNode("rms_px"), fs.getNode("views")  # informative only
+        rms = rms_node.real() if rms_node.isReal() or rms_node.isInt() else float("nan")
+        views = int(views_node.real()) if views_node.isInt() else 0
     except (cv2.error, SystemError) as exc:
         raise CalibrationError(f"{path}: unreadable node ({_first_line(exc)})") from None
     finally:
@@ -162,6 +163,25 @@ def _read_int(fs: cv2.FileStorage, path: Path, key: str) -> int:
     return value
 
 
+def _check_matrix_node(node: cv2.FileNode, path: Path, key: str) -> None:
+    """A well-formed ``!!opencv-matrix``: small integer ``rows`` and ``cols``, a real ``dt``
+    and exactly ``rows * cols`` numbers in ``data``."""
+    if not node.isMap():
+        raise CalibrationError(f"{path}: {key} is not a matrix")
+    rows, cols, dt, data = (node.getNode(k) for k in ("rows", "cols", "dt", "data"))
+    if not (rows.isInt() and cols.isInt() and 1 <= rows.real() <= 16 and 1 <= cols.real() <= 16):
+        raise CalibrationError(f"{path}: {key} is not a matrix (rows and cols must be small integers)")
+    if not (dt.isString() and dt.string() in ("d", "f")):
+        raise CalibrationError(f"{path}: {key} is not a matrix of reals (dt must be d or f)")
+    n = int(rows.real()) * int(cols.real())
+    if not (data.isSeq() and data.size() == n):
+        raise CalibrationError(f"{path}: {key} data must hold rows * cols = {n} numbers")
+    for i in range(n):
+        item = data.at(i)
+        if not (item.isReal() or item.isInt()):
+            raise CalibrationError(f"{path}: {key} data item {i} is not a number")
+
+
 def _read_mat(fs: cv2.FileStorage, path: Path, key: str, shape: tuple[int, int],
               required: bool = True) -> F64 | None:
     node = fs.getNode(key)
@@ -169,6 +189,7 @@ def _read_mat(fs: cv2.FileStorage, path: Path, key: str, shape: tuple[int, int],
         if required:
             raise CalibrationError(f"{path}: {key} missing")
         return None
+    _check_matrix_node(node, path, key)  # OpenCV's own reader corrupts its heap on some malformed nodes
     raw = node.mat()
     if raw is None:
         raise CalibrationError(f"{path}: {key} is not a matrix")

@@ -87,6 +87,10 @@ MAT = "!!opencv-matrix\n   rows: {r}\n   cols: {c}\n   dt: d\n   data: [ {d} ]"
     ("T", MAT.format(r=3, c=1, d="0.15, 0., 0."), "pair swapped"),
     ("P1", MAT.format(r=3, c=4, d="700., 0., 320., 0., 0., 700., 240., 0., 0., 0., 1., 0."), "stored P1 disagrees"),
     ("image_height", "\"tall\"", "image_height missing or not an integer"),
+    # malformed matrix nodes that make OpenCV's own reader corrupt its heap (found by the fuzz test)
+    ("K2", "!!opencv-matrix\n   rows: -1\n   cols: 3\n   dt: d\n   data: [ 1., 2., 3. ]", "K2 is not a matrix"),
+    ("R", "!!opencv-matrix\n   rows: 3\n   dt: d\n   data: [ 1. ]", "R is not a matrix"),
+    ("D1", MAT.format(r=1, c=5, d="0., 0., 0., 0."), "D1 data must hold rows \\* cols = 5 numbers"),
 ])
 def test_inconsistent_files_are_refused_in_one_line(cams: TrueCameras, tmp_path: Path, key: str, value: str,
                                                     match: str) -> None:
