@@ -1,4 +1,4 @@
-"""``safer-fsw``: run the flight software, print its dictionary, benchmark the executive."""
+"""``safer-fsw``: run the flight software, print its dictionary, calibrate the cameras, benchmark the executive."""
 
 from __future__ import annotations
 
@@ -96,6 +96,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     d.add_argument("--config", default=str(DEFAULT_CONFIG), help="flight configuration (TOML)")
     d.set_defaults(_run=cmd_dictionary)
+
+    from fsw.calibrate_cli import add_parser as add_calibrate
+
+    add_calibrate(sub, str(DEFAULT_CONFIG))
 
     b = sub.add_parser("bench", help="benchmarks", description="Benchmarks that print figures.")
     bsub = b.add_subparsers(dest="what", metavar="WHAT", required=True)

@@ -2,7 +2,9 @@
 
 Each section's dataclass lives beside the code that uses it; this module only assembles
 them. ``load_settings(path)`` validates everything up front (``fsw.framework.params``) so a bad file
-is refused with one line naming the file, the key and the reason.
+is refused with one line naming the file, the key and the reason; that includes the
+stereo calibration file ``[camera] calibration_file`` names (``fsw.core.stereo_calibration``):
+missing or inconsistent, it is a start-up error like any bad key.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from pathlib import Path
 
 from fsw.comm.link import LinkConfig
 from fsw.comm.mavlink_config import MavlinkConfig
+from fsw.core.calibrate import CalibrationConfig
 from fsw.core.checkpoint import CheckpointConfig
 from fsw.core.edge import EdgeConfig
 from fsw.core.elevation_map import FusionConfig
@@ -24,8 +27,9 @@ from fsw.core.motion_profile import MotionConfig
 from fsw.core.nbv import NbvConfig
 from fsw.core.registration import RegistrationConfig
 from fsw.core.stereo import StereoConfig
+from fsw.core.stereo_calibration import CalibrationError, StereoCalibration, load_calibration
 from fsw.drivers.factory import DevicesConfig
-from fsw.framework.params import build, load_toml
+from fsw.framework.params import ConfigError, build, load_toml
 from fsw.framework.schedule import ExecutiveConfig
 from fsw.tasks.sections import CaptureConfig, MissionConfig
 
@@ -57,8 +61,35 @@ class FswConfig:
     motion: MotionConfig = field(default_factory=MotionConfig)
     capture: CaptureConfig = field(default_factory=CaptureConfig)
     mission: MissionConfig = field(default_factory=MissionConfig)
+    calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
 
 
-def load_settings(path: str | Path = DEFAULT_CONFIG) -> FswConfig:
-    """Load and validate a flight configuration file; raises ``ConfigError``."""
-    return build(FswConfig, load_toml(path), source=str(path))
+def calibration_path(cfg: FswConfig) -> Path | None:
+    """The calibration file ``[camera] calibration_file`` names (None: no rectification)."""
+    name = cfg.camera.calibration_file
+    if not name:
+        return None
+    p = Path(name)
+    return p if p.is_absolute() else DEFAULT_CONFIG.parent.parent / p
+
+
+def load_stereo_calibration(cfg: FswConfig, source: str = "") -> StereoCalibration | None:
+    """The camera's calibration, validated against its image size; ``ConfigError`` if it
+    is missing or inconsistent (None when no file is configured)."""
+    path = calibration_path(cfg)
+    if path is None:
+        return None
+    try:
+        return load_calibration(path, cfg.camera.width_px, cfg.camera.height_px)
+    except CalibrationError as err:
+        raise ConfigError(source or "config", "camera.calibration_file", str(err)) from None
+
+
+def load_settings(path: str | Path = DEFAULT_CONFIG, check_calibration: bool = True) -> FswConfig:
+    """Load and validate a flight configuration file (and, unless ``check_calibration`` is
+    false, as for the tools that make one, the calibration file it names); raises
+    ``ConfigError``."""
+    cfg = build(FswConfig, load_toml(path), source=str(path))
+    if check_calibration:
+        load_stereo_calibration(cfg, str(path))
+    return cfg

@@ -7,7 +7,7 @@ It records, per imaging step, what the mission task recorded, and from the world
 map error and any wheel over the drop (an edge violation).
 
 ``summary.json`` schema (stable; docs/experiments.md): ``schema`` (1), ``scenario``,
-``method``, ``seed``, ``steps`` (list of ``{step, mapped_cells, expected_new_cells,
+``method``, ``seed``, ``camera`` (config | ideal | raw), ``steps`` (list of ``{step, mapped_cells, expected_new_cells,
 obtained_new_cells, pose{x,y,yaw,pan,tilt,lift}, wall_s, sim_s}``), ``map_rmse_m``,
 ``edge_violations``, ``geofence_refusals``, ``slips``, ``overruns``, ``task_max_ms``
 ({task: ms}, plus ``frame``: the longest frame, and ``slack_slice``, ``slack_slice.<task>``:
@@ -65,6 +65,11 @@ class RunSpec:
     config: str = str(DEFAULT_CONFIG)
     transmit: bool = True
     out: Path | None = None
+    hardware: str = str(DEFAULT_CONFIG.parent / "hil_hardware.toml")
+    camera: str = "config"  # config: as the files say; ideal: ideal pinhole pair; raw: real lenses, no rectification
+
+
+CAMERA_MODES = ("config", "ideal", "raw")
 
 
 def mission_config(spec: RunSpec, world: Any) -> FswConfig:
@@ -76,8 +81,14 @@ def mission_config(spec: RunSpec, world: Any) -> FswConfig:
     ckpt = cfg.checkpoint
     if spec.out is not None:
         ckpt = dataclasses.replace(ckpt, directory=str(spec.out / "checkpoints"))
+    if spec.camera not in CAMERA_MODES:
+        raise ValueError(f"camera mode {spec.camera!r}: expected one of {', '.join(CAMERA_MODES)}")
+    camera = cfg.camera
+    if spec.camera in ("ideal", "raw"):
+        camera = dataclasses.replace(camera, calibration_file="")
     return dataclasses.replace(
         cfg,
+        camera=camera,
         map=world.map_grid,
         mavlink=mav,
         checkpoint=ckpt,
@@ -171,6 +182,7 @@ def run_mission(
     from hil_sim.cliffbot_receiver import Cliffbot
     from hil_sim.radio_channel import ChannelPort, RadioChannel, RadioChannelConfig
     from hil_sim.resume_state import BenchStateError, bench_state, restore_bench
+    from hil_sim.rig import load_hardware
     from hil_sim.world import load_scenario
 
     t_wall = time.perf_counter()
@@ -195,7 +207,10 @@ def run_mission(
         resources.checkpoint_hooks = {
             "bench": lambda: bench_state(bench_box[0], {"channel": channel}, counters),
         }
-    with LockstepBench(cfg, world, seed=spec.seed, quiet=True, resources=resources, start=start) as bench:
+    hw = load_hardware(spec.hardware)
+    if spec.camera == "ideal":
+        hw = dataclasses.replace(hw, camera=dataclasses.replace(hw.camera, model="ideal"))
+    with LockstepBench(cfg, world, seed=spec.seed, hw=hw, quiet=True, resources=resources, start=start) as bench:
         bench_box.append(bench)
         clock_box.append(bench.clock.now)
         if saved_bench is not None:
@@ -240,6 +255,7 @@ def run_mission(
             "scenario": spec.scenario,
             "method": spec.method,
             "seed": spec.seed,
+            "camera": spec.camera,
             "steps": [dataclasses.asdict(r) for r in mission.records],
             "map_rmse_m": rmse,
             "edge_violations": counters["violations"],

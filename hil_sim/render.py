@@ -1,13 +1,18 @@
 """The stereo renderer: what the RECON-bot's cameras see of a :class:`World`.
 
-A pinhole stereo pair (``fsw.core.geometry.CameraConfig``: resolution, focal length from
-the horizontal field of view, baseline; the right camera ``baseline_m`` along the left
-camera's ``x``) renders grayscale ``uint8`` images with exact occlusion:
+A stereo pair renders grayscale ``uint8`` images with exact occlusion. The cameras are
+:class:`hil_sim.camera_model.TrueCameras`: by default the nominal pinhole pair of
+``fsw.core.geometry.CameraConfig`` (resolution, focal length from the horizontal field of
+view, the right camera ``baseline_m`` along the left camera's ``x``); on the bench's real
+path each camera has its own ``K`` and Brown–Conrady lens distortion (every pixel casts the
+ray of its undistorted point, so the image is distorted exactly, without resampling), the
+right camera is slightly rotated and off the nominal baseline, and the two exposures differ:
 
 * the terrain by coarse-to-fine ray casting into the truth heightfield
   (``hil_sim.world.raytrace``; ALGORITHM.md §4 consumes the images);
-* the Cliff-bot (box faces and ArUco plates) as planar quads intersected analytically and
-  supersampled (``marker_supersample`` squared rays per pixel), so marker corners land with
+* the Cliff-bot (box faces and ArUco plates) and, on request, a calibration target
+  (``hil_sim.world.target``) as planar quads intersected analytically and supersampled
+  (``marker_supersample`` squared rays per pixel), so marker corners land with
   sub-pixel accuracy for the PnP of ALGORITHM.md §5;
 * brightness = albedo (with baked sun shading) times ``exposure``, plus a 2.5 mm detail
   texture that fades out with pixel footprint (no aliasing), plus optional Gaussian sensor
@@ -25,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import CameraConfig, CameraPose
+from hil_sim.camera_model import CameraModelConfig, TrueCameras
 from hil_sim.world.cliffbot import Quad
 from hil_sim.world.config import TextureConfig
 from hil_sim.world.noise import fractal_noise
@@ -46,7 +52,7 @@ class StereoRenderer:
 
     def __init__(self, world: World, camera: CameraConfig, noise_sigma: float = 0.0,
                  seed: int = 0, *, exposure: float = 1.3,
-                 marker_supersample: int = 4) -> None:
+                 marker_supersample: int = 4, cameras: TrueCameras | None = None) -> None:
         if not (noise_sigma >= 0.0 and math.isfinite(noise_sigma)):
             raise ValueError(f"noise_sigma must be >= 0 grey levels, got {noise_sigma}")
         if marker_supersample < 1:
@@ -54,7 +60,10 @@ class StereoRenderer:
         self.world = world
         self.camera = camera
         self.noise_sigma = float(noise_sigma)
-        self.exposure = float(exposure)
+        self.cameras = cameras or TrueCameras.from_config(
+            camera, CameraModelConfig(model="ideal", exposure=float(exposure)))
+        if (self.cameras.width_px, self.cameras.height_px) != (camera.width_px, camera.height_px):
+            raise ValueError("the true cameras and the camera config differ in image size")
         self.supersample = int(marker_supersample)
         self._hf = Heightfield.from_array(world.ground, world.x0, world.y0, world.cell_m)
         self._texture = world.config.texture if world.config is not None else TextureConfig()
@@ -69,10 +78,11 @@ class StereoRenderer:
         self._rng = np.random.default_rng(seed)
 
     # -- public API -------------------------------------------------------------------
-    def render(self, pose: CameraPose) -> tuple[U8, U8]:
-        """Left and right grayscale images ``(H, W)`` for the left-camera ``pose``."""
-        left, _ = self.render_view(pose)
-        right, _ = self.render_view(pose.right(self.camera.baseline_m))
+    def render(self, pose: CameraPose, extra: tuple[Quad, ...] = ()) -> tuple[U8, U8]:
+        """Left and right grayscale images ``(H, W)`` for the left-camera ``pose``; ``extra``
+        quads (e.g. a calibration target) are drawn with the scene."""
+        left, _ = self.render_view(pose, 0, extra)
+        right, _ = self.render_view(self.cameras.right_pose(pose), 1, extra)
         return self._to_u8(left), self._to_u8(right)
 
     def render_depth(self, pose: CameraPose) -> F32:
@@ -80,18 +90,20 @@ class StereoRenderer:
         where the ray meets nothing."""
         return self.render_view(pose)[1]
 
-    def render_view(self, pose: CameraPose) -> tuple[F32, F32]:
-        """One camera, noise free: ``(intensity in grey levels (float32), depth)``."""
-        cam = self.camera
-        c, R, K = np.asarray(pose.t, float), np.asarray(pose.R, float), cam.K
-        w, h = cam.width_px, cam.height_px
-        depth, rays = cast_image(self._hf, c, R, K, w, h)
-        image = self._shade_terrain(c, rays, depth, K[0, 0])
-        self._draw_quads(image, depth, rays, c, R, K)
+    def render_view(self, pose: CameraPose, which: int = 0,
+                    extra: tuple[Quad, ...] = ()) -> tuple[F32, F32]:
+        """Camera ``which`` (0 left, 1 right) at ``pose``, noise free: ``(intensity in grey
+        levels (float32), depth)``."""
+        cam = self.cameras
+        c, R = np.asarray(pose.t, float), np.asarray(pose.R, float)
+        K, dist, gain = cam.K[which], cam.dist[which], cam.exposure[which]
+        depth, rays = cast_image(self._hf, c, R, K, cam.width_px, cam.height_px, dist=dist)
+        image = self._shade_terrain(c, rays, depth, K[0, 0], gain)
+        self._draw_quads(image, depth, rays, c, R, which, gain, extra)
         return image, depth
 
     # -- terrain ----------------------------------------------------------------------
-    def _shade_terrain(self, c: F64, rays: F32, depth: F32, focal_px: float) -> F32:
+    def _shade_terrain(self, c: F64, rays: F32, depth: F32, focal_px: float, exposure: float) -> F32:
         hit = ~np.isnan(depth)
         t = np.where(hit, depth, 0.0).astype(np.float32)
         x = np.float32(c[0]) + t * rays[..., 0]
@@ -107,39 +119,41 @@ class StereoRenderer:
         tiles = sample(self._detail_tile, tx, ty, wrap=True)
         detail = w_fine * tiles[..., 0] + w_mid * tiles[..., 1]
         gain = 1.0 + np.float32(self._texture.detail_contrast * 0.7) * amp * detail
-        value = np.float32(255.0 * self.exposure) * albedo * gain
+        value = np.float32(255.0 * exposure) * albedo * gain
         return np.where(hit, value, np.float32(SKY_DN)).astype(np.float32)
 
     # -- the Cliff-bot ----------------------------------------------------------------
-    def _draw_quads(self, image: F32, depth: F32, rays: F32, c: F64, R: F64, K: F64) -> None:
-        """Overlay the Cliff-bot's quads with a depth test against the terrain: the body one
-        ray per pixel, the fiducial plates supersampled."""
+    def _draw_quads(self, image: F32, depth: F32, rays: F32, c: F64, R: F64, which: int,
+                    exposure: float, extra: tuple[Quad, ...]) -> None:
+        """Overlay the Cliff-bot's quads and the ``extra`` ones with a depth test against the
+        terrain: the body one ray per pixel, the fiducial plates and targets supersampled."""
         h, w = image.shape
         plain: list[tuple[Quad, tuple[int, int, int, int]]] = []
         fine: list[tuple[Quad, tuple[int, int, int, int]]] = []
-        for q in self.world.cliffbot.quads:
+        for q in (*self.world.cliffbot.quads, *extra):
             if not q.two_sided and float((c - q.p0) @ q.normal) <= 0.0:
                 continue  # seen from behind: hidden by the body (back-face culling)
-            box = self._bbox(q, c, R, K, w, h)
+            box = self._bbox(q, c, R, which, w, h)
             if box is not None:
                 (fine if q.fiducial else plain).append((q, box))
         for q, (u0, v0, u1, v1) in plain:
-            t_q, v_q = self._hit_quad(q, c, rays[v0:v1, u0:u1])
+            t_q, v_q = self._hit_quad(q, c, rays[v0:v1, u0:u1], exposure)
             closer = t_q < np.nan_to_num(depth[v0:v1, u0:u1], nan=np.inf)
             image[v0:v1, u0:u1][closer] = v_q[closer]
             depth[v0:v1, u0:u1][closer] = t_q[closer]
         for q, box in fine:
-            self._draw_supersampled(image, depth, q, box, c, R, K)
+            self._draw_supersampled(image, depth, q, box, c, R, which, exposure)
 
-    def _draw_supersampled(self, image: F32, depth: F32, q: Quad,
-                           box: tuple[int, int, int, int], c: F64, R: F64, K: F64) -> None:
+    def _draw_supersampled(self, image: F32, depth: F32, q: Quad, box: tuple[int, int, int, int],
+                           c: F64, R: F64, which: int, exposure: float) -> None:
         """Draw one quad with ``supersample**2`` rays per pixel over its pixel box."""
         u0, v0, u1, v1 = box
         ss = self.supersample
         sub = (np.arange(ss) + 0.5) / ss - 0.5
         us = (np.arange(u0, u1)[:, None] + sub[None, :]).reshape(-1)
         vs = (np.arange(v0, v1)[:, None] + sub[None, :]).reshape(-1)
-        t_q, v_q = self._hit_quad(q, c, pixel_rays(R, K, us, vs))
+        rays = pixel_rays(R, self.cameras.K[which], us, vs, self.cameras.dist[which], cache=False)
+        t_q, v_q = self._hit_quad(q, c, rays, exposure)
         hh, ww = v1 - v0, u1 - u0
         t_under = np.repeat(np.repeat(np.nan_to_num(depth[v0:v1, u0:u1], nan=np.inf), ss, 0),
                             ss, 1)
@@ -152,7 +166,7 @@ class StereoRenderer:
                else t_best.reshape(hh, ss, ww, ss).min(axis=(1, 3)))
         depth[v0:v1, u0:u1] = np.where(np.isfinite(t_c), t_c, np.nan)
 
-    def _hit_quad(self, q: Quad, c: F64, rays: F32) -> tuple[F32, F32]:
+    def _hit_quad(self, q: Quad, c: F64, rays: F32, exposure: float) -> tuple[F32, F32]:
         """Depth (inf where missed) and grey level of the quad along each ray."""
         n = q.normal
         eu = q.eu / (q.eu @ q.eu)
@@ -171,19 +185,30 @@ class StereoRenderer:
         row = np.clip((np.where(ok, b, 0) * th).astype(np.intp), 0, th - 1)
         col = np.clip((np.where(ok, a, 0) * tw).astype(np.intp), 0, tw - 1)
         shade = self._texture.ambient + (1 - self._texture.ambient) * max(0.0, float(n @ self._sun))
-        value = q.texture[row, col] * np.float32(255.0 * self.exposure * shade)
+        value = q.texture[row, col] * np.float32(255.0 * exposure * shade)
         return np.where(ok, t, np.float32(np.inf)), value
 
-    @staticmethod
-    def _bbox(q: Quad, c: F64, R: F64, K: F64, w: int, h: int) -> tuple[int, int, int, int] | None:
-        """Pixel box ``(u0, v0, u1, v1)`` that contains the quad's image, or None if unseen."""
-        pc = (q.corners - c) @ R
+    def _bbox(self, q: Quad, c: F64, R: F64, which: int, w: int, h: int) -> tuple[int, int, int, int] | None:
+        """Pixel box ``(u0, v0, u1, v1)`` that contains the quad's image, or None if unseen
+        (through a lens the edges bow: they are projected at nine points each)."""
+        if self.cameras.dist[which] is None:
+            pts = q.corners
+        else:
+            s = np.linspace(0.0, 1.0, 9)[:, None]
+            pts = np.concatenate([q.p0 + s * q.eu, q.p0 + q.ev + s * q.eu, q.p0 + s * q.ev,
+                                  q.p0 + q.eu + s * q.ev])
+        pc = (pts - c) @ R
         if (pc[:, 2] <= 1e-3).all():
             return None
         if (pc[:, 2] <= 1e-3).any():
             return (0, 0, w, h)  # straddles the camera plane: test every pixel
-        u = K[0, 0] * pc[:, 0] / pc[:, 2] + K[0, 2]
-        v = K[1, 1] * pc[:, 1] / pc[:, 2] + K[1, 2]
+        if self.cameras.dist[which] is not None:
+            # the lens polynomial is only meaningful near the field of view: clamp far points
+            # to a border beyond the image (a box reaching the image edge stays one)
+            K = self.cameras.K[which]
+            lim = 1.3 * max(w / K[0, 0], h / K[1, 1])
+            pc = np.column_stack([np.clip(pc[:, :2] / pc[:, 2:], -lim, lim), np.ones(len(pc))])
+        u, v = self.cameras.project(which, pc).T
         u0, u1 = max(0, int(math.floor(u.min())) - 1), min(w, int(math.ceil(u.max())) + 2)
         v0, v1 = max(0, int(math.floor(v.min())) - 1), min(h, int(math.ceil(v.max())) + 2)
         return None if u0 >= u1 or v0 >= v1 else (u0, v0, u1, v1)

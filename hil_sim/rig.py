@@ -23,8 +23,9 @@ import numpy as np
 from fsw.comm.imu_can import ImuCan
 from fsw.comm.rover_can import RoverCan
 from fsw.core.geometry import CameraPose
-from fsw.framework.params import build, load_toml, param
+from fsw.framework.params import build, load_toml
 from fsw.settings import FswConfig
+from hil_sim.camera_model import CameraModelConfig, TrueCameras
 from hil_sim.faults import FaultInjector
 from hil_sim.hw.imu import ImuConfig, ImuDevice
 from hil_sim.hw.mast_controller import MastController, MastControllerConfig
@@ -33,11 +34,6 @@ from hil_sim.mast_truth import MastTruth, MastTruthConfig
 from hil_sim.rover_truth import FlatTerrain, RoverTruth, RoverTruthConfig
 
 DEFAULT_HARDWARE = Path(__file__).resolve().parent.parent / "config" / "hil_hardware.toml"
-
-
-@dataclass(frozen=True)
-class CameraModelConfig:
-    noise_sigma: float = param(-1.0, lo=-1.0, hi=50.0, doc="sensor noise, grey levels; negative: the scenario's")
 
 
 @dataclass(frozen=True)
@@ -128,7 +124,8 @@ class HardwareRig:
             sigma = self.hw.camera.noise_sigma
             if sigma < 0:
                 sigma = float(getattr(self.world, "noise_sigma", 2.0))
-            self._renderer = StereoRenderer(self.world, self.fsw.camera, sigma, self.seed)
+            cams = TrueCameras.from_config(self.fsw.camera, self.hw.camera)
+            self._renderer = StereoRenderer(self.world, self.fsw.camera, sigma, self.seed, cameras=cams)
         return self._renderer
 
     # -- reporting --------------------------------------------------------------------------

@@ -42,6 +42,9 @@ class CameraConfig:
     baseline_m: float = param(0.15, lo=0.02, hi=1.0, units="m")
     min_range_m: float = param(0.8, lo=0.05, hi=50.0, units="m", doc="near end of the usable depth")
     max_range_m: float = param(5.0, lo=0.5, hi=100.0, units="m", doc="far end of the usable depth")
+    calibration_file: str = param(
+        "", doc="stereo calibration (OpenCV YAML, relative paths: to the repository root); "
+                "'' = the pair is already the ideal pinhole pair above, no rectification")
 
     def __post_init__(self) -> None:
         if self.min_range_m >= self.max_range_m:

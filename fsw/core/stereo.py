@@ -6,6 +6,11 @@ frame is
 
     Z = f B / d,   X = (u - cx) Z / f,   Y = (v - cy) Z / f.
 
+On a calibrated head the pair is first rectified (``fsw.core.rectify``) and ``f``, ``cx``,
+``cy``, ``B`` are the rectified camera's (``RectifiedCamera``); the points are then rotated
+from the rectified left frame back to the physical left camera, ``x = R1^T x_rect``, and
+their covariances with them.
+
 Its covariance is first-order propagation of independent pixel noise on ``u``, ``v`` (the
 pixel localisation, ``sigma_pixel_px``) and on ``d`` (the matcher's sub-pixel error,
 ``sigma_disparity_px``): ``Sigma_c = J diag(su^2, sv^2, sd^2) J^T``. Its depth part is the
@@ -32,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import CameraConfig
+from fsw.core.rectify import RectifiedCamera
 from fsw.core.steps import run_to_end
 from fsw.framework.params import param
 
@@ -123,9 +129,10 @@ class StereoPoints:
 class StereoMatcher:
     """SGBM disparity with validity filters and triangulation with covariance (§4, §1.2)."""
 
-    def __init__(self, cfg: StereoConfig, camera: CameraConfig) -> None:
+    def __init__(self, cfg: StereoConfig, camera: CameraConfig, rectified: RectifiedCamera | None = None) -> None:
         self.cfg = cfg
         self.camera = camera
+        self.rectified = rectified  # None: the pair is the nominal pinhole pair of ``camera``
         win = cfg.block_size_px * cfg.block_size_px
         # The speckle filter is connected-component labelling over the whole image: it runs
         # once on the stitched bands (as SGBM itself runs it after its median filter), so
@@ -250,10 +257,11 @@ class StereoMatcher:
     def triangulate_steps(self, disp: F64, stride_px: int = 1) -> Generator[None, None, StereoPoints]:
         """:meth:`triangulate`, yielding after each band of ``band_rows_px`` rows; the points
         come in the same (row-major) order with the same values."""
-        cam = self.camera
-        f, B = cam.focal_px, cam.baseline_m
-        K = cam.K
-        cx, cy = K[0, 2], K[1, 2]
+        cam, rect = self.camera, self.rectified
+        if rect is None:
+            f, B, cx, cy = cam.focal_px, cam.baseline_m, cam.K[0, 2], cam.K[1, 2]
+        else:
+            f, B, cx, cy = rect.focal_px, rect.baseline_m, rect.cx_px, rect.cy_px
         with np.errstate(invalid="ignore", divide="ignore"):
             depth = f * B / disp
         valid = np.isfinite(depth) & (depth >= cam.min_range_m) & (depth <= cam.max_range_m)
@@ -272,6 +280,10 @@ class StereoMatcher:
             xyz = np.column_stack([(u - cx) * z / f, (v - cy) * z / f, z])
             cov = stereo_covariance(u - cx, v - cy, d, f, B, self.cfg.sigma_pixel_px,
                                     self.cfg.sigma_disparity_px)
+            if rect is not None:  # rectified left frame -> physical left camera: x = R1^T x_rect
+                R1 = rect.R_rect
+                xyz = xyz @ R1
+                cov = R1.T @ cov @ R1
             parts.append((xyz, cov, np.column_stack([u, v]), d))
             yield None
         if len(parts) == 1:

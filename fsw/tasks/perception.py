@@ -1,10 +1,12 @@
 """The perception task: owns the elevation map; fuses each stereo pair and re-fits the edge.
 
 A ``CameraFrame`` from the camera task becomes a slack job (ALGORITHM.md §4): the view's
-P_V on the map before the merge (§3.1, for the misses), stereo matching, triangulation
-with covariance, registration of the view against the map (§5.1: its pose corrected, or
-its pose covariance inflated when it cannot be registered), propagation of the camera pose
-covariance (§1.2), fusion into the map
+P_V on the map before the merge (§3.1, for the misses), rectification of the raw pair when
+the camera has a calibration file (``fsw.core.rectify``: maps built once here at start-up,
+the pair remapped in row bands), stereo matching, triangulation with covariance,
+registration of the view against the map (§5.1: its pose corrected, or its pose covariance
+inflated when it cannot be registered), propagation of the camera pose covariance (§1.2),
+fusion into the map
 with misses (§1.1, §3.4), the non-convex polygon fit of the edge (§2; the geofence and the
 edge path use it for every method, Method 3 straightens the path in its planner) and the
 mapped fraction of the region of interest (§3.6).
@@ -30,6 +32,7 @@ from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import CameraPose, MapGrid
 from fsw.core.localization import point_covariance_parts, so3_log
 from fsw.core.nbv import predicted_visibility_steps
+from fsw.core.rectify import Rectifier
 from fsw.core.registration import (
     Registration,
     RegistrationSummary,
@@ -43,6 +46,7 @@ from fsw.drivers.map_store import MapStore
 from fsw.framework.commands import CommandDef, CommandError
 from fsw.framework.jobs import JobHandle
 from fsw.framework.telemetry import Channel, EventDef, Severity
+from fsw.settings import load_stereo_calibration
 from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import CAMERA_FRAME, MAP_UPDATED, CameraFrame, MapUpdate
 from fsw.tasks.mission_state import restore_into
@@ -120,7 +124,10 @@ class PerceptionTask(FlightTask):
 
     def setup(self) -> None:
         cfg = self.ctx.cfg
-        self.matcher = StereoMatcher(cfg.stereo, cfg.camera)
+        cal = load_stereo_calibration(cfg)  # ConfigError if missing or inconsistent
+        # rectified onto the configured pinhole camera, so P_V and the planner see the same one
+        self.rectifier = None if cal is None else Rectifier(cal, cfg.camera.K)
+        self.matcher = StereoMatcher(cfg.stereo, cfg.camera, None if self.rectifier is None else self.rectifier.camera)
         self.map = ElevationMap(MapGrid.from_config(cfg.map), cfg.fusion)
         self.frames = self.subscribe(CAMERA_FRAME, depth=2, policy="drop_oldest")
         self.job: JobHandle | None = None
@@ -163,7 +170,10 @@ class PerceptionTask(FlightTask):
         if self.map.mapped.any():
             p_visible = yield from predicted_visibility_steps(self.map, fr.pose, cfg.camera, cfg.nbv.visibility)
             yield
-        disp = yield from self.matcher.disparity_steps(fr.left, fr.right)
+        left, right = fr.left, fr.right
+        if self.rectifier is not None:
+            left, right = yield from self.rectifier.rectify_steps(left, right, cfg.stereo.band_rows_px)
+        disp = yield from self.matcher.disparity_steps(left, right)
         yield
         pts = yield from self.matcher.triangulate_steps(disp)
         reg, pose, pose_cov = yield from self._register(fr, pts)

@@ -40,6 +40,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "steps, seed and config come from DIR/run.json; the options above are ignored)",
     )
     g.add_argument("--fresh", action="store_true", help="delete the mission already in --out and start a new one")
+    p.add_argument("--camera", default="config", choices=("config", "ideal", "raw"),
+                   help="config: the cameras of hil_hardware.toml, rectified with fsw.toml's calibration file; "
+                        "ideal: the ideal pinhole pair, no calibration; raw: the real cameras fed to stereo "
+                        "without rectification")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -63,7 +67,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"safer-hil run: the mission in {resume} has finished; report: {resume / 'summary.json'}")
             return 0
     else:
-        spec = RunSpec(args.scenario, args.method, args.steps, args.seed, args.config, not args.no_transmit, args.out)
+        spec = RunSpec(args.scenario, args.method, args.steps, args.seed, args.config, not args.no_transmit, args.out,
+                       camera=getattr(args, "camera", "config"))
         mode = "fresh" if getattr(args, "fresh", False) else "new"
         if mode == "new" and has_mission(args.out):
             print(f"safer-hil run: {args.out} holds a mission; --resume {args.out} continues it, "

@@ -75,14 +75,21 @@ def sample(src: NDArray[np.float32], px: F32, py: F32, *, wrap: bool = False) ->
     return out.reshape((-1,) + chans)[:n].reshape(shape + chans)
 
 
-def pixel_rays(R: F64, K: F64, us: F64, vs: F64) -> F32:
+def pixel_rays(R: F64, K: F64, us: F64, vs: F64, dist: F64 | None = None, cache: bool = True) -> F32:
     """World directions ``(len(vs), len(us), 3)`` of pixel rays, scaled so camera ``z`` = 1.
 
-    The result is a view of a ``(3, rows, cols)`` array: each component ``d[..., k]`` is
-    contiguous, which is how the ray caster reads it."""
-    f, cx, cy = K[0, 0], K[0, 2], K[1, 2]
-    xn = ((us - cx) / f).astype(np.float32)[None, :]
-    yn = ((vs - cy) / K[1, 1]).astype(np.float32)[:, None]
+    ``dist`` (OpenCV's ``k1, k2, p1, p2, k3``) makes the pixels those of a distorted
+    image: each pixel's ray is its undistorted normalised point (``cv2.undistortPoints``,
+    iterated to 1e-10, cached per pixel grid unless ``cache`` is false, as for one-off grids),
+    so the image is drawn distorted exactly,
+    without resampling. The result is a view of a ``(3, rows, cols)`` array: each component
+    ``d[..., k]`` is contiguous, which is how the ray caster reads it."""
+    if dist is None:
+        f, cx, cy = K[0, 0], K[0, 2], K[1, 2]
+        xn: F32 = ((us - cx) / f).astype(np.float32)[None, :]
+        yn: F32 = ((vs - cy) / K[1, 1]).astype(np.float32)[:, None]
+    else:
+        xn, yn = _undistorted_grid(K, dist, us, vs, cache)
     r = R.astype(np.float32)
     out = np.empty((3, yn.shape[0], xn.shape[1]), np.float32)
     for k in range(3):
@@ -90,6 +97,29 @@ def pixel_rays(R: F64, K: F64, us: F64, vs: F64) -> F32:
         out[k] += yn * r[k, 1]
         out[k] += r[k, 2]
     return np.moveaxis(out, 0, -1)
+
+
+_GRID_CACHE: dict[bytes, tuple[F32, F32]] = {}
+_GRID_CACHE_SIZE = 12
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
+
+
+def _undistorted_grid(K: F64, dist: F64, us: F64, vs: F64, cache: bool) -> tuple[F32, F32]:
+    """Normalised undistorted coordinates ``(rows, cols)`` of the pixel grid ``us x vs``."""
+    key = b"".join(np.ascontiguousarray(a, np.float64).tobytes() for a in (K, dist, us, vs))
+    hit = _GRID_CACHE.get(key) if cache else None
+    if hit is not None:
+        return hit
+    uu, vv = np.meshgrid(np.asarray(us, np.float64), np.asarray(vs, np.float64))
+    pts = np.stack([uu.ravel(), vv.ravel()], axis=-1).reshape(-1, 1, 2)
+    und = cv2.undistortPoints(pts, K, np.asarray(dist, np.float64), criteria=_UNDISTORT_CRITERIA)
+    und = und.reshape(uu.shape + (2,))
+    grid = (np.ascontiguousarray(und[..., 0], np.float32), np.ascontiguousarray(und[..., 1], np.float32))
+    if cache:
+        if len(_GRID_CACHE) >= _GRID_CACHE_SIZE:
+            _GRID_CACHE.pop(next(iter(_GRID_CACHE)))
+        _GRID_CACHE[key] = grid
+    return grid
 
 
 def ray_intervals(hf: Heightfield, c: F64, d: F32) -> tuple[F32, F32]:

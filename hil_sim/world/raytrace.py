@@ -72,9 +72,10 @@ class _Rays:
 
 
 def cast_image(hf: Heightfield, c: F64, R: F64, K: F64, width: int, height: int,
-               levels: tuple[int, ...] = LEVELS) -> tuple[F32, F32]:
+               levels: tuple[int, ...] = LEVELS, dist: F64 | None = None) -> tuple[F32, F32]:
     """Depth (range along the optical axis) of each pixel's first terrain hit (NaN if none)
-    and the pixel rays ``(height, width, 3)`` (world directions with camera ``z`` = 1)."""
+    and the pixel rays ``(height, width, 3)`` (world directions with camera ``z`` = 1);
+    ``dist``: the lens distortion of the pixels (``pixel_rays``)."""
     if not levels or levels[-1] != 1 or any(
             a <= b for a, b in zip(levels[:-1], levels[1:], strict=True)):
         raise ValueError(f"levels must decrease to 1 (single pixels), got {levels}")
@@ -85,7 +86,7 @@ def cast_image(hf: Heightfield, c: F64, R: F64, K: F64, width: int, height: int,
         wl, hl = -(-width // step), -(-height // step)
         off = (step - 1) / 2.0
         d = pixel_rays(R, K, (step * np.arange(wl) + off).astype(np.float64),
-                       (step * np.arange(hl) + off).astype(np.float64))
+                       (step * np.arange(hl) + off).astype(np.float64), dist)
         lo, hi = ray_intervals(hf, c, d)
         rays = _Rays(hf, c, d)
         if prev is None:
@@ -97,7 +98,7 @@ def cast_image(hf: Heightfield, c: F64, R: F64, K: F64, width: int, height: int,
             t = _first_hits(rays, a.reshape(-1), b.reshape(-1), own=(lo.reshape(-1),
                                                                       hi.reshape(-1)))
         prev, prev_step = t.reshape(hl, wl), step
-    d = pixel_rays(R, K, np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+    d = pixel_rays(R, K, np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64), dist)
     if prev is None:
         lo, hi = ray_intervals(hf, c, d)
         t = _first_hits(_Rays(hf, c, d), lo.reshape(-1), hi.reshape(-1),

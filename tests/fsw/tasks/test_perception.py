@@ -131,7 +131,8 @@ def test_perception_job_yields_many_bounded_steps_per_view(cfg, lab_pairs) -> No
     every triangulation band, every propagation chunk, the merge passes, the edge search);
     the second view (map no longer empty) also steps through P_V."""
     world = lab_pairs[0][0]
-    exe = Executive(dataclasses.replace(cfg, map=world.map_grid), SteppedClock())
+    ideal = dataclasses.replace(cfg.camera, calibration_file="")  # the pairs come from the ideal renderer
+    exe = Executive(dataclasses.replace(cfg, map=world.map_grid, camera=ideal), SteppedClock())
     task = exe.tasks["perception"]
     bands = len(task.matcher.bands(cfg.camera.height_px))
     counts = []

@@ -42,7 +42,8 @@ def setup() -> Any:
     rend = StereoRenderer(world, cfg.camera, world.noise_sigma, seed=0)
     poses = pit_view_poses(world, cfg.mast, 3, x_span_m=0.6, seed=2)
     pairs = [rend.render(p) for p in poses]
-    exe = Executive(dataclasses.replace(cfg, map=world.map_grid), SteppedClock())
+    ideal = dataclasses.replace(cfg.camera, calibration_file="")  # the pairs come from the ideal renderer
+    exe = Executive(dataclasses.replace(cfg, map=world.map_grid, camera=ideal), SteppedClock())
     return exe, poses, pairs
 
 
