@@ -20,7 +20,10 @@ def checkpoint_state(self: Any) -> dict[str, Any]:
     """The odometry (``fsw.core.odometry.Odometry.state``), move counters, held steering and
     motor set-points of the motion task."""
     motors = self._motors()
-    return {**self.odo.state(), "done": self.done, "aborted": self.aborted,
+    a = self.attitude
+    attitude = {"roll": a.roll, "pitch": a.pitch, "z_m": a.z_m, "z_sigma_m": a.z_sigma_m,
+                "att_cov": a.att_cov.tolist(), "valid": a.valid}
+    return {**self.odo.state(), "attitude": attitude, "done": self.done, "aborted": self.aborted,
             "steer_hold": self.steer_hold.tolist(),
             "setpoints": None if motors is None else dict(motors.setpoints)}
 
@@ -30,6 +33,12 @@ def restore_state(self: Any, st: dict[str, Any]) -> None:
     x, y, yaw = (float(v) for v in st["pose"])
     self.odo.restore((x, y, yaw), float(st["path_m"]), float(st["turned_rad"]), float(st["yaw_acc"]),
                      None if last is None else np.asarray(last, dtype=np.float64).reshape(4))
+    att = st.get("attitude")
+    if att is not None:  # the attitude sensor's last reading and the dead-reckoned body height
+        a = self.attitude
+        a.roll, a.pitch, a.z_m, a.z_sigma_m = (float(att[k]) for k in ("roll", "pitch", "z_m", "z_sigma_m"))
+        a.att_cov = np.asarray(att["att_cov"], dtype=np.float64).reshape(2, 2)
+        a.valid = bool(att["valid"])
     self.done, self.aborted = int(st["done"]), int(st["aborted"])
     self.steer_hold = np.asarray(st["steer_hold"], dtype=np.float64).reshape(4)
     motors = self._motors()

@@ -49,7 +49,7 @@ from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.settings import load_stereo_calibration
 from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import CAMERA_FRAME, MAP_UPDATED, CameraFrame, MapUpdate
-from fsw.tasks.mission_state import restore_into
+from fsw.tasks.mission_state import JsonDict, restore_into
 
 ROI_STRIDE = 4  # the region-of-interest fraction is estimated on every 4th cell each way
 
@@ -336,12 +336,28 @@ class PerceptionTask(FlightTask):
         self.event("CHECKPOINT_LOADED", seq=loaded.meta.seq if loaded.meta is not None else -1)
         restore_into(self)  # a resumed mission (fsw.tasks.mission_state)
 
-    def checkpoint_state(self) -> dict[str, int]:
-        """What a resumed mission needs besides the map (``fsw.tasks.mission_state``)."""
-        return {"views": self.views}
+    def checkpoint_state(self) -> JsonDict:
+        """What a resumed mission needs besides the map (``fsw.tasks.mission_state``): the view
+        count and the registration state (the map's anchor covariance, the last station and
+        its correction, the per-view reports)."""
+        st = self.station
+        return {
+            "views": self.views,
+            "unregistered": self.unregistered,
+            "anchor_cov": None if self.anchor_cov is None else self.anchor_cov.tolist(),
+            "station": None if st is None else [st[0].tolist(), st[1].tolist()],
+            "registrations": list(self.registrations),
+        }
 
-    def restore_state(self, state: dict[str, int]) -> None:
+    def restore_state(self, state: JsonDict) -> None:
         self.views = int(state["views"])
+        self.unregistered = int(state.get("unregistered", 0))
+        anchor, st = state.get("anchor_cov"), state.get("station")
+        self.anchor_cov = None if anchor is None else np.asarray(anchor, dtype=np.float64).reshape(6, 6)
+        if st is not None:
+            centre, corr = (np.asarray(v, dtype=np.float64) for v in st)
+            self.station = (centre.reshape(3), corr.reshape(6))
+        self.registrations.extend(state.get("registrations", []))
         self.tlm("views", self.views)
 
     def cmd_CHECKPOINT(self) -> None:

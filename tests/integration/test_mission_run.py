@@ -27,7 +27,7 @@ def test_same_seed_same_summary(tmp_path: Path) -> None:
         == strip_wall_clock(b)
     )
     assert a["edge_violations"] == 0
-    assert a["map_rmse_m"] is not None and a["map_rmse_m"] < 0.05
+    assert a["map_rmse_m"] is not None and a["map_rmse_m"] < 0.06  # calibrated, rectified cameras (issue 14)
     # The map reached the Cliff-bot intact within the codec's bound (ALGORITHM.md §6).
     cb = a["cliffbot"]
     assert cb is not None and cb["decoded"] and cb["max_error_m"] <= cb["bound_m"] + 1e-6
