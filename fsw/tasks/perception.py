@@ -117,9 +117,9 @@ class PerceptionTask(Task):
         if self.map.mapped.any():
             p_visible = yield from predicted_visibility_steps(self.map, fr.pose, cfg.camera, cfg.nbv.visibility)
             yield
-        disp = yield from self.matcher.disparity_steps(fr.left, fr.right)
+        dm = yield from self.matcher.match_steps(fr.left, fr.right)
         yield
-        pts = yield from self.matcher.triangulate_steps(disp)
+        pts = yield from self.matcher.triangulate_steps(dm.disparity_px, sigma_px=dm.sigma_px)
         parts = []
         for a in range(0, len(pts), PROPAGATE_CHUNK):  # world covariance (§1.2) in bounded slices
             b = a + PROPAGATE_CHUNK
