@@ -23,6 +23,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("bench", "perception"): "hil_sim.commands.bench_perception",
     ("bench", "nbv"): "hil_sim.commands.bench_nbv",
     ("bench", "codec"): "hil_sim.commands.bench_codec",
+    ("bench", "stereo-real"): "hil_sim.commands.bench_stereo_real",
     ("experiment", "coverage"): "hil_sim.commands.experiment_coverage",
     ("experiment", "reduction"): "hil_sim.commands.experiment_reduction",
     ("experiment", "link"): "hil_sim.commands.experiment_link",

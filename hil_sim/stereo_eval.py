@@ -139,3 +139,43 @@ def errors_and_sigmas(pair: TruthPair, cfg: StereoConfig) -> tuple[F64, F64]:
     dm = matcher_for(pair, cfg).match(pair.left, pair.right)
     ret = scored_mask(pair, cfg) & np.isfinite(dm.disparity_px)
     return dm.disparity_px[ret] - pair.disparity_px[ret], dm.sigma_px[ret]
+
+
+def sigma_figure(path: str, panels: list[tuple[str, F64, F64]]) -> None:
+    """PNG of the per-pixel disparity sigma against the actual error, one column per panel
+    ``(title, error_px, sigma_px)``: per bin of predicted sigma, the share of errors within 1
+    and 2 sigma against a Gaussian's 68 and 95 % (top), and the histogram of ``error / sigma``
+    against the unit normal (bottom)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, len(panels), figsize=(5.0 * len(panels), 8.0), squeeze=False)
+    for col, (title, err, sig) in enumerate(panels):
+        ax = axes[0, col]
+        edges = np.quantile(sig, np.linspace(0.0, 1.0, 21))
+        idx = np.clip(np.searchsorted(edges, sig, side="right") - 1, 0, len(edges) - 2)
+        bins = range(len(edges) - 1)
+        xs = [float(np.median(sig[idx == b])) for b in bins]
+        for k, ref, colour in ((1.0, 0.683, "C0"), (2.0, 0.954, "C3")):
+            ys = [100 * float(np.mean(np.abs(err[idx == b]) <= k * sig[idx == b])) for b in bins]
+            ax.plot(xs, ys, "o-", color=colour, label=f"|error| <= {k:g} sigma, per sigma bin")
+            ax.axhline(100 * ref, color=colour, ls=":", lw=1)
+        ax.set_xscale("log")
+        ax.set_ylim(0, 100)
+        ax.set_xlabel("predicted disparity sigma (px), bins of 5 % of the pixels")
+        ax.set_ylabel("share of the bin's pixels (%); dotted: a Gaussian's")
+        within = 100.0 * float(np.mean(np.abs(err) <= 2.0 * sig))
+        ax.set_title(f"{title}\n{err.size} px, {within:.1f} % within 2 sigma, "
+                     f"{100 * np.mean(np.abs(err) > 2.0):.2f} % > 2 px", fontsize=9)
+        ax.legend(fontsize=8, loc="lower right")
+        ax = axes[1, col]
+        ax.hist(np.clip(err / sig, -6, 6), bins=np.linspace(-6, 6, 73), density=True,
+                color="C0", alpha=0.7, label="error / sigma (clipped to +-6)")
+        g = np.linspace(-6, 6, 200)
+        ax.plot(g, np.exp(-0.5 * g * g) / math.sqrt(2 * math.pi), "k-", label="unit normal")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)

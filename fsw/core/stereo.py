@@ -92,7 +92,7 @@ class StereoConfig:
     min_ncc: float = param(
         0.5, lo=-1.0, hi=1.0, doc="least normalised cross-correlation of the windows at the match",
     )
-    ncc_window_px: int = param(9, lo=3, hi=31, units="px", doc="odd correlation window side")
+    ncc_window_px: int = param(7, lo=3, hi=31, units="px", doc="odd correlation window side")
     max_spread_px: float = param(
         2.0, lo=0.0, hi=1000.0, units="px",
         doc="largest std of the valid disparities around a pixel (a depth jump beyond: no point)",
@@ -104,13 +104,13 @@ class StereoConfig:
     )
     refine_window_px: int = param(5, lo=3, hi=21, units="px", doc="odd refinement window side")
     sigma_floor_px: float = param(
-        0.02, lo=0.0, hi=5.0, units="px", doc="per-pixel disparity sigma: the floor (fitted)"
+        0.11, lo=0.0, hi=5.0, units="px", doc="per-pixel disparity sigma: the floor (fitted)"
     )
     sigma_ls_gain: float = param(
-        0.6, lo=0.0, hi=10.0, doc="per-pixel disparity sigma: gain on the least-squares sigma (fitted)"
+        1.0, lo=0.0, hi=10.0, doc="per-pixel disparity sigma: gain on the least-squares sigma (fitted)"
     )
     sigma_spread_gain: float = param(
-        3.0, lo=0.0, hi=20.0, doc="per-pixel disparity sigma: gain on the excess local spread (fitted)"
+        6.0, lo=0.0, hi=20.0, doc="per-pixel disparity sigma: gain on the excess local spread (fitted)"
     )
     sigma_disparity_px: float = param(
         0.15, lo=0.01, hi=5.0, units="px",
@@ -208,21 +208,32 @@ class StereoMatcher:
         return dm.disparity_px
 
     def match_steps(self, left: U8, right: U8) -> Generator[None, None, DisparityImage]:
-        """:meth:`match` as a slack-job generator: it yields after each SGBM band (a bounded
-        share of the pair) and once between the gates and the refinement, and returns the
-        same result as :meth:`match`."""
+        """:meth:`match` as a slack-job generator. It yields after each band of each pass (a
+        bounded share of the pair): SGBM, then the correlation gate, then the refinement, each
+        over the ``band_rows_px`` bands; the local gates and the sigma finish the last slice.
+        The correlation and the refinement are row-local (the match moves along rows; the
+        windows reach a few rows), so each band is computed with a few rows of context and
+        the result equals the whole image's exactly."""
         self._check_pair(left, right)
         cfg = self.cfg
+        h = left.shape[0]
         raw = np.empty(left.shape, np.int16)
-        for start, end, src0, src1 in self.bands(left.shape[0]):
+        for start, end, src0, src1 in self.bands(h):
             part = self._sgbm.compute(left[src0:src1], right[src0:src1])
             raw[start:end] = part[start - src0:end - src0]
             yield None
         invalid = (cfg.min_disparity_px - 1) * cv2.StereoMatcher_DISP_SCALE
         lf, rf = left.astype(np.float32), right.astype(np.float32)
-        d32 = raw.astype(np.float32) / cv2.StereoMatcher_DISP_SCALE
-        bad = (raw <= invalid) | (d32 <= 0.0)
-        bad |= quality.ncc(lf, rf, np.where(bad, 0.0, d32), cfg.ncc_window_px) < cfg.min_ncc
+        bad = raw <= invalid
+        d32 = np.where(bad, 0.0, raw.astype(np.float32) / cv2.StereoMatcher_DISP_SCALE)
+        bad |= d32 <= 0.0
+        d32 = d32.astype(np.float32)
+        margin = cfg.ncc_window_px // 2 + 1
+        for start, end, _, _ in self.bands(h):
+            s0, s1 = max(0, start - margin), min(h, end + margin)
+            c = quality.ncc(lf[s0:s1], rf[s0:s1], d32[s0:s1], cfg.ncc_window_px)
+            bad[start:end] |= c[start - s0:end - s0] < cfg.min_ncc
+            yield None
         if cfg.texture_threshold > 0.0:
             bad |= ~self.textured(left)
         raw[bad] = invalid
@@ -236,11 +247,17 @@ class StereoMatcher:
             bad[:, :b] = bad[:, -b:] = True
         # SGBM cannot match the left columns that have no partner in the right image.
         bad[:, : cfg.min_disparity_px + cfg.num_disparities_px] = True
-        yield None
         d32 = np.where(bad, 0.0, raw.astype(np.float32) / cv2.StereoMatcher_DISP_SCALE)
-        d32, sigma_ls = quality.refine(lf, rf, d32.astype(np.float32), cfg.refine_window_px,
-                                       cfg.refine_iterations)
-        disp = np.where(bad, np.nan, d32.astype(np.float64))
+        d32 = d32.astype(np.float32)
+        refined, sigma_ls = np.empty_like(d32), np.empty_like(d32)
+        margin = 2 * (cfg.refine_window_px // 2 + 1) * (cfg.refine_iterations + 1)
+        for start, end, _, _ in self.bands(h):
+            s0, s1 = max(0, start - margin), min(h, end + margin)
+            dr, sl = quality.refine(lf[s0:s1], rf[s0:s1], d32[s0:s1], cfg.refine_window_px,
+                                    cfg.refine_iterations)
+            refined[start:end], sigma_ls[start:end] = dr[start - s0:end - s0], sl[start - s0:end - s0]
+            yield None
+        disp = np.where(bad, np.nan, refined.astype(np.float64))
         spread = quality.local_spread(disp, cfg.spread_window_px)
         disp[spread > cfg.max_spread_px] = np.nan
         sigma = quality.disparity_sigma(sigma_ls, spread, cfg.sigma_floor_px, cfg.sigma_ls_gain,

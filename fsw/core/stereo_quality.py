@@ -15,9 +15,10 @@ camera and on the renderer (docs/perception.md, "Per-pixel disparity sigma"):
   window: ``sigma_ls^2 = s^2 / sum(Ix^2)`` with ``s^2`` the window's residual variance after
   the step. It is the Cramer-Rao form of the matching-cost curvature: a flat cost (weak
   gradient) or a poor fit (large residual) gives a large sigma;
-* **local disparity spread**: the standard deviation of the valid disparities in a small
-  window. Beyond the noise (``sigma_ls``) it marks a depth discontinuity or an occlusion
-  border, where SGBM's errors concentrate (foreground fattening).
+* **local disparity spread**: the RMS deviation of the disparities in a small window from
+  their 3x3 means (a plane, however steep its disparity gradient, gives none). Beyond the
+  noise (``sigma_ls``) it marks a depth discontinuity or an occlusion border, where SGBM's
+  errors concentrate (foreground fattening).
 
 The sigma of §1.2 per pixel is ``sigma_d^2 = floor^2 + (g sigma_ls)^2 + c^2 max(0, spread^2 -
 (g sigma_ls)^2)``; ``floor``, ``g`` and ``c`` were fitted on Middlebury and rendered pairs
@@ -101,15 +102,19 @@ def refine(left: F32, right: F32, disp: F32, window_px: int, iterations: int) ->
 
 
 def local_spread(disp: F64, window_px: int) -> F32:
-    """Standard deviation of the valid (finite) disparities in each ``window_px`` window."""
+    """Local roughness of the disparity: the RMS over a ``window_px`` window of each valid
+    pixel's difference from the mean of its valid 3x3 neighbourhood. A plane (any disparity
+    gradient, as on ground seen obliquely) gives 0; noise gives about its own std; a depth
+    jump or an occlusion border gives a large value on both sides of it."""
     ok = np.isfinite(disp)
+    okf = ok.astype(np.float32)
     z = np.where(ok, disp, 0.0).astype(np.float32)
+    cnt3 = cv2.boxFilter(okf, -1, (3, 3), normalize=False)
+    mean3 = cv2.boxFilter(z, -1, (3, 3), normalize=False) / np.maximum(cnt3, 1.0)
+    r2 = np.where(ok, (z - mean3) ** 2, 0.0).astype(np.float32)
     win = (window_px, window_px)
-    cnt = cv2.boxFilter(ok.astype(np.float32), -1, win, normalize=False)
-    s1 = cv2.boxFilter(z, -1, win, normalize=False)
-    s2 = cv2.boxFilter(z * z, -1, win, normalize=False)
-    mean = s1 / np.maximum(cnt, 1.0)
-    return np.sqrt(np.maximum(s2 / np.maximum(cnt, 1.0) - mean * mean, 0.0)).astype(np.float32)
+    cnt = cv2.boxFilter(okf, -1, win, normalize=False)
+    return np.sqrt(cv2.boxFilter(r2, -1, win, normalize=False) / np.maximum(cnt, 1.0)).astype(np.float32)
 
 
 def disparity_sigma(sigma_ls: F32, spread: F32, floor_px: float, ls_gain: float,

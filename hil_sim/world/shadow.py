@@ -7,8 +7,8 @@ iff ``max_{s > s0} (h(s) - s tan(el)) > h(s0) - s0 tan(el)``. That is one suffix
 line (a "horizon" sweep, exact for the sampled terrain and O(cells)):
 
 1. resample the heightfield onto a grid rotated so that the sun's azimuth runs along its
-   columns (bilinear, ``cv2.remap``; the sides outside the world are far below it, so nothing
-   beyond the world's edge casts a shadow);
+   columns (bilinear, ``cv2.remap``); samples not wholly inside the world are neither lit
+   nor occluders (nothing beyond the world's edge casts a shadow);
 2. per row, ``np.maximum.accumulate`` of ``h - s tan(el)`` from the sun's side;
 3. sample the shadow back onto the original cells (bilinear on the 0/1 mask, so a shadow's
    border is softened over about a cell, like a short penumbra).
@@ -63,13 +63,15 @@ def cast_shadow(height: F32, cell_m: float, sun_azimuth_deg: float, sun_elevatio
     map_x = (centre[0] + j[None, :] * ex[0] + i[:, None] * ey[0]).astype(np.float32)
     map_y = (centre[1] + j[None, :] * ex[1] + i[:, None] * ey[1]).astype(np.float32)
     rot = cv2.remap(h, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                    borderValue=float(_FAR_BELOW))
+                    borderValue=0.0)
+    inside = cv2.remap(np.ones_like(h), map_x, map_y, cv2.INTER_LINEAR,
+                       borderMode=cv2.BORDER_CONSTANT, borderValue=0.0) > 0.999
     s_m = (np.arange(side, dtype=np.float32) * np.float32(cell_m))[None, :]
-    u = rot - s_m * np.float32(tan_el)
+    u = np.where(inside, rot - s_m * np.float32(tan_el), _FAR_BELOW)
     # the highest occluder strictly toward the sun (columns j+1 ..)
     ahead = np.maximum.accumulate(u[:, ::-1], axis=1)[:, ::-1]
     ahead = np.concatenate([ahead[:, 1:], np.full((side, 1), _FAR_BELOW, np.float32)], axis=1)
-    shadow = (ahead > u + np.float32(tol)).astype(np.float32)
+    shadow = (inside & (ahead > u + np.float32(tol))).astype(np.float32)
     # back to the world grid: the rotated coordinates of every cell
     ix, iy = np.meshgrid(np.arange(nx, dtype=np.float64), np.arange(ny, dtype=np.float64))
     dx, dy = ix - centre[0], iy - centre[1]
