@@ -78,9 +78,9 @@ def refine(left: F32, right: F32, disp: F32, window_px: int, iterations: int) ->
 
     def residual(d: F32) -> tuple[F32, F32, F32]:
         rw = warp_right(right, d)
-        e = left - rw
-        e = e - cv2.boxFilter(e, -1, win)
-        return rw, e, cv2.boxFilter(e * e, -1, win, normalize=False)
+        e = np.asarray(left - rw, np.float32)
+        e = np.asarray(e - cv2.boxFilter(e, -1, win), np.float32)
+        return rw, e, np.asarray(cv2.boxFilter(e * e, -1, win, normalize=False), np.float32)
 
     d = disp
     rw, e, ssd = residual(d)

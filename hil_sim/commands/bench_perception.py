@@ -2,7 +2,8 @@
 variance calibration of the map (ALGORITHM.md §1, §2, §4; docs/perception.md).
 
 Prints, from real runs on rendered pairs of the scenario:
-  * stereo ms per pair (SGBM, filters, triangulation with covariance; 640x480);
+  * stereo ms per pair (SGBM, filters, triangulation with covariance; 640x480), and the
+    median and longest slice of the slack-job matcher (``match_steps``);
   * points merged per second (one view's world points fused into a fresh map, and a
     300 000-point batch into the default 256x256 map; target <= 50 ms);
   * edge fit ms (edge points, polygon and straight-line fits, the set-back path) on the map
@@ -96,6 +97,9 @@ def run(args: argparse.Namespace) -> int:
     ms = _median_ms(lambda: matcher.points(left, right), args.repeats)
     pts = view_points(matcher, left, right, PoseEstimate(pose, exact))
     print(f"stereo                {ms:8.1f} ms per pair  ({len(pts.xyz_w)} points)")
+    slices = _slice_ms(matcher, left, right, args.repeats)
+    print(f"stereo slices         {np.median(slices):8.1f} ms median, {max(slices):.1f} ms longest "
+          f"({len(slices) // args.repeats} slices per pair: SGBM, correlation, refinement bands)")
 
     def merge_view() -> None:
         ElevationMap(grid, cfg.fusion).merge(pts.xyz_w, cov=pts.cov_w)
@@ -151,6 +155,26 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         return _calibration(args, cfg, world, grid, rend, matcher, exact)
     return 0
+
+
+def _slice_ms(matcher, left, right, repeats: int) -> list[float]:  # type: ignore[no-untyped-def]
+    """Wall time of each slice of the slack-job matcher (``match_steps``), ``repeats`` pairs."""
+    import time
+
+    out = []
+    for _ in range(repeats):
+        gen = matcher.match_steps(left, right)
+        t0 = time.perf_counter()
+        while True:
+            try:
+                next(gen)
+            except StopIteration:
+                out.append(1e3 * (time.perf_counter() - t0))
+                break
+            t1 = time.perf_counter()
+            out.append(1e3 * (t1 - t0))
+            t0 = t1
+    return out
 
 
 def _pair_points(rend, matcher, pose, exact):  # type: ignore[no-untyped-def]
