@@ -88,11 +88,12 @@ def test_per_pixel_sigma_goes_into_the_covariance(cfg) -> None:
     cam = CameraConfig(width_px=64, height_px=48)
     m = StereoMatcher(dataclasses.replace(cfg, num_disparities_px=16), cam)
     disp = np.full((48, 64), np.nan)
-    disp[20:25, 30:40] = 20.0
+    disp[20:25, 30:40] = 10.0  # Z = f B / d = 1.03 m, inside the camera range
     sigma = np.full_like(disp, np.nan)
     sigma[20:25, 30:40] = np.linspace(0.05, 1.0, 50).reshape(5, 10)
     pts = m.triangulate(disp, sigma_px=sigma)
     const = m.triangulate(disp)
+    assert len(pts) == 50
     K = cam.K
     du, dv = pts.uv[:, 0] - K[0, 2], pts.uv[:, 1] - K[1, 2]
     want = stereo_covariance(du, dv, pts.disparity_px, cam.focal_px, cam.baseline_m,
