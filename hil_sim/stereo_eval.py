@@ -150,6 +150,7 @@ def sigma_figure(path: str, panels: list[tuple[str, F64, F64]]) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FormatStrFormatter, NullFormatter
 
     fig, axes = plt.subplots(2, len(panels), figsize=(5.0 * len(panels), 8.0), squeeze=False)
     for col, (title, err, sig) in enumerate(panels):
@@ -163,6 +164,8 @@ def sigma_figure(path: str, panels: list[tuple[str, F64, F64]]) -> None:
             ax.plot(xs, ys, "o-", color=colour, label=f"|error| <= {k:g} sigma, per sigma bin")
             ax.axhline(100 * ref, color=colour, ls=":", lw=1)
         ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.xaxis.set_major_formatter(FormatStrFormatter("%g"))
         ax.set_ylim(0, 100)
         ax.set_xlabel("predicted disparity sigma (px), bins of 5 % of the pixels")
         ax.set_ylabel("share of the bin's pixels (%); dotted: a Gaussian's")
