@@ -12,19 +12,26 @@ from the rectified left frame back to the physical left camera, ``x = R1^T x_rec
 their covariances with them.
 
 Its covariance is first-order propagation of independent pixel noise on ``u``, ``v`` (the
-pixel localisation, ``sigma_pixel_px``) and on ``d`` (the matcher's sub-pixel error,
-``sigma_disparity_px``): ``Sigma_c = J diag(su^2, sv^2, sd^2) J^T``. Its depth part is the
+pixel localisation, ``sigma_pixel_px``) and on ``d``: ``Sigma_c = J diag(su^2, sv^2, sd^2)
+J^T``, with ``sd`` the **per-pixel** disparity sigma of ``fsw.core.stereo_quality`` (from the
+window's least-squares fit and the local disparity spread). Its depth part is the
 range-squared law of §1.2, ``sigma_Z = Z^2 sigma_d / (f B)``.
 
 A pixel gives no point unless the match is trustworthy. The filters, in order:
-  * texture: the mean absolute horizontal gradient over the block window must reach
-    ``texture_threshold`` (as StereoBM's textureThreshold; SGBM has none), so a
-    textureless patch gives nothing, never a guess from image noise;
-  * uniqueness: the best matching cost beats the second best by ``uniqueness_ratio_pct``;
-  * left-right consistency: the right-to-left disparity agrees within
-    ``disp12_max_diff_px`` (OpenCV's disp12MaxDiff check);
-  * speckle filter: small connected blobs of disparity are dropped;
+  * uniqueness: the best matching cost beats the second best by ``uniqueness_ratio_pct``
+    (OpenCV's ``disp12MaxDiff`` left-right check is passed on too, but measured to change
+    nothing in OpenCV's SGBM modes: docs/perception.md);
+  * correlation: the normalised cross-correlation of the windows at the match reaches
+    ``min_ncc`` (a textureless window correlates like noise; gain invariant, so the same
+    threshold holds on real cameras; an absolute ``texture_threshold`` is off by default);
+  * speckle filter: small connected blobs of disparity are dropped (after the gates, so an
+    isolated survivor in a textureless patch goes too);
+  * local spread: the valid disparities around the pixel spread less than
+    ``max_spread_px`` (an occlusion border or a depth jump);
   * range gate: the depth lies within the camera's ``min_range_m .. max_range_m``.
+The filters and the noise model were derived on real rectified pairs with ground truth
+(Middlebury 2014 Motorcycle, shipped by scikit-image) and on the renderer: ``safer-hil bench
+stereo-real`` prints both.
 """
 
 from __future__ import annotations
@@ -36,6 +43,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from fsw.core import stereo_quality as quality
 from fsw.core.geometry import CameraConfig
 from fsw.core.rectify import RectifiedCamera
 from fsw.core.steps import run_to_end
@@ -83,20 +91,36 @@ class StereoConfig:
         48, lo=0, hi=512, units="px", doc="rows of context matched above each band and cropped off",
     )
     texture_threshold: float = param(
-        4.0, lo=0.0, hi=255.0, units="grey/px",
-        doc="minimum mean |d I/dx| over the block window; below it the pixel gives no point",
+        0.0, lo=0.0, hi=255.0, units="grey/px",
+        doc="minimum mean |d I/dx| over the texture window (0: off; min_ncc is the texture gate)",
     )
     texture_window_px: int = param(5, lo=3, hi=31, units="px", doc="odd texture window side")
+    min_ncc: float = param(
+        0.5, lo=-1.0, hi=1.0, doc="least normalised cross-correlation of the windows at the match",
+    )
+    ncc_window_px: int = param(7, lo=3, hi=31, units="px", doc="odd correlation window side")
+    max_spread_px: float = param(
+        2.0, lo=0.0, hi=1000.0, units="px",
+        doc="largest std of the valid disparities around a pixel (a depth jump beyond: no point)",
+    )
+    spread_window_px: int = param(5, lo=3, hi=31, units="px", doc="odd local-spread window side")
     border_px: int = param(4, lo=0, hi=64, units="px", doc="image border that gives no points")
     refine_iterations: int = param(
-        1, lo=0, hi=5, doc="Lucas-Kanade sub-pixel refinement steps after SGBM (0: none)"
+        1, lo=0, hi=5, doc="zero-mean Lucas-Kanade sub-pixel refinement steps after SGBM (0: none)"
     )
     refine_window_px: int = param(5, lo=3, hi=21, units="px", doc="odd refinement window side")
-    refine_max_step_px: float = param(
-        0.5, lo=0.05, hi=2.0, units="px", doc="a larger refinement step drops the pixel"
+    sigma_floor_px: float = param(
+        0.11, lo=0.0, hi=5.0, units="px", doc="per-pixel disparity sigma: the floor (fitted)"
+    )
+    sigma_ls_gain: float = param(
+        1.0, lo=0.0, hi=10.0, doc="per-pixel disparity sigma: gain on the least-squares sigma (fitted)"
+    )
+    sigma_spread_gain: float = param(
+        6.0, lo=0.0, hi=20.0, doc="per-pixel disparity sigma: gain on the excess local spread (fitted)"
     )
     sigma_disparity_px: float = param(
-        0.15, lo=0.01, hi=5.0, units="px", doc="1-sigma sub-pixel disparity noise (calibrated)"
+        0.15, lo=0.01, hi=5.0, units="px",
+        doc="1-sigma disparity noise where no per-pixel sigma is given (triangulate of a bare disparity)",
     )
     sigma_pixel_px: float = param(
         0.3, lo=0.0, hi=5.0, units="px", doc="1-sigma pixel localisation noise on u and v"
@@ -105,9 +129,10 @@ class StereoConfig:
     def __post_init__(self) -> None:
         if self.num_disparities_px % 16:
             raise ValueError("num_disparities_px must be a multiple of 16")
-        if self.block_size_px % 2 == 0 or self.texture_window_px % 2 == 0 or (
-                self.refine_window_px % 2 == 0):
-            raise ValueError("block_size_px, texture_window_px and refine_window_px must be odd")
+        windows = (self.block_size_px, self.texture_window_px, self.refine_window_px,
+                   self.ncc_window_px, self.spread_window_px)
+        if any(w % 2 == 0 for w in windows):
+            raise ValueError("block_size_px and every *_window_px must be odd")
         if self.p2 <= self.p1:
             raise ValueError("p2 must exceed p1")
 
@@ -124,6 +149,14 @@ class StereoPoints:
 
     def __len__(self) -> int:
         return int(self.xyz_c.shape[0])
+
+
+@dataclass(frozen=True)
+class DisparityImage:
+    """A matched pair: disparity and its 1-sigma per pixel (both NaN where no point)."""
+
+    disparity_px: F64  # (H, W)
+    sigma_px: F64  # (H, W)
 
 
 class StereoMatcher:
@@ -153,7 +186,11 @@ class StereoMatcher:
 
     def disparity(self, left: U8, right: U8) -> F64:
         """Disparity in pixels for each left pixel; NaN where no trustworthy match."""
-        return run_to_end(self.disparity_steps(left, right))
+        return run_to_end(self.match_steps(left, right)).disparity_px
+
+    def match(self, left: U8, right: U8) -> DisparityImage:
+        """Disparity and its per-pixel sigma (:meth:`match_steps` run to the end)."""
+        return run_to_end(self.match_steps(left, right))
 
     def bands(self, height: int) -> list[tuple[int, int, int, int]]:
         """The SGBM bands of an image ``height`` rows high: ``(start, end, src_start, src_end)``.
@@ -173,70 +210,67 @@ class StereoMatcher:
         return out
 
     def disparity_steps(self, left: U8, right: U8) -> Generator[None, None, F64]:
-        """:meth:`disparity` as a slack-job generator: it yields after each SGBM band (a
-        bounded share of the pair) and returns the same disparity as :meth:`disparity`."""
+        """:meth:`disparity` as a slack-job generator (see :meth:`match_steps`)."""
+        dm = yield from self.match_steps(left, right)
+        return dm.disparity_px
+
+    def match_steps(self, left: U8, right: U8) -> Generator[None, None, DisparityImage]:
+        """:meth:`match` as a slack-job generator. It yields after each band of each pass (a
+        bounded share of the pair): SGBM, then the correlation gate, then the refinement, each
+        over the ``band_rows_px`` bands; the local gates and the sigma finish the last slice.
+        The correlation and the refinement are row-local (the match moves along rows; the
+        windows reach a few rows), so each band is computed with a few rows of context and
+        the result equals the whole image's exactly."""
         self._check_pair(left, right)
+        cfg = self.cfg
+        h = left.shape[0]
         raw = np.empty(left.shape, np.int16)
-        for start, end, src0, src1 in self.bands(left.shape[0]):
+        for start, end, src0, src1 in self.bands(h):
             part = self._sgbm.compute(left[src0:src1], right[src0:src1])
             raw[start:end] = part[start - src0:end - src0]
             yield None
-        if self.cfg.speckle_window_px > 0:
-            cv2.filterSpeckles(
-                raw,
-                (self.cfg.min_disparity_px - 1) * cv2.StereoMatcher_DISP_SCALE,
-                self.cfg.speckle_window_px,
-                self.cfg.speckle_range_px * cv2.StereoMatcher_DISP_SCALE,
-            )
-        disp = raw.astype(np.float64) / cv2.StereoMatcher_DISP_SCALE
-        bad = raw <= (self.cfg.min_disparity_px - 1) * cv2.StereoMatcher_DISP_SCALE
-        bad |= disp <= 0.0
-        bad |= ~self.textured(left)
-        b = self.cfg.border_px
+        invalid = (cfg.min_disparity_px - 1) * cv2.StereoMatcher_DISP_SCALE
+        lf, rf = left.astype(np.float32), right.astype(np.float32)
+        bad = raw <= invalid
+        d32 = np.where(bad, 0.0, raw.astype(np.float32) / cv2.StereoMatcher_DISP_SCALE)
+        bad |= d32 <= 0.0
+        d32 = d32.astype(np.float32)
+        margin = cfg.ncc_window_px // 2 + 1
+        for start, end, _, _ in self.bands(h):
+            s0, s1 = max(0, start - margin), min(h, end + margin)
+            c = quality.ncc(lf[s0:s1], rf[s0:s1], d32[s0:s1], cfg.ncc_window_px)
+            bad[start:end] |= c[start - s0:end - s0] < cfg.min_ncc
+            yield None
+        if cfg.texture_threshold > 0.0:
+            bad |= ~self.textured(left)
+        raw[bad] = invalid
+        if cfg.speckle_window_px > 0:
+            cv2.filterSpeckles(raw, invalid, cfg.speckle_window_px,
+                               cfg.speckle_range_px * cv2.StereoMatcher_DISP_SCALE)
+        bad = raw <= invalid
+        b = cfg.border_px
         if b:
             bad[:b, :] = bad[-b:, :] = True
             bad[:, :b] = bad[:, -b:] = True
         # SGBM cannot match the left columns that have no partner in the right image.
-        bad[:, : self.cfg.min_disparity_px + self.cfg.num_disparities_px] = True
-        disp[bad] = np.nan
-        if self.cfg.refine_iterations:
-            disp = self.refine(left, right, disp)
-        return disp
-
-    def refine(self, left: U8, right: U8, disp: F64) -> F64:
-        """Sub-pixel refinement: Lucas-Kanade steps on the SSD over the refinement window.
-
-        SGBM interpolates its sub-pixel disparity from three integer costs, which pulls it
-        toward integers ("pixel locking", up to 0.15 px here, the same for every pixel of a
-        cell and so not averaged out). A step ``dd = -sum(Ix e) / sum(Ix^2)`` on the right
-        image resampled at the current disparity removes most of that bias; a step is kept
-        only where it lowers the window's SSD (docs/perception.md, "Stereo").
-        """
-        h, w = left.shape
-        lf, rf = left.astype(np.float32), right.astype(np.float32)
-        uu, vv = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-        ok = np.isfinite(disp)
-        d = np.where(ok, disp, 0.0).astype(np.float32)
-        win = (self.cfg.refine_window_px, self.cfg.refine_window_px)
-        rw = cv2.remap(rf, uu - d, vv, cv2.INTER_LINEAR)
-        e = lf - rw
-        ssd = cv2.boxFilter(e * e, -1, win, normalize=False)
-        for _ in range(self.cfg.refine_iterations):
-            ix = np.asarray(cv2.Sobel(rw, cv2.CV_32F, 1, 0, ksize=3), np.float32) / 8.0
-            num = cv2.boxFilter(np.asarray(ix * e, np.float32), -1, win, normalize=False)
-            den = cv2.boxFilter(np.asarray(ix * ix, np.float32), -1, win, normalize=False)
-            step = -num / np.maximum(den, 1e-6)
-            # SGBM's own sub-pixel error is under 0.2 px where it matched well; a larger
-            # step means the window disagrees with the match: the pixel is ambiguous
-            ok &= np.abs(step) <= self.cfg.refine_max_step_px
-            cand = d + np.clip(step, -0.5, 0.5)
-            rw2 = cv2.remap(rf, uu - cand, vv, cv2.INTER_LINEAR)
-            e2 = lf - rw2
-            ssd2 = cv2.boxFilter(e2 * e2, -1, win, normalize=False)
-            better = ssd2 < ssd
-            d = np.where(better, cand, d)
-            rw, e, ssd = np.where(better, rw2, rw), np.where(better, e2, e), np.minimum(ssd, ssd2)
-        return np.where(ok, d.astype(np.float64), np.nan)
+        bad[:, : cfg.min_disparity_px + cfg.num_disparities_px] = True
+        d32 = np.where(bad, 0.0, raw.astype(np.float32) / cv2.StereoMatcher_DISP_SCALE)
+        d32 = d32.astype(np.float32)
+        refined, sigma_ls = np.empty_like(d32), np.empty_like(d32)
+        margin = 2 * (cfg.refine_window_px // 2 + 1) * (cfg.refine_iterations + 1)
+        for start, end, _, _ in self.bands(h):
+            s0, s1 = max(0, start - margin), min(h, end + margin)
+            dr, sl = quality.refine(lf[s0:s1], rf[s0:s1], d32[s0:s1], cfg.refine_window_px,
+                                    cfg.refine_iterations)
+            refined[start:end], sigma_ls[start:end] = dr[start - s0:end - s0], sl[start - s0:end - s0]
+            yield None
+        disp = np.where(bad, np.nan, refined.astype(np.float64))
+        spread = quality.local_spread(disp, cfg.spread_window_px)
+        disp[spread > cfg.max_spread_px] = np.nan
+        sigma = quality.disparity_sigma(sigma_ls, spread, cfg.sigma_floor_px, cfg.sigma_ls_gain,
+                                        cfg.sigma_spread_gain)
+        sigma[~np.isfinite(disp)] = np.nan
+        return DisparityImage(disp, sigma)
 
     def textured(self, image: U8) -> NDArray[np.bool_]:
         """Pixels whose window has enough horizontal gradient to be matched."""
@@ -247,16 +281,20 @@ class StereoMatcher:
 
     def points(self, left: U8, right: U8, stride_px: int = 1) -> StereoPoints:
         """Match the pair and triangulate every valid pixel (every ``stride_px``-th one)."""
-        disp = self.disparity(left, right)
-        return self.triangulate(disp, stride_px)
+        dm = self.match(left, right)
+        return self.triangulate(dm.disparity_px, stride_px, dm.sigma_px)
 
-    def triangulate(self, disp: F64, stride_px: int = 1) -> StereoPoints:
-        """3-D points and covariances from a disparity image (NaN = no match)."""
-        return run_to_end(self.triangulate_steps(disp, stride_px))
+    def triangulate(self, disp: F64, stride_px: int = 1, sigma_px: F64 | None = None) -> StereoPoints:
+        """3-D points and covariances from a disparity image (NaN = no match) and its
+        per-pixel sigma (None: the constant ``sigma_disparity_px``)."""
+        return run_to_end(self.triangulate_steps(disp, stride_px, sigma_px))
 
-    def triangulate_steps(self, disp: F64, stride_px: int = 1) -> Generator[None, None, StereoPoints]:
+    def triangulate_steps(self, disp: F64, stride_px: int = 1, sigma_px: F64 | None = None,
+                          ) -> Generator[None, None, StereoPoints]:
         """:meth:`triangulate`, yielding after each band of ``band_rows_px`` rows; the points
         come in the same (row-major) order with the same values."""
+        if sigma_px is not None and sigma_px.shape != disp.shape:
+            raise ValueError(f"sigma_px shape {sigma_px.shape} differs from disparity {disp.shape}")
         cam, rect = self.camera, self.rectified
         if rect is None:
             f, B, cx, cy = cam.focal_px, cam.baseline_m, cam.K[0, 2], cam.K[1, 2]
@@ -274,12 +312,13 @@ class StereoMatcher:
             v, u = np.nonzero(valid[start:end])
             v = v + start
             d = disp[v, u]
+            sd = (np.full(d.shape, self.cfg.sigma_disparity_px) if sigma_px is None
+                  else np.nan_to_num(sigma_px[v, u], nan=self.cfg.sigma_disparity_px))
             u = u.astype(np.float64)
             v = v.astype(np.float64)
             z = f * B / d
             xyz = np.column_stack([(u - cx) * z / f, (v - cy) * z / f, z])
-            cov = stereo_covariance(u - cx, v - cy, d, f, B, self.cfg.sigma_pixel_px,
-                                    self.cfg.sigma_disparity_px)
+            cov = stereo_covariance(u - cx, v - cy, d, f, B, self.cfg.sigma_pixel_px, sd)
             if rect is not None:  # rectified left frame -> physical left camera: x = R1^T x_rect
                 R1 = rect.R_rect
                 xyz = xyz @ R1
@@ -301,9 +340,10 @@ class StereoMatcher:
 
 
 def stereo_covariance(
-    du: F64, dv: F64, d: F64, f: float, B: float, sigma_px: float, sigma_d: float
+    du: F64, dv: F64, d: F64, f: float, B: float, sigma_px: float, sigma_d: float | F64
 ) -> F64:
-    """Camera-frame covariance ``J diag(su^2, sv^2, sd^2) J^T`` per point (§1.2).
+    """Camera-frame covariance ``J diag(su^2, sv^2, sd^2) J^T`` per point (§1.2); ``sigma_d``
+    is one value or one per point.
 
     ``du = u - cx`` and ``dv = v - cy`` are pixel offsets from the principal point, ``d`` the
     disparity. With X = B du / d, Y = B dv / d, Z = f B / d the Jacobian rows are

@@ -173,9 +173,9 @@ class PerceptionTask(FlightTask):
         left, right = fr.left, fr.right
         if self.rectifier is not None:
             left, right = yield from self.rectifier.rectify_steps(left, right, cfg.stereo.band_rows_px)
-        disp = yield from self.matcher.disparity_steps(left, right)
+        dm = yield from self.matcher.match_steps(left, right)
         yield
-        pts = yield from self.matcher.triangulate_steps(disp)
+        pts = yield from self.matcher.triangulate_steps(dm.disparity_px, sigma_px=dm.sigma_px)
         reg, pose, pose_cov = yield from self._register(fr, pts)
         parts = []
         for a in range(0, len(pts), PROPAGATE_CHUNK):  # world covariance (§1.2) in bounded slices

@@ -2,7 +2,8 @@
 variance calibration of the map (ALGORITHM.md §1, §2, §4; docs/perception.md).
 
 Prints, from real runs on rendered pairs of the scenario:
-  * stereo ms per pair (SGBM, filters, triangulation with covariance; 640x480);
+  * stereo ms per pair (SGBM, filters, triangulation with covariance; 640x480), and the
+    median and longest slice of the slack-job matcher (``match_steps``);
   * rectification ms per pair (two ``cv2.remap`` with the fixed-point maps of the configured
     calibration file; target <= 5 ms);
   * points merged per second (one view's world points fused into a fresh map, and a
@@ -109,6 +110,9 @@ def run(args: argparse.Namespace) -> int:
         verdict = "meets" if ms <= RECTIFY_TARGET_MS else "MISSES"
         print(f"rectification         {ms:8.2f} ms per pair  (cv2.remap, CV_16SC2 maps; {verdict} the "
               f"{RECTIFY_TARGET_MS:g} ms target)")
+    slices = _slice_ms(matcher, left, right, args.repeats)
+    print(f"stereo slices         {np.median(slices):8.1f} ms median, {max(slices):.1f} ms longest "
+          f"({len(slices) // args.repeats} slices per pair: SGBM, correlation, refinement bands)")
 
     def merge_view() -> None:
         ElevationMap(grid, cfg.fusion).merge(pts.xyz_w, cov=pts.cov_w)
@@ -164,6 +168,26 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         return _calibration(args, cfg, world, grid, rend, matcher, exact)
     return 0
+
+
+def _slice_ms(matcher, left, right, repeats: int) -> list[float]:  # type: ignore[no-untyped-def]
+    """Wall time of each slice of the slack-job matcher (``match_steps``), ``repeats`` pairs."""
+    import time
+
+    out = []
+    for _ in range(repeats):
+        gen = matcher.match_steps(left, right)
+        t0 = time.perf_counter()
+        while True:
+            try:
+                next(gen)
+            except StopIteration:
+                out.append(1e3 * (time.perf_counter() - t0))
+                break
+            t1 = time.perf_counter()
+            out.append(1e3 * (t1 - t0))
+            t0 = t1
+    return out
 
 
 def _pair_points(rend, matcher, pose, exact):  # type: ignore[no-untyped-def]

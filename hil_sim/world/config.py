@@ -94,6 +94,8 @@ class TextureConfig:
     sun_azimuth_deg: float = param(135.0, lo=-360.0, hi=360.0, units="deg")
     sun_elevation_deg: float = param(50.0, lo=5.0, hi=90.0, units="deg")
     ambient: float = param(0.35, lo=0.0, hi=1.0, doc="light not from the sun (baked shading)")
+    cast_shadows: bool = param(False, doc="terrain casts shadows from the sun (lit at ambient "
+                                          "only; hil_sim.world.shadow)")
     textureless_albedo: float = param(0.62, lo=0.0, hi=1.0)
     textureless_regions: tuple[tuple[float, float, float, float], ...] = param(
         (), doc="regions of uniform surface where stereo finds no match: centre x, y and "

@@ -3,7 +3,8 @@
 The albedo is a multi-scale fractal field (all octaves between ``finest_m`` and
 ``coarsest_m`` at once, spectral slope ``spectral_slope``), modulated per rock so rocks
 stand out from sand, then multiplied by Lambertian shading from the terrain normals under a
-fixed sun (view independent, so both cameras of the stereo pair see the same brightness).
+fixed sun (view independent, so both cameras of the stereo pair see the same brightness),
+with cast shadows where the scenario asks for them (``cast_shadows``; ``hil_sim.world.shadow``).
 Textureless regions get one constant albedo and no shading, so stereo finds nothing to
 match there (the paper's left part of the sandpit; ALGORITHM.md §3.4, §7). The renderer adds
 a 2.5 mm detail texture scaled by :func:`make_texture`'s ``detail`` map (docs/world.md).
@@ -18,6 +19,7 @@ from numpy.typing import NDArray
 
 from hil_sim.world.config import TextureConfig
 from hil_sim.world.noise import fractal_noise
+from hil_sim.world.shadow import cast_shadow
 
 F32 = NDArray[np.float32]
 
@@ -29,11 +31,16 @@ def sun_vector(cfg: TextureConfig) -> NDArray[np.float64]:
 
 
 def shading(height: F32, cell_m: float, cfg: TextureConfig) -> F32:
-    """Lambertian shading ``ambient + (1 - ambient) * max(0, n . sun)`` per cell."""
+    """Lambertian shading ``ambient + (1 - ambient) * lit * max(0, n . sun)`` per cell, where
+    ``lit`` is the sun's visibility (:func:`hil_sim.world.shadow.cast_shadow` when the
+    scenario has ``cast_shadows``, else 1): a cell in a cast shadow gets the ambient light only.
+    """
     gy, gx = np.gradient(height.astype(np.float32), cell_m)
     sx, sy, sz = sun_vector(cfg)
-    ndots = (-gx * sx - gy * sy + sz) / np.sqrt(gx * gx + gy * gy + 1.0)
-    return (cfg.ambient + (1.0 - cfg.ambient) * np.clip(ndots, 0.0, None)).astype(np.float32)
+    ndots = np.clip((-gx * sx - gy * sy + sz) / np.sqrt(gx * gx + gy * gy + 1.0), 0.0, None)
+    if cfg.cast_shadows:
+        ndots = ndots * cast_shadow(height, cell_m, cfg.sun_azimuth_deg, cfg.sun_elevation_deg)
+    return (cfg.ambient + (1.0 - cfg.ambient) * ndots).astype(np.float32)
 
 
 def make_texture(

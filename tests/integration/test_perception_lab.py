@@ -191,14 +191,18 @@ def test_textureless_region_gives_no_points_and_records_misses(cfg, lab, single)
     jx = np.clip(((hit[:, 0] - world.x0) / world.cell_m).astype(int), 0, world.shape[1] - 1)
     jy = np.clip(((hit[:, 1] - world.y0) / world.cell_m).astype(int), 0, world.shape[0] - 1)
     on_patch = (world.textureless[jy, jx] & np.isfinite(depth).ravel()).reshape(depth.shape)
-    # the window half-width, plus 3 px over which the rendered rim blends into the patch
-    reach = max(cfg.stereo.block_size_px, cfg.stereo.texture_window_px) // 2 + 3
-    deep = ndimage.binary_erosion(on_patch, iterations=reach)
+    # the largest window's half-width (the NCC gate's 9 px since issue 14), plus 3 px over
+    # which the rendered rim blends into the patch; square windows: erode in the max-norm
+    reach = max(cfg.stereo.block_size_px, cfg.stereo.texture_window_px,
+                cfg.stereo.ncc_window_px) // 2 + 3
+    deep = ndimage.binary_erosion(on_patch, structure=np.ones((3, 3)), iterations=reach)
     disp = matcher.disparity(left, right)
     # cell level
     patch = world.textureless_on_grid(grid)
     seen = patch & pv & ~emap.mapped
-    core = ndimage.binary_erosion(patch, iterations=2) & pv
+    # 3 cells: at this view's grazing angle a 9 px correlation window spans up to ~8 cm of
+    # ground, so a window centred 2 cells inside the patch can still see the textured rim
+    core = ndimage.binary_erosion(patch, iterations=3) & pv
     print(f"\n[done-when 4] textureless patch: {deep.sum()} pixels deep inside it, "
           f"{int(np.isfinite(disp[deep]).sum())} with a disparity; {core.sum()} visible core "
           f"cells, {int(emap.mapped[core].sum())} mapped; {int(seen.sum())} visible patch cells "

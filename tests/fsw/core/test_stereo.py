@@ -42,7 +42,10 @@ def test_textureless_patch_gives_no_points(plane_pair) -> None:
     pose, left, right = plane_pair
     sp = StereoMatcher(StereoConfig(num_disparities_px=64), CAM).points(left, right)
     pw, _ = propagate_point_covariance(pose, None, sp.xyz_c, sp.cov_c)
-    inner = (pw[:, 0] > 2.06) & (pw[:, 0] < 2.54) & (np.abs(pw[:, 1]) < 0.24)
+    # 10 cm in from the patch's edges: the 7 px correlation window (issue 14) spans up to
+    # 10 cm of this grazing plane at the patch's far edge, and a window that reaches the
+    # textured rim matches the rim, correctly
+    inner = (pw[:, 0] > 2.10) & (pw[:, 0] < 2.50) & (np.abs(pw[:, 1]) < 0.20)
     assert inner.sum() == 0
     outside = (pw[:, 0] > 2.8) & (pw[:, 0] < 3.4) & (np.abs(pw[:, 1]) < 0.24)
     assert outside.sum() > 500  # the texture around it still matches
