@@ -164,6 +164,7 @@ def rate_views_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws
     pts = np.column_stack([x_c[ix], y_c[iy], terrain.elev_m[iy, ix]])
     masks = np.zeros((yaws.size, iy.size), bool)
     for k in range(yaws.size):
+        yield None
         pose = CameraPose.from_pan_tilt(*cam_xyz, float(yaws[k]), float(tilts[k]))
         masks[k] = in_view(pose, camera, pts)
     yield None
@@ -173,5 +174,9 @@ def rate_views_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws
     pv = yield from pv_fast_steps(terrain, cam_xyz, iy[sel], ix[sel], cfg)
     bits, new = cell_values(pv, np.asarray(n)[iy[sel], ix[sel]], n_max,
                             None if interest is None else np.asarray(interest)[iy[sel], ix[sel]])
-    m = masks[:, sel].astype(np.float64)
-    return ViewRating(np.einsum("kn,n->k", m, bits), np.einsum("kn,n->k", m, new), int(sel.size))
+    info, new_cells = np.zeros(yaws.size), np.zeros(yaws.size)
+    for k in range(yaws.size):
+        m = masks[k, sel]
+        info[k], new_cells[k] = bits[m].sum(), new[m].sum()
+    yield None  # the sums are a step of their own, apart from what the caller does next
+    return ViewRating(info, new_cells, int(sel.size))

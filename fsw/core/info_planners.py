@@ -7,6 +7,8 @@ weighs P_V by the interest function, the oracle rates with the true terrain and 
 
 from __future__ import annotations
 
+from collections.abc import Generator
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -35,7 +37,7 @@ from fsw.core.view_candidates import (
     joint_grid,
     path_stations_steps,
 )
-from fsw.core.visibility import F64, Terrain, in_view, terrain_from_heights, terrain_from_map
+from fsw.core.visibility import F64, Terrain, in_view, terrain_from_heights, terrain_from_map_steps
 
 
 class InformationPlanner(Planner):
@@ -52,9 +54,10 @@ class InformationPlanner(Planner):
         self.last_stations = 0  # stations rated by the last search
         self.last_centres = 0  # camera centres (stations x lifts) rated by the last search
 
-    def _terrain(self, emap: MapLike) -> tuple[Terrain, F64 | None]:
+    def _terrain(self, emap: MapLike) -> Generator[None, None, tuple[Terrain, F64 | None]]:
         if self._truth_z is None:
-            terrain = terrain_from_map(emap.z, emap.var, emap.grid, self.cfg.visibility)
+            terrain = yield from terrain_from_map_steps(emap.z, emap.var, emap.grid,
+                                                        self.cfg.visibility)
             return terrain, (emap.interest if self.use_interest else None)
         if self._truth_terrain is None:
             z = np.asarray(self._truth_z, dtype=np.float64)
@@ -68,7 +71,7 @@ class InformationPlanner(Planner):
         exactly; the best exact utility wins. With ``coarse_cell_m`` = 0 (or a coarse cell no
         larger than the map's) every centre is rated exactly, view by view, as before."""
         cfg = self.cfg
-        terrain, interest = self._terrain(state.map)
+        terrain, interest = yield from self._terrain(state.map)
         yield None
         path = straighten(state.path) if self.straight_edge else state.path
         stations = yield from path_stations_steps(path, state.rover, state.motion_ok,
