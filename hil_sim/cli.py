@@ -27,6 +27,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("bench", "nbv"): "hil_sim.commands.bench_nbv",
     ("bench", "codec"): "hil_sim.commands.bench_codec",
     ("bench", "e2e"): "hil_sim.commands.bench_e2e",
+    ("bench", "cycle"): "hil_sim.commands.bench_cycle",
     ("experiment", "coverage"): "hil_sim.commands.experiment_coverage",
     ("experiment", "reduction"): "hil_sim.commands.experiment_reduction",
     ("experiment", "link"): "hil_sim.commands.experiment_link",

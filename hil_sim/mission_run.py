@@ -11,10 +11,11 @@ map error and any wheel over the drop (an edge violation).
 obtained_new_cells, pose{x,y,yaw,pan,tilt,lift}, wall_s, sim_s}``), ``map_rmse_m``,
 ``edge_violations``, ``geofence_refusals``, ``slips``, ``overruns``, ``task_max_ms``
 ({task: ms}, plus ``frame``: the longest frame, and ``slack_slice``, ``slack_slice.<task>``:
-the longest slack-job slice),
+the longest slack-job slice), ``task_ms_per_frame`` ({task: mean foreground ms per frame},
+plus ``total``),
 ``end_reason``, ``final_state``, ``mapped_cells``, ``frames``, ``sim_s``,
 ``wall_s``, ``cliffbot`` (the Cliff-bot's report, or null), ``files``. Wall-clock fields:
-``wall_s`` (top level and per step), ``task_max_ms``, and ``slips`` and ``overruns`` (both
+``wall_s`` (top level and per step), ``task_max_ms``, ``task_ms_per_frame``, and ``slips`` and ``overruns`` (both
 compare measured execution time with the period and budgets); everything else is a
 function of the inputs and the seed.
 """
@@ -37,7 +38,7 @@ from fsw.drivers.map_store import MapStore
 from fsw.drivers.resources import OracleTruth, Resources
 from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
 
-WALL_CLOCK_FIELDS = ("wall_s", "task_max_ms", "slips", "overruns")
+WALL_CLOCK_FIELDS = ("wall_s", "task_max_ms", "task_ms_per_frame", "slips", "overruns")
 
 
 @dataclass(frozen=True)
@@ -138,6 +139,7 @@ def run_mission(
             "slips": exe.slips,
             "overruns": sum(t.overruns for t in exe.tasks.values()),
             "task_max_ms": task_max_ms(exe),
+            "task_ms_per_frame": task_ms_per_frame(exe),
             "end_reason": mission.end,
             "safe_reason": mission.safe_reason,
             "final_state": mission.state,
@@ -152,6 +154,16 @@ def run_mission(
         if spec.out is not None:
             summary["files"] = write_outputs(spec.out, summary, emap, truth, grid)
     return summary
+
+
+def task_ms_per_frame(exe: Any) -> dict[str, float]:
+    """Foreground cost: each task's summed execution time over the frames run, ms per frame,
+    plus ``total`` (every task); slack-job slices are not foreground and not counted."""
+    frames = max(1, int(exe.frame))
+    tasks = [t for rg in exe.groups for t in rg.members]
+    out = {t.name: round(t.total_s * 1e3 / frames, 4) for t in tasks}
+    out["total"] = round(sum(t.total_s for t in tasks) * 1e3 / frames, 4)
+    return out
 
 
 def task_max_ms(exe: Any) -> dict[str, float]:
