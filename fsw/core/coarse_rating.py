@@ -99,7 +99,9 @@ def prepare(terrain: Terrain, factor: int, n: NDArray[np.integer], n_max: int,
         worth &= np.asarray(interest) > 0
     iy, ix = np.nonzero(worth)
     block = (iy // factor) * coarse.grid.nx + ix // factor
-    return CoarseSearch(coarse, factor, g.x0 + (ix + 0.5) * g.cell, g.y0 + (iy + 0.5) * g.cell,
+    x_m = np.asarray(g.x0 + (ix + 0.5) * g.cell, dtype=np.float64)
+    y_m = np.asarray(g.y0 + (iy + 0.5) * g.cell, dtype=np.float64)
+    return CoarseSearch(coarse, factor, x_m, y_m,
                         block.astype(np.intp), np.asarray(n)[iy, ix].astype(np.int32),
                         None if interest is None else np.asarray(interest)[iy, ix], n_max)
 

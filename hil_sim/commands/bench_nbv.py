@@ -18,8 +18,11 @@ DESCRIPTION = (
     "with the per-station split between the P_V kernel and the per-view field-of-view sums; "
     "(2) for a sample of those poses compares the kernel's P_V of every cell in the view with "
     "the brute-force reference (visibility.pv_reference) and prints the mean absolute error "
-    "and the brute-force cost per pose. Runs in one process on one core (numpy). Exit 2 on a "
-    "bad config file."
+    "and the brute-force cost per pose. With the coarse-to-fine search on (coarse_cell_m > 0) "
+    "it also times the exhaustive search (every view exact) back to back on the same state and "
+    "prints the speed-up, whether both chose the same view and the utility ratio. --grid N "
+    "rates on an N x N map over the same area. Runs in one process on one core (numpy). Exit 2 "
+    "on a bad config file."
 )
 
 
