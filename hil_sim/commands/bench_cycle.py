@@ -188,7 +188,8 @@ def run(args: argparse.Namespace) -> int:
         from hil_sim.mission_run import RunSpec, run_mission
 
         s = run_mission(RunSpec(scenario=args.scenario, method="5", steps=args.mission_steps,
-                                seed=args.seed, out=None, transmit=False))
+                                seed=args.seed, config=str(args.config or DEFAULT_CONFIG),
+                                out=None, transmit=False))
         per = s["task_ms_per_frame"]
         fg = per.pop("total")
         print(f"\nforeground, lockstep {args.scenario} mission ({args.mission_steps} steps, "
