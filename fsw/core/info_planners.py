@@ -80,8 +80,12 @@ class InformationPlanner(Planner):
         self.last_centres = 0
         pans, tilts, lifts = joint_grid(self.mast, cfg.pan_step_deg, cfg.tilts_deg, cfg.lifts_m)
         n_max = info_n_max(state.map, cfg)
-        centres = [_Centre(st, float(lift), self._cam(st, float(lift), state), pans, tilts,
-                           state, self) for st in stations for lift in lifts]
+        centres = []
+        for st in stations:  # motion and localization terms: a step per station (landmarks)
+            for lift in lifts:
+                centres.append(_Centre(st, float(lift), self._cam(st, float(lift), state), pans,
+                                       tilts, state, self))
+            yield None
         factor = coarse_factor(terrain.grid.cell, cfg.coarse_cell_m)
         best: CandidateView | None = None
         if factor <= 1:
