@@ -30,6 +30,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("bench", "e2e"): "hil_sim.commands.bench_e2e",
     ("bench", "calibration"): "hil_sim.commands.bench_calibration",
     ("bench", "stereo-real"): "hil_sim.commands.bench_stereo_real",
+    ("bench", "cycle"): "hil_sim.commands.bench_cycle",
     ("experiment", "coverage"): "hil_sim.commands.experiment_coverage",
     ("experiment", "reduction"): "hil_sim.commands.experiment_reduction",
     ("experiment", "link"): "hil_sim.commands.experiment_link",

@@ -7,9 +7,18 @@ weighs P_V by the interest function, the oracle rates with the true terrain and 
 
 from __future__ import annotations
 
+from collections.abc import Generator
+
 import numpy as np
 from numpy.typing import NDArray
 
+from fsw.core.coarse_rating import (
+    coarse_factor,
+    coarse_visibility,
+    prepare,
+    rate_station_coarse_steps,
+    rate_views_steps,
+)
 from fsw.core.geometry import CameraConfig, CameraPose, MastConfig, camera_pose_from_rover
 from fsw.core.nbv import (
     MapLike,
@@ -23,11 +32,12 @@ from fsw.core.nbv import (
 from fsw.core.planners import Planner, PlannerState, SearchGen
 from fsw.core.view_candidates import (
     CandidateView,
+    Station,
     as_polyline,
     joint_grid,
     path_stations_steps,
 )
-from fsw.core.visibility import F64, Terrain, in_view, terrain_from_heights, terrain_from_map
+from fsw.core.visibility import F64, Terrain, in_view, terrain_from_heights, terrain_from_map_steps
 
 
 class InformationPlanner(Planner):
@@ -44,9 +54,10 @@ class InformationPlanner(Planner):
         self.last_stations = 0  # stations rated by the last search
         self.last_centres = 0  # camera centres (stations x lifts) rated by the last search
 
-    def _terrain(self, emap: MapLike) -> tuple[Terrain, F64 | None]:
+    def _terrain(self, emap: MapLike) -> Generator[None, None, tuple[Terrain, F64 | None]]:
         if self._truth_z is None:
-            terrain = terrain_from_map(emap.z, emap.var, emap.grid, self.cfg.visibility)
+            terrain = yield from terrain_from_map_steps(emap.z, emap.var, emap.grid,
+                                                        self.cfg.visibility)
             return terrain, (emap.interest if self.use_interest else None)
         if self._truth_terrain is None:
             z = np.asarray(self._truth_z, dtype=np.float64)
@@ -55,8 +66,12 @@ class InformationPlanner(Planner):
         return self._truth_terrain, self._textured
 
     def search(self, state: PlannerState) -> SearchGen:
+        """Rate every reachable camera centre (§3.5), coarse to fine (``coarse_rating``): every
+        pan/tilt of every centre on the coarse terrain, then the best ``refine_views`` of them
+        exactly; the best exact utility wins. With ``coarse_cell_m`` = 0 (or a coarse cell no
+        larger than the map's) every centre is rated exactly, view by view, as before."""
         cfg = self.cfg
-        terrain, interest = self._terrain(state.map)
+        terrain, interest = yield from self._terrain(state.map)
         yield None
         path = straighten(state.path) if self.straight_edge else state.path
         stations = yield from path_stations_steps(path, state.rover, state.motion_ok,
@@ -64,33 +79,80 @@ class InformationPlanner(Planner):
         self.last_stations = len(stations)
         self.last_centres = 0
         pans, tilts, lifts = joint_grid(self.mast, cfg.pan_step_deg, cfg.tilts_deg, cfg.lifts_m)
-        current = np.array([*state.rover, *state.joints], dtype=np.float64)
         n_max = info_n_max(state.map, cfg)
-        best: CandidateView | None = None
-        pp, tt = np.meshgrid(pans, tilts, indexing="ij")
-        for st in stations:
+        centres = []
+        for st in stations:  # motion and localization terms: a step per station (landmarks)
             for lift in lifts:
-                cam = camera_pose_from_rover(st.rover, (0.0, 0.0, float(lift)), self.mast,
-                                             state.ground_z_m).t
-                cam_xyz = (float(cam[0]), float(cam[1]), float(cam[2]))
-                yaws = st.rover[2] + pans
-                r = yield from rate_station_steps(terrain, cam_xyz, yaws, tilts, state.map.n,
+                centres.append(_Centre(st, float(lift), self._cam(st, float(lift), state), pans,
+                                       tilts, state, self))
+            yield None
+        factor = coarse_factor(terrain.grid.cell, cfg.coarse_cell_m)
+        best: CandidateView | None = None
+        if factor <= 1:
+            for c in centres:
+                r = yield from rate_station_steps(terrain, c.cam_xyz, c.yaws, tilts, state.map.n,
                                                   n_max, interest, self.camera, cfg.visibility)
-                poses = np.column_stack([np.tile(st.rover, (pp.size, 1)), pp.ravel(), tt.ravel(),
-                                         np.full(pp.size, lift)])
-                d = motion_cost(poses, current, cfg)
-                rng = landmark_range(cam_xyz, yaws, tilts, state.landmarks_xyz, self.camera)
-                sig = localization_sigma(np.full(pp.size, st.travel_m), state.sigma_loc_m,
-                                         rng.ravel(), cfg)
-                u = utility(r.info_bits.ravel(), d, sig, cfg)
-                k = int(np.argmax(u))
-                if best is None or u[k] > best.utility:
-                    best = CandidateView(
-                        st.rover, (float(pp.ravel()[k]), float(tt.ravel()[k]), float(lift)),
-                        float(r.info_bits.ravel()[k]), float(r.expected_new_cells.ravel()[k]),
-                        float(d[k]), float(sig[k]), float(u[k]), self.name)
+                cand = c.best(r.info_bits.ravel(), r.expected_new_cells.ravel(), None)
+                best = cand if best is None or cand.utility > best.utility else best
                 self.last_centres += 1
+            return best
+        cs = prepare(terrain, factor, state.map.n, n_max, interest)
+        vis_coarse = coarse_visibility(cfg.visibility, factor)
+        yield None
+        u_all = []
+        for c in centres:
+            r = yield from rate_station_coarse_steps(cs, c.cam_xyz, c.yaws, tilts, self.camera,
+                                                     vis_coarse)
+            u_all.append(utility(r.info_bits.ravel(), c.d, c.sig, cfg))
+        u_flat = np.concatenate(u_all)
+        top = np.argsort(-u_flat, kind="stable")[:cfg.refine_views]
+        per = pans.size * tilts.size
+        for i in sorted(set((top // per).tolist())):
+            c = centres[i]
+            views = np.sort(top[top // per == i] % per)
+            r2 = yield from rate_views_steps(terrain, c.cam_xyz, c.yaws[views // tilts.size],
+                                             tilts[views % tilts.size], state.map.n, n_max,
+                                             interest, self.camera, cfg.visibility)
+            cand = c.best(r2.info_bits, r2.expected_new_cells, views)
+            best = cand if best is None or cand.utility > best.utility else best
+            self.last_centres += 1
         return best
+
+    def _cam(self, st: Station, lift: float, state: PlannerState) -> tuple[float, float, float]:
+        cam = camera_pose_from_rover(st.rover, (0.0, 0.0, lift), self.mast, state.ground_z_m).t
+        return (float(cam[0]), float(cam[1]), float(cam[2]))
+
+
+class _Centre:
+    """One camera centre of a search: its pan/tilt poses' motion cost and localization sigma
+    (§3.3, §3.5), which do not depend on the rating."""
+
+    def __init__(self, st: Station, lift: float, cam_xyz: tuple[float, float, float], pans: F64,
+                 tilts: F64, state: PlannerState, planner: InformationPlanner) -> None:
+        cfg = planner.cfg
+        self.st, self.lift, self.cam_xyz, self.name, self.cfg = st, lift, cam_xyz, planner.name, cfg
+        self.yaws = st.rover[2] + pans
+        pp, tt = np.meshgrid(pans, tilts, indexing="ij")
+        self.pans, self.tilts = pp.ravel(), tt.ravel()
+        poses = np.column_stack([np.tile(st.rover, (pp.size, 1)), self.pans, self.tilts,
+                                 np.full(pp.size, lift)])
+        current = np.array([*state.rover, *state.joints], dtype=np.float64)
+        self.d = motion_cost(poses, current, cfg)
+        rng = landmark_range(cam_xyz, self.yaws, tilts, state.landmarks_xyz, planner.camera)
+        self.sig = localization_sigma(np.full(pp.size, st.travel_m), state.sigma_loc_m,
+                                      rng.ravel(), cfg)
+
+    def best(self, info_bits: F64, new_cells: F64, views: NDArray[np.intp] | None
+             ) -> CandidateView:
+        """The view of highest utility among ``views`` (flat pan-major indices; None: all),
+        given their H and expected new cells."""
+        k_all = np.arange(self.d.size) if views is None else views
+        u = utility(info_bits, self.d[k_all], self.sig[k_all], self.cfg)
+        j = int(np.argmax(u))
+        k = int(k_all[j])
+        return CandidateView(self.st.rover, (float(self.pans[k]), float(self.tilts[k]), self.lift),
+                             float(info_bits[j]), float(new_cells[j]), float(self.d[k]),
+                             float(self.sig[k]), float(u[j]), self.name)
 
 
 def landmark_range(cam_xyz: tuple[float, float, float], yaws: F64, tilts: F64,

@@ -95,6 +95,10 @@ class NbvConfig:
                                        doc="raster: assumed ROI floor below the rover when unmapped")
     oracle_sigma_m: float = param(0.005, lo=1e-4, hi=1.0, units="m",
                                   doc="oracle: sigma given to the true terrain")
+    coarse_cell_m: float = param(0.12, lo=0.0, hi=10.0, units="m",
+                                 doc="coarse-to-fine search: coarse cell size (0: rate exactly)")
+    refine_views: int = param(12, lo=1, hi=100000,
+                              doc="coarse-to-fine search: best coarse views rated exactly")
     visibility: VisibilityConfig = field(default_factory=VisibilityConfig)
 
 

@@ -30,6 +30,7 @@ and ``safer-hil bench nbv``; production code calls ``visibility_kernel.pv_fast``
 from __future__ import annotations
 
 import math
+from collections.abc import Generator
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,6 +38,7 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
+from fsw.core.steps import run_to_end
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
@@ -96,6 +98,12 @@ class Terrain:
 
 def prior_elevation(z: F64, grid: MapGrid, cfg: VisibilityConfig) -> F64:
     """Unknown cells filled from known neighbours (§3.1 choice); known cells unchanged."""
+    return run_to_end(prior_elevation_steps(z, grid, cfg))
+
+
+def prior_elevation_steps(z: F64, grid: MapGrid, cfg: VisibilityConfig
+                          ) -> Generator[None, None, F64]:
+    """:func:`prior_elevation`, yielding between its filters (each a few ms at 512 x 512)."""
     known = np.isfinite(z)
     if not known.any():
         return np.full(grid.shape, cfg.default_elevation_m)
@@ -103,8 +111,10 @@ def prior_elevation(z: F64, grid: MapGrid, cfg: VisibilityConfig) -> F64:
     _, (iy, ix) = ndimage.distance_transform_edt(~known, return_indices=True)
     fill = zk[iy, ix]
     if cfg.prior_smooth_m > 0:
+        yield None
         sg = cfg.prior_smooth_m / grid.cell / 2.0
         num = ndimage.gaussian_filter(zk, sg, mode="nearest", truncate=2.0)
+        yield None
         den = ndimage.gaussian_filter(known.astype(np.float64), sg, mode="nearest", truncate=2.0)
         fill = np.where(den > 1e-3, num / np.maximum(den, 1e-12), fill)
     return np.where(known, z, fill)
@@ -112,9 +122,16 @@ def prior_elevation(z: F64, grid: MapGrid, cfg: VisibilityConfig) -> F64:
 
 def terrain_from_map(z: F64, var: F64, grid: MapGrid, cfg: VisibilityConfig) -> Terrain:
     """Terrain of the visibility model for a map with ``z`` (NaN unknown) and ``var`` (inf)."""
+    return run_to_end(terrain_from_map_steps(z, var, grid, cfg))
+
+
+def terrain_from_map_steps(z: F64, var: F64, grid: MapGrid, cfg: VisibilityConfig
+                           ) -> Generator[None, None, Terrain]:
+    """:func:`terrain_from_map` in bounded steps (for the search's slack job)."""
     known = np.isfinite(z) & np.isfinite(var)
     zz = np.where(known, z, np.nan)
-    elev = prior_elevation(zz, grid, cfg)
+    elev = yield from prior_elevation_steps(zz, grid, cfg)
+    yield None
     sig_known = np.sqrt(np.maximum(np.where(known, var, 0.0), cfg.min_sigma_m**2))
     sigma = np.where(known, sig_known, cfg.prior_sigma_m)
     weight = np.where(known, 1.0, min(1.0, grid.cell / cfg.prior_corr_len_m))

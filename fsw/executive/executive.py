@@ -204,6 +204,7 @@ class Executive:
             task.answer_ping()
         task.last_s = self.timer() - a0
         task.max_s = max(task.max_s, task.last_s)
+        task.total_s += task.last_s
         task.activations += 1
         if task.last_s > task.budget_s:
             task.overruns += 1

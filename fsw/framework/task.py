@@ -105,6 +105,7 @@ class Task:
         self.activations = 0
         self.last_s = 0.0
         self.max_s = 0.0
+        self.total_s = 0.0  # summed execution time of all activations (foreground cost)
         self.overruns = 0
         self.cmd_count = 0
         self.cmd_errors = 0

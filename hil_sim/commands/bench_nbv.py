@@ -18,8 +18,11 @@ DESCRIPTION = (
     "with the per-station split between the P_V kernel and the per-view field-of-view sums; "
     "(2) for a sample of those poses compares the kernel's P_V of every cell in the view with "
     "the brute-force reference (visibility.pv_reference) and prints the mean absolute error "
-    "and the brute-force cost per pose. Runs in one process on one core (numpy). Exit 2 on a "
-    "bad config file."
+    "and the brute-force cost per pose. With the coarse-to-fine search on (coarse_cell_m > 0) "
+    "it also times the exhaustive search (every view exact) back to back on the same state and "
+    "prints the speed-up, whether both chose the same view and the utility ratio. --grid N "
+    "rates on an N x N map over the same area. Runs in one process on one core (numpy). Exit 2 "
+    "on a bad config file."
 )
 
 
@@ -36,6 +39,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rays", type=int, default=None,
                    help="override nbv.visibility.rays_per_turn")
     p.add_argument("--repeat", type=int, default=2, help="timed searches (the best is reported)")
+    p.add_argument("--grid", type=int, default=None, metavar="N",
+                   help="map of N x N cells over the configured area (e.g. 512: 1.5 cm cells)")
+    p.add_argument("--no-exact", action="store_true",
+                   help="skip the back-to-back timing of the exact search (coarse_cell_m = 0)")
     p.add_argument("--expected-check", type=int, default=0, metavar="N",
                    help="also compare expected new cells (sum of P_V over unmapped cells in "
                         "view) with the cells an ideal stereo view of N random candidates maps")
@@ -83,7 +90,14 @@ def run(args: argparse.Namespace) -> int:
         cfg = dataclasses.replace(cfg, visibility=dataclasses.replace(
             cfg.visibility, rays_per_turn=args.rays))
     vis, camera, mast = cfg.visibility, settings.camera, settings.mast
-    grid = MapGrid.from_config(settings.map)
+    map_cfg = settings.map
+    if args.grid is not None:
+        if not 16 <= args.grid <= 4096:
+            print("bench nbv: --grid must be within 16..4096", file=sys.stderr)
+            return 2
+        map_cfg = dataclasses.replace(map_cfg, nx=args.grid, ny=args.grid,
+                                      cell_m=map_cfg.cell_m * map_cfg.nx / args.grid)
+    grid = MapGrid.from_config(map_cfg)
 
     if args.scenario == "lab":
         truth, textured, edge = nbv_scene.lab_truth(grid, args.seed)
@@ -106,26 +120,20 @@ def run(args: argparse.Namespace) -> int:
     state = PlannerState(emap, rover, joints, path, lambda a, b: True, edge_xy=edge)
     pans, tilts, lifts = joint_grid(mast, cfg.pan_step_deg, cfg.tilts_deg, cfg.lifts_m)
 
-    # (1) Speed: one full Method 5 search, end to end.
-    wall, cpu, step_max, n_steps = [], [], 0.0, 0
-    for _ in range(args.repeat):
-        gen = planner.search(state)
-        t0, c0 = time.perf_counter(), time.process_time()
-        n_steps = 0
-        while True:
-            c1 = time.process_time()
-            n_steps += 1
-            try:
-                next(gen)
-            except StopIteration as stop:
-                best = stop.value
-                break
-            finally:
-                step_max = max(step_max, time.process_time() - c1)
-        wall.append(time.perf_counter() - t0)
-        cpu.append(time.process_time() - c0)
+    # (1) Speed: one full Method 5 search, end to end; then the exact search back to back.
+    search_s, search_cpu_s, step_max, n_steps, best = _time_search(planner, state, args.repeat)
+    exact_fig: dict[str, float | bool] = {}
+    if not args.no_exact and cfg.coarse_cell_m > 0:
+        exact = InformationPlanner("5", dataclasses.replace(cfg, coarse_cell_m=0.0), camera, mast,
+                                   use_interest=True)
+        e_s, e_cpu, e_step, _, e_best = _time_search(exact, state, args.repeat)
+        exact_fig = {"exact_search_cpu_s": e_cpu, "exact_search_s": e_s,
+                     "exact_step_max_cpu_s": e_step, "speedup_cpu": e_cpu / search_cpu_s,
+                     "same_choice": bool(best and e_best and best.pose6.tolist()
+                                         == e_best.pose6.tolist()),
+                     "utility_ratio": (best.utility / e_best.utility
+                                       if best and e_best and e_best.utility else math.nan)}
     n_poses = planner.last_stations * lifts.size * pans.size * tilts.size
-    search_s, search_cpu_s = min(wall), min(cpu)
     terrain = terrain_from_map(emap.z, emap.var, grid, vis)
     cam0 = (best.camera_pose(mast).t if best else np.array([rover[0], rover[1], 1.5]))
     cam_xyz = (float(cam0[0]), float(cam0[1]), float(cam0[2]))
@@ -193,16 +201,25 @@ def run(args: argparse.Namespace) -> int:
         "expected_mean_abs_rel": float(np.abs(eo[:, 0] - eo[:, 1]).sum()
                                        / max(eo[:, 1].sum(), 1.0)),
         "expected_corr": float(np.corrcoef(eo.T)[0, 1]) if eo.shape[0] > 2 else math.nan,
+        "grid": grid.nx, "cell_m": grid.cell, "coarse_cell_m": cfg.coarse_cell_m,
+        "refine_views": cfg.refine_views, **exact_fig,
     }
-    print(f"map state: {args.scenario} seed {args.seed}, {fig['mapped_cells']} of "
-          f"{grid.nx * grid.ny} cells mapped (panorama + {args.warmup_views} views)")
+    print(f"map state: {args.scenario} seed {args.seed}, {grid.nx}x{grid.ny} cells of "
+          f"{100 * grid.cell:.2f} cm, {fig['mapped_cells']} mapped (panorama + {args.warmup_views} views)")
     print(f"candidates: {fig['stations']} stations x {lifts.size} lift x {pans.size} pan x "
           f"{tilts.size} tilt = {n_poses} poses")
     print(f"rated {n_poses} poses in {search_s:.3f} s wall, {search_cpu_s:.3f} s CPU: "
           f"{fig['poses_per_s']:.0f} poses/s wall, {fig['cpu_poses_per_s']:.0f} poses/s CPU "
-          f"(goal >= 200; wall time counts other processes on a shared machine)")
+          f"(goal >= 200; wall time counts other processes on a shared machine); coarse cells "
+          f"{100 * cfg.coarse_cell_m:g} cm, {cfg.refine_views} views refined")
     print(f"  search in {n_steps} bounded steps (slack-job slices), longest "
           f"{1e3 * step_max:.1f} ms CPU")
+    if exact_fig:
+        print(f"  exact search (every view on the fine map), back to back: "
+              f"{exact_fig['exact_search_cpu_s']:.3f} s CPU, longest step "
+              f"{1e3 * float(exact_fig['exact_step_max_cpu_s']):.1f} ms: coarse to fine is "
+              f"{exact_fig['speedup_cpu']:.1f}x faster; same choice: {exact_fig['same_choice']}, "
+              f"utility of its choice / the exact best {exact_fig['utility_ratio']:.3f}")
     print(f"  per station (CPU): {1e3 * station_s:.0f} ms = P_V kernel {1e3 * kernel_s:.0f} ms "
           f"({fig['station_cells']} cells, {vis.rays_per_turn} rays/turn) + view sums "
           f"and values for {fig['views_per_station']} pan/tilt views")
@@ -221,3 +238,25 @@ def run(args: argparse.Namespace) -> int:
             print(f"bench nbv: cannot write {args.json}: {exc.strerror or exc}", file=sys.stderr)
             return 2
     return 0
+
+
+def _time_search(planner, state, repeat: int):  # type: ignore[no-untyped-def]
+    """Best of ``repeat`` full searches: wall s, CPU s, longest step CPU s, steps, choice."""
+    wall, cpu, step_max, n_steps, best = [], [], 0.0, 0, None
+    for _ in range(repeat):
+        gen = planner.search(state)
+        t0, c0 = time.perf_counter(), time.process_time()
+        n_steps = 0
+        while True:
+            c1 = time.process_time()
+            n_steps += 1
+            try:
+                next(gen)
+            except StopIteration as stop:
+                best = stop.value
+                break
+            finally:
+                step_max = max(step_max, time.process_time() - c1)
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    return min(wall), min(cpu), step_max, n_steps, best

@@ -1,0 +1,208 @@
+"""``safer-hil bench cycle``: the sensing cycle, the foreground and memory against the target
+budget (issue 15; config/budget.toml; docs/architecture.md "Target budget")."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+HELP = "sensing-cycle breakdown, foreground per task, peak RSS, projected onto the target"
+DESCRIPTION = (
+    "Measures one sensing cycle stage by stage (capture, rectify when the build has it, stereo, "
+    "merge, edge, next view) on a lab map state (start panorama) of each --grids size over the "
+    "configured area; the foreground cost per task per frame from a short lockstep mission; "
+    "and this process's peak RSS. Times are CPU seconds of this process (one core): min and "
+    "median of --repeats runs. Each figure is projected onto the flight computer as "
+    "time x cpu_factor (config/budget.toml) and compared with the budget table there. "
+    "CAVEAT: on a shared, loaded machine even CPU times inflate (caches, frequency); compare "
+    "figures measured back to back. Capture is the bench renderer (not flight work) and is "
+    "left out of the cycle total. Exit 2 on a bad option or config file."
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenario", default="lab", help="world (hil_sim.world.load_scenario spec)")
+    p.add_argument("--seed", type=int, default=0, help="world, camera-noise and mission seed")
+    p.add_argument("--config", type=Path, default=None,
+                   help="flight config (default config/fsw.toml)")
+    p.add_argument("--budget", type=Path, default=None,
+                   help="budget table (default config/budget.toml)")
+    p.add_argument("--cpu-factor", type=float, default=None,
+                   help="override the budget's cpu_factor (target time / time here)")
+    p.add_argument("--grids", type=int, nargs="+", default=[256, 512], metavar="N",
+                   help="map sizes N x N over the configured map area")
+    p.add_argument("--repeats", type=int, default=3, help="timed runs per stage")
+    p.add_argument("--mission-steps", type=int, default=1,
+                   help="imaging steps of the lockstep mission timed for the foreground "
+                        "(0: skip the mission)")
+
+
+def _cpu(fn: Any, repeats: int) -> tuple[float, float, Any]:
+    """(min, median) CPU seconds of ``repeats`` calls, and the last result."""
+    import statistics
+
+    times, out = [], None
+    for _ in range(repeats):
+        c0 = time.process_time()
+        out = fn()
+        times.append(time.process_time() - c0)
+    return min(times), statistics.median(times), out
+
+
+def _search(planner: Any, state: Any) -> tuple[Any, float]:
+    """A full search driven step by step: the choice and the longest step (CPU s)."""
+    gen, longest = planner.search(state), 0.0
+    while True:
+        c0 = time.process_time()
+        try:
+            next(gen)
+        except StopIteration as stop:
+            return stop.value, max(longest, time.process_time() - c0)
+        longest = max(longest, time.process_time() - c0)
+
+
+def _cycle(cfg: Any, world: Any, n: int, repeats: int, seed: int) -> dict[str, Any]:
+    import dataclasses
+
+    import numpy as np
+
+    from fsw.core.acquire import view_points
+    from fsw.core.edge import edge_cells, fit_polygon
+    from fsw.core.geometry import MapGrid
+    from fsw.core.info_planners import InformationPlanner
+    from fsw.core.localization import PoseEstimate
+    from fsw.core.nbv import predicted_visibility
+    from fsw.core.planners import PlannerState
+    from fsw.core.stereo import StereoMatcher
+    from fsw.tasks.perception import roi_mapped_fraction
+    from hil_sim import nbv_scene
+    from hil_sim.render import StereoRenderer
+
+    mg = world.map_grid
+    grid = MapGrid.from_config(dataclasses.replace(mg, nx=n, ny=n, cell_m=mg.cell_m * mg.nx / n))
+    truth = np.asarray(world.truth_on_grid(grid), dtype=np.float64)
+    truth = np.where(np.isfinite(truth), truth, np.nanmin(truth))
+    textured = ~np.asarray(world.textureless_on_grid(grid), bool)
+    rover = tuple(float(v) for v in world.rover_start)
+    emap = nbv_scene.panorama_map(truth, textured, grid, cfg.camera, cfg.mast, rover, seed,
+                                  fusion=cfg.fusion)
+    path = nbv_scene.edge_offset_path(np.asarray(world.edge_xy, float), cfg.edge.setback_m)
+    planner = InformationPlanner("5", cfg.nbv, cfg.camera, cfg.mast, use_interest=True)
+    state = PlannerState(emap, rover, (0.0, 0.0, cfg.mast.lift_max_m), path, lambda a, b: True,
+                         edge_xy=np.asarray(world.edge_xy, float))
+    view = planner.next_view(state)
+    if view is None:
+        raise ValueError("no candidate view on this map state")
+    pose = view.camera_pose(cfg.mast)
+    rend = StereoRenderer(world, cfg.camera, world.noise_sigma, seed=seed)
+    matcher = StereoMatcher(cfg.stereo, cfg.camera)
+    fig: dict[str, Any] = {"grid": n, "cell_m": grid.cell}
+    fig["capture"] = _cpu(lambda: rend.render(pose), repeats)[:2]
+    left, right = rend.render(pose)
+    fig["rectify"] = None
+    if hasattr(matcher, "rectify"):  # the calibration/rectification step, when built
+        fig["rectify"] = _cpu(lambda: matcher.rectify(left, right), repeats)[:2]
+    exact = np.zeros((6, 6))
+    *fig["stereo"], pts = _cpu(lambda: view_points(matcher, left, right,
+                                                   PoseEstimate(pose, exact)), repeats)
+
+    def merge() -> Any:
+        m = emap.copy()
+        pv = predicted_visibility(m, pose, cfg.camera, cfg.nbv.visibility)
+        m.merge(pts.xyz_w, cov=pts.cov_w, p_visible=pv)
+        return m
+
+    *fig["merge"], merged = _cpu(merge, repeats)
+
+    def edge() -> Any:
+        cells = edge_cells(merged, world.plateau_z, rover[:2], cfg.edge)
+        poly = fit_polygon(merged, cells, cfg.edge)
+        roi_mapped_fraction(merged, poly)
+
+    fig["edge"] = _cpu(edge, repeats)[:2]
+    state2 = dataclasses.replace(state, map=merged)
+    *fig["next_view"], (_, longest) = _cpu(lambda: _search(planner, state2), repeats)
+    fig["step_max_s"] = longest
+    fig["poses"] = planner.last_stations * len(cfg.nbv.lifts_m) * int(
+        np.arange(cfg.mast.pan_min_deg, cfg.mast.pan_max_deg + 1e-9, cfg.nbv.pan_step_deg).size
+        * len(cfg.nbv.tilts_deg))
+    return fig
+
+
+def run(args: argparse.Namespace) -> int:
+    import resource
+
+    from fsw.framework.params import ConfigError
+    from fsw.settings import DEFAULT_CONFIG, load_settings
+    from hil_sim.cycle_budget import CYCLE_STAGES, DEFAULT_BUDGET, load_budget, verdict
+    from hil_sim.world import load_scenario
+
+    if args.repeats < 1 or args.mission_steps < 0 or any(not 16 <= g <= 4096 for g in args.grids):
+        print("safer-hil bench cycle: --repeats >= 1, --mission-steps >= 0, --grids within "
+              "16..4096", file=sys.stderr)
+        return 2
+    if args.cpu_factor is not None and not 1.0 <= args.cpu_factor <= 1000.0:
+        print("safer-hil bench cycle: --cpu-factor must be within 1..1000", file=sys.stderr)
+        return 2
+    try:
+        cfg = load_settings(args.config or DEFAULT_CONFIG)
+        budget = load_budget(args.budget or DEFAULT_BUDGET)
+        world = load_scenario(args.scenario, args.seed)
+    except (ConfigError, ValueError) as err:
+        print(f"safer-hil bench cycle: {err}", file=sys.stderr)
+        return 2
+    k = args.cpu_factor or budget.cpu_factor
+    print(f"CPU s of this process, min (median) of {args.repeats}; target = min x {k:g} "
+          f"(cpu_factor); budget: {args.budget or DEFAULT_BUDGET}. Caveat: on a shared, loaded "
+          "machine CPU times inflate too; compare runs made back to back.")
+    if args.mission_steps:
+        from hil_sim.mission_run import RunSpec, run_mission
+
+        s = run_mission(RunSpec(scenario=args.scenario, method="5", steps=args.mission_steps,
+                                seed=args.seed, config=str(args.config or DEFAULT_CONFIG),
+                                out=None, transmit=False, cpu_timer=True))
+        per = s["task_ms_per_frame"]
+        fg = per.pop("total")
+        print(f"\nforeground, lockstep {args.scenario} mission ({args.mission_steps} steps, "
+              f"{s['frames']} frames; thread CPU time per task, mean ms per frame):")
+        for name, ms in sorted(per.items(), key=lambda kv: -kv[1]):
+            print(f"  {name:<12} {ms:8.3f} ms  target {ms * k:7.2f} ms")
+        print(f"  {'total':<12} {fg:8.3f} ms  target {fg * k:7.2f} ms, budget "
+              f"{budget.foreground_ms_per_frame:g} ms of a {1e3 * budget.frame_period_s:g} ms "
+              f"frame: {verdict(fg * k, budget.foreground_ms_per_frame)}")
+        rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        print(f"  peak RSS after the mission {rss_mb:.0f} MB (flight software and the HIL bench "
+              f"in one process: an upper bound on the flight process), budget "
+              f"{budget.peak_rss_mb:g} MB: {verdict(rss_mb, budget.peak_rss_mb)}")
+    for n in args.grids:
+        try:
+            f = _cycle(cfg, world, n, args.repeats, args.seed)
+        except ValueError as err:
+            print(f"safer-hil bench cycle: {err}", file=sys.stderr)
+            return 2
+        print(f"\nsensing cycle, {args.scenario} panorama state, map {n}x{n} cells of "
+              f"{100 * f['cell_m']:.2f} cm:")
+        print(f"  {'stage':<10} {'here min (median)':>20} {'target':>9} {'budget':>8}")
+        c_min, c_med = f["capture"]
+        print(f"  {'capture':<10} {1e3 * c_min:9.1f} ({1e3 * c_med:7.1f}) ms   (bench renderer, "
+              "not flight work: not in the total)")
+        total = 0.0
+        for stage in CYCLE_STAGES:
+            b = getattr(budget.cycle, f"{stage}_s")
+            if f[stage] is None:
+                print(f"  {stage:<10} {'n/a (not in this build)':>20} {'':>9} {b:7.1f}s")
+                continue
+            lo, med = f[stage]
+            total += lo
+            print(f"  {stage:<10} {1e3 * lo:9.1f} ({1e3 * med:7.1f}) ms {lo * k:8.2f}s {b:7.1f}s "
+                  f"{verdict(lo * k, b)}")
+        print(f"  {'cycle':<10} {1e3 * total:9.1f} (sum of min) ms {total * k:8.2f}s "
+              f"{budget.cycle.total_s:7.1f}s {verdict(total * k, budget.cycle.total_s)}")
+        print(f"  next view: {f['poses']} poses, longest search step {1e3 * f['step_max_s']:.1f} "
+              f"ms here ({1e3 * f['step_max_s'] * k:.0f} ms on the target)")
+    rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    print(f"\npeak RSS at the end {rss_mb:.0f} MB (this process, after every stage above)")
+    return 0
