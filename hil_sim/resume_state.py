@@ -72,6 +72,8 @@ def _parts(bench: Any, extra: dict[str, Any]) -> dict[str, Any]:
     parts: dict[str, Any] = {"rover": rig.rover, "mast": rig.mast, "faults": bench.faults,
                              "motors": rig.motors, "mast_ctrl": rig.mast_ctrl}
     parts.update({f"axis.{name}": ax for name, ax in rig.motors.axes.items()})
+    if getattr(rig, "imu", None) is not None:
+        parts["imu"] = rig.imu  # the attitude sensor's noise stream, bias and counter
     if rig.world is not None and bench.camera is not None:
         parts["renderer"] = rig.renderer()
     parts.update(extra)

@@ -19,6 +19,7 @@ from fsw.drivers.imu_can import ImuDriver
 from fsw.drivers.mast_serial import MastSerialDriver
 from fsw.framework.telemetry import Channel
 from fsw.tasks.base import FlightTask
+from fsw.tasks.mission_state import JsonDict, restore_into
 
 
 class PolledDriver(Protocol):
@@ -97,6 +98,28 @@ class ImuDevice(DeviceTask[ImuDriver]):
 
     def find_driver(self) -> ImuDriver | None:
         return self.ctx.res.imu
+
+    def setup(self) -> None:
+        super().setup()
+        restore_into(self)  # a resumed mission continues the attitude average (fsw.tasks.mission_state)
+
+    def checkpoint_state(self) -> JsonDict:
+        """The driver's averaging window and alive-counter state, so a resumed mission's attitude
+        is the one the uninterrupted run would have had."""
+        d = self.driver
+        if d is None:
+            return {}
+        return {"samples": [list(s) for s in d.samples], "counter": d.counter, "t_valid": d.t_valid,
+                "t_start": d.t_start}
+
+    def restore_state(self, st: JsonDict) -> None:
+        d = self.driver
+        if d is None or not st:
+            return
+        d.samples.extend((float(t), float(r), float(p)) for t, r, p in st["samples"])
+        d.counter = None if st["counter"] is None else int(st["counter"])
+        d.t_valid = None if st["t_valid"] is None else float(st["t_valid"])
+        d.t_start = None if st["t_start"] is None else float(st["t_start"])
 
     def telemetry(self, d: ImuDriver) -> None:
         self.tlm("faults", d.faults)

@@ -31,6 +31,32 @@ def _same_maps(a: Path, b: Path) -> None:
     np.testing.assert_allclose(mb.z[mb.mapped], ma.z[ma.mapped], rtol=0, atol=1e-9)
 
 
+# The bench's per-station bookkeeping of the map-quality report (which stations this process saw)
+# is not part of the flight state: a resumed process only sees the stations after the restart.
+BENCH_ONLY = {"stations", "pairs", "seam_m", "seam_max_m"}
+
+
+def _assert_same(a: object, b: object, path: str = "") -> None:
+    """Equal summaries: the same keys, counts and strings; floats within 1e-9 (relative). The
+    resumed run's odometry differs from the uninterrupted one by ~1e-13 m (the encoder baseline
+    is re-read after the restart), which registration carries to ~1e-12."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        keys = set(a) | set(b)
+        if path.endswith("map_quality"):
+            keys -= BENCH_ONLY
+        for k in keys:
+            assert k in a and k in b, f"{path}.{k} missing"
+            _assert_same(a[k], b[k], f"{path}.{k}")
+    elif isinstance(a, list) and isinstance(b, list):
+        assert len(a) == len(b), f"{path}: {len(a)} != {len(b)} items"
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            _assert_same(x, y, f"{path}[{i}]")
+    elif isinstance(a, float) and isinstance(b, float):
+        assert a == pytest.approx(b, rel=1e-9, abs=1e-12, nan_ok=True), f"{path}: {a} != {b}"
+    else:
+        assert a == b, f"{path}: {a!r} != {b!r}"
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("method", ["5", "1"])
 def test_stopped_mission_resumes_to_the_uninterrupted_result(tmp_path: Path, method: str) -> None:
@@ -48,8 +74,8 @@ def test_stopped_mission_resumes_to_the_uninterrupted_result(tmp_path: Path, met
     with pytest.raises(MissionExistsError):
         run_mission(cut)  # never over an existing mission without being told
     done = run_mission(cut, mode="resume")
-    same = {"files": None, "map_rmse_m": None}
-    assert strip_wall_clock(done) | same == strip_wall_clock(ref) | same
+    same = {"files": None}
+    _assert_same(strip_wall_clock(done) | same, strip_wall_clock(ref) | same)
     assert done["map_rmse_m"] == pytest.approx(ref["map_rmse_m"], abs=1e-9)
     _same_maps(tmp_path / "ref", tmp_path / "cut")
 
