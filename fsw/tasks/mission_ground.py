@@ -1,0 +1,118 @@
+"""The mission's moves over unfamiliar ground and its planning inputs (ALGORITHM.md §2, §3;
+issue 13 item 3): a mixin of :class:`fsw.tasks.mission.MissionTask`.
+
+- The geofence (``fsw.core.geofence``) is set on the latest edge fit, the latest map (which
+  ground is known) and the rover's own footprint (safe, known ground) before every check.
+- Planners rate stations with the edge check alone; the mission then checks the whole move.
+  A move over unknown ground is preceded by one look at that ground from where the rover
+  stands (``fsw.core.look``), part of the same imaging step; if the ground stays unknown the
+  step's view is taken from where the rover stands, and the reason is kept (``stays``).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import shapely
+
+from fsw.core.edge import edge_path
+from fsw.core.look import look_joints
+from fsw.core.planners import PlannerState
+from fsw.core.view_candidates import CandidateView
+
+Pose3 = tuple[float, float, float]
+
+
+class GroundAwareMission:
+    """Needs the MissionTask attributes: ctx, geofence, latest, edge, nav, view, pending,
+    step, looks, stays, _looked; and its event and _start_point methods."""
+
+    ctx: Any
+    geofence: Any
+    latest: Any
+    edge: Any
+    nav: Any
+    view: CandidateView | None
+    pending: list[CandidateView]
+    step: int
+    looks: int
+    edge_violations: int
+    stays: list[str]
+    _looked: Pose3 | None
+    _looked_from: Pose3 | None
+
+    if TYPE_CHECKING:  # provided by Task and MissionTask (stubs here would shadow them)
+        def event(self, name: str, **args: Any) -> None: ...
+
+        def _start_point(self) -> None: ...
+
+    def _refused(self, here: Pose3, there: Pose3, reason: str) -> None:
+        """The geofence refused the move: look at unknown ground once; otherwise (or if it
+        stays unknown) take the step's view from here. Never a crossing, never a stall."""
+        assert self.view is not None
+        self.edge_violations += 1
+        if "unknown ground" in reason and self._looked != there:
+            self._looked = there
+            pts = self.geofence.unknown_points(here, there)
+            self.looks += 1
+            self.event("LOOK", n=len(pts), x=there[0], y=there[1])
+            self.pending.insert(0, self.view)
+            self.view = CandidateView(here, look_joints(here, pts, self.ctx.cfg.mast), method="look")
+        else:
+            self.stays.append(f"step {self.step}: {reason}")
+            self.event("GEOFENCE", x=there[0], y=there[1], reason=reason)
+            self.view = CandidateView(here, self.view.joints, method=self.view.method)
+        self._start_point()
+
+    def _look_around(self) -> bool:
+        """If the geofence would not let the rover stay where it stands (the fitted edge runs
+        within the margin of its wheels, often across unmapped ground beside it), make this
+        step a look at the unknown ground nearest the edge within ``setback_m``; once per
+        pose. True if the step's view is now that look."""
+        here = (self.nav.x, self.nav.y, self.nav.yaw)
+        if self._looked_from == here or self.edge is None:
+            return False
+        self._fence(here)
+        if self.geofence.check(here, here, known_ground=False).allowed:
+            return False
+        # Target: the unknown ground between the rover and the fitted edge, around the edge
+        # point nearest the rover, out to setback_m past it on the drop side.
+        setback = self.ctx.cfg.edge.setback_m
+        q = shapely.get_coordinates(shapely.shortest_line(shapely.Point(here[:2]), self.edge.lines))[-1]
+        pts = self.geofence.known.unknown_points(shapely.Point(q).buffer(setback))
+        if len(pts) == 0:
+            return False
+        self._looked_from = here
+        self.looks += 1
+        self.event("LOOK", n=len(pts), x=here[0], y=here[1])
+        self.view = CandidateView(here, look_joints(here, pts, self.ctx.cfg.mast), method="look")
+        return True
+
+    def _fence(self, here: Pose3) -> None:
+        """The geofence on the latest edge fit and map, and the ground the rover stands on."""
+        if self.latest is not None:
+            self.geofence.set_map(self.latest.snapshot.grid, self.latest.snapshot.n)
+        self.geofence.set_edge(self.edge, here)
+
+    def _planner_state(self) -> PlannerState:
+        assert self.nav is not None and self.latest is not None
+        cfg = self.ctx.cfg
+        path = (
+            edge_path(self.edge, cfg.edge.setback_m, cfg.edge.path_spacing_m, cfg.geofence.extend_m)
+            if self.edge is not None
+            else np.zeros((0, 3))
+        )
+        self._fence((self.nav.x, self.nav.y, self.nav.yaw))
+        sigma = float(np.sqrt(max(0.0, (self.nav.cov[0, 0] + self.nav.cov[1, 1]) / 2)))
+        return PlannerState(
+            map=self.latest.snapshot,
+            rover=(self.nav.x, self.nav.y, self.nav.yaw),
+            joints=self.nav.joints,
+            path=path,
+            motion_ok=lambda a, b: self.geofence.check(a, b, known_ground=False).allowed,
+            edge_xy=None if self.edge is None else self.edge.points_xy,
+            ground_z_m=0.0,
+            sigma_loc_m=sigma,
+        )
+
