@@ -1,8 +1,11 @@
 """Geofence: no motion command may take a wheel across the cliff edge (ALGORITHM.md §2).
 
 A motion command goes from rover pose A to pose B ``(x, y, yaw)``. The rover is taken to
-move with x, y and yaw interpolated linearly (shortest turn), sampled every
-``sample_step_m`` / ``sample_step_deg``. Each wheel's contact patch (a rectangle
+move as the motion task drives a ``goto`` (:func:`goto_legs`): turn in place toward B (or
+away from it, to back up, when that is the smaller turn), drive straight, turn to B's yaw;
+each leg sampled every ``sample_step_m`` / ``sample_step_deg``. (A turn in place swings the
+corners of the rover: close to the edge it is the turn, not the drive, that comes nearest.)
+Each wheel's contact patch (a rectangle
 ``wheel_diameter_m`` long and ``wheel_width_m`` wide at the wheel centre) sweeps the union
 of the convex hulls of consecutive samples. The command is allowed only if every swept
 wheel patch stays on the safe side of the fitted edge and at least ``margin_m`` away from
@@ -230,6 +233,13 @@ class Geofence:
 
     def _samples(self, a: tuple[float, float, float], b: tuple[float, float, float]
                  ) -> np.ndarray:
+        """Poses along the move as the motion task drives it (:func:`goto_legs`)."""
+        legs = goto_legs(a, b)
+        parts = [self._linear(p, q) for p, q in zip(legs[:-1], legs[1:], strict=True)]
+        return np.concatenate([parts[0]] + [p[1:] for p in parts[1:]])
+
+    def _linear(self, a: tuple[float, float, float], b: tuple[float, float, float]
+                ) -> np.ndarray:
         dyaw = (b[2] - a[2] + math.pi) % (2.0 * math.pi) - math.pi
         dist = math.hypot(b[0] - a[0], b[1] - a[1])
         n = max(1, math.ceil(dist / self.cfg.sample_step_m),
@@ -237,6 +247,20 @@ class Geofence:
         s = np.linspace(0.0, 1.0, n + 1)
         return np.column_stack([a[0] + s * (b[0] - a[0]), a[1] + s * (b[1] - a[1]),
                                 a[2] + s * dyaw])
+
+
+def goto_legs(a: Pose3, b: Pose3) -> list[Pose3]:
+    """The poses a ``goto`` from ``a`` to ``b`` passes through, as the motion task drives it
+    (``fsw.tasks.motion``: turn in place toward the target, or away from it and back up when
+    that is the smaller turn; drive straight; turn to the final yaw)."""
+    dist = math.hypot(b[0] - a[0], b[1] - a[1])
+    if dist < 1e-6:
+        return [a, b]
+    turn = math.remainder(math.atan2(b[1] - a[1], b[0] - a[0]) - a[2], math.tau)
+    if abs(turn) > math.pi / 2:
+        turn = math.remainder(turn - math.pi, math.tau)
+    h = a[2] + turn
+    return [a, (a[0], a[1], h), (b[0], b[1], h), b]
 
 
 def _transform(local: np.ndarray, poses: np.ndarray) -> np.ndarray:
