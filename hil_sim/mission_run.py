@@ -11,7 +11,15 @@ map error and any wheel over the drop (an edge violation).
 obtained_new_cells, pose{x,y,yaw,pan,tilt,lift}, wall_s, sim_s}``), ``map_rmse_m``,
 ``edge_violations``, ``geofence_refusals``, ``slips``, ``overruns``, ``task_max_ms``
 ({task: ms}, plus ``frame``: the longest frame, and ``slack_slice``, ``slack_slice.<task>``:
-the longest slack-job slice),
+the longest slack-job slice), ``map_error_tilt_deg`` and ``map_rmse_detilted_m`` (the plane
+fitted to map minus truth over mapped cells: its tilt, and the RMS error around it),
+``wheels_off_terrain`` (rig steps with a wheel off the world's terrain, a bench fault),
+``wheels_on_unknown_ground`` (frames the rover moved with a true wheel position on ground the
+flight geofence did not know), ``bench_faults`` (``{t_s, kind, detail}``), ``odometer_m``,
+``reachable_stations`` (per step boundary: edge-path stations the geofence allowed from the
+rover's estimated pose, ``hil_sim.ground_watch``), ``looks`` (views of unknown ground before
+a move), ``stays`` (steps whose view was taken without the planned move, and why),
+``steps_unused`` and ``steps_unused_reason``,
 ``end_reason``, ``final_state``, ``mapped_cells``, ``frames``, ``sim_s``,
 ``wall_s``, ``cliffbot`` (the Cliff-bot's report, or null), ``files``. Wall-clock fields:
 ``wall_s`` (top level and per step), ``task_max_ms``, and ``slips`` and ``overruns`` (both
@@ -35,6 +43,7 @@ import numpy as np
 from fsw.core.geometry import MapGrid
 from fsw.drivers.map_store import MapStore
 from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
+from hil_sim.ground_watch import reachable_stations, wheels_on_unknown
 
 WALL_CLOCK_FIELDS = ("wall_s", "task_max_ms", "slips", "overruns")
 
@@ -102,19 +111,24 @@ def run_mission(
         mission = bench.exe.tasks["mission"]
         perception = bench.exe.tasks["perception"]
         limit_s = max_sim_s if max_sim_s is not None else 120.0 + 90.0 * (spec.steps + 1) + 1200.0
-        violations = 0
+        violations = unknown_frames = 0
+        reachable: list[int] = []  # stations the geofence allowed, at each step boundary
         last_step = -1
         bench.exe.freeze_heap()  # as the flight start-up does (safer-fsw run)
         try:
             while bench.clock.now() < limit_s:
+                odo = bench.rig.rover.odometer_m
                 bench.run(1)
+                unknown_frames += wheels_on_unknown(bench.rig, mission, odo)
                 if mission.state == "TRANSMIT" and 1 not in cliffbot.originals:
                     cliffbot.originals[1] = perception.map.z.astype(np.float32)
                 cliffbot.step(bench.clock.now())
                 violations += _wheels_over_drop(bench.rig, world, cfg)
-                if progress is not None and mission.step != last_step:
+                if mission.step != last_step:
                     last_step = mission.step
-                    progress(mission.step, spec.steps, mission.state)
+                    reachable.append(reachable_stations(mission, cfg))
+                    if progress is not None:
+                        progress(mission.step, spec.steps, mission.state)
                 if mission.state in ("DONE", "SAFE"):
                     break
         finally:
@@ -125,6 +139,7 @@ def run_mission(
         emap = perception.map
         mapped = emap.mapped & np.isfinite(truth)
         rmse = float(np.sqrt(np.mean((emap.z[mapped] - truth[mapped]) ** 2))) if mapped.any() else None
+        tilt_deg, rmse_plane = error_plane(grid, emap.z - truth, mapped)
         summary: dict[str, Any] = {
             "schema": 1,
             "scenario": spec.scenario,
@@ -132,8 +147,20 @@ def run_mission(
             "seed": spec.seed,
             "steps": [dataclasses.asdict(r) for r in mission.records],
             "map_rmse_m": rmse,
+            "map_error_tilt_deg": tilt_deg,
+            "map_rmse_detilted_m": rmse_plane,
             "edge_violations": violations,
             "geofence_refusals": mission.edge_violations,
+            "wheels_off_terrain": bench.rig.wheels_off_terrain_steps,
+            "wheels_on_unknown_ground": unknown_frames,
+            "bench_faults": bench.rig.faults_seen,
+            "odometer_m": round(bench.rig.rover.odometer_m, 3),
+            "reachable_stations": reachable,
+            "looks": mission.looks,
+            "stays": mission.stays,
+            "steps_unused": max(0, spec.steps - (len(mission.records) - 1)),
+            "steps_unused_reason": None if len(mission.records) - 1 >= spec.steps else (
+                mission.end or mission.safe_reason or f"stopped in {mission.state}"),
             "slips": exe.slips,
             "overruns": sum(t.overruns for t in exe.tasks.values()),
             "task_max_ms": task_max_ms(exe),
@@ -151,6 +178,19 @@ def run_mission(
         if spec.out is not None:
             summary["files"] = write_outputs(spec.out, summary, emap, truth, grid)
     return summary
+
+
+def error_plane(grid: MapGrid, err: Any, mapped: Any) -> tuple[float | None, float | None]:
+    """The plane fitted (least squares) to the map's error over mapped cells: its tilt (deg,
+    the part of the error a tilted map explains) and the RMS error left around it (m)."""
+    if int(mapped.sum()) < 10:
+        return None, None
+    xs, ys = grid.centers()
+    a = np.column_stack([xs[mapped], ys[mapped], np.ones(int(mapped.sum()))])
+    coef, *_ = np.linalg.lstsq(a, err[mapped], rcond=None)
+    resid = err[mapped] - a @ coef
+    return (round(float(np.degrees(np.arctan(np.hypot(coef[0], coef[1])))), 4),
+            round(float(np.sqrt(np.mean(resid**2))), 5))
 
 
 def task_max_ms(exe: Any) -> dict[str, float]:
@@ -176,10 +216,10 @@ def _cliffbot_report(cliffbot: Any, out: Path | None) -> dict[str, Any] | None:
 
 
 def _wheels_over_drop(rig: Any, world: Any, cfg: FswConfig) -> int:
-    """1 if any wheel's contact point is over the drop (true terrain below the plateau)."""
+    """1 if any wheel's contact point is over the drop (true terrain below the nearest
+    plateau ground by more than the edge step: ``World.over_drop``)."""
     xs, ys = rig.rover.world_wheel_xy()
-    z = np.asarray(world.height_at(np.asarray(xs), np.asarray(ys)))
-    return int(bool((z < world.plateau_z - cfg.edge.step_m).any()))
+    return int(bool(world.over_drop(np.asarray(xs), np.asarray(ys), cfg.edge.step_m).any()))
 
 
 def write_outputs(out: Path, summary: dict[str, Any], emap: Any, truth: Any, grid: MapGrid) -> dict[str, str]:

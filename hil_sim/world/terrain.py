@@ -8,7 +8,8 @@ is drawn from the seed, so ``--seed`` alone gives a new terrain.
 Construction, all on the 1 cm truth grid:
 
 1. The edge: a smooth random line ``y(x)`` (``edge_wiggle_m`` std, ``edge_wavelength_m``)
-   shifted so that its closest approach to the rover start, within ``+-1 m`` along ``x``, is
+   shifted so that its closest approach to the rover's wheels at the start (the footprint's
+   side, ``FOOTPRINT_HALF_WIDTH_M`` right of the start), within ``+-1 m`` along ``x``, is
    ``edge_distance_m`` (drawn uniformly in 0.3..2 m by default). The plateau (where the rover
    starts) is the side at larger ``y``; a face of ``face_slope_deg`` drops ``drop_m``.
 2. Ground: fractal rolling relief (``relief_m``) on both sides, then Viking-model rocks
@@ -38,6 +39,7 @@ from hil_sim.world.noise import fractal_noise
 from hil_sim.world.world import World
 
 EDGE_DISTANCE_RANGE_M = (0.3, 2.0)
+FOOTPRINT_HALF_WIDTH_M = 0.36  # config/fsw.toml [rover]: track_m / 2 + the 0.12 m wheel patch / 2
 PATCH_AXES_M = (0.4, 1.2)
 
 
@@ -56,7 +58,7 @@ def build_terrain(cfg: ScenarioConfig, seed: int) -> World:
     near = np.abs(grid.xs - rs.x_m) <= 1.0
     if not near.any():
         raise ScenarioError("terrain: the rover start is off the world")
-    y_edge = curve + (rs.y_m - distance - float(curve[near].max()))
+    y_edge = curve + (rs.y_m - FOOTPRINT_HALF_WIDTH_M - distance - float(curve[near].max()))
     d = y_edge.astype(np.float32)[None, :] - gy  # horizontal distance past the edge (> 0: below)
     tan_face = math.tan(math.radians(tc.face_slope_deg))
     run = tc.drop_m / tan_face
