@@ -26,7 +26,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("experiment", "coverage"): "hil_sim.commands.experiment_coverage",
     ("experiment", "reduction"): "hil_sim.commands.experiment_reduction",
     ("experiment", "link"): "hil_sim.commands.experiment_link",
-    ("experiment", "terrain"): "hil_sim.commands.experiment_terrain",
+    ("experiment", "ground"): "hil_sim.commands.experiment_ground",
 }
 
 GROUP_HELP = {

@@ -1,4 +1,4 @@
-"""Rows and the markdown report of ``safer-hil experiment terrain`` (issue 13, "Done when").
+"""Rows and the markdown report of ``safer-hil experiment ground`` (issue 13, "Done when").
 
 One row per mission, from its ``summary.json`` (hil_sim/mission_run.py) and the map it wrote.
 The map's error against truth is also summarised by the plane fitted to it (least squares
@@ -51,7 +51,7 @@ def _median_worst(values: list[float], worst_high: bool = True) -> str:
 
 
 def report_markdown(rows: list[dict[str, Any]], failed: list[str], args: dict[str, Any]) -> str:
-    cmd = (f"safer-hil experiment terrain --family '{args['family']}' --terrains {args['terrains']} "
+    cmd = (f"safer-hil experiment ground --family '{args['family']}' --terrains {args['terrains']} "
            f"--first-seed {args['first_seed']} --methods {args['methods']} --steps {args['steps']} "
            + "".join(f"--extra '{e}' " for e in args["extra"]) + f"--jobs {args['jobs']}")
     out = [f"# Missions on unfamiliar ground\n\n```\n{cmd}\n```\n",
