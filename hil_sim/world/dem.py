@@ -34,6 +34,7 @@ from hil_sim.world.world import World
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
 MAX_CELL_M = 0.01
+START_ROOM_M = 0.6  # the rover's wheels reach 0.56 m from its centre (config/fsw.toml [rover])
 
 
 NPY_MAGIC = b"\x93NUMPY"
@@ -122,6 +123,10 @@ def build_from_dem(cfg: ScenarioConfig, seed: int) -> World:
         raise ScenarioError(f"{fc.path}: the rover start ({rs.x_m}, {rs.y_m}) is outside the "
                             f"DEM (x {grid.x0}..{grid.x0 + nx * grid.cell_m:.2f}, "
                             f"y {grid.y0}..{grid.y0 + ny * grid.cell_m:.2f})")
+    room = int(math.ceil(START_ROOM_M / grid.cell_m))
+    if not (room <= ix < nx - room and room <= iy < ny - room):
+        raise ScenarioError(f"{fc.path}: the rover start ({rs.x_m}, {rs.y_m}) is within "
+                            f"{START_ROOM_M} m of the DEM's border: no room for its wheels")
     if fc.zero_at_start:  # the flight map's datum is the ground under the rover at the start
         dem = dem - dem[iy, ix]
     plateau_z = float(dem[iy, ix])

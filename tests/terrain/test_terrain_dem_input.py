@@ -115,3 +115,12 @@ def test_png_dem_is_checked_too(tmp_path):
     cv2.imwrite(str(tmp_path / "big.png"), counts)
     with pytest.raises(ScenarioError, match="sane range"):
         load_scenario(f"file:{tmp_path / 'big.png'}?z_scale_m=1.0")
+
+
+def test_start_without_room_for_the_wheels_is_refused(tmp_path):
+    np.save(tmp_path / "edge.npy", np.zeros((100, 700), np.float32))  # y -6 .. -5
+    with pytest.raises(ScenarioError, match="outside the DEM|no room for its wheels"):
+        load_scenario(f"file:{tmp_path / 'edge.npy'}")
+    np.save(tmp_path / "tight.npy", np.zeros((630, 700), np.float32))  # y -6 .. 0.3
+    with pytest.raises(ScenarioError, match="no room for its wheels"):
+        load_scenario(f"file:{tmp_path / 'tight.npy'}")
