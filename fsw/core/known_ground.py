@@ -1,9 +1,9 @@
 """Known ground for the geofence: the rover never drives where the flight software has no map
 of the ground under its wheels (ALGORITHM.md §2; issue 13 item 3).
 
-Ground is *known* where the elevation map has a measurement (``n >= 1``, ALGORITHM.md §1),
-with stereo drop-outs a few cells wide inside mapped ground filled (a morphological closing
-of ``fill_m``), or where the rover's own footprint has stood (the ground it stands on needs no
+Ground is *known* where the elevation map has a measurement (``n >= 1``, ALGORITHM.md §1)
+or lies within ``fill_m`` of one (a dilation: stereo drop-outs a few cells wide and the ragged
+border of a view, a fraction of a wheel patch), or where the rover's own footprint has stood (the ground it stands on needs no
 camera: the body hides it from the mast, yet the wheels are on it). A swept wheel patch is on
 known ground when every map cell whose centre lies inside it is known; a cell off the map grid
 is unknown.
@@ -46,14 +46,12 @@ class KnownGround:
         self._stood: list[BaseGeometry] = []
 
     def set_map(self, grid: MapGrid, n: NDArray[np.integer]) -> None:
-        """Take the map's measured cells (``n >= 1``), small holes closed."""
+        """Take the map's measured cells (``n >= 1``), grown by ``fill_m``."""
         mapped = np.asarray(n) >= 1
         r = int(round(self.fill_m / grid.cell))
         if r > 0 and mapped.any():
             k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-            pad = np.pad(mapped.astype(np.uint8), r)
-            closed = cv2.morphologyEx(pad, cv2.MORPH_CLOSE, k)[r:-r, r:-r].astype(bool)
-            mapped = mapped | closed
+            mapped = cv2.dilate(mapped.astype(np.uint8), k).astype(bool)
         self.grid, self._mapped = grid, mapped
 
     def stood_on(self, footprint: BaseGeometry) -> None:

@@ -52,6 +52,8 @@ from fsw.tasks.messages import (
 from fsw.tasks.mission_ground import GroundAwareMission
 from fsw.tasks.radio_task import RADIO_SEND, RadioSendRequest
 
+MIN_MOVE_M = 0.1  # stations closer than this (and turned less than MIN_TURN_RAD) are "here"
+MIN_TURN_RAD = math.radians(10.0)
 STATES = ("IDLE", "INIT", "SELECT", "MOVE", "POINT", "ACQUIRE", "TRANSMIT", "DONE", "SAFE")
 
 
@@ -238,9 +240,13 @@ class MissionTask(GroundAwareMission, Task):
         assert self.view is not None and self.nav is not None
         here = (self.nav.x, self.nav.y, self.nav.yaw)
         there = self.view.rover
-        if math.hypot(there[0] - here[0], there[1] - here[1]) < 0.02 and abs(
-            math.remainder(there[2] - here[2], math.tau)
-        ) < math.radians(1.0):
+        dyaw = math.remainder(there[2] - here[2], math.tau)
+        if math.hypot(there[0] - here[0], there[1] - here[1]) < MIN_MOVE_M and abs(dyaw) < MIN_TURN_RAD:
+            # Not worth a move (a goto turns toward its target first: a few cm sideways would
+            # be a quarter turn): the view from here, the mast turned to look the same way.
+            pan, tilt, lift = self.view.joints
+            self.view = CandidateView(here, self.ctx.cfg.mast.clamp(pan + dyaw, tilt, lift),
+                                      method=self.view.method)
             self._start_point()
             return
         self._fence(here)

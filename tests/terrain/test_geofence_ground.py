@@ -112,7 +112,7 @@ def test_extension_stops_at_the_footprint_and_unknown_ground():
     barrier = gf._barrier
     assert barrier is not None and not barrier.intersects(gf.footprint((0.0, 0.0, 0.0)))
     gf2 = fence(mapped_box(0.7, 5.0, -3.0, 2.0), model)  # unknown west of x = 0.7
-    assert gf2._barrier is not None and gf2._barrier.bounds[0] >= 0.65
+    assert gf2._barrier is not None and gf2._barrier.bounds[0] >= 0.6  # 0.7 less known_fill_m
 
 
 def test_edge_path_from_a_short_wiggly_glimpse():
