@@ -1,11 +1,12 @@
 """The cliff edge from the elevation map (ALGORITHM.md §2).
 
 1. Edge points. The *safe region* is the mapped plateau: cells within ``plateau_tol_m`` of
-   the rover's ground height, in the connected piece nearest the rover. A safe
+   the rover's ground (a plane fitted around the rover, ``ground_plane``: level ground stays
+   level, a sloped plateau is followed), in the connected piece nearest the rover. A safe
    cell is an edge cell when, looking outward across its boundary in one of the eight grid
    directions, the first mapped cell within ``search_m`` lies more than ``step_m`` lower
-   (cells in between may be unknown: the ground right under a drop is occluded from the
-   plateau), in at least ``min_drop_dirs`` of the eight directions: a drop is an extended
+   (than the ground plane there; cells in between may be unknown: the ground right under a
+   drop is occluded from the plateau), in at least ``min_drop_dirs`` of the eight directions: a drop is an extended
    feature, while a frontier cell beside a large unknown area (the blind zone around the
    rover) may glimpse a drop far away along a single diagonal. The edge point is placed on
    the cell's outer side, half a cell out. The plain frontier of the map (safe cells next to
@@ -33,16 +34,15 @@ from shapely.geometry import LineString, MultiLineString, Polygon
 from shapely.geometry.base import BaseGeometry
 
 from fsw.config import param
-from fsw.core.edge_offset import edge_path
+from fsw.core.edge_offset import END_TANGENT_M, edge_path, end_normal, trim_hooks
 from fsw.core.elevation_map import ElevationMap
+from fsw.core.ground_plane import ground_plane
 from fsw.core.steps import run_to_end
 
 F64 = NDArray[np.float64]
-END_TANGENT_M = 0.3  # length over which an edge line's end direction is taken (barrier)
 BRIDGE_M = 0.25  # edge runs this close along the polygon boundary are one run (fit_polygon)
 CLIP_INSIDE_M = 0.05  # a barrier extension stops where it gets this deep into the safe polygon
-__all__ = ["EdgeConfig", "EdgeModel", "edge_cells", "edge_cells_steps", "edge_path", "fit_line",
-           "fit_polygon", "safe_region", "sample_lines"]
+__all__ = ["EdgeConfig", "EdgeModel", "edge_cells", "edge_path", "fit_line", "fit_polygon"]
 _DIRS = ((0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1), (-1, 0), (-1, 1))  # (dy, dx)
 
 
@@ -53,6 +53,9 @@ class EdgeConfig:
     step_m: float = param(0.10, lo=0.005, hi=10.0, units="m", doc="drop that makes an edge")
     plateau_tol_m: float = param(
         0.03, lo=0.001, hi=5.0, units="m", doc="a safe cell is within this of the ground height"
+    )
+    max_slope_deg: float = param(
+        15.0, lo=0.0, hi=45.0, units="deg", doc="steepest plateau the ground plane may take"
     )
     search_m: float = param(
         1.5, lo=0.0, hi=10.0, units="m", doc="how far past the plateau to look for the drop"
@@ -116,7 +119,7 @@ class EdgeModel:
             inner = self.stand if inner is None else inner.union(self.stand)
         out = []
         for ln in self.lines.geoms:
-            c = _trim_hooks(np.asarray(ln.coords)) if self.open_ends else np.asarray(ln.coords)
+            c = trim_hooks(np.asarray(ln.coords)) if self.open_ends else np.asarray(ln.coords)
             ln = LineString(c)
             if extend_m > 0 and len(c) >= 2:
                 # Extend along the end's overall direction (over END_TANGENT_M), not the last
@@ -150,7 +153,7 @@ class EdgeModel:
             seg = c[1:] - c[:-1]
             nrm = np.column_stack([-seg[:, 1], seg[:, 0]])
             nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-            vn = np.vstack([_end_normal(ln, True), nrm[:-1] + nrm[1:], _end_normal(ln, False)])
+            vn = np.vstack([end_normal(ln, True), nrm[:-1] + nrm[1:], end_normal(ln, False)])
             a_l.append(c[:-1])
             b_l.append(c[1:])
             na_l.append(vn[:-1])
@@ -187,33 +190,6 @@ class EdgeModel:
         return float(np.mean(shapely.distance(shapely.points(pts), truth)))
 
 
-def _trim_hooks(c: F64) -> F64:
-    """The polyline without end segments that turn back against its overall end direction
-    (a fit's hook where the seen region ends)."""
-    for _ in range(len(c)):
-        if len(c) < 3:
-            break
-        ln = LineString(c)
-        t0, t1 = (_end_normal(ln, s)[0, ::-1] * (1.0, -1.0) for s in (True, False))
-        if float(np.dot(c[1] - c[0], t0)) < 0:
-            c = c[1:]
-        elif float(np.dot(c[-1] - c[-2], t1)) < 0:
-            c = c[:-1]
-        else:
-            break
-    return c
-
-
-def _end_normal(ln: LineString, start: bool) -> F64:
-    """(1, 2) unit left normal of the line's overall direction over its first (last)
-    ``END_TANGENT_M``."""
-    span = min(END_TANGENT_M, ln.length / 2.0)
-    a = np.asarray(ln.interpolate(0.0 if start else ln.length - span).coords[0])
-    b = np.asarray(ln.interpolate(span if start else ln.length).coords[0])
-    d = b - a
-    return np.array([[-d[1], d[0]]]) / max(float(np.hypot(*d)), 1e-12)
-
-
 def _extension(end: F64, t: F64, extend_m: float, inner: BaseGeometry | None,
                stop_at: Callable[[F64], NDArray[np.bool_]] | None = None) -> F64 | None:
     """The far point of the straight extension from ``end`` along ``t``: ``extend_m`` out, or
@@ -234,12 +210,14 @@ def _extension(end: F64, t: F64, extend_m: float, inner: BaseGeometry | None,
 
 def safe_region(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float, float],
                 cfg: EdgeConfig) -> NDArray[np.bool_]:
-    """The mapped plateau the rover stands on: cells within ``plateau_tol_m`` of its ground,
-    in the connected piece nearest ``seed_xy`` (pieces closer than ``join_m`` count as one).
+    """The mapped plateau the rover stands on: cells within ``plateau_tol_m`` of its ground
+    (:func:`ground_plane`: the plane of the ground around it, level or sloped), in the
+    connected piece nearest ``seed_xy`` (pieces closer than ``join_m`` count as one).
     Level ground that is not connected to the rover (the top of a box in the pit, a
     floor beyond the far side of the pit) is not safe ground."""
     z = emap.z
-    level = emap.mapped & np.isfinite(z) & (np.abs(z - ground_z_m) <= cfg.plateau_tol_m)
+    ref = ground_plane(emap, ground_z_m, seed_xy, cfg)
+    level = emap.mapped & np.isfinite(z) & (np.abs(z - ref) <= cfg.plateau_tol_m)
     if not level.any():
         return level
     # grow every piece by join_m / 2: pieces closer than join_m touch and share a label
@@ -275,9 +253,10 @@ def edge_cells_steps(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float
     z = emap.z
     mapped = emap.mapped & np.isfinite(z)
     safe = safe_region(emap, ground_z_m, seed_xy, cfg)
+    ref = ground_plane(emap, ground_z_m, seed_xy, cfg)
     yield None
     # per cell: 0 unknown, 1 lower by more than a step, 2 anything else known (or off-grid)
-    code = np.where(mapped, np.where(z < ground_z_m - cfg.step_m, 1, 2), 0).astype(np.int8)
+    code = np.where(mapped, np.where(z < ref - cfg.step_m, 1, 2), 0).astype(np.int8)
     code = np.pad(code, 1, constant_values=2)
     # only safe cells on the boundary of the safe region can be edge cells
     inner = ndimage.binary_erosion(safe, np.ones((3, 3)), border_value=0)

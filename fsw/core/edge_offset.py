@@ -1,5 +1,6 @@
 """The rover's path along the cliff edge: candidate positions set back into the safe side
-(ALGORITHM.md §2, §3). ``fsw.core.edge`` re-exports :func:`edge_path`.
+(ALGORITHM.md §2, §3), and the geometry of an edge line's ends (its end direction, hooks).
+``fsw.core.edge`` re-exports :func:`edge_path`.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ if TYPE_CHECKING:
     from fsw.core.edge import EdgeModel
 
 F64 = NDArray[np.float64]
+END_TANGENT_M = 0.3  # length over which an edge line's end direction is taken (barrier)
 
 
 def edge_path(model: EdgeModel, setback_m: float, spacing_m: float, extend_m: float = 0.0) -> F64:
@@ -71,3 +73,30 @@ def _normal_offset(line: LineString, setback_m: float, spacing_m: float) -> F64:
     p = shapely.get_coordinates(shapely.line_interpolate_point(line, s))
     p = p + setback_m * np.column_stack([-np.sin(yaw), np.cos(yaw)])
     return np.column_stack([p, yaw])
+
+
+def trim_hooks(c: F64) -> F64:
+    """The polyline without end segments that turn back against its overall end direction
+    (a fit's hook where the seen region ends)."""
+    for _ in range(len(c)):
+        if len(c) < 3:
+            break
+        ln = LineString(c)
+        t0, t1 = (end_normal(ln, s)[0, ::-1] * (1.0, -1.0) for s in (True, False))
+        if float(np.dot(c[1] - c[0], t0)) < 0:
+            c = c[1:]
+        elif float(np.dot(c[-1] - c[-2], t1)) < 0:
+            c = c[:-1]
+        else:
+            break
+    return c
+
+
+def end_normal(ln: LineString, start: bool) -> F64:
+    """(1, 2) unit left normal of the line's overall direction over its first (last)
+    ``END_TANGENT_M``."""
+    span = min(END_TANGENT_M, ln.length / 2.0)
+    a = np.asarray(ln.interpolate(0.0 if start else ln.length - span).coords[0])
+    b = np.asarray(ln.interpolate(span if start else ln.length).coords[0])
+    d = b - a
+    return np.array([[-d[1], d[0]]]) / max(float(np.hypot(*d)), 1e-12)

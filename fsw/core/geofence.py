@@ -75,7 +75,8 @@ class GeofenceConfig:
         True, doc="refuse moves whose wheels would cross ground the map has not measured"
     )
     known_fill_m: float = param(
-        0.06, lo=0.0, hi=1.0, units="m", doc="ground within this of a measured cell counts as known (stereo holes, view borders)"
+        0.06, lo=0.0, hi=1.0, units="m",
+        doc="ground within this of a measured cell counts as known (stereo holes, view borders)"
     )
 
 

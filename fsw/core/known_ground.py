@@ -3,8 +3,9 @@ of the ground under its wheels (ALGORITHM.md §2; issue 13 item 3).
 
 Ground is *known* where the elevation map has a measurement (``n >= 1``, ALGORITHM.md §1)
 or lies within ``fill_m`` of one (a dilation: stereo drop-outs a few cells wide and the ragged
-border of a view, a fraction of a wheel patch), or where the rover's own footprint has stood (the ground it stands on needs no
-camera: the body hides it from the mast, yet the wheels are on it). A swept wheel patch is on
+border of a view, a fraction of a wheel patch), or where the rover's own footprint has stood
+(the ground it stands on needs no camera: the body hides it from the mast, yet the wheels are
+on it). A swept wheel patch is on
 known ground when every map cell whose centre lies inside it is known; a cell off the map grid
 is unknown.
 """
