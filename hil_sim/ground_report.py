@@ -11,7 +11,7 @@ from __future__ import annotations
 import statistics
 from typing import Any
 
-COLUMNS = ("scenario", "seed", "method", "moved", "odometer_m", "reachable_max", "stuck",
+COLUMNS = ("scenario", "seed", "slope_deg", "edge_gap_m", "method", "moved", "odometer_m", "reachable_max", "stuck",
            "steps_used", "steps_asked", "unused_reason", "stays", "looks", "edge_violations",
            "geofence_refusals", "wheels_off_terrain", "wheels_on_unknown_ground", "mapped_cells",
            "map_rmse_cm", "error_tilt_deg", "rmse_detilted_cm", "final_state")
@@ -25,6 +25,8 @@ def row_of(s: dict[str, Any], spec: str, seed: int, steps: int) -> dict[str, Any
     detilted = s.get("map_rmse_detilted_m")
     return {
         "scenario": spec, "seed": seed, "method": s["method"],
+        "slope_deg": _r(s.get("drawn", {}).get("slope_deg")),
+        "edge_gap_m": _r(s.get("drawn", {}).get("edge_distance_m")),
         "moved": moved, "odometer_m": s.get("odometer_m", 0.0),
         "reachable_max": max(reach, default=0),
         "stuck": (not moved) and max(reach, default=0) > 0,
@@ -40,6 +42,10 @@ def row_of(s: dict[str, Any], spec: str, seed: int, steps: int) -> dict[str, Any
         "rmse_detilted_cm": None if detilted is None else round(100 * detilted, 2),
         "final_state": s["final_state"], "stay_reasons": s.get("stays", []),
     }
+
+
+def _r(v: float | None) -> float | None:
+    return None if v is None else round(float(v), 2)
 
 
 def _median_worst(values: list[float], worst_high: bool = True) -> str:

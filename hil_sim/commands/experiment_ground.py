@@ -46,8 +46,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _one(scenario: str, method: str, steps: int, seed: int, out: str) -> dict[str, Any]:
     from hil_sim.mission_run import RunSpec, run_mission
+    from hil_sim.world import load_scenario
 
-    return run_mission(RunSpec(scenario, method, steps, seed, transmit=False, out=Path(out)))
+    s = run_mission(RunSpec(scenario, method, steps, seed, transmit=False, out=Path(out)))
+    s["drawn"] = dict(load_scenario(scenario, seed).drawn)  # the terrain's slope, edge gap
+    return s
 
 
 def run(args: argparse.Namespace) -> int:

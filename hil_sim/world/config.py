@@ -155,7 +155,8 @@ class MarsConfig:
 class TerrainConfig:
     """The ``terrain`` generator (hil_sim/world/terrain.py): -1 / 0 values are drawn from the seed."""
 
-    slope_deg: float = param(6.0, lo=0.0, hi=12.0, units="deg", doc="regional slope of the ground")
+    slope_deg: float = param(6.0, lo=-1.0, hi=12.0, units="deg",
+                             doc="regional slope of the ground; -1: drawn in 0..12")
     slope_azimuth_deg: float = param(-1.0, lo=-1.0, hi=360.0, units="deg",
                                      doc="downhill direction, CCW from +x; -1: drawn")
     edge_distance_m: float = param(0.0, lo=0.0, hi=2.0, units="m",

@@ -16,8 +16,9 @@ Construction, all on the 1 cm truth grid:
    (ALGORITHM.md, "Mars terrain statistics"; Golombek and Rapp 1997, ``mars.py``): coverage
    ``k`` below the edge (diameters ``d_min_m``..``d_max_m``) and ``plateau_k`` on the plateau
    with diameters up to ``plateau_d_max_m`` (smaller than a wheel: drivable rubble).
-3. Regional slope: the whole world is tilted by ``slope_deg`` toward ``slope_azimuth_deg``
-   (downhill direction, deg counter-clockwise from +x; drawn by default), so the rover
+3. Regional slope: the whole world is tilted by ``slope_deg`` (-1: drawn in 0..12 deg)
+   toward ``slope_azimuth_deg`` (downhill direction, deg counter-clockwise from +x; drawn by
+   default), so the rover
    starts rolled and pitched; heights are then shifted so the ground at the start is 0.
 4. ``textureless_count`` irregular patches (semi-axes 0.4..1.2 m) of one albedo below the edge,
    free of rocks, where stereo finds no match (ALGORITHM.md §3.4).
@@ -39,6 +40,7 @@ from hil_sim.world.noise import fractal_noise
 from hil_sim.world.world import World
 
 EDGE_DISTANCE_RANGE_M = (0.3, 2.0)
+SLOPE_MAX_DEG = 12.0
 FOOTPRINT_HALF_WIDTH_M = 0.36  # config/fsw.toml [rover]: track_m / 2 + the 0.12 m wheel patch / 2
 PATCH_AXES_M = (0.4, 1.2)
 
@@ -51,6 +53,7 @@ def build_terrain(cfg: ScenarioConfig, seed: int) -> World:
     if not EDGE_DISTANCE_RANGE_M[0] <= distance <= EDGE_DISTANCE_RANGE_M[1]:
         raise ScenarioError(f"terrain: edge_distance_m must be 0 (drawn) or in 0.3..2, got {distance}")
     azimuth = tc.slope_azimuth_deg if tc.slope_azimuth_deg >= 0 else float(draws.uniform(0, 360))
+    slope_deg = tc.slope_deg if tc.slope_deg >= 0 else float(draws.uniform(0.0, SLOPE_MAX_DEG))
     rs, cb = cfg.rover_start, cfg.cliffbot
     grid = truth_grid(cfg)
     gx, gy = grid.mesh()
@@ -94,10 +97,12 @@ def build_terrain(cfg: ScenarioConfig, seed: int) -> World:
                            rock_id=rock_id, first_id=n)
     # The regional slope: downhill toward the azimuth, through the start.
     a = math.radians(azimuth)
-    grade = math.tan(math.radians(tc.slope_deg))
+    grade = math.tan(math.radians(slope_deg))
     ground -= np.float32(grade) * ((gx - rs.x_m) * math.cos(a) + (gy - rs.y_m) * math.sin(a))
     ix, iy = int((rs.x_m - grid.x0) / grid.cell_m), int((rs.y_m - grid.y0) / grid.cell_m)
     ground -= ground[iy, ix]
     edge = np.column_stack([grid.xs, y_edge])[:: max(1, round(0.02 / grid.cell_m))]
-    return finish_world(cfg, "terrain", seed, grid, ground, rng, edge_xy=edge, plateau_z=0.0,
-                        rock_id=rock_id, textureless=silt, plateau=np.asarray(on_top))
+    world = finish_world(cfg, "terrain", seed, grid, ground, rng, edge_xy=edge, plateau_z=0.0,
+                         rock_id=rock_id, textureless=silt, plateau=np.asarray(on_top))
+    world.drawn.update(slope_deg=slope_deg, slope_azimuth_deg=azimuth, edge_distance_m=distance)
+    return world

@@ -59,6 +59,7 @@ class World:
     noise_sigma: float = 2.0         # scenario's default camera noise, grey levels
     description: str = ""
     config: Any = field(default=None, repr=False)  # the validated ScenarioConfig
+    drawn: dict[str, float] = field(default_factory=dict)  # generator parameters drawn from the seed
 
     @property
     def shape(self) -> tuple[int, int]:
