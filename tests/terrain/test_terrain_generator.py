@@ -85,7 +85,7 @@ def test_rocks_below_the_edge_follow_the_coverage_and_patches_are_bare():
 
 @pytest.mark.parametrize("spec, exc, why", [
     ("terrain?slope_deg=13", ConfigError, "above the maximum"),
-    ("terrain?slope_deg=-1", ConfigError, "below the minimum"),
+    ("terrain?slope_deg=-2", ConfigError, "below the minimum"),
     ("terrain?edge_distance_m=0.1", ScenarioError, "0.3..2"),
     ("terrain?edge_distance_m=3", ConfigError, "above the maximum"),
     ("terrain?k=0.9", ConfigError, "above the maximum"),
@@ -108,3 +108,13 @@ def test_home_scenarios_unchanged_by_the_new_kind():
     """The lab keeps its layout: level plateau at 0, edge near y = -0.8."""
     lab = load_scenario("lab")
     assert lab.plateau_z == 0.0 and abs(float(np.median(lab.edge_xy[:, 1])) + 0.8) < 0.15
+
+
+def test_drawn_parameters_are_recorded_and_in_range():
+    slopes = []
+    for seed in range(8):
+        w = load_scenario("terrain?slope_deg=-1", seed=seed)
+        assert 0.0 <= w.drawn["slope_deg"] <= 12.0 and 0.0 <= w.drawn["slope_azimuth_deg"] < 360.0
+        assert 0.3 <= w.drawn["edge_distance_m"] <= 2.0
+        slopes.append(w.drawn["slope_deg"])
+    assert max(slopes) - min(slopes) > 3.0
