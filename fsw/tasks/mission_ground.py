@@ -51,7 +51,6 @@ class GroundAwareMission:
         """The geofence refused the move: look at unknown ground once; otherwise (or if it
         stays unknown) take the step's view from here. Never a crossing, never a stall."""
         assert self.view is not None
-        self.edge_violations += 1
         if "unknown ground" in reason and self._looked != there:
             self._looked = there
             pts = self.geofence.unknown_points(here, there)
@@ -60,6 +59,7 @@ class GroundAwareMission:
             self.pending.insert(0, self.view)
             self.view = CandidateView(here, look_joints(here, pts, self.ctx.cfg.mast), method="look")
         else:
+            self.edge_violations += 1  # a refusal that stands (a look is not one)
             self.stays.append(f"step {self.step}: {reason}")
             self.event("GEOFENCE", x=there[0], y=there[1], reason=reason)
             self.view = CandidateView(here, self.view.joints, method=self.view.method)
