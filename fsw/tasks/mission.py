@@ -10,8 +10,9 @@ candidates on the new map. Before any wheel move the geofence checks the swept f
 against the polygon edge (§2): a refusal is an event, never a crossing, and the step's view
 is taken from where the rover stands (``fsw.tasks.mission_ground``). A move over ground the
 map has not measured (``fsw.core.known_ground``) is not taken blind: the step first looks at
-that ground from where the rover stands (``fsw.core.look``, part of the same step). A fitted
-edge that hems the rover in where it stands makes the next step a look at the ground nearest it. Step 0 is
+that ground from where the rover stands (``fsw.core.look``, part of the same step); a move
+still refused is driven part of the way the geofence allows. A fitted edge that hems the
+rover in where it stands makes the next step a look at the ground nearest it. Step 0 is
 the panorama from the start pose (the same for every method); steps 1..N are the
 planner's. Each step is recorded (``records``) for the run summary.
 
@@ -49,11 +50,9 @@ from fsw.tasks.messages import (
     MotionStatus,
     NavPose,
 )
-from fsw.tasks.mission_ground import GroundAwareMission
+from fsw.tasks.mission_ground import MIN_MOVE_M, MIN_TURN_RAD, GroundAwareMission
 from fsw.tasks.radio_task import RADIO_SEND, RadioSendRequest
 
-MIN_MOVE_M = 0.1  # stations closer than this (and turned less than MIN_TURN_RAD) are "here"
-MIN_TURN_RAD = math.radians(10.0)
 STATES = ("IDLE", "INIT", "SELECT", "MOVE", "POINT", "ACQUIRE", "TRANSMIT", "DONE", "SAFE")
 
 

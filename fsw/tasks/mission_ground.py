@@ -5,23 +5,32 @@ issue 13 item 3): a mixin of :class:`fsw.tasks.mission.MissionTask`.
   ground is known) and the rover's own footprint (safe, known ground) before every check.
 - Planners rate stations with the edge check alone; the mission then checks the whole move.
   A move over unknown ground is preceded by one look at that ground from where the rover
-  stands (``fsw.core.look``), part of the same imaging step; if the ground stays unknown the
-  step's view is taken from where the rover stands, and the reason is kept (``stays``).
+  stands (``fsw.core.look``; the part of the way nearest the rover), part of the same imaging
+  step. A move still refused is driven part of the way, as far as the geofence allows (the
+  operator advances to the end of known ground, the next view shows more), or, if no part of
+  it is allowed, the step's view is taken from where the rover stands; the reason is kept
+  per step (``stays``).
 """
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import shapely
 
 from fsw.core.edge import edge_path
+from fsw.core.geofence import goto_legs
 from fsw.core.look import look_joints
 from fsw.core.planners import PlannerState
 from fsw.core.view_candidates import CandidateView
 
 Pose3 = tuple[float, float, float]
+MIN_MOVE_M = 0.1  # stations closer than this (and turned less than MIN_TURN_RAD) are "here"
+MIN_TURN_RAD = math.radians(10.0)
+LOOK_DEPTH_M = 0.6  # a look aims at the unknown ground within this of the nearest unknown cell
+PART_FRACTIONS = (0.85, 0.7, 0.55, 0.4, 0.25, 0.1)  # of the way, tried for a part-way move
 
 
 class GroundAwareMission:
@@ -45,25 +54,61 @@ class GroundAwareMission:
     if TYPE_CHECKING:  # provided by Task and MissionTask (stubs here would shadow them)
         def event(self, name: str, **args: Any) -> None: ...
 
+        def _goto(self, new: str) -> None: ...
+
+        def _request(self, **kw: Any) -> None: ...
+
         def _start_point(self) -> None: ...
 
     def _refused(self, here: Pose3, there: Pose3, reason: str) -> None:
-        """The geofence refused the move: look at unknown ground once; otherwise (or if it
-        stays unknown) take the step's view from here. Never a crossing, never a stall."""
+        """The geofence refused the move: over unknown ground, look at it once (the part of
+        the way nearest the rover); otherwise drive part of the way, as far as the geofence
+        allows; otherwise take the step's view from here. Never a crossing, never a stall."""
         assert self.view is not None
         if "unknown ground" in reason and self._looked != there:
             self._looked = there
             pts = self.geofence.unknown_points(here, there)
+            d = np.hypot(pts[:, 0] - here[0], pts[:, 1] - here[1])
+            pts = pts[d <= d.min() + LOOK_DEPTH_M]
             self.looks += 1
             self.event("LOOK", n=len(pts), x=there[0], y=there[1])
             self.pending.insert(0, self.view)
             self.view = CandidateView(here, look_joints(here, pts, self.ctx.cfg.mast), method="look")
-        else:
-            self.edge_violations += 1  # a refusal that stands (a look is not one)
+            self._start_point()
+            return
+        self.edge_violations += 1  # a refusal that stands (a look is not one)
+        self.event("GEOFENCE", x=there[0], y=there[1], reason=reason)
+        pan, tilt, lift = self.view.joints
+        part = self._part_way(here, there)
+        if part is None:
             self.stays.append(f"step {self.step}: {reason}")
-            self.event("GEOFENCE", x=there[0], y=there[1], reason=reason)
-            self.view = CandidateView(here, self.view.joints, method=self.view.method)
-        self._start_point()
+            turn = math.remainder(pan + there[2] - here[2], math.tau)  # look the same way
+            self.view = CandidateView(here, self.ctx.cfg.mast.clamp(turn, tilt, lift),
+                                      method=self.view.method)
+            self._start_point()
+            return
+        gone = math.hypot(part[0] - here[0], part[1] - here[1])
+        self.stays.append(f"step {self.step}: part way, {gone:.2f} of "
+                          f"{math.hypot(there[0] - here[0], there[1] - here[1]):.2f} m: {reason}")
+        turn = math.remainder(pan + there[2] - part[2], math.tau)
+        self.view = CandidateView(part, self.ctx.cfg.mast.clamp(turn, tilt, lift),
+                                  method=self.view.method)
+        self._goto("MOVE")
+        self._request(kind="goto", target=part)
+
+    def _part_way(self, here: Pose3, there: Pose3) -> Pose3 | None:
+        """The farthest point toward ``there`` (keeping the drive's heading, no final turn)
+        that the geofence allows, at least ``MIN_MOVE_M`` away; None if there is none."""
+        heading = goto_legs(here, there)[1][2]
+        dist = math.hypot(there[0] - here[0], there[1] - here[1])
+        ux, uy = (there[0] - here[0]) / max(dist, 1e-9), (there[1] - here[1]) / max(dist, 1e-9)
+        for f in PART_FRACTIONS:
+            if f * dist < MIN_MOVE_M:
+                break
+            p = (here[0] + f * dist * ux, here[1] + f * dist * uy, heading)
+            if self.geofence.check(here, p).allowed:
+                return p
+        return None
 
     def _look_around(self) -> bool:
         """If the geofence would not let the rover stay where it stands (the fitted edge runs
