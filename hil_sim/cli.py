@@ -36,6 +36,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("experiment", "link"): "hil_sim.commands.experiment_link",
     ("experiment", "resume"): "hil_sim.commands.experiment_resume",
     ("experiment", "terrain"): "hil_sim.commands.experiment_terrain",
+    ("experiment", "ground"): "hil_sim.commands.experiment_ground",
 }
 
 GROUP_HELP = {

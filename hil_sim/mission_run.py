@@ -13,6 +13,15 @@ obtained_new_cells, pose{x,y,yaw,pan,tilt,lift}, wall_s, sim_s}``), ``map_rmse_m
 ({task: ms}, plus ``frame``: the longest frame, and ``slack_slice``, ``slack_slice.<task>``:
 the longest slack-job slice), ``task_ms_per_frame`` ({task: mean foreground ms per frame},
 plus ``total``),
+``map_error_tilt_deg`` and ``map_rmse_detilted_m`` (the plane
+fitted to map minus truth over mapped cells: its tilt, and the RMS error around it),
+``wheels_off_terrain`` (rig steps with a wheel off the world's terrain, a bench fault),
+``wheels_on_unknown_ground`` (frames the rover moved with a true wheel position on ground the
+flight geofence did not know), ``bench_faults`` (``{t_s, kind, detail}``), ``odometer_m``,
+``reachable_stations`` (per step boundary: edge-path stations the geofence allowed from the
+rover's estimated pose, ``hil_sim.ground_watch``), ``looks`` (views of unknown ground before
+a move), ``stays`` (steps whose view was taken without the planned move, and why),
+``steps_unused`` and ``steps_unused_reason``,
 ``end_reason``, ``final_state``, ``mapped_cells``, ``frames``, ``sim_s``,
 ``start_attitude_deg`` (true roll, pitch at the start), ``registration`` (per view: status,
 correction, sigmas; ``fsw.core.registration``), ``map_quality`` (RMS, fitted tilt, station
@@ -46,9 +55,16 @@ from fsw.core.geometry import MapGrid
 from fsw.drivers.map_store import MapStore
 from fsw.drivers.resources import OracleTruth, Resources
 from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
+from hil_sim.ground_watch import reachable_stations, wheels_on_unknown
+from hil_sim.mission_report import (
+    _cliffbot_report,
+    error_plane,
+    task_max_ms,
+    task_ms_per_frame,
+    write_outputs,
+)
 from hil_sim.terrain_eval import map_quality
 
-WALL_CLOCK_FIELDS = ("wall_s", "task_max_ms", "task_ms_per_frame", "slips", "overruns")
 MANIFEST = "run.json"
 MODES = ("new", "fresh", "resume")
 
@@ -226,13 +242,17 @@ def run_mission(
         mission = bench.exe.tasks["mission"]
         perception = bench.exe.tasks["perception"]
         limit_s = max_sim_s if max_sim_s is not None else 120.0 + 90.0 * (spec.steps + 1) + 1200.0
+        counters.setdefault("unknown_frames", 0)
+        counters.setdefault("reachable", [])  # stations the geofence allowed, at each step boundary
         last_step = -1
         views: list[Any] = []  # (camera xyz, cell index, z) per merged view, for the seams
         start_att = (round(bench.rig.truth()["roll_deg"], 3), round(bench.rig.truth()["pitch_deg"], 3))
         bench.exe.freeze_heap()  # as the flight start-up does (safer-fsw run)
         try:
             while bench.clock.now() < limit_s:
+                odo = bench.rig.rover.odometer_m
                 bench.run(1)
+                counters["unknown_frames"] += wheels_on_unknown(bench.rig, mission, odo)
                 if mission.state == "TRANSMIT" and 1 not in cliffbot.originals:
                     cliffbot.originals[1] = perception.map.z.astype(np.float32)
                 cliffbot.step(bench.clock.now())
@@ -241,9 +261,11 @@ def run_mission(
                 fresh = up is not None and (not views or views[-1][3] is not up)
                 if fresh and up is not None and up.camera_xyz is not None and up.view_cells is not None:
                     views.append((up.camera_xyz, *up.view_cells, up))
-                if progress is not None and mission.step != last_step:
+                if mission.step != last_step:
                     last_step = mission.step
-                    progress(mission.step, spec.steps, mission.state)
+                    counters["reachable"].append(reachable_stations(mission, cfg))
+                    if progress is not None:
+                        progress(mission.step, spec.steps, mission.state)
                 if mission.state in ("DONE", "SAFE"):
                     break
         finally:
@@ -254,6 +276,7 @@ def run_mission(
         emap = perception.map
         mapped = emap.mapped & np.isfinite(truth)
         rmse = float(np.sqrt(np.mean((emap.z[mapped] - truth[mapped]) ** 2))) if mapped.any() else None
+        tilt_deg, rmse_plane = error_plane(grid, emap.z - truth, mapped)
         summary: dict[str, Any] = {
             "schema": 1,
             "scenario": spec.scenario,
@@ -262,8 +285,20 @@ def run_mission(
             "camera": spec.camera,
             "steps": [dataclasses.asdict(r) for r in mission.records],
             "map_rmse_m": rmse,
+            "map_error_tilt_deg": tilt_deg,
+            "map_rmse_detilted_m": rmse_plane,
             "edge_violations": counters["violations"],
             "geofence_refusals": mission.edge_violations,
+            "wheels_off_terrain": bench.rig.wheels_off_terrain_steps,
+            "wheels_on_unknown_ground": counters["unknown_frames"],
+            "bench_faults": bench.rig.faults_seen,
+            "odometer_m": round(bench.rig.rover.odometer_m, 3),
+            "reachable_stations": counters["reachable"],
+            "looks": mission.looks,
+            "stays": mission.stays,
+            "steps_unused": max(0, spec.steps - (len(mission.records) - 1)),
+            "steps_unused_reason": None if len(mission.records) - 1 >= spec.steps else (
+                mission.end or mission.safe_reason or f"stopped in {mission.state}"),
             "slips": exe.slips,
             "overruns": sum(t.overruns for t in exe.tasks.values()),
             "task_max_ms": task_max_ms(exe),
@@ -287,96 +322,8 @@ def run_mission(
     return summary
 
 
-def task_ms_per_frame(exe: Any) -> dict[str, float]:
-    """Foreground cost: each task's summed execution time over the frames run, ms per frame,
-    plus ``total`` (every task); slack-job slices are not foreground and not counted."""
-    frames = max(1, int(exe.frame))
-    tasks = [t for rg in exe.groups for t in rg.members]
-    out = {t.name: round(t.total_s * 1e3 / frames, 4) for t in tasks}
-    out["total"] = round(sum(t.total_s for t in tasks) * 1e3 / frames, 4)
-    return out
-
-
-def task_max_ms(exe: Any) -> dict[str, float]:
-    """Max execution time per task and rate group, plus the longest frame (``frame``:
-    foreground and slack) and the longest slack-job slice overall (``slack_slice``) and per
-    submitting task (``slack_slice.<task>``), ms."""
-    out = {n: round(t.max_s * 1e3, 3) for n, t in exe.tasks.items()}
-    out["frame"] = round(exe.frame_max_s * 1e3, 3)
-    out["slack_slice"] = round(exe.jobs.max_slice_s * 1e3, 3)
-    for owner, s in sorted(exe.jobs.max_slice_by_owner.items()):
-        out[f"slack_slice.{owner}"] = round(s * 1e3, 3)
-    return out
-
-
-def _cliffbot_report(cliffbot: Any, out: Path | None) -> dict[str, Any] | None:
-    """The Cliff-bot's last report, its figure named relative to the run directory."""
-    if not cliffbot.reports:
-        return None
-    rep = dataclasses.asdict(cliffbot.reports[-1])
-    if rep.get("png") and out is not None:
-        rep["png"] = Path(rep["png"]).name
-    return rep
-
-
 def _wheels_over_drop(rig: Any, world: Any, cfg: FswConfig) -> int:
-    """1 if any wheel's contact point is over the drop (true terrain below the plateau)."""
+    """1 if any wheel's contact point is over the drop (true terrain below the nearest
+    plateau ground by more than the edge step: ``World.over_drop``)."""
     xs, ys = rig.rover.world_wheel_xy()
-    z = np.asarray(world.height_at(np.asarray(xs), np.asarray(ys)))
-    return int(bool((z < world.plateau_z - cfg.edge.step_m).any()))
-
-
-def write_outputs(out: Path, summary: dict[str, Any], emap: Any, truth: Any, grid: MapGrid) -> dict[str, str]:
-    """summary.json and the PNGs: map, variance, error, coverage over steps."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    files = {"summary": "summary.json", "map": "map.png", "coverage": "coverage.png"}
-    ext = grid.extent
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.6), constrained_layout=True)
-    for ax, data, title, cmap in (
-        (axes[0], emap.z, "elevation (m)", "terrain"),
-        (axes[1], np.sqrt(emap.var), "sigma (m)", "magma"),
-        (axes[2], emap.z - truth, "error vs truth (m)", "coolwarm"),
-    ):
-        kw = {"vmin": -0.05, "vmax": 0.05} if "error" in title else {}
-        if "sigma" in title:
-            kw = {"vmin": 0.0, "vmax": 0.03}
-        im = ax.imshow(np.where(emap.mapped, data, np.nan), origin="lower", extent=ext, cmap=cmap, **kw)
-        ax.set_title(title)
-        ax.set_xlabel("x (m)")
-        ax.set_ylabel("y (m)")
-        fig.colorbar(im, ax=ax, shrink=0.8)
-    for r in summary["steps"]:
-        axes[0].plot(r["pose"]["x"], r["pose"]["y"], "k^", ms=5)
-    fig.suptitle(
-        f"{summary['scenario']} method {summary['method']} seed {summary['seed']}: "
-        f"{summary['mapped_cells']} cells mapped"
-    )
-    fig.savefig(out / files["map"], dpi=90)
-    plt.close(fig)
-    fig, ax = plt.subplots(figsize=(6, 4), constrained_layout=True)
-    st = summary["steps"]
-    ax.plot([r["step"] for r in st], [r["mapped_cells"] for r in st], "o-", label="mapped cells")
-    ax.bar([r["step"] for r in st], [r["obtained_new_cells"] for r in st], alpha=0.3, label="obtained new")
-    ax.plot([r["step"] for r in st], [r["expected_new_cells"] for r in st], "x--", label="expected new (H)")
-    ax.set_xlabel("stereo imaging step")
-    ax.set_ylabel("cells")
-    ax.legend()
-    ax.grid(alpha=0.3)
-    fig.savefig(out / files["coverage"], dpi=90)
-    plt.close(fig)
-    files["error"] = "map_error.npy"  # map minus truth on mapped cells (NaN elsewhere), float32
-    np.save(out / files["error"], np.where(emap.mapped, emap.z - truth, np.nan).astype(np.float32))
-    summary["files"] = files
-    (out / files["summary"]).write_text(json.dumps(summary, indent=2) + "\n")
-    return files
-
-
-def strip_wall_clock(summary: dict[str, Any]) -> dict[str, Any]:
-    """The summary without its wall-clock fields (for determinism checks)."""
-    out = {k: v for k, v in summary.items() if k not in WALL_CLOCK_FIELDS}
-    out["steps"] = [{k: v for k, v in s.items() if k not in WALL_CLOCK_FIELDS} for s in summary["steps"]]
-    return out
+    return int(bool(world.over_drop(np.asarray(xs), np.asarray(ys), cfg.edge.step_m).any()))

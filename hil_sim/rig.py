@@ -83,6 +83,9 @@ class HardwareRig:
         self.now = 0.0
         self._renderer: Any = None
         self.start_pose = self.rover.pose
+        self.faults_seen: list[dict[str, Any]] = []  # bench faults: {t_s, kind, detail}
+        self.wheels_off_terrain_steps = 0  # rig steps with any wheel off the world's terrain
+        self._off_before = False
 
     def step(self, now: float, dt_s: float) -> None:
         """Advance the hardware to ``now``: read commands, move the truth ``dt_s``, report."""
@@ -95,10 +98,23 @@ class HardwareRig:
             if dt_s > 0:
                 self.rover.step(dt_s)
                 self.mast.step(dt_s)
+            self._check_ground(now)
             self.now = now
             self.motors.transmit(now)
             self.imu.transmit(now)
             self.mast_ctrl.transmit(now)
+
+    def _check_ground(self, now: float) -> None:
+        """Bench fault: a wheel off the world's terrain (the simulator has no ground there)."""
+        off = bool(self.rover.wheels_off.any())
+        if off:
+            self.wheels_off_terrain_steps += 1
+        if off and not self._off_before:
+            wheels = [n for n, o in zip(("FL", "FR", "RL", "RR"), self.rover.wheels_off, strict=True) if o]
+            self.faults_seen.append({"t_s": round(now, 3), "kind": "wheel_off_terrain",
+                                     "detail": f"wheels {','.join(wheels)} off the world at "
+                                               f"({self.rover.x:.2f}, {self.rover.y:.2f})"})
+        self._off_before = off
 
     # -- the camera -------------------------------------------------------------------------
     def camera_pose(self) -> CameraPose:

@@ -8,7 +8,9 @@ so inconsistent steering scrubs instead of breaking the model. The terrain comes
 
 Actuation error, seeded: every wheel slips (a per-wheel bias plus a correlated fluctuation
 around ``slip_mean``) and every steer joint has a small calibration offset, so dead reckoning
-from the encoders drifts from this truth. The shoulders change where the wheels touch (the
+from the encoders drifts from this truth. A wheel whose contact point lies off the world's
+terrain is flagged (``wheels_off``; the bench reports it as a fault), never given invented
+ground silently. The shoulders change where the wheels touch (the
 wheelbase) and the body height. No bytes here: :mod:`hil_sim.hw.motor_controllers` reads and
 drives this model.
 """
@@ -109,6 +111,7 @@ class RoverTruth:
         self.z = self.pitch = self.roll = 0.0
         self.odometer_m = 0.0
         self.max_wheel_drop_m = 0.0
+        self.wheels_off = np.zeros(4, bool)  # wheels with no terrain under them (off the world)
         self._pinv_key: np.ndarray | None = None
         self._pinv = np.zeros((3, 8))
         self._settle()
@@ -172,6 +175,9 @@ class RoverTruth:
         """Body height, pitch and roll from the terrain under the four wheels."""
         wx, wy = self.world_wheel_xy()
         h = np.asarray(self.terrain.height_at(wx, wy), dtype=float)
+        # A wheel off the world's terrain has no ground: a bench fault (HardwareRig reports
+        # it); the body rests on the wheels that do have ground.
+        self.wheels_off = ~np.isfinite(h)
         h = np.where(np.isfinite(h), h, np.nanmin(h) if np.isfinite(h).any() else 0.0)
         legs = self.cfg.leg_length_m * np.cos(self.shoulder)
         hip = h + legs  # hip height above the world datum (axle heights cancel out)

@@ -1,13 +1,16 @@
 """The cliff edge from the elevation map (ALGORITHM.md §2).
 
 1. Edge points. The *safe region* is the mapped plateau: cells within ``plateau_tol_m`` of
-   the rover's ground height, in the connected piece nearest the rover. A safe
+   the rover's ground (a plane fitted around the rover, ``ground_plane``: level ground stays
+   level, a sloped plateau is followed), in the connected piece nearest the rover. A safe
    cell is an edge cell when, looking outward across its boundary in one of the eight grid
    directions, the first mapped cell within ``search_m`` lies more than ``step_m`` lower
-   (cells in between may be unknown: the ground right under a drop is occluded from the
-   plateau). The edge point is placed on the cell's outer side, half a cell out. The plain
-   frontier of the map (safe cells next to unknown cells with no drop behind them) and holes
-   inside the plateau are not edges.
+   (than the ground plane there; cells in between may be unknown: the ground right under a
+   drop is occluded from the plateau), in at least ``min_drop_dirs`` of the eight directions: a drop is an extended
+   feature, while a frontier cell beside a large unknown area (the blind zone around the
+   rover) may glimpse a drop far away along a single diagonal. The edge point is placed on
+   the cell's outer side, half a cell out. The plain frontier of the map (safe cells next to
+   unknown cells with no drop behind them) and holes inside the plateau are not edges.
 2. Fits. Method 4/5: the best-fit non-convex polygon of the safe region (OpenCV contours,
    then Douglas-Peucker simplification by ``simplify_m``); the edge is the part of its
    boundary that runs along the edge points. Method 3: one straight segment, the total least
@@ -19,7 +22,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Generator
+from collections.abc import Callable, Generator
 from dataclasses import dataclass
 
 import cv2
@@ -30,14 +33,16 @@ from scipy import ndimage
 from shapely.geometry import LineString, MultiLineString, Polygon
 from shapely.geometry.base import BaseGeometry
 
+from fsw.core.edge_offset import END_TANGENT_M, edge_path, end_normal, trim_hooks
 from fsw.core.elevation_map import ElevationMap
+from fsw.core.ground_plane import ground_plane
 from fsw.core.steps import run_to_end
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
-END_TANGENT_M = 0.3  # length over which an edge line's end direction is taken (barrier)
 BRIDGE_M = 0.25  # edge runs this close along the polygon boundary are one run (fit_polygon)
 CLIP_INSIDE_M = 0.05  # a barrier extension stops where it gets this deep into the safe polygon
+__all__ = ["EdgeConfig", "EdgeModel", "edge_cells", "edge_path", "fit_line", "fit_polygon"]
 _DIRS = ((0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1), (-1, 0), (-1, 1))  # (dy, dx)
 
 
@@ -49,8 +54,14 @@ class EdgeConfig:
     plateau_tol_m: float = param(
         0.03, lo=0.001, hi=5.0, units="m", doc="a safe cell is within this of the ground height"
     )
+    max_slope_deg: float = param(
+        15.0, lo=0.0, hi=45.0, units="deg", doc="steepest plateau the ground plane may take"
+    )
     search_m: float = param(
         1.5, lo=0.0, hi=10.0, units="m", doc="how far past the plateau to look for the drop"
+    )
+    min_drop_dirs: int = param(
+        2, lo=1, hi=8, doc="grid directions in which a boundary cell must see the drop (1: any)"
     )
     min_region_cells: int = param(30, lo=1, hi=10**7, doc="smallest safe-region piece kept")
     join_m: float = param(
@@ -83,6 +94,9 @@ class EdgeModel:
     points_xy: F64
     lines: MultiLineString
     safe_polygon: Polygon | None
+    stand: BaseGeometry | None = None  # ground the rover stands on: no extension crosses it
+    stop_at: Callable[[F64], NDArray[np.bool_]] | None = None  # (N, 2) -> True: extension ends
+    open_ends: bool = False  # signed_distance: ground past a line's end is not beyond the edge
 
     @property
     def empty(self) -> bool:
@@ -93,22 +107,28 @@ class EdgeModel:
         taken to go on beyond where the map saw it). An extension stops where it enters the
         mapped plateau (``safe_polygon`` shrunk by ``CLIP_INSIDE_M``): the map saw level ground
         there, so the edge does not go on across it (a hooked end would otherwise swing its
-        continuation over the plateau, behind the rover)."""
+        continuation over the plateau, behind the rover). Nor does it cross ``stand``, the
+        ground under the rover (``Geofence.set_edge``): the rover stands on safe ground; and
+        it ends where ``stop_at`` says (the geofence: unknown ground, which it never lets a
+        wheel onto anyway)."""
         inner = None
         if self.safe_polygon is not None and extend_m > 0:
             inner = self.safe_polygon.buffer(-CLIP_INSIDE_M)
             inner = None if inner.is_empty else inner
+        if self.stand is not None and extend_m > 0:
+            inner = self.stand if inner is None else inner.union(self.stand)
         out = []
         for ln in self.lines.geoms:
-            c = np.asarray(ln.coords)
+            c = trim_hooks(np.asarray(ln.coords)) if self.open_ends else np.asarray(ln.coords)
+            ln = LineString(c)
             if extend_m > 0 and len(c) >= 2:
                 # Extend along the end's overall direction (over END_TANGENT_M), not the last
                 # segment's: a short hook at the end of a fit must not swing the extension.
                 span = min(END_TANGENT_M, ln.length / 2.0)
                 p0 = np.asarray(ln.interpolate(span).coords[0])
                 p1 = np.asarray(ln.interpolate(ln.length - span).coords[0])
-                e0 = _extension(c[0], c[0] - p0, extend_m, inner)
-                e1 = _extension(c[-1], c[-1] - p1, extend_m, inner)
+                e0 = _extension(c[0], c[0] - p0, extend_m, inner, self.stop_at)
+                e1 = _extension(c[-1], c[-1] - p1, extend_m, inner, self.stop_at)
                 c = np.vstack([e0[None] if e0 is not None else np.zeros((0, 2)), c,
                                e1[None] if e1 is not None else np.zeros((0, 2))])
             out.append(LineString(c))
@@ -120,21 +140,27 @@ class EdgeModel:
         The side is that of the nearest point of the edge: the segment's left normal, or at
         a vertex the mean of its two segments' normals, so bays and capes of a non-convex
         edge are classified correctly (a one-sided buffer would spill across a narrow bay).
+        At a line's end the normal is that of its overall end direction (over
+        ``END_TANGENT_M``, as the extension's): a short hook at the end of a fit must not turn
+        the ground beyond the end to the other side.
         """
         pts = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         if self.empty:
             return np.full(pts.shape[0], np.inf)
-        a_l, b_l, na_l, nb_l = [], [], [], []
+        a_l, b_l, na_l, nb_l, end_l = [], [], [], [], []
         for ln in self.barrier(extend_m).geoms:
             c = np.asarray(ln.coords)
             seg = c[1:] - c[:-1]
             nrm = np.column_stack([-seg[:, 1], seg[:, 0]])
             nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-            vn = np.vstack([nrm[:1], nrm[:-1] + nrm[1:], nrm[-1:]])  # vertex pseudo-normals
+            vn = np.vstack([end_normal(ln, True), nrm[:-1] + nrm[1:], end_normal(ln, False)])
             a_l.append(c[:-1])
             b_l.append(c[1:])
             na_l.append(vn[:-1])
             nb_l.append(vn[1:])
+            ends = np.zeros((len(seg), 2), bool)  # segment starts / ends the line
+            ends[0, 0] = ends[-1, 1] = True
+            end_l.append(ends)
         a, b = np.concatenate(a_l), np.concatenate(b_l)
         na, nb = np.concatenate(na_l), np.concatenate(nb_l)
         ab = b - a
@@ -150,6 +176,9 @@ class EdgeModel:
         n = np.where((tj <= 0.0)[:, None], na[j], np.where((tj >= 1.0)[:, None], nb[j], seg_n))
         side = np.sign(((pts - near[m, j]) * n).sum(1))
         side[side == 0] = 1.0
+        if self.open_ends:  # past a line's end the fit says nothing: not beyond the edge
+            ends = np.concatenate(end_l)
+            side[((tj <= 0.0) & ends[j, 0]) | ((tj >= 1.0) & ends[j, 1])] = 1.0
         return np.asarray(side * np.sqrt(d2[m, j]))
 
     def mean_distance_to(self, truth_xy: F64, step_m: float) -> float:
@@ -161,15 +190,19 @@ class EdgeModel:
         return float(np.mean(shapely.distance(shapely.points(pts), truth)))
 
 
-def _extension(end: F64, t: F64, extend_m: float, inner: BaseGeometry | None) -> F64 | None:
+def _extension(end: F64, t: F64, extend_m: float, inner: BaseGeometry | None,
+               stop_at: Callable[[F64], NDArray[np.bool_]] | None = None) -> F64 | None:
     """The far point of the straight extension from ``end`` along ``t``: ``extend_m`` out, or
-    where it first enters ``inner`` (None: it would start inside)."""
+    where it first enters ``inner`` or ``stop_at`` holds (None: it would start there)."""
     t = t / max(float(np.hypot(*t)), 1e-12)
     length = extend_m
-    if inner is not None:
+    if inner is not None or stop_at is not None:
         s = np.linspace(0.0, extend_m, max(2, int(np.ceil(extend_m / 0.01)) + 1))
         q = end[None] + s[:, None] * t[None]
-        hit = np.flatnonzero(shapely.contains_xy(inner, q[:, 0], q[:, 1]))
+        stop = np.zeros(len(q), bool) if inner is None else shapely.contains_xy(inner, q[:, 0], q[:, 1])
+        if stop_at is not None:
+            stop[1:] |= stop_at(q[1:])
+        hit = np.flatnonzero(stop)
         if hit.size:
             length = float(s[hit[0] - 1]) if hit[0] > 0 else 0.0
     return end + length * t if length > 1e-9 else None
@@ -177,12 +210,14 @@ def _extension(end: F64, t: F64, extend_m: float, inner: BaseGeometry | None) ->
 
 def safe_region(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float, float],
                 cfg: EdgeConfig) -> NDArray[np.bool_]:
-    """The mapped plateau the rover stands on: cells within ``plateau_tol_m`` of its ground,
-    in the connected piece nearest ``seed_xy`` (pieces closer than ``join_m`` count as one).
+    """The mapped plateau the rover stands on: cells within ``plateau_tol_m`` of its ground
+    (:func:`ground_plane`: the plane of the ground around it, level or sloped), in the
+    connected piece nearest ``seed_xy`` (pieces closer than ``join_m`` count as one).
     Level ground that is not connected to the rover (the top of a box in the pit, a
     floor beyond the far side of the pit) is not safe ground."""
     z = emap.z
-    level = emap.mapped & np.isfinite(z) & (np.abs(z - ground_z_m) <= cfg.plateau_tol_m)
+    ref = ground_plane(emap, ground_z_m, seed_xy, cfg)
+    level = emap.mapped & np.isfinite(z) & (np.abs(z - ref) <= cfg.plateau_tol_m)
     if not level.any():
         return level
     # grow every piece by join_m / 2: pieces closer than join_m touch and share a label
@@ -218,15 +253,17 @@ def edge_cells_steps(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float
     z = emap.z
     mapped = emap.mapped & np.isfinite(z)
     safe = safe_region(emap, ground_z_m, seed_xy, cfg)
+    ref = ground_plane(emap, ground_z_m, seed_xy, cfg)
     yield None
     # per cell: 0 unknown, 1 lower by more than a step, 2 anything else known (or off-grid)
-    code = np.where(mapped, np.where(z < ground_z_m - cfg.step_m, 1, 2), 0).astype(np.int8)
+    code = np.where(mapped, np.where(z < ref - cfg.step_m, 1, 2), 0).astype(np.int8)
     code = np.pad(code, 1, constant_values=2)
     # only safe cells on the boundary of the safe region can be edge cells
     inner = ndimage.binary_erosion(safe, np.ones((3, 3)), border_value=0)
     cy, cx = np.nonzero(safe & ~inner)
     k_max = max(1, int(round(cfg.search_m / emap.grid.cell)))
     hit = np.zeros((cy.size, 2))
+    dirs = np.zeros(cy.size, np.int32)
     ny, nx = z.shape
     for i, (dy, dx) in enumerate(_DIRS):
         if i and i % 4 == 0:
@@ -243,7 +280,8 @@ def edge_cells_steps(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float
             if not open_.any():
                 break
         hit[found] += (dx / norm, dy / norm)
-    is_edge = np.linalg.norm(hit, axis=1) > 1e-9
+        dirs += found
+    is_edge = (np.linalg.norm(hit, axis=1) > 1e-9) & (dirs >= cfg.min_drop_dirs)
     iy, ix, dvec = cy[is_edge], cx[is_edge], hit[is_edge]
     g = emap.grid
     dvec /= np.linalg.norm(dvec, axis=1, keepdims=True)
@@ -360,35 +398,3 @@ def sample_lines(lines: MultiLineString, step_m: float) -> F64:
         out.append(shapely.get_coordinates(
             shapely.line_interpolate_point(ln, np.linspace(0.0, ln.length, n))))
     return np.concatenate(out) if out else np.zeros((0, 2))
-
-
-def edge_path(model: EdgeModel, setback_m: float, spacing_m: float) -> F64:
-    """Rover poses ``(x, y, yaw)`` along the edge, ``setback_m`` into the safe side (§2, §3).
-
-    Each edge line is offset to its left; points closer than ``setback_m`` to any edge line
-    (inside corners of the offset) are dropped. Yaw follows the edge direction.
-    """
-    if model.empty:
-        return np.zeros((0, 3))
-    edge = model.lines
-    out = []
-    for ln in edge.geoms:
-        off = ln.offset_curve(setback_m, join_style="round")
-        for part in getattr(off, "geoms", [off]):
-            if part.is_empty or part.length == 0:
-                continue
-            n = max(2, int(np.floor(part.length / spacing_m)) + 1)
-            s = np.linspace(0.0, part.length, n)
-            p = shapely.get_coordinates(shapely.line_interpolate_point(part, s))
-            q = shapely.get_coordinates(
-                shapely.line_interpolate_point(part, np.minimum(s + 1e-3, part.length)))
-            r = shapely.get_coordinates(
-                shapely.line_interpolate_point(part, np.maximum(s - 1e-3, 0.0)))
-            t = q - r
-            yaw = np.arctan2(t[:, 1], t[:, 0])
-            out.append(np.column_stack([p, yaw]))
-    if not out:
-        return np.zeros((0, 3))
-    poses = np.concatenate(out)
-    dist = shapely.distance(shapely.points(poses[:, :2]), edge)
-    return np.asarray(poses[dist >= setback_m - 1e-6 - 0.01 * setback_m])

@@ -1,8 +1,11 @@
 """Geofence: no motion command may take a wheel across the cliff edge (ALGORITHM.md §2).
 
 A motion command goes from rover pose A to pose B ``(x, y, yaw)``. The rover is taken to
-move with x, y and yaw interpolated linearly (shortest turn), sampled every
-``sample_step_m`` / ``sample_step_deg``. Each wheel's contact patch (a rectangle
+move as the motion task drives a ``goto`` (:func:`goto_legs`): turn in place toward B (or
+away from it, to back up, when that is the smaller turn), drive straight, turn to B's yaw;
+each leg sampled every ``sample_step_m`` / ``sample_step_deg``. (A turn in place swings the
+corners of the rover: close to the edge it is the turn, not the drive, that comes nearest.)
+Each wheel's contact patch (a rectangle
 ``wheel_diameter_m`` long and ``wheel_width_m`` wide at the wheel centre) sweeps the union
 of the convex hulls of consecutive samples. The command is allowed only if every swept
 wheel patch stays on the safe side of the fitted edge and at least ``margin_m`` away from
@@ -12,6 +15,14 @@ it. The edge is taken to continue straight for ``extend_m`` past the ends the ma
 points (``EdgeModel.signed_distance``) is the side of all. The verdict names the reason, the
 wheel and the clearance.
 
+Unknown ground (``require_known_ground``): every swept wheel patch must also lie on ground the
+flight software knows (``fsw.core.known_ground``: mapped cells, small stereo holes filled, or
+ground the rover has stood on); a move over unmapped ground is refused, naming the wheel. The
+rover's footprint where it stands (``set_edge(model, stand)``) is safe ground: the edge's
+straight continuation past the ends the map saw stops short of it, and (with known ground
+required) at unknown ground, which no wheel may enter anyway: a hooked end of a glimpsed edge
+then no longer swings its continuation through the blind zone beside the rover.
+
 Without a fitted edge the geofence refuses (unless ``allow_without_edge``): the flow of
 ALGORITHM.md §2 finds the edge before the rover moves.
 
@@ -20,11 +31,15 @@ inside the margin (a longer or re-shaped edge, or its straight continuation past
 now passes close by). Refusing every move would box the rover in for good, so a rover that
 stands inside the margin, with every wheel still on the safe side, may make a move that ends
 outside the margin and whose swept wheels never come closer to the edge on the way than they
-are at its start: it can back away, never closer. Such a verdict says "recovering".
+are at its start: it can back away, never closer. A rover whose wheels touch the fitted edge
+where it stands (the fit is off by a wheel's width: the rover stands on safe ground) may make
+a move that ends outside the margin along which no wheel centre comes closer to the edge.
+Such a verdict says "recovering".
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -33,7 +48,8 @@ import shapely
 from shapely.geometry.base import BaseGeometry
 
 from fsw.core.edge import EdgeModel
-from fsw.core.geometry import RoverConfig
+from fsw.core.geometry import MapGrid, RoverConfig
+from fsw.core.known_ground import KnownGround, Pose3, rover_footprint
 from fsw.framework.params import param
 
 WHEELS = ("front_left", "front_right", "rear_left", "rear_right")
@@ -55,6 +71,13 @@ class GeofenceConfig:
     recover_inside_margin: bool = param(
         True, doc="a rover already inside the margin may move out of it, never coming closer to the edge"
     )
+    require_known_ground: bool = param(
+        True, doc="refuse moves whose wheels would cross ground the map has not measured"
+    )
+    known_fill_m: float = param(
+        0.06, lo=0.0, hi=1.0, units="m",
+        doc="ground within this of a measured cell counts as known (stereo holes, view borders)"
+    )
 
 
 @dataclass(frozen=True)
@@ -75,16 +98,35 @@ class Geofence:
         self.rover = rover
         self._edge: EdgeModel | None = None
         self._barrier: BaseGeometry | None = None
+        self.known = KnownGround(cfg.known_fill_m)
         self.rejections = 0
 
-    def set_edge(self, model: EdgeModel | None) -> None:
-        """Use a new edge fit (None or an empty fit: no edge known)."""
+    def set_edge(self, model: EdgeModel | None, stand: Pose3 | None = None) -> None:
+        """Use a new edge fit (None or an empty fit: no edge known); ``stand``: the rover's
+        pose now (its footprint is safe ground, and known ground from now on)."""
+        if stand is not None:
+            self.known.stood_on(self.footprint(stand))
         if model is None or model.empty:
             self._edge = self._barrier = None
         else:
+            if stand is not None:
+                model = dataclasses.replace(model, stand=self.footprint(stand))
+            if self.cfg.require_known_ground and self.known.ready:
+                # The straight continuation guards ground the map saw; unknown ground is
+                # refused to every wheel anyway, so the continuation ends where it begins.
+                # Past the (shortened) ends the fit says nothing; unknown ground is refused there.
+                model = dataclasses.replace(model, stop_at=lambda q: ~self.known.known_xy(q),
+                                            open_ends=True)
             self._edge = model
             self._barrier = model.barrier(self.cfg.extend_m)
             shapely.prepare(self._barrier)
+
+    def set_map(self, grid: MapGrid, n: np.ndarray) -> None:
+        """The map's measurement counts: where the ground is known."""
+        self.known.set_map(grid, n)
+
+    def footprint(self, pose: Pose3) -> BaseGeometry:
+        return rover_footprint(pose, self.rover, self.cfg.wheel_width_m)
 
     def wheel_centres(self, poses: np.ndarray) -> np.ndarray:
         """(S, 4, 2) wheel centres for (S, 3) poses, in the order of ``WHEELS``."""
@@ -111,8 +153,11 @@ class Geofence:
             out.append(shapely.union_all(hulls))
         return out
 
-    def check(self, a: tuple[float, float, float], b: tuple[float, float, float]) -> Verdict:
-        """Allow or reject the motion from ``a`` to ``b``; the reason says why."""
+    def check(self, a: tuple[float, float, float], b: tuple[float, float, float],
+              known_ground: bool = True) -> Verdict:
+        """Allow or reject the motion from ``a`` to ``b``; the reason says why.
+        ``known_ground=False`` checks the edge alone (a planner's station that the mission
+        will look at before it drives there)."""
         pa, pb = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
         if pa.shape != (3,) or pb.shape != (3,) or not (np.isfinite(pa).all()
                                                         and np.isfinite(pb).all()):
@@ -136,10 +181,16 @@ class Geofence:
                                    -float(dist[w]), WHEELS[w])
         w = int(np.argmin(dist))
         clear = float(dist[w])
-        if 0.0 < clear < self.cfg.margin_m and self.cfg.recover_inside_margin:
+        if clear < self.cfg.margin_m and self.cfg.recover_inside_margin:
             start, end = (min(self._barrier.distance(g) for g in self.swept_wheels(p, p))
                           for p in (tuple(pa), tuple(pb)))
-            if clear >= start - RECOVERY_TOL_M and end >= self.cfg.margin_m:
+            away = clear >= start - RECOVERY_TOL_M if clear > 0.0 else (
+                start == 0.0 and self._backs_away(tuple(pa), tuple(pb)))
+            if away and end >= self.cfg.margin_m:
+                unknown = self._unknown_ground(swept) if known_ground else None
+                if unknown is not None:
+                    self.rejections += 1
+                    return Verdict(False, unknown, clear, WHEELS[w])
                 return Verdict(True, f"allowed: recovering out of the margin: clearance {clear:.3f} m on the "
                                f"way, never below the start's {start:.3f} m; {end:.3f} m at the end "
                                f"(wheel {WHEELS[w]})", clear, WHEELS[w])
@@ -149,11 +200,47 @@ class Geofence:
                 f"comes within {clear:.3f} m of the edge")
             return Verdict(False, f"rejected: wheel {WHEELS[w]} {where} "
                            f"(margin {self.cfg.margin_m:.2f} m)", clear, WHEELS[w])
+        unknown = self._unknown_ground(swept) if known_ground else None
+        if unknown is not None:
+            self.rejections += 1
+            return Verdict(False, unknown, clear, WHEELS[w])
         return Verdict(True, f"allowed: clearance {clear:.3f} m (wheel {WHEELS[w]})",
                        clear, WHEELS[w])
 
+    def _backs_away(self, a: Pose3, b: Pose3) -> bool:
+        """For a rover whose wheels already touch the fitted edge where it stands (a fit error
+        the size of a wheel: the rover stands on safe ground): every wheel centre's signed
+        distance to the edge never decreases along the move."""
+        assert self._edge is not None
+        centres = self.wheel_centres(self._samples(a, b))  # (S, 4, 2)
+        sd = self._edge.signed_distance(centres.reshape(-1, 2), self.cfg.extend_m)
+        sd = sd.reshape(centres.shape[:2])
+        return bool((np.diff(sd, axis=0) >= -RECOVERY_TOL_M).all())
+
+    def unknown_points(self, a: Pose3, b: Pose3) -> np.ndarray:
+        """(N, 2) centres of the unknown map cells the wheels would sweep from ``a`` to ``b``."""
+        pts = [self.known.unknown_points(g) for g in self.swept_wheels(a, b)]
+        return np.concatenate(pts) if pts else np.zeros((0, 2))
+
+    def _unknown_ground(self, swept: list[BaseGeometry]) -> str | None:
+        """The refusal if a swept wheel patch covers unmapped ground, else None."""
+        if not (self.cfg.require_known_ground and self.known.ready):
+            return None
+        for w, geom in enumerate(swept):
+            n = self.known.unknown_cells(geom)
+            if n:
+                return f"rejected: wheel {WHEELS[w]} would cross unknown ground ({n} unmapped cells)"
+        return None
+
     def _samples(self, a: tuple[float, float, float], b: tuple[float, float, float]
                  ) -> np.ndarray:
+        """Poses along the move as the motion task drives it (:func:`goto_legs`)."""
+        legs = goto_legs(a, b)
+        parts = [self._linear(p, q) for p, q in zip(legs[:-1], legs[1:], strict=True)]
+        return np.concatenate([parts[0]] + [p[1:] for p in parts[1:]])
+
+    def _linear(self, a: tuple[float, float, float], b: tuple[float, float, float]
+                ) -> np.ndarray:
         dyaw = (b[2] - a[2] + math.pi) % (2.0 * math.pi) - math.pi
         dist = math.hypot(b[0] - a[0], b[1] - a[1])
         n = max(1, math.ceil(dist / self.cfg.sample_step_m),
@@ -161,6 +248,20 @@ class Geofence:
         s = np.linspace(0.0, 1.0, n + 1)
         return np.column_stack([a[0] + s * (b[0] - a[0]), a[1] + s * (b[1] - a[1]),
                                 a[2] + s * dyaw])
+
+
+def goto_legs(a: Pose3, b: Pose3) -> list[Pose3]:
+    """The poses a ``goto`` from ``a`` to ``b`` passes through, as the motion task drives it
+    (``fsw.tasks.motion``: turn in place toward the target, or away from it and back up when
+    that is the smaller turn; drive straight; turn to the final yaw)."""
+    dist = math.hypot(b[0] - a[0], b[1] - a[1])
+    if dist < 1e-6:
+        return [a, b]
+    turn = math.remainder(math.atan2(b[1] - a[1], b[0] - a[0]) - a[2], math.tau)
+    if abs(turn) > math.pi / 2:
+        turn = math.remainder(turn - math.pi, math.tau)
+    h = a[2] + turn
+    return [a, (a[0], a[1], h), (b[0], b[1], h), b]
 
 
 def _transform(local: np.ndarray, poses: np.ndarray) -> np.ndarray:

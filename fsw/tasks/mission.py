@@ -7,7 +7,12 @@ Each view is a sequence of requests to the other tasks over the software bus: th
 task drives to the rover pose (``goto``), then points the mast; the camera task takes the
 pair; the perception task merges it and re-fits the edge; the next-view task rates the
 candidates on the new map. Before any wheel move the geofence checks the swept footprint
-against the polygon edge (§2): a refusal is an event and SAFE, never a crossing. Step 0 is
+against the polygon edge (§2): a refusal is an event, never a crossing, and the step's view
+is taken from where the rover stands (``fsw.tasks.mission_ground``). A move over ground the
+map has not measured (``fsw.core.known_ground``) is not taken blind: the step first looks at
+that ground from where the rover stands (``fsw.core.look``, part of the same step); a move
+still refused is driven part of the way the geofence allows. A fitted edge that hems the
+rover in where it stands makes the next step a look at the ground nearest it. Step 0 is
 the panorama from the start pose (the same for every method); steps 1..N are the
 planner's. Each step is recorded (``records``) for the run summary.
 
@@ -25,16 +30,12 @@ import math
 import time
 from typing import ClassVar
 
-import numpy as np
-
-from fsw.core.edge import EdgeModel, edge_path
+from fsw.core.edge import EdgeModel
 from fsw.core.geofence import Geofence
 from fsw.core.nbv import end_reason
-from fsw.core.planners import PlannerState
 from fsw.core.view_candidates import CandidateView
 from fsw.framework.commands import CommandDef, CommandError
 from fsw.framework.telemetry import Channel, EventDef, Severity
-from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import (
     CAMERA_REQUEST,
     MAP_UPDATED,
@@ -55,11 +56,12 @@ from fsw.tasks.messages import (
     RadioStatus,
 )
 from fsw.tasks.mission_checkpoint import resume_mission, save
+from fsw.tasks.mission_ground import MIN_MOVE_M, MIN_TURN_RAD, GroundAwareMission
 from fsw.tasks.mission_state import STATES, MissionPhase, StepRecord
 from fsw.tasks.sections import MissionConfig
 
 
-class MissionTask(FlightTask):
+class MissionTask(GroundAwareMission):
     KIND: ClassVar[str] = "mission"
     DOC: ClassVar[str] = "Mission sequencer: panorama, next view, move, acquire, transmit; SAFE on faults."
     CHANNELS = (
@@ -74,7 +76,8 @@ class MissionTask(FlightTask):
         EventDef("STATE", Severity.ACTIVITY_HI, "mission {old} -> {new}"),
         EventDef("STEP", Severity.ACTIVITY_HI, "step {step}: {mapped} cells mapped (+{new}, expected {exp:.0f})"),
         EventDef("END", Severity.ACTIVITY_HI, "mapping ends: {reason}"),
-        EventDef("GEOFENCE", Severity.WARNING_HI, "move to ({x:.2f}, {y:.2f}) refused: {reason}"),
+        EventDef("GEOFENCE", Severity.WARNING_HI, "move to ({x:.2f}, {y:.2f}) refused: {reason}; view taken from here"),
+        EventDef("LOOK", Severity.ACTIVITY_LO, "look at {n} unknown cells toward ({x:.2f}, {y:.2f})"),
         EventDef("SAFE", Severity.WARNING_HI, "SAFE mode: {reason}"),
         EventDef("RETRY", Severity.WARNING_LO, "{what} failed ({reason}); retry {n}", throttle=5),
         EventDef("TRANSMITTED", Severity.ACTIVITY_HI, "map transmission ended: {state}"),
@@ -113,6 +116,10 @@ class MissionTask(FlightTask):
         self.retries = 0
         self.edge_violations = 0
         self.safe_entries = 0
+        self.looks = 0  # views of unknown ground before a move
+        self.stays: list[str] = []  # why a step's view was taken without its move
+        self._looked: tuple[float, float, float] | None = None
+        self._looked_from: tuple[float, float, float] | None = None
         self.end: str | None = None
         self.safe_reason: str | None = None
         self.t_wall0 = time.perf_counter()
@@ -180,11 +187,11 @@ class MissionTask(FlightTask):
             return  # wait for the first pose estimate
         m = self.mcfg
         rover = (self.nav.x, self.nav.y, self.nav.yaw)
+        views = [(p, m.panorama_tilt_deg) for p in m.panorama_pans_deg]
+        views += [(p, m.near_tilt_deg) for p in m.near_pans_deg]  # the ground it turns on
         self.pending = [
-            CandidateView(
-                rover, (math.radians(p), math.radians(m.panorama_tilt_deg), m.panorama_lift_m), method="panorama"
-            )
-            for p in m.panorama_pans_deg
+            CandidateView(rover, (math.radians(p), math.radians(t), m.panorama_lift_m), method="panorama")
+            for p, t in views
         ]
         self.step = 0
         self._next_view()
@@ -198,6 +205,9 @@ class MissionTask(FlightTask):
         reason = self._end_reason()
         if reason is not None:
             self._finish_mapping(reason)
+            return
+        if self._look_around():  # the fitted edge hems the rover in: look at the ground first
+            self._start_point()
             return
         self._goto(MissionPhase.SELECT)
         self.publish(NBV_REQUEST, self._planner_state())
@@ -219,17 +229,19 @@ class MissionTask(FlightTask):
         assert self.view is not None and self.nav is not None
         here = (self.nav.x, self.nav.y, self.nav.yaw)
         there = self.view.rover
-        if math.hypot(there[0] - here[0], there[1] - here[1]) < 0.02 and abs(
-            math.remainder(there[2] - here[2], math.tau)
-        ) < math.radians(1.0):
+        dyaw = math.remainder(there[2] - here[2], math.tau)
+        if math.hypot(there[0] - here[0], there[1] - here[1]) < MIN_MOVE_M and abs(dyaw) < MIN_TURN_RAD:
+            # Not worth a move (a goto turns toward its target first: a few cm sideways would
+            # be a quarter turn): the view from here, the mast turned to look the same way.
+            pan, tilt, lift = self.view.joints
+            self.view = CandidateView(here, self.ctx.cfg.mast.clamp(pan + dyaw, tilt, lift),
+                                      method=self.view.method)
             self._start_point()
             return
-        self.geofence.set_edge(self.edge)
+        self._fence(here)
         verdict = self.geofence.check(here, there)
         if not verdict.allowed:
-            self.edge_violations += 1
-            self.event("GEOFENCE", x=there[0], y=there[1], reason=verdict.reason)
-            self._enter_safe(f"geofence refused the move: {verdict.reason}")
+            self._refused(here, there, verdict.reason)
             return
         self._goto(MissionPhase.MOVE)
         self._request(kind="goto", target=there)
@@ -308,28 +320,6 @@ class MissionTask(FlightTask):
             self.step += 1
             save(self, MissionPhase.SELECT)  # the step's map and state, one snapshot
         self._next_view()
-
-    # -- planning inputs -------------------------------------------------------------------
-    def _planner_state(self) -> PlannerState:
-        assert self.nav is not None and self.latest is not None
-        cfg = self.ctx.cfg
-        path = (
-            edge_path(self.edge, cfg.edge.setback_m, cfg.edge.path_spacing_m)
-            if self.edge is not None
-            else np.zeros((0, 3))
-        )
-        self.geofence.set_edge(self.edge)
-        sigma = float(np.sqrt(max(0.0, (self.nav.cov[0, 0] + self.nav.cov[1, 1]) / 2)))
-        return PlannerState(
-            map=self.latest.snapshot,
-            rover=(self.nav.x, self.nav.y, self.nav.yaw),
-            joints=self.nav.joints,
-            path=path,
-            motion_ok=lambda a, b: self.geofence.check(a, b).allowed,
-            edge_xy=None if self.edge is None else self.edge.points_xy,
-            ground_z_m=0.0,
-            sigma_loc_m=sigma,
-        )
 
     def _end_reason(self) -> str | None:
         """§3.6: the step limit, or the region of interest mapped (estimated by perception)."""

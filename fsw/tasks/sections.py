@@ -38,6 +38,10 @@ class MissionConfig:
     )
     panorama_tilt_deg: float = param(-35.0, lo=-90.0, hi=30.0, units="deg")
     panorama_lift_m: float = param(0.5, lo=0.0, hi=2.0, units="m")
+    near_pans_deg: tuple[float, ...] = param(
+        (90.0, -90.0), lo=-180.0, hi=180.0, units="deg", doc="step 0: pans that map the ground around the rover"
+    )
+    near_tilt_deg: float = param(-70.0, lo=-90.0, hi=30.0, units="deg", doc="their steep tilt (the turning circle)")
     park_joints: tuple[float, float, float] = param((0.0, -30.0, 0.0), doc="SAFE mast pose: pan deg, tilt deg, lift m")
     capture_retries: int = param(2, lo=0, hi=20, doc="retries of a pair that did not arrive")
     step_timeout_s: float = param(300.0, lo=1.0, hi=1e5, units="s", doc="longest wait for one request")

@@ -105,6 +105,7 @@ def finish_world(
     textureless: NDArray[np.bool_] | None = None,  # None: the [texture] regions everywhere
     map_grid: MapGridConfig | None = None,
     plateau_tol_m: float = 0.01,
+    plateau: NDArray[np.bool_] | None = None,  # None: level ground within plateau_tol_m
 ) -> World:
     """Place the Cliff-bot, texture the ground and assemble the read-only :class:`World`."""
     ground = np.ascontiguousarray(ground, dtype=np.float32)
@@ -128,7 +129,8 @@ def finish_world(
         textureless = textureless_mask(grid, cfg.texture.textureless_regions, seed)
     albedo, detail = make_texture(ground, grid.cell_m, cfg.texture, rng, rock_id=rock_id,
                                   textureless=textureless)
-    plateau = plateau_mask(grid, ground, (rs.x_m, rs.y_m), plateau_z, plateau_tol_m)
+    if plateau is None:
+        plateau = plateau_mask(grid, ground, (rs.x_m, rs.y_m), plateau_z, plateau_tol_m)
     readonly(height, ground, albedo, detail, textureless, plateau)
     edge = np.asarray(edge_xy, float).reshape(-1, 2)
     readonly(edge)
@@ -151,6 +153,30 @@ def plateau_mask(grid: TruthGrid, ground: F32, start_xy: tuple[float, float], pl
     if not (0 <= ix < grid.nx and 0 <= iy < grid.ny) or labels[iy, ix] == 0:
         raise ScenarioError(f"the rover start {start_xy} is not on level ground of the world")
     return np.asarray(labels == labels[iy, ix])
+
+
+def slope_plateau(grid: TruthGrid, ground: F32, start_xy: tuple[float, float],
+                  max_slope_deg: float) -> NDArray[np.bool_]:
+    """The rover's ground on sloped terrain: cells connected to the start cell through
+    neighbour steps no steeper than ``max_slope_deg`` (a cliff face or a rock flank breaks the
+    connection, a regional slope does not), with enclosed holes (rocks standing on it) filled."""
+    ix = int((start_xy[0] - grid.x0) / grid.cell_m)
+    iy = int((start_xy[1] - grid.y0) / grid.cell_m)
+    if not (0 <= ix < grid.nx and 0 <= iy < grid.ny):
+        raise ScenarioError(f"the rover start {start_xy} is off the world")
+    max_step = math.tan(math.radians(max_slope_deg)) * grid.cell_m
+    gx = np.abs(np.diff(ground, axis=1)) > max_step  # steep between (iy, ix) and (iy, ix + 1)
+    gy = np.abs(np.diff(ground, axis=0)) > max_step
+    steep = np.zeros(ground.shape, bool)  # a cell touching a steep step is a boundary cell
+    steep[:, :-1] |= gx
+    steep[:, 1:] |= gx
+    steep[:-1, :] |= gy
+    steep[1:, :] |= gy
+    labels, _ = ndimage.label(~steep)
+    if labels[iy, ix] == 0:
+        raise ScenarioError(f"the rover start {start_xy} is on ground steeper than "
+                            f"{max_slope_deg:g} deg")
+    return np.asarray(ndimage.binary_fill_holes(labels == labels[iy, ix]), bool)
 
 
 def _footprint_heights(grid: TruthGrid, ground: F32, x: float, y: float, r: float) -> F32:

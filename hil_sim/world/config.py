@@ -3,7 +3,7 @@
 A scenario file has the tables ``[scenario]`` (kind, default seed and camera noise),
 ``[world]`` (the truth grid), ``[rover_start]``, ``[map]`` (the FSW map grid that suits the
 scenario, a ``fsw.core.geometry.MapGridConfig``), ``[cliffbot]``, ``[texture]`` and one table
-named after its kind (``[lab]``, ``[cliff]``, ``[mars]`` or ``[file]``). Every key is
+named after its kind (``[lab]``, ``[cliff]``, ``[mars]``, ``[file]`` or ``[terrain]``). Every key is
 validated by ``fsw.framework.params.build``; a bad file is refused with ``file: key: reason``.
 
 A scenario spec names a file and may override keys, URL-query style:
@@ -23,7 +23,7 @@ from fsw.core.geometry import MapGridConfig
 from fsw.framework.params import ConfigError, build, load_toml, param
 
 SCENARIO_DIR = Path(__file__).resolve().parents[2] / "config" / "scenarios"
-KINDS = ("lab", "cliff", "mars", "file")
+KINDS = ("lab", "cliff", "mars", "file", "terrain")
 MAX_TRUTH_CELLS = 30_000_000
 
 
@@ -154,6 +154,30 @@ class MarsConfig:
 
 
 @dataclass(frozen=True)
+class TerrainConfig:
+    """The ``terrain`` generator (hil_sim/world/terrain.py): -1 / 0 values are drawn from the seed."""
+
+    slope_deg: float = param(6.0, lo=-1.0, hi=12.0, units="deg",
+                             doc="regional slope of the ground; -1: drawn in 0..12")
+    slope_azimuth_deg: float = param(-1.0, lo=-1.0, hi=360.0, units="deg",
+                                     doc="downhill direction, CCW from +x; -1: drawn")
+    edge_distance_m: float = param(0.0, lo=0.0, hi=2.0, units="m",
+                                   doc="edge to the start's wheels; 0: drawn in 0.3..2")
+    edge_wiggle_m: float = param(0.15, lo=0.0, hi=1.0, units="m", doc="std of the edge line")
+    edge_wavelength_m: float = param(1.5, lo=0.1, hi=20.0, units="m")
+    drop_m: float = param(1.0, lo=0.3, hi=5.0, units="m", doc="height of the cliff face")
+    face_slope_deg: float = param(75.0, lo=45.0, hi=89.0, units="deg")
+    relief_m: float = param(0.03, lo=0.0, hi=0.3, units="m", doc="rolling ground std")
+    k: float = param(0.07, lo=0.0, hi=0.5, doc="Viking rock coverage below the edge (VL1 0.07, VL2 0.16)")
+    d_min_m: float = param(0.03, lo=0.01, hi=0.5, units="m", doc="smallest rock drawn")
+    d_max_m: float = param(1.0, lo=0.05, hi=3.0, units="m", doc="largest rock below the edge")
+    plateau_k: float = param(0.03, lo=0.0, hi=0.5, doc="rock coverage on the plateau")
+    plateau_d_max_m: float = param(0.15, lo=0.02, hi=1.0, units="m",
+                                   doc="largest rock on the plateau (drivable rubble)")
+    textureless_count: int = param(2, lo=0, hi=8, doc="textureless patches below the edge")
+
+
+@dataclass(frozen=True)
 class FileDemConfig:
     path: str = param("", doc="the DEM: .npy float32 metres or 16-bit PNG (set by the spec)")
     cell_m: float = param(0.01, lo=0.001, hi=10.0, units="m", doc="DEM cell size")
@@ -163,7 +187,16 @@ class FileDemConfig:
     y_min_m: float = param(-6.0, units="m", doc="world y of the DEM's lowest-y row edge")
     png_north_up: bool = param(True, doc="PNG row 0 is the largest y (image convention)")
     plateau_tol_m: float = param(0.05, lo=0.001, hi=10.0, units="m",
-                                 doc="plateau = ground connected to the start within this")
+                                 doc="with plateau_max_slope_deg = 0: plateau = ground "
+                                     "connected to the start within this height")
+    plateau_max_slope_deg: float = param(
+        35.0, lo=0.0, hi=80.0, units="deg",
+        doc="plateau = ground connected to the start through steps no steeper than this "
+            "(sloped ground); 0: the level rule with plateau_tol_m")
+    max_abs_height_m: float = param(1000.0, lo=1.0, hi=1e5, units="m",
+                                    doc="heights beyond +- this are refused (wrong units)")
+    zero_at_start: bool = param(True, doc="shift the heights so the ground at the rover "
+                                          "start is z = 0 (the flight map's datum)")
 
 
 @dataclass(frozen=True)
@@ -180,6 +213,7 @@ class ScenarioConfig:
     cliff: CliffConfig | None = None
     mars: MarsConfig | None = None
     file: FileDemConfig | None = None
+    terrain: TerrainConfig | None = None
 
 
 def parse_spec(spec: str) -> tuple[Path, dict[str, str], str | None]:
@@ -200,7 +234,7 @@ def parse_spec(spec: str) -> tuple[Path, dict[str, str], str | None]:
         path = SCENARIO_DIR / "file.toml"
     elif base.endswith(".toml"):
         path = Path(base)
-    elif base in ("lab", "cliff", "mars"):
+    elif base in ("lab", "cliff", "mars", "terrain"):
         path = SCENARIO_DIR / f"{base}.toml"
     else:
         names = sorted(p.stem for p in SCENARIO_DIR.glob("*.toml") if p.stem != "file")
@@ -257,4 +291,5 @@ _TABLES: dict[str, type] = {
     "scenario": ScenarioInfo, "map": MapGridConfig, "world": TruthGridConfig,
     "rover_start": RoverStartConfig, "cliffbot": CliffbotConfig, "texture": TextureConfig,
     "lab": LabConfig, "cliff": CliffConfig, "mars": MarsConfig, "file": FileDemConfig,
+    "terrain": TerrainConfig,
 }

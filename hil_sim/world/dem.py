@@ -7,6 +7,14 @@ is placed with its corner at ``(x_min_m, y_min_m)``; DEMs coarser than 1 cm are 
 (bilinear) to 1 cm or finer. The rover starts at ``[rover_start]``; the plateau is the ground
 connected to it within ``plateau_tol_m`` of its height, and the true edge is that plateau's
 boundary (walked with the plateau on its left). The map grid covers the DEM.
+
+Bad files are refused with one line (:class:`ScenarioError`): a file that is not what its
+suffix says (checked by its signature before any parser reads it), a ``.npy`` holding Python
+objects, NaN or infinite heights, and heights beyond ``max_abs_height_m`` (wrong units).
+With ``zero_at_start`` (default) the heights are shifted so that the ground under the rover
+start is ``z = 0``, the flight software's map datum. On sloped ground the plateau is the ground
+connected to the start through steps no steeper than ``plateau_max_slope_deg`` (0: the level
+rule, within ``plateau_tol_m`` of the start height).
 """
 
 from __future__ import annotations
@@ -19,30 +27,44 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGridConfig
-from hil_sim.world.build import TruthGrid, finish_world, plateau_mask
+from hil_sim.world.build import TruthGrid, finish_world, plateau_mask, slope_plateau
 from hil_sim.world.config import MAX_TRUTH_CELLS, FileDemConfig, ScenarioConfig, ScenarioError
 from hil_sim.world.world import World
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
 MAX_CELL_M = 0.01
+START_ROOM_M = 0.6  # the rover's wheels reach 0.56 m from its centre (config/fsw.toml [rover])
+
+
+NPY_MAGIC = b"\x93NUMPY"
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
 def read_dem(fc: FileDemConfig) -> F32:
-    """The DEM in metres, ``[iy, ix]`` with row 0 at the lowest ``y``; ScenarioError if bad."""
+    """The DEM in metres, ``[iy, ix]`` with row 0 at the lowest ``y``; ScenarioError if bad.
+
+    The file must be what its name says (the NumPy or PNG signature in its first bytes, read
+    before any parser sees it), hold finite heights, and stay within ``max_abs_height_m``.
+    """
     path = Path(fc.path)
     if not path.is_file():
         raise ScenarioError(f"{path}: DEM file not found")
     suffix = path.suffix.lower()
+    _check_signature(path, suffix)
     if suffix == ".npy":
         try:
             arr = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
+        except ValueError as exc:
+            why = ("it holds Python objects (pickled data), not a numeric array"
+                   if "pickle" in str(exc) else str(exc))
+            raise ScenarioError(f"{path}: not a readable .npy array: {why}") from None
+        except (OSError, EOFError) as exc:
             raise ScenarioError(f"{path}: not a readable .npy array ({exc})") from None
         if arr.ndim != 2 or arr.dtype.kind not in "fiu":
             raise ScenarioError(f"{path}: expected a 2-D numeric array, got {arr.dtype} "
                                 f"with shape {arr.shape}")
-        dem = arr.astype(np.float32) + np.float32(fc.z_offset_m)
+        dem = arr.astype(np.float64) + fc.z_offset_m
     elif suffix == ".png":
         img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if img is None:
@@ -50,16 +72,36 @@ def read_dem(fc: FileDemConfig) -> F32:
         if img.ndim != 2 or img.dtype != np.uint16:
             raise ScenarioError(f"{path}: expected a 16-bit grayscale PNG, got {img.dtype} "
                                 f"with shape {img.shape}")
-        dem = img.astype(np.float32) * np.float32(fc.z_scale_m) + np.float32(fc.z_offset_m)
+        dem = img.astype(np.float64) * fc.z_scale_m + fc.z_offset_m
         if fc.png_north_up:
             dem = dem[::-1].copy()
     else:
         raise ScenarioError(f"{path}: unsupported DEM type {suffix!r} (use .npy or 16-bit .png)")
     if min(dem.shape) < 8:
         raise ScenarioError(f"{path}: DEM {dem.shape} is too small (at least 8 x 8)")
-    if not np.isfinite(dem).all():
-        raise ScenarioError(f"{path}: DEM has NaN or infinite heights")
-    return dem
+    finite = np.isfinite(dem)
+    if not finite.all():
+        raise ScenarioError(f"{path}: DEM has NaN or infinite heights ({int((~finite).sum())} "
+                            f"of {dem.size} cells)")
+    worst = float(np.abs(dem).max())
+    if worst > fc.max_abs_height_m:
+        raise ScenarioError(f"{path}: DEM height {worst:.6g} m is beyond the sane range "
+                            f"+-{fc.max_abs_height_m:g} m (wrong units? set z_scale_m / "
+                            f"z_offset_m, or raise max_abs_height_m)")
+    return dem.astype(np.float32)
+
+
+def _check_signature(path: Path, suffix: str) -> None:
+    """ScenarioError unless the file starts with the signature its suffix promises."""
+    magic = {".npy": NPY_MAGIC, ".png": PNG_MAGIC}.get(suffix)
+    if magic is None:
+        return
+    with path.open("rb") as fh:
+        head = fh.read(len(magic))
+    if head != magic:
+        kind = "NumPy .npy" if suffix == ".npy" else "PNG"
+        raise ScenarioError(f"{path}: not a {kind} file (its first bytes are {head[:8]!r}, "
+                            f"not the {kind} signature)")
 
 
 def build_from_dem(cfg: ScenarioConfig, seed: int) -> World:
@@ -81,8 +123,17 @@ def build_from_dem(cfg: ScenarioConfig, seed: int) -> World:
         raise ScenarioError(f"{fc.path}: the rover start ({rs.x_m}, {rs.y_m}) is outside the "
                             f"DEM (x {grid.x0}..{grid.x0 + nx * grid.cell_m:.2f}, "
                             f"y {grid.y0}..{grid.y0 + ny * grid.cell_m:.2f})")
+    room = int(math.ceil(START_ROOM_M / grid.cell_m))
+    if not (room <= ix < nx - room and room <= iy < ny - room):
+        raise ScenarioError(f"{fc.path}: the rover start ({rs.x_m}, {rs.y_m}) is within "
+                            f"{START_ROOM_M} m of the DEM's border: no room for its wheels")
+    if fc.zero_at_start:  # the flight map's datum is the ground under the rover at the start
+        dem = dem - dem[iy, ix]
     plateau_z = float(dem[iy, ix])
-    plateau = plateau_mask(grid, dem, (rs.x_m, rs.y_m), plateau_z, fc.plateau_tol_m)
+    if fc.plateau_max_slope_deg > 0:
+        plateau = slope_plateau(grid, dem, (rs.x_m, rs.y_m), fc.plateau_max_slope_deg)
+    else:
+        plateau = plateau_mask(grid, dem, (rs.x_m, rs.y_m), plateau_z, fc.plateau_tol_m)
     edge = plateau_edge(plateau, grid)
     cell = cfg.map.cell_m
     map_grid = MapGridConfig(origin_x_m=grid.x0, origin_y_m=grid.y0, cell_m=cell,
@@ -91,7 +142,7 @@ def build_from_dem(cfg: ScenarioConfig, seed: int) -> World:
     rng = np.random.default_rng([seed, 4])
     return finish_world(cfg, f"file:{Path(fc.path).name}", seed, grid, dem, rng,
                         edge_xy=edge, plateau_z=plateau_z, map_grid=map_grid,
-                        plateau_tol_m=fc.plateau_tol_m)
+                        plateau=plateau)
 
 
 def plateau_edge(plateau: NDArray[np.bool_], grid: TruthGrid) -> F64:

@@ -52,4 +52,8 @@ def build_world(cfg: ScenarioConfig, seed: int) -> World:
         from hil_sim.world.dem import build_from_dem
 
         return build_from_dem(cfg, seed)
+    if kind == "terrain":
+        from hil_sim.world.terrain import build_terrain
+
+        return build_terrain(cfg, seed)
     raise ScenarioError(f"unknown scenario kind {kind!r}")  # config validation prevents this

@@ -14,12 +14,14 @@ height at the cell centre; :meth:`World.height_at` interpolates bilinearly betwe
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import ndimage
 
 from fsw.core.geometry import MapGrid, MapGridConfig, MastConfig, camera_pose_from_rover
 from hil_sim.world.cliffbot import CliffbotTruth
@@ -58,6 +60,7 @@ class World:
     noise_sigma: float = 2.0         # scenario's default camera noise, grey levels
     description: str = ""
     config: Any = field(default=None, repr=False)  # the validated ScenarioConfig
+    drawn: dict[str, float] = field(default_factory=dict)  # generator parameters drawn from the seed
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -88,6 +91,26 @@ class World:
         out = np.zeros(np.shape(ix), bool)
         out[inside] = self.plateau[iy[inside], ix[inside]]
         return out
+
+    def over_drop(self, x: F64 | float, y: F64 | float, step_m: float) -> NDArray[np.bool_]:
+        """True where a point is off the plateau and more than ``step_m`` below the nearest
+        plateau ground (on a level plateau: below ``plateau_z - step_m``; on sloped ground the
+        drop is measured locally, so driving downhill is not falling off). False off the grid."""
+        ix, iy, inside = self._index(x, y)
+        out = np.zeros(np.shape(ix), bool)
+        z = self._sample(self.ground, x, y)
+        ii, jj = iy[inside], ix[inside]
+        out[inside] = ~self.plateau[ii, jj] & (z[inside] < self._plateau_ref[ii, jj] - step_m)
+        return out
+
+    @functools.cached_property
+    def _plateau_ref(self) -> F32:
+        """Height of the nearest plateau cell, per truth cell."""
+        if not self.plateau.any():
+            return np.full(self.ground.shape, self.plateau_z, np.float32)
+        idx = ndimage.distance_transform_edt(~self.plateau, return_distances=False,
+                                             return_indices=True)
+        return np.asarray(self.ground[idx[0], idx[1]], np.float32)
 
     def truth_on_grid(self, grid: MapGrid) -> F64:
         """Mean truth elevation over each map cell (ALGORITHM.md §1), ``(ny, nx)``; NaN where

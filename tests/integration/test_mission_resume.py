@@ -12,7 +12,8 @@ from pathlib import Path
 import pytest
 
 from hil_sim.commands.experiment_resume import LAYERS, compare_maps, newest, resume_cmd, run_cmd
-from hil_sim.mission_run import MissionExistsError, RunSpec, run_mission, strip_wall_clock
+from hil_sim.mission_report import strip_wall_clock
+from hil_sim.mission_run import MissionExistsError, RunSpec, run_mission
 
 pytestmark = pytest.mark.req("12.1")
 

@@ -44,7 +44,7 @@ def _cfg() -> Any:
     base = task_config(("mission", "mission"))
     mission = dataclasses.replace(
         base.mission, auto_start=False, transmit=False, panorama_pans_deg=(0.0, 90.0), step_timeout_s=STEP_TIMEOUT_S,
-        safe_recover_s=0.0, capture_retries=1,
+        safe_recover_s=0.0, capture_retries=1, near_pans_deg=(),  # the step-0 near views: tests/integration
     )
     return dataclasses.replace(base, mission=mission)
 
@@ -132,15 +132,18 @@ def _to_select(m: Mission) -> None:
 
 
 def test_a_wheel_move_without_an_edge_is_refused_by_the_geofence() -> None:
-    """No edge mapped yet: the geofence refuses any wheel move; an event and SAFE, no move sent."""
+    """No edge mapped yet: the geofence refuses any wheel move; an event, no wheel move sent, and
+    the step's view is taken from where the rover stands, the reason kept (issue 13: never a
+    crossing, never a stall)."""
     m = Mission()
     _to_select(m)
     m.moves.drain()
     m.rig.publish(NBV_RESULT, CandidateView((0.5, 0.0, 0.0), (0.0, -0.5, 0.5), 100.0, 10.0, 1.0, 0.0, 99.0, "5"))
     m.rig.run(1)
-    assert phase(m.rig) == "SAFE" and m.rig.task("mission").edge_violations == 1
+    assert phase(m.rig) == "POINT" and m.rig.task("mission").edge_violations == 1
     assert len(m.rig.events("mission.GEOFENCE")) == 1
-    assert [(r.request_id, r.kind) for r in m.moves.drain()] == [(0, "stop"), (0, "mast")]
+    assert [r.kind for r in m.moves.drain()] == ["mast"]
+    assert len(m.rig.task("mission").stays) == 1
 
 
 @pytest.mark.parametrize("outcome", ["aborted", "refused"])

@@ -217,7 +217,7 @@ def test_file_dem_npy_and_png(tmp_path):
 
 @pytest.mark.parametrize("content, why", [
     (None, "not found"),
-    ("text", "not a readable"),
+    ("text", "not a NumPy .npy file"),
     ("nan", "NaN"),
     ("3d", "2-D"),
 ])

@@ -1,0 +1,61 @@
+"""The plane of the ground the rover stands on, from the elevation map (ALGORITHM.md §2).
+
+The edge (``fsw.core.edge``) is where the ground drops more than a step below the rover's
+plateau. On level ground the plateau is "within a few cm of the rover's ground height"; on
+sloped ground (issue 13: the generated terrains slope up to 12 deg, and until the rover's
+attitude enters the pose chain the map is also tilted by it) that band shrinks to a strip
+across the slope. The plateau's plane, fitted around the rover, serves both cases.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.core.elevation_map import ElevationMap
+
+
+class PlaneLimits(Protocol):
+    """The ``[edge]`` keys the plane fit reads (``fsw.core.edge.EdgeConfig``)."""
+
+    @property
+    def plateau_tol_m(self) -> float: ...
+
+    @property
+    def min_region_cells(self) -> int: ...
+
+    @property
+    def max_slope_deg(self) -> float: ...
+
+
+F64 = NDArray[np.float64]
+
+
+def ground_plane(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float, float],
+                 cfg: PlaneLimits) -> F64:
+    """The rover's ground as a plane through ``(seed_xy, ground_z_m)``, per map cell: fitted
+    (least squares, slope at most ``max_slope_deg``) to the mapped cells near the plateau
+    within growing radii (0.75, 1.5, 3 m), each round keeping the cells within
+    ``3 * plateau_tol_m`` of the last plane. On level ground it stays level; on a sloped plateau
+    (or a map tilted by the rover's attitude) the safe region and the drop follow the slope."""
+    g = emap.grid
+    X, Y = g.centers()
+    dx, dy = X - seed_xy[0], Y - seed_xy[1]
+    z = emap.z
+    ok = emap.mapped & np.isfinite(z)
+    a = b = 0.0
+    for radius in (0.75, 1.5, 3.0):
+        rel = z - ground_z_m - a * dx - b * dy
+        near = ok & (dx * dx + dy * dy <= radius * radius)
+        sel = near & (np.abs(np.where(ok, rel, np.inf)) <= 3.0 * cfg.plateau_tol_m)
+        if sel.sum() < cfg.min_region_cells:
+            continue
+        m = np.column_stack([dx[sel], dy[sel]])
+        a, b = np.linalg.lstsq(m, z[sel] - ground_z_m, rcond=None)[0]
+        slope = float(np.hypot(a, b))
+        cap = float(np.tan(np.radians(cfg.max_slope_deg)))
+        if slope > cap:
+            a, b = a * cap / slope, b * cap / slope
+    return np.asarray(ground_z_m + a * dx + b * dy, np.float64)

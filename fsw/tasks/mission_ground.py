@@ -1,0 +1,170 @@
+"""The mission's moves over unfamiliar ground and its planning inputs (ALGORITHM.md §2, §3;
+issue 13 item 3): a mixin of :class:`fsw.tasks.mission.MissionTask`.
+
+- The geofence (``fsw.core.geofence``) is set on the latest edge fit, the latest map (which
+  ground is known) and the rover's own footprint (safe, known ground) before every check.
+- Planners rate stations with the edge check alone; the mission then checks the whole move.
+  A move over unknown ground is preceded by one look at that ground from where the rover
+  stands (``fsw.core.look``; the part of the way nearest the rover), part of the same imaging
+  step. A move still refused is driven part of the way, as far as the geofence allows (the
+  operator advances to the end of known ground, the next view shows more), or, if no part of
+  it is allowed, the step's view is taken from where the rover stands; the reason is kept
+  per step (``stays``).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+import shapely
+
+from fsw.core.edge import EdgeModel, edge_path
+from fsw.core.geofence import Geofence, goto_legs
+from fsw.core.look import look_joints
+from fsw.core.planners import PlannerState
+from fsw.core.view_candidates import CandidateView
+from fsw.tasks.base import FlightTask
+from fsw.tasks.messages import MapUpdate, NavPose
+from fsw.tasks.mission_state import MissionPhase
+
+Pose3 = tuple[float, float, float]
+MIN_MOVE_M = 0.1  # stations closer than this (and turned less than MIN_TURN_RAD) are "here"
+MIN_TURN_RAD = math.radians(10.0)
+LOOK_DEPTH_M = 0.6  # a look aims at the unknown ground within this of the nearest unknown cell
+PART_FRACTIONS = (0.85, 0.7, 0.55, 0.4, 0.25, 0.1)  # of the way, tried for a part-way move
+
+
+class GroundAwareMission(FlightTask):
+    """Needs the MissionTask attributes: ctx, geofence, latest, edge, nav, view, pending,
+    step, looks, stays, _looked; and its event and _start_point methods."""
+
+    geofence: Geofence
+    latest: MapUpdate | None
+    edge: EdgeModel | None
+    nav: NavPose | None
+    view: CandidateView | None
+    pending: list[CandidateView]
+    step: int
+    looks: int
+    edge_violations: int
+    stays: list[str]
+    _looked: Pose3 | None
+    _looked_from: Pose3 | None
+
+    if TYPE_CHECKING:  # provided by Task and MissionTask (stubs here would shadow them)
+        def _goto(self, new: MissionPhase) -> None: ...
+
+        def _request(
+            self,
+            kind: str,
+            target: tuple[float, float, float] | None = None,
+            joints: tuple[float, float, float] | None = None,
+        ) -> None: ...
+
+        def _start_point(self) -> None: ...
+
+    def _refused(self, here: Pose3, there: Pose3, reason: str) -> None:
+        """The geofence refused the move: over unknown ground, look at it once (the part of
+        the way nearest the rover); otherwise drive part of the way, as far as the geofence
+        allows; otherwise take the step's view from here. Never a crossing, never a stall."""
+        assert self.view is not None
+        if "unknown ground" in reason and self._looked != there:
+            self._looked = there
+            pts = self.geofence.unknown_points(here, there)
+            d = np.hypot(pts[:, 0] - here[0], pts[:, 1] - here[1])
+            pts = pts[d <= d.min() + LOOK_DEPTH_M]
+            self.looks += 1
+            self.event("LOOK", n=len(pts), x=there[0], y=there[1])
+            self.pending.insert(0, self.view)
+            self.view = CandidateView(here, look_joints(here, pts, self.ctx.cfg.mast), method="look")
+            self._start_point()
+            return
+        self.edge_violations += 1  # a refusal that stands (a look is not one)
+        self.event("GEOFENCE", x=there[0], y=there[1], reason=reason)
+        pan, tilt, lift = self.view.joints
+        part = self._part_way(here, there)
+        if part is None:
+            self.stays.append(f"step {self.step}: {reason}")
+            turn = math.remainder(pan + there[2] - here[2], math.tau)  # look the same way
+            self.view = CandidateView(here, self.ctx.cfg.mast.clamp(turn, tilt, lift),
+                                      method=self.view.method)
+            self._start_point()
+            return
+        gone = math.hypot(part[0] - here[0], part[1] - here[1])
+        self.stays.append(f"step {self.step}: part way, {gone:.2f} of "
+                          f"{math.hypot(there[0] - here[0], there[1] - here[1]):.2f} m: {reason}")
+        turn = math.remainder(pan + there[2] - part[2], math.tau)
+        self.view = CandidateView(part, self.ctx.cfg.mast.clamp(turn, tilt, lift),
+                                  method=self.view.method)
+        self._goto(MissionPhase.MOVE)
+        self._request(kind="goto", target=part)
+
+    def _part_way(self, here: Pose3, there: Pose3) -> Pose3 | None:
+        """The farthest point toward ``there`` (keeping the drive's heading, no final turn)
+        that the geofence allows, at least ``MIN_MOVE_M`` away; None if there is none."""
+        heading = goto_legs(here, there)[1][2]
+        dist = math.hypot(there[0] - here[0], there[1] - here[1])
+        ux, uy = (there[0] - here[0]) / max(dist, 1e-9), (there[1] - here[1]) / max(dist, 1e-9)
+        for f in PART_FRACTIONS:
+            if f * dist < MIN_MOVE_M:
+                break
+            p = (here[0] + f * dist * ux, here[1] + f * dist * uy, heading)
+            if self.geofence.check(here, p).allowed:
+                return p
+        return None
+
+    def _look_around(self) -> bool:
+        """If the geofence would not let the rover stay where it stands (the fitted edge runs
+        within the margin of its wheels, often across unmapped ground beside it), make this
+        step a look at the unknown ground nearest the edge within ``setback_m``; once per
+        pose. True if the step's view is now that look."""
+        if self.nav is None:
+            return False
+        here = (self.nav.x, self.nav.y, self.nav.yaw)
+        if self._looked_from == here or self.edge is None:
+            return False
+        self._fence(here)
+        if self.geofence.check(here, here, known_ground=False).allowed:
+            return False
+        # Target: the unknown ground between the rover and the fitted edge, around the edge
+        # point nearest the rover, out to setback_m past it on the drop side.
+        setback = self.ctx.cfg.edge.setback_m
+        q = shapely.get_coordinates(shapely.shortest_line(shapely.Point(here[:2]), self.edge.lines))[-1]
+        pts = self.geofence.known.unknown_points(shapely.Point(q).buffer(setback))
+        if len(pts) == 0:
+            return False
+        self._looked_from = here
+        self.looks += 1
+        self.event("LOOK", n=len(pts), x=here[0], y=here[1])
+        self.view = CandidateView(here, look_joints(here, pts, self.ctx.cfg.mast), method="look")
+        return True
+
+    def _fence(self, here: Pose3) -> None:
+        """The geofence on the latest edge fit and map, and the ground the rover stands on."""
+        if self.latest is not None:
+            self.geofence.set_map(self.latest.snapshot.grid, self.latest.snapshot.n)
+        self.geofence.set_edge(self.edge, here)
+
+    def _planner_state(self) -> PlannerState:
+        assert self.nav is not None and self.latest is not None
+        cfg = self.ctx.cfg
+        path = (
+            edge_path(self.edge, cfg.edge.setback_m, cfg.edge.path_spacing_m, cfg.geofence.extend_m)
+            if self.edge is not None
+            else np.zeros((0, 3))
+        )
+        self._fence((self.nav.x, self.nav.y, self.nav.yaw))
+        sigma = float(np.sqrt(max(0.0, (self.nav.cov[0, 0] + self.nav.cov[1, 1]) / 2)))
+        return PlannerState(
+            map=self.latest.snapshot,
+            rover=(self.nav.x, self.nav.y, self.nav.yaw),
+            joints=self.nav.joints,
+            path=path,
+            motion_ok=lambda a, b: self.geofence.check(a, b, known_ground=False).allowed,
+            edge_xy=None if self.edge is None else self.edge.points_xy,
+            ground_z_m=0.0,
+            sigma_loc_m=sigma,
+        )
+

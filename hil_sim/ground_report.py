@@ -1,0 +1,106 @@
+"""Rows and the markdown report of ``safer-hil experiment ground`` (issue 13, "Done when").
+
+One row per mission, from its ``summary.json`` (hil_sim/mission_run.py) and the map it wrote.
+The map's error against truth is also summarised by the plane fitted to it (least squares
+over mapped cells, ``hil_sim.mission_run.error_plane``): its tilt shows how much of the error is
+the map tilted by the rover's own attitude, its RMS after removing the plane what is left.
+"""
+
+from __future__ import annotations
+
+import statistics
+from typing import Any
+
+COLUMNS = ("scenario", "seed", "slope_deg", "edge_gap_m", "method", "moved", "odometer_m", "reachable_max", "stuck",
+           "steps_used", "steps_asked", "unused_reason", "stays", "looks", "edge_violations",
+           "geofence_refusals", "wheels_off_terrain", "wheels_on_unknown_ground", "mapped_cells",
+           "map_rmse_cm", "error_tilt_deg", "rmse_detilted_cm", "final_state")
+MOVED_M = 0.05  # the rover moved if its true odometer passed this
+
+
+def row_of(s: dict[str, Any], spec: str, seed: int, steps: int) -> dict[str, Any]:
+    """The table row of one mission summary."""
+    reach = [int(v) for v in s.get("reachable_stations", [])]
+    moved = float(s.get("odometer_m", 0.0)) > MOVED_M
+    detilted = s.get("map_rmse_detilted_m")
+    return {
+        "scenario": spec, "seed": seed, "method": s["method"],
+        "slope_deg": _r(s.get("drawn", {}).get("slope_deg")),
+        "edge_gap_m": _r(s.get("drawn", {}).get("edge_distance_m")),
+        "moved": moved, "odometer_m": s.get("odometer_m", 0.0),
+        "reachable_max": max(reach, default=0),
+        "stuck": (not moved) and max(reach, default=0) > 0,
+        "steps_used": len(s["steps"]) - 1, "steps_asked": steps,
+        "unused_reason": s.get("steps_unused_reason") or "",
+        "stays": len(s.get("stays", [])), "looks": s.get("looks", 0),
+        "edge_violations": s["edge_violations"], "geofence_refusals": s["geofence_refusals"],
+        "wheels_off_terrain": s.get("wheels_off_terrain", 0),
+        "wheels_on_unknown_ground": s.get("wheels_on_unknown_ground", 0),
+        "mapped_cells": s["mapped_cells"],
+        "map_rmse_cm": None if s["map_rmse_m"] is None else round(100 * s["map_rmse_m"], 2),
+        "error_tilt_deg": s.get("map_error_tilt_deg"),
+        "rmse_detilted_cm": None if detilted is None else round(100 * detilted, 2),
+        "final_state": s["final_state"], "stay_reasons": s.get("stays", []),
+    }
+
+
+def _r(v: float | None) -> float | None:
+    return None if v is None else round(float(v), 2)
+
+
+def _median_worst(values: list[float], worst_high: bool = True) -> str:
+    v = [x for x in values if x is not None]
+    if not v:
+        return "-"
+    worst = max(v) if worst_high else min(v)
+    return f"{statistics.median(v):.2f} / {worst:.2f}"
+
+
+def report_markdown(rows: list[dict[str, Any]], failed: list[str], args: dict[str, Any]) -> str:
+    cmd = (f"safer-hil experiment ground --family '{args['family']}' --terrains {args['terrains']} "
+           f"--first-seed {args['first_seed']} --methods {args['methods']} --steps {args['steps']} "
+           + "".join(f"--extra '{e}' " for e in args["extra"]) + f"--jobs {args['jobs']}")
+    out = [f"# Missions on unfamiliar ground\n\n```\n{cmd}\n```\n",
+           "| " + " | ".join(c for c in COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
+    for r in rows:
+        out.append("| " + " | ".join("-" if r[c] is None else str(r[c]) for c in COLUMNS) + " |")
+    out.append("\n## Summary per method (median / worst)\n")
+    out.append("| method | missions | moved | stuck | steps used (all?) | edge violations | wheels off "
+               "terrain | wheels on unknown ground | mapped cells (median / min) | map RMSE cm | "
+               "error tilt deg | RMSE detilted cm |")
+    out.append("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for m in sorted({r["method"] for r in rows}):
+        rs = [r for r in rows if r["method"] == m]
+        full = sum(r["steps_used"] >= r["steps_asked"] for r in rs)
+        explained = sum(r["steps_used"] >= r["steps_asked"] or bool(r["unused_reason"]) for r in rs)
+        out.append(
+            f"| {m} | {len(rs)} | {sum(r['moved'] for r in rs)} | {sum(r['stuck'] for r in rs)} | "
+            f"{full} all, {explained - full} with a reason | {sum(r['edge_violations'] for r in rs)} | "
+            f"{sum(r['wheels_off_terrain'] for r in rs)} | {sum(r['wheels_on_unknown_ground'] for r in rs)} | "
+            f"{_median_worst([r['mapped_cells'] for r in rs], worst_high=False)} | "
+            f"{_median_worst([r['map_rmse_cm'] for r in rs])} | "
+            f"{_median_worst([r['error_tilt_deg'] for r in rs])} | "
+            f"{_median_worst([r['rmse_detilted_cm'] for r in rs])} |")
+    out.append("\n## Criteria (issue 13 item 3)\n")
+    crit = [
+        ("missions where the rover never moved while a reachable station existed",
+         sum(r["stuck"] for r in rows)),
+        ("edge violations (frames with a wheel over the drop)", sum(r["edge_violations"] for r in rows)),
+        ("frames with a wheel off the world's terrain", sum(r["wheels_off_terrain"] for r in rows)),
+        ("frames moving with a wheel on ground the flight software did not know",
+         sum(r["wheels_on_unknown_ground"] for r in rows)),
+        ("missions with unused steps and no reason",
+         sum(r["steps_used"] < r["steps_asked"] and not r["unused_reason"] for r in rows)),
+    ]
+    for text, n in crit:
+        out.append(f"- {text}: **{n}** (target 0) {'met' if n == 0 else 'NOT MET'}")
+    never = [r for r in rows if not r["moved"]]
+    if never:
+        out.append(f"\nMissions where the rover did not move ({len(never)}): reachable stations 0 at every "
+                   "step boundary unless marked stuck. Their first reasons:")
+        for r in never[:20]:
+            why = r["stay_reasons"][0] if r["stay_reasons"] else "planner chose to stay (no reachable station)"
+            out.append(f"- {r['scenario']} seed {r['seed']} method {r['method']}: {why}")
+    if failed:
+        out.append("\n## Failed missions\n" + "\n".join(f"- {f}" for f in failed))
+    return "\n".join(out) + "\n"

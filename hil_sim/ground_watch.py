@@ -1,0 +1,46 @@
+"""Bench-side watch of a mission on unfamiliar ground (issue 13 item 3; docs/experiments.md).
+
+The runner only watches: these checks build their own geofence from what the flight software
+knows (its latest map and edge fit, its pose estimate) and never touch the flight code's state.
+
+- :func:`reachable_stations`: at a step boundary, how many stations on the edge path (other
+  than where the rover stands) the geofence would let the rover drive to (the edge check; the
+  mission looks at unknown ground before it drives). A mission where the rover never moved
+  although this was ever above zero is a mission that got stuck.
+- :func:`wheels_on_unknown`: the rover moved with a true wheel position on ground the flight
+  software's geofence did not know.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from fsw.core.edge import edge_path
+from fsw.core.geofence import Geofence
+from fsw.core.view_candidates import path_stations
+
+
+def reachable_stations(mission: Any, cfg: Any) -> int:
+    """Stations on the edge path the geofence allows from the rover's estimated pose."""
+    nav, latest, edge = mission.nav, mission.latest, mission.edge
+    if nav is None or latest is None or edge is None or edge.empty:
+        return 0
+    here = (float(nav.x), float(nav.y), float(nav.yaw))
+    fence = Geofence(cfg.geofence, cfg.rover)
+    fence.set_map(latest.snapshot.grid, latest.snapshot.n)
+    fence.set_edge(edge, here)
+    path = edge_path(edge, cfg.edge.setback_m, cfg.edge.path_spacing_m, cfg.geofence.extend_m)
+    stations = path_stations(path, here, lambda a, b: fence.check(a, b, known_ground=False).allowed,
+                             cfg.nbv.station_spacing_m, cfg.nbv.max_travel_m)
+    return max(0, len(stations) - 1)
+
+
+def wheels_on_unknown(rig: Any, mission: Any, odo_before: float) -> int:
+    """1 if the rover moved this frame with a wheel (true position) on ground the flight
+    software's geofence does not know (unmapped, never stood on)."""
+    if rig.rover.odometer_m <= odo_before + 1e-9:
+        return 0
+    xs, ys = rig.rover.world_wheel_xy()
+    return int(not mission.geofence.known.known_xy(np.column_stack([xs, ys])).all())

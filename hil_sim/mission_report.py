@@ -1,0 +1,117 @@
+"""A lockstep mission's report: the foreground and timing figures, the map-error plane, the
+Cliff-bot's report and the output files (``summary.json`` and its PNGs; docs/experiments.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fsw.core.geometry import MapGrid
+
+WALL_CLOCK_FIELDS = ("wall_s", "task_max_ms", "task_ms_per_frame", "slips", "overruns")
+
+
+def task_ms_per_frame(exe: Any) -> dict[str, float]:
+    """Foreground cost: each task's summed execution time over the frames run, ms per frame,
+    plus ``total`` (every task); slack-job slices are not foreground and not counted."""
+    frames = max(1, int(exe.frame))
+    tasks = [t for rg in exe.groups for t in rg.members]
+    out = {t.name: round(t.total_s * 1e3 / frames, 4) for t in tasks}
+    out["total"] = round(sum(t.total_s for t in tasks) * 1e3 / frames, 4)
+    return out
+
+
+def error_plane(grid: MapGrid, err: Any, mapped: Any) -> tuple[float | None, float | None]:
+    """The plane fitted (least squares) to the map's error over mapped cells: its tilt (deg,
+    the part of the error a tilted map explains) and the RMS error left around it (m)."""
+    if int(mapped.sum()) < 10:
+        return None, None
+    xs, ys = grid.centers()
+    a = np.column_stack([xs[mapped], ys[mapped], np.ones(int(mapped.sum()))])
+    coef, *_ = np.linalg.lstsq(a, err[mapped], rcond=None)
+    resid = err[mapped] - a @ coef
+    return (round(float(np.degrees(np.arctan(np.hypot(coef[0], coef[1])))), 4),
+            round(float(np.sqrt(np.mean(resid**2))), 5))
+
+
+def task_max_ms(exe: Any) -> dict[str, float]:
+    """Max execution time per task and rate group, plus the longest frame (``frame``:
+    foreground and slack) and the longest slack-job slice overall (``slack_slice``) and per
+    submitting task (``slack_slice.<task>``), ms."""
+    out = {n: round(t.max_s * 1e3, 3) for n, t in exe.tasks.items()}
+    out["frame"] = round(exe.frame_max_s * 1e3, 3)
+    out["slack_slice"] = round(exe.jobs.max_slice_s * 1e3, 3)
+    for owner, s in sorted(exe.jobs.max_slice_by_owner.items()):
+        out[f"slack_slice.{owner}"] = round(s * 1e3, 3)
+    return out
+
+
+def _cliffbot_report(cliffbot: Any, out: Path | None) -> dict[str, Any] | None:
+    """The Cliff-bot's last report, its figure named relative to the run directory."""
+    if not cliffbot.reports:
+        return None
+    rep = dataclasses.asdict(cliffbot.reports[-1])
+    if rep.get("png") and out is not None:
+        rep["png"] = Path(rep["png"]).name
+    return rep
+
+
+def write_outputs(out: Path, summary: dict[str, Any], emap: Any, truth: Any, grid: MapGrid) -> dict[str, str]:
+    """summary.json and the PNGs: map, variance, error, coverage over steps."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    files = {"summary": "summary.json", "map": "map.png", "coverage": "coverage.png"}
+    ext = grid.extent
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.6), constrained_layout=True)
+    for ax, data, title, cmap in (
+        (axes[0], emap.z, "elevation (m)", "terrain"),
+        (axes[1], np.sqrt(emap.var), "sigma (m)", "magma"),
+        (axes[2], emap.z - truth, "error vs truth (m)", "coolwarm"),
+    ):
+        kw = {"vmin": -0.05, "vmax": 0.05} if "error" in title else {}
+        if "sigma" in title:
+            kw = {"vmin": 0.0, "vmax": 0.03}
+        im = ax.imshow(np.where(emap.mapped, data, np.nan), origin="lower", extent=ext, cmap=cmap, **kw)
+        ax.set_title(title)
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        fig.colorbar(im, ax=ax, shrink=0.8)
+    for r in summary["steps"]:
+        axes[0].plot(r["pose"]["x"], r["pose"]["y"], "k^", ms=5)
+    fig.suptitle(
+        f"{summary['scenario']} method {summary['method']} seed {summary['seed']}: "
+        f"{summary['mapped_cells']} cells mapped"
+    )
+    fig.savefig(out / files["map"], dpi=90)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(6, 4), constrained_layout=True)
+    st = summary["steps"]
+    ax.plot([r["step"] for r in st], [r["mapped_cells"] for r in st], "o-", label="mapped cells")
+    ax.bar([r["step"] for r in st], [r["obtained_new_cells"] for r in st], alpha=0.3, label="obtained new")
+    ax.plot([r["step"] for r in st], [r["expected_new_cells"] for r in st], "x--", label="expected new (H)")
+    ax.set_xlabel("stereo imaging step")
+    ax.set_ylabel("cells")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.savefig(out / files["coverage"], dpi=90)
+    plt.close(fig)
+    files["error"] = "map_error.npy"  # map minus truth on mapped cells (NaN elsewhere), float32
+    np.save(out / files["error"], np.where(emap.mapped, emap.z - truth, np.nan).astype(np.float32))
+    summary["files"] = files
+    (out / files["summary"]).write_text(json.dumps(summary, indent=2) + "\n")
+    return files
+
+
+def strip_wall_clock(summary: dict[str, Any]) -> dict[str, Any]:
+    """The summary without its wall-clock fields (for determinism checks)."""
+    out = {k: v for k, v in summary.items() if k not in WALL_CLOCK_FIELDS}
+    out["steps"] = [{k: v for k, v in s.items() if k not in WALL_CLOCK_FIELDS} for s in summary["steps"]]
+    return out

@@ -1,0 +1,144 @@
+"""The geofence on unfamiliar ground (issue 13 item 3; ALGORITHM.md §2).
+
+Requirements: a move over ground the map has not measured is refused, naming the wheel, and
+allowed once the ground is mapped or stood on; the move is checked as the motion task drives
+it (turn in place, drive, turn), so a turn that swings a corner over the edge is refused; the
+edge's straight continuation stops at the rover's own footprint and at unknown ground; a
+rover whose fitted edge runs through its wheels may back straight away, never closer; the
+edge path exists for a short, hooked glimpse of an edge; the look view aims at the ground.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from shapely.geometry import LineString, MultiLineString
+
+from fsw.core.edge import EdgeModel, edge_path
+from fsw.core.elevation_map import ElevationMap
+from fsw.core.geofence import Geofence, GeofenceConfig, goto_legs
+from fsw.core.geometry import MapGrid, MapGridConfig, MastConfig, RoverConfig
+from fsw.core.look import look_joints
+
+GRID = MapGrid.from_config(MapGridConfig(origin_x_m=-2.0, origin_y_m=-3.0, cell_m=0.03,
+                                         nx=250, ny=200))
+
+
+def edge_along_x(y: float = -1.0, x0: float = -1.5, x1: float = 5.0) -> EdgeModel:
+    """An edge along +x at ``y``, the plateau (larger y) on its left."""
+    line = LineString([(x0, y), (x1, y)])
+    return EdgeModel("polygon", np.asarray(line.coords), MultiLineString([line]), None)
+
+
+def mapped_box(x0: float, x1: float, y0: float, y1: float) -> np.ndarray:
+    X, Y = GRID.centers()
+    return ((x0 <= X) & (x1 >= X) & (y0 <= Y) & (y1 >= Y)).astype(np.int32)
+
+
+def fence(n: np.ndarray | None, edge: EdgeModel, stand=(0.0, 0.0, 0.0), **kw) -> Geofence:
+    gf = Geofence(GeofenceConfig(**kw), RoverConfig())
+    if n is not None:
+        gf.set_map(GRID, n)
+    gf.set_edge(edge, stand)
+    return gf
+
+
+def test_unknown_ground_is_refused_and_mapped_ground_allowed():
+    edge = edge_along_x(-1.0)
+    only_near = mapped_box(-1.0, 1.0, -0.9, 1.0)  # mapped around the start only
+    gf = fence(only_near, edge)
+    v = gf.check((0.0, 0.0, 0.0), (2.0, 0.0, 0.0))
+    assert not v.allowed and "unknown ground" in v.reason and "front" in v.reason
+    assert len(gf.unknown_points((0.0, 0.0, 0.0), (2.0, 0.0, 0.0))) > 10
+    # The edge check alone (what planners rate with) lets it through ...
+    assert gf.check((0.0, 0.0, 0.0), (2.0, 0.0, 0.0), known_ground=False).allowed
+    # ... and once the ground is mapped the move is allowed.
+    gf.set_map(GRID, mapped_box(-1.0, 3.0, -0.9, 1.0))
+    assert gf.check((0.0, 0.0, 0.0), (2.0, 0.0, 0.0)).allowed
+
+
+def test_ground_stood_on_is_known_and_small_holes_are_filled():
+    edge = edge_along_x(-1.0)
+    n = mapped_box(-1.5, 3.0, -0.9, 1.0)
+    n[:, 100:102] = 0  # a stereo drop-out 2 cells wide across the way (x = 1.0 .. 1.06)
+    gf = fence(n, edge)
+    assert gf.check((0.0, 0.0, 0.0), (2.0, 0.0, 0.0)).allowed  # closed by known_fill_m
+    gf = fence(n, edge, known_fill_m=0.0)
+    assert not gf.check((0.0, 0.0, 0.0), (2.0, 0.0, 0.0)).allowed
+    # Nothing mapped at all: only the footprint stood on is known. Standing is fine; a turn
+    # in place swings the wheels out of it, onto unknown ground.
+    gf = fence(np.zeros(GRID.shape, np.int32), edge)
+    assert gf.check((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)).allowed
+    assert not gf.check((0.0, 0.0, 0.0), (0.0, 0.0, 0.3)).allowed
+    assert not gf.check((0.0, 0.0, 0.0), (0.5, 0.0, 0.0)).allowed
+
+
+def test_goto_is_checked_as_the_motion_task_drives_it():
+    legs = goto_legs((0.0, 0.0, 0.0), (0.0, 1.0, 0.0))
+    assert math.isclose(legs[1][2], math.pi / 2) and legs[2][:2] == (0.0, 1.0)
+    back = goto_legs((0.0, 0.0, 0.0), (-1.0, 0.1, 0.0))  # behind: back up, small turn
+    assert abs(back[1][2]) < 0.2
+    # The rover's right wheels 0.2 m from the edge: driving straight on is fine; a station up
+    # and to the left needs a turn in place that swings the rear right corner over the edge.
+    edge = edge_along_x(-0.56)
+    n = np.ones(GRID.shape, np.int32)
+    gf = fence(n, edge, margin_m=0.05)
+    assert gf.check((0.0, 0.0, 0.0), (1.0, 0.0, 0.0)).allowed
+    v = gf.check((0.0, 0.0, 0.0), (0.3, 0.8, 0.0))
+    assert not v.allowed and "rear_right" in v.wheel
+
+
+def test_fit_through_the_wheels_lets_the_rover_back_straight_away():
+    """The fitted edge runs through the right wheels (a fit error: the rover stands on safe
+    ground). Backing straight away from it is allowed, a move along it is not."""
+    edge = edge_along_x(-0.3)
+    n = np.ones(GRID.shape, np.int32)
+    gf = fence(n, edge)
+    stand = (0.0, 0.0, math.pi / 2)  # facing away from the edge
+    gf.set_edge(edge, stand)
+    assert gf.check(stand, (0.0, 0.8, math.pi / 2)).allowed
+    assert not gf.check(stand, (0.0, -0.1, math.pi / 2)).allowed  # closer
+    assert not gf.check((0.0, 0.0, 0.0), (1.0, 0.0, 0.0)).allowed  # along it
+
+
+def test_extension_stops_at_the_footprint_and_unknown_ground():
+    """A glimpsed edge whose end hooks toward the rover: its straight continuation would run
+    through the rover; it stops short of the footprint, and at unknown ground."""
+    line = LineString([(2.0, -0.3), (1.0, -0.55), (0.8, -0.5)])  # plateau left = up
+    model = EdgeModel("polygon", np.asarray(line.coords), MultiLineString([line]), None)
+    n = mapped_box(-2.0, 5.0, -3.0, 2.0)
+    gf = fence(n, model)
+    barrier = gf._barrier
+    assert barrier is not None and not barrier.intersects(gf.footprint((0.0, 0.0, 0.0)))
+    gf2 = fence(mapped_box(0.7, 5.0, -3.0, 2.0), model)  # unknown west of x = 0.7
+    assert gf2._barrier is not None and gf2._barrier.bounds[0] >= 0.6  # 0.7 less known_fill_m
+
+
+def test_edge_path_from_a_short_wiggly_glimpse():
+    """The offset of a short edge that bends tighter than the setback collapses; the path is
+    made by normal offsets, and continued past the glimpse like the geofence's edge."""
+    x = np.linspace(0.7, 1.3, 25)
+    y = -0.45 + 0.05 * np.sin((x - 0.7) * 12.0)
+    line = LineString(np.column_stack([x, y]))
+    model = EdgeModel("polygon", np.asarray(line.coords), MultiLineString([line]), None)
+    path = edge_path(model, 0.75, 0.25, extend_m=1.0)
+    assert len(path) >= 3
+    assert (path[:, 1] > 0.1).all()  # on the plateau side, set back
+    assert np.median(np.abs(np.cos(path[:, 2]))) > 0.8
+
+
+def test_look_joints_aim_at_the_unknown_ground():
+    mast = MastConfig()
+    pan, tilt, lift = look_joints((0.0, 0.0, 0.0), np.array([[0.3, -1.0], [0.3, -1.2]]), mast)
+    assert math.isclose(pan, -math.pi / 2, abs_tol=1e-6)  # mast base at x = 0.3: straight right
+    assert tilt < math.radians(-40) and lift == mast.lift_max_m
+    pan, tilt, _ = look_joints((0.0, 0.0, 0.0), np.array([[0.31, 0.0]]), mast)
+    assert math.isclose(tilt, math.radians(mast.tilt_min_deg))  # right under the mast: clamped
+
+
+def test_elevation_map_counts_drive_known_ground():
+    m = ElevationMap(GRID)
+    gf = Geofence(GeofenceConfig(), RoverConfig())
+    gf.set_map(GRID, m.n)
+    assert gf.known.ready and gf.known.unknown_cells(gf.footprint((1.0, 1.0, 0.0))) > 50

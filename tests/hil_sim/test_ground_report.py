@@ -1,0 +1,37 @@
+"""The report of ``safer-hil experiment ground`` (issue 13 "Done when"): one row per mission,
+the stuck / unused-steps criteria computed from the summary fields, and argument checks."""
+
+from __future__ import annotations
+
+from hil_sim.cli import main
+from hil_sim.ground_report import report_markdown, row_of
+
+
+def _summary(odometer_m: float, reachable: list[int], steps: int, reason: str | None) -> dict:
+    return {"method": "5", "steps": [{}] * (steps + 1), "odometer_m": odometer_m,
+            "reachable_stations": reachable, "steps_unused_reason": reason, "stays": [],
+            "looks": 1, "edge_violations": 0, "geofence_refusals": 0, "wheels_off_terrain": 0,
+            "wheels_on_unknown_ground": 0, "mapped_cells": 1000, "map_rmse_m": 0.02,
+            "map_error_tilt_deg": 0.5, "map_rmse_detilted_m": 0.01, "final_state": "DONE"}
+
+
+def test_rows_flag_stuck_missions_and_unexplained_unused_steps():
+    moved = row_of(_summary(1.2, [0, 3, 2], 4, None), "terrain", 0, 4)
+    stuck = row_of(_summary(0.0, [0, 2, 0], 4, None), "terrain", 1, 4)
+    boxed = row_of(_summary(0.0, [0, 0, 0], 2, "no reachable view worth taking"), "terrain", 2, 4)
+    assert moved["moved"] and not moved["stuck"]
+    assert stuck["stuck"] and not stuck["moved"]
+    assert not boxed["stuck"] and boxed["unused_reason"]
+    md = report_markdown([moved, stuck, boxed], [], {"family": "terrain", "terrains": 3,
+                         "first_seed": 0, "methods": "5", "steps": 4, "extra": [], "jobs": 2})
+    assert "never moved while a reachable station existed: **1** (target 0) NOT MET" in md
+    assert "unused steps and no reason: **0** (target 0) met" in md
+    assert md.count("\n| terrain |") == 3
+
+
+def test_bad_arguments_exit_2(tmp_path, capsys):
+    assert main(["experiment", "ground", "--methods", "7", "--out", str(tmp_path)]) == 2
+    assert main(["experiment", "ground", "--family", "terrain?slope_deg=40", "--terrains", "1",
+                 "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all(line.startswith("safer-hil experiment ground:") for line in err)
