@@ -17,6 +17,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import shapely
+
 from fsw.core.geometry import MapGrid
 from fsw.tasks.messages import MapUpdate
 from fsw.tasks.mission_state import (
@@ -61,6 +63,10 @@ def mission_state(m: Any, phase: MissionPhase) -> dict[str, Any]:
             "request_id": m.request_id, "edge_violations": m.edge_violations, "safe_entries": m.safe_entries,
             "end": m.end, "safe_reason": m.safe_reason,
             "edge": edge_to_json(m.edge), "nav": nav_to_json(m.nav), "latest": latest,
+            "looks": m.looks, "stays": list(m.stays),
+            "looked": None if m._looked is None else list(m._looked),
+            "looked_from": None if m._looked_from is None else list(m._looked_from),
+            "stood_on": [shapely.to_wkb(g, hex=True) for g in m.geofence.known._stood],
         },
         "tasks": collect_task_states(tasks),
         "hooks": collect_hooks(m.ctx.res.checkpoint_hooks),
@@ -117,6 +123,11 @@ def resume(m: Any) -> MissionPhase | None:
     m.step, m.request_id, m.edge_violations, m.safe_entries = counters
     m.records, m.edge, m.nav, m.latest = records, edge, nav, latest
     m.end, m.safe_reason = s.get("end"), s.get("safe_reason")
+    m.looks, m.stays = int(s.get("looks", 0)), [str(x) for x in s.get("stays", [])]
+    looked, looked_from = s.get("looked"), s.get("looked_from")
+    m._looked = None if looked is None else tuple(float(v) for v in looked)
+    m._looked_from = None if looked_from is None else tuple(float(v) for v in looked_from)
+    m.geofence.known._stood = [shapely.from_wkb(h) for h in s.get("stood_on", [])]
     m.event("RESUMED", step=m.step, seq=loaded.meta.seq, phase=str(phase))
     return phase
 

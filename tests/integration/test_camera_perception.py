@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 
 from fsw.core.geometry import camera_pose_from_rover
+from fsw.drivers.radio import open_radio
+from fsw.drivers.resources import Resources
 from fsw.executive.executive import Executive
 from fsw.framework.clock import SteppedClock
 from fsw.framework.params import ConfigError
@@ -35,7 +37,8 @@ def _drain(gen: Any) -> tuple[int, Any]:
 def test_raw_pairs_are_rectified_in_bands_inside_the_job() -> None:
     cfg = load_settings()
     world = load_scenario("lab", 0)
-    exe = Executive(dataclasses.replace(cfg, map=world.map_grid), SteppedClock())
+    radio = open_radio(f"inproc://camera-perception-{id(cfg)}")  # its own radio end, never a shared name
+    exe = Executive(dataclasses.replace(cfg, map=world.map_grid), SteppedClock(), Resources(radio_port=radio))
     task = exe.tasks["perception"]
     assert task.rectifier is not None and task.matcher.rectified is task.rectifier.camera
     cams = TrueCameras.from_config(cfg.camera, load_hardware().camera)

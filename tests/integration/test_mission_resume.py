@@ -67,7 +67,7 @@ def test_stopped_mission_resumes_to_the_uninterrupted_result(tmp_path: Path, met
     spec = RunSpec("lab", method, steps=2, seed=3, transmit=False, out=tmp_path / "ref")
     ref = run_mission(spec)
     assert ref["final_state"] == "DONE" and len(ref["steps"]) == 3
-    stop_s = (ref["steps"][1]["sim_s"] + ref["steps"][2]["sim_s"]) / 2  # inside step 2
+    stop_s = ref["steps"][1]["sim_s"] + 1.0  # inside step 2: after step 1's record, before step 2's first
     cut = RunSpec("lab", method, steps=2, seed=3, transmit=False, out=tmp_path / "cut")
     part = run_mission(cut, max_sim_s=stop_s)
     assert part["final_state"] not in ("DONE", "SAFE") and len(part["steps"]) == 2
