@@ -21,6 +21,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("", "cliffbot"): "hil_sim.commands.cliffbot",
     ("", "send-map"): "hil_sim.commands.send_map",
     ("", "relay"): "hil_sim.commands.relay",
+    ("", "campaign"): "hil_sim.commands.campaign",
     ("bench", "render"): "hil_sim.commands.bench_render",
     ("bench", "lockstep"): "hil_sim.commands.bench_lockstep",
     ("bench", "perception"): "hil_sim.commands.bench_perception",

@@ -12,7 +12,10 @@ obtained_new_cells, pose{x,y,yaw,pan,tilt,lift}, wall_s, sim_s}``), ``map_rmse_m
 ``edge_violations``, ``geofence_refusals``, ``slips``, ``overruns``, ``task_max_ms``
 ({task: ms}, plus ``frame``: the longest frame, and ``slack_slice``, ``slack_slice.<task>``:
 the longest slack-job slice),
-``end_reason``, ``final_state``, ``mapped_cells``, ``frames``, ``sim_s``,
+``end_reason``, ``final_state``, ``mapped_cells``, ``frames``, ``sim_s``, ``calib_2sigma`` (fraction
+of mapped cells within 2 sigma of the truth, ALGORITHM.md §4), ``safe_entries``, ``safe_recoveries``
+(SAFE left for the mission again), ``off_map`` (frames with a wheel off the world's truth grid),
+``faults`` (the injected :class:`hil_sim.faults.FaultSpec` rows),
 ``wall_s``, ``cliffbot`` (the Cliff-bot's report, or null), ``files``. Wall-clock fields:
 ``wall_s`` (top level and per step), ``task_max_ms``, and ``slips`` and ``overruns`` (both
 compare measured execution time with the period and budgets); everything else is a
@@ -36,6 +39,7 @@ from fsw.core.geometry import MapGrid
 from fsw.drivers.map_store import MapStore
 from fsw.drivers.resources import OracleTruth, Resources
 from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
+from hil_sim.faults import FaultSpec
 
 WALL_CLOCK_FIELDS = ("wall_s", "task_max_ms", "slips", "overruns")
 
@@ -49,6 +53,8 @@ class RunSpec:
     config: str = str(DEFAULT_CONFIG)
     transmit: bool = True
     out: Path | None = None
+    faults: tuple[FaultSpec, ...] = ()  # injected through the bench's fault backdoor
+    safe_recover_s: float | None = None  # override of mission.safe_recover_s (None: the file's)
 
 
 def mission_config(spec: RunSpec, world: Any) -> FswConfig:
@@ -65,7 +71,13 @@ def mission_config(spec: RunSpec, world: Any) -> FswConfig:
         map=world.map_grid,
         mavlink=mav,
         checkpoint=ckpt,
-        mission=dataclasses.replace(cfg.mission, method=spec.method, transmit=spec.transmit, auto_start=True),
+        mission=dataclasses.replace(
+            cfg.mission,
+            method=spec.method,
+            transmit=spec.transmit,
+            auto_start=True,
+            safe_recover_s=cfg.mission.safe_recover_s if spec.safe_recover_s is None else spec.safe_recover_s,
+        ),
         nbv=dataclasses.replace(cfg.nbv, max_steps=spec.steps),
     )
 
@@ -97,14 +109,15 @@ def run_mission(
         spec.out.mkdir(parents=True, exist_ok=True)
         shutil.rmtree(spec.out / "checkpoints", ignore_errors=True)  # a new mission starts a new map
         resources.map_store = MapStore(cfg.checkpoint, cfg.fusion)
-    with LockstepBench(cfg, world, seed=spec.seed, quiet=True, resources=resources) as bench:
+    with LockstepBench(cfg, world, seed=spec.seed, quiet=True, resources=resources, faults=spec.faults) as bench:
         clock_box.append(bench.clock.now)
         cliffbot = Cliffbot(cfg.link, ChannelPort(channel, "b", now), out_dir=spec.out)
         mission = bench.exe.tasks["mission"]
         perception = bench.exe.tasks["perception"]
         limit_s = max_sim_s if max_sim_s is not None else 120.0 + 90.0 * (spec.steps + 1) + 1200.0
-        violations = 0
+        violations = off_map = recoveries = 0
         last_step = -1
+        was_safe = False
         bench.exe.freeze_heap()  # as the flight start-up does (safer-fsw run)
         try:
             while bench.clock.now() < limit_s:
@@ -113,10 +126,13 @@ def run_mission(
                     cliffbot.originals[1] = perception.map.z.astype(np.float32)
                 cliffbot.step(bench.clock.now())
                 violations += _wheels_over_drop(bench.rig, world, cfg)
+                off_map += _wheels_off_world(bench.rig, world)
+                recoveries += int(was_safe and mission.state != "SAFE")
+                was_safe = mission.state == "SAFE"
                 if progress is not None and mission.step != last_step:
                     last_step = mission.step
                     progress(mission.step, spec.steps, mission.state)
-                if mission.state in ("DONE", "SAFE"):
+                if mission.state == "DONE" or (mission.state == "SAFE" and cfg.mission.safe_recover_s <= 0):
                     break
         finally:
             bench.exe.thaw_heap()
@@ -126,6 +142,8 @@ def run_mission(
         emap = perception.map
         mapped = emap.mapped & np.isfinite(truth)
         rmse = float(np.sqrt(np.mean((emap.z[mapped] - truth[mapped]) ** 2))) if mapped.any() else None
+        within = np.abs(emap.z[mapped] - truth[mapped]) <= 2.0 * np.sqrt(emap.var[mapped])
+        calib = float(within.mean()) if mapped.any() else None
         summary: dict[str, Any] = {
             "schema": 1,
             "scenario": spec.scenario,
@@ -133,6 +151,7 @@ def run_mission(
             "seed": spec.seed,
             "steps": [dataclasses.asdict(r) for r in mission.records],
             "map_rmse_m": rmse,
+            "calib_2sigma": calib,
             "edge_violations": violations,
             "geofence_refusals": mission.edge_violations,
             "slips": exe.slips,
@@ -140,6 +159,10 @@ def run_mission(
             "task_max_ms": task_max_ms(exe),
             "end_reason": mission.end,
             "safe_reason": mission.safe_reason,
+            "safe_entries": mission.safe_entries,
+            "safe_recoveries": recoveries,
+            "off_map": off_map,
+            "faults": [dataclasses.asdict(f) for f in spec.faults],
             "final_state": mission.state,
             "mapped_cells": int(emap.mapped.sum()),
             "frames": exe.frame,
@@ -181,6 +204,12 @@ def _wheels_over_drop(rig: Any, world: Any, cfg: FswConfig) -> int:
     xs, ys = rig.rover.world_wheel_xy()
     z = np.asarray(world.height_at(np.asarray(xs), np.asarray(ys)))
     return int(bool((z < world.plateau_z - cfg.edge.step_m).any()))
+
+
+def _wheels_off_world(rig: Any, world: Any) -> int:
+    """1 if any wheel's contact point is off the world's truth grid (no ground known there)."""
+    xs, ys = rig.rover.world_wheel_xy()
+    return int(bool(np.isnan(np.asarray(world.height_at(np.asarray(xs), np.asarray(ys)))).any()))
 
 
 def write_outputs(out: Path, summary: dict[str, Any], emap: Any, truth: Any, grid: MapGrid) -> dict[str, str]:
