@@ -22,8 +22,10 @@ SCHEDULER = re.compile(r"^(tcp|tls|inproc|ucx)://[^\s/]+$")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("spec", nargs="?", type=Path, default=Path("config/campaigns/default.toml"),
-                   help="campaign spec (TOML)")
+    from fsw.settings import DEFAULT_CONFIG
+
+    p.add_argument("spec", nargs="?", type=Path, default=DEFAULT_CONFIG.parent / "campaigns" / "default.toml",
+                   help="campaign spec (TOML); config/campaigns/smoke.toml is a 4-mission smoke test")
     p.add_argument("--out", type=Path, default=None, help="output directory (default: out/campaign/<name>)")
     p.add_argument("--jobs", type=int, default=2, help="missions in parallel on this machine")
     p.add_argument("--scheduler", default=None, help="Dask scheduler address tcp://HOST:PORT (instead of --jobs)")
