@@ -182,7 +182,8 @@ def _plots(out: Path, rows: list[dict[str, Any]]) -> None:
     fig.savefig(out / "m5_vs_oracle.png", dpi=90)
     plt.close(fig)
 
-    groups = sorted(_by(rows, "family").items()) + sorted((f"faults: {k}", v) for k, v in _by(rows, "fault_set").items())
+    groups = sorted(_by(rows, "family").items())
+    groups += sorted((f"faults: {k}", v) for k, v in _by(rows, "fault_set").items())
     fig, ax = plt.subplots(figsize=(8, 0.5 + 0.45 * max(2, len(groups))), constrained_layout=True)
     left = np.zeros(len(groups))
     for oc in OUTCOMES:

@@ -25,7 +25,11 @@ methods = ["5", "oracle"]
 name = "lab"
 scenario = "lab"
 grid = { "lab.drop_m" = [0.3, 0.5] }
-random = { count = 3, seed = 4, uniform = { "lab.edge_wiggle_m" = [0.0, 0.1] }, choice = { "noise_sigma" = [1.0, 3.0] } }
+[families.random]
+count = 3
+seed = 4
+uniform = { "lab.edge_wiggle_m" = [0.0, 0.1] }
+choice = { "noise_sigma" = [1.0, 3.0] }
 
 [faults]
 mode = "sample"
