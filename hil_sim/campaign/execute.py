@@ -108,8 +108,10 @@ def _dask(missions: list[dict[str, Any]], address: str, fn: Callable[[dict[str, 
 def execute(
     missions: list[Mission], out: Path, jobs: int = 2, scheduler: str | None = None, retry_failed: bool = False,
     fn: Callable[[dict[str, Any]], dict[str, Any]] = run_isolated, show_progress: bool = True,
+    report_only: bool = False,
 ) -> tuple[list[dict[str, Any]], int]:
-    """Run the missions not yet stored; return all rows (stored and new) and how many were reused."""
+    """Run the missions not yet stored; return all rows (stored and new) and how many were reused.
+    With ``report_only`` nothing runs: the rows stored so far (a campaign stopped part-way)."""
     from tqdm import tqdm
 
     store = Store(out)
@@ -123,6 +125,8 @@ def execute(
         else:
             todo.append(m)
     reused = len(rows)
+    if report_only:
+        return [rows[m["id"]] for m in dicts if m["id"] in rows], reused
     failed = sum(r["outcome"] in FAILED for r in rows.values())
     where = scheduler or f"{jobs} local job{'s' * (jobs > 1)}"
     with tqdm(total=len(dicts), initial=reused, unit="mission", desc=f"campaign ({where})",

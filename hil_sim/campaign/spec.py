@@ -195,14 +195,16 @@ def _fmt(v: Any) -> str:
 
 
 def expand(spec: CampaignSpec) -> list[Mission]:
-    """All missions of the campaign, in a fixed order (family, point, seed, faults, method)."""
+    """All missions of the campaign, in a fixed order that interleaves the families: seed, point
+    index, family, faults, method (so a campaign stopped part-way has sampled every family, and
+    the methods of a point stay together)."""
     from fsw.settings import DEFAULT_CONFIG
 
     c = spec.campaign
     plan = spec.faults
     rng = np.random.default_rng(plan.seed)
-    out: list[Mission] = []
-    for fam in spec.families:
+    out: list[tuple[tuple[int, ...], Mission]] = []
+    for jf, fam in enumerate(spec.families):
         for ip, point in enumerate(family_points(fam)):
             scen = scenario_string(fam.scenario, point)
             for seed in c.seeds:
@@ -212,11 +214,11 @@ def expand(spec: CampaignSpec) -> list[Mission]:
                     draw_fault = plan.sets and rng.random() < plan.fraction
                     pick = int(rng.integers(0, len(plan.sets))) if plan.sets else 0
                     sets = [plan.sets[pick] if draw_fault else None]
-                for fs in sets:
+                for jset, fs in enumerate(sets):
                     fname = fs.name if fs is not None else "none"
-                    for m in c.methods:
-                        out.append(
-                            Mission(
+                    for jm, m in enumerate(c.methods):
+                        order = (c.seeds.index(seed), ip, jf, jset, jm)
+                        out.append((order, Mission(
                                 id=f"{fam.name}-p{ip:03d}-s{seed}-{fname}-m{m}",
                                 family=fam.name,
                                 params=dict(point),
@@ -231,6 +233,5 @@ def expand(spec: CampaignSpec) -> list[Mission]:
                                 safe_recover_s=c.safe_recover_s,
                                 transmit=c.transmit,
                                 config=c.config or str(DEFAULT_CONFIG),
-                            )
-                        )
-    return out
+                            )))
+    return [m for _, m in sorted(out, key=lambda om: om[0])]

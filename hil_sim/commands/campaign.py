@@ -31,6 +31,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scheduler", default=None, help="Dask scheduler address tcp://HOST:PORT (instead of --jobs)")
     p.add_argument("--retry-failed", action="store_true", help="rerun stored missions that raised or were killed")
     p.add_argument("--dry-run", action="store_true", help="list the missions and exit")
+    p.add_argument("--report-only", action="store_true",
+                   help="run nothing: table and report from the missions stored so far (a partial campaign)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -56,11 +58,12 @@ def run(args: argparse.Namespace) -> int:
             print(f"{m.id}\t{m.scenario}\tmethod {m.method}\tseed {m.seed}\tfaults {m.fault_set}")
         print(f"{len(missions)} missions")
         return 0
-    return run_campaign(spec.campaign.name, missions, out, args.jobs, args.scheduler, args.retry_failed)
+    return run_campaign(spec.campaign.name, missions, out, args.jobs, args.scheduler, args.retry_failed,
+                        args.report_only)
 
 
 def run_campaign(name: str, missions: list, out: Path, jobs: int, scheduler: str | None,  # type: ignore[type-arg]
-                 retry_failed: bool = False) -> int:
+                 retry_failed: bool = False, report_only: bool = False) -> int:
     import time
 
     from hil_sim.campaign.execute import FAILED, execute
@@ -74,15 +77,20 @@ def run_campaign(name: str, missions: list, out: Path, jobs: int, scheduler: str
         return 2
     t0 = time.perf_counter()
     try:
-        rows, reused = execute(missions, out, jobs, scheduler, retry_failed)
+        rows, reused = execute(missions, out, jobs, scheduler, retry_failed, report_only=report_only)
     except OSError as exc:  # e.g. the scheduler cannot be reached
         print(f"safer-hil campaign: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 1
     wall = time.perf_counter() - t0
+    if not rows:
+        print(f"safer-hil campaign: no mission stored in {out / 'missions'} yet", file=sys.stderr)
+        return 1
     write_table(out, rows)
     where = f"Dask scheduler {scheduler}" if scheduler else f"local pool, {jobs} jobs"
     extra = (f"Run on {where}: {len(rows) - reused} missions in {wall:.0f} s wall clock "
              f"({reused} reused from an earlier run).\n")
+    if report_only:
+        extra = f"Partial campaign: {len(rows)} of {len(missions)} missions stored so far.\n"
     h = write_report(out, rows, name, extra)
     bad = sum(r["outcome"] in FAILED for r in rows)
     print(f"{len(rows)} missions ({reused} reused) in {wall:.0f} s; outcomes: "

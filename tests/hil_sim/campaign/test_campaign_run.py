@@ -57,6 +57,13 @@ def test_rerun_skips_finished_missions(local_run: Path) -> None:
     rows, reused = execute(missions, local_run, jobs=2, fn=must_not_run, show_progress=False)
     assert reused == 4 and len(rows) == 4
     assert before == {p.name: p.stat().st_mtime_ns for p in (local_run / "missions").glob("*.json")}
+    # a report from the stored missions only (a campaign stopped part-way): nothing runs
+    (local_run / "missions" / f"{missions[0].id}.json").rename(local_run / "held.json")
+    assert main(["campaign", str(SMOKE), "--out", str(local_run), "--report-only"]) == 0
+    assert len(pq.read_table(local_run / "results.parquet")) == 3
+    assert "Partial campaign: 3 of 4 missions" in (local_run / "report.md").read_text()
+    (local_run / "held.json").rename(local_run / "missions" / f"{missions[0].id}.json")
+    assert main(["campaign", str(SMOKE), "--out", str(local_run / "empty"), "--report-only"]) == 1
     # a changed mission (another step count) is not reused
     changed = [dataclasses.replace(missions[0], steps=missions[0].steps + 1)]
     ran: list[str] = []
