@@ -63,6 +63,8 @@ def test_rerun_skips_finished_missions(local_run: Path) -> None:
     assert len(pq.read_table(local_run / "results.parquet")) == 3
     assert "Partial campaign: 3 of 4 missions" in (local_run / "report.md").read_text()
     (local_run / "held.json").rename(local_run / "missions" / f"{missions[0].id}.json")
+    assert main(["campaign", str(SMOKE), "--out", str(local_run), "--report-only"]) == 0  # the full table again
+    assert len(pq.read_table(local_run / "results.parquet")) == 4
     assert main(["campaign", str(SMOKE), "--out", str(local_run / "empty"), "--report-only"]) == 1
     # a changed mission (another step count) is not reused
     changed = [dataclasses.replace(missions[0], steps=missions[0].steps + 1)]
