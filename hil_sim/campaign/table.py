@@ -81,33 +81,22 @@ def failed_row(m: dict[str, Any], kind: str, error: str, wall_s: float) -> dict[
 
 
 def frame(rows: list[dict[str, Any]]) -> Any:
-    """The table (pandas-free: a pyarrow Table) sorted by mission id, parameters as ``p.<key>``."""
+    """The table (a pyarrow Table) sorted by mission id, one ``p.<key>`` column a scenario
+    parameter (null where a family does not vary it; text if any value is text)."""
     import pyarrow as pa
 
     rows = sorted(rows, key=lambda r: r["id"])
-    pkeys = sorted({k for r in rows for k in json.loads(r["params"])})
-    cols: dict[str, list[Any]] = {}
-    for r in rows:
-        params = json.loads(r["params"])
-        full = {**{k: v for k, v in r.items() if k != "params"}, **{f"p.{k}": params.get(k) for k in pkeys}}
-        for k in full:
-            cols.setdefault(k, [])
-    for r in rows:
-        params = json.loads(r["params"])
-        full = {**{k: v for k, v in r.items() if k != "params"}, **{f"p.{k}": params.get(k) for k in pkeys}}
-        for k in cols:
-            v = full.get(k)
-            cols[k].append(str(v) if k.startswith("p.") and v is not None and not _num(v) else v)
-    for k in [k for k in cols if k.startswith("p.")]:
-        if any(isinstance(v, str) for v in cols[k]):
-            cols[k] = [None if v is None else str(v) for v in cols[k]]
-        elif any(isinstance(v, float) for v in cols[k]):
-            cols[k] = [None if v is None else float(v) for v in cols[k]]
+    params = [json.loads(r["params"]) for r in rows]
+    pkeys = sorted({k for p in params for k in p})
+    cols: dict[str, list[Any]] = {k: [r.get(k) for r in rows] for k in rows[0] if k != "params"} if rows else {}
+    for k in pkeys:
+        vals = [p.get(k) for p in params]
+        if any(isinstance(v, (str, bool)) for v in vals):
+            vals = [None if v is None else str(v) for v in vals]
+        elif any(isinstance(v, float) for v in vals):
+            vals = [None if v is None else float(v) for v in vals]
+        cols[f"p.{k}"] = vals
     return pa.table(cols)
-
-
-def _num(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
 def write_table(out: Path, rows: list[dict[str, Any]]) -> Any:
