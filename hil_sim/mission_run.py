@@ -125,8 +125,9 @@ def run_mission(
                 if mission.state == "TRANSMIT" and 1 not in cliffbot.originals:
                     cliffbot.originals[1] = perception.map.z.astype(np.float32)
                 cliffbot.step(bench.clock.now())
-                violations += _wheels_over_drop(bench.rig, world, cfg)
-                off_map += _wheels_off_world(bench.rig, world)
+                over_drop, off_world = _wheel_checks(bench.rig, world, cfg)
+                violations += over_drop
+                off_map += off_world
                 recoveries += int(was_safe and mission.state != "SAFE")
                 was_safe = mission.state == "SAFE"
                 if progress is not None and mission.step != last_step:
@@ -199,17 +200,12 @@ def _cliffbot_report(cliffbot: Any, out: Path | None) -> dict[str, Any] | None:
     return rep
 
 
-def _wheels_over_drop(rig: Any, world: Any, cfg: FswConfig) -> int:
-    """1 if any wheel's contact point is over the drop (true terrain below the plateau)."""
+def _wheel_checks(rig: Any, world: Any, cfg: FswConfig) -> tuple[int, int]:
+    """(1 if any wheel's contact point is over the drop (true terrain below the plateau),
+    1 if any is off the world's truth grid (no ground known there))."""
     xs, ys = rig.rover.world_wheel_xy()
     z = np.asarray(world.height_at(np.asarray(xs), np.asarray(ys)))
-    return int(bool((z < world.plateau_z - cfg.edge.step_m).any()))
-
-
-def _wheels_off_world(rig: Any, world: Any) -> int:
-    """1 if any wheel's contact point is off the world's truth grid (no ground known there)."""
-    xs, ys = rig.rover.world_wheel_xy()
-    return int(bool(np.isnan(np.asarray(world.height_at(np.asarray(xs), np.asarray(ys)))).any()))
+    return int(bool((z < world.plateau_z - cfg.edge.step_m).any())), int(bool(np.isnan(z).any()))
 
 
 def write_outputs(out: Path, summary: dict[str, Any], emap: Any, truth: Any, grid: MapGrid) -> dict[str, str]:
