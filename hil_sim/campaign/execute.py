@@ -7,13 +7,15 @@ thread pool of ``jobs`` threads, each waiting on one child; with a scheduler add
 function runs as Dask tasks (``dask.distributed``) on the cluster's workers, which need only
 the project installed: the rows come back to this process, which stores each one atomically
 as ``DIR/missions/<id>.json``. A rerun reuses every stored row whose mission inputs are
-unchanged (:meth:`hil_sim.campaign.spec.Mission.key`) and runs the rest.
+unchanged (:meth:`hil_sim.campaign.spec.Mission.key`) and runs the rest. Ctrl-C stops the
+campaign: missions it interrupted are not stored (a rerun runs them), finished ones are kept.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -49,6 +51,8 @@ def run_isolated(m: dict[str, Any]) -> dict[str, Any]:
                               time.perf_counter() - t0)
         except OSError as exc:
             return failed_row(m, "error", f"could not start the mission process: {exc}", time.perf_counter() - t0)
+        if proc.returncode == -signal.SIGINT:  # Ctrl-C reached the mission: not a result, run it again
+            raise KeyboardInterrupt
         if proc.returncode != 0 or not result.is_file():
             last = (proc.stderr.strip().splitlines() or ["no output"])[-1]
             return failed_row(m, "killed", f"mission process exit code {proc.returncode}: {last}",
@@ -81,10 +85,13 @@ class Store:
 
 def _local(missions: list[dict[str, Any]], jobs: int, fn: Callable[[dict[str, Any]], dict[str, Any]]
            ) -> Iterator[tuple[dict[str, Any], dict[str, Any]]]:
-    with ThreadPoolExecutor(max_workers=jobs) as pool:
+    pool = ThreadPoolExecutor(max_workers=jobs)
+    try:
         futs = {pool.submit(fn, m): m for m in missions}
         for fut in as_completed(futs):
             yield futs[fut], fut.result()
+    finally:  # on Ctrl-C: start no more missions (running children got the SIGINT too)
+        pool.shutdown(wait=False, cancel_futures=True)
 
 
 def _dask(missions: list[dict[str, Any]], address: str, fn: Callable[[dict[str, Any]], dict[str, Any]]
@@ -96,13 +103,16 @@ def _dask(missions: list[dict[str, Any]], address: str, fn: Callable[[dict[str, 
     with Client(address, timeout="30s") as client:
         futs = [client.submit(fn, m, pure=False, key=f"mission-{m['id']}-{m['key']}") for m in missions]
         by_key = {f.key: m for f, m in zip(futs, missions, strict=True)}
-        for fut in dask_completed(futs):
-            m = by_key[fut.key]
-            try:
-                row = fut.result()
-            except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker: the worker died under it
-                row = failed_row(m, "killed", f"dask: {type(exc).__name__}: {exc}", time.perf_counter() - t0)
-            yield m, row
+        try:
+            for fut in dask_completed(futs):
+                m = by_key[fut.key]
+                try:
+                    row = fut.result()
+                except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker: the worker died under it
+                    row = failed_row(m, "killed", f"dask: {type(exc).__name__}: {exc}", time.perf_counter() - t0)
+                yield m, row
+        finally:  # on Ctrl-C or an error here: the cluster drops what is left
+            client.cancel(futs)
 
 
 def execute(

@@ -7,7 +7,7 @@ random samples (``uniform`` ranges, ``choice`` lists). Each parameter point beco
 query string ``base?key=value&...`` which the scenario loader validates like any override.
 Every point runs for every seed and method; fault sets (rows of :class:`hil_sim.faults.FaultSpec`
 at given bench times) are either crossed with every point (``mode = "cross"``, plus the clean
-baseline) or drawn for a seeded ``fraction`` of the (point, seed) pairs (``mode = "sample"``; all
+baseline) or given to a seeded ``fraction`` of the (point, seed) pairs (``mode = "sample"``; all
 methods of a pair get the same faults, so Method 5 and the oracle stay paired).
 
 The spec is validated like every other config (``fsw.framework.params``): a bad key, type,
@@ -202,36 +202,48 @@ def expand(spec: CampaignSpec) -> list[Mission]:
 
     c = spec.campaign
     plan = spec.faults
-    rng = np.random.default_rng(plan.seed)
+    points = [(jf, fam, ip, point) for jf, fam in enumerate(spec.families)
+              for ip, point in enumerate(family_points(fam))]
+    sampled = _sample_faults(plan, len(points) * len(c.seeds))
     out: list[tuple[tuple[int, ...], Mission]] = []
-    for jf, fam in enumerate(spec.families):
-        for ip, point in enumerate(family_points(fam)):
-            scen = scenario_string(fam.scenario, point)
-            for seed in c.seeds:
-                if plan.mode == "cross":
-                    sets: list[FaultSet | None] = [None, *plan.sets]
-                else:
-                    draw_fault = plan.sets and rng.random() < plan.fraction
-                    pick = int(rng.integers(0, len(plan.sets))) if plan.sets else 0
-                    sets = [plan.sets[pick] if draw_fault else None]
-                for jset, fs in enumerate(sets):
-                    fname = fs.name if fs is not None else "none"
-                    for jm, m in enumerate(c.methods):
-                        order = (c.seeds.index(seed), ip, jf, jset, jm)
-                        out.append((order, Mission(
-                                id=f"{fam.name}-p{ip:03d}-s{seed}-{fname}-m{m}",
-                                family=fam.name,
-                                params=dict(point),
-                                scenario=scen,
-                                method=m,
-                                seed=seed,
-                                steps=c.steps,
-                                fault_set=fname,
-                                faults=tuple(asdict(f) for f in fs.faults) if fs is not None else (),
-                                timeout_s=c.timeout_s,
-                                max_sim_s=c.max_sim_s,
-                                safe_recover_s=c.safe_recover_s,
-                                transmit=c.transmit,
-                                config=c.config or str(DEFAULT_CONFIG),
-                            )))
+    for jf, fam, ip, point in points:
+        scen = scenario_string(fam.scenario, point)
+        for seed in c.seeds:
+            if plan.mode == "cross":
+                sets: list[FaultSet | None] = [None, *plan.sets]
+            else:
+                sets = [sampled.pop(0)]
+            for jset, fs in enumerate(sets):
+                fname = fs.name if fs is not None else "none"
+                for jm, m in enumerate(c.methods):
+                    order = (c.seeds.index(seed), ip, jf, jset, jm)
+                    out.append((order, Mission(
+                            id=f"{fam.name}-p{ip:03d}-s{seed}-{fname}-m{m}",
+                            family=fam.name,
+                            params=dict(point),
+                            scenario=scen,
+                            method=m,
+                            seed=seed,
+                            steps=c.steps,
+                            fault_set=fname,
+                            faults=tuple(asdict(f) for f in fs.faults) if fs is not None else (),
+                            timeout_s=c.timeout_s,
+                            max_sim_s=c.max_sim_s,
+                            safe_recover_s=c.safe_recover_s,
+                            transmit=c.transmit,
+                            config=c.config or str(DEFAULT_CONFIG),
+                        )))
     return [m for _, m in sorted(out, key=lambda om: om[0])]
+
+
+def _sample_faults(plan: FaultPlan, pairs: int) -> list[FaultSet | None]:
+    """``sample`` mode: exactly ``round(fraction * pairs)`` of the (point, seed) pairs, chosen
+    with the plan's seed, get a fault set (drawn uniformly); the rest none."""
+    out: list[FaultSet | None] = [None] * pairs
+    if plan.mode != "sample" or not plan.sets:
+        return out
+    rng = np.random.default_rng(plan.seed)
+    chosen = rng.choice(pairs, size=int(round(plan.fraction * pairs)), replace=False)
+    for i in sorted(int(k) for k in chosen):
+        out[i] = plan.sets[int(rng.integers(0, len(plan.sets)))]
+    return out

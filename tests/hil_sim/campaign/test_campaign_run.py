@@ -108,3 +108,19 @@ def test_raising_and_hanging_missions_are_recorded_and_others_finish(tmp_path: P
     assert main(["campaign", str(spec), "--out", str(tmp_path / "b"), "--jobs", "1"]) == 1
     rows = {r["family"]: r for r in pq.read_table(tmp_path / "b" / "results.parquet").to_pylist()}
     assert rows["lab"]["outcome"] == "killed" and "timeout" in rows["lab"]["error"]
+
+
+def test_ctrl_c_stores_no_interrupted_mission(tmp_path: Path) -> None:
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "hil_sim.cli", "campaign", str(SMOKE), "--out", str(tmp_path)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    time.sleep(8.0)  # the missions are running
+    os.killpg(proc.pid, signal.SIGINT)  # as Ctrl-C in a terminal: the whole process group
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err.decode()[-500:]
+    assert list((tmp_path / "missions").glob("*.json")) == []  # nothing half-run was recorded as a result
