@@ -26,9 +26,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("spec", nargs="?", type=Path, default=DEFAULT_CONFIG.parent / "campaigns" / "default.toml",
                    help="campaign spec (TOML); config/campaigns/smoke.toml is a 4-mission smoke test")
-    p.add_argument("--out", type=Path, default=None, help="output directory (default: out/campaign/<name>)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="output directory (%(default)s: out/campaign/<name> of the spec)")
     p.add_argument("--jobs", type=int, default=2, help="missions in parallel on this machine")
-    p.add_argument("--scheduler", default=None, help="Dask scheduler address tcp://HOST:PORT (instead of --jobs)")
+    p.add_argument("--scheduler", default=None,
+                   help="Dask scheduler address tcp://HOST:PORT (%(default)s: the local pool, --jobs)")
     p.add_argument("--retry-failed", action="store_true", help="rerun stored missions that raised or were killed")
     p.add_argument("--dry-run", action="store_true", help="list the missions and exit")
     p.add_argument("--report-only", action="store_true",
