@@ -22,6 +22,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("", "send-map"): "hil_sim.commands.send_map",
     ("", "relay"): "hil_sim.commands.relay",
     ("", "calibration-target"): "hil_sim.commands.calibration_target",
+    ("", "campaign"): "hil_sim.commands.campaign",
     ("bench", "render"): "hil_sim.commands.bench_render",
     ("bench", "lockstep"): "hil_sim.commands.bench_lockstep",
     ("bench", "perception"): "hil_sim.commands.bench_perception",

@@ -26,6 +26,9 @@ a move), ``stays`` (steps whose view was taken without the planned move, and why
 ``start_attitude_deg`` (true roll, pitch at the start), ``registration`` (per view: status,
 correction, sigmas; ``fsw.core.registration``), ``map_quality`` (RMS, fitted tilt, station
 seams, 2-sigma fraction; ``hil_sim.terrain_eval``),
+``calib_2sigma`` (fraction of mapped cells within 2 sigma of the truth, ALGORITHM.md §4),
+``safe_entries``, ``safe_recoveries`` (SAFE left for the mission again), ``off_map`` (frames with a
+wheel off the world's truth grid), ``faults`` (the injected :class:`hil_sim.faults.FaultSpec` rows),
 ``wall_s``, ``cliffbot`` (the Cliff-bot's report, or null), ``files``. Wall-clock fields:
 ``wall_s`` (top level and per step), ``task_max_ms``, ``task_ms_per_frame``, and ``slips`` and ``overruns`` (both
 compare measured execution time with the period and budgets); everything else is a
@@ -55,6 +58,7 @@ from fsw.core.geometry import MapGrid
 from fsw.drivers.map_store import MapStore
 from fsw.drivers.resources import OracleTruth, Resources
 from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
+from hil_sim.faults import FaultSpec
 from hil_sim.ground_watch import reachable_stations, wheels_on_unknown
 from hil_sim.mission_report import (
     _cliffbot_report,
@@ -85,6 +89,8 @@ class RunSpec:
     hardware: str = str(DEFAULT_CONFIG.parent / "hil_hardware.toml")
     cpu_timer: bool = False  # time tasks in thread CPU time (benches on a loaded machine)
     camera: str = "config"  # config: as the files say; ideal: ideal pinhole pair; raw: real lenses, no rectification
+    faults: tuple[FaultSpec, ...] = ()  # injected through the bench's fault backdoor
+    safe_recover_s: float | None = None  # override of mission.safe_recover_s (None: the file's)
 
 
 CAMERA_MODES = ("config", "ideal", "raw")
@@ -110,7 +116,13 @@ def mission_config(spec: RunSpec, world: Any) -> FswConfig:
         map=world.map_grid,
         mavlink=mav,
         checkpoint=ckpt,
-        mission=dataclasses.replace(cfg.mission, method=spec.method, transmit=spec.transmit, auto_start=True),
+        mission=dataclasses.replace(
+            cfg.mission,
+            method=spec.method,
+            transmit=spec.transmit,
+            auto_start=True,
+            safe_recover_s=cfg.mission.safe_recover_s if spec.safe_recover_s is None else spec.safe_recover_s,
+        ),
         nbv=dataclasses.replace(cfg.nbv, max_steps=spec.steps),
     )
 
@@ -143,8 +155,12 @@ def read_manifest(out: Path) -> RunSpec:
     path = out / MANIFEST
     try:
         d = json.loads(path.read_text())["spec"]
+        recover = d.get("safe_recover_s")
         return RunSpec(str(d["scenario"]), str(d["method"]), int(d["steps"]), int(d["seed"]), str(d["config"]),
-                       bool(d["transmit"]), out)
+                       bool(d["transmit"]), out, hardware=str(d.get("hardware", RunSpec.hardware)),
+                       camera=str(d.get("camera", "config")),
+                       faults=tuple(FaultSpec(**f) for f in d.get("faults", ())),
+                       safe_recover_s=None if recover is None else float(recover))
     except FileNotFoundError:
         raise ValueError(f"{out} holds no mission to resume (no {MANIFEST})") from None
     except (OSError, KeyError, TypeError, ValueError) as exc:
@@ -228,7 +244,8 @@ def run_mission(
     hw = load_hardware(spec.hardware)
     if spec.camera == "ideal":
         hw = dataclasses.replace(hw, camera=dataclasses.replace(hw.camera, model="ideal"))
-    with LockstepBench(cfg, world, seed=spec.seed, hw=hw, quiet=True, resources=resources, start=start) as bench:
+    with LockstepBench(cfg, world, seed=spec.seed, hw=hw, quiet=True, resources=resources, start=start,
+                       faults=spec.faults) as bench:
         bench_box.append(bench)
         clock_box.append(bench.clock.now)
         if saved_bench is not None:
@@ -247,6 +264,9 @@ def run_mission(
         last_step = -1
         views: list[Any] = []  # (camera xyz, cell index, z) per merged view, for the seams
         start_att = (round(bench.rig.truth()["roll_deg"], 3), round(bench.rig.truth()["pitch_deg"], 3))
+        for key in ("off_map", "recoveries"):
+            counters.setdefault(key, 0)
+        was_safe = False
         bench.exe.freeze_heap()  # as the flight start-up does (safer-fsw run)
         try:
             while bench.clock.now() < limit_s:
@@ -257,6 +277,9 @@ def run_mission(
                     cliffbot.originals[1] = perception.map.z.astype(np.float32)
                 cliffbot.step(bench.clock.now())
                 counters["violations"] += _wheels_over_drop(bench.rig, world, cfg)
+                counters["off_map"] += _wheel_off_map(bench.rig, world)
+                counters["recoveries"] += int(was_safe and mission.state != "SAFE")
+                was_safe = mission.state == "SAFE"
                 up = perception.last_update
                 fresh = up is not None and (not views or views[-1][3] is not up)
                 if fresh and up is not None and up.camera_xyz is not None and up.view_cells is not None:
@@ -266,7 +289,7 @@ def run_mission(
                     counters["reachable"].append(reachable_stations(mission, cfg))
                     if progress is not None:
                         progress(mission.step, spec.steps, mission.state)
-                if mission.state in ("DONE", "SAFE"):
+                if mission.state == "DONE" or (mission.state == "SAFE" and cfg.mission.safe_recover_s <= 0):
                     break
         finally:
             bench.exe.thaw_heap()
@@ -277,6 +300,8 @@ def run_mission(
         mapped = emap.mapped & np.isfinite(truth)
         rmse = float(np.sqrt(np.mean((emap.z[mapped] - truth[mapped]) ** 2))) if mapped.any() else None
         tilt_deg, rmse_plane = error_plane(grid, emap.z - truth, mapped)
+        within = np.abs(emap.z[mapped] - truth[mapped]) <= 2.0 * np.sqrt(emap.var[mapped])
+        calib = float(within.mean()) if mapped.any() else None
         summary: dict[str, Any] = {
             "schema": 1,
             "scenario": spec.scenario,
@@ -288,6 +313,7 @@ def run_mission(
             "map_error_tilt_deg": tilt_deg,
             "map_rmse_detilted_m": rmse_plane,
             "edge_violations": counters["violations"],
+            "calib_2sigma": calib,
             "geofence_refusals": mission.edge_violations,
             "wheels_off_terrain": bench.rig.wheels_off_terrain_steps,
             "wheels_on_unknown_ground": counters["unknown_frames"],
@@ -305,6 +331,10 @@ def run_mission(
             "task_ms_per_frame": task_ms_per_frame(exe),
             "end_reason": mission.end,
             "safe_reason": mission.safe_reason,
+            "safe_entries": mission.safe_entries,
+            "safe_recoveries": counters["recoveries"],
+            "off_map": counters["off_map"],
+            "faults": [dataclasses.asdict(f) for f in spec.faults],
             "final_state": mission.state,
             "mapped_cells": int(emap.mapped.sum()),
             "frames": exe.frame,
@@ -327,3 +357,9 @@ def _wheels_over_drop(rig: Any, world: Any, cfg: FswConfig) -> int:
     plateau ground by more than the edge step: ``World.over_drop``)."""
     xs, ys = rig.rover.world_wheel_xy()
     return int(bool(world.over_drop(np.asarray(xs), np.asarray(ys), cfg.edge.step_m).any()))
+
+
+def _wheel_off_map(rig: Any, world: Any) -> int:
+    """1 if any wheel's contact point is off the world's truth grid (no ground known there)."""
+    xs, ys = rig.rover.world_wheel_xy()
+    return int(bool(np.isnan(np.asarray(world.height_at(np.asarray(xs), np.asarray(ys)))).any()))

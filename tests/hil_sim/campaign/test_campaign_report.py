@@ -1,0 +1,76 @@
+"""Campaign table and report (issue 16, item 3) from known rows: the headline figures, the
+Parquet/CSV table (a row a mission, parameters as columns) and the report's plots."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+from typing import Any
+
+import pyarrow.parquet as pq
+
+from hil_sim.campaign.report import headline, write_report
+from hil_sim.campaign.table import failed_row, outcome, result_row, write_table
+
+
+def mission(i: int, method: str, seed: int, fault_set: str = "none") -> dict[str, Any]:
+    return {"id": f"f-p000-s{seed}-{fault_set}-m{method}", "key": f"k{i}", "family": "f",
+            "scenario": "lab?lab.drop_m=0.4", "params": {"lab.drop_m": 0.4}, "method": method, "seed": seed,
+            "steps": 2, "fault_set": fault_set}
+
+
+def summary(cells: int, rmse: float, state: str = "DONE", edge: int = 0, safe: int = 0, rec: int = 0) -> dict[str, Any]:
+    return {"steps": [{"step": 0, "mapped_cells": cells // 2}, {"step": 1, "mapped_cells": cells}],
+            "end_reason": "step limit", "final_state": state, "safe_reason": "bus off" if safe else None,
+            "mapped_cells": cells, "map_rmse_m": rmse, "calib_2sigma": 0.9, "edge_violations": edge,
+            "geofence_refusals": 0, "off_map": 1, "slips": 0, "overruns": 0, "safe_entries": safe,
+            "safe_recoveries": rec, "sim_s": 100.0, "wall_s": 5.0}
+
+
+def rows() -> list[dict[str, Any]]:
+    return [
+        result_row(mission(0, "5", 0), summary(800, 0.01)),
+        result_row(mission(1, "oracle", 0), summary(1000, 0.02)),
+        result_row(mission(2, "5", 1, "bus_off"), summary(450, 0.03, safe=1, rec=1)),
+        result_row(mission(3, "oracle", 1, "bus_off"), summary(500, 0.01, state="SAFE", safe=2)),
+        result_row(mission(4, "1", 0), summary(300, 0.05, edge=3)),
+        failed_row(mission(5, "1", 1), "error", "ScenarioError: bad DEM", 0.5),
+    ]
+
+
+def test_outcome_classes() -> None:
+    assert outcome(summary(1, 0.0)) == "done"
+    assert outcome(summary(1, 0.0, edge=1)) == "edge_violation"
+    assert outcome(summary(1, 0.0, state="SAFE")) == "safe"
+    assert outcome(summary(1, 0.0, state="MOVE")) == "time_limit"
+
+
+def test_headline_figures() -> None:
+    h = headline(rows())
+    assert h["missions"] == 6 and h["crashed_lost"] == 0
+    assert h["outcomes"] == {"done": 3, "edge_violation": 1, "safe": 1, "time_limit": 0, "error": 1, "killed": 0}
+    assert h["edge_violations"] == 3 and h["off_map_events"] == 5
+    assert h["map_rmse_worst_m"] == 0.05 and abs(h["map_rmse_median_m"] - 0.02) < 1e-12
+    assert h["m5_oracle_pairs"] == 2 and abs(h["m5_oracle_median"] - 0.85) < 1e-12  # 0.8 and 0.9
+    assert h["safe_recoveries_resumed"] == 1 and h["missions_with_safe"] == 2 and h["faulted_missions"] == 2
+
+
+def test_table_and_report_files(tmp_path: Path) -> None:
+    rs = rows()
+    write_table(tmp_path, rs)
+    t = pq.read_table(tmp_path / "results.parquet").to_pylist()
+    assert len(t) == 6 and [r["id"] for r in t] == sorted(r["id"] for r in rs)
+    assert all(r["p.lab.drop_m"] == 0.4 for r in t)
+    failed = next(r for r in t if r["outcome"] == "error")
+    assert failed["mapped_cells"] is None and "bad DEM" in failed["error"]
+    with (tmp_path / "results.csv").open() as fh:
+        csv_rows = list(csv.DictReader(fh))
+    assert [r["id"] for r in csv_rows] == [r["id"] for r in t]
+    assert csv_rows[0]["mapped_cells_per_step"].count(";") == 1
+    h = write_report(tmp_path, rs, "t")
+    md = (tmp_path / "report.md").read_text()
+    for png in ("coverage_by_method.png", "m5_vs_oracle.png", "failures.png", "fault_recovery.png"):
+        assert (tmp_path / png).stat().st_size > 1000 and png in md
+    assert "ScenarioError: bad DEM" in md and "| bus_off | 2 | 2 | 1 | 1 |" in md
+    assert json.loads((tmp_path / "report.json").read_text()) == json.loads(json.dumps(h))

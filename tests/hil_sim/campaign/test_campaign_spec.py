@@ -1,0 +1,147 @@
+"""Campaign specs (issue 16, item 1): validation with one-line errors, deterministic expansion
+of scenario families (grids, seeded samples) and fault sets into missions; the CLI's exit 2."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from fsw.framework.params import ConfigError
+from fsw.settings import DEFAULT_CONFIG
+from hil_sim.campaign.spec import expand, family_points, load_spec, scenario_string
+from hil_sim.cli import main
+
+CAMPAIGNS = DEFAULT_CONFIG.parent / "campaigns"
+BASE = """
+[campaign]
+name = "t"
+steps = 2
+seeds = [0, 1]
+methods = ["5", "oracle"]
+
+[[families]]
+name = "lab"
+scenario = "lab"
+grid = { "lab.drop_m" = [0.3, 0.5] }
+[families.random]
+count = 3
+seed = 4
+uniform = { "lab.edge_wiggle_m" = [0.0, 0.1] }
+choice = { "noise_sigma" = [1.0, 3.0] }
+
+[faults]
+mode = "sample"
+fraction = 0.5
+seed = 2
+
+[[faults.sets]]
+name = "bus_off"
+faults = [{ kind = "bus_off", start_s = 20.0, duration_s = 2.0 }]
+"""
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "spec.toml"
+    p.write_text(text)
+    return p
+
+
+def test_expansion_is_deterministic_and_paired(tmp_path: Path) -> None:
+    spec = load_spec(write(tmp_path, BASE))
+    a, b = expand(spec), expand(load_spec(write(tmp_path, BASE)))
+    assert [m.id for m in a] == [m.id for m in b] and [m.key() for m in a] == [m.key() for m in b]
+    assert len(a) == 2 * 3 * 2 * 2  # grid x samples x seeds x methods
+    assert len({m.id for m in a}) == len(a)
+    # every (point, seed) pair has the same faults for both methods
+    pairs: dict[tuple[str, int], set[str]] = {}
+    for m in a:
+        pairs.setdefault((m.scenario, m.seed), set()).add(m.fault_set)
+    assert all(len(v) == 1 for v in pairs.values())
+    assert {next(iter(v)) for v in pairs.values()} == {"none", "bus_off"}
+    assert sum(next(iter(v)) == "bus_off" for v in pairs.values()) == round(0.5 * len(pairs))
+    for m in a:
+        assert m.scenario.startswith("lab?") and "lab.drop_m=" in m.scenario and "lab.edge_wiggle_m=" in m.scenario
+        assert 0.0 <= m.params["lab.edge_wiggle_m"] <= 0.1 and m.params["noise_sigma"] in (1.0, 3.0)
+        assert m.faults == () if m.fault_set == "none" else m.faults[0]["kind"] == "bus_off"
+
+
+def test_cross_mode_adds_the_clean_baseline(tmp_path: Path) -> None:
+    spec = load_spec(write(tmp_path, BASE.replace('mode = "sample"', 'mode = "cross"')))
+    ms = expand(spec)
+    assert len(ms) == 2 * 3 * 2 * 2 * 2
+    assert sum(m.fault_set == "none" for m in ms) == len(ms) // 2
+
+
+def test_scenario_strings_append_to_an_existing_query() -> None:
+    assert scenario_string("mars?seed=3", {"mars.k": 0.1}) == "mars?seed=3&mars.k=0.1"
+    assert scenario_string("lab", {}) == "lab"
+    assert scenario_string("lab", {"b": True, "a": 2}) == "lab?a=2&b=true"
+
+
+def test_samples_change_with_their_seed_only(tmp_path: Path) -> None:
+    s1 = load_spec(write(tmp_path, BASE))
+    s2 = load_spec(write(tmp_path, BASE.replace("seed = 4", "seed = 5")))
+    assert family_points(s1.families[0]) == family_points(load_spec(write(tmp_path, BASE)).families[0])
+    assert family_points(s1.families[0]) != family_points(s2.families[0])
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "key"),
+    [
+        ("steps = 2", "steps = -1", "campaign.steps"),
+        ("steps = 2", "stepz = 2", "campaign.stepz"),
+        ('methods = ["5", "oracle"]', 'methods = ["6"]', "campaign.methods"),
+        ("seeds = [0, 1]", "seeds = [0, -1]", "campaign.seeds"),
+        ("[0.0, 0.1]", "[0.0, nan]", "edge_wiggle_m"),
+        ("[0.0, 0.1]", "[0.0, inf]", "edge_wiggle_m"),
+        ("[0.0, 0.1]", "[0.2, 0.1]", "edge_wiggle_m"),
+        ("[0.3, 0.5]", "[0.3, nan]", "lab.drop_m"),
+        ("[0.3, 0.5]", "[]", "lab.drop_m"),
+        ('"lab.drop_m"', '"lab.no_such_key"', "scenario"),
+        ('scenario = "lab"', 'scenario = "atlantis"', "scenario"),
+        ("[0.3, 0.5]", "[0.3, -5.0]", "scenario"),
+        ('kind = "bus_off"', 'kind = "gremlins"', "kind"),
+        ("start_s = 20.0", "start_s = -1.0", "start_s"),
+        ("fraction = 0.5", "fraction = 1.5", "faults.fraction"),
+        ('name = "bus_off"', 'name = "none"', "faults.sets.name"),
+    ],
+)
+def test_bad_specs_are_one_line_errors(tmp_path: Path, old: str, new: str, key: str) -> None:
+    assert old in BASE
+    with pytest.raises(ConfigError) as err:
+        load_spec(write(tmp_path, BASE.replace(old, new, 1)))
+    msg = str(err.value)
+    assert "\n" not in msg and msg.startswith(str(tmp_path / "spec.toml")) and key in msg
+
+
+def test_shipped_campaigns_are_valid() -> None:
+    smoke = expand(load_spec(CAMPAIGNS / "smoke.toml"))
+    assert len(smoke) == 4
+    robust = expand(load_spec(CAMPAIGNS / "default.toml"))
+    assert 90 <= len(robust) <= 110
+    assert {m.method for m in robust} == {"1", "2", "3", "4", "5", "oracle"}
+    faulted = sum(m.fault_set != "none" for m in robust) / len(robust)
+    assert faulted == 0.25, faulted  # exactly round(fraction x pairs) pairs, every method of a pair
+    assert all(math.isfinite(v) for m in robust for v in m.params.values())
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["campaign", "/nonexistent/spec.toml"],
+        ["campaign", str(CAMPAIGNS / "smoke.toml"), "--jobs", "0"],
+        ["campaign", str(CAMPAIGNS / "smoke.toml"), "--scheduler", "127.0.0.1"],
+    ],
+)
+def test_cli_bad_input_exits_2_with_one_line(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("safer-hil campaign:") and "\n" not in err
+
+
+def test_cli_dry_run_lists_the_missions(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["campaign", str(CAMPAIGNS / "smoke.toml"), "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert out.strip().endswith("4 missions") and "lab-p000-s0-camera_dropout-m5" in out
