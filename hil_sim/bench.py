@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import os
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -51,7 +52,33 @@ class _Sink:
         pass
 
 
-class LockstepBench:
+class ExecutiveDriver:
+    """Stepping and the ground's view of a lockstep executive, shared by the bench and the
+    task test rig: ``exe`` is the executive, ``_seq`` a command sequence counter, ``run`` steps."""
+
+    exe: Executive
+    _seq: Iterator[int]
+    COMMAND_SOURCE = "bench"
+
+    def run(self, frames: int) -> None:
+        raise NotImplementedError
+
+    def run_until(self, done: Callable[[], bool], max_frames: int) -> int:
+        """Run frame by frame until ``done()`` is true; returns the frames run (or raises)."""
+        for n in range(1, max_frames + 1):
+            self.run(1)
+            if done():
+                return n
+        raise TimeoutError(f"condition not met within {max_frames} frames")
+
+    def command(self, name: str, **args: Any) -> CommandResponse:
+        return self.exe.commands.dispatch(CommandRequest(name, args, next(self._seq), self.COMMAND_SOURCE))
+
+    def tlm(self, name: str) -> Any:
+        return self.exe.telemetry.get(name)
+
+
+class LockstepBench(ExecutiveDriver):
     """One flight executive and one hardware rig, stepped together."""
 
     def __init__(
@@ -128,21 +155,7 @@ class LockstepBench:
     def run(self, frames: int) -> None:
         self.exe.run_lockstep(frames, before_frame=self.before_frame)
 
-    def run_until(self, done: Any, max_frames: int) -> int:
-        """Run frame by frame until ``done()`` is true; returns the frames run (or raises)."""
-        for n in range(1, max_frames + 1):
-            self.run(1)
-            if done():
-                return n
-        raise TimeoutError(f"condition not met within {max_frames} frames")
-
-    # -- the ground's view ----------------------------------------------------------------
-    def command(self, name: str, **args: Any) -> CommandResponse:
-        return self.exe.commands.dispatch(CommandRequest(name, args, next(self._seq), "bench"))
-
-    def tlm(self, name: str) -> Any:
-        return self.exe.telemetry.get(name)
-
+    # -- the ground's view (run_until, command, tlm: ExecutiveDriver) ---------------------
     def events(self, suffix: str) -> list[Any]:
         return [e for e in self.exe.events.history if e.name.endswith(suffix)]
 

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from fsw.core.geometry import MapGrid
+from hil_sim.terrain_eval import fit_plane
 
 WALL_CLOCK_FIELDS = ("wall_s", "task_max_ms", "task_ms_per_frame", "slips", "overruns")
 
@@ -29,12 +30,10 @@ def task_ms_per_frame(exe: Any) -> dict[str, float]:
 def error_plane(grid: MapGrid, err: Any, mapped: Any) -> tuple[float | None, float | None]:
     """The plane fitted (least squares) to the map's error over mapped cells: its tilt (deg,
     the part of the error a tilted map explains) and the RMS error left around it (m)."""
-    if int(mapped.sum()) < 10:
+    fit = fit_plane(grid, err, mapped) if int(mapped.sum()) >= 10 else None
+    if fit is None:
         return None, None
-    xs, ys = grid.centers()
-    a = np.column_stack([xs[mapped], ys[mapped], np.ones(int(mapped.sum()))])
-    coef, *_ = np.linalg.lstsq(a, err[mapped], rcond=None)
-    resid = err[mapped] - a @ coef
+    coef, resid = fit
     return (round(float(np.degrees(np.arctan(np.hypot(coef[0], coef[1])))), 4),
             round(float(np.sqrt(np.mean(resid**2))), 5))
 

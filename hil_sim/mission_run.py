@@ -300,8 +300,7 @@ def run_mission(
         mapped = emap.mapped & np.isfinite(truth)
         rmse = float(np.sqrt(np.mean((emap.z[mapped] - truth[mapped]) ** 2))) if mapped.any() else None
         tilt_deg, rmse_plane = error_plane(grid, emap.z - truth, mapped)
-        within = np.abs(emap.z[mapped] - truth[mapped]) <= 2.0 * np.sqrt(emap.var[mapped])
-        calib = float(within.mean()) if mapped.any() else None
+        quality = map_quality(emap, truth, [v[:3] for v in views])
         summary: dict[str, Any] = {
             "schema": 1,
             "scenario": spec.scenario,
@@ -313,7 +312,7 @@ def run_mission(
             "map_error_tilt_deg": tilt_deg,
             "map_rmse_detilted_m": rmse_plane,
             "edge_violations": counters["violations"],
-            "calib_2sigma": calib,
+            "calib_2sigma": quality["within_2sigma"],
             "geofence_refusals": mission.edge_violations,
             "wheels_off_terrain": bench.rig.wheels_off_terrain_steps,
             "wheels_on_unknown_ground": counters["unknown_frames"],
@@ -343,7 +342,7 @@ def run_mission(
             "cliffbot": _cliffbot_report(cliffbot, spec.out),
             "start_attitude_deg": list(start_att),
             "registration": list(perception.registrations),
-            "map_quality": map_quality(emap, truth, [v[:3] for v in views]),
+            "map_quality": quality,
             "files": {},
         }
         summary = json.loads(json.dumps(summary))  # exactly what summary.json holds

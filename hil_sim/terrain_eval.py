@@ -25,14 +25,24 @@ from numpy.typing import NDArray
 F64 = NDArray[np.float64]
 
 
-def plane_tilt_deg(grid: Any, err: F64, mask: NDArray[np.bool_]) -> float:
-    """Tilt (deg) of the least-squares plane through ``err`` over ``mask``."""
+def fit_plane(grid: Any, err: F64, mask: NDArray[np.bool_]) -> tuple[F64, F64] | None:
+    """Least-squares plane ``a x + b y + c`` through ``err`` over ``mask`` (finite values): its
+    coefficients and the residuals around it; None with fewer than 3 cells."""
     X, Y = grid.centers()
     sel = mask & np.isfinite(err)
     if sel.sum() < 3:
-        return math.nan
+        return None
     A = np.column_stack([X[sel], Y[sel], np.ones(int(sel.sum()))])
     coef, *_ = np.linalg.lstsq(A, err[sel], rcond=None)
+    return coef, err[sel] - A @ coef
+
+
+def plane_tilt_deg(grid: Any, err: F64, mask: NDArray[np.bool_]) -> float:
+    """Tilt (deg) of the least-squares plane through ``err`` over ``mask``."""
+    fit = fit_plane(grid, err, mask)
+    if fit is None:
+        return math.nan
+    coef = fit[0]
     return math.degrees(math.atan(math.hypot(coef[0], coef[1])))
 
 

@@ -18,9 +18,9 @@ from fsw.drivers.resources import Resources
 from fsw.executive.executive import Executive
 from fsw.framework.bus import Mailbox
 from fsw.framework.clock import SteppedClock
-from fsw.framework.commands import CommandRequest, CommandResponse
 from fsw.framework.schedule import RateGroupConfig, TaskConfig
 from fsw.settings import FswConfig, load_settings
+from hil_sim.bench import ExecutiveDriver
 
 
 def task_config(*tasks: tuple[str, str], **sections: Any) -> FswConfig:
@@ -36,8 +36,10 @@ def task_config(*tasks: tuple[str, str], **sections: Any) -> FswConfig:
     return dataclasses.replace(cfg, executive=ex, **sections)
 
 
-class TaskRig:
+class TaskRig(ExecutiveDriver):
     """An executive on a :class:`SteppedClock` with taps on the bus."""
+
+    COMMAND_SOURCE = "test"
 
     def __init__(self, cfg: FswConfig, resources: Resources | None = None) -> None:
         self.clock = SteppedClock()
@@ -55,19 +57,6 @@ class TaskRig:
 
     def run(self, frames: int = 1) -> None:
         self.exe.run_lockstep(frames)
-
-    def run_until(self, done: Any, max_frames: int) -> int:
-        for n in range(1, max_frames + 1):
-            self.run(1)
-            if done():
-                return n
-        raise TimeoutError(f"condition not met within {max_frames} frames")
-
-    def command(self, name: str, **args: Any) -> CommandResponse:
-        return self.exe.commands.dispatch(CommandRequest(name, args, next(self._seq), "test"))
-
-    def tlm(self, name: str) -> Any:
-        return self.exe.telemetry.get(name)
 
     def events(self, name: str) -> list[Any]:
         """Events whose full name is ``name`` (``mission.SAFE``)."""
