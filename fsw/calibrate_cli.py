@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from fsw.core.calibrate import CalibrationInputError, calibrate_stereo
-    from fsw.core.stereo_calibration import CalibrationError, save_calibration
+    from fsw.drivers.calibration_file import CalibrationError, save_calibration
     from fsw.framework.params import ConfigError
     from fsw.settings import load_settings
 

@@ -3,7 +3,7 @@
 Each section's dataclass lives beside the code that uses it; this module only assembles
 them. ``load_settings(path)`` validates everything up front (``fsw.framework.params``) so a bad file
 is refused with one line naming the file, the key and the reason; that includes the
-stereo calibration file ``[camera] calibration_file`` names (``fsw.core.stereo_calibration``):
+stereo calibration file ``[camera] calibration_file`` names (``fsw.drivers.calibration_file``):
 missing or inconsistent, it is a start-up error like any bad key.
 """
 
@@ -27,7 +27,8 @@ from fsw.core.motion_profile import MotionConfig
 from fsw.core.nbv import NbvConfig
 from fsw.core.registration import RegistrationConfig
 from fsw.core.stereo import StereoConfig
-from fsw.core.stereo_calibration import CalibrationError, StereoCalibration, load_calibration
+from fsw.core.stereo_calibration import StereoCalibration
+from fsw.drivers.calibration_file import CalibrationError, load_calibration
 from fsw.drivers.factory import DevicesConfig
 from fsw.framework.params import ConfigError, build, load_toml
 from fsw.framework.schedule import ExecutiveConfig

@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
 
     from fsw.core.calibrate import CalibrationInputError, TargetDetector, calibrate_stereo
     from fsw.core.rectify import Rectifier
-    from fsw.core.stereo_calibration import save_calibration
+    from fsw.drivers.calibration_file import save_calibration
     from fsw.framework.params import ConfigError
     from hil_sim.world.target import render_target_pairs, target_poses
 

@@ -13,7 +13,7 @@ import pytest
 from fsw.cli import main as fsw_main
 from fsw.core.calibrate import CalibrationConfig, CalibrationInputError, TargetDetector, calibrate_stereo
 from fsw.core.rectify import Rectifier
-from fsw.core.stereo_calibration import load_calibration
+from fsw.drivers.calibration_file import load_calibration
 from fsw.settings import load_settings
 from hil_sim.camera_model import TrueCameras
 from hil_sim.commands.bench_calibration import vertical_disparity_px
