@@ -8,7 +8,7 @@ lost if its time on the air overlaps an outage window. All randomness comes from
 ``numpy`` generator per direction seeded from ``seed``, and time is whatever the caller
 says, so a run with a seed is exactly repeatable and as fast as the CPU allows.
 
-:class:`ChannelPort` wraps one side as an ``fsw.drivers.radio.RadioPort`` driven by a
+:class:`ChannelPort` wraps one side as an ``fsw.drivers.byte_port.BytePort`` driven by a
 simulated clock, so bench code can treat the channel like any other radio.
 """
 
@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fsw.drivers.radio import RadioPort
+from fsw.drivers.byte_port import BytePort
 from fsw.framework.params import param
 
 
@@ -139,7 +139,7 @@ class RadioChannel:
         return self._dirs[side].stats
 
 
-class ChannelPort(RadioPort):
+class ChannelPort(BytePort):
     """One side of a :class:`RadioChannel` as a radio, on a simulated clock."""
 
     def __init__(self, channel: RadioChannel, side: str, clock: Callable[[], float]) -> None:
@@ -150,7 +150,7 @@ class ChannelPort(RadioPort):
     def _send_internal(self, datagram: bytes) -> None:
         self._ch.send(self._side, datagram, self._clock())
 
-    def _recv_internal(self, timeout_s: float) -> bytes | None:
+    def _recv_internal(self, timeout_s: float, max_bytes: int) -> bytes | None:
         if not self._pending:
             self._pending = self._ch.receive(self._side, self._clock())
         return self._pending.pop(0) if self._pending else None

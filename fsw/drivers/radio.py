@@ -1,8 +1,8 @@
 """The inter-robot radio: a datagram port over three transports (ALGORITHM.md §6.6).
 
-:class:`RadioPort` is the template (python-can ``BusABC`` style): the base class does the
-counting, size checks and fault flags, a backend implements ``_send_internal`` and
-``_recv_internal``. :func:`open_radio` picks the backend from one URL:
+The radio is a :class:`~fsw.drivers.byte_port.BytePort` that carries whole datagrams of at
+most ``MAX_DATAGRAM`` bytes (the base class counts, checks sizes, raises fault bits and
+events, takes ``now`` from the caller). :func:`open_radio` picks the backend from one URL:
 
 ``inproc://NAME``
     In-process endpoints for lockstep runs and tests: the first open of a name is side A,
@@ -15,157 +15,21 @@ counting, size checks and fault flags, a backend implements ``_send_internal`` a
     or a pyserial URL such as ``loop://`` or ``socket://HOST:PORT``). Packets are COBS
     framed with a 0x00 delimiter, so the reader resynchronises on the next delimiter after
     line noise; the link protocol's CRC-32 rejects whatever noise still gets through.
-
-Transient errors never raise: they set a held fault bit, count and queue an event.
 """
 
 from __future__ import annotations
 
-import select
-import socket
-import threading
 from collections import deque
-from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any
 from urllib.parse import urlsplit
 
 from cobs import cobs
 
-from fsw.drivers.base import DriverBase
-from fsw.framework.telemetry import EventDef, Severity
+from fsw.drivers.byte_port import BytePort, InProcPort, SerialPort, UdpPort
 
 MAX_DATAGRAM = 8192
 
-
-@dataclass
-class RadioStats:
-    tx_packets: int = 0
-    tx_bytes: int = 0
-    rx_packets: int = 0
-    rx_bytes: int = 0
-    tx_errors: int = 0
-    rx_errors: int = 0  # framing errors, oversize frames, socket errors
-
-
-class RadioPort(DriverBase):
-    """A packet radio; ``send`` one datagram, ``recv`` one whole datagram or None."""
-
-    EVENTS: ClassVar[tuple[EventDef, ...]] = (
-        EventDef("RADIO_TX_ERROR", Severity.WARNING_LO, "radio {url}: send failed: {error}", throttle=5),
-        EventDef("RADIO_RX_ERROR", Severity.WARNING_LO, "radio {url}: receive error: {error}", throttle=5),
-    )
-    FAULTS: ClassVar[dict[str, int]] = {"TX_ERROR": 1, "RX_ERROR": 2, "CLOSED": 4}
-
-    def __init__(self, url: str) -> None:
-        super().__init__()
-        self.url = url
-        self.stats = RadioStats()
-        self.closed = False
-
-    def send(self, datagram: bytes, now_s: float = 0.0) -> bool:
-        """Queue one datagram for transmission; False (and a fault) if it could not be sent."""
-        if self.closed or len(datagram) > MAX_DATAGRAM:
-            return self._tx_error("port closed" if self.closed else
-                                  f"{len(datagram)}-byte datagram over {MAX_DATAGRAM}", now_s)
-        try:
-            self._send_internal(bytes(datagram))
-        except (OSError, ValueError) as exc:
-            return self._tx_error(str(exc), now_s)
-        self.stats.tx_packets += 1
-        self.stats.tx_bytes += len(datagram)
-        self._expire_holds(now_s)
-        return True
-
-    def recv(self, timeout_s: float = 0.0, now_s: float = 0.0) -> bytes | None:
-        """The next whole datagram, waiting up to ``timeout_s``; None if there is none."""
-        if self.closed:
-            return None
-        try:
-            data = self._recv_internal(timeout_s)
-        except (OSError, ValueError) as exc:
-            self.stats.rx_errors += 1
-            self._hold(self.FAULTS["RX_ERROR"], now_s)
-            self._event("RADIO_RX_ERROR", url=self.url, error=str(exc))
-            return None
-        if data is not None:
-            self.stats.rx_packets += 1
-            self.stats.rx_bytes += len(data)
-        return data
-
-    def close(self) -> None:
-        if not self.closed:
-            self.closed = True
-            self._set(self.FAULTS["CLOSED"])
-            self._close_internal()
-
-    def __enter__(self) -> RadioPort:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def _tx_error(self, error: str, now_s: float) -> bool:
-        self.stats.tx_errors += 1
-        self._hold(self.FAULTS["TX_ERROR"], now_s)
-        self._event("RADIO_TX_ERROR", url=self.url, error=error)
-        return False
-
-    # -- backends ---------------------------------------------------------------------------
-    def _send_internal(self, datagram: bytes) -> None:
-        raise NotImplementedError
-
-    def _recv_internal(self, timeout_s: float) -> bytes | None:
-        raise NotImplementedError
-
-    def _close_internal(self) -> None:
-        """Release the device (nothing by default)."""
-
-
-class InProcRadio(RadioPort):
-    """One end of an in-process pair (thread-safe deques)."""
-
-    _registry: ClassVar[dict[str, list[InProcRadio]]] = {}
-    _lock = threading.Lock()
-
-    def __init__(self, name: str) -> None:
-        super().__init__(f"inproc://{name}")
-        self.inbox: deque[bytes] = deque(maxlen=4096)
-        self._cond = threading.Condition()
-        self.peer: InProcRadio | None = None
-        with InProcRadio._lock:
-            ends = InProcRadio._registry.setdefault(name, [])
-            if len(ends) >= 2:
-                raise ValueError(f"inproc://{name} already has two ends")
-            ends.append(self)
-            if len(ends) == 2:
-                ends[0].peer, ends[1].peer = ends[1], ends[0]
-        self._name = name
-
-    @classmethod
-    def pair(cls, name: str) -> tuple[InProcRadio, InProcRadio]:
-        return cls(name), cls(name)
-
-    def _send_internal(self, datagram: bytes) -> None:
-        peer = self.peer
-        if peer is None or peer.closed:
-            raise OSError("no peer connected")
-        with peer._cond:
-            peer.inbox.append(datagram)
-            peer._cond.notify()
-
-    def _recv_internal(self, timeout_s: float) -> bytes | None:
-        with self._cond:
-            if not self.inbox and timeout_s > 0:
-                self._cond.wait(timeout_s)
-            return self.inbox.popleft() if self.inbox else None
-
-    def _close_internal(self) -> None:
-        with InProcRadio._lock:
-            ends = InProcRadio._registry.get(self._name, [])
-            if self in ends:
-                ends.remove(self)
-            if not ends:
-                InProcRadio._registry.pop(self._name, None)
+RadioPort = BytePort  # what the radio task and the Cliff-bot bench hold: a datagram port
 
 
 def parse_udp(url: str) -> tuple[str, int]:
@@ -180,69 +44,26 @@ def parse_udp(url: str) -> tuple[str, int]:
     return parts.hostname, port
 
 
-class UdpRadio(RadioPort):
-    """A UDP socket: each datagram is one packet."""
+class SerialRadio(SerialPort):
+    """A serial radio modem: COBS-framed datagrams on the byte stream of :class:`SerialPort`."""
 
-    def __init__(self, url: str, peer: str = "") -> None:
-        super().__init__(url)
-        host, port = parse_udp(url)
-        self._peer: tuple[str, int] | None = parse_udp(peer) if peer else None
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.setblocking(False)
-        self.sock.bind((host, port))
+    packetized = True
 
-    @property
-    def address(self) -> tuple[str, int]:
-        addr: Any = self.sock.getsockname()
-        return addr[0], addr[1]
-
-    def _send_internal(self, datagram: bytes) -> None:
-        if self._peer is None:
-            raise OSError("no peer yet (set peer, or wait for the first datagram)")
-        self.sock.sendto(datagram, self._peer)
-
-    def _recv_internal(self, timeout_s: float) -> bytes | None:
-        if timeout_s > 0:
-            ready, _, _ = select.select([self.sock], [], [], timeout_s)
-            if not ready:
-                return None
-        try:
-            data, addr = self.sock.recvfrom(65535)
-        except BlockingIOError:
-            return None
-        self._peer = self._peer or (addr[0], addr[1])
-        return data
-
-    def _close_internal(self) -> None:
-        self.sock.close()
-
-
-class SerialRadio(RadioPort):
-    """A serial radio modem through pyserial, COBS-framed packets."""
-
-    def __init__(self, port: str, baud: int = 9600, max_buffer: int = 65536,
-                 ser: Any = None) -> None:
-        """Open ``port`` at ``baud``, or use ``ser``, an already open pyserial-like object."""
-        super().__init__(f"serial:{port}@{baud}")
-        if ser is None:
-            import serial  # pyserial; imported here so other transports do not need it
-
-            ser = serial.serial_for_url(port, baudrate=baud, timeout=0, write_timeout=1.0)
-        self.ser = ser
+    def __init__(self, port: str, baud: int = 9600, max_buffer: int = 65536, ser: Any = None) -> None:
+        super().__init__(port, baud, ser=ser, max_send_bytes=MAX_DATAGRAM)
         self._buf = bytearray()
         self._frames: deque[bytes] = deque()
         self._max_buffer = max_buffer
 
-    def _send_internal(self, datagram: bytes) -> None:
-        self.ser.write(cobs.encode(datagram) + b"\x00")
+    def _send_internal(self, data: bytes) -> None:
+        super()._send_internal(cobs.encode(data) + b"\x00")
 
-    def _recv_internal(self, timeout_s: float) -> bytes | None:
+    def _recv_internal(self, timeout_s: float, max_bytes: int) -> bytes | None:
         if not self._frames:
-            self.ser.timeout = timeout_s
-            chunk = self.ser.read(max(1, self.ser.in_waiting))
-            self.ser.timeout = 0
-            self._buf += chunk
-            self._split()
+            chunk = super()._recv_internal(timeout_s, max(4096, self._max_buffer - len(self._buf)))
+            if chunk:
+                self._buf += chunk
+                self._split()
         return self._frames.popleft() if self._frames else None
 
     def _split(self) -> None:
@@ -259,16 +80,14 @@ class SerialRadio(RadioPort):
             except cobs.DecodeError:
                 self.stats.rx_errors += 1  # noise; the next delimiter resynchronises
 
-    def _close_internal(self) -> None:
-        self.ser.close()
 
-
-def open_radio(url: str, peer: str = "") -> RadioPort:
+def open_radio(url: str, peer: str = "") -> BytePort:
     """Open the radio named by ``url`` (see the module docstring); ValueError if malformed."""
     if url.startswith("inproc://") and len(url) > len("inproc://"):
-        return InProcRadio(url[len("inproc://"):])
+        return InProcPort(url[len("inproc://"):], MAX_DATAGRAM)
     if url.startswith("udp://"):
-        return UdpRadio(url, peer)
+        return UdpPort(url, parse_udp(url), parse_udp(peer) if peer else None, max_peers=1,
+                       peer_timeout_s=float("inf"), max_send_bytes=MAX_DATAGRAM)
     if url.startswith("serial:") and len(url) > len("serial:"):
         port, sep, baud = url[len("serial:"):].rpartition("@")
         if sep and baud.isdigit():

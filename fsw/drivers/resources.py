@@ -21,13 +21,12 @@ from fsw.framework.watchdog import Watchdog
 if TYPE_CHECKING:
     import can
 
+    from fsw.drivers.byte_port import BytePort
     from fsw.drivers.camera import CameraDriver, FrameSource
     from fsw.drivers.can_motors import CanMotorDriver
     from fsw.drivers.imu_can import ImuDriver
     from fsw.drivers.map_store import MapStore
     from fsw.drivers.mast_serial import MastSerialDriver, SerialPort
-    from fsw.drivers.mavlink_transport import Transport
-    from fsw.drivers.radio import RadioPort
 
 
 @dataclass(frozen=True)
@@ -56,10 +55,10 @@ class Resources:
     imu: ImuDriver | None = None  # the attitude sensor (on the motor bus)
     mast: MastSerialDriver | None = None
     camera: CameraDriver | None = None
-    radio_port: RadioPort | None = None
+    radio_port: BytePort | None = None  # the inter-robot radio (fsw.drivers.radio)
     map_store: MapStore | None = None
     watchdog: Watchdog | None = None
-    mavlink_link: Transport | None = None
+    mavlink_link: BytePort | None = None  # the ground link (fsw.drivers.mavlink_transport)
     mavlink_tlog: str | BinaryIO | None = None  # None: the configured path
     unix_time: Callable[[], float] = field(default=time.time)
     oracle_truth: OracleTruth | None = None

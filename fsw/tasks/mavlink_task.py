@@ -187,8 +187,8 @@ class MavlinkTask(FlightTask):
     def run(self, frame: int) -> None:
         now, unix = self.ctx.clock.now(), float(self._unix())
         stamp = self._epoch_s + now
-        chunks = self.link.recv(self.cfg.rx_max_bytes_per_frame, now) if self.link is not None else []
-        packetized = bool(getattr(self.link, "packetized", False))
+        chunks = self.link.recv_upto(self.cfg.rx_max_bytes_per_frame, now) if self.link is not None else []
+        packetized = self.link is not None and self.link.packetized
         for chunk in chunks:
             self._uplink(chunk, signing_timestamp(unix), packetized, stamp, now)
         if self._link_up and self._gcs_heard_s is not None and now - self._gcs_heard_s > self.cfg.gcs_timeout_s:
@@ -203,7 +203,8 @@ class MavlinkTask(FlightTask):
         if self.link is not None:
             for f in frames:
                 self.link.send(f, now)
-            self._set_fault(self.link.fault)
+            self.link.drain_events()  # what went wrong is in fault_reason, reported once per change
+            self._set_fault(self.link.fault_reason)
         self._log(stamp, frames)
         if now >= self._next_decay_s:
             self._next_decay_s = now + 1.0
@@ -295,7 +296,7 @@ class MavlinkTask(FlightTask):
         self.tlm("tx_frames", a.tx_frames)
         self.tlm("frame_bytes", a.last_frame_bytes)
         self.tlm("frame_bytes_max", a.max_frame_bytes)
-        self.tlm("tx_errors", self.link.tx_errors if self.link is not None else 0)
+        self.tlm("tx_errors", self.link.stats.tx_errors if self.link is not None else 0)
         self.tlm("deferred", a.packer.deferred)
         self.tlm("acks_dropped", a.acks_dropped)
         self.tlm("rx_bytes", u.bytes)

@@ -14,7 +14,7 @@ import numpy as np
 from fsw.comm.link import LinkConfig
 from fsw.comm.link_sender import LinkSender, SenderState
 from fsw.core.mapcodec import encode_map
-from fsw.drivers.radio import UdpRadio
+from fsw.drivers.byte_port import UdpPort
 from fsw.drivers.resources import Resources
 from fsw.executive.executive import Executive
 from fsw.framework.clock import SteppedClock
@@ -66,11 +66,11 @@ def test_cliffbot_as_a_separate_process_over_udp(tmp_path: Path):
     z = _map()
     np.save(tmp_path / "orig.npy", z)
     enc = encode_map(z, cell_m=0.03, wheel_diameter_m=0.2)
-    port = UdpRadio("udp://127.0.0.1:0")
-    host, myport = port.address
-    probe = UdpRadio("udp://127.0.0.1:0")
+    probe = UdpPort("probe", ("127.0.0.1", 0))
     bot_port = probe.address[1]
     probe.close()
+    port = UdpPort("udp://127.0.0.1:0", ("127.0.0.1", 0), peer=("127.0.0.1", bot_port))
+    host, myport = port.address
     proc = subprocess.Popen(
         [sys.executable, "-m", "hil_sim.cliffbot_receiver", "--listen", f"udp://127.0.0.1:{bot_port}",
          "--peer", f"udp://{host}:{myport}", "--out", str(tmp_path / "cb"), "--original",
@@ -78,7 +78,6 @@ def test_cliffbot_as_a_separate_process_over_udp(tmp_path: Path):
         stdout=subprocess.PIPE, text=True)
     try:
         assert json.loads(proc.stdout.readline())["listening"]
-        port._peer = ("127.0.0.1", bot_port)
         cfg = LinkConfig(rate_bps=200000, ping_period_s=0.2)
         tx = LinkSender(cfg)
         t0 = time.monotonic()

@@ -23,6 +23,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from fsw.drivers.byte_port import BytePort
 from fsw.drivers.resources import Resources
 from fsw.executive.executive import Executive
 from fsw.framework.clock import SteppedClock
@@ -144,31 +145,27 @@ def command_frame(key: bytes | None, opcode: int, params: tuple[float, ...] = (0
     return bytes(msg.pack(mav))
 
 
-class MemoryLink:
-    """A transport in memory: the task reads ``inbox`` (datagrams, or one byte stream when
-    ``packetized`` is False); the frames it sends are kept per activation in ``sent``."""
+class MemoryLink(BytePort):
+    """A ground-link port in memory: the task reads ``inbox`` (datagrams, or one byte stream
+    when ``packetized`` is False); the frames it sends are kept per activation in ``sent``."""
 
     def __init__(self, packetized: bool = True) -> None:
+        super().__init__("memory://ground")
         self.packetized = packetized
         self.inbox: list[bytes] = []
         self.sent: list[list[bytes]] = []
-        self.fault: str | None = None
-        self.tx_frames = self.tx_errors = self.rx_bytes = 0
 
-    def recv(self, max_bytes: int, now_s: float = 0.0) -> list[bytes]:
-        self.sent.append([])  # recv starts each activation
-        chunks, self.inbox = self.inbox, []
-        if not self.packetized and chunks:
-            chunks = [b"".join(chunks)]
-        return chunks
+    def recv_upto(self, max_bytes: int, now_s: float) -> list[bytes]:
+        self.sent.append([])  # a read starts each activation
+        if not self.packetized and self.inbox:
+            self.inbox = [b"".join(self.inbox)]
+        return super().recv_upto(max_bytes, now_s)
 
-    def send(self, frame: bytes, now_s: float = 0.0) -> bool:
-        self.sent[-1].append(frame)
-        self.tx_frames += 1
-        return True
+    def _recv_internal(self, timeout_s: float, max_bytes: int) -> bytes | None:
+        return self.inbox.pop(0) if self.inbox else None
 
-    def close(self) -> None:
-        pass
+    def _send_internal(self, data: bytes) -> None:
+        self.sent[-1].append(data)
 
 
 def write_config(path: Path, mavlink: dict[str, object], demo: bool = True) -> Path:

@@ -10,11 +10,12 @@ import pytest
 from fsw.comm.link import LinkConfig
 from fsw.comm.link_receiver import LinkReceiver
 from fsw.comm.link_sender import LinkSender, SenderState
-from fsw.drivers.radio import InProcRadio, RadioPort, SerialRadio, UdpRadio, open_radio
+from fsw.drivers.byte_port import BytePort, InProcPort
+from fsw.drivers.radio import MAX_DATAGRAM, SerialRadio, open_radio
 from hil_sim.radio_channel import ChannelPort, RadioChannel, RadioChannelConfig
 
 
-def _transfer_real_time(a: RadioPort, b: RadioPort, data: bytes, timeout_s: float = 10.0) -> bytes | None:
+def _transfer_real_time(a: BytePort, b: BytePort, data: bytes, timeout_s: float = 10.0) -> bytes | None:
     """Run sender on ``a`` and receiver on ``b`` on the wall clock until delivery."""
     cfg = LinkConfig(rate_bps=2e6, segment_bytes=512, status_period_s=0.05,
                      min_status_interval_s=0.01, ping_period_s=0.05)
@@ -42,12 +43,12 @@ def _transfer_real_time(a: RadioPort, b: RadioPort, data: bytes, timeout_s: floa
 def test_inproc_pair_carries_a_map():
     """Issue 6, item 6: in-process endpoints (lockstep / tests)."""
     data = np.random.default_rng(0).bytes(20000)
-    a, b = InProcRadio.pair("t-inproc")
+    a, b = InProcPort.pair("t-inproc")
     with a, b:
         assert _transfer_real_time(a, b, data) == data
-    ends = [InProcRadio("t3"), InProcRadio("t3")]
+    ends = [InProcPort("t3"), InProcPort("t3")]
     with pytest.raises(ValueError, match="already has two ends"):
-        InProcRadio("t3")
+        InProcPort("t3")
     for e in ends:
         e.close()
 
@@ -55,7 +56,7 @@ def test_inproc_pair_carries_a_map():
 def test_udp_loopback_carries_a_map():
     """Issue 6, item 6: UDP on loopback (udp://HOST:PORT), reply-to-sender on the Cliff-bot."""
     data = np.random.default_rng(1).bytes(30000)
-    b = UdpRadio("udp://127.0.0.1:0")
+    b = open_radio("udp://127.0.0.1:0")
     host, port = b.address
     a = open_radio("udp://127.0.0.1:0", peer=f"udp://{host}:{port}")
     with a, b:
@@ -65,7 +66,10 @@ def test_udp_loopback_carries_a_map():
 
 def test_serial_modem_framing_resyncs_after_garbage():
     """Issue 6, item 6: COBS framing over pyserial; line noise is skipped, not fatal."""
-    r = SerialRadio("loop://", 115200)
+    import serial
+
+    # loop:// simulates the line's time, so it needs a write timeout; a real port runs non-blocking
+    r = SerialRadio("loop://", 115200, ser=serial.serial_for_url("loop://", baudrate=115200, timeout=0))
     with r:
         r.ser.write(b"\x13\x37garbage\x00")  # not a valid COBS frame (decodes to junk or fails)
         r.ser.write(b"\x05ab\x00")  # truncated COBS block: a framing error
@@ -123,11 +127,15 @@ def test_open_radio_rejects_bad_urls_and_send_faults_do_not_raise():
     for url in ("tcp://x:1", "udp://nohostport", "udp://127.0.0.1:notaport", "inproc://", "serial:"):
         with pytest.raises(ValueError):
             open_radio(url)
-    u = UdpRadio("udp://127.0.0.1:0")  # no peer yet
-    assert u.send(b"x") is False and u.has(u.FAULTS["TX_ERROR"])
-    assert u.drain_events()[0][0] == "RADIO_TX_ERROR"
+    u = open_radio("udp://127.0.0.1:0")  # no peer yet: not sent, counted, not a fault
+    assert u.send(b"x") is False and u.stats.no_peer == 1 and not u.fault
+    assert u.send(bytes(MAX_DATAGRAM + 1), 5.0) is False and u.has(u.FAULTS["TX_ERROR"])
+    assert u.drain_events()[0][0] == "TX_ERROR" and u.stats.tx_errors == 1
+    assert u.fault_reason is not None and "over 8192" in u.fault_reason
+    u.send(b"x", 5.0 + u.error_hold_s)  # the held bit clears after error_hold_s without a new error
+    assert not u.has(u.FAULTS["TX_ERROR"])
     u.close()
-    assert u.send(b"x") is False and u.recv() is None
+    assert u.send(b"x") is False and u.recv() is None and u.has(u.FAULTS["CLOSED"])
 
 
 def test_channel_model_statistics_and_determinism():

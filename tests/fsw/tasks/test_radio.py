@@ -13,7 +13,7 @@ from fsw.comm.link_receiver import LinkReceiver
 from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import MapGrid
 from fsw.core.mapcodec import decode_map
-from fsw.drivers.radio import InProcRadio
+from fsw.drivers.byte_port import InProcPort
 from fsw.drivers.resources import Resources
 from fsw.tasks.messages import MAP_UPDATED, RADIO_SEND, MapUpdate, RadioSendRequest
 
@@ -27,7 +27,7 @@ class CliffBot:
 
     def __init__(self) -> None:
         name = f"test-radio-{next(_names)}"
-        self.rover_port, self.port = InProcRadio.pair(name)
+        self.rover_port, self.port = InProcPort.pair(name)
         self.rx = LinkReceiver(CFG.link)
         self.maps: list[tuple[int, bytes]] = []
 
