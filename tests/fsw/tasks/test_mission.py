@@ -269,8 +269,12 @@ class MissionMachine(RuleBasedStateMachine):
         before = phase(self.m.rig)
         self.m.motion_reply(rid, "goto", outcome)
         self._frames(1)
-        if before in ("MOVE", "POINT"):  # not the awaited request: nothing happens
-            assert phase(self.m.rig) == before
+        if before in ("MOVE", "POINT") and phase(self.m.rig) != before:
+            # not the awaited request: ignored. The only way out of the phase in this frame is
+            # the step timeout of the move still awaited (it may fall in this very frame).
+            mission = self.m.rig.task("mission")
+            assert phase(self.m.rig) == "SAFE" and mission.safe_reason.endswith("move timed out"), \
+                (before, mission.safe_reason)
 
     @rule(data=st.data())
     def map_update(self, data: st.DataObject) -> None:
@@ -295,6 +299,26 @@ class MissionMachine(RuleBasedStateMachine):
         assert mission.exceptions == 0, self.m.rig.events("mission.EXCEPTION")
         assert phase(self.m.rig) in ("IDLE", "INIT", "SELECT", "MOVE", "POINT", "ACQUIRE", "TRANSMIT", "DONE", "SAFE")
         assert mission.safe_entries == len(self.m.rig.events("mission.SAFE"))
+
+
+def test_a_late_reply_is_ignored_and_the_awaited_move_still_times_out() -> None:
+    """The case a random run once found: in POINT, a late answer to an earlier request
+    arrives in the frame in which the awaited mast move's step timeout passes. The late
+    answer is ignored (the phase stays POINT up to the deadline) and the timeout, not the
+    late answer, puts the mission in SAFE."""
+    m = Mission()
+    m.nav()
+    m.rig.command("mission.START")
+    m.rig.run_until(lambda: phase(m.rig) == "POINT", 30)
+    (req,) = m.moves.drain()
+    mission = m.rig.task("mission")
+    m.rig.run_until(lambda: m.rig.exe.clock.now() > mission.deadline - 0.15, 40)
+    m.motion_reply(req.request_id - 1, "goto", "aborted")  # a stale reply to a request not awaited
+    m.rig.run(1)
+    assert phase(m.rig) == "POINT"
+    m.motion_reply(req.request_id - 1, "goto", "aborted")
+    m.rig.run(2)
+    assert phase(m.rig) == "SAFE" and mission.safe_reason == "mast move timed out"
 
 
 MissionMachine.TestCase.settings = settings(
