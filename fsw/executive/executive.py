@@ -256,19 +256,15 @@ class Executive:
                     self.events.decay(f"{g.name}.SLIP")
 
     def _publish(self, k: int) -> None:
-        ex = self.exec_component
-        ex.tlm("frame", k)
-        ex.tlm("slips", self.slips)
-        ex.tlm("skipped_frames", self.skipped_frames)
-        ex.tlm("jobs_pending", self.jobs.pending)
-        ex.tlm("jobs_completed", self.jobs.completed)
-        ex.tlm("jobs_failed", self.jobs.failed)
-        ex.tlm("slice_max_ms", self.jobs.max_slice_s * 1e3)
-        ex.tlm("frame_max_ms", self.frame_max_s * 1e3)
-        ex.tlm("bus_drops", sum(b.dropped for b in self.bus.mailboxes()))
+        jobs = self.jobs
+        self.exec_component.tlm_record({
+            "frame": k, "slips": self.slips, "skipped_frames": self.skipped_frames,
+            "jobs_pending": jobs.pending, "jobs_completed": jobs.completed, "jobs_failed": jobs.failed,
+            "slice_max_ms": jobs.max_slice_s * 1e3, "frame_max_ms": self.frame_max_s * 1e3,
+            "bus_drops": sum(b.dropped for b in self.bus.mailboxes()),
+        })
         for rg in self.groups:
-            rg.tlm("cycles", rg.activations)
-            rg.tlm("slips", rg.slips)
+            rg.tlm_record({"cycles": rg.activations, "slips": rg.slips})
             rg.publish_timing()
 
     # -- drivers of frames --------------------------------------------------------------------
