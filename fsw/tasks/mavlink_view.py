@@ -51,10 +51,12 @@ class ViewBuilder:
     def build(self, now: float) -> VehicleView:
         store, runtime = self.ctx.telemetry, self.ctx.runtime
         samples = [ChannelSample(DICT_CRC_KEY, self.dict_crc, False)]
+        new = tuple.__new__  # ChannelSample(...) without the NamedTuple's Python-level __new__
         for key, cv, lo, hi in self._chans:  # store.limit_state(name) in ("low", "high"), inlined
             v = cv.value
             if v is not None and not isinstance(v, str):
-                samples.append(ChannelSample(key, v, (lo is not None and v < lo) or (hi is not None and v > hi)))
+                samples.append(new(ChannelSample, (key, v, (lo is not None and v < lo)
+                                                   or (hi is not None and v > hi))))
         load = int(1000 * runtime.busy_s(self.ctx.frame - 1) / runtime.period_s)
         slips, overruns = runtime.slips, sum(t.overruns for t in runtime.tasks.values())
         x, y, z, roll, pitch, yaw = (self.value(c) for c in self.cfg.pose_channels)

@@ -176,6 +176,7 @@ class PerceptionTask(FlightTask):
         dm = yield from self.matcher.match_steps(left, right)
         yield
         pts = yield from self.matcher.triangulate_steps(dm.disparity_px, sigma_px=dm.sigma_px)
+        del dm, left, right  # not needed past here: a smaller resident peak (issue 15)
         reg, pose, pose_cov = yield from self._register(fr, pts)
         parts = []
         for a in range(0, len(pts), PROPAGATE_CHUNK):  # world covariance (§1.2) in bounded slices
@@ -184,6 +185,7 @@ class PerceptionTask(FlightTask):
             # The pose term is common to every point of the view: it must not average down in a cell.
             parts.append((xyz, cov_s if cov_p is None else cov_s + cov_p, cov_p))
             yield
+        del pts  # the camera-frame points: every use is above
         view_cells = self._view_cells(parts)
         yield
         stats = yield from self.map.merge_parts_steps(parts, p_visible=p_visible, step_points=MERGE_STEP_POINTS)
