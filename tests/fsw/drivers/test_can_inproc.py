@@ -41,3 +41,17 @@ def test_full_receiver_queue_is_a_can_error() -> None:
     finally:
         a.shutdown()
         b.shutdown()
+
+
+def test_poll_applies_the_filters_and_keeps_the_order() -> None:
+    a = InprocBus(channel="inproc-test-3")
+    b = can.Bus(interface="virtual", channel="inproc-test-3")
+    try:
+        a.set_filters([{"can_id": 0x100, "can_mask": 0x700}])
+        for i in (0x101, 0x200, 0x102):
+            b.send(can.Message(arbitration_id=i, data=b"\x00"))
+        got = [a.recv(timeout=0.0), a.recv(timeout=0.0), a.recv(timeout=0.0)]
+        assert [m.arbitration_id if m else None for m in got] == [0x101, 0x102, None]
+    finally:
+        a.shutdown()
+        b.shutdown()
