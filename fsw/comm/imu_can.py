@@ -15,7 +15,6 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-
 import cantools
 
 from fsw.comm.can_codec import CompiledMessage

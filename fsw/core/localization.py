@@ -90,10 +90,8 @@ def so3_log(R: F64) -> F64:
     if q[3] < 0.0:
         q = -q
     angle = 2.0 * math.atan2(float(np.linalg.norm(q[:3])), float(q[3]))
-    if angle <= 1e-3:
-        scale = 2.0 + angle**2 / 12.0 + 7.0 * angle**4 / 2880.0
-    else:
-        scale = angle / math.sin(angle / 2.0)
+    small = angle <= 1e-3  # series of angle / sin(angle / 2)
+    scale = 2.0 + angle**2 / 12.0 + 7.0 * angle**4 / 2880.0 if small else angle / math.sin(angle / 2.0)
     return np.asarray(scale * q[:3], dtype=np.float64)
 
 

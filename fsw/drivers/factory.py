@@ -104,8 +104,8 @@ def open_devices(cfg: DevicesConfig, res: Resources | None = None, endpoints: En
 
     from fsw.comm.imu_can import ImuCan
     from fsw.comm.rover_can import RoverCan
-    from fsw.drivers.can_inproc import open_bus as open_can_bus
     from fsw.drivers.camera import CameraDriver, make_source
+    from fsw.drivers.can_inproc import open_bus as open_can_bus
     from fsw.drivers.can_motors import CanMotorDriver
     from fsw.drivers.imu_can import ImuDriver
     from fsw.drivers.mast_serial import MastSerialDriver, SerialPort
@@ -175,7 +175,10 @@ def open_devices(cfg: DevicesConfig, res: Resources | None = None, endpoints: En
 
 
 def close_devices(res: Resources) -> None:
-    """Close the drivers :func:`open_devices` made (idempotent)."""
+    """Close the drivers :func:`open_devices` made (idempotent), and finish the map store's
+    queued checkpoint writes."""
+    if res.map_store is not None:
+        res.map_store.close()
     for drv in (res.imu, res.motors, res.mast, res.camera):
         if drv is not None:
             with contextlib.suppress(Exception):  # best effort at shutdown

@@ -151,6 +151,8 @@ class PerceptionTask(FlightTask):
             if msg is not None:
                 self.job = self.submit_job(self._merge_view(msg), f"view{msg.view_id}")
         now = self.ctx.clock.now()
+        if self.store is not None and (err := self.store.take_error()) is not None:
+            self.event("CHECKPOINT_FAILED", error=err)  # a write on the store's writer thread
         if self.store is not None and self.job is None:
             last_s = max(self._last_checkpoint_s, self.store.last_save_s)
             if now - last_s >= self.ctx.cfg.checkpoint.period_s:
@@ -317,11 +319,11 @@ class PerceptionTask(FlightTask):
     def _checkpoint(self, store: MapStore) -> None:
         self._last_checkpoint_s = self.ctx.clock.now()
         try:
-            path = store.save_next(self.map, self._last_checkpoint_s)
+            store.save_next(self.map, self._last_checkpoint_s)
         except OSError as exc:
             self.event("CHECKPOINT_FAILED", error=str(exc))
             raise CommandError(f"checkpoint failed: {exc}") from None
-        self.event("CHECKPOINT_SAVED", seq=store.seq, kib=path.stat().st_size / 1024)
+        self.event("CHECKPOINT_SAVED", seq=store.seq, kib=store.last_size / 1024)
 
     def _restore(self, store: MapStore) -> None:
         loaded = store.restore()
