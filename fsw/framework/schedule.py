@@ -62,6 +62,9 @@ class ExecutiveConfig:
     opencv_threads: int = param(
         1, lo=1, hi=64, doc="OpenCV worker threads for the whole process (cv2.setNumThreads), set at start-up"
     )
+    malloc_mmap_threshold_kib: int = param(
+        128, lo=0, hi=1 << 20, units="KiB",
+        doc="glibc: blocks this large or larger are mmapped and returned when freed (0 = glibc's sliding default)")
 
     def __post_init__(self) -> None:
         names = [g.name for g in self.groups]

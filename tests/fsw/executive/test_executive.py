@@ -356,3 +356,15 @@ def test_realtime_late_frames_within_the_lag_limit_catch_up() -> None:
     assert exe.skipped_frames == 0 and exe.events.count("exec.SKIPPED") == 0 and exe.frame == 8
     assert exe.lateness_s == pytest.approx([0.0, 0.0, 0.0, 0.015, 0.005, 0.0, 0.0, 0.0], abs=1e-9)
     assert exe.slips == 1
+
+
+def test_malloc_thresholds_fixed_on_glibc_and_off_for_zero() -> None:
+    """[executive] malloc_mmap_threshold_kib (issue 15): glibc accepts the fixed thresholds; 0
+    leaves the allocator alone."""
+    import platform
+
+    from fsw.executive.executive import fix_malloc_thresholds
+
+    assert fix_malloc_thresholds(0) is False
+    if platform.system() == "Linux" and platform.libc_ver()[0] == "glibc":
+        assert fix_malloc_thresholds(128 * 1024) is True
