@@ -13,7 +13,8 @@ HELP = "sensing-cycle breakdown, foreground per task, peak RSS, projected onto t
 DESCRIPTION = (
     "Measures one sensing cycle stage by stage (capture, rectify when [camera] names a "
     "calibration file, stereo, merge, edge, next view) on a lab map state (start panorama) "
-    "of each --grids size over the configured area; the foreground cost per task per frame from a short lockstep mission; "
+    "of each --grids size over the configured area; the foreground cost per task per frame "
+    "from a short lockstep mission; "
     "and this process's peak RSS. Times are CPU seconds of this process (one core): min and "
     "median of --repeats runs. Each figure is projected onto the flight computer as "
     "time x cpu_factor (config/budget.toml) and compared with the budget table there. "
