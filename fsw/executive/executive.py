@@ -233,7 +233,9 @@ class Executive:
 
     def _run_slack(self, t0: float) -> None:
         if self.clock.realtime:
-            deadline = t0 + self.period_s - self.ecfg.slack_margin_s
+            # a slice is only started when a whole slice (the slice bound) fits before the
+            # margin: one begun 2 ms before it ran 10-20 ms past the frame (a slip)
+            deadline = t0 + self.period_s - self.ecfg.slack_margin_s - self.ecfg.slack_slice_reserve_s
             while self.jobs.pending and self.timer() < deadline:
                 self._job_slice()
         else:

@@ -368,3 +368,25 @@ def test_malloc_thresholds_fixed_on_glibc_and_off_for_zero() -> None:
     assert fix_malloc_thresholds(0) is False
     if platform.system() == "Linux" and platform.libc_ver()[0] == "glibc":
         assert fix_malloc_thresholds(128 * 1024) is True
+
+
+def test_realtime_slack_starts_a_slice_only_when_a_whole_one_fits() -> None:
+    """Issue 15: with 19 ms slices a frame of 100 ms never overruns (a slice begun a few ms
+    before the margin used to run past the frame); with no reserve it did, the old way."""
+    results = {}
+    for reserve in (0.02, 0.0):
+        clock = JumpClock()
+        cfg = make_cfg([{"name": "fast", "divisor": 1}], [task("fg", "fast")], frame_period_s=0.1,
+                       slack_margin_s=0.005, slack_slice_reserve_s=reserve)
+        exe = Executive(cfg, clock, timer=clock)
+
+        def job() -> Any:
+            for _ in range(200):
+                clock.t += 0.019  # one bounded slice of work
+                yield None
+
+        handle = exe.tasks["fg"].submit_job(job(), "long")
+        exe.run_realtime(30)
+        results[reserve] = (exe.slips, handle.slices)
+    assert results[0.02][0] == 0 and results[0.02][1] >= 30 * 3  # still 3-4 slices a frame
+    assert results[0.0][0] > 0  # without the reserve the fifth slice of a frame overruns it
