@@ -380,12 +380,12 @@ def test_realtime_slack_starts_a_slice_only_when_a_whole_one_fits() -> None:
                        slack_margin_s=0.005, slack_slice_reserve_s=reserve)
         exe = Executive(cfg, clock, timer=clock)
 
-        def job() -> Any:
+        def job(c: JumpClock) -> Any:
             for _ in range(200):
-                clock.t += 0.019  # one bounded slice of work
+                c.t += 0.019  # one bounded slice of work
                 yield None
 
-        handle = exe.tasks["fg"].submit_job(job(), "long")
+        handle = exe.tasks["fg"].submit_job(job(clock), "long")
         exe.run_realtime(30)
         results[reserve] = (exe.slips, handle.slices)
     assert results[0.02][0] == 0 and results[0.02][1] >= 30 * 3  # still 3-4 slices a frame
