@@ -217,7 +217,7 @@ class StereoMatcher:
     def match_steps(self, left: U8, right: U8) -> Generator[None, None, DisparityImage]:
         """:meth:`match` as a slack-job generator. It yields after each band of each pass (a
         bounded share of the pair): SGBM, then the correlation gate, then the refinement, each
-        over the ``band_rows_px`` bands; the local gates, then the sigma, in two last slices.
+        over the ``band_rows_px`` bands; the local gates and the sigma finish the last slice.
         The correlation and the refinement are row-local (the match moves along rows; the
         windows reach a few rows), so each band is computed with a few rows of context and
         the result equals the whole image's exactly."""
@@ -267,7 +267,6 @@ class StereoMatcher:
         disp = np.where(bad, np.nan, refined.astype(np.float64))
         spread = quality.local_spread(disp, cfg.spread_window_px)
         disp[spread > cfg.max_spread_px] = np.nan
-        yield None
         sigma = quality.disparity_sigma(sigma_ls, spread, cfg.sigma_floor_px, cfg.sigma_ls_gain,
                                         cfg.sigma_spread_gain)
         sigma[~np.isfinite(disp)] = np.nan
@@ -292,9 +291,8 @@ class StereoMatcher:
 
     def triangulate_steps(self, disp: F64, stride_px: int = 1, sigma_px: F64 | None = None,
                           ) -> Generator[None, None, StereoPoints]:
-        """:meth:`triangulate`, yielding after the set-up and after each third of a
-        ``band_rows_px`` band (a slice stays well under 20 ms here); the points come in the
-        same (row-major) order with the same values."""
+        """:meth:`triangulate`, yielding after each band of ``band_rows_px`` rows; the points
+        come in the same (row-major) order with the same values."""
         if sigma_px is not None and sigma_px.shape != disp.shape:
             raise ValueError(f"sigma_px shape {sigma_px.shape} differs from disparity {disp.shape}")
         cam, rect = self.camera, self.rectified
@@ -313,11 +311,7 @@ class StereoMatcher:
         xyz_all, cov_all = np.empty((n, 3)), np.empty((n, 3, 3))
         uv_all, d_all = np.empty((n, 2)), np.empty(n)
         i = 0
-        yield None  # the set-up is a slice of its own
-        h = disp.shape[0]
-        rows = max(1, (self.cfg.band_rows_px or h) // TRIANGULATE_BANDS_PER_SGBM_BAND)
-        for start in range(0, h, rows):  # row-major order either way: the same points
-            end = min(h, start + rows)
+        for start, end, _, _ in self.bands(disp.shape[0]):
             v, u = np.nonzero(valid[start:end])
             v = v + start
             d = disp[v, u]
@@ -345,9 +339,6 @@ class StereoMatcher:
             if not isinstance(img, np.ndarray) or img.dtype != np.uint8 or img.shape != shape:
                 got = getattr(img, "shape", None), getattr(img, "dtype", type(img).__name__)
                 raise ValueError(f"{name} image must be uint8 of shape {shape}, got {got}")
-
-
-TRIANGULATE_BANDS_PER_SGBM_BAND = 3  # triangulation slices: a third of an SGBM band (~40 rows)
 
 
 def stereo_covariance(
