@@ -36,6 +36,7 @@ def build_executive(
     if map_store and res.map_store is None and cfg.checkpoint.directory:
         from fsw.drivers.map_store import MapStore
 
-        res.map_store = MapStore(cfg.checkpoint, cfg.fusion)
+        # on the real clock the file writes and fsyncs run on the store's writer thread
+        res.map_store = MapStore(cfg.checkpoint, cfg.fusion, background=clock.realtime)
     open_devices(cfg.devices, res, endpoints)
     return Executive(cfg, clock, res)

@@ -40,6 +40,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         exe.run_realtime(frames)
     except KeyboardInterrupt:
         print("safer-fsw: interrupted")
+    from fsw.drivers.factory import close_devices
+
+    close_devices(exe.ctx.res)  # drivers closed, queued checkpoint writes finished
     lat = exe.lateness_percentiles_ms()
     print(
         f"safer-fsw: {exe.frame} frames, slips {exe.slips}, skipped {exe.skipped_frames}, "

@@ -29,6 +29,7 @@ from typing import Any
 import can
 
 from fsw.app import build_executive
+from fsw.drivers.can_inproc import InprocBus
 from fsw.drivers.resources import Endpoints, Resources
 from fsw.executive.executive import Executive
 from fsw.framework.clock import SteppedClock
@@ -100,7 +101,7 @@ class LockstepBench(ExecutiveDriver):
         runs the next frame first; the flight tasks restore themselves from the map store."""
         self.channel = f"safer-bench-{os.getpid()}-{next(_ids)}"
         self.faults = FaultInjector(seed, faults)
-        self.sim_bus = can.Bus(interface="virtual", channel=self.channel, receive_own_messages=False)
+        self.sim_bus = InprocBus(channel=self.channel, receive_own_messages=False)
         self._tap = can.Bus(interface="virtual", channel=self.channel) if can_log else None
         self.logger = can.Logger(str(can_log)) if can_log else None
         flight_port, device_port = memory_serial_pair()

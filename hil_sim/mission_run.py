@@ -255,6 +255,7 @@ def run_mission(
                 raise ValueError(f"checkpoint cannot be resumed: {exc}") from None
         if spec.cpu_timer:  # foreground figures without the preemption of a shared machine
             bench.exe.timer = time.thread_time
+            bench.exe.jobs.timer = time.thread_time  # slack-job slices too (task_max_ms slack_slice)
         cliffbot = Cliffbot(cfg.link, ChannelPort(channel, "b", now), out_dir=spec.out)
         mission = bench.exe.tasks["mission"]
         perception = bench.exe.tasks["perception"]

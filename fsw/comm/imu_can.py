@@ -14,10 +14,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, cast
 
 import cantools
 
+from fsw.comm.can_codec import CompiledMessage
 from fsw.comm.e2e import CHECKSUM as CRC
 from fsw.comm.e2e import COUNTER, E2ELayout
 from fsw.comm.rover_can import DEFAULT_DBC, Bad
@@ -56,6 +56,7 @@ class ImuCan:
             raise ValueError(f"{dbc_path}: {MSG} lacks Roll, Pitch, {COUNTER} or {CRC}")
         self.frame_id = int(self.msg.frame_id)
         self.e2e = E2ELayout.from_message(self.msg)
+        self.codec = CompiledMessage(self.msg)  # compiled once: no cantools per frame
 
     def encode(self, roll_deg: float, pitch_deg: float, yaw_rate_dps: float, self_test_fail: bool,
                moving: bool, counter: int) -> tuple[int, bytes]:
@@ -64,11 +65,11 @@ class ImuCan:
         def fin(v: float, lim: float) -> float:
             return max(-lim, min(lim, float(v))) if math.isfinite(v) else 0.0
 
-        data = bytearray(self.msg.encode({
+        data = bytearray(self.codec.encode({
             "Roll": fin(roll_deg, 180.0), "Pitch": fin(pitch_deg, 90.0),
             "YawRate": fin(yaw_rate_dps, 204.7), "SelfTestFail": int(self_test_fail),
             "Moving": int(moving), COUNTER: counter & 0xF, CRC: 0,
-        }, strict=False))
+        }))
         return self.frame_id, self.e2e.protect(bytes(data), counter)
 
     def decode(self, frame_id: int, data: bytes, is_extended: bool = False) -> ImuAttitude | Bad:
@@ -81,7 +82,7 @@ class ImuCan:
         if refused is not None:
             return Bad(frame_id, *refused)
         try:
-            s = cast(dict[str, Any], self.msg.decode(bytes(data), decode_choices=False, scaling=True))
+            s = self.codec.decode(bytes(data))
         except Exception as exc:  # noqa: BLE001 - cantools errors vary by version; a bad frame is data
             return Bad(frame_id, "decode", f"{MSG}: {exc}")
         return ImuAttitude(float(s["Roll"]), float(s["Pitch"]), float(s["YawRate"]),

@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 from fsw.comm.mavlink_dialect import SIGNATURE_LEN, mavlink, new_codec
 from fsw.framework.telemetry import Event, Severity
@@ -43,16 +43,25 @@ class Packer:
         return len(msg.pack(self._sizer)) + signed
 
     def offer(self, msgs: Sequence[mavlink.MAVLink_message]) -> bool:
-        """Pack all of ``msgs`` if together they fit the remaining budget, else none."""
-        need = sum(self.size(m) for m in msgs)
+        """Pack all of ``msgs`` if together they fit the remaining budget, else none.
+
+        Each message is packed once, with the link's codec; if the lot does not fit, the
+        codec's sequence number and signing timestamp (the only state a pack advances) are
+        put back, so nothing skips (the same frames as sizing first, at half the packing)."""
+        codec = self.codec
+        seq0, ts0 = codec.seq, codec.signing.timestamp
+        bufs, need = [], 0
+        for m in msgs:
+            buf = bytes(m.pack(codec))
+            codec.seq = (codec.seq + 1) % 256
+            bufs.append(buf)
+            need += len(buf)
         if self.used + need > self.budget:
+            codec.seq, codec.signing.timestamp = seq0, ts0
             self.deferred += 1
             return False
-        for m in msgs:
-            buf = m.pack(self.codec)
-            self.codec.seq = (self.codec.seq + 1) % 256
-            self.frames.append(bytes(buf))
-            self.used += len(buf)
+        self.frames.extend(bufs)
+        self.used += need
         return True
 
     @property
@@ -121,8 +130,9 @@ class DownlinkQueue:
         return len(self._items)
 
 
-@dataclass(frozen=True)
-class ChannelSample:
+class ChannelSample(NamedTuple):
+    """One telemetry channel offered to the downlink (a tuple: ~190 are built every frame)."""
+
     key: str  # NAMED_VALUE name
     value: Any
     out_of_limits: bool
@@ -138,16 +148,16 @@ class ChannelScheduler:
     def due(self, now_s: float, samples: Iterable[ChannelSample]) -> list[ChannelSample]:
         """Samples worth sending now, best first (deterministic order)."""
         ranked = []
+        last = self.last
         for s in samples:
-            prev = self.last.get(s.key)
+            prev = last.get(s.key)
             if prev is None:
                 ranked.append(((0 if s.out_of_limits else 1, 0, -math.inf, s.key), s))
                 continue
-            age = now_s - prev[0]
-            if age < self.period_s - 1e-9:
+            if now_s - prev[0] < self.period_s - 1e-9:
                 continue
             changed = not _same(prev[1], s.value)
-            if not changed and age < self.refresh_s - 1e-9:
+            if not changed and now_s - prev[0] < self.refresh_s - 1e-9:
                 continue
             ranked.append(((0 if s.out_of_limits else 1, 0 if changed else 1, prev[0], s.key), s))
         ranked.sort(key=lambda r: r[0])

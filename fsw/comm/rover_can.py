@@ -25,6 +25,7 @@ from typing import Any
 
 import cantools
 
+from fsw.comm.can_codec import CompiledMessage, compile_messages
 from fsw.comm.e2e import E2ELayout
 
 WHEELS = ("FL", "FR", "RL", "RR")
@@ -105,17 +106,18 @@ class RoverCan:
             raise ValueError(f"{dbc_path}: not a CAN database")
         self.db = db
         self._msg = {m.name: m for m in db.messages}
+        self._codec: dict[str, CompiledMessage] = compile_messages(db)  # packed/unpacked without cantools per frame
         missing = [n for n in self._required() if n not in self._msg]
         if missing:
             raise ValueError(f"{dbc_path}: DBC lacks frames {', '.join(missing[:4])}")
-        # frame id -> (kind, node, message)
-        self.route: dict[int, tuple[str, str, Any]] = {}
+        # frame id -> (kind, node, compiled message)
+        self.route: dict[int, tuple[str, str, CompiledMessage]] = {}
         for axis in AXES:
             for kind in ("CMD", "STATUS", "HEARTBEAT"):
-                m = self._msg[f"{axis}_{kind}"]
+                m = self._codec[f"{axis}_{kind}"]
                 self.route[m.frame_id] = (kind, axis, m)
-        self.route[self._msg["ESTOP"].frame_id] = ("ESTOP", "FSW", self._msg["ESTOP"])
-        self.route[self._msg["FSW_HEARTBEAT"].frame_id] = ("HEARTBEAT", "FSW", self._msg["FSW_HEARTBEAT"])
+        self.route[self._codec["ESTOP"].frame_id] = ("ESTOP", "FSW", self._codec["ESTOP"])
+        self.route[self._codec["FSW_HEARTBEAT"].frame_id] = ("HEARTBEAT", "FSW", self._codec["FSW_HEARTBEAT"])
         self.node_id = {axis: self._msg[f"{axis}_HEARTBEAT"].frame_id - 0x700 for axis in AXES}
         self.node_id["FSW"] = self._msg["FSW_HEARTBEAT"].frame_id - 0x700
         #: frame id -> E2E layout, for every frame of the DBC (ValueError if one is unprotected)
@@ -136,8 +138,9 @@ class RoverCan:
 
     # -- encoding -----------------------------------------------------------------------------
     def _protected(self, name: str, signals: dict[str, Any], counter: int) -> tuple[int, bytes]:
-        msg = self._msg[name]
-        data = msg.encode({**signals, "Counter": 0, "Checksum": 0}, strict=False)
+        msg = self._codec[name]
+        signals["Counter"] = signals["Checksum"] = 0
+        data = msg.encode(signals)
         return msg.frame_id, self.e2e[msg.frame_id].protect(data, counter)
 
     def encode_command(
@@ -192,7 +195,7 @@ class RoverCan:
         if refused is not None:
             return Bad(frame_id, *refused)
         try:
-            s = msg.decode(bytes(data), decode_choices=False, scaling=True)
+            s = msg.decode(bytes(data))
         except Exception as exc:  # noqa: BLE001 - cantools errors vary by version; a bad frame is data
             return Bad(frame_id, "decode", f"{msg.name}: {exc}")
         if kind == "CMD":

@@ -135,7 +135,10 @@ def rate_station_coarse_steps(cs: CoarseSearch, cam_xyz: tuple[float, float, flo
 
 def coarse_visibility(cfg: VisibilityConfig, factor: int) -> VisibilityConfig:
     """The kernel settings on the coarse grid: ``factor`` times fewer angular bins (the same
-    arc per bin against ``factor`` times wider cells), at least 256."""
+    arc per bin against ``factor`` times wider cells), at least 256. With ``ray_cell_m`` set the
+    kernel already scales its bins with the cell size, so the settings are kept as they are."""
+    if cfg.ray_cell_m > 0.0:
+        return cfg
     return dataclasses.replace(cfg, rays_per_turn=max(256, cfg.rays_per_turn // max(1, factor)))
 
 

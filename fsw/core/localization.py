@@ -17,12 +17,12 @@ the fusion (§1.1).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from fsw.core.geometry import CameraPose
 from fsw.framework.params import param
@@ -67,8 +67,32 @@ def so3_exp(w: NDArray[np.floating] | cv2.typing.MatLike) -> F64:
 
 def so3_log(R: F64) -> F64:
     """Rotation vector of ``R``, exact for small angles too (``cv2.Rodrigues`` returns zero
-    below about 1e-5 rad, which zeroed every numerical Jacobian taken with such steps)."""
-    return np.asarray(Rotation.from_matrix(np.asarray(R, dtype=np.float64)).as_rotvec(), dtype=np.float64)
+    below about 1e-5 rad, which zeroed every numerical Jacobian taken with such steps).
+
+    Through the unit quaternion (Shepperd's choice of the largest of trace and diagonal, so
+    it is well conditioned at any angle; rounding-level non-orthogonality is absorbed by the
+    normalisation), then ``angle / sin(angle / 2)`` times its vector part, by its series
+    below 1e-3 rad: the method of ``scipy.spatial.transform.Rotation``, without importing
+    scipy.spatial into the flight process (11 MB resident; issue 15)."""
+    m = np.asarray(R, dtype=np.float64).reshape(3, 3)
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    k = int(np.argmax([m[0, 0], m[1, 1], m[2, 2], tr]))
+    q = np.empty(4)
+    if k == 3:
+        q[:] = (m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1], 1.0 + tr)
+    else:
+        j, n = (k + 1) % 3, (k + 2) % 3
+        q[k] = 1.0 - tr + 2.0 * m[k, k]
+        q[j] = m[j, k] + m[k, j]
+        q[n] = m[n, k] + m[k, n]
+        q[3] = m[n, j] - m[j, n]
+    q /= np.linalg.norm(q)
+    if q[3] < 0.0:
+        q = -q
+    angle = 2.0 * math.atan2(float(np.linalg.norm(q[:3])), float(q[3]))
+    small = angle <= 1e-3  # series of angle / sin(angle / 2)
+    scale = 2.0 + angle**2 / 12.0 + 7.0 * angle**4 / 2880.0 if small else angle / math.sin(angle / 2.0)
+    return np.asarray(scale * q[:3], dtype=np.float64)
 
 
 @dataclass(frozen=True)

@@ -307,7 +307,10 @@ class StereoMatcher:
             keep = np.zeros_like(valid)
             keep[::stride_px, ::stride_px] = True
             valid &= keep
-        parts: list[tuple[F64, F64, F64, F64]] = []
+        n = int(np.count_nonzero(valid))  # filled band by band: no list of parts joined at the end
+        xyz_all, cov_all = np.empty((n, 3)), np.empty((n, 3, 3))
+        uv_all, d_all = np.empty((n, 2)), np.empty(n)
+        i = 0
         for start, end, _, _ in self.bands(disp.shape[0]):
             v, u = np.nonzero(valid[start:end])
             v = v + start
@@ -323,13 +326,12 @@ class StereoMatcher:
                 R1 = rect.R_rect
                 xyz = xyz @ R1
                 cov = R1.T @ cov @ R1
-            parts.append((xyz, cov, np.column_stack([u, v]), d))
+            j = i + d.size
+            xyz_all[i:j], cov_all[i:j], d_all[i:j] = xyz, cov, d
+            uv_all[i:j, 0], uv_all[i:j, 1] = u, v
+            i = j
             yield None
-        if len(parts) == 1:
-            xyz, cov, uv, d = parts[0]
-        else:
-            xyz, cov, uv, d = (np.concatenate([p[i] for p in parts]) for i in range(4))
-        return StereoPoints(xyz, cov, uv, d, valid)
+        return StereoPoints(xyz_all, cov_all, uv_all, d_all, valid)
 
     def _check_pair(self, left: U8, right: U8) -> None:
         shape = (self.camera.height_px, self.camera.width_px)

@@ -62,10 +62,22 @@ class VisibilityConfig:
     min_sigma_m: float = param(
         0.002, lo=1e-5, hi=1.0, units="m", doc="floor on a known cell's elevation sigma")
     rays_per_turn: int = param(
-        4096, lo=256, hi=65536, doc="fast kernel: angular bins per full turn")
+        4096, lo=256, hi=65536, doc="fast kernel: angular bins per full turn (at ray_cell_m)")
+    ray_cell_m: float = param(
+        0.03, lo=0.0, hi=10.0, units="m",
+        doc="cell size at which rays_per_turn holds; the bins scale as 1/cell (0 = fixed)")
     prune_z: float = param(
         4.0, lo=2.0, hi=10.0, units="sigma",
         doc="fast kernel: skips samples whose clearance exceeds this (factor > 0.99997)")
+
+
+def rays_for_cell(cfg: VisibilityConfig, cell_m: float) -> int:
+    """Angular bins per turn of the fast kernel on cells of ``cell_m``: ``rays_per_turn`` at
+    ``ray_cell_m``, scaled as 1/cell so a bin's centre ray passes within the same fraction of a
+    cell of its targets at any map resolution (256..65536; fixed when ``ray_cell_m`` is 0)."""
+    if cfg.ray_cell_m <= 0.0 or not math.isfinite(cell_m) or cell_m <= 0.0:
+        return int(cfg.rays_per_turn)
+    return int(min(65536, max(256, round(cfg.rays_per_turn * cfg.ray_cell_m / cell_m))))
 
 
 class Terrain:

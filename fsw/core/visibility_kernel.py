@@ -7,7 +7,8 @@ masks the result by each pan/tilt's field of view.
 
 Design (measured speed and accuracy in docs/nbv.md):
 
-1. Polar rays. The full turn around the camera is cut into ``rays_per_turn`` angular bins;
+1. Polar rays. The full turn around the camera is cut into ``rays_for_cell`` angular bins
+   (``rays_per_turn`` at ``ray_cell_m``, scaled as 1/cell);
    only bins that hold a target are traced. Along each bin's centre ray the exact grid
    traversal (sorted crossings of the x and y grid lines) gives the crossed cells in order
    and the horizontal distance ``r`` of each crossing segment's midpoint: the same samples
@@ -39,7 +40,7 @@ from scipy.special import log_ndtr
 
 from fsw.core.geometry import MapGrid
 from fsw.core.steps import run_to_end
-from fsw.core.visibility import F32, F64, IDX, Terrain, VisibilityConfig
+from fsw.core.visibility import F32, F64, IDX, Terrain, VisibilityConfig, rays_for_cell
 
 _XMIN, _XMAX, _NPER = -9.0, 6.0, 256  # log Phi table range (sigma) and steps per sigma
 _TABLE = log_ndtr(np.arange(_XMIN, _XMAX, 1.0 / _NPER) + 0.5 / _NPER).astype(np.float32)
@@ -106,7 +107,7 @@ def pv_fast_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], iy: IDX
     ddy = g.y0 + (iy + 0.5) * g.cell - cy
     big_r = np.hypot(ddx, ddy)
     theta = np.arctan2(ddy, ddx)
-    nbin = int(cfg.rays_per_turn)
+    nbin = rays_for_cell(cfg, g.cell)
     dth = 2.0 * math.pi / nbin
     used, ray = np.unique(np.rint(theta / dth).astype(np.int64) % nbin, return_inverse=True)
     half = 0.5 * g.cell / np.maximum(np.abs(np.cos(theta)), np.abs(np.sin(theta)))

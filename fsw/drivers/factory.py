@@ -105,6 +105,7 @@ def open_devices(cfg: DevicesConfig, res: Resources | None = None, endpoints: En
     from fsw.comm.imu_can import ImuCan
     from fsw.comm.rover_can import RoverCan
     from fsw.drivers.camera import CameraDriver, make_source
+    from fsw.drivers.can_inproc import open_bus as open_can_bus
     from fsw.drivers.can_motors import CanMotorDriver
     from fsw.drivers.imu_can import ImuDriver
     from fsw.drivers.mast_serial import MastSerialDriver, SerialPort
@@ -114,7 +115,7 @@ def open_devices(cfg: DevicesConfig, res: Resources | None = None, endpoints: En
     if res.motors is None and (cfg.can_interface != "none" or ends.can_bus is not None):
 
         def open_bus() -> can.BusABC:
-            return can.Bus(**can_bus_kwargs(cfg))
+            return open_can_bus(**can_bus_kwargs(cfg))
 
         try:
             codec = RoverCan(dbc_path(cfg))
@@ -174,7 +175,10 @@ def open_devices(cfg: DevicesConfig, res: Resources | None = None, endpoints: En
 
 
 def close_devices(res: Resources) -> None:
-    """Close the drivers :func:`open_devices` made (idempotent)."""
+    """Close the drivers :func:`open_devices` made (idempotent), and finish the map store's
+    queued checkpoint writes."""
+    if res.map_store is not None:
+        res.map_store.close()
     for drv in (res.imu, res.motors, res.mast, res.camera):
         if drv is not None:
             with contextlib.suppress(Exception):  # best effort at shutdown

@@ -19,8 +19,10 @@ from __future__ import annotations
 
 import math
 import os
+import queue
 import re
 import tempfile
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -52,13 +54,25 @@ class LoadResult:
 class MapStore:
     """Checkpoint files in one directory."""
 
-    def __init__(self, cfg: CheckpointConfig, fusion: FusionConfig | None = None) -> None:
+    def __init__(self, cfg: CheckpointConfig, fusion: FusionConfig | None = None,
+                 background: bool = False) -> None:
+        """``background``: the file write and its fsyncs run on a writer thread (real time:
+        an fsync on a busy disk took 75-160 ms, a slipped frame, when the executive's thread
+        waited for it); ``save`` then returns once the bytes are encoded and queued, and a
+        failed write is reported by :meth:`take_error`."""
         self.cfg = cfg
         self.fusion = fusion
         self.dir = Path(cfg.directory)
         self.seq = 0  # the highest sequence number saved or found
         self.last_save_s = -math.inf  # mission time of the last save (any writer)
+        self.last_size = 0  # bytes of the last checkpoint saved (or queued)
         self._restored: LoadResult | None = None
+        self._queue: queue.Queue[tuple[bytes, Path] | None] | None = None
+        self._errors: list[str] = []
+        if background:
+            self._queue = queue.Queue()
+            self._thread = threading.Thread(target=self._writer, name="map-store", daemon=True)
+            self._thread.start()
 
     def paths(self) -> list[Path]:
         """Checkpoint files, oldest first (by sequence number)."""
@@ -72,8 +86,18 @@ class MapStore:
         if not 0 <= seq < 10**10:
             raise ValueError(f"sequence number {seq} out of range")
         data = encode(emap, seq, time_s, self.cfg.compression_level, state)
-        self.dir.mkdir(parents=True, exist_ok=True)
         final = self.dir / f"map_{seq:010d}.ckpt"
+        if self._queue is not None:
+            self._queue.put((data, final))
+        else:
+            self._write(data, final)
+        self.seq = max(self.seq, seq)
+        self.last_save_s = time_s
+        self.last_size = len(data)
+        return final
+
+    def _write(self, data: bytes, final: Path) -> None:
+        self.dir.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=".map_", suffix=".tmp", dir=self.dir)
         try:
             with os.fdopen(fd, "wb") as fh:
@@ -85,11 +109,36 @@ class MapStore:
             Path(tmp).unlink(missing_ok=True)
             raise
         self._fsync_dir()
-        self.seq = max(self.seq, seq)
-        self.last_save_s = time_s
         for old in self.paths()[: -self.cfg.keep]:
             old.unlink(missing_ok=True)
-        return final
+
+    def _writer(self) -> None:
+        assert self._queue is not None
+        while (job := self._queue.get()) is not None:
+            try:
+                self._write(*job)
+            except OSError as exc:
+                self._errors.append(f"{job[1].name}: {exc}")
+            finally:
+                self._queue.task_done()
+        self._queue.task_done()
+
+    def take_error(self) -> str | None:
+        """The oldest background write that failed since the last call (None: none)."""
+        return self._errors.pop(0) if self._errors else None
+
+    def flush(self) -> None:
+        """Wait until every queued checkpoint is on the device (no-op when writing inline)."""
+        if self._queue is not None:
+            self._queue.join()
+
+    def close(self) -> None:
+        """Finish the queued writes and stop the writer thread."""
+        if self._queue is not None:
+            self._queue.put(None)
+            self._queue.join()
+            self._thread.join(timeout=10.0)
+            self._queue = None
 
     def save_next(self, emap: ElevationMap, time_s: float, state: dict[str, Any] | None = None) -> Path:
         """``save`` under the next sequence number (after every one saved or on the device)."""
@@ -120,6 +169,7 @@ class MapStore:
 
     def clear(self) -> int:
         """Delete every checkpoint and temporary file (a new survey); returns files removed."""
+        self.flush()
         n = self.remove_stale()
         for p in self.paths():
             p.unlink(missing_ok=True)
@@ -130,6 +180,7 @@ class MapStore:
 
     def load_latest(self) -> LoadResult:
         """The newest checkpoint that decodes; earlier ones are fallbacks."""
+        self.flush()
         result = LoadResult(None, None, None)
         for path in reversed(self.paths()):
             try:

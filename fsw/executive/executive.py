@@ -12,6 +12,7 @@ throttled; each throttle reopens a slot every ``throttle_decay_frames`` good fra
 
 from __future__ import annotations
 
+import ctypes
 import dataclasses
 import gc
 import time
@@ -35,6 +36,22 @@ from fsw.tasks.base import FlightContext
 THROTTLED = ("OVERRUN", "SLIP")
 
 
+def fix_malloc_thresholds(nbytes: int) -> bool:
+    """Fix glibc's mmap and trim thresholds at ``nbytes`` (process-wide; no-op for 0 or off
+    glibc). glibc raises its mmap threshold to the largest block freed so far (up to 32 MiB),
+    after which the per-view arrays of stereo and the merge come from the heap and the freed
+    space stays resident; fixed, they are mapped and returned to the system when freed (a few
+    MB less peak resident memory in a mission; issue 15)."""
+    if nbytes <= 0:
+        return False
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        m_trim_threshold, m_mmap_threshold = -1, -3  # malloc.h
+        return bool(libc.mallopt(m_mmap_threshold, nbytes) == 1 and libc.mallopt(m_trim_threshold, nbytes) == 1)
+    except (OSError, AttributeError):
+        return False
+
+
 class Executive:
     """Runs the schedule in ``cfg.executive`` on ``clock``."""
 
@@ -50,6 +67,7 @@ class Executive:
         # OpenCV's worker pool is process-wide: the flight computer has one core, and two bench
         # missions sharing a 2-core machine must not each spread a slice over both cores.
         cv2.setNumThreads(ecfg.opencv_threads)
+        fix_malloc_thresholds(ecfg.malloc_mmap_threshold_kib * 1024)
         self.period_s = ecfg.frame_period_s
         self.telemetry = TelemetryStore()
         self.events = EventLog(clock.now)
@@ -215,7 +233,9 @@ class Executive:
 
     def _run_slack(self, t0: float) -> None:
         if self.clock.realtime:
-            deadline = t0 + self.period_s - self.ecfg.slack_margin_s
+            # a slice is only started when a whole slice (the slice bound) fits before the
+            # margin: one begun 2 ms before it ran 10-20 ms past the frame (a slip)
+            deadline = t0 + self.period_s - self.ecfg.slack_margin_s - self.ecfg.slack_slice_reserve_s
             while self.jobs.pending and self.timer() < deadline:
                 self._job_slice()
         else:
@@ -256,19 +276,15 @@ class Executive:
                     self.events.decay(f"{g.name}.SLIP")
 
     def _publish(self, k: int) -> None:
-        ex = self.exec_component
-        ex.tlm("frame", k)
-        ex.tlm("slips", self.slips)
-        ex.tlm("skipped_frames", self.skipped_frames)
-        ex.tlm("jobs_pending", self.jobs.pending)
-        ex.tlm("jobs_completed", self.jobs.completed)
-        ex.tlm("jobs_failed", self.jobs.failed)
-        ex.tlm("slice_max_ms", self.jobs.max_slice_s * 1e3)
-        ex.tlm("frame_max_ms", self.frame_max_s * 1e3)
-        ex.tlm("bus_drops", sum(b.dropped for b in self.bus.mailboxes()))
+        jobs = self.jobs
+        self.exec_component.tlm_record({
+            "frame": k, "slips": self.slips, "skipped_frames": self.skipped_frames,
+            "jobs_pending": jobs.pending, "jobs_completed": jobs.completed, "jobs_failed": jobs.failed,
+            "slice_max_ms": jobs.max_slice_s * 1e3, "frame_max_ms": self.frame_max_s * 1e3,
+            "bus_drops": sum(b.dropped for b in self.bus.mailboxes()),
+        })
         for rg in self.groups:
-            rg.tlm("cycles", rg.activations)
-            rg.tlm("slips", rg.slips)
+            rg.tlm_record({"cycles": rg.activations, "slips": rg.slips})
             rg.publish_timing()
 
     # -- drivers of frames --------------------------------------------------------------------

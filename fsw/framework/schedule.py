@@ -51,6 +51,9 @@ class ExecutiveConfig:
     slack_margin_s: float = param(
         0.005, lo=0.0, hi=1.0, units="s", doc="slack work stops this long before the next frame"
     )
+    slack_slice_reserve_s: float = param(
+        0.02, lo=0.0, hi=1.0, units="s",
+        doc="real time: a slice starts only if this much is left before the margin (the slice bound)")
     lockstep_job_slices: int = param(
         4, lo=1, hi=1000, doc="slack-job slices per frame on the stepped clock (deterministic)"
     )
@@ -62,6 +65,9 @@ class ExecutiveConfig:
     opencv_threads: int = param(
         1, lo=1, hi=64, doc="OpenCV worker threads for the whole process (cv2.setNumThreads), set at start-up"
     )
+    malloc_mmap_threshold_kib: int = param(
+        128, lo=0, hi=1 << 20, units="KiB",
+        doc="glibc: blocks this large or larger are mmapped and returned when freed (0 = glibc's sliding default)")
 
     def __post_init__(self) -> None:
         names = [g.name for g in self.groups]

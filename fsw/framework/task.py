@@ -17,7 +17,7 @@ from fsw.framework.bus import Mailbox, Policy, SoftwareBus
 from fsw.framework.clock import Clock
 from fsw.framework.commands import CommandDef, CommandDispatcher
 from fsw.framework.jobs import Job, JobHandle, JobScheduler
-from fsw.framework.telemetry import Channel, EventDef, EventLog, Severity, TelemetryStore
+from fsw.framework.telemetry import Channel, ChannelValue, EventDef, EventLog, Severity, TelemetryStore
 
 
 class Runtime(Protocol):
@@ -114,6 +114,7 @@ class Task:
         self.ping_answered = 0
         self.ping_answered_frame = 0
         self.hung = False  # fault injection / self-diagnosis: a hung task stops answering pings
+        self._tlm_cells: dict[str, ChannelValue] = {}  # channel -> its store cell, resolved once
 
     # -- declarations -------------------------------------------------------------------
     @classmethod
@@ -145,8 +146,25 @@ class Task:
         self.ping_sent = key
 
     # -- helpers for subclasses -------------------------------------------------------------
+    def _tlm_cell(self, channel: str) -> ChannelValue:
+        cv = self._tlm_cells.get(channel)
+        if cv is None:  # KeyError = undeclared channel: a software bug
+            cv = self._tlm_cells[channel] = self.ctx.telemetry.values[f"{self.name}.{channel}"]
+        return cv
+
     def tlm(self, channel: str, value: float | int | str) -> None:
-        self.ctx.telemetry.write(f"{self.name}.{channel}", value, self.ctx.clock.now())
+        cv = self._tlm_cell(channel)
+        cv.value, cv.time_s = value, self.ctx.clock.now()
+        cv.updates += 1
+
+    def tlm_record(self, values: Mapping[str, float | int | str]) -> None:
+        """One telemetry record: several channels of this task sampled at one time (one clock
+        read, each channel's store cell resolved once per task, not a call per channel)."""
+        now = self.ctx.clock.now()
+        for channel, value in values.items():
+            cv = self._tlm_cell(channel)
+            cv.value, cv.time_s = value, now
+            cv.updates += 1
 
     def event(self, name: str, **args: Any) -> None:
         self.ctx.events.emit(f"{self.name}.{name}", task=self.name, **args)
@@ -161,11 +179,9 @@ class Task:
         return self.ctx.jobs.submit(gen, name, self.name, on_done)
 
     def publish_timing(self) -> None:
-        self.tlm("exec_last_ms", self.last_s * 1e3)
-        self.tlm("exec_max_ms", self.max_s * 1e3)
-        self.tlm("overruns", self.overruns)
-        self.tlm("cmds", self.cmd_count)
-        self.tlm("cmd_errors", self.cmd_errors)
+        self.tlm_record({"exec_last_ms": self.last_s * 1e3, "exec_max_ms": self.max_s * 1e3,
+                         "overruns": self.overruns, "cmds": self.cmd_count,
+                         "cmd_errors": self.cmd_errors})
 
     # -- common commands -------------------------------------------------------------------
     def cmd_NOOP(self) -> None:

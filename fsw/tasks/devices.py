@@ -72,14 +72,12 @@ class CanMotorsDevice(DeviceTask[CanMotorDriver]):
         return self.ctx.res.motors
 
     def telemetry(self, m: CanMotorDriver) -> None:
-        self.tlm("faults", m.faults)
-        self.tlm("rx", m.rx_frames)
-        self.tlm("bad", m.rx_bad)
-        self.tlm("lost", m.rx_lost)
-        self.tlm("tx", m.tx_frames)
-        self.tlm("tx_errors", m.tx_errors)
-        self.tlm("nodes_online", sum(1 for s in m.axes.values() if s.t_heartbeat is not None and not s.lost))
-        self.tlm("axes_faulted", sum(1 for s in m.axes.values() if s.faults))
+        self.tlm_record({
+            "faults": m.faults, "rx": m.rx_frames, "bad": m.rx_bad, "lost": m.rx_lost,
+            "tx": m.tx_frames, "tx_errors": m.tx_errors,
+            "nodes_online": sum(1 for s in m.axes.values() if s.t_heartbeat is not None and not s.lost),
+            "axes_faulted": sum(1 for s in m.axes.values() if s.faults),
+        })
 
 
 class ImuDevice(DeviceTask[ImuDriver]):
@@ -122,15 +120,13 @@ class ImuDevice(DeviceTask[ImuDriver]):
         d.t_start = None if st["t_start"] is None else float(st["t_start"])
 
     def telemetry(self, d: ImuDriver) -> None:
-        self.tlm("faults", d.faults)
-        self.tlm("frames", d.rx_frames)
-        self.tlm("bad", d.rx_bad)
-        self.tlm("lost", d.rx_lost)
+        rec: dict[str, float | int] = {"faults": d.faults, "frames": d.rx_frames, "bad": d.rx_bad,
+                                       "lost": d.rx_lost}
         att = d.attitude(self.ctx.clock.now())
         if att is not None:
-            self.tlm("roll_deg", math.degrees(att.roll))
-            self.tlm("pitch_deg", math.degrees(att.pitch))
-            self.tlm("sigma_deg", math.degrees(math.sqrt(float(att.cov.trace()) / 2)))
+            rec.update(roll_deg=math.degrees(att.roll), pitch_deg=math.degrees(att.pitch),
+                       sigma_deg=math.degrees(math.sqrt(float(att.cov.trace()) / 2)))
+        self.tlm_record(rec)
 
 
 class MastDevice(DeviceTask[MastSerialDriver]):
@@ -151,14 +147,12 @@ class MastDevice(DeviceTask[MastSerialDriver]):
         return self.ctx.res.mast
 
     def telemetry(self, m: MastSerialDriver) -> None:
-        self.tlm("faults", m.faults)
+        rec: dict[str, float | int] = {"faults": m.faults, "crc_errors": m.decoder.crc_errors,
+                                       "retransmits": m.retransmits, "naks": m.naks}
         if m.joints is not None:
-            self.tlm("pan_deg", math.degrees(m.joints[0]))
-            self.tlm("tilt_deg", math.degrees(m.joints[1]))
-            self.tlm("lift_m", m.joints[2])
-        self.tlm("crc_errors", m.decoder.crc_errors)
-        self.tlm("retransmits", m.retransmits)
-        self.tlm("naks", m.naks)
+            rec.update(pan_deg=math.degrees(m.joints[0]), tilt_deg=math.degrees(m.joints[1]),
+                       lift_m=m.joints[2])
+        self.tlm_record(rec)
 
 
 class CameraDevice(DeviceTask[CameraDriver]):
@@ -176,7 +170,5 @@ class CameraDevice(DeviceTask[CameraDriver]):
         return self.ctx.res.camera
 
     def telemetry(self, c: CameraDriver) -> None:
-        self.tlm("faults", c.faults)
-        self.tlm("frames", c.frames)
-        self.tlm("timeouts", c.timeouts)
-        self.tlm("dropouts", c.dropouts)
+        self.tlm_record({"faults": c.faults, "frames": c.frames, "timeouts": c.timeouts,
+                         "dropouts": c.dropouts})

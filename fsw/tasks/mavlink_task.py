@@ -291,30 +291,32 @@ class MavlinkTask(FlightTask):
 
     def _publish(self) -> None:
         a, u, v = self.adapter, self.adapter.uplink.counters, self.adapter.verifier.counts
-        self.tlm("gcs_link", int(self._link_up))
-        self.tlm("tx_bytes", a.tx_bytes)
-        self.tlm("tx_frames", a.tx_frames)
-        self.tlm("frame_bytes", a.last_frame_bytes)
-        self.tlm("frame_bytes_max", a.max_frame_bytes)
-        self.tlm("tx_errors", self.link.stats.tx_errors if self.link is not None else 0)
-        self.tlm("deferred", a.packer.deferred)
-        self.tlm("acks_dropped", a.acks_dropped)
-        self.tlm("rx_bytes", u.bytes)
-        self.tlm("rx_frames", u.frames)
-        self.tlm("rx_bad", u.bad_frames + u.parser_resets)
-        self.tlm("cmds_accepted", self._cmd_counts["accepted"])
-        self.tlm("cmds_refused", self._cmd_counts["refused"])
-        self.tlm("auth_unsigned", v[Verdict.UNSIGNED])
-        self.tlm("auth_bad_signature", v[Verdict.BAD_SIGNATURE])
-        self.tlm("auth_replay", v[Verdict.REPLAY])
-        self.tlm("auth_stale", v[Verdict.STALE])
-        self.tlm("auth_no_key", v[Verdict.NO_KEY])
-        self.tlm("auth_future", v[Verdict.FUTURE])
-        self.tlm("events_sent", a.events.sent)
-        self.tlm("events_dropped", a.events.dropped)
-        self.tlm("images_sent", a.images.images_sent)
-        self.tlm("tlog_records", self.tlog.records if self.tlog is not None else 0)
-        self.tlm("budget_bytes", a.budget_bytes)
+        self.tlm_record({  # one record per frame
+            "gcs_link": int(self._link_up),
+            "tx_bytes": a.tx_bytes,
+            "tx_frames": a.tx_frames,
+            "frame_bytes": a.last_frame_bytes,
+            "frame_bytes_max": a.max_frame_bytes,
+            "tx_errors": self.link.stats.tx_errors if self.link is not None else 0,
+            "deferred": a.packer.deferred,
+            "acks_dropped": a.acks_dropped,
+            "rx_bytes": u.bytes,
+            "rx_frames": u.frames,
+            "rx_bad": u.bad_frames + u.parser_resets,
+            "cmds_accepted": self._cmd_counts["accepted"],
+            "cmds_refused": self._cmd_counts["refused"],
+            "auth_unsigned": v[Verdict.UNSIGNED],
+            "auth_bad_signature": v[Verdict.BAD_SIGNATURE],
+            "auth_replay": v[Verdict.REPLAY],
+            "auth_stale": v[Verdict.STALE],
+            "auth_no_key": v[Verdict.NO_KEY],
+            "auth_future": v[Verdict.FUTURE],
+            "events_sent": a.events.sent,
+            "events_dropped": a.events.dropped,
+            "images_sent": a.images.images_sent,
+            "tlog_records": self.tlog.records if self.tlog is not None else 0,
+            "budget_bytes": a.budget_bytes,
+        })
 
     # -- commands ------------------------------------------------------------------------------
     def cmd_SET_BUDGET(self, budget_bytes: int) -> None:

@@ -79,11 +79,11 @@ def save(m: Any, phase: MissionPhase) -> None:
     if store is None or m.latest is None:
         return
     try:
-        path = store.save_next(m.latest.snapshot, m.ctx.clock.now(), mission_state(m, phase))
+        store.save_next(m.latest.snapshot, m.ctx.clock.now(), mission_state(m, phase))
     except (OSError, ValueError, TypeError) as exc:
         m.event("CHECKPOINT_FAILED", error=f"{type(exc).__name__}: {exc}")
         return
-    m.event("CHECKPOINT_SAVED", step=m.step, seq=store.seq, kib=path.stat().st_size / 1024)
+    m.event("CHECKPOINT_SAVED", step=m.step, seq=store.seq, kib=store.last_size / 1024)
 
 
 def resume(m: Any) -> MissionPhase | None:

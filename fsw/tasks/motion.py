@@ -246,13 +246,9 @@ class MotionTask(FlightTask):
                 else "IDLE"
             ),
         )
-        self.tlm("odo_x_m", x)
-        self.tlm("odo_y_m", y)
-        self.tlm("odo_yaw_deg", math.degrees(yaw))
-        self.tlm("odo_path_m", self.odo.path_m)
-        self.tlm("mast_busy", int(self.mast_goal is not None))
-        self.tlm("moves_done", self.done)
-        self.tlm("moves_aborted", self.aborted)
+        self.tlm_record({"odo_x_m": x, "odo_y_m": y, "odo_yaw_deg": math.degrees(yaw),
+                         "odo_path_m": self.odo.path_m, "mast_busy": int(self.mast_goal is not None),
+                         "moves_done": self.done, "moves_aborted": self.aborted})
         joints = mast.joints if mast is not None and mast.joints is not None else (math.nan,) * 3
         imu = self.ctx.res.imu
         self.attitude.update(imu.attitude(now) if imu is not None else None)

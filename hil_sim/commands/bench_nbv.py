@@ -37,7 +37,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ref-poses", type=int, default=6,
                    help="poses checked against the brute-force reference")
     p.add_argument("--rays", type=int, default=None,
-                   help="override nbv.visibility.rays_per_turn")
+                   help="fixed angular bins per turn (overrides nbv.visibility.rays_per_turn and its "
+                        "scaling with the cell size)")
     p.add_argument("--repeat", type=int, default=2, help="timed searches (the best is reported)")
     p.add_argument("--grid", type=int, default=None, metavar="N",
                    help="map of N x N cells over the configured area (e.g. 512: 1.5 cm cells)")
@@ -64,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
         cell_points,
         horizontal_reach_m,
         in_view,
+        rays_for_cell,
         terrain_from_map,
     )
     from fsw.core.visibility_kernel import pv_fast
@@ -88,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
             print("bench nbv: --rays must be within 256..65536", file=sys.stderr)
             return 2
         cfg = dataclasses.replace(cfg, visibility=dataclasses.replace(
-            cfg.visibility, rays_per_turn=args.rays))
+            cfg.visibility, rays_per_turn=args.rays, ray_cell_m=0.0))
     vis, camera, mast = cfg.visibility, settings.camera, settings.mast
     map_cfg = settings.map
     if args.grid is not None:
@@ -190,7 +192,7 @@ def run(args: argparse.Namespace) -> int:
         "search_steps": n_steps, "poses_per_s": n_poses / search_s,
         "station_rating_s": station_s, "station_kernel_s": kernel_s,
         "station_cells": int(near[0].size), "views_per_station": int(pans.size * tilts.size),
-        "rays_per_turn": vis.rays_per_turn,
+        "rays_per_turn": rays_for_cell(vis, grid.cell),
         "ref_poses": len(errs), "ref_cells": cells,
         "pv_mae": float(err.mean()) if err.size else math.nan,
         "pv_p95": float(np.quantile(err, 0.95)) if err.size else math.nan,
@@ -221,7 +223,7 @@ def run(args: argparse.Namespace) -> int:
               f"{exact_fig['speedup_cpu']:.1f}x faster; same choice: {exact_fig['same_choice']}, "
               f"utility of its choice / the exact best {exact_fig['utility_ratio']:.3f}")
     print(f"  per station (CPU): {1e3 * station_s:.0f} ms = P_V kernel {1e3 * kernel_s:.0f} ms "
-          f"({fig['station_cells']} cells, {vis.rays_per_turn} rays/turn) + view sums "
+          f"({fig['station_cells']} cells, {fig['rays_per_turn']} rays/turn) + view sums "
           f"and values for {fig['views_per_station']} pan/tilt views")
     print(f"P_V vs brute force: {fig['ref_poses']} poses, {cells} cells in view: mean abs error "
           f"{fig['pv_mae']:.4f} (goal <= 0.05), p95 {fig['pv_p95']:.3f}, max {fig['pv_max']:.3f}")

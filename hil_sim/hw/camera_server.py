@@ -26,6 +26,7 @@ from fsw.comm import camera_frames as cf
 from fsw.comm.camera_frames import CameraReply
 from hil_sim.faults import FaultInjector
 
+SEND_TIMEOUT_S = 10.0  # longest wait for the client to take one reply
 RenderFn = Callable[[], tuple[np.ndarray, np.ndarray, float]]
 
 
@@ -117,7 +118,13 @@ class CameraServer:
                 if reply is None:
                     continue
                 try:
+                    # A pair is ~0.6 MB: the client drains it once per frame, so on a loaded
+                    # machine the send outlasts the 0.2 s receive timeout; a timed-out send used to
+                    # drop the connection mid-reply (the flight saw a camera timeout, then a broken
+                    # link). The send gets its own, longer timeout.
+                    conn.settimeout(SEND_TIMEOUT_S)
                     conn.sendall(cf.encode_reply(reply.seq, reply.status, reply.t_capture_s, reply.left, reply.right))
+                    conn.settimeout(0.2)
                     self.served += 1
                 except OSError:
                     return

@@ -103,3 +103,22 @@ def test_height_dead_reckoned_on_a_slope_and_unknown_attitude() -> None:
     tr.update(None)  # sensor lost: attitude unknown, kept with a large sigma, never level
     st = tr.state()
     assert not st.valid and st.pitch == D10 and math.sqrt(st.cov[0, 0]) == pytest.approx(math.radians(5.0))
+
+
+def test_so3_log_equals_scipy_at_every_angle() -> None:
+    """so3_log no longer imports scipy.spatial (flight memory, issue 15): the same rotation
+    vectors as scipy's Rotation, from tiny angles to just under pi and for each dominant axis."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(3)
+    axes = rng.normal(size=(300, 3))
+    axes /= np.linalg.norm(axes, axis=1)[:, None]
+    angles = np.concatenate([10.0 ** rng.uniform(-9, 0, 100), rng.uniform(0, np.pi, 100),
+                             np.pi - 10.0 ** rng.uniform(-9, -1, 100)])
+    for w in axes * angles[:, None]:
+        R = so3_exp(w)
+        np.testing.assert_allclose(so3_log(R), Rotation.from_matrix(R).as_rotvec(), rtol=1e-9, atol=1e-12)
+    chain = np.eye(3)  # a long product of rotations (rounding-level non-orthogonality), as in flight
+    for w in axes[:50] * 0.7:
+        chain = chain @ so3_exp(w)
+    np.testing.assert_allclose(so3_log(chain), Rotation.from_matrix(chain).as_rotvec(), rtol=1e-9, atol=1e-12)

@@ -21,7 +21,7 @@ from fsw.core.info_planners import InformationPlanner
 from fsw.core.nbv import NbvConfig, info_n_max, rate_station
 from fsw.core.planners import PlannerState
 from fsw.core.steps import run_to_end
-from fsw.core.visibility import Terrain, VisibilityConfig, terrain_from_map
+from fsw.core.visibility import Terrain, VisibilityConfig, rays_for_cell, terrain_from_map
 from hil_sim.nbv_scene import edge_offset_path, panorama_map, synthetic_edge, synthetic_terrain
 
 GRID = MapGrid(x0=-0.5, y0=-3.5, cell=0.04, nx=110, ny=100)
@@ -43,8 +43,18 @@ def test_coarse_factor_rounds_and_disables() -> None:
     assert coarse_factor(0.03, 0.04) == 1
     for off in (0.0, -1.0, math.nan, math.inf):
         assert coarse_factor(0.03, off) == 1
-    assert coarse_visibility(VIS, 4).rays_per_turn == VIS.rays_per_turn // 4
-    assert coarse_visibility(VIS, 64).rays_per_turn == 256
+    fixed = dataclasses.replace(VIS, ray_cell_m=0.0)  # fixed bins: the coarse pass divides them
+    assert coarse_visibility(fixed, 4).rays_per_turn == VIS.rays_per_turn // 4
+    assert coarse_visibility(fixed, 64).rays_per_turn == 256
+    assert coarse_visibility(VIS, 4) == VIS  # scaled bins: the kernel divides by the cell size
+
+
+def test_rays_scale_with_the_cell() -> None:
+    assert rays_for_cell(VIS, VIS.ray_cell_m) == VIS.rays_per_turn
+    assert rays_for_cell(VIS, VIS.ray_cell_m / 2) == 2 * VIS.rays_per_turn
+    assert rays_for_cell(VIS, VIS.ray_cell_m * 4) == VIS.rays_per_turn // 4
+    assert rays_for_cell(VIS, 100.0) == 256 and rays_for_cell(VIS, 1e-6) == 65536
+    assert rays_for_cell(dataclasses.replace(VIS, ray_cell_m=0.0), 0.015) == VIS.rays_per_turn
 
 
 def test_coarsen_terrain_means_spread_and_weight() -> None:

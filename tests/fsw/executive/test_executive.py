@@ -356,3 +356,37 @@ def test_realtime_late_frames_within_the_lag_limit_catch_up() -> None:
     assert exe.skipped_frames == 0 and exe.events.count("exec.SKIPPED") == 0 and exe.frame == 8
     assert exe.lateness_s == pytest.approx([0.0, 0.0, 0.0, 0.015, 0.005, 0.0, 0.0, 0.0], abs=1e-9)
     assert exe.slips == 1
+
+
+def test_malloc_thresholds_fixed_on_glibc_and_off_for_zero() -> None:
+    """[executive] malloc_mmap_threshold_kib (issue 15): glibc accepts the fixed thresholds; 0
+    leaves the allocator alone."""
+    import platform
+
+    from fsw.executive.executive import fix_malloc_thresholds
+
+    assert fix_malloc_thresholds(0) is False
+    if platform.system() == "Linux" and platform.libc_ver()[0] == "glibc":
+        assert fix_malloc_thresholds(128 * 1024) is True
+
+
+def test_realtime_slack_starts_a_slice_only_when_a_whole_one_fits() -> None:
+    """Issue 15: with 19 ms slices a frame of 100 ms never overruns (a slice begun a few ms
+    before the margin used to run past the frame); with no reserve it did, the old way."""
+    results = {}
+    for reserve in (0.02, 0.0):
+        clock = JumpClock()
+        cfg = make_cfg([{"name": "fast", "divisor": 1}], [task("fg", "fast")], frame_period_s=0.1,
+                       slack_margin_s=0.005, slack_slice_reserve_s=reserve)
+        exe = Executive(cfg, clock, timer=clock)
+
+        def job(c: JumpClock) -> Any:
+            for _ in range(200):
+                c.t += 0.019  # one bounded slice of work
+                yield None
+
+        handle = exe.tasks["fg"].submit_job(job(clock), "long")
+        exe.run_realtime(30)
+        results[reserve] = (exe.slips, handle.slices)
+    assert results[0.02][0] == 0 and results[0.02][1] >= 30 * 3  # still 3-4 slices a frame
+    assert results[0.0][0] > 0  # without the reserve the fifth slice of a frame overruns it
