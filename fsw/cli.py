@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
 from collections.abc import Sequence
 
@@ -17,6 +18,10 @@ def _load(path: str) -> FswConfig | None:
     except ConfigError as err:
         print(f"safer-fsw: config error: {err}", file=sys.stderr)
         return None
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt(signal.Signals(signum).name)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -36,6 +41,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         f"({'until interrupted' if frames is None else f'{frames} frames'}); config {args.config}"
     )
     exe.freeze_heap()  # no full garbage collection walks the start-up heap inside a frame
+    # Ctrl-C and a supervisor's SIGTERM stop the executive the same orderly way (drivers closed,
+    # queued checkpoint writes finished), even when started with SIGINT ignored (a background job).
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, _interrupt)
     try:
         exe.run_realtime(frames)
     except KeyboardInterrupt:

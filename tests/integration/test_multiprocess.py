@@ -88,6 +88,19 @@ def test_serve_and_flight_processes_move_a_motor_and_the_mast(tmp_path: Path) ->
         )
         assert run.returncode == 0, run.stderr
         assert "MAST_ONLINE" in run.stdout and run.stdout.count("CAN_NODE_ONLINE") >= 12
+        # 1b) a supervisor's SIGTERM stops it the orderly way (devices closed, figures printed)
+        fsw = subprocess.Popen([str(BIN / "safer-fsw"), "run", "--config", str(flight_cfg)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        try:
+            _read_until(fsw, "safer-fsw: running", 30.0)
+            time.sleep(1.0)  # frames run
+            fsw.send_signal(signal.SIGTERM)
+            rest, err = fsw.communicate(timeout=30)
+        finally:
+            fsw.kill()
+        assert fsw.returncode == 0, err
+        assert "safer-fsw: interrupted" in rest and "slips" in rest
         # 2) the same flight build, in this process, moves a motor and the mast
         cfg = only_hw_tasks(load_settings(flight_cfg))
         exe = build_executive(cfg)

@@ -118,7 +118,10 @@ def test_ctrl_c_stores_no_interrupted_mission(tmp_path: Path) -> None:
     import time
 
     proc = subprocess.Popen([sys.executable, "-m", "hil_sim.cli", "campaign", str(SMOKE), "--out", str(tmp_path)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
+                            # Ctrl-C as in a terminal, even when the suite runs as a background job
+                            # (which starts its children with SIGINT ignored)
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     time.sleep(8.0)  # the missions are running
     os.killpg(proc.pid, signal.SIGINT)  # as Ctrl-C in a terminal: the whole process group
     _, err = proc.communicate(timeout=120)
