@@ -153,7 +153,7 @@ def carried_prior(pose: CameraPose, pose_cov: F64, fix: StationFix) -> tuple[F64
     Odometry drifts: its yaw, x, y and height errors at the new station are those found at the
     last one plus what the drive since added. The yaw correction turns the world about the
     last camera centre ``c``, so at this view's centre ``t`` the correction is ``(0, 0, dyaw,
-    dt + dyaw e_z x (t - c))`` with the covariance ``A C A^T`` (``A``: that lever). The drive
+    dt + (Rz(dyaw) - I)(t - c))`` with the covariance ``A C A^T`` (``A``: that lever). The drive
     adds the growth of the odometry covariance since then (its dead-reckoned block, clipped
     to positive semidefinite); roll and pitch come fresh from the attitude sensor each view
     and keep the view's own prior. Returns ``(d0, cov)``.
@@ -161,7 +161,7 @@ def carried_prior(pose: CameraPose, pose_cov: F64, fix: StationFix) -> tuple[F64
     lever = np.asarray(pose.t, np.float64) - fix.centre
     d0 = np.zeros(6)
     d0[2] = fix.correction[2]
-    d0[3:] = fix.correction[3:] + np.cross(np.r_[0.0, 0.0, fix.correction[2]], lever)
+    d0[3:] = fix.correction[3:] + so3_exp(d0[:3]) @ lever - lever
     A = np.eye(6)
     A[3:, :3] = -_skew(lever)
     carried = A @ fix.cov @ A.T
