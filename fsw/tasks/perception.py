@@ -45,6 +45,7 @@ from fsw.core.registration import (
     register_steps,
 )
 from fsw.core.stereo import StereoMatcher, StereoPoints
+from fsw.core.stereo_calibration import offset_covariance
 from fsw.drivers.map_store import MapStore
 from fsw.framework.commands import CommandDef, CommandError
 from fsw.framework.jobs import JobHandle
@@ -181,10 +182,13 @@ class PerceptionTask(FlightTask):
         yield
         pts = yield from self.matcher.triangulate_steps(dm.disparity_px, sigma_px=dm.sigma_px)
         reg, pose, pose_cov = yield from self._register(fr, pts)
-        parts = []
+        parts, off_sigma = [], 0.0 if self.rectifier is None else self.rectifier.camera.offset_sigma_px
         for a in range(0, len(pts), PROPAGATE_CHUNK):  # world covariance (§1.2) in bounded slices
             b = a + PROPAGATE_CHUNK
             xyz, cov_s, cov_p = point_covariance_parts(pose, pose_cov, pts.xyz_c[a:b], pts.cov_c[a:b])
+            if off_sigma > 0.0:  # the calibration's disparity offset: common too (§1.2)
+                cal = offset_covariance(xyz, pose.t, pts.disparity_px[a:b], off_sigma)
+                cov_p = cal if cov_p is None else cov_p + cal
             # The pose term is common to every point of the view: it must not average down in a cell.
             parts.append((xyz, cov_s if cov_p is None else cov_s + cov_p, cov_p))
             yield
