@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
             imgs.append(img)
         pairs.append((key, imgs[0], imgs[1]))
     try:
-        res = calibrate_stereo(pairs, cfg.calibration)
+        res = calibrate_stereo(pairs, cfg.calibration, cfg.camera.K)
         save_calibration(args.out, res.calibration)
     except (CalibrationInputError, CalibrationError) as err:
         return fail(str(err))
@@ -100,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
     cal = res.calibration
     print(f"stereo reprojection RMS {cal.rms_px:.3f} px over {cal.views} of {len(pairs)} views; "
           f"f {cal.K1[0, 0]:.2f} / {cal.K2[0, 0]:.2f} px, baseline {cal.baseline_m * 1e3:.2f} mm, "
-          f"k1 {cal.D1[0, 0]:+.4f} / {cal.D2[0, 0]:+.4f}")
+          f"k1 {cal.D1[0, 0]:+.4f} / {cal.D2[0, 0]:+.4f}; disparity offset sigma (jackknife) "
+          f"{cal.disparity_offset_sigma_px:.3f} px")
     print(f"wrote {args.out}")
     return 0

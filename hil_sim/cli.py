@@ -38,6 +38,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("experiment", "resume"): "hil_sim.commands.experiment_resume",
     ("experiment", "terrain"): "hil_sim.commands.experiment_terrain",
     ("experiment", "ground"): "hil_sim.commands.experiment_ground",
+    ("experiment", "camera-path"): "hil_sim.commands.experiment_camera_path",
 }
 
 GROUP_HELP = {

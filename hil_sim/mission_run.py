@@ -207,6 +207,7 @@ def run_mission(
     progress: Callable[[int, int, str], None] | None = None,
     max_sim_s: float | None = None,
     mode: str = "new",
+    on_bench: Callable[[Any], None] | None = None,
 ) -> dict[str, Any]:
     """Run one mission to DONE (or SAFE, or the time limit) and return its summary.
 
@@ -247,6 +248,8 @@ def run_mission(
     with LockstepBench(cfg, world, seed=spec.seed, hw=hw, quiet=True, resources=resources, start=start,
                        faults=spec.faults) as bench:
         bench_box.append(bench)
+        if on_bench is not None:  # an experiment's observer (hil_sim.view_replay records the views)
+            on_bench(bench)
         clock_box.append(bench.clock.now)
         if saved_bench is not None:
             try:

@@ -12,7 +12,11 @@ then, with OpenCV's model (pinhole ``K``, Brown–Conrady distortion ``k1, k2, p
    each view;
 3. outlier views: a view whose RMS (worse camera) exceeds ``max_view_rms_px`` or
    ``outlier_factor`` times the median is dropped and step 2 re-run, until none is, as long
-   as ``min_views`` remain.
+   as ``min_views`` remain;
+4. the calibration's own uncertainty where it matters most for range: the disparity offset
+   at infinity (the relative yaw and principal points, which targets at 1 m fix poorly),
+   its jackknife sigma over the used views (``disparity_offset_sigma_px``; the flight's
+   point covariance carries it, ``stereo_calibration.offset_covariance``).
 
 Bad input raises :class:`CalibrationInputError` with one line (the CLI exits 2).
 """
@@ -20,13 +24,13 @@ Bad input raises :class:`CalibrationInputError` with one line (the CLI exits 2).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.core.stereo_calibration import StereoCalibration
+from fsw.core.stereo_calibration import StereoCalibration, disparity_offset_px
 from fsw.framework.params import param
 
 F32 = NDArray[np.float32]
@@ -114,8 +118,11 @@ class TargetDetector:
         return np.arange(size[0] * size[1], dtype=np.int32), corners.reshape(-1, 2).astype(np.float32)
 
 
-def calibrate_stereo(pairs: Sequence[tuple[str, U8, U8]], cfg: CalibrationConfig) -> CalibrationResult:
-    """Calibrate from named grey pairs ``(name, left, right)`` of the target (module doc)."""
+def calibrate_stereo(pairs: Sequence[tuple[str, U8, U8]], cfg: CalibrationConfig,
+                     K_target: F64 | None = None) -> CalibrationResult:
+    """Calibrate from named grey pairs ``(name, left, right)`` of the target (module doc);
+    ``K_target``: the rectified camera the flight software uses (its disparity offset
+    uncertainty is estimated for it; None: OpenCV's rectified ``P1``)."""
     if not pairs:
         raise CalibrationInputError("no image pairs given")
     size = pairs[0][1].shape
@@ -166,6 +173,7 @@ def calibrate_stereo(pairs: Sequence[tuple[str, U8, U8]], cfg: CalibrationConfig
         used = [i for i in used if i not in bad]
     cal = StereoCalibration(wh[0], wh[1], K1, D1.reshape(1, -1)[:, :5], K2, D2.reshape(1, -1)[:, :5], R, T,
                             rms_px=float(rms), views=len(used))
+    cal = replace(cal, disparity_offset_sigma_px=_jackknife_offset(cal, views, used, flags, K_target))
     errs = _view_errors(views, cal)
     reports = []
     for name, _, _ in pairs:
@@ -190,6 +198,23 @@ def _stereo(views: list[tuple[str, F32, F32, F32]], used: list[int], Ks: list[F6
     K1, D1, K2, D2, R, T = (np.asarray(m, np.float64) for m in out[1:7])
     per_view = np.asarray(out[-1], np.float64).reshape(len(sel), 2)
     return float(out[0]), K1, D1, K2, D2, R, T.reshape(3, 1), per_view
+
+
+def _jackknife_offset(cal: StereoCalibration, views: list[tuple[str, F32, F32, F32]], used: list[int], flags: int,
+                      K_target: F64 | None) -> float:
+    """Jackknife sigma of the disparity offset (at infinity) of ``cal``: the pair refitted
+    without each used view in turn (step 4 of the module doc)."""
+    K = cal.rectification()[2][:, :3] if K_target is None else np.asarray(K_target, np.float64)
+    wh = (cal.width_px, cal.height_px)
+    offs = []
+    for i in used:
+        _, K1, D1, K2, D2, R, T, _ = _stereo(views, [j for j in used if j != i], [cal.K1, cal.K2],
+                                             [cal.D1, cal.D2], wh, flags)
+        other = StereoCalibration(wh[0], wh[1], K1, D1.reshape(1, -1)[:, :5], K2, D2.reshape(1, -1)[:, :5], R, T)
+        offs.append(disparity_offset_px(cal, other, K))
+    n = len(offs)
+    a = np.asarray(offs)
+    return float(np.sqrt((n - 1) / n * np.sum((a - a.mean()) ** 2))) if n > 1 else 0.0
 
 
 def _view_errors(views: list[tuple[str, F32, F32, F32]], cal: StereoCalibration) -> list[tuple[float, float]]:

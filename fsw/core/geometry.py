@@ -230,6 +230,17 @@ class MapGrid:
         inside = (ix >= 0) & (ix < self.nx) & (iy >= 0) & (iy < self.ny)
         return iy, ix, inside
 
+    def cell_means(self, xyz: F64) -> tuple[NDArray[np.int32], NDArray[np.float32]]:
+        """The cells that the finite points ``xyz`` (N, 3) fall in (flat index) and their mean
+        height there: what one view measured, for the seam checks (§5.1)."""
+        iy, ix, inside = self.cell_index(xyz[:, 0], xyz[:, 1])
+        inside &= np.isfinite(xyz[:, 2])
+        flat = (iy * self.nx + ix)[inside]
+        cnt = np.bincount(flat, minlength=self.nx * self.ny)
+        tot = np.bincount(flat, weights=xyz[inside, 2], minlength=self.nx * self.ny)
+        idx = np.flatnonzero(cnt)
+        return idx.astype(np.int32), (tot[idx] / cnt[idx]).astype(np.float32)
+
     def centers(self) -> tuple[F64, F64]:
         """``(X, Y)`` arrays of cell-centre coordinates, each of the grid's shape."""
         xs = self.x0 + (np.arange(self.nx) + 0.5) * self.cell

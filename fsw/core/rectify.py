@@ -48,6 +48,7 @@ class RectifiedCamera:
     cy_px: float
     baseline_m: float
     R_rect: F64  # rotation from the physical left camera frame to the rectified one (R1)
+    offset_sigma_px: float = 0.0  # the calibration's disparity offset sigma (common to every point)
 
 
 class Rectifier:
@@ -71,7 +72,8 @@ class Rectifier:
         f = float(P1[0, 0])
         self.camera = RectifiedCamera(
             focal_px=f, cx_px=float(P1[0, 2]), cy_px=float(P1[1, 2]),
-            baseline_m=float(-P2[0, 3] / P2[0, 0]), R_rect=np.asarray(R1, np.float64))
+            baseline_m=float(-P2[0, 3] / P2[0, 0]), R_rect=np.asarray(R1, np.float64),
+            offset_sigma_px=float(cal.disparity_offset_sigma_px))
         if not (f > 0 and self.camera.baseline_m > 0):
             raise ValueError("the calibration gives no usable rectified pair (is the right camera on the left?)")
 

@@ -87,6 +87,8 @@ class RegistrationConfig:
     gate_chi2: float = param(50.0, lo=1.0, hi=1e9, doc="correction against the prior (6 dof) above this: refused")
     inflate_rot_deg: float = param(0.3, lo=0.0, hi=30.0, units="deg", doc="unregistered view: added rotation sigma")
     inflate_pos_m: float = param(0.02, lo=0.0, hi=10.0, units="m", doc="unregistered view: added position sigma")
+    carry: bool = param(True, doc="a new station starts from the last registered station's dead-reckoning "
+                                  "correction (yaw, x, y, z) with the odometry covariance grown since")
 
 
 @dataclass
@@ -125,6 +127,58 @@ def inflate(cov: F64, cfg: RegistrationConfig) -> F64:
     """The pose covariance of a view that could not be registered."""
     add = np.r_[np.full(3, math.radians(cfg.inflate_rot_deg) ** 2), np.full(3, cfg.inflate_pos_m**2)]
     return np.asarray(cov, dtype=np.float64) + np.diag(add)
+
+
+@dataclass(frozen=True)
+class StationFix:
+    """What the last registered station found: its camera centre, its total correction
+    ``(dtheta, dt)`` (§5 convention, about that centre), the correction's covariance and the
+    view's prior pose covariance there (odometry, attitude, mast), and the frame error of the
+    map it was aligned to (``frame_cov``: the views before it placed that part of the map)."""
+
+    centre: F64
+    correction: F64
+    cov: F64
+    pose_cov: F64
+    frame_cov: F64
+
+
+DEAD_RECKONED = [2, 3, 4, 5]  # yaw, x, y, z: the pose components odometry integrates (drift)
+
+
+def carried_prior(pose: CameraPose, pose_cov: F64, fix: StationFix) -> tuple[F64, F64]:
+    """The prior of a view from a new station (§5.1): the dead-reckoning part of the last
+    station's correction carried as a rigid motion of the world, and its covariance.
+
+    Odometry drifts: its yaw, x, y and height errors at the new station are those found at the
+    last one plus what the drive since added. The yaw correction turns the world about the
+    last camera centre ``c``, so at this view's centre ``t`` the correction is ``(0, 0, dyaw,
+    dt + (Rz(dyaw) - I)(t - c))`` with the covariance ``A C A^T`` (``A``: that lever). The drive
+    adds the growth of the odometry covariance since then (its dead-reckoned block, clipped
+    to positive semidefinite); roll and pitch come fresh from the attitude sensor each view
+    and keep the view's own prior. Returns ``(d0, cov)``.
+    """
+    lever = np.asarray(pose.t, np.float64) - fix.centre
+    d0 = np.zeros(6)
+    d0[2] = fix.correction[2]
+    d0[3:] = fix.correction[3:] + so3_exp(d0[:3]) @ lever - lever
+    A = np.eye(6)
+    A[3:, :3] = -_skew(lever)
+    carried = A @ fix.cov @ A.T
+    I = np.ix_(DEAD_RECKONED, DEAD_RECKONED)
+    S = np.asarray(pose_cov, np.float64)
+    grown = S[I] - np.asarray(fix.pose_cov, np.float64)[I]
+    lam, vec = np.linalg.eigh(0.5 * (grown + grown.T))
+    grown = (vec * np.maximum(lam, 0.0)) @ vec.T
+    out = S.copy()
+    out[np.ix_([0, 1], DEAD_RECKONED)] = 0.0  # attitude (sensor) and dead reckoning: independent
+    out[np.ix_(DEAD_RECKONED, [0, 1])] = 0.0
+    out[I] = grown + carried[I]
+    return d0, 0.5 * (out + out.T)
+
+
+def _skew(v: F64) -> F64:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 def _surface(grid: MapGrid, z: F64, var: F64, ref: NDArray[np.bool_], x: F64, y: F64

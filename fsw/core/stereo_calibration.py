@@ -32,6 +32,7 @@ class StereoCalibration:
     T: F64
     rms_px: float = float("nan")
     views: int = 0
+    disparity_offset_sigma_px: float = 0.0  # the calibration's own uncertainty (jackknife), see below
 
     @property
     def baseline_m(self) -> float:
@@ -45,3 +46,28 @@ class StereoCalibration:
                                 flags=cv2.CALIB_ZERO_DISPARITY, alpha=0.0)
         R1, R2, P1, P2, Q = (np.asarray(m, dtype=np.float64) for m in out[:5])
         return R1, R2, P1, P2, Q
+
+
+def disparity_offset_px(ref: StereoCalibration, other: StereoCalibration, K: F64) -> float:
+    """Mean disparity that ``ref``'s rectification (onto the pinhole ``K``) gives to points at
+    infinity when the cameras are ``other``: the systematic disparity error of ``ref`` if
+    ``other`` were the truth (zero for ``other = ref``). Over a 7x5 grid of image directions."""
+    u, v = np.meshgrid(np.linspace(0.1, 0.9, 7) * ref.width_px, np.linspace(0.1, 0.9, 5) * ref.height_px)
+    ray = cv2.undistortPoints(np.column_stack([u.ravel(), v.ravel()]).reshape(-1, 1, 2), other.K1, other.D1)
+    far = 1e8 * np.column_stack([ray.reshape(-1, 2), np.ones(ray.shape[0])])
+    pl = cv2.projectPoints(far, np.zeros(3), np.zeros(3), other.K1, other.D1)[0]
+    pr = cv2.projectPoints(far, cv2.Rodrigues(other.R)[0], other.T, other.K2, other.D2)[0]
+    R1, R2, _, _, _ = ref.rectification()
+    P1 = np.hstack([K, np.zeros((3, 1))])
+    ul = cv2.undistortPoints(pl, ref.K1, ref.D1, R=R1, P=P1).reshape(-1, 2)
+    ur = cv2.undistortPoints(pr, ref.K2, ref.D2, R=R2, P=P1).reshape(-1, 2)
+    return float(np.mean(ul[:, 0] - ur[:, 0]))
+
+
+def offset_covariance(xyz_w: F64, centre: F64, disparity_px: F64, sigma_px: float) -> F64:
+    """World covariance ``(N, 3, 3)`` of points from a disparity offset of ``sigma_px``
+    common to the whole image (the calibration's uncertainty, §1.2): an offset ``e`` moves a
+    point along its ray by ``-e/d`` of its range, ``J = -(x - c)/d``."""
+    v = (np.asarray(xyz_w, np.float64) - centre) / np.asarray(disparity_px, np.float64)[:, None]
+    out: F64 = sigma_px**2 * v[:, :, None] * v[:, None, :]
+    return out

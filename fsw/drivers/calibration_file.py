@@ -12,6 +12,7 @@ The file is an OpenCV ``FileStorage`` YAML (``%YAML:1.0``), readable by any Open
     K1, D1, K2, D2, R, T           matrices (3x3, 1x5, 3x3, 1x5, 3x3, 3x1)
     rms_px                         stereo reprojection RMS of the fit, px
     views                          views used
+    disparity_offset_sigma_px      the calibration's disparity offset sigma (optional, 0)
     R1, R2, P1, P2, Q              the rectification (cv2.stereoRectify) for other tools
 
 Loading validates everything and raises :class:`CalibrationError` with one line naming the
@@ -22,6 +23,7 @@ baseline, or stored rectification matrices that disagree with the calibration.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import cv2
@@ -51,6 +53,7 @@ def save_calibration(path: str | Path, cal: StereoCalibration) -> None:
             fs.write(name, np.asarray(getattr(cal, name), np.float64).reshape(_SHAPES[name]))
         fs.write("rms_px", float(cal.rms_px))
         fs.write("views", int(cal.views))
+        fs.write("disparity_offset_sigma_px", float(cal.disparity_offset_sigma_px))
         for name, mat in zip(_RECT_SHAPES, cal.rectification(), strict=True):
             fs.write(name, mat)
     finally:
@@ -82,6 +85,8 @@ def load_calibration(path: str | Path, width_px: int, height_px: int) -> StereoC
         rms_node, views_node = fs.getNode("rms_px"), fs.getNode("views")  # informative only
         rms = rms_node.real() if rms_node.isReal() or rms_node.isInt() else float("nan")
         views = int(views_node.real()) if views_node.isInt() else 0
+        off_node = fs.getNode("disparity_offset_sigma_px")  # optional: files before it read as 0
+        off = off_node.real() if off_node.isReal() or off_node.isInt() else 0.0
     except (cv2.error, SystemError) as exc:
         raise CalibrationError(f"{path}: unreadable node ({_first_line(exc)})") from None
     finally:
@@ -103,7 +108,10 @@ def load_calibration(path: str | Path, width_px: int, height_px: int) -> StereoC
     right_centre = -R.T @ mats["T"]  # in the left camera frame: it must lie along +x
     if not right_centre[0, 0] > 0.5 * np.linalg.norm(mats["T"]):
         raise CalibrationError(f"{path}: the right camera is not to the right of the left one (pair swapped?)")
-    cal = StereoCalibration(width_px, height_px, **mats, rms_px=float(rms), views=views)
+    if not (math.isfinite(off) and 0.0 <= off <= 5.0):
+        raise CalibrationError(f"{path}: disparity_offset_sigma_px = {off} is not a sigma in 0..5 px")
+    cal = StereoCalibration(width_px, height_px, **mats, rms_px=float(rms), views=views,
+                            disparity_offset_sigma_px=float(off))
     present = {k: v for k, v in stored.items() if v is not None}
     if present:
         for k, mine in zip(_RECT_SHAPES, cal.rectification(), strict=True):

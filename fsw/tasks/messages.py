@@ -88,7 +88,7 @@ class MapUpdate:
     edge_points: int = 0  # edge cells found in this view
     roi_mapped_fraction: float = 0.0  # of the region of interest (the §3.6 end criterion)
     registration: RegistrationSummary | None = None  # the view's registration (§5.1, perception)
-    view_cells: tuple[NDArray[np.intp], NDArray[np.float64]] | None = None  # flat cell index, mean height (m)
+    view_cells: tuple[NDArray[np.int32], NDArray[np.float32]] | None = None  # flat cell index, mean height (m)
     camera_xyz: tuple[float, float, float] | None = None  # the (registered) camera centre
 
 

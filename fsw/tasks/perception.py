@@ -20,6 +20,7 @@ way (the map would be half-merged). At start-up it restores the newest good chec
 
 from __future__ import annotations
 
+import dataclasses
 from collections import deque
 from collections.abc import Generator
 from typing import ClassVar
@@ -36,12 +37,15 @@ from fsw.core.rectify import Rectifier
 from fsw.core.registration import (
     Registration,
     RegistrationSummary,
+    StationFix,
     apply_correction,
+    carried_prior,
     inflate,
     reference_cells,
     register_steps,
 )
 from fsw.core.stereo import StereoMatcher, StereoPoints
+from fsw.core.stereo_calibration import offset_covariance
 from fsw.drivers.map_store import MapStore
 from fsw.framework.commands import CommandDef, CommandError
 from fsw.framework.jobs import JobHandle
@@ -136,6 +140,7 @@ class PerceptionTask(FlightTask):
         self.unregistered = 0
         self.anchor_cov: NDArray[np.float64] | None = None  # pose covariance of the view that began the map
         self.station: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None  # (camera centre, correction)
+        self.fix: StationFix | None = None  # the last registered station (carried to the next one)
         self.registrations: deque[RegistrationSummary] = deque(maxlen=1000)  # per view (mission summary)
         self.store = self.ctx.res.map_store
         self._last_checkpoint_s = self.ctx.clock.now()
@@ -180,15 +185,18 @@ class PerceptionTask(FlightTask):
         pts = yield from self.matcher.triangulate_steps(dm.disparity_px, sigma_px=dm.sigma_px)
         del dm, left, right  # not needed past here: a smaller resident peak (issue 15)
         reg, pose, pose_cov = yield from self._register(fr, pts)
-        parts = []
+        parts, off_sigma = [], 0.0 if self.rectifier is None else self.rectifier.camera.offset_sigma_px
         for a in range(0, len(pts), PROPAGATE_CHUNK):  # world covariance (§1.2) in bounded slices
             b = a + PROPAGATE_CHUNK
             xyz, cov_s, cov_p = point_covariance_parts(pose, pose_cov, pts.xyz_c[a:b], pts.cov_c[a:b])
+            if off_sigma > 0.0:  # the calibration's disparity offset: common too (§1.2)
+                cal = offset_covariance(xyz, pose.t, pts.disparity_px[a:b], off_sigma)
+                cov_p = cal if cov_p is None else cov_p + cal
             # The pose term is common to every point of the view: it must not average down in a cell.
             parts.append((xyz, cov_s if cov_p is None else cov_s + cov_p, cov_p))
             yield
         del pts  # the camera-frame points: every use is above
-        view_cells = self._view_cells(parts)
+        view_cells = self.map.grid.cell_means(np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3)))
         yield
         stats = yield from self.map.merge_parts_steps(parts, p_visible=p_visible, step_points=MERGE_STEP_POINTS)
         yield
@@ -228,23 +236,29 @@ class PerceptionTask(FlightTask):
         the view that began the map (the map's own frame error). Not registered: the prior
         pose covariance inflated. The first view of a map is its reference. A view from the
         station of the last registered view starts from that view's correction (the body
-        pose error it found holds until the rover moves), registered or not.
+        pose error it found holds until the rover moves), registered or not; a view from a
+        new station starts from that station's dead-reckoning correction with the odometry
+        covariance grown since (``carried_prior``).
         """
         rcfg = self.ctx.cfg.registration
         if not rcfg.enabled:
             return Registration("off", "disabled in config"), fr.pose, fr.pose_cov
         # Views from the station of the last registered view (same camera centre: the rover has
         # not moved; pan and tilt turn the head about it) start from that view's correction.
-        d0 = np.zeros(6)
-        if self.station is not None and float(np.linalg.norm(fr.pose.t - self.station[0])) < STATION_TOL_M:
+        d0, prior_cov, frame_prior = np.zeros(6), fr.pose_cov, np.zeros((6, 6))
+        same = self.station is not None and float(np.linalg.norm(fr.pose.t - self.station[0])) < STATION_TOL_M
+        if same and self.station is not None:
             d0 = self.station[1]
+        elif rcfg.carry and self.fix is not None:
+            d0, prior_cov = carried_prior(fr.pose, fr.pose_cov, self.fix)
+            frame_prior = self.fix.frame_cov
         prior = apply_correction(fr.pose, d0)
         n = len(pts)
         sel = np.linspace(0, n - 1, min(n, 4 * rcfg.max_points)).astype(np.intp) if n else np.zeros(0, np.intp)
         xyz_w, cov_w, _ = point_covariance_parts(prior, None, pts.xyz_c[sel], pts.cov_c[sel])
         ref = reference_cells(self.map.z, self.map.var, self.map.n, rcfg)
         yield
-        reg = yield from register_steps(xyz_w, cov_w, prior, fr.pose_cov, self.map.grid, self.map.z,
+        reg = yield from register_steps(xyz_w, cov_w, prior, prior_cov, self.map.grid, self.map.z,
                                         self.map.var, ref, rcfg)
         if reg.status == "reference":
             if self.anchor_cov is None:
@@ -254,26 +268,19 @@ class PerceptionTask(FlightTask):
             if d0.any():
                 reg.reason += "; the station's correction applied"
                 reg.correction = d0
-            return reg, prior, inflate(fr.pose_cov, rcfg)
+            return reg, prior, inflate(prior_cov + frame_prior, rcfg)
         pose = apply_correction(prior, reg.correction)
         total = np.r_[so3_log(pose.R @ fr.pose.R.T), pose.t - fr.pose.t]
         self.station = (fr.pose.t.copy(), total)
         reg.correction = total
-        anchor = self.anchor_cov if self.anchor_cov is not None else np.zeros((6, 6))
-        return reg, pose, reg.cov + anchor
-
-    def _view_cells(self, parts: list[ViewPart]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
-        """The view's own mean height per cell it measured (flat cell index, metres): what a
-        station contributed, for the seam checks of the bench and the ground."""
-        g = self.map.grid
-        xyz = np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3))
-        iy, ix, inside = g.cell_index(xyz[:, 0], xyz[:, 1])
-        inside &= np.isfinite(xyz[:, 2])
-        flat = (iy * g.nx + ix)[inside]
-        cnt = np.bincount(flat, minlength=g.nx * g.ny)
-        tot = np.bincount(flat, weights=xyz[inside, 2], minlength=g.nx * g.ny)
-        idx = np.flatnonzero(cnt)
-        return idx.astype(np.int32), (tot[idx] / cnt[idx]).astype(np.float32)
+        # The map this view was aligned to was placed by the views before it: the anchor's frame
+        # error, and with ``carry`` each station's registration error adds to the next (a chain).
+        frame = self.anchor_cov if self.anchor_cov is not None else np.zeros((6, 6))
+        if rcfg.carry and self.fix is not None:
+            frame = self.fix.frame_cov if same else self.fix.frame_cov + self.fix.cov
+        merged = reg.cov + frame
+        self.fix = StationFix(fr.pose.t.copy(), total, reg.cov, np.asarray(fr.pose_cov, dtype=np.float64), frame)
+        return reg, pose, merged
 
     def _finish(self, h: JobHandle) -> None:
         if h.error is not None:
@@ -350,6 +357,7 @@ class PerceptionTask(FlightTask):
             "unregistered": self.unregistered,
             "anchor_cov": None if self.anchor_cov is None else self.anchor_cov.tolist(),
             "station": None if st is None else [st[0].tolist(), st[1].tolist()],
+            "fix": None if self.fix is None else [np.asarray(v).tolist() for v in dataclasses.astuple(self.fix)],
             "registrations": list(self.registrations),
         }
 
@@ -361,6 +369,9 @@ class PerceptionTask(FlightTask):
         if st is not None:
             centre, corr = (np.asarray(v, dtype=np.float64) for v in st)
             self.station = (centre.reshape(3), corr.reshape(6))
+        fix = state.get("fix")
+        if fix is not None:
+            self.fix = StationFix(*(np.asarray(v, dtype=np.float64) for v in fix))
         self.registrations.extend(state.get("registrations", []))
         self.tlm("views", self.views)
 
@@ -377,3 +388,4 @@ class PerceptionTask(FlightTask):
         self.map = ElevationMap(self.map.grid, self.ctx.cfg.fusion)
         self.anchor_cov = None
         self.station = None
+        self.fix = None

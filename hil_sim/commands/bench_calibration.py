@@ -123,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
     t_render = time.perf_counter() - t0
     t0 = time.perf_counter()
     try:
-        res = calibrate_stereo(pairs, cfg.calibration)
+        res = calibrate_stereo(pairs, cfg.calibration, cfg.camera.K)
     except CalibrationInputError as err:
         print(f"safer-hil bench calibration: {err}", file=sys.stderr)
         return 2

@@ -4,6 +4,7 @@ input with one line and exit status 2."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import cv2
@@ -13,6 +14,7 @@ import pytest
 from fsw.cli import main as fsw_main
 from fsw.core.calibrate import CalibrationConfig, CalibrationInputError, TargetDetector, calibrate_stereo
 from fsw.core.rectify import Rectifier
+from fsw.core.stereo_calibration import disparity_offset_px, offset_covariance
 from fsw.drivers.calibration_file import load_calibration
 from fsw.settings import load_settings
 from hil_sim.camera_model import TrueCameras
@@ -125,3 +127,39 @@ def test_cli_bad_input_is_one_line_and_exit_2(bench, tmp_path: Path, capsys, cas
     err = capsys.readouterr().err.strip()
     assert err.startswith("safer-fsw calibrate: ") and "\n" not in err and "Traceback" not in err
     assert not (tmp_path / "c.yaml").exists()
+
+
+def test_jackknife_offset_sigma_covers_the_estimates_error(bench) -> None:  # type: ignore[no-untyped-def]
+    """The calibration's disparity offset at infinity (what makes far points systematically
+    too far or too near) carries a jackknife sigma; the estimate's actual offset against the
+    truth lies within 3 of it, here and in the shipped file (18 views)."""
+    cams, pairs, _ = bench
+    K = load_settings().camera.K
+    cal = calibrate_stereo(pairs, CalibrationConfig(), K).calibration
+    truth = cams.truth()
+    assert 0.01 < cal.disparity_offset_sigma_px < 0.5
+    assert abs(disparity_offset_px(cal, truth, K)) <= 3 * cal.disparity_offset_sigma_px
+    shipped = load_calibration("config/stereo_calibration.yaml", 640, 480)
+    assert shipped.disparity_offset_sigma_px > 0.01
+    assert abs(disparity_offset_px(shipped, truth, K)) <= 3 * shipped.disparity_offset_sigma_px
+
+
+def test_disparity_offset_of_a_turned_right_camera(bench) -> None:  # type: ignore[no-untyped-def]
+    """Against itself a calibration has no offset; with the right camera turned by 0.01 deg
+    about y, points at infinity get about f * 0.01 deg of disparity (0.12 px; f (1 + x^2) at
+    the normalised column x, so 6 % more over the image)."""
+    cams, _, _ = bench
+    K = load_settings().camera.K
+    truth = cams.truth()
+    assert abs(disparity_offset_px(truth, truth, K)) < 1e-4
+    turned = dataclasses.replace(truth, R=cv2.Rodrigues(np.r_[0.0, np.radians(0.01), 0.0])[0] @ truth.R)
+    assert abs(disparity_offset_px(truth, turned, K)) == pytest.approx(K[0, 0] * np.radians(0.01), rel=0.1)
+
+
+def test_offset_covariance_is_the_range_squared_law() -> None:
+    """A disparity offset sigma s moves a point at range Z along its ray by Z^2 s / (f B)."""
+    f, B, Z, s = 690.0, 0.15, 4.0, 0.07
+    xyz = np.array([[1.0, 2.0, 0.5 + Z]])
+    cov = offset_covariance(xyz, np.array([1.0, 2.0, 0.5]), np.array([f * B / Z]), s)
+    assert np.sqrt(cov[0, 2, 2]) == pytest.approx(Z**2 * s / (f * B))
+    assert cov[0, 0, 0] == cov[0, 1, 1] == 0.0

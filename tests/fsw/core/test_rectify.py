@@ -87,6 +87,8 @@ MAT = "!!opencv-matrix\n   rows: {r}\n   cols: {c}\n   dt: d\n   data: [ {d} ]"
     ("T", MAT.format(r=3, c=1, d="0.15, 0., 0."), "pair swapped"),
     ("P1", MAT.format(r=3, c=4, d="700., 0., 320., 0., 0., 700., 240., 0., 0., 0., 1., 0."), "stored P1 disagrees"),
     ("image_height", "\"tall\"", "image_height missing or not an integer"),
+    ("disparity_offset_sigma_px", "-1.", "disparity_offset_sigma_px = -1.0 is not a sigma"),
+    ("disparity_offset_sigma_px", ".nan", "is not a sigma"),
     # malformed matrix nodes that make OpenCV's own reader corrupt its heap (found by the fuzz test)
     ("K2", "!!opencv-matrix\n   rows: -1\n   cols: 3\n   dt: d\n   data: [ 1., 2., 3. ]", "K2 is not a matrix"),
     ("R", "!!opencv-matrix\n   rows: 3\n   dt: d\n   data: [ 1. ]", "R is not a matrix"),

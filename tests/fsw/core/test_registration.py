@@ -13,7 +13,9 @@ from fsw.core.geometry import CameraPose, MapGrid
 from fsw.core.registration import (
     Registration,
     RegistrationConfig,
+    StationFix,
     apply_correction,
+    carried_prior,
     inflate,
     reference_cells,
     register_points,
@@ -153,3 +155,62 @@ def test_registration_runs_in_bounded_steps_and_rejects_garbage() -> None:
         reg: Registration = stop.value
     assert 2 <= steps <= CFG.iterations + 1 and reg.status == "registered"
     assert abs(reg.correction[5] - 0.02) < 0.004
+
+
+def _odometry_error(pose: CameraPose, dyaw: float, shift: np.ndarray, pivot: np.ndarray) -> CameraPose:
+    """The pose dead reckoning reports when its world frame is turned by ``-dyaw`` about
+    ``pivot`` and shifted by ``-shift`` (a rigid drift error common to every pose)."""
+    from fsw.core.localization import so3_exp
+
+    Rz = so3_exp(np.r_[0.0, 0.0, -dyaw])
+    return CameraPose(Rz @ pose.R, Rz @ (pose.t - pivot) + pivot - shift)
+
+
+def test_carried_prior_undoes_a_rigid_drift_at_the_next_station() -> None:
+    """Odometry drift is a rigid error of the world frame: once a station has found it, the
+    next station (2.5 m on, turned) starts from it, exact up to what the drive added; roll and
+    pitch are not carried (the attitude sensor measures them afresh)."""
+    dyaw, shift, pivot = math.radians(3.0), np.array([0.08, -0.12, 0.01]), np.array([0.3, -0.2, 0.0])
+    true1 = looking_down_x()
+    true2 = CameraPose(true1.R @ np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),
+                       true1.t + np.array([2.5, 0.4, 0.02]))
+    est1, est2 = (_odometry_error(p, dyaw, shift, pivot) for p in (true1, true2))
+    # station 1's registration: the correction that takes est1 onto true1 (about est1's centre)
+    from fsw.core.localization import so3_log
+
+    d1 = np.r_[so3_log(true1.R @ est1.R.T), true1.t - est1.t]
+    S1 = np.diag([math.radians(0.2) ** 2] * 2 + [math.radians(2.0) ** 2] + [0.05**2] * 3)
+    S2 = S1 + np.diag([0.0, 0.0, math.radians(1.0) ** 2, 0.03**2, 0.03**2, 0.01**2])  # the drive since
+    C1 = np.diag([math.radians(0.05) ** 2] * 3 + [0.004**2] * 3)
+    fix = StationFix(est1.t.copy(), d1, C1, S1, np.zeros((6, 6)))
+    d0, cov = carried_prior(est2, S2, fix)
+    assert d0[0] == d0[1] == 0.0
+    carried = apply_correction(est2, d0)
+    assert np.linalg.norm(carried.t - true2.t) < 1e-9
+    assert math.degrees(float(np.linalg.norm(so3_log(carried.R @ true2.R.T)))) < 1e-7
+    # without the carry the view would start 3 deg and 4 cm off
+    assert np.linalg.norm(est2.t - true2.t) > 0.04
+    assert math.degrees(float(np.linalg.norm(so3_log(est2.R @ true2.R.T)))) == pytest.approx(3.0)
+    # covariance: symmetric positive definite; roll/pitch keep the view's own prior; the dead
+    # reckoned block is the drive's growth plus the carried correction's error with its lever
+    np.testing.assert_allclose(cov, cov.T)
+    assert np.linalg.eigvalsh(cov).min() > 0
+    np.testing.assert_allclose(np.diag(cov)[:2], np.diag(S2)[:2])
+    lever = np.linalg.norm((est2.t - est1.t)[:2])
+    grown_xy = 0.03**2 + 0.004**2
+    assert np.diag(cov)[3:5].max() <= grown_xy + (math.radians(0.05) * lever) ** 2 + 1e-12
+    assert np.diag(cov)[3:5].min() >= grown_xy
+    assert np.diag(cov)[2] == pytest.approx(math.radians(1.0) ** 2 + math.radians(0.05) ** 2)
+    # far tighter than the dead-reckoning covariance it replaces
+    assert np.all(np.diag(cov)[2:5] < 0.5 * np.diag(S2)[2:5])
+
+
+def test_carried_prior_clips_a_shrinking_odometry_covariance() -> None:
+    """A pose covariance that shrank since the last station (e.g. a reset) gives no negative
+    growth: the carried block stays positive semidefinite."""
+    pose = looking_down_x()
+    S1 = np.diag([1e-4] * 6)
+    fix = StationFix(pose.t.copy(), np.zeros(6), np.diag([1e-8] * 6), S1, np.zeros((6, 6)))
+    _, cov = carried_prior(pose, 0.25 * S1, fix)
+    assert np.linalg.eigvalsh(cov).min() >= -1e-15
+    assert np.all(np.diag(cov)[2:] <= 1e-8 + 1e-15)

@@ -1,0 +1,133 @@
+"""One-factor-at-a-time lockstep replays of a mission's views (docs/perception.md, "Cameras").
+
+A lab mission's map error mixes the camera path (lenses, calibration, rectification) with
+the trajectory the planner chose and the pose chain (odometry, attitude, registration); two
+missions that differ in one factor diverge after a few steps, so their maps cannot say which
+factor costs what. :func:`record_mission` runs a mission and keeps, for every view the
+perception task merged, the pair, the flight's pose estimate and covariance and the TRUE
+camera pose. :func:`replay` feeds those views to a fresh perception task (the flight code,
+on a stepped clock) with one factor changed: the calibration file, the cameras the pairs are
+rendered with (re-rendered at the true pose), the flight pose replaced by the true one, or
+registration off; and scores the map against the truth (``hil_sim.terrain_eval``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from collections.abc import Generator
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.core.geometry import CameraPose
+from fsw.tasks.messages import CameraFrame
+
+F64 = NDArray[np.float64]
+_ids = itertools.count()
+
+
+@dataclass(frozen=True)
+class RecordedView:
+    """One merged view: the pair as the perception task got it, its pose estimate and
+    covariance, and the true left-camera pose it was rendered at."""
+
+    view_id: int
+    left: NDArray[np.uint8]
+    right: NDArray[np.uint8]
+    pose: CameraPose
+    pose_cov: F64
+    true_pose: CameraPose
+
+
+def record_mission(spec: Any) -> tuple[dict[str, Any], list[RecordedView]]:
+    """Run the mission ``spec`` (:class:`hil_sim.mission_run.RunSpec`) and record its views."""
+    from hil_sim.mission_run import run_mission
+
+    truth: dict[bytes, CameraPose] = {}
+    frames: list[CameraFrame] = []
+
+    def observe(bench: Any) -> None:
+        render, rig = bench.camera.render, bench.rig
+        task = bench.exe.tasks["perception"]
+        merge = task._merge_view
+
+        def recording_render() -> tuple[Any, Any, float]:
+            with rig.lock:
+                pose = rig.camera_pose()
+            left, right, t = render()
+            truth[left.tobytes()] = CameraPose(pose.R.copy(), pose.t.copy())
+            return left, right, t
+
+        def recording_merge(fr: CameraFrame) -> Generator[None, None, Any]:
+            frames.append(fr)
+            return (yield from merge(fr))
+
+        bench.camera.render = recording_render
+        task._merge_view = recording_merge
+
+    summary = run_mission(spec, mode="fresh", on_bench=observe)
+    views = [RecordedView(fr.view_id, fr.left, fr.right, fr.pose, np.asarray(fr.pose_cov, np.float64),
+                          truth[fr.left.tobytes()]) for fr in frames if fr.left.tobytes() in truth]
+    return summary, views
+
+
+@dataclass(frozen=True)
+class Factor:
+    """What a replay changes: ``calibration_file`` (None: the configuration's; "": no
+    rectification), ``cameras`` to re-render the pairs with at the true pose ("ideal" or
+    "real"; None: the recorded pairs), ``true_pose`` (the flight gets the true pose, with
+    the recorded covariance), ``registration``, ``carry`` (None: the configuration's)."""
+
+    calibration_file: str | None = None
+    cameras: str | None = None
+    true_pose: bool = False
+    registration: bool = True
+    carry: bool | None = None
+
+
+def replay(views: list[RecordedView], scenario: str, seed: int, factor: Factor,
+           config: str | None = None) -> dict[str, Any]:
+    """The map quality (``hil_sim.terrain_eval.map_quality``) of ``views`` merged by a fresh
+    perception task with ``factor`` applied."""
+    from fsw.executive.executive import Executive
+    from fsw.framework.clock import SteppedClock
+    from hil_sim.camera_model import TrueCameras
+    from hil_sim.mission_run import RunSpec, mission_config
+    from hil_sim.render import StereoRenderer
+    from hil_sim.rig import load_hardware
+    from hil_sim.terrain_eval import map_quality
+    from hil_sim.world import load_scenario
+
+    world = load_scenario(scenario, seed)
+    spec = RunSpec(scenario=scenario, seed=seed) if config is None else RunSpec(scenario=scenario, seed=seed,
+                                                                                 config=config)
+    cfg = mission_config(spec, world)
+    cam, reg = cfg.camera, cfg.registration
+    if factor.calibration_file is not None:
+        cam = dataclasses.replace(cam, calibration_file=factor.calibration_file)
+    reg = dataclasses.replace(reg, enabled=factor.registration,
+                              carry=reg.carry if factor.carry is None else factor.carry)
+    link = dataclasses.replace(cfg.link, transport=f"inproc://replay-{next(_ids)}")
+    exe = Executive(dataclasses.replace(cfg, camera=cam, registration=reg, link=link), SteppedClock())
+    task = exe.tasks["perception"]
+    rend = None
+    if factor.cameras is not None:
+        hw = load_hardware(spec.hardware)
+        cams = TrueCameras.from_config(cfg.camera, dataclasses.replace(hw.camera, model=factor.cameras))
+        rend = StereoRenderer(world, cfg.camera, float(world.noise_sigma), seed, cameras=cams)
+    merged = []
+    for v in views:
+        left, right = (v.left, v.right) if rend is None else rend.render(v.true_pose)
+        pose = v.true_pose if factor.true_pose else v.pose
+        gen = task._merge_view(CameraFrame(v.view_id, 0.0, left, right, pose, v.pose_cov))
+        while True:
+            try:
+                next(gen)
+            except StopIteration as stop:
+                up = stop.value
+                break
+        merged.append((up.camera_xyz, *up.view_cells))
+    return map_quality(task.map, world.truth_on_grid(task.map.grid), merged)
