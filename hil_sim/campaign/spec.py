@@ -68,6 +68,8 @@ class Family:
 class FaultSet:
     name: str = param(doc="fault set name (mission ids, report)")
     faults: tuple[FaultSpec, ...] = param(doc="[[...faults]] rows of hil_sim.faults.FaultSpec")
+    jitter_s: float = param(0.0, lo=0.0, hi=1e5, units="s",
+                            doc="each (point, seed) pair's faults start later by a seeded draw in [0, jitter_s]")
 
 
 @dataclass(frozen=True)
@@ -137,6 +139,7 @@ def load_spec(path: str | Path) -> CampaignSpec:
                 if not isinstance(v, (str, int, float, bool)):
                     raise ConfigError(src, f"{key}.{k}", f"values must be strings, numbers or booleans, got {v!r}")
         _check_scenarios(src, key, fam)
+    _check_fault_targets(src, spec)
     n = len(expand(spec))
     if n > MAX_MISSIONS:
         raise ConfigError(src, "families", f"{n} missions is more than {MAX_MISSIONS}")
@@ -153,6 +156,20 @@ def _check_scenarios(src: str, key: str, fam: Family) -> None:
             load_scenario_config(scen)
         except ValueError as exc:
             raise ConfigError(src, f"{key}.scenario", f"{scen!r}: {exc}") from None
+
+
+def _check_fault_targets(src: str, spec: CampaignSpec) -> None:
+    """A ``stuck_task`` fault must name a task of the flight configuration's schedule."""
+    from fsw.settings import DEFAULT_CONFIG, load_settings
+
+    targets = {(i, f.target) for i, s in enumerate(spec.faults.sets) for f in s.faults if f.kind == "stuck_task"}
+    if not targets:
+        return
+    tasks = {t.name for t in load_settings(spec.campaign.config or DEFAULT_CONFIG).executive.tasks}
+    for i, name in sorted(targets):
+        if name not in tasks:
+            raise ConfigError(src, f"faults.sets[{i}].faults.target",
+                              f"stuck_task target {name!r} is not a flight task ({', '.join(sorted(tasks))})")
 
 
 def family_points(fam: Family) -> list[dict[str, Any]]:
@@ -206,9 +223,11 @@ def expand(spec: CampaignSpec) -> list[Mission]:
               for ip, point in enumerate(family_points(fam))]
     sampled = _sample_faults(plan, len(points) * len(c.seeds))
     out: list[tuple[tuple[int, ...], Mission]] = []
+    pair = -1
     for jf, fam, ip, point in points:
         scen = scenario_string(fam.scenario, point)
         for seed in c.seeds:
+            pair += 1
             if plan.mode == "cross":
                 sets: list[FaultSet | None] = [None, *plan.sets]
             else:
@@ -226,7 +245,7 @@ def expand(spec: CampaignSpec) -> list[Mission]:
                             seed=seed,
                             steps=c.steps,
                             fault_set=fname,
-                            faults=tuple(asdict(f) for f in fs.faults) if fs is not None else (),
+                            faults=_timed_faults(plan, fs, pair, jset),
                             timeout_s=c.timeout_s,
                             max_sim_s=c.max_sim_s,
                             safe_recover_s=c.safe_recover_s,
@@ -234,6 +253,17 @@ def expand(spec: CampaignSpec) -> list[Mission]:
                             config=c.config or str(DEFAULT_CONFIG),
                         )))
     return [m for _, m in sorted(out, key=lambda om: om[0])]
+
+
+def _timed_faults(plan: FaultPlan, fs: FaultSet | None, pair: int, jset: int) -> tuple[dict[str, Any], ...]:
+    """The set's fault rows for one (point, seed) pair: all shifted by one seeded draw in
+    ``[0, jitter_s]`` (the same for every method of the pair, so they stay paired)."""
+    if fs is None:
+        return ()
+    shift = 0.0
+    if fs.jitter_s > 0:
+        shift = float(f"{np.random.default_rng([plan.seed, pair, jset]).uniform(0.0, fs.jitter_s):.4g}")
+    return tuple({**asdict(f), "start_s": f.start_s + shift} for f in fs.faults)
 
 
 def _sample_faults(plan: FaultPlan, pairs: int) -> list[FaultSet | None]:
