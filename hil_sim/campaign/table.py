@@ -7,7 +7,8 @@ variance calibration (fraction of mapped cells within 2 sigma of the truth, ALGO
 edge violations, geofence refusals, off-map events, slips, overruns, SAFE entries,
 recoveries (left SAFE) and recoveries that resumed the mission (a step completed or the mission
 ended before any new SAFE), whether SAFE became final (a persistent fault), hung-task reports
-and watchdog-expired frames, how the map transfer ended, odometer, looks, bench and wall time,
+and watchdog-expired frames, how the map transfer ended, odometer, looks, steps taken without their move
+(stays), frames moving on unknown ground, bench and wall time,
 and the outcome class (:func:`outcome`). Wall-clock fields
 (:data:`WALL_CLOCK_COLUMNS`) depend on the machine; every other column is a function of the
 spec.
@@ -25,7 +26,8 @@ RESULT_COLUMNS = (
     "outcome", "error", "end_reason", "final_state", "safe_reason", "steps_done", "mapped_cells",
     "mapped_cells_per_step", "map_rmse_m", "calib_2sigma", "edge_violations", "geofence_refusals",
     "off_map", "slips", "overruns", "safe_entries", "safe_recoveries", "safe_recoveries_resumed", "safe_final",
-    "tasks_hung", "watchdog_expired_frames", "map_transfer", "transfer_s", "odometer_m", "looks", "sim_s", "wall_s",
+    "tasks_hung", "watchdog_expired_frames", "map_transfer", "transfer_s", "odometer_m", "looks", "stays",
+    "wheels_on_unknown_ground", "sim_s", "wall_s",
 )
 
 
@@ -80,6 +82,8 @@ def result_row(m: dict[str, Any], summary: dict[str, Any]) -> dict[str, Any]:
         "transfer_s": summary["transfer_s"],
         "odometer_m": summary["odometer_m"],
         "looks": summary["looks"],
+        "stays": len(summary["stays"]),
+        "wheels_on_unknown_ground": summary["wheels_on_unknown_ground"],
         "sim_s": summary["sim_s"],
         "wall_s": summary["wall_s"],
     }
