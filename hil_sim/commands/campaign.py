@@ -92,7 +92,10 @@ def run_campaign(name: str, missions: list, out: Path, jobs: int, scheduler: str
     extra = (f"Run on {where}: {len(rows) - reused} missions in {wall:.0f} s wall clock "
              f"({reused} reused from an earlier run).\n")
     if report_only:
-        extra = f"Partial campaign: {len(rows)} of {len(missions)} missions stored so far.\n"
+        state = "every mission" if len(rows) == len(missions) else "a partial campaign"
+        mission_s = sum(r["wall_s"] or 0.0 for r in rows)
+        extra = (f"Report rebuilt from the stored rows ({state}: {len(rows)} of {len(missions)} missions; "
+                 f"their own wall time summed {mission_s:.0f} s).\n")
     h = write_report(out, rows, name, extra)
     bad = sum(r["outcome"] in FAILED for r in rows)
     print(f"{len(rows)} missions ({reused} reused) in {wall:.0f} s; outcomes: "
