@@ -68,8 +68,10 @@ from hil_sim.ground_watch import reachable_stations, wheels_on_unknown
 from hil_sim.mission_report import (
     _cliffbot_report,
     error_plane,
+    map_transfer,
     task_max_ms,
     task_ms_per_frame,
+    transfer_s,
     write_outputs,
 )
 from hil_sim.terrain_eval import map_quality
@@ -353,8 +355,8 @@ def run_mission(
             "off_map": counters["off_map"],
             "tasks_hung": exe.events.count("health.TASK_HUNG") if "health" in exe.tasks else 0,
             "watchdog_expired_frames": counters["watchdog_frames"],
-            "map_transfer": _map_transfer(mission),
-            "transfer_s": _transfer_s(mission),
+            "map_transfer": map_transfer(mission),
+            "transfer_s": transfer_s(mission),
             "faults": [dataclasses.asdict(f) for f in spec.faults],
             "final_state": mission.state,
             "mapped_cells": int(emap.mapped.sum()),
@@ -371,24 +373,6 @@ def run_mission(
         if spec.out is not None:
             summary["files"] = write_outputs(spec.out, summary, emap, truth, grid)
     return summary
-
-
-def _map_transfer(mission: Any) -> str:
-    """How the map transfer to the Cliff-bot ended: ``delivered``, the link's final state
-    (``failed``, ``rejected``), ``timeout`` (TRANSMIT gave up waiting), or ``none`` (not sent)."""
-    ev = [e for e in mission.ctx.events.history if e.name == f"{mission.name}.TRANSMITTED"]
-    if not ev:
-        return "none"
-    state = ev[-1].text.rsplit(": ", 1)[-1]  # "map transmission ended: STATE"
-    return "delivered" if state == "done" else state
-
-
-def _transfer_s(mission: Any) -> float | None:
-    """Bench seconds from the end of mapping to the end of the map transfer (None: not sent)."""
-    hist = mission.ctx.events.history
-    end = [e.time_s for e in hist if e.name == f"{mission.name}.END"]
-    sent = [e.time_s for e in hist if e.name == f"{mission.name}.TRANSMITTED"]
-    return round(sent[-1] - end[-1], 3) if end and sent else None
 
 
 def _wheels_over_drop(rig: Any, world: Any, cfg: FswConfig) -> int:
