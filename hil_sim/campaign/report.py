@@ -158,13 +158,16 @@ def write_report(out: Path, rows: list[dict[str, Any]], name: str, extra: str = 
     if not bad:
         lines.append("| (none) | | | | | | |")
     lines += ["", "## Fault recovery", "", "![fault recovery](fault_recovery.png)", "",
-              "| fault set | missions | with SAFE | SAFE entries | recoveries (left SAFE) | recoveries that resumed "
-              "the mission | final SAFE | DONE | map delivered | hung-task reports | watchdog-expired frames |",
-              "|---|---|---|---|---|---|---|---|---|---|---|"]
+              "| fault set | missions | fault began before the end | with SAFE | SAFE entries | recoveries (left SAFE) "
+              "| recoveries that resumed the mission | final SAFE | DONE | map delivered | hung-task reports "
+              "| watchdog-expired frames |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for fs, rs in sorted(_by(rows, "fault_set").items()):
         st = _recovery(rs)
-        lines.append(f"| {fs} | {st['n']} | {st['safe']} | {st['entries']} | {st['recovered']} | {st['resumed']} | "
-                     f"{st['final']} | {st['done']} | {st['delivered']} | {st['hung']} | {st['watchdog']} |")
+        hit = "" if fs == "none" else st["hit"]
+        lines.append(f"| {fs} | {st['n']} | {hit} | {st['safe']} | {st['entries']} | {st['recovered']} | "
+                     f"{st['resumed']} | {st['final']} | {st['done']} | {st['delivered']} | {st['hung']} | "
+                     f"{st['watchdog']} |")
     lines += ["", "Table: `results.parquet` / `results.csv` (a row a mission); per-mission rows in `missions/`.", ""]
     (out / "report.md").write_text("\n".join(lines))
     return h
@@ -194,7 +197,8 @@ def _recovery(rs: list[dict[str, Any]]) -> dict[str, Any]:
     def total(key: str) -> int:
         return int(sum(r.get(key) or 0 for r in ran))
 
-    return {"n": len(rs), "safe": sum(r["safe_entries"] > 0 for r in ran), "entries": total("safe_entries"),
+    return {"n": len(rs), "hit": sum(r.get("fault_in_mission") is True for r in ran),
+            "safe": sum(r["safe_entries"] > 0 for r in ran), "entries": total("safe_entries"),
             "recovered": total("safe_recoveries"), "resumed": total("safe_recoveries_resumed"),
             "final": sum(bool(r.get("safe_final")) for r in ran), "done": sum(r["outcome"] == "done" for r in ran),
             "delivered": sum(r.get("map_transfer") == "delivered" for r in ran),

@@ -89,6 +89,23 @@ def test_table_and_report_files(tmp_path: Path) -> None:
                 "failure_params.png"):
         assert (tmp_path / png).stat().st_size > 1000 and png in md
     # fault set, missions, with SAFE, SAFE entries, recoveries, resumed, final SAFE, DONE, delivered
-    assert "ScenarioError: bad DEM" in md and "| bus_off | 2 | 2 | 5 | 4 | 1 | 1 | 1 | 1 | 0 | 0 |" in md
+    assert "ScenarioError: bad DEM" in md and "| bus_off | 2 | 0 | 2 | 5 | 4 | 1 | 1 | 1 | 1 | 0 | 0 |" in md
     assert "| never_moved | 1 | 1 1 | none 1 |" in md
     assert json.loads((tmp_path / "report.json").read_text()) == json.loads(json.dumps(h))
+
+
+def test_fault_timing_tells_faults_that_began_before_the_mission_ended() -> None:
+    """A fault drawn after the mission's end never happened: the row says so."""
+    from types import SimpleNamespace
+
+    from hil_sim.commands.campaign import with_fault_timing
+
+    rs = rows()
+    ms = [SimpleNamespace(id=r["id"], faults=({"start_s": 150.0}, {"start_s": 20.0}) if r["fault_set"] != "none"
+                          else ()) for r in rs]
+    out = {r["id"]: r for r in with_fault_timing(rs, ms)}
+    assert out["f-p000-s1-bus_off-m5"]["fault_start_s"] == 20.0 and out["f-p000-s1-bus_off-m5"]["fault_in_mission"]
+    assert out["f-p000-s0-none-m5"]["fault_start_s"] is None and out["f-p000-s0-none-m5"]["fault_in_mission"] is None
+    late = [SimpleNamespace(id=m.id, faults=({"start_s": 500.0},) if m.faults else ()) for m in ms]
+    assert with_fault_timing(rs, late)[2]["fault_in_mission"] is False  # sim_s 100 < 500
+    assert out["f-p000-s1-none-m1"]["fault_in_mission"] is None  # the error row: no sim_s
