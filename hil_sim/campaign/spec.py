@@ -277,7 +277,7 @@ def _timed_faults(plan: FaultPlan, fs: FaultSet | None, unit: int, jset: int) ->
     shift = 0.0
     if fs.jitter_s > 0:
         shift = float(f"{np.random.default_rng([plan.seed, unit, jset]).uniform(0.0, fs.jitter_s):.4g}")
-    return tuple({**asdict(f), "start_s": f.start_s + shift} for f in fs.faults)
+    return tuple({**asdict(f), "start_s": round(f.start_s + shift, 3)} for f in fs.faults)
 
 
 def _sample_faults(plan: FaultPlan, units: int) -> list[FaultSet | None]:
