@@ -169,6 +169,8 @@ def test_shipped_campaigns_are_valid() -> None:
                           "radio_outage"} and min(kinds.values()) >= 3
     assert 0.2 <= sum(m.fault_set != "none" for m in r100) / len(r100) <= 0.3
     assert all(m.scenario.startswith("terrain?") for m in r100)
+    rec = expand(load_spec(CAMPAIGNS / "recovery.toml"))
+    assert len(rec) == 18 and len({m.fault_set for m in rec}) == 9
 
 
 @pytest.mark.parametrize(
