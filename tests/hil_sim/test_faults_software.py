@@ -78,3 +78,12 @@ def test_a_radio_outage_loses_the_packets_on_the_air_in_its_window() -> None:
     for t in (5.0, 11.0, 14.9, 16.0):
         ch.send("a", b"x" * 100, t)
     assert len(ch.receive("b", 20.0)) == 2 and ch.stats("a").outage_drops == 2
+
+
+def test_a_resumed_run_is_not_reported_hung_at_its_first_frame() -> None:
+    """A run resumed from a checkpoint starts at that frame, not 0: no task may look as old as
+    the frame number (health counted from frame 0 and declared every task hung at once)."""
+    with bench(start=(100.0, 1000)) as b:
+        b.run(40)
+        assert not b.events("health.TASK_LATE") and not b.events("health.TASK_HUNG")
+        assert not b.exe.ctx.res.watchdog.expired() and b.tlm("health.tasks_fatal") == 0
