@@ -12,6 +12,12 @@ runs. Nothing is shared but the wires:
   driver factory as ``mast_port``;
 * camera: :class:`hil_sim.hw.camera_server.SimCameraLink` handed in as ``camera_source``.
 
+Faults of the flight software itself come through the same backdoor (``hil_sim.faults``):
+``stuck_task`` wraps the executive's activation of its target task, so while it is active the
+task either does not complete (``hang``: no work, no answer to the health pings) or is charged
+``delay_s`` more than it took (``overrun``: the bench's timer jumps by that much during the
+activation). The watchdog and the health task see exactly what they would on the rover.
+
 Runs are deterministic for a seed (virtual-bus order, seeded faults and truth). All CAN
 traffic can be recorded with python-can's ``can.Logger`` (``.log``, ``.asc``, ``.blf``) with
 bench-clock timestamps; ``cantools decode config/rover.dbc < run.log`` reads it.
@@ -129,11 +135,52 @@ class LockstepBench(ExecutiveDriver):
         self._t_last = self.clock.now()
         if start is not None:
             self.exe.frame = int(start[1])
+        self._install_task_faults()
         self._seq = itertools.count(1)
         if quiet:  # silence console-style tasks (they print every event to stdout)
             for task in self.exe.tasks.values():
                 if hasattr(task, "out"):
                     task.out = _Sink()  # type: ignore[attr-defined]
+
+    # -- faults of the flight tasks (stuck_task) -----------------------------------------------
+    def _install_task_faults(self) -> None:
+        exe = self.exe
+        unknown = sorted({f.target for f in self.faults.faults if f.kind == "stuck_task"} - set(exe.tasks))
+        if unknown:
+            raise ValueError(f"stuck_task target {unknown[0]!r} is not a flight task ({', '.join(sorted(exe.tasks))})")
+        self.faults.task_names = tuple(exe.tasks)
+        self.base_timer: Callable[[], float] = exe.timer  # mission_run may swap it (CPU time)
+        self._extra_s = 0.0  # time charged by overrun faults
+        exe.timer = lambda: self.base_timer() + self._extra_s
+        activate = exe._activate
+
+        def faulty_activate(task: Any, k: int) -> None:
+            f = self.faults.stuck_task(task.name) if self.faults.faults else None
+            if f is None:
+                activate(task, k)
+            elif f.mode == "overrun":
+                run = task.run
+
+                def slow_run(frame: int) -> None:
+                    try:
+                        run(frame)
+                    finally:
+                        self._extra_s += f.delay_s
+
+                task.run = slow_run
+                try:
+                    activate(task, k)
+                finally:
+                    del task.run  # the class's method again
+                self.faults.count("task_overrun_activations")
+            else:  # hang: the activation never completes (no work, no ping answered)
+                self.faults.count("task_hung_activations")
+
+        exe._activate = faulty_activate  # type: ignore[method-assign]
+
+    def set_timer(self, timer: Callable[[], float]) -> None:
+        """Time the tasks with ``timer`` (e.g. ``time.thread_time``), overrun faults still charged."""
+        self.base_timer = timer
 
     # -- stepping ---------------------------------------------------------------------------
     def before_frame(self, k: int) -> None:

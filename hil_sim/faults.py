@@ -19,7 +19,13 @@ the line); ``camera_dropout`` (capture requests go unanswered, or with ``mode = 
 answered DROPOUT); ``mast_stall`` (the mast joints do not move; the controller reports a fault);
 ``imu_fault`` (the attitude sensor, ``hil_sim.hw.imu``: ``mode`` ``stuck`` repeats its last
 frame, ``dropout`` (default) sends nothing, ``selftest`` flags a failed self-test). CAN faults
-may target the sensor's frames with ``target = "IMU"``.
+may target the sensor's frames with ``target = "IMU"``. ``stuck_task`` (the flight task named
+by ``target``: ``mode`` ``hang`` (default): its activations do not complete, no work and no
+answer to the health pings, so health declares it hung and stops stroking the watchdog;
+``overrun``: each activation is charged ``delay_s`` more than it took, so it overruns its
+budget and the frame slips; ``hil_sim.bench``); ``radio_outage`` (the Cliff-bot radio link is
+dark: every packet on the air in the window is lost, both directions; ``hil_sim.mission_run``
+gives the windows to ``hil_sim.radio_channel``).
 """
 
 from __future__ import annotations
@@ -44,7 +50,10 @@ KINDS = (
     "camera_dropout",
     "mast_stall",
     "imu_fault",
+    "stuck_task",
+    "radio_outage",
 )
+TASK_MODES = ("hang", "overrun")
 CAN_TARGETS = (*AXES, "IMU")
 
 
@@ -58,13 +67,21 @@ class FaultSpec:
     rate: float = param(1.0, lo=0.0, hi=1.0, doc="probability per frame (CAN) or per byte (serial)")
     delay_s: float = param(0.0, lo=0.0, hi=60.0, units="s", doc="can_delay: hold time")
     direction: str = param("both", choices=("both", "to_fsw", "from_fsw"), doc="CAN faults: which frames")
-    target: str = param("", doc="CAN faults: one axis' frames only; motor_fault: the axis")
+    target: str = param("", doc="CAN faults: one axis' frames only; motor_fault: the axis; stuck_task: the task")
     mode: str = param(
-        "", choices=("", "driver", "stall", "status", "silent", "stuck", "dropout", "selftest"),
-        doc="motor_fault / camera_dropout / imu_fault variant",
+        "", choices=("", "driver", "stall", "status", "silent", "stuck", "dropout", "selftest", *TASK_MODES),
+        doc="motor_fault / camera_dropout / imu_fault / stuck_task variant",
     )
 
     def __post_init__(self) -> None:
+        if self.kind == "stuck_task":
+            if not self.target:
+                raise ValueError("stuck_task needs a target task name (e.g. target = \"nbv\")")
+            if self.mode not in ("", *TASK_MODES):
+                raise ValueError(f"stuck_task mode {self.mode!r}: expected {' or '.join(TASK_MODES)}")
+            if self.mode == "overrun" and self.delay_s <= 0.0:
+                raise ValueError("stuck_task mode overrun needs delay_s > 0 (the extra time of each activation)")
+            return
         if self.target and self.target not in CAN_TARGETS:
             raise ValueError(f"target {self.target!r} is not an axis or IMU ({', '.join(CAN_TARGETS)})")
         if self.kind == "motor_fault" and self.target not in AXES:
@@ -95,11 +112,14 @@ class FaultInjector:
         self.faults: list[FaultSpec] = list(faults)
         self.now = 0.0
         self.counts: dict[str, int] = {}
+        self.task_names: tuple[str, ...] = ()  # the flight tasks (set by the bench) for stuck_task
 
     def inject(self, kind: str, start_s: float | None = None, **kw: Any) -> FaultSpec:
         """Add a fault (validated like a config row), starting now unless ``start_s`` is given."""
         row = {"kind": kind, "start_s": self.now if start_s is None else start_s, **kw}
         spec = build(FaultSpec, row, source="<inject>")
+        if spec.kind == "stuck_task" and self.task_names and spec.target not in self.task_names:
+            raise ValueError(f"stuck_task target {spec.target!r} is not a flight task ({', '.join(self.task_names)})")
         self.faults.append(spec)
         return spec
 
@@ -116,8 +136,10 @@ class FaultInjector:
     def any(self, kind: str) -> bool:
         return bool(self.active(kind))
 
-    def _count(self, what: str, n: int = 1) -> None:
+    def count(self, what: str, n: int = 1) -> None:
         self.counts[what] = self.counts.get(what, 0) + n
+
+    _count = count
 
     # -- CAN --------------------------------------------------------------------------------
     def can_frame(self, axis: str | None, to_fsw: bool, data: bytes) -> tuple[str, bytes, float]:
@@ -207,3 +229,15 @@ class FaultInjector:
 
     def mast_stalled(self) -> bool:
         return self.any("mast_stall")
+
+    # -- flight tasks and the radio ----------------------------------------------------------
+    def stuck_task(self, name: str) -> FaultSpec | None:
+        """The active ``stuck_task`` fault of the task ``name`` (``mode`` ``hang`` or ``overrun``), or None."""
+        for f in self.active("stuck_task"):
+            if f.target == name:
+                return f
+        return None
+
+    def radio_outages(self) -> tuple[tuple[float, float], ...]:
+        """``(start_s, duration_s)`` of every ``radio_outage`` fault (the radio channel's windows)."""
+        return tuple((f.start_s, f.duration_s) for f in self.faults if f.kind == "radio_outage")

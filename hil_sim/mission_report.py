@@ -60,6 +60,24 @@ def _cliffbot_report(cliffbot: Any, out: Path | None) -> dict[str, Any] | None:
     return rep
 
 
+def map_transfer(mission: Any) -> str:
+    """How the map transfer to the Cliff-bot ended: ``delivered``, the link's final state
+    (``failed``, ``rejected``), ``timeout`` (TRANSMIT gave up waiting), or ``none`` (not sent)."""
+    ev = [e for e in mission.ctx.events.history if e.name == f"{mission.name}.TRANSMITTED"]
+    if not ev:
+        return "none"
+    state = ev[-1].text.rsplit(": ", 1)[-1]  # "map transmission ended: STATE"
+    return "delivered" if state == "done" else state
+
+
+def transfer_s(mission: Any) -> float | None:
+    """Bench seconds from the end of mapping to the end of the map transfer (None: not sent)."""
+    hist = mission.ctx.events.history
+    end = [e.time_s for e in hist if e.name == f"{mission.name}.END"]
+    sent = [e.time_s for e in hist if e.name == f"{mission.name}.TRANSMITTED"]
+    return round(sent[-1] - end[-1], 3) if end and sent else None
+
+
 def write_outputs(out: Path, summary: dict[str, Any], emap: Any, truth: Any, grid: MapGrid) -> dict[str, str]:
     """summary.json and the PNGs: map, variance, error, coverage over steps."""
     import matplotlib

@@ -27,8 +27,13 @@ a move), ``stays`` (steps whose view was taken without the planned move, and why
 correction, sigmas; ``fsw.core.registration``), ``map_quality`` (RMS, fitted tilt, station
 seams, 2-sigma fraction; ``hil_sim.terrain_eval``),
 ``calib_2sigma`` (fraction of mapped cells within 2 sigma of the truth, ALGORITHM.md §4),
-``safe_entries``, ``safe_recoveries`` (SAFE left for the mission again), ``off_map`` (frames with a
-wheel off the world's truth grid), ``faults`` (the injected :class:`hil_sim.faults.FaultSpec` rows),
+``safe_entries``, ``safe_recoveries`` (SAFE left for the mission again), ``safe_recoveries_resumed``
+(of those, the ones after which the mission completed a step or ended before any new SAFE),
+``off_map`` (frames with a wheel off the world's truth grid), ``tasks_hung`` (health TASK_HUNG
+events), ``watchdog_expired_frames`` (frames the watchdog was expired), ``map_transfer``
+(delivered | failed | rejected | timeout | none), ``transfer_s`` (bench s from the end of
+mapping to the end of the transfer), ``faults`` (the injected
+:class:`hil_sim.faults.FaultSpec` rows),
 ``wall_s``, ``cliffbot`` (the Cliff-bot's report, or null), ``files``. Wall-clock fields:
 ``wall_s`` (top level and per step), ``task_max_ms``, ``task_ms_per_frame``, and ``slips`` and ``overruns`` (both
 compare measured execution time with the period and budgets); everything else is a
@@ -63,8 +68,10 @@ from hil_sim.ground_watch import reachable_stations, wheels_on_unknown
 from hil_sim.mission_report import (
     _cliffbot_report,
     error_plane,
+    map_transfer,
     task_max_ms,
     task_ms_per_frame,
+    transfer_s,
     write_outputs,
 )
 from hil_sim.terrain_eval import map_quality
@@ -226,7 +233,8 @@ def run_mission(
     grid = MapGrid.from_config(cfg.map)
     truth = world.truth_on_grid(grid)
     oracle = OracleTruth(z_m=truth, textured=~world.textureless_on_grid(grid))
-    channel = RadioChannel(RadioChannelConfig(), seed=spec.seed)
+    outages = tuple((f.start_s, f.duration_s) for f in spec.faults if f.kind == "radio_outage")
+    channel = RadioChannel(RadioChannelConfig(outages=outages), seed=spec.seed)
     clock_box: list[Callable[[], float]] = []
 
     def now() -> float:
@@ -257,7 +265,7 @@ def run_mission(
             except BenchStateError as exc:
                 raise ValueError(f"checkpoint cannot be resumed: {exc}") from None
         if spec.cpu_timer:  # foreground figures without the preemption of a shared machine
-            bench.exe.timer = time.thread_time
+            bench.set_timer(time.thread_time)
             bench.exe.jobs.timer = time.thread_time  # slack-job slices too (task_max_ms slack_slice)
         cliffbot = Cliffbot(cfg.link, ChannelPort(channel, "b", now), out_dir=spec.out)
         mission = bench.exe.tasks["mission"]
@@ -268,9 +276,11 @@ def run_mission(
         last_step = -1
         views: list[Any] = []  # (camera xyz, cell index, z) per merged view, for the seams
         start_att = (round(bench.rig.truth()["roll_deg"], 3), round(bench.rig.truth()["pitch_deg"], 3))
-        for key in ("off_map", "recoveries"):
+        watchdog = bench.exe.ctx.res.watchdog
+        for key in ("off_map", "recoveries", "recoveries_resumed", "watchdog_frames"):
             counters.setdefault(key, 0)
         was_safe = False
+        left_safe_at: int | None = None  # the step a recovery left SAFE at, until it proves itself
         bench.exe.freeze_heap()  # as the flight start-up does (safer-fsw run)
         try:
             while bench.clock.now() < limit_s:
@@ -282,7 +292,15 @@ def run_mission(
                 cliffbot.step(bench.clock.now())
                 counters["violations"] += _wheels_over_drop(bench.rig, world, cfg)
                 counters["off_map"] += _wheel_off_map(bench.rig, world)
-                counters["recoveries"] += int(was_safe and mission.state != "SAFE")
+                if was_safe and mission.state != "SAFE":
+                    counters["recoveries"] += 1
+                    left_safe_at = mission.step
+                elif mission.state == "SAFE":
+                    left_safe_at = None  # SAFE again before the mission got further
+                elif left_safe_at is not None and (mission.step > left_safe_at or mission.state == "DONE"):
+                    counters["recoveries_resumed"] += 1  # a step completed (or the mission ended) since
+                    left_safe_at = None
+                counters["watchdog_frames"] += int(bool(getattr(watchdog, "expired", lambda: False)()))
                 was_safe = mission.state == "SAFE"
                 up = perception.last_update
                 fresh = up is not None and (not views or views[-1][3] is not up)
@@ -293,7 +311,8 @@ def run_mission(
                     counters["reachable"].append(reachable_stations(mission, cfg))
                     if progress is not None:
                         progress(mission.step, spec.steps, mission.state)
-                if mission.state == "DONE" or (mission.state == "SAFE" and cfg.mission.safe_recover_s <= 0):
+                if mission.state == "DONE" or (mission.state == "SAFE" and (
+                        cfg.mission.safe_recover_s <= 0 or mission.safe_final)):
                     break
         finally:
             bench.exe.thaw_heap()
@@ -336,7 +355,12 @@ def run_mission(
             "safe_reason": mission.safe_reason,
             "safe_entries": mission.safe_entries,
             "safe_recoveries": counters["recoveries"],
+            "safe_recoveries_resumed": counters["recoveries_resumed"],
             "off_map": counters["off_map"],
+            "tasks_hung": exe.events.count("health.TASK_HUNG") if "health" in exe.tasks else 0,
+            "watchdog_expired_frames": counters["watchdog_frames"],
+            "map_transfer": map_transfer(mission),
+            "transfer_s": transfer_s(mission),
             "faults": [dataclasses.asdict(f) for f in spec.faults],
             "final_state": mission.state,
             "mapped_cells": int(emap.mapped.sum()),

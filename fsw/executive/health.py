@@ -35,6 +35,7 @@ class HealthTask(FlightTask):
         e = self.ctx.cfg.executive
         self.warn_frames, self.fatal_frames = e.health_warn_frames, e.health_fatal_frames
         self.state: dict[str, str] = {}
+        self._first_frame: int | None = None  # a resumed run starts at its checkpoint's frame
         self.strokes = 0
         runtime = self.ctx.runtime
         self._divisor = dict(runtime.schedule())
@@ -42,13 +43,15 @@ class HealthTask(FlightTask):
     def run(self, frame: int) -> None:
         runtime = self.ctx.runtime
         n_warn = n_fatal = 0
+        if self._first_frame is None:
+            self._first_frame = frame
         for name, div in self._divisor.items():
             task = runtime.tasks[name]
             if task is self or not runtime.is_enabled(name):
                 self.state.pop(name, None)
                 continue
             task.ping(frame)
-            age = frame - task.ping_answered_frame
+            age = frame - max(task.ping_answered_frame, self._first_frame)  # not older than the monitor
             if task.ping_answered == task.ping_sent or age <= div:
                 age = 0
             prev = self.state.get(name, "ok")

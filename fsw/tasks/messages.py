@@ -101,7 +101,8 @@ MOTION_STATUS = "motion.status"
 class MotionRequest:
     """A move for the motion task. ``kind``: ``drive`` (``distance_m``, signed), ``turn``
     (``angle_rad``, CCW +), ``goto`` (``target`` = x, y, yaw in the odometry frame; yaw NaN:
-    arrive with the travel heading), ``mast`` (``joints`` = pan, tilt rad, lift m), ``stop``.
+    arrive with the travel heading), ``mast`` (``joints`` = pan, tilt rad, lift m), ``stop``,
+    ``clear_faults`` (clear latched motor and mast faults; refused while the E-stop is engaged).
     ``speed`` (m/s or rad/s) 0 takes the configured default."""
 
     request_id: int

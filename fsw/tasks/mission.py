@@ -16,8 +16,10 @@ rover in where it stands makes the next step a look at the ground nearest it. St
 the panorama from the start pose (the same for every method); steps 1..N are the
 planner's. Each step is recorded (``records``) for the run summary.
 
-SAFE: wheels and mast stopped, mast parked, an event; then wait for ``RESUME`` (or, with
-``safe_recover_s`` > 0, resume by itself after that long without a new fault).
+SAFE (``fsw.tasks.mission_safe``): wheels and mast stopped, mast parked, an event; then wait
+for ``RESUME``, or with ``safe_recover_s`` > 0 clear the latched driver faults and resume by
+itself after that long; a fault still there after ``safe_max_recoveries`` tries in a row
+ends the mission in SAFE with its reason.
 
 Checkpoints (``fsw.tasks.mission_checkpoint``): when a step completes, and on entering SAFE
 or DONE, the map of the step and the mission state go to the map store as one snapshot; at
@@ -57,11 +59,12 @@ from fsw.tasks.messages import (
 )
 from fsw.tasks.mission_checkpoint import resume_mission, save
 from fsw.tasks.mission_ground import MIN_MOVE_M, MIN_TURN_RAD, GroundAwareMission
+from fsw.tasks.mission_safe import SafeRecovery
 from fsw.tasks.mission_state import STATES, MissionPhase, StepRecord
 from fsw.tasks.sections import MissionConfig
 
 
-class MissionTask(GroundAwareMission):
+class MissionTask(GroundAwareMission, SafeRecovery):
     KIND: ClassVar[str] = "mission"
     DOC: ClassVar[str] = "Mission sequencer: panorama, next view, move, acquire, transmit; SAFE on faults."
     CHANNELS = (
@@ -79,6 +82,10 @@ class MissionTask(GroundAwareMission):
         EventDef("GEOFENCE", Severity.WARNING_HI, "move to ({x:.2f}, {y:.2f}) refused: {reason}; view taken from here"),
         EventDef("LOOK", Severity.ACTIVITY_LO, "look at {n} unknown cells toward ({x:.2f}, {y:.2f})"),
         EventDef("SAFE", Severity.WARNING_HI, "SAFE mode: {reason}"),
+        EventDef("RECOVERING", Severity.ACTIVITY_HI, "SAFE recovery {n} of {max}: clear faults, resume ({reason})"),
+        EventDef("RECOVERED", Severity.ACTIVITY_HI, "left SAFE at step {step} ({reason})"),
+        EventDef("RECOVERY_FAILED", Severity.WARNING_HI, "SAFE recovery failed: {reason}"),
+        EventDef("SAFE_FINAL", Severity.WARNING_HI, "mission stays in SAFE: {reason}"),
         EventDef("RETRY", Severity.WARNING_LO, "{what} failed ({reason}); retry {n}", throttle=5),
         EventDef("TRANSMITTED", Severity.ACTIVITY_HI, "map transmission ended: {state}"),
         EventDef("CHECKPOINT_SAVED", Severity.ACTIVITY_LO, "step {step} checkpoint {seq} saved ({kib:.0f} KiB)"),
@@ -350,23 +357,6 @@ class MissionTask(GroundAwareMission):
             self._goto(MissionPhase.DONE)
             save(self, MissionPhase.DONE)
 
-    # -- SAFE ----------------------------------------------------------------------------------
-    def _enter_safe(self, reason: str) -> None:
-        self.safe_entries += 1
-        self.safe_reason = reason
-        self.event("SAFE", reason=reason)
-        self._goto(MissionPhase.SAFE)
-        save(self, MissionPhase.SAFE)
-        self._safe_since = self.ctx.clock.now()
-        p = self.mcfg.park_joints
-        self.publish(MOTION_REQUEST, MotionRequest(0, "stop"))
-        self.publish(MOTION_REQUEST, MotionRequest(0, "mast", joints=(math.radians(p[0]), math.radians(p[1]), p[2])))
-        self.waiting_for = None
-
-    def _state_safe(self) -> None:
-        if self.mcfg.safe_recover_s > 0 and self.ctx.clock.now() - self._safe_since >= self.mcfg.safe_recover_s:
-            self.cmd_RESUME()
-
     def cmd_START(self) -> None:
         if self.state not in (MissionPhase.IDLE, MissionPhase.DONE):
             raise CommandError(f"mission already running ({self.state})")
@@ -376,13 +366,3 @@ class MissionTask(GroundAwareMission):
         if self.state in (MissionPhase.IDLE, MissionPhase.DONE, MissionPhase.SAFE):
             raise CommandError(f"nothing to abort ({self.state})")
         self._enter_safe("aborted by command")
-
-    def cmd_RESUME(self) -> None:
-        if self.state != MissionPhase.SAFE:
-            raise CommandError("not in SAFE")
-        self.pending.clear()
-        if self.latest is None:  # nothing mapped yet: start again with the panorama
-            self._goto(MissionPhase.INIT)
-            return
-        self._goto(MissionPhase.SELECT)
-        self._next_view()

@@ -295,6 +295,12 @@ class MotionTask(FlightTask):
             elif req.kind == "stop":
                 self.cmd_STOP()
                 self._status(req.request_id, "stop", MoveOutcome.DONE)
+            elif req.kind == "clear_faults":  # the mission's SAFE recovery (never releases an E-stop)
+                motors = self._motors()
+                if motors is not None and motors.estopped:
+                    raise CommandError("emergency stop engaged: only the operator releases it")
+                self.cmd_CLEAR_FAULTS()
+                self._status(req.request_id, "clear_faults", MoveOutcome.DONE)
             else:
                 raise CommandError(f"malformed request kind {req.kind!r}")
         except (CommandError, ValueError) as exc:

@@ -47,3 +47,7 @@ class MissionConfig:
     step_timeout_s: float = param(300.0, lo=1.0, hi=1e5, units="s", doc="longest wait for one request")
     transmit: bool = param(True, doc="send the map to the Cliff-bot at the end")
     safe_recover_s: float = param(0.0, lo=0.0, hi=1e5, units="s", doc="0: SAFE waits for RESUME")
+    safe_clear_faults: bool = param(True, doc="the automatic recovery clears latched motor and mast faults first")
+    safe_max_recoveries: int = param(
+        3, lo=0, hi=1000, doc="automatic recoveries in a row without a completed step before SAFE is final"
+    )

@@ -68,6 +68,8 @@ class Family:
 class FaultSet:
     name: str = param(doc="fault set name (mission ids, report)")
     faults: tuple[FaultSpec, ...] = param(doc="[[...faults]] rows of hil_sim.faults.FaultSpec")
+    jitter_s: float = param(0.0, lo=0.0, hi=1e5, units="s",
+                            doc="each (point, seed) pair's faults start later by a seeded draw in [0, jitter_s]")
 
 
 @dataclass(frozen=True)
@@ -75,6 +77,11 @@ class FaultPlan:
     mode: str = param("cross", choices=("cross", "sample"), doc="cross: every set and none; sample: a fraction")
     fraction: float = param(0.25, lo=0.0, hi=1.0, doc="sample: fraction of (point, seed) pairs with faults")
     seed: int = param(0, lo=0, hi=2**31 - 1, doc="sample: seed of the draws")
+    unit: str = param("pair", choices=("pair", "mission"),
+                      doc="sample: what gets one set: a (point, seed) pair's missions alike, or each mission")
+    together: tuple[str, ...] = param(("5", "oracle"), choices=METHODS,
+                                      doc="unit mission: these methods of a pair share one draw (stay paired)")
+    balanced: bool = param(False, doc="sample: deal the sets in turn over the chosen units (each equally often)")
     sets: tuple[FaultSet, ...] = ()
 
 
@@ -137,6 +144,7 @@ def load_spec(path: str | Path) -> CampaignSpec:
                 if not isinstance(v, (str, int, float, bool)):
                     raise ConfigError(src, f"{key}.{k}", f"values must be strings, numbers or booleans, got {v!r}")
         _check_scenarios(src, key, fam)
+    _check_fault_targets(src, spec)
     n = len(expand(spec))
     if n > MAX_MISSIONS:
         raise ConfigError(src, "families", f"{n} missions is more than {MAX_MISSIONS}")
@@ -153,6 +161,20 @@ def _check_scenarios(src: str, key: str, fam: Family) -> None:
             load_scenario_config(scen)
         except ValueError as exc:
             raise ConfigError(src, f"{key}.scenario", f"{scen!r}: {exc}") from None
+
+
+def _check_fault_targets(src: str, spec: CampaignSpec) -> None:
+    """A ``stuck_task`` fault must name a task of the flight configuration's schedule."""
+    from fsw.settings import DEFAULT_CONFIG, load_settings
+
+    targets = {(i, f.target) for i, s in enumerate(spec.faults.sets) for f in s.faults if f.kind == "stuck_task"}
+    if not targets:
+        return
+    tasks = {t.name for t in load_settings(spec.campaign.config or DEFAULT_CONFIG).executive.tasks}
+    for i, name in sorted(targets):
+        if name not in tasks:
+            raise ConfigError(src, f"faults.sets[{i}].faults.target",
+                              f"stuck_task target {name!r} is not a flight task ({', '.join(sorted(tasks))})")
 
 
 def family_points(fam: Family) -> list[dict[str, Any]]:
@@ -204,18 +226,20 @@ def expand(spec: CampaignSpec) -> list[Mission]:
     plan = spec.faults
     points = [(jf, fam, ip, point) for jf, fam in enumerate(spec.families)
               for ip, point in enumerate(family_points(fam))]
-    sampled = _sample_faults(plan, len(points) * len(c.seeds))
+    units = _units(plan, c.methods, len(points) * len(c.seeds))
+    sampled = _sample_faults(plan, len(units))
+    drawn = {(u[0], m): (fs, k) for k, (u, fs) in enumerate(zip(units, sampled, strict=True)) for m in u[1]}
     out: list[tuple[tuple[int, ...], Mission]] = []
+    pair = -1
     for jf, fam, ip, point in points:
         scen = scenario_string(fam.scenario, point)
         for seed in c.seeds:
-            if plan.mode == "cross":
-                sets: list[FaultSet | None] = [None, *plan.sets]
-            else:
-                sets = [sampled.pop(0)]
-            for jset, fs in enumerate(sets):
-                fname = fs.name if fs is not None else "none"
+            pair += 1
+            sets: list[FaultSet | None] = [None, *plan.sets] if plan.mode == "cross" else [None]
+            for jset, fs0 in enumerate(sets):
                 for jm, m in enumerate(c.methods):
+                    fs, unit = (fs0, pair) if plan.mode == "cross" else drawn[(pair, m)]
+                    fname = fs.name if fs is not None else "none"
                     order = (c.seeds.index(seed), ip, jf, jset, jm)
                     out.append((order, Mission(
                             id=f"{fam.name}-p{ip:03d}-s{seed}-{fname}-m{m}",
@@ -226,7 +250,7 @@ def expand(spec: CampaignSpec) -> list[Mission]:
                             seed=seed,
                             steps=c.steps,
                             fault_set=fname,
-                            faults=tuple(asdict(f) for f in fs.faults) if fs is not None else (),
+                            faults=_timed_faults(plan, fs, unit, jset),
                             timeout_s=c.timeout_s,
                             max_sim_s=c.max_sim_s,
                             safe_recover_s=c.safe_recover_s,
@@ -236,14 +260,39 @@ def expand(spec: CampaignSpec) -> list[Mission]:
     return [m for _, m in sorted(out, key=lambda om: om[0])]
 
 
-def _sample_faults(plan: FaultPlan, pairs: int) -> list[FaultSet | None]:
-    """``sample`` mode: exactly ``round(fraction * pairs)`` of the (point, seed) pairs, chosen
-    with the plan's seed, get a fault set (drawn uniformly); the rest none."""
-    out: list[FaultSet | None] = [None] * pairs
+def _units(plan: FaultPlan, methods: tuple[str, ...], pairs: int) -> list[tuple[int, tuple[str, ...]]]:
+    """The units the ``sample`` mode draws for: (pair index, the methods that share the draw)."""
+    if plan.unit == "pair":
+        return [(i, methods) for i in range(pairs)]
+    together = tuple(m for m in methods if m in plan.together)
+    groups = [(m,) for m in methods if m not in together] + ([together] if together else [])
+    return [(i, g) for i in range(pairs) for g in groups]
+
+
+def _timed_faults(plan: FaultPlan, fs: FaultSet | None, unit: int, jset: int) -> tuple[dict[str, Any], ...]:
+    """The set's fault rows for one sampling unit (``cross``: one pair): all shifted by one
+    seeded draw in ``[0, jitter_s]`` (the same for every method of the unit, so they stay paired)."""
+    if fs is None:
+        return ()
+    shift = 0.0
+    if fs.jitter_s > 0:
+        shift = float(f"{np.random.default_rng([plan.seed, unit, jset]).uniform(0.0, fs.jitter_s):.4g}")
+    return tuple({**asdict(f), "start_s": round(f.start_s + shift, 3)} for f in fs.faults)
+
+
+def _sample_faults(plan: FaultPlan, units: int) -> list[FaultSet | None]:
+    """``sample`` mode: exactly ``round(fraction * units)`` of the units, chosen with the plan's
+    seed, get a fault set (drawn uniformly, or with ``balanced`` dealt in turn in a seeded
+    order, so every set comes round(n / sets) times); the rest none."""
+    out: list[FaultSet | None] = [None] * units
     if plan.mode != "sample" or not plan.sets:
         return out
     rng = np.random.default_rng(plan.seed)
-    chosen = rng.choice(pairs, size=int(round(plan.fraction * pairs)), replace=False)
-    for i in sorted(int(k) for k in chosen):
-        out[i] = plan.sets[int(rng.integers(0, len(plan.sets)))]
+    chosen = rng.choice(units, size=int(round(plan.fraction * units)), replace=False)
+    deal = rng.permutation(len(chosen)) if plan.balanced else None
+    for j, i in enumerate(sorted(int(k) for k in chosen)):
+        if deal is not None:
+            out[i] = plan.sets[int(deal[j]) % len(plan.sets)]
+        else:
+            out[i] = plan.sets[int(rng.integers(0, len(plan.sets)))]
     return out

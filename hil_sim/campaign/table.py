@@ -4,8 +4,12 @@ A row holds the mission's inputs (family, scenario parameters as ``p.<key>`` col
 string, seed, method, steps, fault set) and its results from the mission summary
 (``hil_sim.mission_run``): mapped cells per imaging step, map RMS error against the truth,
 variance calibration (fraction of mapped cells within 2 sigma of the truth, ALGORITHM.md §4),
-edge violations, geofence refusals, off-map events, slips, overruns, SAFE entries and
-recoveries, bench and wall time, and the outcome class (:func:`outcome`). Wall-clock fields
+edge violations, geofence refusals, off-map events, slips, overruns, SAFE entries,
+recoveries (left SAFE) and recoveries that resumed the mission (a step completed or the mission
+ended before any new SAFE), whether SAFE became final (a persistent fault), hung-task reports
+and watchdog-expired frames, how the map transfer ended, odometer, looks, steps taken without their move
+(stays), frames moving on unknown ground, bench and wall time,
+and the outcome class (:func:`outcome`). Wall-clock fields
 (:data:`WALL_CLOCK_COLUMNS`) depend on the machine; every other column is a function of the
 spec.
 """
@@ -21,7 +25,9 @@ WALL_CLOCK_COLUMNS = ("wall_s", "slips", "overruns")
 RESULT_COLUMNS = (
     "outcome", "error", "end_reason", "final_state", "safe_reason", "steps_done", "mapped_cells",
     "mapped_cells_per_step", "map_rmse_m", "calib_2sigma", "edge_violations", "geofence_refusals",
-    "off_map", "slips", "overruns", "safe_entries", "safe_recoveries", "sim_s", "wall_s",
+    "off_map", "slips", "overruns", "safe_entries", "safe_recoveries", "safe_recoveries_resumed", "safe_final",
+    "tasks_hung", "watchdog_expired_frames", "map_transfer", "transfer_s", "odometer_m", "looks", "stays",
+    "wheels_on_unknown_ground", "sim_s", "wall_s",
 )
 
 
@@ -67,6 +73,17 @@ def result_row(m: dict[str, Any], summary: dict[str, Any]) -> dict[str, Any]:
         "overruns": summary["overruns"],
         "safe_entries": summary["safe_entries"],
         "safe_recoveries": summary["safe_recoveries"],
+        "safe_recoveries_resumed": summary["safe_recoveries_resumed"],
+        "safe_final": summary["final_state"] == "SAFE" and summary["safe_reason"] is not None
+        and summary["safe_reason"].startswith("persistent fault"),
+        "tasks_hung": summary["tasks_hung"],
+        "watchdog_expired_frames": summary["watchdog_expired_frames"],
+        "map_transfer": summary["map_transfer"],
+        "transfer_s": summary["transfer_s"],
+        "odometer_m": summary["odometer_m"],
+        "looks": summary["looks"],
+        "stays": len(summary["stays"]),
+        "wheels_on_unknown_ground": summary["wheels_on_unknown_ground"],
         "sim_s": summary["sim_s"],
         "wall_s": summary["wall_s"],
     }
@@ -76,7 +93,7 @@ def failed_row(m: dict[str, Any], kind: str, error: str, wall_s: float) -> dict[
     """A mission that raised (``error``) or was killed (``killed``: timeout, lost process)."""
     row: dict[str, Any] = {**base_row(m), **dict.fromkeys(RESULT_COLUMNS)}
     row.update(outcome=kind, error=error[:500], end_reason="", final_state="", safe_reason="",
-               mapped_cells_per_step="", wall_s=round(wall_s, 3))
+               mapped_cells_per_step="", map_transfer="", wall_s=round(wall_s, 3))
     return row
 
 

@@ -64,6 +64,19 @@ def run(args: argparse.Namespace) -> int:
                         args.report_only)
 
 
+def with_fault_timing(rows: list[dict], missions: list) -> list[dict]:  # type: ignore[type-arg]
+    """Each row with ``fault_start_s`` (the earliest start of its faults, None when clean) and
+    ``fault_in_mission`` (that start came before the mission ended: a fault window drawn after
+    the end never happened, and the row must not count as a faulted mission that coped)."""
+    starts = {m.id: min((f["start_s"] for f in m.faults), default=None) for m in missions}
+    out = []
+    for r in rows:
+        t = starts.get(r["id"])
+        hit = None if t is None or r.get("sim_s") is None else bool(t < r["sim_s"])
+        out.append({**r, "fault_start_s": t, "fault_in_mission": hit})
+    return out
+
+
 def run_campaign(name: str, missions: list, out: Path, jobs: int, scheduler: str | None,  # type: ignore[type-arg]
                  retry_failed: bool = False, report_only: bool = False) -> int:
     import time
@@ -87,12 +100,16 @@ def run_campaign(name: str, missions: list, out: Path, jobs: int, scheduler: str
     if not rows:
         print(f"safer-hil campaign: no mission stored in {out / 'missions'} yet", file=sys.stderr)
         return 1
+    rows = with_fault_timing(rows, missions)
     write_table(out, rows)
     where = f"Dask scheduler {scheduler}" if scheduler else f"local pool, {jobs} jobs"
     extra = (f"Run on {where}: {len(rows) - reused} missions in {wall:.0f} s wall clock "
              f"({reused} reused from an earlier run).\n")
     if report_only:
-        extra = f"Partial campaign: {len(rows)} of {len(missions)} missions stored so far.\n"
+        state = "every mission" if len(rows) == len(missions) else "a partial campaign"
+        mission_s = sum(r["wall_s"] or 0.0 for r in rows)
+        extra = (f"Report rebuilt from the stored rows ({state}: {len(rows)} of {len(missions)} missions; "
+                 f"their own wall time summed {mission_s:.0f} s).\n")
     h = write_report(out, rows, name, extra)
     bad = sum(r["outcome"] in FAILED for r in rows)
     print(f"{len(rows)} missions ({reused} reused) in {wall:.0f} s; outcomes: "

@@ -211,3 +211,21 @@ def test_estop_holds_the_wheels_and_refuses_moves() -> None:
     assert rig.command("motion.DRIVE", distance_m=0.1, speed_mps=0.0).status.name == "OK"
     st = _until_status(rig, statuses)
     assert (st.request_id, st.state) == (-1, "done")
+
+
+def test_a_clear_faults_request_clears_latched_faults_but_never_an_estop() -> None:
+    """The mission's SAFE recovery asks the motion task to clear the latched driver faults
+    (fsw/tasks/mission_safe.py); an engaged emergency stop is the operator's to release."""
+    rig, statuses, _ = _rig()
+    motors, mast = rig.exe.ctx.res.motors, rig.exe.ctx.res.mast
+    motors.faults, mast.faults = can_motors.F_MOTOR, 1
+    rig.publish(MOTION_REQUEST, MotionRequest(8, "clear_faults"))
+    st = _until_status(rig, statuses, 5)
+    assert (st.request_id, st.kind, st.state) == (8, "clear_faults", "done")
+    assert motors.faults == 0 and mast.faults == 0 and len(rig.events("motion.FAULTS_CLEARED")) == 1
+    assert rig.command("motion.ESTOP", engage=True).status.name == "OK"
+    motors.faults = can_motors.F_MOTOR
+    rig.publish(MOTION_REQUEST, MotionRequest(9, "clear_faults"))
+    st = _until_status(rig, statuses, 5)
+    assert (st.request_id, st.state) == (9, "refused") and "emergency stop" in st.reason
+    assert motors.estopped and motors.faults == can_motors.F_MOTOR

@@ -61,7 +61,7 @@ def test_rerun_skips_finished_missions(local_run: Path) -> None:
     (local_run / "missions" / f"{missions[0].id}.json").rename(local_run / "held.json")
     assert main(["campaign", str(SMOKE), "--out", str(local_run), "--report-only"]) == 0
     assert len(pq.read_table(local_run / "results.parquet")) == 3
-    assert "Partial campaign: 3 of 4 missions" in (local_run / "report.md").read_text()
+    assert "a partial campaign: 3 of 4 missions" in (local_run / "report.md").read_text()
     (local_run / "held.json").rename(local_run / "missions" / f"{missions[0].id}.json")
     assert main(["campaign", str(SMOKE), "--out", str(local_run), "--report-only"]) == 0  # the full table again
     assert len(pq.read_table(local_run / "results.parquet")) == 4

@@ -4,13 +4,14 @@ of scenario families (grids, seeded samples) and fault sets into missions; the C
 from __future__ import annotations
 
 import math
+from collections import Counter
 from pathlib import Path
 
 import pytest
 
 from fsw.framework.params import ConfigError
 from fsw.settings import DEFAULT_CONFIG
-from hil_sim.campaign.spec import expand, family_points, load_spec, scenario_string
+from hil_sim.campaign.spec import Mission, expand, family_points, load_spec, scenario_string
 from hil_sim.cli import main
 
 CAMPAIGNS = DEFAULT_CONFIG.parent / "campaigns"
@@ -106,6 +107,11 @@ def test_samples_change_with_their_seed_only(tmp_path: Path) -> None:
         ("start_s = 20.0", "start_s = -1.0", "start_s"),
         ("fraction = 0.5", "fraction = 1.5", "faults.fraction"),
         ('name = "bus_off"', 'name = "none"', "faults.sets.name"),
+        ('kind = "bus_off"', 'kind = "stuck_task", target = "no_such_task"', "faults.sets[0].faults.target"),
+        ('kind = "bus_off"', 'kind = "stuck_task"', "needs a target task"),
+        ("seed = 2", 'seed = 2\nunit = "point"', "faults.unit"),
+        ("seed = 2", 'seed = 2\ntogether = ["7"]', "faults.together"),
+        ('name = "bus_off"', 'name = "bus_off"\njitter_s = -1.0', "jitter_s"),
     ],
 )
 def test_bad_specs_are_one_line_errors(tmp_path: Path, old: str, new: str, key: str) -> None:
@@ -114,6 +120,37 @@ def test_bad_specs_are_one_line_errors(tmp_path: Path, old: str, new: str, key: 
         load_spec(write(tmp_path, BASE.replace(old, new, 1)))
     msg = str(err.value)
     assert "\n" not in msg and msg.startswith(str(tmp_path / "spec.toml")) and key in msg
+
+
+MISSION_UNIT = BASE.replace('methods = ["5", "oracle"]', 'methods = ["1", "3", "5", "oracle"]').replace(
+    "seed = 2\n", 'seed = 2\nunit = "mission"\nbalanced = true\n').replace(
+    'name = "bus_off"', 'name = "bus_off"\njitter_s = 50.0') + """
+[[faults.sets]]
+name = "hang"
+faults = [{ kind = "stuck_task", target = "nbv", start_s = 10.0, duration_s = 5.0 }]
+
+[[faults.sets]]
+name = "radio"
+faults = [{ kind = "radio_outage", start_s = 100.0, duration_s = 60.0 }]
+"""
+
+
+def test_mission_unit_keeps_method5_with_its_oracle_and_deals_the_sets_evenly(tmp_path: Path) -> None:
+    ms = expand(load_spec(write(tmp_path, MISSION_UNIT)))
+    assert ms == expand(load_spec(write(tmp_path, MISSION_UNIT)))  # deterministic
+    by_pair: dict[tuple[str, int], dict[str, Mission]] = {}
+    for m in ms:
+        by_pair.setdefault((m.scenario, m.seed), {})[m.method] = m
+    assert len(by_pair) == 12 and all(len(p) == 4 for p in by_pair.values())
+    # units: methods 1 and 3 alone, 5 with the oracle: 3 a pair, 36 in all, half of them faulted
+    assert all(p["5"].faults == p["oracle"].faults and p["5"].fault_set == p["oracle"].fault_set
+               for p in by_pair.values())
+    units = [p[k].fault_set for p in by_pair.values() for k in ("1", "3", "5")]
+    assert sorted(Counter(units).items()) == [("bus_off", 6), ("hang", 6), ("none", 18), ("radio", 6)]
+    assert any(p["1"].fault_set != p["3"].fault_set for p in by_pair.values())  # not paired: drawn per mission
+    starts = {m.faults[0]["start_s"] for m in ms if m.fault_set == "bus_off"}
+    assert len(starts) > 1 and all(20.0 <= t <= 70.0 for t in starts)  # seeded times in [start, start + jitter]
+    assert {m.faults[0]["start_s"] for m in ms if m.fault_set == "hang"} == {10.0}  # no jitter: as written
 
 
 def test_shipped_campaigns_are_valid() -> None:
@@ -125,6 +162,15 @@ def test_shipped_campaigns_are_valid() -> None:
     faulted = sum(m.fault_set != "none" for m in robust) / len(robust)
     assert faulted == 0.25, faulted  # exactly round(fraction x pairs) pairs, every method of a pair
     assert all(math.isfinite(v) for m in robust for v in m.params.values())
+    r100 = expand(load_spec(CAMPAIGNS / "robustness.toml"))
+    assert 100 <= len(r100) <= 110 and {m.method for m in r100} == {"1", "2", "3", "4", "5", "oracle"}
+    kinds = Counter(f["kind"] for m in r100 for f in m.faults)
+    assert set(kinds) == {"can_drop", "bus_off", "motor_fault", "serial_noise", "camera_dropout", "stuck_task",
+                          "radio_outage"} and min(kinds.values()) >= 3
+    assert 0.2 <= sum(m.fault_set != "none" for m in r100) / len(r100) <= 0.3
+    assert all(m.scenario.startswith("terrain?") for m in r100)
+    rec = expand(load_spec(CAMPAIGNS / "recovery.toml"))
+    assert len(rec) == 18 and len({m.fault_set for m in rec}) == 9
 
 
 @pytest.mark.parametrize(
