@@ -254,3 +254,18 @@ def test_raster_on_the_lab_edge_uses_every_step_and_passes_the_geofence(sweep: b
     if sweep:  # the sweep's longer spacing parks it beside the bay's corner, inside the margin
         # once the corner is seen: the geofence lets it out of the margin, never closer
         assert any("recovering" in r for r in reasons)
+
+
+def test_rover_off_the_path_also_gets_straight_stations() -> None:
+    """A rover farther than half a spacing from the path (issue 13 item 3: the edge closer than
+    the setback) gets stations straight ahead and behind, its heading kept, each way up to the
+    first refused one; a rover on the path gets none."""
+    path = np.array([[-3.0, -0.5], [3.0, -0.5]])
+    rover = (0.0, 0.0, 0.0)
+    st = path_stations(path, rover, lambda a, b: b[0] <= 0.6 and b[1] > -0.1, 0.25, 1.0)
+    straight = [s for s in st[1:] if s.rover[1] == pytest.approx(0.0)]
+    assert sorted(round(s.rover[0], 2) for s in straight) == [-1.0, -0.75, -0.5, -0.25, 0.25, 0.5]
+    assert all(s.rover[2] == 0.0 and s.travel_m == pytest.approx(abs(s.rover[0])) for s in straight)
+    assert len(st) == 1 + len(straight)  # the path's stations were refused (the lambda)
+    on_path = path_stations(path, (0.0, -0.45, 0.0), _ok, 0.25, 1.0)
+    assert all(s.rover[1] == pytest.approx(-0.5) for s in on_path[1:])
