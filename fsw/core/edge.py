@@ -194,8 +194,7 @@ def _extension(end: F64, t: F64, extend_m: float, inner: BaseGeometry | None,
                stop_at: Callable[[F64], NDArray[np.bool_]] | None = None) -> F64 | None:
     """The far point of the straight extension from ``end`` along ``t``: ``extend_m`` out, or
     where it first enters ``inner`` or ``stop_at`` holds (None: it would start there)."""
-    t = t / max(float(np.hypot(*t)), 1e-12)
-    length = extend_m
+    t, length = t / max(float(np.hypot(*t)), 1e-12), extend_m
     if inner is not None or stop_at is not None:
         s = np.linspace(0.0, extend_m, max(2, int(np.ceil(extend_m / 0.01)) + 1))
         q = end[None] + s[:, None] * t[None]
@@ -322,11 +321,8 @@ def fit_polygon(emap: ElevationMap, cells: EdgeCells, cfg: EdgeConfig) -> EdgeMo
         flag = np.zeros(ring.shape[0], bool)
         flag[np.unique(near[0])] = True
         runs += _runs(ring, flag, cfg)
-    # The plateau is every piece of the safe region (pieces within join_m are one plateau, but
-    # their contours are separate polygons): a barrier extension stops in any of them, not
-    # only in the largest (the piece beside the drop is often not the largest one).
-    model_poly = geoms[0] if len(geoms) == 1 else MultiPolygon(
-        [p for p in geoms if isinstance(p, Polygon)])
+    # every piece of the plateau (one within join_m, separate contours) clips the extensions
+    model_poly = geoms[0] if len(geoms) == 1 else MultiPolygon([p for p in geoms if isinstance(p, Polygon)])
     return EdgeModel("polygon", cells.points_xy, MultiLineString(runs), model_poly)
 
 
