@@ -7,8 +7,10 @@ for each method, as full lockstep missions (``hil_sim.mission_run``), ``--jobs``
 a process pool, and writes ``ground.csv`` / ``ground.json`` (one row per mission) and
 ``ground.md``: the table per mission (moved?, reachable stations, steps used, why steps went
 unused, edge violations, wheels off the world, wheels on unknown ground, mapped cells, map RMS
-error against truth, its mean error and the plane tilt fitted to the error) and the summary
-(medians and worst cases, and the issue's criteria checked).
+error against truth, the plane tilt fitted to the error and the RMS around it, the station
+seams and the fraction of mapped cells within 2 sigma, ``hil_sim.terrain_eval``) and the
+summary (medians and worst cases, and the issue's criteria checked). ``--camera ideal`` runs
+the ideal pinhole pair (the map error without the calibrated cameras' share).
 
 The rows are a function of the inputs and seeds (no wall-clock fields), so the table can be
 re-run after other changes (e.g. rover attitude) and compared line by line.
