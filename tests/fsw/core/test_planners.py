@@ -269,3 +269,18 @@ def test_rover_off_the_path_also_gets_straight_stations() -> None:
     assert len(st) == 1 + len(straight)  # the path's stations were refused (the lambda)
     on_path = path_stations(path, (0.0, -0.45, 0.0), _ok, 0.25, 1.0)
     assert all(s.rover[1] == pytest.approx(-0.5) for s in on_path[1:])
+
+
+def test_raster_first_station_moves_on_when_the_projection_is_refused() -> None:
+    """Method 1's first row starts at the rover's projection on the path; if the geofence
+    refuses that (issue 13 item 3: e.g. its footprint leaves the map), at the nearest path point
+    on in the row's direction that it allows, not at the rover's own pose."""
+    state = _straight_state(40.0)
+    state = PlannerState(state.map, (0.0, 0.2, 0.0), state.joints, state.path,  # beside the path
+                         lambda a, b: b[0] >= 0.3 - 1e-9, edge_xy=state.edge_xy)
+    views = _run(RasterPlanner(False, 3, NbvConfig(), CAM, MAST), state, 3)
+    assert views[0].rover[0] == pytest.approx(0.3, abs=1e-6) and views[0].rover[1] == pytest.approx(0.0)
+    refused = PlannerState(state.map, state.rover, state.joints, state.path, lambda a, b: _close(a, b),
+                           edge_xy=state.edge_xy)
+    stay = _run(RasterPlanner(False, 3, NbvConfig(), CAM, MAST), refused, 1)
+    assert stay[0].rover == state.rover  # nothing allowed: the view from where it stands
