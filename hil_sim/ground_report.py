@@ -14,7 +14,7 @@ from typing import Any
 COLUMNS = ("scenario", "seed", "slope_deg", "edge_gap_m", "method", "moved", "odometer_m", "reachable_max", "stuck",
            "steps_used", "steps_asked", "unused_reason", "stays", "looks", "edge_violations",
            "geofence_refusals", "wheels_off_terrain", "wheels_on_unknown_ground", "mapped_cells",
-           "map_rmse_cm", "error_tilt_deg", "rmse_detilted_cm", "final_state")
+           "map_rmse_cm", "error_tilt_deg", "rmse_detilted_cm", "seam_cm", "within_2sigma", "final_state")
 MOVED_M = 0.05  # the rover moved if its true odometer passed this
 
 
@@ -23,6 +23,8 @@ def row_of(s: dict[str, Any], spec: str, seed: int, steps: int) -> dict[str, Any
     reach = [int(v) for v in s.get("reachable_stations", [])]
     moved = float(s.get("odometer_m", 0.0)) > MOVED_M
     detilted = s.get("map_rmse_detilted_m")
+    q = s.get("map_quality") or {}
+    seam = q.get("seam_m")
     return {
         "scenario": spec, "seed": seed, "method": s["method"],
         "slope_deg": _r(s.get("drawn", {}).get("slope_deg")),
@@ -40,6 +42,8 @@ def row_of(s: dict[str, Any], spec: str, seed: int, steps: int) -> dict[str, Any
         "map_rmse_cm": None if s["map_rmse_m"] is None else round(100 * s["map_rmse_m"], 2),
         "error_tilt_deg": s.get("map_error_tilt_deg"),
         "rmse_detilted_cm": None if detilted is None else round(100 * detilted, 2),
+        "seam_cm": None if seam is None else round(100 * seam, 2),
+        "within_2sigma": None if q.get("within_2sigma") is None else round(float(q["within_2sigma"]), 3),
         "final_state": s["final_state"], "stay_reasons": s.get("stays", []),
     }
 
@@ -59,7 +63,9 @@ def _median_worst(values: list[float], worst_high: bool = True) -> str:
 def report_markdown(rows: list[dict[str, Any]], failed: list[str], args: dict[str, Any]) -> str:
     cmd = (f"safer-hil experiment ground --family '{args['family']}' --terrains {args['terrains']} "
            f"--first-seed {args['first_seed']} --methods {args['methods']} --steps {args['steps']} "
-           + "".join(f"--extra '{e}' " for e in args["extra"]) + f"--jobs {args['jobs']}")
+           + "".join(f"--extra '{e}' " for e in args["extra"])
+           + (f"--camera {args['camera']} " if args.get("camera", "config") != "config" else "")
+           + f"--jobs {args['jobs']}")
     out = [f"# Missions on unfamiliar ground\n\n```\n{cmd}\n```\n",
            "| " + " | ".join(c for c in COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
     for r in rows:
@@ -67,8 +73,8 @@ def report_markdown(rows: list[dict[str, Any]], failed: list[str], args: dict[st
     out.append("\n## Summary per method (median / worst)\n")
     out.append("| method | missions | moved | stuck | steps used (all?) | edge violations | wheels off "
                "terrain | wheels on unknown ground | mapped cells (median / min) | map RMSE cm | "
-               "error tilt deg | RMSE detilted cm |")
-    out.append("|---|---|---|---|---|---|---|---|---|---|---|---|")
+               "error tilt deg | RMSE detilted cm | seams cm | within 2 sigma |")
+    out.append("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for m in sorted({r["method"] for r in rows}):
         rs = [r for r in rows if r["method"] == m]
         full = sum(r["steps_used"] >= r["steps_asked"] for r in rs)
@@ -80,7 +86,9 @@ def report_markdown(rows: list[dict[str, Any]], failed: list[str], args: dict[st
             f"{_median_worst([r['mapped_cells'] for r in rs], worst_high=False)} | "
             f"{_median_worst([r['map_rmse_cm'] for r in rs])} | "
             f"{_median_worst([r['error_tilt_deg'] for r in rs])} | "
-            f"{_median_worst([r['rmse_detilted_cm'] for r in rs])} |")
+            f"{_median_worst([r['rmse_detilted_cm'] for r in rs])} | "
+            f"{_median_worst([r['seam_cm'] for r in rs])} | "
+            f"{_median_worst([r['within_2sigma'] for r in rs], worst_high=False)} |")
     out.append("\n## Criteria (issue 13 item 3)\n")
     crit = [
         ("missions where the rover never moved while a reachable station existed",

@@ -30,7 +30,7 @@ import numpy as np
 import shapely
 from numpy.typing import NDArray
 from scipy import ndimage
-from shapely.geometry import LineString, MultiLineString, Polygon
+from shapely.geometry import LineString, MultiLineString, MultiPolygon, Polygon
 from shapely.geometry.base import BaseGeometry
 
 from fsw.core.edge_offset import END_TANGENT_M, edge_path, end_normal, trim_hooks
@@ -93,7 +93,7 @@ class EdgeModel:
     method: str  # "polygon" (Methods 4/5) or "line" (Method 3)
     points_xy: F64
     lines: MultiLineString
-    safe_polygon: Polygon | None
+    safe_polygon: Polygon | MultiPolygon | None  # the mapped plateau: every piece of it
     stand: BaseGeometry | None = None  # ground the rover stands on: no extension crosses it
     stop_at: Callable[[F64], NDArray[np.bool_]] | None = None  # (N, 2) -> True: extension ends
     open_ends: bool = False  # signed_distance: ground past a line's end is not beyond the edge
@@ -194,8 +194,7 @@ def _extension(end: F64, t: F64, extend_m: float, inner: BaseGeometry | None,
                stop_at: Callable[[F64], NDArray[np.bool_]] | None = None) -> F64 | None:
     """The far point of the straight extension from ``end`` along ``t``: ``extend_m`` out, or
     where it first enters ``inner`` or ``stop_at`` holds (None: it would start there)."""
-    t = t / max(float(np.hypot(*t)), 1e-12)
-    length = extend_m
+    t, length = t / max(float(np.hypot(*t)), 1e-12), extend_m
     if inner is not None or stop_at is not None:
         s = np.linspace(0.0, extend_m, max(2, int(np.ceil(extend_m / 0.01)) + 1))
         q = end[None] + s[:, None] * t[None]
@@ -322,7 +321,8 @@ def fit_polygon(emap: ElevationMap, cells: EdgeCells, cfg: EdgeConfig) -> EdgeMo
         flag = np.zeros(ring.shape[0], bool)
         flag[np.unique(near[0])] = True
         runs += _runs(ring, flag, cfg)
-    model_poly = geoms[0] if len(geoms) == 1 else max(geoms, key=lambda p: p.area)
+    # every piece of the plateau (one within join_m, separate contours) clips the extensions
+    model_poly = geoms[0] if len(geoms) == 1 else MultiPolygon([p for p in geoms if isinstance(p, Polygon)])
     return EdgeModel("polygon", cells.points_xy, MultiLineString(runs), model_poly)
 
 

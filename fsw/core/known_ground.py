@@ -79,6 +79,21 @@ class KnownGround:
         """How many map cells (or cell-sized samples off the map) inside ``geom`` are unknown."""
         return len(self.unknown_points(geom))
 
+    def off_map_cells(self, geom: BaseGeometry) -> int:
+        """How many cell-sized samples inside ``geom`` lie off the map grid (never knowable:
+        no view can map them)."""
+        if self.grid is None or geom.is_empty:
+            return 0
+        g = self.grid
+        x0, y0, x1, y1 = geom.bounds
+        if x0 >= g.x0 and y0 >= g.y0 and x1 <= g.x0 + g.nx * g.cell and y1 <= g.y0 + g.ny * g.cell:
+            return 0
+        pts = self.unknown_points(geom)
+        if len(pts) == 0:
+            return 0
+        iy, ix, inside = g.cell_index(pts[:, 0], pts[:, 1])
+        return int((~inside).sum())
+
     def unknown_points(self, geom: BaseGeometry) -> NDArray[np.float64]:
         """(N, 2) centres of the unknown cells inside ``geom``."""
         none = np.zeros((0, 2))

@@ -222,12 +222,20 @@ class RasterPlanner(Planner):
         if row.taken == 0:
             if len(self.rows) > 1:  # a new row starts where the last one ended
                 return state.rover
-            p, yaw = _point_and_heading(line, s_last, self._heading_dir)
-            st = (float(p[0]), float(p[1]), yaw)
-            ok = _close(st, state.rover) or state.motion_ok(state.rover, st)
-            yield None
-            self._last_xy = (st[0], st[1]) if ok else (state.rover[0], state.rover[1])
-            return st if ok else state.rover
+            # The first row starts at the rover's projection on the path, or if the geofence
+            # refuses that, at the nearest path point on in the row's direction it allows
+            # (within one spacing; e.g. the projection's footprint leaves the map).
+            for k in range(int(row.spacing_m / 0.05) + 1):
+                s = min(line.length, max(0.0, s_last + row.direction * 0.05 * k))
+                p, yaw = _point_and_heading(line, s, self._heading_dir)
+                st = (float(p[0]), float(p[1]), yaw)
+                ok = _close(st, state.rover) or state.motion_ok(state.rover, st)
+                yield None
+                if ok:
+                    self._last_xy = (st[0], st[1])
+                    return st
+            self._last_xy = (state.rover[0], state.rover[1])
+            return state.rover
         d = row.direction
         s_target = min(line.length, max(0.0, s_last + d * row.spacing_m))
         min_advance = max(row.spacing_m / 4.0, 1e-3)

@@ -9,6 +9,12 @@ the path, must pass the geofence (``motion_ok(a, b)``, e.g.
 ``lambda a, b: geofence.check(a, b).allowed``). The rover's current pose is always a station
 (pan/tilt-only moves). A station's heading is the path tangent, flipped by pi if that is
 closer to the current heading (the rover may drive either way along the path).
+
+A rover standing off the path (farther than half a station spacing: the edge runs closer to
+or farther from it than the path's setback) also gets stations straight ahead and behind it,
+at the same spacing, keeping its heading: reaching the path needs a turn in place, whose
+swinging corners the geofence may refuse near the edge (or over ground no look can map),
+while a straight drive sweeps only the wheels' own tracks (issue 13 item 3).
 """
 
 from __future__ import annotations
@@ -119,6 +125,27 @@ def path_stations_steps(path: F64, rover_now: Pose3, motion_ok: MotionCheck, spa
                 break
             out.append(Station(st, abs(float(s[i]) - s_now) + off_m))
             prev = st
+    if off_m > spacing_m / 2.0:
+        out += yield from straight_stations_steps(now.rover, motion_ok, spacing_m, max_travel_m)
+    return out
+
+
+def straight_stations_steps(rover_now: Pose3, motion_ok: MotionCheck, spacing_m: float,
+                            max_travel_m: float) -> Generator[None, None, list[Station]]:
+    """Stations every ``spacing_m`` straight ahead of and behind the rover, its heading kept,
+    up to ``max_travel_m``, each way until the first the geofence refuses."""
+    x, y, yaw = rover_now
+    c, s = math.cos(yaw), math.sin(yaw)
+    out = []
+    for direction in (1.0, -1.0):
+        for k in range(1, int(math.floor(max_travel_m / spacing_m + 1e-9)) + 1):
+            t = direction * k * spacing_m
+            st = (x + t * c, y + t * s, yaw)
+            ok = motion_ok(rover_now, st)
+            yield None
+            if not ok:
+                break
+            out.append(Station(st, abs(t)))
     return out
 
 

@@ -10,8 +10,9 @@ candidates on the new map. Before any wheel move the geofence checks the swept f
 against the polygon edge (§2): a refusal is an event, never a crossing, and the step's view
 is taken from where the rover stands (``fsw.tasks.mission_ground``). A move over ground the
 map has not measured (``fsw.core.known_ground``) is not taken blind: the step first looks at
-that ground from where the rover stands (``fsw.core.look``, part of the same step); a move
-still refused is driven part of the way the geofence allows. A fitted edge that hems the
+that ground from where the rover stands (``fsw.core.look``, part of the same step; again while
+a look still maps some of it, up to ``max_looks_per_move``); a move still refused is driven
+part of the way the geofence allows (along the drive, or straight ahead or behind). A fitted edge that hems the
 rover in where it stands makes the next step a look at the ground nearest it. Step 0 is
 the panorama from the start pose (the same for every method); steps 1..N are the
 planner's. Each step is recorded (``records``) for the run summary.
@@ -126,6 +127,8 @@ class MissionTask(GroundAwareMission, SafeRecovery):
         self.looks = 0  # views of unknown ground before a move
         self.stays: list[str] = []  # why a step's view was taken without its move
         self._looked: tuple[float, float, float] | None = None
+        self._look_n = 0  # looks taken for the station _looked
+        self._look_left = 0  # its unknown swept cells at the last of them
         self._looked_from: tuple[float, float, float] | None = None
         self.end: str | None = None
         self.safe_reason: str | None = None

@@ -66,6 +66,7 @@ def mission_state(m: Any, phase: MissionPhase) -> dict[str, Any]:
             "looks": m.looks, "stays": list(m.stays),
             "looked": None if m._looked is None else list(m._looked),
             "looked_from": None if m._looked_from is None else list(m._looked_from),
+            "look_n": m._look_n, "look_left": m._look_left,
             "stood_on": [shapely.to_wkb(g, hex=True) for g in m.geofence.known._stood],
         },
         "tasks": collect_task_states(tasks),
@@ -127,6 +128,7 @@ def resume(m: Any) -> MissionPhase | None:
     looked, looked_from = s.get("looked"), s.get("looked_from")
     m._looked = None if looked is None else tuple(float(v) for v in looked)
     m._looked_from = None if looked_from is None else tuple(float(v) for v in looked_from)
+    m._look_n, m._look_left = int(s.get("look_n", 0)), int(s.get("look_left", 0))
     m.geofence.known._stood = [shapely.from_wkb(h) for h in s.get("stood_on", [])]
     m.event("RESUMED", step=m.step, seq=loaded.meta.seq, phase=str(phase))
     return phase

@@ -4,12 +4,16 @@ issue 13 item 3): a mixin of :class:`fsw.tasks.mission.MissionTask`.
 - The geofence (``fsw.core.geofence``) is set on the latest edge fit, the latest map (which
   ground is known) and the rover's own footprint (safe, known ground) before every check.
 - Planners rate stations with the edge check alone; the mission then checks the whole move.
-  A move over unknown ground is preceded by one look at that ground from where the rover
-  stands (``fsw.core.look``; the part of the way nearest the rover), part of the same imaging
-  step. A move still refused is driven part of the way, as far as the geofence allows (the
-  operator advances to the end of known ground, the next view shows more), or, if no part of
-  it is allowed, the step's view is taken from where the rover stands; the reason is kept
-  per step (``stays``).
+  A move over unknown ground is preceded by looks at that ground from where the rover stands
+  (``fsw.core.look``), part of the same imaging step: each look aims at the unknown cells of
+  the whole swept footprint nearest the rover (the turn in place, the drive, the final turn),
+  and the rover looks again at what is left while a look still maps some of it, up to
+  ``mission.max_looks_per_move`` looks. A move still refused is driven part of the way: the
+  pose nearest the station, among the points along the planned drive (turn, then drive) and
+  the points straight ahead or behind (no turn: a turn in place sweeps the corners of the
+  rover over ground beside and behind it), that the geofence allows; if no part of it is
+  allowed, the step's view is taken from where the rover stands. The reason is kept per step
+  (``stays``).
 """
 
 from __future__ import annotations
@@ -33,12 +37,12 @@ Pose3 = tuple[float, float, float]
 MIN_MOVE_M = 0.1  # stations closer than this (and turned less than MIN_TURN_RAD) are "here"
 MIN_TURN_RAD = math.radians(10.0)
 LOOK_DEPTH_M = 0.6  # a look aims at the unknown ground within this of the nearest unknown cell
-PART_FRACTIONS = (0.85, 0.7, 0.55, 0.4, 0.25, 0.1)  # of the way, tried for a part-way move
+PART_STEP_M = 0.05  # part-way moves are tried every this far along the way
 
 
 class GroundAwareMission(FlightTask):
     """Needs the MissionTask attributes: ctx, geofence, latest, edge, nav, view, pending,
-    step, looks, stays, _looked; and its event and _start_point methods."""
+    step, looks, stays, _looked, _look_n, _look_left; and its event and _start_point methods."""
 
     geofence: Geofence
     latest: MapUpdate | None
@@ -50,7 +54,9 @@ class GroundAwareMission(FlightTask):
     looks: int
     edge_violations: int
     stays: list[str]
-    _looked: Pose3 | None
+    _looked: Pose3 | None  # the station the last looks were for
+    _look_n: int  # looks taken for it
+    _look_left: int  # its unknown swept cells at the last look
     _looked_from: Pose3 | None
 
     if TYPE_CHECKING:  # provided by Task and MissionTask (stubs here would shadow them)
@@ -66,20 +72,11 @@ class GroundAwareMission(FlightTask):
         def _start_point(self) -> None: ...
 
     def _refused(self, here: Pose3, there: Pose3, reason: str) -> None:
-        """The geofence refused the move: over unknown ground, look at it once (the part of
-        the way nearest the rover); otherwise drive part of the way, as far as the geofence
-        allows; otherwise take the step's view from here. Never a crossing, never a stall."""
+        """The geofence refused the move: over unknown ground, look at it (see the module
+        docstring); otherwise drive part of the way, as far as the geofence allows; otherwise
+        take the step's view from here. Never a crossing, never a stall."""
         assert self.view is not None
-        if "unknown ground" in reason and self._looked != there:
-            self._looked = there
-            pts = self.geofence.unknown_points(here, there)
-            d = np.hypot(pts[:, 0] - here[0], pts[:, 1] - here[1])
-            pts = pts[d <= d.min() + LOOK_DEPTH_M]
-            self.looks += 1
-            self.event("LOOK", n=len(pts), x=there[0], y=there[1])
-            self.pending.insert(0, self.view)
-            self.view = CandidateView(here, look_joints(here, pts, self.ctx.cfg.mast), method="look")
-            self._start_point()
+        if "unknown ground" in reason and self._look_at_swept(here, there):
             return
         self.edge_violations += 1  # a refusal that stands (a look is not one)
         self.event("GEOFENCE", x=there[0], y=there[1], reason=reason)
@@ -93,25 +90,60 @@ class GroundAwareMission(FlightTask):
             self._start_point()
             return
         gone = math.hypot(part[0] - here[0], part[1] - here[1])
-        self.stays.append(f"step {self.step}: part way, {gone:.2f} of "
-                          f"{math.hypot(there[0] - here[0], there[1] - here[1]):.2f} m: {reason}")
+        self.stays.append(f"step {self.step}: part way, {gone:.2f} m toward a station "
+                          f"{math.hypot(there[0] - here[0], there[1] - here[1]):.2f} m away: {reason}")
         turn = math.remainder(pan + there[2] - part[2], math.tau)
         self.view = CandidateView(part, self.ctx.cfg.mast.clamp(turn, tilt, lift),
                                   method=self.view.method)
         self._goto(MissionPhase.MOVE)
         self._request(kind="goto", target=part)
 
+    def _look_at_swept(self, here: Pose3, there: Pose3) -> bool:
+        """Make the step's next view a look at the unknown ground the move to ``there`` would
+        sweep (its cells nearest the rover), if the look budget allows: the first look for a
+        station, then more while the last one mapped some of it. True if it is now that look."""
+        assert self.view is not None
+        pts = self.geofence.unknown_points(here, there)
+        if len(pts) == 0:
+            return False
+        if self._looked != there:
+            self._looked, self._look_n, self._look_left = there, 0, len(pts)
+        elif self._look_n >= self.ctx.cfg.mission.max_looks_per_move or len(pts) >= self._look_left:
+            return False  # out of looks, or the last look mapped none of it (textureless, hidden)
+        self._look_n += 1
+        self._look_left = len(pts)
+        d = np.hypot(pts[:, 0] - here[0], pts[:, 1] - here[1])
+        near = pts[d <= d.min() + LOOK_DEPTH_M]
+        self.looks += 1
+        self.event("LOOK", n=len(near), x=there[0], y=there[1])
+        self.pending.insert(0, self.view)
+        self.view = CandidateView(here, look_joints(here, near, self.ctx.cfg.mast), method="look")
+        self._start_point()
+        return True
+
     def _part_way(self, here: Pose3, there: Pose3) -> Pose3 | None:
-        """The farthest point toward ``there`` (keeping the drive's heading, no final turn)
-        that the geofence allows, at least ``MIN_MOVE_M`` away; None if there is none."""
-        heading = goto_legs(here, there)[1][2]
+        """The allowed pose nearest ``there`` among the points every ``PART_STEP_M`` along the
+        planned drive (its heading kept, no final turn) and along the rover's own heading
+        (straight ahead or behind, no turn at all), at least ``MIN_MOVE_M`` from here and
+        ``MIN_MOVE_M`` nearer the station; None if there is none."""
         dist = math.hypot(there[0] - here[0], there[1] - here[1])
         ux, uy = (there[0] - here[0]) / max(dist, 1e-9), (there[1] - here[1]) / max(dist, 1e-9)
-        for f in PART_FRACTIONS:
-            if f * dist < MIN_MOVE_M:
+        heading = goto_legs(here, there)[1][2]
+        c, s = math.cos(here[2]), math.sin(here[2])
+        ahead = (there[0] - here[0]) * c + (there[1] - here[1]) * s  # the station along the heading
+        cands: list[Pose3] = []
+        for t in np.arange(PART_STEP_M, dist - PART_STEP_M / 2, PART_STEP_M):
+            cands.append((here[0] + t * ux, here[1] + t * uy, heading))
+        for t in np.arange(PART_STEP_M, abs(ahead) + PART_STEP_M / 2, PART_STEP_M):
+            t = math.copysign(min(t, abs(ahead)), ahead)
+            cands.append((here[0] + t * c, here[1] + t * s, here[2]))
+        gap = [math.hypot(there[0] - p[0], there[1] - p[1]) for p in cands]
+        for k in np.argsort(gap, kind="stable"):
+            p = cands[int(k)]
+            if gap[k] > dist - MIN_MOVE_M:
                 break
-            p = (here[0] + f * dist * ux, here[1] + f * dist * uy, heading)
-            if self.geofence.check(here, p).allowed:
+            if math.hypot(p[0] - here[0], p[1] - here[1]) >= MIN_MOVE_M and (
+                    self.geofence.check(here, p).allowed):
                 return p
         return None
 

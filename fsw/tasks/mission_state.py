@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import shapely
 import shapely.errors
-from shapely.geometry import MultiLineString, Polygon
+from shapely.geometry import MultiLineString, MultiPolygon, Polygon
 
 from fsw.core.edge import EdgeModel
 from fsw.core.geometry import MapGrid
@@ -101,7 +101,7 @@ def edge_from_json(d: dict[str, Any] | None) -> EdgeModel | None:
         poly = None if d["safe_polygon"] is None else shapely.from_wkb(d["safe_polygon"])
     except shapely.errors.ShapelyError as exc:
         raise StateError(f"edge model geometry unreadable ({exc})") from None
-    if not isinstance(lines, MultiLineString) or not (poly is None or isinstance(poly, Polygon)):
+    if not isinstance(lines, MultiLineString) or not (poly is None or isinstance(poly, Polygon | MultiPolygon)):
         raise StateError("edge model geometry of the wrong type")
     pts = np.asarray(d["points_xy"], dtype=np.float64).reshape(-1, 2)
     return EdgeModel(str(d["method"]), pts, lines, poly)

@@ -42,6 +42,9 @@ class MissionConfig:
         (90.0, -90.0), lo=-180.0, hi=180.0, units="deg", doc="step 0: pans that map the ground around the rover"
     )
     near_tilt_deg: float = param(-70.0, lo=-90.0, hi=30.0, units="deg", doc="their steep tilt (the turning circle)")
+    max_looks_per_move: int = param(
+        4, lo=1, hi=20, doc="looks at the unknown ground a refused move would sweep, while each maps some of it"
+    )
     park_joints: tuple[float, float, float] = param((0.0, -30.0, 0.0), doc="SAFE mast pose: pan deg, tilt deg, lift m")
     capture_retries: int = param(2, lo=0, hi=20, doc="retries of a pair that did not arrive")
     step_timeout_s: float = param(300.0, lo=1.0, hi=1e5, units="s", doc="longest wait for one request")

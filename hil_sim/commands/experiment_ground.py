@@ -7,8 +7,10 @@ for each method, as full lockstep missions (``hil_sim.mission_run``), ``--jobs``
 a process pool, and writes ``ground.csv`` / ``ground.json`` (one row per mission) and
 ``ground.md``: the table per mission (moved?, reachable stations, steps used, why steps went
 unused, edge violations, wheels off the world, wheels on unknown ground, mapped cells, map RMS
-error against truth, its mean error and the plane tilt fitted to the error) and the summary
-(medians and worst cases, and the issue's criteria checked).
+error against truth, the plane tilt fitted to the error and the RMS around it, the station
+seams and the fraction of mapped cells within 2 sigma, ``hil_sim.terrain_eval``) and the
+summary (medians and worst cases, and the issue's criteria checked). ``--camera ideal`` runs
+the ideal pinhole pair (the map error without the calibrated cameras' share).
 
 The rows are a function of the inputs and seeds (no wall-clock fields), so the table can be
 re-run after other changes (e.g. rover attitude) and compared line by line.
@@ -19,6 +21,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import multiprocessing
 import sys
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
@@ -40,15 +43,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="another scenario to run with seed 0 (repeatable), e.g. file:dem.npy")
     p.add_argument("--methods", default="5,1", help="comma-separated subset of 1-5, oracle")
     p.add_argument("--steps", type=int, default=10, help="imaging steps after the panorama")
+    p.add_argument("--camera", default="config", choices=("config", "ideal", "raw"),
+                   help="config: the calibrated cameras; ideal: the ideal pinhole pair (map error "
+                        "without calibration effects)")
     p.add_argument("--jobs", type=int, default=2, help="missions run in parallel (processes)")
     p.add_argument("--out", type=Path, default=Path("out/ground"), help="output directory")
 
 
-def _one(scenario: str, method: str, steps: int, seed: int, out: str) -> dict[str, Any]:
+def _one(scenario: str, method: str, steps: int, seed: int, out: str, camera: str) -> dict[str, Any]:
     from hil_sim.mission_run import RunSpec, run_mission
     from hil_sim.world import load_scenario
 
-    s = run_mission(RunSpec(scenario, method, steps, seed, transmit=False, out=Path(out)))
+    s = run_mission(RunSpec(scenario, method, steps, seed, transmit=False, out=Path(out), camera=camera))
     s["drawn"] = dict(load_scenario(scenario, seed).drawn)  # the terrain's slope, edge gap
     return s
 
@@ -80,13 +86,16 @@ def run(args: argparse.Namespace) -> int:
     rows: list[dict[str, Any]] = []
     failed: list[str] = []
     with (
-        ProcessPoolExecutor(max_workers=args.jobs) as pool,
+        # spawn, not fork: the parent has loaded worlds (thread pools, locks held by other
+        # threads); a forked worker could inherit a held lock and wait forever (seen: both
+        # workers asleep on a futex, 0 s CPU, for 8 min).
+        ProcessPoolExecutor(max_workers=args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool,
         tqdm(total=len(runs), desc="ground", unit="mission") as bar,
     ):
         futs = {}
         for i, (spec, seed, m) in enumerate(runs):
             out = args.out / "runs" / f"{i:03d}_m{m}_seed{seed}"
-            futs[pool.submit(_one, spec, m, args.steps, seed, str(out))] = (spec, seed, m)
+            futs[pool.submit(_one, spec, m, args.steps, seed, str(out), args.camera)] = (spec, seed, m)
         for fut in as_completed(futs):
             spec, seed, m = futs[fut]
             try:

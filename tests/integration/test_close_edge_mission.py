@@ -20,3 +20,18 @@ def test_close_edge_mission_moves_safely():
     assert s["wheels_on_unknown_ground"] == 0
     assert len(s["steps"]) - 1 == 4 and s["steps_unused"] == 0 and s["final_state"] == "DONE"
     assert s["looks"] >= 1  # it looked at unmapped ground before driving over it
+
+
+def test_rover_off_the_edge_path_moves_at_its_first_step():
+    """Drawn terrain 10 (5 deg slope, edge 0.64 m from the wheels, irregular): the fitted edge
+    comes in pieces, and the plateau beside the drop was a separate contour from the largest
+    one, so a piece's straight continuation ran across mapped plateau past the rover and no
+    station was reachable; the rover stood still for every step. Now every plateau piece
+    clips the continuation, and a rover off the edge path also has stations straight ahead
+    and behind (no turn in place): it moves at its first step, safely."""
+    s = run_mission(RunSpec("terrain?slope_deg=-1", "5", steps=1, seed=10, transmit=False))
+    assert s["reachable_stations"][1] > 0
+    assert s["odometer_m"] > 0.5, s["stays"]
+    assert s["edge_violations"] == 0 and s["wheels_off_terrain"] == 0
+    assert s["wheels_on_unknown_ground"] == 0
+    assert s["steps_unused"] == 0 and s["final_state"] == "DONE"

@@ -142,3 +142,30 @@ def test_elevation_map_counts_drive_known_ground():
     gf = Geofence(GeofenceConfig(), RoverConfig())
     gf.set_map(GRID, m.n)
     assert gf.known.ready and gf.known.unknown_cells(gf.footprint((1.0, 1.0, 0.0))) > 50
+
+
+def test_extension_stops_in_any_piece_of_the_mapped_plateau():
+    """The plateau fitted in two pieces (their contours are separate polygons): an edge piece's
+    straight continuation stops where it enters either of them, not only the largest one."""
+    from shapely.geometry import MultiPolygon, box
+
+    line = LineString([(1.0, -1.0), (2.0, -1.3)])  # continues back toward (0, -0.7), up-left
+    big = box(-1.5, 0.05, 2.5, 2.0)  # the larger piece, left of the rover
+    beside = box(-1.0, -0.95, 2.5, -0.02)  # the piece beside the drop
+    for poly, clipped in ((big, False), (MultiPolygon([big, beside]), True)):
+        model = EdgeModel("polygon", np.asarray(line.coords), MultiLineString([line]), poly)
+        b = model.barrier(1.0)
+        x_min = min(g.bounds[0] for g in b.geoms)
+        assert (x_min > 0.5) is clipped, (x_min, clipped)  # clipped ~0.67 (5 cm in), else ~0.05
+
+
+def test_a_wheel_off_the_map_grid_is_refused_even_by_the_edge_only_check():
+    """Ground off the map grid can never be known (no view maps it): a planner's station whose
+    wheels would leave the grid is refused by the edge-only check too, naming the reason, so
+    no look is spent on it; a station inside the grid passes that check."""
+    n = mapped_box(-2.0, 5.5, -3.0, 3.0)  # the grid spans x -2 .. 5.5
+    gf = fence(n, edge_along_x(-2.5), stand=(4.5, 0.0, 0.0))
+    v = gf.check((4.5, 0.0, 0.0), (5.3, 0.0, 0.0), known_ground=False)
+    assert not v.allowed and "leave the map" in v.reason
+    assert gf.check((4.5, 0.0, 0.0), (4.9, 0.0, 0.0), known_ground=False).allowed
+    assert gf.check((4.5, 0.0, 0.0), (4.9, 0.0, 0.0)).allowed  # mapped all the way

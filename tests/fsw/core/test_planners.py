@@ -254,3 +254,33 @@ def test_raster_on_the_lab_edge_uses_every_step_and_passes_the_geofence(sweep: b
     if sweep:  # the sweep's longer spacing parks it beside the bay's corner, inside the margin
         # once the corner is seen: the geofence lets it out of the margin, never closer
         assert any("recovering" in r for r in reasons)
+
+
+def test_rover_off_the_path_also_gets_straight_stations() -> None:
+    """A rover farther than half a spacing from the path (issue 13 item 3: the edge closer than
+    the setback) gets stations straight ahead and behind, its heading kept, each way up to the
+    first refused one; a rover on the path gets none."""
+    path = np.array([[-3.0, -0.5], [3.0, -0.5]])
+    rover = (0.0, 0.0, 0.0)
+    st = path_stations(path, rover, lambda a, b: b[0] <= 0.6 and b[1] > -0.1, 0.25, 1.0)
+    straight = [s for s in st[1:] if s.rover[1] == pytest.approx(0.0)]
+    assert sorted(round(s.rover[0], 2) for s in straight) == [-1.0, -0.75, -0.5, -0.25, 0.25, 0.5]
+    assert all(s.rover[2] == 0.0 and s.travel_m == pytest.approx(abs(s.rover[0])) for s in straight)
+    assert len(st) == 1 + len(straight)  # the path's stations were refused (the lambda)
+    on_path = path_stations(path, (0.0, -0.45, 0.0), _ok, 0.25, 1.0)
+    assert all(s.rover[1] == pytest.approx(-0.5) for s in on_path[1:])
+
+
+def test_raster_first_station_moves_on_when_the_projection_is_refused() -> None:
+    """Method 1's first row starts at the rover's projection on the path; if the geofence
+    refuses that (issue 13 item 3: e.g. its footprint leaves the map), at the nearest path point
+    on in the row's direction that it allows, not at the rover's own pose."""
+    state = _straight_state(40.0)
+    state = PlannerState(state.map, (0.0, 0.2, 0.0), state.joints, state.path,  # beside the path
+                         lambda a, b: b[0] >= 0.3 - 1e-9, edge_xy=state.edge_xy)
+    views = _run(RasterPlanner(False, 3, NbvConfig(), CAM, MAST), state, 3)
+    assert views[0].rover[0] == pytest.approx(0.3, abs=1e-6) and views[0].rover[1] == pytest.approx(0.0)
+    refused = PlannerState(state.map, state.rover, state.joints, state.path, lambda a, b: _close(a, b),
+                           edge_xy=state.edge_xy)
+    stay = _run(RasterPlanner(False, 3, NbvConfig(), CAM, MAST), refused, 1)
+    assert stay[0].rover == state.rover  # nothing allowed: the view from where it stands
