@@ -20,7 +20,16 @@ from fsw.core.localization import so3_log
 from fsw.drivers.camera import CameraReply
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.base import FlightTask
-from fsw.tasks.messages import CAMERA_FRAME, CAMERA_REQUEST, NAV_POSE, CameraFrame, CaptureRequest, NavPose
+from fsw.tasks.messages import (
+    CAMERA_FRAME,
+    CAMERA_REQUEST,
+    NAV_POSE,
+    VIEW_FAILED,
+    CameraFrame,
+    CaptureRequest,
+    NavPose,
+    ViewFailed,
+)
 
 
 def camera_pose_covariance(
@@ -99,16 +108,16 @@ class CameraTask(FlightTask):
             if reply is not None and reply.seq == seq:
                 self.waiting = None
                 self._publish(reply, req, now - t0)
-            elif not cam.busy and reply is None:
-                self.waiting = None  # timed out or dropped: the driver evented it; mission retries
+            elif not cam.busy and reply is None:  # timed out, dropped or the link broke (evented)
+                self.waiting = None
+                why = ", ".join(cam.fault_names()) or "no pair"
+                self.publish(VIEW_FAILED, ViewFailed(req.view_id, f"camera: {why}"))
         self.tlm("pending", 0 if self.waiting is None else 1)
 
     def _publish(self, reply: CameraReply, req: CaptureRequest, latency_s: float) -> None:
-        if self.nav is None:
-            self.event("NO_POSE", view=req.view_id)
-            return
-        if reply.left is None or reply.right is None:
-            self.event("EMPTY_PAIR", view=req.view_id)
+        if self.nav is None or reply.left is None or reply.right is None:
+            self.event("NO_POSE" if self.nav is None else "EMPTY_PAIR", view=req.view_id)
+            self.publish(VIEW_FAILED, ViewFailed(req.view_id, "no pose estimate" if self.nav is None else "empty pair"))
             return
         cfg = self.ctx.cfg
         js = math.radians(cfg.capture.joint_sigma_deg)

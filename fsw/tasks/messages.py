@@ -28,6 +28,7 @@ NBV_REQUEST = "nbv.request"
 NBV_RESULT = "nbv.result"
 RADIO_SEND = "radio.send"
 RADIO_STATUS = "radio.status"
+VIEW_FAILED = "view.failed"
 
 
 @dataclass(frozen=True)
@@ -56,6 +57,16 @@ class CaptureRequest:
 
     view_id: int
     expected_new_cells: float = float("nan")
+
+
+@dataclass(frozen=True)
+class ViewFailed:
+    """View ``view_id`` will not reach the map (no pair: camera timeout, dropout, broken link,
+    no pose; or its stereo/merge job failed): the mission retries at once instead of waiting
+    out its step timeout."""
+
+    view_id: int
+    reason: str
 
 
 @dataclass(frozen=True)

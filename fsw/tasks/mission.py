@@ -49,6 +49,7 @@ from fsw.tasks.messages import (
     NBV_RESULT,
     RADIO_SEND,
     RADIO_STATUS,
+    VIEW_FAILED,
     CaptureRequest,
     MapUpdate,
     MotionRequest,
@@ -109,6 +110,7 @@ class MissionTask(GroundAwareMission, SafeRecovery):
         self.map_box = self.subscribe(MAP_UPDATED, depth=4)
         self.nbv_box = self.subscribe(NBV_RESULT, depth=2)
         self.radio_box = self.subscribe(RADIO_STATUS, depth=4)
+        self.failed_box = self.subscribe(VIEW_FAILED, depth=4)  # a view that will not reach the map
         self.radio: RadioStatus | None = None
         self.nav: NavPose | None = None
         self.state = MissionPhase.IDLE
@@ -287,16 +289,21 @@ class MissionTask(GroundAwareMission, SafeRecovery):
         assert self.view is not None
         self._goto(MissionPhase.ACQUIRE)
         self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
+        self.failed_box.drain()  # failures of earlier attempts are answered by this one
         self.publish(CAMERA_REQUEST, CaptureRequest(self.step, self.view.expected_new_cells))
 
     def _state_acquire(self) -> None:
-        if self._timed_out():
+        """Wait for the view's map update (``_on_map``); retry a view that failed (camera,
+        perception) at once, and one that never arrived after the step timeout."""
+        failed = [f for f in self.failed_box.drain() if f.view_id == self.step]
+        if failed or self._timed_out():
+            reason = failed[-1].reason if failed else "no merged pair"
             if self.retries < self.mcfg.capture_retries:
                 self.retries += 1
-                self.event("RETRY", what=f"view {self.step}", reason="no merged pair", n=self.retries)
+                self.event("RETRY", what=f"view {self.step}", reason=reason, n=self.retries)
                 self._capture()
             else:
-                self._enter_safe("no stereo pair after retries")
+                self._enter_safe(f"no stereo pair after retries ({reason})")
 
     def _on_map(self, up: MapUpdate) -> None:
         self.latest = up

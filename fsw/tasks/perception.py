@@ -52,7 +52,7 @@ from fsw.framework.jobs import JobHandle
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.settings import load_stereo_calibration
 from fsw.tasks.base import FlightTask
-from fsw.tasks.messages import CAMERA_FRAME, MAP_UPDATED, CameraFrame, MapUpdate
+from fsw.tasks.messages import CAMERA_FRAME, MAP_UPDATED, VIEW_FAILED, CameraFrame, MapUpdate, ViewFailed
 from fsw.tasks.mission_state import JsonDict, restore_into
 
 ROI_STRIDE = 4  # the region-of-interest fraction is estimated on every 4th cell each way
@@ -135,6 +135,7 @@ class PerceptionTask(FlightTask):
         self.map = ElevationMap(MapGrid.from_config(cfg.map), cfg.fusion)
         self.frames = self.subscribe(CAMERA_FRAME, depth=2, policy="drop_oldest")
         self.job: JobHandle | None = None
+        self.job_view = -1  # the view the job merges
         self.views = 0
         self.last_update: MapUpdate | None = None
         self.unregistered = 0
@@ -155,6 +156,7 @@ class PerceptionTask(FlightTask):
             msg = self.frames.get()
             if msg is not None:
                 self.job = self.submit_job(self._merge_view(msg), f"view{msg.view_id}")
+                self.job_view = msg.view_id
         now = self.ctx.clock.now()
         if self.store is not None and (err := self.store.take_error()) is not None:
             self.event("CHECKPOINT_FAILED", error=err)  # a write on the store's writer thread
@@ -285,6 +287,7 @@ class PerceptionTask(FlightTask):
     def _finish(self, h: JobHandle) -> None:
         if h.error is not None:
             self.event("VIEW_FAILED", view=h.name, error=f"{type(h.error).__name__}: {h.error}")
+            self.publish(VIEW_FAILED, ViewFailed(self.job_view, f"perception: {type(h.error).__name__}: {h.error}"))
             return
         up: MapUpdate = h.result
         self.last_update = up

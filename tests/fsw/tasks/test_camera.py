@@ -12,7 +12,7 @@ from task_rig import TaskRig, task_config
 from fsw.drivers.camera import CallableSource, CameraDriver
 from fsw.drivers.resources import Resources
 from fsw.tasks.camera import camera_pose_covariance
-from fsw.tasks.messages import CAMERA_FRAME, CAMERA_REQUEST, NAV_POSE, CaptureRequest, NavPose
+from fsw.tasks.messages import CAMERA_FRAME, CAMERA_REQUEST, NAV_POSE, VIEW_FAILED, CaptureRequest, NavPose, ViewFailed
 
 CFG = task_config(("cam_drv", "camera_device"), ("camera", "camera"))
 NAV = NavPose(0.0, 1.0, 2.0, 0.3, np.diag([1e-4, 1e-4, 1e-5]), (0.2, -0.6, 0.4))
@@ -21,6 +21,32 @@ NAV = NavPose(0.0, 1.0, 2.0, 0.3, np.diag([1e-4, 1e-4, 1e-5]), (0.2, -0.6, 0.4))
 def _pair() -> tuple[np.ndarray, np.ndarray, float]:
     img = np.zeros((CFG.camera.height_px, CFG.camera.width_px), np.uint8)
     return img, img, 12.5
+
+
+def test_a_capture_that_times_out_is_published_as_a_failed_view() -> None:
+    """The pair never comes: after the driver's timeout the camera task frees itself and
+    tells the mission (``ViewFailed``), which retries at once."""
+    class Silent:  # a camera that takes requests and never answers
+        def request(self, seq: int) -> None: ...
+        def receive(self) -> list[Any]: return []
+        def close(self) -> None: ...
+
+    rig = TaskRig(CFG, Resources(camera=CameraDriver(Silent(), timeout_s=0.5)))
+    frames, failed = rig.tap(CAMERA_FRAME), rig.tap(VIEW_FAILED)
+    rig.publish(NAV_POSE, NAV)
+    rig.publish(CAMERA_REQUEST, CaptureRequest(3))
+    rig.run(int(0.5 / CFG.executive.frame_period_s) + 3)
+    assert not frames.drain() and rig.tlm("camera.pending") == 0
+    (f,) = failed.drain()
+    assert f == ViewFailed(3, "camera: timeout") and rig.tlm("cam_drv.timeouts") == 1
+
+
+def test_no_pose_is_a_failed_view() -> None:
+    rig, frames = _rig()
+    failed = rig.tap(VIEW_FAILED)
+    rig.publish(CAMERA_REQUEST, CaptureRequest(2))
+    rig.run(3)
+    assert failed.drain() == [ViewFailed(2, "no pose estimate")]
 
 
 def _rig(fn: Any = _pair, camera: bool = True) -> tuple[TaskRig, Any]:

@@ -31,9 +31,11 @@ from fsw.tasks.messages import (
     NAV_POSE,
     NBV_REQUEST,
     NBV_RESULT,
+    VIEW_FAILED,
     MapUpdate,
     MotionStatus,
     NavPose,
+    ViewFailed,
 )
 
 STEP_TIMEOUT_S = 2.0  # 20 frames
@@ -174,7 +176,33 @@ def test_a_missing_pair_is_retried_then_safe() -> None:
     m.rig.run_until(lambda: len(m.captures) == 1, 30)  # the retry after the step timeout
     assert phase(m.rig) == "ACQUIRE" and len(m.rig.events("mission.RETRY")) == 1
     m.rig.run_until(lambda: phase(m.rig) == "SAFE", 30)
-    assert m.rig.task("mission").safe_reason == "no stereo pair after retries"
+    assert m.rig.task("mission").safe_reason == "no stereo pair after retries (no merged pair)"
+
+
+def test_a_failed_view_is_retried_at_once_then_safe() -> None:
+    """A camera timeout (or a failed stereo job) is published as ``ViewFailed``: the mission
+    retries in the next frame instead of waiting out the step timeout, and enters SAFE with
+    the reason once ``capture_retries`` retries failed too. A failure of another view is not
+    taken for this one."""
+    m = Mission()
+    m.rig.command("mission.START")
+    m.nav()
+    m.rig.run(1)
+    (req,) = m.moves.drain()
+    m.motion_reply(req.request_id, "mast")
+    m.rig.run(1)
+    assert len(m.captures.drain()) == 1 and phase(m.rig) == "ACQUIRE"
+    m.rig.publish(VIEW_FAILED, ViewFailed(99, "camera: timeout"))  # not this step's view
+    m.rig.run(2)
+    assert not m.captures.drain() and not m.rig.events("mission.RETRY")
+    for n in range(1, CFG.mission.capture_retries + 1):
+        m.rig.publish(VIEW_FAILED, ViewFailed(0, "camera: timeout"))
+        m.rig.run(1)
+        assert len(m.captures.drain()) == 1 and len(m.rig.events("mission.RETRY")) == n
+    m.rig.publish(VIEW_FAILED, ViewFailed(0, "camera: dropout"))
+    m.rig.run(1)
+    assert phase(m.rig) == "SAFE"
+    assert m.rig.task("mission").safe_reason == "no stereo pair after retries (camera: dropout)"
 
 
 class MissionMachine(RuleBasedStateMachine):
