@@ -8,9 +8,7 @@ only if the rover can get there: every leg from the current pose, station by sta
 the path, must pass the geofence (``motion_ok(a, b)``, e.g.
 ``lambda a, b: geofence.check(a, b).allowed``). The rover's current pose is always a station
 (pan/tilt-only moves). A station's heading is the path tangent, flipped by pi if that is
-closer to the current heading (the rover may drive either way along the path); if the
-geofence refuses that turn, the heading the rover already has there (the previous
-station's): the path fixes where a station is, not which way the rover faces.
+closer to the current heading (the rover may drive either way along the path).
 
 A rover standing off the path (farther than half a station spacing: the edge runs closer to
 or farther from it than the path's setback) also gets stations straight ahead and behind it,
@@ -119,17 +117,10 @@ def path_stations_steps(path: F64, rover_now: Pose3, motion_ok: MotionCheck, spa
         sel = sel[np.argsort(direction * s[sel])]
         prev = now.rover
         for i in sel:
-            # The path fixes where a station is, not its heading: along the path's tangent
-            # first, else the heading the rover already has there (no turn in place: on a
-            # wiggly fitted edge the tangent's turn is what swings a corner toward the drop).
-            ok = False
-            for yaw in dict.fromkeys((_heading(float(tangent[i]), rover_now[2]), prev[2])):
-                st = (float(pts[i, 0]), float(pts[i, 1]), yaw)
-                # The hop along the path, and the straight move the mission will command from here.
-                ok = motion_ok(prev, st) and (prev == now.rover or motion_ok(now.rover, st))
-                yield None
-                if ok:
-                    break
+            st = (float(pts[i, 0]), float(pts[i, 1]), _heading(float(tangent[i]), rover_now[2]))
+            # The hop along the path, and the straight move the mission will command from here.
+            ok = motion_ok(prev, st) and (prev == now.rover or motion_ok(now.rover, st))
+            yield None
             if not ok:
                 break
             out.append(Station(st, abs(float(s[i]) - s_now) + off_m))

@@ -190,20 +190,6 @@ def test_stations_follow_the_path_and_stop_at_the_geofence() -> None:
     assert path_stations(np.zeros((0, 2)), (0.0, 0.0, 0.0), _ok, 0.25, 1.0)[0].travel_m == 0.0
 
 
-def test_a_refused_turn_keeps_the_heading_instead_of_ending_the_path() -> None:
-    """A wiggly fitted edge gives a path whose tangent swings; where the geofence refuses the
-    turn to the tangent (a corner would swing toward the drop), the station keeps the heading
-    the rover has there, so the stations beyond stay reachable."""
-    x = np.linspace(0.0, 3.0, 31)
-    path = np.column_stack([x, 0.05 * np.sin(6.0 * x)])  # tangents up to +-17 deg
-    only_straight = lambda a, b: abs(b[2]) < 1e-9  # noqa: E731 - any turn refused
-    st = path_stations(path, (0.0, 0.0, 0.0), only_straight, 0.25, 2.0)
-    assert len(st) == 9 and all(s.rover[2] == 0.0 for s in st)  # 8 stations to 2 m, no turn
-    assert max(s.rover[0] for s in st) == pytest.approx(2.0, abs=0.05)
-    tangent = path_stations(path, (0.0, 0.0, 0.0), _ok, 0.25, 2.0)  # turns allowed: the tangent
-    assert any(abs(s.rover[2]) > 0.05 for s in tangent[1:])
-
-
 def test_method3_straightens_the_edge_path() -> None:
     """Method 3: the edge path becomes one total-least-squares segment spanning it."""
     path = edge_offset_path(synthetic_edge(-0.5, 3.9), 0.75)
