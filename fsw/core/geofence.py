@@ -19,7 +19,8 @@ Unknown ground (``require_known_ground``): every swept wheel patch must also lie
 flight software knows (``fsw.core.known_ground``: mapped cells, small stereo holes filled, or
 ground the rover has stood on); a move over unmapped ground is refused, naming the wheel. A
 wheel off the map grid can never be on known ground (no view maps it): even the edge-only
-check (``known_ground=False``, a planner's station) refuses it. The
+check (``known_ground=False``, a planner's station) refuses a station whose wheels would rest
+there (a turn on the way that clips the grid's border is left to the mission's check). The
 rover's footprint where it stands (``set_edge(model, stand)``) is safe ground: the edge's
 straight continuation past the ends the map saw stops short of it, and (with known ground
 required) at unknown ground, which no wheel may enter anyway: a hooked end of a glimpsed edge
@@ -159,8 +160,8 @@ class Geofence:
               known_ground: bool = True) -> Verdict:
         """Allow or reject the motion from ``a`` to ``b``; the reason says why.
         ``known_ground=False`` checks the edge alone (a planner's station that the mission
-        will look at before it drives there), and that no wheel leaves the map grid (ground
-        no look can map)."""
+        will look at before it drives there), and that no wheel comes to rest off the map
+        grid (ground no look can map)."""
         pa, pb = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
         if pa.shape != (3,) or pb.shape != (3,) or not (np.isfinite(pa).all()
                                                         and np.isfinite(pb).all()):
@@ -190,7 +191,7 @@ class Geofence:
             away = clear >= start - RECOVERY_TOL_M if clear > 0.0 else (
                 start == 0.0 and self._backs_away(tuple(pa), tuple(pb)))
             if away and end >= self.cfg.margin_m:
-                unknown = self._off_map(swept) or (self._unknown_ground(swept) if known_ground else None)
+                unknown = self._ground_refusal(swept, tuple(pb), known_ground)
                 if unknown is not None:
                     self.rejections += 1
                     return Verdict(False, unknown, clear, WHEELS[w])
@@ -203,7 +204,7 @@ class Geofence:
                 f"comes within {clear:.3f} m of the edge")
             return Verdict(False, f"rejected: wheel {WHEELS[w]} {where} "
                            f"(margin {self.cfg.margin_m:.2f} m)", clear, WHEELS[w])
-        unknown = self._off_map(swept) or (self._unknown_ground(swept) if known_ground else None)
+        unknown = self._ground_refusal(swept, tuple(pb), known_ground)
         if unknown is not None:
             self.rejections += 1
             return Verdict(False, unknown, clear, WHEELS[w])
@@ -234,6 +235,15 @@ class Geofence:
             if n:
                 return f"rejected: wheel {WHEELS[w]} would cross unknown ground ({n} unmapped cells)"
         return None
+
+    def _ground_refusal(self, swept: list[BaseGeometry], b: Pose3, known_ground: bool) -> str | None:
+        """The mission's check (``known_ground``): every swept wheel patch on the grid and on
+        known ground. A planner's station (edge only): its wheels must not REST off the grid
+        (no look can ever map that ground); a turn on the way that clips the grid's border is
+        the mission's check to refuse, or to drive part of the way."""
+        if known_ground:
+            return self._off_map(swept) or self._unknown_ground(swept)
+        return self._off_map(self.swept_wheels(b, b))
 
     def _off_map(self, swept: list[BaseGeometry]) -> str | None:
         """The refusal if a swept wheel patch leaves the map grid (ground no view can make

@@ -169,3 +169,18 @@ def test_a_wheel_off_the_map_grid_is_refused_even_by_the_edge_only_check():
     assert not v.allowed and "leave the map" in v.reason
     assert gf.check((4.5, 0.0, 0.0), (4.9, 0.0, 0.0), known_ground=False).allowed
     assert gf.check((4.5, 0.0, 0.0), (4.9, 0.0, 0.0)).allowed  # mapped all the way
+
+
+def test_a_turn_that_clips_the_grid_border_is_the_missions_to_refuse_not_the_planners():
+    """A rover parked 0.5 m from the grid's border (lab and generated terrains start so): a
+    turn in place swings its rear wheels off the grid. The planner's edge-only check still
+    allows a station whose wheels REST on the grid (else no station is ever reachable from the
+    start and the rover never moves); the mission's check refuses the turn (off the grid) and
+    drives the straight part instead."""
+    n = mapped_box(-0.5, 5.5, -3.0, 3.0)  # mapped (and, for the planner, reachable) from x = -0.5
+    gf = fence(n, edge_along_x(-2.5), stand=(0.0, 0.0, 0.0))
+    there = (0.3, 0.5, 0.0)  # needs a turn toward +y first: the rear wheels sweep x < -0.5
+    assert gf.check((0.0, 0.0, 0.0), there, known_ground=False).allowed
+    v = gf.check((0.0, 0.0, 0.0), there)
+    assert not v.allowed and v.reason.startswith("rejected: wheel rear_") and "unknown ground" in v.reason
+    assert gf.check((0.0, 0.0, 0.0), (0.6, 0.0, 0.0)).allowed  # straight ahead: no turn
