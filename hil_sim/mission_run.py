@@ -245,7 +245,7 @@ def run_mission(
     port_flight = ChannelPort(channel, "a", now)
     resources = Resources(radio_port=port_flight, oracle_truth=oracle)
     store, start, saved_bench = _prepare_store(spec, cfg, mode)
-    counters = {"violations": 0}
+    counters: dict[str, Any] = {"violations": 0}
     bench_box: list[Any] = []
     if store is not None:
         resources.map_store = store
