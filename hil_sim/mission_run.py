@@ -25,8 +25,10 @@ a move), ``stays`` (steps whose view was taken without the planned move, and why
 ``end_reason``, ``final_state``, ``mapped_cells``, ``frames``, ``sim_s``,
 ``start_attitude_deg`` (true roll, pitch at the start), ``registration`` (per view: status,
 correction, sigmas; ``fsw.core.registration``), ``map_quality`` (RMS, fitted tilt, station
-seams, 2-sigma fraction; ``hil_sim.terrain_eval``),
-``calib_2sigma`` (fraction of mapped cells within 2 sigma of the truth, ALGORITHM.md §4),
+seams, 2-sigma fraction, all against the truth in the flight map's datum, the true body
+height at the start, with the ground-datum figures beside them; ``hil_sim.terrain_eval``),
+``calib_2sigma`` (fraction of mapped cells within 2 sigma of the truth, ALGORITHM.md §4; the
+same datum), ``map_rmse_m`` and the error plane also in that datum,
 ``safe_entries``, ``safe_recoveries`` (SAFE left for the mission again), ``safe_recoveries_resumed``
 (of those, the ones after which the mission completed a step or ended before any new SAFE),
 ``off_map`` (frames with a wheel off the world's truth grid), ``tasks_hung`` (health TASK_HUNG
@@ -243,7 +245,7 @@ def run_mission(
     port_flight = ChannelPort(channel, "a", now)
     resources = Resources(radio_port=port_flight, oracle_truth=oracle)
     store, start, saved_bench = _prepare_store(spec, cfg, mode)
-    counters = {"violations": 0}
+    counters: dict[str, Any] = {"violations": 0}
     bench_box: list[Any] = []
     if store is not None:
         resources.map_store = store
@@ -276,6 +278,9 @@ def run_mission(
         last_step = -1
         views: list[Any] = []  # (camera xyz, cell index, z) per merged view, for the seams
         start_att = (round(bench.rig.truth()["roll_deg"], 3), round(bench.rig.truth()["pitch_deg"], 3))
+        # the flight map's height origin: the true body height at the start (hil_sim.terrain_eval);
+        # kept in the counters so a resumed run keeps the start's, not the resume point's
+        datum_m = float(counters.setdefault("datum_m", float(bench.rig.rover.z)))
         watchdog = bench.exe.ctx.res.watchdog
         for key in ("off_map", "recoveries", "recoveries_resumed", "watchdog_frames"):
             counters.setdefault(key, 0)
@@ -321,9 +326,10 @@ def run_mission(
             exe.tasks["mavlink"].close()  # flush and close the .tlog
         emap = perception.map
         mapped = emap.mapped & np.isfinite(truth)
-        rmse = float(np.sqrt(np.mean((emap.z[mapped] - truth[mapped]) ** 2))) if mapped.any() else None
-        tilt_deg, rmse_plane = error_plane(grid, emap.z - truth, mapped)
-        quality = map_quality(emap, truth, [v[:3] for v in views])
+        truth_f = truth - datum_m  # the truth in the flight map's datum (hil_sim.terrain_eval)
+        rmse = float(np.sqrt(np.mean((emap.z[mapped] - truth_f[mapped]) ** 2))) if mapped.any() else None
+        tilt_deg, rmse_plane = error_plane(grid, emap.z - truth_f, mapped)
+        quality = map_quality(emap, truth, [v[:3] for v in views], datum_m)
         summary: dict[str, Any] = {
             "schema": 1,
             "scenario": spec.scenario,
@@ -375,7 +381,7 @@ def run_mission(
         }
         summary = json.loads(json.dumps(summary))  # exactly what summary.json holds
         if spec.out is not None:
-            summary["files"] = write_outputs(spec.out, summary, emap, truth, grid)
+            summary["files"] = write_outputs(spec.out, summary, emap, truth_f, grid)
     return summary
 
 

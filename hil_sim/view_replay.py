@@ -89,9 +89,11 @@ class Factor:
 
 
 def replay(views: list[RecordedView], scenario: str, seed: int, factor: Factor,
-           config: str | None = None) -> dict[str, Any]:
+           config: str | None = None, datum_m: float = 0.0) -> dict[str, Any]:
     """The map quality (``hil_sim.terrain_eval.map_quality``) of ``views`` merged by a fresh
-    perception task with ``factor`` applied."""
+    perception task with ``factor`` applied; ``datum_m``: the recorded mission's true body
+    height at the start (its summary's ``map_quality.datum_m``), the flight poses' height
+    origin. True poses put the map in the world's own heights (datum 0)."""
     from fsw.executive.executive import Executive
     from fsw.framework.clock import SteppedClock
     from hil_sim.camera_model import TrueCameras
@@ -130,4 +132,5 @@ def replay(views: list[RecordedView], scenario: str, seed: int, factor: Factor,
                 up = stop.value
                 break
         merged.append((up.camera_xyz, *up.view_cells))
-    return map_quality(task.map, world.truth_on_grid(task.map.grid), merged)
+    datum = 0.0 if factor.true_pose else datum_m
+    return map_quality(task.map, world.truth_on_grid(task.map.grid), merged, datum)

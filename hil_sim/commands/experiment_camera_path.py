@@ -69,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
     true_cal = Path(tempfile.mkdtemp()) / "true_calibration.yaml"
     cams = TrueCameras.from_config(cfg.camera, load_hardware(spec.hardware).camera)
     save_calibration(true_cal, cams.truth())
+    datum = float((summary.get("map_quality") or {}).get("datum_m") or 0.0)
     rows = []
     print(f"{'factor':48s} {'cells':>7s} {'RMSE cm':>8s} {'tilt deg':>8s} {'2 sigma':>8s} {'seam cm (max)':>14s}")
     for name, kw in ROWS:
@@ -78,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
             if args.camera == "ideal":
                 kw = {**kw, "cameras": "real"}
             kw = {**kw, "calibration_file": str(true_cal)}
-        q = replay(views, args.scenario, args.seed, Factor(**kw), args.config)
+        q = replay(views, args.scenario, args.seed, Factor(**kw), args.config, datum)
         rows.append({"factor": name, **q})
         seam = "-" if q["seam_m"] is None else f"{100 * q['seam_m']:.2f} ({100 * q['seam_max_m']:.1f})"
         print(f"{name:48s} {q['cells']:7d} {100 * q['rms_m']:8.2f} {q['tilt_err_deg']:8.2f} "

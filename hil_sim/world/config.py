@@ -195,8 +195,9 @@ class FileDemConfig:
             "(sloped ground); 0: the level rule with plateau_tol_m")
     max_abs_height_m: float = param(1000.0, lo=1.0, hi=1e5, units="m",
                                     doc="heights beyond +- this are refused (wrong units)")
-    zero_at_start: bool = param(True, doc="shift the heights so the ground at the rover "
-                                          "start is z = 0 (the flight map's datum)")
+    zero_at_start: bool = param(True, doc="shift the heights so the ground under the rover "
+                                          "centre at the start is z = 0 (the flight map's datum "
+                                          "is the body on its wheels: hil_sim.terrain_eval)")
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,9 @@ Bad files are refused with one line (:class:`ScenarioError`): a file that is not
 suffix says (checked by its signature before any parser reads it), a ``.npy`` holding Python
 objects, NaN or infinite heights, and heights beyond ``max_abs_height_m`` (wrong units).
 With ``zero_at_start`` (default) the heights are shifted so that the ground under the rover
-start is ``z = 0``, the flight software's map datum. On sloped ground the plateau is the ground
+start is ``z = 0``. (The flight map's datum is the body resting on its four wheels, which on
+rocky ground differs from that by centimetres; ``hil_sim.terrain_eval`` compares in the
+flight's datum.) On sloped ground the plateau is the ground
 connected to the start through steps no steeper than ``plateau_max_slope_deg`` (0: the level
 rule, within ``plateau_tol_m`` of the start height).
 """
@@ -127,7 +129,7 @@ def build_from_dem(cfg: ScenarioConfig, seed: int) -> World:
     if not (room <= ix < nx - room and room <= iy < ny - room):
         raise ScenarioError(f"{fc.path}: the rover start ({rs.x_m}, {rs.y_m}) is within "
                             f"{START_ROOM_M} m of the DEM's border: no room for its wheels")
-    if fc.zero_at_start:  # the flight map's datum is the ground under the rover at the start
+    if fc.zero_at_start:  # the ground under the rover centre at the start is z = 0
         dem = dem - dem[iy, ix]
     plateau_z = float(dem[iy, ix])
     if fc.plateau_max_slope_deg > 0:
