@@ -3,8 +3,9 @@ tilt bands are described in ``fsw.core.planners``)."""
 
 from __future__ import annotations
 
+import itertools
 import math
-from collections.abc import Generator
+from collections.abc import Generator, Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -225,25 +226,25 @@ class RasterPlanner(Planner):
             # The first row starts at the rover's projection on the path, or if the geofence
             # refuses that, at the nearest path point on in the row's direction it allows
             # (within one spacing; e.g. the projection's footprint leaves the map).
-            for k in range(int(row.spacing_m / 0.05) + 1):
-                s = min(line.length, max(0.0, s_last + row.direction * 0.05 * k))
-                p, yaw = _point_and_heading(line, s, self._heading_dir)
-                st = (float(p[0]), float(p[1]), yaw)
-                ok = _close(st, state.rover) or state.motion_ok(state.rover, st)
-                yield None
-                if ok:
-                    self._last_xy = (st[0], st[1])
-                    return st
+            first = (min(line.length, max(0.0, s_last + row.direction * 0.05 * k))
+                     for k in range(int(row.spacing_m / 0.05) + 1))
+            st = yield from self._first_reachable(line, first, state)
+            if st is not None:
+                return st
             self._last_xy = (state.rover[0], state.rover[1])
             return state.rover
         d = row.direction
         s_target = min(line.length, max(0.0, s_last + d * row.spacing_m))
         min_advance = max(row.spacing_m / 4.0, 1e-3)
-        k = 0
-        while True:
-            s = s_target - d * 0.05 * k
-            if d * (s - s_last) < min_advance - 1e-9:
-                return None
+        back = itertools.takewhile(lambda s: d * (s - s_last) >= min_advance - 1e-9,
+                                   (s_target - d * 0.05 * k for k in itertools.count()))
+        return (yield from self._first_reachable(line, back, state))
+
+    def _first_reachable(self, line: LineString, arcs: Iterable[float], state: PlannerState
+                         ) -> Generator[None, None, Pose3 | None]:
+        """The station at the first arc length along ``line`` that the geofence lets the rover
+        reach (yielding after each check), remembered as the last station; None if none."""
+        for s in arcs:
             p, yaw = _point_and_heading(line, s, self._heading_dir)
             st = (float(p[0]), float(p[1]), yaw)
             ok = _close(st, state.rover) or state.motion_ok(state.rover, st)
@@ -251,8 +252,7 @@ class RasterPlanner(Planner):
             if ok:
                 self._last_xy = (st[0], st[1])
                 return st
-            k += 1
-
+        return None
 
 def best_floor_tilt_steps(rover: Pose3, pan: float, lift: float, floor_z_m: float,
                           ground_z_m: float, camera: CameraConfig, mast: MastConfig
