@@ -35,8 +35,10 @@ F64 = NDArray[np.float64]
 
 def ground_plane(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float, float],
                  cfg: PlaneLimits) -> F64:
-    """The rover's ground as a plane through ``(seed_xy, ground_z_m)``, per map cell: fitted
-    (least squares, slope at most ``max_slope_deg``) to the mapped cells near the plateau
+    """The rover's ground as a plane near ``(seed_xy, ground_z_m)`` (the height the pose chain
+    gives the ground under the rover), per map cell: fitted (least squares in slope and
+    height, slope at most ``max_slope_deg``; the height absorbs a few cm of pose-chain drift)
+    to the mapped cells near the plateau
     within growing radii (0.75, 1.5, 3 m), each round keeping the cells within
     ``3 * plateau_tol_m`` of the last plane. On level ground it stays level; on a sloped plateau
     (or a map tilted by the rover's attitude) the safe region and the drop follow the slope."""
@@ -45,17 +47,17 @@ def ground_plane(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float, fl
     dx, dy = X - seed_xy[0], Y - seed_xy[1]
     z = emap.z
     ok = emap.mapped & np.isfinite(z)
-    a = b = 0.0
+    a = b = c = 0.0
     for radius in (0.75, 1.5, 3.0):
-        rel = z - ground_z_m - a * dx - b * dy
+        rel = z - ground_z_m - c - a * dx - b * dy
         near = ok & (dx * dx + dy * dy <= radius * radius)
         sel = near & (np.abs(np.where(ok, rel, np.inf)) <= 3.0 * cfg.plateau_tol_m)
         if sel.sum() < cfg.min_region_cells:
             continue
-        m = np.column_stack([dx[sel], dy[sel]])
-        a, b = np.linalg.lstsq(m, z[sel] - ground_z_m, rcond=None)[0]
+        m = np.column_stack([dx[sel], dy[sel], np.ones(int(sel.sum()))])
+        a, b, c = np.linalg.lstsq(m, z[sel] - ground_z_m, rcond=None)[0]
         slope = float(np.hypot(a, b))
         cap = float(np.tan(np.radians(cfg.max_slope_deg)))
         if slope > cap:
             a, b = a * cap / slope, b * cap / slope
-    return np.asarray(ground_z_m + a * dx + b * dy, np.float64)
+    return np.asarray(ground_z_m + c + a * dx + b * dy, np.float64)

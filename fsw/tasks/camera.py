@@ -133,6 +133,7 @@ class CameraTask(FlightTask):
                 pose=pose,
                 pose_cov=cov,
                 expected_new_cells=req.expected_new_cells,
+                ground_z_m=self.nav.z_m,
             ),
         )
         self.tlm("captures", self.captures)

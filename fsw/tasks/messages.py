@@ -80,6 +80,7 @@ class CameraFrame:
     pose: CameraPose
     pose_cov: NDArray[np.float64]  # 6x6, rotation vector (rad) then translation (m)
     expected_new_cells: float = float("nan")
+    ground_z_m: float = 0.0  # the ground under the rover at capture, map datum (``NavPose.z_m``)
 
 
 @dataclass(frozen=True)

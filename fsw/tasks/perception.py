@@ -204,7 +204,10 @@ class PerceptionTask(FlightTask):
         yield
         ecfg = self.ctx.cfg.edge
         here = (float(fr.pose.t[0]), float(fr.pose.t[1]))  # the camera stands over the plateau
-        cells = yield from edge_cells_steps(self.map, 0.0, here, ecfg)  # ground: the plateau at the start
+        # The ground under the rover now (not at the start: on a slope the rover has climbed or
+        # descended since), with the registration's height correction (§2, §5.1).
+        ground_z = fr.ground_z_m + float(pose.t[2] - fr.pose.t[2])
+        cells = yield from edge_cells_steps(self.map, ground_z, here, ecfg)
         yield
         poly = fit_polygon(self.map, cells, ecfg)
         yield

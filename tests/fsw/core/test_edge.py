@@ -243,3 +243,31 @@ def test_cliff_step0_barrier_does_not_cut_the_plateau() -> None:
     # still refused: into the pit, past the edge's ends along the drop, within the margin
     for b in [(0.5, -1.4, 0.0), (-1.2, -1.2, 0.0), (2.9, -1.2, 0.0), (0.5, -0.55, 0.0)]:
         assert not fence.check((0.0, -0.2, 0.0), b).allowed, b
+
+
+def sloped_map(slope_deg: float) -> ElevationMap:
+    """The wavy edge of :func:`synthetic_map` on a plateau that climbs along +x at
+    ``slope_deg`` (the pit 0.4 m below the plateau, both following the slope)."""
+    m = synthetic_map()
+    X, _ = GRID.centers()
+    m.z[m.mapped] += (math.tan(math.radians(slope_deg)) * X)[m.mapped]
+    return m
+
+
+@pytest.mark.parametrize("drift_m", [0.0, 0.04, -0.04])
+def test_edge_on_a_slope_seen_from_a_rover_that_climbed(drift_m: float) -> None:
+    """Issue 13's edge-violation defect: on an 8 deg plateau the rover 3 m from the start
+    stands 0.42 m above the start's ground. The edge must be found along its whole length
+    from there, with the ground height the pose chain gives (a few cm of drift absorbed by the
+    plane fit). Taking the start's height instead loses it: the plateau becomes a strip
+    across the slope, and the geofence then knows no edge beside the rover."""
+    m, cfg = sloped_map(8.0), EdgeConfig()
+    seed = (3.0, 0.0)
+    ground = math.tan(math.radians(8.0)) * seed[0]
+    cells = edge_cells(m, ground + drift_m, seed, cfg)
+    poly = fit_polygon(m, cells, cfg)
+    xs = cells.points_xy[:, 0]
+    assert xs.min() < 0.0 and xs.max() > 4.5  # the whole edge the map saw (x = -0.5..5)
+    assert poly.mean_distance_to(TRUTH, GRID.cell) < 1.5 * GRID.cell
+    stale = edge_cells(m, 0.0, seed, cfg)  # the defect: the start's height, 0.42 m off
+    assert stale.points_xy.shape[0] < 0.2 * cells.points_xy.shape[0]
