@@ -3,7 +3,8 @@
 A candidate is 5-DOF plus heading: the rover pose ``(x, y, yaw)`` on the edge-following path
 (ALGORITHM.md §2; ``fsw.core.edge.edge_path`` makes it) and the mast joints ``(pan, tilt,
 lift)`` within ``MastConfig`` limits. Stations are spaced ``station_spacing_m`` along the
-path up to ``max_travel_m`` either way from the rover's projection on it. A station is kept
+path up to ``max_travel_m`` either way from the rover's projection on it (a path sample
+within half a spacing of the rover is the rover's own station, not a move). A station is kept
 only if the rover can get there: every leg from the current pose, station by station along
 the path, must pass the geofence (``motion_ok(a, b)``, e.g.
 ``lambda a, b: geofence.check(a, b).allowed``). The rover's current pose is always a station
@@ -110,9 +111,13 @@ def path_stations_steps(path: F64, rover_now: Pose3, motion_ok: MotionCheck, spa
     s_now = float(line.project(Point(rover_now[0], rover_now[1])))
     off_m = float(line.distance(Point(rover_now[0], rover_now[1])))
     s, pts, tangent = sample_path(xy, spacing_m)
+    # A sample within half a spacing of the rover is where it stands (its own station): driving
+    # a few cm to it would only turn the rover in place, and a refused turn there must not
+    # hide the stations beyond it.
+    here = np.hypot(pts[:, 0] - rover_now[0], pts[:, 1] - rover_now[1]) < spacing_m / 2.0
     out = [now]
     for direction in (1.0, -1.0):
-        sel = np.flatnonzero((direction * (s - s_now) > 1e-6)
+        sel = np.flatnonzero((direction * (s - s_now) > 1e-6) & ~here
                              & (np.abs(s - s_now) <= max_travel_m))
         sel = sel[np.argsort(direction * s[sel])]
         prev = now.rover

@@ -190,6 +190,21 @@ def test_stations_follow_the_path_and_stop_at_the_geofence() -> None:
     assert path_stations(np.zeros((0, 2)), (0.0, 0.0, 0.0), _ok, 0.25, 1.0)[0].travel_m == 0.0
 
 
+def test_a_refused_turn_where_the_rover_stands_does_not_hide_the_stations_beyond() -> None:
+    """Lab seed 1: the path sample 2 cm from the rover asks for a 16 deg turn in place that the
+    geofence refuses (a rear corner swings toward the edge); the stations beyond, reachable by
+    a straight drive, were lost with it. The sample where the rover stands is its own station."""
+    path = np.array([[-0.98, 0.0], [0.3, 0.0], [3.0, 0.08]])  # a sample at x = 0.02
+
+    def ok(a: tuple[float, float, float], b: tuple[float, float, float]) -> bool:
+        return math.hypot(b[0] - a[0], b[1] - a[1]) > 0.1  # refuses every turn in place
+
+    st = path_stations(path, (0.0, 0.0, 0.0), ok, 0.25, 1.5)
+    xs = sorted(s.rover[0] for s in st[1:] if s.rover[0] > 0.0)
+    assert xs and xs[0] > 0.1 and xs[-1] > 1.0
+    assert all(math.hypot(s.rover[0], s.rover[1]) >= 0.125 for s in st[1:])
+
+
 def test_method3_straightens_the_edge_path() -> None:
     """Method 3: the edge path becomes one total-least-squares segment spanning it."""
     path = edge_offset_path(synthetic_edge(-0.5, 3.9), 0.75)
