@@ -5,7 +5,8 @@ knows (its latest map and edge fit, its pose estimate) and never touch the fligh
 
 - :func:`reachable_stations`: at a step boundary, how many stations on the edge path (other
   than where the rover stands) the geofence would let the rover drive to (the edge check; the
-  mission looks at unknown ground before it drives). A mission where the rover never moved
+  mission looks at unknown ground before it drives); with no edge mapped yet, the edge
+  search's stations (wheels kept away from any mapped drop). A mission where the rover never moved
   although this was ever above zero is a mission that got stuck.
 - :func:`wheels_on_unknown`: the rover moved with a true wheel position on ground the flight
   software's geofence did not know.
@@ -25,13 +26,18 @@ from fsw.core.view_candidates import path_stations
 def reachable_stations(mission: Any, cfg: Any) -> int:
     """Stations on the edge path the geofence allows from the rover's estimated pose."""
     nav, latest, edge = mission.nav, mission.latest, mission.edge
-    if nav is None or latest is None or edge is None or edge.empty:
+    if nav is None or latest is None:
         return 0
+    if edge is not None and edge.empty:
+        edge = None
     here = (float(nav.x), float(nav.y), float(nav.yaw))
     fence = Geofence(cfg.geofence, cfg.rover)
     fence.set_map(latest.snapshot.grid, latest.snapshot.n)
+    if latest.drop is not None:
+        fence.set_drop(latest.snapshot.grid, latest.drop)
     fence.set_edge(edge, here)
-    path = edge_path(edge, cfg.edge.setback_m, cfg.edge.path_spacing_m, cfg.geofence.extend_m)
+    path = (np.zeros((0, 2)) if edge is None else
+            edge_path(edge, cfg.edge.setback_m, cfg.edge.path_spacing_m, cfg.geofence.extend_m))
     stations = path_stations(path, here, lambda a, b: fence.check(a, b, known_ground=False).allowed,
                              cfg.nbv.station_spacing_m, cfg.nbv.max_travel_m)
     return max(0, len(stations) - 1)

@@ -1,8 +1,9 @@
 """The cliff edge from the elevation map (ALGORITHM.md §2).
 
 1. Edge points. The *safe region* is the mapped plateau: cells within ``plateau_tol_m`` of
-   the rover's ground (a plane fitted around the rover, ``ground_plane``: level ground stays
-   level, a sloped plateau is followed), in the connected piece nearest the rover. A safe
+   the rover's ground (a plane fitted around the rover, bent to follow rolling ground,
+   ``fsw.core.ground_plane``: level ground stays level, a sloped or rolling plateau is
+   followed), in the connected piece nearest the rover. A safe
    cell is an edge cell when, looking outward across its boundary in one of the eight grid
    directions, the first mapped cell within ``search_m`` lies more than ``step_m`` lower
    (than the ground plane there; cells in between may be unknown: the ground right under a
@@ -34,8 +35,9 @@ from shapely.geometry import LineString, MultiLineString, MultiPolygon, Polygon
 from shapely.geometry.base import BaseGeometry
 
 from fsw.core.edge_offset import END_TANGENT_M, edge_path, end_normal, trim_hooks
+from fsw.core.edge_ring import bridge_runs, densify_ring
 from fsw.core.elevation_map import ElevationMap
-from fsw.core.ground_plane import ground_plane
+from fsw.core.ground_plane import ground_surface
 from fsw.core.steps import run_to_end
 from fsw.framework.params import param
 
@@ -56,6 +58,9 @@ class EdgeConfig:
     )
     max_slope_deg: float = param(
         15.0, lo=0.0, hi=45.0, units="deg", doc="steepest plateau the ground plane may take"
+    )
+    surface_scale_m: float = param(
+        0.15, lo=0.0, hi=5.0, units="m", doc="the ground surface follows rolling ground at this scale (0: a plane)"
     )
     search_m: float = param(
         1.5, lo=0.0, hi=10.0, units="m", doc="how far past the plateau to look for the drop"
@@ -80,10 +85,13 @@ class EdgeConfig:
 
 @dataclass(frozen=True)
 class EdgeCells:
-    """Edge points (M, 2) world x, y, and the safe-region mask they bound."""
+    """Edge points (M, 2) world x, y, the safe-region mask they bound, and the drop: mapped
+    cells more than ``step_m`` below the rover's ground (what the geofence keeps wheels
+    away from while no edge is fitted, ``fsw.core.geofence``)."""
 
     points_xy: F64
     safe: NDArray[np.bool_]
+    drop: NDArray[np.bool_] | None = None
 
 
 @dataclass(frozen=True)
@@ -208,14 +216,14 @@ def _extension(end: F64, t: F64, extend_m: float, inner: BaseGeometry | None,
 
 
 def safe_region(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float, float],
-                cfg: EdgeConfig) -> NDArray[np.bool_]:
+                cfg: EdgeConfig, ref: F64 | None = None) -> NDArray[np.bool_]:
     """The mapped plateau the rover stands on: cells within ``plateau_tol_m`` of its ground
-    (:func:`ground_plane`: the plane of the ground around it, level or sloped), in the
+    (``ref``, else :func:`ground_surface`: the ground around it, level, sloped or rolling), in the
     connected piece nearest ``seed_xy`` (pieces closer than ``join_m`` count as one).
     Level ground that is not connected to the rover (the top of a box in the pit, a
     floor beyond the far side of the pit) is not safe ground."""
     z = emap.z
-    ref = ground_plane(emap, ground_z_m, seed_xy, cfg)
+    ref = ground_surface(emap, ground_z_m, seed_xy, cfg) if ref is None else ref
     level = emap.mapped & np.isfinite(z) & (np.abs(z - ref) <= cfg.plateau_tol_m)
     if not level.any():
         return level
@@ -251,8 +259,9 @@ def edge_cells_steps(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float
     of the outward directions."""
     z = emap.z
     mapped = emap.mapped & np.isfinite(z)
-    safe = safe_region(emap, ground_z_m, seed_xy, cfg)
-    ref = ground_plane(emap, ground_z_m, seed_xy, cfg)
+    ref = ground_surface(emap, ground_z_m, seed_xy, cfg)
+    yield None
+    safe = safe_region(emap, ground_z_m, seed_xy, cfg, ref)
     yield None
     # per cell: 0 unknown, 1 lower by more than a step, 2 anything else known (or off-grid)
     code = np.where(mapped, np.where(z < ref - cfg.step_m, 1, 2), 0).astype(np.int8)
@@ -286,7 +295,7 @@ def edge_cells_steps(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float
     dvec /= np.linalg.norm(dvec, axis=1, keepdims=True)
     px = g.x0 + (ix + 0.5) * g.cell + 0.5 * g.cell * dvec[:, 0]
     py = g.y0 + (iy + 0.5) * g.cell + 0.5 * g.cell * dvec[:, 1]
-    return EdgeCells(np.column_stack([px, py]), safe)
+    return EdgeCells(np.column_stack([px, py]), safe, code[1:-1, 1:-1] == 1)
 
 
 def fit_polygon(emap: ElevationMap, cells: EdgeCells, cfg: EdgeConfig) -> EdgeModel:
@@ -316,7 +325,7 @@ def fit_polygon(emap: ElevationMap, cells: EdgeCells, cfg: EdgeConfig) -> EdgeMo
     runs = []
     for poly in geoms:
         poly = shapely.geometry.polygon.orient(poly, 1.0)  # CCW: inside on the left
-        ring = _densify(np.asarray(poly.exterior.coords), g.cell)
+        ring = densify_ring(np.asarray(poly.exterior.coords), g.cell)
         near = tree.query(shapely.points(ring), predicate="dwithin", distance=cfg.match_m)
         flag = np.zeros(ring.shape[0], bool)
         flag[np.unique(near[0])] = True
@@ -326,19 +335,12 @@ def fit_polygon(emap: ElevationMap, cells: EdgeCells, cfg: EdgeConfig) -> EdgeMo
     return EdgeModel("polygon", cells.points_xy, MultiLineString(runs), model_poly)
 
 
-def _densify(ring: F64, step: float) -> F64:
-    line = LineString(ring)
-    n = max(2, int(np.ceil(line.length / step)) + 1)
-    return np.asarray(shapely.get_coordinates(
-        shapely.line_interpolate_point(line, np.linspace(0.0, line.length, n))))
-
-
 def _runs(ring: F64, flag: NDArray[np.bool_], cfg: EdgeConfig) -> list[LineString]:
     """Maximal runs of flagged vertices along a closed ring, as simplified lines. Runs less
     than ``BRIDGE_M`` apart along the ring are one run: a small spike or cleft of the polygon
     at the lip (a vertex just beyond ``match_m``) must not break the edge into pieces, each
     with a fresh end whose straight continuation (``EdgeModel.barrier``) cuts the plateau."""
-    flag = _bridge(ring, flag, BRIDGE_M)
+    flag = bridge_runs(ring, flag, BRIDGE_M)
     if flag.all():
         return [LineString(ring).simplify(cfg.simplify_m)]
     start = int(np.argmin(flag))  # rotate so the ring starts on an unflagged vertex
@@ -350,28 +352,6 @@ def _runs(ring: F64, flag: NDArray[np.bool_], cfg: EdgeConfig) -> list[LineStrin
             ln = LineString(ring[a:b]).simplify(cfg.simplify_m)
             if ln.length >= cfg.min_edge_len_m:
                 out.append(ln)
-    return out
-
-
-def _bridge(ring: F64, flag: NDArray[np.bool_], gap_m: float) -> NDArray[np.bool_]:
-    """``flag`` (one per vertex of the closed ``ring``) with every unflagged gap between two
-    flagged vertices whose path along the ring is shorter than ``gap_m`` flagged too."""
-    n = ring.shape[0] - 1  # ring[-1] repeats ring[0]
-    f = flag[:n].copy()
-    if f.all() or not f.any():
-        return flag
-    seg = np.hypot(*(ring[1:] - ring[:-1]).T)  # seg[i]: vertex i to i + 1
-    start = int(np.argmax(f))  # walk the ring from a flagged vertex
-    order = (start + np.arange(n + 1)) % n
-    last = 0  # position (in ``order``) of the last flagged vertex
-    for k in range(1, n + 1):
-        if f[order[k]]:
-            if k - last > 1 and seg[order[last:k]].sum() < gap_m:
-                f[order[last + 1:k]] = True
-            last = k
-    out = flag.copy()
-    out[:n] = f
-    out[n:] = f[0]
     return out
 
 

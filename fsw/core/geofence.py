@@ -26,8 +26,15 @@ straight continuation past the ends the map saw stops short of it, and (with kno
 required) at unknown ground, which no wheel may enter anyway: a hooked end of a glimpsed edge
 then no longer swings its continuation through the blind zone beside the rover.
 
-Without a fitted edge the geofence refuses (unless ``allow_without_edge``): the flow of
-ALGORITHM.md §2 finds the edge before the rover moves.
+Without a fitted edge (the edge search): the flow of ALGORITHM.md §2 finds the edge before
+the rover drives along it. When the views from the start do not reach the drop (an edge
+1.5-2 m away hides the pit floor behind its lip), no edge can be fitted, yet the rover must
+move to see it (``explore_without_edge``): a move is then allowed when every swept wheel patch
+keeps ``margin_m`` from every mapped cell more than a step below the rover's ground (the drop
+cells of the edge extraction, ``fsw.core.edge``; ``set_drop``) and, as always, stays on known
+ground and on the map grid. Unknown ground, where a drop may hide, is never driven over: the
+mission looks at it first, and what the look maps as lower ground joins the drop cells. With
+no drop map either, the geofence refuses (unless ``allow_without_edge``).
 
 Recovery (``recover_inside_margin``): a new edge fit can put the rover, standing still,
 inside the margin (a longer or re-shaped edge, or its straight continuation past a fresh end,
@@ -46,6 +53,7 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
@@ -81,6 +89,9 @@ class GeofenceConfig:
         0.06, lo=0.0, hi=1.0, units="m",
         doc="ground within this of a measured cell counts as known (stereo holes, view borders)"
     )
+    explore_without_edge: bool = param(
+        True, doc="no edge fitted yet: allow moves on known ground keeping margin_m from every mapped drop cell"
+    )
 
 
 @dataclass(frozen=True)
@@ -102,6 +113,7 @@ class Geofence:
         self._edge: EdgeModel | None = None
         self._barrier: BaseGeometry | None = None
         self.known = KnownGround(cfg.known_fill_m)
+        self.clear = KnownGround(0.0)  # cells at least margin_m from any mapped drop cell
         self.rejections = 0
 
     def set_edge(self, model: EdgeModel | None, stand: Pose3 | None = None) -> None:
@@ -127,6 +139,15 @@ class Geofence:
     def set_map(self, grid: MapGrid, n: np.ndarray) -> None:
         """The map's measurement counts: where the ground is known."""
         self.known.set_map(grid, n)
+
+    def set_drop(self, grid: MapGrid, drop: np.ndarray) -> None:
+        """The mapped drop cells (``fsw.core.edge.EdgeCells.drop``): while no edge is fitted,
+        wheels keep ``margin_m`` from them."""
+        near: np.ndarray = np.asarray(drop, dtype=np.uint8)
+        r = int(math.ceil(self.cfg.margin_m / grid.cell))
+        if r > 0 and near.any():
+            near = cv2.dilate(near, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+        self.clear.set_map(grid, near == 0)
 
     def footprint(self, pose: Pose3) -> BaseGeometry:
         return rover_footprint(pose, self.rover, self.cfg.wheel_width_m)
@@ -171,6 +192,8 @@ class Geofence:
         if self._edge is None or self._barrier is None:
             if self.cfg.allow_without_edge:
                 return Verdict(True, "allowed: no cliff edge mapped", math.inf)
+            if self.cfg.explore_without_edge and self.clear.ready and self.known.ready:
+                return self._clear_of_drops(self.swept_wheels(tuple(pa), tuple(pb)), tuple(pb), known_ground)
             self.rejections += 1
             return Verdict(False, "rejected: no cliff edge mapped yet", math.inf)
         swept = self.swept_wheels(tuple(pa), tuple(pb))
@@ -210,6 +233,25 @@ class Geofence:
             return Verdict(False, unknown, clear, WHEELS[w])
         return Verdict(True, f"allowed: clearance {clear:.3f} m (wheel {WHEELS[w]})",
                        clear, WHEELS[w])
+
+    def _clear_of_drops(self, swept: list[BaseGeometry], b: Pose3, known_ground: bool) -> Verdict:
+        """No edge fitted yet: every swept wheel patch ``margin_m`` from every mapped drop cell,
+        then the ground checks of a move with an edge."""
+        assert self.clear.grid is not None
+        refusal = None
+        for w, geom in enumerate(swept):
+            pts = self.clear.unknown_points(geom)
+            n = int(self.clear.grid.cell_index(pts[:, 0], pts[:, 1])[2].sum()) if len(pts) else 0
+            if n:
+                refusal = (f"rejected: no cliff edge mapped yet; wheel {WHEELS[w]} would come within "
+                           f"{self.cfg.margin_m:.2f} m of a drop ({n} cells)")
+                break
+        refusal = refusal or self._ground_refusal(swept, b, known_ground)
+        if refusal is not None:
+            self.rejections += 1
+            return Verdict(False, refusal, math.inf)
+        return Verdict(True, "allowed: no cliff edge mapped yet; every wheel keeps "
+                       f"{self.cfg.margin_m:.2f} m from the mapped drop", math.inf)
 
     def _backs_away(self, a: Pose3, b: Pose3) -> bool:
         """For a rover whose wheels already touch the fitted edge where it stands (a fit error

@@ -16,6 +16,10 @@ or farther from it than the path's setback) also gets stations straight ahead an
 at the same spacing, keeping its heading: reaching the path needs a turn in place, whose
 swinging corners the geofence may refuse near the edge (or over ground no look can map),
 while a straight drive sweeps only the wheels' own tracks (issue 13 item 3).
+
+With no edge path (no edge mapped yet: the views from the start did not reach the drop), the
+stations are the edge search's: along eight directions around the rover, as far as the
+geofence allows (with no edge, only over ground mapped as plateau).
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ from fsw.core.steps import run_to_end
 from fsw.core.visibility import F64
 
 Pose3 = tuple[float, float, float]
+SEARCH_HEADINGS = 8  # the edge search's directions around the rover
 MotionCheck = Callable[[Pose3, Pose3], bool]
 
 
@@ -105,8 +110,8 @@ def path_stations_steps(path: F64, rover_now: Pose3, motion_ok: MotionCheck, spa
     """:func:`path_stations`, yielding after each geofence check."""
     now = Station((float(rover_now[0]), float(rover_now[1]), float(rover_now[2])), 0.0)
     xy = as_polyline(path)
-    if xy.shape[0] < 2:
-        return [now]
+    if xy.shape[0] < 2:  # no edge path yet: the edge search (stations the geofence allows)
+        return [now] + (yield from search_stations_steps(now.rover, motion_ok, spacing_m, max_travel_m))
     line = LineString(xy)
     s_now = float(line.project(Point(rover_now[0], rover_now[1])))
     off_m = float(line.distance(Point(rover_now[0], rover_now[1])))
@@ -132,6 +137,28 @@ def path_stations_steps(path: F64, rover_now: Pose3, motion_ok: MotionCheck, spa
             prev = st
     if off_m > spacing_m / 2.0:
         out += yield from straight_stations_steps(now.rover, motion_ok, spacing_m, max_travel_m)
+    return out
+
+
+def search_stations_steps(rover_now: Pose3, motion_ok: MotionCheck, spacing_m: float,
+                          max_travel_m: float, headings: int = SEARCH_HEADINGS
+                          ) -> Generator[None, None, list[Station]]:
+    """The edge search (no edge mapped yet, ALGORITHM.md §2): stations every ``spacing_m`` up
+    to ``max_travel_m`` along ``headings`` directions around the rover (the first its own
+    heading), each facing the way it was driven, each ray until the first the geofence
+    refuses (with no edge it allows only ground mapped as plateau, ``fsw.core.geofence``)."""
+    x, y, yaw = rover_now
+    out = []
+    for k in range(headings):
+        h = math.remainder(yaw + k * math.tau / headings, math.tau)
+        c, s = math.cos(h), math.sin(h)
+        for j in range(1, int(math.floor(max_travel_m / spacing_m + 1e-9)) + 1):
+            st = (x + j * spacing_m * c, y + j * spacing_m * s, h)
+            ok = motion_ok(rover_now, st)
+            yield None
+            if not ok:
+                break
+            out.append(Station(st, j * spacing_m))
     return out
 
 

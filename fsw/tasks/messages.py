@@ -102,6 +102,7 @@ class MapUpdate:
     registration: RegistrationSummary | None = None  # the view's registration (§5.1, perception)
     view_cells: tuple[NDArray[np.int32], NDArray[np.float32]] | None = None  # flat cell index, mean height (m)
     camera_xyz: tuple[float, float, float] | None = None  # the (registered) camera centre
+    drop: NDArray[np.bool_] | None = None  # mapped cells a step below the rover's ground (§2)
 
 
 # Motion (fsw/tasks/motion.py): requests from the sequencer, one status per request outcome.

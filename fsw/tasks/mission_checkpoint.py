@@ -31,6 +31,8 @@ from fsw.tasks.mission_state import (
     edge_from_json,
     edge_to_json,
     fingerprint,
+    mask_from_json,
+    mask_to_json,
     nav_from_json,
     nav_to_json,
     records_from_json,
@@ -51,6 +53,7 @@ def mission_state(m: Any, phase: MissionPhase) -> dict[str, Any]:
             "edge": edge_to_json(up.edge),
             "extra": {"outliers": up.outliers, "edge_points": up.edge_points,
                       "roi_mapped_fraction": up.roi_mapped_fraction},
+            "drop": mask_to_json(up.drop),
         }
     tasks = {n: t for n, t in m.ctx.runtime.tasks.items() if n != m.name}
     return {
@@ -113,6 +116,7 @@ def resume(m: Any) -> MissionPhase | None:
                 int(lt["points"]), int(lt["misses"]), float(lt["expected_new_cells"]), loaded.emap.copy(),
                 edge_from_json(lt["edge"]), int(lt["extra"].get("outliers", 0)),
                 int(lt["extra"].get("edge_points", 0)), float(lt["extra"].get("roi_mapped_fraction", 0.0)),
+                drop=mask_from_json(lt.get("drop"), loaded.emap.grid.shape),
             )
         counters = [int(s[k]) for k in ("step", "request_id", "edge_violations", "safe_entries")]
     except StateError:

@@ -117,7 +117,7 @@ class GroundAwareMission(FlightTask):
         self.looks += 1
         self.event("LOOK", n=len(near), x=there[0], y=there[1])
         self.pending.insert(0, self.view)
-        self.view = CandidateView(here, look_joints(here, near, self.ctx.cfg.mast), method="look")
+        self.view = CandidateView(here, look_joints(here, near, self.ctx.cfg.mast, self._ground_z()), method="look")
         self._start_point()
         return True
 
@@ -170,13 +170,19 @@ class GroundAwareMission(FlightTask):
         self._looked_from = here
         self.looks += 1
         self.event("LOOK", n=len(pts), x=here[0], y=here[1])
-        self.view = CandidateView(here, look_joints(here, pts, self.ctx.cfg.mast), method="look")
+        self.view = CandidateView(here, look_joints(here, pts, self.ctx.cfg.mast, self._ground_z()), method="look")
         return True
+
+    def _ground_z(self) -> float:
+        """The ground under the rover, map datum (the pose chain's body height)."""
+        return 0.0 if self.nav is None else float(self.nav.z_m)
 
     def _fence(self, here: Pose3) -> None:
         """The geofence on the latest edge fit and map, and the ground the rover stands on."""
         if self.latest is not None:
             self.geofence.set_map(self.latest.snapshot.grid, self.latest.snapshot.n)
+            if self.latest.drop is not None:
+                self.geofence.set_drop(self.latest.snapshot.grid, self.latest.drop)
         self.geofence.set_edge(self.edge, here)
 
     def _planner_state(self) -> PlannerState:
@@ -196,7 +202,7 @@ class GroundAwareMission(FlightTask):
             path=path,
             motion_ok=lambda a, b: self.geofence.check(a, b, known_ground=False).allowed,
             edge_xy=None if self.edge is None else self.edge.points_xy,
-            ground_z_m=0.0,
+            ground_z_m=self._ground_z(),  # the ground under the rover (on a slope, not the start's)
             sigma_loc_m=sigma,
         )
 

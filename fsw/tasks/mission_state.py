@@ -16,6 +16,8 @@ sequencer turns it into an event, never a traceback.
 
 from __future__ import annotations
 
+import base64
+import binascii
 import enum
 import hashlib
 import json
@@ -25,6 +27,7 @@ from typing import Any
 import numpy as np
 import shapely
 import shapely.errors
+from numpy.typing import NDArray
 from shapely.geometry import MultiLineString, MultiPolygon, Polygon
 
 from fsw.core.edge import EdgeModel
@@ -113,6 +116,8 @@ def nav_to_json(nav: NavPose | None) -> dict[str, Any] | None:
     return {
         "time_s": nav.time_s, "x": nav.x, "y": nav.y, "yaw": nav.yaw,
         "cov": np.asarray(nav.cov, float).tolist(), "joints": list(nav.joints), "moving": nav.moving,
+        "roll": nav.roll, "pitch": nav.pitch, "z_m": nav.z_m, "attitude_valid": nav.attitude_valid,
+        "att_cov": None if nav.att_cov is None else np.asarray(nav.att_cov, float).tolist(),
     }
 
 
@@ -123,8 +128,15 @@ def nav_from_json(d: dict[str, Any] | None) -> NavPose | None:
     joints = tuple(float(j) for j in d["joints"])
     if cov.shape != (3, 3) or len(joints) != 3:
         raise StateError("pose estimate of the wrong shape")
+    att = d.get("att_cov")  # the attitude fields: absent from checkpoints before them (level, z = 0)
+    att_cov = None if att is None else np.asarray(att, dtype=np.float64)
+    if att_cov is not None and att_cov.shape != (3, 3):
+        raise StateError("attitude covariance of the wrong shape")
     return NavPose(float(d["time_s"]), float(d["x"]), float(d["y"]), float(d["yaw"]), cov,
-                   (joints[0], joints[1], joints[2]), bool(d["moving"]))
+                   (joints[0], joints[1], joints[2]), bool(d["moving"]),
+                   roll=float(d.get("roll", 0.0)), pitch=float(d.get("pitch", 0.0)),
+                   z_m=float(d.get("z_m", 0.0)), att_cov=att_cov,
+                   attitude_valid=bool(d.get("attitude_valid", False)))
 
 
 def records_to_json(records: list[StepRecord]) -> list[dict[str, Any]]:
@@ -192,3 +204,27 @@ def restore_into(task: Any) -> bool:
         task.ctx.res.map_store.restore().errors.append(f"{task.name}: {type(exc).__name__}: {exc}")
         return False
     return True
+
+
+def mask_to_json(mask: NDArray[np.bool_] | None) -> dict[str, Any] | None:
+    """A boolean map mask (the drop cells of ``MapUpdate.drop``) as packed bits."""
+    if mask is None:
+        return None
+    m = np.asarray(mask, dtype=bool)
+    return {"shape": list(m.shape), "bits": base64.b64encode(np.packbits(m).tobytes()).decode("ascii")}
+
+
+def mask_from_json(d: dict[str, Any] | None, shape: tuple[int, int]) -> NDArray[np.bool_] | None:
+    if d is None:
+        return None
+    if tuple(d["shape"]) != shape:
+        raise StateError(f"mask of shape {tuple(d['shape'])}, the map is {shape}")
+    try:
+        bits = np.frombuffer(base64.b64decode(d["bits"], validate=True), dtype=np.uint8)
+    except binascii.Error as exc:
+        raise StateError(f"mask not base64 ({exc})") from None
+    n = shape[0] * shape[1]
+    if bits.size != (n + 7) // 8:
+        raise StateError("mask of the wrong size")
+    return np.unpackbits(bits)[:n].reshape(shape).astype(bool)
+

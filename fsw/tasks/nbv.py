@@ -3,6 +3,13 @@
 The mission sequencer publishes a ``PlannerState`` on ``nbv.request``; this task resumes the
 planner's search generator in frame slack (one camera centre per slice) and publishes the
 chosen ``CandidateView`` (or ``None``: nothing reachable worth doing) on ``nbv.result``.
+
+The edge search (ALGORITHM.md §2: the edge is found before the rover drives along it): while
+no edge is fitted (the views from the start did not reach the drop), there is no edge path for
+the raster baselines (Methods 1, 2) to follow; their views are then chosen by expected new
+information (Method 4's rating, ``fsw.core.info_planners``) among the edge search's stations
+(``fsw.core.view_candidates.search_stations_steps``), and the raster begins once an edge is
+fitted. Methods 3-5 and the oracle search those stations themselves.
 """
 
 from __future__ import annotations
@@ -10,6 +17,7 @@ from __future__ import annotations
 import math
 from typing import ClassVar
 
+from fsw.core.info_planners import InformationPlanner
 from fsw.core.methods import make_planner
 from fsw.core.planner_state import planner_state, restore_planner
 from fsw.core.planners import Planner, PlannerState, SearchGen
@@ -45,6 +53,7 @@ class NbvTask(FlightTask):
 
     def setup(self) -> None:
         self.planner: Planner | None = None
+        self._edge_search: InformationPlanner | None = None  # Methods 1, 2 while no edge is fitted
         self.requests = self.subscribe(NBV_REQUEST, depth=1, policy="drop_oldest")
         self.job: JobHandle | None = None
         self.searches = 0
@@ -85,6 +94,11 @@ class NbvTask(FlightTask):
             if self._planner_restore is not None:
                 restore_planner(self.planner, self._planner_restore)
                 self._planner_restore = None
+        if len(state.path) < 2 and not isinstance(self.planner, InformationPlanner):
+            if self._edge_search is None:
+                cfg = self.ctx.cfg
+                self._edge_search = InformationPlanner("search", cfg.nbv, cfg.camera, cfg.mast)
+            return (yield from self._edge_search.search(state))
         return (yield from self.planner.search(state))
 
     def _finish(self, h: JobHandle) -> None:

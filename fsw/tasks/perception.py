@@ -230,6 +230,7 @@ class PerceptionTask(FlightTask):
             registration=reg.summary(fr.view_id),
             view_cells=view_cells,
             camera_xyz=(float(pose.t[0]), float(pose.t[1]), float(pose.t[2])),
+            drop=cells.drop,
         )
 
     def _register(

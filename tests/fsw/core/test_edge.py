@@ -14,13 +14,13 @@ from shapely.geometry.polygon import orient
 from fsw.core.edge import (
     EdgeConfig,
     EdgeModel,
-    _densify,
     _runs,
     edge_cells,
     edge_path,
     fit_line,
     fit_polygon,
 )
+from fsw.core.edge_ring import densify_ring
 from fsw.core.elevation_map import ElevationMap
 from fsw.core.geofence import Geofence, GeofenceConfig
 from fsw.core.geometry import MapGrid, MapGridConfig, RoverConfig
@@ -220,7 +220,7 @@ def test_cliff_step0_edge_is_one_run() -> None:
     cfg = EdgeConfig()
     _, pts, ring = _cliff_step0()
     poly = orient(Polygon(ring), 1.0)
-    ring = _densify(np.asarray(poly.exterior.coords), GRID.cell)
+    ring = densify_ring(np.asarray(poly.exterior.coords), GRID.cell)
     tree = shapely.STRtree(shapely.points(pts))
     near = tree.query(shapely.points(ring), predicate="dwithin", distance=cfg.match_m)
     flag = np.zeros(ring.shape[0], bool)
@@ -271,3 +271,23 @@ def test_edge_on_a_slope_seen_from_a_rover_that_climbed(drift_m: float) -> None:
     assert poly.mean_distance_to(TRUTH, GRID.cell) < 1.5 * GRID.cell
     stale = edge_cells(m, 0.0, seed, cfg)  # the defect: the start's height, 0.42 m off
     assert stale.points_xy.shape[0] < 0.2 * cells.points_xy.shape[0]
+
+
+def test_edge_on_rolling_ground_is_found_along_its_whole_length() -> None:
+    """Rolling relief of +-5 cm over a metre leaves one plane's 3 cm band in patches: the
+    plateau breaks up and the edge beside the broken parts goes unseen. The ground surface
+    (``surface_scale_m``) follows the relief, so the plateau stays one piece and the whole
+    edge is found; the drop itself is never taken for plateau."""
+    m = synthetic_map()
+    X, Y = GRID.centers()
+    m.z[m.mapped] += (0.05 * np.sin(2.0 * np.pi * X / 1.2) * np.cos(2.0 * np.pi * Y / 1.5))[m.mapped]
+    rolling = edge_cells(m, 0.0, (1.0, 0.5), EdgeConfig())
+    plane = edge_cells(m, 0.0, (1.0, 0.5), EdgeConfig(surface_scale_m=0.0))
+    plateau = m.mapped & (true_edge_y(X) <= Y)
+    assert rolling.safe[plateau].mean() > 0.95 and plane.safe[plateau].mean() < 0.8
+    assert not (rolling.safe & (true_edge_y(X) - 0.05 > Y)).any()
+    fits = [fit_polygon(m, c, EdgeConfig()) for c in (rolling, plane)]
+    length = [sum(g.length for g in f.lines.geoms) for f in fits]
+    assert length[0] > 5.0 > 3.0 > length[1]  # the whole edge (x = -0.5..5 with its bay) / pieces of it
+    assert fits[0].mean_distance_to(TRUTH, GRID.cell) < 1.5 * GRID.cell
+    assert rolling.drop is not None and rolling.drop[m.mapped & (true_edge_y(X) - 0.35 > Y)].all()

@@ -184,3 +184,26 @@ def test_a_turn_that_clips_the_grid_border_is_the_missions_to_refuse_not_the_pla
     v = gf.check((0.0, 0.0, 0.0), there)
     assert not v.allowed and v.reason.startswith("rejected: wheel rear_") and "unknown ground" in v.reason
     assert gf.check((0.0, 0.0, 0.0), (0.6, 0.0, 0.0)).allowed  # straight ahead: no turn
+
+
+def test_with_no_edge_fitted_the_rover_keeps_its_wheels_away_from_mapped_drop_cells():
+    """The edge search (§2): no edge fitted (the views from the start did not reach the drop),
+    so moves are judged against the drop cells the map does show: margin_m from every one of
+    them, and on known ground as always. Without the drop map, or with the search turned off,
+    nothing moves."""
+    X, Y = GRID.centers()
+    drop = (Y < -1.5) & (X > 0.5) & (X < 1.0)  # a glimpse of the pit floor, right of the rover
+    gf = fence(mapped_box(-1.0, 3.0, -2.0, 1.0), EdgeModel("polygon", np.zeros((0, 2)), MultiLineString(), None))
+    here = (0.0, 0.0, 0.0)
+    assert not gf.check(here, (1.0, 0.0, 0.0)).allowed  # no drop map yet
+    gf.set_drop(GRID, drop)
+    ok = gf.check(here, (1.0, 0.0, 0.0))  # along it, 1.2 m away
+    assert ok.allowed and "drop" in ok.reason
+    for there in ((0.75, -0.9, -math.pi / 2), (0.75, -1.1, -math.pi / 2)):  # wheels within 0.15 m / over it
+        v = gf.check(here, there, known_ground=False)
+        assert not v.allowed and "drop" in v.reason
+    assert not gf.check(here, (3.5, 0.0, 0.0)).allowed  # unknown ground beyond x = 3: refused
+    off = fence(mapped_box(-1.0, 3.0, -2.0, 1.0), EdgeModel("polygon", np.zeros((0, 2)), MultiLineString(), None),
+                explore_without_edge=False)
+    off.set_drop(GRID, drop)
+    assert not off.check(here, (1.0, 0.0, 0.0)).allowed

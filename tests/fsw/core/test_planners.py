@@ -299,3 +299,17 @@ def test_raster_first_station_moves_on_when_the_projection_is_refused() -> None:
                            edge_xy=state.edge_xy)
     stay = _run(RasterPlanner(False, 3, NbvConfig(), CAM, MAST), refused, 1)
     assert stay[0].rover == state.rover  # nothing allowed: the view from where it stands
+
+
+def test_with_no_edge_path_the_stations_are_the_edge_search_around_the_rover() -> None:
+    """No edge path yet: stations every spacing along eight directions, each facing the way it
+    was driven, each ray up to the first the geofence refuses (here: beyond x = 0.6)."""
+    st = path_stations(np.zeros((0, 2)), (0.0, 0.0, 0.0), lambda a, b: b[0] <= 0.6, 0.25, 1.0)
+    assert st[0].rover == (0.0, 0.0, 0.0)
+    ahead = [s for s in st[1:] if abs(s.rover[1]) < 1e-9 and s.rover[0] > 0]
+    assert [round(s.rover[0], 2) for s in ahead] == [0.25, 0.5]
+    assert all(s.rover[0] <= 0.6 for s in st[1:])
+    behind = [s for s in st[1:] if abs(s.rover[1]) < 1e-9 and s.rover[0] < 0]
+    assert len(behind) == 4 and all(abs(abs(s.rover[2]) - math.pi) < 1e-9 for s in behind)
+    assert all(math.isclose(s.travel_m, math.hypot(*s.rover[:2])) for s in st[1:])
+    assert len({round(math.atan2(s.rover[1], s.rover[0]), 6) for s in st[1:]}) == 8

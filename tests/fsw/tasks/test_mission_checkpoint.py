@@ -25,7 +25,16 @@ from fsw.drivers.resources import Resources
 from fsw.framework.clock import SteppedClock
 from fsw.settings import load_settings
 from fsw.tasks.messages import NavPose
-from fsw.tasks.mission_state import MissionPhase, edge_from_json, edge_to_json, fingerprint, nav_to_json
+from fsw.tasks.mission_state import (
+    MissionPhase,
+    StateError,
+    edge_from_json,
+    edge_to_json,
+    fingerprint,
+    mask_from_json,
+    mask_to_json,
+    nav_to_json,
+)
 
 pytestmark = pytest.mark.req("12.1")
 
@@ -230,3 +239,20 @@ def test_edge_model_round_trip() -> None:
     assert back is not None and back.lines.equals_exact(e.lines, 0) and back.safe_polygon is not None
     assert back.safe_polygon.equals_exact(e.safe_polygon, 0)
     np.testing.assert_array_equal(back.points_xy, e.points_xy)
+
+
+def test_the_drop_mask_survives_a_checkpoint_and_a_corrupt_one_is_refused() -> None:
+    """The drop cells the geofence uses while no edge is fitted (``MapUpdate.drop``) are part
+    of the mission state: a resumed mission judges its moves as the uninterrupted one."""
+    rng = np.random.default_rng(3)
+    mask = rng.random((37, 53)) < 0.2
+    back = mask_from_json(mask_to_json(mask), (37, 53))
+    assert back is not None and back.dtype == bool and (back == mask).all()
+    assert mask_from_json(None, (37, 53)) is None
+    with pytest.raises(StateError, match="shape"):
+        mask_from_json(mask_to_json(mask), (53, 37))
+    bad = mask_to_json(mask)
+    assert bad is not None
+    for bits in ("!!!not base64", bad["bits"][:-8]):
+        with pytest.raises(StateError):
+            mask_from_json({"shape": [37, 53], "bits": bits}, (37, 53))

@@ -3,6 +3,7 @@ slack job whose result is published once (issue 11, item 5)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -18,13 +19,13 @@ CFG = task_config(("nbv", "nbv"))
 GRID = MapGrid(-0.5, -1.5, 0.05, 60, 60)
 
 
-def _request(rig: TaskRig, emap: Any = None) -> None:
+def _request(rig: TaskRig, emap: Any = None, motion_ok: Any = lambda a, b: False) -> None:
     state = nbv_task.PlannerState(
         map=ElevationMap(GRID) if emap is None else emap,
         rover=(0.0, 0.0, 0.0),
         joints=(0.0, math.radians(-30.0), 0.5),
         path=np.zeros((0, 3)),
-        motion_ok=lambda a, b: True,
+        motion_ok=motion_ok,
     )
     rig.publish(NBV_REQUEST, state)
 
@@ -45,7 +46,7 @@ def test_a_request_is_searched_in_slack_and_answered_once() -> None:
     frames = rig.run_until(lambda: len(results) > 0, 3000)
     assert frames > 2  # the search ran over several frames' slack, not in one activation
     (view,) = results.drain()
-    assert view is not None and view.rover == (0.0, 0.0, 0.0)  # no path: mast-only views here
+    assert view is not None and view.rover == (0.0, 0.0, 0.0)  # no move allowed: mast-only views
     assert CFG.mast.within_limits(*view.joints) and view.info_bits > 0
     assert rig.tlm("nbv.searches") == 1 and rig.tlm("nbv.best_info_bits") == view.info_bits
     assert rig.tlm("nbv.search_slices") > 1 and len(rig.events("nbv.VIEW_CHOSEN")) == 1
@@ -74,3 +75,17 @@ def test_requests_while_busy_keep_only_the_newest() -> None:
     rig.run_until(lambda: len(results) >= 2, 6000)
     rig.run(200)
     assert len(results.drain()) == 2 and rig.tlm("nbv.searches") == 2
+
+
+def test_with_no_edge_fitted_the_raster_methods_search_for_it_by_information() -> None:
+    """The edge search (§2): no edge path, so Method 1's raster has nothing to follow; the
+    task chooses the view by expected new information among the stations around the rover
+    (here every move is allowed) instead of answering "nothing to do"."""
+    cfg = dataclasses.replace(CFG, mission=dataclasses.replace(CFG.mission, method="1"))
+    rig = TaskRig(cfg)
+    results = rig.tap(NBV_RESULT)
+    _request(rig, _planned_map(), motion_ok=lambda a, b: True)
+    rig.run_until(lambda: len(results) > 0, 5000)
+    (view,) = results.drain()
+    assert view is not None and view.method == "search" and view.expected_new_cells > 0
+    assert view.rover != (0.0, 0.0, 0.0) and view.rover[0] > 0.0  # toward the unknown ground
