@@ -163,7 +163,8 @@ def test_ctrl_c_stores_no_interrupted_mission(tmp_path: Path) -> None:
     import sys
     import time
 
-    proc = subprocess.Popen([sys.executable, "-m", "hil_sim.cli", "campaign", str(SMOKE), "--out", str(tmp_path)],
+    proc = subprocess.Popen([sys.executable, "-m", "hil_sim.cli", "campaign", str(SMOKE), "--out", str(tmp_path),
+                             "--jobs", "2"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
                             # Ctrl-C as in a terminal, even when the suite runs as a background job
                             # (which starts its children with SIGINT ignored)
