@@ -155,7 +155,6 @@ def _mission_processes(pgid: int) -> list[int]:
     return found
 
 
-@pytest.mark.skipif(not Path("/proc/self/cmdline").is_file(), reason="finds the mission processes in /proc")
 def test_ctrl_c_stores_no_interrupted_mission(tmp_path: Path) -> None:
     import os
     import signal
@@ -169,11 +168,14 @@ def test_ctrl_c_stores_no_interrupted_mission(tmp_path: Path) -> None:
                             # Ctrl-C as in a terminal, even when the suite runs as a background job
                             # (which starts its children with SIGINT ignored)
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    t0 = time.monotonic()
-    while len(_mission_processes(proc.pid)) < 2:  # both local jobs have started a mission
-        assert proc.poll() is None and time.monotonic() - t0 < 120, "no mission processes"
-        time.sleep(0.05)
-    time.sleep(3.0)  # the missions are running (past their imports; a smoke mission takes ~12 s of CPU)
+    if Path("/proc/self/cmdline").is_file():
+        t0 = time.monotonic()
+        while len(_mission_processes(proc.pid)) < 2:  # both local jobs have started a mission
+            assert proc.poll() is None and time.monotonic() - t0 < 120, "no mission processes"
+            time.sleep(0.05)
+        time.sleep(3.0)  # the missions are running (past their imports; a smoke mission takes ~12 s of CPU)
+    else:  # no /proc to watch them start
+        time.sleep(8.0)
     os.killpg(proc.pid, signal.SIGINT)  # as Ctrl-C in a terminal: the whole process group
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err.decode()[-500:]
