@@ -8,7 +8,11 @@ ground the flight software has not mapped, and uses all its steps.
 
 from __future__ import annotations
 
+import pytest
+
 from hil_sim.mission_run import RunSpec, run_mission
+
+pytestmark = pytest.mark.slow
 
 
 def test_close_edge_mission_moves_safely():

@@ -1,67 +1,77 @@
-"""Issue 12, item 1: resumable missions (bench level: stop or SIGKILL, resume, compare)."""
+"""Issue 12, item 1: resumable missions (bench level: stop or SIGKILL, resume, compare).
+
+Method 5 here, both ways of stopping against one uninterrupted reference run (a module fixture:
+the same mission, so it runs once); Method 1's raster plan in test_mission_resume_raster.py (its
+own file, so the two test workers share the slow resume tests)."""
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
 import sys
+import time
 from pathlib import Path
+from typing import Any
 
 import pytest
-from resume_checks import same_maps
+from resume_checks import run_reference, same_maps, stop_and_resume
 
-from hil_sim.commands.experiment_resume import LAYERS, newest
-from hil_sim.mission_report import strip_wall_clock
-from hil_sim.mission_run import MissionExistsError, RunSpec, run_mission
+from hil_sim.commands.experiment_resume import LAYERS, newest, resume_cmd, run_cmd
+from hil_sim.mission_run import RunSpec, run_mission
 
 pytestmark = pytest.mark.req("12.1")
+SEED = 3
 
 
-# The bench's per-station bookkeeping of the map-quality report (which stations this process saw)
-# is not part of the flight state: a resumed process only sees the stations after the restart.
-BENCH_ONLY = {"stations", "pairs", "seam_m", "seam_max_m"}
-
-
-def _assert_same(a: object, b: object, path: str = "") -> None:
-    """Equal summaries: the same keys, counts and strings; floats within 1e-9 (relative). The
-    resumed run's odometry differs from the uninterrupted one by ~1e-13 m (the encoder baseline
-    is re-read after the restart), which registration carries to ~1e-12."""
-    if isinstance(a, dict) and isinstance(b, dict):
-        keys = set(a) | set(b)
-        if path.endswith("map_quality"):
-            keys -= BENCH_ONLY
-        for k in keys:
-            assert k in a and k in b, f"{path}.{k} missing"
-            _assert_same(a[k], b[k], f"{path}.{k}")
-    elif isinstance(a, list) and isinstance(b, list):
-        assert len(a) == len(b), f"{path}: {len(a)} != {len(b)} items"
-        for i, (x, y) in enumerate(zip(a, b, strict=True)):
-            _assert_same(x, y, f"{path}[{i}]")
-    elif isinstance(a, float) and isinstance(b, float):
-        assert a == pytest.approx(b, rel=1e-9, abs=1e-12, nan_ok=True), f"{path}: {a} != {b}"
-    else:
-        assert a == b, f"{path}: {a!r} != {b!r}"
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory: pytest.TempPathFactory) -> tuple[RunSpec, dict[str, Any]]:
+    """The uninterrupted Method 5 run (lab, 2 steps) both resume tests compare with."""
+    spec = RunSpec("lab", "5", steps=2, seed=SEED, transmit=False, out=tmp_path_factory.mktemp("m5") / "ref")
+    return spec, run_reference(spec)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("method", ["5", "1"])
-def test_stopped_mission_resumes_to_the_uninterrupted_result(tmp_path: Path, method: str) -> None:
+def test_stopped_mission_resumes_to_the_uninterrupted_result(reference: tuple[RunSpec, dict[str, Any]],
+                                                             tmp_path: Path) -> None:
     """A run stopped after step 1 and resumed ends with the uninterrupted run's map and summary
-    (every layer bit-identical; records, frames and sim time equal). Method 1 checks that the
-    raster plan continues rather than being re-planned from where the rover stands."""
-    spec = RunSpec("lab", method, steps=2, seed=3, transmit=False, out=tmp_path / "ref")
-    ref = run_mission(spec)
-    assert ref["final_state"] == "DONE" and len(ref["steps"]) == 3
-    stop_s = ref["steps"][1]["sim_s"] + 1.0  # inside step 2: after step 1's record, before step 2's first
-    cut = RunSpec("lab", method, steps=2, seed=3, transmit=False, out=tmp_path / "cut")
-    part = run_mission(cut, max_sim_s=stop_s)
-    assert part["final_state"] not in ("DONE", "SAFE") and len(part["steps"]) == 2
-    assert newest(cut.out).state["mission"]["step"] == 2  # type: ignore[operator]
-    with pytest.raises(MissionExistsError):
-        run_mission(cut)  # never over an existing mission without being told
-    done = run_mission(cut, mode="resume")
-    same = {"files": None}
-    _assert_same(strip_wall_clock(done) | same, strip_wall_clock(ref) | same)
-    assert done["map_rmse_m"] == pytest.approx(ref["map_rmse_m"], abs=1e-9)
-    same_maps(tmp_path / "ref", tmp_path / "cut")
+    (every layer bit-identical; records, frames and sim time equal)."""
+    spec, ref = reference
+    stop_and_resume(spec, ref, tmp_path / "cut")
+
+
+@pytest.mark.slow
+def test_sigkill_mid_mission_then_resume(reference: tuple[RunSpec, dict[str, Any]], tmp_path: Path) -> None:
+    """The done-when in short: a `safer-hil run` process is SIGKILLed once step 1's checkpoint
+    exists; `--resume` finishes the mission from that step with the same map as an uninterrupted
+    run of the same seed. Killing the resumed process again right away (during its start-up)
+    loses nothing either."""
+    spec, _ = reference
+    assert spec.out is not None
+    mission = ["--scenario", spec.scenario, "--method", spec.method, "--steps", str(spec.steps),
+               "--seed", str(spec.seed), "--no-transmit"]
+    out = tmp_path / "killed"
+    proc = subprocess.Popen(run_cmd(out, *mission), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
+    t0 = time.monotonic()
+    while (st := newest(out).state) is None or st["mission"]["step"] < 1:
+        assert proc.poll() is None and time.monotonic() - t0 < 300, "no step-1 checkpoint"
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    again = subprocess.run(run_cmd(out, *mission), capture_output=True, text=True)
+    assert again.returncode == 2 and "holds a mission" in again.stderr and len(again.stderr.strip().splitlines()) == 1
+    proc = subprocess.Popen(resume_cmd(out), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
+    time.sleep(0.5)
+    os.killpg(proc.pid, signal.SIGKILL)  # during its start-up
+    proc.wait()
+    res = subprocess.run(resume_cmd(out), capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-500:]
+    assert not list((out / "checkpoints").glob(".map_*.tmp"))
+    same_maps(spec.out, out)
+    done = subprocess.run(resume_cmd(out), capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and "has finished" in done.stdout  # not flown again
 
 
 def test_resume_refusals_are_one_line_and_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

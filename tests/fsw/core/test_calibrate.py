@@ -36,6 +36,7 @@ def bench() -> tuple[TrueCameras, list, list]:
     return cams, pairs, held
 
 
+@pytest.mark.slow  # the first user of the module's rendered target pairs
 def test_calibration_recovers_the_renderer_truth(bench) -> None:  # type: ignore[no-untyped-def]
     cams, pairs, held = bench
     res = calibrate_stereo(pairs, CalibrationConfig())

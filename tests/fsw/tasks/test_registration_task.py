@@ -100,30 +100,43 @@ def _pose_error(est: CameraPose, true: CameraPose) -> tuple[float, float]:
             float(np.linalg.norm(est.t - true.t)))
 
 
-def _three_stations(carry: bool) -> list[tuple[float, float]]:
-    """Pose errors (deg, m) after registration of the third station's views (see below)."""
-    cfg = load_settings()
-    world = load_scenario("lab", 0)
+STATIONS = ((0.0, 0.0, 0.2, 0.005), (1.2, 1.0, 3.0, 0.08), (2.4, 2.0, 5.0, 0.15))  # dx, drift, sd_yaw, sd_xy
+PANS = (-60.0, -90.0, -120.0)
+
+
+def _station_views(cfg: Any, world: Any) -> list[tuple[CameraPose, tuple[np.ndarray, np.ndarray]]]:
+    """The true camera poses of the three stations' views and their rendered pairs (one
+    renderer, in view order: the pairs both runs of :func:`_three_stations` see)."""
     rend = StereoRenderer(world, cfg.camera, world.noise_sigma, seed=0)
+    x0, y0, yaw = world.rover_start
+    views = []
+    for dx, *_ in STATIONS:
+        for pan in PANS:
+            rover = (x0 + dx * math.cos(yaw), y0 + dx * math.sin(yaw), yaw)
+            true = camera_pose_from_rover(rover, (math.radians(pan), math.radians(-30.0), 0.5), cfg.mast,
+                                          world.plateau_z)
+            views.append((true, rend.render(true)))
+    return views
+
+
+def _three_stations(carry: bool, cfg: Any, world: Any, views: list[Any]) -> list[tuple[float, float]]:
+    """Pose errors (deg, m) after registration of the third station's views (see below)."""
     ideal = dataclasses.replace(cfg.camera, calibration_file="")
     reg_cfg = dataclasses.replace(cfg.registration, carry=carry)
     link = dataclasses.replace(cfg.link, transport=f"inproc://three-stations-{carry}")
     exe = Executive(dataclasses.replace(cfg, map=world.map_grid, camera=ideal, registration=reg_cfg, link=link),
                     SteppedClock())
     task = exe.tasks["perception"]
-    x0, y0, yaw = world.rover_start
+    x0, y0, _ = world.rover_start
     pivot = np.array([x0, y0, 0.0])
     errs = []
-    for k, (dx, drift, sd_yaw, sd_xy) in enumerate(((0.0, 0.0, 0.2, 0.005), (1.2, 1.0, 3.0, 0.08),
-                                                    (2.4, 2.0, 5.0, 0.15))):
+    for k, (_, drift, sd_yaw, sd_xy) in enumerate(STATIONS):
         shift = np.array([0.03, -0.02, 0.0]) * drift
         prior = np.diag([math.radians(0.2) ** 2] * 2 + [math.radians(sd_yaw) ** 2] + [sd_xy**2] * 2 + [0.005**2])
-        for j, pan in enumerate((-60.0, -90.0, -120.0)):
-            rover = (x0 + dx * math.cos(yaw), y0 + dx * math.sin(yaw), yaw)
-            true = camera_pose_from_rover(rover, (math.radians(pan), math.radians(-30.0), 0.5), cfg.mast,
-                                          world.plateau_z)
+        for j in range(len(PANS)):
+            true, pair = views[3 * k + j]
             est = _drifted(true, drift, shift, pivot)
-            up = _drain(task._merge_view(CameraFrame(3 * k + j, 0.0, *rend.render(true), est, prior)))
+            up = _drain(task._merge_view(CameraFrame(3 * k + j, 0.0, *pair, est, prior)))
             r = up.registration
             fixed = CameraPose(so3_exp(np.radians([r["droll_deg"], r["dpitch_deg"], r["dyaw_deg"]])) @ est.R,
                                np.array(up.camera_xyz))
@@ -139,7 +152,10 @@ def test_next_station_starts_from_the_last_stations_correction() -> None:
     ends closer to the truth than when it solves the whole drift again against that prior,
     which the level lab (a few rocks) pins down poorly in yaw: the failure behind the lab
     mission's 20 cm seams (docs/perception.md, Cameras: Figures)."""
-    with_carry, without = _three_stations(True), _three_stations(False)
+    cfg = load_settings()
+    world = load_scenario("lab", 0)
+    views = _station_views(cfg, world)
+    with_carry, without = _three_stations(True, cfg, world, views), _three_stations(False, cfg, world, views)
     worst = max(e[0] for e in with_carry), max(e[1] for e in with_carry)
     worst_off = max(e[0] for e in without), max(e[1] for e in without)
     assert worst[0] < worst_off[0] and worst[1] < worst_off[1], (with_carry, without)

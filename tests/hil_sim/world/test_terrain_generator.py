@@ -61,6 +61,7 @@ def test_edge_distance_from_the_wheels(distance):
     assert w.plateau[int(-w.y0 / w.cell_m), int(-w.x0 / w.cell_m)]  # the start is on it
 
 
+@pytest.mark.slow
 def test_drawn_distance_covers_the_range():
     gaps = []
     for seed in range(20):
@@ -110,6 +111,7 @@ def test_home_scenarios_unchanged_by_the_new_kind():
     assert lab.plateau_z == 0.0 and abs(float(np.median(lab.edge_xy[:, 1])) + 0.8) < 0.15
 
 
+@pytest.mark.slow
 def test_drawn_parameters_are_recorded_and_in_range():
     slopes = []
     for seed in range(8):
