@@ -101,7 +101,9 @@ def load_calibration(path: str | Path, width_px: int, height_px: int) -> StereoC
         if not (0 <= K[0, 2] < width_px and 0 <= K[1, 2] < height_px):
             raise CalibrationError(f"{path}: {k} principal point lies outside the image")
     R = mats["R"]
-    if not (np.allclose(R @ R.T, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0):
+    # A rotation's entries lie in [-1, 1]: test that first (a huge entry would overflow R R^T).
+    if not (np.abs(R).max() <= 1.0 + 1e-6 and np.allclose(R @ R.T, np.eye(3), atol=1e-6)
+            and np.linalg.det(R) > 0):
         raise CalibrationError(f"{path}: R is not a rotation matrix")
     if not np.linalg.norm(mats["T"]) > 1e-6:
         raise CalibrationError(f"{path}: T has no baseline")
