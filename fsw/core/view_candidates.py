@@ -19,7 +19,7 @@ while a straight drive sweeps only the wheels' own tracks (issue 13 item 3).
 
 With no edge path (no edge mapped yet: the views from the start did not reach the drop), the
 stations are the edge search's: along eight directions around the rover, as far as the
-geofence allows (with no edge, only over ground mapped as plateau).
+geofence allows (with no edge fitted, wheels keep the margin from every mapped drop cell).
 """
 
 from __future__ import annotations
@@ -146,7 +146,8 @@ def search_stations_steps(rover_now: Pose3, motion_ok: MotionCheck, spacing_m: f
     """The edge search (no edge mapped yet, ALGORITHM.md §2): stations every ``spacing_m`` up
     to ``max_travel_m`` along ``headings`` directions around the rover (the first its own
     heading), each facing the way it was driven, each ray until the first the geofence
-    refuses (with no edge it allows only ground mapped as plateau, ``fsw.core.geofence``)."""
+    refuses (with no edge fitted it keeps the wheels the margin from every mapped drop cell,
+    ``fsw.core.geofence``)."""
     x, y, yaw = rover_now
     out = []
     for k in range(headings):
