@@ -22,7 +22,9 @@ Pose3 = tuple[float, float, float]
 
 def look_joints(rover: Pose3, target_xy: NDArray[np.float64], mast: MastConfig,
                 ground_z_m: float = 0.0) -> Pose3:
-    """Mast joints ``(pan, tilt, lift)`` that centre the view on the mean of ``target_xy``."""
+    """Mast joints ``(pan, tilt, lift)`` that centre the view on the mean of ``target_xy``;
+    ``ground_z_m``: the target ground's height relative to the ground under the rover (the
+    unknown ground a move would cross is taken at the rover's own height)."""
     x, y, yaw = rover
     c, s = math.cos(yaw), math.sin(yaw)
     bx = x + c * mast.base_x_m - s * mast.base_y_m

@@ -117,7 +117,7 @@ class GroundAwareMission(FlightTask):
         self.looks += 1
         self.event("LOOK", n=len(near), x=there[0], y=there[1])
         self.pending.insert(0, self.view)
-        self.view = CandidateView(here, look_joints(here, near, self.ctx.cfg.mast, self._ground_z()), method="look")
+        self.view = CandidateView(here, look_joints(here, near, self.ctx.cfg.mast), method="look")
         self._start_point()
         return True
 
@@ -170,7 +170,7 @@ class GroundAwareMission(FlightTask):
         self._looked_from = here
         self.looks += 1
         self.event("LOOK", n=len(pts), x=here[0], y=here[1])
-        self.view = CandidateView(here, look_joints(here, pts, self.ctx.cfg.mast, self._ground_z()), method="look")
+        self.view = CandidateView(here, look_joints(here, pts, self.ctx.cfg.mast), method="look")
         return True
 
     def _ground_z(self) -> float:
