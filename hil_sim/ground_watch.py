@@ -21,6 +21,7 @@ import numpy as np
 from fsw.core.edge import edge_path
 from fsw.core.geofence import Geofence
 from fsw.core.view_candidates import path_stations
+from fsw.tasks.mission_ground import fence_on
 
 
 def reachable_stations(mission: Any, cfg: Any) -> int:
@@ -32,10 +33,7 @@ def reachable_stations(mission: Any, cfg: Any) -> int:
         edge = None
     here = (float(nav.x), float(nav.y), float(nav.yaw))
     fence = Geofence(cfg.geofence, cfg.rover)
-    fence.set_map(latest.snapshot.grid, latest.snapshot.n)
-    if latest.drop is not None:
-        fence.set_drop(latest.snapshot.grid, latest.drop)
-    fence.set_edge(edge, here)
+    fence_on(fence, latest, edge, here)
     path = (np.zeros((0, 2)) if edge is None else
             edge_path(edge, cfg.edge.setback_m, cfg.edge.path_spacing_m, cfg.geofence.extend_m))
     stations = path_stations(path, here, lambda a, b: fence.check(a, b, known_ground=False).allowed,

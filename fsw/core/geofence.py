@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -237,15 +238,15 @@ class Geofence:
     def _clear_of_drops(self, swept: list[BaseGeometry], b: Pose3, known_ground: bool) -> Verdict:
         """No edge fitted yet: every swept wheel patch ``margin_m`` from every mapped drop cell,
         then the ground checks of a move with an edge."""
-        assert self.clear.grid is not None
-        refusal = None
-        for w, geom in enumerate(swept):
+        grid = self.clear.grid
+        assert grid is not None
+
+        def near_drop(geom: BaseGeometry) -> int:  # on-grid cells within margin_m of a drop
             pts = self.clear.unknown_points(geom)
-            n = int(self.clear.grid.cell_index(pts[:, 0], pts[:, 1])[2].sum()) if len(pts) else 0
-            if n:
-                refusal = (f"rejected: no cliff edge mapped yet; wheel {WHEELS[w]} would come within "
-                           f"{self.cfg.margin_m:.2f} m of a drop ({n} cells)")
-                break
+            return int(grid.cell_index(pts[:, 0], pts[:, 1])[2].sum()) if len(pts) else 0
+
+        refusal = _wheel_refusal(swept, near_drop, "rejected: no cliff edge mapped yet; wheel {wheel} would "
+                                 f"come within {self.cfg.margin_m:.2f} m of a drop ({{n}} cells)")
         refusal = refusal or self._ground_refusal(swept, b, known_ground)
         if refusal is not None:
             self.rejections += 1
@@ -272,11 +273,8 @@ class Geofence:
         """The refusal if a swept wheel patch covers unmapped ground, else None."""
         if not (self.cfg.require_known_ground and self.known.ready):
             return None
-        for w, geom in enumerate(swept):
-            n = self.known.unknown_cells(geom)
-            if n:
-                return f"rejected: wheel {WHEELS[w]} would cross unknown ground ({n} unmapped cells)"
-        return None
+        return _wheel_refusal(swept, self.known.unknown_cells,
+                              "rejected: wheel {wheel} would cross unknown ground ({n} unmapped cells)")
 
     def _ground_refusal(self, swept: list[BaseGeometry], b: Pose3, known_ground: bool) -> str | None:
         """The mission's check (``known_ground``): every swept wheel patch on the grid and on
@@ -292,11 +290,8 @@ class Geofence:
         known: the edge check of a planner's station refuses it too), else None."""
         if not (self.cfg.require_known_ground and self.known.ready):
             return None
-        for w, geom in enumerate(swept):
-            n = self.known.off_map_cells(geom)
-            if n:
-                return f"rejected: wheel {WHEELS[w]} would leave the map ({n} cells off the grid)"
-        return None
+        return _wheel_refusal(swept, self.known.off_map_cells,
+                              "rejected: wheel {wheel} would leave the map ({n} cells off the grid)")
 
     def _samples(self, a: tuple[float, float, float], b: tuple[float, float, float]
                  ) -> np.ndarray:
@@ -314,6 +309,16 @@ class Geofence:
         s = np.linspace(0.0, 1.0, n + 1)
         return np.column_stack([a[0] + s * (b[0] - a[0]), a[1] + s * (b[1] - a[1]),
                                 a[2] + s * dyaw])
+
+
+def _wheel_refusal(swept: list[BaseGeometry], count: Callable[[BaseGeometry], int], reason: str) -> str | None:
+    """``reason`` (with ``{wheel}`` and ``{n}``) for the first wheel whose swept patch has
+    ``count`` > 0 bad cells, else None."""
+    for w, geom in enumerate(swept):
+        n = count(geom)
+        if n:
+            return reason.format(wheel=WHEELS[w], n=n)
+    return None
 
 
 def goto_legs(a: Pose3, b: Pose3) -> list[Pose3]:

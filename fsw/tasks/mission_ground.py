@@ -179,11 +179,7 @@ class GroundAwareMission(FlightTask):
 
     def _fence(self, here: Pose3) -> None:
         """The geofence on the latest edge fit and map, and the ground the rover stands on."""
-        if self.latest is not None:
-            self.geofence.set_map(self.latest.snapshot.grid, self.latest.snapshot.n)
-            if self.latest.drop is not None:
-                self.geofence.set_drop(self.latest.snapshot.grid, self.latest.drop)
-        self.geofence.set_edge(self.edge, here)
+        fence_on(self.geofence, self.latest, self.edge, here)
 
     def _planner_state(self) -> PlannerState:
         assert self.nav is not None and self.latest is not None
@@ -206,3 +202,12 @@ class GroundAwareMission(FlightTask):
             sigma_loc_m=sigma,
         )
 
+
+def fence_on(fence: Geofence, latest: MapUpdate | None, edge: EdgeModel | None, here: Pose3) -> None:
+    """Set ``fence`` on a map update (known ground, drop cells), an edge fit and the pose the
+    rover stands at (the mission's check; ``hil_sim.ground_watch`` builds its own the same way)."""
+    if latest is not None:
+        fence.set_map(latest.snapshot.grid, latest.snapshot.n)
+        if latest.drop is not None:
+            fence.set_drop(latest.snapshot.grid, latest.drop)
+    fence.set_edge(edge, here)
