@@ -86,8 +86,9 @@ class AttitudeTracker:
         self.z_m += dz
         self.z_sigma_m += math.hypot(dx, dy) * s_att + self.z_sigma_per_m * abs(dz)
 
-    def reset(self, z_m: float = 0.0) -> None:
-        self.z_m, self.z_sigma_m = z_m, 0.0
+    def reset(self, z_m: float = 0.0, z_sigma_m: float = 0.0) -> None:
+        """Set the body height and its sigma (SET_ODOMETRY, or a registered view fed back)."""
+        self.z_m, self.z_sigma_m = z_m, z_sigma_m
 
     def state(self) -> BodyAttitude:
         cov = np.zeros((3, 3))

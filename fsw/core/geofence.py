@@ -36,6 +36,15 @@ ground and on the map grid. Unknown ground, where a drop may hide, is never driv
 mission looks at it first, and what the look maps as lower ground joins the drop cells. With
 no drop map either, the geofence refuses (unless ``allow_without_edge``).
 
+Pose drift (``drift_k``): the check is made on the pose estimate, and dead reckoning drifts
+as the rover drives (a heading error bends the path; ``fsw.core.odometry``). For the ground
+checks (unknown ground, off the map, near a mapped drop), each swept wheel patch is widened by
+``drift_k`` times the growth of the position sigma from the start of the move to that
+sample (``fsw.core.odometry.drift_sigma``, from the heading sigma at the start,
+``set_drift``): a long drive must keep farther from ground the map has not seen than a short
+one. Only the growth: where the rover stands its footprint is known ground, so a rover is
+never boxed in by its own standing uncertainty (a registered view resets it: ``fsw.core.nav_fix``).
+
 Recovery (``recover_inside_margin``): a new edge fit can put the rover, standing still,
 inside the margin (a longer or re-shaped edge, or its straight continuation past a fresh end,
 now passes close by). Refusing every move would box the rover in for good, so a rover that
@@ -62,6 +71,8 @@ from shapely.geometry.base import BaseGeometry
 from fsw.core.edge import EdgeModel
 from fsw.core.geometry import MapGrid, RoverConfig
 from fsw.core.known_ground import KnownGround, Pose3, rover_footprint
+from fsw.core.motion_profile import MotionConfig
+from fsw.core.odometry import drift_sigma
 from fsw.framework.params import param
 
 WHEELS = ("front_left", "front_right", "rear_left", "rear_right")
@@ -93,6 +104,10 @@ class GeofenceConfig:
     explore_without_edge: bool = param(
         True, doc="no edge fitted yet: allow moves on known ground keeping margin_m from every mapped drop cell"
     )
+    drift_k: float = param(
+        2.0, lo=0.0, hi=10.0, units="sigma",
+        doc="ground checks: wheel patches widened by this many sigmas of the pose drift grown along the move",
+    )
 
 
 @dataclass(frozen=True)
@@ -116,6 +131,13 @@ class Geofence:
         self.known = KnownGround(cfg.known_fill_m)
         self.clear = KnownGround(0.0)  # cells at least margin_m from any mapped drop cell
         self.rejections = 0
+        self._drift: tuple[float, MotionConfig] | None = None  # heading sigma now, the odometry model
+
+    def set_drift(self, sigma_yaw_rad: float, motion: MotionConfig | None) -> None:
+        """The heading sigma of the pose estimate now and the odometry's drift model (None:
+        no widening), for the ground checks (module docstring, "Pose drift")."""
+        ok = motion is not None and math.isfinite(sigma_yaw_rad) and self.cfg.drift_k > 0.0
+        self._drift = (max(sigma_yaw_rad, 0.0), motion) if ok and motion is not None else None
 
     def set_edge(self, model: EdgeModel | None, stand: Pose3 | None = None) -> None:
         """Use a new edge fit (None or an empty fit: no edge known); ``stand``: the rover's
@@ -159,9 +181,10 @@ class Geofence:
         local = np.array([[hx, hy], [hx, -hy], [-hx, hy], [-hx, -hy]])
         return _transform(local[None, :, :], poses)
 
-    def swept_wheels(self, a: tuple[float, float, float], b: tuple[float, float, float]
-                     ) -> list[BaseGeometry]:
-        """The area each wheel patch sweeps from pose ``a`` to pose ``b``."""
+    def swept_wheels(self, a: tuple[float, float, float], b: tuple[float, float, float],
+                     drift: bool = False) -> list[BaseGeometry]:
+        """The area each wheel patch sweeps from pose ``a`` to pose ``b`` (``drift``: widened
+        by the pose drift grown along the move, for the ground checks)."""
         poses = self._samples(a, b)
         hl, hw = self.rover.wheel_diameter_m / 2.0, self.cfg.wheel_width_m / 2.0
         patch = np.array([[hl, hw], [hl, -hw], [-hl, -hw], [-hl, hw]])
@@ -170,13 +193,27 @@ class Geofence:
         c, s = np.cos(yaw), np.sin(yaw)
         rot = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)  # (S, 2, 2)
         corners = centres[:, :, None, :] + np.einsum("sij,kj->ski", rot, patch)[:, None]
+        grow = self._drift_growth(poses) if drift else None
         out = []
         for w in range(len(WHEELS)):
             cw = corners[:, w]  # (S, 4, 2)
             pairs = np.concatenate([cw[:-1], cw[1:]], axis=1) if len(cw) > 1 else cw
             hulls = shapely.convex_hull(shapely.multipoints(pairs))
+            if grow is not None:
+                hulls = shapely.buffer(hulls, grow[1:] if len(cw) > 1 else grow[:1], quad_segs=2)
             out.append(shapely.union_all(hulls))
         return out
+
+    def _drift_growth(self, poses: np.ndarray) -> np.ndarray | None:
+        """``drift_k`` times the position sigma grown from the first sample to each one."""
+        if self._drift is None or len(poses) < 2:
+            return None
+        sigma_yaw, motion = self._drift
+        step = np.hypot(np.diff(poses[:, 0]), np.diff(poses[:, 1]))
+        turn = np.abs(np.diff(np.unwrap(poses[:, 2])))
+        path, turned = np.r_[0.0, np.cumsum(step)], np.r_[0.0, np.cumsum(turn)]
+        grow = self.cfg.drift_k * drift_sigma(0.0, sigma_yaw, path, turned, motion)
+        return grow if grow[-1] > 1e-4 else None
 
     def check(self, a: tuple[float, float, float], b: tuple[float, float, float],
               known_ground: bool = True) -> Verdict:
@@ -194,7 +231,8 @@ class Geofence:
             if self.cfg.allow_without_edge:
                 return Verdict(True, "allowed: no cliff edge mapped", math.inf)
             if self.cfg.explore_without_edge and self.clear.ready and self.known.ready:
-                return self._clear_of_drops(self.swept_wheels(tuple(pa), tuple(pb)), tuple(pb), known_ground)
+                return self._clear_of_drops(self.swept_wheels(tuple(pa), tuple(pb), drift=True), tuple(pb),
+                                            known_ground)
             self.rejections += 1
             return Verdict(False, "rejected: no cliff edge mapped yet", math.inf)
         swept = self.swept_wheels(tuple(pa), tuple(pb))
@@ -215,7 +253,7 @@ class Geofence:
             away = clear >= start - RECOVERY_TOL_M if clear > 0.0 else (
                 start == 0.0 and self._backs_away(tuple(pa), tuple(pb)))
             if away and end >= self.cfg.margin_m:
-                unknown = self._ground_refusal(swept, tuple(pb), known_ground)
+                unknown = self._ground_refusal(self._drifted(swept, pa, pb), tuple(pb), known_ground)
                 if unknown is not None:
                     self.rejections += 1
                     return Verdict(False, unknown, clear, WHEELS[w])
@@ -228,12 +266,16 @@ class Geofence:
                 f"comes within {clear:.3f} m of the edge")
             return Verdict(False, f"rejected: wheel {WHEELS[w]} {where} "
                            f"(margin {self.cfg.margin_m:.2f} m)", clear, WHEELS[w])
-        unknown = self._ground_refusal(swept, tuple(pb), known_ground)
+        unknown = self._ground_refusal(self._drifted(swept, pa, pb), tuple(pb), known_ground)
         if unknown is not None:
             self.rejections += 1
             return Verdict(False, unknown, clear, WHEELS[w])
         return Verdict(True, f"allowed: clearance {clear:.3f} m (wheel {WHEELS[w]})",
                        clear, WHEELS[w])
+
+    def _drifted(self, swept: list[BaseGeometry], a: np.ndarray, b: np.ndarray) -> list[BaseGeometry]:
+        """``swept`` widened by the drift for the ground checks (itself without a drift model)."""
+        return swept if self._drift is None else self.swept_wheels(tuple(a), tuple(b), drift=True)
 
     def _clear_of_drops(self, swept: list[BaseGeometry], b: Pose3, known_ground: bool) -> Verdict:
         """No edge fitted yet: every swept wheel patch ``margin_m`` from every mapped drop cell,
@@ -266,7 +308,7 @@ class Geofence:
 
     def unknown_points(self, a: Pose3, b: Pose3) -> np.ndarray:
         """(N, 2) centres of the unknown map cells the wheels would sweep from ``a`` to ``b``."""
-        pts = [self.known.unknown_points(g) for g in self.swept_wheels(a, b)]
+        pts = [self.known.unknown_points(g) for g in self.swept_wheels(a, b, drift=True)]
         return np.concatenate(pts) if pts else np.zeros((0, 2))
 
     def _unknown_ground(self, swept: list[BaseGeometry]) -> str | None:

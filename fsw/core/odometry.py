@@ -5,7 +5,11 @@ Each update takes the drive wheels' positions (rad) and the steering angles; the
 is the least-squares rigid motion of the four wheel displacements
 (``wheel_kinematics.body_motion``). The 1-sigma position error grows by ``odo_sigma_per_m``
 per metre driven, the yaw error by ``odo_yaw_sigma_per_rad`` per radian turned plus the same
-per-metre term.
+per-metre term, from the last correction (``correct``: a registered view fed back,
+``fsw.core.nav_fix``), whose covariance is the base it grows from. A heading error carries
+on into position as the rover drives (a wheel that slips more on one side bends the path):
+the position sigma also grows by the heading sigma integrated over the distance driven,
+``integral sigma_yaw(s) ds`` (:func:`drift_sigma`; the errors are systematic, so sigmas add).
 """
 
 from __future__ import annotations
@@ -31,6 +35,9 @@ class Odometry:
         self.yaw_acc = 0.0  # signed yaw turned since start (turn segments close on it)
         self._last_drive: NDArray[np.float64] | None = None
         self._resume_drive: NDArray[np.float64] | None = None  # a restored encoder baseline
+        self.base_cov = np.zeros((3, 3))  # (x, y, yaw) covariance at the last correction
+        self.path0 = self.turned0 = 0.0  # path and turn at the last correction (growth since)
+        self.lever_path = self.lever_turn = 0.0  # integrals of (path, turn) since it over distance
 
     def update(self, drive_rad: NDArray[np.float64], steer_rad: NDArray[np.float64]) -> NDArray[np.float64] | None:
         """Integrate the motion since the previous wheel positions (the first call only records);
@@ -43,7 +50,10 @@ class Odometry:
         if self._last_drive is not None:
             motion = wk.body_motion((drive_rad - self._last_drive) * self.r, steer_rad, self.pinv)
             self.pose = wk.integrate_pose(self.pose, motion)
-            self.path_m += math.hypot(motion[0], motion[1])
+            ds = math.hypot(motion[0], motion[1])
+            self.lever_path += (self.path_m - self.path0) * ds
+            self.lever_turn += (self.turned_rad - self.turned0) * ds
+            self.path_m += ds
             self.turned_rad += abs(motion[2])
             self.yaw_acc += float(motion[2])
         self._last_drive = drive_rad
@@ -52,13 +62,26 @@ class Odometry:
     def reset(self, pose: Pose3) -> None:
         """Set the pose (SET_ODOMETRY); the accumulated error starts again from zero."""
         self.pose = pose
-        self.path_m = self.turned_rad = 0.0
+        self.path_m = self.turned_rad = self.path0 = self.turned0 = 0.0
+        self.lever_path = self.lever_turn = 0.0
+        self.base_cov = np.zeros((3, 3))
+
+    def correct(self, pose: Pose3, cov: NDArray[np.float64]) -> None:
+        """Take a corrected pose and its (x, y, yaw) covariance; the error grows from there.
+        ``yaw_acc`` moves with the yaw (a turn segment closes on it; corrections are applied
+        between moves only)."""
+        self.yaw_acc += math.remainder(pose[2] - self.pose[2], math.tau)
+        self.pose = pose
+        self.base_cov = 0.5 * (np.asarray(cov, np.float64) + np.asarray(cov, np.float64).T)
+        self.path0, self.turned0 = self.path_m, self.turned_rad
+        self.lever_path = self.lever_turn = 0.0
 
     def state(self) -> dict[str, object]:
         """The dead-reckoned pose, its growth terms and the drive encoder baseline (JSON)."""
         last = None if self._last_drive is None else self._last_drive.tolist()
         return {"pose": list(self.pose), "path_m": self.path_m, "turned_rad": self.turned_rad,
-                "yaw_acc": self.yaw_acc, "last_drive": last}
+                "yaw_acc": self.yaw_acc, "last_drive": last, "base_cov": self.base_cov.tolist(),
+                "path0": self.path0, "turned0": self.turned0, "lever": [self.lever_path, self.lever_turn]}
 
     def restore(self, pose: Pose3, path_m: float, turned_rad: float, yaw_acc: float,
                 last_drive: NDArray[np.float64] | None) -> None:
@@ -69,8 +92,31 @@ class Odometry:
         self.pose, self.path_m, self.turned_rad, self.yaw_acc = pose, path_m, turned_rad, yaw_acc
         self._resume_drive = last_drive
 
+    def restore_correction(self, base_cov: NDArray[np.float64], path0: float, turned0: float,
+                           lever: tuple[float, float] = (0.0, 0.0)) -> None:
+        """The last correction of a checkpointed dead reckoning (see ``correct``)."""
+        self.base_cov = np.asarray(base_cov, np.float64).reshape(3, 3)
+        self.path0, self.turned0 = path0, turned0
+        self.lever_path, self.lever_turn = lever
+
     def covariance(self, cfg: MotionConfig) -> NDArray[np.float64]:
-        """3x3 covariance of (x, y, yaw)."""
-        s_xy = cfg.odo_sigma_per_m * self.path_m
-        s_yaw = cfg.odo_yaw_sigma_per_rad * self.turned_rad + cfg.odo_sigma_per_m * self.path_m
-        return np.diag([s_xy**2, s_xy**2, s_yaw**2])
+        """3x3 covariance of (x, y, yaw): the last correction's and the growth since (with the
+        heading error carried into position over the distance driven)."""
+        path, turned = self.path_m - self.path0, self.turned_rad - self.turned0
+        s_yaw = cfg.odo_yaw_sigma_per_rad * turned + cfg.odo_sigma_per_m * path
+        s_xy = (cfg.odo_sigma_per_m * path + math.sqrt(max(float(self.base_cov[2, 2]), 0.0)) * path
+                + cfg.odo_yaw_sigma_per_rad * self.lever_turn + cfg.odo_sigma_per_m * self.lever_path)
+        return self.base_cov + np.diag([s_xy**2, s_xy**2, s_yaw**2])
+
+
+def drift_sigma(sigma_xy0: float, sigma_yaw0: float, path_m: NDArray[np.float64], turned_rad: NDArray[np.float64],
+                cfg: MotionConfig) -> NDArray[np.float64]:
+    """Position sigma along a planned move (``Odometry.covariance``'s growth): ``path_m`` and
+    ``turned_rad`` are the distance and the turn accumulated at each sample from its start,
+    where the pose has sigmas ``sigma_xy0`` and ``sigma_yaw0``."""
+    s = np.asarray(path_m, np.float64)
+    t = np.asarray(turned_rad, np.float64)
+    s_yaw = sigma_yaw0 + cfg.odo_yaw_sigma_per_rad * t + cfg.odo_sigma_per_m * s
+    ds = np.diff(s, prepend=s[:1] if s.size else s)
+    lever = np.cumsum(s_yaw * ds)  # integral of the heading sigma over the distance
+    return np.asarray(sigma_xy0 + cfg.odo_sigma_per_m * s + lever, np.float64)

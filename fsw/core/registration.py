@@ -42,6 +42,7 @@ from numpy.typing import NDArray
 
 from fsw.core.geometry import CameraPose, MapGrid
 from fsw.core.localization import so3_exp
+from fsw.core.nav_fix import DEAD_RECKONED
 from fsw.core.steps import run_to_end
 from fsw.framework.params import param
 
@@ -89,6 +90,8 @@ class RegistrationConfig:
     inflate_pos_m: float = param(0.02, lo=0.0, hi=10.0, units="m", doc="unregistered view: added position sigma")
     carry: bool = param(True, doc="a new station starts from the last registered station's dead-reckoning "
                                   "correction (yaw, x, y, z) with the odometry covariance grown since")
+    feed_back: bool = param(True, doc="a registered view's yaw, x, y, z correction also corrects the rover's "
+                                      "own pose estimate (odometry and body height; fsw.core.nav_fix)")
 
 
 @dataclass
@@ -134,16 +137,19 @@ class StationFix:
     """What the last registered station found: its camera centre, its total correction
     ``(dtheta, dt)`` (§5 convention, about that centre), the correction's covariance and the
     view's prior pose covariance there (odometry, attitude, mast), and the frame error of the
-    map it was aligned to (``frame_cov``: the views before it placed that part of the map)."""
+    map it was aligned to (``frame_cov``: the views before it placed that part of the map).
+    ``base_id`` is the navigation fix the view's pose already held (``NavPose.fix_id``) and
+    ``fix_id`` the one this station's correction was fed back as (0: none; ``fsw.core.nav_fix``)."""
 
     centre: F64
     correction: F64
     cov: F64
     pose_cov: F64
     frame_cov: F64
+    base_id: int = 0
+    fix_id: int = 0
 
 
-DEAD_RECKONED = [2, 3, 4, 5]  # yaw, x, y, z: the pose components odometry integrates (drift)
 
 
 def carried_prior(pose: CameraPose, pose_cov: F64, fix: StationFix) -> tuple[F64, F64]:

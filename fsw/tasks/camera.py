@@ -134,6 +134,7 @@ class CameraTask(FlightTask):
                 pose_cov=cov,
                 expected_new_cells=req.expected_new_cells,
                 ground_z_m=self.nav.z_m,
+                nav_fix_id=self.nav.fix_id,
             ),
         )
         self.tlm("captures", self.captures)

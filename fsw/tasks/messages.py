@@ -17,6 +17,7 @@ from fsw.comm.link_sender import SenderState
 from fsw.core.edge import EdgeModel
 from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import CameraPose
+from fsw.core.nav_fix import NavFix
 from fsw.core.registration import RegistrationSummary
 
 # Topic names (one place, so a typo is an import error, not a silent loss).
@@ -24,6 +25,7 @@ CAMERA_REQUEST = "camera.request"
 CAMERA_FRAME = "camera.frame"
 MAP_UPDATED = "map.updated"
 NAV_POSE = "nav.pose"
+NAV_FIX = "nav.fix"  # a registered view's correction of the rover pose (fsw.core.nav_fix.NavFix)
 NBV_REQUEST = "nbv.request"
 NBV_RESULT = "nbv.result"
 RADIO_SEND = "radio.send"
@@ -35,7 +37,9 @@ VIEW_FAILED = "view.failed"
 class NavPose:
     """The rover pose estimate (x, y, yaw) with its 3x3 covariance, and the mast joints; the
     body attitude (roll, pitch, rad), height ``z_m`` and their 3x3 covariance ``att_cov``
-    (ALGORITHM.md §5.1; None: level at z = 0, as before the attitude sensor)."""
+    (ALGORITHM.md §5.1; None: level at z = 0, as before the attitude sensor). ``fix_id``: the
+    last navigation fix applied to the pose (``fsw.core.nav_fix``; 0: none), ``fix_seen`` the
+    last one received (applied or refused)."""
 
     time_s: float
     x: float
@@ -49,6 +53,8 @@ class NavPose:
     z_m: float = 0.0
     att_cov: NDArray[np.float64] | None = None  # (roll, pitch, z)
     attitude_valid: bool = False
+    fix_id: int = 0
+    fix_seen: int = 0
 
 
 @dataclass(frozen=True)
@@ -81,6 +87,7 @@ class CameraFrame:
     pose_cov: NDArray[np.float64]  # 6x6, rotation vector (rad) then translation (m)
     expected_new_cells: float = float("nan")
     ground_z_m: float = 0.0  # the ground under the rover at capture, map datum (``NavPose.z_m``)
+    nav_fix_id: int = 0  # the navigation fix the pose holds (``NavPose.fix_id``)
 
 
 @dataclass(frozen=True)
@@ -103,6 +110,7 @@ class MapUpdate:
     view_cells: tuple[NDArray[np.int32], NDArray[np.float32]] | None = None  # flat cell index, mean height (m)
     camera_xyz: tuple[float, float, float] | None = None  # the (registered) camera centre
     drop: NDArray[np.bool_] | None = None  # mapped cells a step below the rover's ground (§2)
+    nav_fix: NavFix | None = None  # the correction of the rover pose it found (also on ``nav.fix``)
 
 
 # Motion (fsw/tasks/motion.py): requests from the sequencer, one status per request outcome.

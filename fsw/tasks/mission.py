@@ -6,15 +6,18 @@
 Each view is a sequence of requests to the other tasks over the software bus: the motion
 task drives to the rover pose (``goto``), then points the mast; the camera task takes the
 pair; the perception task merges it and re-fits the edge; the next-view task rates the
-candidates on the new map. Before any wheel move the geofence checks the swept footprint
-against the polygon edge (§2): a refusal is an event, never a crossing, and the step's view
-is taken from where the rover stands (``fsw.tasks.mission_ground``). A move over ground the
-map has not measured (``fsw.core.known_ground``) is not taken blind: the step first looks at
-that ground from where the rover stands (``fsw.core.look``, part of the same step; again while
-a look still maps some of it, up to ``max_looks_per_move``); a move still refused is driven
-part of the way the geofence allows (along the drive, or straight ahead or behind). A fitted edge that hems the
-rover in where it stands makes the next step a look at the ground nearest it. Step 0 is
-the panorama from the start pose (the same for every method); steps 1..N are the
+candidates on the new map. A map update whose view corrected the rover pose (a navigation fix,
+``fsw.core.nav_fix``) is acted on once ``nav.pose`` shows the motion task took it (or after
+``FIX_WAIT_S``), so the next step is planned from where the map says the rover stands.
+Before any wheel move the geofence checks the swept footprint against the polygon edge
+(§2): a refusal is an event, never a crossing, and the step's view is taken from where the
+rover stands (``fsw.tasks.mission_ground``). A move over ground the map has not measured
+(``fsw.core.known_ground``) is not taken blind: the step first looks at that ground from
+where the rover stands (``fsw.core.look``, part of the same step; again while a look still
+maps some of it, up to ``max_looks_per_move``); a move still refused is driven part of the
+way the geofence allows (along the drive, or straight ahead or behind). A fitted edge that
+hems the rover in where it stands makes the next step a look at the ground nearest it.
+Step 0 is the panorama from the start pose (the same for every method); steps 1..N are the
 planner's. Each step is recorded (``records``) for the run summary.
 
 SAFE (``fsw.tasks.mission_safe``): wheels and mast stopped, mast parked, an event; then wait
@@ -31,6 +34,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from typing import ClassVar
 
 from fsw.core.edge import EdgeModel
@@ -64,6 +68,8 @@ from fsw.tasks.mission_ground import MIN_MOVE_M, MIN_TURN_RAD, GroundAwareMissio
 from fsw.tasks.mission_safe import SafeRecovery
 from fsw.tasks.mission_state import STATES, MissionPhase, StepRecord
 from fsw.tasks.sections import MissionConfig
+
+FIX_WAIT_S = 1.0  # longest wait for nav.pose to show a map update's navigation fix
 
 
 class MissionTask(GroundAwareMission, SafeRecovery):
@@ -108,6 +114,7 @@ class MissionTask(GroundAwareMission, SafeRecovery):
         self.nav_box = self.subscribe(NAV_POSE, depth=1)
         self.status_box = self.subscribe(MOTION_STATUS, depth=8)
         self.map_box = self.subscribe(MAP_UPDATED, depth=4)
+        self.maps: deque[tuple[float, MapUpdate]] = deque()  # (arrival, update) held for their nav fix
         self.nbv_box = self.subscribe(NBV_RESULT, depth=2)
         self.radio_box = self.subscribe(RADIO_STATUS, depth=4)
         self.failed_box = self.subscribe(VIEW_FAILED, depth=4)  # a view that will not reach the map
@@ -166,6 +173,11 @@ class MissionTask(GroundAwareMission, SafeRecovery):
                 return st
         return None
 
+    def _nav_took_fix(self, arrived: float, up: MapUpdate, now: float) -> bool:
+        fix = up.nav_fix
+        return (fix is None or (self.nav is not None and self.nav.fix_seen >= fix.fix_id)
+                or now - arrived >= FIX_WAIT_S)
+
     def _timed_out(self) -> bool:
         return self.ctx.clock.now() > self.deadline
 
@@ -178,8 +190,10 @@ class MissionTask(GroundAwareMission, SafeRecovery):
             self.publish(MAP_UPDATED, self._republish)
             self._republish = None
         self.nav = self.nav_box.latest() or self.nav
-        for up in self.map_box.drain():
-            self._on_map(up)
+        now = self.ctx.clock.now()
+        self.maps.extend((now, up) for up in self.map_box.drain())
+        while self.maps and self._nav_took_fix(*self.maps[0], now):
+            self._on_map(self.maps.popleft()[1])
         handler = getattr(self, f"_state_{self.state.lower()}")
         handler()
         self.tlm("step", self.step)

@@ -180,6 +180,8 @@ class GroundAwareMission(FlightTask):
     def _fence(self, here: Pose3) -> None:
         """The geofence on the latest edge fit and map, and the ground the rover stands on."""
         fence_on(self.geofence, self.latest, self.edge, here)
+        yaw_var = math.nan if self.nav is None else float(self.nav.cov[2, 2])
+        self.geofence.set_drift(math.sqrt(yaw_var) if yaw_var >= 0.0 else math.nan, self.ctx.cfg.motion)
 
     def _planner_state(self) -> PlannerState:
         assert self.nav is not None and self.latest is not None

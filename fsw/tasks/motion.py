@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 from fsw.core import motion_profile as mp
 from fsw.core import wheel_kinematics as wk
 from fsw.core.attitude import AttitudeTracker
+from fsw.core.nav_fix import NavFix, apply_to_body
 from fsw.core.odometry import Odometry
 from fsw.drivers import can_motors, mast_serial
 from fsw.framework.commands import CommandError
@@ -32,6 +33,7 @@ from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import (
     MOTION_REQUEST,
     MOTION_STATUS,
+    NAV_FIX,
     NAV_POSE,
     MotionRequest,
     MotionStatus,
@@ -63,6 +65,9 @@ class MotionTask(FlightTask):
         self.steer_hold = np.zeros(4)
         self.done = self.aborted = 0
         self.requests = self.subscribe(MOTION_REQUEST, depth=8)
+        self.fixes = self.subscribe(NAV_FIX, depth=4)
+        self.fix_pending: deque[NavFix] = deque()  # applied between moves, in order
+        self.fix_id = self.fix_seen = 0  # the last navigation fix applied / received
         self._warned: set[str] = set()
         restore_into(self)  # a resumed mission (fsw.tasks.mission_state)
 
@@ -90,16 +95,38 @@ class MotionTask(FlightTask):
         for drv in (motors, mast):
             if drv is not None and drv.last_poll_s != now:
                 drv.poll(now)
+        if motors is not None:
+            self._odometry(motors)
+        self.fix_pending.extend(self.fixes.drain())
+        while self.fix_pending and self.active is None and not self.segments:
+            self._apply_fix(self.fix_pending.popleft())  # before a request plans from the pose
         while (req := self.requests.get()) is not None:
             self._on_request(req, now)
         if motors is not None:
-            self._odometry(motors)
             if self.active is not None and motors.faults & can_motors.CRITICAL:
                 self._abort("motor faults: " + ",".join(motors.fault_names()))
             self._control(motors, now)
             motors.transmit(now)
         self._track_mast(mast, now)
         self._publish(now, mast)
+
+    def _apply_fix(self, fix: NavFix) -> None:
+        """A registered view's correction of the pose (ALGORITHM.md §5.1, ``fsw.core.nav_fix``),
+        between moves; only on the frame it was found in (``base_id``), else refused."""
+        self.fix_seen = max(self.fix_seen, fix.fix_id)
+        if fix.base_id != self.fix_id or not fix.valid():
+            why = "invalid" if not fix.valid() else f"found on fix {fix.base_id}, pose holds {self.fix_id}"
+            self.event("NAV_FIX_REFUSED", fix=fix.fix_id, reason=why)
+            return
+        before = self.odo.pose
+        pose, cov = apply_to_body(before, fix)
+        self.odo.correct(pose, cov)
+        a = self.attitude
+        a.reset(a.z_m + fix.dt[2], math.sqrt(max(float(fix.cov[3, 3]), 0.0)))
+        self.fix_id = fix.fix_id
+        self.event("NAV_FIXED", fix=fix.fix_id, dxy_cm=100 * math.hypot(pose[0] - before[0], pose[1] - before[1]),
+                   dyaw=math.degrees(math.remainder(pose[2] - before[2], math.tau)), dz_cm=100 * fix.dt[2],
+                   sxy_cm=100 * math.sqrt(max(0.0, 0.5 * (cov[0, 0] + cov[1, 1]))))
 
     def _odometry(self, motors: can_motors.CanMotorDriver) -> None:
         drive = [motors.axes[f"DRIVE_{w}"] for w in WHEELS]
@@ -268,6 +295,8 @@ class MotionTask(FlightTask):
                 z_m=att.z_m,
                 att_cov=att.cov,
                 attitude_valid=att.valid,
+                fix_id=self.fix_id,
+                fix_seen=self.fix_seen,
             ),
         )
 

@@ -29,6 +29,10 @@ EVENTS = (
     EventDef("ESTOP_COMMANDED", Severity.WARNING_HI, "emergency stop {action} by command"),
     EventDef("FAULTS_CLEARED", Severity.ACTIVITY_HI, "motor and mast faults cleared by command"),
     EventDef("NO_DEVICE", Severity.WARNING_HI, "motion: no {device} driver configured"),
+    EventDef("NAV_FIXED", Severity.ACTIVITY_LO,
+             "pose corrected by fix {fix}: {dxy_cm:.1f} cm, {dyaw:+.2f} deg, height {dz_cm:+.1f} cm; "
+             "sigma {sxy_cm:.1f} cm"),
+    EventDef("NAV_FIX_REFUSED", Severity.WARNING_LO, "navigation fix {fix} not applied: {reason}", throttle=5),
     EventDef("ODOMETRY_SET", Severity.ACTIVITY_HI, "odometry set to ({x:.3f}, {y:.3f}) m, {yaw:.1f} deg"),
 )
 COMMANDS = (

@@ -20,7 +20,6 @@ way (the map would be half-merged). At start-up it restores the newest good chec
 
 from __future__ import annotations
 
-import dataclasses
 from collections import deque
 from collections.abc import Generator
 from typing import ClassVar
@@ -31,19 +30,18 @@ from numpy.typing import NDArray
 from fsw.core.edge import EdgeModel, edge_cells_steps, fit_polygon
 from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import CameraPose, MapGrid
-from fsw.core.localization import point_covariance_parts, so3_log
+from fsw.core.localization import point_covariance_parts
+from fsw.core.nav_fix import NavFix
 from fsw.core.nbv import predicted_visibility_steps
 from fsw.core.rectify import Rectifier
 from fsw.core.registration import (
     Registration,
     RegistrationSummary,
-    StationFix,
     apply_correction,
-    carried_prior,
-    inflate,
     reference_cells,
     register_steps,
 )
+from fsw.core.station_chain import StationChain
 from fsw.core.stereo import StereoMatcher, StereoPoints
 from fsw.core.stereo_calibration import offset_covariance
 from fsw.drivers.map_store import MapStore
@@ -52,7 +50,7 @@ from fsw.framework.jobs import JobHandle
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.settings import load_stereo_calibration
 from fsw.tasks.base import FlightTask
-from fsw.tasks.messages import CAMERA_FRAME, MAP_UPDATED, VIEW_FAILED, CameraFrame, MapUpdate, ViewFailed
+from fsw.tasks.messages import CAMERA_FRAME, MAP_UPDATED, NAV_FIX, VIEW_FAILED, CameraFrame, MapUpdate, ViewFailed
 from fsw.tasks.mission_state import JsonDict, restore_into
 
 ROI_STRIDE = 4  # the region-of-interest fraction is estimated on every 4th cell each way
@@ -72,7 +70,6 @@ def roi_mapped_fraction(emap: ElevationMap, edge: EdgeModel) -> float:
 
 PROPAGATE_CHUNK = 10000  # points per slice of the covariance propagation (~5 ms here)
 MERGE_STEP_POINTS = 50000  # points per slice of each pass of the map merge (a few ms)
-STATION_TOL_M = 0.03  # views whose camera centres are this close share a station (registration)
 
 
 ViewPart = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]  # xyz, cov, common cov
@@ -139,9 +136,7 @@ class PerceptionTask(FlightTask):
         self.views = 0
         self.last_update: MapUpdate | None = None
         self.unregistered = 0
-        self.anchor_cov: NDArray[np.float64] | None = None  # pose covariance of the view that began the map
-        self.station: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None  # (camera centre, correction)
-        self.fix: StationFix | None = None  # the last registered station (carried to the next one)
+        self.chain = StationChain()  # the registered stations (fsw.core.station_chain)
         self.registrations: deque[RegistrationSummary] = deque(maxlen=1000)  # per view (mission summary)
         self.store = self.ctx.res.map_store
         self._last_checkpoint_s = self.ctx.clock.now()
@@ -186,7 +181,7 @@ class PerceptionTask(FlightTask):
         yield
         pts = yield from self.matcher.triangulate_steps(dm.disparity_px, sigma_px=dm.sigma_px)
         del dm, left, right  # not needed past here: a smaller resident peak (issue 15)
-        reg, pose, pose_cov = yield from self._register(fr, pts)
+        reg, pose, pose_cov, nav_fix = yield from self._register(fr, pts)
         parts, off_sigma = [], 0.0 if self.rectifier is None else self.rectifier.camera.offset_sigma_px
         for a in range(0, len(pts), PROPAGATE_CHUNK):  # world covariance (§1.2) in bounded slices
             b = a + PROPAGATE_CHUNK
@@ -231,62 +226,35 @@ class PerceptionTask(FlightTask):
             view_cells=view_cells,
             camera_xyz=(float(pose.t[0]), float(pose.t[1]), float(pose.t[2])),
             drop=cells.drop,
+            nav_fix=nav_fix,
         )
 
     def _register(
         self, fr: CameraFrame, pts: StereoPoints
-    ) -> Generator[None, None, tuple[Registration, CameraPose, NDArray[np.float64]]]:
-        """Align the view to the map (§5.1): the corrected pose and the covariance to merge with.
-
-        Registered: the correction's covariance (relative to the map) plus the covariance of
-        the view that began the map (the map's own frame error). Not registered: the prior
-        pose covariance inflated. The first view of a map is its reference. A view from the
-        station of the last registered view starts from that view's correction (the body
-        pose error it found holds until the rover moves), registered or not; a view from a
-        new station starts from that station's dead-reckoning correction with the odometry
-        covariance grown since (``carried_prior``).
-        """
+    ) -> Generator[None, None, tuple[Registration, CameraPose, NDArray[np.float64], NavFix | None]]:
+        """Align the view to the map (§5.1): the corrected pose, the covariance to merge with
+        and the navigation fix to feed back (``fsw.core.station_chain``: where the fit starts,
+        the frame error, the feedback)."""
         rcfg = self.ctx.cfg.registration
         if not rcfg.enabled:
-            return Registration("off", "disabled in config"), fr.pose, fr.pose_cov
-        # Views from the station of the last registered view (same camera centre: the rover has
-        # not moved; pan and tilt turn the head about it) start from that view's correction.
-        d0, prior_cov, frame_prior = np.zeros(6), fr.pose_cov, np.zeros((6, 6))
-        same = self.station is not None and float(np.linalg.norm(fr.pose.t - self.station[0])) < STATION_TOL_M
-        if same and self.station is not None:
-            d0 = self.station[1]
-        elif rcfg.carry and self.fix is not None:
-            d0, prior_cov = carried_prior(fr.pose, fr.pose_cov, self.fix)
-            frame_prior = self.fix.frame_cov
-        prior = apply_correction(fr.pose, d0)
+            return Registration("off", "disabled in config"), fr.pose, fr.pose_cov, None
+        vp = self.chain.prior(fr.pose, fr.pose_cov, fr.nav_fix_id, rcfg)
+        prior = apply_correction(fr.pose, vp.d0)
         n = len(pts)
         sel = np.linspace(0, n - 1, min(n, 4 * rcfg.max_points)).astype(np.intp) if n else np.zeros(0, np.intp)
         xyz_w, cov_w, _ = point_covariance_parts(prior, None, pts.xyz_c[sel], pts.cov_c[sel])
         ref = reference_cells(self.map.z, self.map.var, self.map.n, rcfg)
         yield
-        reg = yield from register_steps(xyz_w, cov_w, prior, prior_cov, self.map.grid, self.map.z,
+        reg = yield from register_steps(xyz_w, cov_w, prior, vp.cov, self.map.grid, self.map.z,
                                         self.map.var, ref, rcfg)
         if reg.status == "reference":
-            if self.anchor_cov is None:
-                self.anchor_cov = np.asarray(fr.pose_cov, dtype=np.float64)
-            return reg, fr.pose, fr.pose_cov
+            self.chain.reference(fr.pose_cov)
+            return reg, fr.pose, fr.pose_cov, None
         if reg.status != "registered":
-            if d0.any():
-                reg.reason += "; the station's correction applied"
-                reg.correction = d0
-            return reg, prior, inflate(prior_cov + frame_prior, rcfg)
-        pose = apply_correction(prior, reg.correction)
-        total = np.r_[so3_log(pose.R @ fr.pose.R.T), pose.t - fr.pose.t]
-        self.station = (fr.pose.t.copy(), total)
-        reg.correction = total
-        # The map this view was aligned to was placed by the views before it: the anchor's frame
-        # error, and with ``carry`` each station's registration error adds to the next (a chain).
-        frame = self.anchor_cov if self.anchor_cov is not None else np.zeros((6, 6))
-        if rcfg.carry and self.fix is not None:
-            frame = self.fix.frame_cov if same else self.fix.frame_cov + self.fix.cov
-        merged = reg.cov + frame
-        self.fix = StationFix(fr.pose.t.copy(), total, reg.cov, np.asarray(fr.pose_cov, dtype=np.float64), frame)
-        return reg, pose, merged
+            pose, cov = self.chain.unregistered(fr.pose, vp, reg, rcfg)
+            return reg, pose, cov, None
+        pose, cov, nav = self.chain.registered(fr.pose, fr.pose_cov, fr.nav_fix_id, fr.time_s, vp, reg, rcfg)
+        return reg, pose, cov, nav
 
     def _finish(self, h: JobHandle) -> None:
         if h.error is not None:
@@ -295,6 +263,8 @@ class PerceptionTask(FlightTask):
             return
         up: MapUpdate = h.result
         self.last_update = up
+        if up.nav_fix is not None:  # the motion task corrects the rover's pose (fsw.core.nav_fix)
+            self.publish(NAV_FIX, up.nav_fix)
         self.publish(MAP_UPDATED, up)
         self.tlm("mapped_cells", up.mapped_cells)
         self.tlm("views", self.views)
@@ -356,29 +326,14 @@ class PerceptionTask(FlightTask):
 
     def checkpoint_state(self) -> JsonDict:
         """What a resumed mission needs besides the map (``fsw.tasks.mission_state``): the view
-        count and the registration state (the map's anchor covariance, the last station and
-        its correction, the per-view reports)."""
-        st = self.station
-        return {
-            "views": self.views,
-            "unregistered": self.unregistered,
-            "anchor_cov": None if self.anchor_cov is None else self.anchor_cov.tolist(),
-            "station": None if st is None else [st[0].tolist(), st[1].tolist()],
-            "fix": None if self.fix is None else [np.asarray(v).tolist() for v in dataclasses.astuple(self.fix)],
-            "registrations": list(self.registrations),
-        }
+        count and the registration state (the station chain, the per-view reports)."""
+        return {"views": self.views, "unregistered": self.unregistered, **self.chain.state(),
+                "registrations": list(self.registrations)}
 
     def restore_state(self, state: JsonDict) -> None:
         self.views = int(state["views"])
         self.unregistered = int(state.get("unregistered", 0))
-        anchor, st = state.get("anchor_cov"), state.get("station")
-        self.anchor_cov = None if anchor is None else np.asarray(anchor, dtype=np.float64).reshape(6, 6)
-        if st is not None:
-            centre, corr = (np.asarray(v, dtype=np.float64) for v in st)
-            self.station = (centre.reshape(3), corr.reshape(6))
-        fix = state.get("fix")
-        if fix is not None:
-            self.fix = StationFix(*(np.asarray(v, dtype=np.float64) for v in fix))
+        self.chain.restore(state)
         self.registrations.extend(state.get("registrations", []))
         self.tlm("views", self.views)
 
@@ -393,6 +348,4 @@ class PerceptionTask(FlightTask):
         if self.job is not None and not self.job.done:
             raise CommandError("a view is being merged; try again")
         self.map = ElevationMap(self.map.grid, self.ctx.cfg.fusion)
-        self.anchor_cov = None
-        self.station = None
-        self.fix = None
+        self.chain.clear()

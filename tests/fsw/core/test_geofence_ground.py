@@ -20,6 +20,7 @@ from fsw.core.elevation_map import ElevationMap
 from fsw.core.geofence import Geofence, GeofenceConfig, goto_legs
 from fsw.core.geometry import MapGrid, MapGridConfig, MastConfig, RoverConfig
 from fsw.core.look import look_joints
+from fsw.core.motion_profile import MotionConfig
 
 GRID = MapGrid.from_config(MapGridConfig(origin_x_m=-2.0, origin_y_m=-3.0, cell_m=0.03,
                                          nx=250, ny=200))
@@ -207,3 +208,23 @@ def test_with_no_edge_fitted_the_rover_keeps_its_wheels_away_from_mapped_drop_ce
                 explore_without_edge=False)
     off.set_drop(GRID, drop)
     assert not off.check(here, (1.0, 0.0, 0.0)).allowed
+
+
+def test_a_long_drive_keeps_its_drift_away_from_unknown_ground():
+    """Dead reckoning drifts as the rover drives (a heading error bends the path): the ground
+    checks widen each swept wheel patch by drift_k sigmas of the drift grown to that sample.
+    A 3 m drive along a 0.9 m wide mapped strip is refused, a 0.3 m one allowed, and without a
+    drift model both are allowed (the footprint fits the strip)."""
+    strip = mapped_box(-1.0, 4.0, -0.45, 0.45)
+    gf = fence(strip, edge_along_x(-2.5))
+    assert gf.check((0.0, 0.0, 0.0), (3.0, 0.0, 0.0)).allowed
+    gf.set_drift(0.0, MotionConfig())
+    long = gf.check((0.0, 0.0, 0.0), (3.0, 0.0, 0.0))
+    assert not long.allowed and "unknown ground" in long.reason
+    assert gf.check((0.0, 0.0, 0.0), (0.3, 0.0, 0.0)).allowed
+    # a larger heading sigma at the start (no registered view since a long drive) widens sooner
+    gf.set_drift(math.radians(10.0), MotionConfig())
+    assert not gf.check((0.0, 0.0, 0.0), (1.0, 0.0, 0.0)).allowed
+    off = fence(strip, edge_along_x(-2.5), drift_k=0.0)
+    off.set_drift(math.radians(10.0), MotionConfig())  # drift_k = 0: no widening
+    assert off.check((0.0, 0.0, 0.0), (3.0, 0.0, 0.0)).allowed

@@ -66,6 +66,7 @@ def test_odometry_integrates_a_straight_drive_and_grows_its_covariance() -> None
     assert odo.pose[0] == pytest.approx(0.05) and abs(odo.pose[1]) < 1e-12 and abs(odo.pose[2]) < 1e-12
     assert odo.path_m == pytest.approx(0.05) and odo.turned_rad == pytest.approx(0.0, abs=1e-12)
     cov = odo.covariance(CFG)
-    assert cov[0, 0] == pytest.approx((CFG.odo_sigma_per_m * 0.05) ** 2)
+    k, L = CFG.odo_sigma_per_m, 0.05  # growth per metre, and the heading error carried over L
+    assert math.sqrt(cov[0, 0]) == pytest.approx(k * L + k * L * L / 2, rel=5e-3)  # the integral in 10 steps
     odo.reset((1.0, 2.0, 0.5))
     assert odo.pose == (1.0, 2.0, 0.5) and odo.path_m == 0.0 and odo.covariance(CFG)[0, 0] == 0.0

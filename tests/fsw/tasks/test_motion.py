@@ -9,16 +9,19 @@ at a fixed joint rate. No bus, no serial port, no HIL.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
+import numpy as np
 import pytest
 from task_rig import TaskRig, task_config
 
+from fsw.core.nav_fix import NavFix
 from fsw.core.wheel_kinematics import WHEEL_ORDER
 from fsw.drivers import can_motors, mast_serial
 from fsw.drivers.resources import Resources
-from fsw.tasks.messages import MOTION_REQUEST, MOTION_STATUS, NAV_POSE, MotionRequest
+from fsw.tasks.messages import MOTION_REQUEST, MOTION_STATUS, NAV_FIX, NAV_POSE, MotionRequest
 
 CFG = task_config(("motion", "motion"))
 
@@ -229,3 +232,30 @@ def test_a_clear_faults_request_clears_latched_faults_but_never_an_estop() -> No
     st = _until_status(rig, statuses, 5)
     assert (st.request_id, st.state) == (9, "refused") and "emergency stop" in st.reason
     assert motors.estopped and motors.faults == can_motors.F_MOTOR
+
+
+def test_a_navigation_fix_corrects_the_pose_between_moves_only_on_its_frame() -> None:
+    """A registered view's correction (``nav.fix``, fsw.core.nav_fix) waits for the active move
+    to end, then moves the pose and resets its covariance; one found on another frame of the
+    pose is refused with an event, never applied twice."""
+    rig, statuses, poses = _rig()
+    rig.publish(MOTION_REQUEST, MotionRequest(1, "drive", distance_m=0.3))
+    rig.run(3)
+    fix = NavFix.from_correction(1, 0.0, np.array([0.1, 0.0, 0.8]), np.r_[0.0, 0.0, 0.0, 0.05, -0.02, 0.01],
+                                 np.eye(6) * 1e-6)
+    rig.publish(NAV_FIX, fix)
+    rig.run(3)
+    assert poses.drain()[-1].fix_id == 0  # not during the drive
+    st = _until_status(rig, statuses)
+    assert st.state == "done"
+    rig.run(2)
+    nav = poses.drain()[-1]
+    assert (nav.fix_id, nav.fix_seen) == (1, 1)
+    assert nav.x == pytest.approx(0.35, abs=CFG.motion.position_tolerance_m)
+    assert nav.y == pytest.approx(-0.02) and nav.z_m == pytest.approx(0.01)
+    assert nav.cov[0, 0] == pytest.approx(1e-6) and len(rig.events("motion.NAV_FIXED")) == 1
+    rig.publish(NAV_FIX, dataclasses.replace(fix, fix_id=2, base_id=0))  # found before fix 1
+    rig.run(2)
+    nav2 = poses.drain()[-1]
+    assert (nav2.fix_id, nav2.fix_seen) == (1, 2) and nav2.x == nav.x
+    assert len(rig.events("motion.NAV_FIX_REFUSED")) == 1

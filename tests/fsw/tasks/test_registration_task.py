@@ -73,11 +73,11 @@ def test_injected_pose_error_is_corrected_before_the_merge(setup: Any) -> None:
 def test_view_without_overlap_is_merged_inflated_and_reported(setup: Any) -> None:
     exe, poses, pairs = setup
     task = exe.tasks["perception"]
-    task.fix = None  # no registered station before it: nothing carried (the carry: next test)
+    task.chain.clear()  # no registered station before it: nothing carried (the carry: next test)
     # the pit pair seen from a pose 6 m away: none of its points fall on the map
     far = CameraPose(poses[2].R, poses[2].t + np.array([6.0, 0.0, 0.0]))
     pts = _drain(task.matcher.triangulate_steps(_drain(task.matcher.disparity_steps(*pairs[2]))))
-    reg, pose, cov = _drain(task._register(CameraFrame(2, 0.0, *pairs[2], far, PRIOR), pts))
+    reg, pose, cov, _ = _drain(task._register(CameraFrame(2, 0.0, *pairs[2], far, PRIOR), pts))
     assert reg.status == "unregistered" and "overlap" in reg.reason
     np.testing.assert_allclose(cov, inflate(PRIOR, exe.cfg.registration))
     assert pose is not None and np.allclose(pose.t, far.t)
