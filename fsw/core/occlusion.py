@@ -43,20 +43,15 @@ def lip_pixels(disp: F64, jump_px: float, rows: int) -> tuple[I64, I64, I64]:
     pixels and the row of the farthest valid pixel within ``rows`` rows above each (the
     ground behind the lip)."""
     ok = np.isfinite(disp)
-    h = disp.shape[0]
-    far = np.full(disp.shape, np.inf)
-    far_row = np.zeros(disp.shape, np.intp)
-    rr = np.arange(h)[:, None]
-    for k in range(1, min(rows, h - 1) + 1):
-        above = np.full(disp.shape, np.inf)
-        above[k:] = np.where(ok[:-k], disp[:-k], np.inf)
-        nearer = above < far
-        far = np.where(nearer, above, far)
-        far_row = np.where(nearer, rr - k, far_row)
+    d = np.where(ok, disp, np.inf)
+    far = np.full(d.shape, np.inf)  # the smallest disparity within ``rows`` rows above
+    reach = range(1, min(rows, d.shape[0] - 1) + 1)
+    for k in reach:
+        np.minimum(far[k:], d[:-k], out=far[k:])
     with np.errstate(invalid="ignore"):
-        lip = ok & np.isfinite(far) & (disp - far > jump_px)
-    v, u = np.nonzero(lip)
-    return v, u, far_row[v, u]
+        v, u = np.nonzero(ok & (d - far > jump_px))  # inf - inf is NaN: no valid pixel above
+    cand = np.stack([np.where(v >= k, d[np.maximum(v - k, 0), u], np.inf) for k in reach]) if v.size else None
+    return v, u, v - 1 - (np.argmin(cand, axis=0) if cand is not None else v)  # the nearest such row
 
 
 class LipGuard:
