@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from fsw.core.geometry import MapGrid
+from fsw.core.geometry import CameraPose, MapGrid
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.intp]
@@ -74,6 +74,21 @@ class LipGuard:
             idx = ndimage.distance_transform_edt(np.isnan(lip_x), return_distances=False,
                                                  return_indices=True)
             self._nearest = (lip_x[idx[0], idx[1]], lip_y[idx[0], idx[1]])
+
+    @classmethod
+    def of_view(cls, grid: MapGrid, pose: CameraPose, near_c: F64, far_c: F64, min_drop_m: float) -> LipGuard:
+        """The guard of a view from its lips in the camera frame (``StereoPoints.lip_near_c``,
+        ``lip_far_c``) and its camera pose (after registration)."""
+        return cls(grid, pose.camera_to_world(near_c), pose.camera_to_world(far_c), min_drop_m)
+
+    def part(self, xyz_w: F64, cov_stereo: F64, cov_common: F64 | None, k_sigma: float
+             ) -> tuple[F64, F64, F64 | None]:
+        """One part of the view for the merge, ``(xyz, cov, cov_common)``, without the points
+        too near a lip given the view's common covariance (None: an exact pose, nothing held)."""
+        if cov_common is None:
+            return xyz_w, cov_stereo, None
+        keep = self.clear(xyz_w, cov_common, k_sigma)
+        return xyz_w[keep], (cov_stereo + cov_common)[keep], cov_common[keep]
 
     def clear(self, xyz_w: F64, cov_w: F64, k_sigma: float) -> NDArray[np.bool_]:
         """Points whose horizontal distance to the nearest lip exceeds ``k_sigma`` times

@@ -188,10 +188,8 @@ class PerceptionTask(FlightTask):
         pts = yield from self.matcher.triangulate_steps(dm.disparity_px, sigma_px=dm.sigma_px)
         del dm, left, right  # not needed past here: a smaller resident peak (issue 15)
         reg, pose, pose_cov = yield from self._register(fr, pts)
-        parts: list[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]] = []
-        off_sigma = 0.0 if self.rectifier is None else self.rectifier.camera.offset_sigma_px
-        lips = LipGuard(self.map.grid, pose.camera_to_world(pts.lip_near_c), pose.camera_to_world(pts.lip_far_c),
-                        cfg.fusion.lip_min_drop_m)  # the view's own occluding lips (fsw.core.occlusion)
+        parts, off_sigma = [], 0.0 if self.rectifier is None else self.rectifier.camera.offset_sigma_px
+        lips = LipGuard.of_view(self.map.grid, pose, pts.lip_near_c, pts.lip_far_c, cfg.fusion.lip_min_drop_m)
         for a in range(0, len(pts), PROPAGATE_CHUNK):  # world covariance (§1.2) in bounded slices
             b = a + PROPAGATE_CHUNK
             xyz, cov_s, cov_p = point_covariance_parts(pose, pose_cov, pts.xyz_c[a:b], pts.cov_c[a:b])
@@ -199,11 +197,7 @@ class PerceptionTask(FlightTask):
                 cal = offset_covariance(xyz, pose.t, pts.disparity_px[a:b], off_sigma)
                 cov_p = cal if cov_p is None else cov_p + cal
             # The pose term is common to every point of the view: it must not average down in a cell.
-            if cov_p is None:
-                parts.append((xyz, cov_s, cov_p))
-            else:  # too near a lip to place, given the view's common (pose) error: withheld
-                keep = lips.clear(xyz, cov_p, cfg.fusion.lip_guard_sigma)
-                parts.append((xyz[keep], (cov_s + cov_p)[keep], cov_p[keep]))
+            parts.append(lips.part(xyz, cov_s, cov_p, cfg.fusion.lip_guard_sigma))  # too near a lip: withheld
             yield
         del pts  # the camera-frame points: every use is above
         view_cells = self.map.grid.cell_means(np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3)))
