@@ -5,8 +5,7 @@ Cell state (arrays ``(ny, nx)``, index ``[iy, ix]`` as ``fsw.core.geometry.MapGr
 ``n_max``), ``interest`` the interest function IF (starts at 1), ``misses`` unsuccessful
 measurements, ``outliers`` measurements refused by the gate.
 
-Unknown-cell convention: an unknown cell has ``z = NaN``, ``var = inf`` and ``n = 0``; it is
-*mapped* once ``n >= 1``. Nothing else marks a cell as known.
+Unknown cell: ``z = NaN``, ``var = inf``, ``n = 0``; *mapped* once ``n >= 1`` (nothing else).
 
 One ``merge`` call is one view. Its points are first reduced per cell (a vectorized
 ``np.bincount``): the inverse-variance mean of the points in the cell is the view's
@@ -21,12 +20,12 @@ full covariance is given, the larger of that and the slope term: a horizontal er
 moves the point to terrain of another height, so the error in the cell's height is
 ``dz - g.dxy`` with ``g`` the local gradient (from this view's own cell means, so a view's
 measurement does not depend on the map it is fused into), ``P_zz - 2 g.P_xyz + g^T P_xy g``.
-(On a slope facing the camera that is below ``P_zz``; a gradient from noisy cell means is not
-trusted to lower the variance.) Optionally the footprint term ``|g|^2 cell^2 / 12`` (one
-point samples one spot of a sloping cell whose truth is its mean); off by default because
-the sub-cell term measures the same thing from the points: the spread of a view's points in
-a cell beyond their noise is added to the cell's measurement variance (a step or a rock edge
-inside the cell). All of it is calibrated against the bench truth in docs/perception.md.
+(On a slope facing the camera that is below ``P_zz``; a noisy gradient may not lower it.)
+Optionally the footprint term ``|g|^2 cell^2 / 12`` (one point samples one spot of a sloping
+cell); off by default because the sub-cell term measures it from the points: the spread of a
+view's points in a cell beyond their noise is added to the cell's measurement variance (a
+step or a rock edge inside the cell). Calibrated against the bench truth in docs/perception.md.
+A view's points near its own occluding lips never get here (``fsw.core.occlusion``).
 
 The view's measurement is fused into the map by the 1-D Kalman update of §1.1; a
 measurement whose Mahalanobis distance ``|zm - z| / sqrt(var + vm)`` exceeds ``gate_sigma``
@@ -83,6 +82,8 @@ class FusionConfig:
         0.5, lo=0.0, hi=1.0, doc="P_V at or above which a cell without a point counts a miss"
     )
     interest_beta: float = param(1.0, lo=0.0, hi=100.0, doc="interest decay rate beta (§3.4)")
+    lip_guard_sigma: float = param(2.0, lo=0.0, hi=10.0, units="sigma", doc="withhold points closer to a lip (0: off)")
+    lip_min_drop_m: float = param(0.30, lo=0.0, hi=100.0, units="m", doc="a lip counts when it drops by more")
 
 
 @dataclass(frozen=True)
@@ -358,10 +359,9 @@ class ElevationMap:
         hit: NDArray[np.bool_],
     ) -> int:
         """Interest decay and miss count for cells expected visible that got no point (§3.4)."""
-        pv = np.asarray(p_visible)
+        pv = np.asarray(p_visible, dtype=np.float64)
         if pv.shape != self.grid.shape:
             raise ValueError(f"p_visible must have shape {self.grid.shape}, got {pv.shape}")
-        pv = pv.astype(np.float64)
         if not np.isfinite(pv).all() or pv.min() < 0.0 or pv.max() > 1.0:
             raise ValueError("p_visible must lie in [0, 1]")
         empty = ~hit & (pv > 0.0)

@@ -37,7 +37,7 @@ stereo-real`` prints both.
 from __future__ import annotations
 
 from collections.abc import Generator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -45,6 +45,7 @@ from numpy.typing import NDArray
 
 from fsw.core import stereo_quality as quality
 from fsw.core.geometry import CameraConfig
+from fsw.core.occlusion import lip_pixels
 from fsw.core.rectify import RectifiedCamera
 from fsw.core.steps import run_to_end
 from fsw.framework.params import param
@@ -105,6 +106,11 @@ class StereoConfig:
     )
     spread_window_px: int = param(5, lo=3, hi=31, units="px", doc="odd local-spread window side")
     border_px: int = param(4, lo=0, hi=64, units="px", doc="image border that gives no points")
+    lip_jump_px: float = param(
+        1.0, lo=0.0, hi=1000.0, units="px",
+        doc="occluding lip: the disparity drops by more than this within lip_rows_px rows above",
+    )
+    lip_rows_px: int = param(6, lo=1, hi=64, units="px", doc="rows above a pixel searched for a lip's far side")
     refine_iterations: int = param(
         1, lo=0, hi=5, doc="zero-mean Lucas-Kanade sub-pixel refinement steps after SGBM (0: none)"
     )
@@ -146,6 +152,9 @@ class StereoPoints:
     uv: F64  # (N, 2) left-image pixel (u = column, v = row)
     disparity_px: F64  # (N,)
     valid: NDArray[np.bool_]  # (H, W) which pixels produced a point
+    # occluding lips (fsw.core.occlusion): the lip's point and the farther point above it, (M, 3)
+    lip_near_c: F64 = field(default_factory=lambda: np.zeros((0, 3)))
+    lip_far_c: F64 = field(default_factory=lambda: np.zeros((0, 3)))
 
     def __len__(self) -> int:
         return int(self.xyz_c.shape[0])
@@ -331,7 +340,14 @@ class StereoMatcher:
             uv_all[i:j, 0], uv_all[i:j, 1] = u, v
             i = j
             yield None
-        return StereoPoints(xyz_all, cov_all, uv_all, d_all, valid)
+        lv, lu, lfar = lip_pixels(disp, self.cfg.lip_jump_px, self.cfg.lip_rows_px)
+        lips = []
+        for rows in (lv, lfar):  # the lip's near point and the far ground behind it
+            dl = disp[rows, lu]
+            zl = f * B / dl
+            p = np.column_stack([(lu - cx) * zl / f, (rows - cy) * zl / f, zl])
+            lips.append(p if rect is None else p @ rect.R_rect)
+        return StereoPoints(xyz_all, cov_all, uv_all, d_all, valid, lips[0], lips[1])
 
     def _check_pair(self, left: U8, right: U8) -> None:
         shape = (self.camera.height_px, self.camera.width_px)

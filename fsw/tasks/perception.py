@@ -33,6 +33,7 @@ from fsw.core.geometry import CameraPose, MapGrid
 from fsw.core.localization import point_covariance_parts
 from fsw.core.nav_fix import NavFix
 from fsw.core.nbv import predicted_visibility_steps
+from fsw.core.occlusion import LipGuard
 from fsw.core.rectify import Rectifier
 from fsw.core.registration import (
     Registration,
@@ -183,6 +184,7 @@ class PerceptionTask(FlightTask):
         del dm, left, right  # not needed past here: a smaller resident peak (issue 15)
         reg, pose, pose_cov, nav_fix = yield from self._register(fr, pts)
         parts, off_sigma = [], 0.0 if self.rectifier is None else self.rectifier.camera.offset_sigma_px
+        lips = LipGuard.of_view(self.map.grid, pose, pts.lip_near_c, pts.lip_far_c, cfg.fusion.lip_min_drop_m)
         for a in range(0, len(pts), PROPAGATE_CHUNK):  # world covariance (§1.2) in bounded slices
             b = a + PROPAGATE_CHUNK
             xyz, cov_s, cov_p = point_covariance_parts(pose, pose_cov, pts.xyz_c[a:b], pts.cov_c[a:b])
@@ -190,7 +192,7 @@ class PerceptionTask(FlightTask):
                 cal = offset_covariance(xyz, pose.t, pts.disparity_px[a:b], off_sigma)
                 cov_p = cal if cov_p is None else cov_p + cal
             # The pose term is common to every point of the view: it must not average down in a cell.
-            parts.append((xyz, cov_s if cov_p is None else cov_s + cov_p, cov_p))
+            parts.append(lips.part(xyz, cov_s, cov_p, cfg.fusion.lip_guard_sigma))  # too near a lip: withheld
             yield
         del pts  # the camera-frame points: every use is above
         view_cells = self.map.grid.cell_means(np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3)))
