@@ -21,6 +21,7 @@ from task_rig import TaskRig, task_config
 
 from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import MapGrid
+from fsw.core.nav_fix import NavFix
 from fsw.core.view_candidates import CandidateView
 from fsw.tasks import messages
 from fsw.tasks.messages import (
@@ -37,6 +38,7 @@ from fsw.tasks.messages import (
     NavPose,
     ViewFailed,
 )
+from fsw.tasks.mission import FIX_WAIT_S
 
 STEP_TIMEOUT_S = 2.0  # 20 frames
 OUTCOME: Any = getattr(messages, "MoveOutcome", str)  # a motion outcome from its name
@@ -354,3 +356,35 @@ MissionMachine.TestCase.settings = settings(
     derandomize=True,  # the same programs every run (CI is deterministic, as the lockstep bench is)
 )
 TestMissionSequencer = MissionMachine.TestCase
+
+
+def test_a_map_update_with_a_pose_fix_waits_for_the_pose_to_hold_it() -> None:
+    """The last panorama view brought a navigation fix: the mission plans the next step only
+    once nav.pose says the motion task took it (fix_seen), so it plans from the corrected pose;
+    if the pose never shows it, it goes on after FIX_WAIT_S."""
+    for pose_takes_it in (True, False):
+        m = Mission()
+        m.rig.command("mission.START")
+        m.nav()
+        for k in range(2):
+            m.rig.run(1)
+            (req,) = m.moves.drain()
+            m.motion_reply(req.request_id, "mast")
+            m.rig.run(1)
+            m.captures.drain()
+            if k == 0:
+                m.map_update(0)
+        fix = NavFix.from_correction(1, 0.0, np.zeros(3), np.r_[0.0, 0.0, 0.01, 0.05, 0.0, 0.0], np.eye(6) * 1e-6)
+        up = MapUpdate(0, m.rig.clock.now(), 101, 10, 1000, 0, 5.0, ElevationMap(GRID), nav_fix=fix)
+        m.rig.publish(MAP_UPDATED, up)
+        m.rig.run(3)
+        assert phase(m.rig) == "ACQUIRE" and not m.plans.drain()  # held: the pose has not taken it
+        if pose_takes_it:
+            m.rig.publish(NAV_POSE, NavPose(m.rig.clock.now(), 0.05, 0.0, 0.01, np.eye(3) * 1e-6,
+                                            (0.0, 0.0, 0.0), fix_id=1, fix_seen=1))
+            m.rig.run(1)
+        else:
+            m.rig.run(int(FIX_WAIT_S / CFG.executive.frame_period_s) + 1)
+        plans = m.plans.drain()
+        assert phase(m.rig) == "SELECT" and len(plans) == 1
+        assert plans[0].rover[0] == pytest.approx(0.05 if pose_takes_it else 0.0)
