@@ -156,7 +156,7 @@ class ChannelScheduler:
                 continue
             if now_s - prev[0] < self.period_s - 1e-9:
                 continue
-            changed = not _same(prev[1], s.value)
+            changed = not same_value(prev[1], s.value)
             if not changed and now_s - prev[0] < self.refresh_s - 1e-9:
                 continue
             ranked.append(((0 if s.out_of_limits else 1, 0 if changed else 1, prev[0], s.key), s))
@@ -168,7 +168,8 @@ class ChannelScheduler:
         self.sent += 1
 
 
-def _same(a: Any, b: Any) -> bool:
+def same_value(a: Any, b: Any) -> bool:
+    """Equal for the channel scheduler (NaN equals NaN; values that cannot compare differ)."""
     if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
         return True
     try:

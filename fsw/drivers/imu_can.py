@@ -75,6 +75,7 @@ class ImuDriver(DriverBase):
         self.t_start: float | None = None
         self.rx_frames = self.rx_bad = self.rx_lost = 0
         self.last: ImuAttitude | None = None
+        self._att: tuple[tuple[Any, ...], Attitude | None] | None = None  # (inputs, estimate) of the last call
 
     def attach(self, motors: Any) -> None:
         """Receive ``IMU_ATTITUDE`` from the motor driver that owns the bus."""
@@ -132,7 +133,18 @@ class ImuDriver(DriverBase):
 
     # -- the estimate -----------------------------------------------------------------------
     def attitude(self, now: float) -> Attitude | None:
-        """Mean roll and pitch of the last ``average_s`` with covariance; None when unusable."""
+        """Mean roll and pitch of the last ``average_s`` with covariance; None when unusable.
+        Computed once per frame: the device component and the motion task both ask (the same
+        object is returned while the time, the samples and the fault word are the same)."""
+        s = self.samples
+        key = (now, self.faults & UNUSABLE, self.rx_frames, len(s), s[-1] if s else None)
+        if self._att is not None and self._att[0] == key:
+            return self._att[1]
+        att = self._attitude(now)
+        self._att = (key, att)
+        return att
+
+    def _attitude(self, now: float) -> Attitude | None:
         if self.faults & UNUSABLE:
             return None
         fresh = [s for s in self.samples if now - s[0] <= self.average_s]
