@@ -18,10 +18,12 @@ multiplexing) keeps cantools' own codec, so any DBC still works.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 _Sig = tuple[str, int, int, int, float, float, bool]  # name, start, mask, sign bit, scale, offset, identity
+_Encoder = Callable[[Mapping[str, Any]], bytes]
+_Decoder = Callable[[bytes], dict[str, Any]]
 
 
 def _compilable(msg: Any) -> bool:
@@ -46,7 +48,10 @@ class CompiledMessage:
             sigs.append((s.name, int(s.start), (1 << s.length) - 1, sign, scale, offset,
                          scale == 1 and offset == 0))
         self._sigs = tuple(sigs)
-        self._encode, self._decode = _generate(self.name, self.length, self._sigs) if self.compiled else (None, None)
+        self._encode: _Encoder | None = None
+        self._decode: _Decoder | None = None
+        if self.compiled:
+            self._encode, self._decode = _generate(self.name, self.length, self._sigs)
 
     def encode(self, values: Mapping[str, Any]) -> bytes:
         """The payload of ``values`` (physical units; every signal of the message given).
@@ -63,7 +68,7 @@ class CompiledMessage:
         return self._decode(data)
 
 
-def _generate(name: str, length: int, sigs: tuple[_Sig, ...]) -> tuple[Any, Any]:
+def _generate(name: str, length: int, sigs: tuple[_Sig, ...]) -> tuple[_Encoder, _Decoder]:
     """The encoder and decoder of one message, generated from its signal table: for each
     signal ``raw = round(v)`` (scale 1, offset 0) or ``round((v - offset) / scale)``, range
     checked, ``word |= (raw & mask) << start``; and back ``raw = (word >> start) & mask``,

@@ -61,6 +61,8 @@ class E2ELayout:
     checksum_byte: int
     checksum_bytes: int
     reserved_mask: int
+    _id_bytes: bytes = field(init=False, repr=False, compare=False)
+    _crc_fn: Callable[[bytes], int] = field(init=False, repr=False, compare=False)
 
     @classmethod
     def from_message(cls, msg: Any) -> E2ELayout:

@@ -68,6 +68,7 @@ def _same(a: dict, b: dict) -> bool:
         return False
     for key, (t, v) in a.items():
         t2, v2 = b[key]
-        if t != t2 or not (v == v2 or (isinstance(v, float) and isinstance(v2, float) and math.isnan(v) and math.isnan(v2))):
+        both_nan = isinstance(v, float) and isinstance(v2, float) and math.isnan(v) and math.isnan(v2)
+        if t != t2 or not (v == v2 or both_nan):
             return False
     return True
