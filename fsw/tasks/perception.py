@@ -27,7 +27,7 @@ from typing import ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.core.edge import EdgeModel, edge_cells_steps, fit_polygon
+from fsw.core.edge import EdgeModel, edge_cells_steps, fit_polygon_steps
 from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import CameraPose, MapGrid
 from fsw.core.localization import point_covariance_parts
@@ -204,7 +204,7 @@ class PerceptionTask(FlightTask):
         ground_z = fr.ground_z_m + float(pose.t[2] - fr.pose.t[2])
         cells = yield from edge_cells_steps(self.map, ground_z, here, ecfg)
         yield
-        poly = fit_polygon(self.map, cells, ecfg)
+        poly = yield from fit_polygon_steps(self.map, cells, ecfg)
         yield
         roi_fraction = roi_mapped_fraction(self.map, poly)
         yield
