@@ -220,7 +220,7 @@ class StereoMatcher:
     def match_steps(self, left: U8, right: U8) -> Generator[None, None, DisparityImage]:
         """:meth:`match` as a slack-job generator. It yields after each band of each pass (a
         bounded share of the pair): SGBM, then the correlation gate, then the refinement, each
-        over the ``band_rows_px`` bands; the local gates and the sigma finish the last slice.
+        over the ``band_rows_px`` bands; then the local gates, then the sigma (a slice each).
         The correlation and the refinement are row-local (the match moves along rows; the
         windows reach a few rows), so each band is computed with a few rows of context and
         the result equals the whole image's exactly."""
@@ -270,6 +270,7 @@ class StereoMatcher:
         disp = np.where(bad, np.nan, refined.astype(np.float64))
         spread = quality.local_spread(disp, cfg.spread_window_px)
         disp[spread > cfg.max_spread_px] = np.nan
+        yield None  # the spread gate and the sigma: ~20 ms together here, a slice each
         sigma = quality.disparity_sigma(sigma_ls, spread, cfg.sigma_floor_px, cfg.sigma_ls_gain,
                                         cfg.sigma_spread_gain)
         sigma[~np.isfinite(disp)] = np.nan
