@@ -72,3 +72,14 @@ def _same(a: dict, b: dict) -> bool:
         if t != t2 or not (v == v2 or both_nan):
             return False
     return True
+
+
+def test_same_value_semantics() -> None:
+    import numpy as np
+
+    from fsw.comm.mavlink_downlink import same_value
+
+    assert same_value(1, 1.0) and same_value(math.nan, math.nan) and same_value(np.float64("nan"), math.nan)
+    assert not same_value(1.0, 2.0) and not same_value(math.nan, 1.0) and not same_value(0, math.nan)
+    assert not same_value(np.zeros(2), np.zeros(2))  # cannot compare to one truth value: differs
+    assert same_value(np.int64(3), 3) and not same_value(True, 2)
