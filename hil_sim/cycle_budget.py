@@ -37,6 +37,8 @@ class BudgetConfig:
     foreground_ms_per_frame: float = param(15.0, lo=0.0, hi=1e6, units="ms",
                                            doc="all foreground tasks, target ms per frame")
     peak_rss_mb: float = param(200.0, lo=1.0, hi=1e6, units="MB", doc="flight peak RSS")
+    slack_slice_ms: float = param(20.0, lo=0.1, hi=1e6, units="ms",
+                                  doc="longest slack-job slice, here (not scaled): the executive's slice bound")
     cycle: CycleBudget = field(default_factory=CycleBudget)
 
 

@@ -4,8 +4,10 @@ cantools re-reads a message's signal list, builds dictionaries and goes through 
 for every frame; at 12 axis commands and 15 status/heartbeat frames per 100 ms that was a
 third of the motor tasks' time. :class:`CompiledMessage` reads the signals of one
 ``cantools`` message once, at start-up, into tuples of (name, start bit, mask, sign bit,
-scale, offset), and then packs and unpacks a frame as one little-endian integer with shifts
-and masks. The DBC stays the single source of truth: nothing here names a signal.
+scale, offset), and generates from them one Python function per direction that packs or
+unpacks the whole frame as one little-endian integer with shifts and masks, every signal's
+constants inlined (no loop, no per-signal tuple unpacking: one call a frame, ~2x faster than
+the table-driven loop). The DBC stays the single source of truth: nothing here names a signal.
 
 The results are those of ``cantools`` (``encode(..., strict=False)``, ``decode(...,
 decode_choices=False, scaling=True)``): the same raw rounding (``round((v - offset) /
@@ -16,10 +18,12 @@ multiplexing) keeps cantools' own codec, so any DBC still works.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 _Sig = tuple[str, int, int, int, float, float, bool]  # name, start, mask, sign bit, scale, offset, identity
+_Encoder = Callable[[Mapping[str, Any]], bytes]
+_Decoder = Callable[[bytes], dict[str, Any]]
 
 
 def _compilable(msg: Any) -> bool:
@@ -44,39 +48,57 @@ class CompiledMessage:
             sigs.append((s.name, int(s.start), (1 << s.length) - 1, sign, scale, offset,
                          scale == 1 and offset == 0))
         self._sigs = tuple(sigs)
+        self._encode: _Encoder | None = None
+        self._decode: _Decoder | None = None
+        if self.compiled:
+            self._encode, self._decode = _generate(self.name, self.length, self._sigs)
 
     def encode(self, values: Mapping[str, Any]) -> bytes:
         """The payload of ``values`` (physical units; every signal of the message given).
         Raises ``KeyError`` for a missing signal and ``ValueError`` for a value outside its
         field (as cantools/bitstruct do)."""
-        if not self.compiled:
+        if self._encode is None:
             return bytes(self.msg.encode(dict(values), strict=False))
-        word = 0
-        for name, start, mask, sign, scale, offset, ident in self._sigs:
-            v = values[name]
-            raw = round(v) if ident else round((v - offset) / scale)
-            if sign:
-                if not -sign <= raw < sign:
-                    raise ValueError(f"{self.name}.{name}: {v} does not fit the signal")
-            elif not 0 <= raw <= mask:
-                raise ValueError(f"{self.name}.{name}: {v} does not fit the signal")
-            word |= (raw & mask) << start
-        return word.to_bytes(self.length, "little")
+        return self._encode(values)
 
     def decode(self, data: bytes) -> dict[str, Any]:
         """Every signal of a payload of the message's length, scaled."""
-        if not self.compiled:
+        if self._decode is None:
             return dict(self.msg.decode(bytes(data), decode_choices=False, scaling=True))
-        if len(data) != self.length:
-            raise ValueError(f"{self.name}: {len(data)} bytes, expected {self.length}")
-        word = int.from_bytes(data, "little")
-        out: dict[str, Any] = {}
-        for name, start, mask, sign, scale, offset, ident in self._sigs:
-            raw = (word >> start) & mask
-            if raw & sign:
-                raw -= mask + 1
-            out[name] = raw if ident else raw * scale + offset
-        return out
+        return self._decode(data)
+
+
+def _generate(name: str, length: int, sigs: tuple[_Sig, ...]) -> tuple[_Encoder, _Decoder]:
+    """The encoder and decoder of one message, generated from its signal table: for each
+    signal ``raw = round(v)`` (scale 1, offset 0) or ``round((v - offset) / scale)``, range
+    checked, ``word |= (raw & mask) << start``; and back ``raw = (word >> start) & mask``,
+    sign-extended, ``raw * scale + offset`` (the table-driven loop's arithmetic, term for term,
+    so the values are the same to the bit). Constants travel in the namespace, not as text."""
+    ns: dict[str, Any] = {"_round": round, "_ValueError": ValueError, "_from_bytes": int.from_bytes}
+    enc = ["def _encode(values):", "    w = 0"]
+    ns["_len_err"] = f"{name}: {{}} bytes, expected {length}"
+    dec = ["def _decode(data):", f"    if len(data) != {length}:",
+           "        raise _ValueError(_len_err.format(len(data)))",
+           "    w = _from_bytes(data, 'little')"]
+    out = []
+    for i, (sig, start, mask, sign, scale, offset, ident) in enumerate(sigs):
+        ns[f"_n{i}"], ns[f"_s{i}"], ns[f"_o{i}"] = sig, scale, offset
+        ns[f"_e{i}"] = f"{name}.{sig}: {{}} does not fit the signal"
+        enc.append(f"    v = values[_n{i}]")
+        enc.append("    r = _round(v)" if ident else f"    r = _round((v - _o{i}) / _s{i})")
+        bounds = f"-{sign} <= r < {sign}" if sign else f"0 <= r <= {mask}"
+        enc.append(f"    if not {bounds}:")
+        enc.append(f"        raise _ValueError(_e{i}.format(v))")
+        enc.append(f"    w |= (r & {mask}) << {start}")
+        dec.append(f"    r{i} = (w >> {start}) & {mask}")
+        if sign:
+            dec.append(f"    if r{i} & {sign}:")
+            dec.append(f"        r{i} -= {mask + 1}")
+        out.append(f"_n{i}: r{i}" if ident else f"_n{i}: r{i} * _s{i} + _o{i}")
+    enc.append(f"    return w.to_bytes({length}, 'little')")
+    dec.append("    return {" + ", ".join(out) + "}")
+    exec("\n".join(enc) + "\n\n" + "\n".join(dec), ns)  # noqa: S102 - code generated from the DBC's signal table
+    return ns["_encode"], ns["_decode"]
 
 
 def compile_messages(db: Any) -> dict[str, CompiledMessage]:

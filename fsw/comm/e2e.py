@@ -61,6 +61,8 @@ class E2ELayout:
     checksum_byte: int
     checksum_bytes: int
     reserved_mask: int
+    _id_bytes: bytes = field(init=False, repr=False, compare=False)
+    _crc_fn: Callable[[bytes], int] = field(init=False, repr=False, compare=False)
 
     @classmethod
     def from_message(cls, msg: Any) -> E2ELayout:
@@ -83,6 +85,10 @@ class E2ELayout:
             msg.name, int(msg.frame_id), int(msg.length), ctr.start, crc.start // 8, crc.length // 8, full & ~used
         )
 
+    def __post_init__(self) -> None:  # the data id's bytes and the CRC function, looked up once
+        object.__setattr__(self, "_id_bytes", self.data_id.to_bytes(2, "little"))
+        object.__setattr__(self, "_crc_fn", CRCS[8 * self.checksum_bytes])
+
     @property
     def crc_bits(self) -> int:
         return 8 * self.checksum_bytes
@@ -90,8 +96,7 @@ class E2ELayout:
     def crc(self, data: bytes) -> int:
         """The checksum of a payload: CRC over the data id and the bytes around the checksum."""
         k, n = self.checksum_byte, self.checksum_bytes
-        covered = self.data_id.to_bytes(2, "little") + bytes(data[:k]) + bytes(data[k + n :])
-        return CRCS[self.crc_bits](covered)
+        return self._crc_fn(self._id_bytes + bytes(data[:k]) + bytes(data[k + n :]))
 
     def protect(self, data: bytes, counter: int) -> bytes:
         """``data`` with the counter and checksum filled in (their previous contents ignored)."""

@@ -19,6 +19,7 @@ Nothing here raises on bad input from the wire: :meth:`RoverCan.decode` returns 
 from __future__ import annotations
 
 import math
+import operator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,6 +35,7 @@ AXES = tuple(f"{k}_{w}" for k in KINDS for w in WHEELS)
 NMT_STATES = {0: "BootUp", 4: "Stopped", 5: "Operational", 127: "PreOperational"}
 STATE_BOOTUP, STATE_STOPPED, STATE_OPERATIONAL, STATE_PREOP = 0, 4, 5, 127
 FAULT_BITS = ("FaultTimeout", "FaultLimit", "FaultOvercurrent", "FaultEStop", "FaultDriver")
+_fault_bits = operator.itemgetter(*FAULT_BITS)  # a STATUS's fault signals as one tuple (a dict key)
 POSITION_WRAP_RAD = 1048.576  # the 20-bit Position signal at 0.001 rad wraps with this period
 DEFAULT_DBC = Path(__file__).resolve().parent.parent.parent / "config" / "rover.dbc"
 
@@ -105,6 +107,7 @@ class RoverCan:
         if not isinstance(db, cantools.database.can.Database):
             raise ValueError(f"{dbc_path}: not a CAN database")
         self.db = db
+        self._fault_sets: dict[tuple[Any, ...], frozenset[str]] = {}  # fault signals -> their names set
         self._msg = {m.name: m for m in db.messages}
         self._codec: dict[str, CompiledMessage] = compile_messages(db)  # packed/unpacked without cantools per frame
         missing = [n for n in self._required() if n not in self._msg]
@@ -202,13 +205,17 @@ class RoverCan:
             sp = s["VelocityCmd"] if "VelocityCmd" in s else s["PositionCmd"]
             return AxisCommand(node, float(sp), bool(s["Enable"]), bool(s["ClearFaults"]), int(s["Counter"]))
         if kind == "STATUS":
+            bits = _fault_bits(s)
+            faults = self._fault_sets.get(bits)
+            if faults is None:  # one frozenset per fault pattern, built once (a status a frame per axis)
+                faults = self._fault_sets[bits] = frozenset(b for b, on in zip(FAULT_BITS, bits, strict=True) if on)
             return AxisStatus(
                 node,
                 float(s["Position"]),
                 float(s["Velocity"]),
                 float(s["Current"]),
                 bool(s["Enabled"]),
-                frozenset(b for b in FAULT_BITS if s[b]),
+                faults,
                 int(s["Counter"]),
             )
         if kind == "ESTOP":

@@ -44,7 +44,7 @@ from fsw.framework.params import param
 F64 = NDArray[np.float64]
 BRIDGE_M = 0.25  # edge runs this close along the polygon boundary are one run (fit_polygon)
 CLIP_INSIDE_M = 0.05  # a barrier extension stops where it gets this deep into the safe polygon
-__all__ = ["EdgeConfig", "EdgeModel", "edge_cells", "edge_path", "fit_line", "fit_polygon"]
+__all__ = ["EdgeConfig", "EdgeModel", "edge_cells", "edge_path", "fit_line", "fit_polygon", "fit_polygon_steps"]
 _DIRS = ((0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1), (-1, 0), (-1, 1))  # (dy, dx)
 
 
@@ -300,6 +300,12 @@ def edge_cells_steps(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float
 
 def fit_polygon(emap: ElevationMap, cells: EdgeCells, cfg: EdgeConfig) -> EdgeModel:
     """Methods 4/5: non-convex polygon of the safe region; its edge part as lines (§2)."""
+    return run_to_end(fit_polygon_steps(emap, cells, cfg))
+
+
+def fit_polygon_steps(emap: ElevationMap, cells: EdgeCells, cfg: EdgeConfig) -> Generator[None, None, EdgeModel]:
+    """:func:`fit_polygon` as a slack-job generator: it yields after the contour polygons,
+    after their union and after each piece's edge runs (a slice each, not the whole fit)."""
     empty = EdgeModel("polygon", cells.points_xy, MultiLineString(), None)
     if cells.points_xy.shape[0] < 2:
         return empty
@@ -318,8 +324,10 @@ def fit_polygon(emap: ElevationMap, cells: EdgeCells, cfg: EdgeConfig) -> EdgeMo
             polys.append(poly.buffer(0.5 * g.cell, join_style="mitre"))
     if not polys:
         return empty
+    yield None
     region = shapely.union_all(polys).simplify(cfg.simplify_m)
     geoms = list(getattr(region, "geoms", [region]))
+    yield None
     edge_pts = shapely.points(cells.points_xy)
     tree = shapely.STRtree(edge_pts)
     runs = []
@@ -330,6 +338,7 @@ def fit_polygon(emap: ElevationMap, cells: EdgeCells, cfg: EdgeConfig) -> EdgeMo
         flag = np.zeros(ring.shape[0], bool)
         flag[np.unique(near[0])] = True
         runs += _runs(ring, flag, cfg)
+        yield None
     # every piece of the plateau (one within join_m, separate contours) clips the extensions
     model_poly = geoms[0] if len(geoms) == 1 else MultiPolygon([p for p in geoms if isinstance(p, Polygon)])
     return EdgeModel("polygon", cells.points_xy, MultiLineString(runs), model_poly)

@@ -253,7 +253,7 @@ class Geofence:
             away = clear >= start - RECOVERY_TOL_M if clear > 0.0 else (
                 start == 0.0 and self._backs_away(tuple(pa), tuple(pb)))
             if away and end >= self.cfg.margin_m:
-                unknown = self._ground_refusal(self._drifted(swept, pa, pb), tuple(pb), known_ground)
+                unknown = self._ground_refusal(self._drifted(swept, pa, pb, known_ground), tuple(pb), known_ground)
                 if unknown is not None:
                     self.rejections += 1
                     return Verdict(False, unknown, clear, WHEELS[w])
@@ -266,16 +266,20 @@ class Geofence:
                 f"comes within {clear:.3f} m of the edge")
             return Verdict(False, f"rejected: wheel {WHEELS[w]} {where} "
                            f"(margin {self.cfg.margin_m:.2f} m)", clear, WHEELS[w])
-        unknown = self._ground_refusal(self._drifted(swept, pa, pb), tuple(pb), known_ground)
+        unknown = self._ground_refusal(self._drifted(swept, pa, pb, known_ground), tuple(pb), known_ground)
         if unknown is not None:
             self.rejections += 1
             return Verdict(False, unknown, clear, WHEELS[w])
         return Verdict(True, f"allowed: clearance {clear:.3f} m (wheel {WHEELS[w]})",
                        clear, WHEELS[w])
 
-    def _drifted(self, swept: list[BaseGeometry], a: np.ndarray, b: np.ndarray) -> list[BaseGeometry]:
-        """``swept`` widened by the drift for the ground checks (itself without a drift model)."""
-        return swept if self._drift is None else self.swept_wheels(tuple(a), tuple(b), drift=True)
+    def _drifted(self, swept: list[BaseGeometry], a: np.ndarray, b: np.ndarray,
+                 known_ground: bool = True) -> list[BaseGeometry]:
+        """``swept`` widened by the drift for the ground checks (itself without a drift model,
+        or for a planner's station: its ground check looks at the end pose only)."""
+        if self._drift is None or not known_ground:
+            return swept
+        return self.swept_wheels(tuple(a), tuple(b), drift=True)
 
     def _clear_of_drops(self, swept: list[BaseGeometry], b: Pose3, known_ground: bool) -> Verdict:
         """No edge fitted yet: every swept wheel patch ``margin_m`` from every mapped drop cell,

@@ -107,7 +107,7 @@ def path_stations(path: F64, rover_now: Pose3, motion_ok: MotionCheck, spacing_m
 
 def path_stations_steps(path: F64, rover_now: Pose3, motion_ok: MotionCheck, spacing_m: float,
                         max_travel_m: float) -> Generator[None, None, list[Station]]:
-    """:func:`path_stations`, yielding after each geofence check."""
+    """:func:`path_stations`, yielding after each geofence check (one check a slice)."""
     now = Station((float(rover_now[0]), float(rover_now[1]), float(rover_now[2])), 0.0)
     xy = as_polyline(path)
     if xy.shape[0] < 2:  # no edge path yet: the edge search (stations the geofence allows)
@@ -128,8 +128,12 @@ def path_stations_steps(path: F64, rover_now: Pose3, motion_ok: MotionCheck, spa
         prev = now.rover
         for i in sel:
             st = (float(pts[i, 0]), float(pts[i, 1]), _heading(float(tangent[i]), rover_now[2]))
-            # The hop along the path, and the straight move the mission will command from here.
-            ok = motion_ok(prev, st) and (prev == now.rover or motion_ok(now.rover, st))
+            # The hop along the path, and the straight move the mission will command from here:
+            # one geofence check a slice (a check of a long move is itself up to ~25 ms here).
+            ok = motion_ok(prev, st)
+            if ok and prev != now.rover:
+                yield None
+                ok = motion_ok(now.rover, st)
             yield None
             if not ok:
                 break

@@ -4,8 +4,12 @@ python-can ``Bus`` (any interface: ``socketcan`` on the rover, ``virtual`` or ``
 on the bench) and the frames of ``config/rover.dbc`` through :mod:`fsw.comm.rover_can`.
 The driver only moves bytes and supervises; what to command is the motion task's business.
 
-* ``transmit(now)`` sends every axis its COMMAND frame (the latest setpoint, Enable, a
-  one-shot ClearFaults, the alive counter), and the flight computer's heartbeat at its period.
+* ``transmit(now)`` sends an axis its COMMAND frame (the latest setpoint, Enable, a one-shot
+  ClearFaults, the axis's own alive counter) in the frame its set-point or Enable changes, with
+  a ClearFaults, after a send failure or a bus reopen, and otherwise at least every
+  ``command_refresh_s`` (well inside the controllers' command timeout, 0.5 s on the rover: an
+  unchanged command is a refresh, not news; 0 sends every axis every frame); and the flight
+  computer's heartbeat at its period.
 * ``poll(now)`` drains the bus, decodes STATUS and HEARTBEAT frames (end-to-end protection,
   :mod:`fsw.comm.e2e`: checksum and reserved bits in the codec, then the alive counter per
   frame id here -- a repeated counter or a jump beyond ``e2e_max_delta`` is refused, smaller
@@ -111,6 +115,7 @@ class CanMotorDriver(DriverBase):
         error_hold_s: float = 2.0,
         reconnect_period_s: float = 2.0,
         e2e_max_delta: int = 3,
+        command_refresh_s: float = 0.0,
         opener: Callable[[], can.BusABC] | None = None,
     ) -> None:
         super().__init__(error_hold_s)
@@ -121,7 +126,10 @@ class CanMotorDriver(DriverBase):
         self.setpoints: dict[str, float | None] = {a: None for a in AXES}  # None -> Enable=0
         self.estopped = False
         self._clear_once = False
-        self._tx_counter = 0
+        self.command_refresh_s = command_refresh_s
+        self._tx_counter = dict.fromkeys(AXES, 0)  # alive counter per COMMAND frame id (E2E: +1 a frame)
+        # per axis: (setpoint, enable, time) of the last COMMAND sent; None = send at the next transmit
+        self._tx_last: dict[str, tuple[float, bool, float] | None] = dict.fromkeys(AXES)
         self._estop_counter = 0
         self._t_hb_sent: float | None = None
         self._t_start: float | None = None
@@ -157,15 +165,22 @@ class CanMotorDriver(DriverBase):
             self._clear_once = True
 
     def transmit(self, now: float) -> None:
-        """Send one COMMAND frame per axis and, when due, the heartbeat (and a held e-stop)."""
+        """Send the COMMAND frames due (changed, one-shot ClearFaults, or older than
+        ``command_refresh_s``) and, when due, the heartbeat (and a held e-stop)."""
         if self.bus is None:
             return
         clear, self._clear_once = self._clear_once, False
-        counter = self._tx_counter
-        self._tx_counter = (self._tx_counter + 1) & 0xF
+        refresh = self.command_refresh_s - 1e-9
+        last_sent, counters, encode = self._tx_last, self._tx_counter, self.codec.encode_command
         for axis, sp in self.setpoints.items():
             enable = sp is not None and not self.estopped
-            self._send(*self.codec.encode_command(axis, sp or 0.0, enable, clear, counter), now)
+            value = sp or 0.0
+            last = last_sent[axis]
+            if not clear and last is not None and last[0] == value and last[1] is enable and now - last[2] < refresh:
+                continue
+            counter = counters[axis] = (counters[axis] + 1) & 0xF
+            sent = self._send(*encode(axis, value, enable, clear, counter), now)
+            last_sent[axis] = (value, enable, now) if sent else None  # a failed send is retried next frame
         if self._t_hb_sent is None or now - self._t_hb_sent >= self.heartbeat_period_s:
             self._t_hb_sent = now
             self._hb_counter = (self._hb_counter + 1) & 0xF
@@ -177,16 +192,18 @@ class CanMotorDriver(DriverBase):
         self._estop_counter = (self._estop_counter + 1) & 0xF
         self._send(*self.codec.encode_estop(self.estopped, self._estop_counter), now)
 
-    def _send(self, frame_id: int, data: bytes, now: float) -> None:
+    def _send(self, frame_id: int, data: bytes, now: float) -> bool:
         if self.bus is None:
-            return
+            return False
         try:
             self.bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False), timeout=0.05)
             self.tx_frames += 1
+            return True
         except (can.CanError, OSError) as exc:
             self.tx_errors += 1
             self._hold(F_TX, now)
             self._event("CAN_TX_ERROR", error=f"{type(exc).__name__}: {exc}")
+            return False
 
     # -- reception and supervision ---------------------------------------------------------------
     def poll(self, now: float, max_frames: int = 1000) -> None:
@@ -318,6 +335,7 @@ class CanMotorDriver(DriverBase):
             return
         self._set(F_NO_BUS, False)
         self._t_start = now
+        self._tx_last = dict.fromkeys(AXES)  # a new bus: every axis's command goes out at once
 
     # -- views ------------------------------------------------------------------------------
     def faulted_axes(self) -> dict[str, Any]:

@@ -47,6 +47,11 @@ class DevicesConfig:
     can_status_timeout_s: float = param(0.5, lo=0.05, hi=60.0, units="s", doc="no STATUS for this long: fault")
     can_heartbeat_timeout_s: float = param(2.5, lo=0.1, hi=60.0, units="s", doc="no heartbeat: node lost")
     can_heartbeat_period_s: float = param(1.0, lo=0.05, hi=60.0, units="s", doc="flight computer heartbeat")
+    can_command_refresh_s: float = param(
+        0.2, lo=0.0, hi=0.25, units="s",
+        doc="an unchanged axis COMMAND is re-sent at least this often (a change goes out at once); at most half "
+        "the controllers' command timeout (0.5 s), so a lost or late frame cannot trip it; 0 = every frame",
+    )
     can_e2e_max_delta: int = param(
         3, lo=1, hi=14, doc="E2E alive counter: largest accepted jump (frames lost + 1); beyond, the frame is refused"
     )
@@ -131,6 +136,7 @@ def open_devices(cfg: DevicesConfig, res: Resources | None = None, endpoints: En
             error_hold_s=cfg.error_hold_s,
             reconnect_period_s=cfg.reconnect_period_s,
             e2e_max_delta=cfg.can_e2e_max_delta,
+            command_refresh_s=cfg.can_command_refresh_s,
             opener=None if ends.can_bus is not None else open_bus,
         )
         if error is not None:

@@ -161,8 +161,11 @@ class Task:
         """One telemetry record: several channels of this task sampled at one time (one clock
         read, each channel's store cell resolved once per task, not a call per channel)."""
         now = self.ctx.clock.now()
+        cells = self._tlm_cells
         for channel, value in values.items():
-            cv = self._tlm_cell(channel)
+            cv = cells.get(channel)
+            if cv is None:  # first write of this channel
+                cv = self._tlm_cell(channel)
             cv.value, cv.time_s = value, now
             cv.updates += 1
 

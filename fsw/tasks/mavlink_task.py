@@ -120,7 +120,8 @@ class MavlinkTask(FlightTask):
         self.tlog = self._open_tlog(cfg.tlog_path if res.mavlink_tlog is None else res.mavlink_tlog)
         self._preview_box = self.subscribe(cfg.map_preview_topic, depth=1, policy="drop_oldest")
         self._preview: object = None
-        self._views = ViewBuilder(self.ctx, cfg, self.subscribe(cfg.pose_topic, depth=1, policy="drop_oldest"))
+        self._views = ViewBuilder(self.ctx, cfg, self.subscribe(cfg.pose_topic, depth=1, policy="drop_oldest"),
+                                  self.adapter.channels)
         self._gcs_heard_s: float | None = None
         self._link_up = False
         self._seq = 0

@@ -13,7 +13,7 @@ import math
 
 from fsw.comm.mavlink_adapter import VehicleView
 from fsw.comm.mavlink_config import MavlinkConfig
-from fsw.comm.mavlink_downlink import ChannelSample
+from fsw.comm.mavlink_downlink import ChannelSample, ChannelScheduler, same_value
 from fsw.comm.mavlink_telemetry import DICT_CRC_KEY, channel_key, dictionary_crc
 from fsw.framework.bus import Mailbox
 from fsw.tasks.base import FlightContext
@@ -37,8 +37,10 @@ def pose_from_message(msg: object) -> PoseTuple | None:
 class ViewBuilder:
     """Builds the adapter's input from the task context (one per ground-link task)."""
 
-    def __init__(self, ctx: FlightContext, cfg: MavlinkConfig, pose_box: Mailbox[object]) -> None:
+    def __init__(self, ctx: FlightContext, cfg: MavlinkConfig, pose_box: Mailbox[object],
+                 scheduler: ChannelScheduler | None = None) -> None:
         self.ctx, self.cfg, self.pose_box = ctx, cfg, pose_box
+        self.scheduler = scheduler  # given: offer only the channels it may send now (the rest it would skip)
         store = ctx.telemetry
         self.keys = {name: channel_key(i, name) for name, i in store.ids.items()}
         self.dict_crc = dictionary_crc((i, name) for name, i in store.ids.items())
@@ -52,11 +54,23 @@ class ViewBuilder:
         store, runtime = self.ctx.telemetry, self.ctx.runtime
         samples = [ChannelSample(DICT_CRC_KEY, self.dict_crc, False)]
         new = tuple.__new__  # ChannelSample(...) without the NamedTuple's Python-level __new__
+        sched = self.scheduler
+        # the scheduler's own skip rules (ChannelScheduler.due), applied here: a channel sent within
+        # the period, or unchanged within the refresh, is skipped with one dict lookup, not ranked
+        last = sched.last if sched is not None else {}
+        period = sched.period_s - 1e-9 if sched is not None else 0.0
+        refresh = sched.refresh_s - 1e-9 if sched is not None else 0.0
         for key, cv, lo, hi in self._chans:  # store.limit_state(name) in ("low", "high"), inlined
             v = cv.value
-            if v is not None and not isinstance(v, str):
-                samples.append(new(ChannelSample, (key, v, (lo is not None and v < lo)
-                                                   or (hi is not None and v > hi))))
+            if v is None or isinstance(v, str):
+                continue
+            prev = last.get(key)
+            if prev is not None:
+                age = now - prev[0]
+                if age < period or (age < refresh and same_value(prev[1], v)):
+                    continue
+            samples.append(new(ChannelSample, (key, v, (lo is not None and v < lo)
+                                               or (hi is not None and v > hi))))
         load = int(1000 * runtime.busy_s(self.ctx.frame - 1) / runtime.period_s)
         slips, overruns = runtime.slips, sum(t.overruns for t in runtime.tasks.values())
         x, y, z, roll, pitch, yaw = (self.value(c) for c in self.cfg.pose_channels)

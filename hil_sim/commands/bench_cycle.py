@@ -14,7 +14,8 @@ DESCRIPTION = (
     "Measures one sensing cycle stage by stage (capture, rectify when [camera] names a "
     "calibration file, stereo, merge, edge, next view) on a lab map state (start panorama) "
     "of each --grids size over the configured area; the foreground cost per task per frame "
-    "from a short lockstep mission; "
+    "and the longest slack-job slice (thread CPU, per submitting task, against the 20 ms "
+    "bound) from a short lockstep mission; "
     "and this process's peak RSS. Times are CPU seconds of this process (one core): min and "
     "median of --repeats runs. Each figure is projected onto the flight computer as "
     "time x cpu_factor (config/budget.toml) and compared with the budget table there. "
@@ -37,8 +38,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="map sizes N x N over the configured map area")
     p.add_argument("--repeats", type=int, default=3, help="timed runs per stage")
     p.add_argument("--mission-steps", type=int, default=1,
-                   help="imaging steps of the lockstep mission timed for the foreground "
-                        "(0: skip the mission)")
+                   help="imaging steps of the lockstep mission timed for the foreground and "
+                        "the slack slices (0: skip the mission)")
 
 
 def _cpu(fn: Any, repeats: int) -> tuple[float, float, Any]:
@@ -179,6 +180,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {'total':<12} {fg:8.3f} ms  target {fg * k:7.2f} ms, budget "
               f"{budget.foreground_ms_per_frame:g} ms of a {1e3 * budget.frame_period_s:g} ms "
               f"frame: {verdict(fg * k, budget.foreground_ms_per_frame)}")
+        mx = s["task_max_ms"]
+        owners = ", ".join(f"{k.split('.', 1)[1]} {v:.1f}" for k, v in sorted(mx.items())
+                           if k.startswith("slack_slice."))
+        print(f"  longest slack-job slice {mx['slack_slice']:.1f} ms (thread CPU; by task: {owners or 'none'}), "
+              f"bound {budget.slack_slice_ms:g} ms here: {verdict(mx['slack_slice'], budget.slack_slice_ms)}")
         rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
         print(f"  peak RSS after the mission {rss_mb:.0f} MB (flight software and the HIL bench "
               f"in one process: an upper bound on the flight process), budget "

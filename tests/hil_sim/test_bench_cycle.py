@@ -38,6 +38,7 @@ def test_budget_table_defaults_and_rejects_bad_values(tmp_path: Path) -> None:
     stages = (b.cycle.rectify_s, b.cycle.stereo_s, b.cycle.merge_s, b.cycle.edge_s,
               b.cycle.next_view_s)
     assert sum(stages) <= b.cycle.total_s + 1e-9  # the stage budgets fit the cycle's
+    assert b.slack_slice_ms == 20.0  # the slice bound, here
     bad = tmp_path / "b.toml"
     bad.write_text("cpu_factor = 30.0\n[cycle]\nstereo_s = -1.0\n")
     with pytest.raises(ConfigError):
@@ -70,3 +71,14 @@ def test_bench_cycle_prints_breakdown(capsys: pytest.CaptureFixture[str]) -> Non
     for word in ("capture", "rectify", "stereo", "merge", "edge", "next_view", "cycle",
                  "peak RSS", "target"):
         assert word in out
+
+
+@pytest.mark.slow
+def test_bench_cycle_prints_the_longest_slice(capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 15: the short lockstep mission reports the foreground per task and the longest
+    slack-job slice per submitting task against the 20 ms bound."""
+    assert main(["bench", "cycle", "--grids", "16", "--repeats", "1", "--mission-steps", "1"]) == 0
+    out = capsys.readouterr().out
+    line = next(ln for ln in out.splitlines() if "longest slack-job slice" in ln)
+    assert "perception" in line and "bound 20 ms here" in line
+    assert "motion" in out and "total" in out

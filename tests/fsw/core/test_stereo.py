@@ -94,3 +94,28 @@ def test_stereo_config_validation() -> None:
     with pytest.raises(ConfigError, match="stereo.mode"):
         build(StereoConfig, {"mode": "bm"}, "fsw.toml", "stereo")
     assert build(StereoConfig, {}, "x", "stereo") == StereoConfig()
+
+
+def test_triangulation_slices_are_bounded_by_points_and_change_nothing(plane_pair) -> None:
+    """Issue 15 (slices <= 20 ms): the triangulation yields every ``step_points`` points, in
+    row-major order; the points are those of one whole-image pass, to the bit."""
+    _, left, right = plane_pair
+    m = StereoMatcher(StereoConfig(num_disparities_px=64), CAM)
+    dm = m.match(left, right)
+    whole = m.triangulate(dm.disparity_px, sigma_px=dm.sigma_px)
+    n = len(whole)
+    assert n > 20000
+    for step in (997, 5000, n, 10 * n):
+        gen = m.triangulate_steps(dm.disparity_px, sigma_px=dm.sigma_px, step_points=step)
+        slices = 0
+        try:
+            while True:
+                next(gen)
+                slices += 1
+        except StopIteration as stop:
+            pts = stop.value
+        assert slices == -(-n // step)  # ceil: no slice holds more than step points
+        for f in ("xyz_c", "cov_c", "uv", "disparity_px", "valid"):
+            assert np.array_equal(getattr(pts, f), getattr(whole, f)), f
+    with pytest.raises(ValueError, match="step_points"):
+        next(m.triangulate_steps(dm.disparity_px, step_points=0))

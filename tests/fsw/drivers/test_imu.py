@@ -169,3 +169,21 @@ def test_lockstep_attitude_reaches_the_pose_estimate_and_the_motor_driver_ignore
         st = motion.attitude.state()
         assert not st.valid and math.sqrt(st.cov[0, 0]) >= math.radians(4.9)
         assert b.events(".IMU_TIMEOUT")
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.tuples(st.floats(-0.6, 0.6), st.floats(-0.6, 0.6)), min_size=1, max_size=40))
+def test_attitude_average_is_numpys_to_the_bit(samples: list[tuple[float, float]]) -> None:
+    """Issue 15: the mean and sample variance in plain floats equal numpy's (the reference
+    arithmetic), and a second call in the same frame returns the same estimate."""
+    drv = imu.ImuDriver(CODEC, average_s=10.0, sigma_deg=0.1)
+    drv.samples.extend((0.1 * i, r, p) for i, (r, p) in enumerate(samples))
+    drv.rx_frames = len(samples)
+    now = 0.1 * (len(samples) - 1)
+    att = drv.attitude(now)
+    assert att is not None and drv.attitude(now) is att
+    a = np.asarray([s[1:] for s in drv.samples])
+    n = len(samples)
+    var = a.var(axis=0, ddof=1) / n if n > 1 else np.full(2, drv.sigma_rad**2)
+    assert (att.roll, att.pitch) == (float(a.mean(axis=0)[0]), float(a.mean(axis=0)[1]))
+    assert np.array_equal(att.cov, np.diag(drv.sigma_rad**2 + var)) and att.samples == n

@@ -20,7 +20,7 @@ from fsw.executive.executive import Executive
 from fsw.framework.clock import SteppedClock
 from fsw.settings import FswConfig, load_settings
 from fsw.tasks.messages import CameraFrame
-from fsw.tasks.perception import PROPAGATE_CHUNK
+from fsw.tasks.perception import PROPAGATE_CHUNK, ROI_STEP_POINTS, ROI_STRIDE, roi_mapped_fraction_steps
 from hil_sim.perception_eval import PERCEPTION_LAB, pit_view_poses
 from hil_sim.render import StereoRenderer
 from hil_sim.world import load_scenario
@@ -91,8 +91,9 @@ def test_disparity_steps_yield_once_per_band_and_triangulation_is_unchanged(cfg,
     m = StereoMatcher(cfg.stereo, cfg.camera)
     _, _, left, right, _ = lab_pairs[0]
     yields, disp = _drain(m.disparity_steps(left, right))
-    # one slice per band of each pass: SGBM, the correlation gate, the refinement (issue 14)
-    assert yields == 3 * len(m.bands(left.shape[0])) == 12
+    # one slice per band of each pass: SGBM, the correlation gate, the refinement (issue 14),
+    # then the spread gate apart from the sigma (issue 15)
+    assert yields == 3 * len(m.bands(left.shape[0])) + 1 == 13
     assert np.array_equal(disp, m.disparity(left, right), equal_nan=True)
     whole = StereoMatcher(dataclasses.replace(cfg.stereo, band_rows_px=0), cfg.camera)
     a, b = m.triangulate(disp), whole.triangulate(disp)  # banded triangulation: same points, same order
@@ -145,6 +146,29 @@ def test_perception_job_yields_many_bounded_steps_per_view(cfg, lab_pairs) -> No
         assert update.points > 50000
         assert yields >= 2 * bands + chunks + 6, (yields, bands, chunks)
     assert counts[1] > counts[0]  # P_V of the second view in steps too
+
+
+def test_region_of_interest_fraction_in_slices_equals_one_pass() -> None:
+    """Issue 15: the ROI fraction yields every ROI_STEP_POINTS cells; the value is that of one
+    signed-distance call over every sampled cell."""
+    from shapely.geometry import LineString, MultiLineString
+
+    from fsw.core.edge import EdgeModel
+    from fsw.core.geometry import MapGrid, MapGridConfig
+
+    grid = MapGrid.from_config(MapGridConfig())
+    emap = ElevationMap(grid)
+    rng = np.random.default_rng(5)
+    emap.n[...] = rng.integers(0, 2, grid.shape)
+    x0, x1, y0, y1 = grid.extent
+    line = LineString([(x0, y0 + 0.3 * (y1 - y0)), (0.5 * (x0 + x1), y0 + 0.5 * (y1 - y0)), (x1, y0 + 0.4 * (y1 - y0))])
+    edge = EdgeModel("polygon", np.zeros((2, 2)), MultiLineString([line]), None)
+    yields, fraction = _drain(roi_mapped_fraction_steps(emap, edge))
+    X, Y = grid.centers()
+    s = (slice(None, None, ROI_STRIDE), slice(None, None, ROI_STRIDE))
+    below = edge.signed_distance(np.column_stack([X[s].ravel(), Y[s].ravel()])) < 0
+    assert yields == -(-below.size // ROI_STEP_POINTS) and yields >= 2
+    assert 0.0 < fraction < 1.0 and fraction == float(emap.mapped[s].ravel()[below].mean())
 
 
 def _drain(gen: Any) -> tuple[int, Any]:
