@@ -95,12 +95,34 @@ def test_heading_error_bends_the_position_sigma_quadratically() -> None:
     assert drift_sigma(0.0, 0.0, s, np.zeros_like(s), cfg)[-1] == pytest.approx(k * L + k * L * L / 2, rel=0.01)
 
 
-def _registered(chain: StationChain, pose: CameraPose, nav_id: int, d: np.ndarray) -> NavFix | None:
+def _registered(chain: StationChain, pose: CameraPose, nav_id: int, d: np.ndarray,
+                cov: float = 1e-6) -> NavFix | None:
+    """One registered view whose total correction is ``d``; the fix it feeds back, if any."""
     cfg = RegistrationConfig()
     vp = chain.prior(pose, np.eye(6) * 1e-4, nav_id, cfg)
-    reg = Registration("registered", correction=d - vp.d0, cov=np.eye(6) * 1e-6)
+    reg = Registration("registered", correction=d - vp.d0, cov=np.eye(6) * cov)
     _, _, fix = chain.registered(pose, np.eye(6) * 1e-4, nav_id, 0.0, vp, reg, cfg)
     return fix
+
+
+def _station(chain: StationChain, pose: CameraPose, nav_id: int, d: np.ndarray) -> NavFix | None:
+    """Two views from one station that agree on ``d``: the second confirms it."""
+    assert _registered(chain, pose, nav_id, d) is None  # one view alone moves nothing
+    return _registered(chain, pose, nav_id, d)
+
+
+def test_one_view_alone_never_moves_the_rover_and_a_disagreeing_second_does_not_either() -> None:
+    """A false minimum (terrain seed 6: 11 deg of yaw from one weakly constrained view) must
+    not reach the rover's pose: the fix needs a second view from the station that agrees."""
+    chain = StationChain()
+    a = _camera((0.0, 0.0, 0.0))
+    wrong = np.r_[0.0, 0.0, math.radians(-11.0), 0.0, 0.22, 0.0]
+    assert _registered(chain, a, 0, wrong, cov=(math.radians(1.5)) ** 2) is None
+    # the next view from the station finds the truth (no correction): 11 deg from the first
+    assert _registered(chain, a, 0, np.zeros(6), cov=(math.radians(1.5)) ** 2) is None
+    # two that agree: fed back
+    fix = _registered(chain, a, 0, np.r_[0.0, 0.0, 1e-4, 0.0, 0.0, 0.0], cov=(math.radians(1.5)) ** 2)
+    assert fix is not None and fix.fix_id == 1
 
 
 def test_a_fed_back_correction_is_not_carried_twice() -> None:
@@ -111,7 +133,7 @@ def test_a_fed_back_correction_is_not_carried_twice() -> None:
     chain = StationChain()
     a = _camera((0.0, 0.0, 0.0))
     d = np.r_[0.0, 0.0, math.radians(4.0), 0.12, -0.05, 0.02]
-    fix = _registered(chain, a, 0, d)
+    fix = _station(chain, a, 0, d)
     assert fix is not None and fix.fix_id == 1 and fix.base_id == 0
     b = _camera((1.0, 0.2, 0.1))
     held = chain.prior(b, np.eye(6) * 1e-4, 1, cfg)
@@ -125,7 +147,7 @@ def test_same_station_after_the_fix_starts_from_the_roll_pitch_residual() -> Non
     chain = StationChain()
     a = _camera((0.0, 0.0, 0.0))
     d = np.r_[math.radians(0.3), math.radians(-0.2), math.radians(3.0), 0.10, 0.05, 0.02]
-    assert _registered(chain, a, 0, d) is not None
+    assert _station(chain, a, 0, d) is not None
     # the same station seen through the corrected odometry: its centre moved by dt
     moved = CameraPose(so3_exp(np.r_[0.0, 0.0, d[2]]) @ a.R, a.t + d[3:])
     vp = chain.prior(moved, np.eye(6) * 1e-4, 1, cfg)
@@ -140,7 +162,7 @@ def test_same_station_after_the_fix_starts_from_the_roll_pitch_residual() -> Non
 def test_station_chain_survives_a_checkpoint() -> None:
     chain = StationChain()
     chain.reference(np.eye(6) * 2e-4)
-    _registered(chain, _camera((0.0, 0.0, 0.0)), 0, np.r_[0.0, 0.0, 0.05, 0.1, 0.0, 0.0])
+    _station(chain, _camera((0.0, 0.0, 0.0)), 0, np.r_[0.0, 0.0, 0.05, 0.1, 0.0, 0.0])
     again = StationChain()
     again.restore(chain.state())
     assert again.fixes == 1 and again.fix is not None and again.fix.fix_id == 1
