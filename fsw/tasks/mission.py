@@ -64,7 +64,7 @@ from fsw.tasks.messages import (
     RadioStatus,
 )
 from fsw.tasks.mission_checkpoint import resume_mission, save
-from fsw.tasks.mission_ground import MIN_MOVE_M, MIN_TURN_RAD, GroundAwareMission
+from fsw.tasks.mission_ground import MIN_MOVE_M, MIN_TURN_RAD, GroundAwareMission, PartSearch
 from fsw.tasks.mission_safe import SafeRecovery
 from fsw.tasks.mission_state import STATES, MissionPhase, StepRecord
 from fsw.tasks.sections import MissionConfig
@@ -115,6 +115,7 @@ class MissionTask(GroundAwareMission, SafeRecovery):
         self.status_box = self.subscribe(MOTION_STATUS, depth=8)
         self.map_box = self.subscribe(MAP_UPDATED, depth=4)
         self.maps: deque[tuple[float, MapUpdate]] = deque()  # (arrival, update) held for their nav fix
+        self.part_search: PartSearch | None = None  # a refused move's part-way search, stepped
         self.nbv_box = self.subscribe(NBV_RESULT, depth=2)
         self.radio_box = self.subscribe(RADIO_STATUS, depth=4)
         self.failed_box = self.subscribe(VIEW_FAILED, depth=4)  # a view that will not reach the map
@@ -149,6 +150,7 @@ class MissionTask(GroundAwareMission, SafeRecovery):
 
     # -- plumbing ---------------------------------------------------------------------------
     def _goto(self, new: MissionPhase) -> None:
+        self.part_search = None  # a part-way search ends with the phase it began in
         if new != self.state:
             self.event("STATE", old=str(self.state), new=str(new))
             self.state = new
@@ -192,6 +194,9 @@ class MissionTask(GroundAwareMission, SafeRecovery):
         self.nav = self.nav_box.latest() or self.nav
         now = self.ctx.clock.now()
         self.maps.extend((now, up) for up in self.map_box.drain())
+        if self.part_search is not None:  # one geofence check a frame (fsw.tasks.mission_ground)
+            self._step_part_search()
+            return
         while self.maps and self._nav_took_fix(*self.maps[0], now):
             self._on_map(self.maps.popleft()[1])
         handler = getattr(self, f"_state_{self.state.lower()}")
