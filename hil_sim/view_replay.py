@@ -40,6 +40,8 @@ class RecordedView:
     pose: CameraPose
     pose_cov: F64
     true_pose: CameraPose
+    ground_z_m: float = 0.0  # the frame's ground under the rover (``CameraFrame.ground_z_m``)
+    nav_fix_id: int = 0  # the navigation fix its pose held (``CameraFrame.nav_fix_id``)
 
 
 def record_mission(spec: Any) -> tuple[dict[str, Any], list[RecordedView]]:
@@ -70,7 +72,8 @@ def record_mission(spec: Any) -> tuple[dict[str, Any], list[RecordedView]]:
 
     summary = run_mission(spec, mode="fresh", on_bench=observe)
     views = [RecordedView(fr.view_id, fr.left, fr.right, fr.pose, np.asarray(fr.pose_cov, np.float64),
-                          truth[fr.left.tobytes()]) for fr in frames if fr.left.tobytes() in truth]
+                          truth[fr.left.tobytes()], fr.ground_z_m, fr.nav_fix_id)
+             for fr in frames if fr.left.tobytes() in truth]
     return summary, views
 
 
@@ -124,7 +127,8 @@ def replay(views: list[RecordedView], scenario: str, seed: int, factor: Factor,
     for v in views:
         left, right = (v.left, v.right) if rend is None else rend.render(v.true_pose)
         pose = v.true_pose if factor.true_pose else v.pose
-        gen = task._merge_view(CameraFrame(v.view_id, 0.0, left, right, pose, v.pose_cov))
+        gen = task._merge_view(CameraFrame(v.view_id, 0.0, left, right, pose, v.pose_cov,
+                                           ground_z_m=v.ground_z_m, nav_fix_id=v.nav_fix_id))
         while True:
             try:
                 next(gen)
