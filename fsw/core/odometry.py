@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 from fsw.core import wheel_kinematics as wk
 from fsw.core.motion_profile import MotionConfig, Pose3
 
+F64 = NDArray[np.float64]
 RESUME_ENCODER_TOL_RAD = 0.05
 
 
@@ -104,9 +105,19 @@ class Odometry:
         heading error carried into position over the distance driven)."""
         path, turned = self.path_m - self.path0, self.turned_rad - self.turned0
         s_yaw = cfg.odo_yaw_sigma_per_rad * turned + cfg.odo_sigma_per_m * path
-        s_xy = (cfg.odo_sigma_per_m * path + math.sqrt(max(float(self.base_cov[2, 2]), 0.0)) * path
-                + cfg.odo_yaw_sigma_per_rad * self.lever_turn + cfg.odo_sigma_per_m * self.lever_path)
+        s_xy = float(position_sigma(path, math.sqrt(max(float(self.base_cov[2, 2]), 0.0)),
+                                    self.lever_path, self.lever_turn, cfg))
         return self.base_cov + np.diag([s_xy**2, s_xy**2, s_yaw**2])
+
+
+def position_sigma(path_m: F64 | float, sigma_yaw0: float, lever_path: F64 | float, lever_turn: F64 | float,
+                   cfg: MotionConfig) -> F64 | float:
+    """The odometry's position sigma grown over ``path_m`` driven (the one model of the drift):
+    ``k s + sigma_yaw0 s + k_turn integral(turned ds) + k integral(s ds)``, the last three the
+    heading sigma integrated over the distance; ``lever_path`` and ``lever_turn`` are those two
+    integrals."""
+    return (cfg.odo_sigma_per_m * path_m + sigma_yaw0 * path_m
+            + cfg.odo_yaw_sigma_per_rad * lever_turn + cfg.odo_sigma_per_m * lever_path)
 
 
 def drift_sigma(sigma_xy0: float, sigma_yaw0: float, path_m: NDArray[np.float64], turned_rad: NDArray[np.float64],
@@ -116,7 +127,6 @@ def drift_sigma(sigma_xy0: float, sigma_yaw0: float, path_m: NDArray[np.float64]
     where the pose has sigmas ``sigma_xy0`` and ``sigma_yaw0``."""
     s = np.asarray(path_m, np.float64)
     t = np.asarray(turned_rad, np.float64)
-    s_yaw = sigma_yaw0 + cfg.odo_yaw_sigma_per_rad * t + cfg.odo_sigma_per_m * s
     ds = np.diff(s, prepend=s[:1] if s.size else s)
-    lever = np.cumsum(s_yaw * ds)  # integral of the heading sigma over the distance
-    return np.asarray(sigma_xy0 + cfg.odo_sigma_per_m * s + lever, np.float64)
+    grown = position_sigma(np.cumsum(ds), sigma_yaw0, np.cumsum(s * ds), np.cumsum(t * ds), cfg)
+    return np.asarray(sigma_xy0 + grown, np.float64)

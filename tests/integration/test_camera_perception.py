@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from step_count import count_steps
 
 from fsw.core.geometry import camera_pose_from_rover
 from fsw.drivers.radio import open_radio
@@ -22,16 +23,6 @@ from hil_sim.camera_model import TrueCameras
 from hil_sim.render import StereoRenderer
 from hil_sim.rig import load_hardware
 from hil_sim.world import load_scenario
-
-
-def _drain(gen: Any) -> tuple[int, Any]:
-    yields = 0
-    try:
-        while True:
-            next(gen)
-            yields += 1
-    except StopIteration as stop:
-        return yields, stop.value
 
 
 def test_raw_pairs_are_rectified_in_bands_inside_the_job() -> None:
@@ -53,7 +44,7 @@ def test_raw_pairs_are_rectified_in_bands_inside_the_job() -> None:
         return (yield from real(*a))
 
     task.rectifier.rectify_steps = spy  # type: ignore[method-assign]
-    yields, up = _drain(task._merge_view(CameraFrame(0, 0.0, left, right, pose, np.zeros((6, 6)))))
+    yields, up = count_steps(task._merge_view(CameraFrame(0, 0.0, left, right, pose, np.zeros((6, 6)))))
     bands = len(task.matcher.bands(cfg.camera.height_px))
     assert calls == [cfg.stereo.band_rows_px] and yields >= 3 * bands + 6
     m = task.map.mapped & np.isfinite(world.truth_on_grid(task.map.grid))

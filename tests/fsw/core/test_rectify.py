@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from step_count import count_steps
 
 from fsw.cli import main as fsw_main
 from fsw.core.geometry import CameraConfig, camera_pose_from_rover
@@ -132,14 +133,7 @@ def test_banded_rectification_equals_whole_image(cams: TrueCameras) -> None:
     rng = np.random.default_rng(0)
     left, right = (rng.integers(0, 256, (480, 640), dtype=np.uint8) for _ in range(2))
     whole = rect.rectify(left, right)
-    gen = rect.rectify_steps(left, right, 120)
-    slices = 0
-    try:
-        while True:
-            next(gen)
-            slices += 1
-    except StopIteration as stop:
-        banded = stop.value
+    slices, banded = count_steps(rect.rectify_steps(left, right, 120))
     assert slices == 4
     for a, b in zip(whole, banded, strict=True):
         np.testing.assert_array_equal(a, b)

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 from perception_planes import render_plane, texture
+from step_count import count_steps
 
 from fsw.core.geometry import CameraConfig, CameraPose
 from fsw.core.localization import propagate_point_covariance
@@ -106,14 +107,7 @@ def test_triangulation_slices_are_bounded_by_points_and_change_nothing(plane_pai
     n = len(whole)
     assert n > 20000
     for step in (997, 5000, n, 10 * n):
-        gen = m.triangulate_steps(dm.disparity_px, sigma_px=dm.sigma_px, step_points=step)
-        slices = 0
-        try:
-            while True:
-                next(gen)
-                slices += 1
-        except StopIteration as stop:
-            pts = stop.value
+        slices, pts = count_steps(m.triangulate_steps(dm.disparity_px, sigma_px=dm.sigma_px, step_points=step))
         assert slices == -(-n // step)  # ceil: no slice holds more than step points
         for f in ("xyz_c", "cov_c", "uv", "disparity_px", "valid"):
             assert np.array_equal(getattr(pts, f), getattr(whole, f)), f

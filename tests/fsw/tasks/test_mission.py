@@ -81,6 +81,14 @@ class Mission:
         reason = "" if state == "done" else "test"
         self.rig.publish(MOTION_STATUS, MotionStatus(request_id, kind, OUTCOME(state), reason))
 
+    def view(self) -> list[Any]:
+        """Answer the mast move of the view in progress; the capture requests it led to."""
+        self.rig.run(1)
+        (req,) = self.moves.drain()
+        self.motion_reply(req.request_id, "mast")
+        self.rig.run(1)
+        return self.captures.drain()
+
     def map_update(self, view_id: int) -> None:
         emap = ElevationMap(GRID)
         self.rig.publish(MAP_UPDATED, MapUpdate(view_id, self.rig.clock.now(), 100 + view_id, 10, 1000, 0, 5.0, emap))
@@ -106,12 +114,9 @@ def test_panorama_then_planner_then_done() -> None:
     m.rig.command("mission.START")
     m.nav()
     for _ in range(2):
-        m.rig.run(1)
-        (req,) = m.moves.drain()
-        m.motion_reply(req.request_id, "mast")
-        m.rig.run(1)
+        captures = m.view()
         assert phase(m.rig) == "ACQUIRE"
-        assert [c.view_id for c in m.captures.drain()] == [0]  # both panorama views are step 0
+        assert [c.view_id for c in captures] == [0]  # both panorama views are step 0
         m.map_update(0)
     m.rig.run(1)
     assert phase(m.rig) == "SELECT" and len(m.plans.drain()) == 1
@@ -126,10 +131,7 @@ def _to_select(m: Mission) -> None:
     m.rig.command("mission.START")
     m.nav()
     for _ in range(2):
-        m.rig.run(1)
-        (req,) = m.moves.drain()
-        m.motion_reply(req.request_id, "mast")
-        m.rig.run(1)
+        m.view()
         m.map_update(0)
     m.rig.run(1)
     assert phase(m.rig) == "SELECT"
@@ -371,11 +373,7 @@ def test_a_map_update_with_a_pose_fix_waits_for_the_pose_to_hold_it() -> None:
         m.rig.command("mission.START")
         m.nav()
         for k in range(2):
-            m.rig.run(1)
-            (req,) = m.moves.drain()
-            m.motion_reply(req.request_id, "mast")
-            m.rig.run(1)
-            m.captures.drain()
+            m.view()
             if k == 0:
                 m.map_update(0)
         fix = NavFix.from_correction(1, 0.0, np.zeros(3), np.r_[0.0, 0.0, 0.01, 0.05, 0.0, 0.0], np.eye(6) * 1e-6)

@@ -8,10 +8,10 @@ disparity nearly equals the whole-image one and is as accurate against the truth
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 
 import numpy as np
 import pytest
+from step_count import count_steps
 
 from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import CameraConfig
@@ -90,7 +90,7 @@ def test_banded_disparity_nearly_equals_whole_image_on_rendered_lab_pair(cfg, la
 def test_disparity_steps_yield_once_per_band_and_triangulation_is_unchanged(cfg, lab_pairs) -> None:
     m = StereoMatcher(cfg.stereo, cfg.camera)
     _, _, left, right, _ = lab_pairs[0]
-    yields, disp = _drain(m.disparity_steps(left, right))
+    yields, disp = count_steps(m.disparity_steps(left, right))
     # one slice per band of each pass: SGBM, the correlation gate, the refinement (issue 14),
     # then the spread gate apart from the sigma (issue 15)
     assert yields == 3 * len(m.bands(left.shape[0])) + 1 == 13
@@ -118,7 +118,7 @@ def test_chunked_merge_equals_one_shot_merge() -> None:
     s1 = one.merge(xyz, cov=cov, p_visible=pv, cov_common=cov_p)
     parts = [(xyz[i:i + 7000], cov[i:i + 7000], cov_p[i:i + 7000]) for i in range(0, n, 7000)]
     chunked = ElevationMap(grid)
-    yields, s2 = _drain(chunked.merge_parts_steps(parts, p_visible=pv, step_points=7000))
+    yields, s2 = count_steps(chunked.merge_parts_steps(parts, p_visible=pv, step_points=7000))
     assert yields >= 2 * (len(parts) - 1)  # both passes, part by part (the short last one joins the next)
     assert s1 == s2
     m = one.mapped
@@ -140,7 +140,7 @@ def test_perception_job_yields_many_bounded_steps_per_view(cfg, lab_pairs) -> No
     counts = []
     for view_id, (_, pose, left, right, _) in enumerate(lab_pairs):
         fr = CameraFrame(view_id, 0.0, left, right, pose, np.zeros((6, 6)))
-        yields, update = _drain(task._merge_view(fr))
+        yields, update = count_steps(task._merge_view(fr))
         counts.append(yields)
         chunks = -(-update.points // PROPAGATE_CHUNK)
         assert update.points > 50000
@@ -163,7 +163,7 @@ def test_region_of_interest_fraction_in_slices_equals_one_pass() -> None:
     x0, x1, y0, y1 = grid.extent
     line = LineString([(x0, y0 + 0.3 * (y1 - y0)), (0.5 * (x0 + x1), y0 + 0.5 * (y1 - y0)), (x1, y0 + 0.4 * (y1 - y0))])
     edge = EdgeModel("polygon", np.zeros((2, 2)), MultiLineString([line]), None)
-    yields, fraction = _drain(roi_mapped_fraction_steps(emap, edge))
+    yields, fraction = count_steps(roi_mapped_fraction_steps(emap, edge))
     X, Y = grid.centers()
     s = (slice(None, None, ROI_STRIDE), slice(None, None, ROI_STRIDE))
     below = edge.signed_distance(np.column_stack([X[s].ravel(), Y[s].ravel()])) < 0
@@ -171,12 +171,3 @@ def test_region_of_interest_fraction_in_slices_equals_one_pass() -> None:
     assert 0.0 < fraction < 1.0 and fraction == float(emap.mapped[s].ravel()[below].mean())
 
 
-def _drain(gen: Any) -> tuple[int, Any]:
-    """Run a step generator to its end: (how many times it yielded, its value)."""
-    yields = 0
-    while True:
-        try:
-            next(gen)
-        except StopIteration as stop:
-            return yields, stop.value
-        yields += 1
