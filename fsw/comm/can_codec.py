@@ -67,6 +67,28 @@ class CompiledMessage:
             return dict(self.msg.decode(bytes(data), decode_choices=False, scaling=True))
         return self._decode(data)
 
+    def packer(self, names: tuple[str, ...]) -> Callable[..., bytes]:
+        """An encoder taking the named signals' values as arguments, in that order (no
+        dictionary: 12 motor commands a frame are packed so); the other signals are packed as
+        raw 0. Same bytes and the same errors as :meth:`encode`."""
+        index = {sig[0]: i for i, sig in enumerate(self._sigs)}
+        picks = tuple(index[n] for n in names)
+        if not self.compiled:
+            rest = {s[0]: 0 for s in self._sigs if s[0] not in names}
+            return lambda *values: self.encode({**rest, **dict(zip(names, values, strict=True))})
+        return _generate_packer(self.name, self.length, tuple(self._sigs[i] for i in picks))
+
+    def values(self, names: tuple[str, ...]) -> Callable[[bytes], tuple[Any, ...]]:
+        """A decoder of the named signals only, as a tuple in that order (no dictionary: the
+        motor status, 12 a frame, is read so). Same values as :meth:`decode`; ``KeyError`` at
+        once for a name the message lacks."""
+        index = {sig[0]: i for i, sig in enumerate(self._sigs)}
+        picks = tuple(index[n] for n in names)
+        if not self.compiled:
+            decode = self.decode
+            return lambda data: tuple(decode(data)[n] for n in names)
+        return _generate_values(self.name, self.length, tuple(self._sigs[i] for i in picks), picks)
+
 
 def _generate(name: str, length: int, sigs: tuple[_Sig, ...]) -> tuple[_Encoder, _Decoder]:
     """The encoder and decoder of one message, generated from its signal table: for each
@@ -81,24 +103,66 @@ def _generate(name: str, length: int, sigs: tuple[_Sig, ...]) -> tuple[_Encoder,
            "        raise _ValueError(_len_err.format(len(data)))",
            "    w = _from_bytes(data, 'little')"]
     out = []
-    for i, (sig, start, mask, sign, scale, offset, ident) in enumerate(sigs):
-        ns[f"_n{i}"], ns[f"_s{i}"], ns[f"_o{i}"] = sig, scale, offset
-        ns[f"_e{i}"] = f"{name}.{sig}: {{}} does not fit the signal"
+    for i, sig in enumerate(sigs):
+        ns[f"_n{i}"] = sig[0]
         enc.append(f"    v = values[_n{i}]")
-        enc.append("    r = _round(v)" if ident else f"    r = _round((v - _o{i}) / _s{i})")
-        bounds = f"-{sign} <= r < {sign}" if sign else f"0 <= r <= {mask}"
-        enc.append(f"    if not {bounds}:")
-        enc.append(f"        raise _ValueError(_e{i}.format(v))")
-        enc.append(f"    w |= (r & {mask}) << {start}")
-        dec.append(f"    r{i} = (w >> {start}) & {mask}")
-        if sign:
-            dec.append(f"    if r{i} & {sign}:")
-            dec.append(f"        r{i} -= {mask + 1}")
-        out.append(f"_n{i}: r{i}" if ident else f"_n{i}: r{i} * _s{i} + _o{i}")
+        enc += _pack_lines(i, sig, ns, name, "v")
+        dec += _extract(i, sig)
+        out.append(f"_n{i}: r{i}" if sig[6] else f"_n{i}: r{i} * _s{i} + _o{i}")
     enc.append(f"    return w.to_bytes({length}, 'little')")
     dec.append("    return {" + ", ".join(out) + "}")
     exec("\n".join(enc) + "\n\n" + "\n".join(dec), ns)  # noqa: S102 - code generated from the DBC's signal table
     return ns["_encode"], ns["_decode"]
+
+
+def _extract(i: int, sig: _Sig) -> list[str]:
+    """Source lines that leave signal ``i``'s raw value, sign-extended, in ``r{i}``."""
+    _, start, mask, sign, _, _, _ = sig
+    lines = [f"    r{i} = (w >> {start}) & {mask}"]
+    if sign:
+        lines += [f"    if r{i} & {sign}:", f"        r{i} -= {mask + 1}"]
+    return lines
+
+
+def _pack_lines(i: int, sig: _Sig, ns: dict[str, Any], name: str, value: str) -> list[str]:
+    """Source lines that pack the physical ``value`` of signal ``i`` into ``w`` (range checked)."""
+    sig_name, start, mask, sign, scale, offset, ident = sig
+    ns[f"_s{i}"], ns[f"_o{i}"] = scale, offset
+    ns[f"_e{i}"] = f"{name}.{sig_name}: {{}} does not fit the signal"
+    bounds = f"-{sign} <= r < {sign}" if sign else f"0 <= r <= {mask}"
+    return ["    r = _round(" + (value if ident else f"({value} - _o{i}) / _s{i}") + ")",
+            f"    if not {bounds}:", f"        raise _ValueError(_e{i}.format({value}))",
+            f"    w |= (r & {mask}) << {start}"]
+
+
+def _generate_packer(name: str, length: int, sigs: tuple[_Sig, ...]) -> Callable[..., bytes]:
+    """An encoder of ``sigs`` given as positional arguments (the others raw 0)."""
+    ns: dict[str, Any] = {"_round": round, "_ValueError": ValueError}
+    src = ["def _pack(" + ", ".join(f"v{i}" for i in range(len(sigs))) + "):", "    w = 0"]
+    for i, sig in enumerate(sigs):
+        src += _pack_lines(i, sig, ns, name, f"v{i}")
+    src.append(f"    return w.to_bytes({length}, 'little')")
+    exec("\n".join(src), ns)  # noqa: S102 - code generated from the DBC's signal table
+    return ns["_pack"]  # type: ignore[no-any-return]
+
+
+def _generate_values(
+    name: str, length: int, sigs: tuple[_Sig, ...], picks: tuple[int, ...]
+) -> Callable[[bytes], tuple[Any, ...]]:
+    """A decoder of the signals ``sigs`` (at positions ``picks`` of the message) to a tuple,
+    with the arithmetic of :func:`_generate`'s decoder."""
+    ns: dict[str, Any] = {"_ValueError": ValueError, "_from_bytes": int.from_bytes,
+                          "_len_err": f"{name}: {{}} bytes, expected {length}"}
+    src = ["def _values(data):", f"    if len(data) != {length}:",
+           "        raise _ValueError(_len_err.format(len(data)))", "    w = _from_bytes(data, 'little')"]
+    out = []
+    for i, sig in zip(picks, sigs, strict=True):
+        ns[f"_s{i}"], ns[f"_o{i}"] = sig[4], sig[5]
+        src += _extract(i, sig)
+        out.append(f"r{i}" if sig[6] else f"r{i} * _s{i} + _o{i}")
+    src.append("    return (" + ", ".join(out) + ",)")
+    exec("\n".join(src), ns)  # noqa: S102 - code generated from the DBC's signal table
+    return ns["_values"]  # type: ignore[no-any-return]
 
 
 def compile_messages(db: Any) -> dict[str, CompiledMessage]:

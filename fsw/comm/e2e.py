@@ -109,6 +109,14 @@ class E2ELayout:
         buf[k : k + n] = self.crc(bytes(buf)).to_bytes(n, "little")
         return bytes(buf)
 
+    def seal(self, data: bytes) -> bytes:
+        """``data``, whose counter is already packed, with the checksum filled in: what
+        :meth:`protect` gives for that counter (its checksum bytes must hold 0)."""
+        if len(data) != self.length:
+            raise ValueError(f"{self.name}: {len(data)} bytes, expected {self.length}")
+        k, n = self.checksum_byte, self.checksum_bytes
+        return data[:k] + self._crc_fn(self._id_bytes + data[:k] + data[k + n :]).to_bytes(n, "little") + data[k + n :]
+
     def counter(self, data: bytes) -> int:
         return (int.from_bytes(data, "little") >> self.counter_start) & 0xF
 

@@ -21,7 +21,15 @@ from fsw.comm import mavlink_telemetry as tm
 from fsw.comm.mavlink_commands import Reason
 from fsw.comm.mavlink_config import MavlinkConfig
 from fsw.comm.mavlink_dialect import mavlink, new_codec
-from fsw.comm.mavlink_downlink import ChannelSample, ChannelScheduler, DownlinkQueue, Packer, Periodic, TokenBucket
+from fsw.comm.mavlink_downlink import (
+    ChannelSample,
+    ChannelScheduler,
+    ChannelTable,
+    DownlinkQueue,
+    Packer,
+    Periodic,
+    TokenBucket,
+)
 from fsw.comm.mavlink_image import ImageSender
 from fsw.comm.mavlink_signing import SignatureVerifier
 from fsw.comm.mavlink_uplink import CommandIn, Uplink, UplinkBatch
@@ -44,7 +52,7 @@ class VehicleView:
     position: tuple[float, float, float] | None = None  # world x, y, z (m)
     rpy: tuple[float, float, float] | None = None  # roll, pitch, yaw (rad, z-up world)
     mast: tuple[float, float] | None = None  # pan, tilt (rad)
-    channels: tuple[ChannelSample, ...] = ()
+    channels: tuple[ChannelSample, ...] | ChannelTable = ()  # a table is read live, lazily
 
 
 class MavlinkAdapter:
@@ -139,7 +147,9 @@ class MavlinkAdapter:
         if self._due["mast"].due(now) and v.mast is not None and p.offer([tm.mast_attitude(ms, *v.mast)]):
             self._due["mast"].done(now)
         self._events(Severity.DIAGNOSTIC)
-        for s in self.channels.due(now, v.channels):
+        chans = v.channels
+        ranked = self.channels.ranked(now, chans) if isinstance(chans, ChannelTable) else self.channels.due(now, chans)
+        for s in ranked:
             msg = tm.named_value(ms, s.key, s.value)
             if msg is None:
                 continue

@@ -19,10 +19,9 @@ Nothing here raises on bad input from the wire: :meth:`RoverCan.decode` returns 
 from __future__ import annotations
 
 import math
-import operator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import cantools
 
@@ -35,7 +34,6 @@ AXES = tuple(f"{k}_{w}" for k in KINDS for w in WHEELS)
 NMT_STATES = {0: "BootUp", 4: "Stopped", 5: "Operational", 127: "PreOperational"}
 STATE_BOOTUP, STATE_STOPPED, STATE_OPERATIONAL, STATE_PREOP = 0, 4, 5, 127
 FAULT_BITS = ("FaultTimeout", "FaultLimit", "FaultOvercurrent", "FaultEStop", "FaultDriver")
-_fault_bits = operator.itemgetter(*FAULT_BITS)  # a STATUS's fault signals as one tuple (a dict key)
 POSITION_WRAP_RAD = 1048.576  # the 20-bit Position signal at 0.001 rad wraps with this period
 DEFAULT_DBC = Path(__file__).resolve().parent.parent.parent / "config" / "rover.dbc"
 
@@ -46,8 +44,7 @@ def wrap_position(pos_rad: float) -> float:
     return (pos_rad + half) % POSITION_WRAP_RAD - half
 
 
-@dataclass(frozen=True)
-class AxisCommand:
+class AxisCommand(NamedTuple):
     """A decoded ``<AXIS>_CMD``: ``setpoint`` is rad/s for DRIVE, rad for STEER and SHOULDER."""
 
     axis: str
@@ -57,8 +54,7 @@ class AxisCommand:
     counter: int
 
 
-@dataclass(frozen=True)
-class AxisStatus:
+class AxisStatus(NamedTuple):
     """A decoded ``<AXIS>_STATUS``; ``faults`` is the set of fault-bit names that are set."""
 
     axis: str
@@ -70,15 +66,13 @@ class AxisStatus:
     counter: int
 
 
-@dataclass(frozen=True)
-class Heartbeat:
+class Heartbeat(NamedTuple):
     node: str  # "FSW" or an axis name
     state: int
     counter: int
 
 
-@dataclass(frozen=True)
-class EStop:
+class EStop(NamedTuple):
     engage: bool
     counter: int
 
@@ -115,6 +109,15 @@ class RoverCan:
             raise ValueError(f"{dbc_path}: DBC lacks frames {', '.join(missing[:4])}")
         # frame id -> (kind, node, compiled message)
         self.route: dict[int, tuple[str, str, CompiledMessage]] = {}
+        # frame id -> a STATUS's signals as one tuple: position, velocity, current, enabled, counter, faults...
+        self._status_values = {self._codec[f"{a}_STATUS"].frame_id: self._codec[f"{a}_STATUS"].values(
+            ("Position", "Velocity", "Current", "Enabled", "Counter", *FAULT_BITS)) for a in AXES}
+        # frame id, a COMMAND's packer (set-point, Enable, ClearFaults, Counter) and its E2E seal
+        self._command_packers = {}
+        for a in AXES:
+            m = self._codec[f"{a}_CMD"]
+            sig = "VelocityCmd" if a.startswith("DRIVE") else "PositionCmd"
+            self._command_packers[a] = (m.frame_id, m.packer((sig, "Enable", "ClearFaults", "Counter")))
         for axis in AXES:
             for kind in ("CMD", "STATUS", "HEARTBEAT"):
                 m = self._codec[f"{axis}_{kind}"]
@@ -149,18 +152,11 @@ class RoverCan:
     def encode_command(
         self, axis: str, setpoint: float, enable: bool, clear_faults: bool, counter: int
     ) -> tuple[int, bytes]:
-        sig = "VelocityCmd" if axis.startswith("DRIVE") else "PositionCmd"
-        lim = 32.767 if sig == "VelocityCmd" else 3.2767
+        lim = 32.767 if axis.startswith("DRIVE") else 3.2767
         value = float(setpoint) if math.isfinite(setpoint) else 0.0
-        return self._protected(
-            f"{axis}_CMD",
-            {
-                sig: max(-lim, min(lim, value)),
-                "Enable": int(enable),
-                "ClearFaults": int(clear_faults),
-            },
-            counter,
-        )
+        frame_id, pack = self._command_packers[axis]
+        data = pack(max(-lim, min(lim, value)), int(enable), int(clear_faults), counter & 0xF)
+        return frame_id, self.e2e[frame_id].seal(data)
 
     def encode_status(
         self,
@@ -194,30 +190,26 @@ class RoverCan:
         if route is None:
             return Bad(frame_id, "unknown_id", f"id 0x{frame_id:03X}{' (extended)' if is_extended else ''}")
         kind, node, msg = route
-        refused = self.e2e[frame_id].verify(bytes(data))
+        data = bytes(data)
+        refused = self.e2e[frame_id].verify(data)
         if refused is not None:
             return Bad(frame_id, *refused)
         try:
-            s = msg.decode(bytes(data))
+            if kind == "STATUS":
+                v = self._status_values[frame_id](data)
+            else:
+                s = msg.decode(data)
         except Exception as exc:  # noqa: BLE001 - cantools errors vary by version; a bad frame is data
             return Bad(frame_id, "decode", f"{msg.name}: {exc}")
-        if kind == "CMD":
-            sp = s["VelocityCmd"] if "VelocityCmd" in s else s["PositionCmd"]
-            return AxisCommand(node, float(sp), bool(s["Enable"]), bool(s["ClearFaults"]), int(s["Counter"]))
         if kind == "STATUS":
-            bits = _fault_bits(s)
+            bits = v[5:]
             faults = self._fault_sets.get(bits)
             if faults is None:  # one frozenset per fault pattern, built once (a status a frame per axis)
                 faults = self._fault_sets[bits] = frozenset(b for b, on in zip(FAULT_BITS, bits, strict=True) if on)
-            return AxisStatus(
-                node,
-                float(s["Position"]),
-                float(s["Velocity"]),
-                float(s["Current"]),
-                bool(s["Enabled"]),
-                faults,
-                int(s["Counter"]),
-            )
+            return AxisStatus(node, float(v[0]), float(v[1]), float(v[2]), bool(v[3]), faults, int(v[4]))
+        if kind == "CMD":
+            sp = s["VelocityCmd"] if "VelocityCmd" in s else s["PositionCmd"]
+            return AxisCommand(node, float(sp), bool(s["Enable"]), bool(s["ClearFaults"]), int(s["Counter"]))
         if kind == "ESTOP":
             return EStop(bool(s["Engage"]), int(s["Counter"]))
         return Heartbeat(node, int(s["State"]), int(s["Counter"]))

@@ -15,6 +15,7 @@ the position sigma also grows by the heading sigma integrated over the distance 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -36,20 +37,27 @@ class Odometry:
         self.yaw_acc = 0.0  # signed yaw turned since start (turn segments close on it)
         self._last_drive: NDArray[np.float64] | None = None
         self._resume_drive: NDArray[np.float64] | None = None  # a restored encoder baseline
+        self._last_seen: list[float] | None = None  # the drive positions of the last update
         self.base_cov = np.zeros((3, 3))  # (x, y, yaw) covariance at the last correction
         self.path0 = self.turned0 = 0.0  # path and turn at the last correction (growth since)
         self.lever_path = self.lever_turn = 0.0  # integrals of (path, turn) since it over distance
 
-    def update(self, drive_rad: NDArray[np.float64], steer_rad: NDArray[np.float64]) -> NDArray[np.float64] | None:
+    def update(self, drive_rad: Sequence[float], steer_rad: Sequence[float]) -> NDArray[np.float64] | None:
         """Integrate the motion since the previous wheel positions (the first call only records);
-        returns the body motion ``(dx, dy, dyaw)`` in the body frame, or None on the first call."""
+        returns the body motion ``(dx, dy, dyaw)`` in the body frame, or None on the first call
+        and when no drive wheel turned (a rover standing still: nothing to integrate, and no
+        arithmetic spent on it: 10 Hz, most of a mission)."""
+        if self._resume_drive is None and self._last_seen is not None and list(drive_rad) == self._last_seen:
+            return None
+        self._last_seen = list(drive_rad)
+        drive, steer = np.asarray(drive_rad, np.float64), np.asarray(steer_rad, np.float64)
         motion: NDArray[np.float64] | None = None
         if self._resume_drive is not None:  # resumed: keep the baseline if the counts survived
             saved, self._resume_drive = self._resume_drive, None
-            agree = bool(np.all(np.abs(drive_rad - saved) < RESUME_ENCODER_TOL_RAD))
-            self._last_drive = saved if agree else drive_rad
+            agree = bool(np.all(np.abs(drive - saved) < RESUME_ENCODER_TOL_RAD))
+            self._last_drive = saved if agree else drive
         if self._last_drive is not None:
-            motion = wk.body_motion((drive_rad - self._last_drive) * self.r, steer_rad, self.pinv)
+            motion = wk.body_motion((drive - self._last_drive) * self.r, steer, self.pinv)
             self.pose = wk.integrate_pose(self.pose, motion)
             ds = math.hypot(motion[0], motion[1])
             self.lever_path += (self.path_m - self.path0) * ds
@@ -57,7 +65,7 @@ class Odometry:
             self.path_m += ds
             self.turned_rad += abs(motion[2])
             self.yaw_acc += float(motion[2])
-        self._last_drive = drive_rad
+        self._last_drive = drive
         return motion
 
     def reset(self, pose: Pose3) -> None:

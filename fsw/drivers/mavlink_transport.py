@@ -3,9 +3,10 @@
 A :class:`~fsw.drivers.byte_port.BytePort` opened from a pymavlink-style URL. The task reads
 it with ``recv_upto(max_bytes, now)`` (a list of chunks: one per UDP datagram,
 ``packetized = True``, a frame never spans two; chunks of the serial byte stream) and sends
-one frame with ``send(frame, now)`` (one UDP datagram per MAVLink frame, as MAVProxy and
-QGroundControl expect). Errors never raise: they set fault bits and ``fault_reason`` (one
-line), are counted, and a lost serial port is reopened every ``reopen_s``. URLs:
+with ``send(packet, now)`` (the task joins an activation's frames into one packet, as
+ArduPilot does; pymavlink, MAVProxy and QGroundControl parse several frames a datagram).
+Errors never raise: they set fault bits and ``fault_reason`` (one line), are counted, and a
+lost serial port is reopened every ``reopen_s``. URLs:
 
 * ``udpin:HOST:PORT`` - bind and answer every peer heard from in the last 30 s
   (e.g. MAVProxy ``--master=udpout:ROVER:PORT``);

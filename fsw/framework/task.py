@@ -17,7 +17,7 @@ from fsw.framework.bus import Mailbox, Policy, SoftwareBus
 from fsw.framework.clock import Clock
 from fsw.framework.commands import CommandDef, CommandDispatcher
 from fsw.framework.jobs import Job, JobHandle, JobScheduler
-from fsw.framework.telemetry import Channel, ChannelValue, EventDef, EventLog, Severity, TelemetryStore
+from fsw.framework.telemetry import Channel, ChannelValue, EventDef, EventLog, Severity, TelemetryStore, differs
 
 
 class Runtime(Protocol):
@@ -154,6 +154,8 @@ class Task:
 
     def tlm(self, channel: str, value: float | int | str) -> None:
         cv = self._tlm_cell(channel)
+        if differs(value, cv.value):
+            self.ctx.telemetry.changed[cv.name] = None
         cv.value, cv.time_s = value, self.ctx.clock.now()
         cv.updates += 1
 
@@ -161,11 +163,16 @@ class Task:
         """One telemetry record: several channels of this task sampled at one time (one clock
         read, each channel's store cell resolved once per task, not a call per channel)."""
         now = self.ctx.clock.now()
-        cells = self._tlm_cells
+        cells, changed = self._tlm_cells, self.ctx.telemetry.changed
         for channel, value in values.items():
             cv = cells.get(channel)
             if cv is None:  # first write of this channel
                 cv = self._tlm_cell(channel)
+            try:  # telemetry.differs, inlined: ~200 channels a frame
+                if value != cv.value:
+                    changed[cv.name] = None
+            except (TypeError, ValueError):
+                changed[cv.name] = None
             cv.value, cv.time_s = value, now
             cv.updates += 1
 

@@ -66,6 +66,16 @@ class ChannelValue:
     value: float | int | str | None = None
     time_s: float = math.nan
     updates: int = 0
+    name: str = ""  # the full name, for the store's change set
+
+
+def differs(a: object, b: object) -> bool:
+    """``a != b`` for the change set; values that cannot compare differ (NaN differs from NaN:
+    a reader compares with what it last used)."""
+    try:
+        return bool(a != b)
+    except (TypeError, ValueError):
+        return True
 
 
 class TelemetryStore:
@@ -75,16 +85,21 @@ class TelemetryStore:
         self.defs: dict[str, Channel] = {}
         self.ids: dict[str, int] = {}
         self.values: dict[str, ChannelValue] = {}
+        # full names of the channels written with a new value since the ground link last took
+        # them (its only reader, ``fsw.tasks.mavlink_view``): it then visits those, not all
+        self.changed: dict[str, None] = {}
 
     def register(self, full_name: str, chan: Channel) -> None:
         if full_name in self.defs:
             raise ValueError(f"telemetry channel {full_name} declared twice")
         self.ids[full_name] = len(self.defs) + 1
         self.defs[full_name] = chan
-        self.values[full_name] = ChannelValue()
+        self.values[full_name] = ChannelValue(name=full_name)
 
     def write(self, full_name: str, value: float | int | str, time_s: float) -> None:
         cv = self.values[full_name]  # KeyError = undeclared channel: a software bug
+        if differs(value, cv.value):
+            self.changed[full_name] = None
         cv.value, cv.time_s = value, time_s
         cv.updates += 1
 

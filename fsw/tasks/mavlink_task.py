@@ -20,6 +20,7 @@ from typing import BinaryIO, ClassVar
 from fsw.comm.mavlink_adapter import MavlinkAdapter
 from fsw.comm.mavlink_commands import RESULT_OF_STATUS, Reason, decode_args
 from fsw.comm.mavlink_dialect import MAV_CMD_DICTIONARY, mavlink, signing_timestamp
+from fsw.comm.mavlink_downlink import coalesce
 from fsw.comm.mavlink_signing import KeyFileError, Verdict, load_key
 from fsw.comm.mavlink_tlog import TlogWriter
 from fsw.comm.mavlink_uplink import CommandIn
@@ -120,8 +121,7 @@ class MavlinkTask(FlightTask):
         self.tlog = self._open_tlog(cfg.tlog_path if res.mavlink_tlog is None else res.mavlink_tlog)
         self._preview_box = self.subscribe(cfg.map_preview_topic, depth=1, policy="drop_oldest")
         self._preview: object = None
-        self._views = ViewBuilder(self.ctx, cfg, self.subscribe(cfg.pose_topic, depth=1, policy="drop_oldest"),
-                                  self.adapter.channels)
+        self._views = ViewBuilder(self.ctx, cfg, self.subscribe(cfg.pose_topic, depth=1, policy="drop_oldest"))
         self._gcs_heard_s: float | None = None
         self._link_up = False
         self._seq = 0
@@ -202,8 +202,8 @@ class MavlinkTask(FlightTask):
         self._take_preview(now)
         frames = self.adapter.plan(self._views.build(now), signing_timestamp(unix))
         if self.link is not None:
-            for f in frames:
-                self.link.send(f, now)
+            for packet in coalesce(frames, self.link.max_send_bytes):
+                self.link.send(packet, now)
             self.link.drain_events()  # what went wrong is in fault_reason, reported once per change
             self._set_fault(self.link.fault_reason)
         self._log(stamp, frames)

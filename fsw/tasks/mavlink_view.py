@@ -13,7 +13,7 @@ import math
 
 from fsw.comm.mavlink_adapter import VehicleView
 from fsw.comm.mavlink_config import MavlinkConfig
-from fsw.comm.mavlink_downlink import ChannelSample, ChannelScheduler, same_value
+from fsw.comm.mavlink_downlink import ChannelTable
 from fsw.comm.mavlink_telemetry import DICT_CRC_KEY, channel_key, dictionary_crc
 from fsw.framework.bus import Mailbox
 from fsw.tasks.base import FlightContext
@@ -34,54 +34,44 @@ def pose_from_message(msg: object) -> PoseTuple | None:
     return values if all(v is None or math.isfinite(v) for v in values) else None
 
 
+class _Constant:
+    """A channel cell that never changes (the dictionary CRC)."""
+
+    def __init__(self, value: int) -> None:
+        self.value = value
+
+
 class ViewBuilder:
     """Builds the adapter's input from the task context (one per ground-link task)."""
 
-    def __init__(self, ctx: FlightContext, cfg: MavlinkConfig, pose_box: Mailbox[object],
-                 scheduler: ChannelScheduler | None = None) -> None:
+    def __init__(self, ctx: FlightContext, cfg: MavlinkConfig, pose_box: Mailbox[object]) -> None:
         self.ctx, self.cfg, self.pose_box = ctx, cfg, pose_box
-        self.scheduler = scheduler  # given: offer only the channels it may send now (the rest it would skip)
         store = ctx.telemetry
         self.keys = {name: channel_key(i, name) for name, i in store.ids.items()}
         self.dict_crc = dictionary_crc((i, name) for name, i in store.ids.items())
         self.fatal_channels = [n for n in store.defs if n.endswith(".tasks_fatal")]
         self.pose: PoseTuple | None = None  # the last good pose message
-        # (key, value cell, lo, hi) of every channel, resolved once: build() reads ~190 a frame
-        self._chans = [(self.keys[name], cv, store.defs[name].lo, store.defs[name].hi)
-                       for name, cv in store.values.items()]
+        # every channel's store cell and limits, resolved once: the scheduler reads them live
+        self.channels = ChannelTable(((DICT_CRC_KEY, _Constant(self.dict_crc), None, None),) + tuple(
+            (self.keys[name], cv, store.defs[name].lo, store.defs[name].hi) for name, cv in store.values.items()))
 
     def build(self, now: float) -> VehicleView:
         store, runtime = self.ctx.telemetry, self.ctx.runtime
-        samples = [ChannelSample(DICT_CRC_KEY, self.dict_crc, False)]
-        new = tuple.__new__  # ChannelSample(...) without the NamedTuple's Python-level __new__
-        sched = self.scheduler
-        # the scheduler's own skip rules (ChannelScheduler.due), applied here: a channel sent within
-        # the period, or unchanged within the refresh, is skipped with one dict lookup, not ranked
-        last = sched.last if sched is not None else {}
-        period = sched.period_s - 1e-9 if sched is not None else 0.0
-        refresh = sched.refresh_s - 1e-9 if sched is not None else 0.0
-        for key, cv, lo, hi in self._chans:  # store.limit_state(name) in ("low", "high"), inlined
-            v = cv.value
-            if v is None or isinstance(v, str):
-                continue
-            prev = last.get(key)
-            if prev is not None:
-                age = now - prev[0]
-                if age < period or (age < refresh and same_value(prev[1], v)):
-                    continue
-            samples.append(new(ChannelSample, (key, v, (lo is not None and v < lo)
-                                               or (hi is not None and v > hi))))
+        keys, changed = self.keys, self.channels.changed
+        for name in store.changed:  # what was written with a new value since the last build
+            changed[keys[name]] = None
+        store.changed.clear()
         load = int(1000 * runtime.busy_s(self.ctx.frame - 1) / runtime.period_s)
         slips, overruns = runtime.slips, sum(t.overruns for t in runtime.tasks.values())
-        x, y, z, roll, pitch, yaw = (self.value(c) for c in self.cfg.pose_channels)
-        pan, tilt = (self.value(c) for c in self.cfg.mast_channels)
         msg = self.pose_box.latest()
         if msg is not None:
             self.pose = pose_from_message(msg) or self.pose
-        if self.pose is not None:  # the estimate on the bus wins over channels
-            x, y, yaw = self.pose[:3]
-            if self.pose[3] is not None:
-                pan, tilt = self.pose[3:]
+        pose, chans = self.pose, self.cfg.pose_channels
+        z, roll, pitch = (self.value(chans[i]) for i in (2, 3, 4))
+        # the estimate on the bus wins over channels (read only when there is none)
+        x, y, yaw = pose[:3] if pose is not None else (self.value(chans[i]) for i in (0, 1, 5))
+        pan, tilt = pose[3:] if pose is not None and pose[3] is not None else (
+            self.value(c) for c in self.cfg.mast_channels)
         chan = self.cfg.mission_state_channel
         state = store.values[chan].value if chan in store.values else None
         fatal = any((store.get(n) or 0) > 0 for n in self.fatal_channels)
@@ -89,7 +79,7 @@ class ViewBuilder:
             now, state, fatal, not self.ctx.clock.realtime, load, slips, overruns,
             (x, y, z or 0.0) if x is not None and y is not None else None,
             (roll or 0.0, pitch or 0.0, yaw) if yaw is not None else None,
-            (pan, tilt or 0.0) if pan is not None else None, tuple(samples))
+            (pan, tilt or 0.0) if pan is not None else None, self.channels)
 
     def value(self, name: str) -> float | None:
         """A channel's value in SI units (``deg`` converted), None if absent or not a number."""

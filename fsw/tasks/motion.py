@@ -134,7 +134,7 @@ class MotionTask(FlightTask):
         if any(s.t_status is None for s in drive + steer):
             return
         yaw0 = self.odo.pose[2]
-        motion = self.odo.update(np.array([s.position_rad for s in drive]), np.array([s.position_rad for s in steer]))
+        motion = self.odo.update([s.position_rad for s in drive], [s.position_rad for s in steer])
         if motion is not None:
             self.attitude.integrate(motion, yaw0)
 

@@ -38,6 +38,10 @@ def test_encode_and_decode_equal_cantools(msg: cantools.database.can.Message) ->
         want = msg.decode(data, decode_choices=False, scaling=True)
         got = c.decode(data)
         assert got == want and [type(v) for v in got.values()] == [type(v) for v in want.values()]
+        names = tuple(reversed(want))  # any order, any subset
+        picked = c.values(names)(data)
+        assert picked == tuple(want[n] for n in names) and [type(v) for v in picked] == [type(want[n]) for n in names]
+        assert c.values(names[:2])(data) == tuple(want[n] for n in names[:2])
     for s in msg.signals:  # the field's ends, exactly
         for v in (s.minimum, s.maximum):
             values = {t.name: (v if t is s else _value(t, rng)) for t in msg.signals}
@@ -56,6 +60,10 @@ def test_out_of_field_and_missing_values_are_refused() -> None:
         c.encode({k: v for k, v in ok.items() if k != "Enable"})
     with pytest.raises(ValueError, match="bytes"):
         c.decode(b"\x00" * 3)
+    with pytest.raises(ValueError, match="bytes"):
+        c.values(("Enable",))(b"\x00" * 3)
+    with pytest.raises(KeyError):
+        c.values(("NoSuchSignal",))
 
 
 def test_big_endian_and_float_messages_keep_cantools() -> None:
@@ -69,3 +77,4 @@ def test_big_endian_and_float_messages_keep_cantools() -> None:
     values = {"Speed": -12.34, "Flag": 1}
     assert c.encode(values) == msg.encode(values)
     assert c.decode(c.encode(values)) == msg.decode(msg.encode(values), decode_choices=False)
+    assert c.values(("Flag", "Speed"))(c.encode(values)) == (1, -12.34)

@@ -8,6 +8,7 @@ any frame layout escapes the checksum.
 from __future__ import annotations
 
 import itertools
+import random
 
 import can
 import cantools
@@ -181,3 +182,23 @@ def test_command_roundtrip_keeps_counter_and_checksum_in_the_dbc_places() -> Non
     lay = CODEC.e2e[fid]
     assert sig["Counter"] == 11 and sig["Checksum"] == lay.crc(data) and sig["PositionCmd"] == pytest.approx(-0.25)
     assert isinstance(CODEC.decode(fid, data), AxisCommand)
+
+
+def test_a_command_packed_with_its_counter_and_sealed_is_the_protected_frame() -> None:
+    """The motor commands' fast path (packer + ``seal``) gives the bytes of the general one
+    (cantools-equivalent encode + ``protect``), for random set-points, flags and counters."""
+    rng = random.Random(5)
+    for _ in range(500):
+        axis = rng.choice(AXES)
+        sp = rng.uniform(-40.0, 40.0) if axis.startswith("DRIVE") else rng.uniform(-4.0, 4.0)
+        en, clr, ctr = rng.random() < 0.5, rng.random() < 0.5, rng.randrange(64)
+        sig = "VelocityCmd" if axis.startswith("DRIVE") else "PositionCmd"
+        lim = 32.767 if axis.startswith("DRIVE") else 3.2767
+        want = CODEC._protected(f"{axis}_CMD", {sig: max(-lim, min(lim, sp)), "Enable": int(en),
+                                                "ClearFaults": int(clr)}, ctr)
+        assert CODEC.encode_command(axis, sp, en, clr, ctr) == want
+        sp_sent = pytest.approx(max(-lim, min(lim, sp)), abs=1e-3)
+        assert CODEC.decode(*want) == AxisCommand(axis, sp_sent, en, clr, ctr & 0xF)
+    layout = CODEC.e2e[CODEC.frame_id("ESTOP")]
+    with pytest.raises(ValueError, match="bytes"):
+        layout.seal(b"\x00")

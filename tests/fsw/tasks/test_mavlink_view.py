@@ -1,6 +1,7 @@
-"""The ground link's view (issue 15, a lean foreground): given the channel scheduler, the view
-offers only the channels the scheduler may send now, and the scheduler's choice is the same
-as when every channel is offered (stepped clock, values that change, repeat, go NaN)."""
+"""The ground link's view (issue 15, a lean foreground): the view hands the downlink its
+channel table and the store's change set, and the scheduler chooses from them the same
+channels in the same order as ranking every channel (stepped clock, values that change,
+repeat, go NaN, leave their limits), while reading only a few of them a frame."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import random
 from types import SimpleNamespace
 
 from fsw.comm.mavlink_config import MavlinkConfig
-from fsw.comm.mavlink_downlink import ChannelScheduler
+from fsw.comm.mavlink_downlink import ChannelScheduler, ChannelTable
 from fsw.framework.bus import Mailbox
 from fsw.framework.telemetry import Channel, TelemetryStore
 from fsw.tasks.mavlink_view import ViewBuilder
@@ -30,37 +31,60 @@ def _box() -> Mailbox[object]:
     return Mailbox("nav.pose", 1, "drop_oldest")
 
 
-def test_prefiltered_view_gives_the_scheduler_the_same_choice() -> None:
+class _CountingCell:
+    """A store cell that counts how often its value is read."""
+
+    def __init__(self, cell: object) -> None:
+        self.cell, self.reads = cell, 0
+
+    @property
+    def value(self) -> object:
+        self.reads += 1
+        return self.cell.value  # type: ignore[attr-defined]
+
+
+def test_lazy_ranking_gives_the_same_choice_as_ranking_every_channel() -> None:
     cfg = MavlinkConfig()
     ctx = _context(190)
-    fast_sched = ChannelScheduler(cfg.channel_period_s, cfg.channel_refresh_s)
-    full_sched = ChannelScheduler(cfg.channel_period_s, cfg.channel_refresh_s)
-    fast = ViewBuilder(ctx, cfg, _box(), fast_sched)  # type: ignore[arg-type]
-    full = ViewBuilder(ctx, cfg, _box())  # type: ignore[arg-type]
+    store = ctx.telemetry
+    view = ViewBuilder(ctx, cfg, _box())  # type: ignore[arg-type]
+    table = view.channels
+    counted = ChannelTable(tuple((k, _CountingCell(c), lo, hi) for k, c, lo, hi in table.rows), table.changed)
+    lazy = ChannelScheduler(cfg.channel_period_s, cfg.channel_refresh_s)
+    full = ChannelScheduler(cfg.channel_period_s, cfg.channel_refresh_s)
     rng = random.Random(7)
-    cells = list(ctx.telemetry.values.values())
-    offered_fast = offered_full = 0
+    names = list(store.values)
+    urgent = reads = 0
     for k in range(400):
         now = k * FRAME_S
-        for cv in cells:  # some channels change every frame, most rarely, a few go NaN, None or text
-            r = rng.random()
-            if r < 0.15:
-                cv.value = rng.uniform(-8.0, 8.0)
-            elif r < 0.17:
-                cv.value = math.nan
-            elif r < 0.18:
-                cv.value = rng.choice([None, "text", 3, True])
-        a, b = fast.build(now).channels, full.build(now).channels
-        offered_fast, offered_full = offered_fast + len(a), offered_full + len(b)
-        due_a, due_b = fast_sched.due(now, a), full_sched.due(now, b)
-        assert [s.key for s in due_a] == [s.key for s in due_b]
+        for i, name in enumerate(names):  # a tenth change every frame, the rest rarely; NaN, None, text
+            r = rng.random() * (1.0 if i % 10 else 0.1)
+            if r < 0.02:
+                store.write(name, rng.uniform(-8.0, 8.0), now)
+            elif r < 0.025:
+                store.write(name, math.nan, now)
+            elif r < 0.03:
+                store.write(name, rng.choice([None, "text", 3, True]), now)
+            elif r < 0.06:
+                store.write(name, store.values[name].value, now)  # written again, unchanged
+        view.build(now)  # takes the store's change set into the table
+        expected = full.due(now, counted.samples())
+        urgent += sum(s.out_of_limits for s in expected)
+        before = sum(c.reads for c in _cells(counted))
+        got = lazy.ranked(now, counted)
+        reads += sum(c.reads for c in _cells(counted)) - before
+        assert [(s.key, s.out_of_limits) for s in got] == [(s.key, s.out_of_limits) for s in expected]
         sent = rng.randint(0, 20)  # what a byte budget lets through this frame
-        for s in due_a[:sent]:
-            fast_sched.mark(now, s)
-        for s in due_b[:sent]:
-            full_sched.mark(now, s)
-        assert _same(fast_sched.last, full_sched.last)
-    assert offered_fast < 0.6 * offered_full  # the point: channels the scheduler would skip are not offered
+        for s in got[:sent]:
+            lazy.mark(now, s)
+            full.mark(now, s)
+        assert _same(lazy.last, full.last)
+    assert urgent > 0  # the test exercised channels out of their limits
+    assert reads < 0.25 * 400 * len(counted.rows)  # the point: few channels are read a frame
+
+
+def _cells(table: ChannelTable) -> list[_CountingCell]:
+    return [c for _, c, _, _ in table.rows]  # type: ignore[misc]
 
 
 def _same(a: dict, b: dict) -> bool:

@@ -1,0 +1,39 @@
+"""Odometry on a rover standing still (issue 15): no drive wheel turned, nothing integrated,
+the same state as integrating the zero motion; the next real motion integrates from there."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from fsw.core import wheel_kinematics as wk
+from fsw.core.odometry import Odometry
+
+WHEEL_XY = np.array([[0.3, 0.25], [0.3, -0.25], [-0.3, 0.25], [-0.3, -0.25]])
+
+
+def _odo() -> Odometry:
+    return Odometry(0.1, wk.body_motion_matrix(WHEEL_XY))
+
+
+def test_standing_still_integrates_nothing_and_moving_again_integrates() -> None:
+    odo = _odo()
+    assert odo.update([0.0] * 4, [0.0] * 4) is None  # the first reading only records
+    for k in range(1, 6):
+        odo.update([0.5 * k] * 4, [0.1] * 4)
+    pose, path = odo.pose, odo.path_m
+    for _ in range(20):  # standing, steering in place
+        assert odo.update([2.5] * 4, [0.3] * 4) is None
+    assert odo.pose == pose and odo.path_m == path
+    motion = odo.update([3.0] * 4, [0.0] * 4)  # drives 0.05 m straight ahead (body frame)
+    assert motion is not None and math.isclose(float(motion[0]), 0.05, rel_tol=1e-9)
+    assert math.isclose(odo.path_m, path + 0.05, rel_tol=1e-9)
+
+
+def test_a_resumed_baseline_is_still_checked_on_the_first_reading() -> None:
+    odo = _odo()
+    odo.update([1.0] * 4, [0.0] * 4)
+    odo.restore((1.0, 2.0, 0.0), 3.0, 0.0, 0.0, np.array([0.98] * 4))  # the checkpoint's baseline
+    motion = odo.update([1.0] * 4, [0.0] * 4)  # the reading seen before the restart: not "still"
+    assert motion is not None and math.isclose(float(motion[0]), 0.002, rel_tol=1e-6)
