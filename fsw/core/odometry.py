@@ -38,6 +38,8 @@ class Odometry:
         self._last_drive: NDArray[np.float64] | None = None
         self._resume_drive: NDArray[np.float64] | None = None  # a restored encoder baseline
         self._last_seen: list[float] | None = None  # the drive positions of the last update
+        # covariance()'s last inputs (the arrays held, so identity is safe) and result
+        self._cov: tuple[tuple[float, ...], NDArray[np.float64], MotionConfig, NDArray[np.float64]] | None = None
         self.base_cov = np.zeros((3, 3))  # (x, y, yaw) covariance at the last correction
         self.path0 = self.turned0 = 0.0  # path and turn at the last correction (growth since)
         self.lever_path = self.lever_turn = 0.0  # integrals of (path, turn) since it over distance
@@ -111,11 +113,18 @@ class Odometry:
     def covariance(self, cfg: MotionConfig) -> NDArray[np.float64]:
         """3x3 covariance of (x, y, yaw): the last correction's and the growth since (with the
         heading error carried into position over the distance driven)."""
+        key = (self.path_m, self.path0, self.turned_rad, self.turned0, self.lever_path, self.lever_turn)
+        memo = self._cov
+        if memo is not None and memo[0] == key and memo[1] is self.base_cov and memo[2] is cfg:
+            return memo[3]  # unchanged (standing still): the same read-only array (10 Hz)
         path, turned = self.path_m - self.path0, self.turned_rad - self.turned0
         s_yaw = cfg.odo_yaw_sigma_per_rad * turned + cfg.odo_sigma_per_m * path
         s_xy = float(position_sigma(path, math.sqrt(max(float(self.base_cov[2, 2]), 0.0)),
                                     self.lever_path, self.lever_turn, cfg))
-        return self.base_cov + np.diag([s_xy**2, s_xy**2, s_yaw**2])
+        cov = self.base_cov + np.diag([s_xy**2, s_xy**2, s_yaw**2])
+        cov.setflags(write=False)
+        self._cov = (key, self.base_cov, cfg, cov)
+        return cov
 
 
 def position_sigma(path_m: F64 | float, sigma_yaw0: float, lever_path: F64 | float, lever_turn: F64 | float,

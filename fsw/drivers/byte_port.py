@@ -288,9 +288,9 @@ class UdpPort(BytePort):
         for addr in targets:
             try:
                 self.sock.sendto(data, addr)
-            except ConnectionRefusedError:
-                self.stats.refused += 1
-                raise OSError("refused by the peer") from None
+            except ConnectionRefusedError:  # an ICMP "port unreachable" for an earlier datagram
+                self.stats.refused += 1  # (nobody listens there yet): counted, not a fault, and
+                self.sock.sendto(data, addr)  # this datagram still goes
 
     def _recv_internal(self, timeout_s: float, max_bytes: int) -> bytes | None:
         if timeout_s > 0:

@@ -64,7 +64,7 @@ from fsw.tasks.messages import (
     RadioStatus,
 )
 from fsw.tasks.mission_checkpoint import resume_mission, save
-from fsw.tasks.mission_ground import MIN_MOVE_M, MIN_TURN_RAD, GroundAwareMission, PartSearch
+from fsw.tasks.mission_ground import MIN_MOVE_M, MIN_TURN_RAD, FenceJob, GroundAwareMission
 from fsw.tasks.mission_safe import SafeRecovery
 from fsw.tasks.mission_state import STATES, MissionPhase, StepRecord
 from fsw.tasks.sections import MissionConfig
@@ -115,7 +115,7 @@ class MissionTask(GroundAwareMission, SafeRecovery):
         self.status_box = self.subscribe(MOTION_STATUS, depth=8)
         self.map_box = self.subscribe(MAP_UPDATED, depth=4)
         self.maps: deque[tuple[float, MapUpdate]] = deque()  # (arrival, update) held for their nav fix
-        self.part_search: PartSearch | None = None  # a refused move's part-way search, stepped
+        self.fence_job: FenceJob | None = None  # geofence work of a move, as a slack job
         self.nbv_box = self.subscribe(NBV_RESULT, depth=2)
         self.radio_box = self.subscribe(RADIO_STATUS, depth=4)
         self.failed_box = self.subscribe(VIEW_FAILED, depth=4)  # a view that will not reach the map
@@ -150,7 +150,7 @@ class MissionTask(GroundAwareMission, SafeRecovery):
 
     # -- plumbing ---------------------------------------------------------------------------
     def _goto(self, new: MissionPhase) -> None:
-        self.part_search = None  # a part-way search ends with the phase it began in
+        self._cancel_fence_job()  # geofence work ends with the phase it began in
         if new != self.state:
             self.event("STATE", old=str(self.state), new=str(new))
             self.state = new
@@ -194,8 +194,7 @@ class MissionTask(GroundAwareMission, SafeRecovery):
         self.nav = self.nav_box.latest() or self.nav
         now = self.ctx.clock.now()
         self.maps.extend((now, up) for up in self.map_box.drain())
-        if self.part_search is not None:  # one geofence check a frame (fsw.tasks.mission_ground)
-            self._step_part_search()
+        if self._fence_job_pending():  # geofence work runs as a slack job (fsw.tasks.mission_ground)
             return
         while self.maps and self._nav_took_fix(*self.maps[0], now):
             self._on_map(self.maps.popleft()[1])
@@ -237,9 +236,13 @@ class MissionTask(GroundAwareMission, SafeRecovery):
         if reason is not None:
             self._finish_mapping(reason)
             return
-        if self._look_around():  # the fitted edge hems the rover in: look at the ground first
-            self._start_point()
+        here = self._may_look_around()
+        if here is not None:  # the fitted edge may hem the rover in: look at the ground first?
+            self._in_slack(self._look_around_steps(here), self._looked_around)
             return
+        self._select()
+
+    def _select(self) -> None:
         self._goto(MissionPhase.SELECT)
         self.publish(NBV_REQUEST, self._planner_state())
         self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
@@ -269,13 +272,7 @@ class MissionTask(GroundAwareMission, SafeRecovery):
                                       method=self.view.method)
             self._start_point()
             return
-        self._fence(here)
-        verdict = self.geofence.check(here, there)
-        if not verdict.allowed:
-            self._refused(here, there, verdict.reason)
-            return
-        self._goto(MissionPhase.MOVE)
-        self._request(kind="goto", target=there)
+        self._in_slack(self._move_steps(here, there), lambda job: self._move_checked(here, there, job.result))
 
     def _state_move(self) -> None:
         st = self._motion_outcome()

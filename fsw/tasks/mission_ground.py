@@ -13,26 +13,31 @@ issue 13 item 3): a mixin of :class:`fsw.tasks.mission.MissionTask`.
   the points straight ahead or behind (no turn: a turn in place sweeps the corners of the
   rover over ground beside and behind it), that the geofence allows; if no part of it is
   allowed, the step's view is taken from where the rover stands. The reason is kept per step
-  (``stays``). The search makes one geofence check a frame (``PartSearch``, stepped by the
-  mission's ``run`` instead of its phase handler): up to ~100 candidates checked in one
-  activation took 590 ms of foreground (a slip) on lab seed 2.
+  (``stays``).
+- The geofence work of a move (setting the fence, checking the move, the unknown ground it
+  would sweep, the part-way search, the look around) runs as a slack job, one fence set-up or
+  one check a slice (``_in_slack``); the mission's activations wait for it and then go on
+  with its result. Done in the foreground it took 10-50 ms an activation (up to 590 ms for a
+  part-way search on lab seed 2), 0.3-1.5 s on a flight computer 30x slower (issue 15).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Generator
+from collections.abc import Callable, Generator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 import shapely
+from numpy.typing import NDArray
 
 from fsw.core.edge import EdgeModel, edge_path
-from fsw.core.geofence import Geofence, goto_legs
+from fsw.core.geofence import Geofence, Verdict, goto_legs
 from fsw.core.look import look_joints
 from fsw.core.planners import PlannerState
 from fsw.core.view_candidates import CandidateView
+from fsw.framework.jobs import JobHandle
 from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import MapUpdate, NavPose
 from fsw.tasks.mission_state import MissionPhase
@@ -45,13 +50,11 @@ PART_STEP_M = 0.05  # part-way moves are tried every this far along the way
 
 
 @dataclass
-class PartSearch:
-    """A refused move's part-way search in progress: its generator, the move and the refusal."""
+class FenceJob:
+    """The mission's geofence work in progress as a slack job, and what to do with its result."""
 
-    steps: Generator[None, None, Pose3 | None]
-    here: Pose3
-    there: Pose3
-    reason: str
+    handle: JobHandle
+    then: Callable[[JobHandle], None]  # called with the finished job
 
 
 class GroundAwareMission(FlightTask):
@@ -72,7 +75,7 @@ class GroundAwareMission(FlightTask):
     _look_n: int  # looks taken for it
     _look_left: int  # its unknown swept cells at the last look
     _looked_from: Pose3 | None
-    part_search: PartSearch | None
+    fence_job: FenceJob | None
 
     if TYPE_CHECKING:  # provided by Task and MissionTask (stubs here would shadow them)
         def _goto(self, new: MissionPhase) -> None: ...
@@ -86,28 +89,65 @@ class GroundAwareMission(FlightTask):
 
         def _start_point(self) -> None: ...
 
-    def _refused(self, here: Pose3, there: Pose3, reason: str) -> None:
+        def _enter_safe(self, reason: str) -> None: ...
+
+        def _select(self) -> None: ...
+
+    def _in_slack(self, work: Generator[None, None, object], then: Callable[[JobHandle], None]) -> None:
+        """Run geofence ``work`` as a slack job; ``then(job)`` in the mission's first
+        activation after it ends, ``job.result`` its result (the module docstring)."""
+        self.fence_job = FenceJob(self.submit_job(work, "geofence"), then)
+
+    def _fence_job_pending(self) -> bool:
+        """True while the mission waits for its geofence job; a finished one is taken up here
+        (its continuation, or SAFE with the reason if the job failed)."""
+        job = self.fence_job
+        if job is None:
+            return False
+        if not job.handle.done:
+            return True
+        self.fence_job = None
+        if job.handle.error is not None:
+            self._enter_safe(f"geofence work failed: {type(job.handle.error).__name__}: {job.handle.error}")
+        else:
+            job.then(job.handle)
+        return True
+
+    def _cancel_fence_job(self) -> None:
+        if self.fence_job is not None:
+            self.fence_job.handle.cancel()
+            self.fence_job = None
+
+    def _move_steps(self, here: Pose3, there: Pose3) -> Generator[None, None, tuple[Verdict, NDArray[np.float64]]]:
+        """The fence set up, the move checked and, if refused over unknown ground, that ground
+        (one slice each)."""
+        self._fence(here)
+        yield
+        verdict = self.geofence.check(here, there)
+        if verdict.allowed or "unknown ground" not in verdict.reason:
+            return verdict, np.zeros((0, 2))
+        yield
+        return verdict, self.geofence.unknown_points(here, there)
+
+    def _move_checked(self, here: Pose3, there: Pose3, checked: tuple[Verdict, NDArray[np.float64]]) -> None:
+        verdict, unknown = checked
+        if verdict.allowed:
+            self._goto(MissionPhase.MOVE)
+            self._request(kind="goto", target=there)
+        else:
+            self._refused(here, there, verdict.reason, unknown)
+
+    def _refused(self, here: Pose3, there: Pose3, reason: str, unknown: NDArray[np.float64]) -> None:
         """The geofence refused the move: over unknown ground, look at it (see the module
         docstring); otherwise drive part of the way, as far as the geofence allows; otherwise
         take the step's view from here. Never a crossing, never a stall."""
         assert self.view is not None
-        if "unknown ground" in reason and self._look_at_swept(here, there):
+        if "unknown ground" in reason and self._look_at_swept(here, there, unknown):
             return
         self.edge_violations += 1  # a refusal that stands (a look is not one)
         self.event("GEOFENCE", x=there[0], y=there[1], reason=reason)
-        self.part_search = PartSearch(self._part_way_steps(here, there), here, there, reason)
-
-    def _step_part_search(self) -> None:
-        """One geofence check of the part-way search; at its end, the move or the stay."""
-        search = self.part_search
-        assert search is not None
-        try:
-            next(search.steps)
-            return
-        except StopIteration as stop:
-            part: Pose3 | None = stop.value
-        self.part_search = None
-        self._part_way_done(search.here, search.there, search.reason, part)
+        self._in_slack(self._part_way_steps(here, there),
+                       lambda job: self._part_way_done(here, there, reason, job.result))
 
     def _part_way_done(self, here: Pose3, there: Pose3, reason: str, part: Pose3 | None) -> None:
         assert self.view is not None
@@ -128,12 +168,12 @@ class GroundAwareMission(FlightTask):
         self._goto(MissionPhase.MOVE)
         self._request(kind="goto", target=part)
 
-    def _look_at_swept(self, here: Pose3, there: Pose3) -> bool:
+    def _look_at_swept(self, here: Pose3, there: Pose3, pts: NDArray[np.float64]) -> bool:
         """Make the step's next view a look at the unknown ground the move to ``there`` would
-        sweep (its cells nearest the rover), if the look budget allows: the first look for a
-        station, then more while the last one mapped some of it. True if it is now that look."""
+        sweep (``pts``; its cells nearest the rover), if the look budget allows: the first look
+        for a station, then more while the last one mapped some of it. True if it is now that
+        look."""
         assert self.view is not None
-        pts = self.geofence.unknown_points(here, there)
         if len(pts) == 0:
             return False
         if self._looked != there:
@@ -175,34 +215,47 @@ class GroundAwareMission(FlightTask):
             if math.hypot(p[0] - here[0], p[1] - here[1]) >= MIN_MOVE_M:
                 if self.geofence.check(here, p).allowed:
                     return p
-                yield  # one check a frame
+                yield  # one check a slice
         return None
 
-    def _look_around(self) -> bool:
-        """If the geofence would not let the rover stay where it stands (the fitted edge runs
-        within the margin of its wheels, often across unmapped ground beside it), make this
-        step a look at the unknown ground nearest the edge within ``setback_m``; once per
-        pose. True if the step's view is now that look."""
-        if self.nav is None:
-            return False
+    def _may_look_around(self) -> Pose3 | None:
+        """Where the rover stands, if it may have to look around there first (an edge is
+        fitted and it has not looked from there yet); else None."""
+        if self.nav is None or self.edge is None:
+            return None
         here = (self.nav.x, self.nav.y, self.nav.yaw)
-        if self._looked_from == here or self.edge is None:
-            return False
+        return None if self._looked_from == here else here
+
+    def _look_around_steps(self, here: Pose3) -> Generator[None, None, CandidateView | None]:
+        """If the geofence would not let the rover stay where it stands (the fitted edge runs
+        within the margin of its wheels, often across unmapped ground beside it), a look at
+        the unknown ground nearest the edge within ``setback_m``; once per pose. None if no
+        look is needed (or none would see unknown ground)."""
+        assert self.edge is not None
         self._fence(here)
+        yield
         if self.geofence.check(here, here, known_ground=False).allowed:
-            return False
+            return None
+        yield
         # Target: the unknown ground between the rover and the fitted edge, around the edge
         # point nearest the rover, out to setback_m past it on the drop side.
         setback = self.ctx.cfg.edge.setback_m
         q = shapely.get_coordinates(shapely.shortest_line(shapely.Point(here[:2]), self.edge.lines))[-1]
         pts = self.geofence.known.unknown_points(shapely.Point(q).buffer(setback))
         if len(pts) == 0:
-            return False
+            return None
         self._looked_from = here
         self.looks += 1
         self.event("LOOK", n=len(pts), x=here[0], y=here[1])
-        self.view = CandidateView(here, look_joints(here, pts, self.ctx.cfg.mast), method="look")
-        return True
+        return CandidateView(here, look_joints(here, pts, self.ctx.cfg.mast), method="look")
+
+    def _looked_around(self, job: JobHandle) -> None:
+        look: CandidateView | None = job.result
+        if look is None:
+            self._select()
+        else:
+            self.view = look
+            self._start_point()
 
     def _ground_z(self) -> float:
         """The ground under the rover, map datum (the pose chain's body height)."""

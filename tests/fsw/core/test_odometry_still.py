@@ -37,3 +37,21 @@ def test_a_resumed_baseline_is_still_checked_on_the_first_reading() -> None:
     odo.restore((1.0, 2.0, 0.0), 3.0, 0.0, 0.0, np.array([0.98] * 4))  # the checkpoint's baseline
     motion = odo.update([1.0] * 4, [0.0] * 4)  # the reading seen before the restart: not "still"
     assert motion is not None and math.isclose(float(motion[0]), 0.002, rel_tol=1e-6)
+
+
+def test_the_covariance_is_recomputed_only_when_its_inputs_change() -> None:
+    from fsw.core.motion_profile import MotionConfig
+
+    cfg, odo = MotionConfig(), _odo()
+    odo.update([0.0] * 4, [0.0] * 4)
+    odo.update([1.0] * 4, [0.0] * 4)
+    a = odo.covariance(cfg)
+    assert odo.covariance(cfg) is a and not a.flags.writeable  # shared at 10 Hz: read-only
+    odo.update([1.0] * 4, [0.0] * 4)  # standing
+    assert odo.covariance(cfg) is a
+    odo.update([2.0] * 4, [0.0] * 4)  # driven on
+    b = odo.covariance(cfg)
+    assert b is not a and b[0, 0] > a[0, 0]
+    for k in range(2):  # two corrections with the same path: each one's own base covariance
+        odo.correct(odo.pose, np.eye(3) * (k + 1) * 1e-4)
+        assert odo.covariance(cfg)[0, 0] == (k + 1) * 1e-4

@@ -146,8 +146,8 @@ def test_a_wheel_move_without_an_edge_is_refused_by_the_geofence() -> None:
     m.moves.drain()
     m.rig.publish(NBV_RESULT, CandidateView((0.5, 0.0, 0.0), (0.0, -0.5, 0.5), 100.0, 10.0, 1.0, 0.0, 99.0, "5"))
     m.rig.run(2)
-    # the part-way search: one geofence check a frame (a bounded foreground), no wheel move
-    assert m.rig.task("mission").part_search is not None and not m.moves.drain()
+    # the part-way search: one geofence check a slack slice (not the foreground), no wheel move
+    assert m.rig.task("mission").fence_job is not None and not m.moves.drain()
     frames = 2 + m.rig.run_until(lambda: phase(m.rig) == "POINT", 60)
     assert frames > 5
     assert phase(m.rig) == "POINT" and m.rig.task("mission").edge_violations == 1
