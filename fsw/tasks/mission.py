@@ -236,13 +236,9 @@ class MissionTask(GroundAwareMission, SafeRecovery):
         if reason is not None:
             self._finish_mapping(reason)
             return
-        here = self._may_look_around()
-        if here is not None:  # the fitted edge may hem the rover in: look at the ground first?
-            self._in_slack(self._look_around_steps(here), self._looked_around)
+        if self._look_around():  # the fitted edge hems the rover in: look at the ground first
+            self._start_point()
             return
-        self._select()
-
-    def _select(self) -> None:
         self._goto(MissionPhase.SELECT)
         self.publish(NBV_REQUEST, self._planner_state())
         self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s

@@ -15,7 +15,7 @@ issue 13 item 3): a mixin of :class:`fsw.tasks.mission.MissionTask`.
   allowed, the step's view is taken from where the rover stands. The reason is kept per step
   (``stays``).
 - The geofence work of a move (setting the fence, checking the move, the unknown ground it
-  would sweep, the part-way search, the look around) runs as a slack job, one fence set-up or
+  would sweep, the part-way search) runs as a slack job, one fence set-up or
   one check a slice (``_in_slack``); the mission's activations wait for it and then go on
   with its result. Done in the foreground it took 10-50 ms an activation (up to 590 ms for a
   part-way search on lab seed 2), 0.3-1.5 s on a flight computer 30x slower (issue 15).
@@ -90,8 +90,6 @@ class GroundAwareMission(FlightTask):
         def _start_point(self) -> None: ...
 
         def _enter_safe(self, reason: str) -> None: ...
-
-        def _select(self) -> None: ...
 
     def _in_slack(self, work: Generator[None, None, object], then: Callable[[JobHandle], None]) -> None:
         """Run geofence ``work`` as a slack job; ``then(job)`` in the mission's first
@@ -218,44 +216,33 @@ class GroundAwareMission(FlightTask):
                 yield  # one check a slice
         return None
 
-    def _may_look_around(self) -> Pose3 | None:
-        """Where the rover stands, if it may have to look around there first (an edge is
-        fitted and it has not looked from there yet); else None."""
-        if self.nav is None or self.edge is None:
-            return None
-        here = (self.nav.x, self.nav.y, self.nav.yaw)
-        return None if self._looked_from == here else here
-
-    def _look_around_steps(self, here: Pose3) -> Generator[None, None, CandidateView | None]:
+    def _look_around(self) -> bool:
         """If the geofence would not let the rover stay where it stands (the fitted edge runs
-        within the margin of its wheels, often across unmapped ground beside it), a look at
-        the unknown ground nearest the edge within ``setback_m``; once per pose. None if no
-        look is needed (or none would see unknown ground)."""
-        assert self.edge is not None
+        within the margin of its wheels, often across unmapped ground beside it), make this
+        step a look at the unknown ground nearest the edge within ``setback_m``; once per
+        pose. True if the step's view is now that look. In the foreground (one fence set-up
+        and one check of a standing rover, a few ms once a step): the next-view request then
+        goes out in the frame the step's map arrived, also in a mission resumed there."""
+        if self.nav is None:
+            return False
+        here = (self.nav.x, self.nav.y, self.nav.yaw)
+        if self._looked_from == here or self.edge is None:
+            return False
         self._fence(here)
-        yield
         if self.geofence.check(here, here, known_ground=False).allowed:
-            return None
-        yield
+            return False
         # Target: the unknown ground between the rover and the fitted edge, around the edge
         # point nearest the rover, out to setback_m past it on the drop side.
         setback = self.ctx.cfg.edge.setback_m
         q = shapely.get_coordinates(shapely.shortest_line(shapely.Point(here[:2]), self.edge.lines))[-1]
         pts = self.geofence.known.unknown_points(shapely.Point(q).buffer(setback))
         if len(pts) == 0:
-            return None
+            return False
         self._looked_from = here
         self.looks += 1
         self.event("LOOK", n=len(pts), x=here[0], y=here[1])
-        return CandidateView(here, look_joints(here, pts, self.ctx.cfg.mast), method="look")
-
-    def _looked_around(self, job: JobHandle) -> None:
-        look: CandidateView | None = job.result
-        if look is None:
-            self._select()
-        else:
-            self.view = look
-            self._start_point()
+        self.view = CandidateView(here, look_joints(here, pts, self.ctx.cfg.mast), method="look")
+        return True
 
     def _ground_z(self) -> float:
         """The ground under the rover, map datum (the pose chain's body height)."""
