@@ -15,6 +15,7 @@
 
 from __future__ import annotations
 
+import heapq
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -188,6 +189,8 @@ class ChannelScheduler:
     _order: dict[str, None] = field(default_factory=dict)  # table keys, longest unsent first
     _marked: list[str] = field(default_factory=list)  # sent since the order was last brought up to date
     _pending: dict[str, None] = field(default_factory=dict)  # changed (or never sent) and not sent since
+    _ready: dict[str, None] = field(default_factory=dict)  # of those, the ones past their period
+    _parked: list[tuple[float, str]] = field(default_factory=list)  # the others: heap of (time ready, key)
 
     def due(self, now_s: float, samples: Iterable[ChannelSample]) -> list[ChannelSample]:
         """Samples worth sending now, best first (deterministic order): every one ranked."""
@@ -210,24 +213,45 @@ class ChannelScheduler:
     def ranked(self, now_s: float, table: ChannelTable) -> list[ChannelSample]:
         """:meth:`due` over ``table.samples()``: the same samples in the same order, found
         without visiting every channel (issue 15; a frame sends ~8 of ~200). Candidates are the
-        channels never sent, those changed since they were sent (``table.changed``, kept as
-        pending until sent) once ``period_s`` has passed, and, walking the channels longest
-        unsent first until one is younger than ``refresh_s``, the unchanged ones to refresh."""
+        channels never sent, those changed since they were sent (``table.changed``: pending
+        until sent, parked in a heap until ``period_s`` has passed), and, walking the channels
+        longest unsent first until one is younger than ``refresh_s``, the unchanged ones to
+        refresh."""
         self._catch_up(table)
-        pending, last, cells, limits = self._pending, self.last, table.cells, table.limits
-        pending.update(table.changed)
-        table.changed.clear()
+        pending, ready, parked = self._pending, self._ready, self._parked
+        last, cells, limits = self.last, table.cells, table.limits
         period, refresh = self.period_s - 1e-9, self.refresh_s - 1e-9
-        ranked: list[tuple[tuple[int, int, float, str], ChannelSample]] = []
-        for key in list(pending):
+        for key in table.changed:  # pending until sent: ready once its period has passed
+            if key not in pending:
+                pending[key] = None
+                prev = last.get(key)
+                if prev is not None and now_s - prev[0] < period:
+                    heapq.heappush(parked, (prev[0] + period, key))
+                else:
+                    ready[key] = None
+        table.changed.clear()
+        early: list[tuple[float, str]] = []
+        while parked and parked[0][0] <= now_s + 1e-6:
+            t, key = heapq.heappop(parked)
             prev = last.get(key)
-            if prev is not None and now_s - prev[0] < period:
-                continue  # waits for its period, still pending
+            if key not in pending or key in ready or prev is None:
+                continue
+            if now_s - prev[0] < period:
+                if t == prev[0] + period:
+                    early.append((t, key))  # not yet (by rounding): again next time
+                continue  # else a stale entry: sent and pending again since, parked anew
+            ready[key] = None
+        for item in early:
+            heapq.heappush(parked, item)
+        ranked: list[tuple[tuple[int, int, float, str], ChannelSample]] = []
+        for key in list(ready):
+            prev = last.get(key)
             v = cells[key].value
-            if v is None or isinstance(v, str):
+            if v is None or isinstance(v, str):  # not a number: pending again when written anew
+                del pending[key], ready[key]
                 continue
             if prev is not None and same_value(prev[1], v):
-                del pending[key]  # back to the value sent: unchanged (refreshed below if due)
+                del pending[key], ready[key]  # back to the value sent: unchanged (refreshed below if due)
                 continue
             out = key in limits and _outside(v, *limits[key])
             ranked.append(((0 if out else 1, 0, prev[0] if prev is not None else -math.inf, key),
@@ -253,6 +277,7 @@ class ChannelScheduler:
         if self._order:
             self._marked.append(sample.key)
             self._pending.pop(sample.key, None)
+            self._ready.pop(sample.key, None)
 
     def _catch_up(self, table: ChannelTable) -> None:
         """The order brought up to date: channels sent since the last call go to its end, by
@@ -262,6 +287,8 @@ class ChannelScheduler:
         if not order:
             self._order = dict.fromkeys(sorted(table.cells, key=lambda k: (last[k][0] if k in last else -math.inf, k)))
             self._pending = dict.fromkeys(table.cells)
+            self._ready = dict.fromkeys(table.cells)
+            self._parked = []
         else:
             for key in sorted(set(self._marked), key=lambda k: (last[k][0], k)):
                 if key in order:
