@@ -11,7 +11,7 @@ import contextlib
 import time
 from typing import Any
 
-from fsw.comm.mavlink_dialect import mavlink, mavutil
+from fsw.comm.mavlink_dialect import load_mavutil, mavlink
 
 GCS_SYSTEM_ID = 255
 GCS_COMPONENT_ID = mavlink.MAV_COMP_ID_MISSIONPLANNER
@@ -29,8 +29,8 @@ def open_connection(url: str, baud: int = 57600) -> Any:
     elif not url.startswith(("udpin:", "udpout:", "tcp:", "tcpin:")):
         raise LinkError(f"{url}: expected udpin:HOST:PORT, udpout:HOST:PORT or serial:DEVICE")
     try:
-        return mavutil.mavlink_connection(device, baud=baud, source_system=GCS_SYSTEM_ID,
-                                          source_component=GCS_COMPONENT_ID, autoreconnect=True)
+        return load_mavutil().mavlink_connection(device, baud=baud, source_system=GCS_SYSTEM_ID,
+                                                 source_component=GCS_COMPONENT_ID, autoreconnect=True)
     except (OSError, ValueError) as exc:
         raise LinkError(f"{url}: {exc}") from None
     except Exception as exc:  # noqa: BLE001 - pyserial's SerialException and friends

@@ -17,13 +17,31 @@ import os
 os.environ["MAVLINK20"] = "1"
 os.environ["MAVLINK_DIALECT"] = "common"
 
-from pymavlink import mavutil  # noqa: E402
+import sys  # noqa: E402
+from types import ModuleType  # noqa: E402
+
 from pymavlink.dialects.v20 import common as mavlink  # noqa: E402
 
-# mavutil binds the dialect on first import; a process that imported it earlier with other
-# settings would hand us MAVLink 1 or another dialect. Refuse that loudly at import time.
-if getattr(mavutil, "mavlink", None) is not None and mavutil.mavlink.WIRE_PROTOCOL_VERSION != "2.0":
-    raise ImportError("pymavlink.mavutil was imported before fsw.comm.mavlink_dialect without MAVLINK20=1")
+
+def load_mavutil() -> ModuleType:
+    """pymavlink's ``mavutil`` (connections, for the ground tools and tests), bound to MAVLink 2
+    and the common dialect. The flight software does not import it: it needs only the dialect
+    module (a sans-I/O codec), and mavutil costs 6 MB of memory (issue 15)."""
+    from pymavlink import mavutil
+
+    _check(mavutil)
+    return mavutil
+
+
+def _check(mavutil: ModuleType) -> None:
+    # mavutil binds the dialect on first import; a process that imported it earlier with other
+    # settings would hand us MAVLink 1 or another dialect. Refuse that loudly.
+    if getattr(mavutil, "mavlink", None) is not None and mavutil.mavlink.WIRE_PROTOCOL_VERSION != "2.0":
+        raise ImportError("pymavlink.mavutil was imported before fsw.comm.mavlink_dialect without MAVLINK20=1")
+
+
+if "pymavlink.mavutil" in sys.modules:
+    _check(sys.modules["pymavlink.mavutil"])
 
 #: COMMAND_LONG.command that carries a dictionary command: param1 = opcode (docs/ground.md).
 MAV_CMD_DICTIONARY = mavlink.MAV_CMD_USER_1
@@ -51,5 +69,5 @@ def signing_timestamp(unix_s: float) -> int:
 
 
 __all__ = ["MAVLink", "MAV_CMD_DICTIONARY", "MAX_FRAME_BYTES", "SIGNATURE_LEN",
-           "SIGNING_EPOCH_UNIX_S", "mavlink", "mavutil", "new_codec", "signing_timestamp"]
+           "SIGNING_EPOCH_UNIX_S", "load_mavutil", "mavlink", "new_codec", "signing_timestamp"]
 MAVLink = mavlink.MAVLink
