@@ -118,8 +118,10 @@ def test_chunked_merge_equals_one_shot_merge() -> None:
     s1 = one.merge(xyz, cov=cov, p_visible=pv, cov_common=cov_p)
     parts = [(xyz[i:i + 7000], cov[i:i + 7000], cov_p[i:i + 7000]) for i in range(0, n, 7000)]
     chunked = ElevationMap(grid)
+    n_parts = len(parts)
     yields, s2 = count_steps(chunked.merge_parts_steps(parts, p_visible=pv, step_points=7000))
-    assert yields >= 2 * (len(parts) - 1)  # both passes, part by part (the short last one joins the next)
+    assert yields >= 2 * (n_parts - 1)  # both passes, part by part (the short last one joins the next)
+    assert parts == []  # consumed: the points are held in one form at a time
     assert s1 == s2
     m = one.mapped
     assert np.array_equal(m, chunked.mapped)
