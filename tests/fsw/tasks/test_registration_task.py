@@ -36,12 +36,19 @@ def _drain(gen: Any) -> Any:
 
 
 @pytest.fixture(scope="module")
-def setup() -> Any:
+def rendered() -> Any:
     cfg = load_settings()
     world = load_scenario(PERCEPTION_LAB)
     rend = StereoRenderer(world, cfg.camera, world.noise_sigma, seed=0)
     poses = pit_view_poses(world, cfg.mast, 3, x_span_m=0.6, seed=2)
-    pairs = [rend.render(p) for p in poses]
+    return cfg, world, poses, [rend.render(p) for p in poses]
+
+
+@pytest.fixture
+def setup(rendered: Any) -> Any:
+    """A fresh executive for each test (the rendered pairs are shared): no test depends on
+    what another merged, in any order or split across workers."""
+    cfg, world, poses, pairs = rendered
     ideal = dataclasses.replace(cfg.camera, calibration_file="")  # the pairs come from the ideal renderer
     exe = Executive(dataclasses.replace(cfg, map=world.map_grid, camera=ideal), SteppedClock())
     return exe, poses, pairs
@@ -73,6 +80,7 @@ def test_injected_pose_error_is_corrected_before_the_merge(setup: Any) -> None:
 def test_view_without_overlap_is_merged_inflated_and_reported(setup: Any) -> None:
     exe, poses, pairs = setup
     task = exe.tasks["perception"]
+    _drain(task._merge_view(CameraFrame(0, 0.0, *pairs[0], poses[0], PRIOR)))  # a map to miss
     task.chain.clear()  # no registered station before it: nothing carried (the carry: next test)
     # the pit pair seen from a pose 6 m away: none of its points fall on the map
     far = CameraPose(poses[2].R, poses[2].t + np.array([6.0, 0.0, 0.0]))
