@@ -35,6 +35,7 @@ from fsw.core.nav_fix import NavFix
 from fsw.core.nbv import predicted_visibility_steps
 from fsw.core.occlusion import LipGuard
 from fsw.core.rectify import Rectifier
+from fsw.core.reference_frames import ReferenceFrames
 from fsw.core.registration import (
     Registration,
     RegistrationSummary,
@@ -150,6 +151,7 @@ class PerceptionTask(FlightTask):
         self.last_update: MapUpdate | None = None
         self.unregistered = 0
         self.chain = StationChain()  # the registered stations (fsw.core.station_chain)
+        self.sources = ReferenceFrames(self.map.grid.shape)  # each cell's view (fsw.core.reference_frames)
         self.registrations: deque[RegistrationSummary] = deque(maxlen=1000)  # per view (mission summary)
         self.store = self.ctx.res.map_store
         self._last_checkpoint_s = self.ctx.clock.now()
@@ -208,6 +210,8 @@ class PerceptionTask(FlightTask):
             yield
         del pts  # the camera-frame points: every use is above
         view_cells = self.map.grid.cell_means(np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3)))
+        X, Y = (c.reshape(-1)[view_cells[0]] for c in self.map.grid.centers())
+        self.sources.add(view_cells[0], np.column_stack([X, Y, view_cells[1]]), pose.t, pose_cov)
         yield
         stats = yield from self.map.merge_parts_steps(parts, p_visible=p_visible, step_points=MERGE_STEP_POINTS)
         yield
@@ -260,7 +264,7 @@ class PerceptionTask(FlightTask):
         ref = reference_cells(self.map.z, self.map.var, self.map.n, rcfg)
         yield
         reg = yield from register_steps(xyz_w, cov_w, prior, vp.cov, self.map.grid, self.map.z,
-                                        self.map.var, ref, rcfg)
+                                        self.map.var, ref, rcfg, self.sources if rcfg.reference_error else None)
         if reg.status == "reference":
             self.chain.reference(fr.pose_cov)
             return reg, fr.pose, fr.pose_cov, None
@@ -342,12 +346,14 @@ class PerceptionTask(FlightTask):
         """What a resumed mission needs besides the map (``fsw.tasks.mission_state``): the view
         count and the registration state (the station chain, the per-view reports)."""
         return {"views": self.views, "unregistered": self.unregistered, **self.chain.state(),
+                "sources": self.sources.state(),
                 "registrations": list(self.registrations)}
 
     def restore_state(self, state: JsonDict) -> None:
         self.views = int(state["views"])
         self.unregistered = int(state.get("unregistered", 0))
         self.chain.restore(state)
+        self.sources.restore(state.get("sources", {}))
         self.registrations.extend(state.get("registrations", []))
         self.tlm("views", self.views)
 
@@ -363,3 +369,4 @@ class PerceptionTask(FlightTask):
             raise CommandError("a view is being merged; try again")
         self.map = ElevationMap(self.map.grid, self.ctx.cfg.fusion)
         self.chain.clear()
+        self.sources.clear()
