@@ -20,14 +20,25 @@ Points of one view are not independent (shared matching windows, the same surfac
 so the data information is scaled down to ``n_eff`` points (choice), and the weights are
 scaled by the robust a posteriori variance factor ``s^2`` of the residuals (the map's
 variance includes the pose error common to all its cells, which does not blur the surface
-being fitted). The correction is relative to the map; its covariance is the posterior
-``(J^T W J n_eff/n / s^2 + Sigma^-1)^-1``.
+being fitted). Relative to the map the correction's covariance is the posterior
+``C = (J^T W J n_eff/n / s^2 + Sigma^-1)^-1``; the map itself is only as well placed as the
+views that mapped it, so with ``reference_error`` their pose error joins it
+(:func:`_reference_covariance`, ``fsw.core.reference_frames``): ``cov = C + ref_cov``.
+
+A false minimum (issue 13: terrain seed 6, a weakly constrained view settled 11 deg and
+23 cm off, inside the chi-square gate, with a 5 cm sigma) is caught by consistency: two
+spatially disjoint halves of the overlap are fitted apart and must agree within their
+covariances (:func:`_split_check`, a chi-square test at ``split_alpha``). If they disagree
+in all six directions, height, roll and pitch alone are fitted (yaw, x and y held at the
+prior with its covariance: :func:`_posterior`), and checked the same way; the record's
+``reason`` says so.
 
 Refused (the view is merged with its pose covariance inflated instead): fewer than
 ``min_points`` points on reference cells (too little overlap), data that do not fix height,
 roll and pitch (ill-conditioned: the normal matrix of height and tilt times the lever arm
-has a condition number above ``max_condition``), a fit whose residual stays large, or a
-correction implausible against the prior (chi-square gate).
+has a condition number above ``max_condition``), a fit whose residual stays large, a
+correction implausible against the prior (chi-square gate), or halves that disagree even in
+height and tilt.
 """
 
 from __future__ import annotations
@@ -39,6 +50,7 @@ from typing import TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.stats import chi2
 
 from fsw.core.geometry import CameraPose, MapGrid
 from fsw.core.localization import so3_exp
@@ -88,8 +100,9 @@ class RegistrationConfig:
     max_residual_sigma: float = param(3.0, lo=0.5, hi=100.0, units="sigma",
                                       doc="RMS normalised residual of the fit above this: refused")
     gate_chi2: float = param(50.0, lo=1.0, hi=1e9, doc="correction against the prior (6 dof) above this: refused")
-    split_chi2: float = param(22.46, lo=0.0, hi=1e9, doc="two disjoint halves of the overlap fitted apart disagree "
-                                                         "beyond this chi-square (6 dof; 0: no check): refused")
+    split_alpha: float = param(0.001, lo=0.0, hi=0.5, doc="two disjoint halves of the overlap fitted apart disagree "
+                               "beyond this chi-square tail (dof: the directions fitted; 0: no check): refit "
+                               "in height and tilt only, or refused")
     reference_error: bool = param(True, doc="the pose error of the views that mapped the reference cells joins "
                                             "the correction's covariance (fsw.core.reference_frames)")
     inflate_rot_deg: float = param(0.3, lo=0.0, hi=30.0, units="deg", doc="unregistered view: added rotation sigma")
@@ -200,11 +213,13 @@ class _Fit:
 
 
 def _fit(q0: F64, cov_p: F64, t: F64, P_inv: F64, grid: MapGrid, z: F64, var: F64, ref: NDArray[np.bool_],
-         cfg: RegistrationConfig, n_eff: float, min_points: int
+         cfg: RegistrationConfig, n_eff: float, min_points: int, free: list[int]
          ) -> Generator[None, None, _Fit | tuple[str, int]]:
-    """Gauss-Newton from the prior (``d = 0``), one iteration per step; or why not (and the
-    points left)."""
+    """Gauss-Newton from the prior (``d = 0``) in the ``free`` directions (the others held at
+    the prior), one iteration per step; or why not (and the points left). ``N`` is the full
+    6x6 normal matrix."""
     d = np.zeros(6)
+    f = np.ix_(free, free)
     for _ in range(cfg.iterations):
         q = q0 @ so3_exp(d[:3]).T
         p = q + t + d[3:]
@@ -228,7 +243,8 @@ def _fit(q0: F64, cov_p: F64, t: F64, P_inv: F64, grid: MapGrid, z: F64, var: F6
         scale = min(1.0, n_eff / float(used.sum()))
         N = (J * w[:, None]).T @ J * scale
         b = (J * w[:, None]).T @ r[used] * scale
-        step = np.linalg.solve(N + P_inv, -(b + P_inv @ d))
+        step = np.zeros(6)
+        step[free] = np.linalg.solve(N[f] + P_inv[f], -(b + P_inv @ d)[free])
         d = d + step
         yield
         if np.abs(step[:3]).max() < 1e-7 and np.abs(step[3:]).max() < 1e-6:
@@ -266,21 +282,59 @@ def register_steps(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, grid
     cov_p = np.asarray(cov_w, dtype=np.float64)[idx]
     S = np.asarray(pose_cov, dtype=np.float64)
     P_inv = np.linalg.inv(S + np.diag(np.r_[np.full(3, 1e-10), np.full(3, 1e-8)]))
-    fit = yield from _fit(q0, cov_p, pose.t, P_inv, grid, z, var, ref, cfg, cfg.n_eff, cfg.min_points)
+    out = yield from _solve(q0, cov_p, pose.t, S, P_inv, grid, z, var, ref, cfg, ALL, pts_w[idx], frames)
+    if out.status != "registered" and out.reason.startswith("halves disagree"):
+        full = out  # ambiguous in yaw, x, y: height and tilt alone (what any overlap fixes)
+        out = yield from _solve(q0, cov_p, pose.t, S, P_inv, grid, z, var, ref, cfg, HEIGHT_TILT, pts_w[idx],
+                                frames)
+        out.reason = (f"height and tilt only: {full.reason}; yaw, x, y kept at the prior"
+                      if out.status == "registered" else f"{full.reason}; height and tilt alone: {out.reason}")
+    if out.status != "registered":
+        out.correction, out.cov, out.ref_cov = np.zeros(6), np.zeros((6, 6)), np.zeros((6, 6))
+    return out
+
+
+ALL, HEIGHT_TILT = [0, 1, 2, 3, 4, 5], [0, 1, 5]
+
+
+def _posterior(N: F64, P_inv: F64, S: F64, free: list[int]) -> tuple[F64, F64]:
+    """The correction's covariance (6x6) and ``C_f`` (the free block given the rest): with
+    directions ``h`` held at the prior, the free estimate shifts by ``K dh``, ``K = -C_f
+    (N_fh + P^-1_fh)``, when they are off by ``dh ~ (0, S_hh)``, so its covariance is
+    ``C_f + K S_hh K^T`` and the held ones keep ``S_hh``."""
+    f = np.ix_(free, free)
+    Cf = np.linalg.inv(N[f] + P_inv[f])
+    Cf = 0.5 * (Cf + Cf.T)
+    held = [i for i in range(6) if i not in free]
+    if not held:
+        return Cf, Cf
+    fh, hh = np.ix_(free, held), np.ix_(held, held)
+    K = -Cf @ (N[fh] + P_inv[fh])
+    C = np.zeros((6, 6))
+    C[f] = Cf + K @ S[hh] @ K.T
+    C[fh] = K @ S[hh]
+    C[np.ix_(held, free)] = C[fh].T
+    C[hh] = S[hh]
+    return 0.5 * (C + C.T), Cf
+
+
+def _solve(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid, z: F64, var: F64,
+           ref: NDArray[np.bool_], cfg: RegistrationConfig, free: list[int], pts: F64,
+           frames: ReferenceFrames | None) -> Generator[None, None, Registration]:
+    """One fit in the ``free`` directions, its covariance and the checks (module docstring)."""
+    fit = yield from _fit(q0, cov_p, t, P_inv, grid, z, var, ref, cfg, cfg.n_eff, cfg.min_points, free)
     if isinstance(fit, tuple):
         return Registration("unregistered", fit[0], points=fit[1])
-    d, N = fit.d, fit.N
-    C = np.linalg.inv(N + P_inv)
-    C = 0.5 * (C + C.T)
-    used = fit.used
-    ref_cov = np.zeros((6, 6)) if frames is None else _reference_covariance(fit, C, pts_w[idx], pose.t, grid, frames)
+    d, N, used = fit.d, fit.N, fit.used
+    C, Cf = _posterior(N, P_inv, S, free)
+    ref_cov = np.zeros((6, 6)) if frames is None else _reference_covariance(fit, Cf, free, pts, t, grid, frames)
     res_sigma = float(np.sqrt(np.mean(fit.r[used] ** 2 / fit.sig2[used])))  # against the predicted sigmas
     prior_sd = np.sqrt(np.maximum(np.diag(S), 1e-20))
     constrained = tuple(bool(c) for c in np.sqrt(np.maximum(np.diag(C), 0.0)) < 0.5 * prior_sd)
     out = Registration("registered", "", d, C + ref_cov, int(used.size), res_sigma, constrained, ref_cov=ref_cov)
     # Does the data fix height, roll and pitch together? Its information there, tilt times the lever.
     lever = float(np.sqrt(np.mean(np.sum(q0[used][:, :2] ** 2, axis=1))))
-    sub, unit = [0, 1, 5], np.array([lever, lever, 1.0])
+    sub, unit = HEIGHT_TILT, np.array([lever, lever, 1.0])
     N3 = N[np.ix_(sub, sub)] / np.outer(unit, unit)
     lam = np.linalg.eigvalsh(N3)
     if not lam[0] > 0 or lam[-1] / lam[0] > cfg.max_condition:
@@ -289,49 +343,57 @@ def register_steps(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, grid
         out.status, out.reason = "unregistered", f"residual {res_sigma:.1f} sigma after the fit"
     elif float(d @ P_inv @ d) > cfg.gate_chi2:
         out.status, out.reason = "unregistered", f"correction implausible (chi2 {float(d @ P_inv @ d):.0f})"
-    elif cfg.split_chi2 > 0:
-        out.split_chi2 = yield from _split_check(q0[used], cov_p[used], pose.t, P_inv, grid, z, var, ref, cfg)
-        if out.split_chi2 > cfg.split_chi2:
+    elif cfg.split_alpha > 0:
+        out.split_chi2 = yield from _split_check(q0[used], cov_p[used], t, S, P_inv, grid, z, var, ref, cfg, free)
+        limit = float(chi2.ppf(1.0 - cfg.split_alpha, len(free)))
+        if out.split_chi2 > limit:
             out.status = "unregistered"
-            out.reason = f"halves disagree (chi2 {out.split_chi2:.0f}): a false or ambiguous minimum"
-    if out.status != "registered":
-        out.correction, out.cov, out.ref_cov = np.zeros(6), np.zeros((6, 6)), np.zeros((6, 6))
+            out.reason = (f"halves disagree (chi2 {out.split_chi2:.0f} > {limit:.1f}, {len(free)} dof): "
+                          "a false or ambiguous minimum")
     return out
 
 
-def _split_check(q0: F64, cov_p: F64, t: F64, P_inv: F64, grid: MapGrid, z: F64, var: F64,
-                 ref: NDArray[np.bool_], cfg: RegistrationConfig) -> Generator[None, None, float]:
+def _split_check(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid, z: F64, var: F64,
+                 ref: NDArray[np.bool_], cfg: RegistrationConfig, free: list[int]) -> Generator[None, None, float]:
     """Consistency of the fit (a false minimum, issue 13): the used points split into two
     spatially disjoint halves (:func:`_halves`), each fitted on its own from the prior with
     half the view's independent points (``n_eff / 2``: the halves share no matching window).
     Two unbiased fits differ by ``D = d_A - d_B`` with a covariance at most ``C_A + C_B`` (the
     shared prior only correlates them positively), so ``D^T (C_A + C_B)^-1 D`` is at most
-    chi-square with 6 dof; above ``split_chi2`` (its 0.1 % quantile) the data hold two
-    different answers. A half too small to fit (under ``min_points / 2``) gives ``inf``."""
+    chi-square with as many dof as ``free`` directions; above its ``1 - split_alpha`` quantile
+    the data hold two different answers. With directions held at the prior, both halves
+    shift with their error: ``(K_A - K_B) S_hh (K_A - K_B)^T`` joins the covariance
+    (:func:`_posterior`). A half too small to fit (under ``min_points / 2``) gives ``inf``."""
     first = _halves(q0[:, :2])
     fits: list[tuple[F64, F64]] = []
     for half in (first, ~first):
         f = yield from _fit(q0[half], cov_p[half], t, P_inv, grid, z, var, ref, cfg, 0.5 * cfg.n_eff,
-                            max(1, cfg.min_points // 2))
+                            max(1, cfg.min_points // 2), free)
         if isinstance(f, tuple):
             return math.inf
-        fits.append((f.d, np.linalg.inv(f.N + P_inv)))
+        _, Cf = _posterior(f.N, P_inv, S, free)
+        held = [i for i in range(6) if i not in free]
+        K = -Cf @ (f.N + P_inv)[np.ix_(free, held)]
+        fits.append((f.d[free], Cf, K))
     D = fits[0][0] - fits[1][0]
+    held = [i for i in range(6) if i not in free]
+    dK = fits[0][2] - fits[1][2]  # both halves see the same error of the held directions
     try:
-        m2 = float(D @ np.linalg.solve(fits[0][1] + fits[1][1], D))
+        m2 = float(D @ np.linalg.solve(fits[0][1] + fits[1][1] + dK @ S[np.ix_(held, held)] @ dK.T, D))
     except np.linalg.LinAlgError:
         return math.inf
     return m2 if np.isfinite(m2) else math.inf
 
 
-def _reference_covariance(fit: _Fit, C: F64, pts: F64, centre: F64, grid: MapGrid,
+def _reference_covariance(fit: _Fit, Cf: F64, free: list[int], pts: F64, centre: F64, grid: MapGrid,
                           frames: ReferenceFrames) -> F64:
     """The correction's error from the reference's own placement: the cells a view aligns to
     are displaced by the pose error ``delta_k`` of the view ``k`` that mapped them (a rigid
     motion, :mod:`fsw.core.reference_frames`), and the fit follows its points there:
     ``dd = C sum_k N_k delta_k`` (``N_k``: the normal matrix of the points on view ``k``'s
     cells, ``C`` the posterior), so ``Cov = sum_k C N_k Sigma_k N_k C`` with ``Sigma_k`` the
-    source view's merged pose covariance about this view's centre (sources taken independent)."""
+    source view's merged pose covariance about this view's centre (sources taken independent;
+    with directions held at the prior, ``C_f N_k[f, :]`` moves the free ones only)."""
     p = pts[fit.used]
     iy, ix, inside = grid.cell_index(p[:, 0], p[:, 1])
     src = np.where(inside, frames.sources(np.where(inside, iy * grid.nx + ix, 0)), -1)
@@ -339,6 +401,7 @@ def _reference_covariance(fit: _Fit, C: F64, pts: F64, centre: F64, grid: MapGri
     for k in np.unique(src[src >= 0]):
         m = src == k
         Nk = (fit.J[m] * fit.w[m, None]).T @ fit.J[m] * fit.scale
-        G = C @ Nk
+        G = np.zeros((6, 6))
+        G[free] = Cf @ Nk[free]
         out += G @ about(frames.covs[int(k)], frames.centres[int(k)], centre) @ G.T
     return 0.5 * (out + out.T)
