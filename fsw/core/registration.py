@@ -77,7 +77,7 @@ class RegistrationSummary(TypedDict):
     sigma: list[float]  # roll, pitch, yaw (deg), x, y, z (m)
     constrained: str  # letters of R, P, Y, x, y, z the terrain constrained
     residual_sigma: float
-    split_chi2: float  # the two halves' disagreement, chi-square 6 dof (nan: not checked)
+    split_chi2: float  # the two halves' disagreement, chi-square (dof: directions fitted; nan: not checked)
     ref_sigma: list[float]  # the part of sigma from the reference's own placement
 
 
@@ -365,7 +365,7 @@ def _split_check(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid,
     shift with their error: ``(K_A - K_B) S_hh (K_A - K_B)^T`` joins the covariance
     (:func:`_posterior`). A half too small to fit (under ``min_points / 2``) gives ``inf``."""
     first = _halves(q0[:, :2])
-    fits: list[tuple[F64, F64]] = []
+    fits: list[tuple[F64, F64, F64]] = []
     for half in (first, ~first):
         f = yield from _fit(q0[half], cov_p[half], t, P_inv, grid, z, var, ref, cfg, 0.5 * cfg.n_eff,
                             max(1, cfg.min_points // 2), free)
