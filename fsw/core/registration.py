@@ -23,14 +23,14 @@ variance includes the pose error common to all its cells, which does not blur th
 being fitted). Relative to the map the correction's covariance is the posterior
 ``C = (J^T W J n_eff/n / s^2 + Sigma^-1)^-1``; the map itself is only as well placed as the
 views that mapped it, so with ``reference_error`` their pose error joins it
-(:func:`_reference_covariance`, ``fsw.core.reference_frames``): ``cov = C + ref_cov``.
+(``fsw.core.registration_stats.reference_covariance``, ``fsw.core.reference_frames``): ``cov = C + ref_cov``.
 
 A false minimum (issue 13: terrain seed 6, a weakly constrained view settled 11 deg and
 23 cm off, inside the chi-square gate, with a 5 cm sigma) is caught by consistency: two
 spatially disjoint halves of the overlap are fitted apart and must agree within their
 covariances (:func:`_split_check`, a chi-square test at ``split_alpha``). If they disagree
 in all six directions, height, roll and pitch alone are fitted (yaw, x and y held at the
-prior with its covariance: :func:`_posterior`), and checked the same way; the record's
+prior with its covariance: :func:`fsw.core.registration_stats.posterior`), and checked the same way; the record's
 ``reason`` says so.
 
 Refused (the view is merged with its pose covariance inflated instead): fewer than
@@ -54,7 +54,8 @@ from scipy.stats import chi2
 
 from fsw.core.geometry import CameraPose, MapGrid
 from fsw.core.localization import so3_exp
-from fsw.core.reference_frames import ReferenceFrames, about
+from fsw.core.reference_frames import ReferenceFrames
+from fsw.core.registration_stats import ALL, HEIGHT_TILT, halves, posterior, reference_covariance
 from fsw.core.steps import run_to_end
 from fsw.framework.params import param
 
@@ -252,15 +253,6 @@ def _fit(q0: F64, cov_p: F64, t: F64, P_inv: F64, grid: MapGrid, z: F64, var: F6
     return _Fit(d, N, J, w, np.flatnonzero(used), r, sig2, scale)
 
 
-def _halves(xy: F64) -> NDArray[np.bool_]:
-    """The first of two spatially disjoint halves of the points: split at the median of
-    their horizontal principal axis (the long way across the overlap)."""
-    c = xy - xy.mean(axis=0)
-    _, vec = np.linalg.eigh(c.T @ c)
-    s = c @ vec[:, -1]
-    return np.asarray(s < np.median(s))
-
-
 def register_steps(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, grid: MapGrid, z: F64, var: F64,
                    ref: NDArray[np.bool_], cfg: RegistrationConfig, frames: ReferenceFrames | None = None
                    ) -> Generator[None, None, Registration]:
@@ -294,30 +286,6 @@ def register_steps(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, grid
     return out
 
 
-ALL, HEIGHT_TILT = [0, 1, 2, 3, 4, 5], [0, 1, 5]
-
-
-def _posterior(N: F64, P_inv: F64, S: F64, free: list[int]) -> tuple[F64, F64]:
-    """The correction's covariance (6x6) and ``C_f`` (the free block given the rest): with
-    directions ``h`` held at the prior, the free estimate shifts by ``K dh``, ``K = -C_f
-    (N_fh + P^-1_fh)``, when they are off by ``dh ~ (0, S_hh)``, so its covariance is
-    ``C_f + K S_hh K^T`` and the held ones keep ``S_hh``."""
-    f = np.ix_(free, free)
-    Cf = np.linalg.inv(N[f] + P_inv[f])
-    Cf = 0.5 * (Cf + Cf.T)
-    held = [i for i in range(6) if i not in free]
-    if not held:
-        return Cf, Cf
-    fh, hh = np.ix_(free, held), np.ix_(held, held)
-    K = -Cf @ (N[fh] + P_inv[fh])
-    C = np.zeros((6, 6))
-    C[f] = Cf + K @ S[hh] @ K.T
-    C[fh] = K @ S[hh]
-    C[np.ix_(held, free)] = C[fh].T
-    C[hh] = S[hh]
-    return 0.5 * (C + C.T), Cf
-
-
 def _solve(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid, z: F64, var: F64,
            ref: NDArray[np.bool_], cfg: RegistrationConfig, free: list[int], pts: F64,
            frames: ReferenceFrames | None) -> Generator[None, None, Registration]:
@@ -326,8 +294,9 @@ def _solve(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid, z: F6
     if isinstance(fit, tuple):
         return Registration("unregistered", fit[0], points=fit[1])
     d, N, used = fit.d, fit.N, fit.used
-    C, Cf = _posterior(N, P_inv, S, free)
-    ref_cov = np.zeros((6, 6)) if frames is None else _reference_covariance(fit, Cf, free, pts, t, grid, frames)
+    C, Cf = posterior(N, P_inv, S, free)
+    ref_cov = np.zeros((6, 6)) if frames is None else reference_covariance(
+        fit.J, fit.w, fit.scale, Cf, free, pts[used], t, grid, frames)
     res_sigma = float(np.sqrt(np.mean(fit.r[used] ** 2 / fit.sig2[used])))  # against the predicted sigmas
     prior_sd = np.sqrt(np.maximum(np.diag(S), 1e-20))
     constrained = tuple(bool(c) for c in np.sqrt(np.maximum(np.diag(C), 0.0)) < 0.5 * prior_sd)
@@ -356,22 +325,22 @@ def _solve(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid, z: F6
 def _split_check(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid, z: F64, var: F64,
                  ref: NDArray[np.bool_], cfg: RegistrationConfig, free: list[int]) -> Generator[None, None, float]:
     """Consistency of the fit (a false minimum, issue 13): the used points split into two
-    spatially disjoint halves (:func:`_halves`), each fitted on its own from the prior with
+    spatially disjoint halves (:func:`fsw.core.registration_stats.halves`), each fitted on its own from the prior with
     half the view's independent points (``n_eff / 2``: the halves share no matching window).
     Two unbiased fits differ by ``D = d_A - d_B`` with a covariance at most ``C_A + C_B`` (the
     shared prior only correlates them positively), so ``D^T (C_A + C_B)^-1 D`` is at most
     chi-square with as many dof as ``free`` directions; above its ``1 - split_alpha`` quantile
     the data hold two different answers. With directions held at the prior, both halves
     shift with their error: ``(K_A - K_B) S_hh (K_A - K_B)^T`` joins the covariance
-    (:func:`_posterior`). A half too small to fit (under ``min_points / 2``) gives ``inf``."""
-    first = _halves(q0[:, :2])
+    (:func:`fsw.core.registration_stats.posterior`). A half too small to fit (under ``min_points / 2``) gives ``inf``."""
+    first = halves(q0[:, :2])
     fits: list[tuple[F64, F64, F64]] = []
     for half in (first, ~first):
         f = yield from _fit(q0[half], cov_p[half], t, P_inv, grid, z, var, ref, cfg, 0.5 * cfg.n_eff,
                             max(1, cfg.min_points // 2), free)
         if isinstance(f, tuple):
             return math.inf
-        _, Cf = _posterior(f.N, P_inv, S, free)
+        _, Cf = posterior(f.N, P_inv, S, free)
         held = [i for i in range(6) if i not in free]
         K = -Cf @ (f.N + P_inv)[np.ix_(free, held)]
         fits.append((f.d[free], Cf, K))
@@ -385,23 +354,3 @@ def _split_check(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid,
     return m2 if np.isfinite(m2) else math.inf
 
 
-def _reference_covariance(fit: _Fit, Cf: F64, free: list[int], pts: F64, centre: F64, grid: MapGrid,
-                          frames: ReferenceFrames) -> F64:
-    """The correction's error from the reference's own placement: the cells a view aligns to
-    are displaced by the pose error ``delta_k`` of the view ``k`` that mapped them (a rigid
-    motion, :mod:`fsw.core.reference_frames`), and the fit follows its points there:
-    ``dd = C sum_k N_k delta_k`` (``N_k``: the normal matrix of the points on view ``k``'s
-    cells, ``C`` the posterior), so ``Cov = sum_k C N_k Sigma_k N_k C`` with ``Sigma_k`` the
-    source view's merged pose covariance about this view's centre (sources taken independent;
-    with directions held at the prior, ``C_f N_k[f, :]`` moves the free ones only)."""
-    p = pts[fit.used]
-    iy, ix, inside = grid.cell_index(p[:, 0], p[:, 1])
-    src = np.where(inside, frames.sources(np.where(inside, iy * grid.nx + ix, 0)), -1)
-    out = np.zeros((6, 6))
-    for k in np.unique(src[src >= 0]):
-        m = src == k
-        Nk = (fit.J[m] * fit.w[m, None]).T @ fit.J[m] * fit.scale
-        G = np.zeros((6, 6))
-        G[free] = Cf @ Nk[free]
-        out += G @ about(frames.covs[int(k)], frames.centres[int(k)], centre) @ G.T
-    return 0.5 * (out + out.T)
