@@ -295,8 +295,7 @@ def _solve(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid, z: F6
         return Registration("unregistered", fit[0], points=fit[1])
     d, N, used = fit.d, fit.N, fit.used
     C, Cf = posterior(N, P_inv, S, free)
-    ref_cov = np.zeros((6, 6)) if frames is None else reference_covariance(
-        fit.J, fit.w, fit.scale, Cf, free, pts[used], t, grid, frames)
+    ref_cov = np.zeros((6, 6)) if frames is None else reference_covariance(N, Cf, free, pts[used], t, grid, frames)
     res_sigma = float(np.sqrt(np.mean(fit.r[used] ** 2 / fit.sig2[used])))  # against the predicted sigmas
     prior_sd = np.sqrt(np.maximum(np.diag(S), 1e-20))
     constrained = tuple(bool(c) for c in np.sqrt(np.maximum(np.diag(C), 0.0)) < 0.5 * prior_sd)
@@ -332,7 +331,8 @@ def _split_check(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid,
     chi-square with as many dof as ``free`` directions; above its ``1 - split_alpha`` quantile
     the data hold two different answers. With directions held at the prior, both halves
     shift with their error: ``(K_A - K_B) S_hh (K_A - K_B)^T`` joins the covariance
-    (:func:`fsw.core.registration_stats.posterior`). A half too small to fit (under ``min_points / 2``) gives ``inf``."""
+    (:func:`fsw.core.registration_stats.posterior`). A half too small to fit (under
+    ``min_points / 2``) gives ``inf``."""
     first = halves(q0[:, :2])
     fits: list[tuple[F64, F64, F64]] = []
     for half in (first, ~first):

@@ -44,23 +44,26 @@ def posterior(N: F64, P_inv: F64, S: F64, free: list[int]) -> tuple[F64, F64]:
     return 0.5 * (C + C.T), Cf
 
 
-def reference_covariance(J: F64, w: F64, scale: float, Cf: F64, free: list[int], p: F64, centre: F64,
-                         grid: MapGrid, frames: ReferenceFrames) -> F64:
-    """The correction's error from the reference's own placement (``J``, ``w``, ``p``: the used
-    points' Jacobian rows, weights and world positions; ``scale`` the ``n_eff`` share): the cells a view aligns to
-    are displaced by the pose error ``delta_k`` of the view ``k`` that mapped them (a rigid
-    motion, :mod:`fsw.core.reference_frames`), and the fit follows its points there:
-    ``dd = C sum_k N_k delta_k`` (``N_k``: the normal matrix of the points on view ``k``'s
-    cells, ``C`` the posterior), so ``Cov = sum_k C N_k Sigma_k N_k C`` with ``Sigma_k`` the
-    source view's merged pose covariance about this view's centre (sources taken independent;
-    with directions held at the prior, ``C_f N_k[f, :]`` moves the free ones only)."""
+def reference_covariance(N: F64, Cf: F64, free: list[int], p: F64, centre: F64, grid: MapGrid,
+                         frames: ReferenceFrames) -> F64:
+    """The correction's error from the reference's own placement (``N``: the fit's normal
+    matrix, ``p``: the used points' world positions): the cells a view aligns to are displaced
+    by the pose error ``delta`` of the views that mapped them (a rigid motion,
+    :mod:`fsw.core.reference_frames`), and the fit follows its points there: ``dd = C N delta``
+    (``C`` the posterior; with directions held at the prior, ``C_f N[f, :]`` moves the free
+    ones only), so ``Cov = C N Sigma N C``. ``Sigma`` is the sources' merged pose covariance
+    about this view's centre, averaged over the used points (each point's cell's source). The
+    sources are taken as one common error, not independent ones: the views of a station
+    share the body's pose error and each station is placed from the last, and independent
+    sources would let opposite leverage of two strips add up beyond either's error."""
     iy, ix, inside = grid.cell_index(p[:, 0], p[:, 1])
     src = np.where(inside, frames.sources(np.where(inside, iy * grid.nx + ix, 0)), -1)
-    out = np.zeros((6, 6))
-    for k in np.unique(src[src >= 0]):
-        m = src == k
-        Nk = (J[m] * w[m, None]).T @ J[m] * scale
-        G = np.zeros((6, 6))
-        G[free] = Cf @ Nk[free]
-        out += G @ about(frames.covs[int(k)], frames.centres[int(k)], centre) @ G.T
-    return 0.5 * (out + out.T)
+    if not (src >= 0).any():
+        return np.zeros((6, 6))
+    ks, counts = np.unique(src[src >= 0], return_counts=True)
+    sigma = sum(c * about(frames.covs[int(k)], frames.centres[int(k)], centre) for k, c in zip(ks, counts, strict=True))
+    sigma = sigma / len(src)  # a point on a cell of no known source adds none
+    G = np.zeros((6, 6))
+    G[free] = Cf @ N[free]
+    out = G @ sigma @ G.T
+    return np.asarray(0.5 * (out + out.T))
