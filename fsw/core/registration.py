@@ -314,7 +314,9 @@ def _solve(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid, z: F6
     elif cfg.split_alpha > 0:
         out.split_chi2 = yield from _split_check(q0[used], cov_p[used], t, S, P_inv, grid, z, var, ref, cfg, free)
         limit = float(chi2.ppf(1.0 - cfg.split_alpha, len(free)))
-        if out.split_chi2 > limit:
+        if math.isinf(out.split_chi2):
+            out.status, out.reason = "unregistered", "unchecked: a half of the overlap too small to fit alone"
+        elif out.split_chi2 > limit:
             out.status = "unregistered"
             out.reason = (f"halves disagree (chi2 {out.split_chi2:.0f} > {limit:.1f}, {len(free)} dof): "
                           "a false or ambiguous minimum")
