@@ -275,7 +275,7 @@ def register_steps(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, grid
     S = np.asarray(pose_cov, dtype=np.float64)
     P_inv = np.linalg.inv(S + np.diag(np.r_[np.full(3, 1e-10), np.full(3, 1e-8)]))
     out = yield from _solve(q0, cov_p, pose.t, S, P_inv, grid, z, var, ref, cfg, ALL, pts_w[idx], frames)
-    if out.status != "registered" and out.reason.startswith("halves disagree"):
+    if out.status != "registered" and out.reason.startswith(("halves disagree", "unchecked")):
         full = out  # ambiguous in yaw, x, y: height and tilt alone (what any overlap fixes)
         out = yield from _solve(q0, cov_p, pose.t, S, P_inv, grid, z, var, ref, cfg, HEIGHT_TILT, pts_w[idx],
                                 frames)
