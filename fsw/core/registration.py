@@ -31,8 +31,7 @@ spatially disjoint halves of the overlap are fitted apart and must agree within 
 covariances (:func:`_split_check`, a chi-square test at ``split_alpha``). If they disagree
 in all six directions, height, roll and pitch alone are fitted (yaw, x and y held at the
 prior with its covariance: :func:`fsw.core.registration_stats.posterior`), and checked the same way; the record's
-``reason`` says so. Such a fit is kept only if it knows height, roll and pitch better than
-the prior did (relative to the map): held directions far off leave them less known.
+``reason`` says so.
 
 Refused (the view is merged with its pose covariance inflated instead): fewer than
 ``min_points`` points on reference cells (too little overlap), data that do not fix height,
@@ -280,11 +279,6 @@ def register_steps(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, grid
         full = out  # ambiguous in yaw, x, y: height and tilt alone (what any overlap fixes)
         out = yield from _solve(q0, cov_p, pose.t, S, P_inv, grid, z, var, ref, cfg, HEIGHT_TILT, pts_w[idx],
                                 frames)
-        rel = np.diag(out.cov - out.ref_cov)[HEIGHT_TILT]
-        if out.status == "registered" and np.any(rel > np.diag(S)[HEIGHT_TILT]):
-            # what yaw, x, y held at the prior may be off by leaves roll, pitch or height less
-            # known than the attitude sensor and odometry had them: no registration at all
-            out.status, out.reason = "unregistered", "no better than the prior (yaw, x, y too uncertain)"
         out.reason = (f"height and tilt only: {full.reason}; yaw, x, y kept at the prior"
                       if out.status == "registered" else f"{full.reason}; height and tilt alone: {out.reason}")
     if out.status != "registered":
