@@ -14,7 +14,8 @@ from typing import Any
 COLUMNS = ("scenario", "seed", "slope_deg", "edge_gap_m", "method", "moved", "odometer_m", "reachable_max", "stuck",
            "steps_used", "steps_asked", "unused_reason", "stays", "looks", "edge_violations",
            "geofence_refusals", "wheels_off_terrain", "wheels_on_unknown_ground", "mapped_cells",
-           "map_rmse_cm", "error_tilt_deg", "rmse_detilted_cm", "seam_cm", "within_2sigma", "final_state")
+           "map_rmse_cm", "error_tilt_deg", "rmse_detilted_cm", "seam_cm", "within_2sigma", "final_state",
+           "views_registered", "views_height_tilt_only", "views_unregistered", "views_halves_disagree")
 MOVED_M = 0.05  # the rover moved if its true odometer passed this
 
 
@@ -45,7 +46,21 @@ def row_of(s: dict[str, Any], spec: str, seed: int, steps: int) -> dict[str, Any
         "seam_cm": None if seam is None else round(100 * seam, 2),
         "within_2sigma": None if q.get("within_2sigma") is None else round(float(q["within_2sigma"]), 3),
         "final_state": s["final_state"], "stay_reasons": s.get("stays", []),
+        **_registration_counts(s.get("registration") or []),
     }
+
+
+def _registration_counts(records: list[dict[str, Any]]) -> dict[str, int]:
+    """Per-mission counts of the views' registration outcomes (``fsw.core.registration``):
+    registered in all six directions, in height and tilt only (the halves disagreed in six),
+    not registered (merged with an inflated covariance), and of those or the partial ones how
+    many because the overlap's halves disagreed (a false or ambiguous minimum)."""
+    reg = [r for r in records if r.get("status") == "registered"]
+    partial = [r for r in reg if str(r.get("reason", "")).startswith("height and tilt only")]
+    unreg = [r for r in records if r.get("status") == "unregistered"]
+    return {"views_registered": len(reg) - len(partial), "views_height_tilt_only": len(partial),
+            "views_unregistered": len(unreg),
+            "views_halves_disagree": sum("halves disagree" in str(r.get("reason", "")) for r in records)}
 
 
 def _r(v: float | None) -> float | None:

@@ -20,14 +20,25 @@ Points of one view are not independent (shared matching windows, the same surfac
 so the data information is scaled down to ``n_eff`` points (choice), and the weights are
 scaled by the robust a posteriori variance factor ``s^2`` of the residuals (the map's
 variance includes the pose error common to all its cells, which does not blur the surface
-being fitted). The correction is relative to the map; its covariance is the posterior
-``(J^T W J n_eff/n / s^2 + Sigma^-1)^-1``.
+being fitted). Relative to the map the correction's covariance is the posterior
+``C = (J^T W J n_eff/n / s^2 + Sigma^-1)^-1``; the map itself is only as well placed as the
+views that mapped it, so with ``reference_error`` their pose error joins it
+(``fsw.core.registration_stats.reference_covariance``, ``fsw.core.reference_frames``): ``cov = C + ref_cov``.
+
+A false minimum (issue 13: terrain seed 6, a weakly constrained view settled 11 deg and
+23 cm off, inside the chi-square gate, with a 5 cm sigma) is caught by consistency: two
+spatially disjoint halves of the overlap are fitted apart and must agree within their
+covariances (:func:`_split_check`, a chi-square test at ``split_alpha``). If they disagree
+in all six directions, height, roll and pitch alone are fitted (yaw, x and y held at the
+prior with its covariance: :func:`fsw.core.registration_stats.posterior`), and checked the same way; the record's
+``reason`` says so.
 
 Refused (the view is merged with its pose covariance inflated instead): fewer than
 ``min_points`` points on reference cells (too little overlap), data that do not fix height,
 roll and pitch (ill-conditioned: the normal matrix of height and tilt times the lever arm
-has a condition number above ``max_condition``), a fit whose residual stays large, or a
-correction implausible against the prior (chi-square gate).
+has a condition number above ``max_condition``), a fit whose residual stays large, a
+correction implausible against the prior (chi-square gate), or halves that disagree even in
+height and tilt.
 """
 
 from __future__ import annotations
@@ -39,10 +50,12 @@ from typing import TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.stats import chi2
 
 from fsw.core.geometry import CameraPose, MapGrid
 from fsw.core.localization import so3_exp
-from fsw.core.nav_fix import DEAD_RECKONED
+from fsw.core.reference_frames import ReferenceFrames
+from fsw.core.registration_stats import ALL, HEIGHT_TILT, halves, posterior, reference_covariance
 from fsw.core.steps import run_to_end
 from fsw.framework.params import param
 
@@ -65,6 +78,8 @@ class RegistrationSummary(TypedDict):
     sigma: list[float]  # roll, pitch, yaw (deg), x, y, z (m)
     constrained: str  # letters of R, P, Y, x, y, z the terrain constrained
     residual_sigma: float
+    split_chi2: float  # the two halves' disagreement, chi-square (dof: directions fitted; nan: not checked)
+    ref_sigma: list[float]  # the part of sigma from the reference's own placement
 
 
 @dataclass(frozen=True)
@@ -86,6 +101,11 @@ class RegistrationConfig:
     max_residual_sigma: float = param(3.0, lo=0.5, hi=100.0, units="sigma",
                                       doc="RMS normalised residual of the fit above this: refused")
     gate_chi2: float = param(50.0, lo=1.0, hi=1e9, doc="correction against the prior (6 dof) above this: refused")
+    split_alpha: float = param(0.001, lo=0.0, hi=0.5, doc="two disjoint halves of the overlap fitted apart disagree "
+                               "beyond this chi-square tail (dof: the directions fitted; 0: no check): refit "
+                               "in height and tilt only, or refused")
+    reference_error: bool = param(True, doc="the pose error of the views that mapped the reference cells joins "
+                                            "the correction's covariance (fsw.core.reference_frames)")
     inflate_rot_deg: float = param(0.3, lo=0.0, hi=30.0, units="deg", doc="unregistered view: added rotation sigma")
     inflate_pos_m: float = param(0.02, lo=0.0, hi=10.0, units="m", doc="unregistered view: added position sigma")
     carry: bool = param(True, doc="a new station starts from the last registered station's dead-reckoning "
@@ -106,10 +126,13 @@ class Registration:
     points: int = 0
     residual_sigma: float = math.nan
     constrained: tuple[bool, ...] = (False,) * 6
+    split_chi2: float = math.nan  # the halves' disagreement (chi-square, 6 dof); nan: not checked
+    ref_cov: F64 = field(default_factory=lambda: np.zeros((6, 6)))  # the reference's part of cov
 
     def summary(self, view: int = -1) -> RegistrationSummary:
         """The per-view report (telemetry, events, the mission summary's ``registration``)."""
         d, s = self.correction, np.sqrt(np.maximum(np.diag(self.cov), 0.0))
+        r = np.sqrt(np.maximum(np.diag(self.ref_cov), 0.0))
         return {
             "view": view, "status": self.status, "reason": self.reason, "points": self.points,
             "droll_deg": math.degrees(d[0]), "dpitch_deg": math.degrees(d[1]), "dyaw_deg": math.degrees(d[2]),
@@ -118,6 +141,8 @@ class Registration:
             "constrained": "".join(n for n, c in zip(("R", "P", "Y", "x", "y", "z"), self.constrained,
                                                       strict=True) if c),
             "residual_sigma": float(self.residual_sigma),
+            "split_chi2": float(self.split_chi2),
+            "ref_sigma": [round(float(v), 6) for v in (*np.degrees(r[:3]), *r[3:])],
         }
 
 
@@ -130,61 +155,6 @@ def inflate(cov: F64, cfg: RegistrationConfig) -> F64:
     """The pose covariance of a view that could not be registered."""
     add = np.r_[np.full(3, math.radians(cfg.inflate_rot_deg) ** 2), np.full(3, cfg.inflate_pos_m**2)]
     return np.asarray(cov, dtype=np.float64) + np.diag(add)
-
-
-@dataclass(frozen=True)
-class StationFix:
-    """What the last registered station found: its camera centre, its total correction
-    ``(dtheta, dt)`` (§5 convention, about that centre), the correction's covariance and the
-    view's prior pose covariance there (odometry, attitude, mast), and the frame error of the
-    map it was aligned to (``frame_cov``: the views before it placed that part of the map).
-    ``base_id`` is the navigation fix the view's pose already held (``NavPose.fix_id``) and
-    ``fix_id`` the one this station's correction was fed back as (0: none; ``fsw.core.nav_fix``)."""
-
-    centre: F64
-    correction: F64
-    cov: F64
-    pose_cov: F64
-    frame_cov: F64
-    base_id: int = 0
-    fix_id: int = 0
-
-
-
-
-def carried_prior(pose: CameraPose, pose_cov: F64, fix: StationFix) -> tuple[F64, F64]:
-    """The prior of a view from a new station (§5.1): the dead-reckoning part of the last
-    station's correction carried as a rigid motion of the world, and its covariance.
-
-    Odometry drifts: its yaw, x, y and height errors at the new station are those found at the
-    last one plus what the drive since added. The yaw correction turns the world about the
-    last camera centre ``c``, so at this view's centre ``t`` the correction is ``(0, 0, dyaw,
-    dt + (Rz(dyaw) - I)(t - c))`` with the covariance ``A C A^T`` (``A``: that lever). The drive
-    adds the growth of the odometry covariance since then (its dead-reckoned block, clipped
-    to positive semidefinite); roll and pitch come fresh from the attitude sensor each view
-    and keep the view's own prior. Returns ``(d0, cov)``.
-    """
-    lever = np.asarray(pose.t, np.float64) - fix.centre
-    d0 = np.zeros(6)
-    d0[2] = fix.correction[2]
-    d0[3:] = fix.correction[3:] + so3_exp(d0[:3]) @ lever - lever
-    A = np.eye(6)
-    A[3:, :3] = -_skew(lever)
-    carried = A @ fix.cov @ A.T
-    I = np.ix_(DEAD_RECKONED, DEAD_RECKONED)
-    S = np.asarray(pose_cov, np.float64)
-    grown = S[I] - np.asarray(fix.pose_cov, np.float64)[I]
-    lam, vec = np.linalg.eigh(0.5 * (grown + grown.T))
-    grown = (vec * np.maximum(lam, 0.0)) @ vec.T
-    out = S.copy()
-    out[np.ix_([0, 1], DEAD_RECKONED)] = 0.0  # attitude (sensor) and dead reckoning: independent
-    out[np.ix_(DEAD_RECKONED, [0, 1])] = 0.0
-    out[I] = grown + carried[I]
-    return d0, 0.5 * (out + out.T)
-
-
-def _skew(v: F64) -> F64:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 def _surface(grid: MapGrid, z: F64, var: F64, ref: NDArray[np.bool_], x: F64, y: F64
@@ -220,16 +190,74 @@ def reference_cells(z: F64, var: F64, n: NDArray[np.integer], cfg: RegistrationC
 
 
 def register_points(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, grid: MapGrid, z: F64, var: F64,
-                    ref: NDArray[np.bool_], cfg: RegistrationConfig) -> Registration:
+                    ref: NDArray[np.bool_], cfg: RegistrationConfig, frames: ReferenceFrames | None = None
+                    ) -> Registration:
     """Register a view's world points ``pts_w`` (their stereo covariances ``cov_w``, (N, 3, 3))
-    against the map; ``pose`` / ``pose_cov`` are the view's prior (§5.1)."""
-    return run_to_end(register_steps(pts_w, cov_w, pose, pose_cov, grid, z, var, ref, cfg))
+    against the map; ``pose`` / ``pose_cov`` are the view's prior (§5.1); ``frames``: the
+    map cells' source views (their pose error joins the correction's covariance)."""
+    return run_to_end(register_steps(pts_w, cov_w, pose, pose_cov, grid, z, var, ref, cfg, frames))
+
+
+@dataclass
+class _Fit:
+    """One Gauss-Newton fit: the correction, its normal matrix (data only, scaled to
+    ``n_eff``), the Jacobian rows and weights of the used points, and their indices."""
+
+    d: F64
+    N: F64
+    J: F64
+    w: F64
+    used: NDArray[np.intp]
+    r: F64
+    sig2: F64
+    scale: float
+
+
+def _fit(q0: F64, cov_p: F64, t: F64, P_inv: F64, grid: MapGrid, z: F64, var: F64, ref: NDArray[np.bool_],
+         cfg: RegistrationConfig, n_eff: float, min_points: int, free: list[int]
+         ) -> Generator[None, None, _Fit | tuple[str, int]]:
+    """Gauss-Newton from the prior (``d = 0``) in the ``free`` directions (the others held at
+    the prior), one iteration per step; or why not (and the points left). ``N`` is the full
+    6x6 normal matrix."""
+    d = np.zeros(6)
+    f = np.ix_(free, free)
+    for _ in range(cfg.iterations):
+        q = q0 @ so3_exp(d[:3]).T
+        p = q + t + d[3:]
+        h, gx, gy, v, ok = _surface(grid, z, var, ref, p[:, 0], p[:, 1])
+        a = np.column_stack([-gx, -gy, np.ones_like(gx)])
+        sig2 = np.einsum("ni,nij,nj->n", a, cov_p, a) + v
+        r = p[:, 2] - h
+        good = ok & np.isfinite(r) & (sig2 > 0)
+        if good.sum() < min_points:
+            return f"too little overlap: {int(good.sum())} points stay on the map", int(good.sum())
+        med = float(np.median(r[good]))
+        mad = 1.4826 * float(np.median(np.abs(r[good] - med)))
+        used = good & (np.abs(r - med) <= cfg.gate_sigma * np.sqrt(sig2 + mad**2))
+        if used.sum() < min_points:
+            return f"too few consistent points ({int(used.sum())})", int(used.sum())
+        J = np.column_stack([np.cross(q, a), a])[used]  # d r / d (dtheta, dt)
+        # A posteriori variance factor (robust): the map's variance includes the pose error
+        # common to all its cells, which does not blur the surface the view is fitted to.
+        s2 = float(np.clip((1.4826 * np.median(np.abs(r[used] - med) / np.sqrt(sig2[used]))) ** 2, 0.25, 100.0))
+        w = 1.0 / (s2 * sig2[used])
+        scale = min(1.0, n_eff / float(used.sum()))
+        N = (J * w[:, None]).T @ J * scale
+        b = (J * w[:, None]).T @ r[used] * scale
+        step = np.zeros(6)
+        step[free] = np.linalg.solve(N[f] + P_inv[f], -(b + P_inv @ d)[free])
+        d = d + step
+        yield
+        if np.abs(step[:3]).max() < 1e-7 and np.abs(step[3:]).max() < 1e-6:
+            break
+    return _Fit(d, N, J, w, np.flatnonzero(used), r, sig2, scale)
 
 
 def register_steps(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, grid: MapGrid, z: F64, var: F64,
-                   ref: NDArray[np.bool_], cfg: RegistrationConfig) -> Generator[None, None, Registration]:
+                   ref: NDArray[np.bool_], cfg: RegistrationConfig, frames: ReferenceFrames | None = None
+                   ) -> Generator[None, None, Registration]:
     """:func:`register_points` as a step generator: the point selection, then one Gauss-Newton
-    iteration per step."""
+    iteration per step (the fit, then each half of the consistency check)."""
     if not ref.any():
         return Registration("reference", "empty map: this view begins it")
     pts_w = np.asarray(pts_w, dtype=np.float64)
@@ -246,48 +274,35 @@ def register_steps(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, grid
     cov_p = np.asarray(cov_w, dtype=np.float64)[idx]
     S = np.asarray(pose_cov, dtype=np.float64)
     P_inv = np.linalg.inv(S + np.diag(np.r_[np.full(3, 1e-10), np.full(3, 1e-8)]))
-    d = np.zeros(6)
-    used = np.ones(idx.size, bool)
-    scale = 1.0
-    for _ in range(cfg.iterations):
-        q = q0 @ so3_exp(d[:3]).T
-        p = q + pose.t + d[3:]
-        h, gx, gy, v, ok = _surface(grid, z, var, ref, p[:, 0], p[:, 1])
-        a = np.column_stack([-gx, -gy, np.ones_like(gx)])
-        sig2 = np.einsum("ni,nij,nj->n", a, cov_p, a) + v
-        r = p[:, 2] - h
-        good = ok & np.isfinite(r) & (sig2 > 0)
-        if good.sum() < cfg.min_points:
-            return Registration("unregistered", f"too little overlap: {int(good.sum())} points stay on the map",
-                                points=int(good.sum()))
-        med = float(np.median(r[good]))
-        mad = 1.4826 * float(np.median(np.abs(r[good] - med)))
-        used = good & (np.abs(r - med) <= cfg.gate_sigma * np.sqrt(sig2 + mad**2))
-        if used.sum() < cfg.min_points:
-            return Registration("unregistered", f"too few consistent points ({int(used.sum())})",
-                                points=int(used.sum()))
-        J = np.column_stack([np.cross(q, a), a])[used]  # d r / d (dtheta, dt)
-        # A posteriori variance factor (robust): the map's variance includes the pose error
-        # common to all its cells, which does not blur the surface the view is fitted to.
-        s2 = float(np.clip((1.4826 * np.median(np.abs(r[used] - med) / np.sqrt(sig2[used]))) ** 2, 0.25, 100.0))
-        w = 1.0 / (s2 * sig2[used])
-        scale = min(1.0, cfg.n_eff / float(used.sum()))
-        N = (J * w[:, None]).T @ J * scale
-        b = (J * w[:, None]).T @ r[used] * scale
-        step = np.linalg.solve(N + P_inv, -(b + P_inv @ d))
-        d = d + step
-        yield
-        if np.abs(step[:3]).max() < 1e-7 and np.abs(step[3:]).max() < 1e-6:
-            break
-    cov = np.linalg.inv(N + P_inv)
-    cov = 0.5 * (cov + cov.T)
-    res_sigma = float(np.sqrt(np.mean(r[used] ** 2 / sig2[used])))  # against the predicted sigmas
+    out = yield from _solve(q0, cov_p, pose.t, S, P_inv, grid, z, var, ref, cfg, ALL, pts_w[idx], frames)
+    if out.status != "registered" and out.reason.startswith(("halves disagree", "unchecked")):
+        full = out  # ambiguous in yaw, x, y: height and tilt alone (what any overlap fixes)
+        out = yield from _solve(q0, cov_p, pose.t, S, P_inv, grid, z, var, ref, cfg, HEIGHT_TILT, pts_w[idx],
+                                frames)
+        out.reason = (f"height and tilt only: {full.reason}; yaw, x, y kept at the prior"
+                      if out.status == "registered" else f"{full.reason}; height and tilt alone: {out.reason}")
+    if out.status != "registered":
+        out.correction, out.cov, out.ref_cov = np.zeros(6), np.zeros((6, 6)), np.zeros((6, 6))
+    return out
+
+
+def _solve(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid, z: F64, var: F64,
+           ref: NDArray[np.bool_], cfg: RegistrationConfig, free: list[int], pts: F64,
+           frames: ReferenceFrames | None) -> Generator[None, None, Registration]:
+    """One fit in the ``free`` directions, its covariance and the checks (module docstring)."""
+    fit = yield from _fit(q0, cov_p, t, P_inv, grid, z, var, ref, cfg, cfg.n_eff, cfg.min_points, free)
+    if isinstance(fit, tuple):
+        return Registration("unregistered", fit[0], points=fit[1])
+    d, N, used = fit.d, fit.N, fit.used
+    C, Cf = posterior(N, P_inv, S, free)
+    ref_cov = np.zeros((6, 6)) if frames is None else reference_covariance(N, Cf, free, pts[used], t, grid, frames)
+    res_sigma = float(np.sqrt(np.mean(fit.r[used] ** 2 / fit.sig2[used])))  # against the predicted sigmas
     prior_sd = np.sqrt(np.maximum(np.diag(S), 1e-20))
-    constrained = tuple(bool(c) for c in np.sqrt(np.maximum(np.diag(cov), 0.0)) < 0.5 * prior_sd)
-    out = Registration("registered", "", d, cov, int(used.sum()), res_sigma, constrained)
+    constrained = tuple(bool(c) for c in np.sqrt(np.maximum(np.diag(C), 0.0)) < 0.5 * prior_sd)
+    out = Registration("registered", "", d, C + ref_cov, int(used.size), res_sigma, constrained, ref_cov=ref_cov)
     # Does the data fix height, roll and pitch together? Its information there, tilt times the lever.
     lever = float(np.sqrt(np.mean(np.sum(q0[used][:, :2] ** 2, axis=1))))
-    sub, unit = [0, 1, 5], np.array([lever, lever, 1.0])
+    sub, unit = HEIGHT_TILT, np.array([lever, lever, 1.0])
     N3 = N[np.ix_(sub, sub)] / np.outer(unit, unit)
     lam = np.linalg.eigvalsh(N3)
     if not lam[0] > 0 or lam[-1] / lam[0] > cfg.max_condition:
@@ -296,6 +311,48 @@ def register_steps(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, grid
         out.status, out.reason = "unregistered", f"residual {res_sigma:.1f} sigma after the fit"
     elif float(d @ P_inv @ d) > cfg.gate_chi2:
         out.status, out.reason = "unregistered", f"correction implausible (chi2 {float(d @ P_inv @ d):.0f})"
-    if out.status != "registered":
-        out.correction, out.cov = np.zeros(6), np.zeros((6, 6))
+    elif cfg.split_alpha > 0:
+        out.split_chi2 = yield from _split_check(q0[used], cov_p[used], t, S, P_inv, grid, z, var, ref, cfg, free)
+        limit = float(chi2.ppf(1.0 - cfg.split_alpha, len(free)))
+        if math.isinf(out.split_chi2):
+            out.status, out.reason = "unregistered", "unchecked: a half of the overlap too small to fit alone"
+        elif out.split_chi2 > limit:
+            out.status = "unregistered"
+            out.reason = (f"halves disagree (chi2 {out.split_chi2:.0f} > {limit:.1f}, {len(free)} dof): "
+                          "a false or ambiguous minimum")
     return out
+
+
+def _split_check(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid, z: F64, var: F64,
+                 ref: NDArray[np.bool_], cfg: RegistrationConfig, free: list[int]) -> Generator[None, None, float]:
+    """Consistency of the fit (a false minimum, issue 13): the used points split into two
+    spatially disjoint halves (:func:`fsw.core.registration_stats.halves`), each fitted on its own from the prior with
+    half the view's independent points (``n_eff / 2``: the halves share no matching window).
+    Two unbiased fits differ by ``D = d_A - d_B`` with a covariance at most ``C_A + C_B`` (the
+    shared prior only correlates them positively), so ``D^T (C_A + C_B)^-1 D`` is at most
+    chi-square with as many dof as ``free`` directions; above its ``1 - split_alpha`` quantile
+    the data hold two different answers. With directions held at the prior, both halves
+    shift with their error: ``(K_A - K_B) S_hh (K_A - K_B)^T`` joins the covariance
+    (:func:`fsw.core.registration_stats.posterior`). A half too small to fit (under
+    ``min_points / 2``) gives ``inf``."""
+    first = halves(q0[:, :2])
+    fits: list[tuple[F64, F64, F64]] = []
+    for half in (first, ~first):
+        f = yield from _fit(q0[half], cov_p[half], t, P_inv, grid, z, var, ref, cfg, 0.5 * cfg.n_eff,
+                            max(1, cfg.min_points // 2), free)
+        if isinstance(f, tuple):
+            return math.inf
+        _, Cf = posterior(f.N, P_inv, S, free)
+        held = [i for i in range(6) if i not in free]
+        K = -Cf @ (f.N + P_inv)[np.ix_(free, held)]
+        fits.append((f.d[free], Cf, K))
+    D = fits[0][0] - fits[1][0]
+    held = [i for i in range(6) if i not in free]
+    dK = fits[0][2] - fits[1][2]  # both halves see the same error of the held directions
+    try:
+        m2 = float(D @ np.linalg.solve(fits[0][1] + fits[1][1] + dK @ S[np.ix_(held, held)] @ dK.T, D))
+    except np.linalg.LinAlgError:
+        return math.inf
+    return m2 if np.isfinite(m2) else math.inf
+
+

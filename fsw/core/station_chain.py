@@ -26,27 +26,73 @@ it (``base_id``), and the motion task applies it only on that frame.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import CameraPose
-from fsw.core.localization import so3_log
+from fsw.core.localization import so3_exp, so3_log
 from fsw.core.nav_fix import DEAD_RECKONED, NavFix, residual_correction
-from fsw.core.registration import (
-    Registration,
-    RegistrationConfig,
-    StationFix,
-    apply_correction,
-    carried_prior,
-    inflate,
-)
+from fsw.core.reference_frames import skew
+from fsw.core.registration import Registration, RegistrationConfig, apply_correction, inflate
 
 F64 = NDArray[np.float64]
 STATION_TOL_M = 0.03  # views whose camera centres are this close share a station
 CONFIRM_CHI2 = 18.47  # chi-square, 4 dof, 0.1 %: a second view confirms a station's correction
+
+
+@dataclass(frozen=True)
+class StationFix:
+    """What the last registered station found: its camera centre, its total correction
+    ``(dtheta, dt)`` (§5 convention, about that centre), the correction's covariance and the
+    view's prior pose covariance there (odometry, attitude, mast), and the frame error of the
+    map it was aligned to (``frame_cov``: the views before it placed that part of the map).
+    ``base_id`` is the navigation fix the view's pose already held (``NavPose.fix_id``) and
+    ``fix_id`` the one this station's correction was fed back as (0: none; ``fsw.core.nav_fix``).
+    ``ref_cov`` is the part of ``cov`` from the reference cells' own placement (absolute, not
+    relative to the map; ``fsw.core.reference_frames``)."""
+
+    centre: F64
+    correction: F64
+    cov: F64
+    pose_cov: F64
+    frame_cov: F64
+    base_id: int = 0
+    fix_id: int = 0
+    ref_cov: F64 = field(default_factory=lambda: np.zeros((6, 6)))
+
+
+def carried_prior(pose: CameraPose, pose_cov: F64, fix: StationFix) -> tuple[F64, F64]:
+    """The prior of a view from a new station (§5.1): the dead-reckoning part of the last
+    station's correction carried as a rigid motion of the world, and its covariance.
+
+    Odometry drifts: its yaw, x, y and height errors at the new station are those found at the
+    last one plus what the drive since added. The yaw correction turns the world about the
+    last camera centre ``c``, so at this view's centre ``t`` the correction is ``(0, 0, dyaw,
+    dt + (Rz(dyaw) - I)(t - c))`` with the covariance ``A C A^T`` (``A``: that lever). The drive
+    adds the growth of the odometry covariance since then (its dead-reckoned block, clipped
+    to positive semidefinite); roll and pitch come fresh from the attitude sensor each view
+    and keep the view's own prior. Returns ``(d0, cov)``.
+    """
+    lever = np.asarray(pose.t, np.float64) - fix.centre
+    d0 = np.zeros(6)
+    d0[2] = fix.correction[2]
+    d0[3:] = fix.correction[3:] + so3_exp(d0[:3]) @ lever - lever
+    A = np.eye(6)
+    A[3:, :3] = -skew(lever)
+    carried = A @ fix.cov @ A.T
+    I = np.ix_(DEAD_RECKONED, DEAD_RECKONED)
+    S = np.asarray(pose_cov, np.float64)
+    grown = S[I] - np.asarray(fix.pose_cov, np.float64)[I]
+    lam, vec = np.linalg.eigh(0.5 * (grown + grown.T))
+    grown = (vec * np.maximum(lam, 0.0)) @ vec.T
+    out = S.copy()
+    out[np.ix_([0, 1], DEAD_RECKONED)] = 0.0  # attitude (sensor) and dead reckoning: independent
+    out[np.ix_(DEAD_RECKONED, [0, 1])] = 0.0
+    out[I] = grown + carried[I]
+    return d0, 0.5 * (out + out.T)
 
 
 @dataclass(frozen=True)
@@ -120,12 +166,15 @@ class StationChain:
         frame = self.anchor_cov if self.anchor_cov is not None else np.zeros((6, 6))
         if cfg.carry and self.fix is not None:
             frame = self.fix.frame_cov if vp.same_station else self.fix.frame_cov + self.fix.cov
+        if reg.ref_cov.any():  # reg.cov holds the reference cells' own placement error: the frame
+            frame = np.zeros((6, 6))
         nav: NavFix | None = None
         if cfg.feed_back and confirmed:
             self.fixes += 1
             nav = NavFix.from_correction(self.fixes, time_s, pose.t, total, reg.cov, base_id=nav_fix_id)
         self.fix = StationFix(pose.t.copy(), total, reg.cov, np.asarray(pose_cov, dtype=np.float64), frame,
-                              base_id=nav_fix_id, fix_id=0 if nav is None else nav.fix_id)
+                              base_id=nav_fix_id, fix_id=0 if nav is None else nav.fix_id,
+                              ref_cov=np.asarray(reg.ref_cov, dtype=np.float64).copy())
         return fixed, reg.cov + frame, nav
 
     def _confirms(self, vp: ViewPrior, reg: Registration) -> bool:
@@ -138,7 +187,8 @@ class StationChain:
             return False
         i = np.ix_(DEAD_RECKONED, DEAD_RECKONED)
         inc = np.asarray(reg.correction, np.float64)[DEAD_RECKONED]
-        S = np.asarray(reg.cov, np.float64)[i] + self.fix.cov[i]
+        # relative to the map (both views align to the same cells: their error is common)
+        S = np.asarray(reg.cov - reg.ref_cov, np.float64)[i] + self.fix.cov[i] - self.fix.ref_cov[i]
         try:
             m2 = float(inc @ np.linalg.solve(S, inc))
         except np.linalg.LinAlgError:
@@ -153,7 +203,7 @@ class StationChain:
             "fix": None if f is None else {
                 "centre": f.centre.tolist(), "correction": f.correction.tolist(), "cov": f.cov.tolist(),
                 "pose_cov": f.pose_cov.tolist(), "frame_cov": f.frame_cov.tolist(),
-                "base_id": f.base_id, "fix_id": f.fix_id},
+                "base_id": f.base_id, "fix_id": f.fix_id, "ref_cov": f.ref_cov.tolist()},
             "fixes": self.fixes,
         }
 
@@ -167,4 +217,5 @@ class StationChain:
 
             self.fix = StationFix(arr("centre", (3,)), arr("correction", (6,)), arr("cov", (6, 6)),
                                   arr("pose_cov", (6, 6)), arr("frame_cov", (6, 6)),
-                                  int(fix.get("base_id", 0)), int(fix.get("fix_id", 0)))
+                                  int(fix.get("base_id", 0)), int(fix.get("fix_id", 0)),
+                                  arr("ref_cov", (6, 6)) if "ref_cov" in fix else np.zeros((6, 6)))

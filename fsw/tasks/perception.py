@@ -35,6 +35,7 @@ from fsw.core.nav_fix import NavFix
 from fsw.core.nbv import predicted_visibility_steps
 from fsw.core.occlusion import LipGuard
 from fsw.core.rectify import Rectifier
+from fsw.core.reference_frames import ReferenceFrames
 from fsw.core.registration import (
     Registration,
     RegistrationSummary,
@@ -108,6 +109,8 @@ class PerceptionTask(FlightTask):
         Channel("reg_dxy_m", "m", doc="horizontal correction of the last view"),
         Channel("reg_sigma_z_m", "m", doc="height sigma of the last view's correction"),
         Channel("reg_unregistered", "count", hi=0, doc="views merged with an inflated pose covariance"),
+        Channel("reg_partial", "count", doc="views registered in height and tilt only (halves disagreed)"),
+        Channel("reg_split_chi2", doc="the last view's halves' disagreement (chi-square)"),
     )
     EVENTS = (
         EventDef(
@@ -121,6 +124,7 @@ class PerceptionTask(FlightTask):
             "view {view} registered on {points} points: dz {dz_cm:+.1f} cm, droll {droll:+.2f}, dpitch "
             "{dpitch:+.2f}, dyaw {dyaw:+.2f} deg, dxy {dxy_cm:.1f} cm (sigma z {sz_cm:.2f} cm)",
         ),
+        EventDef("VIEW_PARTLY_REGISTERED", Severity.WARNING_LO, "view {view}: {reason}", throttle=10),
         EventDef(
             "VIEW_NOT_REGISTERED", Severity.WARNING_LO,
             "view {view} not registered ({reason}): merged with its pose covariance inflated", throttle=10,
@@ -149,7 +153,9 @@ class PerceptionTask(FlightTask):
         self.views = 0
         self.last_update: MapUpdate | None = None
         self.unregistered = 0
+        self.partial = 0  # views registered in height and tilt only
         self.chain = StationChain()  # the registered stations (fsw.core.station_chain)
+        self.sources = ReferenceFrames(self.map.grid.shape)  # each cell's view (fsw.core.reference_frames)
         self.registrations: deque[RegistrationSummary] = deque(maxlen=1000)  # per view (mission summary)
         self.store = self.ctx.res.map_store
         self._last_checkpoint_s = self.ctx.clock.now()
@@ -208,6 +214,8 @@ class PerceptionTask(FlightTask):
             yield
         del pts  # the camera-frame points: every use is above
         view_cells = self.map.grid.cell_means(np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3)))
+        X, Y = (c.reshape(-1)[view_cells[0]] for c in self.map.grid.centers())
+        self.sources.add(view_cells[0], np.column_stack([X, Y, view_cells[1]]), pose.t, pose_cov)
         yield
         stats = yield from self.map.merge_parts_steps(parts, p_visible=p_visible, step_points=MERGE_STEP_POINTS)
         yield
@@ -260,7 +268,7 @@ class PerceptionTask(FlightTask):
         ref = reference_cells(self.map.z, self.map.var, self.map.n, rcfg)
         yield
         reg = yield from register_steps(xyz_w, cov_w, prior, vp.cov, self.map.grid, self.map.z,
-                                        self.map.var, ref, rcfg)
+                                        self.map.var, ref, rcfg, self.sources if rcfg.reference_error else None)
         if reg.status == "reference":
             self.chain.reference(fr.pose_cov)
             return reg, fr.pose, fr.pose_cov, None
@@ -305,9 +313,15 @@ class PerceptionTask(FlightTask):
             self.tlm("reg_dyaw_deg", r["dyaw_deg"])
             self.tlm("reg_dxy_m", float(np.hypot(r["dx_m"], r["dy_m"])))
             self.tlm("reg_sigma_z_m", sig[5])
+            if np.isfinite(r["split_chi2"]):
+                self.tlm("reg_split_chi2", r["split_chi2"])
             self.event("VIEW_REGISTERED", view=r["view"], points=r["points"], dz_cm=100 * r["dz_m"],
                        droll=r["droll_deg"], dpitch=r["dpitch_deg"], dyaw=r["dyaw_deg"],
                        dxy_cm=100 * float(np.hypot(r["dx_m"], r["dy_m"])), sz_cm=100 * sig[5])
+            if r["reason"]:  # height and tilt only: yaw, x, y kept at the prior
+                self.partial += 1
+                self.tlm("reg_partial", self.partial)
+                self.event("VIEW_PARTLY_REGISTERED", view=r["view"], reason=r["reason"])
         elif r["status"] == "unregistered":
             self.unregistered += 1
             self.tlm("reg_unregistered", self.unregistered)
@@ -341,13 +355,16 @@ class PerceptionTask(FlightTask):
     def checkpoint_state(self) -> JsonDict:
         """What a resumed mission needs besides the map (``fsw.tasks.mission_state``): the view
         count and the registration state (the station chain, the per-view reports)."""
-        return {"views": self.views, "unregistered": self.unregistered, **self.chain.state(),
+        return {"views": self.views, "unregistered": self.unregistered, "partial": self.partial, **self.chain.state(),
+                "sources": self.sources.state(),
                 "registrations": list(self.registrations)}
 
     def restore_state(self, state: JsonDict) -> None:
         self.views = int(state["views"])
         self.unregistered = int(state.get("unregistered", 0))
+        self.partial = int(state.get("partial", 0))
         self.chain.restore(state)
+        self.sources.restore(state.get("sources", {}))
         self.registrations.extend(state.get("registrations", []))
         self.tlm("views", self.views)
 
@@ -363,3 +380,4 @@ class PerceptionTask(FlightTask):
             raise CommandError("a view is being merged; try again")
         self.map = ElevationMap(self.map.grid, self.ctx.cfg.fusion)
         self.chain.clear()
+        self.sources.clear()

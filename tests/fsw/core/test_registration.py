@@ -4,23 +4,24 @@ cannot be registered says why and is merged with an inflated covariance; bounded
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
 from fsw.core.geometry import CameraPose, MapGrid
+from fsw.core.reference_frames import ReferenceFrames
 from fsw.core.registration import (
     Registration,
     RegistrationConfig,
-    StationFix,
     apply_correction,
-    carried_prior,
     inflate,
     reference_cells,
     register_points,
     register_steps,
 )
+from fsw.core.station_chain import StationFix, carried_prior
 
 GRID = MapGrid(0.0, 0.0, 0.03, 120, 120)
 CFG = RegistrationConfig()
@@ -138,7 +139,8 @@ def test_ill_conditioned_overlap_is_refused() -> None:
 
 
 def test_registration_runs_in_bounded_steps_and_rejects_garbage() -> None:
-    """One Gauss-Newton iteration per step (slack-job slices); NaN points are ignored."""
+    """One Gauss-Newton iteration per step (slack-job slices: the fit, then each half of the
+    consistency check); NaN points are ignored."""
     d_err = np.r_[np.radians([0.2, -0.2, 0.0]), 0.0, 0.0, 0.02]
     true = looking_down_x()
     wrong = with_error(true, d_err)
@@ -153,7 +155,8 @@ def test_registration_runs_in_bounded_steps_and_rejects_garbage() -> None:
             steps += 1
     except StopIteration as stop:
         reg: Registration = stop.value
-    assert 2 <= steps <= CFG.iterations + 1 and reg.status == "registered"
+    assert 2 <= steps <= 3 * CFG.iterations + 1 and reg.status == "registered"
+    assert reg.split_chi2 < 22.46  # chi-square 6 dof, 0.1 %
     assert abs(reg.correction[5] - 0.02) < 0.004
 
 
@@ -214,3 +217,82 @@ def test_carried_prior_clips_a_shrinking_odometry_covariance() -> None:
     _, cov = carried_prior(pose, 0.25 * S1, fix)
     assert np.linalg.eigvalsh(cov).min() >= -1e-15
     assert np.all(np.diag(cov)[2:] <= 1e-8 + 1e-15)
+
+
+def test_a_view_whose_halves_disagree_is_refused_not_registered() -> None:
+    """An injected false minimum: the far half of the reference area was placed 8 cm off in y
+    (by another view's pose error), so the view's two halves align to different places. The
+    fit alone settles between them with a small stated sigma; the split-half check sees the
+    halves disagree far beyond their covariances and refuses the view (it is then merged with
+    its covariance inflated, never silently). The same view on a consistent map passes."""
+    true = looking_down_x()
+    X, Y = GRID.centers()
+    z_ok = rough(X, Y)
+    z_bad = np.where(X < 2.2, rough(X, Y), rough(X, Y - 0.08))
+    var, n = np.full(GRID.shape, 0.004**2), np.ones(GRID.shape, np.int32)
+    pts, cov = view_points(rough, true, true, (1.0, 3.4, 1.2, 2.4))
+    good = register_points(pts, cov, true, PRIOR, GRID, z_ok, var, reference_cells(z_ok, var, n, CFG), CFG)
+    assert good.status == "registered" and good.split_chi2 < 22.46 and good.reason == ""
+    bad = register_points(pts, cov, true, PRIOR, GRID, z_bad, var, reference_cells(z_bad, var, n, CFG), CFG)
+    assert bad.status == "unregistered" and "halves disagree" in bad.reason, bad.reason
+    assert np.all(bad.correction == 0) and bad.summary()["split_chi2"] == bad.split_chi2
+    off = dataclasses.replace(CFG, split_alpha=0.0)  # the check off: the compromise is accepted
+    blind = register_points(pts, cov, true, PRIOR, GRID, z_bad, var, reference_cells(z_bad, var, n, off), off)
+    assert blind.status == "registered" and math.isnan(blind.split_chi2)
+    assert abs(blind.correction[4]) > 2 * math.sqrt(blind.cov[4, 4])  # off, and overconfident
+
+
+def test_the_reference_cells_own_pose_error_joins_the_covariance() -> None:
+    """The cells a view aligns to are only as well placed as the view that mapped them: with
+    that view's pose error 0.2 mm the correction's covariance is the fit's; with 3 cm and
+    0.3 deg it grows to about that (rough ground: the fit follows the cells in all six
+    directions), and the part is reported (``ref_cov``, ``ref_sigma``)."""
+    true = looking_down_x()
+    z, var, n = make_map(rough)
+    pts, cov = view_points(rough, true, true, (1.0, 3.2, 0.6, 3.0))
+    ref = reference_cells(z, var, n, CFG)
+    plain = register_points(pts, cov, true, PRIOR, GRID, z, var, ref, CFG)
+    sd = {}
+    for name, s_pos, s_rot in (("tiny", 0.0002, 0.001), ("big", 0.03, 0.3)):
+        frames = ReferenceFrames(GRID.shape)
+        X, Y = GRID.centers()
+        cells = np.arange(GRID.nx * GRID.ny)
+        src_cov = np.diag([math.radians(s_rot) ** 2] * 3 + [s_pos**2] * 3)
+        frames.add(cells, np.column_stack([X.ravel(), Y.ravel(), z.ravel()]), np.array([0.0, 1.8, 1.5]), src_cov)
+        reg = register_points(pts, cov, true, PRIOR, GRID, z, var, ref, CFG, frames)
+        assert reg.status == "registered", reg.reason
+        np.testing.assert_allclose(reg.cov - reg.ref_cov, plain.cov, rtol=1e-9, atol=1e-14)
+        sd[name] = np.sqrt(np.diag(reg.cov))
+        assert reg.summary()["ref_sigma"][3] == pytest.approx(math.sqrt(reg.ref_cov[3, 3]), abs=1e-6)
+    np.testing.assert_allclose(sd["tiny"], np.sqrt(np.diag(plain.cov)), rtol=0.05)
+    assert np.all(sd["big"] > 2 * sd["tiny"])
+    assert np.all(sd["big"][3:] > 0.6 * 0.03)  # the position error of the reference, mostly followed
+
+
+def ridges(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Short ridges across y on a gentle slope: y is observable, height and tilt too."""
+    return 0.01 * np.sin(2 * np.pi * y / 0.3) + 0.02 * np.sin(2 * np.pi * x / 1.1) + 0.03 * x
+
+
+def test_halves_that_disagree_only_horizontally_keep_height_and_tilt() -> None:
+    """The far half of the reference 8 cm off in y along ridges of zero mean: the halves
+    disagree in y, not in height and tilt. The view is registered in height, roll and pitch
+    only; yaw, x and y stay at the prior with the prior's sigma (never a confident wrong y),
+    and the record says so. On the consistent map all six directions are registered."""
+    true = looking_down_x()
+    X, Y = GRID.centers()
+    var, n = np.full(GRID.shape, 0.004**2), np.ones(GRID.shape, np.int32)
+    pts, cov = view_points(ridges, true, true, (1.0, 3.4, 1.2, 2.4))
+    z_ok = ridges(X, Y)
+    ok = register_points(pts, cov, true, PRIOR, GRID, z_ok, var, reference_cells(z_ok, var, n, CFG), CFG)
+    assert ok.status == "registered" and ok.reason == "" and "y" in ok.summary()["constrained"]
+    z_bad = np.where(X < 2.2, ridges(X, Y), ridges(X, Y - 0.08))
+    reg = register_points(pts, cov, true, PRIOR, GRID, z_bad, var, reference_cells(z_bad, var, n, CFG), CFG)
+    assert reg.status == "registered" and reg.reason.startswith("height and tilt only"), reg.reason
+    assert "halves disagree" in reg.reason and reg.split_chi2 < 16.27  # chi-square 3 dof, 0.1 %
+    assert np.all(reg.correction[2:5] == 0.0)  # yaw, x, y: the prior
+    np.testing.assert_allclose(np.diag(reg.cov)[2:5], np.diag(PRIOR)[2:5], rtol=1e-6)
+    assert set(reg.summary()["constrained"]) <= {"R", "P", "z"}
+    assert abs(reg.correction[5]) < 0.005 and abs(reg.correction[1]) < math.radians(0.05)
+    # roll absorbs what y held at the prior may be off by: its sigma says so
+    assert abs(reg.correction[0]) < 2 * math.sqrt(reg.cov[0, 0])

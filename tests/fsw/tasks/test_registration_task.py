@@ -168,3 +168,26 @@ def test_next_station_starts_from_the_last_stations_correction() -> None:
     worst_off = max(e[0] for e in without), max(e[1] for e in without)
     assert worst[0] < worst_off[0] and worst[1] < worst_off[1], (with_carry, without)
     assert worst[0] < 0.75 and worst[1] < 0.03, with_carry
+
+
+def test_a_view_registered_in_height_and_tilt_only_is_reported(setup: Any) -> None:
+    """A view whose overlap's halves disagreed in six directions and that was registered in
+    height and tilt only (``fsw.core.registration``) is counted and gets its own event with
+    the reason; its checkpointed count survives a resume."""
+    exe, _, _ = setup
+    task = exe.tasks["perception"]
+    from fsw.core.registration import Registration
+
+    reg = Registration("registered", "height and tilt only: halves disagree (chi2 85 > 22.5, 6 dof): a false or "
+                       "ambiguous minimum; yaw, x, y kept at the prior", cov=np.eye(6) * 1e-4, points=900,
+                       split_chi2=0.9)
+    n_before = task.partial
+    task._report_registration(reg.summary(7))
+    assert task.partial == n_before + 1
+    assert exe.telemetry.get("perception.reg_partial") == n_before + 1
+    assert exe.telemetry.get("perception.reg_split_chi2") == pytest.approx(0.9)
+    ev = [e for e in exe.events.history if e.name.endswith("VIEW_PARTLY_REGISTERED")]
+    assert ev and "height and tilt only" in ev[-1].text
+    state = task.checkpoint_state()
+    task.restore_state(state)
+    assert task.partial == n_before + 1 and "sources" in state
