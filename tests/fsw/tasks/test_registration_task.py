@@ -6,6 +6,7 @@ its pose covariance inflated, never silently."""
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from typing import Any
 
@@ -24,6 +25,7 @@ from hil_sim.render import StereoRenderer
 from hil_sim.world import load_scenario
 
 pytestmark = pytest.mark.slow
+_LINKS = itertools.count()
 PRIOR = np.diag([math.radians(0.6) ** 2] * 3 + [0.04**2] * 3)
 
 
@@ -50,7 +52,8 @@ def setup(rendered: Any) -> Any:
     what another merged, in any order or split across workers."""
     cfg, world, poses, pairs = rendered
     ideal = dataclasses.replace(cfg.camera, calibration_file="")  # the pairs come from the ideal renderer
-    exe = Executive(dataclasses.replace(cfg, map=world.map_grid, camera=ideal), SteppedClock())
+    link = dataclasses.replace(cfg.link, transport=f"inproc://registration-task-{next(_LINKS)}")  # its own radio
+    exe = Executive(dataclasses.replace(cfg, map=world.map_grid, camera=ideal, link=link), SteppedClock())
     return exe, poses, pairs
 
 
