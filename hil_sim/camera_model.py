@@ -10,7 +10,11 @@ bench's cameras differ from that nominal pair the way a real head does:
   tangential ``p1, p2`` terms on normalised coordinates);
 * the right camera sits ``baseline_m + baseline_error_m`` along the left camera's ``x`` and
   is rotated by a few tenths of a degree (``right_r*_deg``, about the left camera's axes);
-* the right camera's exposure differs by ``right_exposure_ratio``; both have Gaussian noise.
+* the right camera's exposure differs by ``right_exposure_ratio``; both have Gaussian noise;
+* each pixel integrates the light over its area (``pixel_samples`` squared rays averaged), as
+  a sensor does; one ray per pixel (a point sample) aliases fine texture, which the ideal
+  pair, sampled exactly on the rectified grid, hides but a rectified pair cannot
+  (docs/perception.md, "The camera-only comparison").
 
 :class:`TrueCameras` is what the renderer draws with (``hil_sim.render``) and what the
 calibration bench compares an estimate with (its :meth:`TrueCameras.truth` is a
@@ -39,6 +43,8 @@ class CameraModelConfig:
 
     model: str = param("real", choices=("real", "ideal"),
                        doc="real: lenses, misalignment, exposure below; ideal: the nominal pinhole pair")
+    pixel_samples: int = param(2, lo=1, hi=4, doc="rays per pixel side, averaged (pixel-area integration; "
+                               "both models); 1: a point sample at the pixel centre")
     noise_sigma: float = param(-1.0, lo=-1.0, hi=50.0, doc="sensor noise, grey levels; negative: the scenario's")
     exposure: float = param(1.3, lo=0.1, hi=5.0, doc="grey levels per unit albedo / 255 (left camera)")
     right_exposure_ratio: float = param(1.0, lo=0.5, hi=2.0, doc="right camera exposure / left")
@@ -70,13 +76,14 @@ class TrueCameras:
     right_rotation: F64  # right camera axes in the left camera frame (columns)
     baseline_m: float
     exposure: tuple[float, float]
+    pixel_samples: int = 1  # rays per pixel side, averaged (the sensor integrates over the pixel)
 
     @staticmethod
     def from_config(camera: CameraConfig, cfg: CameraModelConfig) -> TrueCameras:
         K0 = camera.K
         if cfg.model == "ideal":
             return TrueCameras(camera.width_px, camera.height_px, (K0, K0), (None, None), np.eye(3),
-                               camera.baseline_m, (cfg.exposure, cfg.exposure))
+                               camera.baseline_m, (cfg.exposure, cfg.exposure), cfg.pixel_samples)
         Ks = []
         for scale, dx, dy in ((cfg.focal_scale, cfg.cx_offset_px, cfg.cy_offset_px),
                               (cfg.right_focal_scale, cfg.right_cx_offset_px, cfg.right_cy_offset_px)):
@@ -92,7 +99,21 @@ class TrueCameras:
         dist = None if not D.any() else D
         return TrueCameras(camera.width_px, camera.height_px, (Ks[0], Ks[1]), (dist, dist), rot,
                            camera.baseline_m + cfg.baseline_error_m,
-                           (cfg.exposure, cfg.exposure * cfg.right_exposure_ratio))
+                           (cfg.exposure, cfg.exposure * cfg.right_exposure_ratio), cfg.pixel_samples)
+
+    def sampled(self) -> TrueCameras:
+        """The same cameras at ``pixel_samples`` times the resolution, one ray per pixel: the
+        sub-pixel grid the renderer casts (sub-pixel ``(i, j)`` of pixel ``(u, v)`` has its
+        centre at ``u + (i + 0.5) / s - 0.5``)."""
+        s = self.pixel_samples
+        Ks = []
+        for K in self.K:
+            Kh = K.copy()
+            Kh[:2, :2] *= s
+            Kh[:2, 2] = s * K[:2, 2] + (s - 1) / 2.0
+            Ks.append(Kh)
+        return TrueCameras(self.width_px * s, self.height_px * s, (Ks[0], Ks[1]), self.dist, self.right_rotation,
+                           self.baseline_m, self.exposure, 1)
 
     @property
     def ideal(self) -> bool:

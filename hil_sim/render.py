@@ -15,8 +15,13 @@ right camera is slightly rotated and off the nominal baseline, and the two expos
   (``marker_supersample`` squared rays per pixel), so marker corners land with
   sub-pixel accuracy for the PnP of ALGORITHM.md §5;
 * brightness = albedo (with baked sun shading) times ``exposure``, plus a 2.5 mm detail
-  texture that fades out with pixel footprint (no aliasing), plus optional Gaussian sensor
-  noise of ``noise_sigma`` grey levels from a generator seeded with ``seed``.
+  texture that fades out with pixel footprint, plus optional Gaussian sensor noise of
+  ``noise_sigma`` grey levels from a generator seeded with ``seed``;
+* each pixel is the mean of ``cameras.pixel_samples`` squared rays over its area (the
+  sensor integrates; the bench's cameras use 2, docs/perception.md): one ray per pixel is a
+  point sample, which aliases fine texture (the ground's albedo at a grazing view, the
+  detail near its fade), and a rectified pair, resampled between those samples, then no
+  longer matches the scene the way the two point-sampled ideal images do.
 
 The same renderer with the same seed and the same sequence of calls gives identical images.
 Method, figures and timings: docs/world.md, "Renderer"; ``safer-hil bench render``.
@@ -61,7 +66,8 @@ class StereoRenderer:
         self.camera = camera
         self.noise_sigma = float(noise_sigma)
         self.cameras = cameras or TrueCameras.from_config(
-            camera, CameraModelConfig(model="ideal", exposure=float(exposure)))
+            camera, CameraModelConfig(model="ideal", exposure=float(exposure), pixel_samples=1))
+        self._sampled = self.cameras.sampled()  # the sub-pixel grid the rays are cast on
         if (self.cameras.width_px, self.cameras.height_px) != (camera.width_px, camera.height_px):
             raise ValueError("the true cameras and the camera config differ in image size")
         self.supersample = int(marker_supersample)
@@ -86,20 +92,36 @@ class StereoRenderer:
         return self._to_u8(left), self._to_u8(right)
 
     def render_depth(self, pose: CameraPose) -> F32:
-        """Range along the optical axis (metres) per pixel of the camera at ``pose``; NaN
-        where the ray meets nothing."""
-        return self.render_view(pose)[1]
+        """Range along the optical axis (metres) of the ray through each pixel's centre of
+        the camera at ``pose``; NaN where the ray meets nothing."""
+        return self._view(self.cameras, pose, 0, (), self.supersample)[1]
 
     def render_view(self, pose: CameraPose, which: int = 0,
                     extra: tuple[Quad, ...] = ()) -> tuple[F32, F32]:
         """Camera ``which`` (0 left, 1 right) at ``pose``, noise free: ``(intensity in grey
-        levels (float32), depth)``."""
-        cam = self.cameras
+        levels (float32), depth)``; with ``pixel_samples`` ``s > 1`` the intensity is the
+        mean over the pixel's ``s x s`` rays and the depth that of its centre ray (odd ``s``)
+        or its nearest one (even ``s``)."""
+        s = self.cameras.pixel_samples
+        if s == 1:
+            return self._view(self.cameras, pose, which, extra, self.supersample)
+        h, w = self.cameras.height_px, self.cameras.width_px
+        # the markers' own supersampling counts the pixel's rays already
+        image, depth = self._view(self._sampled, pose, which, extra, -(-self.supersample // s))
+        image = image.reshape(h, s, w, s).mean(axis=(1, 3), dtype=np.float32)
+        d = np.nan_to_num(depth, nan=np.inf)
+        d = d[s // 2::s, s // 2::s] if s % 2 else d.reshape(h, s, w, s).min(axis=(1, 3))
+        return image, np.where(np.isfinite(d), d, np.nan).astype(np.float32)
+
+    def _view(self, cam: TrueCameras, pose: CameraPose, which: int, extra: tuple[Quad, ...],
+              marker_ss: int) -> tuple[F32, F32]:
+        """One ray per pixel of ``cam``; the detail texture fades with the footprint of the
+        output pixel (``self.cameras``), whatever grid the rays are cast on."""
         c, R = np.asarray(pose.t, float), np.asarray(pose.R, float)
         K, dist, gain = cam.K[which], cam.dist[which], cam.exposure[which]
         depth, rays = cast_image(self._hf, c, R, K, cam.width_px, cam.height_px, dist=dist)
-        image = self._shade_terrain(c, rays, depth, K[0, 0], gain)
-        self._draw_quads(image, depth, rays, c, R, which, gain, extra)
+        image = self._shade_terrain(c, rays, depth, self.cameras.K[which][0, 0], gain)
+        self._draw_quads(cam, marker_ss, image, depth, rays, c, R, which, gain, extra)
         return image, depth
 
     # -- terrain ----------------------------------------------------------------------
@@ -123,8 +145,8 @@ class StereoRenderer:
         return np.where(hit, value, np.float32(SKY_DN)).astype(np.float32)
 
     # -- the Cliff-bot ----------------------------------------------------------------
-    def _draw_quads(self, image: F32, depth: F32, rays: F32, c: F64, R: F64, which: int,
-                    exposure: float, extra: tuple[Quad, ...]) -> None:
+    def _draw_quads(self, cam: TrueCameras, ss: int, image: F32, depth: F32, rays: F32, c: F64, R: F64,
+                    which: int, exposure: float, extra: tuple[Quad, ...]) -> None:
         """Overlay the Cliff-bot's quads and the ``extra`` ones with a depth test against the
         terrain: the body one ray per pixel, the fiducial plates and targets supersampled."""
         h, w = image.shape
@@ -133,7 +155,7 @@ class StereoRenderer:
         for q in (*self.world.cliffbot.quads, *extra):
             if not q.two_sided and float((c - q.p0) @ q.normal) <= 0.0:
                 continue  # seen from behind: hidden by the body (back-face culling)
-            box = self._bbox(q, c, R, which, w, h)
+            box = self._bbox(cam, q, c, R, which, w, h)
             if box is not None:
                 (fine if q.fiducial else plain).append((q, box))
         for q, (u0, v0, u1, v1) in plain:
@@ -142,17 +164,16 @@ class StereoRenderer:
             image[v0:v1, u0:u1][closer] = v_q[closer]
             depth[v0:v1, u0:u1][closer] = t_q[closer]
         for q, box in fine:
-            self._draw_supersampled(image, depth, q, box, c, R, which, exposure)
+            self._draw_supersampled(cam, ss, image, depth, q, box, c, R, which, exposure)
 
-    def _draw_supersampled(self, image: F32, depth: F32, q: Quad, box: tuple[int, int, int, int],
-                           c: F64, R: F64, which: int, exposure: float) -> None:
-        """Draw one quad with ``supersample**2`` rays per pixel over its pixel box."""
+    def _draw_supersampled(self, cam: TrueCameras, ss: int, image: F32, depth: F32, q: Quad,
+                           box: tuple[int, int, int, int], c: F64, R: F64, which: int, exposure: float) -> None:
+        """Draw one quad with ``ss**2`` rays per pixel of ``cam`` over its pixel box."""
         u0, v0, u1, v1 = box
-        ss = self.supersample
         sub = (np.arange(ss) + 0.5) / ss - 0.5
         us = (np.arange(u0, u1)[:, None] + sub[None, :]).reshape(-1)
         vs = (np.arange(v0, v1)[:, None] + sub[None, :]).reshape(-1)
-        rays = pixel_rays(R, self.cameras.K[which], us, vs, self.cameras.dist[which], cache=False)
+        rays = pixel_rays(R, cam.K[which], us, vs, cam.dist[which], cache=False)
         t_q, v_q = self._hit_quad(q, c, rays, exposure)
         hh, ww = v1 - v0, u1 - u0
         t_under = np.repeat(np.repeat(np.nan_to_num(depth[v0:v1, u0:u1], nan=np.inf), ss, 0),
@@ -188,10 +209,11 @@ class StereoRenderer:
         value = q.texture[row, col] * np.float32(255.0 * exposure * shade)
         return np.where(ok, t, np.float32(np.inf)), value
 
-    def _bbox(self, q: Quad, c: F64, R: F64, which: int, w: int, h: int) -> tuple[int, int, int, int] | None:
+    def _bbox(self, cam: TrueCameras, q: Quad, c: F64, R: F64, which: int, w: int,
+              h: int) -> tuple[int, int, int, int] | None:
         """Pixel box ``(u0, v0, u1, v1)`` that contains the quad's image, or None if unseen
         (through a lens the edges bow: they are projected at nine points each)."""
-        if self.cameras.dist[which] is None:
+        if cam.dist[which] is None:
             pts = q.corners
         else:
             s = np.linspace(0.0, 1.0, 9)[:, None]
@@ -202,13 +224,13 @@ class StereoRenderer:
             return None
         if (pc[:, 2] <= 1e-3).any():
             return (0, 0, w, h)  # straddles the camera plane: test every pixel
-        if self.cameras.dist[which] is not None:
+        if cam.dist[which] is not None:
             # the lens polynomial is only meaningful near the field of view: clamp far points
             # to a border beyond the image (a box reaching the image edge stays one)
-            K = self.cameras.K[which]
+            K = cam.K[which]
             lim = 1.3 * max(w / K[0, 0], h / K[1, 1])
             pc = np.column_stack([np.clip(pc[:, :2] / pc[:, 2:], -lim, lim), np.ones(len(pc))])
-        u, v = self.cameras.project(which, pc).T
+        u, v = cam.project(which, pc).T
         u0, u1 = max(0, int(math.floor(u.min())) - 1), min(w, int(math.ceil(u.max())) + 2)
         v0, v1 = max(0, int(math.floor(v.min())) - 1), min(h, int(math.ceil(v.max())) + 2)
         return None if u0 >= u1 or v0 >= v1 else (u0, v0, u1, v1)

@@ -20,7 +20,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from hil_sim.rig import DEFAULT_HARDWARE
 
     p.add_argument("--out", type=Path, default=Path("out/calibration"), help="directory for the PNG pairs")
-    p.add_argument("--views", type=int, default=18, help="pairs to render (15-20 is typical)")
+    p.add_argument("--views", type=int, default=30,
+                   help="pairs to render (more pairs, a smaller disparity offset error: docs/perception.md)")
     p.add_argument("--seed", type=int, default=0, help="seed of the target poses and the sensor noise")
     p.add_argument("--scenario", default="lab", help="world behind the target (lab, cliff, mars, file:PATH)")
     p.add_argument("--config", default=str(DEFAULT_CONFIG), help="flight configuration (camera, target)")
