@@ -40,6 +40,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--serial-port", type=int, default=0, help="tcp: port to listen on (0: any free)")
     p.add_argument("--pty-link", default=None, help="pty: also make this symlink to the slave device")
     p.add_argument("--camera-port", type=int, default=0, help="camera server port (0: any free)")
+    p.add_argument("--camera-timeout", type=float, default=8.0, metavar="S",
+                   help="the flight config's [devices] camera_timeout_s: this bench renders a pair in 0.3-3.2 s "
+                        "of CPU (pose dependent; a real camera ~0.1 s, the flight default 2 s)")
     p.add_argument("--rate-hz", type=float, default=50.0, help="hardware model update rate")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
     p.add_argument("--report-period", type=float, default=1.0, metavar="S", help="truth report period (0: none)")
@@ -86,8 +89,8 @@ def run(args: argparse.Namespace) -> int:
     from hil_sim.hw.ports import PtyDevicePort, TcpDevicePort
     from hil_sim.rig import DEFAULT_HARDWARE, HardwareRig, load_hardware
 
-    if args.rate_hz <= 0 or (args.duration is not None and args.duration <= 0):
-        print("safer-hil serve: --rate-hz and --duration must be positive", file=sys.stderr)
+    if args.rate_hz <= 0 or (args.duration is not None and args.duration <= 0) or not args.camera_timeout > 0:
+        print("safer-hil serve: --rate-hz, --duration and --camera-timeout must be positive", file=sys.stderr)
         return 2
     base_cfg = Path(args.config or DEFAULT_CONFIG)
     try:
@@ -124,6 +127,8 @@ def run(args: argparse.Namespace) -> int:
         "serial_url": serial_url,
         "camera_source": f"tcp://{camera.address[0]}:{camera.address[1]}" if camera else "none",
     }
+    if camera is not None:  # the bench's renderer, not a real camera, sets how long a pair takes
+        endpoints["camera_timeout_s"] = args.camera_timeout
     print(f"safer-hil serve: hardware up (scenario {args.scenario}, seed {args.seed}, {args.rate_hz:g} Hz)")
     print(f"  CAN     udp_multicast group {args.can_channel} port {args.can_port} (DBC config/rover.dbc)")
     print(f"  serial  {serial_url}" + (f" (link {args.pty_link})" if args.pty_link else ""))
