@@ -50,12 +50,11 @@ from typing import TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2
 
 from fsw.core.geometry import CameraPose, MapGrid
 from fsw.core.localization import so3_exp
 from fsw.core.reference_frames import ReferenceFrames
-from fsw.core.registration_stats import ALL, HEIGHT_TILT, halves, posterior, reference_covariance
+from fsw.core.registration_stats import ALL, HEIGHT_TILT, chi2_quantile, halves, posterior, reference_covariance
 from fsw.core.steps import run_to_end
 from fsw.framework.params import param
 
@@ -313,7 +312,7 @@ def _solve(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid, z: F6
         out.status, out.reason = "unregistered", f"correction implausible (chi2 {float(d @ P_inv @ d):.0f})"
     elif cfg.split_alpha > 0:
         out.split_chi2 = yield from _split_check(q0[used], cov_p[used], t, S, P_inv, grid, z, var, ref, cfg, free)
-        limit = float(chi2.ppf(1.0 - cfg.split_alpha, len(free)))
+        limit = chi2_quantile(1.0 - cfg.split_alpha, len(free))
         if math.isinf(out.split_chi2):
             out.status, out.reason = "unregistered", "unchecked: a half of the overlap too small to fit alone"
         elif out.split_chi2 > limit:
