@@ -100,22 +100,18 @@ class E2ELayout:
 
     def protect(self, data: bytes, counter: int) -> bytes:
         """``data`` with the counter and checksum filled in (their previous contents ignored)."""
-        buf = bytearray(data)
-        if len(buf) != self.length:
-            raise ValueError(f"{self.name}: {len(buf)} bytes, expected {self.length}")
-        word = int.from_bytes(buf, "little") & ~(0xF << self.counter_start)
-        buf[:] = (word | ((counter & 0xF) << self.counter_start)).to_bytes(self.length, "little")
-        k, n = self.checksum_byte, self.checksum_bytes
-        buf[k : k + n] = self.crc(bytes(buf)).to_bytes(n, "little")
-        return bytes(buf)
+        if len(data) != self.length:
+            raise ValueError(f"{self.name}: {len(data)} bytes, expected {self.length}")
+        word = int.from_bytes(data, "little") & ~(0xF << self.counter_start)
+        return self.seal((word | ((counter & 0xF) << self.counter_start)).to_bytes(self.length, "little"))
 
     def seal(self, data: bytes) -> bytes:
-        """``data``, whose counter is already packed, with the checksum filled in: what
-        :meth:`protect` gives for that counter (its checksum bytes must hold 0)."""
+        """``data``, whose counter is already packed, with the checksum filled in (its previous
+        contents ignored): :meth:`protect` without the counter step."""
         if len(data) != self.length:
             raise ValueError(f"{self.name}: {len(data)} bytes, expected {self.length}")
         k, n = self.checksum_byte, self.checksum_bytes
-        return data[:k] + self._crc_fn(self._id_bytes + data[:k] + data[k + n :]).to_bytes(n, "little") + data[k + n :]
+        return data[:k] + self.crc(data).to_bytes(n, "little") + data[k + n :]
 
     def counter(self, data: bytes) -> int:
         return (int.from_bytes(data, "little") >> self.counter_start) & 0xF
