@@ -17,6 +17,14 @@ COLUMNS = ("scenario", "seed", "slope_deg", "edge_gap_m", "method", "moved", "od
            "map_rmse_cm", "error_tilt_deg", "rmse_detilted_cm", "seam_cm", "within_2sigma", "final_state",
            "views_registered", "views_height_tilt_only", "views_unregistered", "views_halves_disagree")
 MOVED_M = 0.05  # the rover moved if its true odometer passed this
+MAP_SLOPE_MAX_DEG = 10.0  # the map criteria hold on generated terrains up to this slope
+# issue 13 "Done when", map figures: (column, what, target test on the median, target text)
+MAP_CRITERIA = (
+    ("map_rmse_cm", "map RMS error against truth, cm", lambda m: m <= 2.5, "<= 2.5"),
+    ("error_tilt_deg", "fitted tilt of the map's error, deg", lambda m: m <= 0.2, "<= 0.2"),
+    ("seam_cm", "station seams, cm", lambda m: m <= 1.0, "<= 1"),
+    ("within_2sigma", "mapped cells within 2 sigma", lambda m: 0.90 <= m <= 0.99, "0.90-0.99"),
+)
 
 
 def row_of(s: dict[str, Any], spec: str, seed: int, steps: int) -> dict[str, Any]:
@@ -117,6 +125,7 @@ def report_markdown(rows: list[dict[str, Any]], failed: list[str], args: dict[st
     ]
     for text, n in crit:
         out.append(f"- {text}: **{n}** (target 0) {'met' if n == 0 else 'NOT MET'}")
+    out.extend(_map_criteria(rows))
     never = [r for r in rows if not r["moved"]]
     if never:
         out.append(f"\nMissions where the rover did not move ({len(never)}): reachable stations 0 at every "
@@ -127,3 +136,28 @@ def report_markdown(rows: list[dict[str, Any]], failed: list[str], args: dict[st
     if failed:
         out.append("\n## Failed missions\n" + "\n".join(f"- {f}" for f in failed))
     return "\n".join(out) + "\n"
+
+
+def _map_criteria(rows: list[dict[str, Any]]) -> list[str]:
+    """The map figures of issue 13's "Done when" per method: median (target checked) and
+    worst over the generated terrains with slope <= ``MAP_SLOPE_MAX_DEG``; rows without a
+    drawn slope (``file:`` DEMs) are listed apart, as they were measured."""
+    gen = [r for r in rows if r["slope_deg"] is not None and r["slope_deg"] <= MAP_SLOPE_MAX_DEG]
+    other = [r for r in rows if r["slope_deg"] is None]
+    out = [f"\n## Map criteria (issue 13; generated terrains with slope <= {MAP_SLOPE_MAX_DEG:g} deg)\n"]
+    for m in sorted({r["method"] for r in gen}):
+        rs = [r for r in gen if r["method"] == m]
+        out.append(f"Method {m}, {len(rs)} missions:")
+        for col, what, ok, target in MAP_CRITERIA:
+            v = [float(r[col]) for r in rs if r[col] is not None]
+            if not v:
+                out.append(f"- {what}: no value")
+                continue
+            med = statistics.median(v)
+            worst = min(v) if col == "within_2sigma" else max(v)
+            out.append(f"- {what}: median **{med:.3g}** (target {target}) {'met' if ok(med) else 'NOT MET'}; "
+                       f"worst {worst:.3g}")
+    for r in other:
+        out.append(f"- {r['scenario']} method {r['method']}: RMSE {r['map_rmse_cm']} cm, tilt "
+                   f"{r['error_tilt_deg']} deg, seams {r['seam_cm']} cm, within 2 sigma {r['within_2sigma']}")
+    return out

@@ -35,3 +35,23 @@ def test_bad_arguments_exit_2(tmp_path, capsys):
                  "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and all(line.startswith("safer-hil experiment ground:") for line in err)
+
+
+def test_map_criteria_are_medians_over_generated_terrains_up_to_10_deg():
+    def row(seed: int, slope: float | None, rmse: float, tilt: float) -> dict:
+        r = row_of(_summary(1.0, [1], 2, None), "terrain" if slope is not None else "file:dem.npy", seed, 2)
+        return {**r, "slope_deg": slope, "map_rmse_cm": rmse, "error_tilt_deg": tilt, "seam_cm": 0.3,
+                "within_2sigma": 0.95}
+    rows = [row(0, 2.0, 2.0, 0.1), row(1, 9.9, 2.4, 0.3), row(2, 5.0, 3.0, 0.15),
+            row(3, 11.5, 50.0, 5.0), row(0, None, 9.0, 1.0)]  # > 10 deg and the DEM stay out
+    md = report_markdown(rows, [], {"family": "terrain", "terrains": 4, "first_seed": 0, "methods": "5",
+                                    "steps": 2, "extra": ["file:dem.npy"], "jobs": 2})
+    assert "Method 5, 3 missions:" in md
+    assert "map RMS error against truth, cm: median **2.4** (target <= 2.5) met; worst 3" in md
+    assert "fitted tilt of the map's error, deg: median **0.15** (target <= 0.2) met; worst 0.3" in md
+    assert "mapped cells within 2 sigma: median **0.95** (target 0.90-0.99) met" in md
+    assert "- file:dem.npy method 5: RMSE 9.0 cm" in md
+    rows[0]["error_tilt_deg"] = rows[2]["error_tilt_deg"] = 0.25
+    md = report_markdown(rows, [], {"family": "terrain", "terrains": 4, "first_seed": 0, "methods": "5",
+                                    "steps": 2, "extra": [], "jobs": 2})
+    assert "median **0.25** (target <= 0.2) NOT MET" in md
