@@ -91,7 +91,7 @@ class RegistrationConfig:
     )
     min_points: int = param(300, lo=10, hi=10**7, doc="fewer points on reference cells: not registered")
     max_points: int = param(4000, lo=100, hi=10**7, doc="points used (an even subsample)")
-    n_eff: int = param(100, lo=1, hi=10**7, doc="independent points the data are worth at most")
+    n_eff: int = param(50, lo=1, hi=10**7, doc="independent points the data are worth at most")
     iterations: int = param(6, lo=1, hi=50, doc="Gauss-Newton iterations")
     gate_sigma: float = param(3.0, lo=1.0, hi=100.0, units="sigma", doc="residual gate")
     max_condition: float = param(
