@@ -39,6 +39,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("experiment", "terrain"): "hil_sim.commands.experiment_terrain",
     ("experiment", "ground"): "hil_sim.commands.experiment_ground",
     ("experiment", "camera-path"): "hil_sim.commands.experiment_camera_path",
+    ("experiment", "registration"): "hil_sim.commands.experiment_registration",
 }
 
 GROUP_HELP = {

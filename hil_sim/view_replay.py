@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-from collections.abc import Generator
+from collections.abc import Callable, Generator
 from dataclasses import dataclass
 from typing import Any
 
@@ -92,11 +92,13 @@ class Factor:
 
 
 def replay(views: list[RecordedView], scenario: str, seed: int, factor: Factor,
-           config: str | None = None, datum_m: float = 0.0) -> dict[str, Any]:
+           config: str | None = None, datum_m: float = 0.0,
+           on_register: Callable[[RecordedView, Any, CameraPose], None] | None = None) -> dict[str, Any]:
     """The map quality (``hil_sim.terrain_eval.map_quality``) of ``views`` merged by a fresh
     perception task with ``factor`` applied; ``datum_m``: the recorded mission's true body
     height at the start (its summary's ``map_quality.datum_m``), the flight poses' height
-    origin. True poses put the map in the world's own heights (datum 0)."""
+    origin. True poses put the map in the world's own heights (datum 0). ``on_register``
+    is called with each view, its ``fsw.core.registration.Registration`` and the pose merged."""
     from fsw.executive.executive import Executive
     from fsw.framework.clock import SteppedClock
     from hil_sim.camera_model import TrueCameras
@@ -124,7 +126,18 @@ def replay(views: list[RecordedView], scenario: str, seed: int, factor: Factor,
         cams = TrueCameras.from_config(cfg.camera, dataclasses.replace(hw.camera, model=factor.cameras))
         rend = StereoRenderer(world, cfg.camera, float(world.noise_sigma), seed, cameras=cams)
     merged = []
+    current: list[RecordedView] = []
+    if on_register is not None:
+        register, hook = task._register, on_register
+
+        def observed(fr: CameraFrame, pts: Any) -> Generator[None, None, Any]:
+            out = yield from register(fr, pts)
+            hook(current[-1], out[0], out[1])
+            return out
+
+        task._register = observed
     for v in views:
+        current.append(v)
         left, right = (v.left, v.right) if rend is None else rend.render(v.true_pose)
         pose = v.true_pose if factor.true_pose else v.pose
         gen = task._merge_view(CameraFrame(v.view_id, 0.0, left, right, pose, v.pose_cov,
@@ -138,3 +151,32 @@ def replay(views: list[RecordedView], scenario: str, seed: int, factor: Factor,
         merged.append((up.camera_xyz, *up.view_cells))
     datum = 0.0 if factor.true_pose else datum_m
     return map_quality(task.map, world.truth_on_grid(task.map.grid), merged, datum)
+
+
+def registration_errors(views: list[RecordedView], scenario: str, seed: int,
+                        config: str | None = None) -> tuple[list[dict[str, float]], dict[str, Any]]:
+    """Consistency of the registration (docs/perception.md, "How many independent points"):
+    the views merged again from their TRUE poses, so the map is the truth's frame and every
+    registered pose's error is the registration's own. Per registered view: the error
+    ``e = (rotation vector of R R_true^T, t - t_true)`` normalised by the registration's
+    covariance without the reference's part (NEES: ``e^T C^-1 e``, chi-square with 2 dof for
+    roll/pitch and 6 for all if the covariance is right), the tilt error and its sigma; and
+    the replay's map quality."""
+    import cv2
+
+    rows: list[dict[str, float]] = []
+
+    def record(v: RecordedView, reg: Any, pose: CameraPose) -> None:
+        if reg.status != "registered":
+            return
+        rvec = cv2.Rodrigues(np.ascontiguousarray(pose.R @ v.true_pose.R.T))[0].ravel()
+        e = np.concatenate([rvec, pose.t - v.true_pose.t])
+        C = np.asarray(reg.cov - reg.ref_cov, np.float64)
+        rp = C[:2, :2]
+        rows.append({"nees_rp": float(e[:2] @ np.linalg.solve(rp, e[:2])),
+                     "nees6": float(e @ np.linalg.solve(C, e)),
+                     "tilt_err_deg": float(np.degrees(np.hypot(e[0], e[1]))),
+                     "tilt_sd_deg": float(np.degrees(np.sqrt(rp[0, 0] + rp[1, 1])))})
+
+    q = replay(views, scenario, seed, Factor(true_pose=True), config, 0.0, on_register=record)
+    return rows, q

@@ -61,3 +61,17 @@ def test_an_unknown_pose_error_shows(views: list[RecordedView]) -> None:
     flight = replay(views, "lab", 0, Factor(registration=False))
     true = replay(views, "lab", 0, Factor(true_pose=True, registration=False))
     assert flight["rms_m"] > true["rms_m"]
+
+
+def test_registration_errors_from_true_poses_are_consistent(views: list[RecordedView]) -> None:
+    """The views merged from their true poses: each registered one gives a finite NEES, and
+    the covariance of the shipped configuration holds its error (mean roll/pitch NEES well
+    inside what an overconfident covariance gives; chi-square 2 dof has mean 2)."""
+    from hil_sim.view_replay import registration_errors
+
+    rows, q = registration_errors(views, "lab", 0)
+    assert 1 <= len(rows) <= len(views) - 1  # the first view begins the map
+    assert all(np.isfinite([r["nees_rp"], r["nees6"]]).all() and r["nees_rp"] >= 0 for r in rows)
+    assert np.mean([r["nees_rp"] for r in rows]) < 6.0
+    assert all(r["tilt_err_deg"] < 3 * r["tilt_sd_deg"] + 0.05 for r in rows)
+    assert q["cells"] > 0
