@@ -20,7 +20,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from hil_sim.rig import DEFAULT_HARDWARE
 
     p.add_argument("--out", type=Path, default=Path("out/calibration"), help="directory for the PNG pairs")
-    p.add_argument("--views", type=int, default=30,
+    p.add_argument("--views", type=int, default=60,
                    help="pairs to render (more pairs, a smaller disparity offset error: docs/perception.md)")
     p.add_argument("--seed", type=int, default=0, help="seed of the target poses and the sensor noise")
     p.add_argument("--scenario", default="lab", help="world behind the target (lab, cliff, mars, file:PATH)")
