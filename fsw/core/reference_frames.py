@@ -25,11 +25,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from fsw.core.localization import skew
+
 F64 = NDArray[np.float64]
-
-
-def skew(v: F64) -> F64:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 def about(cov: F64, centre: F64, new_centre: F64) -> F64:
@@ -64,10 +62,8 @@ class ReferenceFrames:
         lever = np.asarray(xyz, np.float64) - c
         # displacement of a cell by (dtheta, dt): dtheta x lever + dt = [-lever]x dtheta + dt
         A = np.zeros((len(cells), 3, 6))
+        A[:, :, :3] = -skew(lever)
         A[:, :, 3:] = np.eye(3)
-        A[:, 0, 1], A[:, 0, 2] = lever[:, 2], -lever[:, 1]
-        A[:, 1, 0], A[:, 1, 2] = -lever[:, 2], lever[:, 0]
-        A[:, 2, 0], A[:, 2, 1] = lever[:, 1], -lever[:, 0]
         score = np.einsum("nij,jk,nik->n", A, cov, A)
         flat_owner, flat_score = self.owner.reshape(-1), self.score.reshape(-1)
         idx = np.asarray(cells, np.intp)

@@ -335,6 +335,7 @@ def _split_check(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid,
     (:func:`fsw.core.registration_stats.posterior`). A half too small to fit (under
     ``min_points / 2``) gives ``inf``."""
     first = halves(q0[:, :2])
+    held = [i for i in range(6) if i not in free]
     fits: list[tuple[F64, F64, F64]] = []
     for half in (first, ~first):
         f = yield from _fit(q0[half], cov_p[half], t, P_inv, grid, z, var, ref, cfg, 0.5 * cfg.n_eff,
@@ -342,11 +343,9 @@ def _split_check(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid,
         if isinstance(f, tuple):
             return math.inf
         _, Cf = posterior(f.N, P_inv, S, free)
-        held = [i for i in range(6) if i not in free]
         K = -Cf @ (f.N + P_inv)[np.ix_(free, held)]
         fits.append((f.d[free], Cf, K))
     D = fits[0][0] - fits[1][0]
-    held = [i for i in range(6) if i not in free]
     dK = fits[0][2] - fits[1][2]  # both halves see the same error of the held directions
     try:
         m2 = float(D @ np.linalg.solve(fits[0][1] + fits[1][1] + dK @ S[np.ix_(held, held)] @ dK.T, D))

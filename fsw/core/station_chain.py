@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from fsw.core.geometry import CameraPose
 from fsw.core.localization import so3_exp, so3_log
 from fsw.core.nav_fix import DEAD_RECKONED, NavFix, residual_correction
-from fsw.core.reference_frames import skew
+from fsw.core.reference_frames import about
 from fsw.core.registration import Registration, RegistrationConfig, apply_correction, inflate
 
 F64 = NDArray[np.float64]
@@ -80,9 +80,7 @@ def carried_prior(pose: CameraPose, pose_cov: F64, fix: StationFix) -> tuple[F64
     d0 = np.zeros(6)
     d0[2] = fix.correction[2]
     d0[3:] = fix.correction[3:] + so3_exp(d0[:3]) @ lever - lever
-    A = np.eye(6)
-    A[3:, :3] = -skew(lever)
-    carried = A @ fix.cov @ A.T
+    carried = about(fix.cov, fix.centre, pose.t)
     I = np.ix_(DEAD_RECKONED, DEAD_RECKONED)
     S = np.asarray(pose_cov, np.float64)
     grown = S[I] - np.asarray(fix.pose_cov, np.float64)[I]
