@@ -3,7 +3,7 @@
 Channels carry units and limits and keep their latest value; events carry an F Prime
 severity, a format string and a throttle. Event counters are exact even while the
 throttle suppresses emission; a throttle reopens one slot per ``decay`` call, which the
-executive makes on good frames (STYLE.md, F Prime).
+executive makes on good frames (as in F Prime).
 """
 
 from __future__ import annotations

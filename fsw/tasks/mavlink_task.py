@@ -1,6 +1,6 @@
 """The ground-link task: MAVLink 2 telemetry, events and map previews down; signed commands up.
 
-Thin (ARCHITECTURE.md, tasks): each activation reads the transport, lets the sans-I/O
+Thin (docs/architecture.md, tasks): each activation reads the transport, lets the sans-I/O
 adapter (fsw/comm/mavlink_adapter.py) authenticate and decode, dispatches accepted commands
 through the executive's dictionary and acknowledges them, then sends the adapter's frames
 for this activation (within ``[mavlink] budget_bytes_per_frame``) and logs every frame sent

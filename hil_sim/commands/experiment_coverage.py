@@ -1,4 +1,4 @@
-"""``safer-hil experiment coverage``: the paper's Figures 7 and 8 (ALGORITHM.md §7).
+"""``safer-hil experiment coverage``: the paper's Figures 7 and 8 (docs/algorithm.md §7).
 
 Runs the five mapping methods and the oracle over several seeds as full lockstep missions
 (``hil_sim.mission_run``), then writes ``coverage.csv`` (one row per run and step),

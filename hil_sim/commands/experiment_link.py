@@ -1,4 +1,4 @@
-"""``safer-hil experiment link``: map-link goodput against loss and bit error rate (ALGORITHM.md §6.6).
+"""``safer-hil experiment link``: map-link goodput against loss and bit error rate (docs/algorithm.md §6.6).
 
 Runs the flight link (``fsw.comm.link_sender`` / ``link_receiver``) over the seeded channel
 model (``hil_sim.radio_channel``) on a simulated clock, ``--seeds`` runs per point, sending

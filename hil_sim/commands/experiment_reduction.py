@@ -1,6 +1,6 @@
 """``safer-hil experiment reduction``: the paper's Figures 12 and 13 and the codec comparison.
 
-ALGORITHM.md §6 (and "Mars terrain statistics"). ``--maps`` Viking-model Mars maps
+docs/algorithm.md §6 (and "Mars terrain statistics"). ``--maps`` Viking-model Mars maps
 (``hil_sim.world.mars.viking_heightfield``) with rock coverage ``k`` spread evenly over the
 Viking Lander 1 to 2 values (0.07 .. 0.16), each reduced for several wheel diameters
 chosen so that ``dH = (max - min elevation) / wheel diameter`` takes the values ``--dh``.

@@ -1,5 +1,5 @@
 """``safer-hil experiment terrain``: map quality on tilted ground (issue 13: attitude and
-registration, ALGORITHM.md §5.1).
+registration, docs/algorithm.md §5.1).
 
 For every scenario, seed and slope it runs one full lockstep mission (``hil_sim.mission_run``)
 and prints, per mission and as medians and worst cases: the true start attitude, the map's

@@ -1,4 +1,4 @@
-"""Relative localization of the Cliff-bot from its ArUco fiducials (ALGORITHM.md §5).
+"""Relative localization of the Cliff-bot from its ArUco fiducials (docs/algorithm.md §5).
 
 The RECON-bot is the origin (its start pose defines the world frame). Its camera sees the
 Cliff-bot's markers; their corners, whose positions on the Cliff-bot body are known
