@@ -24,6 +24,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from hil_sim.results import command_line, write_results
+
 HELP = "mapped cells vs imaging steps for methods 1-5 and the oracle (paper Figures 7 and 8)"
 METHODS = ("1", "2", "3", "4", "5", "oracle")
 
@@ -81,6 +83,8 @@ def run(args: argparse.Namespace) -> int:
         return 1
     write_report(args.out, args.scenario, args.steps, methods, args.seeds, results)
     print((args.out / "coverage.md").read_text())
+    write_results("coverage", command_line("coverage"), (args.out / "coverage.md").read_text(),
+                  [args.out / "fig7_coverage.png", args.out / "fig8_expected_vs_obtained.png"])
     return 0
 
 

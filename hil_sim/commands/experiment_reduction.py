@@ -26,6 +26,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from hil_sim.results import command_line, write_results
+
 HELP = "Figure 12/13: quadtree reduction vs dH on 32 Mars maps, and bytes vs standard codecs"
 
 
@@ -154,6 +156,8 @@ def run(args: argparse.Namespace) -> int:
     (args.out / "report.md").write_text(report)
     print(report)
     print(f"wrote {args.out}/reduction.csv, codecs.csv, report.md, fig12_reduction.png, fig13_transmitted.png")
+    write_results("reduction", command_line("reduction"), report,
+                  [args.out / "fig12_reduction.png", args.out / "fig13_transmitted.png"])
     return 0
 
 
