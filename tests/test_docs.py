@@ -158,7 +158,8 @@ def test_equation_table_names_a_function_that_exists(path: str, name: str) -> No
 # A manual says what the software does; history lives in git and CHANGELOG.md, measured figures
 # in the result files an experiment command writes (docs/results/).
 DIARY = [
-    (re.compile(r"\bsessions?\b", re.IGNORECASE), "a work session"),
+    (re.compile(r"\b(first|second|third|fourth|fifth|sixth|seventh|eighth|this|that|other|previous|earlier|later|"
+                r"last|next|work)[- ]sessions?\b|\bsessions?\s+\d", re.IGNORECASE), "a work session"),
     (re.compile(r"\(was\s"), "a before/was note"),
     (re.compile(r"^#+ .*\b20\d\d-\d\d-\d\d\b", re.MULTILINE), "a dated heading"),
     (re.compile(r"\b(measured|remeasured)\s+20\d\d-\d\d-\d\d", re.IGNORECASE), "a dated measurement"),
@@ -188,3 +189,36 @@ def test_diary_check_catches_a_diary() -> None:
     sample = "## Results (measured 2026-11-24, fourth session)\nthe rate (was 3 Hz) is 5 Hz\n"
     assert {what for rx, what in DIARY if rx.search(sample)} >= {"a work session", "a before/was note",
                                                                  "a dated heading", "a dated measurement"}
+    legit = "STATUS keep-alive on an idle open session; a new session sends only the missing segments\n"
+    assert not [what for rx, what in DIARY if rx.search(legit)]
+
+
+def test_config_reference_is_current() -> None:
+    """docs/config.md is what ``safer-fsw config-keys`` prints (regenerate: safer-fsw config-keys > docs/config.md)."""
+    from fsw.cli import config_reference
+
+    page = (ROOT / "docs" / "config.md").read_text(encoding="utf-8")
+    assert page == config_reference(), "docs/config.md is stale: run `safer-fsw config-keys > docs/config.md`"
+
+
+def test_config_reference_covers_every_key_of_the_default_config() -> None:
+    import tomllib
+
+    from fsw.framework.params_table import config_keys
+    from fsw.settings import DEFAULT_CONFIG, FswConfig
+
+    documented = {f"{r.section}.{r.key}" for r in config_keys(FswConfig)}
+
+    def keys(table: dict[str, object], prefix: str) -> set[str]:
+        out = set()
+        for k, v in table.items():
+            if isinstance(v, dict):
+                out |= keys(v, f"{prefix}{k}.")
+            elif not (isinstance(v, list) and v and isinstance(v[0], dict)):
+                out.add(f"{prefix}{k}")
+        return out
+
+    with DEFAULT_CONFIG.open("rb") as fh:
+        present = keys(tomllib.load(fh), "")
+    present |= {f"executive.{k}" for k in ("groups", "tasks")}
+    assert present <= documented, sorted(present - documented)
