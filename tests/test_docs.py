@@ -225,3 +225,19 @@ def test_config_reference_covers_every_key_of_the_default_config() -> None:
         present = keys(tomllib.load(fh), "")
     present |= {f"executive.{k}" for k in ("groups", "tasks")}
     assert present <= documented, sorted(present - documented)
+
+
+def test_cited_manual_sections_exist() -> None:
+    """``docs/perception.md, "Geofence"``: the quoted heading exists in that page."""
+    rx = re.compile(r"\b([a-z][\w-]*)\.md,?\s+\"([^\"\n]+)\"")
+    bad = []
+    for p, text in texts():
+        for m in rx.finditer(text):
+            page = ROOT / "docs" / f"{m.group(1)}.md"
+            if not page.is_file():
+                continue
+            heads = [h.lower() for h in re.findall(r"^#+\s+(.*)$", page.read_text(encoding="utf-8"), re.MULTILINE)]
+            want = " ".join(m.group(2).split()).lower()
+            if not any(want in h for h in heads):
+                bad.append(f"{where(p, text, m.start())}: {m.group(1)}.md, \"{m.group(2)}\"")
+    assert not bad, "citations of sections that do not exist:\n" + "\n".join(bad)
