@@ -241,3 +241,11 @@ def test_cited_manual_sections_exist() -> None:
             if not any(want in h for h in heads):
                 bad.append(f"{where(p, text, m.start())}: {m.group(1)}.md, \"{m.group(2)}\"")
     assert not bad, "citations of sections that do not exist:\n" + "\n".join(bad)
+
+
+def test_bench_config_reference_is_current() -> None:
+    """docs/hil-config.md is what ``python -m hil_sim.config_reference`` prints."""
+    from hil_sim.config_reference import reference
+
+    page = (ROOT / "docs" / "hil-config.md").read_text(encoding="utf-8")
+    assert page == reference(), "stale: run `python -m hil_sim.config_reference > docs/hil-config.md`"

@@ -123,9 +123,12 @@ def markdown(cls: type, comments: Mapping[str, str] | None = None, title: str = 
     if intro:
         lines += [intro, ""]
     sections = list(dict.fromkeys(r.section for r in rows))
-    lines += ["Sections: " + ", ".join(f"[`[{s}]`](#{s.replace('.', '')})" for s in sections), ""]
+    named = [s for s in sections if s]
+    if named:
+        lines += ["Sections: " + ", ".join(f"[`[{s}]`](#{s.replace('.', '')})" for s in named), ""]
     for s in sections:
-        lines += [f"## {s}", "", "| key | type | default | units | allowed | what |", "|---|---|---|---|---|---|"]
+        lines += [f"## {s or 'top level'}", "", "| key | type | default | units | allowed | what |",
+                  "|---|---|---|---|---|---|"]
         for r in rows:
             if r.section == s:
                 lines.append(f"| `{r.key}` | {_cell(r.type)} | {_cell(r.default)} | {_cell(r.units)} "
