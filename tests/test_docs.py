@@ -249,3 +249,13 @@ def test_bench_config_reference_is_current() -> None:
 
     page = (ROOT / "docs" / "hil-config.md").read_text(encoding="utf-8")
     assert page == reference(), "stale: run `python -m hil_sim.config_reference > docs/hil-config.md`"
+
+
+def test_test_files_named_in_the_manuals_exist() -> None:
+    names = {p.name for p in (ROOT / "tests").rglob("test_*.py")}
+    bad = []
+    for page in [*manuals(), ROOT / "README.md"]:
+        text = page.read_text(encoding="utf-8")
+        bad += [f"{where(page, text, m.start())}: {m.group(0)}" for m in re.finditer(r"\btest_\w+\.py\b", text)
+                if m.group(0) not in names]
+    assert not bad, "\n".join(bad)
