@@ -259,3 +259,26 @@ def test_test_files_named_in_the_manuals_exist() -> None:
         bad += [f"{where(page, text, m.start())}: {m.group(0)}" for m in re.finditer(r"\btest_\w+\.py\b", text)
                 if m.group(0) not in names]
     assert not bad, "\n".join(bad)
+
+
+def test_dotted_module_names_in_the_manuals_exist() -> None:
+    """``fsw.core.codec.quadtree.lowpass``: packages down to a module of the repository, then an
+    attribute path (not checked); a name under a package that is no module of it is stale."""
+    rx = re.compile(r"(?<![\w/.-])((?:fsw|hil_sim|ground)(?:\.[A-Za-z_]\w*)+)")
+    file_names = {"toml", "md", "csv", "json", "tlog", "png", "npy", "py", "yaml", "log", "txt", "dbc", "ckpt"}
+    bad = []
+    for page in [*manuals(), ROOT / "README.md"]:
+        text = page.read_text(encoding="utf-8")
+        for m in rx.finditer(text):
+            parts = m.group(1).split(".")
+            if parts[-1] in file_names:
+                continue  # a file name such as fsw.toml or ground.md
+            base = ROOT
+            for part in parts:
+                if (base / part).is_dir():
+                    base = base / part
+                    continue
+                if not (base / f"{part}.py").is_file():
+                    bad.append(f"{where(page, text, m.start())}: {m.group(1)}")
+                break
+    assert not bad, "module paths that do not exist:\n" + "\n".join(bad)
