@@ -43,14 +43,15 @@ def tracked() -> tuple[Path, ...]:
     return tuple(sorted(files))
 
 
-def texts() -> list[tuple[Path, str]]:
+@cache
+def texts() -> tuple[tuple[Path, str], ...]:
     out = []
     for p in tracked():
         try:
             out.append((p, p.read_text(encoding="utf-8")))
         except UnicodeDecodeError:
             continue
-    return out
+    return tuple(out)
 
 
 @cache
