@@ -8,6 +8,7 @@ flags docs/experiments.md gives listen on loopback only."""
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -64,8 +65,8 @@ def kill_and_check(worker: int) -> None:
 
 
 def test_a_killed_local_worker_stops_its_mission_and_removes_its_folder() -> None:
-    worker = subprocess.Popen([sys.executable, "-c", "import json, sys; from hil_sim.campaign.execute import "
-                               "run_isolated; run_isolated(json.loads(sys.argv[1]))", __import__("json").dumps(mission())])
+    code = "import json, sys; from hil_sim.campaign.execute import run_isolated; run_isolated(json.loads(sys.argv[1]))"
+    worker = subprocess.Popen([sys.executable, "-c", code, json.dumps(mission())])
     try:
         kill_and_check(worker.pid)
     finally:
