@@ -2,8 +2,8 @@
 
 Each mission runs in a child process of its own (``hil_sim.campaign.child``, which dies with
 the worker that started it) under a wall-clock limit, so a mission that raises, hangs or dies
-(segfault, out of memory) is a
-recorded outcome (``error`` / ``killed``), never a lost campaign. The local executor is a
+(segfault, out of memory) is a recorded outcome (``error`` / ``killed``), never a lost
+campaign. The local executor is a
 thread pool of ``jobs`` threads, each waiting on one child; with a scheduler address the same
 function runs as Dask tasks (``dask.distributed``) on the cluster's workers, which need only
 the project installed: the rows come back to this process, which stores each one atomically
