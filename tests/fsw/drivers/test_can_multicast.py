@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import random
 import socket
+from pathlib import Path
 
 import can
 import pytest
@@ -19,7 +20,7 @@ def igmp_devices(group: str) -> list[str]:
     """The interfaces ``/proc/net/igmp`` lists ``group`` under."""
     hexed = socket.inet_aton(group)[::-1].hex().upper()
     devices, dev = [], ""
-    for line in open("/proc/net/igmp").read().splitlines()[1:]:
+    for line in Path("/proc/net/igmp").read_text().splitlines()[1:]:
         if not line.startswith("\t"):
             dev = line.split()[1]
         elif line.split()[0] == hexed:
