@@ -21,21 +21,11 @@ The plan is read-only: uploads (MISSION_COUNT from the ground) are not handled. 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 from fsw.comm.mavlink_dialect import mavlink
+from fsw.comm.mavlink_plan import GroundPlan
 
-XY = tuple[float, float]
 LOCAL_SCALE = 1e4  # MISSION_ITEM_INT x/y in local frames: metres * 1e4
-
-
-@dataclass(frozen=True)
-class GroundPlan:
-    """What the mission publishes for the ground (bus topic ``[mavlink] plan_topic``)."""
-
-    stations: tuple[tuple[float, float, float], ...] = ()  # x, y (m), yaw (rad), world frame
-    current: int = -1  # index of the station in progress (-1: none)
-    fence: tuple[tuple[XY, ...], ...] = ()  # exclusion polygons (world x, y, m), open rings
 
 
 def _xy(x: float, y: float) -> tuple[int, int]:

@@ -147,3 +147,4 @@ class GcsServices:
         self.counts["param_refused" if error else "param_sets"] += 1
         shown = mp.value_of(self.root, p)
         return f"{p.pid} ({p.key}) = {shown}" if not error else f"{p.pid} ({p.key}) refused: {reason}"
+

@@ -18,37 +18,33 @@ the task opens ``[mavlink] url``), ``mavlink_tlog`` (a path or binary stream; el
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import BinaryIO, ClassVar
 
 from fsw.comm.mavlink_adapter import MavlinkAdapter
-from fsw.comm.mavlink_commands import RESULT_OF_STATUS, Reason, decode_args
 from fsw.comm.mavlink_config import MavlinkConfig
-from fsw.comm.mavlink_dialect import MAV_CMD_DICTIONARY, mavlink, signing_timestamp
+from fsw.comm.mavlink_dialect import mavlink, signing_timestamp
 from fsw.comm.mavlink_downlink import TokenBucket, coalesce
-from fsw.comm.mavlink_mission import GroundPlan
+from fsw.comm.mavlink_plan import GroundPlan
 from fsw.comm.mavlink_replay import TS_PER_S, ReplayJournal
 from fsw.comm.mavlink_signing import KeyFileError, Verdict, load_key
 from fsw.comm.mavlink_tlog import TlogWriter
-from fsw.comm.mavlink_uplink import CommandIn, GcsRequest, UplinkBatch
+from fsw.comm.mavlink_uplink import UplinkBatch
 from fsw.drivers import signing_store
 from fsw.drivers.mavlink_transport import TransportError, open_transport
-from fsw.framework.commands import Arg, CommandDef, CommandRequest, CommandStatus
+from fsw.framework.commands import Arg, CommandDef
 from fsw.framework.summary import Summary
 from fsw.framework.telemetry import Channel, Event, EventDef, Severity
 from fsw.tasks.base import FlightTask
+from fsw.tasks.mavlink_dispatch import UplinkDispatch
 from fsw.tasks.mavlink_gcs import GcsServices
 from fsw.tasks.mavlink_preview import PreviewError, encode_preview
 from fsw.tasks.mavlink_view import ViewBuilder
 
-_REASON_OF_VERDICT = {Verdict.UNSIGNED: Reason.UNSIGNED, Verdict.BAD_SIGNATURE: Reason.BAD_SIGNATURE,
-                      Verdict.REPLAY: Reason.REPLAY, Verdict.STALE: Reason.STALE, Verdict.NO_KEY: Reason.NO_KEY,
-                      Verdict.FUTURE: Reason.FUTURE}
 _THROTTLED = ("RX_BAD", "TRANSPORT_FAULT", "TLOG_ERROR", "PREVIEW_BAD", "CMD_BAD_ARGS", "WINDOW_SAVE_ERROR")
 
 
-class MavlinkTask(FlightTask):
+class MavlinkTask(UplinkDispatch, FlightTask):
     KIND: ClassVar[str] = "mavlink"
     DOC: ClassVar[str] = "MAVLink 2 ground link: telemetry, events, map previews; signed commands."
     CHANNELS = (
@@ -166,33 +162,6 @@ class MavlinkTask(FlightTask):
         self.event("KEY_LOADED", path=path)
         return key
 
-    def _restore_window(self) -> None:
-        if not self._window_path:
-            return
-        streams, problem = signing_store.load(self._window_path)
-        if problem is not None:
-            self.event("WINDOW_BAD", reason=problem)
-        elif streams:
-            self.event("WINDOW_LOADED", n=len(streams), path=self._window_path)
-        self.adapter.restore_window(streams, signing_timestamp(self._unix()))
-        self.journal.restore(streams)
-
-    def _record_window(self) -> None:
-        """Put every accepted timestamp on disk before any command acts: one write at most,
-        and none while the marks already on disk cover them (fsw.comm.mavlink_replay)."""
-        v = self.adapter.verifier
-        if not (self._window_path and v.changed):
-            return
-        window = self.journal.plan(v.streams)
-        if window is not None:
-            try:
-                signing_store.save(self._window_path, window)
-            except OSError as exc:  # the commands not covered are refused; retried on the next one
-                self.event("WINDOW_SAVE_ERROR", path=self._window_path, error=exc.strerror or str(exc))
-                return
-            self.journal.written(window)
-        v.changed = False
-
     def _apply_config(self, new: MavlinkConfig) -> None:
         """A PARAM_SET of a run-time key (fsw.tasks.mavlink_gcs.RUNTIME_KEYS) takes effect now."""
         self.cfg = a = self.adapter.cfg = new
@@ -278,72 +247,6 @@ class MavlinkTask(FlightTask):
                 self.event("LINK_UP", src="{}/{}".format(*batch.heartbeats[0]))
             self._gcs_heard_s, self._link_up = now, True
         return batch
-
-    def _refuse(self, now: float, what: str, src: str, why: str) -> None:
-        self._rejected.note(now, why, f"{what} from {src}: {why}")
-
-    def _report_rejections(self, now: float) -> None:
-        r = self._rejected.report(now)
-        if r is not None:
-            self.event("AUTH_REJECTED", n=r.count, span_s=r.span_s, top=r.top(), latest=r.latest)
-
-    def _command(self, cmd: CommandIn, now: float, executed: int) -> int:
-        """Answer one COMMAND_LONG; returns 1 if a dictionary command was dispatched."""
-        if cmd.command_id != MAV_CMD_DICTIONARY:  # a ground station's poll: answered, never evented
-            self.gcs.poll(cmd, now)
-            return 0
-        p1 = cmd.param1
-        opcode = int(p1) if math.isfinite(p1) and p1.is_integer() and 0 <= p1 < 2**24 else 0
-        src = f"{cmd.src_system}/{cmd.src_component}"
-        what = f"opcode 0x{opcode:x}" if opcode or p1 == 0 else f"opcode {p1!r}"
-        if cmd.verdict is not Verdict.OK:
-            self._refuse(now, what, src, cmd.verdict.value)
-            self.adapter.ack(cmd, mavlink.MAV_RESULT_DENIED, _REASON_OF_VERDICT[cmd.verdict], opcode, now)
-            return 0
-        if not self.journal.covers(cmd.stream, cmd.timestamp):  # its freshness is not on disk: never run
-            self._cmd_counts["unrecorded"] += 1
-            self._refuse(now, what, src, "UNRECORDED")
-            self.adapter.ack(cmd, mavlink.MAV_RESULT_DENIED, Reason.UNRECORDED, opcode, now)
-            return 0
-        if executed >= self.cfg.commands_per_frame:
-            self._cmd_counts["busy"] += 1
-            self._refuse(now, what, src, "BUSY")
-            self.adapter.ack(cmd, mavlink.MAV_RESULT_TEMPORARILY_REJECTED, Reason.BUSY, opcode, now)
-            return 0
-        self._seq += 1
-        self._dictionary(cmd, opcode, src)
-        return 1
-
-    def _dictionary(self, cmd: CommandIn, opcode: int, src: str) -> None:
-        p1 = cmd.param1
-        commands = self.ctx.commands
-        name = commands.name_of(opcode) if opcode else None
-        if name is None:  # let the dispatcher refuse it, so counters and events stay uniform
-            commands.dispatch(CommandRequest(f"opcode {p1!r}", {}, self._seq, f"mavlink:{src}"))
-            self._cmd_counts["refused"] += 1
-            self.adapter.ack(cmd, mavlink.MAV_RESULT_DENIED, Reason.UNKNOWN_OPCODE, opcode)
-            return
-        try:
-            args = decode_args(commands.definitions()[name][1], cmd.params)
-        except ValueError as exc:
-            self.event("CMD_BAD_ARGS", command=name, reason=str(exc))
-            self._cmd_counts["refused"] += 1
-            self.adapter.ack(cmd, mavlink.MAV_RESULT_DENIED, Reason.BAD_ARGUMENTS, opcode)
-            return
-        resp = commands.dispatch(CommandRequest(name, args, self._seq, f"mavlink:{src}"))
-        ok = resp.status is CommandStatus.OK
-        self._cmd_counts["accepted" if ok else "refused"] += 1
-        reason = Reason.VALIDATION if resp.status is CommandStatus.VALIDATION_ERROR else Reason.NONE
-        self.adapter.ack(cmd, RESULT_OF_STATUS[resp.status], reason, opcode)
-
-    def _request(self, req: GcsRequest, now: float) -> None:
-        src = f"{req.src_system}/{req.src_component}"
-        if req.verdict is not None and req.verdict is not Verdict.OK:
-            self._refuse(now, "PARAM_SET", src, req.verdict.value)
-        recorded = req.verdict is Verdict.OK and self.journal.covers(req.stream, req.timestamp)
-        text = self.gcs.request(req, now, recorded)
-        if text is not None:
-            self.event("PARAM_SET_REFUSED" if "refused" in text else "PARAM_SET", text=text)
 
     def _take_preview(self, now: float) -> None:
         latest = self._preview_box.latest()
