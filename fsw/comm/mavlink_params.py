@@ -68,7 +68,7 @@ def param_id(path: tuple[str, ...]) -> str:
     pid = f"{prefix}_{'_'.join(words)}"
     if len(pid) > ID_LEN:
         pid = f"{prefix}_{'_'.join(w[:3] for w in words)}"
-    return pid[:ID_LEN]
+    return pid[:ID_LEN].rstrip("_")
 
 
 def build_table(cfg: Any) -> list[Param]:

@@ -94,8 +94,9 @@ class GcsServices:
         elif kind == "PARAM_REQUEST_READ":
             p = self._find(msg.param_id, msg.param_index)
             if p is None:
+                raw = mp.decode_id(msg.param_id).encode()
                 self.adapter.reply(now, [mavlink.MAVLink_param_error_message(
-                    *target, msg.param_id, msg.param_index, mavlink.MAV_PARAM_ERROR_DOES_NOT_EXIST)])
+                    *target, raw, msg.param_index, mavlink.MAV_PARAM_ERROR_DOES_NOT_EXIST)])
             else:
                 self.adapter.reply(now, [self._value(p)])
         elif kind == "PARAM_SET":
@@ -119,7 +120,7 @@ class GcsServices:
         p = self.by_id.get(pid)
         if p is None:
             self.adapter.reply(now, [mavlink.MAVLink_param_error_message(
-                *target, req.msg.param_id, -1, mavlink.MAV_PARAM_ERROR_DOES_NOT_EXIST)])
+                *target, pid.encode(), -1, mavlink.MAV_PARAM_ERROR_DOES_NOT_EXIST)])
             return None if req.verdict is not Verdict.OK else f"PARAM_SET {pid!r} refused: no such parameter"
         if req.verdict is not Verdict.OK:  # counted by the caller with the other refusals
             self.adapter.reply(now, [self._value(p)])
@@ -142,7 +143,7 @@ class GcsServices:
                 self.apply(new)
         replies: list[mavlink.MAVLink_message] = [self._value(p)]
         if error:
-            replies.insert(0, mavlink.MAVLink_param_error_message(*target, req.msg.param_id, p.index, error))
+            replies.insert(0, mavlink.MAVLink_param_error_message(*target, pid.encode(), p.index, error))
         self.adapter.reply(now, replies)
         self.counts["param_refused" if error else "param_sets"] += 1
         shown = mp.value_of(self.root, p)
