@@ -160,3 +160,24 @@ def test_standard_mode_flags_are_never_named_with_another_autopilots_table() -> 
     assert mode_fields("MOVE", False, False)[0] & mavlink.MAV_MODE_FLAG_AUTO_ENABLED
     assert mode_fields("MOVE", False, False)[0] & mavlink.MAV_MODE_FLAG_SAFETY_ARMED
     assert not mode_fields("SAFE", False, False)[0] & mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+
+
+def test_the_gcs_check_probe_is_fully_answered_by_the_flight_task(key_file: Path, demo_kind: None) -> None:
+    """req(29.2): ``safer-ground gcs-check``'s probe, on the stepped clock: everything answered, no noise."""
+    from ground.gcs_check import GcsProbe
+
+    link = MemoryLink()
+    exe = _rover(key_file, link)
+    exe.bus.publish("mission.plan", PLAN)
+    probe, rx, tx = GcsProbe(), new_codec(255, 190), new_codec(255, 190)
+    for k in range(int(30 / FRAME_S)):
+        now = k * FRAME_S
+        link.inbox.extend(bytes(m.pack(tx)) for m in probe.step(now))
+        exe.run_lockstep(1)
+        for f in link.sent[-1]:
+            for msg in rx.parse_buffer(f) or []:
+                link.inbox.extend(bytes(m.pack(tx)) for m in probe.feed(now, msg))
+    r = probe.report()
+    assert probe.complete(), r
+    assert r["mission_items"] == {"mission": 3, "fence": 4} and r["homes"] == r["home_polls"] >= 14
+    assert r["events"] >= 5 and r["noise"] == 0
