@@ -7,11 +7,11 @@ jobs (:mod:`fsw.framework.jobs`). A frame whose work ends after the next frame's
 a *slip*, charged to the rate group that was running when the deadline passed. On the
 real-time clock, lateness up to ``lag_limit_frames`` is caught up back to back; beyond
 that the executive skips ahead and says so (cFS SCH). Overruns and slips are counters
-(channels ``<task>.overruns``, ``<group>.slips``, ``exec.slips``); the first of a task (group)
-after ``timing_event_period_s`` without one is an OVERRUN (SLIP) event, the later ones are
-summarised by at most one ``exec.TIMING`` event per period (``fsw.framework.summary``), and
-the OVERRUN/SLIP events are throttled besides (a slot reopens every ``throttle_decay_frames``
-good frames).
+(channels ``<task>.overruns``, ``<group>.slips``, ``exec.slips``); the first one after
+``timing_event_period_s`` without any is an OVERRUN (SLIP) event of its task (group), the
+later ones, of every task, are summarised by at most one ``exec.TIMING`` event per period
+(``fsw.framework.summary``); the OVERRUN/SLIP events are throttled besides (a slot reopens
+every ``throttle_decay_frames`` good frames).
 """
 
 from __future__ import annotations
@@ -100,8 +100,7 @@ class Executive:
         self.enabled: dict[str, bool] = {}
         self.groups: list[RateGroupComponent] = []
         self._jobs_seen: set[int] = set()
-        self._timing = Summary(ecfg.timing_event_period_s, last_report_s=0.0)  # first summary after a period
-        self._last_timing_s: dict[str, float] = {}  # task or group -> last overrun/slip (clock time)
+        self._timing = Summary(ecfg.timing_event_period_s)  # overruns and slips: exec.TIMING
 
         budgets = {t.name: t.budget_ms / 1e3 for t in ecfg.tasks}
         group_of = {t.name: t.group for t in ecfg.tasks}
@@ -285,14 +284,14 @@ class Executive:
                     self.events.decay(f"{g.name}.SLIP")
 
     def _timing_episode(self, name: str, detail: str) -> bool:
-        """True for the first overrun (slip) of ``name`` in ``timing_event_period_s``: an event;
-        else it is counted into the next exec.TIMING summary."""
-        now = self.clock.now()
-        last = self._last_timing_s.get(name)
-        self._last_timing_s[name] = now
-        if last is None or now - last >= self.ecfg.timing_event_period_s:
+        """True when timing has been quiet for ``timing_event_period_s`` (nothing reported or
+        pending): this overrun (slip) is an event of its own; else it is counted into the next
+        exec.TIMING summary (at most one a period, whatever the number of tasks)."""
+        now, t = self.clock.now(), self._timing
+        if not t.pending and now - t.last_report_s >= self.ecfg.timing_event_period_s:
+            t.last_report_s = now  # this event is the period's report
             return True
-        self._timing.note(now, name, detail)
+        t.note(now, name, detail)
         return False
 
     def _publish(self, k: int) -> None:
