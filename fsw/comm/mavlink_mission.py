@@ -12,7 +12,7 @@ convention for local frames).
   marks the station in progress.
 * ``MAV_MISSION_TYPE_FENCE``: the geofence as exclusion polygons
   (MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION, ``param1`` = vertex count): the ground within
-  the fence margin of the fitted edge, where no wheel may go (``fsw.core.geofence``).
+  the fence margin of the fitted edge, where no wheel may go (``fsw.core.edge.geofence``).
 * ``MAV_MISSION_TYPE_RALLY``: none (count 0).
 
 The plan is read-only: uploads (MISSION_COUNT from the ground) are not handled. Sans-I/O.

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from fsw.core.edge import EdgeModel
-from fsw.core.geofence import GeofenceConfig
+from fsw.core.edge.edge import EdgeModel
+from fsw.core.edge.geofence import GeofenceConfig
 
 XY = tuple[float, float]
 

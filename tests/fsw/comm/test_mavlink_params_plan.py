@@ -12,7 +12,7 @@ from fsw.comm import mavlink_mission as mm
 from fsw.comm import mavlink_params as mp
 from fsw.comm.mavlink_dialect import mavlink
 from fsw.comm.mavlink_plan import ground_plan
-from fsw.core.geofence import GeofenceConfig
+from fsw.core.edge.geofence import GeofenceConfig
 from fsw.settings import DEFAULT_CONFIG, load_settings
 
 
