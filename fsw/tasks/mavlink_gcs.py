@@ -18,6 +18,7 @@
 from __future__ import annotations
 
 import dataclasses
+from collections import deque
 from collections.abc import Callable
 
 from fsw.comm import mavlink_mission as mm
@@ -25,6 +26,7 @@ from fsw.comm import mavlink_params as mp
 from fsw.comm.mavlink_adapter import MavlinkAdapter
 from fsw.comm.mavlink_config import MavlinkConfig
 from fsw.comm.mavlink_dialect import mavlink
+from fsw.comm.mavlink_plan import GroundPlan
 from fsw.comm.mavlink_signing import Verdict
 from fsw.comm.mavlink_uplink import CommandIn, GcsRequest
 from fsw.framework.params import ConfigError, check_field
@@ -48,7 +50,8 @@ class GcsServices:
         self.root, self.adapter, self.apply = root_cfg, adapter, apply
         self.table = mp.build_table(root_cfg)
         self.by_id = {p.pid: p for p in self.table}
-        self.plan = mm.GroundPlan()
+        self.plan = GroundPlan()
+        self._listing: deque[mp.Param] = deque()  # a PARAM_REQUEST_LIST's parameters not yet queued
         self.counts = {"polls": 0, "polls_unsupported": 0, "param_sets": 0, "param_refused": 0, "requests": 0}
 
     # -- polls ------------------------------------------------------------------------------
@@ -88,9 +91,8 @@ class GcsServices:
         msg, target = req.msg, (req.src_system, req.src_component)
         kind = req.kind
         if kind == "PARAM_REQUEST_LIST":
-            stream = self.adapter.param_stream
-            stream.clear()  # a repeated request restarts the list: bounded by the table
-            stream.extend(mp.param_value(p, mp.value_of(self.root, p), len(self.table)) for p in self.table)
+            self.adapter.param_stream.clear()  # a repeated request restarts the list: bounded by the table
+            self._listing = deque(self.table)
         elif kind == "PARAM_REQUEST_READ":
             p = self._find(msg.param_id, msg.param_index)
             if p is None:
@@ -106,6 +108,13 @@ class GcsServices:
         elif kind in ("MISSION_REQUEST_INT", "MISSION_REQUEST"):
             self.adapter.reply(now, [mm.item(self.plan, msg.mission_type, msg.seq, target)])
         return None
+
+    def top_up(self, n: int = 12) -> None:
+        """Keep ``n`` PARAM_VALUEs of a list in progress ready for the downlink: built as they
+        go (a pymavlink message costs ~0.07 ms; the whole list at once overran the task)."""
+        stream = self.adapter.param_stream
+        while self._listing and len(stream) < n:
+            stream.append(self._value(self._listing.popleft()))
 
     def _find(self, raw_id: bytes | str, index: int) -> mp.Param | None:
         if 0 <= index < len(self.table):

@@ -224,6 +224,7 @@ class MavlinkTask(UplinkDispatch, FlightTask):
             self.event("EVENTS_DROPPED", n=q.dropped - self._dropped_reported)
             self._dropped_reported = q.dropped
         self._take_preview(now)
+        self.gcs.top_up()
         frames = self.adapter.plan(self._views.build(now), signing_timestamp(unix))
         if self.link is not None:
             for packet in coalesce(frames, self.link.max_send_bytes):
