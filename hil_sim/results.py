@@ -87,21 +87,23 @@ def _slug(experiment: str) -> str:
 
 
 def write_results(experiment: str, command: str, markdown: str, figures: Sequence[Path] = (), *,
-                  now: dt.datetime | None = None, directory: Path | None = None) -> Path | None:
+                  now: dt.datetime | None = None, directory: Path | None = None,
+                  kind: str = "experiment") -> Path | None:
     """Write ``<results dir>/<experiment>.md``; returns its path (None when there is no results dir).
 
     ``command`` is the command line that produced the results (:func:`command_line`), ``markdown``
-    the command's table (or report), ``figures`` image files to copy beside it and link."""
+    the command's table (or report), ``figures`` image files to copy beside it and link; ``kind``
+    the command group in the title (``experiment``, or ``bench`` for a bench that writes one)."""
     name = _slug(experiment)
     out = directory if directory is not None else results_dir()
     if out is None:
-        print(f"safer-hil experiment {name}: no docs/ directory and ${ENV} unset: no result file written",
+        print(f"safer-hil {kind} {name}: no docs/ directory and ${ENV} unset: no result file written",
               file=sys.stderr)
         return None
     out.mkdir(parents=True, exist_ok=True)
     when = (now or dt.datetime.now(dt.UTC)).strftime("%Y-%m-%d %H:%M UTC")
     lines = [
-        f"# Results: `safer-hil experiment {name}`",
+        f"# Results: `safer-hil {kind} {name}`",
         "",
         "Written by the command below; rerun it to regenerate this file (do not edit by hand).",
         "",

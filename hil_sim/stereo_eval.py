@@ -72,6 +72,26 @@ def middlebury_pairs() -> list[TruthPair]:
                       truth)]
 
 
+#: the drifted-rig conditions of ``bench stereo-real`` (issue 30 item 4): name and what it does to the right image
+CONDITIONS = ("as recorded", "right image 1 px lower", "right exposure 0.8x + 12 DN, 3 DN noise")
+
+
+def perturbed(pair: TruthPair, condition: str, seed: int = 0) -> TruthPair:
+    """``pair`` with its right image changed as a drifted rig would: shifted one row down (a
+    rectification that drifted) or with another exposure and more noise (a camera of its own gain)."""
+    r = pair.right
+    if condition == CONDITIONS[0]:
+        return pair
+    if condition == CONDITIONS[1]:
+        right = np.ascontiguousarray(np.vstack([r[:1], r[:-1]]))
+    elif condition == CONDITIONS[2]:
+        noise = np.random.default_rng(seed).normal(0.0, 3.0, r.shape)
+        right = np.clip(np.rint(0.8 * r.astype(np.float64) + 12.0 + noise), 0, 255).astype(np.uint8)
+    else:
+        raise ValueError(f"unknown condition {condition!r}; one of {', '.join(CONDITIONS)}")
+    return TruthPair(f"{pair.name}, {condition}", pair.left, right, pair.disparity_px)
+
+
 def rendered_pairs(views: int = 3, seed: int = 0) -> list[TruthPair]:
     """Rendered pairs of the lab pit (textureless patch in view) and the cliff foot."""
     from fsw.settings import DEFAULT_CONFIG, load_settings

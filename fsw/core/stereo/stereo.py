@@ -29,6 +29,9 @@ A pixel gives no point unless the match is trustworthy. The filters, in order:
   * local spread: the valid disparities around the pixel spread less than
     ``max_spread_px`` (an occlusion border or a depth jump);
   * range gate: the depth lies within the camera's ``min_range_m .. max_range_m``.
+Before matching, a rig that drifted since its calibration is corrected per pair
+(``fsw.core.stereo.rig_drift``): a vertical offset of the right image measured from matched
+ORB features is resampled out, and its exposure (and extra noise) matched to the left's.
 The filters and the noise model were derived on real rectified pairs with ground truth
 (Middlebury 2014 Motorcycle, shipped by scikit-image) and on the renderer: ``safer-hil bench
 stereo-real`` prints both.
@@ -48,6 +51,8 @@ from fsw.core.steps import run_to_end
 from fsw.core.stereo import stereo_quality as quality
 from fsw.core.stereo.occlusion import lip_pixels
 from fsw.core.stereo.rectify import RectifiedCamera
+from fsw.core.stereo.rig_drift import RigAlignment
+from fsw.core.stereo.rig_drift import correct_steps as correct_drift_steps
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
@@ -134,6 +139,28 @@ class StereoConfig:
     sigma_pixel_px: float = param(
         0.3, lo=0.0, hi=5.0, units="px", doc="1-sigma pixel localisation noise on u and v"
     )
+    drift_correction: bool = param(
+        True, doc="measure and take out a vertical offset and an exposure difference of the right image per pair",
+    )
+    drift_features: int = param(1000, lo=50, hi=5000, doc="ORB features per image for the vertical offset")
+    drift_deadband_px: float = param(
+        0.25, lo=0.0, hi=10.0, units="px", doc="vertical offsets up to this are left alone (an aligned rig)",
+    )
+    drift_bound_px: float = param(
+        2.0, lo=0.0, hi=50.0, units="px", doc="a vertical offset beyond this raises an event (recalibrate)",
+    )
+    exposure_tolerance: float = param(
+        0.05, lo=0.0, hi=1.0, doc="relative grey-level gain difference left alone",
+    )
+    exposure_offset_dn: float = param(
+        4.0, lo=0.0, hi=255.0, units="DN", doc="mean grey-level difference left alone",
+    )
+    noise_ratio_max: float = param(
+        1.3, lo=1.0, hi=10.0, doc="right-image noise over the left's beyond which the right image is smoothed",
+    )
+    denoise_sigma_px: float = param(
+        0.7, lo=0.0, hi=5.0, units="px", doc="Gaussian that smooths a noisier right image (0: never)",
+    )
 
     def __post_init__(self) -> None:
         if self.num_disparities_px % 16:
@@ -169,6 +196,8 @@ class DisparityImage:
 
     disparity_px: F64  # (H, W)
     sigma_px: F64  # (H, W)
+    # what the rig-drift correction measured and applied (fsw.core.stereo.rig_drift); exceeds: raise an event
+    alignment: RigAlignment = field(default_factory=RigAlignment.none)
 
 
 class StereoMatcher:
@@ -228,14 +257,23 @@ class StereoMatcher:
 
     def match_steps(self, left: U8, right: U8) -> Generator[None, None, DisparityImage]:
         """:meth:`match` as a slack-job generator. It yields after each band of each pass (a
-        bounded share of the pair): SGBM, then the correlation gate, then the refinement, each
-        over the ``band_rows_px`` bands; then the local gates, then the sigma (a slice each).
+        bounded share of the pair): the rig-drift correction (four slices), then SGBM, the
+        correlation gate and the refinement, each over the ``band_rows_px`` bands; then the
+        local gates, then the sigma (a slice each).
         The correlation and the refinement are row-local (the match moves along rows; the
         windows reach a few rows), so each band is computed with a few rows of context and
         the result equals the whole image's exactly."""
         self._check_pair(left, right)
         cfg = self.cfg
         h = left.shape[0]
+        alignment = RigAlignment.none()
+        if cfg.drift_correction:
+            right, alignment = yield from correct_drift_steps(
+                left, right, min_disparity_px=cfg.min_disparity_px, num_disparities_px=cfg.num_disparities_px,
+                features=cfg.drift_features, deadband_px=cfg.drift_deadband_px, bound_px=cfg.drift_bound_px,
+                exposure_tolerance=cfg.exposure_tolerance, exposure_offset_dn=cfg.exposure_offset_dn,
+                noise_ratio_max=cfg.noise_ratio_max, denoise_sigma_px=cfg.denoise_sigma_px)
+            yield None
         raw = np.empty(left.shape, np.int16)
         for start, end, src0, src1 in self.bands(h):
             part = self._sgbm.compute(left[src0:src1], right[src0:src1])
@@ -283,7 +321,7 @@ class StereoMatcher:
         sigma = quality.disparity_sigma(sigma_ls, spread, cfg.sigma_floor_px, cfg.sigma_ls_gain,
                                         cfg.sigma_spread_gain)
         sigma[~np.isfinite(disp)] = np.nan
-        return DisparityImage(disp, sigma)
+        return DisparityImage(disp, sigma, alignment)
 
     def textured(self, image: U8) -> NDArray[np.bool_]:
         """Pixels whose window has enough horizontal gradient to be matched."""

@@ -117,7 +117,8 @@ def test_match_steps_equal_match_and_bad_config_is_refused(cfg, moto) -> None:
             n += 1
     except StopIteration as stop:
         steps = stop.value
-    assert n == 3 * len(m.bands(moto.left.shape[0])) + 1  # three passes of bands, then the spread gate
+    # the rig-drift correction, three passes of bands, then the spread gate
+    assert n == 4 * int(cfg.drift_correction) + 3 * len(m.bands(moto.left.shape[0])) + 1
     whole = m.match(moto.left, moto.right)
     assert np.array_equal(steps.disparity_px, whole.disparity_px, equal_nan=True)
     assert np.array_equal(steps.sigma_px, whole.sigma_px, equal_nan=True)
