@@ -127,6 +127,27 @@ def write_outputs(out: Path, summary: dict[str, Any], emap: Any, truth: Any, gri
     return files
 
 
+#: views whose expected new cells are no prediction of the view taken (issue 30 item 3)
+UNRATED_VIEWS = frozenset({"", "look", "part-way", "stay", "panorama"})
+
+
+def prediction_ratios(steps: list[dict[str, Any]]) -> dict[str, Any]:
+    """Obtained over expected new cells of the rated views (the planner's own, at the pose it
+    rated, with a prediction > 0): count, median and 10th-90th percentile of the per-step
+    ratio; and what the unrated views (looks, refused moves: expected 0) obtained, which an
+    aggregate over all steps would count against the model."""
+    rated = [s for s in steps if s.get("view", "") not in UNRATED_VIEWS
+             and float(s.get("expected_new_cells", 0.0)) > 0.0 and int(s.get("view_new_cells", -1)) >= 0]
+    ratios = np.array([s["view_new_cells"] / s["expected_new_cells"] for s in rated], np.float64)
+    unrated = [s for s in steps[1:] if s not in rated]
+    out: dict[str, Any] = {"rated_steps": len(rated), "unrated_steps": len(unrated),
+                           "unrated_new_cells": int(sum(int(s.get("obtained_new_cells", 0)) for s in unrated))}
+    if ratios.size:
+        p10, med, p90 = np.percentile(ratios, [10, 50, 90])
+        out.update(median_ratio=float(med), p10_ratio=float(p10), p90_ratio=float(p90))
+    return out
+
+
 def strip_wall_clock(summary: dict[str, Any]) -> dict[str, Any]:
     """The summary without its wall-clock fields (for determinism checks)."""
     out = {k: v for k, v in summary.items() if k not in WALL_CLOCK_FIELDS}

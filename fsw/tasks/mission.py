@@ -32,6 +32,7 @@ start-up a mission found there continues at the next step (or stays SAFE/DONE).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections import deque
@@ -265,9 +266,10 @@ class MissionTask(GroundAwareMission, SafeRecovery):
         if math.hypot(there[0] - here[0], there[1] - here[1]) < MIN_MOVE_M and abs(dyaw) < MIN_TURN_RAD:
             # Not worth a move (a goto turns toward its target first: a few cm sideways would
             # be a quarter turn): the view from here, the mast turned to look the same way.
+            # It is the rated view within a few cm and degrees: it keeps its rating (§3.5).
             pan, tilt, lift = self.view.joints
-            self.view = CandidateView(here, self.ctx.cfg.mast.clamp(pan + dyaw, tilt, lift),
-                                      method=self.view.method)
+            self.view = dataclasses.replace(self.view, rover=here,
+                                            joints=self.ctx.cfg.mast.clamp(pan + dyaw, tilt, lift))
             self._start_point()
             return
         self._stations.append((float(there[0]), float(there[1]), float(there[2])))
@@ -338,6 +340,9 @@ class MissionTask(GroundAwareMission, SafeRecovery):
             mapped_cells=up.mapped_cells,
             expected_new_cells=float(self.view.expected_new_cells),
             obtained_new_cells=up.mapped_cells - base,
+            view=self.view.method,
+            # what the view's prediction is about: its own new cells, not a look's before it in the step
+            view_new_cells=up.mapped_cells - (self.records[-1].mapped_cells if self.records else 0),
             pose=dict(zip(("x", "y", "yaw", "pan", "tilt", "lift"), (*rover, *joints), strict=True)),
             wall_s=time.perf_counter() - self.t_wall0,
             sim_s=self.ctx.clock.now(),

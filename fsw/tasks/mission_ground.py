@@ -153,16 +153,14 @@ class GroundAwareMission(FlightTask):
         if part is None:
             self.stays.append(f"step {self.step}: {reason}")
             turn = math.remainder(pan + there[2] - here[2], math.tau)  # look the same way
-            self.view = CandidateView(here, self.ctx.cfg.mast.clamp(turn, tilt, lift),
-                                      method=self.view.method)
+            self.view = CandidateView(here, self.ctx.cfg.mast.clamp(turn, tilt, lift), method="stay")
             self._start_point()
             return
         gone = math.hypot(part[0] - here[0], part[1] - here[1])
         self.stays.append(f"step {self.step}: part way, {gone:.2f} m toward a station "
                           f"{math.hypot(there[0] - here[0], there[1] - here[1]):.2f} m away: {reason}")
         turn = math.remainder(pan + there[2] - part[2], math.tau)
-        self.view = CandidateView(part, self.ctx.cfg.mast.clamp(turn, tilt, lift),
-                                  method=self.view.method)
+        self.view = CandidateView(part, self.ctx.cfg.mast.clamp(turn, tilt, lift), method="part-way")
         self._goto(MissionPhase.MOVE)
         self._request(kind="goto", target=part)
 

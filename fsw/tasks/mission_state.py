@@ -70,6 +70,11 @@ class StepRecord:
     pose: dict[str, float]
     wall_s: float
     sim_s: float
+    # how the step's view came: the planner's method (rated: expected_new_cells is its prediction),
+    # "look" (unknown ground a move would cross), "part-way" or "stay" (a refused move; the
+    # rated view's pose was not reached, so its prediction does not apply), "panorama"
+    view: str = ""
+    view_new_cells: int = -1  # new cells of the step's last view alone (-1: not recorded)
 
 
 def fingerprint(cfg: Any) -> str:
