@@ -41,6 +41,7 @@ _THROTTLED = ("AUTH_REJECTED", "RX_BAD", "TRANSPORT_FAULT", "TLOG_ERROR", "PREVI
 
 class MavlinkTask(FlightTask):
     KIND: ClassVar[str] = "mavlink"
+    RATE_HZ: ClassVar[tuple[float, float]] = (2.0, 50.0)  # the 1 Hz HEARTBEAT and its telemetry periods
     DOC: ClassVar[str] = "MAVLink 2 ground link: telemetry, events, map previews; signed commands."
     CHANNELS = (
         Channel("gcs_link", "bool", lo=1, doc="1 while a ground HEARTBEAT was heard within gcs_timeout_s"),

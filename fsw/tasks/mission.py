@@ -35,7 +35,7 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 from fsw.core.edge import EdgeModel
 from fsw.core.geofence import Geofence
@@ -69,11 +69,20 @@ from fsw.tasks.mission_safe import SafeRecovery
 from fsw.tasks.mission_state import STATES, MissionPhase, StepRecord
 from fsw.tasks.sections import MissionConfig
 
+if TYPE_CHECKING:
+    from fsw.settings import FswConfig
+
 FIX_WAIT_S = 1.0  # longest wait for nav.pose to show a map update's navigation fix
 
 
 class MissionTask(GroundAwareMission, SafeRecovery):
     KIND: ClassVar[str] = "mission"
+    RATE_HZ: ClassVar[tuple[float, float]] = (5.0, 50.0)  # its timeouts and moves assume ~10 Hz
+    REQUIRES: ClassVar[tuple[str, ...]] = ("motion", "camera", "perception", "nbv", "health")
+
+    @classmethod
+    def required_kinds(cls, cfg: FswConfig) -> tuple[str, ...]:
+        return cls.REQUIRES + (("radio",) if cfg.mission.transmit else ())
     DOC: ClassVar[str] = "Mission sequencer: panorama, next view, move, acquire, transmit; SAFE on faults."
     CHANNELS = (
         Channel("state", doc=", ".join(STATES)),

@@ -91,6 +91,8 @@ ViewPart = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] |
 
 class PerceptionTask(FlightTask):
     KIND: ClassVar[str] = "perception"
+    RATE_HZ: ClassVar[tuple[float, float]] = (5.0, 50.0)  # its timeouts and moves assume ~10 Hz
+    REQUIRES: ClassVar[tuple[str, ...]] = ("camera",)
     DOC: ClassVar[str] = "Stereo, fusion into the elevation map, cliff-edge fits (slack jobs)."
     CHANNELS = (
         Channel("mapped_cells", "cells", doc="cells with n >= 1"),
