@@ -47,12 +47,19 @@ truth and random generators (``hil_sim.resume_state``). ``mode="resume"`` contin
 run from its newest good checkpoint, deterministically: the same seed gives the same map as
 an uninterrupted run. ``mode="new"`` refuses an out directory that holds a mission
 (``MissionExistsError``); ``mode="fresh"`` deletes it first.
+
+A full or failing disk (docs/hil.md, "Full disks"): before starting or resuming, the run asks
+the device for room for two checkpoints (``fsw.framework.storage.probe``) and raises
+``StorageError`` (one line) if it has none; during the run a checkpoint or .tlog write that
+fails is a flight event (``CHECKPOINT_FAILED``, ``TLOG_ERROR``), copied as one line to stderr,
+and the mission carries on from memory with the newest good checkpoint kept on disk.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -64,6 +71,8 @@ import numpy as np
 from fsw.core.geometry import MapGrid
 from fsw.drivers.map_store import MapStore
 from fsw.drivers.resources import OracleTruth, Resources
+from fsw.framework.storage import StorageError, describe, probe
+from fsw.framework.telemetry import Event
 from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
 from hil_sim.faults import FaultSpec
 from hil_sim.ground_watch import reachable_stations, wheels_on_unknown
@@ -80,6 +89,9 @@ from hil_sim.terrain_eval import map_quality
 
 MANIFEST = "run.json"
 MODES = ("new", "fresh", "resume")
+#: flight events about storage that the (otherwise quiet) bench copies to stderr
+CONSOLE_EVENTS = ("CHECKPOINT_FAILED", "TLOG_ERROR")
+MIN_PROBE_BYTES = 256 * 1024
 
 
 class MissionExistsError(ValueError):
@@ -155,8 +167,28 @@ def write_manifest(spec: RunSpec) -> None:
     assert spec.out is not None
     d = {k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(spec).items()}
     tmp = spec.out / (MANIFEST + ".tmp")
-    tmp.write_text(json.dumps({"schema": 1, "spec": d}, indent=2) + "\n")
-    tmp.replace(spec.out / MANIFEST)
+    try:
+        tmp.write_text(json.dumps({"schema": 1, "spec": d}, indent=2) + "\n")
+        tmp.replace(spec.out / MANIFEST)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise StorageError(exc.errno, f"{spec.out / MANIFEST} not written: {describe(exc)}") from None
+
+
+def check_room(out: Path, store: MapStore) -> None:
+    """``StorageError`` (one line) unless the checkpoint directory takes two checkpoints."""
+    newest = store.paths()[-1:] if store.dir.is_dir() else []
+    need = max(MIN_PROBE_BYTES, 2 * newest[0].stat().st_size) if newest else MIN_PROBE_BYTES
+    try:
+        probe(store.dir, need)
+    except StorageError as exc:
+        raise StorageError(exc.errno, f"{out}: the disk is full or failing, free space first: {exc}") from None
+
+
+def echo_storage_events(ev: Event) -> None:
+    """The bench's console for storage events: one line on stderr (the console task is quiet)."""
+    if ev.name.rsplit(".", 1)[-1] in CONSOLE_EVENTS:
+        print(f"[{ev.time_s:9.2f}] {ev.severity.name} {ev.name}: {ev.text}", file=sys.stderr)
 
 
 def read_manifest(out: Path) -> RunSpec:
@@ -185,10 +217,14 @@ def _prepare_store(spec: RunSpec, cfg: FswConfig, mode: str) -> tuple[MapStore |
         return None, None, None
     if mode not in MODES:
         raise ValueError(f"unknown mode {mode!r}")
-    spec.out.mkdir(parents=True, exist_ok=True)
+    try:
+        spec.out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise StorageError(exc.errno, f"{spec.out}: cannot be made ({describe(exc)})") from None
     store = MapStore(cfg.checkpoint, cfg.fusion)
     if mode == "new" and has_mission(spec.out):
         raise MissionExistsError(f"{spec.out} holds a mission; --resume {spec.out} continues it, --fresh deletes it")
+    check_room(spec.out, store)
     if mode != "resume":
         store.clear()
         write_manifest(spec)
@@ -258,6 +294,7 @@ def run_mission(
     with LockstepBench(cfg, world, seed=spec.seed, hw=hw, quiet=True, resources=resources, start=start,
                        faults=spec.faults) as bench:
         bench_box.append(bench)
+        bench.exe.ctx.events.listeners.append(echo_storage_events)
         if on_bench is not None:  # an experiment's observer (hil_sim.view_replay records the views)
             on_bench(bench)
         clock_box.append(bench.clock.now)

@@ -284,7 +284,8 @@ class MavlinkTask(FlightTask):
             self._next_flush_s = stamp + 1.0
             self.tlog.flush()
         if self.tlog.errors > errors:
-            self.event("TLOG_ERROR", path=str(getattr(self.tlog.stream, "name", "?")), error="write failed")
+            self.event("TLOG_ERROR", path=str(getattr(self.tlog.stream, "name", "?")),
+                       error=self.tlog.last_error or "write failed")
 
     def _set_fault(self, fault: str | None) -> None:
         if fault and fault != self._fault:

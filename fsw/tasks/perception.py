@@ -50,6 +50,7 @@ from fsw.core.stereo_calibration import offset_covariance
 from fsw.drivers.map_store import MapStore
 from fsw.framework.commands import CommandDef, CommandError
 from fsw.framework.jobs import JobHandle
+from fsw.framework.storage import describe
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.settings import load_stereo_calibration
 from fsw.tasks.base import FlightTask
@@ -335,8 +336,8 @@ class PerceptionTask(FlightTask):
         try:
             store.save_next(self.map, self._last_checkpoint_s)
         except OSError as exc:
-            self.event("CHECKPOINT_FAILED", error=str(exc))
-            raise CommandError(f"checkpoint failed: {exc}") from None
+            self.event("CHECKPOINT_FAILED", error=describe(exc))
+            raise CommandError(f"checkpoint failed: {describe(exc)}") from None
         self.event("CHECKPOINT_SAVED", seq=store.seq, kib=store.last_size / 1024)
 
     def _restore(self, store: MapStore) -> None:

@@ -50,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from fsw.framework.params import ConfigError
+    from fsw.framework.storage import StorageError, describe
     from hil_sim.mission_run import RunSpec, finished, has_mission, read_manifest, run_mission
 
     if args.steps < 0:
@@ -94,6 +95,10 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         s = run_mission(spec, progress, mode=mode)
+    except OSError as err:  # a full or failing disk (StorageError, or one no writer expected)
+        close_bar(False)
+        print(f"safer-hil run: {err if isinstance(err, StorageError) else describe(err)}", file=sys.stderr)
+        return 1
     except ConfigError as err:
         close_bar(False)
         print(f"safer-hil run: config error: {err}", file=sys.stderr)
