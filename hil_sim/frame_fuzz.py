@@ -9,7 +9,8 @@ mutated by 1-3 flipped bits; and random frames. What must never happen is counte
   random frame (random identifier, length and bytes) that it accepts;
 * serial (``fsw.comm.serial_frames``): a frame that the decoder returns but that was never
   sent (a corrupted frame taken as good), and a valid frame after the corrupted one that is
-  not parsed (a corrupted frame swallowing the next).
+  not parsed (a corrupted frame swallowing the next), also with the stream ending right after
+  it (:func:`serial_mutations`: flips, cuts, deletions, insertions, overwrites, sync pairs).
 
 :func:`undetected_patterns` proves the CAN figure rather than sampling it: a CRC is linear,
 so an error pattern escapes the checksum exactly when the XOR of its bits' syndromes is 0,
@@ -189,4 +190,46 @@ def serial_random_frames(cases: int, seed: int) -> FuzzCount:
         out.cases += 1
         out.accepted += sum(1 for g in got if sf.encode_frame(g.seq, g.type, g.payload) not in (good, query))
         out.missed_next += not any(g.seq == 9 for g in got)
+    return out
+
+
+MUTATIONS = ("flip", "cut", "delete", "insert", "overwrite", "sync")
+
+
+def mutate_frame(frame: bytes, rng: np.random.Generator) -> tuple[str, bytes]:
+    """One mutation of a frame: 1-8 flipped bits, cut short, a byte deleted, 1-7 random bytes
+    inserted, 1-3 bytes overwritten, or a sync pair inserted."""
+    b = bytearray(frame)
+    kind = MUTATIONS[int(rng.integers(len(MUTATIONS)))]
+    if kind == "flip":
+        for bit in rng.choice(8 * len(b), size=int(rng.integers(1, 9)), replace=False):
+            b[int(bit) // 8] ^= 1 << (int(bit) % 8)
+    elif kind == "cut":
+        del b[int(rng.integers(1, len(b))):]
+    elif kind == "delete":
+        del b[int(rng.integers(len(b)))]
+    elif kind == "insert":
+        i = int(rng.integers(len(b) + 1))
+        b[i:i] = rng.bytes(int(rng.integers(1, 8)))
+    elif kind == "overwrite":
+        for _ in range(int(rng.integers(1, 4))):
+            b[int(rng.integers(len(b)))] = int(rng.integers(256))
+    else:
+        i = int(rng.integers(len(b) + 1))
+        b[i:i] = sf.SYNC
+    return kind, bytes(b)
+
+
+def serial_mutations(cases: int, seed: int) -> FuzzCount:
+    """``A | mutated B | C`` and nothing after (no filler to flush a wrong LEN): C must come
+    out of the decoder; nothing but A, the original B and C may."""
+    rng = np.random.default_rng(seed)
+    out = FuzzCount()
+    for _ in range(cases):
+        a, b, c = (sf.encode_message(_random_message(rng), k) for k in (1, 2, 3))
+        _kind, mb = mutate_frame(b, rng)
+        got = [x for x in sf.FrameDecoder().feed(a + mb + c) if isinstance(x, sf.Frame)]
+        out.cases += 1
+        out.accepted += sum(1 for g in got if sf.encode_frame(g.seq, g.type, g.payload) not in (a, b, c))
+        out.missed_next += not any(sf.encode_frame(g.seq, g.type, g.payload) == c for g in got)
     return out

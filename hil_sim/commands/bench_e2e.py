@@ -9,7 +9,8 @@ Prints, for the DBC given (default ``config/rover.dbc``):
   random payloads on the DBC's own ids and lengths against the expected residual rate;
 * serial fuzz: ``--cases`` frames with 1-3 flipped bits between two valid frames, and
   ``--cases`` frame-shaped noise bursts: frames accepted that were never sent, valid frames
-  after the corruption that were not parsed.
+  after the corruption that were not parsed; and ``--cases`` mutated frames (cut, flipped,
+  bytes deleted or inserted) followed by a valid frame that ends the stream.
 
 Exit status 1 if anything that must never happen happened (a corrupted or random frame
 accepted, a valid frame lost behind garbage, an undetected 1-3 bit pattern).
@@ -77,8 +78,11 @@ def run(args: argparse.Namespace) -> int:
     )
     sflips = ff.serial_bit_flips(args.cases, args.seed + 3)
     snoise = ff.serial_random_frames(args.cases, args.seed + 4)
+    smut = ff.serial_mutations(args.cases, args.seed + 5)
     bad += sflips.accepted + sflips.missed_next + snoise.accepted + snoise.missed_next
+    bad += smut.accepted + smut.missed_next
     print(sflips.line("serial, 1-3 flipped bits in a frame between two valid ones"))
     print(snoise.line("serial, frame-shaped noise then a valid frame"))
+    print(smut.line("serial, a cut/flipped/shifted frame then a valid one, nothing after"))
     print(f"{time.perf_counter() - t0:.1f} s; {'FAIL' if bad else 'ok'}: {bad} must-never events")
     return 1 if bad else 0
