@@ -139,6 +139,52 @@ def undetected_patterns(layout: E2ELayout, weight: int) -> tuple[int, int]:
     return undetected, total
 
 
+def crossing_masks(max_delta: int) -> set[int]:
+    """Counter XOR masks that can move a received counter across an epoch boundary of the
+    freshness reconstruction while staying in a window of ``max_delta`` (``fsw.comm.e2e``)."""
+    out = set()
+    for m, r, true_d in itertools.product(range(1, 16), range(16), range(1, max_delta + 1)):
+        got = (((r + true_d) % 16) ^ m) - r
+        d = got % 16
+        if 1 <= d <= max_delta and (r + true_d) // 16 != (r + d) // 16:
+            out.add(m)
+    return out
+
+
+def epoch_boundary_escapes(layout: E2ELayout, weight: int, max_delta: int) -> tuple[int, int]:
+    """(escaping, total) error patterns of ``weight`` bits that a receiver with a counter window
+    of ``max_delta`` would take at an epoch boundary: the pattern moves the counter across the
+    boundary (:func:`crossing_masks`) and its checksum change equals the one-bit change of the
+    Gray-coded epoch there. Exhaustive, like :func:`undetected_patterns` (a CRC is linear)."""
+    base = bytes(layout.length)
+    k, n = layout.checksum_byte, layout.checksum_bytes
+    ref = layout.crc(base)
+    syndromes: list[int] = []
+    counter_bit: list[int] = []
+    for b in range(ID_BITS):
+        other = dataclasses.replace(layout, data_id=layout.data_id ^ (1 << b))
+        syndromes.append(other.crc(base) ^ ref)
+        counter_bit.append(0)
+    for b in range(8 * layout.length):
+        if (layout.reserved_mask >> b) & 1:
+            continue
+        flipped = bytearray(base)
+        flipped[b // 8] ^= 1 << (b % 8)
+        syndromes.append(int.from_bytes(flipped[k : k + n], "little") ^ layout.crc(bytes(flipped)) ^ ref)
+        j = b - layout.counter_start
+        counter_bit.append(1 << j if 0 <= j < 4 else 0)
+    s, c = np.array(syndromes, dtype=np.int64), np.array(counter_bit, dtype=np.int64)
+    crossing = np.array(sorted(crossing_masks(max_delta)), dtype=np.int64)
+    total = escaping = 0
+    for combo in _chunks(len(s), weight):
+        x = np.bitwise_xor.reduce(s[combo], axis=1)
+        m = np.bitwise_xor.reduce(c[combo], axis=1)
+        one_bit = (x > 0) & ((x & (x - 1)) == 0) & (x < (1 << layout.crc_bits))
+        total += len(combo)
+        escaping += int(np.count_nonzero(one_bit & np.isin(m, crossing)))
+    return escaping, total
+
+
 def _chunks(n: int, weight: int, size: int = 200_000) -> Iterator[np.ndarray]:
     it = itertools.combinations(range(n), weight)
     while block := list(itertools.islice(it, size)):
