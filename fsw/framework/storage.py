@@ -37,6 +37,8 @@ def describe(exc: BaseException) -> str:
         name = errno.errorcode.get(exc.errno, str(exc.errno))
         where = f"{exc.filename}: " if exc.filename else ""
         return f"{where}{exc.strerror or os.strerror(exc.errno)} ({name})"
+    if isinstance(exc, OSError) and "written" in str(exc):  # numpy's short write: the device took only part
+        return f"short write, the device is full or failing ({exc})".replace("\n", " ")
     return f"{type(exc).__name__}: {exc}".replace("\n", " ")
 
 
