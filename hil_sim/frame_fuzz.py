@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fsw.comm import serial_frames as sf
-from fsw.comm.e2e import E2ELayout
+from fsw.comm.e2e import E2ELayout, SequenceChecker
 from fsw.comm.imu_can import ImuCan
 from fsw.comm.rover_can import Bad, RoverCan
 
@@ -103,6 +103,58 @@ def can_random_frames(codec: RoverCan, cases: int, seed: int, valid_ids_only: bo
             fid, n = int(rng.integers(1 << ID_BITS)), int(rng.integers(9))
         out.cases += 1
         out.accepted += not isinstance(decode(fid, rng.bytes(n)), Bad)
+    return out
+
+
+def _live_receiver(layout: E2ELayout, data: bytes, f0: int) -> tuple[SequenceChecker, float]:
+    """A receiver that followed a live sender up to its full counter ``f0``; (checker, time)."""
+    seq, t = SequenceChecker(max_delta=3, reinit_after_s=1.0), 0.0
+    for f in range(f0 - 3, f0 + 1):
+        t += 0.01
+        seq.check_frame(layout, layout.protect(data, f), t)
+    return seq, t
+
+
+def can_replays(codec: RoverCan, cases: int, seed: int) -> FuzzCount:
+    """Replays of one old frame or a pair of consecutive old frames of every message, aged 1-32
+    frames and then at random below ``16 x 2^w - 4``, to a receiver following the live sender
+    (``SequenceChecker.check_frame``): ``accepted`` must stay 0."""
+    rng = np.random.default_rng(seed)
+    layouts = sorted(codec.e2e.values(), key=lambda lay: lay.data_id)
+    out = FuzzCount()
+    for i in range(cases):
+        lay = layouts[i % len(layouts)]
+        data = random_valid_can(lay, rng)
+        span = 16 * lay.epoch_mod
+        age = 1 + (i // len(layouts)) % 32 if i < 32 * len(layouts) else int(rng.integers(1, span - 5))
+        f0 = int(rng.integers(age + 2, 10 * span))
+        seq, t = _live_receiver(lay, data, f0)
+        replay = [f0 - age] if rng.random() < 0.5 else [f0 - age - 1, f0 - age]
+        for f in replay:
+            out.cases += 1
+            out.accepted += seq.check_frame(lay, lay.protect(data, f), t + 0.001)[0].accepted
+    return out
+
+
+def can_receiver_flips(codec: RoverCan, cases: int, seed: int, flips: int = 8) -> dict[int, FuzzCount]:
+    """Live frames of every message with ``flips`` flipped payload bits, through the whole
+    receiver (length and reserved bits, then counter and checksum under the freshness): the
+    frames accepted, by CRC width (information: the residual of a multi-bit error)."""
+    rng = np.random.default_rng(seed)
+    layouts = sorted(codec.e2e.values(), key=lambda lay: lay.data_id)
+    out: dict[int, FuzzCount] = {}
+    for i in range(cases):
+        lay = layouts[i % len(layouts)]
+        data = random_valid_can(lay, rng)
+        f0 = int(rng.integers(10, 100_000))
+        seq, t = _live_receiver(lay, data, f0)
+        bad = bytearray(lay.protect(data, f0 + 1))
+        for b in rng.choice(8 * lay.length, size=min(flips, 8 * lay.length), replace=False):
+            bad[int(b) // 8] ^= 1 << (int(b) % 8)
+        ok = lay.verify(bytes(bad), None) is None and seq.check_frame(lay, bytes(bad), t + 0.01)[0].accepted
+        c = out.setdefault(lay.crc_bits, FuzzCount())
+        c.cases += 1
+        c.accepted += ok
     return out
 
 
