@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 from fsw.comm.link import LinkConfig
+from fsw.core.codec.mapcodec import encode_map
 from fsw.core.geometry import MapGrid
-from fsw.core.mapcodec import encode_map
 from fsw.framework.storage import StorageError
 from fsw.framework.telemetry import Event, Severity
 from hil_sim import cliffbot_receiver as cr

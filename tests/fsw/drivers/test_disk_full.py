@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from fsw.comm.mavlink_tlog import TlogWriter, read_tlog
-from fsw.core.checkpoint import CheckpointConfig
-from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import MapGrid
+from fsw.core.map.checkpoint import CheckpointConfig
+from fsw.core.map.elevation_map import ElevationMap
 from fsw.drivers import map_store as ms
 from fsw.framework.storage import StorageError, describe, is_disk_fault, probe
 from fsw.tasks import mission_checkpoint as mc
