@@ -48,18 +48,14 @@ run from its newest good checkpoint, deterministically: the same seed gives the 
 an uninterrupted run. ``mode="new"`` refuses an out directory that holds a mission
 (``MissionExistsError``); ``mode="fresh"`` deletes it first.
 
-A full or failing disk (docs/hil.md, "Full disks"): before starting or resuming, the run asks
-the device for room for two checkpoints (``fsw.framework.storage.probe``) and raises
-``StorageError`` (one line) if it has none; during the run a checkpoint or .tlog write that
-fails is a flight event (``CHECKPOINT_FAILED``, ``TLOG_ERROR``), copied as one line to stderr,
-and the mission carries on from memory with the newest good checkpoint kept on disk.
+A full or failing disk (docs/hil.md): ``hil_sim.run_dir`` asks for room before a start or a
+resume and copies the flight's storage events to stderr; the mission carries on.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -71,8 +67,7 @@ import numpy as np
 from fsw.core.geometry import MapGrid
 from fsw.drivers.map_store import MapStore
 from fsw.drivers.resources import OracleTruth, Resources
-from fsw.framework.storage import StorageError, describe, probe
-from fsw.framework.telemetry import Event
+from fsw.framework.storage import StorageError, describe
 from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
 from hil_sim.faults import FaultSpec
 from hil_sim.ground_watch import reachable_stations, wheels_on_unknown
@@ -85,13 +80,10 @@ from hil_sim.mission_report import (
     transfer_s,
     write_outputs,
 )
+from hil_sim.run_dir import MANIFEST, check_room, echo_storage_events, has_mission
 from hil_sim.terrain_eval import map_quality
 
-MANIFEST = "run.json"
 MODES = ("new", "fresh", "resume")
-#: flight events about storage that the (otherwise quiet) bench copies to stderr
-CONSOLE_EVENTS = ("CHECKPOINT_FAILED", "TLOG_ERROR")
-MIN_PROBE_BYTES = 256 * 1024
 
 
 class MissionExistsError(ValueError):
@@ -148,21 +140,6 @@ def mission_config(spec: RunSpec, world: Any) -> FswConfig:
     )
 
 
-def has_mission(out: Path) -> bool:
-    """True if ``out`` holds a mission: its manifest or any checkpoint (or temporary) file."""
-    ck = out / "checkpoints"
-    return (out / MANIFEST).exists() or (ck.is_dir() and any(ck.glob("map_*.ckpt")) or any(ck.glob(".map_*.tmp")))
-
-
-def finished(out: Path) -> bool:
-    """True if the mission in ``out`` ended (its newest checkpoint is DONE) and has its report."""
-    from fsw.core.map.checkpoint import CheckpointConfig
-
-    state = MapStore(CheckpointConfig(directory=str(out / "checkpoints"))).load_latest().state
-    mission = state.get("mission") if state else None
-    return isinstance(mission, dict) and mission.get("phase") == "DONE" and (out / "summary.json").exists()
-
-
 def write_manifest(spec: RunSpec) -> None:
     assert spec.out is not None
     d = {k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(spec).items()}
@@ -173,22 +150,6 @@ def write_manifest(spec: RunSpec) -> None:
     except OSError as exc:
         tmp.unlink(missing_ok=True)
         raise StorageError(exc.errno, f"{spec.out / MANIFEST} not written: {describe(exc)}") from None
-
-
-def check_room(out: Path, store: MapStore) -> None:
-    """``StorageError`` (one line) unless the checkpoint directory takes two checkpoints."""
-    newest = store.paths()[-1:] if store.dir.is_dir() else []
-    need = max(MIN_PROBE_BYTES, 2 * newest[0].stat().st_size) if newest else MIN_PROBE_BYTES
-    try:
-        probe(store.dir, need)
-    except StorageError as exc:
-        raise StorageError(exc.errno, f"{out}: the disk is full or failing, free space first: {exc}") from None
-
-
-def echo_storage_events(ev: Event) -> None:
-    """The bench's console for storage events: one line on stderr (the console task is quiet)."""
-    if ev.name.rsplit(".", 1)[-1] in CONSOLE_EVENTS:
-        print(f"[{ev.time_s:9.2f}] {ev.severity.name} {ev.name}: {ev.text}", file=sys.stderr)
 
 
 def read_manifest(out: Path) -> RunSpec:
@@ -224,11 +185,12 @@ def _prepare_store(spec: RunSpec, cfg: FswConfig, mode: str) -> tuple[MapStore |
     store = MapStore(cfg.checkpoint, cfg.fusion)
     if mode == "new" and has_mission(spec.out):
         raise MissionExistsError(f"{spec.out} holds a mission; --resume {spec.out} continues it, --fresh deletes it")
-    check_room(spec.out, store)
     if mode != "resume":
-        store.clear()
+        store.clear()  # (fresh) the old mission's files go first: their room counts
+        check_room(spec.out, store)
         write_manifest(spec)
         return store, None, None
+    check_room(spec.out, store)
     loaded = store.restore()
     if loaded.emap is None and loaded.skipped:
         reasons = "; ".join(f"{p.name}: {r}" for p, r in loaded.skipped)

@@ -51,7 +51,8 @@ def run(args: argparse.Namespace) -> int:
 
     from fsw.framework.params import ConfigError
     from fsw.framework.storage import StorageError, describe
-    from hil_sim.mission_run import RunSpec, finished, has_mission, read_manifest, run_mission
+    from hil_sim.mission_run import RunSpec, read_manifest, run_mission
+    from hil_sim.run_dir import finished, has_mission
 
     if args.steps < 0:
         print("safer-hil run: --steps must be >= 0", file=sys.stderr)

@@ -24,7 +24,7 @@ from fsw.framework.storage import StorageError
 from fsw.framework.telemetry import Event, Severity
 from hil_sim import cliffbot_receiver as cr
 from hil_sim import mission_report as mr
-from hil_sim import mission_run
+from hil_sim import mission_run, run_dir
 from hil_sim.cli import main
 
 FAULTS = [errno.ENOSPC, errno.EIO]
@@ -101,9 +101,9 @@ def test_a_summary_that_cannot_be_written_is_one_line(tmp_path: Path, code: int,
 
 def test_storage_events_reach_the_console(capsys: pytest.CaptureFixture[str]) -> None:
     """The quiet bench still prints CHECKPOINT_FAILED and TLOG_ERROR (one line each), and only those."""
-    mission_run.echo_storage_events(Event(12.5, 7, "mission.CHECKPOINT_FAILED", Severity.WARNING_HI,
+    run_dir.echo_storage_events(Event(12.5, 7, "mission.CHECKPOINT_FAILED", Severity.WARNING_HI,
                                           "mission checkpoint failed: No space left on device (ENOSPC)"))
-    mission_run.echo_storage_events(Event(13.0, 8, "mission.STEP", Severity.ACTIVITY_HI, "step 3"))
+    run_dir.echo_storage_events(Event(13.0, 8, "mission.STEP", Severity.ACTIVITY_HI, "step 3"))
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 1 and "mission.CHECKPOINT_FAILED" in err[0] and "ENOSPC" in err[0]
 
@@ -118,7 +118,7 @@ def test_resume_on_a_full_disk_says_so_in_one_line(tmp_path: Path, monkeypatch: 
     def full(directory: Any, need: int) -> None:
         raise StorageError(errno.ENOSPC, f"{directory}: no room for {need} bytes (No space left on device (ENOSPC))")
 
-    monkeypatch.setattr(mission_run, "probe", full)
+    monkeypatch.setattr(run_dir, "probe", full)
     assert main(["run", "--resume", str(out)]) == 1
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
     assert len(err) == 1 and "disk is full" in err[0] and "ENOSPC" in err[0] and "Traceback" not in err[0]
