@@ -203,18 +203,18 @@ def test_mission_count_matches_the_expansion(tmp_path: Path) -> None:
 
 def test_oversized_spec_is_refused_at_once(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """req(26.6): 100k seeds x 2 methods x (clean + 1 set) is refused in one line, exit 2, fast;
-    100k missions (the limit) still answer a --dry-run."""
+    100k missions (the limit) still answer a --dry-run. CPU time, not wall time: the machine is shared."""
     seeds = "seeds = [" + ", ".join(map(str, range(100_000))) + "]"
     big = write(tmp_path, (CAMPAIGNS / "smoke.toml").read_text().replace("seeds = [0]", seeds))
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     assert main(["campaign", str(big), "--dry-run"]) == 2
-    assert time.perf_counter() - t0 < 10.0
+    assert time.process_time() - t0 < 10.0
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "400,000 missions is more than 100,000" in err
     ok = big.with_name("ok.toml")
     ok.write_text(big.read_text().replace('methods = ["5", "oracle"]', 'methods = ["5"]')
                   .replace('mode = "cross"', 'mode = "sample"'))
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     assert main(["campaign", str(ok), "--dry-run"]) == 0
-    assert time.perf_counter() - t0 < 30.0
+    assert time.process_time() - t0 < 30.0
     assert capsys.readouterr().out.strip().endswith("100000 missions")
