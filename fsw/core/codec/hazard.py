@@ -128,7 +128,7 @@ def cell_intervals(z: NDArray[np.floating], cells: HazardCells, *, bound_m: floa
     z64 = np.asarray(z, np.float64)
     lo = z64 - bound_m + margin_m
     hi = z64 + bound_m - margin_m
-    lo = np.where(cells.step_hazard, z64 + rise_m - step_slack_m, lo)
+    lo = np.where(cells.step_hazard, z64 + rise_m - step_slack_m + margin_m, lo)
     lo = np.where(cells.relief_hazard, z64 + rise_m + margin_m, lo)
     hi = np.where(cells.support, np.minimum(hi, z64 + rise_m - margin_m), hi)
     return lo, hi
@@ -146,21 +146,30 @@ class ObstacleCheck:
     worst_relief_loss_m: float  # max over the input's hazard cells of relief - decoded relief
     footprint_kept: float  # fraction of input hazard cells with decoded relief >= threshold
     position_error_cells: float  # max over obstacles: input peak to nearest kept cell
+    step_cells: int = 0  # cells whose step (over step_disc_m) >= threshold
+    step_kept: float = 1.0  # fraction of them with a decoded step >= threshold
+    worst_step_loss_m: float = 0.0  # max over them of step - decoded step
 
 
 def check_obstacles(z: NDArray[np.floating], decoded: NDArray[np.floating], cell_m: float,
-                    threshold_m: float, disc_m: float) -> ObstacleCheck:
-    """Count the input's obstacles and those the decoded map kept (the issue's measure)."""
+                    threshold_m: float, disc_m: float, step_disc_m: float | None = None) -> ObstacleCheck:
+    """Count the input's obstacles and those the decoded map kept (the issue's measure), and
+    the step cells (``step_disc_m``, default the threshold: one wheel diameter) kept."""
     from scipy import ndimage
 
     r0 = relief(z, cell_m, disc_m)
     r1 = relief(decoded, cell_m, disc_m)
+    s0 = step(z, cell_m, threshold_m if step_disc_m is None else step_disc_m)
+    s1 = step(decoded, cell_m, threshold_m if step_disc_m is None else step_disc_m)
     with np.errstate(invalid="ignore"):
         haz0 = r0 >= threshold_m
         haz1 = r1 >= threshold_m
+        st0 = s0 >= threshold_m
+    steps = {"step_cells": int(st0.sum()), "step_kept": float((s1[st0] >= threshold_m).mean()) if st0.any() else 1.0,
+             "worst_step_loss_m": float((s0 - s1)[st0].max()) if st0.any() else 0.0}
     lab, n = ndimage.label(haz0, structure=np.ones((3, 3)))
     if n == 0:
-        return ObstacleCheck(0, 0, 0, 0, 0.0, 0.0, 1.0, 0.0)
+        return ObstacleCheck(0, 0, 0, 0, 0.0, 0.0, 1.0, 0.0, **steps)
     idx = np.arange(1, n + 1)
     r0f = np.where(haz0, r0, -np.inf)
     r1f = np.where(np.isfinite(r1), r1, -np.inf)
@@ -179,4 +188,4 @@ def check_obstacles(z: NDArray[np.floating], decoded: NDArray[np.floating], cell
     return ObstacleCheck(n=int(n), kept=int(kept.sum()), n_2x=int(big.sum()), kept_2x=int((kept & big).sum()),
                          worst_peak_loss_m=float((peak0 - peak1).max()),
                          worst_relief_loss_m=float(loss.max()) if loss.size else 0.0,
-                         footprint_kept=float(haz1[haz0].mean()), position_error_cells=pos_err)
+                         footprint_kept=float(haz1[haz0].mean()), position_error_cells=pos_err, **steps)

@@ -76,7 +76,7 @@ class CodecConfig:
     step_disc_wheels: float = param(1.0, lo=0.1, hi=20.0, units="wheel diameters",
                                     doc="a step is the height above the lowest cell within this disc")
     support_rise_fraction: float = param(
-        0.5, lo=0.0, hi=0.9, doc="support cells rise at most, relief hazards rise at least, "
+        0.25, lo=0.0, hi=0.9, doc="support cells rise at most, relief hazards rise at least, "
         "this fraction of the error bound")
 
 
@@ -119,18 +119,23 @@ def encode_map(
     if margin >= 0.5 * bound:
         raise ValueError(f"error bound {bound} m is below float32 resolution at {maxabs} m")
     offset = float(np.mean(z32[known], dtype=np.float64)) if known.any() else 0.0
-    lo_c = hi_c = None
+    lo_c = hi_c = lo_chk = hi_chk = None
     hazard_fields: dict[str, float] = {}
     if cfg.hazard:
         rise = cfg.support_rise_fraction * bound
         q = cfg.quant_step_fraction * (bound - rise)  # a relief hazard's interval holds 2 steps
-        slack = 1.25 * q
+        slack = q + 4.0 * margin  # a step hazard that is also support keeps a lattice value
+        if margin >= 0.25 * (bound - rise):
+            raise ValueError(f"error bound {bound} m is below float32 resolution at {maxabs} m")
         rule = hz.HazardRule(threshold_m=cfg.hazard_relief_wheels * wheel_diameter_m,
                              relief_disc_m=cfg.relief_disc_m,
                              step_disc_m=cfg.step_disc_wheels * wheel_diameter_m)
         cells = hz.classify(z32, cell_m, rule)
         lo_c, hi_c = hz.cell_intervals(z32, cells, bound_m=bound, rise_m=rise, step_slack_m=slack,
                                        margin_m=margin)
+        # What the decoded float32 values must meet (the margins above absorb their rounding).
+        lo_chk, hi_chk = hz.cell_intervals(z32, cells, bound_m=bound, rise_m=rise, step_slack_m=slack,
+                                           margin_m=0.0)
         hazard_fields = {"hazard_threshold_m": rule.threshold_m, "relief_disc_m": rule.relief_disc_m,
                          "step_disc_m": rule.step_disc_m, "support_rise_m": rise, "step_slack_m": slack,
                          "relief_loss_hazard_m": 0.0, "relief_loss_any_m": bound + rise}
@@ -157,9 +162,9 @@ def encode_map(
     max_err = float(err.max()) if err.size else 0.0
     if max_err > bound or np.isfinite(rec[~known]).any():
         raise AssertionError(f"codec bound violated: {max_err} > {bound}")
-    if lo_c is not None and hi_c is not None:
+    if lo_chk is not None and hi_chk is not None:
         r64 = rec[known].astype(np.float64)
-        if (r64 < lo_c[known]).any() or (r64 > hi_c[known]).any():
+        if (r64 < lo_chk[known]).any() or (r64 > hi_chk[known]).any():
             raise AssertionError("codec hazard interval violated")
     header = Header(
         ny=tree.shape[0], nx=tree.shape[1], cell_m=cell_m, wheel_diameter_m=wheel_diameter_m,
