@@ -39,6 +39,7 @@ A step hazard whose foot is support ground keeps its step within ``step_slack``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -60,7 +61,7 @@ class HazardRule:
 
 def disc(diameter_m: float, cell_m: float) -> NDArray[np.uint8]:
     """A digital disc (``x^2 + y^2 <= r^2``, odd side) of about ``diameter_m``."""
-    r = max(1, int(np.floor(diameter_m / (2.0 * cell_m) + 0.5)))
+    r = max(1, int(np.floor(diameter_m / (2.0 * cell_m) + 0.5 + 1e-4)))  # float32 header values round alike
     yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
     return (yy * yy + xx * xx <= r * r).astype(np.uint8)
 
@@ -69,8 +70,8 @@ def erode(z: F32, kernel: NDArray[np.uint8]) -> F32:
     """Grey erosion ignoring unknown (NaN) cells and cells past the map edge."""
     known = np.isfinite(z)
     fill = np.where(known, z, np.float32(np.inf)).astype(np.float32)
-    out: F32 = cv2.erode(fill, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=float("inf"))
-    return out
+    out = cv2.erode(fill, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=float("inf"))
+    return np.asarray(out, np.float32)
 
 
 def opening(z: F32, kernel: NDArray[np.uint8]) -> F32:
@@ -165,8 +166,10 @@ def check_obstacles(z: NDArray[np.floating], decoded: NDArray[np.floating], cell
         haz0 = r0 >= threshold_m
         haz1 = r1 >= threshold_m
         st0 = s0 >= threshold_m
-    steps = {"step_cells": int(st0.sum()), "step_kept": float((s1[st0] >= threshold_m).mean()) if st0.any() else 1.0,
-             "worst_step_loss_m": float((s0 - s1)[st0].max()) if st0.any() else 0.0}
+    steps: dict[str, Any] = {
+        "step_cells": int(st0.sum()),
+        "step_kept": float((s1[st0] >= threshold_m).mean()) if st0.any() else 1.0,
+        "worst_step_loss_m": float((s0 - s1)[st0].max()) if st0.any() else 0.0}
     lab, n = ndimage.label(haz0, structure=np.ones((3, 3)))
     if n == 0:
         return ObstacleCheck(0, 0, 0, 0, 0.0, 0.0, 1.0, 0.0, **steps)

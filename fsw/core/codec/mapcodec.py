@@ -26,6 +26,7 @@ mean of the decimated map. Both honour the same bound.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -120,7 +121,7 @@ def encode_map(
         raise ValueError(f"error bound {bound} m is below float32 resolution at {maxabs} m")
     offset = float(np.mean(z32[known], dtype=np.float64)) if known.any() else 0.0
     lo_c = hi_c = lo_chk = hi_chk = None
-    hazard_fields: dict[str, float] = {}
+    hazard_fields: dict[str, Any] = {}
     if cfg.hazard:
         rise = cfg.support_rise_fraction * bound
         q = cfg.quant_step_fraction * (bound - rise)  # a relief hazard's interval holds 2 steps
