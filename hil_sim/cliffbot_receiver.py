@@ -104,8 +104,9 @@ class Cliffbot:
 
 
 def write_figure13(original: NDArray[np.floating], received: NDArray[np.floating], path: Path,
-                   title: str = "") -> None:
-    """Paper Figure 13: grayscale elevation, original (left) and transmitted (right)."""
+                   title: str = "", outlines: tuple[NDArray[np.bool_], NDArray[np.bool_]] | None = None) -> None:
+    """Paper Figure 13: grayscale elevation, original (left) and transmitted (right);
+    ``outlines`` (one mask per panel, e.g. the obstacles) are drawn as red contours."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -118,6 +119,10 @@ def write_figure13(original: NDArray[np.floating], received: NDArray[np.floating
     for ax, img, name in zip(axes, (original, received), ("original", "received by the Cliff-bot"),
                              strict=True):
         im = ax.imshow(img, cmap=cmap, vmin=lo, vmax=hi, interpolation="nearest")
+        if outlines is not None:
+            mask = outlines[0] if img is original else outlines[1]
+            if mask.any():
+                ax.contour(mask.astype(np.float32), levels=[0.5], colors="red", linewidths=0.6)
         ax.set_title(name)
         ax.set_xticks([])
         ax.set_yticks([])

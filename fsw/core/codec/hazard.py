@@ -23,17 +23,21 @@ the height bound already keeps (a slope's error is at most ``2e`` over the wheel
 
 * a *relief hazard* (relief >= ``threshold``) decodes at least ``rise`` higher,
   ``[z + rise, z + e]``;
-* a *support* cell (relief exactly 0, i.e. the lowest cell of some relief disc, or of some
-  step disc, and not a relief hazard) decodes at most ``rise`` higher, ``[z - e, z + rise]``;
-* a *step hazard* (step >= ``threshold``, no relief hazard) decodes at least
-  ``rise - step_slack`` higher.
+* a *support* cell (the lowest cell of a relief disc that covers a relief hazard, or of the
+  step disc around a step, and not itself a relief hazard) decodes at most ``rise`` higher,
+  ``[z - e, z + rise]``;
+* a *step hazard* (step >= ``threshold``, no relief hazard) decodes at least ``rise``
+  higher, or at least ``rise - step_slack`` higher where it is also support (a cell on a
+  slope can be the foot of one step and the top of another).
 
 The opening at a cell is the highest, over the discs covering it, of the disc's lowest cell;
-that lowest cell is a support cell, so the decoded opening is at most ``rise`` above the
-original everywhere, while a relief hazard is at least ``rise`` higher: **a relief hazard's
-decoded relief is never below its original relief**, its height never lower, its footprint
-and position unchanged to the cell. Any other cell's relief drops by at most ``e + rise``.
-A step hazard whose foot is support ground keeps its step within ``step_slack``.
+for a relief hazard that lowest cell is a support cell, so its decoded opening is at most
+``rise`` above the original, while the hazard itself is at least ``rise`` higher: **a relief
+hazard's decoded relief is never below its original relief**, its height never lower, its
+footprint and position unchanged to the cell. Any cell's relief drops by at most ``2e``.
+A step whose foot is support ground keeps its height within ``step_slack`` (0 where the top
+is not itself support); a step whose foot is a relief hazard (a rock on a rock) within
+``e - rise + step_slack``.
 """
 
 from __future__ import annotations
@@ -105,19 +109,33 @@ class HazardCells:
     support: B
 
 
+def _argmins(z32: F32, centres: B, kernel: NDArray[np.uint8]) -> B:
+    """Cells that are the lowest known cell of a disc centred on one of ``centres``."""
+    known = np.isfinite(z32)
+    e = erode(z32, kernel)
+    e[~(centres & known)] = -np.inf
+    reach = cv2.dilate(e, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=float("-inf"))
+    return known & (reach == z32)
+
+
 def classify(z: NDArray[np.floating], cell_m: float, rule: HazardRule) -> HazardCells:
-    """Relief, step, and the hazard and support cells of ``z`` (see the module docstring)."""
+    """Relief, step, and the hazard and support cells of ``z`` (see the module docstring).
+
+    Support cells are only those a hazard's relief or step depends on: the lowest cell of a
+    relief disc covering a relief hazard, or of the step disc around a step hazard.
+    """
     z32 = np.asarray(z, np.float32)
     known = np.isfinite(z32)
+    rk = disc(rule.relief_disc_m, cell_m)
     rel = relief(z32, cell_m, rule.relief_disc_m)
     sk = disc(rule.step_disc_m, cell_m)
     stp = (z32 - erode(z32, sk)).astype(np.float32)
     with np.errstate(invalid="ignore"):
         rel_h = known & (rel >= rule.threshold_m)
-        stp_h = known & (stp >= rule.threshold_m) & ~rel_h
-        step_support = (z32 - opening(z32, sk)) == 0
-        support = known & ~rel_h & ((rel == 0) | step_support)
-    return HazardCells(rel, stp, rel_h, stp_h, support)
+        steps = known & (stp >= rule.threshold_m)
+    near = cv2.dilate(rel_h.astype(np.uint8), rk, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
+    support = ~rel_h & (_argmins(z32, near, rk) | _argmins(z32, steps, sk))
+    return HazardCells(rel, stp, rel_h, steps & ~rel_h, support)
 
 
 def cell_intervals(z: NDArray[np.floating], cells: HazardCells, *, bound_m: float, rise_m: float,
@@ -129,7 +147,7 @@ def cell_intervals(z: NDArray[np.floating], cells: HazardCells, *, bound_m: floa
     z64 = np.asarray(z, np.float64)
     lo = z64 - bound_m + margin_m
     hi = z64 + bound_m - margin_m
-    lo = np.where(cells.step_hazard, z64 + rise_m - step_slack_m + margin_m, lo)
+    lo = np.where(cells.step_hazard, np.where(cells.support, z64 + rise_m - step_slack_m, z64 + rise_m) + margin_m, lo)
     lo = np.where(cells.relief_hazard, z64 + rise_m + margin_m, lo)
     hi = np.where(cells.support, np.minimum(hi, z64 + rise_m - margin_m), hi)
     return lo, hi

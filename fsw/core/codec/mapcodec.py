@@ -139,7 +139,7 @@ def encode_map(
                                            margin_m=0.0)
         hazard_fields = {"hazard_threshold_m": rule.threshold_m, "relief_disc_m": rule.relief_disc_m,
                          "step_disc_m": rule.step_disc_m, "support_rise_m": rise, "step_slack_m": slack,
-                         "relief_loss_hazard_m": 0.0, "relief_loss_any_m": bound + rise}
+                         "relief_loss_hazard_m": 0.0, "relief_loss_any_m": 2.0 * bound}
     else:
         q = cfg.quant_step_fraction * bound
     tree = build_quadtree(
