@@ -77,7 +77,7 @@ class CodecConfig:
     step_disc_wheels: float = param(1.0, lo=0.1, hi=20.0, units="wheel diameters",
                                     doc="a step is the height above the lowest cell within this disc")
     support_rise_fraction: float = param(
-        0.25, lo=0.0, hi=0.9, doc="support cells rise at most, relief hazards rise at least, "
+        0.0, lo=0.0, hi=0.9, doc="support cells rise at most, relief hazards rise at least, "
         "this fraction of the error bound")
 
 
