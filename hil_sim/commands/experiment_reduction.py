@@ -35,7 +35,7 @@ import shutil
 import subprocess
 import sys
 import time
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -73,8 +73,9 @@ def jpegls_for_hazards(z: Any, w: float, bound: float, cell_m: float, disc_m: fl
     import numpy as np
     import zstandard
 
-    from fsw.core.codec.hazard import check_obstacles
+    from fsw.core.codec.hazard import check_obstacles, relief, step
 
+    ref = (relief(z, cell_m, disc_m), step(z, cell_m, w))
     known = np.isfinite(z)
     zmin = float(z[known].min())
     span = float(z[known].max()) - zmin
@@ -89,7 +90,7 @@ def jpegls_for_hazards(z: Any, w: float, bound: float, cell_m: float, disc_m: fl
         back = imagecodecs.jpegls_decode(enc).astype(np.float64) * unit + zmin
         zd = np.where(known, back, np.nan).astype(np.float32)
         err = float(np.abs(zd[known].astype(np.float64) - z[known]).max()) if known.any() else 0.0
-        return len(enc) + mask_bytes, check_obstacles(z, zd, cell_m, w, disc_m), err
+        return len(enc) + mask_bytes, check_obstacles(z, zd, cell_m, w, disc_m, reference=ref), err
 
     n_max = max(0, int(np.floor((bound - 0.5 * unit) / unit)))
     n_max = min(n_max, 255)
@@ -172,6 +173,7 @@ def run(args: argparse.Namespace) -> int:
         print("safer-hil: error: need --maps >= 0, --size >= 8, positive --dh, --noise-m >= 0", file=sys.stderr)
         return 2
     terrains = [t.strip() for t in args.terrains.split(",") if t.strip()]
+    commit = _commit()  # the code that runs, before anything changes the work tree
     args.out.mkdir(parents=True, exist_ok=True)
     height_only = CodecConfig(**{**vars(codec), "hazard": False})
     ks = np.linspace(args.k_range[0], args.k_range[1], max(args.maps, 1))[:args.maps]
@@ -222,7 +224,8 @@ def run(args: argparse.Namespace) -> int:
                          "leaves": enc.tree.n_leaves, "reduction": round(enc.tree.reduction_factor, 2),
                          "bytes": len(enc.data), "max_error_m": enc.max_error_m,
                          "rms_error_m": round(enc.rms_error_m, 6), "obst": c.n, "kept": c.kept,
-                         "obst_2w": c.n_2x, "kept_2w": c.kept_2x, "worst_relief_loss_m": round(c.worst_relief_loss_m, 5),
+                         "obst_2w": c.n_2x, "kept_2w": c.kept_2x,
+                         "worst_relief_loss_m": round(c.worst_relief_loss_m, 5),
                          "encode_ms": round(dt * 1e3, 1),
                          "reduction_height_only": round(old.tree.reduction_factor, 2),
                          "bytes_height_only": len(old.data)})
@@ -265,12 +268,12 @@ def run(args: argparse.Namespace) -> int:
         cmd = "safer-hil experiment reduction " + " ".join(sys.argv[3:]) if sys.argv[1:3] == \
             ["experiment", "reduction"] else "safer-hil experiment reduction (called from Python)"
         head = (f"# Results: map reduction keeps every hazard (issue 25)\n\n"
-                f"- date: {datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC')}\n"
-                f"- commit: {_commit()}\n- command: `{cmd}`\n"
+                f"- date: {datetime.now(UTC).strftime('%Y-%m-%d %H:%M UTC')}\n"
+                f"- commit: {commit}\n- command: `{cmd}`\n"
                 f"- wall time: {time.perf_counter() - t0:.0f} s\n\n")
         (args.docs / "results" / "reduction.md").write_text(head + report.split("\n", 1)[1])
-        for src, dst in (("fig12_reduction.png", "quadtree_fig12.png"),
-                         ("fig13_transmitted.png", "quadtree_fig13.png"), ("fig13_cliff.png", "quadtree_fig13_cliff.png")):
+        for src, dst in (("fig12_reduction.png", "quadtree_fig12.png"), ("fig13_transmitted.png", "quadtree_fig13.png"),
+                         ("fig13_cliff.png", "quadtree_fig13_cliff.png")):
             if (args.out / src).exists():
                 shutil.copyfile(args.out / src, args.docs / "img" / dst)
         print(f"wrote {args.docs}/results/reduction.md and the figures in {args.docs}/img")
@@ -333,13 +336,15 @@ def _report(rows: list[dict[str, Any]], maps: list[dict[str, Any]], dhs: list[fl
             args: argparse.Namespace) -> str:
     import numpy as np
 
+    n_mission = sum(m["kind"] == "mission-like" for m in maps)
     lines = [f"# Map reduction: {args.maps} Viking-model maps ({args.size}x{args.size} cells of {args.cell_m} m, "
-             f"k {args.k_range[0]}..{args.k_range[1]}), the DEM sample and {len(maps) - args.maps - (0 if args.no_dem else 1)} "
-             "mission-like maps", "",
+             f"k {args.k_range[0]}..{args.k_range[1]}), {'no' if args.no_dem else 'the'} DEM sample and "
+             f"{n_mission} mission-like maps", "",
              f"Codec: hazard rule {'on' if codec.hazard else 'off'} (relief disc {codec.relief_disc_m} m, threshold "
              f"{codec.hazard_relief_wheels} wheel, step disc {codec.step_disc_wheels} wheel, support rise "
-             f"{codec.support_rise_fraction} x bound), split rule `{codec.split_rule}`, leaf value `{codec.leaf_value}`, "
-             f"height bound {codec.error_bound_wheels} wheel diameter(s), zstd {codec.zstd_level}. Obstacle: connected "
+             f"{codec.support_rise_fraction} x bound), split rule `{codec.split_rule}`, "
+             f"leaf value `{codec.leaf_value}`, height bound {codec.error_bound_wheels} wheel diameter(s), "
+             f"zstd {codec.zstd_level}. Obstacle: connected "
              f"cells whose relief (white top-hat over the {codec.relief_disc_m} m disc) is >= the wheel diameter w; "
              "kept if the decoded relief, max over its footprint, is >= w.", ""]
     if rows:

@@ -171,15 +171,17 @@ class ObstacleCheck:
 
 
 def check_obstacles(z: NDArray[np.floating], decoded: NDArray[np.floating], cell_m: float,
-                    threshold_m: float, disc_m: float, step_disc_m: float | None = None) -> ObstacleCheck:
+                    threshold_m: float, disc_m: float, step_disc_m: float | None = None,
+                    reference: tuple[F32, F32] | None = None) -> ObstacleCheck:
     """Count the input's obstacles and those the decoded map kept (the issue's measure), and
-    the step cells (``step_disc_m``, default the threshold: one wheel diameter) kept."""
+    the step cells (``step_disc_m``, default the threshold: one wheel diameter) kept.
+    ``reference``: the input's (relief, step), when already computed."""
     from scipy import ndimage
 
-    r0 = relief(z, cell_m, disc_m)
+    sd = threshold_m if step_disc_m is None else step_disc_m
+    r0, s0 = reference if reference is not None else (relief(z, cell_m, disc_m), step(z, cell_m, sd))
     r1 = relief(decoded, cell_m, disc_m)
-    s0 = step(z, cell_m, threshold_m if step_disc_m is None else step_disc_m)
-    s1 = step(decoded, cell_m, threshold_m if step_disc_m is None else step_disc_m)
+    s1 = step(decoded, cell_m, sd)
     with np.errstate(invalid="ignore"):
         haz0 = r0 >= threshold_m
         haz1 = r1 >= threshold_m
