@@ -109,11 +109,11 @@ class HazardCells:
     support: B
 
 
-def _argmins(z32: F32, centres: B, kernel: NDArray[np.uint8]) -> B:
-    """Cells that are the lowest known cell of a disc centred on one of ``centres``."""
+def _argmins(z32: F32, eroded: F32, centres: B, kernel: NDArray[np.uint8]) -> B:
+    """Cells that are the lowest known cell of a disc centred on one of ``centres``
+    (``eroded``: ``erode(z32, kernel)``)."""
     known = np.isfinite(z32)
-    e = erode(z32, kernel)
-    e[~(centres & known)] = -np.inf
+    e = np.where(centres & known, eroded, np.float32(-np.inf)).astype(np.float32)
     reach = cv2.dilate(e, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=float("-inf"))
     return known & (reach == z32)
 
@@ -127,14 +127,24 @@ def classify(z: NDArray[np.floating], cell_m: float, rule: HazardRule) -> Hazard
     z32 = np.asarray(z, np.float32)
     known = np.isfinite(z32)
     rk = disc(rule.relief_disc_m, cell_m)
-    rel = relief(z32, cell_m, rule.relief_disc_m)
+    er = erode(z32, rk)
+    opened = cv2.dilate(np.where(known, er, np.float32(-np.inf)).astype(np.float32), rk,
+                        borderType=cv2.BORDER_CONSTANT, borderValue=float("-inf"))
+    rel = np.where(known, z32 - opened, np.float32(np.nan)).astype(np.float32)
     sk = disc(rule.step_disc_m, cell_m)
-    stp = (z32 - erode(z32, sk)).astype(np.float32)
+    es = erode(z32, sk)
+    stp = (z32 - es).astype(np.float32)
     with np.errstate(invalid="ignore"):
         rel_h = known & (rel >= rule.threshold_m)
         steps = known & (stp >= rule.threshold_m)
-    near = cv2.dilate(rel_h.astype(np.uint8), rk, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
-    support = ~rel_h & (_argmins(z32, near, rk) | _argmins(z32, steps, sk))
+    # Centres of the relief discs that cover a relief hazard: within the disc's radius of one.
+    r = (rk.shape[0] - 1) // 2
+    if rel_h.any():
+        dist = cv2.distanceTransform((~rel_h).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        near = dist <= r + 1e-3
+    else:
+        near = np.zeros_like(rel_h)
+    support = ~rel_h & (_argmins(z32, er, near, rk) | _argmins(z32, es, steps, sk))
     return HazardCells(rel, stp, rel_h, steps & ~rel_h, support)
 
 
