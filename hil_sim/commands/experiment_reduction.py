@@ -68,7 +68,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def jpegls_for_hazards(z: Any, w: float, bound: float, cell_m: float, disc_m: float) -> dict[str, Any]:
     """JPEG-LS near-lossless on a 1 mm grid: bytes at the largest NEAR that keeps the input's
-    obstacles (all kept at >= w, as ours) within the height bound, and at the bound alone."""
+    obstacles (all kept at >= w, as ours; and the issue's bar, >= 99 % of them and all >= 2w)
+    within the height bound, and at the bound alone."""
     import imagecodecs
     import numpy as np
     import zstandard
@@ -98,14 +99,12 @@ def jpegls_for_hazards(z: Any, w: float, bound: float, cell_m: float, disc_m: fl
     out: dict[str, Any] = {"jls_bound_bytes": b_max, "jls_bound_kept": c_max.kept,
                            "jls_bound_kept_2x": c_max.kept_2x, "jls_bound_near_mm": n_max * unit * 1e3}
 
-    def ok(c: Any, err: float) -> bool:
-        return c.kept == c.n and c.kept_2x == c.n_2x and err <= bound
-
-    if ok(c_max, e_max):
-        best = (n_max, b_max)
-    else:
-        lo, hi = 0, n_max  # ok(lo) assumed (lossless-ish), not ok(hi)
-        b0, c0, e0 = trial(0)
+    def largest(ok: Any) -> tuple[int, int]:
+        """Largest NEAR (bisection, assuming monotone) whose decoded map passes ``ok``."""
+        if ok(c_max, e_max):
+            return n_max, b_max
+        lo, hi = 0, n_max
+        b0, _, _ = trial(0)
         best = (0, b0)
         while hi - lo > 1:
             mid = (lo + hi) // 2
@@ -114,8 +113,18 @@ def jpegls_for_hazards(z: Any, w: float, bound: float, cell_m: float, disc_m: fl
                 lo, best = mid, (mid, b)
             else:
                 hi = mid
-    out["jls_hazard_bytes"] = best[1]
-    out["jls_hazard_near_mm"] = round(best[0] * unit * 1e3, 2)
+        return best
+
+    def all_kept(c: Any, err: float) -> bool:
+        return bool(c.kept == c.n and c.kept_2x == c.n_2x and err <= bound)
+
+    def most_kept(c: Any, err: float) -> bool:  # the issue's bar: >= 99 % of >= w, all >= 2w
+        return bool(c.kept >= 0.99 * c.n and c.kept_2x == c.n_2x and err <= bound)
+
+    for key, rule in (("jls_hazard", all_kept), ("jls_99", most_kept)):
+        near, nbytes = largest(rule)
+        out[f"{key}_bytes"] = nbytes
+        out[f"{key}_near_mm"] = round(near * unit * 1e3, 2)
     return out
 
 
@@ -372,13 +381,15 @@ def _report(rows: list[dict[str, Any]], maps: list[dict[str, Any]], dhs: list[fl
                   "| maps | obstacles >= w kept | >= 2w kept | height-only rule: >= w kept | >= 2w kept "
                   "| worst peak relief loss, m | worst height error / bound | worst position error, cells "
                   "| step cells kept (worst map) | worst step loss, m (slack) | bytes: ours / JPEG-LS at equal "
-                  "hazards, median | maps where ours is smaller |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "hazards, median | maps where ours is smaller | ours / JPEG-LS keeping >= 99 %, median "
+                  "| maps where ours is smaller |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for kind in ("viking", "dem", "mission-like"):
             sel = [m for m in maps if m["kind"] == kind]
             if not sel:
                 continue
             ratio = np.median([m["bytes"] / m["jls_hazard_bytes"] for m in sel])
+            ratio99 = np.median([m["bytes"] / m["jls_99_bytes"] for m in sel])
             lines.append(
                 f"| {kind} ({len(sel)}) | {tot(sel, 'obst', 'kept')} | {tot(sel, 'obst_2w', 'kept_2w')} | "
                 f"{tot(sel, 'obst', 'kept_height_only')} | {tot(sel, 'obst_2w', 'kept_2w_height_only')} | "
@@ -386,12 +397,14 @@ def _report(rows: list[dict[str, Any]], maps: list[dict[str, Any]], dhs: list[fl
                 f"{max(m['max_error_m'] / m['bound_m'] for m in sel):.4f} | "
                 f"{max(m['position_error_cells'] for m in sel):g} | {min(m['step_kept'] for m in sel):.4f} | "
                 f"{max(m['worst_step_loss_m'] for m in sel):.4f} ({max(m['step_slack_m'] for m in sel):.4f}) | "
-                f"{ratio:.2f} | {sum(m['bytes'] < m['jls_hazard_bytes'] for m in sel)}/{len(sel)} |")
+                f"{ratio:.2f} | {sum(m['bytes'] < m['jls_hazard_bytes'] for m in sel)}/{len(sel)} | "
+                f"{ratio99:.2f} | {sum(m['bytes'] < m['jls_99_bytes'] for m in sel)}/{len(sel)} |")
         lines += ["", "## Per map", "",
                   "| map | wheel m | obstacles >= w: in / kept (height-only) | >= 2w: in / kept (height-only) "
                   "| worst peak loss m (height-only) | max error / bound | steps kept | worst step loss m "
                   "| reduction | bytes | height-only bytes | JPEG-LS bytes at equal hazards (NEAR mm) "
-                  "| JPEG-LS at the bound: bytes, >= w kept |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "| JPEG-LS keeping >= 99 % (NEAR mm) | JPEG-LS at the bound: bytes, >= w kept |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for m in maps:
             lines.append(
                 f"| {m['map']} | {m['wheel_m']:.3f} | {m['obst']} / {m['kept']} ({m['kept_height_only']}) | "
@@ -399,6 +412,6 @@ def _report(rows: list[dict[str, Any]], maps: list[dict[str, Any]], dhs: list[fl
                 f"({m['worst_peak_loss_height_only_m']:.3f}) | {m['max_error_m'] / m['bound_m']:.3f} | "
                 f"{m['step_kept']:.3f} | {m['worst_step_loss_m']:.3f} | {m['reduction']:.1f} | {m['bytes']} | "
                 f"{m['bytes_height_only']} | {m['jls_hazard_bytes']} ({m['jls_hazard_near_mm']:g}) | "
-                f"{m['jls_bound_bytes']}, {m['jls_bound_kept']} |")
+                f"{m['jls_99_bytes']} ({m['jls_99_near_mm']:g}) | {m['jls_bound_bytes']}, {m['jls_bound_kept']} |")
     return "\n".join(lines) + "\n"
 
