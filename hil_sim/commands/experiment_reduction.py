@@ -208,7 +208,8 @@ def run(args: argparse.Namespace) -> int:
             "worst_peak_loss_m": round(c.worst_peak_loss_m, 4), "worst_relief_loss_m": round(c.worst_relief_loss_m, 4),
             "relief_loss_bound_m": dec.header.relief_loss_hazard_m,
             "worst_peak_loss_height_only_m": round(co.worst_peak_loss_m, 4),
-            "position_error_cells": c.position_error_cells,
+            "position_error_cells": c.position_error_cells, "new_obstacles": c.new_obstacles,
+            "new_obstacles_height_only": co.new_obstacles,
             "step_cells": c.step_cells, "step_kept": round(c.step_kept, 4),
             "worst_step_loss_m": round(c.worst_step_loss_m, 4), "step_slack_m": dec.header.step_slack_m,
             "step_kept_height_only": round(co.step_kept, 4),
@@ -379,11 +380,12 @@ def _report(rows: list[dict[str, Any]], maps: list[dict[str, Any]], dhs: list[fl
 
         lines += ["", "## Hazard check per map set", "",
                   "| maps | obstacles >= w kept | >= 2w kept | height-only rule: >= w kept | >= 2w kept "
+                  "| obstacles in the decoded map only (height-only) "
                   "| worst peak relief loss, m | worst height error / bound | worst position error, cells "
                   "| step cells kept (worst map) | worst step loss, m (slack) | bytes: ours / JPEG-LS at equal "
                   "hazards, median | maps where ours is smaller | ours / JPEG-LS keeping >= 99 %, median "
                   "| maps where ours is smaller |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for kind in ("viking", "dem", "mission-like"):
             sel = [m for m in maps if m["kind"] == kind]
             if not sel:
@@ -393,6 +395,7 @@ def _report(rows: list[dict[str, Any]], maps: list[dict[str, Any]], dhs: list[fl
             lines.append(
                 f"| {kind} ({len(sel)}) | {tot(sel, 'obst', 'kept')} | {tot(sel, 'obst_2w', 'kept_2w')} | "
                 f"{tot(sel, 'obst', 'kept_height_only')} | {tot(sel, 'obst_2w', 'kept_2w_height_only')} | "
+                f"{sum(m['new_obstacles'] for m in sel)} ({sum(m['new_obstacles_height_only'] for m in sel)}) | "
                 f"{max(m['worst_peak_loss_m'] for m in sel):.4f} | "
                 f"{max(m['max_error_m'] / m['bound_m'] for m in sel):.4f} | "
                 f"{max(m['position_error_cells'] for m in sel):g} | {min(m['step_kept'] for m in sel):.4f} | "

@@ -178,6 +178,7 @@ class ObstacleCheck:
     step_cells: int = 0  # cells whose step (over step_disc_m) >= threshold
     step_kept: float = 1.0  # fraction of them with a decoded step >= threshold
     worst_step_loss_m: float = 0.0  # max over them of step - decoded step
+    new_obstacles: int = 0  # decoded obstacles that touch no input obstacle (conservative, false)
 
 
 def check_obstacles(z: NDArray[np.floating], decoded: NDArray[np.floating], cell_m: float,
@@ -200,6 +201,9 @@ def check_obstacles(z: NDArray[np.floating], decoded: NDArray[np.floating], cell
         "step_cells": int(st0.sum()),
         "step_kept": float((s1[st0] >= threshold_m).mean()) if st0.any() else 1.0,
         "worst_step_loss_m": float((s0 - s1)[st0].max()) if st0.any() else 0.0}
+    lab1, n1 = ndimage.label(haz1, structure=np.ones((3, 3)))
+    touching = np.unique(lab1[haz0 & haz1])
+    steps["new_obstacles"] = int(n1 - np.count_nonzero(touching))
     lab, n = ndimage.label(haz0, structure=np.ones((3, 3)))
     if n == 0:
         return ObstacleCheck(0, 0, 0, 0, 0.0, 0.0, 1.0, 0.0, **steps)
