@@ -1,6 +1,6 @@
 """``safer-hil experiment reduction``: Figures 12 and 13 and the hazard check of the map codec.
 
-ALGORITHM.md §6 (and "Mars terrain statistics"); docs/quadtree.md. Three sets of maps:
+docs/algorithm.md §6 (and "Mars terrain statistics"); docs/quadtree.md. Three sets of maps:
 
 * ``--maps`` Viking-model Mars maps (``hil_sim.world.mars.viking_heightfield``, rock coverage
   ``k`` spread over Viking Lander 1 to 2, 0.07 .. 0.16), each reduced for the wheel diameters
@@ -23,21 +23,19 @@ wheel diameter: the cliff edge) kept, the bytes, and the bytes of JPEG-LS near-l
 (imagecodecs, 1 mm input grid) at the largest NEAR whose decoded map keeps the same
 obstacles and the same height bound (bisection over NEAR), and at the height bound alone.
 
-Writes ``reduction.csv``, ``maps.csv``, ``report.md`` and the figures into ``--out``; with
-``--docs DIR`` also ``DIR/results/reduction.md`` (date, commit, command, tables) and the
-figures ``DIR/img/quadtree_fig12.png``, ``quadtree_fig13.png``, ``quadtree_fig13_cliff.png``.
+Writes ``reduction.csv``, ``maps.csv``, ``report.md`` and the figures into ``--out``, and the
+result file ``docs/results/reduction.md`` with its figures (``hil_sim.results``).
 """
 
 from __future__ import annotations
 
 import argparse
-import shutil
-import subprocess
 import sys
 import time
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
+
+from hil_sim.results import command_line, write_results
 
 HELP = "Figures 12/13 and the hazard check: obstacles kept, bytes against JPEG-LS (issue 25)"
 DEFAULT_TERRAINS = "terrain:0,terrain:1,terrain:2,terrain:3,terrain:4,terrain:5,terrain:6,terrain:7," \
@@ -62,8 +60,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-dem", action="store_true", help="skip the real DEM sample")
     p.add_argument("--config", default=None, help="flight config for [codec], [rover] (default config/fsw.toml)")
     p.add_argument("--out", type=Path, default=Path("out/experiments/reduction"), help="output dir")
-    p.add_argument("--docs", type=Path, default=None,
-                   help="also write DIR/results/reduction.md and DIR/img/quadtree_fig*.png")
 
 
 def jpegls_for_hazards(z: Any, w: float, bound: float, cell_m: float, disc_m: float) -> dict[str, Any]:
@@ -148,17 +144,6 @@ def _mission_like(spec: str, noise_m: float) -> tuple[str, Any, float]:
     return name, z.astype(np.float32), grid.cell
 
 
-def _commit() -> str:
-    try:
-        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                             check=True, timeout=10).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
-                               text=True, check=True, timeout=10).stdout.strip()
-        return rev + ("-dirty" if dirty else "")
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-
-
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -183,7 +168,6 @@ def run(args: argparse.Namespace) -> int:
         print("safer-hil: error: need --maps >= 0, --size >= 8, positive --dh, --noise-m >= 0", file=sys.stderr)
         return 2
     terrains = [t.strip() for t in args.terrains.split(",") if t.strip()]
-    commit = _commit()  # the code that runs, before anything changes the work tree
     args.out.mkdir(parents=True, exist_ok=True)
     height_only = CodecConfig(**{**vars(codec), "hazard": False})
     ks = np.linspace(args.k_range[0], args.k_range[1], max(args.maps, 1))[:args.maps]
@@ -273,20 +257,7 @@ def run(args: argparse.Namespace) -> int:
     report = report_md(rows, per_map, dhs, codec, args)
     (args.out / "report.md").write_text(report)
     print(report)
-    if args.docs is not None:
-        (args.docs / "results").mkdir(parents=True, exist_ok=True)
-        (args.docs / "img").mkdir(parents=True, exist_ok=True)
-        cmd = "safer-hil experiment reduction " + " ".join(sys.argv[3:]) if sys.argv[1:3] == \
-            ["experiment", "reduction"] else "safer-hil experiment reduction (called from Python)"
-        head = (f"# Results: map reduction keeps every hazard (issue 25)\n\n"
-                f"- date: {datetime.now(UTC).strftime('%Y-%m-%d %H:%M UTC')}\n"
-                f"- commit: {commit}\n- command: `{cmd}`\n"
-                f"- wall time: {time.perf_counter() - t0:.0f} s\n\n")
-        (args.docs / "results" / "reduction.md").write_text(head + report.split("\n", 1)[1])
-        for src, dst in (("fig12_reduction.png", "quadtree_fig12.png"), ("fig13_transmitted.png", "quadtree_fig13.png"),
-                         ("fig13_cliff.png", "quadtree_fig13_cliff.png")):
-            if (args.out / src).exists():
-                shutil.copyfile(args.out / src, args.docs / "img" / dst)
-        print(f"wrote {args.docs}/results/reduction.md and the figures in {args.docs}/img")
+    write_results("reduction", command_line("reduction"), report,
+                  [args.out / f for f in ("fig12_reduction.png", "fig13_transmitted.png", "fig13_cliff.png")])
     print(f"wrote {', '.join(str(args.out / f) for f in written)}")
     return 0

@@ -1,4 +1,4 @@
-"""What the wheel must not lose: relief and step hazards of an elevation map (ALGORITHM.md §6).
+"""What the wheel must not lose: relief and step hazards of an elevation map (docs/algorithm.md §6).
 
 The map codec may move every cell by its error bound ``e`` (one wheel diameter), which alone
 lets a boulder be flattened from both sides: its peak sent ``e`` low and the ground around it
