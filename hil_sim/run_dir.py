@@ -1,5 +1,5 @@
 """The run directory of a lockstep mission: does it hold a mission, has it finished, has its
-disk room, and the console copy of the flight's storage events (docs/hil.md, "Full disks").
+disk room, and the console copy of the flight's storage events (docs/hil.md, "Resuming a mission").
 
 Before starting or resuming, :func:`check_room` asks the checkpoint directory for room for
 two checkpoints (twice the newest, at least ``MIN_PROBE_BYTES``; ``fsw.framework.storage.probe``)
