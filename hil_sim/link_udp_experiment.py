@@ -43,6 +43,7 @@ class UdpRunSpec:
     payload_bytes: int
     config: str | None
     timeout_s: float
+    reverse_loss: float = -1.0  # loss of the Cliff-bot's answers alone (-1: the same as loss)
     linger_s: float = 5.0  # the sender answers FINs until none came for this long
     idle_exit_s: float = 5.0  # the relay stops after this long without a datagram
 
@@ -103,6 +104,7 @@ def run_udp(spec: UdpRunSpec) -> dict[str, Any]:
                       str(spec.latency_s), "--loss", str(spec.loss), "--ber", str(spec.ber),
                       "--duplicate", str(spec.duplicate), "--reorder", str(spec.reorder),
                       "--reorder-delay-s", str(spec.reorder_delay_s), "--seed", str(spec.seed),
+                      "--reverse-loss", str(spec.reverse_loss),
                       "--duration", str(spec.timeout_s), "--idle-exit", str(spec.idle_exit_s)]
         if spec.outage is not None:
             relay_args += ["--outage", str(spec.outage[0]), str(spec.outage[1])]
@@ -176,7 +178,7 @@ def sim_ratio(spec: UdpRunSpec, link: LinkConfig, data: bytes) -> float:
     from hil_sim.radio_channel import RadioChannelConfig
 
     ch = RadioChannelConfig(rate_bps=spec.rate_bps, latency_s=spec.latency_s, loss=spec.loss,
-                            ber=spec.ber, duplicate=spec.duplicate, reorder=spec.reorder,
+                            reverse_loss=spec.reverse_loss, ber=spec.ber, duplicate=spec.duplicate, reorder=spec.reorder,
                             reorder_delay_s=spec.reorder_delay_s,
                             outages=(spec.outage,) if spec.outage else ())
     r = run_transfer(data, link, ch, seed=spec.seed)

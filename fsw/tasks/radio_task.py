@@ -54,6 +54,8 @@ class RadioTask(FlightTask):
         EventDef("ACCEPTED", Severity.ACTIVITY_LO, "map {map_id}: the Cliff-bot accepted"),
         EventDef("REJECTED", Severity.WARNING_HI, "map {map_id}: the Cliff-bot rejected it ({reason})"),
         EventDef("DELIVERED", Severity.ACTIVITY_HI, "map {map_id}: {size} B delivered and verified in {seconds} s"),
+        EventDef("REOFFERED", Severity.WARNING_LO, "map {map_id}: offered again as session {session} "
+                 "({reason})", throttle=5),
         EventDef("LINK_LOST", Severity.WARNING_HI, "map {map_id}: no answer for {silent_s} s, transfer failed"),
         EventDef("HASH_MISMATCH_RESEND", Severity.WARNING_LO, "map {map_id}: hash mismatch, resend {attempt}"),
         EventDef("HASH_MISMATCH_GIVE_UP", Severity.WARNING_HI, "map {map_id}: hash mismatch, gave up"),
