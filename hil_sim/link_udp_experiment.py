@@ -178,8 +178,8 @@ def sim_ratio(spec: UdpRunSpec, link: LinkConfig, data: bytes) -> float:
     from hil_sim.radio_channel import RadioChannelConfig
 
     ch = RadioChannelConfig(rate_bps=spec.rate_bps, latency_s=spec.latency_s, loss=spec.loss,
-                            reverse_loss=spec.reverse_loss, ber=spec.ber, duplicate=spec.duplicate, reorder=spec.reorder,
-                            reorder_delay_s=spec.reorder_delay_s,
+                            reverse_loss=spec.reverse_loss, ber=spec.ber, duplicate=spec.duplicate,
+                            reorder=spec.reorder, reorder_delay_s=spec.reorder_delay_s,
                             outages=(spec.outage,) if spec.outage else ())
     r = run_transfer(data, link, ch, seed=spec.seed)
     if r.delivered != data or not r.delivered_s:

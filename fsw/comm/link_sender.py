@@ -273,11 +273,10 @@ class LinkSender:
             self.stats.pings += 1
             return lp.encode(lp.Ping(self.session, self._take_serial(now_s),
                                      self._next_new >= self._n))
-        if not stalled:
-            seq = self._idle_copy()
-            if seq is not None:
-                self.stats.redundant += 1
-                return self._data_packet(seq, now_s)
+        copy = None if stalled else self._idle_copy()
+        if copy is not None:
+            self.stats.redundant += 1
+            return self._data_packet(copy, now_s)
         return None
 
     def _idle_copy(self) -> int | None:
