@@ -44,6 +44,10 @@ class RadioChannelConfig:
         default=(), metadata={"doc": "(start_s, duration_s) windows with no link"})
     queue_bytes: int = param(65536, lo=64, hi=1 << 30, units="B", doc="transmit queue limit")
 
+    def __post_init__(self) -> None:
+        if self.reverse_loss != -1.0 and not 0.0 <= self.reverse_loss <= 1.0:
+            raise ValueError(f"reverse_loss {self.reverse_loss} is neither -1 nor in [0, 1]")
+
 
 @dataclass
 class DirectionStats:

@@ -46,7 +46,7 @@ class LinkConfig:
                                          doc="receiver: STATUS at most this often (PING excepted)")
     keepalive_s: float = param(5.0, lo=0.1, hi=600.0, units="s",
                                doc="receiver: STATUS keep-alive on an idle open session")
-    ping_period_s: float = param(0.5, lo=0.05, hi=60.0, units="s",
+    ping_period_s: float = param(0.25, lo=0.05, hi=60.0, units="s",
                                  doc="sender: PING period while waiting for feedback")
     stall_timeout_s: float = param(5.0, lo=0.1, hi=600.0, units="s",
                                    doc="sender: no feedback this long = outage; pause data, PING")
