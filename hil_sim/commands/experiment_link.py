@@ -194,8 +194,8 @@ def _run_udp(args: argparse.Namespace, link: Any) -> int:
             args.timeout, args.rate_bps, args.latency_s]
     if not all(math.isfinite(x) for x in nums) or not all(0 <= x < 1 for x in
                                                           [*losses, args.ber, args.duplicate, args.reorder]) \
-            or not (args.reverse_loss == -1 or 0 <= args.reverse_loss < 1) or seeds < 1 or args.jobs < 1 or args.bytes < 1 \
-            or args.timeout <= 0 or min(args.outage) < 0:
+            or not (args.reverse_loss == -1 or 0 <= args.reverse_loss < 1) or seeds < 1 or args.jobs < 1 \
+            or args.bytes < 1 or args.timeout <= 0 or min(args.outage) < 0:
         print("safer-hil: error: udp needs finite values, loss/BER/duplicate/reorder in [0, 1), "
               "--reverse-loss -1 or in [0, 1), "
               "--seeds, --jobs, --bytes >= 1, --timeout > 0, --outage >= 0")
