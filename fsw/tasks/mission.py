@@ -1,7 +1,8 @@
 """The mission sequencer (paper Figure 4; ALGORITHM.md §2-§4, §6).
 
     INIT -> PANORAMA -> [SELECT -> MOVE -> POINT -> ACQUIRE] until the end criterion (§3.6)
-         -> TRANSMIT -> DONE;   any state -> SAFE on a driver fault or a geofence refusal.
+         -> TRANSMIT -> DONE;   any state -> SAFE on a driver fault or a geofence refusal;
+         TRANSMIT -> SAFE when the map was not delivered (link failed, rejected, timeout).
 
 Each view is a sequence of requests to the other tasks over the software bus: the motion
 task drives to the rover pose (``goto``), then points the mast; the camera task takes the
@@ -70,6 +71,8 @@ from fsw.tasks.mission_state import STATES, MissionPhase, StepRecord
 from fsw.tasks.sections import MissionConfig
 
 FIX_WAIT_S = 1.0  # longest wait for nav.pose to show a map update's navigation fix
+MAP_ID = 1  # the map the mission sends to the Cliff-bot
+TX_ASK_S = 2.0  # TRANSMIT: the send request is repeated this often until the radio takes it
 
 
 class MissionTask(GroundAwareMission, SafeRecovery):
@@ -96,6 +99,7 @@ class MissionTask(GroundAwareMission, SafeRecovery):
         EventDef("SAFE_FINAL", Severity.WARNING_HI, "mission stays in SAFE: {reason}"),
         EventDef("RETRY", Severity.WARNING_LO, "{what} failed ({reason}); retry {n}", throttle=5),
         EventDef("TRANSMITTED", Severity.ACTIVITY_HI, "map transmission ended: {state}"),
+        EventDef("UNDELIVERED", Severity.WARNING_HI, "map not delivered ({state}); the mission does not end DONE"),
         EventDef("CHECKPOINT_SAVED", Severity.ACTIVITY_LO, "step {step} checkpoint {seq} saved ({kib:.0f} KiB)"),
         EventDef("CHECKPOINT_FAILED", Severity.WARNING_HI, "mission checkpoint failed: {error}", throttle=3),
         EventDef("RESUMED", Severity.ACTIVITY_HI, "mission resumed from checkpoint {seq}: step {step}, {phase}"),
@@ -146,6 +150,8 @@ class MissionTask(GroundAwareMission, SafeRecovery):
         self._safe_since = 0.0
         self._auto_start = self.mcfg.auto_start
         self._republish: MapUpdate | None = None
+        self._tx_since = 0.0  # TRANSMIT: when it began (radio states from before are stale)
+        self._tx_asked = -math.inf  # TRANSMIT: when the send request last went out
         resume_mission(self)
 
     # -- plumbing ---------------------------------------------------------------------------
@@ -362,22 +368,39 @@ class MissionTask(GroundAwareMission, SafeRecovery):
         self.end = reason
         self.event("END", reason=reason)
         if self.mcfg.transmit and "radio" in self.ctx.runtime.tasks:
+            # The request goes out from _state_transmit, never from here: a resumed mission
+            # gets here inside setup(), before the radio task listens.
             self._goto(MissionPhase.TRANSMIT)
-            self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
-            self.publish(RADIO_SEND, RadioSendRequest(map_id=1))
+            self.deadline = self.ctx.clock.now() + self.mcfg.transmit_timeout_s
+            self.radio = None
+            self._tx_since = self.ctx.clock.now()
+            self._tx_asked = -math.inf
         else:
             self._goto(MissionPhase.DONE)
             save(self, MissionPhase.DONE)
 
     def _state_transmit(self) -> None:
+        """Delivery is a fact: the request (with the map itself) is repeated until the radio
+        takes it; DONE only on the Cliff-bot's whole-map acknowledgement, else SAFE."""
         for status in self.radio_box.drain():
-            self.radio = status
+            if status.map_id == MAP_ID and status.time_s >= self._tx_since:
+                self.radio = status
+        now = self.ctx.clock.now()
+        if self.radio is None and now - self._tx_asked >= TX_ASK_S:
+            self._tx_asked = now
+            snapshot = self.latest.snapshot if self.latest is not None else None
+            self.publish(RADIO_SEND, RadioSendRequest(map_id=MAP_ID, snapshot=snapshot))
         finished = self.radio is not None and self.radio.finished
-        if finished or self._timed_out():
-            state = self.radio.state.value if self.radio is not None else None
-            self.event("TRANSMITTED", state=state if not self._timed_out() else "timeout")
+        if not (finished or self._timed_out()):
+            return
+        state = self.radio.state.value if finished and self.radio is not None else "timeout"
+        self.event("TRANSMITTED", state=state)
+        if state == "done":
             self._goto(MissionPhase.DONE)
             save(self, MissionPhase.DONE)
+            return
+        self.event("UNDELIVERED", state=state)
+        self._enter_safe(f"map not delivered ({state})")
 
     def cmd_START(self) -> None:
         if self.state not in (MissionPhase.IDLE, MissionPhase.DONE):

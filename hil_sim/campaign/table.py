@@ -33,11 +33,13 @@ RESULT_COLUMNS = (
 
 def outcome(summary: dict[str, Any]) -> str:
     """Outcome class of a finished mission: an edge violation outranks everything; then DONE,
-    an unrecovered SAFE, or the bench-time limit reached in any other state."""
+    a map not delivered, an unrecovered SAFE, or the bench-time limit reached in any other state."""
     if summary["edge_violations"] > 0:
         return "edge_violation"
     if summary["final_state"] == "DONE":
         return "done"
+    if summary.get("map_delivered") is False:
+        return "undelivered"  # mapping ended, the map never reached the Cliff-bot
     if summary["final_state"] == "SAFE":
         return "safe"
     return "time_limit"
