@@ -50,7 +50,7 @@ class LinkConfig:
                                  doc="sender: PING period while waiting for feedback")
     stall_timeout_s: float = param(5.0, lo=0.1, hi=600.0, units="s",
                                    doc="sender: no feedback this long = outage; pause data, PING")
-    reorder_slack_s: float = param(0.25, lo=0.0, hi=60.0, units="s",
+    reorder_slack_s: float = param(0.5, lo=0.0, hi=60.0, units="s",
                                    doc="sender: a segment is lost once one sent this much later arrived")
     reoffer_s: float = param(10.0, lo=0.1, hi=3600.0, units="s",
                              doc="sender: no feedback this long = the OFFER is repeated (every "
