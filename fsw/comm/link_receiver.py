@@ -55,12 +55,13 @@ class ReceiverState(Enum):
 class LinkReceiver:
     """Receives maps; see the module docstring for the protocol."""
 
-    def __init__(self, cfg: LinkConfig) -> None:
+    def __init__(self, cfg: LinkConfig, pacer: Pacer | None = None) -> None:
         self.cfg = cfg
         self.state = ReceiverState.IDLE
         self.stats = LinkStats()
         self.events = EventSink()
-        self._pacer = Pacer(cfg.rate_bps, cfg.pacing_catchup_s)
+        # ``pacer``: shared with a sender on the same radio (fsw.comm.link_peer)
+        self._pacer = pacer if pacer is not None else Pacer(cfg.rate_bps, cfg.pacing_catchup_s)
         self._offer: lp.Offer | None = None
         self._buf = bytearray()
         self._have = bytearray()

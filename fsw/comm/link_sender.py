@@ -60,13 +60,14 @@ class SenderState(Enum):
 class LinkSender:
     """Sends one map at a time; see the module docstring for the protocol."""
 
-    def __init__(self, cfg: LinkConfig, session: int = 1) -> None:
+    def __init__(self, cfg: LinkConfig, session: int = 1, pacer: Pacer | None = None) -> None:
         self.cfg = cfg
         self.session = session & 0xFFFF
         self.state = SenderState.IDLE
         self.stats = LinkStats()
         self.events = EventSink()
-        self._pacer = Pacer(cfg.rate_bps, cfg.pacing_catchup_s)
+        # ``pacer``: shared with a receiver on the same radio (fsw.comm.link_peer)
+        self._pacer = pacer if pacer is not None else Pacer(cfg.rate_bps, cfg.pacing_catchup_s)
         self._data = b""
         self._map_id = 0
         self._n = 0
