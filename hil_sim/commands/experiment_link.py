@@ -54,7 +54,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", default=None, help="flight config for [link] (default config/fsw.toml)")
     p.add_argument("--out", type=Path, default=Path("out/experiments/link"), help="output dir")
     p.add_argument("--results", type=Path, default=None,
-                   help="udp: also write the report there (e.g. docs/results/link_udp.md)")
+                   help="also write the report there (e.g. docs/results/link_sim.md)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -114,6 +114,10 @@ def run(args: argparse.Namespace) -> int:
     (args.out / "report.md").write_text(report)
     print(report)
     print(f"wrote {args.out}/link_goodput.csv, link_goodput.png, report.md")
+    if args.results is not None:
+        args.results.parent.mkdir(parents=True, exist_ok=True)
+        args.results.write_text(report)
+        print(f"wrote {args.results}")
     return 0
 
 
@@ -155,7 +159,7 @@ def _plot(rows: list[dict[str, Any]], args: argparse.Namespace, path: Path) -> N
 
 def _report(rows: list[dict[str, Any]], args: argparse.Namespace, link: Any) -> str:
     lines = [f"# Map link goodput ({args.rate_bps:g} bit/s, {args.bytes} B, {args.seeds} seeds/point, "
-             f"segment {link.segment_bytes} B, latency {args.latency_s} s)", "",
+             f"segment {link.segment_bytes} B, latency {args.latency_s} s)", "", provenance(), "",
              "| impairment | value | capacity bit/s | goodput median | min | max | median / capacity "
              "| min / capacity | bit-exact |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
