@@ -20,7 +20,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-OUTCOMES = ("done", "edge_violation", "safe", "time_limit", "error", "killed")
+OUTCOMES = ("done", "edge_violation", "undelivered", "safe", "time_limit", "error", "killed")
 WALL_CLOCK_COLUMNS = ("wall_s", "slips", "overruns")
 RESULT_COLUMNS = (
     "outcome", "error", "end_reason", "final_state", "safe_reason", "steps_done", "mapped_cells",
