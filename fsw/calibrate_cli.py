@@ -3,8 +3,8 @@
 Reads the pairs ``LEFT_PREFIX*`` / ``RIGHT_PREFIX*`` of a directory (matched by what follows
 the prefix, e.g. ``left_07.png`` with ``right_07.png``), finds the target of
 ``[calibration]`` in each image, calibrates both cameras and the pair
-(``fsw.core.calibrate``), prints the reprojection RMS of every view (and why a view was
-not used) and writes the OpenCV FileStorage YAML (``fsw.core.stereo_calibration``) that
+(``fsw.core.stereo.calibrate``), prints the reprojection RMS of every view (and why a view was
+not used) and writes the OpenCV FileStorage YAML (``fsw.core.stereo.stereo_calibration``) that
 ``[camera] calibration_file`` names. Bad input (no or unreadable images, unpaired files,
 sizes that differ from each other or from the camera, too few views with the target) is
 one line on stderr and exit status 2.
@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     import cv2
     import numpy as np
 
-    from fsw.core.calibrate import CalibrationInputError, calibrate_stereo
+    from fsw.core.stereo.calibrate import CalibrationInputError, calibrate_stereo
     from fsw.drivers.calibration_file import CalibrationError, save_calibration
     from fsw.framework.params import ConfigError
     from fsw.settings import load_settings

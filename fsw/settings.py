@@ -14,20 +14,20 @@ from pathlib import Path
 
 from fsw.comm.link import LinkConfig
 from fsw.comm.mavlink_config import MavlinkConfig
-from fsw.core.calibrate import CalibrationConfig
-from fsw.core.checkpoint import CheckpointConfig
-from fsw.core.edge import EdgeConfig
-from fsw.core.elevation_map import FusionConfig
-from fsw.core.fiducials import CliffbotLayout
-from fsw.core.geofence import GeofenceConfig
+from fsw.core.codec.mapcodec import CodecConfig
+from fsw.core.edge.edge import EdgeConfig
+from fsw.core.edge.geofence import GeofenceConfig
 from fsw.core.geometry import CameraConfig, MapGridConfig, MastConfig, RoverConfig
-from fsw.core.localization import LocalizationConfig
-from fsw.core.mapcodec import CodecConfig
-from fsw.core.motion_profile import MotionConfig
-from fsw.core.nbv import NbvConfig
-from fsw.core.registration import RegistrationConfig
-from fsw.core.stereo import StereoConfig
-from fsw.core.stereo_calibration import StereoCalibration
+from fsw.core.localization.fiducials import CliffbotLayout
+from fsw.core.localization.localization import LocalizationConfig
+from fsw.core.map.checkpoint import CheckpointConfig
+from fsw.core.map.elevation_map import FusionConfig
+from fsw.core.motion.motion_profile import MotionConfig
+from fsw.core.planning.nbv import NbvConfig
+from fsw.core.registration.registration import RegistrationConfig
+from fsw.core.stereo.calibrate import CalibrationConfig
+from fsw.core.stereo.stereo import StereoConfig
+from fsw.core.stereo.stereo_calibration import StereoCalibration
 from fsw.drivers.calibration_file import CalibrationError, load_calibration
 from fsw.drivers.factory import DevicesConfig
 from fsw.framework.params import ConfigError, build, load_toml

@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from fsw.core.codec.mapcodec import CodecConfig, MapCodecError, decode_map, encode_map
 from fsw.core.geometry import MapGridConfig, RoverConfig
-from fsw.core.mapcodec import CodecConfig, MapCodecError, decode_map, encode_map
 from fsw.framework.params import ConfigError, build, load_toml
 from fsw.settings import DEFAULT_CONFIG
 

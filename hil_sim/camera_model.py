@@ -18,7 +18,7 @@ bench's cameras differ from that nominal pair the way a real head does:
 
 :class:`TrueCameras` is what the renderer draws with (``hil_sim.render``) and what the
 calibration bench compares an estimate with (its :meth:`TrueCameras.truth` is a
-:class:`fsw.core.stereo_calibration.StereoCalibration`). ``model = "ideal"`` gives the
+:class:`fsw.core.stereo.stereo_calibration.StereoCalibration`). ``model = "ideal"`` gives the
 nominal pinhole pair the flight configuration assumes (no calibration needed).
 """
 
@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import CameraConfig, CameraPose
-from fsw.core.stereo_calibration import StereoCalibration
+from fsw.core.stereo.stereo_calibration import StereoCalibration
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]

@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from fsw.comm.link import LinkConfig
 from fsw.comm.link_receiver import LinkReceiver
-from fsw.core.mapcodec import MapCodecError, decode_map
+from fsw.core.codec.mapcodec import MapCodecError, decode_map
 from fsw.drivers.radio import RadioPort
 
 

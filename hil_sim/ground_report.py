@@ -59,7 +59,7 @@ def row_of(s: dict[str, Any], spec: str, seed: int, steps: int) -> dict[str, Any
 
 
 def _registration_counts(records: list[dict[str, Any]]) -> dict[str, int]:
-    """Per-mission counts of the views' registration outcomes (``fsw.core.registration``):
+    """Per-mission counts of the views' registration outcomes (``fsw.core.registration.registration``):
     registered in all six directions, in height and tilt only (the halves disagreed in six),
     not registered (merged with an inflated covariance), and of those or the partial ones how
     many because the overlap's halves disagreed (a false or ambiguous minimum)."""

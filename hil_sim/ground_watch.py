@@ -18,9 +18,9 @@ from typing import Any
 
 import numpy as np
 
-from fsw.core.edge import edge_path
-from fsw.core.geofence import Geofence
-from fsw.core.view_candidates import path_stations
+from fsw.core.edge.edge import edge_path
+from fsw.core.edge.geofence import Geofence
+from fsw.core.planning.view_candidates import path_stations
 from fsw.tasks.mission_ground import fence_on
 
 

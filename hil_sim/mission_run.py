@@ -24,7 +24,7 @@ a move), ``stays`` (steps whose view was taken without the planned move, and why
 ``steps_unused`` and ``steps_unused_reason``,
 ``end_reason``, ``final_state``, ``mapped_cells``, ``frames``, ``sim_s``,
 ``start_attitude_deg`` (true roll, pitch at the start), ``registration`` (per view: status,
-correction, sigmas; ``fsw.core.registration``), ``map_quality`` (RMS, fitted tilt, station
+correction, sigmas; ``fsw.core.registration.registration``), ``map_quality`` (RMS, fitted tilt, station
 seams, 2-sigma fraction, all against the truth in the flight map's datum, the true body
 height at the start, with the ground-datum figures beside them; ``hil_sim.terrain_eval``),
 ``calib_2sigma`` (fraction of mapped cells within 2 sigma of the truth, ALGORITHM.md §4; the
@@ -144,7 +144,7 @@ def has_mission(out: Path) -> bool:
 
 def finished(out: Path) -> bool:
     """True if the mission in ``out`` ended (its newest checkpoint is DONE) and has its report."""
-    from fsw.core.checkpoint import CheckpointConfig
+    from fsw.core.map.checkpoint import CheckpointConfig
 
     state = MapStore(CheckpointConfig(directory=str(out / "checkpoints"))).load_latest().state
     mission = state.get("mission") if state else None

@@ -18,11 +18,11 @@ import math
 import numpy as np
 from shapely.geometry import LineString
 
-from fsw.core.elevation_map import ElevationMap, FusionConfig
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid, MastConfig, camera_pose_from_rover
-from fsw.core.nbv import predicted_visibility
-from fsw.core.visibility import F64, VisibilityConfig, cell_points, in_view, terrain_from_heights
-from fsw.core.visibility_kernel import pv_fast
+from fsw.core.map.elevation_map import ElevationMap, FusionConfig
+from fsw.core.planning.nbv import predicted_visibility
+from fsw.core.planning.visibility import F64, VisibilityConfig, cell_points, in_view, terrain_from_heights
+from fsw.core.planning.visibility_kernel import pv_fast
 
 EDGE_Y_M = -0.8
 

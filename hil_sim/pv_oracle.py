@@ -1,7 +1,7 @@
 """The brute-force P_V oracle (ALGORITHM.md §3.2): exact, slow, and for tests and benches only.
 
 Every target cell's own ray is traversed exactly (supercover) and ``log Phi`` is summed in
-float64, so the flight kernel (``fsw.core.visibility_kernel``, binned rays, float32) can be
+float64, so the flight kernel (``fsw.core.planning.visibility_kernel``, binned rays, float32) can be
 checked against it (``safer-hil bench nbv``, tests). It never runs on the rover.
 """
 
@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import log_ndtr
 
-from fsw.core.visibility import F64, IDX, Terrain
+from fsw.core.planning.visibility import F64, IDX, Terrain
 
 
 def pv_reference(terrain: Terrain, cam_xyz: tuple[float, float, float], iy: IDX, ix: IDX,

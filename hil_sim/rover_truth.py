@@ -2,7 +2,7 @@
 
 Four wheels, each with a drive motor, a steer motor and a shoulder joint (JPL's Sample Return
 Rover). Actuators follow their set-points within rate and acceleration limits; the body moves
-by the least-squares rigid motion of the four wheel contacts (``fsw.core.wheel_kinematics``),
+by the least-squares rigid motion of the four wheel contacts (``fsw.core.motion.wheel_kinematics``),
 so inconsistent steering scrubs instead of breaking the model. The terrain comes from
 ``World.height_at``: the body settles on the four contact heights (height, pitch, roll).
 
@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import RoverConfig, body_rotation
-from fsw.core.wheel_kinematics import body_motion, body_motion_matrix, integrate_pose
+from fsw.core.motion.wheel_kinematics import body_motion, body_motion_matrix, integrate_pose
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]

@@ -1,7 +1,7 @@
 """Stereo against ground-truth disparity: real Middlebury pairs and rendered pairs (issue 14).
 
 Everything here may look at the truth; nothing here is flight code. The flight side is
-``fsw.core.stereo`` and ``fsw.core.stereo_quality`` (ALGORITHM.md §4, §1.2).
+``fsw.core.stereo.stereo`` and ``fsw.core.stereo.stereo_quality`` (ALGORITHM.md §4, §1.2).
 
 **Real pairs.** No package on the index ships the Middlebury 2014 files themselves
 (``stereo-mideval`` holds only a downloader). scikit-image ships one Middlebury 2014 pair with
@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import CameraConfig
-from fsw.core.stereo import StereoConfig, StereoMatcher
+from fsw.core.stereo.stereo import StereoConfig, StereoMatcher
 
 F64 = NDArray[np.float64]
 U8 = NDArray[np.uint8]

@@ -13,7 +13,7 @@ compares them with the truth:
   overlap-weighted mean of its magnitude (and the worst pair, ``seam_max_m``);
 * ``within_2sigma``: fraction of mapped cells with ``|error| <= 2 sigma`` (§1.2 calibrated).
 
-**Datum.** The flight map's height origin is the rover body at the start (``fsw.core.attitude``:
+**Datum.** The flight map's height origin is the rover body at the start (``fsw.core.localization.attitude``:
 the body height over the start is 0; the camera chain puts the body's wheel-contact plane
 there). The worlds zero their heights at the single ground cell under the rover's centre
 (``zero_at_start``), and the bench's true body rests on its four wheel contacts

@@ -98,7 +98,7 @@ def replay(views: list[RecordedView], scenario: str, seed: int, factor: Factor,
     perception task with ``factor`` applied; ``datum_m``: the recorded mission's true body
     height at the start (its summary's ``map_quality.datum_m``), the flight poses' height
     origin. True poses put the map in the world's own heights (datum 0). ``on_register``
-    is called with each view, its ``fsw.core.registration.Registration`` and the pose merged."""
+    is called with each view, its ``fsw.core.registration.registration.Registration`` and the pose merged."""
     from fsw.executive.executive import Executive
     from fsw.framework.clock import SteppedClock
     from hil_sim.camera_model import TrueCameras

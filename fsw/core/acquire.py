@@ -13,10 +13,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.core.elevation_map import ElevationMap, MergeStats
-from fsw.core.localization import PoseEstimate, point_covariance_parts
-from fsw.core.occlusion import LipGuard
-from fsw.core.stereo import StereoMatcher
+from fsw.core.localization.localization import PoseEstimate, point_covariance_parts
+from fsw.core.map.elevation_map import ElevationMap, MergeStats
+from fsw.core.stereo.occlusion import LipGuard
+from fsw.core.stereo.stereo import StereoMatcher
 
 F64 = NDArray[np.float64]
 
@@ -29,7 +29,7 @@ class ViewPoints:
     cov_w: F64  # total: stereo plus pose
     cov_pose_w: F64 | None  # the pose part alone (common to the view), None if pose exact
     valid_px: int  # pixels that produced a point (before any stride)
-    lip_near_w: F64 = field(default_factory=lambda: np.zeros((0, 3)))  # occluding lips (fsw.core.occlusion)
+    lip_near_w: F64 = field(default_factory=lambda: np.zeros((0, 3)))  # occluding lips (fsw.core.stereo.occlusion)
     lip_far_w: F64 = field(default_factory=lambda: np.zeros((0, 3)))
 
 
@@ -58,7 +58,7 @@ def acquire(matcher: StereoMatcher, emap: ElevationMap, left: NDArray[np.uint8],
     """Match, triangulate, transform and fuse one view; record its misses (§4)."""
     pts = view_points(matcher, left, right, camera, stride_px)
     common, keep = pts.cov_pose_w, np.ones(pts.xyz_w.shape[0], bool)
-    if common is not None:  # too near the view's own lips, given its common (pose) error (fsw.core.occlusion)
+    if common is not None:  # too near the view's own lips, given its common (pose) error (fsw.core.stereo.occlusion)
         guard = LipGuard(emap.grid, pts.lip_near_w, pts.lip_far_w, emap.cfg.lip_min_drop_m)
         keep = guard.clear(pts.xyz_w, common, emap.cfg.lip_guard_sigma)
         common = common[keep]

@@ -1,7 +1,7 @@
-"""The stereo calibration file (``fsw.core.stereo_calibration.StereoCalibration`` on disk).
+"""The stereo calibration file (``fsw.core.stereo.stereo_calibration.StereoCalibration`` on disk).
 
 A calibration is what ``safer-fsw calibrate`` estimates from views of a target and what the
-flight software rectifies with (``fsw.core.rectify``): for each camera the matrix ``K`` and
+flight software rectifies with (``fsw.core.stereo.rectify``): for each camera the matrix ``K`` and
 the Brown–Conrady distortion ``D = (k1, k2, p1, p2, k3)`` of OpenCV's model, and the pose of
 the right camera in the left camera's frame, ``x_right = R x_left + T`` (metres). The left
 camera is the reference (``fsw.core.geometry``), so ``T`` is close to ``(-baseline, 0, 0)``.
@@ -29,7 +29,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from fsw.core.stereo_calibration import F64, StereoCalibration
+from fsw.core.stereo.stereo_calibration import F64, StereoCalibration
 
 _SHAPES = {"K1": (3, 3), "D1": (1, 5), "K2": (3, 3), "D2": (1, 5), "R": (3, 3), "T": (3, 1)}
 _RECT_SHAPES = {"R1": (3, 3), "R2": (3, 3), "P1": (3, 4), "P2": (3, 4), "Q": (4, 4)}

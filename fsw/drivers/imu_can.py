@@ -13,7 +13,7 @@ one bus handle serves both, on the rover (socketcan) as on the bench (virtual, u
   rest) as the mean of the fresh samples of the last ``average_s`` and its covariance: the
   sensor's stated bias variance (``sigma_deg``, from its calibration) plus the sample
   variance over the number of samples. While any fault is set it returns None: the caller
-  must then treat the attitude as unknown (``fsw.core.attitude``), never as level.
+  must then treat the attitude as unknown (``fsw.core.localization.attitude``), never as level.
 """
 
 from __future__ import annotations

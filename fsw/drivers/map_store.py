@@ -5,7 +5,7 @@ temporary file in the same directory, which is flushed and fsync'ed, then rename
 final name (``os.replace``) and the directory is fsync'ed, so a power cut leaves either the
 old set of checkpoints or the new one, never a half-written file under a final name. Only
 the newest ``keep`` checkpoints stay. ``load_latest`` tries checkpoints newest first and
-skips any that fail ``fsw.core.checkpoint.decode`` (truncated, corrupt), reporting each one
+skips any that fail ``fsw.core.map.checkpoint.decode`` (truncated, corrupt), reporting each one
 it skipped, so a bad newest checkpoint falls back to the previous one.
 
 A checkpoint may carry the mission state with its map (``save(..., state=...)``: one file,
@@ -27,8 +27,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from fsw.core.checkpoint import CheckpointConfig, CheckpointError, CheckpointMeta, decode, encode
-from fsw.core.elevation_map import ElevationMap, FusionConfig
+from fsw.core.map.checkpoint import CheckpointConfig, CheckpointError, CheckpointMeta, decode, encode
+from fsw.core.map.elevation_map import ElevationMap, FusionConfig
 
 _NAME = re.compile(r"^map_(\d{10})\.ckpt$")
 _TEMP = re.compile(r"^\.map_.*\.tmp$")

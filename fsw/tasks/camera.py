@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import CameraPose, MastConfig, camera_pose_from_rover
-from fsw.core.localization import so3_log
+from fsw.core.localization.localization import so3_log
 from fsw.drivers.camera import CameraReply
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.base import FlightTask

@@ -14,7 +14,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from fsw.core.elevation_map import ElevationMap
+from fsw.core.map.elevation_map import ElevationMap
 
 KNOWN_MIN = 16  # known elevations span 16..255, unknown is 0: the gap survives JPEG noise
 UNKNOWN_BELOW = 8  # the ground reads grey levels below this as unknown

@@ -14,18 +14,18 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.comm.link_sender import SenderState
-from fsw.core.edge import EdgeModel
-from fsw.core.elevation_map import ElevationMap
+from fsw.core.edge.edge import EdgeModel
 from fsw.core.geometry import CameraPose
-from fsw.core.nav_fix import NavFix
-from fsw.core.registration import RegistrationSummary
+from fsw.core.localization.nav_fix import NavFix
+from fsw.core.map.elevation_map import ElevationMap
+from fsw.core.registration.registration import RegistrationSummary
 
 # Topic names (one place, so a typo is an import error, not a silent loss).
 CAMERA_REQUEST = "camera.request"
 CAMERA_FRAME = "camera.frame"
 MAP_UPDATED = "map.updated"
 NAV_POSE = "nav.pose"
-NAV_FIX = "nav.fix"  # a registered view's correction of the rover pose (fsw.core.nav_fix.NavFix)
+NAV_FIX = "nav.fix"  # a registered view's correction of the rover pose (fsw.core.localization.nav_fix.NavFix)
 NBV_REQUEST = "nbv.request"
 NBV_RESULT = "nbv.result"
 RADIO_SEND = "radio.send"
@@ -38,7 +38,7 @@ class NavPose:
     """The rover pose estimate (x, y, yaw) with its 3x3 covariance, and the mast joints; the
     body attitude (roll, pitch, rad), height ``z_m`` and their 3x3 covariance ``att_cov``
     (ALGORITHM.md §5.1; None: level at z = 0, as before the attitude sensor). ``fix_id``: the
-    last navigation fix applied to the pose (``fsw.core.nav_fix``; 0: none), ``fix_seen`` the
+    last navigation fix applied to the pose (``fsw.core.localization.nav_fix``; 0: none), ``fix_seen`` the
     last one received (applied or refused)."""
 
     time_s: float

@@ -8,13 +8,13 @@ Each view is a sequence of requests to the other tasks over the software bus: th
 task drives to the rover pose (``goto``), then points the mast; the camera task takes the
 pair; the perception task merges it and re-fits the edge; the next-view task rates the
 candidates on the new map. A map update whose view corrected the rover pose (a navigation fix,
-``fsw.core.nav_fix``) is acted on once ``nav.pose`` shows the motion task took it (or after
+``fsw.core.localization.nav_fix``) is acted on once ``nav.pose`` shows the motion task took it (or after
 ``FIX_WAIT_S``), so the next step is planned from where the map says the rover stands.
 Before any wheel move the geofence checks the swept footprint against the polygon edge
 (§2): a refusal is an event, never a crossing, and the step's view is taken from where the
 rover stands (``fsw.tasks.mission_ground``). A move over ground the map has not measured
-(``fsw.core.known_ground``) is not taken blind: the step first looks at that ground from
-where the rover stands (``fsw.core.look``, part of the same step; again while a look still
+(``fsw.core.edge.known_ground``) is not taken blind: the step first looks at that ground from
+where the rover stands (``fsw.core.edge.look``, part of the same step; again while a look still
 maps some of it, up to ``max_looks_per_move``); a move still refused is driven part of the
 way the geofence allows (along the drive, or straight ahead or behind). A fitted edge that
 hems the rover in where it stands makes the next step a look at the ground nearest it.
@@ -38,10 +38,10 @@ import time
 from collections import deque
 from typing import ClassVar
 
-from fsw.core.edge import EdgeModel
-from fsw.core.geofence import Geofence
-from fsw.core.nbv import end_reason
-from fsw.core.view_candidates import CandidateView
+from fsw.core.edge.edge import EdgeModel
+from fsw.core.edge.geofence import Geofence
+from fsw.core.planning.nbv import end_reason
+from fsw.core.planning.view_candidates import CandidateView
 from fsw.framework.commands import CommandDef, CommandError
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.messages import (

@@ -1,11 +1,11 @@
 """The mission's moves over unfamiliar ground and its planning inputs (ALGORITHM.md §2, §3;
 issue 13 item 3): a mixin of :class:`fsw.tasks.mission.MissionTask`.
 
-- The geofence (``fsw.core.geofence``) is set on the latest edge fit, the latest map (which
+- The geofence (``fsw.core.edge.geofence``) is set on the latest edge fit, the latest map (which
   ground is known) and the rover's own footprint (safe, known ground) before every check.
 - Planners rate stations with the edge check alone; the mission then checks the whole move.
   A move over unknown ground is preceded by looks at that ground from where the rover stands
-  (``fsw.core.look``), part of the same imaging step: each look aims at the unknown cells of
+  (``fsw.core.edge.look``), part of the same imaging step: each look aims at the unknown cells of
   the whole swept footprint nearest the rover (the turn in place, the drive, the final turn),
   and the rover looks again at what is left while a look still maps some of it, up to
   ``mission.max_looks_per_move`` looks. A move still refused is driven part of the way: the
@@ -32,11 +32,11 @@ import numpy as np
 import shapely
 from numpy.typing import NDArray
 
-from fsw.core.edge import EdgeModel, edge_path
-from fsw.core.geofence import Geofence, Verdict, goto_legs
-from fsw.core.look import look_joints
-from fsw.core.planners import PlannerState
-from fsw.core.view_candidates import CandidateView
+from fsw.core.edge.edge import EdgeModel, edge_path
+from fsw.core.edge.geofence import Geofence, Verdict, goto_legs
+from fsw.core.edge.look import look_joints
+from fsw.core.planning.planners import PlannerState
+from fsw.core.planning.view_candidates import CandidateView
 from fsw.framework.jobs import JobHandle
 from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import MapUpdate, NavPose

@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING
 
-from fsw.core.view_candidates import CandidateView
+from fsw.core.planning.view_candidates import CandidateView
 from fsw.framework.commands import CommandError
 from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import MOTION_REQUEST, MapUpdate, MotionRequest, MotionStatus, MoveOutcome

@@ -30,7 +30,7 @@ import shapely.errors
 from numpy.typing import NDArray
 from shapely.geometry import MultiLineString, MultiPolygon, Polygon
 
-from fsw.core.edge import EdgeModel
+from fsw.core.edge.edge import EdgeModel
 from fsw.core.geometry import MapGrid
 from fsw.tasks.messages import NavPose
 

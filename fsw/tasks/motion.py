@@ -1,7 +1,7 @@
 """Moves the wheels (CAN motor driver) and the mast (serial driver); keeps the odometry.
 
-Thin: the profile is ``fsw.core.motion_profile``, dead reckoning ``fsw.core.odometry``, the
-kinematics ``fsw.core.wheel_kinematics``; the drivers do the bytes. Moves come as ground
+Thin: the profile is ``fsw.core.motion.motion_profile``, dead reckoning ``fsw.core.localization.odometry``, the
+kinematics ``fsw.core.motion.wheel_kinematics``; the drivers do the bytes. Moves come as ground
 commands (DRIVE, TURN, GOTO, POINT_MAST, STOP, ESTOP, CLEAR_FAULTS, ...) or as
 ``MotionRequest`` messages on ``motion.request`` (the mission sequencer; ALGORITHM.md §3:
 "move (mast + wheels)"), each answered once on ``motion.status`` (a ``MoveOutcome``). A
@@ -20,11 +20,11 @@ from typing import ClassVar, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.core import motion_profile as mp
-from fsw.core import wheel_kinematics as wk
-from fsw.core.attitude import AttitudeTracker
-from fsw.core.nav_fix import NavFix, apply_to_body
-from fsw.core.odometry import Odometry
+from fsw.core.localization.attitude import AttitudeTracker
+from fsw.core.localization.nav_fix import NavFix, apply_to_body
+from fsw.core.localization.odometry import Odometry
+from fsw.core.motion import motion_profile as mp
+from fsw.core.motion import wheel_kinematics as wk
 from fsw.drivers import can_motors, mast_serial
 from fsw.framework.commands import CommandError
 from fsw.tasks import motion_dictionary as md
@@ -111,7 +111,7 @@ class MotionTask(FlightTask):
         self._publish(now, mast)
 
     def _apply_fix(self, fix: NavFix) -> None:
-        """A registered view's correction of the pose (ALGORITHM.md §5.1, ``fsw.core.nav_fix``),
+        """A registered view's correction of the pose (ALGORITHM.md §5.1, ``fsw.core.localization.nav_fix``),
         between moves; only on the frame it was found in (``base_id``), else refused."""
         self.fix_seen = max(self.fix_seen, fix.fix_id)
         if fix.base_id != self.fix_id or not fix.valid():

@@ -18,7 +18,7 @@ import numpy as np
 
 
 def checkpoint_state(self: Any) -> dict[str, Any]:
-    """The odometry (``fsw.core.odometry.Odometry.state``), move counters, held steering and
+    """The odometry (``fsw.core.localization.odometry.Odometry.state``), move counters, held steering and
     motor set-points of the motion task."""
     motors = self._motors()
     a = self.attitude
@@ -34,7 +34,7 @@ def restore_state(self: Any, st: dict[str, Any]) -> None:
     x, y, yaw = (float(v) for v in st["pose"])
     self.odo.restore((x, y, yaw), float(st["path_m"]), float(st["turned_rad"]), float(st["yaw_acc"]),
                      None if last is None else np.asarray(last, dtype=np.float64).reshape(4))
-    if "base_cov" in st:  # the last navigation fix (fsw.core.nav_fix)
+    if "base_cov" in st:  # the last navigation fix (fsw.core.localization.nav_fix)
         lever = st.get("lever", (0.0, 0.0))
         self.odo.restore_correction(np.asarray(st["base_cov"], dtype=np.float64), float(st["path0"]),
                                     float(st["turned0"]), (float(lever[0]), float(lever[1])))

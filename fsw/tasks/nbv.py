@@ -7,8 +7,8 @@ chosen ``CandidateView`` (or ``None``: nothing reachable worth doing) on ``nbv.r
 The edge search (ALGORITHM.md §2: the edge is found before the rover drives along it): while
 no edge is fitted (the views from the start did not reach the drop), there is no edge path for
 the raster baselines (Methods 1, 2) to follow; their views are then chosen by expected new
-information (Method 4's rating, ``fsw.core.info_planners``) among the edge search's stations
-(``fsw.core.view_candidates.search_stations_steps``), and the raster begins once an edge is
+information (Method 4's rating, ``fsw.core.planning.info_planners``) among the edge search's stations
+(``fsw.core.planning.view_candidates.search_stations_steps``), and the raster begins once an edge is
 fitted. Methods 3-5 and the oracle search those stations themselves.
 """
 
@@ -17,11 +17,11 @@ from __future__ import annotations
 import math
 from typing import ClassVar
 
-from fsw.core.info_planners import InformationPlanner
-from fsw.core.methods import make_planner
-from fsw.core.planner_state import planner_state, restore_planner
-from fsw.core.planners import Planner, PlannerState, SearchGen
-from fsw.core.view_candidates import CandidateView
+from fsw.core.planning.info_planners import InformationPlanner
+from fsw.core.planning.methods import make_planner
+from fsw.core.planning.planner_state import planner_state, restore_planner
+from fsw.core.planning.planners import Planner, PlannerState, SearchGen
+from fsw.core.planning.view_candidates import CandidateView
 from fsw.framework.jobs import JobHandle
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.base import FlightTask
@@ -61,7 +61,7 @@ class NbvTask(FlightTask):
         restore_into(self)  # a resumed mission (fsw.tasks.mission_state)
 
     def checkpoint_state(self) -> JsonDict:
-        """The search count and the planner's plan (``fsw.core.planner_state``)."""
+        """The search count and the planner's plan (``fsw.core.planning.planner_state``)."""
         planner = None if self.planner is None else planner_state(self.planner)
         return {"searches": self.searches, "planner": planner or self._planner_restore}
 

@@ -2,7 +2,7 @@
 
 A ``CameraFrame`` from the camera task becomes a slack job (ALGORITHM.md §4): the view's
 P_V on the map before the merge (§3.1, for the misses), rectification of the raw pair when
-the camera has a calibration file (``fsw.core.rectify``: maps built once here at start-up,
+the camera has a calibration file (``fsw.core.stereo.rectify``: maps built once here at start-up,
 the pair remapped in row bands), stereo matching, triangulation with covariance,
 registration of the view against the map (§5.1: its pose corrected, or its pose covariance
 inflated when it cannot be registered), propagation of the camera pose covariance (§1.2),
@@ -27,26 +27,26 @@ from typing import ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.core.edge import EdgeModel, edge_cells_steps, fit_polygon_steps
-from fsw.core.elevation_map import ElevationMap
+from fsw.core.edge.edge import EdgeModel, edge_cells_steps, fit_polygon_steps
 from fsw.core.geometry import CameraPose, MapGrid
-from fsw.core.localization import point_covariance_parts
-from fsw.core.nav_fix import NavFix
-from fsw.core.nbv import predicted_visibility_steps
-from fsw.core.occlusion import LipGuard
-from fsw.core.rectify import Rectifier
-from fsw.core.reference_frames import ReferenceFrames
-from fsw.core.registration import (
+from fsw.core.localization.localization import point_covariance_parts
+from fsw.core.localization.nav_fix import NavFix
+from fsw.core.map.elevation_map import ElevationMap
+from fsw.core.map.reference_frames import ReferenceFrames
+from fsw.core.planning.nbv import predicted_visibility_steps
+from fsw.core.registration.registration import (
     Registration,
     RegistrationSummary,
     apply_correction,
     reference_cells,
     register_steps,
 )
-from fsw.core.station_chain import StationChain
+from fsw.core.registration.station_chain import StationChain
 from fsw.core.steps import run_to_end
-from fsw.core.stereo import StereoMatcher, StereoPoints
-from fsw.core.stereo_calibration import offset_covariance
+from fsw.core.stereo.occlusion import LipGuard
+from fsw.core.stereo.rectify import Rectifier
+from fsw.core.stereo.stereo import StereoMatcher, StereoPoints
+from fsw.core.stereo.stereo_calibration import offset_covariance
 from fsw.drivers.map_store import MapStore
 from fsw.framework.commands import CommandDef, CommandError
 from fsw.framework.jobs import JobHandle
@@ -154,8 +154,8 @@ class PerceptionTask(FlightTask):
         self.last_update: MapUpdate | None = None
         self.unregistered = 0
         self.partial = 0  # views registered in height and tilt only
-        self.chain = StationChain()  # the registered stations (fsw.core.station_chain)
-        self.sources = ReferenceFrames(self.map.grid.shape)  # each cell's view (fsw.core.reference_frames)
+        self.chain = StationChain()  # the registered stations (fsw.core.registration.station_chain)
+        self.sources = ReferenceFrames(self.map.grid.shape)  # each cell's view (fsw.core.map.reference_frames)
         self.registrations: deque[RegistrationSummary] = deque(maxlen=1000)  # per view (mission summary)
         self.store = self.ctx.res.map_store
         self._last_checkpoint_s = self.ctx.clock.now()
@@ -255,7 +255,7 @@ class PerceptionTask(FlightTask):
         self, fr: CameraFrame, pts: StereoPoints
     ) -> Generator[None, None, tuple[Registration, CameraPose, NDArray[np.float64], NavFix | None]]:
         """Align the view to the map (§5.1): the corrected pose, the covariance to merge with
-        and the navigation fix to feed back (``fsw.core.station_chain``: where the fit starts,
+        and the navigation fix to feed back (``fsw.core.registration.station_chain``: where the fit starts,
         the frame error, the feedback)."""
         rcfg = self.ctx.cfg.registration
         if not rcfg.enabled:
@@ -285,7 +285,7 @@ class PerceptionTask(FlightTask):
             return
         up: MapUpdate = h.result
         self.last_update = up
-        if up.nav_fix is not None:  # the motion task corrects the rover's pose (fsw.core.nav_fix)
+        if up.nav_fix is not None:  # the motion task corrects the rover's pose (fsw.core.localization.nav_fix)
             self.publish(NAV_FIX, up.nav_fix)
         self.publish(MAP_UPDATED, up)
         self.tlm("mapped_cells", up.mapped_cells)

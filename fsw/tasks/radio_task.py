@@ -4,11 +4,12 @@ Thin (ARCHITECTURE.md, tasks). It keeps the latest map snapshot (``map.updated``
 ``SEND_MAP`` command or a :class:`RadioSendRequest` on ``radio.send`` (the mission's last
 step, which carries its own snapshot, so a resumed mission needs no ``map.updated``; a
 repeat of the request for the map in hand changes nothing) encodes that snapshot in a slack
-job (quadtree + codec, ``fsw.core.mapcodec``, the wheel diameter from ``[rover]``) and hands
-the container to the sans-I/O :class:`~fsw.comm.link_sender.LinkSender`. Every activation it feeds the radio's datagrams
-to the link and sends what the link's pacing allows, never more than its byte budget
-(``[link] rate_bps`` over two activation periods), then reports the link's events and
-counters. The radio is the ``radio_port`` resource, or ``[link] transport`` opened here.
+job (quadtree + codec, ``fsw.core.codec.mapcodec``, the wheel diameter from ``[rover]``) and
+hands the container to the sans-I/O :class:`~fsw.comm.link_sender.LinkSender`. Every
+activation it feeds the radio's datagrams to the link and sends what the link's pacing
+allows, never more than its byte budget (``[link] rate_bps`` over two activation periods),
+then reports the link's events and counters. The radio is the ``radio_port`` resource, or
+``[link] transport`` opened here.
 """
 
 from __future__ import annotations
@@ -20,8 +21,8 @@ import numpy as np
 
 from fsw.comm.link_packets import DATA_OVERHEAD
 from fsw.comm.link_sender import LinkSender, SenderState
-from fsw.core.elevation_map import ElevationMap
-from fsw.core.mapcodec import EncodedMap, encode_map
+from fsw.core.codec.mapcodec import EncodedMap, encode_map
+from fsw.core.map.elevation_map import ElevationMap
 from fsw.drivers.radio import RadioPort, open_radio
 from fsw.framework.commands import Arg, CommandDef
 from fsw.framework.jobs import JobHandle

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from fsw.core.planners import METHODS
+from fsw.core.planning.planners import METHODS
 from fsw.framework.params import param
 
 

@@ -1,13 +1,13 @@
 """``safer-hil bench calibration``: how well the calibration and rectification recover the truth.
 
 Renders ``--views`` pairs of the target with the bench's true cameras (``hil_sim.world.target``),
-calibrates from them exactly as ``safer-fsw calibrate`` does (``fsw.core.calibrate``) and
+calibrates from them exactly as ``safer-fsw calibrate`` does (``fsw.core.stereo.calibrate``) and
 prints, against the renderer's truth (``hil_sim.camera_model.TrueCameras.truth``):
   * the stereo reprojection RMS and each view's (px), the views rejected;
   * focal lengths (%), principal points (px), distortion, baseline (%), rotation (deg);
   * the vertical disparity of matched features after rectification (px RMS): the target's
     corners detected again in the *rectified* images of ``--holdout`` new pairs (poses not
-    used by the calibration), through the flight software's own ``fsw.core.rectify``;
+    used by the calibration), through the flight software's own ``fsw.core.stereo.rectify``;
   * the range error of those corners triangulated through the rectification (the flight
     software's ``f``, ``B``, ``R1``) against their true positions, %;
   * rectification ms per 640x480 pair (two ``cv2.remap`` with ``CV_16SC2`` maps).
@@ -103,8 +103,8 @@ def run(args: argparse.Namespace) -> int:
     import cv2
     import numpy as np
 
-    from fsw.core.calibrate import CalibrationInputError, TargetDetector, calibrate_stereo
-    from fsw.core.rectify import Rectifier
+    from fsw.core.stereo.calibrate import CalibrationInputError, TargetDetector, calibrate_stereo
+    from fsw.core.stereo.rectify import Rectifier
     from fsw.drivers.calibration_file import save_calibration
     from fsw.framework.params import ConfigError
     from hil_sim.world.target import render_target_pairs, target_poses

@@ -29,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from fsw.core.mapcodec import CodecConfig, decode_map, encode_map
+    from fsw.core.codec.mapcodec import CodecConfig, decode_map, encode_map
     from fsw.framework.params import ConfigError, build, load_toml
     from fsw.settings import DEFAULT_CONFIG
     from hil_sim.world.mars import viking_heightfield

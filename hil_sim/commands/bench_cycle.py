@@ -72,14 +72,14 @@ def _cycle(cfg: Any, world: Any, n: int, repeats: int, seed: int) -> dict[str, A
     import numpy as np
 
     from fsw.core.acquire import view_points
-    from fsw.core.edge import edge_cells, fit_polygon
+    from fsw.core.edge.edge import edge_cells, fit_polygon
     from fsw.core.geometry import MapGrid
-    from fsw.core.info_planners import InformationPlanner
-    from fsw.core.localization import PoseEstimate
-    from fsw.core.nbv import predicted_visibility
-    from fsw.core.planners import PlannerState
-    from fsw.core.rectify import Rectifier
-    from fsw.core.stereo import StereoMatcher
+    from fsw.core.localization.localization import PoseEstimate
+    from fsw.core.planning.info_planners import InformationPlanner
+    from fsw.core.planning.nbv import predicted_visibility
+    from fsw.core.planning.planners import PlannerState
+    from fsw.core.stereo.rectify import Rectifier
+    from fsw.core.stereo.stereo import StereoMatcher
     from fsw.settings import load_stereo_calibration
     from fsw.tasks.perception import roi_mapped_fraction
     from hil_sim import nbv_scene

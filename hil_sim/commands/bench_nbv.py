@@ -57,18 +57,18 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from fsw.core.geometry import MapGrid
-    from fsw.core.info_planners import InformationPlanner
-    from fsw.core.nbv import info_n_max, predicted_visibility, rate_station
-    from fsw.core.planners import PlannerState
-    from fsw.core.view_candidates import CandidateView, joint_grid, path_stations
-    from fsw.core.visibility import (
+    from fsw.core.planning.info_planners import InformationPlanner
+    from fsw.core.planning.nbv import info_n_max, predicted_visibility, rate_station
+    from fsw.core.planning.planners import PlannerState
+    from fsw.core.planning.view_candidates import CandidateView, joint_grid, path_stations
+    from fsw.core.planning.visibility import (
         cell_points,
         horizontal_reach_m,
         in_view,
         rays_for_cell,
         terrain_from_map,
     )
-    from fsw.core.visibility_kernel import pv_fast
+    from fsw.core.planning.visibility_kernel import pv_fast
     from fsw.framework.params import ConfigError
     from fsw.settings import load_settings
     from hil_sim import nbv_scene

@@ -62,14 +62,14 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from fsw.core import checkpoint
     from fsw.core.acquire import view_points
-    from fsw.core.edge import edge_cells, edge_path, fit_line, fit_polygon
-    from fsw.core.elevation_map import ElevationMap
+    from fsw.core.edge.edge import edge_cells, edge_path, fit_line, fit_polygon
     from fsw.core.geometry import MapGrid
-    from fsw.core.localization import PoseEstimate
-    from fsw.core.rectify import Rectifier
-    from fsw.core.stereo import StereoMatcher
+    from fsw.core.localization.localization import PoseEstimate
+    from fsw.core.map import checkpoint
+    from fsw.core.map.elevation_map import ElevationMap
+    from fsw.core.stereo.rectify import Rectifier
+    from fsw.core.stereo.stereo import StereoMatcher
     from fsw.drivers.map_store import MapStore
     from fsw.framework.params import ConfigError
     from fsw.settings import DEFAULT_CONFIG, load_settings, load_stereo_calibration
@@ -192,7 +192,7 @@ def _slice_ms(matcher, left, right, repeats: int) -> list[float]:  # type: ignor
 
 def _pair_points(rend, matcher, pose, exact):  # type: ignore[no-untyped-def]
     from fsw.core.acquire import view_points
-    from fsw.core.localization import PoseEstimate
+    from fsw.core.localization.localization import PoseEstimate
 
     left, right = rend.render(pose)
     pts = view_points(matcher, left, right, PoseEstimate(pose, exact))
@@ -206,9 +206,9 @@ def _calibration(args, cfg, world, grid, rend, matcher, exact) -> int:  # type: 
 
     import numpy as np
 
-    from fsw.core.elevation_map import ElevationMap
     from fsw.core.geometry import CameraPose
-    from fsw.core.localization import point_covariance_parts, so3_exp
+    from fsw.core.localization.localization import point_covariance_parts, so3_exp
+    from fsw.core.map.elevation_map import ElevationMap
     from hil_sim.perception_eval import (
         calibration,
         calibration_figure,

@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from fsw.core.mapcodec import CodecConfig, encode_map
+    from fsw.core.codec.mapcodec import CodecConfig, encode_map
     from fsw.framework.params import ConfigError, build, load_toml
     from fsw.settings import DEFAULT_CONFIG
     from hil_sim.cliffbot_receiver import write_figure13
@@ -137,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
                              **{f"{n}": b for n, (b, _) in base.items()},
                              **{f"{n}_err_m": err for n, (_, err) in base.items()}})
                 if fig13 is None:
-                    from fsw.core.mapcodec import decode_map
+                    from fsw.core.codec.mapcodec import decode_map
 
                     fig13 = (z, decode_map(enc.data).z, enc, dh)
         print(f"map {i + 1}/{args.maps} k={k:.3f} relief={relief:.2f} m "

@@ -68,7 +68,7 @@ def shown_step(log: Path) -> int:
 
 def newest(out: Path) -> Any:
     """The newest good checkpoint of the run in ``out`` (``LoadResult``)."""
-    from fsw.core.checkpoint import CheckpointConfig
+    from fsw.core.map.checkpoint import CheckpointConfig
     from fsw.drivers.map_store import MapStore
 
     return MapStore(CheckpointConfig(directory=str(out / "checkpoints"))).load_latest()

@@ -1,7 +1,7 @@
 """The calibration target as a scene element: a printed board held in front of the cameras.
 
 The board is the one ``[calibration]`` of config/fsw.toml describes (ChArUco or chessboard,
-``fsw.core.calibrate.CalibrationConfig``), printed on a flat plate with a white margin of
+``fsw.core.stereo.calibrate.CalibrationConfig``), printed on a flat plate with a white margin of
 half a square, drawn by the renderer as a supersampled planar quad (``hil_sim.render``;
 texels of ``1/TEXELS_PER_SQUARE`` of a square, nearest-texel, 16 rays per pixel).
 
@@ -20,8 +20,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.core.calibrate import CalibrationConfig
 from fsw.core.geometry import CameraPose, camera_pose_from_rover
+from fsw.core.stereo.calibrate import CalibrationConfig
 from fsw.settings import FswConfig
 from hil_sim.camera_model import TrueCameras
 from hil_sim.world.cliffbot import MARKER_ALBEDO, Quad

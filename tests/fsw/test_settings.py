@@ -6,13 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fsw.core.checkpoint import CheckpointConfig
-from fsw.core.edge import EdgeConfig
-from fsw.core.elevation_map import FusionConfig
-from fsw.core.fiducials import CliffbotLayout
-from fsw.core.geofence import GeofenceConfig
-from fsw.core.localization import LocalizationConfig
-from fsw.core.stereo import StereoConfig
+from fsw.core.edge.edge import EdgeConfig
+from fsw.core.edge.geofence import GeofenceConfig
+from fsw.core.localization.fiducials import CliffbotLayout
+from fsw.core.localization.localization import LocalizationConfig
+from fsw.core.map.checkpoint import CheckpointConfig
+from fsw.core.map.elevation_map import FusionConfig
+from fsw.core.stereo.stereo import StereoConfig
 from fsw.framework.params import ConfigError, build
 from fsw.settings import load_settings
 from hil_sim.world.cliffbot import build_cliffbot

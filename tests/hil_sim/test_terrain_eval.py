@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from hil_helpers import cfg
 
-from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import MapGrid
+from fsw.core.map.elevation_map import ElevationMap
 from hil_sim.rover_truth import RoverTruth, RoverTruthConfig
 from hil_sim.terrain_eval import map_quality
 

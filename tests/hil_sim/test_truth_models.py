@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from hil_helpers import cfg
 
-from fsw.core import wheel_kinematics as wk
+from fsw.core.motion import wheel_kinematics as wk
 from hil_sim.mast_truth import MastTruth, MastTruthConfig
 from hil_sim.rover_truth import FlatTerrain, RoverTruth, RoverTruthConfig
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from fsw.core.geometry import CameraPose, camera_pose_from_rover
-from fsw.core.localization import so3_exp
+from fsw.core.localization.localization import so3_exp
 from fsw.settings import load_settings
 from hil_sim.camera_model import TrueCameras
 from hil_sim.render import StereoRenderer

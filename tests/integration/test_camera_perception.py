@@ -63,8 +63,8 @@ def _disparity_error_std(world: Any, cfg: Any, cams: TrueCameras, pose: Any) -> 
     """Std of the matched disparity minus the true one (|error| < 1 px) of a pair of
     ``cams`` at ``pose``, rectified with their TRUE calibration unless they are ideal."""
     from fsw.core.geometry import CameraPose
-    from fsw.core.rectify import Rectifier
-    from fsw.core.stereo import StereoMatcher
+    from fsw.core.stereo.rectify import Rectifier
+    from fsw.core.stereo.stereo import StereoMatcher
 
     left, right = StereoRenderer(world, cfg.camera, world.noise_sigma, 0, cameras=cams).render(pose)
     rect = None if cams.ideal else Rectifier(cams.truth(), cfg.camera.K)

@@ -1,4 +1,4 @@
-"""The occluding-lip guard end to end (fsw.core.occlusion via fsw.core.acquire): rendered views of
+"""The occluding-lip guard end to end (fsw.core.stereo.occlusion via fsw.core.acquire): rendered views of
 a generated terrain's cliff edge, merged with a pose that is off by a drive's dead-reckoning
 error (and says so in its covariance), put the plateau's height on the occluded face past the
 lip; with the guard they do not (docs/perception.md, "Occluding lips")."""
@@ -13,10 +13,10 @@ import pytest
 from scipy import ndimage
 
 from fsw.core.acquire import acquire
-from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import CameraPose, MapGrid
-from fsw.core.localization import PoseEstimate, so3_exp
-from fsw.core.stereo import StereoMatcher
+from fsw.core.localization.localization import PoseEstimate, so3_exp
+from fsw.core.map.elevation_map import ElevationMap
+from fsw.core.stereo.stereo import StereoMatcher
 from fsw.settings import load_settings
 from hil_sim.perception_eval import edge_pass_poses
 from hil_sim.render import StereoRenderer

@@ -13,7 +13,7 @@ import numpy as np
 
 from fsw.comm.link import LinkConfig
 from fsw.comm.link_sender import LinkSender, SenderState
-from fsw.core.mapcodec import encode_map
+from fsw.core.codec.mapcodec import encode_map
 from fsw.drivers.byte_port import UdpPort
 from fsw.drivers.resources import Resources
 from fsw.executive.executive import Executive

@@ -103,7 +103,7 @@ def test_resume_refusals_are_one_line_and_exit_2(tmp_path: Path, capsys: pytest.
 
 
 def test_layers_cover_the_checkpoint_format() -> None:
-    from fsw.core import checkpoint
+    from fsw.core.map import checkpoint
 
     assert tuple(n for n, _ in checkpoint._ARRAYS) == LAYERS
 

@@ -16,12 +16,12 @@ import pytest
 from scipy import ndimage
 
 from fsw.core.acquire import acquire, view_points
-from fsw.core.edge import edge_cells, fit_line, fit_polygon
-from fsw.core.elevation_map import ElevationMap
-from fsw.core.fiducials import CliffbotLocalizer
+from fsw.core.edge.edge import edge_cells, fit_line, fit_polygon
 from fsw.core.geometry import CameraPose, MapGrid, camera_pose_from_rover
-from fsw.core.localization import PoseEstimate, so3_exp, so3_log
-from fsw.core.stereo import StereoMatcher
+from fsw.core.localization.fiducials import CliffbotLocalizer
+from fsw.core.localization.localization import PoseEstimate, so3_exp, so3_log
+from fsw.core.map.elevation_map import ElevationMap
+from fsw.core.stereo.stereo import StereoMatcher
 from fsw.settings import FswConfig, load_settings
 from hil_sim.perception_eval import (
     PERCEPTION_LAB,
@@ -128,7 +128,7 @@ def test_pose_covariance_is_propagated_honestly(cfg, lab, ten_views) -> None:
     rng = np.random.default_rng(7)
     inside, total = 0, 0
     r = cell_range_m(grid, truth, pose)
-    from fsw.core.localization import point_covariance_parts
+    from fsw.core.localization.localization import point_covariance_parts
     for _ in range(25):
         dx = np.sqrt(np.diag(S)) * rng.normal(size=6)
         est = CameraPose(so3_exp(dx[:3]) @ pose.R, pose.t + dx[3:])

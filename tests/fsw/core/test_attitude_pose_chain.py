@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from fsw.core.attitude import AttitudeTracker
 from fsw.core.geometry import MastConfig, body_rotation, camera_pose_from_rover
-from fsw.core.localization import so3_exp, so3_log
+from fsw.core.localization.attitude import AttitudeTracker
+from fsw.core.localization.localization import so3_exp, so3_log
 from fsw.tasks.camera import camera_pose_covariance
 from fsw.tasks.messages import NavPose
 

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from fsw.cli import main as fsw_main
-from fsw.core.calibrate import CalibrationConfig, CalibrationInputError, TargetDetector, calibrate_stereo
-from fsw.core.rectify import Rectifier
-from fsw.core.stereo_calibration import disparity_offset_px, offset_covariance
+from fsw.core.stereo.calibrate import CalibrationConfig, CalibrationInputError, TargetDetector, calibrate_stereo
+from fsw.core.stereo.rectify import Rectifier
+from fsw.core.stereo.stereo_calibration import disparity_offset_px, offset_covariance
 from fsw.drivers.calibration_file import load_calibration
 from fsw.settings import load_settings
 from hil_sim.camera_model import TrueCameras

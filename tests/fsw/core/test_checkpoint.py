@@ -10,9 +10,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fsw.core.checkpoint import CheckpointConfig, CheckpointError, decode, encode
-from fsw.core.elevation_map import ElevationMap, FusionConfig
 from fsw.core.geometry import MapGrid
+from fsw.core.map.checkpoint import CheckpointConfig, CheckpointError, decode, encode
+from fsw.core.map.elevation_map import ElevationMap, FusionConfig
 from fsw.drivers.map_store import MapStore
 
 GRID = MapGrid(-0.5, -6.5, 0.03, 64, 48)

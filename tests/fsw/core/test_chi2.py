@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 from scipy.stats import chi2
 
-from fsw.core.registration_stats import chi2_quantile, chi2_sf
+from fsw.core.registration.registration_stats import chi2_quantile, chi2_sf
 
 
 @pytest.mark.parametrize("dof", range(1, 13))

@@ -1,4 +1,4 @@
-"""Coarse-to-fine next-view search (fsw/core/coarse_rating.py; issue 15 item 1)."""
+"""Coarse-to-fine next-view search (fsw/core/planning/coarse_rating.py; issue 15 item 1)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from fsw.core.coarse_rating import (
+from fsw.core.geometry import CameraConfig, MapGrid, MastConfig
+from fsw.core.planning.coarse_rating import (
     coarse_factor,
     coarse_visibility,
     coarsen_terrain,
@@ -16,12 +17,11 @@ from fsw.core.coarse_rating import (
     rate_station_coarse_steps,
     rate_views_steps,
 )
-from fsw.core.geometry import CameraConfig, MapGrid, MastConfig
-from fsw.core.info_planners import InformationPlanner
-from fsw.core.nbv import NbvConfig, info_n_max, rate_station
-from fsw.core.planners import PlannerState
+from fsw.core.planning.info_planners import InformationPlanner
+from fsw.core.planning.nbv import NbvConfig, info_n_max, rate_station
+from fsw.core.planning.planners import PlannerState
+from fsw.core.planning.visibility import Terrain, VisibilityConfig, rays_for_cell, terrain_from_map
 from fsw.core.steps import run_to_end
-from fsw.core.visibility import Terrain, VisibilityConfig, rays_for_cell, terrain_from_map
 from hil_sim.nbv_scene import edge_offset_path, panorama_map, synthetic_edge, synthetic_terrain
 
 GRID = MapGrid(x0=-0.5, y0=-3.5, cell=0.04, nx=110, ny=100)

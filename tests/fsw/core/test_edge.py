@@ -11,7 +11,7 @@ import shapely
 from shapely.geometry import LineString, MultiLineString, Polygon
 from shapely.geometry.polygon import orient
 
-from fsw.core.edge import (
+from fsw.core.edge.edge import (
     EdgeConfig,
     EdgeModel,
     _runs,
@@ -20,10 +20,10 @@ from fsw.core.edge import (
     fit_line,
     fit_polygon,
 )
-from fsw.core.edge_ring import densify_ring
-from fsw.core.elevation_map import ElevationMap
-from fsw.core.geofence import Geofence, GeofenceConfig
+from fsw.core.edge.edge_ring import densify_ring
+from fsw.core.edge.geofence import Geofence, GeofenceConfig
 from fsw.core.geometry import MapGrid, MapGridConfig, RoverConfig
+from fsw.core.map.elevation_map import ElevationMap
 
 GRID = MapGrid.from_config(MapGridConfig())
 

@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fsw.core.elevation_map import ElevationMap, FusionConfig
 from fsw.core.geometry import MapGrid
+from fsw.core.map.elevation_map import ElevationMap, FusionConfig
 
 GRID = MapGrid(0.0, 0.0, 0.1, 4, 3)
 CELL_XY = (0.15, 0.15)  # cell [1, 1]

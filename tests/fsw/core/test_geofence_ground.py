@@ -15,12 +15,12 @@ import math
 import numpy as np
 from shapely.geometry import LineString, MultiLineString
 
-from fsw.core.edge import EdgeModel, edge_path
-from fsw.core.elevation_map import ElevationMap
-from fsw.core.geofence import Geofence, GeofenceConfig, goto_legs
+from fsw.core.edge.edge import EdgeModel, edge_path
+from fsw.core.edge.geofence import Geofence, GeofenceConfig, goto_legs
+from fsw.core.edge.look import look_joints
 from fsw.core.geometry import MapGrid, MapGridConfig, MastConfig, RoverConfig
-from fsw.core.look import look_joints
-from fsw.core.motion_profile import MotionConfig
+from fsw.core.map.elevation_map import ElevationMap
+from fsw.core.motion.motion_profile import MotionConfig
 
 GRID = MapGrid.from_config(MapGridConfig(origin_x_m=-2.0, origin_y_m=-3.0, cell_m=0.03,
                                          nx=250, ny=200))

@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from fsw.core import fiducials
 from fsw.core.geometry import CameraConfig, CameraPose
-from fsw.core.localization import (
+from fsw.core.localization import fiducials
+from fsw.core.localization.localization import (
     PoseEstimate,
     RecursivePoseFilter,
     pnp_jacobian,

@@ -12,8 +12,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from fsw.core.mapcodec import CodecConfig, MapCodecError, decode_map, encode_map
-from fsw.core.mapformat import HEADER_BYTES
+from fsw.core.codec.mapcodec import CodecConfig, MapCodecError, decode_map, encode_map
+from fsw.core.codec.mapformat import HEADER_BYTES
 
 WHEEL = 0.2
 

@@ -1,4 +1,4 @@
-"""The wheel-move profile and dead reckoning (fsw/core/motion_profile.py, fsw/core/odometry.py),
+"""The wheel-move profile and dead reckoning (fsw/core/motion/motion_profile.py, fsw/core/localization/odometry.py),
 pure: no drivers, no executive."""
 
 from __future__ import annotations
@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from fsw.core import motion_profile as mp
-from fsw.core import wheel_kinematics as wk
 from fsw.core.geometry import RoverConfig
-from fsw.core.odometry import Odometry
+from fsw.core.localization.odometry import Odometry
+from fsw.core.motion import motion_profile as mp
+from fsw.core.motion import wheel_kinematics as wk
 
 CFG = mp.MotionConfig()
 WHEEL_XY = wk.wheel_positions(RoverConfig())

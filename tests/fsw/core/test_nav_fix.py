@@ -1,4 +1,4 @@
-"""The registration's correction fed back into the rover pose (fsw.core.nav_fix, the station
+"""The registration's correction fed back into the rover pose (fsw.core.localization.nav_fix, the station
 chain's bookkeeping, the odometry's covariance after a fix; issue 13: odometry drift put a wheel
 on ground the map did not know)."""
 
@@ -9,14 +9,14 @@ import math
 import numpy as np
 import pytest
 
-from fsw.core import wheel_kinematics as wk
 from fsw.core.geometry import CameraPose, camera_pose_from_rover
-from fsw.core.localization import so3_exp
-from fsw.core.motion_profile import MotionConfig
-from fsw.core.nav_fix import NavFix, apply_to_body, residual_correction
-from fsw.core.odometry import Odometry, drift_sigma
-from fsw.core.registration import Registration, RegistrationConfig
-from fsw.core.station_chain import StationChain
+from fsw.core.localization.localization import so3_exp
+from fsw.core.localization.nav_fix import NavFix, apply_to_body, residual_correction
+from fsw.core.localization.odometry import Odometry, drift_sigma
+from fsw.core.motion import wheel_kinematics as wk
+from fsw.core.motion.motion_profile import MotionConfig
+from fsw.core.registration.registration import Registration, RegistrationConfig
+from fsw.core.registration.station_chain import StationChain
 from fsw.settings import load_settings
 
 MAST = load_settings().mast

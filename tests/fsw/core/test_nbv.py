@@ -9,9 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fsw.core.elevation_map import ElevationMap, FusionConfig
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid, MastConfig
-from fsw.core.nbv import (
+from fsw.core.map.elevation_map import ElevationMap, FusionConfig
+from fsw.core.planning.nbv import (
     NbvConfig,
     cell_values,
     end_reason,
@@ -23,7 +23,7 @@ from fsw.core.nbv import (
     utility,
     view_sums,
 )
-from fsw.core.visibility import (
+from fsw.core.planning.visibility import (
     VisibilityConfig,
     cell_points,
     in_view,

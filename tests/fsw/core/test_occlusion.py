@@ -1,13 +1,13 @@
-"""Occluding lips (fsw.core.occlusion): detection on a disparity step, and the guard that keeps a
+"""Occluding lips (fsw.core.stereo.occlusion): detection on a disparity step, and the guard that keeps a
 horizontally uncertain view from placing plateau heights past its own lips."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from fsw.core.elevation_map import ElevationMap, FusionConfig
 from fsw.core.geometry import MapGrid
-from fsw.core.occlusion import LipGuard, lip_pixels
+from fsw.core.map.elevation_map import ElevationMap, FusionConfig
+from fsw.core.stereo.occlusion import LipGuard, lip_pixels
 
 
 def _ground_disparity(h: int = 120, w: int = 40) -> np.ndarray:

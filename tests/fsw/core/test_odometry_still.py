@@ -7,8 +7,8 @@ import math
 
 import numpy as np
 
-from fsw.core import wheel_kinematics as wk
-from fsw.core.odometry import Odometry
+from fsw.core.localization.odometry import Odometry
+from fsw.core.motion import wheel_kinematics as wk
 
 WHEEL_XY = np.array([[0.3, 0.25], [0.3, -0.25], [-0.3, 0.25], [-0.3, -0.25]])
 
@@ -40,7 +40,7 @@ def test_a_resumed_baseline_is_still_checked_on_the_first_reading() -> None:
 
 
 def test_the_covariance_is_recomputed_only_when_its_inputs_change() -> None:
-    from fsw.core.motion_profile import MotionConfig
+    from fsw.core.motion.motion_profile import MotionConfig
 
     cfg, odo = MotionConfig(), _odo()
     odo.update([0.0] * 4, [0.0] * 4)

@@ -9,17 +9,17 @@ import pytest
 import shapely
 from shapely.geometry import LineString, MultiLineString
 
-from fsw.core.edge import EdgeModel, edge_path
-from fsw.core.elevation_map import ElevationMap
-from fsw.core.geofence import Geofence, GeofenceConfig
+from fsw.core.edge.edge import EdgeModel, edge_path
+from fsw.core.edge.geofence import Geofence, GeofenceConfig
 from fsw.core.geometry import CameraConfig, MapGrid, MastConfig, RoverConfig, camera_pose_from_rover
-from fsw.core.info_planners import InformationPlanner, straighten
-from fsw.core.methods import make_planner
-from fsw.core.nbv import NbvConfig
-from fsw.core.planners import PlannerState
-from fsw.core.raster_planners import RasterPlanner, _close
-from fsw.core.view_candidates import CandidateView, along_extent, footprint, path_stations
-from fsw.core.visibility import cell_points, in_view, terrain_from_map
+from fsw.core.map.elevation_map import ElevationMap
+from fsw.core.planning.info_planners import InformationPlanner, straighten
+from fsw.core.planning.methods import make_planner
+from fsw.core.planning.nbv import NbvConfig
+from fsw.core.planning.planners import PlannerState
+from fsw.core.planning.raster_planners import RasterPlanner, _close
+from fsw.core.planning.view_candidates import CandidateView, along_extent, footprint, path_stations
+from fsw.core.planning.visibility import cell_points, in_view, terrain_from_map
 from hil_sim.nbv_scene import edge_offset_path, panorama_map, synthetic_edge, synthetic_terrain
 
 GRID = MapGrid(x0=-0.5, y0=-3.5, cell=0.04, nx=110, ny=100)

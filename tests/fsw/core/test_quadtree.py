@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from fsw.core.quadtree import EntropyPyramid, build_quadtree, decimate, lowpass, tree_depth
+from fsw.core.codec.quadtree import EntropyPyramid, build_quadtree, decimate, lowpass, tree_depth
 
 WHEEL = 0.2
 

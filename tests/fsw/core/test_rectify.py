@@ -18,8 +18,8 @@ from step_count import count_steps
 
 from fsw.cli import main as fsw_main
 from fsw.core.geometry import CameraConfig, camera_pose_from_rover
-from fsw.core.rectify import Rectifier
-from fsw.core.stereo import StereoMatcher
+from fsw.core.stereo.rectify import Rectifier
+from fsw.core.stereo.stereo import StereoMatcher
 from fsw.drivers.calibration_file import CalibrationError, load_calibration, save_calibration
 from fsw.framework.params import ConfigError
 from fsw.settings import DEFAULT_CONFIG, load_settings, load_stereo_calibration

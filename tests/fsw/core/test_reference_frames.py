@@ -1,4 +1,4 @@
-"""Each map cell's source view and its pose error (fsw.core.reference_frames; issue 13): the
+"""Each map cell's source view and its pose error (fsw.core.map.reference_frames; issue 13): the
 better-placed view owns a cell, a rigid-motion covariance moves between centres with its
 lever, and the state survives a checkpoint; the station chain then merges a registered view
 with the reference's error in place of the chained frame."""
@@ -11,9 +11,9 @@ import math
 import numpy as np
 
 from fsw.core.geometry import CameraPose
-from fsw.core.reference_frames import ReferenceFrames, about
-from fsw.core.registration import Registration, RegistrationConfig
-from fsw.core.station_chain import StationChain
+from fsw.core.map.reference_frames import ReferenceFrames, about
+from fsw.core.registration.registration import Registration, RegistrationConfig
+from fsw.core.registration.station_chain import StationChain
 
 
 def test_the_better_placed_view_owns_a_cell() -> None:

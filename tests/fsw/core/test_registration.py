@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from fsw.core.geometry import CameraPose, MapGrid
-from fsw.core.reference_frames import ReferenceFrames
-from fsw.core.registration import (
+from fsw.core.map.reference_frames import ReferenceFrames
+from fsw.core.registration.registration import (
     Registration,
     RegistrationConfig,
     apply_correction,
@@ -21,7 +21,7 @@ from fsw.core.registration import (
     register_points,
     register_steps,
 )
-from fsw.core.station_chain import StationFix, carried_prior
+from fsw.core.registration.station_chain import StationFix, carried_prior
 
 GRID = MapGrid(0.0, 0.0, 0.03, 120, 120)
 CFG = RegistrationConfig()
@@ -66,7 +66,7 @@ def looking_down_x() -> CameraPose:
 
 def with_error(pose: CameraPose, d: np.ndarray) -> CameraPose:
     """The pose a view would carry if its true pose is ``apply_correction(it, d)``."""
-    from fsw.core.localization import so3_exp
+    from fsw.core.localization.localization import so3_exp
 
     return CameraPose(so3_exp(-d[:3]) @ pose.R, pose.t - d[3:])
 
@@ -163,7 +163,7 @@ def test_registration_runs_in_bounded_steps_and_rejects_garbage() -> None:
 def _odometry_error(pose: CameraPose, dyaw: float, shift: np.ndarray, pivot: np.ndarray) -> CameraPose:
     """The pose dead reckoning reports when its world frame is turned by ``-dyaw`` about
     ``pivot`` and shifted by ``-shift`` (a rigid drift error common to every pose)."""
-    from fsw.core.localization import so3_exp
+    from fsw.core.localization.localization import so3_exp
 
     Rz = so3_exp(np.r_[0.0, 0.0, -dyaw])
     return CameraPose(Rz @ pose.R, Rz @ (pose.t - pivot) + pivot - shift)
@@ -179,7 +179,7 @@ def test_carried_prior_undoes_a_rigid_drift_at_the_next_station() -> None:
                        true1.t + np.array([2.5, 0.4, 0.02]))
     est1, est2 = (_odometry_error(p, dyaw, shift, pivot) for p in (true1, true2))
     # station 1's registration: the correction that takes est1 onto true1 (about est1's centre)
-    from fsw.core.localization import so3_log
+    from fsw.core.localization.localization import so3_log
 
     d1 = np.r_[so3_log(true1.R @ est1.R.T), true1.t - est1.t]
     S1 = np.diag([math.radians(0.2) ** 2] * 2 + [math.radians(2.0) ** 2] + [0.05**2] * 3)

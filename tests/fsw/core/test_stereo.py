@@ -10,8 +10,8 @@ from perception_planes import render_plane, texture
 from step_count import count_steps
 
 from fsw.core.geometry import CameraConfig, CameraPose
-from fsw.core.localization import propagate_point_covariance
-from fsw.core.stereo import StereoConfig, StereoMatcher, depth_sigma_m, stereo_covariance
+from fsw.core.localization.localization import propagate_point_covariance
+from fsw.core.stereo.stereo import StereoConfig, StereoMatcher, depth_sigma_m, stereo_covariance
 from fsw.framework.params import ConfigError, build
 
 CAM = CameraConfig(width_px=320, height_px=240)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from fsw.core.geometry import CameraConfig
-from fsw.core.stereo import StereoConfig, StereoMatcher, stereo_covariance
+from fsw.core.stereo.stereo import StereoConfig, StereoMatcher, stereo_covariance
 from fsw.settings import load_settings
 from hil_sim import stereo_eval as se
 

@@ -11,14 +11,14 @@ from hypothesis import strategies as st
 from scipy.stats import norm
 
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid, MastConfig
-from fsw.core.visibility import (
+from fsw.core.planning.visibility import (
     Terrain,
     VisibilityConfig,
     in_view,
     terrain_from_heights,
     terrain_from_map,
 )
-from fsw.core.visibility_kernel import pv_fast
+from fsw.core.planning.visibility_kernel import pv_fast
 from hil_sim.nbv_scene import panorama_map, synthetic_terrain
 from hil_sim.pv_oracle import pv_reference
 

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from fsw.core.checkpoint import CheckpointConfig
-from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import MapGrid
+from fsw.core.map.checkpoint import CheckpointConfig
+from fsw.core.map.elevation_map import ElevationMap
 from fsw.drivers.map_store import MapStore
 
 

@@ -19,10 +19,10 @@ from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, precondition, rule
 from task_rig import TaskRig, task_config
 
-from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import MapGrid
-from fsw.core.nav_fix import NavFix
-from fsw.core.view_candidates import CandidateView
+from fsw.core.localization.nav_fix import NavFix
+from fsw.core.map.elevation_map import ElevationMap
+from fsw.core.planning.view_candidates import CandidateView
 from fsw.tasks import messages
 from fsw.tasks.messages import (
     CAMERA_REQUEST,

@@ -17,9 +17,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fsw.app import build_executive
-from fsw.core.checkpoint import MAGIC, CheckpointError, decode, encode
-from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import MapGrid
+from fsw.core.map.checkpoint import MAGIC, CheckpointError, decode, encode
+from fsw.core.map.elevation_map import ElevationMap
 from fsw.drivers.map_store import MapStore
 from fsw.drivers.resources import Resources
 from fsw.framework.clock import SteppedClock
@@ -231,7 +231,7 @@ def test_incompatible_or_malformed_state_is_an_event_not_a_crash(tmp_path: Path,
 def test_edge_model_round_trip() -> None:
     from shapely.geometry import MultiLineString, Polygon
 
-    from fsw.core.edge import EdgeModel
+    from fsw.core.edge.edge import EdgeModel
 
     e = EdgeModel("polygon", np.array([[0.1, 0.2], [0.3, 0.4]]), MultiLineString([[(0, 0), (1, 0.5)]]),
                   Polygon([(0, 0), (1, 0), (1, 1)]))

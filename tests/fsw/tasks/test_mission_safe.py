@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 from task_rig import TaskRig, task_config
 
-from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import MapGrid
+from fsw.core.map.elevation_map import ElevationMap
 from fsw.tasks.messages import (
     CAMERA_REQUEST,
     MAP_UPDATED,

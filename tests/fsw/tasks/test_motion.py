@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 from task_rig import TaskRig, task_config
 
-from fsw.core.nav_fix import NavFix
-from fsw.core.wheel_kinematics import WHEEL_ORDER
+from fsw.core.localization.nav_fix import NavFix
+from fsw.core.motion.wheel_kinematics import WHEEL_ORDER
 from fsw.drivers import can_motors, mast_serial
 from fsw.drivers.resources import Resources
 from fsw.tasks.messages import MOTION_REQUEST, MOTION_STATUS, NAV_FIX, NAV_POSE, MotionRequest
@@ -235,7 +235,7 @@ def test_a_clear_faults_request_clears_latched_faults_but_never_an_estop() -> No
 
 
 def test_a_navigation_fix_corrects_the_pose_between_moves_only_on_its_frame() -> None:
-    """A registered view's correction (``nav.fix``, fsw.core.nav_fix) waits for the active move
+    """A registered view's correction (``nav.fix``, fsw.core.localization.nav_fix) waits for the active move
     to end, then moves the pose and resets its covariance; one found on another frame of the
     pose is refused with an event, never applied twice."""
     rig, statuses, poses = _rig()

@@ -10,8 +10,8 @@ from typing import Any
 import numpy as np
 from task_rig import TaskRig, task_config
 
-from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import MapGrid
+from fsw.core.map.elevation_map import ElevationMap
 from fsw.tasks import nbv as nbv_task
 from fsw.tasks.messages import NBV_REQUEST, NBV_RESULT
 

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from step_count import count_steps
 
-from fsw.core.elevation_map import ElevationMap
 from fsw.core.geometry import CameraConfig
-from fsw.core.stereo import StereoConfig, StereoMatcher
+from fsw.core.map.elevation_map import ElevationMap
+from fsw.core.stereo.stereo import StereoConfig, StereoMatcher
 from fsw.executive.executive import Executive
 from fsw.framework.clock import SteppedClock
 from fsw.settings import FswConfig, load_settings
@@ -155,7 +155,7 @@ def test_region_of_interest_fraction_in_slices_equals_one_pass() -> None:
     signed-distance call over every sampled cell."""
     from shapely.geometry import LineString, MultiLineString
 
-    from fsw.core.edge import EdgeModel
+    from fsw.core.edge.edge import EdgeModel
     from fsw.core.geometry import MapGrid, MapGridConfig
 
     grid = MapGrid.from_config(MapGridConfig())

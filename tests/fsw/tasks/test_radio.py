@@ -10,9 +10,9 @@ import numpy as np
 from task_rig import TaskRig, task_config
 
 from fsw.comm.link_receiver import LinkReceiver
-from fsw.core.elevation_map import ElevationMap
+from fsw.core.codec.mapcodec import decode_map
 from fsw.core.geometry import MapGrid
-from fsw.core.mapcodec import decode_map
+from fsw.core.map.elevation_map import ElevationMap
 from fsw.drivers.byte_port import InProcPort
 from fsw.drivers.resources import Resources
 from fsw.tasks.messages import MAP_UPDATED, RADIO_SEND, MapUpdate, RadioSendRequest

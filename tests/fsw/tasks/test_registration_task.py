@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from fsw.core.geometry import CameraPose, camera_pose_from_rover
-from fsw.core.localization import so3_exp, so3_log
-from fsw.core.registration import inflate
+from fsw.core.localization.localization import so3_exp, so3_log
+from fsw.core.registration.registration import inflate
 from fsw.executive.executive import Executive
 from fsw.framework.clock import SteppedClock
 from fsw.settings import load_settings
@@ -177,11 +177,11 @@ def test_next_station_starts_from_the_last_stations_correction() -> None:
 
 def test_a_view_registered_in_height_and_tilt_only_is_reported(setup: Any) -> None:
     """A view whose overlap's halves disagreed in six directions and that was registered in
-    height and tilt only (``fsw.core.registration``) is counted and gets its own event with
+    height and tilt only (``fsw.core.registration.registration``) is counted and gets its own event with
     the reason; its checkpointed count survives a resume."""
     exe, _, _ = setup
     task = exe.tasks["perception"]
-    from fsw.core.registration import Registration
+    from fsw.core.registration.registration import Registration
 
     reg = Registration("registered", "height and tilt only: halves disagree (chi2 85 > 22.5, 6 dof): a false or "
                        "ambiguous minimum; yaw, x, y kept at the prior", cov=np.eye(6) * 1e-4, points=900,

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from shapely.geometry import Polygon
 
-from fsw.core.fiducials import CliffbotLayout
 from fsw.core.geometry import MapGrid
+from fsw.core.localization.fiducials import CliffbotLayout
 from fsw.framework.params import ConfigError
 from hil_sim.world import ScenarioError, load_scenario
 from hil_sim.world.config import load_scenario_config
@@ -110,7 +110,7 @@ def test_scenarios_are_deterministic_per_seed():
 def test_cliffbot_markers(lab):
     """Issue 3 item 2: the Cliff-bot stands about 3 m from the rover start carrying
     DICT_4X4_50 markers (0.18 m) whose corners are exposed in body and world frames and
-    match the flight software's as-built layout (fsw.core.fiducials.CliffbotLayout)."""
+    match the flight software's as-built layout (fsw.core.localization.fiducials.CliffbotLayout)."""
     cb = lab.cliffbot
     assert 2.7 < math.hypot(cb.x, cb.y) < 3.3
     assert cb.z == pytest.approx(lab.ground_at(cb.x, cb.y), abs=0.03)

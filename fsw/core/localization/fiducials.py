@@ -1,0 +1,201 @@
+"""Relative localization of the Cliff-bot from its ArUco fiducials (ALGORITHM.md §5).
+
+The RECON-bot is the origin (its start pose defines the world frame). Its camera sees the
+Cliff-bot's markers; their corners, whose positions on the Cliff-bot body are known
+(``CliffbotLayout``, from config), give the body's pose by PnP: the corners of every
+visible marker in one least-squares problem, in the left image and, when given, the right
+one too (the known baseline fixes the scale much better than one 40-pixel marker can).
+The body pose in the world is then ``T_world_body = T_world_cam * T_cam_body``, with the
+covariance of both factors propagated (module ``fsw.core.localization.localization`` conventions).
+
+Detection uses ``cv2.aruco.ArucoDetector``. Corner refinement matters: on the bench images
+the ``subpix`` and ``contour`` refinements put corners 0.3-0.8 px inside the marker, which
+reads as a target 1-2 cm too far at 3 m; ``apriltag`` (edge-line fit) is unbiased to
+0.05 px and is the default (docs/perception.md, "Fiducials").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.core.geometry import CameraPose
+from fsw.core.localization.localization import (
+    LocalizationConfig,
+    PoseEstimate,
+    pnp_candidates,
+    pnp_jacobian,
+    skew,
+    so3_exp,
+)
+from fsw.framework.params import param
+
+F64 = NDArray[np.float64]
+_S45 = float(np.sqrt(0.5))
+_REFINE = {"none": cv2.aruco.CORNER_REFINE_NONE, "subpix": cv2.aruco.CORNER_REFINE_SUBPIX,
+           "contour": cv2.aruco.CORNER_REFINE_CONTOUR, "apriltag": cv2.aruco.CORNER_REFINE_APRILTAG}
+
+
+@dataclass(frozen=True)
+class CliffbotLayout:
+    """Where the markers sit on the Cliff-bot body (config ``[cliffbot]``).
+
+    Body frame: origin at the footprint centre on the ground, x forward, y left, z up. Each
+    marker row is ``(id, cx, cy, cz, rx, ry, rz, dx, dy, dz)``: its centre and the unit
+    vectors pointing right and down across its face as seen by a reader. The default is
+    the as-built layout of the bench Cliff-bot (front, left, right, 45-degree top plate).
+    """
+
+    marker_size_m: float = param(0.18, lo=0.01, hi=2.0, units="m", doc="black square side")
+    markers: tuple[tuple[float, ...], ...] = param(
+        (
+            (1.0, 0.304, 0.0, 0.175, 0.0, 1.0, 0.0, 0.0, 0.0, -1.0),
+            (2.0, 0.0, 0.229, 0.175, -1.0, 0.0, 0.0, 0.0, 0.0, -1.0),
+            (3.0, 0.0, -0.229, 0.175, 1.0, 0.0, 0.0, 0.0, 0.0, -1.0),
+            (4.0, -0.05, 0.0, 0.35 + 0.004 + 0.12 * _S45, 0.0, 1.0, 0.0, _S45, 0.0, -_S45),
+        ),
+        doc="(id, centre xyz, right xyz, down xyz) per marker, body frame, metres",
+    )
+
+    def __post_init__(self) -> None:
+        for row in self.markers:
+            if len(row) != 10:
+                raise ValueError("each marker row needs 10 numbers (id, centre, right, down)")
+            r, d = np.array(row[4:7]), np.array(row[7:10])
+            if abs(np.linalg.norm(r) - 1) > 1e-3 or abs(np.linalg.norm(d) - 1) > 1e-3 or abs(
+                    r @ d) > 1e-3:
+                raise ValueError(f"marker {int(row[0])}: right and down must be orthonormal")
+
+    def corners_body(self) -> dict[int, F64]:
+        """``{id: (4, 3)}`` corners in ArUco order (top-left, top-right, bottom-right, bottom-left)."""
+        h = self.marker_size_m / 2.0
+        out = {}
+        for row in self.markers:
+            c, r, d = np.array(row[1:4]), np.array(row[4:7]), np.array(row[7:10])
+            out[int(row[0])] = np.array([c - r * h - d * h, c + r * h - d * h,
+                                         c + r * h + d * h, c - r * h + d * h])
+        return out
+
+
+@dataclass(frozen=True)
+class BodyEstimate:
+    """A body-to-world pose (``R`` body to world, ``t`` body origin) with 6x6 covariance over
+    ``(dtheta_world, dt_world)``, and what it was computed from."""
+
+    R: F64
+    t: F64
+    cov: F64
+    marker_ids: tuple[int, ...]
+    rms_px: float
+
+    @property
+    def yaw(self) -> float:
+        return float(np.arctan2(self.R[1, 0], self.R[0, 0]))
+
+
+class CliffbotLocalizer:
+    """Detects the Cliff-bot's markers and solves its pose relative to the RECON-bot (§5)."""
+
+    def __init__(self, cfg: LocalizationConfig, layout: CliffbotLayout, K: F64,
+                 baseline_m: float) -> None:
+        self.cfg = cfg
+        self.K = np.asarray(K, dtype=np.float64)
+        self.baseline_m = baseline_m
+        self.corners = layout.corners_body()
+        try:
+            dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, cfg.aruco_dictionary))
+        except AttributeError:
+            raise ValueError(f"unknown ArUco dictionary {cfg.aruco_dictionary!r}") from None
+        params = cv2.aruco.DetectorParameters()
+        params.cornerRefinementMethod = _REFINE[cfg.corner_refinement]
+        self.detector = cv2.aruco.ArucoDetector(dictionary, params)
+
+    def detect(self, image: NDArray[np.uint8]) -> dict[int, F64]:
+        """``{id: (4, 2) pixel corners}`` of the known markers in one image."""
+        corners, ids, _ = self.detector.detectMarkers(image)
+        out: dict[int, F64] = {}
+        if ids is None:
+            return out
+        for c, i in zip(corners, ids.reshape(-1), strict=True):
+            if int(i) in self.corners and int(i) not in out:
+                out[int(i)] = np.asarray(c, dtype=np.float64).reshape(4, 2)
+        return out
+
+    def locate(self, left: NDArray[np.uint8], camera: PoseEstimate,
+               right: NDArray[np.uint8] | None = None) -> BodyEstimate | None:
+        """The Cliff-bot body pose in the world, or None when too few corners are seen."""
+        seen_l = self.detect(left)
+        if not seen_l:
+            return None
+        ids = sorted(seen_l)
+        obj = np.concatenate([self.corners[i] for i in ids])
+        img = np.concatenate([seen_l[i] for i in ids])
+        # Camera pose in the body frame (PnP: the body is the "world" of the problem). One
+        # marker alone is planar and has a mirror solution; the right image settles it.
+        cands = pnp_candidates(obj, img, self.K, self.cfg.corner_sigma_px)
+        cands = [c for c in cands if c.rms_px <= self.cfg.max_reproj_px]
+        if not cands:
+            return None
+        seen_r = self.detect(right) if right is not None else {}
+        both = [i for i in ids if i in seen_r]
+        if both:
+            obj_r = np.concatenate([self.corners[i] for i in both])
+            img_r = np.concatenate([seen_r[i] for i in both])
+            cands = [self._refine_stereo(c, obj, img, obj_r, img_r) for c in cands]
+        est = min(cands, key=lambda c: c.rms_px)
+        if not np.isfinite(est.rms_px) or est.rms_px > self.cfg.max_reproj_px:
+            return None
+        return _compose(camera, est, tuple(ids))
+
+    def _refine_stereo(self, est: PoseEstimate, obj_l: F64, img_l: F64, obj_r: F64,
+                       img_r: F64, iters: int = 10) -> PoseEstimate:
+        """Gauss-Newton over the left and right corners together (known baseline)."""
+        pose = est.pose
+
+        def residual_and_jacobian(p: CameraPose) -> tuple[F64, F64]:
+            right = p.right(self.baseline_m)
+            # right centre = C + B R e_x: a rotation dtheta moves it by -[B R e_x]x dtheta
+            T = np.eye(6)
+            T[3:, :3] = -skew(self.baseline_m * p.R[:, 0])
+            J = np.vstack([pnp_jacobian(p, obj_l, self.K), pnp_jacobian(right, obj_r, self.K) @ T])
+            res = np.concatenate([(_project(p, obj_l, self.K) - img_l).ravel(),
+                                  (_project(right, obj_r, self.K) - img_r).ravel()])
+            return res, J
+
+        res, J = residual_and_jacobian(pose)
+        for _ in range(iters):
+            step = np.linalg.lstsq(J, -res, rcond=None)[0]
+            pose = CameraPose(so3_exp(step[:3]) @ pose.R, pose.t + step[3:])
+            res, J = residual_and_jacobian(pose)
+            if np.linalg.norm(step) < 1e-10:
+                break
+        rms = float(np.sqrt(np.mean(res**2)))
+        cov = max(self.cfg.corner_sigma_px, rms) ** 2 * np.linalg.inv(J.T @ J)
+        return PoseEstimate(pose, 0.5 * (cov + cov.T), rms, est.n_points + obj_r.shape[0])
+
+
+def _project(pose: CameraPose, pts: F64, K: F64) -> F64:
+    pc = pose.world_to_camera(pts)
+    uv = pc[:, :2] / pc[:, 2:3]
+    return np.column_stack([K[0, 0] * uv[:, 0] + K[0, 2], K[1, 1] * uv[:, 1] + K[1, 2]])
+
+
+def _compose(camera: PoseEstimate, cam_in_body: PoseEstimate, ids: tuple[int, ...]
+             ) -> BodyEstimate:
+    """``T_world_body = T_world_cam * inv(T_body_cam)`` with first-order covariance."""
+    R_wc, C_w = camera.pose.R, camera.pose.t
+    R_bc, C_b = cam_in_body.pose.R, cam_in_body.pose.t
+    R_wb = R_wc @ R_bc.T
+    t_wb = C_w - R_wb @ C_b
+    A = skew(R_wb @ C_b)
+    Jb = np.zeros((6, 6))  # w.r.t. the camera-in-body perturbation
+    Jb[:3, :3] = -R_wb
+    Jb[3:, :3] = -A @ R_wb
+    Jb[3:, 3:] = -R_wb
+    Jc = np.eye(6)  # w.r.t. the camera-in-world perturbation
+    Jc[3:, :3] = A
+    cov = Jb @ cam_in_body.cov @ Jb.T + Jc @ camera.cov @ Jc.T
+    return BodyEstimate(R_wb, t_wb, 0.5 * (cov + cov.T), ids, cam_in_body.rms_px)

@@ -1,0 +1,400 @@
+"""The 2.5D elevation map and its fusion of measured points (ALGORITHM.md §1, §1.1, §3.4, §4).
+
+Cell state (arrays ``(ny, nx)``, index ``[iy, ix]`` as ``fsw.core.geometry.MapGrid``):
+``z`` fused elevation (m), ``var`` its variance (m^2), ``n`` merged measurements (capped by
+``n_max``), ``interest`` the interest function IF (starts at 1), ``misses`` unsuccessful
+measurements, ``outliers`` measurements refused by the gate.
+
+Unknown cell: ``z = NaN``, ``var = inf``, ``n = 0``; *mapped* once ``n >= 1`` (nothing else).
+
+One ``merge`` call is one view. Its points are first reduced per cell (a vectorized
+``np.bincount``): the inverse-variance mean of the points in the cell is the view's
+measurement ``zm`` of that cell. Points of one view in one cell share the camera pose error
+and overlapping matching windows, so their errors are correlated; with equicorrelation
+``rho`` (``point_correlation``) the measurement variance is ``vm = (1 + (k-1) rho) / sum(1/v)``
+for ``k`` points (``rho = 1``: the view counts as one measurement, ``rho = 0``: independent
+points). ``n`` counts views, not points.
+
+A point's vertical variance ``v`` is ``P_zz`` of its world covariance (§1.2) or, when the
+full covariance is given, the larger of that and the slope term: a horizontal error ``dxy``
+moves the point to terrain of another height, so the error in the cell's height is
+``dz - g.dxy`` with ``g`` the local gradient (from this view's own cell means, so a view's
+measurement does not depend on the map it is fused into), ``P_zz - 2 g.P_xyz + g^T P_xy g``.
+(On a slope facing the camera that is below ``P_zz``; a noisy gradient may not lower it.)
+Optionally the footprint term ``|g|^2 cell^2 / 12`` (one point samples one spot of a sloping
+cell); off by default because the sub-cell term measures it from the points: the spread of a
+view's points in a cell beyond their noise is added to the cell's measurement variance (a
+step or a rock edge inside the cell). Calibrated against the bench truth in docs/perception.md.
+A view's points near its own occluding lips never get here (``fsw.core.stereo.occlusion``).
+
+The view's measurement is fused into the map by the 1-D Kalman update of §1.1; a
+measurement whose Mahalanobis distance ``|zm - z| / sqrt(var + vm)`` exceeds ``gate_sigma``
+is not averaged in: the cell's ``outliers`` count goes up and its ``var`` is multiplied by
+``outlier_var_factor`` so that a real change is accepted after a few views.
+
+Misses (§4, §3.4): given the visibility probability ``P_V`` of each cell for this view (or a
+boolean mask, ``P_V = 1``), every cell with ``P_V > 0`` that got no point has its interest
+multiplied by ``exp(-beta P_V)``; those with ``P_V >= miss_pv_threshold`` count a miss.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Generator, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.core.geometry import MapGrid
+from fsw.core.steps import run_to_end
+from fsw.framework.params import param
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """Map fusion parameters (config ``[fusion]``)."""
+
+    n_max: int = param(10, lo=1, hi=100000, doc="cap of the merged-measurement count n")
+    gate_sigma: float = param(
+        3.0, lo=0.5, hi=100.0, units="sigma", doc="Mahalanobis gate of a cell measurement"
+    )
+    outlier_var_factor: float = param(
+        4.0, lo=1.0, hi=1e6, doc="a cell's variance is multiplied by this on an outlier"
+    )
+    point_correlation: float = param(
+        0.3, lo=0.0, hi=1.0, doc="error correlation of points of one view in one cell"
+    )
+    view_correlation: float = param(
+        0.4, lo=0.0, hi=0.9, doc="part of a view's variance common to all views of a cell"
+    )
+    slope_term: bool = param(True, doc="add the slope term (horizontal error times gradient)")
+    footprint_term: bool = param(False, doc="add |gradient|^2 cell^2 / 12 per point")
+    subcell_term: bool = param(
+        True, doc="add the points' spread in the cell beyond their noise (sub-cell relief)"
+    )
+    min_var_m2: float = param(1e-8, lo=0.0, hi=1.0, units="m^2", doc="variance floor per point")
+    max_var_m2: float = param(
+        0.25, lo=1e-8, hi=1e6, units="m^2", doc="points with a larger variance are dropped"
+    )
+    miss_pv_threshold: float = param(
+        0.5, lo=0.0, hi=1.0, doc="P_V at or above which a cell without a point counts a miss"
+    )
+    interest_beta: float = param(1.0, lo=0.0, hi=100.0, doc="interest decay rate beta (§3.4)")
+    lip_guard_sigma: float = param(2.0, lo=0.0, hi=10.0, units="sigma", doc="withhold points closer to a lip (0: off)")
+    lip_min_drop_m: float = param(0.30, lo=0.0, hi=100.0, units="m", doc="a lip counts when it drops by more")
+
+
+@dataclass(frozen=True)
+class MergeStats:
+    """What one ``merge`` did."""
+
+    points_in: int
+    points_used: int
+    cells_measured: int
+    cells_new: int
+    cells_fused: int
+    outliers: int
+    misses: int
+
+
+class ElevationMap:
+    """Elevation grid with variance, count, interest function and misses (§1)."""
+
+    def __init__(self, grid: MapGrid, cfg: FusionConfig | None = None) -> None:
+        self.grid = grid
+        self.cfg = cfg or FusionConfig()
+        self.n_max = self.cfg.n_max
+        shape = grid.shape
+        self.z = np.full(shape, np.nan)
+        self.var = np.full(shape, np.inf)
+        self.n = np.zeros(shape, np.int32)
+        self.interest = np.ones(shape)
+        self.misses = np.zeros(shape, np.int32)
+        self.outliers = np.zeros(shape, np.int32)
+        self.var_common = np.zeros(shape)  # part of var common to all views (see _fuse)
+
+    @property
+    def mapped(self) -> NDArray[np.bool_]:
+        return self.n >= 1
+
+    @property
+    def sigma(self) -> F64:
+        return np.sqrt(self.var)
+
+    def copy(self) -> ElevationMap:
+        out = ElevationMap(self.grid, self.cfg)
+        for name in ("z", "var", "n", "interest", "misses", "outliers", "var_common"):
+            setattr(out, name, getattr(self, name).copy())
+        return out
+
+    def merge(
+        self,
+        xyz: F64,
+        var_z: F64 | None = None,
+        cov: F64 | None = None,
+        p_visible: NDArray[np.floating] | NDArray[np.bool_] | None = None,
+        cov_common: F64 | None = None,
+    ) -> MergeStats:
+        """Fuse one view's world points (§1.1) and record its misses (§4).
+
+        ``xyz`` (N, 3) world points; either ``var_z`` (N,) vertical variances or ``cov``
+        (N, 3, 3) world covariances (enables the slope term). ``cov_common`` (N, 3, 3) is
+        the part of ``cov`` shared by every point of the view (the camera pose term of
+        §1.2); it is averaged, not reduced, within a cell. ``p_visible`` (ny, nx): the
+        probability that each cell was visible in this view, or a boolean mask.
+        """
+        return run_to_end(self.merge_steps(xyz, var_z, cov, p_visible, cov_common))
+
+    def merge_steps(
+        self,
+        xyz: F64,
+        var_z: F64 | None = None,
+        cov: F64 | None = None,
+        p_visible: NDArray[np.floating] | NDArray[np.bool_] | None = None,
+        cov_common: F64 | None = None,
+        chunk: int | None = None,
+    ) -> Generator[None, None, MergeStats]:
+        """:meth:`merge` for a slack job: the points go through in chunks of ``chunk``
+        (None: all at once), yielding after each, in two passes (the per-cell means, then
+        the per-point variances that need the gradient of those means). The per-cell sums
+        are the same; only their floating-point summation order depends on ``chunk``. The
+        map is only written in the last step."""
+        xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+        n_in = xyz.shape[0]
+        # the six distinct entries xx xy xz yy yz zz of each covariance, as strided views
+        c6: tuple[F64, ...] | None = None
+        cc6: tuple[F64, ...] | None = None
+        if cov is not None:
+            c6 = _sym6(_rows(cov, n_in, "cov"))
+            v_all = c6[5]
+        elif var_z is not None:
+            v_all = _rows(var_z, n_in, "var_z").reshape(-1)
+        else:
+            raise ValueError("merge needs var_z or cov")
+        if cov_common is not None:
+            if cov is None:
+                raise ValueError("cov_common needs cov")
+            cc6 = _sym6(_rows(cov_common, n_in, "cov_common"))
+        step = max(1, n_in if chunk is None else int(chunk))
+        chunks = []
+        for a in range(0, max(n_in, 1), step):
+            sl = slice(a, a + step)
+            chunks.append((xyz[sl], v_all[sl], None if c6 is None else tuple(c[sl] for c in c6),
+                           None if cc6 is None else tuple(c[sl] for c in cc6)))
+        return (yield from self._merge_chunks(chunks, n_in, p_visible, chunk))
+
+    def merge_parts_steps(
+        self,
+        parts: list[tuple[F64, F64, F64 | None]],
+        p_visible: NDArray[np.floating] | NDArray[np.bool_] | None = None,
+        step_points: int = 50000,
+    ) -> Generator[None, None, MergeStats]:
+        """:meth:`merge` of one view in parts ``(xyz, cov, cov_common)`` (as a slack job propagates
+        them), not joined first; yields once ``step_points`` points went through a pass since the
+        last yield. ``cov_common``: in every part or none. ``parts`` is emptied as its covariances
+        go to 6 components (one form at a time: both were the flight peak, +25 MB; issue 15)."""
+        chunks, n_in = [], 0
+        if len({pc is None for _, _, pc in parts}) > 1:
+            raise ValueError("cov_common must be given for every part or for none")
+        parts.reverse()
+        while parts:
+            xyz, cov, cov_common = parts.pop()
+            xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+            n = xyz.shape[0]
+            c6 = _sym6(_rows(cov, n, "cov"))
+            cc6 = None if cov_common is None else _sym6(_rows(cov_common, n, "cov_common"))
+            chunks.append((xyz, c6[5], c6, cc6))
+            n_in += n
+        if not chunks:
+            chunks.append((np.zeros((0, 3)), np.zeros(0), tuple(np.zeros(0) for _ in range(6)), None))
+        return (yield from self._merge_chunks(chunks, n_in, p_visible, step_points))
+
+    def _merge_chunks(
+        self,
+        chunks: Sequence[tuple[F64, F64, tuple[F64, ...] | None, tuple[F64, ...] | None]],
+        n_in: int,
+        p_visible: NDArray[np.floating] | NDArray[np.bool_] | None,
+        step_points: int | None,
+    ) -> Generator[None, None, MergeStats]:
+        """The merge proper over chunks ``(xyz, P_zz or var_z, cov6 or None, common6 or None)``;
+        yields once ``step_points`` points went through since the last yield (None: never)."""
+        budget = [0]
+
+        def due(n: int) -> bool:
+            budget[0] += n
+            if step_points is None or budget[0] < step_points:
+                return False
+            budget[0] = 0
+            return True
+
+        has_cov = chunks[0][2] is not None
+        has_common = chunks[0][3] is not None
+        g = self.grid
+        size = g.nx * g.ny
+        inv = 1.0 / g.cell
+        # pass 1: per cell, the inverse-variance mean of the points (weights from P_zz)
+        k = np.zeros(size, np.int64)
+        sw = np.zeros(size)
+        swz = np.zeros(size)
+        parts: list[tuple[NDArray[np.intp], F64, F64, F64, tuple[F64, ...] | None,
+                          tuple[F64, ...] | None]] = []
+        for p, v, pc6, pcc6 in chunks:
+            with np.errstate(invalid="ignore"):
+                fx = (p[:, 0] - g.x0) * inv  # >= 0 where inside, so truncation below is floor
+                fy = (p[:, 1] - g.y0) * inv
+                ok = (fx >= 0) & (fx < g.nx) & (fy >= 0) & (fy < g.ny) & np.isfinite(p[:, 2])
+                ok &= (v >= 0) & (v <= self.cfg.max_var_m2)  # False for NaN too
+            if not ok.all():
+                fx, fy, p, v = fx[ok], fy[ok], p[ok], v[ok]
+                pc6 = None if pc6 is None else tuple(c[ok] for c in pc6)
+                pcc6 = None if pcc6 is None else tuple(c[ok] for c in pcc6)
+            flat = fy.astype(np.intp) * g.nx + fx.astype(np.intp)
+            z = p[:, 2]
+            v = np.maximum(v, self.cfg.min_var_m2)
+            w = 1.0 / v
+            k += np.bincount(flat, minlength=size)
+            sw += np.bincount(flat, w, size)
+            swz += np.bincount(flat, w * z, size)
+            parts.append((flat, z, v, w, pc6, pcc6))
+            if due(p.shape[0]):
+                yield None
+        with np.errstate(invalid="ignore", divide="ignore"):
+            zm_dense = swz / sw
+        grad_cells: tuple[F64, F64] | None = None
+        if has_cov and any(pt[0].size for pt in parts):
+            gy, gx = _nan_gradient(zm_dense.reshape(g.shape), g.cell)
+            grad_cells = (gx.reshape(-1), gy.reshape(-1))
+        # pass 2: per point, the variance of the cell height (slope term) and its sums
+        swi = np.zeros(size)
+        swvc = np.zeros(size)
+        swdev = np.zeros(size)
+        n_used = 0
+        for flat, z, v, w, pc6, pcc6 in parts:
+            n_used += flat.size
+            vc: F64 | float = 0.0
+            if pc6 is not None and grad_cells is not None:
+                grad = (grad_cells[0][flat], grad_cells[1][flat])
+                v = self._vertical_variance(grad, pc6, footprint=True)
+                if pcc6 is not None:
+                    vc = np.minimum(self._vertical_variance(grad, pcc6, footprint=False),
+                                    v - self.cfg.min_var_m2)
+            swi += np.bincount(flat, 1.0 / (v - vc), size)  # the independent (stereo) part
+            if has_common:
+                swvc += np.bincount(flat, w * vc, size)
+            if self.cfg.subcell_term:
+                swdev += np.bincount(flat, w * (z - zm_dense[flat]) ** 2, size)
+            if due(flat.size):
+                yield None
+        cells = np.flatnonzero(k)
+        kc, swc, zm = k[cells], sw[cells], zm_dense[cells]
+        swi_c = swi[cells]
+        vm = (1.0 + (kc - 1) * self.cfg.point_correlation) / swi_c
+        if has_common:
+            vm += swvc[cells] / swc  # common part: averaged
+        if self.cfg.subcell_term:
+            spread = swdev[cells] / swc  # weighted point spread
+            excess = np.maximum(spread - kc / swi_c, 0.0) * kc / np.maximum(kc - 1, 1)
+            vm += np.where(kc >= 2, excess, 0.0)
+        new, fused, outl = self._fuse(cells, zm, vm)
+        n_miss = 0
+        if p_visible is not None:
+            n_miss = self.record_misses(p_visible, hit=k.reshape(g.shape) > 0)
+        return MergeStats(n_in, n_used, int(cells.size), new, fused, outl, n_miss)
+
+    def _vertical_variance(self, grad: tuple[F64, F64], c6: tuple[F64, ...],
+                           footprint: bool) -> F64:
+        """Per-point variance of the cell height: ``P_zz`` with the slope term and, if asked,
+        the footprint term (module docstring). ``c6``: xx xy xz yy yz zz per point."""
+        gx, gy = grad
+        xx, xy, xz, yy, yz, zz = c6
+        out = zz
+        if self.cfg.slope_term:
+            slope = zz - 2.0 * (gx * xz + gy * yz) + gx * (gx * xx + 2.0 * gy * xy) + gy * gy * yy
+            out = np.maximum(zz, slope)  # a noisy gradient must not talk the variance down
+        out = np.maximum(out, self.cfg.min_var_m2)
+        if footprint and self.cfg.footprint_term:
+            out += (gx * gx + gy * gy) * (self.grid.cell**2 / 12.0)
+        return np.asarray(out)
+
+    def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64) -> tuple[int, int, int]:
+        """Inverse-variance update of the given flat cells with a Mahalanobis gate (§1.1).
+
+        The part ``c = view_correlation`` of every view's variance is common to all views
+        of the cell and does not average out: the map keeps it apart (``var_common``, the
+        smallest seen) and fuses only the independent rest, ``var = var_indep + var_common``.
+        With ``c = 0`` this is exactly the 1-D Kalman update of §1.1.
+        """
+        c = self.cfg.view_correlation
+        z, var, n = self.z.reshape(-1), self.var.reshape(-1), self.n.reshape(-1)
+        vcom = self.var_common.reshape(-1)
+        z0, v0, n0, vc0 = z[cells], var[cells], n[cells], vcom[cells]
+        empty = n0 == 0
+        with np.errstate(invalid="ignore"):
+            d = np.abs(zm - z0) / np.sqrt(v0 + vm)
+        outlier = ~empty & (d > self.cfg.gate_sigma)
+        inlier = ~empty & ~outlier
+        z_new = np.where(empty, zm, z0)
+        v_new = np.where(empty, vm, v0)
+        vc_new = np.where(empty, c * vm, vc0)
+        zi, vi, mi, vmi, vci = z0[inlier], v0[inlier], zm[inlier], vm[inlier], vc0[inlier]
+        ind0, ind_m = vi - vci, (1.0 - c) * vmi
+        wi = ind0 / (1.0 - c)  # 1 / (the summed weight of the views fused so far)
+        z_new[inlier] = (vmi * zi + wi * mi) / (wi + vmi)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ind = np.where(ind0 + ind_m > 0, ind0 * ind_m / (ind0 + ind_m), 0.0)
+        vc_new[inlier] = np.minimum(vci, c * vmi)
+        v_new[inlier] = ind + vc_new[inlier]
+        v_new[outlier] = v0[outlier] * self.cfg.outlier_var_factor
+        vc_new[outlier] = vc0[outlier] * self.cfg.outlier_var_factor
+        z[cells], var[cells], vcom[cells] = z_new, v_new, vc_new
+        n[cells] = np.where(outlier, n0, np.minimum(n0 + 1, self.n_max))
+        self.outliers.reshape(-1)[cells[outlier]] += 1
+        return int(empty.sum()), int(inlier.sum()), int(outlier.sum())
+
+    def record_misses(
+        self,
+        p_visible: NDArray[np.floating] | NDArray[np.bool_],
+        hit: NDArray[np.bool_],
+    ) -> int:
+        """Interest decay and miss count for cells expected visible that got no point (§3.4)."""
+        pv = np.asarray(p_visible, dtype=np.float64)
+        if pv.shape != self.grid.shape:
+            raise ValueError(f"p_visible must have shape {self.grid.shape}, got {pv.shape}")
+        if not np.isfinite(pv).all() or pv.min() < 0.0 or pv.max() > 1.0:
+            raise ValueError("p_visible must lie in [0, 1]")
+        empty = ~hit & (pv > 0.0)
+        self.interest[empty] *= np.exp(-self.cfg.interest_beta * pv[empty])
+        missed = empty & (pv >= self.cfg.miss_pv_threshold)
+        self.misses[missed] += 1
+        return int(missed.sum())
+
+
+def _sym6(cov: F64) -> tuple[F64, ...]:
+    """xx xy xz yy yz zz of (N, 3, 3) covariances, as views (no copy)."""
+    c = cov.reshape(-1, 9)
+    return tuple(c[:, i] for i in (0, 1, 2, 4, 5, 8))
+
+
+def _rows(a: F64, n: int, name: str) -> F64:
+    arr = np.asarray(a, dtype=np.float64)
+    if arr.shape[:1] != (n,):
+        raise ValueError(f"{name} has {arr.shape[:1]} rows for {n} points")
+    return arr
+
+
+def _nan_gradient(zc: F64, cell_m: float) -> tuple[F64, F64]:
+    """Central-difference gradient (d/dy, d/dx) that falls back to one-sided next to NaNs."""
+    pad = np.pad(zc, 1, constant_values=np.nan)
+    c = pad[1:-1, 1:-1]
+    out = []
+    xp, xm = pad[1:-1, 2:], pad[1:-1, :-2]
+    yp, ym = pad[2:, 1:-1], pad[:-2, 1:-1]
+    for p, m in ((yp, ym), (xp, xm)):
+        central = (p - m) / (2.0 * cell_m)
+        fwd = (p - c) / cell_m
+        bwd = (c - m) / cell_m
+        gr = np.where(np.isnan(central), np.where(np.isnan(fwd), bwd, fwd), central)
+        out.append(np.nan_to_num(gr, nan=0.0))
+    return out[0], out[1]

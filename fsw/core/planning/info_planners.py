@@ -1,0 +1,183 @@
+"""Methods 3, 4, 5 and the oracle of ALGORITHM.md §7: information-based view selection.
+
+Every reachable station along the edge path (``view_candidates.path_stations``) is rated by
+its expected information (§3-§4, ``fsw.core.planning.nbv``); Method 3 straightens the path, Method 5
+weighs P_V by the interest function, the oracle rates with the true terrain and texture.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Generator
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.core.geometry import CameraConfig, CameraPose, MastConfig, camera_pose_from_rover
+from fsw.core.planning.coarse_rating import (
+    coarse_factor,
+    coarse_visibility,
+    prepare,
+    rate_station_coarse_steps,
+    rate_views_steps,
+)
+from fsw.core.planning.nbv import (
+    MapLike,
+    NbvConfig,
+    info_n_max,
+    localization_sigma,
+    motion_cost,
+    rate_station_steps,
+    utility,
+)
+from fsw.core.planning.planners import Planner, PlannerState, SearchGen
+from fsw.core.planning.view_candidates import (
+    CandidateView,
+    Station,
+    as_polyline,
+    joint_grid,
+    path_stations_steps,
+)
+from fsw.core.planning.visibility import F64, Terrain, in_view, terrain_from_heights, terrain_from_map_steps
+
+
+class InformationPlanner(Planner):
+    """Methods 3, 4, 5 and the oracle: the reachable candidate of highest utility (§3.5)."""
+
+    def __init__(self, name: str, cfg: NbvConfig, camera: CameraConfig, mast: MastConfig, *,
+                 use_interest: bool = False, straight_edge: bool = False,
+                 truth_z_m: F64 | None = None, textured: NDArray[np.bool_] | None = None) -> None:
+        self.name, self.cfg, self.camera, self.mast = name, cfg, camera, mast
+        self.use_interest, self.straight_edge = use_interest, straight_edge
+        self._truth_z = truth_z_m
+        self._textured = None if textured is None else np.asarray(textured, bool).astype(float)
+        self._truth_terrain: Terrain | None = None
+        self.last_stations = 0  # stations rated by the last search
+        self.last_centres = 0  # camera centres (stations x lifts) rated by the last search
+
+    def _terrain(self, emap: MapLike) -> Generator[None, None, tuple[Terrain, F64 | None]]:
+        if self._truth_z is None:
+            terrain = yield from terrain_from_map_steps(emap.z, emap.var, emap.grid,
+                                                        self.cfg.visibility)
+            return terrain, (emap.interest if self.use_interest else None)
+        if self._truth_terrain is None:
+            z = np.asarray(self._truth_z, dtype=np.float64)
+            z = np.where(np.isfinite(z), z, np.nanmin(z) if np.isfinite(z).any() else 0.0)
+            self._truth_terrain = terrain_from_heights(z, emap.grid, self.cfg.oracle_sigma_m)
+        return self._truth_terrain, self._textured
+
+    def search(self, state: PlannerState) -> SearchGen:
+        """Rate every reachable camera centre (§3.5), coarse to fine (``coarse_rating``): every
+        pan/tilt of every centre on the coarse terrain, then the best ``refine_views`` of them
+        exactly; the best exact utility wins. With ``coarse_cell_m`` = 0 (or a coarse cell no
+        larger than the map's) every centre is rated exactly, view by view, as before."""
+        cfg = self.cfg
+        terrain, interest = yield from self._terrain(state.map)
+        yield None
+        path = straighten(state.path) if self.straight_edge else state.path
+        stations = yield from path_stations_steps(path, state.rover, state.motion_ok,
+                                                  cfg.station_spacing_m, cfg.max_travel_m)
+        self.last_stations = len(stations)
+        self.last_centres = 0
+        pans, tilts, lifts = joint_grid(self.mast, cfg.pan_step_deg, cfg.tilts_deg, cfg.lifts_m)
+        n_max = info_n_max(state.map, cfg)
+        centres = []
+        for st in stations:  # motion and localization terms: a step per station (landmarks)
+            for lift in lifts:
+                centres.append(_Centre(st, float(lift), self._cam(st, float(lift), state), pans,
+                                       tilts, state, self))
+            yield None
+        factor = coarse_factor(terrain.grid.cell, cfg.coarse_cell_m)
+        best: CandidateView | None = None
+        if factor <= 1:
+            for c in centres:
+                r = yield from rate_station_steps(terrain, c.cam_xyz, c.yaws, tilts, state.map.n,
+                                                  n_max, interest, self.camera, cfg.visibility)
+                cand = c.best(r.info_bits.ravel(), r.expected_new_cells.ravel(), None)
+                best = cand if best is None or cand.utility > best.utility else best
+                self.last_centres += 1
+            return best
+        cs = prepare(terrain, factor, state.map.n, n_max, interest)
+        vis_coarse = coarse_visibility(cfg.visibility, factor)
+        yield None
+        u_all = []
+        for c in centres:
+            r = yield from rate_station_coarse_steps(cs, c.cam_xyz, c.yaws, tilts, self.camera,
+                                                     vis_coarse)
+            u_all.append(utility(r.info_bits.ravel(), c.d, c.sig, cfg))
+        u_flat = np.concatenate(u_all)
+        top = np.argsort(-u_flat, kind="stable")[:cfg.refine_views]
+        per = pans.size * tilts.size
+        for i in sorted(set((top // per).tolist())):
+            c = centres[i]
+            views = np.sort(top[top // per == i] % per)
+            r2 = yield from rate_views_steps(terrain, c.cam_xyz, c.yaws[views // tilts.size],
+                                             tilts[views % tilts.size], state.map.n, n_max,
+                                             interest, self.camera, cfg.visibility)
+            cand = c.best(r2.info_bits, r2.expected_new_cells, views)
+            best = cand if best is None or cand.utility > best.utility else best
+            self.last_centres += 1
+        return best
+
+    def _cam(self, st: Station, lift: float, state: PlannerState) -> tuple[float, float, float]:
+        cam = camera_pose_from_rover(st.rover, (0.0, 0.0, lift), self.mast, state.ground_z_m).t
+        return (float(cam[0]), float(cam[1]), float(cam[2]))
+
+
+class _Centre:
+    """One camera centre of a search: its pan/tilt poses' motion cost and localization sigma
+    (§3.3, §3.5), which do not depend on the rating."""
+
+    def __init__(self, st: Station, lift: float, cam_xyz: tuple[float, float, float], pans: F64,
+                 tilts: F64, state: PlannerState, planner: InformationPlanner) -> None:
+        cfg = planner.cfg
+        self.st, self.lift, self.cam_xyz, self.name, self.cfg = st, lift, cam_xyz, planner.name, cfg
+        self.yaws = st.rover[2] + pans
+        pp, tt = np.meshgrid(pans, tilts, indexing="ij")
+        self.pans, self.tilts = pp.ravel(), tt.ravel()
+        poses = np.column_stack([np.tile(st.rover, (pp.size, 1)), self.pans, self.tilts,
+                                 np.full(pp.size, lift)])
+        current = np.array([*state.rover, *state.joints], dtype=np.float64)
+        self.d = motion_cost(poses, current, cfg)
+        rng = landmark_range(cam_xyz, self.yaws, tilts, state.landmarks_xyz, planner.camera)
+        self.sig = localization_sigma(np.full(pp.size, st.travel_m), state.sigma_loc_m,
+                                      rng.ravel(), cfg)
+
+    def best(self, info_bits: F64, new_cells: F64, views: NDArray[np.intp] | None
+             ) -> CandidateView:
+        """The view of highest utility among ``views`` (flat pan-major indices; None: all),
+        given their H and expected new cells."""
+        k_all = np.arange(self.d.size) if views is None else views
+        u = utility(info_bits, self.d[k_all], self.sig[k_all], self.cfg)
+        j = int(np.argmax(u))
+        k = int(k_all[j])
+        return CandidateView(self.st.rover, (float(self.pans[k]), float(self.tilts[k]), self.lift),
+                             float(info_bits[j]), float(new_cells[j]), float(self.d[k]),
+                             float(self.sig[k]), float(u[j]), self.name)
+
+
+def landmark_range(cam_xyz: tuple[float, float, float], yaws: F64, tilts: F64,
+                   landmarks_xyz: F64, camera: CameraConfig) -> F64:
+    """(P, T) range to the nearest landmark inside each view (inf if none)."""
+    out = np.full((yaws.size, tilts.size), np.inf)
+    lm = np.asarray(landmarks_xyz, dtype=np.float64).reshape(-1, 3)
+    if lm.shape[0] == 0:
+        return out
+    for p, yaw in enumerate(yaws):
+        for t, tilt in enumerate(tilts):
+            pose = CameraPose.from_pan_tilt(*cam_xyz, float(yaw), float(tilt))
+            vis = in_view(pose, camera, lm)
+            if vis.any():
+                out[p, t] = float(np.linalg.norm(lm[vis] - pose.t, axis=1).min())
+    return out
+
+
+def straighten(path: F64) -> F64:
+    """Method 3's path: one straight segment (total least squares) spanning the path points."""
+    xy = as_polyline(path)
+    if xy.shape[0] < 2:
+        return xy
+    c = xy.mean(axis=0)
+    _, _, vt = np.linalg.svd(xy - c, full_matrices=False)
+    d = vt[0] if np.dot(vt[0], xy[-1] - xy[0]) >= 0 else -vt[0]
+    s = (xy - c) @ d
+    return np.vstack([c + s.min() * d, c + s.max() * d])

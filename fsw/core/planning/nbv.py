@@ -1,0 +1,278 @@
+"""Rating of candidate views: information, motion, localization, utility (ALGORITHM.md §3).
+
+* Expected new information of a pose (§3.2, paper Eq 3), with the interest function (§3.4,
+  Eq 5) pre-multiplied into the visibility when the method uses it:
+  ``H(c) = sum_{i in view(c)} (n_max - n_i)/n_max * h2(IF_i * P_V(i) / 2)``, bits. Eq 3's
+  ``n_max`` is ``info_n_max`` (default 2: a cell seen once is worth half a new one, twice
+  nothing), not the map's fusion cap (10), under which a cell seen once would still be worth
+  90 % of an unmapped one and the planner would rather re-measure than explore.
+  Alongside it, ``expected_new_cells = sum_{i in view(c), n_i = 0} IF_i * P_V(i)``: the
+  expected number of cells the view maps for the first time (what the paper's Figure 8 plots
+  against the obtained count).
+* Motion cost (§3.3, Eq 9): ``d = sqrt(sum_i a_i (c_i - c'_i)^2)`` over (x, y, yaw, pan,
+  tilt, lift); default ``a_i`` are 1/rate^2 so ``d`` is about the seconds of motion.
+* Localization term (§3.5): ``sigma_loc`` = odometry drift grown over the path travelled,
+  fused with a fiducial fix when a landmark (the Cliff-bot's markers, §5) is in view and in
+  range (PnP error grows with range^2).
+* Utility (§3.5 choice): ``U = H - w_d d - w_l sigma_loc``.
+* End criterion (§3.6): :func:`end_reason`.
+
+Rating is per *station* (a camera centre): ``visibility_kernel.pv_fast`` gives P_V of every
+cell the station could see, once; each pan/tilt then only masks those cells by its field of
+view and depth of field (:func:`view_sums`). The ``*_steps`` generators do the same work in
+bounded steps of a few milliseconds for the executive's slack jobs.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Generator
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
+from fsw.core.planning.visibility import (
+    F64,
+    Terrain,
+    VisibilityConfig,
+    horizontal_reach_m,
+    in_view,
+    terrain_from_map,
+)
+from fsw.core.planning.visibility_kernel import pv_fast_steps
+from fsw.core.steps import run_to_end
+from fsw.framework.params import param
+
+
+class MapLike(Protocol):
+    """What rating reads from ``fsw.core.map.elevation_map.ElevationMap``."""
+
+    grid: MapGrid
+    z: F64
+    var: F64
+    n: NDArray[np.int32]
+    interest: F64
+    n_max: int
+
+
+@dataclass(frozen=True)
+class NbvConfig:
+    """Next-view selection (config ``[nbv]``); see docs/nbv.md for the reasoning."""
+
+    w_motion: float = param(5.0, lo=0.0, hi=1e6, units="bit/s", doc="w_d: bits per unit of d")
+    w_loc: float = param(2000.0, lo=0.0, hi=1e9, units="bit/m", doc="w_l: bits per m of sigma_loc")
+    a_xy: float = param(25.0, lo=0.0, hi=1e6, units="s^2/m^2", doc="Eq 9 weight of x and y")
+    a_yaw: float = param(8.2, lo=0.0, hi=1e6, units="s^2/rad^2", doc="Eq 9 weight of rover yaw")
+    a_pan: float = param(3.65, lo=0.0, hi=1e6, units="s^2/rad^2", doc="Eq 9 weight of mast pan")
+    a_tilt: float = param(3.65, lo=0.0, hi=1e6, units="s^2/rad^2", doc="Eq 9 weight of tilt")
+    a_lift: float = param(400.0, lo=0.0, hi=1e6, units="s^2/m^2", doc="Eq 9 weight of lift")
+    info_n_max: int = param(2, lo=0, hi=100000,
+                            doc="n_max of Eq 3's weight (n_max - n)/n_max; 0: the map's n_max")
+    station_spacing_m: float = param(0.25, lo=0.01, hi=10.0, units="m", doc="stations on the path")
+    max_travel_m: float = param(2.5, lo=0.0, hi=100.0, units="m", doc="farthest station per step")
+    pan_step_deg: float = param(20.0, lo=1.0, hi=180.0, units="deg", doc="pan grid step")
+    tilts_deg: tuple[float, ...] = param((-15.0, -30.0, -45.0, -60.0), units="deg",
+                                         doc="tilt grid (within the mast limits)")
+    lifts_m: tuple[float, ...] = param((0.5,), units="m", doc="lift grid (within the limits)")
+    odo_drift_frac: float = param(0.01, lo=0.0, hi=1.0, units="m/m",
+                                  doc="localization sigma grown per metre travelled")
+    fiducial_sigma_1m_m: float = param(0.002, lo=1e-6, hi=1.0, units="m",
+                                       doc="fiducial fix sigma at 1 m (grows with range^2)")
+    fiducial_range_m: float = param(4.0, lo=0.1, hi=100.0, units="m",
+                                    doc="farthest usable fiducial")
+    max_steps: int = param(20, lo=1, hi=100000, doc="end criterion: imaging step limit")
+    min_info_bits: float = param(20.0, lo=0.0, hi=1e9, units="bit",
+                                 doc="end criterion: stop when the best H falls below")
+    target_mapped_fraction: float = param(0.98, lo=0.0, hi=1.0,
+                                          doc="end criterion: mapped fraction of the ROI")
+    raster_overlap_frac: float = param(0.1, lo=0.0, hi=0.9,
+                                       doc="raster: overlap of consecutive views along the path")
+    raster_pans_per_station: int = param(3, lo=1, hi=36, doc="Method 2: pan views per station")
+    raster_floor_drop_m: float = param(0.4, lo=0.0, hi=100.0, units="m",
+                                       doc="raster: assumed ROI floor below the rover when unmapped")
+    oracle_sigma_m: float = param(0.005, lo=1e-4, hi=1.0, units="m",
+                                  doc="oracle: sigma given to the true terrain")
+    coarse_cell_m: float = param(0.12, lo=0.0, hi=10.0, units="m",
+                                 doc="coarse-to-fine search: coarse cell size (0: rate exactly)")
+    refine_views: int = param(12, lo=1, hi=100000,
+                              doc="coarse-to-fine search: best coarse views rated exactly")
+    visibility: VisibilityConfig = field(default_factory=VisibilityConfig)
+
+
+def h2(p: F64) -> F64:
+    """Binary entropy in bits; ``h2(0) = h2(1) = 0``."""
+    p = np.clip(np.asarray(p, dtype=np.float64), 0.0, 1.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = -(p * np.log2(p) + (1.0 - p) * np.log2(1.0 - p))
+    return np.nan_to_num(out, nan=0.0)
+
+
+def cell_values(pv: F64, n: NDArray[np.integer], n_max: int, interest: F64 | None
+                ) -> tuple[F64, F64]:
+    """Per-cell terms of H (Eq 3, bits) and of the expected new cells, given P_V (§3.2, §3.4)."""
+    p = np.asarray(pv, dtype=np.float64)
+    if interest is not None:
+        p = p * np.clip(interest, 0.0, 1.0)
+    weight = np.clip((n_max - np.asarray(n)) / float(n_max), 0.0, 1.0)
+    return weight * h2(p / 2.0), np.where(np.asarray(n) == 0, p, 0.0)
+
+
+def view_sums(rel: F64, values: F64, yaws: F64, tilts: F64, camera: CameraConfig) -> F64:
+    """Sums of per-cell ``values`` (N, V) over each view's field and depth of field (§3.1).
+
+    ``rel`` (N, 3) are the cells' points relative to the camera centre; the views are every
+    optical-axis world yaw in ``yaws`` (P,) with every tilt in ``tilts`` (T,). Returns
+    (P, T, V). Camera frame as ``geometry.rotation_from_yaw_tilt`` (no roll).
+    """
+    return run_to_end(view_sums_steps(rel, values, yaws, tilts, camera))
+
+
+def view_sums_steps(rel: F64, values: F64, yaws: F64, tilts: F64, camera: CameraConfig
+                    ) -> Generator[None, None, F64]:
+    """:func:`view_sums`, yielding before the set-up (the caller's work before it is a step
+    of its own), after it and after each tilt."""
+    yield None
+    rho = np.hypot(rel[:, 0], rel[:, 1]).astype(np.float32)
+    phi = np.arctan2(rel[:, 1], rel[:, 0])
+    dz = rel[:, 2].astype(np.float32)
+    cos_d = (np.cos(phi)[:, None] * np.cos(yaws)[None, :]
+             + np.sin(phi)[:, None] * np.sin(yaws)[None, :]).astype(np.float32)
+    sin_d = (np.sin(phi)[:, None] * np.cos(yaws)[None, :]
+             - np.cos(phi)[:, None] * np.sin(yaws)[None, :]).astype(np.float32)
+    lateral = np.abs(rho[:, None] * sin_d)
+    along = rho[:, None] * cos_d
+    tan_h = np.float32(math.tan(math.radians(camera.hfov_deg) / 2.0))
+    tan_v = np.float32(math.tan(camera.vfov_rad / 2.0))
+    vals = np.ascontiguousarray(values.T, dtype=np.float32)
+    out = np.empty((yaws.size, tilts.size, values.shape[1]))
+    for j, tau in enumerate(tilts):
+        yield None
+        ct, st = np.float32(math.cos(tau)), np.float32(math.sin(tau))
+        zc = along * ct + (dz * st)[:, None]
+        yc = along * st - (dz * ct)[:, None]
+        ok = ((zc >= camera.min_range_m) & (zc <= camera.max_range_m)
+              & (lateral <= zc * tan_h) & (np.abs(yc) <= zc * tan_v))
+        # einsum, not matmul: multithreaded BLAS on small products spins on a busy machine
+        out[:, j, :] = np.einsum("vn,np->pv", vals, ok.astype(np.float32))
+    yield None  # the last tilt is a step of its own, apart from what the caller does next
+    return out
+
+
+@dataclass(frozen=True)
+class StationRating:
+    """H and expected new cells of every pan/tilt at one camera centre: arrays (P, T)."""
+
+    info_bits: F64
+    expected_new_cells: F64
+    cells_rated: int
+
+
+def rate_station(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws: F64, tilts: F64,
+                 n: NDArray[np.integer], n_max: int, interest: F64 | None, camera: CameraConfig,
+                 cfg: VisibilityConfig) -> StationRating:
+    """Rate all pan/tilt views (world yaws x tilts) from one camera centre (§3.1, §3.2)."""
+    return run_to_end(rate_station_steps(terrain, cam_xyz, yaws, tilts, n, n_max, interest,
+                                         camera, cfg))
+
+
+def rate_station_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws: F64,
+                       tilts: F64, n: NDArray[np.integer], n_max: int, interest: F64 | None,
+                       camera: CameraConfig, cfg: VisibilityConfig
+                       ) -> Generator[None, None, StationRating]:
+    """:func:`rate_station` in bounded steps (for the executive's slack jobs)."""
+    g = terrain.grid
+    reach = horizontal_reach_m(camera)
+    x_c = g.x0 + (np.arange(g.nx) + 0.5) * g.cell
+    y_c = g.y0 + (np.arange(g.ny) + 0.5) * g.cell
+    near = ((x_c[None, :] - cam_xyz[0]) ** 2 + (y_c[:, None] - cam_xyz[1]) ** 2) <= reach**2
+    worth = near & (n < n_max)
+    if interest is not None:
+        worth &= interest > 0
+    iy, ix = np.nonzero(worth)
+    if iy.size == 0:
+        zero = np.zeros((yaws.size, tilts.size))
+        return StationRating(zero, zero.copy(), 0)
+    pv = yield from pv_fast_steps(terrain, cam_xyz, iy, ix, cfg)
+    bits, new = cell_values(pv, n[iy, ix], n_max, None if interest is None else interest[iy, ix])
+    keep = (bits > 1e-6) | (new > 1e-6)
+    rel = np.column_stack([x_c[ix[keep]] - cam_xyz[0], y_c[iy[keep]] - cam_xyz[1],
+                           terrain.elev_m[iy[keep], ix[keep]] - cam_xyz[2]])
+    sums = yield from view_sums_steps(rel, np.column_stack([bits[keep], new[keep]]), yaws,
+                                      tilts, camera)
+    return StationRating(sums[..., 0], sums[..., 1], int(iy.size))
+
+
+def predicted_visibility(emap: MapLike, pose: CameraPose, camera: CameraConfig,
+                         cfg: VisibilityConfig) -> F64:
+    """P_V of every map cell for one camera pose, zero outside the view (the ``p_visible``
+    that ``ElevationMap.merge`` uses to record misses and decay the interest, §3.4, §4)."""
+    return run_to_end(predicted_visibility_steps(emap, pose, camera, cfg))
+
+
+def predicted_visibility_steps(emap: MapLike, pose: CameraPose, camera: CameraConfig,
+                               cfg: VisibilityConfig) -> Generator[None, None, F64]:
+    """:func:`predicted_visibility` in bounded steps (the terrain prior, the field of view,
+    then ``pv_fast_steps``), for the perception job."""
+    terrain = terrain_from_map(emap.z, emap.var, emap.grid, cfg)
+    yield None
+    g = emap.grid
+    iy, ix = np.nonzero(np.ones(g.shape, bool))
+    pts = np.column_stack([g.x0 + (ix + 0.5) * g.cell, g.y0 + (iy + 0.5) * g.cell,
+                           terrain.elev_m[iy, ix]])
+    vis = in_view(pose, camera, pts)
+    out = np.zeros(g.shape)
+    if vis.any():
+        yield None
+        cam = (float(pose.t[0]), float(pose.t[1]), float(pose.t[2]))
+        out[iy[vis], ix[vis]] = yield from pv_fast_steps(terrain, cam, iy[vis], ix[vis], cfg)
+    return out
+
+
+def wrap_angle(a: F64) -> F64:
+    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def motion_cost(poses: F64, current: F64, cfg: NbvConfig) -> F64:
+    """Eq 9 between candidate poses (K, 6) and the current pose (6,): x, y, yaw, pan, tilt, lift."""
+    d = np.asarray(poses, dtype=np.float64) - np.asarray(current, dtype=np.float64)
+    d[:, 2:5] = wrap_angle(d[:, 2:5])
+    a = np.array([cfg.a_xy, cfg.a_xy, cfg.a_yaw, cfg.a_pan, cfg.a_tilt, cfg.a_lift])
+    return np.sqrt((a * d**2).sum(axis=1))
+
+
+def localization_sigma(travel_m: F64, sigma_now_m: float, landmark_range_m: F64,
+                       cfg: NbvConfig) -> F64:
+    """Position sigma after the move (§3.5): drift over ``travel_m`` fused with a fiducial fix
+    at ``landmark_range_m`` (inf where no landmark is in view)."""
+    odo = np.sqrt(sigma_now_m**2 + (cfg.odo_drift_frac * np.asarray(travel_m)) ** 2)
+    rng = np.asarray(landmark_range_m, dtype=np.float64)
+    fid = np.where(rng <= cfg.fiducial_range_m, cfg.fiducial_sigma_1m_m * np.maximum(rng, 1.0)**2,
+                   np.inf)
+    with np.errstate(divide="ignore"):
+        return np.asarray(1.0 / np.sqrt(1.0 / np.maximum(odo, 1e-12) ** 2 + 1.0 / fid**2))
+
+
+def utility(info_bits: F64, motion: F64, sigma_loc_m: F64, cfg: NbvConfig) -> F64:
+    """§3.5: ``U = H - w_d d - w_l sigma_loc``."""
+    return np.asarray(info_bits) - cfg.w_motion * np.asarray(motion) - cfg.w_loc * np.asarray(
+        sigma_loc_m)
+
+
+def info_n_max(emap: MapLike, cfg: NbvConfig) -> int:
+    """The ``n_max`` of Eq 3: ``cfg.info_n_max``, or the map's cap when that is 0."""
+    return int(cfg.info_n_max) if cfg.info_n_max > 0 else int(emap.n_max)
+
+
+def end_reason(step: int, best_info_bits: float | None, mapped_fraction: float,
+               cfg: NbvConfig) -> str | None:
+    """§3.6: why the mission should stop now, or None to go on."""
+    if step >= cfg.max_steps:
+        return f"step limit reached ({cfg.max_steps})"
+    if mapped_fraction >= cfg.target_mapped_fraction:
+        return f"region of interest {100 * mapped_fraction:.1f}% mapped"
+    if best_info_bits is not None and best_info_bits < cfg.min_info_bits:
+        return f"best view offers {best_info_bits:.1f} bit < {cfg.min_info_bits:.1f}"
+    return None
