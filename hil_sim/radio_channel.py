@@ -1,4 +1,4 @@
-"""Seeded radio channel model between the RECON-bot and the Cliff-bot (ALGORITHM.md §6.6).
+"""Seeded radio channel model between the RECON-bot and the Cliff-bot (docs/algorithm.md §6.6).
 
 Two independent directions (full duplex; ``reverse_loss`` gives side b -> a its own loss
 probability, e.g. acknowledgements lost more often than data), each a serial line of ``rate_bps`` with a

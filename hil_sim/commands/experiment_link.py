@@ -1,4 +1,4 @@
-"""``safer-hil experiment link``: map-link goodput against loss and bit error rate (ALGORITHM.md §6.6).
+"""``safer-hil experiment link``: map-link goodput against loss and bit error rate (docs/algorithm.md §6.6).
 
 Runs the flight link (``fsw.comm.link_sender`` / ``link_receiver``) over the seeded channel
 model (``hil_sim.radio_channel``) on a simulated clock, ``--seeds`` runs per point, sending
@@ -19,6 +19,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 from typing import Any
+
+from hil_sim.results import command_line, write_results
 
 HELP = "goodput vs packet loss (0 to 0.3) and bit error rate at 9600 bit/s, with capacity lines"
 DESCRIPTION = (
@@ -54,7 +56,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", default=None, help="flight config for [link] (default config/fsw.toml)")
     p.add_argument("--out", type=Path, default=Path("out/experiments/link"), help="output dir")
     p.add_argument("--results", type=Path, default=None,
-                   help="also write the report there (e.g. docs/results/link_sim.md)")
+                   help="udp: also write the report there, with date, commit and command "
+                   "(e.g. docs/results/link_udp_loss.md)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -114,10 +117,7 @@ def run(args: argparse.Namespace) -> int:
     (args.out / "report.md").write_text(report)
     print(report)
     print(f"wrote {args.out}/link_goodput.csv, link_goodput.png, report.md")
-    if args.results is not None:
-        args.results.parent.mkdir(parents=True, exist_ok=True)
-        args.results.write_text(report)
-        print(f"wrote {args.results}")
+    write_results("link", command_line("link"), report, [args.out / "link_goodput.png"])
     return 0
 
 
@@ -159,7 +159,7 @@ def _plot(rows: list[dict[str, Any]], args: argparse.Namespace, path: Path) -> N
 
 def _report(rows: list[dict[str, Any]], args: argparse.Namespace, link: Any) -> str:
     lines = [f"# Map link goodput ({args.rate_bps:g} bit/s, {args.bytes} B, {args.seeds} seeds/point, "
-             f"segment {link.segment_bytes} B, latency {args.latency_s} s)", "", provenance(), "",
+             f"segment {link.segment_bytes} B, latency {args.latency_s} s)", "",
              "| impairment | value | capacity bit/s | goodput median | min | max | median / capacity "
              "| min / capacity | bit-exact |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
@@ -226,5 +226,7 @@ def _run_udp(args: argparse.Namespace, link: Any) -> int:
         args.results.parent.mkdir(parents=True, exist_ok=True)
         args.results.write_text(text)
         print(f"wrote {args.results}")
+    name = "link-udp" if args.reverse_loss < 0 else "link-udp-answers-lost"
+    write_results(name, command_line("link"), (args.out / "udp_report.md").read_text())
     ok = all(r["bit_exact"] for r in rows)
     return 0 if ok else 1
