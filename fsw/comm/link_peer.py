@@ -1,4 +1,4 @@
-"""One agent's end of a two-way map sync: a sender and a receiver on one radio (ALGORITHM.md §6.6).
+"""One agent's end of a two-way map sync: a sender and a receiver on one radio (docs/algorithm.md §6.6).
 
 The team's agents exchange maps both ways over the same radio (docs/link.md, two-way): each
 agent runs a :class:`~fsw.comm.link_sender.LinkSender` for its own map and a

@@ -53,7 +53,6 @@ from fsw.tasks.messages import (
     NAV_POSE,
     NBV_REQUEST,
     NBV_RESULT,
-    RADIO_SEND,
     RADIO_STATUS,
     VIEW_FAILED,
     CaptureRequest,
@@ -62,21 +61,19 @@ from fsw.tasks.messages import (
     MotionStatus,
     MoveOutcome,
     NavPose,
-    RadioSendRequest,
     RadioStatus,
 )
 from fsw.tasks.mission_checkpoint import resume_mission, save
 from fsw.tasks.mission_ground import MIN_MOVE_M, MIN_TURN_RAD, FenceJob, GroundAwareMission
 from fsw.tasks.mission_safe import SafeRecovery
 from fsw.tasks.mission_state import STATES, MissionPhase, StepRecord
+from fsw.tasks.mission_transmit import MapDelivery
 from fsw.tasks.sections import MissionConfig
 
 FIX_WAIT_S = 1.0  # longest wait for nav.pose to show a map update's navigation fix
-MAP_ID = 1  # the map the mission sends to the Cliff-bot
-TX_ASK_S = 2.0  # TRANSMIT: the send request is repeated this often until the radio takes it
 
 
-class MissionTask(GroundAwareMission, SafeRecovery):
+class MissionTask(GroundAwareMission, SafeRecovery, MapDelivery):
     KIND: ClassVar[str] = "mission"
     DOC: ClassVar[str] = "Mission sequencer: panorama, next view, move, acquire, transmit; SAFE on faults."
     CHANNELS = (
@@ -152,8 +149,6 @@ class MissionTask(GroundAwareMission, SafeRecovery):
         self._safe_since = 0.0
         self._auto_start = self.mcfg.auto_start
         self._republish: MapUpdate | None = None
-        self._tx_since = 0.0  # TRANSMIT: when it began (radio states from before are stale)
-        self._tx_asked = -math.inf  # TRANSMIT: when the send request last went out
         resume_mission(self)
 
     # -- plumbing ---------------------------------------------------------------------------
@@ -372,39 +367,10 @@ class MissionTask(GroundAwareMission, SafeRecovery):
         self.end = reason
         self.event("END", reason=reason)
         if self.mcfg.transmit and "radio" in self.ctx.runtime.tasks:
-            # The request goes out from _state_transmit, never from here: a resumed mission
-            # gets here inside setup(), before the radio task listens.
-            self._goto(MissionPhase.TRANSMIT)
-            self.deadline = self.ctx.clock.now() + self.mcfg.transmit_timeout_s
-            self.radio = None
-            self._tx_since = self.ctx.clock.now()
-            self._tx_asked = -math.inf
+            self._begin_transmit()  # fsw.tasks.mission_transmit
         else:
             self._goto(MissionPhase.DONE)
             save(self, MissionPhase.DONE)
-
-    def _state_transmit(self) -> None:
-        """Delivery is a fact: the request (with the map itself) is repeated until the radio
-        takes it; DONE only on the Cliff-bot's whole-map acknowledgement, else SAFE."""
-        for status in self.radio_box.drain():
-            if status.map_id == MAP_ID and status.time_s >= self._tx_since:
-                self.radio = status
-        now = self.ctx.clock.now()
-        if self.radio is None and now - self._tx_asked >= TX_ASK_S:
-            self._tx_asked = now
-            snapshot = self.latest.snapshot if self.latest is not None else None
-            self.publish(RADIO_SEND, RadioSendRequest(map_id=MAP_ID, snapshot=snapshot))
-        finished = self.radio is not None and self.radio.finished
-        if not (finished or self._timed_out()):
-            return
-        state = self.radio.state.value if finished and self.radio is not None else "timeout"
-        self.event("TRANSMITTED", state=state)
-        if state == "done":
-            self._goto(MissionPhase.DONE)
-            save(self, MissionPhase.DONE)
-            return
-        self.event("UNDELIVERED", state=state)
-        self._enter_safe(f"map not delivered ({state})")
 
     def cmd_START(self) -> None:
         if self.state not in (MissionPhase.IDLE, MissionPhase.DONE):
