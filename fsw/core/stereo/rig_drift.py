@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Generator
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -153,7 +154,7 @@ def correct_steps(left: U8, right: U8, *, min_disparity_px: int, num_disparities
                   deadband_px: float, bound_px: float, exposure_tolerance: float, exposure_offset_dn: float,
                   noise_ratio_max: float, denoise_sigma_px: float) -> Generator[None, None, tuple[U8, RigAlignment]]:
     """:func:`correct` as a slack-job generator (a slice each: exposure and noise, each image's
-    features, the matching and the fit and the resampling)."""
+    features, the matching with the fit and the resampling; a pair without features: three)."""
     matched, gain, off = exposure_match(left, right, exposure_tolerance, exposure_offset_dn)
     nl = noise_sigma(left)
     ratio = noise_sigma(matched) / nl if nl > 0.0 else math.nan
@@ -169,4 +170,18 @@ def correct_steps(left: U8, right: U8, *, min_disparity_px: int, num_disparities
     b_fix = b if abs(b) * half_w > deadband_px else 0.0
     fix = a_fix != 0.0 or b_fix != 0.0
     out = shift_right(matched, a_fix, b_fix) if fix else matched
+    yield None
     return out, RigAlignment(a, b, n, gain, off, ratio, denoise, fix, abs(a) + abs(b) * half_w > bound_px)
+
+
+def correct_for(left: U8, right: U8, cfg: Any) -> Generator[None, None, tuple[U8, RigAlignment]]:
+    """:func:`correct_steps` with the ``[stereo]`` keys of ``cfg`` (a ``StereoConfig``; not imported:
+    ``fsw.core.stereo.stereo`` imports this module); the pair as it is when
+    ``drift_correction`` is off."""
+    if not cfg.drift_correction:
+        return right, RigAlignment.none()
+    return (yield from correct_steps(
+        left, right, min_disparity_px=cfg.min_disparity_px, num_disparities_px=cfg.num_disparities_px,
+        features=cfg.drift_features, deadband_px=cfg.drift_deadband_px, bound_px=cfg.drift_bound_px,
+        exposure_tolerance=cfg.exposure_tolerance, exposure_offset_dn=cfg.exposure_offset_dn,
+        noise_ratio_max=cfg.noise_ratio_max, denoise_sigma_px=cfg.denoise_sigma_px))

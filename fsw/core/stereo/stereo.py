@@ -29,9 +29,8 @@ A pixel gives no point unless the match is trustworthy. The filters, in order:
   * local spread: the valid disparities around the pixel spread less than
     ``max_spread_px`` (an occlusion border or a depth jump);
   * range gate: the depth lies within the camera's ``min_range_m .. max_range_m``.
-Before matching, a rig that drifted since its calibration is corrected per pair
-(``fsw.core.stereo.rig_drift``): a vertical offset of the right image measured from matched
-ORB features is resampled out, and its exposure (and extra noise) matched to the left's.
+Before matching, a rig that drifted since its calibration is corrected per pair (vertical
+offset, exposure and noise of the right image: ``fsw.core.stereo.rig_drift``).
 The filters and the noise model were derived on real rectified pairs with ground truth
 (Middlebury 2014 Motorcycle, shipped by scikit-image) and on the renderer: ``safer-hil bench
 stereo-real`` prints both.
@@ -52,18 +51,14 @@ from fsw.core.stereo import stereo_quality as quality
 from fsw.core.stereo.occlusion import lip_pixels
 from fsw.core.stereo.rectify import RectifiedCamera
 from fsw.core.stereo.rig_drift import RigAlignment
-from fsw.core.stereo.rig_drift import correct_steps as correct_drift_steps
+from fsw.core.stereo.rig_drift import correct_for as correct_drift_steps
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
 U8 = NDArray[np.uint8]
 
-_MODES = {
-    "sgbm": cv2.StereoSGBM_MODE_SGBM,
-    "sgbm_3way": cv2.StereoSGBM_MODE_SGBM_3WAY,
-    "hh": cv2.StereoSGBM_MODE_HH,
-    "hh4": cv2.StereoSGBM_MODE_HH4,
-}
+_MODES = {"sgbm": cv2.StereoSGBM_MODE_SGBM, "sgbm_3way": cv2.StereoSGBM_MODE_SGBM_3WAY,
+          "hh": cv2.StereoSGBM_MODE_HH, "hh4": cv2.StereoSGBM_MODE_HH4}
 
 
 #: points per slice of the triangulation (row-major chunks; ~10 ms here, a bounded slack slice)
@@ -139,28 +134,14 @@ class StereoConfig:
     sigma_pixel_px: float = param(
         0.3, lo=0.0, hi=5.0, units="px", doc="1-sigma pixel localisation noise on u and v"
     )
-    drift_correction: bool = param(
-        True, doc="measure and take out a vertical offset and an exposure difference of the right image per pair",
-    )
+    drift_correction: bool = param(True, doc="take out the right image's vertical offset and exposure, per pair")
     drift_features: int = param(1000, lo=50, hi=5000, doc="ORB features per image for the vertical offset")
-    drift_deadband_px: float = param(
-        0.25, lo=0.0, hi=10.0, units="px", doc="vertical offsets up to this are left alone (an aligned rig)",
-    )
-    drift_bound_px: float = param(
-        2.0, lo=0.0, hi=50.0, units="px", doc="a vertical offset beyond this raises an event (recalibrate)",
-    )
-    exposure_tolerance: float = param(
-        0.05, lo=0.0, hi=1.0, doc="relative grey-level gain difference left alone",
-    )
-    exposure_offset_dn: float = param(
-        4.0, lo=0.0, hi=255.0, units="DN", doc="mean grey-level difference left alone",
-    )
-    noise_ratio_max: float = param(
-        1.3, lo=1.0, hi=10.0, doc="right-image noise over the left's beyond which the right image is smoothed",
-    )
-    denoise_sigma_px: float = param(
-        0.7, lo=0.0, hi=5.0, units="px", doc="Gaussian that smooths a noisier right image (0: never)",
-    )
+    drift_deadband_px: float = param(0.25, lo=0.0, hi=10.0, units="px", doc="offsets up to this are left alone")
+    drift_bound_px: float = param(2.0, lo=0.0, hi=50.0, units="px", doc="an offset beyond: event (recalibrate)")
+    exposure_tolerance: float = param(0.05, lo=0.0, hi=1.0, doc="relative grey-level gain difference left alone")
+    exposure_offset_dn: float = param(4.0, lo=0.0, hi=255.0, units="DN", doc="mean grey-level difference left alone")
+    noise_ratio_max: float = param(1.3, lo=1.0, hi=10.0, doc="right/left noise beyond which the right is smoothed")
+    denoise_sigma_px: float = param(0.7, lo=0.0, hi=5.0, units="px", doc="Gaussian smoothing it (0: never)")
 
     def __post_init__(self) -> None:
         if self.num_disparities_px % 16:
@@ -196,8 +177,7 @@ class DisparityImage:
 
     disparity_px: F64  # (H, W)
     sigma_px: F64  # (H, W)
-    # what the rig-drift correction measured and applied (fsw.core.stereo.rig_drift); exceeds: raise an event
-    alignment: RigAlignment = field(default_factory=RigAlignment.none)
+    alignment: RigAlignment = field(default_factory=RigAlignment.none)  # the rig-drift correction's figures
 
 
 class StereoMatcher:
@@ -266,14 +246,7 @@ class StereoMatcher:
         self._check_pair(left, right)
         cfg = self.cfg
         h = left.shape[0]
-        alignment = RigAlignment.none()
-        if cfg.drift_correction:
-            right, alignment = yield from correct_drift_steps(
-                left, right, min_disparity_px=cfg.min_disparity_px, num_disparities_px=cfg.num_disparities_px,
-                features=cfg.drift_features, deadband_px=cfg.drift_deadband_px, bound_px=cfg.drift_bound_px,
-                exposure_tolerance=cfg.exposure_tolerance, exposure_offset_dn=cfg.exposure_offset_dn,
-                noise_ratio_max=cfg.noise_ratio_max, denoise_sigma_px=cfg.denoise_sigma_px)
-            yield None
+        right, alignment = yield from correct_drift_steps(left, right, cfg)  # when drift_correction is on
         raw = np.empty(left.shape, np.int16)
         for start, end, src0, src1 in self.bands(h):
             part = self._sgbm.compute(left[src0:src1], right[src0:src1])
@@ -400,9 +373,7 @@ class StereoMatcher:
                 raise ValueError(f"{name} image must be uint8 of shape {shape}, got {got}")
 
 
-def stereo_covariance(
-    du: F64, dv: F64, d: F64, f: float, B: float, sigma_px: float, sigma_d: float | F64
-) -> F64:
+def stereo_covariance(du: F64, dv: F64, d: F64, f: float, B: float, sigma_px: float, sigma_d: float | F64) -> F64:
     """Camera-frame covariance ``J diag(su^2, sv^2, sd^2) J^T`` per point (§1.2); ``sigma_d``
     is one value or one per point.
 
