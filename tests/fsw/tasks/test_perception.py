@@ -91,9 +91,9 @@ def test_disparity_steps_yield_once_per_band_and_triangulation_is_unchanged(cfg,
     m = StereoMatcher(cfg.stereo, cfg.camera)
     _, _, left, right, _ = lab_pairs[0]
     yields, disp = count_steps(m.disparity_steps(left, right))
-    # one slice per band of each pass: SGBM, the correlation gate, the refinement (issue 14),
-    # then the spread gate apart from the sigma (issue 15)
-    assert yields == 3 * len(m.bands(left.shape[0])) + 1 == 13
+    # four slices of the rig-drift correction (issue 30), one per band of each pass: SGBM, the
+    # correlation gate, the refinement (issue 14), then the spread gate apart from the sigma (issue 15)
+    assert yields == 4 * cfg.stereo.drift_correction + 3 * len(m.bands(left.shape[0])) + 1 == 17
     assert np.array_equal(disp, m.disparity(left, right), equal_nan=True)
     whole = StereoMatcher(dataclasses.replace(cfg.stereo, band_rows_px=0), cfg.camera)
     a, b = m.triangulate(disp), whole.triangulate(disp)  # banded triangulation: same points, same order
