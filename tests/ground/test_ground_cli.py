@@ -224,3 +224,32 @@ def test_render_link_lost_and_colours(key_file: Path) -> None:
         st.feed(new_codec(2, 2).parse_buffer(msg.pack(codec))[0], 10.0)
     screen = render(st, d, "udpin:x", 20.0, Painter(True))
     assert "LINK LOST" in screen and RED in screen and "exec.overruns" in screen
+
+
+def test_map_renders_a_checkpoint_in_metres(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 29, item 1: ``safer-ground map CHECKPOINT`` draws the saved map (+y up, axes in metres);
+    a damaged checkpoint is one line and exit 2."""
+    import numpy as np
+
+    from fsw.core.geometry import MapGrid
+    from fsw.core.map import checkpoint
+    from fsw.core.map.elevation_map import ElevationMap
+
+    emap = ElevationMap(MapGrid(0.0, 0.0, 0.05, 60, 40))
+    z = np.full((40, 60), np.nan)
+    z[:20, :] = 0.3  # the lower half (low y) mapped
+    emap.z, emap.n = z, np.isfinite(z).astype(np.int32)
+    ck = tmp_path / "map_000002.ckpt"
+    ck.write_bytes(checkpoint.encode(emap, 2, 60.0))
+    png = tmp_path / "ck.png"
+    assert main(["map", str(ck), "--out", str(png)]) == 0
+    assert "1200 mapped" in capsys.readouterr().out
+    img = cv2.imread(str(png))
+    assert img is not None and img.shape[0] > 200 and img.shape[1] > 200
+    h, w = img.shape[:2]  # +y up: the mapped low-y half is drawn below the unknown (white) half
+    assert (img[int(0.3 * h), int(0.4 * w)] > 240).all() and not (img[int(0.7 * h), int(0.4 * w)] > 240).all()
+    bad = tmp_path / "bad.ckpt"
+    bad.write_bytes(ck.read_bytes()[:-3])
+    assert main(["map", str(bad), "--out", str(png)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "unreadable" in err[0]
