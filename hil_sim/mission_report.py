@@ -78,14 +78,16 @@ def transfer_s(mission: Any) -> float | None:
     return round(sent[-1] - end[-1], 3) if end and sent else None
 
 
-def write_outputs(out: Path, summary: dict[str, Any], emap: Any, truth: Any, grid: MapGrid) -> dict[str, str]:
-    """summary.json and the PNGs: map, variance, error, coverage over steps."""
+def write_outputs(out: Path, summary: dict[str, Any], emap: Any, truth: Any, grid: MapGrid,
+                  extra_files: dict[str, str] | None = None) -> dict[str, str]:
+    """summary.json and the PNGs: map, variance, error, coverage over steps; ``extra_files``
+    (name -> file) are listed in ``files`` too."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    files = {"summary": "summary.json", "map": "map.png", "coverage": "coverage.png"}
+    files = {"summary": "summary.json", "map": "map.png", "coverage": "coverage.png", **(extra_files or {})}
     ext = grid.extent
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.6), constrained_layout=True)
     for ax, data, title, cmap in (

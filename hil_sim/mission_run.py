@@ -272,6 +272,7 @@ def run_mission(
         cliffbot = Cliffbot(cfg.link, ChannelPort(channel, "b", now), out_dir=spec.out)
         mission = bench.exe.tasks["mission"]
         perception = bench.exe.tasks["perception"]
+        recorder, tap = _recorder(spec.out, bench.exe)
         limit_s = max_sim_s if max_sim_s is not None else 120.0 + 90.0 * (spec.steps + 1) + 1200.0
         counters.setdefault("unknown_frames", 0)
         counters.setdefault("reachable", [])  # stations the geofence allowed, at each step boundary
@@ -291,6 +292,8 @@ def run_mission(
             while bench.clock.now() < limit_s:
                 odo = bench.rig.rover.odometer_m
                 bench.run(1)
+                if tap is not None:
+                    tap.poll()
                 counters["unknown_frames"] += wheels_on_unknown(bench.rig, mission, odo)
                 if mission.state == "TRANSMIT" and 1 not in cliffbot.originals:
                     cliffbot.originals[1] = perception.map.z.astype(np.float32)
@@ -321,6 +324,9 @@ def run_mission(
                     break
         finally:
             bench.exe.thaw_heap()
+            if tap is not None and recorder is not None:
+                tap.close()
+                recorder.close()
         exe = bench.exe
         if "mavlink" in exe.tasks:
             exe.tasks["mavlink"].close()  # flush and close the .tlog
@@ -381,8 +387,25 @@ def run_mission(
         }
         summary = json.loads(json.dumps(summary))  # exactly what summary.json holds
         if spec.out is not None:
-            summary["files"] = write_outputs(spec.out, summary, emap, truth_f, grid)
+            extra = {"recording": recorder.path.name} if recorder is not None else {}
+            summary["files"] = write_outputs(spec.out, summary, emap, truth_f, grid, extra)
     return summary
+
+
+def _recorder(out: Path | None, exe: Any) -> tuple[Any, Any]:
+    """The mission's Foxglove recording (``ground.recording``) in ``out`` and the bus tap feeding
+    it; a resumed mission starts a new file (``mission.1.mcap``, ...), never overwrites one."""
+    if out is None:
+        return None, None
+    from ground.recording import MissionRecorder
+    from hil_sim.recording_tap import BusTap
+
+    path, k = out / "mission.mcap", 0
+    while path.exists():
+        k += 1
+        path = out / f"mission.{k}.mcap"
+    recorder = MissionRecorder(path)
+    return recorder, BusTap(exe, recorder.source("recon"))
 
 
 def _wheels_over_drop(rig: Any, world: Any, cfg: FswConfig) -> int:

@@ -1,0 +1,90 @@
+"""Issue 29, items 1 and 4: what a lockstep mission gives the ground.
+
+Item 1: the perception task's map updates are the preview topic (``[mavlink] map_preview_topic``),
+so the mission's own .tlog carries DATA_TRANSMISSION_HANDSHAKE + ENCAPSULATED_DATA and
+``safer-ground map`` renders the preview from it.
+Item 4: ``--out DIR`` holds ``mission.mcap`` with Foxglove schemas: map layers, pose and mast,
+camera pairs, the plan and the chosen view, events; read back with the ``mcap`` library."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from hil_sim.mission_run import RunSpec, run_mission
+
+
+@pytest.fixture(scope="module")
+def mission(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, Any]]:
+    out = tmp_path_factory.mktemp("mission") / "run"
+    return out, run_mission(RunSpec("lab", "5", steps=1, seed=0, transmit=False, out=out))
+
+
+@pytest.mark.slow
+def test_a_lockstep_mission_sends_map_previews_the_ground_renders(
+        mission: tuple[Path, dict[str, Any]], tmp_path: Path) -> None:
+    import cv2
+
+    from fsw.tasks.mavlink_preview import UNKNOWN_BELOW
+    from ground.cli import main as ground_main
+    from ground.map_image import images_from
+    from ground.tlog import load_messages
+
+    out, summary = mission
+    assert summary["steps"], summary["end_reason"]
+    messages, _ = load_messages(str(out / "fsw.tlog"))
+    done, _incomplete = images_from(messages)
+    assert done, "no complete map preview in the mission's tlog"
+    img = cv2.imdecode(np.frombuffer(done[-1].data, np.uint8), cv2.IMREAD_GRAYSCALE)
+    assert img is not None and max(img.shape) <= 128
+    known = img >= UNKNOWN_BELOW
+    assert 0.01 < known.mean() < 1.0  # the mapped part of the scene, and the unknown rest
+    png = tmp_path / "map.png"
+    assert ground_main(["map", str(out / "fsw.tlog"), "--out", str(png)]) == 0
+    assert png.stat().st_size > 0
+
+
+@pytest.mark.slow
+def test_the_mission_mcap_holds_foxglove_channels(mission: tuple[Path, dict[str, Any]]) -> None:
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
+
+    out, summary = mission
+    assert summary["files"]["recording"] == "mission.mcap"
+    msgs: dict[str, list[Any]] = defaultdict(list)
+    schemas: dict[str, str] = {}
+    with (out / "mission.mcap").open("rb") as fh:
+        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+        for schema, channel, _message, decoded in reader.iter_decoded_messages():
+            schemas[channel.topic] = schema.name
+            msgs[channel.topic].append(decoded)
+    assert schemas["/recon/map/elevation"] == schemas["/recon/map/variance"] == "foxglove.Grid"
+    assert schemas["/tf"] == "foxglove.FrameTransforms"
+    assert schemas["/recon/camera/left"] == schemas["/recon/camera/right"] == "foxglove.CompressedImage"
+    assert schemas["/recon/events"] == "foxglove.Log"
+    assert schemas["/recon/plan"] == "foxglove.SceneUpdate"
+    # the map grows: the last elevation grid has more known cells than the first
+    grids = msgs["/recon/map/elevation"]
+    known = [int(np.isfinite(np.frombuffer(g.data, "<f4")).sum()) for g in grids]
+    assert len(grids) >= 2 and known[-1] > known[0] > 0 and known[-1] == summary["mapped_cells"]
+    g = grids[-1]
+    assert g.frame_id == "map" and len(g.data) == g.row_stride * (len(g.data) // g.row_stride)
+    # the rover moves in the map frame, the mast rides on it
+    tfs = [t for m in msgs["/tf"] for t in m.transforms]
+    base = [t for t in tfs if t.child_frame_id == "recon/base_link"]
+    assert base and {t.parent_frame_id for t in base} == {"map"}
+    assert any(t.child_frame_id == "recon/mast" and t.parent_frame_id == "recon/base_link" for t in tfs)
+    xs = [t.translation.x for t in base]
+    assert max(xs) - min(xs) > 0.05
+    # camera pairs decode as images
+    import cv2
+    left = msgs["/recon/camera/left"][-1]
+    assert left.format == "png" and cv2.imdecode(np.frombuffer(left.data, np.uint8), cv2.IMREAD_UNCHANGED) is not None
+    assert len(msgs["/recon/camera/left"]) == len(msgs["/recon/camera/right"]) >= 2
+    # events as logs, named as the dictionary names them
+    names = {m.name for m in msgs["/recon/events"]}
+    assert any(n.startswith("mission.") for n in names)
