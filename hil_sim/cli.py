@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import shlex
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 # (group, name) -> module. Group "" is a top-level subcommand.
 COMMANDS: dict[tuple[str, str], str] = {
@@ -86,8 +88,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+        print("interrupted" + _resume_hint(args), file=sys.stderr)
         return 130
+
+
+def _resume_hint(args: argparse.Namespace) -> str:
+    """``; continue it with: safer-hil run --resume DIR`` when an interrupted run left a mission."""
+    from hil_sim.mission_run import has_mission
+
+    if not hasattr(args, "resume"):  # not a mission run (safer-hil run has --resume)
+        return ""
+    out = args.resume or getattr(args, "out", None)
+    if out is not None and has_mission(Path(out)):
+        return f"; continue it with: safer-hil run --resume {shlex.quote(str(out))}"
+    return ""
 
 
 if __name__ == "__main__":

@@ -1,0 +1,36 @@
+"""Issue 29, item 5: Ctrl-C on a mission prints the command that continues it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from hil_sim import cli
+from hil_sim.commands import run as run_cmd
+
+
+def _interrupt_after_manifest(args: Any) -> int:
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "run.json").write_text("{}")
+    raise KeyboardInterrupt
+
+
+def test_ctrl_c_prints_the_resume_command(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setattr(run_cmd, "run", _interrupt_after_manifest)
+    out = tmp_path / "my run"
+    assert cli.main(["run", "--out", str(out)]) == 130
+    err = capsys.readouterr().err.strip()
+    assert err == f"interrupted; continue it with: safer-hil run --resume '{out}'"
+
+
+def test_ctrl_c_before_anything_was_saved_says_only_interrupted(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    def early(args: Any) -> int:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(run_cmd, "run", early)
+    assert cli.main(["run", "--out", str(tmp_path / "none")]) == 130
+    assert capsys.readouterr().err.strip() == "interrupted"
