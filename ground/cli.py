@@ -48,9 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _keygen(path: str, from_stdin: bool) -> int:
-    from fsw.comm.mavlink_signing import key_from_passphrase, write_key
-
     from pathlib import Path
+
+    from fsw.comm.mavlink_signing import key_from_passphrase, write_key
 
     key = None
     path = str(Path(path).expanduser())
