@@ -34,3 +34,16 @@ def test_ctrl_c_before_anything_was_saved_says_only_interrupted(
     monkeypatch.setattr(run_cmd, "run", early)
     assert cli.main(["run", "--out", str(tmp_path / "none")]) == 130
     assert capsys.readouterr().err.strip() == "interrupted"
+
+
+def test_make_demo_first_lines_tell_what_happens(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 29, item 5: the demo's first lines say what runs and where the results go, before any
+    event line (KEY_NONE is explained, not the first thing a newcomer reads)."""
+    seen: list[Any] = []
+    monkeypatch.setattr(run_cmd, "run", lambda ns: seen.append(ns) or 0)
+    assert cli.main(["demo", "--steps", "3", "--out", str(tmp_path / "d")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("safer-hil demo: ") and "simulated rover" in lines[0]
+    assert any("KEY_NONE" in ln for ln in lines[:5]) and any("summary.json" in ln for ln in lines[:5])
+    assert seen and seen[0].steps == 3 and seen[0].fresh
