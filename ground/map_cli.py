@@ -178,14 +178,14 @@ def cmd_decode(args: argparse.Namespace) -> int:
 def _checkpoint_info(raw: bytes, emap: ElevationMap, meta: checkpoint.CheckpointMeta) -> None:
     g = emap.grid
     z = emap.z[emap.mapped]
-    state = meta.state or {}
+    state = (meta.state or {}).get("mission") or {}
     rows = [("kind", f"map checkpoint (version {meta.version})"), ("bytes", len(raw)),
             ("seq", meta.seq), ("time_s", f"{meta.time_s:.1f}"),
             ("cells", f"{g.ny} x {g.nx} ({z.size} known)"), ("cell_m", f"{g.cell:.4g}"),
             ("origin_m", f"x {g.x0:.3f}, y {g.y0:.3f}"),
             ("elevation_m", f"{float(z.min()):.3f} .. {float(z.max()):.3f}" if z.size else "-"),
             ("mission_state", "saved" if meta.state is not None else "none (map only)")]
-    rows += [(f"state.{k}", state[k]) for k in ("phase", "step") if k in state]
+    rows += [(f"mission.{k}", state[k]) for k in ("phase", "step") if k in state]
     for k, v in rows:
         print(f"{k:18s} {v}")
 

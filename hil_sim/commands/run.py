@@ -114,5 +114,6 @@ def run(args: argparse.Namespace) -> int:
             f"Cliff-bot: map {cb['map_id']} {'decoded' if cb['decoded'] else 'NOT decoded'}, "
             f"{cb['container_bytes']} B, max error {cb['max_error_m']} m"
         )
-    print(f"report: {out / 'summary.json'} (map.png, coverage.png, fsw.tlog)")
+    print(f"report: {out / 'summary.json'} (map.png, coverage.png, fsw.tlog; mission.mcap for Foxglove, "
+          f"safer-ground rerun for rerun)")
     return 0 if s["final_state"] == "DONE" else 1

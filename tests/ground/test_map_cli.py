@@ -109,7 +109,7 @@ def _checkpoint_file(tmp_path: Path) -> tuple[Path, np.ndarray]:
     emap.z = z.copy()
     emap.n = np.isfinite(z).astype(np.int32)
     p = tmp_path / "map_000007.ckpt"
-    p.write_bytes(checkpoint.encode(emap, 7, 123.4, state={"phase": "MOVE", "step": 3}))
+    p.write_bytes(checkpoint.encode(emap, 7, 123.4, state={"mission": {"phase": "MOVE", "step": 3}}))
     return p, z
 
 
