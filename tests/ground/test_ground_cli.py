@@ -253,3 +253,23 @@ def test_map_renders_a_checkpoint_in_metres(tmp_path: Path, capsys: pytest.Captu
     assert main(["map", str(bad), "--out", str(png)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "unreadable" in err[0]
+
+
+def test_listen_keeps_its_header_filters_channels_and_shows_the_step() -> None:
+    """Issue 29, item 5: with 150 channels the screen fits a 40-row terminal with the header on
+    top; --channels filters by pattern; the mission's step shows as 'step k of N'."""
+    from ground.dictionary import load_dictionary
+    from ground.listen import Painter, render
+    from ground.state import GroundState
+
+    d = load_dictionary()
+    st = GroundState(d)
+    st.channels.update({f"task{i:03d}.value": (float(i), 10.0) for i in range(150)})
+    st.channels["mission.step"] = (3.0, 10.0)
+    screen = render(st, d, "udpin:x", 11.0, Painter(False), rows=40, steps=20).splitlines()
+    assert len(screen) <= 40 and screen[0].startswith("safer-ground udpin:x")
+    assert "step 3 of 20" in screen[2] and any("more channels" in ln for ln in screen)
+    full = render(st, d, "udpin:x", 11.0, Painter(False)).splitlines()
+    assert len(full) > 70  # without a height every channel is listed
+    only = render(st, d, "udpin:x", 11.0, Painter(False), channels=("mission.*", "task00?.*"))
+    assert "mission.step" in only and "task009.value" in only and "task010.value" not in only
