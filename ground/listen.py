@@ -114,7 +114,10 @@ def render(st: GroundState, d: GroundDictionary, url: str, now: float, paint: Pa
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("url", help="udpin:HOST:PORT (rover sends here, the default rover url is "
-                               "udpout:127.0.0.1:14550), udpout:HOST:PORT (rover listens) or serial:DEVICE")
+                               "udpout:127.0.0.1:14550), udpout:HOST:PORT (rover listens) or serial:DEVICE; "
+                               "or a .tlog file to replay")
+    p.add_argument("--speed", type=float, default=0.0, metavar="X",
+                   help="tlog replay: X times the logged pace on a terminal (0: straight to the last screen)")
     p.add_argument("--baud", type=int, default=57600, help="serial line rate")
     p.add_argument("--refresh", type=float, default=0.5, metavar="S", help="screen refresh period")
     p.add_argument("--timeout", type=float, default=3.0, metavar="S", help="heartbeat age that counts as link lost")
@@ -122,15 +125,52 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-color", action="store_true", help="no ANSI colours")
     p.add_argument("--channels", action="append", default=[], metavar="PATTERN",
                    help="show only channels matching this shell pattern (repeatable), e.g. 'mission.*'")
-    p.add_argument("--steps", type=int, default=None, metavar="N", help="the mission's steps, for 'step k of N'")
+    p.add_argument("--steps", type=int, default=None, metavar="N",
+                   help="N in 'step k of N': the value mission.step reaches at the end (imaging steps + 1 "
+                        "for the panorama)")
+
+
+def replay(args: argparse.Namespace, d: GroundDictionary) -> int:
+    """The screens of a .tlog: at ``--speed`` times the logged pace on a terminal, else the last one."""
+    from fsw.comm.mavlink_tlog import TlogError
+    from ground.tlog import load_messages
+
+    try:
+        messages, note = load_messages(args.url)
+    except (TlogError, OSError) as exc:
+        print(f"safer-ground listen: {exc}", file=sys.stderr)
+        return 2
+    if note:
+        print(f"safer-ground listen: warning: {note}", file=sys.stderr)
+    tty = sys.stdout.isatty()
+    paint = Painter(tty and not args.no_color)
+    st = GroundState(d)
+    kw = {"channels": tuple(args.channels), "steps": args.steps}
+    t_log0, t_wall0, next_draw = messages[0].time_s, time.monotonic(), messages[0].time_s
+    try:
+        for lm in messages:
+            st.feed(lm.msg, lm.time_s)
+            if tty and args.speed > 0 and lm.time_s >= next_draw:
+                next_draw = lm.time_s + args.refresh * args.speed
+                time.sleep(max(0.0, (lm.time_s - t_log0) / args.speed - (time.monotonic() - t_wall0)))
+                screen = render(st, d, args.url, lm.time_s, paint, timeout_s=args.timeout,
+                                rows=shutil.get_terminal_size().lines - 1, **kw)  # type: ignore[arg-type]
+                sys.stdout.write("\x1b[H\x1b[2J" + screen + "\n")
+                sys.stdout.flush()
+    except KeyboardInterrupt:
+        return 130
+    print(render(st, d, args.url, messages[-1].time_s, paint, timeout_s=args.timeout, **kw))  # type: ignore[arg-type]
+    return 0
 
 
 def run(args: argparse.Namespace, d: GroundDictionary) -> int:
     from ground.link import GroundLink, LinkError
 
-    if args.refresh <= 0 or args.timeout <= 0 or (args.duration is not None and args.duration < 0):
-        print("safer-ground listen: --refresh, --timeout and --duration must be positive", file=sys.stderr)
+    if args.refresh <= 0 or args.timeout <= 0 or (args.duration is not None and args.duration < 0) or args.speed < 0:
+        print("safer-ground listen: --refresh, --timeout, --duration and --speed must be positive", file=sys.stderr)
         return 2
+    if args.url.endswith(".tlog"):
+        return replay(args, d)
     try:
         link = GroundLink(args.url, args.baud)
     except LinkError as exc:

@@ -49,6 +49,23 @@ def test_a_lockstep_mission_sends_map_previews_the_ground_renders(
 
 
 @pytest.mark.slow
+def test_listen_replays_the_mission_tlog(mission: tuple[Path, dict[str, Any]],
+                                        capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 29, item 5: ``safer-ground listen LOG.tlog`` shows the last screen of a run, with
+    the dictionary's channel names and the mission's step."""
+    from ground.cli import main as ground_main
+
+    out, summary = mission
+    capsys.readouterr()
+    assert ground_main(["listen", str(out / "fsw.tlog"), "--channels", "mission.*",
+                        "--steps", str(len(summary["steps"]))]) == 0
+    screen = capsys.readouterr().out
+    n = len(summary["steps"])
+    assert f"Mode {summary['final_state']}" in screen and f"step {n} of {n}" in screen
+    assert "mission.mapped_cells" in screen and "perception." not in screen.split("channels (red")[1].split("events")[0]
+
+
+@pytest.mark.slow
 def test_the_mission_mcap_holds_foxglove_channels(mission: tuple[Path, dict[str, Any]]) -> None:
     from mcap.reader import make_reader
     from mcap_protobuf.decoder import DecoderFactory
