@@ -96,7 +96,8 @@ class Cliffbot:
             self.out_dir.mkdir(parents=True, exist_ok=True)
             path = self.out_dir / f"cliffbot_map_{map_id}.png"
             write_figure13(orig if orig is not None else z, z, path,
-                           f"map {map_id}: {len(data)} bytes, bound {dec.header.error_bound_m:.3f} m")
+                           f"map {map_id}: {len(data)} bytes, bound {dec.header.error_bound_m:.3f} m",
+                           cell_m=dec.header.cell_m)
             np.save(self.out_dir / f"cliffbot_map_{map_id}.npy", z)
             png = str(path)
         return CliffbotReport(map_id, len(data), True, "", z.shape, int(np.isfinite(z).sum()),
@@ -104,8 +105,10 @@ class Cliffbot:
 
 
 def write_figure13(original: NDArray[np.floating], received: NDArray[np.floating], path: Path,
-                   title: str = "") -> None:
-    """Paper Figure 13: grayscale elevation, original (left) and transmitted (right)."""
+                   title: str = "", cell_m: float | None = None) -> None:
+    """Paper Figure 13: grayscale elevation, original (left) and transmitted (right), drawn as
+    every map picture is (row 0 = lowest y at the bottom, ``origin="lower"``, as ``map.png``);
+    axes in metres from the map's corner when ``cell_m`` is given, else in cells."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -117,10 +120,13 @@ def write_figure13(original: NDArray[np.floating], received: NDArray[np.floating
     cmap = matplotlib.colormaps["gray"].with_extremes(bad="#c03030")
     for ax, img, name in zip(axes, (original, received), ("original", "received by the Cliff-bot"),
                              strict=True):
-        im = ax.imshow(img, cmap=cmap, vmin=lo, vmax=hi, interpolation="nearest")
+        ny, nx = img.shape
+        scale, unit = (cell_m, "m") if cell_m else (1.0, "cells")
+        im = ax.imshow(img, cmap=cmap, vmin=lo, vmax=hi, interpolation="nearest", origin="lower",
+                       extent=(0.0, nx * scale, 0.0, ny * scale))
         ax.set_title(name)
-        ax.set_xticks([])
-        ax.set_yticks([])
+        ax.set_xlabel(f"x from the map's corner ({unit})")
+        ax.set_ylabel(f"y ({unit})")
     fig.colorbar(im, ax=axes, shrink=0.8, label="elevation [m] (red: unknown)")
     if title:
         fig.suptitle(title)

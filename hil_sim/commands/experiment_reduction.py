@@ -150,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
         z, zt, enc, dh = fig13
         write_figure13(z, zt, args.out / "fig13_transmitted.png",
                        f"dH = {dh:g}: reduction {enc.tree.reduction_factor:.1f}x, {len(enc.data)} bytes, "
-                       f"max error {enc.max_error_m:.3f} m")
+                       f"max error {enc.max_error_m:.3f} m", cell_m=args.cell_m)
     _fig12(rows, dhs, args.out / "fig12_reduction.png", codec.split_rule)
     report = _report(rows, comp, dhs, codec, args)
     (args.out / "report.md").write_text(report)
