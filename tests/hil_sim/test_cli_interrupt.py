@@ -47,3 +47,20 @@ def test_make_demo_first_lines_tell_what_happens(tmp_path: Path, monkeypatch: py
     assert lines[0].startswith("safer-hil demo: ") and "simulated rover" in lines[0]
     assert any("KEY_NONE" in ln for ln in lines[:5]) and any("summary.json" in ln for ln in lines[:5])
     assert seen and seen[0].steps == 3 and seen[0].fresh
+
+
+def test_no_option_says_its_default_twice() -> None:
+    """Issue 29, item 5: "(default: ...)" is added only where the help does not already say it."""
+    import argparse
+    import re
+
+    def walk(p: argparse.ArgumentParser, name: str) -> list[str]:
+        bad = [f"{name}: {' '.join(para.split())[:80]}" for para in re.split(r"\n(?=  -)", p.format_help())
+               if len(re.findall(r"default(?!\.toml)", para.lower())) >= 2 and "(default:" in para]
+        for a in p._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                for n, sp in a.choices.items():
+                    bad += walk(sp, f"{name} {n}")
+        return bad
+
+    assert walk(cli.build_parser(), "safer-hil") == []
