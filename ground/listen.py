@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import fnmatch
 import math
-import shutil
+import os
 import sys
 import time
 
@@ -130,6 +130,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "for the panorama)")
 
 
+def _terminal_rows() -> int | None:
+    """The terminal's height less one line, or None when stdout has no terminal size."""
+    try:
+        return os.get_terminal_size(sys.stdout.fileno()).lines - 1
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
 def replay(args: argparse.Namespace, d: GroundDictionary) -> int:
     """The screens of a .tlog: at ``--speed`` times the logged pace on a terminal, else the last one."""
     from fsw.comm.mavlink_tlog import TlogError
@@ -154,7 +162,7 @@ def replay(args: argparse.Namespace, d: GroundDictionary) -> int:
                 next_draw = lm.time_s + args.refresh * args.speed
                 time.sleep(max(0.0, (lm.time_s - t_log0) / args.speed - (time.monotonic() - t_wall0)))
                 screen = render(st, d, args.url, lm.time_s, paint, timeout_s=args.timeout,
-                                rows=shutil.get_terminal_size().lines - 1, **kw)  # type: ignore[arg-type]
+                                rows=_terminal_rows(), **kw)  # type: ignore[arg-type]
                 sys.stdout.write("\x1b[H\x1b[2J" + screen + "\n")
                 sys.stdout.flush()
     except KeyboardInterrupt:
@@ -190,7 +198,7 @@ def run(args: argparse.Namespace, d: GroundDictionary) -> int:
             if tty and now >= next_draw:
                 next_draw = now + args.refresh
                 screen = render(st, d, args.url, now, paint, link.reconnects, link.error, args.timeout,
-                                channels=tuple(args.channels), rows=shutil.get_terminal_size().lines - 1,
+                                channels=tuple(args.channels), rows=_terminal_rows(),
                                 steps=args.steps)
                 sys.stdout.write("\x1b[H\x1b[2J" + screen + "\n")
                 sys.stdout.flush()

@@ -17,6 +17,8 @@ import pytest
 
 from hil_sim.mission_run import RunSpec, run_mission
 
+pytestmark = pytest.mark.timeout(900)  # one lockstep mission shared by the tests (minutes on a loaded machine)
+
 
 @pytest.fixture(scope="module")
 def mission(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, Any]]:
