@@ -2,7 +2,8 @@
 
 Subcommands: ``listen`` (live view), ``send`` (signed command), ``plot`` (PNG plots of a
 .tlog), ``map`` (map preview from a .tlog), ``params`` (the MAVLink parameter table), ``gcs-check``
-(behave as a stock ground station and report what was answered), ``rerun`` (a mission's MCAP as a rerun recording),
+(behave as a stock ground station and report what was answered), ``rerun`` (a mission's MCAP
+as a rerun recording), ``record`` (a Foxglove recording from a .tlog),
 ``keygen`` (a new signing key). Channel names,
 limits, commands and budgets come from the flight configuration (``--config``). Exit code 2
 on usage errors, bad files and bad configuration.
@@ -18,7 +19,8 @@ from collections.abc import Sequence
 from fsw.settings import DEFAULT_CONFIG
 
 SUBCOMMANDS = {"listen": "ground.listen", "send": "ground.send", "plot": "ground.plot", "map": "ground.map_image",
-               "params": "ground.params_cli", "gcs-check": "ground.gcs_check", "rerun": "ground.rerun_cli"}
+               "params": "ground.params_cli", "gcs-check": "ground.gcs_check", "rerun": "ground.rerun_cli",
+               "record": "ground.record_cli"}
 KEYGEN_HELP = "write a new random 32-byte signing key (hex, mode 0600); give the same file to the rover"
 
 

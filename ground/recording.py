@@ -102,6 +102,7 @@ class VehicleSource:
         self.plan = fc.SceneUpdateChannel(f"{p}/plan", context=ctx)
         self.view = fc.SceneUpdateChannel(f"{p}/view", context=ctx)
         self.log = fc.LogChannel(f"{p}/events", context=ctx)
+        self._preview: Any = None  # /<vehicle>/map/preview, made when a tlog's preview arrives
         self.counts = {"map": 0, "pose": 0, "images": 0, "plan": 0, "view": 0, "events": 0}
 
     def map(self, t: float, emap: ElevationMap) -> None:
@@ -169,6 +170,16 @@ class VehicleSource:
         self.counts["view"] += 1
 
     def event(self, ev: Event) -> None:
-        self.log.log(fm.Log(timestamp=_stamp(ev.time_s), level=_LEVELS.get(ev.severity, fm.LogLevel.Unknown),
-                            message=ev.text, name=ev.name), log_time=_ns(ev.time_s))
+        self.log_line(ev.time_s, _LEVELS.get(ev.severity, fm.LogLevel.Unknown), ev.name, ev.text)
+
+    def log_line(self, t: float, level: Any, name: str, text: str) -> None:
+        self.log.log(fm.Log(timestamp=_stamp(t), level=level, message=text, name=name), log_time=_ns(t))
         self.counts["events"] += 1
+
+    def map_preview(self, t: float, jpeg: bytes) -> None:
+        """A map preview as the ground received it (JPEG, north up): ``/<vehicle>/map/preview``."""
+        if self._preview is None:
+            self._preview = fc.CompressedImageChannel(f"/{self.vehicle}/map/preview", context=self.rec.context)
+        self._preview.log(fm.CompressedImage(timestamp=_stamp(t), frame_id="map", data=jpeg, format="jpeg"),
+                          log_time=_ns(t))
+        self.counts["map"] += 1

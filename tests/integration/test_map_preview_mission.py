@@ -109,3 +109,30 @@ def test_the_mission_mcap_holds_foxglove_channels(mission: tuple[Path, dict[str,
     # events as logs, named as the dictionary names them
     names = {m.name for m in msgs["/recon/events"]}
     assert any(n.startswith("mission.") for n in names)
+
+
+@pytest.mark.slow
+def test_a_recording_from_the_tlog_alone(mission: tuple[Path, dict[str, Any]], tmp_path: Path) -> None:
+    """Issue 29, item 4: a run with only its .tlog (a real-time mission) gets a Foxglove recording
+    on the ground: pose, events and the map previews the link carried; bad input is one line."""
+    import cv2
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
+
+    from ground.cli import main as ground_main
+
+    out, _ = mission
+    mcap = tmp_path / "rt.mcap"
+    assert ground_main(["record", str(out / "fsw.tlog"), "--out", str(mcap)]) == 0
+    got: dict[str, list[Any]] = defaultdict(list)
+    with mcap.open("rb") as fh:
+        for schema, channel, _m, msg in make_reader(fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+            got[channel.topic].append((schema.name, msg))
+    assert got["/tf"] and {n for n, _ in got["/tf"]} == {"foxglove.FrameTransforms"}
+    assert any(m.message.startswith("mission.") for _, m in got["/recon/events"])
+    name, preview = got["/recon/map/preview"][-1]
+    assert name == "foxglove.CompressedImage" and preview.format == "jpeg"
+    assert cv2.imdecode(np.frombuffer(preview.data, np.uint8), cv2.IMREAD_GRAYSCALE) is not None
+    bad = tmp_path / "bad.tlog"
+    bad.write_bytes(b"nothing")
+    assert ground_main(["record", str(bad), "--out", str(tmp_path / "b.mcap")]) == 2
