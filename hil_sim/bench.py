@@ -28,7 +28,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -61,11 +61,13 @@ class _Sink:
 
 class ExecutiveDriver:
     """Stepping and the ground's view of a lockstep executive, shared by the bench and the
-    task test rig: ``exe`` is the executive, ``_seq`` a command sequence counter, ``run`` steps."""
+    task test rig: ``exe`` is the executive, ``run`` steps (the deriving class says how)."""
 
-    exe: Executive
-    _seq: Iterator[int]
     COMMAND_SOURCE = "bench"
+
+    def __init__(self, exe: Executive) -> None:
+        self.exe = exe
+        self._seq = itertools.count(1)  # command sequence numbers
 
     def run(self, frames: int) -> None:
         raise NotImplementedError
@@ -131,12 +133,11 @@ class LockstepBench(ExecutiveDriver):
 
             self._own_radio = res.radio_port = open_radio(f"inproc://{self.channel}-radio")
         ends = Endpoints(mast_port=flight_port, camera_source=self.camera)
-        self.exe: Executive = build_executive(self.cfg, self.clock, res, ends, map_store=False)
+        super().__init__(build_executive(self.cfg, self.clock, res, ends, map_store=False))
         self._t_last = self.clock.now()
         if start is not None:
             self.exe.frame = int(start[1])
         self._install_task_faults()
-        self._seq = itertools.count(1)
         if quiet:  # silence console-style tasks (they print every event to stdout)
             for task in self.exe.tasks.values():
                 if hasattr(task, "out"):
