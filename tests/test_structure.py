@@ -510,3 +510,15 @@ def test_the_shape_rules_find_what_they_forbid(tmp_path: Path) -> None:
     assert strongly_connected(wings) == [["pkg.core.a", "pkg.core.b"]]
     assert folder_offenders(tmp_path, ["pkg"], {}) == [f"pkg/many: {MAX_FOLDER_MODULES + 1} modules (limit 15)"]
     assert folder_offenders(tmp_path, ["pkg"], {"pkg/many": 16}) == []
+
+
+def test_explicit_any_is_refused_in_fsw_but_where_still_spelled_out() -> None:
+    """mypy refuses an explicit ``Any`` (also implied, as in a bare ``np.ndarray``) in all of fsw/;
+    the flight tasks, the executive and the settings are never excepted."""
+    import tomllib
+
+    mypy = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["tool"]["mypy"]
+    on = [o for o in mypy["overrides"] if o.get("disallow_any_explicit") is True]
+    assert any("fsw.*" in o["module"] for o in on)
+    excepted = [m for o in mypy["overrides"] if o.get("disallow_any_explicit") is False for m in o["module"]]
+    assert not any(m.startswith(("fsw.tasks", "fsw.executive", "fsw.settings", "fsw.app")) for m in excepted)
