@@ -247,8 +247,10 @@ def test_layer_rule(graph: dict[str, list[Edge]], rule: LayerRule) -> None:
 MAX_FOLDER_MODULES = 15
 # Folders over the limit today, with the most modules they may hold until they are split:
 # hil_sim's experiment and lab tooling moves to a lab wing (issue 24, item 6), fsw/comm's MAVLink
-# files and fsw/tasks's mission and motion parts to packages of their own (issue 24, item 2).
-FOLDER_ALLOWANCE = {"hil_sim": 30, "hil_sim/commands": 30, "hil_sim/world": 21, "fsw/comm": 22, "fsw/tasks": 24}
+# files, fsw/drivers's CAN transports and fsw/tasks's mission and motion parts to packages of
+# their own (issue 24, item 2).
+FOLDER_ALLOWANCE = {"hil_sim": 30, "hil_sim/commands": 30, "hil_sim/world": 21, "fsw/comm": 22, "fsw/drivers": 17,
+                    "fsw/tasks": 24}
 
 
 def folders(root: Path, packages: Iterable[str]) -> dict[str, int]:
