@@ -1,4 +1,4 @@
-"""The mission sequencer (paper Figure 4; ALGORITHM.md §2-§4, §6).
+"""The mission sequencer (paper Figure 4; docs/algorithm.md §2-§4, §6).
 
     INIT -> PANORAMA -> [SELECT -> MOVE -> POINT -> ACQUIRE] until the end criterion (§3.6)
          -> TRANSMIT -> DONE;   any state -> SAFE on a driver fault or a geofence refusal.
@@ -37,6 +37,7 @@ import time
 from collections import deque
 from typing import ClassVar
 
+from fsw.comm.mavlink_plan import ground_plan
 from fsw.core.edge.edge import EdgeModel
 from fsw.core.planning.nbv import end_reason
 from fsw.core.planning.view_candidates import CandidateView
@@ -126,6 +127,7 @@ class MissionTask(FlightTask):
         self.pending: list[CandidateView] = []
         self.latest: MapUpdate | None = None
         self.edge: EdgeModel | None = None
+        self._stations: list[tuple[float, float, float]] = []  # for the ground (MISSION protocol)
         self.request_id = 0
         self.waiting_for: int | None = None
         self.deadline = math.inf
@@ -347,6 +349,8 @@ class MissionTask(FlightTask):
                                       method=self.view.method)
             self._start_point()
             return
+        self._stations.append((float(there[0]), float(there[1]), float(there[2])))
+        self.publish(self.ctx.cfg.mavlink.plan_topic, ground_plan(self._stations, self.edge, self.ctx.cfg.geofence))
         self.ground.start_move(here, there)
 
     def _state_move(self) -> None:
