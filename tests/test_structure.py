@@ -249,8 +249,8 @@ MAX_FOLDER_MODULES = 15
 # hil_sim's experiment and lab tooling moves to a lab wing (issue 24, item 6), fsw/comm's MAVLink
 # files, fsw/drivers's CAN transports and fsw/tasks's mission and motion parts to packages of
 # their own (issue 24, item 2).
-FOLDER_ALLOWANCE = {"hil_sim": 30, "hil_sim/commands": 30, "hil_sim/world": 21, "fsw/comm": 24, "fsw/drivers": 17,
-                    "fsw/tasks": 25}
+FOLDER_ALLOWANCE = {"hil_sim": 30, "hil_sim/commands": 30, "hil_sim/world": 21, "fsw/comm": 25, "fsw/drivers": 17,
+                    "fsw/tasks": 26}
 
 
 def folders(root: Path, packages: Iterable[str]) -> dict[str, int]:

@@ -1,7 +1,8 @@
 """The mission sequencer (paper Figure 4; docs/algorithm.md §2-§4, §6).
 
     INIT -> PANORAMA -> [SELECT -> MOVE -> POINT -> ACQUIRE] until the end criterion (§3.6)
-         -> TRANSMIT -> DONE;   any state -> SAFE on a driver fault or a geofence refusal.
+         -> TRANSMIT -> DONE;   any state -> SAFE on a driver fault or a geofence refusal;
+         TRANSMIT -> SAFE when the map was not delivered (link failed, rejected, timeout).
 
 Each view is a sequence of requests to the other tasks over the software bus: the motion
 task drives to the rover pose (``goto``), then points the mast; the camera task takes the
@@ -53,7 +54,6 @@ from fsw.tasks.messages import (
     NAV_POSE,
     NBV_REQUEST,
     NBV_RESULT,
-    RADIO_SEND,
     RADIO_STATUS,
     VIEW_FAILED,
     CaptureRequest,
@@ -62,12 +62,11 @@ from fsw.tasks.messages import (
     MotionStatus,
     MoveOutcome,
     NavPose,
-    RadioSendRequest,
-    RadioStatus,
 )
 from fsw.tasks.mission_ground import MIN_MOVE_M, MIN_TURN_RAD, MissionGround, Pose3
 from fsw.tasks.mission_safe import SafeMode
 from fsw.tasks.mission_state import STATES, LatestSection, MissionPhase, MissionSection, StateError, StepRecord
+from fsw.tasks.mission_transmit import MapDelivery
 from fsw.tasks.sections import MissionConfig
 
 FIX_WAIT_S = 1.0  # longest wait for nav.pose to show a map update's navigation fix
@@ -97,6 +96,7 @@ class MissionTask(FlightTask):
         EventDef("SAFE_FINAL", Severity.WARNING_HI, "mission stays in SAFE: {reason}"),
         EventDef("RETRY", Severity.WARNING_LO, "{what} failed ({reason}); retry {n}", throttle=5),
         EventDef("TRANSMITTED", Severity.ACTIVITY_HI, "map transmission ended: {state}"),
+        EventDef("UNDELIVERED", Severity.WARNING_HI, "map not delivered ({state}); the mission does not end DONE"),
         EventDef("CHECKPOINT_SAVED", Severity.ACTIVITY_LO, "step {step} checkpoint {seq} saved ({kib:.0f} KiB)"),
         EventDef("CHECKPOINT_FAILED", Severity.WARNING_HI, "mission checkpoint failed: {error}", throttle=3),
         EventDef("RESUMED", Severity.ACTIVITY_HI, "mission resumed from checkpoint {seq}: step {step}, {phase}"),
@@ -118,7 +118,6 @@ class MissionTask(FlightTask):
         self.nbv_box = self.subscribe(NBV_RESULT, depth=2)
         self.radio_box = self.subscribe(RADIO_STATUS, depth=4)
         self.failed_box = self.subscribe(VIEW_FAILED, depth=4)  # a view that will not reach the map
-        self.radio: RadioStatus | None = None
         self.nav: NavPose | None = None
         self.state = MissionPhase.IDLE
         self.records: list[StepRecord] = []
@@ -136,6 +135,7 @@ class MissionTask(FlightTask):
         self.t_wall0 = time.perf_counter()
         self.ground = MissionGround(cfg, self)  # geofence, looks, stays (fsw.tasks.mission_ground)
         self.safe = SafeMode(self.mcfg, self)  # SAFE and its recovery (fsw.tasks.mission_safe)
+        self.delivery = MapDelivery(self.mcfg, self)  # TRANSMIT (fsw.tasks.mission_transmit)
         self._auto_start = self.mcfg.auto_start
         self._republish: MapUpdate | None = None
         self._resume()
@@ -180,6 +180,9 @@ class MissionTask(FlightTask):
 
     def forget_request(self) -> None:
         self.waiting_for = None
+
+    def set_deadline(self, t: float) -> None:
+        self.deadline = t
 
     # -- checkpoints (fsw.tasks.mission_checkpoint) -----------------------------------------------
     def checkpoint(self, phase: MissionPhase) -> None:
@@ -445,22 +448,13 @@ class MissionTask(FlightTask):
         self.end = reason
         self.event("END", reason=reason)
         if self.mcfg.transmit and "radio" in self.ctx.runtime.tasks:
-            self.goto(MissionPhase.TRANSMIT)
-            self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
-            self.publish(RADIO_SEND, RadioSendRequest(map_id=1))
+            self.delivery.begin()  # fsw.tasks.mission_transmit
         else:
             self.goto(MissionPhase.DONE)
             self.checkpoint(MissionPhase.DONE)
 
     def _state_transmit(self) -> None:
-        for status in self.radio_box.drain():
-            self.radio = status
-        finished = self.radio is not None and self.radio.finished
-        if finished or self.timed_out():
-            state = self.radio.state.value if self.radio is not None else None
-            self.event("TRANSMITTED", state=state if not self.timed_out() else "timeout")
-            self.goto(MissionPhase.DONE)
-            self.checkpoint(MissionPhase.DONE)
+        self.delivery.run(self.radio_box.drain())
 
     def cmd_RESUME(self) -> None:
         if self.state != MissionPhase.SAFE:
