@@ -49,7 +49,7 @@ def test_mast_stall_sends_mission_to_safe() -> None:
         mission = b.exe.tasks["mission"]
         b.run_until(lambda: mission.state == "SAFE", 400)
         assert any("SAFE mode" in e.text for e in b.events("mission.SAFE"))
-        assert b.tlm("mission.safe.entries") == 1
+        assert b.tlm("mission.safe_entries") == 1
         r = b.command("mission.RESUME")
         assert r.status.name == "OK"
         r = b.command("mission.START")
