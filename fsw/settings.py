@@ -40,8 +40,10 @@ from fsw.core.stereo.stereo_calibration import StereoCalibration
 from fsw.drivers.calibration_file import CalibrationError, load_calibration
 from fsw.drivers.factory import DevicesConfig
 from fsw.executive.schedule_check import check
+from fsw.framework.agent import AgentConfig
 from fsw.framework.params import ConfigError, build, load_toml
 from fsw.framework.schedule import ExecutiveConfig
+from fsw.tasks.registry import AGENTS
 from fsw.tasks.sections import CaptureConfig, MissionConfig
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "fsw.toml"
@@ -52,6 +54,7 @@ class FswConfig:
     """Root of the flight configuration (``config/fsw.toml``)."""
 
     executive: ExecutiveConfig
+    agent: AgentConfig = field(default_factory=AgentConfig)
     rover: RoverConfig = field(default_factory=RoverConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     mast: MastConfig = field(default_factory=MastConfig)
@@ -105,6 +108,24 @@ def load_settings(path: str | Path = DEFAULT_CONFIG, check_calibration: bool = T
     flight = not isinstance(ex, dict) or ex.get("flight", True) is not False
     cfg = build(FswConfig, data, source=str(path), complete=flight)
     check(cfg, str(path))
+    check_agent(cfg, set(data), str(path))
     if check_calibration:
         load_stereo_calibration(cfg, str(path))
     return cfg
+
+
+def check_agent(cfg: FswConfig, sections: set[str], source: str = "config") -> None:
+    """The configuration fits its agent's topology (``[agent] kind``; ``fsw.tasks.registry.AGENTS``):
+    a known kind, only the sections that agent reads, only its task kinds; ``ConfigError`` if not."""
+    topo = AGENTS.get(cfg.agent.kind)
+    if topo is None:
+        known = ", ".join(sorted(AGENTS))
+        raise ConfigError(source, "agent.kind", f"unknown agent kind {cfg.agent.kind!r} (known: {known})")
+    try:
+        topo.check_sections(sections)
+    except ValueError as err:
+        raise ConfigError(source, "agent", str(err)) from None
+    try:
+        topo.check_tasks([t.kind for t in cfg.executive.tasks])
+    except ValueError as err:
+        raise ConfigError(source, "executive.tasks", str(err)) from None

@@ -13,6 +13,7 @@ knows the configuration only by the shape it reads (:class:`ScheduledConfig`).
 from __future__ import annotations
 
 import importlib
+from collections.abc import Mapping
 from typing import Protocol
 
 from fsw.framework.params import ConfigError
@@ -32,15 +33,16 @@ class ScheduledConfig(Protocol):
 FLIGHT_KINDS = ("mission", "health", "console", "mavlink")
 
 
-def task_class(kind: str, source: str = "config") -> type[Task]:
-    """Resolve a task kind to its class (imported lazily); ``ConfigError`` for an unknown kind."""
-    if kind not in KINDS:
-        known = ", ".join(sorted(KINDS))
+def task_class(kind: str, source: str = "config", kinds: Mapping[str, str] = KINDS) -> type[Task]:
+    """Resolve a task kind to its class (imported lazily) among ``kinds`` (an agent's; all by
+    default); ``ConfigError`` for an unknown kind."""
+    if kind not in kinds:
+        known = ", ".join(sorted(kinds))
         raise ConfigError(source, "executive.tasks.kind", f"unknown task kind {kind!r} (known: {known})")
-    module, _, attr = KINDS[kind].partition(":")
+    module, _, attr = kinds[kind].partition(":")
     cls = getattr(importlib.import_module(module), attr)
     if not (isinstance(cls, type) and issubclass(cls, Task)):
-        raise TypeError(f"{KINDS[kind]} is not a Task")
+        raise TypeError(f"{kinds[kind]} is not a Task")
     return cls
 
 
