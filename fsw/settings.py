@@ -1,10 +1,12 @@
 """The flight software's whole configuration: one frozen object built from one TOML file.
 
-Each section's dataclass lives beside the code that uses it; this module only assembles
-them. ``load_settings(path)`` validates everything up front (``fsw.framework.params``) so a bad file
-is refused with one line naming the file, the key and the reason; that includes the
-stereo calibration file ``[camera] calibration_file`` names (``fsw.drivers.calibration_file``):
-missing or inconsistent, it is a start-up error like any bad key.
+Each section's dataclass lives beside the code that uses it (the tasks' own sections in
+``fsw.sections``, beside this module: the settings layer imports nothing above it); this
+module only assembles them. ``load_settings(path)`` validates everything up front
+(``fsw.framework.params``) so a bad file is refused with one line naming the file, the key
+and the reason; that includes the stereo calibration file ``[camera] calibration_file``
+names (``fsw.drivers.calibration_file``): missing or inconsistent, it is a start-up error
+like any bad key.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ from fsw.drivers.calibration_file import CalibrationError, load_calibration
 from fsw.drivers.factory import DevicesConfig
 from fsw.framework.params import ConfigError, build, load_toml
 from fsw.framework.schedule import ExecutiveConfig
-from fsw.tasks.sections import CaptureConfig, MissionConfig
+from fsw.sections import CaptureConfig, MissionConfig
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "fsw.toml"
 

@@ -214,6 +214,11 @@ LAYER_RULES = [
         ("fsw.drivers",),
         allowed=("fsw.framework", "fsw.comm", "fsw.core", "fsw.drivers"),
     ),
+    LayerRule(
+        "settings import only framework, comm, core, drivers and settings",
+        ("fsw.settings", "fsw.sections"),
+        allowed=("fsw.framework", "fsw.comm", "fsw.core", "fsw.drivers", "fsw.settings", "fsw.sections"),
+    ),
     LayerRule("tasks never import executive", ("fsw.tasks",), forbidden=("fsw.executive",)),
 ]
 
@@ -308,3 +313,14 @@ def test_walker_reports_a_cycle_with_its_path(tmp_path: Path) -> None:
     assert components == [["pkg.a", "pkg.b", "pkg.c"]]
     text = describe_cycles(graph, components)
     assert "pkg.a -> pkg.b (line 1)  =>  pkg.b -> pkg.c (line 2)  =>  pkg.c -> pkg.a (line 1)" in text
+
+
+def test_the_settings_rule_refuses_an_arrow_up_to_the_tasks() -> None:
+    """The settings layer once imported ``fsw.tasks.sections`` while the tasks import the
+    settings; the rule names that arrow (and lets the settings use the layers below)."""
+    rule = next(r for r in LAYER_RULES if r.importers == ("fsw.settings", "fsw.sections"))
+    assert rule.violates(Edge("fsw.settings", "fsw.tasks.sections", 35))
+    assert rule.violates(Edge("fsw.sections", "fsw.executive.topology", 1))
+    assert not rule.violates(Edge("fsw.settings", "fsw.sections", 1))
+    assert not rule.violates(Edge("fsw.settings", "fsw.drivers.calibration_file", 1))
+    assert not rule.violates(Edge("fsw.tasks.base", "fsw.settings", 1))
