@@ -13,9 +13,11 @@ non-convex polygon fit and the mapped fraction of the region of interest (ยง2, ย
 :meth:`SensingPipeline.view_steps` is a step generator (``fsw.core.steps``): every stage yields
 between bounded slices (SGBM and remap in row bands, triangulation, propagation and both merge
 passes in point chunks, P_V in ray chunks, the edge search in halves), so the perception task
-runs it as a slack job; benches and tests run the same generator to its end
-(:meth:`SensingPipeline.view`). An optional ``stage`` callback is told where each stage starts
-(:data:`STAGES`), so a bench times what flies.
+runs it as a slack job; benches, replays and tests run the same generator to its end
+(:meth:`SensingPipeline.view`; :meth:`SensingPipeline.merge_view` stops before the edge). Its
+stages are methods of their own (:meth:`SensingPipeline.register_steps`, ``world_parts_steps``,
+``fuse_steps``) for the tests that feed one stage directly. An optional ``stage`` callback is
+told where each stage starts (:data:`STAGES`), so a bench times what flies.
 """
 
 from __future__ import annotations
