@@ -1,4 +1,4 @@
-"""The sensing pipeline: one stereo view into the map (ALGORITHM.md §4), the one implementation the
+"""The sensing pipeline: one stereo view into the map (docs/algorithm.md §4), the one implementation the
 flight, the benches, the replays and the tests all run.
 
 rectify (``fsw.core.stereo.rectify``, when the camera has a calibration) -> stereo matching and

@@ -2,14 +2,14 @@
 
 The sensor shares the motor bus: the motor driver (``fsw.drivers.can_motors``) drains the
 bus and hands every ``IMU_ATTITUDE`` frame to this driver (``CanMotorDriver.listeners``), so
-one bus handle serves both, on the rover (socketcan) as on the bench (virtual, udp_multicast).
+one bus handle serves both, on the rover (socketcan) as on the bench (virtual, udp_hub).
 
 * Each frame is checked end to end (:mod:`fsw.comm.imu_can`: length, CRC-8, alive counter):
   a bad frame is refused and counted; a counter jump counts lost frames; a counter that
   stops advancing for ``stuck_frames`` frames is a STUCK sensor (a hung device repeating its
   buffer); no valid frame for ``timeout_s`` is a TIMEOUT (dropout, cable); a SelfTestFail
   flag is a SELF_TEST fault. Each finding is a fault bit and an event.
-* :meth:`attitude` gives the body roll and pitch (ALGORITHM.md §5.1: the gravity direction at
+* :meth:`attitude` gives the body roll and pitch (docs/algorithm.md §5.1: the gravity direction at
   rest) as the mean of the fresh samples of the last ``average_s`` and its covariance: the
   sensor's stated bias variance (``sigma_deg``, from its calibration) plus the sample
   variance over the number of samples. While any fault is set it returns None: the caller

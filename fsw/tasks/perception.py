@@ -1,7 +1,7 @@
 """The perception task: owns the sensing pipeline (the elevation map); merges each stereo pair
 and re-fits the edge.
 
-A ``CameraFrame`` from the camera task becomes a slack job (ALGORITHM.md §4) that runs the
+A ``CameraFrame`` from the camera task becomes a slack job (docs/algorithm.md §4) that runs the
 sensing pipeline (``fsw.core.pipeline``: rectification, stereo, registration, world points with
 covariance, fusion with misses, the edge fit and the mapped fraction of the region of
 interest), each step a slice of a few to ~20 ms so the 10 Hz foreground keeps its deadlines.

@@ -1,4 +1,4 @@
-"""The mapped fraction of the region of interest: the cells beyond the cliff edge (ALGORITHM.md §2,
+"""The mapped fraction of the region of interest: the cells beyond the cliff edge (docs/algorithm.md §2,
 §3.6, the end criterion), estimated on every ``ROI_STRIDE``-th cell each way."""
 
 from __future__ import annotations
