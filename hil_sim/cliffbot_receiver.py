@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from fsw.comm.link import LinkConfig
 from fsw.comm.link_receiver import LinkReceiver
+from fsw.core.codec.hazard import relief
 from fsw.core.codec.mapcodec import MapCodecError, decode_map
 from fsw.drivers.radio import RadioPort
 
@@ -95,8 +96,15 @@ class Cliffbot:
         if self.out_dir is not None:
             self.out_dir.mkdir(parents=True, exist_ok=True)
             path = self.out_dir / f"cliffbot_map_{map_id}.png"
-            write_figure13(orig if orig is not None else z, z, path,
-                           f"map {map_id}: {len(data)} bytes, bound {dec.header.error_bound_m:.3f} m")
+            left = orig if orig is not None and orig.shape == z.shape else z
+            h = dec.header
+            outlines = None
+            title = f"map {map_id}: {len(data)} bytes, bound {h.error_bound_m:.3f} m"
+            if h.hazard:  # the obstacles (relief >= the hazard threshold) outlined in both
+                outlines = (relief(left, h.cell_m, h.relief_disc_m) >= h.hazard_threshold_m,
+                            relief(z, h.cell_m, h.relief_disc_m) >= h.hazard_threshold_m)
+                title += f"; red: relief >= {h.hazard_threshold_m:.2f} m"
+            write_figure13(left, z, path, title, outlines=outlines)
             np.save(self.out_dir / f"cliffbot_map_{map_id}.npy", z)
             png = str(path)
         return CliffbotReport(map_id, len(data), True, "", z.shape, int(np.isfinite(z).sum()),
@@ -104,8 +112,9 @@ class Cliffbot:
 
 
 def write_figure13(original: NDArray[np.floating], received: NDArray[np.floating], path: Path,
-                   title: str = "") -> None:
-    """Paper Figure 13: grayscale elevation, original (left) and transmitted (right)."""
+                   title: str = "", outlines: tuple[NDArray[np.bool_], NDArray[np.bool_]] | None = None) -> None:
+    """Paper Figure 13: grayscale elevation, original (left) and transmitted (right);
+    ``outlines`` (one mask per panel, e.g. the obstacles) are drawn as red contours."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -118,6 +127,10 @@ def write_figure13(original: NDArray[np.floating], received: NDArray[np.floating
     for ax, img, name in zip(axes, (original, received), ("original", "received by the Cliff-bot"),
                              strict=True):
         im = ax.imshow(img, cmap=cmap, vmin=lo, vmax=hi, interpolation="nearest")
+        if outlines is not None:
+            mask = outlines[0] if img is original else outlines[1]
+            if mask.any():
+                ax.contour(mask.astype(np.float32), levels=[0.5], colors="red", linewidths=0.6)
         ax.set_title(name)
         ax.set_xticks([])
         ax.set_yticks([])

@@ -366,6 +366,7 @@ def run_mission(
             "tasks_hung": exe.events.count("health.TASK_HUNG") if "health" in exe.tasks else 0,
             "watchdog_expired_frames": counters["watchdog_frames"],
             "map_transfer": map_transfer(mission),
+            "map_delivered": {"delivered": True, "none": None}.get(map_transfer(mission), False),
             "transfer_s": transfer_s(mission),
             "faults": [dataclasses.asdict(f) for f in spec.faults],
             "final_state": mission.state,
