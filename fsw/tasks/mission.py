@@ -75,6 +75,12 @@ FIX_WAIT_S = 1.0  # longest wait for nav.pose to show a map update's navigation 
 
 class MissionTask(GroundAwareMission, SafeRecovery, MapDelivery):
     KIND: ClassVar[str] = "mission"
+    RATE_HZ: ClassVar[tuple[float, float]] = (5.0, 50.0)  # its timeouts and moves assume ~10 Hz
+    REQUIRES: ClassVar[tuple[str, ...]] = ("motion", "camera", "perception", "nbv", "health")
+
+    @classmethod
+    def required_kinds(cls, cfg: object) -> tuple[str, ...]:  # cfg: the FswConfig (not imported here)
+        return cls.REQUIRES + (("radio",) if getattr(cfg, "mission").transmit else ())  # noqa: B009
     DOC: ClassVar[str] = "Mission sequencer: panorama, next view, move, acquire, transmit; SAFE on faults."
     CHANNELS = (
         Channel("state", doc=", ".join(STATES)),

@@ -33,6 +33,7 @@ from fsw.tasks.messages import MAP_UPDATED, RADIO_SEND, RADIO_STATUS, RadioStatu
 
 class RadioTask(FlightTask):
     KIND: ClassVar[str] = "radio"
+    RATE_HZ: ClassVar[tuple[float, float]] = (5.0, 50.0)  # its timeouts and moves assume ~10 Hz
     DOC: ClassVar[str] = "Map link to the Cliff-bot: encode the map, send it within a byte budget."
     CHANNELS = (
         Channel("state", doc="link sender state: idle, offering, sending, done, rejected, failed"),
