@@ -1,10 +1,12 @@
 """The flight software's whole configuration: one frozen object built from one TOML file.
 
-Each section's dataclass lives beside the code that uses it; this module only assembles
-them. ``load_settings(path)`` validates everything up front (``fsw.framework.params``) so a bad file
-is refused with one line naming the file, the key and the reason; that includes the
-stereo calibration file ``[camera] calibration_file`` names (``fsw.drivers.calibration_file``):
-missing or inconsistent, it is a start-up error like any bad key.
+Each section's dataclass lives beside the code that uses it (the tasks' own sections in
+``fsw.sections``, beside this module: the settings layer imports nothing above it); this
+module only assembles them. ``load_settings(path)`` validates everything up front
+(``fsw.framework.params``) so a bad file is refused with one line naming the file, the key
+and the reason; that includes the stereo calibration file ``[camera] calibration_file``
+names (``fsw.drivers.calibration_file``): missing or inconsistent, it is a start-up error
+like any bad key.
 
 A file is a flight configuration unless it says ``[executive] flight = false``: it must then be
 complete, every section and every key present (a left-out key is refused, not defaulted), and
@@ -39,12 +41,11 @@ from fsw.core.stereo.stereo import StereoConfig
 from fsw.core.stereo.stereo_calibration import StereoCalibration
 from fsw.drivers.calibration_file import CalibrationError, load_calibration
 from fsw.drivers.factory import DevicesConfig
-from fsw.executive.schedule_check import check
+from fsw.executive.schedule_check import check, check_agent
 from fsw.framework.agent import AgentConfig
 from fsw.framework.params import ConfigError, build, load_toml
 from fsw.framework.schedule import ExecutiveConfig
-from fsw.tasks.registry import AGENTS
-from fsw.tasks.sections import CaptureConfig, MissionConfig
+from fsw.sections import CaptureConfig, MissionConfig
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "fsw.toml"
 
@@ -113,19 +114,3 @@ def load_settings(path: str | Path = DEFAULT_CONFIG, check_calibration: bool = T
         load_stereo_calibration(cfg, str(path))
     return cfg
 
-
-def check_agent(cfg: FswConfig, sections: set[str], source: str = "config") -> None:
-    """The configuration fits its agent's topology (``[agent] kind``; ``fsw.tasks.registry.AGENTS``):
-    a known kind, only the sections that agent reads, only its task kinds; ``ConfigError`` if not."""
-    topo = AGENTS.get(cfg.agent.kind)
-    if topo is None:
-        known = ", ".join(sorted(AGENTS))
-        raise ConfigError(source, "agent.kind", f"unknown agent kind {cfg.agent.kind!r} (known: {known})")
-    try:
-        topo.check_sections(sections)
-    except ValueError as err:
-        raise ConfigError(source, "agent", str(err)) from None
-    try:
-        topo.check_tasks([t.kind for t in cfg.executive.tasks])
-    except ValueError as err:
-        raise ConfigError(source, "executive.tasks", str(err)) from None

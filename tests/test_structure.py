@@ -213,6 +213,14 @@ LAYER_RULES = [
         ("fsw.drivers",),
         allowed=("fsw.framework", "fsw.comm", "fsw.core", "fsw.drivers"),
     ),
+    LayerRule(
+        "settings import only framework, comm, core, drivers and settings",
+        ("fsw.settings", "fsw.sections"),
+        # fsw.executive.schedule_check (the flight file's schedule check, which reads the task
+        # registry) is the one arrow up left: it belongs in the settings layer, not yet moved
+        allowed=("fsw.framework", "fsw.comm", "fsw.core", "fsw.drivers", "fsw.settings", "fsw.sections",
+                 "fsw.executive.schedule_check"),
+    ),
     LayerRule("tasks never import executive", ("fsw.tasks",), forbidden=("fsw.executive",)),
 ]
 
@@ -530,3 +538,14 @@ def test_explicit_any_is_refused_in_fsw_but_where_still_spelled_out() -> None:
     assert any("fsw.*" in o["module"] for o in on)
     excepted = [m for o in mypy["overrides"] if o.get("disallow_any_explicit") is False for m in o["module"]]
     assert not any(m.startswith(("fsw.tasks", "fsw.executive", "fsw.settings", "fsw.app")) for m in excepted)
+
+
+def test_the_settings_rule_refuses_an_arrow_up_to_the_tasks() -> None:
+    """The settings layer once imported ``fsw.tasks.sections`` while the tasks import the
+    settings; the rule names that arrow (and lets the settings use the layers below)."""
+    rule = next(r for r in LAYER_RULES if r.importers == ("fsw.settings", "fsw.sections"))
+    assert rule.violates(Edge("fsw.settings", "fsw.tasks.sections", 35))
+    assert rule.violates(Edge("fsw.sections", "fsw.executive.topology", 1))
+    assert not rule.violates(Edge("fsw.settings", "fsw.sections", 1))
+    assert not rule.violates(Edge("fsw.settings", "fsw.drivers.calibration_file", 1))
+    assert not rule.violates(Edge("fsw.tasks.base", "fsw.settings", 1))

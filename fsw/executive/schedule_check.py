@@ -16,10 +16,11 @@ import importlib
 from collections.abc import Mapping
 from typing import Protocol
 
+from fsw.framework.agent import AgentConfig
 from fsw.framework.params import ConfigError
 from fsw.framework.schedule import ExecutiveConfig
 from fsw.framework.task import Task
-from fsw.tasks.registry import KINDS
+from fsw.tasks.registry import AGENTS, KINDS
 
 
 class ScheduledConfig(Protocol):
@@ -27,6 +28,9 @@ class ScheduledConfig(Protocol):
 
     @property
     def executive(self) -> ExecutiveConfig: ...
+
+    @property
+    def agent(self) -> AgentConfig: ...
 
 
 #: what a flight configuration always schedules (the kinds these need are added by ``required_kinds``)
@@ -69,3 +73,18 @@ def check(cfg: ScheduledConfig, source: str = "config") -> None:
                                            f"{', '.join(repr(k) for k in missing)} in the schedule")
 
 
+def check_agent(cfg: ScheduledConfig, sections: set[str], source: str = "config") -> None:
+    """The configuration fits its agent's topology (``[agent] kind``; ``fsw.tasks.registry.AGENTS``):
+    a known kind, only the sections that agent reads, only its task kinds; ``ConfigError`` if not."""
+    topo = AGENTS.get(cfg.agent.kind)
+    if topo is None:
+        known = ", ".join(sorted(AGENTS))
+        raise ConfigError(source, "agent.kind", f"unknown agent kind {cfg.agent.kind!r} (known: {known})")
+    try:
+        topo.check_sections(sections)
+    except ValueError as err:
+        raise ConfigError(source, "agent", str(err)) from None
+    try:
+        topo.check_tasks([t.kind for t in cfg.executive.tasks])
+    except ValueError as err:
+        raise ConfigError(source, "executive.tasks", str(err)) from None

@@ -68,7 +68,7 @@ from fsw.tasks.mission_ground import MIN_MOVE_M, MIN_TURN_RAD, MissionGround, Po
 from fsw.tasks.mission_safe import SafeMode
 from fsw.tasks.mission_state import STATES, LatestSection, MissionPhase, MissionSection, StateError, StepRecord
 from fsw.tasks.mission_transmit import MapDelivery
-from fsw.tasks.sections import MissionConfig
+from fsw.sections import MissionConfig
 
 FIX_WAIT_S = 1.0  # longest wait for nav.pose to show a map update's navigation fix
 

@@ -28,7 +28,7 @@ from typing import Protocol
 
 from fsw.tasks.messages import MOTION_REQUEST, MotionRequest, MotionStatus, MoveOutcome
 from fsw.tasks.mission_state import MissionPhase
-from fsw.tasks.sections import MissionConfig
+from fsw.sections import MissionConfig
 
 
 class SafeHost(Protocol):
