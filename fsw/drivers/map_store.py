@@ -13,6 +13,12 @@ one checksum, so a map and a mission state of different steps never pair up). ``
 is the start-up load: it first removes the temporary files a kill during ``save`` left
 behind (``remove_stale``), then loads the newest good checkpoint once and keeps the result
 for every task that restores from it (docs/hil.md, "Resuming a mission").
+
+A full or failing device (``ENOSPC``, ``EIO``: ``fsw.framework.storage``) fails one ``save``:
+its temporary file is removed, no older checkpoint is pruned, so the newest good checkpoint
+stays what it was; the error (one line, with the errno name) is raised inline or, on the
+writer thread, kept for :meth:`take_error`; the tasks turn it into a ``CHECKPOINT_FAILED``
+event and the mission carries on (the next save tries again).
 """
 
 from __future__ import annotations
@@ -25,10 +31,10 @@ import tempfile
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from fsw.core.map.checkpoint import CheckpointConfig, CheckpointError, CheckpointMeta, decode, encode
 from fsw.core.map.elevation_map import ElevationMap, FusionConfig
+from fsw.framework.storage import describe
 
 _NAME = re.compile(r"^map_(\d{10})\.ckpt$")
 _TEMP = re.compile(r"^\.map_.*\.tmp$")
@@ -46,7 +52,7 @@ class LoadResult:
     errors: list[str] = field(default_factory=list)  # task sections that could not be restored
 
     @property
-    def state(self) -> dict[str, Any] | None:
+    def state(self) -> dict[str, object] | None:
         """The mission state saved with the map (None: none, or a map-only checkpoint)."""
         return None if self.meta is None else self.meta.state
 
@@ -81,7 +87,7 @@ class MapStore:
         found = [(int(m.group(1)), p) for p in self.dir.iterdir() if (m := _NAME.match(p.name))]
         return [p for _, p in sorted(found)]
 
-    def save(self, emap: ElevationMap, seq: int, time_s: float, state: dict[str, Any] | None = None) -> Path:
+    def save(self, emap: ElevationMap, seq: int, time_s: float, state: dict[str, object] | None = None) -> Path:
         """Write one checkpoint atomically; raises ``OSError`` if the device fails."""
         if not 0 <= seq < 10**10:
             raise ValueError(f"sequence number {seq} out of range")
@@ -118,7 +124,7 @@ class MapStore:
             try:
                 self._write(*job)
             except OSError as exc:
-                self._errors.append(f"{job[1].name}: {exc}")
+                self._errors.append(f"{job[1].name}: {describe(exc)}")
             finally:
                 self._queue.task_done()
         self._queue.task_done()
@@ -140,7 +146,7 @@ class MapStore:
             self._thread.join(timeout=10.0)
             self._queue = None
 
-    def save_next(self, emap: ElevationMap, time_s: float, state: dict[str, Any] | None = None) -> Path:
+    def save_next(self, emap: ElevationMap, time_s: float, state: dict[str, object] | None = None) -> Path:
         """``save`` under the next sequence number (after every one saved or on the device)."""
         found = self.paths()
         last = int(_NAME.match(found[-1].name).group(1)) if found else 0  # type: ignore[union-attr]
