@@ -9,10 +9,8 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import shlex
 import sys
 from collections.abc import Sequence
-from pathlib import Path
 
 # (group, name) -> module. Group "" is a top-level subcommand.
 COMMANDS: dict[tuple[str, str], str] = {
@@ -79,7 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
             formatter_class=DefaultsOnce,
         )
         mod.add_arguments(p)
-        p.set_defaults(_run=mod.run)
+        p.set_defaults(_run=mod.run, _hint=getattr(mod, "resume_hint", None))
     return parser
 
 
@@ -103,15 +101,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _resume_hint(args: argparse.Namespace) -> str:
-    """``; continue it with: safer-hil run --resume DIR`` when an interrupted run left a mission."""
-    from hil_sim.mission_run import has_mission
-
-    if not hasattr(args, "resume"):  # not a mission run (safer-hil run has --resume)
-        return ""
-    out = args.resume or getattr(args, "out", None)
-    if out is not None and has_mission(Path(out)):
-        return f"; continue it with: safer-hil run --resume {shlex.quote(str(out))}"
-    return ""
+    """``; continue it with: safer-hil run --resume DIR`` when an interrupted run left a mission
+    (the run command's ``resume_hint``; other commands have none)."""
+    hint = getattr(args, "_hint", None)
+    return hint(args) if hint is not None else ""
 
 
 if __name__ == "__main__":

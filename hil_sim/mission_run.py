@@ -397,8 +397,7 @@ def _recorder(out: Path | None, exe: Any) -> tuple[Any, Any]:
     it; a resumed mission starts a new file (``mission.1.mcap``, ...), never overwrites one."""
     if out is None:
         return None, None
-    from ground.recording import MissionRecorder
-    from hil_sim.recording_tap import BusTap
+    from ground.recording import BusTap, MissionRecorder
 
     path, k = out / "mission.mcap", 0
     while path.exists():

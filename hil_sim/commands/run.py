@@ -49,6 +49,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "without rectification")
 
 
+def resume_hint(args: argparse.Namespace) -> str:
+    """What ``safer-hil`` adds to "interrupted": the command that continues the mission, once the
+    out directory holds one."""
+    import shlex
+
+    from hil_sim.mission_run import has_mission
+
+    out = getattr(args, "resume", None) or getattr(args, "out", None)
+    if out is not None and has_mission(Path(out)):
+        return f"; continue it with: safer-hil run --resume {shlex.quote(str(out))}"
+    return ""
+
+
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
