@@ -45,6 +45,7 @@ from fsw.core.planning.view_candidates import CandidateView
 from fsw.framework.commands import CommandDef, CommandError
 from fsw.framework.storage import describe
 from fsw.framework.telemetry import Channel, EventDef, Severity
+from fsw.sections import MissionConfig
 from fsw.tasks import mission_checkpoint
 from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import (
@@ -68,7 +69,6 @@ from fsw.tasks.mission_ground import MIN_MOVE_M, MIN_TURN_RAD, MissionGround, Po
 from fsw.tasks.mission_safe import SafeMode
 from fsw.tasks.mission_state import STATES, LatestSection, MissionPhase, MissionSection, StateError, StepRecord
 from fsw.tasks.mission_transmit import MapDelivery
-from fsw.sections import MissionConfig
 
 FIX_WAIT_S = 1.0  # longest wait for nav.pose to show a map update's navigation fix
 

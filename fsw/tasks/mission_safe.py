@@ -26,9 +26,9 @@ from __future__ import annotations
 import math
 from typing import Protocol
 
+from fsw.sections import MissionConfig
 from fsw.tasks.messages import MOTION_REQUEST, MotionRequest, MotionStatus, MoveOutcome
 from fsw.tasks.mission_state import MissionPhase
-from fsw.sections import MissionConfig
 
 
 class SafeHost(Protocol):

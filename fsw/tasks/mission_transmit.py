@@ -15,9 +15,9 @@ import math
 from collections.abc import Iterable
 from typing import Protocol
 
+from fsw.sections import MissionConfig
 from fsw.tasks.messages import RADIO_SEND, MapUpdate, RadioSendRequest, RadioStatus
 from fsw.tasks.mission_state import MissionPhase
-from fsw.sections import MissionConfig
 
 MAP_ID = 1  # the map the mission sends to the Cliff-bot
 TX_ASK_S = 2.0  # the send request is repeated this often until the radio reports on it
