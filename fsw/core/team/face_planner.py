@@ -18,8 +18,8 @@ brute-force check of what is reachable at all).
      face (below it, the wheels hold the Cliff-bot and the winches only keep the tethers
      taut).
 2. **Edges.** Usable 8-neighbours, weighted by their 3-D distance.
-3. **Search.** Dijkstra from the Cliff-bot's node (``scipy.sparse.csgraph``): one search gives
-   the shortest path to every target. A target that is not reached gets the reason of its
+3. **Search.** A* from the Cliff-bot's node to each target, nodes judged as the search
+   reaches them (:func:`plan_targets` says why not a whole-lattice graph search). A target that is not reached gets the reason of its
    own node (``unknown ground``, ``hazard``, ``out of tether reach``, ``slack``,
    ``over-tension``, ``off the face``, ``tether over a rock``, ``tether over unknown
    ground``, ``off the map``) or, when its node is usable, ``no safe path``.
@@ -27,14 +27,14 @@ brute-force check of what is reachable at all).
 
 from __future__ import annotations
 
+import heapq
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import dijkstra
 
 from fsw.core.geometry import MapGrid
 from fsw.core.team.tether import TetherConfig, tether_state
@@ -91,12 +91,15 @@ def ground_layers(z: NDArray[np.floating], grid: MapGrid, cfg: ClimberConfig) ->
     zf = np.asarray(z, np.float64)
     known = np.isfinite(zf)
     fill = np.where(known, zf, np.nanmin(zf) if known.any() else 0.0)
-    rock_r = int(round(0.5 * cfg.rock_disc_m / grid.cell))
-    opened = ndimage.grey_opening(fill, footprint=_disc(rock_r))
-    rock = known & (fill - opened >= cfg.wheel_d_m)
-    gy, gx = np.gradient(fill, grid.cell)
-    slope = np.degrees(np.arctan(np.hypot(gx, gy)))
     foot = _disc(int(round(cfg.footprint_m / grid.cell)))
+    # The ground's slope over the footprint (what the Cliff-bot's body stands on).
+    gy, gx = np.gradient(fill, grid.cell)
+    k = 2 * int(round(cfg.footprint_m / grid.cell)) + 1
+    slope = np.degrees(np.arctan(np.hypot(ndimage.uniform_filter(gx, k), ndimage.uniform_filter(gy, k))))
+    # Relief above a flat opening, measured across the ground (times cos slope): on a steep
+    # face a bump's height in z is its height off the face over cos(slope).
+    opened = ndimage.grey_opening(fill, footprint=_disc(int(round(0.5 * cfg.rock_disc_m / grid.cell))))
+    rock = known & ((fill - opened) * np.cos(np.radians(slope)) >= cfg.wheel_d_m)
     steep = slope > cfg.max_slope_deg
     raw = rock | steep
     hazard = ndimage.binary_dilation(raw, structure=foot) & known
@@ -144,29 +147,33 @@ def _verdict(z: NDArray[np.floating], grid: MapGrid, anchors: F64, tcfg: TetherC
 
 def plan_targets(z: NDArray[np.floating], grid: MapGrid, anchors: F64, start_xy: F64, targets_xy: F64,
                  tcfg: TetherConfig, ccfg: ClimberConfig) -> Plan:
-    """Shortest usable paths from ``start_xy`` to each target (module docstring)."""
+    """Shortest usable paths from ``start_xy`` to each target (module docstring).
+
+    A* per target over the 8-connected lattice, with the 3-D straight distance as its
+    (admissible) heuristic; a node's verdict is worked out when the search first reaches it
+    and kept for the next target. Evaluating only the nodes a search reaches is why this is
+    not one ``scipy.sparse.csgraph`` call over the whole lattice: a verdict (two tether paths
+    and the statics) costs far more than a graph step, and most of the lattice is never
+    needed."""
     zf = np.asarray(z, np.float64)
-    rows, cols, reasons, _ = node_reasons(zf, grid, anchors, tcfg, ccfg)
+    g = ground_layers(zf, grid, ccfg)
+    stride = max(1, int(round(ccfg.node_m / grid.cell)))
+    rows = np.arange(stride // 2, grid.ny, stride)
+    cols = np.arange(stride // 2, grid.nx, stride)
     ny, nx = len(rows), len(cols)
-    usable = np.array([r == USABLE for r in reasons]).reshape(ny, nx)
     node_z = np.nan_to_num(zf[np.ix_(rows, cols)])
     node_x = grid.x0 + (cols + 0.5) * grid.cell
     node_y = grid.y0 + (rows + 0.5) * grid.cell
-    stride = max(1, int(round(ccfg.node_m / grid.cell)))
-    r, c = np.nonzero(usable)
-    src, dst, w = [], [], []
-    for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
-        r2, c2 = r + dy, c + dx
-        ok = (r2 < ny) & (c2 >= 0) & (c2 < nx)
-        ok[ok] = usable[r2[ok], c2[ok]]
-        ra, ca, rb, cb = r[ok], c[ok], r2[ok], c2[ok]
-        d = np.sqrt((node_x[ca] - node_x[cb]) ** 2 + (node_y[ra] - node_y[rb]) ** 2
-                    + (node_z[ra, ca] - node_z[rb, cb]) ** 2)
-        ia, ib = ra * nx + ca, rb * nx + cb
-        src += [ia, ib]
-        dst += [ib, ia]
-        w += [d, d]
-    graph = coo_matrix((np.concatenate(w), (np.concatenate(src), np.concatenate(dst))), shape=(ny * nx, ny * nx))
+    cache: dict[int, str] = {}
+
+    def verdict(k: int) -> str:
+        if k not in cache:
+            cache[k] = _verdict(zf, grid, anchors, tcfg, ccfg, g, int(rows[k // nx]), int(cols[k % nx]))
+        return cache[k]
+
+    def point(k: int) -> F64:
+        r, c = divmod(k, nx)
+        return np.array([node_x[c], node_y[r], node_z[r, c]])
 
     def node_of(xy: F64) -> int | None:
         iy, ix, inside = grid.cell_index(np.array([xy[0]]), np.array([xy[1]]))
@@ -176,29 +183,70 @@ def plan_targets(z: NDArray[np.floating], grid: MapGrid, anchors: F64, start_xy:
         cx = min(nx - 1, max(0, int(round((int(ix[0]) - cols[0]) / stride))))
         return cy * nx + cx
 
-    start = node_of(np.asarray(start_xy, float))
     targets = np.asarray(targets_xy, float).reshape(-1, 2)
-    if start is None or not usable.flat[start]:
-        why = "off the map" if start is None else reasons[start]
+    start = node_of(np.asarray(start_xy, float))
+    if start is None or verdict(start) != USABLE:
+        why = "off the map" if start is None else verdict(start)
         return Plan(tuple(None for _ in targets), tuple(math.inf for _ in targets),
                     tuple(f"start: {why}" for _ in targets), why)
-    dist, pred = dijkstra(graph.tocsr(), indices=start, return_predecessors=True)
     paths: list[F64 | None] = []
     lengths: list[float] = []
     why_not: list[str] = []
     for t in targets:
-        k = node_of(t)
-        if k is None or not np.isfinite(dist[k]):
+        goal = node_of(t)
+        if goal is None or verdict(goal) != USABLE:
             paths.append(None)
             lengths.append(math.inf)
-            why_not.append("off the map" if k is None else reasons[k] if reasons[k] != USABLE else "no safe path")
+            why_not.append("off the map" if goal is None else verdict(goal))
             continue
-        chain = [k]
-        while chain[-1] != start:
-            chain.append(int(pred[chain[-1]]))
-        chain.reverse()
+        found = _astar(start, goal, nx, ny, verdict, point)
+        if found is None:
+            paths.append(None)
+            lengths.append(math.inf)
+            why_not.append("no safe path")
+            continue
+        chain, length = found
         r, c = np.divmod(np.asarray(chain), nx)
         paths.append(np.column_stack([node_x[c], node_y[r]]))
-        lengths.append(float(dist[k]))
+        lengths.append(length)
         why_not.append("")
     return Plan(tuple(paths), tuple(lengths), tuple(why_not), "")
+
+
+_STEPS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
+
+
+def _astar(start: int, goal: int, nx: int, ny: int, verdict: Callable[[int], str],
+           point: Callable[[int], F64]) -> tuple[list[int], float] | None:
+    """A* over usable lattice nodes; the node chain and its 3-D length, or None."""
+    goal_p = point(goal)
+    best = {start: 0.0}
+    came: dict[int, int] = {}
+    heap = [(float(np.linalg.norm(point(start) - goal_p)), 0.0, start)]
+    done: set[int] = set()
+    while heap:
+        _, cost, k = heapq.heappop(heap)
+        if k in done:
+            continue
+        if k == goal:
+            chain = [k]
+            while chain[-1] != start:
+                chain.append(came[chain[-1]])
+            return chain[::-1], cost
+        done.add(k)
+        r, c = divmod(k, nx)
+        pk = point(k)
+        for dr, dc in _STEPS:
+            rr, cc = r + dr, c + dc
+            if not (0 <= rr < ny and 0 <= cc < nx):
+                continue
+            n = rr * nx + cc
+            if n in done or verdict(n) != USABLE:
+                continue
+            pn = point(n)
+            new = cost + float(np.linalg.norm(pn - pk))
+            if new < best.get(n, math.inf):
+                best[n] = new
+                came[n] = k
+                heapq.heappush(heap, (new + float(np.linalg.norm(pn - goal_p)), new, n))
+    return None

@@ -94,18 +94,26 @@ def ground_profile(z: NDArray[np.floating], grid: MapGrid, a_xy: F64, b_xy: F64,
 
 def upper_hull(s: F64, h: F64) -> NDArray[np.intp]:
     """Indices of the upper convex hull of the points ``(s, h)`` (``s`` increasing, both ends
-    kept): Andrew's monotone chain, upper half."""
-    hull: list[int] = []
-    for i in range(len(s)):
-        while len(hull) >= 2:
-            o, a = hull[-2], hull[-1]
-            cross = (s[a] - s[o]) * (h[i] - h[o]) - (h[a] - h[o]) * (s[i] - s[o])
-            if cross >= 0.0:  # a lies on or below the chord o -> i: not a vertex of the upper hull
-                hull.pop()
-            else:
-                break
-        hull.append(i)
-    return np.asarray(hull, dtype=np.intp)
+    kept): QuickHull's upper half, the point farthest above each chord splitting it, so the
+    work is one vectorised pass per contact (a tether has a few) instead of a Python loop over
+    every sample."""
+    out = [0]
+    stack = [(0, len(s) - 1)]
+    while stack:
+        i, j = stack.pop()
+        if j - i < 2:
+            out.append(j)
+            continue
+        ss, hh = s[i + 1:j], h[i + 1:j]
+        above = (s[j] - s[i]) * (hh - h[i]) - (h[j] - h[i]) * (ss - s[i])
+        k = int(np.argmax(above))
+        if above[k] <= 0.0:
+            out.append(j)
+            continue
+        m = i + 1 + k
+        stack.append((m, j))  # right part after the left: the stack pops the left first
+        stack.append((i, m))
+    return np.asarray(out, dtype=np.intp)
 
 
 def tether_path(z: NDArray[np.floating], grid: MapGrid, anchor: F64, bot: F64, cfg: TetherConfig) -> TetherPath:

@@ -38,7 +38,7 @@ def plan(z: np.ndarray, grid: MapGrid, targets: list[tuple[float, float]], tcfg:
 @pytest.mark.slow
 def test_reaches_a_face_target_and_never_leaves_usable_ground() -> None:
     z, grid = cliff()
-    boulder(z, grid, -0.3, -0.5, 0.15, 0.35)  # a rock on the face, taller than the wheel
+    boulder(z, grid, -0.3, -0.5, 0.15, 0.35 / math.cos(SLOPE))  # 0.35 m off the face: over a wheel
     p = plan(z, grid, [(0.3, -0.6), (-0.3, -0.5)])
     assert p.start_reason == ""
     assert p.reasons[0] == "" and p.paths[0] is not None
@@ -70,7 +70,7 @@ def test_a_rock_band_across_the_face_blocks_the_way_down() -> None:
     z, grid = cliff()
     gx, gy = grid.centers()
     band = (gy < -0.35) & (gy > -0.5)
-    z[band] += 0.4 * (np.sin(gx[band] * 40) > -2)  # a continuous ledge of rock, a wheel and more high
+    z[band] += 0.3 / math.cos(SLOPE)  # a continuous band of rock standing 0.3 m off the face
     p = plan(z, grid, [(0.0, -1.0)])
     assert p.paths[0] is None and p.reasons[0] in ("no safe path", "hazard", "tether over a rock")
 
