@@ -20,7 +20,8 @@ brute-force check of what is reachable at all).
 2. **Edges.** Usable 8-neighbours, weighted by their 3-D distance.
 3. **Search.** A* from the Cliff-bot's node to each target, nodes judged as the search
    reaches them (:func:`plan_targets` says why not a whole-lattice graph search). A target
-   that is not reached gets the reason of its own node (``unknown ground``, ``hazard``, ``out of tether reach``, ``slack``,
+   that is not reached gets the reason of its own node (``unknown ground``, ``hazard``,
+   ``out of tether reach``, ``slack``,
    ``over-tension``, ``off the face``, ``tether over a rock``, ``tether over unknown
    ground``, ``off the map``) or, when its node is usable, ``no safe path``.
 """
