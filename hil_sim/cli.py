@@ -40,6 +40,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("experiment", "ground"): "hil_sim.commands.experiment_ground",
     ("experiment", "camera-path"): "hil_sim.commands.experiment_camera_path",
     ("experiment", "registration"): "hil_sim.commands.experiment_registration",
+    ("experiment", "fiducials"): "hil_sim.commands.experiment_fiducials",
 }
 
 GROUP_HELP = {
