@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 LOCK := constraints.txt
 LOCK_VENV := $(VENV)-lock
 
-.PHONY: demo test lint typecheck unit bench clean venv lock
+.PHONY: demo test lint typecheck unit unit-loopback bench clean venv lock
 
 venv: $(STAMP)
 
@@ -44,6 +44,11 @@ typecheck: $(STAMP)
 # Whole files to two workers, in the order tests/conftest.py gives (slow files first).
 unit: $(STAMP)
 	$(BIN)/pytest -n 2 --dist loadfile --no-loadscope-reorder
+
+# The same suite in a fresh network namespace whose only interface is lo (root and unshare): every
+# test, multi-process ones included, must pass with no way off the machine.
+unit-loopback: $(STAMP)
+	unshare -n sh -c 'ip link set lo up && exec $(BIN)/pytest -n 2 --dist loadfile --no-loadscope-reorder'
 
 test: lint typecheck unit
 

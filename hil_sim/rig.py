@@ -77,7 +77,7 @@ class HardwareRig:
         self.motors = MotorControllerBank(can_bus, self.codec, self.rover, hw.motors, self.faults)
         self.imu = ImuDevice(can_bus, ImuCan(dbc) if dbc is not None else ImuCan(), self.rover, hw.imu,
                              seed, self.faults)
-        self.motors.ignore_ids.add(self.imu.codec.frame_id)  # its frames echo back on udp_multicast
+        self.motors.ignore_ids.add(self.imu.codec.frame_id)  # its frames echo back on an echoing bus
         self.mast_ctrl = MastController(serial_port, self.mast, hw.mast_controller, self.faults)
         self.lock = threading.Lock()
         self.now = 0.0

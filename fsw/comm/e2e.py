@@ -1,6 +1,6 @@
 """End-to-end protection of CAN frames (AUTOSAR E2E style), laid out by the DBC, sans I/O.
 
-The bench's CAN runs over UDP multicast with no bus CRC underneath, and even a real bus lets
+The bench's CAN runs over UDP datagrams with no bus CRC underneath, and even a real bus lets
 a faulty node or gateway deliver stale or corrupted data; so every frame of the rover DBC
 carries its own protection, which the receiving application checks:
 

@@ -23,6 +23,7 @@ queue an event and leave a one-line ``fault_reason``.
 from __future__ import annotations
 
 import contextlib
+import ipaddress
 import select
 import socket
 import threading
@@ -271,6 +272,8 @@ class UdpPort(BytePort):
                 self.sock.bind(bind)
             if peer is not None:
                 self.peer = (socket.gethostbyname(peer[0]), peer[1])
+                if bind is None and ipaddress.ip_address(self.peer[0]).is_loopback:
+                    self.sock.bind(("127.0.0.1", 0))  # a loopback peer: the socket stays on loopback too
         except OSError as exc:
             self.sock.close()
             raise ValueError(f"{url}: {exc.strerror or exc}") from None

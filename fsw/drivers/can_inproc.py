@@ -63,8 +63,13 @@ class InprocBus(VirtualBus):  # type: ignore[misc]
 
 
 def open_bus(**kwargs: Any) -> can.BusABC:
-    """``can.Bus(**kwargs)``, or an :class:`InprocBus` for the ``virtual`` interface."""
+    """``can.Bus(**kwargs)``; an :class:`InprocBus` for the ``virtual`` interface, and python-can's
+    ``udp_multicast`` pinned to ``interface_name`` (:mod:`fsw.drivers.can_multicast`)."""
+    kw = {k: v for k, v in kwargs.items() if k != "interface"}
     if kwargs.get("interface") == "virtual":
-        kw = {k: v for k, v in kwargs.items() if k != "interface"}
         return InprocBus(**kw)
+    if kwargs.get("interface") == "udp_multicast" and kw.get("interface_name"):
+        from fsw.drivers.can_multicast import PinnedMulticastBus
+
+        return PinnedMulticastBus(**kw)
     return can.Bus(**kwargs)

@@ -1,6 +1,6 @@
 """Flight driver of the twelve wheel motor controllers on the rover's CAN bus.
 
-python-can ``Bus`` (any interface: ``socketcan`` on the rover, ``virtual`` or ``udp_multicast``
+python-can ``Bus`` (any interface: ``socketcan`` on the rover, ``virtual`` or ``udp_hub``
 on the bench) and the frames of ``config/rover.dbc`` through :mod:`fsw.comm.rover_can`.
 The driver only moves bytes and supervises; what to command is the motion task's business.
 
@@ -18,7 +18,8 @@ The driver only moves bytes and supervises; what to command is the motion task's
   reported by a controller, send failures. Every finding is a fault bit and an event.
 * ``estop(engage)`` broadcasts the emergency stop; while engaged commands go out disabled.
 
-Own frames echoed back by the bus (``udp_multicast`` receives its own traffic) are ignored.
+Own frames echoed back by the bus (``udp_multicast`` receives its own traffic, ``udp_hub`` and
+``virtual`` when asked) are ignored.
 Frames of other devices on the same bus (the attitude sensor, ``fsw.drivers.imu_can``) go to
 the callback registered for their id in ``listeners``, with the receive time.
 """

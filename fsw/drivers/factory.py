@@ -5,7 +5,7 @@ The same flight code runs on the rover and on the bench; only these strings diff
 ==================  ==========================  ==========================================
 key                 rover                       bench
 ==================  ==========================  ==========================================
-``can_interface``   ``socketcan`` (``can0``)    ``virtual`` (lockstep), ``udp_multicast``
+``can_interface``   ``socketcan`` (``can0``)    ``virtual`` (lockstep), ``udp_hub`` (processes)
 ``serial_url``      ``/dev/ttyS1``              ``/dev/pts/N`` (pty), ``socket://H:P``
 ``camera_source``   ``cv:0,1``                  ``sim`` (lockstep), ``tcp://H:P``
 ==================  ==========================  ==========================================
@@ -39,10 +39,17 @@ class DevicesConfig:
     """Where the flight drivers find their hardware, and their timeouts."""
 
     can_interface: str = param(
-        "none", choices=("none", "virtual", "udp_multicast", "socketcan"), doc="python-can interface of the motor bus"
+        "none", choices=("none", "virtual", "udp_hub", "udp_multicast", "socketcan"),
+        doc="python-can interface of the motor bus",
     )
-    can_channel: str = param("safer", doc="virtual: bus name; udp_multicast: group address; socketcan: can0")
+    can_channel: str = param(
+        "safer", doc="virtual: bus name; udp_hub: the bench's hub HOST:PORT; udp_multicast: group address; "
+        "socketcan: can0"
+    )
     can_udp_port: int = param(43113, lo=1024, hi=65535, doc="udp_multicast port")
+    can_multicast_interface: str = param(
+        "", doc="udp_multicast: the network interface the group is joined and sent on (required: lo, eth1, ...)"
+    )
     can_dbc: str = param("config/rover.dbc", doc="CAN database (relative paths: to the repository root)")
     can_status_timeout_s: float = param(0.5, lo=0.05, hi=60.0, units="s", doc="no STATUS for this long: fault")
     can_heartbeat_timeout_s: float = param(2.5, lo=0.1, hi=60.0, units="s", doc="no heartbeat: node lost")
@@ -71,6 +78,13 @@ class DevicesConfig:
     reconnect_period_s: float = param(2.0, lo=0.1, hi=600.0, units="s", doc="retry period for absent devices")
 
     def __post_init__(self) -> None:
+        if self.can_interface == "udp_hub":
+            from fsw.drivers.can_udp import parse_channel
+
+            parse_channel(self.can_channel)
+        if self.can_interface == "udp_multicast" and not self.can_multicast_interface:
+            raise ValueError("udp_multicast needs can_multicast_interface (the interface to put the bus on, e.g. lo); "
+                             "the bench's processes share CAN through udp_hub")
         cs = self.camera_source
         if not (cs in ("none", "sim") or cs.startswith(("tcp://", "cv:"))):
             raise ValueError(f"camera_source {cs!r}: expected none, sim, tcp://HOST:PORT or cv:LEFT,RIGHT")
@@ -87,7 +101,7 @@ def can_bus_kwargs(cfg: DevicesConfig) -> dict[str, Any]:
     """Keyword arguments of ``can.Bus`` for the configured interface."""
     kw: dict[str, Any] = {"interface": cfg.can_interface, "channel": cfg.can_channel}
     if cfg.can_interface == "udp_multicast":
-        kw.update(port=cfg.can_udp_port, fd=False)
+        kw.update(port=cfg.can_udp_port, fd=False, interface_name=cfg.can_multicast_interface)
     return kw
 
 

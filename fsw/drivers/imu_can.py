@@ -2,7 +2,7 @@
 
 The sensor shares the motor bus: the motor driver (``fsw.drivers.can_motors``) drains the
 bus and hands every ``IMU_ATTITUDE`` frame to this driver (``CanMotorDriver.listeners``), so
-one bus handle serves both, on the rover (socketcan) as on the bench (virtual, udp_multicast).
+one bus handle serves both, on the rover (socketcan) as on the bench (virtual, udp_hub).
 
 * Each frame is checked end to end (:mod:`fsw.comm.imu_can`: length, CRC-8, alive counter):
   a bad frame is refused and counted; a counter jump counts lost frames; a counter that

@@ -1,8 +1,9 @@
 """Running a campaign's missions: a local pool or a Dask cluster, resumable, with progress.
 
-Each mission runs in a child process of its own (``hil_sim.campaign.child``) under a
-wall-clock limit, so a mission that raises, hangs or dies (segfault, out of memory) is a
-recorded outcome (``error`` / ``killed``), never a lost campaign. The local executor is a
+Each mission runs in a child process of its own (``hil_sim.campaign.child``, which dies with
+the worker that started it) under a wall-clock limit, so a mission that raises, hangs or dies
+(segfault, out of memory) is a recorded outcome (``error`` / ``killed``), never a lost
+campaign. The local executor is a
 thread pool of ``jobs`` threads, each waiting on one child; with a scheduler address the same
 function runs as Dask tasks (``dask.distributed``) on the cluster's workers, which need only
 the project installed: the rows come back to this process, which stores each one atomically
@@ -26,6 +27,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+from hil_sim.campaign.child import TMP_PREFIX
 from hil_sim.campaign.spec import Mission
 from hil_sim.campaign.table import failed_row
 
@@ -39,11 +41,11 @@ def mission_dict(m: Mission) -> dict[str, Any]:
 def run_isolated(m: dict[str, Any]) -> dict[str, Any]:
     """Run one mission in a child process; its row, or an ``error``/``killed`` row. Never raises."""
     t0 = time.perf_counter()
-    with tempfile.TemporaryDirectory(prefix="safer-campaign-") as tmp:
+    with tempfile.TemporaryDirectory(prefix=TMP_PREFIX, ignore_cleanup_errors=True) as tmp:
         result = Path(tmp) / "row.json"
         try:
-            proc = subprocess.run(
-                [sys.executable, "-m", "hil_sim.campaign.child", str(result)],
+            proc = subprocess.run(  # the child dies with this process (hil_sim.campaign.child.die_with_parent)
+                [sys.executable, "-m", "hil_sim.campaign.child", str(result), str(os.getpid())],
                 input=json.dumps(m), capture_output=True, text=True, timeout=m["timeout_s"], check=False,
             )
         except subprocess.TimeoutExpired:

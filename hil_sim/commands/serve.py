@@ -3,7 +3,9 @@
 It steps the hardware rig (true rover and mast over the scenario's terrain, the twelve CAN
 motor controllers, the serial mast controller) on the real-time clock and serves:
 
-* CAN on python-can ``udp_multicast`` (group and port below; loopback on one machine);
+* CAN through a hub on ``127.0.0.1:PORT`` (:mod:`hil_sim.hw.can_hub`; python-can interface
+  ``udp_hub``), or with ``--can-multicast IFACE`` on python-can ``udp_multicast`` pinned to
+  that interface;
 * the mast's serial line on a pty (``/dev/pts/N``, optionally symlinked) or on
   ``socket://127.0.0.1:PORT``;
 * rendered stereo pairs on ``tcp://127.0.0.1:PORT`` (:mod:`fsw.comm.camera_frames`).
@@ -22,8 +24,9 @@ import signal
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
-HELP = "multi-process real-time bench: play the hardware over udp_multicast CAN, a pty/socket and a camera socket"
+HELP = "multi-process real-time bench: play the hardware over a loopback CAN hub, a pty/socket and a camera socket"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -34,8 +37,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", default=None, help="flight config the hardware is sized from (default config/fsw.toml)")
     p.add_argument("--hardware", default=None, help="hardware config (default config/hil_hardware.toml)")
     p.add_argument("--faults", default=None, help="TOML file with [[faults]] tables to inject")
-    p.add_argument("--can-channel", default="239.74.163.2", help="udp_multicast group address")
-    p.add_argument("--can-port", type=int, default=43113, help="udp_multicast port")
+    p.add_argument("--can-port", type=int, default=43113, help="CAN hub (or multicast) UDP port (0: any free)")
+    p.add_argument("--can-bind", default="127.0.0.1", metavar="HOST",
+                   help="address of the CAN hub; another than 127.0.0.1 lets flight software on other machines "
+                        "join the bus (docs/hil.md)")
+    p.add_argument("--can-multicast", default=None, metavar="IFACE",
+                   help="CAN on udp_multicast on this network interface instead of the hub")
+    p.add_argument("--can-group", default="239.74.163.2", help="--can-multicast: the group address")
     p.add_argument("--serial", choices=("pty", "tcp"), default="pty", help="mast serial line transport")
     p.add_argument("--serial-port", type=int, default=0, help="tcp: port to listen on (0: any free)")
     p.add_argument("--pty-link", default=None, help="pty: also make this symlink to the slave device")
@@ -79,6 +87,27 @@ def write_flight_config(base_path: Path, out: Path, endpoints: dict) -> None:
     out.write_text(new)
 
 
+def _open_can(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
+    """The hub (None with --can-multicast), this process's bus on it, and the flight config's CAN keys."""
+    from fsw.drivers.can_inproc import open_bus
+    from hil_sim.hw.can_hub import CanHub
+
+    own = args.can_log is not None  # a logger sees our frames too
+    if args.can_multicast is not None:
+        kw = {"interface": "udp_multicast", "channel": args.can_group, "port": args.can_port, "fd": False,
+              "interface_name": args.can_multicast}
+        ends = {"can_interface": "udp_multicast", "can_channel": args.can_group, "can_udp_port": args.can_port,
+                "can_multicast_interface": args.can_multicast}
+        return None, open_bus(**kw), ends
+    hub = CanHub(args.can_bind, args.can_port).start()
+    try:
+        bus = open_bus(interface="udp_hub", channel=hub.channel, receive_own_messages=own)
+    except Exception:
+        hub.close()
+        raise
+    return hub, bus, {"can_interface": "udp_hub", "can_channel": hub.channel}
+
+
 def run(args: argparse.Namespace) -> int:
     import can
 
@@ -105,10 +134,13 @@ def run(args: argparse.Namespace) -> int:
     except (ConfigError, ValueError) as err:
         print(f"safer-hil serve: {err}", file=sys.stderr)
         return 2
+    if not 0 <= args.can_port < 65536 or (args.can_multicast is not None and args.can_port == 0):
+        print("safer-hil serve: --can-port must be 0-65535 (1-65535 with --can-multicast)", file=sys.stderr)
+        return 2
     try:
-        bus = can.Bus(interface="udp_multicast", channel=args.can_channel, port=args.can_port, fd=False)
+        hub, bus, can_ends = _open_can(args)
     except (can.CanError, OSError, ValueError) as err:
-        print(f"safer-hil serve: cannot open udp_multicast {args.can_channel}:{args.can_port}: {err}", file=sys.stderr)
+        print(f"safer-hil serve: cannot open the CAN bus: {err}", file=sys.stderr)
         return 2
     port = PtyDevicePort(args.pty_link) if args.serial == "pty" else TcpDevicePort("127.0.0.1", args.serial_port)
     serial_url = port.path if isinstance(port, PtyDevicePort) else port.url
@@ -118,19 +150,17 @@ def run(args: argparse.Namespace) -> int:
         CameraServer(rig.render_pair, injector, "127.0.0.1", args.camera_port).start() if world is not None else None
     )
     logger = can.Logger(args.can_log) if args.can_log else None
-    if logger is not None:  # udp_multicast delivers every frame on the bus, ours included
+    if logger is not None:  # the bus echoes our own frames when logging: the log has every frame
         rig.motors.tap = logger.on_message_received
     endpoints = {
-        "can_interface": "udp_multicast",
-        "can_channel": args.can_channel,
-        "can_udp_port": args.can_port,
+        **can_ends,
         "serial_url": serial_url,
         "camera_source": f"tcp://{camera.address[0]}:{camera.address[1]}" if camera else "none",
     }
     if camera is not None:  # the bench's renderer, not a real camera, sets how long a pair takes
         endpoints["camera_timeout_s"] = args.camera_timeout
     print(f"safer-hil serve: hardware up (scenario {args.scenario}, seed {args.seed}, {args.rate_hz:g} Hz)")
-    print(f"  CAN     udp_multicast group {args.can_channel} port {args.can_port} (DBC config/rover.dbc)")
+    print(f"  CAN     {bus.channel_info} (DBC config/rover.dbc)")
     print(f"  serial  {serial_url}" + (f" (link {args.pty_link})" if args.pty_link else ""))
     print(f"  camera  {endpoints['camera_source']}")
     if args.flight_config:
@@ -185,6 +215,8 @@ def run(args: argparse.Namespace) -> int:
             camera.close()
         port.close()
         bus.shutdown()
+        if hub is not None:
+            hub.close()
         if logger is not None:
             logger.stop()
     return 0

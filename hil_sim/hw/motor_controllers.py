@@ -109,7 +109,7 @@ class MotorControllerBank:
         for _ in range(10000):
             try:
                 msg = self.bus.recv(timeout=0.0)
-            except (can.CanError, OSError, ValueError):  # e.g. an undecodable datagram on udp_multicast
+            except (can.CanError, OSError, ValueError):  # e.g. an undecodable datagram (udp_hub)
                 self.rx_bad += 1
                 continue
             if msg is None:

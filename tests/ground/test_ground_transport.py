@@ -32,6 +32,7 @@ def test_udpin_and_udpout_back_to_back() -> None:
     assert isinstance(server, UdpPort) and server.packetized
     assert server.send(b"nobody yet", 0.0) is False  # no peer heard: nothing sent, no exception
     client = open_transport(f"udpout:127.0.0.1:{server.address[1]}")
+    assert isinstance(client, UdpPort) and client.address[0] == "127.0.0.1"  # issue 31: loopback peer, loopback socket
     assert client.send(b"\xfdhello", 0.0) and client.send(b"\xfdworld", 0.0)
     assert _recv(server, 2) == [b"\xfdhello", b"\xfdworld"]
     assert server.send(b"\xfdreply", 0.0)

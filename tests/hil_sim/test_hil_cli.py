@@ -15,6 +15,9 @@ from hil_sim.commands.serve import write_flight_config
         ["serve", "--rate-hz", "0"],
         ["serve", "--scenario", "nowhere"],
         ["serve", "--faults", "/nonexistent.toml"],
+        ["serve", "--scenario", "flat", "--can-port", "70000"],
+        ["serve", "--scenario", "flat", "--can-bind", "192.0.2.254"],  # not an address of this machine
+        ["serve", "--scenario", "flat", "--can-multicast", "nonexistent0"],
         ["bench", "lockstep", "--seconds", "-1"],
     ],
 )
@@ -28,7 +31,8 @@ def test_help_explains(capsys: pytest.CaptureFixture[str]) -> None:
         with pytest.raises(SystemExit) as e:
             main(argv)
         assert e.value.code == 0
-    assert "udp_multicast" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "--can-bind" in out and "127.0.0.1" in out and "udp_multicast" in out
 
 
 def test_flight_config_written_for_endpoints(tmp_path) -> None:  # type: ignore[no-untyped-def]
@@ -37,15 +41,29 @@ def test_flight_config_written_for_endpoints(tmp_path) -> None:  # type: ignore[
         DEFAULT_CONFIG,
         out,
         {
-            "can_interface": "udp_multicast",
-            "can_channel": "239.74.163.2",
+            "can_interface": "udp_hub",
+            "can_channel": "127.0.0.1:43113",
             "serial_url": "socket://127.0.0.1:5000",
             "camera_source": "none",
         },
     )
     d = load_settings(out).devices
-    assert (d.can_interface, d.serial_url) == ("udp_multicast", "socket://127.0.0.1:5000")
+    assert (d.can_interface, d.can_channel, d.serial_url) == ("udp_hub", "127.0.0.1:43113", "socket://127.0.0.1:5000")
     assert load_settings(out).executive == load_settings(DEFAULT_CONFIG).executive
+
+
+@pytest.mark.parametrize(("keys", "reason"), [
+    ({"can_interface": "udp_multicast", "can_channel": "239.74.163.2"}, "can_multicast_interface"),
+    ({"can_interface": "udp_hub", "can_channel": "127.0.0.1:port"}, "HOST:PORT"),
+])
+def test_flight_config_refuses_a_bus_that_could_leave_unasked(tmp_path, keys, reason) -> None:  # type: ignore[no-untyped-def]
+    """Issue 31: udp_multicast only on a named interface; a udp_hub channel is HOST:PORT."""
+    from fsw.framework.params import ConfigError
+
+    out = tmp_path / "f.toml"
+    write_flight_config(DEFAULT_CONFIG, out, keys)
+    with pytest.raises(ConfigError, match=reason):
+        load_settings(out)
 
 
 def test_bench_lockstep_prints_its_figure(capsys: pytest.CaptureFixture[str]) -> None:

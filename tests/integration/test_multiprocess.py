@@ -1,5 +1,7 @@
 """Multi-process real-time mode: ``safer-hil serve`` plays the hardware, the flight software
-connects over udp_multicast CAN and a pty with unchanged code (issue 3, item 11, done-when 4)."""
+connects over CAN through the bench's hub and a pty with unchanged code (issue 3, item 11,
+done-when 4). Every socket the processes open stays on loopback; where this machine can make a
+network namespace with only ``lo``, the same test runs in one too (issue 31, item 3)."""
 
 from __future__ import annotations
 
@@ -14,14 +16,17 @@ import sys
 import time
 from pathlib import Path
 
+import psutil
 import pytest
-from hil_helpers import only_hw_tasks, random_udp_port
+from hil_helpers import only_hw_tasks
+from loopback import NETNS_ENV, family, in_loopback_namespace, off_machine_sockets, run_in_loopback_namespace
 
 from fsw.app import build_executive
 from fsw.drivers.factory import close_devices
 from fsw.settings import load_settings
 
 BIN = Path(sys.executable).parent
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _read_until(proc: subprocess.Popen[str], marker: str, timeout_s: float) -> list[str]:
@@ -53,6 +58,8 @@ def _read_until(proc: subprocess.Popen[str], marker: str, timeout_s: float) -> l
 
 @pytest.mark.slow
 def test_serve_and_flight_processes_move_a_motor_and_the_mast(tmp_path: Path) -> None:
+    if os.environ.get(NETNS_ENV):
+        assert in_loopback_namespace()  # the namespace run below: nothing but lo to leave by
     flight_cfg = tmp_path / "fsw_hil.toml"
     serve = subprocess.Popen(
         [
@@ -61,7 +68,7 @@ def test_serve_and_flight_processes_move_a_motor_and_the_mast(tmp_path: Path) ->
             "--scenario",
             "flat",
             "--can-port",
-            str(random_udp_port()),
+            "0",
             "--serial",
             "pty",
             "--flight-config",
@@ -78,7 +85,7 @@ def test_serve_and_flight_processes_move_a_motor_and_the_mast(tmp_path: Path) ->
     )
     try:
         head = "".join(_read_until(serve, "READY", 30.0))
-        assert "udp_multicast" in head and "/dev/pts/" in head and flight_cfg.exists()
+        assert "CAN     udp_hub 127.0.0.1:" in head and "/dev/pts/" in head and flight_cfg.exists()
         # 1) the unchanged flight program connects (events printed by its console task)
         run = subprocess.run(
             [str(BIN / "safer-fsw"), "run", "--config", str(flight_cfg), "--duration", "2.5"],
@@ -95,6 +102,7 @@ def test_serve_and_flight_processes_move_a_motor_and_the_mast(tmp_path: Path) ->
         try:
             _read_until(fsw, "safer-fsw: running", 30.0)
             time.sleep(1.0)  # frames run
+            assert off_machine_sockets(family(serve.pid) + family(fsw.pid)) == []
             fsw.send_signal(signal.SIGTERM)
             rest, err = fsw.communicate(timeout=30)
         finally:
@@ -103,12 +111,15 @@ def test_serve_and_flight_processes_move_a_motor_and_the_mast(tmp_path: Path) ->
         assert "safer-fsw: interrupted" in rest and "slips" in rest
         # 2) the same flight build, in this process, moves a motor and the mast
         cfg = only_hw_tasks(load_settings(flight_cfg))
+        before = _socket_fds()
         exe = build_executive(cfg)
         for task in exe.tasks.values():  # the console task prints every event: keep it out of pytest's streams
             if hasattr(task, "out"):
                 task.out = io.StringIO()
         try:
             exe.run_realtime(12)  # controllers and mast heard
+            ours = [c for c in psutil.Process().net_connections(kind="inet") if c.fd not in before]
+            assert ours and all(c.laddr.ip == "127.0.0.1" and c.raddr.ip == "127.0.0.1" for c in ours), ours
             ok = [exe.commands.dispatch(r).status.name for r in _requests()]
             assert ok == ["OK", "OK"]
             exe.run_realtime(150, stop=lambda: exe.telemetry.get("motion.moves_done") == 2)
@@ -125,6 +136,24 @@ def test_serve_and_flight_processes_move_a_motor_and_the_mast(tmp_path: Path) ->
     assert truth["x_m"] == pytest.approx(0.3, abs=0.03) and abs(truth["y_m"]) < 0.02
     assert truth["pan_deg"] == pytest.approx(20.0, abs=0.5) and truth["tilt_deg"] == pytest.approx(-10.0, abs=0.5)
     assert truth["can_bad"] == 0 and truth["mast_moves"] >= 1 and not math.isnan(truth["x_m"])
+
+
+@pytest.mark.slow
+def test_the_bench_needs_no_interface_but_loopback() -> None:
+    """Issue 31, done-when 1: the test above, in a fresh network namespace with only ``lo`` up
+    (no route to any other network: a datagram or group join meant for one fails there)."""
+    if os.environ.get(NETNS_ENV):
+        pytest.skip("already inside the namespace")
+    test = f"{Path(__file__).relative_to(REPO)}::test_serve_and_flight_processes_move_a_motor_and_the_mast"
+    done = run_in_loopback_namespace([sys.executable, "-m", "pytest", "-rA", "-p", "no:cacheprovider", "-p", "no:xdist",
+                                      test], timeout_s=280, cwd=str(REPO))
+    if done is None:
+        pytest.skip("no network namespace here (needs root and unshare)")
+    assert done.returncode == 0 and f"PASSED {test}" in done.stdout, done.stdout[-3000:] + done.stderr[-2000:]
+
+
+def _socket_fds() -> set[int]:
+    return {c.fd for c in psutil.Process().net_connections(kind="inet")}
 
 
 def _requests() -> list:  # type: ignore[type-arg]

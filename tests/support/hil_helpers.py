@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import random
 import socket
 from typing import Any
 
@@ -42,7 +41,3 @@ def free_tcp_port() -> int:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
 
-
-def random_udp_port() -> int:
-    """A udp_multicast port unlikely to be shared with a concurrent test run."""
-    return random.randint(40000, 60000)

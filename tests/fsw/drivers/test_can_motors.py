@@ -1,12 +1,14 @@
 """Back-to-back: the flight CAN motor driver against the emulated controllers (issue 3, items 5, 9).
 
-One test class, run over python-can ``virtual`` and ``udp_multicast`` (loopback), python-can's
-own habit for backends. Time is a simulated clock; over udp_multicast each half step waits for
-the datagrams to arrive.
+One test class, run over python-can ``virtual`` and ``udp_hub`` (two processes' buses through the
+bench's hub on 127.0.0.1, issue 31; once with the flight bus echoing its own frames, as
+``udp_multicast`` does), python-can's own habit for backends. Time is a simulated clock; over
+``udp_hub`` each half step waits until the hub has relayed every frame sent.
 """
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import math
 import time
@@ -14,10 +16,11 @@ from collections.abc import Iterator
 
 import can
 import pytest
-from hil_helpers import cfg, random_udp_port
+from hil_helpers import cfg
 
 from fsw.comm.rover_can import AXES, RoverCan
 from fsw.drivers import can_motors as cm
+from hil_sim.hw.can_hub import CanHub
 from hil_sim.hw.motor_controllers import MotorControllerBank, MotorControllerConfig
 from hil_sim.rover_truth import FlatTerrain, RoverTruth, RoverTruthConfig
 
@@ -26,13 +29,17 @@ _chan = itertools.count()
 
 class Rig:
     def __init__(self, backend: str) -> None:
+        self.hub: CanHub | None = None
         if backend == "virtual":
-            kw: dict = {"interface": "virtual", "channel": f"b2b-{next(_chan)}"}
-            self.settle_s = 0.0
+            chan = f"b2b-{next(_chan)}"
+            self.sim_bus, self.fsw_bus = can.Bus(interface="virtual", channel=chan), can.Bus(interface="virtual",
+                                                                                            channel=chan)
         else:
-            kw = {"interface": "udp_multicast", "channel": "239.74.163.2", "port": random_udp_port(), "fd": False}
-            self.settle_s = 0.01
-        self.sim_bus, self.fsw_bus = can.Bus(**kw), can.Bus(**kw)
+            self.hub = CanHub().start()
+            self.sim_bus = can.Bus(interface="udp_hub", channel=self.hub.channel)
+            self.fsw_bus = can.Bus(interface="udp_hub", channel=self.hub.channel,
+                                   receive_own_messages=backend == "udp_hub_echo")
+            self.settle()
         codec = RoverCan()
         f = cfg()
         self.rover = RoverTruth(FlatTerrain(), f.rover, RoverTruthConfig(slip_noise_sigma=0.0), 0)
@@ -45,16 +52,27 @@ class Rig:
         for _ in range(n):
             if fsw_tx:
                 self.drv.transmit(self.t)
-            time.sleep(self.settle_s)
+            self.settle()
             self.t += dt
             if sim_on:
                 self.sim.receive(self.t)
                 self.sim.actuate(self.t)
                 self.rover.step(dt)
                 self.sim.transmit(self.t)
-            time.sleep(self.settle_s)
+            self.settle()
             self.drv.poll(self.t)
             self.events += self.drv.drain_events()
+
+    def settle(self, timeout_s: float = 10.0) -> None:
+        """Over ``udp_hub``: wait until the hub knows both nodes and has relayed every frame sent
+        (loopback delivery is complete when the hub's ``sendto`` returns)."""
+        if self.hub is None:
+            return
+        hub, sent = self.hub, lambda: self.sim_bus.frames_sent + self.fsw_bus.frames_sent
+        deadline = time.monotonic() + timeout_s
+        while len(hub.nodes) < 2 or hub.frames < sent():
+            assert time.monotonic() < deadline, f"hub relayed {hub.frames} of {sent()} frames"
+            time.sleep(0.0005)
 
     def names(self) -> list[str]:
         return [n for n, _ in self.events]
@@ -62,9 +80,12 @@ class Rig:
     def close(self) -> None:
         self.sim_bus.shutdown()
         self.fsw_bus.shutdown()
+        if self.hub is not None:
+            with contextlib.suppress(OSError):
+                self.hub.close()
 
 
-@pytest.fixture(params=["virtual", "udp_multicast"])
+@pytest.fixture(params=["virtual", "udp_hub", "udp_hub_echo"])
 def rig(request: pytest.FixtureRequest) -> Iterator[Rig]:
     r = Rig(request.param)
     r.backend = request.param  # type: ignore[attr-defined]
@@ -79,7 +100,7 @@ class TestBackToBack:
         assert rig.names().count("CAN_NODE_ONLINE") == len(AXES)
         assert all(s.t_status is not None and s.nmt_state is not None for s in rig.drv.axes.values())
         assert rig.drv.faults & cm.CRITICAL == 0 and rig.drv.rx_bad == 0 and rig.drv.rx_lost == 0
-        assert (rig.drv.rx_echo > 0) == (rig.backend == "udp_multicast")  # type: ignore[attr-defined]
+        assert (rig.drv.rx_echo > 0) == (rig.backend == "udp_hub_echo")  # type: ignore[attr-defined]
 
     def test_drive_and_steer_commands_move_the_axes(self, rig: Rig) -> None:
         for w in ("FL", "FR", "RL", "RR"):

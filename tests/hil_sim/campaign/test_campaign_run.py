@@ -111,7 +111,7 @@ def test_dask_local_cluster_gives_the_same_table(local_run: Path, spec: Path, tm
     assert 'methods = ["5", "oracle"]' in text
     half.write_text(text.replace('methods = ["5", "oracle"]', 'methods = ["5"]'))
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                  dashboard_address=None) as cluster:
+                                  dashboard_address="127.0.0.1:0") as cluster:
         assert main(["campaign", str(half), "--out", str(tmp_path), "--scheduler", cluster.scheduler_address]) == 0
     local = [r for r in table(local_run) if r["method"] == "5"]
     assert len(local) == 2 and {r["fault_set"] for r in local} == {"none", "camera_dropout"}
