@@ -137,24 +137,20 @@ def tether_path(z: NDArray[np.floating], grid: MapGrid, anchor: F64, bot: F64, c
 
 
 def surface_normal(z: NDArray[np.floating], grid: MapGrid, xy: F64, radius_m: float) -> F64 | None:
-    """Unit upward normal of the plane fitted to the known cells within ``radius_m`` of ``xy``;
-    None when fewer than three cells are known."""
-    r = max(1, int(math.ceil(radius_m / grid.cell)))
-    iy0, ix0, inside = grid.cell_index(np.array([xy[0]]), np.array([xy[1]]))
-    if not inside[0]:
+    """Unit upward normal of the plane fitted to the ground at ``xy`` and at eight points on
+    the circle of ``radius_m`` around it (bilinear heights, :func:`height_at`, so the normal
+    and the attachment point move continuously with the Cliff-bot); points on unknown ground
+    or off the map are left out; None when the centre or more than half of the circle is."""
+    r = max(radius_m, grid.cell)
+    ang = np.arange(8) * (np.pi / 4)
+    px = np.concatenate([[0.0], r * np.cos(ang)])
+    py = np.concatenate([[0.0], r * np.sin(ang)])
+    h = np.array([height_at(z, grid, (float(xy[0]) + a, float(xy[1]) + b)) for a, b in zip(px, py, strict=True)])
+    ok = np.isfinite(h)
+    if not ok[0] or ok.sum() < 5:
         return None
-    cy, cx = int(iy0[0]), int(ix0[0])
-    ys = slice(max(0, cy - r), min(grid.ny, cy + r + 1))
-    xs = slice(max(0, cx - r), min(grid.nx, cx + r + 1))
-    patch = np.asarray(z[ys, xs], float)
-    jy, jx = np.mgrid[ys, xs]
-    ok = np.isfinite(patch) & ((jy - cy) ** 2 + (jx - cx) ** 2 <= r * r)
-    if ok.sum() < 3:
-        return None
-    px = (jx[ok] - cx) * grid.cell
-    py = (jy[ok] - cy) * grid.cell
-    a = np.column_stack([px, py, np.ones_like(px)])
-    (gx, gy, _), *_ = np.linalg.lstsq(a, patch[ok], rcond=None)
+    a = np.column_stack([px, py, np.ones_like(px)])[ok]
+    (gx, gy, _), *_ = np.linalg.lstsq(a, h[ok], rcond=None)
     n = np.array([-gx, -gy, 1.0])
     return n / np.linalg.norm(n)
 
@@ -200,6 +196,20 @@ def anchor_points(z: NDArray[np.floating], grid: MapGrid, anchors_xy: F64, cfg: 
     return np.column_stack([anchors_xy, zz + cfg.anchor_exit_m])
 
 
+def height_at(z: NDArray[np.floating], grid: MapGrid, xy: F64 | tuple[float, float]) -> float:
+    """Bilinear height at ``xy`` between the four nearest cell centres (NaN when one is unknown
+    or off the map): continuous, so tether lengths are continuous in the Cliff-bot's place
+    (a steep face on a coarse grid steps by ``cell * tan(slope)`` from one cell to the next)."""
+    fx = (float(xy[0]) - grid.x0) / grid.cell - 0.5
+    fy = (float(xy[1]) - grid.y0) / grid.cell - 0.5
+    ix, iy = int(math.floor(fx)), int(math.floor(fy))
+    if not (0 <= ix < grid.nx - 1 and 0 <= iy < grid.ny - 1):
+        return math.nan
+    ax, ay = fx - ix, fy - iy
+    q = np.asarray(z[iy:iy + 2, ix:ix + 2], float)
+    return float((1 - ay) * ((1 - ax) * q[0, 0] + ax * q[0, 1]) + ay * ((1 - ax) * q[1, 0] + ax * q[1, 1]))
+
+
 def tether_state(z: NDArray[np.floating], grid: MapGrid, anchors: F64, xy: F64, cfg: TetherConfig,
                  footprint_m: float = 0.3) -> TetherState | None:
     """Both tethers and the statics with the Cliff-bot standing at ``xy``; None where the map
@@ -207,7 +217,7 @@ def tether_state(z: NDArray[np.floating], grid: MapGrid, anchors: F64, xy: F64, 
     iy, ix, inside = grid.cell_index(np.array([xy[0]]), np.array([xy[1]]))
     if not inside[0]:
         return None
-    zg = float(z[iy[0], ix[0]])
+    zg = height_at(z, grid, xy)
     normal = surface_normal(z, grid, xy, footprint_m)
     if not math.isfinite(zg) or normal is None:
         return None
