@@ -31,7 +31,15 @@ from fsw.comm.rover_can import Bad
 from fsw.comm.team_can import WINCHES, TeamCan, WheelCommand
 from fsw.core.geometry import MapGrid
 from fsw.core.team.face_planner import ClimberConfig, ground_layers
-from fsw.core.team.tether import TetherConfig, TetherState, anchor_points, settle, surface_normal, tether_state
+from fsw.core.team.tether import (
+    TetherConfig,
+    TetherState,
+    anchor_points,
+    height_at,
+    settle,
+    surface_normal,
+    tether_state,
+)
 from hil_sim.faults import FaultInjector
 from hil_sim.hw.winch import WinchConfig, WinchNode
 from hil_sim.world.cliffbot import build_cliffbot
@@ -164,13 +172,17 @@ class CliffbotRig:
         if got is None:
             self.violations["slack"] += 1
         else:
-            old = self.xy
+            old, old_z = self.xy, height_at(self.z, self.grid, self.xy)
             self.xy, self.state = got
-            moved = float(np.linalg.norm(self.xy - old))
-            if moved > 0:
+            step = self.xy - old
+            if float(np.linalg.norm(step)) > 0:
                 self.path.append((float(self.xy[0]), float(self.xy[1])))
+                # The wheels roll the distance along the ground, forward or back along the heading.
+                dz = height_at(self.z, self.grid, self.xy) - old_z
+                along = math.sqrt(float(step @ step) + (dz * dz if math.isfinite(dz) else 0.0))
+                sign = 1.0 if step @ np.array([math.cos(self.yaw), math.sin(self.yaw)]) >= 0 else -1.0
                 r = self.hw.wheel_radius_m
-                self.wheel_rad = [self.wheel_rad[0] + moved / r, self.wheel_rad[1] + moved / r]
+                self.wheel_rad = [w + sign * along / r for w in self.wheel_rad]
             self._set_tensions()
             self._judge()
 

@@ -99,6 +99,32 @@ class ReconFixer:
         return fix_packets.encode(fix)
 
 
+class TruthFixer:
+    """A stand-in for :class:`ReconFixer` without rendering: the TRUE pose plus noise drawn
+    from the covariance it reports (``sigma_m``, ``sigma_deg``), offset by ``offset_m`` (a
+    wrong fix, for the fault tests). Its errors are recorded like the real fixer's."""
+
+    def __init__(self, seed: int, sigma_m: float = 0.01, sigma_deg: float = 0.5,
+                 offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
+        self.rng = np.random.default_rng([seed, 2703])
+        self.cov = np.diag([math.radians(sigma_deg) ** 2] * 3 + [sigma_m ** 2] * 3)
+        self.offset = np.asarray(offset_m, float)
+        self.errors: list[tuple[float, float, float, float]] = []
+
+    def answer(self, req: fix_packets.FixRequest, rig: CliffbotRig, now: float) -> bytes:
+        from fsw.core.localization.localization import so3_log
+
+        cb = rig.cliffbot_truth()
+        e = self.rng.multivariate_normal(np.zeros(6), self.cov)
+        e[3:] += self.offset
+        yaw = cb.yaw + e[2]
+        c, s_ = math.cos(yaw), math.sin(yaw)
+        r = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+        nees = float(e @ np.linalg.solve(self.cov, e))
+        self.errors.append((math.nan, 100 * float(np.linalg.norm(e[3:])), abs(math.degrees(e[2])), nees))
+        return fix_packets.encode(fix_packets.Fix(req.seq, int(now * 1000), cb.t + e[3:], so3_log(r), self.cov))
+
+
 def truth_reachable(world: World, grid: MapGrid, setup: TeamSetup, anchors: F64) -> tuple[str, ...]:
     """The brute-force check on the TRUE ground: each target's reason ("" when reachable)."""
     assert world.team is not None
@@ -111,19 +137,26 @@ def truth_reachable(world: World, grid: MapGrid, setup: TeamSetup, anchors: F64)
 def run_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], channel: RadioChannel, seed: int,
              setup: TeamSetup | None = None, recon_xy_yaw: tuple[float, float, float] | None = None,
              faults: tuple[FaultSpec, ...] = (), out: Path | None = None, t0: float = 0.0,
-             fixer: ReconFixer | None = None, recover_after_s: float | None = None) -> dict[str, Any]:
-    """The Cliff-bot's mission on the bench; returns the ``team`` summary section."""
+             fixer: ReconFixer | TruthFixer | None = None, recover_after_s: float | None = None,
+             command_targets: F64 | None = None) -> dict[str, Any]:
+    """The Cliff-bot's mission on the bench; returns the ``team`` summary section.
+
+    ``recover_after_s``: a ground command leaves SAFE that long after it was entered (once);
+    without it the run ends in SAFE. ``command_targets``: a ground command replacing the
+    scenario's targets at the start."""
     assert world.team is not None
     s = setup or TeamSetup()
     inj = FaultInjector(seed, faults)
     rig = CliffbotRig(world, grid, s.tether, s.climber, faults=inj, seed=seed)
     team = world.team
     recon = recon_xy_yaw or world.rover_start
-    fixer = fixer or ReconFixer(world, recon, seed)
+    fixer = fixer if fixer is not None else ReconFixer(world, recon, seed)
     mission = CliffbotMission(s.mission, s.tether, s.climber, s.nav, rig.anchors, team.cliffbot_start_xy,
                               rig.yaw, team.targets_xyz[:, :2])
     dev = CliffbotDevices()
     mission.set_map(received_z, grid)
+    if command_targets is not None:
+        mission.set_targets(command_targets)
     sent0 = {side: channel.stats(side).air_bytes for side in (RECON, CLIFF)}
     now = t0
     est_path: list[tuple[float, float]] = []
@@ -182,7 +215,7 @@ def run_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], chan
         "unknown_cells_entered": _unknown_entered(rig.path, received_z, grid),
         "fix_errors_cm": [round(e[1], 3) for e in errs],
         "fix_errors_deg": [round(e[2], 3) for e in errs],
-        "fix_ranges_m": [round(e[0], 2) for e in errs],
+        "fix_ranges_m": [round(e[0], 2) if math.isfinite(e[0]) else None for e in errs],
         "fix_nees": [round(e[3], 3) for e in errs],
         "fix_nees_within_chi2_95": (sum(e[3] <= CHI2_95_6DOF for e in errs) / len(errs)) if errs else None,
         "fixes_used": mission.fixes_used,

@@ -108,9 +108,9 @@ class WinchNode:
         if self.load_n() > self.cfg.trip_n:
             self.latched.add("FaultOverTension")
         rate = self.rate_cmd if self.enabled and not self.latched else 0.0
-        if rate > 0 and self.paid_out_m >= self.cfg.spool_m:
+        if rate > 0 and self.paid_out_m + rate * dt >= self.cfg.spool_m:
             self.latched.add("FaultSpool")
-            rate = 0.0
+            rate = max(0.0, (self.cfg.spool_m - self.paid_out_m) / dt)  # the drum stops at the spool's end
         if mode == "stall" and rate != 0.0:
             self.stalled_s += dt
             if self.stalled_s >= self.cfg.stall_detect_s:

@@ -97,6 +97,7 @@ class CliffbotMission:
         self.last_fix: Fix | None = None
         self.fixes_used = 0
         self.fixes_refused = 0
+        self.fix_log: list[tuple[float, ...]] = []  # t, fix x y yaw, estimate x y yaw (before), NIS
         self.replan = False
         self.dwell_until = 0.0
         self.clear_frames = 0
@@ -135,6 +136,8 @@ class CliffbotMission:
         self.last_fix = fix
         cov3 = fix.cov[np.ix_([3, 4, 2], [3, 4, 2])]
         ok, nis = self.nav.fix(fix.position[:2], fix.yaw, cov3)
+        self.fix_log.append((self.now, float(fix.position[0]), float(fix.position[1]), fix.yaw,
+                             float(self.nav.s[0]), float(self.nav.s[1]), float(self.nav.s[2]), nis))
         if not ok:
             self.fixes_refused += 1
             self.event("FIX_REFUSED", f"fix {fix.seq} disagrees with the estimate (NIS {nis:.1f})")
@@ -226,7 +229,8 @@ class CliffbotMission:
         if dev.wheels is not None:
             w = 0.5 * (dev.wheels.left_rad + dev.wheels.right_rad) * self.cfg.wheel_radius_m
             if self.last_wheel is not None:
-                self.nav.predict(w - self.last_wheel, att.pitch_deg if att is not None else 0.0, dt)
+                self.nav.predict(w - self.last_wheel, att.pitch_deg if att is not None else 0.0, dt,
+                                 math.radians(att.yaw_deg) if att is not None else None)
             self.last_wheel = w
         if att is not None:
             self.nav.heading(att.yaw_deg)

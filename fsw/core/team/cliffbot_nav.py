@@ -3,8 +3,9 @@
 State ``s = (x, y, yaw)`` (world metres, rad) with covariance ``P``. Sources:
 
 * **wheel odometry** (prediction): a wheel-path increment ``d`` moves the Cliff-bot
-  ``d cos(pitch)`` horizontally along its heading (pitch from the IMU); the process noise
-  grows with ``d`` (wheels slip on a face) and with time;
+  ``d cos(pitch)`` horizontally along the IMU's heading (pitch from the IMU); the process
+  noise grows with ``d`` (on a face the tethers, not the wheels, choose the direction) and
+  with time;
 * **tether-length kinematics** (update): the two paid-out lengths the winches report equal
   the taut tether lengths at the Cliff-bot's place on the map it received
   (:func:`fsw.core.team.tether.tether_state`); Jacobian by central differences over one map
@@ -37,8 +38,9 @@ CHI2_3DOF = {0.95: 7.815, 0.99: 11.345, 0.999: 16.266}
 class NavConfig:
     length_sigma_m: float = param(0.02, lo=1e-4, hi=1.0, units="m", doc="tether-length measurement noise")
     yaw_sigma_deg: float = param(2.0, lo=0.01, hi=90.0, units="deg", doc="IMU heading noise")
-    odo_sigma_frac: float = param(0.1, lo=0.0, hi=1.0, doc="wheel-odometry noise per metre driven")
+    odo_sigma_frac: float = param(0.5, lo=0.0, hi=1.0, doc="wheel-odometry noise per metre driven")
     drift_mps: float = param(0.005, lo=0.0, hi=1.0, units="m/sqrt(s)", doc="process noise per sqrt(second)")
+    yaw_rate_per_m: float = param(1.0, lo=0.0, hi=10.0, units="rad/m", doc="heading change per metre driven (noise)")
     fix_gate: float = param(0.999, lo=0.9, hi=0.9999, doc="chi-square probability of the fix gate (3 dof)")
     init_sigma_m: float = param(0.1, lo=1e-3, hi=10.0, units="m")
 
@@ -60,15 +62,18 @@ class CliffbotNav:
     def xy(self) -> F64:
         return self.s[:2].copy()
 
-    def predict(self, wheel_m: float, pitch_deg: float, dt: float) -> None:
+    def predict(self, wheel_m: float, pitch_deg: float, dt: float, heading: float | None = None) -> None:
+        """Wheel odometry: ``wheel_m`` along the ground in the direction ``heading`` (the IMU's,
+        an input: the state's yaw is not coupled to the place). On a face the tethers, not the
+        wheels, choose where the body goes, so it may slide sideways to its heading: the
+        process noise is ``odo_sigma_frac`` of the distance across and along as well."""
         c = self.cfg
         d = wheel_m * math.cos(math.radians(pitch_deg))
-        yaw = self.s[2]
+        yaw = self.s[2] if heading is None else heading
         self.s[:2] += d * np.array([math.cos(yaw), math.sin(yaw)])
-        f = np.eye(3)
-        f[0, 2], f[1, 2] = -d * math.sin(yaw), d * math.cos(yaw)
         q = (c.odo_sigma_frac * abs(wheel_m)) ** 2 + c.drift_mps ** 2 * max(dt, 0.0)
-        self.P = f @ self.P @ f.T + np.diag([q, q, 1e-6 * max(dt, 0.0)])
+        q_yaw = (c.yaw_rate_per_m * abs(wheel_m)) ** 2 + 1e-5 * max(dt, 0.0)  # the body turns as it moves
+        self.P = self.P + np.diag([q, q, q_yaw])
 
     def _update(self, r: F64, h: F64, rcov: F64) -> float:
         s_cov = h @ self.P @ h.T + rcov

@@ -228,7 +228,7 @@ def tether_state(z: NDArray[np.floating], grid: MapGrid, anchors: F64, xy: F64, 
 
 
 def settle(z: NDArray[np.floating], grid: MapGrid, anchors: F64, lengths: tuple[float, float], guess_xy: F64,
-           cfg: TetherConfig, iterations: int = 30, tol_m: float = 1e-4) -> tuple[F64, TetherState] | None:
+           cfg: TetherConfig, iterations: int = 30, tol_m: float = 1e-3) -> tuple[F64, TetherState] | None:
     """Forward kinematics: where both tethers, paid out to ``lengths``, are taut on the ground.
 
     Gauss-Newton on ``L_i(x, y) = l_i`` from ``guess_xy`` (the last pose): the Jacobian by
