@@ -41,6 +41,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("experiment", "camera-path"): "hil_sim.commands.experiment_camera_path",
     ("experiment", "registration"): "hil_sim.commands.experiment_registration",
     ("experiment", "fiducials"): "hil_sim.commands.experiment_fiducials",
+    ("experiment", "team"): "hil_sim.commands.experiment_team",
 }
 
 GROUP_HELP = {

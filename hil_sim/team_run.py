@@ -277,7 +277,13 @@ def draw_team(path: Path, world: World, grid: MapGrid, z: NDArray[np.floating], 
         ok = mission.reached[k] if k < len(mission.reached) else False
         ax.plot(t[0], t[1], "g*" if ok else "mx", ms=12)
         ax.annotate(f"{k + 1}" + ("" if ok else f": {mission.reasons[k] or 'not reached'}"), (t[0], t[1]),
-                    color="yellow", fontsize=8, xytext=(4, 4), textcoords="offset points")
+                    color="black", fontsize=8, xytext=(4, 4), textcoords="offset points",
+                    bbox={"boxstyle": "round", "fc": "white", "alpha": 0.7})
+    # the team's part of the map: anchors, targets, jumble and path with a margin
+    pts = np.vstack([a[:, :2], world.team.targets_xyz[:, :2], tp, [[jx - jax, jy - jay], [jx + jax, jy + jay]]])
+    lo, hi = pts.min(axis=0) - 0.8, pts.max(axis=0) + 0.8
+    ax.set_xlim(max(lo[0], ext[0]), min(hi[0], ext[1]))
+    ax.set_ylim(max(lo[1], ext[2]), min(hi[1], ext[3]))
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_title("team mission: targets reached (*), not reached (x)")
