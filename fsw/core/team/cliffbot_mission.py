@@ -24,6 +24,7 @@ last fix as the estimate if that was the cause, and re-plans the leg it was on f
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -53,6 +54,10 @@ class CliffbotMissionConfig:
     fix_timeout_s: float = param(30.0, lo=0.5, hi=600.0, units="s", doc="no fix this long after asking: link lost")
     return_home: bool = param(True, doc="climb back to the start after the last target")
     wheel_radius_m: float = param(0.06, lo=0.01, hi=1.0, units="m")
+    track_margin_m: float = param(0.08, lo=0.0, hi=2.0, units="m",
+                                  doc="the planner's footprint grown by this: the body strays between waypoints")
+    tension_margin_n: float = param(10.0, lo=0.0, hi=1000.0, units="N",
+                                    doc="the planner keeps tensions this far inside [T_min, T_max]")
 
 
 @dataclass(frozen=True)
@@ -76,6 +81,11 @@ class CliffbotMission:
     def __init__(self, cfg: CliffbotMissionConfig, tcfg: TetherConfig, ccfg: ClimberConfig, ncfg: NavConfig,
                  anchors: F64, start_xy: F64, start_yaw: float, targets_xy: F64) -> None:
         self.cfg, self.tcfg, self.ccfg = cfg, tcfg, ccfg
+        # what the planner uses: limits with the tracking margins (the body is between nodes
+        # and waypoints while it moves, and the bench judges every place it passes)
+        self.plan_tcfg = dataclasses.replace(tcfg, t_min_n=tcfg.t_min_n + cfg.tension_margin_n,
+                                             t_max_n=max(tcfg.t_max_n - cfg.tension_margin_n, tcfg.t_min_n + 1.0))
+        self.plan_ccfg = dataclasses.replace(ccfg, footprint_m=ccfg.footprint_m + cfg.track_margin_m)
         self.anchors = np.asarray(anchors, float)
         self.start = np.asarray(start_xy, float)
         self.targets = np.asarray(targets_xy, float).reshape(-1, 2)
@@ -241,7 +251,8 @@ class CliffbotMission:
 
     def _plan_all(self) -> None:
         assert self.z is not None and self.grid is not None
-        plan = plan_targets(self.z, self.grid, self.anchors, self.nav.xy, self.targets, self.tcfg, self.ccfg)
+        plan = plan_targets(self.z, self.grid, self.anchors, self.nav.xy, self.targets, self.plan_tcfg,
+                            self.plan_ccfg)
         self.legs = []
         for k, why in enumerate(plan.reasons):
             self.reasons[k] = why
@@ -265,7 +276,8 @@ class CliffbotMission:
             self.event("DONE", "all legs driven")
             return
         leg = self.legs[self.leg_i]
-        plan = plan_targets(self.z, self.grid, self.anchors, self.nav.xy, leg.goal[None, :], self.tcfg, self.ccfg)
+        plan = plan_targets(self.z, self.grid, self.anchors, self.nav.xy, leg.goal[None, :], self.plan_tcfg,
+                            self.plan_ccfg)
         path = plan.paths[0]
         if path is None:
             why = plan.reasons[0]

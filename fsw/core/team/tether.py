@@ -232,7 +232,8 @@ def settle(z: NDArray[np.floating], grid: MapGrid, anchors: F64, lengths: tuple[
     """Forward kinematics: where both tethers, paid out to ``lengths``, are taut on the ground.
 
     Gauss-Newton on ``L_i(x, y) = l_i`` from ``guess_xy`` (the last pose): the Jacobian by
-    central differences of the tether lengths at one map cell. None when it does not
+    central differences of the tether lengths at one map cell, each step halved until the
+    residual shrinks. None when it does not
     converge (the lengths cannot both be taut: the Cliff-bot would hang on one tether)."""
     xy = np.asarray(guess_xy, float).copy()
     h = grid.cell
@@ -259,6 +260,14 @@ def settle(z: NDArray[np.floating], grid: MapGrid, anchors: F64, lengths: tuple[
         n = float(np.linalg.norm(step))
         if n > 0.5:  # a damped step: the ground under the Cliff-bot is only known locally
             step *= 0.5 / n
+        # Backtracking: a contact appearing or vanishing makes the lengths kink, and a full
+        # Gauss-Newton step can cycle across the kink; halve it until the residual shrinks.
+        r_norm = float(np.linalg.norm(r))
+        for _ in range(6):
+            trial = tether_state(z, grid, anchors, xy - step, cfg)
+            if trial is not None and float(np.linalg.norm(np.asarray(trial.lengths_m) - target)) < r_norm:
+                break
+            step = 0.5 * step
         xy = xy - step
     st = tether_state(z, grid, anchors, xy, cfg)
     if st is not None and np.max(np.abs(np.asarray(st.lengths_m) - target)) < 10 * tol_m + 0.25 * h:
