@@ -1,7 +1,9 @@
 """``safer-ground``: the operator's MAVLink tools for the RECON-bot (docs/ground.md).
 
 Subcommands: ``listen`` (live view), ``send`` (signed command), ``plot`` (PNG plots of a
-.tlog), ``map`` (map preview from a .tlog), ``keygen`` (a new signing key). Channel names,
+.tlog), ``map`` (map preview from a .tlog), ``params`` (the MAVLink parameter table), ``gcs-check``
+(behave as a stock ground station and report what was answered),
+``keygen`` (a new signing key). Channel names,
 limits, commands and budgets come from the flight configuration (``--config``). Exit code 2
 on usage errors, bad files and bad configuration.
 """
@@ -15,7 +17,8 @@ from collections.abc import Sequence
 
 from fsw.settings import DEFAULT_CONFIG
 
-SUBCOMMANDS = {"listen": "ground.listen", "send": "ground.send", "plot": "ground.plot", "map": "ground.map_image"}
+SUBCOMMANDS = {"listen": "ground.listen", "send": "ground.send", "plot": "ground.plot", "map": "ground.map_image",
+               "params": "ground.params_cli", "gcs-check": "ground.gcs_check"}
 KEYGEN_HELP = "write a new random 32-byte signing key (hex, mode 0600); give the same file to the rover"
 
 

@@ -4,17 +4,22 @@ Sans-I/O (STYLE.md, h11): the task hands it uplink bytes, the time and a view of
 executive; it returns authenticated commands and the downlink frames of this activation,
 never more than ``budget_bytes_per_frame`` bytes. Downlink priorities, highest first:
 
-1. COMMAND_ACK;  2. HEARTBEAT (1 Hz);  3. STATUSTEXT of FATAL/WARNING events;
-4. SYS_STATUS, LOCAL_POSITION_NED + ATTITUDE (rover), GIMBAL_DEVICE_ATTITUDE_STATUS (mast);
-5. other STATUSTEXT;  6. NAMED_VALUE_FLOAT/INT channels;  7. map preview image packets.
+1. HEARTBEAT (1 Hz);  2. STATUSTEXT of FATAL/WARNING events;
+3. SYS_STATUS, LOCAL_POSITION_NED + ATTITUDE (rover), GIMBAL_DEVICE_ATTITUDE_STATUS (mast);
+4. COMMAND_ACK of authenticated commands;  5. answers to unauthenticated senders (denials,
+   polls, PARAM/MISSION replies), rate-limited when queued;  6. a PARAM_VALUE list in progress
+   (at most half the budget);  7. other STATUSTEXT;  8. NAMED_VALUE_FLOAT/INT channels;
+9. map preview image packets.
 
-Whatever does not fit waits for the next activation at the same priority.
+Whatever does not fit waits for the next activation at the same priority. An unauthenticated
+sender cannot fill a queue or push the heartbeat out: its answers pass a token bucket before
+they are queued (beyond it they are counted, not sent), and they rank below telemetry.
 """
 
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from fsw.comm import mavlink_telemetry as tm
@@ -31,7 +36,7 @@ from fsw.comm.mavlink_downlink import (
     TokenBucket,
 )
 from fsw.comm.mavlink_image import ImageSender
-from fsw.comm.mavlink_signing import SignatureVerifier
+from fsw.comm.mavlink_signing import SignatureVerifier, Verdict
 from fsw.comm.mavlink_uplink import CommandIn, Uplink, UplinkBatch
 from fsw.framework.telemetry import Event, Severity
 
@@ -55,6 +60,25 @@ class VehicleView:
     channels: tuple[ChannelSample, ...] | ChannelTable = ()  # a table is read live, lazily
 
 
+@dataclass
+class ReplyQueue:
+    """Answers to senders that need no key: a token bucket decides at enqueue time, so a flood
+    costs a counter, never memory or downlink time."""
+
+    bucket: TokenBucket
+    depth: int
+    items: deque[mavlink.MAVLink_message] = field(default_factory=deque)
+    suppressed: int = 0
+
+    def push(self, now_s: float, msgs: list[mavlink.MAVLink_message]) -> bool:
+        self.bucket.refill(now_s)
+        if len(self.items) + len(msgs) > self.depth or not self.bucket.take():
+            self.suppressed += 1
+            return False
+        self.items.extend(msgs)
+        return True
+
+
 class MavlinkAdapter:
     """One ground link's protocol state: codec, signing, queues, schedules and counters."""
 
@@ -74,9 +98,13 @@ class MavlinkAdapter:
                                  TokenBucket(cfg.statustext_rate_hz, cfg.statustext_burst))
         self.channels = ChannelScheduler(cfg.channel_period_s, cfg.channel_refresh_s)
         self.images = ImageSender()
-        # bounded; a flood of commands beyond it loses ACKs, counted (acks_dropped channel)
-        self._acks: deque[mavlink.MAVLink_command_ack_message] = deque(maxlen=1024)
+        # authenticated commands: bounded (a signed sender is trusted, yet a flood loses ACKs, counted)
+        self._acks: deque[mavlink.MAVLink_command_ack_message] = deque(maxlen=256)
         self.acks_dropped = 0
+        # unauthenticated senders: denials coalesced to a trickle; answers to polls and requests
+        self.denials = ReplyQueue(TokenBucket(cfg.denial_acks_per_s, 5), 8)
+        self.replies = ReplyQueue(TokenBucket(cfg.replies_per_s, int(max(1.0, cfg.replies_per_s))), 64)
+        self.param_stream: deque[mavlink.MAVLink_message] = deque()  # a PARAM_REQUEST_LIST answer
         self._due = {"heartbeat": Periodic(cfg.heartbeat_period_s), "sys_status": Periodic(cfg.sys_status_period_s),
                      "pose": Periodic(cfg.pose_period_s), "mast": Periodic(cfg.mast_period_s)}
         self._next_image_s = 0.0
@@ -107,11 +135,29 @@ class MavlinkAdapter:
             self.codec.signing.timestamp = max(self.codec.signing.timestamp, now_ts,
                                                self.verifier.newest_timestamp() + 1)
 
-    def ack(self, cmd: CommandIn, result: int, reason: Reason, opcode: int) -> None:
+    def ack(self, cmd: CommandIn, result: int, reason: Reason, opcode: int, now_s: float = 0.0) -> bool:
+        """Queue the COMMAND_ACK of ``cmd``: an authenticated command's in the ACK queue, any
+        other through the rate limit (False: suppressed, counted)."""
+        msg = mavlink.MAVLink_command_ack_message(cmd.command_id, result, int(reason), opcode,
+                                                  cmd.src_system, cmd.src_component)
+        if cmd.verdict is not Verdict.OK:
+            return (self.denials if result == mavlink.MAV_RESULT_DENIED else self.replies).push(now_s, [msg])
         if len(self._acks) == self._acks.maxlen:
             self.acks_dropped += 1
-        self._acks.append(mavlink.MAVLink_command_ack_message(
-            cmd.command_id, result, int(reason), opcode, cmd.src_system, cmd.src_component))
+        self._acks.append(msg)
+        return True
+
+    def reply(self, now_s: float, msgs: list[mavlink.MAVLink_message]) -> bool:
+        """Answers to a request that needs no key (rate-limited; False: suppressed, counted)."""
+        return self.replies.push(now_s, msgs)
+
+    @property
+    def replies_suppressed(self) -> int:
+        return self.denials.suppressed + self.replies.suppressed
+
+    def periodic(self, name: str) -> Periodic:
+        """The schedule of ``heartbeat``, ``sys_status``, ``pose`` or ``mast`` (a PARAM_SET changes it)."""
+        return self._due[name]
 
     # -- inputs for the downlink ----------------------------------------------------------------
     def push_event(self, ev: Event) -> None:
@@ -132,8 +178,6 @@ class MavlinkAdapter:
         self._clock_signing(now_ts)
         p, now, ms = self.packer, v.time_s, int(v.time_s * 1000) & 0xFFFFFFFF
         p.begin(self.budget_bytes)
-        while self._acks and p.offer([self._acks[0]]):
-            self._acks.popleft()
         if self._due["heartbeat"].due(now) and p.offer([tm.heartbeat(v.mission_state, v.fatal, v.simulated)]):
             self._due["heartbeat"].done(now)
         self.events.bucket.refill(now)
@@ -146,6 +190,12 @@ class MavlinkAdapter:
             self._remember_pose(now, v)
         if self._due["mast"].due(now) and v.mast is not None and p.offer([tm.mast_attitude(ms, *v.mast)]):
             self._due["mast"].done(now)
+        for q in (self._acks, self.replies.items, self.denials.items):
+            while q and p.offer([q[0]]):
+                q.popleft()
+        half = p.used + p.remaining // 2
+        while self.param_stream and p.used < half and p.offer([self.param_stream[0]]):
+            self.param_stream.popleft()
         self._events(Severity.DIAGNOSTIC)
         chans = v.channels
         ranked = self.channels.ranked(now, chans) if isinstance(chans, ChannelTable) else self.channels.due(now, chans)

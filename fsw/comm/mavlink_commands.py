@@ -42,6 +42,8 @@ class Reason(enum.IntEnum):
     STALE = 4
     NO_KEY = 5
     FUTURE = 6
+    UNRECORDED = 7  # signed and fresh, but the replay window could not be saved: not executed
+    BUSY = 8  # more than commands_per_frame in one activation (TEMPORARILY_REJECTED)
     BAD_ARGUMENTS = 10
     UNKNOWN_OPCODE = 11
     VALIDATION = 12

@@ -37,6 +37,23 @@ class MavlinkConfig:
     signing_state_file: str = param("", doc="where the replay window (newest timestamp per signed stream) "
                                             "is saved atomically to survive restarts; '' = KEY_FILE.replay.json "
                                             "next to the key (the window belongs to the key)")
+    signing_reserve_s: float = param(5.0, lo=0.01, hi=3600.0, units="s",
+                                     doc="the saved replay window runs this far ahead of the newest signed "
+                                         "command, so it is written about once per this period whatever the "
+                                         "command rate; after a restart a stream's commands are refused for "
+                                         "at most this long after its last one")
+    commands_per_frame: int = param(20, lo=1, hi=10000,
+                                    doc="authenticated commands executed per activation; more are answered "
+                                        "TEMPORARILY_REJECTED (a signed flood cannot starve the executive)")
+    denial_acks_per_s: float = param(2.0, lo=0.1, hi=1000.0, units="Hz",
+                                     doc="COMMAND_ACKs (DENIED) per second for commands that failed "
+                                         "authentication; beyond, counted (acks_suppressed) and not sent")
+    replies_per_s: float = param(50.0, lo=1.0, hi=10000.0, units="Hz",
+                                 doc="answers per second to requests that need no key (polls, "
+                                     "PARAM_REQUEST_READ, MISSION_*); beyond, counted and not sent")
+    auth_event_period_s: float = param(10.0, lo=0.1, hi=3600.0, units="s",
+                                       doc="refused commands are reported by at most one AUTH_REJECTED "
+                                           "event per period, with their count")
     budget_bytes_per_frame: int = param(600, lo=280, hi=1_000_000, units="B",
                                         doc="downlink bytes per activation of the task, all frames "
                                             "included (>= one maximal 280-byte frame)")
@@ -71,6 +88,9 @@ class MavlinkConfig:
     map_preview_topic: str = param("map.preview",
                                    doc="bus topic with 2-D map previews (float elevation, NaN "
                                        "unknown, or uint8 image) sent by image transfer")
+    plan_topic: str = param("mission.plan", doc="bus topic of the mission's plan (planned stations and "
+                                                "geofence, fsw.comm.mavlink_mission.GroundPlan) served by "
+                                                "the MISSION/FENCE protocol")
     image_period_s: float = param(10.0, lo=0.1, hi=3600.0, units="s",
                                   doc="at most one new map preview transfer per this period")
     image_max_px: int = param(128, lo=8, hi=1024, units="px", doc="longest side of a preview")

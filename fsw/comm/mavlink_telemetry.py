@@ -2,7 +2,8 @@
 
 Pure builders and mappings, shared by the flight adapter and the ground tools:
 
-* mission state -> HEARTBEAT ``base_mode`` / ``custom_mode`` / ``system_status``;
+* mission state -> HEARTBEAT ``base_mode`` (standard flags) / ``custom_mode`` (the state's
+  index) / ``system_status``;
 * F Prime event severity -> MAV_SEVERITY, events -> STATUSTEXT chunks;
 * the world pose (z up, yaw CCW from +x; fsw/core/geometry.py) -> LOCAL_POSITION_NED and
   ATTITUDE (north = +x, east = -y, down = -z), the mast pan/tilt -> a gimbal quaternion;
@@ -66,7 +67,11 @@ def mode_fields(state: Any, fatal: bool, simulated: bool) -> tuple[int, int, int
             idx = UNKNOWN_MODE
         name = MISSION_STATES[idx] if 0 <= idx < len(MISSION_STATES) else f"MODE_{idx}"
     custom = MISSION_STATES.index(name) if name in MISSION_STATES else UNKNOWN_MODE
-    base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+    # standard mode flags only (no MAV_MODE_FLAG_CUSTOM_MODE_ENABLED): a stock ground station then
+    # names the mode from the flags (QGroundControl: "Auto"; MAVProxy: the flags in hex) instead
+    # of reading custom_mode through another autopilot's table (MAVProxy showed ArduRover's names).
+    # custom_mode still carries the state's index for the project's tools (docs/ground.md, "Modes").
+    base = 0
     if simulated:
         base |= mavlink.MAV_MODE_FLAG_HIL_ENABLED
     if name not in _IDLE_STATES and name != "SAFE":

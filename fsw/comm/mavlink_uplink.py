@@ -4,7 +4,9 @@ Sans-I/O: :meth:`Uplink.feed` takes whatever the transport read (any split, any 
 and the current signing time, and returns what it found. It never raises on input: bad
 prefixes, CRCs, lengths and unknown messages are counted and reported as ``bad`` entries,
 and a parser fault resets the parser (counted). Only COMMAND_LONG addressed to us (or
-broadcast) is authenticated (mavlink_signing); other messages need no key.
+broadcast) is authenticated (mavlink_signing), and so is PARAM_SET; the read-only requests of
+a stock ground station (PARAM_REQUEST_LIST/READ, MISSION_REQUEST_LIST/INT/REQUEST) need no key
+and are handed on as :class:`GcsRequest`; other messages are counted and ignored.
 """
 
 from __future__ import annotations
@@ -12,7 +14,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from fsw.comm.mavlink_dialect import mavlink, new_codec
-from fsw.comm.mavlink_signing import SignatureVerifier, Verdict
+from fsw.comm.mavlink_signing import SignatureVerifier, Verdict, signature_fields
+
+#: read-only requests of a ground station (fsw.comm.mavlink_gcs answers them), and PARAM_SET
+GCS_REQUESTS = frozenset({"PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET", "MISSION_REQUEST_LIST",
+                          "MISSION_REQUEST_INT", "MISSION_REQUEST"})
 
 
 @dataclass(frozen=True)
@@ -26,12 +32,40 @@ class CommandIn:
     src_component: int
     confirmation: int
     verdict: Verdict
+    link_id: int = -1  # signature fields (-1: unsigned): the replay window's stream and time
+    timestamp: int = -1
+
+    @property
+    def stream(self) -> tuple[int, int, int]:
+        return (self.link_id, self.src_system, self.src_component)
+
+
+@dataclass(frozen=True)
+class GcsRequest:
+    """A PARAM_* or MISSION_* message for us; ``verdict`` is the signature's (PARAM_SET only,
+    else None: read-only requests need no key)."""
+
+    msg: mavlink.MAVLink_message
+    src_system: int
+    src_component: int
+    verdict: Verdict | None = None
+    link_id: int = -1
+    timestamp: int = -1
+
+    @property
+    def kind(self) -> str:
+        return str(self.msg.get_type())
+
+    @property
+    def stream(self) -> tuple[int, int, int]:
+        return (self.link_id, self.src_system, self.src_component)
 
 
 @dataclass
 class UplinkBatch:
     frames: list[bytes] = field(default_factory=list)  # every whole, valid frame (for the tlog)
     commands: list[CommandIn] = field(default_factory=list)
+    requests: list[GcsRequest] = field(default_factory=list)
     heartbeats: list[tuple[int, int]] = field(default_factory=list)  # (system, component) of GCSs
     bad: list[str] = field(default_factory=list)
 
@@ -43,6 +77,7 @@ class UplinkCounters:
     bad_frames: int = 0
     parser_resets: int = 0
     commands: int = 0
+    requests: int = 0  # PARAM_* and MISSION_* messages for us
     not_for_us: int = 0
     ignored: int = 0
 
@@ -95,18 +130,25 @@ class Uplink:
             if msg.type == mavlink.MAV_TYPE_GCS:
                 out.heartbeats.append((hdr.srcSystem, hdr.srcComponent))
             return
-        if kind != "COMMAND_LONG":
+        if kind != "COMMAND_LONG" and kind not in GCS_REQUESTS:
             self.counters.ignored += 1
             return
         if msg.target_system not in (0, self.system_id) or msg.target_component not in (0, self.component_id):
             self.counters.not_for_us += 1
+            return
+        link_id, ts = signature_fields(frame) or (-1, -1)
+        if kind != "COMMAND_LONG":
+            self.counters.requests += 1
+            verdict = self.verifier.verify(frame, hdr.srcSystem, hdr.srcComponent, now_ts) \
+                if kind == "PARAM_SET" else None
+            out.requests.append(GcsRequest(msg, hdr.srcSystem, hdr.srcComponent, verdict, link_id, ts))
             return
         self.counters.commands += 1
         verdict = self.verifier.verify(frame, hdr.srcSystem, hdr.srcComponent, now_ts)
         out.commands.append(CommandIn(
             msg.command, float(msg.param1),
             tuple(float(p) for p in (msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)),
-            hdr.srcSystem, hdr.srcComponent, msg.confirmation, verdict))
+            hdr.srcSystem, hdr.srcComponent, msg.confirmation, verdict, link_id, ts))
 
     def rejected(self) -> int:
         """Commands refused by authentication so far."""

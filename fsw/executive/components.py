@@ -47,6 +47,8 @@ class ExecutiveComponent(Task):
             "slack job {owner}.{job} done in {slices} slices, {busy_ms:.1f} ms (longest slice {max_slice_ms:.1f} ms)",
         ),
         EventDef("TASK_ENABLED", Severity.ACTIVITY_HI, "task {target} enabled={enabled}"),
+        EventDef("TIMING", Severity.WARNING_LO, "{n} more overrun(s)/slip(s) in {span_s:.0f} s ({top}); "
+                                                "latest: {latest}"),
     )
     COMMANDS = (
         CommandDef(

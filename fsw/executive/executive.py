@@ -6,8 +6,12 @@ timed against the task's budget. Whatever time is left before the next frame run
 jobs (:mod:`fsw.framework.jobs`). A frame whose work ends after the next frame's start is
 a *slip*, charged to the rate group that was running when the deadline passed. On the
 real-time clock, lateness up to ``lag_limit_frames`` is caught up back to back; beyond
-that the executive skips ahead and says so (cFS SCH). Overrun and slip events are
-throttled; each throttle reopens a slot every ``throttle_decay_frames`` good frames.
+that the executive skips ahead and says so (cFS SCH). Overruns and slips are counters
+(channels ``<task>.overruns``, ``<group>.slips``, ``exec.slips``); the first one after
+``timing_event_period_s`` without any is an OVERRUN (SLIP) event of its task (group), the
+later ones, of every task, are summarised by at most one ``exec.TIMING`` event per period
+(``fsw.framework.summary``); the OVERRUN/SLIP events are throttled besides (a slot reopens
+every ``throttle_decay_frames`` good frames).
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from fsw.framework.bus import Mailbox, SoftwareBus
 from fsw.framework.clock import Clock
 from fsw.framework.commands import CommandDispatcher, CommandRequest, CommandResponse
 from fsw.framework.jobs import JobHandle, JobScheduler
+from fsw.framework.summary import Summary
 from fsw.framework.task import Task
 from fsw.framework.telemetry import EventLog, TelemetryStore
 from fsw.settings import FswConfig
@@ -95,6 +100,7 @@ class Executive:
         self.enabled: dict[str, bool] = {}
         self.groups: list[RateGroupComponent] = []
         self._jobs_seen: set[int] = set()
+        self._timing = Summary(ecfg.timing_event_period_s)  # overruns and slips: exec.TIMING
 
         budgets = {t.name: t.budget_ms / 1e3 for t in ecfg.tasks}
         group_of = {t.name: t.group for t in ecfg.tasks}
@@ -226,7 +232,8 @@ class Executive:
         task.activations += 1
         if task.last_s > task.budget_s:
             task.overruns += 1
-            task.event("OVERRUN", ms=task.last_s * 1e3, budget_ms=task.budget_s * 1e3)
+            if self._timing_episode(task.name, f"{task.name} took {task.last_s * 1e3:.1f} ms"):
+                task.event("OVERRUN", ms=task.last_s * 1e3, budget_ms=task.budget_s * 1e3)
         elif task.activations % self.ecfg.throttle_decay_frames == 0:
             self.events.decay(f"{task.name}.OVERRUN")
         task.publish_timing()
@@ -268,14 +275,29 @@ class Executive:
             rg.slips += 1
             self.slips += 1
             rg.good_frames = 0
-            rg.event("SLIP", frame=k, ms=elapsed * 1e3, period_ms=self.period_s * 1e3)
+            if self._timing_episode(rg.name, f"{rg.name} frame {k} ran {elapsed * 1e3:.1f} ms"):
+                rg.event("SLIP", frame=k, ms=elapsed * 1e3, period_ms=self.period_s * 1e3)
         for g in self.groups:
             if g is not rg:
                 g.good_frames += 1
                 if g.good_frames % self.ecfg.throttle_decay_frames == 0:
                     self.events.decay(f"{g.name}.SLIP")
 
+    def _timing_episode(self, name: str, detail: str) -> bool:
+        """True when timing has been quiet for ``timing_event_period_s`` (nothing reported or
+        pending): this overrun (slip) is an event of its own; else it is counted into the next
+        exec.TIMING summary (at most one a period, whatever the number of tasks)."""
+        now, t = self.clock.now(), self._timing
+        if not t.pending and now - t.last_report_s >= self.ecfg.timing_event_period_s:
+            t.last_report_s = now  # this event is the period's report
+            return True
+        t.note(now, name, detail)
+        return False
+
     def _publish(self, k: int) -> None:
+        r = self._timing.report(self.clock.now())
+        if r is not None:
+            self.exec_component.event("TIMING", n=r.count, span_s=r.span_s, top=r.top(), latest=r.latest)
         jobs = self.jobs
         self.exec_component.tlm_record({
             "frame": k, "slips": self.slips, "skipped_frames": self.skipped_frames,

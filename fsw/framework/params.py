@@ -250,3 +250,15 @@ def _tname(v: Any) -> str:
         int: "an integer",
         float: "a number",
     }.get(type(v), type(v).__name__)
+
+
+def check_field(cls: type, name: str, value: Any, source: str, key: str) -> Any:
+    """One field's value checked as a config file's would be (type, range, choices); returns it
+    converted, raises :class:`ConfigError`. The section's cross-field checks run when the
+    caller builds the section (``dataclasses.replace``)."""
+    f = {f.name: f for f in dataclasses.fields(cls)}.get(name)
+    if f is None:
+        raise ConfigError(source, key, "unknown key")
+    out = _convert(_hints(cls)[name], value, source, key, bool(f.metadata.get("allow_inf")))
+    _check_bounds(f.metadata, out, source, key)
+    return out

@@ -59,6 +59,10 @@ class ExecutiveConfig:
     )
     event_throttle: int = param(5, lo=1, hi=10000, doc="overrun/slip events emitted before the throttle closes")
     throttle_decay_frames: int = param(10, lo=1, hi=100000, doc="good frames that reopen one throttle slot")
+    timing_event_period_s: float = param(
+        60.0, lo=0.1, hi=86400.0, units="s",
+        doc="the first overrun or slip after this long without one is an event; the others, of every task, "
+            "are counted and summarised by at most one exec.TIMING event per period")
     health_warn_frames: int = param(10, lo=1, hi=100000, doc="frames without a ping answer before WARNING_HI")
     health_fatal_frames: int = param(30, lo=1, hi=100000, doc="frames without a ping answer before FATAL")
     queue_depth: int = param(8, lo=1, hi=100000, doc="default software-bus mailbox depth")

@@ -3,7 +3,11 @@
 Channels carry units and limits and keep their latest value; events carry an F Prime
 severity, a format string and a throttle. Event counters are exact even while the
 throttle suppresses emission; a throttle reopens one slot per ``decay`` call, which the
-executive makes on good frames (STYLE.md, F Prime).
+executive makes on good frames (STYLE.md, F Prime). An event identical (name and text) to
+the last one its component emitted, within ``repeat_window_s`` of it, says nothing new: it is
+counted, not emitted, and the next identical one after the window carries the count
+(``(+N identical in T s)``). Anything else the component says in between ends the run, so
+an event that says something changed is never held back.
 """
 
 from __future__ import annotations
@@ -131,8 +135,11 @@ class _EventState:
 class EventLog:
     """Emits events to listeners and a bounded history, with throttles and exact counters."""
 
-    def __init__(self, now: Callable[[], float], history: int = 1000) -> None:
+    def __init__(self, now: Callable[[], float], history: int = 1000, repeat_window_s: float = 10.0) -> None:
         self._now = now
+        self.repeat_window_s = repeat_window_s
+        self._last: dict[str, list[Any]] = {}  # component -> [(name, text), time emitted, repeats held]
+        self.repeats = 0  # identical events counted, not emitted
         self.defs: dict[str, EventDef] = {}
         self.ids: dict[str, int] = {}
         self._state: dict[str, _EventState] = {}
@@ -154,14 +161,25 @@ class EventLog:
         if ev.throttle and st.open_slots_used >= ev.throttle:
             st.suppressed += 1
             return None
-        st.open_slots_used += 1
         try:
             text = ev.fmt.format(**args)
         except (KeyError, IndexError, ValueError) as exc:  # a format bug must not crash flight code
             text = f"{ev.fmt} (format error: {exc!r}; args={args})"
+        now, owner, key = self._now(), full_name.split(".", 1)[0], (full_name, text)
+        last = self._last.get(owner)
+        if last is not None and last[0] == key:
+            if now - last[1] < self.repeat_window_s:
+                last[2] += 1
+                st.suppressed += 1
+                self.repeats += 1
+                return None
+            if last[2]:
+                text += f" (+{last[2]} identical in {now - last[1]:.0f} s)"
+        self._last[owner] = [key, now, 0]
+        st.open_slots_used += 1
         if ev.throttle and st.open_slots_used == ev.throttle:
             text += " [throttled]"
-        event = Event(self._now(), self.ids[full_name], full_name, ev.severity, text)
+        event = Event(now, self.ids[full_name], full_name, ev.severity, text)
         self.history.append(event)
         for listener in self.listeners:
             listener(event)

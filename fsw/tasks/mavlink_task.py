@@ -1,10 +1,15 @@
 """The ground-link task: MAVLink 2 telemetry, events and map previews down; signed commands up.
 
 Thin (ARCHITECTURE.md, tasks): each activation reads the transport, lets the sans-I/O
-adapter (fsw/comm/mavlink_adapter.py) authenticate and decode, dispatches accepted commands
-through the executive's dictionary and acknowledges them, then sends the adapter's frames
-for this activation (within ``[mavlink] budget_bytes_per_frame``) and logs every frame sent
-and received to the .tlog. Operator documentation: docs/ground.md.
+adapter (fsw/comm/mavlink_adapter.py) authenticate and decode, records the replay window
+(``fsw.comm.mavlink_replay``: at most one write per activation, usually one per
+``signing_reserve_s``), then dispatches the accepted commands whose timestamp is on disk
+(at most ``commands_per_frame``) through the executive's dictionary and acknowledges them,
+answers a stock ground station's polls and PARAM/MISSION requests (``fsw.tasks.mavlink_gcs``),
+then sends the adapter's frames for this activation (within ``[mavlink]
+budget_bytes_per_frame``) and logs every frame sent and received to the .tlog. Refused
+commands are counted and summarised by at most one AUTH_REJECTED event per
+``auth_event_period_s``. Operator documentation: docs/ground.md.
 
 Resources (optional, injected by the app or a test): ``mavlink_link`` (a transport; else
 the task opens ``[mavlink] url``), ``mavlink_tlog`` (a path or binary stream; else
@@ -13,33 +18,33 @@ the task opens ``[mavlink] url``), ``mavlink_tlog`` (a path or binary stream; el
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import BinaryIO, ClassVar
 
 from fsw.comm.mavlink_adapter import MavlinkAdapter
-from fsw.comm.mavlink_commands import RESULT_OF_STATUS, Reason, decode_args
-from fsw.comm.mavlink_dialect import MAV_CMD_DICTIONARY, mavlink, signing_timestamp
-from fsw.comm.mavlink_downlink import coalesce
+from fsw.comm.mavlink_config import MavlinkConfig
+from fsw.comm.mavlink_dialect import mavlink, signing_timestamp
+from fsw.comm.mavlink_downlink import TokenBucket, coalesce
+from fsw.comm.mavlink_plan import GroundPlan
+from fsw.comm.mavlink_replay import TS_PER_S, ReplayJournal
 from fsw.comm.mavlink_signing import KeyFileError, Verdict, load_key
 from fsw.comm.mavlink_tlog import TlogWriter
-from fsw.comm.mavlink_uplink import CommandIn
+from fsw.comm.mavlink_uplink import UplinkBatch
 from fsw.drivers import signing_store
 from fsw.drivers.mavlink_transport import TransportError, open_transport
-from fsw.framework.commands import Arg, CommandDef, CommandRequest, CommandStatus
+from fsw.framework.commands import Arg, CommandDef
+from fsw.framework.summary import Summary
 from fsw.framework.telemetry import Channel, Event, EventDef, Severity
 from fsw.tasks.base import FlightTask
+from fsw.tasks.mavlink_dispatch import UplinkDispatch
+from fsw.tasks.mavlink_gcs import GcsServices
 from fsw.tasks.mavlink_preview import PreviewError, encode_preview
 from fsw.tasks.mavlink_view import ViewBuilder
 
-_REASON_OF_VERDICT = {Verdict.UNSIGNED: Reason.UNSIGNED, Verdict.BAD_SIGNATURE: Reason.BAD_SIGNATURE,
-                      Verdict.REPLAY: Reason.REPLAY, Verdict.STALE: Reason.STALE, Verdict.NO_KEY: Reason.NO_KEY,
-                      Verdict.FUTURE: Reason.FUTURE}
-_THROTTLED = ("AUTH_REJECTED", "RX_BAD", "TRANSPORT_FAULT", "TLOG_ERROR", "PREVIEW_BAD", "CMD_BAD_ARGS",
-              "WINDOW_SAVE_ERROR")
+_THROTTLED = ("RX_BAD", "TRANSPORT_FAULT", "TLOG_ERROR", "PREVIEW_BAD", "CMD_BAD_ARGS", "WINDOW_SAVE_ERROR")
 
 
-class MavlinkTask(FlightTask):
+class MavlinkTask(UplinkDispatch, FlightTask):
     KIND: ClassVar[str] = "mavlink"
     DOC: ClassVar[str] = "MAVLink 2 ground link: telemetry, events, map previews; signed commands."
     CHANNELS = (
@@ -50,7 +55,15 @@ class MavlinkTask(FlightTask):
         Channel("frame_bytes_max", "B", doc="largest activation so far (<= budget)"),
         Channel("tx_errors", "count", hi=0, doc="frames the transport could not send"),
         Channel("deferred", "count", doc="messages postponed by the byte budget"),
-        Channel("acks_dropped", "count", hi=0, doc="COMMAND_ACKs lost to a command flood (queue of 1024)"),
+        Channel("acks_dropped", "count", hi=0, doc="COMMAND_ACKs of signed commands lost to a flood (queue of 256)"),
+        Channel("acks_suppressed", "count", doc="answers to unauthenticated senders not sent (rate limit)"),
+        Channel("cmds_busy", "count", doc="signed commands answered TEMPORARILY_REJECTED (commands_per_frame)"),
+        Channel("cmds_unrecorded", "count", hi=0, doc="signed commands refused: replay window not saved"),
+        Channel("window_writes", "count", doc="replay window writes (one per signing_reserve_s or less)"),
+        Channel("polls", "count", doc="ground station polls answered (HOME_POSITION, AUTOPILOT_VERSION, ...)"),
+        Channel("polls_unsupported", "count", doc="polls answered UNSUPPORTED"),
+        Channel("param_sets", "count", doc="PARAM_SETs applied"),
+        Channel("param_refused", "count", doc="signed PARAM_SETs refused (reason in PARAM_SET_REFUSED)"),
         Channel("rx_bytes", "B"),
         Channel("rx_frames", "count"),
         Channel("rx_bad", "count", doc="corrupt uplink frames (CRC, length, prefix)"),
@@ -69,8 +82,8 @@ class MavlinkTask(FlightTask):
         Channel("budget_bytes", "B", doc="current downlink budget per activation"),
     )
     EVENTS = (
-        EventDef("AUTH_REJECTED", Severity.WARNING_HI, "command 0x{opcode:x} from {src} rejected: {verdict}",
-                 throttle=10),
+        EventDef("AUTH_REJECTED", Severity.WARNING_HI, "{n} command(s) refused in {span_s:.0f} s ({top}); "
+                                                       "latest: {latest}"),
         EventDef("KEY_LOADED", Severity.ACTIVITY_HI, "signing key loaded from {path}; commands must be signed"),
         EventDef("KEY_NONE", Severity.ACTIVITY_HI, "no key_file configured: ground commands are refused"),
         EventDef("KEY_MISSING", Severity.WARNING_HI, "no signing key ({reason}); every command will be refused"),
@@ -83,7 +96,8 @@ class MavlinkTask(FlightTask):
         EventDef("LINK_LOST", Severity.WARNING_LO, "no ground HEARTBEAT for {timeout_s:.1f} s"),
         EventDef("RX_BAD", Severity.WARNING_LO, "{n} bad uplink frame(s): {reason}", throttle=5),
         EventDef("TRANSPORT_FAULT", Severity.WARNING_HI, "{url}: {fault}", throttle=5),
-        EventDef("CMD_UNSUPPORTED", Severity.COMMAND, "MAV_CMD {command} from {src} unsupported"),
+        EventDef("PARAM_SET", Severity.ACTIVITY_HI, "{text}"),
+        EventDef("PARAM_SET_REFUSED", Severity.COMMAND, "{text}"),
         EventDef("CMD_BAD_ARGS", Severity.COMMAND, "{command}: {reason}", throttle=10),
         EventDef("EVENTS_DROPPED", Severity.WARNING_LO, "{n} events were not downlinked (queue full)"),
         EventDef("TLOG_ERROR", Severity.WARNING_HI, "tlog {path}: {error}", throttle=3),
@@ -107,7 +121,11 @@ class MavlinkTask(FlightTask):
         key = self._load_key(cfg.key_file)
         self.adapter = MavlinkAdapter(cfg, key, signing_timestamp(self._unix()))
         self._window_path = (cfg.signing_state_file or str(signing_store.default_path(cfg.key_file))) if key else ""
+        self.journal = ReplayJournal(int(cfg.signing_reserve_s * TS_PER_S))
         self._restore_window()
+        self.gcs = GcsServices(self.ctx.cfg, self.adapter, self._apply_config)
+        self._plan_box = self.subscribe(cfg.plan_topic, depth=1, policy="drop_oldest")
+        self._rejected = Summary(cfg.auth_event_period_s)
         for ev in self._early or ():
             self.adapter.push_event(ev)
         self._early = None
@@ -125,7 +143,7 @@ class MavlinkTask(FlightTask):
         self._gcs_heard_s: float | None = None
         self._link_up = False
         self._seq = 0
-        self._cmd_counts = {"accepted": 0, "refused": 0}
+        self._cmd_counts = {"accepted": 0, "refused": 0, "busy": 0, "unrecorded": 0}
         self._dropped_reported = 0
         self._next_decay_s = 1.0
         self._next_flush_s = 0.0
@@ -144,26 +162,18 @@ class MavlinkTask(FlightTask):
         self.event("KEY_LOADED", path=path)
         return key
 
-    def _restore_window(self) -> None:
-        if not self._window_path:
-            return
-        streams, problem = signing_store.load(self._window_path)
-        if problem is not None:
-            self.event("WINDOW_BAD", reason=problem)
-        elif streams:
-            self.event("WINDOW_LOADED", n=len(streams), path=self._window_path)
-        self.adapter.restore_window(streams, signing_timestamp(self._unix()))
-
-    def _save_window(self) -> None:
-        v = self.adapter.verifier
-        if not (self._window_path and v.changed):
-            return
-        try:
-            signing_store.save(self._window_path, v.streams)
-        except OSError as exc:
-            self.event("WINDOW_SAVE_ERROR", path=self._window_path, error=exc.strerror or str(exc))
-            return  # still changed: retried on the next activation
-        v.changed = False
+    def _apply_config(self, new: MavlinkConfig) -> None:
+        """A PARAM_SET of a run-time key (fsw.tasks.mavlink_gcs.RUNTIME_KEYS) takes effect now."""
+        self.cfg = a = self.adapter.cfg = new
+        self.adapter.budget_bytes = new.budget_bytes_per_frame
+        for name, period in (("heartbeat", new.heartbeat_period_s), ("sys_status", new.sys_status_period_s),
+                             ("pose", new.pose_period_s), ("mast", new.mast_period_s)):
+            self.adapter.periodic(name).period_s = period
+        self.adapter.channels.period_s, self.adapter.channels.refresh_s = a.channel_period_s, a.channel_refresh_s
+        self.adapter.events.bucket.rate_hz, self.adapter.events.bucket.burst = a.statustext_rate_hz, a.statustext_burst
+        self.adapter.denials.bucket.rate_hz = a.denial_acks_per_s
+        self.adapter.replies.bucket = TokenBucket(a.replies_per_s, int(max(1.0, a.replies_per_s)))
+        self._rejected.period_s = a.auth_event_period_s
 
     def _open_tlog(self, target: str | BinaryIO) -> TlogWriter | None:
         if not target:
@@ -190,8 +200,22 @@ class MavlinkTask(FlightTask):
         stamp = self._epoch_s + now
         chunks = self.link.recv_upto(self.cfg.rx_max_bytes_per_frame, now) if self.link is not None else []
         packetized = self.link is not None and self.link.packetized
+        batch = UplinkBatch()
         for chunk in chunks:
-            self._uplink(chunk, signing_timestamp(unix), packetized, stamp, now)
+            got = self._uplink(chunk, signing_timestamp(unix), packetized, stamp, now)
+            batch.commands += got.commands
+            batch.requests += got.requests
+        if batch.commands or batch.requests:
+            self._record_window()  # before any accepted command acts: a crash cannot forget it
+            plan = self._plan_box.latest()
+            if isinstance(plan, GroundPlan):
+                self.gcs.plan = plan
+            executed = 0
+            for cmd in batch.commands:
+                executed += self._command(cmd, now, executed)
+            for req in batch.requests:
+                self._request(req, now)
+        self._report_rejections(now)
         if self._link_up and self._gcs_heard_s is not None and now - self._gcs_heard_s > self.cfg.gcs_timeout_s:
             self._link_up = False
             self.event("LINK_LOST", timeout_s=self.cfg.gcs_timeout_s)
@@ -200,6 +224,7 @@ class MavlinkTask(FlightTask):
             self.event("EVENTS_DROPPED", n=q.dropped - self._dropped_reported)
             self._dropped_reported = q.dropped
         self._take_preview(now)
+        self.gcs.top_up()
         frames = self.adapter.plan(self._views.build(now), signing_timestamp(unix))
         if self.link is not None:
             for packet in coalesce(frames, self.link.max_send_bytes):
@@ -213,9 +238,8 @@ class MavlinkTask(FlightTask):
                 self.ctx.events.decay(f"{self.name}.{name}")
         self._publish()
 
-    def _uplink(self, chunk: bytes, now_ts: int, packetized: bool, stamp: float, now: float) -> None:
+    def _uplink(self, chunk: bytes, now_ts: int, packetized: bool, stamp: float, now: float) -> UplinkBatch:
         batch = self.adapter.receive(chunk, now_ts, packetized)
-        self._save_window()  # saved before any accepted command acts: a crash cannot forget it
         self._log(stamp, batch.frames)
         if batch.bad:
             self.event("RX_BAD", n=len(batch.bad), reason=batch.bad[0])
@@ -223,42 +247,7 @@ class MavlinkTask(FlightTask):
             if not self._link_up:
                 self.event("LINK_UP", src="{}/{}".format(*batch.heartbeats[0]))
             self._gcs_heard_s, self._link_up = now, True
-        for cmd in batch.commands:
-            self._command(cmd)
-
-    def _command(self, cmd: CommandIn) -> None:
-        p1 = cmd.param1
-        opcode = int(p1) if math.isfinite(p1) and p1.is_integer() and 0 <= p1 < 2**24 else 0
-        src = f"{cmd.src_system}/{cmd.src_component}"
-        if cmd.verdict is not Verdict.OK:
-            self.event("AUTH_REJECTED", opcode=opcode, src=src, verdict=cmd.verdict.value)
-            self.adapter.ack(cmd, mavlink.MAV_RESULT_DENIED, _REASON_OF_VERDICT[cmd.verdict], opcode)
-            return
-        self._seq += 1
-        if cmd.command_id != MAV_CMD_DICTIONARY:
-            self.event("CMD_UNSUPPORTED", command=cmd.command_id, src=src)
-            self._cmd_counts["refused"] += 1
-            self.adapter.ack(cmd, mavlink.MAV_RESULT_UNSUPPORTED, Reason.NONE, opcode)
-            return
-        commands = self.ctx.commands
-        name = commands.name_of(opcode) if opcode else None
-        if name is None:  # let the dispatcher refuse it, so counters and events stay uniform
-            commands.dispatch(CommandRequest(f"opcode {p1!r}", {}, self._seq, f"mavlink:{src}"))
-            self._cmd_counts["refused"] += 1
-            self.adapter.ack(cmd, mavlink.MAV_RESULT_DENIED, Reason.UNKNOWN_OPCODE, opcode)
-            return
-        try:
-            args = decode_args(commands.definitions()[name][1], cmd.params)
-        except ValueError as exc:
-            self.event("CMD_BAD_ARGS", command=name, reason=str(exc))
-            self._cmd_counts["refused"] += 1
-            self.adapter.ack(cmd, mavlink.MAV_RESULT_DENIED, Reason.BAD_ARGUMENTS, opcode)
-            return
-        resp = commands.dispatch(CommandRequest(name, args, self._seq, f"mavlink:{src}"))
-        ok = resp.status is CommandStatus.OK
-        self._cmd_counts["accepted" if ok else "refused"] += 1
-        reason = Reason.VALIDATION if resp.status is CommandStatus.VALIDATION_ERROR else Reason.NONE
-        self.adapter.ack(cmd, RESULT_OF_STATUS[resp.status], reason, opcode)
+        return batch
 
     def _take_preview(self, now: float) -> None:
         latest = self._preview_box.latest()
@@ -301,6 +290,14 @@ class MavlinkTask(FlightTask):
             "tx_errors": self.link.stats.tx_errors if self.link is not None else 0,
             "deferred": a.packer.deferred,
             "acks_dropped": a.acks_dropped,
+            "acks_suppressed": a.replies_suppressed,
+            "cmds_busy": self._cmd_counts["busy"],
+            "cmds_unrecorded": self._cmd_counts["unrecorded"],
+            "window_writes": self.journal.writes,
+            "polls": self.gcs.counts["polls"],
+            "polls_unsupported": self.gcs.counts["polls_unsupported"],
+            "param_sets": self.gcs.counts["param_sets"],
+            "param_refused": self.gcs.counts["param_refused"],
             "rx_bytes": u.bytes,
             "rx_frames": u.frames,
             "rx_bad": u.bad_frames + u.parser_resets,

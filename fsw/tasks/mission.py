@@ -37,6 +37,7 @@ import time
 from collections import deque
 from typing import ClassVar
 
+from fsw.comm.mavlink_plan import ground_plan
 from fsw.core.edge.edge import EdgeModel
 from fsw.core.edge.geofence import Geofence
 from fsw.core.planning.nbv import end_reason
@@ -128,6 +129,7 @@ class MissionTask(GroundAwareMission, SafeRecovery):
         self.pending: list[CandidateView] = []
         self.latest: MapUpdate | None = None
         self.edge: EdgeModel | None = None
+        self._stations: list[tuple[float, float, float]] = []  # for the ground (MISSION protocol)
         self.request_id = 0
         self.waiting_for: int | None = None
         self.deadline = math.inf
@@ -268,6 +270,8 @@ class MissionTask(GroundAwareMission, SafeRecovery):
                                       method=self.view.method)
             self._start_point()
             return
+        self._stations.append((float(there[0]), float(there[1]), float(there[2])))
+        self.publish(self.ctx.cfg.mavlink.plan_topic, ground_plan(self._stations, self.edge, self.ctx.cfg.geofence))
         self._in_slack(self._move_steps(here, there), lambda job: self._move_checked(here, there, job.result))
 
     def _state_move(self) -> None:

@@ -3,6 +3,7 @@ flight software, never run a command, and leave the link working."""
 
 from __future__ import annotations
 
+import itertools
 import random
 from pathlib import Path
 from typing import Any
@@ -25,8 +26,16 @@ def _acks(link: Any) -> list[int]:
     return out
 
 
+_ROVERS = itertools.count()
+
+
 def _rover(key_file: Path, link: Any) -> Any:
-    return ground_demo.build(ground_demo.config("udpout:127.0.0.1:9", str(key_file)), Resources(mavlink_link=link))
+    """A fresh rover with its own replay window (hypothesis reuses the key file across examples;
+    a window saved by an earlier example runs signing_reserve_s ahead and would refuse the
+    liveness command as a replay)."""
+    window = key_file.parent / f"window{next(_ROVERS)}.json"
+    cfg = ground_demo.config("udpout:127.0.0.1:9", str(key_file), extra={"signing_state_file": str(window)})
+    return ground_demo.build(cfg, Resources(mavlink_link=link))
 
 
 def _assert_alive(exe: Any, link: Any, key: bytes) -> None:

@@ -52,7 +52,7 @@ def test_lockstep_fsw_and_ground_process(tmp_path: Path, key_file: Path, demo_ki
         assert seen.get(kind, 0) > 0, (kind, seen)
     hb = report["heartbeat"]
     assert hb["type"] == mavlink.MAV_TYPE_GROUND_ROVER and hb["signed"]
-    assert hb["base_mode"] & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+    assert not hb["base_mode"] & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED  # standard flags (docs/ground.md)
     res = report["results"]
     accepted, denied = mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_DENIED
     assert res["signed"] == {"result": accepted, "reason": 0, "opcode": opcode}
@@ -66,11 +66,11 @@ def test_lockstep_fsw_and_ground_process(tmp_path: Path, key_file: Path, demo_ki
     assert (tm.get("mavlink.auth_replay"), tm.get("mavlink.auth_unsigned"), tm.get("mavlink.auth_bad_signature"),
             tm.get("mavlink.auth_stale")) == (1, 1, 1, 1)
     assert exe.tasks["demo"].cmd_count == 1
-    # ... and evented, on board and on the ground
-    assert exe.events.count("mavlink.AUTH_REJECTED") == 4
+    # ... and summarised (one event per auth_event_period_s with the count), on board and on the ground
+    assert 1 <= exe.events.count("mavlink.AUTH_REJECTED") <= 2
     assert exe.events.count("demo.NOOP") == 1
     rejected = [t for t in report["texts"] if "AUTH_REJECTED" in t]
-    assert len(rejected) == 4 and any("REPLAY" in t for t in rejected), report["texts"]
+    assert 1 <= len(rejected) <= 2 and "REPLAY" in rejected[0], report["texts"]
 
     # Issue 7, done-when 2: the .tlog of this run parses with pymavlink's mavlogdump.py
     dump = subprocess.run([sys.executable, str(MAVLOGDUMP), "--types", "HEARTBEAT,COMMAND_LONG,COMMAND_ACK",

@@ -74,7 +74,9 @@ def test_replay_of_a_pre_restart_command_is_refused_after_the_restart(
     assert again.events.count("mavlink.WINDOW_LOADED") == 1
     assert _acks(again, memory_link, [recorded]) == [(mavlink.MAV_RESULT_DENIED, Reason.REPLAY)]
     assert again.tasks["demo"].cmd_count == 0 and again.telemetry.get("mavlink.auth_replay") == 1
-    assert _acks(again, memory_link, [command_frame(key, op)]) == [(mavlink.MAV_RESULT_ACCEPTED, 0)]
+    # the window on disk runs signing_reserve_s ahead: the ground's next command past it is accepted
+    past = signing_timestamp(time.time()) + int((cfg.mavlink.signing_reserve_s + 1) * 100_000)
+    assert _acks(again, memory_link, [command_frame(key, op, ts=past)]) == [(mavlink.MAV_RESULT_ACCEPTED, 0)]
 
     fresh = ground_demo.build(  # without the saved window the same replay would have passed
         ground_demo.config("udpout:127.0.0.1:9", str(key_file), extra={"signing_state_file": str(tmp_path / "x")}),
