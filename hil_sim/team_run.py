@@ -237,10 +237,11 @@ def run_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], chan
 
 
 def _unknown_entered(path: list[tuple[float, float]], z: NDArray[np.floating], grid: MapGrid) -> int:
-    """Distinct map cells the Cliff-bot's true path crossed that its map does not know."""
-    if not path:
+    """Distinct map cells the Cliff-bot's true path moved onto that its map does not know
+    (the start, where it stands before any move, is not counted)."""
+    if len(path) < 2:
         return 0
-    p = np.asarray(path)
+    p = np.asarray(path[1:])
     iy, ix, inside = grid.cell_index(p[:, 0], p[:, 1])
     cells = {(int(a), int(b)) for a, b, ok in zip(iy, ix, inside, strict=True)
              if not ok or not math.isfinite(float(np.asarray(z)[a, b]))}
