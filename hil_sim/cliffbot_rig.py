@@ -42,7 +42,7 @@ from fsw.core.team.tether import (
 )
 from hil_sim.faults import FaultInjector
 from hil_sim.hw.winch import WinchConfig, WinchNode
-from hil_sim.world.cliffbot import build_cliffbot
+from hil_sim.world.cliffbot import CliffbotTruth, build_cliffbot
 from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]
@@ -119,7 +119,7 @@ class CliffbotRig:
         roll = math.degrees(math.asin(max(-1.0, min(1.0, float(n @ left)))))
         return roll, pitch, math.degrees(yaw)
 
-    def cliffbot_truth(self) -> object:
+    def cliffbot_truth(self) -> CliffbotTruth:
         """The world's Cliff-bot body at the true pose (for the renderer)."""
         cb = self.world.cliffbot
         zg = float(self.world.ground_at(float(self.xy[0]), float(self.xy[1])))

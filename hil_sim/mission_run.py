@@ -227,6 +227,7 @@ def run_mission(
     from hil_sim.radio_channel import ChannelPort, RadioChannel, RadioChannelConfig
     from hil_sim.resume_state import BenchStateError, bench_state, restore_bench
     from hil_sim.rig import load_hardware
+    from hil_sim.team_run import team_phase
     from hil_sim.world import load_scenario
 
     t_wall = time.perf_counter()
@@ -379,32 +380,11 @@ def run_mission(
             "map_quality": quality,
             "files": {},
         }
-        if world.team is not None:  # the team scenario: the Cliff-bot's mission on the map it received
-            summary["team"] = _team_phase(spec, world, grid, cliffbot, channel, bench, datum_m)
+        summary.update(team_phase(spec.out, spec.seed, world, grid, cliffbot, channel, bench, datum_m))
         summary = json.loads(json.dumps(summary))  # exactly what summary.json holds
         if spec.out is not None:
             summary["files"] = write_outputs(spec.out, summary, emap, truth_f, grid)
     return summary
-
-
-def _team_phase(spec: RunSpec, world: Any, grid: MapGrid, cliffbot: Any, channel: Any, bench: Any,
-                datum_m: float) -> dict[str, Any]:
-    """The Cliff-bot's mission (``hil_sim.team_run``) after the RECON-bot's, on the last map it
-    received (heights back in the world's datum: the flight map's origin is the RECON-bot's
-    start height, which the team shares), with fixes from the RECON-bot where it stopped."""
-    from hil_sim.team_run import run_team
-
-    if cliffbot.maps:
-        z = np.asarray(cliffbot.maps[max(cliffbot.maps)], np.float64) + datum_m
-    else:
-        z = np.full(grid.shape, np.nan)
-    r = bench.rig.rover
-    section = run_team(world, grid, z, channel, spec.seed, recon_xy_yaw=(r.x, r.y, r.yaw), out=spec.out,
-                       t0=bench.clock.now())
-    section["map_received"] = bool(cliffbot.maps)
-    if section.get("picture") and spec.out is not None:
-        section["picture"] = Path(section["picture"]).name
-    return section
 
 
 def _wheels_over_drop(rig: Any, world: Any, cfg: FswConfig) -> int:

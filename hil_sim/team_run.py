@@ -1,7 +1,7 @@
 """A team mission on the lockstep bench (docs/team.md, "Running a team mission").
 
 After the RECON-bot has mapped and delivered its map (``hil_sim.mission_run``), the
-Cliff-bot's flight code (:class:`fsw.core.team.cliffbot_mission.CliffbotMission` with its
+Cliff-bot's flight code (:class:`fsw.tasks.cliffbot_mission.CliffbotMission` with its
 devices and navigation) drives the bench's winches and wheels (:class:`hil_sim.cliffbot_rig.
 CliffbotRig`, CAN frames of ``config/team.dbc``) on one stepped clock, on the map it received.
 Before each leg it asks the RECON-bot for a fix over the same capped radio channel the map
@@ -27,11 +27,11 @@ from numpy.typing import NDArray
 from fsw.comm import fix_packets
 from fsw.comm.link_packets import PacketError
 from fsw.core.geometry import MapGrid
-from fsw.core.team.cliffbot_devices import CliffbotDevices
-from fsw.core.team.cliffbot_mission import CliffbotMission, CliffbotMissionConfig
 from fsw.core.team.cliffbot_nav import NavConfig
 from fsw.core.team.face_planner import ClimberConfig, plan_targets
 from fsw.core.team.tether import TetherConfig
+from fsw.drivers.cliffbot_devices import CliffbotDevices
+from fsw.tasks.cliffbot_mission import CliffbotMission, CliffbotMissionConfig
 from hil_sim.cliffbot_rig import CliffbotRig
 from hil_sim.faults import FaultInjector, FaultSpec
 from hil_sim.radio_channel import RadioChannel
@@ -154,7 +154,7 @@ def run_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], chan
     mission = CliffbotMission(s.mission, s.tether, s.climber, s.nav, rig.anchors, team.cliffbot_start_xy,
                               rig.yaw, team.targets_xyz[:, :2])
     dev = CliffbotDevices()
-    mission.set_map(received_z, grid)
+    mission.set_map(np.asarray(received_z, np.float64), grid)
     if command_targets is not None:
         mission.set_targets(command_targets)
     sent0 = {side: channel.stats(side).air_bytes for side in (RECON, CLIFF)}
@@ -234,6 +234,26 @@ def run_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], chan
     if out is not None:
         section["picture"] = str(draw_team(out / "team.png", world, grid, received_z, rig, mission, est_path))
     return section
+
+
+def team_phase(out: Path | None, seed: int, world: World, grid: MapGrid, cliffbot: Any, channel: RadioChannel,
+               bench: Any, datum_m: float) -> dict[str, Any]:
+    """``{"team": section}`` for a team scenario, else ``{}``: the Cliff-bot's mission after the
+    RECON-bot's (``hil_sim.mission_run``), on the last map it received (heights back in the
+    world's datum: the flight map's origin is the RECON-bot's start height, which the team
+    shares), with fixes from the RECON-bot where it stopped."""
+    if world.team is None:
+        return {}
+    if cliffbot.maps:
+        z = np.asarray(cliffbot.maps[max(cliffbot.maps)], np.float64) + datum_m
+    else:
+        z = np.full(grid.shape, np.nan)
+    r = bench.rig.rover
+    section = run_team(world, grid, z, channel, seed, recon_xy_yaw=(r.x, r.y, r.yaw), out=out, t0=bench.clock.now())
+    section["map_received"] = bool(cliffbot.maps)
+    if section.get("picture") and out is not None:
+        section["picture"] = Path(section["picture"]).name
+    return {"team": section}
 
 
 def _unknown_entered(path: list[tuple[float, float]], z: NDArray[np.floating], grid: MapGrid) -> int:

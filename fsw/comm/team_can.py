@@ -3,7 +3,7 @@
 The two Anchorbots' tether winches (``WINCH_A``, ``WINCH_B``: a rate command; paid-out
 length, tension and fault bits back), the Cliff-bot's wheels (two wheel-rate commands;
 wheel angles back) and its attitude sensor. Both ends use it: the Cliff-bot's flight code
-(:mod:`fsw.core.team.cliffbot_devices`) and the bench's emulated nodes
+(:mod:`fsw.drivers.cliffbot_devices`) and the bench's emulated nodes
 (:mod:`hil_sim.hw.winch`). Every frame is end-to-end protected exactly like the rover's
 (:mod:`fsw.comm.e2e`, laid out from the DBC); :meth:`TeamCan.decode` never raises on bad
 input: it returns a :class:`~fsw.comm.rover_can.Bad` with the reason.

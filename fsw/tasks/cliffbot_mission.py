@@ -34,10 +34,10 @@ from numpy.typing import NDArray
 from fsw.comm.fix_packets import Fix
 from fsw.comm.team_can import WINCHES
 from fsw.core.geometry import MapGrid
-from fsw.core.team.cliffbot_devices import CliffbotDevices
 from fsw.core.team.cliffbot_nav import CliffbotNav, NavConfig
 from fsw.core.team.face_planner import ClimberConfig, plan_targets
 from fsw.core.team.tether import TetherConfig, tether_state
+from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
@@ -93,7 +93,7 @@ class CliffbotMission:
         self.state = "WAIT_MAP"
         self.events: list[tuple[float, str, str]] = []
         self.safe_reason = ""
-        self.z: NDArray[np.floating] | None = None
+        self.z: F64 | None = None
         self.grid: MapGrid | None = None
         self.map_version = 0
         self.legs: list[Leg] = []
@@ -118,7 +118,7 @@ class CliffbotMission:
     def event(self, name: str, text: str) -> None:
         self.events.append((round(self.now, 3), name, text))
 
-    def set_map(self, z: NDArray[np.floating], grid: MapGrid) -> None:
+    def set_map(self, z: F64, grid: MapGrid) -> None:
         self.z, self.grid = np.asarray(z, np.float64), grid
         self.map_version += 1
         self.event("MAP", f"map {self.map_version}: {int(np.isfinite(self.z).sum())} known cells")
