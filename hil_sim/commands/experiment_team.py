@@ -13,8 +13,8 @@ the reduced map, path length ratio reduced/full, hazard cells of the full map lo
 reduction, and the container's bytes and its time on the 9600 bit/s link. With
 ``--missions K`` the first K scenes also run the Cliff-bot's mission on the bench on the
 reduced map (``hil_sim.team_run``, fixes from ``TruthFixer``): targets reached, tether
-violations, hazard and unknown cells entered. Writes OUT/team.csv and OUT/team.md (date,
-commit, command, table) and prints the table.
+violations, hazard and unknown cells entered; the first one's picture is OUT/team.png.
+Writes OUT/team.csv and OUT/team.md (date, commit, command, table) and prints the table.
 """
 
 from __future__ import annotations
@@ -109,7 +109,9 @@ def run(args: argparse.Namespace) -> int:
                "hazard_cells_lost": int((h_full & ~h_red).sum()),
                "map_bytes": len(enc.data), "link_s_9600": round(8 * len(enc.data) / 9600.0, 1)}
         if k < args.missions:
-            sec = run_team(world, grid, reduced, RadioChannel(seed=seed), seed, fixer=TruthFixer(seed))
+            args.out.mkdir(parents=True, exist_ok=True)
+            sec = run_team(world, grid, reduced, RadioChannel(seed=seed), seed, fixer=TruthFixer(seed),
+                           out=args.out if k == 0 else None)  # the first mission's picture: team.png
             row.update({"mission_reached": sec["targets_reached"], "mission_state": sec["final_state"],
                         "tether_violations": sec["tether_violations"],
                         "hazard_cells_entered": sec["hazard_cells_entered"],
