@@ -1,4 +1,4 @@
-"""``safer-map``: the map codec on the command line (ALGORITHM.md §6; docs/quadtree.md).
+"""``safer-map``: the map codec on the command line (docs/algorithm.md §6; docs/quadtree.md).
 
     safer-map encode IN.npy OUT.sqm [--wheel-diameter M] [--max-error M] [--cell-m M]
     safer-map decode IN.sqm OUT.npy

@@ -14,7 +14,7 @@ bench's cameras differ from that nominal pair the way a real head does:
 * each pixel integrates the light over its area (``pixel_samples`` squared rays averaged), as
   a sensor does; one ray per pixel (a point sample) aliases fine texture, which the ideal
   pair, sampled exactly on the rectified grid, hides but a rectified pair cannot
-  (docs/perception.md, "The camera-only comparison").
+  (docs/perception.md, "Camera model").
 
 :class:`TrueCameras` is what the renderer draws with (``hil_sim.render``) and what the
 calibration bench compares an estimate with (its :meth:`TrueCameras.truth` is a

@@ -1,4 +1,4 @@
-"""The Cliff-bot on the bench: receive the map, verify it, decode it, report (ALGORITHM.md §6.6).
+"""The Cliff-bot on the bench: receive the map, verify it, decode it, report (docs/algorithm.md §6.6).
 
 :class:`Cliffbot` runs the flight :class:`~fsw.comm.link_receiver.LinkReceiver` over any
 ``RadioPort`` (the simulated channel, UDP, a serial modem). For every map the link

@@ -1,4 +1,4 @@
-"""Real-time driver loop for one end of the map link (ALGORITHM.md §6.6; docs/link.md).
+"""Real-time driver loop for one end of the map link (docs/algorithm.md §6.6; docs/link.md).
 
 The link ends are sans-I/O (``receive``, ``poll``, ``next_deadline_s``); this is the loop
 that runs one over a real radio (``fsw.drivers.radio``) on a monotonic clock, used by the

@@ -1,4 +1,4 @@
-"""Lockstep simulation of one map transfer over the radio channel model (ALGORITHM.md §6.6).
+"""Lockstep simulation of one map transfer over the radio channel model (docs/algorithm.md §6.6).
 
 The flight link (``fsw.comm.link_sender.LinkSender`` on side ``a``, the Cliff-bot's
 ``LinkReceiver`` on side ``b``) and :class:`hil_sim.radio_channel.RadioChannel` advance on

@@ -1,4 +1,4 @@
-"""The map link over real sockets: three processes through the impairment relay (ALGORITHM.md §6.6).
+"""The map link over real sockets: three processes through the impairment relay (docs/algorithm.md §6.6).
 
 One run = ``safer-hil cliffbot`` (the Cliff-bot's receiver), ``safer-hil relay`` (the seeded
 channel model on the wall clock, 127.0.0.1 only) and ``safer-hil send-map`` (the RECON-bot's

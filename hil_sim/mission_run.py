@@ -27,7 +27,7 @@ a move), ``stays`` (steps whose view was taken without the planned move, and why
 correction, sigmas; ``fsw.core.registration.registration``), ``map_quality`` (RMS, fitted tilt, station
 seams, 2-sigma fraction, all against the truth in the flight map's datum, the true body
 height at the start, with the ground-datum figures beside them; ``hil_sim.terrain_eval``),
-``calib_2sigma`` (fraction of mapped cells within 2 sigma of the truth, ALGORITHM.md §4; the
+``calib_2sigma`` (fraction of mapped cells within 2 sigma of the truth, docs/algorithm.md §4; the
 same datum), ``map_rmse_m`` and the error plane also in that datum,
 ``safe_entries``, ``safe_recoveries`` (SAFE left for the mission again), ``safe_recoveries_resumed``
 (of those, the ones after which the mission completed a step or ended before any new SAFE),

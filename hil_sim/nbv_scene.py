@@ -1,4 +1,4 @@
-"""Map states for next-view tests and ``safer-hil bench nbv`` (ALGORITHM.md §3, §7).
+"""Map states for next-view tests and ``safer-hil bench nbv`` (docs/algorithm.md §3, §7).
 
 * :func:`synthetic_terrain`: a small lab-like truth on a map grid (step edge along +x with a
   wiggle, plateau z = 0 at larger y, recessed pit, three rock mounds, a textureless patch).

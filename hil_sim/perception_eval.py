@@ -3,7 +3,7 @@ variance calibration, edge distance (issue 4's checks; used by ``safer-hil bench
 perception`` and tests/perception).
 
 Everything here may look at the truth; nothing here is flight code. The flight side is
-``fsw.core.acquire`` (ALGORITHM.md §4), ``fsw.core.map.elevation_map`` (§1) and
+``fsw.core.acquire`` (docs/algorithm.md §4), ``fsw.core.map.elevation_map`` (§1) and
 ``fsw.core.edge.edge`` (§2).
 """
 
@@ -118,7 +118,7 @@ def edge_pass_poses(world: World, mast: MastConfig, stops_x_m: tuple[float, ...]
         0.0, 1.5, 3.0, 4.5), pans_deg: tuple[float, ...] = (-50.0, -90.0, -130.0),
         tilt_deg: float = -40.0, lift_m: float = 0.3) -> list[CameraPose]:
     """A pass along the edge: the rover stops at ``stops_x_m`` past its start (along its
-    heading) and looks over the drop at each pan angle (the panorama of ALGORITHM.md §2)."""
+    heading) and looks over the drop at each pan angle (the panorama of docs/algorithm.md §2)."""
     x0, y0, yaw = world.rover_start
     return [camera_pose_from_rover((x0 + dx * math.cos(yaw), y0 + dx * math.sin(yaw), yaw),
                                    (math.radians(pan), math.radians(tilt_deg), lift_m), mast,

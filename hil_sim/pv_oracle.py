@@ -1,4 +1,4 @@
-"""The brute-force P_V oracle (ALGORITHM.md §3.2): exact, slow, and for tests and benches only.
+"""The brute-force P_V oracle (docs/algorithm.md §3.2): exact, slow, and for tests and benches only.
 
 Every target cell's own ray is traversed exactly (supercover) and ``log Phi`` is summed in
 float64, so the flight kernel (``fsw.core.planning.visibility_kernel``, binned rays, float32) can be

@@ -1,4 +1,4 @@
-"""Seeded radio channel model between the RECON-bot and the Cliff-bot (ALGORITHM.md §6.6).
+"""Seeded radio channel model between the RECON-bot and the Cliff-bot (docs/algorithm.md §6.6).
 
 Two independent directions (full duplex), each a serial line of ``rate_bps`` with a
 drop-tail transmit queue, then a propagation ``latency_s`` (+ uniform ``jitter_s``). Every

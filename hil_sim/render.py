@@ -9,11 +9,11 @@ ray of its undistorted point, so the image is distorted exactly, without resampl
 right camera is slightly rotated and off the nominal baseline, and the two exposures differ:
 
 * the terrain by coarse-to-fine ray casting into the truth heightfield
-  (``hil_sim.world.raytrace``; ALGORITHM.md §4 consumes the images);
+  (``hil_sim.world.raytrace``; docs/algorithm.md §4 consumes the images);
 * the Cliff-bot (box faces and ArUco plates) and, on request, a calibration target
   (``hil_sim.world.target``) as planar quads intersected analytically and supersampled
   (``marker_supersample`` squared rays per pixel), so marker corners land with
-  sub-pixel accuracy for the PnP of ALGORITHM.md §5;
+  sub-pixel accuracy for the PnP of docs/algorithm.md §5;
 * brightness = albedo (with baked sun shading) times ``exposure``, plus a 2.5 mm detail
   texture that fades out with pixel footprint, plus optional Gaussian sensor noise of
   ``noise_sigma`` grey levels from a generator seeded with ``seed``;

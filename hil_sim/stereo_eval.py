@@ -1,7 +1,7 @@
 """Stereo against ground-truth disparity: real Middlebury pairs and rendered pairs (issue 14).
 
 Everything here may look at the truth; nothing here is flight code. The flight side is
-``fsw.core.stereo.stereo`` and ``fsw.core.stereo.stereo_quality`` (ALGORITHM.md §4, §1.2).
+``fsw.core.stereo.stereo`` and ``fsw.core.stereo.stereo_quality`` (docs/algorithm.md §4, §1.2).
 
 **Real pairs.** No package on the index ships the Middlebury 2014 files themselves
 (``stereo-mideval`` holds only a downloader). scikit-image ships one Middlebury 2014 pair with

@@ -6,7 +6,7 @@ compares them with the truth:
 
 * ``rms_m``: RMS of map minus truth over mapped cells;
 * ``tilt_err_deg``: tilt of the plane fitted (least squares) to map minus truth: the map's
-  residual attitude error (ALGORITHM.md §5.1);
+  residual attitude error (docs/algorithm.md §5.1);
 * ``seam_m``: station seams: views are grouped into stations (camera centres within
   ``station_tol_m`` horizontally); for every pair of stations that both measured at least
   ``min_overlap`` cells, the mean height difference over those cells; reported as the

@@ -1,4 +1,4 @@
-"""An impairment relay for the map link over real UDP sockets (ALGORITHM.md §6.6; docs/link.md).
+"""An impairment relay for the map link over real UDP sockets (docs/algorithm.md §6.6; docs/link.md).
 
 Two UDP sockets on 127.0.0.1: side ``a`` faces the RECON-bot, side ``b`` the Cliff-bot.
 Every datagram that arrives on one side goes through the bench's seeded channel model

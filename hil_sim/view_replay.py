@@ -155,7 +155,7 @@ def replay(views: list[RecordedView], scenario: str, seed: int, factor: Factor,
 
 def registration_errors(views: list[RecordedView], scenario: str, seed: int,
                         config: str | None = None) -> tuple[list[dict[str, float]], dict[str, Any]]:
-    """Consistency of the registration (docs/perception.md, "How many independent points"):
+    """Consistency of the registration (docs/perception.md, "Attitude and registration"):
     the views merged again from their TRUE poses, so the map is the truth's frame and every
     registered pose's error is the registration's own. Per registered view: the error
     ``e = (rotation vector of R R_true^T, t - t_true)`` normalised by the registration's

@@ -1,7 +1,7 @@
 """The rover attitude sensor's CAN frame, sans I/O: ``IMU_ATTITUDE`` of ``config/rover.dbc``.
 
 Both ends use it: the flight driver (``fsw.drivers.imu_can``) and the emulated sensor of the
-bench (``hil_sim.hw.imu``). The frame carries the body roll and pitch (ALGORITHM.md §5.1: the
+bench (``hil_sim.hw.imu``). The frame carries the body roll and pitch (docs/algorithm.md §5.1: the
 accelerometer's gravity direction), the gyro yaw rate and two flags; it ends with
 ``Counter`` (4-bit alive counter) and ``Checksum``, protected like every frame of the DBC
 (``fsw.comm.e2e``: CRC-8/AUTOSAR over the data id and the payload, reserved bits zero).

@@ -1,6 +1,6 @@
 """The RECON-bot to Cliff-bot map link: configuration and the parts both ends share.
 
-ALGORITHM.md §6.6 ("transmit to the Cliff-bot with handshaking and checksums"), built as a
+docs/algorithm.md §6.6 ("transmit to the Cliff-bot with handshaking and checksums"), built as a
 CFDP class 2 style reliable transfer over a lossy, bandwidth-capped datagram radio:
 
 * :class:`~fsw.comm.link_sender.LinkSender` (RECON-bot) and

@@ -1,4 +1,4 @@
-"""Packet formats of the map link (ALGORITHM.md §6.6; byte tables in docs/link.md).
+"""Packet formats of the map link (docs/algorithm.md §6.6; byte tables in docs/link.md).
 
 Every packet is one datagram: a 4-byte header, a body that depends on the type, and a
 CRC-32 (``zlib.crc32``, the IEEE 802.3 polynomial) of everything before it::

@@ -1,4 +1,4 @@
-"""Receiving end of the map link (Cliff-bot), sans-I/O (ALGORITHM.md §6.6; docs/link.md).
+"""Receiving end of the map link (Cliff-bot), sans-I/O (docs/algorithm.md §6.6; docs/link.md).
 
 States: ``IDLE -> RECEIVING -> COMPLETE -> IDLE``.
 

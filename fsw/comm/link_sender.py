@@ -1,4 +1,4 @@
-"""Sending end of the map link (RECON-bot), sans-I/O (ALGORITHM.md §6.6; docs/link.md).
+"""Sending end of the map link (RECON-bot), sans-I/O (docs/algorithm.md §6.6; docs/link.md).
 
 States: ``IDLE -> OFFERING -> SENDING -> DONE``, or ``REJECTED`` / ``FAILED``.
 

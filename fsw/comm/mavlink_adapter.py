@@ -1,6 +1,6 @@
 """The MAVLink adapter: the executive's telemetry, events and commands <-> MAVLink 2 frames.
 
-Sans-I/O (STYLE.md, h11): the task hands it uplink bytes, the time and a view of the
+Sans-I/O (as in h11): the task hands it uplink bytes, the time and a view of the
 executive; it returns authenticated commands and the downlink frames of this activation,
 never more than ``budget_bytes_per_frame`` bytes. Downlink priorities, highest first:
 

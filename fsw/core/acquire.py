@@ -1,4 +1,4 @@
-"""Acquire and merge one view (ALGORITHM.md §4): stereo points, their world covariance
+"""Acquire and merge one view (docs/algorithm.md §4): stereo points, their world covariance
 (§1.2: stereo noise plus the camera pose covariance from §5), fusion into the map (§1.1)
 and the misses of the cells that were expected visible but got no point (§3.4).
 

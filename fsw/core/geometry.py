@@ -3,9 +3,9 @@
 Conventions used everywhere in ``fsw`` and ``hil_sim`` (see docs/architecture.md, "Frames"):
 
 * World / map frame: right-handed, metres, ``z`` up. The RECON-bot's start pose is the
-  origin with its heading along ``+x`` (ALGORITHM.md §5: one robot is the origin).
+  origin with its heading along ``+x`` (docs/algorithm.md §5: one robot is the origin).
 * Rover pose: ``(x, y, yaw)``; yaw is counter-clockwise from ``+x``, radians. Its attitude
-  (ALGORITHM.md §5.1) is ``(roll, pitch)``: pitch nose up positive, roll left side up
+  (docs/algorithm.md §5.1) is ``(roll, pitch)``: pitch nose up positive, roll left side up
   positive; the body-to-world rotation is ``Rz(yaw) Ry(-pitch) Rx(roll)``
   (:func:`body_rotation`), and the body origin is the ground under the body centre at
   height ``z``.
@@ -112,7 +112,7 @@ class RoverConfig:
 
 @dataclass(frozen=True)
 class MapGridConfig:
-    """The map plane (ALGORITHM.md §1): origin, cell size and extent; horizontal by default."""
+    """The map plane (docs/algorithm.md §1): origin, cell size and extent; horizontal by default."""
 
     origin_x_m: float = param(-0.5, units="m")
     origin_y_m: float = param(-6.5, units="m")
@@ -158,7 +158,7 @@ def rotation_from_yaw_tilt(yaw: float, tilt: float) -> F64:
 
 
 def body_rotation(yaw: float, pitch: float, roll: float) -> F64:
-    """Body-to-world rotation of the rover (ALGORITHM.md §5.1): ``Rz(yaw) Ry(-pitch) Rx(roll)``.
+    """Body-to-world rotation of the rover (docs/algorithm.md §5.1): ``Rz(yaw) Ry(-pitch) Rx(roll)``.
 
     Yaw about world ``z`` (CCW +), then pitch about the body's left axis with the nose up
     positive, then roll about the body's forward axis with the left side up positive. Full
@@ -181,7 +181,7 @@ def camera_pose_from_rover(
     attitude: tuple[float, float] = (0.0, 0.0),
 ) -> CameraPose:
     """Left-camera pose from the rover pose ``(x, y, yaw)``, the mast joints ``(pan, tilt,
-    lift)`` and the body attitude ``(roll, pitch)`` (ALGORITHM.md §5.1).
+    lift)`` and the body attitude ``(roll, pitch)`` (docs/algorithm.md §5.1).
 
     The chain is world <- body (x, y, ``ground_z_m``, yaw, pitch, roll) <- mast base (its
     offset in the body frame) <- pan <- tilt <- lift <- camera. With no attitude the rover is
@@ -202,7 +202,7 @@ def camera_pose_from_rover(
 
 @dataclass(frozen=True)
 class MapGrid:
-    """Index arithmetic of the map grid (ALGORITHM.md §1)."""
+    """Index arithmetic of the map grid (docs/algorithm.md §1)."""
 
     x0: float
     y0: float

@@ -9,7 +9,7 @@ one bus handle serves both, on the rover (socketcan) as on the bench (virtual, u
   stops advancing for ``stuck_frames`` frames is a STUCK sensor (a hung device repeating its
   buffer); no valid frame for ``timeout_s`` is a TIMEOUT (dropout, cable); a SelfTestFail
   flag is a SELF_TEST fault. Each finding is a fault bit and an event.
-* :meth:`attitude` gives the body roll and pitch (ALGORITHM.md §5.1: the gravity direction at
+* :meth:`attitude` gives the body roll and pitch (docs/algorithm.md §5.1: the gravity direction at
   rest) as the mean of the fresh samples of the last ``average_s`` and its covariance: the
   sensor's stated bias variance (``sigma_deg``, from its calibration) plus the sample
   variance over the number of samples. While any fault is set it returns None: the caller

@@ -1,4 +1,4 @@
-"""Non-volatile store of map checkpoints: atomic write, newest-good load (ALGORITHM.md §1).
+"""Non-volatile store of map checkpoints: atomic write, newest-good load (docs/algorithm.md §1).
 
 The device is a directory. ``save`` writes ``map_<seq>.ckpt`` atomically: the bytes go to a
 temporary file in the same directory, which is flushed and fsync'ed, then renamed over the

@@ -1,4 +1,4 @@
-"""The inter-robot radio: a datagram port over three transports (ALGORITHM.md §6.6).
+"""The inter-robot radio: a datagram port over three transports (docs/algorithm.md §6.6).
 
 The radio is a :class:`~fsw.drivers.byte_port.BytePort` that carries whole datagrams of at
 most ``MAX_DATAGRAM`` bytes (the base class counts, checks sizes, raises fault bits and

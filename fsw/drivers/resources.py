@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class OracleTruth:
-    """The true terrain on the map grid, for the oracle planner (ALGORITHM.md §7): only a
+    """The true terrain on the map grid, for the oracle planner (docs/algorithm.md §7): only a
     bench has it."""
 
     z_m: np.ndarray

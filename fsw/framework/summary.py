@@ -3,7 +3,7 @@
 Routine noise (timing overruns and slips, commands refused during a flood) is counted
 exactly in telemetry channels; what reaches the event log is one summary per ``period_s`` at
 most: the first occurrence after a quiet period is reported at once (something changed), the
-ones after it are added up and reported when the period has passed (STYLE.md, F Prime's
+ones after it are added up and reported when the period has passed (as F Prime's
 throttled events; docs/ground.md, "Events").
 """
 

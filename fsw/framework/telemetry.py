@@ -3,7 +3,7 @@
 Channels carry units and limits and keep their latest value; events carry an F Prime
 severity, a format string and a throttle. Event counters are exact even while the
 throttle suppresses emission; a throttle reopens one slot per ``decay`` call, which the
-executive makes on good frames (STYLE.md, F Prime). An event identical (name and text) to
+executive makes on good frames (as in F Prime). An event identical (name and text) to
 the last one its component emitted, within ``repeat_window_s`` of it, says nothing new: it is
 counted, not emitted, and the next identical one after the window carries the count
 (``(+N identical in T s)``). Anything else the component says in between ends the run, so

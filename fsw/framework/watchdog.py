@@ -1,7 +1,7 @@
 """The watchdog: anything that can be stroked, and a software one on an injected clock.
 
 The health task strokes it while every task answers its pings (docs/architecture.md,
-"Health"); a hung task, or a stalled executive, lets it expire.
+"The cyclic executive", Health); a hung task, or a stalled executive, lets it expire.
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ On a ``CaptureRequest`` it triggers the camera driver; when the pair arrives it 
 ``CameraFrame`` carrying the left-camera pose from the latest rover pose estimate and mast
 joints (``nav.pose``), and that pose's 6x6 covariance (rotation vector, translation in the
 world), propagated from the rover pose covariance and the joint uncertainty through the
-mast kinematics (ALGORITHM.md §1.2: the pose term of each point's covariance).
+mast kinematics (docs/algorithm.md §1.2: the pose term of each point's covariance).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The ground-link task: MAVLink 2 telemetry, events and map previews down; signed commands up.
 
-Thin (ARCHITECTURE.md, tasks): each activation reads the transport, lets the sans-I/O
+Thin (docs/architecture.md, tasks): each activation reads the transport, lets the sans-I/O
 adapter (fsw/comm/mavlink_adapter.py) authenticate and decode, records the replay window
 (``fsw.comm.mavlink_replay``: at most one write per activation, usually one per
 ``signing_reserve_s``), then dispatches the accepted commands whose timestamp is on disk

@@ -37,7 +37,7 @@ VIEW_FAILED = "view.failed"
 class NavPose:
     """The rover pose estimate (x, y, yaw) with its 3x3 covariance, and the mast joints; the
     body attitude (roll, pitch, rad), height ``z_m`` and their 3x3 covariance ``att_cov``
-    (ALGORITHM.md §5.1; None: level at z = 0, as before the attitude sensor). ``fix_id``: the
+    (docs/algorithm.md §5.1; None: level at z = 0, as before the attitude sensor). ``fix_id``: the
     last navigation fix applied to the pose (``fsw.core.localization.nav_fix``; 0: none), ``fix_seen`` the
     last one received (applied or refused)."""
 
@@ -77,7 +77,7 @@ class ViewFailed:
 
 @dataclass(frozen=True)
 class CameraFrame:
-    """A stereo pair with the camera pose estimate at capture time (ALGORITHM.md §4)."""
+    """A stereo pair with the camera pose estimate at capture time (docs/algorithm.md §4)."""
 
     view_id: int
     time_s: float

@@ -1,4 +1,4 @@
-"""The mission sequencer (paper Figure 4; ALGORITHM.md §2-§4, §6).
+"""The mission sequencer (paper Figure 4; docs/algorithm.md §2-§4, §6).
 
     INIT -> PANORAMA -> [SELECT -> MOVE -> POINT -> ACQUIRE] until the end criterion (§3.6)
          -> TRANSMIT -> DONE;   any state -> SAFE on a driver fault or a geofence refusal.

@@ -1,4 +1,4 @@
-"""Save and resume the mission sequencer's state with the map (paper Figure 4; ALGORITHM.md §1-§3).
+"""Save and resume the mission sequencer's state with the map (paper Figure 4; docs/algorithm.md §1-§3).
 
 ``save`` runs when an imaging step completes (and on entering SAFE or DONE): it writes the
 map of that step (``MapUpdate.snapshot``: the map the step's state was computed from, never

@@ -1,4 +1,4 @@
-"""The mission's moves over unfamiliar ground and its planning inputs (ALGORITHM.md §2, §3;
+"""The mission's moves over unfamiliar ground and its planning inputs (docs/algorithm.md §2, §3;
 issue 13 item 3): a mixin of :class:`fsw.tasks.mission.MissionTask`.
 
 - The geofence (``fsw.core.edge.geofence``) is set on the latest edge fit, the latest map (which

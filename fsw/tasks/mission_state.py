@@ -1,4 +1,4 @@
-"""The mission's phases and its checkpointed state (paper Figure 4; ALGORITHM.md §2-§4).
+"""The mission's phases and its checkpointed state (paper Figure 4; docs/algorithm.md §2-§4).
 
 After each imaging step the sequencer (``fsw.tasks.mission``) writes ONE checkpoint holding
 the map of that step and everything needed to continue from it: the step and phase, the

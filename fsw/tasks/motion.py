@@ -3,7 +3,7 @@
 Thin: the profile is ``fsw.core.motion.motion_profile``, dead reckoning ``fsw.core.localization.odometry``, the
 kinematics ``fsw.core.motion.wheel_kinematics``; the drivers do the bytes. Moves come as ground
 commands (DRIVE, TURN, GOTO, POINT_MAST, STOP, ESTOP, CLEAR_FAULTS, ...) or as
-``MotionRequest`` messages on ``motion.request`` (the mission sequencer; ALGORITHM.md §3:
+``MotionRequest`` messages on ``motion.request`` (the mission sequencer; docs/algorithm.md §3:
 "move (mast + wheels)"), each answered once on ``motion.status`` (a ``MoveOutcome``). A
 critical driver fault aborts the move and stops the drives; moves are refused until
 CLEAR_FAULTS. Every frame the task publishes the dead-reckoned pose with its covariance and
@@ -111,7 +111,7 @@ class MotionTask(FlightTask):
         self._publish(now, mast)
 
     def _apply_fix(self, fix: NavFix) -> None:
-        """A registered view's correction of the pose (ALGORITHM.md §5.1, ``fsw.core.localization.nav_fix``),
+        """A registered view's correction of the pose (docs/algorithm.md §5.1, ``fsw.core.localization.nav_fix``),
         between moves; only on the frame it was found in (``base_id``), else refused."""
         self.fix_seen = max(self.fix_seen, fix.fix_id)
         if fix.base_id != self.fix_id or not fix.valid():

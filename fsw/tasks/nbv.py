@@ -1,10 +1,10 @@
-"""The next-view task: runs the configured planner's search as a slack job (ALGORITHM.md §3).
+"""The next-view task: runs the configured planner's search as a slack job (docs/algorithm.md §3).
 
 The mission sequencer publishes a ``PlannerState`` on ``nbv.request``; this task resumes the
 planner's search generator in frame slack (one camera centre per slice) and publishes the
 chosen ``CandidateView`` (or ``None``: nothing reachable worth doing) on ``nbv.result``.
 
-The edge search (ALGORITHM.md §2: the edge is found before the rover drives along it): while
+The edge search (docs/algorithm.md §2: the edge is found before the rover drives along it): while
 no edge is fitted (the views from the start did not reach the drop), there is no edge path for
 the raster baselines (Methods 1, 2) to follow; their views are then chosen by expected new
 information (Method 4's rating, ``fsw.core.planning.info_planners``) among the edge search's stations

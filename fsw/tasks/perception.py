@@ -1,6 +1,6 @@
 """The perception task: owns the elevation map; fuses each stereo pair and re-fits the edge.
 
-A ``CameraFrame`` from the camera task becomes a slack job (ALGORITHM.md §4): the view's
+A ``CameraFrame`` from the camera task becomes a slack job (docs/algorithm.md §4): the view's
 P_V on the map before the merge (§3.1, for the misses), rectification of the raw pair when
 the camera has a calibration file (``fsw.core.stereo.rectify``: maps built once here at start-up,
 the pair remapped in row bands), stereo matching, triangulation with covariance,

@@ -1,6 +1,6 @@
-"""The radio task: sends the map to the Cliff-bot over the map link (ALGORITHM.md §6).
+"""The radio task: sends the map to the Cliff-bot over the map link (docs/algorithm.md §6).
 
-Thin (ARCHITECTURE.md, tasks). It keeps the latest map snapshot (``map.updated``); a
+Thin (docs/architecture.md, tasks). It keeps the latest map snapshot (``map.updated``); a
 ``SEND_MAP`` command or a :class:`RadioSendRequest` on ``radio.send`` (the mission's last
 step) encodes that snapshot in a slack job (quadtree + codec, ``fsw.core.codec.mapcodec``, the
 wheel diameter from ``[rover]``) and hands the container to the sans-I/O

@@ -31,7 +31,7 @@ class CaptureConfig:
 class MissionConfig:
     """The mapping mission (config ``[mission]``)."""
 
-    method: str = param("5", choices=METHODS, doc="mapping method of ALGORITHM.md §7 (1-5, oracle)")
+    method: str = param("5", choices=METHODS, doc="mapping method of docs/algorithm.md §7 (1-5, oracle)")
     auto_start: bool = param(True, doc="start at boot; otherwise wait for START")
     panorama_pans_deg: tuple[float, ...] = param(
         (-90.0,), lo=-180.0, hi=180.0, units="deg", doc="mast pans of the step-0 panorama"

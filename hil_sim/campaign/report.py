@@ -3,7 +3,7 @@
 Headline figures: missions run and lost (a lost mission is one without a row: always 0 here,
 since a crash is a recorded ``error``/``killed`` row), outcome classes, edge violations,
 off-map events, median and worst map RMS error, variance calibration, Method 5 against the
-oracle (mapped cells, ALGORITHM.md §7: paired on family, parameters, seed and fault set; median
+oracle (mapped cells, docs/algorithm.md §7: paired on family, parameters, seed and fault set; median
 and 10th percentile of the ratio), and SAFE recoveries that resumed the mission. Plots:
 ``coverage_by_method.png`` (mapped cells per method), ``m5_vs_oracle.png``,
 ``failures.png`` (outcome classes per family and fault set), ``failure_params.png`` (failure

@@ -39,7 +39,7 @@ class CampaignSection:
     name: str = param(doc="campaign name (report title)")
     steps: int = param(20, lo=0, hi=1000, doc="imaging steps after the panorama")
     seeds: tuple[int, ...] = param((0,), lo=0, hi=2**31 - 1, doc="mission seeds (world, hardware, radio)")
-    methods: tuple[str, ...] = param(("5",), choices=METHODS, doc="mapping methods (ALGORITHM.md §7)")
+    methods: tuple[str, ...] = param(("5",), choices=METHODS, doc="mapping methods (docs/algorithm.md §7)")
     timeout_s: float = param(1800.0, lo=1.0, hi=1e6, units="s", doc="wall-clock limit of one mission (killed)")
     max_sim_s: float = param(0.0, lo=0.0, hi=1e6, units="s", doc="bench-time limit (0: the runner's default)")
     safe_recover_s: float = param(30.0, lo=0.0, hi=1e5, units="s", doc="SAFE resumes after this (0: ends)")

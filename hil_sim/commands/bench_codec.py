@@ -1,4 +1,4 @@
-"""``safer-hil bench codec``: map codec speed on a Viking-model Mars map (ALGORITHM.md §6).
+"""``safer-hil bench codec``: map codec speed on a Viking-model Mars map (docs/algorithm.md §6).
 
 Encodes (reduction + predictive coding + zstd) and decodes a ``--size`` square map
 ``--repeat`` times at ``dH = --dh`` and prints the median, best and worst wall time of each,

@@ -1,4 +1,4 @@
-"""``safer-hil bench nbv``: speed and accuracy of next-view rating (ALGORITHM.md §3.1, §3.2)."""
+"""``safer-hil bench nbv``: speed and accuracy of next-view rating (docs/algorithm.md §3.1, §3.2)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """``safer-hil bench perception``: speed of the perception chain, and with ``--plot`` the
-variance calibration of the map (ALGORITHM.md §1, §2, §4; docs/perception.md).
+variance calibration of the map (docs/algorithm.md §1, §2, §4; docs/perception.md).
 
 Prints, from real runs on rendered pairs of the scenario:
   * stereo ms per pair (SGBM, filters, triangulation with covariance; 640x480), and the

@@ -1,5 +1,5 @@
 """``safer-hil bench stereo-real``: the flight stereo against ground-truth disparity on real
-Middlebury pairs and on rendered pairs (issue 14, item 4; ALGORITHM.md §4, §1.2).
+Middlebury pairs and on rendered pairs (issue 14, item 4; docs/algorithm.md §4, §1.2).
 
 For each real pair (shipped inside scikit-image, a dev dependency; ``hil_sim.stereo_eval``)
 it prints, for plain OpenCV SGBM_3WAY (same block size and disparity range) and for the

@@ -1,4 +1,4 @@
-"""``safer-hil cliffbot``: the bench Cliff-bot as its own process (ALGORITHM.md §6.6; docs/link.md).
+"""``safer-hil cliffbot``: the bench Cliff-bot as its own process (docs/algorithm.md §6.6; docs/link.md).
 
 Runs the flight :class:`~fsw.comm.link_receiver.LinkReceiver` (through
 :class:`hil_sim.cliffbot_receiver.Cliffbot`) over a radio URL in real time, prints one JSON

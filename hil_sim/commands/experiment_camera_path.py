@@ -17,6 +17,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from hil_sim.results import command_line, markdown_table, write_results
+
 HELP = "replay one mission's views with one factor changed at a time (camera path, poses, registration)"
 
 ROWS = (
@@ -86,4 +88,5 @@ def run(args: argparse.Namespace) -> int:
               f"{100 * q['within_2sigma']:7.1f}% {seam:>14s}", flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "camera_path.json").write_text(json.dumps(rows, indent=1))
+    write_results("camera-path", command_line("camera-path"), markdown_table(rows))
     return 0

@@ -1,4 +1,4 @@
-"""``safer-hil experiment coverage``: the paper's Figures 7 and 8 (ALGORITHM.md §7).
+"""``safer-hil experiment coverage``: the paper's Figures 7 and 8 (docs/algorithm.md §7).
 
 Runs the five mapping methods and the oracle over several seeds as full lockstep missions
 (``hil_sim.mission_run``), then writes ``coverage.csv`` (one row per run and step),
@@ -23,6 +23,8 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
+
+from hil_sim.results import command_line, write_results
 
 HELP = "mapped cells vs imaging steps for methods 1-5 and the oracle (paper Figures 7 and 8)"
 METHODS = ("1", "2", "3", "4", "5", "oracle")
@@ -81,6 +83,8 @@ def run(args: argparse.Namespace) -> int:
         return 1
     write_report(args.out, args.scenario, args.steps, methods, args.seeds, results)
     print((args.out / "coverage.md").read_text())
+    write_results("coverage", command_line("coverage"), (args.out / "coverage.md").read_text(),
+                  [args.out / "fig7_coverage.png", args.out / "fig8_expected_vs_obtained.png"])
     return 0
 
 

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from hil_sim.ground_report import COLUMNS, report_markdown, row_of
+from hil_sim.results import command_line, write_results
 
 HELP = "missions on generated sloped, rocky terrains (and real DEMs): does the rover move, safely?"
 METHODS = ("1", "2", "3", "4", "5", "oracle")
@@ -112,4 +113,5 @@ def run(args: argparse.Namespace) -> int:
     md = report_markdown(rows, failed, vars(args))
     (args.out / "ground.md").write_text(md)
     print(md)
+    write_results("ground", command_line("ground"), md)
     return 1 if failed else 0

@@ -1,4 +1,4 @@
-"""``safer-hil experiment link``: map-link goodput against loss and bit error rate (ALGORITHM.md §6.6).
+"""``safer-hil experiment link``: map-link goodput against loss and bit error rate (docs/algorithm.md §6.6).
 
 Runs the flight link (``fsw.comm.link_sender`` / ``link_receiver``) over the seeded channel
 model (``hil_sim.radio_channel``) on a simulated clock, ``--seeds`` runs per point, sending
@@ -19,6 +19,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 from typing import Any
+
+from hil_sim.results import command_line, write_results
 
 HELP = "goodput vs packet loss (0 to 0.3) and bit error rate at 9600 bit/s, with capacity lines"
 DESCRIPTION = (
@@ -110,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
     (args.out / "report.md").write_text(report)
     print(report)
     print(f"wrote {args.out}/link_goodput.csv, link_goodput.png, report.md")
+    write_results("link", command_line("link"), report, [args.out / "link_goodput.png"])
     return 0
 
 
@@ -191,5 +194,6 @@ def _run_udp(args: argparse.Namespace, link: Any) -> int:
               f"segment {link.segment_bytes} B)")
     print(write_tables(rows, args.out, header))
     print(f"wrote {args.out}/udp_runs.csv, udp_report.md")
+    write_results("link-udp", command_line("link"), (args.out / "udp_report.md").read_text())
     ok = all(r["bit_exact"] for r in rows)
     return 0 if ok else 1

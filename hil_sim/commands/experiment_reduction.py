@@ -1,6 +1,6 @@
 """``safer-hil experiment reduction``: the paper's Figures 12 and 13 and the codec comparison.
 
-ALGORITHM.md §6 (and "Mars terrain statistics"). ``--maps`` Viking-model Mars maps
+docs/algorithm.md §6 (and "Mars terrain statistics"). ``--maps`` Viking-model Mars maps
 (``hil_sim.world.mars.viking_heightfield``) with rock coverage ``k`` spread evenly over the
 Viking Lander 1 to 2 values (0.07 .. 0.16), each reduced for several wheel diameters
 chosen so that ``dH = (max - min elevation) / wheel diameter`` takes the values ``--dh``.
@@ -25,6 +25,8 @@ import argparse
 import time
 from pathlib import Path
 from typing import Any
+
+from hil_sim.results import command_line, write_results
 
 HELP = "Figure 12/13: quadtree reduction vs dH on 32 Mars maps, and bytes vs standard codecs"
 
@@ -154,6 +156,8 @@ def run(args: argparse.Namespace) -> int:
     (args.out / "report.md").write_text(report)
     print(report)
     print(f"wrote {args.out}/reduction.csv, codecs.csv, report.md, fig12_reduction.png, fig13_transmitted.png")
+    write_results("reduction", command_line("reduction"), report,
+                  [args.out / "fig12_reduction.png", args.out / "fig13_transmitted.png"])
     return 0
 
 

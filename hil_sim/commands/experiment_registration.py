@@ -20,6 +20,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from hil_sim.results import command_line, markdown_table, write_results
+
 HELP = "registration consistency: NEES of the registered poses against the truth, per config"
 
 
@@ -105,4 +107,7 @@ def run(args: argparse.Namespace) -> int:
         print(_line(Path(c).name, s))
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "registration.json").write_text(json.dumps({"per_seed": result, "totals": totals}, indent=1) + "\n")
+    write_results("registration", command_line("registration"),
+                  "Per seed and config:\n\n" + markdown_table(result)
+                  + "\n\nTotals:\n\n" + markdown_table([{"config": c, **s} for c, s in totals.items()]))
     return 0

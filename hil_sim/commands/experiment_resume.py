@@ -24,6 +24,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from hil_sim.results import command_line, markdown_table, write_results
+
 HELP = "SIGKILL a lockstep mission at random moments, resume it each time, compare with an uninterrupted run"
 LAYERS = ("z", "var", "n", "interest", "misses", "outliers", "var_common")
 _SHOWN = re.compile(r"(\d+)/\d+ \[")
@@ -153,5 +155,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"mapped cells: reference {cmp['ref_cells']}, resumed {cmp['cells']}; reference cells present "
           f"{100 * cmp['fraction']:.2f} %; all map layers identical: {cmp['identical']}")
     print(f"report: {args.out / 'resume.json'}")
+    write_results("resume", command_line("resume"), markdown_table(kills) + "\n\n" + markdown_table(
+        [{k: v for k, v in result.items() if k != "kills"}]))
     ok = rc == 0 and all(k["lost_steps"] == 0 for k in kills) and cmp["fraction"] >= 0.99
     return 0 if ok else 1

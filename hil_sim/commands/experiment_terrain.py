@@ -1,5 +1,5 @@
 """``safer-hil experiment terrain``: map quality on tilted ground (issue 13: attitude and
-registration, ALGORITHM.md §5.1).
+registration, docs/algorithm.md §5.1).
 
 For every scenario, seed and slope it runs one full lockstep mission (``hil_sim.mission_run``)
 and prints, per mission and as medians and worst cases: the true start attitude, the map's
@@ -28,6 +28,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from hil_sim.results import command_line, write_results
 
 HELP = "map error, tilt, station seams and 2-sigma calibration on tilted terrain (issue 13)"
 COLUMNS = ("rms_m", "tilt_err_deg", "seam_m", "within_2sigma")
@@ -159,6 +161,9 @@ def run(args: argparse.Namespace) -> int:
     _report(rows, args.out)
     if args.baseline:
         error_figure(rows, dirs, args.out / "terrain_error_maps.png")
+    if rows:
+        write_results("terrain", command_line("terrain"), (args.out / "terrain.md").read_text(),
+                      [args.out / "terrain_error_maps.png"])
     return 0 if len(rows) == len(runs) else 1
 
 

@@ -23,7 +23,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("--scenario", default="lab", help="lab, cliff, mars or file:PATH")
     p.add_argument(
-        "--method", default="5", choices=("1", "2", "3", "4", "5", "oracle"), help="mapping method (ALGORITHM.md §7)"
+        "--method",
+        default="5",
+        choices=("1", "2", "3", "4", "5", "oracle"),
+        help="mapping method (docs/algorithm.md §7)",
     )
     p.add_argument("--steps", type=int, default=20, help="imaging steps after the panorama")
     p.add_argument("--seed", type=int, default=0, help="seed of world, hardware and radio")

@@ -1,4 +1,4 @@
-"""``safer-hil send-map``: the RECON-bot's end of the map link as its own process (ALGORITHM.md §6.6).
+"""``safer-hil send-map``: the RECON-bot's end of the map link as its own process (docs/algorithm.md §6.6).
 
 Runs the flight :class:`~fsw.comm.link_sender.LinkSender` over the flight radio driver
 (``fsw.drivers.radio``, the same pair the executive's radio task uses) in real time, sends

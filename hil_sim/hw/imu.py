@@ -1,4 +1,4 @@
-"""Emulated inclinometer/IMU: the CAN end of the rover's attitude sensor (ALGORITHM.md §5.1).
+"""Emulated inclinometer/IMU: the CAN end of the rover's attitude sensor (docs/algorithm.md §5.1).
 
 Every ``period_s`` it sends ``IMU_ATTITUDE`` (``config/rover.dbc``, :mod:`fsw.comm.imu_can`):
 the true body roll and pitch of :class:`hil_sim.rover_truth.RoverTruth` (the attitude the

@@ -1,4 +1,4 @@
-"""The ``cliff`` scenario: a natural cliff like the paper's field test (ALGORITHM.md §7,
+"""The ``cliff`` scenario: a natural cliff like the paper's field test (docs/algorithm.md §7,
 paper Figure 9).
 
 A level plateau (``z = 0``) where the rover drives ends at an irregular, non-convex edge
@@ -8,7 +8,7 @@ drawn from the Viking size-frequency model (``mars.py``) with a coverage that is
 the cliff foot (``jumble_k``) and decays with distance (``jumble_decay_m``) to
 ``background_k``. Flats of fine silt (``[texture] textureless_regions``, kept to the ground
 past the cliff foot and free of rocks) give stereo no correspondence, as the regions that
-made the paper's field result differ between Methods 4 and 5 (ALGORITHM.md §3.4, §7).
+made the paper's field result differ between Methods 4 and 5 (docs/algorithm.md §3.4, §7).
 """
 
 from __future__ import annotations

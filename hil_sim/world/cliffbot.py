@@ -1,6 +1,6 @@
 """The Cliff-bot as the RECON-bot's cameras see it: a box body carrying ArUco markers.
 
-The paper's relative localization (ALGORITHM.md §5) has the RECON-bot map fiducials on the
+The paper's relative localization (docs/algorithm.md §5) has the RECON-bot map fiducials on the
 Cliff-bot and solve a PnP problem. Here the Cliff-bot is a box (``length`` along its heading,
 ``width``, ``height``) standing on the terrain, with four ArUco markers (OpenCV
 ``DICT_4X4_50``): on the front face, the left and right faces (all vertical) and on a plate

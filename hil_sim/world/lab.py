@@ -1,4 +1,4 @@
-"""The ``lab`` scenario: the paper's indoor test bed (ALGORITHM.md §7, paper Figure 6).
+"""The ``lab`` scenario: the paper's indoor test bed (docs/algorithm.md §7, paper Figure 6).
 
 A flat plateau at ``z = 0`` where the rover drives (start at the origin heading ``+x``); an
 irregular step edge about ``drop_m`` high running along ``+x`` near ``y = edge_y_m`` (a random
@@ -8,7 +8,7 @@ to the edge) with rippled sand, a few pebbles, three rock piles and, in its left
 region, uniform sand with no texture at all where stereo cannot match (``[texture]
 textureless_regions``; the paper: "the left region of the sandpit yields poor data (due to
 lack of stereo correspondence)": its Method 3 chases it, Method 5 loses interest,
-ALGORITHM.md §3.4, §7).
+docs/algorithm.md §3.4, §7).
 """
 
 from __future__ import annotations

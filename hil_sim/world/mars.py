@@ -1,4 +1,4 @@
-"""Mars terrain from the Viking lander rock size-frequency model (ALGORITHM.md, "Mars terrain
+"""Mars terrain from the Viking lander rock size-frequency model (docs/algorithm.md, "Mars terrain
 statistics"; Golombek and Rapp 1997).
 
 The fraction of the ground covered by rocks of diameter ``D`` metres or larger is
@@ -14,7 +14,7 @@ which diverges for small ``D``, so rocks are drawn between a lower cut-off ``d_m
 default two grid cells: smaller rocks cannot be represented) and ``d_max_m``. Each rock is
 given a height of about ``D / 2`` (uniform 0.4 D .. 0.6 D) and stamped on gently rolling
 ground (fractal relief). :func:`viking_heightfield` is the public entry point used for the
-paper's 32 test maps (ALGORITHM.md §6, data reduction against ``dH``) and by the ``mars``
+paper's 32 test maps (docs/algorithm.md §6, data reduction against ``dH``) and by the ``mars``
 scenario.
 """
 

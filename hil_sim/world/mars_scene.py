@@ -2,7 +2,7 @@
 
 Below the rover's level plateau (``y`` above an irregular edge near ``edge_y_m``) a low scarp
 (``scarp_drop_m``, 0 for none) leads down to rolling ground (``relief_m``) strewn with rocks
-drawn from the Viking size-frequency model with coverage ``k`` (``mars.py``; ALGORITHM.md,
+drawn from the Viking size-frequency model with coverage ``k`` (``mars.py``; docs/algorithm.md,
 "Mars terrain statistics"). The scarp gives the edge-following mission something to follow;
 with ``scarp_drop_m = 0`` the world has no edge (``edge_xy`` is empty).
 """

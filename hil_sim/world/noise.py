@@ -4,7 +4,7 @@ Spectral synthesis: white noise shaped in the Fourier domain by a power law ``|f
 between two wavelengths, so one call gives a multi-octave field (the sum of many octaves at
 once) with a chosen slope. ``beta = 2`` looks like sand and rolling ground, ``beta = 1``
 like speckled texture. Used by every scenario (docs/world.md, "Texture"); not an
-ALGORITHM.md step, it is the world truth the algorithms are tested against.
+docs/algorithm.md step, it is the world truth the algorithms are tested against.
 """
 
 from __future__ import annotations

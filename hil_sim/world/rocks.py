@@ -5,7 +5,7 @@ vertical profile) of diameter ``D`` and height ``H`` above the ground under its 
 partly buried so it blends into sloping ground. Rocks combine with the terrain and with
 each other by taking the maximum, so later rocks can sit on earlier ones (rock piles are
 stamped in layers). Used by the Viking model (``mars.py``), the lab rock piles and the
-cliff's rock jumble; see docs/world.md, "Rocks".
+cliff's rock jumble; see docs/world.md, "Scenarios".
 """
 
 from __future__ import annotations

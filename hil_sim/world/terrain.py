@@ -13,7 +13,7 @@ Construction, all on the 1 cm truth grid:
    ``edge_distance_m`` (drawn uniformly in 0.3..2 m by default). The plateau (where the rover
    starts) is the side at larger ``y``; a face of ``face_slope_deg`` drops ``drop_m``.
 2. Ground: fractal rolling relief (``relief_m``) on both sides, then Viking-model rocks
-   (ALGORITHM.md, "Mars terrain statistics"; Golombek and Rapp 1997, ``mars.py``): coverage
+   (docs/algorithm.md, "Mars terrain statistics"; Golombek and Rapp 1997, ``mars.py``): coverage
    ``k`` below the edge (diameters ``d_min_m``..``d_max_m``) and ``plateau_k`` on the plateau
    with diameters up to ``plateau_d_max_m`` (smaller than a wheel: drivable rubble).
 3. Regional slope: the whole world is tilted by ``slope_deg`` (-1: drawn in 0..12 deg)
@@ -21,7 +21,7 @@ Construction, all on the 1 cm truth grid:
    default), so the rover
    starts rolled and pitched; heights are then shifted so the ground at the start is 0.
 4. ``textureless_count`` irregular patches (semi-axes 0.4..1.2 m) of one albedo below the edge,
-   free of rocks, where stereo finds no match (ALGORITHM.md §3.4).
+   free of rocks, where stereo finds no match (docs/algorithm.md §3.4).
 
 ``World.plateau`` is the whole safe side of the true edge (rocks on it included), so an edge
 violation is a wheel past the edge, not a wheel on a rock or downhill on the slope.

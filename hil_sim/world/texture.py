@@ -6,7 +6,7 @@ stand out from sand, then multiplied by Lambertian shading from the terrain norm
 fixed sun (view independent, so both cameras of the stereo pair see the same brightness),
 with cast shadows where the scenario asks for them (``cast_shadows``; ``hil_sim.world.shadow``).
 Textureless regions get one constant albedo and no shading, so stereo finds nothing to
-match there (the paper's left part of the sandpit; ALGORITHM.md §3.4, §7). The renderer adds
+match there (the paper's left part of the sandpit; docs/algorithm.md §3.4, §7). The renderer adds
 a 2.5 mm detail texture scaled by :func:`make_texture`'s ``detail`` map (docs/world.md).
 """
 

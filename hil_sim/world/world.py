@@ -3,8 +3,8 @@
 A :class:`World` is a fine heightfield (cells of 1 cm or less) with a natural albedo texture,
 the true cliff edge, the rover's start pose and the Cliff-bot with its ArUco markers. The
 stereo renderer (``hil_sim/render.py``) draws it; the map engineers compare their elevation
-map with :meth:`World.truth_on_grid` (ALGORITHM.md §1) and the interest-function experiment
-with :meth:`World.textureless_on_grid` (ALGORITHM.md §3.4). Scenarios are built by
+map with :meth:`World.truth_on_grid` (docs/algorithm.md §1) and the interest-function experiment
+with :meth:`World.textureless_on_grid` (docs/algorithm.md §3.4). Scenarios are built by
 ``hil_sim.world.load_scenario``; docs/world.md describes them.
 
 Conventions (``fsw.core.geometry``): world metres, ``z`` up; heightfield cell ``(iy, ix)``
@@ -115,7 +115,7 @@ class World:
         return np.asarray(self.ground[idx[0], idx[1]], np.float32)
 
     def truth_on_grid(self, grid: MapGrid) -> F64:
-        """Mean truth elevation over each map cell (ALGORITHM.md §1), ``(ny, nx)``; NaN where
+        """Mean truth elevation over each map cell (docs/algorithm.md §1), ``(ny, nx)``; NaN where
         the map cell is not entirely inside the truth grid."""
         xs, ys, s = self._subsamples(grid)
         z = self._sample(self.height, xs, ys)

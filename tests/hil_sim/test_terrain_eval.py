@@ -1,6 +1,6 @@
 """The map-quality figures against the truth in the flight map's datum (``hil_sim.terrain_eval``):
 the datum is the true body height at the start, which on rocky ground is not the ground under
-the rover's centre (docs/perception.md, "Variance on generated terrain")."""
+the rover's centre (docs/perception.md, "Map datum")."""
 
 from __future__ import annotations
 

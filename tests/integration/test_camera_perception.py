@@ -85,7 +85,7 @@ def test_a_rectified_real_pair_matches_like_the_ideal_pair() -> None:
     aliasing is worst): point-sampled (``pixel_samples = 1``) the rectified real pair, TRUE
     calibration, interpolated between aliased samples, has 56 % more disparity error than
     the ideal pair sampled on the rectified grid; with the sensor integrating over each
-    pixel (2) 26 % (measured; docs/perception.md, "The camera-only comparison")."""
+    pixel (2) 26 % (measured; docs/perception.md, "Cameras")."""
     cfg = load_settings()
     world = load_scenario("lab", 0)
     hw = load_hardware().camera

@@ -29,7 +29,7 @@ def test_same_seed_same_summary(tmp_path: Path) -> None:
     )
     assert a["edge_violations"] == 0
     assert a["map_rmse_m"] is not None and a["map_rmse_m"] < 0.06  # calibrated, rectified cameras (issue 14)
-    # The map reached the Cliff-bot intact within the codec's bound (ALGORITHM.md §6).
+    # The map reached the Cliff-bot intact within the codec's bound (docs/algorithm.md §6).
     cb = a["cliffbot"]
     assert cb is not None and cb["decoded"] and cb["max_error_m"] <= cb["bound_m"] + 1e-6
     assert (tmp_path / "a" / "map.png").stat().st_size > 0

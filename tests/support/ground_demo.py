@@ -10,7 +10,7 @@ Also the tests' helpers: ``command_frame`` (a COMMAND_LONG from a ground station
 
 Run as a script to leave a .tlog and feed a live ``safer-ground listen``::
 
-    python tests/ground/ground_demo.py --url udpin:127.0.0.1:14560 --seconds 60 --tlog /tmp/demo.tlog
+    python tests/support/ground_demo.py --url udpin:127.0.0.1:14560 --seconds 60 --tlog /tmp/demo.tlog
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Hierarchical interpolation order and predictor for the quadtree leaf values (ALGORITHM.md §6.5).
+"""Hierarchical interpolation order and predictor for the quadtree leaf values (docs/algorithm.md §6.5).
 
 The predictive stage of the map codec visits the map's cells coarse to fine, like a
 Laplacian pyramid: first cell ``(0, 0)``, then, for ``h = 2**(L-1), ..., 1``, the *centre*

@@ -1,4 +1,4 @@
-"""Map codec: quadtree reduction, predictive coding and zstandard (ALGORITHM.md §6.3-6.5).
+"""Map codec: quadtree reduction, predictive coding and zstandard (docs/algorithm.md §6.3-6.5).
 
 ``encode_map`` reduces the map to its quadtree of interest regions (``fsw.core.codec.quadtree``),
 puts every known leaf's value on a lattice of step ``q`` (a fraction of the error bound),

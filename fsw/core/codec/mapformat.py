@@ -1,4 +1,4 @@
-"""The map container: a versioned, checksummed byte layout for the codec (ALGORITHM.md §6.5).
+"""The map container: a versioned, checksummed byte layout for the codec (docs/algorithm.md §6.5).
 
 Layout (little-endian; docs/quadtree.md has the same table)::
 

@@ -1,4 +1,4 @@
-"""Data reduction of an elevation map into a quadtree of interest regions (ALGORITHM.md §6).
+"""Data reduction of an elevation map into a quadtree of interest regions (docs/algorithm.md §6).
 
 The paper's Figure 5, steps 1-4, on a 2.5D map ``z`` (metres, NaN = unknown):
 
@@ -94,7 +94,7 @@ def tree_depth(shape: tuple[int, int]) -> int:
 
 
 def lowpass(z: F32 | F64, sigma_cells: float) -> F64:
-    """NaN-aware Gaussian low-pass (ALGORITHM.md §6.1); unknown cells stay NaN.
+    """NaN-aware Gaussian low-pass (docs/algorithm.md §6.1); unknown cells stay NaN.
 
     Normalised convolution: blur of the known values over blur of the known mask (float32;
     the result steers the split rule and the leaf means, never the error bound).
@@ -212,7 +212,7 @@ def build_quadtree(
     decimation_height_m: float | None = None,
     split_rule: str = "entropy",
 ) -> Quadtree:
-    """Reduce ``z`` to a quadtree of interest regions (ALGORITHM.md §6, steps 1-4).
+    """Reduce ``z`` to a quadtree of interest regions (docs/algorithm.md §6, steps 1-4).
 
     ``split_rule``: ``"entropy"`` is the paper's rule plus the two safety reasons (module
     docstring); ``"bound"`` splits only for unknown/known mixing and the error bound.

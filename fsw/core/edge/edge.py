@@ -1,4 +1,4 @@
-"""The cliff edge from the elevation map (ALGORITHM.md §2).
+"""The cliff edge from the elevation map (docs/algorithm.md §2).
 
 1. Edge points. The *safe region* is the mapped plateau: cells within ``plateau_tol_m`` of
    the rover's ground (a plane fitted around the rover, bent to follow rolling ground,

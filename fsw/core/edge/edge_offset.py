@@ -1,5 +1,5 @@
 """The rover's path along the cliff edge: candidate positions set back into the safe side
-(ALGORITHM.md §2, §3), and the geometry of an edge line's ends (its end direction, hooks).
+(docs/algorithm.md §2, §3), and the geometry of an edge line's ends (its end direction, hooks).
 ``fsw.core.edge.edge`` re-exports :func:`edge_path`.
 """
 

@@ -1,4 +1,4 @@
-"""Ring helpers of the polygon edge fit (``fsw.core.edge.edge.fit_polygon``, ALGORITHM.md §2):
+"""Ring helpers of the polygon edge fit (``fsw.core.edge.edge.fit_polygon``, docs/algorithm.md §2):
 a closed ring resampled at a step, and runs of flagged vertices along it bridged over short
 gaps."""
 

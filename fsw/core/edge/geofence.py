@@ -1,4 +1,4 @@
-"""Geofence: no motion command may take a wheel across the cliff edge (ALGORITHM.md §2).
+"""Geofence: no motion command may take a wheel across the cliff edge (docs/algorithm.md §2).
 
 A motion command goes from rover pose A to pose B ``(x, y, yaw)``. The rover is taken to
 move as the motion task drives a ``goto`` (:func:`goto_legs`): turn in place toward B (or
@@ -26,7 +26,7 @@ straight continuation past the ends the map saw stops short of it, and (with kno
 required) at unknown ground, which no wheel may enter anyway: a hooked end of a glimpsed edge
 then no longer swings its continuation through the blind zone beside the rover.
 
-Without a fitted edge (the edge search): the flow of ALGORITHM.md §2 finds the edge before
+Without a fitted edge (the edge search): the flow of docs/algorithm.md §2 finds the edge before
 the rover drives along it. When the views from the start do not reach the drop (an edge
 1.5-2 m away hides the pit floor behind its lip), no edge can be fitted, yet the rover must
 move to see it (``explore_without_edge``): a move is then allowed when every swept wheel patch

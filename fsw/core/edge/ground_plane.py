@@ -1,4 +1,4 @@
-"""The plane of the ground the rover stands on, from the elevation map (ALGORITHM.md §2).
+"""The plane of the ground the rover stands on, from the elevation map (docs/algorithm.md §2).
 
 The edge (``fsw.core.edge.edge``) is where the ground drops more than a step below the rover's
 plateau. On level ground the plateau is "within a few cm of the rover's ground height"; on

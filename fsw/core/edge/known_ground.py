@@ -1,7 +1,7 @@
 """Known ground for the geofence: the rover never drives where the flight software has no map
-of the ground under its wheels (ALGORITHM.md §2; issue 13 item 3).
+of the ground under its wheels (docs/algorithm.md §2; issue 13 item 3).
 
-Ground is *known* where the elevation map has a measurement (``n >= 1``, ALGORITHM.md §1)
+Ground is *known* where the elevation map has a measurement (``n >= 1``, docs/algorithm.md §1)
 or lies within ``fill_m`` of one (a dilation: stereo drop-outs a few cells wide and the ragged
 border of a view, a fraction of a wheel patch), or where the rover's own footprint has stood
 (the ground it stands on needs no camera: the body hides it from the mast, yet the wheels are

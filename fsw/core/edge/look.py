@@ -1,5 +1,5 @@
 """Look before you drive: the mast pose that views the ground a move would cross
-(ALGORITHM.md §2, §4; issue 13 item 3).
+(docs/algorithm.md §2, §4; issue 13 item 3).
 
 The geofence refuses a move whose wheels would cross ground the map has not measured
 (``fsw.core.edge.known_ground``). Before giving up on such a station, the mission takes one view

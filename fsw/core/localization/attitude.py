@@ -1,4 +1,4 @@
-"""The rover body's attitude and height for the camera pose chain (ALGORITHM.md §5.1, §1.2).
+"""The rover body's attitude and height for the camera pose chain (docs/algorithm.md §5.1, §1.2).
 
 Roll and pitch come from the attitude sensor (``fsw.drivers.imu_can``: the accelerometer's
 gravity direction at rest, averaged); the height of the body over the start is dead-reckoned

@@ -1,4 +1,4 @@
-"""Relative localization of the Cliff-bot from its ArUco fiducials (ALGORITHM.md §5).
+"""Relative localization of the Cliff-bot from its ArUco fiducials (docs/algorithm.md §5).
 
 The RECON-bot is the origin (its start pose defines the world frame). Its camera sees the
 Cliff-bot's markers; their corners, whose positions on the Cliff-bot body are known
@@ -11,7 +11,7 @@ covariance of both factors propagated (module ``fsw.core.localization.localizati
 Detection uses ``cv2.aruco.ArucoDetector``. Corner refinement matters: on the bench images
 the ``subpix`` and ``contour`` refinements put corners 0.3-0.8 px inside the marker, which
 reads as a target 1-2 cm too far at 3 m; ``apriltag`` (edge-line fit) is unbiased to
-0.05 px and is the default (docs/perception.md, "Fiducials").
+0.05 px and is the default (docs/perception.md, "Localization").
 """
 
 from __future__ import annotations

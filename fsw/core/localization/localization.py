@@ -1,5 +1,5 @@
 """Localization: camera pose by PnP with covariance, its recursive estimate, and the Cliff-bot
-from its ArUco fiducials relative to the RECON-bot (ALGORITHM.md §5), plus the propagation
+from its ArUco fiducials relative to the RECON-bot (docs/algorithm.md §5), plus the propagation
 of the pose covariance into every measured point (§1.2, the paper's EKF step).
 
 Pose convention (used by every function here): a camera pose is ``CameraPose(R, t)`` with

@@ -1,4 +1,4 @@
-"""The registration's correction fed back into the rover's own pose estimate (ALGORITHM.md
+"""The registration's correction fed back into the rover's own pose estimate (docs/algorithm.md
 §5, §5.1: the map's "known spatial points" localize the rover, not only the view).
 
 A registered view corrects its camera pose by ``d = (dtheta, dt)`` (``fsw.core.localization.localization``

@@ -1,5 +1,5 @@
 """Dead reckoning from the wheel encoders, with a covariance that grows with the path
-(ALGORITHM.md §5: the pose prior that localization refines).
+(docs/algorithm.md §5: the pose prior that localization refines).
 
 Each update takes the drive wheels' positions (rad) and the steering angles; the body motion
 is the least-squares rigid motion of the four wheel displacements

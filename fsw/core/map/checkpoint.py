@@ -1,4 +1,4 @@
-"""Checkpoint format: the elevation map (ALGORITHM.md §1) and the mission state, checksummed.
+"""Checkpoint format: the elevation map (docs/algorithm.md §1) and the mission state, checksummed.
 
 Pure encode/decode (no I/O, as ``fsw/core`` requires); ``fsw.drivers.map_store`` writes
 them atomically and loads the newest good one. Layout, all little-endian::

@@ -1,4 +1,4 @@
-"""The 2.5D elevation map and its fusion of measured points (ALGORITHM.md §1, §1.1, §3.4, §4).
+"""The 2.5D elevation map and its fusion of measured points (docs/algorithm.md §1, §1.1, §3.4, §4).
 
 Cell state (arrays ``(ny, nx)``, index ``[iy, ix]`` as ``fsw.core.geometry.MapGrid``):
 ``z`` fused elevation (m), ``var`` its variance (m^2), ``n`` merged measurements (capped by

@@ -1,4 +1,4 @@
-"""Which view's pose put each map cell where it is (ALGORITHM.md §5.1, §1.2; issue 13).
+"""Which view's pose put each map cell where it is (docs/algorithm.md §5.1, §1.2; issue 13).
 
 A map cell is as well placed as the pose of the view that measured it. Its variance says how
 well its *height* is known, but not where the cell is horizontally: a view merged with a

@@ -1,4 +1,4 @@
-"""Wheel moves as segments on a trapezoidal speed profile (ALGORITHM.md §3: "move (mast + wheels)").
+"""Wheel moves as segments on a trapezoidal speed profile (docs/algorithm.md §3: "move (mast + wheels)").
 
 A move is a list of segments, each *steer* (wheels to their angles, drive stopped) then *move*
 (drive straight or turn in place), closed on odometry: the commanded speed ramps up at the

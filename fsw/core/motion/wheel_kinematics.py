@@ -1,6 +1,6 @@
 """Kinematics of the SRR-like rover: four independently steered and driven wheels.
 
-Pure functions on arrays (no I/O). They carry out the motions that ALGORITHM.md §3.3 costs
+Pure functions on arrays (no I/O). They carry out the motions that docs/algorithm.md §3.3 costs
 (drive along the edge path, turn in place) and give the dead-reckoning pose prior that §5
 localization refines.
 

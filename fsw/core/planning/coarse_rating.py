@@ -1,4 +1,4 @@
-"""Coarse-to-fine rating of candidate views: the next-view search made fast (ALGORITHM.md §3.1,
+"""Coarse-to-fine rating of candidate views: the next-view search made fast (docs/algorithm.md §3.1,
 §3.2, §3.5).
 
 The exact rating (``nbv.rate_station_steps``) runs the P_V kernel on every cell within reach of

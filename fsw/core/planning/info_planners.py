@@ -1,4 +1,4 @@
-"""Methods 3, 4, 5 and the oracle of ALGORITHM.md §7: information-based view selection.
+"""Methods 3, 4, 5 and the oracle of docs/algorithm.md §7: information-based view selection.
 
 Every reachable station along the edge path (``view_candidates.path_stations``) is rated by
 its expected information (§3-§4, ``fsw.core.planning.nbv``); Method 3 straightens the path, Method 5

@@ -1,4 +1,4 @@
-"""Rating of candidate views: information, motion, localization, utility (ALGORITHM.md §3).
+"""Rating of candidate views: information, motion, localization, utility (docs/algorithm.md §3).
 
 * Expected new information of a pose (§3.2, paper Eq 3), with the interest function (§3.4,
   Eq 5) pre-multiplied into the visibility when the method uses it:

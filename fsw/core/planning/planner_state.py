@@ -1,6 +1,6 @@
-"""A next-view planner's state as plain data, for mission checkpoints (ALGORITHM.md §3, §7).
+"""A next-view planner's state as plain data, for mission checkpoints (docs/algorithm.md §3, §7).
 
-The information planners (Methods 3-5, oracle; ALGORITHM.md §3.2-§3.5) rate views on the map
+The information planners (Methods 3-5, oracle; docs/algorithm.md §3.2-§3.5) rate views on the map
 alone: nothing to keep but their counters. The raster baselines (Methods 1 and 2, §7) follow a
 plan made once at their first search: the tilt bands, the rows begun, the stations taken and
 the place in a station's pan sweep. A resumed mission must continue that plan, not make a new

@@ -1,4 +1,4 @@
-"""The five mapping methods of the paper and an oracle, behind one interface (ALGORITHM.md §7).
+"""The five mapping methods of the paper and an oracle, behind one interface (docs/algorithm.md §7).
 
 ``planner.next_view(state) -> CandidateView | None`` (None: nothing reachable to do), or
 ``planner.search(state)``, a generator that yields between bounded steps (a geofence check, a

@@ -1,4 +1,4 @@
-"""Methods 1 and 2 of ALGORITHM.md §7: the raster-scan baselines (the rows, stations and
+"""Methods 1 and 2 of docs/algorithm.md §7: the raster-scan baselines (the rows, stations and
 tilt bands are described in ``fsw.core.planning.planners``)."""
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Candidate views: rover stations along the edge path times a mast pan/tilt/lift grid (§3).
 
 A candidate is 5-DOF plus heading: the rover pose ``(x, y, yaw)`` on the edge-following path
-(ALGORITHM.md §2; ``fsw.core.edge.edge.edge_path`` makes it) and the mast joints ``(pan, tilt,
+(docs/algorithm.md §2; ``fsw.core.edge.edge.edge_path`` makes it) and the mast joints ``(pan, tilt,
 lift)`` within ``MastConfig`` limits. Stations are spaced ``station_spacing_m`` along the
 path up to ``max_travel_m`` either way from the rover's projection on it (a path sample
 within half a spacing of the rover is the rover's own station, not a move). A station is kept
@@ -147,7 +147,7 @@ def path_stations_steps(path: F64, rover_now: Pose3, motion_ok: MotionCheck, spa
 def search_stations_steps(rover_now: Pose3, motion_ok: MotionCheck, spacing_m: float,
                           max_travel_m: float, headings: int = SEARCH_HEADINGS
                           ) -> Generator[None, None, list[Station]]:
-    """The edge search (no edge mapped yet, ALGORITHM.md §2): stations every ``spacing_m`` up
+    """The edge search (no edge mapped yet, docs/algorithm.md §2): stations every ``spacing_m`` up
     to ``max_travel_m`` along ``headings`` directions around the rover (the first its own
     heading), each facing the way it was driven, each ray until the first the geofence
     refuses (with no edge fitted it keeps the wheels the margin from every mapped drop cell,

@@ -1,4 +1,4 @@
-"""Probability that a map cell is visible from a camera centre (ALGORITHM.md §3.1, paper Eq 4).
+"""Probability that a map cell is visible from a camera centre (docs/algorithm.md §3.1, paper Eq 4).
 
 Model (as implemented; the fast kernel in ``visibility_kernel`` and the reference here compute
 the same quantity):

@@ -1,4 +1,4 @@
-"""Fast P_V kernel: every target cell around one camera centre at once (ALGORITHM.md §3.1).
+"""Fast P_V kernel: every target cell around one camera centre at once (docs/algorithm.md §3.1).
 
 Computes the same quantity as ``visibility.pv_reference`` (read its module docstring for the
 model), about 10x faster per cell, for all cells a station can see. Many candidate poses share a

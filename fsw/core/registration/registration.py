@@ -1,4 +1,4 @@
-"""Registration of a view against the map before it is merged (ALGORITHM.md §5.1, §5).
+"""Registration of a view against the map before it is merged (docs/algorithm.md §5.1, §5).
 
 The "known spatial points" of §5 are the map itself: the points of a new view that fall on
 well-measured map cells are aligned to the map's elevation surface by weighted least squares,

@@ -1,4 +1,4 @@
-"""Statistics of a view's registration (``fsw.core.registration.registration``; ALGORITHM.md §5.1, issue 13):
+"""Statistics of a view's registration (``fsw.core.registration.registration``; docs/algorithm.md §5.1, issue 13):
 the two halves of the overlap, the posterior with directions held at the prior, and the
 reference cells' own placement error carried into the correction."""
 

@@ -1,6 +1,6 @@
 """The chain of registered stations: where each view's registration starts from, what its
 merged pose covariance is, and the correction fed back to the rover's pose estimate
-(ALGORITHM.md §5, §5.1; the perception task's bookkeeping, kept pure here).
+(docs/algorithm.md §5, §5.1; the perception task's bookkeeping, kept pure here).
 
 - The first view of a map is its reference; its pose covariance is the map's frame error
   (``anchor_cov``).

@@ -1,4 +1,4 @@
-"""Stereo calibration from views of a planar target (ALGORITHM.md §4: the pair SGBM needs).
+"""Stereo calibration from views of a planar target (docs/algorithm.md §4: the pair SGBM needs).
 
 The target is a ChArUco board (a chessboard whose white squares carry ArUco markers, so a
 partly seen board still gives identified corners) or a plain chessboard, described in

@@ -1,4 +1,4 @@
-"""Occluding lips of a view and the points too close to them to place (ALGORITHM.md §1.2, §4).
+"""Occluding lips of a view and the points too close to them to place (docs/algorithm.md §1.2, §4).
 
 A camera on the plateau never sees the ground right behind a drop (a cliff's face, the lee of
 a rock): in the image the lip's pixels are followed, one or a few rows higher, by ground much

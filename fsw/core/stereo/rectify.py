@@ -1,4 +1,4 @@
-"""Stereo rectification on board: raw camera pairs to the ideal pinhole pair SGBM needs (ALGORITHM.md §4).
+"""Stereo rectification on board: raw camera pairs to the ideal pinhole pair SGBM needs (docs/algorithm.md §4).
 
 SGBM (``fsw.core.stereo.stereo``) searches along image rows: it needs a *rectified* pair, two
 pinhole cameras with parallel optical axes, equal intrinsics and the baseline along ``x``.

@@ -1,4 +1,4 @@
-"""Dense stereo: a rectified pair to 3-D points with a covariance each (ALGORITHM.md §4, §1.2).
+"""Dense stereo: a rectified pair to 3-D points with a covariance each (docs/algorithm.md §4, §1.2).
 
 The left camera is the reference (``fsw.core.geometry``). OpenCV's semi-global block
 matcher (SGBM) gives a disparity ``d`` per left pixel ``(u, v)``; a point in the camera
@@ -386,6 +386,6 @@ def stereo_covariance(
 
 
 def depth_sigma_m(range_m: F64 | float, camera: CameraConfig, sigma_d: float) -> F64:
-    """The range-squared law ``sigma_Z = Z^2 sigma_d / (f B)`` of ALGORITHM.md §1.2."""
+    """The range-squared law ``sigma_Z = Z^2 sigma_d / (f B)`` of docs/algorithm.md §1.2."""
     z = np.asarray(range_m, dtype=np.float64)
     return z**2 * sigma_d / (camera.focal_px * camera.baseline_m)

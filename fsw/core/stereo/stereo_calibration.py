@@ -1,4 +1,4 @@
-"""A stereo calibration: intrinsics, distortion and extrinsics of the pair (ALGORITHM.md §4).
+"""A stereo calibration: intrinsics, distortion and extrinsics of the pair (docs/algorithm.md §4).
 
 A calibration is what ``safer-fsw calibrate`` estimates from views of a target and what the
 flight software rectifies with (``fsw.core.stereo.rectify``): for each camera the matrix ``K`` and

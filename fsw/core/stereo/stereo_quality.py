@@ -1,4 +1,4 @@
-"""Per-pixel quality of a stereo match: the gates and the disparity sigma (ALGORITHM.md §1.2, §4).
+"""Per-pixel quality of a stereo match: the gates and the disparity sigma (docs/algorithm.md §1.2, §4).
 
 SGBM gives a disparity per pixel but no measure of how well it is determined. Three quantities,
 all computed from the pair and the disparity with a few box filters (no per-pixel loops), give

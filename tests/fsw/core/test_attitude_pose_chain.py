@@ -1,4 +1,4 @@
-"""The camera pose chain with rover roll and pitch (issue 13, item 1; ALGORITHM.md §5.1) against
+"""The camera pose chain with rover roll and pitch (issue 13, item 1; docs/algorithm.md §5.1) against
 hand-computed cases, the attitude uncertainty in the pose covariance (§1.2), and the body
 height dead-reckoned on a slope."""
 

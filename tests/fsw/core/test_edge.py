@@ -1,4 +1,4 @@
-"""Cliff edge (ALGORITHM.md §2): points, polygon and line fits, path, and the geofence."""
+"""Cliff edge (docs/algorithm.md §2): points, polygon and line fits, path, and the geofence."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Elevation-map fusion (ALGORITHM.md §1.1, §3.4, §4): properties and the reduction."""
+"""Elevation-map fusion (docs/algorithm.md §1.1, §3.4, §4): properties and the reduction."""
 
 from __future__ import annotations
 

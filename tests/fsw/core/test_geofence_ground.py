@@ -1,4 +1,4 @@
-"""The geofence on unfamiliar ground (issue 13 item 3; ALGORITHM.md §2).
+"""The geofence on unfamiliar ground (issue 13 item 3; docs/algorithm.md §2).
 
 Requirements: a move over ground the map has not measured is refused, naming the wheel, and
 allowed once the ground is mapped or stood on; the move is checked as the motion task drives

@@ -1,4 +1,4 @@
-"""Localization (ALGORITHM.md §5, §1.2): PnP with covariance, the recursive pose estimate,
+"""Localization (docs/algorithm.md §5, §1.2): PnP with covariance, the recursive pose estimate,
 pose covariance propagated into points, and the Cliff-bot body pose composition."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""View rating (ALGORITHM.md §3.2-§3.6): H, interest function, culling, motion, utility, end."""
+"""View rating (docs/algorithm.md §3.2-§3.6): H, interest function, culling, motion, utility, end."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Registration of a view against the map (issue 13, item 2; ALGORITHM.md §5.1): a known
+"""Registration of a view against the map (issue 13, item 2; docs/algorithm.md §5.1): a known
 injected pose error is recovered; unconstrained directions stay at their prior; a view that
 cannot be registered says why and is merged with an inflated covariance; bounded steps."""
 

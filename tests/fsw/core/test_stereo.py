@@ -1,4 +1,4 @@
-"""Stereo: SGBM disparity, validity filters and the point covariance (ALGORITHM.md §4, §1.2)."""
+"""Stereo: SGBM disparity, validity filters and the point covariance (docs/algorithm.md §4, §1.2)."""
 
 from __future__ import annotations
 

@@ -100,7 +100,7 @@ def test_per_pixel_sigma_goes_into_the_covariance(cfg) -> None:
                              cfg.sigma_pixel_px, sigma[20:25, 30:40].ravel())
     np.testing.assert_allclose(pts.cov_c, want, rtol=1e-12)
     np.testing.assert_allclose(pts.xyz_c, const.xyz_c)
-    # depth sigma scales with the disparity sigma (range-squared law of ALGORITHM.md §1.2)
+    # depth sigma scales with the disparity sigma (range-squared law of docs/algorithm.md §1.2)
     sz = np.sqrt(pts.cov_c[:, 2, 2])
     np.testing.assert_allclose(sz / sz[0], sigma[20:25, 30:40].ravel() / 0.05, rtol=1e-9)
     with pytest.raises(ValueError, match="sigma_px shape"):

@@ -1,4 +1,4 @@
-"""P_V (ALGORITHM.md §3.1, Eq 4): the brute-force oracle, the fast kernel against it, culling."""
+"""P_V (docs/algorithm.md §3.1, Eq 4): the brute-force oracle, the fast kernel against it, culling."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """Bounded slack-job slices: SGBM on row bands and the perception job's steps (structure,
-not timing; docs/perception.md, "Stereo in bands").
+not timing; docs/perception.md, "Bands").
 
 The bands must not change what the matcher measures: on a rendered lab pair the banded
 disparity nearly equals the whole-image one and is as accurate against the truth.

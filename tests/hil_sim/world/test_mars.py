@@ -1,8 +1,8 @@
-"""The Viking rock model and ``viking_heightfield`` (ALGORITHM.md, "Mars terrain
+"""The Viking rock model and ``viking_heightfield`` (docs/algorithm.md, "Mars terrain
 statistics"): the rock size-frequency law, rock heights, determinism and input checks.
 
 Requirement: issue 3, "What to build" item 1 (mars: terrain from the Viking rock model with
-rock coverage k and a seed); the codec's 32 test maps (ALGORITHM.md §6) use it.
+rock coverage k and a seed); the codec's 32 test maps (docs/algorithm.md §6) use it.
 """
 
 from __future__ import annotations
