@@ -1,6 +1,6 @@
 """The relative-localization packets on the radio link (docs/team.md, "Relative localization").
 
-The RECON-bot's fix of the Cliff-bot's pose (``CliffbotLocalizer``, ALGORITHM.md §5) and the
+The RECON-bot's fix of the Cliff-bot's pose (``CliffbotLocalizer``, docs/algorithm.md §5) and the
 Cliff-bot's request for one share the map link's framing (``fsw.comm.link_packets``: magic
 0xA5, version 1, a type nibble, a 16-bit session word, the body, a CRC-32 of everything
 before it), with type numbers the map link does not use, so one radio carries both and a
@@ -11,7 +11,7 @@ one-line reason on anything that is not an intact fix packet.
 FIX_REQUEST body: ``seq`` u16, ``leg`` u16. NO_FIX body: ``seq`` u16, ``reason`` u8.
 FIX body: ``seq`` u16 (the request answered), ``t_ms`` u32 (RECON-bot clock), position
 ``x y z`` and rotation vector ``rx ry rz`` (body to world) as f32, and the fix's 6x6
-covariance (rotation first, then position; ALGORITHM.md §5) as its 21-value upper triangle, f32.
+covariance (rotation first, then position; docs/algorithm.md §5) as its 21-value upper triangle, f32.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """The Cliff-bot's mission: to each science target and back up, on the map it received
-(docs/team.md, "The Cliff-bot's mission").
+(docs/team.md, "The Cliff-bot's flight code").
 
 Sans I/O: :meth:`CliffbotMission.step` takes the devices' latest statuses and returns the
 commands (winch rates, wheel rates, enable, clear-faults) and whether to ask the RECON-bot

@@ -14,16 +14,15 @@ reduction, and the container's bytes and its time on the 9600 bit/s link. With
 ``--missions K`` the first K scenes also run the Cliff-bot's mission on the bench on the
 reduced map (``hil_sim.team_run``, fixes from ``TruthFixer``): targets reached, tether
 violations, hazard and unknown cells entered; the first one's picture is OUT/team.png.
-Writes OUT/team.csv and OUT/team.md (date, commit, command, table) and prints the table.
+Writes OUT/team.csv, the result file ``docs/results/team.md`` (``hil_sim.results``: date,
+commit, command, table, the picture) and prints the table.
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
-import datetime
 import math
-import subprocess
 import sys
 from pathlib import Path
 
@@ -41,14 +40,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=Path("out/team"), help="output directory")
 
 
-def _commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                              check=False).stdout.strip() or "unknown"
-    except OSError:
-        return "unknown"
-
-
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -59,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from fsw.framework.params import ConfigError
     from fsw.settings import load_settings
     from hil_sim.radio_channel import RadioChannel
+    from hil_sim.results import command_line, markdown_table, write_results
     from hil_sim.team_run import TruthFixer, run_team
     from hil_sim.world import ScenarioError, load_scenario
 
@@ -149,11 +141,7 @@ def run(args: argparse.Namespace) -> int:
                   f"| unknown cells entered, total | {sum(r['unknown_cells_entered'] for r in ms)} |",
                   f"| fix bytes down / up, worst | {max(r['fix_bytes_down'] for r in ms)} / "
                   f"{max(r['fix_bytes_up'] for r in ms)} |"]
-    table = "\n".join(lines)
-    command = "safer-hil experiment team " + " ".join(sys.argv[3:])
-    (args.out / "team.md").write_text(
-        f"# The Cliff-bot's task on the received map\n\nDate: {datetime.date.today().isoformat()}, "
-        f"commit {_commit()}.\n\nCommand: `{command.strip()}`\n\nScenario `{args.scenario}`, seeds {args.seed}.."
-        f"{args.seed + args.scenes - 1}.\n\n{table}\n\nPer scene: `team.csv`.\n")
+    table = "\n".join(lines) + "\n\nPer scene:\n\n" + markdown_table(rows)
+    write_results("team", command_line("team"), table, [args.out / "team.png"])
     print(table)
     return 0
