@@ -5,6 +5,15 @@ them. ``load_settings(path)`` validates everything up front (``fsw.framework.par
 is refused with one line naming the file, the key and the reason; that includes the
 stereo calibration file ``[camera] calibration_file`` names (``fsw.drivers.calibration_file``):
 missing or inconsistent, it is a start-up error like any bad key.
+
+A file is a flight configuration unless it says ``[executive] flight = false``: it must then be
+complete, every section and every key present (a left-out key is refused, not defaulted), and
+schedule the mission, health, console and MAVLink tasks (``schedule_check.FLIGHT_KINDS``), so a
+truncated or trimmed file never flies on defaults. Bench and
+ground-tool files say ``flight = false`` and may leave sections and keys out; those take the
+defaults ``fsw.framework.params.describe`` lists. In both cases the schedule itself is checked
+(``fsw.executive.schedule_check.check``: known kinds, rates within design range, the tasks each task
+needs).
 """
 
 from __future__ import annotations
@@ -30,6 +39,7 @@ from fsw.core.stereo.stereo import StereoConfig
 from fsw.core.stereo.stereo_calibration import StereoCalibration
 from fsw.drivers.calibration_file import CalibrationError, load_calibration
 from fsw.drivers.factory import DevicesConfig
+from fsw.executive.schedule_check import check
 from fsw.framework.params import ConfigError, build, load_toml
 from fsw.framework.schedule import ExecutiveConfig
 from fsw.tasks.sections import CaptureConfig, MissionConfig
@@ -90,7 +100,11 @@ def load_settings(path: str | Path = DEFAULT_CONFIG, check_calibration: bool = T
     """Load and validate a flight configuration file (and, unless ``check_calibration`` is
     false, as for the tools that make one, the calibration file it names); raises
     ``ConfigError``."""
-    cfg = build(FswConfig, load_toml(path), source=str(path))
+    data = load_toml(path)
+    ex = data.get("executive")
+    flight = not isinstance(ex, dict) or ex.get("flight", True) is not False
+    cfg = build(FswConfig, data, source=str(path), complete=flight)
+    check(cfg, str(path))
     if check_calibration:
         load_stereo_calibration(cfg, str(path))
     return cfg

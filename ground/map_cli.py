@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fsw.core.codec.hazard import check_obstacles
 from fsw.core.codec.mapcodec import CodecConfig, MapCodecError, decode_map, encode_map
 from fsw.core.geometry import MapGridConfig, RoverConfig
 from fsw.framework.params import ConfigError, build, load_toml
@@ -36,7 +37,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog=PROG,
         description="Encode an elevation map (.npy float32 metres, NaN = unknown) into the "
         "compressed quadtree container sent to the Cliff-bot, decode it back, or describe it. "
-        "Every known cell of the decoded map is within the error bound of the original.",
+        "Every known cell of the decoded map is within the error bound of the original, and "
+        "every obstacle (relief >= one wheel diameter) keeps its relief and height (never lower).",
         epilog="Exit codes: 0 ok, 2 bad usage, input file or config.")
     p.add_argument("--config", default=str(DEFAULT_CONFIG),
                    help="flight config for defaults ([rover], [map], [codec])")
@@ -112,6 +114,13 @@ def cmd_encode(args: argparse.Namespace) -> int:
     print(f"{args.output}: {z.shape[0]}x{z.shape[1]} cells -> {len(enc.data)} bytes; "
           f"{t.n_leaves} leaves (reduction {t.reduction_factor:.1f}x); max error "
           f"{enc.max_error_m:.4f} m (bound {args.max_error or codec.error_bound_wheels * wheel:.4f} m)")
+    threshold = codec.hazard_relief_wheels * wheel
+    c = check_obstacles(np.asarray(z, np.float32), decode_map(enc.data).z, cell, threshold,
+                        codec.relief_disc_m)
+    print(f"obstacles (relief >= {threshold:.3f} m over a {codec.relief_disc_m:g} m disc): "
+          f"{c.n} given, {c.kept} kept; >= {2 * threshold:.3f} m: {c.n_2x} given, {c.kept_2x} kept; "
+          f"worst relief loss on them {max(c.worst_relief_loss_m, 0.0):.4f} m; "
+          f"steps >= {threshold:.3f} m: {c.step_cells} cells, {c.step_kept:.1%} kept")
     return 0
 
 
@@ -137,7 +146,15 @@ def cmd_info(args: argparse.Namespace) -> int:
             ("error_bound_m", f"{h.error_bound_m:.4g}"), ("quant_step_m", f"{h.quant_step_m:.4g}"),
             ("leaves", h.n_leaves), ("reduction", f"{h.ny * h.nx / max(1, h.n_leaves):.1f}x"),
             ("split_rule", h.split_rule), ("leaf_value", h.leaf_value),
-            ("bits_per_cell", f"{8 * len(raw) / (h.ny * h.nx):.4f}")]
+            ("bits_per_cell", f"{8 * len(raw) / (h.ny * h.nx):.4f}"), ("version", h.version)]
+    if h.hazard:
+        rows += [("hazard_threshold_m", f"{h.hazard_threshold_m:.4g}"),
+                 ("relief_disc_m", f"{h.relief_disc_m:.4g}"), ("step_disc_m", f"{h.step_disc_m:.4g}"),
+                 ("relief_loss_bound_hazards_m", f"{h.relief_loss_hazard_m:.4g} (relief >= threshold)"),
+                 ("relief_loss_bound_m", f"{h.relief_loss_any_m:.4g} (any known cell)"),
+                 ("support_rise_m", f"{h.support_rise_m:.4g}"), ("step_slack_m", f"{h.step_slack_m:.4g}")]
+    else:
+        rows.append(("relief_loss_bound_m", "not stated (height bound only)"))
     for k, v in rows:
         print(f"{k:18s} {v}")
     return 0

@@ -10,12 +10,17 @@ received, lighter = higher).
 As a separate process: ``safer-hil cliffbot`` (``hil_sim/commands/cliffbot.py``; the old
 ``python -m hil_sim.cliffbot_receiver`` still runs it). It prints one JSON line per link
 event and per map and exits 0 once ``--count`` maps arrived and the link's close has ended.
+
+Saving a received map (its ``.npy`` and figure in ``out_dir``) may meet a full or failing
+disk (``ENOSPC``, ``EIO``): the map stays received, verified and decoded in memory
+(``maps``), the report says ``save_error`` (one line), a ``MAP_NOT_SAVED`` line goes to
+stderr, and no half-written file is left under a final name.
 """
 
 from __future__ import annotations
 
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,8 +29,10 @@ from numpy.typing import NDArray
 
 from fsw.comm.link import LinkConfig
 from fsw.comm.link_receiver import LinkReceiver
+from fsw.core.codec.hazard import relief
 from fsw.core.codec.mapcodec import MapCodecError, decode_map
 from fsw.drivers.radio import RadioPort
+from fsw.framework.storage import describe
 
 
 @dataclass(frozen=True)
@@ -40,6 +47,7 @@ class CliffbotReport:
     max_error_m: float | None  # against the original, if known
     unknown_preserved: bool | None
     png: str
+    save_error: str = ""  # the map arrived but could not be written to out_dir (one line)
 
 
 class Cliffbot:
@@ -87,25 +95,49 @@ class Cliffbot:
         self.maps[map_id] = z
         orig = self.originals.get(map_id)
         max_err = unknown_ok = None
-        png = ""
+        png = save_error = ""
         if orig is not None and orig.shape == z.shape:
             k = np.isfinite(orig)
             max_err = float(np.abs(z[k].astype(np.float64) - orig[k]).max()) if k.any() else 0.0
             unknown_ok = bool(np.array_equal(np.isnan(z), ~k))
         if self.out_dir is not None:
-            self.out_dir.mkdir(parents=True, exist_ok=True)
             path = self.out_dir / f"cliffbot_map_{map_id}.png"
-            write_figure13(orig if orig is not None else z, z, path,
-                           f"map {map_id}: {len(data)} bytes, bound {dec.header.error_bound_m:.3f} m")
-            np.save(self.out_dir / f"cliffbot_map_{map_id}.npy", z)
-            png = str(path)
+            left = orig if orig is not None and orig.shape == z.shape else z
+            h = dec.header
+            outlines = None
+            title = f"map {map_id}: {len(data)} bytes, bound {h.error_bound_m:.3f} m"
+            if h.hazard:  # the obstacles (relief >= the hazard threshold) outlined in both
+                outlines = (relief(left, h.cell_m, h.relief_disc_m) >= h.hazard_threshold_m,
+                            relief(z, h.cell_m, h.relief_disc_m) >= h.hazard_threshold_m)
+                title += f"; red: relief >= {h.hazard_threshold_m:.2f} m"
+            try:
+                self.out_dir.mkdir(parents=True, exist_ok=True)
+                _atomic(path, lambda p: write_figure13(left, z, p, title, outlines=outlines))
+                _atomic(self.out_dir / f"cliffbot_map_{map_id}.npy", lambda p: np.save(p, z))
+                png = str(path)
+            except OSError as exc:  # full or failing disk: the map stays received and decoded
+                save_error = describe(exc)
+                print(f"cliffbot: MAP_NOT_SAVED map {map_id} received and verified, not saved in {self.out_dir}: "
+                      f"{save_error}", file=sys.stderr)
         return CliffbotReport(map_id, len(data), True, "", z.shape, int(np.isfinite(z).sum()),
-                              dec.header.error_bound_m, max_err, unknown_ok, png)
+                              dec.header.error_bound_m, max_err, unknown_ok, png, save_error)
+
+
+def _atomic(path: Path, write: Callable[[Path], None]) -> None:
+    """``write`` to a temporary name beside ``path``, then rename it over ``path``: a failed
+    write leaves no partial file under the final name (the temporary is removed)."""
+    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    try:
+        write(tmp)
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def write_figure13(original: NDArray[np.floating], received: NDArray[np.floating], path: Path,
-                   title: str = "") -> None:
-    """Paper Figure 13: grayscale elevation, original (left) and transmitted (right)."""
+                   title: str = "", outlines: tuple[NDArray[np.bool_], NDArray[np.bool_]] | None = None) -> None:
+    """Paper Figure 13: grayscale elevation, original (left) and transmitted (right);
+    ``outlines`` (one mask per panel, e.g. the obstacles) are drawn as red contours."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -118,6 +150,10 @@ def write_figure13(original: NDArray[np.floating], received: NDArray[np.floating
     for ax, img, name in zip(axes, (original, received), ("original", "received by the Cliff-bot"),
                              strict=True):
         im = ax.imshow(img, cmap=cmap, vmin=lo, vmax=hi, interpolation="nearest")
+        if outlines is not None:
+            mask = outlines[0] if img is original else outlines[1]
+            if mask.any():
+                ax.contour(mask.astype(np.float32), levels=[0.5], colors="red", linewidths=0.6)
         ax.set_title(name)
         ax.set_xticks([])
         ax.set_yticks([])

@@ -9,7 +9,8 @@ mutated by 1-3 flipped bits; and random frames. What must never happen is counte
   random frame (random identifier, length and bytes) that it accepts;
 * serial (``fsw.comm.serial_frames``): a frame that the decoder returns but that was never
   sent (a corrupted frame taken as good), and a valid frame after the corrupted one that is
-  not parsed (a corrupted frame swallowing the next).
+  not parsed (a corrupted frame swallowing the next), also with the stream ending right after
+  it (:func:`serial_mutations`: flips, cuts, deletions, insertions, overwrites, sync pairs).
 
 :func:`undetected_patterns` proves the CAN figure rather than sampling it: a CRC is linear,
 so an error pattern escapes the checksum exactly when the XOR of its bits' syndromes is 0,
@@ -27,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fsw.comm import serial_frames as sf
-from fsw.comm.e2e import E2ELayout
+from fsw.comm.e2e import E2ELayout, SequenceChecker
 from fsw.comm.imu_can import ImuCan
 from fsw.comm.rover_can import Bad, RoverCan
 
@@ -105,6 +106,58 @@ def can_random_frames(codec: RoverCan, cases: int, seed: int, valid_ids_only: bo
     return out
 
 
+def _live_receiver(layout: E2ELayout, data: bytes, f0: int) -> tuple[SequenceChecker, float]:
+    """A receiver that followed a live sender up to its full counter ``f0``; (checker, time)."""
+    seq, t = SequenceChecker(max_delta=3, reinit_after_s=1.0), 0.0
+    for f in range(f0 - 3, f0 + 1):
+        t += 0.01
+        seq.check_frame(layout, layout.protect(data, f), t)
+    return seq, t
+
+
+def can_replays(codec: RoverCan, cases: int, seed: int) -> FuzzCount:
+    """Replays of one old frame or a pair of consecutive old frames of every message, aged 1-32
+    frames and then at random below ``16 x 2^w - 4``, to a receiver following the live sender
+    (``SequenceChecker.check_frame``): ``accepted`` must stay 0."""
+    rng = np.random.default_rng(seed)
+    layouts = sorted(codec.e2e.values(), key=lambda lay: lay.data_id)
+    out = FuzzCount()
+    for i in range(cases):
+        lay = layouts[i % len(layouts)]
+        data = random_valid_can(lay, rng)
+        span = 16 * lay.epoch_mod
+        age = 1 + (i // len(layouts)) % 32 if i < 32 * len(layouts) else int(rng.integers(1, span - 5))
+        f0 = int(rng.integers(age + 2, 10 * span))
+        seq, t = _live_receiver(lay, data, f0)
+        replay = [f0 - age] if rng.random() < 0.5 else [f0 - age - 1, f0 - age]
+        for f in replay:
+            out.cases += 1
+            out.accepted += seq.check_frame(lay, lay.protect(data, f), t + 0.001)[0].accepted
+    return out
+
+
+def can_receiver_flips(codec: RoverCan, cases: int, seed: int, flips: int = 8) -> dict[int, FuzzCount]:
+    """Live frames of every message with ``flips`` flipped payload bits, through the whole
+    receiver (length and reserved bits, then counter and checksum under the freshness): the
+    frames accepted, by CRC width (information: the residual of a multi-bit error)."""
+    rng = np.random.default_rng(seed)
+    layouts = sorted(codec.e2e.values(), key=lambda lay: lay.data_id)
+    out: dict[int, FuzzCount] = {}
+    for i in range(cases):
+        lay = layouts[i % len(layouts)]
+        data = random_valid_can(lay, rng)
+        f0 = int(rng.integers(10, 100_000))
+        seq, t = _live_receiver(lay, data, f0)
+        bad = bytearray(lay.protect(data, f0 + 1))
+        for b in rng.choice(8 * lay.length, size=min(flips, 8 * lay.length), replace=False):
+            bad[int(b) // 8] ^= 1 << (int(b) % 8)
+        ok = lay.verify(bytes(bad), None) is None and seq.check_frame(lay, bytes(bad), t + 0.01)[0].accepted
+        c = out.setdefault(lay.crc_bits, FuzzCount())
+        c.cases += 1
+        c.accepted += ok
+    return out
+
+
 def residual_rate(layout: E2ELayout) -> float:
     """Chance that a random payload on ``layout``'s id passes checksum and reserved bits."""
     return 2.0 ** -(layout.crc_bits + bin(layout.reserved_mask).count("1"))
@@ -136,6 +189,52 @@ def undetected_patterns(layout: E2ELayout, weight: int) -> tuple[int, int]:
         total += len(combo)
         undetected += int(np.count_nonzero(x == 0))
     return undetected, total
+
+
+def crossing_masks(max_delta: int) -> set[int]:
+    """Counter XOR masks that can move a received counter across an epoch boundary of the
+    freshness reconstruction while staying in a window of ``max_delta`` (``fsw.comm.e2e``)."""
+    out = set()
+    for m, r, true_d in itertools.product(range(1, 16), range(16), range(1, max_delta + 1)):
+        got = (((r + true_d) % 16) ^ m) - r
+        d = got % 16
+        if 1 <= d <= max_delta and (r + true_d) // 16 != (r + d) // 16:
+            out.add(m)
+    return out
+
+
+def epoch_boundary_escapes(layout: E2ELayout, weight: int, max_delta: int) -> tuple[int, int]:
+    """(escaping, total) error patterns of ``weight`` bits that a receiver with a counter window
+    of ``max_delta`` would take at an epoch boundary: the pattern moves the counter across the
+    boundary (:func:`crossing_masks`) and its checksum change equals the one-bit change of the
+    Gray-coded epoch there. Exhaustive, like :func:`undetected_patterns` (a CRC is linear)."""
+    base = bytes(layout.length)
+    k, n = layout.checksum_byte, layout.checksum_bytes
+    ref = layout.crc(base)
+    syndromes: list[int] = []
+    counter_bit: list[int] = []
+    for b in range(ID_BITS):
+        other = dataclasses.replace(layout, data_id=layout.data_id ^ (1 << b))
+        syndromes.append(other.crc(base) ^ ref)
+        counter_bit.append(0)
+    for b in range(8 * layout.length):
+        if (layout.reserved_mask >> b) & 1:
+            continue
+        flipped = bytearray(base)
+        flipped[b // 8] ^= 1 << (b % 8)
+        syndromes.append(int.from_bytes(flipped[k : k + n], "little") ^ layout.crc(bytes(flipped)) ^ ref)
+        j = b - layout.counter_start
+        counter_bit.append(1 << j if 0 <= j < 4 else 0)
+    s, c = np.array(syndromes, dtype=np.int64), np.array(counter_bit, dtype=np.int64)
+    crossing = np.array(sorted(crossing_masks(max_delta)), dtype=np.int64)
+    total = escaping = 0
+    for combo in _chunks(len(s), weight):
+        x = np.bitwise_xor.reduce(s[combo], axis=1)
+        m = np.bitwise_xor.reduce(c[combo], axis=1)
+        one_bit = (x > 0) & ((x & (x - 1)) == 0) & (x < (1 << layout.crc_bits))
+        total += len(combo)
+        escaping += int(np.count_nonzero(one_bit & np.isin(m, crossing)))
+    return escaping, total
 
 
 def _chunks(n: int, weight: int, size: int = 200_000) -> Iterator[np.ndarray]:
@@ -189,4 +288,46 @@ def serial_random_frames(cases: int, seed: int) -> FuzzCount:
         out.cases += 1
         out.accepted += sum(1 for g in got if sf.encode_frame(g.seq, g.type, g.payload) not in (good, query))
         out.missed_next += not any(g.seq == 9 for g in got)
+    return out
+
+
+MUTATIONS = ("flip", "cut", "delete", "insert", "overwrite", "sync")
+
+
+def mutate_frame(frame: bytes, rng: np.random.Generator) -> tuple[str, bytes]:
+    """One mutation of a frame: 1-8 flipped bits, cut short, a byte deleted, 1-7 random bytes
+    inserted, 1-3 bytes overwritten, or a sync pair inserted."""
+    b = bytearray(frame)
+    kind = MUTATIONS[int(rng.integers(len(MUTATIONS)))]
+    if kind == "flip":
+        for bit in rng.choice(8 * len(b), size=int(rng.integers(1, 9)), replace=False):
+            b[int(bit) // 8] ^= 1 << (int(bit) % 8)
+    elif kind == "cut":
+        del b[int(rng.integers(1, len(b))):]
+    elif kind == "delete":
+        del b[int(rng.integers(len(b)))]
+    elif kind == "insert":
+        i = int(rng.integers(len(b) + 1))
+        b[i:i] = rng.bytes(int(rng.integers(1, 8)))
+    elif kind == "overwrite":
+        for _ in range(int(rng.integers(1, 4))):
+            b[int(rng.integers(len(b)))] = int(rng.integers(256))
+    else:
+        i = int(rng.integers(len(b) + 1))
+        b[i:i] = sf.SYNC
+    return kind, bytes(b)
+
+
+def serial_mutations(cases: int, seed: int) -> FuzzCount:
+    """``A | mutated B | C`` and nothing after (no filler to flush a wrong LEN): C must come
+    out of the decoder; nothing but A, the original B and C may."""
+    rng = np.random.default_rng(seed)
+    out = FuzzCount()
+    for _ in range(cases):
+        a, b, c = (sf.encode_message(_random_message(rng), k) for k in (1, 2, 3))
+        _kind, mb = mutate_frame(b, rng)
+        got = [x for x in sf.FrameDecoder().feed(a + mb + c) if isinstance(x, sf.Frame)]
+        out.cases += 1
+        out.accepted += sum(1 for g in got if sf.encode_frame(g.seq, g.type, g.payload) not in (a, b, c))
+        out.missed_next += not any(sf.encode_frame(g.seq, g.type, g.payload) == c for g in got)
     return out

@@ -4,12 +4,14 @@ The flight link (``fsw.comm.link_sender.LinkSender`` on side ``a``, the Cliff-bo
 ``LinkReceiver`` on side ``b``) and :class:`hil_sim.radio_channel.RadioChannel` advance on
 one simulated clock that jumps from event to event (the next protocol deadline or packet
 arrival), so an hour of radio time takes well under a second and a seed fixes the run.
-Used by the link tests, ``safer-hil experiment link`` and the Cliff-bot demo.
+Used by the link tests, ``safer-hil experiment link`` and the Cliff-bot demo. A
+:class:`Restart` takes one end down for a while (everything arriving there is lost) and
+brings it back as a new instance with no memory, as a process restart does.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from fsw.comm.link import LinkConfig
@@ -17,6 +19,18 @@ from fsw.comm.link_receiver import LinkReceiver
 from fsw.comm.link_sender import LinkSender, SenderState
 from fsw.framework.events import PendingEvent
 from hil_sim.radio_channel import DirectionStats, RadioChannel, RadioChannelConfig
+
+
+@dataclass(frozen=True)
+class Restart:
+    """End ``side`` ("tx" sender, "rx" receiver) stops at ``at_s`` and starts afresh
+    ``down_s`` later; a restarted sender offers the same map as session ``session`` (None:
+    the session it started with, as a flight computer that counts sessions from boot)."""
+
+    side: str
+    at_s: float
+    down_s: float = 1.0
+    session: int | None = None
 
 
 @dataclass
@@ -45,6 +59,7 @@ def run_transfer(
     data: bytes, link: LinkConfig, channel: RadioChannelConfig, seed: int = 0,
     *, map_id: int = 1, session: int = 1, t_max_s: float = 7200.0, max_steps: int = 2_000_000,
     tamper: Callable[[str, bytes], bytes | None] | None = None, close: bool = False,
+    restarts: Sequence[Restart] = (),
 ) -> TransferResult:
     """Send ``data`` from the RECON-bot to the Cliff-bot; stop when both ends are done.
 
@@ -53,7 +68,7 @@ def run_transfer(
 
     ``tamper(side, datagram)`` is the fault-injection backdoor: it sees every datagram
     arriving at ``side`` ("a" sender, "b" receiver) and returns it, a changed copy, or None
-    to drop it.
+    to drop it. ``restarts``: ends taken down and brought back (:class:`Restart`).
     """
     ch = RadioChannel(channel, seed)
     tx, rx = LinkSender(link, session), LinkReceiver(link)
@@ -64,16 +79,32 @@ def run_transfer(
     events: list[tuple[str, PendingEvent]] = []
     idle_steps = 0
     closed_s: float | None = None
+    pending = sorted(restarts, key=lambda r: r.at_s)
+    down: dict[str, Restart] = {}  # ends that are down now
     for _ in range(max_steps):
+        while pending and t >= pending[0].at_s:
+            r = pending.pop(0)
+            down[r.side] = r
+            events.append((r.side, PendingEvent(t, "STOPPED")))
+        for r in [r for r in down.values() if t >= r.at_s + r.down_s]:
+            del down[r.side]
+            events.append((r.side, PendingEvent(t, "RESTARTED")))
+            if r.side == "rx":
+                rx = LinkReceiver(link)
+            else:
+                tx = LinkSender(link, session if r.session is None else r.session)
+                tx.start(map_id, data, t)
         for side, end in (("a", tx), ("b", rx)):
             for d in ch.receive(side, t):
                 d2 = tamper(side, d) if tamper is not None else d
-                if d2 is not None:
+                if d2 is not None and ("tx" if side == "a" else "rx") not in down:
                     end.receive(d2, t)
-        for d in tx.poll(t):
-            ch.send("a", d, t)
-        for d in rx.poll(t):
-            ch.send("b", d, t)
+        if "tx" not in down:
+            for d in tx.poll(t):
+                ch.send("a", d, t)
+        if "rx" not in down:
+            for d in rx.poll(t):
+                ch.send("b", d, t)
         got = rx.take_map()
         if got is not None and delivered is None:
             delivered, delivered_s = got[1], t
@@ -82,12 +113,13 @@ def run_transfer(
             closed_s = t
         events += [("tx", e) for e in tx.events.pop_all()] + [("rx", e) for e in rx_events]
         if tx.finished and delivered is not None and ch.next_arrival_s() is None \
-                and not (close and rx.closing):
+                and not (close and rx.closing) and not down and not pending:
             break
         if tx.finished and tx.state is not SenderState.DONE:
             break
-        nxt = [x for x in (tx.next_deadline_s(), rx.next_deadline_s(), ch.next_arrival_s())
-               if x is not None]
+        ends = [e.next_deadline_s() for s, e in (("tx", tx), ("rx", rx)) if s not in down]
+        nxt = [x for x in (*ends, ch.next_arrival_s(), *(r.at_s + r.down_s for r in down.values()),
+                           pending[0].at_s if pending else None) if x is not None]
         if not nxt:
             break
         t_next = min(nxt)

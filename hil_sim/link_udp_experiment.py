@@ -43,6 +43,7 @@ class UdpRunSpec:
     payload_bytes: int
     config: str | None
     timeout_s: float
+    reverse_loss: float = -1.0  # loss of the Cliff-bot's answers alone (-1: the same as loss)
     linger_s: float = 5.0  # the sender answers FINs until none came for this long
     idle_exit_s: float = 5.0  # the relay stops after this long without a datagram
 
@@ -103,6 +104,7 @@ def run_udp(spec: UdpRunSpec) -> dict[str, Any]:
                       str(spec.latency_s), "--loss", str(spec.loss), "--ber", str(spec.ber),
                       "--duplicate", str(spec.duplicate), "--reorder", str(spec.reorder),
                       "--reorder-delay-s", str(spec.reorder_delay_s), "--seed", str(spec.seed),
+                      "--reverse-loss", str(spec.reverse_loss),
                       "--duration", str(spec.timeout_s), "--idle-exit", str(spec.idle_exit_s)]
         if spec.outage is not None:
             relay_args += ["--outage", str(spec.outage[0]), str(spec.outage[1])]
@@ -143,14 +145,15 @@ def _row(spec: UdpRunSpec, rover: list[dict[str, Any]], cb: list[dict[str, Any]]
     rel: dict[str, Any] = next((r["relay"] for r in relay if "relay" in r), {})
     closed = next((r for r in cb if r.get("event") == "CLOSED"), {})
     seg = LinkConfig().segment_bytes
-    row: dict[str, Any] = {"loss": spec.loss, "seed": spec.seed, "bit_exact": False,
+    row: dict[str, Any] = {"loss": spec.loss, "reverse_loss": spec.loss if spec.reverse_loss < 0 else spec.reverse_loss,
+                           "seed": spec.seed, "bit_exact": False,
                            "verified_s": None, "delivered_lag_s": None, "outage_in_s": 0.0,
                            "goodput_bps": None, "capacity_bps": round(capacity_bps(
                                spec.rate_bps, spec.loss, spec.ber, seg), 1), "ratio": None,
                            "sender": result.get("result", "?"), "close": closed.get("how", "-"),
                            "exit_codes": "/".join(map(str, rcs)), "run_wall_s": round(wall_s, 1),
                            "retransmits": result.get("stats", {}).get("retransmits"),
-                           "realised_loss": None}
+                           "realised_loss": None, "realised_answer_loss": None, "ratio_realised": None}
     if start and report:
         t0, tv = start["started_wall_s"], report["verified_wall_s"]
         row["bit_exact"] = report.get("sha256") == start.get("sha256")
@@ -165,8 +168,12 @@ def _row(spec: UdpRunSpec, rover: list[dict[str, Any]], cb: list[dict[str, Any]]
         if result.get("delivered_wall_s") is not None:
             row["delivered_lag_s"] = round(result["delivered_wall_s"] - tv, 2)
     if rel:
-        a = rel["a_to_b"]
+        a, b = rel["a_to_b"], rel["b_to_a"]
         row["realised_loss"] = round(a["lost"] / max(1, a["sent"] - a["outage_drops"] - a["queue_drops"]), 3)
+        row["realised_answer_loss"] = round(b["lost"] / max(1, b["sent"] - b["outage_drops"] - b["queue_drops"]), 3)
+        if row["ratio"] is not None and row["realised_loss"] < 1:
+            # against the capacity the channel really left (its own loss draws, not the nominal)
+            row["ratio_realised"] = round(row["ratio"] * (1 - spec.loss) / (1 - row["realised_loss"]), 4)
     return row
 
 
@@ -176,8 +183,8 @@ def sim_ratio(spec: UdpRunSpec, link: LinkConfig, data: bytes) -> float:
     from hil_sim.radio_channel import RadioChannelConfig
 
     ch = RadioChannelConfig(rate_bps=spec.rate_bps, latency_s=spec.latency_s, loss=spec.loss,
-                            ber=spec.ber, duplicate=spec.duplicate, reorder=spec.reorder,
-                            reorder_delay_s=spec.reorder_delay_s,
+                            reverse_loss=spec.reverse_loss, ber=spec.ber, duplicate=spec.duplicate,
+                            reorder=spec.reorder, reorder_delay_s=spec.reorder_delay_s,
                             outages=(spec.outage,) if spec.outage else ())
     r = run_transfer(data, link, ch, seed=spec.seed)
     if r.delivered != data or not r.delivered_s:
@@ -214,19 +221,19 @@ def write_tables(rows: list[dict[str, Any]], out: Path, header: str) -> str:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
-    cols = ["loss", "seed", "bit_exact", "verified_s", "delivered_lag_s", "outage_in_s", "goodput_bps",
-            "capacity_bps", "ratio", "sim_ratio", "realised_loss", "retransmits", "close", "exit_codes",
-            "run_wall_s"]
+    cols = ["loss", "reverse_loss", "seed", "bit_exact", "verified_s", "delivered_lag_s", "outage_in_s",
+            "goodput_bps", "capacity_bps", "ratio", "sim_ratio", "realised_loss", "realised_answer_loss",
+            "ratio_realised", "retransmits", "close", "exit_codes", "run_wall_s"]
     lines = [header, "", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     lines += ["| " + " | ".join(str(r.get(c, "")) for c in cols) + " |" for r in rows]
-    lines += ["", "| loss | runs | bit-exact | median ratio | min ratio | median sim ratio "
-              "| max sender lag s |", "|---|---|---|---|---|---|---|"]
-    for loss in sorted({r["loss"] for r in rows}):
-        sel = [r for r in rows if r["loss"] == loss]
+    lines += ["", "| loss | answers lost | runs | bit-exact | median ratio | min ratio | median sim ratio "
+              "| max sender lag s |", "|---|---|---|---|---|---|---|---|"]
+    for loss, back in sorted({(r["loss"], r["reverse_loss"]) for r in rows}):
+        sel = [r for r in rows if (r["loss"], r["reverse_loss"]) == (loss, back)]
         ratios = [r["ratio"] or 0.0 for r in sel]
         lags = [r["delivered_lag_s"] for r in sel if r["delivered_lag_s"] is not None]
         sims = [r.get("sim_ratio") or 0.0 for r in sel]
-        lines.append(f"| {loss:g} | {len(sel)} | {sum(bool(r['bit_exact']) for r in sel)}/{len(sel)} "
+        lines.append(f"| {loss:g} | {back:g} | {len(sel)} | {sum(bool(r['bit_exact']) for r in sel)}/{len(sel)} "
                      f"| {np.median(ratios):.3f} | {min(ratios):.3f} | {np.median(sims):.3f} "
                      f"| {max(lags) if len(lags) == len(sel) else 'missing'} |")
     text = "\n".join(lines) + "\n"

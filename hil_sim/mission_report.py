@@ -1,17 +1,26 @@
 """A lockstep mission's report: the foreground and timing figures, the map-error plane, the
 Cliff-bot's report and the output files (``summary.json`` and its PNGs; docs/experiments.md).
+
+Each output file is written under a temporary name and renamed, so a full or failing disk
+(``ENOSPC``, ``EIO``) leaves the previous file or none, never half of one. A picture that
+cannot be written is a ``REPORT_FILE_NOT_SAVED`` line on stderr and an entry of the summary's
+``write_errors``; a summary that cannot be written raises
+:class:`fsw.framework.storage.StorageError` (one line; the run's checkpoints still hold it).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from fsw.core.geometry import MapGrid
+from fsw.framework.storage import StorageError, describe
 from hil_sim.terrain_eval import fit_plane
 
 WALL_CLOCK_FIELDS = ("wall_s", "task_max_ms", "task_ms_per_frame", "slips", "overruns")
@@ -107,7 +116,8 @@ def write_outputs(out: Path, summary: dict[str, Any], emap: Any, truth: Any, gri
         f"{summary['scenario']} method {summary['method']} seed {summary['seed']}: "
         f"{summary['mapped_cells']} cells mapped"
     )
-    fig.savefig(out / files["map"], dpi=90)
+    errors: list[str] = []
+    _save(out / files["map"], lambda p: fig.savefig(p, dpi=90), errors)
     plt.close(fig)
     fig, ax = plt.subplots(figsize=(6, 4), constrained_layout=True)
     st = summary["steps"]
@@ -118,13 +128,36 @@ def write_outputs(out: Path, summary: dict[str, Any], emap: Any, truth: Any, gri
     ax.set_ylabel("cells")
     ax.legend()
     ax.grid(alpha=0.3)
-    fig.savefig(out / files["coverage"], dpi=90)
+    _save(out / files["coverage"], lambda p: fig.savefig(p, dpi=90), errors)
     plt.close(fig)
     files["error"] = "map_error.npy"  # map minus truth on mapped cells (NaN elsewhere), float32
-    np.save(out / files["error"], np.where(emap.mapped, emap.z - truth, np.nan).astype(np.float32))
+    err = np.where(emap.mapped, emap.z - truth, np.nan).astype(np.float32)
+    _save(out / files["error"], lambda p: np.save(p, err), errors)
     summary["files"] = files
-    (out / files["summary"]).write_text(json.dumps(summary, indent=2) + "\n")
+    if errors:
+        summary["write_errors"] = errors
+    text = json.dumps(summary, indent=2) + "\n"
+    try:
+        _save(out / files["summary"], lambda p: p.write_text(text), None)
+    except OSError as exc:
+        raise StorageError(exc.errno, f"{out / files['summary']} not written: {describe(exc)}") from None
     return files
+
+
+def _save(path: Path, write: Callable[[Path], Any], errors: list[str] | None) -> None:
+    """``write`` to a temporary name, then rename over ``path``; a failure removes the
+    temporary and is reported (stderr, ``errors``) or, with ``errors=None``, raised."""
+    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    try:
+        write(tmp)
+        tmp.replace(path)
+    except OSError as exc:
+        if errors is None:
+            raise
+        errors.append(f"{path.name}: {describe(exc)}")
+        print(f"safer-hil: REPORT_FILE_NOT_SAVED {path}: {describe(exc)}", file=sys.stderr)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def strip_wall_clock(summary: dict[str, Any]) -> dict[str, Any]:

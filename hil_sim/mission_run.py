@@ -47,6 +47,9 @@ truth and random generators (``hil_sim.resume_state``). ``mode="resume"`` contin
 run from its newest good checkpoint, deterministically: the same seed gives the same map as
 an uninterrupted run. ``mode="new"`` refuses an out directory that holds a mission
 (``MissionExistsError``); ``mode="fresh"`` deletes it first.
+
+A full or failing disk (docs/hil.md): ``hil_sim.run_dir`` asks for room before a start or a
+resume and copies the flight's storage events to stderr; the mission carries on.
 """
 
 from __future__ import annotations
@@ -64,6 +67,7 @@ import numpy as np
 from fsw.core.geometry import MapGrid
 from fsw.drivers.map_store import MapStore
 from fsw.drivers.resources import OracleTruth, Resources
+from fsw.framework.storage import StorageError, describe
 from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
 from hil_sim.faults import FaultSpec
 from hil_sim.ground_watch import reachable_stations, wheels_on_unknown
@@ -76,9 +80,9 @@ from hil_sim.mission_report import (
     transfer_s,
     write_outputs,
 )
+from hil_sim.run_dir import MANIFEST, check_room, echo_storage_events, has_mission
 from hil_sim.terrain_eval import map_quality
 
-MANIFEST = "run.json"
 MODES = ("new", "fresh", "resume")
 
 
@@ -136,27 +140,16 @@ def mission_config(spec: RunSpec, world: Any) -> FswConfig:
     )
 
 
-def has_mission(out: Path) -> bool:
-    """True if ``out`` holds a mission: its manifest or any checkpoint (or temporary) file."""
-    ck = out / "checkpoints"
-    return (out / MANIFEST).exists() or (ck.is_dir() and any(ck.glob("map_*.ckpt")) or any(ck.glob(".map_*.tmp")))
-
-
-def finished(out: Path) -> bool:
-    """True if the mission in ``out`` ended (its newest checkpoint is DONE) and has its report."""
-    from fsw.core.map.checkpoint import CheckpointConfig
-
-    state = MapStore(CheckpointConfig(directory=str(out / "checkpoints"))).load_latest().state
-    mission = state.get("mission") if state else None
-    return isinstance(mission, dict) and mission.get("phase") == "DONE" and (out / "summary.json").exists()
-
-
 def write_manifest(spec: RunSpec) -> None:
     assert spec.out is not None
     d = {k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(spec).items()}
     tmp = spec.out / (MANIFEST + ".tmp")
-    tmp.write_text(json.dumps({"schema": 1, "spec": d}, indent=2) + "\n")
-    tmp.replace(spec.out / MANIFEST)
+    try:
+        tmp.write_text(json.dumps({"schema": 1, "spec": d}, indent=2) + "\n")
+        tmp.replace(spec.out / MANIFEST)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise StorageError(exc.errno, f"{spec.out / MANIFEST} not written: {describe(exc)}") from None
 
 
 def read_manifest(out: Path) -> RunSpec:
@@ -185,14 +178,19 @@ def _prepare_store(spec: RunSpec, cfg: FswConfig, mode: str) -> tuple[MapStore |
         return None, None, None
     if mode not in MODES:
         raise ValueError(f"unknown mode {mode!r}")
-    spec.out.mkdir(parents=True, exist_ok=True)
+    try:
+        spec.out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise StorageError(exc.errno, f"{spec.out}: cannot be made ({describe(exc)})") from None
     store = MapStore(cfg.checkpoint, cfg.fusion)
     if mode == "new" and has_mission(spec.out):
         raise MissionExistsError(f"{spec.out} holds a mission; --resume {spec.out} continues it, --fresh deletes it")
     if mode != "resume":
-        store.clear()
+        store.clear()  # (fresh) the old mission's files go first: their room counts
+        check_room(spec.out, store)
         write_manifest(spec)
         return store, None, None
+    check_room(spec.out, store)
     loaded = store.restore()
     if loaded.emap is None and loaded.skipped:
         reasons = "; ".join(f"{p.name}: {r}" for p, r in loaded.skipped)
@@ -259,6 +257,7 @@ def run_mission(
     with LockstepBench(cfg, world, seed=spec.seed, hw=hw, quiet=True, resources=resources, start=start,
                        faults=spec.faults) as bench:
         bench_box.append(bench)
+        bench.exe.ctx.events.listeners.append(echo_storage_events)
         if on_bench is not None:  # an experiment's observer (hil_sim.view_replay records the views)
             on_bench(bench)
         clock_box.append(bench.clock.now)
@@ -367,6 +366,7 @@ def run_mission(
             "tasks_hung": exe.events.count("health.TASK_HUNG") if "health" in exe.tasks else 0,
             "watchdog_expired_frames": counters["watchdog_frames"],
             "map_transfer": map_transfer(mission),
+            "map_delivered": {"delivered": True, "none": None}.get(map_transfer(mission), False),
             "transfer_s": transfer_s(mission),
             "faults": [dataclasses.asdict(f) for f in spec.faults],
             "final_state": mission.state,

@@ -1,6 +1,7 @@
 """Seeded radio channel model between the RECON-bot and the Cliff-bot (docs/algorithm.md §6.6).
 
-Two independent directions (full duplex), each a serial line of ``rate_bps`` with a
+Two independent directions (full duplex; ``reverse_loss`` gives side b -> a its own loss
+probability, e.g. acknowledgements lost more often than data), each a serial line of ``rate_bps`` with a
 drop-tail transmit queue, then a propagation ``latency_s`` (+ uniform ``jitter_s``). Every
 packet independently may be lost (``loss``), have bits flipped (``ber`` per bit, binomial),
 be duplicated (``duplicate``) or held back by up to ``reorder_delay_s`` (``reorder``), and is
@@ -32,6 +33,9 @@ class RadioChannelConfig:
     latency_s: float = param(0.05, lo=0.0, hi=60.0, units="s")
     jitter_s: float = param(0.0, lo=0.0, hi=10.0, units="s")
     loss: float = param(0.0, lo=0.0, hi=1.0, doc="packet loss probability")
+    reverse_loss: float = param(-1.0, lo=-1.0, hi=1.0,
+                                doc="loss probability of side b -> a alone (the receiver's answers: "
+                                "acknowledgements); -1: the same as loss")
     ber: float = param(0.0, lo=0.0, hi=0.1, doc="bit error rate")
     duplicate: float = param(0.0, lo=0.0, hi=1.0, doc="probability a packet arrives twice")
     reorder: float = param(0.0, lo=0.0, hi=1.0, doc="probability a packet is held back")
@@ -39,6 +43,10 @@ class RadioChannelConfig:
     outages: tuple[tuple[float, float], ...] = field(
         default=(), metadata={"doc": "(start_s, duration_s) windows with no link"})
     queue_bytes: int = param(65536, lo=64, hi=1 << 30, units="B", doc="transmit queue limit")
+
+    def __post_init__(self) -> None:
+        if self.reverse_loss != -1.0 and not 0.0 <= self.reverse_loss <= 1.0:
+            raise ValueError(f"reverse_loss {self.reverse_loss} is neither -1 nor in [0, 1]")
 
 
 @dataclass
@@ -55,9 +63,10 @@ class DirectionStats:
 
 
 class _Direction:
-    def __init__(self, cfg: RadioChannelConfig, rng: np.random.Generator) -> None:
+    def __init__(self, cfg: RadioChannelConfig, rng: np.random.Generator, loss: float) -> None:
         self.cfg = cfg
         self.rng = rng
+        self.loss = loss
         self.line_free_s = 0.0
         self.heap: list[tuple[float, int, bytes]] = []
         self.order = 0
@@ -77,7 +86,7 @@ class _Direction:
         if any(s < end and start < s + d for s, d in cfg.outages):
             st.outage_drops += 1
             return
-        if rng.random() < cfg.loss:
+        if rng.random() < self.loss:
             st.lost += 1
             return
         copies = 2 if rng.random() < cfg.duplicate else 1
@@ -120,7 +129,8 @@ class RadioChannel:
         self.cfg = cfg or RadioChannelConfig()
         ss = np.random.SeedSequence(seed)
         ga, gb = (np.random.default_rng(s) for s in ss.spawn(2))
-        self._dirs = {"a": _Direction(self.cfg, ga), "b": _Direction(self.cfg, gb)}
+        back = self.cfg.loss if self.cfg.reverse_loss < 0 else self.cfg.reverse_loss
+        self._dirs = {"a": _Direction(self.cfg, ga, self.cfg.loss), "b": _Direction(self.cfg, gb, back)}
 
     def send(self, side: str, datagram: bytes, now_s: float) -> None:
         """Side ``side`` puts a packet on the air at ``now_s``."""

@@ -4,7 +4,8 @@ Both ends use it: the flight driver (``fsw.drivers.imu_can``) and the emulated s
 bench (``hil_sim.hw.imu``). The frame carries the body roll and pitch (docs/algorithm.md §5.1: the
 accelerometer's gravity direction), the gyro yaw rate and two flags; it ends with
 ``Counter`` (4-bit alive counter) and ``Checksum``, protected like every frame of the DBC
-(``fsw.comm.e2e``: CRC-8/AUTOSAR over the data id and the payload, reserved bits zero).
+(``fsw.comm.e2e``: CRC-8/AUTOSAR over the data id and the payload XOR the counter's epoch,
+reserved bits zero).
 
 :meth:`ImuCan.decode` never raises on bad input: it returns a ``Bad`` with the reason.
 """
@@ -72,13 +73,15 @@ class ImuCan:
         }))
         return self.frame_id, self.e2e.protect(bytes(data), counter)
 
-    def decode(self, frame_id: int, data: bytes, is_extended: bool = False) -> ImuAttitude | Bad:
-        """Decode one received frame; never raises on bad input."""
+    def decode(self, frame_id: int, data: bytes, is_extended: bool = False,
+               epoch: int | None = 0) -> ImuAttitude | Bad:
+        """Decode one received frame; never raises on bad input (``epoch``: as
+        :meth:`fsw.comm.rover_can.RoverCan.decode`)."""
         if is_extended or frame_id != self.frame_id:
             return Bad(frame_id, "unknown_id", f"id 0x{frame_id:03X} is not {MSG}")
         if len(data) != self.msg.length:
             return Bad(frame_id, "dlc", f"{MSG}: {len(data)} bytes, expected {self.msg.length}")
-        refused = self.e2e.verify(bytes(data))
+        refused = self.e2e.verify(bytes(data), epoch)
         if refused is not None:
             return Bad(frame_id, *refused)
         try:

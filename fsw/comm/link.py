@@ -37,21 +37,24 @@ class LinkConfig:
     segment_bytes: int = param(464, lo=16, hi=8192, units="B", doc="map bytes per DATA packet")
     max_map_bytes: int = param(1 << 22, lo=1024, hi=1 << 28, units="B",
                                doc="largest map a receiver accepts (bounds its memory)")
-    offer_retry_s: float = param(2.0, lo=0.05, hi=60.0, units="s",
+    offer_retry_s: float = param(1.0, lo=0.05, hi=60.0, units="s",
                                  doc="first OFFER retry; doubles up to max_backoff_s")
     max_backoff_s: float = param(16.0, lo=0.1, hi=600.0, units="s")
-    status_period_s: float = param(1.0, lo=0.05, hi=60.0, units="s",
+    status_period_s: float = param(0.5, lo=0.05, hi=60.0, units="s",
                                    doc="receiver: STATUS at least this often while data flows")
     min_status_interval_s: float = param(0.25, lo=0.0, hi=10.0, units="s",
                                          doc="receiver: STATUS at most this often (PING excepted)")
     keepalive_s: float = param(5.0, lo=0.1, hi=600.0, units="s",
                                doc="receiver: STATUS keep-alive on an idle open session")
-    ping_period_s: float = param(0.5, lo=0.05, hi=60.0, units="s",
+    ping_period_s: float = param(0.25, lo=0.05, hi=60.0, units="s",
                                  doc="sender: PING period while waiting for feedback")
     stall_timeout_s: float = param(5.0, lo=0.1, hi=600.0, units="s",
                                    doc="sender: no feedback this long = outage; pause data, PING")
-    reorder_slack_s: float = param(0.25, lo=0.0, hi=60.0, units="s",
+    reorder_slack_s: float = param(0.5, lo=0.0, hi=60.0, units="s",
                                    doc="sender: a segment is lost once one sent this much later arrived")
+    reoffer_s: float = param(10.0, lo=0.1, hi=3600.0, units="s",
+                             doc="sender: no feedback this long = the OFFER is repeated (every "
+                             "reoffer_s, between the PINGs) in case the receiver restarted")
     give_up_s: float = param(900.0, lo=1.0, hi=86400.0, units="s",
                              doc="either end: no packet from the peer this long ends the session")
     fin_linger_s: float = param(30.0, lo=0.0, hi=3600.0, units="s",
@@ -104,6 +107,9 @@ class LinkStats:
     duplicates: int = 0
     statuses: int = 0
     pings: int = 0
+    redundant: int = 0  # sender: copies of unacknowledged segments sent while the link was idle
+    reoffers: int = 0  # sender: transfers offered again (the receiver lost the session, silence)
+    no_session: int = 0  # receiver: NO_SESSION answers sent
 
     def count_out(self, datagram: bytes) -> bytes:
         self.packets_out += 1

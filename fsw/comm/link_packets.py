@@ -43,6 +43,7 @@ class Ptype(IntEnum):
     PING = 6
     FIN = 7
     FIN_ACK = 8
+    NO_SESSION = 9
 
 
 class RejectReason(IntEnum):
@@ -122,7 +123,19 @@ class FinAck:
     map_id: int
 
 
-Packet = Offer | Accept | Reject | Data | Status | Ping | Fin | FinAck
+@dataclass(frozen=True)
+class NoSession:
+    """Receiver to sender: "I hold no session ``session``" (the answer to its DATA or PING
+    after the receiver restarted or dropped the session); the sender offers again."""
+
+    session: int
+
+
+Packet = Offer | Accept | Reject | Data | Status | Ping | Fin | FinAck | NoSession
+
+# Which end a packet is for: the sending end takes the receiver's answers, the receiving end
+# the rest (an agent that both sends and receives demultiplexes on this; fsw.comm.link_peer).
+TO_SENDER = frozenset({Ptype.ACCEPT, Ptype.REJECT, Ptype.STATUS, Ptype.FIN, Ptype.NO_SESSION})
 
 _OFFER = struct.Struct("<IIH32s")
 _ID = struct.Struct("<I")
@@ -161,7 +174,20 @@ def encode(p: Packet) -> bytes:
         return _frame(Ptype.FIN, p.session, _FIN.pack(p.map_id, int(p.status)))
     if isinstance(p, FinAck):
         return _frame(Ptype.FIN_ACK, p.session, _ID.pack(p.map_id))
+    if isinstance(p, NoSession):
+        return _frame(Ptype.NO_SESSION, p.session, b"")
     raise TypeError(f"not a packet: {p!r}")
+
+
+def packet_type(datagram: bytes) -> Ptype | None:
+    """The type nibble of a datagram, unchecked (None if it names no type): for routing only;
+    :func:`decode` still checks the whole packet."""
+    if len(datagram) < 2:
+        return None
+    try:
+        return Ptype(datagram[1] & 0x0F)
+    except ValueError:
+        return None
 
 
 def decode(datagram: bytes) -> Packet:
@@ -199,7 +225,10 @@ def _parse(ptype: Ptype, session: int, body: bytes) -> Packet:
             raise PacketError("STATUS fields are inconsistent")
         return Status(session, cum, highest, nrx, echo if flags & 1 else None, bitmap)
     _exact(ptype, body, {Ptype.PING: _PING.size, Ptype.OFFER: _OFFER.size, Ptype.ACCEPT: 4,
-                         Ptype.REJECT: _REJECT.size, Ptype.FIN: _FIN.size, Ptype.FIN_ACK: 4})
+                         Ptype.REJECT: _REJECT.size, Ptype.FIN: _FIN.size, Ptype.FIN_ACK: 4,
+                         Ptype.NO_SESSION: 0})
+    if ptype is Ptype.NO_SESSION:
+        return NoSession(session)
     if ptype is Ptype.PING:
         serial, flags = _PING.unpack(body)
         if flags > 1:

@@ -6,11 +6,14 @@ States: ``IDLE -> RECEIVING -> COMPLETE -> IDLE``.
   OFFER for the map already partly held (same SHA-256, size and segment size: a repeated
   OFFER, or the sender restarted with a new session) is answered with a STATUS instead,
   which accepts it and lists what is already here, so none of it is sent again. An OFFER
-  for a map already delivered is answered with FIN(VERIFIED).
+  for a map already delivered (same SHA-256 as one of the last four verified) is answered
+  with FIN(VERIFIED), and the close lingers again.
 * DATA is checked (segment number, length) and stored once; duplicates are counted. A
   STATUS (cumulative ack, highest segment, a selective-ack bitmap of up to
   ``8 * max_bitmap_bytes`` segments, and the serial of the last packet seen) goes out when
-  a gap opens, at least every ``status_period_s`` while data flows, at once on a PING, and
+  a gap opens, at least every ``status_period_s`` while data flows, every
+  ``min_status_interval_s`` after an ACCEPT until the first DATA (at most ``keepalive_s``:
+  a lost ACCEPT costs a fraction of a second, not an OFFER retry), at once on a PING, and
   every ``keepalive_s`` on an idle open session; never more often than
   ``min_status_interval_s`` except for PINGs.
 * When every segment is in, the whole map's SHA-256 must equal the offer's before the map
@@ -22,6 +25,10 @@ States: ``IDLE -> RECEIVING -> COMPLETE -> IDLE``.
   is still answered with FIN(VERIFIED), so a sender that missed every FIN learns of the
   delivery whenever it asks. On a mismatch the buffer is discarded and FIN(HASH_MISMATCH)
   asks the sender to start again.
+* A DATA or PING of a session it holds nothing of (this receiver restarted, or dropped the
+  session after ``give_up_s``) is answered with NO_SESSION, at most once per
+  ``min_status_interval_s`` per session (event UNKNOWN_SESSION once per session), so the
+  sender offers again instead of pinging into the void.
 
 Memory: one buffer of the offered size (at most ``max_map_bytes``) and one byte per segment.
 """
@@ -48,12 +55,13 @@ class ReceiverState(Enum):
 class LinkReceiver:
     """Receives maps; see the module docstring for the protocol."""
 
-    def __init__(self, cfg: LinkConfig) -> None:
+    def __init__(self, cfg: LinkConfig, pacer: Pacer | None = None) -> None:
         self.cfg = cfg
         self.state = ReceiverState.IDLE
         self.stats = LinkStats()
         self.events = EventSink()
-        self._pacer = Pacer(cfg.rate_bps, cfg.pacing_catchup_s)
+        # ``pacer``: shared with a sender on the same radio (fsw.comm.link_peer)
+        self._pacer = pacer if pacer is not None else Pacer(cfg.rate_bps, cfg.pacing_catchup_s)
         self._offer: lp.Offer | None = None
         self._buf = bytearray()
         self._have = bytearray()
@@ -71,7 +79,9 @@ class LinkReceiver:
         self._fin: lp.Fin | None = None
         self._fin_until_s = 0.0
         self._delivered: list[tuple[int, bytes]] = []
-        self._verified: deque[tuple[int, int]] = deque(maxlen=4)  # (session, map id) verified
+        # (session, map id, SHA-256) of the last maps verified
+        self._verified: deque[tuple[int, int, bytes]] = deque(maxlen=4)
+        self._unknown: dict[int, float] = {}  # session -> last NO_SESSION answer (bounded)
         self._start_s = 0.0
 
     # -- public API ------------------------------------------------------------------------
@@ -97,7 +107,10 @@ class LinkReceiver:
             return
         if self.state is ReceiverState.IDLE or self._offer is None \
                 or pkt.session != self._offer.session:
-            if not (isinstance(pkt, (lp.Data, lp.Ping)) and self._answer_verified(pkt.session)):
+            if isinstance(pkt, (lp.Data, lp.Ping)):
+                if not self._answer_verified(pkt.session):
+                    self._answer_unknown(pkt.session, now_s)
+            else:
                 self.stats.foreign_packets += 1
             return
         self._last_rx_s = now_s
@@ -149,6 +162,9 @@ class LinkReceiver:
             cand.append(self._last_status_s + self.cfg.min_status_interval_s)
         if self._new_data:
             cand.append(self._last_status_s + self.cfg.status_period_s)
+        repeat_s = self._last_status_s + self.cfg.min_status_interval_s
+        if self._n_rx == 0 and repeat_s < self._start_s + self.cfg.keepalive_s:
+            cand.append(repeat_s)
         return max(self._pacer.free_at_s, min(cand))
 
     # -- internals ---------------------------------------------------------------------------
@@ -162,10 +178,17 @@ class LinkReceiver:
             self.events.emit(now_s, "OFFER_REJECTED", map_id=offer.map_id, size=offer.size)
             return
         self._last_rx_s = now_s
-        if same_map and self.state is ReceiverState.COMPLETE:
-            self._offer = offer  # already delivered: confirm again under the new session
+        done_before = any(d == offer.sha256 for _, _, d in self._verified)
+        if (same_map and self.state is ReceiverState.COMPLETE) or (
+                done_before and self.state is not ReceiverState.RECEIVING):
+            # already delivered (a sender that restarted, or missed every FIN): confirm again
+            # under the offer's session, and linger for its FIN_ACK
+            self._offer = offer
+            if not any(v[:2] == (offer.session, offer.map_id) for v in self._verified):
+                self._verified.append((offer.session, offer.map_id, offer.sha256))
             self._fin = lp.Fin(offer.session, offer.map_id, lp.FinStatus.VERIFIED)
             self._fin_until_s = now_s + self.cfg.fin_linger_s
+            self.state = ReceiverState.COMPLETE
             self._status_now = True
             return
         if same_map and self.state is ReceiverState.RECEIVING:
@@ -218,7 +241,7 @@ class LinkReceiver:
         if hashlib.sha256(self._buf).digest() == offer.sha256:
             self._delivered = (self._delivered + [(offer.map_id, bytes(self._buf))])[-4:]
             self.state = ReceiverState.COMPLETE
-            self._verified.append((offer.session, offer.map_id))
+            self._verified.append((offer.session, offer.map_id, offer.sha256))
             self._fin = lp.Fin(offer.session, offer.map_id, lp.FinStatus.VERIFIED)
             self.events.emit(now_s, "MAP_VERIFIED", map_id=offer.map_id, size=offer.size,
                              seconds=round(now_s - self._start_s, 3))
@@ -250,11 +273,25 @@ class LinkReceiver:
 
     def _answer_verified(self, session: int) -> bool:
         """Answer a packet of an already verified map's session with FIN(VERIFIED)."""
-        for sess, map_id in self._verified:
+        for sess, map_id, _ in self._verified:
             if sess == session:
                 self._replies.append(lp.encode(lp.Fin(sess, map_id, lp.FinStatus.VERIFIED)))
                 return True
         return False
+
+    def _answer_unknown(self, session: int, now_s: float) -> None:
+        """NO_SESSION to a sender whose session this receiver does not hold (rate-limited)."""
+        self.stats.foreign_packets += 1
+        last = self._unknown.get(session)
+        if last is not None and now_s - last < self.cfg.min_status_interval_s - _EPS:
+            return
+        if last is None:
+            if len(self._unknown) >= 16:
+                self._unknown.pop(next(iter(self._unknown)))
+            self.events.emit(now_s, "UNKNOWN_SESSION", session=session)
+        self._unknown[session] = now_s
+        self.stats.no_session += 1
+        self._replies.append(lp.encode(lp.NoSession(session)))
 
     def _next_packet(self, now_s: float) -> bytes | None:
         if self._replies:
@@ -274,6 +311,8 @@ class LinkReceiver:
         due = (self._status_now
                or (self._status_due and since >= self.cfg.min_status_interval_s)
                or (self._new_data and since >= self.cfg.status_period_s)
+               or (self._n_rx == 0 and since >= self.cfg.min_status_interval_s
+                   and now_s < self._start_s + self.cfg.keepalive_s)
                or since >= self.cfg.keepalive_s)
         if not due:
             return None

@@ -1,6 +1,7 @@
 """Sending end of the map link (RECON-bot), sans-I/O (docs/algorithm.md §6.6; docs/link.md).
 
-States: ``IDLE -> OFFERING -> SENDING -> DONE``, or ``REJECTED`` / ``FAILED``.
+States: ``IDLE -> OFFERING -> SENDING -> DONE``, or ``REJECTED`` / ``FAILED``; ``SENDING ->
+OFFERING`` again when the receiver has lost the session (a restart).
 
 * OFFERING: OFFER (map id, size, segment size, SHA-256) repeated with exponential backoff
   until ACCEPT (or a STATUS, if the ACCEPT was lost) or REJECT.
@@ -10,7 +11,16 @@ States: ``IDLE -> OFFERING -> SENDING -> DONE``, or ``REJECTED`` / ``FAILED``.
   not acknowledged although a packet sent ``reorder_slack_s`` after it arrived is lost
   (time-based loss detection as TCP RACK, RFC 8985) and queued for retransmission. When
   all segments are out, a PING (right away, then every ``ping_period_s``) asks for a STATUS
-  so tail losses are found within a round trip.
+  so tail losses are found within a round trip. A pacer slot with nothing else to send
+  carries a copy of an unacknowledged segment (round robin, oldest first), so the link
+  never idles while the tail's fate is unknown: retransmission is driven by the gaps the
+  STATUS reports and by otherwise idle air time, never by a per-segment timer.
+* Restart of the receiver: its NO_SESSION answer to DATA or PING makes the sender offer
+  again at once under a new session (progress cleared: the receiver's ACCEPT or STATUS says
+  what it holds; event REOFFERED); after ``reoffer_s`` of silence, an OFFER of the same
+  session takes the place of a PING every ``reoffer_s`` (an ACCEPT to it = the receiver
+  holds nothing, progress cleared). Restart of the sender: the new sender's OFFER of the
+  same map is answered with a STATUS of what the receiver holds (receiver docstring).
 * Outage: no feedback for ``stall_timeout_s`` pauses data and sends only PINGs; the first
   STATUS after the outage says exactly which segments are missing, so nothing that
   arrived is sent again. No feedback for ``give_up_s``: FAILED.
@@ -50,13 +60,14 @@ class SenderState(Enum):
 class LinkSender:
     """Sends one map at a time; see the module docstring for the protocol."""
 
-    def __init__(self, cfg: LinkConfig, session: int = 1) -> None:
+    def __init__(self, cfg: LinkConfig, session: int = 1, pacer: Pacer | None = None) -> None:
         self.cfg = cfg
         self.session = session & 0xFFFF
         self.state = SenderState.IDLE
         self.stats = LinkStats()
         self.events = EventSink()
-        self._pacer = Pacer(cfg.rate_bps, cfg.pacing_catchup_s)
+        # ``pacer``: shared with a receiver on the same radio (fsw.comm.link_peer)
+        self._pacer = pacer if pacer is not None else Pacer(cfg.rate_bps, cfg.pacing_catchup_s)
         self._data = b""
         self._map_id = 0
         self._n = 0
@@ -83,6 +94,9 @@ class LinkSender:
         self._fin_acks = 0  # FIN_ACKs owed (one per FIN(VERIFIED) received)
         self._fin_acks_sent = 0
         self._close_given_up = False
+        self._probe_at_s = _NEVER  # silence: next OFFER in place of a PING
+        self._probing = False  # an OFFER went out since the last feedback (SENDING)
+        self._tail_ptr = 0  # round robin over unacknowledged segments (idle-slot copies)
         self.delivered_s: float | None = None  # when the whole-map acknowledgement arrived
         self._now_s = 0.0  # time of the last receive/poll call
 
@@ -143,7 +157,14 @@ class LinkSender:
             self._on_fin(pkt, now_s)
         elif self.state not in (SenderState.OFFERING, SenderState.SENDING):
             self.stats.foreign_packets += 1
+        elif isinstance(pkt, lp.NoSession) and self.state is SenderState.SENDING:
+            self._reoffer(now_s, "the receiver holds no session")
         elif isinstance(pkt, lp.Accept) and pkt.map_id == self._map_id:
+            if self.state is SenderState.SENDING and self._probing:
+                self._reset_progress()  # the receiver took the OFFER afresh: it holds nothing
+                self._probing = False
+                self._last_feedback_s = now_s
+                self.events.emit(now_s, "ACCEPTED", map_id=self._map_id)
             self._on_accept(now_s)
         elif isinstance(pkt, lp.Reject) and pkt.map_id == self._map_id:
             self.state = SenderState.REJECTED
@@ -184,7 +205,7 @@ class LinkSender:
                        self._last_feedback_s + self.cfg.give_up_s)
         cand = [self._last_feedback_s + self.cfg.give_up_s]
         stalled = self._stalled(self._now_s)
-        if not stalled and (self._lost or self._next_new < self._n):
+        if not stalled and (self._lost or self._next_new < self._n or self._n_acked < self._n):
             cand.append(self._pacer.free_at_s)
         else:
             ping_at = self._next_ping_s if stalled or not self._data_since_ping else _NEVER
@@ -204,6 +225,7 @@ class LinkSender:
         self._cum = 0
         self._rack_s = _NEVER
         self._data_since_ping = False
+        self._tail_ptr = 0
 
     def _stalled(self, now_s: float) -> bool:
         return now_s - self._last_feedback_s >= self.cfg.stall_timeout_s - _EPS
@@ -246,10 +268,51 @@ class LinkSender:
         if now_s >= self._next_ping_s - _EPS or (self._data_since_ping and not stalled):
             self._data_since_ping = False
             self._next_ping_s = now_s + self.cfg.ping_period_s
+            silent_s = now_s - self._last_feedback_s
+            if silent_s >= self.cfg.reoffer_s - _EPS and now_s >= self._probe_at_s - _EPS:
+                return self._probe_offer(now_s, silent_s)
             self.stats.pings += 1
             return lp.encode(lp.Ping(self.session, self._take_serial(now_s),
                                      self._next_new >= self._n))
+        copy = None if stalled else self._idle_copy()
+        if copy is not None:
+            self.stats.redundant += 1
+            return self._data_packet(copy, now_s)
         return None
+
+    def _idle_copy(self) -> int | None:
+        """An unacknowledged segment to send again in an otherwise idle slot (round robin)."""
+        if self._next_new < self._n or self._n_acked >= self._n:
+            return None
+        for _ in range(self._n):
+            seq = self._tail_ptr
+            self._tail_ptr = seq + 1 if seq + 1 < self._n else self._cum
+            if not self._acked[seq]:
+                return seq
+        return None
+
+    def _probe_offer(self, now_s: float, silent_s: float) -> bytes:
+        """Silence: the OFFER again in place of a PING (a restarted receiver answers it)."""
+        self._probe_at_s = now_s + self.cfg.reoffer_s
+        if not self._probing:
+            self._probing = True
+            self.stats.reoffers += 1
+            self.events.emit(now_s, "REOFFERED", map_id=self._map_id, session=self.session,
+                             reason=f"no answer for {silent_s:.1f} s")
+        return lp.encode(lp.Offer(self.session, self._map_id, len(self._data),
+                                  self.cfg.segment_bytes, self._digest))
+
+    def _reoffer(self, now_s: float, reason: str) -> None:
+        """Offer the map again under a new session; nothing is assumed held until it answers."""
+        self.session = self.session % 0xFFFF + 1
+        self._reset_progress()
+        self.state = SenderState.OFFERING
+        self._last_feedback_s = now_s
+        self._next_offer_s = now_s
+        self._backoff_s = self.cfg.offer_retry_s
+        self._probing = False
+        self.stats.reoffers += 1
+        self.events.emit(now_s, "REOFFERED", map_id=self._map_id, session=self.session, reason=reason)
 
     def _take_serial(self, now_s: float) -> int:
         s = self._serial
@@ -278,6 +341,7 @@ class LinkSender:
     def _on_status(self, st: lp.Status, now_s: float) -> None:
         self.stats.statuses += 1
         self._last_feedback_s = now_s
+        self._probing = False
         if st.highest > self._n:
             self.stats.foreign_packets += 1
             return
@@ -308,6 +372,7 @@ class LinkSender:
 
     def _on_fin(self, fin: lp.Fin, now_s: float) -> None:
         self._last_feedback_s = now_s
+        self._probing = False
         if fin.status is lp.FinStatus.VERIFIED:
             if self.state is not SenderState.DONE:
                 self.state = SenderState.DONE

@@ -6,6 +6,11 @@ This is the format of MAVProxy's and QGroundControl's telemetry logs, so pymavli
 ``setup_logfile`` does nothing on UDP links, hence this writer. The writer takes an open
 binary stream (the task opens the file); the reader validates framing and names the offset
 of the first bad record.
+
+A full or failing device (``ENOSPC``, ``EIO``, ...; ``fsw.framework.storage``) stops the writer:
+it keeps ``last_error`` (one line) and counts the records it then drops, rather than tearing
+record after record; every record written before stays readable (a torn last record is the
+"damaged tail" :func:`read_tlog` reports and skips).
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ from pathlib import Path
 from typing import BinaryIO
 
 from fsw.comm.mavlink_dialect import SIGNATURE_LEN, mavlink
+from fsw.framework.storage import describe, is_disk_fault
 
 _TS = struct.Struct(">Q")
 
@@ -32,23 +38,38 @@ class TlogWriter:
         self.records = 0
         self.bytes = 0
         self.errors = 0
+        self.dropped = 0  # records not written because the device failed earlier
+        self.stopped = False  # a disk fault stopped the log
+        self.last_error = ""  # one line: the last failure
 
     def write(self, unix_s: float, frame: bytes) -> bool:
-        """Write one record; returns False (and counts) if the stream refused it."""
+        """Write one record; returns False (and counts) if the stream refused it or is stopped."""
+        if self.stopped:
+            self.dropped += 1
+            return False
         try:
             self.stream.write(_TS.pack(max(0, int(unix_s * 1e6))) + bytes(frame))
-        except (OSError, ValueError):
-            self.errors += 1
+        except (OSError, ValueError) as exc:
+            self._failed(exc)
             return False
         self.records += 1
         self.bytes += 8 + len(frame)
         return True
 
     def flush(self) -> None:
+        if self.stopped:
+            return
         try:
             self.stream.flush()
-        except (OSError, ValueError):
-            self.errors += 1
+        except (OSError, ValueError) as exc:
+            self._failed(exc)
+
+    def _failed(self, exc: BaseException) -> None:
+        self.errors += 1
+        self.last_error = describe(exc)
+        if is_disk_fault(exc):
+            self.stopped = True
+            self.last_error += f"; logging stopped after {self.records} records"
 
     def close(self) -> None:
         try:

@@ -8,9 +8,11 @@ from the DBC (read with cantools); this module adds only what a DBC cannot say:
   frames are ``<AXIS>_CMD`` (0x200 + node), ``<AXIS>_STATUS`` (0x180 + node) and
   ``<AXIS>_HEARTBEAT`` (0x700 + node), plus ``ESTOP`` (0x000) and ``FSW_HEARTBEAT`` (0x701);
 * the end-to-end protection of every frame (:mod:`fsw.comm.e2e`, laid out by the DBC's
-  ``Counter`` and ``Checksum`` signals): encoders take the alive counter and fill the CRC;
-  :meth:`RoverCan.decode` refuses a wrong length, a wrong checksum and set reserved bits.
-  The counter *sequence* is the receiver's business (:class:`fsw.comm.e2e.SequenceChecker`).
+  ``Counter`` and ``Checksum`` signals): encoders take the sender's full alive counter and fill
+  the checksum (CRC XOR the counter's epoch); :meth:`RoverCan.decode` refuses a wrong length,
+  set reserved bits and a checksum that fails under ``epoch`` (0 by default; ``None`` leaves
+  the checksum to the receiver's :class:`fsw.comm.e2e.SequenceChecker`, which knows the
+  freshness of the data id and checks counter and checksum together).
 
 Nothing here raises on bad input from the wire: :meth:`RoverCan.decode` returns a
 :class:`Bad` with the reason, so callers count and event it.
@@ -156,7 +158,7 @@ class RoverCan:
         value = float(setpoint) if math.isfinite(setpoint) else 0.0
         frame_id, pack = self._command_packers[axis]
         data = pack(max(-lim, min(lim, value)), int(enable), int(clear_faults), counter & 0xF)
-        return frame_id, self.e2e[frame_id].seal(data)
+        return frame_id, self.e2e[frame_id].seal(data, counter >> 4)
 
     def encode_status(
         self,
@@ -184,14 +186,15 @@ class RoverCan:
         return self._protected("ESTOP", {"Engage": int(engage)}, counter)
 
     # -- decoding -----------------------------------------------------------------------------
-    def decode(self, frame_id: int, data: bytes, is_extended: bool = False) -> Decoded:
-        """Decode one received frame; never raises on bad input."""
+    def decode(self, frame_id: int, data: bytes, is_extended: bool = False, epoch: int | None = 0) -> Decoded:
+        """Decode one received frame; never raises on bad input. ``epoch``: the freshness the
+        checksum must hold under (``None``: checked by the receiver's sequence check)."""
         route = None if is_extended else self.route.get(frame_id)
         if route is None:
             return Bad(frame_id, "unknown_id", f"id 0x{frame_id:03X}{' (extended)' if is_extended else ''}")
         kind, node, msg = route
         data = bytes(data)
-        refused = self.e2e[frame_id].verify(data)
+        refused = self.e2e[frame_id].verify(data, epoch)
         if refused is not None:
             return Bad(frame_id, *refused)
         try:

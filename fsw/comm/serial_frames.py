@@ -11,7 +11,15 @@ and is caught with probability 1 - 2^-32, and so is frame-shaped noise (the form
 2 of 25,000 random frames through in ``safer-hil bench e2e``). :class:`FrameDecoder` takes
 bytes in any chunking and returns whole frames; on garbage, a bad CRC or an impossible length
 it drops one byte and hunts for the next sync pair, so a corrupted frame never swallows the
-good one behind it (resync; a corrupted LEN delays it until LEN + 9 bytes have arrived). It
+good one behind it. A frame that is still incomplete (its LEN promises more bytes than have
+arrived: a corrupted LEN, or a frame cut short) does not hold back a complete, CRC-valid frame
+already in the buffer behind it: the decoder looks ahead, returns that frame and refuses the
+incomplete one as ``truncated``. So a valid frame is returned as soon as its last byte arrives,
+whatever garbage, cut or mutated frame came before it, and a frame cut by one byte whose CRC
+ended in 0xA5 (completed by the next frame's sync byte) leaves that byte to the next frame.
+What it can still lose, exactly: a frame whose own bytes are damaged, and a frame whose first
+two or more bytes, with damaged bytes before them, form a CRC-valid frame (a frame cut by k >= 2
+bytes that were the next frame's first k: probability 2^-8k, or a chance CRC match: 2^-32). It
 counts what it threw away and never raises on line noise.
 
 Messages (``TYPE``: payload):
@@ -99,6 +107,7 @@ class FrameDecoder:
         self.crc_errors = 0
         self.length_errors = 0
         self.garbage_bytes = 0
+        self._kept = False
 
     def feed(self, data: bytes) -> list[Frame | FrameError]:
         """Add received bytes; return the frames (and refused frames) now complete."""
@@ -107,13 +116,15 @@ class FrameDecoder:
         buf = self._buf
         while True:
             start = buf.find(SYNC)
+            kept, self._kept = self._kept, False  # buf[0] is a frame's last byte, kept (below)
             if start < 0:
                 keep = 1 if buf[-1:] == SYNC[:1] else 0  # a sync byte may be split across reads
-                self.garbage_bytes += len(buf) - keep
+                self.garbage_bytes += len(buf) - keep - (kept and len(buf) > keep)
+                self._kept = kept and len(buf) == keep
                 del buf[: len(buf) - keep]
                 break
             if start:
-                self.garbage_bytes += start
+                self.garbage_bytes += start - kept
                 del buf[:start]
             if len(buf) < HEADER_LEN:
                 break
@@ -125,7 +136,14 @@ class FrameDecoder:
                 continue
             total = HEADER_LEN + n + CRC_LEN
             if len(buf) < total:
-                break
+                nxt = self._complete_frame_after(buf)
+                if nxt < 0:
+                    break  # wait for the rest of this frame
+                self.length_errors += 1  # cut short, or its LEN is wrong: the frame behind it is whole
+                out.append(FrameError("truncated", seq, typ))
+                self.garbage_bytes += nxt
+                del buf[:nxt]
+                continue
             body = bytes(buf[2 : HEADER_LEN + n])
             if frame_crc(body) != int.from_bytes(buf[HEADER_LEN + n : total], "big"):
                 self.crc_errors += 1
@@ -134,11 +152,29 @@ class FrameDecoder:
                 continue
             out.append(Frame(seq, typ, bytes(buf[HEADER_LEN : HEADER_LEN + n])))
             self.frames += 1
-            del buf[:total]
+            # a frame that lost its last byte may have been completed by the 0xA5 that starts the
+            # next frame: keep a last 0xA5 unless the next byte shows it was not a sync (a clean
+            # stream has the next frame's 0xA5 there); a kept byte is not counted as garbage
+            self._kept = buf[total - 1] == SYNC[0] and buf[total : total + 1] in (b"", SYNC[1:])
+            del buf[: total - 1 if self._kept else total]
         if len(buf) > self.max_buffer:  # cannot happen with MAX_PAYLOAD frames; belt and braces
             self.garbage_bytes += len(buf)
             buf.clear()
         return out
+
+    @staticmethod
+    def _complete_frame_after(buf: bytearray) -> int:
+        """Offset of the first later sync that starts a whole, CRC-valid frame (-1: none)."""
+        pos = buf.find(SYNC, 1)
+        while pos >= 0 and pos + HEADER_LEN <= len(buf):
+            n = buf[pos + 2]
+            end = pos + HEADER_LEN + n + CRC_LEN
+            if n <= MAX_PAYLOAD and end <= len(buf):
+                crc = int.from_bytes(buf[end - CRC_LEN : end], "big")
+                if frame_crc(bytes(buf[pos + 2 : pos + HEADER_LEN + n])) == crc:
+                    return pos
+            pos = buf.find(SYNC, pos + 1)
+        return -1
 
 
 # -- messages -------------------------------------------------------------------------------

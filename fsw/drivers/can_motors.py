@@ -179,18 +179,18 @@ class CanMotorDriver(DriverBase):
             last = last_sent[axis]
             if not clear and last is not None and last[0] == value and last[1] is enable and now - last[2] < refresh:
                 continue
-            counter = counters[axis] = (counters[axis] + 1) & 0xF
+            counter = counters[axis] = counters[axis] + 1  # full alive counter (E2E freshness)
             sent = self._send(*encode(axis, value, enable, clear, counter), now)
             last_sent[axis] = (value, enable, now) if sent else None  # a failed send is retried next frame
         if self._t_hb_sent is None or now - self._t_hb_sent >= self.heartbeat_period_s:
             self._t_hb_sent = now
-            self._hb_counter = (self._hb_counter + 1) & 0xF
+            self._hb_counter += 1
             self._send(*self.codec.encode_heartbeat("FSW", 5 if not self.estopped else 4, self._hb_counter), now)
             if self.estopped:
                 self._send_estop(now)  # repeat while engaged: a controller that rebooted learns it
 
     def _send_estop(self, now: float) -> None:
-        self._estop_counter = (self._estop_counter + 1) & 0xF
+        self._estop_counter += 1
         self._send(*self.codec.encode_estop(self.estopped, self._estop_counter), now)
 
     def _send(self, frame_id: int, data: bytes, now: float) -> bool:
@@ -235,16 +235,16 @@ class CanMotorDriver(DriverBase):
         if listener is not None:
             listener(data, now)
             return
-        d = self.codec.decode(frame_id, data, extended)
+        d = self.codec.decode(frame_id, data, extended, epoch=None)  # the checksum: with the freshness below
         if isinstance(d, Bad):
             self._bad(now, d.reason, d.detail)
             return
         if isinstance(d, AxisStatus):
-            if not self._in_sequence(self._seq_status, frame_id, d.counter, now, d.axis):
+            if not self._in_sequence(self._seq_status, frame_id, data, now, d.axis):
                 return
             self._on_status(d, now)
         elif isinstance(d, Heartbeat) and d.node != "FSW":
-            if not self._in_sequence(self._seq_heartbeat, frame_id, d.counter, now, None):
+            if not self._in_sequence(self._seq_heartbeat, frame_id, data, now, None):
                 return
             st = self.axes[d.node]
             if st.lost or st.t_heartbeat is None or st.nmt_state != d.state:
@@ -257,9 +257,12 @@ class CanMotorDriver(DriverBase):
             return
         self.rx_frames += 1
 
-    def _in_sequence(self, seq: SequenceChecker, frame_id: int, counter: int, now: float, axis: str | None) -> bool:
-        """The E2E counter check; a refused frame is counted (``rx_bad``, ``rx_e2e_seq``) and evented."""
-        verdict, lost = seq.check(frame_id, counter, now)
+    def _in_sequence(self, seq: SequenceChecker, frame_id: int, data: bytes, now: float, axis: str | None) -> bool:
+        """The E2E freshness check (counter and checksum); a refused frame is counted (``rx_bad``,
+        ``rx_e2e_seq``) and evented."""
+        layout = self.codec.e2e[frame_id]
+        verdict, lost = seq.check_frame(layout, data, now)
+        counter = layout.counter(data)
         if lost and axis is not None:
             self.rx_lost += lost
             self._hold(F_LOST_FRAMES, now)

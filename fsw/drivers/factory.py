@@ -60,7 +60,8 @@ class DevicesConfig:
         "the controllers' command timeout (0.5 s), so a lost or late frame cannot trip it; 0 = every frame",
     )
     can_e2e_max_delta: int = param(
-        3, lo=1, hi=14, doc="E2E alive counter: largest accepted jump (frames lost + 1); beyond, the frame is refused"
+        3, lo=1, hi=4, doc="E2E alive counter: largest accepted jump (frames lost + 1); beyond, the frame is refused "
+        "(above 4, a 1-3 bit error could move the counter across a freshness epoch unseen)"
     )
     serial_url: str = param("none", doc="mast port: device or pty path, socket://HOST:PORT, loop://, none")
     serial_baud: int = param(115200, lo=1200, hi=4000000, units="bit/s")

@@ -4,10 +4,11 @@ The sensor shares the motor bus: the motor driver (``fsw.drivers.can_motors``) d
 bus and hands every ``IMU_ATTITUDE`` frame to this driver (``CanMotorDriver.listeners``), so
 one bus handle serves both, on the rover (socketcan) as on the bench (virtual, udp_hub).
 
-* Each frame is checked end to end (:mod:`fsw.comm.imu_can`: length, CRC-8, alive counter):
-  a bad frame is refused and counted; a counter jump counts lost frames; a counter that
-  stops advancing for ``stuck_frames`` frames is a STUCK sensor (a hung device repeating its
-  buffer); no valid frame for ``timeout_s`` is a TIMEOUT (dropout, cable); a SelfTestFail
+* Each frame is checked end to end (:mod:`fsw.comm.imu_can`: length, reserved bits, then
+  counter and CRC-8 under the frame's freshness, :class:`fsw.comm.e2e.SequenceChecker`): a bad,
+  stale or replayed frame is refused and counted; a counter jump (up to ``MAX_DELTA``) counts
+  lost frames; a counter that stops advancing for ``stuck_frames`` frames is a STUCK sensor (a
+  hung device repeating its buffer); no valid frame for ``timeout_s`` is a TIMEOUT (dropout, cable); a SelfTestFail
   flag is a SELF_TEST fault. Each finding is a fault bit and an event.
 * :meth:`attitude` gives the body roll and pitch (docs/algorithm.md §5.1: the gravity direction at
   rest) as the mean of the fresh samples of the last ``average_s`` and its covariance: the
@@ -26,11 +27,13 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
+from fsw.comm.e2e import Seq, SequenceChecker
 from fsw.comm.imu_can import ImuAttitude, ImuCan
 from fsw.drivers.base import DriverBase
 from fsw.framework.telemetry import EventDef, Severity
 
 F_BAD_FRAMES, F_TIMEOUT, F_STUCK, F_SELF_TEST, F_LOST_FRAMES = 0x01, 0x02, 0x04, 0x08, 0x10
+MAX_DELTA = 4  # largest counter jump taken (3 frames lost); above 4 a 1-3 bit error could cross an epoch
 #: faults that make the attitude unusable (bad or lost frames alone only degrade)
 UNUSABLE = F_TIMEOUT | F_STUCK | F_SELF_TEST
 
@@ -71,6 +74,7 @@ class ImuDriver(DriverBase):
         self.samples: deque[tuple[float, float, float]] = deque(maxlen=4096)  # (t, roll, pitch) rad
         self.counter: int | None = None
         self.repeats = 0
+        self._seq = SequenceChecker(MAX_DELTA, timeout_s)
         self.t_valid: float | None = None
         self.t_start: float | None = None
         self.rx_frames = self.rx_bad = self.rx_lost = 0
@@ -83,13 +87,20 @@ class ImuDriver(DriverBase):
 
     # -- reception --------------------------------------------------------------------------
     def on_frame(self, data: bytes, now: float) -> None:
-        d = self.codec.decode(self.codec.frame_id, data)
+        d = self.codec.decode(self.codec.frame_id, data, epoch=None)  # the checksum: with the freshness
         if not isinstance(d, ImuAttitude):
             self.rx_bad += 1
             self._hold(F_BAD_FRAMES, now)
             self._event("IMU_BAD_FRAME", reason=d.reason, detail=d.detail)
             return
-        if self.counter is not None and d.counter == self.counter:
+        verdict, _lost = self._seq.check_frame(self.codec.e2e, bytes(data), now)
+        repeat = self.counter is not None and d.counter == self.counter and verdict in (Seq.REPEATED, Seq.LEARNING)
+        if not verdict.accepted and not repeat:
+            self.rx_bad += 1
+            self._hold(F_BAD_FRAMES, now)
+            self._event("IMU_BAD_FRAME", reason=verdict.value, detail=f"counter {d.counter}")
+            return
+        if repeat:
             self.repeats += 1
             if self.repeats >= self.stuck_frames - 1 and not self.has(F_STUCK):
                 self._set(F_STUCK)

@@ -13,6 +13,12 @@ one checksum, so a map and a mission state of different steps never pair up). ``
 is the start-up load: it first removes the temporary files a kill during ``save`` left
 behind (``remove_stale``), then loads the newest good checkpoint once and keeps the result
 for every task that restores from it (docs/hil.md, "Resuming a mission").
+
+A full or failing device (``ENOSPC``, ``EIO``: ``fsw.framework.storage``) fails one ``save``:
+its temporary file is removed, no older checkpoint is pruned, so the newest good checkpoint
+stays what it was; the error (one line, with the errno name) is raised inline or, on the
+writer thread, kept for :meth:`take_error`; the tasks turn it into a ``CHECKPOINT_FAILED``
+event and the mission carries on (the next save tries again).
 """
 
 from __future__ import annotations
@@ -29,6 +35,7 @@ from typing import Any
 
 from fsw.core.map.checkpoint import CheckpointConfig, CheckpointError, CheckpointMeta, decode, encode
 from fsw.core.map.elevation_map import ElevationMap, FusionConfig
+from fsw.framework.storage import describe
 
 _NAME = re.compile(r"^map_(\d{10})\.ckpt$")
 _TEMP = re.compile(r"^\.map_.*\.tmp$")
@@ -118,7 +125,7 @@ class MapStore:
             try:
                 self._write(*job)
             except OSError as exc:
-                self._errors.append(f"{job[1].name}: {exc}")
+                self._errors.append(f"{job[1].name}: {describe(exc)}")
             finally:
                 self._queue.task_done()
         self._queue.task_done()

@@ -17,6 +17,7 @@ from fsw.tasks.base import FlightTask
 
 class HealthTask(FlightTask):
     KIND: ClassVar[str] = "health"
+    RATE_HZ: ClassVar[tuple[float, float]] = (0.5, 10.0)  # pings answered within health_warn_frames
     DOC: ClassVar[str] = "Pings every task; strokes the watchdog while all are alive."
     CHANNELS = (
         Channel("tasks_warning", "count", hi=0),

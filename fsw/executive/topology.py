@@ -4,35 +4,27 @@ One function, :func:`components`, resolves the schedule in the config into compo
 classes; the executive registers from it and ``safer-fsw dictionary`` prints from it, so
 names and ids are never kept in a second table. Ids are assigned in declaration order:
 component ``i`` gets command opcodes ``(i + 1) * 0x100 + j``.
+
+The schedule is checked first (:func:`fsw.executive.schedule_check.check`, which the settings
+loader runs on every file).
 """
 
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass
 
 from fsw.executive.components import ExecutiveComponent, RateGroupComponent
+from fsw.executive.schedule_check import FLIGHT_KINDS, check, task_class
 from fsw.framework.task import Task
 from fsw.settings import FswConfig
-from fsw.tasks.registry import KINDS
 
+__all__ = ["FLIGHT_KINDS", "Component", "check", "components", "dictionary", "task_class"]
 
 @dataclass(frozen=True)
 class Component:
     name: str
     cls: type[Task]
     opcode_base: int
-
-
-def task_class(kind: str) -> type[Task]:
-    """Resolve a task kind to its class (imported lazily)."""
-    if kind not in KINDS:
-        raise KeyError(f"unknown task kind {kind!r} (known: {', '.join(sorted(KINDS))})")
-    module, _, attr = KINDS[kind].partition(":")
-    cls = getattr(importlib.import_module(module), attr)
-    if not (isinstance(cls, type) and issubclass(cls, Task)):
-        raise TypeError(f"{KINDS[kind]} is not a Task")
-    return cls
 
 
 def components(cfg: FswConfig) -> list[Component]:

@@ -9,6 +9,11 @@ the field declares ``allow_inf=True`` and documents what an infinite value means
 Every refusal is a :class:`ConfigError` that names the file, the dotted key and the reason
 in one line, so a command-line tool can print it and exit 2 instead of a traceback.
 
+Tables and arrays may nest at most :data:`MAX_DEPTH` levels (a file nested deeper is refused
+before anything walks it, so no input reaches a ``RecursionError``). ``build(...,
+complete=True)`` also refuses a key left out of a table (or of an element of an array of
+tables) even when it has a default: a flight file is then the whole record of what flies.
+
 Declaring a bounded field::
 
     @dataclass(frozen=True)
@@ -31,6 +36,7 @@ from typing import Any, TypeVar
 T = TypeVar("T")
 
 _MISSING = dataclasses.MISSING
+MAX_DEPTH = 32  #: deepest nesting of tables and arrays a configuration file may have
 
 
 class ConfigError(ValueError):
@@ -72,7 +78,9 @@ def load_toml(path: str | Path) -> dict[str, Any]:
     p = Path(path)
     try:
         with p.open("rb") as fh:
-            return tomllib.load(fh)
+            data = tomllib.load(fh)
+    except RecursionError:  # the parser itself recurses on nested arrays and inline tables
+        raise ConfigError(str(p), "", f"nested deeper than {MAX_DEPTH} levels") from None
     except FileNotFoundError:
         raise ConfigError(str(p), "", "file not found") from None
     except IsADirectoryError:
@@ -85,6 +93,21 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(str(p), "", f"not valid TOML ({exc})") from None
     except UnicodeDecodeError:
         raise ConfigError(str(p), "", "not UTF-8 text") from None
+    check_depth(data, str(p))
+    return data
+
+
+def check_depth(data: Any, source: str, limit: int = MAX_DEPTH) -> None:
+    """Refuse tables and arrays nested deeper than ``limit`` (walked without recursion)."""
+    stack: list[tuple[Any, str, int]] = [(data, "", 0)]
+    while stack:
+        value, key, depth = stack.pop()
+        if depth > limit:
+            raise ConfigError(source, key, f"nested deeper than {limit} levels")
+        if isinstance(value, Mapping):
+            stack.extend((v, _join(key, str(k)), depth + 1) for k, v in value.items())
+        elif isinstance(value, list):
+            stack.extend((v, f"{key}[{i}]", depth + 1) for i, v in enumerate(value))
 
 
 def load(cls: type[T], path: str | Path, section: str | None = None) -> T:
@@ -97,10 +120,13 @@ def load(cls: type[T], path: str | Path, section: str | None = None) -> T:
     return build(cls, data, source=str(path), prefix=section or "")
 
 
-def build(cls: type[T], data: Any, source: str = "<config>", prefix: str = "") -> T:
-    """Validate ``data`` against the dataclass ``cls`` and construct it."""
+def build(cls: type[T], data: Any, source: str = "<config>", prefix: str = "", complete: bool = False) -> T:
+    """Validate ``data`` against the dataclass ``cls`` and construct it; ``complete``: every key
+    of every table must be present (a left-out key is refused rather than defaulted)."""
     if not isinstance(data, Mapping):
         raise ConfigError(source, prefix, f"expected a table, got {_tname(data)}")
+    if not prefix:
+        check_depth(data, source)
     hints = _hints(cls)  # type: ignore[arg-type]
     fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
     unknown = sorted(set(data) - set(fields))
@@ -113,8 +139,19 @@ def build(cls: type[T], data: Any, source: str = "<config>", prefix: str = "") -
         if name not in data:
             if f.default is _MISSING and f.default_factory is _MISSING:
                 raise ConfigError(source, key, "missing required key")
+            if complete:
+                what = "table" if dataclasses.is_dataclass(hints[name]) else "key"
+                raise ConfigError(source, key, f"missing {what} (a flight configuration lists every key)")
             continue
-        kwargs[name] = _convert(hints[name], data[name], source, key, bool(f.metadata.get("allow_inf")))
+        tp, args = hints[name], typing.get_args(hints[name])
+        if complete and dataclasses.is_dataclass(tp):
+            kwargs[name] = build(tp, data[name], source, key, complete=True)  # type: ignore[arg-type]
+        elif complete and typing.get_origin(tp) is tuple and args and dataclasses.is_dataclass(args[0]) \
+                and isinstance(data[name], list):  # an array of tables: every element complete too
+            kwargs[name] = tuple(build(args[0], v, source, f"{key}[{i}]", complete=True)  # type: ignore[arg-type]
+                                 for i, v in enumerate(data[name]))
+        else:
+            kwargs[name] = _convert(tp, data[name], source, key, bool(f.metadata.get("allow_inf")))
         _check_bounds(f.metadata, kwargs[name], source, key)
     try:
         return cls(**kwargs)

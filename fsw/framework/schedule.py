@@ -6,9 +6,19 @@ assigned to groups in declared order. It is validated before the executive start
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 from fsw.framework.params import param
+
+#: a rate-group or task name: it prefixes channel, event and command names (``name.CHANNEL``)
+NAME_RE = re.compile(r"[A-Za-z][A-Za-z0-9_-]{0,31}")
+
+
+def check_name(what: str, name: str) -> None:
+    """``ValueError`` unless ``name`` is a usable identifier (non-empty, no dots or spaces)."""
+    if not NAME_RE.fullmatch(name):
+        raise ValueError(f"{what} name {name!r} must be 1-32 letters, digits, '_' or '-', starting with a letter")
 
 
 @dataclass(frozen=True)
@@ -20,6 +30,7 @@ class RateGroupConfig:
     offset: int = param(0, lo=0, hi=9999, doc="frame offset inside the divisor, spreads load")
 
     def __post_init__(self) -> None:
+        check_name("rate group", self.name)
         if self.offset >= self.divisor:
             raise ValueError(f"rate group {self.name!r}: offset {self.offset} must be below divisor {self.divisor}")
 
@@ -37,11 +48,19 @@ class TaskConfig:
     budget_ms: float = param(lo=0.001, hi=100000.0, units="ms", doc="execution-time budget per activation")
     enabled: bool = param(True, doc="a disabled task is built but never activated")
 
+    def __post_init__(self) -> None:
+        check_name("task", self.name)
+        if not self.kind.strip():
+            raise ValueError(f"task {self.name!r}: empty kind")
+
 
 @dataclass(frozen=True, kw_only=True)
 class ExecutiveConfig:
     """The cyclic executive (docs/architecture.md, "The cyclic executive")."""
 
+    flight: bool = param(
+        True, doc="a flight file: every section and key present, a mission scheduled (false: bench and ground-tool "
+        "files, whose left-out keys take their defaults)")
     frame_period_s: float = param(0.1, lo=0.001, hi=10.0, units="s", doc="minor frame period")
     groups: tuple[RateGroupConfig, ...] = param(doc="rate groups, in execution order")
     tasks: tuple[TaskConfig, ...] = param(doc="tasks, in execution order within their group")
@@ -74,6 +93,8 @@ class ExecutiveConfig:
         doc="glibc: blocks this large or larger are mmapped and returned when freed (0 = glibc's sliding default)")
 
     def __post_init__(self) -> None:
+        if not self.groups or not self.tasks:
+            raise ValueError("the schedule needs at least one rate group and one task")
         names = [g.name for g in self.groups]
         if len(set(names)) != len(names):
             raise ValueError("rate group names must be unique")

@@ -97,6 +97,15 @@ class Task:
     CHANNELS: ClassVar[tuple[Channel, ...]] = ()
     EVENTS: ClassVar[tuple[EventDef, ...]] = ()
     COMMANDS: ClassVar[tuple[CommandDef, ...]] = ()
+    #: design range of the activation rate, Hz (the schedule is refused outside it)
+    RATE_HZ: ClassVar[tuple[float, float]] = (0.0, float("inf"))
+    #: task kinds that must be scheduled with this one (it talks to them over the bus or polls their devices)
+    REQUIRES: ClassVar[tuple[str, ...]] = ()
+
+    @classmethod
+    def required_kinds(cls, cfg: Any) -> tuple[str, ...]:
+        """The kinds this task needs scheduled with it under the configuration ``cfg``."""
+        return cls.REQUIRES
 
     def __init__(self, name: str, ctx: TaskContext, budget_s: float) -> None:
         self.name = name

@@ -66,6 +66,8 @@ def camera_pose_covariance(
 
 class CameraTask(FlightTask):
     KIND: ClassVar[str] = "camera"
+    RATE_HZ: ClassVar[tuple[float, float]] = (5.0, 50.0)  # its timeouts and moves assume ~10 Hz
+    REQUIRES: ClassVar[tuple[str, ...]] = ("camera_device",)
     DOC: ClassVar[str] = "Captures stereo pairs on request and tags them with the camera pose."
     CHANNELS = (
         Channel("captures", "count"),

@@ -15,6 +15,7 @@ from fsw.tasks.base import FlightTask
 
 class ConsoleTask(FlightTask):
     KIND: ClassVar[str] = "console"
+    RATE_HZ: ClassVar[tuple[float, float]] = (0.1, 10.0)
     DOC: ClassVar[str] = "Prints a telemetry summary line per activation and every event."
 
     out: TextIO | None = None  # None: whatever sys.stdout is when printing

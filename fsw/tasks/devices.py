@@ -55,6 +55,7 @@ class DeviceTask(FlightTask, Generic[D]):
 
 class CanMotorsDevice(DeviceTask[CanMotorDriver]):
     KIND: ClassVar[str] = "can_motors_device"
+    RATE_HZ: ClassVar[tuple[float, float]] = (5.0, 50.0)  # its timeouts and moves assume ~10 Hz
     DOC: ClassVar[str] = "Polls the CAN motor-controller driver; its events and telemetry."
     CHANNELS = (
         Channel("faults", "bits", hi=0, doc="CanMotorDriver.FAULTS word"),
@@ -82,6 +83,7 @@ class CanMotorsDevice(DeviceTask[CanMotorDriver]):
 
 class ImuDevice(DeviceTask[ImuDriver]):
     KIND: ClassVar[str] = "imu_device"
+    RATE_HZ: ClassVar[tuple[float, float]] = (5.0, 50.0)  # its timeouts and moves assume ~10 Hz
     DOC: ClassVar[str] = "Polls the attitude-sensor driver (frames arrive on the motor bus); events and telemetry."
     CHANNELS = (
         Channel("faults", "bits", hi=0, doc="ImuDriver.FAULTS word"),
@@ -131,6 +133,7 @@ class ImuDevice(DeviceTask[ImuDriver]):
 
 class MastDevice(DeviceTask[MastSerialDriver]):
     KIND: ClassVar[str] = "mast_device"
+    RATE_HZ: ClassVar[tuple[float, float]] = (5.0, 50.0)  # its timeouts and moves assume ~10 Hz
     DOC: ClassVar[str] = "Polls the serial mast driver; its events and telemetry."
     CHANNELS = (
         Channel("faults", "bits", hi=0, doc="MastSerialDriver.FAULTS word"),
@@ -157,6 +160,7 @@ class MastDevice(DeviceTask[MastSerialDriver]):
 
 class CameraDevice(DeviceTask[CameraDriver]):
     KIND: ClassVar[str] = "camera_device"
+    RATE_HZ: ClassVar[tuple[float, float]] = (5.0, 50.0)  # its timeouts and moves assume ~10 Hz
     DOC: ClassVar[str] = "Polls the stereo camera driver; its events and telemetry."
     CHANNELS = (
         Channel("faults", "bits", hi=0, doc="CameraDriver.FAULTS word"),

@@ -46,6 +46,7 @@ _THROTTLED = ("RX_BAD", "TRANSPORT_FAULT", "TLOG_ERROR", "PREVIEW_BAD", "CMD_BAD
 
 class MavlinkTask(UplinkDispatch, FlightTask):
     KIND: ClassVar[str] = "mavlink"
+    RATE_HZ: ClassVar[tuple[float, float]] = (2.0, 50.0)  # the 1 Hz HEARTBEAT and its telemetry periods
     DOC: ClassVar[str] = "MAVLink 2 ground link: telemetry, events, map previews; signed commands."
     CHANNELS = (
         Channel("gcs_link", "bool", lo=1, doc="1 while a ground HEARTBEAT was heard within gcs_timeout_s"),
@@ -272,7 +273,8 @@ class MavlinkTask(UplinkDispatch, FlightTask):
             self._next_flush_s = stamp + 1.0
             self.tlog.flush()
         if self.tlog.errors > errors:
-            self.event("TLOG_ERROR", path=str(getattr(self.tlog.stream, "name", "?")), error="write failed")
+            self.event("TLOG_ERROR", path=str(getattr(self.tlog.stream, "name", "?")),
+                       error=self.tlog.last_error or "write failed")
 
     def _set_fault(self, fault: str | None) -> None:
         if fault and fault != self._fault:

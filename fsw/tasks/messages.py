@@ -156,9 +156,12 @@ class MotionStatus:
 
 @dataclass(frozen=True)
 class RadioSendRequest:
-    """Ask the radio task to encode the latest map and send it as ``map_id``."""
+    """Ask the radio task to encode a map and send it as ``map_id``: ``snapshot``, or the
+    latest ``map.updated`` one when None. A request for the map id already being encoded or
+    sent is a repeat and changes nothing."""
 
     map_id: int
+    snapshot: ElevationMap | None = None
 
 
 @dataclass(frozen=True)
@@ -167,6 +170,7 @@ class RadioStatus:
 
     state: SenderState
     time_s: float
+    map_id: int = 0  # the map the state is about (0: none yet)
 
     @property
     def finished(self) -> bool:

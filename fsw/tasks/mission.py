@@ -1,7 +1,8 @@
 """The mission sequencer (paper Figure 4; docs/algorithm.md §2-§4, §6).
 
     INIT -> PANORAMA -> [SELECT -> MOVE -> POINT -> ACQUIRE] until the end criterion (§3.6)
-         -> TRANSMIT -> DONE;   any state -> SAFE on a driver fault or a geofence refusal.
+         -> TRANSMIT -> DONE;   any state -> SAFE on a driver fault or a geofence refusal;
+         TRANSMIT -> SAFE when the map was not delivered (link failed, rejected, timeout).
 
 Each view is a sequence of requests to the other tasks over the software bus: the motion
 task drives to the rover pose (``goto``), then points the mast; the camera task takes the
@@ -52,7 +53,6 @@ from fsw.tasks.messages import (
     NAV_POSE,
     NBV_REQUEST,
     NBV_RESULT,
-    RADIO_SEND,
     RADIO_STATUS,
     VIEW_FAILED,
     CaptureRequest,
@@ -61,20 +61,26 @@ from fsw.tasks.messages import (
     MotionStatus,
     MoveOutcome,
     NavPose,
-    RadioSendRequest,
     RadioStatus,
 )
 from fsw.tasks.mission_checkpoint import resume_mission, save
 from fsw.tasks.mission_ground import MIN_MOVE_M, MIN_TURN_RAD, FenceJob, GroundAwareMission
 from fsw.tasks.mission_safe import SafeRecovery
 from fsw.tasks.mission_state import STATES, MissionPhase, StepRecord
+from fsw.tasks.mission_transmit import MapDelivery
 from fsw.tasks.sections import MissionConfig
 
 FIX_WAIT_S = 1.0  # longest wait for nav.pose to show a map update's navigation fix
 
 
-class MissionTask(GroundAwareMission, SafeRecovery):
+class MissionTask(GroundAwareMission, SafeRecovery, MapDelivery):
     KIND: ClassVar[str] = "mission"
+    RATE_HZ: ClassVar[tuple[float, float]] = (5.0, 50.0)  # its timeouts and moves assume ~10 Hz
+    REQUIRES: ClassVar[tuple[str, ...]] = ("motion", "camera", "perception", "nbv", "health")
+
+    @classmethod
+    def required_kinds(cls, cfg: object) -> tuple[str, ...]:  # cfg: the FswConfig (not imported here)
+        return cls.REQUIRES + (("radio",) if getattr(cfg, "mission").transmit else ())  # noqa: B009
     DOC: ClassVar[str] = "Mission sequencer: panorama, next view, move, acquire, transmit; SAFE on faults."
     CHANNELS = (
         Channel("state", doc=", ".join(STATES)),
@@ -97,6 +103,7 @@ class MissionTask(GroundAwareMission, SafeRecovery):
         EventDef("SAFE_FINAL", Severity.WARNING_HI, "mission stays in SAFE: {reason}"),
         EventDef("RETRY", Severity.WARNING_LO, "{what} failed ({reason}); retry {n}", throttle=5),
         EventDef("TRANSMITTED", Severity.ACTIVITY_HI, "map transmission ended: {state}"),
+        EventDef("UNDELIVERED", Severity.WARNING_HI, "map not delivered ({state}); the mission does not end DONE"),
         EventDef("CHECKPOINT_SAVED", Severity.ACTIVITY_LO, "step {step} checkpoint {seq} saved ({kib:.0f} KiB)"),
         EventDef("CHECKPOINT_FAILED", Severity.WARNING_HI, "mission checkpoint failed: {error}", throttle=3),
         EventDef("RESUMED", Severity.ACTIVITY_HI, "mission resumed from checkpoint {seq}: step {step}, {phase}"),
@@ -366,20 +373,8 @@ class MissionTask(GroundAwareMission, SafeRecovery):
         self.end = reason
         self.event("END", reason=reason)
         if self.mcfg.transmit and "radio" in self.ctx.runtime.tasks:
-            self._goto(MissionPhase.TRANSMIT)
-            self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
-            self.publish(RADIO_SEND, RadioSendRequest(map_id=1))
+            self._begin_transmit()  # fsw.tasks.mission_transmit
         else:
-            self._goto(MissionPhase.DONE)
-            save(self, MissionPhase.DONE)
-
-    def _state_transmit(self) -> None:
-        for status in self.radio_box.drain():
-            self.radio = status
-        finished = self.radio is not None and self.radio.finished
-        if finished or self._timed_out():
-            state = self.radio.state.value if self.radio is not None else None
-            self.event("TRANSMITTED", state=state if not self._timed_out() else "timeout")
             self._goto(MissionPhase.DONE)
             save(self, MissionPhase.DONE)
 

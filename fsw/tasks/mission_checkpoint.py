@@ -20,6 +20,7 @@ from typing import Any
 import shapely
 
 from fsw.core.geometry import MapGrid
+from fsw.framework.storage import describe
 from fsw.tasks.messages import MapUpdate
 from fsw.tasks.mission_state import (
     SCHEMA,
@@ -84,7 +85,10 @@ def save(m: Any, phase: MissionPhase) -> None:
         return
     try:
         store.save_next(m.latest.snapshot, m.ctx.clock.now(), mission_state(m, phase))
-    except (OSError, ValueError, TypeError) as exc:
+    except OSError as exc:  # a full or failing device: the newest good checkpoint stays, the mission goes on
+        m.event("CHECKPOINT_FAILED", error=describe(exc))
+        return
+    except (ValueError, TypeError) as exc:
         m.event("CHECKPOINT_FAILED", error=f"{type(exc).__name__}: {exc}")
         return
     m.event("CHECKPOINT_SAVED", step=m.step, seq=store.seq, kib=store.last_size / 1024)

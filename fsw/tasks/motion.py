@@ -48,6 +48,8 @@ D = TypeVar("D")
 
 class MotionTask(FlightTask):
     KIND: ClassVar[str] = "motion"
+    RATE_HZ: ClassVar[tuple[float, float]] = (5.0, 50.0)  # its timeouts and moves assume ~10 Hz
+    REQUIRES: ClassVar[tuple[str, ...]] = ("can_motors_device", "mast_device", "imu_device")
     DOC: ClassVar[str] = "Wheel and mast moves through the drivers; odometry; motion fault handling."
     CHANNELS, EVENTS, COMMANDS = md.CHANNELS, md.EVENTS, md.COMMANDS
 

@@ -31,6 +31,7 @@ from fsw.tasks.mission_state import JsonDict, restore_into
 
 class NbvTask(FlightTask):
     KIND: ClassVar[str] = "nbv"
+    RATE_HZ: ClassVar[tuple[float, float]] = (5.0, 50.0)  # its timeouts and moves assume ~10 Hz
     DOC: ClassVar[str] = "Next-view selection by expected new information (slack job)."
     CHANNELS = (
         Channel("searches", "count"),

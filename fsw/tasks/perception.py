@@ -50,6 +50,7 @@ from fsw.core.stereo.stereo_calibration import offset_covariance
 from fsw.drivers.map_store import MapStore
 from fsw.framework.commands import CommandDef, CommandError
 from fsw.framework.jobs import JobHandle
+from fsw.framework.storage import describe
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.settings import load_stereo_calibration
 from fsw.tasks.base import FlightTask
@@ -91,6 +92,8 @@ ViewPart = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] |
 
 class PerceptionTask(FlightTask):
     KIND: ClassVar[str] = "perception"
+    RATE_HZ: ClassVar[tuple[float, float]] = (5.0, 50.0)  # its timeouts and moves assume ~10 Hz
+    REQUIRES: ClassVar[tuple[str, ...]] = ("camera",)
     DOC: ClassVar[str] = "Stereo, fusion into the elevation map, cliff-edge fits (slack jobs)."
     CHANNELS = (
         Channel("mapped_cells", "cells", doc="cells with n >= 1"),
@@ -333,8 +336,8 @@ class PerceptionTask(FlightTask):
         try:
             store.save_next(self.map, self._last_checkpoint_s)
         except OSError as exc:
-            self.event("CHECKPOINT_FAILED", error=str(exc))
-            raise CommandError(f"checkpoint failed: {exc}") from None
+            self.event("CHECKPOINT_FAILED", error=describe(exc))
+            raise CommandError(f"checkpoint failed: {describe(exc)}") from None
         self.event("CHECKPOINT_SAVED", seq=store.seq, kib=store.last_size / 1024)
 
     def _restore(self, store: MapStore) -> None:

@@ -2,12 +2,14 @@
 
 Thin (docs/architecture.md, tasks). It keeps the latest map snapshot (``map.updated``); a
 ``SEND_MAP`` command or a :class:`RadioSendRequest` on ``radio.send`` (the mission's last
-step) encodes that snapshot in a slack job (quadtree + codec, ``fsw.core.codec.mapcodec``, the
-wheel diameter from ``[rover]``) and hands the container to the sans-I/O
-:class:`~fsw.comm.link_sender.LinkSender`. Every activation it feeds the radio's datagrams
-to the link and sends what the link's pacing allows, never more than its byte budget
-(``[link] rate_bps`` over two activation periods), then reports the link's events and
-counters. The radio is the ``radio_port`` resource, or ``[link] transport`` opened here.
+step, which carries its own snapshot, so a resumed mission needs no ``map.updated``; a
+repeat of the request for the map in hand changes nothing) encodes that snapshot in a slack
+job (quadtree + codec, ``fsw.core.codec.mapcodec``, the wheel diameter from ``[rover]``) and
+hands the container to the sans-I/O :class:`~fsw.comm.link_sender.LinkSender`. Every
+activation it feeds the radio's datagrams to the link and sends what the link's pacing
+allows, never more than its byte budget (``[link] rate_bps`` over two activation periods),
+then reports the link's events and counters. The radio is the ``radio_port`` resource, or
+``[link] transport`` opened here.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from fsw.tasks.messages import MAP_UPDATED, RADIO_SEND, RADIO_STATUS, RadioStatu
 
 class RadioTask(FlightTask):
     KIND: ClassVar[str] = "radio"
+    RATE_HZ: ClassVar[tuple[float, float]] = (5.0, 50.0)  # its timeouts and moves assume ~10 Hz
     DOC: ClassVar[str] = "Map link to the Cliff-bot: encode the map, send it within a byte budget."
     CHANNELS = (
         Channel("state", doc="link sender state: idle, offering, sending, done, rejected, failed"),
@@ -54,6 +57,8 @@ class RadioTask(FlightTask):
         EventDef("ACCEPTED", Severity.ACTIVITY_LO, "map {map_id}: the Cliff-bot accepted"),
         EventDef("REJECTED", Severity.WARNING_HI, "map {map_id}: the Cliff-bot rejected it ({reason})"),
         EventDef("DELIVERED", Severity.ACTIVITY_HI, "map {map_id}: {size} B delivered and verified in {seconds} s"),
+        EventDef("REOFFERED", Severity.WARNING_LO, "map {map_id}: offered again as session {session} "
+                 "({reason})", throttle=5),
         EventDef("LINK_LOST", Severity.WARNING_HI, "map {map_id}: no answer for {silent_s} s, transfer failed"),
         EventDef("HASH_MISMATCH_RESEND", Severity.WARNING_LO, "map {map_id}: hash mismatch, resend {attempt}"),
         EventDef("HASH_MISMATCH_GIVE_UP", Severity.WARNING_HI, "map {map_id}: hash mismatch, gave up"),
@@ -97,6 +102,7 @@ class RadioTask(FlightTask):
         self._request(map_id)
 
     def cmd_ABORT(self) -> None:
+        self.session = max(self.session, self.sender.session)
         self.sender = LinkSender(self.link_cfg, session=self._next_session())
 
     # -- the work --------------------------------------------------------------------------------
@@ -106,7 +112,7 @@ class RadioTask(FlightTask):
         if upd is not None:
             self.snapshot = upd.snapshot
         for req in self.send_box.drain():
-            self._request(req.map_id)
+            self._request(req.map_id, req.snapshot)
         d = self.port.recv(0.0, now)
         while d is not None:
             self.sender.receive(d, now)
@@ -129,7 +135,7 @@ class RadioTask(FlightTask):
         self.tlm("state", s.state.value)
         if s.state is not self._published_state:
             self._published_state = s.state
-            self.publish(RADIO_STATUS, RadioStatus(s.state, self.ctx.clock.now()))
+            self.publish(RADIO_STATUS, RadioStatus(s.state, self.ctx.clock.now(), s.map_id))
         self.tlm("acked_pct", 100.0 * acked / total if total else 0.0)
         self.tlm("map_bytes", s.map_bytes)
         self.tlm("tx_bytes", s.stats.bytes_out)
@@ -144,17 +150,19 @@ class RadioTask(FlightTask):
         self.session = self.session % 0xFFFF + 1
         return self.session
 
-    def _request(self, map_id: int) -> None:
+    def _request(self, map_id: int, snapshot: ElevationMap | None = None) -> None:
         busy = self.sender.state in (SenderState.OFFERING, SenderState.SENDING)
+        current = self.encoding if self.encoding is not None else self.sender.map_id
         if busy or self.encoding is not None:
-            self.event("BUSY", map_id=map_id, current=self.encoding if self.encoding is not None
-                       else self.sender.map_id)
+            if current != map_id:  # the same map asked again is a repeat, not a conflict
+                self.event("BUSY", map_id=map_id, current=current)
             return
-        if self.snapshot is None:
+        snapshot = snapshot if snapshot is not None else self.snapshot
+        if snapshot is None:
             self.event("NO_MAP")
             return
-        z = np.asarray(self.snapshot.z, np.float32).copy()
-        cell_m = float(self.snapshot.grid.cell)
+        z = np.asarray(snapshot.z, np.float32).copy()
+        cell_m = float(snapshot.grid.cell)
         self.encoding = map_id
 
         def job() -> Generator[None, None, EncodedMap]:
@@ -175,5 +183,6 @@ class RadioTask(FlightTask):
         if len(enc.data) > self.link_cfg.max_map_bytes:
             self.event("ENCODE_FAILED", map_id=map_id, error="container larger than max_map_bytes")
             return
+        self.session = max(self.session, self.sender.session)  # re-offers moved it on
         self.sender = LinkSender(self.link_cfg, session=self._next_session())
         self.sender.start(map_id, enc.data, self.ctx.clock.now())

@@ -49,6 +49,8 @@ class MissionConfig:
     capture_retries: int = param(2, lo=0, hi=20, doc="retries of a pair that did not arrive")
     step_timeout_s: float = param(300.0, lo=1.0, hi=1e5, units="s", doc="longest wait for one request")
     transmit: bool = param(True, doc="send the map to the Cliff-bot at the end")
+    transmit_timeout_s: float = param(1800.0, lo=1.0, hi=1e6, units="s",
+                                      doc="longest wait for the map's delivery; then SAFE, 'map not delivered'")
     safe_recover_s: float = param(0.0, lo=0.0, hi=1e5, units="s", doc="0: SAFE waits for RESUME")
     safe_clear_faults: bool = param(True, doc="the automatic recovery clears latched motor and mast faults first")
     safe_max_recoveries: int = param(

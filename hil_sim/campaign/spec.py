@@ -13,7 +13,9 @@ methods of a pair get the same faults, so Method 5 and the oracle stay paired).
 The spec is validated like every other config (``fsw.framework.params``): a bad key, type,
 range, NaN or infinity, unknown method or fault, or a scenario string the loader refuses is a
 :class:`ConfigError` naming ``FILE: KEY: REASON``. The expansion is deterministic: the same
-spec gives the same missions, ids and order.
+spec gives the same missions, ids and order. The number of missions is counted from the spec
+(:func:`mission_count`, no expansion) and a spec of more than ``MAX_MISSIONS`` is refused
+before any scenario is checked or mission built, so even a spec of millions answers at once.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -129,6 +132,9 @@ def load_spec(path: str | Path) -> CampaignSpec:
     set_names = [s.name for s in spec.faults.sets]
     if len(set(set_names)) != len(set_names) or "none" in set_names:
         raise ConfigError(src, "faults.sets.name", "fault set names must be unique and not 'none'")
+    n = mission_count(spec)
+    if n > MAX_MISSIONS:
+        raise ConfigError(src, "families", f"{n:,} missions is more than {MAX_MISSIONS:,}")
     for i, fam in enumerate(spec.families):
         key = f"families[{i}]"
         for k, (lo, hi) in fam.random.uniform.items():
@@ -145,10 +151,17 @@ def load_spec(path: str | Path) -> CampaignSpec:
                     raise ConfigError(src, f"{key}.{k}", f"values must be strings, numbers or booleans, got {v!r}")
         _check_scenarios(src, key, fam)
     _check_fault_targets(src, spec)
-    n = len(expand(spec))
-    if n > MAX_MISSIONS:
-        raise ConfigError(src, "families", f"{n} missions is more than {MAX_MISSIONS}")
     return spec
+
+
+def mission_count(spec: CampaignSpec) -> int:
+    """How many missions :func:`expand` makes, counted without making them."""
+    points = 0
+    for fam in spec.families:
+        grid = math.prod(len(v) for v in fam.grid.values())
+        points += grid * (fam.random.count or 1)
+    sets = 1 + len(spec.faults.sets) if spec.faults.mode == "cross" else 1
+    return points * len(spec.campaign.seeds) * sets * len(spec.campaign.methods)
 
 
 def _check_scenarios(src: str, key: str, fam: Family) -> None:
@@ -233,14 +246,14 @@ def expand(spec: CampaignSpec) -> list[Mission]:
     pair = -1
     for jf, fam, ip, point in points:
         scen = scenario_string(fam.scenario, point)
-        for seed in c.seeds:
+        for iseed, seed in enumerate(c.seeds):
             pair += 1
             sets: list[FaultSet | None] = [None, *plan.sets] if plan.mode == "cross" else [None]
             for jset, fs0 in enumerate(sets):
                 for jm, m in enumerate(c.methods):
                     fs, unit = (fs0, pair) if plan.mode == "cross" else drawn[(pair, m)]
                     fname = fs.name if fs is not None else "none"
-                    order = (c.seeds.index(seed), ip, jf, jset, jm)
+                    order = (iseed, ip, jf, jset, jm)
                     out.append((order, Mission(
                             id=f"{fam.name}-p{ip:03d}-s{seed}-{fname}-m{m}",
                             family=fam.name,

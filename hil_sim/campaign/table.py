@@ -20,7 +20,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-OUTCOMES = ("done", "edge_violation", "safe", "time_limit", "error", "killed")
+OUTCOMES = ("done", "edge_violation", "undelivered", "safe", "time_limit", "error", "killed")
 WALL_CLOCK_COLUMNS = ("wall_s", "slips", "overruns")
 RESULT_COLUMNS = (
     "outcome", "error", "end_reason", "final_state", "safe_reason", "steps_done", "mapped_cells",
@@ -33,11 +33,13 @@ RESULT_COLUMNS = (
 
 def outcome(summary: dict[str, Any]) -> str:
     """Outcome class of a finished mission: an edge violation outranks everything; then DONE,
-    an unrecovered SAFE, or the bench-time limit reached in any other state."""
+    a map not delivered, an unrecovered SAFE, or the bench-time limit reached in any other state."""
     if summary["edge_violations"] > 0:
         return "edge_violation"
     if summary["final_state"] == "DONE":
         return "done"
+    if summary.get("map_delivered") is False:
+        return "undelivered"  # mapping ended, the map never reached the Cliff-bot
     if summary["final_state"] == "SAFE":
         return "safe"
     return "time_limit"

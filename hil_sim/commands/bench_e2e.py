@@ -7,9 +7,13 @@ Prints, for the DBC given (default ``config/rover.dbc``):
 * CAN fuzz: ``--cases`` valid frames of every message, 1-3 flipped bits, accepted count;
   ``--cases`` random frames (any id, length, bytes), accepted count; and, as information,
   random payloads on the DBC's own ids and lengths against the expected residual rate;
+* CAN replays: ``--cases`` old frames or pairs of every message replayed to a receiver that
+  follows the live sender (must all be refused); and, as information, live frames with 8
+  flipped bits through the whole receiver, accepted per CRC width;
 * serial fuzz: ``--cases`` frames with 1-3 flipped bits between two valid frames, and
   ``--cases`` frame-shaped noise bursts: frames accepted that were never sent, valid frames
-  after the corruption that were not parsed.
+  after the corruption that were not parsed; and ``--cases`` mutated frames (cut, flipped,
+  bytes deleted or inserted) followed by a valid frame that ends the stream.
 
 Exit status 1 if anything that must never happen happened (a corrupted or random frame
 accepted, a valid frame lost behind garbage, an undetected 1-3 bit pattern).
@@ -75,10 +79,19 @@ def run(args: argparse.Namespace) -> int:
         f"{on_ids.cases} pass checksum and reserved bits (expected {expected:.1f}; the receiver's "
         f"alive-counter check refuses most of those)"
     )
+    replays = ff.can_replays(codec, args.cases, args.seed + 6)
+    bad += replays.accepted
+    print(replays.line("CAN, replayed old frames and pairs of every message (ages 1-32, then any below 16 x 2^w - 4)"))
+    for bits, c in sorted(ff.can_receiver_flips(codec, args.cases, args.seed + 7).items()):
+        print(f"CAN, 8 flipped bits in live frames through the receiver, {bits}-bit CRC (information): "
+              f"{c.accepted} of {c.cases} accepted")
     sflips = ff.serial_bit_flips(args.cases, args.seed + 3)
     snoise = ff.serial_random_frames(args.cases, args.seed + 4)
+    smut = ff.serial_mutations(args.cases, args.seed + 5)
     bad += sflips.accepted + sflips.missed_next + snoise.accepted + snoise.missed_next
+    bad += smut.accepted + smut.missed_next
     print(sflips.line("serial, 1-3 flipped bits in a frame between two valid ones"))
     print(snoise.line("serial, frame-shaped noise then a valid frame"))
+    print(smut.line("serial, a cut/flipped/shifted frame then a valid one, nothing after"))
     print(f"{time.perf_counter() - t0:.1f} s; {'FAIL' if bad else 'ok'}: {bad} must-never events")
     return 1 if bad else 0

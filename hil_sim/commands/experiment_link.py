@@ -42,6 +42,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bers", type=float, nargs="+", default=[0.0, 1e-6, 1e-5, 3e-5, 1e-4],
                    help="bit error rate points (at zero loss)")
     p.add_argument("--seeds", type=int, default=None, help="runs per point (sim 10, udp 5)")
+    p.add_argument("--reverse-loss", type=float, default=-1.0,
+                   help="udp: loss of the Cliff-bot's answers (acknowledgements) alone; -1: as the loss")
     p.add_argument("--ber", type=float, default=3e-5, help="udp: bit error rate of every run")
     p.add_argument("--duplicate", type=float, default=0.1, help="udp: duplication probability")
     p.add_argument("--reorder", type=float, default=0.1, help="udp: reordering probability")
@@ -53,6 +55,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--latency-s", type=float, default=0.05, help="one-way latency")
     p.add_argument("--config", default=None, help="flight config for [link] (default config/fsw.toml)")
     p.add_argument("--out", type=Path, default=Path("out/experiments/link"), help="output dir")
+    p.add_argument("--results", type=Path, default=None,
+                   help="udp: also write the report there, with date, commit and command "
+                   "(e.g. docs/results/link_udp_loss.md)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -164,6 +169,22 @@ def _report(rows: list[dict[str, Any]], args: argparse.Namespace, link: Any) -> 
     return "\n".join(lines) + "\n"
 
 
+def provenance() -> str:
+    """Date, commit and command line of this run (the first lines of a results file)."""
+    import datetime
+    import shlex
+    import subprocess
+    import sys
+
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                                timeout=10, check=False).stdout.strip() or "unknown"
+    except OSError:
+        commit = "unknown"
+    date = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    return f"{date}, commit {commit}: `safer-hil {shlex.join(sys.argv[1:])}`"
+
+
 def _run_udp(args: argparse.Namespace, link: Any) -> int:
     import math
 
@@ -173,27 +194,39 @@ def _run_udp(args: argparse.Namespace, link: Any) -> int:
 
     losses = args.losses or [0.1, 0.3]
     seeds = args.seeds or 5
-    nums = [*losses, args.ber, args.duplicate, args.reorder, args.reorder_delay_s, *args.outage,
+    nums = [*losses, args.reverse_loss, args.ber, args.duplicate, args.reorder, args.reorder_delay_s, *args.outage,
             args.timeout, args.rate_bps, args.latency_s]
     if not all(math.isfinite(x) for x in nums) or not all(0 <= x < 1 for x in
                                                           [*losses, args.ber, args.duplicate, args.reorder]) \
-            or seeds < 1 or args.jobs < 1 or args.bytes < 1 or args.timeout <= 0 or min(args.outage) < 0:
+            or not (args.reverse_loss == -1 or 0 <= args.reverse_loss < 1) or seeds < 1 or args.jobs < 1 \
+            or args.bytes < 1 or args.timeout <= 0 or min(args.outage) < 0:
         print("safer-hil: error: udp needs finite values, loss/BER/duplicate/reorder in [0, 1), "
+              "--reverse-loss -1 or in [0, 1), "
               "--seeds, --jobs, --bytes >= 1, --timeout > 0, --outage >= 0")
         return 2
     outage = (args.outage[0], args.outage[1]) if args.outage[1] > 0 else None
     specs = [UdpRunSpec(loss, seed, args.ber, args.duplicate, args.reorder, args.reorder_delay_s,
-                        outage, args.rate_bps, args.latency_s, args.bytes, args.config, args.timeout)
+                        outage, args.rate_bps, args.latency_s, args.bytes, args.config, args.timeout,
+                        reverse_loss=args.reverse_loss)
              for loss in losses for seed in range(seeds)]
     rows = run_all(specs, args.jobs)
     data = np.random.default_rng(0).integers(0, 256, args.bytes, dtype=np.uint8).tobytes()
     for spec, row in zip(specs, rows, strict=True):
         row["sim_ratio"] = round(sim_ratio(spec, link, data), 4)
-    header = (f"# Map link over loopback UDP ({args.rate_bps:g} bit/s, {args.bytes} B, BER {args.ber:g}, "
+    back = "as the loss" if args.reverse_loss < 0 else f"{args.reverse_loss:g}"
+    header = (f"# Map link over loopback UDP ({args.rate_bps:g} bit/s, {args.bytes} B, answers lost: {back}, "
+              f"BER {args.ber:g}, "
               f"duplicate {args.duplicate:g}, reorder {args.reorder:g}, outage {outage}, "
               f"segment {link.segment_bytes} B)")
-    print(write_tables(rows, args.out, header))
+    header += "\n\n" + provenance()
+    text = write_tables(rows, args.out, header)
+    print(text)
     print(f"wrote {args.out}/udp_runs.csv, udp_report.md")
-    write_results("link-udp", command_line("link"), (args.out / "udp_report.md").read_text())
+    if args.results is not None:
+        args.results.parent.mkdir(parents=True, exist_ok=True)
+        args.results.write_text(text)
+        print(f"wrote {args.results}")
+    name = "link-udp" if args.reverse_loss < 0 else "link-udp-answers-lost"
+    write_results(name, command_line("link"), (args.out / "udp_report.md").read_text())
     ok = all(r["bit_exact"] for r in rows)
     return 0 if ok else 1

@@ -12,12 +12,13 @@ import json
 import math
 import sys
 
-HELP = "loopback UDP relay with loss, bit errors, duplication, reordering, outages, a bit-rate cap"
+HELP = "loopback UDP relay with loss (per direction), bit errors, duplication, reordering, outages, a bit-rate cap"
 DESCRIPTION = (
     "Impairment relay for the map link over real sockets (127.0.0.1 only). The RECON-bot sends "
     "to side a (any port; the relay answers whoever sent last), the relay forwards to the "
     "Cliff-bot at --b-peer from side b, and back. Each direction is the bench's seeded channel "
-    "model (hil_sim/radio_channel.py) on the wall clock. Stops after --duration seconds or "
+    "model (hil_sim/radio_channel.py) on the wall clock, with its own random draws; "
+    "--reverse-loss gives the answers (b -> a) a loss of their own. Stops after --duration seconds or "
     "--idle-exit seconds without a datagram once traffic started. Exit 2 on bad arguments."
 )
 
@@ -28,7 +29,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--b-port", type=int, default=0, help="side b port (0: any free)")
     p.add_argument("--rate-bps", type=float, default=9600.0, help="bit-rate cap of each direction")
     p.add_argument("--latency-s", type=float, default=0.05, help="one-way latency")
-    p.add_argument("--loss", type=float, default=0.0, help="packet loss probability")
+    p.add_argument("--loss", type=float, default=0.0, help="packet loss probability (both directions)")
+    p.add_argument("--reverse-loss", type=float, default=-1.0,
+                   help="loss probability of side b -> a alone (the Cliff-bot's answers, "
+                   "acknowledgements included); -1: the same as --loss")
     p.add_argument("--ber", type=float, default=0.0, help="bit error rate")
     p.add_argument("--duplicate", type=float, default=0.0, help="probability a packet arrives twice")
     p.add_argument("--reorder", type=float, default=0.0, help="probability a packet is held back")
@@ -48,6 +52,7 @@ def channel_config(args: argparse.Namespace) -> object:
     from hil_sim.radio_channel import RadioChannelConfig
 
     values = {"rate_bps": args.rate_bps, "latency_s": args.latency_s, "loss": args.loss,
+              "reverse_loss": args.reverse_loss,
               "ber": args.ber, "duplicate": args.duplicate, "reorder": args.reorder,
               "reorder_delay_s": args.reorder_delay_s}
     for k, v in values.items():

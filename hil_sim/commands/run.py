@@ -53,7 +53,9 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from fsw.framework.params import ConfigError
-    from hil_sim.mission_run import RunSpec, finished, has_mission, read_manifest, run_mission
+    from fsw.framework.storage import StorageError, describe
+    from hil_sim.mission_run import RunSpec, read_manifest, run_mission
+    from hil_sim.run_dir import finished, has_mission
 
     if args.steps < 0:
         print("safer-hil run: --steps must be >= 0", file=sys.stderr)
@@ -97,6 +99,10 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         s = run_mission(spec, progress, mode=mode)
+    except OSError as err:  # a full or failing disk (StorageError, or one no writer expected)
+        close_bar(False)
+        print(f"safer-hil run: {err if isinstance(err, StorageError) else describe(err)}", file=sys.stderr)
+        return 1
     except ConfigError as err:
         close_bar(False)
         print(f"safer-hil run: config error: {err}", file=sys.stderr)

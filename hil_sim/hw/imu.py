@@ -69,7 +69,7 @@ class ImuDevice:
             self._emit(self._last, now)
             return
         noise = self.rng.normal(0.0, self.cfg.noise_sigma_deg, 2)
-        self.counter = (self.counter + 1) & 0xF
+        self.counter += 1  # full alive counter (E2E freshness)
         _, data = self.codec.encode(
             math.degrees(r.roll) + self.bias_deg[0] + noise[0],
             math.degrees(r.pitch) + self.bias_deg[1] + noise[1],

@@ -8,7 +8,8 @@ Each controller behaves as a real one on the bus (frames of ``config/rover.dbc``
 * a frame with a bad checksum, set reserved bits or a wrong length is counted and ignored; a
   COMMAND (or an ESTOP release) whose alive counter repeats or jumps beyond ``e2e_max_delta``
   is counted and ignored too -- a stale, duplicated or reordered command never moves a wheel.
-  An ESTOP *engage* with a good checksum is obeyed whatever its counter (the safe direction);
+  An ESTOP *engage* is obeyed out of sequence too (the safe direction) when its checksum holds
+  under the last accepted ESTOP's epoch or an epoch below 16 (a restarted flight computer);
 * Enable=1 with no latched fault drives the axis to the set-point; the set-point is clipped
   to the controller's limits and FaultLimit is reported while it is;
 * no COMMAND for ``command_timeout_s`` while enabled -> stop, FaultTimeout (latched);
@@ -57,7 +58,8 @@ class MotorControllerConfig:
     shoulder_min_deg: float = param(5.0, lo=-90.0, hi=90.0, units="deg")
     shoulder_max_deg: float = param(55.0, lo=-90.0, hi=90.0, units="deg")
     overcurrent_a: float = param(10.0, lo=0.1, hi=12.7, units="A")
-    e2e_max_delta: int = param(3, lo=1, hi=14, doc="largest accepted alive-counter jump of a COMMAND or ESTOP")
+    e2e_max_delta: int = param(3, lo=1, hi=4, doc="largest accepted alive-counter jump of a COMMAND or ESTOP "
+                               "(above 4, a 1-3 bit error could move the counter across a freshness epoch)")
 
 
 class _Axis:
@@ -99,6 +101,8 @@ class MotorControllerBank:
         self.fsw_heartbeats = 0
         self._seq_cmd = SequenceChecker(cfg.e2e_max_delta, cfg.command_timeout_s)
         self._seq_other = SequenceChecker(cfg.e2e_max_delta, 2.5 * cfg.heartbeat_period_s)
+        self._estop_id = codec.frame_id("ESTOP")
+        self._estop_epochs: set[int] = set()  # the epoch of the last accepted ESTOP (and the next)
         self.tap: Callable[[can.Message], None] | None = None  # sees every received frame (a bus logger)
         self.ignore_ids: set[int] = set()  # frames of other devices on the bus (e.g. the IMU's)
 
@@ -132,16 +136,16 @@ class MotorControllerBank:
             self._was_off = True
 
     def _on_frame(self, frame_id: int, data: bytes, extended: bool, now: float) -> None:
-        d = self.codec.decode(frame_id, data, extended)
+        d = self.codec.decode(frame_id, data, extended, epoch=None)  # the checksum: with the freshness below
         if isinstance(d, Bad):
             self.rx_bad += 1
         elif isinstance(d, AxisCommand):
-            if self._in_sequence(self._seq_cmd, frame_id, d.counter, now):
+            if self._in_sequence(self._seq_cmd, frame_id, data, now):
                 self.rx_commands += 1
                 self._on_command(self.axes[d.axis], d, now)
         elif isinstance(d, EStop):
-            in_seq = self._in_sequence(self._seq_other, frame_id, d.counter, now)
-            if d.engage:  # fail-safe: a protected engage is obeyed even out of sequence
+            in_seq = self._in_sequence(self._seq_other, frame_id, data, now)
+            if d.engage and (in_seq or self._plausible_engage(frame_id, data)):  # fail-safe: see below
                 self.estop = True
                 for ax in self.axes.values():
                     ax.enabled = False
@@ -149,13 +153,24 @@ class MotorControllerBank:
             elif in_seq:
                 self.estop = False
         elif isinstance(d, Heartbeat) and d.node == "FSW":
-            if self._in_sequence(self._seq_other, frame_id, d.counter, now):
+            if self._in_sequence(self._seq_other, frame_id, data, now):
                 self.fsw_heartbeats += 1
         else:
             self.rx_other += 1  # statuses and heartbeats: our own traffic echoed back
 
-    def _in_sequence(self, seq: SequenceChecker, frame_id: int, counter: int, now: float) -> bool:
-        verdict, _lost = seq.check(frame_id, counter, now)
+    def _plausible_engage(self, frame_id: int, data: bytes) -> bool:
+        """An ESTOP engage out of sequence is still obeyed (stopping is the safe direction) if
+        its checksum holds under the epoch of the last accepted ESTOP or FSW heartbeat (a
+        repeat) or under an epoch below 16 (a flight computer that restarted): not under any."""
+        lay = self.codec.e2e[frame_id]
+        epoch = lay.implied_epoch(data)
+        return epoch < 16 or epoch in self._estop_epochs
+
+    def _in_sequence(self, seq: SequenceChecker, frame_id: int, data: bytes, now: float) -> bool:
+        lay = self.codec.e2e[frame_id]
+        verdict, _lost = seq.check_frame(lay, data, now)
+        if verdict.accepted and frame_id == self._estop_id:
+            self._estop_epochs = {lay.implied_epoch(data), (lay.implied_epoch(data) + 1) % lay.epoch_mod}
         if not verdict.accepted:
             self.rx_e2e_seq += 1
         return verdict.accepted
@@ -227,7 +242,7 @@ class MotorControllerBank:
         if now - self._t_hb >= self.cfg.heartbeat_period_s - 1e-9:
             self._t_hb = now
             for ax in self.axes.values():
-                ax.hb_counter = (ax.hb_counter + 1) & 0xF
+                ax.hb_counter += 1  # full alive counter (E2E freshness)
                 self._emit(ax.name, *self.codec.encode_heartbeat(ax.name, ax.state, ax.hb_counter), now)
                 if ax.state == STATE_BOOTUP:
                     ax.state = STATE_PREOP
@@ -247,7 +262,7 @@ class MotorControllerBank:
             faults.add("FaultLimit")
         if self.faults.motor_fault(ax.name) == "driver":
             faults.add("FaultDriver")
-        ax.counter = (ax.counter + 1) & 0xF
+        ax.counter += 1
         self._emit(
             ax.name,
             *self.codec.encode_status(ax.name, float(pos), float(vel), float(cur), ax.enabled, faults, ax.counter),

@@ -11,6 +11,9 @@ boundary (walked with the plateau on its left). The map grid covers the DEM.
 Bad files are refused with one line (:class:`ScenarioError`): a file that is not what its
 suffix says (checked by its signature before any parser reads it), a ``.npy`` holding Python
 objects, NaN or infinite heights, and heights beyond ``max_abs_height_m`` (wrong units).
+The array size is checked from the file's header before anything is allocated: a ``.npy``
+header or PNG ``IHDR`` claiming more than ``MAX_DEM_CELLS`` cells, or a ``.npy`` shorter than
+its header says, is refused (a hostile header never asks for gigabytes).
 With ``zero_at_start`` (default) the heights are shifted so that the ground under the rover
 start is ``z = 0``. (The flight map's datum is the body resting on its four wheels, which on
 rocky ground differs from that by centimetres; ``hil_sim.terrain_eval`` compares in the
@@ -39,6 +42,7 @@ MAX_CELL_M = 0.01
 START_ROOM_M = 0.6  # the rover's wheels reach 0.56 m from its centre (config/fsw.toml [rover])
 
 
+MAX_DEM_CELLS = MAX_TRUTH_CELLS  # a DEM is resampled to the truth grid, which is capped at this
 NPY_MAGIC = b"\x93NUMPY"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -54,6 +58,7 @@ def read_dem(fc: FileDemConfig) -> F32:
         raise ScenarioError(f"{path}: DEM file not found")
     suffix = path.suffix.lower()
     _check_signature(path, suffix)
+    _check_size(path, suffix)
     if suffix == ".npy":
         try:
             arr = np.load(path, allow_pickle=False)
@@ -104,6 +109,40 @@ def _check_signature(path: Path, suffix: str) -> None:
         kind = "NumPy .npy" if suffix == ".npy" else "PNG"
         raise ScenarioError(f"{path}: not a {kind} file (its first bytes are {head[:8]!r}, "
                             f"not the {kind} signature)")
+
+
+def _check_size(path: Path, suffix: str) -> None:
+    """ScenarioError if the header claims more than ``MAX_DEM_CELLS`` cells (or more bytes than
+    a ``.npy`` holds); read before any array is allocated."""
+    if suffix == ".npy":
+        try:
+            with path.open("rb") as fh:
+                version = np.lib.format.read_magic(fh)
+                if version == (1, 0):
+                    shape, _fortran, dtype = np.lib.format.read_array_header_1_0(fh)
+                elif version == (2, 0):
+                    shape, _fortran, dtype = np.lib.format.read_array_header_2_0(fh)
+                else:
+                    raise ValueError(f"unsupported .npy format version {version}")
+                offset = fh.tell()
+        except (ValueError, OSError, EOFError, SyntaxError) as exc:
+            raise ScenarioError(f"{path}: not a readable .npy header ({exc})") from None
+        cells = math.prod(shape)
+        if cells > MAX_DEM_CELLS:
+            raise ScenarioError(f"{path}: .npy header claims shape {shape} ({cells:,} cells), more than "
+                                f"{MAX_DEM_CELLS:,}")
+        need = offset + cells * dtype.itemsize
+        if dtype.hasobject or need > path.stat().st_size:
+            why = "it holds Python objects" if dtype.hasobject else f"{path.stat().st_size} bytes, header needs {need}"
+            raise ScenarioError(f"{path}: not a readable .npy array ({why})")
+    elif suffix == ".png":
+        with path.open("rb") as fh:
+            head = fh.read(24)
+        if len(head) < 24 or head[12:16] != b"IHDR":
+            raise ScenarioError(f"{path}: not a readable PNG (no IHDR header)")
+        w, h = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+        if w * h > MAX_DEM_CELLS:
+            raise ScenarioError(f"{path}: PNG header claims {w} x {h} pixels, more than {MAX_DEM_CELLS:,}")
 
 
 def build_from_dem(cfg: ScenarioConfig, seed: int) -> World:

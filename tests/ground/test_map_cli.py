@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import os
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +30,11 @@ def test_encode_decode_info_round_trip(tmp_path: Path, npy: Path, capsys):
     assert safer_map(["info", str(out)]) == 0
     text = capsys.readouterr().out
     assert "leaves" in text and "error_bound_m" in text
+    # Issue 25: encode reports the obstacles given and kept; info the relief loss bounds.
+    line = next(t for t in text.splitlines() if t.startswith("obstacles"))
+    given, kept = (int(v) for v in line.split(": ", 1)[1].split(";")[0].replace(" given,", "").split()[:2])
+    assert given > 0 and kept == given
+    assert "relief_loss_bound_hazards_m 0 " in text and "relief_loss_bound_m 0.2" in text
     z, r = np.load(npy), np.load(back)
     assert r.dtype == np.float32 and np.array_equal(np.isnan(z), np.isnan(r))
     k = np.isfinite(z)
@@ -84,11 +90,16 @@ def test_experiments_and_bench_run_small(tmp_path: Path, capsys):
     """Issue 6, items 10-11: the experiments compute their tables from real runs (small)."""
     red = tmp_path / "red"
     assert safer_hil(["experiment", "reduction", "--maps", "2", "--size", "64", "--dh", "2", "8",
-                      "--out", str(red)]) == 0
+                      "--terrains", "", "--no-dem", "--out", str(red)]) == 0
     rows = list(csv.DictReader((red / "reduction.csv").open()))
     assert len(rows) == 4 and all(float(r["max_error_m"]) <= float(r["bound_m"]) for r in rows)
+    assert all(r["kept"] == r["obst"] for r in rows)
+    maps = list(csv.DictReader((red / "maps.csv").open()))
+    assert len(maps) == 2 and all(int(m["jls_hazard_bytes"]) > 0 for m in maps)
     assert (red / "fig12_reduction.png").stat().st_size > 5000
-    assert (red / "fig13_transmitted.png").exists() and "jpegls_q2e" in (red / "report.md").read_text()
+    assert (red / "fig13_transmitted.png").exists() and "JPEG-LS" in (red / "report.md").read_text()
+    res = (Path(os.environ["SAFER_RESULTS_DIR"]) / "reduction.md").read_text()
+    assert "- commit: " in res and "obstacles >= w kept" in res
     link = tmp_path / "link"
     assert safer_hil(["experiment", "link", "--bytes", "3000", "--seeds", "2", "--losses", "0", "0.1",
                       "--bers", "1e-5", "--out", str(link)]) == 0
@@ -96,3 +107,16 @@ def test_experiments_and_bench_run_small(tmp_path: Path, capsys):
     assert [r["bit_exact"] for r in rows] == ["2/2"] * 3
     assert safer_hil(["bench", "codec", "--size", "64", "--repeat", "2"]) == 0
     assert "encode ms" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_reduction_experiment_on_a_mission_like_map(tmp_path: Path):
+    """Issue 25: the hazard check on a scenario's map (truth on the flight grid, noise, holes)."""
+    red = tmp_path / "red"
+    assert safer_hil(["experiment", "reduction", "--maps", "0", "--terrains", "lab", "--no-dem",
+                      "--out", str(red)]) == 0
+    (m,) = list(csv.DictReader((red / "maps.csv").open()))
+    assert m["kind"] == "mission-like" and int(m["known"]) < int(m["cells"])
+    assert int(m["obst"]) > 0 and m["kept"] == m["obst"] and float(m["worst_peak_loss_m"]) <= 0
+    assert safer_hil(["experiment", "reduction", "--maps", "0", "--terrains", "nowhere", "--no-dem",
+                      "--out", str(red)]) == 2

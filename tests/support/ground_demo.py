@@ -172,7 +172,7 @@ def write_config(path: Path, mavlink: dict[str, object], demo: bool = True) -> P
     """A flight configuration file (TOML) for the ground tools' ``--config``."""
     tasks = [("demo", "ground_demo", "fast", 5.0)] if demo else [("busy", "busy", "fast", 5.0)]
     tasks += [("mavlink", "mavlink", "fast", 10.0), ("health", "health", "slow", 5.0)]
-    lines = ["[executive]", "frame_period_s = 0.1",
+    lines = ["[executive]", "flight = false", "frame_period_s = 0.1",
              "[[executive.groups]]", 'name = "fast"', "divisor = 1",
              "[[executive.groups]]", 'name = "slow"', "divisor = 10", "offset = 3"]
     for name, kind, group, budget in tasks:

@@ -8,10 +8,13 @@ zstandard frame inside a versioned container (``fsw.core.codec.mapformat``). ``d
 rebuilds the elevation map on the Cliff-bot.
 
 **Guarantee.** Every known cell of the decoded map is within ``error_bound_m`` of the
-original (default one wheel diameter, so no obstacle a wheel cannot climb vanishes);
-every unknown cell decodes as NaN. The quadtree only accepts a leaf whose known cells all
-lie within the bound of some lattice value, the encoder picks the leaf's value from that
-feasible set, and ``encode_map`` checks the reconstruction before it returns.
+original (default one wheel diameter); every unknown cell decodes as NaN. With ``hazard =
+true`` (default) every cell also has its own interval (``fsw.core.codec.hazard``): a cell
+whose relief (top-hat over ``relief_disc_m``) is at least one wheel diameter decodes with
+its relief and height never lower, so no obstacle is flattened from both sides; the
+relief loss bounds are in the container header. The quadtree only accepts a leaf whose
+known cells' intervals share a lattice value, the encoder picks the leaf's value from that
+feasible set, and ``encode_map`` checks every cell against its interval before it returns.
 
 **(choice) Leaf values.** The paper sends each leaf's mean. With ``leaf_value =
 "predictive"`` (default) the encoder sends, among the lattice values that honour the bound,
@@ -23,10 +26,12 @@ mean of the decimated map. Both honour the same bound.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from fsw.core.codec import hazard as hz
 from fsw.core.codec import hint
 from fsw.core.codec.mapformat import Header, MapCodecError, compressor, pack, unpack
 from fsw.core.codec.quadtree import Quadtree, build_quadtree, tree_depth
@@ -63,6 +68,17 @@ class CodecConfig:
                             doc="zstandard level of the lossless stage (19: -0.4 % bytes, 4x slower)")
     max_cells: int = param(1 << 24, lo=4, hi=1 << 28, units="cells",
                            doc="largest map the decoder accepts")
+    hazard: bool = param(True, doc="keep every hazard's relief (fsw.core.codec.hazard); false: height bound only")
+    hazard_relief_wheels: float = param(
+        1.0, lo=0.05, hi=10.0, units="wheel diameters",
+        doc="relief (top-hat) or step that makes a cell critical")
+    relief_disc_m: float = param(1.05, lo=0.01, hi=20.0, units="m",
+                                 doc="top-hat disc diameter: about the rover's footprint")
+    step_disc_wheels: float = param(1.0, lo=0.1, hi=20.0, units="wheel diameters",
+                                    doc="a step is the height above the lowest cell within this disc")
+    support_rise_fraction: float = param(
+        0.0, lo=0.0, hi=0.9, doc="support cells rise at most, relief hazards rise at least, "
+        "this fraction of the error bound")
 
 
 @dataclass(frozen=True)
@@ -103,13 +119,34 @@ def encode_map(
     margin = 2.0 * float(np.spacing(np.float32(max(maxabs, 1.0)))) + 1e-9 * bound
     if margin >= 0.5 * bound:
         raise ValueError(f"error bound {bound} m is below float32 resolution at {maxabs} m")
-    q = cfg.quant_step_fraction * bound
     offset = float(np.mean(z32[known], dtype=np.float64)) if known.any() else 0.0
+    lo_c = hi_c = lo_chk = hi_chk = None
+    hazard_fields: dict[str, Any] = {}
+    if cfg.hazard:
+        rise = cfg.support_rise_fraction * bound
+        q = cfg.quant_step_fraction * (bound - rise)  # a relief hazard's interval holds 2 steps
+        slack = q + 4.0 * margin  # a step hazard that is also support keeps a lattice value
+        if margin >= 0.25 * (bound - rise):
+            raise ValueError(f"error bound {bound} m is below float32 resolution at {maxabs} m")
+        rule = hz.HazardRule(threshold_m=cfg.hazard_relief_wheels * wheel_diameter_m,
+                             relief_disc_m=cfg.relief_disc_m,
+                             step_disc_m=cfg.step_disc_wheels * wheel_diameter_m)
+        cells = hz.classify(z32, cell_m, rule)
+        lo_c, hi_c = hz.cell_intervals(z32, cells, bound_m=bound, rise_m=rise, step_slack_m=slack,
+                                       margin_m=margin)
+        # What the decoded float32 values must meet (the margins above absorb their rounding).
+        lo_chk, hi_chk = hz.cell_intervals(z32, cells, bound_m=bound, rise_m=rise, step_slack_m=slack,
+                                           margin_m=0.0)
+        hazard_fields = {"hazard_threshold_m": rule.threshold_m, "relief_disc_m": rule.relief_disc_m,
+                         "step_disc_m": rule.step_disc_m, "support_rise_m": rise, "step_slack_m": slack,
+                         "relief_loss_hazard_m": 0.0, "relief_loss_any_m": 2.0 * bound}
+    else:
+        q = cfg.quant_step_fraction * bound
     tree = build_quadtree(
         z32, wheel_diameter_m=wheel_diameter_m, cell_m=cell_m, error_bound_m=bound - margin,
         quant_step_m=q, z_offset_m=offset, lowpass_sigma_cells=cfg.lowpass_sigma_cells,
         decimation_height_m=cfg.decimation_height_wheels * wheel_diameter_m,
-        split_rule=cfg.split_rule)
+        split_rule=cfg.split_rule, cell_lo_m=lo_c, cell_hi_m=hi_c)
     kn = tree.leaf_known
     with np.errstate(invalid="ignore"):
         c_lo = np.where(kn, np.ceil((tree.leaf_lo_m - offset) / q), 0).astype(np.int64)
@@ -126,10 +163,15 @@ def encode_map(
     max_err = float(err.max()) if err.size else 0.0
     if max_err > bound or np.isfinite(rec[~known]).any():
         raise AssertionError(f"codec bound violated: {max_err} > {bound}")
+    if lo_chk is not None and hi_chk is not None:
+        r64 = rec[known].astype(np.float64)
+        if (r64 < lo_chk[known]).any() or (r64 > hi_chk[known]).any():
+            raise AssertionError("codec hazard interval violated")
     header = Header(
         ny=tree.shape[0], nx=tree.shape[1], cell_m=cell_m, wheel_diameter_m=wheel_diameter_m,
         error_bound_m=bound, quant_step_m=q, z_offset_m=offset, n_leaves=tree.n_leaves,
-        has_unknown=bool((~known).any()), split_rule=cfg.split_rule, leaf_value=cfg.leaf_value)
+        has_unknown=bool((~known).any()), split_rule=cfg.split_rule, leaf_value=cfg.leaf_value,
+        hazard=cfg.hazard, **hazard_fields)
     streams = _streams(tree, residuals, header.has_unknown)
     data = pack(header, streams, compressor(cfg.zstd_level))
     rms = float(np.sqrt(np.mean(err**2))) if err.size else 0.0

@@ -211,13 +211,17 @@ def build_quadtree(
     lowpass_sigma_cells: float = 1.0,
     decimation_height_m: float | None = None,
     split_rule: str = "entropy",
+    cell_lo_m: F64 | None = None,
+    cell_hi_m: F64 | None = None,
 ) -> Quadtree:
     """Reduce ``z`` to a quadtree of interest regions (docs/algorithm.md §6, steps 1-4).
 
     ``split_rule``: ``"entropy"`` is the paper's rule plus the two safety reasons (module
     docstring); ``"bound"`` splits only for unknown/known mixing and the error bound.
     A leaf is accepted only if some value ``z_offset_m + k * quant_step_m`` (any value when
-    ``quant_step_m`` is 0) lies within ``error_bound_m`` of every known original cell in it.
+    ``quant_step_m`` is 0) lies within ``error_bound_m`` of every known original cell in it,
+    or, when ``cell_lo_m`` and ``cell_hi_m`` are given, inside every known cell's own interval
+    ``[cell_lo_m, cell_hi_m]`` (the hazard-preserving intervals of ``fsw.core.codec.hazard``).
     """
     if z.ndim != 2 or z.size == 0:
         raise ValueError(f"expected a non-empty 2-D map, got shape {z.shape}")
@@ -238,9 +242,11 @@ def build_quadtree(
     if known0.any():
         bins[known0] = np.floor((d[known0] - np.nanmin(d)) / wheel_diameter_m).astype(np.int64)
 
-    # Bottom-up statistics per level: min and max of the original (as min of z and of -z),
-    # known and unknown cell counts, sum of the decimated map over known cells.
-    ext = [np.stack([np.where(known0, z64, np.inf), np.where(known0, -z64, np.inf)])]
+    # Bottom-up statistics per level: the intersection of the cells' feasible intervals (as
+    # min of hi and of -lo), known and unknown cell counts, sum of the decimated map over known cells.
+    if cell_lo_m is None or cell_hi_m is None:
+        cell_lo_m, cell_hi_m = z64 - error_bound_m, z64 + error_bound_m
+    ext = [np.stack([np.where(known0, cell_hi_m, np.inf), np.where(known0, -cell_lo_m, np.inf)])]
     cnt = [np.stack([known0, ~known0]).astype(np.int32)]
     dsum = [np.where(known0, d, 0.0)]
     for _ in range(L):
@@ -248,8 +254,8 @@ def build_quadtree(
         cnt.append(_pool(cnt[-1], np.add, 0))
         dsum.append(_pool(dsum[-1], np.add, 0.0))
     nkn = [c[0] for c in cnt]
-    lo = [-e[1] - error_bound_m for e in ext]
-    hi = [e[0] + error_bound_m for e in ext]
+    lo = [-e[1] for e in ext]
+    hi = [e[0] for e in ext]
 
     def feasible(lv: int) -> B:
         if quant_step_m <= 0:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import random
+from collections.abc import Callable
 
 import can
 import cantools
@@ -16,6 +17,7 @@ import pytest
 from hil_helpers import cfg
 
 from fsw.comm.e2e import E2ELayout, Seq, SequenceChecker
+from fsw.comm.imu_can import ImuCan
 from fsw.comm.rover_can import AXES, DEFAULT_DBC, AxisCommand, Bad, Heartbeat, RoverCan
 from fsw.drivers import can_motors as cm
 from hil_sim import frame_fuzz as ff
@@ -91,31 +93,113 @@ def test_the_fuzzer_can_fail() -> None:
     assert ff.can_bit_flips(NoCheck(), cases=200, seed=1).accepted > 100
 
 
+def _hb(counter: int) -> tuple[int, bytes]:
+    """A DRIVE_FL heartbeat with the sender's full alive counter ``counter``."""
+    return CODEC.encode_heartbeat("DRIVE_FL", 5, counter)
+
+
 def test_sequence_checker_verdicts() -> None:
-    """AUTOSAR profile-1 style: repeated and out-of-sequence counters are refused, resync on two."""
+    """AUTOSAR profile-1 style: repeated and out-of-sequence counters are refused; a jump never
+    re-synchronises while the track is fresh; after a silence, a new track starts."""
     s = SequenceChecker(max_delta=3, reinit_after_s=1.0)
-    assert s.check(7, 5, 0.0) == (Seq.INITIAL, 0)
-    assert s.check(7, 6, 0.1) == (Seq.OK, 0)
-    assert s.check(7, 6, 0.2) == (Seq.REPEATED, 0)
-    assert s.check(7, 9, 0.3) == (Seq.OK_SOME_LOST, 2)
-    assert s.check(7, 4, 0.4) == (Seq.WRONG_SEQUENCE, 0)  # backwards: stale or reordered
-    assert s.check(7, 10, 0.5) == (Seq.OK, 0)  # the stale frame did not disturb the sequence
-    assert s.check(7, 15, 0.6) == (Seq.WRONG_SEQUENCE, 0)  # a jump of 5
-    assert s.check(7, 0, 0.7) == (Seq.INITIAL, 0)  # ... confirmed by the next: re-synchronised
-    assert s.check(7, 0, 2.0) == (Seq.INITIAL, 0)  # after a silence, anything starts over
-    assert s.check(8, 0, 2.0) == (Seq.INITIAL, 0)  # per data id
+    lay = CODEC.e2e[_hb(0)[0]]
+
+    def check(counter: int, t: float) -> tuple[Seq, int]:
+        return s.check_frame(lay, _hb(counter)[1], t)
+
+    assert check(5, 0.0) == (Seq.INITIAL, 0)
+    assert check(6, 0.1) == (Seq.OK, 0)
+    assert check(6, 0.2) == (Seq.REPEATED, 0)
+    assert check(9, 0.3) == (Seq.OK_SOME_LOST, 2)
+    assert check(4, 0.4) == (Seq.WRONG_SEQUENCE, 0)  # backwards: stale or reordered
+    assert check(10, 0.5) == (Seq.OK, 0)  # the stale frame did not disturb the sequence
+    assert check(15, 0.6) == (Seq.WRONG_SEQUENCE, 0)  # a jump of 5 ...
+    assert check(16, 0.7) == (Seq.WRONG_SEQUENCE, 0)  # ... is not re-synchronised by the next frame
+    assert check(11, 0.8) == (Seq.OK, 0)
+    assert check(12 + 16, 0.9) == (Seq.STALE, 0)  # counter fits, freshness does not: 16 frames ahead
+    assert check(12, 1.0) == (Seq.OK, 0)
+    assert check(200, 2.5) == (Seq.LEARNING, 0)  # after a silence: held ...
+    assert check(201, 2.6) == (Seq.INITIAL, 0)  # ... until the next frame confirms the new sequence
+    assert check(202, 2.7) == (Seq.OK, 0)
+    assert check(0, 4.0) == (Seq.INITIAL, 0)  # a restarted sender (epoch 0) after a silence: at once
 
 
 def test_next_valid_frame_after_garbage_is_accepted() -> None:
     """Refused frames never touch the counter state: the next valid frame is taken."""
     seq = SequenceChecker()
-    fid, good0 = CODEC.encode_heartbeat("DRIVE_FL", 5, 0)
-    _, good1 = CODEC.encode_heartbeat("DRIVE_FL", 5, 1)
-    assert isinstance(d := CODEC.decode(fid, good0), Heartbeat) and seq.check(fid, d.counter, 0.0)[0].accepted
+    fid, good0 = _hb(0)
+    _, good1 = _hb(1)
+    lay = CODEC.e2e[fid]
+    assert isinstance(CODEC.decode(fid, good0), Heartbeat) and seq.check_frame(lay, good0, 0.0)[0].accepted
     for garbage in (bytes([good1[0] ^ 1]) + good1[1:], good1[:2], b"\xff" * 3):
         assert isinstance(CODEC.decode(fid, garbage), Bad)
-    d1 = CODEC.decode(fid, good1)
-    assert isinstance(d1, Heartbeat) and seq.check(fid, d1.counter, 0.1) == (Seq.OK, 0)
+    assert seq.check_frame(lay, bytes([good1[0] ^ 1]) + good1[1:], 0.05)[0] is Seq.STALE  # checksum fails
+    assert isinstance(CODEC.decode(fid, good1), Heartbeat) and seq.check_frame(lay, good1, 0.1) == (Seq.OK, 0)
+
+
+def _every_layout() -> list[tuple[E2ELayout, Callable[[int], bytes]]]:
+    """Each DBC message (the IMU's too) with a function making its frame of full counter F."""
+    imu = ImuCan()
+    out: list[tuple[E2ELayout, Callable[[int], bytes]]] = []
+    rng = random.Random(1)
+    for lay in sorted(CODEC.e2e.values(), key=lambda x: x.data_id):
+        word = rng.getrandbits(8 * lay.length) & ~lay.reserved_mask
+        data = word.to_bytes(lay.length, "little")
+        out.append((lay, lambda f, lay=lay, data=data: lay.protect(data, f)))
+    assert imu.frame_id in {lay.data_id for lay, _ in out}
+    return out
+
+
+def test_replayed_frames_are_refused_25000_trials_every_message() -> None:
+    """req(26.5): a live sender at a random point of its life; an attacker replays one old frame
+    or a pair of consecutive old frames (any age below 16 x 2^8 - 4 frames, or 16 x 2^16 - 4 on
+    the 16-bit-CRC motion frames) between two live frames: every replay refused, the live frames
+    after it accepted. Ages 1-32 (the reviewer's) are covered in every message."""
+    rng = random.Random(26)
+    layouts = _every_layout()
+    refused = trials = 0
+    for i in range(25_000):
+        lay, frame = layouts[i % len(layouts)]
+        span = 16 * lay.epoch_mod
+        age = 1 + (i // len(layouts)) % 32 if i < 32 * len(layouts) else rng.randrange(1, span - 5)
+        f0 = rng.randrange(age + 2, 10 * span)  # the live sender's full counter now
+        seq = SequenceChecker(max_delta=3, reinit_after_s=1.0)
+        t = 0.0
+        for f in range(f0 - 3, f0 + 1):  # the receiver follows the live stream
+            t += 0.01
+            assert seq.check_frame(lay, frame(f), t)[0].accepted
+        replay = [frame(f0 - age)] if rng.random() < 0.5 else [frame(f0 - age - 1), frame(f0 - age)]
+        for r in replay:
+            t += 0.001
+            refused += not seq.check_frame(lay, r, t)[0].accepted
+        trials += len(replay)
+        t += 0.01
+        assert seq.check_frame(lay, frame(f0 + 1), t)[0].accepted, (lay.name, age)
+    assert trials > 25_000 and refused == trials
+
+
+def test_a_restarted_sender_is_refused_while_the_track_lives_then_learnt() -> None:
+    """A sender restarting at counter 0 looks like a replay while its old track is fresh:
+    refused for ``reinit_after_s``, then taken at once (epoch 0, checksum fully checked)."""
+    fid, _ = _hb(0)
+    lay, seq = CODEC.e2e[fid], SequenceChecker(max_delta=3, reinit_after_s=0.5)
+    for k, f in enumerate(range(1000, 1010)):
+        seq.check_frame(lay, _hb(f)[1], 0.1 * k)
+    assert not seq.check_frame(lay, _hb(1)[1], 1.0)[0].accepted  # restarted, 0.1 s after the last
+    assert not seq.check_frame(lay, _hb(2)[1], 1.1)[0].accepted
+    assert seq.check_frame(lay, _hb(3)[1], 1.5)[0] is Seq.INITIAL  # 0.6 s without an accepted frame
+    assert seq.check_frame(lay, _hb(4)[1], 1.6) == (Seq.OK, 0)
+
+
+@pytest.mark.parametrize("layout", _distinct_layouts(), ids=lambda lay: lay.name)
+def test_no_1_to_3_bit_error_escapes_across_an_epoch_boundary(layout: E2ELayout) -> None:
+    """req(26.5): with the freshness in the checksum, a 1-3 bit error that moves the counter
+    across an epoch boundary must still fail it: exhaustive for the windows in use (3 on the
+    motor bus, 4 for the attitude sensor), and the reason the window is capped at 4."""
+    for weight in (1, 2, 3):
+        for max_delta in (3, 4):
+            escaping, total = ff.epoch_boundary_escapes(layout, weight, max_delta)
+            assert total > 0 and escaping == 0, (layout.name, weight, max_delta, escaping)
 
 
 def _bank() -> tuple[MotorControllerBank, can.BusABC, can.BusABC]:
@@ -198,7 +282,7 @@ def test_a_command_packed_with_its_counter_and_sealed_is_the_protected_frame() -
                                                 "ClearFaults": int(clr)}, ctr)
         assert CODEC.encode_command(axis, sp, en, clr, ctr) == want
         sp_sent = pytest.approx(max(-lim, min(lim, sp)), abs=1e-3)
-        assert CODEC.decode(*want) == AxisCommand(axis, sp_sent, en, clr, ctr & 0xF)
+        assert CODEC.decode(*want, epoch=ctr >> 4) == AxisCommand(axis, sp_sent, en, clr, ctr & 0xF)
     layout = CODEC.e2e[CODEC.frame_id("ESTOP")]
     with pytest.raises(ValueError, match="bytes"):
         layout.seal(b"\x00")

@@ -132,7 +132,8 @@ def test_resume_with_a_new_session_sends_only_what_is_missing():
         _exchange(tx2, rx, t)
         t += 0.01
     assert rx.take_map() == (5, data)
-    assert tx2.stats.data_sent == 20 - held
+    # every held segment is skipped; idle pacer slots may carry copies of missing ones
+    assert tx2.stats.data_sent - tx2.stats.redundant == 20 - held
     assert any(e.name == "RESUMED" for e in rx.events.pop_all())
 
 

@@ -68,7 +68,7 @@ def test_every_fin_lost_until_the_linger_ended_sender_still_learns_delivery() ->
     After the linger the receiver still answers the session's PINGs with FIN(VERIFIED), so
     the sender is DONE one PING after the reverse path works again, not after give_up_s.
     """
-    cfg = LinkConfig(rate_bps=1e5, segment_bytes=100, fin_linger_s=5.0)
+    cfg = LinkConfig(rate_bps=1e5, segment_bytes=100, fin_linger_s=5.0, reoffer_s=60.0)
     data = _payload(1000, 1)
     tx, rx = _small_pair(cfg, data)
     t = 0.0

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import random
+
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -125,3 +127,39 @@ def test_camera_reply_with_bad_crc_is_refused() -> None:
     data[-1] ^= 1
     dec = cf.ReplyDecoder()
     assert dec.feed(bytes(data)) == [] and dec.errors == 1
+
+
+def test_no_valid_frame_is_lost_behind_a_mutated_one() -> None:
+    """req(26.5): a frame cut short, with flipped, deleted or inserted bytes, then a valid frame
+    that ends the stream (nothing to flush a wrong LEN): the valid frame always comes out, and
+    nothing that was not sent does."""
+    r = ff.serial_mutations(cases=12_500, seed=26)
+    assert r.cases == 12_500 and r.accepted == 0 and r.missed_next == 0
+
+
+def test_a_frame_cut_by_its_last_byte_leaves_the_next_sync_byte() -> None:
+    """A frame whose CRC ends in 0xA5, cut by that byte, is completed by the next frame's 0xA5:
+    both frames come out (the decoder keeps the shared byte)."""
+    seq = next(s for s in range(256) if sf.encode_message(sf.Stop(), s)[-1] == 0xA5)
+    cut = sf.encode_message(sf.Stop(), seq)[:-1]
+    nxt = sf.encode_message(sf.Query(), 9)
+    for chunk in (len(cut + nxt), 1):  # all at once, and byte by byte
+        dec = sf.FrameDecoder()
+        stream = cut + nxt
+        got = [f for i in range(0, len(stream), chunk) for f in dec.feed(stream[i:i + chunk])
+               if isinstance(f, sf.Frame)]
+        assert [(f.seq, f.type) for f in got] == [(seq, sf.STOP), (9, sf.QUERY)], chunk
+
+
+def test_a_clean_stream_is_decoded_frame_by_frame_in_any_chunking() -> None:
+    """The lookahead and the shared-byte rule never split or drop frames of a clean stream."""
+    rng = random.Random(5)
+    msgs = [sf.encode_message(m, k) for k, m in enumerate([sf.Stop(), sf.Query(), sf.Move(0.1, 0.2, 0.3)] * 200)]
+    stream = b"".join(msgs)
+    dec, got, pos = sf.FrameDecoder(), [], 0
+    while pos < len(stream):
+        n = rng.randint(1, 40)
+        got += dec.feed(stream[pos:pos + n])
+        pos += n
+    assert [sf.encode_frame(f.seq, f.type, f.payload) for f in got] == msgs
+    assert dec.crc_errors == dec.length_errors == dec.garbage_bytes == 0

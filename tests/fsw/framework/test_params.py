@@ -24,7 +24,16 @@ def test_shipped_config_loads() -> None:
 @pytest.mark.parametrize(
     ("mutate", "key", "reason"),
     [
-        (lambda s: s.replace("frame_period_s = 0.1", "# (default)", 1), "", ""),  # key with a default
+        (  # a key with a default, left out of a flight file: refused (the file is the whole record)
+            lambda s: s.replace("frame_period_s = 0.1", "# (default)", 1),
+            "executive.frame_period_s",
+            "missing key",
+        ),
+        (  # ... in a bench file (flight = false) it takes its documented default
+            lambda s: s.replace("frame_period_s = 0.1", "# (default)", 1).replace("flight = true", "flight = false"),
+            "",
+            "",
+        ),
         (
             lambda s: s.replace(
                 'name = "health"\nkind = "health"\ngroup = "slow"\n', 'name = "health"\nkind = "health"\n'

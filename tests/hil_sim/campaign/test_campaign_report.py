@@ -49,12 +49,15 @@ def test_outcome_classes() -> None:
     assert outcome(summary(1, 0.0, edge=1)) == "edge_violation"
     assert outcome(summary(1, 0.0, state="SAFE")) == "safe"
     assert outcome(summary(1, 0.0, state="MOVE")) == "time_limit"
+    assert outcome({**summary(1, 0.0, state="SAFE"), "map_delivered": False}) == "undelivered"
+    assert outcome({**summary(1, 0.0, state="SAFE"), "map_delivered": None}) == "safe"  # never tried
 
 
 def test_headline_figures() -> None:
     h = headline(rows())
     assert h["missions"] == 6 and h["crashed_lost"] == 0
-    assert h["outcomes"] == {"done": 3, "edge_violation": 1, "safe": 1, "time_limit": 0, "error": 1, "killed": 0}
+    assert h["outcomes"] == {"done": 3, "edge_violation": 1, "undelivered": 0, "safe": 1, "time_limit": 0,
+                             "error": 1, "killed": 0}
     assert h["edge_violations"] == 3 and h["off_map_events"] == 4
     assert h["map_rmse_worst_m"] == 0.05 and abs(h["map_rmse_median_m"] - 0.02) < 1e-12
     assert h["m5_oracle_pairs"] == 2 and abs(h["m5_oracle_median"] - 0.85) < 1e-12  # 0.8 and 0.9

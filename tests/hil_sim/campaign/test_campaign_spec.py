@@ -4,6 +4,7 @@ of scenario families (grids, seeded samples) and fault sets into missions; the C
 from __future__ import annotations
 
 import math
+import time
 from collections import Counter
 from pathlib import Path
 
@@ -11,7 +12,7 @@ import pytest
 
 from fsw.framework.params import ConfigError
 from fsw.settings import DEFAULT_CONFIG
-from hil_sim.campaign.spec import Mission, expand, family_points, load_spec, scenario_string
+from hil_sim.campaign.spec import Mission, expand, family_points, load_spec, mission_count, scenario_string
 from hil_sim.cli import main
 
 CAMPAIGNS = DEFAULT_CONFIG.parent / "campaigns"
@@ -191,3 +192,29 @@ def test_cli_dry_run_lists_the_missions(capsys: pytest.CaptureFixture[str]) -> N
     assert main(["campaign", str(CAMPAIGNS / "smoke.toml"), "--dry-run"]) == 0
     out = capsys.readouterr().out
     assert out.strip().endswith("4 missions") and "lab-p000-s0-camera_dropout-m5" in out
+
+
+def test_mission_count_matches_the_expansion(tmp_path: Path) -> None:
+    """req(26.6): the count that guards the size is exactly the number of missions expanded."""
+    for spec in (load_spec(write(tmp_path, BASE)), *(load_spec(CAMPAIGNS / f"{n}.toml")
+                                                     for n in ("smoke", "default", "recovery"))):
+        assert mission_count(spec) == len(expand(spec))
+
+
+def test_oversized_spec_is_refused_at_once(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """req(26.6): 100k seeds x 2 methods x (clean + 1 set) is refused in one line, exit 2, fast;
+    100k missions (the limit) still answer a --dry-run. CPU time, not wall time: the machine is shared."""
+    seeds = "seeds = [" + ", ".join(map(str, range(100_000))) + "]"
+    big = write(tmp_path, (CAMPAIGNS / "smoke.toml").read_text().replace("seeds = [0]", seeds))
+    t0 = time.process_time()
+    assert main(["campaign", str(big), "--dry-run"]) == 2
+    assert time.process_time() - t0 < 10.0
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "400,000 missions is more than 100,000" in err
+    ok = big.with_name("ok.toml")
+    ok.write_text(big.read_text().replace('methods = ["5", "oracle"]', 'methods = ["5"]')
+                  .replace('mode = "cross"', 'mode = "sample"'))
+    t0 = time.process_time()
+    assert main(["campaign", str(ok), "--dry-run"]) == 0
+    assert time.process_time() - t0 < 30.0
+    assert capsys.readouterr().out.strip().endswith("100000 missions")

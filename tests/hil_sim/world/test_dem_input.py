@@ -124,3 +124,28 @@ def test_start_without_room_for_the_wheels_is_refused(tmp_path):
     np.save(tmp_path / "tight.npy", np.zeros((630, 700), np.float32))  # y -6 .. 0.3
     with pytest.raises(ScenarioError, match="no room for its wheels"):
         load_scenario(f"file:{tmp_path / 'tight.npy'}")
+
+
+@pytest.mark.parametrize("shape, why", [
+    ((99_999, 99_999), "header claims shape"),  # 37 GiB of float32 if allocated
+    ((700, 700), "header needs"),  # a plausible header on a file cut short
+])
+def test_npy_header_is_checked_before_allocation(tmp_path, shape, why):
+    """req(26.6): the .npy header's size is checked against the limit and the file's length
+    before NumPy allocates anything: one line, no MemoryError."""
+    path = tmp_path / "hostile.npy"
+    with path.open("wb") as fh:
+        np.lib.format.write_array_header_1_0(fh, {"descr": "<f4", "fortran_order": False, "shape": shape})
+        fh.write(bytes(4096))
+    with pytest.raises(ScenarioError, match=why) as err:
+        load_scenario(f"file:{path}")
+    assert "\n" not in str(err.value)
+
+
+def test_png_header_is_checked_before_decoding(tmp_path):
+    """req(26.6): a PNG whose IHDR claims 100,000 x 100,000 pixels is refused from its header."""
+    path = tmp_path / "hostile.png"
+    ihdr = (100_000).to_bytes(4, "big") * 2 + bytes([16, 0, 0, 0, 0])
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + len(ihdr).to_bytes(4, "big") + b"IHDR" + ihdr + bytes(4))
+    with pytest.raises(ScenarioError, match="PNG header claims 100000 x 100000"):
+        load_scenario(f"file:{path}")

@@ -1,0 +1,228 @@
+"""What the wheel must not lose: relief and step hazards of an elevation map (docs/algorithm.md §6).
+
+The map codec may move every cell by its error bound ``e`` (one wheel diameter), which alone
+lets a boulder be flattened from both sides: its peak sent ``e`` low and the ground around it
+``e`` high. This module says which cells are critical and what each cell may become, so that
+the reduction keeps every hazard's relief.
+
+**Critical (choice).** Two measures, both against one wheel diameter ``w``:
+
+* *relief*: the white top-hat of the height over a disc about the rover's size
+  (``relief_disc_m``, default 1.05 m): a cell's height above the ground that disc rolls on. A
+  connected set of cells with relief >= ``w`` is an obstacle (the reviewer's definition). The
+  top-hat ignores the terrain's slow shape (slopes, the plateau) and measures what stands up
+  from it, whatever the rock's shape.
+* *step*: a cell's height above the lowest cell within one wheel diameter (``z`` minus the
+  grey erosion over a disc of ``step_disc_wheels * w``): the step a wheel meets, so a cliff
+  edge's lip and its face count although the top-hat of a wide plateau is zero.
+
+Slope over the wheelbase is left to the Cliff-bot's planner: it is a low-frequency property
+the height bound already keeps (a slope's error is at most ``2e`` over the wheelbase).
+
+**What each cell may become.** Every known cell stays within ``e`` of its height; besides:
+
+* a *relief hazard* (relief >= ``threshold``) decodes at least ``rise`` higher,
+  ``[z + rise, z + e]``;
+* a *support* cell (the lowest cell of a relief disc that covers a relief hazard, or of the
+  step disc around a step, and not itself a relief hazard) decodes at most ``rise`` higher,
+  ``[z - e, z + rise]``;
+* a *step hazard* (step >= ``threshold``, no relief hazard) decodes at least ``rise``
+  higher, or at least ``rise - step_slack`` higher where it is also support (a cell on a
+  slope can be the foot of one step and the top of another).
+
+The opening at a cell is the highest, over the discs covering it, of the disc's lowest cell;
+for a relief hazard that lowest cell is a support cell, so its decoded opening is at most
+``rise`` above the original, while the hazard itself is at least ``rise`` higher: **a relief
+hazard's decoded relief is never below its original relief**, its height never lower, its
+footprint and position unchanged to the cell. Any cell's relief drops by at most ``2e``.
+A step whose foot is support ground keeps its height within ``step_slack`` (0 where the top
+is not itself support); a step whose foot is a relief hazard (a rock on a rock) within
+``e - rise + step_slack``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+F32 = NDArray[np.float32]
+F64 = NDArray[np.float64]
+B = NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class HazardRule:
+    """Hazard scales in metres (the codec derives them from ``[codec]`` and the wheel)."""
+
+    threshold_m: float  # relief or step that makes a cell critical (one wheel diameter)
+    relief_disc_m: float  # top-hat disc diameter
+    step_disc_m: float  # step window diameter
+
+
+def disc(diameter_m: float, cell_m: float) -> NDArray[np.uint8]:
+    """A digital disc (``x^2 + y^2 <= r^2``, odd side) of about ``diameter_m``."""
+    r = max(1, int(np.floor(diameter_m / (2.0 * cell_m) + 0.5 + 1e-4)))  # float32 header values round alike
+    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
+    return (yy * yy + xx * xx <= r * r).astype(np.uint8)
+
+
+def erode(z: F32, kernel: NDArray[np.uint8]) -> F32:
+    """Grey erosion ignoring unknown (NaN) cells and cells past the map edge."""
+    known = np.isfinite(z)
+    fill = np.where(known, z, np.float32(np.inf)).astype(np.float32)
+    out = cv2.erode(fill, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=float("inf"))
+    return np.asarray(out, np.float32)
+
+
+def opening(z: F32, kernel: NDArray[np.uint8]) -> F32:
+    """Grey opening ignoring unknown cells: per cell, the highest over the discs covering it
+    of the disc's lowest known cell (NaN on unknown cells)."""
+    known = np.isfinite(z)
+    e = erode(z, kernel)
+    e[~known] = -np.inf
+    o = cv2.dilate(e, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=float("-inf"))
+    return np.where(known, o, np.float32(np.nan)).astype(np.float32)
+
+
+def relief(z: NDArray[np.floating], cell_m: float, disc_m: float) -> F32:
+    """White top-hat of ``z`` over a disc of ``disc_m`` (>= 0; NaN on unknown cells)."""
+    z32 = np.asarray(z, np.float32)
+    return (z32 - opening(z32, disc(disc_m, cell_m))).astype(np.float32)
+
+
+def step(z: NDArray[np.floating], cell_m: float, disc_m: float) -> F32:
+    """Height above the lowest known cell within a disc of ``disc_m`` (NaN on unknown cells)."""
+    z32 = np.asarray(z, np.float32)
+    return (z32 - erode(z32, disc(disc_m, cell_m))).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class HazardCells:
+    relief: F32
+    step: F32
+    relief_hazard: B
+    step_hazard: B
+    support: B
+
+
+def _argmins(z32: F32, eroded: F32, centres: B, kernel: NDArray[np.uint8]) -> B:
+    """Cells that are the lowest known cell of a disc centred on one of ``centres``
+    (``eroded``: ``erode(z32, kernel)``)."""
+    known = np.isfinite(z32)
+    e = np.where(centres & known, eroded, np.float32(-np.inf)).astype(np.float32)
+    reach = cv2.dilate(e, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=float("-inf"))
+    return known & (reach == z32)
+
+
+def classify(z: NDArray[np.floating], cell_m: float, rule: HazardRule) -> HazardCells:
+    """Relief, step, and the hazard and support cells of ``z`` (see the module docstring).
+
+    Support cells are only those a hazard's relief or step depends on: the lowest cell of a
+    relief disc covering a relief hazard, or of the step disc around a step hazard.
+    """
+    z32 = np.asarray(z, np.float32)
+    known = np.isfinite(z32)
+    rk = disc(rule.relief_disc_m, cell_m)
+    er = erode(z32, rk)
+    opened = cv2.dilate(np.where(known, er, np.float32(-np.inf)).astype(np.float32), rk,
+                        borderType=cv2.BORDER_CONSTANT, borderValue=float("-inf"))
+    rel = np.where(known, z32 - opened, np.float32(np.nan)).astype(np.float32)
+    sk = disc(rule.step_disc_m, cell_m)
+    es = erode(z32, sk)
+    stp = (z32 - es).astype(np.float32)
+    with np.errstate(invalid="ignore"):
+        rel_h = known & (rel >= rule.threshold_m)
+        steps = known & (stp >= rule.threshold_m)
+    # Centres of the relief discs that cover a relief hazard: within the disc's radius of one.
+    r = (rk.shape[0] - 1) // 2
+    if rel_h.any():
+        dist = cv2.distanceTransform((~rel_h).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        near = dist <= r + 1e-3
+    else:
+        near = np.zeros_like(rel_h)
+    support = ~rel_h & (_argmins(z32, er, near, rk) | _argmins(z32, es, steps, sk))
+    return HazardCells(rel, stp, rel_h, steps & ~rel_h, support)
+
+
+def cell_intervals(z: NDArray[np.floating], cells: HazardCells, *, bound_m: float, rise_m: float,
+                   step_slack_m: float, margin_m: float) -> tuple[F64, F64]:
+    """Per known cell, the interval ``[lo, hi]`` its decoded height must lie in.
+
+    ``margin_m`` keeps the float32 decoded value from rounding past an end.
+    """
+    z64 = np.asarray(z, np.float64)
+    lo = z64 - bound_m + margin_m
+    hi = z64 + bound_m - margin_m
+    lo = np.where(cells.step_hazard, np.where(cells.support, z64 + rise_m - step_slack_m, z64 + rise_m) + margin_m, lo)
+    lo = np.where(cells.relief_hazard, z64 + rise_m + margin_m, lo)
+    hi = np.where(cells.support, np.minimum(hi, z64 + rise_m - margin_m), hi)
+    return lo, hi
+
+
+@dataclass(frozen=True)
+class ObstacleCheck:
+    """Obstacles (connected relief >= threshold) of an input map and what a decoded map kept."""
+
+    n: int  # obstacles in the input
+    kept: int  # of them, decoded relief (max over the footprint) >= threshold
+    n_2x: int  # obstacles whose peak relief >= 2 x threshold
+    kept_2x: int
+    worst_peak_loss_m: float  # max over obstacles of input peak relief - decoded peak relief
+    worst_relief_loss_m: float  # max over the input's hazard cells of relief - decoded relief
+    footprint_kept: float  # fraction of input hazard cells with decoded relief >= threshold
+    position_error_cells: float  # max over obstacles: input peak to nearest kept cell
+    step_cells: int = 0  # cells whose step (over step_disc_m) >= threshold
+    step_kept: float = 1.0  # fraction of them with a decoded step >= threshold
+    worst_step_loss_m: float = 0.0  # max over them of step - decoded step
+    new_obstacles: int = 0  # decoded obstacles that touch no input obstacle (conservative, false)
+
+
+def check_obstacles(z: NDArray[np.floating], decoded: NDArray[np.floating], cell_m: float,
+                    threshold_m: float, disc_m: float, step_disc_m: float | None = None,
+                    reference: tuple[F32, F32] | None = None) -> ObstacleCheck:
+    """Count the input's obstacles and those the decoded map kept (the issue's measure), and
+    the step cells (``step_disc_m``, default the threshold: one wheel diameter) kept.
+    ``reference``: the input's (relief, step), when already computed."""
+    from scipy import ndimage
+
+    sd = threshold_m if step_disc_m is None else step_disc_m
+    r0, s0 = reference if reference is not None else (relief(z, cell_m, disc_m), step(z, cell_m, sd))
+    r1 = relief(decoded, cell_m, disc_m)
+    s1 = step(decoded, cell_m, sd)
+    with np.errstate(invalid="ignore"):
+        haz0 = r0 >= threshold_m
+        haz1 = r1 >= threshold_m
+        st0 = s0 >= threshold_m
+    steps: dict[str, Any] = {
+        "step_cells": int(st0.sum()),
+        "step_kept": float((s1[st0] >= threshold_m).mean()) if st0.any() else 1.0,
+        "worst_step_loss_m": float((s0 - s1)[st0].max()) if st0.any() else 0.0}
+    lab1, n1 = ndimage.label(haz1, structure=np.ones((3, 3)))
+    touching = np.unique(lab1[haz0 & haz1])
+    steps["new_obstacles"] = int(n1 - np.count_nonzero(touching))
+    lab, n = ndimage.label(haz0, structure=np.ones((3, 3)))
+    if n == 0:
+        return ObstacleCheck(0, 0, 0, 0, 0.0, 0.0, 1.0, 0.0, **steps)
+    idx = np.arange(1, n + 1)
+    r0f = np.where(haz0, r0, -np.inf)
+    r1f = np.where(np.isfinite(r1), r1, -np.inf)
+    peak0 = np.asarray(ndimage.maximum(r0f, lab, idx))
+    peak1 = np.asarray(ndimage.maximum(r1f, lab, idx))
+    kept = peak1 >= threshold_m
+    big = peak0 >= 2 * threshold_m
+    # Position: distance from each obstacle's input peak cell to the nearest decoded hazard cell.
+    pos = np.asarray(ndimage.maximum_position(r0f, lab, idx))
+    if haz1.any():
+        dist = ndimage.distance_transform_edt(~haz1)
+        pos_err = float(dist[pos[:, 0], pos[:, 1]].max())
+    else:
+        pos_err = float("inf")
+    loss = (r0 - r1)[haz0]
+    return ObstacleCheck(n=int(n), kept=int(kept.sum()), n_2x=int(big.sum()), kept_2x=int((kept & big).sum()),
+                         worst_peak_loss_m=float((peak0 - peak1).max()),
+                         worst_relief_loss_m=float(loss.max()) if loss.size else 0.0,
+                         footprint_kept=float(haz1[haz0].mean()), position_error_cells=pos_err, **steps)

@@ -1,0 +1,172 @@
+"""Hazard-preserving reduction (issue 25): relief and height of every obstacle survive the codec."""
+
+from __future__ import annotations
+
+import struct
+import zlib
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from fsw.core.codec import hazard as hz
+from fsw.core.codec.mapcodec import CodecConfig, MapCodecError, decode_map, encode_map
+from fsw.core.codec.mapformat import HEADER_BYTES
+
+WHEEL = 0.2
+
+
+def _rocky(seed: int, shape: tuple[int, int], cell_m: float, n_rocks: int, relief_m: float,
+           noise_m: float, unknown: float) -> np.ndarray:
+    """Rolling ground, round rocks (0.1..0.8 m across, up to ``relief_m`` tall), noise, holes."""
+    rng = np.random.default_rng(seed)
+    ny, nx = shape
+    yy, xx = np.mgrid[0:ny, 0:nx] * cell_m
+    z = 0.3 * np.sin(xx / 1.7 + rng.uniform(0, 6)) * np.cos(yy / 2.3) + rng.normal(0, noise_m, shape)
+    for _ in range(n_rocks):
+        cy, cx = rng.uniform(0, ny * cell_m), rng.uniform(0, nx * cell_m)
+        r = rng.uniform(0.05, 0.4)
+        h = rng.uniform(0.02, relief_m)
+        d2 = ((yy - cy) ** 2 + (xx - cx) ** 2) / r**2
+        z = np.maximum(z, np.where(d2 < 1, z + h * np.sqrt(np.clip(1 - d2, 0, 1)), z))
+    if unknown > 0:
+        z[rng.random(shape) < unknown] = np.nan
+    return z.astype(np.float32)
+
+
+def _assert_bounds(z: np.ndarray, cell_m: float, enc_data: bytes) -> None:
+    dec = decode_map(enc_data)
+    h, zd = dec.header, dec.z
+    known = np.isfinite(z)
+    assert np.array_equal(np.isnan(zd), ~known)
+    if not known.any():
+        return
+    assert float(np.abs(zd[known].astype(np.float64) - z[known]).max()) <= h.error_bound_m
+    r0 = hz.relief(z, cell_m, h.relief_disc_m)
+    r1 = hz.relief(zd, cell_m, h.relief_disc_m)
+    haz = known & (r0 >= h.hazard_threshold_m)
+    loss = (r0 - r1)[known].astype(np.float64)
+    assert loss.max() <= h.relief_loss_any_m + 1e-6, "relief loss beyond the stated bound"
+    if haz.any():
+        assert (r0 - r1)[haz].max() <= h.relief_loss_hazard_m + 1e-6, "a hazard lost relief"
+        assert (zd[haz] >= z[haz]).all(), "a hazard decoded lower"
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 10_000), ny=st.integers(1, 60), nx=st.integers(1, 60),
+       cell_m=st.sampled_from([0.02, 0.05, 0.1]), rocks=st.integers(0, 30),
+       relief=st.floats(0.05, 1.0), noise=st.sampled_from([0.0, 0.01, 0.05]),
+       unknown=st.sampled_from([0.0, 0.1, 0.5]), bound_wheels=st.sampled_from([0.25, 1.0, 2.0]),
+       rise=st.sampled_from([0.0, 0.25, 0.6]), rule=st.sampled_from(["entropy", "bound"]),
+       mode=st.sampled_from(["predictive", "mean"]))
+def test_height_and_relief_bounds_hold_on_random_maps(seed, ny, nx, cell_m, rocks, relief, noise,
+                                                       unknown, bound_wheels, rise, rule, mode):
+    """Done-when 2: worst height error and worst relief loss <= the bounds the header states."""
+    z = _rocky(seed, (ny, nx), cell_m, rocks, relief, noise, unknown)
+    cfg = CodecConfig(support_rise_fraction=rise, split_rule=rule, leaf_value=mode)
+    enc = encode_map(z, cell_m=cell_m, wheel_diameter_m=WHEEL, cfg=cfg,
+                     error_bound_m=bound_wheels * WHEEL)
+    _assert_bounds(z, cell_m, enc.data)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 10_000), scale=st.sampled_from([0.05, 0.5, 3.0]))
+def test_bounds_hold_on_white_noise(seed, scale):
+    """Done-when 2 on the worst case for the reduction: every cell independent."""
+    rng = np.random.default_rng(seed)
+    z = rng.normal(0, scale, (33, 47)).astype(np.float32)
+    z[rng.random(z.shape) < 0.2] = np.nan
+    _assert_bounds(z, 0.05, encode_map(z, cell_m=0.05, wheel_diameter_m=WHEEL).data)
+
+
+def test_a_boulder_flattened_by_the_height_bound_is_kept():
+    """Item 1: a 0.3 m boulder on noisy ground (wheel 0.2 m, bound 0.2 m) keeps relief and height."""
+    rng = np.random.default_rng(5)
+    cell = 0.03
+    yy, xx = np.mgrid[0:128, 0:128] * cell
+    z = rng.uniform(-0.09, 0.09, (128, 128))  # ground relief below a wheel: no obstacle
+    d2 = ((yy - 1.9) ** 2 + (xx - 1.9) ** 2) / 0.12**2
+    z = np.where(d2 < 1, 0.3 * np.sqrt(np.clip(1 - d2, 0, 1)) + 0.09, z).astype(np.float32)
+    peak = hz.relief(z, cell, 1.05).max()
+    assert peak >= 0.3
+    old = decode_map(encode_map(z, cell_m=cell, wheel_diameter_m=WHEEL, cfg=CodecConfig(hazard=False)).data)
+    new = decode_map(encode_map(z, cell_m=cell, wheel_diameter_m=WHEEL).data)
+    c_old = hz.check_obstacles(z, old.z, cell, WHEEL, 1.05)
+    c_new = hz.check_obstacles(z, new.z, cell, WHEEL, 1.05)
+    assert c_new.n == 1 and c_new.kept == 1 and c_new.kept_2x == c_new.n_2x
+    assert c_new.worst_peak_loss_m <= 0 and c_new.position_error_cells == 0 and c_new.footprint_kept == 1
+    assert c_old.worst_peak_loss_m > c_new.worst_peak_loss_m + 0.05  # what the height bound alone lost
+
+
+def test_cliff_drop_is_kept():
+    """Item 1: a cliff edge (1 m drop, 75 deg face): every step >= w within one wheel diameter
+    (the lip and the face) keeps its height within the stated slack; the height bound alone
+    does not."""
+    rng = np.random.default_rng(1)
+    cell = 0.03
+    y = np.arange(160) * cell
+    face = np.clip((y - 2.4) * np.tan(np.radians(75)), 0, 1.0)
+    z = (-face[:, None] + rng.normal(0, 0.02, (160, 120))).astype(np.float32)
+    dec = decode_map(encode_map(z, cell_m=cell, wheel_diameter_m=WHEEL).data)
+    old = decode_map(encode_map(z, cell_m=cell, wheel_diameter_m=WHEEL, cfg=CodecConfig(hazard=False)).data)
+    c = hz.check_obstacles(z, dec.z, cell, WHEEL, 1.05)
+    c_old = hz.check_obstacles(z, old.z, cell, WHEEL, 1.05)
+    assert c.step_cells > 100
+    assert c.worst_step_loss_m <= dec.header.step_slack_m < c_old.worst_step_loss_m
+    assert c.step_kept >= 0.99
+
+
+def test_hazard_splits_cost_bytes_but_keep_the_height_bound(viking_map):
+    """The hazard rule never loosens the height bound; it only adds leaves around hazards."""
+    w = float(viking_map.max() - viking_map.min()) / 8
+    old = encode_map(viking_map, cell_m=0.02, wheel_diameter_m=w, cfg=CodecConfig(hazard=False))
+    new = encode_map(viking_map, cell_m=0.02, wheel_diameter_m=w)
+    assert new.max_error_m <= w and old.max_error_m <= w
+    assert new.tree.n_leaves > old.tree.n_leaves
+
+
+def _as_version_1(data: bytes) -> bytes:
+    """The same container in the version-1 layout (no hazard fields), as the old encoder wrote."""
+    head = bytearray(data[:48])
+    head[4] = 1
+    head[5] &= 1
+    body = bytes(head) + data[76:HEADER_BYTES] + data[HEADER_BYTES:-4]
+    return body + struct.pack("<I", zlib.crc32(body))
+
+
+def test_version_1_containers_still_decode(viking_map):
+    """Keep the container versioned: a version-1 map decodes to the same map, hazard fields NaN."""
+    enc = encode_map(viking_map, cell_m=0.02, wheel_diameter_m=0.1, cfg=CodecConfig(hazard=False))
+    v1 = _as_version_1(enc.data)
+    old, new = decode_map(v1), decode_map(enc.data)
+    assert old.header.version == 1 and new.header.version == 2
+    assert np.array_equal(old.z, new.z) and not old.header.hazard
+    assert np.isnan(old.header.relief_loss_any_m)
+    body = bytearray(v1[:-4])
+    body[4] = 3
+    with pytest.raises(MapCodecError, match="version 3"):
+        decode_map(bytes(body) + struct.pack("<I", zlib.crc32(bytes(body))))
+
+
+def test_bad_hazard_fields_are_refused(viking_map):
+    enc = encode_map(viking_map[:64, :64], cell_m=0.02, wheel_diameter_m=0.1)
+    body = bytearray(enc.data[:-4])
+    struct.pack_into("<f", body, 68, float("nan"))
+    with pytest.raises(MapCodecError, match="hazard fields"):
+        decode_map(bytes(body) + struct.pack("<I", zlib.crc32(bytes(body))))
+
+
+def test_relief_is_the_top_hat_and_ignores_unknown_cells():
+    """The relief measure: height above the disc-opened ground; unknown cells neither lower
+    the ground nor carry relief."""
+    z = np.zeros((60, 60), np.float32)
+    z[28:32, 28:32] = 0.5  # a 0.2 m rock at 5 cm cells, narrower than the 1.05 m disc
+    z[0:10, 0:10] = np.nan
+    r = hz.relief(z, 0.05, 1.05)
+    assert np.isnan(r[0:10, 0:10]).all()
+    assert r[30, 30] == pytest.approx(0.5) and r[50, 50] == 0
+    wide = np.zeros((60, 60), np.float32)
+    wide[10:50, 10:50] = 0.5  # a 2 m table: wider than the disc, no relief but a step
+    assert hz.relief(wide, 0.05, 1.05)[30, 30] == 0
+    assert hz.step(wide, 0.05, 0.2)[10, 30] == pytest.approx(0.5)
