@@ -135,11 +135,11 @@ class CliffbotRig:
         wheel_id = self.codec.frame_id("CB_WHEELS_CMD")
         for fid, data in frames:
             if fid == wheel_id:
-                d = self.codec.decode(fid, data)
+                d = self.codec.decode(fid, data, epoch=None)
                 if isinstance(d, Bad) or not isinstance(d, WheelCommand):
                     self.rx_bad += 1
                     continue
-                if self._wheel_seq.check(fid, d.counter, now)[0].accepted:
+                if self._wheel_seq.check_frame(self.codec.e2e[fid], bytes(data), now)[0].accepted:
                     self.wheel_cmd, self.wheels_enabled, self.t_wheel_cmd = (d.left_radps, d.right_radps), d.enable, now
                 continue
             for w in self.winches.values():
@@ -151,7 +151,7 @@ class CliffbotRig:
             out += w.poll(now)
         if now - self.t_status >= self.hw.status_period_s - 1e-9:
             self.t_status = now
-            self.counter = (self.counter + 1) % 16
+            self.counter += 1
             out.append(self.codec.wheel_status(self.wheel_rad[0], self.wheel_rad[1], self.wheels_enabled, self.counter))
             roll, pitch, yaw = self.attitude_deg()
             noise = self.hw.imu_noise_deg * self.rng.standard_normal(3)

@@ -131,13 +131,15 @@ class TeamCan:
         return self._encode("CB_IMU_ATTITUDE", {"Roll": _finite(roll_deg, 180.0), "Pitch": _finite(pitch_deg, 90.0),
                                                 "Yaw": _finite(yaw_deg, 180.0)}, counter)
 
-    def decode(self, frame_id: int, data: bytes) -> TeamFrame:
-        """One received frame, typed; a :class:`Bad` (never an exception) when it is not acceptable."""
+    def decode(self, frame_id: int, data: bytes, epoch: int | None = 0) -> TeamFrame:
+        """One received frame, typed; a :class:`Bad` (never an exception) when it is not acceptable.
+        ``epoch``: the freshness the checksum must hold under (``None``: the receiver's
+        :meth:`~fsw.comm.e2e.SequenceChecker.check_frame` checks it)."""
         name = self.names.get(frame_id)
         if name is None:
             return Bad(frame_id, "unknown_id", f"id 0x{frame_id:03X}")
         data = bytes(data)
-        refused = self.e2e[frame_id].verify(data)
+        refused = self.e2e[frame_id].verify(data, epoch)
         if refused is not None:
             return Bad(frame_id, *refused)
         try:

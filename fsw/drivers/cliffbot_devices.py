@@ -35,12 +35,12 @@ class CliffbotDevices:
 
     def receive(self, frames: list[tuple[int, bytes]], now: float) -> None:
         for fid, data in frames:
-            d = self.codec.decode(fid, data)
+            d = self.codec.decode(fid, data, epoch=None)
             if isinstance(d, Bad):
                 self.bad_frames += 1
                 self.last_bad = f"{d.reason} {d.detail}".strip()
                 continue
-            if not self._seq.check(fid, d.counter, now)[0].accepted:
+            if not self._seq.check_frame(self.codec.e2e[fid], bytes(data), now)[0].accepted:
                 self.seq_refused += 1
                 continue
             if isinstance(d, WinchStatus):
@@ -57,7 +57,7 @@ class CliffbotDevices:
         return [n for n in (*WINCHES, "CB_IMU", "CB_WHEELS") if now - self.seen.get(n, -math.inf) > self.timeout_s]
 
     def _next(self, name: str) -> int:
-        c = (self._counters.get(name, 0) + 1) % 16
+        c = self._counters.get(name, 0) + 1  # the full alive counter (its epoch seals the checksum)
         self._counters[name] = c
         return c
 

@@ -73,11 +73,11 @@ class WinchNode:
         fate, data, _ = self.faults.can_frame(self.name, False, data)
         if fate == "drop":
             return
-        d = self.codec.decode(frame_id, data)
+        d = self.codec.decode(frame_id, data, epoch=None)
         if isinstance(d, Bad) or not isinstance(d, WinchCommand):
             self.rx_bad += 1
             return
-        verdict, _ = self._seq.check(frame_id, d.counter, now)
+        verdict, _ = self._seq.check_frame(self.codec.e2e[frame_id], bytes(data), now)
         if not verdict.accepted:
             self.rx_seq += 1
             return
@@ -128,7 +128,7 @@ class WinchNode:
         if now - self.t_status < self.cfg.status_period_s - 1e-9:
             return []
         self.t_status = now
-        self.counter = (self.counter + 1) % 16
+        self.counter += 1
         running = self.enabled and not self.latched
         fid, data = self.codec.winch_status(self.name, self.paid_out_m, self.load_n(), running,
                                             frozenset(self.latched), self.counter)

@@ -26,7 +26,7 @@ def _drive(rig: CliffbotRig, codec: TeamCan, rate: float, seconds: float, t0: fl
     now = t0
     for k in range(round(seconds / 0.1)):
         now = t0 + 0.1 * (k + 1)
-        frames = [codec.winch_command(w, rate, True, False, (k + 1) % 16) for w in ("WINCH_A", "WINCH_B")]
+        frames = [codec.winch_command(w, rate, True, False, k + 1) for w in ("WINCH_A", "WINCH_B")]
         rig.to_rig(frames, now)
         rig.step(0.1, now)
     return now
@@ -41,7 +41,7 @@ def test_paying_out_lowers_the_cliffbot_over_the_lip(world: Any) -> None:
     assert rig.violations["slack"] == 0
     roll, pitch, _ = rig.attitude_deg()
     assert pitch < -20.0  # nose down on the face
-    statuses = [codec.decode(f, d) for f, d in rig.poll(10.0)]
+    statuses = [codec.decode(f, d, epoch=None) for f, d in rig.poll(10.0)]
     winches = [s for s in statuses if isinstance(s, WinchStatus)]
     assert len(winches) == 2 and all(s.tension_n > 0 for s in winches)
     assert any(isinstance(s, Attitude) for s in statuses)
@@ -64,7 +64,10 @@ def test_a_world_without_a_team_is_refused() -> None:
 
 def test_bad_wheel_frames_are_counted(world: Any) -> None:
     rig = CliffbotRig(world, GRID, TetherConfig(), ClimberConfig())
-    fid, data = TeamCan().wheel_command(1.0, 1.0, True, 1)
-    rig.to_rig([(fid, data[:-1] + bytes([data[-1] ^ 0xFF]))], 0.1)
-    assert rig.rx_bad == 1 and rig.wheel_cmd == (0.0, 0.0)
+    codec = TeamCan()
+    rig.to_rig([codec.wheel_command(0.0, 0.0, False, 1)], 0.05)
+    fid, data = codec.wheel_command(1.0, 1.0, True, 2)
+    rig.to_rig([(fid, data[:5])], 0.1)  # a short frame: refused by the decoder
+    rig.to_rig([(fid, data[:-1] + bytes([data[-1] ^ 0xFF]))], 0.1)  # a bad checksum: refused by the sequence check
+    assert rig.rx_bad == 1 and rig.wheel_cmd == (0.0, 0.0) and not rig.wheels_enabled
     assert np.isfinite(rig.xy).all()

@@ -27,11 +27,11 @@ class Driver:
         for _ in range(round(seconds / DT)):
             self.now = round(self.now + DT, 9)
             self.faults.update(self.now)
-            self.counter = (self.counter + 1) % 16
+            self.counter += 1
             self.w.on_frame(*self.codec.winch_command("WINCH_A", rate, enable, clear, self.counter), self.now)
             self.w.step(DT, self.now)
             for fid, data in self.w.poll(self.now):
-                d = self.codec.decode(fid, data)
+                d = self.codec.decode(fid, data, epoch=None)
                 assert isinstance(d, WinchStatus)
                 last = d
         assert last is not None
@@ -49,12 +49,15 @@ def test_follows_the_rate_and_reports_length() -> None:
 
 def test_bad_and_repeated_commands_are_ignored() -> None:
     d = Driver()
-    fid, data = d.codec.winch_command("WINCH_A", 0.2, True, False, 1)
-    d.w.on_frame(fid, data[:-1] + bytes([data[-1] ^ 1]), 0.0)
-    assert d.w.rx_bad == 1 and not d.w.enabled
-    d.w.on_frame(fid, data, 0.01)
-    d.w.on_frame(fid, data, 0.02)  # the same counter again: a replay
-    assert d.w.rx_commands == 1 and d.w.rx_seq == 1
+    fid, data = d.codec.winch_command("WINCH_A", 0.0, False, False, 1)
+    d.w.on_frame(fid, data, 0.0)
+    fid, data = d.codec.winch_command("WINCH_A", 0.2, True, False, 2)
+    d.w.on_frame(fid, data[:-1] + bytes([data[-1] ^ 1]), 0.01)  # a flipped checksum bit
+    d.w.on_frame(fid, data[:5], 0.015)  # a short frame
+    assert d.w.rx_bad + d.w.rx_seq == 2 and not d.w.enabled
+    d.w.on_frame(fid, data, 0.02)
+    d.w.on_frame(fid, data, 0.03)  # the same counter again: a replay
+    assert d.w.rx_commands == 2 and d.w.enabled and d.w.rx_seq >= 1
 
 
 def test_command_timeout_brakes() -> None:
