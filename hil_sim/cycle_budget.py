@@ -13,7 +13,7 @@ from pathlib import Path
 from fsw.framework.params import load, param
 
 DEFAULT_BUDGET = Path(__file__).resolve().parents[1] / "config" / "budget.toml"
-CYCLE_STAGES = ("rectify", "stereo", "merge", "edge", "next_view")
+CYCLE_STAGES = ("rectify", "stereo", "register", "merge", "edge", "next_view")
 
 
 @dataclass(frozen=True)
@@ -22,9 +22,10 @@ class CycleBudget:
 
     rectify_s: float = param(1.0, lo=0.0, hi=1e6, units="s", doc="rectify the pair")
     stereo_s: float = param(3.0, lo=0.0, hi=1e6, units="s", doc="stereo to 3-D points")
-    merge_s: float = param(2.0, lo=0.0, hi=1e6, units="s", doc="P_V of the view and the merge")
+    register_s: float = param(1.0, lo=0.0, hi=1e6, units="s", doc="registration of the view against the map")
+    merge_s: float = param(2.0, lo=0.0, hi=1e6, units="s", doc="P_V, the points' world covariance, the merge")
     edge_s: float = param(1.5, lo=0.0, hi=1e6, units="s", doc="edge cells and polygon fit")
-    next_view_s: float = param(7.5, lo=0.0, hi=1e6, units="s", doc="the next-view search")
+    next_view_s: float = param(6.5, lo=0.0, hi=1e6, units="s", doc="the next-view search")
     total_s: float = param(15.0, lo=0.0, hi=1e6, units="s", doc="the whole cycle")
 
 

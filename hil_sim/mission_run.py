@@ -317,7 +317,7 @@ def run_mission(
                     if progress is not None:
                         progress(mission.step, spec.steps, mission.state)
                 if mission.state == "DONE" or (mission.state == "SAFE" and (
-                        cfg.mission.safe_recover_s <= 0 or mission.safe_final)):
+                        cfg.mission.safe_recover_s <= 0 or mission.safe.final)):
                     break
         finally:
             bench.exe.thaw_heap()
@@ -342,24 +342,24 @@ def run_mission(
             "map_rmse_detilted_m": rmse_plane,
             "edge_violations": counters["violations"],
             "calib_2sigma": quality["within_2sigma"],
-            "geofence_refusals": mission.edge_violations,
+            "geofence_refusals": mission.ground.edge_violations,
             "wheels_off_terrain": bench.rig.wheels_off_terrain_steps,
             "wheels_on_unknown_ground": counters["unknown_frames"],
             "bench_faults": bench.rig.faults_seen,
             "odometer_m": round(bench.rig.rover.odometer_m, 3),
             "reachable_stations": counters["reachable"],
-            "looks": mission.looks,
-            "stays": mission.stays,
+            "looks": mission.ground.looks,
+            "stays": mission.ground.stays,
             "steps_unused": max(0, spec.steps - (len(mission.records) - 1)),
             "steps_unused_reason": None if len(mission.records) - 1 >= spec.steps else (
-                mission.end or mission.safe_reason or f"stopped in {mission.state}"),
+                mission.end or mission.safe.reason or f"stopped in {mission.state}"),
             "slips": exe.slips,
             "overruns": sum(t.overruns for t in exe.tasks.values()),
             "task_max_ms": task_max_ms(exe),
             "task_ms_per_frame": task_ms_per_frame(exe),
             "end_reason": mission.end,
-            "safe_reason": mission.safe_reason,
-            "safe_entries": mission.safe_entries,
+            "safe_reason": mission.safe.reason,
+            "safe_entries": mission.safe.entries,
             "safe_recoveries": counters["recoveries"],
             "safe_recoveries_resumed": counters["recoveries_resumed"],
             "off_map": counters["off_map"],

@@ -3,7 +3,7 @@ variance calibration, edge distance (issue 4's checks; used by ``safer-hil bench
 perception`` and tests/perception).
 
 Everything here may look at the truth; nothing here is flight code. The flight side is
-``fsw.core.acquire`` (docs/algorithm.md §4), ``fsw.core.map.elevation_map`` (§1) and
+``fsw.core.pipeline`` (docs/algorithm.md §4), ``fsw.core.map.elevation_map`` (§1) and
 ``fsw.core.edge.edge`` (§2).
 """
 

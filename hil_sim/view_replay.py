@@ -5,8 +5,8 @@ the trajectory the planner chose and the pose chain (odometry, attitude, registr
 missions that differ in one factor diverge after a few steps, so their maps cannot say which
 factor costs what. :func:`record_mission` runs a mission and keeps, for every view the
 perception task merged, the pair, the flight's pose estimate and covariance and the TRUE
-camera pose. :func:`replay` feeds those views to a fresh perception task (the flight code,
-on a stepped clock) with one factor changed: the calibration file, the cameras the pairs are
+camera pose. :func:`replay` feeds those views to a fresh sensing pipeline (the flight's,
+``fsw.core.pipeline``) with one factor changed: the calibration file, the cameras the pairs are
 rendered with (re-rendered at the true pose), the flight pose replaced by the true one, or
 registration off; and scores the map against the truth (``hil_sim.terrain_eval``).
 """
@@ -14,7 +14,6 @@ registration off; and scores the map against the truth (``hil_sim.terrain_eval``
 from __future__ import annotations
 
 import dataclasses
-import itertools
 from collections.abc import Callable, Generator
 from dataclasses import dataclass
 from typing import Any
@@ -26,7 +25,6 @@ from fsw.core.geometry import CameraPose
 from fsw.tasks.messages import CameraFrame
 
 F64 = NDArray[np.float64]
-_ids = itertools.count()
 
 
 @dataclass(frozen=True)
@@ -54,7 +52,7 @@ def record_mission(spec: Any) -> tuple[dict[str, Any], list[RecordedView]]:
     def observe(bench: Any) -> None:
         render, rig = bench.camera.render, bench.rig
         task = bench.exe.tasks["perception"]
-        merge = task._merge_view
+        merge = task.merge_view
 
         def recording_render() -> tuple[Any, Any, float]:
             with rig.lock:
@@ -68,7 +66,7 @@ def record_mission(spec: Any) -> tuple[dict[str, Any], list[RecordedView]]:
             return (yield from merge(fr))
 
         bench.camera.render = recording_render
-        task._merge_view = recording_merge
+        task.merge_view = recording_merge
 
     summary = run_mission(spec, mode="fresh", on_bench=observe)
     views = [RecordedView(fr.view_id, fr.left, fr.right, fr.pose, np.asarray(fr.pose_cov, np.float64),
@@ -95,12 +93,13 @@ def replay(views: list[RecordedView], scenario: str, seed: int, factor: Factor,
            config: str | None = None, datum_m: float = 0.0,
            on_register: Callable[[RecordedView, Any, CameraPose], None] | None = None) -> dict[str, Any]:
     """The map quality (``hil_sim.terrain_eval.map_quality``) of ``views`` merged by a fresh
-    perception task with ``factor`` applied; ``datum_m``: the recorded mission's true body
-    height at the start (its summary's ``map_quality.datum_m``), the flight poses' height
-    origin. True poses put the map in the world's own heights (datum 0). ``on_register``
-    is called with each view, its ``fsw.core.registration.registration.Registration`` and the pose merged."""
-    from fsw.executive.executive import Executive
-    from fsw.framework.clock import SteppedClock
+    sensing pipeline (``fsw.core.pipeline``) with ``factor`` applied; ``datum_m``: the recorded
+    mission's true body height at the start (its summary's ``map_quality.datum_m``), the flight
+    poses' height origin. True poses put the map in the world's own heights (datum 0).
+    ``on_register`` is called with each view, its ``fsw.core.registration.registration.Registration``
+    and the pose merged."""
+    from fsw.core.pipeline import SensingPipeline
+    from fsw.settings import load_stereo_calibration
     from hil_sim.camera_model import TrueCameras
     from hil_sim.mission_run import RunSpec, mission_config
     from hil_sim.render import StereoRenderer
@@ -117,40 +116,25 @@ def replay(views: list[RecordedView], scenario: str, seed: int, factor: Factor,
         cam = dataclasses.replace(cam, calibration_file=factor.calibration_file)
     reg = dataclasses.replace(reg, enabled=factor.registration,
                               carry=reg.carry if factor.carry is None else factor.carry)
-    link = dataclasses.replace(cfg.link, transport=f"inproc://replay-{next(_ids)}")
-    exe = Executive(dataclasses.replace(cfg, camera=cam, registration=reg, link=link), SteppedClock())
-    task = exe.tasks["perception"]
+    cfg = dataclasses.replace(cfg, camera=cam, registration=reg)
+    pipeline = SensingPipeline(cfg, load_stereo_calibration(cfg))
     rend = None
     if factor.cameras is not None:
         hw = load_hardware(spec.hardware)
         cams = TrueCameras.from_config(cfg.camera, dataclasses.replace(hw.camera, model=factor.cameras))
         rend = StereoRenderer(world, cfg.camera, float(world.noise_sigma), seed, cameras=cams)
     merged = []
-    current: list[RecordedView] = []
-    if on_register is not None:
-        register, hook = task._register, on_register
-
-        def observed(fr: CameraFrame, pts: Any) -> Generator[None, None, Any]:
-            out = yield from register(fr, pts)
-            hook(current[-1], out[0], out[1])
-            return out
-
-        task._register = observed
     for v in views:
-        current.append(v)
         left, right = (v.left, v.right) if rend is None else rend.render(v.true_pose)
         pose = v.true_pose if factor.true_pose else v.pose
-        gen = task._merge_view(CameraFrame(v.view_id, 0.0, left, right, pose, v.pose_cov,
-                                           ground_z_m=v.ground_z_m, nav_fix_id=v.nav_fix_id))
-        while True:
-            try:
-                next(gen)
-            except StopIteration as stop:
-                up = stop.value
-                break
-        merged.append((up.camera_xyz, *up.view_cells))
+        sv = pipeline.view(CameraFrame(v.view_id, 0.0, left, right, pose, v.pose_cov,
+                                       ground_z_m=v.ground_z_m, nav_fix_id=v.nav_fix_id))
+        if on_register is not None:
+            on_register(v, sv.placed.registration, sv.placed.pose)
+        t = sv.placed.pose.t
+        merged.append(((float(t[0]), float(t[1]), float(t[2])), *sv.view_cells))
     datum = 0.0 if factor.true_pose else datum_m
-    return map_quality(task.map, world.truth_on_grid(task.map.grid), merged, datum)
+    return map_quality(pipeline.map, world.truth_on_grid(pipeline.map.grid), merged, datum)
 
 
 def registration_errors(views: list[RecordedView], scenario: str, seed: int,

@@ -13,12 +13,14 @@ knows the configuration only by the shape it reads (:class:`ScheduledConfig`).
 from __future__ import annotations
 
 import importlib
+from collections.abc import Mapping
 from typing import Protocol
 
+from fsw.framework.agent import AgentConfig
 from fsw.framework.params import ConfigError
 from fsw.framework.schedule import ExecutiveConfig
 from fsw.framework.task import Task
-from fsw.tasks.registry import KINDS
+from fsw.tasks.registry import AGENTS, KINDS
 
 
 class ScheduledConfig(Protocol):
@@ -27,20 +29,24 @@ class ScheduledConfig(Protocol):
     @property
     def executive(self) -> ExecutiveConfig: ...
 
+    @property
+    def agent(self) -> AgentConfig: ...
+
 
 #: what a flight configuration always schedules (the kinds these need are added by ``required_kinds``)
 FLIGHT_KINDS = ("mission", "health", "console", "mavlink")
 
 
-def task_class(kind: str, source: str = "config") -> type[Task]:
-    """Resolve a task kind to its class (imported lazily); ``ConfigError`` for an unknown kind."""
-    if kind not in KINDS:
-        known = ", ".join(sorted(KINDS))
+def task_class(kind: str, source: str = "config", kinds: Mapping[str, str] = KINDS) -> type[Task]:
+    """Resolve a task kind to its class (imported lazily) among ``kinds`` (an agent's; all by
+    default); ``ConfigError`` for an unknown kind."""
+    if kind not in kinds:
+        known = ", ".join(sorted(kinds))
         raise ConfigError(source, "executive.tasks.kind", f"unknown task kind {kind!r} (known: {known})")
-    module, _, attr = KINDS[kind].partition(":")
+    module, _, attr = kinds[kind].partition(":")
     cls = getattr(importlib.import_module(module), attr)
     if not (isinstance(cls, type) and issubclass(cls, Task)):
-        raise TypeError(f"{KINDS[kind]} is not a Task")
+        raise TypeError(f"{kinds[kind]} is not a Task")
     return cls
 
 
@@ -67,3 +73,18 @@ def check(cfg: ScheduledConfig, source: str = "config") -> None:
                                            f"{', '.join(repr(k) for k in missing)} in the schedule")
 
 
+def check_agent(cfg: ScheduledConfig, sections: set[str], source: str = "config") -> None:
+    """The configuration fits its agent's topology (``[agent] kind``; ``fsw.tasks.registry.AGENTS``):
+    a known kind, only the sections that agent reads, only its task kinds; ``ConfigError`` if not."""
+    topo = AGENTS.get(cfg.agent.kind)
+    if topo is None:
+        known = ", ".join(sorted(AGENTS))
+        raise ConfigError(source, "agent.kind", f"unknown agent kind {cfg.agent.kind!r} (known: {known})")
+    try:
+        topo.check_sections(sections)
+    except ValueError as err:
+        raise ConfigError(source, "agent", str(err)) from None
+    try:
+        topo.check_tasks([t.kind for t in cfg.executive.tasks])
+    except ValueError as err:
+        raise ConfigError(source, "executive.tasks", str(err)) from None

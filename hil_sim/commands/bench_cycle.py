@@ -4,6 +4,7 @@ budget (issue 15; config/budget.toml; docs/architecture.md "Target budget")."""
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -11,8 +12,12 @@ from typing import Any
 
 HELP = "sensing-cycle breakdown, foreground per task, peak RSS, projected onto the target"
 DESCRIPTION = (
-    "Measures one sensing cycle stage by stage (capture, rectify when [camera] names a "
-    "calibration file, stereo, merge, edge, next view) on a lab map state (start panorama) "
+    "Measures one sensing cycle of the flown pipeline (fsw.core.pipeline, the perception "
+    "task's slack job) stage by stage: rectify when [camera] names a calibration file, "
+    "stereo, register, merge (P_V, points with covariance, fusion), edge; then the next-view "
+    "search; capture (the bench renderer) apart; on the map state after a start panorama "
+    "(three views merged by the same pipeline; the bench's true cameras when [camera] names a "
+    "calibration file) "
     "of each --grids size over the configured area; the foreground cost per task per frame "
     "and the longest slack-job slice (thread CPU, per submitting task, against the 20 ms "
     "bound) from a short lockstep mission; "
@@ -66,72 +71,105 @@ def _search(planner: Any, state: Any) -> tuple[Any, float]:
         longest = max(longest, time.process_time() - c0)
 
 
+# The pose prior of the bench's view (6x6: rotation vector rad, translation m): roughly what
+# the flight's pose chain reports after a short drive; the registration starts from it.
+BENCH_PRIOR_SIGMA = (math.radians(0.3), math.radians(0.3), math.radians(1.0), 0.02, 0.02, 0.01)
+# The map state: a start panorama merged by the pipeline from the rover's start. The timed view
+# looks between two of its views (half on the map: the registration aligns it there).
+PANORAMA_PANS_DEG = (-130.0, -90.0, -50.0)
+PANORAMA_TILT_DEG = -35.0
+TIMED_PAN_DEG = -70.0
+
+
+class StageClock:
+    """The ``stage`` callback of ``fsw.core.pipeline.SensingPipeline.view_steps``: CPU seconds
+    of this process per stage, from one stage's start to the next's (or :meth:`stop`)."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+        self._stage: str | None = None
+        self._t0 = 0.0
+
+    def __call__(self, name: str) -> None:
+        self.stop()
+        self._stage, self._t0 = name, time.process_time()
+
+    def stop(self) -> None:
+        if self._stage is not None:
+            self.seconds[self._stage] = self.seconds.get(self._stage, 0.0) + time.process_time() - self._t0
+        self._stage = None
+
+
 def _cycle(cfg: Any, world: Any, n: int, repeats: int, seed: int) -> dict[str, Any]:
+    """One sensing cycle of the flown pipeline on the start-panorama state of an ``n`` x ``n``
+    map, ``repeats`` times from the same state: (min, median) CPU s per stage."""
     import dataclasses
+    import statistics
 
     import numpy as np
 
-    from fsw.core.acquire import view_points
-    from fsw.core.edge.edge import edge_cells, fit_polygon
-    from fsw.core.geometry import MapGrid
-    from fsw.core.localization.localization import PoseEstimate
+    from fsw.core.geometry import camera_pose_from_rover
+    from fsw.core.pipeline import STAGES, SensingPipeline
     from fsw.core.planning.info_planners import InformationPlanner
-    from fsw.core.planning.nbv import predicted_visibility
     from fsw.core.planning.planners import PlannerState
-    from fsw.core.stereo.rectify import Rectifier
-    from fsw.core.stereo.stereo import StereoMatcher
     from fsw.settings import load_stereo_calibration
-    from fsw.tasks.perception import roi_mapped_fraction
+    from fsw.tasks.messages import CameraFrame
     from hil_sim import nbv_scene
+    from hil_sim.camera_model import TrueCameras
     from hil_sim.render import StereoRenderer
+    from hil_sim.rig import load_hardware
 
-    mg = world.map_grid
-    grid = MapGrid.from_config(dataclasses.replace(mg, nx=n, ny=n, cell_m=mg.cell_m * mg.nx / n))
-    truth = np.asarray(world.truth_on_grid(grid), dtype=np.float64)
-    truth = np.where(np.isfinite(truth), truth, np.nanmin(truth))
-    textured = ~np.asarray(world.textureless_on_grid(grid), bool)
+    mg = dataclasses.replace(world.map_grid, nx=n, ny=n, cell_m=world.map_grid.cell_m * world.map_grid.nx / n)
+    cfg = dataclasses.replace(cfg, map=mg)
+    cal = load_stereo_calibration(cfg)  # as the perception task: rectify when calibrated
     rover = tuple(float(v) for v in world.rover_start)
-    emap = nbv_scene.panorama_map(truth, textured, grid, cfg.camera, cfg.mast, rover, seed,
-                                  fusion=cfg.fusion)
+    # the bench's cameras (config/hil_hardware.toml) when the flight rectifies, as in a mission
+    cams = None if cal is None else TrueCameras.from_config(cfg.camera, load_hardware().camera)
+    rend = StereoRenderer(world, cfg.camera, world.noise_sigma, seed=seed, cameras=cams)
+    prior = np.diag(np.square(BENCH_PRIOR_SIGMA))
+
+    def frame(k: int, pan_deg: float) -> Any:
+        pose = camera_pose_from_rover(rover, (math.radians(pan_deg), math.radians(PANORAMA_TILT_DEG),
+                                              cfg.mast.lift_max_m), cfg.mast, float(world.plateau_z))
+        return CameraFrame(k, 0.0, *rend.render(pose), pose, prior, ground_z_m=float(world.plateau_z))
+
+    # the start panorama, merged by the pipeline (the first view is the map's reference)
+    start = SensingPipeline(cfg, cal)
+    for k, pan in enumerate(PANORAMA_PANS_DEG):
+        start.merge_view(frame(k, pan))
+    fig: dict[str, Any] = {"grid": n, "cell_m": start.map.grid.cell}
+    timed = frame(len(PANORAMA_PANS_DEG), TIMED_PAN_DEG)
+    fig["capture"] = _cpu(lambda: rend.render(timed.pose), repeats)[:2]
+    runs: list[dict[str, float]] = []
+    sensed: Any = None
+    for _ in range(repeats):
+        pipeline = SensingPipeline(cfg, cal, start.map.copy())  # the same state each time
+        pipeline.chain.restore(start.chain.state())
+        pipeline.sources.restore(start.sources.state())
+        clock = StageClock()
+        steps = pipeline.view_steps(timed, clock)
+        while True:
+            try:
+                next(steps)
+            except StopIteration as stop:
+                sensed = stop.value
+                break
+        clock.stop()
+        runs.append(clock.seconds)
+    for stage in STAGES:
+        times = [r[stage] for r in runs]
+        fig[stage] = (min(times), statistics.median(times))
+    if cal is None:
+        fig["rectify"] = None
+    reg = sensed.placed.registration
+    fig["registration"] = reg.status + (f" ({reg.reason})" if reg.reason else "")
     path = nbv_scene.edge_offset_path(np.asarray(world.edge_xy, float), cfg.edge.setback_m)
     planner = InformationPlanner("5", cfg.nbv, cfg.camera, cfg.mast, use_interest=True)
-    state = PlannerState(emap, rover, (0.0, 0.0, cfg.mast.lift_max_m), path, lambda a, b: True,
+    state = PlannerState(pipeline.map, rover, (0.0, 0.0, cfg.mast.lift_max_m), path, lambda a, b: True,
                          edge_xy=np.asarray(world.edge_xy, float))
-    view = planner.next_view(state)
-    if view is None:
+    *fig["next_view"], (choice, longest) = _cpu(lambda: _search(planner, state), repeats)
+    if choice is None:
         raise ValueError("no candidate view on this map state")
-    pose = view.camera_pose(cfg.mast)
-    rend = StereoRenderer(world, cfg.camera, world.noise_sigma, seed=seed)
-    cal = load_stereo_calibration(cfg)  # as the perception task: rectify when calibrated
-    rect = None if cal is None else Rectifier(cal, cfg.camera.K)
-    matcher = StereoMatcher(cfg.stereo, cfg.camera, None if rect is None else rect.camera)
-    fig: dict[str, Any] = {"grid": n, "cell_m": grid.cell}
-    fig["capture"] = _cpu(lambda: rend.render(pose), repeats)[:2]
-    left, right = rend.render(pose)
-    fig["rectify"] = None
-    if rect is not None:  # the remap of the raw pair (the bench's pair stands in for it)
-        fig["rectify"] = _cpu(lambda: rect.rectify(left, right), repeats)[:2]
-        left, right = rect.rectify(left, right)
-    exact = np.zeros((6, 6))
-    *fig["stereo"], pts = _cpu(lambda: view_points(matcher, left, right,
-                                                   PoseEstimate(pose, exact)), repeats)
-
-    def merge() -> Any:
-        m = emap.copy()
-        pv = predicted_visibility(m, pose, cfg.camera, cfg.nbv.visibility)
-        m.merge(pts.xyz_w, cov=pts.cov_w, p_visible=pv)
-        return m
-
-    *fig["merge"], merged = _cpu(merge, repeats)
-
-    def edge() -> Any:
-        cells = edge_cells(merged, world.plateau_z, rover[:2], cfg.edge)
-        poly = fit_polygon(merged, cells, cfg.edge)
-        roi_mapped_fraction(merged, poly)
-
-    fig["edge"] = _cpu(edge, repeats)[:2]
-    state2 = dataclasses.replace(state, map=merged)
-    *fig["next_view"], (_, longest) = _cpu(lambda: _search(planner, state2), repeats)
     fig["step_max_s"] = longest
     fig["poses"] = planner.last_stations * len(cfg.nbv.lifts_m) * int(
         np.arange(cfg.mast.pan_min_deg, cfg.mast.pan_max_deg + 1e-9, cfg.nbv.pan_step_deg).size
@@ -195,8 +233,8 @@ def run(args: argparse.Namespace) -> int:
         except ValueError as err:
             print(f"safer-hil bench cycle: {err}", file=sys.stderr)
             return 2
-        print(f"\nsensing cycle, {args.scenario} panorama state, map {n}x{n} cells of "
-              f"{100 * f['cell_m']:.2f} cm:")
+        print(f"\nsensing cycle (the flown pipeline, fsw.core.pipeline), {args.scenario} after the "
+              f"start panorama, map {n}x{n} cells of {100 * f['cell_m']:.2f} cm; the view {f['registration']}:")
         print(f"  {'stage':<10} {'here min (median)':>20} {'target':>9} {'budget':>8}")
         c_min, c_med = f["capture"]
         print(f"  {'capture':<10} {1e3 * c_min:9.1f} ({1e3 * c_med:7.1f}) ms   (bench renderer, "

@@ -62,14 +62,11 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from fsw.core.acquire import view_points
     from fsw.core.edge.edge import edge_cells, edge_path, fit_line, fit_polygon
     from fsw.core.geometry import MapGrid
-    from fsw.core.localization.localization import PoseEstimate
     from fsw.core.map import checkpoint
     from fsw.core.map.elevation_map import ElevationMap
     from fsw.core.stereo.rectify import Rectifier
-    from fsw.core.stereo.stereo import StereoMatcher
     from fsw.drivers.map_store import MapStore
     from fsw.framework.params import ConfigError
     from fsw.settings import DEFAULT_CONFIG, load_settings, load_stereo_calibration
@@ -89,8 +86,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     grid = MapGrid.from_config(world.map_grid)
     rend = StereoRenderer(world, cfg.camera, world.noise_sigma, seed=args.seed)
-    matcher = StereoMatcher(cfg.stereo, cfg.camera)
-    exact = np.zeros((6, 6))
+    bench = _bench_config(cfg, world)
+    matcher = _pipeline(bench).matcher
     pose = pit_view_poses(world, cfg.mast, 1)[0]
     left, right = rend.render(pose)
     cam = cfg.camera
@@ -98,9 +95,10 @@ def run(args: argparse.Namespace) -> int:
           f"SGBM {cfg.stereo.mode} {cfg.stereo.num_disparities_px} disparities, "
           f"map {grid.nx}x{grid.ny} cells of {100 * grid.cell:g} cm; medians of {args.repeats}")
 
-    ms = _median_ms(lambda: matcher.points(left, right), args.repeats)
-    pts = view_points(matcher, left, right, PoseEstimate(pose, exact))
-    print(f"stereo                {ms:8.1f} ms per pair  ({len(pts.xyz_w)} points)")
+    stages = _stage_ms(bench, _frame(left, right, pose), args.repeats)
+    points = _pipeline(bench).merge_view(_frame(left, right, pose)).merge.points_in
+    print(f"stereo                {stages['stereo']:8.1f} ms per pair  ({points} points; the pipeline's "
+          "stereo stage: SGBM in bands, filters, triangulation with covariance)")
     cal = load_stereo_calibration(cfg)
     if cal is None:
         print("rectification         (no [camera] calibration_file configured)")
@@ -114,11 +112,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"stereo slices         {np.median(slices):8.1f} ms median, {max(slices):.1f} ms longest "
           f"({len(slices) // args.repeats} slices per pair: SGBM, correlation, refinement bands)")
 
-    def merge_view() -> None:
-        ElevationMap(grid, cfg.fusion).merge(pts.xyz_w, cov=pts.cov_w)
-
-    ms = _median_ms(merge_view, args.repeats)
-    print(f"merge one view        {ms:8.1f} ms  = {len(pts.xyz_w) / ms / 1e3:6.2f} M points/s")
+    ms = stages["merge"]
+    print(f"merge one view        {ms:8.1f} ms  = {points / ms / 1e3:6.2f} M points/s (world covariance "
+          "and fusion into an empty map)")
     rng = np.random.default_rng(0)
     X, Y = grid.centers()
     pick = rng.integers(0, grid.nx * grid.ny, BATCH_POINTS)
@@ -137,9 +133,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"merge {BATCH_POINTS} points {ms:8.1f} ms  = {BATCH_POINTS / ms / 1e3:6.2f} M points/s "
           f"({verdict} the {MERGE_TARGET_MS:g} ms target)")
 
-    emap = ElevationMap(grid, cfg.fusion)
-    for p in edge_pass_poses(world, cfg.mast):
-        emap.merge(*_pair_points(rend, matcher, p, exact))
+    passing = _pipeline(bench)
+    for i, p in enumerate(edge_pass_poses(world, cfg.mast)):
+        passing.merge_view(_frame(*rend.render(p), p, i))
+    emap = passing.map
     seed_xy = world.rover_start[:2]
 
     def fit() -> None:
@@ -166,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
           f"{ms_load:.1f} ms load+verify, {size / 1024:.0f} KiB")
 
     if args.plot:
-        return _calibration(args, cfg, world, grid, rend, matcher, exact)
+        return _calibration(args, bench, world, grid, rend)
     return 0
 
 
@@ -190,16 +187,50 @@ def _slice_ms(matcher, left, right, repeats: int) -> list[float]:  # type: ignor
     return out
 
 
-def _pair_points(rend, matcher, pose, exact):  # type: ignore[no-untyped-def]
-    from fsw.core.acquire import view_points
-    from fsw.core.localization.localization import PoseEstimate
+def _bench_config(cfg, world):  # type: ignore[no-untyped-def]
+    """The flight configuration for the bench's views: the ideal renderer's pairs (no
+    rectification), the true poses (registration off), the scenario's map grid."""
+    import dataclasses
 
-    left, right = rend.render(pose)
-    pts = view_points(matcher, left, right, PoseEstimate(pose, exact))
-    return pts.xyz_w, None, pts.cov_w
+    return dataclasses.replace(cfg, map=world.map_grid,
+                               camera=dataclasses.replace(cfg.camera, calibration_file=""),
+                               registration=dataclasses.replace(cfg.registration, enabled=False))
 
 
-def _calibration(args, cfg, world, grid, rend, matcher, exact) -> int:  # type: ignore[no-untyped-def]
+def _pipeline(bench):  # type: ignore[no-untyped-def]
+    """A fresh sensing pipeline (the flight's, ``fsw.core.pipeline``) on an empty map."""
+    from fsw.core.pipeline import SensingPipeline
+
+    return SensingPipeline(bench, None)
+
+
+def _frame(left, right, pose, view_id: int = 0, cov=None):  # type: ignore[no-untyped-def]
+    """A camera frame at ``pose`` (covariance ``cov``; None: exact)."""
+    import numpy as np
+
+    from fsw.tasks.messages import CameraFrame
+
+    return CameraFrame(view_id, 0.0, left, right, pose, np.zeros((6, 6)) if cov is None else cov)
+
+
+def _stage_ms(bench, frame, repeats: int) -> dict[str, float]:  # type: ignore[no-untyped-def]
+    """Median CPU ms per stage of the pipeline merging ``frame`` into a fresh map, after a warm-up."""
+    import statistics
+
+    from hil_sim.commands.bench_cycle import StageClock
+
+    runs = []
+    for _ in range(repeats + 1):
+        clock = StageClock()
+        gen = _pipeline(bench).merge_view_steps(frame, clock)
+        for _ in gen:
+            pass
+        clock.stop()
+        runs.append(clock.seconds)
+    return {k: 1e3 * statistics.median(r[k] for r in runs[1:]) for k in runs[0]}
+
+
+def _calibration(args, bench, world, grid, rend) -> int:  # type: ignore[no-untyped-def]
     import math
     import sys
     from pathlib import Path
@@ -207,8 +238,11 @@ def _calibration(args, cfg, world, grid, rend, matcher, exact) -> int:  # type: 
     import numpy as np
 
     from fsw.core.geometry import CameraPose
-    from fsw.core.localization.localization import point_covariance_parts, so3_exp
+    from fsw.core.localization.localization import so3_exp
     from fsw.core.map.elevation_map import ElevationMap
+    from fsw.core.pipeline import RegisteredPose
+    from fsw.core.registration.registration import Registration
+    from fsw.core.steps import run_to_end
     from hil_sim.perception_eval import (
         calibration,
         calibration_figure,
@@ -223,10 +257,11 @@ def _calibration(args, cfg, world, grid, rend, matcher, exact) -> int:  # type: 
         ok = sel & np.isfinite(truth) & emap.mapped
         panels.append((f"{world.name}: {title}", emap.z[ok] - truth[ok], np.sqrt(emap.var[ok])))
 
-    pose = pit_view_poses(world, cfg.mast, 1)[0]
-    xyz, _, cov = _pair_points(rend, matcher, pose, exact)
-    one = ElevationMap(grid, cfg.fusion)
-    one.merge(xyz, cov=cov)
+    pose = pit_view_poses(world, bench.mast, 1)[0]
+    left, right = rend.render(pose)
+    single = _pipeline(bench)
+    single.merge_view(_frame(left, right, pose))
+    one = single.map
     r = cell_range_m(grid, truth, pose)
     r0, r1 = args.range_m
     near = (r >= r0) & (r <= r1)
@@ -236,15 +271,15 @@ def _calibration(args, cfg, world, grid, rend, matcher, exact) -> int:  # type: 
 
     # the pose term: the same view seen from poses drawn from a pose covariance
     S = np.diag([math.radians(0.2) ** 2] * 3 + [0.01**2] * 3)
-    xyz_c, cov_c = pose.world_to_camera(xyz), np.matmul(np.matmul(pose.R.T, cov), pose.R)
+    pts = single.matcher.points(left, right)  # the view in the camera frame
     rng = np.random.default_rng(args.seed)
     errs, sigs = [], []
     for _ in range(25):
         dx = np.sqrt(np.diag(S)) * rng.normal(size=6)
-        est = CameraPose(so3_exp(dx[:3]) @ pose.R, pose.t + dx[3:])
-        pts, cs, cp = point_covariance_parts(est, S, xyz_c, cov_c)
-        m = ElevationMap(grid, cfg.fusion)
-        m.merge(pts, cov=cs + cp, cov_common=cp)
+        est = RegisteredPose(Registration("off"), CameraPose(so3_exp(dx[:3]) @ pose.R, pose.t + dx[3:]), S, None)
+        drawn = _pipeline(bench)  # the view merged from the drawn pose, with its covariance
+        run_to_end(drawn.fuse_steps(est, run_to_end(drawn.world_parts_steps(est, pts))))
+        m = drawn.map
         ok = m.mapped & near & np.isfinite(truth)
         errs.append(m.z[ok] - truth[ok])
         sigs.append(np.sqrt(m.var[ok]))
@@ -254,16 +289,18 @@ def _calibration(args, cfg, world, grid, rend, matcher, exact) -> int:  # type: 
           f"{100 * np.mean(np.abs(err) <= 2 * sig):.1f} % of {err.size} cell-draws")
     panels.append((f"{world.name}: one view, pose 0.2 deg / 1 cm (25 draws)", err, sig))
 
-    fused = ElevationMap(grid, cfg.fusion)
+    fusing = _pipeline(bench)
     masks = []
-    for i, p in enumerate(pit_view_poses(world, cfg.mast, 10, seed=1)):
-        xyz, _, cov = _pair_points(rend, matcher, p, exact)
-        m = ElevationMap(grid, cfg.fusion)
-        m.merge(xyz, cov=cov)
-        fused.merge(xyz, cov=cov)
+    for i, p in enumerate(pit_view_poses(world, bench.mast, 10, seed=1)):
+        fr = _frame(*rend.render(p), p, i)
+        alone = _pipeline(bench)
+        alone.merge_view(fr)
+        m = alone.map
+        fusing.merge_view(fr)
         rr = cell_range_m(grid, truth, p)
         masks.append(m.mapped & (rr >= r0) & (rr <= r1))
         print(f"  view {i} of 10: {calibration(m.z, m.var, truth, masks[-1]).line()}")
+    fused = fusing.map
     common = np.all(masks, axis=0)
     print(f"  10 views fused: {calibration(fused.z, fused.var, truth, common).line()}")
     panel("10 views fused (cells seen by all)", fused, common)

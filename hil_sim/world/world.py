@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from fsw.core.geometry import MapGrid, MapGridConfig, MastConfig, camera_pose_from_rover
+from fsw.core.geometry import MapGrid, MapGridConfig, MastConfig, camera_pose_from_rover, wrap_angle
 from hil_sim.world.cliffbot import CliffbotTruth
 from hil_sim.world.team_truth import TeamTruth
 
@@ -183,6 +183,6 @@ def aim_at(world: World, rover_xy_yaw: tuple[float, float, float], mast: MastCon
     target = (cb.x, cb.y, cb.z + 0.5 * cb.height_m)
     dx, dy, dz = target[0] - cam[0], target[1] - cam[1], target[2] - cam[2]
     pan = math.atan2(dy, dx) - yaw
-    pan = math.atan2(math.sin(pan), math.cos(pan))
+    pan = wrap_angle(pan)
     tilt = math.atan2(dz, math.hypot(dx, dy))
     return mast.clamp(pan, tilt, lift)

@@ -1,6 +1,6 @@
 """What the flight process imports (issue 15: its peak RSS must stay under 200 MB): a process
 that builds the executive from the default config loads neither scipy.stats (~45 MB: the
-registration's chi-square quantile is computed in closed form) nor pymavlink.mavutil (6 MB:
+registration's chi-square quantile comes from scipy.special) nor pymavlink.mavutil (6 MB:
 the ground tools' connections)."""
 
 from __future__ import annotations

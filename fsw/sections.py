@@ -1,8 +1,9 @@
 """The configuration sections the flight tasks own: ``[capture]``, ``[mission]``.
 
-They live apart from the task modules so that ``fsw.settings`` can assemble the whole
-configuration below the tasks (a task imports the settings, never the other way round).
-Every field is validated on load (``fsw.framework.params``).
+They are declared here, in the settings layer beside ``fsw.settings`` that assembles them, so
+the whole configuration sits below the tasks: a task imports the settings, never the other
+way round (``tests/test_structure.py`` holds the rule). Every field is validated on load
+(``fsw.framework.params``).
 """
 
 from __future__ import annotations
