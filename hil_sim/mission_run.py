@@ -225,7 +225,7 @@ def run_mission(
     from hil_sim.radio_channel import ChannelPort, RadioChannel, RadioChannelConfig
     from hil_sim.resume_state import BenchStateError, bench_state, restore_bench
     from hil_sim.rig import load_hardware
-    from hil_sim.team_run import team_phase
+    from hil_sim.team.team_run import team_phase
     from hil_sim.world import load_scenario
 
     t_wall = time.perf_counter()

@@ -1,6 +1,6 @@
 """The Cliff-bot's device end of the team CAN bus, sans I/O (docs/team.md).
 
-Encodes the winch and wheel commands (alive counters, E2E seal: :mod:`fsw.comm.team_can`)
+Encodes the winch and wheel commands (alive counters, E2E seal: :mod:`fsw.comm.team.team_can`)
 and decodes the winches', wheels' and attitude sensor's status frames: a frame with a bad
 checksum, length or reserved bits, or with an alive counter out of sequence, is counted
 and ignored, never used and never an exception. :meth:`CliffbotDevices.stale` names a
@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 from fsw.comm.e2e import SequenceChecker
 from fsw.comm.rover_can import Bad
-from fsw.comm.team_can import WINCHES, Attitude, TeamCan, WheelStatus, WinchStatus
+from fsw.comm.team.team_can import WINCHES, Attitude, TeamCan, WheelStatus, WinchStatus
 
 
 @dataclass

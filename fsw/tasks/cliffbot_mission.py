@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.comm.fix_packets import Fix
-from fsw.comm.team_can import WINCHES
+from fsw.comm.team.fix_packets import Fix
+from fsw.comm.team.team_can import WINCHES
 from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import CliffbotNav, NavConfig
 from fsw.core.team.face_planner import ClimberConfig, plan_targets

@@ -1,6 +1,6 @@
 """An Anchorbot's tether winch on the bench: the CAN end of ``WINCH_A`` / ``WINCH_B``.
 
-Frames of ``config/team.dbc`` (:mod:`fsw.comm.team_can`), E2E-checked both ways like the
+Frames of ``config/team.dbc`` (:mod:`fsw.comm.team.team_can`), E2E-checked both ways like the
 rover's motor controllers (:mod:`hil_sim.hw.motor_controllers`): a command with a bad
 checksum, a wrong length or an alive counter out of sequence is counted and ignored.
 
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 from fsw.comm.e2e import SequenceChecker
 from fsw.comm.rover_can import Bad
-from fsw.comm.team_can import TeamCan, WinchCommand
+from fsw.comm.team.team_can import TeamCan, WinchCommand
 from fsw.framework.params import param
 from hil_sim.faults import FaultInjector
 

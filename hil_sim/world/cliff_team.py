@@ -23,11 +23,11 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from hil_sim.team.team_truth import TeamTruth
 from hil_sim.world.build import edge_curve, finish_world, truth_grid
 from hil_sim.world.config import CliffTeamConfig, ScenarioConfig, ScenarioError
 from hil_sim.world.mars import place_viking_rocks
 from hil_sim.world.noise import fractal_noise
-from hil_sim.world.team_truth import TeamTruth
 from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]

@@ -24,8 +24,8 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from fsw.core.geometry import MapGrid, MapGridConfig, MastConfig, camera_pose_from_rover, wrap_angle
+from hil_sim.team.team_truth import TeamTruth
 from hil_sim.world.cliffbot import CliffbotTruth
-from hil_sim.world.team_truth import TeamTruth
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]

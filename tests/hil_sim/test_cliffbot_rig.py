@@ -7,11 +7,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from fsw.comm.team_can import Attitude, TeamCan, WinchStatus
+from fsw.comm.team.team_can import Attitude, TeamCan, WinchStatus
 from fsw.core.geometry import MapGrid
 from fsw.core.team.face_planner import ClimberConfig
 from fsw.core.team.tether import TetherConfig
-from hil_sim.cliffbot_rig import CliffbotRig
+from hil_sim.team.cliffbot_rig import CliffbotRig
 from hil_sim.world import load_scenario
 
 GRID = MapGrid(-2.5, -9.0, 0.04, 256, 256)

@@ -1,8 +1,8 @@
-"""The Cliff-bot's mission on the bench (hil_sim.team_run): a nominal descent and each fault
+"""The Cliff-bot's mission on the bench (hil_sim.team.team_run): a nominal descent and each fault
 ending in a safe stop with an event (and a recovery where one exists), never a traceback.
 
 The received map here is the true ground on the flight map grid and the RECON-bot's fixes
-come from :class:`hil_sim.team_run.TruthFixer` (no rendering), so each run takes seconds."""
+come from :class:`hil_sim.team.team_run.TruthFixer` (no rendering), so each run takes seconds."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from fsw.core.geometry import MapGrid
 from fsw.tasks.cliffbot_mission import CliffbotMissionConfig
 from hil_sim.faults import FaultSpec
 from hil_sim.radio_channel import RadioChannel, RadioChannelConfig
-from hil_sim.team_run import TeamSetup, TruthFixer, run_team
+from hil_sim.team.team_run import TeamSetup, TruthFixer, run_team
 from hil_sim.world import load_scenario
 
 pytestmark = pytest.mark.slow

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from fsw.comm.team_can import TeamCan, WinchStatus
+from fsw.comm.team.team_can import TeamCan, WinchStatus
 from hil_sim.faults import FaultInjector
 from hil_sim.hw.winch import WinchConfig, WinchNode
 

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid
-from fsw.core.team.tether import TetherConfig, tether_state
+from fsw.core.team.tether import TetherConfig, ZMap, tether_state
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
@@ -84,7 +84,7 @@ class CliffbotNav:
         self.P = i_kh @ self.P @ i_kh.T + k @ rcov @ k.T  # Joseph form
         return float(r @ np.linalg.solve(s_cov, r))
 
-    def lengths(self, lengths_m: tuple[float, float], z: NDArray[np.floating], grid: MapGrid, anchors: F64,
+    def lengths(self, lengths_m: tuple[float, float], z: ZMap, grid: MapGrid, anchors: F64,
                 tcfg: TetherConfig, footprint_m: float) -> bool:
         """Update on the winches' paid-out lengths; False when the map cannot say (unknown ground)."""
         xy = self.s[:2]

@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from fsw.core.geometry import MapGrid
-from fsw.core.team.tether import TetherConfig, tether_state
+from fsw.core.team.tether import TetherConfig, ZMap, tether_state
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
@@ -87,7 +87,7 @@ def _disc(radius_cells: int) -> NDArray[np.bool_]:
     return np.asarray(xx * xx + yy * yy <= r * r)
 
 
-def ground_layers(z: NDArray[np.floating], grid: MapGrid, cfg: ClimberConfig) -> Ground:
+def ground_layers(z: ZMap, grid: MapGrid, cfg: ClimberConfig) -> Ground:
     """Rocks, hazards, known footprints and slope of every cell."""
     zf = np.asarray(z, np.float64)
     known = np.isfinite(zf)
@@ -108,7 +108,7 @@ def ground_layers(z: NDArray[np.floating], grid: MapGrid, cfg: ClimberConfig) ->
     return Ground(rock, hazard, known_foot, slope.astype(np.float32))
 
 
-def node_reasons(z: NDArray[np.floating], grid: MapGrid, anchors: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
+def node_reasons(z: ZMap, grid: MapGrid, anchors: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
                  ground: Ground | None = None) -> tuple[NDArray[np.intp], NDArray[np.intp], list[str], Ground]:
     """The lattice (rows and columns of its nodes in the map) and each node's verdict."""
     g = ground if ground is not None else ground_layers(z, grid, ccfg)
@@ -122,7 +122,7 @@ def node_reasons(z: NDArray[np.floating], grid: MapGrid, anchors: F64, tcfg: Tet
     return rows, cols, reasons, g
 
 
-def _verdict(z: NDArray[np.floating], grid: MapGrid, anchors: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
+def _verdict(z: ZMap, grid: MapGrid, anchors: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
              g: Ground, iy: int, ix: int) -> str:
     if not g.known[iy, ix]:
         return "unknown ground"
@@ -146,7 +146,7 @@ def _verdict(z: NDArray[np.floating], grid: MapGrid, anchors: F64, tcfg: TetherC
     return USABLE
 
 
-def plan_targets(z: NDArray[np.floating], grid: MapGrid, anchors: F64, start_xy: F64, targets_xy: F64,
+def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy: F64,
                  tcfg: TetherConfig, ccfg: ClimberConfig) -> Plan:
     """Shortest usable paths from ``start_xy`` to each target (module docstring).
 

@@ -36,6 +36,7 @@ from fsw.core.geometry import MapGrid
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
+ZMap = NDArray[np.float32 | np.float64]  # a 2.5D map: heights, NaN unknown
 G = 9.81  # m/s^2 (the planet's value belongs in config when the bench plays Mars: TetherConfig.gravity_mps2)
 
 
@@ -73,7 +74,7 @@ class Statics:
     reason: str  # "" when ok; else "slack", "over-tension", "off the face", "degenerate"
 
 
-def ground_profile(z: NDArray[np.floating], grid: MapGrid, a_xy: F64, b_xy: F64, step_m: float
+def ground_profile(z: ZMap, grid: MapGrid, a_xy: F64, b_xy: F64, step_m: float
                    ) -> tuple[F64, F64, bool]:
     """Heights along the horizontal segment ``a -> b`` (ends excluded): distance from ``a``,
     height, and whether any sample falls on unknown ground or off the map."""
@@ -116,7 +117,7 @@ def upper_hull(s: F64, h: F64) -> NDArray[np.intp]:
     return np.asarray(out, dtype=np.intp)
 
 
-def tether_path(z: NDArray[np.floating], grid: MapGrid, anchor: F64, bot: F64, cfg: TetherConfig) -> TetherPath:
+def tether_path(z: ZMap, grid: MapGrid, anchor: F64, bot: F64, cfg: TetherConfig) -> TetherPath:
     """The taut tether from ``anchor`` (its exit point, x y z) to ``bot`` (the attachment point)."""
     anchor = np.asarray(anchor, float)
     bot = np.asarray(bot, float)
@@ -136,7 +137,7 @@ def tether_path(z: NDArray[np.floating], grid: MapGrid, anchor: F64, bot: F64, c
     return TetherPath(float(seg.sum()), contacts, pull / norm if norm > 0 else pull, unknown)
 
 
-def surface_normal(z: NDArray[np.floating], grid: MapGrid, xy: F64, radius_m: float) -> F64 | None:
+def surface_normal(z: ZMap, grid: MapGrid, xy: F64, radius_m: float) -> F64 | None:
     """Unit upward normal of the plane fitted to the ground at ``xy`` and at eight points on
     the circle of ``radius_m`` around it (bilinear heights, :func:`height_at`, so the normal
     and the attachment point move continuously with the Cliff-bot); points on unknown ground
@@ -184,7 +185,7 @@ class TetherState:
         return (self.paths[0].length_m, self.paths[1].length_m)
 
 
-def anchor_points(z: NDArray[np.floating], grid: MapGrid, anchors_xy: F64, cfg: TetherConfig) -> F64:
+def anchor_points(z: ZMap, grid: MapGrid, anchors_xy: F64, cfg: TetherConfig) -> F64:
     """The tethers' exit points: each anchor's ground height plus the exit height."""
     anchors_xy = np.asarray(anchors_xy, float).reshape(-1, 2)
     iy, ix, inside = grid.cell_index(anchors_xy[:, 0], anchors_xy[:, 1])
@@ -196,7 +197,7 @@ def anchor_points(z: NDArray[np.floating], grid: MapGrid, anchors_xy: F64, cfg: 
     return np.column_stack([anchors_xy, zz + cfg.anchor_exit_m])
 
 
-def height_at(z: NDArray[np.floating], grid: MapGrid, xy: F64 | tuple[float, float]) -> float:
+def height_at(z: ZMap, grid: MapGrid, xy: F64 | tuple[float, float]) -> float:
     """Bilinear height at ``xy`` between the four nearest cell centres (NaN when one is unknown
     or off the map): continuous, so tether lengths are continuous in the Cliff-bot's place
     (a steep face on a coarse grid steps by ``cell * tan(slope)`` from one cell to the next)."""
@@ -210,7 +211,7 @@ def height_at(z: NDArray[np.floating], grid: MapGrid, xy: F64 | tuple[float, flo
     return float((1 - ay) * ((1 - ax) * q[0, 0] + ax * q[0, 1]) + ay * ((1 - ax) * q[1, 0] + ax * q[1, 1]))
 
 
-def tether_state(z: NDArray[np.floating], grid: MapGrid, anchors: F64, xy: F64, cfg: TetherConfig,
+def tether_state(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, cfg: TetherConfig,
                  footprint_m: float = 0.3) -> TetherState | None:
     """Both tethers and the statics with the Cliff-bot standing at ``xy``; None where the map
     does not know the ground under it."""
@@ -227,7 +228,7 @@ def tether_state(z: NDArray[np.floating], grid: MapGrid, anchors: F64, xy: F64, 
     return TetherState((p1, p2), statics(p1.pull, p2.pull, normal, cfg))
 
 
-def settle(z: NDArray[np.floating], grid: MapGrid, anchors: F64, lengths: tuple[float, float], guess_xy: F64,
+def settle(z: ZMap, grid: MapGrid, anchors: F64, lengths: tuple[float, float], guess_xy: F64,
            cfg: TetherConfig, iterations: int = 30, tol_m: float = 1e-3) -> tuple[F64, TetherState] | None:
     """Forward kinematics: where both tethers, paid out to ``lengths``, are taut on the ground.
 

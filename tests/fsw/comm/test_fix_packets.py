@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from fsw.comm import fix_packets as fp
 from fsw.comm.link_packets import PacketError
+from fsw.comm.team import fix_packets as fp
 
 
 def _fix() -> fp.Fix:

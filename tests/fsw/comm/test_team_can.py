@@ -7,7 +7,7 @@ import math
 import pytest
 
 from fsw.comm.rover_can import Bad
-from fsw.comm.team_can import WINCHES, TeamCan, WinchCommand, WinchStatus
+from fsw.comm.team.team_can import WINCHES, TeamCan, WinchCommand, WinchStatus
 
 
 @pytest.fixture(scope="module")

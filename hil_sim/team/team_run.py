@@ -2,10 +2,10 @@
 
 After the RECON-bot has mapped and delivered its map (``hil_sim.mission_run``), the
 Cliff-bot's flight code (:class:`fsw.tasks.cliffbot_mission.CliffbotMission` with its
-devices and navigation) drives the bench's winches and wheels (:class:`hil_sim.cliffbot_rig.
+devices and navigation) drives the bench's winches and wheels (:class:`hil_sim.team.cliffbot_rig.
 CliffbotRig`, CAN frames of ``config/team.dbc``) on one stepped clock, on the map it received.
 Before each leg it asks the RECON-bot for a fix over the same capped radio channel the map
-crossed (:mod:`fsw.comm.fix_packets`): the RECON-bot, standing where its mission ended,
+crossed (:mod:`fsw.comm.team.fix_packets`): the RECON-bot, standing where its mission ended,
 aims its mast at the Cliff-bot, renders the stereo pair of the world with the Cliff-bot at
 its TRUE pose, runs the flight :class:`~fsw.core.localization.fiducials.CliffbotLocalizer`
 and answers FIX (or NO_FIX). Everything is seeded: the same seed gives the same result.
@@ -24,17 +24,17 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.comm import fix_packets
 from fsw.comm.link_packets import PacketError
+from fsw.comm.team import fix_packets
 from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import NavConfig
 from fsw.core.team.face_planner import ClimberConfig, plan_targets
 from fsw.core.team.tether import TetherConfig
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.tasks.cliffbot_mission import CliffbotMission, CliffbotMissionConfig
-from hil_sim.cliffbot_rig import CliffbotRig
 from hil_sim.faults import FaultInjector, FaultSpec
 from hil_sim.radio_channel import RadioChannel
+from hil_sim.team.cliffbot_rig import CliffbotRig
 from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]

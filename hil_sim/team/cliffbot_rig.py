@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from fsw.comm.e2e import SequenceChecker
 from fsw.comm.rover_can import Bad
-from fsw.comm.team_can import WINCHES, TeamCan, WheelCommand
+from fsw.comm.team.team_can import WINCHES, TeamCan, WheelCommand
 from fsw.core.geometry import MapGrid
 from fsw.core.team.face_planner import ClimberConfig, ground_layers
 from fsw.core.team.tether import (

@@ -22,7 +22,7 @@ from fsw.comm.can_codec import CompiledMessage, compile_messages
 from fsw.comm.e2e import E2ELayout
 from fsw.comm.rover_can import Bad
 
-TEAM_DBC = Path(__file__).resolve().parent.parent.parent / "config" / "team.dbc"
+TEAM_DBC = Path(__file__).resolve().parents[3] / "config" / "team.dbc"
 WINCHES = ("WINCH_A", "WINCH_B")
 WINCH_FAULTS = ("FaultTimeout", "FaultStall", "FaultSlip", "FaultOverTension", "FaultSpool")
 
