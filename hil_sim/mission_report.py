@@ -21,7 +21,7 @@ import numpy as np
 
 from fsw.core.geometry import MapGrid
 from fsw.framework.storage import StorageError, describe
-from hil_sim.terrain_eval import fit_plane
+from hil_sim.lab.terrain_eval import fit_plane
 
 WALL_CLOCK_FIELDS = ("wall_s", "task_max_ms", "task_ms_per_frame", "slips", "overruns")
 

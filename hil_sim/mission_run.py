@@ -26,7 +26,7 @@ a move), ``stays`` (steps whose view was taken without the planned move, and why
 ``start_attitude_deg`` (true roll, pitch at the start), ``registration`` (per view: status,
 correction, sigmas; ``fsw.core.registration.registration``), ``map_quality`` (RMS, fitted tilt, station
 seams, 2-sigma fraction, all against the truth in the flight map's datum, the true body
-height at the start, with the ground-datum figures beside them; ``hil_sim.terrain_eval``),
+height at the start, with the ground-datum figures beside them; ``hil_sim.lab.terrain_eval``),
 ``calib_2sigma`` (fraction of mapped cells within 2 sigma of the truth, docs/algorithm.md §4; the
 same datum), ``map_rmse_m`` and the error plane also in that datum,
 ``safe_entries``, ``safe_recoveries`` (SAFE left for the mission again), ``safe_recoveries_resumed``
@@ -71,6 +71,7 @@ from fsw.framework.storage import StorageError, describe
 from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
 from hil_sim.faults import FaultSpec
 from hil_sim.ground_watch import reachable_stations, wheels_on_unknown
+from hil_sim.lab.terrain_eval import map_quality
 from hil_sim.mission_report import (
     _cliffbot_report,
     error_plane,
@@ -81,7 +82,6 @@ from hil_sim.mission_report import (
     write_outputs,
 )
 from hil_sim.run_dir import MANIFEST, check_room, echo_storage_events, has_mission
-from hil_sim.terrain_eval import map_quality
 
 MODES = ("new", "fresh", "resume")
 
@@ -258,7 +258,7 @@ def run_mission(
                        faults=spec.faults) as bench:
         bench_box.append(bench)
         bench.exe.ctx.events.listeners.append(echo_storage_events)
-        if on_bench is not None:  # an experiment's observer (hil_sim.view_replay records the views)
+        if on_bench is not None:  # an experiment's observer (hil_sim.lab.view_replay records the views)
             on_bench(bench)
         clock_box.append(bench.clock.now)
         if saved_bench is not None:
@@ -278,7 +278,7 @@ def run_mission(
         last_step = -1
         views: list[Any] = []  # (camera xyz, cell index, z) per merged view, for the seams
         start_att = (round(bench.rig.truth()["roll_deg"], 3), round(bench.rig.truth()["pitch_deg"], 3))
-        # the flight map's height origin: the true body height at the start (hil_sim.terrain_eval);
+        # the flight map's height origin: the true body height at the start (hil_sim.lab.terrain_eval);
         # kept in the counters so a resumed run keeps the start's, not the resume point's
         datum_m = float(counters.setdefault("datum_m", float(bench.rig.rover.z)))
         watchdog = bench.exe.ctx.res.watchdog
@@ -326,7 +326,7 @@ def run_mission(
             exe.tasks["mavlink"].close()  # flush and close the .tlog
         emap = perception.map
         mapped = emap.mapped & np.isfinite(truth)
-        truth_f = truth - datum_m  # the truth in the flight map's datum (hil_sim.terrain_eval)
+        truth_f = truth - datum_m  # the truth in the flight map's datum (hil_sim.lab.terrain_eval)
         rmse = float(np.sqrt(np.mean((emap.z[mapped] - truth_f[mapped]) ** 2))) if mapped.any() else None
         tilt_deg, rmse_plane = error_plane(grid, emap.z - truth_f, mapped)
         quality = map_quality(emap, truth, [v[:3] for v in views], datum_m)

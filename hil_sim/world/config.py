@@ -222,7 +222,7 @@ class FileDemConfig:
                                     doc="heights beyond +- this are refused (wrong units)")
     zero_at_start: bool = param(True, doc="shift the heights so the ground under the rover "
                                           "centre at the start is z = 0 (the flight map's datum "
-                                          "is the body on its wheels: hil_sim.terrain_eval)")
+                                          "is the body on its wheels: hil_sim.lab.terrain_eval)")
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ from fsw.core.localization.localization import so3_exp
 from fsw.core.pipeline import SensingPipeline
 from fsw.settings import load_settings
 from fsw.tasks.messages import CameraFrame
-from hil_sim.perception_eval import edge_pass_poses
+from hil_sim.lab.perception_eval import edge_pass_poses
 from hil_sim.render import StereoRenderer
 from hil_sim.world import load_scenario
 

@@ -26,7 +26,7 @@ from fsw.core.registration.registration import Registration
 from fsw.core.steps import run_to_end
 from fsw.settings import FswConfig, load_settings
 from fsw.tasks.messages import CameraFrame
-from hil_sim.perception_eval import (
+from hil_sim.lab.perception_eval import (
     PERCEPTION_LAB,
     calibration,
     cell_range_m,

@@ -16,7 +16,7 @@ from fsw.executive.executive import Executive
 from fsw.framework.clock import SteppedClock
 from fsw.settings import FswConfig, load_settings
 from fsw.tasks.messages import CameraFrame
-from hil_sim.perception_eval import PERCEPTION_LAB, pit_view_poses
+from hil_sim.lab.perception_eval import PERCEPTION_LAB, pit_view_poses
 from hil_sim.render import StereoRenderer
 from hil_sim.world import load_scenario
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from fsw.framework.params import load, param
 
-DEFAULT_BUDGET = Path(__file__).resolve().parents[1] / "config" / "budget.toml"
+DEFAULT_BUDGET = Path(__file__).resolve().parents[2] / "config" / "budget.toml"
 CYCLE_STAGES = ("rectify", "stereo", "register", "merge", "edge", "next_view")
 
 

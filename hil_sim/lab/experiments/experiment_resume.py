@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from hil_sim.results import command_line, markdown_table, write_results
+from hil_sim.lab.results import command_line, markdown_table, write_results
 
 HELP = "SIGKILL a lockstep mission at random moments, resume it each time, compare with an uninterrupted run"
 LAYERS = ("z", "var", "n", "interest", "misses", "outliers", "var_common")

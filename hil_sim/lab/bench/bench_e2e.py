@@ -3,7 +3,7 @@
 Prints, for the DBC given (default ``config/rover.dbc``):
 
 * per frame layout, the exhaustive count of 1-, 2-, 3- (and 4-) bit error patterns over the
-  identifier and payload bits that escape the checksum (a proof, ``hil_sim.frame_fuzz``);
+  identifier and payload bits that escape the checksum (a proof, ``hil_sim.lab.frame_fuzz``);
 * CAN fuzz: ``--cases`` valid frames of every message, 1-3 flipped bits, accepted count;
   ``--cases`` random frames (any id, length, bytes), accepted count; and, as information,
   random payloads on the DBC's own ids and lengths against the expected residual rate;
@@ -38,7 +38,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from fsw.comm.e2e import CRC_NAMES
     from fsw.comm.rover_can import DEFAULT_DBC, RoverCan
-    from hil_sim import frame_fuzz as ff
+    from hil_sim.lab import frame_fuzz as ff
 
     if args.cases < 1:
         print("safer-hil bench e2e: --cases must be >= 1", file=sys.stderr)

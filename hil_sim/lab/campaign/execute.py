@@ -1,6 +1,6 @@
 """Running a campaign's missions: a local pool or a Dask cluster, resumable, with progress.
 
-Each mission runs in a child process of its own (``hil_sim.campaign.child``, which dies with
+Each mission runs in a child process of its own (``hil_sim.lab.campaign.child``, which dies with
 the worker that started it) under a wall-clock limit, so a mission that raises, hangs or dies
 (segfault, out of memory) is a recorded outcome (``error`` / ``killed``), never a lost
 campaign. The local executor is a
@@ -8,7 +8,7 @@ thread pool of ``jobs`` threads, each waiting on one child; with a scheduler add
 function runs as Dask tasks (``dask.distributed``) on the cluster's workers, which need only
 the project installed: the rows come back to this process, which stores each one atomically
 as ``DIR/missions/<id>.json``. A rerun reuses every stored row whose mission inputs are
-unchanged (:meth:`hil_sim.campaign.spec.Mission.key`) and runs the rest. Ctrl-C stops the
+unchanged (:meth:`hil_sim.lab.campaign.spec.Mission.key`) and runs the rest. Ctrl-C stops the
 campaign: missions it interrupted are not stored (a rerun runs them), finished ones are kept.
 """
 
@@ -27,9 +27,9 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from hil_sim.campaign.child import TMP_PREFIX
-from hil_sim.campaign.spec import Mission
-from hil_sim.campaign.table import failed_row
+from hil_sim.lab.campaign.child import TMP_PREFIX
+from hil_sim.lab.campaign.spec import Mission
+from hil_sim.lab.campaign.table import failed_row
 
 FAILED = ("error", "killed")
 
@@ -44,8 +44,8 @@ def run_isolated(m: dict[str, Any]) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix=TMP_PREFIX, ignore_cleanup_errors=True) as tmp:
         result = Path(tmp) / "row.json"
         try:
-            proc = subprocess.run(  # the child dies with this process (hil_sim.campaign.child.die_with_parent)
-                [sys.executable, "-m", "hil_sim.campaign.child", str(result), str(os.getpid())],
+            proc = subprocess.run(  # the child dies with this process (hil_sim.lab.campaign.child.die_with_parent)
+                [sys.executable, "-m", "hil_sim.lab.campaign.child", str(result), str(os.getpid())],
                 input=json.dumps(m), capture_output=True, text=True, timeout=m["timeout_s"], check=False,
             )
         except subprocess.TimeoutExpired:

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import argparse
 
-from hil_sim.perception_eval import PERCEPTION_LAB
+from hil_sim.lab.perception_eval import PERCEPTION_LAB
 
 HELP = "stereo ms per pair, points merged per second, edge fit ms, checkpoint ms (--plot: PNG)"
 MERGE_TARGET_MS = 50.0
@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     from fsw.drivers.map_store import MapStore
     from fsw.framework.params import ConfigError
     from fsw.settings import DEFAULT_CONFIG, load_settings, load_stereo_calibration
-    from hil_sim.perception_eval import edge_pass_poses, pit_view_poses
+    from hil_sim.lab.perception_eval import edge_pass_poses, pit_view_poses
     from hil_sim.render import StereoRenderer
     from hil_sim.world import load_scenario
 
@@ -217,7 +217,7 @@ def _stage_ms(bench, frame, repeats: int) -> dict[str, float]:  # type: ignore[n
     """Median CPU ms per stage of the pipeline merging ``frame`` into a fresh map, after a warm-up."""
     import statistics
 
-    from hil_sim.commands.bench_cycle import StageClock
+    from hil_sim.lab.bench.bench_cycle import StageClock
 
     runs = []
     for _ in range(repeats + 1):
@@ -243,7 +243,7 @@ def _calibration(args, bench, world, grid, rend) -> int:  # type: ignore[no-unty
     from fsw.core.pipeline import RegisteredPose
     from fsw.core.registration.registration import Registration
     from fsw.core.steps import run_to_end
-    from hil_sim.perception_eval import (
+    from hil_sim.lab.perception_eval import (
         calibration,
         calibration_figure,
         cell_range_m,

@@ -1,7 +1,7 @@
 """``safer-hil experiment registration``: is the registration's covariance right? (lockstep)
 
 Runs one mission per seed (``--scenario`` with ``{seed}`` or a generated family, seeded),
-records its views (``hil_sim.view_replay``) and merges them again from their TRUE poses under
+records its views (``hil_sim.lab.view_replay``) and merges them again from their TRUE poses under
 each ``--config``: the map is then in the truth's frame, so every registered view's pose
 error is the registration's own. Prints, per seed and configuration, the views registered,
 the mean and median NEES (normalised estimation error squared) of roll/pitch (2 dof) and of
@@ -20,7 +20,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from hil_sim.results import command_line, markdown_table, write_results
+from hil_sim.lab.results import command_line, markdown_table, write_results
 
 HELP = "registration consistency: NEES of the registered poses against the truth, per config"
 
@@ -71,8 +71,8 @@ def _line(name: str, s: dict[str, Any], extra: str = "") -> str:
 def run(args: argparse.Namespace) -> int:
     from fsw.framework.params import ConfigError
     from fsw.settings import DEFAULT_CONFIG, load_settings
+    from hil_sim.lab.view_replay import record_mission, registration_errors
     from hil_sim.mission_run import RunSpec
-    from hil_sim.view_replay import record_mission, registration_errors
     from hil_sim.world import load_scenario
 
     configs = args.config or [str(DEFAULT_CONFIG)]

@@ -1,4 +1,4 @@
-"""``report.md`` of a campaign and its plots, from the results rows (:mod:`hil_sim.campaign.table`).
+"""``report.md`` of a campaign and its plots, from the results rows (:mod:`hil_sim.lab.campaign.table`).
 
 Headline figures: missions run and lost (a lost mission is one without a row: always 0 here,
 since a crash is a recorded ``error``/``killed`` row), outcome classes, edge violations,
@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from hil_sim.campaign.table import OUTCOMES
+from hil_sim.lab.campaign.table import OUTCOMES
 
 FAILED = ("error", "killed")
 

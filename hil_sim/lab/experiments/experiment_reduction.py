@@ -24,7 +24,7 @@ wheel diameter: the cliff edge) kept, the bytes, and the bytes of JPEG-LS near-l
 obstacles and the same height bound (bisection over NEAR), and at the height bound alone.
 
 Writes ``reduction.csv``, ``maps.csv``, ``report.md`` and the figures into ``--out``, and the
-result file ``docs/results/reduction.md`` with its figures (``hil_sim.results``).
+result file ``docs/results/reduction.md`` with its figures (``hil_sim.lab.results``).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from hil_sim.results import command_line, write_results
+from hil_sim.lab.results import command_line, write_results
 
 HELP = "Figures 12/13 and the hazard check: obstacles kept, bytes against JPEG-LS (issue 25)"
 DEFAULT_TERRAINS = "terrain:0,terrain:1,terrain:2,terrain:3,terrain:4,terrain:5,terrain:6,terrain:7," \
@@ -152,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
     from fsw.core.geometry import RoverConfig
     from fsw.framework.params import ConfigError, build, load_toml
     from fsw.settings import DEFAULT_CONFIG
-    from hil_sim.reduction_report import fig12, fig13, report_md, write_csv
+    from hil_sim.lab.reduction_report import fig12, fig13, report_md, write_csv
     from hil_sim.world.config import ScenarioError
     from hil_sim.world.mars import viking_heightfield
 

@@ -24,7 +24,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 ENV = "SAFER_RESULTS_DIR"
 CODE = ("fsw", "hil_sim", "ground", "config", "pyproject.toml", "constraints.txt")
 

@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from hil_sim.results import command_line, write_results
+from hil_sim.lab.results import command_line, write_results
 
 HELP = "mapped cells vs imaging steps for methods 1-5 and the oracle (paper Figures 7 and 8)"
 METHODS = ("1", "2", "3", "4", "5", "oracle")

@@ -11,7 +11,7 @@ sender's), time to the verified map, how long after that the sender reported del
 and goodput against the capacity left after loss, bit errors and the outage:
 ``capacity = rate x (1 - loss) x (1 - PER) x (T - outage within T)`` with
 ``PER = 1 - (1 - BER) ** (8 x DATA packet bytes)``; the same seeds are also run on the
-lockstep simulation (``hil_sim.link_sim``) for comparison.
+lockstep simulation (``hil_sim.lab.link_sim``) for comparison.
 """
 
 from __future__ import annotations
@@ -179,7 +179,7 @@ def _row(spec: UdpRunSpec, rover: list[dict[str, Any]], cb: list[dict[str, Any]]
 
 def sim_ratio(spec: UdpRunSpec, link: LinkConfig, data: bytes) -> float:
     """The same impairments on the lockstep simulation (outage from the transfer's start)."""
-    from hil_sim.link_sim import run_transfer
+    from hil_sim.lab.link_sim import run_transfer
     from hil_sim.radio_channel import RadioChannelConfig
 
     ch = RadioChannelConfig(rate_bps=spec.rate_bps, latency_s=spec.latency_s, loss=spec.loss,

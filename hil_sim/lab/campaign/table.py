@@ -46,7 +46,7 @@ def outcome(summary: dict[str, Any]) -> str:
 
 
 def base_row(m: dict[str, Any]) -> dict[str, Any]:
-    """The inputs part of a row (``m``: a :class:`hil_sim.campaign.spec.Mission` as a dict)."""
+    """The inputs part of a row (``m``: a :class:`hil_sim.lab.campaign.spec.Mission` as a dict)."""
     return {
         "id": m["id"], "key": m["key"], "family": m["family"], "scenario": m["scenario"],
         "params": json.dumps(m["params"], sort_keys=True), "method": m["method"], "seed": m["seed"],

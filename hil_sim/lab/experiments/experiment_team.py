@@ -14,7 +14,7 @@ reduction, and the container's bytes and its time on the 9600 bit/s link. With
 ``--missions K`` the first K scenes also run the Cliff-bot's mission on the bench on the
 reduced map (``hil_sim.team.team_run``, fixes from ``TruthFixer``): targets reached, tether
 violations, hazard and unknown cells entered; the first one's picture is OUT/team.png.
-Writes OUT/team.csv, the result file ``docs/results/team.md`` (``hil_sim.results``: date,
+Writes OUT/team.csv, the result file ``docs/results/team.md`` (``hil_sim.lab.results``: date,
 commit, command, table, the picture) and prints the table.
 """
 
@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from fsw.framework.params import ConfigError
     from fsw.settings import load_settings
     from hil_sim.radio_channel import RadioChannel
-    from hil_sim.results import command_line, markdown_table, write_results
+    from hil_sim.lab.results import command_line, markdown_table, write_results
     from hil_sim.team.team_run import TruthFixer, run_team
     from hil_sim.world import ScenarioError, load_scenario
 

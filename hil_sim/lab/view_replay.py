@@ -8,7 +8,7 @@ perception task merged, the pair, the flight's pose estimate and covariance and 
 camera pose. :func:`replay` feeds those views to a fresh sensing pipeline (the flight's,
 ``fsw.core.pipeline``) with one factor changed: the calibration file, the cameras the pairs are
 rendered with (re-rendered at the true pose), the flight pose replaced by the true one, or
-registration off; and scores the map against the truth (``hil_sim.terrain_eval``).
+registration off; and scores the map against the truth (``hil_sim.lab.terrain_eval``).
 """
 
 from __future__ import annotations
@@ -92,7 +92,7 @@ class Factor:
 def replay(views: list[RecordedView], scenario: str, seed: int, factor: Factor,
            config: str | None = None, datum_m: float = 0.0,
            on_register: Callable[[RecordedView, Any, CameraPose], None] | None = None) -> dict[str, Any]:
-    """The map quality (``hil_sim.terrain_eval.map_quality``) of ``views`` merged by a fresh
+    """The map quality (``hil_sim.lab.terrain_eval.map_quality``) of ``views`` merged by a fresh
     sensing pipeline (``fsw.core.pipeline``) with ``factor`` applied; ``datum_m``: the recorded
     mission's true body height at the start (its summary's ``map_quality.datum_m``), the flight
     poses' height origin. True poses put the map in the world's own heights (datum 0).
@@ -101,10 +101,10 @@ def replay(views: list[RecordedView], scenario: str, seed: int, factor: Factor,
     from fsw.core.pipeline import SensingPipeline
     from fsw.settings import load_stereo_calibration
     from hil_sim.camera_model import TrueCameras
+    from hil_sim.lab.terrain_eval import map_quality
     from hil_sim.mission_run import RunSpec, mission_config
     from hil_sim.render import StereoRenderer
     from hil_sim.rig import load_hardware
-    from hil_sim.terrain_eval import map_quality
     from hil_sim.world import load_scenario
 
     world = load_scenario(scenario, seed)

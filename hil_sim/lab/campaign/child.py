@@ -1,4 +1,4 @@
-"""One campaign mission in its own process: ``python -m hil_sim.campaign.child RESULT.json
+"""One campaign mission in its own process: ``python -m hil_sim.lab.campaign.child RESULT.json
 PARENT_PID`` with the mission (JSON) on stdin. Always writes a row: the mission's results, or
 ``error`` with the exception when it raised (the parent records kills and timeouts).
 
@@ -27,7 +27,7 @@ TMP_PREFIX = "safer-campaign-"  # the folders run_isolated makes (the only ones 
 
 def run_row(m: dict[str, Any]) -> dict[str, Any]:
     """Run the mission in this process; an exception becomes an ``error`` row."""
-    from hil_sim.campaign.table import failed_row, result_row
+    from hil_sim.lab.campaign.table import failed_row, result_row
 
     t0 = time.perf_counter()
     try:

@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-_DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "config" / "fsw.toml"
+_DEFAULT_CONFIG = Path(__file__).resolve().parents[3] / "config" / "fsw.toml"
 HELP = "candidate poses rated per second and P_V error of the fast kernel vs the brute force"
 DESCRIPTION = (
     "Builds a realistic partially mapped 256x256 state (lab scenario, or the built-in "
@@ -71,8 +71,8 @@ def run(args: argparse.Namespace) -> int:
     from fsw.core.planning.visibility_kernel import pv_fast
     from fsw.framework.params import ConfigError
     from fsw.settings import load_settings
-    from hil_sim import nbv_scene
-    from hil_sim.pv_oracle import pv_reference
+    from hil_sim.lab import nbv_scene
+    from hil_sim.lab.pv_oracle import pv_reference
 
     for name in ("seed", "warmup_views", "ref_poses", "repeat", "expected_check"):
         if getattr(args, name) < (1 if name == "repeat" else 0):

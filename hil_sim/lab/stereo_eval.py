@@ -75,7 +75,7 @@ def middlebury_pairs() -> list[TruthPair]:
 def rendered_pairs(views: int = 3, seed: int = 0) -> list[TruthPair]:
     """Rendered pairs of the lab pit (textureless patch in view) and the cliff foot."""
     from fsw.settings import DEFAULT_CONFIG, load_settings
-    from hil_sim.perception_eval import PERCEPTION_LAB, pit_view_poses
+    from hil_sim.lab.perception_eval import PERCEPTION_LAB, pit_view_poses
     from hil_sim.render import StereoRenderer
     from hil_sim.world import load_scenario
 

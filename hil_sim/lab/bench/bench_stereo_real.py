@@ -1,7 +1,7 @@
 """``safer-hil bench stereo-real``: the flight stereo against ground-truth disparity on real
 Middlebury pairs and on rendered pairs (issue 14, item 4; docs/algorithm.md §4, §1.2).
 
-For each real pair (shipped inside scikit-image, a dev dependency; ``hil_sim.stereo_eval``)
+For each real pair (shipped inside scikit-image, a dev dependency; ``hil_sim.lab.stereo_eval``)
 it prints, for plain OpenCV SGBM_3WAY (same block size and disparity range) and for the
 flight matcher with the configured filters: the density (pixels with truth that get a
 disparity), the 2-px error rate, and for the flight matcher the share of errors within
@@ -40,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
 
     from fsw.framework.params import ConfigError
     from fsw.settings import DEFAULT_CONFIG, load_settings
-    from hil_sim import stereo_eval as se
+    from hil_sim.lab import stereo_eval as se
 
     if not 1 <= args.views <= 10:
         print("safer-hil bench stereo-real: --views must be 1..10", file=sys.stderr)

@@ -5,7 +5,7 @@ For every scenario, seed and slope it runs one full lockstep mission (``hil_sim.
 and prints, per mission and as medians and worst cases: the true start attitude, the map's
 RMS error against truth over mapped cells, the tilt of the plane fitted to map minus truth,
 the station seams (mean height difference between overlapping cells mapped from different
-stations, ``hil_sim.terrain_eval``), the fraction of mapped cells within 2 sigma, the views
+stations, ``hil_sim.lab.terrain_eval``), the fraction of mapped cells within 2 sigma, the views
 registered / not registered, the stations and the edge violations.
 
 A slope is made through the ``file:`` scenario: the scenario's ground at that seed, plus a
@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from hil_sim.results import command_line, write_results
+from hil_sim.lab.results import command_line, write_results
 
 HELP = "map error, tilt, station seams and 2-sigma calibration on tilted terrain (issue 13)"
 COLUMNS = ("rms_m", "tilt_err_deg", "seam_m", "within_2sigma")

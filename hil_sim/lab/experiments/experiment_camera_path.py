@@ -1,7 +1,7 @@
 """``safer-hil experiment camera-path``: which factor costs the map what (lockstep replays).
 
 Runs one mission (``safer-hil run`` with the same options), records every merged view
-(``hil_sim.view_replay``) and merges the same views again with one factor changed at a time:
+(``hil_sim.lab.view_replay``) and merges the same views again with one factor changed at a time:
 the calibration file (the estimate, or the renderer's TRUE calibration), the cameras (the
 pairs re-rendered at the true pose through the ideal pinhole pair or the real lenses), the
 flight's pose estimate or the true pose, registration and its station carry on or off.
@@ -17,7 +17,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from hil_sim.results import command_line, markdown_table, write_results
+from hil_sim.lab.results import command_line, markdown_table, write_results
 
 HELP = "replay one mission's views with one factor changed at a time (camera path, poses, registration)"
 
@@ -51,9 +51,9 @@ def run(args: argparse.Namespace) -> int:
     from fsw.framework.params import ConfigError
     from fsw.settings import load_settings
     from hil_sim.camera_model import TrueCameras
+    from hil_sim.lab.view_replay import Factor, record_mission, replay
     from hil_sim.mission_run import RunSpec
     from hil_sim.rig import load_hardware
-    from hil_sim.view_replay import Factor, record_mission, replay
 
     if args.steps < 1:
         print("safer-hil experiment camera-path: --steps must be >= 1", file=sys.stderr)

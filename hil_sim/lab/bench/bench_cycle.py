@@ -114,8 +114,8 @@ def _cycle(cfg: Any, world: Any, n: int, repeats: int, seed: int) -> dict[str, A
     from fsw.core.planning.planners import PlannerState
     from fsw.settings import load_stereo_calibration
     from fsw.tasks.messages import CameraFrame
-    from hil_sim import nbv_scene
     from hil_sim.camera_model import TrueCameras
+    from hil_sim.lab import nbv_scene
     from hil_sim.render import StereoRenderer
     from hil_sim.rig import load_hardware
 
@@ -182,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
 
     from fsw.framework.params import ConfigError
     from fsw.settings import DEFAULT_CONFIG, load_settings
-    from hil_sim.cycle_budget import CYCLE_STAGES, DEFAULT_BUDGET, load_budget, verdict
+    from hil_sim.lab.cycle_budget import CYCLE_STAGES, DEFAULT_BUDGET, load_budget, verdict
     from hil_sim.world import load_scenario
 
     if args.repeats < 1 or args.mission_steps < 0 or any(not 16 <= g <= 4096 for g in args.grids):

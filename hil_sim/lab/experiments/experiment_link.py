@@ -9,7 +9,7 @@ Writes ``link_goodput.csv``, ``link_goodput.png`` and ``report.md`` into ``--out
 
 ``--transport udp`` runs the same link over real loopback sockets instead: the Cliff-bot,
 an impairment relay and the RECON-bot's sender as three processes
-(``hil_sim.link_udp_experiment``), ``--seeds`` runs per ``--losses`` point with
+(``hil_sim.lab.link_udp_experiment``), ``--seeds`` runs per ``--losses`` point with
 ``--ber``, ``--duplicate``, ``--reorder`` and an ``--outage``, and writes ``udp_runs.csv``
 and ``udp_report.md`` (per run and per loss, with the lockstep simulation of the same seeds).
 """
@@ -20,7 +20,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from hil_sim.results import command_line, write_results
+from hil_sim.lab.results import command_line, write_results
 
 HELP = "goodput vs packet loss (0 to 0.3) and bit error rate at 9600 bit/s, with capacity lines"
 DESCRIPTION = (
@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     from fsw.comm.link_packets import DATA_OVERHEAD
     from fsw.framework.params import ConfigError, build, load_toml
     from fsw.settings import DEFAULT_CONFIG
-    from hil_sim.link_sim import run_transfer
+    from hil_sim.lab.link_sim import run_transfer
     from hil_sim.radio_channel import RadioChannelConfig
 
     path = args.config or str(DEFAULT_CONFIG)
@@ -190,7 +190,7 @@ def _run_udp(args: argparse.Namespace, link: Any) -> int:
 
     import numpy as np
 
-    from hil_sim.link_udp_experiment import UdpRunSpec, run_all, sim_ratio, write_tables
+    from hil_sim.lab.link_udp_experiment import UdpRunSpec, run_all, sim_ratio, write_tables
 
     losses = args.losses or [0.1, 0.3]
     seeds = args.seeds or 5

@@ -8,7 +8,7 @@ a process pool, and writes ``ground.csv`` / ``ground.json`` (one row per mission
 ``ground.md``: the table per mission (moved?, reachable stations, steps used, why steps went
 unused, edge violations, wheels off the world, wheels on unknown ground, mapped cells, map RMS
 error against truth, the plane tilt fitted to the error and the RMS around it, the station
-seams and the fraction of mapped cells within 2 sigma, ``hil_sim.terrain_eval``) and the
+seams and the fraction of mapped cells within 2 sigma, ``hil_sim.lab.terrain_eval``) and the
 summary (medians and worst cases, and the issue's criteria checked). ``--camera ideal`` runs
 the ideal pinhole pair (the map error without the calibrated cameras' share).
 
@@ -27,8 +27,8 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
-from hil_sim.ground_report import COLUMNS, report_markdown, row_of
-from hil_sim.results import command_line, write_results
+from hil_sim.lab.ground_report import COLUMNS, report_markdown, row_of
+from hil_sim.lab.results import command_line, write_results
 
 HELP = "missions on generated sloped, rocky terrains (and real DEMs): does the rover move, safely?"
 METHODS = ("1", "2", "3", "4", "5", "oracle")
