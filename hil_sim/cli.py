@@ -40,6 +40,8 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("experiment", "ground"): "hil_sim.lab.experiments.experiment_ground",
     ("experiment", "camera-path"): "hil_sim.lab.experiments.experiment_camera_path",
     ("experiment", "registration"): "hil_sim.lab.experiments.experiment_registration",
+    ("experiment", "fiducials"): "hil_sim.lab.experiments.experiment_fiducials",
+    ("experiment", "team"): "hil_sim.lab.experiments.experiment_team",
 }
 
 GROUP_HELP = {

@@ -225,6 +225,7 @@ def run_mission(
     from hil_sim.radio_channel import ChannelPort, RadioChannel, RadioChannelConfig
     from hil_sim.resume_state import BenchStateError, bench_state, restore_bench
     from hil_sim.rig import load_hardware
+    from hil_sim.team.team_run import team_phase
     from hil_sim.world import load_scenario
 
     t_wall = time.perf_counter()
@@ -385,6 +386,7 @@ def run_mission(
             "map_quality": quality,
             "files": {},
         }
+        summary.update(team_phase(spec.out, spec.seed, world, grid, cliffbot, channel, bench, datum_m))
         summary = json.loads(json.dumps(summary))  # exactly what summary.json holds
         if spec.out is not None:
             extra = {"recording": recorder.path.name} if recorder is not None else {}

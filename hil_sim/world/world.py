@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from fsw.core.geometry import MapGrid, MapGridConfig, MastConfig, camera_pose_from_rover, wrap_angle
+from hil_sim.team.team_truth import TeamTruth
 from hil_sim.world.cliffbot import CliffbotTruth
 
 F32 = NDArray[np.float32]
@@ -61,6 +62,7 @@ class World:
     description: str = ""
     config: Any = field(default=None, repr=False)  # the validated ScenarioConfig
     drawn: dict[str, float] = field(default_factory=dict)  # generator parameters drawn from the seed
+    team: TeamTruth | None = None  # anchors, targets and jumble of a team scenario (cliff-team)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -117,6 +119,13 @@ class World:
         the map cell is not entirely inside the truth grid."""
         xs, ys, s = self._subsamples(grid)
         z = self._sample(self.height, xs, ys)
+        return np.asarray(z.reshape(grid.ny, s, grid.nx, s).mean(axis=(1, 3)), float)
+
+    def ground_on_grid(self, grid: MapGrid) -> F64:
+        """Like :meth:`truth_on_grid`, of the terrain without the Cliff-bot (what a planner
+        that knows the ground perfectly plans on)."""
+        xs, ys, s = self._subsamples(grid)
+        z = self._sample(self.ground, xs, ys)
         return np.asarray(z.reshape(grid.ny, s, grid.nx, s).mean(axis=(1, 3)), float)
 
     def textureless_on_grid(self, grid: MapGrid) -> NDArray[np.bool_]:

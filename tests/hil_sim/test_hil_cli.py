@@ -21,6 +21,8 @@ from hil_sim.commands.serve import write_flight_config
         ["serve", "--scenario", "flat", "--can-bind", "192.0.2.254"],  # not an address of this machine
         ["serve", "--scenario", "flat", "--can-multicast", "nonexistent0"],
         ["bench", "lockstep", "--seconds", "-1"],
+        ["experiment", "team", "--scenes", "0"],
+        ["experiment", "team", "--scenes", "1", "--scenario", "lab"],  # a scenario with no team
     ],
 )
 def test_bad_input_exits_2(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
