@@ -14,7 +14,7 @@ schedule the mission, health, console and MAVLink tasks (``schedule_check.FLIGHT
 truncated or trimmed file never flies on defaults. Bench and
 ground-tool files say ``flight = false`` and may leave sections and keys out; those take the
 defaults ``fsw.framework.params.describe`` lists. In both cases the schedule itself is checked
-(``fsw.executive.schedule_check.check``: known kinds, rates within design range, the tasks each task
+(``fsw.schedule_check.check``: known kinds, rates within design range, the tasks each task
 needs).
 """
 
@@ -41,10 +41,10 @@ from fsw.core.stereo.stereo import StereoConfig
 from fsw.core.stereo.stereo_calibration import StereoCalibration
 from fsw.drivers.calibration_file import CalibrationError, load_calibration
 from fsw.drivers.factory import DevicesConfig
-from fsw.executive.schedule_check import check, check_agent
 from fsw.framework.agent import AgentConfig
 from fsw.framework.params import ConfigError, build, load_toml
 from fsw.framework.schedule import ExecutiveConfig
+from fsw.schedule_check import check, check_agent
 from fsw.sections import CaptureConfig, MissionConfig
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "fsw.toml"

@@ -6,7 +6,7 @@ names and ids are never kept in a second table. Ids are assigned in declaration 
 component ``i`` gets command opcodes ``(i + 1) * 0x100 + j``. The task kinds are those of the
 configuration's agent (``[agent] kind``, :func:`agent_topology`; ``fsw.framework.agent``).
 
-The schedule is checked first (:func:`fsw.executive.schedule_check.check`, which the settings
+The schedule is checked first (:func:`fsw.schedule_check.check`, which the settings
 loader runs on every file).
 """
 
@@ -15,11 +15,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from fsw.executive.components import ExecutiveComponent, RateGroupComponent
-from fsw.executive.schedule_check import FLIGHT_KINDS, check, task_class
 from fsw.framework.agent import AgentTopology
 from fsw.framework.task import Task
+from fsw.registry import AGENTS
+from fsw.schedule_check import FLIGHT_KINDS, check, task_class
 from fsw.settings import FswConfig
-from fsw.tasks.registry import AGENTS
 
 __all__ = ["FLIGHT_KINDS", "Component", "agent_topology", "check", "components", "dictionary", "task_class"]
 

@@ -5,7 +5,7 @@ schedule), the configuration sections it reads, the component ids the topology g
 components, and its MAVLink system id (``[mavlink] system_id``). The RECON-bot is agent kind
 ``recon``; a second agent (the Cliff-bot) is a new :class:`AgentTopology` and its tasks,
 never a copy of the executive. The ``[agent]`` section of a configuration names the agent
-and its kind; the kind picks the topology (``fsw.tasks.registry.AGENTS``): which task kinds
+and its kind; the kind picks the topology (``fsw.registry.AGENTS``): which task kinds
 its schedule may use and which sections its file may set. docs/architecture.md, "Agents".
 """
 
@@ -22,7 +22,7 @@ class AgentConfig:
     """``[agent]``: which agent this configuration is."""
 
     name: str = param("recon-1", doc="the agent's name (events, logs, the bench's agent list)")
-    kind: str = param("recon", doc="the agent's topology (fsw.tasks.registry.AGENTS): recon = the RECON-bot")
+    kind: str = param("recon", doc="the agent's topology (fsw.registry.AGENTS): recon = the RECON-bot")
 
     def __post_init__(self) -> None:
         if not self.name or not self.name.replace("-", "").replace("_", "").isalnum():

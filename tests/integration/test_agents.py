@@ -16,13 +16,13 @@ from pathlib import Path
 import pytest
 from agent_tasks import BeaconTask, ListenerTask
 
+from fsw import registry
 from fsw.cli import main as fsw_main
 from fsw.executive.executive import Executive
 from fsw.executive.topology import agent_topology, components
 from fsw.framework.agent import AgentTopology
 from fsw.framework.params import ConfigError
 from fsw.settings import FswConfig, load_settings
-from fsw.tasks import registry
 
 PROBE = AgentTopology(
     kind="probe",

@@ -30,8 +30,8 @@ from fsw.framework.clock import SteppedClock
 from fsw.framework.params import build as build_cfg
 from fsw.framework.task import Task
 from fsw.framework.telemetry import Channel, EventDef, Severity
+from fsw.registry import KINDS
 from fsw.settings import FswConfig
-from fsw.tasks.registry import KINDS
 
 STATES = ("INIT", "SELECT", "MOVE", "POINT", "ACQUIRE", "SELECT", "MOVE", "POINT", "ACQUIRE", "TRANSMIT", "DONE")
 

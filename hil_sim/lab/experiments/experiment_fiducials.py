@@ -49,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
     from fsw.core.localization.localization import PoseEstimate, so3_log
     from fsw.framework.params import ConfigError
     from fsw.settings import load_settings
+    from hil_sim.lab.results import command_line, write_results
     from hil_sim.render import StereoRenderer
     from hil_sim.world import ScenarioError, load_scenario
     from hil_sim.world.cliffbot import build_cliffbot
@@ -139,9 +140,9 @@ def run(args: argparse.Namespace) -> int:
         lines.append(f"| {r:g} | {len(sel)} | {len(fx)} | {np.median(pe):.2f} / {pe.max():.2f} | "
                      f"{np.median(ye):.2f} / {ye.max():.2f} | {100 * ok:.0f} % |")
     table = "\n".join(lines)
-    command = "safer-hil experiment fiducials " + " ".join(sys.argv[3:]) if len(sys.argv) > 3 else \
-        "safer-hil experiment fiducials"
-    (args.out / "fiducials.md").write_text(f"# Relative localization against range\n\nCommand: `{command}`\n\n"
-                                           f"Scenario `{args.scenario}`, seed {args.seed}.\n\n{table}\n")
+    report = (f"Scenario `{args.scenario}`, seed {args.seed}, {args.poses} placements per range; the camera "
+              f"pose given exactly.\n\n{table}\n")
+    (args.out / "fiducials.md").write_text(f"# Relative localization against range\n\n{report}")
+    write_results("fiducials", command_line("fiducials"), report)
     print(table)
     return 0

@@ -20,7 +20,7 @@ from fsw.framework.agent import AgentConfig
 from fsw.framework.params import ConfigError
 from fsw.framework.schedule import ExecutiveConfig
 from fsw.framework.task import Task
-from fsw.tasks.registry import AGENTS, KINDS
+from fsw.registry import AGENTS, KINDS
 
 
 class ScheduledConfig(Protocol):
@@ -74,7 +74,7 @@ def check(cfg: ScheduledConfig, source: str = "config") -> None:
 
 
 def check_agent(cfg: ScheduledConfig, sections: set[str], source: str = "config") -> None:
-    """The configuration fits its agent's topology (``[agent] kind``; ``fsw.tasks.registry.AGENTS``):
+    """The configuration fits its agent's topology (``[agent] kind``; ``fsw.registry.AGENTS``):
     a known kind, only the sections that agent reads, only its task kinds; ``ConfigError`` if not."""
     topo = AGENTS.get(cfg.agent.kind)
     if topo is None:
