@@ -38,7 +38,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         return 2
     frames = None if args.duration is None else max(1, round(args.duration / cfg.executive.frame_period_s))
     print(
-        f"safer-fsw: running {len(exe.tasks)} components at {1 / exe.period_s:.1f} Hz "
+        f"safer-fsw: agent {cfg.agent.name} ({cfg.agent.kind}, MAVLink system {cfg.mavlink.system_id}): "
+        f"running {len(exe.tasks)} components at {1 / exe.period_s:.1f} Hz "
         f"({'until interrupted' if frames is None else f'{frames} frames'}); config {args.config}"
     )
     exe.freeze_heap()  # no full garbage collection walks the start-up heap inside a frame
@@ -102,7 +103,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="safer-fsw", description="MIT-SAFER RECON-bot flight software.")
+    p = argparse.ArgumentParser(
+        prog="safer-fsw",
+        description="MIT-SAFER flight software: runs the agent its configuration names ([agent] kind; "
+        "the RECON-bot by default).",
+    )
     sub = p.add_subparsers(dest="command", metavar="COMMAND", required=True)
     fmt = argparse.ArgumentDefaultsHelpFormatter
 
@@ -110,7 +115,8 @@ def build_parser() -> argparse.ArgumentParser:
         "run",
         help="run the flight software in real time",
         formatter_class=fmt,
-        description="Start the executive and its tasks on the real-time clock. A mission found in the "
+        description="Start the executive and the tasks of the configuration's agent ([agent] name and kind, "
+        "the MAVLink system id of [mavlink]) on the real-time clock. A mission found in the "
         "[checkpoint] directory (written after each imaging step) continues at the step where it "
         "stopped; an unusable one is reported as an event and the mission waits for START.",
     )

@@ -1,10 +1,12 @@
 """The flight software's whole configuration: one frozen object built from one TOML file.
 
-Each section's dataclass lives beside the code that uses it; this module only assembles
-them. ``load_settings(path)`` validates everything up front (``fsw.framework.params``) so a bad file
-is refused with one line naming the file, the key and the reason; that includes the
-stereo calibration file ``[camera] calibration_file`` names (``fsw.drivers.calibration_file``):
-missing or inconsistent, it is a start-up error like any bad key.
+Each section's dataclass lives beside the code that uses it (the tasks' own sections in
+``fsw.sections``, beside this module: the settings layer imports nothing above it); this
+module only assembles them. ``load_settings(path)`` validates everything up front
+(``fsw.framework.params``) so a bad file is refused with one line naming the file, the key
+and the reason; that includes the stereo calibration file ``[camera] calibration_file``
+names (``fsw.drivers.calibration_file``): missing or inconsistent, it is a start-up error
+like any bad key.
 
 A file is a flight configuration unless it says ``[executive] flight = false``: it must then be
 complete, every section and every key present (a left-out key is refused, not defaulted), and
@@ -12,7 +14,7 @@ schedule the mission, health, console and MAVLink tasks (``schedule_check.FLIGHT
 truncated or trimmed file never flies on defaults. Bench and
 ground-tool files say ``flight = false`` and may leave sections and keys out; those take the
 defaults ``fsw.framework.params.describe`` lists. In both cases the schedule itself is checked
-(``fsw.executive.schedule_check.check``: known kinds, rates within design range, the tasks each task
+(``fsw.schedule_check.check``: known kinds, rates within design range, the tasks each task
 needs).
 """
 
@@ -39,10 +41,11 @@ from fsw.core.stereo.stereo import StereoConfig
 from fsw.core.stereo.stereo_calibration import StereoCalibration
 from fsw.drivers.calibration_file import CalibrationError, load_calibration
 from fsw.drivers.factory import DevicesConfig
-from fsw.executive.schedule_check import check
+from fsw.framework.agent import AgentConfig
 from fsw.framework.params import ConfigError, build, load_toml
 from fsw.framework.schedule import ExecutiveConfig
-from fsw.tasks.sections import CaptureConfig, MissionConfig
+from fsw.schedule_check import check, check_agent
+from fsw.sections import CaptureConfig, MissionConfig
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "fsw.toml"
 
@@ -52,6 +55,7 @@ class FswConfig:
     """Root of the flight configuration (``config/fsw.toml``)."""
 
     executive: ExecutiveConfig
+    agent: AgentConfig = field(default_factory=AgentConfig)
     rover: RoverConfig = field(default_factory=RoverConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     mast: MastConfig = field(default_factory=MastConfig)
@@ -105,6 +109,8 @@ def load_settings(path: str | Path = DEFAULT_CONFIG, check_calibration: bool = T
     flight = not isinstance(ex, dict) or ex.get("flight", True) is not False
     cfg = build(FswConfig, data, source=str(path), complete=flight)
     check(cfg, str(path))
+    check_agent(cfg, set(data), str(path))
     if check_calibration:
         load_stereo_calibration(cfg, str(path))
     return cfg
+

@@ -2,7 +2,8 @@
 
 Subcommands: ``listen`` (live view), ``send`` (signed command), ``plot`` (PNG plots of a
 .tlog), ``map`` (map preview from a .tlog), ``params`` (the MAVLink parameter table), ``gcs-check``
-(behave as a stock ground station and report what was answered),
+(behave as a stock ground station and report what was answered), ``rerun`` (a mission's MCAP
+as a rerun recording), ``record`` (a Foxglove recording from a .tlog),
 ``keygen`` (a new signing key). Channel names,
 limits, commands and budgets come from the flight configuration (``--config``). Exit code 2
 on usage errors, bad files and bad configuration.
@@ -18,7 +19,8 @@ from collections.abc import Sequence
 from fsw.settings import DEFAULT_CONFIG
 
 SUBCOMMANDS = {"listen": "ground.listen", "send": "ground.send", "plot": "ground.plot", "map": "ground.map_image",
-               "params": "ground.params_cli", "gcs-check": "ground.gcs_check"}
+               "params": "ground.params_cli", "gcs-check": "ground.gcs_check", "rerun": "ground.rerun_cli",
+               "record": "ground.record_cli"}
 KEYGEN_HELP = "write a new random 32-byte signing key (hex, mode 0600); give the same file to the rover"
 
 
@@ -37,7 +39,9 @@ def build_parser() -> argparse.ArgumentParser:
         mod.add_arguments(sp)
         sp.set_defaults(_module=mod)
     k = sub.add_parser("keygen", help=KEYGEN_HELP, description=KEYGEN_HELP)
-    k.add_argument("file", metavar="FILE", help="key file to create (refuses to overwrite)")
+    k.add_argument("file", metavar="FILE", nargs="?",
+                   help="key file to create (refuses to overwrite; its folder is created, mode 0700)")
+    k.add_argument("--out", metavar="FILE", help="the same as FILE")
     k.add_argument("--passphrase-stdin", action="store_true",
                    help="derive the key from a passphrase read from stdin, as MAVProxy's `signing key "
                         "PASSPHRASE` does (SHA-256), so MAVProxy can sign commands too")
@@ -46,9 +50,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _keygen(path: str, from_stdin: bool) -> int:
+    from pathlib import Path
+
     from fsw.comm.mavlink_signing import key_from_passphrase, write_key
 
     key = None
+    path = str(Path(path).expanduser())
     if from_stdin:
         passphrase = sys.stdin.readline().strip()
         if len(passphrase) < 8 or not passphrase.isascii() or any(c.isspace() for c in passphrase):
@@ -57,6 +64,7 @@ def _keygen(path: str, from_stdin: bool) -> int:
             return 2
         key = key_from_passphrase(passphrase)
     try:
+        Path(path).parent.mkdir(mode=0o700, parents=True, exist_ok=True)
         write_key(path, key)
     except FileExistsError:
         print(f"safer-ground keygen: {path} exists; not overwritten", file=sys.stderr)
@@ -69,9 +77,12 @@ def _keygen(path: str, from_stdin: bool) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
     if args._module is None:
-        return _keygen(args.file, args.passphrase_stdin)
+        if (args.file is None) == (args.out is None):
+            parser.error("keygen: give the key file once, as FILE or --out FILE")
+        return _keygen(args.file or args.out, args.passphrase_stdin)
     from fsw.framework.params import ConfigError
     from ground.dictionary import load_dictionary
 

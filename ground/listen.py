@@ -10,7 +10,9 @@ channel coloured by its limits, and the latest events coloured by severity.
 from __future__ import annotations
 
 import argparse
+import fnmatch
 import math
+import os
 import sys
 import time
 
@@ -32,8 +34,11 @@ class Painter:
 
 
 def render(st: GroundState, d: GroundDictionary, url: str, now: float, paint: Painter,
-           reconnects: int = 0, error: str | None = None, timeout_s: float = 3.0, n_events: int = 12) -> str:
-    """The whole screen as text (pure: the tests and the docs capture use it)."""
+           reconnects: int = 0, error: str | None = None, timeout_s: float = 3.0, n_events: int = 12,
+           channels: tuple[str, ...] = (), rows: int | None = None, steps: int | None = None) -> str:
+    """The whole screen as text (pure: the tests and the docs capture use it). ``channels``:
+    shell patterns of the channels shown (all if empty); ``rows``: the terminal's height, the
+    channel table is cut to fit so the header stays on screen; ``steps``: the mission's N."""
     out: list[str] = []
     age = None if st.heartbeat_s is None else now - st.heartbeat_s
     if age is None:
@@ -62,7 +67,9 @@ def render(st: GroundState, d: GroundDictionary, url: str, now: float, paint: Pa
         yaw = "" if st.yaw_ned is None else f"  yaw {math.degrees(-st.yaw_ned):6.1f} deg"
         pose = f"x {n:6.2f}  y {-e:6.2f}  z {-dn:5.2f} m{yaw}"
     mast = "-" if st.mast is None else f"pan {math.degrees(st.mast[0]):6.1f}  tilt {math.degrees(st.mast[1]):6.1f} deg"
-    out.append(f"Pose {pose}   Mast {mast}")
+    step = st.channels.get("mission.step")
+    step_text = "" if step is None else f"   step {step[0]:.0f}" + ("" if steps is None else f" of {steps}")
+    out.append(f"Pose {pose}   Mast {mast}{step_text}")
     s = st.sys_status
     if s is not None:
         out.append(f"System load {s.load / 10:5.1f} %  slips {s.errors_count1}  overruns {s.errors_count2}  "
@@ -78,7 +85,8 @@ def render(st: GroundState, d: GroundDictionary, url: str, now: float, paint: Pa
     out.append("")
     out.append(paint("channels (red: out of limits, dim: older than 10 s)", BOLD))
     cells = []
-    for name in sorted(st.channels):
+    names = [n for n in sorted(st.channels) if not channels or any(fnmatch.fnmatch(n, p) for p in channels)]
+    for name in names:
         value, t = st.channels[name]
         info = d.by_name(name) if st.dictionary_ok is not False else None
         style = ""
@@ -88,11 +96,17 @@ def render(st: GroundState, d: GroundDictionary, url: str, now: float, paint: Pa
             style = DIM
         text = f"{name[:26]:<26} {value:>12.6g} {info.units if info else '':<5}"
         cells.append(paint(text, style))
-    for i in range(0, len(cells), 2):
-        out.append("  ".join(cells[i:i + 2]))
+    table = ["  ".join(cells[i:i + 2]) for i in range(0, len(cells), 2)]
+    events = list(st.events)[-n_events:]
+    if rows is not None:  # the header, the tasks and the events stay; the channel table gives way
+        room = max(1, rows - len(out) - 3 - len(events) - 1)
+        if len(table) > room:
+            hidden = len(cells) - 2 * (room - 1)
+            table = table[:room - 1] + [paint(f"... {hidden} more channels (--channels PATTERN filters)", DIM)]
+    out.extend(table)
     out.append("")
     out.append(paint("events (newest last)", BOLD))
-    for ev in list(st.events)[-n_events:]:
+    for ev in events:
         sev = SEVERITY_NAMES.get(ev.severity, str(ev.severity))
         out.append(paint(f"{now - ev.time_s:6.1f} s ago  {sev:<9} {ev.text}", SEV_COLOUR.get(ev.severity, "")))
     return "\n".join(out)
@@ -100,20 +114,71 @@ def render(st: GroundState, d: GroundDictionary, url: str, now: float, paint: Pa
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("url", help="udpin:HOST:PORT (rover sends here, the default rover url is "
-                               "udpout:127.0.0.1:14550), udpout:HOST:PORT (rover listens) or serial:DEVICE")
+                               "udpout:127.0.0.1:14550), udpout:HOST:PORT (rover listens) or serial:DEVICE; "
+                               "or a .tlog file to replay")
+    p.add_argument("--speed", type=float, default=0.0, metavar="X",
+                   help="tlog replay: X times the logged pace on a terminal (0: straight to the last screen)")
     p.add_argument("--baud", type=int, default=57600, help="serial line rate")
     p.add_argument("--refresh", type=float, default=0.5, metavar="S", help="screen refresh period")
     p.add_argument("--timeout", type=float, default=3.0, metavar="S", help="heartbeat age that counts as link lost")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="exit after S seconds (default: Ctrl-C)")
     p.add_argument("--no-color", action="store_true", help="no ANSI colours")
+    p.add_argument("--channels", action="append", default=[], metavar="PATTERN",
+                   help="show only channels matching this shell pattern (repeatable), e.g. 'mission.*'")
+    p.add_argument("--steps", type=int, default=None, metavar="N",
+                   help="N in 'step k of N': the value mission.step reaches at the end (imaging steps + 1 "
+                        "for the panorama)")
+
+
+def _terminal_rows() -> int | None:
+    """The terminal's height less one line, or None when stdout has no terminal size."""
+    try:
+        return os.get_terminal_size(sys.stdout.fileno()).lines - 1
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
+def replay(args: argparse.Namespace, d: GroundDictionary) -> int:
+    """The screens of a .tlog: at ``--speed`` times the logged pace on a terminal, else the last one."""
+    from fsw.comm.mavlink_tlog import TlogError
+    from ground.tlog import load_messages
+
+    try:
+        messages, note = load_messages(args.url)
+    except (TlogError, OSError) as exc:
+        print(f"safer-ground listen: {exc}", file=sys.stderr)
+        return 2
+    if note:
+        print(f"safer-ground listen: warning: {note}", file=sys.stderr)
+    tty = sys.stdout.isatty()
+    paint = Painter(tty and not args.no_color)
+    st = GroundState(d)
+    kw = {"channels": tuple(args.channels), "steps": args.steps}
+    t_log0, t_wall0, next_draw = messages[0].time_s, time.monotonic(), messages[0].time_s
+    try:
+        for lm in messages:
+            st.feed(lm.msg, lm.time_s)
+            if tty and args.speed > 0 and lm.time_s >= next_draw:
+                next_draw = lm.time_s + args.refresh * args.speed
+                time.sleep(max(0.0, (lm.time_s - t_log0) / args.speed - (time.monotonic() - t_wall0)))
+                screen = render(st, d, args.url, lm.time_s, paint, timeout_s=args.timeout,
+                                rows=_terminal_rows(), **kw)  # type: ignore[arg-type]
+                sys.stdout.write("\x1b[H\x1b[2J" + screen + "\n")
+                sys.stdout.flush()
+    except KeyboardInterrupt:
+        return 130
+    print(render(st, d, args.url, messages[-1].time_s, paint, timeout_s=args.timeout, **kw))  # type: ignore[arg-type]
+    return 0
 
 
 def run(args: argparse.Namespace, d: GroundDictionary) -> int:
     from ground.link import GroundLink, LinkError
 
-    if args.refresh <= 0 or args.timeout <= 0 or (args.duration is not None and args.duration < 0):
-        print("safer-ground listen: --refresh, --timeout and --duration must be positive", file=sys.stderr)
+    if args.refresh <= 0 or args.timeout <= 0 or (args.duration is not None and args.duration < 0) or args.speed < 0:
+        print("safer-ground listen: --refresh, --timeout, --duration and --speed must be positive", file=sys.stderr)
         return 2
+    if args.url.endswith(".tlog"):
+        return replay(args, d)
     try:
         link = GroundLink(args.url, args.baud)
     except LinkError as exc:
@@ -132,7 +197,9 @@ def run(args: argparse.Namespace, d: GroundDictionary) -> int:
                 st.feed(msg, now)
             if tty and now >= next_draw:
                 next_draw = now + args.refresh
-                screen = render(st, d, args.url, now, paint, link.reconnects, link.error, args.timeout)
+                screen = render(st, d, args.url, now, paint, link.reconnects, link.error, args.timeout,
+                                channels=tuple(args.channels), rows=_terminal_rows(),
+                                steps=args.steps)
                 sys.stdout.write("\x1b[H\x1b[2J" + screen + "\n")
                 sys.stdout.flush()
     except KeyboardInterrupt:
@@ -140,5 +207,6 @@ def run(args: argparse.Namespace, d: GroundDictionary) -> int:
     finally:
         link.close()
     if not tty:
-        print(render(st, d, args.url, time.monotonic(), paint, link.reconnects, link.error, args.timeout))
+        print(render(st, d, args.url, time.monotonic(), paint, link.reconnects, link.error, args.timeout,
+                     channels=tuple(args.channels), steps=args.steps))
     return 0

@@ -1,10 +1,12 @@
 """``safer-map``: the map codec on the command line (docs/algorithm.md §6; docs/quadtree.md).
 
     safer-map encode IN.npy OUT.sqm [--wheel-diameter M] [--max-error M] [--cell-m M]
-    safer-map decode IN.sqm OUT.npy
-    safer-map info IN.sqm
+    safer-map decode IN.sqm|CHECKPOINT OUT.npy
+    safer-map info IN.sqm|CHECKPOINT
 
-Maps are ``.npy`` arrays of float32 metres, NaN = unknown. Defaults (wheel diameter, cell
+Maps are ``.npy`` arrays of float32 metres, NaN = unknown. ``decode`` and ``info`` also read
+the flight software's map checkpoints (``SAFERMAP``, fsw/core/map/checkpoint.py); any other
+file is named in one line with the command that reads it. Defaults (wheel diameter, cell
 size, codec settings) come from ``config/fsw.toml`` (``[rover]``, ``[map]``, ``[codec]``).
 Bad or truncated input, or a bad config, prints one line ``safer-map: error: ...`` and
 exits 2.
@@ -16,12 +18,15 @@ import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from fsw.core.codec.hazard import check_obstacles
 from fsw.core.codec.mapcodec import CodecConfig, MapCodecError, decode_map, encode_map
 from fsw.core.geometry import MapGridConfig, RoverConfig
+from fsw.core.map import checkpoint
+from fsw.core.map.elevation_map import ElevationMap
 from fsw.framework.params import ConfigError, build, load_toml
 from fsw.settings import DEFAULT_CONFIG
 
@@ -52,11 +57,11 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--max-error", type=float, metavar="M",
                    help="error bound in metres (default: [codec] error_bound_wheels x wheel)")
     e.add_argument("--cell-m", type=float, metavar="M", help="cell size (default: [map] cell_m)")
-    d = sub.add_parser("decode", help="rebuild the .npy map from a container")
-    d.add_argument("input", type=Path, help="container file")
+    d = sub.add_parser("decode", help="rebuild the .npy map from a container or a map checkpoint")
+    d.add_argument("input", type=Path, help="container file or map checkpoint")
     d.add_argument("output", type=Path, help=".npy file to write (float32, NaN = unknown)")
-    i = sub.add_parser("info", help="print a container's header and sizes")
-    i.add_argument("input", type=Path, help="container file")
+    i = sub.add_parser("info", help="print a container's or a map checkpoint's header and sizes")
+    i.add_argument("input", type=Path, help="container file or map checkpoint")
     return p
 
 
@@ -124,8 +129,51 @@ def cmd_encode(args: argparse.Namespace) -> int:
     return 0
 
 
+# What a file that is neither a map container nor a checkpoint is, and which command reads it.
+_OTHER_KINDS = (
+    (b"\x93NUMPY", "a .npy array; compress it with 'safer-map encode'"),
+    (b"\x89PNG", "a PNG picture, not a map"),
+    (b"\xfd\x37\x7a\x58\x5a", "an xz archive, not a map"),
+)
+
+
+def _checkpoint(raw: bytes, path: Path) -> tuple[ElevationMap, checkpoint.CheckpointMeta] | None:
+    """The map and metadata when ``raw`` is a map checkpoint, else None; a damaged one is an error."""
+    if not raw.startswith(checkpoint.MAGIC):
+        return None
+    try:
+        return checkpoint.decode(raw)
+    except checkpoint.CheckpointError as exc:
+        raise UsageError(f"{path}: map checkpoint, unreadable: {exc}") from None
+
+
+def _container(raw: bytes, path: Path) -> Any:
+    """The decoded map container; a file of another kind is named with the command that reads it."""
+    for magic, what in _OTHER_KINDS:
+        if raw.startswith(magic):
+            raise UsageError(f"{path}: {what}")
+    if path.suffix == ".tlog":
+        raise UsageError(f"{path}: a MAVLink telemetry log; 'safer-ground map' renders its map previews")
+    try:
+        return decode_map(raw)
+    except MapCodecError as exc:
+        raise UsageError(f"{path}: not a map container or checkpoint ({exc})") from None
+
+
 def cmd_decode(args: argparse.Namespace) -> int:
-    dec = decode_map(_read_bytes(args.input))
+    raw = _read_bytes(args.input)
+    ck = _checkpoint(raw, args.input)
+    if ck is not None:
+        emap, meta = ck
+        z = np.where(emap.mapped, emap.z, np.nan).astype(np.float32)
+        try:
+            np.save(args.output, z)
+        except OSError as exc:
+            raise UsageError(f"{args.output}: cannot write ({exc.strerror or exc})") from None
+        print(f"{args.output}: {z.shape[0]}x{z.shape[1]} cells, {int(np.isfinite(z).sum())} known, "
+              f"from checkpoint {meta.seq} at mission time {meta.time_s:.1f} s")
+        return 0
+    dec = _container(raw, args.input)
     try:
         np.save(args.output, dec.z)
     except OSError as exc:
@@ -136,9 +184,28 @@ def cmd_decode(args: argparse.Namespace) -> int:
     return 0
 
 
+def _checkpoint_info(raw: bytes, emap: ElevationMap, meta: checkpoint.CheckpointMeta) -> None:
+    g = emap.grid
+    z = emap.z[emap.mapped]
+    state = (meta.state or {}).get("mission") or {}
+    rows = [("kind", f"map checkpoint (version {meta.version})"), ("bytes", len(raw)),
+            ("seq", meta.seq), ("time_s", f"{meta.time_s:.1f}"),
+            ("cells", f"{g.ny} x {g.nx} ({z.size} known)"), ("cell_m", f"{g.cell:.4g}"),
+            ("origin_m", f"x {g.x0:.3f}, y {g.y0:.3f}"),
+            ("elevation_m", f"{float(z.min()):.3f} .. {float(z.max()):.3f}" if z.size else "-"),
+            ("mission_state", "saved" if meta.state is not None else "none (map only)")]
+    rows += [(f"mission.{k}", state[k]) for k in ("phase", "step") if k in state]
+    for k, v in rows:
+        print(f"{k:18s} {v}")
+
+
 def cmd_info(args: argparse.Namespace) -> int:
     raw = _read_bytes(args.input)
-    dec = decode_map(raw)
+    ck = _checkpoint(raw, args.input)
+    if ck is not None:
+        _checkpoint_info(raw, *ck)
+        return 0
+    dec = _container(raw, args.input)
     h = dec.header
     known = int(np.isfinite(dec.z).sum())
     rows = [("bytes", len(raw)), ("cells", f"{h.ny} x {h.nx} ({known} known)"),

@@ -1,9 +1,12 @@
-"""``safer-ground map LOG.tlog --out map.png``: the map preview reassembled from image transfers.
+"""``safer-ground map LOG.tlog|CHECKPOINT --out map.png``: the map preview reassembled from image
+transfers, or the map of a checkpoint.
 
 Feeds the log's DATA_TRANSMISSION_HANDSHAKE + ENCAPSULATED_DATA messages (from the rover)
 to the same reassembler the live view uses, decodes the chosen image (JPEG/PNG/PGM/BMP) and
 writes it as PNG, optionally enlarged and false-coloured (unknown cells, value 0, stay
-black, grey levels below 8). Exit code 1 when the log holds no complete preview.
+black, grey levels below 8). Exit code 1 when the log holds no complete preview. A map
+checkpoint (``SAFERMAP``, fsw/core/map/checkpoint.py) is drawn in metres: elevation with +y up
+(``origin="lower"``, as ``map.png`` of a mission), axes in metres and a colour bar.
 """
 
 from __future__ import annotations
@@ -14,11 +17,11 @@ from typing import Any
 
 from ground.dictionary import GroundDictionary
 
-HELP = "write the map preview reassembled from the image transfers in a .tlog as PNG"
+HELP = "write the map preview reassembled from the image transfers in a .tlog, or a checkpoint's map, as PNG"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("tlog", metavar="LOG.tlog", help="telemetry log")
+    p.add_argument("tlog", metavar="LOG.tlog|CHECKPOINT", help="telemetry log, or a map checkpoint")
     p.add_argument("--out", required=True, metavar="PNG", help="output image (PNG)")
     p.add_argument("--index", type=int, default=-1,
                    help="which complete preview: 0 = first, -1 = last")
@@ -52,6 +55,16 @@ def run(args: argparse.Namespace, d: GroundDictionary) -> int:
     if not args.out.lower().endswith(".png"):
         print("safer-ground map: --out must name a .png file", file=sys.stderr)
         return 2
+    from fsw.core.map import checkpoint
+
+    try:
+        with open(args.tlog, "rb") as fh:
+            head = fh.read(len(checkpoint.MAGIC))
+    except OSError as exc:
+        print(f"safer-ground map: {args.tlog}: cannot read ({exc.strerror or exc})", file=sys.stderr)
+        return 2
+    if head == checkpoint.MAGIC:
+        return render_checkpoint(args.tlog, args.out)
     try:
         messages, note = load_messages(args.tlog)
     except TlogError as exc:
@@ -83,4 +96,40 @@ def run(args: argparse.Namespace, d: GroundDictionary) -> int:
     print(f"{args.out}: preview {args.index % len(done) + 1} of {len(done)} complete "
           f"({incomplete} incomplete), {im.info.width}x{im.info.height} px, {im.info.size} B in "
           f"{im.info.packets} packets")
+    return 0
+
+
+def render_checkpoint(path: str, out: str) -> int:
+    """Draw a checkpoint's elevation map in metres (+y up, as ``map.png``); exit code."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from fsw.core.map import checkpoint
+
+    try:
+        with open(path, "rb") as fh:
+            emap, meta = checkpoint.decode(fh.read())
+    except (OSError, checkpoint.CheckpointError) as exc:
+        print(f"safer-ground map: {path}: map checkpoint, unreadable: {exc}", file=sys.stderr)
+        return 2
+    fig, ax = plt.subplots(figsize=(7, 5.5), constrained_layout=True)
+    im = ax.imshow(np.where(emap.mapped, emap.z, np.nan), origin="lower", extent=emap.grid.extent,
+                   cmap="terrain")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(f"checkpoint {meta.seq}, mission time {meta.time_s:.0f} s: "
+                 f"{int(emap.mapped.sum())} cells mapped")
+    fig.colorbar(im, ax=ax, shrink=0.85, label="elevation (m)")
+    try:
+        fig.savefig(out, dpi=90)
+    except OSError as exc:
+        print(f"safer-ground map: cannot write {out} ({exc.strerror or exc})", file=sys.stderr)
+        return 2
+    finally:
+        plt.close(fig)
+    print(f"{out}: checkpoint {meta.seq} at {meta.time_s:.1f} s, {emap.grid.ny}x{emap.grid.nx} cells, "
+          f"{int(emap.mapped.sum())} mapped")
     return 0

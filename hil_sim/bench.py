@@ -28,7 +28,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +38,7 @@ from fsw.app import build_executive
 from fsw.drivers.can_inproc import InprocBus
 from fsw.drivers.resources import Endpoints, Resources
 from fsw.executive.executive import Executive
+from fsw.executive.lockstep import Lockstep
 from fsw.framework.clock import SteppedClock
 from fsw.framework.commands import CommandRequest, CommandResponse
 from fsw.settings import FswConfig
@@ -61,11 +62,13 @@ class _Sink:
 
 class ExecutiveDriver:
     """Stepping and the ground's view of a lockstep executive, shared by the bench and the
-    task test rig: ``exe`` is the executive, ``_seq`` a command sequence counter, ``run`` steps."""
+    task test rig: ``exe`` is the executive, ``run`` steps (the deriving class says how)."""
 
-    exe: Executive
-    _seq: Iterator[int]
     COMMAND_SOURCE = "bench"
+
+    def __init__(self, exe: Executive) -> None:
+        self.exe = exe
+        self._seq = itertools.count(1)  # command sequence numbers
 
     def run(self, frames: int) -> None:
         raise NotImplementedError
@@ -131,12 +134,15 @@ class LockstepBench(ExecutiveDriver):
 
             self._own_radio = res.radio_port = open_radio(f"inproc://{self.channel}-radio")
         ends = Endpoints(mast_port=flight_port, camera_source=self.camera)
-        self.exe: Executive = build_executive(self.cfg, self.clock, res, ends, map_store=False)
+        super().__init__(build_executive(self.cfg, self.clock, res, ends, map_store=False))
         self._t_last = self.clock.now()
         if start is not None:
             self.exe.frame = int(start[1])
+        # the agents of the bench, on its one clock: this RECON-bot first (add_agent adds more)
+        self.lockstep = Lockstep(self.clock)
+        self.lockstep.add(self.exe, self.before_frame, align=False)
+        self._agents: dict[str, Executive] = {self.cfg.agent.name: self.exe}
         self._install_task_faults()
-        self._seq = itertools.count(1)
         if quiet:  # silence console-style tasks (they print every event to stdout)
             for task in self.exe.tasks.values():
                 if hasattr(task, "out"):
@@ -201,7 +207,30 @@ class LockstepBench(ExecutiveDriver):
             self.logger.on_message_received(msg)
 
     def run(self, frames: int) -> None:
-        self.exe.run_lockstep(frames, before_frame=self.before_frame)
+        """Run ``frames`` frames of the RECON-bot, and the other agents' frames due meanwhile."""
+        self.lockstep.run_frames(self.exe, frames)
+
+    # -- more agents on the same clock -----------------------------------------------------------
+    def add_agent(self, cfg: FswConfig, resources: Resources | None = None) -> Executive:
+        """Build the executive of another agent (its own topology, ``[agent] kind``) on the bench's
+        clock and step it with the RECON-bot from the next frame start on. Its devices are those
+        of its ``[devices]`` section (``none``: the test hands in ``resources``). Agents of one bench
+        have distinct names and MAVLink system ids."""
+        name = cfg.agent.name
+        if name in self._agents:
+            raise ValueError(f"the bench already has an agent named {name!r}")
+        sysid = cfg.mavlink.system_id
+        taken = {e.cfg.mavlink.system_id: n for n, e in self._agents.items()}
+        if sysid in taken:
+            raise ValueError(f"agent {name!r}: MAVLink system id {sysid} is already agent {taken[sysid]!r}'s")
+        exe = build_executive(cfg, self.clock, resources or Resources(), map_store=False)
+        self.lockstep.add(exe)
+        self._agents[name] = exe
+        return exe
+
+    def agent(self, name: str) -> Executive:
+        """The executive of the bench's agent ``name``."""
+        return self._agents[name]
 
     # -- the ground's view (run_until, command, tlm: ExecutiveDriver) ---------------------
     def events(self, suffix: str) -> list[Any]:
@@ -210,7 +239,8 @@ class LockstepBench(ExecutiveDriver):
     def close(self) -> None:
         from fsw.drivers.factory import close_devices
 
-        close_devices(self.exe.ctx.res)
+        for exe in self._agents.values():
+            close_devices(exe.ctx.res)
         if self._own_radio is not None:
             self._own_radio.close()
         for bus in (self.sim_bus, self._tap):

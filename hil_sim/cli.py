@@ -23,23 +23,25 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("", "relay"): "hil_sim.commands.relay",
     ("", "calibration-target"): "hil_sim.commands.calibration_target",
     ("", "campaign"): "hil_sim.commands.campaign",
-    ("bench", "render"): "hil_sim.commands.bench_render",
-    ("bench", "lockstep"): "hil_sim.commands.bench_lockstep",
-    ("bench", "perception"): "hil_sim.commands.bench_perception",
-    ("bench", "nbv"): "hil_sim.commands.bench_nbv",
-    ("bench", "codec"): "hil_sim.commands.bench_codec",
-    ("bench", "e2e"): "hil_sim.commands.bench_e2e",
-    ("bench", "calibration"): "hil_sim.commands.bench_calibration",
-    ("bench", "stereo-real"): "hil_sim.commands.bench_stereo_real",
-    ("bench", "cycle"): "hil_sim.commands.bench_cycle",
-    ("experiment", "coverage"): "hil_sim.commands.experiment_coverage",
-    ("experiment", "reduction"): "hil_sim.commands.experiment_reduction",
-    ("experiment", "link"): "hil_sim.commands.experiment_link",
-    ("experiment", "resume"): "hil_sim.commands.experiment_resume",
-    ("experiment", "terrain"): "hil_sim.commands.experiment_terrain",
-    ("experiment", "ground"): "hil_sim.commands.experiment_ground",
-    ("experiment", "camera-path"): "hil_sim.commands.experiment_camera_path",
-    ("experiment", "registration"): "hil_sim.commands.experiment_registration",
+    ("bench", "render"): "hil_sim.lab.bench.bench_render",
+    ("bench", "lockstep"): "hil_sim.lab.bench.bench_lockstep",
+    ("bench", "perception"): "hil_sim.lab.bench.bench_perception",
+    ("bench", "nbv"): "hil_sim.lab.bench.bench_nbv",
+    ("bench", "codec"): "hil_sim.lab.bench.bench_codec",
+    ("bench", "e2e"): "hil_sim.lab.bench.bench_e2e",
+    ("bench", "calibration"): "hil_sim.lab.bench.bench_calibration",
+    ("bench", "stereo-real"): "hil_sim.lab.bench.bench_stereo_real",
+    ("bench", "cycle"): "hil_sim.lab.bench.bench_cycle",
+    ("experiment", "coverage"): "hil_sim.lab.experiments.experiment_coverage",
+    ("experiment", "reduction"): "hil_sim.lab.experiments.experiment_reduction",
+    ("experiment", "link"): "hil_sim.lab.experiments.experiment_link",
+    ("experiment", "resume"): "hil_sim.lab.experiments.experiment_resume",
+    ("experiment", "terrain"): "hil_sim.lab.experiments.experiment_terrain",
+    ("experiment", "ground"): "hil_sim.lab.experiments.experiment_ground",
+    ("experiment", "camera-path"): "hil_sim.lab.experiments.experiment_camera_path",
+    ("experiment", "registration"): "hil_sim.lab.experiments.experiment_registration",
+    ("experiment", "fiducials"): "hil_sim.lab.experiments.experiment_fiducials",
+    ("experiment", "team"): "hil_sim.lab.experiments.experiment_team",
 }
 
 GROUP_HELP = {
@@ -74,11 +76,21 @@ def build_parser() -> argparse.ArgumentParser:
             name,
             help=mod.HELP,
             description=getattr(mod, "DESCRIPTION", mod.HELP),
-            formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+            formatter_class=DefaultsOnce,
         )
         mod.add_arguments(p)
-        p.set_defaults(_run=mod.run)
+        p.set_defaults(_run=mod.run, _hint=getattr(mod, "resume_hint", None))
     return parser
+
+
+class DefaultsOnce(argparse.ArgumentDefaultsHelpFormatter):
+    """Adds "(default: X)" only where the help does not already say the default and X is a value."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        if "default" in text.lower() or action.default in (None, "", argparse.SUPPRESS):
+            return text
+        return super()._get_help_string(action)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -86,8 +98,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+        print("interrupted" + _resume_hint(args), file=sys.stderr)
         return 130
+
+
+def _resume_hint(args: argparse.Namespace) -> str:
+    """``; continue it with: safer-hil run --resume DIR`` when an interrupted run left a mission
+    (the run command's ``resume_hint``; other commands have none)."""
+    hint = getattr(args, "_hint", None)
+    return hint(args) if hint is not None else ""
 
 
 if __name__ == "__main__":

@@ -112,7 +112,7 @@ class Cliffbot:
                 title += f"; red: relief >= {h.hazard_threshold_m:.2f} m"
             try:
                 self.out_dir.mkdir(parents=True, exist_ok=True)
-                _atomic(path, lambda p: write_figure13(left, z, p, title, outlines=outlines))
+                _atomic(path, lambda p: write_figure13(left, z, p, title, outlines=outlines, cell_m=h.cell_m))
                 _atomic(self.out_dir / f"cliffbot_map_{map_id}.npy", lambda p: np.save(p, z))
                 png = str(path)
             except OSError as exc:  # full or failing disk: the map stays received and decoded
@@ -135,9 +135,12 @@ def _atomic(path: Path, write: Callable[[Path], None]) -> None:
 
 
 def write_figure13(original: NDArray[np.floating], received: NDArray[np.floating], path: Path,
-                   title: str = "", outlines: tuple[NDArray[np.bool_], NDArray[np.bool_]] | None = None) -> None:
-    """Paper Figure 13: grayscale elevation, original (left) and transmitted (right);
-    ``outlines`` (one mask per panel, e.g. the obstacles) are drawn as red contours."""
+                   title: str = "", outlines: tuple[NDArray[np.bool_], NDArray[np.bool_]] | None = None,
+                   cell_m: float | None = None) -> None:
+    """Paper Figure 13: grayscale elevation, original (left) and transmitted (right), drawn as
+    every map picture is (row 0 = lowest y at the bottom, ``origin="lower"``, as ``map.png``);
+    axes in metres from the map's corner when ``cell_m`` is given, else in cells. ``outlines``
+    (one mask per panel, e.g. the obstacles) are drawn as red contours."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -149,14 +152,18 @@ def write_figure13(original: NDArray[np.floating], received: NDArray[np.floating
     cmap = matplotlib.colormaps["gray"].with_extremes(bad="#c03030")
     for ax, img, name in zip(axes, (original, received), ("original", "received by the Cliff-bot"),
                              strict=True):
-        im = ax.imshow(img, cmap=cmap, vmin=lo, vmax=hi, interpolation="nearest")
+        ny, nx = img.shape
+        scale, unit = (cell_m, "m") if cell_m else (1.0, "cells")
+        extent = (0.0, nx * scale, 0.0, ny * scale)
+        im = ax.imshow(img, cmap=cmap, vmin=lo, vmax=hi, interpolation="nearest", origin="lower", extent=extent)
         if outlines is not None:
             mask = outlines[0] if img is original else outlines[1]
             if mask.any():
-                ax.contour(mask.astype(np.float32), levels=[0.5], colors="red", linewidths=0.6)
+                ax.contour(mask.astype(np.float32), levels=[0.5], colors="red", linewidths=0.6,
+                           origin="lower", extent=extent)
         ax.set_title(name)
-        ax.set_xticks([])
-        ax.set_yticks([])
+        ax.set_xlabel(f"x from the map's corner ({unit})")
+        ax.set_ylabel(f"y ({unit})")
     fig.colorbar(im, ax=axes, shrink=0.8, label="elevation [m] (red: unknown)")
     if title:
         fig.suptitle(title)

@@ -25,7 +25,10 @@ answer to the health pings, so health declares it hung and stops stroking the wa
 ``overrun``: each activation is charged ``delay_s`` more than it took, so it overruns its
 budget and the frame slips; ``hil_sim.bench``); ``radio_outage`` (the Cliff-bot radio link is
 dark: every packet on the air in the window is lost, both directions; ``hil_sim.mission_run``
-gives the windows to ``hil_sim.radio_channel``).
+gives the windows to ``hil_sim.radio_channel``); ``winch_fault`` (an Anchorbot's tether winch,
+``target`` ``WINCH_A`` or ``WINCH_B``, ``hil_sim.hw.winch``: ``mode`` ``stall``: the drum does
+not turn; ``slip``: the tether slips off the drum at the winch's slip rate; ``overtension``:
+a snag loads the tether past the winch's trip). CAN faults may target a winch's frames too.
 """
 
 from __future__ import annotations
@@ -52,9 +55,11 @@ KINDS = (
     "imu_fault",
     "stuck_task",
     "radio_outage",
+    "winch_fault",
 )
 TASK_MODES = ("hang", "overrun")
-CAN_TARGETS = (*AXES, "IMU")
+WINCH_TARGETS = ("WINCH_A", "WINCH_B")
+CAN_TARGETS = (*AXES, "IMU", *WINCH_TARGETS)
 
 
 @dataclass(frozen=True)
@@ -69,8 +74,9 @@ class FaultSpec:
     direction: str = param("both", choices=("both", "to_fsw", "from_fsw"), doc="CAN faults: which frames")
     target: str = param("", doc="CAN faults: one axis' frames only; motor_fault: the axis; stuck_task: the task")
     mode: str = param(
-        "", choices=("", "driver", "stall", "status", "silent", "stuck", "dropout", "selftest", *TASK_MODES),
-        doc="motor_fault / camera_dropout / imu_fault / stuck_task variant",
+        "", choices=("", "driver", "stall", "status", "silent", "stuck", "dropout", "selftest", "slip", "overtension",
+                *TASK_MODES),
+        doc="motor_fault / camera_dropout / imu_fault / stuck_task / winch_fault variant",
     )
 
     def __post_init__(self) -> None:
@@ -86,6 +92,9 @@ class FaultSpec:
             raise ValueError(f"target {self.target!r} is not an axis or IMU ({', '.join(CAN_TARGETS)})")
         if self.kind == "motor_fault" and self.target not in AXES:
             raise ValueError("motor_fault needs a target axis")
+        if self.kind == "winch_fault" and (self.target not in WINCH_TARGETS
+                                           or self.mode not in ("stall", "slip", "overtension")):
+            raise ValueError("winch_fault needs target WINCH_A or WINCH_B and mode stall, slip or overtension")
 
     def active(self, now: float) -> bool:
         return self.start_s <= now < self.start_s + self.duration_s
@@ -226,6 +235,13 @@ class FaultInjector:
         if not act:
             return ""
         return act[0].mode if act[0].mode in ("stuck", "selftest") else "dropout"
+
+    def winch_fault(self, winch: str) -> str:
+        """The active fault mode of an Anchorbot winch ("" when none)."""
+        for f in self.active("winch_fault"):
+            if f.target == winch:
+                return f.mode
+        return ""
 
     def mast_stalled(self) -> bool:
         return self.any("mast_stall")

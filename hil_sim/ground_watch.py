@@ -47,4 +47,4 @@ def wheels_on_unknown(rig: Any, mission: Any, odo_before: float) -> int:
     if rig.rover.odometer_m <= odo_before + 1e-9:
         return 0
     xs, ys = rig.rover.world_wheel_xy()
-    return int(not mission.geofence.known.known_xy(np.column_stack([xs, ys])).all())
+    return int(not mission.ground.geofence.known.known_xy(np.column_stack([xs, ys])).all())

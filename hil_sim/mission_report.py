@@ -21,7 +21,7 @@ import numpy as np
 
 from fsw.core.geometry import MapGrid
 from fsw.framework.storage import StorageError, describe
-from hil_sim.terrain_eval import fit_plane
+from hil_sim.lab.terrain_eval import fit_plane
 
 WALL_CLOCK_FIELDS = ("wall_s", "task_max_ms", "task_ms_per_frame", "slips", "overruns")
 
@@ -87,14 +87,16 @@ def transfer_s(mission: Any) -> float | None:
     return round(sent[-1] - end[-1], 3) if end and sent else None
 
 
-def write_outputs(out: Path, summary: dict[str, Any], emap: Any, truth: Any, grid: MapGrid) -> dict[str, str]:
-    """summary.json and the PNGs: map, variance, error, coverage over steps."""
+def write_outputs(out: Path, summary: dict[str, Any], emap: Any, truth: Any, grid: MapGrid,
+                  extra_files: dict[str, str] | None = None) -> dict[str, str]:
+    """summary.json and the PNGs: map, variance, error, coverage over steps; ``extra_files``
+    (name -> file) are listed in ``files`` too."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    files = {"summary": "summary.json", "map": "map.png", "coverage": "coverage.png"}
+    files = {"summary": "summary.json", "map": "map.png", "coverage": "coverage.png", **(extra_files or {})}
     ext = grid.extent
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.6), constrained_layout=True)
     for ax, data, title, cmap in (

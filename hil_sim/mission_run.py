@@ -26,7 +26,7 @@ a move), ``stays`` (steps whose view was taken without the planned move, and why
 ``start_attitude_deg`` (true roll, pitch at the start), ``registration`` (per view: status,
 correction, sigmas; ``fsw.core.registration.registration``), ``map_quality`` (RMS, fitted tilt, station
 seams, 2-sigma fraction, all against the truth in the flight map's datum, the true body
-height at the start, with the ground-datum figures beside them; ``hil_sim.terrain_eval``),
+height at the start, with the ground-datum figures beside them; ``hil_sim.lab.terrain_eval``),
 ``calib_2sigma`` (fraction of mapped cells within 2 sigma of the truth, docs/algorithm.md §4; the
 same datum), ``map_rmse_m`` and the error plane also in that datum,
 ``safe_entries``, ``safe_recoveries`` (SAFE left for the mission again), ``safe_recoveries_resumed``
@@ -71,6 +71,7 @@ from fsw.framework.storage import StorageError, describe
 from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
 from hil_sim.faults import FaultSpec
 from hil_sim.ground_watch import reachable_stations, wheels_on_unknown
+from hil_sim.lab.terrain_eval import map_quality
 from hil_sim.mission_report import (
     _cliffbot_report,
     error_plane,
@@ -82,7 +83,6 @@ from hil_sim.mission_report import (
     write_outputs,
 )
 from hil_sim.run_dir import MANIFEST, check_room, echo_storage_events, has_mission
-from hil_sim.terrain_eval import map_quality
 
 MODES = ("new", "fresh", "resume")
 
@@ -226,6 +226,7 @@ def run_mission(
     from hil_sim.radio_channel import ChannelPort, RadioChannel, RadioChannelConfig
     from hil_sim.resume_state import BenchStateError, bench_state, restore_bench
     from hil_sim.rig import load_hardware
+    from hil_sim.team.team_run import team_phase
     from hil_sim.world import load_scenario
 
     t_wall = time.perf_counter()
@@ -258,7 +259,7 @@ def run_mission(
                        faults=spec.faults) as bench:
         bench_box.append(bench)
         bench.exe.ctx.events.listeners.append(echo_storage_events)
-        if on_bench is not None:  # an experiment's observer (hil_sim.view_replay records the views)
+        if on_bench is not None:  # an experiment's observer (hil_sim.lab.view_replay records the views)
             on_bench(bench)
         clock_box.append(bench.clock.now)
         if saved_bench is not None:
@@ -272,13 +273,14 @@ def run_mission(
         cliffbot = Cliffbot(cfg.link, ChannelPort(channel, "b", now), out_dir=spec.out)
         mission = bench.exe.tasks["mission"]
         perception = bench.exe.tasks["perception"]
+        recorder, tap = _recorder(spec.out, bench.exe)
         limit_s = max_sim_s if max_sim_s is not None else 120.0 + 90.0 * (spec.steps + 1) + 1200.0
         counters.setdefault("unknown_frames", 0)
         counters.setdefault("reachable", [])  # stations the geofence allowed, at each step boundary
         last_step = -1
         views: list[Any] = []  # (camera xyz, cell index, z) per merged view, for the seams
         start_att = (round(bench.rig.truth()["roll_deg"], 3), round(bench.rig.truth()["pitch_deg"], 3))
-        # the flight map's height origin: the true body height at the start (hil_sim.terrain_eval);
+        # the flight map's height origin: the true body height at the start (hil_sim.lab.terrain_eval);
         # kept in the counters so a resumed run keeps the start's, not the resume point's
         datum_m = float(counters.setdefault("datum_m", float(bench.rig.rover.z)))
         watchdog = bench.exe.ctx.res.watchdog
@@ -291,6 +293,8 @@ def run_mission(
             while bench.clock.now() < limit_s:
                 odo = bench.rig.rover.odometer_m
                 bench.run(1)
+                if tap is not None:
+                    tap.poll()
                 counters["unknown_frames"] += wheels_on_unknown(bench.rig, mission, odo)
                 if mission.state == "TRANSMIT" and 1 not in cliffbot.originals:
                     cliffbot.originals[1] = perception.map.z.astype(np.float32)
@@ -317,16 +321,19 @@ def run_mission(
                     if progress is not None:
                         progress(mission.step, spec.steps, mission.state)
                 if mission.state == "DONE" or (mission.state == "SAFE" and (
-                        cfg.mission.safe_recover_s <= 0 or mission.safe_final)):
+                        cfg.mission.safe_recover_s <= 0 or mission.safe.final)):
                     break
         finally:
             bench.exe.thaw_heap()
+            if tap is not None and recorder is not None:
+                tap.close()
+                recorder.close()
         exe = bench.exe
         if "mavlink" in exe.tasks:
             exe.tasks["mavlink"].close()  # flush and close the .tlog
         emap = perception.map
         mapped = emap.mapped & np.isfinite(truth)
-        truth_f = truth - datum_m  # the truth in the flight map's datum (hil_sim.terrain_eval)
+        truth_f = truth - datum_m  # the truth in the flight map's datum (hil_sim.lab.terrain_eval)
         rmse = float(np.sqrt(np.mean((emap.z[mapped] - truth_f[mapped]) ** 2))) if mapped.any() else None
         tilt_deg, rmse_plane = error_plane(grid, emap.z - truth_f, mapped)
         quality = map_quality(emap, truth, [v[:3] for v in views], datum_m)
@@ -343,24 +350,24 @@ def run_mission(
             "map_rmse_detilted_m": rmse_plane,
             "edge_violations": counters["violations"],
             "calib_2sigma": quality["within_2sigma"],
-            "geofence_refusals": mission.edge_violations,
+            "geofence_refusals": mission.ground.edge_violations,
             "wheels_off_terrain": bench.rig.wheels_off_terrain_steps,
             "wheels_on_unknown_ground": counters["unknown_frames"],
             "bench_faults": bench.rig.faults_seen,
             "odometer_m": round(bench.rig.rover.odometer_m, 3),
             "reachable_stations": counters["reachable"],
-            "looks": mission.looks,
-            "stays": mission.stays,
+            "looks": mission.ground.looks,
+            "stays": mission.ground.stays,
             "steps_unused": max(0, spec.steps - (len(mission.records) - 1)),
             "steps_unused_reason": None if len(mission.records) - 1 >= spec.steps else (
-                mission.end or mission.safe_reason or f"stopped in {mission.state}"),
+                mission.end or mission.safe.reason or f"stopped in {mission.state}"),
             "slips": exe.slips,
             "overruns": sum(t.overruns for t in exe.tasks.values()),
             "task_max_ms": task_max_ms(exe),
             "task_ms_per_frame": task_ms_per_frame(exe),
             "end_reason": mission.end,
-            "safe_reason": mission.safe_reason,
-            "safe_entries": mission.safe_entries,
+            "safe_reason": mission.safe.reason,
+            "safe_entries": mission.safe.entries,
             "safe_recoveries": counters["recoveries"],
             "safe_recoveries_resumed": counters["recoveries_resumed"],
             "off_map": counters["off_map"],
@@ -381,10 +388,27 @@ def run_mission(
             "map_quality": quality,
             "files": {},
         }
+        summary.update(team_phase(spec.out, spec.seed, world, grid, cliffbot, channel, bench, datum_m))
         summary = json.loads(json.dumps(summary))  # exactly what summary.json holds
         if spec.out is not None:
-            summary["files"] = write_outputs(spec.out, summary, emap, truth_f, grid)
+            extra = {"recording": recorder.path.name} if recorder is not None else {}
+            summary["files"] = write_outputs(spec.out, summary, emap, truth_f, grid, extra)
     return summary
+
+
+def _recorder(out: Path | None, exe: Any) -> tuple[Any, Any]:
+    """The mission's Foxglove recording (``ground.recording``) in ``out`` and the bus tap feeding
+    it; a resumed mission starts a new file (``mission.1.mcap``, ...), never overwrites one."""
+    if out is None:
+        return None, None
+    from ground.recording import BusTap, MissionRecorder
+
+    path, k = out / "mission.mcap", 0
+    while path.exists():
+        k += 1
+        path = out / f"mission.{k}.mcap"
+    recorder = MissionRecorder(path)
+    return recorder, BusTap(exe, recorder.source("recon"))
 
 
 def _wheels_over_drop(rig: Any, world: Any, cfg: FswConfig) -> int:

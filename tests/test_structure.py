@@ -21,7 +21,6 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("fsw", "hil_sim", "ground")
-MAX_MODULE_LINES = 400
 
 
 @dataclass(frozen=True)
@@ -214,6 +213,14 @@ LAYER_RULES = [
         ("fsw.drivers",),
         allowed=("fsw.framework", "fsw.comm", "fsw.core", "fsw.drivers"),
     ),
+    LayerRule(
+        "settings import only framework, comm, core, drivers and settings",
+        # the settings layer: the configuration, its sections, the agents' task tables (task
+        # classes named as strings, imported lazily) and the schedule check that reads them
+        ("fsw.settings", "fsw.sections", "fsw.registry", "fsw.schedule_check"),
+        allowed=("fsw.framework", "fsw.comm", "fsw.core", "fsw.drivers", "fsw.settings", "fsw.sections",
+                 "fsw.registry", "fsw.schedule_check"),
+    ),
     LayerRule("tasks never import executive", ("fsw.tasks",), forbidden=("fsw.executive",)),
 ]
 
@@ -244,13 +251,185 @@ def test_layer_rule(graph: dict[str, list[Edge]], rule: LayerRule) -> None:
     )
 
 
+# -- modules split by meaning ---------------------------------------------------------------------
+MAX_FOLDER_MODULES = 15
+# Folders over the limit today, with the most modules they may hold until they are split:
+# hil_sim's experiment and lab tooling moves to a lab wing (issue 24, item 6), fsw/comm's MAVLink
+# files, fsw/drivers's CAN transports and fsw/tasks's mission and motion parts to packages of
+# their own (issue 24, item 2).
+FOLDER_ALLOWANCE = {"hil_sim": 22, "hil_sim/world": 23, "fsw/comm": 25, "fsw/drivers": 17,
+                    "fsw/tasks": 26}
+
+
+def folders(root: Path, packages: Iterable[str]) -> dict[str, int]:
+    """Folder (relative, ``/``-separated) -> its Python modules (``__init__`` not counted)."""
+    out: dict[str, int] = {}
+    for package in packages:
+        for path in sorted((root / package).rglob("*.py")):
+            if path.name != "__init__.py":
+                key = path.parent.relative_to(root).as_posix()
+                out[key] = out.get(key, 0) + 1
+    return out
+
+
+def folder_offenders(root: Path, packages: Iterable[str], allowance: dict[str, int]) -> list[str]:
+    return [f"{d}: {n} modules (limit {allowance.get(d, MAX_FOLDER_MODULES)})"
+            for d, n in sorted(folders(root, packages).items()) if n > allowance.get(d, MAX_FOLDER_MODULES)]
+
+
+def _trees(root: Path, packages: Iterable[str]) -> Iterator[tuple[str, ast.Module]]:
+    for module, path in module_files(root, packages).items():
+        yield module, ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+
+
+def _is_type_checking(test: ast.expr) -> bool:
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
+
+
+def bolted_functions(root: Path, packages: Iterable[str]) -> list[str]:
+    """Module-level functions that take a ``self``: methods written outside their class."""
+    out = []
+    for module, tree in _trees(root, packages):
+        for node in tree.body:
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                names = [a.arg for a in (*node.args.posonlyargs, *node.args.args, *node.args.kwonlyargs)]
+                if "self" in names:
+                    out.append(f"{module}.{node.name} (line {node.lineno})")
+    return out
+
+
+def type_checking_stubs(root: Path, packages: Iterable[str]) -> list[str]:
+    """``if TYPE_CHECKING:`` blocks that declare anything but imports (method or attribute stubs)."""
+    out = []
+    for module, tree in _trees(root, packages):
+        for node in ast.walk(tree):
+            if isinstance(node, ast.If) and _is_type_checking(node.test):
+                for stmt in [*node.body, *node.orelse]:
+                    if not isinstance(stmt, ast.Import | ast.ImportFrom | ast.Pass):
+                        out.append(f"{module} line {stmt.lineno}: {type(stmt).__name__} under TYPE_CHECKING")
+    return out
+
+
+_NOT_MIXINS = {"Protocol", "TypedDict", "NamedTuple", "Enum", "StrEnum", "IntEnum"}
+
+
+def _base_names(cls: ast.ClassDef) -> list[str]:
+    names = []
+    for b in cls.bases:
+        target = b.value if isinstance(b, ast.Subscript) else b
+        if isinstance(target, ast.Name):
+            names.append(target.id)
+        elif isinstance(target, ast.Attribute):
+            names.append(target.attr)
+    return names
+
+
+def _self_assigned(cls: ast.ClassDef) -> set[str]:
+    """Attributes the class's own methods assign on ``self``."""
+    out = set()
+    for node in ast.walk(cls):
+        targets: list[ast.expr] = []
+        if isinstance(node, ast.Assign):
+            targets = list(node.targets)
+        elif isinstance(node, ast.AnnAssign | ast.AugAssign):
+            targets = [node.target]
+        for t in targets:
+            for sub in ast.walk(t):
+                if isinstance(sub, ast.Attribute) and isinstance(sub.value, ast.Name) and sub.value.id == "self":
+                    out.add(sub.attr)
+    return out
+
+
+def mixins_declaring_host_attributes(root: Path, packages: Iterable[str]) -> list[str]:
+    """Classes that declare attributes (``x: T`` without a value) they never set themselves and
+    that a class deriving from them sets: a mixin redeclaring its host's attributes. Protocols,
+    dataclasses, typed dicts and named tuples declare fields on purpose and are not counted."""
+    classes: dict[str, tuple[str, ast.ClassDef]] = {}
+    for module, tree in _trees(root, packages):
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ClassDef):
+                classes.setdefault(node.name, (module, node))
+    out = []
+    for name, (module, cls) in sorted(classes.items()):
+        if _NOT_MIXINS & set(_base_names(cls)) or any(
+            "dataclass" in ast.unparse(d) for d in cls.decorator_list
+        ):
+            continue
+        declared = {s.target.id for s in cls.body
+                    if isinstance(s, ast.AnnAssign) and s.value is None and isinstance(s.target, ast.Name)
+                    and not ast.unparse(s.annotation).startswith("ClassVar")}
+        declared -= _self_assigned(cls)
+        if not declared:
+            continue
+        for sub_module, sub in classes.values():
+            if name in _base_names(sub):
+                host = sorted(declared & _self_assigned(sub))
+                if host:
+                    out.append(f"{module}.{name} declares {', '.join(host)} that {sub_module}.{sub.name} sets")
+    return out
+
+
+def wing_graph(graph: dict[str, list[Edge]], root: str = "fsw.core") -> dict[str, list[Edge]]:
+    """The import graph of ``root``'s sub-packages (wings): an edge where a module of one wing
+    imports a module of another (modules directly in ``root`` are wings of their own)."""
+    def wing(module: str) -> str:
+        rest = module[len(root) + 1:].split(".")
+        return f"{root}.{rest[0]}"
+
+    wings: dict[str, list[Edge]] = {}
+    for module, edges in graph.items():
+        if not _in(module, root) or module == root:
+            continue
+        w = wing(module)
+        out = wings.setdefault(w, [])
+        for e in edges:
+            other = wing(e.target) if _in(e.target, root) and e.target != root else w
+            if other != w and all(x.target != other for x in out):
+                out.append(Edge(w, other, e.line))
+    return wings
+
+
 @pytest.mark.parametrize("package", PACKAGES)
-def test_no_module_over_400_lines(package: str) -> None:
-    sizes = {m: len(p.read_text(encoding="utf-8").splitlines()) for m, p in module_files(ROOT, [package]).items()}
-    over = sorted(((n, m) for m, n in sizes.items() if n > MAX_MODULE_LINES), reverse=True)
-    assert not over, f"modules in {package}/ over {MAX_MODULE_LINES} lines:\n" + "\n".join(
-        f"  {m}: {n}" for n, m in over
-    )
+def test_no_folder_of_more_than_15_modules(package: str) -> None:
+    offenders = folder_offenders(ROOT, [package], FOLDER_ALLOWANCE)
+    assert not offenders, "folders to split into packages:\n" + "\n".join(f"  {o}" for o in offenders)
+
+
+def test_the_folder_allowances_are_still_needed() -> None:
+    """An allowance is removed once its folder is split."""
+    sizes = folders(ROOT, PACKAGES)
+    stale = {d: n for d, n in FOLDER_ALLOWANCE.items() if sizes.get(d, 0) <= MAX_FOLDER_MODULES}
+    assert not stale, f"remove from FOLDER_ALLOWANCE (now within the limit): {stale}"
+
+
+def test_no_methods_bolted_on_from_module_level() -> None:
+    offenders = bolted_functions(ROOT, PACKAGES)
+    assert not offenders, "module-level functions with a self parameter:\n" + "\n".join(f"  {o}" for o in offenders)
+
+
+def test_no_type_checking_stubs() -> None:
+    offenders = type_checking_stubs(ROOT, PACKAGES)
+    assert not offenders, "TYPE_CHECKING blocks with declarations:\n" + "\n".join(f"  {o}" for o in offenders)
+
+
+# Mixins still waiting to become composed objects (in files under other work: the MAVLink uplink).
+KNOWN_MIXINS = ("fsw.tasks.mavlink_dispatch.UplinkDispatch",)
+
+
+def test_no_mixin_redeclares_its_hosts_attributes() -> None:
+    found = mixins_declaring_host_attributes(ROOT, PACKAGES)
+    assert all(any(o.startswith(k + " ") for o in found) for k in KNOWN_MIXINS), "remove from KNOWN_MIXINS"
+    offenders = [o for o in found if not o.startswith(tuple(k + " " for k in KNOWN_MIXINS))]
+    assert not offenders, "mixins (compose an object with a typed interface instead):\n" + "\n".join(
+        f"  {o}" for o in offenders)
+
+
+def test_the_core_wings_form_a_dag(graph: dict[str, list[Edge]]) -> None:
+    wings = wing_graph(graph)
+    assert len(wings) >= 8, sorted(wings)  # stereo, map, registration, localization, edge, planning, codec, motion
+    components = strongly_connected(wings)
+    assert not components, "the core's wings import each other in a circle:\n" + describe_cycles(wings, components)
 
 
 # The walker itself, on a small package written for the test.
@@ -308,3 +487,65 @@ def test_walker_reports_a_cycle_with_its_path(tmp_path: Path) -> None:
     assert components == [["pkg.a", "pkg.b", "pkg.c"]]
     text = describe_cycles(graph, components)
     assert "pkg.a -> pkg.b (line 1)  =>  pkg.b -> pkg.c (line 2)  =>  pkg.c -> pkg.a (line 1)" in text
+
+
+def test_the_shape_rules_find_what_they_forbid(tmp_path: Path) -> None:
+    """Each rule on a small package that breaks it once (and a Protocol and a dataclass it must not flag)."""
+    _write(
+        tmp_path,
+        {
+            "pkg/__init__.py": "",
+            "pkg/bolt.py": "from typing import Any\ndef save(self: Any) -> None: ...\ndef ok(x: int) -> int: ...\n",
+            "pkg/stubs.py": (
+                "from typing import TYPE_CHECKING\n"
+                "if TYPE_CHECKING:\n    from pkg.bolt import ok\n"  # an import: allowed
+                "class A:\n"
+                "    if TYPE_CHECKING:\n        def _goto(self) -> None: ...\n"
+            ),
+            "pkg/mix.py": (
+                "from dataclasses import dataclass\nfrom typing import Protocol\n"
+                "class Mixin:\n    step: int\n    def bump(self) -> None:\n        print(self.step)\n"
+                "class Host(Mixin):\n    def __init__(self) -> None:\n        self.step = 0\n"
+                "class Iface(Protocol):\n    step: int\n"
+                "class Impl(Iface):\n    def __init__(self) -> None:\n        self.step = 1\n"
+                "@dataclass\nclass Rec:\n    step: int\n"
+                "class Sub(Rec):\n    def __init__(self) -> None:\n        self.step = 2\n"
+            ),
+            "pkg/core/__init__.py": "",
+            "pkg/core/a/__init__.py": "",
+            "pkg/core/a/x.py": "from pkg.core.b import y\n",
+            "pkg/core/b/__init__.py": "",
+            "pkg/core/b/y.py": "import pkg.core.a.x\n",
+            **{f"pkg/many/m{i}.py": "" for i in range(MAX_FOLDER_MODULES + 1)},
+        },
+    )
+    assert bolted_functions(tmp_path, ["pkg"]) == ["pkg.bolt.save (line 2)"]
+    assert type_checking_stubs(tmp_path, ["pkg"]) == ["pkg.stubs line 6: FunctionDef under TYPE_CHECKING"]
+    assert mixins_declaring_host_attributes(tmp_path, ["pkg"]) == ["pkg.mix.Mixin declares step that pkg.mix.Host sets"]
+    wings = wing_graph(import_graph(tmp_path, ["pkg"]), "pkg.core")
+    assert strongly_connected(wings) == [["pkg.core.a", "pkg.core.b"]]
+    assert folder_offenders(tmp_path, ["pkg"], {}) == [f"pkg/many: {MAX_FOLDER_MODULES + 1} modules (limit 15)"]
+    assert folder_offenders(tmp_path, ["pkg"], {"pkg/many": 16}) == []
+
+
+def test_explicit_any_is_refused_in_fsw_but_where_still_spelled_out() -> None:
+    """mypy refuses an explicit ``Any`` (also implied, as in a bare ``np.ndarray``) in all of fsw/;
+    the flight tasks, the executive and the settings are never excepted."""
+    import tomllib
+
+    mypy = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["tool"]["mypy"]
+    on = [o for o in mypy["overrides"] if o.get("disallow_any_explicit") is True]
+    assert any("fsw.*" in o["module"] for o in on)
+    excepted = [m for o in mypy["overrides"] if o.get("disallow_any_explicit") is False for m in o["module"]]
+    assert not any(m.startswith(("fsw.tasks", "fsw.executive", "fsw.settings", "fsw.app")) for m in excepted)
+
+
+def test_the_settings_rule_refuses_an_arrow_up_to_the_tasks() -> None:
+    """The settings layer once imported ``fsw.tasks.sections`` while the tasks import the
+    settings; the rule names that arrow (and lets the settings use the layers below)."""
+    rule = next(r for r in LAYER_RULES if "fsw.settings" in r.importers)
+    assert rule.violates(Edge("fsw.settings", "fsw.tasks.sections", 35))
+    assert rule.violates(Edge("fsw.sections", "fsw.executive.topology", 1))
+    assert not rule.violates(Edge("fsw.settings", "fsw.sections", 1))
+    assert not rule.violates(Edge("fsw.settings", "fsw.drivers.calibration_file", 1))
+    assert not rule.violates(Edge("fsw.tasks.base", "fsw.settings", 1))

@@ -29,7 +29,7 @@ carries its own protection, which the receiving application checks:
   passes with probability about max_delta/16 x 2^-w. The Gray code makes neighbouring epochs
   differ in one checksum bit, so a 1-3 bit error that moves the counter across an epoch
   boundary is still caught for a window of ``max_delta <= 4`` (counted exhaustively:
-  ``hil_sim.frame_fuzz.epoch_boundary_escapes``).
+  ``hil_sim.lab.frame_fuzz.epoch_boundary_escapes``).
 
 The layout (where ``Counter`` and ``Checksum`` sit, which bits are reserved) is read from the
 DBC message through cantools, so the DBC stays the single source of truth and a new frame

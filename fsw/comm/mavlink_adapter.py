@@ -38,6 +38,7 @@ from fsw.comm.mavlink_downlink import (
 from fsw.comm.mavlink_image import ImageSender
 from fsw.comm.mavlink_signing import SignatureVerifier, Verdict
 from fsw.comm.mavlink_uplink import CommandIn, Uplink, UplinkBatch
+from fsw.core.geometry import wrap_angle
 from fsw.framework.telemetry import Event, Severity
 
 _UINT16_MAX = 65535
@@ -253,7 +254,7 @@ class MavlinkAdapter:
                 vel = ((a[0] - b[0]) / dt, (a[1] - b[1]) / dt, (a[2] - b[2]) / dt)
             if v.rpy is not None and prev.rpy is not None:
                 a, b = v.rpy, prev.rpy
-                rates = (tm.wrap_pi(a[0] - b[0]) / dt, tm.wrap_pi(a[1] - b[1]) / dt, tm.wrap_pi(a[2] - b[2]) / dt)
+                rates = (wrap_angle(a[0] - b[0]) / dt, wrap_angle(a[1] - b[1]) / dt, wrap_angle(a[2] - b[2]) / dt)
         out: list[mavlink.MAVLink_message] = []
         if v.position is not None:
             out.append(tm.local_position_ned(ms, v.position, vel))

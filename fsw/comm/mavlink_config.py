@@ -85,9 +85,10 @@ class MavlinkConfig:
             "angles in rad, or deg when the channel's units say so")
     mast_channels: tuple[str, ...] = param(("mast_drv.pan_deg", "mast_drv.tilt_deg"),
                                            doc="mast pan (CCW +) and tilt (up +) channels")
-    map_preview_topic: str = param("map.preview",
-                                   doc="bus topic with 2-D map previews (float elevation, NaN "
-                                       "unknown, or uint8 image) sent by image transfer")
+    map_preview_topic: str = param("map.updated",
+                                   doc="bus topic with map previews sent by image transfer: the "
+                                       "perception task's map updates, or 2-D arrays (float "
+                                       "elevation, NaN unknown, or uint8 image)")
     plan_topic: str = param("mission.plan", doc="bus topic of the mission's plan (planned stations and "
                                                 "geofence, fsw.comm.mavlink_mission.GroundPlan) served by "
                                                 "the MISSION/FENCE protocol")

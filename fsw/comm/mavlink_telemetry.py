@@ -21,6 +21,7 @@ from collections.abc import Iterable
 from typing import Any
 
 from fsw.comm.mavlink_dialect import mavlink
+from fsw.core.geometry import wrap_angle
 from fsw.framework.telemetry import Severity
 
 #: custom_mode = index in this table (docs/ground.md, "Modes"); 255 = a state not listed here.
@@ -154,9 +155,6 @@ def euler_to_quaternion(roll: float, pitch: float, yaw: float) -> list[float]:
             cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy]
 
 
-def wrap_pi(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
-
 
 def local_position_ned(time_boot_ms: int, xyz: tuple[float, float, float],
                        vel: tuple[float, float, float]) -> mavlink.MAVLink_local_position_ned_message:
@@ -169,12 +167,12 @@ def attitude(time_boot_ms: int, rpy: tuple[float, float, float],
              rates: tuple[float, float, float]) -> mavlink.MAVLink_attitude_message:
     """Body FLU in the z-up world -> FRD in NED: roll kept, pitch and yaw negated."""
     (r, p, y), (rr, pr, yr) = rpy, rates
-    return mavlink.MAVLink_attitude_message(time_boot_ms, r, -p, wrap_pi(-y), rr, -pr, -yr)
+    return mavlink.MAVLink_attitude_message(time_boot_ms, r, -p, wrap_angle(-y), rr, -pr, -yr)
 
 
 def mast_attitude(time_boot_ms: int, pan_rad: float, tilt_rad: float) -> mavlink.MAVLink_message:
     """The mast head as a gimbal relative to the rover (yaw = -pan in FRD, pitch = tilt up)."""
-    q = euler_to_quaternion(0.0, tilt_rad, wrap_pi(-pan_rad))
+    q = euler_to_quaternion(0.0, tilt_rad, wrap_angle(-pan_rad))
     nan = float("nan")
     return mavlink.MAVLink_gimbal_device_attitude_status_message(
         0, 0, time_boot_ms, mavlink.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME, q, nan, nan, nan, 0,

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import overload
 
 import numpy as np
 from numpy.typing import NDArray
@@ -30,6 +31,19 @@ from numpy.typing import NDArray
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
+
+
+@overload
+def wrap_angle(a: float) -> float: ...
+@overload
+def wrap_angle(a: F64) -> F64: ...
+def wrap_angle(a: float | F64) -> float | F64:
+    """An angle (rad; or an array of them) folded into [-pi, pi]: ``atan2(sin a, cos a)``,
+    within an ulp of an angle already in range (``(a + pi) % 2pi - pi`` is not: ``a + pi``
+    rounds a small angle to the ulp of pi). Plain floats stay on ``math`` (~20x faster)."""
+    if isinstance(a, np.ndarray):
+        return np.arctan2(np.sin(a), np.cos(a))
+    return math.atan2(math.sin(a), math.cos(a))
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,6 @@ import tempfile
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from fsw.core.map.checkpoint import CheckpointConfig, CheckpointError, CheckpointMeta, decode, encode
 from fsw.core.map.elevation_map import ElevationMap, FusionConfig
@@ -53,7 +52,7 @@ class LoadResult:
     errors: list[str] = field(default_factory=list)  # task sections that could not be restored
 
     @property
-    def state(self) -> dict[str, Any] | None:
+    def state(self) -> dict[str, object] | None:
         """The mission state saved with the map (None: none, or a map-only checkpoint)."""
         return None if self.meta is None else self.meta.state
 
@@ -88,7 +87,7 @@ class MapStore:
         found = [(int(m.group(1)), p) for p in self.dir.iterdir() if (m := _NAME.match(p.name))]
         return [p for _, p in sorted(found)]
 
-    def save(self, emap: ElevationMap, seq: int, time_s: float, state: dict[str, Any] | None = None) -> Path:
+    def save(self, emap: ElevationMap, seq: int, time_s: float, state: dict[str, object] | None = None) -> Path:
         """Write one checkpoint atomically; raises ``OSError`` if the device fails."""
         if not 0 <= seq < 10**10:
             raise ValueError(f"sequence number {seq} out of range")
@@ -147,7 +146,7 @@ class MapStore:
             self._thread.join(timeout=10.0)
             self._queue = None
 
-    def save_next(self, emap: ElevationMap, time_s: float, state: dict[str, Any] | None = None) -> Path:
+    def save_next(self, emap: ElevationMap, time_s: float, state: dict[str, object] | None = None) -> Path:
         """``save`` under the next sequence number (after every one saved or on the device)."""
         found = self.paths()
         last = int(_NAME.match(found[-1].name).group(1)) if found else 0  # type: ignore[union-attr]

@@ -12,9 +12,10 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, BinaryIO
+from typing import TYPE_CHECKING, BinaryIO
 
 import numpy as np
+from numpy.typing import NDArray
 
 from fsw.framework.watchdog import Watchdog
 
@@ -34,8 +35,8 @@ class OracleTruth:
     """The true terrain on the map grid, for the oracle planner (docs/algorithm.md §7): only a
     bench has it."""
 
-    z_m: np.ndarray
-    textured: np.ndarray
+    z_m: NDArray[np.float64]
+    textured: NDArray[np.bool_]
 
 
 @dataclass
@@ -64,4 +65,4 @@ class Resources:
     oracle_truth: OracleTruth | None = None
     # Extra sections a mission checkpoint carries (``fsw.tasks.mission_state``): a bench puts its
     # world truth and random generators here so a lockstep resume continues the same run.
-    checkpoint_hooks: dict[str, Callable[[], dict[str, Any]]] = field(default_factory=dict)
+    checkpoint_hooks: dict[str, Callable[[], dict[str, object]]] = field(default_factory=dict)

@@ -3,9 +3,10 @@
 One function, :func:`components`, resolves the schedule in the config into component
 classes; the executive registers from it and ``safer-fsw dictionary`` prints from it, so
 names and ids are never kept in a second table. Ids are assigned in declaration order:
-component ``i`` gets command opcodes ``(i + 1) * 0x100 + j``.
+component ``i`` gets command opcodes ``(i + 1) * 0x100 + j``. The task kinds are those of the
+configuration's agent (``[agent] kind``, :func:`agent_topology`; ``fsw.framework.agent``).
 
-The schedule is checked first (:func:`fsw.executive.schedule_check.check`, which the settings
+The schedule is checked first (:func:`fsw.schedule_check.check`, which the settings
 loader runs on every file).
 """
 
@@ -14,11 +15,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from fsw.executive.components import ExecutiveComponent, RateGroupComponent
-from fsw.executive.schedule_check import FLIGHT_KINDS, check, task_class
+from fsw.framework.agent import AgentTopology
 from fsw.framework.task import Task
+from fsw.registry import AGENTS
+from fsw.schedule_check import FLIGHT_KINDS, check, task_class
 from fsw.settings import FswConfig
 
-__all__ = ["FLIGHT_KINDS", "Component", "check", "components", "dictionary", "task_class"]
+__all__ = ["FLIGHT_KINDS", "Component", "agent_topology", "check", "components", "dictionary", "task_class"]
+
 
 @dataclass(frozen=True)
 class Component:
@@ -27,13 +31,22 @@ class Component:
     opcode_base: int
 
 
+def agent_topology(cfg: FswConfig) -> AgentTopology:
+    """The topology of the configuration's agent (``[agent] kind``)."""
+    kind = cfg.agent.kind
+    if kind not in AGENTS:
+        raise KeyError(f"unknown agent kind {kind!r} (known: {', '.join(sorted(AGENTS))})")
+    return AGENTS[kind]
+
+
 def components(cfg: FswConfig) -> list[Component]:
     """The executive, each rate group, then each configured task, in that order."""
+    kinds = agent_topology(cfg).task_kinds
     out = [Component("exec", ExecutiveComponent, 0x100)]
     for g in cfg.executive.groups:
         out.append(Component(f"rg_{g.name}", RateGroupComponent, (len(out) + 1) * 0x100))
     for t in cfg.executive.tasks:
-        out.append(Component(t.name, task_class(t.kind), (len(out) + 1) * 0x100))
+        out.append(Component(t.name, task_class(t.kind, kinds=kinds), (len(out) + 1) * 0x100))
     return out
 
 

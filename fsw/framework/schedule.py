@@ -43,7 +43,7 @@ class TaskConfig:
     """One task instance of the schedule."""
 
     name: str = param(doc="instance name; prefixes its channels, events and commands")
-    kind: str = param(doc="task kind from fsw.tasks.registry")
+    kind: str = param(doc="task kind from fsw.registry")
     group: str = param(doc="rate group the task runs in")
     budget_ms: float = param(lo=0.001, hi=100000.0, units="ms", doc="execution-time budget per activation")
     enabled: bool = param(True, doc="a disabled task is built but never activated")

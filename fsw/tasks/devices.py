@@ -19,7 +19,8 @@ from fsw.drivers.imu_can import ImuDriver
 from fsw.drivers.mast_serial import MastSerialDriver
 from fsw.framework.telemetry import Channel
 from fsw.tasks.base import FlightTask
-from fsw.tasks.mission_state import JsonDict, restore_into
+from fsw.tasks.mission_state import restore_into
+from fsw.tasks.state_json import JsonObject, floats, get_list, get_opt_float, get_opt_int
 
 
 class PolledDriver(Protocol):
@@ -103,7 +104,7 @@ class ImuDevice(DeviceTask[ImuDriver]):
         super().setup()
         restore_into(self)  # a resumed mission continues the attitude average (fsw.tasks.mission_state)
 
-    def checkpoint_state(self) -> JsonDict:
+    def checkpoint_state(self) -> JsonObject:
         """The driver's averaging window and alive-counter state, so a resumed mission's attitude
         is the one the uninterrupted run would have had."""
         d = self.driver
@@ -112,14 +113,15 @@ class ImuDevice(DeviceTask[ImuDriver]):
         return {"samples": [list(s) for s in d.samples], "counter": d.counter, "t_valid": d.t_valid,
                 "t_start": d.t_start}
 
-    def restore_state(self, st: JsonDict) -> None:
+    def restore_state(self, st: JsonObject) -> None:
         d = self.driver
         if d is None or not st:
             return
-        d.samples.extend((float(t), float(r), float(p)) for t, r, p in st["samples"])
-        d.counter = None if st["counter"] is None else int(st["counter"])
-        d.t_valid = None if st["t_valid"] is None else float(st["t_valid"])
-        d.t_start = None if st["t_start"] is None else float(st["t_start"])
+        samples = [floats(s, "samples[]", 3) for s in get_list(st, "samples")]
+        counter = get_opt_int(st, "counter")
+        t_valid, t_start = get_opt_float(st, "t_valid"), get_opt_float(st, "t_start")
+        d.samples.extend((t, r, p) for t, r, p in samples)
+        d.counter, d.t_valid, d.t_start = counter, t_valid, t_start
 
     def telemetry(self, d: ImuDriver) -> None:
         rec: dict[str, float | int] = {"faults": d.faults, "frames": d.rx_frames, "bad": d.rx_bad,

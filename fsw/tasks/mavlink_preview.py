@@ -1,9 +1,10 @@
 """Map previews for the ground: a 2-D map array -> a small JPEG for MAVLink image transfer.
 
-Topic contract (``[mavlink] map_preview_topic``, default ``map.preview``): a 2-D numpy array
-in map orientation (index ``[iy, ix]``, row 0 = lowest y; fsw/core/geometry.py), either
-float elevation in metres with NaN where unknown, or a uint8 image; or an object with such
-an array as ``z`` (an ``ElevationMap``). The preview is flipped
+Topic contract (``[mavlink] map_preview_topic``, default ``map.updated``, the perception
+task's map updates): a 2-D numpy array in map orientation (index ``[iy, ix]``, row 0 = lowest
+y; fsw/core/geometry.py), either float elevation in metres with NaN where unknown, or a uint8
+image; or an object with such an array as ``z`` (an ``ElevationMap``); or an object with an
+``ElevationMap`` as ``snapshot`` (a ``MapUpdate``). The preview is flipped
 so that +y (the world's "north") is up, scaled so its longest side is at most ``max_px``,
 elevations stretched to 16..255 over the known cells (0 = unknown; the ground reads < 8 as
 unknown, so JPEG noise does not turn low ground into holes), and JPEG encoded.
@@ -26,6 +27,9 @@ class PreviewError(ValueError):
 
 def encode_preview(obj: object, max_px: int, quality: int) -> tuple[bytes, int, int]:
     """``(jpeg_bytes, width, height)``; raises :class:`PreviewError` with the reason."""
+    snapshot = getattr(obj, "snapshot", None)
+    if isinstance(snapshot, ElevationMap):
+        obj = snapshot
     if isinstance(obj, ElevationMap):
         obj = obj.z
     arr = np.asarray(obj)

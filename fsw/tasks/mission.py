@@ -41,11 +41,14 @@ from typing import ClassVar
 
 from fsw.comm.mavlink_plan import ground_plan
 from fsw.core.edge.edge import EdgeModel
-from fsw.core.edge.geofence import Geofence
 from fsw.core.planning.nbv import end_reason
 from fsw.core.planning.view_candidates import CandidateView
 from fsw.framework.commands import CommandDef, CommandError
+from fsw.framework.storage import describe
 from fsw.framework.telemetry import Channel, EventDef, Severity
+from fsw.sections import MissionConfig
+from fsw.tasks import mission_checkpoint
+from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import (
     CAMERA_REQUEST,
     MAP_UPDATED,
@@ -62,19 +65,16 @@ from fsw.tasks.messages import (
     MotionStatus,
     MoveOutcome,
     NavPose,
-    RadioStatus,
 )
-from fsw.tasks.mission_checkpoint import resume_mission, save
-from fsw.tasks.mission_ground import MIN_MOVE_M, MIN_TURN_RAD, FenceJob, GroundAwareMission
-from fsw.tasks.mission_safe import SafeRecovery
-from fsw.tasks.mission_state import STATES, MissionPhase, StepRecord
+from fsw.tasks.mission_ground import MIN_MOVE_M, MIN_TURN_RAD, MissionGround, Pose3
+from fsw.tasks.mission_safe import SafeMode
+from fsw.tasks.mission_state import STATES, LatestSection, MissionPhase, MissionSection, StateError, StepRecord
 from fsw.tasks.mission_transmit import MapDelivery
-from fsw.tasks.sections import MissionConfig
 
 FIX_WAIT_S = 1.0  # longest wait for nav.pose to show a map update's navigation fix
 
 
-class MissionTask(GroundAwareMission, SafeRecovery, MapDelivery):
+class MissionTask(FlightTask):
     KIND: ClassVar[str] = "mission"
     RATE_HZ: ClassVar[tuple[float, float]] = (5.0, 50.0)  # its timeouts and moves assume ~10 Hz
     REQUIRES: ClassVar[tuple[str, ...]] = ("motion", "camera", "perception", "nbv", "health")
@@ -119,16 +119,13 @@ class MissionTask(GroundAwareMission, SafeRecovery, MapDelivery):
     def setup(self) -> None:
         cfg = self.ctx.cfg
         self.mcfg: MissionConfig = cfg.mission
-        self.geofence = Geofence(cfg.geofence, cfg.rover)
         self.nav_box = self.subscribe(NAV_POSE, depth=1)
         self.status_box = self.subscribe(MOTION_STATUS, depth=8)
         self.map_box = self.subscribe(MAP_UPDATED, depth=4)
         self.maps: deque[tuple[float, MapUpdate]] = deque()  # (arrival, update) held for their nav fix
-        self.fence_job: FenceJob | None = None  # geofence work of a move, as a slack job
         self.nbv_box = self.subscribe(NBV_RESULT, depth=2)
         self.radio_box = self.subscribe(RADIO_STATUS, depth=4)
         self.failed_box = self.subscribe(VIEW_FAILED, depth=4)  # a view that will not reach the map
-        self.radio: RadioStatus | None = None
         self.nav: NavPose | None = None
         self.state = MissionPhase.IDLE
         self.records: list[StepRecord] = []
@@ -142,32 +139,28 @@ class MissionTask(GroundAwareMission, SafeRecovery, MapDelivery):
         self.waiting_for: int | None = None
         self.deadline = math.inf
         self.retries = 0
-        self.edge_violations = 0
-        self.safe_entries = 0
-        self.looks = 0  # views of unknown ground before a move
-        self.stays: list[str] = []  # why a step's view was taken without its move
-        self._looked: tuple[float, float, float] | None = None
-        self._look_n = 0  # looks taken for the station _looked
-        self._look_left = 0  # its unknown swept cells at the last of them
-        self._looked_from: tuple[float, float, float] | None = None
         self.end: str | None = None
-        self.safe_reason: str | None = None
         self.t_wall0 = time.perf_counter()
-        self._safe_since = 0.0
+        self.ground = MissionGround(cfg, self)  # geofence, looks, stays (fsw.tasks.mission_ground)
+        self.safe = SafeMode(self.mcfg, self)  # SAFE and its recovery (fsw.tasks.mission_safe)
+        self.delivery = MapDelivery(self.mcfg, self)  # TRANSMIT (fsw.tasks.mission_transmit)
         self._auto_start = self.mcfg.auto_start
         self._republish: MapUpdate | None = None
-        resume_mission(self)
+        self._resume()
 
-    # -- plumbing ---------------------------------------------------------------------------
-    def _goto(self, new: MissionPhase) -> None:
-        self._cancel_fence_job()  # geofence work ends with the phase it began in
+    # -- plumbing (also what SAFE and the ground-awareness use: SafeHost, GroundHost) ------------
+    def now(self) -> float:
+        return self.ctx.clock.now()
+
+    def goto(self, new: MissionPhase) -> None:
+        self.ground.cancel_job()  # geofence work ends with the phase it began in
         if new != self.state:
             self.event("STATE", old=str(self.state), new=str(new))
             self.state = new
         self.tlm("state", str(new))
         self.tlm("state_code", STATES.index(new))
 
-    def _request(
+    def request(
         self,
         kind: str,
         target: tuple[float, float, float] | None = None,
@@ -178,7 +171,7 @@ class MissionTask(GroundAwareMission, SafeRecovery, MapDelivery):
         self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
         self.publish(MOTION_REQUEST, MotionRequest(self.request_id, kind, target=target, joints=joints))
 
-    def _motion_outcome(self) -> MotionStatus | None:
+    def motion_outcome(self) -> MotionStatus | None:
         for st in self.status_box.drain():
             if st.request_id == self.waiting_for:
                 self.waiting_for = None
@@ -190,29 +183,117 @@ class MissionTask(GroundAwareMission, SafeRecovery, MapDelivery):
         return (fix is None or (self.nav is not None and self.nav.fix_seen >= fix.fix_id)
                 or now - arrived >= FIX_WAIT_S)
 
-    def _timed_out(self) -> bool:
+    def timed_out(self) -> bool:
         return self.ctx.clock.now() > self.deadline
+
+    def forget_request(self) -> None:
+        self.waiting_for = None
+
+    def set_deadline(self, t: float) -> None:
+        self.deadline = t
+
+    # -- checkpoints (fsw.tasks.mission_checkpoint) -----------------------------------------------
+    def checkpoint(self, phase: MissionPhase) -> None:
+        """Checkpoint the map of the last merged step with the mission state (events either way)."""
+        store = self.ctx.res.map_store
+        if store is None or self.latest is None:
+            return
+        try:
+            state = mission_checkpoint.full_state(self.ctx, self.name, self.section(phase))
+            store.save_next(self.latest.snapshot, self.ctx.clock.now(), state)
+        except OSError as exc:  # a full or failing device: the newest good checkpoint stays, the mission goes on
+            self.event("CHECKPOINT_FAILED", error=describe(exc))
+            return
+        except (ValueError, TypeError) as exc:
+            self.event("CHECKPOINT_FAILED", error=f"{type(exc).__name__}: {exc}")
+            return
+        self.event("CHECKPOINT_SAVED", step=self.step, seq=store.seq, kib=store.last_size / 1024)
+
+    def section(self, phase: MissionPhase) -> MissionSection:
+        """The mission's checkpoint section in ``phase``."""
+        g = self.ground
+        return MissionSection(
+            phase=phase, step=self.step, records=list(self.records), request_id=self.request_id,
+            edge_violations=g.edge_violations, safe_entries=self.safe.entries, end=self.end,
+            safe_reason=self.safe.reason, edge=self.edge, nav=self.nav,
+            latest=None if self.latest is None else LatestSection.of(self.latest),
+            looks=g.looks, stays=list(g.stays), looked=g.looked, looked_from=g.looked_from,
+            look_n=g.look_n, look_left=g.look_left, stood_on=g.stood_on_wkb(),
+        )
+
+    def _resume(self) -> None:
+        """Continue the mission of the start-up checkpoint, if there is one: the phase entered, or
+        an event saying why it was not used (the mission then waits for START)."""
+        try:
+            loaded = mission_checkpoint.load(self.ctx)
+        except StateError as exc:
+            self._auto_start = False
+            self.event("RESUME_REFUSED", reason=str(exc))
+            return
+        if loaded is None:
+            return
+        s, g = loaded.section, self.ground
+        self.step, self.request_id, self.records, self.edge, self.nav = s.step, s.request_id, s.records, s.edge, s.nav
+        self.latest, self.end = loaded.latest, s.end
+        g.edge_violations, self.safe.entries, self.safe.reason = s.edge_violations, s.safe_entries, s.safe_reason
+        g.looks, g.stays = s.looks, list(s.stays)
+        g.looked, g.looked_from, g.look_n, g.look_left = s.looked, s.looked_from, s.look_n, s.look_left
+        g.set_stood_on(loaded.stood_on)
+        self.event("RESUMED", step=self.step, seq=loaded.seq, phase=str(s.phase))
+        self._auto_start = False
+        self._republish = self.latest
+        self.goto(s.phase)
+        if s.phase is MissionPhase.SELECT:
+            self.next_view()  # the next-view request goes out in the frame it did before the stop
+        elif s.phase is MissionPhase.SAFE:
+            self.safe.since = self.ctx.clock.now()
+
+    def enter_safe(self, reason: str) -> None:
+        self.safe.enter(reason)
+
+    def continue_mission(self) -> None:
+        """Leave SAFE where the mission stood (or from the panorama if nothing is mapped)."""
+        self.pending.clear()
+        if self.latest is None:  # nothing mapped yet: start again with the panorama
+            self.goto(MissionPhase.INIT)
+            return
+        self.goto(MissionPhase.SELECT)
+        self.next_view()
+
+    def drive(self, target: Pose3, view: CandidateView) -> None:
+        self.view = view
+        self.goto(MissionPhase.MOVE)
+        self.request(kind="goto", target=target)
+
+    def point(self, view: CandidateView) -> None:
+        self.view = view
+        self._start_point()
+
+    def look_first(self, look: CandidateView) -> None:
+        assert self.view is not None
+        self.pending.insert(0, self.view)
+        self.point(look)
 
     # -- the cycle ------------------------------------------------------------------------------
     def run(self, frame: int) -> None:
         if self._auto_start:
             self._auto_start = False
-            self._goto(MissionPhase.INIT)
+            self.goto(MissionPhase.INIT)
         if self._republish is not None:  # a resumed mission's map, for the radio task
             self.publish(MAP_UPDATED, self._republish)
             self._republish = None
         self.nav = self.nav_box.latest() or self.nav
         now = self.ctx.clock.now()
         self.maps.extend((now, up) for up in self.map_box.drain())
-        if self._fence_job_pending():  # geofence work runs as a slack job (fsw.tasks.mission_ground)
+        if self.ground.job_pending():  # geofence work runs as a slack job (fsw.tasks.mission_ground)
             return
         while self.maps and self._nav_took_fix(*self.maps[0], now):
             self._on_map(self.maps.popleft()[1])
         handler = getattr(self, f"_state_{self.state.lower()}")
         handler()
         self.tlm("step", self.step)
-        self.tlm("edge_violations", self.edge_violations)
-        self.tlm("safe_entries", self.safe_entries)
+        self.tlm("edge_violations", self.ground.edge_violations)
+        self.tlm("safe_entries", self.safe.entries)
         if self.latest is not None:
             self.tlm("mapped_cells", self.latest.mapped_cells)
 
@@ -234,9 +315,12 @@ class MissionTask(GroundAwareMission, SafeRecovery, MapDelivery):
             for p, t in views
         ]
         self.step = 0
-        self._next_view()
+        self.next_view()
 
-    def _next_view(self) -> None:
+    def _state_safe(self) -> None:
+        self.safe.run()
+
+    def next_view(self) -> None:
         """Take the next pending view (panorama), or ask the planner for one."""
         if self.pending:
             self.view = self.pending.pop(0)
@@ -246,17 +330,18 @@ class MissionTask(GroundAwareMission, SafeRecovery, MapDelivery):
         if reason is not None:
             self._finish_mapping(reason)
             return
-        if self._look_around():  # the fitted edge hems the rover in: look at the ground first
-            self._start_point()
+        look = self.ground.look_around()
+        if look is not None:  # the fitted edge hems the rover in: look at the ground first
+            self.point(look)
             return
-        self._goto(MissionPhase.SELECT)
-        self.publish(NBV_REQUEST, self._planner_state())
+        self.goto(MissionPhase.SELECT)
+        self.publish(NBV_REQUEST, self.ground.planner_state())
         self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
 
     def _state_select(self) -> None:
         if len(self.nbv_box) == 0:
-            if self._timed_out():
-                self._enter_safe("next-view search timed out")
+            if self.timed_out():
+                self.enter_safe("next-view search timed out")
             return
         view: CandidateView | None = self.nbv_box.get()
         if view is None:
@@ -281,38 +366,38 @@ class MissionTask(GroundAwareMission, SafeRecovery, MapDelivery):
             return
         self._stations.append((float(there[0]), float(there[1]), float(there[2])))
         self.publish(self.ctx.cfg.mavlink.plan_topic, ground_plan(self._stations, self.edge, self.ctx.cfg.geofence))
-        self._in_slack(self._move_steps(here, there), lambda job: self._move_checked(here, there, job.result))
+        self.ground.start_move(here, there)
 
     def _state_move(self) -> None:
-        st = self._motion_outcome()
+        st = self.motion_outcome()
         if st is None:
-            if self._timed_out():
-                self._enter_safe("rover move timed out")
+            if self.timed_out():
+                self.enter_safe("rover move timed out")
             return
         if st.state != MoveOutcome.DONE:
-            self._enter_safe(f"rover move {st.state}: {st.reason}")
+            self.enter_safe(f"rover move {st.state}: {st.reason}")
             return
         self._start_point()
 
     def _start_point(self) -> None:
         assert self.view is not None
-        self._goto(MissionPhase.POINT)
-        self._request(kind="mast", joints=self.view.joints)
+        self.goto(MissionPhase.POINT)
+        self.request(kind="mast", joints=self.view.joints)
 
     def _state_point(self) -> None:
-        st = self._motion_outcome()
+        st = self.motion_outcome()
         if st is None:
-            if self._timed_out():
-                self._enter_safe("mast move timed out")
+            if self.timed_out():
+                self.enter_safe("mast move timed out")
             return
         if st.state != MoveOutcome.DONE:
-            self._enter_safe(f"mast move {st.state}: {st.reason}")
+            self.enter_safe(f"mast move {st.state}: {st.reason}")
             return
         self._capture()
 
     def _capture(self) -> None:
         assert self.view is not None
-        self._goto(MissionPhase.ACQUIRE)
+        self.goto(MissionPhase.ACQUIRE)
         self.deadline = self.ctx.clock.now() + self.mcfg.step_timeout_s
         self.failed_box.drain()  # failures of earlier attempts are answered by this one
         self.publish(CAMERA_REQUEST, CaptureRequest(self.step, self.view.expected_new_cells))
@@ -321,14 +406,14 @@ class MissionTask(GroundAwareMission, SafeRecovery, MapDelivery):
         """Wait for the view's map update (``_on_map``); retry a view that failed (camera,
         perception) at once, and one that never arrived after the step timeout."""
         failed = [f for f in self.failed_box.drain() if f.view_id == self.step]
-        if failed or self._timed_out():
+        if failed or self.timed_out():
             reason = failed[-1].reason if failed else "no merged pair"
             if self.retries < self.mcfg.capture_retries:
                 self.retries += 1
                 self.event("RETRY", what=f"view {self.step}", reason=reason, n=self.retries)
                 self._capture()
             else:
-                self._enter_safe(f"no stereo pair after retries ({reason})")
+                self.enter_safe(f"no stereo pair after retries ({reason})")
 
     def _on_map(self, up: MapUpdate) -> None:
         self.latest = up
@@ -363,8 +448,8 @@ class MissionTask(GroundAwareMission, SafeRecovery, MapDelivery):
                 "STEP", step=self.step, mapped=up.mapped_cells, new=rec.obtained_new_cells, exp=rec.expected_new_cells
             )
             self.step += 1
-            save(self, MissionPhase.SELECT)  # the step's map and state, one snapshot
-        self._next_view()
+            self.checkpoint(MissionPhase.SELECT)  # the step's map and state, one snapshot
+        self.next_view()
 
     def _end_reason(self) -> str | None:
         """§3.6: the step limit, or the region of interest mapped (estimated by perception)."""
@@ -378,17 +463,25 @@ class MissionTask(GroundAwareMission, SafeRecovery, MapDelivery):
         self.end = reason
         self.event("END", reason=reason)
         if self.mcfg.transmit and "radio" in self.ctx.runtime.tasks:
-            self._begin_transmit()  # fsw.tasks.mission_transmit
+            self.delivery.begin()  # fsw.tasks.mission_transmit
         else:
-            self._goto(MissionPhase.DONE)
-            save(self, MissionPhase.DONE)
+            self.goto(MissionPhase.DONE)
+            self.checkpoint(MissionPhase.DONE)
+
+    def _state_transmit(self) -> None:
+        self.delivery.run(self.radio_box.drain())
+
+    def cmd_RESUME(self) -> None:
+        if self.state != MissionPhase.SAFE:
+            raise CommandError("not in SAFE")
+        self.safe.operator_resume()
 
     def cmd_START(self) -> None:
         if self.state not in (MissionPhase.IDLE, MissionPhase.DONE):
             raise CommandError(f"mission already running ({self.state})")
-        self._goto(MissionPhase.INIT)
+        self.goto(MissionPhase.INIT)
 
     def cmd_ABORT(self) -> None:
         if self.state in (MissionPhase.IDLE, MissionPhase.DONE, MissionPhase.SAFE):
             raise CommandError(f"nothing to abort ({self.state})")
-        self._enter_safe("aborted by command")
+        self.enter_safe("aborted by command")

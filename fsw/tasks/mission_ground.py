@@ -1,5 +1,5 @@
 """The mission's moves over unfamiliar ground and its planning inputs (docs/algorithm.md §2, §3;
-issue 13 item 3): a mixin of :class:`fsw.tasks.mission.MissionTask`.
+issue 13 item 3): a part of :class:`fsw.tasks.mission.MissionTask`.
 
 - The geofence (``fsw.core.edge.geofence``) is set on the latest edge fit, the latest map (which
   ground is known) and the rover's own footprint (safe, known ground) before every check.
@@ -16,7 +16,7 @@ issue 13 item 3): a mixin of :class:`fsw.tasks.mission.MissionTask`.
   (``stays``).
 - The geofence work of a move (setting the fence, checking the move, the unknown ground it
   would sweep, the part-way search) runs as a slack job, one fence set-up or
-  one check a slice (``_in_slack``); the mission's activations wait for it and then go on
+  one check a slice (``MissionGround.in_slack``); the mission's activations wait for it and then go on
   with its result. Done in the foreground it took 10-50 ms an activation (up to 590 ms for a
   part-way search on lab seed 2), 0.3-1.5 s on a flight computer 30x slower (issue 15).
 """
@@ -26,21 +26,21 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Generator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 import shapely
 from numpy.typing import NDArray
+from shapely.geometry.base import BaseGeometry
 
 from fsw.core.edge.edge import EdgeModel, edge_path
 from fsw.core.edge.geofence import Geofence, Verdict, goto_legs
 from fsw.core.edge.look import look_joints
 from fsw.core.planning.planners import PlannerState
 from fsw.core.planning.view_candidates import CandidateView
-from fsw.framework.jobs import JobHandle
-from fsw.tasks.base import FlightTask
+from fsw.framework.jobs import Job, JobHandle
+from fsw.settings import FswConfig
 from fsw.tasks.messages import MapUpdate, NavPose
-from fsw.tasks.mission_state import MissionPhase
 
 Pose3 = tuple[float, float, float]
 MIN_MOVE_M = 0.1  # stations closer than this (and turned less than MIN_TURN_RAD) are "here"
@@ -57,46 +57,72 @@ class FenceJob:
     then: Callable[[JobHandle], None]  # called with the finished job
 
 
-class GroundAwareMission(FlightTask):
-    """Needs the MissionTask attributes: ctx, geofence, latest, edge, nav, view, pending,
-    step, looks, stays, _looked, _look_n, _look_left; and its event and _start_point methods."""
+class GroundHost(Protocol):
+    """What the ground-awareness needs of the mission sequencer: the step's inputs (read at the
+    moment of use) and the three ways a step goes on."""
 
-    geofence: Geofence
-    latest: MapUpdate | None
-    edge: EdgeModel | None
-    nav: NavPose | None
-    view: CandidateView | None
-    pending: list[CandidateView]
-    step: int
-    looks: int
-    edge_violations: int
-    stays: list[str]
-    _looked: Pose3 | None  # the station the last looks were for
-    _look_n: int  # looks taken for it
-    _look_left: int  # its unknown swept cells at the last look
-    _looked_from: Pose3 | None
-    fence_job: FenceJob | None
+    @property
+    def latest(self) -> MapUpdate | None: ...
 
-    if TYPE_CHECKING:  # provided by Task and MissionTask (stubs here would shadow them)
-        def _goto(self, new: MissionPhase) -> None: ...
+    @property
+    def edge(self) -> EdgeModel | None: ...
 
-        def _request(
-            self,
-            kind: str,
-            target: tuple[float, float, float] | None = None,
-            joints: tuple[float, float, float] | None = None,
-        ) -> None: ...
+    @property
+    def nav(self) -> NavPose | None: ...
 
-        def _start_point(self) -> None: ...
+    @property
+    def step(self) -> int: ...
 
-        def _enter_safe(self, reason: str) -> None: ...
+    @property
+    def view(self) -> CandidateView | None: ...
 
-    def _in_slack(self, work: Generator[None, None, object], then: Callable[[JobHandle], None]) -> None:
+    def event(self, name: str, **args: object) -> None: ...
+
+    def submit_job(self, gen: Job, name: str) -> JobHandle: ...
+
+    def enter_safe(self, reason: str) -> None: ...
+
+    def drive(self, target: Pose3, view: CandidateView) -> None:
+        """Drive to ``target``, then take ``view`` (its station is ``target``)."""
+
+    def point(self, view: CandidateView) -> None:
+        """Take ``view`` from where the rover stands (mast move, then the pair)."""
+
+    def look_first(self, look: CandidateView) -> None:
+        """Take ``look`` now, the step's view after it."""
+
+
+class MissionGround:
+    """The geofence of the mission, its slack job, the looks and the stays (module docstring).
+    It acts on the sequencer only through :class:`GroundHost`."""
+
+    def __init__(self, cfg: FswConfig, host: GroundHost) -> None:
+        self.cfg = cfg
+        self.host = host
+        self.geofence = Geofence(cfg.geofence, cfg.rover)
+        self.fence_job: FenceJob | None = None  # geofence work of a move, as a slack job
+        self.looks = 0  # views of unknown ground before a move
+        self.stays: list[str] = []  # why a step's view was taken without its move
+        self.edge_violations = 0  # moves refused by the geofence (a look is not one)
+        self.looked: Pose3 | None = None  # the station the last looks were for
+        self.look_n = 0  # looks taken for it
+        self.look_left = 0  # its unknown swept cells at the last look
+        self.looked_from: Pose3 | None = None  # the pose the last look-around was taken from
+
+    def stood_on_wkb(self) -> list[str]:
+        """The ground the rover stood on (known ground of the geofence), as WKB hex (a checkpoint)."""
+        return [str(shapely.to_wkb(g, hex=True)) for g in self.geofence.known._stood]
+
+    def set_stood_on(self, stood: list[BaseGeometry]) -> None:
+        self.geofence.known._stood = list(stood)
+
+    # -- the geofence work of a move, as a slack job ----------------------------------------------
+    def in_slack(self, work: Generator[None, None, object], then: Callable[[JobHandle], None]) -> None:
         """Run geofence ``work`` as a slack job; ``then(job)`` in the mission's first
         activation after it ends, ``job.result`` its result (the module docstring)."""
-        self.fence_job = FenceJob(self.submit_job(work, "geofence"), then)
+        self.fence_job = FenceJob(self.host.submit_job(work, "geofence"), then)
 
-    def _fence_job_pending(self) -> bool:
+    def job_pending(self) -> bool:
         """True while the mission waits for its geofence job; a finished one is taken up here
         (its continuation, or SAFE with the reason if the job failed)."""
         job = self.fence_job
@@ -106,20 +132,25 @@ class GroundAwareMission(FlightTask):
             return True
         self.fence_job = None
         if job.handle.error is not None:
-            self._enter_safe(f"geofence work failed: {type(job.handle.error).__name__}: {job.handle.error}")
+            self.host.enter_safe(f"geofence work failed: {type(job.handle.error).__name__}: {job.handle.error}")
         else:
             job.then(job.handle)
         return True
 
-    def _cancel_fence_job(self) -> None:
+    def cancel_job(self) -> None:
         if self.fence_job is not None:
             self.fence_job.handle.cancel()
             self.fence_job = None
 
+    # -- a move ------------------------------------------------------------------------------------
+    def start_move(self, here: Pose3, there: Pose3) -> None:
+        """Check the move from ``here`` to ``there`` in slack, then drive, look or stay."""
+        self.in_slack(self._move_steps(here, there), lambda job: self._move_checked(here, there, job.result))
+
     def _move_steps(self, here: Pose3, there: Pose3) -> Generator[None, None, tuple[Verdict, NDArray[np.float64]]]:
         """The fence set up, the move checked and, if refused over unknown ground, that ground
         (one slice each)."""
-        self._fence(here)
+        self.fence(here)
         yield
         verdict = self.geofence.check(here, there)
         if verdict.allowed or "unknown ground" not in verdict.reason:
@@ -130,8 +161,9 @@ class GroundAwareMission(FlightTask):
     def _move_checked(self, here: Pose3, there: Pose3, checked: tuple[Verdict, NDArray[np.float64]]) -> None:
         verdict, unknown = checked
         if verdict.allowed:
-            self._goto(MissionPhase.MOVE)
-            self._request(kind="goto", target=there)
+            view = self.host.view
+            assert view is not None
+            self.host.drive(there, view)
         else:
             self._refused(here, there, verdict.reason, unknown)
 
@@ -139,52 +171,47 @@ class GroundAwareMission(FlightTask):
         """The geofence refused the move: over unknown ground, look at it (see the module
         docstring); otherwise drive part of the way, as far as the geofence allows; otherwise
         take the step's view from here. Never a crossing, never a stall."""
-        assert self.view is not None
+        assert self.host.view is not None
         if "unknown ground" in reason and self._look_at_swept(here, there, unknown):
             return
         self.edge_violations += 1  # a refusal that stands (a look is not one)
-        self.event("GEOFENCE", x=there[0], y=there[1], reason=reason)
-        self._in_slack(self._part_way_steps(here, there),
-                       lambda job: self._part_way_done(here, there, reason, job.result))
+        self.host.event("GEOFENCE", x=there[0], y=there[1], reason=reason)
+        self.in_slack(self._part_way_steps(here, there),
+                      lambda job: self._part_way_done(here, there, reason, job.result))
 
     def _part_way_done(self, here: Pose3, there: Pose3, reason: str, part: Pose3 | None) -> None:
-        assert self.view is not None
-        pan, tilt, lift = self.view.joints
+        view = self.host.view
+        assert view is not None
+        pan, tilt, lift = view.joints
         if part is None:
-            self.stays.append(f"step {self.step}: {reason}")
+            self.stays.append(f"step {self.host.step}: {reason}")
             turn = math.remainder(pan + there[2] - here[2], math.tau)  # look the same way
-            self.view = CandidateView(here, self.ctx.cfg.mast.clamp(turn, tilt, lift), method="stay")
-            self._start_point()
+            self.host.point(CandidateView(here, self.cfg.mast.clamp(turn, tilt, lift), method="stay"))
             return
         gone = math.hypot(part[0] - here[0], part[1] - here[1])
-        self.stays.append(f"step {self.step}: part way, {gone:.2f} m toward a station "
+        self.stays.append(f"step {self.host.step}: part way, {gone:.2f} m toward a station "
                           f"{math.hypot(there[0] - here[0], there[1] - here[1]):.2f} m away: {reason}")
         turn = math.remainder(pan + there[2] - part[2], math.tau)
-        self.view = CandidateView(part, self.ctx.cfg.mast.clamp(turn, tilt, lift), method="part-way")
-        self._goto(MissionPhase.MOVE)
-        self._request(kind="goto", target=part)
+        self.host.drive(part, CandidateView(part, self.cfg.mast.clamp(turn, tilt, lift), method="part-way"))
 
     def _look_at_swept(self, here: Pose3, there: Pose3, pts: NDArray[np.float64]) -> bool:
         """Make the step's next view a look at the unknown ground the move to ``there`` would
         sweep (``pts``; its cells nearest the rover), if the look budget allows: the first look
         for a station, then more while the last one mapped some of it. True if it is now that
         look."""
-        assert self.view is not None
         if len(pts) == 0:
             return False
-        if self._looked != there:
-            self._looked, self._look_n, self._look_left = there, 0, len(pts)
-        elif self._look_n >= self.ctx.cfg.mission.max_looks_per_move or len(pts) >= self._look_left:
+        if self.looked != there:
+            self.looked, self.look_n, self.look_left = there, 0, len(pts)
+        elif self.look_n >= self.cfg.mission.max_looks_per_move or len(pts) >= self.look_left:
             return False  # out of looks, or the last look mapped none of it (textureless, hidden)
-        self._look_n += 1
-        self._look_left = len(pts)
+        self.look_n += 1
+        self.look_left = len(pts)
         d = np.hypot(pts[:, 0] - here[0], pts[:, 1] - here[1])
         near = pts[d <= d.min() + LOOK_DEPTH_M]
         self.looks += 1
-        self.event("LOOK", n=len(near), x=there[0], y=there[1])
-        self.pending.insert(0, self.view)
-        self.view = CandidateView(here, look_joints(here, near, self.ctx.cfg.mast), method="look")
-        self._start_point()
+        self.host.event("LOOK", n=len(near), x=there[0], y=there[1])
+        self.host.look_first(CandidateView(here, look_joints(here, near, self.cfg.mast), method="look"))
         return True
 
     def _part_way_steps(self, here: Pose3, there: Pose3) -> Generator[None, None, Pose3 | None]:
@@ -214,62 +241,62 @@ class GroundAwareMission(FlightTask):
                 yield  # one check a slice
         return None
 
-    def _look_around(self) -> bool:
+    def look_around(self) -> CandidateView | None:
         """If the geofence would not let the rover stay where it stands (the fitted edge runs
-        within the margin of its wheels, often across unmapped ground beside it), make this
-        step a look at the unknown ground nearest the edge within ``setback_m``; once per
-        pose. True if the step's view is now that look. In the foreground (one fence set-up
-        and one check of a standing rover, a few ms once a step): the next-view request then
-        goes out in the frame the step's map arrived, also in a mission resumed there."""
-        if self.nav is None:
-            return False
-        here = (self.nav.x, self.nav.y, self.nav.yaw)
-        if self._looked_from == here or self.edge is None:
-            return False
-        self._fence(here)
+        within the margin of its wheels, often across unmapped ground beside it), a look at the
+        unknown ground nearest the edge within ``setback_m`` to make this step's view; once per
+        pose. In the foreground (one fence set-up and one check of a standing rover, a few ms
+        once a step): the next-view request then goes out in the frame the step's map arrived,
+        also in a mission resumed there."""
+        nav, edge = self.host.nav, self.host.edge
+        if nav is None:
+            return None
+        here = (nav.x, nav.y, nav.yaw)
+        if self.looked_from == here or edge is None:
+            return None
+        self.fence(here)
         if self.geofence.check(here, here, known_ground=False).allowed:
-            return False
+            return None
         # Target: the unknown ground between the rover and the fitted edge, around the edge
         # point nearest the rover, out to setback_m past it on the drop side.
-        setback = self.ctx.cfg.edge.setback_m
-        q = shapely.get_coordinates(shapely.shortest_line(shapely.Point(here[:2]), self.edge.lines))[-1]
+        setback = self.cfg.edge.setback_m
+        q = shapely.get_coordinates(shapely.shortest_line(shapely.Point(here[:2]), edge.lines))[-1]
         pts = self.geofence.known.unknown_points(shapely.Point(q).buffer(setback))
         if len(pts) == 0:
-            return False
-        self._looked_from = here
+            return None
+        self.looked_from = here
         self.looks += 1
-        self.event("LOOK", n=len(pts), x=here[0], y=here[1])
-        self.view = CandidateView(here, look_joints(here, pts, self.ctx.cfg.mast), method="look")
-        return True
+        self.host.event("LOOK", n=len(pts), x=here[0], y=here[1])
+        return CandidateView(here, look_joints(here, pts, self.cfg.mast), method="look")
 
-    def _ground_z(self) -> float:
-        """The ground under the rover, map datum (the pose chain's body height)."""
-        return 0.0 if self.nav is None else float(self.nav.z_m)
-
-    def _fence(self, here: Pose3) -> None:
+    # -- the fence and the planner's inputs -----------------------------------------------------
+    def fence(self, here: Pose3) -> None:
         """The geofence on the latest edge fit and map, and the ground the rover stands on."""
-        fence_on(self.geofence, self.latest, self.edge, here)
-        yaw_var = math.nan if self.nav is None else float(self.nav.cov[2, 2])
-        self.geofence.set_drift(math.sqrt(yaw_var) if yaw_var >= 0.0 else math.nan, self.ctx.cfg.motion)
+        nav = self.host.nav
+        fence_on(self.geofence, self.host.latest, self.host.edge, here)
+        yaw_var = math.nan if nav is None else float(nav.cov[2, 2])
+        self.geofence.set_drift(math.sqrt(yaw_var) if yaw_var >= 0.0 else math.nan, self.cfg.motion)
 
-    def _planner_state(self) -> PlannerState:
-        assert self.nav is not None and self.latest is not None
-        cfg = self.ctx.cfg
+    def planner_state(self) -> PlannerState:
+        """The next-view request: the latest map, the pose, the edge path and the move check."""
+        nav, latest, edge = self.host.nav, self.host.latest, self.host.edge
+        assert nav is not None and latest is not None
+        cfg = self.cfg
         path = (
-            edge_path(self.edge, cfg.edge.setback_m, cfg.edge.path_spacing_m, cfg.geofence.extend_m)
-            if self.edge is not None
+            edge_path(edge, cfg.edge.setback_m, cfg.edge.path_spacing_m, cfg.geofence.extend_m)
+            if edge is not None
             else np.zeros((0, 3))
         )
-        self._fence((self.nav.x, self.nav.y, self.nav.yaw))
-        sigma = float(np.sqrt(max(0.0, (self.nav.cov[0, 0] + self.nav.cov[1, 1]) / 2)))
+        self.fence((nav.x, nav.y, nav.yaw))
+        sigma = float(np.sqrt(max(0.0, (nav.cov[0, 0] + nav.cov[1, 1]) / 2)))
         return PlannerState(
-            map=self.latest.snapshot,
-            rover=(self.nav.x, self.nav.y, self.nav.yaw),
-            joints=self.nav.joints,
+            map=latest.snapshot,
+            rover=(nav.x, nav.y, nav.yaw),
+            joints=nav.joints,
             path=path,
             motion_ok=lambda a, b: self.geofence.check(a, b, known_ground=False).allowed,
-            edge_xy=None if self.edge is None else self.edge.points_xy,
-            ground_z_m=self._ground_z(),  # the ground under the rover (on a slope, not the start's)
+            edge_xy=None if edge is None else edge.points_xy,
+            ground_z_m=float(nav.z_m),  # the ground under the rover (on a slope, not the start's)
             sigma_loc_m=sigma,
         )
 

@@ -1,4 +1,4 @@
-"""The mission's TRANSMIT phase: a mixin of :class:`fsw.tasks.mission.MissionTask` (docs/algorithm.md §6).
+"""The mission's TRANSMIT phase: a part of :class:`fsw.tasks.mission.MissionTask` (docs/algorithm.md §6).
 
 Delivery is a fact, not a hope: the send request, carrying the map itself (so a mission
 resumed at its last step needs no ``map.updated``), goes out from the phase's first frame
@@ -12,62 +12,77 @@ SAFE with the reason ``map not delivered (STATE)``; leaving SAFE transmits again
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from collections.abc import Iterable
+from typing import Protocol
 
-from fsw.framework.bus import Mailbox
-from fsw.tasks.base import FlightTask
+from fsw.sections import MissionConfig
 from fsw.tasks.messages import RADIO_SEND, MapUpdate, RadioSendRequest, RadioStatus
-from fsw.tasks.mission_checkpoint import save
 from fsw.tasks.mission_state import MissionPhase
-from fsw.tasks.sections import MissionConfig
 
 MAP_ID = 1  # the map the mission sends to the Cliff-bot
 TX_ASK_S = 2.0  # the send request is repeated this often until the radio reports on it
 
 
-class MapDelivery(FlightTask):
-    """Needs the MissionTask attributes mcfg, latest, radio, radio_box, deadline and its
-    _goto, _timed_out and _enter_safe methods."""
+class DeliveryHost(Protocol):
+    """What the map delivery needs of the mission sequencer."""
 
-    mcfg: MissionConfig
-    latest: MapUpdate | None
-    radio: RadioStatus | None
-    radio_box: Mailbox[RadioStatus]
-    deadline: float
-    _tx_since = 0.0  # when TRANSMIT began (radio states from before are stale)
-    _tx_asked = -math.inf  # when the send request last went out
+    @property
+    def latest(self) -> MapUpdate | None: ...
 
-    if TYPE_CHECKING:  # provided by MissionTask (stubs here would shadow them)
-        def _goto(self, new: MissionPhase) -> None: ...
+    def now(self) -> float: ...
 
-        def _timed_out(self) -> bool: ...
+    def event(self, name: str, **args: object) -> None: ...
 
-        def _enter_safe(self, reason: str) -> None: ...
+    def publish(self, topic: str, msg: object) -> None: ...
 
-    def _begin_transmit(self) -> None:
-        self._goto(MissionPhase.TRANSMIT)
-        self.deadline = self.ctx.clock.now() + self.mcfg.transmit_timeout_s
+    def goto(self, new: MissionPhase) -> None: ...
+
+    def checkpoint(self, phase: MissionPhase) -> None: ...
+
+    def timed_out(self) -> bool: ...
+
+    def set_deadline(self, t: float) -> None: ...
+
+    def enter_safe(self, reason: str) -> None: ...
+
+
+class MapDelivery:
+    """The TRANSMIT phase (module docstring); acts on the mission through :class:`DeliveryHost`."""
+
+    def __init__(self, cfg: MissionConfig, host: DeliveryHost) -> None:
+        self.cfg = cfg
+        self.host = host
+        self.radio: RadioStatus | None = None  # the radio's last report on the map
+        self._tx_since = 0.0  # when TRANSMIT began (radio states from before are stale)
+        self._tx_asked = -math.inf  # when the send request last went out
+
+    def begin(self) -> None:
+        h = self.host
+        h.goto(MissionPhase.TRANSMIT)
+        h.set_deadline(h.now() + self.cfg.transmit_timeout_s)
         self.radio = None
-        self._tx_since = self.ctx.clock.now()
+        self._tx_since = h.now()
         self._tx_asked = -math.inf
 
-    def _state_transmit(self) -> None:
-        for status in self.radio_box.drain():
+    def run(self, statuses: Iterable[RadioStatus]) -> None:
+        h = self.host
+        for status in statuses:
             if status.map_id == MAP_ID and status.time_s >= self._tx_since:
                 self.radio = status
-        now = self.ctx.clock.now()
+        now = h.now()
         if self.radio is None and now - self._tx_asked >= TX_ASK_S:
             self._tx_asked = now
-            snapshot = self.latest.snapshot if self.latest is not None else None
-            self.publish(RADIO_SEND, RadioSendRequest(map_id=MAP_ID, snapshot=snapshot))
+            latest = h.latest
+            snapshot = latest.snapshot if latest is not None else None
+            h.publish(RADIO_SEND, RadioSendRequest(map_id=MAP_ID, snapshot=snapshot))
         finished = self.radio is not None and self.radio.finished
-        if not (finished or self._timed_out()):
+        if not (finished or h.timed_out()):
             return
         state = self.radio.state.value if finished and self.radio is not None else "timeout"
-        self.event("TRANSMITTED", state=state)
+        h.event("TRANSMITTED", state=state)
         if state == "done":
-            self._goto(MissionPhase.DONE)
-            save(self, MissionPhase.DONE)
+            h.goto(MissionPhase.DONE)
+            h.checkpoint(MissionPhase.DONE)
             return
-        self.event("UNDELIVERED", state=state)
-        self._enter_safe(f"map not delivered ({state})")
+        h.event("UNDELIVERED", state=state)
+        h.enter_safe(f"map not delivered ({state})")

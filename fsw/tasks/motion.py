@@ -41,6 +41,8 @@ from fsw.tasks.messages import (
     NavPose,
 )
 from fsw.tasks.mission_state import restore_into
+from fsw.tasks.motion_state import AttitudeSection, MotionSection
+from fsw.tasks.state_json import JsonObject
 
 WHEELS = wk.WHEEL_ORDER
 D = TypeVar("D")
@@ -73,9 +75,27 @@ class MotionTask(FlightTask):
         self._warned: set[str] = set()
         restore_into(self)  # a resumed mission (fsw.tasks.mission_state)
 
-    # A resumed mission's odometry, encoder baseline and held set-points (fsw/tasks/motion_state.py).
-    checkpoint_state = motion_state.checkpoint_state
-    restore_state = motion_state.restore_state
+    # -- a resumed mission's odometry, encoder baseline and held set-points (fsw.tasks.motion_state) --
+    def checkpoint_state(self) -> JsonObject:
+        """The odometry (``Odometry.state``), move counters, held steering and motor set-points."""
+        motors = self._motors()
+        h = [float(v) for v in self.steer_hold]
+        return MotionSection(self.odo.state(), AttitudeSection.of(self.attitude), self.done, self.aborted,
+                             (h[0], h[1], h[2], h[3]), self.fix_id, self.fix_seen,
+                             None if motors is None else dict(motors.setpoints)).to_json()
+
+    def restore_state(self, st: JsonObject) -> None:
+        s = motion_state.section(st)
+        s.apply_odometry(self.odo)
+        self.fix_id, self.fix_seen = s.fix_id, s.fix_seen
+        if s.attitude is not None:  # the attitude sensor's last reading and the dead-reckoned body height
+            s.attitude.apply(self.attitude)
+        self.done, self.aborted = s.done, s.aborted
+        self.steer_hold = np.asarray(s.steer_hold, dtype=np.float64)
+        motors = self._motors()
+        if motors is not None and s.setpoints is not None:  # hold what was held (wheels still)
+            for axis, sp in s.setpoints.items():
+                motors.set_setpoint(axis, sp)
 
     # -- devices ----------------------------------------------------------------------------
     def _motors(self) -> can_motors.CanMotorDriver | None:

@@ -26,7 +26,8 @@ from fsw.framework.jobs import JobHandle
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import NBV_REQUEST, NBV_RESULT
-from fsw.tasks.mission_state import JsonDict, restore_into
+from fsw.tasks.mission_state import restore_into
+from fsw.tasks.state_json import JsonObject, get_int, get_opt_object
 
 
 class NbvTask(FlightTask):
@@ -58,17 +59,17 @@ class NbvTask(FlightTask):
         self.requests = self.subscribe(NBV_REQUEST, depth=1, policy="drop_oldest")
         self.job: JobHandle | None = None
         self.searches = 0
-        self._planner_restore: JsonDict | None = None
+        self._planner_restore: JsonObject | None = None
         restore_into(self)  # a resumed mission (fsw.tasks.mission_state)
 
-    def checkpoint_state(self) -> JsonDict:
+    def checkpoint_state(self) -> JsonObject:
         """The search count and the planner's plan (``fsw.core.planning.planner_state``)."""
         planner = None if self.planner is None else planner_state(self.planner)
         return {"searches": self.searches, "planner": planner or self._planner_restore}
 
-    def restore_state(self, st: JsonDict) -> None:
-        self.searches = int(st["searches"])
-        self._planner_restore = st["planner"]  # applied when the planner is built
+    def restore_state(self, st: JsonObject) -> None:
+        self.searches = get_int(st, "searches")
+        self._planner_restore = get_opt_object(st, "planner")  # applied when the planner is built
 
     def run(self, frame: int) -> None:
         if self.job is not None and self.job.done:

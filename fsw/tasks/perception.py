@@ -1,19 +1,14 @@
-"""The perception task: owns the elevation map; fuses each stereo pair and re-fits the edge.
+"""The perception task: owns the sensing pipeline (the elevation map); merges each stereo pair
+and re-fits the edge.
 
-A ``CameraFrame`` from the camera task becomes a slack job (docs/algorithm.md §4): the view's
-P_V on the map before the merge (§3.1, for the misses), rectification of the raw pair when
-the camera has a calibration file (``fsw.core.stereo.rectify``: maps built once here at start-up,
-the pair remapped in row bands), stereo matching, triangulation with covariance,
-registration of the view against the map (§5.1: its pose corrected, or its pose covariance
-inflated when it cannot be registered), propagation of the camera pose covariance (§1.2),
-fusion into the map
-with misses (§1.1, §3.4), the non-convex polygon fit of the edge (§2; the geofence and the
-edge path use it for every method, Method 3 straightens the path in its planner) and the
-mapped fraction of the region of interest (§3.6).
-Each step is one slice of a few to ~20 ms, so the 10 Hz foreground keeps its deadlines. The result is
-published on ``map.updated`` with a snapshot of the map for the planner. The mission
-sequencer checkpoints each step's map with its state (``fsw.tasks.mission_checkpoint``); this
-task also writes map-only checkpoints through the map store on command and at
+A ``CameraFrame`` from the camera task becomes a slack job (docs/algorithm.md §4) that runs the
+sensing pipeline (``fsw.core.pipeline``: rectification, stereo, registration, world points with
+covariance, fusion with misses, the edge fit and the mapped fraction of the region of
+interest), each step a slice of a few to ~20 ms so the 10 Hz foreground keeps its deadlines.
+This task reads the frames, publishes the result on ``map.updated`` with a snapshot of the map
+for the planner (and the navigation fix on ``nav.fix``), and reports telemetry and events. The
+mission sequencer checkpoints each step's map with its state (``fsw.tasks.mission_checkpoint``);
+this task also writes map-only checkpoints through the map store on command and at
 ``checkpoint.period_s`` when nothing was saved for that long, never while a merge is under
 way (the map would be half-merged). At start-up it restores the newest good checkpoint's map.
 """
@@ -25,28 +20,10 @@ from collections.abc import Generator
 from typing import ClassVar
 
 import numpy as np
-from numpy.typing import NDArray
 
-from fsw.core.edge.edge import EdgeModel, edge_cells_steps, fit_polygon_steps
-from fsw.core.geometry import CameraPose, MapGrid
-from fsw.core.localization.localization import point_covariance_parts
-from fsw.core.localization.nav_fix import NavFix
 from fsw.core.map.elevation_map import ElevationMap
-from fsw.core.map.reference_frames import ReferenceFrames
-from fsw.core.planning.nbv import predicted_visibility_steps
-from fsw.core.registration.registration import (
-    Registration,
-    RegistrationSummary,
-    apply_correction,
-    reference_cells,
-    register_steps,
-)
-from fsw.core.registration.station_chain import StationChain
-from fsw.core.steps import run_to_end
-from fsw.core.stereo.occlusion import LipGuard
-from fsw.core.stereo.rectify import Rectifier
-from fsw.core.stereo.stereo import StereoMatcher, StereoPoints
-from fsw.core.stereo.stereo_calibration import offset_covariance
+from fsw.core.pipeline import SensingPipeline
+from fsw.core.registration.registration import RegistrationSummary
 from fsw.drivers.map_store import MapStore
 from fsw.framework.commands import CommandDef, CommandError
 from fsw.framework.jobs import JobHandle
@@ -56,38 +33,6 @@ from fsw.settings import load_stereo_calibration
 from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import CAMERA_FRAME, MAP_UPDATED, NAV_FIX, VIEW_FAILED, CameraFrame, MapUpdate, ViewFailed
 from fsw.tasks.mission_state import JsonDict, restore_into
-
-ROI_STRIDE = 4  # the region-of-interest fraction is estimated on every 4th cell each way
-ROI_STEP_POINTS = 2048  # cells per slice of that estimate (~10 ms here on the lab's edge)
-
-
-def roi_mapped_fraction(emap: ElevationMap, edge: EdgeModel) -> float:
-    """Mapped fraction of the region of interest: the cells beyond the edge (§2, §3.6)."""
-    return run_to_end(roi_mapped_fraction_steps(emap, edge))
-
-
-def roi_mapped_fraction_steps(emap: ElevationMap, edge: EdgeModel) -> Generator[None, None, float]:
-    """:func:`roi_mapped_fraction`, yielding after each ``ROI_STEP_POINTS`` cells (the signed
-    distance of a cell is its own: the same values as one call)."""
-    if edge.empty:
-        return 0.0
-    X, Y = emap.grid.centers()
-    s = (slice(None, None, ROI_STRIDE), slice(None, None, ROI_STRIDE))
-    pts = np.column_stack([X[s].ravel(), Y[s].ravel()])
-    below = np.empty(pts.shape[0], bool)
-    for a in range(0, pts.shape[0], ROI_STEP_POINTS):
-        below[a:a + ROI_STEP_POINTS] = edge.signed_distance(pts[a:a + ROI_STEP_POINTS]) < 0
-        yield
-    if not below.any():
-        return 0.0
-    return float(emap.mapped[s].ravel()[below].mean())
-
-
-PROPAGATE_CHUNK = 10000  # points per slice of the covariance propagation (~5 ms here)
-MERGE_STEP_POINTS = 50000  # points per slice of each pass of the map merge (a few ms)
-
-
-ViewPart = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]  # xyz, cov, common cov
 
 
 class PerceptionTask(FlightTask):
@@ -145,11 +90,9 @@ class PerceptionTask(FlightTask):
 
     def setup(self) -> None:
         cfg = self.ctx.cfg
-        cal = load_stereo_calibration(cfg)  # ConfigError if missing or inconsistent
-        # rectified onto the configured pinhole camera, so P_V and the planner see the same one
-        self.rectifier = None if cal is None else Rectifier(cal, cfg.camera.K)
-        self.matcher = StereoMatcher(cfg.stereo, cfg.camera, None if self.rectifier is None else self.rectifier.camera)
-        self.map = ElevationMap(MapGrid.from_config(cfg.map), cfg.fusion)
+        # the map, the registration state and the camera model (ConfigError if the calibration
+        # file is missing or inconsistent)
+        self.pipeline = SensingPipeline(cfg, load_stereo_calibration(cfg))
         self.frames = self.subscribe(CAMERA_FRAME, depth=2, policy="drop_oldest")
         self.job: JobHandle | None = None
         self.job_view = -1  # the view the job merges
@@ -157,13 +100,16 @@ class PerceptionTask(FlightTask):
         self.last_update: MapUpdate | None = None
         self.unregistered = 0
         self.partial = 0  # views registered in height and tilt only
-        self.chain = StationChain()  # the registered stations (fsw.core.registration.station_chain)
-        self.sources = ReferenceFrames(self.map.grid.shape)  # each cell's view (fsw.core.map.reference_frames)
         self.registrations: deque[RegistrationSummary] = deque(maxlen=1000)  # per view (mission summary)
         self.store = self.ctx.res.map_store
         self._last_checkpoint_s = self.ctx.clock.now()
         if self.store is not None:
             self._restore(self.store)
+
+    @property
+    def map(self) -> ElevationMap:
+        """The elevation map (the pipeline's)."""
+        return self.pipeline.map
 
     def run(self, frame: int) -> None:
         if self.job is not None and self.job.done:
@@ -172,7 +118,7 @@ class PerceptionTask(FlightTask):
         if self.job is None:
             msg = self.frames.get()
             if msg is not None:
-                self.job = self.submit_job(self._merge_view(msg), f"view{msg.view_id}")
+                self.job = self.submit_job(self.merge_view(msg), f"view{msg.view_id}")
                 self.job_view = msg.view_id
         now = self.ctx.clock.now()
         if self.store is not None and (err := self.store.take_error()) is not None:
@@ -182,104 +128,31 @@ class PerceptionTask(FlightTask):
             if now - last_s >= self.ctx.cfg.checkpoint.period_s:
                 self._checkpoint(self.store)
 
-    def _merge_view(self, fr: CameraFrame) -> Generator[None, None, MapUpdate]:
-        """The slack job of one view: one bounded step per slice (a few to ~20 ms here).
-
-        Every long stage is itself a step generator: P_V in ray chunks, SGBM in row bands,
-        triangulation per band, the covariance propagation and both passes of the merge in
-        point chunks, the edge search in halves; nothing runs a whole stage in one slice.
-        """
-        # Which cells this view was expected to see (P_V on the map before the merge, §3.1):
-        # those that get no point count a miss and lose interest (§3.4, §4).
-        cfg = self.ctx.cfg
-        p_visible = None
-        if self.map.mapped.any():
-            p_visible = yield from predicted_visibility_steps(self.map, fr.pose, cfg.camera, cfg.nbv.visibility)
-            yield
-        left, right = fr.left, fr.right
-        if self.rectifier is not None:
-            left, right = yield from self.rectifier.rectify_steps(left, right, cfg.stereo.band_rows_px)
-        dm = yield from self.matcher.match_steps(left, right)
-        yield
-        pts = yield from self.matcher.triangulate_steps(dm.disparity_px, sigma_px=dm.sigma_px)
-        del dm, left, right  # not needed past here: a smaller resident peak (issue 15)
-        reg, pose, pose_cov, nav_fix = yield from self._register(fr, pts)
-        parts, off_sigma = [], 0.0 if self.rectifier is None else self.rectifier.camera.offset_sigma_px
-        lips = LipGuard.of_view(self.map.grid, pose, pts.lip_near_c, pts.lip_far_c, cfg.fusion.lip_min_drop_m)
-        for a in range(0, len(pts), PROPAGATE_CHUNK):  # world covariance (§1.2) in bounded slices
-            b = a + PROPAGATE_CHUNK
-            xyz, cov_s, cov_p = point_covariance_parts(pose, pose_cov, pts.xyz_c[a:b], pts.cov_c[a:b])
-            if off_sigma > 0.0:  # the calibration's disparity offset: common too (§1.2)
-                cal = offset_covariance(xyz, pose.t, pts.disparity_px[a:b], off_sigma)
-                cov_p = cal if cov_p is None else cov_p + cal
-            # The pose term is common to every point of the view: it must not average down in a cell.
-            parts.append(lips.part(xyz, cov_s, cov_p, cfg.fusion.lip_guard_sigma))  # too near a lip: withheld
-            yield
-        del pts  # the camera-frame points: every use is above
-        view_cells = self.map.grid.cell_means(np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3)))
-        X, Y = (c.reshape(-1)[view_cells[0]] for c in self.map.grid.centers())
-        self.sources.add(view_cells[0], np.column_stack([X, Y, view_cells[1]]), pose.t, pose_cov)
-        yield
-        stats = yield from self.map.merge_parts_steps(parts, p_visible=p_visible, step_points=MERGE_STEP_POINTS)
-        yield
-        ecfg = self.ctx.cfg.edge
-        here = (float(fr.pose.t[0]), float(fr.pose.t[1]))  # the camera stands over the plateau
-        # The ground under the rover now (not at the start: on a slope the rover has climbed or
-        # descended since), with the registration's height correction (§2, §5.1).
-        ground_z = fr.ground_z_m + float(pose.t[2] - fr.pose.t[2])
-        cells = yield from edge_cells_steps(self.map, ground_z, here, ecfg)
-        yield
-        poly = yield from fit_polygon_steps(self.map, cells, ecfg)
-        yield
-        roi_fraction = yield from roi_mapped_fraction_steps(self.map, poly)
-        yield
+    def merge_view(self, fr: CameraFrame) -> Generator[None, None, MapUpdate]:
+        """The slack job of one view: the sensing pipeline (``fsw.core.pipeline``, one bounded
+        step per slice), then the update to publish with a snapshot of the map."""
+        sv = yield from self.pipeline.view_steps(fr)
         self.views += 1
+        pose = sv.placed.pose
         return MapUpdate(
             view_id=fr.view_id,
             time_s=fr.time_s,
             mapped_cells=int(self.map.mapped.sum()),
-            new_cells=stats.cells_new,
-            points=stats.points_used,
-            misses=stats.misses,
+            new_cells=sv.merge.cells_new,
+            points=sv.merge.points_used,
+            misses=sv.merge.misses,
             expected_new_cells=fr.expected_new_cells,
             snapshot=self.map.copy(),
-            edge=poly,
-            outliers=stats.outliers,
-            edge_points=int(cells.points_xy.shape[0]),
-            roi_mapped_fraction=roi_fraction,
-            registration=reg.summary(fr.view_id),
-            view_cells=view_cells,
+            edge=sv.edge,
+            outliers=sv.merge.outliers,
+            edge_points=int(sv.edge_cells.points_xy.shape[0]),
+            roi_mapped_fraction=sv.roi_mapped_fraction,
+            registration=sv.placed.registration.summary(fr.view_id),
+            view_cells=sv.view_cells,
             camera_xyz=(float(pose.t[0]), float(pose.t[1]), float(pose.t[2])),
-            drop=cells.drop,
-            nav_fix=nav_fix,
+            drop=sv.edge_cells.drop,
+            nav_fix=sv.placed.nav_fix,
         )
-
-    def _register(
-        self, fr: CameraFrame, pts: StereoPoints
-    ) -> Generator[None, None, tuple[Registration, CameraPose, NDArray[np.float64], NavFix | None]]:
-        """Align the view to the map (§5.1): the corrected pose, the covariance to merge with
-        and the navigation fix to feed back (``fsw.core.registration.station_chain``: where the fit starts,
-        the frame error, the feedback)."""
-        rcfg = self.ctx.cfg.registration
-        if not rcfg.enabled:
-            return Registration("off", "disabled in config"), fr.pose, fr.pose_cov, None
-        vp = self.chain.prior(fr.pose, fr.pose_cov, fr.nav_fix_id, rcfg)
-        prior = apply_correction(fr.pose, vp.d0)
-        n = len(pts)
-        sel = np.linspace(0, n - 1, min(n, 4 * rcfg.max_points)).astype(np.intp) if n else np.zeros(0, np.intp)
-        xyz_w, cov_w, _ = point_covariance_parts(prior, None, pts.xyz_c[sel], pts.cov_c[sel])
-        ref = reference_cells(self.map.z, self.map.var, self.map.n, rcfg)
-        yield
-        reg = yield from register_steps(xyz_w, cov_w, prior, vp.cov, self.map.grid, self.map.z,
-                                        self.map.var, ref, rcfg, self.sources if rcfg.reference_error else None)
-        if reg.status == "reference":
-            self.chain.reference(fr.pose_cov)
-            return reg, fr.pose, fr.pose_cov, None
-        if reg.status != "registered":
-            pose, cov = self.chain.unregistered(fr.pose, vp, reg, rcfg)
-            return reg, pose, cov, None
-        pose, cov, nav = self.chain.registered(fr.pose, fr.pose_cov, fr.nav_fix_id, fr.time_s, vp, reg, rcfg)
-        return reg, pose, cov, nav
 
     def _finish(self, h: JobHandle) -> None:
         if h.error is not None:
@@ -351,23 +224,23 @@ class PerceptionTask(FlightTask):
         if loaded.emap.grid != self.map.grid:
             self.event("CHECKPOINT_FAILED", error=f"{loaded.path}: map grid differs from the configuration; not used")
             return
-        self.map = loaded.emap.copy()
+        self.pipeline.map = loaded.emap.copy()
         self.event("CHECKPOINT_LOADED", seq=loaded.meta.seq if loaded.meta is not None else -1)
         restore_into(self)  # a resumed mission (fsw.tasks.mission_state)
 
     def checkpoint_state(self) -> JsonDict:
         """What a resumed mission needs besides the map (``fsw.tasks.mission_state``): the view
         count and the registration state (the station chain, the per-view reports)."""
-        return {"views": self.views, "unregistered": self.unregistered, "partial": self.partial, **self.chain.state(),
-                "sources": self.sources.state(),
+        return {"views": self.views, "unregistered": self.unregistered, "partial": self.partial,
+                **self.pipeline.chain.state(), "sources": self.pipeline.sources.state(),
                 "registrations": list(self.registrations)}
 
     def restore_state(self, state: JsonDict) -> None:
         self.views = int(state["views"])
         self.unregistered = int(state.get("unregistered", 0))
         self.partial = int(state.get("partial", 0))
-        self.chain.restore(state)
-        self.sources.restore(state.get("sources", {}))
+        self.pipeline.chain.restore(state)
+        self.pipeline.sources.restore(state.get("sources", {}))
         self.registrations.extend(state.get("registrations", []))
         self.tlm("views", self.views)
 
@@ -381,6 +254,4 @@ class PerceptionTask(FlightTask):
     def cmd_CLEAR_MAP(self) -> None:
         if self.job is not None and not self.job.done:
             raise CommandError("a view is being merged; try again")
-        self.map = ElevationMap(self.map.grid, self.ctx.cfg.fusion)
-        self.chain.clear()
-        self.sources.clear()
+        self.pipeline.clear()

@@ -34,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
     import cv2
 
     from fsw.framework.params import ConfigError
-    from hil_sim.commands.bench_calibration import load_bench
+    from hil_sim.lab.bench.bench_calibration import load_bench
 
     if not 1 <= args.views <= 200:
         print("safer-hil calibration-target: --views must be 1..200", file=sys.stderr)

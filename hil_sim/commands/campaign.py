@@ -39,7 +39,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from fsw.framework.params import ConfigError
-    from hil_sim.campaign.spec import expand, load_spec
+    from hil_sim.lab.campaign.spec import expand, load_spec
 
     if args.jobs < 1:
         print("safer-hil campaign: --jobs must be >= 1", file=sys.stderr)
@@ -81,9 +81,9 @@ def run_campaign(name: str, missions: list, out: Path, jobs: int, scheduler: str
                  retry_failed: bool = False, report_only: bool = False) -> int:
     import time
 
-    from hil_sim.campaign.execute import FAILED, execute
-    from hil_sim.campaign.report import write_report
-    from hil_sim.campaign.table import write_table
+    from hil_sim.lab.campaign.execute import FAILED, execute
+    from hil_sim.lab.campaign.report import write_report
+    from hil_sim.lab.campaign.table import write_table
 
     try:
         out.mkdir(parents=True, exist_ok=True)

@@ -18,6 +18,12 @@ def run(args: argparse.Namespace) -> int:
     from fsw.settings import DEFAULT_CONFIG
     from hil_sim.commands import run as run_cmd
 
+    print(f"safer-hil demo: the flight software maps the lab scenario's cliff edge on a simulated rover\n"
+          f"  (lockstep bench: simulated cameras, wheels and mast; method 5, {args.steps} steps, seed {args.seed}).\n"
+          f"  The lines below are the flight software's events; KEY_NONE only says the demo has no\n"
+          f"  signing key, so ground commands are refused. Results go to {args.out}/: summary.json,\n"
+          f"  map.png, fsw.tlog (safer-ground map / plot), mission.mcap (opens in Foxglove).", flush=True)
+
     ns = argparse.Namespace(
         scenario="lab",
         method="5",

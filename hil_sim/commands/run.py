@@ -49,6 +49,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "without rectification")
 
 
+def resume_hint(args: argparse.Namespace) -> str:
+    """What ``safer-hil`` adds to "interrupted": the command that continues the mission, once the
+    out directory holds one."""
+    import shlex
+
+    from hil_sim.mission_run import has_mission
+
+    out = getattr(args, "resume", None) or getattr(args, "out", None)
+    if out is not None and has_mission(Path(out)):
+        return f"; continue it with: safer-hil run --resume {shlex.quote(str(out))}"
+    return ""
+
+
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -123,5 +136,6 @@ def run(args: argparse.Namespace) -> int:
             f"Cliff-bot: map {cb['map_id']} {'decoded' if cb['decoded'] else 'NOT decoded'}, "
             f"{cb['container_bytes']} B, max error {cb['max_error_m']} m"
         )
-    print(f"report: {out / 'summary.json'} (map.png, coverage.png, fsw.tlog)")
+    print(f"report: {out / 'summary.json'} (map.png, coverage.png, fsw.tlog; mission.mcap for Foxglove, "
+          f"safer-ground rerun for rerun)")
     return 0 if s["final_state"] == "DONE" else 1

@@ -58,6 +58,36 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--flight-config", default=None, metavar="FILE", help="write the flight config for these endpoints here"
     )
     p.add_argument("--can-log", default=None, metavar="FILE", help="record the CAN traffic (.log/.asc/.blf)")
+    m = p.add_argument_group("ground link (written into --flight-config's [mavlink] and [checkpoint])")
+    m.add_argument("--mavlink-url", default=None, metavar="URL",
+                   help="the rover's MAVLink link, e.g. udpout:127.0.0.1:14550 or udpin:127.0.0.1:14560")
+    m.add_argument("--key-file", default=None, metavar="FILE", help="signing key (safer-ground keygen)")
+    m.add_argument("--tlog", default=None, metavar="FILE", help="telemetry log of every frame sent and received")
+    m.add_argument("--checkpoint-dir", default=None, metavar="DIR", help="where the map checkpoints go")
+
+
+def link_keys(args: argparse.Namespace) -> dict[str, dict[str, str]]:
+    """The [mavlink] and [checkpoint] keys the serve options set (only those given)."""
+    mav = {k: v for k, v in (("url", args.mavlink_url), ("key_file", args.key_file), ("tlog_path", args.tlog))
+           if v is not None}
+    ck = {"directory": args.checkpoint_dir} if args.checkpoint_dir is not None else {}
+    return {name: keys for name, keys in (("mavlink", mav), ("checkpoint", ck)) if keys}
+
+
+def set_keys(text: str, table: str, values: dict[str, str]) -> str:
+    """``text`` (TOML) with ``values`` set in ``[table]`` (existing lines replaced, others added)."""
+    lines = text.splitlines(keepends=True)
+    start = next((i for i, ln in enumerate(lines) if ln.split("#", 1)[0].strip() == f"[{table}]"), None)
+    if start is None:
+        return text + f"\n[{table}]\n" + "".join(f"{k} = {json.dumps(v)}\n" for k, v in values.items())
+    end = next((j for j in range(start + 1, len(lines)) if lines[j].lstrip().startswith("[")), len(lines))
+    todo = dict(values)
+    for j in range(start + 1, end):
+        key = lines[j].split("=", 1)[0].strip()
+        if "=" in lines[j] and key in todo:
+            lines[j] = f"{key} = {json.dumps(todo.pop(key))}  # set by safer-hil serve\n"
+    lines[start + 1:start + 1] = [f"{k} = {json.dumps(v)}  # set by safer-hil serve\n" for k, v in todo.items()]
+    return "".join(lines)
 
 
 def devices_table(base: dict, endpoints: dict) -> str:
@@ -69,8 +99,10 @@ def devices_table(base: dict, endpoints: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_flight_config(base_path: Path, out: Path, endpoints: dict) -> None:
-    """Copy ``base_path`` to ``out`` with its ``[devices]`` table replaced (comments kept)."""
+def write_flight_config(base_path: Path, out: Path, endpoints: dict,
+                        tables: dict[str, dict[str, str]] | None = None) -> None:
+    """Copy ``base_path`` to ``out`` with its ``[devices]`` table replaced (comments kept) and
+    the keys of ``tables`` (table -> key -> value) set."""
     import tomllib
 
     text = base_path.read_text()
@@ -83,6 +115,8 @@ def write_flight_config(base_path: Path, out: Path, endpoints: dict) -> None:
     else:
         end = next((j for j in range(start + 1, len(lines)) if lines[j].lstrip().startswith("[")), len(lines))
         new = "".join(lines[:start]) + table + "\n" + "".join(lines[end:])
+    for name, values in (tables or {}).items():
+        new = set_keys(new, name, values)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(new)
 
@@ -120,6 +154,10 @@ def run(args: argparse.Namespace) -> int:
 
     if args.rate_hz <= 0 or (args.duration is not None and args.duration <= 0) or not args.camera_timeout > 0:
         print("safer-hil serve: --rate-hz, --duration and --camera-timeout must be positive", file=sys.stderr)
+        return 2
+    if link_keys(args) and not args.flight_config:
+        print("safer-hil serve: --mavlink-url, --key-file, --tlog and --checkpoint-dir go into the flight "
+              "config: give --flight-config FILE too", file=sys.stderr)
         return 2
     base_cfg = Path(args.config or DEFAULT_CONFIG)
     try:
@@ -164,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"  serial  {serial_url}" + (f" (link {args.pty_link})" if args.pty_link else ""))
     print(f"  camera  {endpoints['camera_source']}")
     if args.flight_config:
-        write_flight_config(base_cfg, Path(args.flight_config), endpoints)
+        write_flight_config(base_cfg, Path(args.flight_config), endpoints, link_keys(args))
         print(f"  flight  safer-fsw run --config {args.flight_config}")
     print("READY", flush=True)
 

@@ -23,7 +23,7 @@ from fsw.core.geometry import MapGridConfig
 from fsw.framework.params import ConfigError, build, load_toml, param
 
 SCENARIO_DIR = Path(__file__).resolve().parents[2] / "config" / "scenarios"
-KINDS = ("lab", "cliff", "mars", "file", "terrain")
+KINDS = ("lab", "cliff", "mars", "file", "terrain", "cliff_team")
 MAX_TRUTH_CELLS = 30_000_000
 
 
@@ -140,6 +140,31 @@ class CliffConfig:
 
 
 @dataclass(frozen=True)
+class CliffTeamConfig:
+    """The ``cliff-team`` generator (hil_sim/world/cliff_team.py): -1 values are drawn from the seed."""
+
+    face_slope_deg: float = param(-1.0, lo=-1.0, hi=85.0, units="deg", doc="face slope; -1: drawn in 55..85")
+    drop_m: float = param(-1.0, lo=-1.0, hi=8.0, units="m", doc="height of the face; -1: drawn in 2..8")
+    edge_y_m: float = param(-1.0, units="m", doc="mean y of the edge line")
+    edge_wiggle_m: float = param(0.12, lo=0.0, hi=1.0, units="m")
+    edge_wavelength_m: float = param(1.5, lo=0.05, hi=20.0, units="m")
+    face_roughness_m: float = param(0.03, lo=0.0, hi=0.3, units="m", doc="face relief (horizontal std)")
+    ledges: int = param(2, lo=0, hi=6, doc="shelves across the face")
+    floor_slope_deg: float = param(4.0, lo=0.0, hi=30.0, units="deg")
+    jumble_k: float = param(0.4, lo=0.0, hi=0.5, doc="rock coverage in the jumble on the face")
+    floor_k: float = param(0.08, lo=0.0, hi=0.5, doc="rock coverage on the floor below")
+    rock_d_min_m: float = param(0.08, lo=0.01, hi=1.0, units="m")
+    rock_d_max_m: float = param(0.7, lo=0.05, hi=3.0, units="m")
+    anchor_spacing_m: float = param(3.0, lo=0.5, hi=20.0, units="m", doc="between the two Anchorbots")
+    anchor_setback_m: float = param(1.6, lo=0.3, hi=20.0, units="m", doc="anchors behind the edge")
+    targets: int = param(3, lo=2, hi=4, doc="science targets on the face")
+
+    def __post_init__(self) -> None:
+        if self.rock_d_min_m >= self.rock_d_max_m:
+            raise ValueError("rock_d_min_m must be below rock_d_max_m")
+
+
+@dataclass(frozen=True)
 class MarsConfig:
     k: float = param(0.07, lo=0.0, hi=0.5, doc="Viking rock coverage (VL1 0.07, VL2 0.16)")
     relief_m: float = param(0.05, lo=0.0, hi=2.0, units="m", doc="rolling ground std")
@@ -197,7 +222,7 @@ class FileDemConfig:
                                     doc="heights beyond +- this are refused (wrong units)")
     zero_at_start: bool = param(True, doc="shift the heights so the ground under the rover "
                                           "centre at the start is z = 0 (the flight map's datum "
-                                          "is the body on its wheels: hil_sim.terrain_eval)")
+                                          "is the body on its wheels: hil_sim.lab.terrain_eval)")
 
 
 @dataclass(frozen=True)
@@ -215,6 +240,7 @@ class ScenarioConfig:
     mars: MarsConfig | None = None
     file: FileDemConfig | None = None
     terrain: TerrainConfig | None = None
+    cliff_team: CliffTeamConfig | None = None
 
 
 def parse_spec(spec: str) -> tuple[Path, dict[str, str], str | None]:
@@ -292,5 +318,5 @@ _TABLES: dict[str, type] = {
     "scenario": ScenarioInfo, "map": MapGridConfig, "world": TruthGridConfig,
     "rover_start": RoverStartConfig, "cliffbot": CliffbotConfig, "texture": TextureConfig,
     "lab": LabConfig, "cliff": CliffConfig, "mars": MarsConfig, "file": FileDemConfig,
-    "terrain": TerrainConfig,
+    "terrain": TerrainConfig, "cliff_team": CliffTeamConfig,
 }

@@ -16,7 +16,7 @@ header or PNG ``IHDR`` claiming more than ``MAX_DEM_CELLS`` cells, or a ``.npy``
 its header says, is refused (a hostile header never asks for gigabytes).
 With ``zero_at_start`` (default) the heights are shifted so that the ground under the rover
 start is ``z = 0``. (The flight map's datum is the body resting on its four wheels, which on
-rocky ground differs from that by centimetres; ``hil_sim.terrain_eval`` compares in the
+rocky ground differs from that by centimetres; ``hil_sim.lab.terrain_eval`` compares in the
 flight's datum.) On sloped ground the plateau is the ground
 connected to the start through steps no steeper than ``plateau_max_slope_deg`` (0: the level
 rule, within ``plateau_tol_m`` of the start height).

@@ -56,4 +56,8 @@ def build_world(cfg: ScenarioConfig, seed: int) -> World:
         from hil_sim.world.terrain import build_terrain
 
         return build_terrain(cfg, seed)
+    if kind == "cliff_team":
+        from hil_sim.world.cliff_team import build_cliff_team
+
+        return build_cliff_team(cfg, seed)
     raise ScenarioError(f"unknown scenario kind {kind!r}")  # config validation prevents this

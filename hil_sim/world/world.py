@@ -23,7 +23,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from fsw.core.geometry import MapGrid, MapGridConfig, MastConfig, camera_pose_from_rover
+from fsw.core.geometry import MapGrid, MapGridConfig, MastConfig, camera_pose_from_rover, wrap_angle
+from hil_sim.team.team_truth import TeamTruth
 from hil_sim.world.cliffbot import CliffbotTruth
 
 F32 = NDArray[np.float32]
@@ -61,6 +62,7 @@ class World:
     description: str = ""
     config: Any = field(default=None, repr=False)  # the validated ScenarioConfig
     drawn: dict[str, float] = field(default_factory=dict)  # generator parameters drawn from the seed
+    team: TeamTruth | None = None  # anchors, targets and jumble of a team scenario (cliff-team)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -119,6 +121,13 @@ class World:
         z = self._sample(self.height, xs, ys)
         return np.asarray(z.reshape(grid.ny, s, grid.nx, s).mean(axis=(1, 3)), float)
 
+    def ground_on_grid(self, grid: MapGrid) -> F64:
+        """Like :meth:`truth_on_grid`, of the terrain without the Cliff-bot (what a planner
+        that knows the ground perfectly plans on)."""
+        xs, ys, s = self._subsamples(grid)
+        z = self._sample(self.ground, xs, ys)
+        return np.asarray(z.reshape(grid.ny, s, grid.nx, s).mean(axis=(1, 3)), float)
+
     def textureless_on_grid(self, grid: MapGrid) -> NDArray[np.bool_]:
         """True for map cells mostly (> 50 %) covered by textureless surface."""
         xs, ys, s = self._subsamples(grid)
@@ -174,6 +183,6 @@ def aim_at(world: World, rover_xy_yaw: tuple[float, float, float], mast: MastCon
     target = (cb.x, cb.y, cb.z + 0.5 * cb.height_m)
     dx, dy, dz = target[0] - cam[0], target[1] - cam[1], target[2] - cam[2]
     pan = math.atan2(dy, dx) - yaw
-    pan = math.atan2(math.sin(pan), math.cos(pan))
+    pan = wrap_angle(pan)
     tilt = math.atan2(dz, math.hypot(dx, dy))
     return mast.clamp(pan, tilt, lift)

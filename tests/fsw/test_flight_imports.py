@@ -1,14 +1,15 @@
 """What the flight process imports (issue 15: its peak RSS must stay under 200 MB): a process
 that builds the executive from the default config loads neither scipy.stats (~45 MB: the
-registration's chi-square quantile is computed in closed form) nor pymavlink.mavutil (6 MB:
-the ground tools' connections)."""
+registration's chi-square quantile comes from scipy.special) nor pymavlink.mavutil (6 MB:
+the ground tools' connections), nor the recorders' libraries (foxglove, mcap, rerun: the
+bench and the ground record missions, never the flight process)."""
 
 from __future__ import annotations
 
 import subprocess
 import sys
 
-HEAVY = ("scipy.stats", "pymavlink.mavutil", "hil_sim", "ground")
+HEAVY = ("scipy.stats", "pymavlink.mavutil", "hil_sim", "ground", "foxglove", "mcap", "rerun")
 
 
 def test_the_flight_executive_does_not_import_heavy_or_bench_modules() -> None:

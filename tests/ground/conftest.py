@@ -16,7 +16,7 @@ import ground_demo  # noqa: E402
 from ground_demo import MemoryLink  # noqa: E402
 
 from fsw.comm.mavlink_signing import write_key  # noqa: E402
-from fsw.tasks.registry import KINDS  # noqa: E402
+from fsw.registry import KINDS  # noqa: E402
 
 
 @pytest.fixture

@@ -224,3 +224,52 @@ def test_render_link_lost_and_colours(key_file: Path) -> None:
         st.feed(new_codec(2, 2).parse_buffer(msg.pack(codec))[0], 10.0)
     screen = render(st, d, "udpin:x", 20.0, Painter(True))
     assert "LINK LOST" in screen and RED in screen and "exec.overruns" in screen
+
+
+def test_map_renders_a_checkpoint_in_metres(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 29, item 1: ``safer-ground map CHECKPOINT`` draws the saved map (+y up, axes in metres);
+    a damaged checkpoint is one line and exit 2."""
+    import numpy as np
+
+    from fsw.core.geometry import MapGrid
+    from fsw.core.map import checkpoint
+    from fsw.core.map.elevation_map import ElevationMap
+
+    emap = ElevationMap(MapGrid(0.0, 0.0, 0.05, 60, 40))
+    z = np.full((40, 60), np.nan)
+    z[:20, :] = 0.3  # the lower half (low y) mapped
+    emap.z, emap.n = z, np.isfinite(z).astype(np.int32)
+    ck = tmp_path / "map_000002.ckpt"
+    ck.write_bytes(checkpoint.encode(emap, 2, 60.0))
+    png = tmp_path / "ck.png"
+    assert main(["map", str(ck), "--out", str(png)]) == 0
+    assert "1200 mapped" in capsys.readouterr().out
+    img = cv2.imread(str(png))
+    assert img is not None and img.shape[0] > 200 and img.shape[1] > 200
+    h, w = img.shape[:2]  # +y up: the mapped low-y half is drawn below the unknown (white) half
+    assert (img[int(0.3 * h), int(0.4 * w)] > 240).all() and not (img[int(0.7 * h), int(0.4 * w)] > 240).all()
+    bad = tmp_path / "bad.ckpt"
+    bad.write_bytes(ck.read_bytes()[:-3])
+    assert main(["map", str(bad), "--out", str(png)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "unreadable" in err[0]
+
+
+def test_listen_keeps_its_header_filters_channels_and_shows_the_step() -> None:
+    """Issue 29, item 5: with 150 channels the screen fits a 40-row terminal with the header on
+    top; --channels filters by pattern; the mission's step shows as 'step k of N'."""
+    from ground.dictionary import load_dictionary
+    from ground.listen import Painter, render
+    from ground.state import GroundState
+
+    d = load_dictionary()
+    st = GroundState(d)
+    st.channels.update({f"task{i:03d}.value": (float(i), 10.0) for i in range(150)})
+    st.channels["mission.step"] = (3.0, 10.0)
+    screen = render(st, d, "udpin:x", 11.0, Painter(False), rows=40, steps=20).splitlines()
+    assert len(screen) <= 40 and screen[0].startswith("safer-ground udpin:x")
+    assert "step 3 of 20" in screen[2] and any("more channels" in ln for ln in screen)
+    full = render(st, d, "udpin:x", 11.0, Painter(False)).splitlines()
+    assert len(full) > 70  # without a height every channel is listed
+    only = render(st, d, "udpin:x", 11.0, Painter(False), channels=("mission.*", "task00?.*"))
+    assert "mission.step" in only and "task009.value" in only and "task010.value" not in only

@@ -120,3 +120,49 @@ def test_reduction_experiment_on_a_mission_like_map(tmp_path: Path):
     assert int(m["obst"]) > 0 and m["kept"] == m["obst"] and float(m["worst_peak_loss_m"]) <= 0
     assert safer_hil(["experiment", "reduction", "--maps", "0", "--terrains", "nowhere", "--no-dem",
                       "--out", str(red)]) == 2
+
+
+def _checkpoint_file(tmp_path: Path) -> tuple[Path, np.ndarray]:
+    from fsw.core.geometry import MapGrid
+    from fsw.core.map import checkpoint
+    from fsw.core.map.elevation_map import ElevationMap
+
+    emap = ElevationMap(MapGrid(-1.0, -2.0, 0.05, 40, 30))
+    z = np.full((30, 40), np.nan)
+    z[5:20, 10:30] = np.linspace(0.0, 0.5, 20)[None, :]
+    emap.z = z.copy()
+    emap.n = np.isfinite(z).astype(np.int32)
+    p = tmp_path / "map_000007.ckpt"
+    p.write_bytes(checkpoint.encode(emap, 7, 123.4, state={"mission": {"phase": "MOVE", "step": 3}}))
+    return p, z
+
+
+def test_info_and_decode_read_a_map_checkpoint(tmp_path: Path, capsys):
+    """Issue 29, item 1: checkpoints are read, not rejected as 'bad magic'; known cells and NaN kept."""
+    p, z = _checkpoint_file(tmp_path)
+    assert safer_map(["info", str(p)]) == 0
+    text = capsys.readouterr().out
+    assert "map checkpoint" in text and "30 x 40 (300 known)" in text and "123.4" in text and "MOVE" in text
+    back = tmp_path / "back.npy"
+    assert safer_map(["decode", str(p), str(back)]) == 0
+    r = np.load(back)
+    assert r.dtype == np.float32 and np.array_equal(np.isnan(r), np.isnan(z))
+    assert np.allclose(r[np.isfinite(z)], z[np.isfinite(z)], atol=1e-6)
+
+
+@pytest.mark.parametrize(("content", "says"), [("npy", "safer-map encode"), ("tlog", "safer-ground map"),
+                                                ("bad_ckpt", "map checkpoint, unreadable")])
+def test_other_files_are_named_with_the_command_that_reads_them(tmp_path: Path, npy: Path, content: str,
+                                                                 says: str, capsys):
+    if content == "npy":
+        path = npy
+    elif content == "tlog":
+        path = tmp_path / "fsw.tlog"
+        path.write_bytes(b"\x00" * 8 + b"\xfd" + b"\x00" * 40)
+    else:
+        good, _ = _checkpoint_file(tmp_path)
+        path = tmp_path / "bad.ckpt"
+        path.write_bytes(good.read_bytes()[:-5])
+    assert safer_map(["info", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and says in err[0]

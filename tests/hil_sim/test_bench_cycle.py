@@ -9,7 +9,7 @@ import pytest
 
 from fsw.framework.params import ConfigError
 from hil_sim.cli import main
-from hil_sim.cycle_budget import DEFAULT_BUDGET, load_budget, verdict
+from hil_sim.lab.cycle_budget import DEFAULT_BUDGET, load_budget, verdict
 from hil_sim.mission_report import WALL_CLOCK_FIELDS, task_ms_per_frame
 
 
@@ -35,7 +35,7 @@ def test_bench_cycle_bad_input_exits_2(tmp_path: Path, capsys: pytest.CaptureFix
 def test_budget_table_defaults_and_rejects_bad_values(tmp_path: Path) -> None:
     b = load_budget()
     assert b.cpu_factor == 30.0
-    stages = (b.cycle.rectify_s, b.cycle.stereo_s, b.cycle.merge_s, b.cycle.edge_s,
+    stages = (b.cycle.rectify_s, b.cycle.stereo_s, b.cycle.register_s, b.cycle.merge_s, b.cycle.edge_s,
               b.cycle.next_view_s)
     assert sum(stages) <= b.cycle.total_s + 1e-9  # the stage budgets fit the cycle's
     assert b.slack_slice_ms == 20.0  # the slice bound, here
@@ -68,8 +68,8 @@ def test_bench_cycle_prints_breakdown(capsys: pytest.CaptureFixture[str]) -> Non
     assert main(["bench", "cycle", "--grids", "64", "--repeats", "1",
                  "--mission-steps", "0"]) == 0
     out = capsys.readouterr().out
-    for word in ("capture", "rectify", "stereo", "merge", "edge", "next_view", "cycle",
-                 "peak RSS", "target"):
+    for word in ("capture", "rectify", "stereo", "register", "merge", "edge", "next_view", "cycle",
+                 "peak RSS", "target", "the flown pipeline"):
         assert word in out
 
 

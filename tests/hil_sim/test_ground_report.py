@@ -4,7 +4,7 @@ the stuck / unused-steps criteria computed from the summary fields, and argument
 from __future__ import annotations
 
 from hil_sim.cli import main
-from hil_sim.ground_report import report_markdown, row_of
+from hil_sim.lab.ground_report import report_markdown, row_of
 
 
 def _summary(odometer_m: float, reachable: list[int], steps: int, reason: str | None) -> dict:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from fsw.settings import DEFAULT_CONFIG, load_settings
@@ -19,6 +21,8 @@ from hil_sim.commands.serve import write_flight_config
         ["serve", "--scenario", "flat", "--can-bind", "192.0.2.254"],  # not an address of this machine
         ["serve", "--scenario", "flat", "--can-multicast", "nonexistent0"],
         ["bench", "lockstep", "--seconds", "-1"],
+        ["experiment", "team", "--scenes", "0"],
+        ["experiment", "team", "--scenes", "1", "--scenario", "lab"],  # a scenario with no team
     ],
 )
 def test_bad_input_exits_2(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
@@ -70,3 +74,23 @@ def test_bench_lockstep_prints_its_figure(capsys: pytest.CaptureFixture[str]) ->
     assert main(["bench", "lockstep", "--scenario", "lab", "--seconds", "3", "--capture-period", "0"]) == 0
     out = capsys.readouterr().out
     assert "x real time" in out and "CAN" in out
+
+
+def test_serve_link_options_go_into_the_flight_config(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 29, item 5: serve takes the MAVLink link, key, tlog and checkpoint folder; without
+    --flight-config they are a usage error (exit 2, one line)."""
+    import argparse
+
+    from hil_sim.commands.serve import link_keys
+
+    ns = argparse.Namespace(mavlink_url="udpin:127.0.0.1:14560", key_file=str(tmp_path / "k"),
+                            tlog=str(tmp_path / "f.tlog"), checkpoint_dir=str(tmp_path / "ck"))
+    out = tmp_path / "f.toml"
+    write_flight_config(DEFAULT_CONFIG, out, {"camera_source": "none"}, link_keys(ns))
+    cfg = load_settings(out)
+    assert (cfg.mavlink.url, cfg.mavlink.key_file, cfg.mavlink.tlog_path) == (ns.mavlink_url, ns.key_file, ns.tlog)
+    assert cfg.checkpoint.directory == ns.checkpoint_dir
+    assert cfg.mavlink.budget_bytes_per_frame == load_settings(DEFAULT_CONFIG).mavlink.budget_bytes_per_frame
+    assert main(["serve", "--tlog", "x.tlog", "--duration", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--flight-config" in err[0]

@@ -1,4 +1,4 @@
-"""``hil_sim.results``: the result file an experiment command writes (docs/results/<experiment>.md)."""
+"""``hil_sim.lab.results``: the result file an experiment command writes (docs/results/<experiment>.md)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from hil_sim import results
+from hil_sim.lab import results
 
 
 def test_result_file_has_date_commit_command_table_and_figures(tmp_path: Path) -> None:

@@ -1,4 +1,4 @@
-"""The map-quality figures against the truth in the flight map's datum (``hil_sim.terrain_eval``):
+"""The map-quality figures against the truth in the flight map's datum (``hil_sim.lab.terrain_eval``):
 the datum is the true body height at the start, which on rocky ground is not the ground under
 the rover's centre (docs/perception.md, "Map datum")."""
 
@@ -12,8 +12,8 @@ from hil_helpers import cfg
 
 from fsw.core.geometry import MapGrid
 from fsw.core.map.elevation_map import ElevationMap
+from hil_sim.lab.terrain_eval import map_quality
 from hil_sim.rover_truth import RoverTruth, RoverTruthConfig
-from hil_sim.terrain_eval import map_quality
 
 GRID = MapGrid(0.0, 0.0, 0.03, 60, 50)
 EXACT = RoverTruthConfig(slip_mean=0.0, slip_bias_sigma=0.0, slip_noise_sigma=0.0, steer_offset_sigma_deg=0.0)

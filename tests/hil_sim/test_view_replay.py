@@ -1,4 +1,4 @@
-"""One-factor lockstep replays (hil_sim.view_replay): the same views merged again with one
+"""One-factor lockstep replays (hil_sim.lab.view_replay): the same views merged again with one
 factor changed; the camera path through the TRUE calibration maps the views as the ideal
 pinhole pair does (the check that would have told the lab's map regression was not the
 calibration), and a pose error the flight did not know shows in the figures."""
@@ -14,9 +14,9 @@ from fsw.core.geometry import CameraPose, camera_pose_from_rover
 from fsw.core.localization.localization import so3_exp
 from fsw.settings import load_settings
 from hil_sim.camera_model import TrueCameras
+from hil_sim.lab.view_replay import Factor, RecordedView, replay
 from hil_sim.render import StereoRenderer
 from hil_sim.rig import load_hardware
-from hil_sim.view_replay import Factor, RecordedView, replay
 from hil_sim.world import load_scenario
 
 pytestmark = pytest.mark.slow
@@ -67,7 +67,7 @@ def test_registration_errors_from_true_poses_are_consistent(views: list[Recorded
     """The views merged from their true poses: each registered one gives a finite NEES, and
     the covariance of the shipped configuration holds its error (mean roll/pitch NEES well
     inside what an overconfident covariance gives; chi-square 2 dof has mean 2)."""
-    from hil_sim.view_replay import registration_errors
+    from hil_sim.lab.view_replay import registration_errors
 
     rows, q = registration_errors(views, "lab", 0)
     assert 1 <= len(rows) <= len(views) - 1  # the first view begins the map

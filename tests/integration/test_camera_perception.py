@@ -31,21 +31,22 @@ def test_raw_pairs_are_rectified_in_bands_inside_the_job() -> None:
     radio = open_radio(f"inproc://camera-perception-{id(cfg)}")  # its own radio end, never a shared name
     exe = Executive(dataclasses.replace(cfg, map=world.map_grid), SteppedClock(), Resources(radio_port=radio))
     task = exe.tasks["perception"]
-    assert task.rectifier is not None and task.matcher.rectified is task.rectifier.camera
+    pipeline = task.pipeline
+    assert pipeline.rectifier is not None and pipeline.matcher.rectified is pipeline.rectifier.camera
     cams = TrueCameras.from_config(cfg.camera, load_hardware().camera)
     pose = camera_pose_from_rover(world.rover_start, (np.radians(-90), np.radians(-45), 0.5), cfg.mast,
                                   world.plateau_z)
     left, right = StereoRenderer(world, cfg.camera, world.noise_sigma, 0, cameras=cams).render(pose)
     calls = []
-    real = task.rectifier.rectify_steps
+    real = pipeline.rectifier.rectify_steps
 
     def spy(*a: Any) -> Any:
         calls.append(a[2])
         return (yield from real(*a))
 
-    task.rectifier.rectify_steps = spy  # type: ignore[method-assign]
-    yields, up = count_steps(task._merge_view(CameraFrame(0, 0.0, left, right, pose, np.zeros((6, 6)))))
-    bands = len(task.matcher.bands(cfg.camera.height_px))
+    pipeline.rectifier.rectify_steps = spy  # type: ignore[method-assign]
+    yields, up = count_steps(task.merge_view(CameraFrame(0, 0.0, left, right, pose, np.zeros((6, 6)))))
+    bands = len(pipeline.matcher.bands(cfg.camera.height_px))
     assert calls == [cfg.stereo.band_rows_px] and yields >= 3 * bands + 6
     m = task.map.mapped & np.isfinite(world.truth_on_grid(task.map.grid))
     err = task.map.z[m] - world.truth_on_grid(task.map.grid)[m]

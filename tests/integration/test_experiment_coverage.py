@@ -11,7 +11,7 @@ from typing import Any
 import pytest
 
 from hil_sim.cli import main as hil_main
-from hil_sim.commands.experiment_coverage import claims, write_report
+from hil_sim.lab.experiments.experiment_coverage import claims, write_report
 
 POSE = {"x": 0.0, "y": 0.0, "yaw": 0.0, "pan": 0.0, "tilt": 0.0, "lift": 0.5}
 

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from fsw.core.geometry import MapGrid
-from hil_sim.commands.experiment_terrain import tilted_spec
-from hil_sim.terrain_eval import plane_tilt_deg, seams, stations
+from hil_sim.lab.experiments.experiment_terrain import tilted_spec
+from hil_sim.lab.terrain_eval import plane_tilt_deg, seams, stations
 
 GRID = MapGrid(0.0, 0.0, 0.05, 40, 30)
 

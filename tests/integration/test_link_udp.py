@@ -11,7 +11,7 @@ from __future__ import annotations
 import pytest
 
 from hil_sim.cli import main
-from hil_sim.link_udp_experiment import UdpRunSpec, run_udp
+from hil_sim.lab.link_udp_experiment import UdpRunSpec, run_udp
 
 
 def test_small_map_over_the_udp_relay_with_an_outage() -> None:

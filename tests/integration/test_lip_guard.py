@@ -1,4 +1,4 @@
-"""The occluding-lip guard end to end (fsw.core.stereo.occlusion via fsw.core.acquire): rendered views of
+"""The occluding-lip guard end to end (fsw.core.stereo.occlusion in the sensing pipeline): rendered views of
 a generated terrain's cliff edge, merged with a pose that is off by a drive's dead-reckoning
 error (and says so in its covariance), put the plateau's height on the occluded face past the
 lip; with the guard they do not (docs/perception.md, "Occluding lips")."""
@@ -12,13 +12,12 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from fsw.core.acquire import acquire
 from fsw.core.geometry import CameraPose, MapGrid
-from fsw.core.localization.localization import PoseEstimate, so3_exp
-from fsw.core.map.elevation_map import ElevationMap
-from fsw.core.stereo.stereo import StereoMatcher
+from fsw.core.localization.localization import so3_exp
+from fsw.core.pipeline import SensingPipeline
 from fsw.settings import load_settings
-from hil_sim.perception_eval import edge_pass_poses
+from fsw.tasks.messages import CameraFrame
+from hil_sim.lab.perception_eval import edge_pass_poses
 from hil_sim.render import StereoRenderer
 from hil_sim.world import load_scenario
 
@@ -30,17 +29,20 @@ def _map_band(lip_guard_sigma: float, seed: int) -> tuple[int, int, float]:
     mapped, fraction within 2 sigma: two views along the edge with a -2.5 deg yaw and 6 cm error."""
     cfg = load_settings("config/fsw.toml")
     world = load_scenario(SCENARIO, seed)
-    camera = dataclasses.replace(cfg.camera, calibration_file="")
-    matcher = StereoMatcher(cfg.stereo, camera)
+    camera = dataclasses.replace(cfg.camera, calibration_file="")  # the ideal renderer's pairs
     grid = MapGrid.from_config(cfg.map)
-    emap = ElevationMap(grid, dataclasses.replace(cfg.fusion, lip_guard_sigma=lip_guard_sigma))
+    # the displaced poses merged as they come (registration off: the guard alone)
+    pipeline = SensingPipeline(dataclasses.replace(
+        cfg, camera=camera, fusion=dataclasses.replace(cfg.fusion, lip_guard_sigma=lip_guard_sigma),
+        registration=dataclasses.replace(cfg.registration, enabled=False)), None)
     render = StereoRenderer(world, camera, float(world.noise_sigma), seed)
     cov = np.diag(np.array([0.3, 0.3, 3.0, 0.0, 0.0, 0.0]) * math.pi / 180) ** 2
     cov[3:, 3:] = np.diag([0.05, 0.05, 0.02]) ** 2
-    for true in edge_pass_poses(world, cfg.mast, stops_x_m=(1.5, 3.0), pans_deg=(-50.0,)):
+    for i, true in enumerate(edge_pass_poses(world, cfg.mast, stops_x_m=(1.5, 3.0), pans_deg=(-50.0,))):
         left, right = render.render(true)
         est = CameraPose(so3_exp(np.array([0.0, 0.0, math.radians(-2.5)])) @ true.R, true.t + [0.0, -0.06, 0.0])
-        acquire(matcher, emap, left, right, PoseEstimate(est, cov))
+        pipeline.merge_view(CameraFrame(i, 0.0, left, right, est, cov))
+    emap = pipeline.map
     truth = world.truth_on_grid(grid)
     X, Y = grid.centers()
     past = ndimage.distance_transform_edt(~world.on_plateau(X.ravel(), Y.ravel()).reshape(grid.shape)) * grid.cell

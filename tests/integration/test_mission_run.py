@@ -73,7 +73,7 @@ def test_mission_commands_validated() -> None:
     with LockstepBench(cfg, None, seed=0, quiet=True, camera=False) as b:
         b.run(2)
         mission = b.exe.tasks["mission"]
-        assert _phase(b) == "IDLE" and mission.safe_entries == 0
+        assert _phase(b) == "IDLE" and mission.safe.entries == 0
         steps = [
             ("RESUME", "EXECUTION_ERROR", "IDLE"),  # not in SAFE
             ("ABORT", "EXECUTION_ERROR", "IDLE"),  # nothing to abort
@@ -94,7 +94,7 @@ def test_mission_commands_validated() -> None:
             assert b.exe.commands.dispatched == answered + i + 1  # exactly one answer
             assert len(b.events("mission.COMMAND_REFUSED")) == refused + (status != "OK")
             assert b.tlm("mission.state") == (None if phase == "IDLE" else phase)  # published on change
-        assert mission.safe_entries == 1 and mission.safe_reason == "aborted by command"
+        assert mission.safe.entries == 1 and mission.safe.reason == "aborted by command"
         assert [e.text for e in b.events("mission.SAFE")] == ["SAFE mode: aborted by command"]
         # ABORT stopped the wheels and parked the mast; no other command asked for a move.
         assert [(m.request_id, m.kind) for m in moves.drain()] == [(0, "stop"), (0, "mast")]

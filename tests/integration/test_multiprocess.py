@@ -100,7 +100,7 @@ def test_serve_and_flight_processes_move_a_motor_and_the_mast(tmp_path: Path) ->
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                env={**os.environ, "PYTHONUNBUFFERED": "1"})
         try:
-            _read_until(fsw, "safer-fsw: running", 30.0)
+            _read_until(fsw, "components at", 30.0)
             time.sleep(1.0)  # frames run
             assert off_machine_sockets(family(serve.pid) + family(fsw.pid)) == []
             fsw.send_signal(signal.SIGTERM)

@@ -1,9 +1,10 @@
 """End to end on the HIL worlds: rendered stereo pairs -> map, calibration, fusion, Cliff-bot
 fiducials, textureless misses and the cliff edge (issue 4, done-when 1-5).
 
-Camera poses are the true ones (lockstep bench); the pose term of §1.2 is checked separately
-by sampling pose errors. Figures are printed (``pytest -s``); the same numbers come from
-``safer-hil bench perception --plot``.
+Every view goes through the flight's sensing pipeline (``fsw.core.pipeline``) with the ideal
+renderer's pairs (no rectification) from the true camera poses (registration off); the pose
+term of §1.2 is checked separately by sampling pose errors. Figures are printed
+(``pytest -s``); the same numbers come from ``safer-hil bench perception --plot``.
 """
 
 from __future__ import annotations
@@ -15,15 +16,17 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from fsw.core.acquire import acquire, view_points
 from fsw.core.edge.edge import edge_cells, fit_line, fit_polygon
 from fsw.core.geometry import CameraPose, MapGrid, camera_pose_from_rover
 from fsw.core.localization.fiducials import CliffbotLocalizer
 from fsw.core.localization.localization import PoseEstimate, so3_exp, so3_log
 from fsw.core.map.elevation_map import ElevationMap
-from fsw.core.stereo.stereo import StereoMatcher
+from fsw.core.pipeline import RegisteredPose, SensingPipeline
+from fsw.core.registration.registration import Registration
+from fsw.core.steps import run_to_end
 from fsw.settings import FswConfig, load_settings
-from hil_sim.perception_eval import (
+from fsw.tasks.messages import CameraFrame
+from hil_sim.lab.perception_eval import (
     PERCEPTION_LAB,
     calibration,
     cell_range_m,
@@ -41,6 +44,20 @@ EXACT = np.zeros((6, 6))
 @pytest.fixture(scope="module")
 def cfg() -> FswConfig:
     return load_settings()
+
+
+def _true_poses(cfg: FswConfig, world: World) -> FswConfig:
+    """The pipeline's configuration for ideal pairs from true poses on the world's map grid."""
+    return dataclasses.replace(cfg, map=world.map_grid, camera=dataclasses.replace(cfg.camera, calibration_file=""),
+                               registration=dataclasses.replace(cfg.registration, enabled=False))
+
+
+def _merged(cfg: FswConfig, views: list[tuple[CameraPose, np.ndarray, np.ndarray]]) -> ElevationMap:
+    """The map of ``views`` (pose, left, right) merged by a fresh pipeline from exact poses."""
+    pipeline = SensingPipeline(cfg, None)
+    for i, (pose, left, right) in enumerate(views):
+        pipeline.merge_view(CameraFrame(i, 0.0, left, right, pose, EXACT))
+    return pipeline.map
 
 
 @pytest.fixture(scope="module")
@@ -64,12 +81,7 @@ def single(cfg, lab):
 def ten_views(cfg, lab):
     """Ten views of one patch of the pit (the rover steps along the edge, re-aims the mast)."""
     world, rend, grid, truth = lab
-    matcher = StereoMatcher(cfg.stereo, cfg.camera)
-    out = []
-    for pose in pit_view_poses(world, cfg.mast, 10, seed=1):
-        left, right = rend.render(pose)
-        out.append((pose, view_points(matcher, left, right, PoseEstimate(pose, EXACT))))
-    return out
+    return [(pose, *rend.render(pose)) for pose in pit_view_poses(world, cfg.mast, 10, seed=1)]
 
 
 def test_one_pair_at_2_to_4_m_is_accurate_and_calibrated(cfg, lab, single) -> None:
@@ -77,8 +89,7 @@ def test_one_pair_at_2_to_4_m_is_accurate_and_calibrated(cfg, lab, single) -> No
     cells and 90 % <= fraction of cells with |err| <= 2 sigma <= 99 %."""
     world, _, grid, truth = lab
     pose, left, right, _ = single
-    emap = ElevationMap(grid, cfg.fusion)
-    acquire(StereoMatcher(cfg.stereo, cfg.camera), emap, left, right, PoseEstimate(pose, EXACT))
+    emap = _merged(_true_poses(cfg, world), [(pose, left, right)])
     rng = cell_range_m(grid, truth, pose)
     cal = calibration(emap.z, emap.var, truth, emap.mapped & (rng >= 2.0) & (rng <= 4.0))
     print(f"\n[done-when 1] one pair, 2-4 m: {cal.line()}")
@@ -91,13 +102,9 @@ def test_ten_views_reduce_variance_as_predicted(cfg, lab, ten_views) -> None:
     """Issue 4, done-when 2: fusing 10 views shrinks each cell's variance to the model's
     prediction from the single views, the error does not grow, calibration holds."""
     world, _, grid, truth = lab
-    fused = ElevationMap(grid, cfg.fusion)
-    singles = []
-    for pose, pts in ten_views:
-        one = ElevationMap(grid, cfg.fusion)
-        one.merge(pts.xyz_w, cov=pts.cov_w)
-        fused.merge(pts.xyz_w, cov=pts.cov_w)
-        singles.append((one, cell_range_m(grid, truth, pose)))
+    true_poses = _true_poses(cfg, world)
+    fused = _merged(true_poses, ten_views)
+    singles = [(_merged(true_poses, [view]), cell_range_m(grid, truth, view[0])) for view in ten_views]
     common = np.all([o.mapped & (r >= 2.0) & (r <= 4.0) for o, r in singles], axis=0)
     common &= fused.outliers == 0  # gated cells are not fused as the closed form assumes
     assert common.sum() > 500
@@ -120,22 +127,21 @@ def test_pose_covariance_is_propagated_honestly(cfg, lab, ten_views) -> None:
     """§1.2: with a camera pose error drawn from its covariance, the map's sigma (stereo plus
     J_pose S_pose J_pose^T) still covers the error: pooled over 25 pose draws."""
     world, _, grid, truth = lab
-    pose, _ = ten_views[0]
-    left_pts = ten_views[0][1]
-    xyz_c = pose.world_to_camera(left_pts.xyz_w)
-    cov_c = np.matmul(np.matmul(pose.R.T, left_pts.cov_w), pose.R)  # exact pose: stereo only
+    pose, left, right = ten_views[0]
+    true_poses = _true_poses(cfg, world)
+    pts = SensingPipeline(true_poses, None).matcher.points(left, right)  # the view in the camera frame
     S = np.diag([math.radians(0.2) ** 2] * 3 + [0.01**2] * 3)
     rng = np.random.default_rng(7)
     inside, total = 0, 0
     r = cell_range_m(grid, truth, pose)
-    from fsw.core.localization.localization import point_covariance_parts
     for _ in range(25):
         dx = np.sqrt(np.diag(S)) * rng.normal(size=6)
-        est = CameraPose(so3_exp(dx[:3]) @ pose.R, pose.t + dx[3:])
-        pts, cs, cp = point_covariance_parts(est, S, xyz_c, cov_c)
-        assert cp is not None
-        one = ElevationMap(grid, cfg.fusion)
-        one.merge(pts, cov=cs + cp, cov_common=cp)
+        est = RegisteredPose(Registration("off"), CameraPose(so3_exp(dx[:3]) @ pose.R, pose.t + dx[3:]), S, None)
+        drawn = SensingPipeline(true_poses, None)  # the pipeline's world points and fusion from the drawn pose
+        parts = run_to_end(drawn.world_parts_steps(est, pts))
+        assert all(p[2] is not None for p in parts)  # the pose part, common to the view
+        run_to_end(drawn.fuse_steps(est, parts))
+        one = drawn.map
         sel = one.mapped & (r >= 2) & (r <= 4) & np.isfinite(truth)
         err = np.abs(one.z[sel] - truth[sel])
         inside += int(np.sum(err <= 2 * np.sqrt(one.var[sel])))
@@ -179,10 +185,13 @@ def test_textureless_region_gives_no_points_and_records_misses(cfg, lab, single)
     (§3.4), while textured cells that got points record none."""
     world, _, grid, truth = lab
     pose, left, right, depth = single
-    matcher = StereoMatcher(cfg.stereo, cfg.camera)
-    emap = ElevationMap(grid, cfg.fusion)
-    pv = visible_cells(grid, truth, pose, cfg.camera, depth)
-    res = acquire(matcher, emap, left, right, PoseEstimate(pose, EXACT), p_visible=pv)
+    pipeline = SensingPipeline(_true_poses(cfg, world), None)
+    matcher = pipeline.matcher
+    pv = visible_cells(grid, truth, pose, cfg.camera, depth)  # the true P_V, not the map's
+    exact = RegisteredPose(Registration("off"), pose, EXACT, None)
+    parts = run_to_end(pipeline.world_parts_steps(exact, matcher.points(left, right)))
+    res = run_to_end(pipeline.fuse_steps(exact, parts, p_visible=pv))
+    emap = pipeline.map
     # pixel level: which pixels see the patch (truth), eroded by the window half-size + 1
     K = cfg.camera.K
     v, u = np.mgrid[0:cfg.camera.height_px, 0:cfg.camera.width_px]
@@ -220,15 +229,13 @@ def test_edge_polygon_follows_the_true_edge(cfg, scenario: str) -> None:
     """Issue 4, done-when 5: the polygon edge (Methods 4/5) lies within 2 cells of the true
     edge on average; the straight-line fit (Method 3) is reported beside it."""
     world = load_scenario(scenario)
-    cam = dataclasses.replace(cfg.camera, width_px=320, height_px=240)  # small, fast renders
-    stereo = dataclasses.replace(cfg.stereo, num_disparities_px=64)
-    rend = StereoRenderer(world, cam, world.noise_sigma, seed=0)
-    matcher = StereoMatcher(stereo, cam)
+    small = _true_poses(dataclasses.replace(
+        cfg, camera=dataclasses.replace(cfg.camera, width_px=320, height_px=240),  # small, fast renders
+        stereo=dataclasses.replace(cfg.stereo, num_disparities_px=64)), world)
+    rend = StereoRenderer(world, small.camera, world.noise_sigma, seed=0)
     grid = MapGrid.from_config(world.map_grid)
-    emap = ElevationMap(grid, cfg.fusion)
-    for pose in edge_pass_poses(world, cfg.mast):  # 4 stops along the edge, 3 pans each
-        left, right = rend.render(pose)
-        acquire(matcher, emap, left, right, PoseEstimate(pose, EXACT))
+    # 4 stops along the edge, 3 pans each
+    emap = _merged(small, [(pose, *rend.render(pose)) for pose in edge_pass_poses(world, cfg.mast)])
     x0, y0, _ = world.rover_start
     cells = edge_cells(emap, world.plateau_z, (x0, y0), cfg.edge)
     poly = fit_polygon(emap, cells, cfg.edge)

@@ -2,7 +2,7 @@
 
 ``DemoMissionTask`` stands in for the mission sequencer, motion and perception tasks until
 a bench run exists: it walks through mission states, drives a pose along +x, pans the
-mast, grows ``mapped_cells`` and publishes an elevation preview on ``map.preview``.
+mast, grows ``mapped_cells`` and publishes an elevation preview on the configured ``map_preview_topic``.
 ``build(...)`` makes an executive (SteppedClock) with health, demo and mavlink tasks.
 Also the tests' helpers: ``command_frame`` (a COMMAND_LONG from a ground station),
 ``MemoryLink`` (an in-memory transport), ``write_config`` (a TOML for ``--config``),
@@ -30,8 +30,8 @@ from fsw.framework.clock import SteppedClock
 from fsw.framework.params import build as build_cfg
 from fsw.framework.task import Task
 from fsw.framework.telemetry import Channel, EventDef, Severity
+from fsw.registry import KINDS
 from fsw.settings import FswConfig
-from fsw.tasks.registry import KINDS
 
 STATES = ("INIT", "SELECT", "MOVE", "POINT", "ACQUIRE", "SELECT", "MOVE", "POINT", "ACQUIRE", "TRANSMIT", "DONE")
 
@@ -66,7 +66,7 @@ class DemoMissionTask(Task):
         self.tlm("mapped_cells", int(400 * t))
         self.tlm("temperature_c", 30.0 + t)
         if frame % 50 == 0:
-            self.publish("map.preview", preview(t))
+            self.publish(self.ctx.cfg.mavlink.map_preview_topic, preview(t))
 
 
 def preview(t: float) -> np.ndarray:

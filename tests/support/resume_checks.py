@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hil_sim.commands.experiment_resume import compare_maps, newest
+from hil_sim.lab.experiments.experiment_resume import compare_maps, newest
 from hil_sim.mission_report import strip_wall_clock
 from hil_sim.mission_run import MissionExistsError, RunSpec, run_mission
 

@@ -11,7 +11,6 @@ through taps (its own mailboxes on the topics).
 from __future__ import annotations
 
 import dataclasses
-import itertools
 from typing import Any
 
 from fsw.drivers.resources import Resources
@@ -43,8 +42,7 @@ class TaskRig(ExecutiveDriver):
 
     def __init__(self, cfg: FswConfig, resources: Resources | None = None) -> None:
         self.clock = SteppedClock()
-        self.exe = Executive(cfg, self.clock, resources or Resources())
-        self._seq = itertools.count(1)
+        super().__init__(Executive(cfg, self.clock, resources or Resources()))
 
     def task(self, name: str) -> Any:
         return self.exe.tasks[name]

@@ -70,7 +70,7 @@ from shapely.geometry.base import BaseGeometry
 
 from fsw.core.edge.edge import EdgeModel
 from fsw.core.edge.known_ground import KnownGround, Pose3, rover_footprint
-from fsw.core.geometry import MapGrid, RoverConfig
+from fsw.core.geometry import MapGrid, RoverConfig, wrap_angle
 from fsw.core.localization.odometry import drift_sigma
 from fsw.core.motion.motion_profile import MotionConfig
 from fsw.framework.params import param
@@ -348,7 +348,7 @@ class Geofence:
 
     def _linear(self, a: tuple[float, float, float], b: tuple[float, float, float]
                 ) -> np.ndarray:
-        dyaw = (b[2] - a[2] + math.pi) % (2.0 * math.pi) - math.pi
+        dyaw = wrap_angle(b[2] - a[2])
         dist = math.hypot(b[0] - a[0], b[1] - a[1])
         n = max(1, math.ceil(dist / self.cfg.sample_step_m),
                 math.ceil(abs(math.degrees(dyaw)) / self.cfg.sample_step_deg))

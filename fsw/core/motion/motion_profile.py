@@ -16,7 +16,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.core.motion import wheel_kinematics as wk
+from fsw.core.geometry import wrap_angle
 from fsw.framework.params import param
 
 SegmentKind = Literal["drive", "turn"]
@@ -71,17 +71,17 @@ def goto_plan(pose: Pose3, x: float, y: float, yaw: float | None, speed_mps: flo
     """Turn, drive, turn from ``pose`` to ``(x, y[, yaw])``; backs up rather than turning around."""
     px, py, pyaw = pose
     dist, heading = math.hypot(x - px, y - py), math.atan2(y - py, x - px)
-    turn1 = wk.wrap_angle(heading - pyaw)
+    turn1 = wrap_angle(heading - pyaw)
     if abs(turn1) > math.pi / 2:  # closer to back up than to turn around
-        turn1, dist = wk.wrap_angle(turn1 - math.pi), -dist
+        turn1, dist = wrap_angle(turn1 - math.pi), -dist
     segs: SegmentPlan = []
     if dist > cfg.position_tolerance_m or -dist > cfg.position_tolerance_m:
         if abs(turn1) > math.radians(cfg.yaw_tolerance_deg):
             segs += turn_plan(turn1, 0.0, cfg)
         segs += drive_plan(dist, speed_mps, cfg)
         pyaw += turn1
-    if yaw is not None and abs(wk.wrap_angle(yaw - pyaw)) > math.radians(cfg.yaw_tolerance_deg):
-        segs += turn_plan(wk.wrap_angle(yaw - pyaw), 0.0, cfg)
+    if yaw is not None and abs(wrap_angle(yaw - pyaw)) > math.radians(cfg.yaw_tolerance_deg):
+        segs += turn_plan(wrap_angle(yaw - pyaw), 0.0, cfg)
     return segs
 
 

@@ -20,7 +20,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.core.geometry import RoverConfig
+from fsw.core.geometry import RoverConfig, wrap_angle
 
 F64 = NDArray[np.float64]
 WHEEL_ORDER = ("FL", "FR", "RL", "RR")
@@ -78,9 +78,6 @@ def integrate_pose(pose: tuple[float, float, float], motion: F64) -> tuple[float
     dx, dy, dpsi = (float(v) for v in motion)
     mid = yaw + dpsi / 2.0
     c, s = math.cos(mid), math.sin(mid)
-    yaw2 = math.atan2(math.sin(yaw + dpsi), math.cos(yaw + dpsi))
+    yaw2 = wrap_angle(yaw + dpsi)
     return (x + c * dx - s * dy, y + s * dx + c * dy, yaw2)
 
-
-def wrap_angle(a: float) -> float:
-    return math.atan2(math.sin(a), math.cos(a))

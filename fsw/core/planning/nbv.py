@@ -33,7 +33,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
+from fsw.core.geometry import CameraConfig, CameraPose, MapGrid, wrap_angle
 from fsw.core.planning.visibility import (
     F64,
     Terrain,
@@ -229,10 +229,6 @@ def predicted_visibility_steps(emap: MapLike, pose: CameraPose, camera: CameraCo
         cam = (float(pose.t[0]), float(pose.t[1]), float(pose.t[2]))
         out[iy[vis], ix[vis]] = yield from pv_fast_steps(terrain, cam, iy[vis], ix[vis], cfg)
     return out
-
-
-def wrap_angle(a: F64) -> F64:
-    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
 
 
 def motion_cost(poses: F64, current: F64, cfg: NbvConfig) -> F64:

@@ -13,7 +13,7 @@ import shapely
 from shapely.geometry import LineString, Point
 from shapely.geometry.base import BaseGeometry
 
-from fsw.core.geometry import CameraConfig, MastConfig, camera_pose_from_rover
+from fsw.core.geometry import CameraConfig, MastConfig, camera_pose_from_rover, wrap_angle
 from fsw.core.planning.nbv import (
     NbvConfig,
 )
@@ -351,7 +351,7 @@ def _point_and_heading(line: LineString, s: float, direction: float) -> tuple[F6
     s = max(0.0, min(line.length, s))
     p = line.interpolate(s)
     yaw = _tangent(line, s) + (0.0 if direction > 0 else math.pi)
-    return np.array([p.x, p.y]), math.atan2(math.sin(yaw), math.cos(yaw))
+    return np.array([p.x, p.y]), wrap_angle(yaw)
 
 
 def _close(a: Pose3, b: Pose3) -> bool:

@@ -32,7 +32,7 @@ import numpy as np
 import shapely
 from shapely.geometry import LineString, MultiPoint, Point, Polygon
 
-from fsw.core.geometry import CameraConfig, CameraPose, MastConfig, camera_pose_from_rover
+from fsw.core.geometry import CameraConfig, CameraPose, MastConfig, camera_pose_from_rover, wrap_angle
 from fsw.core.planning.visibility import F64
 from fsw.core.steps import run_to_end
 
@@ -96,7 +96,7 @@ def sample_path(xy: F64, spacing_m: float) -> tuple[F64, F64, F64]:
 
 def _heading(tangent: float, current: float) -> float:
     flip = math.cos(tangent - current) < 0.0
-    return math.atan2(math.sin(tangent + math.pi * flip), math.cos(tangent + math.pi * flip))
+    return wrap_angle(tangent + math.pi * flip)
 
 
 def path_stations(path: F64, rover_now: Pose3, motion_ok: MotionCheck, spacing_m: float,

@@ -51,6 +51,7 @@ from typing import TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.special import chdtri
 
 from fsw.core.geometry import CameraPose, MapGrid
 from fsw.core.localization.localization import so3_exp
@@ -58,7 +59,6 @@ from fsw.core.map.reference_frames import ReferenceFrames
 from fsw.core.registration.registration_stats import (
     ALL,
     HEIGHT_TILT,
-    chi2_quantile,
     halves,
     posterior,
     reference_covariance,
@@ -320,7 +320,9 @@ def _solve(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid, z: F6
         out.status, out.reason = "unregistered", f"correction implausible (chi2 {float(d @ P_inv @ d):.0f})"
     elif cfg.split_alpha > 0:
         out.split_chi2 = yield from _split_check(q0[used], cov_p[used], t, S, P_inv, grid, z, var, ref, cfg, free)
-        limit = chi2_quantile(1.0 - cfg.split_alpha, len(free))
+        # the chi-square quantile from scipy.special (loaded with the visibility kernel); never
+        # scipy.stats, whose import costs the flight process ~45 MB (tests/fsw/test_flight_imports.py)
+        limit = float(chdtri(len(free), cfg.split_alpha))
         if math.isinf(out.split_chi2):
             out.status, out.reason = "unregistered", "unchecked: a half of the overlap too small to fit alone"
         elif out.split_chi2 > limit:

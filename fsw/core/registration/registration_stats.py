@@ -4,8 +4,6 @@ reference cells' own placement error carried into the correction."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numpy.typing import NDArray
 
@@ -69,44 +67,3 @@ def reference_covariance(N: F64, Cf: F64, free: list[int], p: F64, centre: F64, 
     G[free] = Cf @ N[free]
     out = G @ sigma @ G.T
     return np.asarray(0.5 * (out + out.T))
-
-
-def chi2_sf(x: float, dof: int) -> float:
-    """Survival function of the chi-square distribution with an integer ``dof`` >= 1, in
-    closed form (even dof: a Poisson sum; odd: erfc plus a series), as scipy's to ~1e-15. The
-    flight process does not import ``scipy.stats`` for one quantile: it costs ~45 MB (issue 15)."""
-    if dof < 1:
-        raise ValueError(f"chi-square dof must be >= 1, not {dof}")
-    if not x > 0.0:
-        return 1.0
-    h = 0.5 * x
-    if dof % 2 == 0:  # e^-h sum_{i < dof/2} h^i / i!
-        term = total = math.exp(-h)
-        for i in range(1, dof // 2):
-            term *= h / i
-            total += term
-        return min(1.0, total)
-    total = math.erfc(math.sqrt(h))  # dof 1
-    term = math.sqrt(2.0 * x / math.pi) * math.exp(-h)  # then + sqrt(2x/pi) e^-h x^(i-1) / (1*3*...*(2i-1))
-    for i in range(1, (dof - 1) // 2 + 1):
-        total += term
-        term *= x / (2 * i + 1)
-    return min(1.0, total)
-
-
-def chi2_quantile(p: float, dof: int) -> float:
-    """The ``p`` quantile (0 < p < 1) of the chi-square distribution with integer ``dof``:
-    the x with ``chi2_sf(x, dof) = 1 - p``, by bisection to a relative 1e-13."""
-    if not 0.0 < p < 1.0:
-        raise ValueError(f"a quantile needs 0 < p < 1, not {p}")
-    q = 1.0 - p
-    lo, hi = 0.0, max(1.0, float(dof))
-    while chi2_sf(hi, dof) > q:
-        hi *= 2.0
-    while hi - lo > 1e-13 * hi:
-        mid = 0.5 * (lo + hi)
-        if chi2_sf(mid, dof) > q:
-            lo = mid
-        else:
-            hi = mid
-    return 0.5 * (lo + hi)

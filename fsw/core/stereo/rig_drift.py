@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Generator
 from dataclasses import dataclass
-from typing import Any
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -174,9 +174,33 @@ def correct_steps(left: U8, right: U8, *, min_disparity_px: int, num_disparities
     return out, RigAlignment(a, b, n, gain, off, ratio, denoise, fix, abs(a) + abs(b) * half_w > bound_px)
 
 
-def correct_for(left: U8, right: U8, cfg: Any) -> Generator[None, None, tuple[U8, RigAlignment]]:
-    """:func:`correct_steps` with the ``[stereo]`` keys of ``cfg`` (a ``StereoConfig``; not imported:
-    ``fsw.core.stereo.stereo`` imports this module); the pair as it is when
+class DriftKeys(Protocol):
+    """The ``[stereo]`` keys the correction reads (``StereoConfig``)."""
+
+    @property
+    def drift_correction(self) -> bool: ...
+    @property
+    def min_disparity_px(self) -> int: ...
+    @property
+    def num_disparities_px(self) -> int: ...
+    @property
+    def drift_features(self) -> int: ...
+    @property
+    def drift_deadband_px(self) -> float: ...
+    @property
+    def drift_bound_px(self) -> float: ...
+    @property
+    def exposure_tolerance(self) -> float: ...
+    @property
+    def exposure_offset_dn(self) -> float: ...
+    @property
+    def noise_ratio_max(self) -> float: ...
+    @property
+    def denoise_sigma_px(self) -> float: ...
+
+
+def correct_for(left: U8, right: U8, cfg: DriftKeys) -> Generator[None, None, tuple[U8, RigAlignment]]:
+    """:func:`correct_steps` with the ``[stereo]`` keys of ``cfg`` (a ``StereoConfig``); the pair as it is when
     ``drift_correction`` is off."""
     if not cfg.drift_correction:
         return right, RigAlignment.none()

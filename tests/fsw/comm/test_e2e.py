@@ -20,8 +20,8 @@ from fsw.comm.e2e import E2ELayout, Seq, SequenceChecker
 from fsw.comm.imu_can import ImuCan
 from fsw.comm.rover_can import AXES, DEFAULT_DBC, AxisCommand, Bad, Heartbeat, RoverCan
 from fsw.drivers import can_motors as cm
-from hil_sim import frame_fuzz as ff
 from hil_sim.hw.motor_controllers import MotorControllerBank, MotorControllerConfig
+from hil_sim.lab import frame_fuzz as ff
 from hil_sim.rover_truth import FlatTerrain, RoverTruth, RoverTruthConfig
 
 CODEC = RoverCan()

@@ -17,7 +17,7 @@ from fsw.comm import link_packets as lp
 from fsw.comm.link import LinkConfig
 from fsw.comm.link_receiver import LinkReceiver, ReceiverState
 from fsw.comm.link_sender import LinkSender, SenderState
-from hil_sim.link_sim import run_transfer
+from hil_sim.lab.link_sim import run_transfer
 from hil_sim.radio_channel import RadioChannelConfig
 
 LINK = LinkConfig()

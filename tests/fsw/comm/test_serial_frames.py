@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from fsw.comm import camera_frames as cf
 from fsw.comm import serial_frames as sf
-from hil_sim import frame_fuzz as ff
+from hil_sim.lab import frame_fuzz as ff
 
 messages = st.one_of(
     st.builds(sf.Move, st.floats(-3, 3), st.floats(-1.5, 1.5), st.floats(0, 1)),

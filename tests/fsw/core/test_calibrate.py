@@ -18,7 +18,7 @@ from fsw.core.stereo.stereo_calibration import disparity_offset_px, offset_covar
 from fsw.drivers.calibration_file import load_calibration
 from fsw.settings import load_settings
 from hil_sim.camera_model import TrueCameras
-from hil_sim.commands.bench_calibration import vertical_disparity_px
+from hil_sim.lab.bench.bench_calibration import vertical_disparity_px
 from hil_sim.rig import load_hardware
 from hil_sim.world import load_scenario
 from hil_sim.world.target import render_target_pairs

@@ -22,7 +22,7 @@ from fsw.core.planning.nbv import NbvConfig, info_n_max, rate_station
 from fsw.core.planning.planners import PlannerState
 from fsw.core.planning.visibility import Terrain, VisibilityConfig, rays_for_cell, terrain_from_map
 from fsw.core.steps import run_to_end
-from hil_sim.nbv_scene import edge_offset_path, panorama_map, synthetic_edge, synthetic_terrain
+from hil_sim.lab.nbv_scene import edge_offset_path, panorama_map, synthetic_edge, synthetic_terrain
 
 GRID = MapGrid(x0=-0.5, y0=-3.5, cell=0.04, nx=110, ny=100)
 CAM, MAST, VIS = CameraConfig(), MastConfig(), VisibilityConfig()

@@ -20,7 +20,7 @@ from fsw.core.planning.planners import PlannerState
 from fsw.core.planning.raster_planners import RasterPlanner, _close
 from fsw.core.planning.view_candidates import CandidateView, along_extent, footprint, path_stations
 from fsw.core.planning.visibility import cell_points, in_view, terrain_from_map
-from hil_sim.nbv_scene import edge_offset_path, panorama_map, synthetic_edge, synthetic_terrain
+from hil_sim.lab.nbv_scene import edge_offset_path, panorama_map, synthetic_edge, synthetic_terrain
 
 GRID = MapGrid(x0=-0.5, y0=-3.5, cell=0.04, nx=110, ny=100)
 CAM, MAST = CameraConfig(), MastConfig()

@@ -12,7 +12,7 @@ import pytest
 
 from fsw.core.stereo import rig_drift as rd
 from fsw.settings import load_settings
-from hil_sim import stereo_eval as se
+from hil_sim.lab import stereo_eval as se
 
 KW = {"min_disparity_px": 0, "num_disparities_px": 64, "features": 1000, "deadband_px": 0.25,
       "bound_px": 2.0, "exposure_tolerance": 0.05, "exposure_offset_dn": 4.0, "noise_ratio_max": 1.3,

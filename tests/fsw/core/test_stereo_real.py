@@ -12,7 +12,7 @@ import pytest
 from fsw.core.geometry import CameraConfig
 from fsw.core.stereo.stereo import StereoConfig, StereoMatcher, stereo_covariance
 from fsw.settings import load_settings
-from hil_sim import stereo_eval as se
+from hil_sim.lab import stereo_eval as se
 
 pytest.importorskip("skimage", reason="scikit-image ships the Middlebury pair (dev dependency)")
 

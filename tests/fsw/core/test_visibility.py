@@ -19,8 +19,8 @@ from fsw.core.planning.visibility import (
     terrain_from_map,
 )
 from fsw.core.planning.visibility_kernel import pv_fast
-from hil_sim.nbv_scene import panorama_map, synthetic_terrain
-from hil_sim.pv_oracle import pv_reference
+from hil_sim.lab.nbv_scene import panorama_map, synthetic_terrain
+from hil_sim.lab.pv_oracle import pv_reference
 
 GRID = MapGrid(x0=-0.5, y0=-3.5, cell=0.04, nx=110, ny=100)
 VIS = VisibilityConfig()

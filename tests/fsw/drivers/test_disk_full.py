@@ -22,6 +22,7 @@ from fsw.core.map.elevation_map import ElevationMap
 from fsw.drivers import map_store as ms
 from fsw.framework.storage import StorageError, describe, is_disk_fault, probe
 from fsw.tasks import mission_checkpoint as mc
+from fsw.tasks.mission import MissionTask
 
 FAULTS = [errno.ENOSPC, errno.EIO]
 NAMES = {errno.ENOSPC: "ENOSPC", errno.EIO: "EIO"}
@@ -76,13 +77,17 @@ def test_background_write_fault_is_reported_in_one_line(tmp_path: Path, code: in
 
 
 class _Mission:
-    """The parts of the mission task that ``mission_checkpoint.save`` touches."""
+    """The parts of the mission task that ``MissionTask.checkpoint`` touches."""
 
     def __init__(self, store: Any) -> None:
         self.ctx = SimpleNamespace(res=SimpleNamespace(map_store=store), clock=SimpleNamespace(now=lambda: 5.0))
         self.latest = SimpleNamespace(snapshot=_map())
+        self.name = "mission"
         self.step = 3
         self.events: list[tuple[str, dict[str, Any]]] = []
+
+    def section(self, phase: str) -> dict[str, Any]:
+        return {"step": self.step, "phase": phase}
 
     def event(self, name: str, **args: Any) -> None:
         self.events.append((name, args))
@@ -95,12 +100,12 @@ def test_mission_checkpoint_fault_is_an_event_and_the_mission_goes_on(tmp_path: 
     console and the .tlog carry events) and returns normally; a later save succeeds."""
     store = ms.MapStore(CheckpointConfig(directory=str(tmp_path)))
     m = _Mission(store)
-    monkeypatch.setattr(mc, "mission_state", lambda m, phase: {"step": m.step})
+    monkeypatch.setattr(mc, "full_state", lambda ctx, own, section: dict(section))
     monkeypatch.setattr(ms.os, "fsync", _failing_fsync(code))
-    mc.save(m, "SELECT")  # type: ignore[arg-type]
+    MissionTask.checkpoint(m, "SELECT")  # type: ignore[arg-type]
     assert m.events == [("CHECKPOINT_FAILED", {"error": f"{os.strerror(code)} ({NAMES[code]})"})]
     monkeypatch.setattr(ms.os, "fsync", REAL_FSYNC)  # the disk has room again
-    mc.save(m, "SELECT")  # type: ignore[arg-type]
+    MissionTask.checkpoint(m, "SELECT")  # type: ignore[arg-type]
     assert m.events[-1][0] == "CHECKPOINT_SAVED" and len(store.paths()) == 1
 
 

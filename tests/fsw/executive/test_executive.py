@@ -11,6 +11,7 @@ from typing import Any, ClassVar
 
 import pytest
 
+from fsw import registry
 from fsw.drivers.resources import Resources
 from fsw.executive.executive import Executive
 from fsw.framework.clock import SteppedClock
@@ -18,7 +19,6 @@ from fsw.framework.params import build
 from fsw.framework.task import Task
 from fsw.framework.watchdog import SoftwareWatchdog
 from fsw.settings import FswConfig
-from fsw.tasks import registry
 
 
 class FakeTimer:

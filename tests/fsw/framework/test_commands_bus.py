@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from fsw import registry
 from fsw.executive.executive import Executive
 from fsw.framework.bus import Mailbox
 from fsw.framework.clock import SteppedClock
@@ -16,7 +17,6 @@ from fsw.framework.commands import Arg, CommandDef, CommandError, CommandRequest
 from fsw.framework.params import build
 from fsw.framework.task import Task
 from fsw.settings import FswConfig
-from fsw.tasks import registry
 
 
 class ArmTask(Task):

@@ -147,13 +147,13 @@ def test_a_wheel_move_without_an_edge_is_refused_by_the_geofence() -> None:
     m.rig.publish(NBV_RESULT, CandidateView((0.5, 0.0, 0.0), (0.0, -0.5, 0.5), 100.0, 10.0, 1.0, 0.0, 99.0, "5"))
     m.rig.run(2)
     # the part-way search: one geofence check a slack slice (not the foreground), no wheel move
-    assert m.rig.task("mission").fence_job is not None and not m.moves.drain()
+    assert m.rig.task("mission").ground.fence_job is not None and not m.moves.drain()
     frames = 2 + m.rig.run_until(lambda: phase(m.rig) == "POINT", 60)
     assert frames > 5
-    assert phase(m.rig) == "POINT" and m.rig.task("mission").edge_violations == 1
+    assert phase(m.rig) == "POINT" and m.rig.task("mission").ground.edge_violations == 1
     assert len(m.rig.events("mission.GEOFENCE")) == 1
     assert [r.kind for r in m.moves.drain()] == ["mast"]
-    assert len(m.rig.task("mission").stays) == 1
+    assert len(m.rig.task("mission").ground.stays) == 1
 
 
 @pytest.mark.parametrize("outcome", ["aborted", "refused"])
@@ -169,7 +169,7 @@ def test_a_failed_mast_move_enters_safe(outcome: str) -> None:
     m.motion_reply(req.request_id, "mast", outcome)
     m.rig.run(1)
     assert phase(m.rig) == "SAFE"
-    assert m.rig.task("mission").safe_reason == f"mast move {outcome}: test"
+    assert m.rig.task("mission").safe.reason == f"mast move {outcome}: test"
 
 
 def test_a_missing_pair_is_retried_then_safe() -> None:
@@ -184,7 +184,7 @@ def test_a_missing_pair_is_retried_then_safe() -> None:
     m.rig.run_until(lambda: len(m.captures) == 1, 30)  # the retry after the step timeout
     assert phase(m.rig) == "ACQUIRE" and len(m.rig.events("mission.RETRY")) == 1
     m.rig.run_until(lambda: phase(m.rig) == "SAFE", 30)
-    assert m.rig.task("mission").safe_reason == "no stereo pair after retries (no merged pair)"
+    assert m.rig.task("mission").safe.reason == "no stereo pair after retries (no merged pair)"
 
 
 def test_a_failed_view_is_retried_at_once_then_safe() -> None:
@@ -210,7 +210,7 @@ def test_a_failed_view_is_retried_at_once_then_safe() -> None:
     m.rig.publish(VIEW_FAILED, ViewFailed(0, "camera: dropout"))
     m.rig.run(1)
     assert phase(m.rig) == "SAFE"
-    assert m.rig.task("mission").safe_reason == "no stereo pair after retries (camera: dropout)"
+    assert m.rig.task("mission").safe.reason == "no stereo pair after retries (camera: dropout)"
 
 
 class MissionMachine(RuleBasedStateMachine):
@@ -309,8 +309,8 @@ class MissionMachine(RuleBasedStateMachine):
             # not the awaited request: ignored. The only way out of the phase in this frame is
             # the step timeout of the move still awaited (it may fall in this very frame).
             mission = self.m.rig.task("mission")
-            assert phase(self.m.rig) == "SAFE" and mission.safe_reason.endswith("move timed out"), \
-                (before, mission.safe_reason)
+            assert phase(self.m.rig) == "SAFE" and mission.safe.reason.endswith("move timed out"), \
+                (before, mission.safe.reason)
 
     @rule(data=st.data())
     def map_update(self, data: st.DataObject) -> None:
@@ -334,7 +334,7 @@ class MissionMachine(RuleBasedStateMachine):
         mission = self.m.rig.task("mission")
         assert mission.exceptions == 0, self.m.rig.events("mission.EXCEPTION")
         assert phase(self.m.rig) in ("IDLE", "INIT", "SELECT", "MOVE", "POINT", "ACQUIRE", "TRANSMIT", "DONE", "SAFE")
-        assert mission.safe_entries == len(self.m.rig.events("mission.SAFE"))
+        assert mission.safe.entries == len(self.m.rig.events("mission.SAFE"))
 
 
 def test_a_late_reply_is_ignored_and_the_awaited_move_still_times_out() -> None:
@@ -354,7 +354,7 @@ def test_a_late_reply_is_ignored_and_the_awaited_move_still_times_out() -> None:
     assert phase(m.rig) == "POINT"
     m.motion_reply(req.request_id - 1, "goto", "aborted")
     m.rig.run(2)
-    assert phase(m.rig) == "SAFE" and mission.safe_reason == "mast move timed out"
+    assert phase(m.rig) == "SAFE" and mission.safe.reason == "mast move timed out"
 
 
 MissionMachine.TestCase.settings = settings(

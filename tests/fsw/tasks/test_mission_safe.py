@@ -98,7 +98,7 @@ def test_recovery_clears_faults_before_it_resumes_and_only_after_the_wait() -> N
     seen = b.until_request("mast")  # nothing mapped yet: the panorama again
     assert [r.kind for r in seen] == ["mast"] and str(b.m.state) == "POINT"
     assert len(b.events("RECOVERING")) == 1 and len(b.events("RECOVERED")) == 1
-    assert b.m.safe_entries == 1 and b.m.recover_tries == 1 and not b.m.safe_final
+    assert b.m.safe.entries == 1 and b.m.safe.tries == 1 and not b.m.safe.final
 
 
 def test_a_persistent_fault_ends_the_mission_in_safe_after_the_bounded_tries() -> None:
@@ -110,12 +110,12 @@ def test_a_persistent_fault_ends_the_mission_in_safe_after_the_bounded_tries() -
         b.fail_mast()  # the fault is still there
     b.rig.run(int(5 * RECOVER_S / 0.1))
     assert b.requests() == []  # no more clears, no more moves
-    assert b.m.safe_final and str(b.m.state) == "SAFE" and b.m.safe_entries == MAX_TRIES + 1
-    assert b.m.safe_reason.startswith("persistent fault: mast move refused: mast faults")
+    assert b.m.safe.final and str(b.m.state) == "SAFE" and b.m.safe.entries == MAX_TRIES + 1
+    assert b.m.safe.reason.startswith("persistent fault: mast move refused: mast faults")
     assert len(b.events("SAFE_FINAL")) == 1 and len(b.events("RECOVERED")) == MAX_TRIES
     # the operator may still resume it: a fresh count
     assert b.rig.command("mission.RESUME").status.name == "OK"
-    assert not b.m.safe_final and b.m.recover_tries == 0 and str(b.m.state) != "SAFE"
+    assert not b.m.safe.final and b.m.safe.tries == 0 and str(b.m.state) != "SAFE"
 
 
 def test_a_completed_step_after_a_recovery_resets_the_count() -> None:
@@ -129,12 +129,12 @@ def test_a_completed_step_after_a_recovery_resets_the_count() -> None:
         assert len(b.captures.drain()) == 1
         b.map_update(0)
     b.rig.run(2)
-    assert b.m.step == 1 and b.m.recover_tries == 1
-    b.m._enter_safe("a new fault")  # e.g. a motor fault on the next move
-    assert b.m.recover_tries == 0 and b.m.safe_entries == 2
+    assert b.m.step == 1 and b.m.safe.tries == 1
+    b.m.enter_safe("a new fault")  # e.g. a motor fault on the next move
+    assert b.m.safe.tries == 0 and b.m.safe.entries == 2
     b.reply(b.until_request("clear_faults")[-1])
     b.rig.run(1)
-    assert b.m.recover_tries == 1 and str(b.m.state) != "SAFE" and not b.m.safe_final
+    assert b.m.safe.tries == 1 and str(b.m.state) != "SAFE" and not b.m.safe.final
 
 
 def test_a_refused_clear_is_a_failed_try_and_never_resumes() -> None:
@@ -147,9 +147,9 @@ def test_a_refused_clear_is_a_failed_try_and_never_resumes() -> None:
         (req,) = b.until_request("clear_faults")[-1:]
         b.reply(req, "refused", "emergency stop engaged: only the operator releases it")
         b.rig.run(1)
-        assert str(b.m.state) == "SAFE" and b.m.recover_tries == n + 1
+        assert str(b.m.state) == "SAFE" and b.m.safe.tries == n + 1
     b.rig.run(int(3 * RECOVER_S / 0.1))
-    assert b.requests() == [] and b.m.safe_final and b.events("RECOVERED") == []
+    assert b.requests() == [] and b.m.safe.final and b.events("RECOVERED") == []
     assert len(b.events("RECOVERY_FAILED")) == MAX_TRIES
 
 
@@ -163,8 +163,8 @@ def test_without_clearing_the_recovery_resumes_directly() -> None:
 
 def test_with_recovery_off_safe_waits_for_the_operator() -> None:
     b = Bus()
-    b.rig.task("mission").mcfg = dataclasses.replace(b.m.mcfg, safe_recover_s=0.0)
+    b.m.safe.cfg = dataclasses.replace(b.m.mcfg, safe_recover_s=0.0)
     b.rig.command("mission.START")
     b.fail_mast()
     b.rig.run(50)
-    assert b.requests() == [] and str(b.m.state) == "SAFE" and not b.m.safe_final
+    assert b.requests() == [] and str(b.m.state) == "SAFE" and not b.m.safe.final

@@ -13,15 +13,16 @@ import numpy as np
 import pytest
 from step_count import count_steps
 
+from fsw.core.edge.roi import ROI_STEP_POINTS, ROI_STRIDE, roi_mapped_fraction_steps
 from fsw.core.geometry import CameraConfig
 from fsw.core.map.elevation_map import ElevationMap
+from fsw.core.pipeline import PROPAGATE_CHUNK
 from fsw.core.stereo.stereo import StereoConfig, StereoMatcher
 from fsw.executive.executive import Executive
 from fsw.framework.clock import SteppedClock
 from fsw.settings import FswConfig, load_settings
 from fsw.tasks.messages import CameraFrame
-from fsw.tasks.perception import PROPAGATE_CHUNK, ROI_STEP_POINTS, ROI_STRIDE, roi_mapped_fraction_steps
-from hil_sim.perception_eval import PERCEPTION_LAB, pit_view_poses
+from hil_sim.lab.perception_eval import PERCEPTION_LAB, pit_view_poses
 from hil_sim.render import StereoRenderer
 from hil_sim.world import load_scenario
 
@@ -138,11 +139,11 @@ def test_perception_job_yields_many_bounded_steps_per_view(cfg, lab_pairs) -> No
     ideal = dataclasses.replace(cfg.camera, calibration_file="")  # the pairs come from the ideal renderer
     exe = Executive(dataclasses.replace(cfg, map=world.map_grid, camera=ideal), SteppedClock())
     task = exe.tasks["perception"]
-    bands = len(task.matcher.bands(cfg.camera.height_px))
+    bands = len(task.pipeline.matcher.bands(cfg.camera.height_px))
     counts = []
     for view_id, (_, pose, left, right, _) in enumerate(lab_pairs):
         fr = CameraFrame(view_id, 0.0, left, right, pose, np.zeros((6, 6)))
-        yields, update = count_steps(task._merge_view(fr))
+        yields, update = count_steps(task.merge_view(fr))
         counts.append(yields)
         chunks = -(-update.points // PROPAGATE_CHUNK)
         assert update.points > 50000

@@ -20,7 +20,7 @@ from fsw.executive.executive import Executive
 from fsw.framework.clock import SteppedClock
 from fsw.settings import load_settings
 from fsw.tasks.messages import CameraFrame
-from hil_sim.perception_eval import PERCEPTION_LAB, pit_view_poses
+from hil_sim.lab.perception_eval import PERCEPTION_LAB, pit_view_poses
 from hil_sim.render import StereoRenderer
 from hil_sim.world import load_scenario
 
@@ -60,12 +60,12 @@ def setup(rendered: Any) -> Any:
 def test_injected_pose_error_is_corrected_before_the_merge(setup: Any) -> None:
     exe, poses, pairs = setup
     task = exe.tasks["perception"]
-    up0 = _drain(task._merge_view(CameraFrame(0, 0.0, *pairs[0], poses[0], PRIOR)))
+    up0 = _drain(task.merge_view(CameraFrame(0, 0.0, *pairs[0], poses[0], PRIOR)))
     assert up0.registration["status"] == "reference"
     # view 1 as its pose estimate has it: pitched 0.4 deg and 3 cm too high
     d_err = np.r_[0.0, math.radians(0.4), 0.0, 0.0, 0.0, 0.03]
     wrong = CameraPose(so3_exp(-d_err[:3]) @ poses[1].R, poses[1].t - d_err[3:])
-    up1 = _drain(task._merge_view(CameraFrame(1, 0.0, *pairs[1], wrong, PRIOR)))
+    up1 = _drain(task.merge_view(CameraFrame(1, 0.0, *pairs[1], wrong, PRIOR)))
     r = up1.registration
     assert r["status"] == "registered", r["reason"]
     fixed = np.array(up1.camera_xyz)
@@ -85,12 +85,14 @@ def test_injected_pose_error_is_corrected_before_the_merge(setup: Any) -> None:
 def test_view_without_overlap_is_merged_inflated_and_reported(setup: Any) -> None:
     exe, poses, pairs = setup
     task = exe.tasks["perception"]
-    _drain(task._merge_view(CameraFrame(0, 0.0, *pairs[0], poses[0], PRIOR)))  # a map to miss
-    task.chain.clear()  # no registered station before it: nothing carried (the carry: next test)
+    _drain(task.merge_view(CameraFrame(0, 0.0, *pairs[0], poses[0], PRIOR)))  # a map to miss
+    task.pipeline.chain.clear()  # no registered station before it: nothing carried (the carry: next test)
     # the pit pair seen from a pose 6 m away: none of its points fall on the map
     far = CameraPose(poses[2].R, poses[2].t + np.array([6.0, 0.0, 0.0]))
-    pts = _drain(task.matcher.triangulate_steps(_drain(task.matcher.disparity_steps(*pairs[2]))))
-    reg, pose, cov, _ = _drain(task._register(CameraFrame(2, 0.0, *pairs[2], far, PRIOR), pts))
+    matcher = task.pipeline.matcher
+    pts = _drain(matcher.triangulate_steps(_drain(matcher.disparity_steps(*pairs[2]))))
+    placed = _drain(task.pipeline.register_steps(CameraFrame(2, 0.0, *pairs[2], far, PRIOR), pts))
+    reg, pose, cov = placed.registration, placed.pose, placed.cov
     assert reg.status == "unregistered" and "overlap" in reg.reason
     np.testing.assert_allclose(cov, inflate(PRIOR, exe.cfg.registration))
     assert pose is not None and np.allclose(pose.t, far.t)
@@ -149,7 +151,7 @@ def _three_stations(carry: bool, cfg: Any, world: Any, views: list[Any]) -> list
         for j in range(len(PANS)):
             true, pair = views[3 * k + j]
             est = _drifted(true, drift, shift, pivot)
-            up = _drain(task._merge_view(CameraFrame(3 * k + j, 0.0, *pair, est, prior)))
+            up = _drain(task.merge_view(CameraFrame(3 * k + j, 0.0, *pair, est, prior)))
             r = up.registration
             fixed = CameraPose(so3_exp(np.radians([r["droll_deg"], r["dpitch_deg"], r["dyaw_deg"]])) @ est.R,
                                np.array(up.camera_xyz))

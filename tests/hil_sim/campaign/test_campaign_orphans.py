@@ -23,9 +23,9 @@ import pytest
 from loopback import family, off_machine_sockets
 
 from fsw.settings import DEFAULT_CONFIG
-from hil_sim.campaign.child import ORPHAN_EXIT, TMP_PREFIX
-from hil_sim.campaign.execute import mission_dict, run_isolated
-from hil_sim.campaign.spec import expand, load_spec
+from hil_sim.lab.campaign.child import ORPHAN_EXIT, TMP_PREFIX
+from hil_sim.lab.campaign.execute import mission_dict, run_isolated
+from hil_sim.lab.campaign.spec import expand, load_spec
 
 pytestmark = [pytest.mark.slow, pytest.mark.req("26.7")]
 SMOKE = DEFAULT_CONFIG.parent / "campaigns" / "smoke.toml"
@@ -42,7 +42,7 @@ def mission_child(parent: int, timeout_s: float = 30.0) -> psutil.Process:
     while time.monotonic() < deadline:
         for p in psutil.Process(parent).children():
             try:
-                if "hil_sim.campaign.child" in p.cmdline():
+                if "hil_sim.lab.campaign.child" in p.cmdline():
                     return p
             except psutil.NoSuchProcess:
                 continue
@@ -65,7 +65,8 @@ def kill_and_check(worker: int) -> None:
 
 
 def test_a_killed_local_worker_stops_its_mission_and_removes_its_folder() -> None:
-    code = "import json, sys; from hil_sim.campaign.execute import run_isolated; run_isolated(json.loads(sys.argv[1]))"
+    code = ("import json, sys; from hil_sim.lab.campaign.execute import run_isolated; "
+            "run_isolated(json.loads(sys.argv[1]))")
     worker = subprocess.Popen([sys.executable, "-c", code, json.dumps(mission())])
     try:
         kill_and_check(worker.pid)

@@ -10,8 +10,8 @@ from typing import Any
 
 import pyarrow.parquet as pq
 
-from hil_sim.campaign.report import classes, headline, write_report
-from hil_sim.campaign.table import failed_row, outcome, result_row, write_table
+from hil_sim.lab.campaign.report import classes, headline, write_report
+from hil_sim.lab.campaign.table import failed_row, outcome, result_row, write_table
 
 
 def mission(i: int, method: str, seed: int, fault_set: str = "none") -> dict[str, Any]:

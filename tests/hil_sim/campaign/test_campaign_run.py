@@ -21,10 +21,10 @@ import pyarrow.parquet as pq
 import pytest
 
 from fsw.settings import DEFAULT_CONFIG
-from hil_sim.campaign.execute import execute
-from hil_sim.campaign.spec import expand, load_spec
-from hil_sim.campaign.table import WALL_CLOCK_COLUMNS
 from hil_sim.cli import main
+from hil_sim.lab.campaign.execute import execute
+from hil_sim.lab.campaign.spec import expand, load_spec
+from hil_sim.lab.campaign.table import WALL_CLOCK_COLUMNS
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(1800)]
 SMOKE = DEFAULT_CONFIG.parent / "campaigns" / "smoke.toml"
@@ -93,7 +93,7 @@ def test_rerun_skips_finished_missions(local_run: Path, spec: Path) -> None:
 
     def record(m: dict[str, Any]) -> dict[str, Any]:
         ran.append(m["id"])
-        from hil_sim.campaign.table import failed_row
+        from hil_sim.lab.campaign.table import failed_row
 
         return failed_row(m, "error", "not run in this test", 0.0)
 
@@ -140,7 +140,7 @@ def test_raising_and_hanging_missions_are_recorded_and_others_finish(tmp_path: P
 
 
 def _mission_processes(pgid: int) -> list[int]:
-    """The campaign's mission children (``hil_sim.campaign.child``) in process group ``pgid``."""
+    """The campaign's mission children (``hil_sim.lab.campaign.child``) in process group ``pgid``."""
     import os
 
     found = []
@@ -148,7 +148,7 @@ def _mission_processes(pgid: int) -> list[int]:
         if not d.name.isdigit():
             continue
         try:
-            if os.getpgid(int(d.name)) == pgid and b"hil_sim.campaign.child" in (d / "cmdline").read_bytes():
+            if os.getpgid(int(d.name)) == pgid and b"hil_sim.lab.campaign.child" in (d / "cmdline").read_bytes():
                 found.append(int(d.name))
         except OSError:  # gone meanwhile
             continue

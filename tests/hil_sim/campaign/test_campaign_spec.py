@@ -12,8 +12,8 @@ import pytest
 
 from fsw.framework.params import ConfigError
 from fsw.settings import DEFAULT_CONFIG
-from hil_sim.campaign.spec import Mission, expand, family_points, load_spec, mission_count, scenario_string
 from hil_sim.cli import main
+from hil_sim.lab.campaign.spec import Mission, expand, family_points, load_spec, mission_count, scenario_string
 
 CAMPAIGNS = DEFAULT_CONFIG.parent / "campaigns"
 BASE = """

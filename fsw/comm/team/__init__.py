@@ -1,0 +1,1 @@
+"""The team\x27s CAN frames and the relative-localization packets (docs/team.md)."""

@@ -1,0 +1,272 @@
+"""The sensing pipeline: one stereo view into the map (docs/algorithm.md §4), the one implementation the
+flight, the benches, the replays and the tests all run.
+
+rectify (``fsw.core.stereo.rectify``, when the camera has a calibration) -> stereo matching and
+triangulation with covariance (``fsw.core.stereo.stereo``, §1.2) -> registration of the view
+against the map (§5.1, ``fsw.core.registration``: the pose corrected, or its covariance inflated
+when it cannot be registered; the station chain) -> world points with covariance (stereo, pose
+and the calibration's disparity offset, §1.2), the occluding-lip guard
+(``fsw.core.stereo.occlusion``) -> fusion into the map with the misses of the cells the view was
+expected to see (P_V on the map before the merge, §1.1, §3.1, §3.4) -> the edge: edge cells, the
+non-convex polygon fit and the mapped fraction of the region of interest (§2, §3.6).
+
+:meth:`SensingPipeline.view_steps` is a step generator (``fsw.core.steps``): every stage yields
+between bounded slices (SGBM and remap in row bands, triangulation, propagation and both merge
+passes in point chunks, P_V in ray chunks, the edge search in halves), so the perception task
+runs it as a slack job; benches, replays and tests run the same generator to its end
+(:meth:`SensingPipeline.view`; :meth:`SensingPipeline.merge_view` stops before the edge). Its
+stages are methods of their own (:meth:`SensingPipeline.register_steps`, ``world_parts_steps``,
+``fuse_steps``) for the tests that feed one stage directly. An optional ``stage`` callback is
+told where each stage starts (:data:`STAGES`), so a bench times what flies.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Generator
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.core.edge.edge import EdgeCells, EdgeConfig, EdgeModel, edge_cells_steps, fit_polygon_steps
+from fsw.core.edge.roi import roi_mapped_fraction_steps
+from fsw.core.geometry import CameraConfig, CameraPose, MapGrid, MapGridConfig
+from fsw.core.localization.localization import point_covariance_parts
+from fsw.core.localization.nav_fix import NavFix
+from fsw.core.map.elevation_map import ElevationMap, FusionConfig, MergeStats
+from fsw.core.map.reference_frames import ReferenceFrames
+from fsw.core.planning.nbv import NbvConfig, predicted_visibility_steps
+from fsw.core.registration.registration import (
+    Registration,
+    RegistrationConfig,
+    apply_correction,
+    reference_cells,
+    register_steps,
+)
+from fsw.core.registration.station_chain import StationChain
+from fsw.core.steps import run_to_end
+from fsw.core.stereo.occlusion import LipGuard
+from fsw.core.stereo.rectify import Rectifier
+from fsw.core.stereo.stereo import StereoConfig, StereoMatcher, StereoPoints
+from fsw.core.stereo.stereo_calibration import StereoCalibration, offset_covariance
+
+F64 = NDArray[np.float64]
+ViewPart = tuple[F64, F64, F64 | None]  # world xyz, total covariance, the view's common (pose) covariance
+PROPAGATE_CHUNK = 10000  # points per slice of the covariance propagation (~5 ms on the lab's machine)
+MERGE_STEP_POINTS = 50000  # points per slice of each pass of the map merge (a few ms)
+STAGES = ("rectify", "stereo", "register", "merge", "edge")  # what the ``stage`` callback is told
+
+
+class PipelineSettings(Protocol):
+    """The configuration sections the pipeline reads (``fsw.settings.FswConfig`` has them)."""
+
+    @property
+    def camera(self) -> CameraConfig: ...
+    @property
+    def stereo(self) -> StereoConfig: ...
+    @property
+    def map(self) -> MapGridConfig: ...
+    @property
+    def fusion(self) -> FusionConfig: ...
+    @property
+    def registration(self) -> RegistrationConfig: ...
+    @property
+    def nbv(self) -> NbvConfig: ...
+    @property
+    def edge(self) -> EdgeConfig: ...
+
+
+class StereoView(Protocol):
+    """One captured pair with its camera pose estimate (``fsw.tasks.messages.CameraFrame`` is one)."""
+
+    @property
+    def view_id(self) -> int: ...
+    @property
+    def time_s(self) -> float: ...
+    @property
+    def left(self) -> NDArray[np.uint8]: ...
+    @property
+    def right(self) -> NDArray[np.uint8]: ...
+    @property
+    def pose(self) -> CameraPose: ...  # the estimate at capture (left camera, world frame)
+    @property
+    def pose_cov(self) -> F64: ...  # 6x6, rotation vector (rad) then translation (m)
+    @property
+    def ground_z_m(self) -> float: ...  # the ground under the rover at capture
+    @property
+    def nav_fix_id(self) -> int: ...  # the navigation fix the pose holds
+
+
+@dataclass(frozen=True)
+class RegisteredPose:
+    """A view's pose after registration (§5.1): the pose and covariance its points are merged
+    with, and the navigation fix to feed back (None unless registered)."""
+
+    registration: Registration
+    pose: CameraPose
+    cov: F64
+    nav_fix: NavFix | None
+
+
+@dataclass(frozen=True)
+class MergedView:
+    """What one view did to the map: its registration and the merge."""
+
+    placed: RegisteredPose
+    merge: MergeStats
+    view_cells: tuple[NDArray[np.int32], NDArray[np.float32]]  # flat cell index, mean height (m)
+
+
+@dataclass(frozen=True)
+class SensedView:
+    """What one view did: its registration, the merge, the edge fit after it."""
+
+    view_id: int
+    placed: RegisteredPose
+    merge: MergeStats
+    view_cells: tuple[NDArray[np.int32], NDArray[np.float32]]  # flat cell index, mean height (m)
+    edge_cells: EdgeCells
+    edge: EdgeModel
+    roi_mapped_fraction: float
+
+
+def _no_stage(name: str) -> None:
+    """The default ``stage`` callback: nothing to time."""
+
+
+class SensingPipeline:
+    """The map, the registration state (station chain, each cell's source view) and the camera
+    model (rectification maps built once, the matcher) of one survey, and the view -> map step.
+
+    ``calibration``: the camera's stereo calibration (``fsw.settings.load_stereo_calibration``;
+    None: the pairs are rectified already); ``emap``: the map to merge into (default an empty
+    one on ``cfg.map``)."""
+
+    def __init__(self, cfg: PipelineSettings, calibration: StereoCalibration | None,
+                 emap: ElevationMap | None = None) -> None:
+        self.cfg = cfg
+        # rectified onto the configured pinhole camera, so P_V and the planner see the same one
+        self.rectifier = None if calibration is None else Rectifier(calibration, cfg.camera.K)
+        self.matcher = StereoMatcher(cfg.stereo, cfg.camera, None if self.rectifier is None else self.rectifier.camera)
+        self.map = ElevationMap(MapGrid.from_config(cfg.map), cfg.fusion) if emap is None else emap
+        self.chain = StationChain()  # the registered stations (fsw.core.registration.station_chain)
+        self.sources = ReferenceFrames(self.map.grid.shape)  # each cell's view (fsw.core.map.reference_frames)
+
+    def clear(self) -> None:
+        """Forget the map and the registration state (a new survey)."""
+        self.map = ElevationMap(self.map.grid, self.cfg.fusion)
+        self.chain.clear()
+        self.sources.clear()
+
+    def view(self, view: StereoView) -> SensedView:
+        """:meth:`view_steps` run to its end (benches, replays, tests)."""
+        return run_to_end(self.view_steps(view))
+
+    def merge_view(self, view: StereoView) -> MergedView:
+        """:meth:`merge_view_steps` run to its end (benches and tests that need no edge fit)."""
+        return run_to_end(self.merge_view_steps(view))
+
+    def view_steps(self, view: StereoView, stage: Callable[[str], None] = _no_stage
+                   ) -> Generator[None, None, SensedView]:
+        """One view into the map and the edge fitted again, a bounded step per slice; ``stage``
+        is called with each stage's name (:data:`STAGES`) as it starts."""
+        merged = yield from self.merge_view_steps(view, stage)
+        stage("edge")
+        here = (float(view.pose.t[0]), float(view.pose.t[1]))  # the camera stands over the plateau
+        # The ground under the rover now (not at the start: on a slope the rover has climbed or
+        # descended since), with the registration's height correction (§2, §5.1).
+        ground_z = view.ground_z_m + float(merged.placed.pose.t[2] - view.pose.t[2])
+        cells = yield from edge_cells_steps(self.map, ground_z, here, self.cfg.edge)
+        yield
+        poly = yield from fit_polygon_steps(self.map, cells, self.cfg.edge)
+        yield
+        roi_fraction = yield from roi_mapped_fraction_steps(self.map, poly)
+        yield
+        return SensedView(view.view_id, merged.placed, merged.merge, merged.view_cells, cells, poly, roi_fraction)
+
+    def merge_view_steps(self, view: StereoView, stage: Callable[[str], None] = _no_stage
+                         ) -> Generator[None, None, MergedView]:
+        """The view into the map: rectify, stereo, register, world points, fuse (a bounded
+        step per slice; ``stage`` as in :meth:`view_steps`)."""
+        cfg = self.cfg
+        stage("rectify")
+        left, right = view.left, view.right
+        if self.rectifier is not None:
+            left, right = yield from self.rectifier.rectify_steps(left, right, cfg.stereo.band_rows_px)
+        stage("stereo")
+        dm = yield from self.matcher.match_steps(left, right)
+        yield
+        pts = yield from self.matcher.triangulate_steps(dm.disparity_px, sigma_px=dm.sigma_px)
+        del dm, left, right  # not needed past here: a smaller resident peak (issue 15)
+        stage("register")
+        placed = yield from self.register_steps(view, pts)
+        stage("merge")
+        # Which cells this view was expected to see (P_V on the map before the merge, §3.1):
+        # those that get no point count a miss and lose interest (§3.4, §4).
+        p_visible = None
+        if self.map.mapped.any():
+            p_visible = yield from predicted_visibility_steps(self.map, view.pose, cfg.camera, cfg.nbv.visibility)
+            yield
+        parts = yield from self.world_parts_steps(placed, pts)
+        del pts  # the camera-frame points: every use is above
+        return (yield from self.fuse_steps(placed, parts, p_visible))
+
+    def register_steps(self, view: StereoView, pts: StereoPoints) -> Generator[None, None, RegisteredPose]:
+        """Align the view to the map (§5.1): the corrected pose, the covariance to merge with
+        and the navigation fix to feed back (``fsw.core.registration.station_chain``: where the
+        fit starts, the frame error, the feedback)."""
+        rcfg = self.cfg.registration
+        if not rcfg.enabled:
+            return RegisteredPose(Registration("off", "disabled in config"), view.pose, view.pose_cov, None)
+        vp = self.chain.prior(view.pose, view.pose_cov, view.nav_fix_id, rcfg)
+        prior = apply_correction(view.pose, vp.d0)
+        n = len(pts)
+        sel = np.linspace(0, n - 1, min(n, 4 * rcfg.max_points)).astype(np.intp) if n else np.zeros(0, np.intp)
+        xyz_w, cov_w, _ = point_covariance_parts(prior, None, pts.xyz_c[sel], pts.cov_c[sel])
+        ref = reference_cells(self.map.z, self.map.var, self.map.n, rcfg)
+        yield
+        reg = yield from register_steps(xyz_w, cov_w, prior, vp.cov, self.map.grid, self.map.z,
+                                        self.map.var, ref, rcfg, self.sources if rcfg.reference_error else None)
+        if reg.status == "reference":
+            self.chain.reference(view.pose_cov)
+            return RegisteredPose(reg, view.pose, view.pose_cov, None)
+        if reg.status != "registered":
+            pose, cov = self.chain.unregistered(view.pose, vp, reg, rcfg)
+            return RegisteredPose(reg, pose, cov, None)
+        pose, cov, nav = self.chain.registered(view.pose, view.pose_cov, view.nav_fix_id, view.time_s, vp, reg, rcfg)
+        return RegisteredPose(reg, pose, cov, nav)
+
+    def world_parts_steps(self, placed: RegisteredPose, pts: StereoPoints) -> Generator[None, None, list[ViewPart]]:
+        """The view's points in the world with their covariance (§1.2), in ``PROPAGATE_CHUNK``
+        slices: the stereo part per point; the pose part and the calibration's disparity offset
+        common to the whole view (it must not average down in a cell); the points too near one
+        of the view's own occluding lips for that common error withheld."""
+        fus = self.cfg.fusion
+        off_sigma = 0.0 if self.rectifier is None else self.rectifier.camera.offset_sigma_px
+        lips = LipGuard.of_view(self.map.grid, placed.pose, pts.lip_near_c, pts.lip_far_c, fus.lip_min_drop_m)
+        pose_cov = placed.cov if np.any(placed.cov) else None  # an exact pose (a bench's true one): no pose part
+        parts: list[ViewPart] = []
+        for a in range(0, len(pts), PROPAGATE_CHUNK):
+            b = a + PROPAGATE_CHUNK
+            xyz, cov_s, cov_p = point_covariance_parts(placed.pose, pose_cov, pts.xyz_c[a:b], pts.cov_c[a:b])
+            if off_sigma > 0.0:
+                cal = offset_covariance(xyz, placed.pose.t, pts.disparity_px[a:b], off_sigma)
+                cov_p = cal if cov_p is None else cov_p + cal
+            parts.append(lips.part(xyz, cov_s, cov_p, fus.lip_guard_sigma))
+            yield
+        return parts
+
+    def fuse_steps(self, placed: RegisteredPose, parts: list[ViewPart],
+                   p_visible: NDArray[np.floating] | NDArray[np.bool_] | None = None
+                   ) -> Generator[None, None, MergedView]:
+        """Fuse a view's world points (:meth:`world_parts_steps`, consumed) into the map with
+        the misses of the cells in ``p_visible`` that get none (§1.1, §3.4); each cell the view
+        measured remembers the view as its source (``fsw.core.map.reference_frames``)."""
+        view_cells = self.map.grid.cell_means(np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3)))
+        X, Y = (c.reshape(-1)[view_cells[0]] for c in self.map.grid.centers())
+        self.sources.add(view_cells[0], np.column_stack([X, Y, view_cells[1]]), placed.pose.t, placed.cov)
+        yield
+        stats = yield from self.map.merge_parts_steps(parts, p_visible=p_visible, step_points=MERGE_STEP_POINTS)
+        yield
+        return MergedView(placed, stats, view_cells)

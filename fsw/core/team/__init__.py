@@ -1,0 +1,1 @@
+"""The team (docs/algorithm.md §8): tether statics of the Cliff-bot on the face and its task planner."""

@@ -1,0 +1,133 @@
+"""The Cliff-bot's navigation: an EKF on its place and heading on the face (docs/team.md).
+
+State ``s = (x, y, yaw)`` (world metres, rad) with covariance ``P``. Sources:
+
+* **wheel odometry** (prediction): a wheel-path increment ``d`` moves the Cliff-bot
+  ``d cos(pitch)`` horizontally along the IMU's heading (pitch from the IMU); the process
+  noise grows with ``d`` (on a face the tethers, not the wheels, choose the direction) and
+  with time;
+* **tether-length kinematics** (update): the two paid-out lengths the winches report equal
+  the taut tether lengths at the Cliff-bot's place on the map it received
+  (:func:`fsw.core.team.tether.tether_state`); Jacobian by central differences over one map
+  cell; the noise is the winches' length accuracy plus the map's (a tether over a coarse
+  map is only as long as the map says);
+* **IMU heading** (update): the attitude sensor's yaw;
+* **the RECON-bot's fiducial fix** (update, :meth:`CliffbotNav.fix`): position and heading
+  with the fix's own covariance, gated by its normalised innovation squared (NIS) against
+  the chi-square bound of 3 degrees of freedom: a fix that disagrees with the estimate beyond
+  both covariances is refused (the mission stops safe and says so).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.core.geometry import MapGrid
+from fsw.core.team.tether import TetherConfig, ZMap, tether_state
+from fsw.framework.params import param
+
+F64 = NDArray[np.float64]
+CHI2_3DOF = {0.95: 7.815, 0.99: 11.345, 0.999: 16.266}
+
+
+@dataclass(frozen=True)
+class NavConfig:
+    length_sigma_m: float = param(0.02, lo=1e-4, hi=1.0, units="m", doc="tether-length measurement noise")
+    yaw_sigma_deg: float = param(2.0, lo=0.01, hi=90.0, units="deg", doc="IMU heading noise")
+    odo_sigma_frac: float = param(0.5, lo=0.0, hi=1.0, doc="wheel-odometry noise per metre driven")
+    drift_mps: float = param(0.005, lo=0.0, hi=1.0, units="m/sqrt(s)", doc="process noise per sqrt(second)")
+    yaw_rate_per_m: float = param(1.0, lo=0.0, hi=10.0, units="rad/m", doc="heading change per metre driven (noise)")
+    fix_gate: float = param(0.999, lo=0.9, hi=0.9999, doc="chi-square probability of the fix gate (3 dof)")
+    init_sigma_m: float = param(0.1, lo=1e-3, hi=10.0, units="m")
+
+
+def _wrap(a: float) -> float:
+    return math.atan2(math.sin(a), math.cos(a))
+
+
+class CliffbotNav:
+    """The EKF; :attr:`s` and :attr:`P` are the estimate."""
+
+    def __init__(self, xy: F64, yaw: float, cfg: NavConfig) -> None:
+        self.cfg = cfg
+        self.s = np.array([float(xy[0]), float(xy[1]), float(yaw)])
+        self.P = np.diag([cfg.init_sigma_m ** 2, cfg.init_sigma_m ** 2, math.radians(10.0) ** 2])
+        self.last_nis: float | None = None
+
+    @property
+    def xy(self) -> F64:
+        return self.s[:2].copy()
+
+    def predict(self, wheel_m: float, pitch_deg: float, dt: float, heading: float | None = None) -> None:
+        """Wheel odometry: ``wheel_m`` along the ground in the direction ``heading`` (the IMU's,
+        an input: the state's yaw is not coupled to the place). On a face the tethers, not the
+        wheels, choose where the body goes, so it may slide sideways to its heading: the
+        process noise is ``odo_sigma_frac`` of the distance across and along as well."""
+        c = self.cfg
+        d = wheel_m * math.cos(math.radians(pitch_deg))
+        yaw = self.s[2] if heading is None else heading
+        self.s[:2] += d * np.array([math.cos(yaw), math.sin(yaw)])
+        q = (c.odo_sigma_frac * abs(wheel_m)) ** 2 + c.drift_mps ** 2 * max(dt, 0.0)
+        q_yaw = (c.yaw_rate_per_m * abs(wheel_m)) ** 2 + 1e-5 * max(dt, 0.0)  # the body turns as it moves
+        self.P = self.P + np.diag([q, q, q_yaw])
+
+    def _update(self, r: F64, h: F64, rcov: F64) -> float:
+        s_cov = h @ self.P @ h.T + rcov
+        k = self.P @ h.T @ np.linalg.inv(s_cov)
+        self.s = self.s + k @ r
+        self.s[2] = _wrap(self.s[2])
+        i_kh = np.eye(3) - k @ h
+        self.P = i_kh @ self.P @ i_kh.T + k @ rcov @ k.T  # Joseph form
+        return float(r @ np.linalg.solve(s_cov, r))
+
+    def lengths(self, lengths_m: tuple[float, float], z: ZMap, grid: MapGrid, anchors: F64,
+                tcfg: TetherConfig, footprint_m: float) -> bool:
+        """Update on the winches' paid-out lengths; False when the map cannot say (unknown ground)."""
+        xy = self.s[:2]
+        st = tether_state(z, grid, anchors, xy, tcfg, footprint_m)
+        if st is None or not all(math.isfinite(v) for v in lengths_m):
+            return False
+        hmat = np.zeros((2, 3))
+        e = grid.cell
+        for k in range(2):
+            dv = np.zeros(2)
+            dv[k] = e
+            hi = tether_state(z, grid, anchors, xy + dv, tcfg, footprint_m)
+            lo = tether_state(z, grid, anchors, xy - dv, tcfg, footprint_m)
+            if hi is None or lo is None:
+                return False
+            hmat[:, k] = (np.asarray(hi.lengths_m) - np.asarray(lo.lengths_m)) / (2 * e)
+        r = np.asarray(lengths_m, float) - np.asarray(st.lengths_m)
+        sig2 = self.cfg.length_sigma_m ** 2 + (0.5 * grid.cell) ** 2
+        self._update(r, hmat, np.eye(2) * sig2)
+        return True
+
+    def heading(self, yaw_deg: float) -> None:
+        if not math.isfinite(yaw_deg):
+            return
+        r = np.array([_wrap(math.radians(yaw_deg) - self.s[2])])
+        self._update(r, np.array([[0.0, 0.0, 1.0]]), np.array([[math.radians(self.cfg.yaw_sigma_deg) ** 2]]))
+
+    def fix(self, xy: F64, yaw: float, cov3: F64) -> tuple[bool, float]:
+        """A fiducial fix of ``(x, y, yaw)`` with its 3x3 covariance: (accepted, NIS)."""
+        r = np.array([xy[0] - self.s[0], xy[1] - self.s[1], _wrap(yaw - self.s[2])])
+        h = np.eye(3)
+        s_cov = self.P + cov3
+        try:
+            nis = float(r @ np.linalg.solve(s_cov, r))
+        except np.linalg.LinAlgError:
+            return False, math.inf
+        self.last_nis = nis
+        if not math.isfinite(nis) or nis > CHI2_3DOF.get(self.cfg.fix_gate, CHI2_3DOF[0.999]):
+            return False, nis
+        self._update(r, h, cov3)
+        return True, nis
+
+    def reset(self, xy: F64, yaw: float, cov3: F64) -> None:
+        """Take a fix as the estimate (the recovery after a refused fix, on command)."""
+        self.s = np.array([float(xy[0]), float(xy[1]), float(yaw)])
+        self.P = np.asarray(cov3, float).copy()

@@ -1,0 +1,253 @@
+"""The Cliff-bot's task planner: paths to science targets on the face, under tether limits
+(docs/algorithm.md §8, "Task execution").
+
+The planner works on a 2.5D map (NaN: unknown) and the anchors' positions; the same code
+plans on the map the Cliff-bot received (the flight) and on the truth (the bench's
+brute-force check of what is reachable at all).
+
+1. **Nodes.** Map cells every ``node_m``. A node is *usable* when the ground under the
+   Cliff-bot's footprint is known, is not a hazard, and the tethers hold it there:
+   - *hazard*: a rock (white top-hat relief over a ``rock_disc_m`` disc ``>= wheel_d_m``: a
+     flat opening keeps every monotone profile, so the face, the lip and the foot are not
+     rocks, while a bump narrower than the disc is), or ground steeper than
+     ``max_slope_deg`` (a wall); hazards are grown by the footprint radius. Ledges and the
+     lip are not hazards: the tethers carry the Cliff-bot over them;
+   - *tethers*: both taut paths (:mod:`fsw.core.team.tether`) within the spool, over known
+     ground, with no contact on a rock; on ground steeper than ``free_slope_deg`` the
+     equilibrium must hold with both tensions in ``[T_min, T_max]`` and the wheels on the
+     face (below it, the wheels hold the Cliff-bot and the winches only keep the tethers
+     taut).
+2. **Edges.** Usable 8-neighbours, weighted by their 3-D distance.
+3. **Search.** A* from the Cliff-bot's node to each target, nodes judged as the search
+   reaches them (:func:`plan_targets` says why not a whole-lattice graph search). A target
+   that is not reached gets the reason of its own node (``unknown ground``, ``hazard``,
+   ``out of tether reach``, ``slack``,
+   ``over-tension``, ``off the face``, ``tether over a rock``, ``tether over unknown
+   ground``, ``off the map``) or, when its node is usable, ``no safe path``.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import ndimage
+
+from fsw.core.geometry import MapGrid
+from fsw.core.team.tether import TetherConfig, ZMap, tether_state
+from fsw.framework.params import param
+
+F64 = NDArray[np.float64]
+
+USABLE = "usable"
+REASONS = ("off the map", "unknown ground", "hazard", "out of tether reach", "tether over unknown ground",
+           "tether over a rock", "slack", "over-tension", "off the face", "degenerate")
+
+
+@dataclass(frozen=True)
+class ClimberConfig:
+    """What the Cliff-bot can drive on, and the planner's lattice."""
+
+    wheel_d_m: float = param(0.12, lo=0.01, hi=2.0, units="m", doc="wheel diameter: the critical length")
+    footprint_m: float = param(0.3, lo=0.02, hi=5.0, units="m", doc="radius of the Cliff-bot's footprint")
+    rock_disc_m: float = param(0.6, lo=0.05, hi=10.0, units="m", doc="disc of the top-hat that finds rocks")
+    max_slope_deg: float = param(87.0, lo=1.0, hi=90.0, units="deg", doc="steeper ground is a hazard")
+    free_slope_deg: float = param(25.0, lo=0.0, hi=90.0, units="deg",
+                                  doc="up to this slope the wheels hold the Cliff-bot without the tethers")
+    node_m: float = param(0.06, lo=0.005, hi=5.0, units="m", doc="planner lattice spacing")
+
+
+@dataclass(frozen=True)
+class Ground:
+    """The map's hazard layers at full resolution."""
+
+    rock: NDArray[np.bool_]  # relief above the top-hat threshold
+    hazard: NDArray[np.bool_]  # rock, step, rough or too steep, grown by the footprint
+    known: NDArray[np.bool_]  # the whole footprint known
+    slope_deg: NDArray[np.float32]
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Paths from the start to each target, or the reason a target is not reachable."""
+
+    paths: tuple[F64 | None, ...]  # (K, 2) xy waypoints from the start, per target
+    lengths_m: tuple[float, ...]  # 3-D path length (inf when unreachable)
+    reasons: tuple[str, ...]  # "" for a reached target
+    start_reason: str  # "" when the start is usable
+
+
+def _disc(radius_cells: int) -> NDArray[np.bool_]:
+    r = max(0, radius_cells)
+    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
+    return np.asarray(xx * xx + yy * yy <= r * r)
+
+
+def ground_layers(z: ZMap, grid: MapGrid, cfg: ClimberConfig) -> Ground:
+    """Rocks, hazards, known footprints and slope of every cell."""
+    zf = np.asarray(z, np.float64)
+    known = np.isfinite(zf)
+    fill = np.where(known, zf, np.nanmin(zf) if known.any() else 0.0)
+    foot = _disc(int(round(cfg.footprint_m / grid.cell)))
+    # The ground's slope over the footprint (what the Cliff-bot's body stands on).
+    gy, gx = np.gradient(fill, grid.cell)
+    k = 2 * int(round(cfg.footprint_m / grid.cell)) + 1
+    slope = np.degrees(np.arctan(np.hypot(ndimage.uniform_filter(gx, k), ndimage.uniform_filter(gy, k))))
+    # Relief above a flat opening, measured across the ground (times cos slope): on a steep
+    # face a bump's height in z is its height off the face over cos(slope).
+    opened = ndimage.grey_opening(fill, footprint=_disc(int(round(0.5 * cfg.rock_disc_m / grid.cell))))
+    rock = known & ((fill - opened) * np.cos(np.radians(slope)) >= cfg.wheel_d_m)
+    steep = slope > cfg.max_slope_deg
+    raw = rock | steep
+    hazard = ndimage.binary_dilation(raw, structure=foot) & known
+    known_foot = ndimage.binary_erosion(known, structure=foot, border_value=0)
+    return Ground(rock, hazard, known_foot, slope.astype(np.float32))
+
+
+def node_reasons(z: ZMap, grid: MapGrid, anchors: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
+                 ground: Ground | None = None) -> tuple[NDArray[np.intp], NDArray[np.intp], list[str], Ground]:
+    """The lattice (rows and columns of its nodes in the map) and each node's verdict."""
+    g = ground if ground is not None else ground_layers(z, grid, ccfg)
+    stride = max(1, int(round(ccfg.node_m / grid.cell)))
+    rows = np.arange(stride // 2, grid.ny, stride)
+    cols = np.arange(stride // 2, grid.nx, stride)
+    rr, cc = np.meshgrid(rows, cols, indexing="ij")
+    reasons: list[str] = []
+    for iy, ix in zip(rr.ravel(), cc.ravel(), strict=True):
+        reasons.append(_verdict(z, grid, anchors, tcfg, ccfg, g, int(iy), int(ix)))
+    return rows, cols, reasons, g
+
+
+def _verdict(z: ZMap, grid: MapGrid, anchors: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
+             g: Ground, iy: int, ix: int) -> str:
+    if not g.known[iy, ix]:
+        return "unknown ground"
+    if g.hazard[iy, ix]:
+        return "hazard"
+    xy = np.array([grid.x0 + (ix + 0.5) * grid.cell, grid.y0 + (iy + 0.5) * grid.cell])
+    st = tether_state(z, grid, anchors, xy, tcfg, ccfg.footprint_m)
+    if st is None:
+        return "unknown ground"
+    if max(st.lengths_m) > tcfg.spool_m:
+        return "out of tether reach"
+    if any(p.unknown for p in st.paths):
+        return "tether over unknown ground"
+    for p in st.paths:
+        if len(p.contacts):
+            cy, cx, inside = grid.cell_index(p.contacts[:, 0], p.contacts[:, 1])
+            if (inside & g.rock[np.clip(cy, 0, grid.ny - 1), np.clip(cx, 0, grid.nx - 1)]).any():
+                return "tether over a rock"
+    if g.slope_deg[iy, ix] > ccfg.free_slope_deg and not st.statics.ok:
+        return st.statics.reason
+    return USABLE
+
+
+def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy: F64,
+                 tcfg: TetherConfig, ccfg: ClimberConfig) -> Plan:
+    """Shortest usable paths from ``start_xy`` to each target (module docstring).
+
+    A* per target over the 8-connected lattice, with the 3-D straight distance as its
+    (admissible) heuristic; a node's verdict is worked out when the search first reaches it
+    and kept for the next target. Evaluating only the nodes a search reaches is why this is
+    not one ``scipy.sparse.csgraph`` call over the whole lattice: a verdict (two tether paths
+    and the statics) costs far more than a graph step, and most of the lattice is never
+    needed."""
+    zf = np.asarray(z, np.float64)
+    g = ground_layers(zf, grid, ccfg)
+    stride = max(1, int(round(ccfg.node_m / grid.cell)))
+    rows = np.arange(stride // 2, grid.ny, stride)
+    cols = np.arange(stride // 2, grid.nx, stride)
+    ny, nx = len(rows), len(cols)
+    node_z = np.nan_to_num(zf[np.ix_(rows, cols)])
+    node_x = grid.x0 + (cols + 0.5) * grid.cell
+    node_y = grid.y0 + (rows + 0.5) * grid.cell
+    cache: dict[int, str] = {}
+
+    def verdict(k: int) -> str:
+        if k not in cache:
+            cache[k] = _verdict(zf, grid, anchors, tcfg, ccfg, g, int(rows[k // nx]), int(cols[k % nx]))
+        return cache[k]
+
+    def point(k: int) -> F64:
+        r, c = divmod(k, nx)
+        return np.array([node_x[c], node_y[r], node_z[r, c]])
+
+    def node_of(xy: F64) -> int | None:
+        iy, ix, inside = grid.cell_index(np.array([xy[0]]), np.array([xy[1]]))
+        if not inside[0]:
+            return None
+        cy = min(ny - 1, max(0, int(round((int(iy[0]) - rows[0]) / stride))))
+        cx = min(nx - 1, max(0, int(round((int(ix[0]) - cols[0]) / stride))))
+        return cy * nx + cx
+
+    targets = np.asarray(targets_xy, float).reshape(-1, 2)
+    start = node_of(np.asarray(start_xy, float))
+    if start is None or verdict(start) != USABLE:
+        why = "off the map" if start is None else verdict(start)
+        return Plan(tuple(None for _ in targets), tuple(math.inf for _ in targets),
+                    tuple(f"start: {why}" for _ in targets), why)
+    paths: list[F64 | None] = []
+    lengths: list[float] = []
+    why_not: list[str] = []
+    for t in targets:
+        goal = node_of(t)
+        if goal is None or verdict(goal) != USABLE:
+            paths.append(None)
+            lengths.append(math.inf)
+            why_not.append("off the map" if goal is None else verdict(goal))
+            continue
+        found = _astar(start, goal, nx, ny, verdict, point)
+        if found is None:
+            paths.append(None)
+            lengths.append(math.inf)
+            why_not.append("no safe path")
+            continue
+        chain, length = found
+        r, c = np.divmod(np.asarray(chain), nx)
+        paths.append(np.column_stack([node_x[c], node_y[r]]))
+        lengths.append(length)
+        why_not.append("")
+    return Plan(tuple(paths), tuple(lengths), tuple(why_not), "")
+
+
+_STEPS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
+
+
+def _astar(start: int, goal: int, nx: int, ny: int, verdict: Callable[[int], str],
+           point: Callable[[int], F64]) -> tuple[list[int], float] | None:
+    """A* over usable lattice nodes; the node chain and its 3-D length, or None."""
+    goal_p = point(goal)
+    best = {start: 0.0}
+    came: dict[int, int] = {}
+    heap = [(float(np.linalg.norm(point(start) - goal_p)), 0.0, start)]
+    done: set[int] = set()
+    while heap:
+        _, cost, k = heapq.heappop(heap)
+        if k in done:
+            continue
+        if k == goal:
+            chain = [k]
+            while chain[-1] != start:
+                chain.append(came[chain[-1]])
+            return chain[::-1], cost
+        done.add(k)
+        r, c = divmod(k, nx)
+        pk = point(k)
+        for dr, dc in _STEPS:
+            rr, cc = r + dr, c + dc
+            if not (0 <= rr < ny and 0 <= cc < nx):
+                continue
+            n = rr * nx + cc
+            if n in done or verdict(n) != USABLE:
+                continue
+            pn = point(n)
+            new = cost + float(np.linalg.norm(pn - pk))
+            if new < best.get(n, math.inf):
+                best[n] = new
+                came[n] = k
+                heapq.heappush(heap, (new + float(np.linalg.norm(pn - goal_p)), new, n))
+    return None

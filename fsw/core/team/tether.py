@@ -1,0 +1,276 @@
+"""Tether statics of the Cliff-bot on the face (docs/algorithm.md §8, "Cliff-bot pose on the face").
+
+Two Anchorbots on the plateau hold the Cliff-bot on tethers. The model is quasi-static:
+
+1. **The tether's path.** A taut tether from the anchor's exit point ``A`` to the Cliff-bot's
+   attachment point ``B`` lies in the vertical plane through them and is the shortest path
+   that stays on or above the ground between them: the *upper convex hull* of ``A``, ``B``
+   and the ground profile sampled along the horizontal segment ``A -> B`` (a string pulled
+   tight over the terrain). Hull vertices other than the ends are *contacts*: the edge lip,
+   a ledge, a rock; each acts as an intermediate anchor (JPL's Axel/DuAxel model of the
+   tether as a shortest path with its contact points). Its length is the sum of the hull's
+   3-D segment lengths; the direction the tether pulls the Cliff-bot is the last segment's.
+2. **Equilibrium.** With unit pull directions ``u1``, ``u2``, the ground normal ``n`` at the
+   Cliff-bot and its weight ``m g``: ``T1 u1 + T2 u2 + N n = m g e_z``: three equations
+   for the two tensions and the normal force. The pose holds when ``T_min <= Ti <= T_max``
+   (taut, not over-tensioned: gravity's along-face pull lies inside the cone of the two
+   tethers) and ``N >= 0`` (the wheels stay on the face). Friction is ignored (it only
+   widens the set of poses that hold), so the check is conservative.
+3. **Forward kinematics.** Given the paid-out lengths ``l1, l2``, the Cliff-bot rests where
+   both tethers are taut: ``L_i(p) = l_i`` for ``p`` on the ground; :func:`settle` solves
+   the two equations for ``(x, y)`` by Gauss-Newton from a guess (the previous pose).
+
+Heights come from a 2.5D map ``z`` on a :class:`~fsw.core.geometry.MapGrid` (NaN: unknown);
+the same code runs on the truth (the bench) and on the Cliff-bot's own map (its planner).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.core.geometry import MapGrid
+from fsw.framework.params import param
+
+F64 = NDArray[np.float64]
+ZMap = NDArray[np.float32 | np.float64]  # a 2.5D map: heights, NaN unknown
+G = 9.81  # m/s^2 (the planet's value belongs in config when the bench plays Mars: TetherConfig.gravity_mps2)
+
+
+@dataclass(frozen=True)
+class TetherConfig:
+    """The tethers, the winches' limits and the Cliff-bot's mass (docs/algorithm.md §8)."""
+
+    spool_m: float = param(14.0, lo=0.5, hi=500.0, units="m", doc="tether length on each winch's spool")
+    t_min_n: float = param(5.0, lo=0.0, hi=1e4, units="N", doc="below this a tether counts as slack")
+    t_max_n: float = param(250.0, lo=1.0, hi=1e5, units="N", doc="over this a tether is over-tensioned")
+    mass_kg: float = param(12.0, lo=0.1, hi=1000.0, units="kg", doc="the Cliff-bot's mass")
+    gravity_mps2: float = param(G, lo=0.1, hi=30.0, units="m/s^2")
+    anchor_exit_m: float = param(0.3, lo=0.0, hi=3.0, units="m", doc="tether exit above the anchor's ground")
+    attach_m: float = param(0.15, lo=0.0, hi=2.0, units="m", doc="attachment above the Cliff-bot's ground")
+    sample_m: float = param(0.03, lo=0.001, hi=1.0, units="m", doc="ground profile sampling along a tether")
+
+
+@dataclass(frozen=True)
+class TetherPath:
+    """One taut tether from its anchor to the Cliff-bot."""
+
+    length_m: float
+    contacts: F64  # (K, 3) contact points between the ends, anchor side first
+    pull: F64  # unit vector: the direction the tether pulls the Cliff-bot
+    unknown: bool  # the tether passes over ground the map does not know
+
+
+@dataclass(frozen=True)
+class Statics:
+    """Equilibrium of the Cliff-bot at one place: tensions, normal force and the verdict."""
+
+    tensions_n: tuple[float, float]
+    normal_n: float
+    ok: bool
+    reason: str  # "" when ok; else "slack", "over-tension", "off the face", "degenerate"
+
+
+def ground_profile(z: ZMap, grid: MapGrid, a_xy: F64, b_xy: F64, step_m: float
+                   ) -> tuple[F64, F64, bool]:
+    """Heights along the horizontal segment ``a -> b`` (ends excluded): distance from ``a``,
+    height, and whether any sample falls on unknown ground or off the map."""
+    d = np.asarray(b_xy, float) - np.asarray(a_xy, float)
+    span = float(math.hypot(d[0], d[1]))
+    n = int(span / step_m)
+    if n < 1:
+        return np.zeros(0), np.zeros(0), False
+    s = np.arange(1, n + 1, dtype=np.float64) * (span / (n + 1))
+    xs = a_xy[0] + d[0] * s / span
+    ys = a_xy[1] + d[1] * s / span
+    iy, ix, inside = grid.cell_index(xs, ys)
+    h = np.full(n, np.nan)
+    h[inside] = z[iy[inside], ix[inside]]
+    unknown = bool((~np.isfinite(h)).any())
+    return s, np.where(np.isfinite(h), h, -np.inf).astype(np.float64), unknown
+
+
+def upper_hull(s: F64, h: F64) -> NDArray[np.intp]:
+    """Indices of the upper convex hull of the points ``(s, h)`` (``s`` increasing, both ends
+    kept): QuickHull's upper half, the point farthest above each chord splitting it, so the
+    work is one vectorised pass per contact (a tether has a few) instead of a Python loop over
+    every sample."""
+    out = [0]
+    stack = [(0, len(s) - 1)]
+    while stack:
+        i, j = stack.pop()
+        if j - i < 2:
+            out.append(j)
+            continue
+        ss, hh = s[i + 1:j], h[i + 1:j]
+        above = (s[j] - s[i]) * (hh - h[i]) - (h[j] - h[i]) * (ss - s[i])
+        k = int(np.argmax(above))
+        if above[k] <= 0.0:
+            out.append(j)
+            continue
+        m = i + 1 + k
+        stack.append((m, j))  # right part after the left: the stack pops the left first
+        stack.append((i, m))
+    return np.asarray(out, dtype=np.intp)
+
+
+def tether_path(z: ZMap, grid: MapGrid, anchor: F64, bot: F64, cfg: TetherConfig) -> TetherPath:
+    """The taut tether from ``anchor`` (its exit point, x y z) to ``bot`` (the attachment point)."""
+    anchor = np.asarray(anchor, float)
+    bot = np.asarray(bot, float)
+    s, h, unknown = ground_profile(z, grid, anchor[:2], bot[:2], cfg.sample_m)
+    span = float(math.hypot(*(bot[:2] - anchor[:2])))
+    ss = np.concatenate([[0.0], s, [span]])
+    hh = np.concatenate([[anchor[2]], h, [bot[2]]])
+    idx = upper_hull(ss, hh)
+    seg = np.hypot(np.diff(ss[idx]), np.diff(hh[idx]))
+    direction = (bot[:2] - anchor[:2]) / span if span > 0 else np.zeros(2)
+    inner = idx[1:-1]
+    contacts = np.column_stack([anchor[0] + direction[0] * ss[inner], anchor[1] + direction[1] * ss[inner],
+                                hh[inner]])
+    last = idx[-2]  # the hull vertex the last segment comes from
+    pull = np.array([-direction[0] * (ss[-1] - ss[last]), -direction[1] * (ss[-1] - ss[last]), hh[last] - bot[2]])
+    norm = float(np.linalg.norm(pull))
+    return TetherPath(float(seg.sum()), contacts, pull / norm if norm > 0 else pull, unknown)
+
+
+def surface_normal(z: ZMap, grid: MapGrid, xy: F64, radius_m: float) -> F64 | None:
+    """Unit upward normal of the plane fitted to the ground at ``xy`` and at eight points on
+    the circle of ``radius_m`` around it (bilinear heights, :func:`height_at`, so the normal
+    and the attachment point move continuously with the Cliff-bot); points on unknown ground
+    or off the map are left out; None when the centre or more than half of the circle is."""
+    r = max(radius_m, grid.cell)
+    ang = np.arange(8) * (np.pi / 4)
+    px = np.concatenate([[0.0], r * np.cos(ang)])
+    py = np.concatenate([[0.0], r * np.sin(ang)])
+    h = np.array([height_at(z, grid, (float(xy[0]) + a, float(xy[1]) + b)) for a, b in zip(px, py, strict=True)])
+    ok = np.isfinite(h)
+    if not ok[0] or ok.sum() < 5:
+        return None
+    a = np.column_stack([px, py, np.ones_like(px)])[ok]
+    (gx, gy, _), *_ = np.linalg.lstsq(a, h[ok], rcond=None)
+    n = np.array([-gx, -gy, 1.0])
+    return n / np.linalg.norm(n)
+
+
+def statics(pull1: F64, pull2: F64, normal: F64, cfg: TetherConfig) -> Statics:
+    """Solve ``T1 u1 + T2 u2 + N n = m g e_z`` and judge it against the tension limits."""
+    a = np.column_stack([pull1, pull2, normal])
+    weight = np.array([0.0, 0.0, cfg.mass_kg * cfg.gravity_mps2])
+    if abs(np.linalg.det(a)) < 1e-9:
+        return Statics((math.nan, math.nan), math.nan, False, "degenerate")
+    t1, t2, n = np.linalg.solve(a, weight)
+    reason = ""
+    if min(t1, t2) < cfg.t_min_n:
+        reason = "slack"
+    elif max(t1, t2) > cfg.t_max_n:
+        reason = "over-tension"
+    elif n < 0.0:
+        reason = "off the face"
+    return Statics((float(t1), float(t2)), float(n), reason == "", reason)
+
+
+@dataclass(frozen=True)
+class TetherState:
+    """Both tethers and the equilibrium with the Cliff-bot at one place."""
+
+    paths: tuple[TetherPath, TetherPath]
+    statics: Statics
+
+    @property
+    def lengths_m(self) -> tuple[float, float]:
+        return (self.paths[0].length_m, self.paths[1].length_m)
+
+
+def anchor_points(z: ZMap, grid: MapGrid, anchors_xy: F64, cfg: TetherConfig) -> F64:
+    """The tethers' exit points: each anchor's ground height plus the exit height."""
+    anchors_xy = np.asarray(anchors_xy, float).reshape(-1, 2)
+    iy, ix, inside = grid.cell_index(anchors_xy[:, 0], anchors_xy[:, 1])
+    if not inside.all():
+        raise ValueError("an anchor lies off the map")
+    zz = np.asarray(z, float)[iy, ix]
+    if not np.isfinite(zz).all():
+        raise ValueError("an anchor stands on ground the map does not know")
+    return np.column_stack([anchors_xy, zz + cfg.anchor_exit_m])
+
+
+def height_at(z: ZMap, grid: MapGrid, xy: F64 | tuple[float, float]) -> float:
+    """Bilinear height at ``xy`` between the four nearest cell centres (NaN when one is unknown
+    or off the map): continuous, so tether lengths are continuous in the Cliff-bot's place
+    (a steep face on a coarse grid steps by ``cell * tan(slope)`` from one cell to the next)."""
+    fx = (float(xy[0]) - grid.x0) / grid.cell - 0.5
+    fy = (float(xy[1]) - grid.y0) / grid.cell - 0.5
+    ix, iy = int(math.floor(fx)), int(math.floor(fy))
+    if not (0 <= ix < grid.nx - 1 and 0 <= iy < grid.ny - 1):
+        return math.nan
+    ax, ay = fx - ix, fy - iy
+    q = np.asarray(z[iy:iy + 2, ix:ix + 2], float)
+    return float((1 - ay) * ((1 - ax) * q[0, 0] + ax * q[0, 1]) + ay * ((1 - ax) * q[1, 0] + ax * q[1, 1]))
+
+
+def tether_state(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, cfg: TetherConfig,
+                 footprint_m: float = 0.3) -> TetherState | None:
+    """Both tethers and the statics with the Cliff-bot standing at ``xy``; None where the map
+    does not know the ground under it."""
+    iy, ix, inside = grid.cell_index(np.array([xy[0]]), np.array([xy[1]]))
+    if not inside[0]:
+        return None
+    zg = height_at(z, grid, xy)
+    normal = surface_normal(z, grid, xy, footprint_m)
+    if not math.isfinite(zg) or normal is None:
+        return None
+    bot = np.array([xy[0], xy[1], zg]) + cfg.attach_m * normal
+    p1 = tether_path(z, grid, anchors[0], bot, cfg)
+    p2 = tether_path(z, grid, anchors[1], bot, cfg)
+    return TetherState((p1, p2), statics(p1.pull, p2.pull, normal, cfg))
+
+
+def settle(z: ZMap, grid: MapGrid, anchors: F64, lengths: tuple[float, float], guess_xy: F64,
+           cfg: TetherConfig, iterations: int = 30, tol_m: float = 1e-3) -> tuple[F64, TetherState] | None:
+    """Forward kinematics: where both tethers, paid out to ``lengths``, are taut on the ground.
+
+    Gauss-Newton on ``L_i(x, y) = l_i`` from ``guess_xy`` (the last pose): the Jacobian by
+    central differences of the tether lengths at one map cell, each step halved until the
+    residual shrinks. None when it does not
+    converge (the lengths cannot both be taut: the Cliff-bot would hang on one tether)."""
+    xy = np.asarray(guess_xy, float).copy()
+    h = grid.cell
+    target = np.asarray(lengths, float)
+    for _ in range(iterations):
+        st = tether_state(z, grid, anchors, xy, cfg)
+        if st is None:
+            return None
+        r = np.asarray(st.lengths_m) - target
+        if np.max(np.abs(r)) < tol_m:
+            return xy, st
+        jac = np.empty((2, 2))
+        for k in range(2):
+            e = np.zeros(2)
+            e[k] = h
+            hi = tether_state(z, grid, anchors, xy + e, cfg)
+            lo = tether_state(z, grid, anchors, xy - e, cfg)
+            if hi is None or lo is None:
+                return None
+            jac[:, k] = (np.asarray(hi.lengths_m) - np.asarray(lo.lengths_m)) / (2 * h)
+        if abs(np.linalg.det(jac)) < 1e-9:
+            return None
+        step = np.linalg.solve(jac, r)
+        n = float(np.linalg.norm(step))
+        if n > 0.5:  # a damped step: the ground under the Cliff-bot is only known locally
+            step *= 0.5 / n
+        # Backtracking: a contact appearing or vanishing makes the lengths kink, and a full
+        # Gauss-Newton step can cycle across the kink; halve it until the residual shrinks.
+        r_norm = float(np.linalg.norm(r))
+        for _ in range(6):
+            trial = tether_state(z, grid, anchors, xy - step, cfg)
+            if trial is not None and float(np.linalg.norm(np.asarray(trial.lengths_m) - target)) < r_norm:
+                break
+            step = 0.5 * step
+        xy = xy - step
+    st = tether_state(z, grid, anchors, xy, cfg)
+    if st is not None and np.max(np.abs(np.asarray(st.lengths_m) - target)) < 10 * tol_m + 0.25 * h:
+        return xy, st
+    return None

@@ -1,0 +1,49 @@
+"""Task kinds by name -> ``module:Class``, imported lazily (python-can's backend registry), and
+the agents built from them.
+
+Add one line per task kind; ``[[executive.tasks]] kind = "..."`` in the config picks it. An
+agent kind (``[agent] kind``) is a topology (``fsw.framework.agent.AgentTopology``): the task
+kinds its schedule may use and the configuration sections it reads. A new agent is a new
+entry in ``AGENTS`` with its task kinds (docs/architecture.md, "Agents").
+"""
+
+from fsw.framework.agent import AgentTopology
+
+# Every agent may schedule these: health and watchdog, test tasks, the console, MAVLink.
+COMMON_KINDS: dict[str, str] = {
+    "health": "fsw.executive.health:HealthTask",
+    "noop": "fsw.tasks.noop:NoopTask",
+    "busy": "fsw.tasks.noop:BusyTask",
+    "console": "fsw.tasks.console:ConsoleTask",
+    "mavlink": "fsw.tasks.mavlink_task:MavlinkTask",
+}
+
+# The RECON-bot's own tasks: its devices, moves, stereo mapping, next view, mission, map link.
+RECON_KINDS: dict[str, str] = {
+    "can_motors_device": "fsw.tasks.devices:CanMotorsDevice",
+    "imu_device": "fsw.tasks.devices:ImuDevice",
+    "mast_device": "fsw.tasks.devices:MastDevice",
+    "camera_device": "fsw.tasks.devices:CameraDevice",
+    "motion": "fsw.tasks.motion:MotionTask",
+    "radio": "fsw.tasks.radio_task:RadioTask",
+    "camera": "fsw.tasks.camera:CameraTask",
+    "perception": "fsw.tasks.perception:PerceptionTask",
+    "nbv": "fsw.tasks.nbv:NbvTask",
+    "mission": "fsw.tasks.mission:MissionTask",
+}
+
+# The RECON-bot's task kinds (the common ones and its own); tests add their task kinds here.
+KINDS: dict[str, str] = {**COMMON_KINDS, **RECON_KINDS}
+
+RECON = AgentTopology(
+    kind="recon",
+    doc="RECON-bot: maps the cliff edge with its mast stereo camera and sends the map to the Cliff-bot",
+    task_kinds=KINDS,
+    sections=frozenset({
+        "rover", "camera", "mast", "map", "stereo", "fusion", "registration", "localization", "cliffbot", "edge",
+        "geofence", "checkpoint", "mavlink", "codec", "link", "nbv", "devices", "motion", "capture", "mission",
+        "calibration",
+    }),
+)
+
+AGENTS: dict[str, AgentTopology] = {RECON.kind: RECON}

@@ -1,0 +1,345 @@
+"""The Cliff-bot's mission: to each science target and back up, on the map it received
+(docs/team.md, "The Cliff-bot's flight code").
+
+Sans I/O: :meth:`CliffbotMission.step` takes the devices' latest statuses and returns the
+commands (winch rates, wheel rates, enable, clear-faults) and whether to ask the RECON-bot
+for a fix. States:
+
+``WAIT_MAP`` (no map yet) -> ``PLAN`` (every target planned from the start on the received
+map with :func:`fsw.core.team.face_planner.plan_targets`; a target it cannot reach is
+reported with its reason, event ``TARGET_UNREACHABLE``, and never attempted) ->
+``WAIT_FIX`` (before each leg: a fiducial fix from the RECON-bot) -> ``DRIVE`` (the leg's
+path, waypoint by waypoint: each waypoint's tether lengths on the map are the winches'
+set-points, both tethers paced to arrive together; re-planned from the estimate when a
+fix or a newer map arrives) -> ``DWELL`` (at the target) -> the next leg; after the last
+target, the leg home (the start) -> ``DONE``.
+
+``SAFE`` (winches braked, wheels stopped, event ``SAFE`` with the reason) on: a winch fault
+bit (stall, slip, over-tension, spool, timeout), a device whose status stopped, no fix
+within ``fix_timeout_s`` of the request (the link is lost), a fix refused by the
+navigation's gate (it disagrees with the estimate beyond both covariances), a leg with no
+usable start. :meth:`recover` (a ground command) clears the winches' faults, takes the
+last fix as the estimate if that was the cause, and re-plans the leg it was on from there.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.comm.team.fix_packets import Fix
+from fsw.comm.team.team_can import WINCHES
+from fsw.core.geometry import MapGrid
+from fsw.core.team.cliffbot_nav import CliffbotNav, NavConfig
+from fsw.core.team.face_planner import ClimberConfig, plan_targets
+from fsw.core.team.tether import TetherConfig, tether_state
+from fsw.drivers.cliffbot_devices import CliffbotDevices
+from fsw.framework.params import param
+
+F64 = NDArray[np.float64]
+FAULT_BITS = ("FaultStall", "FaultSlip", "FaultOverTension", "FaultSpool", "FaultTimeout")
+
+
+@dataclass(frozen=True)
+class CliffbotMissionConfig:
+    max_rate_mps: float = param(0.12, lo=0.005, hi=2.0, units="m/s", doc="winch rate limit the mission commands")
+    gain_per_s: float = param(1.5, lo=0.05, hi=20.0, units="1/s", doc="length error to rate")
+    length_tol_m: float = param(0.02, lo=0.001, hi=0.5, units="m", doc="a waypoint is reached within this")
+    waypoint_every: int = param(3, lo=1, hi=50, doc="every n-th lattice node of a path is a waypoint")
+    dwell_s: float = param(2.0, lo=0.0, hi=600.0, units="s", doc="time at a target (instrument placement)")
+    fix_timeout_s: float = param(30.0, lo=0.5, hi=600.0, units="s", doc="no fix this long after asking: link lost")
+    return_home: bool = param(True, doc="climb back to the start after the last target")
+    wheel_radius_m: float = param(0.06, lo=0.01, hi=1.0, units="m")
+    track_margin_m: float = param(0.08, lo=0.0, hi=2.0, units="m",
+                                  doc="the planner's footprint grown by this: the body strays between waypoints")
+    tension_margin_n: float = param(10.0, lo=0.0, hi=1000.0, units="N",
+                                    doc="the planner keeps tensions this far inside [T_min, T_max]")
+
+
+@dataclass(frozen=True)
+class Commands:
+    rates_mps: tuple[float, float]
+    enable: bool
+    clear_faults: bool
+    wheels_radps: tuple[float, float]
+    request_fix: bool
+
+
+@dataclass
+class Leg:
+    goal: F64
+    target: int | None  # index into the targets, None for the leg home
+    waypoints: list[F64] = field(default_factory=list)
+    length_m: float = 0.0
+
+
+class CliffbotMission:
+    def __init__(self, cfg: CliffbotMissionConfig, tcfg: TetherConfig, ccfg: ClimberConfig, ncfg: NavConfig,
+                 anchors: F64, start_xy: F64, start_yaw: float, targets_xy: F64) -> None:
+        self.cfg, self.tcfg, self.ccfg = cfg, tcfg, ccfg
+        # what the planner uses: limits with the tracking margins (the body is between nodes
+        # and waypoints while it moves, and the bench judges every place it passes)
+        self.plan_tcfg = dataclasses.replace(tcfg, t_min_n=tcfg.t_min_n + cfg.tension_margin_n,
+                                             t_max_n=max(tcfg.t_max_n - cfg.tension_margin_n, tcfg.t_min_n + 1.0))
+        self.plan_ccfg = dataclasses.replace(ccfg, footprint_m=ccfg.footprint_m + cfg.track_margin_m)
+        self.anchors = np.asarray(anchors, float)
+        self.start = np.asarray(start_xy, float)
+        self.targets = np.asarray(targets_xy, float).reshape(-1, 2)
+        self.nav = CliffbotNav(self.start, start_yaw, ncfg)
+        self.state = "WAIT_MAP"
+        self.events: list[tuple[float, str, str]] = []
+        self.safe_reason = ""
+        self.z: F64 | None = None
+        self.grid: MapGrid | None = None
+        self.map_version = 0
+        self.legs: list[Leg] = []
+        self.leg_i = 0
+        self.wp_i = 0
+        self.reasons: list[str] = ["" for _ in range(len(self.targets))]
+        self.reached: list[bool] = [False for _ in range(len(self.targets))]
+        self.planned_lengths: list[float] = [math.inf for _ in range(len(self.targets))]
+        self.fix_asked_at: float | None = None
+        self.fix_seq = 0
+        self.last_fix: Fix | None = None
+        self.fixes_used = 0
+        self.fixes_refused = 0
+        self.fix_log: list[tuple[float, ...]] = []  # t, fix x y yaw, estimate x y yaw (before), NIS
+        self.replan = False
+        self.dwell_until = 0.0
+        self.clear_frames = 0
+        self.last_wheel: float | None = None
+        self.now = 0.0
+
+    # -- inputs -----------------------------------------------------------------------------
+    def event(self, name: str, text: str) -> None:
+        self.events.append((round(self.now, 3), name, text))
+
+    def set_map(self, z: F64, grid: MapGrid) -> None:
+        self.z, self.grid = np.asarray(z, np.float64), grid
+        self.map_version += 1
+        self.event("MAP", f"map {self.map_version}: {int(np.isfinite(self.z).sum())} known cells")
+        if self.state == "WAIT_MAP":
+            self.state = "PLAN"
+        elif self.state == "DRIVE":
+            self.replan = True
+
+    def set_targets(self, targets_xy: F64) -> None:
+        """A ground command: new targets (planned again from where the Cliff-bot is)."""
+        t = np.asarray(targets_xy, float).reshape(-1, 2)
+        if not np.isfinite(t).all():
+            self.event("COMMAND_REFUSED", "targets with non-finite coordinates")
+            return
+        self.targets = t
+        self.reasons = ["" for _ in range(len(t))]
+        self.reached = [False for _ in range(len(t))]
+        self.planned_lengths = [math.inf for _ in range(len(t))]
+        self.start = self.nav.xy if self.state not in ("WAIT_MAP",) else self.start
+        if self.state != "WAIT_MAP" and self.state != "SAFE":
+            self.state = "PLAN"
+
+    def on_fix(self, fix: Fix) -> None:
+        """A fiducial fix from the RECON-bot: fused, or refused (SAFE) when it disagrees."""
+        self.last_fix = fix
+        cov3 = fix.cov[np.ix_([3, 4, 2], [3, 4, 2])]
+        ok, nis = self.nav.fix(fix.position[:2], fix.yaw, cov3)
+        self.fix_log.append((self.now, float(fix.position[0]), float(fix.position[1]), fix.yaw,
+                             float(self.nav.s[0]), float(self.nav.s[1]), float(self.nav.s[2]), nis))
+        if not ok:
+            self.fixes_refused += 1
+            self.event("FIX_REFUSED", f"fix {fix.seq} disagrees with the estimate (NIS {nis:.1f})")
+            self._safe(f"fix disagrees with the estimate (NIS {nis:.1f})")
+            return
+        self.fixes_used += 1
+        self.event("FIX", f"fix {fix.seq} fused (NIS {nis:.2f})")
+        if self.state == "WAIT_FIX":
+            self.fix_asked_at = None
+            self._plan_leg()
+        elif self.state == "DRIVE":
+            self.replan = True
+
+    def on_no_fix(self, seq: int, reason: str) -> None:
+        """The RECON-bot cannot localize the Cliff-bot now: the leg goes on the estimate."""
+        self.event("FIX_UNAVAILABLE", f"request {seq}: {reason}")
+        if self.state == "WAIT_FIX":
+            self.fix_asked_at = None
+            self._plan_leg()
+
+    def recover(self) -> None:
+        """Ground command: leave SAFE (clear the winches' faults, re-plan the leg from the estimate)."""
+        if self.state != "SAFE":
+            return
+        if self.safe_reason.startswith("fix disagrees") and self.last_fix is not None:
+            f = self.last_fix
+            self.nav.reset(f.position[:2], f.yaw, f.cov[np.ix_([3, 4, 2], [3, 4, 2])])
+        self.event("RECOVER", f"leaving SAFE ({self.safe_reason})")
+        self.safe_reason = ""
+        self.clear_frames = 3
+        self.fix_asked_at = None
+        self.state = "WAIT_FIX" if self.legs else ("PLAN" if self.z is not None else "WAIT_MAP")
+
+    # -- the step ---------------------------------------------------------------------------
+    def _safe(self, reason: str) -> None:
+        if self.state == "SAFE":
+            return
+        self.state = "SAFE"
+        self.safe_reason = reason
+        self.event("SAFE", reason)
+
+    def _hold(self, request: bool = False) -> Commands:
+        clear = self.clear_frames > 0
+        self.clear_frames = max(0, self.clear_frames - 1)
+        return Commands((0.0, 0.0), self.state not in ("SAFE",), clear, (0.0, 0.0), request)
+
+    def step(self, now: float, dev: CliffbotDevices, dt: float) -> Commands:
+        self.now = now
+        self._navigate(dev, dt)
+        if self.state == "SAFE":
+            return self._hold()
+        if self.clear_frames == 0:
+            for w in WINCHES:
+                st = dev.winch.get(w)
+                bad = sorted(st.faults & set(FAULT_BITS)) if st is not None else []
+                if bad:
+                    self.event("WINCH_FAULT", f"{w}: {', '.join(bad)}")
+                    self._safe(f"{w} {bad[0]}")
+                    return self._hold()
+            stale = dev.stale(now)
+            if stale and now > 1.0:
+                self._safe(f"no status from {', '.join(stale)}")
+                return self._hold()
+        if self.state == "WAIT_MAP":
+            return self._hold()
+        if self.state == "PLAN":
+            self._plan_all()
+            return self._hold()
+        if self.state == "WAIT_FIX":
+            if self.fix_asked_at is None:
+                self.fix_asked_at = now
+                self.fix_seq += 1
+                self.event("FIX_REQUEST", f"request {self.fix_seq} before leg {self.leg_i + 1}")
+                return self._hold(request=True)
+            if now - self.fix_asked_at > self.cfg.fix_timeout_s:
+                self.event("LINK_LOST", f"no fix {self.cfg.fix_timeout_s:.0f} s after request {self.fix_seq}")
+                self._safe("lost link: no fix from the RECON-bot")
+            return self._hold()
+        if self.state == "DWELL":
+            if now >= self.dwell_until:
+                self._next_leg()
+            return self._hold()
+        if self.state == "DRIVE":
+            return self._drive(dev)
+        return self._hold()
+
+    def _navigate(self, dev: CliffbotDevices, dt: float) -> None:
+        att = dev.attitude
+        if dev.wheels is not None:
+            w = 0.5 * (dev.wheels.left_rad + dev.wheels.right_rad) * self.cfg.wheel_radius_m
+            if self.last_wheel is not None:
+                self.nav.predict(w - self.last_wheel, att.pitch_deg if att is not None else 0.0, dt,
+                                 math.radians(att.yaw_deg) if att is not None else None)
+            self.last_wheel = w
+        if att is not None:
+            self.nav.heading(att.yaw_deg)
+        a, b = dev.winch.get(WINCHES[0]), dev.winch.get(WINCHES[1])
+        if self.z is not None and self.grid is not None and a is not None and b is not None:
+            self.nav.lengths((a.paid_out_m, b.paid_out_m), self.z, self.grid, self.anchors, self.tcfg,
+                             self.ccfg.footprint_m)
+
+    def _plan_all(self) -> None:
+        assert self.z is not None and self.grid is not None
+        plan = plan_targets(self.z, self.grid, self.anchors, self.nav.xy, self.targets, self.plan_tcfg,
+                            self.plan_ccfg)
+        self.legs = []
+        for k, why in enumerate(plan.reasons):
+            self.reasons[k] = why
+            self.planned_lengths[k] = plan.lengths_m[k]
+            if why:
+                self.event("TARGET_UNREACHABLE", f"target {k + 1}: {why}")
+            else:
+                self.legs.append(Leg(self.targets[k], k))
+        if self.cfg.return_home:
+            self.legs.append(Leg(self.start.copy(), None))
+        self.leg_i = 0
+        self.event("PLAN", f"{len(self.legs)} legs; {sum(1 for r in self.reasons if not r)} of "
+                           f"{len(self.targets)} targets reachable on the map")
+        self.state = "WAIT_FIX" if self.legs else "DONE"
+
+    def _plan_leg(self) -> None:
+        """Plan the current leg from the estimate and start driving it."""
+        assert self.z is not None and self.grid is not None
+        if self.leg_i >= len(self.legs):
+            self.state = "DONE"
+            self.event("DONE", "all legs driven")
+            return
+        leg = self.legs[self.leg_i]
+        plan = plan_targets(self.z, self.grid, self.anchors, self.nav.xy, leg.goal[None, :], self.plan_tcfg,
+                            self.plan_ccfg)
+        path = plan.paths[0]
+        if path is None:
+            why = plan.reasons[0]
+            if plan.start_reason:
+                self._safe(f"leg {self.leg_i + 1}: {why}")
+                return
+            if leg.target is not None:
+                self.reasons[leg.target] = why
+            self.event("TARGET_UNREACHABLE", f"leg {self.leg_i + 1}: {why}")
+            self._next_leg()
+            return
+        every = self.cfg.waypoint_every
+        wps = [path[i] for i in range(every, len(path), every)]
+        if not wps or np.any(wps[-1] != path[-1]):
+            wps.append(path[-1])
+        leg.waypoints, leg.length_m = wps, plan.lengths_m[0]
+        self.wp_i = 0
+        self.replan = False
+        self.state = "DRIVE"
+
+    def _next_leg(self) -> None:
+        self.leg_i += 1
+        if self.leg_i >= len(self.legs):
+            self.state = "DONE"
+            self.event("DONE", "all legs driven")
+        else:
+            self.fix_asked_at = None
+            self.state = "WAIT_FIX"
+
+    def _drive(self, dev: CliffbotDevices) -> Commands:
+        assert self.z is not None and self.grid is not None
+        if self.replan:
+            self._plan_leg()
+            if self.state != "DRIVE":
+                return self._hold()
+        leg = self.legs[self.leg_i]
+        a, b = dev.winch.get(WINCHES[0]), dev.winch.get(WINCHES[1])
+        if a is None or b is None:
+            return self._hold()
+        while True:
+            wp = leg.waypoints[self.wp_i]
+            st = tether_state(self.z, self.grid, self.anchors, wp, self.tcfg, self.ccfg.footprint_m)
+            if st is None:
+                self._safe(f"waypoint {wp.round(2).tolist()} on unknown ground")
+                return self._hold()
+            err = np.asarray(st.lengths_m) - np.array([a.paid_out_m, b.paid_out_m])
+            if float(np.max(np.abs(err))) > self.cfg.length_tol_m:
+                break
+            self.wp_i += 1
+            if self.wp_i >= len(leg.waypoints):
+                if leg.target is not None:
+                    self.reached[leg.target] = True
+                    self.event("TARGET_REACHED", f"target {leg.target + 1}")
+                    self.state = "DWELL"
+                    self.dwell_until = self.now + self.cfg.dwell_s
+                else:
+                    self.event("HOME", "back at the start")
+                    self._next_leg()
+                return self._hold()
+        rates = self.cfg.gain_per_s * err
+        peak = float(np.max(np.abs(rates)))
+        if peak > self.cfg.max_rate_mps:
+            rates *= self.cfg.max_rate_mps / peak  # both tethers paced to arrive together
+        v = float(np.linalg.norm(rates)) / max(self.cfg.wheel_radius_m, 1e-3)
+        return Commands((float(rates[0]), float(rates[1])), True, False, (v, v), False)

@@ -1,0 +1,1 @@
+"""`safer-hil bench ...`: benchmarks of the flown code paths."""

@@ -1,0 +1,1 @@
+"""`safer-hil experiment ...`: the paper's experiments and the project's own, each writing its results file."""

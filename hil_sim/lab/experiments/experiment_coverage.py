@@ -1,0 +1,302 @@
+"""``safer-hil experiment coverage``: the paper's Figures 7 and 8 (docs/algorithm.md §7).
+
+Runs the five mapping methods and the oracle over several seeds as full lockstep missions
+(``hil_sim.mission_run``), then writes ``coverage.csv`` (one row per run and step),
+``coverage.md`` (mapped cells at the last step per method: mean, spread, ratio to Method 1
+and to the oracle), ``fig7_coverage.png`` (mapped cells against imaging steps, mean and
+min-max band over seeds) and ``fig8_expected_vs_obtained.png`` (expected against obtained
+new cells per step for Methods 3 and 5). Each run's own summary lands in
+``DIR/runs/<method>_seed<k>/``.
+
+``coverage.md`` and ``coverage.json`` end with the paper's claims (issue 5, "Done when")
+checked against these runs: each claim whose methods were run, its measured value, its
+target and whether it is met (:func:`claims`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from hil_sim.lab.results import command_line, write_results
+
+HELP = "mapped cells vs imaging steps for methods 1-5 and the oracle (paper Figures 7 and 8)"
+METHODS = ("1", "2", "3", "4", "5", "oracle")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenario", default="lab", help="lab, cliff, mars or file:PATH")
+    p.add_argument("--steps", type=int, default=20, help="imaging steps after the panorama")
+    p.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per method")
+    p.add_argument("--methods", default=",".join(METHODS), help="comma-separated subset")
+    p.add_argument("--jobs", type=int, default=2, help="missions run in parallel (processes)")
+    p.add_argument("--out", type=Path, default=Path("out/coverage"), help="output directory")
+
+
+def _one(scenario: str, method: str, steps: int, seed: int, out: str) -> dict[str, Any]:
+    from hil_sim.mission_run import RunSpec, run_mission
+
+    return run_mission(RunSpec(scenario, method, steps, seed, transmit=False, out=Path(out)), mode="fresh")
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    bad = [m for m in methods if m not in METHODS]
+    if bad or args.seeds < 1 or args.steps < 1 or args.jobs < 1:
+        print(
+            f"safer-hil experiment coverage: bad arguments ({bad or 'seeds/steps/jobs must be >= 1'})", file=sys.stderr
+        )
+        return 2
+    args.out.mkdir(parents=True, exist_ok=True)
+    runs = [(m, s) for s in range(args.seeds) for m in methods]
+    results: dict[tuple[str, int], dict[str, Any]] = {}
+    with (
+        ProcessPoolExecutor(max_workers=args.jobs) as pool,
+        tqdm(total=len(runs), desc=f"coverage {args.scenario}", unit="mission") as bar,
+    ):
+        futs = {
+            pool.submit(_one, args.scenario, m, args.steps, s, str(args.out / "runs" / f"{m}_seed{s}")): (m, s)
+            for m, s in runs
+        }
+        failed: list[str] = []
+        for fut in as_completed(futs):
+            m, s = futs[fut]
+            try:
+                results[(m, s)] = fut.result()
+            except Exception as exc:  # noqa: BLE001 - one failed mission is reported, the rest go on
+                failed.append(f"method {m} seed {s}: {type(exc).__name__}: {exc}")
+                bar.set_postfix_str(f"method {m} seed {s}: FAILED")
+            else:
+                bar.set_postfix_str(f"method {m} seed {s}: {results[(m, s)]['mapped_cells']} cells")
+            bar.update()
+    if failed:
+        print("safer-hil experiment coverage: missions failed, no report written:\n  " + "\n  ".join(failed),
+              file=sys.stderr)
+        return 1
+    write_report(args.out, args.scenario, args.steps, methods, args.seeds, results)
+    print((args.out / "coverage.md").read_text())
+    write_results("coverage", command_line("coverage"), (args.out / "coverage.md").read_text(),
+                  [args.out / "fig7_coverage.png", args.out / "fig8_expected_vs_obtained.png"])
+    return 0
+
+
+@dataclass(frozen=True)
+class Claim:
+    """One of the paper's claims (issue 5) checked against the runs."""
+
+    text: str
+    value: float
+    target: str
+    met: bool
+    detail: str
+
+
+def claims(results: dict[tuple[str, int], dict[str, Any]], methods: list[str], seeds: int,
+           steps: int) -> list[Claim]:
+    """The issue-5 claims that the methods run allow checking, with the measured values.
+
+    Mapped cells are means over seeds at the last step. "Expected tracks obtained" compares the
+    sums over every imaging step of every seed; "falls toward zero" compares Method 3's mean
+    obtained and expected new cells over its last five steps."""
+    final = {m: float(curves(results, m, seeds, steps)[:, -1].mean()) for m in methods}
+    out: list[Claim] = []
+
+    def ratio(a: str, b: str, target: float, text: str) -> None:
+        if a in final and b in final and final[b] > 0:
+            r = final[a] / final[b]
+            out.append(Claim(text, r, f">= {target:g}", r >= target, f"{final[a]:.0f} / {final[b]:.0f}"))
+
+    ratio("5", "1", 10.0, "Method 5 maps >= 10x the cells of Method 1")
+    ratio("5", "oracle", 0.9, "Method 5 reaches >= 0.9 x the oracle")
+    ratio("5", "3", 1.3, "Method 5 maps >= 30 % more than Method 3")
+    if "4" in final and "5" in final:
+        r = final["5"] / final["4"] if final["4"] > 0 else float("inf")
+        out.append(Claim("Method 5 maps more than Method 4", r, "> 1", r > 1.0,
+                         f"{final['5']:.0f} / {final['4']:.0f}"))
+    if "5" in methods:
+        exp, obt = _sums(results, "5", seeds)
+        r = exp / obt if obt > 0 else float("inf")
+        out.append(Claim("Method 5's expected new cells track its obtained within 25 %", r,
+                         "0.75 .. 1.25", 0.75 <= r <= 1.25, f"sum expected {exp:.0f} / obtained {obt:.0f}"))
+    if "3" in methods:
+        exp_m, obt_m = _expected_obtained(results, "3", seeds)
+        if len(exp_m) >= 5 and exp_m[-5:].mean() > 0:
+            e5, o5 = float(exp_m[-5:].mean()), float(obt_m[-5:].mean())
+            out.append(Claim("Method 3's obtained new cells fall toward zero while its expected stay high",
+                             o5 / e5, "<= 0.1 (last 5 steps)", o5 / e5 <= 0.1,
+                             f"last 5 steps: expected {e5:.0f}, obtained {o5:.0f} per step"))
+    runs = list(results.values())
+    viol = sum(int(r["edge_violations"]) for r in runs)
+    out.append(Claim("No edge violation in any run", viol, "0", viol == 0, f"{len(runs)} missions"))
+    slips = sum(int(r["slips"]) for r in runs)
+    out.append(Claim("Zero slips at 10 Hz", slips, "0", slips == 0, f"{len(runs)} missions"))
+    return out
+
+
+def _ratio(a: float, b: float, unit: str = "") -> str:
+    """``a / b`` for the table, or "-" when the reference method was not run."""
+    return f"{a / b:.2f}{unit}" if b == b and b > 0 else "-"
+
+
+def _sums(results: dict[tuple[str, int], dict[str, Any]], method: str, seeds: int) -> tuple[float, float]:
+    steps = [st for s in range(seeds) for st in results[(method, s)]["steps"] if st["step"] >= 1]
+    return float(sum(st["expected_new_cells"] for st in steps)), float(sum(st["obtained_new_cells"] for st in steps))
+
+
+def curves(results: dict[tuple[str, int], dict[str, Any]], method: str, seeds: int, steps: int) -> Any:
+    """(seeds, steps+1) mapped cells per step; a run that ended early keeps its last value."""
+    import numpy as np
+
+    out = np.zeros((seeds, steps + 1))
+    for s in range(seeds):
+        recs = {r["step"]: r["mapped_cells"] for r in results[(method, s)]["steps"]}
+        last = 0
+        for k in range(steps + 1):
+            last = recs.get(k, last)
+            out[s, k] = last
+    return out
+
+
+def write_report(
+    out: Path, scenario: str, steps: int, methods: list[str], seeds: int, results: dict[tuple[str, int], dict[str, Any]]
+) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    with (out / "coverage.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(
+            [
+                "scenario",
+                "method",
+                "seed",
+                "step",
+                "mapped_cells",
+                "expected_new_cells",
+                "obtained_new_cells",
+                "x",
+                "y",
+                "yaw",
+                "pan",
+                "tilt",
+                "lift",
+            ]
+        )
+        for (m, s), r in sorted(results.items()):
+            for st in r["steps"]:
+                p = st["pose"]
+                w.writerow(
+                    [
+                        scenario,
+                        m,
+                        s,
+                        st["step"],
+                        st["mapped_cells"],
+                        round(st["expected_new_cells"], 1),
+                        st["obtained_new_cells"],
+                        *(round(p[k], 4) for k in ("x", "y", "yaw", "pan", "tilt", "lift")),
+                    ]
+                )
+    curve = {m: curves(results, m, seeds, steps) for m in methods}
+    final = {m: c[:, -1] for m, c in curve.items()}
+    added = {m: c[:, -1] - c[:, 0] for m, c in curve.items()}  # by the imaging steps (panorama excluded)
+    ref1 = final["1"].mean() if "1" in final else float("nan")
+    add1 = added["1"].mean() if "1" in added else float("nan")
+    refo = final["oracle"].mean() if "oracle" in final else float("nan")
+    lines = [
+        f"# Coverage, {scenario} scenario, {steps} steps, {seeds} seeds",
+        "",
+        "| method | mapped cells at last step (mean) | min | max | vs Method 1 | vs oracle | "
+        "added by steps 1.. (mean) | added vs Method 1 | steps taken (mean) | edge violations | slips | "
+        "map RMSE (cm) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for m in methods:
+        f = final[m]
+        runs = [results[(m, s)] for s in range(seeds)]
+        rmse = [r["map_rmse_m"] for r in runs if r["map_rmse_m"] is not None]
+        taken = np.mean([max(st["step"] for st in r["steps"]) for r in runs])
+        lines.append(
+            f"| {m} | {f.mean():.0f} | {f.min():.0f} | {f.max():.0f} | {_ratio(f.mean(), ref1, 'x')} | "
+            f"{_ratio(f.mean(), refo)} | {added[m].mean():.0f} | {_ratio(added[m].mean(), add1, 'x')} | {taken:.1f} | "
+            f"{sum(r['edge_violations'] for r in runs)} | {sum(r['slips'] for r in runs)} | {100 * np.mean(rmse):.2f} |"
+        )
+    for m in ("3", "5"):
+        if m in methods:
+            exp, obt = _expected_obtained(results, m, seeds)
+            lines.append("")
+            lines.append(
+                f"Method {m}: expected vs obtained new cells per step (mean over seeds, steps 1..): "
+                + ", ".join(f"{e:.0f}/{o:.0f}" for e, o in zip(exp, obt, strict=True))
+            )
+    checked = claims(results, methods, seeds, steps)
+    lines += ["", "## The paper's claims (issue 5)", "", "| claim | measured | target | |", "|---|---|---|---|"]
+    for c in checked:
+        lines.append(f"| {c.text} | {c.value:.3g} ({c.detail}) | {c.target} | {'met' if c.met else 'NOT MET'} |")
+    (out / "coverage.md").write_text("\n".join(lines) + "\n")
+    (out / "coverage.json").write_text(
+        json.dumps(
+            {
+                "scenario": scenario,
+                "steps": steps,
+                "seeds": seeds,
+                "methods": {m: {"final_mean": float(final[m].mean()), "final": final[m].tolist()} for m in methods},
+                "claims": [asdict(c) for c in checked],
+            },
+            indent=2,
+        )
+    )
+
+    fig, ax = plt.subplots(figsize=(7, 4.5), constrained_layout=True)
+    for m in methods:
+        c = curves(results, m, seeds, steps)
+        k = np.arange(steps + 1)
+        ax.plot(k, c.mean(0), "o-", ms=3, label=f"method {m}" if m != "oracle" else "oracle")
+        ax.fill_between(k, c.min(0), c.max(0), alpha=0.15)
+    ax.set_xlabel("stereo imaging step")
+    ax.set_ylabel("mapped grid cells")
+    ax.set_title(f"Figure 7: mapped cells vs steps ({scenario}, {seeds} seeds, band = min-max)")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.savefig(out / "fig7_coverage.png", dpi=100)
+    plt.close(fig)
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True, sharey=True)
+    for ax, m in zip(axes, ("3", "5"), strict=True):
+        if m not in methods:
+            continue
+        exp, obt = _expected_obtained(results, m, seeds)
+        k = np.arange(1, len(exp) + 1)
+        ax.plot(k, exp, "x--", label="expected new cells (H)")
+        ax.plot(k, obt, "o-", label="obtained new cells")
+        ax.set_title(f"Method {m}")
+        ax.set_xlabel("stereo imaging step")
+        ax.grid(alpha=0.3)
+        ax.legend()
+    axes[0].set_ylabel("cells")
+    fig.suptitle("Figure 8: expected vs obtained new cells (mean over seeds)")
+    fig.savefig(out / "fig8_expected_vs_obtained.png", dpi=100)
+    plt.close(fig)
+
+
+def _expected_obtained(results: dict[tuple[str, int], dict[str, Any]], method: str, seeds: int) -> tuple[Any, Any]:
+    import numpy as np
+
+    rows = [
+        [(r["expected_new_cells"], r["obtained_new_cells"]) for r in results[(method, s)]["steps"] if r["step"] >= 1]
+        for s in range(seeds)
+    ]
+    n = min(len(r) for r in rows) if rows else 0
+    arr = np.array([r[:n] for r in rows], dtype=float).reshape(len(rows), n, 2)
+    return arr[..., 0].mean(0), arr[..., 1].mean(0)

@@ -1,0 +1,315 @@
+"""A team mission on the lockstep bench (docs/team.md, "Running a team mission").
+
+After the RECON-bot has mapped and delivered its map (``hil_sim.mission_run``), the
+Cliff-bot's flight code (:class:`fsw.tasks.cliffbot_mission.CliffbotMission` with its
+devices and navigation) drives the bench's winches and wheels (:class:`hil_sim.team.cliffbot_rig.
+CliffbotRig`, CAN frames of ``config/team.dbc``) on one stepped clock, on the map it received.
+Before each leg it asks the RECON-bot for a fix over the same capped radio channel the map
+crossed (:mod:`fsw.comm.team.fix_packets`): the RECON-bot, standing where its mission ended,
+aims its mast at the Cliff-bot, renders the stereo pair of the world with the Cliff-bot at
+its TRUE pose, runs the flight :class:`~fsw.core.localization.fiducials.CliffbotLocalizer`
+and answers FIX (or NO_FIX). Everything is seeded: the same seed gives the same result.
+
+:func:`run_team` returns the summary's ``team`` section and draws ``team.png``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.comm.link_packets import PacketError
+from fsw.comm.team import fix_packets
+from fsw.core.geometry import MapGrid
+from fsw.core.team.cliffbot_nav import NavConfig
+from fsw.core.team.face_planner import ClimberConfig, plan_targets
+from fsw.core.team.tether import TetherConfig
+from fsw.drivers.cliffbot_devices import CliffbotDevices
+from fsw.tasks.cliffbot_mission import CliffbotMission, CliffbotMissionConfig
+from hil_sim.faults import FaultInjector, FaultSpec
+from hil_sim.radio_channel import RadioChannel
+from hil_sim.team.cliffbot_rig import CliffbotRig
+from hil_sim.world.world import World
+
+F64 = NDArray[np.float64]
+CHI2_95_6DOF = 12.5916
+RECON, CLIFF = "a", "b"  # the radio channel's sides, as in hil_sim.mission_run
+
+
+@dataclass
+class TeamSetup:
+    tether: TetherConfig = field(default_factory=TetherConfig)
+    climber: ClimberConfig = field(default_factory=ClimberConfig)
+    mission: CliffbotMissionConfig = field(default_factory=CliffbotMissionConfig)
+    nav: NavConfig = field(default_factory=NavConfig)
+    dt_s: float = 0.1
+    max_s: float = 1800.0
+
+
+class ReconFixer:
+    """The RECON-bot's side: answers a fix request by localizing the Cliff-bot's fiducials."""
+
+    def __init__(self, world: World, recon_xy_yaw: tuple[float, float, float], seed: int,
+                 fsw_config: Any | None = None) -> None:
+        from fsw.core.localization.fiducials import CliffbotLocalizer
+        from fsw.settings import DEFAULT_CONFIG, load_settings
+
+        self.cfg = fsw_config or load_settings(DEFAULT_CONFIG)
+        self.world, self.rover = world, recon_xy_yaw
+        self.loc = CliffbotLocalizer(self.cfg.localization, self.cfg.cliffbot, self.cfg.camera.K,
+                                     self.cfg.camera.baseline_m)
+        self.rng = np.random.default_rng([seed, 2702])
+        self.errors: list[tuple[float, float, float, float]] = []  # range, cm, deg, NEES
+
+    def answer(self, req: fix_packets.FixRequest, rig: CliffbotRig, now: float) -> bytes:
+        from fsw.core.geometry import camera_pose_from_rover
+        from fsw.core.localization.localization import PoseEstimate, so3_log
+        from hil_sim.render import StereoRenderer
+
+        cb = rig.cliffbot_truth()
+        base = camera_pose_from_rover(self.rover, (0.0, 0.0, 0.3), self.cfg.mast).t
+        d = cb.t + np.array([0.0, 0.0, 0.25]) - base
+        pan = math.atan2(d[1], d[0]) - self.rover[2]
+        tilt = math.atan2(d[2], math.hypot(d[0], d[1]))
+        joints = self.cfg.mast.clamp(pan, tilt, 0.3)
+        if abs(joints[0] - math.atan2(math.sin(pan), math.cos(pan))) > 1e-6 or abs(joints[1] - tilt) > 1e-6:
+            return fix_packets.encode(fix_packets.NoFix(req.seq, 1))
+        pose = camera_pose_from_rover(self.rover, joints, self.cfg.mast)
+        w = dataclasses.replace(self.world, cliffbot=cb)
+        rend = StereoRenderer(w, self.cfg.camera, self.world.noise_sigma, seed=int(self.rng.integers(1 << 30)))
+        left, right = rend.render(pose)
+        est = self.loc.locate(left, PoseEstimate(pose, np.zeros((6, 6))), right)
+        if est is None:
+            return fix_packets.encode(fix_packets.NoFix(req.seq, 0))
+        e = np.concatenate([so3_log(est.R @ cb.R.T), est.t - cb.t])
+        try:
+            nees = float(e @ np.linalg.solve(est.cov, e))
+        except np.linalg.LinAlgError:
+            nees = math.inf
+        dyaw = math.degrees(math.atan2(math.sin(est.yaw - cb.yaw), math.cos(est.yaw - cb.yaw)))
+        self.errors.append((float(np.linalg.norm(cb.t - pose.t)), 100 * float(np.linalg.norm(est.t - cb.t)),
+                            abs(dyaw), nees))
+        fix = fix_packets.Fix(req.seq, int(now * 1000), est.t, so3_log(est.R), est.cov)
+        return fix_packets.encode(fix)
+
+
+class TruthFixer:
+    """A stand-in for :class:`ReconFixer` without rendering: the TRUE pose plus noise drawn
+    from the covariance it reports (``sigma_m``, ``sigma_deg``), offset by ``offset_m`` (a
+    wrong fix, for the fault tests). Its errors are recorded like the real fixer's."""
+
+    def __init__(self, seed: int, sigma_m: float = 0.01, sigma_deg: float = 0.5,
+                 offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
+        self.rng = np.random.default_rng([seed, 2703])
+        self.cov = np.diag([math.radians(sigma_deg) ** 2] * 3 + [sigma_m ** 2] * 3)
+        self.offset = np.asarray(offset_m, float)
+        self.errors: list[tuple[float, float, float, float]] = []
+
+    def answer(self, req: fix_packets.FixRequest, rig: CliffbotRig, now: float) -> bytes:
+        from fsw.core.localization.localization import so3_log
+
+        cb = rig.cliffbot_truth()
+        e = self.rng.multivariate_normal(np.zeros(6), self.cov)
+        e[3:] += self.offset
+        yaw = cb.yaw + e[2]
+        c, s_ = math.cos(yaw), math.sin(yaw)
+        r = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+        nees = float(e @ np.linalg.solve(self.cov, e))
+        self.errors.append((math.nan, 100 * float(np.linalg.norm(e[3:])), abs(math.degrees(e[2])), nees))
+        return fix_packets.encode(fix_packets.Fix(req.seq, int(now * 1000), cb.t + e[3:], so3_log(r), self.cov))
+
+
+def truth_reachable(world: World, grid: MapGrid, setup: TeamSetup, anchors: F64) -> tuple[str, ...]:
+    """The brute-force check on the TRUE ground: each target's reason ("" when reachable)."""
+    assert world.team is not None
+    z = world.ground_on_grid(grid)
+    plan = plan_targets(z, grid, anchors, world.team.cliffbot_start_xy, world.team.targets_xyz[:, :2],
+                        setup.tether, setup.climber)
+    return plan.reasons
+
+
+def run_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], channel: RadioChannel, seed: int,
+             setup: TeamSetup | None = None, recon_xy_yaw: tuple[float, float, float] | None = None,
+             faults: tuple[FaultSpec, ...] = (), out: Path | None = None, t0: float = 0.0,
+             fixer: ReconFixer | TruthFixer | None = None, recover_after_s: float | None = None,
+             command_targets: F64 | None = None) -> dict[str, Any]:
+    """The Cliff-bot's mission on the bench; returns the ``team`` summary section.
+
+    ``recover_after_s``: a ground command leaves SAFE that long after it was entered (once);
+    without it the run ends in SAFE. ``command_targets``: a ground command replacing the
+    scenario's targets at the start."""
+    assert world.team is not None
+    s = setup or TeamSetup()
+    inj = FaultInjector(seed, faults)
+    rig = CliffbotRig(world, grid, s.tether, s.climber, faults=inj, seed=seed)
+    team = world.team
+    recon = recon_xy_yaw or world.rover_start
+    fixer = fixer if fixer is not None else ReconFixer(world, recon, seed)
+    mission = CliffbotMission(s.mission, s.tether, s.climber, s.nav, rig.anchors, team.cliffbot_start_xy,
+                              rig.yaw, team.targets_xyz[:, :2])
+    dev = CliffbotDevices()
+    mission.set_map(np.asarray(received_z, np.float64), grid)
+    if command_targets is not None:
+        mission.set_targets(command_targets)
+    sent0 = {side: channel.stats(side).air_bytes for side in (RECON, CLIFF)}
+    now = t0
+    est_path: list[tuple[float, float]] = []
+    bad_packets = 0
+    safe_at: float | None = None
+    while now - t0 < s.max_s:
+        now = round(now + s.dt_s, 6)
+        rig.step(s.dt_s, now - t0)
+        dev.receive(rig.poll(now - t0), now - t0)
+        for d in channel.receive(CLIFF, now):
+            try:
+                p = fix_packets.decode(d)
+            except PacketError:
+                bad_packets += 1
+                continue
+            if isinstance(p, fix_packets.Fix):
+                mission.on_fix(p)
+            elif isinstance(p, fix_packets.NoFix):
+                why = fix_packets.NO_FIX_REASONS[p.reason] if p.reason < len(fix_packets.NO_FIX_REASONS) else "?"
+                mission.on_no_fix(p.seq, why)
+        for d in channel.receive(RECON, now):
+            try:
+                q = fix_packets.decode(d)
+            except PacketError:
+                continue  # the map link's own packets (its acknowledgements) are the link's business
+            if isinstance(q, fix_packets.FixRequest):
+                channel.send(RECON, fixer.answer(q, rig, now), now)
+        cmd = mission.step(now - t0, dev, s.dt_s)
+        if cmd.request_fix:
+            channel.send(CLIFF, fix_packets.encode(fix_packets.FixRequest(mission.fix_seq, mission.leg_i)), now)
+        rig.to_rig(dev.commands(cmd.rates_mps, cmd.enable, cmd.clear_faults, cmd.wheels_radps), now - t0)
+        est_path.append((float(mission.nav.s[0]), float(mission.nav.s[1])))
+        if mission.state == "SAFE":
+            safe_at = now if safe_at is None else safe_at
+            if recover_after_s is not None and now - safe_at >= recover_after_s:
+                mission.recover()
+                safe_at = None
+                recover_after_s = None  # one recovery attempt
+            elif recover_after_s is None:
+                break
+        if mission.state == "DONE":
+            break
+    truth_reasons = truth_reachable(world, grid, s, rig.anchors)
+    errs = fixer.errors
+    section: dict[str, Any] = {
+        "targets": len(team.targets_xyz),
+        "targets_reached": int(sum(mission.reached)),
+        "targets_reachable_by_truth": int(sum(1 for r in truth_reasons if not r)),
+        "targets_unreachable_by_truth": int(sum(1 for r in truth_reasons if r)),
+        "truth_reasons": list(truth_reasons),
+        "map_reasons": list(mission.reasons),
+        "reached": list(mission.reached),
+        "tether_violations": int(sum(rig.violations.values())),
+        "violations": dict(rig.violations),
+        "hazard_cells_entered": len(rig.hazard_cells),
+        "unknown_cells_entered": _unknown_entered(rig.path, received_z, grid),
+        "fix_errors_cm": [round(e[1], 3) for e in errs],
+        "fix_errors_deg": [round(e[2], 3) for e in errs],
+        "fix_ranges_m": [round(e[0], 2) if math.isfinite(e[0]) else None for e in errs],
+        "fix_nees": [round(e[3], 3) for e in errs],
+        "fix_nees_within_chi2_95": (sum(e[3] <= CHI2_95_6DOF for e in errs) / len(errs)) if errs else None,
+        "fixes_used": mission.fixes_used,
+        "fixes_refused": mission.fixes_refused,
+        "link_bytes_down": channel.stats(RECON).air_bytes - sent0[RECON],
+        "link_bytes_up": channel.stats(CLIFF).air_bytes - sent0[CLIFF],
+        "link_bad_packets": bad_packets,
+        "can_bad_frames": dev.bad_frames,
+        "final_state": mission.state,
+        "safe_reason": mission.safe_reason,
+        "events": [list(e) for e in mission.events],
+        "path_m": round(float(np.sum(np.linalg.norm(np.diff(np.asarray(rig.path), axis=0), axis=1)))
+                        if len(rig.path) > 1 else 0.0, 3),
+        "sim_s": round(now - t0, 3),
+    }
+    if out is not None:
+        section["picture"] = str(draw_team(out / "team.png", world, grid, received_z, rig, mission, est_path))
+    return section
+
+
+def team_phase(out: Path | None, seed: int, world: World, grid: MapGrid, cliffbot: Any, channel: RadioChannel,
+               bench: Any, datum_m: float) -> dict[str, Any]:
+    """``{"team": section}`` for a team scenario, else ``{}``: the Cliff-bot's mission after the
+    RECON-bot's (``hil_sim.mission_run``), on the last map it received (heights back in the
+    world's datum: the flight map's origin is the RECON-bot's start height, which the team
+    shares), with fixes from the RECON-bot where it stopped."""
+    if world.team is None:
+        return {}
+    if cliffbot.maps:
+        z = np.asarray(cliffbot.maps[max(cliffbot.maps)], np.float64) + datum_m
+    else:
+        z = np.full(grid.shape, np.nan)
+    r = bench.rig.rover
+    section = run_team(world, grid, z, channel, seed, recon_xy_yaw=(r.x, r.y, r.yaw), out=out, t0=bench.clock.now())
+    section["map_received"] = bool(cliffbot.maps)
+    if section.get("picture") and out is not None:
+        section["picture"] = Path(section["picture"]).name
+    return {"team": section}
+
+
+def _unknown_entered(path: list[tuple[float, float]], z: NDArray[np.floating], grid: MapGrid) -> int:
+    """Distinct map cells the Cliff-bot's true path moved onto that its map does not know
+    (the start, where it stands before any move, is not counted)."""
+    if len(path) < 2:
+        return 0
+    p = np.asarray(path[1:])
+    iy, ix, inside = grid.cell_index(p[:, 0], p[:, 1])
+    cells = {(int(a), int(b)) for a, b, ok in zip(iy, ix, inside, strict=True)
+             if not ok or not math.isfinite(float(np.asarray(z)[a, b]))}
+    return len(cells)
+
+
+def draw_team(path: Path, world: World, grid: MapGrid, z: NDArray[np.floating], rig: CliffbotRig,
+              mission: CliffbotMission, est_path: list[tuple[float, float]]) -> Path:
+    """The face map with the anchors, tethers, jumble, targets and the Cliff-bot's path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Ellipse
+
+    assert world.team is not None
+    fig, ax = plt.subplots(figsize=(7, 7))
+    ext = (grid.x0, grid.x0 + grid.nx * grid.cell, grid.y0, grid.y0 + grid.ny * grid.cell)
+    im = ax.imshow(np.ma.masked_invalid(np.asarray(z, float)), origin="lower", extent=ext, cmap="gray")
+    fig.colorbar(im, ax=ax, shrink=0.7, label="received map height (m)")
+    jx, jy, jax, jay = world.team.jumble_xy_r
+    ax.add_patch(Ellipse((jx, jy), 2 * jax, 2 * jay, fill=False, color="orange", lw=1.5, label="rock jumble"))
+    a = rig.anchors
+    ax.plot(a[:, 0], a[:, 1], "bs", ms=8, label="Anchorbots")
+    for k, p in enumerate(rig.state.paths):
+        pts = np.vstack([a[k, :2], p.contacts[:, :2] if len(p.contacts) else np.zeros((0, 2)), rig.xy])
+        ax.plot(pts[:, 0], pts[:, 1], "b-", lw=1, label="tethers (final)" if k == 0 else None)
+    tp = np.asarray(rig.path)
+    ax.plot(tp[:, 0], tp[:, 1], "r-", lw=1.5, label="Cliff-bot path (truth)")
+    if est_path:
+        ep = np.asarray(est_path)
+        ax.plot(ep[:, 0], ep[:, 1], "c--", lw=0.8, label="estimate")
+    for k, t in enumerate(world.team.targets_xyz):
+        ok = mission.reached[k] if k < len(mission.reached) else False
+        ax.plot(t[0], t[1], "g*" if ok else "mx", ms=12)
+        ax.annotate(f"{k + 1}" + ("" if ok else f": {mission.reasons[k] or 'not reached'}"), (t[0], t[1]),
+                    color="black", fontsize=8, xytext=(4, 4), textcoords="offset points",
+                    bbox={"boxstyle": "round", "fc": "white", "alpha": 0.7})
+    # the team's part of the map: anchors, targets, jumble and path with a margin
+    pts = np.vstack([a[:, :2], world.team.targets_xyz[:, :2], tp, [[jx - jax, jy - jay], [jx + jax, jy + jay]]])
+    lo, hi = pts.min(axis=0) - 0.8, pts.max(axis=0) + 0.8
+    ax.set_xlim(max(lo[0], ext[0]), min(hi[0], ext[1]))
+    ax.set_ylim(max(lo[1], ext[2]), min(hi[1], ext[3]))
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title("team mission: targets reached (*), not reached (x)")
+    ax.legend(loc="lower left", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,47 @@
+"""The Cliff-bot's EKF: tether lengths locate it; a fix that disagrees beyond both covariances is refused."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from fsw.core.team.cliffbot_nav import CliffbotNav, NavConfig
+from fsw.core.team.tether import TetherConfig, anchor_points, tether_state
+from tests.fsw.core.team.test_tether import cliff
+
+
+def test_tether_lengths_pull_the_estimate_to_the_truth() -> None:
+    z, grid = cliff()
+    cfg = TetherConfig()
+    anchors = anchor_points(z, grid, np.array([[-1.5, 1.5], [1.5, 1.5]]), cfg)
+    truth = np.array([0.3, -0.5])
+    st = tether_state(z, grid, anchors, truth, cfg)
+    assert st is not None
+    nav = CliffbotNav(truth + np.array([0.12, -0.08]), -math.pi / 2, NavConfig(init_sigma_m=0.2))
+    for _ in range(10):
+        assert nav.lengths(st.lengths_m, z, grid, anchors, cfg, 0.3)
+    assert np.linalg.norm(nav.xy - truth) < 0.03
+    assert np.sqrt(np.max(np.linalg.eigvalsh(nav.P[:2, :2]))) < 0.05
+
+
+def test_fix_gate() -> None:
+    nav = CliffbotNav(np.array([1.0, -2.0]), -math.pi / 2, NavConfig(init_sigma_m=0.02))
+    cov = np.diag([0.01 ** 2, 0.01 ** 2, math.radians(0.5) ** 2])
+    ok, nis = nav.fix(np.array([1.01, -2.005]), -math.pi / 2 + 0.005, cov)
+    assert ok and nis < 3.0
+    before = nav.s.copy()
+    ok, nis = nav.fix(np.array([1.6, -2.0]), -math.pi / 2, cov)  # 0.6 m off, both sure of themselves
+    assert not ok and nis > 100
+    assert np.array_equal(nav.s, before)  # a refused fix does not move the estimate
+    nav.reset(np.array([1.6, -2.0]), -math.pi / 2, cov)
+    assert np.allclose(nav.xy, [1.6, -2.0])
+
+
+def test_a_non_finite_length_is_not_used() -> None:
+    z, grid = cliff()
+    cfg = TetherConfig()
+    anchors = anchor_points(z, grid, np.array([[-1.5, 1.5], [1.5, 1.5]]), cfg)
+    nav = CliffbotNav(np.array([0.0, -0.5]), -math.pi / 2, NavConfig())
+    assert not nav.lengths((math.nan, 3.0), z, grid, anchors, cfg, 0.3)
+    assert np.isfinite(nav.s).all()

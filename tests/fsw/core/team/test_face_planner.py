@@ -1,0 +1,84 @@
+"""The Cliff-bot's task planner (docs/algorithm.md §8): usable ground, tether limits, reasons."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fsw.core.geometry import MapGrid
+from fsw.core.team.face_planner import USABLE, ClimberConfig, ground_layers, node_reasons, plan_targets
+from fsw.core.team.tether import TetherConfig, anchor_points
+
+SLOPE = math.radians(70.0)
+ANCHORS_XY = np.array([[-1.5, 1.5], [1.5, 1.5]])
+START = np.array([0.0, 0.6])
+
+
+def cliff(drop_m: float = 2.5) -> tuple[np.ndarray, MapGrid]:
+    grid = MapGrid(-3.0, -2.0, 0.03, 200, 150)
+    _, y = grid.centers()
+    z = np.where(y > 0, 0.0, np.maximum(math.tan(SLOPE) * y, -drop_m))
+    return z.astype(np.float32), grid
+
+
+def boulder(z: np.ndarray, grid: MapGrid, x: float, y: float, r: float, h: float) -> None:
+    gx, gy = grid.centers()
+    inside = np.hypot(gx - x, gy - y) < r
+    z[inside] += h
+
+
+def plan(z: np.ndarray, grid: MapGrid, targets: list[tuple[float, float]], tcfg: TetherConfig | None = None):
+    tcfg = tcfg or TetherConfig()
+    anchors = anchor_points(z, grid, ANCHORS_XY, tcfg)
+    return plan_targets(z, grid, anchors, START, np.array(targets), tcfg, ClimberConfig())
+
+
+@pytest.mark.slow
+def test_reaches_a_face_target_and_never_leaves_usable_ground() -> None:
+    z, grid = cliff()
+    boulder(z, grid, -0.3, -0.5, 0.15, 0.35 / math.cos(SLOPE))  # 0.35 m off the face: over a wheel
+    p = plan(z, grid, [(0.3, -0.6), (-0.3, -0.5)])
+    assert p.start_reason == ""
+    assert p.reasons[0] == "" and p.paths[0] is not None
+    assert p.reasons[1] == "hazard" and p.paths[1] is None
+    g = ground_layers(z, grid, ClimberConfig())
+    iy, ix, inside = grid.cell_index(p.paths[0][:, 0], p.paths[0][:, 1])
+    assert inside.all() and not g.hazard[iy, ix].any() and g.known[iy, ix].all()
+    # The path goes down the face: it ends well below the lip.
+    assert z[iy[-1], ix[-1]] < -1.0
+    # Its length is at least the straight 3-D distance from start to target.
+    straight = math.dist((*START, 0.0), (0.3, -0.6, float(z[iy[-1], ix[-1]])))
+    assert p.lengths_m[0] >= straight - 0.1
+
+
+@pytest.mark.slow
+def test_reasons_for_unreachable_targets() -> None:
+    z, grid = cliff()
+    gx, gy = grid.centers()
+    z[(gx > 1.5) & (gy < -0.2)] = np.nan  # a corner the map does not know
+    short = TetherConfig(spool_m=3.2)
+    p = plan(z, grid, [(2.2, -0.8), (0.0, -1.5), (9.0, 9.0)], short)
+    assert p.reasons[0] == "unknown ground"
+    assert p.reasons[1] in ("out of tether reach", "slack", "over-tension")
+    assert p.reasons[2] == "off the map"
+
+
+@pytest.mark.slow
+def test_a_rock_band_across_the_face_blocks_the_way_down() -> None:
+    z, grid = cliff()
+    gx, gy = grid.centers()
+    band = (gy < -0.35) & (gy > -0.5)
+    z[band] += 0.3 / math.cos(SLOPE)  # a continuous band of rock standing 0.3 m off the face
+    p = plan(z, grid, [(0.0, -1.0)])
+    assert p.paths[0] is None and p.reasons[0] in ("no safe path", "hazard", "tether over a rock")
+
+
+@pytest.mark.slow
+def test_node_verdicts_are_known_reasons() -> None:
+    z, grid = cliff()
+    rows, cols, reasons, _ = node_reasons(z, grid, anchor_points(z, grid, ANCHORS_XY, TetherConfig()),
+                                          TetherConfig(), ClimberConfig(node_m=0.15))
+    assert len(reasons) == len(rows) * len(cols)
+    assert reasons.count(USABLE) > 0.2 * len(reasons)

@@ -1,0 +1,98 @@
+"""The Cliff-bot's mission on the bench (hil_sim.team.team_run): a nominal descent and each fault
+ending in a safe stop with an event (and a recovery where one exists), never a traceback.
+
+The received map here is the true ground on the flight map grid and the RECON-bot's fixes
+come from :class:`hil_sim.team.team_run.TruthFixer` (no rendering), so each run takes seconds."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+import pytest
+
+from fsw.core.geometry import MapGrid
+from fsw.tasks.cliffbot_mission import CliffbotMissionConfig
+from hil_sim.faults import FaultSpec
+from hil_sim.radio_channel import RadioChannel, RadioChannelConfig
+from hil_sim.team.team_run import TeamSetup, TruthFixer, run_team
+from hil_sim.world import load_scenario
+
+pytestmark = pytest.mark.slow
+SEED = 3
+GRID = MapGrid(-2.5, -9.0, 0.04, 256, 256)
+
+
+@pytest.fixture(scope="module")
+def scene() -> tuple[Any, np.ndarray]:
+    world = load_scenario("cliff-team", SEED)
+    return world, world.ground_on_grid(GRID)
+
+
+def _run(scene: tuple[Any, np.ndarray], faults: tuple[FaultSpec, ...] = (), loss: float = 0.0,
+         fixer: TruthFixer | None = None, **kw: Any) -> dict[str, Any]:
+    world, z = scene
+    setup = TeamSetup(mission=CliffbotMissionConfig(fix_timeout_s=3.0), max_s=kw.pop("max_s", 120.0))
+    channel = RadioChannel(RadioChannelConfig(loss=loss), seed=SEED)
+    return run_team(world, GRID, z, channel, SEED, setup, faults=faults,
+                    fixer=fixer or TruthFixer(SEED), **kw)
+
+
+def _events(sec: dict[str, Any], name: str) -> list[str]:
+    return [e[2] for e in sec["events"] if e[1] == name]
+
+
+def test_nominal_reaches_what_the_truth_allows_and_is_deterministic(scene: tuple[Any, np.ndarray]) -> None:
+    a = _run(scene)
+    assert a["final_state"] == "DONE", a["events"]
+    assert a["targets_reached"] == a["targets_reachable_by_truth"] >= 1
+    # unreachable targets are reported with a reason the truth confirms
+    for k, why in enumerate(a["map_reasons"]):
+        assert bool(why) == bool(a["truth_reasons"][k])
+    assert a["unknown_cells_entered"] == 0
+    assert a["fixes_used"] >= 1 and a["link_bytes_down"] > 0 and a["link_bytes_up"] > 0
+    b = _run(scene)
+    assert a == b  # same seed, same run (fault-free runs are short: the full mission twice)
+
+
+@pytest.mark.parametrize("mode, bit", [("stall", "FaultStall"), ("slip", "FaultSlip"),
+                                       ("overtension", "FaultOverTension")])
+def test_winch_fault_safe_stop_then_recovery(scene: tuple[Any, np.ndarray], mode: str, bit: str) -> None:
+    fault = FaultSpec(kind="winch_fault", start_s=4.0, duration_s=1.0, target="WINCH_A", mode=mode)
+    sec = _run(scene, (fault,), recover_after_s=3.0)
+    assert any(bit in e for e in _events(sec, "WINCH_FAULT")), sec["events"]
+    assert any(bit in e for e in _events(sec, "SAFE"))
+    assert _events(sec, "RECOVER")  # the ground command took it out of SAFE once the cause was gone
+    if mode == "slip":  # the tether ran out while it slipped: the Cliff-bot slid and may now stand
+        # where the planner will not drive from; then it stops again and says why
+        assert sec["final_state"] == "DONE" or "start:" in sec["safe_reason"], sec["events"]
+    else:
+        assert sec["final_state"] == "DONE" and sec["targets_reached"] == sec["targets_reachable_by_truth"]
+
+
+def test_winch_fault_without_recovery_stays_stopped(scene: tuple[Any, np.ndarray]) -> None:
+    fault = FaultSpec(kind="winch_fault", start_s=4.0, target="WINCH_B", mode="stall")
+    sec = _run(scene, (fault,))
+    assert sec["final_state"] == "SAFE" and "WINCH_B FaultStall" in sec["safe_reason"]
+
+
+def test_lost_link_ends_in_safe(scene: tuple[Any, np.ndarray]) -> None:
+    sec = _run(scene, loss=1.0)
+    assert sec["final_state"] == "SAFE" and sec["safe_reason"].startswith("lost link")
+    assert _events(sec, "LINK_LOST") and sec["targets_reached"] == 0 and sec["path_m"] == 0.0
+
+
+def test_a_fix_that_disagrees_is_refused(scene: tuple[Any, np.ndarray]) -> None:
+    sec = _run(scene, fixer=TruthFixer(SEED, offset_m=(0.6, 0.0, 0.0)))
+    assert sec["final_state"] == "SAFE" and sec["safe_reason"].startswith("fix disagrees")
+    assert _events(sec, "FIX_REFUSED") and sec["fixes_refused"] == 1 and sec["path_m"] == 0.0
+
+
+def test_a_target_out_of_tether_reach_is_reported_not_attempted(scene: tuple[Any, np.ndarray]) -> None:
+    world, _ = scene
+    far = world.team.targets_xyz[:1, :2] + np.array([[0.0, -12.0]])  # off the face, far beyond the spool
+    setup_world = dataclasses.replace(world)
+    sec = _run((setup_world, scene[1]), command_targets=far)
+    assert any("out of tether reach" in e or "off the map" in e for e in _events(sec, "TARGET_UNREACHABLE"))
+    assert sec["targets_reached"] == 0 and sec["final_state"] == "DONE" and sec["path_m"] < 0.05
