@@ -53,6 +53,8 @@ def task_class(kind: str, source: str = "config", kinds: Mapping[str, str] = KIN
 def check(cfg: ScheduledConfig, source: str = "config") -> None:
     """Refuse a schedule with an unknown kind, a rate out of design range or a missing task."""
     ex = cfg.executive
+    topo = AGENTS.get(cfg.agent.kind)
+    agent_kinds = topo.task_kinds if topo is not None else KINDS  # an unknown agent: check_agent says so
     groups = {g.name: g for g in ex.groups}
     kinds = {t.kind for t in ex.tasks if t.enabled}
     missing = [k for k in FLIGHT_KINDS if k not in kinds] if ex.flight else []
@@ -61,7 +63,7 @@ def check(cfg: ScheduledConfig, source: str = "config") -> None:
                                                      f"{', '.join(repr(k) for k in missing)}")
     for i, t in enumerate(ex.tasks):
         key = f"executive.tasks[{i}]"
-        cls = task_class(t.kind, source)
+        cls = task_class(t.kind, source, agent_kinds)
         lo, hi = cls.RATE_HZ
         rate_hz = 1.0 / (ex.frame_period_s * groups[t.group].divisor)
         if not lo <= rate_hz <= hi:

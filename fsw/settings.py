@@ -108,8 +108,8 @@ def load_settings(path: str | Path = DEFAULT_CONFIG, check_calibration: bool = T
     ex = data.get("executive")
     flight = not isinstance(ex, dict) or ex.get("flight", True) is not False
     cfg = build(FswConfig, data, source=str(path), complete=flight)
-    check(cfg, str(path))
     check_agent(cfg, set(data), str(path))
+    check(cfg, str(path))
     if check_calibration:
         load_stereo_calibration(cfg, str(path))
     return cfg

@@ -51,7 +51,7 @@ class AgentTopology:
         """``ValueError`` naming a task kind the schedule lacks or this agent does not have."""
         for k in kinds:
             if k not in self.task_kinds:
-                raise ValueError(f"agent kind {self.kind!r} has no task kind {k!r} "
+                raise ValueError(f"unknown task kind {k!r} for agent kind {self.kind!r} "
                                  f"(known: {', '.join(sorted(self.task_kinds))})")
         missing = [k for k in self.required_tasks if k not in kinds]
         if missing:

@@ -176,7 +176,17 @@ def nav_from_json(d: JsonObject | None) -> NavPose | None:
 
 
 def records_to_json(records: list[StepRecord]) -> list[JsonObject]:
-    return [asdict(r) for r in records]
+    """Each record; ``view`` and ``view_new_cells`` only when set, so a checkpoint written
+    before they existed reads back and writes out unchanged."""
+    out = []
+    for r in records:
+        d = asdict(r)
+        if r.view == "":
+            del d["view"]
+        if r.view_new_cells == -1:
+            del d["view_new_cells"]
+        out.append(d)
+    return out
 
 
 def records_from_json(rows: list[object]) -> list[StepRecord]:
@@ -186,7 +196,8 @@ def records_from_json(rows: list[object]) -> list[StepRecord]:
         step, cells, expected = get_int(r, "step"), get_int(r, "mapped_cells"), get_float(r, "expected_new_cells")
         obtained = get_int(r, "obtained_new_cells")
         pose = {str(k): as_float(v, "records[].pose") for k, v in as_object(r.get("pose"), "records[].pose").items()}
-        out.append(StepRecord(step, cells, expected, obtained, pose, get_float(r, "wall_s"), get_float(r, "sim_s")))
+        out.append(StepRecord(step, cells, expected, obtained, pose, get_float(r, "wall_s"), get_float(r, "sim_s"),
+                              get_str(r, "view", ""), get_int(r, "view_new_cells", -1)))
     return out
 
 

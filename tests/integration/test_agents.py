@@ -39,6 +39,7 @@ name = "probe-1"
 kind = "probe"
 
 [executive]
+flight = false
 frame_period_s = 0.2
 groups = [{name = "fast", divisor = 1}, {name = "slow", divisor = 5, offset = 2}]
 tasks = [
