@@ -56,6 +56,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -274,6 +276,7 @@ def run_mission(
         mission = bench.exe.tasks["mission"]
         perception = bench.exe.tasks["perception"]
         recorder, tap = _recorder(spec.out, bench.exe)
+        recording_error = ""
         limit_s = max_sim_s if max_sim_s is not None else 120.0 + 90.0 * (spec.steps + 1) + 1200.0
         counters.setdefault("unknown_frames", 0)
         counters.setdefault("reachable", [])  # stations the geofence allowed, at each step boundary
@@ -294,7 +297,12 @@ def run_mission(
                 odo = bench.rig.rover.odometer_m
                 bench.run(1)
                 if tap is not None:
-                    tap.poll()
+                    try:
+                        tap.poll()
+                    except Exception as exc:  # noqa: BLE001 - a recording that fails (full disk) must not end the mission
+                        recording_error = f"mission recording stopped: {type(exc).__name__}: {exc}"
+                        print(recording_error, file=sys.stderr)
+                        tap = None
                 counters["unknown_frames"] += wheels_on_unknown(bench.rig, mission, odo)
                 if mission.state == "TRANSMIT" and 1 not in cliffbot.originals:
                     cliffbot.originals[1] = perception.map.z.astype(np.float32)
@@ -327,7 +335,11 @@ def run_mission(
             bench.exe.thaw_heap()
             if tap is not None and recorder is not None:
                 tap.close()
-                recorder.close()
+            if recorder is not None:
+                try:
+                    recorder.close()
+                except Exception as exc:  # noqa: BLE001 - as above: the mission's own results come first
+                    recording_error = recording_error or f"mission recording not closed: {type(exc).__name__}: {exc}"
         exe = bench.exe
         if "mavlink" in exe.tasks:
             exe.tasks["mavlink"].close()  # flush and close the .tlog
@@ -391,15 +403,34 @@ def run_mission(
         summary.update(team_phase(spec.out, spec.seed, world, grid, cliffbot, channel, bench, datum_m))
         summary = json.loads(json.dumps(summary))  # exactly what summary.json holds
         if spec.out is not None:
-            extra = {"recording": recorder.path.name} if recorder is not None else {}
+            extra = {"recording": recorder.path.name} if recorder is not None and not recording_error else {}
+            if recording_error:
+                summary["recording_error"] = recording_error
             summary["files"] = write_outputs(spec.out, summary, emap, truth_f, grid, extra)
     return summary
 
 
+RECORDING_MIN_FREE = 512 * 2**20
+
+
 def _recorder(out: Path | None, exe: Any) -> tuple[Any, Any]:
     """The mission's Foxglove recording (``ground.recording``) in ``out`` and the bus tap feeding
-    it; a resumed mission starts a new file (``mission.1.mcap``, ...), never overwrites one."""
+    it; a resumed mission starts a new file (``mission.1.mcap``, ...), never overwrites one.
+
+    No recording where ``out`` has less than ``RECORDING_MIN_FREE`` bytes free: a recording
+    (camera pairs) runs to tens of MB and must not take the room the checkpoints, the .tlog
+    and the summary need (one line says so)."""
     if out is None:
+        return None, None
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        free = shutil.disk_usage(out).free
+    except OSError as exc:
+        print(f"safer-hil run: no mission recording: {exc}", file=sys.stderr)
+        return None, None
+    if free < RECORDING_MIN_FREE:
+        print(f"safer-hil run: no mission recording: {free / 2**20:.0f} MiB free in {out} "
+              f"(it needs {RECORDING_MIN_FREE / 2**20:.0f} MiB)", file=sys.stderr)
         return None, None
     from ground.recording import BusTap, MissionRecorder
 

@@ -30,7 +30,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def _read_until(proc: subprocess.Popen[str], marker: str, timeout_s: float) -> list[str]:
-    """Lines of ``proc``'s stdout up to the one starting with ``marker``.
+    """Lines of ``proc``'s stdout up to the first one that holds ``marker``.
 
     Reads the raw descriptor: ``select`` on a buffered text stream misses lines that the
     stream already pulled into its buffer, so two lines arriving in one chunk would stall."""
@@ -51,7 +51,7 @@ def _read_until(proc: subprocess.Popen[str], marker: str, timeout_s: float) -> l
             raw, buf = buf.split(b"\n", 1)
             line = raw.decode(errors="replace") + "\n"
             lines.append(line)
-            if line.startswith(marker):
+            if marker in line:
                 return lines
     raise AssertionError(f"no {marker!r} from serve within {timeout_s} s: {''.join(lines)}")
 
