@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
+from fsw.core.codec.hazard import relief
 from fsw.core.geometry import MapGrid
 from fsw.core.team.tether import TetherConfig, ZMap, tether_state
 from fsw.framework.params import param
@@ -99,8 +100,8 @@ def ground_layers(z: ZMap, grid: MapGrid, cfg: ClimberConfig) -> Ground:
     slope = np.degrees(np.arctan(np.hypot(ndimage.uniform_filter(gx, k), ndimage.uniform_filter(gy, k))))
     # Relief above a flat opening, measured across the ground (times cos slope): on a steep
     # face a bump's height in z is its height off the face over cos(slope).
-    opened = ndimage.grey_opening(fill, footprint=_disc(int(round(0.5 * cfg.rock_disc_m / grid.cell))))
-    rock = known & ((fill - opened) * np.cos(np.radians(slope)) >= cfg.wheel_d_m)
+    tophat = np.nan_to_num(relief(zf, grid.cell, cfg.rock_disc_m), nan=0.0)  # the codec's relief (§6)
+    rock = known & (tophat * np.cos(np.radians(slope)) >= cfg.wheel_d_m)
     steep = slope > cfg.max_slope_deg
     raw = rock | steep
     hazard = ndimage.binary_dilation(raw, structure=foot) & known
