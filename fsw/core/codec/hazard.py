@@ -106,7 +106,10 @@ class HazardCells:
     step: F32
     relief_hazard: B
     step_hazard: B
-    support: B
+    support: B  # relief support or a step's foot, not itself a relief hazard
+    relief_support: B | None = None  # the lowest cell of a relief disc covering a relief hazard
+    step_top: NDArray[np.int64] | None = None  # flat index of every cell with step >= threshold
+    step_foot: NDArray[np.int64] | None = None  # flat index of its foot: one lowest known cell of its disc
 
 
 def _argmins(z32: F32, eroded: F32, centres: B, kernel: NDArray[np.uint8]) -> B:
@@ -118,11 +121,34 @@ def _argmins(z32: F32, eroded: F32, centres: B, kernel: NDArray[np.uint8]) -> B:
     return known & (reach == z32)
 
 
+def _feet(z32: F32, eroded: F32, tops: B, kernel: NDArray[np.uint8]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Flat indices of ``tops`` and of one lowest known cell of the disc around each (the
+    nearest such cell; ``eroded``: ``erode(z32, kernel)``)."""
+    ny, nx = z32.shape
+    ty, tx = np.nonzero(tops)
+    target = eroded[ty, tx]
+    foot = np.full(ty.size, -1, np.int64)
+    r = (kernel.shape[0] - 1) // 2
+    dy, dx = np.nonzero(kernel)
+    dy, dx = dy - r, dx - r
+    for k in np.argsort(dy * dy + dx * dx, kind="stable"):
+        if not (foot < 0).any():
+            break
+        yy, xx = ty + dy[k], tx + dx[k]
+        inside = (yy >= 0) & (yy < ny) & (xx >= 0) & (xx < nx) & (foot < 0)
+        hit = np.zeros(ty.size, bool)
+        hit[inside] = z32[yy[inside], xx[inside]] == target[inside]
+        foot[hit] = yy[hit] * nx + xx[hit]
+    keep = foot >= 0  # always true: the erosion's value is one of the disc's cells
+    return (ty * nx + tx)[keep].astype(np.int64), foot[keep]
+
+
 def classify(z: NDArray[np.floating], cell_m: float, rule: HazardRule) -> HazardCells:
     """Relief, step, and the hazard and support cells of ``z`` (see the module docstring).
 
     Support cells are only those a hazard's relief or step depends on: the lowest cell of a
-    relief disc covering a relief hazard, or of the step disc around a step hazard.
+    relief disc covering a relief hazard, or the foot of a step (one lowest cell of the step
+    disc around it).
     """
     z32 = np.asarray(z, np.float32)
     known = np.isfinite(z32)
@@ -144,23 +170,108 @@ def classify(z: NDArray[np.floating], cell_m: float, rule: HazardRule) -> Hazard
         near = dist <= r + 1e-3
     else:
         near = np.zeros_like(rel_h)
-    support = ~rel_h & (_argmins(z32, er, near, rk) | _argmins(z32, es, steps, sk))
-    return HazardCells(rel, stp, rel_h, steps & ~rel_h, support)
+    rel_support = ~rel_h & _argmins(z32, er, near, rk)
+    tops, feet = _feet(z32, es, steps, sk)
+    is_foot = np.zeros(z32.size, bool)
+    is_foot[feet] = True
+    support = rel_support | (~rel_h & is_foot.reshape(z32.shape))
+    return HazardCells(rel, stp, rel_h, steps & ~rel_h, support, rel_support, tops, feet)
 
 
 def cell_intervals(z: NDArray[np.floating], cells: HazardCells, *, bound_m: float, rise_m: float,
-                   step_slack_m: float, margin_m: float) -> tuple[F64, F64]:
+                   step_slack_m: float, margin_m: float, threshold_m: float | None = None) -> tuple[F64, F64]:
     """Per known cell, the interval ``[lo, hi]`` its decoded height must lie in.
 
-    ``margin_m`` keeps the float32 decoded value from rounding past an end.
+    ``margin_m`` keeps the float32 decoded value from rounding past an end. ``threshold_m``
+    (the hazard threshold; with the step pairs of ``classify``) keeps every step: see
+    :func:`step_offsets`.
     """
     z64 = np.asarray(z, np.float64)
-    lo = z64 - bound_m + margin_m
-    hi = z64 + bound_m - margin_m
-    lo = np.where(cells.step_hazard, np.where(cells.support, z64 + rise_m - step_slack_m, z64 + rise_m) + margin_m, lo)
-    lo = np.where(cells.relief_hazard, z64 + rise_m + margin_m, lo)
-    hi = np.where(cells.support, np.minimum(hi, z64 + rise_m - margin_m), hi)
-    return lo, hi
+    lo_off, hi_off = step_offsets(cells, bound_m=bound_m, rise_m=rise_m, step_slack_m=step_slack_m,
+                                  threshold_m=threshold_m)
+    return z64 + lo_off + margin_m, z64 + hi_off - margin_m
+
+
+def step_offsets(cells: HazardCells, *, bound_m: float, rise_m: float, step_slack_m: float,
+                 threshold_m: float | None = None) -> tuple[F64, F64]:
+    """Per cell, how far below and above its height the decoded height may lie (``lo <= 0 <= hi``
+    except where a hazard must rise).
+
+    * a relief hazard ``[rise, e]`` (never lower), its relief support ``[-e, rise]`` (never higher);
+    * a step: the decoded drop from its top ``t`` to its foot ``f`` (one lowest cell within
+      the step disc) must stay ``>= max(w, s - slack)`` (``s`` its step, ``w`` the threshold):
+      ``lo_t - hi_f >= need_t = max(w - s, -slack)``. A top that is no one's foot is ``[a, e]``
+      with ``a >= rise``; a plain foot ``[-e, rise]``; a cell that is both a foot and a top (a
+      slope, the cliff's face) or a relief hazard is the window ``[a, a + slack]``, ``a`` as
+      low as its own step allows, so chains of steps down a face stay feasible: only steps
+      within ``slack`` of ``w`` push the window up. Solved in order of height (a foot is
+      lower than its top) by monotone relaxation; a window is capped at ``e`` (and a relief
+      support's at ``rise``), where a step may be lost (the experiment counts it).
+
+    Without ``threshold_m`` (or step pairs) the rule before: a step top that is also support
+    is ``[rise - slack, rise]``.
+    """
+    e, r, sl = bound_m, rise_m, step_slack_m
+    shape = cells.relief.shape
+    rh, sh, sup = cells.relief_hazard.ravel(), cells.step_hazard.ravel(), cells.support.ravel()
+    lo = np.full(rh.size, -e)
+    hi = np.full(rh.size, e)
+    lo[sh | rh] = r
+    hi[sup] = r
+    lo[sh & sup] = r - sl  # a step top that is also support: the window below its height
+    if threshold_m is None or cells.step_top is None or cells.step_foot is None or cells.step_top.size == 0:
+        return lo.reshape(shape), hi.reshape(shape)
+    # Work on the cells the steps involve only (tops and feet).
+    nodes, inv = np.unique(np.concatenate([cells.step_top, cells.step_foot]), return_inverse=True)
+    t, f = inv[:cells.step_top.size], inv[cells.step_top.size:]
+    n_rh, n_sh = rh[nodes], sh[nodes]
+    n_rsup = (cells.relief_support if cells.relief_support is not None else cells.support).ravel()[nodes]
+    n_lo, n_hi = lo[nodes], hi[nodes]
+    window = np.zeros(nodes.size, bool)
+    window[f] = True
+    window &= n_rh | n_sh  # a foot that must also stay up: [a, a + slack]
+    base = np.where(window, np.where(n_rh, r, -e), n_lo)
+    cap = np.maximum(base, np.where(window, np.where(n_rsup, r, e), n_hi) - sl)
+    need = np.maximum(threshold_m - cells.step.ravel()[cells.step_top].astype(np.float64), -sl)
+    foot_of = np.full(nodes.size, -1, np.int64)
+    foot_of[t] = f
+    for _ in range(3):
+        a = _raise_windows(base, cap, window, n_hi, t, f, need, sl)
+        h = np.where(window, a + sl, n_hi)
+        short = a[t] < h[f] + need - 1e-12
+        if not short.any():
+            break
+        # A top held down by its cap: the plain feet of its chain go as low as the bound allows.
+        chain = np.zeros(nodes.size, bool)
+        cur = np.unique(f[short])
+        while cur.size:
+            chain[cur] = True
+            cur = foot_of[cur]
+            cur = cur[(cur >= 0)]
+            cur = cur[~chain[cur]]
+        plain = chain & ~window & (foot_of < 0)
+        if not (plain & (n_hi > -e + sl)).any():
+            break
+        n_hi = np.where(plain, np.minimum(n_hi, -e + sl), n_hi)
+    lo[nodes] = a
+    hi[nodes] = np.where(window, a + sl, n_hi)
+    return lo.reshape(shape), hi.reshape(shape)
+
+
+def _raise_windows(base: F64, cap: F64, window: B, hi: F64, t: NDArray[np.int64], f: NDArray[np.int64],
+                   need: F64, slack: float) -> F64:
+    """The least lower offsets ``a >= base`` (capped) with ``a_t >= hi_f + need`` for every step
+    pair, a window's ``hi`` being ``a + slack``: monotone relaxation, one chain link per pass."""
+    a = base.copy()
+    for _ in range(512):
+        h = np.where(window, a + slack, hi)
+        want = np.full(a.size, -np.inf)
+        np.maximum.at(want, t, h[f] + need)
+        new = np.minimum(np.maximum(base, want), cap)
+        if np.array_equal(new, a):
+            break
+        a = new
+    return a
 
 
 @dataclass(frozen=True)

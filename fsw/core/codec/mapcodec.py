@@ -79,6 +79,15 @@ class CodecConfig:
     support_rise_fraction: float = param(
         0.0, lo=0.0, hi=0.9, doc="support cells rise at most, relief hazards rise at least, "
         "this fraction of the error bound")
+    receiver_wheel_diameter_m: float = param(
+        0.12, lo=0.0, hi=2.0, units="m",
+        doc="wheel diameter of the agent the map is sent to (the Cliff-bot: 2 x its 0.06 m wheel radius); "
+        "the error bound and the hazard threshold are in these wheel diameters; 0: the sender's [rover] wheel")
+
+    def wheel_m(self, own_wheel_m: float) -> float:
+        """The wheel diameter the map is reduced for: the receiver's, or ``own_wheel_m`` (the
+        sending rover's ``[rover] wheel_diameter_m``) when ``receiver_wheel_diameter_m`` is 0."""
+        return self.receiver_wheel_diameter_m if self.receiver_wheel_diameter_m > 0 else own_wheel_m
 
 
 @dataclass(frozen=True)
@@ -133,10 +142,10 @@ def encode_map(
                              step_disc_m=cfg.step_disc_wheels * wheel_diameter_m)
         cells = hz.classify(z32, cell_m, rule)
         lo_c, hi_c = hz.cell_intervals(z32, cells, bound_m=bound, rise_m=rise, step_slack_m=slack,
-                                       margin_m=margin)
+                                       margin_m=margin, threshold_m=rule.threshold_m)
         # What the decoded float32 values must meet (the margins above absorb their rounding).
         lo_chk, hi_chk = hz.cell_intervals(z32, cells, bound_m=bound, rise_m=rise, step_slack_m=slack,
-                                           margin_m=0.0)
+                                           margin_m=0.0, threshold_m=rule.threshold_m)
         hazard_fields = {"hazard_threshold_m": rule.threshold_m, "relief_disc_m": rule.relief_disc_m,
                          "step_disc_m": rule.step_disc_m, "support_rise_m": rise, "step_slack_m": slack,
                          "relief_loss_hazard_m": 0.0, "relief_loss_any_m": 2.0 * bound}
