@@ -53,7 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("input", type=Path, help=".npy file, 2-D float, metres, NaN = unknown")
     e.add_argument("output", type=Path, help="container file to write")
     e.add_argument("--wheel-diameter", type=float, metavar="M",
-                   help="rover wheel diameter in metres (default: [rover] wheel_diameter_m)")
+                   help="the receiving rover's wheel diameter in metres (default: [codec] "
+                   "receiver_wheel_diameter_m, or [rover] wheel_diameter_m when that is 0)")
     e.add_argument("--max-error", type=float, metavar="M",
                    help="error bound in metres (default: [codec] error_bound_wheels x wheel)")
     e.add_argument("--cell-m", type=float, metavar="M", help="cell size (default: [map] cell_m)")
@@ -103,7 +104,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
     codec = build(CodecConfig, data.get("codec", {}), args.config, "codec")
     for name in ("wheel_diameter", "max_error", "cell_m"):
         _positive("--" + name.replace("_", "-"), getattr(args, name))
-    wheel = args.wheel_diameter or rover.wheel_diameter_m
+    wheel = args.wheel_diameter or codec.wheel_m(rover.wheel_diameter_m)
     cell = args.cell_m or grid.cell_m
     z = _load_npy(args.input)
     try:

@@ -167,8 +167,9 @@ class RadioTask(FlightTask):
 
         def job() -> Generator[None, None, EncodedMap]:
             yield
-            return encode_map(z, cell_m=cell_m, wheel_diameter_m=self.ctx.cfg.rover.wheel_diameter_m,
-                              cfg=self.ctx.cfg.codec)
+            cfg = self.ctx.cfg  # reduced for the receiver's wheel ([codec] receiver_wheel_diameter_m)
+            return encode_map(z, cell_m=cell_m, wheel_diameter_m=cfg.codec.wheel_m(cfg.rover.wheel_diameter_m),
+                              cfg=cfg.codec)
 
         self.submit_job(job(), f"encode_map_{map_id}", on_done=lambda h: self._encoded(map_id, h))
 

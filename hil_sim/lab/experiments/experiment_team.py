@@ -78,7 +78,8 @@ def run(args: argparse.Namespace) -> int:
         grid = MapGrid.from_config(world.map_grid)
         full = world.ground_on_grid(grid)
         try:
-            enc = encode_map(full, cell_m=grid.cell, wheel_diameter_m=cfg.rover.wheel_diameter_m, cfg=cfg.codec)
+            enc = encode_map(full, cell_m=grid.cell, wheel_diameter_m=cfg.codec.wheel_m(cfg.rover.wheel_diameter_m),
+                             cfg=cfg.codec)
             reduced = np.asarray(decode_map(enc.data).z, np.float64)
         except (MapCodecError, ValueError) as exc:
             print(f"{me}: seed {seed}: {exc}", file=sys.stderr)
