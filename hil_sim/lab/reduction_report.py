@@ -49,32 +49,42 @@ def fig12(rows: list[dict[str, Any]], dhs: list[float], path: Path) -> None:
     plt.close(fig)
 
 
-def fig13(z: Any, zd: Any, wheel: float, cell: float, enc: Any, title: str, path: Path, disc_m: float) -> None:
-    """Original and transmitted map side by side, obstacles (relief >= w) outlined in each."""
-    from fsw.core.codec.hazard import relief
+def fig13(z: Any, zd: Any, wheel: float, cell: float, stats: dict[str, Any], title: str, path: Path,
+          disc_m: float) -> None:
+    """Original and transmitted map side by side, the hazards (relief >= w over ``disc_m`` or a
+    step >= w within one wheel diameter) outlined in each. ``stats``: reduction, bytes, max_error_m."""
+    from fsw.core.codec.hazard import relief, step
     from hil_sim.cliffbot_receiver import write_figure13
 
-    r0, r1 = relief(z, cell, disc_m), relief(zd, cell, disc_m)
-    write_figure13(z, zd, path, f"{title}: reduction {enc.tree.reduction_factor:.1f}x, {len(enc.data)} bytes, "
-                   f"max error {enc.max_error_m:.3f} m; red: relief >= wheel {wheel:.3f} m",
-                   outlines=(r0 >= wheel, r1 >= wheel), cell_m=cell)
+    def hazards(m: Any) -> Any:
+        return (relief(m, cell, disc_m) >= wheel) | (step(m, cell, wheel) >= wheel)
+
+    write_figure13(z, zd, path, f"{title}: reduction {stats['reduction']:.1f}x, {stats['bytes']} bytes, "
+                   f"max error {stats['max_error_m']:.3f} m; red: relief or step >= wheel {wheel:.3f} m",
+                   outlines=(hazards(z), hazards(zd)), cell_m=cell)
 
 
 def report_md(rows: list[dict[str, Any]], maps: list[dict[str, Any]], dhs: list[float], codec: Any,
             args: argparse.Namespace) -> str:
     import numpy as np
 
-    n_mission = sum(m["kind"] == "mission-like" for m in maps)
+    def count(kind: str) -> int:
+        return sum(m["kind"] == kind for m in maps)
+
     lines = [f"# Map reduction: {args.maps} Viking-model maps ({args.size}x{args.size} cells of {args.cell_m} m, "
-             f"k {args.k_range[0]}..{args.k_range[1]}), {'no' if args.no_dem else 'the'} DEM sample and "
-             f"{n_mission} mission-like maps", "",
+             f"k {args.k_range[0]}..{args.k_range[1]}), {'no' if args.no_dem else 'the'} DEM sample, "
+             f"{count('mission')} mission maps ({args.mission_steps}-step method-{args.mission_method} missions), "
+             f"{count('file')} map files and {count('mission-like')} mission-like maps", "",
              f"Codec: hazard rule {'on' if codec.hazard else 'off'} (relief disc {codec.relief_disc_m} m, threshold "
              f"{codec.hazard_relief_wheels} wheel, step disc {codec.step_disc_wheels} wheel, support rise "
              f"{codec.support_rise_fraction} x bound), split rule `{codec.split_rule}`, "
              f"leaf value `{codec.leaf_value}`, height bound {codec.error_bound_wheels} wheel diameter(s), "
              f"zstd {codec.zstd_level}. Obstacle: connected "
              f"cells whose relief (white top-hat over the {codec.relief_disc_m} m disc) is >= the wheel diameter w; "
-             "kept if the decoded relief, max over its footprint, is >= w.", ""]
+             "kept if the decoded relief, max over its footprint, is >= w. Maps other than the Viking ones use "
+             f"the receiving rover's wheel ([codec] receiver_wheel_diameter_m = {codec.receiver_wheel_diameter_m} m; "
+             "0: the [rover] wheel). Mission maps: the RECON-bot's fused stereo map at the end of a short mission "
+             "(holes where unmapped). Mission-like: the world's truth on the flight grid plus noise.", ""]
     if rows:
         lines += ["## Figure 12: reduction factor (cells / leaves) against dH", "",
                   "| dH | reduction median | p10 | p90 | min | max | bytes median | max error / bound (worst) "
@@ -91,20 +101,30 @@ def report_md(rows: list[dict[str, Any]], maps: list[dict[str, Any]], dhs: list[
                          f"{np.median([r['bytes'] for r in sel]):.0f} | {ratio:.4f} | {kept}/{n} | {kept2}/{n2} | "
                          f"{np.median([r['reduction_height_only'] for r in sel]):.1f} | "
                          f"{np.median([r['bytes_height_only'] for r in sel]):.0f} |")
+        at = [r["reduction"] for r in rows if r["dH"] == 8]
+        if at:
+            lines += ["", f"Reduction factor at dH = 8: median {np.median(at):.1f}x over {len(at)} maps "
+                      f"(min {min(at):.1f}x, max {max(at):.1f}x); the paper reports about 10x (Figure 12).", ""]
     if maps:
         def tot(sel: list[dict[str, Any]], a: str, b: str) -> str:
             n, k = sum(m[a] for m in sel), sum(m[b] for m in sel)
             return f"{k}/{n} ({100.0 * k / n:.1f} %)" if n else "0/0"
 
+        def drop(sel: list[dict[str, Any]]) -> str:
+            m = min(sel, key=lambda m: m["max_step_decoded_m"] - m["max_step_m"])
+            return f"{m['max_step_m']:.3f} / {m['max_step_decoded_m']:.3f}"
+
         lines += ["", "## Hazard check per map set", "",
                   "| maps | obstacles >= w kept | >= 2w kept | height-only rule: >= w kept | >= 2w kept "
                   "| obstacles in the decoded map only (height-only) "
-                  "| worst peak relief loss, m | worst height error / bound | worst position error, cells "
-                  "| step cells kept (worst map) | worst step loss, m (slack) | bytes: ours / JPEG-LS at equal "
+                  "| worst peak relief loss, m | worst height error / bound | worst relief loss on hazards, m "
+                  "(bound) | worst relief loss on any cell / its bound | worst position error, cells "
+                  "| step cells kept (worst map) | worst step loss, m (slack) | largest drop: input / decoded, "
+                  "worst map | bytes: ours / JPEG-LS at equal "
                   "hazards, median | maps where ours is smaller | ours / JPEG-LS keeping >= 99 %, median "
                   "| maps where ours is smaller |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-        for kind in ("viking", "dem", "mission-like"):
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+        for kind in ("viking", "dem", "mission", "file", "mission-like"):
             sel = [m for m in maps if m["kind"] == kind]
             if not sel:
                 continue
@@ -116,8 +136,11 @@ def report_md(rows: list[dict[str, Any]], maps: list[dict[str, Any]], dhs: list[
                 f"{sum(m['new_obstacles'] for m in sel)} ({sum(m['new_obstacles_height_only'] for m in sel)}) | "
                 f"{max(m['worst_peak_loss_m'] for m in sel):.4f} | "
                 f"{max(m['max_error_m'] / m['bound_m'] for m in sel):.4f} | "
+                f"{max(m['worst_relief_loss_m'] for m in sel):.4f} ({max(m['relief_loss_bound_m'] for m in sel):g}) | "
+                f"{max(m['worst_relief_loss_any_m'] / m['relief_loss_any_bound_m'] for m in sel):.4f} | "
                 f"{max(m['position_error_cells'] for m in sel):g} | {min(m['step_kept'] for m in sel):.4f} | "
                 f"{max(m['worst_step_loss_m'] for m in sel):.4f} ({max(m['step_slack_m'] for m in sel):.4f}) | "
+                f"{drop(sel)} | "
                 f"{ratio:.2f} | {sum(m['bytes'] < m['jls_hazard_bytes'] for m in sel)}/{len(sel)} | "
                 f"{ratio99:.2f} | {sum(m['bytes'] < m['jls_99_bytes'] for m in sel)}/{len(sel)} |")
         lines += ["", "## Per map", "",

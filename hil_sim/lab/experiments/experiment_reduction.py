@@ -1,6 +1,6 @@
 """``safer-hil experiment reduction``: Figures 12 and 13 and the hazard check of the map codec.
 
-docs/algorithm.md §6 (and "Mars terrain statistics"); docs/quadtree.md. Three sets of maps:
+docs/algorithm.md §6 (and "Mars terrain statistics"); docs/quadtree.md. The sets of maps:
 
 * ``--maps`` Viking-model Mars maps (``hil_sim.world.mars.viking_heightfield``, rock coverage
   ``k`` spread over Viking Lander 1 to 2, 0.07 .. 0.16), each reduced for the wheel diameters
@@ -9,22 +9,29 @@ docs/algorithm.md §6 (and "Mars terrain statistics"); docs/quadtree.md. Three s
   bound alone (``hazard = false``, the rule before issue 25);
 * the real DEM sample (``hil_sim.world.sample_dem``: USGS Jacksboro fault at rover scale, with
   a 1 m cliff drop), unless ``--no-dem``;
-* mission-like maps of ``--terrains`` (scenario specs; ``terrain:N`` is the seeded terrain
-  family): the world's truth on the flight map grid, plus ``--noise-m`` of Gaussian height
-  noise, unknown where the ground is textureless (stereo finds no match there) or outside
-  the world. Maps from full missions would take 10-20 minutes each on a 2-core machine.
+* mission maps: ``--missions`` runs a short mission (``--mission-steps`` imaging steps,
+  method ``--mission-method``) on each scenario spec (``terrain:N`` is the seeded terrain
+  family) and takes the RECON-bot's flight map at its end (fused stereo, holes, as the radio
+  task encodes it); ``--map-files`` reads maps saved elsewhere (map checkpoints, or ``.npy``
+  on the ``[map]`` grid);
+* mission-like maps of ``--terrains``: the world's truth on the flight map grid, plus
+  ``--noise-m`` of Gaussian height noise, unknown where the ground is textureless.
 
-Per map (the Viking maps at ``--compare-dh``, the others with the ``[rover]`` wheel): the
-obstacles (connected cells whose relief, the white top-hat over a ``relief_disc_m`` disc, is
->= one wheel diameter ``w``) and those >= ``2w`` in the input, how many the decoded map keeps
-(decoded relief, max over the footprint, >= ``w``), the worst height error against the
-bound, the worst relief loss, the position error, the step cells (a step >= ``w`` within one
-wheel diameter: the cliff edge) kept, the bytes, and the bytes of JPEG-LS near-lossless
-(imagecodecs, 1 mm input grid) at the largest NEAR whose decoded map keeps the same
-obstacles and the same height bound (bisection over NEAR), and at the height bound alone.
+Per map (the Viking maps at ``--compare-dh``, the others with the receiving rover's wheel,
+``[codec] receiver_wheel_diameter_m``): the obstacles (connected cells whose relief, the white
+top-hat over a ``relief_disc_m`` disc, is >= one wheel diameter ``w``) and those >= ``2w`` in
+the input, how many the decoded map keeps (decoded relief, max over the footprint, >= ``w``),
+the worst height error and the worst relief loss against the bounds the container states
+(``safer-map info``), the position error, the step cells (a step >= ``w`` within one wheel
+diameter: the cliff edge) kept and the largest drop before and after, the bytes, and the bytes
+of JPEG-LS near-lossless (imagecodecs, 1 mm input grid) at the largest NEAR whose decoded map
+keeps the same obstacles and the same height bound (bisection over NEAR), and at the height
+bound alone.
 
-Writes ``reduction.csv``, ``maps.csv``, ``report.md`` and the figures into ``--out``, and the
-result file ``docs/results/reduction.md`` with its figures (``hil_sim.lab.results``).
+Maps are processed in ``--jobs`` processes; every map is seeded, so the tables do not depend
+on ``--jobs``. Writes ``reduction.csv``, ``maps.csv``, ``report.md`` and the figures into
+``--out``, and the result file ``docs/results/reduction.md`` with its figures
+(``hil_sim.lab.results``).
 """
 
 from __future__ import annotations
@@ -40,6 +47,7 @@ from hil_sim.lab.results import command_line, write_results
 HELP = "Figures 12/13 and the hazard check: obstacles kept, bytes against JPEG-LS (issue 25)"
 DEFAULT_TERRAINS = "terrain:0,terrain:1,terrain:2,terrain:3,terrain:4,terrain:5,terrain:6,terrain:7," \
     "terrain:8,terrain:9,lab,cliff,mars"
+DEFAULT_MISSIONS = ",".join(f"terrain:{i}" for i in range(10))
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -53,11 +61,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--compare-dh", type=float, default=8.0,
                    help="dH of the per-map hazard check and the JPEG-LS comparison")
     p.add_argument("--seed", type=int, default=0, help="seed of map 0 (map i uses seed + i)")
+    p.add_argument("--missions", default=DEFAULT_MISSIONS,
+                   help="comma-separated scenario specs to run a short mission on and take its map "
+                   "(terrain:N = terrain family seed N); empty for none")
+    p.add_argument("--mission-steps", type=int, default=4, help="imaging steps of each mission")
+    p.add_argument("--mission-method", default="5", help="the missions' NBV method")
+    p.add_argument("--map-files", type=Path, nargs="*", default=[],
+                   help="mission maps saved elsewhere: map checkpoints, or .npy on the [map] grid")
     p.add_argument("--terrains", default=DEFAULT_TERRAINS,
-                   help="comma-separated scenario specs for mission-like maps (terrain:N = terrain "
-                   "family seed N); empty for none")
+                   help="comma-separated scenario specs for mission-like maps (truth + noise); empty for none")
     p.add_argument("--noise-m", type=float, default=0.015, help="height noise of the mission-like maps, m")
     p.add_argument("--no-dem", action="store_true", help="skip the real DEM sample")
+    p.add_argument("--jobs", type=int, default=1, help="maps processed in parallel (processes)")
     p.add_argument("--config", default=None, help="flight config for [codec], [rover] (default config/fsw.toml)")
     p.add_argument("--out", type=Path, default=Path("out/experiments/reduction"), help="output dir")
 
@@ -124,125 +139,258 @@ def jpegls_for_hazards(z: Any, w: float, bound: float, cell_m: float, disc_m: fl
     return out
 
 
+def _scenario(spec: str) -> tuple[str, int]:
+    """``terrain:N`` -> (``terrain``, N); any other spec -> (spec, 0)."""
+    if spec.startswith("terrain:"):
+        return "terrain", int(spec.split(":", 1)[1])
+    return spec, 0
+
+
 def _mission_like(spec: str, noise_m: float) -> tuple[str, Any, float]:
     import numpy as np
 
     from fsw.core.geometry import MapGrid
     from hil_sim.world import load_scenario
 
-    seed = 0
-    name = spec
-    if spec.startswith("terrain:"):
-        seed = int(spec.split(":", 1)[1])
-        spec = "terrain"
-    w = load_scenario(spec, seed=seed)
+    scenario, seed = _scenario(spec)
+    w = load_scenario(scenario, seed=seed)
     grid = MapGrid.from_config(w.map_grid)
     z = w.truth_on_grid(grid)
     rng = np.random.default_rng([seed, 25])
     z = z + rng.normal(0.0, noise_m, z.shape)
     z[w.textureless_on_grid(grid)] = np.nan
-    return name, z.astype(np.float32), grid.cell
+    return spec, z.astype(np.float32), grid.cell
+
+
+def _mission_map(spec: str, steps: int, method: str, out: Path) -> tuple[Any, float, str]:
+    """Run a short mission on ``spec`` and return the RECON-bot's flight map at its end (NaN
+    where unmapped, as the radio task encodes it), its cell size and the mission's end."""
+    import numpy as np
+
+    from hil_sim.mission_run import RunSpec, run_mission
+
+    scenario, seed = _scenario(spec)
+    benches: list[Any] = []
+    summary = run_mission(RunSpec(scenario, method, steps, seed, transmit=False, out=out),
+                          on_bench=benches.append, mode="fresh")
+    emap = benches[0].exe.tasks["perception"].map
+    z = np.where(emap.mapped, emap.z, np.nan).astype(np.float32)
+    return z, float(emap.grid.cell), str(summary.get("end_reason", ""))
+
+
+def _map_file(path: Path, default_cell_m: float) -> tuple[Any, float]:
+    """A map checkpoint (its grid's cell) or a 2-D ``.npy`` (``default_cell_m``); ValueError."""
+    import numpy as np
+
+    from fsw.core.map import checkpoint
+
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if raw.startswith(checkpoint.MAGIC):
+        try:
+            emap, _ = checkpoint.decode(raw)
+        except checkpoint.CheckpointError as exc:
+            raise ValueError(f"{path}: map checkpoint, unreadable: {exc}") from None
+        return np.where(emap.mapped, emap.z, np.nan).astype(np.float32), float(emap.grid.cell)
+    try:
+        z = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: neither a map checkpoint nor a .npy map ({exc})") from None
+    if z.ndim != 2 or z.dtype.kind != "f" or np.isinf(z).any():
+        raise ValueError(f"{path}: expected a 2-D float map (NaN = unknown), got {z.dtype} {z.shape}")
+    return z.astype(np.float32), default_cell_m
+
+
+def check_map(name: str, kind: str, z: Any, cell: float, wheel: float, dh: float | None, codec: Any,
+              want_figure: bool = False) -> tuple[dict[str, Any], Any]:
+    """The per-map hazard check (module docstring); with ``want_figure`` also the Figure 13
+    data (original, decoded, wheel, cell, stats, title)."""
+    import numpy as np
+
+    from fsw.core.codec.hazard import check_obstacles, relief, step
+    from fsw.core.codec.mapcodec import CodecConfig, decode_map, encode_map
+
+    height_only = CodecConfig(**{**vars(codec), "hazard": False})
+    enc = encode_map(z, cell_m=cell, wheel_diameter_m=wheel, cfg=codec)
+    old = encode_map(z, cell_m=cell, wheel_diameter_m=wheel, cfg=height_only)
+    dec, dec_old = decode_map(enc.data), decode_map(old.data)
+    h = dec.header
+    thr, step_disc = codec.hazard_relief_wheels * wheel, codec.step_disc_wheels * wheel
+    c = check_obstacles(z, dec.z, cell, thr, codec.relief_disc_m, step_disc)
+    co = check_obstacles(z, dec_old.z, cell, thr, codec.relief_disc_m, step_disc)
+    known = np.isfinite(z)
+    r0, r1 = relief(z, cell, codec.relief_disc_m), relief(dec.z, cell, codec.relief_disc_m)
+    loss_any = float((r0 - r1)[known].max()) if known.any() else 0.0
+    s0, s1 = step(z, cell, step_disc), step(dec.z, cell, step_disc)
+    jls = jpegls_for_hazards(z, wheel, h.error_bound_m, cell, codec.relief_disc_m)
+    row = {
+        "map": name, "kind": kind, "cells": int(z.size), "known": int(known.sum()),
+        "wheel_m": round(wheel, 4), "dH": dh, "obst": c.n, "kept": c.kept, "obst_2w": c.n_2x,
+        "kept_2w": c.kept_2x, "kept_height_only": co.kept, "kept_2w_height_only": co.kept_2x,
+        "max_error_m": enc.max_error_m, "bound_m": h.error_bound_m,
+        "worst_peak_loss_m": round(c.worst_peak_loss_m, 4), "worst_relief_loss_m": round(c.worst_relief_loss_m, 4),
+        "relief_loss_bound_m": h.relief_loss_hazard_m, "worst_relief_loss_any_m": round(loss_any, 4),
+        "relief_loss_any_bound_m": h.relief_loss_any_m,
+        "worst_peak_loss_height_only_m": round(co.worst_peak_loss_m, 4),
+        "position_error_cells": c.position_error_cells, "new_obstacles": c.new_obstacles,
+        "new_obstacles_height_only": co.new_obstacles,
+        "step_cells": c.step_cells, "step_kept": round(c.step_kept, 4),
+        "worst_step_loss_m": round(c.worst_step_loss_m, 4), "step_slack_m": h.step_slack_m,
+        "step_kept_height_only": round(co.step_kept, 4),
+        "max_step_m": round(float(np.nanmax(s0)), 4) if known.any() else 0.0,
+        "max_step_decoded_m": round(float(np.nanmax(s1)), 4) if known.any() else 0.0,
+        "bytes": len(enc.data), "bytes_height_only": len(old.data),
+        "reduction": round(enc.tree.reduction_factor, 2), **jls}
+    fig = None
+    if want_figure:
+        stats = {"reduction": enc.tree.reduction_factor, "bytes": len(enc.data), "max_error_m": enc.max_error_m}
+        fig = (z, dec.z, wheel, cell, stats, name)
+    return row, fig
+
+
+def _viking_job(i: int, k: float, args: argparse.Namespace, dhs: list[float], codec: Any) -> dict[str, Any]:
+    """Figure 12 rows of Viking map ``i`` and its hazard check at ``--compare-dh``."""
+    from fsw.core.codec.hazard import check_obstacles
+    from fsw.core.codec.mapcodec import CodecConfig, decode_map, encode_map
+    from hil_sim.world.mars import viking_heightfield
+
+    height_only = CodecConfig(**{**vars(codec), "hazard": False})
+    z = viking_heightfield((args.size, args.size), args.cell_m, float(k), args.seed + i)
+    relief_m = float(z.max() - z.min())
+    rows: list[dict[str, Any]] = []
+    out: dict[str, Any] = {"rows": rows, "map": None, "fig": None}
+    for dh in dhs:
+        wheel = relief_m / dh
+        tic = time.process_time()
+        enc = encode_map(z, cell_m=args.cell_m, wheel_diameter_m=wheel, cfg=codec)
+        dt = time.process_time() - tic
+        old = encode_map(z, cell_m=args.cell_m, wheel_diameter_m=wheel, cfg=height_only)
+        dz = decode_map(enc.data).z
+        c = check_obstacles(z, dz, args.cell_m, wheel, codec.relief_disc_m)
+        rows.append({"map": i, "k": round(float(k), 4), "seed": args.seed + i, "relief_m": round(relief_m, 4),
+                     "dH": dh, "wheel_m": round(wheel, 5), "bound_m": codec.error_bound_wheels * wheel,
+                     "leaves": enc.tree.n_leaves, "reduction": round(enc.tree.reduction_factor, 2),
+                     "bytes": len(enc.data), "max_error_m": enc.max_error_m,
+                     "rms_error_m": round(enc.rms_error_m, 6), "obst": c.n, "kept": c.kept,
+                     "obst_2w": c.n_2x, "kept_2w": c.kept_2x,
+                     "worst_relief_loss_m": round(c.worst_relief_loss_m, 5),
+                     "encode_cpu_ms": round(dt * 1e3, 1),
+                     "reduction_height_only": round(old.tree.reduction_factor, 2),
+                     "bytes_height_only": len(old.data)})
+        if dh == args.compare_dh:
+            out["map"], out["fig"] = check_map(f"viking {i}", "viking", z, args.cell_m, wheel, dh, codec,
+                                               want_figure=i == 0)
+            if out["fig"] is not None:
+                out["fig"] = (*out["fig"][:5], f"Viking map 0, dH = {dh:g}")
+    out["label"] = f"viking {i} (k={k:.3f}, relief {relief_m:.2f} m)"
+    return out
+
+
+def _other_job(name: str, kind: str, source: Any, wheel: float, codec: Any, args: argparse.Namespace,
+               default_cell_m: float) -> dict[str, Any]:
+    """One DEM, mission, map-file or mission-like map: load (or fly) it and check it."""
+    note = ""
+    if kind == "dem":
+        from hil_sim.world.sample_dem import jacksboro_dem
+
+        z, cell = jacksboro_dem(0.03), 0.03
+    elif kind == "mission":
+        z, cell, note = _mission_map(source, args.mission_steps, args.mission_method,
+                                     args.out / "missions" / source.replace(":", "_"))
+    elif kind == "file":
+        z, cell = _map_file(source, default_cell_m)
+    else:
+        _, z, cell = _mission_like(source, args.noise_m)
+    row, fig = check_map(name, kind, z, cell, wheel, None, codec, want_figure=True)
+    label = f"{name} ({kind}{', ' + note if note else ''})"
+    return {"rows": [], "map": row, "fig": fig, "label": label}
 
 
 def run(args: argparse.Namespace) -> int:
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
     import numpy as np
 
-    from fsw.core.codec.hazard import check_obstacles
-    from fsw.core.codec.mapcodec import CodecConfig, decode_map, encode_map
-    from fsw.core.geometry import RoverConfig
+    from fsw.core.codec.mapcodec import CodecConfig
+    from fsw.core.geometry import MapGridConfig, RoverConfig
     from fsw.framework.params import ConfigError, build, load_toml
     from fsw.settings import DEFAULT_CONFIG
     from hil_sim.lab.reduction_report import fig12, fig13, report_md, write_csv
+    from hil_sim.world import load_scenario
     from hil_sim.world.config import ScenarioError
-    from hil_sim.world.mars import viking_heightfield
 
+    me = "safer-hil: error:"
     cfg_path = args.config or str(DEFAULT_CONFIG)
     try:
         data = load_toml(cfg_path)
         codec = build(CodecConfig, data.get("codec", {}), cfg_path, "codec")
         rover = build(RoverConfig, data.get("rover", {}), cfg_path, "rover")
+        grid_cfg = build(MapGridConfig, data.get("map", {}), cfg_path, "map")
     except ConfigError as exc:
-        print(f"safer-hil: error: {exc}", file=sys.stderr)
+        print(f"{me} {exc}", file=sys.stderr)
         return 2
-    if args.maps < 0 or args.size < 8 or not all(d > 0 for d in args.dh) or args.noise_m < 0:
-        print("safer-hil: error: need --maps >= 0, --size >= 8, positive --dh, --noise-m >= 0", file=sys.stderr)
+    if args.maps < 0 or args.size < 8 or not all(d > 0 for d in args.dh) or args.noise_m < 0 \
+            or args.jobs < 1 or args.mission_steps < 1:
+        print(f"{me} need --maps >= 0, --size >= 8, positive --dh, --noise-m >= 0, --jobs >= 1, "
+              "--mission-steps >= 1", file=sys.stderr)
         return 2
     terrains = [t.strip() for t in args.terrains.split(",") if t.strip()]
+    missions = [t.strip() for t in args.missions.split(",") if t.strip()]
+    for spec in terrains + missions:  # a bad spec: one line and exit 2, before any work
+        try:
+            load_scenario(*_scenario(spec))
+        except (ScenarioError, ConfigError, ValueError) as exc:
+            print(f"{me} scenario {spec!r}: {exc}", file=sys.stderr)
+            return 2
+    for path in args.map_files:
+        try:
+            _map_file(path, grid_cfg.cell_m)
+        except ValueError as exc:
+            print(f"{me} {exc}", file=sys.stderr)
+            return 2
     args.out.mkdir(parents=True, exist_ok=True)
-    height_only = CodecConfig(**{**vars(codec), "hazard": False})
+    wheel = codec.wheel_m(rover.wheel_diameter_m)  # the receiving rover's wheel
     ks = np.linspace(args.k_range[0], args.k_range[1], max(args.maps, 1))[:args.maps]
     dhs = sorted(set(args.dh) | {args.compare_dh})
-    rows: list[dict[str, Any]] = []
-    per_map: list[dict[str, Any]] = []
-    figs: dict[str, Any] = {}
     t0 = time.perf_counter()
-
-    def check_map(name: str, kind: str, z: Any, cell: float, wheel: float, dh: float | None) -> None:
-        enc = encode_map(z, cell_m=cell, wheel_diameter_m=wheel, cfg=codec)
-        old = encode_map(z, cell_m=cell, wheel_diameter_m=wheel, cfg=height_only)
-        dec, dec_old = decode_map(enc.data), decode_map(old.data)
-        c = check_obstacles(z, dec.z, cell, wheel, codec.relief_disc_m)
-        co = check_obstacles(z, dec_old.z, cell, wheel, codec.relief_disc_m)
-        bound = dec.header.error_bound_m
-        jls = jpegls_for_hazards(z, wheel, bound, cell, codec.relief_disc_m)
-        per_map.append({
-            "map": name, "kind": kind, "cells": int(z.size), "known": int(np.isfinite(z).sum()),
-            "wheel_m": round(wheel, 4), "dH": dh, "obst": c.n, "kept": c.kept, "obst_2w": c.n_2x,
-            "kept_2w": c.kept_2x, "kept_height_only": co.kept, "kept_2w_height_only": co.kept_2x,
-            "max_error_m": enc.max_error_m, "bound_m": bound,
-            "worst_peak_loss_m": round(c.worst_peak_loss_m, 4), "worst_relief_loss_m": round(c.worst_relief_loss_m, 4),
-            "relief_loss_bound_m": dec.header.relief_loss_hazard_m,
-            "worst_peak_loss_height_only_m": round(co.worst_peak_loss_m, 4),
-            "position_error_cells": c.position_error_cells, "new_obstacles": c.new_obstacles,
-            "new_obstacles_height_only": co.new_obstacles,
-            "step_cells": c.step_cells, "step_kept": round(c.step_kept, 4),
-            "worst_step_loss_m": round(c.worst_step_loss_m, 4), "step_slack_m": dec.header.step_slack_m,
-            "step_kept_height_only": round(co.step_kept, 4),
-            "bytes": len(enc.data), "bytes_height_only": len(old.data),
-            "reduction": round(enc.tree.reduction_factor, 2), **jls})
-        if kind != "viking" and name == "cliff":
-            figs["cliff"] = (z, dec.z, wheel, cell, enc, name)
-
+    jobs: list[tuple[tuple[int, int], Any, tuple[Any, ...]]] = []  # (sort key, function, arguments)
+    order = {"viking": 0, "dem": 1, "mission": 2, "file": 3, "mission-like": 4}
     for i, k in enumerate(ks):
-        z = viking_heightfield((args.size, args.size), args.cell_m, float(k), args.seed + i)
-        relief = float(z.max() - z.min())
-        for dh in dhs:
-            wheel = relief / dh
-            tic = time.perf_counter()
-            enc = encode_map(z, cell_m=args.cell_m, wheel_diameter_m=wheel, cfg=codec)
-            dt = time.perf_counter() - tic
-            old = encode_map(z, cell_m=args.cell_m, wheel_diameter_m=wheel, cfg=height_only)
-            dz = decode_map(enc.data).z
-            c = check_obstacles(z, dz, args.cell_m, wheel, codec.relief_disc_m)
-            rows.append({"map": i, "k": round(float(k), 4), "seed": args.seed + i, "relief_m": round(relief, 4),
-                         "dH": dh, "wheel_m": round(wheel, 5), "bound_m": codec.error_bound_wheels * wheel,
-                         "leaves": enc.tree.n_leaves, "reduction": round(enc.tree.reduction_factor, 2),
-                         "bytes": len(enc.data), "max_error_m": enc.max_error_m,
-                         "rms_error_m": round(enc.rms_error_m, 6), "obst": c.n, "kept": c.kept,
-                         "obst_2w": c.n_2x, "kept_2w": c.kept_2x,
-                         "worst_relief_loss_m": round(c.worst_relief_loss_m, 5),
-                         "encode_ms": round(dt * 1e3, 1),
-                         "reduction_height_only": round(old.tree.reduction_factor, 2),
-                         "bytes_height_only": len(old.data)})
-            if dh == args.compare_dh:
-                check_map(f"viking {i}", "viking", z, args.cell_m, wheel, dh)
-                if "viking" not in figs:
-                    figs["viking"] = (z, dz, wheel, args.cell_m, enc, f"Viking map 0, dH = {dh:g}")
-        print(f"map {i + 1}/{args.maps} k={k:.3f} relief={relief:.2f} m ({time.perf_counter() - t0:.0f} s)",
-              flush=True)
+        jobs.append(((0, i), _viking_job, (i, float(k), args, dhs, codec)))
     if not args.no_dem:
-        from hil_sim.world.sample_dem import jacksboro_dem
-
-        check_map("jacksboro", "dem", jacksboro_dem(0.03), 0.03, rover.wheel_diameter_m, None)
-        print(f"DEM ({time.perf_counter() - t0:.0f} s)", flush=True)
-    for spec in terrains:
-        try:
-            name, z, cell = _mission_like(spec, args.noise_m)
-        except (ScenarioError, ConfigError, ValueError) as exc:
-            print(f"safer-hil: error: terrain {spec!r}: {exc}", file=sys.stderr)
-            return 2
-        check_map(name, "mission-like", z, cell, rover.wheel_diameter_m, None)
-        print(f"{name} ({time.perf_counter() - t0:.0f} s)", flush=True)
+        jobs.append(((1, 0), _other_job, ("jacksboro", "dem", None, wheel, codec, args, grid_cfg.cell_m)))
+    for j, spec in enumerate(missions):
+        jobs.append(((2, j), _other_job, (f"mission {spec}", "mission", spec, wheel, codec, args, grid_cfg.cell_m)))
+    for j, path in enumerate(args.map_files):
+        jobs.append(((3, j), _other_job, (path.name, "file", path, wheel, codec, args, grid_cfg.cell_m)))
+    for j, spec in enumerate(terrains):
+        jobs.append(((4, j), _other_job, (spec, "mission-like", spec, wheel, codec, args, grid_cfg.cell_m)))
+    jobs.sort(key=lambda j: (j[0][0] != order["mission"], j[0]))  # the missions, the longest, first
+    results: dict[tuple[int, int], dict[str, Any]] = {}
+    failed = 0
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        futs = {pool.submit(fn, *a): key for key, fn, a in jobs}
+        for fut in as_completed(futs):
+            key = futs[fut]
+            try:
+                results[key] = fut.result()
+            except Exception as exc:  # noqa: BLE001 - one failed map is reported, the rest go on
+                failed += 1
+                print(f"{me} job {key}: {type(exc).__name__}: {exc}", file=sys.stderr)
+                continue
+            print(f"[{len(results) + failed}/{len(jobs)}] {results[key]['label']} "
+                  f"({time.perf_counter() - t0:.0f} s)", flush=True)
+    done = [results[k] for k in sorted(results)]
+    rows = [r for d in done for r in d["rows"]]
+    per_map = [d["map"] for d in done if d["map"] is not None]
+    figs: dict[str, Any] = {}
+    for d in done:
+        kind = d["map"]["kind"] if d["map"] is not None else ""
+        fig_key = {"viking": "viking", "mission": "mission"}.get(kind, d["map"]["map"] if d["map"] else "")
+        if d["fig"] is not None and fig_key not in figs:
+            figs[fig_key] = d["fig"]
 
     write_csv(args.out / "reduction.csv", rows)
     write_csv(args.out / "maps.csv", per_map)
@@ -250,14 +398,16 @@ def run(args: argparse.Namespace) -> int:
     if rows:
         fig12(rows, dhs, args.out / "fig12_reduction.png")
         written.append("fig12_reduction.png")
-    for key, fname in (("viking", "fig13_transmitted.png"), ("cliff", "fig13_cliff.png")):
-        if key in figs:
-            fig13(*figs[key], args.out / fname, codec.relief_disc_m)
+    fig_files = {"viking": "fig13_transmitted.png", "mission": "fig13_mission.png", "cliff": "fig13_cliff.png"}
+    for fig_name, fname in fig_files.items():
+        if fig_name in figs:
+            fz, fzd, fw, fcell, fstats, ftitle = figs[fig_name]
+            fig13(fz, fzd, fw, fcell, fstats, ftitle, args.out / fname, codec.relief_disc_m)
             written.append(fname)
     report = report_md(rows, per_map, dhs, codec, args)
     (args.out / "report.md").write_text(report)
     print(report)
     write_results("reduction", command_line("reduction"), report,
-                  [args.out / f for f in ("fig12_reduction.png", "fig13_transmitted.png", "fig13_cliff.png")])
+                  [args.out / f for f in ("fig12_reduction.png", *fig_files.values())])
     print(f"wrote {', '.join(str(args.out / f) for f in written)}")
-    return 0
+    return 1 if failed else 0
