@@ -90,7 +90,7 @@ def test_experiments_and_bench_run_small(tmp_path: Path, capsys):
     """Issue 6, items 10-11: the experiments compute their tables from real runs (small)."""
     red = tmp_path / "red"
     assert safer_hil(["experiment", "reduction", "--maps", "2", "--size", "64", "--dh", "2", "8",
-                      "--terrains", "", "--no-dem", "--out", str(red)]) == 0
+                      "--terrains", "", "--missions", "", "--no-dem", "--out", str(red)]) == 0
     rows = list(csv.DictReader((red / "reduction.csv").open()))
     assert len(rows) == 4 and all(float(r["max_error_m"]) <= float(r["bound_m"]) for r in rows)
     assert all(r["kept"] == r["obst"] for r in rows)
@@ -105,7 +105,7 @@ def test_experiments_and_bench_run_small(tmp_path: Path, capsys):
                       "--bers", "1e-5", "--out", str(link)]) == 0
     rows = list(csv.DictReader((link / "link_goodput.csv").open()))
     assert [r["bit_exact"] for r in rows] == ["2/2"] * 3
-    assert safer_hil(["bench", "codec", "--size", "64", "--repeat", "2"]) == 0
+    assert safer_hil(["bench", "codec", "--size", "64", "--repeat", "2", "--scenario", ""]) == 0
     assert "encode ms" in capsys.readouterr().out
 
 
@@ -113,13 +113,67 @@ def test_experiments_and_bench_run_small(tmp_path: Path, capsys):
 def test_reduction_experiment_on_a_mission_like_map(tmp_path: Path):
     """Issue 25: the hazard check on a scenario's map (truth on the flight grid, noise, holes)."""
     red = tmp_path / "red"
-    assert safer_hil(["experiment", "reduction", "--maps", "0", "--terrains", "lab", "--no-dem",
+    assert safer_hil(["experiment", "reduction", "--maps", "0", "--terrains", "lab", "--missions", "", "--no-dem",
                       "--out", str(red)]) == 0
     (m,) = list(csv.DictReader((red / "maps.csv").open()))
     assert m["kind"] == "mission-like" and int(m["known"]) < int(m["cells"])
     assert int(m["obst"]) > 0 and m["kept"] == m["obst"] and float(m["worst_peak_loss_m"]) <= 0
-    assert safer_hil(["experiment", "reduction", "--maps", "0", "--terrains", "nowhere", "--no-dem",
-                      "--out", str(red)]) == 2
+    assert safer_hil(["experiment", "reduction", "--maps", "0", "--terrains", "nowhere", "--missions", "",
+                      "--no-dem", "--out", str(red)]) == 2
+    assert safer_hil(["experiment", "reduction", "--maps", "0", "--terrains", "", "--missions", "nowhere",
+                      "--no-dem", "--out", str(red)]) == 2
+
+
+def _rock_checkpoint(path: Path) -> np.ndarray:
+    """A mission map checkpoint: noisy ground, one 0.3 m boulder, an unmapped corner."""
+    from fsw.core.geometry import MapGrid
+    from fsw.core.map import checkpoint
+    from fsw.core.map.elevation_map import ElevationMap
+
+    rng = np.random.default_rng(3)
+    yy, xx = np.mgrid[0:64, 0:64] * 0.03
+    z = rng.normal(0.0, 0.01, (64, 64)) + 0.3 * np.sqrt(np.clip(1 - ((yy - 1.0) ** 2 + (xx - 0.9) ** 2) / 0.15**2,
+                                                                  0, 1))
+    z[:12, 40:] = np.nan
+    emap = ElevationMap(MapGrid(-1.0, -2.0, 0.03, 64, 64))
+    emap.z = z.copy()
+    emap.n = np.isfinite(z).astype(np.int32)
+    path.write_bytes(checkpoint.encode(emap, 3, 60.0))
+    return z
+
+
+def test_reduction_experiment_reads_mission_map_files(tmp_path: Path, capsys):
+    """Issue 25: mission maps saved as checkpoints are checked, in worker processes, at the
+    receiving rover's wheel ([codec] receiver_wheel_diameter_m: the Cliff-bot's 0.12 m)."""
+    ckpt = tmp_path / "map_000003.ckpt"
+    z = _rock_checkpoint(ckpt)
+    red = tmp_path / "red"
+    assert safer_hil(["experiment", "reduction", "--maps", "0", "--terrains", "", "--missions", "", "--no-dem",
+                      "--map-files", str(ckpt), "--jobs", "2", "--out", str(red)]) == 0
+    (m,) = list(csv.DictReader((red / "maps.csv").open()))
+    assert m["kind"] == "file" and int(m["known"]) == int(np.isfinite(z).sum())
+    assert float(m["wheel_m"]) == pytest.approx(0.12) and float(m["bound_m"]) == pytest.approx(0.12)
+    assert int(m["obst"]) == 1 and m["kept"] == "1" and float(m["max_error_m"]) <= float(m["bound_m"])
+    assert float(m["worst_relief_loss_any_m"]) <= float(m["relief_loss_any_bound_m"])
+    assert float(m["step_kept"]) == 1.0
+    bad = tmp_path / "bad.ckpt"
+    bad.write_bytes(ckpt.read_bytes()[:-4])
+    capsys.readouterr()
+    assert safer_hil(["experiment", "reduction", "--maps", "0", "--terrains", "", "--missions", "", "--no-dem",
+                      "--map-files", str(bad), "--out", str(red)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "map checkpoint, unreadable" in err[0]
+
+
+def test_encode_reduces_for_the_receiving_rovers_wheel(tmp_path: Path, capsys):
+    """Issue 25: without --wheel-diameter the map is reduced for [codec] receiver_wheel_diameter_m."""
+    z = _rock_checkpoint(tmp_path / "c.ckpt")
+    npy, out = tmp_path / "m.npy", tmp_path / "m.sqm"
+    np.save(npy, z.astype(np.float32))
+    assert safer_map(["encode", str(npy), str(out), "--cell-m", "0.03"]) == 0
+    assert safer_map(["info", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "wheel_diameter_m   0.12" in text or "wheel_diameter_m 0.12" in " ".join(text.split())
 
 
 def _checkpoint_file(tmp_path: Path) -> tuple[Path, np.ndarray]:
