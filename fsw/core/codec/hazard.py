@@ -23,21 +23,21 @@ the height bound already keeps (a slope's error is at most ``2e`` over the wheel
 
 * a *relief hazard* (relief >= ``threshold``) decodes at least ``rise`` higher,
   ``[z + rise, z + e]``;
-* a *support* cell (the lowest cell of a relief disc that covers a relief hazard, or of the
-  step disc around a step, and not itself a relief hazard) decodes at most ``rise`` higher,
-  ``[z - e, z + rise]``;
-* a *step hazard* (step >= ``threshold``, no relief hazard) decodes at least ``rise``
-  higher, or at least ``rise - step_slack`` higher where it is also support (a cell on a
-  slope can be the foot of one step and the top of another).
+* a *support* cell (the lowest cell of a relief disc that covers a relief hazard, or a
+  step's foot: one lowest cell of the step disc around it; not itself a hazard) decodes at
+  most ``rise`` higher, ``[z - e, z + rise]``;
+* a *step* (step >= ``threshold``) keeps a decoded drop to its foot ``>= max(threshold, step
+  - step_slack)``; a cell that is both a foot and a top (a slope, a cliff's face) or a
+  relief hazard that is a foot gets a window one ``step_slack`` wide (``step_offsets``).
 
 The opening at a cell is the highest, over the discs covering it, of the disc's lowest cell;
 for a relief hazard that lowest cell is a support cell, so its decoded opening is at most
 ``rise`` above the original, while the hazard itself is at least ``rise`` higher: **a relief
 hazard's decoded relief is never below its original relief**, its height never lower, its
 footprint and position unchanged to the cell. Any cell's relief drops by at most ``2e``.
-A step whose foot is support ground keeps its height within ``step_slack`` (0 where the top
-is not itself support); a step whose foot is a relief hazard (a rock on a rock) within
-``e - rise + step_slack``.
+Every step keeps a drop >= the threshold and loses at most ``step_slack``, except along a
+chain of three or more relief hazards (a rock on a rock on a rock) whose steps are within
+``step_slack`` of the threshold: at most ``e - rise + step_slack``.
 """
 
 from __future__ import annotations
