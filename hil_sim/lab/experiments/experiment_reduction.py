@@ -309,6 +309,7 @@ def _other_job(name: str, kind: str, source: Any, wheel: float, codec: Any, args
 
 
 def run(args: argparse.Namespace) -> int:
+    import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     import numpy as np
@@ -370,7 +371,8 @@ def run(args: argparse.Namespace) -> int:
     jobs.sort(key=lambda j: (j[0][0] != order["mission"], j[0]))  # the missions, the longest, first
     results: dict[tuple[int, int], dict[str, Any]] = {}
     failed = 0
-    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+    # spawn, not fork: a forked child inherits OpenCV's thread pool without its threads and hangs
+    with ProcessPoolExecutor(max_workers=args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
         futs = {pool.submit(fn, *a): key for key, fn, a in jobs}
         for fut in as_completed(futs):
             key = futs[fut]
