@@ -142,6 +142,7 @@ def _rock_checkpoint(path: Path) -> np.ndarray:
     return z
 
 
+@pytest.mark.slow  # two spawned worker processes
 def test_reduction_experiment_reads_mission_map_files(tmp_path: Path, capsys):
     """Issue 25: mission maps saved as checkpoints are checked, in worker processes, at the
     receiving rover's wheel ([codec] receiver_wheel_diameter_m: the Cliff-bot's 0.12 m)."""

@@ -371,19 +371,26 @@ def run(args: argparse.Namespace) -> int:
     jobs.sort(key=lambda j: (j[0][0] != order["mission"], j[0]))  # the missions, the longest, first
     results: dict[tuple[int, int], dict[str, Any]] = {}
     failed = 0
-    # spawn, not fork: a forked child inherits OpenCV's thread pool without its threads and hangs
-    with ProcessPoolExecutor(max_workers=args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futs = {pool.submit(fn, *a): key for key, fn, a in jobs}
-        for fut in as_completed(futs):
-            key = futs[fut]
-            try:
-                results[key] = fut.result()
-            except Exception as exc:  # noqa: BLE001 - one failed map is reported, the rest go on
-                failed += 1
-                print(f"{me} job {key}: {type(exc).__name__}: {exc}", file=sys.stderr)
-                continue
-            print(f"[{len(results) + failed}/{len(jobs)}] {results[key]['label']} "
-                  f"({time.perf_counter() - t0:.0f} s)", flush=True)
+
+    def finished(key: tuple[int, int], get: Any) -> None:
+        nonlocal failed
+        try:
+            results[key] = get()
+        except Exception as exc:  # noqa: BLE001 - one failed map is reported, the rest go on
+            failed += 1
+            print(f"{me} job {key}: {type(exc).__name__}: {exc}", file=sys.stderr)
+            return
+        print(f"[{len(results) + failed}/{len(jobs)}] {results[key]['label']} "
+              f"({time.perf_counter() - t0:.0f} s)", flush=True)
+
+    if args.jobs == 1:  # in this process
+        for key, fn, a in jobs:
+            finished(key, lambda fn=fn, a=a: fn(*a))
+    else:  # spawn, not fork: a forked child inherits OpenCV's thread pool without its threads and hangs
+        with ProcessPoolExecutor(max_workers=args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+            futs = {pool.submit(fn, *a): key for key, fn, a in jobs}
+            for fut in as_completed(futs):
+                finished(futs[fut], fut.result)
     done = [results[k] for k in sorted(results)]
     rows = [r for d in done for r in d["rows"]]
     per_map = [d["map"] for d in done if d["map"] is not None]
