@@ -23,7 +23,7 @@ told where each stage starts (:data:`STAGES`), so a bench times what flies.
 from __future__ import annotations
 
 from collections.abc import Callable, Generator
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
@@ -48,6 +48,7 @@ from fsw.core.registration.station_chain import StationChain
 from fsw.core.steps import run_to_end
 from fsw.core.stereo.occlusion import LipGuard
 from fsw.core.stereo.rectify import Rectifier
+from fsw.core.stereo.rig_drift import RigAlignment
 from fsw.core.stereo.stereo import StereoConfig, StereoMatcher, StereoPoints
 from fsw.core.stereo.stereo_calibration import StereoCalibration, offset_covariance
 
@@ -116,6 +117,7 @@ class MergedView:
     placed: RegisteredPose
     merge: MergeStats
     view_cells: tuple[NDArray[np.int32], NDArray[np.float32]]  # flat cell index, mean height (m)
+    alignment: RigAlignment = field(default_factory=RigAlignment.none)  # the rig-drift correction (§4)
 
 
 @dataclass(frozen=True)
@@ -129,6 +131,7 @@ class SensedView:
     edge_cells: EdgeCells
     edge: EdgeModel
     roi_mapped_fraction: float
+    alignment: RigAlignment = field(default_factory=RigAlignment.none)  # the rig-drift correction (§4)
 
 
 def _no_stage(name: str) -> None:
@@ -183,7 +186,8 @@ class SensingPipeline:
         yield
         roi_fraction = yield from roi_mapped_fraction_steps(self.map, poly)
         yield
-        return SensedView(view.view_id, merged.placed, merged.merge, merged.view_cells, cells, poly, roi_fraction)
+        return SensedView(view.view_id, merged.placed, merged.merge, merged.view_cells, cells, poly, roi_fraction,
+                          merged.alignment)
 
     def merge_view_steps(self, view: StereoView, stage: Callable[[str], None] = _no_stage
                          ) -> Generator[None, None, MergedView]:
@@ -198,6 +202,7 @@ class SensingPipeline:
         dm = yield from self.matcher.match_steps(left, right)
         yield
         pts = yield from self.matcher.triangulate_steps(dm.disparity_px, sigma_px=dm.sigma_px)
+        alignment = dm.alignment
         del dm, left, right  # not needed past here: a smaller resident peak (issue 15)
         stage("register")
         placed = yield from self.register_steps(view, pts)
@@ -210,7 +215,8 @@ class SensingPipeline:
             yield
         parts = yield from self.world_parts_steps(placed, pts)
         del pts  # the camera-frame points: every use is above
-        return (yield from self.fuse_steps(placed, parts, p_visible))
+        merged = yield from self.fuse_steps(placed, parts, p_visible)
+        return replace(merged, alignment=alignment)
 
     def register_steps(self, view: StereoView, pts: StereoPoints) -> Generator[None, None, RegisteredPose]:
         """Align the view to the map (§5.1): the corrected pose, the covariance to merge with
