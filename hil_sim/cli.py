@@ -38,6 +38,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("experiment", "resume"): "hil_sim.lab.experiments.experiment_resume",
     ("experiment", "terrain"): "hil_sim.lab.experiments.experiment_terrain",
     ("experiment", "ground"): "hil_sim.lab.experiments.experiment_ground",
+    ("experiment", "close-edge"): "hil_sim.lab.experiments.experiment_close_edge",
     ("experiment", "camera-path"): "hil_sim.lab.experiments.experiment_camera_path",
     ("experiment", "registration"): "hil_sim.lab.experiments.experiment_registration",
     ("experiment", "fiducials"): "hil_sim.lab.experiments.experiment_fiducials",

@@ -360,6 +360,8 @@ class MissionTask(FlightTask):
             # be a quarter turn): the view from here, the mast turned to look the same way.
             # It is the rated view within a few cm and degrees: it keeps its rating (§3.5).
             pan, tilt, lift = self.view.joints
+            if self.view.note:  # the planner found no move at all: why, in the mission summary
+                self.ground.stays.append(f"step {self.step}: {self.view.note}")
             self.view = dataclasses.replace(self.view, rover=here,
                                             joints=self.ctx.cfg.mast.clamp(pan + dyaw, tilt, lift))
             self._start_point()

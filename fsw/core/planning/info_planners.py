@@ -8,6 +8,7 @@ weighs P_V by the interest function, the oracle rates with the true terrain and 
 from __future__ import annotations
 
 from collections.abc import Generator
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -87,15 +88,14 @@ class InformationPlanner(Planner):
                                        tilts, state, self))
             yield None
         factor = coarse_factor(terrain.grid.cell, cfg.coarse_cell_m)
-        best: CandidateView | None = None
+        best = _Best()
         if factor <= 1:
             for c in centres:
                 r = yield from rate_station_steps(terrain, c.cam_xyz, c.yaws, tilts, state.map.n,
                                                   n_max, interest, self.camera, cfg.visibility)
-                cand = c.best(r.info_bits.ravel(), r.expected_new_cells.ravel(), None)
-                best = cand if best is None or cand.utility > best.utility else best
+                best.offer(c, c.best(r.info_bits.ravel(), r.expected_new_cells.ravel(), None))
                 self.last_centres += 1
-            return best
+            return best.choice(stations, path)
         cs = prepare(terrain, factor, state.map.n, n_max, interest)
         vis_coarse = coarse_visibility(cfg.visibility, factor)
         yield None
@@ -107,20 +107,50 @@ class InformationPlanner(Planner):
         u_flat = np.concatenate(u_all)
         top = np.argsort(-u_flat, kind="stable")[:cfg.refine_views]
         per = pans.size * tilts.size
+        # a boxed-in rover's escape moves (view_candidates) each get their best view refined too
+        escapes = [i * per + int(np.argmax(u_all[i])) for i, c in enumerate(centres) if c.st.escape]
+        top = np.concatenate([top, np.array(escapes, dtype=top.dtype)])
         for i in sorted(set((top // per).tolist())):
             c = centres[i]
-            views = np.sort(top[top // per == i] % per)
+            views = np.unique(top[top // per == i] % per)
             r2 = yield from rate_views_steps(terrain, c.cam_xyz, c.yaws[views // tilts.size],
                                              tilts[views % tilts.size], state.map.n, n_max,
                                              interest, self.camera, cfg.visibility)
-            cand = c.best(r2.info_bits, r2.expected_new_cells, views)
-            best = cand if best is None or cand.utility > best.utility else best
+            best.offer(c, c.best(r2.info_bits, r2.expected_new_cells, views))
             self.last_centres += 1
-        return best
+        return best.choice(stations, path)
 
     def _cam(self, st: Station, lift: float, state: PlannerState) -> tuple[float, float, float]:
         cam = camera_pose_from_rover(st.rover, (0.0, 0.0, lift), self.mast, state.ground_z_m).t
         return (float(cam[0]), float(cam[1]), float(cam[2]))
+
+
+class _Best:
+    """The best candidate of a search, and the best escape move of a rover boxed in by a close edge
+    (``view_candidates``: no station along the edge path reachable). A boxed-in rover takes its
+    best escape move whatever the rating of the views from where it stands: those cannot lead on
+    along the edge, and a view from the same place again maps little (issue 30 item 1)."""
+
+    def __init__(self) -> None:
+        self.any: CandidateView | None = None
+        self.escape: CandidateView | None = None
+
+    def offer(self, c: _Centre, cand: CandidateView) -> None:
+        if self.any is None or cand.utility > self.any.utility:
+            self.any = cand
+        if c.st.escape and (self.escape is None or cand.utility > self.escape.utility):
+            self.escape = cand
+
+    def choice(self, stations: list[Station], path: F64) -> CandidateView | None:
+        if self.escape is not None:
+            return self.escape
+        if self.any is not None and len(stations) == 1 and as_polyline(path).shape[0] >= 2:
+            return replace(self.any, note=STUCK_NOTE)
+        return self.any
+
+
+STUCK_NOTE = ("no move the geofence allows: every station along the edge path, straight back or ahead, "
+              "and a turn in place to the path's heading is refused (the edge is too close)")
 
 
 class _Centre:
