@@ -34,6 +34,7 @@ import math
 
 import numpy as np
 
+from fsw.core.geometry import MapGridConfig
 from hil_sim.world.build import dilate, edge_curve, finish_world, textureless_mask, truth_grid
 from hil_sim.world.config import ScenarioConfig, ScenarioError, TerrainConfig
 from hil_sim.world.mars import place_viking_rocks
@@ -44,6 +45,7 @@ EDGE_DISTANCE_RANGE_M = (0.3, 2.0)
 SLOPE_MAX_DEG = 12.0
 FOOTPRINT_HALF_WIDTH_M = 0.36  # config/fsw.toml [rover]: track_m / 2 + the 0.12 m wheel patch / 2
 FOOTPRINT_HALF_LENGTH_M = 0.45  # config/fsw.toml [rover]: length_m / 2 (the bumper)
+MAP_START_INSET_M = 1.0  # a map grid moved with a turned edge keeps the start this far inside
 EDGE_DISTANCE_MIN_M = 0.15  # the least edge distance that may be asked for (a close edge)
 PATCH_AXES_M = (0.4, 1.2)
 
@@ -63,7 +65,7 @@ def build_terrain(cfg: ScenarioConfig, seed: int) -> World:
     if turn:  # the Cliff-bot below the edge wherever the edge is
         bx, by = _turned(np.array(cb.x_m), np.array(cb.y_m), rs.x_m, rs.y_m, turn)
         cb = dataclasses.replace(cb, x_m=float(bx), y_m=float(by))
-        cfg = dataclasses.replace(cfg, cliffbot=cb)
+        cfg = dataclasses.replace(cfg, cliffbot=cb, map=_turned_map(cfg, turn))
     grid = truth_grid(cfg)
     gx, gy = grid.mesh()
     curve = edge_curve(grid.xs, rng, 0.0, tc.edge_wiggle_m, tc.edge_wavelength_m)
@@ -128,6 +130,20 @@ def build_terrain(cfg: ScenarioConfig, seed: int) -> World:
                          rock_id=rock_id, textureless=silt, plateau=np.asarray(on_top))
     world.drawn.update(slope_deg=slope_deg, slope_azimuth_deg=azimuth, edge_distance_m=distance)
     return world
+
+
+def _turned_map(cfg: ScenarioConfig, turn: float) -> MapGridConfig:
+    """The ``[map]`` grid moved with an edge turned by ``turn`` about the start: its centre turned
+    with it, then shifted so the grid stays on the world and the start at least
+    ``MAP_START_INSET_M`` inside it (an axis-aligned grid cannot turn with a diagonal edge)."""
+    m, w, rs = cfg.map, cfg.world, cfg.rover_start
+    sx, sy = m.nx * m.cell_m, m.ny * m.cell_m
+    cx, cy = _turned(np.array(m.origin_x_m + sx / 2), np.array(m.origin_y_m + sy / 2), rs.x_m, rs.y_m, turn)
+    ox = min(max(float(cx) - sx / 2, rs.x_m + MAP_START_INSET_M - sx, w.x_min_m), rs.x_m - MAP_START_INSET_M,
+             w.x_max_m - sx)
+    oy = min(max(float(cy) - sy / 2, rs.y_m + MAP_START_INSET_M - sy, w.y_min_m), rs.y_m - MAP_START_INSET_M,
+             w.y_max_m - sy)
+    return dataclasses.replace(m, origin_x_m=round(ox, 3), origin_y_m=round(oy, 3))
 
 
 def _turned(x: np.ndarray, y: np.ndarray, x0: float, y0: float, angle: float) -> tuple[np.ndarray, np.ndarray]:
