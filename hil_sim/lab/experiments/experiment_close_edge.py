@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     md = report(rows, failed, methods)
     (args.out / "close_edge.md").write_text(md)
     print(md)
-    write_results("close_edge", command_line("close-edge"), md)
+    write_results("close-edge", command_line("close-edge"), md)
     return 1 if failed else 0
 
 
@@ -139,6 +139,9 @@ def report(rows: list[dict[str, Any]], failed: list[str], methods: list[str]) ->
     viol = sum(r["edge_violations"] for r in rows)
     unknown = sum(r["wheels_on_unknown_ground"] for r in rows)
     met = {True: "met", False: "NOT MET"}
+    if not rows:
+        return "\n".join(out + ["- no mission finished: nothing to judge"] +
+                         ["", "## Failed missions", ""] + [f"- {f}" for f in failed]) + "\n"
     out.append(f"- starts where an information method never moved while a raster method moved: **{len(frozen)}** "
                f"(target 0) {met[not frozen]}" + "".join(f"\n  - bearing {k[0]:g}, edge {k[1]:g} m, seed {k[2]}: "
                                                           f"method {m}" for k, m in frozen))
