@@ -40,12 +40,29 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=int, default=4, help="imaging steps after the panorama")
     p.add_argument("--jobs", type=int, default=2, help="missions run in parallel (processes)")
     p.add_argument("--out", type=Path, default=Path("out/close_edge"), help="output directory")
+    p.add_argument("--reuse", action="store_true",
+                   help="take a mission whose run directory under --out already holds its summary.json "
+                        "(an interrupted run goes on) instead of running it again")
 
 
 def start_spec(family: str, bearing_deg: float, distance_m: float) -> str:
     """The scenario spec of one start: the family with the edge's bearing and distance set."""
     sep = "&" if "?" in family else "?"
     return f"{family}{sep}edge_bearing_deg={bearing_deg:g}&edge_distance_m={distance_m:g}"
+
+
+def _reused(out: Path, spec: str, seed: int) -> dict[str, Any] | None:
+    """The summary of a mission run before into ``out`` (None: none, or not readable)."""
+    from hil_sim.world import load_scenario
+
+    try:
+        s = json.loads((out / "summary.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(s, dict) or "steps" not in s:
+        return None
+    s["drawn"] = dict(load_scenario(spec, seed).drawn)
+    return s
 
 
 def _floats(text: str) -> list[float]:
@@ -86,9 +103,14 @@ def run(args: argparse.Namespace) -> int:
         tqdm(total=len(starts) * len(methods), desc="close-edge", unit="mission") as bar,
     ):
         futs = {}
-        for i, (spec, b, d, seed) in enumerate(starts):
+        for spec, b, d, seed in starts:
             for m in methods:
-                out = args.out / "runs" / f"{i:03d}_m{m}_seed{seed}"
+                out = args.out / "runs" / f"b{b:g}_d{d:g}_seed{seed}_m{m}"
+                done = _reused(out, spec, seed) if args.reuse else None
+                if done is not None:
+                    rows.append({**row_of(done, spec, seed, args.steps), "bearing_deg": b, "distance_m": d})
+                    bar.update()
+                    continue
                 futs[pool.submit(_one, spec, m, args.steps, seed, str(out), "config")] = (spec, b, d, seed, m)
         for fut in as_completed(futs):
             spec, b, d, seed, m = futs[fut]
@@ -116,8 +138,7 @@ def report(rows: list[dict[str, Any]], failed: list[str], methods: list[str]) ->
     for (b, d, seed), per in sorted(by_start.items()):
         line: dict[str, Any] = {"bearing deg": b, "edge m": d, "seed": seed}
         for m in methods:
-            r = per.get(m)
-            line[f"M{m} moved m"] = None if r is None else round(float(r["odometer_m"]), 2)
+            line[f"M{m} moved m"] = round(float(per[m]["odometer_m"]), 2) if m in per else None
         reasons = [f"M{m}: {per[m]['stay_reasons'][0]}" for m in methods
                    if m in per and not per[m]["moved"] and per[m]["stay_reasons"]]
         line["why a method stayed"] = "; ".join(reasons)
