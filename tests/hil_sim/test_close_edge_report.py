@@ -31,7 +31,8 @@ def test_a_start_left_by_the_raster_but_not_by_method_5_is_not_met() -> None:
 
 def test_start_spec_adds_the_bearing_and_distance_to_the_family() -> None:
     assert start_spec("terrain", 0.0, 0.3) == "terrain?edge_bearing_deg=0&edge_distance_m=0.3"
-    assert start_spec("terrain?slope_deg=4", -45.0, 0.2).endswith("slope_deg=4&edge_bearing_deg=-45&edge_distance_m=0.2")
+    spec = start_spec("terrain?slope_deg=4", -45.0, 0.2)
+    assert spec == "terrain?slope_deg=4&edge_bearing_deg=-45&edge_distance_m=0.2"
 
 
 @pytest.mark.parametrize("args", [["--distances", "0.1"], ["--methods", "7"], ["--bearings", "x"]])
