@@ -31,7 +31,8 @@ from fsw.core.team.cliffbot_nav import NavConfig
 from fsw.core.team.face_planner import ClimberConfig, plan_targets
 from fsw.core.team.tether import TetherConfig
 from fsw.drivers.cliffbot_devices import CliffbotDevices
-from fsw.tasks.cliffbot_mission import CliffbotMission, CliffbotMissionConfig
+from fsw.sections import CliffbotMissionConfig
+from fsw.tasks.cliffbot_mission import CliffbotMission
 from hil_sim.faults import FaultInjector, FaultSpec
 from hil_sim.radio_channel import RadioChannel
 from hil_sim.team.cliffbot_rig import CliffbotRig
