@@ -228,7 +228,7 @@ def run_mission(
     from hil_sim.radio_channel import ChannelPort, RadioChannel, RadioChannelConfig
     from hil_sim.resume_state import BenchStateError, bench_state, restore_bench
     from hil_sim.rig import load_hardware
-    from hil_sim.team.team_run import team_phase
+    from hil_sim.team.team_bench import CliffbotAgent, FixDivert
     from hil_sim.world import load_scenario
 
     t_wall = time.perf_counter()
@@ -244,7 +244,8 @@ def run_mission(
     def now() -> float:
         return clock_box[0]() if clock_box else 0.0
 
-    port_flight = ChannelPort(channel, "a", now)
+    # a team scenario: the RECON-bot's radio end hands the Cliff-bot's fix requests to the bench
+    port_flight = FixDivert(channel, "a", now) if world.team is not None else ChannelPort(channel, "a", now)
     resources = Resources(radio_port=port_flight, oracle_truth=oracle)
     store, start, saved_bench = _prepare_store(spec, cfg, mode)
     counters: dict[str, Any] = {"violations": 0}
@@ -286,6 +287,10 @@ def run_mission(
         # the flight map's height origin: the true body height at the start (hil_sim.lab.terrain_eval);
         # kept in the counters so a resumed run keeps the start's, not the resume point's
         datum_m = float(counters.setdefault("datum_m", float(bench.rig.rover.z)))
+        team = None
+        if world.team is not None and isinstance(port_flight, FixDivert):  # the Cliff-bot's executive, from now
+            team = CliffbotAgent(bench, world, channel, port_flight, spec.seed, datum_m, spec.out, spec.faults,
+                                 recon_done=lambda: mission.state in ("DONE", "SAFE"))
         watchdog = bench.exe.ctx.res.watchdog
         for key in ("off_map", "recoveries", "recoveries_resumed", "watchdog_frames"):
             counters.setdefault(key, 0)
@@ -306,7 +311,8 @@ def run_mission(
                 counters["unknown_frames"] += wheels_on_unknown(bench.rig, mission, odo)
                 if mission.state == "TRANSMIT" and 1 not in cliffbot.originals:
                     cliffbot.originals[1] = perception.map.z.astype(np.float32)
-                cliffbot.step(bench.clock.now())
+                if team is None:  # (a team's Cliff-bot receives the map in its own flight code)
+                    cliffbot.step(bench.clock.now())
                 counters["violations"] += _wheels_over_drop(bench.rig, world, cfg)
                 counters["off_map"] += _wheel_off_map(bench.rig, world)
                 if was_safe and mission.state != "SAFE":
@@ -331,6 +337,10 @@ def run_mission(
                 if mission.state == "DONE" or (mission.state == "SAFE" and (
                         cfg.mission.safe_recover_s <= 0 or mission.safe.final)):
                     break
+            if team is not None:  # the Cliff-bot's mission goes on after the RECON-bot's
+                team_end = bench.clock.now() + TEAM_MAX_S
+                while not team.finished() and bench.clock.now() < team_end:
+                    bench.run(1)
         finally:
             bench.exe.thaw_heap()
             if tap is not None and recorder is not None:
@@ -400,7 +410,9 @@ def run_mission(
             "map_quality": quality,
             "files": {},
         }
-        summary.update(team_phase(spec.out, spec.seed, world, grid, cliffbot, channel, bench, datum_m))
+        if team is not None:
+            summary["team"] = team.section(spec.out, 0.0)
+            team.close()
         summary = json.loads(json.dumps(summary))  # exactly what summary.json holds
         if spec.out is not None:
             extra = {"recording": recorder.path.name} if recorder is not None and not recording_error else {}
@@ -411,6 +423,7 @@ def run_mission(
 
 
 RECORDING_MIN_FREE = 512 * 2**20
+TEAM_MAX_S = 1800.0  # the Cliff-bot's mission may go on this long after the RECON-bot's (bench s)
 
 
 def _recorder(out: Path | None, exe: Any) -> tuple[Any, Any]:

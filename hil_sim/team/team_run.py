@@ -200,8 +200,27 @@ def run_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], chan
                 break
         if mission.state == "DONE":
             break
+    section = team_section(world, grid, received_z, rig, mission, fixer.errors,
+                           link_bytes_down=channel.stats(RECON).air_bytes - sent0[RECON],
+                           link_bytes_up=channel.stats(CLIFF).air_bytes - sent0[CLIFF],
+                           link_bad_packets=bad_packets, can_bad_frames=dev.bad_frames, sim_s=now - t0,
+                           est_path=est_path, out=out, setup=s)
+    return section
+
+
+def team_section(world: World, grid: MapGrid, received_z: NDArray[np.floating], rig: CliffbotRig,
+                 mission: CliffbotMission, errors: list[tuple[float, float, float, float]], *,
+                 link_bytes_down: int, link_bytes_up: int, link_bad_packets: int, can_bad_frames: int,
+                 sim_s: float, est_path: list[tuple[float, float]], out: Path | None = None,
+                 setup: TeamSetup | None = None) -> dict[str, Any]:
+    """The summary's ``team`` section of a Cliff-bot mission (sequential or on its own executive):
+    what it did, judged on the truth; ``team.png`` drawn in ``out``."""
+    s = setup or TeamSetup()
+    assert world.team is not None
+    team = world.team
+    # the judging on the truth (the seam for hil_sim.team.team_eval)
     truth_reasons = truth_reachable(world, grid, s, rig.anchors)
-    errs = fixer.errors
+    errs = errors
     section: dict[str, Any] = {
         "targets": len(team.targets_xyz),
         "targets_reached": int(sum(mission.reached)),
@@ -221,40 +240,20 @@ def run_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], chan
         "fix_nees_within_chi2_95": (sum(e[3] <= CHI2_95_6DOF for e in errs) / len(errs)) if errs else None,
         "fixes_used": mission.fixes_used,
         "fixes_refused": mission.fixes_refused,
-        "link_bytes_down": channel.stats(RECON).air_bytes - sent0[RECON],
-        "link_bytes_up": channel.stats(CLIFF).air_bytes - sent0[CLIFF],
-        "link_bad_packets": bad_packets,
-        "can_bad_frames": dev.bad_frames,
+        "link_bytes_down": link_bytes_down,
+        "link_bytes_up": link_bytes_up,
+        "link_bad_packets": link_bad_packets,
+        "can_bad_frames": can_bad_frames,
         "final_state": mission.state,
         "safe_reason": mission.safe_reason,
         "events": [list(e) for e in mission.events],
         "path_m": round(float(np.sum(np.linalg.norm(np.diff(np.asarray(rig.path), axis=0), axis=1)))
                         if len(rig.path) > 1 else 0.0, 3),
-        "sim_s": round(now - t0, 3),
+        "sim_s": round(sim_s, 3),
     }
     if out is not None:
         section["picture"] = str(draw_team(out / "team.png", world, grid, received_z, rig, mission, est_path))
     return section
-
-
-def team_phase(out: Path | None, seed: int, world: World, grid: MapGrid, cliffbot: Any, channel: RadioChannel,
-               bench: Any, datum_m: float) -> dict[str, Any]:
-    """``{"team": section}`` for a team scenario, else ``{}``: the Cliff-bot's mission after the
-    RECON-bot's (``hil_sim.mission_run``), on the last map it received (heights back in the
-    world's datum: the flight map's origin is the RECON-bot's start height, which the team
-    shares), with fixes from the RECON-bot where it stopped."""
-    if world.team is None:
-        return {}
-    if cliffbot.maps:
-        z = np.asarray(cliffbot.maps[max(cliffbot.maps)], np.float64) + datum_m
-    else:
-        z = np.full(grid.shape, np.nan)
-    r = bench.rig.rover
-    section = run_team(world, grid, z, channel, seed, recon_xy_yaw=(r.x, r.y, r.yaw), out=out, t0=bench.clock.now())
-    section["map_received"] = bool(cliffbot.maps)
-    if section.get("picture") and out is not None:
-        section["picture"] = Path(section["picture"]).name
-    return {"team": section}
 
 
 def _unknown_entered(path: list[tuple[float, float]], z: NDArray[np.floating], grid: MapGrid) -> int:

@@ -37,8 +37,9 @@ A, I, W = Severity.ACTIVITY_HI, Severity.ACTIVITY_LO, Severity.WARNING_HI
 MISSION_EVENTS = {
     "MAP": I, "PLAN": A, "FIX_REQUEST": I, "FIX": I, "FIX_REFUSED": W, "FIX_UNAVAILABLE": Severity.WARNING_LO,
     "TARGET_UNREACHABLE": Severity.WARNING_LO, "TARGET_REACHED": A, "HOME": A, "DONE": A, "WINCH_FAULT": W,
-    "LINK_LOST": W, "SAFE": W, "RECOVER": A, "COMMAND_REFUSED": Severity.WARNING_LO,
+    "LINK_LOST": W, "SAFE": W, "RECOVER": A, "TARGETS_REFUSED": Severity.WARNING_LO,
 }
+RENAMED = {"COMMAND_REFUSED": "TARGETS_REFUSED"}  # the framework's own COMMAND_REFUSED is another event
 
 
 class CliffbotMissionTask(FlightTask):
@@ -138,7 +139,8 @@ class CliffbotMissionTask(FlightTask):
     def _events(self) -> None:
         evs = self.mission.events
         for _, name, text in evs[self._emitted:]:
-            self.event(name if name in MISSION_EVENTS else "COMMAND_REFUSED", text=text)
+            name = RENAMED.get(name, name)
+            self.event(name if name in MISSION_EVENTS else "TARGETS_REFUSED", text=text)
         self._emitted = len(evs)
 
     def _telemetry(self) -> None:
