@@ -228,7 +228,7 @@ def run_mission(
     from hil_sim.radio_channel import ChannelPort, RadioChannel, RadioChannelConfig
     from hil_sim.resume_state import BenchStateError, bench_state, restore_bench
     from hil_sim.rig import load_hardware
-    from hil_sim.team.team_bench import CliffbotAgent, FixDivert
+    from hil_sim.team.team_bench import CliffbotAgent, FixWatch
     from hil_sim.world import load_scenario
 
     t_wall = time.perf_counter()
@@ -244,8 +244,8 @@ def run_mission(
     def now() -> float:
         return clock_box[0]() if clock_box else 0.0
 
-    # a team scenario: the RECON-bot's radio end hands the Cliff-bot's fix requests to the bench
-    port_flight = FixDivert(channel, "a", now) if world.team is not None else ChannelPort(channel, "a", now)
+    # a team scenario: the bench notes the fixes the RECON-bot sends (to judge them on the truth)
+    port_flight = FixWatch(channel, "a", now) if world.team is not None else ChannelPort(channel, "a", now)
     resources = Resources(radio_port=port_flight, oracle_truth=oracle)
     store, start, saved_bench = _prepare_store(spec, cfg, mode)
     counters: dict[str, Any] = {"violations": 0}
@@ -288,7 +288,7 @@ def run_mission(
         # kept in the counters so a resumed run keeps the start's, not the resume point's
         datum_m = float(counters.setdefault("datum_m", float(bench.rig.rover.z)))
         team = None
-        if world.team is not None and isinstance(port_flight, FixDivert):  # the Cliff-bot's executive, from now
+        if world.team is not None and isinstance(port_flight, FixWatch):  # the Cliff-bot's executive, from now
             team = CliffbotAgent(bench, world, channel, port_flight, spec.seed, datum_m, spec.out, spec.faults,
                                  recon_done=lambda: mission.state in ("DONE", "SAFE"))
         watchdog = bench.exe.ctx.res.watchdog

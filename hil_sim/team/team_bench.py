@@ -11,11 +11,10 @@ as a ground crew would before the mission.
 Before each of its frames the rig takes the commands the flight side sent, moves the winches,
 settles the Cliff-bot on the TRUE ground, judges it and puts the statuses on the bus.
 
-The RECON-bot's side of a fix (until its flight code answers them, docs/team.md "Limits"):
-:class:`FixDivert` is the RECON-bot's radio end; it hands the fix requests to the bench's
-:class:`~hil_sim.team.team_run.ReconFixer` (mast aimed at the Cliff-bot's TRUE pose, the
-stereo pair rendered, the flight ``CliffbotLocalizer`` run) and sends its answer ahead of the
-map link's bytes; the RECON-bot answers ``busy`` (NO_FIX) until its own mission has ended.
+The RECON-bot answers the fix requests in its flight code (``fsw.tasks.cliffbot_fixer``); the
+bench renders the Cliff-bot at its TRUE pose in the RECON-bot's camera pairs, and
+:class:`FixWatch` (the RECON-bot's radio end) notes every FIX it sends so the run judges it
+against the truth at that instant (position and heading error, NEES against its covariance).
 """
 
 from __future__ import annotations
@@ -24,11 +23,13 @@ import dataclasses
 import math
 import shutil
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import can
 import numpy as np
+from numpy.typing import NDArray
 
 from fsw.comm.link_packets import PacketError
 from fsw.comm.team import fix_packets
@@ -41,44 +42,82 @@ from fsw.tasks.cliffbot.mission import CliffbotMissionTask
 from hil_sim.faults import FaultInjector, FaultSpec
 from hil_sim.radio_channel import ChannelPort, RadioChannel
 from hil_sim.team.cliffbot_rig import CliffbotRig
-from hil_sim.team.team_run import ReconFixer, TeamSetup, TruthFixer, team_section
+from hil_sim.team.team_run import TeamSetup, team_section
 from hil_sim.world.world import World
 
 CLIFFBOT_CONFIG = DEFAULT_CONFIG.parent / "cliffbot.toml"
-BUSY = 2  # fix_packets.NO_FIX_REASONS index
+F64 = NDArray[np.float64]
 
 
-class FixDivert(ChannelPort):
-    """The RECON-bot's radio end: fix requests go to the bench's fixer, the rest to the flight code."""
+@dataclass(frozen=True)
+class TeamFrame:
+    """The team's frame is the RECON-bot's map frame: its odometry, which starts at its start pose
+    (``world.rover_start``) with heights from its start body height (``datum_m``). The Cliff-bot's
+    site is surveyed in it; the bench converts to judge on the truth (world frame)."""
+
+    x0: float
+    y0: float
+    yaw0: float
+    datum_m: float
+
+    def _r(self, yaw: float) -> F64:
+        c, s_ = math.cos(yaw), math.sin(yaw)
+        return np.array([[c, -s_], [s_, c]])
+
+    def to_map(self, xy: F64) -> F64:
+        """World points (N, 2) to the team's frame."""
+        p = np.asarray(xy, float).reshape(-1, 2) - np.array([self.x0, self.y0])
+        return p @ self._r(-self.yaw0).T
+
+    def to_world(self, xy: F64) -> F64:
+        """Team-frame points (N, 2) to the world."""
+        return np.asarray(xy, float).reshape(-1, 2) @ self._r(self.yaw0).T + np.array([self.x0, self.y0])
+
+
+def truth_map(world: World, grid: MapGrid, frame: TeamFrame) -> F64:
+    """The TRUE ground as a map in the team's frame on ``grid`` (a perfect RECON-bot's map)."""
+    if frame.yaw0 == 0.0:
+        shifted = MapGrid(grid.x0 + frame.x0, grid.y0 + frame.y0, grid.cell, grid.nx, grid.ny)
+        return np.asarray(world.ground_on_grid(shifted), float) - frame.datum_m
+    x, y = grid.centers()
+    w = frame.to_world(np.stack([x.ravel(), y.ravel()], axis=1))
+    return np.asarray(world.ground_at(w[:, 0], w[:, 1]), float).reshape(grid.shape) - frame.datum_m
+
+
+class FixWatch(ChannelPort):
+    """The RECON-bot's radio end: notes the FIX packets it sends (for the judging), nothing else."""
 
     def __init__(self, channel: RadioChannel, side: str, clock: Callable[[], float]) -> None:
         super().__init__(channel, side, clock)
-        self.requests: list[fix_packets.FixRequest] = []
+        self.sent: list[fix_packets.Fix] = []
 
-    def _recv_internal(self, timeout_s: float, max_bytes: int) -> bytes | None:
-        while True:
-            d = super()._recv_internal(timeout_s, max_bytes)
-            if d is None or not fix_packets.is_fix_packet(d):
-                return d
+    def _send_internal(self, datagram: bytes) -> None:
+        if fix_packets.is_fix_packet(datagram):
             try:
-                p = fix_packets.decode(d)
+                p = fix_packets.decode(datagram)
             except PacketError:
-                continue  # a damaged request is not answered: the Cliff-bot times out and asks again
-            if isinstance(p, fix_packets.FixRequest):
-                self.requests.append(p)
+                p = None
+            if isinstance(p, fix_packets.Fix):
+                self.sent.append(p)
+        super()._send_internal(datagram)
 
 
-def cliffbot_config(path: str | Path, world: World, rig: CliffbotRig, datum_m: float, out: Path | None) -> FswConfig:
-    """The Cliff-bot's flight file with the scenario's site, map grid and the run's files."""
+def cliffbot_config(path: str | Path, world: World, rig: CliffbotRig, frame: TeamFrame,
+                    out: Path | None) -> FswConfig:
+    """The Cliff-bot's flight file with the scenario's site (in the team's frame), the map grid and
+    the run's files."""
     cfg = load_settings(path)
     if cfg.agent.kind != "cliffbot":
         raise ValueError(f"{path}: agent kind {cfg.agent.kind!r}, a team mission needs a 'cliffbot' file")
     assert world.team is not None
     a = rig.anchors
+    axy = frame.to_map(a[:, :2])
+    yaw = math.degrees(math.atan2(math.sin(rig.yaw - frame.yaw0), math.cos(rig.yaw - frame.yaw0)))
     site = CliffbotSiteConfig(
-        anchor_a_xyz=tuple(float(v) for v in a[0][:3]), anchor_b_xyz=tuple(float(v) for v in a[1][:3]),
-        start_xy=tuple(float(v) for v in world.team.cliffbot_start_xy), start_yaw_deg=math.degrees(rig.yaw),
-        targets_xy=tuple(float(v) for v in world.team.targets_xyz[:, :2].ravel()), map_datum_m=datum_m)
+        anchor_a_xyz=(float(axy[0, 0]), float(axy[0, 1]), float(a[0, 2]) - frame.datum_m),
+        anchor_b_xyz=(float(axy[1, 0]), float(axy[1, 1]), float(a[1, 2]) - frame.datum_m),
+        start_xy=tuple(float(v) for v in frame.to_map(world.team.cliffbot_start_xy)[0]), start_yaw_deg=yaw,
+        targets_xy=tuple(float(v) for v in frame.to_map(world.team.targets_xyz[:, :2]).ravel()), map_datum_m=0.0)
     ckpt = ""
     if out is not None:
         shutil.rmtree(out / "cliffbot_checkpoints", ignore_errors=True)  # a bench run never resumes another's
@@ -93,22 +132,24 @@ def cliffbot_config(path: str | Path, world: World, rig: CliffbotRig, datum_m: f
 class CliffbotAgent:
     """The Cliff-bot's executive and rig on a lockstep bench (module docstring)."""
 
-    def __init__(self, bench: Any, world: World, channel: RadioChannel, divert: FixDivert, seed: int,
+    def __init__(self, bench: Any, world: World, channel: RadioChannel, watch: FixWatch, seed: int,
                  datum_m: float, out: Path | None = None, faults: tuple[FaultSpec, ...] = (),
-                 config: str | Path = CLIFFBOT_CONFIG, recon_done: Callable[[], bool] = lambda: True,
-                 fixer: ReconFixer | TruthFixer | None = None) -> None:
+                 config: str | Path = CLIFFBOT_CONFIG, recon_done: Callable[[], bool] = lambda: True) -> None:
         base = load_settings(config)
-        self.world, self.bench, self.channel, self.divert, self.seed = world, bench, channel, divert, seed
+        self.world, self.bench, self.channel, self.watch, self.seed = world, bench, channel, watch, seed
+        x0, y0, yaw0 = (float(v) for v in world.rover_start)
+        self.frame = TeamFrame(x0, y0, yaw0, datum_m)
         self.grid = MapGrid.from_config(world.map_grid)
         self.rig = CliffbotRig(world, self.grid, base.tether, base.climber, faults=FaultInjector(seed, faults),
                                seed=seed)
-        self.cfg = cliffbot_config(config, world, self.rig, datum_m, out)
+        self.cfg = cliffbot_config(config, world, self.rig, self.frame, out)
         name = f"{bench.channel}-team"
         self.sim_bus = InprocBus(channel=name, receive_own_messages=False)
         self.flight_bus = InprocBus(channel=name, receive_own_messages=False)
         res = Resources(radio_port=ChannelPort(channel, "b", bench.clock.now), team_can=self.flight_bus)
         self.recon_done = recon_done
-        self.fixer = fixer
+        self.errors: list[tuple[float, float, float, float]] = []  # range, cm, deg, NEES of each FIX sent
+        self._rendered_at = -1
         self.sent0 = {side: channel.stats(side).air_bytes for side in ("a", "b")}
         self.exe = bench.add_agent(self.cfg, res, before_frame=self.before_frame)
         task = self.exe.tasks["mission"]
@@ -132,21 +173,43 @@ class CliffbotAgent:
         self._t_last = now
         for fid, data in self.rig.poll(now):
             self.sim_bus.send(can.Message(arbitration_id=fid, data=data, is_extended_id=False))
-        self._answer_fixes(now)
+        self._judge_fixes()
+        self._render_truth()
         s = self.mission.nav.s
         self.est_path.append((float(s[0]), float(s[1])))
 
-    def _answer_fixes(self, now: float) -> None:
-        for req in self.divert.requests:
-            if not self.recon_done():
-                pkt = fix_packets.encode(fix_packets.NoFix(req.seq, BUSY))
-            else:
-                if self.fixer is None:
-                    r = self.bench.rig.rover
-                    self.fixer = ReconFixer(self.world, (r.x, r.y, r.yaw), self.seed)
-                pkt = self.fixer.answer(req, self.rig, now)
-            self.divert.send(pkt, now)
-        self.divert.requests.clear()
+    def _judge_fixes(self) -> None:
+        """Each FIX the RECON-bot sent, against the Cliff-bot's true pose now (flight heights are
+        in the RECON-bot's datum)."""
+        from fsw.core.localization.localization import so3_log
+
+        if not self.watch.sent:
+            return
+        cb = self.rig.cliffbot_truth()
+        cam = self.bench.rig.camera_pose().t
+        fr = self.frame
+        rz = np.eye(3)
+        rz[:2, :2] = fr._r(fr.yaw0)
+        for f in self.watch.sent:
+            p = np.asarray(f.position, float)
+            t = np.array([*fr.to_world(p[:2])[0], p[2] + fr.datum_m])
+            r = rz @ fix_packets.rotation(f.rotvec)
+            e = np.concatenate([so3_log(r @ cb.R.T), t - cb.t])
+            try:
+                nees = float(e @ np.linalg.solve(f.cov, e))
+            except np.linalg.LinAlgError:
+                nees = math.inf
+            yaw = f.yaw + fr.yaw0
+            dyaw = math.degrees(math.atan2(math.sin(yaw - cb.yaw), math.cos(yaw - cb.yaw)))
+            self.errors.append((float(np.linalg.norm(cb.t - cam)), 100 * float(np.linalg.norm(t - cb.t)),
+                                abs(dyaw), nees))
+        self.watch.sent.clear()
+
+    def _render_truth(self) -> None:
+        """The RECON-bot's camera sees the Cliff-bot where it truly is."""
+        if len(self.rig.path) != self._rendered_at:
+            self._rendered_at = len(self.rig.path)
+            self.bench.rig.renderer().world = self.rig.world_now()
 
     def finished(self) -> bool:
         """The Cliff-bot's mission has ended (DONE, or SAFE with no recovery of its own), or it
@@ -160,7 +223,7 @@ class CliffbotAgent:
         """The summary's ``team`` section."""
         m = self.mission
         z = m.z if m.z is not None else np.full(self.grid.shape, np.nan)
-        errors = self.fixer.errors if self.fixer is not None else []
+        errors = self.errors
         radio = self.exe.tasks.get("cb_radio")
         drv = self.exe.tasks.get("cb_drv")
         sec = team_section(
@@ -170,7 +233,7 @@ class CliffbotAgent:
             link_bad_packets=int(getattr(radio, "counts", {}).get("bad_packets", 0)),
             can_bad_frames=int(getattr(getattr(drv, "dev", None), "bad_frames", 0)),
             sim_s=self.bench.clock.now() - t0, est_path=self.est_path, out=out,
-            setup=TeamSetup(tether=self.cfg.tether, climber=self.cfg.climber))
+            setup=TeamSetup(tether=self.cfg.tether, climber=self.cfg.climber), to_map=self.frame.to_map)
         sec["map_received"] = m.z is not None
         sec["agent"] = {"name": self.cfg.agent.name, "kind": self.cfg.agent.kind,
                         "mavlink_system_id": self.cfg.mavlink.system_id, "frames": self.exe.frame}

@@ -19,6 +19,7 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -40,6 +41,7 @@ from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]
 CHI2_95_6DOF = 12.5916
+ToMap = Callable[[F64], F64]  # world points (N, 2) -> the received map's frame
 RECON, CLIFF = "a", "b"  # the radio channel's sides, as in hil_sim.mission_run
 
 
@@ -212,9 +214,12 @@ def team_section(world: World, grid: MapGrid, received_z: NDArray[np.floating], 
                  mission: CliffbotMission, errors: list[tuple[float, float, float, float]], *,
                  link_bytes_down: int, link_bytes_up: int, link_bad_packets: int, can_bad_frames: int,
                  sim_s: float, est_path: list[tuple[float, float]], out: Path | None = None,
-                 setup: TeamSetup | None = None) -> dict[str, Any]:
+                 setup: TeamSetup | None = None, to_map: ToMap | None = None) -> dict[str, Any]:
     """The summary's ``team`` section of a Cliff-bot mission (sequential or on its own executive):
-    what it did, judged on the truth; ``team.png`` drawn in ``out``."""
+    what it did, judged on the truth; ``team.png`` drawn in ``out``. ``to_map``: world points
+    (N, 2) to the received map's frame (the RECON-bot's; None: the same frame); ``est_path`` is
+    in the map's frame."""
+    to_map = to_map or _same
     s = setup or TeamSetup()
     assert world.team is not None
     team = world.team
@@ -232,7 +237,7 @@ def team_section(world: World, grid: MapGrid, received_z: NDArray[np.floating], 
         "tether_violations": int(sum(rig.violations.values())),
         "violations": dict(rig.violations),
         "hazard_cells_entered": len(rig.hazard_cells),
-        "unknown_cells_entered": _unknown_entered(rig.path, received_z, grid),
+        "unknown_cells_entered": _unknown_entered(rig.path, received_z, grid, to_map),
         "fix_errors_cm": [round(e[1], 3) for e in errs],
         "fix_errors_deg": [round(e[2], 3) for e in errs],
         "fix_ranges_m": [round(e[0], 2) if math.isfinite(e[0]) else None for e in errs],
@@ -252,16 +257,22 @@ def team_section(world: World, grid: MapGrid, received_z: NDArray[np.floating], 
         "sim_s": round(sim_s, 3),
     }
     if out is not None:
-        section["picture"] = str(draw_team(out / "team.png", world, grid, received_z, rig, mission, est_path))
+        section["picture"] = str(draw_team(out / "team.png", world, grid, received_z, rig, mission, est_path,
+                                           to_map))
     return section
 
 
-def _unknown_entered(path: list[tuple[float, float]], z: NDArray[np.floating], grid: MapGrid) -> int:
+def _same(xy: F64) -> F64:
+    return np.asarray(xy, float).reshape(-1, 2)
+
+
+def _unknown_entered(path: list[tuple[float, float]], z: NDArray[np.floating], grid: MapGrid,
+                     to_map: ToMap = _same) -> int:
     """Distinct map cells the Cliff-bot's true path moved onto that its map does not know
     (the start, where it stands before any move, is not counted)."""
     if len(path) < 2:
         return 0
-    p = np.asarray(path[1:])
+    p = to_map(np.asarray(path[1:], float))
     iy, ix, inside = grid.cell_index(p[:, 0], p[:, 1])
     cells = {(int(a), int(b)) for a, b, ok in zip(iy, ix, inside, strict=True)
              if not ok or not math.isfinite(float(np.asarray(z)[a, b]))}
@@ -269,8 +280,9 @@ def _unknown_entered(path: list[tuple[float, float]], z: NDArray[np.floating], g
 
 
 def draw_team(path: Path, world: World, grid: MapGrid, z: NDArray[np.floating], rig: CliffbotRig,
-              mission: CliffbotMission, est_path: list[tuple[float, float]]) -> Path:
-    """The face map with the anchors, tethers, jumble, targets and the Cliff-bot's path."""
+              mission: CliffbotMission, est_path: list[tuple[float, float]], to_map: ToMap = _same) -> Path:
+    """The face map with the anchors, tethers, jumble, targets and the Cliff-bot's path, in the
+    received map's frame (``to_map``: world points to it)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -283,25 +295,28 @@ def draw_team(path: Path, world: World, grid: MapGrid, z: NDArray[np.floating], 
     im = ax.imshow(np.ma.masked_invalid(np.asarray(z, float)), origin="lower", extent=ext, cmap="gray")
     fig.colorbar(im, ax=ax, shrink=0.7, label="received map height (m)")
     jx, jy, jax, jay = world.team.jumble_xy_r
+    jx, jy = (float(v) for v in to_map(np.array([jx, jy]))[0])
     ax.add_patch(Ellipse((jx, jy), 2 * jax, 2 * jay, fill=False, color="orange", lw=1.5, label="rock jumble"))
-    a = rig.anchors
+    a = to_map(rig.anchors[:, :2])
     ax.plot(a[:, 0], a[:, 1], "bs", ms=8, label="Anchorbots")
     for k, p in enumerate(rig.state.paths):
-        pts = np.vstack([a[k, :2], p.contacts[:, :2] if len(p.contacts) else np.zeros((0, 2)), rig.xy])
+        pts = to_map(np.vstack([rig.anchors[k, :2], p.contacts[:, :2] if len(p.contacts) else np.zeros((0, 2)),
+                                rig.xy]))
         ax.plot(pts[:, 0], pts[:, 1], "b-", lw=1, label="tethers (final)" if k == 0 else None)
-    tp = np.asarray(rig.path)
+    tp = to_map(np.asarray(rig.path, float))
     ax.plot(tp[:, 0], tp[:, 1], "r-", lw=1.5, label="Cliff-bot path (truth)")
     if est_path:
         ep = np.asarray(est_path)
         ax.plot(ep[:, 0], ep[:, 1], "c--", lw=0.8, label="estimate")
-    for k, t in enumerate(world.team.targets_xyz):
+    targets = to_map(world.team.targets_xyz[:, :2])
+    for k, t in enumerate(targets):
         ok = mission.reached[k] if k < len(mission.reached) else False
         ax.plot(t[0], t[1], "g*" if ok else "mx", ms=12)
         ax.annotate(f"{k + 1}" + ("" if ok else f": {mission.reasons[k] or 'not reached'}"), (t[0], t[1]),
                     color="black", fontsize=8, xytext=(4, 4), textcoords="offset points",
                     bbox={"boxstyle": "round", "fc": "white", "alpha": 0.7})
     # the team's part of the map: anchors, targets, jumble and path with a margin
-    pts = np.vstack([a[:, :2], world.team.targets_xyz[:, :2], tp, [[jx - jax, jy - jay], [jx + jax, jy + jay]]])
+    pts = np.vstack([a, targets, tp, [[jx - jax, jy - jay], [jx + jax, jy + jay]]])
     lo, hi = pts.min(axis=0) - 0.8, pts.max(axis=0) + 0.8
     ax.set_xlim(max(lo[0], ext[0]), min(hi[0], ext[1]))
     ax.set_ylim(max(lo[1], ext[2]), min(hi[1], ext[3]))

@@ -120,7 +120,8 @@ class CliffbotMissionTask(FlightTask):
             cmd = m.step(now, st.devices, dt)
             self.publish(CB_COMMANDS, cmd)
             if cmd.request_fix:
-                self.publish(CB_FIX_REQUEST, FixRequest(m.fix_seq, m.leg_i))
+                xy = m.nav.xy
+                self.publish(CB_FIX_REQUEST, FixRequest(m.fix_seq, m.leg_i, float(xy[0]), float(xy[1])))
         self._auto_recover(now)
         self._events()
         self._checkpoint(now)
