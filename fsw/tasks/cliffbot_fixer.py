@@ -15,6 +15,7 @@ map bytes (``radio.fix_out``). A request that arrives while one is being answere
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Generator
 from typing import ClassVar
@@ -42,6 +43,7 @@ from fsw.tasks.messages import (
     RADIO_FIX_OUT,
     RADIO_FIX_REQUEST,
     VIEW_FAILED,
+    CameraFrame,
     CaptureRequest,
     MapUpdate,
     MotionRequest,
@@ -165,22 +167,21 @@ class CliffbotFixerTask(FlightTask):
         if any(f.view_id == view for f in self.failed.drain()):
             self._no_fix(self.current.seq, NO_MARKERS)
             return
-        for fr in self.frames.drain():
-            if fr.view_id != view:
-                continue
-            self.phase = "locate"
-            cam = PoseEstimate(fr.pose, np.asarray(fr.pose_cov, float))
-            seq, t_ms = self.current.seq, int(fr.time_s * 1000)
-
-            def job() -> Generator[None, None, BodyEstimate | None]:
-                left, right = fr.left, fr.right
-                if self.rectifier is not None:
-                    left, right = self.rectifier.rectify(left, right)
-                    yield
-                return self.loc.locate(left, cam, right)
-
-            self.submit_job(job(), f"fix{seq}", on_done=lambda h: self._located(seq, t_ms, h))
+        fr = next((f for f in self.frames.drain() if f.view_id == view), None)
+        if fr is None:
             return
+        self.phase = "locate"
+        self.submit_job(self._locate(fr), f"fix{self.current.seq}",
+                        on_done=functools.partial(self._located, self.current.seq, int(fr.time_s * 1000)))
+
+    def _locate(self, fr: CameraFrame) -> Generator[None, None, BodyEstimate | None]:
+        """The slack job: rectify the pair (when the camera has a calibration), find the markers, PnP."""
+        yield
+        left, right = fr.left, fr.right
+        if self.rectifier is not None:
+            left, right = self.rectifier.rectify(left, right)
+            yield
+        return self.loc.locate(left, PoseEstimate(fr.pose, np.asarray(fr.pose_cov, float)), right)
 
     def _located(self, seq: int, t_ms: int, handle: JobHandle) -> None:
         if self.current is None or self.current.seq != seq:

@@ -10,8 +10,8 @@ activation it feeds the radio's datagrams to the link and sends what the link's 
 allows, never more than its byte budget (``[link] rate_bps`` over two activation periods),
 then reports the link's events and counters. The Cliff-bot's fix requests
 (``fsw.comm.team.fix_packets``) on the same radio go to the fixer task
-(``radio.fix_request``), and its answers (``radio.fix_out``) are sent ahead of map bytes. The radio is the ``radio_port`` resource, or
-``[link] transport`` opened here.
+(``radio.fix_request``), and its answers (``radio.fix_out``) are sent ahead of map bytes.
+The radio is the ``radio_port`` resource, or ``[link] transport`` opened here.
 """
 
 from __future__ import annotations

@@ -13,8 +13,9 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import BinaryIO
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,7 +33,7 @@ class CheckpointError(ValueError):
     """A checkpoint that cannot be used (one line)."""
 
 
-def snapshot(m: CliffbotMission, now: float) -> dict[str, Any]:
+def snapshot(m: CliffbotMission, now: float) -> dict[str, object]:
     """What the checkpoint keeps of the mission (JSON-ready)."""
     return {
         "schema": SCHEMA, "time_s": round(now, 6), "state": m.state, "safe_reason": m.safe_reason,
@@ -43,7 +44,7 @@ def snapshot(m: CliffbotMission, now: float) -> dict[str, Any]:
     }
 
 
-def restore(m: CliffbotMission, st: dict[str, Any], z: NDArray[np.float64] | None, grid: MapGrid) -> str:
+def restore(m: CliffbotMission, st: dict[str, object], z: NDArray[np.float64] | None, grid: MapGrid) -> str:
     """Put the checkpoint's state into a fresh mission; a leg under way asks for a fix first.
     Returns a one-line summary; :class:`CheckpointError` if the state does not fit."""
     try:
@@ -55,10 +56,10 @@ def restore(m: CliffbotMission, st: dict[str, Any], z: NDArray[np.float64] | Non
         targets = np.asarray(st["targets"], float).reshape(-1, 2)
         s = np.asarray(st["nav_s"], float).reshape(3)
         p = np.asarray(st["nav_P"], float).reshape(3, 3)
-        legs = [Leg(np.array([float(a), float(b)]), None if t is None else int(t)) for a, b, t in st["legs"]]
-        reached = [bool(v) for v in st["reached"]]
-        reasons = [str(v) for v in st["reasons"]]
-        leg_i = int(st["leg_i"])
+        legs = [_leg(v) for v in _list(st["legs"])]
+        reached = [bool(v) for v in _list(st["reached"])]
+        reasons = [str(v) for v in _list(st["reasons"])]
+        leg_i = _int(st["leg_i"])
     except (KeyError, TypeError, ValueError) as exc:
         raise CheckpointError(f"{STATE}: {type(exc).__name__}: {exc}") from None
     if not (np.isfinite(s).all() and np.isfinite(p).all() and np.isfinite(targets).all()):
@@ -70,17 +71,41 @@ def restore(m: CliffbotMission, st: dict[str, Any], z: NDArray[np.float64] | Non
     if z is not None:
         if z.shape != grid.shape:
             raise CheckpointError(f"{MAP}: shape {z.shape}, the map grid is {grid.shape}")
-        m.z, m.grid, m.map_version = np.asarray(z, np.float64), grid, int(st.get("map_version", 1))
+        m.z, m.grid, m.map_version = np.asarray(z, np.float64), grid, _int(st.get("map_version", 1))
     m.targets, m.reached, m.reasons, m.legs, m.leg_i = targets, reached, reasons, legs, leg_i
     m.planned_lengths = [math.inf for _ in range(len(targets))]
     m.start = np.asarray(st.get("start", m.start), float).reshape(2)
     m.nav.s, m.nav.P = s, p
-    m.fix_seq = int(st.get("fix_seq", 0))
+    m.fix_seq = _int(st.get("fix_seq", 0))
     if state in ("WAIT_FIX", "DRIVE", "DWELL"):
         state = "WAIT_FIX"  # the leg goes on from the estimate, after a fix
     m.state = state
     m.safe_reason = str(st.get("safe_reason", "")) if state == "SAFE" else ""
     return f"leg {leg_i + 1} of {len(legs)}, {sum(reached)} of {len(targets)} targets reached"
+
+
+def _list(v: object) -> list[object]:
+    if not isinstance(v, list):
+        raise TypeError(f"expected a list, got {type(v).__name__}")
+    return v
+
+
+def _leg(v: object) -> Leg:
+    """``[x, y, target or None]``."""
+    a, b, t = _list(v)
+    return Leg(np.array([_float(a), _float(b)]), None if t is None else _int(t))
+
+
+def _float(v: object) -> float:
+    if not isinstance(v, int | float):
+        raise TypeError(f"expected a number, got {type(v).__name__}")
+    return float(v)
+
+
+def _int(v: object) -> int:
+    if not isinstance(v, int | float | str):
+        raise TypeError(f"expected a number, got {type(v).__name__}")
+    return int(v)
 
 
 class CheckpointFile:
@@ -93,7 +118,7 @@ class CheckpointFile:
     def enabled(self) -> bool:
         return self.dir is not None
 
-    def save(self, state: dict[str, Any], z: NDArray[np.float64] | None) -> str:
+    def save(self, state: dict[str, object], z: NDArray[np.float64] | None) -> str:
         """Write both files; returns "" or the one-line reason they were not written."""
         if self.dir is None:
             return ""
@@ -108,7 +133,7 @@ class CheckpointFile:
             return describe(exc)
         return ""
 
-    def _atomic(self, name: str, write: Any) -> None:
+    def _atomic(self, name: str, write: Callable[[BinaryIO], object]) -> None:
         assert self.dir is not None
         tmp = self.dir / f".{name}.tmp"
         try:
@@ -120,7 +145,7 @@ class CheckpointFile:
         finally:
             tmp.unlink(missing_ok=True)
 
-    def load(self) -> tuple[dict[str, Any], NDArray[np.float64] | None] | None:
+    def load(self) -> tuple[dict[str, object], NDArray[np.float64] | None] | None:
         """The checkpoint in the directory (None: there is none); :class:`CheckpointError` if
         it is unreadable."""
         if self.dir is None or not (self.dir / STATE).exists():
