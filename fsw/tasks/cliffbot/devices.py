@@ -54,7 +54,6 @@ class CliffbotDevicesTask(FlightTask):
 
                 try:
                     self.bus = open_bus(interface=bus_cfg.can_interface, channel=bus_cfg.can_channel)
-                    self.ctx.res.team_can = self.bus
                 except (OSError, ValueError, can.CanError) as exc:
                     self.event("NO_BUS", error=f"{type(exc).__name__}: {exc}")
         self.commands = self.subscribe(CB_COMMANDS, depth=1)
