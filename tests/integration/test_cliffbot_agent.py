@@ -227,3 +227,40 @@ def test_a_fix_request_carries_the_estimate() -> None:
     assert fix_packets.decode(fix_packets.encode(req)) == req
     old = fix_packets.decode(fix_packets.encode(fix_packets.FixRequest(3, 1)))
     assert old.seq == 3 and math.isnan(old.x)  # type: ignore[union-attr]
+
+
+@pytest.mark.slow
+def test_real_time_the_cliffbot_flies_on_the_serve_benchs_team_bus(tmp_path: Path) -> None:
+    """``safer-hil serve --scenario cliff-team`` plays the Cliff-bot's hardware on a team CAN hub and
+    writes its flight file; ``safer-fsw run --config`` that file connects with unchanged code: the
+    winches hear its commands (none refused) and it waits for the map without a SAFE stop."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    bin_dir = Path(sys.executable).parent
+    recon, cb = tmp_path / "recon.toml", tmp_path / "cliffbot.toml"
+    serve = subprocess.Popen(
+        [str(bin_dir / "safer-hil"), "serve", "--scenario", "cliff-team", "--seed", "3", "--can-port", "0",
+         "--flight-config", str(recon), "--cliffbot-config", str(cb), "--duration", "90", "--report-period", "0"],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        deadline = time.monotonic() + 60.0
+        while not cb.exists() and time.monotonic() < deadline and serve.poll() is None:
+            time.sleep(0.5)
+        time.sleep(1.0)  # READY follows the file
+        assert cb.exists(), "serve wrote no Cliff-bot flight file"
+        assert load_settings(cb).cliffbot_bus.can_interface == "udp_hub"
+        assert load_settings(recon).link.peer == load_settings(cb).link.transport  # one radio, two ends
+        run = subprocess.run([str(bin_dir / "safer-fsw"), "run", "--config", str(cb), "--duration", "3"],
+                             capture_output=True, text=True, timeout=90)
+        assert run.returncode == 0, run.stderr
+        assert "agent cliffbot-1 (cliffbot, MAVLink system 2)" in run.stdout
+        assert "SAFE" not in run.stdout and "NO_BUS" not in run.stdout, run.stdout
+    finally:
+        serve.send_signal(signal.SIGINT)
+        out, _ = serve.communicate(timeout=30)
+    truth = json.loads(next(ln for ln in out.splitlines() if ln.startswith("TRUTH "))[6:])
+    assert truth["winch_commands"] > 20 and truth["winch_bad"] == 0
