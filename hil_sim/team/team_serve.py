@@ -11,6 +11,7 @@ on loopback (the RECON-bot's flight file gets the other end in its ``[link]``).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import socket
 from pathlib import Path
@@ -63,10 +64,8 @@ class TeamHardware:
         self.rig.step(now - self.t_prev, now)
         self.t_prev = now
         for fid, data in self.rig.poll(now):
-            try:
+            with contextlib.suppress(can.CanError):  # a frame the hub could not take is lost, as on a wire
                 self.bus.send(can.Message(arbitration_id=fid, data=data, is_extended_id=False))
-            except can.CanError:
-                pass  # a frame the hub could not take is lost, as on a wire
         if len(self.rig.path) != self._rendered_at:
             self._rendered_at = len(self.rig.path)
             self.recon_rig.renderer().world = self.rig.world_now()
