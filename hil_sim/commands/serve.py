@@ -234,7 +234,11 @@ def run(args: argparse.Namespace) -> int:
         write_flight_config(base_cfg, Path(args.flight_config), endpoints, tables)
         print(f"  flight  safer-fsw run --config {args.flight_config}")
     if team is not None and args.cliffbot_config:
-        team.write_cliffbot_config(Path(args.cliffbot_config), fsw)
+        text = team.config.read_text(encoding="utf-8")
+        for name, values in team.cliffbot_tables(fsw).items():
+            text = set_keys(text, name, values)
+        Path(args.cliffbot_config).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.cliffbot_config).write_text(text, encoding="utf-8")
         print(f"  cliffbot  safer-fsw run --config {args.cliffbot_config}")
     print("READY", flush=True)
 

@@ -42,6 +42,7 @@ from fsw.tasks.cliffbot.mission import CliffbotMissionTask
 from hil_sim.faults import FaultInjector, FaultSpec
 from hil_sim.radio_channel import ChannelPort, RadioChannel
 from hil_sim.team.cliffbot_rig import CliffbotRig
+from hil_sim.team.team_eval import FixError, fix_error
 from hil_sim.team.team_run import TeamSetup, team_section
 from hil_sim.world.world import World
 
@@ -148,7 +149,7 @@ class CliffbotAgent:
         self.flight_bus = InprocBus(channel=name, receive_own_messages=False)
         res = Resources(radio_port=ChannelPort(channel, "b", bench.clock.now), team_can=self.flight_bus)
         self.recon_done = recon_done
-        self.errors: list[tuple[float, float, float, float]] = []  # range, cm, deg, NEES of each FIX sent
+        self.errors: list[FixError] = []  # each FIX sent, against the truth
         self._rendered_at = -1
         self.sent0 = {side: channel.stats(side).air_bytes for side in ("a", "b")}
         self.exe = bench.add_agent(self.cfg, res, before_frame=self.before_frame)
@@ -194,15 +195,8 @@ class CliffbotAgent:
             p = np.asarray(f.position, float)
             t = np.array([*fr.to_world(p[:2])[0], p[2] + fr.datum_m])
             r = rz @ fix_packets.rotation(f.rotvec)
-            e = np.concatenate([so3_log(r @ cb.R.T), t - cb.t])
-            try:
-                nees = float(e @ np.linalg.solve(f.cov, e))
-            except np.linalg.LinAlgError:
-                nees = math.inf
-            yaw = f.yaw + fr.yaw0
-            dyaw = math.degrees(math.atan2(math.sin(yaw - cb.yaw), math.cos(yaw - cb.yaw)))
-            self.errors.append((float(np.linalg.norm(cb.t - cam)), 100 * float(np.linalg.norm(t - cb.t)),
-                                abs(dyaw), nees))
+            self.errors.append(fix_error(t, so3_log(r @ cb.R.T), f.yaw + fr.yaw0 - cb.yaw, f.cov, cb.t,
+                                         float(np.linalg.norm(cb.t - cam))))
         self.watch.sent.clear()
 
     def _render_truth(self) -> None:

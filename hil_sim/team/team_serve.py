@@ -75,15 +75,13 @@ class TeamHardware:
         a, b = self.radio
         return {"transport": f"udp://127.0.0.1:{a}", "peer": f"udp://127.0.0.1:{b}"}
 
-    def write_cliffbot_config(self, out: Path, recon_cfg: FswConfig) -> None:
-        """The Cliff-bot's flight file for these endpoints."""
-        from hil_sim.commands.serve import set_keys
-
+    def cliffbot_tables(self, recon_cfg: FswConfig) -> dict[str, dict[str, Any]]:
+        """The keys of the Cliff-bot's flight file (``config/cliffbot.toml``) for these endpoints,
+        by table."""
         cfg = cliffbot_config(self.config, self.world, self.rig, self.frame, None)
         s, m = cfg.cliffbot_site, recon_cfg.map
         a, b = self.radio
-        text = self.config.read_text(encoding="utf-8")
-        tables: dict[str, dict[str, Any]] = {
+        return {
             "cliffbot_bus": {"can_interface": "udp_hub", "can_channel": self.hub.channel},
             "cliffbot_site": {"anchor_a_xyz": list(s.anchor_a_xyz), "anchor_b_xyz": list(s.anchor_b_xyz),
                               "start_xy": list(s.start_xy), "start_yaw_deg": round(s.start_yaw_deg, 6),
@@ -92,10 +90,6 @@ class TeamHardware:
                     "ny": m.ny},
             "link": {"transport": f"udp://127.0.0.1:{b}", "peer": f"udp://127.0.0.1:{a}"},
         }
-        for name, values in tables.items():
-            text = set_keys(text, name, values)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(text, encoding="utf-8")
 
     def truth(self) -> dict[str, object]:
         w = self.rig.winches
