@@ -60,7 +60,7 @@ LIFT_M = 0.3
 
 class CliffbotFixerTask(FlightTask):
     KIND: ClassVar[str] = "cliffbot_fixer"
-    RATE_HZ: ClassVar[tuple[float, float]] = (1.0, 50.0)
+    RATE_HZ: ClassVar[tuple[float, float]] = (5.0, 50.0)  # answers within the Cliff-bot's fix timeout
     REQUIRES: ClassVar[tuple[str, ...]] = ("radio", "motion", "camera")
     DOC: ClassVar[str] = "Relative localization: aims the mast at the Cliff-bot, locates its markers, answers FIX."
     CHANNELS = (
