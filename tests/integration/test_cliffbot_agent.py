@@ -185,6 +185,7 @@ def test_the_cliffbot_checkpoints_and_continues_from_one(mission: tuple[dict[str
         m = exe.tasks["mission"].mission  # type: ignore[attr-defined]
         assert m.state == "DONE" and m.z is not None and list(m.reached) == a["reached"]
         assert any(e.name == "mission.RESUMED" for e in exe.events.history)
+        exe.tasks["mavlink"].close()  # type: ignore[attr-defined]
     finally:
         radio.close()
 
@@ -264,3 +265,26 @@ def test_real_time_the_cliffbot_flies_on_the_serve_benchs_team_bus(tmp_path: Pat
         out, _ = serve.communicate(timeout=30)
     truth = json.loads(next(ln for ln in out.splitlines() if ln.startswith("TRUTH "))[6:])
     assert truth["winch_commands"] > 20 and truth["winch_bad"] == 0
+
+
+@pytest.mark.parametrize("state", ['{"schema": 1, "state": "DRIVE"', '[1, 2]',
+                                   '{"schema": 1, "state": "FLY", "targets": [], "nav_s": [0, 0, 0]}'])
+def test_a_bad_checkpoint_is_refused_in_one_line(tmp_path: Path, state: str) -> None:
+    """A Cliff-bot started on a checkpoint it cannot use says so (one line) and waits for a map."""
+    from fsw.app import build_executive
+    from fsw.drivers.radio import open_radio
+    from fsw.framework.clock import SteppedClock
+
+    (tmp_path / "cliffbot_state.json").write_text(state, encoding="utf-8")
+    cfg = load_settings(CLIFFBOT_TOML)
+    cfg = dataclasses.replace(cfg, checkpoint=dataclasses.replace(cfg.checkpoint, directory=str(tmp_path)),
+                              cliffbot_bus=dataclasses.replace(cfg.cliffbot_bus, can_interface="none"))
+    radio = open_radio("inproc://cliffbot-bad-checkpoint")
+    try:
+        exe = build_executive(cfg, SteppedClock(), Resources(radio_port=radio), map_store=False)
+        refused = [e.text for e in exe.events.history if e.name == "mission.CHECKPOINT_REFUSED"]
+        assert len(refused) == 1 and "\n" not in refused[0]
+        assert exe.tasks["mission"].mission.state == "WAIT_MAP"  # type: ignore[attr-defined]
+        exe.tasks["mavlink"].close()  # type: ignore[attr-defined]
+    finally:
+        radio.close()
