@@ -67,7 +67,7 @@ class SyncScene:
         return z
 
 
-def make_scene(seed: int, n: int = 128, rounds: int = 30, radius: int = 12) -> SyncScene:
+def make_scene(seed: int, n: int = 128, rounds: int = 30, radius: int = 20) -> SyncScene:
     """A terrain of ``n`` x ``n`` cells (hills, a cliff step, rocks) and two agents' views: the
     RECON-bot walking the plateau side, the Cliff-bot the face side, crossing in the middle."""
     rng = np.random.default_rng(seed)
@@ -123,6 +123,7 @@ class SyncResult:
     rounds: int  # sync rounds run
     equal_at_round: list[bool]  # per round boundary (both up): hashes equal just before it
     round_times_s: list[float]
+    lag_s: list[float | None]  # per round: publish to equal replicas (None: not before the next round)
     stats: dict[int, SyncStats]  # per agent, summed over its restarts
     air_bytes: int
     full_resends: int
@@ -191,8 +192,9 @@ def run_sync(scene: SyncScene, channel: RadioChannelConfig, seed: int = 0, *, cf
     n_rounds = scene.rounds + settle_rounds
     equal_at: list[bool] = []
     round_times: list[float] = []
+    lags: list[float | None] = []
     rnd = 0
-    t = 0.0
+    t = t_pub = 0.0
     for _ in range(max_steps):
         while pending and t >= pending[0].at_s:
             k = pending.pop(0)
@@ -227,6 +229,8 @@ def run_sync(scene: SyncScene, channel: RadioChannelConfig, seed: int = 0, *, cf
                 ends[a].publish(agents[a].z, t)
                 checkpoints[a] = (ends[a].checkpoint(), agents[a].z.copy())
             rnd += 1
+            lags.append(None)
+            t_pub = t
         for a, side in zip(AGENTS, SIDES, strict=True):
             for d in ch.receive(side, t):
                 if a not in down:
@@ -235,6 +239,8 @@ def run_sync(scene: SyncScene, channel: RadioChannelConfig, seed: int = 0, *, cf
             if a not in down:
                 for d in ends[a].poll(t):
                     ch.send(side, d, t)
+        if lags and lags[-1] is None and not down and ends[0].replica_hash() == ends[1].replica_hash():
+            lags[-1] = round(t - t_pub, 3)
         if rnd >= n_rounds and not down and not pending:
             if ends[0].replica_hash() == ends[1].replica_hash() and ch.next_arrival_s() is None:
                 break
@@ -250,7 +256,7 @@ def run_sync(scene: SyncScene, channel: RadioChannelConfig, seed: int = 0, *, cf
         events += [(a, e.time_s, e.name) for e in ends[a].events.pop_all()]
     return SyncResult(
         hash_equal=ends[0].replica_hash() == ends[1].replica_hash(), rounds=rnd, equal_at_round=equal_at,
-        round_times_s=round_times, stats=totals,
+        round_times_s=round_times, lag_s=lags, stats=totals,
         air_bytes=ch.stats("a").air_bytes + ch.stats("b").air_bytes,
         full_resends=sum(s.full_resends for s in totals.values()), events=events)
 

@@ -68,11 +68,11 @@ class SyncConfig:
     pacing_catchup_s: float = param(0.05, lo=0.0, hi=1.0, units="s")
     tile_cells: int = param(16, lo=4, hi=256, units="cells", doc="tile side")
     mtu_bytes: int = param(512, lo=128, hi=8192, units="B", doc="largest datagram")
-    ack_delay_s: float = param(0.5, lo=0.0, hi=30.0, units="s", doc="DIGEST this long after new tiles")
+    ack_delay_s: float = param(0.3, lo=0.0, hi=30.0, units="s", doc="DIGEST this long after new tiles")
     min_digest_interval_s: float = param(1.0, lo=0.0, hi=60.0, units="s",
                                          doc="DIGESTs at most this often (answers excepted)")
     keepalive_s: float = param(10.0, lo=0.5, hi=600.0, units="s", doc="DIGEST at least this often")
-    probe_s: float = param(1.0, lo=0.05, hi=60.0, units="s",
+    probe_s: float = param(1.5, lo=0.05, hi=60.0, units="s",
                            doc="after the last tile: a DIGEST asking for an answer; doubles")
     probe_max_s: float = param(2.0, lo=0.1, hi=600.0, units="s", doc="longest probe interval")
     reorder_slack_s: float = param(0.5, lo=0.0, hi=60.0, units="s",
@@ -93,6 +93,9 @@ class SyncStats:
     resent_tiles: int = 0  # a version sent again (proved lost)
     returns_out: int = 0  # the peer's own tiles given back to it
     digests_out: int = 0
+    digests_answer: int = 0  # of which answers to a probe
+    digests_probe: int = 0  # of which probes (tiles in flight unacknowledged, or the link silent)
+    digest_bytes_out: int = 0
     holdings_out: int = 0
     packets_in: int = 0
     bytes_in: int = 0  # valid packets received, channel duplicates excepted
@@ -506,15 +509,17 @@ class MapSync:
         probe = (self._probe_due() or float("inf")) <= now_s
         stalled = self._stalled(now_s)
         self._acks_cut = len(acks) < len(self._unconfirmed)
-        flags = ((sp.WANT_HOLDINGS if self.want_holdings else 0) | (sp.ANSWER_NOW if probe or stalled else 0)
+        # Ask for an answer when probing, and with any digest but an answer while tiles are in flight.
+        ask = probe or stalled or (bool(self._inflight) and not self._answer)
+        flags = ((sp.WANT_HOLDINGS if self.want_holdings else 0) | (sp.ANSWER_NOW if ask else 0)
                  | (sp.ACKS_CUT if len(acks) < len(self._unconfirmed) else 0)
                  | (sp.ECHO_VALID if self._peer_dseq is not None else 0))
         self._digest_log[self._dseq] = acks
         if len(self._digest_log) > 64:
             self._digest_log.popitem(last=False)
         d = sp.Digest(self.agent, self.frame, self._stamp(now_s), self.boot, self._dseq, self._peer_dseq or 0,
-                      self._peer_serial or 0, flags, len(self.own), self.layer_hash(self.agent), len(self.held),
-                      self.layer_hash(self.peer), acks, wants[:255])
+                      self._peer_serial or 0, flags, len(self.held), self.layer_hash(self.peer), acks, wants[:255])
+        answer = self._answer
         self._digest_due = None
         self._ack_first_s = None
         self._answer = False
@@ -523,7 +528,11 @@ class MapSync:
             self._probe_gap = min(2 * self._probe_gap, self.cfg.probe_max_s)
         self._next_probe_s = None
         self.stats.digests_out += 1
-        return sp.encode(d)
+        self.stats.digests_answer += int(answer)
+        self.stats.digests_probe += int(probe or stalled)
+        pkt = sp.encode(d)
+        self.stats.digest_bytes_out += len(pkt)
+        return pkt
 
     def _tile_packet(self, owner: int, t: int, rec: TileRec, now_s: float) -> bytes:
         return sp.encode(sp.Tile(self.agent, self.frame, self._stamp(now_s), owner, t, rec.version,

@@ -14,8 +14,8 @@ TILE (10): ``serial`` u16, ``owner`` u8 (whose map layer), ``tile`` u16, ``versi
 DIGEST (11): ``serial`` u16, ``boot`` u16, ``dseq`` u16 (this digest's number), ``echo_dseq``
 u16 (the peer's last digest received), ``echo_serial`` u16 (the peer's last packet received),
 ``flags`` u8 (bit 0: send me your holdings of my layer; bit 1: answer with a digest now; bit 2:
-the ack list is cut short; bit 3: an echo is valid), ``own_count`` u16, ``own_hash`` 8 bytes,
-``held_count`` u16, ``held_hash`` 8 bytes (the sender's copy of the receiver's layer), ``n_acks``
+the ack list is cut short; bit 3: an echo is valid), ``held_count`` u16, ``held_hash`` 8 bytes
+(:meth:`~fsw.comm.team.map_sync.MapSync.layer_hash` of the sender's copy of the receiver's layer), ``n_acks``
 u8 and ``n_acks`` x (``tile`` u16, ``version`` u32), ``n_wants`` u8 and ``n_wants`` x ``tile``
 u16 (tiles of the sender's own layer it asks to be given back).
 
@@ -38,7 +38,7 @@ TILE, DIGEST, HOLDINGS = 10, 11, 15
 SYNC_TYPES = frozenset({TILE, DIGEST, HOLDINGS})
 FRAME_BYTES = 8  # header 4 + CRC 4
 _TILE = struct.Struct("<HBHII")
-_DIGEST = struct.Struct("<HHHHHBH8sH8sB")
+_DIGEST = struct.Struct("<HHHHHBH8sB")
 _ACK = struct.Struct("<HI")
 _HOLD = struct.Struct("<HHBB")
 _ENTRY = struct.Struct("<HII")
@@ -72,8 +72,6 @@ class Digest:
     echo_dseq: int
     echo_serial: int
     flags: int
-    own_count: int
-    own_hash: bytes
     held_count: int
     held_hash: bytes
     acks: tuple[tuple[int, int], ...]
@@ -111,8 +109,7 @@ def encode(p: SyncPacket) -> bytes:
                                                           p.digest) + p.blob)
     if isinstance(p, Digest):
         head = _DIGEST.pack(p.serial & 0xFFFF, p.boot & 0xFFFF, p.dseq & 0xFFFF, p.echo_dseq & 0xFFFF,
-                            p.echo_serial & 0xFFFF, p.flags, p.own_count, p.own_hash, p.held_count,
-                            p.held_hash, len(p.acks))
+                            p.echo_serial & 0xFFFF, p.flags, p.held_count, p.held_hash, len(p.acks))
         acks = b"".join(_ACK.pack(t, v) for t, v in p.acks)
         wants = struct.pack(f"<B{len(p.wants)}H", len(p.wants), *p.wants)
         return _frame(DIGEST, p.agent, p.frame, head + acks + wants)
@@ -156,8 +153,7 @@ def decode(datagram: bytes) -> SyncPacket:
 
 
 def _digest(agent: int, frame: int, body: bytes) -> Digest:
-    (serial, boot, dseq, echo_dseq, echo_serial, flags, own_count, own_hash, held_count, held_hash,
-     n_acks) = _DIGEST.unpack_from(body)
+    serial, boot, dseq, echo_dseq, echo_serial, flags, held_count, held_hash, n_acks = _DIGEST.unpack_from(body)
     off = _DIGEST.size
     acks = tuple(_ACK.unpack_from(body, off + i * _ACK.size) for i in range(n_acks))
     off += n_acks * _ACK.size
@@ -165,5 +161,5 @@ def _digest(agent: int, frame: int, body: bytes) -> Digest:
     wants = struct.unpack_from(f"<{n_wants}H", body, off + 1)
     if off + 1 + 2 * n_wants != len(body) or flags > 15:
         raise PacketError("DIGEST fields are inconsistent")
-    return Digest(agent, frame, serial, boot, dseq, echo_dseq, echo_serial, flags, own_count, own_hash,
-                  held_count, held_hash, acks, tuple(wants))
+    return Digest(agent, frame, serial, boot, dseq, echo_dseq, echo_serial, flags, held_count, held_hash, acks,
+                  tuple(wants))
