@@ -6,7 +6,7 @@ and the Cliff-bot (agent 1, side ``b``), over the bench's seeded radio channel
 outages) on one simulated clock that jumps from event to event. Each agent has a map of its
 own that grows as it looks around (:class:`SyncScene`: a seeded terrain, one view disc per
 agent per round, a few real changes of the ground); every ``round_s`` it publishes its map to
-its sync end and checkpoints the sync state with the map. A :class:`Kill` takes an agent down
+its sync end, and every few rounds it checkpoints the sync state with the map. A :class:`Kill` takes an agent down
 (SIGKILL: whatever arrives is lost) and restarts it from its last checkpoint.
 
 :func:`run_sync` returns :class:`SyncResult`; :func:`sync_figures` the team section's figures
@@ -16,6 +16,7 @@ its sync end and checkpoints the sync state with the map. A :class:`Kill` takes 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 
@@ -121,9 +122,10 @@ class _Agent:
 class SyncResult:
     hash_equal: bool  # the replicas' hashes equal at the end
     rounds: int  # sync rounds run
-    equal_at_round: list[bool]  # per round boundary (both up): hashes equal just before it
-    round_times_s: list[float]
+    round_times_s: list[float]  # when each round published
     lag_s: list[float | None]  # per round: publish to equal replicas (None: not before the next round)
+    equal_times_s: list[float]  # moments the replicas became equal (from unequal)
+    round_s: float
     stats: dict[int, SyncStats]  # per agent, summed over its restarts
     air_bytes: int
     full_resends: int
@@ -141,15 +143,10 @@ class SyncResult:
         return sum(s.minimal_bytes for s in self.stats.values())
 
     def rounds_to_equal_after(self, t_s: float) -> int | None:
-        """Round boundaries after ``t_s`` until the first one with equal hashes (1 = the first)."""
-        k = 0
-        for t, eq in zip(self.round_times_s, self.equal_at_round, strict=True):
-            if t <= t_s:
-                continue
-            k += 1
-            if eq:
-                return k
-        return None
+        """Sync rounds (``round_s`` each, at least 1) from ``t_s`` (the link's return, a restart)
+        until the replicas' hashes are first equal again; None: never."""
+        later = [t for t in self.equal_times_s if t >= t_s]
+        return max(1, math.ceil((later[0] - t_s) / self.round_s - 1e-9)) if later else None
 
 
 def _add(total: SyncStats, s: SyncStats) -> None:
@@ -159,8 +156,9 @@ def _add(total: SyncStats, s: SyncStats) -> None:
 
 def run_sync(scene: SyncScene, channel: RadioChannelConfig, seed: int = 0, *, cfg: SyncConfig | None = None,
              round_s: float = 10.0, kills: Sequence[Kill] = (), settle_rounds: int = 3,
-             corridor_first: bool = True, max_steps: int = 2_000_000) -> SyncResult:
-    """Run ``scene.rounds`` sync rounds (then up to ``settle_rounds`` more with nothing new seen)."""
+             corridor_first: bool = True, checkpoint_every: int = 3, max_steps: int = 2_000_000) -> SyncResult:
+    """Run ``scene.rounds`` sync rounds (then up to ``settle_rounds`` more with nothing new seen);
+    each agent checkpoints its map and sync state every ``checkpoint_every`` rounds."""
     cfg = cfg or SyncConfig()
     ch = RadioChannel(channel, seed)
     agents = {a: _Agent(scene, a, seed) for a in AGENTS}
@@ -190,7 +188,8 @@ def run_sync(scene: SyncScene, channel: RadioChannelConfig, seed: int = 0, *, cf
     pending = sorted(kills, key=lambda k: k.at_s)
     events: list[tuple[int, float, str]] = []
     n_rounds = scene.rounds + settle_rounds
-    equal_at: list[bool] = []
+    equal_times: list[float] = []
+    was_equal = True
     round_times: list[float] = []
     lags: list[float | None] = []
     rnd = 0
@@ -217,9 +216,7 @@ def run_sync(scene: SyncScene, channel: RadioChannelConfig, seed: int = 0, *, cf
                 ends[a] = make(a)
             events.append((a, t, "RESTARTED"))
         if rnd < n_rounds and t >= rnd * round_s:
-            if not down:
-                round_times.append(t)
-                equal_at.append(ends[0].replica_hash() == ends[1].replica_hash())
+            round_times.append(t)
             for a in AGENTS:
                 if a in down:
                     continue
@@ -227,7 +224,8 @@ def run_sync(scene: SyncScene, channel: RadioChannelConfig, seed: int = 0, *, cf
                     pos[a] = scene.views[a][rnd]
                     agents[a].look(rnd)
                 ends[a].publish(agents[a].z, t)
-                checkpoints[a] = (ends[a].checkpoint(), agents[a].z.copy())
+                if rnd % checkpoint_every == 0:
+                    checkpoints[a] = (ends[a].checkpoint(), agents[a].z.copy())
             rnd += 1
             lags.append(None)
             t_pub = t
@@ -239,7 +237,11 @@ def run_sync(scene: SyncScene, channel: RadioChannelConfig, seed: int = 0, *, cf
             if a not in down:
                 for d in ends[a].poll(t):
                     ch.send(side, d, t)
-        if lags and lags[-1] is None and not down and ends[0].replica_hash() == ends[1].replica_hash():
+        equal = not down and ends[0].replica_hash() == ends[1].replica_hash()
+        if equal and not was_equal:
+            equal_times.append(t)
+        was_equal = equal
+        if lags and lags[-1] is None and equal:
             lags[-1] = round(t - t_pub, 3)
         if rnd >= n_rounds and not down and not pending:
             if ends[0].replica_hash() == ends[1].replica_hash() and ch.next_arrival_s() is None:
@@ -255,8 +257,8 @@ def run_sync(scene: SyncScene, channel: RadioChannelConfig, seed: int = 0, *, cf
         _add(totals[a], ends[a].stats)
         events += [(a, e.time_s, e.name) for e in ends[a].events.pop_all()]
     return SyncResult(
-        hash_equal=ends[0].replica_hash() == ends[1].replica_hash(), rounds=rnd, equal_at_round=equal_at,
-        round_times_s=round_times, lag_s=lags, stats=totals,
+        hash_equal=ends[0].replica_hash() == ends[1].replica_hash(), rounds=rnd, round_times_s=round_times,
+        lag_s=lags, equal_times_s=equal_times, round_s=round_s, stats=totals,
         air_bytes=ch.stats("a").air_bytes + ch.stats("b").air_bytes,
         full_resends=sum(s.full_resends for s in totals.values()), events=events)
 

@@ -40,7 +40,7 @@ import hashlib
 import json
 from collections import OrderedDict
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -72,13 +72,13 @@ class SyncConfig:
     min_digest_interval_s: float = param(1.0, lo=0.0, hi=60.0, units="s",
                                          doc="DIGESTs at most this often (answers excepted)")
     keepalive_s: float = param(10.0, lo=0.5, hi=600.0, units="s", doc="DIGEST at least this often")
-    probe_s: float = param(1.5, lo=0.05, hi=60.0, units="s",
+    probe_s: float = param(1.0, lo=0.05, hi=60.0, units="s",
                            doc="after the last tile: a DIGEST asking for an answer; doubles")
-    probe_max_s: float = param(2.0, lo=0.1, hi=600.0, units="s", doc="longest probe interval")
+    probe_max_s: float = param(1.5, lo=0.1, hi=600.0, units="s", doc="longest probe interval")
     reorder_slack_s: float = param(0.5, lo=0.0, hi=60.0, units="s",
                                    doc="a tile is lost once one sent this much later arrived")
     stall_s: float = param(25.0, lo=0.5, hi=600.0, units="s", doc="no packet this long: tiles pause")
-    holdings_retry_s: float = param(3.0, lo=0.1, hi=600.0, units="s",
+    holdings_retry_s: float = param(1.5, lo=0.1, hi=600.0, units="s",
                                     doc="HOLDINGS asked for or sent again at most this often")
 
 
@@ -119,12 +119,6 @@ class TileRec:
     z: F32
 
 
-@dataclass
-class _Holdings:
-    n_pages: int
-    pages: dict[int, tuple[tuple[int, int, int], ...]] = field(default_factory=dict)
-
-
 def _canonical(z: F32) -> bytes:
     return np.where(np.isfinite(z), z, np.float32(np.nan)).astype(np.float32).tobytes()
 
@@ -146,6 +140,8 @@ class MapSync:
         self.nty, self.ntx = -(-self.shape[0] // tc), -(-self.shape[1] // tc)
         if self.nty * self.ntx > 0xFFFF:
             raise ValueError(f"a {self.shape} map has more than 65535 tiles of {tc} cells")
+        if -(-self.nty * self.ntx // ((cfg.mtu_bytes - sp.HOLDINGS_BASE) // sp.ENTRY_BYTES)) > 255:
+            raise ValueError(f"a {self.shape} map needs more than 255 HOLDINGS pages at mtu_bytes={cfg.mtu_bytes}")
         self.priority = priority
         self.on_adopt = on_adopt
         self.boot = boot & 0xFFFF
@@ -158,6 +154,7 @@ class MapSync:
         self.belief: dict[int, tuple[int, int]] = {}  # what the peer holds of my layer
         self.peer_boot: int | None = None
         self.want_holdings = True  # every start asks: the peer may hold what I lost
+        self.fresh = True  # started with no replica (False once restored from a checkpoint)
         self.wants: set[int] = set()  # own tiles the peer holds newer: asked back
         self._hash_cache: dict[int, bytes] = {}
         self._replica_hash: str | None = None
@@ -181,9 +178,10 @@ class MapSync:
         self._next_probe_s: float | None = None
         self._holdings_out: list[bytes] = []
         self._last_holdings_s = float("-inf")
-        self._holdings_in: dict[int, _Holdings] = {}
+        self._holdings_in: dict[int, tuple[tuple[int, int, int], ...]] = {}  # page -> entries
         self._set_id = 0
         self._returns: set[int] = set()
+        self._returned_at: dict[int, float] = {}
         self._mismatches = 0
         self._now = 0.0
         self._acks_cut = False
@@ -380,10 +378,16 @@ class MapSync:
     def _on_digest(self, p: sp.Digest, now_s: float) -> None:
         if self.peer_boot is not None and p.boot != self.peer_boot:
             self.stats.peer_restarts += 1
-            self.events.emit(now_s, "PEER_RESTARTED", boot=p.boot)
+            self.events.emit(now_s, "PEER_RESTARTED", boot=p.boot, replica_lost=bool(p.flags & sp.FRESH))
+            if p.flags & sp.FRESH and self.belief:  # its replica is lost: all of my layer goes again
+                self.stats.full_resends += 1
+                self.events.emit(now_s, "FULL_RESEND", tiles=len(self.own))
             self.want_holdings = True
             self._inflight.clear()
             self._last_holdings_s = float("-inf")
+            self._digest_due = now_s  # ask for its holdings at once
+        elif self.peer_boot is None and now_s - self._last_holdings_s >= self.cfg.holdings_retry_s:
+            self._queue_holdings(now_s)  # first contact since my start: the peer will ask for them
         self.peer_boot = p.boot
         self._peer_dseq = p.dseq
         if p.flags & sp.ECHO_VALID:
@@ -415,7 +419,7 @@ class MapSync:
             self._answer = True
             self._digest_due = now_s
         for t in p.wants:
-            if t in self.held:
+            if t in self.held and now_s - self._returned_at.get(t, float("-inf")) >= self.cfg.holdings_retry_s:
                 self._returns.add(t)
         self._probe_gap = self.cfg.probe_s
         if p.flags & sp.ECHO_VALID and not p.flags & sp.ACKS_CUT:
@@ -429,17 +433,20 @@ class MapSync:
             self._schedule_digest(now_s + self.cfg.ack_delay_s)
 
     def _on_holdings(self, p: sp.Holdings, now_s: float) -> None:
-        hs = self._holdings_in.setdefault(p.set_id, _Holdings(p.n_pages))
-        if hs.n_pages != p.n_pages:
+        per = self._holdings_per_page()
+        if p.n_pages != -(-self.nty * self.ntx // per) or any(not p.page * per <= t < (p.page + 1) * per
+                                                               for t, _v, _d in p.entries):
             self.stats.bad_packets += 1
             return
-        hs.pages[p.page] = p.entries
-        if len(hs.pages) < hs.n_pages or not self.want_holdings:
+        if not self.want_holdings:
             return
+        self._holdings_in[p.page] = p.entries  # pages of any set combine: each is its tiles' state
+        if len(self._holdings_in) < p.n_pages:
+            return
+        entries = [e for page in sorted(self._holdings_in) for e in self._holdings_in[page]]
         self._holdings_in.clear()
-        entries = [e for page in sorted(hs.pages) for e in hs.pages[page]]
         self.want_holdings = False
-        acknowledged_before = bool(self.belief)
+        self.fresh = False
         self.belief = {t: (v, d) for t, v, d in entries}
         self._inflight.clear()
         self._lost.clear()
@@ -454,18 +461,21 @@ class MapSync:
                 self.counter += 1
                 self.own[t] = TileRec(self.counter, mine.digest, mine.blob, mine.z)
                 self._touch(self.agent)
-        if not entries and self.own and acknowledged_before:
-            self.stats.full_resends += 1
-            self.events.emit(now_s, "FULL_RESEND", tiles=len(self.own))
         self.events.emit(now_s, "HOLDINGS", tiles=len(entries), wanted=len(self.wants))
 
+    def _holdings_per_page(self) -> int:
+        return (self.cfg.mtu_bytes - sp.HOLDINGS_BASE) // sp.ENTRY_BYTES
+
     def _queue_holdings(self, now_s: float) -> None:
-        per = (self.cfg.mtu_bytes - sp.HOLDINGS_BASE) // sp.ENTRY_BYTES
-        entries = [(t, r.version, r.digest) for t, r in sorted(self.held.items())]
-        pages = [entries[i:i + per] for i in range(0, len(entries), per)] or [[]]
+        """HOLDINGS of my copy of the peer's layer: page ``k`` lists the tiles ``k * per`` up to
+        ``(k + 1) * per`` held, so a page is complete alone and pages of any set combine."""
+        per = self._holdings_per_page()
+        n_pages = -(-self.nty * self.ntx // per)
         self._set_id = (self._set_id + 1) & 0xFFFF
-        self._holdings_out = [sp.encode(sp.Holdings(self.agent, self.frame, 0, self._set_id, i, len(pages),
-                                                    tuple(pg))) for i, pg in enumerate(pages)]
+        self._holdings_out = []
+        for k in range(n_pages):
+            pg = tuple((t, r.version, r.digest) for t, r in sorted(self.held.items()) if k * per <= t < (k + 1) * per)
+            self._holdings_out.append(sp.encode(sp.Holdings(self.agent, self.frame, 0, self._set_id, k, n_pages, pg)))
         self._last_holdings_s = now_s
 
     # ---------------------------------------------------------------- sending
@@ -509,9 +519,9 @@ class MapSync:
         probe = (self._probe_due() or float("inf")) <= now_s
         stalled = self._stalled(now_s)
         self._acks_cut = len(acks) < len(self._unconfirmed)
-        # Ask for an answer when probing, and with any digest but an answer while tiles are in flight.
-        ask = probe or stalled or (bool(self._inflight) and not self._answer)
-        flags = ((sp.WANT_HOLDINGS if self.want_holdings else 0) | (sp.ANSWER_NOW if ask else 0)
+        ask = probe or stalled
+        flags = ((sp.WANT_HOLDINGS if self.want_holdings else 0) | (sp.FRESH if self.fresh else 0)
+                 | (sp.ANSWER_NOW if ask else 0)
                  | (sp.ACKS_CUT if len(acks) < len(self._unconfirmed) else 0)
                  | (sp.ECHO_VALID if self._peer_dseq is not None else 0))
         self._digest_log[self._dseq] = acks
@@ -573,6 +583,7 @@ class MapSync:
         if self._returns:
             t = min(self._returns)
             self._returns.discard(t)
+            self._returned_at[t] = now_s
             self.stats.returns_out += 1
             return self._tile_packet(self.peer, t, self.held[t], now_s)
         if self.want_holdings:
@@ -638,6 +649,7 @@ class MapSync:
                     blob = base64.b64decode(b64)
                     d[int(key)] = TileRec(int(ver), sp.blob_digest(blob), blob, decode_map(blob).z)
             m.counter = int(s["counter"]) + RESTART_VERSION_STEP
+            m.fresh = False
             m.stats.rounds = int(s["rounds"])
             m.belief = {int(t): (int(b[0]), int(b[1])) for t, b in s["belief"].items()}
         except (KeyError, TypeError, IndexError, json.JSONDecodeError, MapCodecError, ValueError) as exc:

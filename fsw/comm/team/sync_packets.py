@@ -14,13 +14,15 @@ TILE (10): ``serial`` u16, ``owner`` u8 (whose map layer), ``tile`` u16, ``versi
 DIGEST (11): ``serial`` u16, ``boot`` u16, ``dseq`` u16 (this digest's number), ``echo_dseq``
 u16 (the peer's last digest received), ``echo_serial`` u16 (the peer's last packet received),
 ``flags`` u8 (bit 0: send me your holdings of my layer; bit 1: answer with a digest now; bit 2:
-the ack list is cut short; bit 3: an echo is valid), ``held_count`` u16, ``held_hash`` 8 bytes
-(:meth:`~fsw.comm.team.map_sync.MapSync.layer_hash` of the sender's copy of the receiver's layer), ``n_acks``
-u8 and ``n_acks`` x (``tile`` u16, ``version`` u32), ``n_wants`` u8 and ``n_wants`` x ``tile``
-u16 (tiles of the sender's own layer it asks to be given back).
+the ack list is cut short; bit 3: an echo is valid; bit 4: started with no replica),
+``held_count`` u16, ``held_hash`` 8 bytes (:meth:`~fsw.comm.team.map_sync.MapSync.layer_hash` of
+the sender's copy of the receiver's layer), ``n_acks`` u8 and ``n_acks`` x (``tile`` u16,
+``version`` u32), ``n_wants`` u8 and ``n_wants`` x ``tile`` u16 (tiles of the sender's own layer
+it asks to be given back).
 
 HOLDINGS (15): ``serial`` u16, ``set_id`` u16, ``page`` u8, ``n_pages`` u8, then entries
-(``tile`` u16, ``version`` u32, ``digest`` u32) of the sender's copy of the receiver's layer.
+(``tile`` u16, ``version`` u32, ``digest`` u32) of the sender's copy of the receiver's layer,
+for the tiles ``page * per`` up to ``(page + 1) * per`` (``per`` entries fit the MTU).
 
 :func:`decode` raises :class:`~fsw.comm.link_packets.PacketError` with a one-line reason.
 """
@@ -47,7 +49,7 @@ DIGEST_BASE = FRAME_BYTES + _DIGEST.size + 1
 ACK_BYTES, WANT_BYTES, ENTRY_BYTES = _ACK.size, 2, _ENTRY.size
 HOLDINGS_BASE = FRAME_BYTES + _HOLD.size
 
-WANT_HOLDINGS, ANSWER_NOW, ACKS_CUT, ECHO_VALID = 1, 2, 4, 8
+WANT_HOLDINGS, ANSWER_NOW, ACKS_CUT, ECHO_VALID, FRESH = 1, 2, 4, 8, 16
 
 
 @dataclass(frozen=True)
@@ -159,7 +161,7 @@ def _digest(agent: int, frame: int, body: bytes) -> Digest:
     off += n_acks * _ACK.size
     (n_wants,) = struct.unpack_from("<B", body, off)
     wants = struct.unpack_from(f"<{n_wants}H", body, off + 1)
-    if off + 1 + 2 * n_wants != len(body) or flags > 15:
+    if off + 1 + 2 * n_wants != len(body) or flags > 31:
         raise PacketError("DIGEST fields are inconsistent")
     return Digest(agent, frame, serial, boot, dseq, echo_dseq, echo_serial, flags, held_count, held_hash, acks,
                   tuple(wants))
