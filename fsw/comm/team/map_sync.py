@@ -69,10 +69,10 @@ class SyncConfig:
     tile_cells: int = param(16, lo=4, hi=256, units="cells", doc="tile side")
     mtu_bytes: int = param(512, lo=128, hi=8192, units="B", doc="largest datagram")
     ack_delay_s: float = param(0.3, lo=0.0, hi=30.0, units="s", doc="DIGEST this long after new tiles")
-    min_digest_interval_s: float = param(1.0, lo=0.0, hi=60.0, units="s",
+    min_digest_interval_s: float = param(0.5, lo=0.0, hi=60.0, units="s",
                                          doc="DIGESTs at most this often (answers excepted)")
     keepalive_s: float = param(10.0, lo=0.5, hi=600.0, units="s", doc="DIGEST at least this often")
-    probe_s: float = param(1.0, lo=0.05, hi=60.0, units="s",
+    probe_s: float = param(1.5, lo=0.05, hi=60.0, units="s",
                            doc="after the last tile: a DIGEST asking for an answer; doubles")
     probe_max_s: float = param(1.5, lo=0.1, hi=600.0, units="s", doc="longest probe interval")
     reorder_slack_s: float = param(0.5, lo=0.0, hi=60.0, units="s",
@@ -99,6 +99,9 @@ class SyncStats:
     holdings_out: int = 0
     packets_in: int = 0
     bytes_in: int = 0  # valid packets received, channel duplicates excepted
+    digest_bytes_in: int = 0  # of which DIGESTs
+    holdings_bytes_in: int = 0  # of which HOLDINGS
+    stale_bytes_in: int = 0  # of which TILEs of a version already held
     dup_packets: int = 0
     bad_packets: int = 0
     foreign_packets: int = 0
@@ -157,6 +160,7 @@ class MapSync:
         self.fresh = True  # started with no replica (False once restored from a checkpoint)
         self.wants: set[int] = set()  # own tiles the peer holds newer: asked back
         self._hash_cache: dict[int, bytes] = {}
+        self._source: dict[int, F32] = {}  # own tiles: the map each version was made from
         self._replica_hash: str | None = None
         self._serial = (self.boot * 4099) & 0xFFFF
         self._sent_at: OrderedDict[int, float] = OrderedDict()  # serial -> send time
@@ -260,9 +264,10 @@ class MapSync:
             if rec is None:
                 changed = bool(known.any())
             else:
-                was = np.isfinite(rec.z)
+                src = self._source.get(t, rec.z)  # what the last version was made from
+                was = np.isfinite(src)
                 changed = bool((known != was).any()) or bool(
-                    known.any() and float(np.max(np.abs(sub[known] - rec.z[known]))) > self.bound_m)
+                    known.any() and float(np.max(np.abs(sub[known] - src[known]))) > self.bound_m)
             if changed and self._publish_tile(t, sub, now_s):
                 n += 1
         return n
@@ -275,6 +280,7 @@ class MapSync:
             return False
         self.counter += 1
         self.own[t] = TileRec(self.counter, sp.blob_digest(blob), blob, decode_map(blob).z)
+        self._source[t] = np.array(sub, np.float32)
         self._touch(self.agent)
         self.wants.discard(t)
         self._lost.discard(t)
@@ -308,10 +314,14 @@ class MapSync:
         self._last_rx_s = now_s
         self._peer_serial = p.serial
         if isinstance(p, sp.Tile):
+            stale = self.stats.stale_tiles
             self._on_tile(p, now_s)
+            self.stats.stale_bytes_in += len(datagram) if self.stats.stale_tiles > stale else 0
         elif isinstance(p, sp.Digest):
+            self.stats.digest_bytes_in += len(datagram)
             self._on_digest(p, now_s)
         else:
+            self.stats.holdings_bytes_in += len(datagram)
             self._on_holdings(p, now_s)
 
     def _decode_tile(self, p: sp.Tile) -> F32 | None:
@@ -337,6 +347,7 @@ class MapSync:
             mine = self.own.get(p.tile)
             if p.tile in self.wants and (mine is None or p.version > mine.version):
                 self.own[p.tile] = rec
+                self._source.pop(p.tile, None)
                 self.counter = max(self.counter, p.version)
                 self.belief[p.tile] = (p.version, p.digest)
                 self._touch(self.agent)
@@ -396,11 +407,10 @@ class MapSync:
                     del self._unconfirmed[t]
         for t, v in p.acks:
             rec = self.own.get(t)
-            if rec is not None and v == rec.version:
-                self.belief[t] = (v, rec.digest)
+            if rec is not None and v == rec.version & 0xFFFF:  # acknowledgements carry 16 bits
+                self.belief[t] = (rec.version, rec.digest)
                 self._inflight.pop(t, None)
                 self._lost.discard(t)
-            self.counter = max(self.counter, v)
         synced = p.held_hash == self.layer_hash(self.agent) and p.held_count == len(self.own)
         if synced:
             self.belief = {t: (r.version, r.digest) for t, r in self.own.items()}
@@ -628,6 +638,7 @@ class MapSync:
             "v": CHECKPOINT_VERSION, "agent": self.agent, "peer": self.peer, "frame": self.frame,
             "shape": list(self.shape), "tile_cells": self.cfg.tile_cells, "counter": self.counter,
             "rounds": self.stats.rounds, "own": layer(self.own), "held": layer(self.held),
+            "source": {str(t): base64.b64encode(z.tobytes()).decode() for t, z in self._source.items()},
             "belief": {str(t): list(b) for t, b in self.belief.items()},
         }).encode()
 
@@ -648,6 +659,11 @@ class MapSync:
                 for key, (ver, b64) in s[name].items():
                     blob = base64.b64decode(b64)
                     d[int(key)] = TileRec(int(ver), sp.blob_digest(blob), blob, decode_map(blob).z)
+            for key, b64 in s["source"].items():
+                t = int(key)
+                ys, xs = m.tile_slice(t)
+                m._source[t] = np.frombuffer(base64.b64decode(b64), np.float32).reshape(
+                    ys.stop - ys.start, xs.stop - xs.start).copy()
             m.counter = int(s["counter"]) + RESTART_VERSION_STEP
             m.fresh = False
             m.stats.rounds = int(s["rounds"])

@@ -17,7 +17,7 @@ u16 (the peer's last digest received), ``echo_serial`` u16 (the peer's last pack
 the ack list is cut short; bit 3: an echo is valid; bit 4: started with no replica),
 ``held_count`` u16, ``held_hash`` 8 bytes (:meth:`~fsw.comm.team.map_sync.MapSync.layer_hash` of
 the sender's copy of the receiver's layer), ``n_acks`` u8 and ``n_acks`` x (``tile`` u16,
-``version`` u32), ``n_wants`` u8 and ``n_wants`` x ``tile`` u16 (tiles of the sender's own layer
+``version`` u16: the low 16 bits), ``n_wants`` u8 and ``n_wants`` x ``tile`` u16 (tiles of the sender's own layer
 it asks to be given back).
 
 HOLDINGS (15): ``serial`` u16, ``set_id`` u16, ``page`` u8, ``n_pages`` u8, then entries
@@ -41,7 +41,7 @@ SYNC_TYPES = frozenset({TILE, DIGEST, HOLDINGS})
 FRAME_BYTES = 8  # header 4 + CRC 4
 _TILE = struct.Struct("<HBHII")
 _DIGEST = struct.Struct("<HHHHHBH8sB")
-_ACK = struct.Struct("<HI")
+_ACK = struct.Struct("<HH")
 _HOLD = struct.Struct("<HHBB")
 _ENTRY = struct.Struct("<HII")
 TILE_OVERHEAD = FRAME_BYTES + _TILE.size
@@ -112,7 +112,7 @@ def encode(p: SyncPacket) -> bytes:
     if isinstance(p, Digest):
         head = _DIGEST.pack(p.serial & 0xFFFF, p.boot & 0xFFFF, p.dseq & 0xFFFF, p.echo_dseq & 0xFFFF,
                             p.echo_serial & 0xFFFF, p.flags, p.held_count, p.held_hash, len(p.acks))
-        acks = b"".join(_ACK.pack(t, v) for t, v in p.acks)
+        acks = b"".join(_ACK.pack(t, v & 0xFFFF) for t, v in p.acks)
         wants = struct.pack(f"<B{len(p.wants)}H", len(p.wants), *p.wants)
         return _frame(DIGEST, p.agent, p.frame, head + acks + wants)
     body = _HOLD.pack(p.serial & 0xFFFF, p.set_id & 0xFFFF, p.page, p.n_pages)
