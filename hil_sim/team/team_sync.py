@@ -54,6 +54,7 @@ class SyncScene:
     changes: dict[int, tuple[tuple[int, int, int, float], ...]]
     cell_m: float = 0.03
     wheel_m: float = 0.2
+    observed: tuple[tuple[F32, ...], ...] | None = None  # per agent per round: its map (replaces views)
 
     @property
     def rounds(self) -> int:
@@ -105,6 +106,11 @@ class _Agent:
         self.z = np.full(scene.truth.shape, np.nan, np.float32)
 
     def look(self, rnd: int) -> None:
+        if self.scene.observed is not None:
+            m = self.scene.observed[self.agent][rnd]
+            known = np.isfinite(m)
+            self.z[known] = m[known]
+            return
         cy, cx = self.scene.views[self.agent][rnd]
         yy, xx = np.mgrid[: self.z.shape[0], : self.z.shape[1]]
         disc = (yy - cy) ** 2 + (xx - cx) ** 2 <= self.scene.radius ** 2
@@ -121,7 +127,8 @@ class _Agent:
 @dataclass
 class SyncResult:
     hash_equal: bool  # the replicas' hashes equal at the end
-    rounds: int  # sync rounds run
+    rounds: int  # sync rounds with new views (the mission's)
+    extra_rounds: int  # rounds after them, with nothing new, until the replicas were equal (or gave up)
     round_times_s: list[float]  # when each round published
     lag_s: list[float | None]  # per round: publish to equal replicas (None: not before the next round)
     equal_times_s: list[float]  # moments the replicas became equal (from unequal)
@@ -257,10 +264,43 @@ def run_sync(scene: SyncScene, channel: RadioChannelConfig, seed: int = 0, *, cf
         _add(totals[a], ends[a].stats)
         events += [(a, e.time_s, e.name) for e in ends[a].events.pop_all()]
     return SyncResult(
-        hash_equal=ends[0].replica_hash() == ends[1].replica_hash(), rounds=rnd, round_times_s=round_times,
+        hash_equal=ends[0].replica_hash() == ends[1].replica_hash(), rounds=scene.rounds,
+        extra_rounds=max(0, rnd - scene.rounds), round_times_s=round_times,
         lag_s=lags, equal_times_s=equal_times, round_s=round_s, stats=totals,
         air_bytes=ch.stats("a").air_bytes + ch.stats("b").air_bytes,
         full_resends=sum(s.full_resends for s in totals.values()), events=events)
+
+
+def scene_from_maps(recon_maps: Sequence[NDArray[np.floating]], cliff_maps: Sequence[NDArray[np.floating]],
+                    cell_m: float, wheel_m: float) -> SyncScene:
+    """A scene of the maps each agent held after each imaging cycle (same count and shape, NaN
+    unknown): what a team mission hands to :func:`run_sync`. Each agent's position for the
+    priority order is the centre of what it saw new in that cycle."""
+    if len(recon_maps) != len(cliff_maps) or not recon_maps:
+        raise ValueError("both agents need a map for every cycle, and at least one cycle")
+    obs = tuple(tuple(np.asarray(m, np.float32) for m in ms) for ms in (recon_maps, cliff_maps))
+    shape = obs[0][0].shape
+    if any(m.shape != shape for ms in obs for m in ms):
+        raise ValueError("every cycle's map must have the same shape")
+    views = []
+    for ms in obs:
+        pts, seen = [], np.zeros(shape, bool)
+        for m in ms:
+            new = np.isfinite(m) & ~seen
+            seen |= np.isfinite(m)
+            ys, xs = np.nonzero(new if new.any() else seen) if seen.any() else (np.array([0]), np.array([0]))
+            pts.append((int(np.mean(ys)), int(np.mean(xs))))
+        views.append(tuple(pts))
+    return SyncScene(np.zeros(shape), tuple(views), 0, {}, cell_m, wheel_m, obs)
+
+
+def team_sync_figures(recon_maps: Sequence[NDArray[np.floating]], cliff_maps: Sequence[NDArray[np.floating]],
+                      channel: RadioChannelConfig, seed: int, *, cell_m: float, wheel_m: float,
+                      round_s: float = 10.0, cfg: SyncConfig | None = None) -> dict[str, object]:
+    """The team section's sync figures for a mission: both agents' maps after each imaging cycle
+    (``recon_maps[k]``, ``cliff_maps[k]``), synced over ``channel`` one round per cycle."""
+    scene = scene_from_maps(recon_maps, cliff_maps, cell_m, wheel_m)
+    return sync_figures(run_sync(scene, channel, seed, cfg=cfg, round_s=round_s))
 
 
 def sync_figures(res: SyncResult) -> dict[str, object]:

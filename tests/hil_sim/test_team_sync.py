@@ -9,10 +9,11 @@ run takes well under a second; the 30-seed figures are ``safer-hil experiment sy
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from hil_sim.radio_channel import RadioChannelConfig
-from hil_sim.team.team_sync import Kill, SyncResult, make_scene, run_sync, sync_figures
+from hil_sim.team.team_sync import Kill, SyncResult, make_scene, run_sync, sync_figures, team_sync_figures
 
 OUTAGE = (40.0, 60.0)
 BACK = OUTAGE[0] + OUTAGE[1]
@@ -75,3 +76,23 @@ def test_more_seeds_through_outage_and_restarts(seed: int) -> None:
     check(run(seed), BACK)
     check(run(seed, (Kill(0, 60.0, 10.0),)), BACK)
     check(run(seed, (Kill(1, 145.0, 5.0),)), 150.0)
+
+
+def test_the_team_mission_hands_its_maps_per_cycle() -> None:
+    scene = make_scene(5, n=48, rounds=4, radius=10)
+    maps = []
+    for agent in (0, 1):  # each agent's map after each cycle: what it saw so far
+        seen, z, out = scene.truth.copy(), None, []
+        for r in range(scene.rounds):
+            cy, cx = scene.views[agent][r]
+            yy, xx = np.mgrid[:48, :48]
+            disc = (yy - cy) ** 2 + (xx - cx) ** 2 <= 100
+            z = np.where(disc, seen, np.nan) if z is None else np.where(disc, seen, z)
+            out.append(z.astype(np.float32))
+        maps.append(out)
+    figs = team_sync_figures(maps[0], maps[1], RadioChannelConfig(loss=0.1), 0, cell_m=0.03, wheel_m=0.2)
+    assert figs["sync_hash_equal"] is True and figs["sync_rounds"] == 4 and figs["sync_full_resends"] == 0
+    minimal, sent = figs["sync_minimal_bytes"], figs["sync_bytes"]
+    assert isinstance(minimal, int) and isinstance(sent, int) and minimal > 0 and sent <= 1.5 * minimal
+    with pytest.raises(ValueError, match="every cycle"):
+        team_sync_figures(maps[0], maps[1][:2], RadioChannelConfig(), 0, cell_m=0.03, wheel_m=0.2)

@@ -69,7 +69,7 @@ def one(case: str, seed: int, args: dict[str, float]) -> Row:
     res = run_sync(scene, ch, seed, cfg=replace(SyncConfig(), rate_bps=args["rate_bps"]),
                    round_s=args["round_s"], kills=kills)
     minimal = max(1, res.minimal_bytes)
-    return {"case": case, "seed": seed, "hash_equal": res.hash_equal, "rounds": res.rounds,
+    return {"case": case, "seed": seed, "hash_equal": res.hash_equal, "extra_rounds": res.extra_rounds,
             "rounds_to_equal": res.rounds_to_equal_after(since), "bytes_ratio": round(res.sync_bytes / minimal, 4),
             "air_ratio": round(res.air_bytes / minimal, 4), "sync_bytes": res.sync_bytes,
             "minimal_bytes": res.minimal_bytes, "full_resends": res.full_resends,
