@@ -329,10 +329,13 @@ class MapSync:
             return None
         ys, xs = self.tile_slice(p.tile)
         try:
-            z = decode_map(p.blob, max_cells=self.cfg.tile_cells ** 2).z
-        except (MapCodecError, ValueError):
+            with np.errstate(over="ignore", invalid="ignore"):
+                z = decode_map(p.blob, max_cells=self.cfg.tile_cells ** 2).z
+        except (MapCodecError, ValueError, MemoryError):  # zstandard: a frame larger than announced
             return None
-        return z if z.shape == (ys.stop - ys.start, xs.stop - xs.start) else None
+        if z.shape != (ys.stop - ys.start, xs.stop - xs.start) or np.isinf(z).any():
+            return None
+        return z
 
     def _on_tile(self, p: sp.Tile, now_s: float) -> None:
         if p.owner not in (self.agent, self.peer):
@@ -444,8 +447,9 @@ class MapSync:
 
     def _on_holdings(self, p: sp.Holdings, now_s: float) -> None:
         per = self._holdings_per_page()
-        if p.n_pages != -(-self.nty * self.ntx // per) or any(not p.page * per <= t < (p.page + 1) * per
-                                                               for t, _v, _d in p.entries):
+        n = self.nty * self.ntx
+        if p.n_pages != -(-n // per) or any(not p.page * per <= t < min((p.page + 1) * per, n)
+                                            for t, _v, _d in p.entries):
             self.stats.bad_packets += 1
             return
         if not self.want_holdings:

@@ -135,3 +135,39 @@ def test_two_ends_converge_and_a_checkpoint_restores_the_same_replica() -> None:
         MapSync.restore(b"{not json", SyncConfig(), CELL, WHEEL, boot=1)
     with pytest.raises(ValueError, match="not a usable map-sync checkpoint"):
         MapSync.restore(a.checkpoint().replace(b'"v": 1', b'"v": 9'), SyncConfig(), CELL, WHEEL, boot=1)
+
+
+def test_forged_packets_with_valid_checksums_never_raise() -> None:
+    """Corruptions that pass every checksum (container CRC, tile digest, packet CRC recomputed)
+    are counted or ignored, never raised, and never change a tile into one of another shape."""
+    import struct
+    import zlib
+
+    a, b = end(0), end(1)
+    b.publish(terrain(2), 0.0)
+    b.want_holdings = False
+    pkts = [d for d in b.poll(0.0) + b.poll(1.0)]
+    tiles = [sp.decode(d) for d in pkts if isinstance(sp.decode(d), sp.Tile)]
+    assert tiles
+    rng = np.random.default_rng(7)
+    for i in range(300):
+        t = tiles[i % len(tiles)]
+        assert isinstance(t, sp.Tile)
+        blob = bytearray(t.blob)
+        for _ in range(int(rng.integers(1, 4))):
+            blob[int(rng.integers(0, len(blob) - 4))] = int(rng.integers(0, 256))
+        blob[-4:] = struct.pack("<I", zlib.crc32(bytes(blob[:-4])))  # the container's own CRC
+        forged = sp.Tile(1, 0, 1000 + i, 1, int(rng.integers(0, 12)), 5000 + i, sp.blob_digest(bytes(blob)),
+                         bytes(blob))
+        a.receive(sp.encode(forged), 2.0)
+        d = sp.encode(sp.Digest(1, 0, 2000 + i, 0, i, 0, 0, int(rng.integers(0, 32)), int(rng.integers(0, 999)),
+                                rng.bytes(8), ((int(rng.integers(0, 99)), i),), (int(rng.integers(0, 99)),)))
+        a.receive(d, 2.0)
+        h = sp.encode(sp.Holdings(1, 0, 3000 + i, 0, int(rng.integers(0, 2)), 1,
+                                  ((int(rng.integers(0, 99)), i, 0),)))
+        a.receive(h, 2.0)
+    for t_id, rec in a.held.items():
+        ys, xs = a.tile_slice(t_id)
+        assert rec.z.shape == (ys.stop - ys.start, xs.stop - xs.start)
+    assert a.stats.bad_packets > 0
+    assert all(t < 9 for t in a.wants | set(a.belief))
