@@ -3,8 +3,10 @@
 Through the hostile channel (30 % loss each way, BER 3e-5, 10 % duplication and reordering,
 a 60 s outage) and a SIGKILL + restart of either agent from its checkpoint, both replicas reach
 the same hash within 3 sync rounds of the link's return (or the restart), with at most 1.2x the
-bytes of the minimal deltas and no full resend. Small scenes (64 x 64 cells, 16 tiles), so each
-run takes well under a second; the 30-seed figures are ``safer-hil experiment sync``'s.
+bytes of the minimal deltas and no full resend. Scenes of 128 x 128 cells (64 tiles) and 16
+rounds, as the experiment's but shorter, so a run takes about half a second; the 30-seed figures
+are ``safer-hil experiment sync``'s (docs/results/sync.md). On sparser scenes (a tile or two per
+round) the DIGESTs weigh more and the bytes can exceed 1.2x (docs/sync.md, "Limits").
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ HOSTILE = RadioChannelConfig(loss=0.3, ber=3e-5, duplicate=0.1, reorder=0.1, out
 
 
 def run(seed: int, kills: tuple[Kill, ...] = ()) -> SyncResult:
-    return run_sync(make_scene(seed, n=64, rounds=16, radius=12), HOSTILE, seed, kills=kills)
+    return run_sync(make_scene(seed, n=128, rounds=16, radius=20), HOSTILE, seed, kills=kills)
 
 
 def check(res: SyncResult, since_s: float) -> None:

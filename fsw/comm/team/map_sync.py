@@ -72,9 +72,9 @@ class SyncConfig:
     min_digest_interval_s: float = param(0.5, lo=0.0, hi=60.0, units="s",
                                          doc="DIGESTs at most this often (answers excepted)")
     keepalive_s: float = param(10.0, lo=0.5, hi=600.0, units="s", doc="DIGEST at least this often")
-    probe_s: float = param(1.5, lo=0.05, hi=60.0, units="s",
+    probe_s: float = param(0.8, lo=0.05, hi=60.0, units="s",
                            doc="after the last tile: a DIGEST asking for an answer; doubles")
-    probe_max_s: float = param(1.5, lo=0.1, hi=600.0, units="s", doc="longest probe interval")
+    probe_max_s: float = param(1.0, lo=0.1, hi=600.0, units="s", doc="longest probe interval")
     reorder_slack_s: float = param(0.5, lo=0.0, hi=60.0, units="s",
                                    doc="a tile is lost once one sent this much later arrived")
     stall_s: float = param(25.0, lo=0.5, hi=600.0, units="s", doc="no packet this long: tiles pause")

@@ -130,8 +130,8 @@ def run(args: argparse.Namespace) -> int:
         f"of new views every {args.round_s:g} s, then up to 3 rounds with nothing new; the channel at "
         f"{args.rate_bps:g} bit/s with {args.loss:g} loss each way, BER {args.ber:g}, {args.duplicate:g} "
         f"duplication, {args.reorder:g} reordering and an outage of {args.outage_s:g} s from "
-        f"{args.outage_at_s:g} s. `rounds`: sync rounds from the link's return (or the restart, if later) "
-        "to the first round boundary with equal replica hashes; `bytes / minimal`: sync bytes that reached "
+        f"{args.outage_at_s:g} s. `rounds`: from the link's return (or the restart, if later) until the "
+        "replicas' hashes are first equal, in sync rounds (at least 1); `bytes / minimal`: sync bytes that reached "
         "the other agent (both ways, digests and holdings included, channel duplicates not) over the bytes "
         "of the minimal deltas (every published tile version's packet once); `air / minimal`: every byte "
         "put on the air over the same.",
