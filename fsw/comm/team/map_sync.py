@@ -9,8 +9,9 @@ versioned by its owner's counter. Both replicas hold the same bytes of every til
 same content; :meth:`replica_hash` hashes the decoded tiles of both layers.
 
 * :meth:`publish` (once per sync round, with the agent's current map) compares each tile
-  with the version it published last and publishes a new version only where a cell became
-  known or unknown or moved by more than the error bound (one wheel diameter by default).
+  with the map tile its last version was made from and publishes a new version only where a
+  cell became known or unknown or moved by more than the error bound (one wheel diameter by
+  default).
 * New versions go out as TILE packets, highest ``priority(ty, tx)`` first (the receiver's task:
   e.g. its corridor), paced to ``rate_bps``. The peer acknowledges them in its DIGESTs (every
   acknowledgement is repeated until the peer's own DIGEST echoes the digest that carried it).
@@ -18,14 +19,13 @@ same content; :meth:`replica_hash` hashes the decoded tiles of both layers.
   ``reorder_slack_s`` after it, and does not hold it (as TCP RACK). After the last tile a DIGEST
   asking for an answer probes the tail.
 * The sender keeps what it believes the peer holds (per-tile versions and digests). A DIGEST
-  carries the hashes of both layers as its sender holds them; a peer whose copy of my layer
+  carries the hash of its sender's copy of the receiver's layer; a peer whose copy of my layer
   hashes equal to mine holds all of it. When the peer restarted (its boot id changed), when I
   restarted (from my checkpoint or empty), or when the hashes keep disagreeing with nothing
   in flight, I ask for the peer's HOLDINGS of my layer (per tile: version, digest) and send
   exactly what they lack; tiles of my layer the peer holds in newer versions than I do (I
   published them after my checkpoint) I ask back (``wants``) and adopt. A full resend happens
-  only when the peer's holdings of my layer are empty while my layer is not (its replica
-  was lost): ``stats.full_resends``.
+  only when the peer started with no replica (its DIGESTs say so): ``stats.full_resends``.
 * No packet from the peer for ``stall_s``: tiles pause, a probing DIGEST every ``probe_max_s``.
 
 :meth:`checkpoint` serialises the whole sync state (both layers, versions, beliefs);
