@@ -528,6 +528,9 @@ def test_the_shape_rules_find_what_they_forbid(tmp_path: Path) -> None:
     assert folder_offenders(tmp_path, ["pkg"], {"pkg/many": 16}) == []
 
 
+MAX_ANY_EXCEPTIONS = 29  # lowered as modules leave the list
+
+
 def test_explicit_any_is_refused_in_fsw_but_where_still_spelled_out() -> None:
     """mypy refuses an explicit ``Any`` (also implied, as in a bare ``np.ndarray``) in all of fsw/;
     the flight tasks, the executive and the settings are never excepted."""
@@ -538,6 +541,7 @@ def test_explicit_any_is_refused_in_fsw_but_where_still_spelled_out() -> None:
     assert any("fsw.*" in o["module"] for o in on)
     excepted = [m for o in mypy["overrides"] if o.get("disallow_any_explicit") is False for m in o["module"]]
     assert not any(m.startswith(("fsw.tasks", "fsw.executive", "fsw.settings", "fsw.app")) for m in excepted)
+    assert len(excepted) <= MAX_ANY_EXCEPTIONS, f"{len(excepted)} modules excepted: none joins the list"
 
 
 def test_the_settings_rule_refuses_an_arrow_up_to_the_tasks() -> None:
