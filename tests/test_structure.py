@@ -553,3 +553,14 @@ def test_the_settings_rule_refuses_an_arrow_up_to_the_tasks() -> None:
     assert not rule.violates(Edge("fsw.settings", "fsw.sections", 1))
     assert not rule.violates(Edge("fsw.settings", "fsw.drivers.calibration_file", 1))
     assert not rule.violates(Edge("fsw.tasks.base", "fsw.settings", 1))
+
+
+def test_the_flight_software_never_imports_the_lab_tables_library() -> None:
+    """pandas is the lab's (hil_sim/lab, the ``lab`` extra): no fsw module imports it."""
+    offenders = []
+    for module, tree in _trees(ROOT, ["fsw"]):
+        for node in ast.walk(tree):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            offenders += [f"{module}: {n}" for n in names if n.split(".")[0] == "pandas"]
+    assert not offenders, offenders
