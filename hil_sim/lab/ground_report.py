@@ -1,8 +1,8 @@
 """Rows and the markdown report of ``safer-hil experiment ground`` (issue 13, "Done when").
 
-One row per mission, from its ``summary.json`` (hil_sim/mission_run.py) and the map it wrote.
+One row per mission, from its ``summary.json`` (hil_sim/mission/mission_run.py) and the map it wrote.
 The map's error against truth is also summarised by the plane fitted to it (least squares
-over mapped cells, ``hil_sim.mission_run.error_plane``): its tilt shows how much of the error is
+over mapped cells, ``hil_sim.mission.mission_run.error_plane``): its tilt shows how much of the error is
 the map tilted by the rover's own attitude, its RMS after removing the plane what is left.
 """
 

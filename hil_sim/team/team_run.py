@@ -1,6 +1,6 @@
 """A team mission on the lockstep bench (docs/team.md, "Running a team mission").
 
-After the RECON-bot has mapped and delivered its map (``hil_sim.mission_run``), the
+After the RECON-bot has mapped and delivered its map (``hil_sim.mission.mission_run``), the
 Cliff-bot's flight code (:class:`fsw.tasks.cliffbot_mission.CliffbotMission` with its
 devices and navigation) drives the bench's winches and wheels (:class:`hil_sim.team.cliffbot_rig.
 CliffbotRig`, CAN frames of ``config/team.dbc``) on one stepped clock, on the map it received.
@@ -33,13 +33,13 @@ from fsw.core.team.tether import TetherConfig
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.tasks.cliffbot_mission import CliffbotMission, CliffbotMissionConfig
 from hil_sim.faults import FaultInjector, FaultSpec
-from hil_sim.radio_channel import RadioChannel
+from hil_sim.link.radio_channel import RadioChannel
 from hil_sim.team.cliffbot_rig import CliffbotRig
 from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]
 CHI2_95_6DOF = 12.5916
-RECON, CLIFF = "a", "b"  # the radio channel's sides, as in hil_sim.mission_run
+RECON, CLIFF = "a", "b"  # the radio channel's sides, as in hil_sim.mission.mission_run
 
 
 @dataclass
@@ -239,7 +239,7 @@ def run_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], chan
 def team_phase(out: Path | None, seed: int, world: World, grid: MapGrid, cliffbot: Any, channel: RadioChannel,
                bench: Any, datum_m: float) -> dict[str, Any]:
     """``{"team": section}`` for a team scenario, else ``{}``: the Cliff-bot's mission after the
-    RECON-bot's (``hil_sim.mission_run``), on the last map it received (heights back in the
+    RECON-bot's (``hil_sim.mission.mission_run``), on the last map it received (heights back in the
     world's datum: the flight map's origin is the RECON-bot's start height, which the team
     shares), with fixes from the RECON-bot where it stopped."""
     if world.team is None:
