@@ -40,7 +40,7 @@ from fsw.sections import CliffbotSiteConfig
 from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
 from fsw.tasks.cliffbot.mission import CliffbotMissionTask
 from hil_sim.faults import FaultInjector, FaultSpec
-from hil_sim.radio_channel import ChannelPort, RadioChannel
+from hil_sim.link.radio_channel import ChannelPort, RadioChannel
 from hil_sim.team.cliffbot_rig import CliffbotRig
 from hil_sim.team.team_eval import FixError, fix_error
 from hil_sim.team.team_run import TeamSetup, team_section

@@ -1,6 +1,6 @@
 """A team mission on the lockstep bench (docs/team.md, "Running a team mission").
 
-After the RECON-bot has mapped and delivered its map (``hil_sim.mission_run``), the
+After the RECON-bot has mapped and delivered its map (``hil_sim.mission.mission_run``), the
 Cliff-bot's flight code (:class:`fsw.tasks.cliffbot_mission.CliffbotMission` with its
 devices and navigation) drives the bench's winches and wheels (:class:`hil_sim.team.cliffbot_rig.
 CliffbotRig`, CAN frames of ``config/team.dbc``) on one stepped clock, on the map it received.
@@ -36,14 +36,14 @@ from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig
 from fsw.tasks.cliffbot_mission import CliffbotMission
 from hil_sim.faults import FaultInjector, FaultSpec
-from hil_sim.radio_channel import RadioChannel
+from hil_sim.link.radio_channel import RadioChannel
 from hil_sim.team.cliffbot_rig import CliffbotRig
 from hil_sim.team.team_eval import FixError, TeamOutcome, fix_error, judge_team
 from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]
 ToMap = Callable[[F64], F64]  # world points (N, 2) -> the received map's frame
-RECON, CLIFF = "a", "b"  # the radio channel's sides, as in hil_sim.mission_run
+RECON, CLIFF = "a", "b"  # the radio channel's sides, as in hil_sim.mission.mission_run
 
 
 @dataclass

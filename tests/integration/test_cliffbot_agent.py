@@ -109,7 +109,7 @@ def _team(world: Any, frames: int, faults: tuple[Any, ...] = (), out: Path | Non
           ) -> tuple[dict[str, Any], list[tuple[float, str, str]]]:
     """The Cliff-bot's mission beside an idle RECON-bot that sends the true ground as its map."""
     from hil_sim.bench import LockstepBench
-    from hil_sim.radio_channel import RadioChannel
+    from hil_sim.link.radio_channel import RadioChannel
     from hil_sim.team.team_bench import CliffbotAgent, FixWatch, truth_map
 
     grid = MapGrid.from_config(world.map_grid)

@@ -19,7 +19,7 @@ fitted to map minus truth over mapped cells: its tilt, and the RMS error around 
 ``wheels_on_unknown_ground`` (frames the rover moved with a true wheel position on ground the
 flight geofence did not know), ``bench_faults`` (``{t_s, kind, detail}``), ``odometer_m``,
 ``reachable_stations`` (per step boundary: edge-path stations the geofence allowed from the
-rover's estimated pose, ``hil_sim.ground_watch``), ``looks`` (views of unknown ground before
+rover's estimated pose, ``hil_sim.mission.ground_watch``), ``looks`` (views of unknown ground before
 a move), ``stays`` (steps whose view was taken without the planned move, and why),
 ``steps_unused`` and ``steps_unused_reason``,
 ``end_reason``, ``final_state``, ``mapped_cells``, ``frames``, ``sim_s``,
@@ -43,12 +43,12 @@ function of the inputs and the seed.
 
 Resuming (docs/hil.md, "Resuming a mission"): the run writes ``run.json`` (its ``RunSpec``)
 and, after each imaging step, a checkpoint with the map, the mission state and the bench's
-truth and random generators (``hil_sim.resume_state``). ``mode="resume"`` continues a killed
+truth and random generators (``hil_sim.mission.resume_state``). ``mode="resume"`` continues a killed
 run from its newest good checkpoint, deterministically: the same seed gives the same map as
 an uninterrupted run. ``mode="new"`` refuses an out directory that holds a mission
 (``MissionExistsError``); ``mode="fresh"`` deletes it first.
 
-A full or failing disk (docs/hil.md): ``hil_sim.run_dir`` asks for room before a start or a
+A full or failing disk (docs/hil.md): ``hil_sim.mission.run_dir`` asks for room before a start or a
 resume and copies the flight's storage events to stderr; the mission carries on.
 """
 
@@ -72,9 +72,9 @@ from fsw.drivers.resources import OracleTruth, Resources
 from fsw.framework.storage import StorageError, describe
 from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
 from hil_sim.faults import FaultSpec
-from hil_sim.ground_watch import reachable_stations, wheels_on_unknown
 from hil_sim.lab.terrain_eval import map_quality
-from hil_sim.mission_report import (
+from hil_sim.mission.ground_watch import reachable_stations, wheels_on_unknown
+from hil_sim.mission.mission_report import (
     _cliffbot_report,
     error_plane,
     map_transfer,
@@ -84,7 +84,7 @@ from hil_sim.mission_report import (
     transfer_s,
     write_outputs,
 )
-from hil_sim.run_dir import MANIFEST, check_room, echo_storage_events, has_mission
+from hil_sim.mission.run_dir import MANIFEST, check_room, echo_storage_events, has_mission
 
 MODES = ("new", "fresh", "resume")
 
@@ -225,8 +225,8 @@ def run_mission(
     "resume" (continue it from its newest good checkpoint; module docstring)."""
     from hil_sim.bench import LockstepBench
     from hil_sim.cliffbot_receiver import Cliffbot
-    from hil_sim.radio_channel import ChannelPort, RadioChannel, RadioChannelConfig
-    from hil_sim.resume_state import BenchStateError, bench_state, restore_bench
+    from hil_sim.link.radio_channel import ChannelPort, RadioChannel, RadioChannelConfig
+    from hil_sim.mission.resume_state import BenchStateError, bench_state, restore_bench
     from hil_sim.rig import load_hardware
     from hil_sim.team.team_bench import CliffbotAgent, FixWatch
     from hil_sim.world import load_scenario
