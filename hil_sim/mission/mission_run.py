@@ -235,8 +235,9 @@ def run_mission(
     world = load_scenario(spec.scenario, seed=spec.seed)
     cfg = mission_config(spec, world)
     grid = MapGrid.from_config(cfg.map)
-    truth = world.truth_on_grid(grid)
-    oracle = OracleTruth(z_m=truth, textured=~world.textureless_on_grid(grid))
+    frame = tuple(float(v) for v in world.rover_start)  # the flight map's frame: odometry from the start
+    truth = world.truth_on_grid(grid, frame)
+    oracle = OracleTruth(z_m=truth, textured=~world.textureless_on_grid(grid, frame))
     outages = tuple((f.start_s, f.duration_s) for f in spec.faults if f.kind == "radio_outage")
     channel = RadioChannel(RadioChannelConfig(outages=outages), seed=spec.seed)
     clock_box: list[Callable[[], float]] = []
