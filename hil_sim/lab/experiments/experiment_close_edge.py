@@ -4,7 +4,7 @@
 Generated starts (the ``terrain`` family, hil_sim/world/terrain.py) with the edge
 ``--distances`` from the rover's footprint (its bumper when ahead, its wheels when right, a front
 corner when diagonal) at each of ``--bearings`` (deg from the heading: 0 ahead, -45 ahead-right,
--90 right), for each ``--seeds``, each run as a full lockstep mission (``hil_sim.mission_run``)
+-90 right), for each ``--seeds``, each run as a full lockstep mission (``hil_sim.mission.mission_run``)
 per method, ``--jobs`` at a time in a process pool. It writes ``close_edge.json`` and
 ``close_edge.md``: per start, each method's odometer and the first reason it stayed; per method,
 the starts it left; the criteria: no start where an information method (3, 4, 5) never moved
