@@ -146,6 +146,7 @@ class LiveSource:
         self.rec, self.vehicle, self.p = rec, vehicle, f"/{vehicle}"
         self.grid: Any = None
         self.track: list[tuple[float, float]] = []
+        self._pending: list[tuple[str, tuple[Any, ...]]] = []  # what came before the first map gave the grid
         self.counts = {"map": 0, "pose": 0, "images": 0, "plan": 0, "view": 0, "events": 0}
 
     def _at(self, t: float) -> None:
@@ -162,6 +163,9 @@ class LiveSource:
         self._at(t)
         self.rec.log(f"{self.p}/map/elevation", rr.Image(map_rgb(np.where(emap.mapped, emap.z, np.nan))))
         self.counts["map"] += 1
+        pending, self._pending = self._pending, []
+        for method, args in pending:
+            getattr(self, method)(*args)
 
     def pose(self, t: float, nav: Any) -> None:
         import rerun as rr
@@ -193,6 +197,8 @@ class LiveSource:
         import rerun as rr
 
         if self.grid is None:
+            self._pending = [p for p in self._pending if p[0] != "plan_update"]
+            self._pending.append(("plan_update", (t, stations, fence, current)))
             return
         self._at(t)
         pts = [self._uv(x, y) for x, y, _yaw in stations]
@@ -206,6 +212,8 @@ class LiveSource:
         import rerun as rr
 
         if self.grid is None:
+            self._pending = [p for p in self._pending if p[0] != "chosen_view"]
+            self._pending.append(("chosen_view", (t, x, y, yaw, label)))
             return
         self._at(t)
         u, v = self._uv(x, y)

@@ -72,6 +72,34 @@ def test_live_map_colours_unknown_dark_and_puts_north_up() -> None:
     assert rgb[0, 0].tolist() == rgb[0, 2].tolist()
 
 
+class _Rec:
+    """A rerun stream stand-in that keeps what was logged."""
+
+    def __init__(self) -> None:
+        self.logged: list[tuple[str, object]] = []
+        self.times: list[float] = []
+
+    def set_time(self, timeline: str, duration: float) -> None:
+        self.times.append(duration)
+
+    def log(self, path: str, entity: object) -> None:
+        self.logged.append((path, entity))
+
+
+def test_live_source_draws_in_map_pixels_and_keeps_the_plan_until_the_grid_is_known() -> None:
+    rec = _Rec()
+    src = rerun_cli.LiveSource(rec, "recon")
+    src.plan_update(0.5, [(0.3, 0.6, 0.0)], [[(0.0, 0.0), (0.3, 0.0), (0.3, 0.3)]])
+    src.chosen_view(0.6, 0.3, 0.6, 0.0, "5 10 cells")
+    assert rec.logged == []  # no grid yet: nothing can be placed
+    src.map(1.0, _terrain_map(32))  # cell 0.03 m, origin (0, 0), 32 x 32
+    paths = [p for p, _ in rec.logged]
+    assert paths == ["/recon/map/elevation", "/recon/map/stations", "/recon/map/geofence", "/recon/map/next_view"]
+    assert src._uv(0.3, 0.6) == pytest.approx((10.0, 12.0))  # u = x / cell, v = ny - y / cell (north up)
+    src.pose(2.0, SimpleNamespace(x=0.3, y=0.6, yaw=0.0))
+    assert [p for p, _ in rec.logged[-2:]] == ["/recon/map/rover", "/recon/map/track"] and rec.times[-1] == 2.0
+
+
 def test_live_refuses_a_non_local_url_and_usage_errors(capsys: pytest.CaptureFixture[str]) -> None:
     from ground.cli import main as ground_main
 
