@@ -8,6 +8,8 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from fsw.comm.mavlink_dialect import mavlink, new_codec
 from fsw.comm.mavlink_telemetry import heartbeat, statustext
 from fsw.comm.mavlink_tlog import TlogWriter
@@ -71,3 +73,45 @@ def test_a_recording_from_a_two_vehicle_tlog_has_a_source_each(tmp_path: Path) -
     assert [m.message for m in got["/cliffbot/events"]] == ["cliffbot_mission.STATE: SELECT"]
     frames = {t.child_frame_id for m in got["/tf"] for t in m.transforms}
     assert {"recon/base_link", "cliffbot/base_link"} <= frames
+
+
+@pytest.mark.slow
+def test_map_follows_a_link_and_rewrites_the_picture_per_preview(tmp_path: Path) -> None:
+    """Issue 29, item 1: ``safer-ground map URL`` shows the preview live: each complete preview of
+    each vehicle rewrites its PNG (system 2's beside the first vehicle's)."""
+    import socket
+    import threading
+    import time
+
+    import cv2
+    import numpy as np
+
+    from fsw.comm.mavlink_image import ImageSender
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    out = tmp_path / "live.png"
+    rc: list[int] = []
+    t = threading.Thread(target=lambda: rc.append(ground_main(
+        ["map", f"udpin:127.0.0.1:{port}", "--out", str(out), "--duration", "4", "--scale", "1"])))
+    t.start()
+    time.sleep(1.0)
+    grey = np.full((16, 24), 200, np.uint8)
+    grey[:, :8] = 0
+    jpeg = cv2.imencode(".jpg", grey)[1].tobytes()
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    for sid in (1, 2):
+        codec, sender = new_codec(sid, 1), ImageSender()
+        tx.sendto(heartbeat("MOVE", False, False).pack(codec), ("127.0.0.1", port))
+        sender.offer(jpeg, 24, 16, mavlink.MAVLINK_DATA_STREAM_IMG_JPEG, 90)
+        while (m := sender.peek()) is not None:
+            tx.sendto(m.pack(codec), ("127.0.0.1", port))
+            sender.consume()
+    tx.close()
+    t.join(timeout=20)
+    assert rc == [0]
+    img = cv2.imread(str(out))
+    assert img is not None and img.shape[:2] == (16, 24)
+    assert img[:, :6].max() == 0 and img[:, 10:].mean() > 50  # unknown black, known coloured
+    assert cv2.imread(str(tmp_path / "live.cliffbot.png")) is not None
