@@ -48,6 +48,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="serve the live view on 127.0.0.1 (rerun's web viewer) until Ctrl-C")
     p.add_argument("--grpc-port", type=int, default=9876, help="the port missions stream to (with --live)")
     p.add_argument("--web-port", type=int, default=9090, help="the web page's port (with --live)")
+    p.add_argument("--link", metavar="URL", help="with --live: also show what a MAVLink link carries (a real-time "
+                                                 "mission: map previews, pose, events, every vehicle), e.g. "
+                                                 "udpin:127.0.0.1:14550")
 
 
 def convert(mcap: Path, out: Path, application_id: str = APP_ID) -> None:
@@ -145,16 +148,19 @@ class LiveSource:
     def __init__(self, rec: Any, vehicle: str) -> None:
         self.rec, self.vehicle, self.p = rec, vehicle, f"/{vehicle}"
         self.grid: Any = None
+        self.scale = 1.0  # image pixels per map cell (1 for the map itself, less for a link's preview)
         self.track: list[tuple[float, float]] = []
         self._pending: list[tuple[str, tuple[Any, ...]]] = []  # what came before the first map gave the grid
+        self.last_event: Any = None  # a link's latest event shown (feed_from_link)
+        self.seen_images = 0  # a link's complete previews shown
         self.counts = {"map": 0, "pose": 0, "images": 0, "plan": 0, "view": 0, "events": 0}
 
     def _at(self, t: float) -> None:
         self.rec.set_time("mission_time", duration=float(t))
 
     def _uv(self, x: float, y: float) -> tuple[float, float]:
-        g = self.grid
-        return (x - g.x0) / g.cell, g.ny - (y - g.y0) / g.cell
+        g, k = self.grid, self.scale
+        return k * (x - g.x0) / g.cell, k * (g.ny - (y - g.y0) / g.cell)
 
     def map(self, t: float, emap: ElevationMap) -> None:
         import rerun as rr
@@ -232,11 +238,21 @@ class LiveSource:
         self.rec.log(f"{self.p}/events", rr.TextLog(f"{name}: {text}", level=str(level)))
         self.counts["events"] += 1
 
-    def map_preview(self, t: float, jpeg: bytes) -> None:
+    def map_preview(self, t: float, jpeg: bytes, grid: Any = None) -> None:
+        """A map preview as the link carries it (JPEG, north up, grey < 8 unknown): drawn as the
+        map when ``grid`` (the flight's map grid) says where it lies, else on its own."""
         import rerun as rr
 
+        from fsw.tasks.mavlink_preview import UNKNOWN_BELOW
+
         self._at(t)
-        self.rec.log(f"{self.p}/map/preview", rr.EncodedImage(contents=jpeg, media_type="image/jpeg"))
+        grey = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)
+        if grid is None or grey is None:
+            self.rec.log(f"{self.p}/map/preview", rr.EncodedImage(contents=jpeg, media_type="image/jpeg"))
+        else:
+            self.grid, self.scale = grid, grey.shape[1] / grid.nx
+            z = np.where(grey >= UNKNOWN_BELOW, grey.astype(np.float64), np.nan)[::-1]  # map_rgb flips back
+            self.rec.log(f"{self.p}/map/elevation", rr.Image(map_rgb(z)))
         self.counts["map"] += 1
 
 
@@ -252,31 +268,96 @@ def live_stream(url: str, vehicles: tuple[str, ...] = ("recon",), recording_id: 
     return rec
 
 
-def _serve(args: argparse.Namespace) -> int:
+def feed_from_link(fleet: Any, sources: dict[int, LiveSource], msg: Any, t: float, grid: Any,
+                   make: Any) -> None:
+    """One MAVLink message into the live view: per vehicle (system id) its pose, events and
+    complete map previews; ``make(system_id)`` gives a new vehicle's :class:`LiveSource`."""
+    from types import SimpleNamespace
+
+    st = fleet.feed(msg, t)
+    if st is None:
+        return
+    sid = msg.get_srcSystem()
+    src = sources.get(sid)
+    if src is None:
+        src = sources[sid] = make(sid)
+    kind = msg.get_type()
+    if kind == "LOCAL_POSITION_NED" and st.position_ned is not None:
+        n, e, _d = st.position_ned
+        src.pose(t, SimpleNamespace(x=n, y=-e, yaw=-(st.yaw_ned or 0.0)))
+    elif kind == "STATUSTEXT" and len(st.events) and st.events[-1] is not src.last_event:
+        src.last_event = st.events[-1]
+        src.log_line(t, _MAV_LEVELS.get(st.events[-1].severity, "INFO"), "", st.events[-1].text)
+    elif kind == "ENCAPSULATED_DATA":
+        done = [im for im in st.images.images if im.complete]
+        for im in done[src.seen_images:]:
+            src.map_preview(t, bytes(im.data), grid)
+        src.seen_images = len(done)
+
+
+_MAV_LEVELS = {0: "CRITICAL", 1: "CRITICAL", 2: "CRITICAL", 3: "ERROR", 4: "WARN", 5: "INFO", 6: "INFO", 7: "DEBUG"}
+
+
+def _serve(args: argparse.Namespace, d: GroundDictionary) -> int:
+    link = None
+    if args.link:
+        from ground.link import GroundLink, LinkError
+
+        try:
+            link = GroundLink(args.link, 57600)
+        except LinkError as exc:
+            print(f"safer-ground rerun: {exc}", file=sys.stderr)
+            return 2
     try:
         proc = start_viewer(args.grpc_port, args.web_port)
     except ValueError as exc:
         print(f"safer-ground rerun: {exc}", file=sys.stderr)
+        if link is not None:
+            link.close()
         return 2
     print(f"live view: {page_url(args.grpc_port, args.web_port)}\n"
-          f"stream a mission to it: safer-hil run ... --live {stream_url(args.grpc_port)}\n"
-          "Ctrl-C to stop", flush=True)
+          f"stream a mission to it: safer-hil run ... --live {stream_url(args.grpc_port)}"
+          + (f"\nshowing the link {args.link}" if link is not None else "") + "\nCtrl-C to stop", flush=True)
     try:
-        return 0 if proc.wait() == 0 else 1
+        if link is None:
+            return 0 if proc.wait() == 0 else 1
+        _follow(link, d, args.grpc_port, proc)
+        return 0
     except KeyboardInterrupt:
         return 0
     finally:
+        if link is not None:
+            link.close()
         if proc.poll() is None:
             proc.terminate()
             proc.wait(timeout=10)
 
 
+def _follow(link: Any, d: GroundDictionary, grpc_port: int, proc: subprocess.Popen[bytes]) -> None:
+    from fsw.core.geometry import MapGrid
+    from fsw.settings import load_settings
+    from ground.state import Fleet, vehicle_name
+
+    grid = MapGrid.from_config(load_settings(d.source).map)
+    fleet, sources = Fleet(d), {}
+    rec = live_stream(stream_url(grpc_port), tuple(vehicle_name(i) for i in (1, 2)))
+    t0 = time.monotonic()
+    while proc.poll() is None:
+        msg = link.recv(timeout_s=0.2)
+        if msg is not None:
+            feed_from_link(fleet, sources, msg, time.monotonic() - t0, grid,
+                           lambda sid: LiveSource(rec, vehicle_name(sid)))
+
+
 def run(args: argparse.Namespace, d: GroundDictionary) -> int:
+    if args.link and not args.live:
+        print("safer-ground rerun: --link goes with --live", file=sys.stderr)
+        return 2
     if args.live:
         if args.mcap is not None or args.out is not None:
             print("safer-ground rerun: --live takes no MISSION.mcap or --out", file=sys.stderr)
             return 2
-        return _serve(args)
+        return _serve(args, d)
     if args.mcap is None or args.out is None:
         print("safer-ground rerun: give MISSION.mcap and --out RRD, or --live", file=sys.stderr)
         return 2

@@ -151,3 +151,38 @@ def test_the_live_page_shows_the_map_in_headless_chromium(tmp_path: Path) -> Non
     finally:
         proc.terminate()
         proc.wait(timeout=20)
+
+
+def test_a_real_time_mission_reaches_the_live_view_from_its_link() -> None:
+    """``safer-ground rerun --live --link URL``: what the link carries (previews drawn as the map
+    where the flight's grid puts them, the rover over them, events), per vehicle."""
+    from fsw.comm.mavlink_dialect import mavlink, new_codec
+    from fsw.comm.mavlink_image import ImageSender
+    from fsw.comm.mavlink_telemetry import heartbeat, statustext
+    from fsw.framework.telemetry import Severity
+    from ground.dictionary import load_dictionary
+    from ground.state import Fleet, vehicle_name
+
+    grid = MapGrid(0.0, 0.0, 0.03, 64, 64)
+    rover, rx = new_codec(1, 1), new_codec(250, 1)
+    frames = [heartbeat("MOVE", False, False).pack(rover)]
+    grey = np.full((32, 32), 120, np.uint8)
+    sender = ImageSender()
+    sender.offer(cv2.imencode(".jpg", grey)[1].tobytes(), 32, 32, mavlink.MAVLINK_DATA_STREAM_IMG_JPEG, 90)
+    while (m := sender.peek()) is not None:
+        frames.append(m.pack(rover))
+        sender.consume()
+    frames.append(rover.local_position_ned_encode(1000, 0.96, -0.96, 0.0, 0, 0, 0).pack(rover))  # x 0.96, y 0.96
+    frames += [m.pack(rover) for m in statustext(Severity.ACTIVITY_HI, "mission.STATE: mission MOVE", 0)]
+    rec, fleet, sources = _Rec(), Fleet(load_dictionary()), {}
+
+    def make(sid: int) -> rerun_cli.LiveSource:
+        return rerun_cli.LiveSource(rec, vehicle_name(sid))
+
+    for f in frames:
+        for msg in rx.parse_buffer(f) or []:
+            rerun_cli.feed_from_link(fleet, sources, msg, 1.0, grid, make)
+    paths = [p for p, _ in rec.logged]
+    assert paths[0] == "/recon/map/elevation" and "/recon/map/rover" in paths and paths[-1] == "/recon/events"
+    src = sources[1]
+    assert src.scale == 0.5 and src._uv(0.96, 0.96) == pytest.approx((16.0, 16.0))  # the preview's pixels
