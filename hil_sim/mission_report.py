@@ -194,22 +194,32 @@ def strip_wall_clock(summary: dict[str, Any]) -> dict[str, Any]:
 def checkpoint_report(out: Path, checkpoint_dir: Path, world: Any, *, scenario: str, seed: int, method: str,
                       datum_m: float, extra: dict[str, Any] | None = None) -> dict[str, Any]:
     """A real-time mission's ``summary.json`` and pictures (``safer-hil serve --out``): the same
-    files and the same schema as a lockstep run's, from the flight's newest checkpoint (its map and
-    the mission's step records) against the bench's truth. What only the flight executive knows in
+    files and the same schema as a lockstep run's, from the flight's newest checkpoint (its map)
+    and the newest one with the mission's section (its step records; the perception task's own
+    checkpoints carry the map alone) against the bench's truth. What only the flight executive knows in
     real time (slips, overruns, task timing, frames) is not in a checkpoint: those fields are null.
     ``ValueError`` (one line) when no checkpoint can be read."""
-    from fsw.core.map.checkpoint import CheckpointConfig
+    from fsw.core.map.checkpoint import CheckpointConfig, CheckpointError, decode
     from fsw.drivers.map_store import MapStore
     from hil_sim.lab.terrain_eval import map_quality
 
-    loaded = MapStore(CheckpointConfig(directory=str(checkpoint_dir))).load_latest()
+    store = MapStore(CheckpointConfig(directory=str(checkpoint_dir)))
+    loaded = store.load_latest()
     if loaded.emap is None:
         why = f" ({loaded.skipped[-1][1]})" if loaded.skipped else ""
         raise ValueError(f"{checkpoint_dir}: no readable mission checkpoint{why}: no report")
     emap = loaded.emap
     grid = emap.grid
-    state = loaded.state if isinstance(loaded.state, dict) else {}
-    mission = state.get("mission") if isinstance(state.get("mission"), dict) else {}
+    state: dict[str, Any] = {}
+    for path in reversed(store.paths()):  # the newest checkpoint with the mission's section
+        try:
+            meta = decode(path.read_bytes())[1]
+        except (CheckpointError, OSError):
+            continue
+        if isinstance(meta.state, dict) and isinstance(meta.state.get("mission"), dict):
+            state = meta.state
+            break
+    mission: dict[str, Any] = state.get("mission") or {}
     steps = [dict(r) for r in mission.get("records", []) if isinstance(r, dict)]
     truth = world.truth_on_grid(grid)
     truth_f = truth - datum_m
@@ -226,7 +236,8 @@ def checkpoint_report(out: Path, checkpoint_dir: Path, world: Any, *, scenario: 
         "geofence_refusals": mission.get("edge_violations"), "looks": mission.get("looks"),
         "stays": mission.get("stays"), "end_reason": mission.get("end"), "safe_reason": mission.get("safe_reason"),
         "safe_entries": mission.get("safe_entries"), "final_state": mission.get("phase"),
-        "mapped_cells": int(emap.mapped.sum()), "sim_s": state.get("time_s"), "frames": state.get("frame"),
+        "mapped_cells": int(emap.mapped.sum()), "sim_s": loaded.meta.time_s if loaded.meta else None,
+        "frames": state.get("frame"),
         "slips": None, "overruns": None, "task_max_ms": None, "task_ms_per_frame": None, "files": {},
         **(extra or {}),
     }
