@@ -162,6 +162,10 @@ class LiveSource:
         g, k = self.grid, self.scale
         return k * (x - g.x0) / g.cell, k * (g.ny - (y - g.y0) / g.cell)
 
+    def _arrow(self) -> float:
+        """Arrow length in image pixels: a twentieth of the map's width, at least 8."""
+        return max(8.0, self.scale * self.grid.nx / 20.0)
+
     def map(self, t: float, emap: ElevationMap) -> None:
         import rerun as rr
 
@@ -181,7 +185,7 @@ class LiveSource:
         self._at(t)
         u, v = self._uv(nav.x, nav.y)
         self.track.append((u, v))
-        head = 8.0 * np.array([np.cos(nav.yaw), -np.sin(nav.yaw)])
+        head = self._arrow() * np.array([np.cos(nav.yaw), -np.sin(nav.yaw)])
         self.rec.log(f"{self.p}/map/rover", rr.Arrows2D(origins=[(u, v)], vectors=[head], colors=[(255, 80, 40)],
                                                         radii=1.2, labels=[self.vehicle]))
         self.rec.log(f"{self.p}/map/track", rr.LineStrips2D([self.track[-2000:]], colors=[(255, 160, 120)],
@@ -224,7 +228,8 @@ class LiveSource:
         self._at(t)
         u, v = self._uv(x, y)
         self.rec.log(f"{self.p}/map/next_view", rr.Arrows2D(
-            origins=[(u, v)], vectors=[12.0 * np.array([np.cos(yaw), -np.sin(yaw)])], colors=[(40, 230, 80)],
+            origins=[(u, v)], vectors=[1.5 * self._arrow() * np.array([np.cos(yaw), -np.sin(yaw)])],
+            colors=[(40, 230, 80)],
             radii=1.5, labels=[label]))
         self.counts["view"] += 1
 
