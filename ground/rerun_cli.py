@@ -19,8 +19,10 @@ Exit 2 and one line for a missing or unreadable file or a port in use.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -97,7 +99,8 @@ def start_viewer(grpc_port: int, web_port: int, timeout_s: float = 30.0) -> subp
     env = {**os.environ, "RERUN_ANALYTICS": "0"}
     proc = subprocess.Popen([exe, "--serve-web", "--bind", "127.0.0.1", "--port", str(grpc_port),
                              "--web-viewer-port", str(web_port)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env,
+                            start_new_session=True)  # its own group: the wrapper starts the native viewer
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if proc.poll() is not None:
@@ -106,8 +109,19 @@ def start_viewer(grpc_port: int, web_port: int, timeout_s: float = 30.0) -> subp
             if s.connect_ex(("127.0.0.1", grpc_port)) == 0:
                 return proc
         time.sleep(0.1)
-    proc.terminate()
+    stop_viewer(proc)
     raise ValueError(f"rerun did not open port {grpc_port} within {timeout_s:.0f} s")
+
+
+def stop_viewer(proc: subprocess.Popen[bytes]) -> None:
+    """Stop rerun's server: the ``rerun`` wrapper and the native viewer it started (one process group)."""
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(proc.pid, signal.SIGTERM)
+    try:
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
 
 
 def blueprint(vehicles: tuple[str, ...] = ("recon",)) -> Any:
@@ -303,7 +317,12 @@ def feed_from_link(fleet: Any, sources: dict[int, LiveSource], msg: Any, t: floa
 _MAV_LEVELS = {0: "CRITICAL", 1: "CRITICAL", 2: "CRITICAL", 3: "ERROR", 4: "WARN", 5: "INFO", 6: "INFO", 7: "DEBUG"}
 
 
+def _stop(*_: object) -> None:
+    raise KeyboardInterrupt  # SIGTERM stops the live view as Ctrl-C does: rerun's server with it
+
+
 def _serve(args: argparse.Namespace, d: GroundDictionary) -> int:
+    signal.signal(signal.SIGTERM, _stop)
     link = None
     if args.link:
         from ground.link import GroundLink, LinkError
@@ -333,9 +352,7 @@ def _serve(args: argparse.Namespace, d: GroundDictionary) -> int:
     finally:
         if link is not None:
             link.close()
-        if proc.poll() is None:
-            proc.terminate()
-            proc.wait(timeout=10)
+        stop_viewer(proc)
 
 
 def _follow(link: Any, d: GroundDictionary, grpc_port: int, proc: subprocess.Popen[bytes]) -> None:

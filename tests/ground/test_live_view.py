@@ -149,8 +149,7 @@ def test_the_live_page_shows_the_map_in_headless_chromium(tmp_path: Path) -> Non
             cv2.imwrite(str(tmp_path / "live.png"), img)
             assert img is not None, "the map never appeared on the live page"
     finally:
-        proc.terminate()
-        proc.wait(timeout=20)
+        rerun_cli.stop_viewer(proc)
 
 
 def test_a_real_time_mission_reaches_the_live_view_from_its_link() -> None:
