@@ -2,7 +2,7 @@
 
 Two :class:`fsw.comm.team.map_sync.MapSync` ends, the RECON-bot (agent 0, channel side ``a``)
 and the Cliff-bot (agent 1, side ``b``), over the bench's seeded radio channel
-(:class:`hil_sim.radio_channel.RadioChannel`: loss, bit errors, duplication, reordering,
+(:class:`hil_sim.link.radio_channel.RadioChannel`: loss, bit errors, duplication, reordering,
 outages) on one simulated clock that jumps from event to event. Each agent has a map of its
 own that grows as it looks around (:class:`SyncScene`: a seeded terrain, one view disc per
 agent per round, a few real changes of the ground); every ``round_s`` it publishes its map to
@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.comm.team.map_sync import F32, MapSync, Priority, SyncConfig, SyncStats
-from hil_sim.radio_channel import RadioChannel, RadioChannelConfig
+from hil_sim.link.radio_channel import RadioChannel, RadioChannelConfig
 
 F64 = NDArray[np.float64]
 AGENTS = (0, 1)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hil_sim.radio_channel import RadioChannelConfig
+from hil_sim.link.radio_channel import RadioChannelConfig
 from hil_sim.team.team_sync import Kill, SyncResult, make_scene, run_sync, sync_figures, team_sync_figures
 
 OUTAGE = (40.0, 60.0)

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hil_sim.mission_run import RunSpec, run_mission
+from hil_sim.mission.mission_run import RunSpec, run_mission
 
 pytestmark = pytest.mark.timeout(900)  # one lockstep mission shared by the tests (minutes on a loaded machine)
 
@@ -146,7 +146,7 @@ def test_a_real_time_report_from_the_checkpoint_is_the_lockstep_one(mission: tup
     lockstep report's figures. No checkpoint is one line (ValueError), not a traceback."""
     import json
 
-    from hil_sim.mission_report import checkpoint_report
+    from hil_sim.mission.mission_report import checkpoint_report
     from hil_sim.world import load_scenario
 
     out, summary = mission

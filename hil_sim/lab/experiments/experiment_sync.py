@@ -49,7 +49,7 @@ def one(case: str, seed: int, args: dict[str, float]) -> Row:
     from dataclasses import replace
 
     from fsw.comm.team.map_sync import SyncConfig
-    from hil_sim.radio_channel import RadioChannelConfig
+    from hil_sim.link.radio_channel import RadioChannelConfig
     from hil_sim.team.team_sync import Kill, make_scene, run_sync
 
     o_at, o_len = args["outage_at_s"], args["outage_s"]

@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from fsw.framework.params import ConfigError
     from fsw.settings import load_settings
     from hil_sim.lab.results import command_line, markdown_table, write_results
-    from hil_sim.radio_channel import RadioChannel
+    from hil_sim.link.radio_channel import RadioChannel
     from hil_sim.team.team_run import TruthFixer, run_team
     from hil_sim.world import ScenarioError, load_scenario
 
