@@ -18,6 +18,7 @@ the task opens ``[mavlink] url``), ``mavlink_tlog`` (a path or binary stream; el
 
 from __future__ import annotations
 
+from collections.abc import Generator
 from pathlib import Path
 from typing import BinaryIO, ClassVar
 
@@ -33,11 +34,12 @@ from fsw.comm.mavlink_uplink import UplinkBatch
 from fsw.drivers import signing_store
 from fsw.drivers.mavlink_transport import TransportError, open_transport
 from fsw.framework.commands import Arg, CommandDef
+from fsw.framework.jobs import JobHandle
 from fsw.framework.telemetry import Channel, Event, EventDef, Severity
 from fsw.tasks.base import FlightTask
 from fsw.tasks.mavlink_dispatch import UplinkDispatch
 from fsw.tasks.mavlink_gcs import GcsServices
-from fsw.tasks.mavlink_preview import PreviewError, encode_preview
+from fsw.tasks.mavlink_preview import PreviewError, encode_preview, reduce_map
 from fsw.tasks.mavlink_view import ViewBuilder
 
 _THROTTLED = ("RX_BAD", "TRANSPORT_FAULT", "TLOG_ERROR", "PREVIEW_BAD", "CMD_BAD_ARGS", "WINDOW_SAVE_ERROR")
@@ -78,6 +80,8 @@ class MavlinkTask(FlightTask):
         Channel("events_sent", "count", doc="events sent as STATUSTEXT"),
         Channel("events_dropped", "count", hi=0, doc="events lost to a full downlink queue"),
         Channel("images_sent", "count", doc="map previews completely sent"),
+        Channel("preview_codec_bytes", "B", doc="map codec container of the latest preview (its quadtree-reduced "
+                                                "map is what the preview shows)"),
         Channel("tlog_records", "count"),
         Channel("budget_bytes", "B", doc="current downlink budget per activation"),
     )
@@ -140,6 +144,8 @@ class MavlinkTask(FlightTask):
         self.tlog = self._open_tlog(cfg.tlog_path if res.mavlink_tlog is None else res.mavlink_tlog)
         self._preview_box = self.subscribe(cfg.map_preview_topic, depth=1, policy="drop_oldest")
         self._preview: object = None
+        self._preview_job: JobHandle | None = None
+        self._preview_codec_bytes = 0
         self._views = ViewBuilder(self.ctx, cfg, self.subscribe(cfg.pose_topic, depth=1, policy="drop_oldest"))
         self._gcs_heard_s: float | None = None
         self._link_up = False
@@ -250,17 +256,35 @@ class MavlinkTask(FlightTask):
         return batch
 
     def _take_preview(self, now: float) -> None:
+        """The latest map update becomes a preview: a slack job reduces it with the map codec
+        and JPEG-encodes the decode (``fsw.tasks.mavlink_preview``), at most one job at a time and
+        one transfer per ``image_period_s``; the latest map wins."""
         latest = self._preview_box.latest()
         if latest is not None:
             self._preview = latest
-        if self._preview is None or not self.adapter.image_wanted(now):
+        if self._preview is None or self._preview_job is not None or not self.adapter.image_wanted(now):
             return
         obj, self._preview = self._preview, None
-        try:
-            data, w, h = encode_preview(obj, self.cfg.image_max_px, self.cfg.image_quality)
-            self.adapter.offer_image(now, data, w, h, mavlink.MAVLINK_DATA_STREAM_IMG_JPEG)
-        except (PreviewError, ValueError) as exc:
-            self.event("PREVIEW_BAD", reason=str(exc))
+        cfg, settings = self.cfg, self.ctx.cfg
+
+        def job() -> Generator[None, None, tuple[bytes, int, int, int]]:
+            yield
+            source, nbytes = reduce_map(obj, wheel_diameter_m=settings.rover.wheel_diameter_m, codec=settings.codec)
+            yield
+            data, w, h = encode_preview(source, cfg.image_max_px, cfg.image_quality)
+            return data, w, h, nbytes
+
+        self._preview_job = self.submit_job(job(), "map_preview", on_done=self._preview_done)
+
+    def _preview_done(self, handle: JobHandle) -> None:
+        self._preview_job = None
+        if handle.error is not None:
+            reason = str(handle.error) if isinstance(handle.error, (PreviewError, ValueError)) else repr(handle.error)
+            self.event("PREVIEW_BAD", reason=reason)
+            return
+        data, w, h, nbytes = handle.result
+        self._preview_codec_bytes = nbytes
+        self.adapter.offer_image(self.ctx.clock.now(), data, w, h, mavlink.MAVLINK_DATA_STREAM_IMG_JPEG)
 
     def _log(self, stamp: float, frames: list[bytes]) -> None:
         if self.tlog is None or not frames:
@@ -313,6 +337,7 @@ class MavlinkTask(FlightTask):
             "events_sent": a.events.sent,
             "events_dropped": a.events.dropped,
             "images_sent": a.images.images_sent,
+            "preview_codec_bytes": self._preview_codec_bytes,
             "tlog_records": self.tlog.records if self.tlog is not None else 0,
             "budget_bytes": a.budget_bytes,
         })

@@ -32,6 +32,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of world, hardware and radio")
     p.add_argument("--out", type=Path, default=Path("out/run"), help="report directory")
     p.add_argument("--config", default=str(DEFAULT_CONFIG), help="flight configuration (TOML)")
+    p.add_argument("--live", metavar="URL", help="also stream the mission to the live view at URL "
+                                                 "(safer-ground rerun --live prints it: rerun+http://127.0.0.1:PORT/proxy)")
     p.add_argument("--no-transmit", action="store_true", help="skip sending the map to the Cliff-bot")
     g = p.add_mutually_exclusive_group()
     g.add_argument(
@@ -110,8 +112,13 @@ def run(args: argparse.Namespace) -> int:
                 bars[0].n = bars[0].total
             bars[0].close()
 
+    live = getattr(args, "live", None)
+    if live is not None and not live.startswith(("rerun+http://127.0.0.1:", "rerun+http://localhost:")):
+        print(f"safer-hil run: --live {live!r}: expected rerun+http://127.0.0.1:PORT/proxy "
+              "(safer-ground rerun --live prints it)", file=sys.stderr)
+        return 2
     try:
-        s = run_mission(spec, progress, mode=mode)
+        s = run_mission(spec, progress, mode=mode, live=live)
     except OSError as err:  # a full or failing disk (StorageError, or one no writer expected)
         close_bar(False)
         print(f"safer-hil run: {err if isinstance(err, StorageError) else describe(err)}", file=sys.stderr)

@@ -64,6 +64,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     m.add_argument("--key-file", default=None, metavar="FILE", help="signing key (safer-ground keygen)")
     m.add_argument("--tlog", default=None, metavar="FILE", help="telemetry log of every frame sent and received")
     m.add_argument("--checkpoint-dir", default=None, metavar="DIR", help="where the map checkpoints go")
+    p.add_argument("--out", type=Path, default=None, metavar="DIR",
+                   help="the mission's folder: the flight writes DIR/fsw.tlog and DIR/checkpoints (unless --tlog, "
+                        "--checkpoint-dir say otherwise); when serve stops, it writes DIR/summary.json, map.png and "
+                        "coverage.png as a lockstep run does, from the newest checkpoint against the truth")
     t = p.add_argument_group("team scenarios (cliff-team): the Cliff-bot's hardware and flight file")
     t.add_argument("--cliffbot-config", default=None, metavar="FILE",
                    help="write the Cliff-bot's flight file for this bench here (safer-fsw run --config FILE)")
@@ -158,6 +162,13 @@ def run(args: argparse.Namespace) -> int:
     if args.rate_hz <= 0 or (args.duration is not None and args.duration <= 0) or not args.camera_timeout > 0:
         print("safer-hil serve: --rate-hz, --duration and --camera-timeout must be positive", file=sys.stderr)
         return 2
+    if args.out is not None:
+        args.tlog = args.tlog or str(args.out / "fsw.tlog")
+        args.checkpoint_dir = args.checkpoint_dir or str(args.out / "checkpoints")
+        if args.scenario == "flat":
+            print("safer-hil serve: --out needs a scenario (a 'flat' bench has no truth to report against)",
+                  file=sys.stderr)
+            return 2
     if link_keys(args) and not args.flight_config:
         print("safer-hil serve: --mavlink-url, --key-file, --tlog and --checkpoint-dir go into the flight "
               "config: give --flight-config FILE too", file=sys.stderr)
@@ -252,6 +263,7 @@ def run(args: argparse.Namespace) -> int:
     period = 1.0 / args.rate_hz
     t0 = time.monotonic()
     k, t_prev, t_report = 0, 0.0, 0.0
+    datum_m = float(rig.rover.z)  # the true body height at the start: the flight map's height origin
     try:
         while not stop["flag"]:
             k += 1
@@ -298,4 +310,23 @@ def run(args: argparse.Namespace) -> int:
             hub.close()
         if logger is not None:
             logger.stop()
+    if args.out is not None and world is not None:
+        return _report(args, world, fsw.mission.method, datum_m)
+    return 0
+
+
+def _report(args: argparse.Namespace, world: Any, method: str, datum_m: float) -> int:
+    """The real-time mission's summary.json and pictures (``hil_sim.mission.mission_report.checkpoint_report``)."""
+    from fsw.framework.storage import StorageError
+    from hil_sim.mission.mission_report import checkpoint_report
+
+    try:
+        s = checkpoint_report(args.out, Path(args.checkpoint_dir), world, scenario=args.scenario, seed=args.seed,
+                              method=method, datum_m=datum_m)
+    except (ValueError, StorageError) as exc:
+        print(f"safer-hil serve: {exc}", file=sys.stderr)
+        return 1
+    rmse = "n/a" if s["map_rmse_m"] is None else f"{1000 * s['map_rmse_m']:.1f} mm"
+    print(f"report: {args.out / 'summary.json'} ({len(s['steps'])} steps, {s['mapped_cells']} cells mapped, "
+          f"RMSE {rmse}; map.png, coverage.png)", flush=True)
     return 0

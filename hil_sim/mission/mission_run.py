@@ -218,6 +218,7 @@ def run_mission(
     max_sim_s: float | None = None,
     mode: str = "new",
     on_bench: Callable[[Any], None] | None = None,
+    live: str | None = None,
 ) -> dict[str, Any]:
     """Run one mission to DONE (or SAFE, or the time limit) and return its summary.
 
@@ -277,7 +278,7 @@ def run_mission(
         cliffbot = Cliffbot(cfg.link, ChannelPort(channel, "b", now), out_dir=spec.out)
         mission = bench.exe.tasks["mission"]
         perception = bench.exe.tasks["perception"]
-        recorder, tap = _recorder(spec.out, bench.exe)
+        recorder, tap = _recorder(spec.out, bench.exe, live)
         recording_error = ""
         limit_s = max_sim_s if max_sim_s is not None else 120.0 + 90.0 * (spec.steps + 1) + 1200.0
         counters.setdefault("unknown_frames", 0)
@@ -427,9 +428,10 @@ RECORDING_MIN_FREE = 512 * 2**20
 TEAM_MAX_S = 1800.0  # the Cliff-bot's mission may go on this long after the RECON-bot's (bench s)
 
 
-def _recorder(out: Path | None, exe: Any) -> tuple[Any, Any]:
+def _recorder(out: Path | None, exe: Any, live: str | None = None) -> tuple[Any, Any]:
     """The mission's Foxglove recording (``ground.recording``) in ``out`` and the bus tap feeding
     it; a resumed mission starts a new file (``mission.1.mcap``, ...), never overwrites one.
+    ``live``: also stream the mission to a live view (``safer-ground rerun --live``) at this URL.
 
     No recording where ``out`` has less than ``RECORDING_MIN_FREE`` bytes free: a recording
     (camera pairs) runs to tens of MB and must not take the room the checkpoints, the .tlog
@@ -453,7 +455,12 @@ def _recorder(out: Path | None, exe: Any) -> tuple[Any, Any]:
         k += 1
         path = out / f"mission.{k}.mcap"
     recorder = MissionRecorder(path)
-    return recorder, BusTap(exe, recorder.source("recon"))
+    mirrors: tuple[Any, ...] = ()
+    if live:
+        from ground.rerun_cli import LiveSource, live_stream
+
+        mirrors = (LiveSource(live_stream(live, recording_id=path.parent.name), "recon"),)
+    return recorder, BusTap(exe, recorder.source("recon"), mirrors=mirrors)
 
 
 def _wheels_over_drop(rig: Any, world: Any, cfg: FswConfig) -> int:
