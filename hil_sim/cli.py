@@ -42,6 +42,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("experiment", "registration"): "hil_sim.lab.experiments.experiment_registration",
     ("experiment", "fiducials"): "hil_sim.lab.experiments.experiment_fiducials",
     ("experiment", "team"): "hil_sim.lab.experiments.experiment_team",
+    ("experiment", "face-map"): "hil_sim.lab.experiments.experiment_face_map",
 }
 
 GROUP_HELP = {
