@@ -12,10 +12,12 @@ height per cell with variance, count, interest, misses) in the face's own frame:
 * :class:`FaceMap` is an ``ElevationMap`` on a grid over ``(u, v)`` whose height is ``w``, the
   distance along ``e_n``; fusion, the slope term, the gate, misses, the interest function, the
   quadtree reduction and the codec all work on it unchanged (its arrays are a map's arrays).
-* The hand-over (:meth:`FaceMap.routes`): a point belongs to the face when its ``v`` lies
-  inside the face band ``[v_min, v_max]`` of the grid and ``|w| <= slab_m``; otherwise to the
-  gravity grid. In the ``seam_m`` wide strips at both ends of the band a point goes to both
-  grids, so each side of the seam is mapped up to it. A gravity cell is *handed to the face*
+* The hand-over (:meth:`FaceMap.routes`): a point belongs to the face when its ``(u, v)`` lies
+  inside the face map's grid (the band ``[v_min, v_max]`` along the dip) and
+  ``-slab_in_m <= w <= slab_out_m`` (rocks stand out of a face; behind it, within half a metre,
+  lies only the plateau beyond the edge); otherwise to the gravity grid. In the ``seam_m`` wide
+  strips at both ends of the band a point goes to both grids, so each side of the seam is
+  mapped up to it. A gravity cell is *handed to the face*
   when the fitted plane over its centre lies inside the band minus the seams
   (:meth:`FaceMap.face_owned`); a query at ``(x, y)`` is answered by the face map there
   (:meth:`FaceMap.surface_z`, the vertical line intersected with the face map's surface) and by
@@ -54,7 +56,8 @@ class FaceMapConfig:
     cell_m: float = param(0.06, lo=0.005, hi=2.0, units="m", doc="face cell side, in the face plane")
     min_slope_deg: float = param(45.0, lo=20.0, hi=89.0, units="deg",
                                  doc="gravity cells steeper than this define the face (fit, band)")
-    slab_m: float = param(1.5, lo=0.05, hi=20.0, units="m", doc="points farther from the plane stay in the gravity grid")
+    slab_out_m: float = param(1.5, lo=0.05, hi=20.0, units="m", doc="points farther out of the plane: gravity grid")
+    slab_in_m: float = param(0.5, lo=0.05, hi=20.0, units="m", doc="points farther behind the plane: gravity grid")
     seam_m: float = param(0.15, lo=0.0, hi=5.0, units="m", doc="strips at the band's ends that feed both grids")
     overhang_gap_m: float = param(0.10, lo=0.01, hi=5.0, units="m", doc="a gap in w this wide splits two surfaces")
 
@@ -264,7 +267,7 @@ class FaceMap:
         u0, u1 = self.u_range
         s = self.cfg.seam_m
         with np.errstate(invalid="ignore"):
-            slab = np.abs(q[:, 2]) <= self.cfg.slab_m
+            slab = (q[:, 2] <= self.cfg.slab_out_m) & (q[:, 2] >= -self.cfg.slab_in_m)
             across = (q[:, 0] >= u0) & (q[:, 0] < u1)
             face = slab & across & (q[:, 1] >= v0) & (q[:, 1] < v1)
             inner = slab & across & (q[:, 1] >= v0 + s) & (q[:, 1] < v1 - s)
@@ -345,7 +348,8 @@ class FaceMap:
         outer = lev == top[cs]
         key = cs * 4 + sub[order]
         both = (np.bincount(key, outer, g.nx * g.ny * 4) > 0) & (np.bincount(key, ~outer, g.nx * g.ny * 4) > 0)
-        two = np.asarray(both.reshape(-1, 4).any(axis=1), bool)  # per cell: an outer and an inner point over one sub-cell
+        # per cell: an outer and an inner point over one sub-cell
+        two = np.asarray(both.reshape(-1, 4).any(axis=1), bool)
         flat_over = self.overhang.reshape(-1)
         flat_second = self.second.reshape(-1)
         inner_pts = two[cs] & ~outer

@@ -115,14 +115,15 @@ def test_an_overhang_is_flagged_not_averaged() -> None:
 
 def test_hand_over_routes_and_answers_across_the_seam() -> None:
     f = _face_frame()
-    face = FaceMap(f, (-1.0, 1.0), (-1.0, 1.0), FaceMapConfig(cell_m=0.1, seam_m=0.2, slab_m=0.5))
-    q = np.array([[0.0, 0.0, 0.0], [0.0, 0.9, 0.0], [0.0, 1.5, 0.0], [0.0, 0.0, 0.8], [1.5, 0.0, 0.0]])
+    face = FaceMap(f, (-1.0, 1.0), (-1.0, 1.0), FaceMapConfig(cell_m=0.1, seam_m=0.2, slab_out_m=0.5, slab_in_m=0.3))
+    q = np.array([[0.0, 0.0, 0.0], [0.0, 0.9, 0.0], [0.0, 1.5, 0.0], [0.0, 0.0, 0.8], [1.5, 0.0, 0.0],
+                  [0.0, 0.0, -0.4]])
     to_face, to_grav = face.routes(f.to_world(q))
-    assert to_face.tolist() == [True, True, False, False, False]
-    assert to_grav.tolist() == [False, True, True, True, True]  # the seam strip feeds both
-    parts = [(f.to_world(q), np.tile(np.eye(3)[None] * 1e-4, (5, 1, 1)), None)]
+    assert to_face.tolist() == [True, True, False, False, False, False]
+    assert to_grav.tolist() == [False, True, True, True, True, True]  # the seam strip feeds both
+    parts = [(f.to_world(q), np.tile(np.eye(3)[None] * 1e-4, (6, 1, 1)), None)]
     pf, pg = split_parts(parts, face)
-    assert len(pf[0][0]) == 2 and len(pg[0][0]) == 4
+    assert len(pf[0][0]) == 2 and len(pg[0][0]) == 5
     face.map.z[:] = 0.05
     face.map.n[:] = 1
     gravity = ElevationMap(MapGrid(-1.0, -2.5, 0.05, 40, 50))
