@@ -27,9 +27,10 @@ height per cell with variance, count, interest, misses) in the face's own frame:
   there split at a gap in ``w`` wider than ``overhang_gap_m`` and both parts fall in one of the
   cell's 2x2 sub-cells (a step inside a cell puts its two levels side by side, an overhang over
   the same spot). Two views show two surfaces when a view's measurement lies more than
-  ``overhang_gap_m`` plus the gate from the cell's fused height. The outer surface (the larger
-  ``w``, what the normal sees from outside) stays in the map; the other one goes to
-  :attr:`FaceMap.second`.
+  ``overhang_gap_m`` plus the gate from the cell's fused height. Within a view the outer surface
+  (the larger ``w``, what the normal sees from outside) is fused and the inner one goes to
+  :attr:`FaceMap.second`; across views the cell keeps what it holds and the new surface goes
+  to :attr:`FaceMap.second`.
 """
 
 from __future__ import annotations
@@ -197,10 +198,14 @@ def fit_face_plane(gravity: ElevationMap, points: F64 | None = None, min_slope_d
 
 
 def face_band(gravity: ElevationMap, frame: FaceFrame, min_slope_deg: float = 45.0,
-              inlier_m: float = 0.15) -> tuple[F64, F64]:
-    """``((u_min, u_max), (v_min, v_max))`` of the face map: along the strike, the gravity grid's
-    whole extent (its corners on the plane); along the dip, the 1st to 99th percentile of the
-    steep cells within ``inlier_m`` of the plane."""
+              inlier_m: float = 0.15, margin_m: float = 0.3) -> tuple[F64, F64]:
+    """``((u_min, u_max), (v_min, v_max))`` of the face map. Along the strike, the gravity grid's
+    whole extent (its corners on the plane). Along the dip, from ``margin_m`` (vertical) above
+    the floor to ``margin_m`` below the plateau, where the plane meets their heights (the
+    medians of the mapped gentle cells out in front of the plane and below its centre, and of
+    those behind it and above); the transitions stay in the gravity grid, where the ground
+    turns away from the plane. Without a floor or a plateau mapped, that end is the 1st (99th)
+    percentile of the steep cells within ``inlier_m`` of the plane."""
     q = frame.to_face(steep_points(gravity, min_slope_deg)[0])
     q = q[np.abs(q[:, 2]) <= inlier_m]
     if len(q) == 0:
@@ -210,6 +215,22 @@ def face_band(gravity: ElevationMap, frame: FaceFrame, min_slope_deg: float = 45
     corners = frame.to_face(np.column_stack([cx, cy, frame.plane_z(cx, cy)]))
     u = np.array([corners[:, 0].min(), corners[:, 0].max()])
     v = np.percentile(q[:, 1], [1.0, 99.0])
+    g = gravity.grid
+    gy, gx = np.gradient(gravity.z, g.cell)
+    with np.errstate(invalid="ignore"):
+        gentle = gravity.mapped & (np.hypot(gx, gy) < np.tan(np.radians(min_slope_deg)))
+    X, Y = g.centers()
+    z = gravity.z[gentle]
+    qg = frame.to_face(np.column_stack([X[gentle], Y[gentle], z]))
+    ev_z = float(frame.R[2, 1])
+    floor = (qg[:, 2] > 0) & (qg[:, 1] < 0)
+    top = (qg[:, 2] < 0) & (qg[:, 1] > 0)
+    if floor.sum() >= 10:
+        v[0] = max(v[0], (float(np.median(z[floor])) + margin_m - frame.origin[2]) / ev_z)
+    if top.sum() >= 10:
+        v[1] = min(v[1], (float(np.median(z[top])) - margin_m - frame.origin[2]) / ev_z)
+    if v[1] <= v[0]:
+        raise ValueError("the face band is empty")
     return u, np.asarray(v, float)
 
 
@@ -312,18 +333,23 @@ class FaceMap:
         common = None if not parts or any(c is None for c in commons) else np.concatenate(
             [c for c in commons if c is not None])
         q = self.frame.to_face(xyz)
-        keep, flagged, n_second = self._two_surfaces(q)
-        q, cov = q[keep], cov[keep]
+        cov_f = self.frame.cov_to_face(cov)
+        keep, flagged, n_second = self._two_surfaces(q, cov_f[:, 2, 2])
         face_parts: list[tuple[F64, F64, F64 | None]] = [
-            (q, self.frame.cov_to_face(cov), None if common is None else self.frame.cov_to_face(common[keep]))]
+            (q[keep], cov_f[keep], None if common is None else self.frame.cov_to_face(common[keep]))]
         stats = run_merge(self.map, face_parts, p_visible)
         return FaceMergeStats(stats, flagged, n_second)
 
-    def _two_surfaces(self, q: F64) -> tuple[B, int, int]:
-        """The overhang test of one view: flags cells, records their second surface, and returns
-        which points to fuse, the number of newly flagged cells and the points held back."""
+    def _two_surfaces(self, q: F64, var_w: F64, min_points: int = 3) -> tuple[B, int, int]:
+        """The overhang test of one view (face coordinates ``q``, their variances along the
+        normal ``var_w``): flags cells, records their second surface, and returns which points to
+        fuse, the number of newly flagged cells and the points held back. Within the view, each
+        part must hold ``min_points`` points over the shared sub-cell; across views, the view's
+        cell mean (of at least ``min_points`` points) must lie beyond the gap plus the gate
+        (``gate_sigma`` times the root of the cell's variance plus the points' mean variance)."""
         g, m, gap = self.map.grid, self.map, self.cfg.overhang_gap_m
         n = len(q)
+        size = g.nx * g.ny
         keep = np.ones(n, bool)
         if n == 0:
             return keep, 0, 0
@@ -335,7 +361,7 @@ class FaceMap:
         sub = (2 * (fv[idx] % 1.0)).astype(np.intp) * 2 + (2 * (fu[idx] % 1.0)).astype(np.intp)
         w = q[idx, 2]
         order = np.lexsort((w, cell))
-        cs, ws = cell[order], w[order]
+        cs, ws, vs = cell[order], w[order], var_w[idx][order]
         split = np.zeros(len(cs), bool)
         split[1:] = (cs[1:] == cs[:-1]) & (np.diff(ws) > gap)
         # level of each point in its cell (0 lowest); the top level is the outer surface
@@ -343,47 +369,41 @@ class FaceMap:
         start[1:] = cs[1:] != cs[:-1]
         lev = np.cumsum(split)
         lev = lev - np.maximum.accumulate(np.where(start, lev, 0))
-        top = np.zeros(g.nx * g.ny, np.int64)
+        top = np.zeros(size, np.int64)
         np.maximum.at(top, cs, lev)
         outer = lev == top[cs]
         key = cs * 4 + sub[order]
-        both = (np.bincount(key, outer, g.nx * g.ny * 4) > 0) & (np.bincount(key, ~outer, g.nx * g.ny * 4) > 0)
-        # per cell: an outer and an inner point over one sub-cell
-        two = np.asarray(both.reshape(-1, 4).any(axis=1), bool)
+        n_out = np.bincount(key, outer, size * 4)
+        n_in = np.bincount(key, ~outer, size * 4)
+        # per cell: an outer and an inner part over one sub-cell
+        two = np.asarray(((n_out >= min_points) & (n_in >= min_points)).reshape(-1, 4).any(axis=1), bool)
         flat_over = self.overhang.reshape(-1)
         flat_second = self.second.reshape(-1)
         inner_pts = two[cs] & ~outer
         new = int((two & ~flat_over).sum())
         if inner_pts.any():
-            sw = np.bincount(cs[inner_pts], ws[inner_pts], g.nx * g.ny)
-            k = np.bincount(cs[inner_pts], minlength=g.nx * g.ny)
+            sw = np.bincount(cs[inner_pts], ws[inner_pts], size)
+            k = np.bincount(cs[inner_pts], minlength=size)
             with np.errstate(invalid="ignore", divide="ignore"):
                 mean_inner = sw / k
             flat_second[two] = mean_inner[two]
         flat_over |= two
         keep[idx[order[inner_pts]]] = False
-        # across views: this view's mean in a mapped cell beyond the gap plus the gate
+        # across views: this view's mean in a mapped cell beyond the gap plus the gate: the
+        # cell keeps what it holds, the view's surface goes to ``second``
         kept = ~inner_pts
-        cnt = np.bincount(cs[kept], minlength=g.nx * g.ny)
+        cnt = np.bincount(cs[kept], minlength=size)
         with np.errstate(invalid="ignore", divide="ignore"):
-            mean = np.bincount(cs[kept], ws[kept], g.nx * g.ny) / cnt
+            mean = np.bincount(cs[kept], ws[kept], size) / cnt
+            vmean = np.bincount(cs[kept], vs[kept], size) / cnt
         zf, vf, mapped = m.z.reshape(-1), m.var.reshape(-1), m.mapped.reshape(-1)
         with np.errstate(invalid="ignore"):
-            far = (cnt > 0) & mapped & (np.abs(mean - zf) > gap + m.cfg.gate_sigma * np.sqrt(vf))
-        above = far & (mean > zf)  # the new surface is the outer one: the old goes to second
-        below = far & ~above
-        flat_second[above] = zf[above]
-        flat_second[below] = mean[below]
+            far = (cnt >= min_points) & mapped & (
+                np.abs(mean - zf) > gap + m.cfg.gate_sigma * np.sqrt(vf + vmean))
+        flat_second[far] = mean[far]
         new += int((far & ~flat_over).sum())
         flat_over |= far
-        if above.any():  # the cell starts again from the outer surface
-            m.n.reshape(-1)[above] = 0
-            m.outliers.reshape(-1)[above] = 0
-            m.var_common.reshape(-1)[above] = 0.0
-            m.z.reshape(-1)[above] = np.nan
-            m.var.reshape(-1)[above] = np.inf
-        drop = kept & below[cs]
-        keep[idx[order[drop]]] = False
+        keep[idx[order[kept & far[cs]]]] = False
         return keep, new, int(n - keep.sum())
 
 

@@ -110,6 +110,7 @@ def test_an_overhang_is_flagged_not_averaged() -> None:
     z_before = face.map.z[3, 3]
     st = face.merge_parts([(_points_on(face, u2, v2, np.full(k, -0.4)), cov[:k], None)])
     assert face.overhang[3, 3] and st.overhang_new == 1 and face.map.z[3, 3] == z_before
+    assert st.second_points == k
     assert face.second[3, 3] == pytest.approx(-0.4, abs=1e-6)
 
 
