@@ -58,7 +58,8 @@ def perturbed(pose: CameraPose, cov: F64, rng: np.random.Generator) -> CameraPos
 
 
 class FaceScene:
-    def __init__(self, spec: str, seed: int, config: str) -> None:
+    def __init__(self, spec: str, seed: int, config: str, mask: bool = True) -> None:
+        """``mask``: the team mask on (the flight's way); off shows what it keeps out."""
         from fsw.settings import load_settings
         from hil_sim.world import load_scenario
 
@@ -66,6 +67,7 @@ class FaceScene:
         if self.world.team is None:
             raise ValueError(f"{spec} has no team")
         self.seed = seed
+        self.mask = mask
         self.rng = np.random.default_rng([seed, 2801])
         cfg = load_settings(config, check_calibration=False)
         off = dataclasses.replace(cfg.registration, enabled=False)
@@ -80,7 +82,8 @@ class FaceScene:
         self.face: FaceMap | None = None
         self.by_agent: dict[str, FaceMap] = {}
         self.pending: list[tuple[str, list[ViewPart]]] = []
-        self.team_points = 0
+        self.team_points = 0  # stereo points on a robot or a tether (truth): what the mask had to remove
+        self.team_points_fused = 0  # of those, the ones that reached the maps
         self.team_poses: list[TeamPose] = []  # every true team pose a view saw (the judge's truth)
         self.views = 0
         self.cells_by_agent = {"recon": 0, "cliffbot": 0}
@@ -143,13 +146,15 @@ class FaceScene:
         est = perturbed(pose, cov, self.rng)
         self.team_poses.append(team)
         pipe = SensingPipeline(cfg, None, emap=self.gravity)
-        pipe.team = known
+        pipe.team = known if self.mask else None
         dm = run_to_end(pipe.matcher.match_steps(left, right))
         pts = run_to_end(pipe.matcher.triangulate_steps(dm.disparity_px, sigma_px=dm.sigma_px))
         raw = est.camera_to_world(pts.xyz_c)
         self.team_points += int(on_team_truth(raw, team, self.world.ground_at(raw[:, 0], raw[:, 1])).sum())
         placed = RegisteredPose(Registration("off", "bench pose"), est, cov, None)
         parts = run_to_end(pipe.world_parts_steps(placed, pts))
+        for xyz, _, _ in parts:
+            self.team_points_fused += int(on_team_truth(xyz, team, self.world.ground_at(xyz[:, 0], xyz[:, 1])).sum())
         self.views += 1
         run_merge(self.gravity, parts, None)
         if self.face is None:
@@ -216,7 +221,7 @@ class FaceScene:
         for k in range(n_cliff):
             body_pt, n, team, body = self.cliffbot_at(float(self.rng.uniform(0.3, 0.7)),
                                                       float(self.rng.uniform(-0.6, 0.6)), rover)
-            up = k % 2 == 1
+            up = k % 2 == 0  # up the face first: the tethers and the anchors are in view
             yaw = math.pi / 2 if up else -math.pi / 2
             tilt = (a - math.radians(25.0)) if up else (-a - math.radians(20.0))
             tilt = max(-1.5, min(1.5, tilt))
@@ -238,7 +243,7 @@ class FaceScene:
                      "rmse_fused_m", "in2s_recon", "in2s_cliff", "in2s_fused")
             return {**row, **{k: None for k in nones}, "overhang_truth": 0, "overhang_flagged": 0,
                     "overhang_false": 0, "both_cells": 0, "team_points_seen": self.team_points,
-                    "team_cells_mapped": self._team_cells()}
+                    "team_points_fused": self.team_points_fused, "team_cells_mapped": self._team_cells()}
         f = face_figures(self.world, self.face, self.gravity, self.cells_by_agent)
         row.update({k: f[k] for k in ("face_cells", "face_rmse_m", "face_rmse_gravity_m", "overhang_truth",
                                        "overhang_flagged", "overhang_false")})
@@ -246,6 +251,7 @@ class FaceScene:
         row["ratio"] = r / g if r is not None and g else None
         row.update(self._agents())
         row["team_points_seen"] = self.team_points
+        row["team_points_fused"] = self.team_points_fused
         row["team_cells_mapped"] = self._team_cells()
         return row
 

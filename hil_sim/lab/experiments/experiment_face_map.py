@@ -22,9 +22,9 @@ given), then into:
 
 Figures per scene: ``face_rmse_m`` and ``face_rmse_gravity_m`` (``hil_sim.team.face_eval``),
 their ratio, the truth overhang cells flagged, the fused vs single-agent RMS on cells both agents
-mapped, the fraction of cells within 2 sigma (each agent, fused), and the robot/tether cells
-mapped as terrain (judged on the truth) with the stereo points that lay on them (what the mask
-removed). Writes OUT/face_map.csv and ``docs/results/face-map.md`` (medians, worst cases).
+mapped, the fraction of cells within 2 sigma (each agent, fused), the stereo points that lay on
+a robot or a tether (truth: within 2 cm of one and more than 5 cm off the ground), those of them
+fused after the mask, and the robot/tether cells mapped as terrain (judged on the truth). Writes OUT/face_map.csv and ``docs/results/face-map.md`` (medians, worst cases).
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ HELP = "the face-aligned map vs the gravity grid at equal memory, both agents' v
 COLUMNS = ("seed", "slope_deg", "views", "face_cells", "face_rmse_m", "face_rmse_gravity_m", "ratio",
            "overhang_truth", "overhang_flagged", "overhang_false", "both_cells", "rmse_recon_m",
            "rmse_cliff_m", "rmse_fused_m", "in2s_recon", "in2s_cliff", "in2s_fused", "team_points_seen",
-           "team_cells_mapped")
+           "team_points_fused", "team_cells_mapped")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -141,7 +141,9 @@ def report(rows: list[dict[str, Any]], table: Any) -> str:
             worst = float(v[np.argmax(np.abs(v - 0.945))]) if v.size else None
             add(f"{k} (within 2 sigma)", float(np.median(v)) if v.size else None, worst, "0.90-0.99")
     add("views", sum(r["views"] for r in rows), "", ">= 200")
-    add("team points seen by stereo (masked)", sum(r["team_points_seen"] for r in rows), "", "")
+    add("robot/tether points from stereo (truth)", sum(r["team_points_seen"] for r in rows), "", "")
+    add("robot/tether points fused after the mask", sum(r["team_points_fused"] for r in rows),
+        max(r["team_points_fused"] for r in rows), "0")
     add("robot/tether cells mapped as terrain", sum(r["team_cells_mapped"] for r in rows),
         max(r["team_cells_mapped"] for r in rows), "0")
     return ("## Summary\n\n" + table(summary, ["figure", "median", "worst", "goal"])
