@@ -5,8 +5,9 @@ no mission: the map is measured. Views are rendered from
 
 * ``--recon-views`` RECON-bot mast poses on the plateau behind the edge, looking down the face
   (the flight camera, the ideal pinhole pair: no rectification), and
-* ``--cliff-views`` Cliff-bot poses on the face (half looking down the dip, half up it, pans
-  drawn from the seed) with its small pair (``hil_sim.team.team_sensing``),
+* ``--cliff-views`` Cliff-bot poses on the face (alternately up the dip, from the body's upper
+  end, and down it, from its lower end; position and pan drawn from the seed) with its small
+  pair (``hil_sim.team.team_sensing``),
 
 each with the tethers, the RECON-bot, the Anchorbots and the Cliff-bot in the picture, and each
 camera pose wrong by an error drawn from the covariance it is fused with (RECON-bot: 0.2 deg,
@@ -16,15 +17,18 @@ pipeline (``fsw.core.pipeline``: stereo, world points with covariance, the team 
 given), then into:
 
 * ``gravity``: the scenario's gravity grid, every point (the one-grid map of today);
-* ``face`` + its gravity grid: the face map fitted after the first RECON views (``fit_face_plane``,
-  cell at equal memory: ``c_g / sqrt(cos a)``) and the hand-over of docs/algorithm.md §8.1;
+* ``face`` + its gravity grid: the face map fitted on the gravity grid after the RECON-bot's
+  views, or after the first Cliff-bot views when those do not show enough of the face
+  (``fit_face_plane``; cell at equal memory: ``c_g / sqrt(cos a)``), and the hand-over of
+  docs/algorithm.md §8.1 (the views before the fit are fused once it is there);
 * ``face_recon``, ``face_cliff``: the same face map fed by one agent only.
 
 Figures per scene: ``face_rmse_m`` and ``face_rmse_gravity_m`` (``hil_sim.team.face_eval``),
 their ratio, the truth overhang cells flagged, the fused vs single-agent RMS on cells both agents
 mapped, the fraction of cells within 2 sigma (each agent, fused), the stereo points that lay on
 a robot or a tether (truth: within 2 cm of one and more than 5 cm off the ground), those of them
-fused after the mask, and the robot/tether cells mapped as terrain (judged on the truth). Writes OUT/face_map.csv and ``docs/results/face-map.md`` (medians, worst cases).
+fused after the mask, and the robot/tether cells mapped as terrain (judged on the truth). Writes
+OUT/face_map.csv and ``docs/results/face-map.md`` (medians, worst cases).
 """
 
 from __future__ import annotations
