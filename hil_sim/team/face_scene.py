@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import ndimage
 
 from fsw.core.geometry import CameraPose, MapGrid, camera_pose_from_rover
 from fsw.core.map.body_mask import BodyBox, TeamGeometry, TetherLine
@@ -23,6 +24,7 @@ from fsw.core.map.face_map import FaceMap, FaceMapConfig, face_band, fit_face_pl
 from fsw.core.pipeline import RegisteredPose, SensingPipeline, ViewPart
 from fsw.core.registration.registration import Registration
 from fsw.core.steps import run_to_end
+from fsw.core.stereo.stereo import StereoPoints
 from fsw.core.team.tether import TetherConfig, anchor_points, surface_normal, tether_state
 from hil_sim.team.face_eval import equal_memory_cell, face_figures, truth_along_normal
 from hil_sim.team.team_sensing import (
@@ -32,13 +34,13 @@ from hil_sim.team.team_sensing import (
     TETHER_RADIUS_M,
     TeamPose,
     cliffbot_camera_pose,
-    on_team_truth,
     team_quads,
     yaw_box,
 )
 from hil_sim.world.cliffbot import build_cliffbot
 from hil_sim.world.world import World
 
+F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
 RECON_SIGMA = (math.radians(0.2), 0.01)  # camera pose error: rotation (rad), translation (m)
 CLIFF_SIGMA = (math.radians(0.5), 0.02)
@@ -55,6 +57,20 @@ def perturbed(pose: CameraPose, cov: F64, rng: np.random.Generator) -> CameraPos
     e = rng.multivariate_normal(np.zeros(6), cov)
     dR = cv2.Rodrigues(e[:3].reshape(3, 1))[0]
     return CameraPose(dR @ pose.R, pose.t + e[3:])
+
+
+def team_points(pts: StereoPoints, quad: NDArray[np.bool_], terrain: F32, grow_px: int = 3) -> NDArray[np.bool_]:
+    """The truth's judge of a view's stereo points: on a robot or a tether when the point's left
+    pixel is within ``grow_px`` of a pixel that sees one (``quad``; a matching window straddling
+    an outline gives its pixels the robot's depth) and the point lies in front of the terrain
+    seen there (``terrain`` depth) by more than 5 cm and 3 sigma of its depth."""
+    h, w = quad.shape
+    near = ndimage.binary_dilation(quad, iterations=grow_px) if grow_px > 0 else quad
+    u = np.clip(np.rint(pts.uv[:, 0]).astype(np.intp), 0, w - 1)
+    v = np.clip(np.rint(pts.uv[:, 1]).astype(np.intp), 0, h - 1)
+    t = np.nan_to_num(terrain[v, u], nan=np.inf)
+    tol = np.maximum(0.05, 3.0 * np.sqrt(np.maximum(pts.cov_c[:, 2, 2], 0.0)))
+    return np.asarray(near[v, u] & (pts.xyz_c[:, 2] < t - tol), bool)
 
 
 class FaceScene:
@@ -84,7 +100,7 @@ class FaceScene:
         self.pending: list[tuple[str, list[ViewPart]]] = []
         self.team_points = 0  # stereo points on a robot or a tether (truth): what the mask had to remove
         self.team_points_fused = 0  # of those, the ones that reached the maps
-        self.team_poses: list[TeamPose] = []  # every true team pose a view saw (the judge's truth)
+        self.team_cells: set[tuple[int, int]] = set()  # the gravity-grid cells those fell in
         self.views = 0
         self.cells_by_agent = {"recon": 0, "cliffbot": 0}
         self.z_grid = self.world.ground_on_grid(self.grid)
@@ -142,19 +158,23 @@ class FaceScene:
         cfg = self.cfg if agent == "recon" else self.cfg_cliff
         w = dataclasses.replace(self.world, cliffbot=body)
         rend = StereoRenderer(w, cfg.camera, self.world.noise_sigma, seed=int(self.rng.integers(1 << 30)))
-        left, right = rend.render(pose, team_quads(team, pose.t))
+        left, right, quad, terrain = rend.render_labelled(pose, team_quads(team, pose.t))
         est = perturbed(pose, cov, self.rng)
-        self.team_poses.append(team)
         pipe = SensingPipeline(cfg, None, emap=self.gravity)
         pipe.team = known if self.mask else None
         dm = run_to_end(pipe.matcher.match_steps(left, right))
         pts = run_to_end(pipe.matcher.triangulate_steps(dm.disparity_px, sigma_px=dm.sigma_px))
-        raw = est.camera_to_world(pts.xyz_c)
-        self.team_points += int(on_team_truth(raw, team, self.world.ground_at(raw[:, 0], raw[:, 1])).sum())
         placed = RegisteredPose(Registration("off", "bench pose"), est, cov, None)
+        on_team = team_points(pts, quad, terrain)
+        self.team_points += int(on_team.sum())
+        if on_team.any():  # the same pipeline stage on the team's points alone: what survives the mask
+            sub = dataclasses.replace(pts, xyz_c=pts.xyz_c[on_team], cov_c=pts.cov_c[on_team],
+                                      uv=pts.uv[on_team], disparity_px=pts.disparity_px[on_team])
+            for xyz, _, _ in run_to_end(pipe.world_parts_steps(placed, sub)):
+                self.team_points_fused += len(xyz)
+                iy, ix, inside = self.grid.cell_index(xyz[:, 0], xyz[:, 1])
+                self.team_cells |= set(zip(iy[inside].tolist(), ix[inside].tolist(), strict=True))
         parts = run_to_end(pipe.world_parts_steps(placed, pts))
-        for xyz, _, _ in parts:
-            self.team_points_fused += int(on_team_truth(xyz, team, self.world.ground_at(xyz[:, 0], xyz[:, 1])).sum())
         self.views += 1
         run_merge(self.gravity, parts, None)
         if self.face is None:
@@ -243,7 +263,7 @@ class FaceScene:
                      "rmse_fused_m", "in2s_recon", "in2s_cliff", "in2s_fused")
             return {**row, **{k: None for k in nones}, "overhang_truth": 0, "overhang_flagged": 0,
                     "overhang_false": 0, "both_cells": 0, "team_points_seen": self.team_points,
-                    "team_points_fused": self.team_points_fused, "team_cells_mapped": self._team_cells()}
+                    "team_points_fused": self.team_points_fused, "team_cells_mapped": len(self.team_cells)}
         f = face_figures(self.world, self.face, self.gravity, self.cells_by_agent)
         row.update({k: f[k] for k in ("face_cells", "face_rmse_m", "face_rmse_gravity_m", "overhang_truth",
                                        "overhang_flagged", "overhang_false")})
@@ -252,7 +272,7 @@ class FaceScene:
         row.update(self._agents())
         row["team_points_seen"] = self.team_points
         row["team_points_fused"] = self.team_points_fused
-        row["team_cells_mapped"] = self._team_cells()
+        row["team_cells_mapped"] = len(self.team_cells)
         return row
 
     def _agents(self) -> dict[str, Any]:
@@ -270,37 +290,3 @@ class FaceScene:
             out[f"rmse_{name}_m"] = float(np.sqrt(np.mean(e * e))) if e.size else None
             out[f"in2s_{name}"] = float(np.mean(np.abs(e) <= 2 * s)) if e.size else None
         return out
-
-    def _team_cells(self) -> int:
-        """Mapped cells (both grids of the split map; the gravity-only map when no face was
-        fitted) whose surface point lies within 2 cm of a robot or a tether of any view's true
-        team and off the true ground by more than 5 cm and 3 sigma, the distance taken along the
-        ground's normal (a gravity cell: less half the truth's relief inside it)."""
-        g = self.split_gravity if self.face is not None else self.gravity
-        X, Y = self.grid.centers()
-        m = g.mapped
-        truth = self.world.ground_on_grid(self.grid)
-        gy, gx = np.gradient(truth, self.grid.cell)
-        relief = np.nan_to_num(0.5 * math.sqrt(2.0) * self.grid.cell * np.hypot(gx, gy))[m]
-        pts = [np.column_stack([X[m], Y[m], g.z[m]])]
-        sig = [np.sqrt(g.var[m])]
-        slack = [relief]
-        f = self.face
-        if f is not None:
-            cells = np.flatnonzero(f.map.mapped.reshape(-1))
-            gu = f.grid
-            u = gu.x0 + (cells % gu.nx + 0.5) * gu.cell
-            v = gu.y0 + (cells // gu.nx + 0.5) * gu.cell
-            pts.append(f.frame.to_world(np.column_stack([u, v, f.map.z.reshape(-1)[cells]])))
-            sig.append(np.sqrt(f.map.var.reshape(-1)[cells]))
-            slack.append(np.zeros(len(cells)))
-        p, s, r = np.concatenate(pts), np.concatenate(sig), np.concatenate(slack)
-        h = 0.01
-        zx = (self.world.ground_at(p[:, 0] + h, p[:, 1]) - self.world.ground_at(p[:, 0] - h, p[:, 1])) / (2 * h)
-        zy = (self.world.ground_at(p[:, 0], p[:, 1] + h) - self.world.ground_at(p[:, 0], p[:, 1] - h)) / (2 * h)
-        dist = np.abs(p[:, 2] - self.world.ground_at(p[:, 0], p[:, 1])) / np.sqrt(1.0 + zx * zx + zy * zy)
-        off = ~(dist - r <= np.maximum(0.05, 3.0 * s))  # NaN (off the world) counts as off
-        near = np.zeros(len(p), bool)
-        for team in self.team_poses:
-            near |= on_team_truth(p, team, np.full(len(p), -np.inf), 0.02, 0.0)
-        return int((near & off).sum())

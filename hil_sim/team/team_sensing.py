@@ -6,8 +6,9 @@
 * What the cameras see of the team besides the Cliff-bot's box (the renderer draws that one):
   the tethers as ribbons turned to face the camera, the RECON-bot and the Anchorbots as boxes
   (:func:`team_quads`), all occluded against the terrain like every quad.
-* The same shapes at their true poses for the judge (:func:`on_team_truth`); the flight side's
-  mask (``fsw.core.map.body_mask``) gets them at their estimated poses.
+* The same shapes for the flight side's mask (``fsw.core.map.body_mask``), at their estimated
+  poses (``hil_sim.team.face_scene``); the judge of what the mask keeps out is the renderer's
+  own label of the pixels that see them (``StereoRenderer.render_labelled``).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import CameraConfig, CameraPose, rotation_from_yaw_tilt
-from fsw.core.map.body_mask import BodyBox, TeamGeometry, TetherLine, team_mask
+from fsw.core.map.body_mask import BodyBox, TeamGeometry, TetherLine
 from hil_sim.world.cliffbot import Quad
 
 F32 = NDArray[np.float32]
@@ -108,14 +109,3 @@ def team_quads(team: TeamPose, eye: F64, radius_m: float = TETHER_RADIUS_M) -> t
     for box in (team.recon, *team.anchors):
         out += _box(box, 0.6)
     return tuple(out)
-
-
-def on_team_truth(xyz: F64, team: TeamPose, ground_z: F64, margin_m: float = 0.02,
-                  off_ground_m: float = 0.05) -> NDArray[np.bool_]:
-    """The judge: points within ``margin_m`` of a true robot or tether and more than
-    ``off_ground_m`` from the true ground height under them (a tether lying on the ground is
-    ground)."""
-    from fsw.core.map.body_mask import MaskConfig
-
-    near = team_mask(xyz, None, team.geometry(), MaskConfig(margin_m=margin_m, sigma=0.0))
-    return np.asarray(near & (np.abs(np.asarray(xyz)[:, 2] - ground_z) > off_ground_m), bool)

@@ -25,9 +25,10 @@ given), then into:
 
 Figures per scene: ``face_rmse_m`` and ``face_rmse_gravity_m`` (``hil_sim.team.face_eval``),
 their ratio, the truth overhang cells flagged, the fused vs single-agent RMS on cells both agents
-mapped, the fraction of cells within 2 sigma (each agent, fused), the stereo points that lay on
-a robot or a tether (truth: within 2 cm of one and more than 5 cm off the ground), those of them
-fused after the mask, and the robot/tether cells mapped as terrain (judged on the truth). Writes
+mapped, the fraction of cells within 2 sigma (each agent, fused), the stereo points on a robot
+or a tether (judged on the truth: ``hil_sim.team.face_scene.team_points``, from the renderer's
+label of each pixel), those of them that survive the mask into the map, and the gravity-grid
+cells they fall in (robot/tether cells mapped as terrain). Writes
 OUT/face_map.csv and ``docs/results/face-map.md`` (medians, worst cases).
 """
 
