@@ -260,7 +260,7 @@ class SensingPipeline:
                 cal = offset_covariance(xyz, placed.pose.t, pts.disparity_px[a:b], off_sigma)
                 cov_p = cal if cov_p is None else cov_p + cal
             if self.team is not None:
-                off = ~team_mask(xyz, cov_s if cov_p is None else cov_s + cov_p, self.team)
+                off = ~team_mask(xyz, cov_s if cov_p is None else cov_s + cov_p, self.team, eye=placed.pose.t)
                 xyz, cov_s, cov_p = xyz[off], cov_s[off], None if cov_p is None else cov_p[off]
             parts.append(lips.part(xyz, cov_s, cov_p, fus.lip_guard_sigma))
             yield

@@ -145,5 +145,16 @@ def test_team_mask_boxes_and_tethers() -> None:
     assert team_mask(p, None, team, MaskConfig(margin_m=0.04)).tolist() == [True, True, True, False, False]
     cov = np.tile(np.eye(3)[None] * 0.05**2, (5, 1, 1))  # 5 cm points: 3 sigma grows the shapes by 15 cm
     assert team_mask(p, cov, team).tolist() == [True, True, True, True, False]
+    # seen past a shape: a ground point behind the tether or the box, from a camera at eye
+    eye = np.array([1.0, 1.0, 2.0])
+    ground = np.array([[-0.6, -0.3, -0.3], [-0.353, 1.0, -0.3], [1.5, 1.0, 0.0]])
+    # the first is behind the box, the second's sight line crosses the tether, the third is clear
+    got = team_mask(ground, None, team, MaskConfig(margin_m=0.04), eye=eye)
+    assert got.tolist() == [True, True, False]
+    only_tether = team_mask(ground, None, TeamGeometry((), (line,)), MaskConfig(margin_m=0.04), eye=eye)
+    assert only_tether.tolist() == [False, True, False]
+    assert not team_mask(ground, None, team, MaskConfig(margin_m=0.04)).any()
+    inside = np.array([0.0, 0.0, 0.3])  # a camera on the box: its own volume only
+    assert team_mask(ground[:1], None, TeamGeometry((box,), ()), eye=inside).tolist() == [False]
     with pytest.raises(ValueError, match="two points"):
         team_mask(p, None, TeamGeometry((), (TetherLine(np.zeros((1, 3)), 0.01),)))
