@@ -158,3 +158,31 @@ def test_team_mask_boxes_and_tethers() -> None:
     assert team_mask(ground[:1], None, TeamGeometry((box,), ()), eye=inside).tolist() == [False]
     with pytest.raises(ValueError, match="two points"):
         team_mask(p, None, TeamGeometry((), (TetherLine(np.zeros((1, 3)), 0.01),)))
+
+
+def test_the_pipeline_routes_a_view_between_the_grids() -> None:
+    """``SensingPipeline.fuse_steps`` with a face map: the face's points go to the face map, the
+    rest (and the seam strips) to the gravity grid."""
+    from fsw.core.geometry import CameraPose
+    from fsw.core.pipeline import RegisteredPose, SensingPipeline
+    from fsw.core.registration.registration import Registration
+    from fsw.core.steps import run_to_end
+    from fsw.settings import load_settings
+
+    cfg = load_settings(check_calibration=False)
+    pipe = SensingPipeline(cfg, None, emap=ElevationMap(MapGrid(-1.5, -3.0, 0.05, 60, 80)))
+    f = _face_frame()
+    pipe.face = FaceMap(f, (-1.0, 1.0), (-1.0, 1.0), FaceMapConfig(cell_m=0.1, seam_m=0.2))
+    rng = np.random.default_rng(4)
+    n = 4000
+    on_face = f.to_world(np.column_stack([rng.uniform(-0.9, 0.9, n), rng.uniform(-0.7, 0.7, n), np.zeros(n)]))
+    floor = np.column_stack([rng.uniform(-1, 1, n), rng.uniform(-2.5, -2.0, n), np.full(n, -3.0)])
+    xyz = np.vstack([on_face, floor])
+    parts = [(xyz, np.tile(np.eye(3)[None] * 1e-4, (2 * n, 1, 1)), None)]
+    placed = RegisteredPose(Registration("off", "test"), CameraPose(np.eye(3), np.zeros(3)), np.zeros((6, 6)), None)
+    run_to_end(pipe.fuse_steps(placed, parts))
+    assert pipe.face.map.mapped.sum() > 200 and np.abs(pipe.face.map.z[pipe.face.map.mapped]).max() < 0.02
+    X, Y = pipe.map.grid.centers()
+    assert pipe.map.mapped[Y < -1.9].sum() > 50  # the floor in front of the face: the gravity grid
+    owned = pipe.face.face_owned(pipe.map.grid)
+    assert not (pipe.map.mapped & owned).any()  # the face's inner band: not in the gravity grid
