@@ -62,15 +62,17 @@ def perturbed(pose: CameraPose, cov: F64, rng: np.random.Generator) -> CameraPos
 def team_points(pts: StereoPoints, quad: NDArray[np.bool_], terrain: F32, grow_px: int = 3) -> NDArray[np.bool_]:
     """The truth's judge of a view's stereo points: on a robot or a tether when the point's left
     pixel is within ``grow_px`` of a pixel that sees one (``quad``; a matching window straddling
-    an outline gives its pixels the robot's depth) and the point lies in front of the terrain
-    seen there (``terrain`` depth) by more than 5 cm and 3 sigma of its depth."""
+    an outline gives its pixels the robot's depth) and the point lies in front of the nearest
+    terrain seen within ``grow_px`` of it (``terrain`` depth) by more than 5 cm and 3 sigma of
+    its depth (a window straddling a terrain lip gives the lip's depth: that is terrain)."""
     h, w = quad.shape
+    size = 2 * grow_px + 1
     near = ndimage.binary_dilation(quad, iterations=grow_px) if grow_px > 0 else quad
+    nearest = ndimage.minimum_filter(np.nan_to_num(terrain, nan=np.inf), size=size)
     u = np.clip(np.rint(pts.uv[:, 0]).astype(np.intp), 0, w - 1)
     v = np.clip(np.rint(pts.uv[:, 1]).astype(np.intp), 0, h - 1)
-    t = np.nan_to_num(terrain[v, u], nan=np.inf)
     tol = np.maximum(0.05, 3.0 * np.sqrt(np.maximum(pts.cov_c[:, 2, 2], 0.0)))
-    return np.asarray(near[v, u] & (pts.xyz_c[:, 2] < t - tol), bool)
+    return np.asarray(near[v, u] & (pts.xyz_c[:, 2] < nearest[v, u] - tol), bool)
 
 
 class FaceScene:
