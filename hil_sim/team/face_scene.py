@@ -136,8 +136,11 @@ class FaceScene:
             lines.append(np.vstack([self.anchors[k], mid, attach]))
         recon = yaw_box(np.array([rover[0], rover[1], 0.3]), rover[2], RECON_HALF_M)
         anchors = tuple(yaw_box(np.array([a[0], a[1], 0.2]), -math.pi / 2, ANCHOR_HALF_M) for a in t.anchors_xy)
-        box = yaw_box(np.array([x, y, zg + 0.5 * cb.height_m]), yaw,
-                      (0.5 * cb.length_m, 0.5 * cb.width_m, 0.5 * cb.height_m))
+        # the whole robot: the body and its fiducial plates (the inclined one stands above the top)
+        corners = np.concatenate([q.corners for q in body.quads]) - body.t
+        local = corners @ body.R
+        lo, hi = local.min(axis=0), local.max(axis=0)
+        box = BodyBox(body.t + body.R @ (0.5 * (lo + hi)), body.R, 0.5 * (hi - lo))
         team = TeamPose(box, recon, (anchors[0], anchors[1]), (lines[0], lines[1]))
         return np.array([x, y, zg]), n, team, body
 
