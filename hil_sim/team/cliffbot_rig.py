@@ -42,6 +42,7 @@ from fsw.core.team.tether import (
 )
 from hil_sim.faults import FaultInjector
 from hil_sim.hw.winch import WinchConfig, WinchNode
+from hil_sim.team.team_eval import judge_pose
 from hil_sim.world.cliffbot import CliffbotTruth, build_cliffbot
 from hil_sim.world.world import World
 
@@ -187,18 +188,8 @@ class CliffbotRig:
             self._judge()
 
     def _judge(self) -> None:
-        st, g, grid = self.state, self.truth_ground, self.grid
-        t1, t2 = st.statics.tensions_n
-        iy, ix, inside = grid.cell_index(np.array([self.xy[0]]), np.array([self.xy[1]]))
-        steep = inside[0] and g.slope_deg[iy[0], ix[0]] > self.ccfg.free_slope_deg
-        if steep and not (self.tcfg.t_min_n <= min(t1, t2) and max(t1, t2) <= self.tcfg.t_max_n):
-            self.violations["tension"] += 1
-        for p in st.paths:
-            if len(p.contacts):
-                cy, cx, ok = grid.cell_index(p.contacts[:, 0], p.contacts[:, 1])
-                if (ok & g.rock[np.clip(cy, 0, grid.ny - 1), np.clip(cx, 0, grid.nx - 1)]).any():
-                    self.violations["tether_on_rock"] += 1
-                    break
-        if inside[0] and g.hazard[iy[0], ix[0]]:
-            self.violations["wheel_on_hazard"] += 1
-            self.hazard_cells.add((int(iy[0]), int(ix[0])))
+        found, cell = judge_pose(self.state, self.xy, self.truth_ground, self.grid, self.tcfg, self.ccfg)
+        for kind in found:
+            self.violations[kind] += 1
+        if cell is not None:
+            self.hazard_cells.add(cell)

@@ -10,7 +10,8 @@ aims its mast at the Cliff-bot, renders the stereo pair of the world with the Cl
 its TRUE pose, runs the flight :class:`~fsw.core.localization.fiducials.CliffbotLocalizer`
 and answers FIX (or NO_FIX). Everything is seeded: the same seed gives the same result.
 
-:func:`run_team` returns the summary's ``team`` section and draws ``team.png``.
+:func:`run_team` returns the summary's ``team`` section (judged on the truth by
+:mod:`hil_sim.team.team_eval`) and draws ``team.png``.
 """
 
 from __future__ import annotations
@@ -28,17 +29,17 @@ from fsw.comm.link_packets import PacketError
 from fsw.comm.team import fix_packets
 from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import NavConfig
-from fsw.core.team.face_planner import ClimberConfig, plan_targets
+from fsw.core.team.face_planner import ClimberConfig
 from fsw.core.team.tether import TetherConfig
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.tasks.cliffbot_mission import CliffbotMission, CliffbotMissionConfig
 from hil_sim.faults import FaultInjector, FaultSpec
 from hil_sim.radio_channel import RadioChannel
 from hil_sim.team.cliffbot_rig import CliffbotRig
+from hil_sim.team.team_eval import FixError, TeamOutcome, fix_error, judge_team
 from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]
-CHI2_95_6DOF = 12.5916
 RECON, CLIFF = "a", "b"  # the radio channel's sides, as in hil_sim.mission_run
 
 
@@ -65,7 +66,7 @@ class ReconFixer:
         self.loc = CliffbotLocalizer(self.cfg.localization, self.cfg.cliffbot, self.cfg.camera.K,
                                      self.cfg.camera.baseline_m)
         self.rng = np.random.default_rng([seed, 2702])
-        self.errors: list[tuple[float, float, float, float]] = []  # range, cm, deg, NEES
+        self.errors: list[FixError] = []
 
     def answer(self, req: fix_packets.FixRequest, rig: CliffbotRig, now: float) -> bytes:
         from fsw.core.geometry import camera_pose_from_rover
@@ -87,14 +88,8 @@ class ReconFixer:
         est = self.loc.locate(left, PoseEstimate(pose, np.zeros((6, 6))), right)
         if est is None:
             return fix_packets.encode(fix_packets.NoFix(req.seq, 0))
-        e = np.concatenate([so3_log(est.R @ cb.R.T), est.t - cb.t])
-        try:
-            nees = float(e @ np.linalg.solve(est.cov, e))
-        except np.linalg.LinAlgError:
-            nees = math.inf
-        dyaw = math.degrees(math.atan2(math.sin(est.yaw - cb.yaw), math.cos(est.yaw - cb.yaw)))
-        self.errors.append((float(np.linalg.norm(cb.t - pose.t)), 100 * float(np.linalg.norm(est.t - cb.t)),
-                            abs(dyaw), nees))
+        self.errors.append(fix_error(est.t, so3_log(est.R @ cb.R.T), est.yaw - cb.yaw, est.cov, cb.t,
+                                     float(np.linalg.norm(cb.t - pose.t))))
         fix = fix_packets.Fix(req.seq, int(now * 1000), est.t, so3_log(est.R), est.cov)
         return fix_packets.encode(fix)
 
@@ -109,7 +104,7 @@ class TruthFixer:
         self.rng = np.random.default_rng([seed, 2703])
         self.cov = np.diag([math.radians(sigma_deg) ** 2] * 3 + [sigma_m ** 2] * 3)
         self.offset = np.asarray(offset_m, float)
-        self.errors: list[tuple[float, float, float, float]] = []
+        self.errors: list[FixError] = []
 
     def answer(self, req: fix_packets.FixRequest, rig: CliffbotRig, now: float) -> bytes:
         from fsw.core.localization.localization import so3_log
@@ -120,18 +115,8 @@ class TruthFixer:
         yaw = cb.yaw + e[2]
         c, s_ = math.cos(yaw), math.sin(yaw)
         r = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
-        nees = float(e @ np.linalg.solve(self.cov, e))
-        self.errors.append((math.nan, 100 * float(np.linalg.norm(e[3:])), abs(math.degrees(e[2])), nees))
+        self.errors.append(fix_error(cb.t + e[3:], e[:3], e[2], self.cov, cb.t))
         return fix_packets.encode(fix_packets.Fix(req.seq, int(now * 1000), cb.t + e[3:], so3_log(r), self.cov))
-
-
-def truth_reachable(world: World, grid: MapGrid, setup: TeamSetup, anchors: F64) -> tuple[str, ...]:
-    """The brute-force check on the TRUE ground: each target's reason ("" when reachable)."""
-    assert world.team is not None
-    z = world.ground_on_grid(grid)
-    plan = plan_targets(z, grid, anchors, world.team.cliffbot_start_xy, world.team.targets_xyz[:, :2],
-                        setup.tether, setup.climber)
-    return plan.reasons
 
 
 def run_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], channel: RadioChannel, seed: int,
@@ -199,38 +184,15 @@ def run_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], chan
                 break
         if mission.state == "DONE":
             break
-    truth_reasons = truth_reachable(world, grid, s, rig.anchors)
-    errs = fixer.errors
-    section: dict[str, Any] = {
-        "targets": len(team.targets_xyz),
-        "targets_reached": int(sum(mission.reached)),
-        "targets_reachable_by_truth": int(sum(1 for r in truth_reasons if not r)),
-        "targets_unreachable_by_truth": int(sum(1 for r in truth_reasons if r)),
-        "truth_reasons": list(truth_reasons),
-        "map_reasons": list(mission.reasons),
-        "reached": list(mission.reached),
-        "tether_violations": int(sum(rig.violations.values())),
-        "violations": dict(rig.violations),
-        "hazard_cells_entered": len(rig.hazard_cells),
-        "unknown_cells_entered": _unknown_entered(rig.path, received_z, grid),
-        "fix_errors_cm": [round(e[1], 3) for e in errs],
-        "fix_errors_deg": [round(e[2], 3) for e in errs],
-        "fix_ranges_m": [round(e[0], 2) if math.isfinite(e[0]) else None for e in errs],
-        "fix_nees": [round(e[3], 3) for e in errs],
-        "fix_nees_within_chi2_95": (sum(e[3] <= CHI2_95_6DOF for e in errs) / len(errs)) if errs else None,
-        "fixes_used": mission.fixes_used,
-        "fixes_refused": mission.fixes_refused,
-        "link_bytes_down": channel.stats(RECON).air_bytes - sent0[RECON],
-        "link_bytes_up": channel.stats(CLIFF).air_bytes - sent0[CLIFF],
-        "link_bad_packets": bad_packets,
-        "can_bad_frames": dev.bad_frames,
-        "final_state": mission.state,
-        "safe_reason": mission.safe_reason,
-        "events": [list(e) for e in mission.events],
-        "path_m": round(float(np.sum(np.linalg.norm(np.diff(np.asarray(rig.path), axis=0), axis=1)))
-                        if len(rig.path) > 1 else 0.0, 3),
-        "sim_s": round(now - t0, 3),
-    }
+    outcome = TeamOutcome(
+        reached=tuple(mission.reached), map_reasons=tuple(mission.reasons), true_path=tuple(rig.path),
+        violations=dict(rig.violations), hazard_cells=frozenset(rig.hazard_cells), fixes=tuple(fixer.errors),
+        fixes_used=mission.fixes_used, fixes_refused=mission.fixes_refused,
+        link_bytes_down=channel.stats(RECON).air_bytes - sent0[RECON],
+        link_bytes_up=channel.stats(CLIFF).air_bytes - sent0[CLIFF],
+        link_bad_packets=bad_packets, can_bad_frames=dev.bad_frames, final_state=mission.state,
+        safe_reason=mission.safe_reason, events=tuple(tuple(e) for e in mission.events), sim_s=now - t0)
+    section = judge_team(world, grid, received_z, rig.anchors, s.tether, s.climber, outcome).section()
     if out is not None:
         section["picture"] = str(draw_team(out / "team.png", world, grid, received_z, rig, mission, est_path))
     return section
@@ -254,18 +216,6 @@ def team_phase(out: Path | None, seed: int, world: World, grid: MapGrid, cliffbo
     if section.get("picture") and out is not None:
         section["picture"] = Path(section["picture"]).name
     return {"team": section}
-
-
-def _unknown_entered(path: list[tuple[float, float]], z: NDArray[np.floating], grid: MapGrid) -> int:
-    """Distinct map cells the Cliff-bot's true path moved onto that its map does not know
-    (the start, where it stands before any move, is not counted)."""
-    if len(path) < 2:
-        return 0
-    p = np.asarray(path[1:])
-    iy, ix, inside = grid.cell_index(p[:, 0], p[:, 1])
-    cells = {(int(a), int(b)) for a, b, ok in zip(iy, ix, inside, strict=True)
-             if not ok or not math.isfinite(float(np.asarray(z)[a, b]))}
-    return len(cells)
 
 
 def draw_team(path: Path, world: World, grid: MapGrid, z: NDArray[np.floating], rig: CliffbotRig,

@@ -1,0 +1,217 @@
+"""Judging a team mission on the truth (docs/team.md, "Running a team mission").
+
+Whatever drives the two flight programs (:mod:`hil_sim.team.team_run`), the verdict on a
+team mission comes from here and only from the TRUTH:
+
+* :func:`judge_pose`: the violations at one true pose of the Cliff-bot (a tension outside
+  its limits on steep ground, a tether contact on a rock, the footprint on a hazard cell of
+  the true ground's layers); the bench calls it after every step;
+* :func:`fix_error`: a RECON-bot fix against the Cliff-bot's true pose (position error,
+  heading error, NEES against the fix's own covariance);
+* :func:`truth_reasons`: the planner on the TRUE ground under the same tether limits (the
+  brute-force reference: each target's reason, ``""`` when reachable);
+* :func:`unknown_cells_entered`: the distinct cells of the true path the received map did
+  not know;
+* :func:`judge_team`: all of it for one mission, from a :class:`TeamOutcome` (what the driver
+  observed), as a :class:`TeamVerdict` whose :meth:`TeamVerdict.section` is the summary's
+  ``team`` section.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.core.geometry import MapGrid
+from fsw.core.team.face_planner import ClimberConfig, Ground, plan_targets
+from fsw.core.team.tether import TetherConfig, TetherState
+from hil_sim.world.world import World
+
+F64 = NDArray[np.float64]
+CHI2_95_6DOF = 12.5916  # the chi-square 95 % bound of 6 degrees of freedom
+Cell = tuple[int, int]
+
+
+@dataclass(frozen=True)
+class FixError:
+    """One fix judged against the truth."""
+
+    range_m: float  # from the RECON-bot's camera to the Cliff-bot (NaN when not known)
+    err_cm: float  # position error
+    err_deg: float  # heading error (absolute)
+    nees: float  # 6-dof normalised estimation error squared, against the fix's covariance
+
+
+def fix_error(est_t: F64, est_rotvec_err: F64, est_dyaw_rad: float, cov: F64, true_t: F64,
+              range_m: float = math.nan) -> FixError:
+    """A fix against the truth: ``est_rotvec_err`` is ``log(R_est R_true^T)``, the error vector
+    is ``[rotation error, position error]`` in the fix's covariance order."""
+    e = np.concatenate([np.asarray(est_rotvec_err, float), np.asarray(est_t, float) - np.asarray(true_t, float)])
+    try:
+        nees = float(e @ np.linalg.solve(np.asarray(cov, float), e))
+    except np.linalg.LinAlgError:
+        nees = math.inf
+    dyaw = math.degrees(math.atan2(math.sin(est_dyaw_rad), math.cos(est_dyaw_rad)))
+    return FixError(range_m, 100 * float(np.linalg.norm(e[3:])), abs(dyaw), nees if math.isfinite(nees) else math.inf)
+
+
+def judge_pose(state: TetherState, xy: F64, truth: Ground, grid: MapGrid, tcfg: TetherConfig,
+               ccfg: ClimberConfig) -> tuple[list[str], Cell | None]:
+    """The violations at one true pose (kinds of ``hil_sim.team.cliffbot_rig.VIOLATIONS``
+    except ``slack`` and ``spool``, which the bench sees before a pose exists) and the
+    hazard cell the footprint's centre is on, if any."""
+    found: list[str] = []
+    t1, t2 = state.statics.tensions_n
+    iy, ix, inside = grid.cell_index(np.array([xy[0]]), np.array([xy[1]]))
+    steep = bool(inside[0]) and truth.slope_deg[iy[0], ix[0]] > ccfg.free_slope_deg
+    if steep and not (tcfg.t_min_n <= min(t1, t2) and max(t1, t2) <= tcfg.t_max_n):
+        found.append("tension")
+    for p in state.paths:
+        if len(p.contacts):
+            cy, cx, ok = grid.cell_index(p.contacts[:, 0], p.contacts[:, 1])
+            if (ok & truth.rock[np.clip(cy, 0, grid.ny - 1), np.clip(cx, 0, grid.nx - 1)]).any():
+                found.append("tether_on_rock")
+                break
+    cell: Cell | None = None
+    if inside[0] and truth.hazard[iy[0], ix[0]]:
+        found.append("wheel_on_hazard")
+        cell = (int(iy[0]), int(ix[0]))
+    return found, cell
+
+
+def truth_reasons(world: World, grid: MapGrid, anchors: F64, tcfg: TetherConfig,
+                  ccfg: ClimberConfig) -> tuple[str, ...]:
+    """The planner on the TRUE ground: each target's reason (``""`` when reachable)."""
+    if world.team is None:
+        raise ValueError("the scenario has no team (use a cliff-team scenario)")
+    z = world.ground_on_grid(grid)
+    plan = plan_targets(z, grid, anchors, world.team.cliffbot_start_xy, world.team.targets_xyz[:, :2], tcfg, ccfg)
+    return plan.reasons
+
+
+def unknown_cells_entered(path: Sequence[tuple[float, float]], z: NDArray[np.floating], grid: MapGrid) -> int:
+    """Distinct map cells the Cliff-bot's true path moved onto that its map does not know
+    (the start, where it stands before any move, is not counted)."""
+    if len(path) < 2:
+        return 0
+    p = np.asarray(path[1:], float)
+    iy, ix, inside = grid.cell_index(p[:, 0], p[:, 1])
+    zz = np.asarray(z)
+    cells = {(int(a), int(b)) for a, b, ok in zip(iy, ix, inside, strict=True)
+             if not ok or not math.isfinite(float(zz[a, b]))}
+    return len(cells)
+
+
+def path_length_m(path: Sequence[tuple[float, float]]) -> float:
+    """The horizontal length of a path."""
+    if len(path) < 2:
+        return 0.0
+    return float(np.sum(np.linalg.norm(np.diff(np.asarray(path, float), axis=0), axis=1)))
+
+
+@dataclass(frozen=True)
+class TeamOutcome:
+    """What the driver of a team mission observed (its flight programs' and bench's records)."""
+
+    reached: Sequence[bool]  # per target, from the Cliff-bot's mission
+    map_reasons: Sequence[str]  # per target, the mission's reason not ("" when planned)
+    true_path: Sequence[tuple[float, float]]  # the Cliff-bot's true positions, from its start
+    violations: Mapping[str, int]  # the bench's counts by kind (judge_pose, slack, spool)
+    hazard_cells: frozenset[Cell]  # distinct true hazard cells entered
+    fixes: Sequence[FixError] = ()
+    fixes_used: int = 0
+    fixes_refused: int = 0
+    link_bytes_down: int = 0  # RECON-bot -> Cliff-bot air bytes in the team phase
+    link_bytes_up: int = 0
+    link_bad_packets: int = 0
+    can_bad_frames: int = 0
+    final_state: str = ""
+    safe_reason: str = ""
+    events: Sequence[Sequence[Any]] = ()
+    sim_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class TeamVerdict:
+    """One team mission judged on the truth."""
+
+    outcome: TeamOutcome
+    truth_reasons: tuple[str, ...]
+    unknown_cells_entered: int
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def targets(self) -> int:
+        return len(self.truth_reasons)
+
+    @property
+    def targets_reached(self) -> int:
+        return int(sum(bool(r) for r in self.outcome.reached))
+
+    @property
+    def reachable_by_truth(self) -> int:
+        return sum(1 for r in self.truth_reasons if not r)
+
+    @property
+    def missed(self) -> list[int]:
+        """Targets the truth finds reachable that the mission did not reach."""
+        got = list(self.outcome.reached) + [False] * self.targets
+        return [k for k, r in enumerate(self.truth_reasons) if not r and not got[k]]
+
+    @property
+    def tether_violations(self) -> int:
+        return int(sum(self.outcome.violations.values()))
+
+    @property
+    def nees_within(self) -> float | None:
+        fx = self.outcome.fixes
+        return (sum(f.nees <= CHI2_95_6DOF for f in fx) / len(fx)) if fx else None
+
+    def section(self) -> dict[str, Any]:
+        """The summary's ``team`` section (docs/team.md lists its keys)."""
+        o, fx = self.outcome, self.outcome.fixes
+        out: dict[str, Any] = {
+            "targets": self.targets,
+            "targets_reached": self.targets_reached,
+            "targets_reachable_by_truth": self.reachable_by_truth,
+            "targets_unreachable_by_truth": self.targets - self.reachable_by_truth,
+            "truth_reasons": list(self.truth_reasons),
+            "map_reasons": list(o.map_reasons),
+            "reached": [bool(r) for r in o.reached],
+            "reachable_missed": self.missed,
+            "tether_violations": self.tether_violations,
+            "violations": dict(o.violations),
+            "hazard_cells_entered": len(o.hazard_cells),
+            "unknown_cells_entered": self.unknown_cells_entered,
+            "fix_errors_cm": [round(f.err_cm, 3) for f in fx],
+            "fix_errors_deg": [round(f.err_deg, 3) for f in fx],
+            "fix_ranges_m": [round(f.range_m, 2) if math.isfinite(f.range_m) else None for f in fx],
+            "fix_nees": [round(f.nees, 3) if math.isfinite(f.nees) else None for f in fx],
+            "fix_nees_within_chi2_95": self.nees_within,
+            "fixes_used": o.fixes_used,
+            "fixes_refused": o.fixes_refused,
+            "link_bytes_down": o.link_bytes_down,
+            "link_bytes_up": o.link_bytes_up,
+            "link_bad_packets": o.link_bad_packets,
+            "can_bad_frames": o.can_bad_frames,
+            "final_state": o.final_state,
+            "safe_reason": o.safe_reason,
+            "events": [list(e) for e in o.events],
+            "path_m": round(path_length_m(o.true_path), 3),
+            "sim_s": round(o.sim_s, 3),
+        }
+        out.update(self.extra)
+        return out
+
+
+def judge_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], anchors: F64,
+               tcfg: TetherConfig, ccfg: ClimberConfig, outcome: TeamOutcome) -> TeamVerdict:
+    """One team mission judged on the truth: the brute-force reachability, the cells of the
+    true path the received map did not know, and the bench's violations."""
+    return TeamVerdict(outcome, truth_reasons(world, grid, anchors, tcfg, ccfg),
+                       unknown_cells_entered(outcome.true_path, received_z, grid))
