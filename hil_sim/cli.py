@@ -44,6 +44,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("experiment", "fiducials"): "hil_sim.lab.experiments.experiment_fiducials",
     ("experiment", "team"): "hil_sim.lab.experiments.experiment_team",
     ("experiment", "sync"): "hil_sim.lab.experiments.experiment_sync",
+    ("experiment", "face-map"): "hil_sim.lab.experiments.experiment_face_map",
 }
 
 GROUP_HELP = {

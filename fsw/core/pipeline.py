@@ -34,7 +34,9 @@ from fsw.core.edge.roi import roi_mapped_fraction_steps
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid, MapGridConfig
 from fsw.core.localization.localization import point_covariance_parts
 from fsw.core.localization.nav_fix import NavFix
+from fsw.core.map.body_mask import TeamGeometry, team_mask
 from fsw.core.map.elevation_map import ElevationMap, FusionConfig, MergeStats
+from fsw.core.map.face_map import FaceMap, split_parts
 from fsw.core.map.reference_frames import ReferenceFrames
 from fsw.core.planning.nbv import NbvConfig, predicted_visibility_steps
 from fsw.core.registration.registration import (
@@ -155,6 +157,10 @@ class SensingPipeline:
         self.map = ElevationMap(MapGrid.from_config(cfg.map), cfg.fusion) if emap is None else emap
         self.chain = StationChain()  # the registered stations (fsw.core.registration.station_chain)
         self.sources = ReferenceFrames(self.map.grid.shape)  # each cell's view (fsw.core.map.reference_frames)
+        # The team (docs/algorithm.md §8.1): the face map beside the gravity grid (None: one grid)
+        # and the robots and tethers at their known poses, masked out of every view (None: none).
+        self.face: FaceMap | None = None
+        self.team: TeamGeometry | None = None
 
     def clear(self) -> None:
         """Forget the map and the registration state (a new survey)."""
@@ -259,6 +265,9 @@ class SensingPipeline:
             if off_sigma > 0.0:
                 cal = offset_covariance(xyz, placed.pose.t, pts.disparity_px[a:b], off_sigma)
                 cov_p = cal if cov_p is None else cov_p + cal
+            if self.team is not None:
+                off = ~team_mask(xyz, cov_s if cov_p is None else cov_s + cov_p, self.team, eye=placed.pose.t)
+                xyz, cov_s, cov_p = xyz[off], cov_s[off], None if cov_p is None else cov_p[off]
             parts.append(lips.part(xyz, cov_s, cov_p, fus.lip_guard_sigma))
             yield
         return parts
@@ -268,7 +277,12 @@ class SensingPipeline:
                    ) -> Generator[None, None, MergedView]:
         """Fuse a view's world points (:meth:`world_parts_steps`, consumed) into the map with
         the misses of the cells in ``p_visible`` that get none (§1.1, §3.4); each cell the view
-        measured remembers the view as its source (``fsw.core.map.reference_frames``)."""
+        measured remembers the view as its source (``fsw.core.map.reference_frames``). With a
+        face map the points are split by its hand-over (§8.1) and its share fused there."""
+        if self.face is not None:
+            to_face, parts = split_parts(parts, self.face)
+            self.face.merge_parts(to_face)
+            yield
         view_cells = self.map.grid.cell_means(np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3)))
         X, Y = (c.reshape(-1)[view_cells[0]] for c in self.map.grid.centers())
         self.sources.add(view_cells[0], np.column_stack([X, Y, view_cells[1]]), placed.pose.t, placed.cov)
