@@ -30,13 +30,13 @@ from fsw.comm.team import fix_packets
 from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import NavConfig
 from fsw.core.team.face_planner import ClimberConfig
-from fsw.core.team.tether import TetherConfig
+from fsw.core.team.tether import TetherConfig, anchor_points
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.tasks.cliffbot_mission import CliffbotMission, CliffbotMissionConfig
 from hil_sim.faults import FaultInjector, FaultSpec
 from hil_sim.radio_channel import RadioChannel
 from hil_sim.team.cliffbot_rig import CliffbotRig
-from hil_sim.team.team_eval import FixError, TeamOutcome, fix_error, judge_team
+from hil_sim.team.team_eval import FixError, TeamOutcome, compare_maps, fix_error, judge_team
 from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]
@@ -213,6 +213,12 @@ def team_phase(out: Path | None, seed: int, world: World, grid: MapGrid, cliffbo
     r = bench.rig.rover
     section = run_team(world, grid, z, channel, seed, recon_xy_yaw=(r.x, r.y, r.yaw), out=out, t0=bench.clock.now())
     section["map_received"] = bool(cliffbot.maps)
+    if cliffbot.maps and cliffbot.originals:  # the map was enough: plans on it vs on the RECON-bot's full map
+        s = TeamSetup()
+        full = np.asarray(cliffbot.originals[max(cliffbot.originals)], np.float64) + datum_m
+        anchors = anchor_points(world.ground_on_grid(grid), grid, world.team.anchors_xy, s.tether)
+        section.update(compare_maps(full, z, grid, anchors, world.team.cliffbot_start_xy,
+                                    world.team.targets_xyz[:, :2], s.tether, s.climber).section())
     if section.get("picture") and out is not None:
         section["picture"] = Path(section["picture"]).name
     return {"team": section}

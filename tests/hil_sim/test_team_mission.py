@@ -13,9 +13,12 @@ import numpy as np
 import pytest
 
 from fsw.core.geometry import MapGrid
+from fsw.core.team.face_planner import ClimberConfig, plan_targets
+from fsw.core.team.tether import TetherConfig, anchor_points
 from fsw.tasks.cliffbot_mission import CliffbotMissionConfig
 from hil_sim.faults import FaultSpec
 from hil_sim.radio_channel import RadioChannel, RadioChannelConfig
+from hil_sim.team.team_eval import truth_verdict
 from hil_sim.team.team_run import TeamSetup, TruthFixer, run_team
 from hil_sim.world import load_scenario
 
@@ -50,10 +53,24 @@ def test_nominal_reaches_what_the_truth_allows_and_is_deterministic(scene: tuple
     # unreachable targets are reported with a reason the truth confirms
     for k, why in enumerate(a["map_reasons"]):
         assert bool(why) == bool(a["truth_reasons"][k])
-    assert a["unknown_cells_entered"] == 0
+    assert a["unknown_cells_entered"] == 0 and a["reachable_missed"] == []
+    assert a["tether_violations"] == 0 and a["hazard_cells_entered"] == 0
     assert a["fixes_used"] >= 1 and a["link_bytes_down"] > 0 and a["link_bytes_up"] > 0
     b = _run(scene)
     assert a == b  # same seed, same run (fault-free runs are short: the full mission twice)
+
+
+def test_truth_brute_force_agrees_with_the_planner_on_the_truth(scene: tuple[Any, np.ndarray]) -> None:
+    """Every lattice node judged and Dijkstra over all of them give the A* planner's verdicts
+    and shortest lengths on the same (true) ground: the planner's lazy search loses nothing."""
+    world, z = scene
+    t, c = TetherConfig(), ClimberConfig()
+    anchors = anchor_points(z, GRID, world.team.anchors_xy, t)
+    truth = truth_verdict(world, GRID, anchors, t, c)
+    plan = plan_targets(z, GRID, anchors, world.team.cliffbot_start_xy, world.team.targets_xyz[:, :2], t, c)
+    assert truth.nodes == 128 * 128 and 0 < truth.usable < truth.nodes
+    assert truth.reasons == plan.reasons and "" in truth.reasons
+    np.testing.assert_allclose(truth.lengths_m, plan.lengths_m, rtol=1e-9)
 
 
 @pytest.mark.parametrize("mode, bit", [("stall", "FaultStall"), ("slip", "FaultSlip"),
