@@ -100,6 +100,25 @@ def test_lost_link_ends_in_safe(scene: tuple[Any, np.ndarray]) -> None:
     assert _events(sec, "LINK_LOST") and sec["targets_reached"] == 0 and sec["path_m"] == 0.0
 
 
+def test_lost_link_recovers_when_the_link_returns(scene: tuple[Any, np.ndarray]) -> None:
+    world, z = scene
+    setup = TeamSetup(mission=CliffbotMissionConfig(fix_timeout_s=1.5), max_s=6.0)
+    channel = RadioChannel(RadioChannelConfig(outages=((0.0, 2.0),)), seed=SEED)  # no link for the first 2 s
+    sec = run_team(world, GRID, z, channel, SEED, setup, fixer=TruthFixer(SEED), recover_after_s=1.0)
+    names = [e[1] for e in sec["events"]]
+    assert "LINK_LOST" in names and "RECOVER" in names
+    assert names.index("FIX") > names.index("RECOVER") and sec["fixes_used"] >= 1  # asked again, got it
+    assert sec["final_state"] != "SAFE" and sec["path_m"] > 0.0 and sec["tether_violations"] == 0
+
+
+def test_a_refused_fix_recovers_on_the_fix(scene: tuple[Any, np.ndarray]) -> None:
+    sec = _run(scene, fixer=TruthFixer(SEED, offset_m=(0.3, 0.0, 0.0)), recover_after_s=1.0, max_s=10.0)
+    names = [e[1] for e in sec["events"]]
+    assert "FIX_REFUSED" in names and "RECOVER" in names  # the ground took the fix as the estimate
+    assert sec["final_state"] != "SAFE" or names.count("FIX_REFUSED") > 1, sec["events"]
+    assert sec["tether_violations"] == 0 and sec["hazard_cells_entered"] == 0
+
+
 def test_a_fix_that_disagrees_is_refused(scene: tuple[Any, np.ndarray]) -> None:
     sec = _run(scene, fixer=TruthFixer(SEED, offset_m=(0.6, 0.0, 0.0)))
     assert sec["final_state"] == "SAFE" and sec["safe_reason"].startswith("fix disagrees")
