@@ -51,6 +51,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-s", type=float, default=900.0, help="a mission's simulated time limit (s)")
     p.add_argument("--config", default=str(DEFAULT_CONFIG), help="flight configuration (TOML)")
     p.add_argument("--out", type=Path, default=Path("out/team"), help="output directory")
+    p.add_argument("--rows", type=Path, default=None,
+                   help="report the scenes a run already finished (its OUT/team_rows.jsonl) instead of running")
 
 
 def scene(scenario: str, seed: int, config: str, wheel_m: float, mission: bool, fixer: str, max_s: float,
@@ -122,7 +124,6 @@ def run(args: argparse.Namespace) -> int:
 
     from fsw.framework.params import ConfigError
     from fsw.settings import load_settings
-    from hil_sim.lab.results import command_line, write_results
     from hil_sim.world import ScenarioError, load_scenario
 
     me = "safer-hil experiment team"
@@ -139,6 +140,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"{me}: scenario {args.scenario!r} has no team (use cliff-team)", file=sys.stderr)
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.rows is not None:
+        return _report_rows(args)
     (args.out / "team_rows.jsonl").unlink(missing_ok=True)
     missions = args.scenes if args.missions < 0 else args.missions
     rows: dict[int, dict[str, Any]] = {}
@@ -164,7 +167,25 @@ def run(args: argparse.Namespace) -> int:
     if failed:
         print(f"{me}: scenes failed, no report written:\n  " + "\n  ".join(failed), file=sys.stderr)
         return 1
-    ordered = [rows[s] for s in sorted(rows)]
+    return _write([rows[s] for s in sorted(rows)], args)
+
+
+def _report_rows(args: argparse.Namespace) -> int:
+    """The report of the rows a run wrote as its scenes ended (an interrupted run's subset)."""
+    try:
+        rows = [json.loads(line) for line in args.rows.read_text().splitlines() if line.strip()]
+    except (OSError, ValueError) as exc:
+        print(f"safer-hil experiment team: --rows {args.rows}: {exc}", file=sys.stderr)
+        return 2
+    if not rows or not all(isinstance(r, dict) and "seed" in r for r in rows):
+        print(f"safer-hil experiment team: --rows {args.rows}: no scene rows", file=sys.stderr)
+        return 2
+    return _write(sorted(rows, key=lambda r: r["seed"]), args)
+
+
+def _write(ordered: list[dict[str, Any]], args: argparse.Namespace) -> int:
+    from hil_sim.lab.results import command_line, write_results
+
     table = report(ordered, args)
     with open(args.out / "team.csv", "w", newline="") as fh:
         keys = [k for k in ordered[-1] if k != "_fixes"]
@@ -175,6 +196,17 @@ def run(args: argparse.Namespace) -> int:
     write_results("team", command_line("team"), table, pics)
     print(table)
     return 0
+
+
+def _seeds(seeds: list[int]) -> str:
+    """``0-9, 12`` for a sorted list of seeds."""
+    out: list[str] = []
+    for s in sorted(seeds):
+        if out and s == int(out[-1].split("-")[-1]) + 1:
+            out[-1] = f"{out[-1].split('-')[0]}-{s}"
+        else:
+            out.append(str(s))
+    return ", ".join(out)
 
 
 def _mw(values: list[float], worst: str = "max", fmt: str = "{:.3g}") -> str:
@@ -199,7 +231,7 @@ def report(rows: list[dict[str, Any]], args: argparse.Namespace) -> str:
     n_t = sum(r["targets"] for r in rows)
     ratios = [r["path_ratio_max"] for r in rows if r["path_ratio_max"] != ""]
     lines = ["| done-when figure | value (median / worst per scene, or total) |", "|---|---|",
-             f"| scenes / targets | {len(rows)} / {n_t} |",
+             f"| scenes (seeds) / targets | {len(rows)} ({_seeds([r['seed'] for r in rows])}) / {n_t} |",
              f"| targets reachable on the truth (brute force) | {sum(r['reachable_truth'] for r in rows)} |",
              f"| reachable on the full map / on the reduced map | {sum(r['reachable_full'] for r in rows)} / "
              f"{sum(r['reachable_reduced'] for r in rows)} |",
