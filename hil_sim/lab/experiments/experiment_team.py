@@ -127,6 +127,9 @@ def run(args: argparse.Namespace) -> int:
     from hil_sim.world import ScenarioError, load_scenario
 
     me = "safer-hil experiment team"
+    if args.rows is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        return _report_rows(args)
     if args.scenes < 1 or args.jobs < 1 or not (args.max_s > 0):
         print(f"{me}: --scenes and --jobs must be >= 1, --max-s > 0", file=sys.stderr)
         return 2
@@ -140,8 +143,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"{me}: scenario {args.scenario!r} has no team (use cliff-team)", file=sys.stderr)
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
-    if args.rows is not None:
-        return _report_rows(args)
     (args.out / "team_rows.jsonl").unlink(missing_ok=True)
     missions = args.scenes if args.missions < 0 else args.missions
     rows: dict[int, dict[str, Any]] = {}
