@@ -42,6 +42,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("experiment", "registration"): "hil_sim.lab.experiments.experiment_registration",
     ("experiment", "fiducials"): "hil_sim.lab.experiments.experiment_fiducials",
     ("experiment", "team"): "hil_sim.lab.experiments.experiment_team",
+    ("experiment", "sync"): "hil_sim.lab.experiments.experiment_sync",
 }
 
 GROUP_HELP = {
@@ -100,6 +101,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted" + _resume_hint(args), file=sys.stderr)
         return 130
+    except ModuleNotFoundError as exc:
+        if exc.name != "pandas":
+            raise
+        print("safer-hil: the lab's tables need pandas: pip install -e '.[lab]'", file=sys.stderr)
+        return 1
 
 
 def _resume_hint(args: argparse.Namespace) -> str:

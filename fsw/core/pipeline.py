@@ -258,7 +258,7 @@ class SensingPipeline:
         return parts
 
     def fuse_steps(self, placed: RegisteredPose, parts: list[ViewPart],
-                   p_visible: NDArray[np.floating] | NDArray[np.bool_] | None = None
+                   p_visible: NDArray[np.float32] | NDArray[np.float64] | NDArray[np.bool_] | None = None
                    ) -> Generator[None, None, MergedView]:
         """Fuse a view's world points (:meth:`world_parts_steps`, consumed) into the map with
         the misses of the cells in ``p_visible`` that get none (§1.1, §3.4); each cell the view

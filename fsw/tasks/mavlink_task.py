@@ -33,7 +33,6 @@ from fsw.comm.mavlink_uplink import UplinkBatch
 from fsw.drivers import signing_store
 from fsw.drivers.mavlink_transport import TransportError, open_transport
 from fsw.framework.commands import Arg, CommandDef
-from fsw.framework.summary import Summary
 from fsw.framework.telemetry import Channel, Event, EventDef, Severity
 from fsw.tasks.base import FlightTask
 from fsw.tasks.mavlink_dispatch import UplinkDispatch
@@ -44,7 +43,7 @@ from fsw.tasks.mavlink_view import ViewBuilder
 _THROTTLED = ("RX_BAD", "TRANSPORT_FAULT", "TLOG_ERROR", "PREVIEW_BAD", "CMD_BAD_ARGS", "WINDOW_SAVE_ERROR")
 
 
-class MavlinkTask(UplinkDispatch, FlightTask):
+class MavlinkTask(FlightTask):
     KIND: ClassVar[str] = "mavlink"
     RATE_HZ: ClassVar[tuple[float, float]] = (2.0, 50.0)  # the 1 Hz HEARTBEAT and its telemetry periods
     DOC: ClassVar[str] = "MAVLink 2 ground link: telemetry, events, map previews; signed commands."
@@ -121,12 +120,13 @@ class MavlinkTask(UplinkDispatch, FlightTask):
         self.ctx.events.listeners.append(self._on_event)
         key = self._load_key(cfg.key_file)
         self.adapter = MavlinkAdapter(cfg, key, signing_timestamp(self._unix()))
-        self._window_path = (cfg.signing_state_file or str(signing_store.default_path(cfg.key_file))) if key else ""
+        window_path = (cfg.signing_state_file or str(signing_store.default_path(cfg.key_file))) if key else ""
         self.journal = ReplayJournal(int(cfg.signing_reserve_s * TS_PER_S))
-        self._restore_window()
         self.gcs = GcsServices(self.ctx.cfg, self.adapter, self._apply_config)
+        self.dispatch = UplinkDispatch(cfg, self.adapter, self.journal, self.gcs, self.ctx.commands, self.event,
+                                       window_path, self._unix)
+        self.dispatch.restore_window()
         self._plan_box = self.subscribe(cfg.plan_topic, depth=1, policy="drop_oldest")
-        self._rejected = Summary(cfg.auth_event_period_s)
         for ev in self._early or ():
             self.adapter.push_event(ev)
         self._early = None
@@ -143,8 +143,6 @@ class MavlinkTask(UplinkDispatch, FlightTask):
         self._views = ViewBuilder(self.ctx, cfg, self.subscribe(cfg.pose_topic, depth=1, policy="drop_oldest"))
         self._gcs_heard_s: float | None = None
         self._link_up = False
-        self._seq = 0
-        self._cmd_counts = {"accepted": 0, "refused": 0, "busy": 0, "unrecorded": 0}
         self._dropped_reported = 0
         self._next_decay_s = 1.0
         self._next_flush_s = 0.0
@@ -174,7 +172,8 @@ class MavlinkTask(UplinkDispatch, FlightTask):
         self.adapter.events.bucket.rate_hz, self.adapter.events.bucket.burst = a.statustext_rate_hz, a.statustext_burst
         self.adapter.denials.bucket.rate_hz = a.denial_acks_per_s
         self.adapter.replies.bucket = TokenBucket(a.replies_per_s, int(max(1.0, a.replies_per_s)))
-        self._rejected.period_s = a.auth_event_period_s
+        self.dispatch.cfg = new
+        self.dispatch.rejected.period_s = a.auth_event_period_s
 
     def _open_tlog(self, target: str | BinaryIO) -> TlogWriter | None:
         if not target:
@@ -207,16 +206,16 @@ class MavlinkTask(UplinkDispatch, FlightTask):
             batch.commands += got.commands
             batch.requests += got.requests
         if batch.commands or batch.requests:
-            self._record_window()  # before any accepted command acts: a crash cannot forget it
+            self.dispatch.record_window()  # before any accepted command acts: a crash cannot forget it
             plan = self._plan_box.latest()
             if isinstance(plan, GroundPlan):
                 self.gcs.plan = plan
             executed = 0
             for cmd in batch.commands:
-                executed += self._command(cmd, now, executed)
+                executed += self.dispatch.command(cmd, now, executed)
             for req in batch.requests:
-                self._request(req, now)
-        self._report_rejections(now)
+                self.dispatch.request(req, now)
+        self.dispatch.report_rejections(now)
         if self._link_up and self._gcs_heard_s is not None and now - self._gcs_heard_s > self.cfg.gcs_timeout_s:
             self._link_up = False
             self.event("LINK_LOST", timeout_s=self.cfg.gcs_timeout_s)
@@ -293,8 +292,8 @@ class MavlinkTask(UplinkDispatch, FlightTask):
             "deferred": a.packer.deferred,
             "acks_dropped": a.acks_dropped,
             "acks_suppressed": a.replies_suppressed,
-            "cmds_busy": self._cmd_counts["busy"],
-            "cmds_unrecorded": self._cmd_counts["unrecorded"],
+            "cmds_busy": self.dispatch.counts["busy"],
+            "cmds_unrecorded": self.dispatch.counts["unrecorded"],
             "window_writes": self.journal.writes,
             "polls": self.gcs.counts["polls"],
             "polls_unsupported": self.gcs.counts["polls_unsupported"],
@@ -303,8 +302,8 @@ class MavlinkTask(UplinkDispatch, FlightTask):
             "rx_bytes": u.bytes,
             "rx_frames": u.frames,
             "rx_bad": u.bad_frames + u.parser_resets,
-            "cmds_accepted": self._cmd_counts["accepted"],
-            "cmds_refused": self._cmd_counts["refused"],
+            "cmds_accepted": self.dispatch.counts["accepted"],
+            "cmds_refused": self.dispatch.counts["refused"],
             "auth_unsigned": v[Verdict.UNSIGNED],
             "auth_bad_signature": v[Verdict.BAD_SIGNATURE],
             "auth_replay": v[Verdict.REPLAY],

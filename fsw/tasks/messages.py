@@ -29,6 +29,9 @@ NAV_FIX = "nav.fix"  # a registered view's correction of the rover pose (fsw.cor
 NBV_REQUEST = "nbv.request"
 NBV_RESULT = "nbv.result"
 RADIO_SEND = "radio.send"
+RADIO_FIX_REQUEST = "radio.fix_request"  # a FIX_REQUEST the radio received (fsw.comm.team.fix_packets.FixRequest)
+RADIO_FIX_OUT = "radio.fix_out"  # an encoded FIX / NO_FIX the radio sends ahead of map bytes (bytes)
+FIX_VIEW_BASE = 1 << 30  # view ids from here are the fixer's pairs of the Cliff-bot, not views of the map
 RADIO_STATUS = "radio.status"
 VIEW_FAILED = "view.failed"
 

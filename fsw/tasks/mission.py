@@ -81,7 +81,8 @@ class MissionTask(FlightTask):
 
     @classmethod
     def required_kinds(cls, cfg: object) -> tuple[str, ...]:  # cfg: the FswConfig (not imported here)
-        return cls.REQUIRES + (("radio",) if getattr(cfg, "mission").transmit else ())  # noqa: B009
+        # a map sent to the Cliff-bot brings its fix requests: the fixer answers them (docs/team.md)
+        return cls.REQUIRES + (("radio", "cliffbot_fixer") if getattr(cfg, "mission").transmit else ())  # noqa: B009
     DOC: ClassVar[str] = "Mission sequencer: panorama, next view, move, acquire, transmit; SAFE on faults."
     CHANNELS = (
         Channel("state", doc=", ".join(STATES)),

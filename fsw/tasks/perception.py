@@ -31,7 +31,16 @@ from fsw.framework.storage import describe
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.settings import load_stereo_calibration
 from fsw.tasks.base import FlightTask
-from fsw.tasks.messages import CAMERA_FRAME, MAP_UPDATED, NAV_FIX, VIEW_FAILED, CameraFrame, MapUpdate, ViewFailed
+from fsw.tasks.messages import (
+    CAMERA_FRAME,
+    FIX_VIEW_BASE,
+    MAP_UPDATED,
+    NAV_FIX,
+    VIEW_FAILED,
+    CameraFrame,
+    MapUpdate,
+    ViewFailed,
+)
 from fsw.tasks.mission_state import JsonDict, restore_into
 
 
@@ -117,6 +126,8 @@ class PerceptionTask(FlightTask):
             self.job = None
         if self.job is None:
             msg = self.frames.get()
+            if msg is not None and msg.view_id >= FIX_VIEW_BASE:
+                msg = None  # a pair of the Cliff-bot for the fixer (fsw.tasks.cliffbot_fixer), not a view
             if msg is not None:
                 self.job = self.submit_job(self.merge_view(msg), f"view{msg.view_id}")
                 self.job_view = msg.view_id

@@ -54,7 +54,7 @@ def resume_hint(args: argparse.Namespace) -> str:
     out directory holds one."""
     import shlex
 
-    from hil_sim.mission_run import has_mission
+    from hil_sim.mission.mission_run import has_mission
 
     out = getattr(args, "resume", None) or getattr(args, "out", None)
     if out is not None and has_mission(Path(out)):
@@ -67,8 +67,8 @@ def run(args: argparse.Namespace) -> int:
 
     from fsw.framework.params import ConfigError
     from fsw.framework.storage import StorageError, describe
-    from hil_sim.mission_run import RunSpec, read_manifest, run_mission
-    from hil_sim.run_dir import finished, has_mission
+    from hil_sim.mission.mission_run import RunSpec, read_manifest, run_mission
+    from hil_sim.mission.run_dir import finished, has_mission
 
     if args.steps < 0:
         print("safer-hil run: --steps must be >= 0", file=sys.stderr)

@@ -15,9 +15,9 @@ import pytest
 from fsw.core.geometry import MapGrid
 from fsw.core.team.face_planner import ClimberConfig, plan_targets
 from fsw.core.team.tether import TetherConfig, anchor_points
-from fsw.tasks.cliffbot_mission import CliffbotMissionConfig
+from fsw.sections import CliffbotMissionConfig
 from hil_sim.faults import FaultSpec
-from hil_sim.radio_channel import RadioChannel, RadioChannelConfig
+from hil_sim.link.radio_channel import RadioChannel, RadioChannelConfig
 from hil_sim.team.team_eval import truth_verdict
 from hil_sim.team.team_run import TeamSetup, TruthFixer, run_team
 from hil_sim.world import load_scenario

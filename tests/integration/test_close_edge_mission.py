@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import pytest
 
-from hil_sim.mission_run import RunSpec, run_mission
+from hil_sim.mission.mission_run import RunSpec, run_mission
 
 pytestmark = pytest.mark.slow
 

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hil_sim.mission_run import RunSpec, run_mission
+from hil_sim.mission.mission_run import RunSpec, run_mission
 
 pytestmark = pytest.mark.timeout(900)  # one lockstep mission shared by the tests (minutes on a loaded machine)
 

@@ -65,7 +65,7 @@ def skew(v: F64) -> F64:
     return out
 
 
-def so3_exp(w: NDArray[np.floating] | cv2.typing.MatLike) -> F64:
+def so3_exp(w: NDArray[np.float32] | NDArray[np.float64] | cv2.typing.MatLike) -> F64:
     R, _ = cv2.Rodrigues(np.asarray(w, dtype=np.float64).reshape(3, 1))
     return np.asarray(R, dtype=np.float64)
 

@@ -134,7 +134,7 @@ def h2(p: F64) -> F64:
     return np.nan_to_num(out, nan=0.0)
 
 
-def cell_values(pv: F64, n: NDArray[np.integer], n_max: int, interest: F64 | None
+def cell_values(pv: F64, n: NDArray[np.int32], n_max: int, interest: F64 | None
                 ) -> tuple[F64, F64]:
     """Per-cell terms of H (Eq 3, bits) and of the expected new cells, given P_V (§3.2, §3.4).
 
@@ -200,7 +200,7 @@ class StationRating:
 
 
 def rate_station(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws: F64, tilts: F64,
-                 n: NDArray[np.integer], n_max: int, interest: F64 | None, camera: CameraConfig,
+                 n: NDArray[np.int32], n_max: int, interest: F64 | None, camera: CameraConfig,
                  cfg: VisibilityConfig) -> StationRating:
     """Rate all pan/tilt views (world yaws x tilts) from one camera centre (§3.1, §3.2)."""
     return run_to_end(rate_station_steps(terrain, cam_xyz, yaws, tilts, n, n_max, interest,
@@ -208,7 +208,7 @@ def rate_station(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws: F6
 
 
 def rate_station_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws: F64,
-                       tilts: F64, n: NDArray[np.integer], n_max: int, interest: F64 | None,
+                       tilts: F64, n: NDArray[np.int32], n_max: int, interest: F64 | None,
                        camera: CameraConfig, cfg: VisibilityConfig
                        ) -> Generator[None, None, StationRating]:
     """:func:`rate_station` in bounded steps (for the executive's slack jobs)."""
