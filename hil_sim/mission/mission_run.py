@@ -139,7 +139,10 @@ def mission_config(spec: RunSpec, world: Any) -> FswConfig:
             auto_start=True,
             safe_recover_s=cfg.mission.safe_recover_s if spec.safe_recover_s is None else spec.safe_recover_s,
         ),
-        nbv=dataclasses.replace(cfg.nbv, max_steps=spec.steps),
+        nbv=dataclasses.replace(
+            cfg.nbv, max_steps=spec.steps,
+            # a team scenario: the RECON-bot's views favour what the Cliff-bot's task needs (docs/team.md)
+            focus_regions=cfg.nbv.focus_regions or (world.team.focus_regions() if world.team is not None else ())),
     )
 
 

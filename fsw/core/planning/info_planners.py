@@ -24,6 +24,7 @@ from fsw.core.planning.coarse_rating import (
 from fsw.core.planning.nbv import (
     MapLike,
     NbvConfig,
+    focus_weights,
     info_n_max,
     localization_sigma,
     motion_cost,
@@ -54,12 +55,19 @@ class InformationPlanner(Planner):
         self._truth_terrain: Terrain | None = None
         self.last_stations = 0  # stations rated by the last search
         self.last_centres = 0  # camera centres (stations x lifts) rated by the last search
+        self._focus: F64 | None = None  # the task's weights of the interest (cfg.focus_regions)
 
     def _terrain(self, emap: MapLike) -> Generator[None, None, tuple[Terrain, F64 | None]]:
         if self._truth_z is None:
             terrain = yield from terrain_from_map_steps(emap.z, emap.var, emap.grid,
                                                         self.cfg.visibility)
-            return terrain, (emap.interest if self.use_interest else None)
+            if not self.use_interest:
+                return terrain, None
+            if not self.cfg.focus_regions:
+                return terrain, emap.interest
+            if self._focus is None or self._focus.shape != emap.interest.shape:
+                self._focus = focus_weights(emap.grid, self.cfg.focus_regions)
+            return terrain, emap.interest * self._focus
         if self._truth_terrain is None:
             z = np.asarray(self._truth_z, dtype=np.float64)
             z = np.where(np.isfinite(z), z, np.nanmin(z) if np.isfinite(z).any() else 0.0)
