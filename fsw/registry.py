@@ -30,6 +30,7 @@ RECON_KINDS: dict[str, str] = {
     "perception": "fsw.tasks.perception:PerceptionTask",
     "nbv": "fsw.tasks.nbv:NbvTask",
     "mission": "fsw.tasks.mission:MissionTask",
+    "cliffbot_fixer": "fsw.tasks.cliffbot_fixer:CliffbotFixerTask",
 }
 
 # The RECON-bot's task kinds (the common ones and its own); tests add their task kinds here.
@@ -46,4 +47,23 @@ RECON = AgentTopology(
     }),
 )
 
-AGENTS: dict[str, AgentTopology] = {RECON.kind: RECON}
+# The Cliff-bot's own tasks (fsw/tasks/cliffbot/): its team bus, its radio, its mission.
+CLIFFBOT_KINDS: dict[str, str] = {
+    "cliffbot_devices": "fsw.tasks.cliffbot.devices:CliffbotDevicesTask",
+    "cliffbot_radio": "fsw.tasks.cliffbot.radio:CliffbotRadioTask",
+    "cliffbot_mission": "fsw.tasks.cliffbot.mission:CliffbotMissionTask",
+}
+
+CLIFFBOT = AgentTopology(
+    kind="cliffbot",
+    doc="Cliff-bot: lowered on two tethers, plans and drives to science targets on the map it received",
+    task_kinds={**COMMON_KINDS, **CLIFFBOT_KINDS},
+    sections=frozenset({
+        "map", "link", "mavlink", "checkpoint", "tether", "climber", "cliffbot_nav", "cliffbot_mission",
+        "cliffbot_site", "cliffbot_bus",
+    }),
+    required_tasks=("cliffbot_mission",),
+    flight_kinds=("cliffbot_mission", "health", "console", "mavlink"),
+)
+
+AGENTS: dict[str, AgentTopology] = {RECON.kind: RECON, CLIFFBOT.kind: CLIFFBOT}

@@ -57,7 +57,8 @@ def check(cfg: ScheduledConfig, source: str = "config") -> None:
     agent_kinds = topo.task_kinds if topo is not None else KINDS  # an unknown agent: check_agent says so
     groups = {g.name: g for g in ex.groups}
     kinds = {t.kind for t in ex.tasks if t.enabled}
-    missing = [k for k in FLIGHT_KINDS if k not in kinds] if ex.flight else []
+    must = topo.flight_kinds if topo is not None and topo.flight_kinds is not None else FLIGHT_KINDS
+    missing = [k for k in must if k not in kinds] if ex.flight else []
     if missing:
         raise ConfigError(source, "executive.tasks", f"a flight configuration schedules an enabled task of kind "
                                                      f"{', '.join(repr(k) for k in missing)}")

@@ -1,4 +1,5 @@
-"""The configuration sections the flight tasks own: ``[capture]``, ``[mission]``.
+"""The configuration sections the flight tasks own: ``[capture]``, ``[mission]``, and the
+Cliff-bot's ``[cliffbot_mission]``, ``[cliffbot_site]``, ``[cliffbot_bus]``.
 
 They are declared here, in the settings layer beside ``fsw.settings`` that assembles them, so
 the whole configuration sits below the tasks: a task imports the settings, never the other
@@ -8,6 +9,7 @@ way round (``tests/test_structure.py`` holds the rule). Every field is validated
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from fsw.core.planning.planners import METHODS
@@ -57,3 +59,63 @@ class MissionConfig:
     safe_max_recoveries: int = param(
         3, lo=0, hi=1000, doc="automatic recoveries in a row without a completed step before SAFE is final"
     )
+
+
+@dataclass(frozen=True)
+class CliffbotMissionConfig:
+    """The Cliff-bot's mission (config ``[cliffbot_mission]``; ``fsw.tasks.cliffbot_mission``)."""
+
+    max_rate_mps: float = param(0.12, lo=0.005, hi=2.0, units="m/s", doc="winch rate limit the mission commands")
+    gain_per_s: float = param(1.5, lo=0.05, hi=20.0, units="1/s", doc="length error to rate")
+    length_tol_m: float = param(0.02, lo=0.001, hi=0.5, units="m", doc="a waypoint is reached within this")
+    waypoint_every: int = param(3, lo=1, hi=50, doc="every n-th lattice node of a path is a waypoint")
+    dwell_s: float = param(2.0, lo=0.0, hi=600.0, units="s", doc="time at a target (instrument placement)")
+    fix_timeout_s: float = param(30.0, lo=0.5, hi=600.0, units="s", doc="no fix this long after asking: link lost")
+    return_home: bool = param(True, doc="climb back to the start after the last target")
+    wheel_radius_m: float = param(0.06, lo=0.01, hi=1.0, units="m")
+    track_margin_m: float = param(0.08, lo=0.0, hi=2.0, units="m",
+                                  doc="the planner's footprint grown by this: the body strays between waypoints")
+    tension_margin_n: float = param(10.0, lo=0.0, hi=1000.0, units="N",
+                                    doc="the planner keeps tensions this far inside [T_min, T_max]")
+    safe_recover_s: float = param(0.0, lo=0.0, hi=1e5, units="s",
+                                  doc="the task leaves SAFE by itself after this long (0: waits for RECOVER)")
+
+
+@dataclass(frozen=True)
+class CliffbotSiteConfig:
+    """Where the Cliff-bot works (config ``[cliffbot_site]``), in the team's map frame: the two
+    Anchorbots' tether exits' ground points, its start, its science targets, and the height of
+    the received map's origin (the RECON-bot's start) in that frame. A bench run sets them from
+    its scenario."""
+
+    anchor_a_xyz: tuple[float, ...] = param((0.0, -1.5, 0.0), units="m", doc="Anchorbot A's ground point x, y, z")
+    anchor_b_xyz: tuple[float, ...] = param((0.0, 1.5, 0.0), units="m", doc="Anchorbot B's ground point x, y, z")
+    start_xy: tuple[float, ...] = param((0.5, 0.0), units="m", doc="the Cliff-bot's start x, y (and home)")
+    start_yaw_deg: float = param(0.0, lo=-360.0, hi=360.0, units="deg", doc="its heading at the start")
+    targets_xy: tuple[float, ...] = param((), units="m", doc="science targets: x1, y1, x2, y2, ...")
+    map_datum_m: float = param(0.0, lo=-1e4, hi=1e4, units="m",
+                               doc="height of the received map's zero in the team's frame")
+
+    def __post_init__(self) -> None:
+        for name in ("anchor_a_xyz", "anchor_b_xyz"):
+            if len(getattr(self, name)) != 3:
+                raise ValueError(f"{name}: three numbers (x, y, z)")
+        if len(self.start_xy) != 2:
+            raise ValueError("start_xy: two numbers (x, y)")
+        if len(self.targets_xy) % 2:
+            raise ValueError("targets_xy: pairs of numbers (x1, y1, x2, y2, ...)")
+        values = (*self.anchor_a_xyz, *self.anchor_b_xyz, *self.start_xy, *self.targets_xy)
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError("cliffbot_site: every coordinate must be finite")
+
+
+@dataclass(frozen=True)
+class CliffbotBusConfig:
+    """The Cliff-bot's CAN bus to its winches, wheels and attitude sensor (config
+    ``[cliffbot_bus]``; frames of ``config/team.dbc``). A bench hands in its own bus."""
+
+    can_interface: str = param("none", choices=("none", "virtual", "udp_hub", "udp_multicast", "socketcan"),
+                               doc="python-can interface of the team bus (none: no devices)")
+    can_channel: str = param("cliffbot", doc="virtual: bus name; udp_hub: HOST:PORT; socketcan: can1")
+    status_timeout_s: float = param(0.5, lo=0.05, hi=60.0, units="s",
+                                    doc="a device whose status stopped this long is named (SAFE)")

@@ -9,7 +9,8 @@ names (``fsw.drivers.calibration_file``): missing or inconsistent, it is a start
 like any bad key.
 
 A file is a flight configuration unless it says ``[executive] flight = false``: it must then be
-complete, every section and every key present (a left-out key is refused, not defaulted), and
+complete, every section its agent reads and every key present (a left-out key is refused, not
+defaulted; :func:`check_complete`), and
 schedule the mission, health, console and MAVLink tasks (``schedule_check.FLIGHT_KINDS``), so a
 truncated or trimmed file never flies on defaults. Bench and
 ground-tool files say ``flight = false`` and may leave sections and keys out; those take the
@@ -20,6 +21,7 @@ needs).
 
 from __future__ import annotations
 
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -39,13 +41,23 @@ from fsw.core.registration.registration import RegistrationConfig
 from fsw.core.stereo.calibrate import CalibrationConfig
 from fsw.core.stereo.stereo import StereoConfig
 from fsw.core.stereo.stereo_calibration import StereoCalibration
+from fsw.core.team.cliffbot_nav import NavConfig
+from fsw.core.team.face_planner import ClimberConfig
+from fsw.core.team.tether import TetherConfig
 from fsw.drivers.calibration_file import CalibrationError, load_calibration
 from fsw.drivers.factory import DevicesConfig
 from fsw.framework.agent import AgentConfig
 from fsw.framework.params import ConfigError, build, load_toml
 from fsw.framework.schedule import ExecutiveConfig
+from fsw.registry import AGENTS
 from fsw.schedule_check import check, check_agent
-from fsw.sections import CaptureConfig, MissionConfig
+from fsw.sections import (
+    CaptureConfig,
+    CliffbotBusConfig,
+    CliffbotMissionConfig,
+    CliffbotSiteConfig,
+    MissionConfig,
+)
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "fsw.toml"
 
@@ -77,6 +89,13 @@ class FswConfig:
     capture: CaptureConfig = field(default_factory=CaptureConfig)
     mission: MissionConfig = field(default_factory=MissionConfig)
     calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
+    # the Cliff-bot's (agent kind "cliffbot"; docs/team.md)
+    tether: TetherConfig = field(default_factory=TetherConfig)
+    climber: ClimberConfig = field(default_factory=ClimberConfig)
+    cliffbot_nav: NavConfig = field(default_factory=NavConfig)
+    cliffbot_mission: CliffbotMissionConfig = field(default_factory=CliffbotMissionConfig)
+    cliffbot_site: CliffbotSiteConfig = field(default_factory=CliffbotSiteConfig)
+    cliffbot_bus: CliffbotBusConfig = field(default_factory=CliffbotBusConfig)
 
 
 def calibration_path(cfg: FswConfig) -> Path | None:
@@ -100,6 +119,24 @@ def load_stereo_calibration(cfg: FswConfig, source: str = "") -> StereoCalibrati
         raise ConfigError(source or "config", "camera.calibration_file", str(err)) from None
 
 
+def check_complete(data: dict[str, object], source: str) -> None:
+    """A flight file lists every key of every section its agent reads (``[agent] kind``'s
+    topology, ``fsw.registry.AGENTS``), and those sections only: ``ConfigError`` naming the
+    first one left out."""
+    hints = typing.get_type_hints(FswConfig)
+    for name in ("executive", "agent", *sorted(AGENTS[_agent_kind(data)].sections)):
+        if name not in data:
+            raise ConfigError(source, name, "missing table (a flight configuration lists every key)")
+        build(hints[name], data[name], source, name, complete=True)
+
+
+def _agent_kind(data: dict[str, object]) -> str:
+    """``[agent] kind`` of the raw file (its default when left out)."""
+    agent = data.get("agent")
+    kind = agent.get("kind", "recon") if isinstance(agent, dict) else "recon"
+    return str(kind)
+
+
 def load_settings(path: str | Path = DEFAULT_CONFIG, check_calibration: bool = True) -> FswConfig:
     """Load and validate a flight configuration file (and, unless ``check_calibration`` is
     false, as for the tools that make one, the calibration file it names); raises
@@ -107,8 +144,10 @@ def load_settings(path: str | Path = DEFAULT_CONFIG, check_calibration: bool = T
     data = load_toml(path)
     ex = data.get("executive")
     flight = not isinstance(ex, dict) or ex.get("flight", True) is not False
-    cfg = build(FswConfig, data, source=str(path), complete=flight)
+    cfg = build(FswConfig, data, source=str(path))
     check_agent(cfg, set(data), str(path))
+    if flight:
+        check_complete(data, str(path))
     check(cfg, str(path))
     if check_calibration:
         load_stereo_calibration(cfg, str(path))

@@ -17,7 +17,7 @@ import sys
 import time
 
 from ground.dictionary import GroundDictionary
-from ground.state import SEVERITY_NAMES, GroundState
+from ground.state import SEVERITY_NAMES, Fleet, GroundState, vehicle_name
 
 HELP = "live terminal view: mode, events, channels coloured by limits, task timing"
 RESET, BOLD, DIM = "\x1b[0m", "\x1b[1m", "\x1b[2m"
@@ -35,10 +35,12 @@ class Painter:
 
 def render(st: GroundState, d: GroundDictionary, url: str, now: float, paint: Painter,
            reconnects: int = 0, error: str | None = None, timeout_s: float = 3.0, n_events: int = 12,
-           channels: tuple[str, ...] = (), rows: int | None = None, steps: int | None = None) -> str:
+           channels: tuple[str, ...] = (), rows: int | None = None, steps: int | None = None,
+           fleet: Fleet | None = None) -> str:
     """The whole screen as text (pure: the tests and the docs capture use it). ``channels``:
     shell patterns of the channels shown (all if empty); ``rows``: the terminal's height, the
-    channel table is cut to fit so the header stays on screen; ``steps``: the mission's N."""
+    channel table is cut to fit so the header stays on screen; ``steps``: the mission's N;
+    ``fleet``: every vehicle heard, one line of them under the header when there are several."""
     out: list[str] = []
     age = None if st.heartbeat_s is None else now - st.heartbeat_s
     if age is None:
@@ -51,6 +53,9 @@ def render(st: GroundState, d: GroundDictionary, url: str, now: float, paint: Pa
                f"{st.rate_bps(now) / 1000:.1f} kbit/s  lost {st.loss_pct():.1f} %  reconnects {reconnects}")
     if error:
         out.append(paint(f"  link error: {error}", RED))
+    if fleet is not None and len(fleet.vehicles) > 1:
+        out.append("Vehicles " + "   ".join(_vehicle(sid, v, now, timeout_s, v is st, paint)
+                                           for sid, v in fleet.vehicles.items()))
     hb = st.heartbeat
     flags = []
     if hb is not None:
@@ -112,6 +117,13 @@ def render(st: GroundState, d: GroundDictionary, url: str, now: float, paint: Pa
     return "\n".join(out)
 
 
+def _vehicle(sid: int, v: GroundState, now: float, timeout_s: float, shown: bool, paint: Painter) -> str:
+    age = None if v.heartbeat_s is None else now - v.heartbeat_s
+    link = "" if age is not None and age <= timeout_s else paint(" LOST", RED)
+    text = f"{vehicle_name(sid)} (sys {sid}) {v.mode()}{link}"
+    return paint(f"[{text}]", BOLD) if shown else text
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("url", help="udpin:HOST:PORT (rover sends here, the default rover url is "
                                "udpout:127.0.0.1:14550), udpout:HOST:PORT (rover listens) or serial:DEVICE; "
@@ -125,6 +137,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-color", action="store_true", help="no ANSI colours")
     p.add_argument("--channels", action="append", default=[], metavar="PATTERN",
                    help="show only channels matching this shell pattern (repeatable), e.g. 'mission.*'")
+    p.add_argument("--system", type=int, default=None, metavar="ID",
+                   help="the vehicle shown in full when several share the link (MAVLink system id: 1 the "
+                        "RECON-bot, 2 the Cliff-bot; default the lowest heard); the others get one line")
     p.add_argument("--steps", type=int, default=None, metavar="N",
                    help="N in 'step k of N': the value mission.step reaches at the end (imaging steps + 1 "
                         "for the panorama)")
@@ -152,12 +167,13 @@ def replay(args: argparse.Namespace, d: GroundDictionary) -> int:
         print(f"safer-ground listen: warning: {note}", file=sys.stderr)
     tty = sys.stdout.isatty()
     paint = Painter(tty and not args.no_color)
-    st = GroundState(d)
-    kw = {"channels": tuple(args.channels), "steps": args.steps}
+    fleet = Fleet(d)
+    kw = {"channels": tuple(args.channels), "steps": args.steps, "fleet": fleet}
     t_log0, t_wall0, next_draw = messages[0].time_s, time.monotonic(), messages[0].time_s
     try:
         for lm in messages:
-            st.feed(lm.msg, lm.time_s)
+            fleet.feed(lm.msg, lm.time_s)
+            st = fleet.pick(args.system) or GroundState(d)
             if tty and args.speed > 0 and lm.time_s >= next_draw:
                 next_draw = lm.time_s + args.refresh * args.speed
                 time.sleep(max(0.0, (lm.time_s - t_log0) / args.speed - (time.monotonic() - t_wall0)))
@@ -167,6 +183,7 @@ def replay(args: argparse.Namespace, d: GroundDictionary) -> int:
                 sys.stdout.flush()
     except KeyboardInterrupt:
         return 130
+    st = fleet.pick(args.system) or GroundState(d)
     print(render(st, d, args.url, messages[-1].time_s, paint, timeout_s=args.timeout, **kw))  # type: ignore[arg-type]
     return 0
 
@@ -186,7 +203,7 @@ def run(args: argparse.Namespace, d: GroundDictionary) -> int:
         return 2
     tty = sys.stdout.isatty()
     paint = Painter(tty and not args.no_color)
-    st = GroundState(d)
+    fleet = Fleet(d)
     t0 = time.monotonic()
     next_draw = t0
     try:
@@ -194,12 +211,12 @@ def run(args: argparse.Namespace, d: GroundDictionary) -> int:
             msg = link.recv(timeout_s=min(0.1, args.refresh))
             now = time.monotonic()
             if msg is not None:
-                st.feed(msg, now)
+                fleet.feed(msg, now)
             if tty and now >= next_draw:
                 next_draw = now + args.refresh
-                screen = render(st, d, args.url, now, paint, link.reconnects, link.error, args.timeout,
-                                channels=tuple(args.channels), rows=_terminal_rows(),
-                                steps=args.steps)
+                screen = render(fleet.pick(args.system) or GroundState(d), d, args.url, now, paint, link.reconnects,
+                                link.error, args.timeout, channels=tuple(args.channels), rows=_terminal_rows(),
+                                steps=args.steps, fleet=fleet)
                 sys.stdout.write("\x1b[H\x1b[2J" + screen + "\n")
                 sys.stdout.flush()
     except KeyboardInterrupt:
@@ -207,6 +224,7 @@ def run(args: argparse.Namespace, d: GroundDictionary) -> int:
     finally:
         link.close()
     if not tty:
-        print(render(st, d, args.url, time.monotonic(), paint, link.reconnects, link.error, args.timeout,
-                     channels=tuple(args.channels), steps=args.steps))
+        print(render(fleet.pick(args.system) or GroundState(d), d, args.url, time.monotonic(), paint,
+                     link.reconnects, link.error, args.timeout, channels=tuple(args.channels), steps=args.steps,
+                     fleet=fleet))
     return 0

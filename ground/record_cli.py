@@ -4,8 +4,9 @@ telemetry log, made on the ground (a real-time mission's flight process records 
 What the link carried goes into the same topics as a bench recording (``ground.recording``):
 the pose (LOCAL_POSITION_NED + ATTITUDE) and the mast (GIMBAL_DEVICE_ATTITUDE_STATUS) on ``/tf``
 (at most 5 Hz), the events (STATUSTEXT, long ones reassembled) on ``/recon/events``, and each
-complete map preview (image transfer) as ``/recon/map/preview``. Exit 2 and one line for a
-file that is not a readable .tlog."""
+complete map preview (image transfer) as ``/recon/map/preview``. Each vehicle on the link (MAVLink
+system id) is a source of its own: ``/recon/...`` for system 1, ``/cliffbot/...`` for system 2
+(``ground.state.VEHICLE_NAMES``). Exit 2 and one line for a file that is not a readable .tlog."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import argparse
 import sys
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 from ground.dictionary import GroundDictionary
 
@@ -22,7 +24,8 @@ HELP = "write a Foxglove recording (MCAP) of a run from its .tlog (pose, mast, e
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("tlog", metavar="LOG.tlog", help="telemetry log of a run")
     p.add_argument("--out", type=Path, required=True, metavar="MCAP", help="recording to write (.mcap)")
-    p.add_argument("--vehicle", default="recon", help="the source's name (topic and frame prefix)")
+    p.add_argument("--vehicle", default="recon", help="the name (topic and frame prefix) of system 1; other "
+                                                      "systems are named as in docs/ground.md (2: cliffbot)")
 
 
 def _level(severity: int) -> object:
@@ -36,7 +39,7 @@ def _level(severity: int) -> object:
 def run(args: argparse.Namespace, d: GroundDictionary) -> int:
     from fsw.comm.mavlink_tlog import TlogError
     from ground.recording import MissionRecorder
-    from ground.state import GroundState
+    from ground.state import Fleet, vehicle_name
     from ground.tlog import load_messages
 
     if args.out.suffix != ".mcap":
@@ -50,35 +53,57 @@ def run(args: argparse.Namespace, d: GroundDictionary) -> int:
     if note:
         print(f"safer-ground record: warning: {note}", file=sys.stderr)
     rec = MissionRecorder(args.out)
-    src = rec.source(args.vehicle)
-    st = GroundState(d)
-    last_event, images, next_pose = None, 0, -1.0
-    pose_kinds = {"LOCAL_POSITION_NED", "ATTITUDE", "GIMBAL_DEVICE_ATTITUDE_STATUS"}
+    fleet = Fleet(d)
+    feeds: dict[int, _Feed] = {}
     try:
         for lm in messages:
-            st.feed(lm.msg, lm.time_s)
-            kind = lm.msg.get_type()
-            if kind in pose_kinds and st.position_ned is not None and lm.time_s >= next_pose:
-                next_pose = lm.time_s + 0.2
-                n, e, dn = st.position_ned
-                pan, tilt = st.mast or (0.0, 0.0)
-                src.pose(lm.time_s, SimpleNamespace(x=n, y=-e, z_m=-dn, roll=0.0, pitch=0.0,
-                                                    yaw=-(st.yaw_ned or 0.0), joints=(pan, tilt, 0.0)))
-            if st.events and st.events[-1] is not last_event:
-                new = []
-                for ev in reversed(st.events):
-                    if ev is last_event:
-                        break
-                    new.append(ev)
-                for ev in reversed(new):
-                    src.log_line(ev.time_s, _level(ev.severity), ev.text.split(":", 1)[0], ev.text)
-                last_event = st.events[-1]
-            done = [im for im in st.images.images if im.complete]
-            for im in done[images:]:
-                src.map_preview(lm.time_s, bytes(im.data))
-            images = len(done)
+            st = fleet.feed(lm.msg, lm.time_s)
+            if st is None:
+                continue
+            sid = lm.msg.get_srcSystem()
+            if sid not in feeds:
+                feeds[sid] = _Feed(rec.source(args.vehicle if sid == 1 else vehicle_name(sid)))
+            feeds[sid].update(st, lm.msg.get_type(), lm.time_s)
     finally:
         rec.close()
-    c = src.counts
-    print(f"{args.out}: {c['pose']} poses, {c['events']} events, {c['map']} map previews from {args.tlog}")
+    if not feeds:
+        print(f"{args.out}: no vehicle HEARTBEAT in {args.tlog}: an empty recording")
+    for f in feeds.values():
+        c = f.src.counts
+        print(f"{args.out}: /{f.src.vehicle}: {c['pose']} poses, {c['events']} events, {c['map']} map previews "
+              f"from {args.tlog}")
     return 0
+
+
+class _Feed:
+    """What one vehicle's state adds to its recording source since the last message."""
+
+    POSE_KINDS = frozenset({"LOCAL_POSITION_NED", "ATTITUDE", "GIMBAL_DEVICE_ATTITUDE_STATUS"})
+
+    def __init__(self, src: object) -> None:
+        self.src: Any = src
+        self.last_event: object = None
+        self.images = 0
+        self.next_pose = -1.0
+
+    def update(self, st: Any, kind: str, t: float) -> None:
+        src = self.src
+        if kind in self.POSE_KINDS and st.position_ned is not None and t >= self.next_pose:
+            self.next_pose = t + 0.2
+            n, e, dn = st.position_ned
+            pan, tilt = st.mast or (0.0, 0.0)
+            src.pose(t, SimpleNamespace(x=n, y=-e, z_m=-dn, roll=0.0, pitch=0.0,
+                                        yaw=-(st.yaw_ned or 0.0), joints=(pan, tilt, 0.0)))
+        if st.events and st.events[-1] is not self.last_event:
+            new = []
+            for ev in reversed(st.events):
+                if ev is self.last_event:
+                    break
+                new.append(ev)
+            for ev in reversed(new):
+                src.log_line(ev.time_s, _level(ev.severity), ev.text.split(":", 1)[0], ev.text)
+            self.last_event = st.events[-1]
+        done = [im for im in st.images.images if im.complete]
+        for im in done[self.images:]:
+            src.map_preview(t, bytes(im.data))
+        self.images = len(done)

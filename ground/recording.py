@@ -188,11 +188,14 @@ class VehicleSource:
 
 
 class BusTap:
-    """Feed ``source`` from executive ``exe``; poses at most every ``pose_period_s`` of mission time."""
+    """Feed ``source`` (and each of ``mirrors``: a live view, ``ground.rerun_cli.LiveSource``, with
+    the same methods) from executive ``exe``; poses at most every ``pose_period_s`` of mission time."""
 
-    def __init__(self, exe: Any, source: VehicleSource, pose_period_s: float = 0.2) -> None:
+    def __init__(self, exe: Any, source: VehicleSource, pose_period_s: float = 0.2,
+                 mirrors: tuple[Any, ...] = ()) -> None:
         bus, name = exe.bus, f"recorder.{source.vehicle}"
         self.exe, self.source, self.pose_period_s = exe, source, pose_period_s
+        self.sinks: tuple[Any, ...] = (source, *mirrors)
         self.maps = bus.subscribe(MAP_UPDATED, name, depth=4)
         self.poses = bus.subscribe(NAV_POSE, name, depth=1)
         self.frames = bus.subscribe(CAMERA_FRAME, name, depth=4)
@@ -204,24 +207,29 @@ class BusTap:
 
     def poll(self) -> None:
         now = float(self.exe.ctx.clock.now())
-        src = self.source
-        for up in self.maps.drain():
-            src.map(up.time_s, up.snapshot)
+        maps, frames = self.maps.drain(), self.frames.drain()
+        views = [v for v in self.views.drain() if v is not None]
+        plans = self.plans.drain()
         nav = self.poses.latest()
         if nav is not None and now >= self._next_pose_s:
             self._next_pose_s = now + self.pose_period_s
-            src.pose(now, nav)
-        for fr in self.frames.drain():
-            src.images(fr.time_s, fr.left, fr.right)
-        for view in self.views.drain():
-            if view is not None:
+        else:
+            nav = None
+        events, self._events[:] = list(self._events), []
+        for src in self.sinks:
+            for up in maps:
+                src.map(up.time_s, up.snapshot)
+            if nav is not None:
+                src.pose(now, nav)
+            for fr in frames:
+                src.images(fr.time_s, fr.left, fr.right)
+            for view in views:
                 x, y, yaw = view.rover
                 src.chosen_view(now, x, y, yaw, f"{view.method} {view.expected_new_cells:.0f} cells")
-        for plan in self.plans.drain():
-            src.plan_update(now, plan.stations, plan.fence, plan.current)
-        events, self._events[:] = list(self._events), []
-        for ev in events:
-            src.event(ev)
+            for plan in plans:
+                src.plan_update(now, plan.stations, plan.fence, plan.current)
+            for ev in events:
+                src.event(ev)
 
     def close(self) -> None:
         if self._events.append in self.exe.events.listeners:

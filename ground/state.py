@@ -3,6 +3,10 @@
 One :meth:`GroundState.feed` per message: mode from HEARTBEAT, link statistics (bytes,
 sequence gaps = lost frames), SYS_STATUS, pose, mast, channel values named through the
 dictionary, events (long STATUSTEXT chunks reassembled) and map previews.
+
+Several vehicles share a link (the RECON-bot is MAVLink system 1, the Cliff-bot system 2):
+:class:`Fleet` keeps one :class:`GroundState` per system id, made at its first HEARTBEAT, and
+names them by :data:`VEHICLE_NAMES` (``sys<N>`` for others).
 """
 
 from __future__ import annotations
@@ -19,6 +23,14 @@ from ground.dictionary import GroundDictionary
 
 SEVERITY_NAMES = {e: v.name.removeprefix("MAV_SEVERITY_") for e, v in mavlink.enums["MAV_SEVERITY"].items()}
 STATE_NAMES = {e: v.name.removeprefix("MAV_STATE_") for e, v in mavlink.enums["MAV_STATE"].items()}
+
+
+#: the project's vehicles by MAVLink system id (docs/ground.md): topic prefixes in recordings, names in listen
+VEHICLE_NAMES = {1: "recon", 2: "cliffbot"}
+
+
+def vehicle_name(system_id: int) -> str:
+    return VEHICLE_NAMES.get(system_id, f"sys{system_id}")
 
 
 @dataclass
@@ -129,6 +141,34 @@ class GroundState:
     def loss_pct(self) -> float:
         total = self.frames + self.lost
         return 100.0 * self.lost / total if total else math.nan
+
+
+@dataclass
+class Fleet:
+    """One :class:`GroundState` per vehicle heard (MAVLink system id), in the order first heard."""
+
+    dictionary: GroundDictionary
+    vehicles: dict[int, GroundState] = field(default_factory=dict)
+
+    def feed(self, msg: Any, t: float) -> GroundState | None:
+        """Route ``msg`` to its vehicle's state (None: not a vehicle's, or before its first HEARTBEAT)."""
+        kind = msg.get_type()
+        if kind == "BAD_DATA" or (kind == "HEARTBEAT" and msg.type == mavlink.MAV_TYPE_GCS):
+            return None
+        sid = msg.get_srcSystem()
+        st = self.vehicles.get(sid)
+        if st is None:
+            if kind != "HEARTBEAT":
+                return None
+            st = self.vehicles[sid] = GroundState(self.dictionary)
+        st.feed(msg, t)
+        return st
+
+    def pick(self, system_id: int | None) -> GroundState | None:
+        """The state of ``system_id``, or of the lowest system id heard when None."""
+        if system_id is not None:
+            return self.vehicles.get(system_id)
+        return self.vehicles[min(self.vehicles)] if self.vehicles else None
 
 
 def _text(v: Any) -> str:

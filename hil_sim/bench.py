@@ -143,6 +143,7 @@ class LockstepBench(ExecutiveDriver):
         self.lockstep.add(self.exe, self.before_frame, align=False)
         self._agents: dict[str, Executive] = {self.cfg.agent.name: self.exe}
         self._install_task_faults()
+        self.quiet = quiet
         if quiet:  # silence console-style tasks (they print every event to stdout)
             for task in self.exe.tasks.values():
                 if hasattr(task, "out"):
@@ -211,11 +212,13 @@ class LockstepBench(ExecutiveDriver):
         self.lockstep.run_frames(self.exe, frames)
 
     # -- more agents on the same clock -----------------------------------------------------------
-    def add_agent(self, cfg: FswConfig, resources: Resources | None = None) -> Executive:
+    def add_agent(self, cfg: FswConfig, resources: Resources | None = None,
+                  before_frame: Callable[[int], None] | None = None) -> Executive:
         """Build the executive of another agent (its own topology, ``[agent] kind``) on the bench's
         clock and step it with the RECON-bot from the next frame start on. Its devices are those
         of its ``[devices]`` section (``none``: the test hands in ``resources``). Agents of one bench
-        have distinct names and MAVLink system ids."""
+        have distinct names and MAVLink system ids. ``before_frame(k)`` runs before each of its
+        frames (its hardware's turn, as the RECON-bot's rig has)."""
         name = cfg.agent.name
         if name in self._agents:
             raise ValueError(f"the bench already has an agent named {name!r}")
@@ -224,8 +227,12 @@ class LockstepBench(ExecutiveDriver):
         if sysid in taken:
             raise ValueError(f"agent {name!r}: MAVLink system id {sysid} is already agent {taken[sysid]!r}'s")
         exe = build_executive(cfg, self.clock, resources or Resources(), map_store=False)
-        self.lockstep.add(exe)
+        self.lockstep.add(exe, before_frame)
         self._agents[name] = exe
+        if self.quiet:
+            for task in exe.tasks.values():
+                if hasattr(task, "out"):
+                    task.out = _Sink()  # type: ignore[attr-defined]
         return exe
 
     def agent(self, name: str) -> Executive:

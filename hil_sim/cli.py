@@ -38,10 +38,13 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("experiment", "resume"): "hil_sim.lab.experiments.experiment_resume",
     ("experiment", "terrain"): "hil_sim.lab.experiments.experiment_terrain",
     ("experiment", "ground"): "hil_sim.lab.experiments.experiment_ground",
+    ("experiment", "close-edge"): "hil_sim.lab.experiments.experiment_close_edge",
     ("experiment", "camera-path"): "hil_sim.lab.experiments.experiment_camera_path",
     ("experiment", "registration"): "hil_sim.lab.experiments.experiment_registration",
     ("experiment", "fiducials"): "hil_sim.lab.experiments.experiment_fiducials",
     ("experiment", "team"): "hil_sim.lab.experiments.experiment_team",
+    ("experiment", "sync"): "hil_sim.lab.experiments.experiment_sync",
+    ("experiment", "face-map"): "hil_sim.lab.experiments.experiment_face_map",
 }
 
 GROUP_HELP = {
@@ -100,6 +103,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted" + _resume_hint(args), file=sys.stderr)
         return 130
+    except ModuleNotFoundError as exc:
+        if exc.name != "pandas":
+            raise
+        print("safer-hil: the lab's tables need pandas: pip install -e '.[lab]'", file=sys.stderr)
+        return 1
 
 
 def _resume_hint(args: argparse.Namespace) -> str:

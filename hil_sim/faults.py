@@ -24,8 +24,8 @@ by ``target``: ``mode`` ``hang`` (default): its activations do not complete, no 
 answer to the health pings, so health declares it hung and stops stroking the watchdog;
 ``overrun``: each activation is charged ``delay_s`` more than it took, so it overruns its
 budget and the frame slips; ``hil_sim.bench``); ``radio_outage`` (the Cliff-bot radio link is
-dark: every packet on the air in the window is lost, both directions; ``hil_sim.mission_run``
-gives the windows to ``hil_sim.radio_channel``); ``winch_fault`` (an Anchorbot's tether winch,
+dark: every packet on the air in the window is lost, both directions; ``hil_sim.mission.mission_run``
+gives the windows to ``hil_sim.link.radio_channel``); ``winch_fault`` (an Anchorbot's tether winch,
 ``target`` ``WINCH_A`` or ``WINCH_B``, ``hil_sim.hw.winch``: ``mode`` ``stall``: the drum does
 not turn; ``slip``: the tether slips off the drum at the winch's slip rate; ``overtension``:
 a snag loads the tether past the winch's trip). CAN faults may target a winch's frames too.

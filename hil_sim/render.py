@@ -91,6 +91,25 @@ class StereoRenderer:
         right, _ = self.render_view(self.cameras.right_pose(pose), 1, extra)
         return self._to_u8(left), self._to_u8(right)
 
+    def render_labelled(self, pose: CameraPose, extra: tuple[Quad, ...] = ()
+                        ) -> tuple[U8, U8, NDArray[np.bool_], F32]:
+        """:meth:`render` (the same images, noise drawn in the same order) and, per left pixel,
+        whether its ray meets a quad (the Cliff-bot or ``extra``) before the terrain, and the
+        terrain's depth along the optical axis (NaN: none): the truth of what the left camera
+        sees of the robots (one ray per pixel only)."""
+        if self.cameras.pixel_samples != 1:
+            raise ValueError("render_labelled needs one ray per pixel")
+        c, R = np.asarray(pose.t, float), np.asarray(pose.R, float)
+        cam = self.cameras
+        depth, rays = cast_image(self._hf, c, R, cam.K[0], cam.width_px, cam.height_px, dist=cam.dist[0])
+        terrain = np.nan_to_num(depth, nan=np.inf)
+        image = self._shade_terrain(c, rays, depth, cam.K[0][0, 0], cam.exposure[0])
+        self._draw_quads(cam, self.supersample, image, depth, rays, c, R, 0, cam.exposure[0], extra)
+        quad = np.nan_to_num(depth, nan=np.inf) < terrain
+        right, _ = self.render_view(cam.right_pose(pose), 1, extra)
+        seen = np.where(np.isfinite(terrain), terrain, np.nan).astype(np.float32)
+        return self._to_u8(image), self._to_u8(right), quad, seen
+
     def render_depth(self, pose: CameraPose) -> F32:
         """Range along the optical axis (metres) of the ray through each pixel's centre of
         the camera at ``pose``; NaN where the ray meets nothing."""

@@ -114,6 +114,11 @@ def statustext(severity: Severity, text: str, chunk_id: int) -> list[mavlink.MAV
 
 
 def channel_key(channel_id: int, full_name: str) -> str:
+    """The NAMED_VALUE name of a channel: its dictionary name when that fits the 10 characters
+    (a stock tool shows it as it is, e.g. ``exec.slips``), else ``"<id>:<local name>"`` truncated,
+    which the ground resolves through the dictionary."""
+    if len(full_name) <= NAMED_VALUE_KEY_LEN and ":" not in full_name:
+        return full_name
     local = full_name.split(".", 1)[-1]
     return f"{channel_id}:{local}"[:NAMED_VALUE_KEY_LEN]
 

@@ -23,7 +23,7 @@ told where each stage starts (:data:`STAGES`), so a bench times what flies.
 from __future__ import annotations
 
 from collections.abc import Callable, Generator
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
@@ -34,7 +34,9 @@ from fsw.core.edge.roi import roi_mapped_fraction_steps
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid, MapGridConfig
 from fsw.core.localization.localization import point_covariance_parts
 from fsw.core.localization.nav_fix import NavFix
+from fsw.core.map.body_mask import TeamGeometry, team_mask
 from fsw.core.map.elevation_map import ElevationMap, FusionConfig, MergeStats
+from fsw.core.map.face_map import FaceMap, split_parts
 from fsw.core.map.reference_frames import ReferenceFrames
 from fsw.core.planning.nbv import NbvConfig, predicted_visibility_steps
 from fsw.core.registration.registration import (
@@ -48,6 +50,7 @@ from fsw.core.registration.station_chain import StationChain
 from fsw.core.steps import run_to_end
 from fsw.core.stereo.occlusion import LipGuard
 from fsw.core.stereo.rectify import Rectifier
+from fsw.core.stereo.rig_drift import RigAlignment
 from fsw.core.stereo.stereo import StereoConfig, StereoMatcher, StereoPoints
 from fsw.core.stereo.stereo_calibration import StereoCalibration, offset_covariance
 
@@ -116,6 +119,7 @@ class MergedView:
     placed: RegisteredPose
     merge: MergeStats
     view_cells: tuple[NDArray[np.int32], NDArray[np.float32]]  # flat cell index, mean height (m)
+    alignment: RigAlignment = field(default_factory=RigAlignment.none)  # the rig-drift correction (§4)
 
 
 @dataclass(frozen=True)
@@ -129,6 +133,7 @@ class SensedView:
     edge_cells: EdgeCells
     edge: EdgeModel
     roi_mapped_fraction: float
+    alignment: RigAlignment = field(default_factory=RigAlignment.none)  # the rig-drift correction (§4)
 
 
 def _no_stage(name: str) -> None:
@@ -152,6 +157,10 @@ class SensingPipeline:
         self.map = ElevationMap(MapGrid.from_config(cfg.map), cfg.fusion) if emap is None else emap
         self.chain = StationChain()  # the registered stations (fsw.core.registration.station_chain)
         self.sources = ReferenceFrames(self.map.grid.shape)  # each cell's view (fsw.core.map.reference_frames)
+        # The team (docs/algorithm.md §8.1): the face map beside the gravity grid (None: one grid)
+        # and the robots and tethers at their known poses, masked out of every view (None: none).
+        self.face: FaceMap | None = None
+        self.team: TeamGeometry | None = None
 
     def clear(self) -> None:
         """Forget the map and the registration state (a new survey)."""
@@ -183,7 +192,8 @@ class SensingPipeline:
         yield
         roi_fraction = yield from roi_mapped_fraction_steps(self.map, poly)
         yield
-        return SensedView(view.view_id, merged.placed, merged.merge, merged.view_cells, cells, poly, roi_fraction)
+        return SensedView(view.view_id, merged.placed, merged.merge, merged.view_cells, cells, poly, roi_fraction,
+                          merged.alignment)
 
     def merge_view_steps(self, view: StereoView, stage: Callable[[str], None] = _no_stage
                          ) -> Generator[None, None, MergedView]:
@@ -198,6 +208,7 @@ class SensingPipeline:
         dm = yield from self.matcher.match_steps(left, right)
         yield
         pts = yield from self.matcher.triangulate_steps(dm.disparity_px, sigma_px=dm.sigma_px)
+        alignment = dm.alignment
         del dm, left, right  # not needed past here: a smaller resident peak (issue 15)
         stage("register")
         placed = yield from self.register_steps(view, pts)
@@ -210,7 +221,8 @@ class SensingPipeline:
             yield
         parts = yield from self.world_parts_steps(placed, pts)
         del pts  # the camera-frame points: every use is above
-        return (yield from self.fuse_steps(placed, parts, p_visible))
+        merged = yield from self.fuse_steps(placed, parts, p_visible)
+        return replace(merged, alignment=alignment)
 
     def register_steps(self, view: StereoView, pts: StereoPoints) -> Generator[None, None, RegisteredPose]:
         """Align the view to the map (§5.1): the corrected pose, the covariance to merge with
@@ -253,16 +265,24 @@ class SensingPipeline:
             if off_sigma > 0.0:
                 cal = offset_covariance(xyz, placed.pose.t, pts.disparity_px[a:b], off_sigma)
                 cov_p = cal if cov_p is None else cov_p + cal
+            if self.team is not None:
+                off = ~team_mask(xyz, cov_s if cov_p is None else cov_s + cov_p, self.team, eye=placed.pose.t)
+                xyz, cov_s, cov_p = xyz[off], cov_s[off], None if cov_p is None else cov_p[off]
             parts.append(lips.part(xyz, cov_s, cov_p, fus.lip_guard_sigma))
             yield
         return parts
 
     def fuse_steps(self, placed: RegisteredPose, parts: list[ViewPart],
-                   p_visible: NDArray[np.floating] | NDArray[np.bool_] | None = None
+                   p_visible: NDArray[np.float32] | NDArray[np.float64] | NDArray[np.bool_] | None = None
                    ) -> Generator[None, None, MergedView]:
         """Fuse a view's world points (:meth:`world_parts_steps`, consumed) into the map with
         the misses of the cells in ``p_visible`` that get none (§1.1, §3.4); each cell the view
-        measured remembers the view as its source (``fsw.core.map.reference_frames``)."""
+        measured remembers the view as its source (``fsw.core.map.reference_frames``). With a
+        face map the points are split by its hand-over (§8.1) and its share fused there."""
+        if self.face is not None:
+            to_face, parts = split_parts(parts, self.face)
+            self.face.merge_parts(to_face)
+            yield
         view_cells = self.map.grid.cell_means(np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3)))
         X, Y = (c.reshape(-1)[view_cells[0]] for c in self.map.grid.centers())
         self.sources.add(view_cells[0], np.column_stack([X, Y, view_cells[1]]), placed.pose.t, placed.cov)

@@ -29,7 +29,7 @@ import socket
 import threading
 from collections import deque
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import ClassVar, Protocol
 
 from fsw.drivers.base import DriverBase
 from fsw.framework.telemetry import EventDef, Severity
@@ -281,8 +281,8 @@ class UdpPort(BytePort):
 
     @property
     def address(self) -> tuple[str, int]:
-        addr: Any = self.sock.getsockname()
-        return addr[0], addr[1]
+        host, port = self.sock.getsockname()[:2]  # (host, port[, flowinfo, scope_id])
+        return str(host), int(port)
 
     def _send_internal(self, data: bytes) -> None:
         targets = [self.peer] if self.peer is not None else list(self.peers)
@@ -325,12 +325,27 @@ class UdpPort(BytePort):
         self.sock.close()
 
 
+class SerialLike(Protocol):
+    """What :class:`SerialPort` uses of a pyserial ``Serial`` (or a test's stand-in)."""
+
+    timeout: float | None
+
+    @property
+    def in_waiting(self) -> int: ...
+
+    def read(self, size: int = 1) -> bytes: ...
+
+    def write(self, data: bytes, /) -> int | None: ...
+
+    def close(self) -> None: ...
+
+
 class SerialPort(BytePort):
     """A serial line through pyserial: a byte stream, reopened after it is lost."""
 
     packetized = False
 
-    def __init__(self, device: str, baud: int, ser: Any = None, reopen_s: float = 2.0,
+    def __init__(self, device: str, baud: int, ser: SerialLike | None = None, reopen_s: float = 2.0,
                  max_send_bytes: int = 65536) -> None:
         """Open ``device`` (a path or a pyserial URL such as ``loop://``) at ``baud``, or use
         ``ser``, an already open pyserial-like object; ValueError if it cannot be opened."""
@@ -343,7 +358,7 @@ class SerialPort(BytePort):
                 raise ValueError(f"serial:{device}: {exc}") from None
         self.ser = ser
 
-    def _open(self) -> Any:
+    def _open(self) -> SerialLike:
         import serial  # pyserial; imported here so the other ports do not need it
 
         try:

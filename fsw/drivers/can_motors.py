@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import can
 
@@ -342,7 +342,7 @@ class CanMotorDriver(DriverBase):
         self._tx_last = dict.fromkeys(AXES)  # a new bus: every axis's command goes out at once
 
     # -- views ------------------------------------------------------------------------------
-    def faulted_axes(self) -> dict[str, Any]:
+    def faulted_axes(self) -> dict[str, list[str]]:
         return {a: sorted(s.faults) for a, s in self.axes.items() if s.faults}
 
     def close(self) -> None:

@@ -21,8 +21,9 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import ClassVar, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -36,6 +37,15 @@ F_BAD_FRAMES, F_TIMEOUT, F_STUCK, F_SELF_TEST, F_LOST_FRAMES = 0x01, 0x02, 0x04,
 MAX_DELTA = 4  # largest counter jump taken (3 frames lost); above 4 a 1-3 bit error could cross an epoch
 #: faults that make the attitude unusable (bad or lost frames alone only degrade)
 UNUSABLE = F_TIMEOUT | F_STUCK | F_SELF_TEST
+
+# what an attitude is computed from: (time, unusable faults, frames received, samples, the last sample)
+_AttitudeKey = tuple[float, int, int, int, tuple[float, float, float] | None]
+
+
+class FrameOwner(Protocol):
+    """The driver that owns the CAN bus (``fsw.drivers.can_motors``): frame id -> listener."""
+
+    listeners: dict[int, Callable[[bytes, float], None]]
 
 
 @dataclass(frozen=True)
@@ -79,9 +89,9 @@ class ImuDriver(DriverBase):
         self.t_start: float | None = None
         self.rx_frames = self.rx_bad = self.rx_lost = 0
         self.last: ImuAttitude | None = None
-        self._att: tuple[tuple[Any, ...], Attitude | None] | None = None  # (inputs, estimate) of the last call
+        self._att: tuple[_AttitudeKey, Attitude | None] | None = None  # (inputs, estimate) of the last call
 
-    def attach(self, motors: Any) -> None:
+    def attach(self, motors: FrameOwner) -> None:
         """Receive ``IMU_ATTITUDE`` from the motor driver that owns the bus."""
         motors.listeners[self.codec.frame_id] = self.on_frame
 

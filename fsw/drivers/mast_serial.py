@@ -19,7 +19,7 @@ import math
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, ClassVar, Protocol
+from typing import ClassVar, Protocol
 
 import serial
 
@@ -280,7 +280,7 @@ class MastSerialDriver(DriverBase):
             return
         self._set(F_PORT, False)
 
-    def counters(self) -> dict[str, Any]:
+    def counters(self) -> dict[str, int]:
         d = self.decoder
         return {
             "acks": self.acks,

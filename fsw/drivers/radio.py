@@ -20,12 +20,11 @@ events, takes ``now`` from the caller). :func:`open_radio` picks the backend fro
 from __future__ import annotations
 
 from collections import deque
-from typing import Any
 from urllib.parse import urlsplit
 
 from cobs import cobs
 
-from fsw.drivers.byte_port import BytePort, InProcPort, SerialPort, UdpPort
+from fsw.drivers.byte_port import BytePort, InProcPort, SerialLike, SerialPort, UdpPort
 
 MAX_DATAGRAM = 8192
 
@@ -49,7 +48,7 @@ class SerialRadio(SerialPort):
 
     packetized = True
 
-    def __init__(self, port: str, baud: int = 9600, max_buffer: int = 65536, ser: Any = None) -> None:
+    def __init__(self, port: str, baud: int = 9600, max_buffer: int = 65536, ser: SerialLike | None = None) -> None:
         super().__init__(port, baud, ser=ser, max_send_bytes=MAX_DATAGRAM)
         self._buf = bytearray()
         self._frames: deque[bytes] = deque()

@@ -63,6 +63,7 @@ class Resources:
     mavlink_tlog: str | BinaryIO | None = None  # None: the configured path
     unix_time: Callable[[], float] = field(default=time.time)
     oracle_truth: OracleTruth | None = None
+    team_can: can.BusABC | None = None  # the Cliff-bot's bus to its winches, wheels, IMU (a bench's end)
     # Extra sections a mission checkpoint carries (``fsw.tasks.mission_state``): a bench puts its
     # world truth and random generators here so a lockstep resume continues the same run.
     checkpoint_hooks: dict[str, Callable[[], dict[str, object]]] = field(default_factory=dict)

@@ -22,7 +22,8 @@ class AgentConfig:
     """``[agent]``: which agent this configuration is."""
 
     name: str = param("recon-1", doc="the agent's name (events, logs, the bench's agent list)")
-    kind: str = param("recon", doc="the agent's topology (fsw.registry.AGENTS): recon = the RECON-bot")
+    kind: str = param("recon", doc="the agent's topology (fsw.registry.AGENTS): recon = the RECON-bot, "
+                      "cliffbot = the Cliff-bot")
 
     def __post_init__(self) -> None:
         if not self.name or not self.name.replace("-", "").replace("_", "").isalnum():
@@ -39,6 +40,7 @@ class AgentTopology:
     task_kinds: Mapping[str, str]  # task kind -> "module:Class", imported when the schedule names it
     sections: frozenset[str] = field(default_factory=frozenset)
     required_tasks: tuple[str, ...] = ()  # task kinds its schedule must contain
+    flight_kinds: tuple[str, ...] | None = None  # a flight file's must-have kinds (None: schedule_check.FLIGHT_KINDS)
 
     def check_sections(self, present: set[str]) -> None:
         """``ValueError`` naming a configuration section this agent does not read."""

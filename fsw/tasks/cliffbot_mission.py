@@ -38,26 +38,10 @@ from fsw.core.team.cliffbot_nav import CliffbotNav, NavConfig
 from fsw.core.team.face_planner import ClimberConfig, plan_targets
 from fsw.core.team.tether import TetherConfig, tether_state
 from fsw.drivers.cliffbot_devices import CliffbotDevices
-from fsw.framework.params import param
+from fsw.sections import CliffbotMissionConfig
 
 F64 = NDArray[np.float64]
 FAULT_BITS = ("FaultStall", "FaultSlip", "FaultOverTension", "FaultSpool", "FaultTimeout")
-
-
-@dataclass(frozen=True)
-class CliffbotMissionConfig:
-    max_rate_mps: float = param(0.12, lo=0.005, hi=2.0, units="m/s", doc="winch rate limit the mission commands")
-    gain_per_s: float = param(1.5, lo=0.05, hi=20.0, units="1/s", doc="length error to rate")
-    length_tol_m: float = param(0.02, lo=0.001, hi=0.5, units="m", doc="a waypoint is reached within this")
-    waypoint_every: int = param(3, lo=1, hi=50, doc="every n-th lattice node of a path is a waypoint")
-    dwell_s: float = param(2.0, lo=0.0, hi=600.0, units="s", doc="time at a target (instrument placement)")
-    fix_timeout_s: float = param(30.0, lo=0.5, hi=600.0, units="s", doc="no fix this long after asking: link lost")
-    return_home: bool = param(True, doc="climb back to the start after the last target")
-    wheel_radius_m: float = param(0.06, lo=0.01, hi=1.0, units="m")
-    track_margin_m: float = param(0.08, lo=0.0, hi=2.0, units="m",
-                                  doc="the planner's footprint grown by this: the body strays between waypoints")
-    tension_margin_n: float = param(10.0, lo=0.0, hi=1000.0, units="N",
-                                    doc="the planner keeps tensions this far inside [T_min, T_max]")
 
 
 @dataclass(frozen=True)

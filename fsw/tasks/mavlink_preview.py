@@ -8,6 +8,11 @@ image; or an object with such an array as ``z`` (an ``ElevationMap``); or an obj
 so that +y (the world's "north") is up, scaled so its longest side is at most ``max_px``,
 elevations stretched to 16..255 over the known cells (0 = unknown; the ground reads < 8 as
 unknown, so JPEG noise does not turn low ground into holes), and JPEG encoded.
+
+An elevation map (an ``ElevationMap`` or a ``MapUpdate``'s snapshot) is previewed as the team
+link would carry it: :func:`reduce_map` runs the map codec (docs/algorithm.md §6: the quadtree of
+interest regions within the codec's error bound, ``fsw.core.codec.mapcodec``) and previews its
+decode, so the operator sees the map the Cliff-bot receives, not the raw fusion grid.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from fsw.core.codec.mapcodec import CodecConfig, decode_map, encode_map
 from fsw.core.map.elevation_map import ElevationMap
 
 KNOWN_MIN = 16  # known elevations span 16..255, unknown is 0: the gap survives JPEG noise
@@ -23,6 +29,24 @@ UNKNOWN_BELOW = 8  # the ground reads grey levels below this as unknown
 
 class PreviewError(ValueError):
     """The published object cannot be turned into a preview."""
+
+
+def reduce_map(obj: object, *, wheel_diameter_m: float, codec: CodecConfig) -> tuple[object, int]:
+    """``(preview_source, container_bytes)``: an elevation map becomes the codec's decode of it
+    (float32, NaN unknown) and the size of the codec's container; any other object is returned
+    as it is, with 0 bytes. Raises :class:`PreviewError` when the codec refuses the map."""
+    snapshot = getattr(obj, "snapshot", None)
+    emap = snapshot if isinstance(snapshot, ElevationMap) else obj
+    if not isinstance(emap, ElevationMap):
+        return obj, 0
+    z = np.asarray(emap.z, np.float32)
+    if not np.isfinite(z).any():
+        return z, 0  # nothing mapped yet: nothing to reduce
+    try:
+        enc = encode_map(z, cell_m=float(emap.grid.cell), wheel_diameter_m=wheel_diameter_m, cfg=codec)
+        return decode_map(enc.data, max_cells=codec.max_cells).z, len(enc.data)
+    except ValueError as exc:  # MapCodecError is a ValueError
+        raise PreviewError(f"map codec: {exc}") from exc
 
 
 def encode_preview(obj: object, max_px: int, quality: int) -> tuple[bytes, int, int]:

@@ -18,6 +18,7 @@ the task opens ``[mavlink] url``), ``mavlink_tlog`` (a path or binary stream; el
 
 from __future__ import annotations
 
+from collections.abc import Generator
 from pathlib import Path
 from typing import BinaryIO, ClassVar
 
@@ -33,18 +34,18 @@ from fsw.comm.mavlink_uplink import UplinkBatch
 from fsw.drivers import signing_store
 from fsw.drivers.mavlink_transport import TransportError, open_transport
 from fsw.framework.commands import Arg, CommandDef
-from fsw.framework.summary import Summary
+from fsw.framework.jobs import JobHandle
 from fsw.framework.telemetry import Channel, Event, EventDef, Severity
 from fsw.tasks.base import FlightTask
 from fsw.tasks.mavlink_dispatch import UplinkDispatch
 from fsw.tasks.mavlink_gcs import GcsServices
-from fsw.tasks.mavlink_preview import PreviewError, encode_preview
+from fsw.tasks.mavlink_preview import PreviewError, encode_preview, reduce_map
 from fsw.tasks.mavlink_view import ViewBuilder
 
 _THROTTLED = ("RX_BAD", "TRANSPORT_FAULT", "TLOG_ERROR", "PREVIEW_BAD", "CMD_BAD_ARGS", "WINDOW_SAVE_ERROR")
 
 
-class MavlinkTask(UplinkDispatch, FlightTask):
+class MavlinkTask(FlightTask):
     KIND: ClassVar[str] = "mavlink"
     RATE_HZ: ClassVar[tuple[float, float]] = (2.0, 50.0)  # the 1 Hz HEARTBEAT and its telemetry periods
     DOC: ClassVar[str] = "MAVLink 2 ground link: telemetry, events, map previews; signed commands."
@@ -79,6 +80,8 @@ class MavlinkTask(UplinkDispatch, FlightTask):
         Channel("events_sent", "count", doc="events sent as STATUSTEXT"),
         Channel("events_dropped", "count", hi=0, doc="events lost to a full downlink queue"),
         Channel("images_sent", "count", doc="map previews completely sent"),
+        Channel("preview_codec_bytes", "B", doc="map codec container of the latest preview (its quadtree-reduced "
+                                                "map is what the preview shows)"),
         Channel("tlog_records", "count"),
         Channel("budget_bytes", "B", doc="current downlink budget per activation"),
     )
@@ -121,12 +124,13 @@ class MavlinkTask(UplinkDispatch, FlightTask):
         self.ctx.events.listeners.append(self._on_event)
         key = self._load_key(cfg.key_file)
         self.adapter = MavlinkAdapter(cfg, key, signing_timestamp(self._unix()))
-        self._window_path = (cfg.signing_state_file or str(signing_store.default_path(cfg.key_file))) if key else ""
+        window_path = (cfg.signing_state_file or str(signing_store.default_path(cfg.key_file))) if key else ""
         self.journal = ReplayJournal(int(cfg.signing_reserve_s * TS_PER_S))
-        self._restore_window()
         self.gcs = GcsServices(self.ctx.cfg, self.adapter, self._apply_config)
+        self.dispatch = UplinkDispatch(cfg, self.adapter, self.journal, self.gcs, self.ctx.commands, self.event,
+                                       window_path, self._unix)
+        self.dispatch.restore_window()
         self._plan_box = self.subscribe(cfg.plan_topic, depth=1, policy="drop_oldest")
-        self._rejected = Summary(cfg.auth_event_period_s)
         for ev in self._early or ():
             self.adapter.push_event(ev)
         self._early = None
@@ -140,11 +144,11 @@ class MavlinkTask(UplinkDispatch, FlightTask):
         self.tlog = self._open_tlog(cfg.tlog_path if res.mavlink_tlog is None else res.mavlink_tlog)
         self._preview_box = self.subscribe(cfg.map_preview_topic, depth=1, policy="drop_oldest")
         self._preview: object = None
+        self._preview_job: JobHandle | None = None
+        self._preview_codec_bytes = 0
         self._views = ViewBuilder(self.ctx, cfg, self.subscribe(cfg.pose_topic, depth=1, policy="drop_oldest"))
         self._gcs_heard_s: float | None = None
         self._link_up = False
-        self._seq = 0
-        self._cmd_counts = {"accepted": 0, "refused": 0, "busy": 0, "unrecorded": 0}
         self._dropped_reported = 0
         self._next_decay_s = 1.0
         self._next_flush_s = 0.0
@@ -174,7 +178,8 @@ class MavlinkTask(UplinkDispatch, FlightTask):
         self.adapter.events.bucket.rate_hz, self.adapter.events.bucket.burst = a.statustext_rate_hz, a.statustext_burst
         self.adapter.denials.bucket.rate_hz = a.denial_acks_per_s
         self.adapter.replies.bucket = TokenBucket(a.replies_per_s, int(max(1.0, a.replies_per_s)))
-        self._rejected.period_s = a.auth_event_period_s
+        self.dispatch.cfg = new
+        self.dispatch.rejected.period_s = a.auth_event_period_s
 
     def _open_tlog(self, target: str | BinaryIO) -> TlogWriter | None:
         if not target:
@@ -207,16 +212,16 @@ class MavlinkTask(UplinkDispatch, FlightTask):
             batch.commands += got.commands
             batch.requests += got.requests
         if batch.commands or batch.requests:
-            self._record_window()  # before any accepted command acts: a crash cannot forget it
+            self.dispatch.record_window()  # before any accepted command acts: a crash cannot forget it
             plan = self._plan_box.latest()
             if isinstance(plan, GroundPlan):
                 self.gcs.plan = plan
             executed = 0
             for cmd in batch.commands:
-                executed += self._command(cmd, now, executed)
+                executed += self.dispatch.command(cmd, now, executed)
             for req in batch.requests:
-                self._request(req, now)
-        self._report_rejections(now)
+                self.dispatch.request(req, now)
+        self.dispatch.report_rejections(now)
         if self._link_up and self._gcs_heard_s is not None and now - self._gcs_heard_s > self.cfg.gcs_timeout_s:
             self._link_up = False
             self.event("LINK_LOST", timeout_s=self.cfg.gcs_timeout_s)
@@ -251,17 +256,35 @@ class MavlinkTask(UplinkDispatch, FlightTask):
         return batch
 
     def _take_preview(self, now: float) -> None:
+        """The latest map update becomes a preview: a slack job reduces it with the map codec
+        and JPEG-encodes the decode (``fsw.tasks.mavlink_preview``), at most one job at a time and
+        one transfer per ``image_period_s``; the latest map wins."""
         latest = self._preview_box.latest()
         if latest is not None:
             self._preview = latest
-        if self._preview is None or not self.adapter.image_wanted(now):
+        if self._preview is None or self._preview_job is not None or not self.adapter.image_wanted(now):
             return
         obj, self._preview = self._preview, None
-        try:
-            data, w, h = encode_preview(obj, self.cfg.image_max_px, self.cfg.image_quality)
-            self.adapter.offer_image(now, data, w, h, mavlink.MAVLINK_DATA_STREAM_IMG_JPEG)
-        except (PreviewError, ValueError) as exc:
-            self.event("PREVIEW_BAD", reason=str(exc))
+        cfg, settings = self.cfg, self.ctx.cfg
+
+        def job() -> Generator[None, None, tuple[bytes, int, int, int]]:
+            yield
+            source, nbytes = reduce_map(obj, wheel_diameter_m=settings.rover.wheel_diameter_m, codec=settings.codec)
+            yield
+            data, w, h = encode_preview(source, cfg.image_max_px, cfg.image_quality)
+            return data, w, h, nbytes
+
+        self._preview_job = self.submit_job(job(), "map_preview", on_done=self._preview_done)
+
+    def _preview_done(self, handle: JobHandle) -> None:
+        self._preview_job = None
+        if handle.error is not None:
+            reason = str(handle.error) if isinstance(handle.error, (PreviewError, ValueError)) else repr(handle.error)
+            self.event("PREVIEW_BAD", reason=reason)
+            return
+        data, w, h, nbytes = handle.result
+        self._preview_codec_bytes = nbytes
+        self.adapter.offer_image(self.ctx.clock.now(), data, w, h, mavlink.MAVLINK_DATA_STREAM_IMG_JPEG)
 
     def _log(self, stamp: float, frames: list[bytes]) -> None:
         if self.tlog is None or not frames:
@@ -293,8 +316,8 @@ class MavlinkTask(UplinkDispatch, FlightTask):
             "deferred": a.packer.deferred,
             "acks_dropped": a.acks_dropped,
             "acks_suppressed": a.replies_suppressed,
-            "cmds_busy": self._cmd_counts["busy"],
-            "cmds_unrecorded": self._cmd_counts["unrecorded"],
+            "cmds_busy": self.dispatch.counts["busy"],
+            "cmds_unrecorded": self.dispatch.counts["unrecorded"],
             "window_writes": self.journal.writes,
             "polls": self.gcs.counts["polls"],
             "polls_unsupported": self.gcs.counts["polls_unsupported"],
@@ -303,8 +326,8 @@ class MavlinkTask(UplinkDispatch, FlightTask):
             "rx_bytes": u.bytes,
             "rx_frames": u.frames,
             "rx_bad": u.bad_frames + u.parser_resets,
-            "cmds_accepted": self._cmd_counts["accepted"],
-            "cmds_refused": self._cmd_counts["refused"],
+            "cmds_accepted": self.dispatch.counts["accepted"],
+            "cmds_refused": self.dispatch.counts["refused"],
             "auth_unsigned": v[Verdict.UNSIGNED],
             "auth_bad_signature": v[Verdict.BAD_SIGNATURE],
             "auth_replay": v[Verdict.REPLAY],
@@ -314,6 +337,7 @@ class MavlinkTask(UplinkDispatch, FlightTask):
             "events_sent": a.events.sent,
             "events_dropped": a.events.dropped,
             "images_sent": a.images.images_sent,
+            "preview_codec_bytes": self._preview_codec_bytes,
             "tlog_records": self.tlog.records if self.tlog is not None else 0,
             "budget_bytes": a.budget_bytes,
         })

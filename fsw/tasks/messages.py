@@ -19,6 +19,7 @@ from fsw.core.geometry import CameraPose
 from fsw.core.localization.nav_fix import NavFix
 from fsw.core.map.elevation_map import ElevationMap
 from fsw.core.registration.registration import RegistrationSummary
+from fsw.core.stereo.rig_drift import RigAlignment
 
 # Topic names (one place, so a typo is an import error, not a silent loss).
 CAMERA_REQUEST = "camera.request"
@@ -29,6 +30,9 @@ NAV_FIX = "nav.fix"  # a registered view's correction of the rover pose (fsw.cor
 NBV_REQUEST = "nbv.request"
 NBV_RESULT = "nbv.result"
 RADIO_SEND = "radio.send"
+RADIO_FIX_REQUEST = "radio.fix_request"  # a FIX_REQUEST the radio received (fsw.comm.team.fix_packets.FixRequest)
+RADIO_FIX_OUT = "radio.fix_out"  # an encoded FIX / NO_FIX the radio sends ahead of map bytes (bytes)
+FIX_VIEW_BASE = 1 << 30  # view ids from here are the fixer's pairs of the Cliff-bot, not views of the map
 RADIO_STATUS = "radio.status"
 VIEW_FAILED = "view.failed"
 
@@ -111,6 +115,7 @@ class MapUpdate:
     camera_xyz: tuple[float, float, float] | None = None  # the (registered) camera centre
     drop: NDArray[np.bool_] | None = None  # mapped cells a step below the rover's ground (§2)
     nav_fix: NavFix | None = None  # the correction of the rover pose it found (also on ``nav.fix``)
+    rig: RigAlignment | None = None  # the pair's rig-drift measurement (``fsw.core.stereo.rig_drift``)
 
 
 # Motion (fsw/tasks/motion.py): requests from the sequencer, one status per request outcome.

@@ -81,7 +81,8 @@ class MissionTask(FlightTask):
 
     @classmethod
     def required_kinds(cls, cfg: object) -> tuple[str, ...]:  # cfg: the FswConfig (not imported here)
-        return cls.REQUIRES + (("radio",) if getattr(cfg, "mission").transmit else ())  # noqa: B009
+        # a map sent to the Cliff-bot brings its fix requests: the fixer answers them (docs/team.md)
+        return cls.REQUIRES + (("radio", "cliffbot_fixer") if getattr(cfg, "mission").transmit else ())  # noqa: B009
     DOC: ClassVar[str] = "Mission sequencer: panorama, next view, move, acquire, transmit; SAFE on faults."
     CHANNELS = (
         Channel("state", doc=", ".join(STATES)),
@@ -360,6 +361,8 @@ class MissionTask(FlightTask):
             # be a quarter turn): the view from here, the mast turned to look the same way.
             # It is the rated view within a few cm and degrees: it keeps its rating (§3.5).
             pan, tilt, lift = self.view.joints
+            if self.view.note:  # the planner found no move at all: why, in the mission summary
+                self.ground.stays.append(f"step {self.step}: {self.view.note}")
             self.view = dataclasses.replace(self.view, rover=here,
                                             joints=self.ctx.cfg.mast.clamp(pan + dyaw, tilt, lift))
             self._start_point()

@@ -303,7 +303,7 @@ class MissionGround:
 
 def fence_on(fence: Geofence, latest: MapUpdate | None, edge: EdgeModel | None, here: Pose3) -> None:
     """Set ``fence`` on a map update (known ground, drop cells), an edge fit and the pose the
-    rover stands at (the mission's check; ``hil_sim.ground_watch`` builds its own the same way)."""
+    rover stands at (the mission's check; ``hil_sim.mission.ground_watch`` builds its own the same way)."""
     if latest is not None:
         fence.set_map(latest.snapshot.grid, latest.snapshot.n)
         if latest.drop is not None:

@@ -15,6 +15,7 @@ way (the map would be half-merged). At start-up it restores the newest good chec
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from collections.abc import Generator
 from typing import ClassVar
@@ -24,6 +25,7 @@ import numpy as np
 from fsw.core.map.elevation_map import ElevationMap
 from fsw.core.pipeline import SensingPipeline
 from fsw.core.registration.registration import RegistrationSummary
+from fsw.core.stereo.rig_drift import RigAlignment
 from fsw.drivers.map_store import MapStore
 from fsw.framework.commands import CommandDef, CommandError
 from fsw.framework.jobs import JobHandle
@@ -31,7 +33,16 @@ from fsw.framework.storage import describe
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.settings import load_stereo_calibration
 from fsw.tasks.base import FlightTask
-from fsw.tasks.messages import CAMERA_FRAME, MAP_UPDATED, NAV_FIX, VIEW_FAILED, CameraFrame, MapUpdate, ViewFailed
+from fsw.tasks.messages import (
+    CAMERA_FRAME,
+    FIX_VIEW_BASE,
+    MAP_UPDATED,
+    NAV_FIX,
+    VIEW_FAILED,
+    CameraFrame,
+    MapUpdate,
+    ViewFailed,
+)
 from fsw.tasks.mission_state import JsonDict, restore_into
 
 
@@ -59,6 +70,8 @@ class PerceptionTask(FlightTask):
         Channel("reg_unregistered", "count", hi=0, doc="views merged with an inflated pose covariance"),
         Channel("reg_partial", "count", doc="views registered in height and tilt only (halves disagreed)"),
         Channel("reg_split_chi2", doc="the last view's halves' disagreement (chi-square)"),
+        Channel("rig_dv_px", "px", doc="vertical offset of the last pair's right image (rig drift)"),
+        Channel("rig_exceeded", "count", hi=0, doc="views whose rig offset was beyond drift_bound_px"),
     )
     EVENTS = (
         EventDef(
@@ -76,6 +89,11 @@ class PerceptionTask(FlightTask):
         EventDef(
             "VIEW_NOT_REGISTERED", Severity.WARNING_LO,
             "view {view} not registered ({reason}): merged with its pose covariance inflated", throttle=10,
+        ),
+        EventDef(
+            "RIG_MISALIGNED", Severity.WARNING_HI,
+            "view {view}: stereo rows {offset:.1f} px apart (shift {dv:+.2f} px, {matches} matches), beyond "
+            "{bound:.1f} px: corrected per pair, recalibrate the stereo head", throttle=5,
         ),
         EventDef("VIEW_FAILED", Severity.WARNING_HI, "view {view} could not be merged: {error}", throttle=5),
         EventDef("CHECKPOINT_SAVED", Severity.ACTIVITY_LO, "map checkpoint {seq} saved ({kib:.0f} KiB)"),
@@ -100,6 +118,7 @@ class PerceptionTask(FlightTask):
         self.last_update: MapUpdate | None = None
         self.unregistered = 0
         self.partial = 0  # views registered in height and tilt only
+        self.rig_exceeded = 0  # views whose rig offset was beyond the bound
         self.registrations: deque[RegistrationSummary] = deque(maxlen=1000)  # per view (mission summary)
         self.store = self.ctx.res.map_store
         self._last_checkpoint_s = self.ctx.clock.now()
@@ -117,6 +136,8 @@ class PerceptionTask(FlightTask):
             self.job = None
         if self.job is None:
             msg = self.frames.get()
+            if msg is not None and msg.view_id >= FIX_VIEW_BASE:
+                msg = None  # a pair of the Cliff-bot for the fixer (fsw.tasks.cliffbot_fixer), not a view
             if msg is not None:
                 self.job = self.submit_job(self.merge_view(msg), f"view{msg.view_id}")
                 self.job_view = msg.view_id
@@ -152,6 +173,7 @@ class PerceptionTask(FlightTask):
             camera_xyz=(float(pose.t[0]), float(pose.t[1]), float(pose.t[2])),
             drop=sv.edge_cells.drop,
             nav_fix=sv.placed.nav_fix,
+            rig=sv.alignment,
         )
 
     def _finish(self, h: JobHandle) -> None:
@@ -174,9 +196,25 @@ class PerceptionTask(FlightTask):
         self.tlm("job_ms", h.busy_s * 1e3)
         if up.registration is not None:
             self._report_registration(up.registration)
+        if up.rig is not None:
+            self._report_rig(up.view_id, up.rig)
         self.event(
             "VIEW_MERGED", view=up.view_id, points=up.points, new=up.new_cells, misses=up.misses, mapped=up.mapped_cells
         )
+
+    def _report_rig(self, view: int, rig: RigAlignment) -> None:
+        """The rig-drift measurement of a view: telemetry, and an event when the offset is beyond
+        ``[stereo] drift_bound_px`` (the correction goes on; the calibration should be redone)."""
+        if not math.isfinite(rig.dv_px):
+            return
+        half_w = self.ctx.cfg.camera.width_px / 2.0
+        offset = abs(rig.dv_px) + abs(rig.roll_px_per_px) * half_w
+        self.tlm("rig_dv_px", rig.dv_px)
+        if rig.exceeds:
+            self.rig_exceeded += 1
+            self.tlm("rig_exceeded", self.rig_exceeded)
+            self.event("RIG_MISALIGNED", view=view, dv=rig.dv_px, offset=offset, matches=rig.matches,
+                       bound=self.ctx.cfg.stereo.drift_bound_px)
 
     def _report_registration(self, r: RegistrationSummary) -> None:
         self.registrations.append(r)

@@ -8,8 +8,10 @@ job (quadtree + codec, ``fsw.core.codec.mapcodec``, the wheel diameter from ``[r
 hands the container to the sans-I/O :class:`~fsw.comm.link_sender.LinkSender`. Every
 activation it feeds the radio's datagrams to the link and sends what the link's pacing
 allows, never more than its byte budget (``[link] rate_bps`` over two activation periods),
-then reports the link's events and counters. The radio is the ``radio_port`` resource, or
-``[link] transport`` opened here.
+then reports the link's events and counters. The Cliff-bot's fix requests
+(``fsw.comm.team.fix_packets``) on the same radio go to the fixer task
+(``radio.fix_request``), and its answers (``radio.fix_out``) are sent ahead of map bytes.
+The radio is the ``radio_port`` resource, or ``[link] transport`` opened here.
 """
 
 from __future__ import annotations
@@ -19,8 +21,9 @@ from typing import ClassVar
 
 import numpy as np
 
-from fsw.comm.link_packets import DATA_OVERHEAD
+from fsw.comm.link_packets import DATA_OVERHEAD, PacketError
 from fsw.comm.link_sender import LinkSender, SenderState
+from fsw.comm.team import fix_packets
 from fsw.core.codec.mapcodec import EncodedMap, encode_map
 from fsw.core.map.elevation_map import ElevationMap
 from fsw.drivers.radio import RadioPort, open_radio
@@ -28,7 +31,7 @@ from fsw.framework.commands import Arg, CommandDef
 from fsw.framework.jobs import JobHandle
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.base import FlightTask
-from fsw.tasks.messages import MAP_UPDATED, RADIO_SEND, RADIO_STATUS, RadioStatus
+from fsw.tasks.messages import MAP_UPDATED, RADIO_FIX_OUT, RADIO_FIX_REQUEST, RADIO_SEND, RADIO_STATUS, RadioStatus
 
 
 class RadioTask(FlightTask):
@@ -89,6 +92,7 @@ class RadioTask(FlightTask):
                                 cfg.link.segment_bytes + DATA_OVERHEAD)
         self.map_box = self.subscribe(MAP_UPDATED, depth=1)
         self.send_box = self.subscribe(RADIO_SEND, depth=4)
+        self.fix_box = self.subscribe(RADIO_FIX_OUT, depth=4)
         self._published_state: SenderState | None = None
 
     def _divisor(self) -> int:
@@ -115,10 +119,16 @@ class RadioTask(FlightTask):
             self._request(req.map_id, req.snapshot)
         d = self.port.recv(0.0, now)
         while d is not None:
-            self.sender.receive(d, now)
+            if fix_packets.is_fix_packet(d):
+                self._fix_packet(d)
+            else:
+                self.sender.receive(d, now)
             d = self.port.recv(0.0, now)
         sent = 0
-        for pkt in self.sender.poll(now, max_bytes=self.budget_bytes):
+        for pkt in self.fix_box.drain():  # fixes go ahead of map bytes (they count in the budget)
+            if self.port.send(pkt, now):
+                sent += len(pkt)
+        for pkt in self.sender.poll(now, max_bytes=max(self.budget_bytes - sent, 0)):
             if self.port.send(pkt, now):
                 sent += len(pkt)
         for ev in self.sender.events.pop_all():
@@ -128,6 +138,17 @@ class RadioTask(FlightTask):
         for name, args in self.port.drain_events():
             self.event("RADIO_ERROR", text=f"{name} {args.get('error', '')}")
         self._telemetry(sent)
+
+    def _fix_packet(self, d: bytes) -> None:
+        """A relative-localization packet (the Cliff-bot's FIX_REQUEST) for the fixer task."""
+        try:
+            p = fix_packets.decode(d)
+        except PacketError as exc:
+            self.sender.stats.bad_packets += 1
+            self.event("RADIO_ERROR", text=f"fix packet refused: {exc}")
+            return
+        if isinstance(p, fix_packets.FixRequest):
+            self.publish(RADIO_FIX_REQUEST, p)
 
     def _telemetry(self, sent: int) -> None:
         s = self.sender

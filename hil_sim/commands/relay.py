@@ -1,6 +1,6 @@
 """``safer-hil relay``: the radio impairment relay between two loopback UDP ends (docs/link.md).
 
-Runs :class:`hil_sim.udp_relay.UdpRelay` (the bench channel model on the wall clock) between
+Runs :class:`hil_sim.link.udp_relay.UdpRelay` (the bench channel model on the wall clock) between
 the RECON-bot's side ``a`` and the Cliff-bot's side ``b``; prints
 ``{"a": "udp://...", "b": "udp://..."}`` first and its counters as one JSON line at the end.
 """
@@ -17,7 +17,7 @@ DESCRIPTION = (
     "Impairment relay for the map link over real sockets (127.0.0.1 only). The RECON-bot sends "
     "to side a (any port; the relay answers whoever sent last), the relay forwards to the "
     "Cliff-bot at --b-peer from side b, and back. Each direction is the bench's seeded channel "
-    "model (hil_sim/radio_channel.py) on the wall clock, with its own random draws; "
+    "model (hil_sim/link/radio_channel.py) on the wall clock, with its own random draws; "
     "--reverse-loss gives the answers (b -> a) a loss of their own. Stops after --duration seconds or "
     "--idle-exit seconds without a datagram once traffic started. Exit 2 on bad arguments."
 )
@@ -49,7 +49,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def channel_config(args: argparse.Namespace) -> object:
     """The channel model of the arguments; ConfigError/ValueError on bad values."""
     from fsw.framework.params import build
-    from hil_sim.radio_channel import RadioChannelConfig
+    from hil_sim.link.radio_channel import RadioChannelConfig
 
     values = {"rate_bps": args.rate_bps, "latency_s": args.latency_s, "loss": args.loss,
               "reverse_loss": args.reverse_loss,
@@ -68,7 +68,7 @@ def channel_config(args: argparse.Namespace) -> object:
 def run(args: argparse.Namespace) -> int:
     from fsw.drivers.radio import parse_udp
     from fsw.framework.params import ConfigError
-    from hil_sim.udp_relay import UdpRelay, relay_summary
+    from hil_sim.link.udp_relay import UdpRelay, relay_summary
 
     try:
         ch = channel_config(args)

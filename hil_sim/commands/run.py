@@ -32,6 +32,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of world, hardware and radio")
     p.add_argument("--out", type=Path, default=Path("out/run"), help="report directory")
     p.add_argument("--config", default=str(DEFAULT_CONFIG), help="flight configuration (TOML)")
+    p.add_argument("--live", metavar="URL", help="also stream the mission to the live view at URL "
+                                                 "(safer-ground rerun --live prints it: rerun+http://127.0.0.1:PORT/proxy)")
     p.add_argument("--no-transmit", action="store_true", help="skip sending the map to the Cliff-bot")
     g = p.add_mutually_exclusive_group()
     g.add_argument(
@@ -54,7 +56,7 @@ def resume_hint(args: argparse.Namespace) -> str:
     out directory holds one."""
     import shlex
 
-    from hil_sim.mission_run import has_mission
+    from hil_sim.mission.mission_run import has_mission
 
     out = getattr(args, "resume", None) or getattr(args, "out", None)
     if out is not None and has_mission(Path(out)):
@@ -67,8 +69,8 @@ def run(args: argparse.Namespace) -> int:
 
     from fsw.framework.params import ConfigError
     from fsw.framework.storage import StorageError, describe
-    from hil_sim.mission_run import RunSpec, read_manifest, run_mission
-    from hil_sim.run_dir import finished, has_mission
+    from hil_sim.mission.mission_run import RunSpec, read_manifest, run_mission
+    from hil_sim.mission.run_dir import finished, has_mission
 
     if args.steps < 0:
         print("safer-hil run: --steps must be >= 0", file=sys.stderr)
@@ -110,8 +112,13 @@ def run(args: argparse.Namespace) -> int:
                 bars[0].n = bars[0].total
             bars[0].close()
 
+    live = getattr(args, "live", None)
+    if live is not None and not live.startswith(("rerun+http://127.0.0.1:", "rerun+http://localhost:")):
+        print(f"safer-hil run: --live {live!r}: expected rerun+http://127.0.0.1:PORT/proxy "
+              "(safer-ground rerun --live prints it)", file=sys.stderr)
+        return 2
     try:
-        s = run_mission(spec, progress, mode=mode)
+        s = run_mission(spec, progress, mode=mode, live=live)
     except OSError as err:  # a full or failing disk (StorageError, or one no writer expected)
         close_bar(False)
         print(f"safer-hil run: {err if isinstance(err, StorageError) else describe(err)}", file=sys.stderr)

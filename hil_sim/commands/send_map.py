@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from fsw.comm.link_sender import LinkSender, SenderState
     from fsw.drivers.radio import open_radio
     from fsw.framework.params import ConfigError
-    from hil_sim.link_pump import load_link_config, monotonic_clock, pump_once
+    from hil_sim.link.link_pump import load_link_config, monotonic_clock, pump_once
 
     def fail(msg: str) -> int:
         print(f"safer-hil send-map: error: {msg}", file=sys.stderr)

@@ -64,6 +64,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     m.add_argument("--key-file", default=None, metavar="FILE", help="signing key (safer-ground keygen)")
     m.add_argument("--tlog", default=None, metavar="FILE", help="telemetry log of every frame sent and received")
     m.add_argument("--checkpoint-dir", default=None, metavar="DIR", help="where the map checkpoints go")
+    p.add_argument("--out", type=Path, default=None, metavar="DIR",
+                   help="the mission's folder: the flight writes DIR/fsw.tlog and DIR/checkpoints (unless --tlog, "
+                        "--checkpoint-dir say otherwise); when serve stops, it writes DIR/summary.json, map.png and "
+                        "coverage.png as a lockstep run does, from the newest checkpoint against the truth")
+    t = p.add_argument_group("team scenarios (cliff-team): the Cliff-bot's hardware and flight file")
+    t.add_argument("--cliffbot-config", default=None, metavar="FILE",
+                   help="write the Cliff-bot's flight file for this bench here (safer-fsw run --config FILE)")
 
 
 def link_keys(args: argparse.Namespace) -> dict[str, dict[str, str]]:
@@ -155,6 +162,13 @@ def run(args: argparse.Namespace) -> int:
     if args.rate_hz <= 0 or (args.duration is not None and args.duration <= 0) or not args.camera_timeout > 0:
         print("safer-hil serve: --rate-hz, --duration and --camera-timeout must be positive", file=sys.stderr)
         return 2
+    if args.out is not None:
+        args.tlog = args.tlog or str(args.out / "fsw.tlog")
+        args.checkpoint_dir = args.checkpoint_dir or str(args.out / "checkpoints")
+        if args.scenario == "flat":
+            print("safer-hil serve: --out needs a scenario (a 'flat' bench has no truth to report against)",
+                  file=sys.stderr)
+            return 2
     if link_keys(args) and not args.flight_config:
         print("safer-hil serve: --mavlink-url, --key-file, --tlog and --checkpoint-dir go into the flight "
               "config: give --flight-config FILE too", file=sys.stderr)
@@ -183,7 +197,24 @@ def run(args: argparse.Namespace) -> int:
     port = PtyDevicePort(args.pty_link) if args.serial == "pty" else TcpDevicePort("127.0.0.1", args.serial_port)
     serial_url = port.path if isinstance(port, PtyDevicePort) else port.url
     injector = FaultInjector(args.seed, faults)
+    if world is not None and world.team is not None:  # the RECON-bot maps on the scenario's grid
+        import dataclasses
+
+        fsw = dataclasses.replace(fsw, map=world.map_grid)
     rig = HardwareRig(world, fsw, hw, args.seed, bus, port, injector)
+    team = None
+    if world is not None and world.team is not None:
+        from hil_sim.team.team_serve import TeamHardware
+
+        try:
+            team = TeamHardware(world, rig, fsw, args.seed, injector)
+        except (can.CanError, OSError, ValueError, ConfigError) as err:
+            print(f"safer-hil serve: cannot set up the Cliff-bot's hardware: {err}", file=sys.stderr)
+            port.close()
+            bus.shutdown()
+            if hub is not None:
+                hub.close()
+            return 2
     camera = (
         CameraServer(rig.render_pair, injector, "127.0.0.1", args.camera_port).start() if world is not None else None
     )
@@ -201,9 +232,25 @@ def run(args: argparse.Namespace) -> int:
     print(f"  CAN     {bus.channel_info} (DBC config/rover.dbc)")
     print(f"  serial  {serial_url}" + (f" (link {args.pty_link})" if args.pty_link else ""))
     print(f"  camera  {endpoints['camera_source']}")
+    if team is not None:
+        print(f"  team    CAN udp_hub {team.hub.channel} (DBC config/team.dbc), radio udp 127.0.0.1:{team.radio[0]}"
+              f" <-> 127.0.0.1:{team.radio[1]}")
     if args.flight_config:
-        write_flight_config(base_cfg, Path(args.flight_config), endpoints, link_keys(args))
+        tables = link_keys(args)
+        if team is not None:
+            m = fsw.map
+            tables = {**tables, "link": team.recon_link(),
+                      "map": {"origin_x_m": m.origin_x_m, "origin_y_m": m.origin_y_m, "cell_m": m.cell_m,
+                              "nx": m.nx, "ny": m.ny}}
+        write_flight_config(base_cfg, Path(args.flight_config), endpoints, tables)
         print(f"  flight  safer-fsw run --config {args.flight_config}")
+    if team is not None and args.cliffbot_config:
+        text = team.config.read_text(encoding="utf-8")
+        for name, values in team.cliffbot_tables(fsw).items():
+            text = set_keys(text, name, values)
+        Path(args.cliffbot_config).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.cliffbot_config).write_text(text, encoding="utf-8")
+        print(f"  cliffbot  safer-fsw run --config {args.cliffbot_config}")
     print("READY", flush=True)
 
     stop = {"flag": False}
@@ -216,6 +263,7 @@ def run(args: argparse.Namespace) -> int:
     period = 1.0 / args.rate_hz
     t0 = time.monotonic()
     k, t_prev, t_report = 0, 0.0, 0.0
+    datum_m = float(rig.rover.z)  # the true body height at the start: the flight map's height origin
     try:
         while not stop["flag"]:
             k += 1
@@ -224,6 +272,8 @@ def run(args: argparse.Namespace) -> int:
             now = time.monotonic() - t0
             rig.step(now, now - t_prev)
             t_prev = now
+            if team is not None:
+                team.step(now)
             if args.report_period and now - t_report >= args.report_period:
                 t_report = now
                 tr = rig.truth()
@@ -245,16 +295,38 @@ def run(args: argparse.Namespace) -> int:
                     "can_bad": rig.motors.rx_bad,
                     "mast_moves": rig.mast_ctrl.moves,
                     "camera_served": camera.served if camera else 0,
+                    **(team.truth() if team is not None else {}),
                 }
             ),
             flush=True,
         )
         if camera is not None:
             camera.close()
+        if team is not None:
+            team.close()
         port.close()
         bus.shutdown()
         if hub is not None:
             hub.close()
         if logger is not None:
             logger.stop()
+    if args.out is not None and world is not None:
+        return _report(args, world, fsw.mission.method, datum_m)
+    return 0
+
+
+def _report(args: argparse.Namespace, world: Any, method: str, datum_m: float) -> int:
+    """The real-time mission's summary.json and pictures (``hil_sim.mission.mission_report.checkpoint_report``)."""
+    from fsw.framework.storage import StorageError
+    from hil_sim.mission.mission_report import checkpoint_report
+
+    try:
+        s = checkpoint_report(args.out, Path(args.checkpoint_dir), world, scenario=args.scenario, seed=args.seed,
+                              method=method, datum_m=datum_m)
+    except (ValueError, StorageError) as exc:
+        print(f"safer-hil serve: {exc}", file=sys.stderr)
+        return 1
+    rmse = "n/a" if s["map_rmse_m"] is None else f"{1000 * s['map_rmse_m']:.1f} mm"
+    print(f"report: {args.out / 'summary.json'} ({len(s['steps'])} steps, {s['mapped_cells']} cells mapped, "
+          f"RMSE {rmse}; map.png, coverage.png)", flush=True)
     return 0

@@ -1,15 +1,16 @@
 """Rows and the markdown report of ``safer-hil experiment ground`` (issue 13, "Done when").
 
-One row per mission, from its ``summary.json`` (hil_sim/mission_run.py) and the map it wrote.
+One row per mission, from its ``summary.json`` (hil_sim/mission/mission_run.py) and the map it wrote.
 The map's error against truth is also summarised by the plane fitted to it (least squares
-over mapped cells, ``hil_sim.mission_run.error_plane``): its tilt shows how much of the error is
+over mapped cells, ``hil_sim.mission.mission_run.error_plane``): its tilt shows how much of the error is
 the map tilted by the rover's own attitude, its RMS after removing the plane what is left.
 """
 
 from __future__ import annotations
 
-import statistics
 from typing import Any
+
+import pandas as pd
 
 COLUMNS = ("scenario", "seed", "slope_deg", "edge_gap_m", "method", "moved", "odometer_m", "reachable_max", "stuck",
            "steps_used", "steps_asked", "unused_reason", "stays", "looks", "edge_violations",
@@ -75,12 +76,28 @@ def _r(v: float | None) -> float | None:
     return None if v is None else round(float(v), 2)
 
 
-def _median_worst(values: list[float], worst_high: bool = True) -> str:
-    v = [x for x in values if x is not None]
-    if not v:
+def _median_worst(values: pd.Series, worst_high: bool = True) -> str:
+    v = pd.to_numeric(values, errors="coerce").dropna()
+    if v.empty:
         return "-"
-    worst = max(v) if worst_high else min(v)
-    return f"{statistics.median(v):.2f} / {worst:.2f}"
+    worst = v.max() if worst_high else v.min()
+    return f"{v.median():.2f} / {worst:.2f}"
+
+
+def per_method(rows: list[dict[str, Any]]) -> pd.DataFrame:
+    """The summary per method: missions, moved, stuck, all steps used, unused steps explained, the
+    counts summed, and median / worst of the map figures (text)."""
+    df = pd.DataFrame(rows)
+    df["full"] = df["steps_used"] >= df["steps_asked"]
+    df["explained"] = df["full"] | df["unused_reason"].astype(bool)
+    g = df.groupby("method")
+    out = g[["moved", "stuck", "full", "explained", "edge_violations", "wheels_off_terrain",
+             "wheels_on_unknown_ground"]].sum().astype(int)
+    out.insert(0, "missions", g.size())
+    for col, worst_high in (("mapped_cells", False), ("map_rmse_cm", True), ("error_tilt_deg", True),
+                            ("rmse_detilted_cm", True), ("seam_cm", True), ("within_2sigma", False)):
+        out[col] = g[col].apply(lambda v, hi=worst_high: _median_worst(v, hi))
+    return out.sort_index()
 
 
 def report_markdown(rows: list[dict[str, Any]], failed: list[str], args: dict[str, Any]) -> str:
@@ -98,20 +115,13 @@ def report_markdown(rows: list[dict[str, Any]], failed: list[str], args: dict[st
                "terrain | wheels on unknown ground | mapped cells (median / min) | map RMSE cm | "
                "error tilt deg | RMSE detilted cm | seams cm | within 2 sigma |")
     out.append("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for m in sorted({r["method"] for r in rows}):
-        rs = [r for r in rows if r["method"] == m]
-        full = sum(r["steps_used"] >= r["steps_asked"] for r in rs)
-        explained = sum(r["steps_used"] >= r["steps_asked"] or bool(r["unused_reason"]) for r in rs)
+    for m, st in (per_method(rows).iterrows() if rows else ()):
         out.append(
-            f"| {m} | {len(rs)} | {sum(r['moved'] for r in rs)} | {sum(r['stuck'] for r in rs)} | "
-            f"{full} all, {explained - full} with a reason | {sum(r['edge_violations'] for r in rs)} | "
-            f"{sum(r['wheels_off_terrain'] for r in rs)} | {sum(r['wheels_on_unknown_ground'] for r in rs)} | "
-            f"{_median_worst([r['mapped_cells'] for r in rs], worst_high=False)} | "
-            f"{_median_worst([r['map_rmse_cm'] for r in rs])} | "
-            f"{_median_worst([r['error_tilt_deg'] for r in rs])} | "
-            f"{_median_worst([r['rmse_detilted_cm'] for r in rs])} | "
-            f"{_median_worst([r['seam_cm'] for r in rs])} | "
-            f"{_median_worst([r['within_2sigma'] for r in rs], worst_high=False)} |")
+            f"| {m} | {st['missions']} | {st['moved']} | {st['stuck']} | "
+            f"{st['full']} all, {st['explained'] - st['full']} with a reason | {st['edge_violations']} | "
+            f"{st['wheels_off_terrain']} | {st['wheels_on_unknown_ground']} | {st['mapped_cells']} | "
+            f"{st['map_rmse_cm']} | {st['error_tilt_deg']} | {st['rmse_detilted_cm']} | {st['seam_cm']} | "
+            f"{st['within_2sigma']} |")
     out.append("\n## Criteria (issue 13 item 3)\n")
     crit = [
         ("missions where the rover never moved while a reachable station existed",
@@ -149,12 +159,12 @@ def _map_criteria(rows: list[dict[str, Any]]) -> list[str]:
         rs = [r for r in gen if r["method"] == m]
         out.append(f"Method {m}, {len(rs)} missions:")
         for col, what, ok, target in MAP_CRITERIA:
-            v = [float(r[col]) for r in rs if r[col] is not None]
-            if not v:
+            v = pd.Series([r[col] for r in rs], dtype=float).dropna()
+            if v.empty:
                 out.append(f"- {what}: no value")
                 continue
-            med = statistics.median(v)
-            worst = min(v) if col == "within_2sigma" else max(v)
+            med = float(v.median())
+            worst = float(v.min() if col == "within_2sigma" else v.max())
             out.append(f"- {what}: median **{med:.3g}** (target {target}) {'met' if ok(med) else 'NOT MET'}; "
                        f"worst {worst:.3g}")
     for r in other:

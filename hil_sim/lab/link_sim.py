@@ -1,7 +1,7 @@
 """Lockstep simulation of one map transfer over the radio channel model (docs/algorithm.md §6.6).
 
 The flight link (``fsw.comm.link_sender.LinkSender`` on side ``a``, the Cliff-bot's
-``LinkReceiver`` on side ``b``) and :class:`hil_sim.radio_channel.RadioChannel` advance on
+``LinkReceiver`` on side ``b``) and :class:`hil_sim.link.radio_channel.RadioChannel` advance on
 one simulated clock that jumps from event to event (the next protocol deadline or packet
 arrival), so an hour of radio time takes well under a second and a seed fixes the run.
 Used by the link tests, ``safer-hil experiment link`` and the Cliff-bot demo. A
@@ -18,7 +18,7 @@ from fsw.comm.link import LinkConfig
 from fsw.comm.link_receiver import LinkReceiver
 from fsw.comm.link_sender import LinkSender, SenderState
 from fsw.framework.events import PendingEvent
-from hil_sim.radio_channel import DirectionStats, RadioChannel, RadioChannelConfig
+from hil_sim.link.radio_channel import DirectionStats, RadioChannel, RadioChannelConfig
 
 
 @dataclass(frozen=True)

@@ -180,7 +180,7 @@ def _row(spec: UdpRunSpec, rover: list[dict[str, Any]], cb: list[dict[str, Any]]
 def sim_ratio(spec: UdpRunSpec, link: LinkConfig, data: bytes) -> float:
     """The same impairments on the lockstep simulation (outage from the transfer's start)."""
     from hil_sim.lab.link_sim import run_transfer
-    from hil_sim.radio_channel import RadioChannelConfig
+    from hil_sim.link.radio_channel import RadioChannelConfig
 
     ch = RadioChannelConfig(rate_bps=spec.rate_bps, latency_s=spec.latency_s, loss=spec.loss,
                             reverse_loss=spec.reverse_loss, ber=spec.ber, duplicate=spec.duplicate,

@@ -43,8 +43,8 @@ class RecordedView:
 
 
 def record_mission(spec: Any) -> tuple[dict[str, Any], list[RecordedView]]:
-    """Run the mission ``spec`` (:class:`hil_sim.mission_run.RunSpec`) and record its views."""
-    from hil_sim.mission_run import run_mission
+    """Run the mission ``spec`` (:class:`hil_sim.mission.mission_run.RunSpec`) and record its views."""
+    from hil_sim.mission.mission_run import run_mission
 
     truth: dict[bytes, CameraPose] = {}
     frames: list[CameraFrame] = []
@@ -102,7 +102,7 @@ def replay(views: list[RecordedView], scenario: str, seed: int, factor: Factor,
     from fsw.settings import load_stereo_calibration
     from hil_sim.camera_model import TrueCameras
     from hil_sim.lab.terrain_eval import map_quality
-    from hil_sim.mission_run import RunSpec, mission_config
+    from hil_sim.mission.mission_run import RunSpec, mission_config
     from hil_sim.render import StereoRenderer
     from hil_sim.rig import load_hardware
     from hil_sim.world import load_scenario

@@ -8,8 +8,14 @@ team mission comes from here and only from the TRUTH:
   the true ground's layers); the bench calls it after every step;
 * :func:`fix_error`: a RECON-bot fix against the Cliff-bot's true pose (position error,
   heading error, NEES against the fix's own covariance);
-* :func:`truth_reasons`: the planner on the TRUE ground under the same tether limits (the
-  brute-force reference: each target's reason, ``""`` when reachable);
+* :func:`truth_verdict`: the brute-force reference on the TRUE ground under the same tether
+  limits: every node of the planner's lattice judged (``fsw.core.team.face_planner.node_reasons``:
+  the same verdict the flight planner gives a node), then an exhaustive shortest-path search
+  (Dijkstra over the whole usable lattice, ``scipy.sparse.csgraph``) from the Cliff-bot's start:
+  each target's reason (``""`` when reachable) and its shortest path length;
+* :func:`compare_maps`: "the map was enough": the Cliff-bot's planner on the received
+  (reduced, decoded) map and on the full-resolution map of the same mission: targets reached
+  on each, path length ratio, hazard cells of the full map the received map shows as safe;
 * :func:`unknown_cells_entered`: the distinct cells of the true path the received map did
   not know;
 * :func:`judge_team`: all of it for one mission, from a :class:`TeamOutcome` (what the driver
@@ -28,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid
-from fsw.core.team.face_planner import ClimberConfig, Ground, plan_targets
+from fsw.core.team.face_planner import USABLE, ClimberConfig, Ground, ground_layers, node_reasons, plan_targets
 from fsw.core.team.tether import TetherConfig, TetherState
 from hil_sim.world.world import World
 
@@ -64,11 +70,13 @@ def judge_pose(state: TetherState, xy: F64, truth: Ground, grid: MapGrid, tcfg: 
                ccfg: ClimberConfig) -> tuple[list[str], Cell | None]:
     """The violations at one true pose (kinds of ``hil_sim.team.cliffbot_rig.VIOLATIONS``
     except ``slack`` and ``spool``, which the bench sees before a pose exists) and the
-    hazard cell the footprint's centre is on, if any."""
+    hazard cell the footprint's centre is on, if any. ``tension``: where the plane the
+    Cliff-bot stands on is steeper than ``free_slope_deg`` (its wheels alone do not hold it),
+    a tension outside ``[T_min, T_max]``."""
     found: list[str] = []
     t1, t2 = state.statics.tensions_n
     iy, ix, inside = grid.cell_index(np.array([xy[0]]), np.array([xy[1]]))
-    steep = bool(inside[0]) and truth.slope_deg[iy[0], ix[0]] > ccfg.free_slope_deg
+    steep = state.statics.tilt_deg > ccfg.free_slope_deg  # the plane it stands on, as the planner judges
     if steep and not (tcfg.t_min_n <= min(t1, t2) and max(t1, t2) <= tcfg.t_max_n):
         found.append("tension")
     for p in state.paths:
@@ -84,14 +92,148 @@ def judge_pose(state: TetherState, xy: F64, truth: Ground, grid: MapGrid, tcfg: 
     return found, cell
 
 
-def truth_reasons(world: World, grid: MapGrid, anchors: F64, tcfg: TetherConfig,
-                  ccfg: ClimberConfig) -> tuple[str, ...]:
-    """The planner on the TRUE ground: each target's reason (``""`` when reachable)."""
+@dataclass(frozen=True)
+class TruthReach:
+    """What the truth allows: per target its reason (``""``: reachable) and shortest length."""
+
+    reasons: tuple[str, ...]
+    lengths_m: tuple[float, ...]  # 3-D length over the lattice (inf when unreachable)
+    nodes: int  # lattice nodes judged
+    usable: int  # of them usable
+
+
+_TRUTH_CACHE: dict[bytes, TruthReach] = {}  # a few seconds per scene: each scene judged once per process
+
+
+def truth_verdict(world: World, grid: MapGrid, anchors: F64, tcfg: TetherConfig,
+                  ccfg: ClimberConfig) -> TruthReach:
+    """The brute-force planner on the TRUE ground (module docstring)."""
+    import hashlib
+
     if world.team is None:
         raise ValueError("the scenario has no team (use a cliff-team scenario)")
-    z = world.ground_on_grid(grid)
-    plan = plan_targets(z, grid, anchors, world.team.cliffbot_start_xy, world.team.targets_xyz[:, :2], tcfg, ccfg)
-    return plan.reasons
+    z = np.asarray(world.ground_on_grid(grid), np.float64)
+    key = hashlib.sha256(b"".join([
+        z.tobytes(), np.asarray(anchors, float).tobytes(), np.asarray(world.team.cliffbot_start_xy, float).tobytes(),
+        np.asarray(world.team.targets_xyz, float).tobytes(), repr((grid, tcfg, ccfg)).encode()])).digest()
+    if key not in _TRUTH_CACHE:
+        if len(_TRUTH_CACHE) >= 8:
+            _TRUTH_CACHE.pop(next(iter(_TRUTH_CACHE)))
+        _TRUTH_CACHE[key] = _brute_force(world, z, grid, anchors, tcfg, ccfg)
+    return _TRUTH_CACHE[key]
+
+
+def _brute_force(world: World, z: F64, grid: MapGrid, anchors: F64, tcfg: TetherConfig,
+                 ccfg: ClimberConfig) -> TruthReach:
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    assert world.team is not None
+    rows, cols, reasons, _ = node_reasons(z, grid, anchors, tcfg, ccfg)
+    ny, nx = len(rows), len(cols)
+    usable = np.array([r == USABLE for r in reasons]).reshape(ny, nx)
+    nz = np.nan_to_num(np.asarray(z, np.float64)[np.ix_(rows, cols)])
+    px = np.broadcast_to(grid.x0 + (cols + 0.5) * grid.cell, (ny, nx))
+    py = np.broadcast_to((grid.y0 + (rows + 0.5) * grid.cell)[:, None], (ny, nx))
+    pts = np.stack([px, py, nz], axis=-1).reshape(-1, 3)
+    idx = np.arange(ny * nx).reshape(ny, nx)
+    src, dst = [], []
+    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):  # each undirected 8-neighbour pair once
+        a = idx[0:ny - dr, max(0, -dc):nx - max(0, dc)]
+        b = idx[dr:ny, max(0, dc):nx - max(0, -dc)]
+        ok = usable.ravel()[a.ravel()] & usable.ravel()[b.ravel()]
+        src.append(a.ravel()[ok])
+        dst.append(b.ravel()[ok])
+    s_, d_ = np.concatenate(src), np.concatenate(dst)
+    w = np.linalg.norm(pts[s_] - pts[d_], axis=1)
+    graph = coo_matrix((w, (s_, d_)), shape=(ny * nx, ny * nx)).tocsr()
+    stride = max(1, int(round(ccfg.node_m / grid.cell)))
+
+    def node_of(xy: F64) -> int | None:  # the planner's rounding (face_planner.plan_targets)
+        iy, ix, inside = grid.cell_index(np.array([xy[0]]), np.array([xy[1]]))
+        if not inside[0]:
+            return None
+        cy = min(ny - 1, max(0, int(round((int(iy[0]) - rows[0]) / stride))))
+        cx = min(nx - 1, max(0, int(round((int(ix[0]) - cols[0]) / stride))))
+        return cy * nx + cx
+
+    targets = np.asarray(world.team.targets_xyz[:, :2], float)
+    start = node_of(np.asarray(world.team.cliffbot_start_xy, float))
+    n_usable = int(usable.sum())
+    if start is None or reasons[start] != USABLE:
+        why = "off the map" if start is None else reasons[start]
+        return TruthReach(tuple(f"start: {why}" for _ in targets), tuple(math.inf for _ in targets),
+                          ny * nx, n_usable)
+    dist = np.asarray(dijkstra(graph, directed=False, indices=start))
+    why_not: list[str] = []
+    lengths: list[float] = []
+    for t in targets:
+        k = node_of(t)
+        if k is None or reasons[k] != USABLE:
+            why_not.append("off the map" if k is None else reasons[k])
+            lengths.append(math.inf)
+        elif not math.isfinite(float(dist[k])):
+            why_not.append("no safe path")
+            lengths.append(math.inf)
+        else:
+            why_not.append("")
+            lengths.append(float(dist[k]))
+    return TruthReach(tuple(why_not), tuple(lengths), ny * nx, n_usable)
+
+
+@dataclass(frozen=True)
+class MapComparison:
+    """Plans on the received map against plans on the full-resolution map (same start, targets)."""
+
+    reasons_full: tuple[str, ...]
+    reasons_received: tuple[str, ...]
+    lengths_full_m: tuple[float, ...]
+    lengths_received_m: tuple[float, ...]
+    hazard_cells_lost: int  # hazard on the full map, known and not a hazard on the received map
+
+    @property
+    def verdicts_differ(self) -> int:
+        return sum(1 for a, b in zip(self.reasons_full, self.reasons_received, strict=True) if bool(a) != bool(b))
+
+    @property
+    def path_ratio_max(self) -> float:
+        """The largest received/full path length over targets reachable on both (NaN: none)."""
+        r = [b / a for a, b in zip(self.lengths_full_m, self.lengths_received_m, strict=True)
+             if math.isfinite(a) and math.isfinite(b) and a > 0]
+        return max(r) if r else math.nan
+
+    def section(self) -> dict[str, Any]:
+        ratio = self.path_ratio_max
+        return {"map_targets_full": sum(1 for r in self.reasons_full if not r),
+                "map_targets_received": sum(1 for r in self.reasons_received if not r),
+                "map_verdicts_differ": self.verdicts_differ,
+                "map_path_ratio_max": round(ratio, 4) if math.isfinite(ratio) else None,
+                "map_hazard_cells_lost": self.hazard_cells_lost,
+                "map_reasons_full": list(self.reasons_full)}
+
+
+def compare_maps(full_z: NDArray[np.floating], received_z: NDArray[np.floating], grid: MapGrid, anchors: F64,
+                 start_xy: F64, targets_xy: F64, tcfg: TetherConfig, ccfg: ClimberConfig) -> MapComparison:
+    """The same planner on both maps (module docstring)."""
+    full = np.asarray(full_z, np.float64)
+    got = np.asarray(received_z, np.float64)
+    p_full = plan_targets(full, grid, anchors, start_xy, targets_xy, tcfg, ccfg)
+    p_got = plan_targets(got, grid, anchors, start_xy, targets_xy, tcfg, ccfg)
+    h_full = ground_layers(full, grid, ccfg).hazard
+    h_got = ground_layers(got, grid, ccfg).hazard
+    lost = int((h_full & ~h_got & np.isfinite(got)).sum())
+    return MapComparison(p_full.reasons, p_got.reasons, p_full.lengths_m, p_got.lengths_m, lost)
+
+
+def planning_limits(tcfg: TetherConfig, ccfg: ClimberConfig, track_margin_m: float,
+                    tension_margin_n: float) -> tuple[TetherConfig, ClimberConfig]:
+    """The limits the Cliff-bot plans with (``fsw.tasks.cliffbot_mission``): tensions kept
+    ``tension_margin_n`` inside their limits, the footprint grown by ``track_margin_m``."""
+    import dataclasses
+
+    t = dataclasses.replace(tcfg, t_min_n=tcfg.t_min_n + tension_margin_n,
+                            t_max_n=max(tcfg.t_max_n - tension_margin_n, tcfg.t_min_n + 1.0))
+    return t, dataclasses.replace(ccfg, footprint_m=ccfg.footprint_m + track_margin_m)
 
 
 def unknown_cells_entered(path: Sequence[tuple[float, float]], z: NDArray[np.floating], grid: MapGrid) -> int:
@@ -213,5 +355,7 @@ def judge_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], an
                tcfg: TetherConfig, ccfg: ClimberConfig, outcome: TeamOutcome) -> TeamVerdict:
     """One team mission judged on the truth: the brute-force reachability, the cells of the
     true path the received map did not know, and the bench's violations."""
-    return TeamVerdict(outcome, truth_reasons(world, grid, anchors, tcfg, ccfg),
-                       unknown_cells_entered(outcome.true_path, received_z, grid))
+    truth = truth_verdict(world, grid, anchors, tcfg, ccfg)
+    return TeamVerdict(outcome, truth.reasons, unknown_cells_entered(outcome.true_path, received_z, grid),
+                       {"truth_lengths_m": [round(x, 3) if math.isfinite(x) else None for x in truth.lengths_m],
+                        "truth_nodes": truth.nodes, "truth_usable_nodes": truth.usable})

@@ -1,6 +1,6 @@
 """A team mission on the lockstep bench (docs/team.md, "Running a team mission").
 
-After the RECON-bot has mapped and delivered its map (``hil_sim.mission_run``), the
+After the RECON-bot has mapped and delivered its map (``hil_sim.mission.mission_run``), the
 Cliff-bot's flight code (:class:`fsw.tasks.cliffbot_mission.CliffbotMission` with its
 devices and navigation) drives the bench's winches and wheels (:class:`hil_sim.team.cliffbot_rig.
 CliffbotRig`, CAN frames of ``config/team.dbc``) on one stepped clock, on the map it received.
@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,15 +33,17 @@ from fsw.core.team.cliffbot_nav import NavConfig
 from fsw.core.team.face_planner import ClimberConfig
 from fsw.core.team.tether import TetherConfig
 from fsw.drivers.cliffbot_devices import CliffbotDevices
-from fsw.tasks.cliffbot_mission import CliffbotMission, CliffbotMissionConfig
+from fsw.sections import CliffbotMissionConfig
+from fsw.tasks.cliffbot_mission import CliffbotMission
 from hil_sim.faults import FaultInjector, FaultSpec
-from hil_sim.radio_channel import RadioChannel
+from hil_sim.link.radio_channel import RadioChannel
 from hil_sim.team.cliffbot_rig import CliffbotRig
 from hil_sim.team.team_eval import FixError, TeamOutcome, fix_error, judge_team
 from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]
-RECON, CLIFF = "a", "b"  # the radio channel's sides, as in hil_sim.mission_run
+ToMap = Callable[[F64], F64]  # world points (N, 2) -> the received map's frame
+RECON, CLIFF = "a", "b"  # the radio channel's sides, as in hil_sim.mission.mission_run
 
 
 @dataclass
@@ -184,43 +187,49 @@ def run_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], chan
                 break
         if mission.state == "DONE":
             break
-    outcome = TeamOutcome(
-        reached=tuple(mission.reached), map_reasons=tuple(mission.reasons), true_path=tuple(rig.path),
-        violations=dict(rig.violations), hazard_cells=frozenset(rig.hazard_cells), fixes=tuple(fixer.errors),
-        fixes_used=mission.fixes_used, fixes_refused=mission.fixes_refused,
-        link_bytes_down=channel.stats(RECON).air_bytes - sent0[RECON],
-        link_bytes_up=channel.stats(CLIFF).air_bytes - sent0[CLIFF],
-        link_bad_packets=bad_packets, can_bad_frames=dev.bad_frames, final_state=mission.state,
-        safe_reason=mission.safe_reason, events=tuple(tuple(e) for e in mission.events), sim_s=now - t0)
-    section = judge_team(world, grid, received_z, rig.anchors, s.tether, s.climber, outcome).section()
-    if out is not None:
-        section["picture"] = str(draw_team(out / "team.png", world, grid, received_z, rig, mission, est_path))
+    section = team_section(world, grid, received_z, rig, mission, fixer.errors,
+                           link_bytes_down=channel.stats(RECON).air_bytes - sent0[RECON],
+                           link_bytes_up=channel.stats(CLIFF).air_bytes - sent0[CLIFF],
+                           link_bad_packets=bad_packets, can_bad_frames=dev.bad_frames, sim_s=now - t0,
+                           est_path=est_path, out=out, setup=s)
     return section
 
 
-def team_phase(out: Path | None, seed: int, world: World, grid: MapGrid, cliffbot: Any, channel: RadioChannel,
-               bench: Any, datum_m: float) -> dict[str, Any]:
-    """``{"team": section}`` for a team scenario, else ``{}``: the Cliff-bot's mission after the
-    RECON-bot's (``hil_sim.mission_run``), on the last map it received (heights back in the
-    world's datum: the flight map's origin is the RECON-bot's start height, which the team
-    shares), with fixes from the RECON-bot where it stopped."""
-    if world.team is None:
-        return {}
-    if cliffbot.maps:
-        z = np.asarray(cliffbot.maps[max(cliffbot.maps)], np.float64) + datum_m
-    else:
-        z = np.full(grid.shape, np.nan)
-    r = bench.rig.rover
-    section = run_team(world, grid, z, channel, seed, recon_xy_yaw=(r.x, r.y, r.yaw), out=out, t0=bench.clock.now())
-    section["map_received"] = bool(cliffbot.maps)
-    if section.get("picture") and out is not None:
-        section["picture"] = Path(section["picture"]).name
-    return {"team": section}
+def team_section(world: World, grid: MapGrid, received_z: NDArray[np.floating], rig: CliffbotRig,
+                 mission: CliffbotMission, fixes: Sequence[FixError], *, link_bytes_down: int, link_bytes_up: int,
+                 link_bad_packets: int, can_bad_frames: int, sim_s: float, est_path: list[tuple[float, float]],
+                 out: Path | None = None, setup: TeamSetup | None = None, to_map: ToMap | None = None,
+                 ) -> dict[str, Any]:
+    """The summary's ``team`` section of a Cliff-bot mission (sequential, or on its own executive:
+    ``hil_sim.team.team_bench``), judged on the truth by :mod:`hil_sim.team.team_eval`;
+    ``team.png`` drawn in ``out``. ``to_map``: world points (N, 2) to the received map's frame
+    (the RECON-bot's; None: the same frame); ``est_path`` is in the map's frame."""
+    s = setup or TeamSetup()
+    to_map = to_map or _same
+    outcome = TeamOutcome(
+        reached=tuple(mission.reached), map_reasons=tuple(mission.reasons),
+        true_path=tuple((float(x), float(y)) for x, y in to_map(np.asarray(rig.path, float))),
+        violations=dict(rig.violations), hazard_cells=frozenset(rig.hazard_cells), fixes=tuple(fixes),
+        fixes_used=mission.fixes_used, fixes_refused=mission.fixes_refused,
+        link_bytes_down=link_bytes_down, link_bytes_up=link_bytes_up,
+        link_bad_packets=link_bad_packets, can_bad_frames=can_bad_frames, final_state=mission.state,
+        safe_reason=mission.safe_reason, events=tuple(tuple(e) for e in mission.events), sim_s=sim_s)
+    # the truth's planner on the truth's frame; the unknown cells on the received map's (the path above)
+    section = judge_team(world, grid, received_z, rig.anchors, s.tether, s.climber, outcome).section()
+    if out is not None:
+        section["picture"] = str(draw_team(out / "team.png", world, grid, received_z, rig, mission, est_path,
+                                           to_map))
+    return section
+
+
+def _same(xy: F64) -> F64:
+    return np.asarray(xy, float).reshape(-1, 2)
 
 
 def draw_team(path: Path, world: World, grid: MapGrid, z: NDArray[np.floating], rig: CliffbotRig,
-              mission: CliffbotMission, est_path: list[tuple[float, float]]) -> Path:
-    """The face map with the anchors, tethers, jumble, targets and the Cliff-bot's path."""
+              mission: CliffbotMission, est_path: list[tuple[float, float]], to_map: ToMap = _same) -> Path:
+    """The face map with the anchors, tethers, jumble, targets and the Cliff-bot's path, in the
+    received map's frame (``to_map``: world points to it)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -233,25 +242,28 @@ def draw_team(path: Path, world: World, grid: MapGrid, z: NDArray[np.floating], 
     im = ax.imshow(np.ma.masked_invalid(np.asarray(z, float)), origin="lower", extent=ext, cmap="gray")
     fig.colorbar(im, ax=ax, shrink=0.7, label="received map height (m)")
     jx, jy, jax, jay = world.team.jumble_xy_r
+    jx, jy = (float(v) for v in to_map(np.array([jx, jy]))[0])
     ax.add_patch(Ellipse((jx, jy), 2 * jax, 2 * jay, fill=False, color="orange", lw=1.5, label="rock jumble"))
-    a = rig.anchors
+    a = to_map(rig.anchors[:, :2])
     ax.plot(a[:, 0], a[:, 1], "bs", ms=8, label="Anchorbots")
     for k, p in enumerate(rig.state.paths):
-        pts = np.vstack([a[k, :2], p.contacts[:, :2] if len(p.contacts) else np.zeros((0, 2)), rig.xy])
+        pts = to_map(np.vstack([rig.anchors[k, :2], p.contacts[:, :2] if len(p.contacts) else np.zeros((0, 2)),
+                                rig.xy]))
         ax.plot(pts[:, 0], pts[:, 1], "b-", lw=1, label="tethers (final)" if k == 0 else None)
-    tp = np.asarray(rig.path)
+    tp = to_map(np.asarray(rig.path, float))
     ax.plot(tp[:, 0], tp[:, 1], "r-", lw=1.5, label="Cliff-bot path (truth)")
     if est_path:
         ep = np.asarray(est_path)
         ax.plot(ep[:, 0], ep[:, 1], "c--", lw=0.8, label="estimate")
-    for k, t in enumerate(world.team.targets_xyz):
+    targets = to_map(world.team.targets_xyz[:, :2])
+    for k, t in enumerate(targets):
         ok = mission.reached[k] if k < len(mission.reached) else False
         ax.plot(t[0], t[1], "g*" if ok else "mx", ms=12)
         ax.annotate(f"{k + 1}" + ("" if ok else f": {mission.reasons[k] or 'not reached'}"), (t[0], t[1]),
                     color="black", fontsize=8, xytext=(4, 4), textcoords="offset points",
                     bbox={"boxstyle": "round", "fc": "white", "alpha": 0.7})
     # the team's part of the map: anchors, targets, jumble and path with a margin
-    pts = np.vstack([a[:, :2], world.team.targets_xyz[:, :2], tp, [[jx - jax, jy - jay], [jx + jax, jy + jay]]])
+    pts = np.vstack([a, targets, tp, [[jx - jax, jy - jay], [jx + jax, jy + jay]]])
     lo, hi = pts.min(axis=0) - 0.8, pts.max(axis=0) + 0.8
     ax.set_xlim(max(lo[0], ext[0]), min(hi[0], ext[1]))
     ax.set_ylim(max(lo[1], ext[2]), min(hi[1], ext[3]))

@@ -20,3 +20,16 @@ class TeamTruth:
     face_slope_deg: float
     drop_m: float
     edge_y_m: float
+
+    def focus_regions(self, weight: float = 4.0, margin_m: float = 0.6) -> tuple[tuple[float, ...], ...]:
+        """What the Cliff-bot's task needs mapped, as the RECON-bot's view planning focus
+        (``[nbv] focus_regions``, docs/algorithm.md §3.4): the plateau between the anchors and
+        the lip (the Cliff-bot's start), and the face from the lip down past the targets."""
+        ax0, ax1 = float(self.anchors_xy[:, 0].min()), float(self.anchors_xy[:, 0].max())
+        ay = float(self.anchors_xy[:, 1].max())
+        xs = np.concatenate([self.targets_xyz[:, 0], [self.cliffbot_start_xy[0]]])
+        lip = self.edge_y_m + 0.3
+        plateau = (ax0, lip, ax1, ay + 0.3, weight)
+        face = (float(xs.min()) - margin_m, float(self.targets_xyz[:, 1].min()) - margin_m,
+                float(xs.max()) + margin_m, lip, weight)
+        return (plateau, face)

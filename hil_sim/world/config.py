@@ -187,7 +187,10 @@ class TerrainConfig:
     slope_azimuth_deg: float = param(-1.0, lo=-1.0, hi=360.0, units="deg",
                                      doc="downhill direction, CCW from +x; -1: drawn")
     edge_distance_m: float = param(0.0, lo=0.0, hi=2.0, units="m",
-                                   doc="edge to the start's wheels; 0: drawn in 0.3..2")
+                                   doc="edge to the start's footprint; 0: drawn in 0.3..2")
+    edge_bearing_deg: float = param(-90.0, lo=-180.0, hi=180.0, units="deg",
+                                    doc="direction of the edge from the start, CCW from the heading "
+                                        "(-90: right, 0: ahead)")
     edge_wiggle_m: float = param(0.15, lo=0.0, hi=1.0, units="m", doc="std of the edge line")
     edge_wavelength_m: float = param(1.5, lo=0.1, hi=20.0, units="m")
     drop_m: float = param(1.0, lo=0.3, hi=5.0, units="m", doc="height of the cliff face")

@@ -29,10 +29,12 @@ violation is a wheel past the edge, not a wheel on a rock or downhill on the slo
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 
+from fsw.core.geometry import MapGridConfig
 from hil_sim.world.build import dilate, edge_curve, finish_world, textureless_mask, truth_grid
 from hil_sim.world.config import ScenarioConfig, ScenarioError, TerrainConfig
 from hil_sim.world.mars import place_viking_rocks
@@ -42,6 +44,9 @@ from hil_sim.world.world import World
 EDGE_DISTANCE_RANGE_M = (0.3, 2.0)
 SLOPE_MAX_DEG = 12.0
 FOOTPRINT_HALF_WIDTH_M = 0.36  # config/fsw.toml [rover]: track_m / 2 + the 0.12 m wheel patch / 2
+FOOTPRINT_HALF_LENGTH_M = 0.45  # config/fsw.toml [rover]: length_m / 2 (the bumper)
+MAP_START_INSET_M = 1.0  # a map grid moved with a turned edge keeps the start this far inside
+EDGE_DISTANCE_MIN_M = 0.15  # the least edge distance that may be asked for (a close edge)
 PATCH_AXES_M = (0.4, 1.2)
 
 
@@ -50,19 +55,34 @@ def build_terrain(cfg: ScenarioConfig, seed: int) -> World:
     rng = np.random.default_rng([seed, 13])
     draws = np.random.default_rng([seed, 13, 1])  # the drawn parameters: their own stream
     distance = tc.edge_distance_m or float(draws.uniform(*EDGE_DISTANCE_RANGE_M))
-    if not EDGE_DISTANCE_RANGE_M[0] <= distance <= EDGE_DISTANCE_RANGE_M[1]:
-        raise ScenarioError(f"terrain: edge_distance_m must be 0 (drawn) or in 0.3..2, got {distance}")
+    if not EDGE_DISTANCE_MIN_M <= distance <= EDGE_DISTANCE_RANGE_M[1]:
+        raise ScenarioError(
+            f"terrain: edge_distance_m must be 0 (drawn) or in {EDGE_DISTANCE_MIN_M}..2, got {distance}")
     azimuth = tc.slope_azimuth_deg if tc.slope_azimuth_deg >= 0 else float(draws.uniform(0, 360))
     slope_deg = tc.slope_deg if tc.slope_deg >= 0 else float(draws.uniform(0.0, SLOPE_MAX_DEG))
     rs, cb = cfg.rover_start, cfg.cliffbot
+    turn = math.radians(tc.edge_bearing_deg + 90.0 + rs.yaw_deg)  # see below
+    if turn:  # the Cliff-bot below the edge wherever the edge is
+        bx, by = _turned(np.array(cb.x_m), np.array(cb.y_m), rs.x_m, rs.y_m, turn)
+        cb = dataclasses.replace(cb, x_m=float(bx), y_m=float(by))
+        cfg = dataclasses.replace(cfg, cliffbot=cb, map=_turned_map(cfg, turn))
     grid = truth_grid(cfg)
     gx, gy = grid.mesh()
     curve = edge_curve(grid.xs, rng, 0.0, tc.edge_wiggle_m, tc.edge_wavelength_m)
     near = np.abs(grid.xs - rs.x_m) <= 1.0
     if not near.any():
         raise ScenarioError("terrain: the rover start is off the world")
-    y_edge = curve + (rs.y_m - FOOTPRINT_HALF_WIDTH_M - distance - float(curve[near].max()))
-    d = y_edge.astype(np.float32)[None, :] - gy  # horizontal distance past the edge (> 0: below)
+    # The edge is built in a frame turned by ``turn`` about the start (none for an edge on the
+    # right), where it runs along +u with the drop toward -v; ``reach`` is the footprint's
+    # extent toward it (its side, its bumper, a corner).
+    rel = math.radians(tc.edge_bearing_deg)
+    reach = round(FOOTPRINT_HALF_LENGTH_M * abs(math.cos(rel)) + FOOTPRINT_HALF_WIDTH_M * abs(math.sin(rel)), 6)
+    y_edge = curve + (rs.y_m - reach - distance - float(curve[near].max()))
+    if turn == 0.0:
+        d = y_edge.astype(np.float32)[None, :] - gy  # horizontal distance past the edge (> 0: below)
+    else:
+        u, v = _turned(gx, gy, rs.x_m, rs.y_m, -turn)
+        d = (np.interp(u, grid.xs, y_edge) - v).astype(np.float32)
     tan_face = math.tan(math.radians(tc.face_slope_deg))
     run = tc.drop_m / tan_face
     relief = fractal_noise(gx.shape, grid.cell_m, rng, beta=3.0,
@@ -78,6 +98,8 @@ def build_terrain(cfg: ScenarioConfig, seed: int) -> World:
         cx = float(draws.uniform(grid.xs[0] + rx, grid.xs[-1] - rx))
         cy = float(draws.uniform(grid.ys[0] + ry, min(float(y_edge.min()) - run - ry - 0.3,
                                                         grid.ys[-1] - ry)))
+        if turn:
+            cx, cy = (float(c) for c in _turned(np.array(cx), np.array(cy), rs.x_m, rs.y_m, turn))
         regions.append((cx, cy, float(rx), float(ry)))
     silt = (d > run + 0.1) & textureless_mask(grid, tuple(regions), seed)
     clear = np.hypot(gx - cb.x_m, gy - cb.y_m) < 0.6 * math.hypot(cb.length_m, cb.width_m) + 0.2
@@ -102,7 +124,30 @@ def build_terrain(cfg: ScenarioConfig, seed: int) -> World:
     ix, iy = int((rs.x_m - grid.x0) / grid.cell_m), int((rs.y_m - grid.y0) / grid.cell_m)
     ground -= ground[iy, ix]
     edge = np.column_stack([grid.xs, y_edge])[:: max(1, round(0.02 / grid.cell_m))]
+    if turn:
+        edge = np.column_stack(_turned(edge[:, 0], edge[:, 1], rs.x_m, rs.y_m, turn))
     world = finish_world(cfg, "terrain", seed, grid, ground, rng, edge_xy=edge, plateau_z=0.0,
                          rock_id=rock_id, textureless=silt, plateau=np.asarray(on_top))
     world.drawn.update(slope_deg=slope_deg, slope_azimuth_deg=azimuth, edge_distance_m=distance)
     return world
+
+
+def _turned_map(cfg: ScenarioConfig, turn: float) -> MapGridConfig:
+    """The ``[map]`` grid moved with an edge turned by ``turn`` about the start: its centre turned
+    with it, then shifted so the grid stays on the world and the start at least
+    ``MAP_START_INSET_M`` inside it (an axis-aligned grid cannot turn with a diagonal edge)."""
+    m, w, rs = cfg.map, cfg.world, cfg.rover_start
+    sx, sy = m.nx * m.cell_m, m.ny * m.cell_m
+    cx, cy = _turned(np.array(m.origin_x_m + sx / 2), np.array(m.origin_y_m + sy / 2), rs.x_m, rs.y_m, turn)
+    ox = min(max(float(cx) - sx / 2, rs.x_m + MAP_START_INSET_M - sx, w.x_min_m), rs.x_m - MAP_START_INSET_M,
+             w.x_max_m - sx)
+    oy = min(max(float(cy) - sy / 2, rs.y_m + MAP_START_INSET_M - sy, w.y_min_m), rs.y_m - MAP_START_INSET_M,
+             w.y_max_m - sy)
+    return dataclasses.replace(m, origin_x_m=round(ox, 3), origin_y_m=round(oy, 3))
+
+
+def _turned(x: np.ndarray, y: np.ndarray, x0: float, y0: float, angle: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points ``(x, y)`` turned by ``angle`` (rad, CCW) about ``(x0, y0)``."""
+    c, s = math.cos(angle), math.sin(angle)
+    dx, dy = x - x0, y - y0
+    return x0 + c * dx - s * dy, y0 + s * dx + c * dy

@@ -29,6 +29,8 @@ from hil_sim.world.cliffbot import CliffbotTruth
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
+Pose2 = tuple[float, float, float]  # (x, y, yaw): a frame's origin and heading in the world
+ORIGIN: Pose2 = (0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -114,23 +116,25 @@ class World:
                                              return_indices=True)
         return np.asarray(self.ground[idx[0], idx[1]], np.float32)
 
-    def truth_on_grid(self, grid: MapGrid) -> F64:
+    def truth_on_grid(self, grid: MapGrid, frame: Pose2 = ORIGIN) -> F64:
         """Mean truth elevation over each map cell (docs/algorithm.md §1), ``(ny, nx)``; NaN where
-        the map cell is not entirely inside the truth grid."""
-        xs, ys, s = self._subsamples(grid)
+        the map cell is not entirely inside the truth grid. ``frame``: the map frame's origin and
+        heading in the world, ``(x, y, yaw)``: the flight map's frame is the RECON-bot's odometry,
+        which starts at ``rover_start``."""
+        xs, ys, s = self._subsamples(grid, frame)
         z = self._sample(self.height, xs, ys)
         return np.asarray(z.reshape(grid.ny, s, grid.nx, s).mean(axis=(1, 3)), float)
 
-    def ground_on_grid(self, grid: MapGrid) -> F64:
+    def ground_on_grid(self, grid: MapGrid, frame: Pose2 = ORIGIN) -> F64:
         """Like :meth:`truth_on_grid`, of the terrain without the Cliff-bot (what a planner
         that knows the ground perfectly plans on)."""
-        xs, ys, s = self._subsamples(grid)
+        xs, ys, s = self._subsamples(grid, frame)
         z = self._sample(self.ground, xs, ys)
         return np.asarray(z.reshape(grid.ny, s, grid.nx, s).mean(axis=(1, 3)), float)
 
-    def textureless_on_grid(self, grid: MapGrid) -> NDArray[np.bool_]:
+    def textureless_on_grid(self, grid: MapGrid, frame: Pose2 = ORIGIN) -> NDArray[np.bool_]:
         """True for map cells mostly (> 50 %) covered by textureless surface."""
-        xs, ys, s = self._subsamples(grid)
+        xs, ys, s = self._subsamples(grid, frame)
         ix, iy, inside = self._index(xs, ys)
         t = np.zeros(xs.shape, float)
         t[inside] = self.textureless[iy[inside], ix[inside]]
@@ -159,13 +163,17 @@ class World:
              + (arr[iy + 1, ix] * (1 - fx) + arr[iy + 1, ix + 1] * fx) * fy)
         return np.where(off, np.nan, z).astype(float)
 
-    def _subsamples(self, grid: MapGrid) -> tuple[F64, F64, int]:
+    def _subsamples(self, grid: MapGrid, frame: Pose2 = ORIGIN) -> tuple[F64, F64, int]:
         s = max(1, int(np.ceil(grid.cell / self.cell_m - 1e-9)))
         sub = (np.arange(s) + 0.5) / s
         xs = grid.x0 + (np.arange(grid.nx)[:, None] + sub[None, :]).reshape(-1) * grid.cell
         ys = grid.y0 + (np.arange(grid.ny)[:, None] + sub[None, :]).reshape(-1) * grid.cell
         gx, gy = np.meshgrid(xs, ys)
-        return gx, gy, s
+        if tuple(frame) == ORIGIN:
+            return gx, gy, s
+        x0, y0, yaw = (float(v) for v in frame)
+        c, sn = math.cos(yaw), math.sin(yaw)
+        return x0 + c * gx - sn * gy, y0 + sn * gx + c * gy, s
 
 
 def readonly(*arrays: np.ndarray) -> None:

@@ -10,7 +10,7 @@ import pytest
 from fsw.framework.params import ConfigError
 from hil_sim.cli import main
 from hil_sim.lab.cycle_budget import DEFAULT_BUDGET, load_budget, verdict
-from hil_sim.mission_report import WALL_CLOCK_FIELDS, task_ms_per_frame
+from hil_sim.mission.mission_report import WALL_CLOCK_FIELDS, task_ms_per_frame
 
 
 def test_bench_cycle_help(capsys: pytest.CaptureFixture[str]) -> None:

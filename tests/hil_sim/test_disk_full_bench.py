@@ -23,9 +23,9 @@ from fsw.core.geometry import MapGrid
 from fsw.framework.storage import StorageError
 from fsw.framework.telemetry import Event, Severity
 from hil_sim import cliffbot_receiver as cr
-from hil_sim import mission_report as mr
-from hil_sim import mission_run, run_dir
 from hil_sim.cli import main
+from hil_sim.mission import mission_report as mr
+from hil_sim.mission import mission_run, run_dir
 
 FAULTS = [errno.ENOSPC, errno.EIO]
 NAMES = {errno.ENOSPC: "ENOSPC", errno.EIO: "EIO"}

@@ -10,7 +10,7 @@ from hil_helpers import bench
 
 from fsw.framework.params import ConfigError, build
 from hil_sim.faults import FaultInjector, FaultSpec
-from hil_sim.radio_channel import RadioChannel, RadioChannelConfig
+from hil_sim.link.radio_channel import RadioChannel, RadioChannelConfig
 
 
 def test_a_hung_task_is_caught_by_health_and_the_watchdog_then_recovers() -> None:

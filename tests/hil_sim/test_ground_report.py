@@ -55,3 +55,23 @@ def test_map_criteria_are_medians_over_generated_terrains_up_to_10_deg():
     md = report_markdown(rows, [], {"family": "terrain", "terrains": 4, "first_seed": 0, "methods": "5",
                                     "steps": 2, "extra": [], "jobs": 2})
     assert "median **0.25** (target <= 0.2) NOT MET" in md
+
+
+
+def test_a_lab_command_without_pandas_says_which_extra(monkeypatch, capsys):
+    """The lab's tables are the ``lab`` extra: a lab command on an install without it says so
+    in one line (exit 1), no traceback."""
+    import argparse
+    import sys
+
+    from hil_sim import cli
+
+    def lab_command(args):
+        import pandas  # noqa: F401 - what a lab report does first
+
+    parser = argparse.ArgumentParser()
+    parser.set_defaults(_run=lab_command)
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    monkeypatch.setitem(sys.modules, "pandas", None)  # as if not installed
+    assert cli.main([]) == 1
+    assert capsys.readouterr().err.splitlines() == ["safer-hil: the lab's tables need pandas: pip install -e '.[lab]'"]

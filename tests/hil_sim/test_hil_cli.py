@@ -23,6 +23,8 @@ from hil_sim.commands.serve import write_flight_config
         ["bench", "lockstep", "--seconds", "-1"],
         ["experiment", "team", "--scenes", "0"],
         ["experiment", "team", "--scenes", "1", "--scenario", "lab"],  # a scenario with no team
+        ["experiment", "sync", "--seeds", "0"],
+        ["experiment", "sync", "--cases", "outage,nope"],
     ],
 )
 def test_bad_input_exits_2(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:

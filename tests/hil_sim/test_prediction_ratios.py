@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from hil_sim.mission_report import prediction_ratios
+from hil_sim.mission.mission_report import prediction_ratios
 
 
 def _step(i: int, view: str, exp: float, got: int, view_got: int | None = None) -> dict:

@@ -13,9 +13,12 @@ import numpy as np
 import pytest
 
 from fsw.core.geometry import MapGrid
-from fsw.tasks.cliffbot_mission import CliffbotMissionConfig
+from fsw.core.team.face_planner import ClimberConfig, plan_targets
+from fsw.core.team.tether import TetherConfig, anchor_points
+from fsw.sections import CliffbotMissionConfig
 from hil_sim.faults import FaultSpec
-from hil_sim.radio_channel import RadioChannel, RadioChannelConfig
+from hil_sim.link.radio_channel import RadioChannel, RadioChannelConfig
+from hil_sim.team.team_eval import truth_verdict
 from hil_sim.team.team_run import TeamSetup, TruthFixer, run_team
 from hil_sim.world import load_scenario
 
@@ -50,10 +53,24 @@ def test_nominal_reaches_what_the_truth_allows_and_is_deterministic(scene: tuple
     # unreachable targets are reported with a reason the truth confirms
     for k, why in enumerate(a["map_reasons"]):
         assert bool(why) == bool(a["truth_reasons"][k])
-    assert a["unknown_cells_entered"] == 0
+    assert a["unknown_cells_entered"] == 0 and a["reachable_missed"] == []
+    assert a["tether_violations"] == 0 and a["hazard_cells_entered"] == 0
     assert a["fixes_used"] >= 1 and a["link_bytes_down"] > 0 and a["link_bytes_up"] > 0
     b = _run(scene)
     assert a == b  # same seed, same run (fault-free runs are short: the full mission twice)
+
+
+def test_truth_brute_force_agrees_with_the_planner_on_the_truth(scene: tuple[Any, np.ndarray]) -> None:
+    """Every lattice node judged and Dijkstra over all of them give the A* planner's verdicts
+    and shortest lengths on the same (true) ground: the planner's lazy search loses nothing."""
+    world, z = scene
+    t, c = TetherConfig(), ClimberConfig()
+    anchors = anchor_points(z, GRID, world.team.anchors_xy, t)
+    truth = truth_verdict(world, GRID, anchors, t, c)
+    plan = plan_targets(z, GRID, anchors, world.team.cliffbot_start_xy, world.team.targets_xyz[:, :2], t, c)
+    assert truth.nodes == 128 * 128 and 0 < truth.usable < truth.nodes
+    assert truth.reasons == plan.reasons and "" in truth.reasons
+    np.testing.assert_allclose(truth.lengths_m, plan.lengths_m, rtol=1e-9)
 
 
 @pytest.mark.parametrize("mode, bit", [("stall", "FaultStall"), ("slip", "FaultSlip"),
@@ -81,6 +98,25 @@ def test_lost_link_ends_in_safe(scene: tuple[Any, np.ndarray]) -> None:
     sec = _run(scene, loss=1.0)
     assert sec["final_state"] == "SAFE" and sec["safe_reason"].startswith("lost link")
     assert _events(sec, "LINK_LOST") and sec["targets_reached"] == 0 and sec["path_m"] == 0.0
+
+
+def test_lost_link_recovers_when_the_link_returns(scene: tuple[Any, np.ndarray]) -> None:
+    world, z = scene
+    setup = TeamSetup(mission=CliffbotMissionConfig(fix_timeout_s=1.5), max_s=6.0)
+    channel = RadioChannel(RadioChannelConfig(outages=((0.0, 2.0),)), seed=SEED)  # no link for the first 2 s
+    sec = run_team(world, GRID, z, channel, SEED, setup, fixer=TruthFixer(SEED), recover_after_s=1.0)
+    names = [e[1] for e in sec["events"]]
+    assert "LINK_LOST" in names and "RECOVER" in names
+    assert names.index("FIX") > names.index("RECOVER") and sec["fixes_used"] >= 1  # asked again, got it
+    assert sec["final_state"] != "SAFE" and sec["path_m"] > 0.0 and sec["tether_violations"] == 0
+
+
+def test_a_refused_fix_recovers_on_the_fix(scene: tuple[Any, np.ndarray]) -> None:
+    sec = _run(scene, fixer=TruthFixer(SEED, offset_m=(0.3, 0.0, 0.0)), recover_after_s=1.0, max_s=10.0)
+    names = [e[1] for e in sec["events"]]
+    assert "FIX_REFUSED" in names and "RECOVER" in names  # the ground took the fix as the estimate
+    assert sec["final_state"] != "SAFE" or names.count("FIX_REFUSED") > 1, sec["events"]
+    assert sec["tether_violations"] == 0 and sec["hazard_cells_entered"] == 0
 
 
 def test_a_fix_that_disagrees_is_refused(scene: tuple[Any, np.ndarray]) -> None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import pytest
 
-from hil_sim.mission_run import RunSpec, run_mission
+from hil_sim.mission.mission_run import RunSpec, run_mission
 
 pytestmark = pytest.mark.slow
 
@@ -36,6 +36,20 @@ def test_rover_off_the_edge_path_moves_at_its_first_step():
     s = run_mission(RunSpec("terrain?slope_deg=-1", "5", steps=1, seed=10, transmit=False))
     assert s["reachable_stations"][1] > 0
     assert s["odometer_m"] > 0.5, s["stays"]
+    assert s["edge_violations"] == 0 and s["wheels_off_terrain"] == 0
+    assert s["wheels_on_unknown_ground"] == 0
+    assert s["steps_unused"] == 0 and s["final_state"] == "DONE"
+
+
+def test_rover_facing_a_close_edge_backs_off_at_its_first_step():
+    """Issue 30 item 1: the edge 0.3 m ahead of the bumper (``edge_bearing_deg=0``): the rover
+    stands on the edge path facing the drop and the turn toward the path is refused, so before
+    it never left the start (nor did Method 1). Now its first step is an escape move (straight
+    back or a turn in place), safely."""
+    s = run_mission(RunSpec("terrain?edge_bearing_deg=0&edge_distance_m=0.3", "5", steps=1, seed=0,
+                            transmit=False))
+    assert s["reachable_stations"][1] > 0
+    assert s["odometer_m"] > 0.1, s["stays"]
     assert s["edge_violations"] == 0 and s["wheels_off_terrain"] == 0
     assert s["wheels_on_unknown_ground"] == 0
     assert s["steps_unused"] == 0 and s["final_state"] == "DONE"

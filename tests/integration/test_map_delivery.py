@@ -23,7 +23,7 @@ from fsw.framework.params import build
 from fsw.settings import FswConfig
 from fsw.tasks.messages import MAP_UPDATED, MapUpdate
 from hil_sim.cliffbot_receiver import Cliffbot
-from hil_sim.radio_channel import ChannelPort, RadioChannel, RadioChannelConfig
+from hil_sim.link.radio_channel import ChannelPort, RadioChannel, RadioChannelConfig
 
 
 def _map() -> np.ndarray:

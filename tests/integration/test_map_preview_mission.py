@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hil_sim.mission_run import RunSpec, run_mission
+from hil_sim.mission.mission_run import RunSpec, run_mission
 
 pytestmark = pytest.mark.timeout(900)  # one lockstep mission shared by the tests (minutes on a loaded machine)
 
@@ -136,3 +136,28 @@ def test_a_recording_from_the_tlog_alone(mission: tuple[Path, dict[str, Any]], t
     bad = tmp_path / "bad.tlog"
     bad.write_bytes(b"nothing")
     assert ground_main(["record", str(bad), "--out", str(tmp_path / "b.mcap")]) == 2
+
+
+@pytest.mark.slow
+def test_a_real_time_report_from_the_checkpoint_is_the_lockstep_one(mission: tuple[Path, dict[str, Any]],
+                                                                   tmp_path: Path) -> None:
+    """Issue 29, item 1: ``safer-hil serve --out`` writes summary.json and the pictures from the
+    flight's newest checkpoint against the truth; on a lockstep mission's checkpoints it gives the
+    lockstep report's figures. No checkpoint is one line (ValueError), not a traceback."""
+    import json
+
+    from hil_sim.mission.mission_report import checkpoint_report
+    from hil_sim.world import load_scenario
+
+    out, summary = mission
+    rt = checkpoint_report(tmp_path, out / "checkpoints", load_scenario("lab", 0), scenario="lab", seed=0,
+                           method="5", datum_m=summary["map_quality"]["datum_m"])
+    assert [s["step"] for s in rt["steps"]] == [s["step"] for s in summary["steps"]]
+    assert [s["mapped_cells"] for s in rt["steps"]] == [s["mapped_cells"] for s in summary["steps"]]
+    assert rt["mapped_cells"] == summary["mapped_cells"] and rt["final_state"] == summary["final_state"]
+    assert rt["map_rmse_m"] == pytest.approx(summary["map_rmse_m"], rel=1e-6)
+    assert json.loads((tmp_path / "summary.json").read_text())["mapped_cells"] == summary["mapped_cells"]
+    assert (tmp_path / "map.png").stat().st_size > 0 and (tmp_path / "coverage.png").stat().st_size > 0
+    with pytest.raises(ValueError, match="no readable mission checkpoint"):
+        checkpoint_report(tmp_path / "x", tmp_path / "none", load_scenario("lab", 0), scenario="lab", seed=0,
+                          method="5", datum_m=0.0)

@@ -16,7 +16,7 @@ import pytest
 from fsw.settings import DEFAULT_CONFIG
 from hil_sim.faults import FaultSpec
 from hil_sim.lab.experiments.experiment_resume import newest, resume_cmd, run_cmd
-from hil_sim.mission_run import RunSpec, run_mission
+from hil_sim.mission.mission_run import RunSpec, run_mission
 
 pytestmark = pytest.mark.req("26.2")
 STEPS = 0  # the panorama only: the shortest mission that maps and transmits

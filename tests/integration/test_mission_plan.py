@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from hil_sim.mission_run import RunSpec, mission_config
+from hil_sim.mission.mission_run import RunSpec, mission_config
 
 
 @pytest.mark.slow

@@ -18,7 +18,7 @@ import pytest
 from resume_checks import run_reference, same_maps, stop_and_resume
 
 from hil_sim.lab.experiments.experiment_resume import LAYERS, newest, resume_cmd, run_cmd
-from hil_sim.mission_run import RunSpec, run_mission
+from hil_sim.mission.mission_run import RunSpec, run_mission
 
 pytestmark = pytest.mark.req("12.1")
 SEED = 3

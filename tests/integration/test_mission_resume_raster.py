@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from resume_checks import run_reference, stop_and_resume
 
-from hil_sim.mission_run import RunSpec
+from hil_sim.mission.mission_run import RunSpec
 
 pytestmark = pytest.mark.req("12.1")
 

@@ -11,8 +11,8 @@ import pytest
 
 from fsw.settings import load_settings
 from fsw.tasks.messages import MOTION_REQUEST
-from hil_sim.mission_report import strip_wall_clock
-from hil_sim.mission_run import RunSpec, mission_config, run_mission
+from hil_sim.mission.mission_report import strip_wall_clock
+from hil_sim.mission.mission_run import RunSpec, mission_config, run_mission
 
 
 @pytest.mark.slow

@@ -9,7 +9,7 @@ from __future__ import annotations
 import pytest
 
 from hil_sim.faults import FaultSpec
-from hil_sim.mission_run import RunSpec, run_mission
+from hil_sim.mission.mission_run import RunSpec, run_mission
 
 
 def _run(duration_s: float) -> dict:

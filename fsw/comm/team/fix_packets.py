@@ -8,7 +8,8 @@ receiver tells them apart by the type nibble. A fix is small (122 bytes) and is 
 of map bytes. :func:`decode` raises :class:`~fsw.comm.link_packets.PacketError` with a
 one-line reason on anything that is not an intact fix packet.
 
-FIX_REQUEST body: ``seq`` u16, ``leg`` u16. NO_FIX body: ``seq`` u16, ``reason`` u8.
+FIX_REQUEST body: ``seq`` u16, ``leg`` u16, and the Cliff-bot's estimate ``x y`` f32 (where the
+RECON-bot aims its mast; a 4-byte body without it is still read: NaN). NO_FIX body: ``seq`` u16, ``reason`` u8.
 FIX body: ``seq`` u16 (the request answered), ``t_ms`` u32 (RECON-bot clock), position
 ``x y z`` and rotation vector ``rx ry rz`` (body to world) as f32, and the fix's 6x6
 covariance (rotation first, then position; docs/algorithm.md §5) as its 21-value upper triangle, f32.
@@ -29,6 +30,7 @@ from fsw.comm.link_packets import MAGIC, VERSION, PacketError
 F64 = NDArray[np.float64]
 FIX_REQUEST, FIX, NO_FIX = 12, 13, 14
 _REQ = struct.Struct("<HH")
+_REQ_XY = struct.Struct("<HHff")
 _NO = struct.Struct("<HB")
 NO_FIX_REASONS = ("no markers seen", "out of the mast's reach", "busy")
 _FIX = struct.Struct("<HI6f21f")
@@ -39,6 +41,8 @@ _IU = np.triu_indices(6)
 class FixRequest:
     seq: int
     leg: int
+    x: float = math.nan  # the Cliff-bot's estimate (map frame, m); NaN: not given
+    y: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -84,7 +88,9 @@ def encode(p: Fix | FixRequest | NoFix) -> bytes:
     if isinstance(p, NoFix):
         return _frame(NO_FIX, _NO.pack(p.seq & 0xFFFF, p.reason & 0xFF))
     if isinstance(p, FixRequest):
-        return _frame(FIX_REQUEST, _REQ.pack(p.seq & 0xFFFF, p.leg & 0xFFFF))
+        if not (math.isfinite(p.x) and math.isfinite(p.y)):
+            return _frame(FIX_REQUEST, _REQ.pack(p.seq & 0xFFFF, p.leg & 0xFFFF))
+        return _frame(FIX_REQUEST, _REQ_XY.pack(p.seq & 0xFFFF, p.leg & 0xFFFF, p.x, p.y))
     vals = [*np.asarray(p.position, float), *np.asarray(p.rotvec, float), *np.asarray(p.cov, float)[_IU]]
     if not all(math.isfinite(v) for v in vals):
         raise ValueError("a fix with a non-finite value is not sent")
@@ -108,6 +114,11 @@ def decode(datagram: bytes) -> Fix | FixRequest | NoFix:
     if ptype == FIX_REQUEST and len(body) == _REQ.size:
         seq, leg = _REQ.unpack(body)
         return FixRequest(seq, leg)
+    if ptype == FIX_REQUEST and len(body) == _REQ_XY.size:
+        seq, leg, x, y = _REQ_XY.unpack(body)
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise PacketError("fix request with a non-finite estimate")
+        return FixRequest(seq, leg, float(x), float(y))
     if ptype == NO_FIX and len(body) == _NO.size:
         seq, why = _NO.unpack(body)
         return NoFix(seq, why)

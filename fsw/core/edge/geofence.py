@@ -66,6 +66,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import shapely
+from numpy.typing import NDArray
 from shapely.geometry.base import BaseGeometry
 
 from fsw.core.edge.edge import EdgeModel
@@ -74,6 +75,8 @@ from fsw.core.geometry import MapGrid, RoverConfig, wrap_angle
 from fsw.core.localization.odometry import drift_sigma
 from fsw.core.motion.motion_profile import MotionConfig
 from fsw.framework.params import param
+
+F64 = NDArray[np.float64]
 
 WHEELS = ("front_left", "front_right", "rear_left", "rear_right")
 RECOVERY_TOL_M = 1e-4  # a recovering move may come this much closer than its start (sampling round-off)
@@ -159,23 +162,24 @@ class Geofence:
             self._barrier = model.barrier(self.cfg.extend_m)
             shapely.prepare(self._barrier)
 
-    def set_map(self, grid: MapGrid, n: np.ndarray) -> None:
+    def set_map(self, grid: MapGrid, n: NDArray[np.int32]) -> None:
         """The map's measurement counts: where the ground is known."""
         self.known.set_map(grid, n)
 
-    def set_drop(self, grid: MapGrid, drop: np.ndarray) -> None:
+    def set_drop(self, grid: MapGrid, drop: NDArray[np.bool_]) -> None:
         """The mapped drop cells (``fsw.core.edge.edge.EdgeCells.drop``): while no edge is fitted,
         wheels keep ``margin_m`` from them."""
-        near: np.ndarray = np.asarray(drop, dtype=np.uint8)
+        near: NDArray[np.uint8] = np.asarray(drop, dtype=np.uint8)
         r = int(math.ceil(self.cfg.margin_m / grid.cell))
         if r > 0 and near.any():
-            near = cv2.dilate(near, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+            disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+            near = np.asarray(cv2.dilate(near, disc), dtype=np.uint8)
         self.clear.set_map(grid, near == 0)
 
     def footprint(self, pose: Pose3) -> BaseGeometry:
         return rover_footprint(pose, self.rover, self.cfg.wheel_width_m)
 
-    def wheel_centres(self, poses: np.ndarray) -> np.ndarray:
+    def wheel_centres(self, poses: F64) -> F64:
         """(S, 4, 2) wheel centres for (S, 3) poses, in the order of ``WHEELS``."""
         hx, hy = self.rover.wheelbase_m / 2.0, self.rover.track_m / 2.0
         local = np.array([[hx, hy], [hx, -hy], [-hx, hy], [-hx, -hy]])
@@ -204,7 +208,7 @@ class Geofence:
             out.append(shapely.union_all(hulls))
         return out
 
-    def _drift_growth(self, poses: np.ndarray) -> np.ndarray | None:
+    def _drift_growth(self, poses: F64) -> F64 | None:
         """``drift_k`` times the position sigma grown from the first sample to each one."""
         if self._drift is None or len(poses) < 2:
             return None
@@ -273,7 +277,7 @@ class Geofence:
         return Verdict(True, f"allowed: clearance {clear:.3f} m (wheel {WHEELS[w]})",
                        clear, WHEELS[w])
 
-    def _drifted(self, swept: list[BaseGeometry], a: np.ndarray, b: np.ndarray,
+    def _drifted(self, swept: list[BaseGeometry], a: F64, b: F64,
                  known_ground: bool = True) -> list[BaseGeometry]:
         """``swept`` widened by the drift for the ground checks (itself without a drift model,
         or for a planner's station: its ground check looks at the end pose only)."""
@@ -310,7 +314,7 @@ class Geofence:
         sd = sd.reshape(centres.shape[:2])
         return bool((np.diff(sd, axis=0) >= -RECOVERY_TOL_M).all())
 
-    def unknown_points(self, a: Pose3, b: Pose3) -> np.ndarray:
+    def unknown_points(self, a: Pose3, b: Pose3) -> F64:
         """(N, 2) centres of the unknown map cells the wheels would sweep from ``a`` to ``b``."""
         pts = [self.known.unknown_points(g) for g in self.swept_wheels(a, b, drift=True)]
         return np.concatenate(pts) if pts else np.zeros((0, 2))
@@ -340,14 +344,14 @@ class Geofence:
                               "rejected: wheel {wheel} would leave the map ({n} cells off the grid)")
 
     def _samples(self, a: tuple[float, float, float], b: tuple[float, float, float]
-                 ) -> np.ndarray:
+                 ) -> F64:
         """Poses along the move as the motion task drives it (:func:`goto_legs`)."""
         legs = goto_legs(a, b)
         parts = [self._linear(p, q) for p, q in zip(legs[:-1], legs[1:], strict=True)]
         return np.concatenate([parts[0]] + [p[1:] for p in parts[1:]])
 
     def _linear(self, a: tuple[float, float, float], b: tuple[float, float, float]
-                ) -> np.ndarray:
+                ) -> F64:
         dyaw = wrap_angle(b[2] - a[2])
         dist = math.hypot(b[0] - a[0], b[1] - a[1])
         n = max(1, math.ceil(dist / self.cfg.sample_step_m),
@@ -381,7 +385,7 @@ def goto_legs(a: Pose3, b: Pose3) -> list[Pose3]:
     return [a, (a[0], a[1], h), (b[0], b[1], h), b]
 
 
-def _transform(local: np.ndarray, poses: np.ndarray) -> np.ndarray:
+def _transform(local: F64, poses: F64) -> F64:
     """Body-frame points (1, K, 2) to world for each pose (S, 3) -> (S, K, 2)."""
     c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
     x = poses[:, 0:1] + c * local[..., 0] - s * local[..., 1]

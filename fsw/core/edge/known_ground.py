@@ -46,7 +46,7 @@ class KnownGround:
         self._mapped: NDArray[np.bool_] | None = None
         self._stood: list[BaseGeometry] = []
 
-    def set_map(self, grid: MapGrid, n: NDArray[np.integer]) -> None:
+    def set_map(self, grid: MapGrid, n: NDArray[np.int32]) -> None:
         """Take the map's measured cells (``n >= 1``), grown by ``fill_m``."""
         mapped = np.asarray(n) >= 1
         r = int(round(self.fill_m / grid.cell))

@@ -148,6 +148,12 @@ class CliffbotLocalizer:
         est = min(cands, key=lambda c: c.rms_px)
         if not np.isfinite(est.rms_px) or est.rms_px > self.cfg.max_reproj_px:
             return None
+        # (J^T J)^-1 treats every corner's error as independent, so the covariance shrinks as
+        # 1/corners; the errors the corners share (the camera model, the markers' placement
+        # on the body) do not, and they dominate a fix of many corners: the covariance stops
+        # shrinking at fiducial_shared_residuals residuals (docs/team.md, "Relative localization").
+        k = max(1.0, 2.0 * est.n_points / self.cfg.fiducial_shared_residuals)
+        est = PoseEstimate(est.pose, est.cov * k, est.rms_px, est.n_points)
         return _compose(camera, est, tuple(ids))
 
     def _refine_stereo(self, est: PoseEstimate, obj_l: F64, img_l: F64, obj_r: F64,

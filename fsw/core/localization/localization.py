@@ -45,6 +45,11 @@ class LocalizationConfig:
     max_reproj_px: float = param(
         3.0, lo=0.1, hi=100.0, units="px", doc="reject a PnP solution whose RMS residual exceeds"
     )
+    fiducial_shared_residuals: int = param(
+        24, lo=2, hi=100000,
+        doc="a fiducial fix's covariance shrinks with its corners only up to this many residuals "
+            "(beyond, the errors all corners share dominate: camera model, marker placement)",
+    )
     gate_chi2: float = param(
         22.46, lo=1.0, hi=1e6, doc="chi-square gate (6 dof) of a pose update; 22.46 = 0.1 %"
     )
@@ -60,7 +65,7 @@ def skew(v: F64) -> F64:
     return out
 
 
-def so3_exp(w: NDArray[np.floating] | cv2.typing.MatLike) -> F64:
+def so3_exp(w: NDArray[np.float32] | NDArray[np.float64] | cv2.typing.MatLike) -> F64:
     R, _ = cv2.Rodrigues(np.asarray(w, dtype=np.float64).reshape(3, 1))
     return np.asarray(R, dtype=np.float64)
 

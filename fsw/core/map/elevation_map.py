@@ -134,7 +134,7 @@ class ElevationMap:
         xyz: F64,
         var_z: F64 | None = None,
         cov: F64 | None = None,
-        p_visible: NDArray[np.floating] | NDArray[np.bool_] | None = None,
+        p_visible: NDArray[np.float32] | NDArray[np.float64] | NDArray[np.bool_] | None = None,
         cov_common: F64 | None = None,
     ) -> MergeStats:
         """Fuse one view's world points (§1.1) and record its misses (§4).
@@ -152,7 +152,7 @@ class ElevationMap:
         xyz: F64,
         var_z: F64 | None = None,
         cov: F64 | None = None,
-        p_visible: NDArray[np.floating] | NDArray[np.bool_] | None = None,
+        p_visible: NDArray[np.float32] | NDArray[np.float64] | NDArray[np.bool_] | None = None,
         cov_common: F64 | None = None,
         chunk: int | None = None,
     ) -> Generator[None, None, MergeStats]:
@@ -188,7 +188,7 @@ class ElevationMap:
     def merge_parts_steps(
         self,
         parts: list[tuple[F64, F64, F64 | None]],
-        p_visible: NDArray[np.floating] | NDArray[np.bool_] | None = None,
+        p_visible: NDArray[np.float32] | NDArray[np.float64] | NDArray[np.bool_] | None = None,
         step_points: int = 50000,
     ) -> Generator[None, None, MergeStats]:
         """:meth:`merge` of one view in parts ``(xyz, cov, cov_common)`` (as a slack job propagates
@@ -215,7 +215,7 @@ class ElevationMap:
         self,
         chunks: Sequence[tuple[F64, F64, tuple[F64, ...] | None, tuple[F64, ...] | None]],
         n_in: int,
-        p_visible: NDArray[np.floating] | NDArray[np.bool_] | None,
+        p_visible: NDArray[np.float32] | NDArray[np.float64] | NDArray[np.bool_] | None,
         step_points: int | None,
     ) -> Generator[None, None, MergeStats]:
         """The merge proper over chunks ``(xyz, P_zz or var_z, cov6 or None, common6 or None)``;
@@ -355,7 +355,7 @@ class ElevationMap:
 
     def record_misses(
         self,
-        p_visible: NDArray[np.floating] | NDArray[np.bool_],
+        p_visible: NDArray[np.float32] | NDArray[np.float64] | NDArray[np.bool_],
         hit: NDArray[np.bool_],
     ) -> int:
         """Interest decay and miss count for cells expected visible that got no point (§3.4)."""

@@ -88,7 +88,7 @@ class CoarseSearch:
     n_max: int
 
 
-def prepare(terrain: Terrain, factor: int, n: NDArray[np.integer], n_max: int,
+def prepare(terrain: Terrain, factor: int, n: NDArray[np.int32], n_max: int,
             interest: F64 | None) -> CoarseSearch:
     """Coarse terrain and the worth-rating fine cells (``n < n_max``, interest > 0), once per
     search."""
@@ -152,7 +152,7 @@ class ViewRating:
 
 
 def rate_views_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws: F64,
-                     tilts: F64, n: NDArray[np.integer], n_max: int, interest: F64 | None,
+                     tilts: F64, n: NDArray[np.int32], n_max: int, interest: F64 | None,
                      camera: CameraConfig, cfg: VisibilityConfig
                      ) -> Generator[None, None, ViewRating]:
     """Exact rating (§3.1, §3.2) of the K views ``(yaws[k], tilts[k])`` from one centre: the

@@ -8,6 +8,7 @@ weighs P_V by the interest function, the oracle rates with the true terrain and 
 from __future__ import annotations
 
 from collections.abc import Generator
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,6 +24,7 @@ from fsw.core.planning.coarse_rating import (
 from fsw.core.planning.nbv import (
     MapLike,
     NbvConfig,
+    focus_weights,
     info_n_max,
     localization_sigma,
     motion_cost,
@@ -53,12 +55,19 @@ class InformationPlanner(Planner):
         self._truth_terrain: Terrain | None = None
         self.last_stations = 0  # stations rated by the last search
         self.last_centres = 0  # camera centres (stations x lifts) rated by the last search
+        self._focus: F64 | None = None  # the task's weights of the interest (cfg.focus_regions)
 
     def _terrain(self, emap: MapLike) -> Generator[None, None, tuple[Terrain, F64 | None]]:
         if self._truth_z is None:
             terrain = yield from terrain_from_map_steps(emap.z, emap.var, emap.grid,
                                                         self.cfg.visibility)
-            return terrain, (emap.interest if self.use_interest else None)
+            if not self.use_interest:
+                return terrain, None
+            if not self.cfg.focus_regions:
+                return terrain, emap.interest
+            if self._focus is None or self._focus.shape != emap.interest.shape:
+                self._focus = focus_weights(emap.grid, self.cfg.focus_regions)
+            return terrain, emap.interest * self._focus
         if self._truth_terrain is None:
             z = np.asarray(self._truth_z, dtype=np.float64)
             z = np.where(np.isfinite(z), z, np.nanmin(z) if np.isfinite(z).any() else 0.0)
@@ -87,15 +96,14 @@ class InformationPlanner(Planner):
                                        tilts, state, self))
             yield None
         factor = coarse_factor(terrain.grid.cell, cfg.coarse_cell_m)
-        best: CandidateView | None = None
+        best = _Best()
         if factor <= 1:
             for c in centres:
                 r = yield from rate_station_steps(terrain, c.cam_xyz, c.yaws, tilts, state.map.n,
                                                   n_max, interest, self.camera, cfg.visibility)
-                cand = c.best(r.info_bits.ravel(), r.expected_new_cells.ravel(), None)
-                best = cand if best is None or cand.utility > best.utility else best
+                best.offer(c, c.best(r.info_bits.ravel(), r.expected_new_cells.ravel(), None))
                 self.last_centres += 1
-            return best
+            return best.choice(stations, path)
         cs = prepare(terrain, factor, state.map.n, n_max, interest)
         vis_coarse = coarse_visibility(cfg.visibility, factor)
         yield None
@@ -107,20 +115,50 @@ class InformationPlanner(Planner):
         u_flat = np.concatenate(u_all)
         top = np.argsort(-u_flat, kind="stable")[:cfg.refine_views]
         per = pans.size * tilts.size
+        # a boxed-in rover's escape moves (view_candidates) each get their best view refined too
+        escapes = [i * per + int(np.argmax(u_all[i])) for i, c in enumerate(centres) if c.st.escape]
+        top = np.concatenate([top, np.array(escapes, dtype=top.dtype)])
         for i in sorted(set((top // per).tolist())):
             c = centres[i]
-            views = np.sort(top[top // per == i] % per)
+            views = np.unique(top[top // per == i] % per)
             r2 = yield from rate_views_steps(terrain, c.cam_xyz, c.yaws[views // tilts.size],
                                              tilts[views % tilts.size], state.map.n, n_max,
                                              interest, self.camera, cfg.visibility)
-            cand = c.best(r2.info_bits, r2.expected_new_cells, views)
-            best = cand if best is None or cand.utility > best.utility else best
+            best.offer(c, c.best(r2.info_bits, r2.expected_new_cells, views))
             self.last_centres += 1
-        return best
+        return best.choice(stations, path)
 
     def _cam(self, st: Station, lift: float, state: PlannerState) -> tuple[float, float, float]:
         cam = camera_pose_from_rover(st.rover, (0.0, 0.0, lift), self.mast, state.ground_z_m).t
         return (float(cam[0]), float(cam[1]), float(cam[2]))
+
+
+class _Best:
+    """The best candidate of a search, and the best escape move of a rover boxed in by a close edge
+    (``view_candidates``: no station along the edge path reachable). A boxed-in rover takes its
+    best escape move whatever the rating of the views from where it stands: those cannot lead on
+    along the edge, and a view from the same place again maps little (issue 30 item 1)."""
+
+    def __init__(self) -> None:
+        self.any: CandidateView | None = None
+        self.escape: CandidateView | None = None
+
+    def offer(self, c: _Centre, cand: CandidateView) -> None:
+        if self.any is None or cand.utility > self.any.utility:
+            self.any = cand
+        if c.st.escape and (self.escape is None or cand.utility > self.escape.utility):
+            self.escape = cand
+
+    def choice(self, stations: list[Station], path: F64) -> CandidateView | None:
+        if self.escape is not None:
+            return self.escape
+        if self.any is not None and len(stations) == 1 and as_polyline(path).shape[0] >= 2:
+            return replace(self.any, note=STUCK_NOTE)
+        return self.any
+
+
+STUCK_NOTE = ("no move the geofence allows: every station along the edge path, straight back or ahead, "
+              "and a turn in place to the path's heading is refused (the edge is too close)")
 
 
 class _Centre:

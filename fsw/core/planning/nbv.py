@@ -99,7 +99,31 @@ class NbvConfig:
                                  doc="coarse-to-fine search: coarse cell size (0: rate exactly)")
     refine_views: int = param(12, lo=1, hi=100000,
                               doc="coarse-to-fine search: best coarse views rated exactly")
+    focus_regions: tuple[tuple[float, ...], ...] = param(
+        (), doc="regions a task needs mapped (§3.4): (x_min, y_min, x_max, y_max, weight) rows, map frame, m; "
+                "the interest of their cells is weighted by weight >= 1")
     visibility: VisibilityConfig = field(default_factory=VisibilityConfig)
+
+    def __post_init__(self) -> None:
+        for row in self.focus_regions:
+            if len(row) != 5 or not all(math.isfinite(v) for v in row):
+                raise ValueError("each focus region needs 5 finite numbers (x_min, y_min, x_max, y_max, weight)")
+            if not (row[0] < row[2] and row[1] < row[3]) or not 1.0 <= row[4] <= 100.0:
+                raise ValueError(f"focus region {list(row)}: needs x_min < x_max, y_min < y_max, 1 <= weight <= 100")
+
+
+def focus_weights(grid: MapGrid, regions: tuple[tuple[float, ...], ...]) -> F64:
+    """The task's weight of each cell (§3.4): 1, or the largest weight of a focus region
+    holding the cell's centre."""
+    w = np.ones((grid.ny, grid.nx))
+    if not regions:
+        return w
+    xs = grid.x0 + (np.arange(grid.nx) + 0.5) * grid.cell
+    ys = grid.y0 + (np.arange(grid.ny) + 0.5) * grid.cell
+    for x0, y0, x1, y1, weight in regions:
+        inside = ((ys >= y0) & (ys <= y1))[:, None] & ((xs >= x0) & (xs <= x1))[None, :]
+        w[inside] = np.maximum(w[inside], weight)
+    return w
 
 
 def h2(p: F64) -> F64:
@@ -110,13 +134,18 @@ def h2(p: F64) -> F64:
     return np.nan_to_num(out, nan=0.0)
 
 
-def cell_values(pv: F64, n: NDArray[np.integer], n_max: int, interest: F64 | None
+def cell_values(pv: F64, n: NDArray[np.int32], n_max: int, interest: F64 | None
                 ) -> tuple[F64, F64]:
-    """Per-cell terms of H (Eq 3, bits) and of the expected new cells, given P_V (§3.2, §3.4)."""
+    """Per-cell terms of H (Eq 3, bits) and of the expected new cells, given P_V (§3.2, §3.4).
+
+    The interest multiplies P_V up to 1; an interest above 1 (a task's focus region, weighted
+    by :func:`focus_weights`) multiplies the cell's bits instead."""
     p = np.asarray(pv, dtype=np.float64)
-    if interest is not None:
-        p = p * np.clip(interest, 0.0, 1.0)
     weight = np.clip((n_max - np.asarray(n)) / float(n_max), 0.0, 1.0)
+    if interest is not None:
+        i = np.asarray(interest, dtype=np.float64)
+        p = p * np.clip(i, 0.0, 1.0)
+        weight = weight * np.maximum(i, 1.0)
     return weight * h2(p / 2.0), np.where(np.asarray(n) == 0, p, 0.0)
 
 
@@ -171,7 +200,7 @@ class StationRating:
 
 
 def rate_station(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws: F64, tilts: F64,
-                 n: NDArray[np.integer], n_max: int, interest: F64 | None, camera: CameraConfig,
+                 n: NDArray[np.int32], n_max: int, interest: F64 | None, camera: CameraConfig,
                  cfg: VisibilityConfig) -> StationRating:
     """Rate all pan/tilt views (world yaws x tilts) from one camera centre (§3.1, §3.2)."""
     return run_to_end(rate_station_steps(terrain, cam_xyz, yaws, tilts, n, n_max, interest,
@@ -179,7 +208,7 @@ def rate_station(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws: F6
 
 
 def rate_station_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws: F64,
-                       tilts: F64, n: NDArray[np.integer], n_max: int, interest: F64 | None,
+                       tilts: F64, n: NDArray[np.int32], n_max: int, interest: F64 | None,
                        camera: CameraConfig, cfg: VisibilityConfig
                        ) -> Generator[None, None, StationRating]:
     """:func:`rate_station` in bounded steps (for the executive's slack jobs)."""

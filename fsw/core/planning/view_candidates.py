@@ -17,6 +17,12 @@ at the same spacing, keeping its heading: reaching the path needs a turn in plac
 swinging corners the geofence may refuse near the edge (or over ground no look can map),
 while a straight drive sweeps only the wheels' own tracks (issue 13 item 3).
 
+A rover boxed in by a close edge (the first station along the path refused both ways: the turn
+toward the path would swing its wheels within the margin) gets the moves that free it (issue 30
+item 1): straight back or ahead keeping its heading (a drive sweeps only the wheels' tracks,
+and from a station set back from the edge the turn is allowed) and a turn in place to the path's
+heading either way, each if the geofence allows it; these stations are marked ``escape``.
+
 With no edge path (no edge mapped yet: the views from the start did not reach the drop), the
 stations are the edge search's: along eight directions around the rover, as far as the
 geofence allows (with no edge fitted, wheels keep the margin from every mapped drop cell).
@@ -38,6 +44,7 @@ from fsw.core.steps import run_to_end
 
 Pose3 = tuple[float, float, float]
 SEARCH_HEADINGS = 8  # the edge search's directions around the rover
+TURN_MIN_RAD = math.radians(10.0)  # a turn in place less than this is no move (the mission's MIN_TURN_RAD)
 MotionCheck = Callable[[Pose3, Pose3], bool]
 
 
@@ -53,6 +60,7 @@ class CandidateView:
     sigma_loc_m: float = 0.0
     utility: float = 0.0
     method: str = ""
+    note: str = ""  # why the rover stays, when it must (boxed in with no move the geofence allows)
 
     def camera_pose(self, mast: MastConfig, ground_z_m: float = 0.0) -> CameraPose:
         return camera_pose_from_rover(self.rover, self.joints, mast, ground_z_m)
@@ -68,6 +76,9 @@ class Station:
 
     rover: Pose3
     travel_m: float
+    escape: bool = False  # a move that frees a rover boxed in by a close edge (no path station reachable)
+
+
 
 
 def as_polyline(path: F64) -> F64:
@@ -121,11 +132,13 @@ def path_stations_steps(path: F64, rover_now: Pose3, motion_ok: MotionCheck, spa
     # hide the stations beyond it.
     here = np.hypot(pts[:, 0] - rover_now[0], pts[:, 1] - rover_now[1]) < spacing_m / 2.0
     out = [now]
+    blocked = 0  # directions along the path whose first station is refused
     for direction in (1.0, -1.0):
         sel = np.flatnonzero((direction * (s - s_now) > 1e-6) & ~here
                              & (np.abs(s - s_now) <= max_travel_m))
         sel = sel[np.argsort(direction * s[sel])]
         prev = now.rover
+        blocked += int(sel.size > 0)
         for i in sel:
             st = (float(pts[i, 0]), float(pts[i, 1]), _heading(float(tangent[i]), rover_now[2]))
             # The hop along the path, and the straight move the mission will command from here:
@@ -137,10 +150,20 @@ def path_stations_steps(path: F64, rover_now: Pose3, motion_ok: MotionCheck, spa
             yield None
             if not ok:
                 break
+            blocked -= int(prev == now.rover)
             out.append(Station(st, abs(float(s[i]) - s_now) + off_m))
             prev = st
-    if off_m > spacing_m / 2.0:
-        out += yield from straight_stations_steps(now.rover, motion_ok, spacing_m, max_travel_m)
+    boxed = len(out) == 1 and blocked > 0
+    if off_m > spacing_m / 2.0 or boxed:
+        out += [Station(st.rover, st.travel_m, boxed)
+                for st in (yield from straight_stations_steps(now.rover, motion_ok, spacing_m, max_travel_m))]
+    if boxed:
+        k = int(np.argmin(np.abs(s - s_now)))
+        for yaw in (float(tangent[k]), wrap_angle(float(tangent[k]) + math.pi)):
+            turned = (now.rover[0], now.rover[1], yaw)
+            if abs(wrap_angle(yaw - now.rover[2])) >= TURN_MIN_RAD and motion_ok(now.rover, turned):
+                out.append(Station(turned, 0.0, True))
+            yield None
     return out
 
 

@@ -184,7 +184,7 @@ def _surface(grid: MapGrid, z: F64, var: F64, ref: NDArray[np.bool_], x: F64, y:
     return h, gx, gy, v, ok
 
 
-def reference_cells(z: F64, var: F64, n: NDArray[np.integer], cfg: RegistrationConfig) -> NDArray[np.bool_]:
+def reference_cells(z: F64, var: F64, n: NDArray[np.int32], cfg: RegistrationConfig) -> NDArray[np.bool_]:
     """Map cells good enough to register against: mapped, finite, and sigma below
     ``ref_max_sigma_m`` or in the better-measured half of the map (choice: a map whose every
     cell carries a large common pose error, e.g. begun while the attitude was unknown, is

@@ -13,7 +13,8 @@ brute-force check of what is reachable at all).
      ``max_slope_deg`` (a wall); hazards are grown by the footprint radius. Ledges and the
      lip are not hazards: the tethers carry the Cliff-bot over them;
    - *tethers*: both taut paths (:mod:`fsw.core.team.tether`) within the spool, over known
-     ground, with no contact on a rock; on ground steeper than ``free_slope_deg`` the
+     ground, with no contact on a rock; where the plane the Cliff-bot stands on (the statics'
+     normal, :func:`fsw.core.team.tether.surface_normal`) is steeper than ``free_slope_deg`` the
      equilibrium must hold with both tensions in ``[T_min, T_max]`` and the wheels on the
      face (below it, the wheels hold the Cliff-bot and the winches only keep the tethers
      taut).
@@ -142,7 +143,7 @@ def _verdict(z: ZMap, grid: MapGrid, anchors: F64, tcfg: TetherConfig, ccfg: Cli
             cy, cx, inside = grid.cell_index(p.contacts[:, 0], p.contacts[:, 1])
             if (inside & g.rock[np.clip(cy, 0, grid.ny - 1), np.clip(cx, 0, grid.nx - 1)]).any():
                 return "tether over a rock"
-    if g.slope_deg[iy, ix] > ccfg.free_slope_deg and not st.statics.ok:
+    if st.statics.tilt_deg > ccfg.free_slope_deg and not st.statics.ok:
         return st.statics.reason
     return USABLE
 

@@ -72,6 +72,7 @@ class Statics:
     normal_n: float
     ok: bool
     reason: str  # "" when ok; else "slack", "over-tension", "off the face", "degenerate"
+    tilt_deg: float = math.nan  # of the plane the Cliff-bot stands on (its normal's angle from vertical)
 
 
 def ground_profile(z: ZMap, grid: MapGrid, a_xy: F64, b_xy: F64, step_m: float
@@ -159,9 +160,10 @@ def surface_normal(z: ZMap, grid: MapGrid, xy: F64, radius_m: float) -> F64 | No
 def statics(pull1: F64, pull2: F64, normal: F64, cfg: TetherConfig) -> Statics:
     """Solve ``T1 u1 + T2 u2 + N n = m g e_z`` and judge it against the tension limits."""
     a = np.column_stack([pull1, pull2, normal])
+    tilt = math.degrees(math.acos(max(-1.0, min(1.0, float(normal[2]) / float(np.linalg.norm(normal))))))
     weight = np.array([0.0, 0.0, cfg.mass_kg * cfg.gravity_mps2])
     if abs(np.linalg.det(a)) < 1e-9:
-        return Statics((math.nan, math.nan), math.nan, False, "degenerate")
+        return Statics((math.nan, math.nan), math.nan, False, "degenerate", tilt)
     t1, t2, n = np.linalg.solve(a, weight)
     reason = ""
     if min(t1, t2) < cfg.t_min_n:
@@ -170,7 +172,7 @@ def statics(pull1: F64, pull2: F64, normal: F64, cfg: TetherConfig) -> Statics:
         reason = "over-tension"
     elif n < 0.0:
         reason = "off the face"
-    return Statics((float(t1), float(t2)), float(n), reason == "", reason)
+    return Statics((float(t1), float(t2)), float(n), reason == "", reason, tilt)
 
 
 @dataclass(frozen=True)

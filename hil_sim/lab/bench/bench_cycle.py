@@ -204,7 +204,7 @@ def run(args: argparse.Namespace) -> int:
           f"(cpu_factor); budget: {args.budget or DEFAULT_BUDGET}. Caveat: on a shared, loaded "
           "machine CPU times inflate too; compare runs made back to back.")
     if args.mission_steps:
-        from hil_sim.mission_run import RunSpec, run_mission
+        from hil_sim.mission.mission_run import RunSpec, run_mission
 
         s = run_mission(RunSpec(scenario=args.scenario, method="5", steps=args.mission_steps,
                                 seed=args.seed, config=str(args.config or DEFAULT_CONFIG),

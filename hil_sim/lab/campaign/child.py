@@ -33,7 +33,7 @@ def run_row(m: dict[str, Any]) -> dict[str, Any]:
     try:
         from fsw.framework.params import build
         from hil_sim.faults import FaultSpec
-        from hil_sim.mission_run import RunSpec, run_mission
+        from hil_sim.mission.mission_run import RunSpec, run_mission
 
         faults = tuple(build(FaultSpec, f, source=m["id"]) for f in m["faults"])
         spec = RunSpec(

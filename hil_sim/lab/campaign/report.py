@@ -20,49 +20,80 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from hil_sim.lab.campaign.table import OUTCOMES
 
 FAILED = ("error", "killed")
 
 
+def table(rows: list[dict[str, Any]]) -> pd.DataFrame:
+    """The rows as a DataFrame, with every column the report reads (absent: null)."""
+    df = pd.DataFrame(rows)
+    for col in _OPTIONAL:
+        if col not in df:
+            df[col] = None
+    return df
+
+
+_OPTIONAL = ("safe_recoveries_resumed", "safe_final", "map_transfer", "odometer_m", "fault_in_mission",
+             "tasks_hung", "watchdog_expired_frames")
+
+
+def _ran(df: pd.DataFrame) -> pd.DataFrame:
+    return df[~df["outcome"].isin(FAILED)]
+
+
+def _total(col: pd.Series) -> int:
+    return int(pd.to_numeric(col, errors="coerce").fillna(0).sum())
+
+
+def _count(mask: pd.Series) -> int:
+    return int(mask.fillna(False).astype(bool).sum())
+
+
+def _undelivered(df: pd.DataFrame) -> pd.Series:
+    """A map transfer that ended otherwise than delivered (none tried: not counted)."""
+    t = df["map_transfer"]
+    return t.notna() & ~t.isin(["", "none", "delivered"])
+
+
 def headline(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """The campaign's figures (also written as ``report.json``)."""
-    ran = [r for r in rows if r["outcome"] not in FAILED]
-    rmse = np.array([r["map_rmse_m"] for r in ran if r["map_rmse_m"] is not None], float)
-    calib = np.array([r["calib_2sigma"] for r in ran if r["calib_2sigma"] is not None], float)
+    df = table(rows)
+    ran = _ran(df)
+    rmse = ran["map_rmse_m"].dropna().astype(float)
+    calib = ran["calib_2sigma"].dropna().astype(float)
     ratios = m5_oracle_ratios(rows)
-    faulted = [r for r in ran if r["fault_set"] != "none"]
     return {
-        "missions": len(rows),
-        "outcomes": {k: sum(r["outcome"] == k for r in rows) for k in OUTCOMES},
+        "missions": len(df),
+        "outcomes": {k: int((df["outcome"] == k).sum()) for k in OUTCOMES},
         "crashed_lost": 0,
-        "edge_violations": int(sum(r["edge_violations"] for r in ran)),
-        "off_map_events": int(sum(r["off_map"] for r in ran)),
-        "geofence_refusals": int(sum(r["geofence_refusals"] for r in ran)),
+        "edge_violations": _total(ran["edge_violations"]),
+        "off_map_events": _total(ran["off_map"]),
+        "geofence_refusals": _total(ran["geofence_refusals"]),
         "map_rmse_median_m": _q(rmse, 50),
-        "map_rmse_worst_m": float(rmse.max()) if rmse.size else None,
+        "map_rmse_worst_m": float(rmse.max()) if len(rmse) else None,
         "calib_2sigma_median": _q(calib, 50),
         "m5_oracle_pairs": len(ratios),
         "m5_oracle_median": _q(ratios, 50),
         "m5_oracle_p10": _q(ratios, 10),
-        "faulted_missions": len(faulted),
-        "safe_entries": int(sum(r["safe_entries"] for r in ran)),
-        "safe_recoveries": int(sum(r["safe_recoveries"] for r in ran)),
-        "safe_recoveries_resumed": int(sum(r.get("safe_recoveries_resumed") or 0 for r in ran)),
-        "missions_with_safe": sum(r["safe_entries"] > 0 for r in ran),
-        "missions_safe_final": sum(bool(r.get("safe_final")) for r in ran),
-        "missions_never_moved": sum(_never_moved(r) for r in ran),
-        "maps_not_delivered": sum(r.get("map_transfer") not in (None, "", "none", "delivered") for r in ran),
+        "faulted_missions": int((ran["fault_set"] != "none").sum()),
+        "safe_entries": _total(ran["safe_entries"]),
+        "safe_recoveries": _total(ran["safe_recoveries"]),
+        "safe_recoveries_resumed": _total(ran["safe_recoveries_resumed"]),
+        "missions_with_safe": _count(ran["safe_entries"] > 0),
+        "missions_safe_final": _count(ran["safe_final"]),
+        "missions_never_moved": _count(_never_moved(ran)),
+        "maps_not_delivered": _count(_undelivered(ran)),
     }
 
 
 NEVER_MOVED_M = 0.05  # odometer below this: the rover never left its start
 
 
-def _never_moved(r: dict[str, Any]) -> bool:
-    odo = r.get("odometer_m")
-    return odo is not None and odo < NEVER_MOVED_M
+def _never_moved(df: pd.DataFrame) -> pd.Series:
+    return pd.to_numeric(df["odometer_m"], errors="coerce") < NEVER_MOVED_M
 
 
 def classes(r: dict[str, Any]) -> list[str]:
@@ -75,25 +106,36 @@ def classes(r: dict[str, Any]) -> list[str]:
         out.append("safe_final")
     if r["off_map"]:
         out.append("off_map")
-    if _never_moved(r):
+    odo = r.get("odometer_m")
+    if odo is not None and odo < NEVER_MOVED_M:
         out.append("never_moved")
     if r.get("map_transfer") not in (None, "", "none", "delivered"):
         out.append(f"map_{r['map_transfer']}")
     return out
 
 
-def _q(a: Any, pct: float) -> float | None:
-    a = np.asarray(a, float)
-    return float(np.percentile(a, pct)) if a.size else None
+def _q(a: pd.Series, pct: float) -> float | None:
+    """The ``pct``-th percentile (linear between order statistics, as ``numpy.percentile``)."""
+    return float(a.quantile(pct / 100.0)) if len(a) else None
 
 
-def m5_oracle_ratios(rows: list[dict[str, Any]]) -> Any:
+def _pairs(rows: list[dict[str, Any]]) -> pd.DataFrame:
+    """Method 5's and the oracle's mapped cells side by side, a row per paired
+    (family, params, seed, fault set); the last row wins where a pair repeats."""
+    df = _ran(table(rows))
+    df = df[df["method"].isin(["5", "oracle"])].assign(seed=lambda d: d["seed"].astype(str))
+    if df.empty:
+        return pd.DataFrame(columns=["5", "oracle"], dtype=float)
+    wide = df.pivot_table(index=["family", "params", "seed", "fault_set"], columns="method",
+                          values="mapped_cells", aggfunc="last", sort=False)
+    return wide.reindex(columns=["5", "oracle"]).dropna().astype(float)
+
+
+def m5_oracle_ratios(rows: list[dict[str, Any]]) -> pd.Series:
     """Method 5 mapped cells / oracle mapped cells, per paired (family, params, seed, faults)."""
-    pairs: dict[tuple[str, ...], dict[str, int]] = defaultdict(dict)
-    for r in rows:
-        if r["outcome"] not in FAILED and r["method"] in ("5", "oracle"):
-            pairs[(r["family"], r["params"], str(r["seed"]), r["fault_set"])][r["method"]] = r["mapped_cells"]
-    return np.array([p["5"] / p["oracle"] for p in pairs.values() if len(p) == 2 and p["oracle"] > 0], float)
+    p = _pairs(rows)
+    p = p[p["oracle"] > 0]
+    return (p["5"] / p["oracle"]).reset_index(drop=True)
 
 
 def write_report(out: Path, rows: list[dict[str, Any]], name: str, extra: str = "") -> dict[str, Any]:
@@ -135,11 +177,9 @@ def write_report(out: Path, rows: list[dict[str, Any]], name: str, extra: str = 
         "| method | missions | mapped cells median | min | max | map RMSE median (cm) |",
         "|---|---|---|---|---|---|",
     ]
-    for m, rs in sorted(_by(rows, "method").items()):
-        cells = np.array([r["mapped_cells"] for r in rs if r["outcome"] not in FAILED], float)
-        err = np.array([r["map_rmse_m"] for r in rs if r["map_rmse_m"] is not None], float)
-        lines.append(f"| {m} | {len(rs)} | {f(_q(cells, 50), 1, '', 0)} | {f(_q(cells, 0), 1, '', 0)} | "
-                     f"{f(_q(cells, 100), 1, '', 0)} | {f(_q(err, 50), 100)} |")
+    for m, st in per_method(rows).iterrows():
+        lines.append(f"| {m} | {st['missions']} | {f(st['cells_median'], 1, '', 0)} | {f(st['cells_min'], 1, '', 0)} | "
+                     f"{f(st['cells_max'], 1, '', 0)} | {f(st['rmse_median'], 100)} |")
     lines += ["", "## Failure classes and the parameters that produce them", "",
               "![failures](failures.png) ![failure parameters](failure_params.png)", "",
               "| class | missions | methods | fault sets |", "|---|---|---|---|"]
@@ -162,8 +202,7 @@ def write_report(out: Path, rows: list[dict[str, Any]], name: str, extra: str = 
               "| recoveries that resumed the mission | final SAFE | DONE | map delivered | hung-task reports "
               "| watchdog-expired frames |",
               "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for fs, rs in sorted(_by(rows, "fault_set").items()):
-        st = _recovery(rs)
+    for fs, st in recovery(rows).iterrows():
         hit = "" if fs == "none" else st["hit"]
         lines.append(f"| {fs} | {st['n']} | {hit} | {st['safe']} | {st['entries']} | {st['recovered']} | "
                      f"{st['resumed']} | {st['final']} | {st['done']} | {st['delivered']} | {st['hung']} | "
@@ -185,24 +224,41 @@ def _by(rows: list[dict[str, Any]], key: str) -> dict[str, list[dict[str, Any]]]
 
 
 def _counts(rs: list[dict[str, Any]], key: str) -> str:
-    return ", ".join(f"{k} {n}" for k, n in sorted(Counter(str(r[key]) for r in rs).items()))
+    counts = pd.Series([str(r[key]) for r in rs]).value_counts().sort_index()
+    return ", ".join(f"{k} {n}" for k, n in counts.items())
 
 
-def _recovery(rs: list[dict[str, Any]]) -> dict[str, Any]:
-    """Per fault set: missions, missions with SAFE, SAFE entries, recoveries (left SAFE),
-    recoveries that resumed the mission, final SAFEs, DONE, maps delivered, hung-task reports,
-    watchdog-expired frames (sums over the missions that ran)."""
-    ran = [r for r in rs if r["outcome"] not in FAILED]
+def per_method(rows: list[dict[str, Any]]) -> pd.DataFrame:
+    """Per method (by name): missions, mapped cells of those that ran (median, min, max) and the
+    median map RMS error (m); None where there is no value."""
+    df = table(rows).assign(method=lambda d: d["method"].astype(str),
+                            mapped_cells=lambda d: pd.to_numeric(d["mapped_cells"], errors="coerce"),
+                            map_rmse_m=lambda d: pd.to_numeric(d["map_rmse_m"], errors="coerce"))
+    cells = _ran(df).groupby("method")["mapped_cells"]
+    out = pd.DataFrame({"missions": df.groupby("method").size(), "cells_median": cells.quantile(0.5),
+                        "cells_min": cells.min(), "cells_max": cells.max(),
+                        "rmse_median": df.groupby("method")["map_rmse_m"].median()})
+    return out.astype(object).where(out.notna(), None).sort_index()
 
-    def total(key: str) -> int:
-        return int(sum(r.get(key) or 0 for r in ran))
 
-    return {"n": len(rs), "hit": sum(r.get("fault_in_mission") is True for r in ran),
-            "safe": sum(r["safe_entries"] > 0 for r in ran), "entries": total("safe_entries"),
-            "recovered": total("safe_recoveries"), "resumed": total("safe_recoveries_resumed"),
-            "final": sum(bool(r.get("safe_final")) for r in ran), "done": sum(r["outcome"] == "done" for r in ran),
-            "delivered": sum(r.get("map_transfer") == "delivered" for r in ran),
-            "hung": total("tasks_hung"), "watchdog": total("watchdog_expired_frames")}
+def recovery(rows: list[dict[str, Any]]) -> pd.DataFrame:
+    """Per fault set (by name): missions, faults that began before the end, missions with SAFE,
+    SAFE entries, recoveries (left SAFE), recoveries that resumed the mission, final SAFEs, DONE,
+    maps delivered, hung-task reports, watchdog-expired frames (sums over the missions that ran)."""
+    df = table(rows).assign(fault_set=lambda d: d["fault_set"].astype(str))
+    ran = _ran(df)
+
+    def num(col: str) -> pd.Series:
+        return pd.to_numeric(ran[col], errors="coerce").fillna(0)
+
+    per_mission = pd.DataFrame({
+        "fault_set": ran["fault_set"], "hit": ran["fault_in_mission"].eq(True), "safe": num("safe_entries") > 0,
+        "entries": num("safe_entries"), "recovered": num("safe_recoveries"), "resumed": num("safe_recoveries_resumed"),
+        "final": ran["safe_final"].fillna(False).astype(bool), "done": ran["outcome"] == "done",
+        "delivered": ran["map_transfer"] == "delivered", "hung": num("tasks_hung"),
+        "watchdog": num("watchdog_expired_frames")})
+    out = pd.DataFrame({"n": df.groupby("fault_set").size()}).join(per_mission.groupby("fault_set").sum())
+    return out.fillna(0).astype(int).sort_index()
 
 
 def _plots(out: Path, rows: list[dict[str, Any]]) -> None:
@@ -221,11 +277,8 @@ def _plots(out: Path, rows: list[dict[str, Any]]) -> None:
     plt.close(fig)
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.2), constrained_layout=True)
-    pairs: dict[tuple[str, ...], dict[str, int]] = defaultdict(dict)
-    for r in rows:
-        if r["outcome"] not in FAILED and r["method"] in ("5", "oracle"):
-            pairs[(r["family"], r["params"], str(r["seed"]), r["fault_set"])][r["method"]] = r["mapped_cells"]
-    xy = np.array([(p["oracle"], p["5"]) for p in pairs.values() if len(p) == 2], float).reshape(-1, 2)
+    p = _pairs(rows)
+    xy = p[["oracle", "5"]].to_numpy(float).reshape(-1, 2)
     axes[0].scatter(xy[:, 0], xy[:, 1], s=14)
     if xy.size:
         lim = float(xy.max()) * 1.05
@@ -256,13 +309,13 @@ def _plots(out: Path, rows: list[dict[str, Any]]) -> None:
     fig.savefig(out / "failures.png", dpi=90)
     plt.close(fig)
 
-    sets = sorted(_by(rows, "fault_set").items())
+    sets = recovery(rows)
     fig, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
     k = np.arange(len(sets))
     for i, (label, key) in enumerate((("SAFE entries", "entries"), ("recoveries (left SAFE)", "recovered"),
                                       ("recoveries that resumed the mission", "resumed"), ("final SAFE", "final"))):
-        ax.bar(k + (i - 1.5) * 0.2, [_recovery(rs)[key] / max(1, len(rs)) for _, rs in sets], 0.2, label=label)
-    ax.set_xticks(k, [s for s, _ in sets], rotation=20)
+        ax.bar(k + (i - 1.5) * 0.2, sets[key] / sets["n"].clip(lower=1), 0.2, label=label)
+    ax.set_xticks(k, list(sets.index), rotation=20)
     ax.set_ylabel("per mission of the fault set")
     ax.set_title("SAFE and its recovery per fault set")
     ax.legend()

@@ -2,7 +2,7 @@
 
 A row holds the mission's inputs (family, scenario parameters as ``p.<key>`` columns, scenario
 string, seed, method, steps, fault set) and its results from the mission summary
-(``hil_sim.mission_run``): mapped cells per imaging step, map RMS error against the truth,
+(``hil_sim.mission.mission_run``): mapped cells per imaging step, map RMS error against the truth,
 variance calibration (fraction of mapped cells within 2 sigma of the truth, docs/algorithm.md §4),
 edge violations, geofence refusals, off-map events, slips, overruns, SAFE entries,
 recoveries (left SAFE) and recoveries that resumed the mission (a step completed or the mission

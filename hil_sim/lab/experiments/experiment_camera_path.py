@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from fsw.settings import load_settings
     from hil_sim.camera_model import TrueCameras
     from hil_sim.lab.view_replay import Factor, record_mission, replay
-    from hil_sim.mission_run import RunSpec
+    from hil_sim.mission.mission_run import RunSpec
     from hil_sim.rig import load_hardware
 
     if args.steps < 1:

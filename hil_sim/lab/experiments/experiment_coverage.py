@@ -1,7 +1,7 @@
 """``safer-hil experiment coverage``: the paper's Figures 7 and 8 (docs/algorithm.md §7).
 
 Runs the five mapping methods and the oracle over several seeds as full lockstep missions
-(``hil_sim.mission_run``), then writes ``coverage.csv`` (one row per run and step),
+(``hil_sim.mission.mission_run``), then writes ``coverage.csv`` (one row per run and step),
 ``coverage.md`` (mapped cells at the last step per method: mean, spread, ratio to Method 1
 and to the oracle), ``fig7_coverage.png`` (mapped cells against imaging steps, mean and
 min-max band over seeds) and ``fig8_expected_vs_obtained.png`` (expected against obtained
@@ -40,7 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _one(scenario: str, method: str, steps: int, seed: int, out: str) -> dict[str, Any]:
-    from hil_sim.mission_run import RunSpec, run_mission
+    from hil_sim.mission.mission_run import RunSpec, run_mission
 
     return run_mission(RunSpec(scenario, method, steps, seed, transmit=False, out=Path(out)), mode="fresh")
 

@@ -3,7 +3,7 @@
 
 Runs ``--terrains`` seeded members of a generated scenario family (default ``terrain``,
 hil_sim/world/terrain.py) and any ``--extra`` scenarios (e.g. a real DEM through ``file:``)
-for each method, as full lockstep missions (``hil_sim.mission_run``), ``--jobs`` at a time in
+for each method, as full lockstep missions (``hil_sim.mission.mission_run``), ``--jobs`` at a time in
 a process pool, and writes ``ground.csv`` / ``ground.json`` (one row per mission) and
 ``ground.md``: the table per mission (moved?, reachable stations, steps used, why steps went
 unused, edge violations, wheels off the world, wheels on unknown ground, mapped cells, map RMS
@@ -52,7 +52,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _one(scenario: str, method: str, steps: int, seed: int, out: str, camera: str) -> dict[str, Any]:
-    from hil_sim.mission_run import RunSpec, run_mission
+    from hil_sim.mission.mission_run import RunSpec, run_mission
     from hil_sim.world import load_scenario
 
     s = run_mission(RunSpec(scenario, method, steps, seed, transmit=False, out=Path(out), camera=camera))

@@ -1,7 +1,7 @@
 """``safer-hil experiment link``: map-link goodput against loss and bit error rate (docs/algorithm.md §6.6).
 
 Runs the flight link (``fsw.comm.link_sender`` / ``link_receiver``) over the seeded channel
-model (``hil_sim.radio_channel``) on a simulated clock, ``--seeds`` runs per point, sending
+model (``hil_sim.link.radio_channel``) on a simulated clock, ``--seeds`` runs per point, sending
 ``--bytes`` of map data at ``--rate-bps``. Goodput = map bytes x 8 / time until the
 Cliff-bot accepted the verified map. Capacity lines: ``rate x (1 - loss)`` for packet loss,
 ``rate x (1 - PER)`` for bit errors, with ``PER = 1 - (1 - BER) ** (8 x packet bytes)``.
@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     from fsw.framework.params import ConfigError, build, load_toml
     from fsw.settings import DEFAULT_CONFIG
     from hil_sim.lab.link_sim import run_transfer
-    from hil_sim.radio_channel import RadioChannelConfig
+    from hil_sim.link.radio_channel import RadioChannelConfig
 
     path = args.config or str(DEFAULT_CONFIG)
     try:

@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     from fsw.framework.params import ConfigError
     from fsw.settings import DEFAULT_CONFIG, load_settings
     from hil_sim.lab.view_replay import record_mission, registration_errors
-    from hil_sim.mission_run import RunSpec
+    from hil_sim.mission.mission_run import RunSpec
     from hil_sim.world import load_scenario
 
     configs = args.config or [str(DEFAULT_CONFIG)]

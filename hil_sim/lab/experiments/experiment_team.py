@@ -1,32 +1,39 @@
-"""``safer-hil experiment team``: is the received map enough for the Cliff-bot's task?
+"""``safer-hil experiment team``: the team's done-when figures over seeded ``cliff-team`` scenes.
 
-For each seeded ``cliff-team`` scene (``--scenes``, from ``--seed``): the targets are
-planned from the Cliff-bot's start by the same planner (``fsw.core.team.face_planner``) on
+Each scene (``--scenes`` seeds from ``--seed``, ``--jobs`` processes, seeded: the same
+command gives the same table) is judged by :mod:`hil_sim.team.team_eval`:
 
-* the TRUE ground on the flight map grid (the brute-force reference: what is reachable at all),
-* the full-resolution map (the truth on the grid; the RECON-bot's perfect map), and
-* that map after the link's quadtree reduction (``fsw.core.codec.mapcodec``: encoded at the
-  flight configuration's error bound and decoded, as the Cliff-bot receives it),
+* **the truth's verdict**: the brute-force planner on the TRUE ground (every lattice node
+  judged, Dijkstra over all of them) says which targets are reachable under the tether limits;
+* **the map was enough**: the Cliff-bot's planner on the full-resolution map (the truth on
+  the flight map grid: a perfect RECON-bot map) and on that map after the link's reduction
+  (``fsw.core.codec.mapcodec`` at the flight configuration, its critical length the
+  receiver's wheel, ``--wheel``, default the Cliff-bot's ``ClimberConfig.wheel_d_m``): targets
+  reached on each, path length ratio, full-map hazard cells the reduced map shows as safe;
+* **the mission**: the Cliff-bot's mission on the bench on the reduced map
+  (:func:`hil_sim.team.team_run.run_team`) with fixes from the RECON-bot standing at the
+  scenario's start (rendered stereo pair, flight ``CliffbotLocalizer``; ``--fixer truth``: the
+  true pose plus noise, no rendering): targets reached against the truth's, tether
+  violations, hazard and unknown cells entered, fix errors against range with their NEES;
+* **the link**: map bytes, fix bytes down and up, and their seconds on the 9600 bit/s radio.
 
-and compared: targets reachable on each, targets whose verdict differs between the full and
-the reduced map, path length ratio reduced/full, hazard cells of the full map lost by the
-reduction, and the container's bytes and its time on the 9600 bit/s link. With
-``--missions K`` the first K scenes also run the Cliff-bot's mission on the bench on the
-reduced map (``hil_sim.team.team_run``, fixes from ``TruthFixer``): targets reached, tether
-violations, hazard and unknown cells entered; the first one's picture is OUT/team.png.
-Writes OUT/team.csv, the result file ``docs/results/team.md`` (``hil_sim.lab.results``: date,
-commit, command, table, the picture) and prints the table.
+Writes OUT/team.csv, OUT/team.png (the first scene's mission), the result file
+``docs/results/team.md`` (``hil_sim.lab.results``) and prints the table.
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import json
 import math
 import sys
 from pathlib import Path
+from typing import Any
 
-HELP = "the Cliff-bot's task on the received (reduced) map vs the full map and the truth"
+HELP = "the team's done-when figures: truth's verdict, map enough, mission, fixes, link bytes"
+LINK_BPS = 9600.0
+RANGE_BINS = ((0.0, 3.0), (3.0, 4.0), (4.0, 5.0), (5.0, 7.0), (7.0, 10.0))
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -35,114 +42,240 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default="cliff-team", help="scenario spec (seeded per scene)")
     p.add_argument("--scenes", type=int, default=30, help="number of seeded scenes")
     p.add_argument("--seed", type=int, default=0, help="first seed")
-    p.add_argument("--missions", type=int, default=0, help="run the bench mission on the first K scenes")
+    p.add_argument("--jobs", type=int, default=1, help="scenes run in this many processes")
+    p.add_argument("--missions", type=int, default=-1, help="run the bench mission on the first K scenes (-1: all)")
+    p.add_argument("--fixer", choices=("recon", "truth"), default="recon",
+                   help="fixes: the RECON-bot's rendered fiducials (recon) or the truth plus noise (truth)")
+    p.add_argument("--wheel", type=float, default=-1.0,
+                   help="the reduction's critical length (m); -1: the Cliff-bot's wheel diameter")
+    p.add_argument("--max-s", type=float, default=900.0, help="a mission's simulated time limit (s)")
     p.add_argument("--config", default=str(DEFAULT_CONFIG), help="flight configuration (TOML)")
     p.add_argument("--out", type=Path, default=Path("out/team"), help="output directory")
+    p.add_argument("--rows", type=Path, default=None,
+                   help="report the scenes a run already finished (its OUT/team_rows.jsonl) instead of running")
+
+
+def scene(scenario: str, seed: int, config: str, wheel_m: float, mission: bool, fixer: str, max_s: float,
+          picture: Path | None) -> dict[str, Any]:
+    """One scene's row (and its fixes as ``_fixes``: range, cm, deg, NEES)."""
+    import numpy as np
+
+    from fsw.core.codec.mapcodec import decode_map, encode_map
+    from fsw.core.geometry import MapGrid
+    from fsw.core.team.tether import anchor_points
+    from fsw.settings import load_settings
+    from hil_sim.link.radio_channel import RadioChannel
+    from hil_sim.team.team_eval import compare_maps, planning_limits, truth_verdict
+    from hil_sim.team.team_run import ReconFixer, TeamSetup, TruthFixer, run_team
+    from hil_sim.world import load_scenario
+
+    cfg = load_settings(config)
+    world = load_scenario(scenario, seed)
+    if world.team is None:
+        raise ValueError(f"scenario {scenario!r} has no team")
+    setup = TeamSetup(max_s=max_s)
+    wheel = wheel_m if wheel_m > 0 else setup.climber.wheel_d_m
+    grid = MapGrid.from_config(world.map_grid)
+    full = world.ground_on_grid(grid)
+    enc = encode_map(full, cell_m=grid.cell, wheel_diameter_m=wheel, cfg=cfg.codec)
+    reduced = np.asarray(decode_map(enc.data).z, np.float64)
+    anchors = anchor_points(full, grid, world.team.anchors_xy, setup.tether)
+    start, targets = world.team.cliffbot_start_xy, world.team.targets_xyz[:, :2]
+    truth = truth_verdict(world, grid, anchors, setup.tether, setup.climber)
+    m = setup.mission
+    truth_m = truth_verdict(world, grid, anchors,
+                            *planning_limits(setup.tether, setup.climber, m.track_margin_m, m.tension_margin_n))
+    cmp = compare_maps(full, reduced, grid, anchors, start, targets, setup.tether, setup.climber)
+    ratio = cmp.path_ratio_max
+    row: dict[str, Any] = {
+        "seed": seed, "slope_deg": round(world.team.face_slope_deg, 1), "drop_m": round(world.team.drop_m, 2),
+        "targets": len(targets), "reachable_truth": sum(1 for r in truth.reasons if not r),
+        "reachable_truth_margins": sum(1 for r in truth_m.reasons if not r),
+        "reachable_full": sum(1 for r in cmp.reasons_full if not r),
+        "reachable_reduced": sum(1 for r in cmp.reasons_received if not r),
+        "verdicts_differ": cmp.verdicts_differ,
+        "path_ratio_max": round(ratio, 4) if math.isfinite(ratio) else "",
+        "hazard_cells_lost": cmp.hazard_cells_lost, "map_bytes": len(enc.data),
+        "truth_reasons": "; ".join(r or "-" for r in truth.reasons)}
+    fixes: list[tuple[float, float, float, float]] = []
+    if mission:
+        fx: ReconFixer | TruthFixer = (ReconFixer(world, world.rover_start, seed) if fixer == "recon"
+                                       else TruthFixer(seed))
+        sec = run_team(world, grid, reduced, RadioChannel(seed=seed), seed, setup, fixer=fx, out=picture)
+        row.update({"reached": sec["targets_reached"], "missed": len(sec["reachable_missed"]),
+                    "missed_margins": sum(1 for k, r in enumerate(truth_m.reasons) if not r and not sec["reached"][k]),
+                    "unconfirmed": sum(1 for a, b in zip(sec["map_reasons"], sec["truth_reasons"], strict=True)
+                                       if a and not b),
+                    "state": sec["final_state"], "tether_violations": sec["tether_violations"],
+                    "hazard_cells_entered": sec["hazard_cells_entered"],
+                    "unknown_cells_entered": sec["unknown_cells_entered"],
+                    "fixes": len(fx.errors), "fix_bytes_down": sec["link_bytes_down"],
+                    "fix_bytes_up": sec["link_bytes_up"], "path_m": sec["path_m"], "sim_s": sec["sim_s"],
+                    "safe_reason": sec["safe_reason"]})
+        fixes = [(f.range_m, f.err_cm, f.err_deg, f.nees) for f in fx.errors]
+    row["_fixes"] = fixes
+    return row
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
+    from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    from fsw.core.codec.mapcodec import MapCodecError, decode_map, encode_map
-    from fsw.core.geometry import MapGrid
-    from fsw.core.team.face_planner import ClimberConfig, ground_layers, plan_targets
-    from fsw.core.team.tether import TetherConfig, anchor_points
+    from tqdm import tqdm
+
     from fsw.framework.params import ConfigError
     from fsw.settings import load_settings
-    from hil_sim.lab.results import command_line, markdown_table, write_results
-    from hil_sim.radio_channel import RadioChannel
-    from hil_sim.team.team_run import TruthFixer, run_team
     from hil_sim.world import ScenarioError, load_scenario
 
     me = "safer-hil experiment team"
-    if args.scenes < 1 or args.missions < 0:
-        print(f"{me}: --scenes must be >= 1 and --missions >= 0", file=sys.stderr)
+    if args.rows is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        return _report_rows(args)
+    if args.scenes < 1 or args.jobs < 1 or not (args.max_s > 0):
+        print(f"{me}: --scenes and --jobs must be >= 1, --max-s > 0", file=sys.stderr)
         return 2
     try:
-        cfg = load_settings(args.config)
-    except (ConfigError, ValueError) as exc:
+        load_settings(args.config)
+        world = load_scenario(args.scenario, args.seed)
+    except (ConfigError, ScenarioError, ValueError) as exc:
         print(f"{me}: {exc}", file=sys.stderr)
         return 2
-    tcfg, ccfg = TetherConfig(), ClimberConfig()
-    rows = []
-    for k in range(args.scenes):
-        seed = args.seed + k
-        try:
-            world = load_scenario(args.scenario, seed)
-        except (ScenarioError, ValueError) as exc:
-            print(f"{me}: {exc}", file=sys.stderr)
-            return 2
-        if world.team is None:
-            print(f"{me}: scenario {args.scenario!r} has no team", file=sys.stderr)
-            return 2
-        grid = MapGrid.from_config(world.map_grid)
-        full = world.ground_on_grid(grid)
-        try:
-            enc = encode_map(full, cell_m=grid.cell, wheel_diameter_m=cfg.codec.wheel_m(cfg.rover.wheel_diameter_m),
-                             cfg=cfg.codec)
-            reduced = np.asarray(decode_map(enc.data).z, np.float64)
-        except (MapCodecError, ValueError) as exc:
-            print(f"{me}: seed {seed}: {exc}", file=sys.stderr)
-            return 1
-        anchors = anchor_points(full, grid, world.team.anchors_xy, tcfg)
-        start, targets = world.team.cliffbot_start_xy, world.team.targets_xyz[:, :2]
-        p_full = plan_targets(full, grid, anchors, start, targets, tcfg, ccfg)
-        p_red = plan_targets(reduced, grid, anchors, start, targets, tcfg, ccfg)
-        h_full = ground_layers(full, grid, ccfg).hazard
-        h_red = ground_layers(reduced, grid, ccfg).hazard
-        both = [i for i in range(len(targets)) if not p_full.reasons[i] and not p_red.reasons[i]]
-        ratio = max((p_red.lengths_m[i] / p_full.lengths_m[i] for i in both), default=math.nan)
-        row = {"seed": seed, "slope_deg": round(world.team.face_slope_deg, 1), "drop_m": round(world.team.drop_m, 2),
-               "targets": len(targets),
-               "reachable_truth_full": sum(1 for r in p_full.reasons if not r),
-               "reachable_reduced": sum(1 for r in p_red.reasons if not r),
-               "verdicts_differ": sum(1 for a, b in zip(p_full.reasons, p_red.reasons, strict=True)
-                                      if bool(a) != bool(b)),
-               "path_ratio_max": round(ratio, 4) if math.isfinite(ratio) else "",
-               "hazard_cells_lost": int((h_full & ~h_red).sum()),
-               "map_bytes": len(enc.data), "link_s_9600": round(8 * len(enc.data) / 9600.0, 1)}
-        if k < args.missions:
-            args.out.mkdir(parents=True, exist_ok=True)
-            sec = run_team(world, grid, reduced, RadioChannel(seed=seed), seed, fixer=TruthFixer(seed),
-                           out=args.out if k == 0 else None)  # the first mission's picture: team.png
-            row.update({"mission_reached": sec["targets_reached"], "mission_state": sec["final_state"],
-                        "tether_violations": sec["tether_violations"],
-                        "hazard_cells_entered": sec["hazard_cells_entered"],
-                        "unknown_cells_entered": sec["unknown_cells_entered"],
-                        "fix_bytes_down": sec["link_bytes_down"], "fix_bytes_up": sec["link_bytes_up"]})
-        rows.append(row)
-        print(row, file=sys.stderr)
+    if world.team is None:
+        print(f"{me}: scenario {args.scenario!r} has no team (use cliff-team)", file=sys.stderr)
+        return 2
     args.out.mkdir(parents=True, exist_ok=True)
-    keys = sorted({key for r in rows for key in r}, key=lambda x: list(rows[-1]).index(x) if x in rows[-1] else 99)
+    (args.out / "team_rows.jsonl").unlink(missing_ok=True)
+    missions = args.scenes if args.missions < 0 else args.missions
+    rows: dict[int, dict[str, Any]] = {}
+    failed: list[str] = []
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool, \
+            tqdm(total=args.scenes, desc="team scenes", unit="scene") as bar:
+        futs = {pool.submit(scene, args.scenario, args.seed + k, args.config, args.wheel, k < missions,
+                            args.fixer, args.max_s, args.out if k == 0 else None): args.seed + k
+                for k in range(args.scenes)}
+        for fut in as_completed(futs):
+            seed = futs[fut]
+            try:
+                rows[seed] = fut.result()
+            except Exception as exc:  # noqa: BLE001 - one failed scene is reported, the rest go on
+                failed.append(f"seed {seed}: {type(exc).__name__}: {exc}")
+                bar.set_postfix_str(f"seed {seed}: FAILED")
+            else:
+                r = rows[seed]
+                with open(args.out / "team_rows.jsonl", "a") as fh:  # each scene as it ends
+                    fh.write(json.dumps(r) + "\n")
+                bar.set_postfix_str(f"seed {seed}: {r.get('reached', '-')}/{r['reachable_truth']} reached")
+            bar.update()
+    if failed:
+        print(f"{me}: scenes failed, no report written:\n  " + "\n  ".join(failed), file=sys.stderr)
+        return 1
+    return _write([rows[s] for s in sorted(rows)], args)
+
+
+def _report_rows(args: argparse.Namespace) -> int:
+    """The report of the rows a run wrote as its scenes ended (an interrupted run's subset)."""
+    try:
+        rows = [json.loads(line) for line in args.rows.read_text().splitlines() if line.strip()]
+    except (OSError, ValueError) as exc:
+        print(f"safer-hil experiment team: --rows {args.rows}: {exc}", file=sys.stderr)
+        return 2
+    if not rows or not all(isinstance(r, dict) and "seed" in r for r in rows):
+        print(f"safer-hil experiment team: --rows {args.rows}: no scene rows", file=sys.stderr)
+        return 2
+    return _write(sorted(rows, key=lambda r: r["seed"]), args)
+
+
+def _write(ordered: list[dict[str, Any]], args: argparse.Namespace) -> int:
+    from hil_sim.lab.results import command_line, write_results
+
+    table = report(ordered, args)
     with open(args.out / "team.csv", "w", newline="") as fh:
-        wr = csv.DictWriter(fh, fieldnames=keys)
+        keys = [k for k in ordered[-1] if k != "_fixes"]
+        wr = csv.DictWriter(fh, fieldnames=keys, extrasaction="ignore")
         wr.writeheader()
-        wr.writerows(rows)
-    n_t = sum(r["targets"] for r in rows)
-    ratios = [r["path_ratio_max"] for r in rows if r["path_ratio_max"] != ""]
-    lines = ["| measure | value |", "|---|---|",
-             f"| scenes | {len(rows)} |", f"| targets | {n_t} |",
-             f"| reachable on the truth / full map | {sum(r['reachable_truth_full'] for r in rows)} |",
-             f"| reachable on the reduced map | {sum(r['reachable_reduced'] for r in rows)} |",
-             f"| targets whose verdict differs (full vs reduced) | {sum(r['verdicts_differ'] for r in rows)} |",
-             "| path length reduced / full, median / worst | "
-             + (f"{np.median(ratios):.3f} / {max(ratios):.3f} |" if ratios else "- |"),
-             f"| full-map hazard cells lost by the reduction, median / worst | "
-             f"{np.median([r['hazard_cells_lost'] for r in rows]):.0f} / {max(r['hazard_cells_lost'] for r in rows)} |",
-             f"| map bytes, median / worst (s at 9600 bit/s) | {np.median([r['map_bytes'] for r in rows]):.0f} / "
-             f"{max(r['map_bytes'] for r in rows)} ({max(r['link_s_9600'] for r in rows)} s) |"]
-    ms = [r for r in rows if "mission_reached" in r]
-    if ms:
-        lines += [f"| bench missions | {len(ms)} |",
-                  f"| targets reached / reachable on the truth | {sum(r['mission_reached'] for r in ms)} / "
-                  f"{sum(r['reachable_truth_full'] for r in ms)} |",
-                  f"| tether violations (steps), total / worst | {sum(r['tether_violations'] for r in ms)} / "
-                  f"{max(r['tether_violations'] for r in ms)} |",
-                  f"| hazard cells entered, total | {sum(r['hazard_cells_entered'] for r in ms)} |",
-                  f"| unknown cells entered, total | {sum(r['unknown_cells_entered'] for r in ms)} |",
-                  f"| fix bytes down / up, worst | {max(r['fix_bytes_down'] for r in ms)} / "
-                  f"{max(r['fix_bytes_up'] for r in ms)} |"]
-    table = "\n".join(lines) + "\n\nPer scene:\n\n" + markdown_table(rows)
-    write_results("team", command_line("team"), table, [args.out / "team.png"])
+        wr.writerows(ordered)
+    pics = [args.out / "team.png"] if (args.out / "team.png").exists() else []
+    write_results("team", command_line("team"), table, pics)
     print(table)
     return 0
+
+
+def _seeds(seeds: list[int]) -> str:
+    """``0-9, 12`` for a sorted list of seeds."""
+    out: list[str] = []
+    for s in sorted(seeds):
+        if out and s == int(out[-1].split("-")[-1]) + 1:
+            out[-1] = f"{out[-1].split('-')[0]}-{s}"
+        else:
+            out.append(str(s))
+    return ", ".join(out)
+
+
+def _mw(values: list[float], worst: str = "max", fmt: str = "{:.3g}") -> str:
+    """``median / worst`` of a list ("-" when empty)."""
+    import numpy as np
+
+    v = [x for x in values if isinstance(x, (int, float)) and math.isfinite(x)]
+    if not v:
+        return "-"
+    w = max(v) if worst == "max" else min(v)
+    return f"{fmt.format(float(np.median(v)))} / {fmt.format(w)}"
+
+
+def report(rows: list[dict[str, Any]], args: argparse.Namespace) -> str:
+    """The done-when table, the fixes against range and the per-scene table."""
+    import numpy as np
+
+    from hil_sim.lab.results import markdown_table
+    from hil_sim.team.team_eval import CHI2_95_6DOF
+
+    ms = [r for r in rows if "reached" in r]
+    n_t = sum(r["targets"] for r in rows)
+    ratios = [r["path_ratio_max"] for r in rows if r["path_ratio_max"] != ""]
+    lines = ["| done-when figure | value (median / worst per scene, or total) |", "|---|---|",
+             f"| scenes (seeds) / targets | {len(rows)} ({_seeds([r['seed'] for r in rows])}) / {n_t} |",
+             f"| targets reachable on the truth (brute force) | {sum(r['reachable_truth'] for r in rows)} |",
+             f"| reachable on the full map / on the reduced map | {sum(r['reachable_full'] for r in rows)} / "
+             f"{sum(r['reachable_reduced'] for r in rows)} |",
+             f"| targets whose verdict differs, full vs reduced (total; scenes with any) | "
+             f"{sum(r['verdicts_differ'] for r in rows)}; {sum(1 for r in rows if r['verdicts_differ'])} |",
+             f"| path length reduced / full | {_mw(ratios, fmt='{:.3f}')} |",
+             f"| scenes with a path over 10 % longer on the reduced map | {sum(1 for x in ratios if x > 1.1)} |",
+             f"| full-map hazard cells the reduced map shows as safe | "
+             f"{_mw([r['hazard_cells_lost'] for r in rows], fmt='{:.0f}')} |",
+             f"| map bytes (s at 9600 bit/s, worst) | {_mw([r['map_bytes'] for r in rows], fmt='{:.0f}')} "
+             f"({max(r['map_bytes'] for r in rows) * 8 / LINK_BPS:.1f} s) |"]
+    if ms:
+        lines += [
+            f"| bench missions (fixes: {args.fixer}) | {len(ms)} |",
+            f"| targets reached / reachable on the truth (total) | {sum(r['reached'] for r in ms)} / "
+            f"{sum(r['reachable_truth'] for r in ms)} |",
+            f"| truth-reachable targets not reached (total; scenes) | {sum(r['missed'] for r in ms)}; "
+            f"{sum(1 for r in ms if r['missed'])} |",
+            f"| reachable on the truth within the Cliff-bot's planning margins / of them not reached | "
+            f"{sum(r['reachable_truth_margins'] for r in ms)} / {sum(r['missed_margins'] for r in ms)} |",
+            f"| targets the mission called unreachable that the truth reaches | {sum(r['unconfirmed'] for r in ms)} |",
+            f"| tether violations (steps) | {_mw([r['tether_violations'] for r in ms], fmt='{:.0f}')} |",
+            f"| hazard cells entered | {_mw([r['hazard_cells_entered'] for r in ms], fmt='{:.0f}')} |",
+            f"| unknown cells entered | {_mw([r['unknown_cells_entered'] for r in ms], fmt='{:.0f}')} |",
+            f"| missions ending DONE | {sum(1 for r in ms if r['state'] == 'DONE')} |",
+            f"| fix bytes down / up | {_mw([r['fix_bytes_down'] for r in ms], fmt='{:.0f}')} / "
+            f"{_mw([r['fix_bytes_up'] for r in ms], fmt='{:.0f}')} |",
+            f"| bytes down per mission, map + fixes (s at 9600 bit/s, worst) | "
+            f"{_mw([r['map_bytes'] + r['fix_bytes_down'] for r in ms], fmt='{:.0f}')} "
+            f"({max(r['map_bytes'] + r['fix_bytes_down'] for r in ms) * 8 / LINK_BPS:.1f} s) |"]
+    fixes = [f for r in rows for f in r["_fixes"]]
+    out = "\n".join(lines)
+    if fixes:
+        fl = ["| range (m) | fixes | position error cm, median / worst | heading error deg, median / worst | "
+              "NEES within chi2 95 % (6 dof) |", "|---|---|---|---|---|"]
+        for lo, hi in RANGE_BINS:
+            sel = [f for f in fixes if lo <= f[0] < hi] if args.fixer == "recon" else (fixes if lo == 0.0 else [])
+            if not sel:
+                continue
+            within = np.mean([f[3] <= CHI2_95_6DOF for f in sel])
+            label = f"{lo:g}-{hi:g}" if args.fixer == "recon" else "(truth plus noise)"
+            fl.append(f"| {label} | {len(sel)} | {_mw([f[1] for f in sel], fmt='{:.2f}')} | "
+                      f"{_mw([f[2] for f in sel], fmt='{:.2f}')} | {100 * within:.0f} % |")
+        out += "\n\nFixes against range (all missions):\n\n" + "\n".join(fl)
+    per = [{k: v for k, v in r.items() if k != "_fixes"} for r in rows]
+    return out + "\n\nPer scene:\n\n" + markdown_table(per)

@@ -1,7 +1,7 @@
 """``safer-hil experiment terrain``: map quality on tilted ground (issue 13: attitude and
 registration, docs/algorithm.md §5.1).
 
-For every scenario, seed and slope it runs one full lockstep mission (``hil_sim.mission_run``)
+For every scenario, seed and slope it runs one full lockstep mission (``hil_sim.mission.mission_run``)
 and prints, per mission and as medians and worst cases: the true start attitude, the map's
 RMS error against truth over mapped cells, the tilt of the plane fitted to map minus truth,
 the station seams (mean height difference between overlapping cells mapped from different
@@ -85,7 +85,7 @@ def baseline_config(out: Path) -> str:
 
 
 def _one(spec: str, method: str, steps: int, seed: int, config: str, out: str) -> dict[str, Any]:
-    from hil_sim.mission_run import RunSpec, run_mission
+    from hil_sim.mission.mission_run import RunSpec, run_mission
 
     s = run_mission(RunSpec(spec, method, steps, seed, config=config, transmit=False, out=Path(out)))
     s["_dir"] = out

@@ -18,7 +18,7 @@ from fsw.comm.link import LinkConfig
 from fsw.comm.link_receiver import LinkReceiver, ReceiverState
 from fsw.comm.link_sender import LinkSender, SenderState
 from hil_sim.lab.link_sim import run_transfer
-from hil_sim.radio_channel import RadioChannelConfig
+from hil_sim.link.radio_channel import RadioChannelConfig
 
 LINK = LinkConfig()
 HARSH = RadioChannelConfig(loss=0.3, ber=1e-5, duplicate=0.1, reorder=0.1, reorder_delay_s=1.0)

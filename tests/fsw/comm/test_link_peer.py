@@ -8,7 +8,7 @@ import pytest
 from fsw.comm.link import LinkConfig
 from fsw.comm.link_peer import LinkPeer
 from fsw.comm.link_sender import SenderState
-from hil_sim.radio_channel import RadioChannel, RadioChannelConfig
+from hil_sim.link.radio_channel import RadioChannel, RadioChannelConfig
 
 LINK = LinkConfig()
 LOSSY = RadioChannelConfig(loss=0.2, ber=1e-5, duplicate=0.05, reorder=0.05)

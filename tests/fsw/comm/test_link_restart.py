@@ -14,7 +14,7 @@ from fsw.comm.link import LinkConfig
 from fsw.comm.link_receiver import LinkReceiver
 from fsw.comm.link_sender import LinkSender, SenderState
 from hil_sim.lab.link_sim import Restart, run_transfer
-from hil_sim.radio_channel import RadioChannelConfig
+from hil_sim.link.radio_channel import RadioChannelConfig
 
 LINK = LinkConfig()
 CLEAN = RadioChannelConfig()

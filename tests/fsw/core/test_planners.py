@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -278,10 +279,13 @@ def test_rover_off_the_path_also_gets_straight_stations() -> None:
     path = np.array([[-3.0, -0.5], [3.0, -0.5]])
     rover = (0.0, 0.0, 0.0)
     st = path_stations(path, rover, lambda a, b: b[0] <= 0.6 and b[1] > -0.1, 0.25, 1.0)
-    straight = [s for s in st[1:] if s.rover[1] == pytest.approx(0.0)]
+    straight = [s for s in st[1:] if s.rover[1] == pytest.approx(0.0) and s.rover[0] != 0.0]
     assert sorted(round(s.rover[0], 2) for s in straight) == [-1.0, -0.75, -0.5, -0.25, 0.25, 0.5]
     assert all(s.rover[2] == 0.0 and s.travel_m == pytest.approx(abs(s.rover[0])) for s in straight)
-    assert len(st) == 1 + len(straight)  # the path's stations were refused (the lambda)
+    # the path's stations were refused (the lambda): boxed in, so the straight moves are escapes,
+    # and so is the turn in place to the path's other heading (its own heading is the path's)
+    assert [s.rover for s in st[1:] if s not in straight] == [(0.0, 0.0, math.pi)]
+    assert all(s.escape for s in st[1:])
     on_path = path_stations(path, (0.0, -0.45, 0.0), _ok, 0.25, 1.0)
     assert all(s.rover[1] == pytest.approx(-0.5) for s in on_path[1:])
 
@@ -313,3 +317,40 @@ def test_with_no_edge_path_the_stations_are_the_edge_search_around_the_rover() -
     assert len(behind) == 4 and all(abs(abs(s.rover[2]) - math.pi) < 1e-9 for s in behind)
     assert all(math.isclose(s.travel_m, math.hypot(*s.rover[:2])) for s in st[1:])
     assert len({round(math.atan2(s.rover[1], s.rover[0]), 6) for s in st[1:]}) == 8
+
+
+def _back_only(a: tuple, b: tuple) -> bool:
+    """A stand-in geofence for a rover facing a close edge: no turn, no move toward the edge;
+    only straight back (its heading kept)."""
+    back = (b[0] - a[0]) * math.cos(a[2]) + (b[1] - a[1]) * math.sin(a[2])
+    side = -(b[0] - a[0]) * math.sin(a[2]) + (b[1] - a[1]) * math.cos(a[2])
+    return abs(math.remainder(b[2] - a[2], math.tau)) < 1e-9 and back < -0.05 and abs(side) < 1e-9
+
+
+@pytest.mark.parametrize("method", ["3", "5"])
+def test_a_rover_boxed_in_by_a_close_edge_backs_off(method: str) -> None:
+    """Issue 30 item 1: the rover stands on the edge path facing the edge; the turn toward the
+    path is refused, so no path station is reachable. The information planners take an escape
+    move (here: straight back) instead of a view from where they stand; with no move allowed at
+    all they stay and say why."""
+    base = _synthetic_state(_back_only)
+    state = dataclasses.replace(base, rover=(0.0, 0.0, -math.pi / 2))
+    st = path_stations(state.path, state.rover, _back_only, 0.25, 1.0)
+    assert len(st) > 1 and all(s.escape for s in st[1:])  # only escape moves: back
+    planner = make_planner(method, 6, FAST, CAM, MAST)
+    view = planner.next_view(state)
+    assert view is not None and view.rover[1] > 0.2 and view.rover[2] == -math.pi / 2 and not view.note
+    stuck = planner.next_view(dataclasses.replace(state, motion_ok=lambda a, b: False))
+    assert stuck is not None and stuck.rover == state.rover and "no move the geofence allows" in stuck.note
+
+
+def test_a_boxed_rover_may_turn_in_place_to_the_path() -> None:
+    """A turn in place to the path's heading is an escape move when the geofence allows it (the
+    drive along the path refused), either way along the path."""
+    path = np.array([[-3.0, 0.0], [3.0, 0.0]])
+    turns_only = lambda a, b: math.hypot(b[0] - a[0], b[1] - a[1]) < 1e-9  # noqa: E731
+    st = path_stations(path, (0.0, 0.0, -math.pi / 2), turns_only, 0.25, 1.0)
+    assert sorted(round(s.rover[2], 6) for s in st[1:]) == [0.0, round(math.pi, 6)]
+    assert all(s.escape and s.rover[:2] == (0.0, 0.0) for s in st[1:])
+    assert len(path_stations(path, (0.0, 0.0, 0.0), _ok, 0.25, 1.0)) > 1 and not any(
+        s.escape for s in path_stations(path, (0.0, 0.0, 0.0), _ok, 0.25, 1.0))

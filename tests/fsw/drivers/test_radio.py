@@ -12,7 +12,7 @@ from fsw.comm.link_receiver import LinkReceiver
 from fsw.comm.link_sender import LinkSender, SenderState
 from fsw.drivers.byte_port import BytePort, InProcPort
 from fsw.drivers.radio import MAX_DATAGRAM, SerialRadio, open_radio
-from hil_sim.radio_channel import ChannelPort, RadioChannel, RadioChannelConfig
+from hil_sim.link.radio_channel import ChannelPort, RadioChannel, RadioChannelConfig
 
 
 def _transfer_real_time(a: BytePort, b: BytePort, data: bytes, timeout_s: float = 10.0) -> bytes | None:

@@ -174,3 +174,23 @@ def test_region_of_interest_fraction_in_slices_equals_one_pass() -> None:
     assert 0.0 < fraction < 1.0 and fraction == float(emap.mapped[s].ravel()[below].mean())
 
 
+
+
+def test_a_rig_offset_beyond_the_bound_raises_an_event(cfg, lab_pairs) -> None:
+    """A right image 3 rows lower than its calibration (beyond ``drift_bound_px`` = 2) is measured
+    in the perception job, carried on the map update, counted and reported with an event; an
+    aligned pair is not (issue 30 item 4)."""
+    world, pose, left, right, _ = lab_pairs[0]
+    ideal = dataclasses.replace(cfg.camera, calibration_file="")
+    exe = Executive(dataclasses.replace(cfg, map=world.map_grid, camera=ideal), SteppedClock())
+    task = exe.tasks["perception"]
+    shifted = np.ascontiguousarray(np.vstack([np.repeat(right[:1], 3, axis=0), right[:-3]]))  # 3 rows lower
+    for view_id, r in ((0, right), (1, shifted)):
+        _, update = count_steps(task.merge_view(CameraFrame(view_id, 0.0, left, r, pose, np.zeros((6, 6)))))
+        assert update.rig is not None
+        task._report_rig(update.view_id, update.rig)
+        assert update.rig.exceeds == (view_id == 1), update.rig
+    assert update.rig.dv_px == pytest.approx(3.0, abs=0.3)
+    assert task.rig_exceeded == 1 and exe.telemetry.get("perception.rig_exceeded") == 1
+    ev = [e for e in exe.events.history if e.name.endswith("RIG_MISALIGNED")]
+    assert len(ev) == 1 and "recalibrate" in ev[0].text

@@ -94,6 +94,11 @@ def test_table_and_report_files(tmp_path: Path) -> None:
     # fault set, missions, with SAFE, SAFE entries, recoveries, resumed, final SAFE, DONE, delivered
     assert "ScenarioError: bad DEM" in md and "| bus_off | 2 | 0 | 2 | 5 | 4 | 1 | 1 | 1 | 1 | 0 | 0 |" in md
     assert "| never_moved | 1 | 1 1 | none 1 |" in md
+    # per method: missions, mapped cells of those that ran (median, min, max), median RMSE (cm)
+    for line in ("| 1 | 2 | 300 | 300 | 300 | 5.00 |", "| 5 | 2 | 625 | 450 | 800 | 2.00 |",
+                 "| oracle | 2 | 750 | 500 | 1000 | 1.50 |"):
+        assert line in md
+    assert abs(h["m5_oracle_p10"] - 0.81) < 1e-12  # linear between the order statistics 0.8 and 0.9
     assert json.loads((tmp_path / "report.json").read_text()) == json.loads(json.dumps(h))
 
 

@@ -61,6 +61,25 @@ def test_edge_distance_from_the_wheels(distance):
     assert w.plateau[int(-w.y0 / w.cell_m), int(-w.x0 / w.cell_m)]  # the start is on it
 
 
+@pytest.mark.parametrize("bearing, distance", [(0.0, 0.2), (-45.0, 0.35)])
+def test_edge_ahead_and_diagonal_at_its_distance_from_the_footprint(bearing, distance):
+    """``edge_bearing_deg`` turns the edge about the start: ahead (0) it is ``distance`` past the
+    bumper, ahead-right (-45) past the front-right corner's reach; the plateau's boundary in that
+    direction is there, and the start is on the plateau."""
+    w = load_scenario(f"terrain?edge_distance_m={distance}&edge_bearing_deg={bearing}&slope_deg=0", seed=2)
+    b = math.radians(bearing)
+    reach = 0.45 * abs(math.cos(b)) + FOOTPRINT_HALF_WIDTH_M * abs(math.sin(b))
+    normal = np.array([math.cos(b), math.sin(b)])
+    along = np.abs(w.edge_xy @ np.array([-normal[1], normal[0]])) <= 1.0
+    gap = float((w.edge_xy[along] @ normal).min()) - reach
+    assert gap == pytest.approx(distance, abs=0.011)
+    assert w.plateau[int(-w.y0 / w.cell_m), int(-w.x0 / w.cell_m)]
+    near = w.edge_xy[along][int(np.argmin(w.edge_xy[along] @ normal))]  # its closest point
+    for step, on_top in ((-0.05, True), (0.05, False)):  # the plateau ends there
+        x, y = near + step * normal
+        assert w.plateau[int((y - w.y0) / w.cell_m), int((x - w.x0) / w.cell_m)] == on_top
+
+
 @pytest.mark.slow
 def test_drawn_distance_covers_the_range():
     gaps = []
@@ -87,7 +106,8 @@ def test_rocks_below_the_edge_follow_the_coverage_and_patches_are_bare():
 @pytest.mark.parametrize("spec, exc, why", [
     ("terrain?slope_deg=13", ConfigError, "above the maximum"),
     ("terrain?slope_deg=-2", ConfigError, "below the minimum"),
-    ("terrain?edge_distance_m=0.1", ScenarioError, "0.3..2"),
+    ("terrain?edge_distance_m=0.1", ScenarioError, "0.15..2"),
+    ("terrain?edge_bearing_deg=200", ConfigError, "above the maximum"),
     ("terrain?edge_distance_m=3", ConfigError, "above the maximum"),
     ("terrain?k=0.9", ConfigError, "above the maximum"),
     ("terrain?textureless_count=1.5", ConfigError, "integer"),

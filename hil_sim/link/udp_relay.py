@@ -2,7 +2,7 @@
 
 Two UDP sockets on 127.0.0.1: side ``a`` faces the RECON-bot, side ``b`` the Cliff-bot.
 Every datagram that arrives on one side goes through the bench's seeded channel model
-(:class:`hil_sim.radio_channel.RadioChannel`: a drop-tail queue serialised at ``rate_bps``,
+(:class:`hil_sim.link.radio_channel.RadioChannel`: a drop-tail queue serialised at ``rate_bps``,
 latency, loss, bit errors, duplication, hold-back reordering and outage windows) on the
 relay's monotonic clock, and leaves from the other side when the model says it arrives. So
 the UDP bench and the lockstep simulation share one definition of every impairment; only
@@ -23,7 +23,7 @@ import time
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from hil_sim.radio_channel import RadioChannel, RadioChannelConfig
+from hil_sim.link.radio_channel import RadioChannel, RadioChannelConfig
 
 LOOPBACK = "127.0.0.1"
 

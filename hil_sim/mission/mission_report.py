@@ -1,5 +1,6 @@
-"""A lockstep mission's report: the foreground and timing figures, the map-error plane, the
-Cliff-bot's report and the output files (``summary.json`` and its PNGs; docs/experiments.md).
+"""A mission's report, lockstep or (from its newest checkpoint, :func:`checkpoint_report`) real
+time: the foreground and timing figures, the map-error plane, the Cliff-bot's report and the
+output files (``summary.json`` and its PNGs; docs/experiments.md).
 
 Each output file is written under a temporary name and renamed, so a full or failing disk
 (``ENOSPC``, ``EIO``) leaves the previous file or none, never half of one. A picture that
@@ -188,3 +189,58 @@ def strip_wall_clock(summary: dict[str, Any]) -> dict[str, Any]:
     out = {k: v for k, v in summary.items() if k not in WALL_CLOCK_FIELDS}
     out["steps"] = [{k: v for k, v in s.items() if k not in WALL_CLOCK_FIELDS} for s in summary["steps"]]
     return out
+
+
+def checkpoint_report(out: Path, checkpoint_dir: Path, world: Any, *, scenario: str, seed: int, method: str,
+                      datum_m: float, extra: dict[str, Any] | None = None) -> dict[str, Any]:
+    """A real-time mission's ``summary.json`` and pictures (``safer-hil serve --out``): the same
+    files and the same schema as a lockstep run's, from the flight's newest checkpoint (its map)
+    and the newest one with the mission's section (its step records; the perception task's own
+    checkpoints carry the map alone) against the bench's truth. What only the flight executive knows in
+    real time (slips, overruns, task timing, frames) is not in a checkpoint: those fields are null.
+    ``ValueError`` (one line) when no checkpoint can be read."""
+    from fsw.core.map.checkpoint import CheckpointConfig, CheckpointError, decode
+    from fsw.drivers.map_store import MapStore
+    from hil_sim.lab.terrain_eval import map_quality
+
+    store = MapStore(CheckpointConfig(directory=str(checkpoint_dir)))
+    loaded = store.load_latest()
+    if loaded.emap is None:
+        why = f" ({loaded.skipped[-1][1]})" if loaded.skipped else ""
+        raise ValueError(f"{checkpoint_dir}: no readable mission checkpoint{why}: no report")
+    emap = loaded.emap
+    grid = emap.grid
+    state: dict[str, Any] = {}
+    for path in reversed(store.paths()):  # the newest checkpoint with the mission's section
+        try:
+            meta = decode(path.read_bytes())[1]
+        except (CheckpointError, OSError):
+            continue
+        if isinstance(meta.state, dict) and isinstance(meta.state.get("mission"), dict):
+            state = meta.state
+            break
+    mission: dict[str, Any] = state.get("mission") or {}
+    steps = [dict(r) for r in mission.get("records", []) if isinstance(r, dict)]
+    truth = world.truth_on_grid(grid)
+    truth_f = truth - datum_m
+    mapped = emap.mapped & np.isfinite(truth)
+    rmse = float(np.sqrt(np.mean((emap.z[mapped] - truth_f[mapped]) ** 2))) if mapped.any() else None
+    tilt_deg, rmse_plane = error_plane(grid, emap.z - truth_f, mapped)
+    quality = map_quality(emap, truth, [], datum_m)
+    summary: dict[str, Any] = {
+        "schema": 1, "scenario": scenario, "method": method, "seed": seed, "camera": "config",
+        "clock": "real time", "checkpoint": loaded.path.name if loaded.path is not None else None,
+        "steps": steps, "prediction": prediction_ratios(steps),
+        "map_rmse_m": rmse, "map_error_tilt_deg": tilt_deg, "map_rmse_detilted_m": rmse_plane,
+        "calib_2sigma": quality["within_2sigma"], "map_quality": quality,
+        "geofence_refusals": mission.get("edge_violations"), "looks": mission.get("looks"),
+        "stays": mission.get("stays"), "end_reason": mission.get("end"), "safe_reason": mission.get("safe_reason"),
+        "safe_entries": mission.get("safe_entries"), "final_state": mission.get("phase"),
+        "mapped_cells": int(emap.mapped.sum()), "sim_s": loaded.meta.time_s if loaded.meta else None,
+        "frames": state.get("frame"),
+        "slips": None, "overruns": None, "task_max_ms": None, "task_ms_per_frame": None, "files": {},
+        **(extra or {}),
+    }
+    summary = json.loads(json.dumps(summary, default=str))
+    summary["files"] = write_outputs(out, summary, emap, truth_f, grid)
+    return summary

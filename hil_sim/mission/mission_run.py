@@ -19,7 +19,7 @@ fitted to map minus truth over mapped cells: its tilt, and the RMS error around 
 ``wheels_on_unknown_ground`` (frames the rover moved with a true wheel position on ground the
 flight geofence did not know), ``bench_faults`` (``{t_s, kind, detail}``), ``odometer_m``,
 ``reachable_stations`` (per step boundary: edge-path stations the geofence allowed from the
-rover's estimated pose, ``hil_sim.ground_watch``), ``looks`` (views of unknown ground before
+rover's estimated pose, ``hil_sim.mission.ground_watch``), ``looks`` (views of unknown ground before
 a move), ``stays`` (steps whose view was taken without the planned move, and why),
 ``steps_unused`` and ``steps_unused_reason``,
 ``end_reason``, ``final_state``, ``mapped_cells``, ``frames``, ``sim_s``,
@@ -43,12 +43,12 @@ function of the inputs and the seed.
 
 Resuming (docs/hil.md, "Resuming a mission"): the run writes ``run.json`` (its ``RunSpec``)
 and, after each imaging step, a checkpoint with the map, the mission state and the bench's
-truth and random generators (``hil_sim.resume_state``). ``mode="resume"`` continues a killed
+truth and random generators (``hil_sim.mission.resume_state``). ``mode="resume"`` continues a killed
 run from its newest good checkpoint, deterministically: the same seed gives the same map as
 an uninterrupted run. ``mode="new"`` refuses an out directory that holds a mission
 (``MissionExistsError``); ``mode="fresh"`` deletes it first.
 
-A full or failing disk (docs/hil.md): ``hil_sim.run_dir`` asks for room before a start or a
+A full or failing disk (docs/hil.md): ``hil_sim.mission.run_dir`` asks for room before a start or a
 resume and copies the flight's storage events to stderr; the mission carries on.
 """
 
@@ -72,9 +72,9 @@ from fsw.drivers.resources import OracleTruth, Resources
 from fsw.framework.storage import StorageError, describe
 from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
 from hil_sim.faults import FaultSpec
-from hil_sim.ground_watch import reachable_stations, wheels_on_unknown
 from hil_sim.lab.terrain_eval import map_quality
-from hil_sim.mission_report import (
+from hil_sim.mission.ground_watch import reachable_stations, wheels_on_unknown
+from hil_sim.mission.mission_report import (
     _cliffbot_report,
     error_plane,
     map_transfer,
@@ -84,7 +84,7 @@ from hil_sim.mission_report import (
     transfer_s,
     write_outputs,
 )
-from hil_sim.run_dir import MANIFEST, check_room, echo_storage_events, has_mission
+from hil_sim.mission.run_dir import MANIFEST, check_room, echo_storage_events, has_mission
 
 MODES = ("new", "fresh", "resume")
 
@@ -139,7 +139,10 @@ def mission_config(spec: RunSpec, world: Any) -> FswConfig:
             auto_start=True,
             safe_recover_s=cfg.mission.safe_recover_s if spec.safe_recover_s is None else spec.safe_recover_s,
         ),
-        nbv=dataclasses.replace(cfg.nbv, max_steps=spec.steps),
+        nbv=dataclasses.replace(
+            cfg.nbv, max_steps=spec.steps,
+            # a team scenario: the RECON-bot's views favour what the Cliff-bot's task needs (docs/team.md)
+            focus_regions=cfg.nbv.focus_regions or (world.team.focus_regions() if world.team is not None else ())),
     )
 
 
@@ -218,6 +221,7 @@ def run_mission(
     max_sim_s: float | None = None,
     mode: str = "new",
     on_bench: Callable[[Any], None] | None = None,
+    live: str | None = None,
 ) -> dict[str, Any]:
     """Run one mission to DONE (or SAFE, or the time limit) and return its summary.
 
@@ -225,18 +229,19 @@ def run_mission(
     "resume" (continue it from its newest good checkpoint; module docstring)."""
     from hil_sim.bench import LockstepBench
     from hil_sim.cliffbot_receiver import Cliffbot
-    from hil_sim.radio_channel import ChannelPort, RadioChannel, RadioChannelConfig
-    from hil_sim.resume_state import BenchStateError, bench_state, restore_bench
+    from hil_sim.link.radio_channel import ChannelPort, RadioChannel, RadioChannelConfig
+    from hil_sim.mission.resume_state import BenchStateError, bench_state, restore_bench
     from hil_sim.rig import load_hardware
-    from hil_sim.team.team_run import team_phase
+    from hil_sim.team.team_bench import CliffbotAgent, FixWatch
     from hil_sim.world import load_scenario
 
     t_wall = time.perf_counter()
     world = load_scenario(spec.scenario, seed=spec.seed)
     cfg = mission_config(spec, world)
     grid = MapGrid.from_config(cfg.map)
-    truth = world.truth_on_grid(grid)
-    oracle = OracleTruth(z_m=truth, textured=~world.textureless_on_grid(grid))
+    frame = tuple(float(v) for v in world.rover_start)  # the flight map's frame: odometry from the start
+    truth = world.truth_on_grid(grid, frame)
+    oracle = OracleTruth(z_m=truth, textured=~world.textureless_on_grid(grid, frame))
     outages = tuple((f.start_s, f.duration_s) for f in spec.faults if f.kind == "radio_outage")
     channel = RadioChannel(RadioChannelConfig(outages=outages), seed=spec.seed)
     clock_box: list[Callable[[], float]] = []
@@ -244,7 +249,8 @@ def run_mission(
     def now() -> float:
         return clock_box[0]() if clock_box else 0.0
 
-    port_flight = ChannelPort(channel, "a", now)
+    # a team scenario: the bench notes the fixes the RECON-bot sends (to judge them on the truth)
+    port_flight = FixWatch(channel, "a", now) if world.team is not None else ChannelPort(channel, "a", now)
     resources = Resources(radio_port=port_flight, oracle_truth=oracle)
     store, start, saved_bench = _prepare_store(spec, cfg, mode)
     counters: dict[str, Any] = {"violations": 0}
@@ -275,7 +281,7 @@ def run_mission(
         cliffbot = Cliffbot(cfg.link, ChannelPort(channel, "b", now), out_dir=spec.out)
         mission = bench.exe.tasks["mission"]
         perception = bench.exe.tasks["perception"]
-        recorder, tap = _recorder(spec.out, bench.exe)
+        recorder, tap = _recorder(spec.out, bench.exe, live)
         recording_error = ""
         limit_s = max_sim_s if max_sim_s is not None else 120.0 + 90.0 * (spec.steps + 1) + 1200.0
         counters.setdefault("unknown_frames", 0)
@@ -286,6 +292,10 @@ def run_mission(
         # the flight map's height origin: the true body height at the start (hil_sim.lab.terrain_eval);
         # kept in the counters so a resumed run keeps the start's, not the resume point's
         datum_m = float(counters.setdefault("datum_m", float(bench.rig.rover.z)))
+        team = None
+        if world.team is not None and isinstance(port_flight, FixWatch):  # the Cliff-bot's executive, from now
+            team = CliffbotAgent(bench, world, channel, port_flight, spec.seed, datum_m, spec.out, spec.faults,
+                                 recon_done=lambda: mission.state in ("DONE", "SAFE"))
         watchdog = bench.exe.ctx.res.watchdog
         for key in ("off_map", "recoveries", "recoveries_resumed", "watchdog_frames"):
             counters.setdefault(key, 0)
@@ -306,7 +316,8 @@ def run_mission(
                 counters["unknown_frames"] += wheels_on_unknown(bench.rig, mission, odo)
                 if mission.state == "TRANSMIT" and 1 not in cliffbot.originals:
                     cliffbot.originals[1] = perception.map.z.astype(np.float32)
-                cliffbot.step(bench.clock.now())
+                if team is None:  # (a team's Cliff-bot receives the map in its own flight code)
+                    cliffbot.step(bench.clock.now())
                 counters["violations"] += _wheels_over_drop(bench.rig, world, cfg)
                 counters["off_map"] += _wheel_off_map(bench.rig, world)
                 if was_safe and mission.state != "SAFE":
@@ -331,6 +342,10 @@ def run_mission(
                 if mission.state == "DONE" or (mission.state == "SAFE" and (
                         cfg.mission.safe_recover_s <= 0 or mission.safe.final)):
                     break
+            if team is not None:  # the Cliff-bot's mission goes on after the RECON-bot's
+                team_end = bench.clock.now() + TEAM_MAX_S
+                while not team.finished() and bench.clock.now() < team_end:
+                    bench.run(1)
         finally:
             bench.exe.thaw_heap()
             if tap is not None and recorder is not None:
@@ -400,7 +415,9 @@ def run_mission(
             "map_quality": quality,
             "files": {},
         }
-        summary.update(team_phase(spec.out, spec.seed, world, grid, cliffbot, channel, bench, datum_m))
+        if team is not None:
+            summary["team"] = team.section(spec.out, 0.0)
+            team.close()
         summary = json.loads(json.dumps(summary))  # exactly what summary.json holds
         if spec.out is not None:
             extra = {"recording": recorder.path.name} if recorder is not None and not recording_error else {}
@@ -411,11 +428,13 @@ def run_mission(
 
 
 RECORDING_MIN_FREE = 512 * 2**20
+TEAM_MAX_S = 1800.0  # the Cliff-bot's mission may go on this long after the RECON-bot's (bench s)
 
 
-def _recorder(out: Path | None, exe: Any) -> tuple[Any, Any]:
+def _recorder(out: Path | None, exe: Any, live: str | None = None) -> tuple[Any, Any]:
     """The mission's Foxglove recording (``ground.recording``) in ``out`` and the bus tap feeding
     it; a resumed mission starts a new file (``mission.1.mcap``, ...), never overwrites one.
+    ``live``: also stream the mission to a live view (``safer-ground rerun --live``) at this URL.
 
     No recording where ``out`` has less than ``RECORDING_MIN_FREE`` bytes free: a recording
     (camera pairs) runs to tens of MB and must not take the room the checkpoints, the .tlog
@@ -439,7 +458,12 @@ def _recorder(out: Path | None, exe: Any) -> tuple[Any, Any]:
         k += 1
         path = out / f"mission.{k}.mcap"
     recorder = MissionRecorder(path)
-    return recorder, BusTap(exe, recorder.source("recon"))
+    mirrors: tuple[Any, ...] = ()
+    if live:
+        from ground.rerun_cli import LiveSource, live_stream
+
+        mirrors = (LiveSource(live_stream(live, recording_id=path.parent.name), "recon"),)
+    return recorder, BusTap(exe, recorder.source("recon"), mirrors=mirrors)
 
 
 def _wheels_over_drop(rig: Any, world: Any, cfg: FswConfig) -> int:

@@ -1,0 +1,677 @@
+"""Two-way map sync: one map kept in step between two agents over the radio (docs/sync.md).
+
+:class:`MapSync` is one agent's end, sans-I/O like the map link (``receive(datagram, now_s)``,
+``poll(now_s) -> list[bytes]``, ``next_deadline_s()``). The shared map is two layers of square
+tiles (``tile_cells`` a side, on the map grid): each agent's own layer, which only it writes,
+and its copy of the peer's layer. Each layer tile is a map-codec container
+(``fsw.core.codec.mapcodec``: the quadtree reduction within the wheel-diameter error bound),
+versioned by its owner's counter. Both replicas hold the same bytes of every tile, so the
+same content; :meth:`replica_hash` hashes the decoded tiles of both layers.
+
+* :meth:`publish` (once per sync round, with the agent's current map) compares each tile
+  with the map tile its last version was made from and publishes a new version only where a
+  cell became known or unknown or moved by more than the error bound (one wheel diameter by
+  default).
+* New versions go out as TILE packets, highest ``priority(ty, tx)`` first (the receiver's task:
+  e.g. its corridor), paced to ``rate_bps``. The peer acknowledges them in its DIGESTs (every
+  acknowledgement is repeated until the peer's own DIGEST echoes the digest that carried it).
+  A tile is sent again only when a DIGEST proves it lost: the peer had received a packet sent
+  ``reorder_slack_s`` after it, and does not hold it (as TCP RACK). After the last tile a DIGEST
+  asking for an answer probes the tail.
+* The sender keeps what it believes the peer holds (per-tile versions and digests). A DIGEST
+  carries the hash of its sender's copy of the receiver's layer; a peer whose copy of my layer
+  hashes equal to mine holds all of it. When the peer restarted (its boot id changed), when I
+  restarted (from my checkpoint or empty), or when the hashes keep disagreeing with nothing
+  in flight, I ask for the peer's HOLDINGS of my layer (per tile: version, digest) and send
+  exactly what they lack; tiles of my layer the peer holds in newer versions than I do (I
+  published them after my checkpoint) I ask back (``wants``) and adopt. A full resend happens
+  only when the peer started with no replica (its DIGESTs say so): ``stats.full_resends``.
+* No packet from the peer for ``stall_s``: tiles pause, a probing DIGEST every ``probe_max_s``.
+
+:meth:`checkpoint` serialises the whole sync state (both layers, versions, beliefs);
+:meth:`MapSync.restore` rebuilds an end from it after a restart. Bad packets are counted and
+dropped (``stats.bad_packets``), never raised.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import json
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.comm.link import Pacer
+from fsw.comm.link_packets import PacketError
+from fsw.comm.team import sync_packets as sp
+from fsw.core.codec.mapcodec import CodecConfig, MapCodecError, decode_map, encode_map
+from fsw.framework.events import EventSink
+from fsw.framework.params import param
+
+F32 = NDArray[np.float32]
+Priority = Callable[[int, int], float]
+CHECKPOINT_VERSION = 1
+# A restored end numbers its versions from its checkpoint's counter plus this, so nothing it
+# publishes reuses a version it published after the checkpoint (4096 restarts fit in u32).
+RESTART_VERSION_STEP = 1 << 20
+
+
+@dataclass(frozen=True)
+class SyncConfig:
+    """Two-way map sync parameters (docs/sync.md)."""
+
+    rate_bps: float = param(9600.0, lo=300.0, hi=1e8, units="bit/s", doc="pacing of every packet")
+    pacing_catchup_s: float = param(0.05, lo=0.0, hi=1.0, units="s")
+    tile_cells: int = param(16, lo=4, hi=256, units="cells", doc="tile side")
+    mtu_bytes: int = param(512, lo=128, hi=8192, units="B", doc="largest datagram")
+    ack_delay_s: float = param(0.3, lo=0.0, hi=30.0, units="s", doc="DIGEST this long after new tiles")
+    min_digest_interval_s: float = param(0.5, lo=0.0, hi=60.0, units="s",
+                                         doc="DIGESTs at most this often (answers excepted)")
+    keepalive_s: float = param(10.0, lo=0.5, hi=600.0, units="s", doc="DIGEST at least this often")
+    probe_s: float = param(0.8, lo=0.05, hi=60.0, units="s",
+                           doc="after the last tile: a DIGEST asking for an answer; doubles")
+    probe_max_s: float = param(1.0, lo=0.1, hi=600.0, units="s", doc="longest probe interval")
+    reorder_slack_s: float = param(0.5, lo=0.0, hi=60.0, units="s",
+                                   doc="a tile is lost once one sent this much later arrived")
+    stall_s: float = param(25.0, lo=0.5, hi=600.0, units="s", doc="no packet this long: tiles pause")
+    holdings_retry_s: float = param(1.5, lo=0.1, hi=600.0, units="s",
+                                    doc="HOLDINGS asked for or sent again at most this often")
+
+
+@dataclass
+class SyncStats:
+    rounds: int = 0
+    tiles_published: int = 0
+    minimal_bytes: int = 0  # TILE packet bytes of every published version, once
+    packets_out: int = 0
+    bytes_out: int = 0  # everything put on the air
+    tiles_out: int = 0
+    resent_tiles: int = 0  # a version sent again (proved lost)
+    returns_out: int = 0  # the peer's own tiles given back to it
+    digests_out: int = 0
+    digests_answer: int = 0  # of which answers to a probe
+    digests_probe: int = 0  # of which probes (tiles in flight unacknowledged, or the link silent)
+    digest_bytes_out: int = 0
+    holdings_out: int = 0
+    packets_in: int = 0
+    bytes_in: int = 0  # valid packets received, channel duplicates excepted
+    digest_bytes_in: int = 0  # of which DIGESTs
+    holdings_bytes_in: int = 0  # of which HOLDINGS
+    stale_bytes_in: int = 0  # of which TILEs of a version already held
+    dup_packets: int = 0
+    bad_packets: int = 0
+    foreign_packets: int = 0
+    tiles_in: int = 0
+    stale_tiles: int = 0  # a version already held or older
+    adopted: int = 0  # own tiles given back by the peer after a restart
+    full_resends: int = 0
+    peer_restarts: int = 0
+    oversize_tiles: int = 0
+    nonfinite_cells: int = 0
+
+
+@dataclass
+class TileRec:
+    version: int
+    digest: int
+    blob: bytes
+    z: F32
+
+
+def _canonical(z: F32) -> bytes:
+    return np.where(np.isfinite(z), z, np.float32(np.nan)).astype(np.float32).tobytes()
+
+
+class MapSync:
+    """One agent's end of the two-way sync (see the module docstring)."""
+
+    def __init__(self, cfg: SyncConfig, agent: int, peer: int, shape: tuple[int, int], cell_m: float,
+                 wheel_diameter_m: float, *, frame: int = 0, boot: int = 0, codec: CodecConfig | None = None,
+                 priority: Priority | None = None, on_adopt: Callable[[int, F32], None] | None = None) -> None:
+        if agent == peer or not (0 <= agent < 256 and 0 <= peer < 256):
+            raise ValueError(f"agent {agent} and peer {peer} must be distinct ids 0..255")
+        self.cfg, self.agent, self.peer, self.frame = cfg, agent, peer, frame & 0xFF
+        self.shape = (int(shape[0]), int(shape[1]))
+        self.cell_m, self.wheel_m = cell_m, wheel_diameter_m
+        self.codec = codec or CodecConfig()
+        self.bound_m = self.codec.error_bound_wheels * wheel_diameter_m
+        tc = cfg.tile_cells
+        self.nty, self.ntx = -(-self.shape[0] // tc), -(-self.shape[1] // tc)
+        if self.nty * self.ntx > 0xFFFF:
+            raise ValueError(f"a {self.shape} map has more than 65535 tiles of {tc} cells")
+        if -(-self.nty * self.ntx // ((cfg.mtu_bytes - sp.HOLDINGS_BASE) // sp.ENTRY_BYTES)) > 255:
+            raise ValueError(f"a {self.shape} map needs more than 255 HOLDINGS pages at mtu_bytes={cfg.mtu_bytes}")
+        self.priority = priority
+        self.on_adopt = on_adopt
+        self.boot = boot & 0xFFFF
+        self.pacer = Pacer(cfg.rate_bps, cfg.pacing_catchup_s)
+        self.events = EventSink()
+        self.stats = SyncStats()
+        self.own: dict[int, TileRec] = {}
+        self.held: dict[int, TileRec] = {}
+        self.counter = 0
+        self.belief: dict[int, tuple[int, int]] = {}  # what the peer holds of my layer
+        self.peer_boot: int | None = None
+        self.want_holdings = True  # every start asks: the peer may hold what I lost
+        self.fresh = True  # started with no replica (False once restored from a checkpoint)
+        self.wants: set[int] = set()  # own tiles the peer holds newer: asked back
+        self._hash_cache: dict[int, bytes] = {}
+        self._source: dict[int, F32] = {}  # own tiles: the map each version was made from
+        self._replica_hash: str | None = None
+        self._serial = (self.boot * 4099) & 0xFFFF
+        self._sent_at: OrderedDict[int, float] = OrderedDict()  # serial -> send time
+        self._inflight: dict[int, tuple[int, float]] = {}  # tile -> (version, sent at)
+        self._lost: set[int] = set()
+        self._last_rx_s: float | None = None
+        self._started_s: float | None = None
+        self._peer_dseq: int | None = None
+        self._peer_serial: int | None = None
+        self._recent: OrderedDict[tuple[int, int, bytes], None] = OrderedDict()
+        self._dseq = 0
+        self._digest_log: OrderedDict[int, tuple[tuple[int, int], ...]] = OrderedDict()
+        self._unconfirmed: dict[int, int] = {}  # peer tiles received, acks not yet confirmed
+        self._digest_due: float | None = None
+        self._answer = False
+        self._last_digest_s = float("-inf")
+        self._last_tile_s: float | None = None
+        self._probe_gap = cfg.probe_s
+        self._next_probe_s: float | None = None
+        self._holdings_out: list[bytes] = []
+        self._last_holdings_s = float("-inf")
+        self._holdings_in: dict[int, tuple[tuple[int, int, int], ...]] = {}  # page -> entries
+        self._set_id = 0
+        self._returns: set[int] = set()
+        self._returned_at: dict[int, float] = {}
+        self._mismatches = 0
+        self._now = 0.0
+        self._acks_cut = False
+        self._ack_first_s: float | None = None  # first and last tile not yet acknowledged
+        self._ack_last_s = 0.0
+        self._last_tx_s = float("-inf")
+
+    # ---------------------------------------------------------------- tiles and hashes
+    def tile_slice(self, t: int) -> tuple[slice[int, int, None], slice[int, int, None]]:
+        ty, tx = divmod(t, self.ntx)
+        tc = self.cfg.tile_cells
+        return slice(ty * tc, min((ty + 1) * tc, self.shape[0])), slice(tx * tc, min((tx + 1) * tc, self.shape[1]))
+
+    def layer(self, owner: int) -> dict[int, TileRec]:
+        return self.own if owner == self.agent else self.held
+
+    def layer_hash(self, owner: int) -> bytes:
+        """8-byte hash of a layer's (tile, digest) pairs (what DIGESTs compare)."""
+        if owner not in self._hash_cache:
+            h = hashlib.blake2b(digest_size=8)
+            for t, rec in sorted(self.layer(owner).items()):
+                h.update(t.to_bytes(2, "little") + rec.digest.to_bytes(4, "little"))
+            self._hash_cache[owner] = h.digest()
+        return self._hash_cache[owner]
+
+    def replica_hash(self) -> str:
+        """Hash of the decoded content of both layers (owner, tile, cells): equal replicas,
+        equal hashes."""
+        if self._replica_hash is None:
+            h = hashlib.blake2b(digest_size=16)
+            for owner in sorted((self.agent, self.peer)):
+                for t, rec in sorted(self.layer(owner).items()):
+                    h.update(bytes([owner]) + t.to_bytes(2, "little") + _canonical(rec.z))
+            self._replica_hash = h.hexdigest()
+        return self._replica_hash
+
+    def replica_map(self, owner: int) -> F32:
+        """One layer painted on the map grid (NaN where it holds nothing)."""
+        z = np.full(self.shape, np.nan, np.float32)
+        for t, rec in self.layer(owner).items():
+            z[self.tile_slice(t)] = rec.z
+        return z
+
+    def fused_map(self) -> F32:
+        """The team's map from both layers: the mean where both know a cell, else the one that does."""
+        a, b = self.replica_map(self.agent), self.replica_map(self.peer)
+        with np.errstate(invalid="ignore"):
+            return np.where(np.isfinite(a) & np.isfinite(b), 0.5 * (a + b), np.where(np.isfinite(a), a, b))
+
+    def _touch(self, owner: int) -> None:
+        self._hash_cache.pop(owner, None)
+        self._replica_hash = None
+
+    def _needed(self, t: int) -> bool:
+        rec = self.own[t]
+        b = self.belief.get(t)
+        return b is None or b[0] < rec.version or (b[0] == rec.version and b[1] != rec.digest)
+
+    # ---------------------------------------------------------------- publishing
+    def publish(self, z: NDArray[np.float32] | NDArray[np.float64], now_s: float) -> int:
+        """One sync round: new versions of the tiles of ``z`` (the agent's map, NaN unknown)
+        that changed beyond the error bound; returns how many."""
+        a = np.asarray(z, np.float32)
+        if a.shape != self.shape:
+            raise ValueError(f"map of shape {a.shape} is not the sync's {self.shape}")
+        bad = np.isinf(a)
+        if bad.any():
+            self.stats.nonfinite_cells += int(bad.sum())
+            a = np.where(bad, np.float32(np.nan), a)
+        self.stats.rounds += 1
+        n = 0
+        for t in range(self.nty * self.ntx):
+            sub = a[self.tile_slice(t)]
+            known = np.isfinite(sub)
+            rec = self.own.get(t)
+            if rec is None:
+                changed = bool(known.any())
+            else:
+                src = self._source.get(t, rec.z)  # what the last version was made from
+                was = np.isfinite(src)
+                changed = bool((known != was).any()) or bool(
+                    known.any() and float(np.max(np.abs(sub[known] - src[known]))) > self.bound_m)
+            if changed and self._publish_tile(t, sub, now_s):
+                n += 1
+        return n
+
+    def _publish_tile(self, t: int, sub: F32, now_s: float) -> bool:
+        blob = encode_map(sub, cell_m=self.cell_m, wheel_diameter_m=self.wheel_m, cfg=self.codec).data
+        if len(blob) + sp.TILE_OVERHEAD > self.cfg.mtu_bytes:
+            self.stats.oversize_tiles += 1
+            self.events.emit(now_s, "TILE_TOO_LARGE", tile=t, bytes=len(blob))
+            return False
+        self.counter += 1
+        self.own[t] = TileRec(self.counter, sp.blob_digest(blob), blob, decode_map(blob).z)
+        self._source[t] = np.array(sub, np.float32)
+        self._touch(self.agent)
+        self.wants.discard(t)
+        self._lost.discard(t)
+        self.stats.tiles_published += 1
+        self.stats.minimal_bytes += len(blob) + sp.TILE_OVERHEAD
+        return True
+
+    # ---------------------------------------------------------------- receiving
+    def receive(self, datagram: bytes, now_s: float) -> None:
+        """One datagram from the radio; anything invalid is counted and dropped."""
+        try:
+            p = sp.decode(datagram)
+        except PacketError:
+            self.stats.bad_packets += 1
+            return
+        self._now = now_s
+        if p.agent != self.peer or p.frame != self.frame:
+            self.stats.foreign_packets += 1
+            return
+        key = (p.serial, len(datagram), bytes(datagram[-4:]))  # the CRC: a fingerprint
+        if key in self._recent:
+            self.stats.dup_packets += 1
+            return
+        self._recent[key] = None
+        if len(self._recent) > 512:
+            self._recent.popitem(last=False)
+        self.stats.packets_in += 1
+        self.stats.bytes_in += len(datagram)
+        if self._last_rx_s is not None and now_s - self._last_rx_s > self.cfg.stall_s:
+            self.events.emit(now_s, "LINK_BACK", silent_s=round(now_s - self._last_rx_s, 3))
+        self._last_rx_s = now_s
+        self._peer_serial = p.serial
+        if isinstance(p, sp.Tile):
+            stale = self.stats.stale_tiles
+            self._on_tile(p, now_s)
+            self.stats.stale_bytes_in += len(datagram) if self.stats.stale_tiles > stale else 0
+        elif isinstance(p, sp.Digest):
+            self.stats.digest_bytes_in += len(datagram)
+            self._on_digest(p, now_s)
+        else:
+            self.stats.holdings_bytes_in += len(datagram)
+            self._on_holdings(p, now_s)
+
+    def _decode_tile(self, p: sp.Tile) -> F32 | None:
+        if p.tile >= self.nty * self.ntx:
+            return None
+        ys, xs = self.tile_slice(p.tile)
+        try:
+            with np.errstate(over="ignore", invalid="ignore"):
+                z = decode_map(p.blob, max_cells=self.cfg.tile_cells ** 2).z
+        except (MapCodecError, ValueError, MemoryError):  # zstandard: a frame larger than announced
+            return None
+        if z.shape != (ys.stop - ys.start, xs.stop - xs.start) or np.isinf(z).any():
+            return None
+        return z
+
+    def _on_tile(self, p: sp.Tile, now_s: float) -> None:
+        if p.owner not in (self.agent, self.peer):
+            self.stats.foreign_packets += 1
+            return
+        z = self._decode_tile(p)
+        if z is None:
+            self.stats.bad_packets += 1
+            return
+        rec = TileRec(p.version, p.digest, p.blob, z)
+        if p.owner == self.agent:  # one of mine, given back after my restart
+            mine = self.own.get(p.tile)
+            if p.tile in self.wants and (mine is None or p.version > mine.version):
+                self.own[p.tile] = rec
+                self._source.pop(p.tile, None)
+                self.counter = max(self.counter, p.version)
+                self.belief[p.tile] = (p.version, p.digest)
+                self._touch(self.agent)
+                self.stats.adopted += 1
+                if self.on_adopt is not None:
+                    self.on_adopt(p.tile, z)
+            else:
+                self.stats.stale_tiles += 1
+            self.wants.discard(p.tile)
+            return
+        held = self.held.get(p.tile)
+        if held is None or p.version > held.version or (p.version == held.version and p.digest != held.digest):
+            self.held[p.tile] = rec
+            self._touch(self.peer)
+            self.stats.tiles_in += 1
+        else:
+            self.stats.stale_tiles += 1
+        self._unconfirmed[p.tile] = self.held[p.tile].version
+        if self._ack_first_s is None:
+            self._ack_first_s = now_s
+        self._ack_last_s = now_s
+
+    def _ack_due(self) -> float | None:
+        """When the acknowledgement of the tiles received is due: ``ack_delay_s`` after the last
+        one (a burst is acknowledged once), at most ``4 ack_delay_s`` after the first."""
+        if self._ack_first_s is None:
+            return None
+        d = self.cfg.ack_delay_s
+        return max(min(self._ack_last_s + d, self._ack_first_s + 4 * d),
+                   self._last_digest_s + self.cfg.min_digest_interval_s)
+
+    def _probe_due(self) -> float | None:
+        return self._next_probe_s if self._inflight else None
+
+    def _schedule_digest(self, at_s: float) -> None:
+        at_s = max(at_s, self._last_digest_s + self.cfg.min_digest_interval_s)
+        self._digest_due = at_s if self._digest_due is None else min(self._digest_due, at_s)
+
+    def _on_digest(self, p: sp.Digest, now_s: float) -> None:
+        if self.peer_boot is not None and p.boot != self.peer_boot:
+            self.stats.peer_restarts += 1
+            self.events.emit(now_s, "PEER_RESTARTED", boot=p.boot, replica_lost=bool(p.flags & sp.FRESH))
+            if p.flags & sp.FRESH and self.belief:  # its replica is lost: all of my layer goes again
+                self.stats.full_resends += 1
+                self.events.emit(now_s, "FULL_RESEND", tiles=len(self.own))
+            self.want_holdings = True
+            self._inflight.clear()
+            self._last_holdings_s = float("-inf")
+            self._digest_due = now_s  # ask for its holdings at once
+        elif self.peer_boot is None and now_s - self._last_holdings_s >= self.cfg.holdings_retry_s:
+            self._queue_holdings(now_s)  # first contact since my start: the peer will ask for them
+        self.peer_boot = p.boot
+        self._peer_dseq = p.dseq
+        if p.flags & sp.ECHO_VALID:
+            for t, v in self._digest_log.pop(p.echo_dseq, ()):
+                if self._unconfirmed.get(t) == v:
+                    del self._unconfirmed[t]
+        for t, v in p.acks:
+            rec = self.own.get(t)
+            if rec is not None and v == rec.version & 0xFFFF:  # acknowledgements carry 16 bits
+                self.belief[t] = (rec.version, rec.digest)
+                self._inflight.pop(t, None)
+                self._lost.discard(t)
+        synced = p.held_hash == self.layer_hash(self.agent) and p.held_count == len(self.own)
+        if synced:
+            self.belief = {t: (r.version, r.digest) for t, r in self.own.items()}
+            self._inflight.clear()
+            self._lost.clear()
+            self._mismatches = 0
+        elif not any(self._needed(t) for t in self.own) and not self.want_holdings:
+            self._mismatches += 1
+            if self._mismatches >= 2:  # the peer holds something else than I believe
+                self.events.emit(now_s, "HASH_MISMATCH")
+                self.want_holdings = True
+                self._mismatches = 0
+        if p.flags & sp.WANT_HOLDINGS and now_s - self._last_holdings_s >= self.cfg.holdings_retry_s:
+            self._queue_holdings(now_s)
+        if p.flags & sp.ANSWER_NOW:
+            self._answer = True
+            self._digest_due = now_s
+        for t in p.wants:
+            if t in self.held and now_s - self._returned_at.get(t, float("-inf")) >= self.cfg.holdings_retry_s:
+                self._returns.add(t)
+        self._probe_gap = self.cfg.probe_s
+        if p.flags & sp.ECHO_VALID and not p.flags & sp.ACKS_CUT:
+            echo_t = self._sent_at.get(p.echo_serial)
+            if echo_t is not None:
+                for t, (v, ts) in list(self._inflight.items()):
+                    if ts + self.cfg.reorder_slack_s <= echo_t and self.own[t].version == v and self._needed(t):
+                        self._lost.add(t)
+                        del self._inflight[t]
+        if self._unconfirmed and self._acks_cut:  # the rest of the acknowledgements
+            self._schedule_digest(now_s + self.cfg.ack_delay_s)
+
+    def _on_holdings(self, p: sp.Holdings, now_s: float) -> None:
+        per = self._holdings_per_page()
+        n = self.nty * self.ntx
+        if p.n_pages != -(-n // per) or any(not p.page * per <= t < min((p.page + 1) * per, n)
+                                            for t, _v, _d in p.entries):
+            self.stats.bad_packets += 1
+            return
+        if not self.want_holdings:
+            return
+        self._holdings_in[p.page] = p.entries  # pages of any set combine: each is its tiles' state
+        if len(self._holdings_in) < p.n_pages:
+            return
+        entries = [e for page in sorted(self._holdings_in) for e in self._holdings_in[page]]
+        self._holdings_in.clear()
+        self.want_holdings = False
+        self.fresh = False
+        self.belief = {t: (v, d) for t, v, d in entries}
+        self._inflight.clear()
+        self._lost.clear()
+        for t, v, _d in entries:
+            self.counter = max(self.counter, v)
+            mine = self.own.get(t)
+            if mine is None or v > mine.version:
+                self.wants.add(t)
+        for t, v, d in entries:
+            mine = self.own.get(t)
+            if mine is not None and v == mine.version and d != mine.digest:  # a version used twice
+                self.counter += 1
+                self.own[t] = TileRec(self.counter, mine.digest, mine.blob, mine.z)
+                self._touch(self.agent)
+        self.events.emit(now_s, "HOLDINGS", tiles=len(entries), wanted=len(self.wants))
+
+    def _holdings_per_page(self) -> int:
+        return (self.cfg.mtu_bytes - sp.HOLDINGS_BASE) // sp.ENTRY_BYTES
+
+    def _queue_holdings(self, now_s: float) -> None:
+        """HOLDINGS of my copy of the peer's layer: page ``k`` lists the tiles ``k * per`` up to
+        ``(k + 1) * per`` held, so a page is complete alone and pages of any set combine."""
+        per = self._holdings_per_page()
+        n_pages = -(-self.nty * self.ntx // per)
+        self._set_id = (self._set_id + 1) & 0xFFFF
+        self._holdings_out = []
+        for k in range(n_pages):
+            pg = tuple((t, r.version, r.digest) for t, r in sorted(self.held.items()) if k * per <= t < (k + 1) * per)
+            self._holdings_out.append(sp.encode(sp.Holdings(self.agent, self.frame, 0, self._set_id, k, n_pages, pg)))
+        self._last_holdings_s = now_s
+
+    # ---------------------------------------------------------------- sending
+    def _stalled(self, now_s: float) -> bool:
+        ref = self._last_rx_s if self._last_rx_s is not None else self._started_s
+        return ref is not None and now_s - ref > self.cfg.stall_s
+
+    def _next_tile(self, now_s: float) -> int | None:
+        cands = [t for t in self.own if t not in self.wants and self._needed(t)
+                 and (t in self._lost or t not in self._inflight or self._inflight[t][0] != self.own[t].version)]
+        if not cands:
+            return None
+
+        def key(t: int) -> tuple[float, int]:
+            ty, tx = divmod(t, self.ntx)
+            return (-(self.priority(ty, tx) if self.priority is not None else 0.0), t)
+        return min(cands, key=key)
+
+    def _digest_reason(self, now_s: float) -> bool:
+        for due in (self._digest_due, self._ack_due(), self._probe_due()):
+            if due is not None and now_s >= due:
+                return True
+        if now_s >= max(self._last_digest_s, self._last_tx_s) + self.cfg.keepalive_s:
+            return True
+        return bool((self.want_holdings or self.wants) and now_s >= self._last_digest_s + self.cfg.holdings_retry_s)
+
+    def _stamp(self, now_s: float) -> int:
+        self._serial = (self._serial + 1) & 0xFFFF
+        self._sent_at[self._serial] = now_s
+        self._sent_at.move_to_end(self._serial)
+        if len(self._sent_at) > 4096:
+            self._sent_at.popitem(last=False)
+        return self._serial
+
+    def _make_digest(self, now_s: float) -> bytes:
+        self._dseq = (self._dseq + 1) & 0xFFFF
+        fixed = sp.DIGEST_BASE
+        wants = tuple(sorted(self.wants))[: (self.cfg.mtu_bytes - fixed) // 4 // sp.WANT_BYTES]
+        room = (self.cfg.mtu_bytes - fixed - sp.WANT_BYTES * len(wants)) // sp.ACK_BYTES
+        acks = tuple(sorted(self._unconfirmed.items()))[: min(room, 255)]
+        probe = (self._probe_due() or float("inf")) <= now_s
+        stalled = self._stalled(now_s)
+        self._acks_cut = len(acks) < len(self._unconfirmed)
+        ask = probe or stalled
+        flags = ((sp.WANT_HOLDINGS if self.want_holdings else 0) | (sp.FRESH if self.fresh else 0)
+                 | (sp.ANSWER_NOW if ask else 0)
+                 | (sp.ACKS_CUT if len(acks) < len(self._unconfirmed) else 0)
+                 | (sp.ECHO_VALID if self._peer_dseq is not None else 0))
+        self._digest_log[self._dseq] = acks
+        if len(self._digest_log) > 64:
+            self._digest_log.popitem(last=False)
+        d = sp.Digest(self.agent, self.frame, self._stamp(now_s), self.boot, self._dseq, self._peer_dseq or 0,
+                      self._peer_serial or 0, flags, len(self.held), self.layer_hash(self.peer), acks, wants[:255])
+        answer = self._answer
+        self._digest_due = None
+        self._ack_first_s = None
+        self._answer = False
+        self._last_digest_s = now_s
+        if probe or stalled:
+            self._probe_gap = min(2 * self._probe_gap, self.cfg.probe_max_s)
+        self._next_probe_s = None
+        self.stats.digests_out += 1
+        self.stats.digests_answer += int(answer)
+        self.stats.digests_probe += int(probe or stalled)
+        pkt = sp.encode(d)
+        self.stats.digest_bytes_out += len(pkt)
+        return pkt
+
+    def _tile_packet(self, owner: int, t: int, rec: TileRec, now_s: float) -> bytes:
+        return sp.encode(sp.Tile(self.agent, self.frame, self._stamp(now_s), owner, t, rec.version,
+                                 rec.digest, rec.blob))
+
+    def poll(self, now_s: float) -> list[bytes]:
+        """The datagrams to send now, paced to ``rate_bps``."""
+        if self._started_s is None:
+            self._started_s = now_s
+        self._now = now_s
+        out: list[bytes] = []
+        while self.pacer.ready(now_s):
+            pkt = self._next_packet(now_s)
+            if pkt is None:
+                break
+            self.pacer.consume(len(pkt), now_s)
+            self.stats.packets_out += 1
+            self.stats.bytes_out += len(pkt)
+            self._last_tx_s = now_s
+            out.append(pkt)
+        if self._next_probe_s is None and self._inflight and self._digest_due is None:
+            last = self._last_tile_s if self._last_tile_s is not None else now_s
+            self._next_probe_s = max(last, self._last_digest_s) + self._probe_gap
+        return out
+
+    def _next_packet(self, now_s: float) -> bytes | None:
+        stalled = self._stalled(now_s)
+        if stalled:
+            self._next_probe_s = None
+            if now_s >= self._last_digest_s + self.cfg.probe_max_s:
+                return self._make_digest(now_s)
+            return None
+        if self._answer or self._digest_reason(now_s):
+            return self._make_digest(now_s)
+        if self._holdings_out:
+            self.stats.holdings_out += 1
+            return self._holdings_out.pop(0)
+        if self._returns:
+            t = min(self._returns)
+            self._returns.discard(t)
+            self._returned_at[t] = now_s
+            self.stats.returns_out += 1
+            return self._tile_packet(self.peer, t, self.held[t], now_s)
+        if self.want_holdings:
+            return None  # what the peer holds of my layer is unknown: nothing to send yet
+        t2 = self._next_tile(now_s)
+        if t2 is None:
+            return None
+        rec = self.own[t2]
+        prev = self._inflight.get(t2)
+        if t2 in self._lost or (prev is not None and prev[0] == rec.version):
+            self.stats.resent_tiles += 1
+        self._lost.discard(t2)
+        self._inflight[t2] = (rec.version, now_s)
+        self._last_tile_s = now_s
+        self._next_probe_s = None
+        self.stats.tiles_out += 1
+        return self._tile_packet(self.agent, t2, rec, now_s)
+
+    def next_deadline_s(self) -> float | None:
+        """When :meth:`poll` next has work (None: only a datagram or a publish can make some)."""
+        free = self.pacer.free_at_s
+        if self._stalled(self._now):
+            return max(self._last_digest_s + self.cfg.probe_max_s, free)
+        cands = [max(self._last_digest_s, self._last_tx_s) + self.cfg.keepalive_s]
+        cands += [d for d in (self._digest_due, self._ack_due(), self._probe_due()) if d is not None]
+        if self.want_holdings or self.wants:
+            cands.append(self._last_digest_s + self.cfg.holdings_retry_s)
+        ref = self._last_rx_s if self._last_rx_s is not None else self._started_s
+        if ref is not None:
+            cands.append(ref + self.cfg.stall_s + 1e-6)
+        if self._answer or self._holdings_out or self._returns or (
+                not self.want_holdings and self._next_tile(self._now) is not None):
+            cands.append(free)
+        return max(min(cands), free)
+
+    # ---------------------------------------------------------------- checkpoint
+    def checkpoint(self) -> bytes:
+        """The sync state as bytes (JSON): both layers, the counter, the beliefs."""
+        def layer(d: dict[int, TileRec]) -> dict[str, list[int | str]]:
+            return {str(t): [r.version, base64.b64encode(r.blob).decode()] for t, r in d.items()}
+        return json.dumps({
+            "v": CHECKPOINT_VERSION, "agent": self.agent, "peer": self.peer, "frame": self.frame,
+            "shape": list(self.shape), "tile_cells": self.cfg.tile_cells, "counter": self.counter,
+            "rounds": self.stats.rounds, "own": layer(self.own), "held": layer(self.held),
+            "source": {str(t): base64.b64encode(z.tobytes()).decode() for t, z in self._source.items()},
+            "belief": {str(t): list(b) for t, b in self.belief.items()},
+        }).encode()
+
+    @classmethod
+    def restore(cls, state: bytes, cfg: SyncConfig, cell_m: float, wheel_diameter_m: float, *, boot: int,
+                codec: CodecConfig | None = None, priority: Priority | None = None,
+                on_adopt: Callable[[int, F32], None] | None = None) -> MapSync:
+        """An end rebuilt from :meth:`checkpoint` (raises ``ValueError`` with one line if the
+        state is not a valid sync checkpoint for ``cfg``)."""
+        try:
+            s = json.loads(state)
+            if s["v"] != CHECKPOINT_VERSION or s["tile_cells"] != cfg.tile_cells:
+                raise ValueError("checkpoint of another version or tile size")
+            m = cls(cfg, int(s["agent"]), int(s["peer"]), (int(s["shape"][0]), int(s["shape"][1])), cell_m,
+                    wheel_diameter_m, frame=int(s["frame"]), boot=boot, codec=codec, priority=priority,
+                    on_adopt=on_adopt)
+            for name, d in (("own", m.own), ("held", m.held)):
+                for key, (ver, b64) in s[name].items():
+                    blob = base64.b64decode(b64)
+                    d[int(key)] = TileRec(int(ver), sp.blob_digest(blob), blob, decode_map(blob).z)
+            for key, b64 in s["source"].items():
+                t = int(key)
+                ys, xs = m.tile_slice(t)
+                m._source[t] = np.frombuffer(base64.b64decode(b64), np.float32).reshape(
+                    ys.stop - ys.start, xs.stop - xs.start).copy()
+            m.counter = int(s["counter"]) + RESTART_VERSION_STEP
+            m.fresh = False
+            m.stats.rounds = int(s["rounds"])
+            m.belief = {int(t): (int(b[0]), int(b[1])) for t, b in s["belief"].items()}
+        except (KeyError, TypeError, IndexError, json.JSONDecodeError, MapCodecError, ValueError) as exc:
+            raise ValueError(f"not a usable map-sync checkpoint: {exc}") from None
+        return m

@@ -1,0 +1,435 @@
+"""The face map: a 2.5D grid laid in the plane fitted to a steep face (docs/algorithm.md §8.1).
+
+A gravity-aligned grid samples a face of slope ``a`` at ``1 / cos a`` of its area per cell
+(3.9x at 75 deg) and stores the height of a wall. The face map stores the same model (§1: a
+height per cell with variance, count, interest, misses) in the face's own frame:
+
+* :class:`FaceFrame` is the fitted plane: origin ``o`` and the right-handed axes ``e_u``
+  (along the strike, horizontal), ``e_v`` (up the dip, in the plane) and ``e_n`` (the normal,
+  out of the face, ``e_n . z > 0``). A world point ``p`` has face coordinates
+  ``q = R^T (p - o)`` with ``R = [e_u e_v e_n]``, its covariance ``R^T P R``.
+  :func:`fit_face_plane` fits it to the steep cells of a gravity map (total least squares).
+* :class:`FaceMap` is an ``ElevationMap`` on a grid over ``(u, v)`` whose height is ``w``, the
+  distance along ``e_n``; fusion, the slope term, the gate, misses, the interest function, the
+  quadtree reduction and the codec all work on it unchanged (its arrays are a map's arrays).
+* The hand-over (:meth:`FaceMap.routes`): a point belongs to the face when its ``(u, v)`` lies
+  inside the face map's grid (the band ``[v_min, v_max]`` along the dip) and
+  ``-slab_in_m <= w <= slab_out_m`` (rocks stand out of a face; behind it, within half a metre,
+  lies only the plateau beyond the edge); otherwise to the gravity grid. In the ``seam_m`` wide
+  strips at both ends of the band a point goes to both grids, so each side of the seam is
+  mapped up to it. A gravity cell is *handed to the face*
+  when the fitted plane over its centre lies inside the band minus the seams
+  (:meth:`FaceMap.face_owned`); a query at ``(x, y)`` is answered by the face map there
+  (:meth:`FaceMap.surface_z`, the vertical line intersected with the face map's surface) and by
+  the gravity grid elsewhere (:func:`hand_over_z`).
+* Overhangs: a cell with more than one surface along its normal is flagged
+  (:attr:`FaceMap.overhang`), not averaged. A view shows two surfaces in a cell when its points
+  there split at a gap in ``w`` wider than ``overhang_gap_m`` and both parts fall in one of the
+  cell's 2x2 sub-cells (a step inside a cell puts its two levels side by side, an overhang over
+  the same spot). Two views show two surfaces when a view's measurement lies more than
+  ``overhang_gap_m`` plus the gate from the cell's fused height. Within a view the outer surface
+  (the larger ``w``, what the normal sees from outside) is fused and the inner one goes to
+  :attr:`FaceMap.second`; across views the cell keeps what it holds and the new surface goes
+  to :attr:`FaceMap.second`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.core.geometry import MapGrid
+from fsw.core.map.elevation_map import ElevationMap, FusionConfig, MergeStats
+from fsw.core.steps import run_to_end
+from fsw.framework.params import param
+
+F64 = NDArray[np.float64]
+B = NDArray[np.bool_]
+ViewPart = tuple[F64, F64, F64 | None]  # world xyz, total covariance, the view's common covariance
+
+
+@dataclass(frozen=True)
+class FaceMapConfig:
+    """The face map (config ``[face_map]``)."""
+
+    cell_m: float = param(0.06, lo=0.005, hi=2.0, units="m", doc="face cell side, in the face plane")
+    min_slope_deg: float = param(45.0, lo=20.0, hi=89.0, units="deg",
+                                 doc="gravity cells steeper than this define the face (fit, band)")
+    slab_out_m: float = param(1.5, lo=0.05, hi=20.0, units="m", doc="points farther out of the plane: gravity grid")
+    slab_in_m: float = param(0.5, lo=0.05, hi=20.0, units="m", doc="points farther behind the plane: gravity grid")
+    seam_m: float = param(0.15, lo=0.0, hi=5.0, units="m", doc="strips at the band's ends that feed both grids")
+    overhang_gap_m: float = param(0.10, lo=0.01, hi=5.0, units="m", doc="a gap in w this wide splits two surfaces")
+
+
+@dataclass(frozen=True)
+class FaceFrame:
+    """The fitted face plane: origin and axes (columns ``e_u, e_v, e_n`` of ``R``)."""
+
+    origin: F64
+    R: F64
+
+    @staticmethod
+    def from_normal(origin: F64, normal: F64) -> FaceFrame:
+        """The frame of the plane through ``origin`` with ``normal`` (turned out of the face:
+        ``e_n . z > 0``); ``e_u`` horizontal. A vertical or horizontal normal is refused."""
+        n = np.asarray(normal, float)
+        n = n / np.linalg.norm(n)
+        if n[2] < 0:
+            n = -n
+        h = float(np.hypot(n[0], n[1]))
+        if not (1e-3 < h < 1.0 - 1e-6) or not np.isfinite(n).all():
+            raise ValueError(f"a face plane needs a normal neither vertical nor horizontal, got {n}")
+        eu = np.cross([0.0, 0.0, 1.0], n)
+        eu /= np.linalg.norm(eu)
+        ev = np.cross(n, eu)
+        return FaceFrame(np.asarray(origin, float).reshape(3), np.column_stack([eu, ev, n]))
+
+    @property
+    def normal(self) -> F64:
+        return np.asarray(self.R[:, 2], float)
+
+    @property
+    def slope_deg(self) -> float:
+        """The plane's slope: the angle between its normal and the vertical."""
+        return float(np.degrees(np.arccos(np.clip(self.R[2, 2], -1.0, 1.0))))
+
+    def to_face(self, p: F64) -> F64:
+        """World points ``(N, 3)`` to face coordinates ``(u, v, w)``."""
+        return np.asarray((np.asarray(p, float) - self.origin) @ self.R, float)
+
+    def to_world(self, q: F64) -> F64:
+        return np.asarray(np.asarray(q, float) @ self.R.T + self.origin, float)
+
+    def cov_to_face(self, cov: F64) -> F64:
+        """Covariances ``(N, 3, 3)`` from the world to the face frame: ``R^T P R``."""
+        return np.asarray(np.einsum("ji,njk,kl->nil", self.R, np.asarray(cov, float), self.R), float)
+
+    def plane_z(self, x: F64, y: F64) -> F64:
+        """The plane's height over ``(x, y)``."""
+        n, o = self.normal, self.origin
+        return np.asarray(o[2] - (n[0] * (np.asarray(x) - o[0]) + n[1] * (np.asarray(y) - o[1])) / n[2], float)
+
+
+def steep_points(gravity: ElevationMap, min_slope_deg: float = 45.0) -> tuple[F64, F64]:
+    """The centres ``(N, 3)`` of the mapped cells of ``gravity`` steeper than ``min_slope_deg``
+    and their downhill directions ``(N, 2)`` (unit vectors, ``-grad z / |grad z|``)."""
+    g = gravity.grid
+    gy, gx = np.gradient(gravity.z, g.cell)
+    slope = np.hypot(gx, gy)
+    with np.errstate(invalid="ignore"):
+        steep = gravity.mapped & (slope > np.tan(np.radians(min_slope_deg)))
+    X, Y = g.centers()
+    down = -np.column_stack([gx[steep], gy[steep]]) / slope[steep][:, None]
+    return np.column_stack([X[steep], Y[steep], gravity.z[steep]]), down
+
+
+def _ransac_line(s: F64, z: F64, inlier_m: float, tries: int, lo_deg: float, hi_deg: float) -> B:
+    """Inliers of the line in the ``(s, z)`` plane through two samples, falling at an angle in
+    ``[lo_deg, hi_deg]`` as ``s`` grows, with the most samples within ``inlier_m`` of it (pairs
+    drawn from a fixed seed)."""
+    rng = np.random.default_rng(0)
+    pair = rng.integers(0, len(s), (tries, 2))
+    ds = s[pair[:, 1]] - s[pair[:, 0]]
+    dz = z[pair[:, 1]] - z[pair[:, 0]]
+    sign = np.where(ds < 0, -1.0, 1.0)
+    ang = np.degrees(np.arctan2(-dz * sign, np.abs(ds)))
+    ok = (ang >= lo_deg) & (ang <= hi_deg)
+    if not ok.any():
+        raise ValueError("no steep line through the steep cells")
+    ln = np.hypot(ds[ok], dz[ok])
+    ns, nz = -dz[ok] / ln, ds[ok] / ln  # a normal of each line
+    s0, z0 = s[pair[ok, 0]], z[pair[ok, 0]]
+    near = np.abs(np.outer(s, ns) + np.outer(z, nz) - (s0 * ns + z0 * nz)) <= inlier_m
+    return np.asarray(near[:, int(np.argmax(near.sum(axis=0)))], bool)
+
+
+def fit_face_plane(gravity: ElevationMap, points: F64 | None = None, min_slope_deg: float = 45.0,
+                   min_cells: int = 50, inlier_m: float = 0.15, tries: int = 400,
+                   plane_slope_deg: float = 55.0) -> FaceFrame:
+    """The face plane, from the steep mapped cells of ``gravity`` (:func:`steep_points`) and,
+    when given, the survey's measured ``points`` ``(N, 3)`` inside those cells (a cell's mean
+    height on a wall is blurred; its points are not). The strike is horizontal, across the
+    cells' mean downhill direction ``h``; in the vertical plane along ``h`` (``s = p . h``, ``z``)
+    the face is the line falling at ``plane_slope_deg`` to 89 deg with the most cells within
+    ``inlier_m`` (RANSAC from a fixed seed: a rock's sides are steep too, but short); ``h`` is
+    then taken again from that line's cells alone and the line found again; then the total
+    least-squares line of its inliers (cells, or the points in them), three times. Origin: the inliers' centroid. Raises
+    ``ValueError`` with fewer than ``min_cells`` steep cells or inliers."""
+    cells, down = steep_points(gravity, min_slope_deg)
+    if len(cells) < min_cells:
+        raise ValueError(f"only {len(cells)} mapped cells steeper than {min_slope_deg} deg: no face to fit")
+    h = down.mean(axis=0)
+    if float(np.linalg.norm(h)) < 0.3:
+        raise ValueError("the steep cells face every way: no face to fit")
+    h = h / np.linalg.norm(h)
+    for _ in range(2):  # the strike from the face's own cells once the line is found
+        s = cells[:, :2] @ h
+        inl = _ransac_line(s, cells[:, 2], inlier_m, tries, plane_slope_deg, 89.0)
+        hm = down[inl].mean(axis=0) if inl.any() else h
+        h = hm / max(float(np.linalg.norm(hm)), 1e-12)
+    s = cells[:, :2] @ h
+    pts = cells
+    if points is not None:  # the points inside the inlier cells
+        g = gravity.grid
+        on = np.zeros(g.shape, bool)
+        iy, ix, _ = g.cell_index(cells[inl, 0], cells[inl, 1])
+        on[iy, ix] = True
+        p = np.asarray(points, float).reshape(-1, 3)
+        p = p[np.isfinite(p).all(axis=1)]
+        py, px, inside = g.cell_index(p[:, 0], p[:, 1])
+        p = p[inside][on[py[inside], px[inside]]]
+        if len(p) >= 3 * min_cells:
+            pts = p[:: max(1, len(p) // 20000)]
+            s = pts[:, :2] @ h
+            inl = np.ones(len(pts), bool)
+    normal = np.array([h[0], h[1], 1.0])
+    for _ in range(3):
+        if int(inl.sum()) < min_cells:
+            raise ValueError(f"only {int(inl.sum())} steep cells or points on one plane: no face to fit")
+        sz = np.column_stack([s[inl], pts[inl, 2]])
+        c2 = sz.mean(axis=0)
+        _, _, vt = np.linalg.svd(sz - c2, full_matrices=False)
+        ns, nz = vt[1] if vt[1][0] >= 0 else -vt[1]
+        normal = np.array([ns * h[0], ns * h[1], nz])
+        inl = np.abs((s - c2[0]) * ns + (pts[:, 2] - c2[1]) * nz) <= inlier_m
+    return FaceFrame.from_normal(pts[inl].mean(axis=0), normal)
+
+
+def face_band(gravity: ElevationMap, frame: FaceFrame, min_slope_deg: float = 45.0,
+              inlier_m: float = 0.15, margin_m: float = 0.3) -> tuple[F64, F64]:
+    """``((u_min, u_max), (v_min, v_max))`` of the face map. Along the strike, the gravity grid's
+    whole extent (its corners on the plane). Along the dip, from ``margin_m`` (vertical) above
+    the floor to ``margin_m`` below the plateau, where the plane meets their heights (the
+    medians of the mapped gentle cells out in front of the plane and below its centre, and of
+    those behind it and above); the transitions stay in the gravity grid, where the ground
+    turns away from the plane. Without a floor or a plateau mapped, that end is the 1st (99th)
+    percentile of the steep cells within ``inlier_m`` of the plane."""
+    q = frame.to_face(steep_points(gravity, min_slope_deg)[0])
+    q = q[np.abs(q[:, 2]) <= inlier_m]
+    if len(q) == 0:
+        raise ValueError("no steep mapped cells on the plane")
+    x0, x1, y0, y1 = gravity.grid.extent
+    cx, cy = np.array([x0, x1, x1, x0]), np.array([y0, y0, y1, y1])
+    corners = frame.to_face(np.column_stack([cx, cy, frame.plane_z(cx, cy)]))
+    u = np.array([corners[:, 0].min(), corners[:, 0].max()])
+    v = np.percentile(q[:, 1], [1.0, 99.0])
+    g = gravity.grid
+    gy, gx = np.gradient(gravity.z, g.cell)
+    with np.errstate(invalid="ignore"):
+        gentle = gravity.mapped & (np.hypot(gx, gy) < np.tan(np.radians(min_slope_deg)))
+    X, Y = g.centers()
+    z = gravity.z[gentle]
+    qg = frame.to_face(np.column_stack([X[gentle], Y[gentle], z]))
+    ev_z = float(frame.R[2, 1])
+    floor = (qg[:, 2] > 0) & (qg[:, 1] < 0)
+    top = (qg[:, 2] < 0) & (qg[:, 1] > 0)
+    if floor.sum() >= 10:
+        v[0] = max(v[0], (float(np.median(z[floor])) + margin_m - frame.origin[2]) / ev_z)
+    if top.sum() >= 10:
+        v[1] = min(v[1], (float(np.median(z[top])) - margin_m - frame.origin[2]) / ev_z)
+    if v[1] <= v[0]:
+        raise ValueError("the face band is empty")
+    return u, np.asarray(v, float)
+
+
+@dataclass(frozen=True)
+class FaceMergeStats:
+    """What one view did to the face map."""
+
+    merge: MergeStats
+    overhang_new: int  # cells flagged by this view
+    second_points: int  # points kept out of the map as a second surface
+
+
+class FaceMap:
+    """An elevation map (§1) in the face frame: ``map.z`` is ``w`` over the ``(u, v)`` grid."""
+
+    def __init__(self, frame: FaceFrame, u_range: tuple[float, float], v_range: tuple[float, float],
+                 cfg: FaceMapConfig | None = None, fusion: FusionConfig | None = None) -> None:
+        self.cfg = cfg or FaceMapConfig()
+        self.frame = frame
+        c = self.cfg.cell_m
+        nx = max(2, int(np.ceil((u_range[1] - u_range[0]) / c)))
+        ny = max(2, int(np.ceil((v_range[1] - v_range[0]) / c)))
+        self.map = ElevationMap(MapGrid(float(u_range[0]), float(v_range[0]), c, nx, ny), fusion)
+        self.overhang = np.zeros(self.map.grid.shape, bool)
+        self.second = np.full(self.map.grid.shape, np.nan)  # the other surface's w where flagged
+
+    def empty_like(self) -> FaceMap:
+        """An empty face map on the same frame and grid (e.g. one agent's share)."""
+        out = FaceMap(self.frame, (0.0, 1.0), (0.0, 1.0), self.cfg, self.map.cfg)
+        out.map = ElevationMap(self.map.grid, self.map.cfg)
+        out.overhang = np.zeros(self.map.grid.shape, bool)
+        out.second = np.full(self.map.grid.shape, np.nan)
+        return out
+
+    @property
+    def grid(self) -> MapGrid:
+        return self.map.grid
+
+    @property
+    def v_range(self) -> tuple[float, float]:
+        g = self.map.grid
+        return g.y0, g.y0 + g.ny * g.cell
+
+    @property
+    def u_range(self) -> tuple[float, float]:
+        g = self.map.grid
+        return g.x0, g.x0 + g.nx * g.cell
+
+    # -- the hand-over ------------------------------------------------------------------------
+    def routes(self, xyz: F64) -> tuple[B, B]:
+        """``(to_face, to_gravity)`` per world point: inside the band and the slab to the face,
+        outside to the gravity grid, both in the seam strips."""
+        q = self.frame.to_face(xyz)
+        v0, v1 = self.v_range
+        u0, u1 = self.u_range
+        s = self.cfg.seam_m
+        with np.errstate(invalid="ignore"):
+            slab = (q[:, 2] <= self.cfg.slab_out_m) & (q[:, 2] >= -self.cfg.slab_in_m)
+            across = (q[:, 0] >= u0) & (q[:, 0] < u1)
+            face = slab & across & (q[:, 1] >= v0) & (q[:, 1] < v1)
+            inner = slab & across & (q[:, 1] >= v0 + s) & (q[:, 1] < v1 - s)
+        return face, ~inner
+
+    def face_owned(self, grid: MapGrid) -> B:
+        """Gravity cells handed to the face: the plane over the cell's centre lies inside the band
+        minus its seams (and across the grid's ``u`` extent)."""
+        X, Y = grid.centers()
+        q = self.frame.to_face(np.column_stack([X.ravel(), Y.ravel(), self.frame.plane_z(X, Y).ravel()]))
+        v0, v1 = self.v_range
+        u0, u1 = self.u_range
+        s = self.cfg.seam_m
+        own = (q[:, 1] >= v0 + s) & (q[:, 1] < v1 - s) & (q[:, 0] >= u0) & (q[:, 0] < u1)
+        return np.asarray(own.reshape(grid.shape), bool)
+
+    def surface_z(self, x: F64, y: F64, iterations: int = 4) -> F64:
+        """World height of the face map's surface on the vertical line through each ``(x, y)``
+        (NaN where the face map has no value): ``z = plane_z + w(u, v) / n_z``, with ``(u, v)`` of
+        the point found by fixed-point iteration (the surface is piecewise constant per cell)."""
+        x = np.asarray(x, float).ravel()
+        y = np.asarray(y, float).ravel()
+        z = self.frame.plane_z(x, y)
+        nz = float(self.frame.normal[2])
+        g = self.map.grid
+        w = np.full(x.shape, np.nan)
+        for _ in range(iterations):
+            q = self.frame.to_face(np.column_stack([x, y, z]))
+            iy, ix, inside = g.cell_index(q[:, 0], q[:, 1])
+            w = np.where(inside, self.map.z[np.clip(iy, 0, g.ny - 1), np.clip(ix, 0, g.nx - 1)], np.nan)
+            z = self.frame.plane_z(x, y) + np.nan_to_num(w) / nz
+        return np.where(np.isfinite(w), z, np.nan)
+
+    # -- fusion ---------------------------------------------------------------------------------
+    def merge_parts(self, parts: list[ViewPart],
+                    p_visible: F64 | B | None = None) -> FaceMergeStats:
+        """Fuse one view's world points with covariance (the face-routed ones) through §1 in the
+        face frame, with the overhang test of the module docstring."""
+        xyz = np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3))
+        cov = np.concatenate([p[1] for p in parts]) if parts else np.zeros((0, 3, 3))
+        commons = [p[2] for p in parts]
+        common = None if not parts or any(c is None for c in commons) else np.concatenate(
+            [c for c in commons if c is not None])
+        q = self.frame.to_face(xyz)
+        cov_f = self.frame.cov_to_face(cov)
+        keep, flagged, n_second = self._two_surfaces(q, cov_f[:, 2, 2])
+        face_parts: list[tuple[F64, F64, F64 | None]] = [
+            (q[keep], cov_f[keep], None if common is None else self.frame.cov_to_face(common[keep]))]
+        stats = run_merge(self.map, face_parts, p_visible)
+        return FaceMergeStats(stats, flagged, n_second)
+
+    def _two_surfaces(self, q: F64, var_w: F64, min_points: int = 3) -> tuple[B, int, int]:
+        """The overhang test of one view (face coordinates ``q``, their variances along the
+        normal ``var_w``): flags cells, records their second surface, and returns which points to
+        fuse, the number of newly flagged cells and the points held back. Within the view, each
+        part must hold ``min_points`` points over the shared sub-cell; across views, the view's
+        cell mean (of at least ``min_points`` points) must lie beyond the gap plus the gate
+        (``gate_sigma`` times the root of the cell's variance plus the points' mean variance)."""
+        g, m, gap = self.map.grid, self.map, self.cfg.overhang_gap_m
+        n = len(q)
+        size = g.nx * g.ny
+        keep = np.ones(n, bool)
+        if n == 0:
+            return keep, 0, 0
+        fu = (q[:, 0] - g.x0) / g.cell
+        fv = (q[:, 1] - g.y0) / g.cell
+        inside = (fu >= 0) & (fu < g.nx) & (fv >= 0) & (fv < g.ny) & np.isfinite(q[:, 2])
+        idx = np.flatnonzero(inside)
+        cell = fv[idx].astype(np.intp) * g.nx + fu[idx].astype(np.intp)
+        sub = (2 * (fv[idx] % 1.0)).astype(np.intp) * 2 + (2 * (fu[idx] % 1.0)).astype(np.intp)
+        w = q[idx, 2]
+        order = np.lexsort((w, cell))
+        cs, ws, vs = cell[order], w[order], var_w[idx][order]
+        split = np.zeros(len(cs), bool)
+        split[1:] = (cs[1:] == cs[:-1]) & (np.diff(ws) > gap)
+        # level of each point in its cell (0 lowest); the top level is the outer surface
+        start = np.ones(len(cs), bool)
+        start[1:] = cs[1:] != cs[:-1]
+        lev = np.cumsum(split)
+        lev = lev - np.maximum.accumulate(np.where(start, lev, 0))
+        top = np.zeros(size, np.int64)
+        np.maximum.at(top, cs, lev)
+        outer = lev == top[cs]
+        key = cs * 4 + sub[order]
+        n_out = np.bincount(key, outer, size * 4)
+        n_in = np.bincount(key, ~outer, size * 4)
+        # per cell: an outer and an inner part over one sub-cell
+        two = np.asarray(((n_out >= min_points) & (n_in >= min_points)).reshape(-1, 4).any(axis=1), bool)
+        flat_over = self.overhang.reshape(-1)
+        flat_second = self.second.reshape(-1)
+        inner_pts = two[cs] & ~outer
+        new = int((two & ~flat_over).sum())
+        if inner_pts.any():
+            sw = np.bincount(cs[inner_pts], ws[inner_pts], size)
+            k = np.bincount(cs[inner_pts], minlength=size)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                mean_inner = sw / k
+            flat_second[two] = mean_inner[two]
+        flat_over |= two
+        keep[idx[order[inner_pts]]] = False
+        # across views: this view's mean in a mapped cell beyond the gap plus the gate: the
+        # cell keeps what it holds, the view's surface goes to ``second``
+        kept = ~inner_pts
+        cnt = np.bincount(cs[kept], minlength=size)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = np.bincount(cs[kept], ws[kept], size) / cnt
+            vmean = np.bincount(cs[kept], vs[kept], size) / cnt
+        zf, vf, mapped = m.z.reshape(-1), m.var.reshape(-1), m.mapped.reshape(-1)
+        with np.errstate(invalid="ignore"):
+            far = (cnt >= min_points) & mapped & (
+                np.abs(mean - zf) > gap + m.cfg.gate_sigma * np.sqrt(vf + vmean))
+        flat_second[far] = mean[far]
+        new += int((far & ~flat_over).sum())
+        flat_over |= far
+        keep[idx[order[kept & far[cs]]]] = False
+        return keep, new, int(n - keep.sum())
+
+
+def run_merge(emap: ElevationMap, parts: list[tuple[F64, F64, F64 | None]],
+              p_visible: F64 | B | None) -> MergeStats:
+    """``emap.merge_parts_steps`` run to its end (``parts`` is consumed)."""
+    return run_to_end(emap.merge_parts_steps(list(parts), p_visible=p_visible))
+
+
+def split_parts(parts: list[ViewPart], face: FaceMap) -> tuple[list[ViewPart], list[ViewPart]]:
+    """A view's parts split by the hand-over (:meth:`FaceMap.routes`): ``(face, gravity)``."""
+    to_f: list[ViewPart] = []
+    to_g: list[ViewPart] = []
+    for xyz, cov, common in parts:
+        f, g = face.routes(xyz)
+        for sel, out in ((f, to_f), (g, to_g)):
+            if sel.any():
+                out.append((xyz[sel], cov[sel], None if common is None else common[sel]))
+    return to_f, to_g
+
+
+def hand_over_z(gravity: ElevationMap, face: FaceMap) -> F64:
+    """The gravity grid's heights with the face-owned cells answered by the face map (NaN
+    where the owner has no value): one heightfield for planners and queries across the seam."""
+    own = face.face_owned(gravity.grid)
+    out = gravity.z.copy()
+    X, Y = gravity.grid.centers()
+    out[own] = face.surface_z(X[own], Y[own])
+    return out

@@ -1,0 +1,162 @@
+"""The Cliff-bot mission's checkpoint: its state, its navigation estimate and the received map.
+
+Two files in ``[checkpoint] directory``: ``cliffbot_state.json`` (schema 1: the mission's
+state, legs, targets with what became of them, the estimate and its covariance) and
+``cliffbot_map.npy`` (the received map, heights in the team's frame). Each is written to a
+temporary name and renamed over the old one, the map first, so a crash leaves the previous
+pair or the new one. A file that is missing, unreadable or inconsistent is refused with one
+line (:class:`CheckpointError`), never a traceback; the mission then starts afresh.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import BinaryIO
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.core.geometry import MapGrid
+from fsw.framework.storage import describe
+from fsw.tasks.cliffbot_mission import CliffbotMission, Leg
+
+SCHEMA = 1
+STATE, MAP = "cliffbot_state.json", "cliffbot_map.npy"
+STATES = ("WAIT_MAP", "PLAN", "WAIT_FIX", "DRIVE", "DWELL", "DONE", "SAFE")
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that cannot be used (one line)."""
+
+
+def snapshot(m: CliffbotMission, now: float) -> dict[str, object]:
+    """What the checkpoint keeps of the mission (JSON-ready)."""
+    return {
+        "schema": SCHEMA, "time_s": round(now, 6), "state": m.state, "safe_reason": m.safe_reason,
+        "leg_i": m.leg_i, "fix_seq": m.fix_seq, "map_version": m.map_version,
+        "start": [float(v) for v in m.start], "targets": m.targets.tolist(), "reached": list(m.reached),
+        "reasons": list(m.reasons), "legs": [[float(g.goal[0]), float(g.goal[1]), g.target] for g in m.legs],
+        "nav_s": [float(v) for v in m.nav.s], "nav_P": m.nav.P.tolist(),
+    }
+
+
+def restore(m: CliffbotMission, st: dict[str, object], z: NDArray[np.float64] | None, grid: MapGrid) -> str:
+    """Put the checkpoint's state into a fresh mission; a leg under way asks for a fix first.
+    Returns a one-line summary; :class:`CheckpointError` if the state does not fit."""
+    try:
+        if st.get("schema") != SCHEMA:
+            raise CheckpointError(f"schema {st.get('schema')!r}, expected {SCHEMA}")
+        state = str(st["state"])
+        if state not in STATES:
+            raise CheckpointError(f"unknown state {state!r}")
+        targets = np.asarray(st["targets"], float).reshape(-1, 2)
+        s = np.asarray(st["nav_s"], float).reshape(3)
+        p = np.asarray(st["nav_P"], float).reshape(3, 3)
+        legs = [_leg(v) for v in _list(st["legs"])]
+        reached = [bool(v) for v in _list(st["reached"])]
+        reasons = [str(v) for v in _list(st["reasons"])]
+        leg_i = _int(st["leg_i"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CheckpointError(f"{STATE}: {type(exc).__name__}: {exc}") from None
+    if not (np.isfinite(s).all() and np.isfinite(p).all() and np.isfinite(targets).all()):
+        raise CheckpointError(f"{STATE}: non-finite estimate or targets")
+    if len(reached) != len(targets) or len(reasons) != len(targets) or not 0 <= leg_i <= len(legs):
+        raise CheckpointError(f"{STATE}: targets, legs and their results do not agree")
+    if state not in ("WAIT_MAP",) and z is None:
+        raise CheckpointError(f"state {state} without {MAP}")
+    if z is not None:
+        if z.shape != grid.shape:
+            raise CheckpointError(f"{MAP}: shape {z.shape}, the map grid is {grid.shape}")
+        m.z, m.grid, m.map_version = np.asarray(z, np.float64), grid, _int(st.get("map_version", 1))
+    m.targets, m.reached, m.reasons, m.legs, m.leg_i = targets, reached, reasons, legs, leg_i
+    m.planned_lengths = [math.inf for _ in range(len(targets))]
+    m.start = np.asarray(st.get("start", m.start), float).reshape(2)
+    m.nav.s, m.nav.P = s, p
+    m.fix_seq = _int(st.get("fix_seq", 0))
+    if state in ("WAIT_FIX", "DRIVE", "DWELL"):
+        state = "WAIT_FIX"  # the leg goes on from the estimate, after a fix
+    m.state = state
+    m.safe_reason = str(st.get("safe_reason", "")) if state == "SAFE" else ""
+    return f"leg {leg_i + 1} of {len(legs)}, {sum(reached)} of {len(targets)} targets reached"
+
+
+def _list(v: object) -> list[object]:
+    if not isinstance(v, list):
+        raise TypeError(f"expected a list, got {type(v).__name__}")
+    return v
+
+
+def _leg(v: object) -> Leg:
+    """``[x, y, target or None]``."""
+    a, b, t = _list(v)
+    return Leg(np.array([_float(a), _float(b)]), None if t is None else _int(t))
+
+
+def _float(v: object) -> float:
+    if not isinstance(v, int | float):
+        raise TypeError(f"expected a number, got {type(v).__name__}")
+    return float(v)
+
+
+def _int(v: object) -> int:
+    if not isinstance(v, int | float | str):
+        raise TypeError(f"expected a number, got {type(v).__name__}")
+    return int(v)
+
+
+class CheckpointFile:
+    """The checkpoint's two files in ``directory`` ("" : no checkpoints)."""
+
+    def __init__(self, directory: str) -> None:
+        self.dir = Path(directory) if directory else None
+
+    @property
+    def enabled(self) -> bool:
+        return self.dir is not None
+
+    def save(self, state: dict[str, object], z: NDArray[np.float64] | None) -> str:
+        """Write both files; returns "" or the one-line reason they were not written."""
+        if self.dir is None:
+            return ""
+        try:
+            self.dir.mkdir(parents=True, exist_ok=True)
+            if z is not None:
+                self._atomic(MAP, lambda f: np.save(f, np.asarray(z, np.float64)))
+            else:
+                (self.dir / MAP).unlink(missing_ok=True)
+            self._atomic(STATE, lambda f: f.write(json.dumps(state).encode()))
+        except OSError as exc:
+            return describe(exc)
+        return ""
+
+    def _atomic(self, name: str, write: Callable[[BinaryIO], object]) -> None:
+        assert self.dir is not None
+        tmp = self.dir / f".{name}.tmp"
+        try:
+            with open(tmp, "wb") as f:
+                write(f)
+                f.flush()
+                os.fsync(f.fileno())
+            tmp.replace(self.dir / name)
+        finally:
+            tmp.unlink(missing_ok=True)
+
+    def load(self) -> tuple[dict[str, object], NDArray[np.float64] | None] | None:
+        """The checkpoint in the directory (None: there is none); :class:`CheckpointError` if
+        it is unreadable."""
+        if self.dir is None or not (self.dir / STATE).exists():
+            return None
+        try:
+            st = json.loads((self.dir / STATE).read_text())
+            if not isinstance(st, dict):
+                raise ValueError("not a JSON object")
+            z = None
+            if (self.dir / MAP).exists():
+                z = np.asarray(np.load(self.dir / MAP, allow_pickle=False), np.float64)
+        except (OSError, ValueError) as exc:
+            raise CheckpointError(f"{self.dir}: {type(exc).__name__}: {exc}") from None
+        return st, z

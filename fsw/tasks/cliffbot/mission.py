@@ -1,0 +1,184 @@
+"""The Cliff-bot's mission task: the sans-I/O mission (navigation inside) on the executive.
+
+Thin (docs/architecture.md, tasks): every activation it hands the sans-I/O
+:class:`~fsw.tasks.cliffbot_mission.CliffbotMission` the map the radio received, the
+RECON-bot's fixes and the devices' statuses, steps it, publishes its device commands and
+its fix requests, and turns what it recorded into events (``TARGET_UNREACHABLE`` with the
+planner's reason, ``SAFE`` with the reason, ...) and telemetry (state, estimate, covariance).
+
+SAFE is the mission's (winches braked, wheels stopped; docs/team.md): the task reports it
+(``SAFE``, ``safe_reason``), checkpoints, and leaves it on the ground's ``RECOVER`` (or by
+itself after ``[cliffbot_mission] safe_recover_s`` when that is not 0).
+
+Checkpoints (:mod:`fsw.tasks.cliffbot.checkpoint`): the mission state, the navigation
+estimate and the received map, written in ``[checkpoint] directory`` at every change of state;
+on start-up the task continues from a checkpoint there (``RESUMED``), its leg asking for a fix
+first.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar
+
+import numpy as np
+
+from fsw.comm.team.fix_packets import Fix, FixRequest
+from fsw.core.geometry import MapGrid
+from fsw.framework.commands import Arg, CommandDef
+from fsw.framework.telemetry import Channel, EventDef, Severity
+from fsw.tasks.base import FlightTask
+from fsw.tasks.cliffbot import checkpoint
+from fsw.tasks.cliffbot.messages import CB_COMMANDS, CB_FIX, CB_FIX_REQUEST, CB_MAP, CB_STATUS, DeviceStatus
+from fsw.tasks.cliffbot_mission import CliffbotMission
+
+A, I, W = Severity.ACTIVITY_HI, Severity.ACTIVITY_LO, Severity.WARNING_HI
+# the sans-I/O mission's events, as this task's (name -> severity)
+MISSION_EVENTS = {
+    "MAP": I, "PLAN": A, "FIX_REQUEST": I, "FIX": I, "FIX_REFUSED": W, "FIX_UNAVAILABLE": Severity.WARNING_LO,
+    "TARGET_UNREACHABLE": Severity.WARNING_LO, "TARGET_REACHED": A, "HOME": A, "DONE": A, "WINCH_FAULT": W,
+    "LINK_LOST": W, "SAFE": W, "RECOVER": A, "TARGETS_REFUSED": Severity.WARNING_LO,
+}
+RENAMED = {"COMMAND_REFUSED": "TARGETS_REFUSED"}  # the framework's own COMMAND_REFUSED is another event
+
+
+class CliffbotMissionTask(FlightTask):
+    KIND: ClassVar[str] = "cliffbot_mission"
+    RATE_HZ: ClassVar[tuple[float, float]] = (5.0, 50.0)  # winch pacing and timeouts assume ~10 Hz
+    REQUIRES: ClassVar[tuple[str, ...]] = ("cliffbot_devices", "cliffbot_radio", "health")
+    DOC: ClassVar[str] = "Cliff-bot mission: plan on the received map, drive the tethers to each target and home."
+    CHANNELS = (
+        Channel("state", doc="WAIT_MAP, PLAN, WAIT_FIX, DRIVE, DWELL, DONE, SAFE"),
+        Channel("x_m", "m", doc="navigation estimate"),
+        Channel("y_m", "m"),
+        Channel("yaw_deg", "deg"),
+        Channel("sigma_m", "m", doc="position 1-sigma (largest axis)"),
+        Channel("leg", "count"),
+        Channel("targets_reached", "count"),
+        Channel("safe_reason"),
+    )
+    EVENTS = (
+        *(EventDef(name, sev, "{text}") for name, sev in MISSION_EVENTS.items()),
+        EventDef("RESUMED", A, "continued from checkpoint in {state}: {text}"),
+        EventDef("CHECKPOINT_REFUSED", Severity.WARNING_LO, "checkpoint not used: {error}"),
+        EventDef("CHECKPOINT_FAILED", Severity.WARNING_LO, "checkpoint not written: {error}", throttle=5),
+    )
+    COMMANDS = (
+        CommandDef("RECOVER", doc="leave SAFE: clear the winches' faults, re-plan the leg from the estimate"),
+        CommandDef("SET_TARGETS", (Arg("targets", str),),
+                   doc="new science targets 'x1,y1;x2,y2;...' (m, map frame), planned from where the Cliff-bot is"),
+    )
+
+    def setup(self) -> None:
+        cfg = self.ctx.cfg
+        site = cfg.cliffbot_site
+        anchors = np.array([site.anchor_a_xyz, site.anchor_b_xyz], float)
+        targets = np.asarray(site.targets_xy, float).reshape(-1, 2)
+        self.mission = CliffbotMission(cfg.cliffbot_mission, cfg.tether, cfg.climber, cfg.cliffbot_nav, anchors,
+                                       np.asarray(site.start_xy, float), math.radians(site.start_yaw_deg), targets)
+        self.grid = MapGrid.from_config(cfg.map)
+        self.status = self.subscribe(CB_STATUS, depth=1)
+        self.maps = self.subscribe(CB_MAP, depth=2)
+        self.fixes = self.subscribe(CB_FIX, depth=4)
+        self.store = checkpoint.CheckpointFile(cfg.checkpoint.directory)
+        self._emitted = 0
+        self._saved_key: tuple[object, ...] | None = None
+        self._safe_since: float | None = None
+        self._last_t: float | None = None
+        self._restore()
+
+    # -- commands ------------------------------------------------------------------------------
+    def cmd_RECOVER(self) -> None:
+        self.mission.recover()
+
+    def cmd_SET_TARGETS(self, targets: str) -> None:
+        try:
+            pairs = [tuple(float(v) for v in p.split(",")) for p in targets.split(";") if p.strip()]
+            if any(len(p) != 2 for p in pairs):
+                raise ValueError("each target is 'x,y'")
+        except ValueError as exc:
+            self.mission.event("COMMAND_REFUSED", f"targets {targets!r}: {exc}")
+            return
+        self.mission.set_targets(np.asarray(pairs, float).reshape(-1, 2))
+
+    # -- the work ------------------------------------------------------------------------------
+    def run(self, frame: int) -> None:
+        now = self.ctx.clock.now()
+        m = self.mission
+        m.now = now
+        for got in self.maps.drain():
+            m.set_map(got.z, self.grid)
+        for ans in self.fixes.drain():
+            if isinstance(ans.answer, Fix):
+                m.on_fix(ans.answer)
+            else:
+                m.on_no_fix(ans.answer.seq, ans.reason)
+        st: DeviceStatus | None = self.status.latest()
+        if st is not None:
+            dt = self.ctx.frame_period_s if self._last_t is None else max(now - self._last_t, 1e-3)
+            self._last_t = now
+            cmd = m.step(now, st.devices, dt)
+            self.publish(CB_COMMANDS, cmd)
+            if cmd.request_fix:
+                xy = m.nav.xy
+                self.publish(CB_FIX_REQUEST, FixRequest(m.fix_seq, m.leg_i, float(xy[0]), float(xy[1])))
+        self._auto_recover(now)
+        self._events()
+        self._checkpoint(now)
+        self._telemetry()
+
+    def _auto_recover(self, now: float) -> None:
+        after = self.ctx.cfg.cliffbot_mission.safe_recover_s
+        if self.mission.state != "SAFE":
+            self._safe_since = None
+            return
+        self._safe_since = now if self._safe_since is None else self._safe_since
+        if after > 0 and now - self._safe_since >= after:
+            self.mission.recover()
+            self._safe_since = None
+
+    def _events(self) -> None:
+        evs = self.mission.events
+        for _, name, text in evs[self._emitted:]:
+            name = RENAMED.get(name, name)
+            self.event(name if name in MISSION_EVENTS else "TARGETS_REFUSED", text=text)
+        self._emitted = len(evs)
+
+    def _telemetry(self) -> None:
+        m = self.mission
+        s = m.nav.s
+        self.tlm_record({
+            "state": m.state, "x_m": float(s[0]), "y_m": float(s[1]), "yaw_deg": math.degrees(float(s[2])),
+            "sigma_m": math.sqrt(max(float(np.linalg.eigvalsh(m.nav.P[:2, :2]).max()), 0.0)),
+            "leg": m.leg_i, "targets_reached": int(sum(m.reached)), "safe_reason": m.safe_reason,
+        })
+
+    # -- checkpoints ---------------------------------------------------------------------------
+    def _checkpoint(self, now: float) -> None:
+        m = self.mission
+        key = (m.state, m.leg_i, m.map_version, tuple(m.reached), m.fixes_used)
+        if key == self._saved_key or not self.store.enabled:
+            return
+        self._saved_key = key
+        err = self.store.save(checkpoint.snapshot(m, now), m.z)
+        if err:
+            self.event("CHECKPOINT_FAILED", error=err)
+
+    def _restore(self) -> None:
+        if not self.store.enabled:
+            return
+        try:
+            got = self.store.load()
+        except checkpoint.CheckpointError as exc:
+            self.event("CHECKPOINT_REFUSED", error=str(exc))
+            return
+        if got is None:
+            return
+        state, z = got
+        try:
+            text = checkpoint.restore(self.mission, state, z, self.grid)
+        except checkpoint.CheckpointError as exc:
+            self.event("CHECKPOINT_REFUSED", error=str(exc))
+            return
+        self._emitted = len(self.mission.events)
+        self.event("RESUMED", state=self.mission.state, text=text)

@@ -1,0 +1,175 @@
+"""``safer-hil experiment close-edge``: does the rover leave a start boxed in by a close edge
+(issue 30 item 1; docs/experiments.md)?
+
+Generated starts (the ``terrain`` family, hil_sim/world/terrain.py) with the edge
+``--distances`` from the rover's footprint (its bumper when ahead, its wheels when right, a front
+corner when diagonal) at each of ``--bearings`` (deg from the heading: 0 ahead, -45 ahead-right,
+-90 right), for each ``--seeds``, each run as a full lockstep mission (``hil_sim.mission.mission_run``)
+per method, ``--jobs`` at a time in a process pool. It writes ``close_edge.json`` and
+``close_edge.md``: per start, each method's odometer and the first reason it stayed; per method,
+the starts it left; the criteria: no start where an information method (3, 4, 5) never moved
+while a raster method (1, 2) moved from it, every stuck mission with a reason in its summary,
+no edge violation, no wheel on unknown ground. Rows depend on the inputs and seeds only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import sys
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any
+
+from hil_sim.lab.experiments.experiment_ground import _one
+from hil_sim.lab.ground_report import row_of
+from hil_sim.lab.results import command_line, markdown_table, write_results
+
+HELP = "starts boxed in by a close edge (ahead, diagonal, right): does every method move off them, safely?"
+METHODS = ("1", "2", "3", "4", "5")
+RASTER = ("1", "2")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--bearings", default="0,-45,-90", help="edge directions, deg from the heading (0: ahead)")
+    p.add_argument("--distances", default="0.2,0.3,0.4,0.5", help="edge distances from the footprint, m (0.15-2)")
+    p.add_argument("--seeds", default="0,1", help="terrain seeds")
+    p.add_argument("--family", default="terrain", help="generated family spec, e.g. 'terrain?slope_deg=4'")
+    p.add_argument("--methods", default="5,1", help="comma-separated subset of 1-5")
+    p.add_argument("--steps", type=int, default=4, help="imaging steps after the panorama")
+    p.add_argument("--jobs", type=int, default=2, help="missions run in parallel (processes)")
+    p.add_argument("--out", type=Path, default=Path("out/close_edge"), help="output directory")
+    p.add_argument("--reuse", action="store_true",
+                   help="take a mission whose run directory under --out already holds its summary.json "
+                        "(an interrupted run goes on) instead of running it again")
+
+
+def start_spec(family: str, bearing_deg: float, distance_m: float) -> str:
+    """The scenario spec of one start: the family with the edge's bearing and distance set."""
+    sep = "&" if "?" in family else "?"
+    return f"{family}{sep}edge_bearing_deg={bearing_deg:g}&edge_distance_m={distance_m:g}"
+
+
+def _reused(out: Path, spec: str, seed: int) -> dict[str, Any] | None:
+    """The summary of a mission run before into ``out`` (None: none, or not readable)."""
+    from hil_sim.world import load_scenario
+
+    try:
+        s = json.loads((out / "summary.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(s, dict) or "steps" not in s:
+        return None
+    s["drawn"] = dict(load_scenario(spec, seed).drawn)
+    return s
+
+
+def _floats(text: str) -> list[float]:
+    return [float(v) for v in text.split(",") if v.strip()]
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from hil_sim.world import load_scenario
+    from hil_sim.world.config import load_scenario_config
+
+    try:
+        bearings, distances = _floats(args.bearings), _floats(args.distances)
+        seeds = [int(v) for v in args.seeds.split(",") if v.strip()]
+    except ValueError as err:
+        print(f"safer-hil experiment close-edge: bad list ({err})", file=sys.stderr)
+        return 2
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    if (not methods or any(m not in METHODS for m in methods) or not bearings or not distances or not seeds
+            or min(seeds) < 0 or args.steps < 1 or args.jobs < 1 or not all(0.15 <= d <= 2.0 for d in distances)):
+        print("safer-hil experiment close-edge: bad arguments (methods from 1-5; lists not empty; seeds >= 0; "
+              "distances 0.15-2 m; steps, jobs >= 1)", file=sys.stderr)
+        return 2
+    starts = [(start_spec(args.family, b, d), b, d, s) for b in bearings for d in distances for s in seeds]
+    try:  # a bad family, bearing or distance: one line before any mission
+        load_scenario(starts[0][0], seeds[0])
+        for spec, _, _, _ in starts:
+            load_scenario_config(spec)
+    except ValueError as err:
+        print(f"safer-hil experiment close-edge: {err}", file=sys.stderr)
+        return 2
+    args.out.mkdir(parents=True, exist_ok=True)
+    rows: list[dict[str, Any]] = []
+    failed: list[str] = []
+    with (
+        ProcessPoolExecutor(max_workers=args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool,
+        tqdm(total=len(starts) * len(methods), desc="close-edge", unit="mission") as bar,
+    ):
+        futs = {}
+        for spec, b, d, seed in starts:
+            for m in methods:
+                out = args.out / "runs" / f"b{b:g}_d{d:g}_seed{seed}_m{m}"
+                done = _reused(out, spec, seed) if args.reuse else None
+                if done is not None:
+                    rows.append({**row_of(done, spec, seed, args.steps), "bearing_deg": b, "distance_m": d})
+                    bar.update()
+                    continue
+                futs[pool.submit(_one, spec, m, args.steps, seed, str(out), "config")] = (spec, b, d, seed, m)
+        for fut in as_completed(futs):
+            spec, b, d, seed, m = futs[fut]
+            try:
+                row = row_of(fut.result(), spec, seed, args.steps)
+                rows.append({**row, "bearing_deg": b, "distance_m": d})
+            except Exception as exc:  # noqa: BLE001 - one failed mission is reported, the rest go on
+                failed.append(f"{spec} seed {seed} method {m}: {type(exc).__name__}: {exc}")
+            bar.update()
+    rows.sort(key=lambda r: (r["bearing_deg"], r["distance_m"], r["seed"], r["method"]))
+    (args.out / "close_edge.json").write_text(json.dumps({"rows": rows, "failed": failed}, indent=1) + "\n")
+    md = report(rows, failed, methods)
+    (args.out / "close_edge.md").write_text(md)
+    print(md)
+    write_results("close-edge", command_line("close-edge"), md)
+    return 1 if failed else 0
+
+
+def report(rows: list[dict[str, Any]], failed: list[str], methods: list[str]) -> str:
+    """The markdown report: one row per start, the summary per method, the criteria."""
+    by_start: dict[tuple[float, float, int], dict[str, dict[str, Any]]] = {}
+    for r in rows:
+        by_start.setdefault((r["bearing_deg"], r["distance_m"], r["seed"]), {})[r["method"]] = r
+    table = []
+    for (b, d, seed), per in sorted(by_start.items()):
+        line: dict[str, Any] = {"bearing deg": b, "edge m": d, "seed": seed}
+        for m in methods:
+            line[f"M{m} moved m"] = round(float(per[m]["odometer_m"]), 2) if m in per else None
+        reasons = [f"M{m}: {per[m]['stay_reasons'][0]}" for m in methods
+                   if m in per and not per[m]["moved"] and per[m]["stay_reasons"]]
+        line["why a method stayed"] = "; ".join(reasons)
+        table.append(line)
+    out = ["## Starts (odometer per method, m)", "", markdown_table(table), "", "## Per method", ""]
+    summary = []
+    for m in methods:
+        rs = [r for r in rows if r["method"] == m]
+        summary.append({"method": m, "missions": len(rs), "moved": sum(r["moved"] for r in rs),
+                        "edge violations": sum(r["edge_violations"] for r in rs),
+                        "wheels on unknown ground": sum(r["wheels_on_unknown_ground"] for r in rs),
+                        "wheels off terrain": sum(r["wheels_off_terrain"] for r in rs)})
+    out += [markdown_table(summary), "", "## Criteria (issue 30 item 1)", ""]
+    frozen = [(k, m) for k, per in sorted(by_start.items()) for m in methods
+              if m not in RASTER and m in per and not per[m]["moved"]
+              and any(per[x]["moved"] for x in RASTER if x in per)]
+    silent = [(k, m) for k, per in sorted(by_start.items()) for m, r in per.items()
+              if m not in RASTER and not r["moved"] and not r["stay_reasons"]]
+    viol = sum(r["edge_violations"] for r in rows)
+    unknown = sum(r["wheels_on_unknown_ground"] for r in rows)
+    met = {True: "met", False: "NOT MET"}
+    if not rows:
+        return "\n".join(out + ["- no mission finished: nothing to judge"] +
+                         ["", "## Failed missions", ""] + [f"- {f}" for f in failed]) + "\n"
+    out.append(f"- starts where an information method never moved while a raster method moved: **{len(frozen)}** "
+               f"(target 0) {met[not frozen]}" + "".join(f"\n  - bearing {k[0]:g}, edge {k[1]:g} m, seed {k[2]}: "
+                                                          f"method {m}" for k, m in frozen))
+    out.append(f"- information-method missions that never moved without a reason in their summary: "
+               f"**{len(silent)}** (target 0) {met[not silent]}")
+    out.append(f"- edge violations: **{viol}** (target 0) {met[viol == 0]}")
+    out.append(f"- frames moving with a wheel on unknown ground: **{unknown}** (target 0) {met[unknown == 0]}")
+    if failed:
+        out += ["", "## Failed missions", ""] + [f"- {f}" for f in failed]
+    return "\n".join(out) + "\n"

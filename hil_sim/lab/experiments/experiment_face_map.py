@@ -1,0 +1,163 @@
+"""``safer-hil experiment face-map``: the face map against the gravity grid, and both agents' views.
+
+For each seeded ``cliff-team`` scene (``--scenes`` from ``--seed``, in ``--jobs`` processes),
+no mission: the map is measured. Views are rendered from
+
+* ``--recon-views`` RECON-bot mast poses on the plateau behind the edge, looking down the face
+  (the flight camera, the ideal pinhole pair: no rectification), and
+* ``--cliff-views`` Cliff-bot poses on the face (alternately up the dip, from the body's upper
+  end, and down it, from its lower end; position and pan drawn from the seed) with its small
+  pair (``hil_sim.team.team_sensing``),
+
+each with the tethers, the RECON-bot, the Anchorbots and the Cliff-bot in the picture, and each
+camera pose wrong by an error drawn from the covariance it is fused with (RECON-bot: 0.2 deg,
+1 cm; Cliff-bot: its navigation after a fix, 0.5 deg, 2 cm). Every view goes through the sensing
+pipeline (``fsw.core.pipeline``: stereo, world points with covariance, the team mask of
+``fsw.core.map.body_mask`` at the robots' estimated poses; registration off, the poses are
+given), then into:
+
+* ``gravity``: the scenario's gravity grid, every point (the one-grid map of today);
+* ``face`` + its gravity grid: the face map fitted on the gravity grid after the RECON-bot's
+  views, or after the first Cliff-bot views when those do not show enough of the face
+  (``fit_face_plane``; cell at equal memory: ``c_g / sqrt(cos a)``), and the hand-over of
+  docs/algorithm.md §8.1 (the views before the fit are fused once it is there);
+* ``face_recon``, ``face_cliff``: the same face map fed by one agent only.
+
+Figures per scene: ``face_rmse_m`` and ``face_rmse_gravity_m`` (``hil_sim.team.face_eval``),
+their ratio, the truth overhang cells flagged, the fused vs single-agent RMS on cells both agents
+mapped, the fraction of cells within 2 sigma (each agent, fused), the stereo points on a robot
+or a tether (judged on the truth: ``hil_sim.team.face_scene.team_points``, from the renderer's
+label of each pixel), those of them that survive the mask into the map, and the gravity-grid
+cells they fall in (robot/tether cells mapped as terrain). Writes
+OUT/face_map.csv and ``docs/results/face-map.md`` (medians, worst cases).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any
+
+HELP = "the face-aligned map vs the gravity grid at equal memory, both agents' views, the team mask"
+COLUMNS = ("seed", "slope_deg", "views", "face_cells", "face_rmse_m", "face_rmse_gravity_m", "ratio",
+           "overhang_truth", "overhang_flagged", "overhang_false", "both_cells", "rmse_recon_m",
+           "rmse_cliff_m", "rmse_fused_m", "in2s_recon", "in2s_cliff", "in2s_fused", "team_points_seen",
+           "team_points_fused", "team_cells_mapped")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from fsw.settings import DEFAULT_CONFIG
+
+    p.add_argument("--scenario", default="cliff-team", help="scenario spec (seeded per scene)")
+    p.add_argument("--scenes", type=int, default=30, help="number of seeded scenes")
+    p.add_argument("--seed", type=int, default=0, help="first seed")
+    p.add_argument("--jobs", type=int, default=1, help="scenes run in parallel (processes)")
+    p.add_argument("--recon-views", type=int, default=4, help="RECON-bot views per scene")
+    p.add_argument("--cliff-views", type=int, default=4, help="Cliff-bot views per scene")
+    p.add_argument("--config", default=str(DEFAULT_CONFIG), help="flight configuration (TOML)")
+    p.add_argument("--out", type=Path, default=Path("out/face-map"), help="output directory")
+
+
+def run(args: argparse.Namespace) -> int:
+    from fsw.framework.params import ConfigError
+    from fsw.settings import load_settings
+    from hil_sim.lab.results import command_line, markdown_table, write_results
+    from hil_sim.world import ScenarioError, load_scenario
+
+    me = "safer-hil experiment face-map"
+    if args.scenes < 1 or args.jobs < 1 or args.recon_views < 1 or args.cliff_views < 0:
+        print(f"{me}: --scenes, --jobs and --recon-views must be >= 1, --cliff-views >= 0", file=sys.stderr)
+        return 2
+    try:
+        load_settings(args.config, check_calibration=False)
+        w = load_scenario(args.scenario, args.seed)
+        if w.team is None:
+            raise ScenarioError(f"{args.scenario} has no team (use a cliff-team scenario)")
+    except (ScenarioError, ConfigError, ValueError, OSError) as exc:
+        print(f"{me}: {exc}", file=sys.stderr)
+        return 2
+    seeds = list(range(args.seed, args.seed + args.scenes))
+    rows: list[dict[str, Any]] = []
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        futs = {pool.submit(scene, args.scenario, s, args.config, args.recon_views, args.cliff_views): s
+                for s in seeds}
+        for fut in as_completed(futs):
+            try:
+                rows.append(fut.result())
+            except Exception as exc:  # noqa: BLE001 - one failed scene is reported, the rest go on
+                print(f"seed {futs[fut]}: FAILED {type(exc).__name__}: {exc}", file=sys.stderr)
+                continue
+            r = rows[-1]
+            print(f"[{len(rows)}/{len(seeds)}] seed {r['seed']}: face {_f(r['face_rmse_m'])} m, gravity "
+                  f"{_f(r['face_rmse_gravity_m'])} m, overhangs {r['overhang_flagged']}/{r['overhang_truth']}, "
+                  f"team cells {r['team_cells_mapped']}", flush=True)
+    rows.sort(key=lambda r: r["seed"])
+    if not rows:
+        return 1
+    args.out.mkdir(parents=True, exist_ok=True)
+    with (args.out / "face_map.csv").open("w", newline="") as f:
+        wr = csv.DictWriter(f, fieldnames=list(COLUMNS))
+        wr.writeheader()
+        wr.writerows(rows)
+    md = report(rows, markdown_table)
+    print(md)
+    write_results("face-map", command_line("face-map"), md)
+    return 0 if len(rows) == len(seeds) else 1
+
+
+def _f(v: Any) -> str:
+    return "-" if v is None else f"{v:.4f}"
+
+
+def report(rows: list[dict[str, Any]], table: Any) -> str:
+    """The summary (medians, worst cases, pooled rates) and the per-scene table."""
+    import numpy as np
+
+    def col(k: str) -> Any:
+        return np.array([r[k] for r in rows if r[k] is not None], float)
+
+    ratio, fused = col("ratio"), col("rmse_fused_m")
+    better = np.array([min(r["rmse_recon_m"], r["rmse_cliff_m"]) for r in rows
+                       if None not in (r["rmse_recon_m"], r["rmse_cliff_m"], r["rmse_fused_m"])])
+    fused_b = np.array([r["rmse_fused_m"] for r in rows
+                        if None not in (r["rmse_recon_m"], r["rmse_cliff_m"], r["rmse_fused_m"])])
+    ot, of = sum(r["overhang_truth"] for r in rows), sum(r["overhang_flagged"] for r in rows)
+    summary = []
+
+    def add(name: str, v: Any, worst: Any, goal: str) -> None:
+        summary.append({"figure": name, "median": v, "worst": worst, "goal": goal})
+
+    if ratio.size:
+        add("face_rmse_m / face_rmse_gravity_m", float(np.median(ratio)), float(ratio.max()), "<= 0.5")
+        add("face_rmse_m", float(np.median(col("face_rmse_m"))), float(col("face_rmse_m").max()), "")
+        add("face_rmse_gravity_m", float(np.median(col("face_rmse_gravity_m"))),
+            float(col("face_rmse_gravity_m").max()), "")
+    add("overhang cells flagged (pooled)", of / ot if ot else None, f"{of} of {ot}", ">= 0.95")
+    add("overhang false flags (pooled cells)", sum(r["overhang_false"] for r in rows), "", "")
+    if better.size:
+        d = fused_b - better
+        add("fused RMS - better agent's (m)", float(np.median(d)), float(d.max()), "<= 0")
+    if fused.size:
+        for k in ("in2s_recon", "in2s_cliff", "in2s_fused"):
+            v = col(k)
+            worst = float(v[np.argmax(np.abs(v - 0.945))]) if v.size else None
+            add(f"{k} (within 2 sigma)", float(np.median(v)) if v.size else None, worst, "0.90-0.99")
+    add("views", sum(r["views"] for r in rows), "", ">= 200")
+    add("robot/tether points from stereo (truth)", sum(r["team_points_seen"] for r in rows), "", "")
+    add("robot/tether points fused after the mask", sum(r["team_points_fused"] for r in rows),
+        max(r["team_points_fused"] for r in rows), "0")
+    add("robot/tether cells mapped as terrain", sum(r["team_cells_mapped"] for r in rows),
+        max(r["team_cells_mapped"] for r in rows), "0")
+    return ("## Summary\n\n" + table(summary, ["figure", "median", "worst", "goal"])
+            + "\n\n## Scenes\n\n" + table(rows, list(COLUMNS)) + "\n")
+
+
+def scene(spec: str, seed: int, config: str, n_recon: int, n_cliff: int) -> dict[str, Any]:
+    """One scene's figures (module docstring); deterministic per seed."""
+    from hil_sim.team.face_scene import FaceScene
+
+    return FaceScene(spec, seed, config).measure(n_recon, n_cliff)
+

@@ -1,0 +1,114 @@
+"""The face map judged against the truth (docs/algorithm.md §8.1; ``safer-hil experiment face-map``).
+
+* :func:`truth_along_normal`: for each face cell, the truth surface on the line through the cell
+  centre along the face normal: the outermost crossing ``w`` (from inside the ground to the air)
+  and whether the line crosses the surface more than once over more than the overhang gap (a
+  truth overhang: two surfaces over one spot of the face).
+* :func:`face_figures`: the figures a team mission puts in its summary (``team.face_rmse_m``,
+  ``team.face_rmse_gravity_m``): the face map's error along the normal on its mapped,
+  single-surface cells, and the gravity grid's error on the same cells, measured the same way:
+  where the same line along the face normal crosses the gravity grid's heightfield (one height
+  per cell, as the grid is used), against the truth's crossing.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.core.map.elevation_map import ElevationMap
+from fsw.core.map.face_map import FaceMap
+from hil_sim.world.world import World
+
+F64 = NDArray[np.float64]
+B = NDArray[np.bool_]
+
+
+def along_normal(height: Callable[[F64, F64], F64], face: FaceMap, cells: NDArray[np.intp],
+                 reach_m: float = 1.0, step_m: float = 0.005, chunk: int = 4000) -> tuple[F64, B]:
+    """``(w, overhang)``: where the line through each face cell's centre (flat indices ``cells``)
+    along the face normal leaves the heightfield ``height(x, y)`` for the last time (from below
+    the surface to above it; NaN where it does not inside ``+-reach_m``, or where ``height`` is
+    NaN there), and whether it crosses the surface more than once over more than the overhang
+    gap."""
+    g = face.grid
+    ws = np.arange(-reach_m, reach_m + step_m / 2, step_m)
+    out_w = np.full(len(cells), np.nan)
+    out_o = np.zeros(len(cells), bool)
+    gap = face.cfg.overhang_gap_m
+    for a in range(0, len(cells), chunk):
+        c = cells[a:a + chunk]
+        u = g.x0 + (c % g.nx + 0.5) * g.cell
+        v = g.y0 + (c // g.nx + 0.5) * g.cell
+        q = np.stack(np.broadcast_arrays(u[:, None], v[:, None], ws[None, :]), axis=-1)
+        p = face.frame.to_world(q.reshape(-1, 3)).reshape(q.shape)
+        f = p[..., 2] - height(p[..., 0], p[..., 1])
+        known = np.isfinite(f)
+        air = f > 0
+        pair = known[:, :-1] & known[:, 1:]
+        up = pair & ~air[:, :-1] & air[:, 1:]  # below -> above between samples k and k + 1
+        down = pair & air[:, :-1] & ~air[:, 1:]
+        has = up.any(axis=1)
+        last = np.where(has, up.shape[1] - 1 - np.argmax(up[:, ::-1], axis=1), 0)
+        first = np.argmax(up | down, axis=1)
+        r = np.arange(len(c))
+        f0, f1 = f[r, last], f[r, last + 1]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            t = np.clip(np.nan_to_num(-f0 / (f1 - f0)), 0.0, 1.0)
+        out_w[a:a + chunk] = np.where(has, ws[last] + t * step_m, np.nan)
+        crossings = (up | down).sum(axis=1)
+        out_o[a:a + chunk] = has & (crossings > 1) & ((last - first) * step_m > gap)
+    return out_w, out_o
+
+
+def truth_along_normal(world: World, face: FaceMap, cells: NDArray[np.intp]) -> tuple[F64, B]:
+    """:func:`along_normal` of the true ground (``(w_true, overhang)``)."""
+    return along_normal(lambda x, y: np.nan_to_num(world.ground_at(x, y), nan=1e9), face, cells)
+
+
+def gravity_along_normal(gravity: ElevationMap, face: FaceMap, cells: NDArray[np.intp]) -> F64:
+    """The gravity grid read along the face normal: :func:`along_normal` of its heightfield
+    (one height per cell, as the grid is used; NaN where the crossing meets an unknown cell)."""
+    g = gravity.grid
+
+    def height(x: F64, y: F64) -> F64:
+        iy, ix, inside = g.cell_index(x, y)
+        z = gravity.z[np.clip(iy, 0, g.ny - 1), np.clip(ix, 0, g.nx - 1)]
+        return np.where(inside, z, np.nan)
+
+    return along_normal(height, face, cells)[0]
+
+
+def _rms(e: F64) -> float | None:
+    e = e[np.isfinite(e)]
+    return float(np.sqrt(np.mean(e * e))) if e.size else None
+
+
+def face_figures(world: World, face: FaceMap, gravity: ElevationMap,
+                 cells_by_agent: dict[str, int] | None = None) -> dict[str, Any]:
+    """The team summary's face figures: ``face_rmse_m`` (mapped single-surface face cells, the
+    face map), ``face_rmse_gravity_m`` (the same cells, read from ``gravity``; only cells both
+    have), ``face_cells``, ``overhang_truth``, ``overhang_flagged`` and ``cells_by_agent``."""
+    cells = np.flatnonzero(face.map.mapped.reshape(-1))
+    w_true, over = truth_along_normal(world, face, cells)
+    e_face = face.map.z.reshape(-1)[cells] - w_true
+    e_grav = gravity_along_normal(gravity, face, cells) - w_true
+    both = ~over & np.isfinite(e_face) & np.isfinite(e_grav)
+    flagged = face.overhang.reshape(-1)[cells]
+    return {
+        "face_rmse_m": _rms(e_face[both]), "face_rmse_gravity_m": _rms(e_grav[both]),
+        "face_cells": int(both.sum()), "overhang_truth": int(over.sum()),
+        "overhang_flagged": int((over & flagged).sum()), "overhang_false": int((~over & flagged).sum()),
+        "cells_by_agent": dict(cells_by_agent or {}),
+    }
+
+
+def equal_memory_cell(gravity_cell_m: float, slope_deg: float) -> float:
+    """The face cell side with as many cells over a face of ``slope_deg`` as the gravity grid's
+    over its horizontal footprint: ``c_g / sqrt(cos a)`` (the strike is common, the dip is
+    ``1 / cos a`` longer)."""
+    return gravity_cell_m / math.sqrt(max(math.cos(math.radians(slope_deg)), 1e-3))

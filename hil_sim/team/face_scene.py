@@ -1,0 +1,297 @@
+"""One cliff-team scene seen by both agents, for ``safer-hil experiment face-map`` and its tests.
+
+:class:`FaceScene` places the team (RECON-bot mast poses behind the edge, the Cliff-bot on the
+face on its two tethers), renders each view with the team in the picture, runs it through the
+sensing pipeline with the team mask at the estimated poses and fuses it into the gravity-only
+grid, the face map with its gravity grid, and the one-agent face maps; :meth:`FaceScene.measure`
+returns the figures (``hil_sim.lab.experiments.experiment_face_map``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import ndimage
+
+from fsw.core.geometry import CameraPose, MapGrid, camera_pose_from_rover
+from fsw.core.map.body_mask import BodyBox, TeamGeometry, TetherLine
+from fsw.core.map.elevation_map import ElevationMap
+from fsw.core.map.face_map import FaceMap, FaceMapConfig, face_band, fit_face_plane, run_merge, split_parts
+from fsw.core.pipeline import RegisteredPose, SensingPipeline, ViewPart
+from fsw.core.registration.registration import Registration
+from fsw.core.steps import run_to_end
+from fsw.core.stereo.stereo import StereoPoints
+from fsw.core.team.tether import TetherConfig, anchor_points, surface_normal, tether_state
+from hil_sim.team.face_eval import equal_memory_cell, face_figures, truth_along_normal
+from hil_sim.team.team_sensing import (
+    ANCHOR_HALF_M,
+    CLIFFBOT_CAMERA,
+    RECON_HALF_M,
+    TETHER_RADIUS_M,
+    TeamPose,
+    cliffbot_camera_pose,
+    team_quads,
+    yaw_box,
+)
+from hil_sim.world.cliffbot import build_cliffbot
+from hil_sim.world.world import World
+
+F32 = NDArray[np.float32]
+F64 = NDArray[np.float64]
+RECON_SIGMA = (math.radians(0.2), 0.01)  # camera pose error: rotation (rad), translation (m)
+CLIFF_SIGMA = (math.radians(0.5), 0.02)
+
+
+def pose_cov(sigma: tuple[float, float]) -> F64:
+    return np.diag([sigma[0] ** 2] * 3 + [sigma[1] ** 2] * 3)
+
+
+def perturbed(pose: CameraPose, cov: F64, rng: np.random.Generator) -> CameraPose:
+    """The pose with an error drawn from ``cov`` (rotation about world axes, then translation)."""
+    import cv2
+
+    e = rng.multivariate_normal(np.zeros(6), cov)
+    dR = cv2.Rodrigues(e[:3].reshape(3, 1))[0]
+    return CameraPose(dR @ pose.R, pose.t + e[3:])
+
+
+def team_points(pts: StereoPoints, quad: NDArray[np.bool_], terrain: F32, grow_px: int = 3) -> NDArray[np.bool_]:
+    """The truth's judge of a view's stereo points: on a robot or a tether when the point's left
+    pixel is within ``grow_px`` of a pixel that sees one (``quad``; a matching window straddling
+    an outline gives its pixels the robot's depth) and the point lies in front of the nearest
+    terrain seen within ``grow_px`` of it (``terrain`` depth) by more than 5 cm and 3 sigma of
+    its depth (a window straddling a terrain lip gives the lip's depth: that is terrain)."""
+    h, w = quad.shape
+    size = 2 * grow_px + 1
+    near = ndimage.binary_dilation(quad, iterations=grow_px) if grow_px > 0 else quad
+    nearest = ndimage.minimum_filter(np.nan_to_num(terrain, nan=np.inf), size=size)
+    u = np.clip(np.rint(pts.uv[:, 0]).astype(np.intp), 0, w - 1)
+    v = np.clip(np.rint(pts.uv[:, 1]).astype(np.intp), 0, h - 1)
+    tol = np.maximum(0.05, 3.0 * np.sqrt(np.maximum(pts.cov_c[:, 2, 2], 0.0)))
+    return np.asarray(near[v, u] & (pts.xyz_c[:, 2] < nearest[v, u] - tol), bool)
+
+
+class FaceScene:
+    def __init__(self, spec: str, seed: int, config: str, mask: bool = True) -> None:
+        """``mask``: the team mask on (the flight's way); off shows what it keeps out."""
+        from fsw.settings import load_settings
+        from hil_sim.world import load_scenario
+
+        self.world: World = load_scenario(spec, seed)
+        if self.world.team is None:
+            raise ValueError(f"{spec} has no team")
+        self.seed = seed
+        self.mask = mask
+        self.rng = np.random.default_rng([seed, 2801])
+        cfg = load_settings(config, check_calibration=False)
+        off = dataclasses.replace(cfg.registration, enabled=False)
+        self.cfg = dataclasses.replace(cfg, camera=dataclasses.replace(cfg.camera, calibration_file=""),
+                                       registration=off)
+        self.cfg_cliff = dataclasses.replace(self.cfg, camera=CLIFFBOT_CAMERA)
+        sc = self.world.config
+        assert sc is not None
+        self.grid = MapGrid.from_config(sc.map)
+        self.gravity = ElevationMap(self.grid, self.cfg.fusion)  # every point: the one-grid map
+        self.split_gravity = ElevationMap(self.grid, self.cfg.fusion)
+        self.face: FaceMap | None = None
+        self.by_agent: dict[str, FaceMap] = {}
+        self.pending: list[tuple[str, list[ViewPart]]] = []
+        self.team_points = 0  # stereo points on a robot or a tether (truth): what the mask had to remove
+        self.team_points_fused = 0  # of those, the ones that reached the maps
+        self.team_cells: set[tuple[int, int]] = set()  # the gravity-grid cells those fell in
+        self.views = 0
+        self.cells_by_agent = {"recon": 0, "cliffbot": 0}
+        self.z_grid = self.world.ground_on_grid(self.grid)
+        self.tcfg = TetherConfig()
+        self.anchors = anchor_points(self.z_grid, self.grid, self.world.team.anchors_xy, self.tcfg)
+
+    # -- the team ---------------------------------------------------------------------------
+    def cliffbot_at(self, depth_frac: float, dx: float, rover: tuple[float, float, float]
+                    ) -> tuple[F64, F64, TeamPose, Any]:
+        """The Cliff-bot on the face at ``depth_frac`` of the drop, ``dx`` beside its start, the
+        RECON-bot at ``rover``: body point, ground normal, the team's true pose, the world's
+        Cliff-bot."""
+        t = self.world.team
+        assert t is not None
+        x = float(t.cliffbot_start_xy[0]) + dx
+        ys = np.linspace(t.edge_y_m + 0.5, t.edge_y_m - t.drop_m / math.tan(math.radians(t.face_slope_deg)) - 2.0, 800)
+        zs = self.world.ground_at(np.full_like(ys, x), ys)
+        y = float(ys[int(np.argmax(zs <= -depth_frac * t.drop_m))])
+        zg = float(self.world.ground_at(x, y))
+        n = surface_normal(self.z_grid, self.grid, np.array([x, y]), 0.3)
+        n = np.array([0.0, -0.5, 0.87]) if n is None else n
+        yaw = -math.pi / 2
+        cb = self.world.cliffbot
+        body = build_cliffbot(x, y, zg, yaw, size_m=(cb.length_m, cb.width_m, cb.height_m),
+                              marker_size_m=cb.markers[0].size_m if cb.markers else 0.18)
+        attach = np.array([x, y, zg + self.tcfg.attach_m])
+        st = tether_state(self.z_grid, self.grid, self.anchors, np.array([x, y]), self.tcfg, 0.3)
+        lines = []
+        for k in range(2):
+            mid = np.zeros((0, 3)) if st is None else st.paths[k].contacts
+            lines.append(np.vstack([self.anchors[k], mid, attach]))
+        recon = yaw_box(np.array([rover[0], rover[1], 0.3]), rover[2], RECON_HALF_M)
+        anchors = tuple(yaw_box(np.array([a[0], a[1], 0.2]), -math.pi / 2, ANCHOR_HALF_M) for a in t.anchors_xy)
+        # the whole robot: the body and its fiducial plates (the inclined one stands above the top)
+        corners = np.concatenate([q.corners for q in body.quads]) - body.t
+        local = corners @ body.R
+        lo, hi = local.min(axis=0), local.max(axis=0)
+        box = BodyBox(body.t + body.R @ (0.5 * (lo + hi)), body.R, 0.5 * (hi - lo))
+        team = TeamPose(box, recon, (anchors[0], anchors[1]), (lines[0], lines[1]))
+        return np.array([x, y, zg]), n, team, body
+
+    @staticmethod
+    def known(team: TeamPose, cliff_err: F64) -> TeamGeometry:
+        """The team's geometry as the flight side knows it: the Cliff-bot (and the tethers' ends
+        at it) off by its navigation error ``cliff_err``; the others as placed."""
+        sig = CLIFF_SIGMA[1]
+        box = BodyBox(team.cliffbot.center + cliff_err, team.cliffbot.R, team.cliffbot.half, sig)
+        lines = []
+        for line in team.tethers:
+            s = np.linspace(0.0, 1.0, len(line))[:, None]
+            lines.append(TetherLine(line + s * cliff_err, TETHER_RADIUS_M, sig))
+        return TeamGeometry((box, team.recon, *team.anchors), tuple(lines))
+
+    # -- views ------------------------------------------------------------------------------
+    def _view(self, agent: str, pose: CameraPose, cov: F64, team: TeamPose, body: Any, known: TeamGeometry) -> None:
+        from hil_sim.render import StereoRenderer
+
+        cfg = self.cfg if agent == "recon" else self.cfg_cliff
+        w = dataclasses.replace(self.world, cliffbot=body)
+        rend = StereoRenderer(w, cfg.camera, self.world.noise_sigma, seed=int(self.rng.integers(1 << 30)))
+        left, right, quad, terrain = rend.render_labelled(pose, team_quads(team, pose.t))
+        est = perturbed(pose, cov, self.rng)
+        pipe = SensingPipeline(cfg, None, emap=self.gravity)
+        pipe.team = known if self.mask else None
+        dm = run_to_end(pipe.matcher.match_steps(left, right))
+        pts = run_to_end(pipe.matcher.triangulate_steps(dm.disparity_px, sigma_px=dm.sigma_px))
+        placed = RegisteredPose(Registration("off", "bench pose"), est, cov, None)
+        on_team = team_points(pts, quad, terrain)
+        self.team_points += int(on_team.sum())
+        if on_team.any():  # the same pipeline stage on the team's points alone: what survives the mask
+            sub = dataclasses.replace(pts, xyz_c=pts.xyz_c[on_team], cov_c=pts.cov_c[on_team],
+                                      uv=pts.uv[on_team], disparity_px=pts.disparity_px[on_team])
+            for xyz, _, _ in run_to_end(pipe.world_parts_steps(placed, sub)):
+                self.team_points_fused += len(xyz)
+                iy, ix, inside = self.grid.cell_index(xyz[:, 0], xyz[:, 1])
+                self.team_cells |= set(zip(iy[inside].tolist(), ix[inside].tolist(), strict=True))
+        parts = run_to_end(pipe.world_parts_steps(placed, pts))
+        self.views += 1
+        run_merge(self.gravity, parts, None)
+        if self.face is None:
+            self.pending.append((agent, parts))
+            return
+        self._fuse(agent, parts)
+
+    def _try_fit(self) -> None:
+        try:
+            frame = fit_face_plane(self.gravity, None, FaceMapConfig().min_slope_deg)
+            u, v = face_band(self.gravity, frame)
+        except ValueError:
+            return
+        fc = dataclasses.replace(FaceMapConfig(), cell_m=equal_memory_cell(self.grid.cell, frame.slope_deg))
+        self.face = FaceMap(frame, (u[0], u[1]), (v[0], v[1]), fc, self.cfg.fusion)
+        for a in ("recon", "cliffbot"):
+            self.by_agent[a] = self.face.empty_like()
+        for agent, parts in self.pending:
+            self._fuse(agent, parts)
+        self.pending = []
+
+    def _fuse(self, agent: str, parts: list[ViewPart]) -> None:
+        assert self.face is not None
+        to_face, to_grav = split_parts(parts, self.face)
+        before = int(self.face.map.mapped.sum() + self.split_gravity.mapped.sum())
+        self.face.merge_parts(to_face)
+        run_merge(self.split_gravity, to_grav, None)
+        self.by_agent[agent].merge_parts(to_face)
+        self.cells_by_agent[agent] += int(self.face.map.mapped.sum() + self.split_gravity.mapped.sum()) - before
+
+    def recon_poses(self, n: int) -> list[tuple[tuple[float, float, float], CameraPose]]:
+        """Mast poses from the plateau: the rover ``0.7 m`` behind the edge, beside the face
+        (alternately left and right of the Cliff-bot's fall line, heading along the edge), its
+        camera aimed at a point of the face drawn from the seed (the mast's limits apply)."""
+        t = self.world.team
+        assert t is not None
+        cx = float(t.cliffbot_start_xy[0])
+        run = t.drop_m / math.tan(math.radians(t.face_slope_deg))
+        out = []
+        for k in range(n):
+            side = -1.0 if k % 2 == 0 else 1.0
+            x = cx + side * float(self.rng.uniform(1.5, 3.0))
+            rover = (x, t.edge_y_m + 0.7, 0.0 if side < 0 else math.pi)
+            depth = float(self.rng.uniform(0.2, 0.8))
+            aim = np.array([cx + float(self.rng.uniform(-1.0, 1.0)), t.edge_y_m - depth * run, -depth * t.drop_m])
+            base = camera_pose_from_rover(rover, (0.0, 0.0, 0.3), self.cfg.mast).t
+            d = aim - base
+            pan = math.atan2(d[1], d[0]) - rover[2]
+            pan = math.atan2(math.sin(pan), math.cos(pan))
+            tilt = math.atan2(d[2], math.hypot(d[0], d[1]))
+            out.append((rover, camera_pose_from_rover(rover, self.cfg.mast.clamp(pan, tilt, 0.3), self.cfg.mast)))
+        return out
+
+    def measure(self, n_recon: int, n_cliff: int) -> dict[str, Any]:
+        t = self.world.team
+        assert t is not None
+        rover = (0.0, 0.0, 0.0)
+        for rover, pose in self.recon_poses(n_recon):
+            team0 = self.cliffbot_at(0.45, 0.0, rover)
+            err = self.rng.normal(0.0, CLIFF_SIGMA[1], 3)  # the Cliff-bot's fix error, as the RECON-bot knows it
+            self._view("recon", pose, pose_cov(RECON_SIGMA), team0[2], team0[3], self.known(team0[2], err))
+        self._try_fit()  # the face frame from the RECON-bot's survey, else from the first views on the face
+        a = math.radians(t.face_slope_deg)
+        for k in range(n_cliff):
+            body_pt, n, team, body = self.cliffbot_at(float(self.rng.uniform(0.3, 0.7)),
+                                                      float(self.rng.uniform(-0.6, 0.6)), rover)
+            up = k % 2 == 0  # up the face first: the tethers and the anchors are in view
+            yaw = math.pi / 2 if up else -math.pi / 2
+            tilt = (a - math.radians(25.0)) if up else (-a - math.radians(20.0))
+            tilt = max(-1.5, min(1.5, tilt))
+            pan = float(self.rng.uniform(-0.5, 0.5))
+            pose = cliffbot_camera_pose(body_pt, n, yaw, pan, tilt, 0.35 if up else -0.35)
+            cov = pose_cov(CLIFF_SIGMA)
+            est_body = self.rng.normal(0.0, CLIFF_SIGMA[1], 3)
+            self._view("cliffbot", pose, cov, team, body, self.known(team, est_body))
+            if self.face is None:
+                self._try_fit()
+        return self.figures()
+
+    def figures(self) -> dict[str, Any]:
+        t = self.world.team
+        assert t is not None
+        row: dict[str, Any] = {"seed": self.seed, "slope_deg": round(float(t.face_slope_deg), 1), "views": self.views}
+        if self.face is None:  # no face fitted: only the team mask's figures
+            nones = ("face_cells", "face_rmse_m", "face_rmse_gravity_m", "ratio", "rmse_recon_m", "rmse_cliff_m",
+                     "rmse_fused_m", "in2s_recon", "in2s_cliff", "in2s_fused")
+            return {**row, **{k: None for k in nones}, "overhang_truth": 0, "overhang_flagged": 0,
+                    "overhang_false": 0, "both_cells": 0, "team_points_seen": self.team_points,
+                    "team_points_fused": self.team_points_fused, "team_cells_mapped": len(self.team_cells)}
+        f = face_figures(self.world, self.face, self.gravity, self.cells_by_agent)
+        row.update({k: f[k] for k in ("face_cells", "face_rmse_m", "face_rmse_gravity_m", "overhang_truth",
+                                       "overhang_flagged", "overhang_false")})
+        r, g = f["face_rmse_m"], f["face_rmse_gravity_m"]
+        row["ratio"] = r / g if r is not None and g else None
+        row.update(self._agents())
+        row["team_points_seen"] = self.team_points
+        row["team_points_fused"] = self.team_points_fused
+        row["team_cells_mapped"] = len(self.team_cells)
+        return row
+
+    def _agents(self) -> dict[str, Any]:
+        """RMS and 2-sigma rates on cells both agents mapped (single surface in the truth)."""
+        assert self.face is not None
+        fr, fc = self.by_agent["recon"], self.by_agent["cliffbot"]
+        both = np.flatnonzero((fr.map.mapped & fc.map.mapped & self.face.map.mapped).reshape(-1))
+        out: dict[str, Any] = {"both_cells": 0}
+        w_true, over = truth_along_normal(self.world, self.face, both)
+        ok = ~over & np.isfinite(w_true)
+        out["both_cells"] = int(ok.sum())
+        for name, fm in (("recon", fr), ("cliff", fc), ("fused", self.face)):
+            e = fm.map.z.reshape(-1)[both][ok] - w_true[ok]
+            s = np.sqrt(fm.map.var.reshape(-1)[both][ok])
+            out[f"rmse_{name}_m"] = float(np.sqrt(np.mean(e * e))) if e.size else None
+            out[f"in2s_{name}"] = float(np.mean(np.abs(e) <= 2 * s)) if e.size else None
+        return out

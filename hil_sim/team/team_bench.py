@@ -1,0 +1,240 @@
+"""The Cliff-bot's executive and hardware on the lockstep bench (docs/team.md, "Running a team mission").
+
+:class:`CliffbotAgent` builds the Cliff-bot from its flight file (``config/cliffbot.toml``,
+agent kind ``cliffbot``) as a second executive on the bench's one stepped clock
+(``LockstepBench.add_agent``), from t = 0 (it waits for the map), with its hardware: the
+Anchorbots' winches, its wheels and IMU (:class:`~hil_sim.team.cliffbot_rig.CliffbotRig`) on
+a team CAN bus of its own, and its end (side ``b``) of the capped radio channel. The file's
+``[cliffbot_site]`` is set from the scenario (anchors, start, targets, the map's height datum)
+as a ground crew would before the mission.
+
+Before each of its frames the rig takes the commands the flight side sent, moves the winches,
+settles the Cliff-bot on the TRUE ground, judges it and puts the statuses on the bus.
+
+The RECON-bot answers the fix requests in its flight code (``fsw.tasks.cliffbot_fixer``); the
+bench renders the Cliff-bot at its TRUE pose in the RECON-bot's camera pairs, and
+:class:`FixWatch` (the RECON-bot's radio end) notes every FIX it sends so the run judges it
+against the truth at that instant (position and heading error, NEES against its covariance).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import shutil
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import can
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.comm.link_packets import PacketError
+from fsw.comm.team import fix_packets
+from fsw.core.geometry import MapGrid
+from fsw.drivers.can_inproc import InprocBus
+from fsw.drivers.resources import Resources
+from fsw.sections import CliffbotSiteConfig
+from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
+from fsw.tasks.cliffbot.mission import CliffbotMissionTask
+from hil_sim.faults import FaultInjector, FaultSpec
+from hil_sim.link.radio_channel import ChannelPort, RadioChannel
+from hil_sim.team.cliffbot_rig import CliffbotRig
+from hil_sim.team.team_eval import FixError, fix_error
+from hil_sim.team.team_run import TeamSetup, team_section
+from hil_sim.world.world import World
+
+CLIFFBOT_CONFIG = DEFAULT_CONFIG.parent / "cliffbot.toml"
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class TeamFrame:
+    """The team's frame is the RECON-bot's map frame: its odometry, which starts at its start pose
+    (``world.rover_start``) with heights from its start body height (``datum_m``). The Cliff-bot's
+    site is surveyed in it; the bench converts to judge on the truth (world frame)."""
+
+    x0: float
+    y0: float
+    yaw0: float
+    datum_m: float
+
+    def _r(self, yaw: float) -> F64:
+        c, s_ = math.cos(yaw), math.sin(yaw)
+        return np.array([[c, -s_], [s_, c]])
+
+    def to_map(self, xy: F64) -> F64:
+        """World points (N, 2) to the team's frame."""
+        p = np.asarray(xy, float).reshape(-1, 2) - np.array([self.x0, self.y0])
+        return p @ self._r(-self.yaw0).T
+
+    def to_world(self, xy: F64) -> F64:
+        """Team-frame points (N, 2) to the world."""
+        return np.asarray(xy, float).reshape(-1, 2) @ self._r(self.yaw0).T + np.array([self.x0, self.y0])
+
+
+def truth_map(world: World, grid: MapGrid, frame: TeamFrame) -> F64:
+    """The TRUE ground as a map in the team's frame on ``grid`` (a perfect RECON-bot's map)."""
+    if frame.yaw0 == 0.0:
+        shifted = MapGrid(grid.x0 + frame.x0, grid.y0 + frame.y0, grid.cell, grid.nx, grid.ny)
+        return np.asarray(world.ground_on_grid(shifted), float) - frame.datum_m
+    x, y = grid.centers()
+    w = frame.to_world(np.stack([x.ravel(), y.ravel()], axis=1))
+    return np.asarray(world.ground_at(w[:, 0], w[:, 1]), float).reshape(grid.shape) - frame.datum_m
+
+
+class FixWatch(ChannelPort):
+    """The RECON-bot's radio end: notes the FIX packets it sends (for the judging), nothing else."""
+
+    def __init__(self, channel: RadioChannel, side: str, clock: Callable[[], float]) -> None:
+        super().__init__(channel, side, clock)
+        self.sent: list[fix_packets.Fix] = []
+
+    def _send_internal(self, datagram: bytes) -> None:
+        if fix_packets.is_fix_packet(datagram):
+            try:
+                p = fix_packets.decode(datagram)
+            except PacketError:
+                p = None
+            if isinstance(p, fix_packets.Fix):
+                self.sent.append(p)
+        super()._send_internal(datagram)
+
+
+def cliffbot_config(path: str | Path, world: World, rig: CliffbotRig, frame: TeamFrame,
+                    out: Path | None) -> FswConfig:
+    """The Cliff-bot's flight file with the scenario's site (in the team's frame), the map grid and
+    the run's files."""
+    cfg = load_settings(path)
+    if cfg.agent.kind != "cliffbot":
+        raise ValueError(f"{path}: agent kind {cfg.agent.kind!r}, a team mission needs a 'cliffbot' file")
+    assert world.team is not None
+    a = rig.anchors
+    axy = frame.to_map(a[:, :2])
+    yaw = math.degrees(math.atan2(math.sin(rig.yaw - frame.yaw0), math.cos(rig.yaw - frame.yaw0)))
+    site = CliffbotSiteConfig(
+        anchor_a_xyz=(float(axy[0, 0]), float(axy[0, 1]), float(a[0, 2]) - frame.datum_m),
+        anchor_b_xyz=(float(axy[1, 0]), float(axy[1, 1]), float(a[1, 2]) - frame.datum_m),
+        start_xy=tuple(float(v) for v in frame.to_map(world.team.cliffbot_start_xy)[0]), start_yaw_deg=yaw,
+        targets_xy=tuple(float(v) for v in frame.to_map(world.team.targets_xyz[:, :2]).ravel()), map_datum_m=0.0)
+    ckpt = ""
+    if out is not None:
+        shutil.rmtree(out / "cliffbot_checkpoints", ignore_errors=True)  # a bench run never resumes another's
+        ckpt = str(out / "cliffbot_checkpoints")
+    return dataclasses.replace(
+        cfg, map=world.map_grid, cliffbot_site=site,
+        checkpoint=dataclasses.replace(cfg.checkpoint, directory=ckpt),
+        mavlink=dataclasses.replace(cfg.mavlink, tlog_path=str(out / "cliffbot.tlog") if out is not None else ""),
+    )
+
+
+class CliffbotAgent:
+    """The Cliff-bot's executive and rig on a lockstep bench (module docstring)."""
+
+    def __init__(self, bench: Any, world: World, channel: RadioChannel, watch: FixWatch, seed: int,
+                 datum_m: float, out: Path | None = None, faults: tuple[FaultSpec, ...] = (),
+                 config: str | Path = CLIFFBOT_CONFIG, recon_done: Callable[[], bool] = lambda: True) -> None:
+        base = load_settings(config)
+        self.world, self.bench, self.channel, self.watch, self.seed = world, bench, channel, watch, seed
+        x0, y0, yaw0 = (float(v) for v in world.rover_start)
+        self.frame = TeamFrame(x0, y0, yaw0, datum_m)
+        self.grid = MapGrid.from_config(world.map_grid)
+        self.rig = CliffbotRig(world, self.grid, base.tether, base.climber, faults=FaultInjector(seed, faults),
+                               seed=seed)
+        self.cfg = cliffbot_config(config, world, self.rig, self.frame, out)
+        name = f"{bench.channel}-team"
+        self.sim_bus = InprocBus(channel=name, receive_own_messages=False)
+        self.flight_bus = InprocBus(channel=name, receive_own_messages=False)
+        res = Resources(radio_port=ChannelPort(channel, "b", bench.clock.now), team_can=self.flight_bus)
+        self.recon_done = recon_done
+        self.errors: list[FixError] = []  # each FIX sent, against the truth
+        self._rendered_at = -1
+        self.sent0 = {side: channel.stats(side).air_bytes for side in ("a", "b")}
+        self.exe = bench.add_agent(self.cfg, res, before_frame=self.before_frame)
+        task = self.exe.tasks["mission"]
+        if not isinstance(task, CliffbotMissionTask):
+            raise ValueError("the Cliff-bot's schedule has no task 'mission' of kind 'cliffbot_mission'")
+        self.task = task
+        self.est_path: list[tuple[float, float]] = []
+        self._t_last = bench.clock.now()
+
+    @property
+    def mission(self) -> Any:
+        return self.task.mission
+
+    def before_frame(self, k: int) -> None:
+        now = self.bench.clock.now()
+        frames = []
+        while (msg := self.sim_bus.recv(timeout=0.0)) is not None:
+            frames.append((int(msg.arbitration_id), bytes(msg.data)))
+        self.rig.to_rig(frames, now)
+        self.rig.step(now - self._t_last, now)
+        self._t_last = now
+        for fid, data in self.rig.poll(now):
+            self.sim_bus.send(can.Message(arbitration_id=fid, data=data, is_extended_id=False))
+        self._judge_fixes()
+        self._render_truth()
+        s = self.mission.nav.s
+        self.est_path.append((float(s[0]), float(s[1])))
+
+    def _judge_fixes(self) -> None:
+        """Each FIX the RECON-bot sent, against the Cliff-bot's true pose now (flight heights are
+        in the RECON-bot's datum)."""
+        from fsw.core.localization.localization import so3_log
+
+        if not self.watch.sent:
+            return
+        cb = self.rig.cliffbot_truth()
+        cam = self.bench.rig.camera_pose().t
+        fr = self.frame
+        rz = np.eye(3)
+        rz[:2, :2] = fr._r(fr.yaw0)
+        for f in self.watch.sent:
+            p = np.asarray(f.position, float)
+            t = np.array([*fr.to_world(p[:2])[0], p[2] + fr.datum_m])
+            r = rz @ fix_packets.rotation(f.rotvec)
+            self.errors.append(fix_error(t, so3_log(r @ cb.R.T), f.yaw + fr.yaw0 - cb.yaw, f.cov, cb.t,
+                                         float(np.linalg.norm(cb.t - cam))))
+        self.watch.sent.clear()
+
+    def _render_truth(self) -> None:
+        """The RECON-bot's camera sees the Cliff-bot where it truly is."""
+        if len(self.rig.path) != self._rendered_at:
+            self._rendered_at = len(self.rig.path)
+            self.bench.rig.renderer().world = self.rig.world_now()
+
+    def finished(self) -> bool:
+        """The Cliff-bot's mission has ended (DONE, or SAFE with no recovery of its own), or it
+        still waits for a map that will not come (the RECON-bot's mission has ended)."""
+        st = self.mission.state
+        if st == "DONE" or (st == "SAFE" and self.cfg.cliffbot_mission.safe_recover_s <= 0):
+            return True
+        return st == "WAIT_MAP" and self.recon_done()
+
+    def section(self, out: Path | None, t0: float) -> dict[str, Any]:
+        """The summary's ``team`` section."""
+        m = self.mission
+        z = m.z if m.z is not None else np.full(self.grid.shape, np.nan)
+        errors = self.errors
+        radio = self.exe.tasks.get("cb_radio")
+        drv = self.exe.tasks.get("cb_drv")
+        sec = team_section(
+            self.world, self.grid, z, self.rig, m, errors,
+            link_bytes_down=self.channel.stats("a").air_bytes - self.sent0["a"],
+            link_bytes_up=self.channel.stats("b").air_bytes - self.sent0["b"],
+            link_bad_packets=int(getattr(radio, "counts", {}).get("bad_packets", 0)),
+            can_bad_frames=int(getattr(getattr(drv, "dev", None), "bad_frames", 0)),
+            sim_s=self.bench.clock.now() - t0, est_path=self.est_path, out=out,
+            setup=TeamSetup(tether=self.cfg.tether, climber=self.cfg.climber), to_map=self.frame.to_map)
+        sec["map_received"] = m.z is not None
+        sec["agent"] = {"name": self.cfg.agent.name, "kind": self.cfg.agent.kind,
+                        "mavlink_system_id": self.cfg.mavlink.system_id, "frames": self.exe.frame}
+        if sec.get("picture") and out is not None:
+            sec["picture"] = Path(sec["picture"]).name
+        return sec
+
+    def close(self) -> None:
+        for bus in (self.sim_bus, self.flight_bus):
+            bus.shutdown()

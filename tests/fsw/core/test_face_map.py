@@ -1,0 +1,188 @@
+"""The face map (``fsw.core.map.face_map``, docs/algorithm.md §8.1) and the team mask
+(``fsw.core.map.body_mask``), on synthetic faces and points (no rendering)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fsw.core.codec.mapcodec import decode_map, encode_map
+from fsw.core.geometry import MapGrid
+from fsw.core.map.body_mask import BodyBox, MaskConfig, TeamGeometry, TetherLine, team_mask
+from fsw.core.map.elevation_map import ElevationMap
+from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig, face_band, fit_face_plane, hand_over_z, split_parts
+
+SLOPE = 70.0
+
+
+def _face_frame() -> FaceFrame:
+    a = math.radians(SLOPE)
+    return FaceFrame.from_normal(np.array([0.0, -1.0, -1.5]), np.array([0.0, -math.sin(a), math.cos(a)]))
+
+
+def _cliff_map(rng: np.random.Generator) -> ElevationMap:
+    """A gravity map of a plateau (y > 0), a 70 deg face 3 m high, a floor with steep-sided rocks."""
+    grid = MapGrid(-2.0, -4.0, 0.04, 100, 125)
+    X, Y = grid.centers()
+    run = 3.0 / math.tan(math.radians(SLOPE))
+    z = np.where(Y > 0, 0.0, np.where(-run < Y, Y * math.tan(math.radians(SLOPE)), -3.0))
+    for _ in range(12):  # boxes on the floor: steep sides facing every way
+        cx, cy = rng.uniform(-1.8, 1.8), rng.uniform(-3.8, -run - 0.3)
+        z = np.where((np.abs(X - cx) < 0.12) & (np.abs(Y - cy) < 0.12), z + 0.3, z)
+    m = ElevationMap(grid)
+    m.z = z + rng.normal(0, 0.01, z.shape)
+    m.n[:] = 1
+    m.var[:] = 1e-4
+    return m
+
+
+def test_frame_round_trip_and_axes() -> None:
+    f = _face_frame()
+    assert f.slope_deg == pytest.approx(SLOPE)
+    assert np.allclose(f.R.T @ f.R, np.eye(3)) and np.linalg.det(f.R) == pytest.approx(1.0)
+    assert abs(f.R[2, 0]) < 1e-12  # e_u horizontal
+    assert f.normal[2] > 0 and f.normal[1] < 0  # out of the face (toward -y) and up
+    p = np.random.default_rng(0).normal(size=(20, 3))
+    assert np.allclose(f.to_world(f.to_face(p)), p)
+    cov = np.stack([np.diag([1.0, 2.0, 3.0])] * 2)
+    cf = f.cov_to_face(cov)
+    assert np.allclose(cf[0], f.R.T @ cov[0] @ f.R)
+    with pytest.raises(ValueError, match="neither vertical nor horizontal"):
+        FaceFrame.from_normal(np.zeros(3), np.array([0.0, 0.0, 1.0]))
+
+
+def test_fit_finds_the_face_among_rocks() -> None:
+    m = _cliff_map(np.random.default_rng(1))
+    f = fit_face_plane(m)
+    assert f.slope_deg == pytest.approx(SLOPE, abs=2.0)
+    assert f.normal[1] < -0.8  # facing the open side
+    u, v = face_band(m, f)
+    a = math.radians(SLOPE)
+    assert 0.7 * 3.0 / math.sin(a) < v[1] - v[0] <= 3.0 / math.sin(a) + 0.1
+    empty = ElevationMap(m.grid)
+    with pytest.raises(ValueError, match="no face"):
+        fit_face_plane(empty)
+
+
+def _points_on(face: FaceMap, u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
+    return face.frame.to_world(np.column_stack([u, v, w]))
+
+
+def test_fusion_in_the_face_frame_and_the_codec() -> None:
+    rng = np.random.default_rng(2)
+    face = FaceMap(_face_frame(), (-1.0, 1.0), (-1.0, 1.0), FaceMapConfig(cell_m=0.1))
+    n = 40000
+    u, v = rng.uniform(-1, 1, n), rng.uniform(-1, 1, n)
+    w = 0.05 + 0.1 * u + rng.normal(0, 0.005, n)
+    xyz = _points_on(face, u, v, w)
+    cov = np.tile(np.diag([1e-4, 1e-4, 1e-4])[None], (n, 1, 1))
+    st = face.merge_parts([(xyz, cov, None)])
+    assert st.merge.cells_measured == face.grid.nx * face.grid.ny and st.overhang_new == 0
+    X, Y = face.grid.centers()
+    truth = 0.05 + 0.1 * X
+    assert np.abs(face.map.z - truth).max() < 0.01
+    assert (face.map.var < 1e-3).all() and face.map.mapped.all()
+    # it is a grid with its own frame: the codec takes it as it is
+    enc = encode_map(face.map.z, cell_m=face.grid.cell, wheel_diameter_m=0.12)
+    dec = decode_map(enc.data)
+    assert np.abs(dec.z - face.map.z).max() <= 0.12 + 1e-6
+
+
+def test_an_overhang_is_flagged_not_averaged() -> None:
+    face = FaceMap(_face_frame(), (0.0, 0.4), (0.0, 0.4), FaceMapConfig(cell_m=0.1, overhang_gap_m=0.1))
+    rng = np.random.default_rng(3)
+    k = 50
+    # cell (0, 0): two surfaces over one spot (w 0 and 0.3); cell (0, 2): a step (two levels side by side)
+    u = np.concatenate([rng.uniform(0.0, 0.05, 2 * k), rng.uniform(0.2, 0.25, k), rng.uniform(0.25, 0.3, k)])
+    v = np.concatenate([rng.uniform(0.0, 0.05, 2 * k), rng.uniform(0.0, 0.1, 2 * k)])
+    w = np.concatenate([np.zeros(k), np.full(k, 0.3), np.zeros(k), np.full(k, 0.3)]) + rng.normal(0, 0.003, 4 * k)
+    cov = np.tile(np.eye(3)[None] * 1e-5, (4 * k, 1, 1))
+    st = face.merge_parts([(_points_on(face, u, v, w), cov, None)])
+    assert face.overhang[0, 0] and not face.overhang[0, 2]
+    assert st.overhang_new == 1 and st.second_points == k
+    assert face.map.z[0, 0] == pytest.approx(0.3, abs=0.01)  # the outer surface stays
+    assert face.second[0, 0] == pytest.approx(0.0, abs=0.01)
+    # a later view that sees the other surface of a mapped cell: flagged, not averaged
+    u2, v2 = rng.uniform(0.3, 0.4, k), rng.uniform(0.3, 0.4, k)
+    face.merge_parts([(_points_on(face, u2, v2, np.full(k, 0.0)), cov[:k], None)])
+    z_before = face.map.z[3, 3]
+    st = face.merge_parts([(_points_on(face, u2, v2, np.full(k, -0.4)), cov[:k], None)])
+    assert face.overhang[3, 3] and st.overhang_new == 1 and face.map.z[3, 3] == z_before
+    assert st.second_points == k
+    assert face.second[3, 3] == pytest.approx(-0.4, abs=1e-6)
+
+
+def test_hand_over_routes_and_answers_across_the_seam() -> None:
+    f = _face_frame()
+    face = FaceMap(f, (-1.0, 1.0), (-1.0, 1.0), FaceMapConfig(cell_m=0.1, seam_m=0.2, slab_out_m=0.5, slab_in_m=0.3))
+    q = np.array([[0.0, 0.0, 0.0], [0.0, 0.9, 0.0], [0.0, 1.5, 0.0], [0.0, 0.0, 0.8], [1.5, 0.0, 0.0],
+                  [0.0, 0.0, -0.4]])
+    to_face, to_grav = face.routes(f.to_world(q))
+    assert to_face.tolist() == [True, True, False, False, False, False]
+    assert to_grav.tolist() == [False, True, True, True, True, True]  # the seam strip feeds both
+    parts = [(f.to_world(q), np.tile(np.eye(3)[None] * 1e-4, (6, 1, 1)), None)]
+    pf, pg = split_parts(parts, face)
+    assert len(pf[0][0]) == 2 and len(pg[0][0]) == 5
+    face.map.z[:] = 0.05
+    face.map.n[:] = 1
+    gravity = ElevationMap(MapGrid(-1.0, -2.5, 0.05, 40, 50))
+    gravity.z[:] = -7.0
+    own = face.face_owned(gravity.grid)
+    assert own.any() and not own.all()
+    z = hand_over_z(gravity, face)
+    X, Y = gravity.grid.centers()
+    assert np.allclose(z[own], f.plane_z(X[own], Y[own]) + 0.05 / f.normal[2])
+    assert (z[~own] == -7.0).all()
+
+
+def test_team_mask_boxes_and_tethers() -> None:
+    box = BodyBox(np.array([0.0, 0.0, 0.2]), np.eye(3), np.array([0.3, 0.2, 0.2]))
+    line = TetherLine(np.array([[0.0, 2.0, 0.3], [0.0, 0.2, 0.3]]), 0.006)
+    team = TeamGeometry((box,), (line,))
+    p = np.array([[0.0, 0.0, 0.35], [0.32, 0.0, 0.2], [0.0, 1.0, 0.32], [0.0, 1.0, 0.45], [1.0, 1.0, 0.3]])
+    assert team_mask(p, None, team, MaskConfig(margin_m=0.04)).tolist() == [True, True, True, False, False]
+    cov = np.tile(np.eye(3)[None] * 0.05**2, (5, 1, 1))  # 5 cm points: 3 sigma grows the shapes by 15 cm
+    assert team_mask(p, cov, team).tolist() == [True, True, True, True, False]
+    # seen past a shape: a ground point behind the tether or the box, from a camera at eye
+    eye = np.array([1.0, 1.0, 2.0])
+    ground = np.array([[-0.6, -0.3, -0.3], [-0.353, 1.0, -0.3], [1.5, 1.0, 0.0]])
+    # the first is behind the box, the second's sight line crosses the tether, the third is clear
+    got = team_mask(ground, None, team, MaskConfig(margin_m=0.04), eye=eye)
+    assert got.tolist() == [True, True, False]
+    only_tether = team_mask(ground, None, TeamGeometry((), (line,)), MaskConfig(margin_m=0.04), eye=eye)
+    assert only_tether.tolist() == [False, True, False]
+    assert not team_mask(ground, None, team, MaskConfig(margin_m=0.04)).any()
+    inside = np.array([0.0, 0.0, 0.3])  # a camera on the box: its own volume only
+    assert team_mask(ground[:1], None, TeamGeometry((box,), ()), eye=inside).tolist() == [False]
+    with pytest.raises(ValueError, match="two points"):
+        team_mask(p, None, TeamGeometry((), (TetherLine(np.zeros((1, 3)), 0.01),)))
+
+
+def test_the_pipeline_routes_a_view_between_the_grids() -> None:
+    """``SensingPipeline.fuse_steps`` with a face map: the face's points go to the face map, the
+    rest (and the seam strips) to the gravity grid."""
+    from fsw.core.geometry import CameraPose
+    from fsw.core.pipeline import RegisteredPose, SensingPipeline
+    from fsw.core.registration.registration import Registration
+    from fsw.core.steps import run_to_end
+    from fsw.settings import load_settings
+
+    cfg = load_settings(check_calibration=False)
+    pipe = SensingPipeline(cfg, None, emap=ElevationMap(MapGrid(-1.5, -3.0, 0.05, 60, 80)))
+    f = _face_frame()
+    pipe.face = FaceMap(f, (-1.0, 1.0), (-1.0, 1.0), FaceMapConfig(cell_m=0.1, seam_m=0.2))
+    rng = np.random.default_rng(4)
+    n = 4000
+    on_face = f.to_world(np.column_stack([rng.uniform(-0.9, 0.9, n), rng.uniform(-0.7, 0.7, n), np.zeros(n)]))
+    floor = np.column_stack([rng.uniform(-1, 1, n), rng.uniform(-2.5, -2.0, n), np.full(n, -3.0)])
+    xyz = np.vstack([on_face, floor])
+    parts = [(xyz, np.tile(np.eye(3)[None] * 1e-4, (2 * n, 1, 1)), None)]
+    placed = RegisteredPose(Registration("off", "test"), CameraPose(np.eye(3), np.zeros(3)), np.zeros((6, 6)), None)
+    run_to_end(pipe.fuse_steps(placed, parts))
+    assert pipe.face.map.mapped.sum() > 200 and np.abs(pipe.face.map.z[pipe.face.map.mapped]).max() < 0.02
+    X, Y = pipe.map.grid.centers()
+    assert pipe.map.mapped[Y < -1.9].sum() > 50  # the floor in front of the face: the gravity grid
+    owned = pipe.face.face_owned(pipe.map.grid)
+    assert not (pipe.map.mapped & owned).any()  # the face's inner band: not in the gravity grid
