@@ -303,5 +303,10 @@ def decode_map(data: bytes, *, max_cells: int = CodecConfig().max_cells) -> Deco
     lid = tree.leaf_id_map()
     codes, _ = _run_prediction(tree, lid, mode=header.leaf_value, residuals=residuals)
     q, off = header.quant_step_m, header.z_offset_m
-    z = np.where(leaf_known[lid], (off + codes[lid] * q).astype(np.float32), np.float32(np.nan))
+    with np.errstate(over="ignore", invalid="ignore"):
+        heights = (off + codes[lid] * q).astype(np.float32)
+    known_cells = leaf_known[lid]
+    if not np.isfinite(heights[known_cells]).all():
+        raise MapCodecError("decoded heights overflow: the header's offset and step do not fit the codes")
+    z = np.where(known_cells, heights, np.float32(np.nan))
     return DecodedMap(z=z.astype(np.float32), header=header)

@@ -149,8 +149,8 @@ def unpack(data: bytes, *, max_cells: int) -> tuple[Header, list[bytes]]:
         if n:
             try:
                 raw = dctx.decompress(data[pos:pos + nc], max_output_size=n)
-            except zstandard.ZstdError as exc:
-                raise MapCodecError(f"stream {k} does not decompress ({exc})") from None
+            except (zstandard.ZstdError, MemoryError) as exc:  # a forged frame may claim a huge window
+                raise MapCodecError(f"stream {k} does not decompress ({type(exc).__name__}: {exc})") from None
         if len(raw) != n:
             raise MapCodecError(f"stream {k} holds {len(raw)} bytes, the header announces {n}")
         streams.append(raw)

@@ -153,3 +153,12 @@ def test_consistent_header_with_lying_streams_is_caught(container):
 
 def _with_crc(body: bytes) -> bytes:
     return body + struct.pack("<I", zlib.crc32(body))
+
+
+def test_a_forged_offset_that_overflows_is_refused(container):
+    """A container that passes its CRC but whose height offset does not fit float32 heights is a
+    clear error, never a map of infinities."""
+    body = bytearray(container[:-4])
+    struct.pack_into("<d", body, 36, 1e308)  # z_offset_m
+    with pytest.raises(MapCodecError, match="overflow"):
+        decode_map(_with_crc(bytes(body)))
