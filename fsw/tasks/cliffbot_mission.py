@@ -35,6 +35,7 @@ from fsw.comm.team.fix_packets import Fix
 from fsw.comm.team.team_can import WINCHES
 from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import CliffbotNav, NavConfig
+from fsw.core.team.contact_ground import fill_under_body
 from fsw.core.team.face_planner import ClimberConfig, plan_targets
 from fsw.core.team.tether import TetherConfig, tether_state
 from fsw.drivers.cliffbot_devices import CliffbotDevices
@@ -103,9 +104,12 @@ class CliffbotMission:
         self.events.append((round(self.now, 3), name, text))
 
     def set_map(self, z: F64, grid: MapGrid) -> None:
-        self.z, self.grid = np.asarray(z, np.float64), grid
+        # the ground under its own body is hidden from every camera but known by contact
+        self.z, filled = fill_under_body(z, grid, self.nav.xy, self.plan_ccfg.footprint_m)
+        self.grid = grid
         self.map_version += 1
-        self.event("MAP", f"map {self.map_version}: {int(np.isfinite(self.z).sum())} known cells")
+        self.event("MAP", f"map {self.map_version}: {int(np.isfinite(self.z).sum())} known cells"
+                   + (f", {filled} under the body known by contact" if filled else ""))
         if self.state == "WAIT_MAP":
             self.state = "PLAN"
         elif self.state == "DRIVE":
