@@ -98,11 +98,11 @@ def world() -> Any:
 
 
 def _recon_cfg(world: Any) -> FswConfig:
-    """The RECON-bot idle, its map link bounded by the Cliff-bot's wheel (with the RECON-bot's own,
-    the reduction smooths this scene's start into a hazard for the smaller wheel: docs/team.md, "Limits")."""
+    """The RECON-bot idle, its map link bounded at half the Cliff-bot's wheel (at the full 0.12 m
+    bound the reduction's height error makes this scene's start a hazard: docs/team.md, "Limits")."""
     cfg = load_settings()
     return dataclasses.replace(cfg, map=world.map_grid, mission=dataclasses.replace(cfg.mission, auto_start=False),
-                               rover=dataclasses.replace(cfg.rover, wheel_diameter_m=0.06))
+                               codec=dataclasses.replace(cfg.codec, receiver_wheel_diameter_m=0.06))
 
 
 def _team(world: Any, frames: int, faults: tuple[Any, ...] = (), out: Path | None = None,
