@@ -3,8 +3,11 @@
 A job is a generator that yields after each bounded step and returns its result
 (``return value`` -> ``StopIteration.value``). The executive resumes jobs round-robin in
 the time left before the next frame (real time) or for a fixed number of slices per frame
-(stepped clock, so lockstep runs stay deterministic). The result, or the exception, lands
-in the :class:`JobHandle` that the submitting task holds and polls.
+(stepped clock, so lockstep runs stay deterministic). A *background* job (a ground preview,
+say) runs only in a slice no other job wants: it never delays the flight's own work, so a
+mission's sensing keeps the same slices whether or not the ground asked for anything (and a
+resumed mission the slices of the uninterrupted one). The result, or the exception, lands in
+the :class:`JobHandle` that the submitting task holds and polls.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ class JobHandle:
     busy_s: float = 0.0
     max_slice_s: float = 0.0  # longest single slice (resume to yield) of this job
     cancelled: bool = False
+    background: bool = False  # runs only in slices no foreground job wants
     on_done: Callable[[JobHandle], None] | None = field(default=None, repr=False)
 
     def cancel(self) -> None:
@@ -50,10 +54,11 @@ class JobScheduler:
         self.max_slice_owner = ""  # the task whose job ran it
         self.max_slice_by_owner: dict[str, float] = {}  # the longest slice per submitting task
 
-    def submit(self, gen: Job, name: str, owner: str, on_done: Callable[[JobHandle], None] | None = None) -> JobHandle:
+    def submit(self, gen: Job, name: str, owner: str, on_done: Callable[[JobHandle], None] | None = None,
+               background: bool = False) -> JobHandle:
         if len(self._jobs) >= self.max_jobs:
             raise RuntimeError(f"slack job queue full ({self.max_jobs}); {owner}.{name} refused")
-        handle = JobHandle(name, owner, on_done=on_done)
+        handle = JobHandle(name, owner, background=background, on_done=on_done)
         self._jobs.append((handle, gen))
         return handle
 
@@ -64,7 +69,10 @@ class JobScheduler:
     def run_slice(self) -> JobHandle | None:
         """Resume the next job for one step; returns its handle (None if idle)."""
         while self._jobs:
-            handle, gen = self._jobs.popleft()
+            # the first foreground job in round-robin order; a background job only when none waits
+            k = next((i for i, (h, _) in enumerate(self._jobs) if not h.background), 0)
+            handle, gen = self._jobs[k]
+            del self._jobs[k]
             if handle.cancelled:
                 gen.close()
                 self._finish(handle, error=RuntimeError("cancelled"))

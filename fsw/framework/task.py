@@ -194,8 +194,9 @@ class Task:
     def publish(self, topic: str, msg: Any) -> None:
         self.ctx.bus.publish(topic, msg)
 
-    def submit_job(self, gen: Job, name: str, on_done: Callable[[JobHandle], None] | None = None) -> JobHandle:
-        return self.ctx.jobs.submit(gen, name, self.name, on_done)
+    def submit_job(self, gen: Job, name: str, on_done: Callable[[JobHandle], None] | None = None,
+                   background: bool = False) -> JobHandle:
+        return self.ctx.jobs.submit(gen, name, self.name, on_done, background)
 
     def publish_timing(self) -> None:
         self.tlm_record({"exec_last_ms": self.last_s * 1e3, "exec_max_ms": self.max_s * 1e3,

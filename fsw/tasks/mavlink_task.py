@@ -269,12 +269,13 @@ class MavlinkTask(FlightTask):
 
         def job() -> Generator[None, None, tuple[bytes, int, int, int]]:
             yield
-            source, nbytes = reduce_map(obj, wheel_diameter_m=settings.rover.wheel_diameter_m, codec=settings.codec)
+            source, nbytes = reduce_map(obj, wheel_diameter_m=settings.codec.wheel_m(settings.rover.wheel_diameter_m),
+                                       codec=settings.codec)
             yield
             data, w, h = encode_preview(source, cfg.image_max_px, cfg.image_quality)
             return data, w, h, nbytes
 
-        self._preview_job = self.submit_job(job(), "map_preview", on_done=self._preview_done)
+        self._preview_job = self.submit_job(job(), "map_preview", on_done=self._preview_done, background=True)
 
     def _preview_done(self, handle: JobHandle) -> None:
         self._preview_job = None
