@@ -176,7 +176,7 @@ class CliffbotAgent:
             self.sim_bus.send(can.Message(arbitration_id=fid, data=data, is_extended_id=False))
         self._judge_fixes()
         self._render_truth()
-        s = self.mission.nav.s
+        s = self.mission.est.s
         self.est_path.append((float(s[0]), float(s[1])))
 
     def _judge_fixes(self) -> None:

@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid
 from fsw.framework.storage import describe
-from fsw.tasks.cliffbot_mission import CliffbotMission, Leg
+from fsw.tasks.cliffbot_mission import CliffbotMission, Estimate, Leg
 
 SCHEMA = 1
 STATE, MAP = "cliffbot_state.json", "cliffbot_map.npy"
@@ -40,7 +40,7 @@ def snapshot(m: CliffbotMission, now: float) -> dict[str, object]:
         "leg_i": m.leg_i, "fix_seq": m.fix_seq, "map_version": m.map_version,
         "start": [float(v) for v in m.start], "targets": m.targets.tolist(), "reached": list(m.reached),
         "reasons": list(m.reasons), "legs": [[float(g.goal[0]), float(g.goal[1]), g.target] for g in m.legs],
-        "nav_s": [float(v) for v in m.nav.s], "nav_P": m.nav.P.tolist(),
+        "nav_s": [float(v) for v in m.est.s], "nav_P": m.est.P.tolist(),
     }
 
 
@@ -75,7 +75,8 @@ def restore(m: CliffbotMission, st: dict[str, object], z: NDArray[np.float64] | 
     m.targets, m.reached, m.reasons, m.legs, m.leg_i = targets, reached, reasons, legs, leg_i
     m.planned_lengths = [math.inf for _ in range(len(targets))]
     m.start = np.asarray(st.get("start", m.start), float).reshape(2)
-    m.nav.s, m.nav.P = s, p
+    m.est = Estimate(s, p)
+    m.nav_reset = m.est  # the navigation goes on from the checkpoint's estimate
     m.fix_seq = _int(st.get("fix_seq", 0))
     if state in ("WAIT_FIX", "DRIVE", "DWELL"):
         state = "WAIT_FIX"  # the leg goes on from the estimate, after a fix
