@@ -150,8 +150,9 @@ class CliffbotMissionTask(FlightTask):
 
     def _estimate(self, est: NavEstimate) -> None:
         """The navigation's estimate and verdicts; an estimate made before the navigation took the
-        last reset is stale (its verdicts are not: each fix is judged once)."""
-        if est.resets >= self.resets:
+        last reset, or while one waits to be sent, is stale (its verdicts are not: each fix is
+        judged once)."""
+        if est.resets >= self.resets and self.mission.nav_reset is None:
             self.mission.on_estimate(est.s, est.P)
         for v in est.verdicts:
             self.mission.on_fix(v.fix, v.ok, v.nis)
