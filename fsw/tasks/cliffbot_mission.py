@@ -109,6 +109,7 @@ class CliffbotMission:
         self.reached: list[bool] = [False for _ in range(len(self.targets))]
         self.planned_lengths: list[float] = [math.inf for _ in range(len(self.targets))]
         self.fix_asked_at: float | None = None
+        self.fix_wanted = False  # a fix asked for by ground command
         self.fix_seq = 0
         self.last_fix: Fix | None = None
         self.fixes_used = 0
@@ -212,8 +213,25 @@ class CliffbotMission:
         self.clear_frames = max(0, self.clear_frames - 1)
         return Commands((0.0, 0.0), self.state not in ("SAFE",), clear, (0.0, 0.0), request)
 
+    def request_fix(self) -> None:
+        """Ground command: ask the RECON-bot for a fix now (on a leg or at a target; a leg's start
+        asks by itself). The answer is fused like any fix; on a leg it re-plans from there."""
+        if self.state in ("DRIVE", "DWELL"):
+            self.fix_wanted = True
+        else:
+            self.event("FIX_REQUEST", f"not now: {self.state}")
+
     def step(self, now: float, dev: CliffbotDevices) -> Commands:
         """One step on the devices' statuses and the estimate last given (:meth:`on_estimate`)."""
+        cmd = self._step(now, dev)
+        if self.fix_wanted and self.state in ("DRIVE", "DWELL"):
+            self.fix_wanted = False
+            self.fix_seq += 1
+            self.event("FIX_REQUEST", f"request {self.fix_seq} on command, leg {self.leg_i + 1}")
+            cmd = dataclasses.replace(cmd, request_fix=True)
+        return cmd
+
+    def _step(self, now: float, dev: CliffbotDevices) -> Commands:
         self.now = now
         if self.state == "SAFE":
             return self._hold()

@@ -81,6 +81,7 @@ class CliffbotMissionTask(FlightTask):
     )
     COMMANDS = (
         CommandDef("RECOVER", doc="leave SAFE: clear the winches' faults, re-plan the leg from the estimate"),
+        CommandDef("REQUEST_FIX", doc="ask the RECON-bot for a fiducial fix now (on a leg or at a target)"),
         CommandDef("SET_TARGETS", (Arg("targets", str),),
                    doc="new science targets 'x1,y1;x2,y2;...' (m, map frame), planned from where the Cliff-bot is"),
     )
@@ -108,6 +109,9 @@ class CliffbotMissionTask(FlightTask):
     # -- commands ------------------------------------------------------------------------------
     def cmd_RECOVER(self) -> None:
         self.mission.recover()
+
+    def cmd_REQUEST_FIX(self) -> None:
+        self.mission.request_fix()
 
     def cmd_SET_TARGETS(self, targets: str) -> None:
         try:
