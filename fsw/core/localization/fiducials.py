@@ -135,6 +135,8 @@ class CliffbotLocalizer:
         if not seen_l:
             return None
         ids = sorted(seen_l)
+        if len(ids) == 1 and _side_px(seen_l[ids[0]]) < self.cfg.fiducial_min_marker_px:
+            return None  # one marker this small: its pose is not to be trusted (fiducial_min_marker_px)
         obj = np.concatenate([self.corners[i] for i in ids])
         img = np.concatenate([seen_l[i] for i in ids])
         # Camera pose in the body frame (PnP: the body is the "world" of the problem). One
@@ -190,6 +192,12 @@ class CliffbotLocalizer:
         rms = float(np.sqrt(np.mean(res**2)))
         cov = max(self.cfg.corner_sigma_px, rms) ** 2 * np.linalg.inv(J.T @ J)
         return PoseEstimate(pose, 0.5 * (cov + cov.T), rms, est.n_points + obj_r.shape[0])
+
+
+def _side_px(corners: F64) -> float:
+    """The mean side of a marker's four image corners (px)."""
+    c = np.asarray(corners, float).reshape(4, 2)
+    return float(np.mean(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1)))
 
 
 def _ambiguity(cands: list[PoseEstimate], same_deg: float = 1.0, same_m: float = 0.01) -> float:

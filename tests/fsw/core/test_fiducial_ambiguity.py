@@ -44,3 +44,27 @@ def test_one_candidate_or_the_same_pose_twice_is_not_ambiguous() -> None:
     c = _candidates(2.0, 40.0, 0)
     assert _ambiguity(c[:1]) == math.inf
     assert _ambiguity([c[0], c[0]]) == math.inf
+
+
+def test_one_marker_too_small_in_the_image_gives_no_fix() -> None:
+    """A far single marker (its side under ``fiducial_min_marker_px``) is no fix; the same marker
+    near is one (the detector is stubbed with projected corners)."""
+    from fsw.core.localization.fiducials import CliffbotLocalizer, _side_px
+    from fsw.core.localization.localization import PoseEstimate
+
+    corners = CliffbotLayout().corners_body()[1]
+    K = np.asarray(CFG.camera.K, float)
+    loc = CliffbotLocalizer(CFG.localization, CliffbotLayout(), K, CFG.camera.baseline_m)
+    got = {}
+    for r in (2.0, 11.0):
+        c = corners.mean(axis=0)
+        eye = c + r * np.array([math.cos(0.6), math.sin(0.6), 0.1])
+        fwd = (c - eye) / np.linalg.norm(c - eye)
+        right = np.cross(fwd, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        pose = CameraPose(np.column_stack([right, np.cross(fwd, right), fwd]), eye)
+        px = _project(pose, corners, K)
+        loc.detect = lambda image, px=px: {1: px}  # type: ignore[method-assign]
+        got[r] = (_side_px(px), loc.locate(np.zeros((4, 4), np.uint8), PoseEstimate(pose, np.zeros((6, 6)))))
+    assert got[2.0][0] >= CFG.localization.fiducial_min_marker_px and got[2.0][1] is not None
+    assert got[11.0][0] < CFG.localization.fiducial_min_marker_px and got[11.0][1] is None
