@@ -292,8 +292,7 @@ def test_a_bad_checkpoint_is_refused_in_one_line(tmp_path: Path, state: str) -> 
 
 def test_navigation_is_its_own_task_and_takes_the_checkpoints_estimate(tmp_path: Path) -> None:
     """The EKF runs in ``cb_nav`` (scheduled before the mission); a Cliff-bot restarted on a
-    checkpoint hands its estimate to the navigation, and the mission never takes the
-    navigation's estimates from before that reset."""
+    checkpoint goes on from its estimate in both tasks (never the start's in between)."""
     from fsw.app import build_executive
     from fsw.drivers.radio import open_radio
     from fsw.framework.clock import SteppedClock

@@ -155,9 +155,10 @@ class Navigator:
         """One navigation step: ``wheel_path_m`` the wheels' mean path so far (m), the IMU's pitch
         and heading (deg), the winches' paid-out lengths; None for what is not known."""
         if wheel_path_m is not None and math.isfinite(wheel_path_m):
-            if self.last_wheel is not None:
-                self.nav.predict(wheel_path_m - self.last_wheel, pitch_deg if pitch_deg is not None else 0.0, dt,
-                                 math.radians(yaw_deg) if yaw_deg is not None else None)
+            # (the first reading is the baseline: no distance yet, but the time has passed)
+            d = 0.0 if self.last_wheel is None else wheel_path_m - self.last_wheel
+            self.nav.predict(d, pitch_deg if pitch_deg is not None else 0.0, dt,
+                             math.radians(yaw_deg) if yaw_deg is not None else None)
             self.last_wheel = wheel_path_m
         if yaw_deg is not None:
             self.nav.heading(yaw_deg)

@@ -75,14 +75,25 @@ def restore(m: CliffbotMission, st: dict[str, object], z: NDArray[np.float64] | 
     m.targets, m.reached, m.reasons, m.legs, m.leg_i = targets, reached, reasons, legs, leg_i
     m.planned_lengths = [math.inf for _ in range(len(targets))]
     m.start = np.asarray(st.get("start", m.start), float).reshape(2)
-    m.est = Estimate(s, p)
-    m.nav_reset = m.est  # the navigation goes on from the checkpoint's estimate
+    m.est = Estimate(s, p)  # (the navigation task reads the same checkpoint: nav_estimate)
     m.fix_seq = _int(st.get("fix_seq", 0))
     if state in ("WAIT_FIX", "DRIVE", "DWELL"):
         state = "WAIT_FIX"  # the leg goes on from the estimate, after a fix
     m.state = state
     m.safe_reason = str(st.get("safe_reason", "")) if state == "SAFE" else ""
     return f"leg {leg_i + 1} of {len(legs)}, {sum(reached)} of {len(targets)} targets reached"
+
+
+def nav_estimate(st: dict[str, object]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The checkpoint's navigation estimate ``(s, P)``; :class:`CheckpointError` if unusable."""
+    try:
+        s = np.asarray(st["nav_s"], float).reshape(3)
+        p = np.asarray(st["nav_P"], float).reshape(3, 3)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CheckpointError(f"{STATE}: {type(exc).__name__}: {exc}") from None
+    if st.get("schema") != SCHEMA or not (np.isfinite(s).all() and np.isfinite(p).all()):
+        raise CheckpointError(f"{STATE}: no usable estimate")
+    return s, p
 
 
 def _list(v: object) -> list[object]:

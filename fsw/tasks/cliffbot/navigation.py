@@ -5,7 +5,8 @@ fix, a checkpoint's estimate), the map the mission plans on, the devices' latest
 the RECON-bot's fixes into the sans-I/O :class:`~fsw.core.team.cliffbot_nav.Navigator`
 (wheel odometry along the IMU's heading, the IMU heading, the tether lengths on the map, each
 fix gated by its NIS), and publishes the estimate with its covariance and its verdict on each
-fix (``cliffbot.nav``). It runs before the mission in the same frame.
+fix (``cliffbot.nav``). It runs before the mission in the same frame. Started where a
+checkpoint is, it goes on from the checkpoint's estimate.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import Navigator
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.base import FlightTask
+from fsw.tasks.cliffbot import checkpoint
 from fsw.tasks.cliffbot.messages import (
     CB_FIX,
     CB_NAV,
@@ -64,6 +66,23 @@ class CliffbotNavTask(FlightTask):
         self.resets = 0
         self.counts = {"fixes_fused": 0, "fixes_refused": 0}
         self._last_t: float | None = None
+        self._restore()
+
+    def _restore(self) -> None:
+        """A Cliff-bot restarted where a checkpoint is goes on from its estimate (the mission
+        task reads the rest of it; a checkpoint it refuses leaves the start's estimate)."""
+        store = checkpoint.CheckpointFile(self.ctx.cfg.checkpoint.directory)
+        if not store.enabled:
+            return
+        try:
+            got = store.load()
+            if got is None:
+                return
+            s, p = checkpoint.nav_estimate(got[0])
+        except checkpoint.CheckpointError:
+            return  # (the mission says so: CHECKPOINT_REFUSED)
+        self.nav.reset(s, p)
+        self.event("NAV_RESET", x=float(s[0]), y=float(s[1]), yaw_deg=math.degrees(float(s[2])))
 
     def run(self, frame: int) -> None:
         now = self.ctx.clock.now()
