@@ -64,7 +64,8 @@ class CycleRecord:
     cycle: int
     views: list[dict[str, Any]] = field(default_factory=list)
     new_cells: int = 0  # cells the cycle mapped for the first time (team)
-    overlap: float | None = None  # cells both views measured / cells the smaller view measured
+    overlap: float | None = None  # cells both views measured / cells either measured (two agents)
+    overlap_of_smaller: float | None = None  # cells both views measured / cells the smaller view measured
     face_frac: float = 0.0  # of the face (truth slope > 45 deg) mapped after the cycle
     corridor_frac: float = 0.0  # of the corridor mapped after the cycle
     agent_face_frac: dict[str, float] = field(default_factory=dict)
@@ -175,8 +176,9 @@ class TeamViewsRun:
         rec.new_cells = int((self.map.mapped & ~before).sum())
         if len(seen) == 2:
             a, b = seen["recon"], seen["cliffbot"]
-            small = min(int(a.sum()), int(b.sum()))
-            rec.overlap = float((a & b).sum()) / small if small else 0.0
+            small, either = min(int(a.sum()), int(b.sum())), int((a | b).sum())
+            rec.overlap = float((a & b).sum()) / either if either else 0.0
+            rec.overlap_of_smaller = float((a & b).sum()) / small if small else 0.0
         rec.face_frac = _frac(self.map.mapped, self.face)
         rec.corridor_frac = _frac(self.map.mapped, self.corridor)
         for name, m in self.by_agent.items():
