@@ -9,13 +9,19 @@ fusion (``ElevationMap.merge_parts_steps``, §1).
 
 The sensing is a model, not a rendering (so 30 scenes x two runs fit in minutes): a cell is
 measured when its centre lies in the view's field and depth of field, its texture allows stereo
-(``World.textureless_on_grid``) and the line of sight clears the TRUE ground (P_V of §3.1 on the
-truth with a 5 mm deviation, above 0.5); its point is drawn at a random place in the cell on the
-true surface, displaced by an error drawn from the stereo covariance (depth deviation
-``range^2 sigma_d / (f B)`` along the ray, ``range sigma_d / f`` across it, ``sigma_d`` =
-``SIGMA_D_PX``), and fused with that covariance. The Cliff-bot's corridor is its plan on the
-true ground (``face_planner.plan_targets``: start to every target, path +- ``corridor_half_m``);
-it moves along that route, only to places the shared map knows.
+(``World.textureless_on_grid``) and the line of sight to it clears the TRUE ground (sampled every
+2 cm, 2 cm of grazing allowed); four points are drawn on the true surface, one in each quarter of
+the cell (jittered), each displaced by an error drawn from the stereo covariance (depth
+deviation ``range^2 sigma_d / (f B)`` along the ray, ``range sigma_d / f`` across it, ``sigma_d``
+= ``SIGMA_D_PX``) and fused with that covariance; the cells a view was expected to see and did
+not record their misses (§3.4). The face map (§8.1) is fitted on the shared map once it holds
+enough of the face and fed with every view's face share.
+
+The Cliff-bot's corridor is its plan on the true ground (``face_planner.plan_targets``: start to
+every target, path +- ``corridor_half_m``). It moves on along that route every cycle (its task
+moves it; team views choose where along the next ``max_travel_m`` it stops to look and where it
+looks); the route is taken as planned beforehand, so where the shared map does not know the
+ground yet its tether lengths come from the route's ground (the truth).
 """
 
 from __future__ import annotations
@@ -30,7 +36,7 @@ from numpy.typing import NDArray
 
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
 from fsw.core.map.elevation_map import ElevationMap
-from fsw.core.map.face_map import run_merge
+from fsw.core.map.face_map import FaceMap, FaceMapConfig, face_band, fit_face_plane, run_merge, split_parts
 from fsw.core.planning.info_planners import InformationPlanner
 from fsw.core.planning.nbv import NbvConfig, predicted_visibility
 from fsw.core.planning.planners import PlannerState
@@ -48,6 +54,8 @@ from fsw.core.planning.view_candidates import Station
 from fsw.core.planning.visibility import in_view
 from fsw.core.team.face_planner import ClimberConfig, plan_targets
 from fsw.core.team.tether import TetherConfig, anchor_points
+from hil_sim.team.face_eval import equal_memory_cell
+from hil_sim.team.team_figures import TeamFigures
 from hil_sim.team.team_sensing import CLIFFBOT_CAMERA
 from hil_sim.world.world import World
 
@@ -116,6 +124,9 @@ class TeamViewsRun:
                       + RECON_SETBACK_M, 0.0)
         self.joints = (-math.pi / 2, math.radians(-45.0), 0.5)
         self.records: list[CycleRecord] = []
+        self.face_map: FaceMap | None = None
+        self._pending: list[tuple[F64, F64, F64 | None]] = []
+        self.figures = TeamFigures(self.grid.cell, self.ccfg.wheel_d_m, seed)
         self.events: list[dict[str, object]] = []
 
     def _edge_y(self, x: float) -> float:
@@ -168,9 +179,7 @@ class TeamViewsRun:
             cells = self._sense(v, cam)
             seen[v.agent] = cells
             new = cells & ~before
-            rec.views.append({"agent": v.agent, "order": v.order, "view": v.event(),
-                              "expected_new_cells": round(v.expected_new_cells, 1), "obtained_cells": int(cells.sum()),
-                              "obtained_new_cells": int(new.sum()), "why": v.why})
+            rec.views.append({**v.event(), "obtained_cells": int(cells.sum()), "obtained_new_cells": int(new.sum())})
             self.events.append({"cycle": rec.cycle, "event": "TEAM_VIEW", **v.event()})
             self._move(v)
         rec.new_cells = int((self.map.mapped & ~before).sum())
@@ -185,6 +194,8 @@ class TeamViewsRun:
             rec.agent_face_frac[name] = _frac(m.mapped, self.face)
             rec.agent_corridor_frac[name] = _frac(m.mapped, self.corridor)
         self.records.append(rec)
+        self.figures.add_cycle({a: np.where(m.mapped, m.z, np.nan) for a, m in self.by_agent.items() if a in seen
+                                or a == "recon" or self.team}, rec.views, rec.overlap)
         return rec
 
     def _move(self, v: TeamView) -> None:
@@ -209,10 +220,13 @@ class TeamViewsRun:
         ok = self._line_of_sight(pose.t, pts[vis]) if vis.any() else np.zeros(0, bool)
         iy, ix = iy[vis][ok], ix[vis][ok]
         out[iy, ix] = True
-        x = g.x0 + (ix + self.rng.random(ix.size)) * g.cell
-        y = g.y0 + (iy + self.rng.random(iy.size)) * g.cell
+        sub = np.array([0.25, 0.75])  # four points per cell, one in each quarter (jittered)
+        fx = (sub[None, :, None] + 0.2 * (self.rng.random((ix.size, 2, 2)) - 0.5)).reshape(ix.size, 4)
+        fy = (sub[None, None, :] + 0.2 * (self.rng.random((ix.size, 2, 2)) - 0.5)).reshape(ix.size, 4)
+        x = (g.x0 + (ix[:, None] + fx) * g.cell).ravel()
+        y = (g.y0 + (iy[:, None] + fy) * g.cell).ravel()
         z = np.asarray(self.world.ground_at(x, y), float)
-        z = np.where(np.isfinite(z), z, self.truth[iy, ix])
+        z = np.where(np.isfinite(z), z, np.repeat(self.truth[iy, ix], 4))
         p = np.column_stack([x, y, z])
         ray = p - pose.t
         rng_m = np.linalg.norm(ray, axis=1)
@@ -223,12 +237,35 @@ class TeamViewsRun:
         dd = d[:, :, None] * d[:, None, :]
         cov = s_depth[:, None, None] ** 2 * dd + s_lat[:, None, None] ** 2 * (np.eye(3)[None] - dd)
         e = np.einsum("nij,nj->ni", np.linalg.cholesky(cov + 1e-12 * np.eye(3)[None]),
-                      self.rng.standard_normal((ix.size, 3)))
+                      self.rng.standard_normal((x.size, 3)))
         xyz = p + e
         expect = predicted_visibility(self.map, pose, cam, self.nbv.visibility)  # the misses of §3.4
         run_merge(self.map, [(xyz.copy(), cov.copy(), None)], expect)
-        run_merge(self.by_agent[v.agent], [(xyz, cov, None)], None)
+        run_merge(self.by_agent[v.agent], [(xyz.copy(), cov.copy(), None)], None)
+        if xyz.size:
+            self._to_face([(xyz, cov, None)])
         return out
+
+    def _to_face(self, parts: list[tuple[F64, F64, F64 | None]]) -> None:
+        """The face map beside the gravity grid (docs/algorithm.md §8.1): fitted on the shared map
+        once it holds enough of the face (the views before the fit are fused then), fed with the
+        face's share of every view."""
+        if self.face_map is None:
+            self._pending += parts
+            try:
+                frame = fit_face_plane(self.map, None, FaceMapConfig().min_slope_deg)
+                u, v = face_band(self.map, frame)
+            except ValueError:
+                return
+            fc = dataclasses.replace(FaceMapConfig(), cell_m=equal_memory_cell(self.grid.cell, frame.slope_deg))
+            self.face_map = FaceMap(frame, (u[0], u[1]), (v[0], v[1]), fc, self.fusion)
+            parts, self._pending = self._pending, []
+        self.face_map.merge_parts(split_parts(parts, self.face_map)[0])
+
+    def section(self) -> dict[str, Any]:
+        """The team figures of the summary (``hil_sim.team.team_figures``) for this run."""
+        face = None if self.face_map is None else (self.world, self.face_map, self.map)
+        return self.figures.section(face, "" if face else "the face plane could not be fitted on the map")
 
     def _line_of_sight(self, eye: F64, pts: F64, step_m: float = 0.02, tol_m: float = 0.02) -> B:
         """Whether the segment from ``eye`` to each point stays above the TRUE ground (sampled every
