@@ -17,8 +17,9 @@ deviation ``range^2 sigma_d / (f B)`` along the ray, ``range sigma_d / f`` acros
 not record their misses (§3.4). The face map (§8.1) is fitted on the shared map once it holds
 enough of the face and fed with every view's face share.
 
-The Cliff-bot's corridor is its plan on the true ground (``face_planner.plan_targets``: start to
-every target, path +- ``corridor_half_m``). It moves on along that route every cycle (its task
+The Cliff-bot's corridor is its plan on the true ground on the scenario's map grid
+(``face_planner.plan_targets``: start to every target it reaches, path +- ``corridor_half_m``;
+with no target reachable, the ground around its start). It moves on along that route every cycle (its task
 moves it; team views choose where along the next ``max_travel_m`` it stops to look and where it
 looks); the route is taken as planned beforehand, so where the shared map does not know the
 ground yet its tether lengths come from the route's ground (the truth).
@@ -107,8 +108,9 @@ class TeamViewsRun:
         t = world.team
         self.tcfg, self.ccfg = TetherConfig(), ClimberConfig()
         self.anchors = anchor_points(self.truth, self.grid, t.anchors_xy, self.tcfg)
-        plan = plan_targets(self.truth, self.grid, self.anchors, t.cliffbot_start_xy, t.targets_xyz[:, :2],
-                            self.tcfg, self.ccfg)
+        fine = np.asarray(world.ground_on_grid(g0), float)  # its plan on the scenario's own grid
+        plan = plan_targets(fine, g0, anchor_points(fine, g0, t.anchors_xy, self.tcfg), t.cliffbot_start_xy,
+                            t.targets_xyz[:, :2], self.tcfg, self.ccfg)
         legs = [p for p in plan.paths if p is not None]
         start = np.asarray(t.cliffbot_start_xy, float).reshape(1, 2)
         self.route = np.concatenate([start] + [np.vstack([p, p[::-1]]) for p in legs])  # out to each target and back

@@ -39,7 +39,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenes", type=int, default=30, help="number of seeded scenes")
     p.add_argument("--seed", type=int, default=0, help="first seed")
     p.add_argument("--jobs", type=int, default=1, help="scenes run in parallel (processes)")
-    p.add_argument("--cycles", type=int, default=16, help="imaging cycles per run")
+    p.add_argument("--cycles", type=int, default=12, help="imaging cycles per run")
     p.add_argument("--cell", type=float, default=0.08, help="map cell of the harness (m)")
     p.add_argument("--out", type=Path, default=Path("out/team-sensing"), help="output directory")
 
