@@ -60,8 +60,8 @@ def test_the_cliffbot_is_system_2_and_a_source_of_the_recording(tmp_path: Path) 
             for tap in taps:
                 tap.close()
             rec.close()
-            team.close()
-            team.exe.tasks["mavlink"].close()
+            t_end = b.clock.now()
+            team.close()  # closes cliffbot.tlog too
     assert got_map is not None
     topics: dict[str, list[Any]] = defaultdict(list)
     with (tmp_path / "mission.mcap").open("rb") as fh:
@@ -79,7 +79,8 @@ def test_the_cliffbot_is_system_2_and_a_source_of_the_recording(tmp_path: Path) 
     assert "cb_radio.MAP_RECEIVED" in names and "mission.STATE" in names
     assert not any(n.startswith("cb_") for n in (m.name for m in topics["/recon/events"]))
     # the Cliff-bot's link: MAVLink system 2, its modes named from the one table
-    msgs = [lm.msg for lm in load_messages(tmp_path / "cliffbot.tlog")[0]]
-    beats = [m for m in msgs if m.get_type() == "HEARTBEAT"]
+    logged = load_messages(tmp_path / "cliffbot.tlog")[0]
+    assert logged[-1].time_s - logged[0].time_s >= t_end - 0.5  # closed: the log holds its last second too
+    beats = [lm.msg for lm in logged if lm.msg.get_type() == "HEARTBEAT"]
     assert beats and {m.get_srcSystem() for m in beats} == {2}
     assert {"WAIT_MAP", "WAIT_FIX"} <= {mode_name(m.custom_mode) for m in beats}
