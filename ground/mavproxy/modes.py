@@ -86,7 +86,7 @@ class FleetModes:
             if name == v.mode:
                 return []
             old, v.mode = v.mode, name
-            v.changes += 1
+            v.changes += old != "-"
             return [f"{v.name} (system {sysid}): mode {name}" if old == "-" else
                     f"{v.name} (system {sysid}): mode {old} -> {name}"]
         if sysid not in self.systems:
@@ -103,7 +103,8 @@ class FleetModes:
         if not self.vehicles:
             return [f"no SAFER vehicle heard yet (systems {', '.join(map(str, self.systems))})"]
         return [f"{v.name:<9} system {v.system}  mode {v.mode:<9} {v.status:<9} "
-                f"{'ARMED' if v.armed else 'disarmed':<8} heard {now - v.heard_s:5.1f} s ago  {v.changes} change(s)"
+                f"{'ARMED' if v.armed else 'disarmed':<8} heard {now - v.heard_s:5.1f} s ago  "
+                f"{v.changes} mode change(s)"
                 + (f"  last event: {v.last_event}" if v.last_event else "")
                 for v in sorted(self.vehicles.values(), key=lambda v: v.system)]
 

@@ -81,6 +81,7 @@ def test_status_lines_and_mode_changes_of_both_vehicles() -> None:
     assert modes.feed(_hb("MOVE", 9), 13.0) == []  # not one of ours
     lines = modes.status_lines(14.0)
     assert len(lines) == 2 and "mode MOVE" in lines[0] and "ARMED" in lines[0] and "heard   2.0 s" in lines[0]
+    assert "1 mode change(s)" in lines[0] and "0 mode change(s)" in lines[1]
     assert "cliffbot" in lines[1] and "last event: mission.STATE: mission WAIT_MAP -> PLAN" in lines[1]
     assert modes.prompt() == "recon:MOVE cliffbot:WAIT_MAP"
 
