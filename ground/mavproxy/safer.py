@@ -90,9 +90,10 @@ if mp_module is not None:
             elif args[:1] == ["mode"] and len(args) in (2, 3) and (len(args) == 2 or args[2].isdigit()):
                 system = int(args[2]) if len(args) == 3 else int(self.target_system)
                 name, op, msg = self.modes.request(args[1], system)
-                self.master.mav.command_long_send(msg.target_system, msg.target_component, msg.command,
-                                                  msg.confirmation, msg.param1, msg.param2, msg.param3,
-                                                  msg.param4, msg.param5, msg.param6, msg.param7)
+                link = self.mpstate.master(system) or self.master  # the link that hears that system
+                link.mav.command_long_send(msg.target_system, msg.target_component, msg.command,
+                                           msg.confirmation, msg.param1, msg.param2, msg.param3,
+                                           msg.param4, msg.param5, msg.param6, msg.param7)
                 print(f"safer: {name} (opcode 0x{op:x}) sent to system {system}")
             else:
                 print(USAGE)
