@@ -75,6 +75,7 @@ class CliffbotMissionTask(FlightTask):
     )
     EVENTS = (
         *(EventDef(name, sev, "{text}") for name, sev in MISSION_EVENTS.items()),
+        EventDef("STATE", A, "mission {old} -> {new}"),  # each change of mode (the HEARTBEAT's, docs/ground.md)
         EventDef("RESUMED", A, "continued from checkpoint in {state}: {text}"),
         EventDef("CHECKPOINT_REFUSED", Severity.WARNING_LO, "checkpoint not used: {error}"),
         EventDef("CHECKPOINT_FAILED", Severity.WARNING_LO, "checkpoint not written: {error}", throttle=5),
@@ -105,6 +106,7 @@ class CliffbotMissionTask(FlightTask):
         self._saved_key: tuple[object, ...] | None = None
         self._safe_since: float | None = None
         self._restore()
+        self._state = self.mission.state
 
     # -- commands ------------------------------------------------------------------------------
     def cmd_RECOVER(self) -> None:
@@ -149,6 +151,9 @@ class CliffbotMissionTask(FlightTask):
         self._auto_recover(now)
         self._reset_nav()
         self._events()
+        if m.state != self._state:
+            self.event("STATE", old=self._state, new=m.state)
+            self._state = m.state
         self._checkpoint(now)
         self._telemetry()
 
