@@ -35,6 +35,7 @@ import math
 from collections.abc import Generator
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 from scipy.special import log_ndtr
 
@@ -147,10 +148,15 @@ def pv_fast_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], iy: IDX
         offset += nray * ncol
         yield None
 
-    flat_a = np.concatenate([p[0] for p in parts] + [np.array([1e9], np.float32)])
-    flat_b = np.concatenate([p[1] for p in parts] + [np.zeros(1, np.float32)])
-    flat_w = np.concatenate([p[2] for p in parts] + [np.zeros(1, np.float32)])
-    dummy = offset
+    # Every target's window is a contiguous run of the flat samples: its rows are copied out of
+    # sliding-window views (a row copy, not a gather per pair); the flat arrays are padded by the
+    # longest window so a row never runs off their end, and a row's columns past the target's
+    # own window get weight 0.
+    w_max = int(win.max())
+    flat_a = np.concatenate([p[0] for p in parts] + [np.full(w_max, 1e9, np.float32)])
+    flat_b = np.concatenate([p[1] for p in parts] + [np.zeros(w_max, np.float32)])
+    flat_w = np.concatenate([p[2] for p in parts] + [np.zeros(w_max, np.float32)])
+    rows_a, rows_b, rows_w = (sliding_window_view(f, max(w_max, 1)) for f in (flat_a, flat_b, flat_w))
     slope32 = slope.astype(np.float32)
     order = np.argsort(win, kind="stable")
     win_sorted = win[order]
@@ -160,13 +166,16 @@ def pv_fast_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], iy: IDX
         cost = np.arange(1, n - s0 + 1) * win_sorted[s0:]
         s1 = min(n, s0 + max(64, int(np.searchsorted(cost, _BLOCK_PAIRS, "right"))))
         idx = order[s0:s1]
-        cols = np.arange(int(win_sorted[s1 - 1]))[None, :]
-        flat = np.where(cols < win[idx, None], base[idx, None] + cols, dummy)
-        x = np.take(flat_a, flat)
-        x -= slope32[idx, None] * np.take(flat_b, flat)
+        width = int(win_sorted[s1 - 1])
+        b0 = base[idx]
+        x = rows_b[b0, :width]  # a copy: x = a - g b, in place
+        x *= -slope32[idx, None]
+        x += rows_a[b0, :width]
         np.clip(x, 0, _NT - 1, out=x)
         vals = np.take(_TABLE, x.astype(np.int32))
-        out[idx] = np.exp(np.einsum("ij,ij->i", vals, np.take(flat_w, flat)))
+        w = rows_w[b0, :width]
+        w[np.arange(width)[None, :] >= win[idx, None]] = 0.0
+        out[idx] = np.exp(np.einsum("ij,ij->i", vals, w))
         s0 = s1
         yield None
     return out
