@@ -25,8 +25,10 @@ Design (measured speed and accuracy in docs/nbv.md):
    matter for a target; on known terrain that leaves a short window just in front of the
    target (plus the occluders), on unknown terrain most of the ray.
 5. Targets are sorted by window length and processed in blocks of about 2^18 (target,
-   sample) pairs; ``log Phi`` comes from a 1/256-step lookup table; everything is float32
-   numpy, no Python loop per cell or per ray.
+   sample) pairs (:func:`window_sums_steps`); a target's window is one contiguous run of its
+   ray's samples, copied as a row of a sliding-window view (no gather per pair); ``log Phi``
+   comes from a 1/256-step lookup table; everything is float32 numpy, no Python loop per
+   cell or per ray.
 """
 
 from __future__ import annotations
@@ -148,20 +150,29 @@ def pv_fast_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], iy: IDX
         offset += nray * ncol
         yield None
 
-    # Every target's window is a contiguous run of the flat samples: its rows are copied out of
-    # sliding-window views (a row copy, not a gather per pair); the flat arrays are padded by the
-    # longest window so a row never runs off their end, and a row's columns past the target's
-    # own window get weight 0.
-    w_max = int(win.max())
-    flat_a = np.concatenate([p[0] for p in parts] + [np.full(w_max, 1e9, np.float32)])
-    flat_b = np.concatenate([p[1] for p in parts] + [np.zeros(w_max, np.float32)])
-    flat_w = np.concatenate([p[2] for p in parts] + [np.zeros(w_max, np.float32)])
-    rows_a, rows_b, rows_w = (sliding_window_view(f, max(w_max, 1)) for f in (flat_a, flat_b, flat_w))
-    slope32 = slope.astype(np.float32)
+    flat = tuple(np.concatenate([p[i] for p in parts]) for i in range(3))
+    yield None
+    yield from window_sums_steps(*flat, base, win, slope.astype(np.float32), out)
+    return out
+
+
+def window_sums_steps(flat_a: F32, flat_b: F32, flat_w: F32, base: NDArray[np.int64],
+                      win: NDArray[np.int64], slope: F32, out: F64) -> Generator[None, None, None]:
+    """Step 5 of the module docstring: ``out[t] = exp(sum_{j < win[t]} w log Phi(a - g b))``
+    over the samples ``base[t] + j`` of the flat sample arrays (``a``, ``b`` in table units,
+    ``w`` the exponent), ``g = slope[t]``; targets with an empty window keep their ``out``.
+    Yields after each block of about ``_BLOCK_PAIRS`` pairs.
+
+    Every target's window is a contiguous run of samples: its row is copied out of
+    sliding-window views of the arrays (a row copy, not a gather per pair); the arrays are
+    padded by the longest window so a row never runs off their end, and a row's columns past
+    the target's own window get weight 0."""
+    w_max = max(int(win.max(initial=0)), 1)
+    rows_a, rows_b, rows_w = (sliding_window_view(np.concatenate([f, np.full(w_max, v, np.float32)]), w_max)
+                              for f, v in ((flat_a, 1e9), (flat_b, 0.0), (flat_w, 0.0)))
     order = np.argsort(win, kind="stable")
     win_sorted = win[order]
-    s0, n = int(np.searchsorted(win_sorted, 1)), iy.size
-    yield None
+    s0, n = int(np.searchsorted(win_sorted, 1)), win.size
     while s0 < n:
         cost = np.arange(1, n - s0 + 1) * win_sorted[s0:]
         s1 = min(n, s0 + max(64, int(np.searchsorted(cost, _BLOCK_PAIRS, "right"))))
@@ -169,7 +180,7 @@ def pv_fast_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], iy: IDX
         width = int(win_sorted[s1 - 1])
         b0 = base[idx]
         x = rows_b[b0, :width]  # a copy: x = a - g b, in place
-        x *= -slope32[idx, None]
+        x *= -slope[idx, None]
         x += rows_a[b0, :width]
         np.clip(x, 0, _NT - 1, out=x)
         vals = np.take(_TABLE, x.astype(np.int32))
@@ -178,4 +189,3 @@ def pv_fast_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], iy: IDX
         out[idx] = np.exp(np.einsum("ij,ij->i", vals, w))
         s0 = s1
         yield None
-    return out
