@@ -150,9 +150,9 @@ def pv_fast_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], iy: IDX
         offset += nray * ncol
         yield None
 
-    flat = tuple(np.concatenate([p[i] for p in parts]) for i in range(3))
+    flat_a, flat_b, flat_w = (np.concatenate([p[i] for p in parts]) for i in range(3))
     yield None
-    yield from window_sums_steps(*flat, base, win, slope.astype(np.float32), out)
+    yield from window_sums_steps(flat_a, flat_b, flat_w, base, win, slope.astype(np.float32), out)
     return out
 
 
