@@ -53,6 +53,23 @@ _BLOCK_PAIRS = 1 << 18  # (target, sample) pairs per step: a few ms
 _RAYS_PER_STEP = 512  # rays traced per step: a few ms
 
 
+def unique_inverse(values: NDArray[np.int64], size: int) -> tuple[NDArray[np.int64], NDArray[np.intp]]:
+    """``np.unique(values, return_inverse=True)`` for integers in ``[0, size)``, without a sort:
+    the sorted distinct values and each value's index among them."""
+    present = np.zeros(size, bool)
+    present[values] = True
+    rank = np.cumsum(present, dtype=np.intp) - 1
+    return np.flatnonzero(present).astype(np.int64), rank[values]
+
+
+def stable_argsort(values: NDArray[np.int64] | NDArray[np.intp]) -> NDArray[np.intp]:
+    """``np.argsort(values, kind="stable")`` of non-negative integers: the same permutation, by
+    numpy's radix sort when they fit 16 bits."""
+    if values.size and int(values.min()) >= 0 and int(values.max()) < 1 << 16:
+        return np.argsort(values.astype(np.uint16), kind="stable")
+    return np.argsort(values, kind="stable")
+
+
 def bin_rays(grid: MapGrid, cam_xy: tuple[float, float], angles: F64, rmax_m: float
              ) -> tuple[F32, NDArray[np.int32]]:
     """Grid traversal of rays from ``cam_xy`` at ``angles`` out to ``rmax_m``.
@@ -112,10 +129,10 @@ def pv_fast_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], iy: IDX
     theta = np.arctan2(ddy, ddx)
     nbin = rays_for_cell(cfg, g.cell)
     dth = 2.0 * math.pi / nbin
-    used, ray = np.unique(np.rint(theta / dth).astype(np.int64) % nbin, return_inverse=True)
+    used, ray = unique_inverse(np.rint(theta / dth).astype(np.int64) % nbin, nbin)
     half = 0.5 * g.cell / np.maximum(np.abs(np.cos(theta)), np.abs(np.sin(theta)))
     slope = (cz - terrain.elev_m[iy, ix]) / np.maximum(big_r, 1e-9)
-    by_ray = np.argsort(ray, kind="stable")
+    by_ray = stable_argsort(ray)
     rmax = float(big_r.max()) + g.cell
     inv, off, wgt = terrain.packed()
     base = np.zeros(iy.size, np.int64)
@@ -125,7 +142,7 @@ def pv_fast_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], iy: IDX
     yield None  # the set-up above is a step of its own (it sorts every target)
     for r0 in range(0, used.size, _RAYS_PER_STEP):
         r1 = min(used.size, r0 + _RAYS_PER_STEP)
-        rm, cell = bin_rays(g, (cx, cy), used[r0:r1] * dth, rmax)
+        rm, cell = bin_rays(g, (cx, cy), np.asarray(used[r0:r1] * dth, np.float64), rmax)
         nray, ncol = rm.shape
         inv_s = inv[cell]
         a_s = (np.float32(cz) * inv_s + off[cell]) * np.float32(_NPER) - np.float32(_XMIN * _NPER)
@@ -170,7 +187,7 @@ def window_sums_steps(flat_a: F32, flat_b: F32, flat_w: F32, base: NDArray[np.in
     w_max = max(int(win.max(initial=0)), 1)
     rows_a, rows_b, rows_w = (sliding_window_view(np.concatenate([f, np.full(w_max, v, np.float32)]), w_max)
                               for f, v in ((flat_a, 1e9), (flat_b, 0.0), (flat_w, 0.0)))
-    order = np.argsort(win, kind="stable")
+    order = stable_argsort(win)
     win_sorted = win[order]
     s0, n = int(np.searchsorted(win_sorted, 1)), win.size
     while s0 < n:

@@ -12,7 +12,14 @@ from fsw.core.edge.edge import EdgeConfig
 from fsw.core.edge.ground_plane import SURFACE_MIN_WEIGHT, ground_plane, ground_surface
 from fsw.core.geometry import MapGrid
 from fsw.core.map.elevation_map import ElevationMap
-from fsw.core.planning.visibility_kernel import _NPER, _XMAX, _XMIN, window_sums_steps
+from fsw.core.planning.visibility_kernel import (
+    _NPER,
+    _XMAX,
+    _XMIN,
+    stable_argsort,
+    unique_inverse,
+    window_sums_steps,
+)
 from fsw.core.steps import run_to_end
 
 
@@ -37,6 +44,19 @@ def test_window_sums_equal_a_plain_sum_per_target() -> None:
         x = np.clip(a[s] - g[i] * b[s], 0, table.size - 1).astype(np.int32)
         expect = -1.0 if win[i] == 0 else np.exp(float(np.sum(table[x].astype(np.float64) * w[s])))
         assert np.isclose(out[i], expect, rtol=1e-4, atol=1e-30), i  # float32 sums
+
+
+def test_sort_free_unique_and_radix_argsort_equal_numpys() -> None:
+    """The bins' and blocks' unique values and inverse, and the stable orders of bins and
+    windows, are numpy's (sorted unique; the one stable permutation), also past 16 bits."""
+    rng = np.random.default_rng(5)
+    for size, n in ((16, 1), (4096, 30000), (65536, 50000), (1 << 20, 5000)):
+        v = rng.integers(0, size, n) if n > 1 else np.array([size - 1])
+        u, inv = unique_inverse(v, size)
+        ref_u, ref_inv = np.unique(v, return_inverse=True)
+        assert np.array_equal(u, ref_u) and np.array_equal(inv, ref_inv.ravel())
+        assert np.array_equal(stable_argsort(v), np.argsort(v, kind="stable"))
+    assert stable_argsort(np.zeros(0, np.int64)).size == 0
 
 
 def _surface_whole_grid(emap: ElevationMap, ground_z: float, seed: tuple[float, float],
