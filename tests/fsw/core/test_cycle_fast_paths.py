@@ -1,8 +1,10 @@
 """The sensing cycle's fast paths (issue 30 item 5) against the plain computations they replace:
-the P_V kernel's window sums, the ground surface on the mapped window, P_V of a view on the
-cells of its field of view."""
+the P_V kernel's window sums and sort-free orders, the ground surface on the mapped window, the
+merge's P_V only off the cells the view measured."""
 
 from __future__ import annotations
+
+import math
 
 import cv2
 import numpy as np
@@ -10,8 +12,10 @@ from scipy.special import log_ndtr
 
 from fsw.core.edge.edge import EdgeConfig
 from fsw.core.edge.ground_plane import SURFACE_MIN_WEIGHT, ground_plane, ground_surface
-from fsw.core.geometry import MapGrid
+from fsw.core.geometry import CameraConfig, CameraPose, MapGrid, MastConfig
 from fsw.core.map.elevation_map import ElevationMap
+from fsw.core.planning.nbv import predicted_visibility, predicted_visibility_steps
+from fsw.core.planning.visibility import VisibilityConfig
 from fsw.core.planning.visibility_kernel import (
     _NPER,
     _XMAX,
@@ -21,6 +25,7 @@ from fsw.core.planning.visibility_kernel import (
     window_sums_steps,
 )
 from fsw.core.steps import run_to_end
+from hil_sim.lab.nbv_scene import panorama_map, synthetic_terrain
 
 
 def test_window_sums_equal_a_plain_sum_per_target() -> None:
@@ -94,3 +99,30 @@ def test_ground_surface_on_the_mapped_window_is_the_whole_grid_surface() -> None
         assert np.array_equal(got, _surface_whole_grid(emap, 0.0, seed, cfg))
     empty = ElevationMap(grid)
     assert np.array_equal(ground_surface(empty, 0.1, (1.0, 1.0), cfg), ground_plane(empty, 0.1, (1.0, 1.0), cfg))
+
+
+def test_misses_need_p_v_only_off_the_measured_cells() -> None:
+    """The merge's P_V skips the cells the view measured (their P_V is never used): elsewhere
+    it is the full computation's, up to float32 summation order; culling to the reach box
+    changes nothing; the skipped cells read 0. ``hit_cells`` are the cells the merge fills."""
+    grid = MapGrid(x0=-0.5, y0=-3.5, cell=0.04, nx=110, ny=100)
+    cam = CameraConfig()
+    truth, textured = synthetic_terrain(grid, seed=5)
+    emap = panorama_map(truth, textured, grid, cam, MastConfig(), (0.0, 0.0, 0.0))
+    pose = CameraPose.from_pan_tilt(1.0, 0.0, 1.5, -math.pi / 2, -0.6)
+    full = predicted_visibility(emap, pose, cam, VisibilityConfig())
+    rng = np.random.default_rng(2)
+    skip = (rng.random(grid.shape) < 0.5) & (full > 0)
+    part = run_to_end(predicted_visibility_steps(emap, pose, cam, VisibilityConfig(), skip=skip))
+    assert (part[skip] == 0.0).all() and full[skip].max() > 0.5
+    assert np.allclose(part[~skip], full[~skip], rtol=1e-5, atol=1e-6)
+    # the points of a view: on and off the grid, NaN, a variance over the limit
+    xyz = np.column_stack([rng.uniform(-1.0, 4.5, 3000), rng.uniform(-4.0, 0.5, 3000), rng.normal(0, 0.1, 3000)])
+    xyz[::50, 2] = np.nan
+    cov = np.tile(np.diag([1e-4, 1e-4, 1e-4]), (3000, 1, 1))
+    cov[::37, 2, 2] = 1.0
+    hit = emap.hit_cells([(xyz[:1500], cov[:1500], None), (xyz[1500:], cov[1500:], None)])
+    before = emap.n.copy() + emap.outliers
+    stats = emap.merge(xyz, cov=cov)
+    assert hit.sum() == stats.cells_measured > 100
+    assert np.array_equal(emap.n + emap.outliers != before, hit & (emap.n + emap.outliers != before))
