@@ -37,7 +37,7 @@ class BudgetConfig:
     """config/budget.toml."""
 
     cpu_factor: float = param(30.0, lo=1.0, hi=1000.0, doc="target time / time on one core of the reference machine")
-    yardstick_ref_s: float = param(0.034, lo=1e-4, hi=100.0, units="s",
+    yardstick_ref_s: float = param(0.030, lo=1e-4, hi=100.0, units="s",
                                    doc="the bench's yardstick workload on one core of the reference machine")
     stage_growth_max: float = param(1.1, lo=1.0, hi=100.0,
                                     doc="a stage's time may grow this many times its map cells' growth")
