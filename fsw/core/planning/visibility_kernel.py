@@ -89,7 +89,7 @@ def bin_rays(grid: MapGrid, cam_xy: tuple[float, float], angles: F64, rmax_m: fl
     with np.errstate(divide="ignore"):
         r[:, :n] = (first_x + m) * (c / np.abs(dx))[:, None]
         r[:, n:] = (first_y + m) * (c / np.abs(dy))[:, None]
-    r.sort(axis=1)
+    r.sort(axis=1, kind="stable")  # two sorted runs (x and y crossings): a merge
     ncol = int(np.searchsorted(r.min(axis=0), rmax_m)) + 1
     r = np.minimum(r[:, :ncol], np.float32(rmax_m))
     rm = np.empty_like(r)
