@@ -93,7 +93,7 @@ def test_bench_cycle_prints_the_longest_slice(capsys: pytest.CaptureFixture[str]
 
 
 _OLD_OUTPUT = """
-sensing cycle (the flown pipeline, fsw.core.pipeline), lab after the start panorama, map 256x256 cells of 3.00 cm; the view registered:
+sensing cycle (the flown pipeline), lab after the start panorama, map 256x256 cells of 3.00 cm; the view registered:
   stage         here min (median)    target   budget
   capture        580.1 (  580.1) ms   (bench renderer, not flight work: not in the total)
   rectify          2.4 (    2.4) ms     0.07s     1.0s ok
@@ -104,7 +104,7 @@ sensing cycle (the flown pipeline, fsw.core.pipeline), lab after the start panor
   next_view      305.0 (  305.0) ms     9.15s     6.5s OVER x1.4
   cycle          571.1 (sum of min) ms    17.13s    15.0s OVER x1.1
 
-sensing cycle (the flown pipeline, fsw.core.pipeline), lab after the start panorama, map 512x512 cells of 1.50 cm; the view registered:
+sensing cycle (the flown pipeline), lab after the start panorama, map 512x512 cells of 1.50 cm; the view registered:
   stage         here min (median)    target   budget
   rectify     n/a (no calibration)                 1.0s
   stereo         134.5 (  134.5) ms     4.04s     3.0s OVER x1.3
