@@ -131,8 +131,9 @@ def test_cycle_tables_scale_by_the_yardstick_and_check_growth() -> None:
     budget = load_budget()
     after = {256: dict.fromkeys(CYCLE_STAGES, 0.01), 512: dict.fromkeys(CYCLE_STAGES, 0.04)}
     after[512]["edge"] = 0.05  # 5x for 4x the cells
-    before = Baseline("abc", parse_stages(_OLD_OUTPUT), budget.yardstick_ref_s)
-    md = cycle_tables(budget, after, budget.yardstick_ref_s / 2.0, before)  # this run's machine: 2x faster
+    before = Baseline("abc", parse_stages(_OLD_OUTPUT))
+    half = budget.yardstick_ref_s / 2.0  # this run's machine: 2x faster
+    md = cycle_tables(budget, after, {256: half, 512: half}, before)
     rows = {tuple(c.strip() for c in ln.strip("|").split("|")[:2]): ln for ln in md.splitlines() if ln.startswith("|")}
     assert "| 20 |" in rows[("256x256", "merge")] and "| 10 |" in rows[("256x256", "merge")]  # ref ms, here ms
     assert rows[("256 -> 512", "edge")].rstrip().endswith("| no |")

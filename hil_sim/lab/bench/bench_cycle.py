@@ -27,14 +27,17 @@ DESCRIPTION = (
     "(x yardstick_ref_s / the yardstick here, config/budget.toml), so figures from different "
     "machines compare; each is projected onto the flight computer as that x cpu_factor and "
     "compared with the budget table there; between grid sizes each stage's growth is checked "
-    "against stage_growth_max x the cells' growth. --baseline REV runs the same bench of another "
-    "commit back to back in a child process (its code exported from git) and --results writes "
+    "against stage_growth_max x the cells' growth. --baseline REV runs the bench of another "
+    "commit in child processes (its code exported from git), a repeat at a time interleaved with "
+    "this commit's, and --results writes "
     "both to docs/results/cycle.md. "
     "CAVEAT: on a shared, loaded machine even CPU times inflate (caches, frequency); the "
     "yardstick absorbs part of it: compare figures measured back to back. Capture is the bench "
     "renderer (not flight work) and is left out of the cycle total. Exit 2 on a bad option or "
     "config file."
 )
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default="lab", help="world (hil_sim.world.load_scenario spec)")
     p.add_argument("--seed", type=int, default=0, help="world, camera-noise and mission seed")
@@ -52,7 +55,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "the slack slices (0: skip the mission)")
     p.add_argument("--baseline", metavar="REV", default=None,
                    help="also run this commit's bench cycle (its fsw, hil_sim and config exported "
-                        "from git) first, back to back, for a before/after table")
+                        "from git) in a child process, a repeat at a time interleaved with this "
+                        "commit's, for a before/after table")
     p.add_argument("--results", action="store_true",
                    help="write the cycle table (and the baseline's) to docs/results/cycle.md")
 
@@ -187,12 +191,32 @@ def _cycle(cfg: Any, world: Any, n: int, repeats: int, seed: int) -> dict[str, A
     return fig
 
 
+def _pooled(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """Single-repeat figures of :func:`_cycle` pooled: (min, median) of every timed item."""
+    import statistics
+
+    out = dict(runs[-1])
+    for key, value in runs[-1].items():
+        if isinstance(value, (tuple, list)) and len(value) == 2 and all(isinstance(v, float) for v in value):
+            times = [float(r[key][0]) for r in runs]
+            out[key] = (min(times), statistics.median(times))
+    out["step_max_s"] = max(float(r["step_max_s"]) for r in runs)
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
+    import contextlib
     import resource
 
     from fsw.framework.params import ConfigError
     from fsw.settings import DEFAULT_CONFIG, load_settings
-    from hil_sim.lab.bench.cycle_compare import BaselineError, run_baseline, write_cycle_results
+    from hil_sim.lab.bench.cycle_compare import (
+        Baseline,
+        BaselineError,
+        BaselineRunner,
+        min_stages,
+        write_cycle_results,
+    )
     from hil_sim.lab.bench.yardstick import yardstick_s
     from hil_sim.lab.cycle_budget import CYCLE_GOALS_S, CYCLE_STAGES, DEFAULT_BUDGET, load_budget, verdict
     from hil_sim.world import load_scenario
@@ -213,15 +237,13 @@ def run(args: argparse.Namespace) -> int:
         return 2
     grids = sorted(set(args.grids))
     k = args.cpu_factor or budget.cpu_factor
-    before = None
+    runner = None
     if args.baseline:
-        print(f"baseline: the bench cycle of {args.baseline}, in a child process ...", flush=True)
         try:
-            before = run_baseline(args.baseline, args, grids)
+            runner = BaselineRunner(args.baseline, args)
         except BaselineError as err:
             print(f"safer-hil bench cycle: {err}", file=sys.stderr)
             return 2
-    yard = yardstick_s()
     print(f"CPU s of this process, min (median) of {args.repeats}; ref = on the reference machine "
           f"(x yardstick_ref_s / the yardstick here); target = ref x {k:g} (cpu_factor); budget: "
           f"{args.budget or DEFAULT_BUDGET}. Caveat: on a shared, loaded machine CPU times inflate "
@@ -251,22 +273,37 @@ def run(args: argparse.Namespace) -> int:
               f"in one process: an upper bound on the flight process), budget "
               f"{budget.peak_rss_mb:g} MB: {verdict(rss_mb, budget.peak_rss_mb)}")
     figs: dict[int, dict[str, Any]] = {}
-    for n in grids:
-        try:
-            figs[n] = _cycle(cfg, world, n, args.repeats, args.seed)
-        except ValueError as err:
-            print(f"safer-hil bench cycle: {err}", file=sys.stderr)
-            return 2
-        print(f"  measured {n}x{n}", file=sys.stderr, flush=True)
-    yard = min(yard, yardstick_s())  # before and after the cycles: the least disturbed
-    scale = budget.yardstick_ref_s / yard
-    print(f"\nyardstick {1e3 * yard:.1f} ms here, {1e3 * budget.yardstick_ref_s:.1f} ms on the reference "
-          f"machine: ref = here x {scale:.3f}")
+    base: dict[int, dict[str, float | None]] = {}
+    yard: dict[int, float] = {}
+    try:
+        with runner or contextlib.nullcontext():
+            for n in grids:
+                samples = [yardstick_s(2)]
+                if runner is None:
+                    figs[n] = _cycle(cfg, world, n, args.repeats, args.seed)
+                    samples.append(yardstick_s(2))
+                else:  # one repeat of each commit at a time: the same load for both
+                    runs, base_runs = [], []
+                    for _ in range(args.repeats):
+                        base_runs.append(runner.stages(n))
+                        samples.append(yardstick_s(2))
+                        runs.append(_cycle(cfg, world, n, 1, args.seed))
+                        samples.append(yardstick_s(2))
+                    figs[n], base[n] = _pooled(runs), min_stages(base_runs)
+                yard[n] = min(samples)
+                print(f"  measured {n}x{n}", file=sys.stderr, flush=True)
+    except (ValueError, BaselineError) as err:
+        print(f"safer-hil bench cycle: {err}", file=sys.stderr)
+        return 2
+    before = None if runner is None else Baseline(runner.commit, base)
     after: dict[int, dict[str, float | None]] = {}
     for n in grids:
         f = figs[n]
         after[n] = {}
-        print(f"\nsensing cycle (the flown pipeline, fsw.core.pipeline), {args.scenario} after the "
+        scale = budget.yardstick_ref_s / yard[n]
+        print(f"\nyardstick {1e3 * yard[n]:.1f} ms here (between the {n}x{n} runs), "
+              f"{1e3 * budget.yardstick_ref_s:.1f} ms on the reference machine: ref = here x {scale:.3f}")
+        print(f"sensing cycle (the flown pipeline, fsw.core.pipeline), {args.scenario} after the "
               f"start panorama, map {n}x{n} cells of {100 * f['cell_m']:.2f} cm; the view {f['registration']}:")
         print(f"  {'stage':<10} {'here min (median)':>20} {'ref':>9} {'target':>8} {'budget':>8}")
         c_min, c_med = f["capture"]

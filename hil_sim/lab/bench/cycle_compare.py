@@ -3,10 +3,10 @@ back in a child process, and the before/after table in docs/results/cycle.md.
 
 The baseline's code (``fsw``, ``hil_sim``, ``config``) is exported from git into a temporary
 directory and its own ``safer-hil bench cycle`` runs there (``--mission-steps 0``: the cycle
-only); its stage table is read from its output (the line format every version prints:
-``  <stage> <min> (<median>) ms``). The yardstick is timed in this process right before and
-after the child (the same machine, minutes apart), so both commits' figures scale to the
-reference machine alike.
+only), one grid and one repeat per child, interleaved with this commit's repeats, so a change
+of the machine's load hits both alike; its stage table is read from its output (the line
+format every version prints: ``  <stage> <min> (<median>) ms``). Both scale to the reference
+machine by the same yardstick, timed between the runs of each grid.
 """
 
 from __future__ import annotations
@@ -23,7 +23,6 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from hil_sim.lab.bench.yardstick import yardstick_s
 from hil_sim.lab.cycle_budget import CYCLE_GOALS_S, CYCLE_STAGES, BudgetConfig
 from hil_sim.lab.results import REPO, markdown_table, write_results
 
@@ -39,11 +38,11 @@ class BaselineError(Exception):
 
 @dataclass(frozen=True)
 class Baseline:
-    """The baseline commit's stage figures and the yardstick timed around its run."""
+    """The baseline commit's stage figures (min over its repeats), measured interleaved with this
+    commit's on the same grids, so both share each grid's yardstick."""
 
     commit: str
     stages: Stages
-    yardstick_s: float
 
 
 def parse_stages(text: str) -> Stages:
@@ -71,36 +70,61 @@ def _git(*argv: str) -> bytes:
         raise BaselineError(f"git {argv[0]} failed: {text.strip().splitlines()[-1] if text.strip() else err}") from err
 
 
-def run_baseline(rev: str, args: argparse.Namespace, grids: list[int]) -> Baseline:
-    """Export ``rev`` and run its ``bench cycle`` on the same grids, repeats, scenario and seed."""
-    try:
-        sha = _git("rev-parse", "--verify", "--quiet", f"{rev}^{{commit}}").decode().strip()
-    except BaselineError:
-        sha = ""
-    if not sha:
-        raise BaselineError(f"--baseline {rev}: not a commit of this checkout")
-    tar = _git("archive", "--format=tar", sha, "fsw", "hil_sim", "config")
-    yard = yardstick_s()
-    with tempfile.TemporaryDirectory(prefix="bench-cycle-baseline-") as tmp:
-        with tarfile.open(fileobj=io.BytesIO(tar)) as tf:
-            tf.extractall(tmp, filter="data")
-        cmd = [sys.executable, "-c", _CHILD, "bench", "cycle", "--grids", *map(str, grids),
-               "--repeats", str(args.repeats), "--mission-steps", "0", "--scenario", args.scenario,
-               "--seed", str(args.seed)]
-        if args.config is not None:
-            cmd += ["--config", str(Path(args.config).resolve())]
-        env = {**os.environ, "PYTHONPATH": tmp}
+class BaselineRunner:
+    """Another commit's ``bench cycle``, exported from git once (``with`` block: its temporary
+    directory) and run one grid and one repeat at a time in a child process, so its runs
+    interleave with this commit's (the same load for both)."""
+
+    def __init__(self, rev: str, args: argparse.Namespace) -> None:
         try:
-            done = subprocess.run(cmd, cwd=tmp, env=env, capture_output=True, text=True, check=False)
+            sha = _git("rev-parse", "--verify", "--quiet", f"{rev}^{{commit}}").decode().strip()
+        except BaselineError:
+            sha = ""
+        if not sha:
+            raise BaselineError(f"--baseline {rev}: not a commit of this checkout")
+        self.commit = sha[:12]
+        self._tar = _git("archive", "--format=tar", sha, "fsw", "hil_sim", "config")
+        self._args = args
+        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+
+    def __enter__(self) -> BaselineRunner:
+        self._tmp = tempfile.TemporaryDirectory(prefix="bench-cycle-baseline-")
+        with tarfile.open(fileobj=io.BytesIO(self._tar)) as tf:
+            tf.extractall(self._tmp.name, filter="data")
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
+
+    def stages(self, grid: int) -> dict[str, float | None]:
+        """One repeat of the baseline's cycle on one grid: CPU s per stage."""
+        if self._tmp is None:
+            raise BaselineError("the baseline runner is used outside its with block")
+        a = self._args
+        cmd = [sys.executable, "-c", _CHILD, "bench", "cycle", "--grids", str(grid), "--repeats", "1",
+               "--mission-steps", "0", "--scenario", a.scenario, "--seed", str(a.seed)]
+        if a.config is not None:
+            cmd += ["--config", str(Path(a.config).resolve())]
+        env = {**os.environ, "PYTHONPATH": self._tmp.name}
+        try:
+            done = subprocess.run(cmd, cwd=self._tmp.name, env=env, capture_output=True, text=True, check=False)
         except OSError as err:
-            raise BaselineError(f"baseline bench could not start: {err}") from err
-    if done.returncode != 0:
-        tail = (done.stderr.strip().splitlines() or ["no output"])[-1]
-        raise BaselineError(f"the baseline's bench cycle exited {done.returncode}: {tail}")
-    stages = parse_stages(done.stdout)
-    if sorted(stages) != grids or any(set(v) != set(CYCLE_STAGES) for v in stages.values()):
-        raise BaselineError("the baseline's bench cycle printed no stage table for every grid")
-    return Baseline(sha[:12], stages, min(yard, yardstick_s()))
+            raise BaselineError(f"the baseline's bench could not start: {err}") from err
+        if done.returncode != 0:
+            tail = (done.stderr.strip().splitlines() or ["no output"])[-1]
+            raise BaselineError(f"the baseline's bench cycle exited {done.returncode}: {tail}")
+        st = parse_stages(done.stdout).get(grid)
+        if st is None or set(st) != set(CYCLE_STAGES):
+            raise BaselineError(f"the baseline's bench cycle printed no stage table for {grid}x{grid}")
+        return st
+
+
+def min_stages(runs: list[dict[str, float | None]]) -> dict[str, float | None]:
+    """Per stage, the least of the runs (None where a stage did not run)."""
+    return {s: (None if any(r[s] is None for r in runs) else min(float(r[s] or 0.0) for r in runs))
+            for s in CYCLE_STAGES}
 
 
 def _ms(v: float | None) -> float | None:
@@ -111,19 +135,20 @@ def _ratio(a: float | None, b: float | None) -> str | None:
     return None if a is None or b is None or a <= 0 else f"{b / a:.2f}x"
 
 
-def cycle_tables(budget: BudgetConfig, after: Stages, yard_s: float, before: Baseline | None) -> str:
+def cycle_tables(budget: BudgetConfig, after: Stages, yard_s: dict[int, float], before: Baseline | None) -> str:
     """The results file's tables: every stage and the cycle on the reference machine (ms), the
-    growth per stage between grid sizes, the issue's cycle goals."""
-    scale = budget.yardstick_ref_s / yard_s
-    b_scale = 1.0 if before is None else budget.yardstick_ref_s / before.yardstick_s
-    lines = [f"Yardstick (hil_sim/lab/bench/yardstick.py): {1e3 * yard_s:.1f} ms here in this run, "
-             f"{1e3 * budget.yardstick_ref_s:.1f} ms on the reference machine (config/budget.toml); "
-             "`ref` figures are CPU ms here x the reference's yardstick / this run's, min of the repeats."]
+    growth per stage between grid sizes, the issue's cycle goals. ``yard_s``: the yardstick
+    here per grid (timed between that grid's runs)."""
+    yards = ", ".join(f"{1e3 * yard_s[n]:.1f} ms ({n}x{n})" for n in sorted(after))
+    lines = [f"Yardstick (hil_sim/lab/bench/yardstick.py) here: {yards}, timed between each grid's runs; "
+             f"{1e3 * budget.yardstick_ref_s:.1f} ms on the reference machine (config/budget.toml). "
+             "`ref` figures are CPU ms here x the reference's yardstick / this grid's, min of the repeats."]
     if before is not None:
-        lines.append(f"Before: commit `{before.commit}`, run back to back in a child process "
-                     f"(yardstick {1e3 * before.yardstick_s:.1f} ms around it).")
+        lines.append(f"Before: commit `{before.commit}`, its own bench run in a child process, one repeat "
+                     "at a time, interleaved with this commit's repeats (the same load and yardstick).")
     rows = []
     for n in sorted(after):
+        scale = b_scale = budget.yardstick_ref_s / yard_s[n]
         stages = [*CYCLE_STAGES, "cycle"]
         for stage in stages:
             a: float | None
@@ -161,6 +186,7 @@ def cycle_tables(budget: BudgetConfig, after: Stages, yard_s: float, before: Bas
     for n in grids:
         if n not in CYCLE_GOALS_S:
             continue
+        scale = b_scale = budget.yardstick_ref_s / yard_s[n]
         a = sum(v for v in after[n].values() if v is not None) * scale
         row = {"grid": f"{n}x{n}", "goal ref s": CYCLE_GOALS_S[n]}
         if before is not None:
@@ -183,7 +209,7 @@ def bench_command(args: argparse.Namespace) -> str:
     return shlex.join([*argv, "--results"])
 
 
-def write_cycle_results(args: argparse.Namespace, budget: BudgetConfig, after: Stages, yard_s: float,
+def write_cycle_results(args: argparse.Namespace, budget: BudgetConfig, after: Stages, yard_s: dict[int, float],
                         before: Baseline | None) -> Path | None:
     """docs/results/cycle.md: the command line and :func:`cycle_tables`."""
     return write_results("cycle", bench_command(args), cycle_tables(budget, after, yard_s, before), kind="bench")
