@@ -264,16 +264,18 @@ class FaceScene:
         assert t is not None
         row: dict[str, Any] = {"seed": self.seed, "slope_deg": round(float(t.face_slope_deg), 1), "views": self.views}
         if self.face is None:  # no face fitted: only the team mask's figures
-            nones = ("face_cells", "face_rmse_m", "face_rmse_gravity_m", "ratio", "rmse_recon_m", "rmse_cliff_m",
+            nones = ("face_cells", "face_rmse_m", "face_rmse_gravity_m", "ratio", "face_rmse_gravity_normal_m",
+                     "ratio_normal", "rmse_recon_m", "rmse_cliff_m",
                      "rmse_fused_m", "in2s_recon", "in2s_cliff", "in2s_fused")
             return {**row, **{k: None for k in nones}, "overhang_truth": 0, "overhang_flagged": 0,
                     "overhang_false": 0, "both_cells": 0, "team_points_seen": self.team_points,
                     "team_points_fused": self.team_points_fused, "team_cells_mapped": len(self.team_cells)}
         f = face_figures(self.world, self.face, self.gravity, self.cells_by_agent)
-        row.update({k: f[k] for k in ("face_cells", "face_rmse_m", "face_rmse_gravity_m", "overhang_truth",
-                                       "overhang_flagged", "overhang_false")})
-        r, g = f["face_rmse_m"], f["face_rmse_gravity_m"]
+        row.update({k: f[k] for k in ("face_cells", "face_rmse_m", "face_rmse_gravity_m", "face_rmse_gravity_normal_m",
+                                       "overhang_truth", "overhang_flagged", "overhang_false")})
+        r, g, gn = f["face_rmse_m"], f["face_rmse_gravity_m"], f["face_rmse_gravity_normal_m"]
         row["ratio"] = r / g if r is not None and g else None
+        row["ratio_normal"] = r / gn if r is not None and gn else None
         row.update(self._agents())
         row["team_points_seen"] = self.team_points
         row["team_points_fused"] = self.team_points_fused
