@@ -29,9 +29,9 @@ returns to the true one), their ratio, the gravity grid's distance from the true
 the face normal (``face_rmse_gravity_normal_m``) and that ratio, the truth overhang cells
 flagged, the fused vs single-agent RMS on cells both agents mapped, the fraction of cells
 within 2 sigma (each agent, fused), the stereo points on a robot or a tether (judged on the
-truth: ``hil_sim.team.face_scene.team_points``, from the renderer's label of each pixel), those of them that survive the mask into the map, and the gravity-grid
-cells they fall in (robot/tether cells mapped as terrain). Writes
-OUT/face_map.csv and ``docs/results/face-map.md`` (medians, worst cases).
+truth: ``hil_sim.team.face_scene.team_points``, from the renderer's label of each pixel),
+those of them that survive the mask into the map, and the gravity-grid cells they fall in
+(robot/tether cells mapped as terrain). Writes OUT/face_map.csv and ``docs/results/face-map.md`` (medians, worst cases).
 """
 
 from __future__ import annotations
