@@ -11,6 +11,11 @@ mission sequencer checkpoints each step's map with its state (``fsw.tasks.missio
 this task also writes map-only checkpoints through the map store on command and at
 ``checkpoint.period_s`` when nothing was saved for that long, never while a merge is under
 way (the map would be half-merged). At start-up it restores the newest good checkpoint's map.
+
+With ``[cliffbot_site] mask_team`` (a team mission) the pipeline masks the team out of every
+view (docs/algorithm.md §8.1, :func:`site_team`): the Cliff-bot standing at its surveyed start and
+its two tethers, straight from the Anchorbots' exits to its attachment, so its body is not
+mapped as terrain nor the ground just past its outline as a step.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from fsw.core.map.body_mask import TeamGeometry, TetherLine, standing_box
 from fsw.core.map.elevation_map import ElevationMap
 from fsw.core.pipeline import SensingPipeline
 from fsw.core.registration.registration import RegistrationSummary
@@ -31,7 +37,7 @@ from fsw.framework.commands import CommandDef, CommandError
 from fsw.framework.jobs import JobHandle
 from fsw.framework.storage import describe
 from fsw.framework.telemetry import Channel, EventDef, Severity
-from fsw.settings import load_stereo_calibration
+from fsw.settings import FswConfig, load_stereo_calibration
 from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import (
     CAMERA_FRAME,
@@ -44,6 +50,27 @@ from fsw.tasks.messages import (
     ViewFailed,
 )
 from fsw.tasks.mission_state import JsonDict, restore_into
+
+SITE_SIGMA_M = 0.03  # the surveyed start's position error (the mask grows by sigma times it)
+SITE_BELOW_M = 0.15  # the box reaches this far under the start's ground (its height is the anchors')
+TETHER_RADIUS_M = 0.01
+
+
+def site_team(cfg: FswConfig) -> TeamGeometry | None:
+    """The team's known geometry from ``[cliffbot_site]`` (None unless ``mask_team``): the
+    Cliff-bot's box (its marker layout, ``[cliffbot]``) at its start, level at the anchors' mean
+    height, and the tethers from the anchors' exits to its attachment (``[tether] attach_m``)."""
+    site = cfg.cliffbot_site
+    if not site.mask_team:
+        return None
+    a, b = np.array(site.anchor_a_xyz, float), np.array(site.anchor_b_xyz, float)
+    ground_z = 0.5 * (a[2] + b[2]) - cfg.tether.anchor_exit_m
+    ground = np.array([site.start_xy[0], site.start_xy[1], ground_z])
+    pts = np.concatenate(list(cfg.cliffbot.corners_body().values()))
+    box = standing_box(ground, math.radians(site.start_yaw_deg), pts, SITE_SIGMA_M, SITE_BELOW_M)
+    attach = ground + np.array([0.0, 0.0, cfg.tether.attach_m])
+    lines = tuple(TetherLine(np.vstack([p, attach]), TETHER_RADIUS_M, SITE_SIGMA_M) for p in (a, b))
+    return TeamGeometry((box,), lines)
 
 
 class PerceptionTask(FlightTask):
@@ -111,6 +138,7 @@ class PerceptionTask(FlightTask):
         # the map, the registration state and the camera model (ConfigError if the calibration
         # file is missing or inconsistent)
         self.pipeline = SensingPipeline(cfg, load_stereo_calibration(cfg))
+        self.pipeline.team = site_team(cfg)
         self.frames = self.subscribe(CAMERA_FRAME, depth=2, policy="drop_oldest")
         self.job: JobHandle | None = None
         self.job_view = -1  # the view the job merges

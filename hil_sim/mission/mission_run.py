@@ -127,8 +127,14 @@ def mission_config(spec: RunSpec, world: Any) -> FswConfig:
     camera = cfg.camera
     if spec.camera in ("ideal", "raw"):
         camera = dataclasses.replace(camera, calibration_file="")
+    site = cfg.cliffbot_site
+    if world.team is not None:  # a team scenario: the RECON-bot keeps the Cliff-bot out of its map
+        from hil_sim.team.team_bench import recon_site
+
+        site = recon_site(world, MapGrid.from_config(world.map_grid), cfg.tether)
     return dataclasses.replace(
         cfg,
+        cliffbot_site=site,
         camera=camera,
         map=world.map_grid,
         mavlink=mav,

@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from fsw.comm.link_packets import PacketError
 from fsw.comm.team import fix_packets
 from fsw.core.geometry import MapGrid
-from fsw.core.team.tether import tether_state
+from fsw.core.team.tether import TetherConfig, anchor_points, tether_state
 from fsw.drivers.can_inproc import InprocBus
 from fsw.drivers.resources import Resources
 from fsw.sections import CliffbotSiteConfig
@@ -107,6 +107,34 @@ class FixWatch(ChannelPort):
         super()._send_internal(datagram)
 
 
+def team_site(world: World, anchors: F64, yaw_rad: float, frame: TeamFrame,
+              mask_team: bool = False) -> CliffbotSiteConfig:
+    """The scenario's site in the team's frame: the tether exits ``anchors`` (2, 3, world), the
+    Cliff-bot's start (heading ``yaw_rad`` in the world) and targets."""
+    assert world.team is not None
+    a = np.asarray(anchors, float)
+    axy = frame.to_map(a[:, :2])
+    yaw = math.degrees(math.atan2(math.sin(yaw_rad - frame.yaw0), math.cos(yaw_rad - frame.yaw0)))
+    return CliffbotSiteConfig(
+        anchor_a_xyz=(float(axy[0, 0]), float(axy[0, 1]), float(a[0, 2]) - frame.datum_m),
+        anchor_b_xyz=(float(axy[1, 0]), float(axy[1, 1]), float(a[1, 2]) - frame.datum_m),
+        start_xy=tuple(float(v) for v in frame.to_map(world.team.cliffbot_start_xy)[0]), start_yaw_deg=yaw,
+        targets_xy=tuple(float(v) for v in frame.to_map(world.team.targets_xyz[:, :2]).ravel()), map_datum_m=0.0,
+        mask_team=mask_team)
+
+
+def recon_site(world: World, grid: MapGrid, tcfg: TetherConfig) -> CliffbotSiteConfig:
+    """The site as the RECON-bot is told it before its mission (the ground crew's survey, with
+    the team mask on): the same as the Cliff-bot's, its start heading away from the anchors'
+    midpoint, heights from the ground under the RECON-bot's start."""
+    assert world.team is not None
+    x0, y0, yaw0 = (float(v) for v in world.rover_start)
+    frame = TeamFrame(x0, y0, yaw0, float(world.ground_at(x0, y0)))
+    anchors = anchor_points(world.ground_on_grid(grid), grid, world.team.anchors_xy, tcfg)
+    d = np.asarray(world.team.cliffbot_start_xy, float) - anchors[:, :2].mean(axis=0)
+    return team_site(world, anchors, math.atan2(float(d[1]), float(d[0])), frame, mask_team=True)
+
+
 def cliffbot_config(path: str | Path, world: World, rig: CliffbotRig, frame: TeamFrame,
                     out: Path | None) -> FswConfig:
     """The Cliff-bot's flight file with the scenario's site (in the team's frame), the map grid and
@@ -114,15 +142,7 @@ def cliffbot_config(path: str | Path, world: World, rig: CliffbotRig, frame: Tea
     cfg = load_settings(path)
     if cfg.agent.kind != "cliffbot":
         raise ValueError(f"{path}: agent kind {cfg.agent.kind!r}, a team mission needs a 'cliffbot' file")
-    assert world.team is not None
-    a = rig.anchors
-    axy = frame.to_map(a[:, :2])
-    yaw = math.degrees(math.atan2(math.sin(rig.yaw - frame.yaw0), math.cos(rig.yaw - frame.yaw0)))
-    site = CliffbotSiteConfig(
-        anchor_a_xyz=(float(axy[0, 0]), float(axy[0, 1]), float(a[0, 2]) - frame.datum_m),
-        anchor_b_xyz=(float(axy[1, 0]), float(axy[1, 1]), float(a[1, 2]) - frame.datum_m),
-        start_xy=tuple(float(v) for v in frame.to_map(world.team.cliffbot_start_xy)[0]), start_yaw_deg=yaw,
-        targets_xy=tuple(float(v) for v in frame.to_map(world.team.targets_xyz[:, :2]).ravel()), map_datum_m=0.0)
+    site = team_site(world, rig.anchors, rig.yaw, frame)
     ckpt = ""
     if out is not None:
         shutil.rmtree(out / "cliffbot_checkpoints", ignore_errors=True)  # a bench run never resumes another's
@@ -267,6 +287,7 @@ class CliffbotAgent:
             self.errors.append(fix_error(t, so3_log(r @ cb.R.T), f.yaw + fr.yaw0 - cb.yaw, f.cov, cb.t,
                                          float(np.linalg.norm(cb.t - cam))))
         self.watch.sent.clear()
+
 
     def _note_cycle(self) -> None:
         """After each of the RECON-bot's imaging steps: its map and its view, for the team figures

@@ -44,6 +44,20 @@ class BodyBox:
     sigma_m: float = 0.0
 
 
+def standing_box(ground: F64, yaw: float, body_points: F64, sigma_m: float = 0.0, below_m: float = 0.0) -> BodyBox:
+    """A robot standing level at ``ground`` (its footprint centre on the ground, world) with
+    heading ``yaw``: the box of its body-frame points ``(N, 3)`` (x forward, y left, z up from
+    the ground; symmetric about the centre in x and y), reaching ``below_m`` under the ground
+    (a ground height known only roughly)."""
+    p = np.asarray(body_points, float).reshape(-1, 3)
+    top = max(float(p[:, 2].max()), 0.0)
+    half = np.array([np.abs(p[:, 0]).max(), np.abs(p[:, 1]).max(), 0.5 * (top + below_m)])
+    c, s_ = np.cos(yaw), np.sin(yaw)
+    R = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+    center = np.asarray(ground, float).reshape(3) + np.array([0.0, 0.0, 0.5 * (top - below_m)])
+    return BodyBox(center, R, half, sigma_m)
+
+
 @dataclass(frozen=True)
 class TetherLine:
     """A tether: its polyline ``(K, 3)`` (K >= 2) and radius."""
