@@ -1,6 +1,6 @@
 """The tether statics as first written (one height at a time, one tether at a time): the
 reference that ``fsw.core.team.tether``'s faster functions must match bit for bit
-(tests/fsw/core/team/test_tether_speed.py)."""
+(tests/fsw/core/team/test_tether_batch.py)."""
 
 from __future__ import annotations
 
