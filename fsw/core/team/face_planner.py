@@ -40,7 +40,7 @@ from scipy import ndimage
 
 from fsw.core.codec.hazard import relief
 from fsw.core.geometry import MapGrid
-from fsw.core.team.tether import TetherConfig, ZMap, tether_state
+from fsw.core.team.tether import TetherConfig, TetherState, ZMap, tether_state, tether_states
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
@@ -118,9 +118,14 @@ def node_reasons(z: ZMap, grid: MapGrid, anchors: F64, tcfg: TetherConfig, ccfg:
     rows = np.arange(stride // 2, grid.ny, stride)
     cols = np.arange(stride // 2, grid.nx, stride)
     rr, cc = np.meshgrid(rows, cols, indexing="ij")
-    reasons: list[str] = []
-    for iy, ix in zip(rr.ravel(), cc.ravel(), strict=True):
-        reasons.append(_verdict(z, grid, anchors, tcfg, ccfg, g, int(iy), int(ix)))
+    iy, ix = rr.ravel(), cc.ravel()
+    # Every node that needs its tethers judged, in one batch (the same states one at a time would give).
+    todo = np.flatnonzero(g.known[iy, ix] & ~g.hazard[iy, ix])
+    xy = np.column_stack([grid.x0 + (ix[todo] + 0.5) * grid.cell, grid.y0 + (iy[todo] + 0.5) * grid.cell])
+    states = dict(zip(todo.tolist(), tether_states(z, grid, anchors, xy, tcfg, ccfg.footprint_m), strict=True))
+    reasons = ["unknown ground" if not g.known[y, x] else "hazard" if k not in states
+               else _tether_verdict(states[k], grid, tcfg, ccfg, g)
+               for k, (y, x) in enumerate(zip(iy, ix, strict=True))]
     return rows, cols, reasons, g
 
 
@@ -131,7 +136,12 @@ def _verdict(z: ZMap, grid: MapGrid, anchors: F64, tcfg: TetherConfig, ccfg: Cli
     if g.hazard[iy, ix]:
         return "hazard"
     xy = np.array([grid.x0 + (ix + 0.5) * grid.cell, grid.y0 + (iy + 0.5) * grid.cell])
-    st = tether_state(z, grid, anchors, xy, tcfg, ccfg.footprint_m)
+    return _tether_verdict(tether_state(z, grid, anchors, xy, tcfg, ccfg.footprint_m), grid, tcfg, ccfg, g)
+
+
+def _tether_verdict(st: TetherState | None, grid: MapGrid, tcfg: TetherConfig, ccfg: ClimberConfig,
+                    g: Ground) -> str:
+    """A known, hazard-free node's verdict from the tethers and statics with the Cliff-bot there."""
     if st is None:
         return "unknown ground"
     if max(st.lengths_m) > tcfg.spool_m:

@@ -38,6 +38,7 @@ from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
 ZMap = NDArray[np.float32 | np.float64]  # a 2.5D map: heights, NaN unknown
+BATCH_PLACES = 256  # places per batch of :func:`tether_states` (~2 x 256 ground profiles of a few hundred samples)
 G = 9.81  # m/s^2 (the planet's value belongs in config when the bench plays Mars: TetherConfig.gravity_mps2)
 
 
@@ -279,6 +280,9 @@ def tether_states(z: ZMap, grid: MapGrid, anchors: F64, xys: F64, cfg: TetherCon
     xys = np.asarray(xys, float).reshape(-1, 2)
     if len(xys) < 2:
         return [tether_state(z, grid, anchors, xy, cfg, footprint_m) for xy in xys]
+    if len(xys) > BATCH_PLACES:  # the ground profiles of a batch are held at once: bound the memory
+        return [st for k in range(0, len(xys), BATCH_PLACES)
+                for st in tether_states(z, grid, anchors, xys[k:k + BATCH_PLACES], cfg, footprint_m)]
     with np.errstate(invalid="ignore"):  # a place that is not finite is off the map
         _, _, inside = grid.cell_index(xys[:, 0], xys[:, 1])
     px, py = _ring(footprint_m, grid)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 import tether_reference as ref
 
 from fsw.core.geometry import MapGrid
@@ -99,3 +100,19 @@ def test_settle_matches_the_reference() -> None:
             assert np.array_equal(want[0], got[0]) and same(want[1], got[1])
             settled += 1
     assert settled >= 4
+
+
+def test_batches_in_chunks_and_node_verdicts_match_one_at_a_time(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The planner's lattice verdicts (node_reasons, batched) are the one-node-at-a-time verdicts,
+    with the batch cut into chunks of a few places."""
+    import fsw.core.team.tether as tether_mod
+    from fsw.core.team.face_planner import ClimberConfig, _verdict, node_reasons
+
+    monkeypatch.setattr(tether_mod, "BATCH_PLACES", 7)
+    tcfg, ccfg = TetherConfig(), ClimberConfig()
+    z, grid = rough_cliff(1)
+    anchors = anchor_points(z, grid, np.array([[-1.2, 1.0], [1.1, 0.9]]), tcfg)
+    rows, cols, reasons, g = node_reasons(z, grid, anchors, tcfg, ccfg)
+    one = [_verdict(z, grid, anchors, tcfg, ccfg, g, int(r), int(c)) for r in rows for c in cols]
+    assert reasons == one
+    assert len(set(one)) >= 3  # usable, hazard, unknown or a tether reason: the lattice is varied
