@@ -87,13 +87,12 @@ def ground_profile(z: ZMap, grid: MapGrid, a_xy: F64, b_xy: F64, step_m: float
     if n < 1:
         return np.zeros(0), np.zeros(0), False
     s = np.arange(1, n + 1, dtype=np.float64) * (span / (n + 1))
-    xs = a_xy[0] + d[0] * s / span
-    ys = a_xy[1] + d[1] * s / span
-    iy, ix, inside = grid.cell_index(xs, ys)
-    h = np.full(n, np.nan)
-    h[inside] = z[iy[inside], ix[inside]]
-    unknown = bool((~np.isfinite(h)).any())
-    return s, np.where(np.isfinite(h), h, -np.inf).astype(np.float64), unknown
+    ix = np.floor(((a_xy[0] + d[0] * s / span) - grid.x0) / grid.cell)  # as MapGrid.cell_index
+    iy = np.floor(((a_xy[1] + d[1] * s / span) - grid.y0) / grid.cell)
+    inside = (ix >= 0) & (ix < grid.nx) & (iy >= 0) & (iy < grid.ny)
+    h = np.asarray(z[np.where(inside, iy, 0).astype(np.intp), np.where(inside, ix, 0).astype(np.intp)], np.float64)
+    known = inside & np.isfinite(h)  # a sample off the map read cell (0, 0) above: one gather, then masked
+    return s, np.where(known, h, -np.inf), not bool(known.all())
 
 
 def upper_hull(s: F64, h: F64) -> NDArray[np.intp]:
@@ -126,16 +125,22 @@ def tether_path(z: ZMap, grid: MapGrid, anchor: F64, bot: F64, cfg: TetherConfig
     bot = np.asarray(bot, float)
     s, h, unknown = ground_profile(z, grid, anchor[:2], bot[:2], cfg.sample_m)
     span = float(math.hypot(*(bot[:2] - anchor[:2])))
-    ss = np.concatenate([[0.0], s, [span]])
-    hh = np.concatenate([[anchor[2]], h, [bot[2]]])
+    ss = np.empty(len(s) + 2)
+    ss[0], ss[1:-1], ss[-1] = 0.0, s, span
+    hh = np.empty(len(s) + 2)
+    hh[0], hh[1:-1], hh[-1] = anchor[2], h, bot[2]
     idx = upper_hull(ss, hh)
-    seg = np.hypot(np.diff(ss[idx]), np.diff(hh[idx]))
+    sv, hv = ss[idx], hh[idx]
+    seg = np.hypot(sv[1:] - sv[:-1], hv[1:] - hv[:-1])
     direction = (bot[:2] - anchor[:2]) / span if span > 0 else np.zeros(2)
     inner = idx[1:-1]
-    contacts = np.column_stack([anchor[0] + direction[0] * ss[inner], anchor[1] + direction[1] * ss[inner],
-                                hh[inner]])
+    contacts = np.empty((len(inner), 3))
+    contacts[:, 0] = anchor[0] + direction[0] * ss[inner]
+    contacts[:, 1] = anchor[1] + direction[1] * ss[inner]
+    contacts[:, 2] = hh[inner]
     last = idx[-2]  # the hull vertex the last segment comes from
-    pull = np.array([-direction[0] * (ss[-1] - ss[last]), -direction[1] * (ss[-1] - ss[last]), hh[last] - bot[2]])
+    back = ss[-1] - ss[last]
+    pull = np.array([-direction[0] * back, -direction[1] * back, hh[last] - bot[2]])
     norm = float(np.linalg.norm(pull))
     return TetherPath(float(seg.sum()), contacts, pull / norm if norm > 0 else pull, unknown)
 
