@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid, wrap_angle
-from fsw.core.team.tether import TetherConfig, ZMap, tether_state
+from fsw.core.team.tether import TetherConfig, ZMap, tether_states
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
@@ -83,17 +83,17 @@ class CliffbotNav:
     def lengths(self, lengths_m: tuple[float, float], z: ZMap, grid: MapGrid, anchors: F64,
                 tcfg: TetherConfig, footprint_m: float) -> bool:
         """Update on the winches' paid-out lengths; False when the map cannot say (unknown ground)."""
-        xy = self.s[:2]
-        st = tether_state(z, grid, anchors, xy, tcfg, footprint_m)
-        if st is None or not all(math.isfinite(v) for v in lengths_m):
+        if not all(math.isfinite(v) for v in lengths_m):
+            return False
+        e = grid.cell
+        # Here and a cell either way along x and y, in one batch (central differences).
+        around = np.array([[0.0, 0.0], [e, 0.0], [-e, 0.0], [0.0, e], [0.0, -e]])
+        st, *probes = tether_states(z, grid, anchors, self.s[:2] + around, tcfg, footprint_m)
+        if st is None:
             return False
         hmat = np.zeros((2, 3))
-        e = grid.cell
         for k in range(2):
-            dv = np.zeros(2)
-            dv[k] = e
-            hi = tether_state(z, grid, anchors, xy + dv, tcfg, footprint_m)
-            lo = tether_state(z, grid, anchors, xy - dv, tcfg, footprint_m)
+            hi, lo = probes[2 * k], probes[2 * k + 1]
             if hi is None or lo is None:
                 return False
             hmat[:, k] = (np.asarray(hi.lengths_m) - np.asarray(lo.lengths_m)) / (2 * e)
