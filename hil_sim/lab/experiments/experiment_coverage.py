@@ -188,6 +188,8 @@ def write_report(
                 "mapped_cells",
                 "expected_new_cells",
                 "obtained_new_cells",
+                "view",
+                "view_new_cells",
                 "x",
                 "y",
                 "yaw",
@@ -208,6 +210,8 @@ def write_report(
                         st["mapped_cells"],
                         round(st["expected_new_cells"], 1),
                         st["obtained_new_cells"],
+                        st.get("view", ""),
+                        st.get("view_new_cells", -1),
                         *(round(p[k], 4) for k in ("x", "y", "yaw", "pan", "tilt", "lift")),
                     ]
                 )
