@@ -45,6 +45,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("experiment", "team"): "hil_sim.lab.experiments.experiment_team",
     ("experiment", "sync"): "hil_sim.lab.experiments.experiment_sync",
     ("experiment", "face-map"): "hil_sim.lab.experiments.experiment_face_map",
+    ("experiment", "team-sensing"): "hil_sim.lab.experiments.experiment_team_sensing",
 }
 
 GROUP_HELP = {

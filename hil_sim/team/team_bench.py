@@ -43,6 +43,7 @@ from hil_sim.faults import FaultInjector, FaultSpec
 from hil_sim.link.radio_channel import ChannelPort, RadioChannel
 from hil_sim.team.cliffbot_rig import CliffbotRig
 from hil_sim.team.team_eval import FixError, fix_error
+from hil_sim.team.team_figures import TeamFigures
 from hil_sim.team.team_run import TeamSetup, team_section
 from hil_sim.world.world import World
 
@@ -159,6 +160,8 @@ class CliffbotAgent:
         self.task = task
         self.est_path: list[tuple[float, float]] = []
         self._t_last = bench.clock.now()
+        self.figures = TeamFigures(self.grid.cell, self.cfg.climber.wheel_d_m, seed, channel.cfg)
+        self._cycles = 0
 
     @property
     def mission(self) -> Any:
@@ -176,6 +179,7 @@ class CliffbotAgent:
             self.sim_bus.send(can.Message(arbitration_id=fid, data=data, is_extended_id=False))
         self._judge_fixes()
         self._render_truth()
+        self._note_cycle()
         s = self.mission.nav.s
         self.est_path.append((float(s[0]), float(s[1])))
 
@@ -198,6 +202,21 @@ class CliffbotAgent:
             self.errors.append(fix_error(t, so3_log(r @ cb.R.T), f.yaw + fr.yaw0 - cb.yaw, f.cov, cb.t,
                                          float(np.linalg.norm(cb.t - cam))))
         self.watch.sent.clear()
+
+    def _note_cycle(self) -> None:
+        """After each of the RECON-bot's imaging steps: its map and its view, for the team figures
+        (the Cliff-bot does not image in this mission: its own layer stays empty)."""
+        records = getattr(self.bench.exe.tasks.get("mission"), "records", [])
+        perception = self.bench.exe.tasks.get("perception")
+        if len(records) <= self._cycles or perception is None:
+            return
+        emap = perception.map
+        z = np.where(emap.mapped, emap.z, np.nan)
+        for r in records[self._cycles:]:
+            self.figures.add_cycle({"recon": z}, [{"agent": "recon", "pose": dict(r.pose), "how": r.view,
+                                                   "expected_new_cells": round(float(r.expected_new_cells), 1),
+                                                   "obtained_new_cells": int(r.obtained_new_cells)}])
+        self._cycles = len(records)
 
     def _render_truth(self) -> None:
         """The RECON-bot's camera sees the Cliff-bot where it truly is."""
@@ -229,6 +248,8 @@ class CliffbotAgent:
             sim_s=self.bench.clock.now() - t0, est_path=self.est_path, out=out,
             setup=TeamSetup(tether=self.cfg.tether, climber=self.cfg.climber), to_map=self.frame.to_map)
         sec["map_received"] = m.z is not None
+        sec.update(self.figures.section(None, "no face map in the lockstep mission: the RECON-bot's flight fuses "
+                                              "into the gravity grid only"))
         sec["agent"] = {"name": self.cfg.agent.name, "kind": self.cfg.agent.kind,
                         "mavlink_system_id": self.cfg.mavlink.system_id, "frames": self.exe.frame}
         if sec.get("picture") and out is not None:
@@ -236,5 +257,8 @@ class CliffbotAgent:
         return sec
 
     def close(self) -> None:
+        mavlink = self.exe.tasks.get("mavlink")
+        if mavlink is not None:
+            mavlink.close()  # flush and close cliffbot.tlog: its last second holds how the mission ended
         for bus in (self.sim_bus, self.flight_bus):
             bus.shutdown()

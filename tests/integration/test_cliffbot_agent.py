@@ -158,6 +158,9 @@ def test_the_team_mission_runs_two_executives_on_one_clock(mission: tuple[dict[s
     assert any(n == "cb_radio.MAP_RECEIVED" for _, n, _ in trace)
     assert any(n == "mission.FIX_UNAVAILABLE" and "busy" in t for _, n, t in trace)  # the RECON-bot is not done
     assert (out / "team.png").stat().st_size > 0
+    # the team figures (hil_sim.team.team_figures): the idle RECON-bot takes no imaging step here
+    assert len(a["views"]) == a["sync_rounds"] and a["cells_by_agent"]["cliffbot"] == 0
+    assert a["sync_full_resends"] == 0 and a["face_rmse_m"] is None and a["face_note"]
 
 
 @pytest.mark.slow

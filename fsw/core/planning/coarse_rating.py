@@ -124,7 +124,8 @@ def rate_station_coarse_steps(cs: CoarseSearch, cam_xyz: tuple[float, float, flo
     by, bx = np.divmod(blocks, cg.nx)
     pv_block = yield from pv_fast_steps(cs.terrain, cam_xyz, by, bx, cfg)
     bits, new = cell_values(pv_block[inverse], cs.n[near], cs.n_max,
-                            None if cs.interest is None else cs.interest[near], cfg.stereo_return)
+                            None if cs.interest is None else cs.interest[near],
+                            stereo_return=cfg.stereo_return)
     if cs.accuracy is not None and cs.sigma_m is not None:
         rel_f = np.column_stack([cs.x_m[near] - cam_xyz[0], cs.y_m[near] - cam_xyz[1],
                                  cs.terrain.elev_m[by, bx][inverse] - cam_xyz[2]])
@@ -187,7 +188,7 @@ def rate_views_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws
     pv = yield from pv_fast_steps(terrain, cam_xyz, iy[sel], ix[sel], cfg)
     bits, new = cell_values(pv, np.asarray(n)[iy[sel], ix[sel]], n_max,
                             None if interest is None else np.asarray(interest)[iy[sel], ix[sel]],
-                            cfg.stereo_return)
+                            stereo_return=cfg.stereo_return)
     if accuracy is not None:
         bits = bits * accuracy.share(pts[sel] - np.asarray(cam_xyz), terrain.sigma_m[iy[sel], ix[sel]])
     info, new_cells = np.zeros(yaws.size), np.zeros(yaws.size)

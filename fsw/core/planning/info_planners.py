@@ -41,6 +41,11 @@ from fsw.core.planning.view_candidates import (
     path_stations_steps,
 )
 from fsw.core.planning.visibility import F64, Terrain, in_view, terrain_from_heights, terrain_from_map_steps
+from fsw.core.steps import run_to_end
+
+# a camera centre as team views rate it: (camera xyz, world yaws (P,), tilts (T,), Eq 9 cost and
+# sigma_loc per view pan-major (P * T,), the place (x, y, yaw, lift))
+CentreRow = tuple[tuple[float, float, float], F64, F64, F64, F64, tuple[float, ...]]
 
 
 class InformationPlanner(Planner):
@@ -104,7 +109,7 @@ class InformationPlanner(Planner):
             for c in centres:
                 r = yield from rate_station_steps(terrain, c.cam_xyz, c.yaws, tilts, state.map.n,
                                                   n_max, interest, self.camera, cfg.visibility,
-                                                  self.accuracy)
+                                                  accuracy=self.accuracy)
                 best.offer(c, c.best(r.info_bits.ravel(), r.expected_new_cells.ravel(), None))
                 self.last_centres += 1
             return best.choice(stations, path)
@@ -127,10 +132,27 @@ class InformationPlanner(Planner):
             views = np.unique(top[top // per == i] % per)
             r2 = yield from rate_views_steps(terrain, c.cam_xyz, c.yaws[views // tilts.size],
                                              tilts[views % tilts.size], state.map.n, n_max,
-                                             interest, self.camera, cfg.visibility, self.accuracy)
+                                             interest, self.camera, cfg.visibility,
+                                             accuracy=self.accuracy)
             best.offer(c, c.best(r2.info_bits, r2.expected_new_cells, views))
             self.last_centres += 1
         return best.choice(stations, path)
+
+    def view_centres(self, state: PlannerState, stations: list[Station] | None = None) -> list[CentreRow]:
+        """Every candidate camera centre as team views rate it (``team_views.recon_centres``):
+        (camera xyz, world yaws, tilts, Eq 9 cost and sigma_loc per view pan-major, (x, y, yaw,
+        lift)); ``stations``: these instead of the reachable ones along the edge path."""
+        cfg = self.cfg
+        if stations is None:
+            stations = run_to_end(path_stations_steps(state.path, state.rover, state.motion_ok,
+                                                      cfg.station_spacing_m, cfg.max_travel_m))
+        pans, tilts, lifts = joint_grid(self.mast, cfg.pan_step_deg, cfg.tilts_deg, cfg.lifts_m)
+        out: list[CentreRow] = []
+        for st in stations:
+            for lift in lifts:
+                c = _Centre(st, float(lift), self._cam(st, float(lift), state), pans, tilts, state, self)
+                out.append((c.cam_xyz, c.yaws, tilts, c.d, c.sig, (*st.rover, float(lift))))
+        return out
 
     def _cam(self, st: Station, lift: float, state: PlannerState) -> tuple[float, float, float]:
         cam = camera_pose_from_rover(st.rover, (0.0, 0.0, lift), self.mast, state.ground_z_m).t

@@ -176,22 +176,30 @@ class AccuracyModel:
 
 
 def cell_values(pv: F64, n: NDArray[np.int32], n_max: int, interest: F64 | None,
-                stereo_return: float = 1.0) -> tuple[F64, F64]:
+                planned: F64 | None = None, stereo_return: float = 1.0) -> tuple[F64, F64]:
     """Per-cell terms of H (Eq 3, bits) and of the expected new cells, given P_V (§3.2, §3.4).
 
     The interest multiplies P_V up to 1; an interest above 1 (a task's focus region, weighted
     by :func:`focus_weights`) multiplies the cell's bits instead. The interest ranks views (H)
     but is no part of the expected new cells: those are the same quantity as the obtained
     count, ``P_V`` of each unmapped cell times ``stereo_return`` (the fraction of the cells a
-    view leaves visible that the stereo maps, ``VisibilityConfig.stereo_return``)."""
+    view leaves visible that the stereo maps, ``VisibilityConfig.stereo_return``).
+    ``planned`` (team views, docs/algorithm.md §8): the expected measurements of each cell by
+    views other agents have already chosen this cycle (the sum of their P_V); Eq 3's weight
+    counts them as taken, ``(n_max - n - planned) / n_max``, and a cell stays new only with
+    ``1 - planned``."""
     p = np.asarray(pv, dtype=np.float64)
-    new = np.where(np.asarray(n) == 0, p * float(stereo_return), 0.0)
-    weight = np.clip((n_max - np.asarray(n)) / float(n_max), 0.0, 1.0)
+    taken = np.asarray(n, dtype=np.float64)
+    fresh = np.where(np.asarray(n) == 0, p * float(stereo_return), 0.0)
+    if planned is not None:
+        taken = taken + np.asarray(planned, dtype=np.float64)
+        fresh = fresh * np.clip(1.0 - np.asarray(planned, dtype=np.float64), 0.0, 1.0)
+    weight = np.clip((n_max - taken) / float(n_max), 0.0, 1.0)
     if interest is not None:
         i = np.asarray(interest, dtype=np.float64)
         p = p * np.clip(i, 0.0, 1.0)
         weight = weight * np.maximum(i, 1.0)
-    return weight * h2(p / 2.0), new
+    return weight * h2(p / 2.0), fresh
 
 
 def view_sums(rel: F64, values: F64, yaws: F64, tilts: F64, camera: CameraConfig) -> F64:
@@ -246,15 +254,18 @@ class StationRating:
 
 def rate_station(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws: F64, tilts: F64,
                  n: NDArray[np.int32], n_max: int, interest: F64 | None, camera: CameraConfig,
-                 cfg: VisibilityConfig, accuracy: AccuracyModel | None = None) -> StationRating:
-    """Rate all pan/tilt views (world yaws x tilts) from one camera centre (§3.1, §3.2)."""
+                 cfg: VisibilityConfig, planned: F64 | None = None,
+                 accuracy: AccuracyModel | None = None) -> StationRating:
+    """Rate all pan/tilt views (world yaws x tilts) from one camera centre (§3.1, §3.2);
+    ``planned``: other agents' chosen views this cycle (:func:`cell_values`); ``accuracy``:
+    Method 5's accuracy weight (:class:`AccuracyModel`)."""
     return run_to_end(rate_station_steps(terrain, cam_xyz, yaws, tilts, n, n_max, interest,
-                                         camera, cfg, accuracy))
+                                         camera, cfg, planned, accuracy))
 
 
 def rate_station_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws: F64,
                        tilts: F64, n: NDArray[np.int32], n_max: int, interest: F64 | None,
-                       camera: CameraConfig, cfg: VisibilityConfig,
+                       camera: CameraConfig, cfg: VisibilityConfig, planned: F64 | None = None,
                        accuracy: AccuracyModel | None = None
                        ) -> Generator[None, None, StationRating]:
     """:func:`rate_station` in bounded steps (for the executive's slack jobs)."""
@@ -263,7 +274,7 @@ def rate_station_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], ya
     x_c = g.x0 + (np.arange(g.nx) + 0.5) * g.cell
     y_c = g.y0 + (np.arange(g.ny) + 0.5) * g.cell
     near = ((x_c[None, :] - cam_xyz[0]) ** 2 + (y_c[:, None] - cam_xyz[1]) ** 2) <= reach**2
-    worth = near & (n < n_max)
+    worth = near & ((n < n_max) if planned is None else (n + planned < n_max))
     if interest is not None:
         worth &= interest > 0
     iy, ix = np.nonzero(worth)
@@ -272,7 +283,7 @@ def rate_station_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], ya
         return StationRating(zero, zero.copy(), 0)
     pv = yield from pv_fast_steps(terrain, cam_xyz, iy, ix, cfg)
     bits, new = cell_values(pv, n[iy, ix], n_max, None if interest is None else interest[iy, ix],
-                            cfg.stereo_return)
+                            None if planned is None else planned[iy, ix], cfg.stereo_return)
     rel = np.column_stack([x_c[ix] - cam_xyz[0], y_c[iy] - cam_xyz[1],
                            terrain.elev_m[iy, ix] - cam_xyz[2]])
     if accuracy is not None:

@@ -45,13 +45,13 @@ def test_rating_with_the_accuracy_weight() -> None:
     cam = (1.2, -0.05, 1.5)
     yaws, tilts = np.radians([-90.0, -45.0]), np.radians([-30.0, -45.0])
     plain = rate_station(terrain, cam, yaws, tilts, emap.n, 2, emap.interest, CAM, vis)
-    acc = rate_station(terrain, cam, yaws, tilts, emap.n, 2, emap.interest, CAM, vis, ACC)
+    acc = rate_station(terrain, cam, yaws, tilts, emap.n, 2, emap.interest, CAM, vis, accuracy=ACC)
     assert (acc.info_bits < plain.info_bits).all() and acc.info_bits.min() > 0.0
     np.testing.assert_allclose(acc.expected_new_cells, plain.expected_new_cells)
     # a shallower tilt looks farther: it loses a larger share of its bits
     assert acc.info_bits[0, 0] / plain.info_bits[0, 0] < acc.info_bits[0, 1] / plain.info_bits[0, 1]
     exact = run_to_end(rate_views_steps(terrain, cam, yaws, np.full(2, tilts[1]), emap.n, 2, emap.interest,
-                                        CAM, vis, ACC))
+                                        CAM, vis, accuracy=ACC))
     np.testing.assert_allclose(exact.info_bits, acc.info_bits[:, 1], rtol=0.03)
     coarse = run_to_end(rate_station_coarse_steps(prepare(terrain, 3, emap.n, 2, emap.interest, ACC), cam,
                                                   yaws, tilts, CAM, dataclasses.replace(vis, rays_per_turn=1024)))

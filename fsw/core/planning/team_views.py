@@ -1,0 +1,283 @@
+"""Views chosen for the team: next-view selection over both agents (docs/algorithm.md §3, §8).
+
+Each agent offers candidate camera centres, each with a grid of pointing directions (world yaw x
+tilt) and, per direction, its own motion cost and localization term (§3.3, §3.5):
+
+* the RECON-bot's: its stations along the edge path with the mast's pan/tilt/lift grid, Eq 9 over
+  wheels and mast (:func:`recon_centres`, from the information planner's own candidates);
+* the Cliff-bot's: places along its planned path on the face, its head camera ``head_m`` along the
+  ground's normal, every head pan and tilt; its motion is tether motion: the change of both
+  paid-out lengths (winches, ``a_tether``) plus the head's turn (:func:`cliffbot_centres`).
+
+Every view is rated on the ONE shared map with §3.2-§3.5 (``nbv.rate_station``: expected
+information with the interest function, minus motion and localization costs). The RECON-bot's
+interest is weighted up on the Cliff-bot's planned corridor (its path +- ``corridor_half_m``, by
+``corridor_weight``, as a task's focus region of §3.4), so it favours what the Cliff-bot will
+drive on.
+
+**Sequential greedy** (:func:`choose_team_views`): every agent not yet served is rated, the one
+whose best view has the highest utility takes it, and the cells that view will see (its P_V on
+every cell) are added to ``planned``, which the next agent's rating counts as measurements
+already taken (``nbv.cell_values``); repeat until every agent has a view. So the second agent
+does not pay for, nor aim at, what the first is about to map. Each choice says who looked where
+and why (:class:`TeamView`, ``why`` and :meth:`TeamView.event`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import ndimage
+
+from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
+from fsw.core.planning.info_planners import CentreRow
+from fsw.core.planning.nbv import (
+    MapLike,
+    NbvConfig,
+    focus_weights,
+    info_n_max,
+    predicted_visibility,
+    rate_station,
+    utility,
+)
+from fsw.core.planning.visibility import F64, Terrain, terrain_from_map
+from fsw.core.team.tether import TetherConfig, ZMap, surface_normal, tether_state
+from fsw.framework.params import param
+
+
+@dataclass(frozen=True)
+class TeamViewConfig:
+    """Team views (docs/algorithm.md §8): the corridor the RECON-bot favours, the Cliff-bot's
+    view grid and what its motion costs."""
+
+    corridor_half_m: float = param(1.0, lo=0.0, hi=20.0, units="m",
+                                   doc="the Cliff-bot's corridor: its planned path +- this")
+    corridor_weight: float = param(4.0, lo=1.0, hi=100.0,
+                                   doc="the RECON-bot's interest weight of corridor cells (§3.4)")
+    head_m: float = param(0.45, lo=0.0, hi=3.0, units="m", doc="the Cliff-bot's camera above its ground")
+    station_spacing_m: float = param(0.5, lo=0.05, hi=10.0, units="m",
+                                     doc="the Cliff-bot's candidate places along its path")
+    max_travel_m: float = param(3.0, lo=0.0, hi=100.0, units="m",
+                                doc="farthest Cliff-bot place per cycle (along its path)")
+    pan_step_deg: float = param(30.0, lo=5.0, hi=180.0, units="deg", doc="the Cliff-bot's head pan grid")
+    tilts_deg: tuple[float, ...] = param((-75.0, -50.0, -25.0, 0.0, 25.0, 50.0), units="deg",
+                                         doc="the Cliff-bot's head tilts (elevation of the axis)")
+    a_tether: float = param(100.0, lo=0.0, hi=1e6, units="s^2/m^2",
+                            doc="Eq 9 weight of each paid-out length (1 / winch rate^2)")
+    a_head: float = param(3.65, lo=0.0, hi=1e6, units="s^2/rad^2", doc="Eq 9 weight of the head's pan and tilt")
+
+
+@dataclass(frozen=True)
+class ViewCentre:
+    """One camera centre of an agent and its pointing grid: ``yaws`` (P,) x ``tilts`` (T,), with
+    each view's motion cost and localization sigma flat in pan-major order (P * T,)."""
+
+    xyz: tuple[float, float, float]
+    yaws: F64
+    tilts: F64
+    motion: F64
+    sigma_loc_m: F64
+    place: tuple[float, ...]  # RECON-bot (x, y, yaw, lift); Cliff-bot (x, y, l1, l2)
+
+
+@dataclass(frozen=True)
+class AgentViews:
+    """An agent's candidates for one cycle. ``interest``: its weights of each cell's interest
+    (None: the map's own)."""
+
+    agent: str
+    camera: CameraConfig
+    centres: tuple[ViewCentre, ...]
+    interest: F64 | None = None
+    # (world yaw, tilt) to look along when no view is expected to map anything (the map's prior
+    # cannot predict the ground: a face below unknown ground); None: the best utility regardless
+    fallback: tuple[float, float] | None = None
+
+
+@dataclass(frozen=True)
+class TeamView:
+    """One agent's choice in a cycle: who looks where and why."""
+
+    agent: str
+    order: int  # 0: chose first
+    place: tuple[float, ...]
+    xyz: tuple[float, float, float]
+    yaw: float  # world yaw of the optical axis (rad)
+    tilt: float  # its elevation (rad)
+    info_bits: float
+    expected_new_cells: float
+    motion: float
+    utility: float
+    discounted_cells: float  # expected cells of this view the earlier choices will see (sum P_V * planned)
+    corridor_cells: float  # expected new cells inside the Cliff-bot's corridor
+    why: str
+
+    def pose(self) -> CameraPose:
+        return CameraPose.from_pan_tilt(*self.xyz, self.yaw, self.tilt)
+
+    def event(self) -> dict[str, object]:
+        """The view as an event's fields (``TEAM_VIEW``)."""
+        return {"agent": self.agent, "order": self.order, "xyz": [round(v, 3) for v in self.xyz],
+                "yaw_deg": round(math.degrees(self.yaw), 1), "tilt_deg": round(math.degrees(self.tilt), 1),
+                "expected_new_cells": round(self.expected_new_cells, 1), "info_bits": round(self.info_bits, 1),
+                "why": self.why}
+
+
+def corridor_mask(grid: MapGrid, path_xy: F64, half_m: float) -> NDArray[np.bool_]:
+    """The cells whose centres lie within ``half_m`` of the polyline ``path_xy`` (K, 2): the
+    path drawn at a quarter cell, then a Euclidean distance transform."""
+    xy = np.asarray(path_xy, float).reshape(-1, 2)
+    out = np.zeros(grid.shape, bool)
+    if xy.shape[0] == 0:
+        return out
+    pts = [xy[:1]]
+    for a, b in zip(xy[:-1], xy[1:], strict=True):
+        k = max(1, int(math.ceil(float(np.linalg.norm(b - a)) / (0.25 * grid.cell))))
+        pts.append(a + (b - a) * np.linspace(0.0, 1.0, k + 1)[1:, None])
+    p = np.concatenate(pts)
+    iy, ix, inside = grid.cell_index(p[:, 0], p[:, 1])
+    if not inside.any():
+        return out
+    line = np.ones(grid.shape, bool)
+    line[iy[inside], ix[inside]] = False
+    return np.asarray(ndimage.distance_transform_edt(line) * grid.cell <= half_m, bool)
+
+
+def corridor_interest(emap: MapLike, corridor: NDArray[np.bool_], cfg: TeamViewConfig,
+                      base: F64 | None = None) -> F64:
+    """The RECON-bot's interest: the map's (times ``base``, e.g. the task's focus weights),
+    weighted by ``corridor_weight`` on the corridor (§3.4: a weight above 1 multiplies bits)."""
+    i = np.asarray(emap.interest, float) * (1.0 if base is None else base)
+    return np.where(corridor, i * cfg.corridor_weight, i)
+
+
+def recon_centres(centres: Sequence[CentreRow]) -> tuple[ViewCentre, ...]:
+    """The RECON-bot's centres from the information planner's candidates: (camera xyz, world yaws,
+    tilts, Eq 9 cost, sigma_loc, (x, y, yaw, lift)) each (``InformationPlanner.centres``)."""
+    return tuple(ViewCentre(xyz, np.asarray(y, float), np.asarray(t, float), np.asarray(d, float),
+                            np.asarray(s, float), place) for xyz, y, t, d, s, place in centres)
+
+
+def cliffbot_centres(z: ZMap, grid: MapGrid, anchors: F64, path_xy: F64, now_xy: F64,
+                     now_head: tuple[float, float], tcfg: TetherConfig, cfg: TeamViewConfig,
+                     sigma_loc_m: float = 0.02, stay: bool = True) -> tuple[ViewCentre, ...]:
+    """The Cliff-bot's candidate centres: where it stands (unless ``stay`` is False: its task moves
+    it on) and places every ``station_spacing_m`` along its planned path ``path_xy`` up to
+    ``max_travel_m`` from there, each known on the map (``z``; NaN unknown). Motion (Eq 9 over
+    the winches and the head): ``sqrt(a_tether (dl1^2 + dl2^2) + a_head (dpan^2 + dtilt^2))``
+    from the tether lengths where it stands."""
+    here = tether_state(z, grid, anchors, np.asarray(now_xy, float), tcfg)
+    if here is None:
+        return ()
+    l_now = np.asarray(here.lengths_m)
+    xy = np.asarray(path_xy, float).reshape(-1, 2)
+    places = [np.asarray(now_xy, float)]
+    if xy.shape[0] >= 1:
+        start = int(np.argmin(np.linalg.norm(xy - places[0], axis=1)))
+        run = 0.0
+        last = xy[start]
+        for p in xy[start + 1:]:
+            run += float(np.linalg.norm(p - last))
+            last = p
+            if run > cfg.max_travel_m:
+                break
+            if run >= cfg.station_spacing_m * len(places):
+                places.append(p)
+    pans = np.radians(np.arange(-180.0, 180.0, cfg.pan_step_deg))
+    tilts = np.radians(np.asarray(cfg.tilts_deg, float))
+    pp, tt = np.meshgrid(pans, tilts, indexing="ij")
+    turn = np.sqrt(cfg.a_head * ((np.angle(np.exp(1j * (pp.ravel() - now_head[0])))) ** 2
+                                 + (tt.ravel() - now_head[1]) ** 2))
+    out = []
+    for p in places[0 if stay or len(places) == 1 else 1:]:
+        st = tether_state(z, grid, anchors, p, tcfg)
+        n = surface_normal(z, grid, p, 0.3)
+        iy, ix, inside = grid.cell_index(p[:1], p[1:2])
+        if st is None or n is None or not inside[0]:
+            continue
+        zg = float(np.asarray(z)[iy[0], ix[0]])
+        dl = np.asarray(st.lengths_m) - l_now
+        motion = np.sqrt(cfg.a_tether * float(dl @ dl) + turn**2)
+        cam = np.array([p[0], p[1], zg]) + cfg.head_m * n
+        out.append(ViewCentre((float(cam[0]), float(cam[1]), float(cam[2])), pans.copy(), tilts.copy(), motion,
+                              np.full(motion.size, sigma_loc_m), (float(p[0]), float(p[1]), *st.lengths_m)))
+    return tuple(out)
+
+
+def choose_team_views(emap: MapLike, agents: Sequence[AgentViews], cfg: NbvConfig,
+                      corridor: NDArray[np.bool_] | None = None, terrain: Terrain | None = None
+                      ) -> tuple[list[TeamView], F64]:
+    """Sequential greedy over the agents (module docstring): the views in the order chosen, and
+    ``planned``, the summed P_V of the chosen views on every cell."""
+    terrain = terrain if terrain is not None else terrain_from_map(emap.z, emap.var, emap.grid, cfg.visibility)
+    n_max = info_n_max(emap, cfg)
+    planned = np.zeros(emap.grid.shape)
+    left = [a for a in agents if a.centres]
+    chosen: list[TeamView] = []
+    first: TeamView | None = None
+    while left:
+        rated = [_best(emap, terrain, a, n_max, cfg, planned if chosen else None) for a in left]
+        k = int(np.argmax([r[0] for r in rated]))
+        u, a, c, j, bits, new = rated[k]
+        blind = a.fallback is not None and new < 1.0
+        if blind and a.fallback is not None:
+            c = a.centres[0]
+            dy = np.angle(np.exp(1j * (np.repeat(c.yaws, c.tilts.size) - a.fallback[0])))
+            dt = np.tile(c.tilts, c.yaws.size) - a.fallback[1]
+            j = int(np.argmin(dy**2 + dt**2))
+            u = float(utility(np.zeros(1), c.motion[j:j + 1], c.sigma_loc_m[j:j + 1], cfg)[0])
+        yaw, tilt = float(c.yaws[j // c.tilts.size]), float(c.tilts[j % c.tilts.size])
+        pose = CameraPose.from_pan_tilt(*c.xyz, yaw, tilt)
+        pv = predicted_visibility(emap, pose, a.camera, cfg.visibility)
+        fresh = pv * (emap.n == 0)
+        discounted = float((fresh * np.minimum(planned, 1.0)).sum())
+        in_corr = float(fresh[corridor].sum()) if corridor is not None else 0.0
+        why = _why(a.agent, len(chosen), bits, new, float(c.motion[j]), discounted, in_corr, first)
+        if blind:
+            why = (f"{a.agent}: no view is expected to map anything on this map; it looks along its "
+                   f"path (yaw {math.degrees(yaw):.0f} deg, tilt {math.degrees(tilt):.0f} deg)")
+        view = TeamView(a.agent, len(chosen), c.place, c.xyz, yaw, tilt, bits, new, float(c.motion[j]), u,
+                        discounted, in_corr, why)
+        chosen.append(view)
+        first = first or view
+        planned += pv
+        left.pop(k)
+    return chosen, planned
+
+
+def _best(emap: MapLike, terrain: Terrain, a: AgentViews, n_max: int, cfg: NbvConfig,
+          planned: F64 | None) -> tuple[float, AgentViews, ViewCentre, int, float, float]:
+    """The agent's best view: (utility, agent, centre, flat view index, H, expected new cells)."""
+    interest = a.interest if a.interest is not None else np.asarray(emap.interest, float)
+    best: tuple[float, AgentViews, ViewCentre, int, float, float] | None = None
+    for c in a.centres:
+        r = rate_station(terrain, c.xyz, c.yaws, c.tilts, emap.n, n_max, interest, a.camera, cfg.visibility,
+                         planned)
+        bits, new = r.info_bits.ravel(), r.expected_new_cells.ravel()
+        u = utility(bits, c.motion, c.sigma_loc_m, cfg)
+        j = int(np.argmax(u))
+        if best is None or float(u[j]) > best[0]:
+            best = (float(u[j]), a, c, j, float(bits[j]), float(new[j]))
+    assert best is not None  # agents without centres are left out by the caller
+    return best
+
+
+def _why(agent: str, order: int, bits: float, new: float, motion: float, discounted: float, corridor: float,
+         first: TeamView | None) -> str:
+    cost = "tether and head motion" if agent == "cliffbot" else "wheel and mast motion"
+    text = (f"{agent} {'first' if order == 0 else 'next'}: {bits:.0f} bit, {new:.0f} new cells expected "
+            f"({corridor:.0f} in the Cliff-bot's corridor), {cost} {motion:.1f}")
+    if first is not None:
+        text += f"; after {first.agent}'s view, {discounted:.0f} of its cells left to that view"
+    return text
+
+
+def focus_and_corridor(emap: MapLike, regions: tuple[tuple[float, ...], ...], corridor: NDArray[np.bool_],
+                       cfg: TeamViewConfig) -> F64:
+    """The RECON-bot's interest with the task's focus regions (``[nbv] focus_regions``) and the
+    Cliff-bot's corridor."""
+    return corridor_interest(emap, corridor, cfg, focus_weights(emap.grid, regions) if regions else None)

@@ -1,0 +1,210 @@
+"""``safer-hil experiment team-sensing``: views chosen for the team against the RECON-bot alone.
+
+For each seeded ``cliff-team`` scene (``--scenes`` from ``--seed``, in ``--jobs`` processes) two
+runs of ``--cycles`` imaging cycles on the same scene: the team (both agents' views chosen by
+``fsw.core.planning.team_views``, sequential greedy) and the RECON-bot alone (the same planner with
+one agent: the same interest, the same corridor weighting). Both run in the team-views harness
+(``hil_sim.team.team_views_run``: views sensed on the truth with a stereo error model and fused
+with the flight's fusion), not in lockstep missions: a lockstep mission renders and matches
+every view and takes minutes of CPU per imaging step.
+
+Figures per scene: new cells per imaging cycle (team / RECON-bot alone), the overlap of the two
+views of a cycle (cells both measured / cells either measured; and / cells the smaller measured), the cycles until the
+Cliff-bot's corridor (its plan on the true ground, path +- 1 m) is mapped to 95 % (team, alone,
+their ratio), the face (true slope > 45 deg) and corridor mapped after the last cycle, and the
+RMS error on cells both agents mapped: each agent's own map and the fused one. Writes
+OUT/team_sensing.csv, OUT/coverage.png (face and corridor coverage per cycle: team, each of its
+agents, the RECON-bot alone; medians over the scenes) and ``docs/results/team-sensing.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any
+
+HELP = "team views (both agents) against the RECON-bot alone: cells per cycle, overlap, corridor, fusion"
+COLUMNS = ("seed", "cycles", "team_cells_per_cycle", "recon_cells_per_cycle", "cells_ratio", "overlap_mean",
+           "overlap_max", "overlap_of_smaller_max", "corridor_cycles_team", "corridor_cycles_recon",
+           "corridor_ratio", "corridor_team", "corridor_recon", "face_team", "face_recon", "both_cells",
+           "rmse_recon_m", "rmse_cliffbot_m", "rmse_fused_m", "blind_views")
+GOAL = 0.95
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenario", default="cliff-team", help="scenario spec (seeded per scene)")
+    p.add_argument("--scenes", type=int, default=30, help="number of seeded scenes")
+    p.add_argument("--seed", type=int, default=0, help="first seed")
+    p.add_argument("--jobs", type=int, default=1, help="scenes run in parallel (processes)")
+    p.add_argument("--cycles", type=int, default=12, help="imaging cycles per run")
+    p.add_argument("--cell", type=float, default=0.08, help="map cell of the harness (m)")
+    p.add_argument("--out", type=Path, default=Path("out/team-sensing"), help="output directory")
+
+
+def run(args: argparse.Namespace) -> int:
+    from hil_sim.lab.results import command_line, markdown_table, write_results
+    from hil_sim.world import ScenarioError, load_scenario
+
+    me = "safer-hil experiment team-sensing"
+    if args.scenes < 1 or args.jobs < 1 or args.cycles < 1 or not 0.01 <= args.cell <= 0.5:
+        print(f"{me}: --scenes, --jobs and --cycles must be >= 1, --cell within 0.01-0.5 m", file=sys.stderr)
+        return 2
+    try:
+        if load_scenario(args.scenario, args.seed).team is None:
+            raise ScenarioError(f"{args.scenario} has no team (use a cliff-team scenario)")
+    except (ScenarioError, ValueError, OSError) as exc:
+        print(f"{me}: {exc}", file=sys.stderr)
+        return 2
+    seeds = list(range(args.seed, args.seed + args.scenes))
+    rows: list[dict[str, Any]] = []
+    curves: dict[int, dict[str, list[float]]] = {}
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        futs = {pool.submit(scene, args.scenario, s, args.cycles, args.cell): s for s in seeds}
+        for fut in as_completed(futs):
+            try:
+                row, curve = fut.result()
+            except Exception as exc:  # noqa: BLE001 - one failed scene is reported, the rest go on
+                print(f"seed {futs[fut]}: FAILED {type(exc).__name__}: {exc}", file=sys.stderr)
+                continue
+            rows.append(row)
+            curves[row["seed"]] = curve
+            print(f"[{len(rows)}/{len(seeds)}] seed {row['seed']}: cells/cycle x{_f(row['cells_ratio'])}, overlap "
+                  f"{_f(row['overlap_max'])}, corridor {row['corridor_cycles_team']} vs "
+                  f"{row['corridor_cycles_recon']} cycles", flush=True)
+    rows.sort(key=lambda r: r["seed"])
+    if not rows:
+        return 1
+    args.out.mkdir(parents=True, exist_ok=True)
+    with (args.out / "team_sensing.csv").open("w", newline="") as f:
+        wr = csv.DictWriter(f, fieldnames=list(COLUMNS))
+        wr.writeheader()
+        wr.writerows(rows)
+    png = plot(curves, args.out / "coverage.png")
+    md = report(rows, markdown_table, args.cycles)
+    print(md)
+    write_results("team-sensing", command_line("team-sensing"), md, [png])
+    return 0 if len(rows) == len(seeds) else 1
+
+
+def _f(v: Any) -> str:
+    return "-" if v is None else f"{v:.2f}"
+
+
+def _first(fracs: list[float]) -> int | None:
+    return next((k + 1 for k, v in enumerate(fracs) if v >= GOAL), None)
+
+
+def scene(spec: str, seed: int, cycles: int, cell_m: float) -> tuple[dict[str, Any], dict[str, list[float]]]:
+    """One scene's row and coverage curves (module docstring); deterministic per seed."""
+    import numpy as np
+
+    from hil_sim.team.team_views_run import run_scene
+
+    team = run_scene(spec, seed, team=True, cycles=cycles, cell_m=cell_m)
+    alone = run_scene(spec, seed, team=False, cycles=cycles, cell_m=cell_m)
+    tc = [r.new_cells for r in team.records]
+    rc = [r.new_cells for r in alone.records]
+    overlaps = [r.overlap for r in team.records if r.overlap is not None]
+    ct, cr = _first([r.corridor_frac for r in team.records]), _first([r.corridor_frac for r in alone.records])
+    row: dict[str, Any] = {
+        "seed": seed, "cycles": cycles,
+        "team_cells_per_cycle": float(np.mean(tc)), "recon_cells_per_cycle": float(np.mean(rc)),
+        "cells_ratio": float(np.mean(tc) / np.mean(rc)) if np.mean(rc) > 0 else None,
+        "overlap_mean": float(np.mean(overlaps)) if overlaps else None,
+        "overlap_max": float(np.max(overlaps)) if overlaps else None,
+        "overlap_of_smaller_max": max((r.overlap_of_smaller for r in team.records
+                                       if r.overlap_of_smaller is not None), default=None),
+        "corridor_cycles_team": ct, "corridor_cycles_recon": cr,
+        "corridor_ratio": ct / cr if ct is not None and cr is not None else None,
+        "corridor_team": team.records[-1].corridor_frac, "corridor_recon": alone.records[-1].corridor_frac,
+        "face_team": team.records[-1].face_frac, "face_recon": alone.records[-1].face_frac,
+        **team.fused_vs_better(),
+        "blind_views": sum(1 for r in team.records for v in r.views if "no view is expected" in v["why"]),
+    }
+    curve = {
+        "face_team": [r.face_frac for r in team.records], "corridor_team": [r.corridor_frac for r in team.records],
+        "face_recon_alone": [r.face_frac for r in alone.records],
+        "corridor_recon_alone": [r.corridor_frac for r in alone.records],
+    }
+    for agent in ("recon", "cliffbot"):
+        curve[f"face_{agent}"] = [r.agent_face_frac[agent] for r in team.records]
+        curve[f"corridor_{agent}"] = [r.agent_corridor_frac[agent] for r in team.records]
+    return row, curve
+
+
+def plot(curves: dict[int, dict[str, list[float]]], path: Path) -> Path:
+    """Face and corridor mapped per imaging cycle, medians over the scenes."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
+    labels = {"team": "team", "recon": "team: RECON-bot's views", "cliffbot": "team: Cliff-bot's views",
+              "recon_alone": "RECON-bot alone"}
+    for ax, what in zip(axes, ("face", "corridor"), strict=True):
+        for key, label in labels.items():
+            ys = np.array([c[f"{what}_{key}"] for c in curves.values()], float)
+            x = np.arange(1, ys.shape[1] + 1)
+            ax.plot(x, np.median(ys, axis=0), marker="o", ms=3, label=label)
+        ax.axhline(GOAL, color="grey", lw=0.8, ls="--")
+        ax.set_title(f"{what} mapped (median of {len(curves)} scenes)")
+        ax.set_xlabel("imaging cycle")
+    axes[0].set_ylabel("fraction mapped")
+    axes[1].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def report(rows: list[dict[str, Any]], table: Any, cycles: int) -> str:
+    """The summary (medians, worst cases, goals) and the per-scene table."""
+    import numpy as np
+
+    def col(k: str) -> Any:
+        return np.array([r[k] for r in rows if r[k] is not None], float)
+
+    summary: list[dict[str, Any]] = []
+
+    def add(name: str, v: Any, worst: Any, goal: str) -> None:
+        summary.append({"figure": name, "median": v, "worst": worst, "goal": goal})
+
+    ratio = col("cells_ratio")
+    add("new cells per imaging cycle, team / RECON-bot alone", float(np.median(ratio)) if ratio.size else None,
+        float(ratio.min()) if ratio.size else None, ">= 1.6")
+    ov = col("overlap_max")
+    add("overlap of a cycle's two views (worst cycle of a scene)", float(np.median(ov)) if ov.size else None,
+        float(ov.max()) if ov.size else None, "<= 0.15")
+    ovs = col("overlap_of_smaller_max")
+    add("overlap as a fraction of the smaller view (worst cycle of a scene)",
+        float(np.median(ovs)) if ovs.size else None, float(ovs.max()) if ovs.size else None, "")
+    ovm = col("overlap_mean")
+    add("overlap of a cycle's two views (mean over a scene's cycles)", float(np.median(ovm)) if ovm.size else None,
+        float(ovm.max()) if ovm.size else None, "<= 0.15")
+    ct = [r["corridor_cycles_team"] for r in rows]
+    cr = [r["corridor_cycles_recon"] for r in rows]
+    add(f"scenes with the corridor mapped to 95 % within {cycles} cycles: team",
+        sum(v is not None for v in ct), f"of {len(rows)}", "")
+    add(f"scenes with the corridor mapped to 95 % within {cycles} cycles: RECON-bot alone",
+        sum(v is not None for v in cr), f"of {len(rows)}", "")
+    cratio = col("corridor_ratio")
+    add("cycles to 95 % of the corridor, team / alone (scenes where both reach it)",
+        float(np.median(cratio)) if cratio.size else None, float(cratio.max()) if cratio.size else None, "<= 0.6")
+    for k, name in (("corridor_team", "corridor mapped after the last cycle: team"),
+                    ("corridor_recon", "corridor mapped after the last cycle: RECON-bot alone"),
+                    ("face_team", "face mapped after the last cycle: team"),
+                    ("face_recon", "face mapped after the last cycle: RECON-bot alone")):
+        v = col(k)
+        add(name, float(np.median(v)), float(v.min()), "")
+    ok = [r for r in rows if None not in (r["rmse_recon_m"], r["rmse_cliffbot_m"], r["rmse_fused_m"])]
+    if ok:
+        d = np.array([r["rmse_fused_m"] - min(r["rmse_recon_m"], r["rmse_cliffbot_m"]) for r in ok])
+        add("fused RMS - better agent's RMS on cells both mapped (m)", float(np.median(d)), float(d.max()), "<= 0")
+    add("views chosen blind (no view expected to map anything)", sum(r["blind_views"] for r in rows), "", "")
+    return ("## Summary\n\n" + table(summary, ["figure", "median", "worst", "goal"])
+            + "\n\n## Scenes\n\n" + table(rows, list(COLUMNS)) + "\n")

@@ -1,0 +1,324 @@
+"""Team views on the truth: imaging cycles of the RECON-bot alone or of both agents
+(docs/team.md, "Team views"; ``safer-hil experiment team-sensing``).
+
+A cycle: the agents' candidate views are rated on the one shared map and chosen by the flight's
+team planner (``fsw.core.planning.team_views``: sequential greedy, the RECON-bot favouring the
+Cliff-bot's corridor, the Cliff-bot paying tether motion); each chosen view is then *sensed* on
+the TRUE ground and fused into the shared map and into that agent's own map with the flight's
+fusion (``ElevationMap.merge_parts_steps``, §1).
+
+The sensing is a model, not a rendering (so 30 scenes x two runs fit in minutes): a cell is
+measured when its centre lies in the view's field and depth of field, its texture allows stereo
+(``World.textureless_on_grid``) and the line of sight to it clears the TRUE ground (sampled every
+2 cm, 2 cm of grazing allowed); four points are drawn on the true surface, one in each quarter of
+the cell (jittered), each displaced by an error drawn from the stereo covariance (depth
+deviation ``range^2 sigma_d / (f B)`` along the ray, ``range sigma_d / f`` across it, ``sigma_d``
+= ``SIGMA_D_PX``) and fused with that covariance; the cells a view was expected to see and did
+not record their misses (§3.4). The face map (§8.1) is fitted on the shared map once it holds
+enough of the face and fed with every view's face share.
+
+The Cliff-bot's corridor is its plan on the true ground on the scenario's map grid
+(``face_planner.plan_targets``: start to every target it reaches, path +- ``corridor_half_m``;
+with no target reachable, the ground around its start). It moves on along that route every cycle (its task
+moves it; team views choose where along the next ``max_travel_m`` it stops to look and where it
+looks); the route is taken as planned beforehand, so where the shared map does not know the
+ground yet its tether lengths come from the route's ground (the truth).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
+from fsw.core.map.elevation_map import ElevationMap
+from fsw.core.map.face_map import FaceMap, FaceMapConfig, face_band, fit_face_plane, run_merge, split_parts
+from fsw.core.planning.info_planners import InformationPlanner
+from fsw.core.planning.nbv import NbvConfig, predicted_visibility
+from fsw.core.planning.planners import PlannerState
+from fsw.core.planning.team_views import (
+    AgentViews,
+    TeamView,
+    TeamViewConfig,
+    choose_team_views,
+    cliffbot_centres,
+    corridor_interest,
+    corridor_mask,
+    recon_centres,
+)
+from fsw.core.planning.view_candidates import Station
+from fsw.core.planning.visibility import in_view
+from fsw.core.team.face_planner import ClimberConfig, plan_targets
+from fsw.core.team.tether import TetherConfig, anchor_points
+from hil_sim.team.face_eval import equal_memory_cell
+from hil_sim.team.team_figures import TeamFigures
+from hil_sim.team.team_sensing import CLIFFBOT_CAMERA
+from hil_sim.world.world import World
+
+F64 = NDArray[np.float64]
+B = NDArray[np.bool_]
+SIGMA_D_PX = 0.3  # disparity deviation of the sensing model (px)
+RECON_SETBACK_M = 0.8  # the RECON-bot's stations behind the edge
+
+
+@dataclass
+class CycleRecord:
+    """One imaging cycle: each agent's view, expected and obtained new cells, and the team's figures."""
+
+    cycle: int
+    views: list[dict[str, Any]] = field(default_factory=list)
+    new_cells: int = 0  # cells the cycle mapped for the first time (team)
+    overlap: float | None = None  # cells both views measured / cells either measured (two agents)
+    overlap_of_smaller: float | None = None  # cells both views measured / cells the smaller view measured
+    face_frac: float = 0.0  # of the face (truth slope > 45 deg) mapped after the cycle
+    corridor_frac: float = 0.0  # of the corridor mapped after the cycle
+    agent_face_frac: dict[str, float] = field(default_factory=dict)
+    agent_corridor_frac: dict[str, float] = field(default_factory=dict)
+
+
+class TeamViewsRun:
+    """One scene, ``team=True`` (both agents) or the RECON-bot alone, deterministic per seed."""
+
+    def __init__(self, world: World, seed: int, *, team: bool, cell_m: float = 0.08,
+                 nbv: NbvConfig | None = None, tv: TeamViewConfig | None = None) -> None:
+        from fsw.settings import load_settings
+
+        if world.team is None:
+            raise ValueError("the scene has no team")
+        self.world, self.seed, self.team = world, seed, team
+        self.rng = np.random.default_rng([seed, 2806, int(team)])
+        cfg = load_settings(check_calibration=False)
+        self.fusion = cfg.fusion
+        self.camera: CameraConfig = dataclasses.replace(cfg.camera, calibration_file="")
+        self.mast = cfg.mast
+        self.nbv = nbv or dataclasses.replace(cfg.nbv, station_spacing_m=0.5, coarse_cell_m=0.0)
+        self.tv = tv or TeamViewConfig()
+        g0 = MapGrid.from_config(world.map_grid)
+        k = max(1, int(round(cell_m / g0.cell)))
+        self.grid = MapGrid(g0.x0, g0.y0, g0.cell * k, g0.nx // k, g0.ny // k)
+        self.truth = np.asarray(world.ground_on_grid(self.grid), float)
+        self.textured = ~world.textureless_on_grid(self.grid)
+        self.map = ElevationMap(self.grid, self.fusion)
+        self.by_agent = {a: ElevationMap(self.grid, self.fusion) for a in ("recon", "cliffbot")}
+        t = world.team
+        self.tcfg, self.ccfg = TetherConfig(), ClimberConfig()
+        self.anchors = anchor_points(self.truth, self.grid, t.anchors_xy, self.tcfg)
+        fine = np.asarray(world.ground_on_grid(g0), float)  # its plan on the scenario's own grid
+        plan = plan_targets(fine, g0, anchor_points(fine, g0, t.anchors_xy, self.tcfg), t.cliffbot_start_xy,
+                            t.targets_xyz[:, :2], self.tcfg, self.ccfg)
+        legs = [p for p in plan.paths if p is not None]
+        start = np.asarray(t.cliffbot_start_xy, float).reshape(1, 2)
+        self.route = np.concatenate([start] + [np.vstack([p, p[::-1]]) for p in legs])  # out to each target and back
+        self.corridor = corridor_mask(self.grid, np.concatenate([start] + legs), self.tv.corridor_half_m)
+        slope = _slope_deg(self.truth, self.grid.cell)
+        self.face = np.isfinite(self.truth) & (slope > 45.0)
+        self.cliff_xy = start[0].copy()
+        self.cliff_i = 0
+        self.head = (0.0, 0.0)
+        edge = np.asarray(world.edge_xy, float)
+        self.edge = edge[np.argsort(edge[:, 0])]
+        self.rover = (float(t.cliffbot_start_xy[0]) - 2.0, self._edge_y(float(t.cliffbot_start_xy[0]) - 2.0)
+                      + RECON_SETBACK_M, 0.0)
+        self.joints = (-math.pi / 2, math.radians(-45.0), 0.5)
+        self.records: list[CycleRecord] = []
+        self.face_map: FaceMap | None = None
+        self._pending: list[tuple[F64, F64, F64 | None]] = []
+        self.figures = TeamFigures(self.grid.cell, self.ccfg.wheel_d_m, seed)
+        self.events: list[dict[str, object]] = []
+
+    def _edge_y(self, x: float) -> float:
+        return float(np.interp(x, self.edge[:, 0], self.edge[:, 1]))
+
+    # -- candidates ---------------------------------------------------------------------------
+    def _recon(self) -> AgentViews:
+        """Stations behind the edge every ``station_spacing_m`` within ``max_travel_m`` of the rover,
+        heading along the edge (either way), the mast's grid at each."""
+        cfg = self.nbv
+        xs = self.rover[0] + np.arange(-cfg.max_travel_m, cfg.max_travel_m + 1e-9, cfg.station_spacing_m)
+        lo, hi = self.grid.x0 + 1.0, self.grid.x0 + self.grid.nx * self.grid.cell - 1.0
+        stations = []
+        for x in xs[(xs >= lo) & (xs <= hi)]:
+            y = self._edge_y(float(x)) + RECON_SETBACK_M
+            travel = math.hypot(float(x) - self.rover[0], y - self.rover[1])
+            stations.append(Station((float(x), y, 0.0 if x >= self.rover[0] else math.pi), travel))
+        planner = InformationPlanner("team", cfg, self.camera, self.mast, use_interest=True)
+        state = PlannerState(self.map, self.rover, self.joints, np.zeros((0, 2)), lambda *_: None, None,
+                             float(np.nan_to_num(self.truth_at(self.rover[:2]))))
+        centres = recon_centres(planner.view_centres(state, stations))
+        interest = corridor_interest(self.map, self.corridor, self.tv)
+        return AgentViews("recon", self.camera, centres, interest)
+
+    def _cliff(self) -> AgentViews:
+        # its route was planned beforehand (module docstring): where the shared map does not know
+        # the ground yet, the tether lengths and the head's place come from the route's own ground
+        z = np.where(self.map.mapped, self.map.z, self.truth)
+        centres = cliffbot_centres(z, self.grid, self.anchors, self.route[self.cliff_i:], self.cliff_xy,
+                                   self.head, self.tcfg, self.tv, stay=False)
+        ahead = self.route[min(self.cliff_i + 1, len(self.route) - 1):]
+        step = next((p for p in ahead if np.linalg.norm(p - self.route[self.cliff_i]) > 0.5), ahead[-1])
+        d = step - self.route[self.cliff_i]
+        yaw = math.atan2(float(d[1]), float(d[0])) if float(np.hypot(*d)) > 1e-6 else -math.pi / 2
+        return AgentViews("cliffbot", CLIFFBOT_CAMERA, centres, None, (yaw, math.radians(-50.0)))
+
+    def truth_at(self, xy: tuple[float, ...]) -> float:
+        iy, ix, inside = self.grid.cell_index(np.array([xy[0]]), np.array([xy[1]]))
+        return float(self.truth[iy[0], ix[0]]) if inside[0] else 0.0
+
+    # -- one cycle ----------------------------------------------------------------------------
+    def cycle(self) -> CycleRecord:
+        agents = [self._recon()] + ([self._cliff()] if self.team else [])
+        views, _ = choose_team_views(self.map, agents, self.nbv, self.corridor)
+        rec = CycleRecord(len(self.records) + 1)
+        before = self.map.mapped.copy()
+        seen: dict[str, B] = {}
+        for v in views:
+            cam = CLIFFBOT_CAMERA if v.agent == "cliffbot" else self.camera
+            cells = self._sense(v, cam)
+            seen[v.agent] = cells
+            new = cells & ~before
+            rec.views.append({**v.event(), "obtained_cells": int(cells.sum()), "obtained_new_cells": int(new.sum())})
+            self.events.append({"cycle": rec.cycle, "event": "TEAM_VIEW", **v.event()})
+            self._move(v)
+        rec.new_cells = int((self.map.mapped & ~before).sum())
+        if len(seen) == 2:
+            a, b = seen["recon"], seen["cliffbot"]
+            small, either = min(int(a.sum()), int(b.sum())), int((a | b).sum())
+            rec.overlap = float((a & b).sum()) / either if either else 0.0
+            rec.overlap_of_smaller = float((a & b).sum()) / small if small else 0.0
+        rec.face_frac = _frac(self.map.mapped, self.face)
+        rec.corridor_frac = _frac(self.map.mapped, self.corridor)
+        for name, m in self.by_agent.items():
+            rec.agent_face_frac[name] = _frac(m.mapped, self.face)
+            rec.agent_corridor_frac[name] = _frac(m.mapped, self.corridor)
+        self.records.append(rec)
+        self.figures.add_cycle({a: np.where(m.mapped, m.z, np.nan) for a, m in self.by_agent.items() if a in seen
+                                or a == "recon" or self.team}, rec.views, rec.overlap)
+        return rec
+
+    def _move(self, v: TeamView) -> None:
+        if v.agent == "recon":
+            self.rover = (v.place[0], v.place[1], v.place[2])
+            self.joints = (v.yaw - v.place[2], v.tilt, v.place[3])
+            return
+        self.cliff_xy = np.array(v.place[:2])
+        d = np.linalg.norm(self.route[self.cliff_i:] - self.cliff_xy, axis=1)
+        self.cliff_i += int(np.argmin(d))
+        self.head = (v.yaw, v.tilt)
+
+    def _sense(self, v: TeamView, cam: CameraConfig) -> B:
+        """The cells the view measures on the truth (module docstring), fused into the shared map
+        and the agent's own."""
+        g = self.grid
+        pose = CameraPose.from_pan_tilt(*v.xyz, v.yaw, v.tilt)
+        iy, ix = np.nonzero(np.isfinite(self.truth) & self.textured)
+        pts = np.column_stack([g.x0 + (ix + 0.5) * g.cell, g.y0 + (iy + 0.5) * g.cell, self.truth[iy, ix]])
+        vis = in_view(pose, cam, pts)
+        out = np.zeros(g.shape, bool)
+        ok = self._line_of_sight(pose.t, pts[vis]) if vis.any() else np.zeros(0, bool)
+        iy, ix = iy[vis][ok], ix[vis][ok]
+        out[iy, ix] = True
+        sub = np.array([0.25, 0.75])  # four points per cell, one in each quarter (jittered)
+        fx = (sub[None, :, None] + 0.2 * (self.rng.random((ix.size, 2, 2)) - 0.5)).reshape(ix.size, 4)
+        fy = (sub[None, None, :] + 0.2 * (self.rng.random((ix.size, 2, 2)) - 0.5)).reshape(ix.size, 4)
+        x = (g.x0 + (ix[:, None] + fx) * g.cell).ravel()
+        y = (g.y0 + (iy[:, None] + fy) * g.cell).ravel()
+        z = np.asarray(self.world.ground_at(x, y), float)
+        z = np.where(np.isfinite(z), z, np.repeat(self.truth[iy, ix], 4))
+        p = np.column_stack([x, y, z])
+        ray = p - pose.t
+        rng_m = np.linalg.norm(ray, axis=1)
+        d = ray / rng_m[:, None]
+        f = cam.width_px / (2.0 * math.tan(math.radians(cam.hfov_deg) / 2.0))
+        s_depth = rng_m**2 * SIGMA_D_PX / (f * cam.baseline_m)
+        s_lat = rng_m * SIGMA_D_PX / f
+        dd = d[:, :, None] * d[:, None, :]
+        cov = s_depth[:, None, None] ** 2 * dd + s_lat[:, None, None] ** 2 * (np.eye(3)[None] - dd)
+        e = np.einsum("nij,nj->ni", np.linalg.cholesky(cov + 1e-12 * np.eye(3)[None]),
+                      self.rng.standard_normal((x.size, 3)))
+        xyz = p + e
+        expect = predicted_visibility(self.map, pose, cam, self.nbv.visibility)  # the misses of §3.4
+        run_merge(self.map, [(xyz.copy(), cov.copy(), None)], expect)
+        run_merge(self.by_agent[v.agent], [(xyz.copy(), cov.copy(), None)], None)
+        if xyz.size:
+            self._to_face([(xyz, cov, None)])
+        return out
+
+    def _to_face(self, parts: list[tuple[F64, F64, F64 | None]]) -> None:
+        """The face map beside the gravity grid (docs/algorithm.md §8.1): fitted on the shared map
+        once it holds enough of the face (the views before the fit are fused then), fed with the
+        face's share of every view."""
+        if self.face_map is None:
+            self._pending += parts
+            try:
+                frame = fit_face_plane(self.map, None, FaceMapConfig().min_slope_deg)
+                u, v = face_band(self.map, frame)
+            except ValueError:
+                return
+            fc = dataclasses.replace(FaceMapConfig(), cell_m=equal_memory_cell(self.grid.cell, frame.slope_deg))
+            self.face_map = FaceMap(frame, (u[0], u[1]), (v[0], v[1]), fc, self.fusion)
+            parts, self._pending = self._pending, []
+        self.face_map.merge_parts(split_parts(parts, self.face_map)[0])
+
+    def section(self) -> dict[str, Any]:
+        """The team figures of the summary (``hil_sim.team.team_figures``) for this run."""
+        face = None if self.face_map is None else (self.world, self.face_map, self.map)
+        return self.figures.section(face, "" if face else "the face plane could not be fitted on the map")
+
+    def _line_of_sight(self, eye: F64, pts: F64, step_m: float = 0.02, tol_m: float = 0.02) -> B:
+        """Whether the segment from ``eye`` to each point stays above the TRUE ground (sampled every
+        ``step_m``, the last ``3 tol_m`` before the point excepted, ``tol_m`` of grazing allowed)."""
+        out = np.zeros(len(pts), bool)
+        for a in range(0, len(pts), 2000):
+            p = pts[a:a + 2000]
+            ray = p - eye
+            rng_m = np.linalg.norm(ray, axis=1)
+            k = int(np.ceil(rng_m.max() / step_m))
+            s = np.linspace(0.0, 1.0, k + 1)[None, :] * np.maximum(0.0, 1.0 - 3 * tol_m / rng_m)[:, None]
+            q = eye[None, None, :] + s[:, :, None] * ray[:, None, :]
+            ground = np.asarray(self.world.ground_at(q[..., 0], q[..., 1]), float)
+            out[a:a + 2000] = np.all(~(q[..., 2] < ground - tol_m), axis=1)
+        return out
+
+    # -- figures ------------------------------------------------------------------------------
+    def fused_vs_better(self) -> dict[str, float | int | None]:
+        """RMS error against the truth on the cells both agents mapped: each agent's own map and the
+        shared (fused) one."""
+        a, b = self.by_agent["recon"], self.by_agent["cliffbot"]
+        both = a.mapped & b.mapped & self.map.mapped & np.isfinite(self.truth)
+        out: dict[str, float | int | None] = {"both_cells": int(both.sum())}
+        for name, m in (("recon", a), ("cliffbot", b), ("fused", self.map)):
+            e = m.z[both] - self.truth[both]
+            out[f"rmse_{name}_m"] = float(np.sqrt(np.mean(e * e))) if e.size else None
+        return out
+
+    def cells_by_agent(self) -> dict[str, int]:
+        return {k: int(m.mapped.sum()) for k, m in self.by_agent.items()}
+
+
+def _frac(mapped: B, region: B) -> float:
+    n = int(region.sum())
+    return float((mapped & region).sum()) / n if n else 1.0
+
+
+def _slope_deg(z: F64, cell: float) -> F64:
+    gy, gx = np.gradient(np.nan_to_num(z), cell)
+    return np.asarray(np.degrees(np.arctan(np.hypot(gx, gy))), float)
+
+
+def run_scene(spec: str, seed: int, *, team: bool, cycles: int, cell_m: float = 0.08,
+              until_corridor: float | None = None) -> TeamViewsRun:
+    """``cycles`` imaging cycles of one seeded scene (stopping early once the corridor is mapped to
+    ``until_corridor``)."""
+    from hil_sim.world import load_scenario
+
+    run = TeamViewsRun(load_scenario(spec, seed), seed, team=team, cell_m=cell_m)
+    for _ in range(cycles):
+        rec = run.cycle()
+        if until_corridor is not None and rec.corridor_frac >= until_corridor:
+            break
+    return run

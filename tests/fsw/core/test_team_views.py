@@ -1,0 +1,102 @@
+"""Team views (fsw.core.planning.team_views, docs/algorithm.md §8): the sequential-greedy choice,
+the corridor, the discount of Eq 3 and the Cliff-bot's tether motion, on small synthetic maps."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from fsw.core.geometry import CameraConfig, MapGrid
+from fsw.core.map.elevation_map import ElevationMap
+from fsw.core.planning.nbv import NbvConfig, cell_values, predicted_visibility
+from fsw.core.planning.team_views import (
+    AgentViews,
+    TeamViewConfig,
+    ViewCentre,
+    choose_team_views,
+    cliffbot_centres,
+    corridor_interest,
+    corridor_mask,
+)
+from fsw.core.team.tether import TetherConfig, anchor_points
+from fsw.settings import load_settings
+
+GRID = MapGrid(0.0, 0.0, 0.1, 60, 60)
+CAM = CameraConfig(width_px=160, height_px=120, hfov_deg=50.0, baseline_m=0.15, min_range_m=0.3, max_range_m=5.0)
+NBV = NbvConfig()
+
+
+def _flat_map() -> ElevationMap:
+    emap = ElevationMap(GRID, load_settings(check_calibration=False).fusion)
+    emap.z[:] = 0.0
+    emap.var[:] = 0.01**2
+    emap.n[:] = 0  # flat ground, nothing measured: the prior knows its height
+    return emap
+
+
+def _centre(x: float, y: float) -> ViewCentre:
+    yaws = np.radians(np.arange(0.0, 360.0, 30.0))
+    tilts = np.radians([-30.0, -60.0])
+    return ViewCentre((x, y, 1.5), yaws, tilts, np.zeros(yaws.size * tilts.size),
+                      np.zeros(yaws.size * tilts.size), (x, y))
+
+
+def _overlap(emap: ElevationMap, views: list) -> float:
+    a, b = (predicted_visibility(emap, v.pose(), CAM, NBV.visibility) > 0.5 for v in views)
+    return float((a & b).sum()) / max(1, int((a | b).sum()))
+
+
+def test_the_second_agent_does_not_look_where_the_first_will() -> None:
+    """Two agents at the same place: rated alone each takes the same view; chosen one after the
+    other, the second turns away from the cells the first will see."""
+    emap = _flat_map()
+    agents = [AgentViews("recon", CAM, (_centre(3.0, 3.0),)), AgentViews("cliffbot", CAM, (_centre(3.0, 3.0),))]
+    views, planned = choose_team_views(emap, agents, NBV)
+    assert [v.order for v in views] == [0, 1] and {v.agent for v in views} == {"recon", "cliffbot"}
+    alone = [choose_team_views(emap, [a], NBV)[0][0] for a in agents]
+    assert (alone[0].yaw, alone[0].tilt) == (alone[1].yaw, alone[1].tilt)  # the same best view
+    assert _overlap(emap, alone) > 0.9
+    assert _overlap(emap, views) < 0.15
+    assert views[1].discounted_cells < 0.15 * views[1].expected_new_cells + 1.0
+    assert planned.max() > 0.5 and f"after {views[0].agent}'s view" in views[1].why
+
+
+def test_planned_cells_count_as_measured_in_eq3() -> None:
+    pv = np.array([1.0, 1.0, 1.0])
+    n = np.array([0, 0, 1], np.int32)
+    bits0, new0 = cell_values(pv, n, 2, None)
+    bits1, new1 = cell_values(pv, n, 2, None, planned=np.array([0.0, 1.0, 1.0]))
+    assert bits1[0] == bits0[0] and new1[0] == new0[0] == 1.0
+    assert math.isclose(bits1[1], 0.5 * bits0[1]) and new1[1] == 0.0  # one expected measurement: half
+    assert bits1[2] == 0.0 and new1[2] == 0.0  # n + planned reaches n_max: nothing left
+
+
+def test_the_corridor_is_the_path_grown_by_its_half_width() -> None:
+    path = np.array([[1.0, 1.0], [4.0, 1.0], [4.0, 5.0]])
+    mask = corridor_mask(GRID, path, 0.5)
+    x, y = GRID.centers()
+    d = np.minimum(np.where((x >= 1.0) & (x <= 4.0), np.abs(y - 1.0), np.hypot(x - np.clip(x, 1.0, 4.0), y - 1.0)),
+                   np.where((y >= 1.0) & (y <= 5.0), np.abs(x - 4.0), np.hypot(x - 4.0, y - np.clip(y, 1.0, 5.0))))
+    inner, outer = d <= 0.5 - GRID.cell, d > 0.5 + GRID.cell  # the path is drawn on cells: one cell of slack
+    assert mask[inner].all() and not mask[outer].any()
+    emap = _flat_map()
+    i = corridor_interest(emap, mask, TeamViewConfig(corridor_weight=4.0))
+    assert np.all(i[mask] == 4.0) and np.all(i[~mask] == 1.0)
+
+
+def test_the_cliffbots_views_cost_tether_motion() -> None:
+    """On a plateau and a 60 deg face, places farther down the path pay out more tether: their
+    views cost more, and where it stands costs only the head's turn."""
+    x, y = GRID.centers()
+    z = np.where(y > 4.0, 0.0, -(4.0 - y) * math.tan(math.radians(60.0)))
+    tcfg = TetherConfig()
+    anchors = anchor_points(z, GRID, np.array([[2.0, 5.5], [4.0, 5.5]]), tcfg)
+    path = np.column_stack([np.full(20, 3.0), np.linspace(4.6, 2.7, 20)])
+    cfg = TeamViewConfig(station_spacing_m=0.5, max_travel_m=2.0)
+    cs = cliffbot_centres(z, GRID, anchors, path, path[0], (0.0, 0.0), tcfg, cfg)
+    assert len(cs) >= 3
+    least = [float(c.motion.min()) for c in cs]
+    assert least[0] == 0.0 and all(b > a for a, b in zip(least, least[1:], strict=False))
+    assert all(c.place[2] > 0 and c.place[3] > 0 for c in cs)  # both tether lengths
+    assert len(cliffbot_centres(z, GRID, anchors, path, path[0], (0.0, 0.0), tcfg, cfg, stay=False)) == len(cs) - 1

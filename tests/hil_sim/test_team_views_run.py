@@ -1,0 +1,46 @@
+"""The team-views harness and the team figures it puts in a summary's ``team`` section
+(hil_sim.team.team_views_run, hil_sim.team.team_figures; ``safer-hil experiment team-sensing``)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from hil_sim.team.team_views_run import run_scene
+
+KEYS = ("cells_by_agent", "sync_hash_equal", "sync_rounds", "sync_bytes", "sync_minimal_bytes",
+        "sync_full_resends", "face_rmse_m", "face_rmse_gravity_m", "views")
+
+
+@pytest.mark.slow
+def test_three_team_cycles_fill_every_team_key_with_real_numbers() -> None:
+    run = run_scene("cliff-team", 0, team=True, cycles=3)
+    sec = json.loads(json.dumps(run.section()))  # what summary.json would hold
+    assert all(k in sec for k in KEYS)
+    assert sec["cells_by_agent"]["recon"] > 100 and sec["cells_by_agent"]["cliffbot"] > 100
+    assert sec["sync_hash_equal"] is True and sec["sync_rounds"] == 3 and sec["sync_full_resends"] == 0
+    assert 0 < sec["sync_minimal_bytes"] <= sec["sync_bytes"]
+    for k in ("face_rmse_m", "face_rmse_gravity_m"):
+        assert isinstance(sec[k], float) and 0.0 < sec[k] < 1.0, sec.get("face_note")
+    assert [c["cycle"] for c in sec["views"]] == [1, 2, 3]
+    for c in sec["views"]:
+        agents = [v["agent"] for v in c["views"]]
+        assert sorted(agents) == ["cliffbot", "recon"] and 0.0 <= c["overlap"] <= 1.0
+        for v in c["views"]:
+            assert v["obtained_new_cells"] <= v["obtained_cells"] and math.isfinite(v["expected_new_cells"])
+            assert v["why"].startswith(v["agent"])
+    # the same seed gives the same cycles
+    again = run_scene("cliff-team", 0, team=True, cycles=1)
+    assert json.loads(json.dumps(again.records[0].views)) == sec["views"][0]["views"]
+
+
+def test_team_sensing_usage_errors_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
+    from hil_sim.cli import main
+
+    with pytest.raises(SystemExit) as ok:
+        main(["experiment", "team-sensing", "--help"])
+    assert ok.value.code == 0 and "--cycles" in capsys.readouterr().out
+    assert main(["experiment", "team-sensing", "--scenes", "0"]) == 2
+    assert "--scenes" in capsys.readouterr().err
