@@ -1,9 +1,14 @@
 """The Cliff-bot's mission: to each science target and back up, on the map it received
 (docs/team.md, "The Cliff-bot's flight code").
 
-Sans I/O: :meth:`CliffbotMission.step` takes the devices' latest statuses and returns the
-commands (winch rates, wheel rates, enable, clear-faults) and whether to ask the RECON-bot
-for a fix. States:
+Sans I/O: :meth:`CliffbotMission.step` takes the devices' latest statuses and the
+navigation's latest estimate (:meth:`CliffbotMission.on_estimate`) and returns the commands
+(winch rates, wheel rates, enable, clear-faults) and whether to ask the RECON-bot for a fix.
+The navigation is not the mission's: the EKF (:class:`fsw.core.team.cliffbot_nav.Navigator`)
+runs beside it (the ``cb_nav`` task, or a bench loop through :func:`navigate`); it plans on
+the map the mission filled by contact, judges each fix (the mission stops on a refused one)
+and takes the estimate the mission hands it back (:attr:`CliffbotMission.nav_reset`: after a
+recovery from a refused fix, or a checkpoint). States:
 
 ``WAIT_MAP`` (no map yet) -> ``PLAN`` (every target planned from the start on the received
 map with :func:`fsw.core.team.face_planner.plan_targets`; a target it cannot reach is
@@ -19,7 +24,8 @@ bit (stall, slip, over-tension, spool, timeout), a device whose status stopped, 
 within ``fix_timeout_s`` of the request (the link is lost), a fix refused by the
 navigation's gate (it disagrees with the estimate beyond both covariances), a leg with no
 usable start. :meth:`recover` (a ground command) clears the winches' faults, takes the
-last fix as the estimate if that was the cause, and re-plans the leg it was on from there.
+last fix as the estimate if that was the cause (``nav_reset``), and re-plans the leg it was
+on from there.
 """
 
 from __future__ import annotations
@@ -34,7 +40,7 @@ from numpy.typing import NDArray
 from fsw.comm.team.fix_packets import Fix
 from fsw.comm.team.team_can import WINCHES
 from fsw.core.geometry import MapGrid
-from fsw.core.team.cliffbot_nav import CliffbotNav, NavConfig
+from fsw.core.team.cliffbot_nav import NavConfig, Navigator
 from fsw.core.team.contact_ground import fill_under_body
 from fsw.core.team.face_planner import ClimberConfig, plan_targets
 from fsw.core.team.tether import TetherConfig, tether_state
@@ -42,6 +48,7 @@ from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig
 
 F64 = NDArray[np.float64]
+BODY_MARGIN_M = 0.1  # the body's box as mapped (stereo smear, the estimate's error) beyond the footprint
 FAULT_BITS = ("FaultStall", "FaultSlip", "FaultOverTension", "FaultSpool", "FaultTimeout")
 
 
@@ -52,6 +59,18 @@ class Commands:
     clear_faults: bool
     wheels_radps: tuple[float, float]
     request_fix: bool
+
+
+@dataclass
+class Estimate:
+    """The navigation's estimate as the mission knows it: ``s = (x, y, yaw)`` and its covariance."""
+
+    s: F64
+    P: F64
+
+    @property
+    def xy(self) -> F64:
+        return self.s[:2].copy()
 
 
 @dataclass
@@ -74,7 +93,9 @@ class CliffbotMission:
         self.anchors = np.asarray(anchors, float)
         self.start = np.asarray(start_xy, float)
         self.targets = np.asarray(targets_xy, float).reshape(-1, 2)
-        self.nav = CliffbotNav(self.start, start_yaw, ncfg)
+        s0 = np.array([float(self.start[0]), float(self.start[1]), float(start_yaw)])
+        self.est = Estimate(s0, np.diag([ncfg.init_sigma_m ** 2, ncfg.init_sigma_m ** 2, math.radians(10.0) ** 2]))
+        self.nav_reset: Estimate | None = None  # an estimate the navigation is to take (recovery, checkpoint)
         self.state = "WAIT_MAP"
         self.events: list[tuple[float, str, str]] = []
         self.safe_reason = ""
@@ -88,6 +109,7 @@ class CliffbotMission:
         self.reached: list[bool] = [False for _ in range(len(self.targets))]
         self.planned_lengths: list[float] = [math.inf for _ in range(len(self.targets))]
         self.fix_asked_at: float | None = None
+        self.fix_wanted = False  # a fix asked for by ground command
         self.fix_seq = 0
         self.last_fix: Fix | None = None
         self.fixes_used = 0
@@ -96,16 +118,21 @@ class CliffbotMission:
         self.replan = False
         self.dwell_until = 0.0
         self.clear_frames = 0
-        self.last_wheel: float | None = None
         self.now = 0.0
 
     # -- inputs -----------------------------------------------------------------------------
     def event(self, name: str, text: str) -> None:
         self.events.append((round(self.now, 3), name, text))
 
-    def set_map(self, z: F64, grid: MapGrid) -> None:
-        # the ground under its own body is hidden from every camera but known by contact
-        self.z, filled = fill_under_body(z, grid, self.nav.xy, self.plan_ccfg.footprint_m)
+    def set_map(self, z: F64, grid: MapGrid, error_bound_m: float = 0.0) -> None:
+        """A map received (``error_bound_m``: the codec's bound on its heights' error)."""
+        # the ground under its own body is hidden from every camera (the RECON-bot maps the body's
+        # box there) but known by contact
+        # (the footprint of the lattice node nearest to where it stands: a node spacing more)
+        r = self.plan_ccfg.footprint_m + self.ccfg.node_m
+        # (a ring is as flat as the map can tell: half the codec's error bound, at least 3 cm)
+        flat = max(0.03, 0.5 * error_bound_m) if math.isfinite(error_bound_m) else 0.03
+        self.z, filled = fill_under_body(z, grid, self.est.xy, r, body_m=r + BODY_MARGIN_M, max_rms_m=flat)
         self.grid = grid
         self.map_version += 1
         self.event("MAP", f"map {self.map_version}: {int(np.isfinite(self.z).sum())} known cells"
@@ -125,17 +152,20 @@ class CliffbotMission:
         self.reasons = ["" for _ in range(len(t))]
         self.reached = [False for _ in range(len(t))]
         self.planned_lengths = [math.inf for _ in range(len(t))]
-        self.start = self.nav.xy if self.state not in ("WAIT_MAP",) else self.start
+        self.start = self.est.xy if self.state not in ("WAIT_MAP",) else self.start
         if self.state != "WAIT_MAP" and self.state != "SAFE":
             self.state = "PLAN"
 
-    def on_fix(self, fix: Fix) -> None:
-        """A fiducial fix from the RECON-bot: fused, or refused (SAFE) when it disagrees."""
+    def on_estimate(self, s: F64, cov: F64) -> None:
+        """The navigation's latest estimate."""
+        self.est = Estimate(np.asarray(s, float).reshape(3).copy(), np.asarray(cov, float).reshape(3, 3).copy())
+
+    def on_fix(self, fix: Fix, ok: bool, nis: float) -> None:
+        """A fiducial fix from the RECON-bot and the navigation's verdict on it (:func:`fix_xyyaw`):
+        fused, or refused (SAFE) when it disagrees with the estimate beyond both covariances."""
         self.last_fix = fix
-        cov3 = fix.cov[np.ix_([3, 4, 2], [3, 4, 2])]
-        ok, nis = self.nav.fix(fix.position[:2], fix.yaw, cov3)
         self.fix_log.append((self.now, float(fix.position[0]), float(fix.position[1]), fix.yaw,
-                             float(self.nav.s[0]), float(self.nav.s[1]), float(self.nav.s[2]), nis))
+                             float(self.est.s[0]), float(self.est.s[1]), float(self.est.s[2]), nis))
         if not ok:
             self.fixes_refused += 1
             self.event("FIX_REFUSED", f"fix {fix.seq} disagrees with the estimate (NIS {nis:.1f})")
@@ -161,8 +191,9 @@ class CliffbotMission:
         if self.state != "SAFE":
             return
         if self.safe_reason.startswith("fix disagrees") and self.last_fix is not None:
-            f = self.last_fix
-            self.nav.reset(f.position[:2], f.yaw, f.cov[np.ix_([3, 4, 2], [3, 4, 2])])
+            xy, yaw, cov3 = fix_xyyaw(self.last_fix)
+            self.est = Estimate(np.array([xy[0], xy[1], yaw]), cov3)
+            self.nav_reset = self.est
         self.event("RECOVER", f"leaving SAFE ({self.safe_reason})")
         self.safe_reason = ""
         self.clear_frames = 3
@@ -182,9 +213,26 @@ class CliffbotMission:
         self.clear_frames = max(0, self.clear_frames - 1)
         return Commands((0.0, 0.0), self.state not in ("SAFE",), clear, (0.0, 0.0), request)
 
-    def step(self, now: float, dev: CliffbotDevices, dt: float) -> Commands:
+    def request_fix(self) -> None:
+        """Ground command: ask the RECON-bot for a fix now (on a leg or at a target; a leg's start
+        asks by itself). The answer is fused like any fix; on a leg it re-plans from there."""
+        if self.state in ("DRIVE", "DWELL"):
+            self.fix_wanted = True
+        else:
+            self.event("FIX_REQUEST", f"not now: {self.state}")
+
+    def step(self, now: float, dev: CliffbotDevices) -> Commands:
+        """One step on the devices' statuses and the estimate last given (:meth:`on_estimate`)."""
+        cmd = self._step(now, dev)
+        if self.fix_wanted and self.state in ("DRIVE", "DWELL"):
+            self.fix_wanted = False
+            self.fix_seq += 1
+            self.event("FIX_REQUEST", f"request {self.fix_seq} on command, leg {self.leg_i + 1}")
+            cmd = dataclasses.replace(cmd, request_fix=True)
+        return cmd
+
+    def _step(self, now: float, dev: CliffbotDevices) -> Commands:
         self.now = now
-        self._navigate(dev, dt)
         if self.state == "SAFE":
             return self._hold()
         if self.clear_frames == 0:
@@ -222,24 +270,9 @@ class CliffbotMission:
             return self._drive(dev)
         return self._hold()
 
-    def _navigate(self, dev: CliffbotDevices, dt: float) -> None:
-        att = dev.attitude
-        if dev.wheels is not None:
-            w = 0.5 * (dev.wheels.left_rad + dev.wheels.right_rad) * self.cfg.wheel_radius_m
-            if self.last_wheel is not None:
-                self.nav.predict(w - self.last_wheel, att.pitch_deg if att is not None else 0.0, dt,
-                                 math.radians(att.yaw_deg) if att is not None else None)
-            self.last_wheel = w
-        if att is not None:
-            self.nav.heading(att.yaw_deg)
-        a, b = dev.winch.get(WINCHES[0]), dev.winch.get(WINCHES[1])
-        if self.z is not None and self.grid is not None and a is not None and b is not None:
-            self.nav.lengths((a.paid_out_m, b.paid_out_m), self.z, self.grid, self.anchors, self.tcfg,
-                             self.ccfg.footprint_m)
-
     def _plan_all(self) -> None:
         assert self.z is not None and self.grid is not None
-        plan = plan_targets(self.z, self.grid, self.anchors, self.nav.xy, self.targets, self.plan_tcfg,
+        plan = plan_targets(self.z, self.grid, self.anchors, self.est.xy, self.targets, self.plan_tcfg,
                             self.plan_ccfg)
         self.legs = []
         for k, why in enumerate(plan.reasons):
@@ -264,7 +297,7 @@ class CliffbotMission:
             self.event("DONE", "all legs driven")
             return
         leg = self.legs[self.leg_i]
-        plan = plan_targets(self.z, self.grid, self.anchors, self.nav.xy, leg.goal[None, :], self.plan_tcfg,
+        plan = plan_targets(self.z, self.grid, self.anchors, self.est.xy, leg.goal[None, :], self.plan_tcfg,
                             self.plan_ccfg)
         path = plan.paths[0]
         if path is None:
@@ -331,3 +364,23 @@ class CliffbotMission:
             rates *= self.cfg.max_rate_mps / peak  # both tethers paced to arrive together
         v = float(np.linalg.norm(rates)) / max(self.cfg.wheel_radius_m, 1e-3)
         return Commands((float(rates[0]), float(rates[1])), True, False, (v, v), False)
+
+
+def fix_xyyaw(fix: Fix) -> tuple[F64, float, F64]:
+    """A fix's place, heading and their 3x3 covariance (of its 6x6 over rotation and position)."""
+    return np.asarray(fix.position[:2], float), float(fix.yaw), fix.cov[np.ix_([3, 4, 2], [3, 4, 2])]
+
+
+def new_navigator(m: CliffbotMission, ncfg: NavConfig) -> Navigator:
+    """The navigation that goes with mission ``m``: its start, anchors, tether and footprint."""
+    return Navigator(m.est.xy, float(m.est.s[2]), ncfg, m.anchors, m.tcfg, m.ccfg.footprint_m)
+
+
+def navigate(nav: Navigator, dev: CliffbotDevices, dt: float, wheel_radius_m: float) -> None:
+    """One navigation step on the devices' statuses: the wheels' mean path, the IMU's pitch and
+    heading, the winches' paid-out lengths."""
+    att = dev.attitude
+    wheel = None if dev.wheels is None else 0.5 * (dev.wheels.left_rad + dev.wheels.right_rad) * wheel_radius_m
+    a, b = dev.winch.get(WINCHES[0]), dev.winch.get(WINCHES[1])
+    nav.step(wheel, att.pitch_deg if att is not None else None, att.yaw_deg if att is not None else None,
+             (a.paid_out_m, b.paid_out_m) if a is not None and b is not None else None, dt)

@@ -256,10 +256,13 @@ def run_mission(
     store, start, saved_bench = _prepare_store(spec, cfg, mode)
     counters: dict[str, Any] = {"violations": 0}
     bench_box: list[Any] = []
+    team_box: list[Any] = []
     if store is not None:
         resources.map_store = store
         resources.checkpoint_hooks = {
-            "bench": lambda: bench_state(bench_box[0], {"channel": channel}, counters),
+            # a team scenario: the Cliff-bot's checkpoint and hardware with the RECON-bot's
+            "bench": lambda: bench_state(bench_box[0], {"channel": channel}, counters)
+            | ({"team": team_box[0].state()} if team_box else {}),
         }
     hw = load_hardware(spec.hardware)
     if spec.camera == "ideal":
@@ -295,8 +298,13 @@ def run_mission(
         datum_m = float(counters.setdefault("datum_m", float(bench.rig.rover.z)))
         team = None
         if world.team is not None and isinstance(port_flight, FixWatch):  # the Cliff-bot's executive, from now
-            team = CliffbotAgent(bench, world, channel, port_flight, spec.seed, datum_m, spec.out, spec.faults,
-                                 recon_done=lambda: mission.state in ("DONE", "SAFE"))
+            resumed_team = saved_bench.get("team") if saved_bench is not None else None
+            try:
+                team = CliffbotAgent(bench, world, channel, port_flight, spec.seed, datum_m, spec.out, spec.faults,
+                                     recon_done=lambda: mission.state in ("DONE", "SAFE"), resume=resumed_team)
+            except BenchStateError as exc:
+                raise ValueError(f"checkpoint cannot be resumed: {exc}") from None
+            team_box.append(team)
         taps = [] if tap is None or recorder is None else [tap]
         if taps and team is not None:  # the Cliff-bot is the recording's second source
             from ground.recording import CliffbotTap
@@ -343,7 +351,7 @@ def run_mission(
                 if mission.state == "DONE" or (mission.state == "SAFE" and (
                         cfg.mission.safe_recover_s <= 0 or mission.safe.final)):
                     break
-            if team is not None:  # the Cliff-bot's mission goes on after the RECON-bot's
+            if team is not None and mission.state in ("DONE", "SAFE"):  # the Cliff-bot's goes on after it
                 team_end = bench.clock.now() + TEAM_MAX_S
                 while not team.finished() and bench.clock.now() < team_end:
                     bench.run(1)

@@ -291,3 +291,40 @@ def test_a_bad_checkpoint_is_refused_in_one_line(tmp_path: Path, state: str) -> 
         exe.tasks["mavlink"].close()  # type: ignore[attr-defined]
     finally:
         radio.close()
+
+
+def test_navigation_is_its_own_task_and_takes_the_checkpoints_estimate(tmp_path: Path) -> None:
+    """The EKF runs in ``cb_nav`` (scheduled before the mission); a Cliff-bot restarted on a
+    checkpoint goes on from its estimate in both tasks (never the start's in between)."""
+    from fsw.app import build_executive
+    from fsw.drivers.radio import open_radio
+    from fsw.framework.clock import SteppedClock
+    from fsw.tasks.cliffbot.checkpoint import SCHEMA, CheckpointFile
+
+    s = [2.6, -0.7, -1.2]
+    p = np.diag([0.03**2, 0.04**2, 0.02**2])
+    CheckpointFile(str(tmp_path)).save({
+        "schema": SCHEMA, "time_s": 5.0, "state": "WAIT_MAP", "safe_reason": "", "leg_i": 0, "fix_seq": 0,
+        "map_version": 0, "start": [2.5, -0.5], "targets": [[2.0, -1.5]], "reached": [False], "reasons": [""],
+        "legs": [], "nav_s": s, "nav_P": p.tolist()}, None)
+    cfg = load_settings(CLIFFBOT_TOML)
+    cfg = dataclasses.replace(cfg, checkpoint=dataclasses.replace(cfg.checkpoint, directory=str(tmp_path)),
+                              cliffbot_bus=dataclasses.replace(cfg.cliffbot_bus, can_interface="none"))
+    radio = open_radio("inproc://cliffbot-nav-task")
+    try:
+        exe = build_executive(cfg, SteppedClock(), Resources(radio_port=radio), map_store=False)
+        order = [t.name for t in exe.tasks.values()]
+        assert exe.tasks["cb_nav"].KIND == "cliffbot_nav" and order.index("cb_nav") < order.index("mission")
+        m = exe.tasks["mission"].mission  # type: ignore[attr-defined]
+        seen = []
+        for _ in range(4):
+            exe.step()
+            seen.append(m.est.s.copy())
+        nav = exe.tasks["cb_nav"].nav.nav  # type: ignore[attr-defined]
+        np.testing.assert_allclose(nav.s, s, atol=1e-9)  # the checkpoint's estimate, not the start
+        for e in seen:  # never the navigation's start estimate in between
+            np.testing.assert_allclose(e, s, atol=1e-9)
+        assert any(e.name == "cb_nav.NAV_RESET" for e in exe.events.history)
+        exe.tasks["mavlink"].close()  # type: ignore[attr-defined]
+    finally:
+        radio.close()

@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
 from fsw.core.planning.nbv import AccuracyModel, StationRating, cell_values, view_sums_steps
 from fsw.core.planning.visibility import F64, Terrain, VisibilityConfig, horizontal_reach_m, in_view
-from fsw.core.planning.visibility_kernel import pv_fast_steps
+from fsw.core.planning.visibility_kernel import pv_fast_steps, unique_inverse
 
 
 def coarse_factor(cell_m: float, coarse_cell_m: float) -> int:
@@ -119,8 +119,8 @@ def rate_station_coarse_steps(cs: CoarseSearch, cam_xyz: tuple[float, float, flo
     if near.size == 0:
         zero = np.zeros((yaws.size, tilts.size))
         return StationRating(zero, zero.copy(), 0)
-    blocks, inverse = np.unique(cs.block[near], return_inverse=True)
     cg = cs.terrain.grid
+    blocks, inverse = unique_inverse(cs.block[near], cg.nx * cg.ny)
     by, bx = np.divmod(blocks, cg.nx)
     pv_block = yield from pv_fast_steps(cs.terrain, cam_xyz, by, bx, cfg)
     bits, new = cell_values(pv_block[inverse], cs.n[near], cs.n_max,

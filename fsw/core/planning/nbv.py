@@ -302,13 +302,23 @@ def predicted_visibility(emap: MapLike, pose: CameraPose, camera: CameraConfig,
 
 
 def predicted_visibility_steps(emap: MapLike, pose: CameraPose, camera: CameraConfig,
-                               cfg: VisibilityConfig) -> Generator[None, None, F64]:
+                               cfg: VisibilityConfig, skip: NDArray[np.bool_] | None = None
+                               ) -> Generator[None, None, F64]:
     """:func:`predicted_visibility` in bounded steps (the terrain prior, the field of view,
-    then ``pv_fast_steps``), for the perception job."""
+    then ``pv_fast_steps``), for the perception job. Cells in ``skip`` (the cells the view
+    measured, whose P_V a merge does not use) get 0 without being rated; the field of view is
+    tested only on the cells within the frustum's horizontal reach of the camera."""
     terrain = terrain_from_map(emap.z, emap.var, emap.grid, cfg)
     yield None
     g = emap.grid
-    iy, ix = np.nonzero(np.ones(g.shape, bool))
+    box = np.ones(g.shape, bool)
+    if np.isfinite(pose.t[:2]).all():  # no cell centre beyond the reach is in view
+        reach = horizontal_reach_m(camera) + g.cell
+        lo = np.floor((pose.t[:2] - reach - (g.x0, g.y0)) / g.cell).astype(int)
+        hi = np.floor((pose.t[:2] + reach - (g.x0, g.y0)) / g.cell).astype(int) + 1
+        box[:] = False
+        box[max(lo[1], 0):max(hi[1], 0), max(lo[0], 0):max(hi[0], 0)] = True
+    iy, ix = np.nonzero(box if skip is None else box & ~skip)
     pts = np.column_stack([g.x0 + (ix + 0.5) * g.cell, g.y0 + (iy + 0.5) * g.cell,
                            terrain.elev_m[iy, ix]])
     vis = in_view(pose, camera, pts)
