@@ -15,6 +15,7 @@ import math
 import os
 import sys
 import time
+from typing import Any
 
 from ground.dictionary import GroundDictionary
 from ground.state import SEVERITY_NAMES, Fleet, GroundState, vehicle_name
@@ -125,9 +126,11 @@ def _vehicle(sid: int, v: GroundState, now: float, timeout_s: float, shown: bool
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("url", help="udpin:HOST:PORT (rover sends here, the default rover url is "
-                               "udpout:127.0.0.1:14550), udpout:HOST:PORT (rover listens) or serial:DEVICE; "
-                               "or a .tlog file to replay")
+    p.add_argument("url", nargs="+", help="udpin:HOST:PORT (rover sends here, the default rover url is "
+                                          "udpout:127.0.0.1:14550), udpout:HOST:PORT (rover listens) or "
+                                          "serial:DEVICE; or a .tlog file to replay. Several: one link each "
+                                          "(e.g. the RECON-bot's and the Cliff-bot's), or .tlog files replayed "
+                                          "together in time order")
     p.add_argument("--speed", type=float, default=0.0, metavar="X",
                    help="tlog replay: X times the logged pace on a terminal (0: straight to the last screen)")
     p.add_argument("--baud", type=int, default=57600, help="serial line rate")
@@ -158,13 +161,18 @@ def replay(args: argparse.Namespace, d: GroundDictionary) -> int:
     from fsw.comm.mavlink_tlog import TlogError
     from ground.tlog import load_messages
 
-    try:
-        messages, note = load_messages(args.url)
-    except (TlogError, OSError) as exc:
-        print(f"safer-ground listen: {exc}", file=sys.stderr)
-        return 2
-    if note:
-        print(f"safer-ground listen: warning: {note}", file=sys.stderr)
+    messages = []
+    for url in args.url:
+        try:
+            got, note = load_messages(url)
+        except (TlogError, OSError) as exc:
+            print(f"safer-ground listen: {exc}", file=sys.stderr)
+            return 2
+        if note:
+            print(f"safer-ground listen: warning: {note}", file=sys.stderr)
+        messages += got
+    messages.sort(key=lambda lm: lm.time_s)  # stable: each log keeps its own order
+    title = " + ".join(args.url)
     tty = sys.stdout.isatty()
     paint = Painter(tty and not args.no_color)
     fleet = Fleet(d)
@@ -177,15 +185,45 @@ def replay(args: argparse.Namespace, d: GroundDictionary) -> int:
             if tty and args.speed > 0 and lm.time_s >= next_draw:
                 next_draw = lm.time_s + args.refresh * args.speed
                 time.sleep(max(0.0, (lm.time_s - t_log0) / args.speed - (time.monotonic() - t_wall0)))
-                screen = render(st, d, args.url, lm.time_s, paint, timeout_s=args.timeout,
+                screen = render(st, d, title, lm.time_s, paint, timeout_s=args.timeout,
                                 rows=_terminal_rows(), **kw)  # type: ignore[arg-type]
                 sys.stdout.write("\x1b[H\x1b[2J" + screen + "\n")
                 sys.stdout.flush()
     except KeyboardInterrupt:
         return 130
     st = fleet.pick(args.system) or GroundState(d)
-    print(render(st, d, args.url, messages[-1].time_s, paint, timeout_s=args.timeout, **kw))  # type: ignore[arg-type]
+    print(render(st, d, title, messages[-1].time_s, paint, timeout_s=args.timeout, **kw))  # type: ignore[arg-type]
     return 0
+
+
+class MultiLink:
+    """Several :class:`~ground.link.GroundLink` (one per vehicle link) read as one."""
+
+    def __init__(self, links: list[Any]) -> None:
+        self.links = links
+        self._next = 0
+
+    def recv(self, timeout_s: float) -> Any:
+        """One message from the links in turn (each waits its share of ``timeout_s``)."""
+        for _ in range(len(self.links)):
+            link = self.links[self._next]
+            self._next = (self._next + 1) % len(self.links)
+            msg = link.recv(timeout_s=timeout_s / len(self.links))
+            if msg is not None:
+                return msg
+        return None
+
+    @property
+    def reconnects(self) -> int:
+        return sum(link.reconnects for link in self.links)
+
+    @property
+    def error(self) -> str | None:
+        return next((f"{link.url}: {link.error}" for link in self.links if link.error), None)
+
+    def close(self) -> None:
+        for link in self.links:
+            link.close()
 
 
 def run(args: argparse.Namespace, d: GroundDictionary) -> int:
@@ -194,13 +232,23 @@ def run(args: argparse.Namespace, d: GroundDictionary) -> int:
     if args.refresh <= 0 or args.timeout <= 0 or (args.duration is not None and args.duration < 0) or args.speed < 0:
         print("safer-ground listen: --refresh, --timeout, --duration and --speed must be positive", file=sys.stderr)
         return 2
-    if args.url.endswith(".tlog"):
+    logs = [u.endswith(".tlog") for u in args.url]
+    if all(logs):
         return replay(args, d)
+    if any(logs):
+        print("safer-ground listen: give links or .tlog files, not both", file=sys.stderr)
+        return 2
+    links: list[GroundLink] = []
     try:
-        link = GroundLink(args.url, args.baud)
+        for url in args.url:
+            links.append(GroundLink(url, args.baud))
     except LinkError as exc:
+        for open_link in links:
+            open_link.close()
         print(f"safer-ground listen: {exc}", file=sys.stderr)
         return 2
+    link = MultiLink(links)
+    title = " + ".join(args.url)
     tty = sys.stdout.isatty()
     paint = Painter(tty and not args.no_color)
     fleet = Fleet(d)
@@ -214,7 +262,7 @@ def run(args: argparse.Namespace, d: GroundDictionary) -> int:
                 fleet.feed(msg, now)
             if tty and now >= next_draw:
                 next_draw = now + args.refresh
-                screen = render(fleet.pick(args.system) or GroundState(d), d, args.url, now, paint, link.reconnects,
+                screen = render(fleet.pick(args.system) or GroundState(d), d, title, now, paint, link.reconnects,
                                 link.error, args.timeout, channels=tuple(args.channels), rows=_terminal_rows(),
                                 steps=args.steps, fleet=fleet)
                 sys.stdout.write("\x1b[H\x1b[2J" + screen + "\n")
@@ -224,7 +272,7 @@ def run(args: argparse.Namespace, d: GroundDictionary) -> int:
     finally:
         link.close()
     if not tty:
-        print(render(fleet.pick(args.system) or GroundState(d), d, args.url, time.monotonic(), paint,
+        print(render(fleet.pick(args.system) or GroundState(d), d, title, time.monotonic(), paint,
                      link.reconnects, link.error, args.timeout, channels=tuple(args.channels), steps=args.steps,
                      fleet=fleet))
     return 0

@@ -18,6 +18,10 @@ Topics of a source ``recon`` (Foxglove schema in brackets):
 - ``/recon/view`` (``foxglove.SceneUpdate``: the chosen next view as an arrow)
 - ``/recon/events`` (``foxglove.Log``)
 
+A team mission's Cliff-bot is the source ``cliffbot`` (:class:`CliffbotTap`): the map it
+received on ``/cliffbot/map/elevation``, ``map -> cliffbot/base_link`` (its navigation estimate)
+on ``/tf``, its events on ``/cliffbot/events``.
+
 Log times are mission seconds (the executive's clock), so a lockstep recording is the same for
 the same seed.
 """
@@ -136,6 +140,25 @@ class VehicleSource:
         ]), log_time=_ns(t))
         self.counts["pose"] += 1
 
+    def received_map(self, t: float, z: np.ndarray, grid: Any) -> None:
+        """A map as an agent received it (heights only, NaN unknown; ``grid`` a ``MapGrid``):
+        ``/<vehicle>/map/elevation``."""
+        pose = fm.Pose(position=fm.Vector3(x=grid.x0, y=grid.y0, z=0.0), orientation=fm.Quaternion(w=1.0))
+        data = np.ascontiguousarray(z, dtype="<f4")
+        self.grids["elevation"].log(fm.Grid(
+            timestamp=_stamp(t), frame_id="map", pose=pose, column_count=grid.nx,
+            cell_size=fm.Vector2(x=grid.cell, y=grid.cell), row_stride=4 * grid.nx, cell_stride=4,
+            fields=[fm.PackedElementField(name="elevation", offset=0, type=fm.PackedElementFieldNumericType.Float32)],
+            data=data.tobytes()), log_time=_ns(t))
+        self.counts["map"] += 1
+
+    def body_pose(self, t: float, x: float, y: float, z: float, yaw: float) -> None:
+        """``map -> <vehicle>/base_link`` for a vehicle without a mast (the Cliff-bot)."""
+        self.rec.tf.log(fm.FrameTransforms(transforms=[fm.FrameTransform(
+            timestamp=_stamp(t), parent_frame_id="map", child_frame_id=self.base,
+            translation=fm.Vector3(x=x, y=y, z=z), rotation=_quat(0.0, 0.0, yaw))]), log_time=_ns(t))
+        self.counts["pose"] += 1
+
     def images(self, t: float, left: np.ndarray, right: np.ndarray) -> None:
         for side, img in (("left", left), ("right", right)):
             ok, buf = cv2.imencode(".png", np.asarray(img))
@@ -230,6 +253,53 @@ class BusTap:
                 src.plan_update(now, plan.stations, plan.fence, plan.current)
             for ev in events:
                 src.event(ev)
+
+    def close(self) -> None:
+        if self._events.append in self.exe.events.listeners:
+            self.exe.events.listeners.remove(self._events.append)
+
+
+class CliffbotTap:
+    """Feed ``source`` from the Cliff-bot's executive ``exe``: every map its radio delivered
+    (``cliffbot.map``) as ``/<vehicle>/map/elevation``, its navigation estimate (the mission's
+    ``x_m``, ``y_m``, ``yaw_deg``; height from the received map) on ``/tf`` at most every
+    ``pose_period_s``, and its events."""
+
+    def __init__(self, exe: Any, source: VehicleSource, pose_period_s: float = 0.2, mission: str = "mission") -> None:
+        from fsw.core.geometry import MapGrid
+        from fsw.tasks.cliffbot.messages import CB_MAP
+
+        self.exe, self.source, self.pose_period_s, self.mission = exe, source, pose_period_s, mission
+        self.grid = MapGrid.from_config(exe.ctx.cfg.map)
+        self.maps = exe.bus.subscribe(CB_MAP, f"recorder.{source.vehicle}", depth=4)
+        self._z: np.ndarray | None = None
+        self._events: list[Event] = []
+        exe.events.listeners.append(self._events.append)
+        self._next_pose_s = 0.0
+
+    def poll(self) -> None:
+        now = float(self.exe.ctx.clock.now())
+        for got in self.maps.drain():
+            self._z = np.asarray(got.z, np.float32)
+            self.source.received_map(now, self._z, self.grid)
+        tm = self.exe.telemetry
+        names = [f"{self.mission}.{c}" for c in ("x_m", "y_m", "yaw_deg")]
+        if now >= self._next_pose_s and all(n in tm.values for n in names):
+            x, y, yaw_deg = (tm.get(n) for n in names)
+            if None not in (x, y, yaw_deg):
+                self._next_pose_s = now + self.pose_period_s
+                self.source.body_pose(now, float(x), float(y), self._height(float(x), float(y)),
+                                      math.radians(float(yaw_deg)))
+        events, self._events[:] = list(self._events), []
+        for ev in events:
+            self.source.event(ev)
+
+    def _height(self, x: float, y: float) -> float:
+        g = self.grid
+        ix, iy = int((x - g.x0) // g.cell), int((y - g.y0) // g.cell)
+        if self._z is None or not (0 <= ix < g.nx and 0 <= iy < g.ny) or not np.isfinite(self._z[iy, ix]):
+            return 0.0
+        return float(self._z[iy, ix])
 
     def close(self) -> None:
         if self._events.append in self.exe.events.listeners:

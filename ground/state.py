@@ -18,15 +18,11 @@ from typing import Any
 
 from fsw.comm.mavlink_dialect import mavlink
 from fsw.comm.mavlink_image import ImageReceiver
-from fsw.comm.mavlink_telemetry import DICT_CRC_KEY, mast_pan_tilt, mode_name
+from fsw.comm.mavlink_telemetry import DICT_CRC_KEY, VEHICLE_NAMES, mast_pan_tilt, mode_name
 from ground.dictionary import GroundDictionary
 
 SEVERITY_NAMES = {e: v.name.removeprefix("MAV_SEVERITY_") for e, v in mavlink.enums["MAV_SEVERITY"].items()}
 STATE_NAMES = {e: v.name.removeprefix("MAV_STATE_") for e, v in mavlink.enums["MAV_STATE"].items()}
-
-
-#: the project's vehicles by MAVLink system id (docs/ground.md): topic prefixes in recordings, names in listen
-VEHICLE_NAMES = {1: "recon", 2: "cliffbot"}
 
 
 def vehicle_name(system_id: int) -> str:

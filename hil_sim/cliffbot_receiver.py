@@ -106,13 +106,14 @@ class Cliffbot:
             h = dec.header
             outlines = None
             title = f"map {map_id}: {len(data)} bytes, bound {h.error_bound_m:.3f} m"
+            label = f"hazard: relief >= {h.hazard_threshold_m:.2f} m"
             if h.hazard:  # the obstacles (relief >= the hazard threshold) outlined in both
                 outlines = (relief(left, h.cell_m, h.relief_disc_m) >= h.hazard_threshold_m,
                             relief(z, h.cell_m, h.relief_disc_m) >= h.hazard_threshold_m)
-                title += f"; red: relief >= {h.hazard_threshold_m:.2f} m"
             try:
                 self.out_dir.mkdir(parents=True, exist_ok=True)
-                _atomic(path, lambda p: write_figure13(left, z, p, title, outlines=outlines, cell_m=h.cell_m))
+                _atomic(path, lambda p: write_figure13(left, z, p, title, outlines=outlines, cell_m=h.cell_m,
+                                                       outline_label=label))
                 _atomic(self.out_dir / f"cliffbot_map_{map_id}.npy", lambda p: np.save(p, z))
                 png = str(path)
             except OSError as exc:  # full or failing disk: the map stays received and decoded
@@ -134,22 +135,30 @@ def _atomic(path: Path, write: Callable[[Path], None]) -> None:
         tmp.unlink(missing_ok=True)
 
 
+UNKNOWN_COLOUR = "#2f6fd0"  # unknown cells in Figure 13 (blue: never read as a hazard)
+HAZARD_COLOUR = "#e02020"  # the outlines of ``outlines`` (the hazards)
+
+
 def write_figure13(original: NDArray[np.floating], received: NDArray[np.floating], path: Path,
                    title: str = "", outlines: tuple[NDArray[np.bool_], NDArray[np.bool_]] | None = None,
-                   cell_m: float | None = None) -> None:
+                   cell_m: float | None = None, outline_label: str = "hazard") -> None:
     """Paper Figure 13: grayscale elevation, original (left) and transmitted (right), drawn as
     every map picture is (row 0 = lowest y at the bottom, ``origin="lower"``, as ``map.png``);
-    axes in metres from the map's corner when ``cell_m`` is given, else in cells. ``outlines``
-    (one mask per panel, e.g. the obstacles) are drawn as red contours."""
+    axes in metres from the map's corner when ``cell_m`` is given, else in cells. Unknown cells
+    are :data:`UNKNOWN_COLOUR`; ``outlines`` (one mask per panel, e.g. the obstacles) are drawn as
+    :data:`HAZARD_COLOUR` contours; a legend names both when the picture has them."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
 
     both = np.concatenate([original[np.isfinite(original)], received[np.isfinite(received)]])
     lo, hi = (float(both.min()), float(both.max())) if both.size else (0.0, 1.0)
     fig, axes = plt.subplots(1, 2, figsize=(10, 5.2))
-    cmap = matplotlib.colormaps["gray"].with_extremes(bad="#c03030")
+    cmap = matplotlib.colormaps["gray"].with_extremes(bad=UNKNOWN_COLOUR)
+    outlined = False
     for ax, img, name in zip(axes, (original, received), ("original", "received by the Cliff-bot"),
                              strict=True):
         ny, nx = img.shape
@@ -159,12 +168,20 @@ def write_figure13(original: NDArray[np.floating], received: NDArray[np.floating
         if outlines is not None:
             mask = outlines[0] if img is original else outlines[1]
             if mask.any():
-                ax.contour(mask.astype(np.float32), levels=[0.5], colors="red", linewidths=0.6,
+                outlined = True
+                ax.contour(mask.astype(np.float32), levels=[0.5], colors=HAZARD_COLOUR, linewidths=0.6,
                            origin="lower", extent=extent)
         ax.set_title(name)
         ax.set_xlabel(f"x from the map's corner ({unit})")
         ax.set_ylabel(f"y ({unit})")
-    fig.colorbar(im, ax=axes, shrink=0.8, label="elevation [m] (red: unknown)")
+    fig.colorbar(im, ax=axes, shrink=0.8, label="elevation [m]")
+    handles: list[Patch | Line2D] = []
+    if not (np.isfinite(original).all() and np.isfinite(received).all()):
+        handles.append(Patch(facecolor=UNKNOWN_COLOUR, label="unknown"))
+    if outlined:
+        handles.append(Line2D([], [], color=HAZARD_COLOUR, linewidth=1.5, label=outline_label))
+    if handles:
+        fig.legend(handles=handles, loc="lower center", ncol=len(handles), frameon=False)
     if title:
         fig.suptitle(title)
     fig.savefig(path, dpi=110)

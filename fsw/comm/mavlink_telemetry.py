@@ -24,12 +24,20 @@ from fsw.comm.mavlink_dialect import mavlink
 from fsw.core.geometry import wrap_angle
 from fsw.framework.telemetry import Severity
 
-#: custom_mode = index in this table (docs/ground.md, "Modes"); 255 = a state not listed here.
-#: The mission sequencer's states (fsw/tasks/mission.py STATES; a test keeps them equal).
+#: The RECON-bot's mission sequencer's states (fsw/tasks/mission.py STATES; a test keeps them equal).
 MISSION_STATES = ("IDLE", "INIT", "SELECT", "MOVE", "POINT", "ACQUIRE", "TRANSMIT", "DONE", "SAFE")
+#: The Cliff-bot's mission states that the RECON-bot's do not have (fsw/tasks/cliffbot/checkpoint.py
+#: STATES; its DONE and SAFE are the RECON-bot's).
+CLIFFBOT_STATES = ("WAIT_MAP", "PLAN", "WAIT_FIX", "DRIVE", "DWELL")
+#: custom_mode = index in this table, one table for every agent (docs/ground.md, "Modes");
+#: 255 = a state not listed here.
+MODES = MISSION_STATES + CLIFFBOT_STATES
 UNKNOWN_MODE = 255
+#: the project's vehicles by MAVLink system id (docs/ground.md): topic prefixes in recordings, names
+#: in the ground tools and the MAVProxy module
+VEHICLE_NAMES = {1: "recon", 2: "cliffbot"}
 _IDLE_STATES = {"IDLE", "DONE"}
-_MOVING_STATES = {"INIT", "MOVE", "POINT"}  # wheels or mast may move: SAFETY_ARMED
+_MOVING_STATES = {"INIT", "MOVE", "POINT", "DRIVE"}  # wheels, winches or mast may move: SAFETY_ARMED
 
 MAV_SEVERITY_OF = {
     Severity.FATAL: mavlink.MAV_SEVERITY_EMERGENCY,
@@ -48,7 +56,7 @@ _INT32 = (-(2**31), 2**31 - 1)
 
 
 def mode_name(custom_mode: int) -> str:
-    return MISSION_STATES[custom_mode] if 0 <= custom_mode < len(MISSION_STATES) else f"MODE_{custom_mode}"
+    return MODES[custom_mode] if 0 <= custom_mode < len(MODES) else f"MODE_{custom_mode}"
 
 
 def mode_fields(state: Any, fatal: bool, simulated: bool) -> tuple[int, int, int]:
@@ -66,8 +74,8 @@ def mode_fields(state: Any, fatal: bool, simulated: bool) -> tuple[int, int, int
             idx = int(state)
         except (TypeError, ValueError, OverflowError):
             idx = UNKNOWN_MODE
-        name = MISSION_STATES[idx] if 0 <= idx < len(MISSION_STATES) else f"MODE_{idx}"
-    custom = MISSION_STATES.index(name) if name in MISSION_STATES else UNKNOWN_MODE
+        name = mode_name(idx)
+    custom = MODES.index(name) if name in MODES else UNKNOWN_MODE
     # standard mode flags only (no MAV_MODE_FLAG_CUSTOM_MODE_ENABLED): a stock ground station then
     # names the mode from the flags (QGroundControl: "Auto"; MAVProxy: the flags in hex) instead
     # of reading custom_mode through another autopilot's table (MAVProxy showed ArduRover's names).

@@ -60,8 +60,9 @@ def fig13(z: Any, zd: Any, wheel: float, cell: float, stats: dict[str, Any], tit
         return (relief(m, cell, disc_m) >= wheel) | (step(m, cell, wheel) >= wheel)
 
     write_figure13(z, zd, path, f"{title}: reduction {stats['reduction']:.1f}x, {stats['bytes']} bytes, "
-                   f"max error {stats['max_error_m']:.3f} m; red: relief or step >= wheel {wheel:.3f} m",
-                   outlines=(hazards(z), hazards(zd)), cell_m=cell)
+                   f"max error {stats['max_error_m']:.3f} m",
+                   outlines=(hazards(z), hazards(zd)), cell_m=cell,
+                   outline_label=f"hazard: relief or step >= wheel {wheel:.3f} m")
 
 
 def report_md(rows: list[dict[str, Any]], maps: list[dict[str, Any]], dhs: list[float], codec: Any,

@@ -66,6 +66,7 @@ from typing import Any
 
 import numpy as np
 
+from fsw.comm.mavlink_telemetry import VEHICLE_NAMES
 from fsw.core.geometry import MapGrid
 from fsw.drivers.map_store import MapStore
 from fsw.drivers.resources import OracleTruth, Resources
@@ -296,6 +297,12 @@ def run_mission(
         if world.team is not None and isinstance(port_flight, FixWatch):  # the Cliff-bot's executive, from now
             team = CliffbotAgent(bench, world, channel, port_flight, spec.seed, datum_m, spec.out, spec.faults,
                                  recon_done=lambda: mission.state in ("DONE", "SAFE"))
+        taps = [] if tap is None or recorder is None else [tap]
+        if taps and team is not None:  # the Cliff-bot is the recording's second source
+            from ground.recording import CliffbotTap
+
+            sid = team.cfg.mavlink.system_id
+            taps.append(CliffbotTap(team.exe, recorder.source(VEHICLE_NAMES.get(sid, f"sys{sid}"))))
         watchdog = bench.exe.ctx.res.watchdog
         for key in ("off_map", "recoveries", "recoveries_resumed", "watchdog_frames"):
             counters.setdefault(key, 0)
@@ -306,13 +313,7 @@ def run_mission(
             while bench.clock.now() < limit_s:
                 odo = bench.rig.rover.odometer_m
                 bench.run(1)
-                if tap is not None:
-                    try:
-                        tap.poll()
-                    except Exception as exc:  # noqa: BLE001 - a recording that fails (full disk) must not end the mission
-                        recording_error = f"mission recording stopped: {type(exc).__name__}: {exc}"
-                        print(recording_error, file=sys.stderr)
-                        tap = None
+                recording_error = _poll_taps(taps, recording_error)
                 counters["unknown_frames"] += wheels_on_unknown(bench.rig, mission, odo)
                 if mission.state == "TRANSMIT" and 1 not in cliffbot.originals:
                     cliffbot.originals[1] = perception.map.z.astype(np.float32)
@@ -346,10 +347,11 @@ def run_mission(
                 team_end = bench.clock.now() + TEAM_MAX_S
                 while not team.finished() and bench.clock.now() < team_end:
                     bench.run(1)
+                    recording_error = _poll_taps(taps, recording_error)
         finally:
             bench.exe.thaw_heap()
-            if tap is not None and recorder is not None:
-                tap.close()
+            for tp in taps:
+                tp.close()
             if recorder is not None:
                 try:
                     recorder.close()
@@ -425,6 +427,19 @@ def run_mission(
                 summary["recording_error"] = recording_error
             summary["files"] = write_outputs(spec.out, summary, emap, truth_f, grid, extra)
     return summary
+
+
+def _poll_taps(taps: list[Any], error: str) -> str:
+    """Poll the recording's taps; a recording that fails (full disk) stops (``taps`` emptied) and
+    says why, and must not end the mission."""
+    try:
+        for t in taps:
+            t.poll()
+    except Exception as exc:  # noqa: BLE001 - see above
+        error = f"mission recording stopped: {type(exc).__name__}: {exc}"
+        print(error, file=sys.stderr)
+        taps.clear()
+    return error
 
 
 RECORDING_MIN_FREE = 512 * 2**20

@@ -236,5 +236,8 @@ class CliffbotAgent:
         return sec
 
     def close(self) -> None:
+        mavlink = self.exe.tasks.get("mavlink")
+        if mavlink is not None:
+            mavlink.close()  # flush and close cliffbot.tlog: its last second holds how the mission ended
         for bus in (self.sim_bus, self.flight_bus):
             bus.shutdown()

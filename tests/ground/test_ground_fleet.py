@@ -115,3 +115,24 @@ def test_map_follows_a_link_and_rewrites_the_picture_per_preview(tmp_path: Path)
     assert img is not None and img.shape[:2] == (16, 24)
     assert img[:, :6].max() == 0 and img[:, 10:].mean() > 50  # unknown black, known coloured
     assert cv2.imread(str(tmp_path / "live.cliffbot.png")) is not None
+
+
+def test_listen_replays_one_log_per_vehicle_together(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A team mission writes one .tlog per agent (``fsw.tlog``, ``cliffbot.tlog``): ``listen`` given
+    both replays them in time order and shows both vehicles; a link and a log together is a usage error."""
+    logs = {1: tmp_path / "fsw.tlog", 2: tmp_path / "cliffbot.tlog"}
+    bufs = {sid: io.BytesIO() for sid in logs}
+    writers = {sid: TlogWriter(buf) for sid, buf in bufs.items()}
+    parser = new_codec(250, 1)
+    for k, f in enumerate(_frames()):
+        sid = (parser.parse_buffer(f) or [])[0].get_srcSystem()
+        if sid in writers:
+            writers[sid].write(1.7e9 + 0.3 * k, f)
+    for sid, path in logs.items():
+        writers[sid].flush()
+        path.write_bytes(bufs[sid].getvalue())
+    assert ground_main(["listen", "--no-color", str(logs[1]), str(logs[2])]) == 0
+    out = capsys.readouterr().out
+    assert "recon (sys 1) MOVE" in out and "cliffbot (sys 2) SELECT" in out
+    assert f"{logs[1]} + {logs[2]}" in out
+    assert ground_main(["listen", str(logs[1]), "udpin:127.0.0.1:9"]) == 2

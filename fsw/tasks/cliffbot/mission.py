@@ -59,6 +59,7 @@ class CliffbotMissionTask(FlightTask):
     )
     EVENTS = (
         *(EventDef(name, sev, "{text}") for name, sev in MISSION_EVENTS.items()),
+        EventDef("STATE", A, "mission {old} -> {new}"),  # each change of mode (the HEARTBEAT's, docs/ground.md)
         EventDef("RESUMED", A, "continued from checkpoint in {state}: {text}"),
         EventDef("CHECKPOINT_REFUSED", Severity.WARNING_LO, "checkpoint not used: {error}"),
         EventDef("CHECKPOINT_FAILED", Severity.WARNING_LO, "checkpoint not written: {error}", throttle=5),
@@ -86,6 +87,7 @@ class CliffbotMissionTask(FlightTask):
         self._safe_since: float | None = None
         self._last_t: float | None = None
         self._restore()
+        self._state = self.mission.state
 
     # -- commands ------------------------------------------------------------------------------
     def cmd_RECOVER(self) -> None:
@@ -124,6 +126,9 @@ class CliffbotMissionTask(FlightTask):
                 self.publish(CB_FIX_REQUEST, FixRequest(m.fix_seq, m.leg_i, float(xy[0]), float(xy[1])))
         self._auto_recover(now)
         self._events()
+        if m.state != self._state:
+            self.event("STATE", old=self._state, new=m.state)
+            self._state = m.state
         self._checkpoint(now)
         self._telemetry()
 

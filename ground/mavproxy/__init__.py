@@ -1,0 +1,1 @@
+"""MAVProxy support shipped with the project: ``module load ground.mavproxy.safer`` (docs/ground.md, "MAVProxy")."""
