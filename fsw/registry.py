@@ -51,6 +51,7 @@ RECON = AgentTopology(
 CLIFFBOT_KINDS: dict[str, str] = {
     "cliffbot_devices": "fsw.tasks.cliffbot.devices:CliffbotDevicesTask",
     "cliffbot_radio": "fsw.tasks.cliffbot.radio:CliffbotRadioTask",
+    "cliffbot_nav": "fsw.tasks.cliffbot.navigation:CliffbotNavTask",
     "cliffbot_mission": "fsw.tasks.cliffbot.mission:CliffbotMissionTask",
 }
 

@@ -43,6 +43,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("experiment", "registration"): "hil_sim.lab.experiments.experiment_registration",
     ("experiment", "fiducials"): "hil_sim.lab.experiments.experiment_fiducials",
     ("experiment", "team"): "hil_sim.lab.experiments.experiment_team",
+    ("experiment", "team-mission"): "hil_sim.lab.experiments.experiment_team_mission",
     ("experiment", "sync"): "hil_sim.lab.experiments.experiment_sync",
     ("experiment", "face-map"): "hil_sim.lab.experiments.experiment_face_map",
     ("experiment", "team-sensing"): "hil_sim.lab.experiments.experiment_team_sensing",

@@ -213,14 +213,18 @@ class SensingPipeline:
         stage("register")
         placed = yield from self.register_steps(view, pts)
         stage("merge")
-        # Which cells this view was expected to see (P_V on the map before the merge, §3.1):
-        # those that get no point count a miss and lose interest (§3.4, §4).
-        p_visible = None
-        if self.map.mapped.any():
-            p_visible = yield from predicted_visibility_steps(self.map, view.pose, cfg.camera, cfg.nbv.visibility)
-            yield
         parts = yield from self.world_parts_steps(placed, pts)
         del pts  # the camera-frame points: every use is above
+        # Which cells this view was expected to see (P_V on the map before the merge, §3.1):
+        # those that get no point count a miss and lose interest (§3.4, §4). Only those need
+        # P_V: the cells the view's points fall in are not rated (with a face map, which takes
+        # some points away from the grid, every cell in view is).
+        p_visible = None
+        if self.map.mapped.any():
+            hit = self.map.hit_cells(parts) if self.face is None else None
+            p_visible = yield from predicted_visibility_steps(self.map, view.pose, cfg.camera, cfg.nbv.visibility,
+                                                              skip=hit)
+            yield
         merged = yield from self.fuse_steps(placed, parts, p_visible)
         return replace(merged, alignment=alignment)
 

@@ -1,9 +1,14 @@
 """The Cliff-bot's mission: to each science target and back up, on the map it received
 (docs/team.md, "The Cliff-bot's flight code").
 
-Sans I/O: :meth:`CliffbotMission.step` takes the devices' latest statuses and returns the
-commands (winch rates, wheel rates, enable, clear-faults) and whether to ask the RECON-bot
-for a fix. States:
+Sans I/O: :meth:`CliffbotMission.step` takes the devices' latest statuses and the
+navigation's latest estimate (:meth:`CliffbotMission.on_estimate`) and returns the commands
+(winch rates, wheel rates, enable, clear-faults) and whether to ask the RECON-bot for a fix.
+The navigation is not the mission's: the EKF (:class:`fsw.core.team.cliffbot_nav.Navigator`)
+runs beside it (the ``cb_nav`` task, or a bench loop through :func:`navigate`); it plans on
+the map the mission filled by contact, judges each fix (the mission stops on a refused one)
+and takes the estimate the mission hands it back (:attr:`CliffbotMission.nav_reset`: after a
+recovery from a refused fix, or a checkpoint). States:
 
 ``WAIT_MAP`` (no map yet) -> ``PLAN`` (every target planned from the start on the received
 map with :func:`fsw.core.team.face_planner.plan_targets`; a target it cannot reach is
@@ -19,7 +24,8 @@ bit (stall, slip, over-tension, spool, timeout), a device whose status stopped, 
 within ``fix_timeout_s`` of the request (the link is lost), a fix refused by the
 navigation's gate (it disagrees with the estimate beyond both covariances), a leg with no
 usable start. :meth:`recover` (a ground command) clears the winches' faults, takes the
-last fix as the estimate if that was the cause, and re-plans the leg it was on from there.
+last fix as the estimate if that was the cause (``nav_reset``), and re-plans the leg it was
+on from there.
 """
 
 from __future__ import annotations
@@ -34,14 +40,15 @@ from numpy.typing import NDArray
 from fsw.comm.team.fix_packets import Fix
 from fsw.comm.team.team_can import WINCHES
 from fsw.core.geometry import MapGrid
-from fsw.core.team.cliffbot_nav import CliffbotNav, NavConfig
+from fsw.core.team.cliffbot_nav import NavConfig, Navigator
 from fsw.core.team.contact_ground import fill_under_body
-from fsw.core.team.face_planner import ClimberConfig, plan_targets
-from fsw.core.team.tether import TetherConfig, tether_state
+from fsw.core.team.face_planner import ClimberConfig, Margins, ground_layers, plan_targets
+from fsw.core.team.tether import TetherConfig, settle, tether_state
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig
 
 F64 = NDArray[np.float64]
+BODY_MARGIN_M = 0.1  # the body's box as mapped (stereo smear, the estimate's error) beyond the footprint
 FAULT_BITS = ("FaultStall", "FaultSlip", "FaultOverTension", "FaultSpool", "FaultTimeout")
 
 
@@ -52,6 +59,18 @@ class Commands:
     clear_faults: bool
     wheels_radps: tuple[float, float]
     request_fix: bool
+
+
+@dataclass
+class Estimate:
+    """The navigation's estimate as the mission knows it: ``s = (x, y, yaw)`` and its covariance."""
+
+    s: F64
+    P: F64
+
+    @property
+    def xy(self) -> F64:
+        return self.s[:2].copy()
 
 
 @dataclass
@@ -66,20 +85,26 @@ class CliffbotMission:
     def __init__(self, cfg: CliffbotMissionConfig, tcfg: TetherConfig, ccfg: ClimberConfig, ncfg: NavConfig,
                  anchors: F64, start_xy: F64, start_yaw: float, targets_xy: F64) -> None:
         self.cfg, self.tcfg, self.ccfg = cfg, tcfg, ccfg
-        # what the planner uses: limits with the tracking margins (the body is between nodes
-        # and waypoints while it moves, and the bench judges every place it passes)
+        # Between waypoints the body is off the lattice and the bench judges every place it passes.
+        # Tensions change fast with the place near the lip: the planner keeps them tension_margin_n
+        # inside their limits (a hard margin). The footprint's clearance from hazards is soft
+        # (face_planner.Margins): paths keep track_margin_m clear where the ground leaves room,
+        # without calling a target the wheels can reach unreachable.
         self.plan_tcfg = dataclasses.replace(tcfg, t_min_n=tcfg.t_min_n + cfg.tension_margin_n,
                                              t_max_n=max(tcfg.t_max_n - cfg.tension_margin_n, tcfg.t_min_n + 1.0))
-        self.plan_ccfg = dataclasses.replace(ccfg, footprint_m=ccfg.footprint_m + cfg.track_margin_m)
+        self.margins = Margins(cfg.track_margin_m)
         self.anchors = np.asarray(anchors, float)
         self.start = np.asarray(start_xy, float)
         self.targets = np.asarray(targets_xy, float).reshape(-1, 2)
-        self.nav = CliffbotNav(self.start, start_yaw, ncfg)
+        s0 = np.array([float(self.start[0]), float(self.start[1]), float(start_yaw)])
+        self.est = Estimate(s0, np.diag([ncfg.init_sigma_m ** 2, ncfg.init_sigma_m ** 2, math.radians(10.0) ** 2]))
+        self.nav_reset: Estimate | None = None  # an estimate the navigation is to take (recovery, checkpoint)
         self.state = "WAIT_MAP"
         self.events: list[tuple[float, str, str]] = []
         self.safe_reason = ""
         self.z: F64 | None = None
         self.grid: MapGrid | None = None
+        self.hazard: NDArray[np.bool_] = np.zeros((0, 0), bool)
         self.map_version = 0
         self.legs: list[Leg] = []
         self.leg_i = 0
@@ -88,6 +113,7 @@ class CliffbotMission:
         self.reached: list[bool] = [False for _ in range(len(self.targets))]
         self.planned_lengths: list[float] = [math.inf for _ in range(len(self.targets))]
         self.fix_asked_at: float | None = None
+        self.fix_wanted = False  # a fix asked for by ground command
         self.fix_seq = 0
         self.last_fix: Fix | None = None
         self.fixes_used = 0
@@ -96,17 +122,23 @@ class CliffbotMission:
         self.replan = False
         self.dwell_until = 0.0
         self.clear_frames = 0
-        self.last_wheel: float | None = None
         self.now = 0.0
 
     # -- inputs -----------------------------------------------------------------------------
     def event(self, name: str, text: str) -> None:
         self.events.append((round(self.now, 3), name, text))
 
-    def set_map(self, z: F64, grid: MapGrid) -> None:
-        # the ground under its own body is hidden from every camera but known by contact
-        self.z, filled = fill_under_body(z, grid, self.nav.xy, self.plan_ccfg.footprint_m)
+    def set_map(self, z: F64, grid: MapGrid, error_bound_m: float = 0.0) -> None:
+        """A map received (``error_bound_m``: the codec's bound on its heights' error)."""
+        # the ground under its own body is hidden from every camera (the RECON-bot maps the body's
+        # box there) but known by contact
+        # (the footprint of the lattice node nearest to where it stands: a node spacing more)
+        r = self.ccfg.footprint_m + self.cfg.track_margin_m + self.ccfg.node_m
+        # (a ring is as flat as the map can tell: half the codec's error bound, at least 3 cm)
+        flat = max(0.03, 0.5 * error_bound_m) if math.isfinite(error_bound_m) else 0.03
+        self.z, filled = fill_under_body(z, grid, self.est.xy, r, body_m=r + BODY_MARGIN_M, max_rms_m=flat)
         self.grid = grid
+        self.hazard = ground_layers(self.z, grid, self.ccfg).hazard  # where the way between waypoints may not go
         self.map_version += 1
         self.event("MAP", f"map {self.map_version}: {int(np.isfinite(self.z).sum())} known cells"
                    + (f", {filled} under the body known by contact" if filled else ""))
@@ -125,17 +157,20 @@ class CliffbotMission:
         self.reasons = ["" for _ in range(len(t))]
         self.reached = [False for _ in range(len(t))]
         self.planned_lengths = [math.inf for _ in range(len(t))]
-        self.start = self.nav.xy if self.state not in ("WAIT_MAP",) else self.start
+        self.start = self.est.xy if self.state not in ("WAIT_MAP",) else self.start
         if self.state != "WAIT_MAP" and self.state != "SAFE":
             self.state = "PLAN"
 
-    def on_fix(self, fix: Fix) -> None:
-        """A fiducial fix from the RECON-bot: fused, or refused (SAFE) when it disagrees."""
+    def on_estimate(self, s: F64, cov: F64) -> None:
+        """The navigation's latest estimate."""
+        self.est = Estimate(np.asarray(s, float).reshape(3).copy(), np.asarray(cov, float).reshape(3, 3).copy())
+
+    def on_fix(self, fix: Fix, ok: bool, nis: float) -> None:
+        """A fiducial fix from the RECON-bot and the navigation's verdict on it (:func:`fix_xyyaw`):
+        fused, or refused (SAFE) when it disagrees with the estimate beyond both covariances."""
         self.last_fix = fix
-        cov3 = fix.cov[np.ix_([3, 4, 2], [3, 4, 2])]
-        ok, nis = self.nav.fix(fix.position[:2], fix.yaw, cov3)
         self.fix_log.append((self.now, float(fix.position[0]), float(fix.position[1]), fix.yaw,
-                             float(self.nav.s[0]), float(self.nav.s[1]), float(self.nav.s[2]), nis))
+                             float(self.est.s[0]), float(self.est.s[1]), float(self.est.s[2]), nis))
         if not ok:
             self.fixes_refused += 1
             self.event("FIX_REFUSED", f"fix {fix.seq} disagrees with the estimate (NIS {nis:.1f})")
@@ -161,8 +196,9 @@ class CliffbotMission:
         if self.state != "SAFE":
             return
         if self.safe_reason.startswith("fix disagrees") and self.last_fix is not None:
-            f = self.last_fix
-            self.nav.reset(f.position[:2], f.yaw, f.cov[np.ix_([3, 4, 2], [3, 4, 2])])
+            xy, yaw, cov3 = fix_xyyaw(self.last_fix)
+            self.est = Estimate(np.array([xy[0], xy[1], yaw]), cov3)
+            self.nav_reset = self.est
         self.event("RECOVER", f"leaving SAFE ({self.safe_reason})")
         self.safe_reason = ""
         self.clear_frames = 3
@@ -182,9 +218,26 @@ class CliffbotMission:
         self.clear_frames = max(0, self.clear_frames - 1)
         return Commands((0.0, 0.0), self.state not in ("SAFE",), clear, (0.0, 0.0), request)
 
-    def step(self, now: float, dev: CliffbotDevices, dt: float) -> Commands:
+    def request_fix(self) -> None:
+        """Ground command: ask the RECON-bot for a fix now (on a leg or at a target; a leg's start
+        asks by itself). The answer is fused like any fix; on a leg it re-plans from there."""
+        if self.state in ("DRIVE", "DWELL"):
+            self.fix_wanted = True
+        else:
+            self.event("FIX_REQUEST", f"not now: {self.state}")
+
+    def step(self, now: float, dev: CliffbotDevices) -> Commands:
+        """One step on the devices' statuses and the estimate last given (:meth:`on_estimate`)."""
+        cmd = self._step(now, dev)
+        if self.fix_wanted and self.state in ("DRIVE", "DWELL"):
+            self.fix_wanted = False
+            self.fix_seq += 1
+            self.event("FIX_REQUEST", f"request {self.fix_seq} on command, leg {self.leg_i + 1}")
+            cmd = dataclasses.replace(cmd, request_fix=True)
+        return cmd
+
+    def _step(self, now: float, dev: CliffbotDevices) -> Commands:
         self.now = now
-        self._navigate(dev, dt)
         if self.state == "SAFE":
             return self._hold()
         if self.clear_frames == 0:
@@ -222,25 +275,10 @@ class CliffbotMission:
             return self._drive(dev)
         return self._hold()
 
-    def _navigate(self, dev: CliffbotDevices, dt: float) -> None:
-        att = dev.attitude
-        if dev.wheels is not None:
-            w = 0.5 * (dev.wheels.left_rad + dev.wheels.right_rad) * self.cfg.wheel_radius_m
-            if self.last_wheel is not None:
-                self.nav.predict(w - self.last_wheel, att.pitch_deg if att is not None else 0.0, dt,
-                                 math.radians(att.yaw_deg) if att is not None else None)
-            self.last_wheel = w
-        if att is not None:
-            self.nav.heading(att.yaw_deg)
-        a, b = dev.winch.get(WINCHES[0]), dev.winch.get(WINCHES[1])
-        if self.z is not None and self.grid is not None and a is not None and b is not None:
-            self.nav.lengths((a.paid_out_m, b.paid_out_m), self.z, self.grid, self.anchors, self.tcfg,
-                             self.ccfg.footprint_m)
-
     def _plan_all(self) -> None:
         assert self.z is not None and self.grid is not None
-        plan = plan_targets(self.z, self.grid, self.anchors, self.nav.xy, self.targets, self.plan_tcfg,
-                            self.plan_ccfg)
+        plan = plan_targets(self.z, self.grid, self.anchors, self.est.xy, self.targets, self.plan_tcfg, self.ccfg,
+                            self.margins)
         self.legs = []
         for k, why in enumerate(plan.reasons):
             self.reasons[k] = why
@@ -264,9 +302,23 @@ class CliffbotMission:
             self.event("DONE", "all legs driven")
             return
         leg = self.legs[self.leg_i]
-        plan = plan_targets(self.z, self.grid, self.anchors, self.nav.xy, leg.goal[None, :], self.plan_tcfg,
-                            self.plan_ccfg)
-        path = plan.paths[0]
+        # it stands where the leg starts (held by its tethers): the way out of that node is planned;
+        # an edge the body cannot pass (the statics between its nodes) is cut and the leg planned again
+        cut: list[tuple[F64, F64]] = []
+        for _ in range(8):
+            plan = plan_targets(self.z, self.grid, self.anchors, self.est.xy, leg.goal[None, :], self.plan_tcfg,
+                                self.ccfg, self.margins, start_usable=True, blocked=cut)
+            path = plan.paths[0]
+            if path is None:
+                break
+            wps, bad = self._waypoints(path)
+            if bad is None:
+                break
+            cut.append(bad)
+        else:
+            path = None
+            plan = dataclasses.replace(plan, reasons=("no safe path",))
+        path = plan.paths[0] if path is not None else None
         if path is None:
             why = plan.reasons[0]
             if plan.start_reason:
@@ -277,14 +329,57 @@ class CliffbotMission:
             self.event("TARGET_UNREACHABLE", f"leg {self.leg_i + 1}: {why}")
             self._next_leg()
             return
-        every = self.cfg.waypoint_every
-        wps = [path[i] for i in range(every, len(path), every)]
-        if not wps or np.any(wps[-1] != path[-1]):
-            wps.append(path[-1])
         leg.waypoints, leg.length_m = wps, plan.lengths_m[0]
         self.wp_i = 0
         self.replan = False
         self.state = "DRIVE"
+
+    def _waypoints(self, path: F64) -> tuple[list[F64], tuple[F64, F64] | None]:
+        """Every ``waypoint_every``-th node of the path, or every node where the way between
+        would leave the limits: the winches move both lengths straight from one waypoint's
+        lengths to the next's, and the body follows where the statics put it, not the
+        path's line (near the lip the tensions change by tens of newtons over centimetres).
+        Also the first edge of the path the body cannot pass (None: none)."""
+        every = self.cfg.waypoint_every
+        out: list[F64] = []
+        i = 0
+        while i < len(path) - 1:
+            j = min(i + every, len(path) - 1)
+            if j > i + 1 and not self._passable(path[i], path[j]):
+                j = i + 1
+            if j == i + 1 and not self._passable(path[i], path[j]):
+                return out, (path[i], path[j])
+            out.append(path[j])
+            i = j
+        return (out or [path[-1]]), None
+
+    def _passable(self, a: F64, b: F64) -> bool:
+        """Whether the body, its tether lengths moved straight from ``a``'s to ``b``'s, stays in
+        the planning tension limits and off the map's hazards: followed as the bench does
+        (``settle`` on the map, the bench's model, each place from the last) in steps of at most
+        3 cm of tether."""
+        assert self.z is not None and self.grid is not None
+        z, grid, anchors, foot = self.z, self.grid, self.anchors, self.ccfg.footprint_m
+        sa = tether_state(z, grid, anchors, a, self.tcfg, foot)
+        sb = tether_state(z, grid, anchors, b, self.tcfg, foot)
+        if sa is None or sb is None:
+            return False
+        la, lb = np.asarray(sa.lengths_m), np.asarray(sb.lengths_m)
+        lo, hi = self.plan_tcfg.t_min_n, self.plan_tcfg.t_max_n
+        n = max(2, int(math.ceil(float(np.max(np.abs(lb - la))) / 0.03)))
+        xy = np.asarray(a, float)
+        for f in np.arange(1, n) / n:
+            got = settle(z, grid, anchors, (float(la[0] + f * (lb[0] - la[0])), float(la[1] + f * (lb[1] - la[1]))),
+                         xy, self.tcfg)
+            if got is None:
+                return False
+            xy, st = got[0], got[1].statics
+            if st.tilt_deg > self.ccfg.free_slope_deg and not (lo <= min(st.tensions_n) and max(st.tensions_n) <= hi):
+                return False
+            iy, ix, inside = grid.cell_index(xy[:1], xy[1:])
+            if not inside[0] or self.hazard[int(iy[0]), int(ix[0])]:
+                return False
+        return True
 
     def _next_leg(self) -> None:
         self.leg_i += 1
@@ -331,3 +426,23 @@ class CliffbotMission:
             rates *= self.cfg.max_rate_mps / peak  # both tethers paced to arrive together
         v = float(np.linalg.norm(rates)) / max(self.cfg.wheel_radius_m, 1e-3)
         return Commands((float(rates[0]), float(rates[1])), True, False, (v, v), False)
+
+
+def fix_xyyaw(fix: Fix) -> tuple[F64, float, F64]:
+    """A fix's place, heading and their 3x3 covariance (of its 6x6 over rotation and position)."""
+    return np.asarray(fix.position[:2], float), float(fix.yaw), fix.cov[np.ix_([3, 4, 2], [3, 4, 2])]
+
+
+def new_navigator(m: CliffbotMission, ncfg: NavConfig) -> Navigator:
+    """The navigation that goes with mission ``m``: its start, anchors, tether and footprint."""
+    return Navigator(m.est.xy, float(m.est.s[2]), ncfg, m.anchors, m.tcfg, m.ccfg.footprint_m)
+
+
+def navigate(nav: Navigator, dev: CliffbotDevices, dt: float, wheel_radius_m: float) -> None:
+    """One navigation step on the devices' statuses: the wheels' mean path, the IMU's pitch and
+    heading, the winches' paid-out lengths."""
+    att = dev.attitude
+    wheel = None if dev.wheels is None else 0.5 * (dev.wheels.left_rad + dev.wheels.right_rad) * wheel_radius_m
+    a, b = dev.winch.get(WINCHES[0]), dev.winch.get(WINCHES[1])
+    nav.step(wheel, att.pitch_deg if att is not None else None, att.yaw_deg if att is not None else None,
+             (a.paid_out_m, b.paid_out_m) if a is not None and b is not None else None, dt)

@@ -256,10 +256,13 @@ def run_mission(
     store, start, saved_bench = _prepare_store(spec, cfg, mode)
     counters: dict[str, Any] = {"violations": 0}
     bench_box: list[Any] = []
+    team_box: list[Any] = []
     if store is not None:
         resources.map_store = store
         resources.checkpoint_hooks = {
-            "bench": lambda: bench_state(bench_box[0], {"channel": channel}, counters),
+            # a team scenario: the Cliff-bot's checkpoint and hardware with the RECON-bot's
+            "bench": lambda: bench_state(bench_box[0], {"channel": channel}, counters)
+            | ({"team": team_box[0].state()} if team_box else {}),
         }
     hw = load_hardware(spec.hardware)
     if spec.camera == "ideal":
@@ -282,7 +285,8 @@ def run_mission(
         cliffbot = Cliffbot(cfg.link, ChannelPort(channel, "b", now), out_dir=spec.out)
         mission = bench.exe.tasks["mission"]
         perception = bench.exe.tasks["perception"]
-        recorder, tap = _recorder(spec.out, bench.exe, live)
+        recorder, tap = _recorder(spec.out, bench.exe, live,
+                                  ("recon", "cliffbot") if world.team is not None else ("recon",))
         recording_error = ""
         limit_s = max_sim_s if max_sim_s is not None else 120.0 + 90.0 * (spec.steps + 1) + 1200.0
         counters.setdefault("unknown_frames", 0)
@@ -295,14 +299,25 @@ def run_mission(
         datum_m = float(counters.setdefault("datum_m", float(bench.rig.rover.z)))
         team = None
         if world.team is not None and isinstance(port_flight, FixWatch):  # the Cliff-bot's executive, from now
-            team = CliffbotAgent(bench, world, channel, port_flight, spec.seed, datum_m, spec.out, spec.faults,
-                                 recon_done=lambda: mission.state in ("DONE", "SAFE"))
+            resumed_team = saved_bench.get("team") if saved_bench is not None else None
+            try:
+                team = CliffbotAgent(bench, world, channel, port_flight, spec.seed, datum_m, spec.out, spec.faults,
+                                     recon_done=lambda: mission.state in ("DONE", "SAFE"), resume=resumed_team)
+            except BenchStateError as exc:
+                raise ValueError(f"checkpoint cannot be resumed: {exc}") from None
+            team_box.append(team)
         taps = [] if tap is None or recorder is None else [tap]
         if taps and team is not None:  # the Cliff-bot is the recording's second source
             from ground.recording import CliffbotTap
 
             sid = team.cfg.mavlink.system_id
-            taps.append(CliffbotTap(team.exe, recorder.source(VEHICLE_NAMES.get(sid, f"sys{sid}"))))
+            name = VEHICLE_NAMES.get(sid, f"sys{sid}")
+            mirrors: tuple[Any, ...] = ()
+            if len(tap.sinks) > 1:  # the live view, too
+                from ground.rerun_cli import LiveSource
+
+                mirrors = tuple(LiveSource(m.rec, name) for m in tap.sinks[1:])
+            taps.append(CliffbotTap(team.exe, recorder.source(name), mirrors=mirrors))
         watchdog = bench.exe.ctx.res.watchdog
         for key in ("off_map", "recoveries", "recoveries_resumed", "watchdog_frames"):
             counters.setdefault(key, 0)
@@ -343,7 +358,7 @@ def run_mission(
                 if mission.state == "DONE" or (mission.state == "SAFE" and (
                         cfg.mission.safe_recover_s <= 0 or mission.safe.final)):
                     break
-            if team is not None:  # the Cliff-bot's mission goes on after the RECON-bot's
+            if team is not None and mission.state in ("DONE", "SAFE"):  # the Cliff-bot's goes on after it
                 team_end = bench.clock.now() + TEAM_MAX_S
                 while not team.finished() and bench.clock.now() < team_end:
                     bench.run(1)
@@ -446,10 +461,12 @@ RECORDING_MIN_FREE = 512 * 2**20
 TEAM_MAX_S = 1800.0  # the Cliff-bot's mission may go on this long after the RECON-bot's (bench s)
 
 
-def _recorder(out: Path | None, exe: Any, live: str | None = None) -> tuple[Any, Any]:
+def _recorder(out: Path | None, exe: Any, live: str | None = None,
+              vehicles: tuple[str, ...] = ("recon",)) -> tuple[Any, Any]:
     """The mission's Foxglove recording (``ground.recording``) in ``out`` and the bus tap feeding
     it; a resumed mission starts a new file (``mission.1.mcap``, ...), never overwrites one.
-    ``live``: also stream the mission to a live view (``safer-ground rerun --live``) at this URL.
+    ``live``: also stream the mission to a live view (``safer-ground rerun --live``) at this URL,
+    laid out for ``vehicles`` (a team's Cliff-bot joins it through its own tap, ``CliffbotTap``).
 
     No recording where ``out`` has less than ``RECORDING_MIN_FREE`` bytes free: a recording
     (camera pairs) runs to tens of MB and must not take the room the checkpoints, the .tlog
@@ -477,7 +494,7 @@ def _recorder(out: Path | None, exe: Any, live: str | None = None) -> tuple[Any,
     if live:
         from ground.rerun_cli import LiveSource, live_stream
 
-        mirrors = (LiveSource(live_stream(live, recording_id=path.parent.name), "recon"),)
+        mirrors = (LiveSource(live_stream(live, vehicles, recording_id=path.parent.name), "recon"),)
     return recorder, BusTap(exe, recorder.source("recon"), mirrors=mirrors)
 
 

@@ -5,10 +5,15 @@
   and whether the line crosses the surface more than once over more than the overhang gap (a
   truth overhang: two surfaces over one spot of the face).
 * :func:`face_figures`: the figures a team mission puts in its summary (``team.face_rmse_m``,
-  ``team.face_rmse_gravity_m``): the face map's error along the normal on its mapped,
-  single-surface cells, and the gravity grid's error on the same cells, measured the same way:
-  where the same line along the face normal crosses the gravity grid's heightfield (one height
-  per cell, as the grid is used), against the truth's crossing.
+  ``team.face_rmse_gravity_m``), at the same face points: the true surface's crossing of the
+  normal through each mapped, single-surface face cell's centre. Each map is queried there in
+  its own coordinates, as a user queries it, and its error is the distance from the point it
+  returns to the true point: the face map at ``(u, v)`` returns ``w`` (error along the normal),
+  the gravity grid at ``(x, y)`` returns its cell's ``z`` (error along the vertical: one 3 cm
+  cell on a 75 deg face holds 11 cm of face height). ``face_rmse_gravity_normal_m`` adds the
+  gravity grid's distance from the true surface along the same normal (where the normal
+  crosses its heightfield of one height per cell), the error a grid's staircase keeps when it
+  is read in the face's own direction.
 """
 
 from __future__ import annotations
@@ -29,14 +34,14 @@ B = NDArray[np.bool_]
 
 
 def along_normal(height: Callable[[F64, F64], F64], face: FaceMap, cells: NDArray[np.intp],
-                 reach_m: float = 1.0, step_m: float = 0.005, chunk: int = 4000) -> tuple[F64, B]:
+                 reach_m: float = 0.25, step_m: float = 0.005, chunk: int = 4000) -> tuple[F64, B]:
     """``(w, overhang)``: where the line through each face cell's centre (flat indices ``cells``)
     along the face normal leaves the heightfield ``height(x, y)`` for the last time (from below
-    the surface to above it; NaN where it does not inside ``+-reach_m``, or where ``height`` is
-    NaN there), and whether it crosses the surface more than once over more than the overhang
-    gap."""
+    the surface to above it; NaN where it does not inside the face map's slab grown by
+    ``reach_m``, or where ``height`` is NaN there), and whether it crosses the surface more than
+    once over more than the overhang gap."""
     g = face.grid
-    ws = np.arange(-reach_m, reach_m + step_m / 2, step_m)
+    ws = np.arange(-face.cfg.slab_in_m - reach_m, face.cfg.slab_out_m + reach_m + step_m / 2, step_m)
     out_w = np.full(len(cells), np.nan)
     out_o = np.zeros(len(cells), bool)
     gap = face.cfg.overhang_gap_m
@@ -83,6 +88,24 @@ def gravity_along_normal(gravity: ElevationMap, face: FaceMap, cells: NDArray[np
     return along_normal(height, face, cells)[0]
 
 
+def face_points(face: FaceMap, cells: NDArray[np.intp], w: F64) -> F64:
+    """World points ``(N, 3)`` at ``w`` on the normal through each face cell's centre."""
+    g = face.grid
+    u = g.x0 + (cells % g.nx + 0.5) * g.cell
+    v = g.y0 + (cells // g.nx + 0.5) * g.cell
+    return face.frame.to_world(np.column_stack([u, v, w]))
+
+
+def gravity_at_points(gravity: ElevationMap, face: FaceMap, cells: NDArray[np.intp], w_true: F64) -> F64:
+    """The gravity grid's error at the true face points (``w_true`` on each cell's normal): its
+    cell's ``z`` at the point's ``(x, y)`` less the point's ``z`` (NaN: unknown cell, no point)."""
+    p = face_points(face, cells, np.nan_to_num(w_true))
+    g = gravity.grid
+    iy, ix, inside = g.cell_index(p[:, 0], p[:, 1])
+    z = gravity.z[np.clip(iy, 0, g.ny - 1), np.clip(ix, 0, g.nx - 1)]
+    return np.where(inside & np.isfinite(w_true), z - p[:, 2], np.nan)
+
+
 def _rms(e: F64) -> float | None:
     e = e[np.isfinite(e)]
     return float(np.sqrt(np.mean(e * e))) if e.size else None
@@ -90,17 +113,20 @@ def _rms(e: F64) -> float | None:
 
 def face_figures(world: World, face: FaceMap, gravity: ElevationMap,
                  cells_by_agent: dict[str, int] | None = None) -> dict[str, Any]:
-    """The team summary's face figures: ``face_rmse_m`` (mapped single-surface face cells, the
-    face map), ``face_rmse_gravity_m`` (the same cells, read from ``gravity``; only cells both
-    have), ``face_cells``, ``overhang_truth``, ``overhang_flagged`` and ``cells_by_agent``."""
+    """The team summary's face figures (module docstring): ``face_rmse_m`` (mapped single-surface
+    face cells, the face map), ``face_rmse_gravity_m`` (the same points, queried from
+    ``gravity``; only cells both have), ``face_rmse_gravity_normal_m``, ``face_cells``,
+    ``overhang_truth``, ``overhang_flagged``, ``overhang_false`` and ``cells_by_agent``."""
     cells = np.flatnonzero(face.map.mapped.reshape(-1))
     w_true, over = truth_along_normal(world, face, cells)
     e_face = face.map.z.reshape(-1)[cells] - w_true
-    e_grav = gravity_along_normal(gravity, face, cells) - w_true
+    e_grav = gravity_at_points(gravity, face, cells, w_true)
+    e_norm = gravity_along_normal(gravity, face, cells) - w_true
     both = ~over & np.isfinite(e_face) & np.isfinite(e_grav)
     flagged = face.overhang.reshape(-1)[cells]
     return {
         "face_rmse_m": _rms(e_face[both]), "face_rmse_gravity_m": _rms(e_grav[both]),
+        "face_rmse_gravity_normal_m": _rms(e_norm[both]),
         "face_cells": int(both.sum()), "overhang_truth": int(over.sum()),
         "overhang_flagged": int((over & flagged).sum()), "overhang_false": int((~over & flagged).sum()),
         "cells_by_agent": dict(cells_by_agent or {}),

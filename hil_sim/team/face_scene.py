@@ -264,16 +264,19 @@ class FaceScene:
         assert t is not None
         row: dict[str, Any] = {"seed": self.seed, "slope_deg": round(float(t.face_slope_deg), 1), "views": self.views}
         if self.face is None:  # no face fitted: only the team mask's figures
-            nones = ("face_cells", "face_rmse_m", "face_rmse_gravity_m", "ratio", "rmse_recon_m", "rmse_cliff_m",
+            nones = ("face_cells", "face_rmse_m", "face_rmse_gravity_m", "ratio", "face_rmse_gravity_normal_m",
+                     "ratio_normal", "rmse_recon_m", "rmse_cliff_m",
                      "rmse_fused_m", "in2s_recon", "in2s_cliff", "in2s_fused")
-            return {**row, **{k: None for k in nones}, "overhang_truth": 0, "overhang_flagged": 0,
+            zeros = {f"{k}_{a}": 0 for k in ("cells", "within2s") for a in ("recon", "cliff", "fused")}
+            return {**row, **{k: None for k in nones}, **zeros, "overhang_truth": 0, "overhang_flagged": 0,
                     "overhang_false": 0, "both_cells": 0, "team_points_seen": self.team_points,
                     "team_points_fused": self.team_points_fused, "team_cells_mapped": len(self.team_cells)}
         f = face_figures(self.world, self.face, self.gravity, self.cells_by_agent)
-        row.update({k: f[k] for k in ("face_cells", "face_rmse_m", "face_rmse_gravity_m", "overhang_truth",
-                                       "overhang_flagged", "overhang_false")})
-        r, g = f["face_rmse_m"], f["face_rmse_gravity_m"]
+        row.update({k: f[k] for k in ("face_cells", "face_rmse_m", "face_rmse_gravity_m", "face_rmse_gravity_normal_m",
+                                       "overhang_truth", "overhang_flagged", "overhang_false")})
+        r, g, gn = f["face_rmse_m"], f["face_rmse_gravity_m"], f["face_rmse_gravity_normal_m"]
         row["ratio"] = r / g if r is not None and g else None
+        row["ratio_normal"] = r / gn if r is not None and gn else None
         row.update(self._agents())
         row["team_points_seen"] = self.team_points
         row["team_points_fused"] = self.team_points_fused
@@ -294,4 +297,13 @@ class FaceScene:
             s = np.sqrt(fm.map.var.reshape(-1)[both][ok])
             out[f"rmse_{name}_m"] = float(np.sqrt(np.mean(e * e))) if e.size else None
             out[f"in2s_{name}"] = float(np.mean(np.abs(e) <= 2 * s)) if e.size else None
+        # every cell each map holds (single surface in the truth): cells and how many within 2 sigma
+        for name, fm in (("recon", fr), ("cliff", fc), ("fused", self.face)):
+            cells = np.flatnonzero(fm.map.mapped.reshape(-1))
+            w_true, over = truth_along_normal(self.world, self.face, cells)
+            ok = ~over & np.isfinite(w_true)
+            e = fm.map.z.reshape(-1)[cells][ok] - w_true[ok]
+            s = np.sqrt(fm.map.var.reshape(-1)[cells][ok])
+            out[f"cells_{name}"] = int(ok.sum())
+            out[f"within2s_{name}"] = int(np.sum(np.abs(e) <= 2 * s))
         return out

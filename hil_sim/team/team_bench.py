@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 from fsw.comm.link_packets import PacketError
 from fsw.comm.team import fix_packets
 from fsw.core.geometry import MapGrid, wrap_angle
+from fsw.core.team.tether import tether_state
 from fsw.drivers.can_inproc import InprocBus
 from fsw.drivers.resources import Resources
 from fsw.sections import CliffbotSiteConfig
@@ -48,6 +49,8 @@ from hil_sim.team.team_run import TeamSetup, team_section
 from hil_sim.world.world import World
 
 CLIFFBOT_CONFIG = DEFAULT_CONFIG.parent / "cliffbot.toml"
+# the rig's plain state (its truth grid, anchors and codec are rebuilt from the scenario)
+RIG_STATE = ("rng", "xy", "wheels_enabled", "t_wheel_cmd", "t_status", "counter", "now", "rx_bad")
 F64 = NDArray[np.float64]
 
 
@@ -132,7 +135,10 @@ class CliffbotAgent:
 
     def __init__(self, bench: Any, world: World, channel: RadioChannel, watch: FixWatch, seed: int,
                  datum_m: float, out: Path | None = None, faults: tuple[FaultSpec, ...] = (),
-                 config: str | Path = CLIFFBOT_CONFIG, recon_done: Callable[[], bool] = lambda: True) -> None:
+                 config: str | Path = CLIFFBOT_CONFIG, recon_done: Callable[[], bool] = lambda: True,
+                 resume: dict[str, Any] | None = None) -> None:
+        """``resume``: the team's part of the RECON-bot's checkpoint (:meth:`state`): the Cliff-bot
+        starts from the checkpoint it held then and its hardware goes on from where it stood."""
         base = load_settings(config)
         self.world, self.bench, self.channel, self.watch, self.seed = world, bench, channel, watch, seed
         x0, y0, yaw0 = (float(v) for v in world.rover_start)
@@ -144,6 +150,8 @@ class CliffbotAgent:
         name = f"{bench.channel}-team"
         self.sim_bus = InprocBus(channel=name, receive_own_messages=False)
         self.flight_bus = InprocBus(channel=name, receive_own_messages=False)
+        if resume is not None:
+            self._write_checkpoint(resume)
         res = Resources(radio_port=ChannelPort(channel, "b", bench.clock.now), team_can=self.flight_bus)
         self.recon_done = recon_done
         self.errors: list[FixError] = []  # each FIX sent, against the truth
@@ -158,6 +166,63 @@ class CliffbotAgent:
         self._t_last = bench.clock.now()
         self.figures = TeamFigures(self.grid.cell, self.cfg.climber.wheel_d_m, seed, channel.cfg)
         self._cycles = 0
+        if resume is not None:
+            self._restore_bench(resume)
+
+    # -- the whole team's resume (docs/team.md, "Running a team mission") ----------------------
+    def state(self) -> dict[str, Any]:
+        """The team's part of a RECON-bot checkpoint (JSON-able): the Cliff-bot's checkpoint as it
+        stands now (its flight state: a restarted Cliff-bot continues from it), and its
+        hardware's (the Anchorbots' winches, the rig's noise generators and counters, its clock),
+        the run's byte baselines and executive frame."""
+        from fsw.tasks.cliffbot import checkpoint
+        from hil_sim.mission.resume_state import attrs_state
+
+        rig = self.rig
+        m = self.mission
+        return {
+            "cliffbot": checkpoint.snapshot(m, self.bench.clock.now()),
+            "map": None if m.z is None else np.asarray(m.z, float).tolist(),
+            "rig": attrs_state(rig, RIG_STATE), "wheel_cmd": list(rig.wheel_cmd),
+            "faults": attrs_state(rig.faults, ("rng",)),
+            "winches": {name: attrs_state(w) for name, w in rig.winches.items()},
+            "path": [list(p) for p in rig.path], "violations": dict(rig.violations),
+            "hazard_cells": [list(c) for c in sorted(rig.hazard_cells)],
+            "wheel_rad": list(rig.wheel_rad), "sent0": dict(self.sent0), "frame": self.exe.frame,
+            "est_path": [list(p) for p in self.est_path],
+        }
+
+    def _write_checkpoint(self, st: dict[str, Any]) -> None:
+        """The Cliff-bot's checkpoint of ``st`` in its directory (before its executive starts)."""
+        from fsw.tasks.cliffbot import checkpoint
+
+        store = checkpoint.CheckpointFile(self.cfg.checkpoint.directory)
+        z = None if st.get("map") is None else np.asarray(st["map"], np.float64)
+        err = store.save(dict(st["cliffbot"]), z)
+        if err:
+            raise ValueError(f"the Cliff-bot's checkpoint cannot be written: {err}")
+
+    def _restore_bench(self, st: dict[str, Any]) -> None:
+        from hil_sim.mission.resume_state import BenchStateError, restore_attrs
+
+        rig = self.rig
+        try:
+            restore_attrs(rig, st["rig"])
+            restore_attrs(rig.faults, st["faults"])
+            for name, w in rig.winches.items():
+                restore_attrs(w, st["winches"][name])
+            rig.path = [(float(x), float(y)) for x, y in st["path"]]
+            rig.violations = {k: int(v) for k, v in st["violations"].items()}
+            rig.hazard_cells = {(int(a), int(b)) for a, b in st["hazard_cells"]}
+            rig.wheel_rad = [float(v) for v in st["wheel_rad"]]
+            rig.wheel_cmd = (float(st["wheel_cmd"][0]), float(st["wheel_cmd"][1]))
+            rig.state = tether_state(rig.z, rig.grid, rig.anchors, rig.xy, rig.tcfg, rig.ccfg.footprint_m) or rig.state
+            self.sent0 = {str(k): int(v) for k, v in st["sent0"].items()}
+            self.exe.frame = int(st["frame"])
+            self.est_path = [(float(x), float(y)) for x, y in st["est_path"]]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise BenchStateError(f"the team's bench state is malformed ({type(exc).__name__}: {exc})") from None
+        self._rendered_at = -1
 
     @property
     def mission(self) -> Any:
@@ -176,7 +241,7 @@ class CliffbotAgent:
         self._judge_fixes()
         self._render_truth()
         self._note_cycle()
-        s = self.mission.nav.s
+        s = self.mission.est.s
         self.est_path.append((float(s[0]), float(s[1])))
 
     def _judge_fixes(self) -> None:

@@ -34,7 +34,7 @@ from fsw.core.team.face_planner import ClimberConfig
 from fsw.core.team.tether import TetherConfig
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig
-from fsw.tasks.cliffbot_mission import CliffbotMission
+from fsw.tasks.cliffbot_mission import CliffbotMission, fix_xyyaw, navigate, new_navigator
 from hil_sim.faults import FaultInjector, FaultSpec
 from hil_sim.link.radio_channel import RadioChannel
 from hil_sim.team.cliffbot_rig import CliffbotRig
@@ -126,12 +126,13 @@ def run_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], chan
              setup: TeamSetup | None = None, recon_xy_yaw: tuple[float, float, float] | None = None,
              faults: tuple[FaultSpec, ...] = (), out: Path | None = None, t0: float = 0.0,
              fixer: ReconFixer | TruthFixer | None = None, recover_after_s: float | None = None,
-             command_targets: F64 | None = None) -> dict[str, Any]:
+             command_targets: F64 | None = None, error_bound_m: float = 0.0) -> dict[str, Any]:
     """The Cliff-bot's mission on the bench; returns the ``team`` summary section.
 
     ``recover_after_s``: a ground command leaves SAFE that long after it was entered (once);
     without it the run ends in SAFE. ``command_targets``: a ground command replacing the
-    scenario's targets at the start."""
+    scenario's targets at the start. ``error_bound_m``: the received map's height error bound
+    (the codec's, as the link delivers it)."""
     assert world.team is not None
     s = setup or TeamSetup()
     inj = FaultInjector(seed, faults)
@@ -141,8 +142,11 @@ def run_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], chan
     fixer = fixer if fixer is not None else ReconFixer(world, recon, seed)
     mission = CliffbotMission(s.mission, s.tether, s.climber, s.nav, rig.anchors, team.cliffbot_start_xy,
                               rig.yaw, team.targets_xyz[:, :2])
+    nav = new_navigator(mission, s.nav)  # (the flight code's cb_nav task, here in the loop)
     dev = CliffbotDevices()
-    mission.set_map(np.asarray(received_z, np.float64), grid)
+    mission.set_map(np.asarray(received_z, np.float64), grid, error_bound_m)
+    assert mission.z is not None
+    nav.set_map(mission.z, grid)
     if command_targets is not None:
         mission.set_targets(command_targets)
     sent0 = {side: channel.stats(side).air_bytes for side in (RECON, CLIFF)}
@@ -161,7 +165,7 @@ def run_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], chan
                 bad_packets += 1
                 continue
             if isinstance(p, fix_packets.Fix):
-                mission.on_fix(p)
+                mission.on_fix(p, *nav.fix(*fix_xyyaw(p)))
             elif isinstance(p, fix_packets.NoFix):
                 why = fix_packets.NO_FIX_REASONS[p.reason] if p.reason < len(fix_packets.NO_FIX_REASONS) else "?"
                 mission.on_no_fix(p.seq, why)
@@ -172,15 +176,20 @@ def run_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], chan
                 continue  # the map link's own packets (its acknowledgements) are the link's business
             if isinstance(q, fix_packets.FixRequest):
                 channel.send(RECON, fixer.answer(q, rig, now), now)
-        cmd = mission.step(now - t0, dev, s.dt_s)
+        navigate(nav, dev, s.dt_s, s.mission.wheel_radius_m)
+        mission.on_estimate(nav.nav.s, nav.nav.P)
+        cmd = mission.step(now - t0, dev)
         if cmd.request_fix:
             channel.send(CLIFF, fix_packets.encode(fix_packets.FixRequest(mission.fix_seq, mission.leg_i)), now)
         rig.to_rig(dev.commands(cmd.rates_mps, cmd.enable, cmd.clear_faults, cmd.wheels_radps), now - t0)
-        est_path.append((float(mission.nav.s[0]), float(mission.nav.s[1])))
+        est_path.append((float(mission.est.s[0]), float(mission.est.s[1])))
         if mission.state == "SAFE":
             safe_at = now if safe_at is None else safe_at
             if recover_after_s is not None and now - safe_at >= recover_after_s:
                 mission.recover()
+                if mission.nav_reset is not None:
+                    nav.reset(mission.nav_reset.s, mission.nav_reset.P)
+                    mission.nav_reset = None
                 safe_at = None
                 recover_after_s = None  # one recovery attempt
             elif recover_after_s is None:

@@ -30,3 +30,34 @@ def test_the_team_is_masked_and_the_judge_sees_it_without() -> None:
     bare = FaceScene("cliff-team", 3, "config/fsw.toml", mask=False).measure(0, 1)
     assert bare["team_points_seen"] == row["team_points_seen"]  # the same view, seeded
     assert bare["team_points_fused"] > 0 and bare["team_cells_mapped"] > 0
+
+
+def test_the_gravity_grid_is_queried_where_a_user_queries_it() -> None:
+    """A plane at 75 deg, the gravity grid of 3 cm holding each cell's true centre height: at
+    the true face points its query error is the staircase's, ``tan a * c / sqrt(12)`` RMS along
+    the vertical; along the face normal the same grid is ``cos a`` of that off the surface."""
+    import math
+
+    import numpy as np
+
+    from fsw.core.geometry import MapGrid
+    from fsw.core.map.elevation_map import ElevationMap
+    from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig
+    from hil_sim.team.face_eval import gravity_along_normal, gravity_at_points
+
+    a = math.radians(75.0)
+    frame = FaceFrame.from_normal(np.array([0.013, -0.5, -1.0]), np.array([0.0, -math.sin(a), math.cos(a)]))
+    face = FaceMap(frame, (-0.5, 0.5), (-0.8, 0.8), FaceMapConfig(cell_m=0.059))
+    grav = ElevationMap(MapGrid(-0.7, -1.2, 0.03, 47, 40))
+    X, Y = grav.grid.centers()
+    grav.z[:] = frame.plane_z(X, Y)
+    grav.n[:] = 1
+    cells = np.arange(face.grid.nx * face.grid.ny)
+    e = gravity_at_points(grav, face, cells, np.zeros(len(cells)))
+    e = e[np.isfinite(e)]
+    assert len(e) > 0.9 * len(cells)
+    rms = float(np.sqrt(np.mean(e * e)))
+    assert rms == pytest.approx(math.tan(a) * 0.03 / math.sqrt(12), rel=0.2)
+    en = gravity_along_normal(grav, face, cells)
+    en = en[np.isfinite(en)]
+    assert float(np.sqrt(np.mean(en * en))) == pytest.approx(rms * math.cos(a), rel=0.35)

@@ -98,11 +98,9 @@ def world() -> Any:
 
 
 def _recon_cfg(world: Any) -> FswConfig:
-    """The RECON-bot idle, its map link bounded at half the Cliff-bot's wheel (at the full 0.12 m
-    bound the reduction's height error makes this scene's start a hazard: docs/team.md, "Limits")."""
+    """The RECON-bot idle, its map link reduced for the Cliff-bot as the flight file says."""
     cfg = load_settings()
-    return dataclasses.replace(cfg, map=world.map_grid, mission=dataclasses.replace(cfg.mission, auto_start=False),
-                               codec=dataclasses.replace(cfg.codec, receiver_wheel_diameter_m=0.06))
+    return dataclasses.replace(cfg, map=world.map_grid, mission=dataclasses.replace(cfg.mission, auto_start=False))
 
 
 def _team(world: Any, frames: int, faults: tuple[Any, ...] = (), out: Path | None = None,
@@ -195,8 +193,8 @@ def test_the_cliffbot_checkpoints_and_continues_from_one(mission: tuple[dict[str
 
 @pytest.mark.slow
 def test_the_team_is_deterministic(world: Any) -> None:
-    a = _team(world, 60)  # the map, the plan, a fix request and the first moves
-    b = _team(world, 60)
+    a = _team(world, 100)  # the map (about 8 kB at 9600 bit/s), the plan, a fix request and the first moves
+    b = _team(world, 100)
     assert a[0]["events"] and a == b
 
 
@@ -288,6 +286,43 @@ def test_a_bad_checkpoint_is_refused_in_one_line(tmp_path: Path, state: str) -> 
         refused = [e.text for e in exe.events.history if e.name == "mission.CHECKPOINT_REFUSED"]
         assert len(refused) == 1 and "\n" not in refused[0]
         assert exe.tasks["mission"].mission.state == "WAIT_MAP"  # type: ignore[attr-defined]
+        exe.tasks["mavlink"].close()  # type: ignore[attr-defined]
+    finally:
+        radio.close()
+
+
+def test_navigation_is_its_own_task_and_takes_the_checkpoints_estimate(tmp_path: Path) -> None:
+    """The EKF runs in ``cb_nav`` (scheduled before the mission); a Cliff-bot restarted on a
+    checkpoint goes on from its estimate in both tasks (never the start's in between)."""
+    from fsw.app import build_executive
+    from fsw.drivers.radio import open_radio
+    from fsw.framework.clock import SteppedClock
+    from fsw.tasks.cliffbot.checkpoint import SCHEMA, CheckpointFile
+
+    s = [2.6, -0.7, -1.2]
+    p = np.diag([0.03**2, 0.04**2, 0.02**2])
+    CheckpointFile(str(tmp_path)).save({
+        "schema": SCHEMA, "time_s": 5.0, "state": "WAIT_MAP", "safe_reason": "", "leg_i": 0, "fix_seq": 0,
+        "map_version": 0, "start": [2.5, -0.5], "targets": [[2.0, -1.5]], "reached": [False], "reasons": [""],
+        "legs": [], "nav_s": s, "nav_P": p.tolist()}, None)
+    cfg = load_settings(CLIFFBOT_TOML)
+    cfg = dataclasses.replace(cfg, checkpoint=dataclasses.replace(cfg.checkpoint, directory=str(tmp_path)),
+                              cliffbot_bus=dataclasses.replace(cfg.cliffbot_bus, can_interface="none"))
+    radio = open_radio("inproc://cliffbot-nav-task")
+    try:
+        exe = build_executive(cfg, SteppedClock(), Resources(radio_port=radio), map_store=False)
+        order = [t.name for t in exe.tasks.values()]
+        assert exe.tasks["cb_nav"].KIND == "cliffbot_nav" and order.index("cb_nav") < order.index("mission")
+        m = exe.tasks["mission"].mission  # type: ignore[attr-defined]
+        seen = []
+        for _ in range(4):
+            exe.step()
+            seen.append(m.est.s.copy())
+        nav = exe.tasks["cb_nav"].nav.nav  # type: ignore[attr-defined]
+        np.testing.assert_allclose(nav.s, s, atol=1e-9)  # the checkpoint's estimate, not the start
+        for e in seen:  # never the navigation's start estimate in between
+            np.testing.assert_allclose(e, s, atol=1e-9)
+        assert any(e.name == "cb_nav.NAV_RESET" for e in exe.events.history)
         exe.tasks["mavlink"].close()  # type: ignore[attr-defined]
     finally:
         radio.close()

@@ -127,14 +127,20 @@ def tether_state(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, cfg: TetherConfi
 
 def settle(z: ZMap, grid: MapGrid, anchors: F64, lengths: tuple[float, float], guess_xy: F64,
            cfg: TetherConfig, iterations: int = 30, tol_m: float = 1e-3) -> tuple[F64, TetherState] | None:
+    from fsw.core.team.tether import _settle_search
+
     xy = np.asarray(guess_xy, float).copy()
     h = grid.cell
     target = np.asarray(lengths, float)
+    accept = 10 * tol_m + 0.25 * h
+    best: tuple[float, F64] = (math.inf, xy.copy())
     for _ in range(iterations):
         st = tether_state(z, grid, anchors, xy, cfg)
         if st is None:
             return None
         r = np.asarray(st.lengths_m) - target
+        if float(np.max(np.abs(r))) < best[0]:
+            best = (float(np.max(np.abs(r))), xy.copy())
         if np.max(np.abs(r)) < tol_m:
             return xy, st
         jac = np.empty((2, 2))
@@ -160,6 +166,6 @@ def settle(z: ZMap, grid: MapGrid, anchors: F64, lengths: tuple[float, float], g
             step = 0.5 * step
         xy = xy - step
     st = tether_state(z, grid, anchors, xy, cfg)
-    if st is not None and np.max(np.abs(np.asarray(st.lengths_m) - target)) < 10 * tol_m + 0.25 * h:
+    if st is not None and np.max(np.abs(np.asarray(st.lengths_m) - target)) < accept:
         return xy, st
-    return None
+    return _settle_search(z, grid, anchors, target, best[1], cfg, accept)

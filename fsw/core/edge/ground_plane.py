@@ -86,13 +86,24 @@ def ground_surface(emap: ElevationMap, ground_z_m: float, seed_xy: tuple[float, 
         return ref
     z = emap.z
     ok = emap.mapped & np.isfinite(z)
-    r = np.where(ok, z - ref, 0.0).astype(np.float32)
+    bend = np.zeros(z.shape, np.float32)
+    rows, cols = np.flatnonzero(ok.any(axis=1)), np.flatnonzero(ok.any(axis=0))
+    if rows.size == 0:
+        return ref
     sigma = cfg.surface_scale_m / emap.grid.cell
-    bend = np.zeros(r.shape, np.float32)
+    # Only the mapped cells' window and the blur's reach around it (OpenCV's float kernel runs
+    # 4 sigma out): past it every input is 0, so the bend there is 0 on the whole grid too.
+    pad = int(np.ceil(4.0 * sigma)) + 2
+    win = (slice(max(0, int(rows[0]) - pad), int(rows[-1]) + pad + 1),
+           slice(max(0, int(cols[0]) - pad), int(cols[-1]) + pad + 1))
+    ok_w = ok[win]
+    r = np.where(ok_w, z[win] - ref[win], 0.0).astype(np.float32)
+    b = np.zeros(r.shape, np.float32)
     for band in (3.0, 2.0, 1.0):
-        level = ok & (np.abs(r - bend) <= band * cfg.plateau_tol_m)
+        level = ok_w & (np.abs(r - b) <= band * cfg.plateau_tol_m)
         w = cv2.GaussianBlur(level.astype(np.float32), (0, 0), sigma, borderType=cv2.BORDER_CONSTANT)
         v = cv2.GaussianBlur(np.where(level, r, 0.0).astype(np.float32), (0, 0), sigma,
                              borderType=cv2.BORDER_CONSTANT)
-        bend = v / np.maximum(w, SURFACE_MIN_WEIGHT)
+        b = v / np.maximum(w, SURFACE_MIN_WEIGHT)
+    bend[win] = b
     return np.asarray(ref + bend, np.float64)

@@ -16,6 +16,8 @@ reads as a target 1-2 cm too far at 3 m; ``apriltag`` (edge-line fit) is unbiase
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -30,6 +32,7 @@ from fsw.core.localization.localization import (
     pnp_jacobian,
     skew,
     so3_exp,
+    so3_log,
 )
 from fsw.framework.params import param
 
@@ -90,6 +93,7 @@ class BodyEstimate:
     cov: F64
     marker_ids: tuple[int, ...]
     rms_px: float
+    ambiguity: float = float("inf")  # the mirror pose's RMS residual over the chosen one's (inf: none)
 
     @property
     def yaw(self) -> float:
@@ -131,10 +135,13 @@ class CliffbotLocalizer:
         if not seen_l:
             return None
         ids = sorted(seen_l)
+        if len(ids) == 1 and _side_px(seen_l[ids[0]]) < self.cfg.fiducial_min_marker_px:
+            return None  # one marker this small: its pose is not to be trusted (fiducial_min_marker_px)
         obj = np.concatenate([self.corners[i] for i in ids])
         img = np.concatenate([seen_l[i] for i in ids])
         # Camera pose in the body frame (PnP: the body is the "world" of the problem). One
-        # marker alone is planar and has a mirror solution; the right image settles it.
+        # marker alone is planar and has a mirror solution; the right image usually settles it,
+        # and when both still fit (a far, small marker) there is no fix (fiducial_ambiguity_ratio).
         cands = pnp_candidates(obj, img, self.K, self.cfg.corner_sigma_px)
         cands = [c for c in cands if c.rms_px <= self.cfg.max_reproj_px]
         if not cands:
@@ -145,16 +152,20 @@ class CliffbotLocalizer:
             obj_r = np.concatenate([self.corners[i] for i in both])
             img_r = np.concatenate([seen_r[i] for i in both])
             cands = [self._refine_stereo(c, obj, img, obj_r, img_r) for c in cands]
-        est = min(cands, key=lambda c: c.rms_px)
+        cands = sorted(cands, key=lambda c: c.rms_px)
+        est = cands[0]
         if not np.isfinite(est.rms_px) or est.rms_px > self.cfg.max_reproj_px:
             return None
+        ambiguity = _ambiguity(cands)
+        if ambiguity < self.cfg.fiducial_ambiguity_ratio:
+            return None  # one marker, both mirror poses fit: no fix rather than maybe the wrong one
         # (J^T J)^-1 treats every corner's error as independent, so the covariance shrinks as
         # 1/corners; the errors the corners share (the camera model, the markers' placement
         # on the body) do not, and they dominate a fix of many corners: the covariance stops
         # shrinking at fiducial_shared_residuals residuals (docs/team.md, "Relative localization").
         k = max(1.0, 2.0 * est.n_points / self.cfg.fiducial_shared_residuals)
         est = PoseEstimate(est.pose, est.cov * k, est.rms_px, est.n_points)
-        return _compose(camera, est, tuple(ids))
+        return dataclasses.replace(_compose(camera, est, tuple(ids)), ambiguity=ambiguity)
 
     def _refine_stereo(self, est: PoseEstimate, obj_l: F64, img_l: F64, obj_r: F64,
                        img_r: F64, iters: int = 10) -> PoseEstimate:
@@ -181,6 +192,25 @@ class CliffbotLocalizer:
         rms = float(np.sqrt(np.mean(res**2)))
         cov = max(self.cfg.corner_sigma_px, rms) ** 2 * np.linalg.inv(J.T @ J)
         return PoseEstimate(pose, 0.5 * (cov + cov.T), rms, est.n_points + obj_r.shape[0])
+
+
+def _side_px(corners: F64) -> float:
+    """The mean side of a marker's four image corners (px)."""
+    c = np.asarray(corners, float).reshape(4, 2)
+    return float(np.mean(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1)))
+
+
+def _ambiguity(cands: list[PoseEstimate], same_deg: float = 1.0, same_m: float = 0.01) -> float:
+    """The second candidate's RMS residual over the best one's (``cands`` sorted by it), inf when
+    there is one, or when both are the same pose (the stereo refinement took both to one
+    minimum: within ``same_deg`` and ``same_m``)."""
+    if len(cands) < 2:
+        return math.inf
+    a, b = cands[0], cands[1]
+    dr = math.degrees(float(np.linalg.norm(so3_log(a.pose.R.T @ b.pose.R))))
+    if dr <= same_deg and float(np.linalg.norm(a.pose.t - b.pose.t)) <= same_m:
+        return math.inf
+    return b.rms_px / max(a.rms_px, 1e-9)
 
 
 def _project(pose: CameraPose, pts: F64, K: F64) -> F64:

@@ -50,6 +50,15 @@ class LocalizationConfig:
         doc="a fiducial fix's covariance shrinks with its corners only up to this many residuals "
             "(beyond, the errors all corners share dominate: camera model, marker placement)",
     )
+    fiducial_ambiguity_ratio: float = param(
+        2.0, lo=1.0, hi=100.0,
+        doc="a fix from one marker (planar: two mirror poses) is refused unless the other pose's RMS residual "
+            "exceeds the chosen one's by this factor",
+    )
+    fiducial_min_marker_px: float = param(
+        15.0, lo=0.0, hi=1000.0, units="px",
+        doc="a fix from one marker is refused when its mean side in the image is shorter than this",
+    )
     gate_chi2: float = param(
         22.46, lo=1.0, hi=1e6, doc="chi-square gate (6 dof) of a pose update; 22.46 = 0.1 %"
     )

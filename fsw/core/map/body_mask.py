@@ -8,11 +8,18 @@ lies inside a shape grown by ``margin_m`` plus ``sigma`` times its own position 
 square root of the largest variance of its covariance, which includes the camera pose's) and
 the shape's own pose error ``shape_sigma_m`` (a robot known from a fix or its navigation).
 
-A stereo point at a shape's outline can land anywhere between the shape and the ground behind
-it (the matching window straddles both: a "flying pixel"). With the camera's centre ``eye``,
-a point is also masked when its line of sight passes through a shape grown by the margin plus
-``pixel_rad`` radians at that range (the window's half width in angle): what a camera sees
-just past a robot's outline or along a tether is not trusted as terrain.
+A stereo point at a shape's outline can land anywhere between the shape and the surface behind
+it, or between a lip in front of a robot and the robot (the matching window straddles both:
+a "flying pixel"; a window that matches the other image's robot lands farther off). With the
+camera's centre ``eye``, a point is also masked when its line of sight (for a robot: from the
+camera out to ``behind`` times the point's range; a tether's known polyline may cut through
+the ground it wraps, so not behind the point) passes through a shape grown by the margin, ``sigma`` times
+the shape's pose error, and ``pixel_rad`` radians plus ``sigma`` times the point's error
+across its line of sight per metre of its range, at the shape's range (the camera pose's error
+turns the sight line; the window's half width in angle): what a camera sees just past a robot's outline or along a
+tether, or just in front of one it hides, is not trusted as terrain. The camera's own robot
+(a box within ``own_m`` of the camera) is rigid in the camera's frame: its sight test has
+neither the pose term nor the extension.
 """
 
 from __future__ import annotations
@@ -59,6 +66,9 @@ class MaskConfig:
     margin_m: float = 0.04
     sigma: float = 3.0
     pixel_rad: float = 0.01  # the line-of-sight test's growth per metre of range (about 3 px at f = 300 px)
+    behind: float = 2.0  # the sight line is tested out to this multiple of the point's range
+    behind_tether: float = 1.5  # the same for a tether
+    own_m: float = 1.0  # a box the camera is this close to is its own robot's (a mast's camera too)
 
 
 def point_sigma(cov: F64) -> F64:
@@ -66,6 +76,18 @@ def point_sigma(cov: F64) -> F64:
     variance of each ``(N, 3, 3)`` covariance (NaN treated as infinite)."""
     d = np.diagonal(np.asarray(cov, float), axis1=1, axis2=2)
     return np.asarray(np.sqrt(np.nan_to_num(d, nan=np.inf).max(axis=1)), float)
+
+
+def lateral_sigma(xyz: F64, cov: F64, eye: F64) -> F64:
+    """Each point's position error across its line of sight from ``eye``: the root of the
+    covariance's trace less its variance along the sight line (both cross directions)."""
+    d = np.asarray(xyz, float) - eye
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+    c = np.nan_to_num(np.asarray(cov, float), nan=np.inf, posinf=np.inf)
+    along = np.einsum("ni,nij,nj->n", d, c, d)
+    with np.errstate(invalid="ignore"):
+        lat = np.trace(c, axis1=1, axis2=2) - along
+    return np.asarray(np.sqrt(np.nan_to_num(np.maximum(lat, 0.0), nan=np.inf)), float)
 
 
 def team_mask(xyz: F64, cov: F64 | None, team: TeamGeometry, cfg: MaskConfig | None = None,
@@ -81,12 +103,24 @@ def team_mask(xyz: F64, cov: F64 | None, team: TeamGeometry, cfg: MaskConfig | N
     if n == 0:
         return out
     e = None if eye is None else np.asarray(eye, float).reshape(3)
+    far = far_t = p
+    lat = np.zeros(n)  # per metre of range: the sight line's error grows from the camera
+    if e is not None:
+        far = e + cfg.behind * (p - e)
+        far_t = e + cfg.behind_tether * (p - e)
+        if cov is not None:
+            lat = cfg.sigma * lateral_sigma(p, cov, e) / np.maximum(np.linalg.norm(p - e, axis=1), 1e-3)
     for box in team.boxes:
         g = grow + cfg.sigma * box.sigma_m
         local = (p - box.center) @ box.R
         out |= (np.abs(local) <= box.half[None, :] + g[:, None]).all(axis=1)
         if e is not None:
-            out |= _sight_through_box(e, p, box, cfg.margin_m + cfg.sigma * box.sigma_m, cfg.pixel_rad)
+            g0 = cfg.margin_m + cfg.sigma * box.sigma_m
+            if (np.abs((e - box.center) @ box.R) <= box.half + cfg.own_m).all():
+                # the camera's own robot: rigid in the camera's frame, no pose error between them
+                out |= _sight_through_box(e, p, box, g0, cfg.pixel_rad)
+            else:
+                out |= _sight_through_box(e, far, box, g0, cfg.pixel_rad + lat)
     for t in team.tethers:
         pts = np.asarray(t.points, float)
         if pts.ndim != 2 or pts.shape[0] < 2:
@@ -99,7 +133,7 @@ def team_mask(xyz: F64, cov: F64 | None, team: TeamGeometry, cfg: MaskConfig | N
             d = np.linalg.norm(p - (a + s[:, None] * ab), axis=1)
             out |= d <= g
             if e is not None:
-                dist, rng = _segment_distance(e, p, a, b)
+                dist, rng = _segment_distance(e, far_t, a, b)
                 out |= dist <= cfg.margin_m + t.radius_m + cfg.sigma * t.sigma_m + cfg.pixel_rad * rng
     return out
 
@@ -125,21 +159,23 @@ def _segment_distance(e: F64, p: F64, a: F64, b: F64) -> tuple[F64, F64]:
     return np.linalg.norm(q1 - q2, axis=1), np.sqrt(aa) * s
 
 
-def _sight_through_box(e: F64, p: F64, box: BodyBox, grow: float, pixel_rad: float) -> B:
+def _sight_through_box(e: F64, p: F64, box: BodyBox, grow: float, pixel_rad: float | F64) -> B:
     """Sight lines ``e -> p_i`` that pass through ``box`` grown by ``grow`` plus ``pixel_rad``
-    times the range of the box (slab test in the box frame); none when ``e`` is inside it."""
+    (one value or one per line) times the range of the box (slab test in the box frame); none
+    when ``e`` is inside the box grown by ``grow``."""
     rng = float(np.linalg.norm(box.center - e))
-    half = box.half + grow + pixel_rad * rng
+    pr = np.broadcast_to(np.asarray(pixel_rad, float), (len(p),))
+    half = box.half[None, :] + (grow + pr * rng)[:, None]
     o = (e - box.center) @ box.R
-    if (np.abs(o) <= half).all():  # a camera on the box itself: only the box's own volume is masked
-        return np.zeros(len(p), bool)
+    if (np.abs(o) <= box.half + grow).all():
+        return np.zeros(len(p), bool)  # a camera on the box itself: only the box's own volume is masked
     d = (p - e) @ box.R
     with np.errstate(divide="ignore", invalid="ignore"):
-        t1 = (-half[None, :] - o[None, :]) / d
-        t2 = (half[None, :] - o[None, :]) / d
+        t1 = (-half - o[None, :]) / d
+        t2 = (half - o[None, :]) / d
     lo = np.where(np.isnan(t1), -np.inf, np.minimum(t1, t2))
     hi = np.where(np.isnan(t1), np.inf, np.maximum(t1, t2))
-    inside_axis = np.abs(o)[None, :] <= half[None, :]
+    inside_axis = np.abs(o)[None, :] <= half
     lo = np.where(d == 0, np.where(inside_axis, -np.inf, np.inf), lo)
     hi = np.where(d == 0, np.where(inside_axis, np.inf, -np.inf), hi)
     t_in = lo.max(axis=1)

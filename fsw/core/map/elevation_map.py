@@ -233,7 +233,6 @@ class ElevationMap:
         has_common = chunks[0][3] is not None
         g = self.grid
         size = g.nx * g.ny
-        inv = 1.0 / g.cell
         # pass 1: per cell, the inverse-variance mean of the points (weights from P_zz)
         k = np.zeros(size, np.int64)
         sw = np.zeros(size)
@@ -241,11 +240,7 @@ class ElevationMap:
         parts: list[tuple[NDArray[np.intp], F64, F64, F64, tuple[F64, ...] | None,
                           tuple[F64, ...] | None]] = []
         for p, v, pc6, pcc6 in chunks:
-            with np.errstate(invalid="ignore"):
-                fx = (p[:, 0] - g.x0) * inv  # >= 0 where inside, so truncation below is floor
-                fy = (p[:, 1] - g.y0) * inv
-                ok = (fx >= 0) & (fx < g.nx) & (fy >= 0) & (fy < g.ny) & np.isfinite(p[:, 2])
-                ok &= (v >= 0) & (v <= self.cfg.max_var_m2)  # False for NaN too
+            fx, fy, ok = self._usable(p, v)
             if not ok.all():
                 fx, fy, p, v = fx[ok], fy[ok], p[ok], v[ok]
                 pc6 = None if pc6 is None else tuple(c[ok] for c in pc6)
@@ -302,6 +297,29 @@ class ElevationMap:
         if p_visible is not None:
             n_miss = self.record_misses(p_visible, hit=k.reshape(g.shape) > 0)
         return MergeStats(n_in, n_used, int(cells.size), new, fused, outl, n_miss)
+
+    def _usable(self, p: F64, v: F64) -> tuple[F64, F64, NDArray[np.bool_]]:
+        """Fractional cell coordinates of points ``p`` (N, 3) and which the merge uses: on the
+        grid, finite height, vertical variance ``v`` within ``[0, max_var_m2]``."""
+        g = self.grid
+        inv = 1.0 / g.cell
+        with np.errstate(invalid="ignore"):
+            fx = (p[:, 0] - g.x0) * inv  # >= 0 where inside, so truncation is floor
+            fy = (p[:, 1] - g.y0) * inv
+            ok = (fx >= 0) & (fx < g.nx) & (fy >= 0) & (fy < g.ny) & np.isfinite(p[:, 2])
+            ok &= (v >= 0) & (v <= self.cfg.max_var_m2)  # False for NaN too
+        return fx, fy, ok
+
+    def hit_cells(self, parts: Sequence[tuple[F64, F64, F64 | None]]) -> NDArray[np.bool_]:
+        """The cells a view's parts ``(xyz, cov, cov_common)`` put a point into when merged
+        (:meth:`merge_parts_steps`): its misses can only be the other cells."""
+        g = self.grid
+        hit = np.zeros(g.nx * g.ny, bool)
+        for xyz, cov, _ in parts:
+            p = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+            fx, fy, ok = self._usable(p, _sym6(_rows(cov, p.shape[0], "cov"))[5])
+            hit[fy[ok].astype(np.intp) * g.nx + fx[ok].astype(np.intp)] = True
+        return hit.reshape(g.shape)
 
     def _vertical_variance(self, grad: tuple[F64, F64], c6: tuple[F64, ...],
                            footprint: bool) -> F64:

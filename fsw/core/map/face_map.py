@@ -234,6 +234,25 @@ def face_band(gravity: ElevationMap, frame: FaceFrame, min_slope_deg: float = 45
     return u, np.asarray(v, float)
 
 
+class FaceElevation(ElevationMap):
+    """The face map's grid: §1.1 with one change at the gate. A measurement the gate refuses
+    (farther than ``gate_sigma`` from the cell) replaces the cell when its variance is smaller
+    than the cell's: of two inconsistent surfaces (two agents' views of one cell, one of them
+    wrong) the cell holds the better-supported one, whichever came first, so fusing a second
+    agent never leaves a cell worse than the better agent's own."""
+
+    def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64) -> tuple[int, int, int]:
+        z, var, n = self.z.reshape(-1), self.var.reshape(-1), self.n.reshape(-1)
+        z0, v0, n0 = z[cells], var[cells], n[cells]
+        with np.errstate(invalid="ignore"):
+            swap = (n0 > 0) & (np.abs(zm - z0) > self.cfg.gate_sigma * np.sqrt(v0 + vm)) & (vm < v0)
+        out = super()._fuse(cells, zm, vm)
+        c = cells[swap]
+        z[c], var[c] = zm[swap], vm[swap]
+        self.var_common.reshape(-1)[c] = self.cfg.view_correlation * vm[swap]
+        return out
+
+
 @dataclass(frozen=True)
 class FaceMergeStats:
     """What one view did to the face map."""
@@ -253,14 +272,14 @@ class FaceMap:
         c = self.cfg.cell_m
         nx = max(2, int(np.ceil((u_range[1] - u_range[0]) / c)))
         ny = max(2, int(np.ceil((v_range[1] - v_range[0]) / c)))
-        self.map = ElevationMap(MapGrid(float(u_range[0]), float(v_range[0]), c, nx, ny), fusion)
+        self.map: ElevationMap = FaceElevation(MapGrid(float(u_range[0]), float(v_range[0]), c, nx, ny), fusion)
         self.overhang = np.zeros(self.map.grid.shape, bool)
         self.second = np.full(self.map.grid.shape, np.nan)  # the other surface's w where flagged
 
     def empty_like(self) -> FaceMap:
         """An empty face map on the same frame and grid (e.g. one agent's share)."""
         out = FaceMap(self.frame, (0.0, 1.0), (0.0, 1.0), self.cfg, self.map.cfg)
-        out.map = ElevationMap(self.map.grid, self.map.cfg)
+        out.map = FaceElevation(self.map.grid, self.map.cfg)
         out.overhang = np.zeros(self.map.grid.shape, bool)
         out.second = np.full(self.map.grid.shape, np.nan)
         return out
@@ -400,10 +419,13 @@ class FaceMap:
         with np.errstate(invalid="ignore"):
             far = (cnt >= min_points) & mapped & (
                 np.abs(mean - zf) > gap + m.cfg.gate_sigma * np.sqrt(vf + vmean))
-        flat_second[far] = mean[far]
+        # the better-supported surface holds the cell (the gate of FaceElevation swaps them)
+        better = far & (vmean < vf)
+        flat_second[far & ~better] = mean[far & ~better]
+        flat_second[better] = zf[better]
         new += int((far & ~flat_over).sum())
         flat_over |= far
-        keep[idx[order[kept & far[cs]]]] = False
+        keep[idx[order[kept & (far & ~better)[cs]]]] = False
         return keep, new, int(n - keep.sum())
 
 

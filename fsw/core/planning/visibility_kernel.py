@@ -25,8 +25,10 @@ Design (measured speed and accuracy in docs/nbv.md):
    matter for a target; on known terrain that leaves a short window just in front of the
    target (plus the occluders), on unknown terrain most of the ray.
 5. Targets are sorted by window length and processed in blocks of about 2^18 (target,
-   sample) pairs; ``log Phi`` comes from a 1/256-step lookup table; everything is float32
-   numpy, no Python loop per cell or per ray.
+   sample) pairs (:func:`window_sums_steps`); a target's window is one contiguous run of its
+   ray's samples, copied as a row of a sliding-window view (no gather per pair); ``log Phi``
+   comes from a 1/256-step lookup table; everything is float32 numpy, no Python loop per
+   cell or per ray.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ import math
 from collections.abc import Generator
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 from scipy.special import log_ndtr
 
@@ -48,6 +51,23 @@ _TABLE[-1] = 0.0  # arguments >= _XMAX: factor 1
 _NT = _TABLE.size
 _BLOCK_PAIRS = 1 << 18  # (target, sample) pairs per step: a few ms
 _RAYS_PER_STEP = 512  # rays traced per step: a few ms
+
+
+def unique_inverse(values: NDArray[np.int64], size: int) -> tuple[NDArray[np.int64], NDArray[np.intp]]:
+    """``np.unique(values, return_inverse=True)`` for integers in ``[0, size)``, without a sort:
+    the sorted distinct values and each value's index among them."""
+    present = np.zeros(size, bool)
+    present[values] = True
+    rank = np.cumsum(present, dtype=np.intp) - 1
+    return np.flatnonzero(present).astype(np.int64), rank[values]
+
+
+def stable_argsort(values: NDArray[np.int64] | NDArray[np.intp]) -> NDArray[np.intp]:
+    """``np.argsort(values, kind="stable")`` of non-negative integers: the same permutation, by
+    numpy's radix sort when they fit 16 bits."""
+    if values.size and int(values.min()) >= 0 and int(values.max()) < 1 << 16:
+        return np.argsort(values.astype(np.uint16), kind="stable")
+    return np.argsort(values, kind="stable")
 
 
 def bin_rays(grid: MapGrid, cam_xy: tuple[float, float], angles: F64, rmax_m: float
@@ -69,7 +89,7 @@ def bin_rays(grid: MapGrid, cam_xy: tuple[float, float], angles: F64, rmax_m: fl
     with np.errstate(divide="ignore"):
         r[:, :n] = (first_x + m) * (c / np.abs(dx))[:, None]
         r[:, n:] = (first_y + m) * (c / np.abs(dy))[:, None]
-    r.sort(axis=1)
+    r.sort(axis=1, kind="stable")  # two sorted runs (x and y crossings): a merge
     ncol = int(np.searchsorted(r.min(axis=0), rmax_m)) + 1
     r = np.minimum(r[:, :ncol], np.float32(rmax_m))
     rm = np.empty_like(r)
@@ -109,10 +129,10 @@ def pv_fast_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], iy: IDX
     theta = np.arctan2(ddy, ddx)
     nbin = rays_for_cell(cfg, g.cell)
     dth = 2.0 * math.pi / nbin
-    used, ray = np.unique(np.rint(theta / dth).astype(np.int64) % nbin, return_inverse=True)
+    used, ray = unique_inverse(np.rint(theta / dth).astype(np.int64) % nbin, nbin)
     half = 0.5 * g.cell / np.maximum(np.abs(np.cos(theta)), np.abs(np.sin(theta)))
     slope = (cz - terrain.elev_m[iy, ix]) / np.maximum(big_r, 1e-9)
-    by_ray = np.argsort(ray, kind="stable")
+    by_ray = stable_argsort(ray)
     rmax = float(big_r.max()) + g.cell
     inv, off, wgt = terrain.packed()
     base = np.zeros(iy.size, np.int64)
@@ -122,7 +142,7 @@ def pv_fast_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], iy: IDX
     yield None  # the set-up above is a step of its own (it sorts every target)
     for r0 in range(0, used.size, _RAYS_PER_STEP):
         r1 = min(used.size, r0 + _RAYS_PER_STEP)
-        rm, cell = bin_rays(g, (cx, cy), used[r0:r1] * dth, rmax)
+        rm, cell = bin_rays(g, (cx, cy), np.asarray(used[r0:r1] * dth, np.float64), rmax)
         nray, ncol = rm.shape
         inv_s = inv[cell]
         a_s = (np.float32(cz) * inv_s + off[cell]) * np.float32(_NPER) - np.float32(_XMIN * _NPER)
@@ -147,26 +167,42 @@ def pv_fast_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], iy: IDX
         offset += nray * ncol
         yield None
 
-    flat_a = np.concatenate([p[0] for p in parts] + [np.array([1e9], np.float32)])
-    flat_b = np.concatenate([p[1] for p in parts] + [np.zeros(1, np.float32)])
-    flat_w = np.concatenate([p[2] for p in parts] + [np.zeros(1, np.float32)])
-    dummy = offset
-    slope32 = slope.astype(np.float32)
-    order = np.argsort(win, kind="stable")
-    win_sorted = win[order]
-    s0, n = int(np.searchsorted(win_sorted, 1)), iy.size
+    flat_a, flat_b, flat_w = (np.concatenate([p[i] for p in parts]) for i in range(3))
     yield None
+    yield from window_sums_steps(flat_a, flat_b, flat_w, base, win, slope.astype(np.float32), out)
+    return out
+
+
+def window_sums_steps(flat_a: F32, flat_b: F32, flat_w: F32, base: NDArray[np.int64],
+                      win: NDArray[np.int64], slope: F32, out: F64) -> Generator[None, None, None]:
+    """Step 5 of the module docstring: ``out[t] = exp(sum_{j < win[t]} w log Phi(a - g b))``
+    over the samples ``base[t] + j`` of the flat sample arrays (``a``, ``b`` in table units,
+    ``w`` the exponent), ``g = slope[t]``; targets with an empty window keep their ``out``.
+    Yields after each block of about ``_BLOCK_PAIRS`` pairs.
+
+    Every target's window is a contiguous run of samples: its row is copied out of
+    sliding-window views of the arrays (a row copy, not a gather per pair); the arrays are
+    padded by the longest window so a row never runs off their end, and a row's columns past
+    the target's own window get weight 0."""
+    w_max = max(int(win.max(initial=0)), 1)
+    rows_a, rows_b, rows_w = (sliding_window_view(np.concatenate([f, np.full(w_max, v, np.float32)]), w_max)
+                              for f, v in ((flat_a, 1e9), (flat_b, 0.0), (flat_w, 0.0)))
+    order = stable_argsort(win)
+    win_sorted = win[order]
+    s0, n = int(np.searchsorted(win_sorted, 1)), win.size
     while s0 < n:
         cost = np.arange(1, n - s0 + 1) * win_sorted[s0:]
         s1 = min(n, s0 + max(64, int(np.searchsorted(cost, _BLOCK_PAIRS, "right"))))
         idx = order[s0:s1]
-        cols = np.arange(int(win_sorted[s1 - 1]))[None, :]
-        flat = np.where(cols < win[idx, None], base[idx, None] + cols, dummy)
-        x = np.take(flat_a, flat)
-        x -= slope32[idx, None] * np.take(flat_b, flat)
+        width = int(win_sorted[s1 - 1])
+        b0 = base[idx]
+        x = rows_b[b0, :width]  # a copy: x = a - g b, in place
+        x *= -slope[idx, None]
+        x += rows_a[b0, :width]
         np.clip(x, 0, _NT - 1, out=x)
         vals = np.take(_TABLE, x.astype(np.int32))
-        out[idx] = np.exp(np.einsum("ij,ij->i", vals, np.take(flat_w, flat)))
+        w = rows_w[b0, :width]
+        w[np.arange(width)[None, :] >= win[idx, None]] = 0.0
+        out[idx] = np.exp(np.einsum("ij,ij->i", vals, w))
         s0 = s1
         yield None
-    return out

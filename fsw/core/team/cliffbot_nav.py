@@ -127,3 +127,44 @@ class CliffbotNav:
         """Take a fix as the estimate (the recovery after a refused fix, on command)."""
         self.s = np.array([float(xy[0]), float(xy[1]), float(yaw)])
         self.P = np.asarray(cov3, float).copy()
+
+
+class Navigator:
+    """The navigation's sans-I/O step around :class:`CliffbotNav` (the ``cb_nav`` task, or a
+    bench's loop): wheel odometry between two readings of the wheels' path, the IMU's
+    heading, the winches' lengths on the map the mission plans on (:meth:`set_map`), the
+    RECON-bot's fixes (gated) and the resets the mission asks for."""
+
+    def __init__(self, xy: F64, yaw: float, cfg: NavConfig, anchors: F64, tcfg: TetherConfig,
+                 footprint_m: float) -> None:
+        self.nav = CliffbotNav(xy, yaw, cfg)
+        self.anchors, self.tcfg, self.footprint_m = np.asarray(anchors, float), tcfg, footprint_m
+        self.z: ZMap | None = None
+        self.grid: MapGrid | None = None
+        self.last_wheel: float | None = None
+
+    def set_map(self, z: ZMap, grid: MapGrid) -> None:
+        self.z, self.grid = z, grid
+
+    def step(self, wheel_path_m: float | None, pitch_deg: float | None, yaw_deg: float | None,
+             lengths_m: tuple[float, float] | None, dt: float) -> None:
+        """One navigation step: ``wheel_path_m`` the wheels' mean path so far (m), the IMU's pitch
+        and heading (deg), the winches' paid-out lengths; None for what is not known."""
+        if wheel_path_m is not None and math.isfinite(wheel_path_m):
+            # (the first reading is the baseline: no distance yet, but the time has passed)
+            d = 0.0 if self.last_wheel is None else wheel_path_m - self.last_wheel
+            self.nav.predict(d, pitch_deg if pitch_deg is not None else 0.0, dt,
+                             math.radians(yaw_deg) if yaw_deg is not None else None)
+            self.last_wheel = wheel_path_m
+        if yaw_deg is not None:
+            self.nav.heading(yaw_deg)
+        if self.z is not None and self.grid is not None and lengths_m is not None:
+            self.nav.lengths(lengths_m, self.z, self.grid, self.anchors, self.tcfg, self.footprint_m)
+
+    def fix(self, xy: F64, yaw: float, cov3: F64) -> tuple[bool, float]:
+        return self.nav.fix(xy, yaw, cov3)
+
+    def reset(self, s: F64, cov: F64) -> None:
+        """The estimate becomes ``s = (x, y, yaw)`` with covariance ``cov`` (a recovery, a checkpoint)."""
+        s = np.asarray(s, float).reshape(3)
+        self.nav.reset(s[:2], float(s[2]), np.asarray(cov, float).reshape(3, 3))

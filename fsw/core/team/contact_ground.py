@@ -1,13 +1,18 @@
 """The ground the Cliff-bot stands on, known by contact (docs/team.md, "The planner").
 
 No camera sees the ground under a robot's body: the body hides it from the RECON-bot's mast
-and from the Cliff-bot's own pair. Yet the Cliff-bot stands there, so that ground holds it.
-:func:`fill_under_body` fills the map's unknown cells within the body's radius of where it
-stands with the plane fitted (least squares) to the known cells of a ring around the body,
-and only when that ring is known well enough and flat enough to trust the plane: at least
-``min_ring_cells`` known cells spread over at least three of four quadrants, and an RMS residual
-within ``max_rms_m`` (a ring across a lip or a rock is not a plane, and its inside stays unknown).
-Known cells are never changed.
+and from the Cliff-bot's own pair, and what the RECON-bot maps there is the body's own box.
+Yet the Cliff-bot stands there, so that ground holds it. :func:`fill_under_body` fits a plane
+to the known cells of a ring around the body (least squares, trimmed: starting from the cells
+near the ring's median height, cells off the plane by more than 3 robust sigma, at least
+``max_rms_m``, are dropped and the plane fitted again, so a few cells of the body's edge or
+of the face below the lip do not tilt it) and trusts it only when it is known well enough
+and flat enough: at least ``min_ring_cells`` inlier cells spread over at least three of four
+quadrants, most of the ring's known cells inliers, and an RMS residual within ``max_rms_m``
+(a ring across a lip or a rock is not a plane, and nothing is filled). Then the unknown
+cells within ``radius_m`` of where the body stands take the plane, and so do the known cells
+within ``body_m`` standing above it by more than ``max_rms_m``: the body's box as the
+RECON-bot mapped it. Other known cells are never changed (the planner judges them).
 """
 
 from __future__ import annotations
@@ -19,17 +24,21 @@ from fsw.core.geometry import MapGrid
 from fsw.core.team.tether import ZMap
 
 F64 = NDArray[np.float64]
+B = NDArray[np.bool_]
 
 
-def fill_under_body(z: ZMap, grid: MapGrid, xy: F64, radius_m: float, *,
+def fill_under_body(z: ZMap, grid: MapGrid, xy: F64, radius_m: float, *, body_m: float = 0.0,
                     ring_m: float = 0.3, min_ring_cells: int = 12, max_rms_m: float = 0.03) -> tuple[F64, int]:
-    """``z`` with the unknown cells under a body standing at ``xy`` filled (module docstring),
-    and how many cells were filled (0 when the ring cannot be trusted)."""
+    """``z`` with the ground under a body standing at ``xy`` known by contact (module docstring),
+    and how many cells were filled or replaced (0 when the ring cannot be trusted).
+    ``body_m``: the radius within which cells above the ring's plane are the body (at least
+    ``radius_m``); the ring lies beyond it."""
     out = np.array(z, dtype=np.float64, copy=True)
     x0, y0 = float(xy[0]), float(xy[1])
-    if not (np.isfinite(x0) and np.isfinite(y0) and radius_m > 0 and ring_m > 0):
+    body_m = max(body_m, radius_m)
+    if not (np.isfinite(x0) and np.isfinite(y0) and radius_m > 0 and ring_m > 0 and np.isfinite(body_m)):
         return out, 0
-    reach = radius_m + ring_m
+    reach = body_m + ring_m
     iy0, ix0, _ = grid.cell_index(np.array([x0 - reach, x0 + reach]), np.array([y0 - reach, y0 + reach]))
     r0, r1 = max(0, int(min(iy0))), min(grid.ny, int(max(iy0)) + 1)
     c0, c1 = max(0, int(min(ix0))), min(grid.nx, int(max(ix0)) + 1)
@@ -41,17 +50,41 @@ def fill_under_body(z: ZMap, grid: MapGrid, xy: F64, radius_m: float, *,
     d = np.hypot(dx, dy)
     patch = out[r0:r1, c0:c1]
     known = np.isfinite(patch)
-    ring = known & (d > radius_m) & (d <= reach)
-    inside = ~known & (d <= radius_m)
-    if not inside.any() or int(ring.sum()) < min_ring_cells:
+    ring = known & (d > body_m) & (d <= reach)
+    coef = _ring_plane(dx[ring], dy[ring], patch[ring], min_ring_cells, max_rms_m)
+    if coef is None:
         return out, 0
-    quadrants = {(bool(a), bool(b)) for a, b in zip(dx[ring] >= 0, dy[ring] >= 0, strict=True)}
-    if len(quadrants) < 3:
-        return out, 0
-    a = np.column_stack([dx[ring], dy[ring], np.ones(int(ring.sum()))])
-    coef, *_ = np.linalg.lstsq(a, patch[ring], rcond=None)
-    rms = float(np.sqrt(np.mean((a @ coef - patch[ring]) ** 2)))
-    if not np.isfinite(rms) or rms > max_rms_m:
-        return out, 0
-    patch[inside] = coef[0] * dx[inside] + coef[1] * dy[inside] + coef[2]
-    return out, int(inside.sum())
+    plane = coef[0] * dx + coef[1] * dy + coef[2]
+    fill = (~known & (d <= radius_m)) | (known & (d <= body_m) & (patch > plane + max_rms_m))
+    patch[fill] = plane[fill]
+    return out, int(fill.sum())
+
+
+def _ring_plane(dx: F64, dy: F64, h: F64, min_cells: int, max_rms_m: float, rounds: int = 4) -> F64 | None:
+    """The trimmed least-squares plane ``h = a dx + b dy + c`` of the ring's known cells, or None
+    when it cannot be trusted (module docstring)."""
+    n = len(h)
+    if n < min_cells:
+        return None
+    a = np.column_stack([dx, dy, np.ones(n)])
+    dev = np.abs(h - np.median(h))  # start from the cells near the ring's median height
+    inl: B = dev <= 3.0 * 1.4826 * float(np.median(dev)) + max_rms_m
+    coef: F64 = np.zeros(3)
+    for _ in range(rounds):
+        if int(inl.sum()) < min_cells:
+            return None
+        coef = np.asarray(np.linalg.lstsq(a[inl], h[inl], rcond=None)[0], np.float64)
+        res = h - a @ coef
+        mad = float(np.median(np.abs(res[inl] - np.median(res[inl]))))
+        keep = np.abs(res) <= max(3.0 * 1.4826 * mad, max_rms_m)
+        if np.array_equal(keep, inl):
+            break
+        inl = keep
+    if int(inl.sum()) < min_cells or inl.mean() < 0.6:
+        return None
+    res = (h - a @ coef)[inl]
+    rms = float(np.sqrt(np.mean(res**2)))
+    quadrants = {(bool(p), bool(q)) for p, q in zip(dx[inl] >= 0, dy[inl] >= 0, strict=True)}
+    if len(quadrants) < 3 or not np.isfinite(rms) or rms > max_rms_m:
+        return None
+    return np.asarray(coef, np.float64)

@@ -313,19 +313,27 @@ def settle(z: ZMap, grid: MapGrid, anchors: F64, lengths: tuple[float, float], g
 
     Gauss-Newton on ``L_i(x, y) = l_i`` from ``guess_xy`` (the last pose): the Jacobian by
     central differences of the tether lengths at one map cell, each step halved until the
-    residual shrinks. None when it does not
-    converge (the lengths cannot both be taut: the Cliff-bot would hang on one tether)."""
+    residual shrinks. On a rough face steeper than about 75 degrees the lengths are rough
+    functions of ``(x, y)`` at the scale of a cell (a centimetre across the face is several
+    up it) and Gauss-Newton can cycle; then a Nelder-Mead search on the largest length
+    residual from the best place seen (:func:`_settle_search`) decides, with the same
+    acceptance. None when neither finds both tethers taut within it (the lengths cannot both
+    be taut: the Cliff-bot would hang on one tether)."""
     xy = np.asarray(guess_xy, float).copy()
     h = grid.cell
     target = np.asarray(lengths, float)
     probes = np.array([[h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
     known: TetherState | None = None  # the state at ``xy`` when the last step's trial computed it
+    accept = 10 * tol_m + 0.25 * h
+    best: tuple[float, F64] = (math.inf, xy.copy())
     for _ in range(iterations):
         st = known if known is not None else tether_state(z, grid, anchors, xy, cfg)
         known = None
         if st is None:
             return None
         r = np.asarray(st.lengths_m) - target
+        if float(np.max(np.abs(r))) < best[0]:
+            best = (float(np.max(np.abs(r))), xy.copy())
         if np.max(np.abs(r)) < tol_m:
             return xy, st
         jac = np.empty((2, 2))
@@ -352,6 +360,27 @@ def settle(z: ZMap, grid: MapGrid, anchors: F64, lengths: tuple[float, float], g
             step = 0.5 * step
         xy = xy - step
     st = known if known is not None else tether_state(z, grid, anchors, xy, cfg)
-    if st is not None and np.max(np.abs(np.asarray(st.lengths_m) - target)) < 10 * tol_m + 0.25 * h:
+    if st is not None and np.max(np.abs(np.asarray(st.lengths_m) - target)) < accept:
+        return xy, st
+    return _settle_search(z, grid, anchors, target, best[1], cfg, accept)
+
+
+def _settle_search(z: ZMap, grid: MapGrid, anchors: F64, target: F64, xy0: F64, cfg: TetherConfig,
+                   accept_m: float) -> tuple[F64, TetherState] | None:
+    """Nelder-Mead (``scipy.optimize``) on ``max_i |L_i(x, y) - l_i|`` from ``xy0``, its first
+    simplex a quarter cell wide; the place found when it is within ``accept_m``."""
+    from scipy.optimize import minimize
+
+    def worst(p: F64) -> float:
+        st = tether_state(z, grid, anchors, p, cfg)
+        return float(np.max(np.abs(np.asarray(st.lengths_m) - target))) if st is not None else math.inf
+
+    d = 0.25 * grid.cell
+    res = minimize(worst, xy0, method="Nelder-Mead",
+                   options={"xatol": 1e-4, "fatol": 1e-4, "maxfev": 120,
+                            "initial_simplex": np.array([xy0, xy0 + [d, 0.0], xy0 + [0.0, d]])})
+    xy = np.asarray(res.x, float)
+    st = tether_state(z, grid, anchors, xy, cfg)
+    if st is not None and float(np.max(np.abs(np.asarray(st.lengths_m) - target))) < accept_m:
         return xy, st
     return None

@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid
 from fsw.framework.storage import describe
-from fsw.tasks.cliffbot_mission import CliffbotMission, Leg
+from fsw.tasks.cliffbot_mission import CliffbotMission, Estimate, Leg
 
 SCHEMA = 1
 STATE, MAP = "cliffbot_state.json", "cliffbot_map.npy"
@@ -40,7 +40,7 @@ def snapshot(m: CliffbotMission, now: float) -> dict[str, object]:
         "leg_i": m.leg_i, "fix_seq": m.fix_seq, "map_version": m.map_version,
         "start": [float(v) for v in m.start], "targets": m.targets.tolist(), "reached": list(m.reached),
         "reasons": list(m.reasons), "legs": [[float(g.goal[0]), float(g.goal[1]), g.target] for g in m.legs],
-        "nav_s": [float(v) for v in m.nav.s], "nav_P": m.nav.P.tolist(),
+        "nav_s": [float(v) for v in m.est.s], "nav_P": m.est.P.tolist(),
     }
 
 
@@ -75,13 +75,25 @@ def restore(m: CliffbotMission, st: dict[str, object], z: NDArray[np.float64] | 
     m.targets, m.reached, m.reasons, m.legs, m.leg_i = targets, reached, reasons, legs, leg_i
     m.planned_lengths = [math.inf for _ in range(len(targets))]
     m.start = np.asarray(st.get("start", m.start), float).reshape(2)
-    m.nav.s, m.nav.P = s, p
+    m.est = Estimate(s, p)  # (the navigation task reads the same checkpoint: nav_estimate)
     m.fix_seq = _int(st.get("fix_seq", 0))
     if state in ("WAIT_FIX", "DRIVE", "DWELL"):
         state = "WAIT_FIX"  # the leg goes on from the estimate, after a fix
     m.state = state
     m.safe_reason = str(st.get("safe_reason", "")) if state == "SAFE" else ""
     return f"leg {leg_i + 1} of {len(legs)}, {sum(reached)} of {len(targets)} targets reached"
+
+
+def nav_estimate(st: dict[str, object]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The checkpoint's navigation estimate ``(s, P)``; :class:`CheckpointError` if unusable."""
+    try:
+        s = np.asarray(st["nav_s"], float).reshape(3)
+        p = np.asarray(st["nav_P"], float).reshape(3, 3)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CheckpointError(f"{STATE}: {type(exc).__name__}: {exc}") from None
+    if st.get("schema") != SCHEMA or not (np.isfinite(s).all() and np.isfinite(p).all()):
+        raise CheckpointError(f"{STATE}: no usable estimate")
+    return s, p
 
 
 def _list(v: object) -> list[object]:

@@ -2,9 +2,11 @@
 
 ``cb_devices`` decodes the team bus into :class:`DeviceStatus`; ``cb_radio`` receives the map
 (:class:`ReceivedMap`) and the RECON-bot's fixes (:class:`FixAnswer`) and sends the fix
-requests (:class:`~fsw.comm.team.fix_packets.FixRequest`); ``cb_mission`` steps the sans-I/O
-mission (navigation inside) and publishes the device commands
-(:class:`~fsw.tasks.cliffbot_mission.Commands`).
+requests (:class:`~fsw.comm.team.fix_packets.FixRequest`); ``cb_nav`` runs the navigation
+(statuses, fixes, the map the mission plans on: :class:`PlanMap`; resets the mission asks
+for: :class:`NavReset`) and publishes its estimate and its verdict on each fix
+(:class:`NavEstimate`); ``cb_mission`` steps the sans-I/O mission and publishes the device
+commands (:class:`~fsw.tasks.cliffbot_mission.Commands`).
 """
 
 from __future__ import annotations
@@ -22,6 +24,9 @@ CB_COMMANDS = "cliffbot.commands"
 CB_MAP = "cliffbot.map"
 CB_FIX = "cliffbot.fix"
 CB_FIX_REQUEST = "cliffbot.fix_request"
+CB_NAV = "cliffbot.nav"
+CB_NAV_RESET = "cliffbot.nav_reset"
+CB_PLAN_MAP = "cliffbot.plan_map"
 
 
 @dataclass(frozen=True)
@@ -38,6 +43,7 @@ class ReceivedMap:
 
     map_id: int
     z: NDArray[np.float64]
+    error_bound_m: float = 0.0  # every known cell within this of the map the RECON-bot made (the codec's)
 
 
 @dataclass(frozen=True)
@@ -46,3 +52,41 @@ class FixAnswer:
 
     answer: Fix | NoFix
     reason: str = ""
+
+
+@dataclass(frozen=True)
+class PlanMap:
+    """The map the mission plans on (the received one, the ground under the body filled by contact)."""
+
+    version: int
+    z: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class NavReset:
+    """The estimate the navigation is to take: ``s = (x, y, yaw)``, covariance ``P`` (``seq`` counts them)."""
+
+    seq: int
+    s: NDArray[np.float64]
+    P: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FixVerdict:
+    """A fix and the navigation's verdict: fused (``ok``) or refused by its gate, with its NIS."""
+
+    fix: Fix
+    ok: bool
+    nis: float
+
+
+@dataclass(frozen=True)
+class NavEstimate:
+    """The navigation's estimate at ``time_s`` after ``resets`` resets, and the fixes it judged since
+    its last estimate."""
+
+    time_s: float
+    s: NDArray[np.float64]
+    P: NDArray[np.float64]
+    resets: int
+    verdicts: tuple[FixVerdict, ...] = ()

@@ -1,9 +1,12 @@
-"""The Cliff-bot's mission task: the sans-I/O mission (navigation inside) on the executive.
+"""The Cliff-bot's mission task: the sans-I/O mission on the executive.
 
 Thin (docs/architecture.md, tasks): every activation it hands the sans-I/O
 :class:`~fsw.tasks.cliffbot_mission.CliffbotMission` the map the radio received, the
-RECON-bot's fixes and the devices' statuses, steps it, publishes its device commands and
-its fix requests, and turns what it recorded into events (``TARGET_UNREACHABLE`` with the
+navigation's estimate and its verdicts on the RECON-bot's fixes (``cb_nav``,
+:mod:`fsw.tasks.cliffbot.navigation`), the RECON-bot's NO_FIX answers and the devices'
+statuses, steps it, publishes its device commands, its fix requests, the map it plans on
+(for the navigation) and the estimate the navigation is to take after a recovery or a
+checkpoint, and turns what it recorded into events (``TARGET_UNREACHABLE`` with the
 planner's reason, ``SAFE`` with the reason, ...) and telemetry (state, estimate, covariance).
 
 SAFE is the mission's (winches braked, wheels stopped; docs/team.md): the task reports it
@@ -29,7 +32,20 @@ from fsw.framework.commands import Arg, CommandDef
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.base import FlightTask
 from fsw.tasks.cliffbot import checkpoint
-from fsw.tasks.cliffbot.messages import CB_COMMANDS, CB_FIX, CB_FIX_REQUEST, CB_MAP, CB_STATUS, DeviceStatus
+from fsw.tasks.cliffbot.messages import (
+    CB_COMMANDS,
+    CB_FIX,
+    CB_FIX_REQUEST,
+    CB_MAP,
+    CB_NAV,
+    CB_NAV_RESET,
+    CB_PLAN_MAP,
+    CB_STATUS,
+    DeviceStatus,
+    NavEstimate,
+    NavReset,
+    PlanMap,
+)
 from fsw.tasks.cliffbot_mission import CliffbotMission
 
 A, I, W = Severity.ACTIVITY_HI, Severity.ACTIVITY_LO, Severity.WARNING_HI
@@ -45,7 +61,7 @@ RENAMED = {"COMMAND_REFUSED": "TARGETS_REFUSED"}  # the framework's own COMMAND_
 class CliffbotMissionTask(FlightTask):
     KIND: ClassVar[str] = "cliffbot_mission"
     RATE_HZ: ClassVar[tuple[float, float]] = (5.0, 50.0)  # winch pacing and timeouts assume ~10 Hz
-    REQUIRES: ClassVar[tuple[str, ...]] = ("cliffbot_devices", "cliffbot_radio", "health")
+    REQUIRES: ClassVar[tuple[str, ...]] = ("cliffbot_devices", "cliffbot_radio", "cliffbot_nav", "health")
     DOC: ClassVar[str] = "Cliff-bot mission: plan on the received map, drive the tethers to each target and home."
     CHANNELS = (
         Channel("state", doc="WAIT_MAP, PLAN, WAIT_FIX, DRIVE, DWELL, DONE, SAFE"),
@@ -66,6 +82,7 @@ class CliffbotMissionTask(FlightTask):
     )
     COMMANDS = (
         CommandDef("RECOVER", doc="leave SAFE: clear the winches' faults, re-plan the leg from the estimate"),
+        CommandDef("REQUEST_FIX", doc="ask the RECON-bot for a fiducial fix now (on a leg or at a target)"),
         CommandDef("SET_TARGETS", (Arg("targets", str),),
                    doc="new science targets 'x1,y1;x2,y2;...' (m, map frame), planned from where the Cliff-bot is"),
     )
@@ -81,17 +98,22 @@ class CliffbotMissionTask(FlightTask):
         self.status = self.subscribe(CB_STATUS, depth=1)
         self.maps = self.subscribe(CB_MAP, depth=2)
         self.fixes = self.subscribe(CB_FIX, depth=4)
+        self.nav = self.subscribe(CB_NAV, depth=8)
+        self._map_sent = 0
+        self.resets = 0  # estimates handed to the navigation; its estimates before the last are stale
         self.store = checkpoint.CheckpointFile(cfg.checkpoint.directory)
         self._emitted = 0
         self._saved_key: tuple[object, ...] | None = None
         self._safe_since: float | None = None
-        self._last_t: float | None = None
         self._restore()
         self._state = self.mission.state
 
     # -- commands ------------------------------------------------------------------------------
     def cmd_RECOVER(self) -> None:
         self.mission.recover()
+
+    def cmd_REQUEST_FIX(self) -> None:
+        self.mission.request_fix()
 
     def cmd_SET_TARGETS(self, targets: str) -> None:
         try:
@@ -108,29 +130,48 @@ class CliffbotMissionTask(FlightTask):
         now = self.ctx.clock.now()
         m = self.mission
         m.now = now
+        for est in self.nav.drain():
+            self._estimate(est)
         for got in self.maps.drain():
-            m.set_map(got.z, self.grid)
+            m.set_map(got.z, self.grid, got.error_bound_m)
+        if m.z is not None and m.map_version != self._map_sent:  # a new map, or a checkpoint's
+            self._map_sent = m.map_version
+            self.publish(CB_PLAN_MAP, PlanMap(m.map_version, m.z))
         for ans in self.fixes.drain():
-            if isinstance(ans.answer, Fix):
-                m.on_fix(ans.answer)
-            else:
+            if not isinstance(ans.answer, Fix):
                 m.on_no_fix(ans.answer.seq, ans.reason)
+        self._reset_nav()
         st: DeviceStatus | None = self.status.latest()
         if st is not None:
-            dt = self.ctx.frame_period_s if self._last_t is None else max(now - self._last_t, 1e-3)
-            self._last_t = now
-            cmd = m.step(now, st.devices, dt)
+            cmd = m.step(now, st.devices)
             self.publish(CB_COMMANDS, cmd)
             if cmd.request_fix:
-                xy = m.nav.xy
+                xy = m.est.xy
                 self.publish(CB_FIX_REQUEST, FixRequest(m.fix_seq, m.leg_i, float(xy[0]), float(xy[1])))
         self._auto_recover(now)
+        self._reset_nav()
         self._events()
         if m.state != self._state:
             self.event("STATE", old=self._state, new=m.state)
             self._state = m.state
         self._checkpoint(now)
         self._telemetry()
+
+    def _estimate(self, est: NavEstimate) -> None:
+        """The navigation's estimate and verdicts; an estimate made before the navigation took the
+        last reset, or while one waits to be sent, is stale (its verdicts are not: each fix is
+        judged once)."""
+        if est.resets >= self.resets and self.mission.nav_reset is None:
+            self.mission.on_estimate(est.s, est.P)
+        for v in est.verdicts:
+            self.mission.on_fix(v.fix, v.ok, v.nis)
+
+    def _reset_nav(self) -> None:
+        m = self.mission
+        if m.nav_reset is not None:
+            self.resets += 1
+            self.publish(CB_NAV_RESET, NavReset(self.resets, m.nav_reset.s.copy(), m.nav_reset.P.copy()))
+            m.nav_reset = None
 
     def _auto_recover(self, now: float) -> None:
         after = self.ctx.cfg.cliffbot_mission.safe_recover_s
@@ -151,10 +192,10 @@ class CliffbotMissionTask(FlightTask):
 
     def _telemetry(self) -> None:
         m = self.mission
-        s = m.nav.s
+        s = m.est.s
         self.tlm_record({
             "state": m.state, "x_m": float(s[0]), "y_m": float(s[1]), "yaw_deg": math.degrees(float(s[2])),
-            "sigma_m": math.sqrt(max(float(np.linalg.eigvalsh(m.nav.P[:2, :2]).max()), 0.0)),
+            "sigma_m": math.sqrt(max(float(np.linalg.eigvalsh(m.est.P[:2, :2]).max()), 0.0)),
             "leg": m.leg_i, "targets_reached": int(sum(m.reached)), "safe_reason": m.safe_reason,
         })
 

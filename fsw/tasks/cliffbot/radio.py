@@ -105,7 +105,8 @@ class CliffbotRadioTask(FlightTask):
 
     def _map(self, map_id: int, data: bytes) -> None:
         try:
-            z = decode_map(data).z
+            decoded = decode_map(data)
+            z = decoded.z
         except MapCodecError as exc:
             self.event("MAP_REFUSED", map_id=map_id, error=str(exc))
             return
@@ -115,4 +116,4 @@ class CliffbotRadioTask(FlightTask):
         zf = np.asarray(z, np.float64) + self.ctx.cfg.cliffbot_site.map_datum_m
         self.counts["maps"] += 1
         self.event("MAP_RECEIVED", map_id=map_id, size=len(data), known=int(np.isfinite(zf).sum()))
-        self.publish(CB_MAP, ReceivedMap(map_id, zf))
+        self.publish(CB_MAP, ReceivedMap(map_id, zf, float(decoded.header.error_bound_m)))

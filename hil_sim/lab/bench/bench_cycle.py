@@ -22,11 +22,19 @@ DESCRIPTION = (
     "and the longest slack-job slice (thread CPU, per submitting task, against the 20 ms "
     "bound) from a short lockstep mission; "
     "and this process's peak RSS. Times are CPU seconds of this process (one core): min and "
-    "median of --repeats runs. Each figure is projected onto the flight computer as "
-    "time x cpu_factor (config/budget.toml) and compared with the budget table there. "
-    "CAVEAT: on a shared, loaded machine even CPU times inflate (caches, frequency); compare "
-    "figures measured back to back. Capture is the bench renderer (not flight work) and is "
-    "left out of the cycle total. Exit 2 on a bad option or config file."
+    "median of --repeats runs. In the same run it times a fixed yardstick workload "
+    "(hil_sim/lab/bench/yardstick.py) and scales every figure to the reference machine "
+    "(x yardstick_ref_s / the yardstick here, config/budget.toml), so figures from different "
+    "machines compare; each is projected onto the flight computer as that x cpu_factor and "
+    "compared with the budget table there; between grid sizes each stage's growth is checked "
+    "against stage_growth_max x the cells' growth. --baseline REV runs the bench of another "
+    "commit in child processes (its code exported from git), a repeat at a time interleaved with "
+    "this commit's, and --results writes "
+    "both to docs/results/cycle.md. "
+    "CAVEAT: on a shared, loaded machine even CPU times inflate (caches, frequency); the "
+    "yardstick absorbs part of it: compare figures measured back to back. Capture is the bench "
+    "renderer (not flight work) and is left out of the cycle total. Exit 2 on a bad option or "
+    "config file."
 )
 
 
@@ -38,13 +46,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--budget", type=Path, default=None,
                    help="budget table (default config/budget.toml)")
     p.add_argument("--cpu-factor", type=float, default=None,
-                   help="override the budget's cpu_factor (target time / time here)")
+                   help="override the budget's cpu_factor (target time / time on the reference machine)")
     p.add_argument("--grids", type=int, nargs="+", default=[256, 512], metavar="N",
                    help="map sizes N x N over the configured map area")
     p.add_argument("--repeats", type=int, default=3, help="timed runs per stage")
     p.add_argument("--mission-steps", type=int, default=1,
                    help="imaging steps of the lockstep mission timed for the foreground and "
                         "the slack slices (0: skip the mission)")
+    p.add_argument("--baseline", metavar="REV", default=None,
+                   help="also run this commit's bench cycle (its fsw, hil_sim and config exported "
+                        "from git) in a child process, a repeat at a time interleaved with this "
+                        "commit's, for a before/after table")
+    p.add_argument("--results", action="store_true",
+                   help="write the cycle table (and the baseline's) to docs/results/cycle.md")
 
 
 def _cpu(fn: Any, repeats: int) -> tuple[float, float, Any]:
@@ -177,12 +191,34 @@ def _cycle(cfg: Any, world: Any, n: int, repeats: int, seed: int) -> dict[str, A
     return fig
 
 
+def _pooled(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """Single-repeat figures of :func:`_cycle` pooled: (min, median) of every timed item."""
+    import statistics
+
+    out = dict(runs[-1])
+    for key, value in runs[-1].items():
+        if isinstance(value, (tuple, list)) and len(value) == 2 and all(isinstance(v, float) for v in value):
+            times = [float(r[key][0]) for r in runs]
+            out[key] = (min(times), statistics.median(times))
+    out["step_max_s"] = max(float(r["step_max_s"]) for r in runs)
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
+    import contextlib
     import resource
 
     from fsw.framework.params import ConfigError
     from fsw.settings import DEFAULT_CONFIG, load_settings
-    from hil_sim.lab.cycle_budget import CYCLE_STAGES, DEFAULT_BUDGET, load_budget, verdict
+    from hil_sim.lab.bench.cycle_compare import (
+        Baseline,
+        BaselineError,
+        BaselineRunner,
+        min_stages,
+        write_cycle_results,
+    )
+    from hil_sim.lab.bench.yardstick import yardstick_s
+    from hil_sim.lab.cycle_budget import CYCLE_GOALS_S, CYCLE_STAGES, DEFAULT_BUDGET, load_budget, verdict
     from hil_sim.world import load_scenario
 
     if args.repeats < 1 or args.mission_steps < 0 or any(not 16 <= g <= 4096 for g in args.grids):
@@ -199,11 +235,86 @@ def run(args: argparse.Namespace) -> int:
     except (ConfigError, ValueError) as err:
         print(f"safer-hil bench cycle: {err}", file=sys.stderr)
         return 2
+    grids = sorted(set(args.grids))
     k = args.cpu_factor or budget.cpu_factor
-    print(f"CPU s of this process, min (median) of {args.repeats}; target = min x {k:g} "
-          f"(cpu_factor); budget: {args.budget or DEFAULT_BUDGET}. Caveat: on a shared, loaded "
-          "machine CPU times inflate too; compare runs made back to back.")
-    if args.mission_steps:
+    runner = None
+    if args.baseline:
+        try:
+            runner = BaselineRunner(args.baseline, args)
+        except BaselineError as err:
+            print(f"safer-hil bench cycle: {err}", file=sys.stderr)
+            return 2
+    print(f"CPU s of this process, min (median) of {args.repeats}; ref = on the reference machine "
+          f"(x yardstick_ref_s / the yardstick here); target = ref x {k:g} (cpu_factor); budget: "
+          f"{args.budget or DEFAULT_BUDGET}. Caveat: on a shared, loaded machine CPU times inflate "
+          "too; compare runs made back to back.", flush=True)
+    figs: dict[int, dict[str, Any]] = {}
+    base: dict[int, dict[str, float | None]] = {}
+    yard: dict[int, float] = {}
+    try:
+        with runner or contextlib.nullcontext():
+            for n in grids:
+                samples = [yardstick_s(2)]
+                if runner is None:
+                    figs[n] = _cycle(cfg, world, n, args.repeats, args.seed)
+                    samples.append(yardstick_s(2))
+                else:  # one repeat of each commit at a time: the same load for both
+                    runs, base_runs = [], []
+                    for _ in range(args.repeats):
+                        base_runs.append(runner.stages(n))
+                        samples.append(yardstick_s(2))
+                        runs.append(_cycle(cfg, world, n, 1, args.seed))
+                        samples.append(yardstick_s(2))
+                    figs[n], base[n] = _pooled(runs), min_stages(base_runs)
+                yard[n] = min(samples)
+                print(f"  measured {n}x{n}", file=sys.stderr, flush=True)
+    except (ValueError, BaselineError) as err:
+        print(f"safer-hil bench cycle: {err}", file=sys.stderr)
+        return 2
+    before = None if runner is None else Baseline(runner.commit, base)
+    after: dict[int, dict[str, float | None]] = {}
+    for n in grids:
+        f = figs[n]
+        after[n] = {}
+        scale = budget.yardstick_ref_s / yard[n]
+        print(f"\nyardstick {1e3 * yard[n]:.1f} ms here (between the {n}x{n} runs), "
+              f"{1e3 * budget.yardstick_ref_s:.1f} ms on the reference machine: ref = here x {scale:.3f}")
+        print(f"sensing cycle (the flown pipeline, fsw.core.pipeline), {args.scenario} after the "
+              f"start panorama, map {n}x{n} cells of {100 * f['cell_m']:.2f} cm; the view {f['registration']}:")
+        print(f"  {'stage':<10} {'here min (median)':>20} {'ref':>9} {'target':>8} {'budget':>8}")
+        c_min, c_med = f["capture"]
+        print(f"  {'capture':<10} {1e3 * c_min:9.1f} ({1e3 * c_med:7.1f}) ms   (bench renderer, "
+              "not flight work: not in the total)")
+        total = 0.0
+        for stage in CYCLE_STAGES:
+            b = getattr(budget.cycle, f"{stage}_s")
+            if f[stage] is None:
+                after[n][stage] = None
+                print(f"  {stage:<10} {'n/a (no calibration)':>20} {'':>9} {'':>8} {b:7.1f}s")
+                continue
+            lo, med = f[stage]
+            total += lo
+            after[n][stage] = lo
+            print(f"  {stage:<10} {1e3 * lo:9.1f} ({1e3 * med:7.1f}) ms {1e3 * lo * scale:6.1f} ms "
+                  f"{lo * scale * k:7.2f}s {b:7.1f}s {verdict(lo * scale * k, b)}")
+        goal = CYCLE_GOALS_S.get(n)
+        print(f"  {'cycle':<10} {1e3 * total:9.1f} (sum of min) ms {1e3 * total * scale:6.1f} ms "
+              f"{total * scale * k:7.2f}s {budget.cycle.total_s:7.1f}s "
+              f"{verdict(total * scale * k, budget.cycle.total_s)}"
+              + ("" if goal is None else f"; goal {goal:g} s on the reference machine: "
+                 f"{verdict(total * scale, goal)}"))
+        print(f"  next view: {f['poses']} poses, longest search step {1e3 * f['step_max_s']:.1f} "
+              f"ms here ({1e3 * f['step_max_s'] * scale * k:.0f} ms on the target)")
+    for n1, n2 in zip(grids, grids[1:], strict=False):
+        cells = (n2 / n1) ** 2
+        bound = budget.stage_growth_max * cells
+        parts = []
+        for stage in CYCLE_STAGES:
+            t1, t2 = after[n1][stage], after[n2][stage]
+            if t1 is not None and t2 is not None and t1 > 0:
+                parts.append(f"{stage} {t2 / t1:.1f}x {verdict(t2 / t1, bound)}")
+        print(f"\ngrowth {n1}x{n1} -> {n2}x{n2} ({cells:g}x the cells; bound {bound:.1f}x): " + ", ".join(parts))
+    if args.mission_steps:  # after the cycles (timed after a mission in this process, they measured up to 2x slower)
         from hil_sim.mission.mission_run import RunSpec, run_mission
 
         s = run_mission(RunSpec(scenario=args.scenario, method="5", steps=args.mission_steps,
@@ -212,7 +323,7 @@ def run(args: argparse.Namespace) -> int:
         per = s["task_ms_per_frame"]
         fg = per.pop("total")
         print(f"\nforeground, lockstep {args.scenario} mission ({args.mission_steps} steps, "
-              f"{s['frames']} frames; thread CPU time per task, mean ms per frame):")
+              f"{s['frames']} frames; thread CPU time per task, mean ms per frame, here):")
         for name, ms in sorted(per.items(), key=lambda kv: -kv[1]):
             print(f"  {name:<12} {ms:8.3f} ms  target {ms * k:7.2f} ms")
         print(f"  {'total':<12} {fg:8.3f} ms  target {fg * k:7.2f} ms, budget "
@@ -227,32 +338,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"  peak RSS after the mission {rss_mb:.0f} MB (flight software and the HIL bench "
               f"in one process: an upper bound on the flight process), budget "
               f"{budget.peak_rss_mb:g} MB: {verdict(rss_mb, budget.peak_rss_mb)}")
-    for n in args.grids:
-        try:
-            f = _cycle(cfg, world, n, args.repeats, args.seed)
-        except ValueError as err:
-            print(f"safer-hil bench cycle: {err}", file=sys.stderr)
-            return 2
-        print(f"\nsensing cycle (the flown pipeline, fsw.core.pipeline), {args.scenario} after the "
-              f"start panorama, map {n}x{n} cells of {100 * f['cell_m']:.2f} cm; the view {f['registration']}:")
-        print(f"  {'stage':<10} {'here min (median)':>20} {'target':>9} {'budget':>8}")
-        c_min, c_med = f["capture"]
-        print(f"  {'capture':<10} {1e3 * c_min:9.1f} ({1e3 * c_med:7.1f}) ms   (bench renderer, "
-              "not flight work: not in the total)")
-        total = 0.0
-        for stage in CYCLE_STAGES:
-            b = getattr(budget.cycle, f"{stage}_s")
-            if f[stage] is None:
-                print(f"  {stage:<10} {'n/a (no calibration)':>20} {'':>9} {b:7.1f}s")
-                continue
-            lo, med = f[stage]
-            total += lo
-            print(f"  {stage:<10} {1e3 * lo:9.1f} ({1e3 * med:7.1f}) ms {lo * k:8.2f}s {b:7.1f}s "
-                  f"{verdict(lo * k, b)}")
-        print(f"  {'cycle':<10} {1e3 * total:9.1f} (sum of min) ms {total * k:8.2f}s "
-              f"{budget.cycle.total_s:7.1f}s {verdict(total * k, budget.cycle.total_s)}")
-        print(f"  next view: {f['poses']} poses, longest search step {1e3 * f['step_max_s']:.1f} "
-              f"ms here ({1e3 * f['step_max_s'] * k:.0f} ms on the target)")
     rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     print(f"\npeak RSS at the end {rss_mb:.0f} MB (this process, after every stage above)")
+    if args.results:
+        write_cycle_results(args, budget, after, yard, before)
     return 0

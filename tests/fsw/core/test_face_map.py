@@ -186,3 +186,40 @@ def test_the_pipeline_routes_a_view_between_the_grids() -> None:
     assert pipe.map.mapped[Y < -1.9].sum() > 50  # the floor in front of the face: the gravity grid
     owned = pipe.face.face_owned(pipe.map.grid)
     assert not (pipe.map.mapped & owned).any()  # the face's inner band: not in the gravity grid
+
+
+def test_sight_lines_carry_the_pose_error_and_reach_past_the_point() -> None:
+    """A point whose sight line misses a robot by 10 cm at 3 m: kept when the point is exact,
+    masked when its error (the camera pose's) is 5 cm every way at 6 m; a point in
+    front of a robot it hides (a lip's flying pixel) is masked, one far in front is not."""
+    box = BodyBox(np.array([0.0, 3.0, 0.0]), np.eye(3), np.array([0.2, 0.2, 0.2]), 0.0)
+    team = TeamGeometry((box,), ())
+    eye = np.zeros(3)
+    cfg = MaskConfig(margin_m=0.02, pixel_rad=0.001)
+    past = np.array([[0.0, 6.0, 0.6]])  # its sight line passes 0.1 m over the box's top at y = 3
+    exact = np.tile(np.eye(3)[None] * 1e-8, (1, 1, 1))
+    assert not team_mask(past, exact, team, cfg, eye=eye).any()
+    lateral = np.eye(3)[None] * 0.05**2
+    assert team_mask(past, lateral, team, cfg, eye=eye).all()
+    front = np.array([[0.0, 2.0, 0.0], [0.0, 1.0, 0.0]])  # in front of the box, on its sight line
+    assert team_mask(front, np.tile(exact, (2, 1, 1)), team, cfg, eye=eye).tolist() == [True, False]
+    # the camera's own robot (its box within own_m): no reach past the point
+    own = BodyBox(np.array([0.0, 0.5, -0.7]), np.eye(3), np.array([0.3, 0.3, 0.3]))
+    ahead = np.array([[0.0, 0.45, -0.35]])  # on the sight line to the own box, short of it
+    assert not team_mask(ahead, exact, TeamGeometry((own,), ()), cfg, eye=eye).any()
+
+
+def test_inconsistent_views_keep_the_better_supported_surface() -> None:
+    """Two views of one face cell 20 cm apart (beyond the gate): whichever comes first, the
+    cell ends with the one of smaller variance (the other agent's wrong surface never wins)."""
+    for order in ((0, 1), (1, 0)):
+        face = FaceMap(_face_frame(), (0.0, 0.2), (0.0, 0.2), FaceMapConfig(cell_m=0.1, overhang_gap_m=0.5))
+        rng = np.random.default_rng(5)
+        u, v = rng.uniform(0.0, 0.1, 30), rng.uniform(0.0, 0.1, 30)
+        views = [(0.2, 4e-4), (0.0, 1e-5)]  # (w, point variance): the second is the better
+        for k in order:
+            w, var = views[k]
+            cov = np.tile(np.eye(3)[None] * var, (30, 1, 1))
+            face.merge_parts([(_points_on(face, u, v, np.full(30, w)), cov, None)])
+        assert face.map.z[0, 0] == pytest.approx(0.0, abs=1e-6)
+        assert face.map.var[0, 0] < 1e-4

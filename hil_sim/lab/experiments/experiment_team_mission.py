@@ -1,0 +1,205 @@
+"""``safer-hil experiment team-mission``: the real team mission end to end over seeded scenes.
+
+For each seeded ``cliff-team`` scene (``--scenes`` from ``--seed``, in ``--jobs`` processes) the
+lockstep team mission of ``safer-hil run --scenario cliff-team`` (``--steps`` imaging steps of
+the RECON-bot, method 5; both flight programs on one stepped clock; docs/team.md, "Running a
+team mission"), each in ``OUT/seed<S>`` with its ``summary.json`` and ``team.png``. Per scene
+the summary's ``team`` section: whether the delivered map let the Cliff-bot leave its start,
+targets reachable on the truth and reached, tether violations, hazard and unknown cells
+entered, the end state and reason, the bytes each way. Over all scenes the RECON-bot's fixes
+(each FIX against the Cliff-bot's true pose at that instant) by range band: median and worst
+position and heading error, and the fraction whose NEES lies within the chi-square 95 % bound
+(6 dof). Writes OUT/team_mission.csv and ``docs/results/team-mission.md`` with the picture
+(``team.png``) of the scene that reached the most targets. ``--report-only`` writes them again
+from the missions stored in OUT (no mission is run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any
+
+HELP = "the team mission end to end (safer-hil run --scenario cliff-team) over seeded scenes"
+CHI2_95_6DOF = 12.5916
+BANDS = ((0.0, 3.0), (3.0, 4.0), (4.0, 5.0), (5.0, 6.0), (6.0, 8.0), (8.0, 10.0), (10.0, 99.0))
+COLUMNS = (
+    "seed",
+    "start_usable",
+    "targets",
+    "truth_reachable",
+    "reached",
+    "reachable_missed",
+    "tether_violations",
+    "hazard_cells",
+    "unknown_cells",
+    "fixes",
+    "final_state",
+    "safe_reason",
+    "bytes_down",
+    "bytes_up",
+    "map_reasons",
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from fsw.settings import DEFAULT_CONFIG
+
+    p.add_argument("--scenario", default="cliff-team", help="scenario spec (seeded per scene)")
+    p.add_argument("--scenes", type=int, default=10, help="number of seeded scenes")
+    p.add_argument("--seed", type=int, default=0, help="first seed")
+    p.add_argument("--steps", type=int, default=20, help="the RECON-bot's imaging steps (safer-hil run's default)")
+    p.add_argument("--jobs", type=int, default=1, help="scenes run in parallel (processes)")
+    p.add_argument("--config", default=str(DEFAULT_CONFIG), help="the RECON-bot's flight configuration (TOML)")
+    p.add_argument("--out", type=Path, default=Path("out/team-mission"), help="output directory")
+    p.add_argument("--report-only", action="store_true", help="write the report from the missions stored in --out")
+
+
+def scene(scenario: str, seed: int, steps: int, config: str, out: Path) -> dict[str, Any]:
+    """One team mission (a process of its own): its row and its fixes."""
+    import shutil
+
+    from hil_sim.mission.mission_run import RunSpec, run_mission
+
+    d = out / f"seed{seed}"
+    shutil.rmtree(d, ignore_errors=True)
+    return scene_row(run_mission(RunSpec(scenario, "5", steps, seed, config, True, d), mode="fresh"), seed)
+
+
+def scene_row(s: dict[str, Any], seed: int) -> dict[str, Any]:
+    """A scene's row and fixes from its mission summary."""
+    t = s.get("team") or {}
+    reasons = [str(r) for r in t.get("map_reasons", [])]
+    row = {
+        "seed": seed,
+        "start_usable": int(bool(t.get("map_received")) and not any(r.startswith("start:") for r in reasons)),
+        "targets": t.get("targets", 0),
+        "truth_reachable": t.get("targets_reachable_by_truth", 0),
+        "reached": t.get("targets_reached", 0),
+        "reachable_missed": len(t.get("reachable_missed", [])),
+        "tether_violations": t.get("tether_violations", 0),
+        "hazard_cells": t.get("hazard_cells_entered", 0),
+        "unknown_cells": t.get("unknown_cells_entered", 0),
+        "fixes": len(t.get("fix_errors_cm", [])),
+        "final_state": t.get("final_state", "-"),
+        "safe_reason": t.get("safe_reason", ""),
+        "bytes_down": t.get("link_bytes_down", 0),
+        "bytes_up": t.get("link_bytes_up", 0),
+        "map_reasons": "; ".join(r or "reached" for r in reasons),
+    }
+    fixes = list(
+        zip(
+            t.get("fix_ranges_m", []),
+            t.get("fix_errors_cm", []),
+            t.get("fix_errors_deg", []),
+            t.get("fix_nees", []),
+            strict=False,
+        )
+    )
+    return {"row": row, "fixes": fixes}
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from hil_sim.lab.results import command_line, write_results
+    from hil_sim.world import ScenarioError, load_scenario
+
+    me = "safer-hil experiment team-mission"
+    if args.scenes < 1 or args.jobs < 1 or args.steps < 0:
+        print(f"{me}: --scenes and --jobs must be >= 1, --steps >= 0", file=sys.stderr)
+        return 2
+    try:
+        w = load_scenario(args.scenario, args.seed)
+        if w.team is None:
+            raise ScenarioError(f"{args.scenario} has no team (use a cliff-team scenario)")
+    except (ScenarioError, ValueError, OSError) as exc:
+        print(f"{me}: {exc}", file=sys.stderr)
+        return 2
+    seeds = list(range(args.seed, args.seed + args.scenes))
+    got: list[dict[str, Any]] = []
+    if args.report_only:
+        import json
+
+        for sd in seeds:
+            try:
+                got.append(scene_row(json.loads((args.out / f"seed{sd}" / "summary.json").read_text()), sd))
+            except (OSError, ValueError) as exc:
+                print(f"seed {sd}: no stored mission ({type(exc).__name__}: {exc})", file=sys.stderr)
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        futs = {pool.submit(scene, args.scenario, s, args.steps, args.config, args.out): s
+                for s in seeds if not args.report_only}
+        for fut in as_completed(futs):
+            try:
+                got.append(fut.result())
+            except Exception as exc:  # noqa: BLE001 - one failed scene is reported, the rest go on
+                print(f"seed {futs[fut]}: FAILED {type(exc).__name__}: {exc}", file=sys.stderr)
+                continue
+            r = got[-1]["row"]
+            print(
+                f"[{len(got)}/{len(seeds)}] seed {r['seed']}: start {'usable' if r['start_usable'] else 'NOT usable'}, "
+                f"reached {r['reached']} of {r['truth_reachable']} the truth reaches, {r['final_state']} "
+                f"{r['safe_reason']}",
+                flush=True,
+            )
+    if not got:
+        return 1
+    rows = sorted((g["row"] for g in got), key=lambda r: r["seed"])
+    fixes = [f for g in got for f in g["fixes"]]
+    args.out.mkdir(parents=True, exist_ok=True)
+    with open(args.out / "team_mission.csv", "w", newline="") as fh:
+        wr = csv.DictWriter(fh, fieldnames=COLUMNS)
+        wr.writeheader()
+        wr.writerows(rows)
+    lines = [
+        "| seed | start usable | targets | reachable (truth) | reached | tether violations | hazard cells | "
+        "unknown cells | fixes | end | bytes down / up | per target |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        end = r["final_state"] + (f" ({r['safe_reason']})" if r["safe_reason"] else "")
+        lines.append(
+            f"| {r['seed']} | {'yes' if r['start_usable'] else 'no'} | {r['targets']} | {r['truth_reachable']} | "
+            f"{r['reached']} | {r['tether_violations']} | {r['hazard_cells']} | {r['unknown_cells']} | "
+            f"{r['fixes']} | {end} | {r['bytes_down']} / {r['bytes_up']} | {r['map_reasons']} |"
+        )
+    reach = sum(r["truth_reachable"] for r in rows)
+    done = sum(min(r["reached"], r["truth_reachable"]) for r in rows)
+    summary = (
+        f"{len(rows)} scenes, {args.steps} imaging steps each: the start usable on the delivered map in "
+        f"{sum(r['start_usable'] for r in rows)}; targets reached {sum(r['reached'] for r in rows)} "
+        f"(of the {reach} the truth reaches: {done}); tether violations {sum(r['tether_violations'] for r in rows)}, "
+        f"hazard cells entered {sum(r['hazard_cells'] for r in rows)}, unknown cells entered "
+        f"{sum(r['unknown_cells'] for r in rows)}."
+    )
+    band = [
+        "| range (m) | fixes | position error median / worst (cm) | heading error median / worst (deg) | "
+        "NEES within chi2 95 % |",
+        "|---|---|---|---|---|",
+    ]
+    for lo, hi in BANDS:
+        sel = [f for f in fixes if lo <= f[0] < hi]
+        if not sel:
+            continue
+        pe, de = np.array([f[1] for f in sel]), np.array([f[2] for f in sel])
+        ok = np.mean([f[3] <= CHI2_95_6DOF for f in sel])
+        band.append(
+            f"| {lo:g}-{hi:g} | {len(sel)} | {np.median(pe):.2f} / {pe.max():.2f} | "
+            f"{np.median(de):.2f} / {de.max():.2f} | {100 * ok:.0f} % |"
+        )
+    within = np.mean([f[3] <= CHI2_95_6DOF for f in fixes]) if fixes else float("nan")
+    report = (
+        f"Scenario `{args.scenario}`, seeds {seeds[0]}-{seeds[-1]}. {summary}\n\n"
+        + "\n".join(lines)
+        + f"\n\nThe RECON-bot's fixes during the missions ({len(fixes)}; NEES within the chi2 95 % bound: "
+        f"{100 * within:.0f} %):\n\n" + "\n".join(band) + "\n"
+    )
+    (args.out / "team_mission.md").write_text(f"# The team mission end to end\n\n{report}")
+    best = max(rows, key=lambda r: (r["reached"], -r["seed"]))
+    write_results("team-mission", command_line("team-mission"), report,
+                  figures=[args.out / f"seed{best['seed']}" / "team.png"])
+    print(report)
+    return 0

@@ -1,0 +1,70 @@
+"""A fix from one far marker is refused when its mirror pose fits as well (fsw.core.localization.fiducials;
+docs/team.md, "Relative localization"): projected corners, no rendering."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from fsw.core.geometry import CameraPose
+from fsw.core.localization.fiducials import CliffbotLayout, _ambiguity, _project
+from fsw.core.localization.localization import pnp_candidates
+from fsw.settings import load_settings
+
+CFG = load_settings()
+
+
+def _candidates(range_m: float, yaw_deg: float, seed: int) -> list:
+    """The PnP candidates of one marker (id 1) seen at ``range_m``, turned ``yaw_deg``, corners noisy."""
+    corners = CliffbotLayout().corners_body()[1]
+    c = corners.mean(axis=0)
+    a = math.radians(yaw_deg)
+    # the camera looks at the marker's centre from range_m, along the body's x axis turned by a
+    eye = c + range_m * np.array([math.cos(a), math.sin(a), 0.15])
+    fwd = (c - eye) / np.linalg.norm(c - eye)
+    right = np.cross(fwd, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(fwd, right)
+    pose = CameraPose(np.column_stack([right, down, fwd]), eye)
+    K = np.asarray(CFG.camera.K, float)
+    px = _project(pose, corners, K) + np.random.default_rng(seed).normal(0.0, 0.3, (4, 2))
+    return sorted(pnp_candidates(corners, px, K, CFG.localization.corner_sigma_px), key=lambda e: e.rms_px)
+
+
+def test_a_far_frontal_marker_is_ambiguous_and_a_near_oblique_one_is_not() -> None:
+    ratio = CFG.localization.fiducial_ambiguity_ratio
+    far = [_ambiguity(_candidates(6.0, 5.0, s)) for s in range(8)]
+    near = [_ambiguity(_candidates(2.0, 40.0, s)) for s in range(8)]
+    assert sum(r < ratio for r in far) >= 6, far  # both mirror poses fit the noisy corners
+    assert all(r >= ratio for r in near), near
+
+
+def test_one_candidate_or_the_same_pose_twice_is_not_ambiguous() -> None:
+    c = _candidates(2.0, 40.0, 0)
+    assert _ambiguity(c[:1]) == math.inf
+    assert _ambiguity([c[0], c[0]]) == math.inf
+
+
+def test_one_marker_too_small_in_the_image_gives_no_fix() -> None:
+    """A far single marker (its side under ``fiducial_min_marker_px``) is no fix; the same marker
+    near is one (the detector is stubbed with projected corners)."""
+    from fsw.core.localization.fiducials import CliffbotLocalizer, _side_px
+    from fsw.core.localization.localization import PoseEstimate
+
+    corners = CliffbotLayout().corners_body()[1]
+    K = np.asarray(CFG.camera.K, float)
+    loc = CliffbotLocalizer(CFG.localization, CliffbotLayout(), K, CFG.camera.baseline_m)
+    got = {}
+    for r in (2.0, 11.0):
+        c = corners.mean(axis=0)
+        eye = c + r * np.array([math.cos(0.6), math.sin(0.6), 0.1])
+        fwd = (c - eye) / np.linalg.norm(c - eye)
+        right = np.cross(fwd, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        pose = CameraPose(np.column_stack([right, np.cross(fwd, right), fwd]), eye)
+        px = _project(pose, corners, K)
+        loc.detect = lambda image, px=px: {1: px}  # type: ignore[method-assign]
+        got[r] = (_side_px(px), loc.locate(np.zeros((4, 4), np.uint8), PoseEstimate(pose, np.zeros((6, 6)))))
+    assert got[2.0][0] >= CFG.localization.fiducial_min_marker_px and got[2.0][1] is not None
+    assert got[11.0][0] < CFG.localization.fiducial_min_marker_px and got[11.0][1] is None

@@ -1,0 +1,43 @@
+"""``safer-hil experiment team-mission``'s report (hil_sim.lab.experiments.experiment_team_mission):
+rows and fix bands from stored team missions (``--report-only``, no mission run)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import pytest
+
+from hil_sim.lab.experiments import experiment_team_mission as tm
+
+
+def _summary(reached: int, reasons: list[str], fixes: list[tuple[float, float, float, float]]) -> dict:
+    return {"team": {
+        "map_received": True, "targets": len(reasons), "targets_reachable_by_truth": 2, "targets_reached": reached,
+        "reachable_missed": [], "tether_violations": 0, "hazard_cells_entered": 0, "unknown_cells_entered": 0,
+        "final_state": "DONE" if reached else "SAFE", "safe_reason": "" if reached else "leg 1: start: hazard",
+        "link_bytes_down": 3000, "link_bytes_up": 200, "map_reasons": reasons,
+        "fix_ranges_m": [f[0] for f in fixes], "fix_errors_cm": [f[1] for f in fixes],
+        "fix_errors_deg": [f[2] for f in fixes], "fix_nees": [f[3] for f in fixes]}}
+
+
+def test_the_report_counts_starts_targets_and_fixes_by_range(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setenv("SAFER_RESULTS_DIR", str(tmp_path / "results"))
+    runs = {0: _summary(2, ["", "", "hazard"], [(2.5, 0.4, 0.1, 3.0), (4.5, 1.0, 0.3, 20.0)]),
+            1: _summary(0, ["start: hazard"] * 3, [])}
+    for seed, s in runs.items():
+        (tmp_path / f"seed{seed}").mkdir()
+        (tmp_path / f"seed{seed}" / "summary.json").write_text(json.dumps(s))
+        (tmp_path / f"seed{seed}" / "team.png").write_bytes(b"png")
+    args = argparse.Namespace(scenario="cliff-team", scenes=2, seed=0, steps=10, jobs=1, config="config/fsw.toml",
+                              out=tmp_path, report_only=True)
+    assert tm.run(args) == 0
+    rows = (tmp_path / "team_mission.csv").read_text().splitlines()
+    assert rows[1].startswith("0,1,3,2,2,") and rows[2].startswith("1,0,3,2,0,")  # seed, start usable, targets...
+    md = (tmp_path / "results" / "team-mission.md").read_text()
+    assert "the start usable on the delivered map in 1" in md and "targets reached 2 (of the 4" in md
+    assert "| 0-3 | 1 | 0.40 / 0.40 |" in md and "| 4-5 | 1 | 1.00 / 1.00 | 0.30 / 0.30 | 0 % |" in md
+    assert "img/team-mission_team.png" in md  # the picture of the scene that reached the most
+    assert "NEES within the chi2 95 % bound: 50 %" in capsys.readouterr().out
