@@ -74,7 +74,7 @@ class CliffbotMissionConfig:
     return_home: bool = param(True, doc="climb back to the start after the last target")
     wheel_radius_m: float = param(0.06, lo=0.01, hi=1.0, units="m")
     track_margin_m: float = param(0.08, lo=0.0, hi=2.0, units="m",
-                                  doc="the planner's footprint grown by this: the body strays between waypoints")
+                                  doc="paths keep this clear of hazards where the ground leaves room (a soft cost)")
     tension_margin_n: float = param(10.0, lo=0.0, hi=1000.0, units="N",
                                     doc="the planner keeps tensions this far inside [T_min, T_max]")
     safe_recover_s: float = param(0.0, lo=0.0, hi=1e5, units="s",

@@ -263,13 +263,16 @@ class CliffbotTap:
     """Feed ``source`` from the Cliff-bot's executive ``exe``: every map its radio delivered
     (``cliffbot.map``) as ``/<vehicle>/map/elevation``, its navigation estimate (the mission's
     ``x_m``, ``y_m``, ``yaw_deg``; height from the received map) on ``/tf`` at most every
-    ``pose_period_s``, and its events."""
+    ``pose_period_s``, and its events; each of ``mirrors`` (a live view, ``ground.rerun_cli.LiveSource``)
+    is fed the same."""
 
-    def __init__(self, exe: Any, source: VehicleSource, pose_period_s: float = 0.2, mission: str = "mission") -> None:
+    def __init__(self, exe: Any, source: VehicleSource, pose_period_s: float = 0.2, mission: str = "mission",
+                 mirrors: tuple[Any, ...] = ()) -> None:
         from fsw.core.geometry import MapGrid
         from fsw.tasks.cliffbot.messages import CB_MAP
 
         self.exe, self.source, self.pose_period_s, self.mission = exe, source, pose_period_s, mission
+        self.sinks: tuple[Any, ...] = (source, *mirrors)
         self.grid = MapGrid.from_config(exe.ctx.cfg.map)
         self.maps = exe.bus.subscribe(CB_MAP, f"recorder.{source.vehicle}", depth=4)
         self._z: np.ndarray | None = None
@@ -281,18 +284,21 @@ class CliffbotTap:
         now = float(self.exe.ctx.clock.now())
         for got in self.maps.drain():
             self._z = np.asarray(got.z, np.float32)
-            self.source.received_map(now, self._z, self.grid)
+            for src in self.sinks:
+                src.received_map(now, self._z, self.grid)
         tm = self.exe.telemetry
         names = [f"{self.mission}.{c}" for c in ("x_m", "y_m", "yaw_deg")]
         if now >= self._next_pose_s and all(n in tm.values for n in names):
             x, y, yaw_deg = (tm.get(n) for n in names)
             if None not in (x, y, yaw_deg):
                 self._next_pose_s = now + self.pose_period_s
-                self.source.body_pose(now, float(x), float(y), self._height(float(x), float(y)),
-                                      math.radians(float(yaw_deg)))
+                z = self._height(float(x), float(y))
+                for src in self.sinks:
+                    src.body_pose(now, float(x), float(y), z, math.radians(float(yaw_deg)))
         events, self._events[:] = list(self._events), []
-        for ev in events:
-            self.source.event(ev)
+        for src in self.sinks:
+            for ev in events:
+                src.event(ev)
 
     def _height(self, x: float, y: float) -> float:
         g = self.grid

@@ -28,6 +28,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import cv2
@@ -181,15 +182,26 @@ class LiveSource:
         return max(8.0, self.scale * self.grid.nx / 20.0)
 
     def map(self, t: float, emap: ElevationMap) -> None:
+        self._draw_map(t, np.where(emap.mapped, emap.z, np.nan), emap.grid)
+
+    def received_map(self, t: float, z: np.ndarray, grid: Any) -> None:
+        """A map as an agent received it (heights, NaN unknown; ``grid`` a ``MapGrid``): the Cliff-bot's."""
+        self._draw_map(t, z, grid)
+
+    def _draw_map(self, t: float, z: np.ndarray, grid: Any) -> None:
         import rerun as rr
 
-        self.grid = emap.grid
+        self.grid, self.scale = grid, 1.0
         self._at(t)
-        self.rec.log(f"{self.p}/map/elevation", rr.Image(map_rgb(np.where(emap.mapped, emap.z, np.nan))))
+        self.rec.log(f"{self.p}/map/elevation", rr.Image(map_rgb(z)))
         self.counts["map"] += 1
         pending, self._pending = self._pending, []
         for method, args in pending:
             getattr(self, method)(*args)
+
+    def body_pose(self, t: float, x: float, y: float, z: float, yaw: float) -> None:
+        """A vehicle without a mast (the Cliff-bot): drawn as :meth:`pose` (``z`` is not drawn)."""
+        self.pose(t, SimpleNamespace(x=x, y=y, yaw=yaw))
 
     def pose(self, t: float, nav: Any) -> None:
         import rerun as rr

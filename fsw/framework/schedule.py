@@ -84,6 +84,12 @@ class ExecutiveConfig:
             "are counted and summarised by at most one exec.TIMING event per period")
     health_warn_frames: int = param(10, lo=1, hi=100000, doc="frames without a ping answer before WARNING_HI")
     health_fatal_frames: int = param(30, lo=1, hi=100000, doc="frames without a ping answer before FATAL")
+    health_event_period_s: float = param(
+        60.0, lo=0.1, hi=86400.0, units="s",
+        doc="per task: the first lateness after this long without one is a TASK_LATE event; the later ones are "
+            "counted and summarised by at most one TASK_LATE_REPEATS event per period")
+    health_recover_frames: int = param(
+        20, lo=1, hi=100000, doc="frames a late or hung task answers on time before TASK_RECOVERED")
     queue_depth: int = param(8, lo=1, hi=100000, doc="default software-bus mailbox depth")
     opencv_threads: int = param(
         1, lo=1, hi=64, doc="OpenCV worker threads for the whole process (cv2.setNumThreads), set at start-up"

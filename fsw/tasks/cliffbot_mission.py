@@ -42,8 +42,8 @@ from fsw.comm.team.team_can import WINCHES
 from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import NavConfig, Navigator
 from fsw.core.team.contact_ground import fill_under_body
-from fsw.core.team.face_planner import ClimberConfig, plan_targets
-from fsw.core.team.tether import TetherConfig, tether_state
+from fsw.core.team.face_planner import ClimberConfig, Margins, ground_layers, plan_targets
+from fsw.core.team.tether import TetherConfig, settle, tether_state
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig
 
@@ -85,11 +85,14 @@ class CliffbotMission:
     def __init__(self, cfg: CliffbotMissionConfig, tcfg: TetherConfig, ccfg: ClimberConfig, ncfg: NavConfig,
                  anchors: F64, start_xy: F64, start_yaw: float, targets_xy: F64) -> None:
         self.cfg, self.tcfg, self.ccfg = cfg, tcfg, ccfg
-        # what the planner uses: limits with the tracking margins (the body is between nodes
-        # and waypoints while it moves, and the bench judges every place it passes)
+        # Between waypoints the body is off the lattice and the bench judges every place it passes.
+        # Tensions change fast with the place near the lip: the planner keeps them tension_margin_n
+        # inside their limits (a hard margin). The footprint's clearance from hazards is soft
+        # (face_planner.Margins): paths keep track_margin_m clear where the ground leaves room,
+        # without calling a target the wheels can reach unreachable.
         self.plan_tcfg = dataclasses.replace(tcfg, t_min_n=tcfg.t_min_n + cfg.tension_margin_n,
                                              t_max_n=max(tcfg.t_max_n - cfg.tension_margin_n, tcfg.t_min_n + 1.0))
-        self.plan_ccfg = dataclasses.replace(ccfg, footprint_m=ccfg.footprint_m + cfg.track_margin_m)
+        self.margins = Margins(cfg.track_margin_m)
         self.anchors = np.asarray(anchors, float)
         self.start = np.asarray(start_xy, float)
         self.targets = np.asarray(targets_xy, float).reshape(-1, 2)
@@ -101,6 +104,7 @@ class CliffbotMission:
         self.safe_reason = ""
         self.z: F64 | None = None
         self.grid: MapGrid | None = None
+        self.hazard: NDArray[np.bool_] = np.zeros((0, 0), bool)
         self.map_version = 0
         self.legs: list[Leg] = []
         self.leg_i = 0
@@ -129,11 +133,12 @@ class CliffbotMission:
         # the ground under its own body is hidden from every camera (the RECON-bot maps the body's
         # box there) but known by contact
         # (the footprint of the lattice node nearest to where it stands: a node spacing more)
-        r = self.plan_ccfg.footprint_m + self.ccfg.node_m
+        r = self.ccfg.footprint_m + self.cfg.track_margin_m + self.ccfg.node_m
         # (a ring is as flat as the map can tell: half the codec's error bound, at least 3 cm)
         flat = max(0.03, 0.5 * error_bound_m) if math.isfinite(error_bound_m) else 0.03
         self.z, filled = fill_under_body(z, grid, self.est.xy, r, body_m=r + BODY_MARGIN_M, max_rms_m=flat)
         self.grid = grid
+        self.hazard = ground_layers(self.z, grid, self.ccfg).hazard  # where the way between waypoints may not go
         self.map_version += 1
         self.event("MAP", f"map {self.map_version}: {int(np.isfinite(self.z).sum())} known cells"
                    + (f", {filled} under the body known by contact" if filled else ""))
@@ -272,8 +277,8 @@ class CliffbotMission:
 
     def _plan_all(self) -> None:
         assert self.z is not None and self.grid is not None
-        plan = plan_targets(self.z, self.grid, self.anchors, self.est.xy, self.targets, self.plan_tcfg,
-                            self.plan_ccfg)
+        plan = plan_targets(self.z, self.grid, self.anchors, self.est.xy, self.targets, self.plan_tcfg, self.ccfg,
+                            self.margins)
         self.legs = []
         for k, why in enumerate(plan.reasons):
             self.reasons[k] = why
@@ -297,9 +302,23 @@ class CliffbotMission:
             self.event("DONE", "all legs driven")
             return
         leg = self.legs[self.leg_i]
-        plan = plan_targets(self.z, self.grid, self.anchors, self.est.xy, leg.goal[None, :], self.plan_tcfg,
-                            self.plan_ccfg)
-        path = plan.paths[0]
+        # it stands where the leg starts (held by its tethers): the way out of that node is planned;
+        # an edge the body cannot pass (the statics between its nodes) is cut and the leg planned again
+        cut: list[tuple[F64, F64]] = []
+        for _ in range(8):
+            plan = plan_targets(self.z, self.grid, self.anchors, self.est.xy, leg.goal[None, :], self.plan_tcfg,
+                                self.ccfg, self.margins, start_usable=True, blocked=cut)
+            path = plan.paths[0]
+            if path is None:
+                break
+            wps, bad = self._waypoints(path)
+            if bad is None:
+                break
+            cut.append(bad)
+        else:
+            path = None
+            plan = dataclasses.replace(plan, reasons=("no safe path",))
+        path = plan.paths[0] if path is not None else None
         if path is None:
             why = plan.reasons[0]
             if plan.start_reason:
@@ -310,14 +329,57 @@ class CliffbotMission:
             self.event("TARGET_UNREACHABLE", f"leg {self.leg_i + 1}: {why}")
             self._next_leg()
             return
-        every = self.cfg.waypoint_every
-        wps = [path[i] for i in range(every, len(path), every)]
-        if not wps or np.any(wps[-1] != path[-1]):
-            wps.append(path[-1])
         leg.waypoints, leg.length_m = wps, plan.lengths_m[0]
         self.wp_i = 0
         self.replan = False
         self.state = "DRIVE"
+
+    def _waypoints(self, path: F64) -> tuple[list[F64], tuple[F64, F64] | None]:
+        """Every ``waypoint_every``-th node of the path, or every node where the way between
+        would leave the limits: the winches move both lengths straight from one waypoint's
+        lengths to the next's, and the body follows where the statics put it, not the
+        path's line (near the lip the tensions change by tens of newtons over centimetres).
+        Also the first edge of the path the body cannot pass (None: none)."""
+        every = self.cfg.waypoint_every
+        out: list[F64] = []
+        i = 0
+        while i < len(path) - 1:
+            j = min(i + every, len(path) - 1)
+            if j > i + 1 and not self._passable(path[i], path[j]):
+                j = i + 1
+            if j == i + 1 and not self._passable(path[i], path[j]):
+                return out, (path[i], path[j])
+            out.append(path[j])
+            i = j
+        return (out or [path[-1]]), None
+
+    def _passable(self, a: F64, b: F64) -> bool:
+        """Whether the body, its tether lengths moved straight from ``a``'s to ``b``'s, stays in
+        the planning tension limits and off the map's hazards: followed as the bench does
+        (``settle`` on the map, the bench's model, each place from the last) in steps of at most
+        3 cm of tether."""
+        assert self.z is not None and self.grid is not None
+        z, grid, anchors, foot = self.z, self.grid, self.anchors, self.ccfg.footprint_m
+        sa = tether_state(z, grid, anchors, a, self.tcfg, foot)
+        sb = tether_state(z, grid, anchors, b, self.tcfg, foot)
+        if sa is None or sb is None:
+            return False
+        la, lb = np.asarray(sa.lengths_m), np.asarray(sb.lengths_m)
+        lo, hi = self.plan_tcfg.t_min_n, self.plan_tcfg.t_max_n
+        n = max(2, int(math.ceil(float(np.max(np.abs(lb - la))) / 0.03)))
+        xy = np.asarray(a, float)
+        for f in np.arange(1, n) / n:
+            got = settle(z, grid, anchors, (float(la[0] + f * (lb[0] - la[0])), float(la[1] + f * (lb[1] - la[1]))),
+                         xy, self.tcfg)
+            if got is None:
+                return False
+            xy, st = got[0], got[1].statics
+            if st.tilt_deg > self.ccfg.free_slope_deg and not (lo <= min(st.tensions_n) and max(st.tensions_n) <= hi):
+                return False
+            iy, ix, inside = grid.cell_index(xy[:1], xy[1:])
+            if not inside[0] or self.hazard[int(iy[0]), int(ix[0])]:
+                return False
+        return True
 
     def _next_leg(self) -> None:
         self.leg_i += 1

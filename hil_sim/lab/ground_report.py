@@ -16,7 +16,8 @@ COLUMNS = ("scenario", "seed", "slope_deg", "edge_gap_m", "method", "moved", "od
            "steps_used", "steps_asked", "unused_reason", "stays", "looks", "edge_violations",
            "geofence_refusals", "wheels_off_terrain", "wheels_on_unknown_ground", "mapped_cells",
            "map_rmse_cm", "error_tilt_deg", "rmse_detilted_cm", "seam_cm", "within_2sigma", "final_state",
-           "views_registered", "views_height_tilt_only", "views_unregistered", "views_halves_disagree")
+           "views_registered", "views_height_tilt_only", "views_unregistered", "views_halves_disagree",
+           "rated_views", "pred_ratio")
 MOVED_M = 0.05  # the rover moved if its true odometer passed this
 MAP_SLOPE_MAX_DEG = 10.0  # the map criteria hold on generated terrains up to this slope
 # issue 13 "Done when", map figures: (column, what, target test on the median, target text)
@@ -56,7 +57,23 @@ def row_of(s: dict[str, Any], spec: str, seed: int, steps: int) -> dict[str, Any
         "within_2sigma": None if q.get("within_2sigma") is None else round(float(q["within_2sigma"]), 3),
         "final_state": s["final_state"], "stay_reasons": s.get("stays", []),
         **_registration_counts(s.get("registration") or []),
+        **_prediction(s.get("steps", [])),
     }
+
+
+def _prediction(steps: list[dict[str, Any]]) -> dict[str, Any]:
+    """The rated views' obtained / expected new cells (issue 30 item 3,
+    ``mission_report.prediction_ratios``): their count, the mission's median, and every view's
+    ratio (``view_ratios``, pooled over missions by :func:`_issue30_criteria`)."""
+    from hil_sim.mission.mission_report import UNRATED_VIEWS, prediction_ratios
+
+    pr = prediction_ratios(steps)
+    ratios = [s["view_new_cells"] / s["expected_new_cells"] for s in steps
+              if s.get("view", "") not in UNRATED_VIEWS and float(s.get("expected_new_cells", 0.0)) > 0.0
+              and int(s.get("view_new_cells", -1)) >= 0]
+    med = pr.get("median_ratio")
+    return {"rated_views": pr["rated_steps"], "pred_ratio": None if med is None else round(float(med), 3),
+            "view_ratios": ratios}
 
 
 def _registration_counts(records: list[dict[str, Any]]) -> dict[str, int]:
@@ -136,6 +153,7 @@ def report_markdown(rows: list[dict[str, Any]], failed: list[str], args: dict[st
     for text, n in crit:
         out.append(f"- {text}: **{n}** (target 0) {'met' if n == 0 else 'NOT MET'}")
     out.extend(_map_criteria(rows))
+    out.extend(_issue30_criteria(rows))
     never = [r for r in rows if not r["moved"]]
     if never:
         out.append(f"\nMissions where the rover did not move ({len(never)}): reachable stations 0 at every "
@@ -170,4 +188,33 @@ def _map_criteria(rows: list[dict[str, Any]]) -> list[str]:
     for r in other:
         out.append(f"- {r['scenario']} method {r['method']}: RMSE {r['map_rmse_cm']} cm, tilt "
                    f"{r['error_tilt_deg']} deg, seams {r['seam_cm']} cm, within 2 sigma {r['within_2sigma']}")
+    return out
+
+
+def _issue30_criteria(rows: list[dict[str, Any]]) -> list[str]:
+    """Issue 30 items 2 and 3 over every mission run: Method 5's map RMSE median against Method
+    1's (within 10 %), its within-2-sigma median (0.90-0.99) and worst (>= 0.85), and the
+    obtained / expected new cells of its rated views pooled over the missions (median 0.8-1.25,
+    10th-90th percentile reported)."""
+    import numpy as np
+
+    out = ["\n## Criteria (issue 30 items 2 and 3; every mission)\n"]
+    by = {m: [r for r in rows if r["method"] == m] for m in ("1", "5")}
+    rmse = {m: pd.Series([r["map_rmse_cm"] for r in rs], dtype=float).dropna() for m, rs in by.items()}
+    if not rmse["5"].empty and not rmse["1"].empty:
+        m5, m1 = float(rmse["5"].median()), float(rmse["1"].median())
+        out.append(f"- Method 5 map RMSE median {m5:.2f} cm against Method 1's {m1:.2f} cm: ratio **{m5 / m1:.2f}** "
+                   f"(target <= 1.10) {'met' if m5 <= 1.1 * m1 else 'NOT MET'}")
+    w2 = pd.Series([r["within_2sigma"] for r in by["5"]], dtype=float).dropna()
+    if not w2.empty:
+        med, worst = float(w2.median()), float(w2.min())
+        ok = 0.90 <= med <= 0.99 and worst >= 0.85
+        out.append(f"- Method 5 within 2 sigma: median **{med:.3f}** (target 0.90-0.99), worst **{worst:.3f}** "
+                   f"(target >= 0.85) {'met' if ok else 'NOT MET'}")
+    ratios = np.array([x for r in by["5"] for x in r.get("view_ratios", [])], dtype=float)
+    if ratios.size:
+        p10, med, p90 = np.percentile(ratios, [10, 50, 90])
+        out.append(f"- Method 5 obtained / expected new cells over {ratios.size} rated views: median **{med:.2f}** "
+                   f"(target 0.8-1.25) {'met' if 0.8 <= med <= 1.25 else 'NOT MET'}; "
+                   f"10th-90th percentile {p10:.2f}-{p90:.2f}")
     return out

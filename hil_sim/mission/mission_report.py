@@ -159,7 +159,7 @@ def prediction_ratios(steps: list[dict[str, Any]]) -> dict[str, Any]:
     rated = [s for s in steps if s.get("view", "") not in UNRATED_VIEWS
              and float(s.get("expected_new_cells", 0.0)) > 0.0 and int(s.get("view_new_cells", -1)) >= 0]
     ratios = np.array([s["view_new_cells"] / s["expected_new_cells"] for s in rated], np.float64)
-    unrated = [s for s in steps[1:] if s not in rated]
+    unrated = [s for s in steps if s not in rated and int(s.get("step", 1)) >= 1]  # step 0: the panorama
     out: dict[str, Any] = {"rated_steps": len(rated), "unrated_steps": len(unrated),
                            "unrated_new_cells": int(sum(int(s.get("obtained_new_cells", 0)) for s in unrated))}
     if ratios.size:

@@ -291,7 +291,8 @@ def run_mission(
         cliffbot = Cliffbot(cfg.link, ChannelPort(channel, "b", now), out_dir=spec.out)
         mission = bench.exe.tasks["mission"]
         perception = bench.exe.tasks["perception"]
-        recorder, tap = _recorder(spec.out, bench.exe, live)
+        recorder, tap = _recorder(spec.out, bench.exe, live,
+                                  ("recon", "cliffbot") if world.team is not None else ("recon",))
         recording_error = ""
         limit_s = max_sim_s if max_sim_s is not None else 120.0 + 90.0 * (spec.steps + 1) + 1200.0
         counters.setdefault("unknown_frames", 0)
@@ -316,7 +317,13 @@ def run_mission(
             from ground.recording import CliffbotTap
 
             sid = team.cfg.mavlink.system_id
-            taps.append(CliffbotTap(team.exe, recorder.source(VEHICLE_NAMES.get(sid, f"sys{sid}"))))
+            name = VEHICLE_NAMES.get(sid, f"sys{sid}")
+            mirrors: tuple[Any, ...] = ()
+            if len(tap.sinks) > 1:  # the live view, too
+                from ground.rerun_cli import LiveSource
+
+                mirrors = tuple(LiveSource(m.rec, name) for m in tap.sinks[1:])
+            taps.append(CliffbotTap(team.exe, recorder.source(name), mirrors=mirrors))
         watchdog = bench.exe.ctx.res.watchdog
         for key in ("off_map", "recoveries", "recoveries_resumed", "watchdog_frames"):
             counters.setdefault(key, 0)
@@ -460,10 +467,12 @@ RECORDING_MIN_FREE = 512 * 2**20
 TEAM_MAX_S = 1800.0  # the Cliff-bot's mission may go on this long after the RECON-bot's (bench s)
 
 
-def _recorder(out: Path | None, exe: Any, live: str | None = None) -> tuple[Any, Any]:
+def _recorder(out: Path | None, exe: Any, live: str | None = None,
+              vehicles: tuple[str, ...] = ("recon",)) -> tuple[Any, Any]:
     """The mission's Foxglove recording (``ground.recording``) in ``out`` and the bus tap feeding
     it; a resumed mission starts a new file (``mission.1.mcap``, ...), never overwrites one.
-    ``live``: also stream the mission to a live view (``safer-ground rerun --live``) at this URL.
+    ``live``: also stream the mission to a live view (``safer-ground rerun --live``) at this URL,
+    laid out for ``vehicles`` (a team's Cliff-bot joins it through its own tap, ``CliffbotTap``).
 
     No recording where ``out`` has less than ``RECORDING_MIN_FREE`` bytes free: a recording
     (camera pairs) runs to tens of MB and must not take the room the checkpoints, the .tlog
@@ -491,7 +500,7 @@ def _recorder(out: Path | None, exe: Any, live: str | None = None) -> tuple[Any,
     if live:
         from ground.rerun_cli import LiveSource, live_stream
 
-        mirrors = (LiveSource(live_stream(live, recording_id=path.parent.name), "recon"),)
+        mirrors = (LiveSource(live_stream(live, vehicles, recording_id=path.parent.name), "recon"),)
     return recorder, BusTap(exe, recorder.source("recon"), mirrors=mirrors)
 
 

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from fsw.core.geometry import CameraPose, MapGrid, camera_pose_from_rover
+from fsw.core.geometry import CameraPose, MapGrid, camera_pose_from_rover, wrap_angle
 from fsw.core.map.body_mask import BodyBox, TeamGeometry, TetherLine
 from fsw.core.map.elevation_map import ElevationMap
 from fsw.core.map.face_map import FaceMap, FaceMapConfig, face_band, fit_face_plane, run_merge, split_parts
@@ -228,7 +228,7 @@ class FaceScene:
             base = camera_pose_from_rover(rover, (0.0, 0.0, 0.3), self.cfg.mast).t
             d = aim - base
             pan = math.atan2(d[1], d[0]) - rover[2]
-            pan = math.atan2(math.sin(pan), math.cos(pan))
+            pan = wrap_angle(pan)
             tilt = math.atan2(d[2], math.hypot(d[0], d[1]))
             out.append((rover, camera_pose_from_rover(rover, self.cfg.mast.clamp(pan, tilt, 0.3), self.cfg.mast)))
         return out

@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 from fsw.comm.link_packets import PacketError
 from fsw.comm.team import fix_packets
-from fsw.core.geometry import MapGrid
+from fsw.core.geometry import MapGrid, wrap_angle
 from fsw.core.team.tether import TetherConfig, anchor_points, tether_state
 from fsw.drivers.can_inproc import InprocBus
 from fsw.drivers.resources import Resources
@@ -80,13 +80,9 @@ class TeamFrame:
 
 
 def truth_map(world: World, grid: MapGrid, frame: TeamFrame) -> F64:
-    """The TRUE ground as a map in the team's frame on ``grid`` (a perfect RECON-bot's map)."""
-    if frame.yaw0 == 0.0:
-        shifted = MapGrid(grid.x0 + frame.x0, grid.y0 + frame.y0, grid.cell, grid.nx, grid.ny)
-        return np.asarray(world.ground_on_grid(shifted), float) - frame.datum_m
-    x, y = grid.centers()
-    w = frame.to_world(np.stack([x.ravel(), y.ravel()], axis=1))
-    return np.asarray(world.ground_at(w[:, 0], w[:, 1]), float).reshape(grid.shape) - frame.datum_m
+    """The TRUE ground as a map in the team's frame on ``grid`` (a perfect RECON-bot's map):
+    the world's mean ground over each cell (``World.ground_on_grid``), heights from the datum."""
+    return np.asarray(world.ground_on_grid(grid, (frame.x0, frame.y0, frame.yaw0)), float) - frame.datum_m
 
 
 class FixWatch(ChannelPort):
@@ -114,7 +110,7 @@ def team_site(world: World, anchors: F64, yaw_rad: float, frame: TeamFrame,
     assert world.team is not None
     a = np.asarray(anchors, float)
     axy = frame.to_map(a[:, :2])
-    yaw = math.degrees(math.atan2(math.sin(yaw_rad - frame.yaw0), math.cos(yaw_rad - frame.yaw0)))
+    yaw = math.degrees(wrap_angle(yaw_rad - frame.yaw0))
     return CliffbotSiteConfig(
         anchor_a_xyz=(float(axy[0, 0]), float(axy[0, 1]), float(a[0, 2]) - frame.datum_m),
         anchor_b_xyz=(float(axy[1, 0]), float(axy[1, 1]), float(a[1, 2]) - frame.datum_m),

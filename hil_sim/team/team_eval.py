@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.core.geometry import MapGrid
+from fsw.core.geometry import MapGrid, wrap_angle
 from fsw.core.team.face_planner import USABLE, ClimberConfig, Ground, ground_layers, node_reasons, plan_targets
 from fsw.core.team.tether import TetherConfig, TetherState
 from hil_sim.world.world import World
@@ -62,7 +62,7 @@ def fix_error(est_t: F64, est_rotvec_err: F64, est_dyaw_rad: float, cov: F64, tr
         nees = float(e @ np.linalg.solve(np.asarray(cov, float), e))
     except np.linalg.LinAlgError:
         nees = math.inf
-    dyaw = math.degrees(math.atan2(math.sin(est_dyaw_rad), math.cos(est_dyaw_rad)))
+    dyaw = math.degrees(wrap_angle(est_dyaw_rad))
     return FixError(range_m, 100 * float(np.linalg.norm(e[3:])), abs(dyaw), nees if math.isfinite(nees) else math.inf)
 
 

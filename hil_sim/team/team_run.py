@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from fsw.comm.link_packets import PacketError
 from fsw.comm.team import fix_packets
-from fsw.core.geometry import MapGrid
+from fsw.core.geometry import MapGrid, wrap_angle
 from fsw.core.team.cliffbot_nav import NavConfig
 from fsw.core.team.face_planner import ClimberConfig
 from fsw.core.team.tether import TetherConfig
@@ -82,7 +82,7 @@ class ReconFixer:
         pan = math.atan2(d[1], d[0]) - self.rover[2]
         tilt = math.atan2(d[2], math.hypot(d[0], d[1]))
         joints = self.cfg.mast.clamp(pan, tilt, 0.3)
-        if abs(joints[0] - math.atan2(math.sin(pan), math.cos(pan))) > 1e-6 or abs(joints[1] - tilt) > 1e-6:
+        if abs(joints[0] - wrap_angle(pan)) > 1e-6 or abs(joints[1] - tilt) > 1e-6:
             return fix_packets.encode(fix_packets.NoFix(req.seq, 1))
         pose = camera_pose_from_rover(self.rover, joints, self.cfg.mast)
         w = dataclasses.replace(self.world, cliffbot=cb)

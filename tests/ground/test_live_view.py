@@ -185,3 +185,36 @@ def test_a_real_time_mission_reaches_the_live_view_from_its_link() -> None:
     assert paths[0] == "/recon/map/elevation" and "/recon/map/rover" in paths and paths[-1] == "/recon/events"
     src = sources[1]
     assert src.scale == 0.5 and src._uv(0.96, 0.96) == pytest.approx((16.0, 16.0))  # the preview's pixels
+
+
+def test_a_team_missions_cliffbot_reaches_the_live_view_as_it_reaches_the_recording() -> None:
+    """Issue 29: the Cliff-bot's tap feeds the live view (a mirror) what it records: the received
+    map, its pose on that map and its events, under ``/cliffbot``."""
+    from fsw.framework.telemetry import Event, Severity
+    from ground.recording import CliffbotTap
+
+    z = np.asarray(_terrain_map(32).z, np.float32)
+    maps = [[SimpleNamespace(z=z)]]
+    sub = SimpleNamespace(drain=lambda: maps.pop() if maps else [])
+    values = {"mission.x_m": 0.3, "mission.y_m": 0.6, "mission.yaw_deg": 90.0}
+    exe = SimpleNamespace(
+        ctx=SimpleNamespace(cfg=SimpleNamespace(map=SimpleNamespace(origin_x_m=0.0, origin_y_m=0.0, cell_m=0.03,
+                                                                    nx=32, ny=32)),
+                            clock=SimpleNamespace(now=lambda: 4.0)),
+        bus=SimpleNamespace(subscribe=lambda *_a, **_k: sub),
+        telemetry=SimpleNamespace(values=values, get=values.get),
+        events=SimpleNamespace(listeners=[]))
+    recorded, live = _Rec(), _Rec()
+    tap = CliffbotTap(exe, rerun_cli.LiveSource(recorded, "cliffbot"),  # type: ignore[arg-type]
+                      mirrors=(rerun_cli.LiveSource(live, "cliffbot"),))
+    exe.events.listeners[0](Event(3.5, 7, "mission.DRIVE", Severity.ACTIVITY_HI, "to station 1"))
+    tap.poll()
+    paths = [p for p, _ in live.logged]
+    assert paths == ["/cliffbot/map/elevation", "/cliffbot/map/rover", "/cliffbot/map/track", "/cliffbot/events"]
+    assert paths == [p for p, _ in recorded.logged] and live.times == recorded.times == [4.0, 4.0, 3.5]
+    rover = dict(live.logged)["/cliffbot/map/rover"]
+    assert rover.origins.as_arrow_array().to_pylist()[0] == pytest.approx([10.0, 12.0])  # type: ignore[attr-defined]
+    tap.poll()  # nothing new: nothing drawn but the pose, at most every 0.2 s (the clock stands)
+    assert len(live.logged) == 4
+    tap.close()
+    assert exe.events.listeners == []

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fsw.settings import DEFAULT_CONFIG, load_settings
 from ground.map_cli import main as safer_map
 from hil_sim.cli import main as safer_hil
 
@@ -34,7 +35,8 @@ def test_encode_decode_info_round_trip(tmp_path: Path, npy: Path, capsys):
     line = next(t for t in text.splitlines() if t.startswith("obstacles"))
     given, kept = (int(v) for v in line.split(": ", 1)[1].split(";")[0].replace(" given,", "").split()[:2])
     assert given > 0 and kept == given
-    assert "relief_loss_bound_hazards_m 0 " in text and "relief_loss_bound_m 0.2" in text
+    bound = load_settings(DEFAULT_CONFIG).codec.error_bound_wheels * 0.1  # [codec] bound at this wheel
+    assert "relief_loss_bound_hazards_m 0 " in text and f"relief_loss_bound_m {2 * bound:.4g} " in text
     z, r = np.load(npy), np.load(back)
     assert r.dtype == np.float32 and np.array_equal(np.isnan(z), np.isnan(r))
     k = np.isfinite(z)
@@ -153,7 +155,8 @@ def test_reduction_experiment_reads_mission_map_files(tmp_path: Path, capsys):
                       "--map-files", str(ckpt), "--jobs", "2", "--out", str(red)]) == 0
     (m,) = list(csv.DictReader((red / "maps.csv").open()))
     assert m["kind"] == "file" and int(m["known"]) == int(np.isfinite(z).sum())
-    assert float(m["wheel_m"]) == pytest.approx(0.12) and float(m["bound_m"]) == pytest.approx(0.12)
+    bound = load_settings(DEFAULT_CONFIG).codec.error_bound_wheels * 0.12
+    assert float(m["wheel_m"]) == pytest.approx(0.12) and float(m["bound_m"]) == pytest.approx(bound)
     assert int(m["obst"]) == 1 and m["kept"] == "1" and float(m["max_error_m"]) <= float(m["bound_m"])
     assert float(m["worst_relief_loss_any_m"]) <= float(m["relief_loss_any_bound_m"])
     assert float(m["step_kept"]) == 1.0

@@ -57,6 +57,31 @@ def test_map_criteria_are_medians_over_generated_terrains_up_to_10_deg():
     assert "median **0.25** (target <= 0.2) NOT MET" in md
 
 
+def test_issue30_criteria_pool_method_5s_rated_views_against_method_1():
+    """Item 2: Method 5's RMSE median against Method 1's, its 2-sigma median and worst; item 3: the
+    obtained / expected new cells of every rated view of every Method 5 mission, pooled."""
+    def row(method: str, rmse: float, w2: float, views: list[tuple[str, float, int]]) -> dict:
+        s = {**_summary(1.0, [1], 2, None), "method": method, "map_rmse_m": rmse / 100,
+             "steps": [{"step": 0, "view": "panorama", "expected_new_cells": 0.0, "view_new_cells": 500}]
+             + [{"step": k, "view": v, "expected_new_cells": e, "view_new_cells": o}
+                for k, (v, e, o) in enumerate(views, start=1)]}
+        return {**row_of(s, "terrain", 0, 2), "within_2sigma": w2}
+    rows = [row("1", 2.0, 0.97, [("1", 0.0, 300)]),
+            row("1", 2.2, 0.95, [("1", 0.0, 300)]),
+            row("5", 2.1, 0.96, [("5", 1000.0, 900), ("look", 0.0, 4000)]),
+            row("5", 2.5, 0.86, [("5", 1000.0, 1100), ("5", 500.0, 1000)])]
+    assert rows[3]["rated_views"] == 2 and rows[3]["pred_ratio"] == 1.55 and rows[0]["rated_views"] == 0
+    md = report_markdown(rows, [], {"family": "terrain", "terrains": 2, "first_seed": 0, "methods": "5,1",
+                                    "steps": 2, "extra": [], "jobs": 2})
+    assert "Method 5 map RMSE median 2.30 cm against Method 1's 2.10 cm: ratio **1.10** (target <= 1.10) met" in md
+    assert "within 2 sigma: median **0.910** (target 0.90-0.99), worst **0.860** (target >= 0.85) met" in md
+    assert "over 3 rated views: median **1.10** (target 0.8-1.25) met" in md  # of 0.9, 1.1, 2.0; the look is apart
+    rows[2]["map_rmse_cm"] = 3.0
+    rows[3]["within_2sigma"] = 0.80
+    md = report_markdown(rows, [], {"family": "terrain", "terrains": 2, "first_seed": 0, "methods": "5,1",
+                                    "steps": 2, "extra": [], "jobs": 2})
+    assert "ratio **1.31** (target <= 1.10) NOT MET" in md and "worst **0.800** (target >= 0.85) NOT MET" in md
+
 
 def test_a_lab_command_without_pandas_says_which_extra(monkeypatch, capsys):
     """The lab's tables are the ``lab`` extra: a lab command on an install without it says so

@@ -1,12 +1,9 @@
 """Two-way map sync: one map kept in step between two agents over the radio (docs/sync.md).
 
 :class:`MapSync` is one agent's end, sans-I/O like the map link (``receive(datagram, now_s)``,
-``poll(now_s) -> list[bytes]``, ``next_deadline_s()``). The shared map is two layers of square
-tiles (``tile_cells`` a side, on the map grid): each agent's own layer, which only it writes,
-and its copy of the peer's layer. Each layer tile is a map-codec container
-(``fsw.core.codec.mapcodec``: the quadtree reduction within the wheel-diameter error bound),
-versioned by its owner's counter. Both replicas hold the same bytes of every tile, so the
-same content; :meth:`replica_hash` hashes the decoded tiles of both layers.
+``poll(now_s) -> list[bytes]``, ``next_deadline_s()``): the protocol, over the agent's
+replica of the shared map (:class:`fsw.comm.team.map_replica.MapReplica`: two layers of
+versioned map-codec tiles, the agent's own and its copy of the peer's, and their hashes).
 
 * :meth:`publish` (once per sync round, with the agent's current map) compares each tile
   with the map tile its last version was made from and publishes a new version only where a
@@ -35,8 +32,6 @@ dropped (``stats.bad_packets``), never raised.
 
 from __future__ import annotations
 
-import base64
-import hashlib
 import json
 from collections import OrderedDict
 from collections.abc import Callable
@@ -48,11 +43,11 @@ from numpy.typing import NDArray
 from fsw.comm.link import Pacer
 from fsw.comm.link_packets import PacketError
 from fsw.comm.team import sync_packets as sp
-from fsw.core.codec.mapcodec import CodecConfig, MapCodecError, decode_map, encode_map
+from fsw.comm.team.map_replica import F32, MapReplica, TileRec
+from fsw.core.codec.mapcodec import CodecConfig, MapCodecError
 from fsw.framework.events import EventSink
 from fsw.framework.params import param
 
-F32 = NDArray[np.float32]
 Priority = Callable[[int, int], float]
 CHECKPOINT_VERSION = 1
 # A restored end numbers its versions from its checkpoint's counter plus this, so nothing it
@@ -114,18 +109,6 @@ class SyncStats:
     nonfinite_cells: int = 0
 
 
-@dataclass
-class TileRec:
-    version: int
-    digest: int
-    blob: bytes
-    z: F32
-
-
-def _canonical(z: F32) -> bytes:
-    return np.where(np.isfinite(z), z, np.float32(np.nan)).astype(np.float32).tobytes()
-
-
 class MapSync:
     """One agent's end of the two-way sync (see the module docstring)."""
 
@@ -135,33 +118,22 @@ class MapSync:
         if agent == peer or not (0 <= agent < 256 and 0 <= peer < 256):
             raise ValueError(f"agent {agent} and peer {peer} must be distinct ids 0..255")
         self.cfg, self.agent, self.peer, self.frame = cfg, agent, peer, frame & 0xFF
-        self.shape = (int(shape[0]), int(shape[1]))
-        self.cell_m, self.wheel_m = cell_m, wheel_diameter_m
-        self.codec = codec or CodecConfig()
-        self.bound_m = self.codec.error_bound_wheels * wheel_diameter_m
-        tc = cfg.tile_cells
-        self.nty, self.ntx = -(-self.shape[0] // tc), -(-self.shape[1] // tc)
-        if self.nty * self.ntx > 0xFFFF:
-            raise ValueError(f"a {self.shape} map has more than 65535 tiles of {tc} cells")
-        if -(-self.nty * self.ntx // ((cfg.mtu_bytes - sp.HOLDINGS_BASE) // sp.ENTRY_BYTES)) > 255:
-            raise ValueError(f"a {self.shape} map needs more than 255 HOLDINGS pages at mtu_bytes={cfg.mtu_bytes}")
+        self.rep = MapReplica(agent, peer, shape, cfg.tile_cells, cell_m, wheel_diameter_m, codec)
+        if self.rep.n_tiles > 0xFFFF:
+            raise ValueError(f"a {self.rep.shape} map has more than 65535 tiles of {cfg.tile_cells} cells")
+        if -(-self.rep.n_tiles // ((cfg.mtu_bytes - sp.HOLDINGS_BASE) // sp.ENTRY_BYTES)) > 255:
+            raise ValueError(f"a {self.rep.shape} map needs more than 255 HOLDINGS pages at mtu_bytes={cfg.mtu_bytes}")
         self.priority = priority
         self.on_adopt = on_adopt
         self.boot = boot & 0xFFFF
         self.pacer = Pacer(cfg.rate_bps, cfg.pacing_catchup_s)
         self.events = EventSink()
         self.stats = SyncStats()
-        self.own: dict[int, TileRec] = {}
-        self.held: dict[int, TileRec] = {}
-        self.counter = 0
         self.belief: dict[int, tuple[int, int]] = {}  # what the peer holds of my layer
         self.peer_boot: int | None = None
         self.want_holdings = True  # every start asks: the peer may hold what I lost
         self.fresh = True  # started with no replica (False once restored from a checkpoint)
         self.wants: set[int] = set()  # own tiles the peer holds newer: asked back
-        self._hash_cache: dict[int, bytes] = {}
-        self._source: dict[int, F32] = {}  # own tiles: the map each version was made from
-        self._replica_hash: str | None = None
         self._serial = (self.boot * 4099) & 0xFFFF
         self._sent_at: OrderedDict[int, float] = OrderedDict()  # serial -> send time
         self._inflight: dict[int, tuple[int, float]] = {}  # tile -> (version, sent at)
@@ -193,54 +165,40 @@ class MapSync:
         self._ack_last_s = 0.0
         self._last_tx_s = float("-inf")
 
-    # ---------------------------------------------------------------- tiles and hashes
-    def tile_slice(self, t: int) -> tuple[slice[int, int, None], slice[int, int, None]]:
-        ty, tx = divmod(t, self.ntx)
-        tc = self.cfg.tile_cells
-        return slice(ty * tc, min((ty + 1) * tc, self.shape[0])), slice(tx * tc, min((tx + 1) * tc, self.shape[1]))
+    # ---------------------------------------------------------------- the replica
+    @property
+    def own(self) -> dict[int, TileRec]:
+        return self.rep.own
 
-    def layer(self, owner: int) -> dict[int, TileRec]:
-        return self.own if owner == self.agent else self.held
+    @property
+    def held(self) -> dict[int, TileRec]:
+        return self.rep.held
+
+    @property
+    def counter(self) -> int:
+        return self.rep.counter
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.rep.shape
+
+    def tile_slice(self, t: int) -> tuple[slice[int, int, None], slice[int, int, None]]:
+        return self.rep.tile_slice(t)
 
     def layer_hash(self, owner: int) -> bytes:
-        """8-byte hash of a layer's (tile, digest) pairs (what DIGESTs compare)."""
-        if owner not in self._hash_cache:
-            h = hashlib.blake2b(digest_size=8)
-            for t, rec in sorted(self.layer(owner).items()):
-                h.update(t.to_bytes(2, "little") + rec.digest.to_bytes(4, "little"))
-            self._hash_cache[owner] = h.digest()
-        return self._hash_cache[owner]
+        return self.rep.layer_hash(owner)
 
     def replica_hash(self) -> str:
-        """Hash of the decoded content of both layers (owner, tile, cells): equal replicas,
-        equal hashes."""
-        if self._replica_hash is None:
-            h = hashlib.blake2b(digest_size=16)
-            for owner in sorted((self.agent, self.peer)):
-                for t, rec in sorted(self.layer(owner).items()):
-                    h.update(bytes([owner]) + t.to_bytes(2, "little") + _canonical(rec.z))
-            self._replica_hash = h.hexdigest()
-        return self._replica_hash
+        return self.rep.replica_hash()
 
     def replica_map(self, owner: int) -> F32:
-        """One layer painted on the map grid (NaN where it holds nothing)."""
-        z = np.full(self.shape, np.nan, np.float32)
-        for t, rec in self.layer(owner).items():
-            z[self.tile_slice(t)] = rec.z
-        return z
+        return self.rep.replica_map(owner)
 
     def fused_map(self) -> F32:
-        """The team's map from both layers: the mean where both know a cell, else the one that does."""
-        a, b = self.replica_map(self.agent), self.replica_map(self.peer)
-        with np.errstate(invalid="ignore"):
-            return np.where(np.isfinite(a) & np.isfinite(b), 0.5 * (a + b), np.where(np.isfinite(a), a, b))
-
-    def _touch(self, owner: int) -> None:
-        self._hash_cache.pop(owner, None)
-        self._replica_hash = None
+        return self.rep.fused_map()
 
     def _needed(self, t: int) -> bool:
-        rec = self.own[t]
+        rec = self.rep.own[t]
         b = self.belief.get(t)
         return b is None or b[0] < rec.version or (b[0] == rec.version and b[1] != rec.digest)
 
@@ -249,39 +207,27 @@ class MapSync:
         """One sync round: new versions of the tiles of ``z`` (the agent's map, NaN unknown)
         that changed beyond the error bound; returns how many."""
         a = np.asarray(z, np.float32)
-        if a.shape != self.shape:
-            raise ValueError(f"map of shape {a.shape} is not the sync's {self.shape}")
+        if a.shape != self.rep.shape:
+            raise ValueError(f"map of shape {a.shape} is not the sync's {self.rep.shape}")
         bad = np.isinf(a)
         if bad.any():
             self.stats.nonfinite_cells += int(bad.sum())
             a = np.where(bad, np.float32(np.nan), a)
         self.stats.rounds += 1
         n = 0
-        for t in range(self.nty * self.ntx):
-            sub = a[self.tile_slice(t)]
-            known = np.isfinite(sub)
-            rec = self.own.get(t)
-            if rec is None:
-                changed = bool(known.any())
-            else:
-                src = self._source.get(t, rec.z)  # what the last version was made from
-                was = np.isfinite(src)
-                changed = bool((known != was).any()) or bool(
-                    known.any() and float(np.max(np.abs(sub[known] - src[known]))) > self.bound_m)
-            if changed and self._publish_tile(t, sub, now_s):
+        for t in range(self.rep.n_tiles):
+            sub = a[self.rep.tile_slice(t)]
+            if self.rep.changed(t, sub) and self._publish_tile(t, sub, now_s):
                 n += 1
         return n
 
     def _publish_tile(self, t: int, sub: F32, now_s: float) -> bool:
-        blob = encode_map(sub, cell_m=self.cell_m, wheel_diameter_m=self.wheel_m, cfg=self.codec).data
+        blob = self.rep.encode(sub)
         if len(blob) + sp.TILE_OVERHEAD > self.cfg.mtu_bytes:
             self.stats.oversize_tiles += 1
             self.events.emit(now_s, "TILE_TOO_LARGE", tile=t, bytes=len(blob))
             return False
-        self.counter += 1
-        self.own[t] = TileRec(self.counter, sp.blob_digest(blob), blob, decode_map(blob).z)
-        self._source[t] = np.array(sub, np.float32)
-        self._touch(self.agent)
+        self.rep.new_version(t, blob, sub)
         self.wants.discard(t)
         self._lost.discard(t)
         self.stats.tiles_published += 1
@@ -324,36 +270,23 @@ class MapSync:
             self.stats.holdings_bytes_in += len(datagram)
             self._on_holdings(p, now_s)
 
-    def _decode_tile(self, p: sp.Tile) -> F32 | None:
-        if p.tile >= self.nty * self.ntx:
-            return None
-        ys, xs = self.tile_slice(p.tile)
-        try:
-            with np.errstate(over="ignore", invalid="ignore"):
-                z = decode_map(p.blob, max_cells=self.cfg.tile_cells ** 2).z
-        except (MapCodecError, ValueError, MemoryError):  # zstandard: a frame larger than announced
-            return None
-        if z.shape != (ys.stop - ys.start, xs.stop - xs.start) or np.isinf(z).any():
-            return None
-        return z
-
     def _on_tile(self, p: sp.Tile, now_s: float) -> None:
         if p.owner not in (self.agent, self.peer):
             self.stats.foreign_packets += 1
             return
-        z = self._decode_tile(p)
+        z = self.rep.decode_tile(p.tile, p.blob)
         if z is None:
             self.stats.bad_packets += 1
             return
         rec = TileRec(p.version, p.digest, p.blob, z)
         if p.owner == self.agent:  # one of mine, given back after my restart
-            mine = self.own.get(p.tile)
+            mine = self.rep.own.get(p.tile)
             if p.tile in self.wants and (mine is None or p.version > mine.version):
-                self.own[p.tile] = rec
-                self._source.pop(p.tile, None)
-                self.counter = max(self.counter, p.version)
+                self.rep.own[p.tile] = rec
+                self.rep.source.pop(p.tile, None)
+                self.rep.counter = max(self.rep.counter, p.version)
                 self.belief[p.tile] = (p.version, p.digest)
-                self._touch(self.agent)
+                self.rep.touch(self.agent)
                 self.stats.adopted += 1
                 if self.on_adopt is not None:
                     self.on_adopt(p.tile, z)
@@ -361,14 +294,14 @@ class MapSync:
                 self.stats.stale_tiles += 1
             self.wants.discard(p.tile)
             return
-        held = self.held.get(p.tile)
+        held = self.rep.held.get(p.tile)
         if held is None or p.version > held.version or (p.version == held.version and p.digest != held.digest):
-            self.held[p.tile] = rec
-            self._touch(self.peer)
+            self.rep.held[p.tile] = rec
+            self.rep.touch(self.peer)
             self.stats.tiles_in += 1
         else:
             self.stats.stale_tiles += 1
-        self._unconfirmed[p.tile] = self.held[p.tile].version
+        self._unconfirmed[p.tile] = self.rep.held[p.tile].version
         if self._ack_first_s is None:
             self._ack_first_s = now_s
         self._ack_last_s = now_s
@@ -395,7 +328,7 @@ class MapSync:
             self.events.emit(now_s, "PEER_RESTARTED", boot=p.boot, replica_lost=bool(p.flags & sp.FRESH))
             if p.flags & sp.FRESH and self.belief:  # its replica is lost: all of my layer goes again
                 self.stats.full_resends += 1
-                self.events.emit(now_s, "FULL_RESEND", tiles=len(self.own))
+                self.events.emit(now_s, "FULL_RESEND", tiles=len(self.rep.own))
             self.want_holdings = True
             self._inflight.clear()
             self._last_holdings_s = float("-inf")
@@ -409,18 +342,18 @@ class MapSync:
                 if self._unconfirmed.get(t) == v:
                     del self._unconfirmed[t]
         for t, v in p.acks:
-            rec = self.own.get(t)
+            rec = self.rep.own.get(t)
             if rec is not None and v == rec.version & 0xFFFF:  # acknowledgements carry 16 bits
                 self.belief[t] = (rec.version, rec.digest)
                 self._inflight.pop(t, None)
                 self._lost.discard(t)
-        synced = p.held_hash == self.layer_hash(self.agent) and p.held_count == len(self.own)
+        synced = p.held_hash == self.rep.layer_hash(self.agent) and p.held_count == len(self.rep.own)
         if synced:
-            self.belief = {t: (r.version, r.digest) for t, r in self.own.items()}
+            self.belief = {t: (r.version, r.digest) for t, r in self.rep.own.items()}
             self._inflight.clear()
             self._lost.clear()
             self._mismatches = 0
-        elif not any(self._needed(t) for t in self.own) and not self.want_holdings:
+        elif not any(self._needed(t) for t in self.rep.own) and not self.want_holdings:
             self._mismatches += 1
             if self._mismatches >= 2:  # the peer holds something else than I believe
                 self.events.emit(now_s, "HASH_MISMATCH")
@@ -432,14 +365,14 @@ class MapSync:
             self._answer = True
             self._digest_due = now_s
         for t in p.wants:
-            if t in self.held and now_s - self._returned_at.get(t, float("-inf")) >= self.cfg.holdings_retry_s:
+            if t in self.rep.held and now_s - self._returned_at.get(t, float("-inf")) >= self.cfg.holdings_retry_s:
                 self._returns.add(t)
         self._probe_gap = self.cfg.probe_s
         if p.flags & sp.ECHO_VALID and not p.flags & sp.ACKS_CUT:
             echo_t = self._sent_at.get(p.echo_serial)
             if echo_t is not None:
                 for t, (v, ts) in list(self._inflight.items()):
-                    if ts + self.cfg.reorder_slack_s <= echo_t and self.own[t].version == v and self._needed(t):
+                    if ts + self.cfg.reorder_slack_s <= echo_t and self.rep.own[t].version == v and self._needed(t):
                         self._lost.add(t)
                         del self._inflight[t]
         if self._unconfirmed and self._acks_cut:  # the rest of the acknowledgements
@@ -447,7 +380,7 @@ class MapSync:
 
     def _on_holdings(self, p: sp.Holdings, now_s: float) -> None:
         per = self._holdings_per_page()
-        n = self.nty * self.ntx
+        n = self.rep.n_tiles
         if p.n_pages != -(-n // per) or any(not p.page * per <= t < min((p.page + 1) * per, n)
                                             for t, _v, _d in p.entries):
             self.stats.bad_packets += 1
@@ -465,16 +398,16 @@ class MapSync:
         self._inflight.clear()
         self._lost.clear()
         for t, v, _d in entries:
-            self.counter = max(self.counter, v)
-            mine = self.own.get(t)
+            self.rep.counter = max(self.rep.counter, v)
+            mine = self.rep.own.get(t)
             if mine is None or v > mine.version:
                 self.wants.add(t)
         for t, v, d in entries:
-            mine = self.own.get(t)
+            mine = self.rep.own.get(t)
             if mine is not None and v == mine.version and d != mine.digest:  # a version used twice
-                self.counter += 1
-                self.own[t] = TileRec(self.counter, mine.digest, mine.blob, mine.z)
-                self._touch(self.agent)
+                self.rep.counter += 1
+                self.rep.own[t] = TileRec(self.rep.counter, mine.digest, mine.blob, mine.z)
+                self.rep.touch(self.agent)
         self.events.emit(now_s, "HOLDINGS", tiles=len(entries), wanted=len(self.wants))
 
     def _holdings_per_page(self) -> int:
@@ -484,11 +417,12 @@ class MapSync:
         """HOLDINGS of my copy of the peer's layer: page ``k`` lists the tiles ``k * per`` up to
         ``(k + 1) * per`` held, so a page is complete alone and pages of any set combine."""
         per = self._holdings_per_page()
-        n_pages = -(-self.nty * self.ntx // per)
+        n_pages = -(-self.rep.n_tiles // per)
         self._set_id = (self._set_id + 1) & 0xFFFF
         self._holdings_out = []
         for k in range(n_pages):
-            pg = tuple((t, r.version, r.digest) for t, r in sorted(self.held.items()) if k * per <= t < (k + 1) * per)
+            held = sorted(self.rep.held.items())
+            pg = tuple((t, r.version, r.digest) for t, r in held if k * per <= t < (k + 1) * per)
             self._holdings_out.append(sp.encode(sp.Holdings(self.agent, self.frame, 0, self._set_id, k, n_pages, pg)))
         self._last_holdings_s = now_s
 
@@ -498,13 +432,13 @@ class MapSync:
         return ref is not None and now_s - ref > self.cfg.stall_s
 
     def _next_tile(self, now_s: float) -> int | None:
-        cands = [t for t in self.own if t not in self.wants and self._needed(t)
-                 and (t in self._lost or t not in self._inflight or self._inflight[t][0] != self.own[t].version)]
+        cands = [t for t in self.rep.own if t not in self.wants and self._needed(t)
+                 and (t in self._lost or t not in self._inflight or self._inflight[t][0] != self.rep.own[t].version)]
         if not cands:
             return None
 
         def key(t: int) -> tuple[float, int]:
-            ty, tx = divmod(t, self.ntx)
+            ty, tx = divmod(t, self.rep.ntx)
             return (-(self.priority(ty, tx) if self.priority is not None else 0.0), t)
         return min(cands, key=key)
 
@@ -542,7 +476,8 @@ class MapSync:
         if len(self._digest_log) > 64:
             self._digest_log.popitem(last=False)
         d = sp.Digest(self.agent, self.frame, self._stamp(now_s), self.boot, self._dseq, self._peer_dseq or 0,
-                      self._peer_serial or 0, flags, len(self.held), self.layer_hash(self.peer), acks, wants[:255])
+                      self._peer_serial or 0, flags, len(self.rep.held), self.rep.layer_hash(self.peer), acks,
+                      wants[:255])
         answer = self._answer
         self._digest_due = None
         self._ack_first_s = None
@@ -599,13 +534,13 @@ class MapSync:
             self._returns.discard(t)
             self._returned_at[t] = now_s
             self.stats.returns_out += 1
-            return self._tile_packet(self.peer, t, self.held[t], now_s)
+            return self._tile_packet(self.peer, t, self.rep.held[t], now_s)
         if self.want_holdings:
             return None  # what the peer holds of my layer is unknown: nothing to send yet
         t2 = self._next_tile(now_s)
         if t2 is None:
             return None
-        rec = self.own[t2]
+        rec = self.rep.own[t2]
         prev = self._inflight.get(t2)
         if t2 in self._lost or (prev is not None and prev[0] == rec.version):
             self.stats.resent_tiles += 1
@@ -636,13 +571,10 @@ class MapSync:
     # ---------------------------------------------------------------- checkpoint
     def checkpoint(self) -> bytes:
         """The sync state as bytes (JSON): both layers, the counter, the beliefs."""
-        def layer(d: dict[int, TileRec]) -> dict[str, list[int | str]]:
-            return {str(t): [r.version, base64.b64encode(r.blob).decode()] for t, r in d.items()}
         return json.dumps({
             "v": CHECKPOINT_VERSION, "agent": self.agent, "peer": self.peer, "frame": self.frame,
-            "shape": list(self.shape), "tile_cells": self.cfg.tile_cells, "counter": self.counter,
-            "rounds": self.stats.rounds, "own": layer(self.own), "held": layer(self.held),
-            "source": {str(t): base64.b64encode(z.tobytes()).decode() for t, z in self._source.items()},
+            "shape": list(self.rep.shape), "tile_cells": self.cfg.tile_cells, "counter": self.rep.counter,
+            "rounds": self.stats.rounds, **self.rep.layers_state(),
             "belief": {str(t): list(b) for t, b in self.belief.items()},
         }).encode()
 
@@ -659,16 +591,8 @@ class MapSync:
             m = cls(cfg, int(s["agent"]), int(s["peer"]), (int(s["shape"][0]), int(s["shape"][1])), cell_m,
                     wheel_diameter_m, frame=int(s["frame"]), boot=boot, codec=codec, priority=priority,
                     on_adopt=on_adopt)
-            for name, d in (("own", m.own), ("held", m.held)):
-                for key, (ver, b64) in s[name].items():
-                    blob = base64.b64decode(b64)
-                    d[int(key)] = TileRec(int(ver), sp.blob_digest(blob), blob, decode_map(blob).z)
-            for key, b64 in s["source"].items():
-                t = int(key)
-                ys, xs = m.tile_slice(t)
-                m._source[t] = np.frombuffer(base64.b64decode(b64), np.float32).reshape(
-                    ys.stop - ys.start, xs.stop - xs.start).copy()
-            m.counter = int(s["counter"]) + RESTART_VERSION_STEP
+            m.rep.load_layers(s["own"], s["held"], s["source"])
+            m.rep.counter = int(s["counter"]) + RESTART_VERSION_STEP
             m.fresh = False
             m.stats.rounds = int(s["rounds"])
             m.belief = {int(t): (int(b[0]), int(b[1])) for t, b in s["belief"].items()}

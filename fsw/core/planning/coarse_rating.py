@@ -34,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
-from fsw.core.planning.nbv import StationRating, cell_values, view_sums_steps
+from fsw.core.planning.nbv import AccuracyModel, StationRating, cell_values, view_sums_steps
 from fsw.core.planning.visibility import F64, Terrain, VisibilityConfig, horizontal_reach_m, in_view
 from fsw.core.planning.visibility_kernel import pv_fast_steps, unique_inverse
 
@@ -86,10 +86,12 @@ class CoarseSearch:
     n: NDArray[np.int32]
     interest: F64 | None
     n_max: int
+    sigma_m: F64 | None = None  # fine elevation sigma of each (with an accuracy model)
+    accuracy: AccuracyModel | None = None
 
 
 def prepare(terrain: Terrain, factor: int, n: NDArray[np.int32], n_max: int,
-            interest: F64 | None) -> CoarseSearch:
+            interest: F64 | None, accuracy: AccuracyModel | None = None) -> CoarseSearch:
     """Coarse terrain and the worth-rating fine cells (``n < n_max``, interest > 0), once per
     search."""
     g = terrain.grid
@@ -103,7 +105,8 @@ def prepare(terrain: Terrain, factor: int, n: NDArray[np.int32], n_max: int,
     y_m = np.asarray(g.y0 + (iy + 0.5) * g.cell, dtype=np.float64)
     return CoarseSearch(coarse, factor, x_m, y_m,
                         block.astype(np.intp), np.asarray(n)[iy, ix].astype(np.int32),
-                        None if interest is None else np.asarray(interest)[iy, ix], n_max)
+                        None if interest is None else np.asarray(interest)[iy, ix], n_max,
+                        None if accuracy is None else terrain.sigma_m[iy, ix], accuracy)
 
 
 def rate_station_coarse_steps(cs: CoarseSearch, cam_xyz: tuple[float, float, float], yaws: F64,
@@ -121,7 +124,12 @@ def rate_station_coarse_steps(cs: CoarseSearch, cam_xyz: tuple[float, float, flo
     by, bx = np.divmod(blocks, cg.nx)
     pv_block = yield from pv_fast_steps(cs.terrain, cam_xyz, by, bx, cfg)
     bits, new = cell_values(pv_block[inverse], cs.n[near], cs.n_max,
-                            None if cs.interest is None else cs.interest[near])
+                            None if cs.interest is None else cs.interest[near],
+                            stereo_return=cfg.stereo_return)
+    if cs.accuracy is not None and cs.sigma_m is not None:
+        rel_f = np.column_stack([cs.x_m[near] - cam_xyz[0], cs.y_m[near] - cam_xyz[1],
+                                 cs.terrain.elev_m[by, bx][inverse] - cam_xyz[2]])
+        bits = bits * cs.accuracy.share(rel_f, cs.sigma_m[near])
     bits_b = np.bincount(inverse, weights=bits, minlength=blocks.size)
     new_b = np.bincount(inverse, weights=new, minlength=blocks.size)
     keep = (bits_b > 1e-6) | (new_b > 1e-6)
@@ -153,7 +161,8 @@ class ViewRating:
 
 def rate_views_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws: F64,
                      tilts: F64, n: NDArray[np.int32], n_max: int, interest: F64 | None,
-                     camera: CameraConfig, cfg: VisibilityConfig
+                     camera: CameraConfig, cfg: VisibilityConfig,
+                     accuracy: AccuracyModel | None = None
                      ) -> Generator[None, None, ViewRating]:
     """Exact rating (§3.1, §3.2) of the K views ``(yaws[k], tilts[k])`` from one centre: the
     fine kernel runs only on cells worth rating inside at least one of them (step 3)."""
@@ -178,7 +187,10 @@ def rate_views_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws
         return ViewRating(np.zeros(yaws.size), np.zeros(yaws.size), 0)
     pv = yield from pv_fast_steps(terrain, cam_xyz, iy[sel], ix[sel], cfg)
     bits, new = cell_values(pv, np.asarray(n)[iy[sel], ix[sel]], n_max,
-                            None if interest is None else np.asarray(interest)[iy[sel], ix[sel]])
+                            None if interest is None else np.asarray(interest)[iy[sel], ix[sel]],
+                            stereo_return=cfg.stereo_return)
+    if accuracy is not None:
+        bits = bits * accuracy.share(pts[sel] - np.asarray(cam_xyz), terrain.sigma_m[iy[sel], ix[sel]])
     info, new_cells = np.zeros(yaws.size), np.zeros(yaws.size)
     for k in range(yaws.size):
         m = masks[k, sel]

@@ -22,6 +22,7 @@ from fsw.core.planning.coarse_rating import (
     rate_views_steps,
 )
 from fsw.core.planning.nbv import (
+    AccuracyModel,
     MapLike,
     NbvConfig,
     focus_weights,
@@ -61,6 +62,8 @@ class InformationPlanner(Planner):
         self.last_stations = 0  # stations rated by the last search
         self.last_centres = 0  # camera centres (stations x lifts) rated by the last search
         self._focus: F64 | None = None  # the task's weights of the interest (cfg.focus_regions)
+        # Method 5 weighs bits by the map accuracy a view gives (§3.2 choice; off when 0)
+        self.accuracy = AccuracyModel.of(cfg, camera) if use_interest else None
 
     def _terrain(self, emap: MapLike) -> Generator[None, None, tuple[Terrain, F64 | None]]:
         if self._truth_z is None:
@@ -105,11 +108,12 @@ class InformationPlanner(Planner):
         if factor <= 1:
             for c in centres:
                 r = yield from rate_station_steps(terrain, c.cam_xyz, c.yaws, tilts, state.map.n,
-                                                  n_max, interest, self.camera, cfg.visibility)
+                                                  n_max, interest, self.camera, cfg.visibility,
+                                                  accuracy=self.accuracy)
                 best.offer(c, c.best(r.info_bits.ravel(), r.expected_new_cells.ravel(), None))
                 self.last_centres += 1
             return best.choice(stations, path)
-        cs = prepare(terrain, factor, state.map.n, n_max, interest)
+        cs = prepare(terrain, factor, state.map.n, n_max, interest, self.accuracy)
         vis_coarse = coarse_visibility(cfg.visibility, factor)
         yield None
         u_all = []
@@ -128,7 +132,8 @@ class InformationPlanner(Planner):
             views = np.unique(top[top // per == i] % per)
             r2 = yield from rate_views_steps(terrain, c.cam_xyz, c.yaws[views // tilts.size],
                                              tilts[views % tilts.size], state.map.n, n_max,
-                                             interest, self.camera, cfg.visibility)
+                                             interest, self.camera, cfg.visibility,
+                                             accuracy=self.accuracy)
             best.offer(c, c.best(r2.info_bits, r2.expected_new_cells, views))
             self.last_centres += 1
         return best.choice(stations, path)

@@ -6,9 +6,12 @@
   ``n_max`` is ``info_n_max`` (default 2: a cell seen once is worth half a new one, twice
   nothing), not the map's fusion cap (10), under which a cell seen once would still be worth
   90 % of an unmapped one and the planner would rather re-measure than explore.
-  Alongside it, ``expected_new_cells = sum_{i in view(c), n_i = 0} IF_i * P_V(i)``: the
+  Alongside it, ``expected_new_cells = rho * sum_{i in view(c), n_i = 0} P_V(i)``: the
   expected number of cells the view maps for the first time (what the paper's Figure 8 plots
-  against the obtained count).
+  against the obtained count), with ``rho`` the stereo's return (``[nbv.visibility]
+  stereo_return``: P_V is an ideal view's visibility, the stereo maps a fraction of it). The
+  interest ranks views (it is in H) but is not in the count: a cell's interest is no
+  probability that it is mapped.
 * Motion cost (§3.3, Eq 9): ``d = sqrt(sum_i a_i (c_i - c'_i)^2)`` over (x, y, yaw, pan,
   tilt, lift); default ``a_i`` are 1/rate^2 so ``d`` is about the seconds of motion.
 * Localization term (§3.5): ``sigma_loc`` = odometry drift grown over the path travelled,
@@ -99,6 +102,12 @@ class NbvConfig:
                                  doc="coarse-to-fine search: coarse cell size (0: rate exactly)")
     refine_views: int = param(12, lo=1, hi=100000,
                               doc="coarse-to-fine search: best coarse views rated exactly")
+    accuracy_sigma_m: float = param(
+        0.0, lo=0.0, hi=1.0, units="m",
+        doc="Method 5: weigh each cell's bits by the share of its variance the view removes, against "
+            "min(var, this^2) (0: off; §3.2 choice)")
+    accuracy_disparity_px: float = param(0.5, lo=0.01, hi=10.0, units="px",
+                                         doc="Method 5 accuracy weight: disparity sigma of a view's point")
     focus_regions: tuple[tuple[float, ...], ...] = param(
         (), doc="regions a task needs mapped (§3.4): (x_min, y_min, x_max, y_max, weight) rows, map frame, m; "
                 "the interest of their cells is weighted by weight >= 1")
@@ -134,28 +143,62 @@ def h2(p: F64) -> F64:
     return np.nan_to_num(out, nan=0.0)
 
 
+@dataclass(frozen=True)
+class AccuracyModel:
+    """The net improvement of map accuracy a view gives a cell (§3.2 choice, Method 5): the share
+    of the cell's variance ``v = min(var, sigma_ref^2)`` (an unmapped cell: ``sigma_ref^2``) that
+    one view's measurement removes, ``q = v / (v + vm)``, with ``vm`` the stereo's vertical
+    variance at the cell's range ``r`` and height below the camera ``dz``:
+    ``sigma_z = sigma_d * r * |dz| / (f * B)`` (the depth error ``r^2 sigma_d / (f B)`` along a ray
+    that descends by ``|dz| / r``). Far and grazing views of new ground, and views that would
+    re-measure a cell no better than it is known, are worth less."""
+
+    sigma_ref_m: float
+    disparity_px: float
+    focal_baseline_px_m: float  # f * B
+
+    @staticmethod
+    def of(cfg: NbvConfig, camera: CameraConfig) -> AccuracyModel | None:
+        """The model of ``cfg`` and ``camera``, or None when ``accuracy_sigma_m`` is 0."""
+        if cfg.accuracy_sigma_m <= 0.0:
+            return None
+        return AccuracyModel(cfg.accuracy_sigma_m, cfg.accuracy_disparity_px,
+                             camera.focal_px * camera.baseline_m)
+
+    def share(self, rel: F64, sigma_m: F64) -> F64:
+        """``q`` per cell: ``rel`` (N, 3) cell points relative to the camera, ``sigma_m`` (N,) the
+        cells' elevation sigma on the rating's terrain (an unmapped cell's prior is larger than
+        ``sigma_ref``)."""
+        r = np.sqrt((np.asarray(rel, dtype=np.float64) ** 2).sum(axis=1))
+        s_z = self.disparity_px * r * np.abs(rel[:, 2]) / self.focal_baseline_px_m
+        v = np.minimum(np.asarray(sigma_m, dtype=np.float64) ** 2, self.sigma_ref_m**2)
+        return np.asarray(v / (v + s_z**2 + 1e-12))
+
+
 def cell_values(pv: F64, n: NDArray[np.int32], n_max: int, interest: F64 | None,
-                planned: F64 | None = None) -> tuple[F64, F64]:
+                planned: F64 | None = None, stereo_return: float = 1.0) -> tuple[F64, F64]:
     """Per-cell terms of H (Eq 3, bits) and of the expected new cells, given P_V (§3.2, §3.4).
 
     The interest multiplies P_V up to 1; an interest above 1 (a task's focus region, weighted
-    by :func:`focus_weights`) multiplies the cell's bits instead. ``planned`` (team views,
-    docs/algorithm.md §8): the expected measurements of each cell by views other agents have
-    already chosen this cycle (the sum of their P_V); Eq 3's weight counts them as taken,
-    ``(n_max - n - planned) / n_max``, and a cell stays new only with ``1 - planned``."""
+    by :func:`focus_weights`) multiplies the cell's bits instead. The interest ranks views (H)
+    but is no part of the expected new cells: those are the same quantity as the obtained
+    count, ``P_V`` of each unmapped cell times ``stereo_return`` (the fraction of the cells a
+    view leaves visible that the stereo maps, ``VisibilityConfig.stereo_return``).
+    ``planned`` (team views, docs/algorithm.md §8): the expected measurements of each cell by
+    views other agents have already chosen this cycle (the sum of their P_V); Eq 3's weight
+    counts them as taken, ``(n_max - n - planned) / n_max``, and a cell stays new only with
+    ``1 - planned``."""
     p = np.asarray(pv, dtype=np.float64)
     taken = np.asarray(n, dtype=np.float64)
-    new = np.asarray(n) == 0
+    fresh = np.where(np.asarray(n) == 0, p * float(stereo_return), 0.0)
     if planned is not None:
         taken = taken + np.asarray(planned, dtype=np.float64)
+        fresh = fresh * np.clip(1.0 - np.asarray(planned, dtype=np.float64), 0.0, 1.0)
     weight = np.clip((n_max - taken) / float(n_max), 0.0, 1.0)
     if interest is not None:
         i = np.asarray(interest, dtype=np.float64)
         p = p * np.clip(i, 0.0, 1.0)
         weight = weight * np.maximum(i, 1.0)
-    fresh = np.where(new, p, 0.0)
-    if planned is not None:
-        fresh = fresh * np.clip(1.0 - np.asarray(planned, dtype=np.float64), 0.0, 1.0)
     return weight * h2(p / 2.0), fresh
 
 
@@ -211,16 +254,19 @@ class StationRating:
 
 def rate_station(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws: F64, tilts: F64,
                  n: NDArray[np.int32], n_max: int, interest: F64 | None, camera: CameraConfig,
-                 cfg: VisibilityConfig, planned: F64 | None = None) -> StationRating:
+                 cfg: VisibilityConfig, planned: F64 | None = None,
+                 accuracy: AccuracyModel | None = None) -> StationRating:
     """Rate all pan/tilt views (world yaws x tilts) from one camera centre (§3.1, §3.2);
-    ``planned``: other agents' chosen views this cycle (:func:`cell_values`)."""
+    ``planned``: other agents' chosen views this cycle (:func:`cell_values`); ``accuracy``:
+    Method 5's accuracy weight (:class:`AccuracyModel`)."""
     return run_to_end(rate_station_steps(terrain, cam_xyz, yaws, tilts, n, n_max, interest,
-                                         camera, cfg, planned))
+                                         camera, cfg, planned, accuracy))
 
 
 def rate_station_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws: F64,
                        tilts: F64, n: NDArray[np.int32], n_max: int, interest: F64 | None,
-                       camera: CameraConfig, cfg: VisibilityConfig, planned: F64 | None = None
+                       camera: CameraConfig, cfg: VisibilityConfig, planned: F64 | None = None,
+                       accuracy: AccuracyModel | None = None
                        ) -> Generator[None, None, StationRating]:
     """:func:`rate_station` in bounded steps (for the executive's slack jobs)."""
     g = terrain.grid
@@ -237,11 +283,13 @@ def rate_station_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], ya
         return StationRating(zero, zero.copy(), 0)
     pv = yield from pv_fast_steps(terrain, cam_xyz, iy, ix, cfg)
     bits, new = cell_values(pv, n[iy, ix], n_max, None if interest is None else interest[iy, ix],
-                            None if planned is None else planned[iy, ix])
+                            None if planned is None else planned[iy, ix], cfg.stereo_return)
+    rel = np.column_stack([x_c[ix] - cam_xyz[0], y_c[iy] - cam_xyz[1],
+                           terrain.elev_m[iy, ix] - cam_xyz[2]])
+    if accuracy is not None:
+        bits = bits * accuracy.share(rel, terrain.sigma_m[iy, ix])
     keep = (bits > 1e-6) | (new > 1e-6)
-    rel = np.column_stack([x_c[ix[keep]] - cam_xyz[0], y_c[iy[keep]] - cam_xyz[1],
-                           terrain.elev_m[iy[keep], ix[keep]] - cam_xyz[2]])
-    sums = yield from view_sums_steps(rel, np.column_stack([bits[keep], new[keep]]), yaws,
+    sums = yield from view_sums_steps(rel[keep], np.column_stack([bits[keep], new[keep]]), yaws,
                                       tilts, camera)
     return StationRating(sums[..., 0], sums[..., 1], int(iy.size))
 

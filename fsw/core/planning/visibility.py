@@ -69,6 +69,10 @@ class VisibilityConfig:
     prune_z: float = param(
         4.0, lo=2.0, hi=10.0, units="sigma",
         doc="fast kernel: skips samples whose clearance exceeds this (factor > 0.99997)")
+    stereo_return: float = param(
+        0.8, lo=0.01, hi=1.0,
+        doc="fraction of the unmapped cells a view leaves visible (P_V) that the stereo maps; "
+            "scales the expected new cells, not H")
 
 
 def rays_for_cell(cfg: VisibilityConfig, cell_m: float) -> int:

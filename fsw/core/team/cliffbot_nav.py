@@ -26,8 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.core.geometry import MapGrid
-from fsw.core.team.tether import TetherConfig, ZMap, tether_state
+from fsw.core.geometry import MapGrid, wrap_angle
+from fsw.core.team.tether import TetherConfig, ZMap, tether_states
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
@@ -43,10 +43,6 @@ class NavConfig:
     yaw_rate_per_m: float = param(1.0, lo=0.0, hi=10.0, units="rad/m", doc="heading change per metre driven (noise)")
     fix_gate: float = param(0.999, lo=0.9, hi=0.9999, doc="chi-square probability of the fix gate (3 dof)")
     init_sigma_m: float = param(0.1, lo=1e-3, hi=10.0, units="m")
-
-
-def _wrap(a: float) -> float:
-    return math.atan2(math.sin(a), math.cos(a))
 
 
 class CliffbotNav:
@@ -79,7 +75,7 @@ class CliffbotNav:
         s_cov = h @ self.P @ h.T + rcov
         k = self.P @ h.T @ np.linalg.inv(s_cov)
         self.s = self.s + k @ r
-        self.s[2] = _wrap(self.s[2])
+        self.s[2] = wrap_angle(float(self.s[2]))
         i_kh = np.eye(3) - k @ h
         self.P = i_kh @ self.P @ i_kh.T + k @ rcov @ k.T  # Joseph form
         return float(r @ np.linalg.solve(s_cov, r))
@@ -87,17 +83,17 @@ class CliffbotNav:
     def lengths(self, lengths_m: tuple[float, float], z: ZMap, grid: MapGrid, anchors: F64,
                 tcfg: TetherConfig, footprint_m: float) -> bool:
         """Update on the winches' paid-out lengths; False when the map cannot say (unknown ground)."""
-        xy = self.s[:2]
-        st = tether_state(z, grid, anchors, xy, tcfg, footprint_m)
-        if st is None or not all(math.isfinite(v) for v in lengths_m):
+        if not all(math.isfinite(v) for v in lengths_m):
+            return False
+        e = grid.cell
+        # Here and a cell either way along x and y, in one batch (central differences).
+        around = np.array([[0.0, 0.0], [e, 0.0], [-e, 0.0], [0.0, e], [0.0, -e]])
+        st, *probes = tether_states(z, grid, anchors, self.s[:2] + around, tcfg, footprint_m)
+        if st is None:
             return False
         hmat = np.zeros((2, 3))
-        e = grid.cell
         for k in range(2):
-            dv = np.zeros(2)
-            dv[k] = e
-            hi = tether_state(z, grid, anchors, xy + dv, tcfg, footprint_m)
-            lo = tether_state(z, grid, anchors, xy - dv, tcfg, footprint_m)
+            hi, lo = probes[2 * k], probes[2 * k + 1]
             if hi is None or lo is None:
                 return False
             hmat[:, k] = (np.asarray(hi.lengths_m) - np.asarray(lo.lengths_m)) / (2 * e)
@@ -109,12 +105,12 @@ class CliffbotNav:
     def heading(self, yaw_deg: float) -> None:
         if not math.isfinite(yaw_deg):
             return
-        r = np.array([_wrap(math.radians(yaw_deg) - self.s[2])])
+        r = np.array([wrap_angle(math.radians(yaw_deg) - float(self.s[2]))])
         self._update(r, np.array([[0.0, 0.0, 1.0]]), np.array([[math.radians(self.cfg.yaw_sigma_deg) ** 2]]))
 
     def fix(self, xy: F64, yaw: float, cov3: F64) -> tuple[bool, float]:
         """A fiducial fix of ``(x, y, yaw)`` with its 3x3 covariance: (accepted, NIS)."""
-        r = np.array([xy[0] - self.s[0], xy[1] - self.s[1], _wrap(yaw - self.s[2])])
+        r = np.array([xy[0] - self.s[0], xy[1] - self.s[1], wrap_angle(yaw - float(self.s[2]))])
         h = np.eye(3)
         s_cov = self.P + cov3
         try:

@@ -18,20 +18,27 @@ brute-force check of what is reachable at all).
      equilibrium must hold with both tensions in ``[T_min, T_max]`` and the wheels on the
      face (below it, the wheels hold the Cliff-bot and the winches only keep the tethers
      taut).
-2. **Edges.** Usable 8-neighbours, weighted by their 3-D distance.
+2. **Edges.** Usable 8-neighbours, weighted by their 3-D distance; with :class:`Margins`, an
+   edge within ``clearance_m`` of a hazard cell costs more (up to ``1 + weight`` times its
+   length), so a path keeps the clearance the body's tracking and navigation errors need
+   where the ground leaves room, while what is reachable stays what the wheels' limits allow
+   (the truth's verdict). A plan's lengths are its paths' 3-D lengths, not their costs.
 3. **Search.** A* from the Cliff-bot's node to each target, nodes judged as the search
    reaches them (:func:`plan_targets` says why not a whole-lattice graph search). A target
    that is not reached gets the reason of its own node (``unknown ground``, ``hazard``,
    ``out of tether reach``, ``slack``,
    ``over-tension``, ``off the face``, ``tether over a rock``, ``tether over unknown
-   ground``, ``off the map``) or, when its node is usable, ``no safe path``.
+   ground``, ``off the map``) or, when its node is usable, ``no safe path``. The start is
+   judged like any node, except with ``start_usable`` (the Cliff-bot stands there, held by
+   its tethers, and plans its way out of it); ``blocked`` edges (pairs of places) are not
+   taken (the mission's check of the way between waypoints, ``fsw.tasks.cliffbot_mission``).
 """
 
 from __future__ import annotations
 
 import heapq
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,7 +47,7 @@ from scipy import ndimage
 
 from fsw.core.codec.hazard import relief
 from fsw.core.geometry import MapGrid
-from fsw.core.team.tether import TetherConfig, ZMap, tether_state
+from fsw.core.team.tether import TetherConfig, TetherState, ZMap, tether_state, tether_states
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
@@ -61,6 +68,14 @@ class ClimberConfig:
     free_slope_deg: float = param(25.0, lo=0.0, hi=90.0, units="deg",
                                   doc="up to this slope the wheels hold the Cliff-bot without the tethers")
     node_m: float = param(0.06, lo=0.005, hi=5.0, units="m", doc="planner lattice spacing")
+
+
+@dataclass(frozen=True)
+class Margins:
+    """A soft margin: the extra cost of passing near a hazard."""
+
+    clearance_m: float = 0.0  # within this of a hazard cell an edge costs more
+    weight: float = 4.0  # an edge's cost at its worst: (1 + weight) x its length
 
 
 @dataclass(frozen=True)
@@ -118,9 +133,14 @@ def node_reasons(z: ZMap, grid: MapGrid, anchors: F64, tcfg: TetherConfig, ccfg:
     rows = np.arange(stride // 2, grid.ny, stride)
     cols = np.arange(stride // 2, grid.nx, stride)
     rr, cc = np.meshgrid(rows, cols, indexing="ij")
-    reasons: list[str] = []
-    for iy, ix in zip(rr.ravel(), cc.ravel(), strict=True):
-        reasons.append(_verdict(z, grid, anchors, tcfg, ccfg, g, int(iy), int(ix)))
+    iy, ix = rr.ravel(), cc.ravel()
+    # Every node that needs its tethers judged, in one batch (the same states one at a time would give).
+    todo = np.flatnonzero(g.known[iy, ix] & ~g.hazard[iy, ix])
+    xy = np.column_stack([grid.x0 + (ix[todo] + 0.5) * grid.cell, grid.y0 + (iy[todo] + 0.5) * grid.cell])
+    states = dict(zip(todo.tolist(), tether_states(z, grid, anchors, xy, tcfg, ccfg.footprint_m), strict=True))
+    reasons = ["unknown ground" if not g.known[y, x] else "hazard" if k not in states
+               else _tether_verdict(states[k], grid, tcfg, ccfg, g)
+               for k, (y, x) in enumerate(zip(iy, ix, strict=True))]
     return rows, cols, reasons, g
 
 
@@ -131,7 +151,12 @@ def _verdict(z: ZMap, grid: MapGrid, anchors: F64, tcfg: TetherConfig, ccfg: Cli
     if g.hazard[iy, ix]:
         return "hazard"
     xy = np.array([grid.x0 + (ix + 0.5) * grid.cell, grid.y0 + (iy + 0.5) * grid.cell])
-    st = tether_state(z, grid, anchors, xy, tcfg, ccfg.footprint_m)
+    return _tether_verdict(tether_state(z, grid, anchors, xy, tcfg, ccfg.footprint_m), grid, tcfg, ccfg, g)
+
+
+def _tether_verdict(st: TetherState | None, grid: MapGrid, tcfg: TetherConfig, ccfg: ClimberConfig,
+                    g: Ground) -> str:
+    """A known, hazard-free node's verdict from the tethers and statics with the Cliff-bot there."""
     if st is None:
         return "unknown ground"
     if max(st.lengths_m) > tcfg.spool_m:
@@ -149,7 +174,8 @@ def _verdict(z: ZMap, grid: MapGrid, anchors: F64, tcfg: TetherConfig, ccfg: Cli
 
 
 def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy: F64,
-                 tcfg: TetherConfig, ccfg: ClimberConfig) -> Plan:
+                 tcfg: TetherConfig, ccfg: ClimberConfig, margins: Margins | None = None,
+                 start_usable: bool = False, blocked: Sequence[tuple[F64, F64]] = ()) -> Plan:
     """Shortest usable paths from ``start_xy`` to each target (module docstring).
 
     A* per target over the 8-connected lattice, with the 3-D straight distance as its
@@ -168,11 +194,25 @@ def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy
     node_x = grid.x0 + (cols + 0.5) * grid.cell
     node_y = grid.y0 + (rows + 0.5) * grid.cell
     cache: dict[int, str] = {}
+    m = margins or Margins()
+    clear = (ndimage.distance_transform_edt(~g.hazard) * grid.cell if m.clearance_m > 0 and g.hazard.any()
+             else None)
+    start: int | None = None
 
     def verdict(k: int) -> str:
         if k not in cache:
             cache[k] = _verdict(zf, grid, anchors, tcfg, ccfg, g, int(rows[k // nx]), int(cols[k % nx]))
-        return cache[k]
+        return USABLE if (start_usable and k == start) else cache[k]
+
+    def cost(a: int, b: int) -> float:
+        """An edge's cost over its length: 1 with room, up to 1 + weight at a hazard's edge;
+        inf for an edge the caller found the body cannot pass (``blocked``)."""
+        if (a, b) in cut:
+            return math.inf
+        if clear is None:
+            return 1.0
+        d = min(float(clear[rows[a // nx], cols[a % nx]]), float(clear[rows[b // nx], cols[b % nx]]))
+        return 1.0 + m.weight * min(1.0, max(0.0, 1.0 - d / m.clearance_m))
 
     def point(k: int) -> F64:
         r, c = divmod(k, nx)
@@ -186,6 +226,11 @@ def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy
         cx = min(nx - 1, max(0, int(round((int(ix[0]) - cols[0]) / stride))))
         return cy * nx + cx
 
+    cut: set[tuple[int, int]] = set()
+    for p, q in blocked:
+        a, b = node_of(np.asarray(p, float)), node_of(np.asarray(q, float))
+        if a is not None and b is not None:
+            cut |= {(a, b), (b, a)}
     targets = np.asarray(targets_xy, float).reshape(-1, 2)
     start = node_of(np.asarray(start_xy, float))
     if start is None or verdict(start) != USABLE:
@@ -202,16 +247,17 @@ def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy
             lengths.append(math.inf)
             why_not.append("off the map" if goal is None else verdict(goal))
             continue
-        found = _astar(start, goal, nx, ny, verdict, point)
+        found = _astar(start, goal, nx, ny, verdict, point, cost)
         if found is None:
             paths.append(None)
             lengths.append(math.inf)
             why_not.append("no safe path")
             continue
-        chain, length = found
+        chain, _ = found
         r, c = np.divmod(np.asarray(chain), nx)
         paths.append(np.column_stack([node_x[c], node_y[r]]))
-        lengths.append(length)
+        pts = np.column_stack([node_x[c], node_y[r], node_z[r, c]])
+        lengths.append(float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum()))
         why_not.append("")
     return Plan(tuple(paths), tuple(lengths), tuple(why_not), "")
 
@@ -220,8 +266,10 @@ _STEPS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
 
 
 def _astar(start: int, goal: int, nx: int, ny: int, verdict: Callable[[int], str],
-           point: Callable[[int], F64]) -> tuple[list[int], float] | None:
-    """A* over usable lattice nodes; the node chain and its 3-D length, or None."""
+           point: Callable[[int], F64], factor: Callable[[int, int], float] | None = None,
+           ) -> tuple[list[int], float] | None:
+    """A* over usable lattice nodes; the node chain and its cost (its 3-D length times each
+    edge's ``factor`` >= 1, so the straight distance stays an admissible heuristic), or None."""
     goal_p = point(goal)
     best = {start: 0.0}
     came: dict[int, int] = {}
@@ -247,8 +295,8 @@ def _astar(start: int, goal: int, nx: int, ny: int, verdict: Callable[[int], str
             if n in done or verdict(n) != USABLE:
                 continue
             pn = point(n)
-            new = cost + float(np.linalg.norm(pn - pk))
-            if new < best.get(n, math.inf):
+            new = cost + float(np.linalg.norm(pn - pk)) * (factor(k, n) if factor is not None else 1.0)
+            if new < best.get(n, math.inf) and math.isfinite(new):
                 best[n] = new
                 came[n] = k
                 heapq.heappush(heap, (new + float(np.linalg.norm(pn - goal_p)), new, n))

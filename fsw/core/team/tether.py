@@ -33,10 +33,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid
+from fsw.core.team.tether_batch import heights_at, taut_tethers
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
 ZMap = NDArray[np.float32 | np.float64]  # a 2.5D map: heights, NaN unknown
+BATCH_PLACES = 256  # places per batch of :func:`tether_states` (~2 x 256 ground profiles of a few hundred samples)
 G = 9.81  # m/s^2 (the planet's value belongs in config when the bench plays Mars: TetherConfig.gravity_mps2)
 
 
@@ -85,13 +87,12 @@ def ground_profile(z: ZMap, grid: MapGrid, a_xy: F64, b_xy: F64, step_m: float
     if n < 1:
         return np.zeros(0), np.zeros(0), False
     s = np.arange(1, n + 1, dtype=np.float64) * (span / (n + 1))
-    xs = a_xy[0] + d[0] * s / span
-    ys = a_xy[1] + d[1] * s / span
-    iy, ix, inside = grid.cell_index(xs, ys)
-    h = np.full(n, np.nan)
-    h[inside] = z[iy[inside], ix[inside]]
-    unknown = bool((~np.isfinite(h)).any())
-    return s, np.where(np.isfinite(h), h, -np.inf).astype(np.float64), unknown
+    ix = np.floor(((a_xy[0] + d[0] * s / span) - grid.x0) / grid.cell)  # as MapGrid.cell_index
+    iy = np.floor(((a_xy[1] + d[1] * s / span) - grid.y0) / grid.cell)
+    inside = (ix >= 0) & (ix < grid.nx) & (iy >= 0) & (iy < grid.ny)
+    h = np.asarray(z[np.where(inside, iy, 0).astype(np.intp), np.where(inside, ix, 0).astype(np.intp)], np.float64)
+    known = inside & np.isfinite(h)  # a sample off the map read cell (0, 0) above: one gather, then masked
+    return s, np.where(known, h, -np.inf), not bool(known.all())
 
 
 def upper_hull(s: F64, h: F64) -> NDArray[np.intp]:
@@ -124,30 +125,43 @@ def tether_path(z: ZMap, grid: MapGrid, anchor: F64, bot: F64, cfg: TetherConfig
     bot = np.asarray(bot, float)
     s, h, unknown = ground_profile(z, grid, anchor[:2], bot[:2], cfg.sample_m)
     span = float(math.hypot(*(bot[:2] - anchor[:2])))
-    ss = np.concatenate([[0.0], s, [span]])
-    hh = np.concatenate([[anchor[2]], h, [bot[2]]])
+    ss = np.empty(len(s) + 2)
+    ss[0], ss[1:-1], ss[-1] = 0.0, s, span
+    hh = np.empty(len(s) + 2)
+    hh[0], hh[1:-1], hh[-1] = anchor[2], h, bot[2]
     idx = upper_hull(ss, hh)
-    seg = np.hypot(np.diff(ss[idx]), np.diff(hh[idx]))
+    sv, hv = ss[idx], hh[idx]
+    seg = np.hypot(sv[1:] - sv[:-1], hv[1:] - hv[:-1])
     direction = (bot[:2] - anchor[:2]) / span if span > 0 else np.zeros(2)
     inner = idx[1:-1]
-    contacts = np.column_stack([anchor[0] + direction[0] * ss[inner], anchor[1] + direction[1] * ss[inner],
-                                hh[inner]])
+    contacts = np.empty((len(inner), 3))
+    contacts[:, 0] = anchor[0] + direction[0] * ss[inner]
+    contacts[:, 1] = anchor[1] + direction[1] * ss[inner]
+    contacts[:, 2] = hh[inner]
     last = idx[-2]  # the hull vertex the last segment comes from
-    pull = np.array([-direction[0] * (ss[-1] - ss[last]), -direction[1] * (ss[-1] - ss[last]), hh[last] - bot[2]])
+    back = ss[-1] - ss[last]
+    pull = np.array([-direction[0] * back, -direction[1] * back, hh[last] - bot[2]])
     norm = float(np.linalg.norm(pull))
     return TetherPath(float(seg.sum()), contacts, pull / norm if norm > 0 else pull, unknown)
 
 
-def surface_normal(z: ZMap, grid: MapGrid, xy: F64, radius_m: float) -> F64 | None:
-    """Unit upward normal of the plane fitted to the ground at ``xy`` and at eight points on
-    the circle of ``radius_m`` around it (bilinear heights, :func:`height_at`, so the normal
-    and the attachment point move continuously with the Cliff-bot); points on unknown ground
-    or off the map are left out; None when the centre or more than half of the circle is."""
+_RING = np.arange(8) * (np.pi / 4)
+_RING_COS, _RING_SIN = np.cos(_RING), np.sin(_RING)
+
+
+def _ring(radius_m: float, grid: MapGrid) -> tuple[F64, F64]:
+    """The footprint's centre and eight points on the circle of ``radius_m`` (at least a cell)."""
     r = max(radius_m, grid.cell)
-    ang = np.arange(8) * (np.pi / 4)
-    px = np.concatenate([[0.0], r * np.cos(ang)])
-    py = np.concatenate([[0.0], r * np.sin(ang)])
-    h = np.array([height_at(z, grid, (float(xy[0]) + a, float(xy[1]) + b)) for a, b in zip(px, py, strict=True)])
+    px = np.empty(9)
+    py = np.empty(9)
+    px[0], px[1:] = 0.0, r * _RING_COS
+    py[0], py[1:] = 0.0, r * _RING_SIN
+    return px, py
+
+
+def _plane_normal(px: F64, py: F64, h: F64) -> F64 | None:
+    """The upward unit normal of the plane fitted to the heights ``h`` at ``(px, py)`` (NaN:
+    left out); None when the centre or more than half of the circle is unknown."""
     ok = np.isfinite(h)
     if not ok[0] or ok.sum() < 5:
         return None
@@ -155,6 +169,15 @@ def surface_normal(z: ZMap, grid: MapGrid, xy: F64, radius_m: float) -> F64 | No
     (gx, gy, _), *_ = np.linalg.lstsq(a, h[ok], rcond=None)
     n = np.array([-gx, -gy, 1.0])
     return n / np.linalg.norm(n)
+
+
+def surface_normal(z: ZMap, grid: MapGrid, xy: F64, radius_m: float) -> F64 | None:
+    """Unit upward normal of the plane fitted to the ground at ``xy`` and at eight points on
+    the circle of ``radius_m`` around it (bilinear heights, :func:`height_at`, so the normal
+    and the attachment point move continuously with the Cliff-bot); points on unknown ground
+    or off the map are left out; None when the centre or more than half of the circle is."""
+    px, py = _ring(radius_m, grid)
+    return _plane_normal(px, py, heights_at(z, grid, float(xy[0]) + px, float(xy[1]) + py))
 
 
 def statics(pull1: F64, pull2: F64, normal: F64, cfg: TetherConfig) -> Statics:
@@ -173,6 +196,35 @@ def statics(pull1: F64, pull2: F64, normal: F64, cfg: TetherConfig) -> Statics:
     elif n < 0.0:
         reason = "off the face"
     return Statics((float(t1), float(t2)), float(n), reason == "", reason, tilt)
+
+
+def statics_many(pull1: F64, pull2: F64, normal: F64, cfg: TetherConfig) -> list[Statics]:
+    """:func:`statics` of each row of ``pull1``, ``pull2``, ``normal`` (N, 3): one stacked
+    LAPACK call each for the determinants and the solutions (the same routine per matrix)."""
+    a = np.stack([pull1, pull2, normal], axis=2)  # columns: u1, u2, n
+    weight = np.array([0.0, 0.0, cfg.mass_kg * cfg.gravity_mps2])
+    det = np.linalg.det(a)
+    ok = np.abs(det) >= 1e-9
+    sol = np.full((len(a), 3), np.nan)
+    if ok.any():
+        sol[ok] = np.linalg.solve(a[ok], np.broadcast_to(weight[:, None], (int(ok.sum()), 3, 1)))[..., 0]
+    out = []
+    for k in range(len(a)):
+        nk = normal[k]
+        tilt = math.degrees(math.acos(max(-1.0, min(1.0, float(nk[2]) / float(np.linalg.norm(nk))))))
+        if not ok[k]:
+            out.append(Statics((math.nan, math.nan), math.nan, False, "degenerate", tilt))
+            continue
+        t1, t2, n = sol[k]
+        reason = ""
+        if min(t1, t2) < cfg.t_min_n:
+            reason = "slack"
+        elif max(t1, t2) > cfg.t_max_n:
+            reason = "over-tension"
+        elif n < 0.0:
+            reason = "off the face"
+        out.append(Statics((float(t1), float(t2)), float(n), reason == "", reason, tilt))
+    return out
 
 
 @dataclass(frozen=True)
@@ -203,14 +255,7 @@ def height_at(z: ZMap, grid: MapGrid, xy: F64 | tuple[float, float]) -> float:
     """Bilinear height at ``xy`` between the four nearest cell centres (NaN when one is unknown
     or off the map): continuous, so tether lengths are continuous in the Cliff-bot's place
     (a steep face on a coarse grid steps by ``cell * tan(slope)`` from one cell to the next)."""
-    fx = (float(xy[0]) - grid.x0) / grid.cell - 0.5
-    fy = (float(xy[1]) - grid.y0) / grid.cell - 0.5
-    ix, iy = int(math.floor(fx)), int(math.floor(fy))
-    if not (0 <= ix < grid.nx - 1 and 0 <= iy < grid.ny - 1):
-        return math.nan
-    ax, ay = fx - ix, fy - iy
-    q = np.asarray(z[iy:iy + 2, ix:ix + 2], float)
-    return float((1 - ay) * ((1 - ax) * q[0, 0] + ax * q[0, 1]) + ay * ((1 - ax) * q[1, 0] + ax * q[1, 1]))
+    return float(heights_at(z, grid, np.array([float(xy[0])]), np.array([float(xy[1])]))[0])
 
 
 def tether_state(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, cfg: TetherConfig,
@@ -220,14 +265,46 @@ def tether_state(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, cfg: TetherConfi
     iy, ix, inside = grid.cell_index(np.array([xy[0]]), np.array([xy[1]]))
     if not inside[0]:
         return None
-    zg = height_at(z, grid, xy)
-    normal = surface_normal(z, grid, xy, footprint_m)
-    if not math.isfinite(zg) or normal is None:
+    px, py = _ring(footprint_m, grid)
+    h = heights_at(z, grid, float(xy[0]) + px, float(xy[1]) + py)  # h[0]: the ground under it (height_at)
+    normal = _plane_normal(px, py, h)
+    if normal is None:
         return None
-    bot = np.array([xy[0], xy[1], zg]) + cfg.attach_m * normal
+    bot = np.array([xy[0], xy[1], h[0]]) + cfg.attach_m * normal
     p1 = tether_path(z, grid, anchors[0], bot, cfg)
     p2 = tether_path(z, grid, anchors[1], bot, cfg)
     return TetherState((p1, p2), statics(p1.pull, p2.pull, normal, cfg))
+
+
+def tether_states(z: ZMap, grid: MapGrid, anchors: F64, xys: F64, cfg: TetherConfig,
+                  footprint_m: float = 0.3) -> list[TetherState | None]:
+    """:func:`tether_state` at each of the places ``xys`` (N, 2), the same values, with the
+    heights, tethers and statics of all of them in a few array passes
+    (:mod:`fsw.core.team.tether_batch`; a handful of small passes per place cost the planner's
+    lattice and the bench's settling most of their time)."""
+    xys = np.asarray(xys, float).reshape(-1, 2)
+    if len(xys) < 2:
+        return [tether_state(z, grid, anchors, xy, cfg, footprint_m) for xy in xys]
+    if len(xys) > BATCH_PLACES:  # the ground profiles of a batch are held at once: bound the memory
+        return [st for k in range(0, len(xys), BATCH_PLACES)
+                for st in tether_states(z, grid, anchors, xys[k:k + BATCH_PLACES], cfg, footprint_m)]
+    with np.errstate(invalid="ignore"):  # a place that is not finite is off the map
+        _, _, inside = grid.cell_index(xys[:, 0], xys[:, 1])
+    px, py = _ring(footprint_m, grid)
+    h = heights_at(z, grid, (xys[:, :1] + px).ravel(), (xys[:, 1:] + py).ravel()).reshape(-1, 9)
+    out: list[TetherState | None] = [None] * len(xys)
+    normals = {int(k): _plane_normal(px, py, h[k]) for k in np.flatnonzero(inside)}
+    held = [k for k, n in normals.items() if n is not None]
+    if not held:
+        return out
+    nrm = np.array([normals[k] for k in held])
+    bots = np.column_stack([xys[held], h[held, 0]]) + cfg.attach_m * nrm  # h[:, 0]: the ground under it
+    paths = [TetherPath(*p) for p in taut_tethers(z, grid, np.tile(np.asarray(anchors, float)[:2], (len(held), 1)),
+                                                  np.repeat(bots, 2, axis=0), cfg.sample_m)]
+    judged = statics_many(np.array([p.pull for p in paths[0::2]]), np.array([p.pull for p in paths[1::2]]), nrm, cfg)
+    for i, k in enumerate(held):
+        out[k] = TetherState((paths[2 * i], paths[2 * i + 1]), judged[i])
+    return out
 
 
 def settle(z: ZMap, grid: MapGrid, anchors: F64, lengths: tuple[float, float], guess_xy: F64,
@@ -236,24 +313,33 @@ def settle(z: ZMap, grid: MapGrid, anchors: F64, lengths: tuple[float, float], g
 
     Gauss-Newton on ``L_i(x, y) = l_i`` from ``guess_xy`` (the last pose): the Jacobian by
     central differences of the tether lengths at one map cell, each step halved until the
-    residual shrinks. None when it does not
-    converge (the lengths cannot both be taut: the Cliff-bot would hang on one tether)."""
+    residual shrinks. On a rough face steeper than about 75 degrees the lengths are rough
+    functions of ``(x, y)`` at the scale of a cell (a centimetre across the face is several
+    up it) and Gauss-Newton can cycle; then a Nelder-Mead search on the largest length
+    residual from the best place seen (:func:`_settle_search`) decides, with the same
+    acceptance. None when neither finds both tethers taut within it (the lengths cannot both
+    be taut: the Cliff-bot would hang on one tether)."""
     xy = np.asarray(guess_xy, float).copy()
     h = grid.cell
     target = np.asarray(lengths, float)
+    probes = np.array([[h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
+    known: TetherState | None = None  # the state at ``xy`` when the last step's trial computed it
+    accept = 10 * tol_m + 0.25 * h
+    best: tuple[float, F64] = (math.inf, xy.copy())
     for _ in range(iterations):
-        st = tether_state(z, grid, anchors, xy, cfg)
+        st = known if known is not None else tether_state(z, grid, anchors, xy, cfg)
+        known = None
         if st is None:
             return None
         r = np.asarray(st.lengths_m) - target
+        if float(np.max(np.abs(r))) < best[0]:
+            best = (float(np.max(np.abs(r))), xy.copy())
         if np.max(np.abs(r)) < tol_m:
             return xy, st
         jac = np.empty((2, 2))
+        around = tether_states(z, grid, anchors, xy + probes, cfg)  # x + h, x - h, y + h, y - h
         for k in range(2):
-            e = np.zeros(2)
-            e[k] = h
-            hi = tether_state(z, grid, anchors, xy + e, cfg)
-            lo = tether_state(z, grid, anchors, xy - e, cfg)
+            hi, lo = around[2 * k], around[2 * k + 1]
             if hi is None or lo is None:
                 return None
             jac[:, k] = (np.asarray(hi.lengths_m) - np.asarray(lo.lengths_m)) / (2 * h)
@@ -269,10 +355,32 @@ def settle(z: ZMap, grid: MapGrid, anchors: F64, lengths: tuple[float, float], g
         for _ in range(6):
             trial = tether_state(z, grid, anchors, xy - step, cfg)
             if trial is not None and float(np.linalg.norm(np.asarray(trial.lengths_m) - target)) < r_norm:
+                known = trial
                 break
             step = 0.5 * step
         xy = xy - step
+    st = known if known is not None else tether_state(z, grid, anchors, xy, cfg)
+    if st is not None and np.max(np.abs(np.asarray(st.lengths_m) - target)) < accept:
+        return xy, st
+    return _settle_search(z, grid, anchors, target, best[1], cfg, accept)
+
+
+def _settle_search(z: ZMap, grid: MapGrid, anchors: F64, target: F64, xy0: F64, cfg: TetherConfig,
+                   accept_m: float) -> tuple[F64, TetherState] | None:
+    """Nelder-Mead (``scipy.optimize``) on ``max_i |L_i(x, y) - l_i|`` from ``xy0``, its first
+    simplex a quarter cell wide; the place found when it is within ``accept_m``."""
+    from scipy.optimize import minimize
+
+    def worst(p: F64) -> float:
+        st = tether_state(z, grid, anchors, p, cfg)
+        return float(np.max(np.abs(np.asarray(st.lengths_m) - target))) if st is not None else math.inf
+
+    d = 0.25 * grid.cell
+    res = minimize(worst, xy0, method="Nelder-Mead",
+                   options={"xatol": 1e-4, "fatol": 1e-4, "maxfev": 120,
+                            "initial_simplex": np.array([xy0, xy0 + [d, 0.0], xy0 + [0.0, d]])})
+    xy = np.asarray(res.x, float)
     st = tether_state(z, grid, anchors, xy, cfg)
-    if st is not None and np.max(np.abs(np.asarray(st.lengths_m) - target)) < 10 * tol_m + 0.25 * h:
+    if st is not None and float(np.max(np.abs(np.asarray(st.lengths_m) - target))) < accept_m:
         return xy, st
     return None

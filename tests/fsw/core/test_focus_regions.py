@@ -29,7 +29,9 @@ def test_an_interest_above_one_weights_the_bits_and_below_one_the_visibility() -
     assert bits[0] == pytest.approx(base[0])
     assert bits[1] == pytest.approx(3.0 * base[0]) and bits[3] == pytest.approx(1.5 * base[0])
     assert 0.0 < bits[2] < base[0]  # P_V scaled by 0.5: fewer bits (§3.4 as before)
-    assert new.tolist() == pytest.approx([0.8, 0.8, 0.4, 0.8])  # expected new cells are probabilities
+    # expected new cells are P_V times the stereo's return, whatever the interest (it ranks, it is no probability)
+    assert new.tolist() == pytest.approx([0.8, 0.8, 0.8, 0.8])
+    assert cell_values(pv, n, 2, None, stereo_return=0.5)[1].tolist() == pytest.approx([0.4] * 4)
 
 
 @pytest.mark.parametrize("row", [(0.0, 0.0, 1.0), (1.0, 0.0, 0.0, 1.0, 2.0), (0.0, 0.0, 1.0, 1.0, 0.5),

@@ -105,7 +105,7 @@ def test_rate_station_matches_brute_force_h() -> None:
             sel = in_view(CameraPose.from_pan_tilt(*cam, float(yaw), float(tilt)), CAM, pts)
             pv = pv_reference(terrain, cam, iy[sel], ix[sel])
             bits, new = cell_values(pv, emap.n[iy[sel], ix[sel]], emap.n_max,
-                                    emap.interest[iy[sel], ix[sel]])
+                                    emap.interest[iy[sel], ix[sel]], stereo_return=vis.stereo_return)
             assert r.info_bits[p, t] == pytest.approx(bits.sum(), rel=0.03)
             assert r.expected_new_cells[p, t] == pytest.approx(new.sum(), rel=0.03, abs=2.0)
     assert r.info_bits.max() > 10.0

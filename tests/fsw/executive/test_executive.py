@@ -6,6 +6,7 @@ independent of machine load.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 from typing import Any, ClassVar
 
@@ -262,8 +263,41 @@ def test_hung_task_detected_and_watchdog_starves() -> None:
     assert wd.expired()
     assert exe.telemetry.get("health.tasks_fatal") == 1
     exe.tasks["worker"].hung = False
+    exe.run_lockstep(10)
+    assert not wd.expired() and exe.events.count("health.TASK_RECOVERED") == 0  # not yet sustained
     exe.run_lockstep(20)
     assert exe.events.count("health.TASK_RECOVERED") == 1 and not wd.expired()
+
+
+def test_a_flapping_task_is_counted_exactly_and_said_at_most_three_times_a_window() -> None:
+    """Issue 29: a task late every 4 s (never hung) for 5 minutes: every late episode is in
+    health.late_episodes and in the events (the first TASK_LATE plus the TASK_LATE_REPEATS
+    counts), but each 60 s window holds at most 3 health events; TASK_RECOVERED only once the
+    task has answered on time for health_recover_frames."""
+    cfg = make_cfg(
+        [{"name": "fast", "divisor": 1}, {"name": "slow", "divisor": 10, "offset": 3}],
+        [task("worker", "fast"), task("health", "slow", kind="health")],
+        health_warn_frames=10, health_fatal_frames=30, health_event_period_s=60.0, health_recover_frames=20,
+    )
+    exe = make_exec(cfg)
+    worker, stretches = exe.tasks["worker"], 0
+    for k in range(3000):  # 300 s: hung 25 frames (late, never fatal), then answering 15 (< recover)
+        hang = k % 40 < 25 and k >= 40
+        stretches += hang and not worker.hung
+        worker.hung = hang
+        exe.run_lockstep(1)
+    worker.hung = False
+    exe.run_lockstep(700)  # quiet: the pending count is reported and the task recovers
+    health = [e for e in exe.events.history if e.name.startswith("health.")]
+    repeats = [int(re.search(r"late (\d+) more", e.text).group(1))  # type: ignore[union-attr]
+               for e in health if e.name == "health.TASK_LATE_REPEATS"]
+    assert exe.telemetry.get("health.late_episodes") == stretches == 74
+    assert exe.events.count("health.TASK_LATE") + sum(repeats) == stretches  # no lateness lost
+    assert exe.events.count("health.TASK_RECOVERED") == 1 and not exe.events.count("health.TASK_HUNG")
+    for e in health:
+        window = [f for f in health if e.time_s <= f.time_s < e.time_s + 60.0]
+        assert len(window) <= 3, [f.text for f in window]
+    assert len(health) < stretches / 10
 
 
 def test_task_raising_every_frame_is_caught_and_detected() -> None:

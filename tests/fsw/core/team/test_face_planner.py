@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from fsw.core.geometry import MapGrid
-from fsw.core.team.face_planner import USABLE, ClimberConfig, ground_layers, node_reasons, plan_targets
+from fsw.core.team.face_planner import USABLE, ClimberConfig, Margins, ground_layers, node_reasons, plan_targets
 from fsw.core.team.tether import TetherConfig, anchor_points
 
 SLOPE = math.radians(70.0)
@@ -82,3 +82,41 @@ def test_node_verdicts_are_known_reasons() -> None:
                                           TetherConfig(), ClimberConfig(node_m=0.15))
     assert len(reasons) == len(rows) * len(cols)
     assert reasons.count(USABLE) > 0.2 * len(reasons)
+
+
+def _flat_with_a_rock() -> tuple[np.ndarray, MapGrid, np.ndarray]:
+    grid = MapGrid(-1.5, -1.5, 0.05, 60, 60)
+    z = np.zeros((60, 60), np.float32)
+    boulder(z, grid, 0.0, -0.6, 0.15, 0.3)
+    return z, grid, anchor_points(z, grid, np.array([[-1.2, 1.3], [1.2, 1.3]]), TetherConfig())
+
+
+def test_soft_margins_keep_clear_without_changing_what_is_reachable() -> None:
+    z, grid, anchors = _flat_with_a_rock()
+    start, target = np.array([-0.9, -0.6]), np.array([[0.9, -0.6]])  # the rock in between
+    hard = plan_targets(z, grid, anchors, start, target, TetherConfig(), ClimberConfig())
+    soft = plan_targets(z, grid, anchors, start, target, TetherConfig(), ClimberConfig(), Margins(0.3))
+    assert hard.reasons == soft.reasons == ("",)
+    g = ground_layers(z, grid, ClimberConfig())
+    from scipy import ndimage
+
+    clear = ndimage.distance_transform_edt(~g.hazard) * grid.cell
+
+    def closest(path: np.ndarray) -> float:
+        iy, ix, _ = grid.cell_index(path[:, 0], path[:, 1])
+        return float(clear[iy, ix].min())
+
+    assert hard.paths[0] is not None and soft.paths[0] is not None
+    assert closest(soft.paths[0]) >= closest(hard.paths[0]) + 0.1  # it keeps away from the rock
+    assert hard.lengths_m[0] < soft.lengths_m[0] < 1.5 * hard.lengths_m[0]  # lengths are lengths, not costs
+    seg = np.diff(np.column_stack([soft.paths[0], np.zeros(len(soft.paths[0]))]), axis=0)
+    assert math.isclose(soft.lengths_m[0], float(np.linalg.norm(seg, axis=1).sum()), rel_tol=1e-6)
+
+
+def test_a_start_on_a_hazard_is_left_only_when_the_cliffbot_stands_there() -> None:
+    z, grid, anchors = _flat_with_a_rock()
+    start, target = np.array([0.0, -0.18]), np.array([[0.0, 0.5]])  # at the edge of the rock's hazard
+    strict = plan_targets(z, grid, anchors, start, target, TetherConfig(), ClimberConfig())
+    assert strict.start_reason == "hazard" and strict.reasons == ("start: hazard",)
+    out = plan_targets(z, grid, anchors, start, target, TetherConfig(), ClimberConfig(), start_usable=True)
+    assert out.start_reason == "" and out.reasons == ("",) and out.paths[0] is not None

@@ -1,0 +1,28 @@
+"""The map the RECON-bot sends is enough for the Cliff-bot's planner (docs/team.md, "Limits"):
+reduced with the flight file's ``[codec]``, it keeps every hazard the planner finds on the
+full map and adds few rocks of its own."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fsw.core.codec.mapcodec import decode_map, encode_map
+from fsw.core.geometry import MapGrid
+from fsw.core.team.face_planner import ClimberConfig, ground_layers
+from fsw.settings import DEFAULT_CONFIG, load_settings
+from hil_sim.world import load_scenario
+
+
+def test_flight_codec_keeps_the_planners_hazards_and_adds_few_rocks() -> None:
+    cfg = load_settings(DEFAULT_CONFIG)
+    climber = ClimberConfig()
+    world = load_scenario("cliff-team", 2)
+    grid = MapGrid.from_config(world.map_grid)
+    full = world.ground_on_grid(grid)
+    enc = encode_map(full, cell_m=grid.cell, wheel_diameter_m=cfg.codec.wheel_m(cfg.rover.wheel_diameter_m),
+                     cfg=cfg.codec)
+    got = np.asarray(decode_map(enc.data).z, np.float64)
+    g_full, g_got = ground_layers(full, grid, climber), ground_layers(got, grid, climber)
+    assert g_full.rock.sum() > 100  # the scene has rocks (a jumble) to keep
+    assert not (g_full.hazard & ~g_got.hazard & np.isfinite(got)).any()  # no hazard lost
+    assert g_got.rock.sum() <= 1.2 * g_full.rock.sum()  # flat ground does not read as rocks
