@@ -188,6 +188,11 @@ def statics(pull1: F64, pull2: F64, normal: F64, cfg: TetherConfig) -> Statics:
     if abs(np.linalg.det(a)) < 1e-9:
         return Statics((math.nan, math.nan), math.nan, False, "degenerate", tilt)
     t1, t2, n = np.linalg.solve(a, weight)
+    return _judged(float(t1), float(t2), float(n), tilt, cfg)
+
+
+def _judged(t1: float, t2: float, n: float, tilt: float, cfg: TetherConfig) -> Statics:
+    """The equilibrium's tensions and normal force judged against the limits."""
     reason = ""
     if min(t1, t2) < cfg.t_min_n:
         reason = "slack"
@@ -195,7 +200,7 @@ def statics(pull1: F64, pull2: F64, normal: F64, cfg: TetherConfig) -> Statics:
         reason = "over-tension"
     elif n < 0.0:
         reason = "off the face"
-    return Statics((float(t1), float(t2)), float(n), reason == "", reason, tilt)
+    return Statics((t1, t2), n, reason == "", reason, tilt)
 
 
 def statics_many(pull1: F64, pull2: F64, normal: F64, cfg: TetherConfig) -> list[Statics]:
@@ -216,14 +221,7 @@ def statics_many(pull1: F64, pull2: F64, normal: F64, cfg: TetherConfig) -> list
             out.append(Statics((math.nan, math.nan), math.nan, False, "degenerate", tilt))
             continue
         t1, t2, n = sol[k]
-        reason = ""
-        if min(t1, t2) < cfg.t_min_n:
-            reason = "slack"
-        elif max(t1, t2) > cfg.t_max_n:
-            reason = "over-tension"
-        elif n < 0.0:
-            reason = "off the face"
-        out.append(Statics((float(t1), float(t2)), float(n), reason == "", reason, tilt))
+        out.append(_judged(float(t1), float(t2), float(n), tilt, cfg))
     return out
 
 
