@@ -167,7 +167,7 @@ def _mission_map(spec: str, steps: int, method: str, out: Path) -> tuple[Any, fl
     where unmapped, as the radio task encodes it), its cell size and the mission's end."""
     import numpy as np
 
-    from hil_sim.mission_run import RunSpec, run_mission
+    from hil_sim.mission.mission_run import RunSpec, run_mission
 
     scenario, seed = _scenario(spec)
     benches: list[Any] = []
