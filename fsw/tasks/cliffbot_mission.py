@@ -42,13 +42,14 @@ from fsw.comm.team.team_can import WINCHES
 from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import NavConfig, Navigator
 from fsw.core.team.contact_ground import fill_under_body
-from fsw.core.team.face_planner import ClimberConfig, Margins, ground_layers, plan_targets
-from fsw.core.team.tether import TetherConfig, settle, tether_state
+from fsw.core.team.face_planner import ClimberConfig, Ground, Margins, ground_layers, plan_targets, way_reason
+from fsw.core.team.tether import TetherConfig, tether_state
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig
 
 F64 = NDArray[np.float64]
 BODY_MARGIN_M = 0.1  # the body's box as mapped (stereo smear, the estimate's error) beyond the footprint
+MAX_CUT_ROUNDS = 12  # a leg's plan, its impassable edges cut, planned again at most this often
 FAULT_BITS = ("FaultStall", "FaultSlip", "FaultOverTension", "FaultSpool", "FaultTimeout")
 
 
@@ -104,7 +105,8 @@ class CliffbotMission:
         self.safe_reason = ""
         self.z: F64 | None = None
         self.grid: MapGrid | None = None
-        self.hazard: NDArray[np.bool_] = np.zeros((0, 0), bool)
+        self.ground: Ground | None = None  # the map's hazard layers (the way between waypoints)
+        self.ways: dict[tuple[float, float, float, float], str] = {}  # way_reason per pair of places, this map
         self.map_version = 0
         self.legs: list[Leg] = []
         self.leg_i = 0
@@ -138,7 +140,8 @@ class CliffbotMission:
         flat = max(0.03, 0.5 * error_bound_m) if math.isfinite(error_bound_m) else 0.03
         self.z, filled = fill_under_body(z, grid, self.est.xy, r, body_m=r + BODY_MARGIN_M, max_rms_m=flat)
         self.grid = grid
-        self.hazard = ground_layers(self.z, grid, self.ccfg).hazard  # where the way between waypoints may not go
+        self.ground = ground_layers(self.z, grid, self.ccfg)  # where the way between waypoints may not go
+        self.ways = {}
         self.map_version += 1
         self.event("MAP", f"map {self.map_version}: {int(np.isfinite(self.z).sum())} known cells"
                    + (f", {filled} under the body known by contact" if filled else ""))
@@ -305,16 +308,16 @@ class CliffbotMission:
         # it stands where the leg starts (held by its tethers): the way out of that node is planned;
         # an edge the body cannot pass (the statics between its nodes) is cut and the leg planned again
         cut: list[tuple[F64, F64]] = []
-        for _ in range(8):
+        for _ in range(MAX_CUT_ROUNDS):
             plan = plan_targets(self.z, self.grid, self.anchors, self.est.xy, leg.goal[None, :], self.plan_tcfg,
                                 self.ccfg, self.margins, start_usable=True, blocked=cut)
             path = plan.paths[0]
             if path is None:
                 break
             wps, bad = self._waypoints(path)
-            if bad is None:
+            if not bad:
                 break
-            cut.append(bad)
+            cut += bad
         else:
             path = None
             plan = dataclasses.replace(plan, reasons=("no safe path",))
@@ -334,52 +337,35 @@ class CliffbotMission:
         self.replan = False
         self.state = "DRIVE"
 
-    def _waypoints(self, path: F64) -> tuple[list[F64], tuple[F64, F64] | None]:
+    def _waypoints(self, path: F64) -> tuple[list[F64], list[tuple[F64, F64]]]:
         """Every ``waypoint_every``-th node of the path, or every node where the way between
-        would leave the limits: the winches move both lengths straight from one waypoint's
-        lengths to the next's, and the body follows where the statics put it, not the
-        path's line (near the lip the tensions change by tens of newtons over centimetres).
-        Also the first edge of the path the body cannot pass (None: none)."""
+        would not hold (:func:`fsw.core.team.face_planner.way_reason` on its map, the planning
+        limits): the winches move both lengths straight from one waypoint's lengths to the
+        next's, and the body follows where the statics put it, not the path's line (near the lip
+        the tensions change by tens of newtons over centimetres; above a ledge the ledge's
+        lengths hold it on the face). Also every edge of the path the body cannot pass."""
         every = self.cfg.waypoint_every
         out: list[F64] = []
+        bad: list[tuple[F64, F64]] = []
         i = 0
         while i < len(path) - 1:
             j = min(i + every, len(path) - 1)
             if j > i + 1 and not self._passable(path[i], path[j]):
                 j = i + 1
             if j == i + 1 and not self._passable(path[i], path[j]):
-                return out, (path[i], path[j])
+                bad.append((path[i], path[j]))
             out.append(path[j])
             i = j
-        return (out or [path[-1]]), None
+        return (out or [path[-1]]), bad
 
     def _passable(self, a: F64, b: F64) -> bool:
-        """Whether the body, its tether lengths moved straight from ``a``'s to ``b``'s, stays in
-        the planning tension limits and off the map's hazards: followed as the bench does
-        (``settle`` on the map, the bench's model, each place from the last) in steps of at most
-        3 cm of tether."""
-        assert self.z is not None and self.grid is not None
-        z, grid, anchors, foot = self.z, self.grid, self.anchors, self.ccfg.footprint_m
-        sa = tether_state(z, grid, anchors, a, self.tcfg, foot)
-        sb = tether_state(z, grid, anchors, b, self.tcfg, foot)
-        if sa is None or sb is None:
-            return False
-        la, lb = np.asarray(sa.lengths_m), np.asarray(sb.lengths_m)
-        lo, hi = self.plan_tcfg.t_min_n, self.plan_tcfg.t_max_n
-        n = max(2, int(math.ceil(float(np.max(np.abs(lb - la))) / 0.03)))
-        xy = np.asarray(a, float)
-        for f in np.arange(1, n) / n:
-            got = settle(z, grid, anchors, (float(la[0] + f * (lb[0] - la[0])), float(la[1] + f * (lb[1] - la[1]))),
-                         xy, self.tcfg)
-            if got is None:
-                return False
-            xy, st = got[0], got[1].statics
-            if st.tilt_deg > self.ccfg.free_slope_deg and not (lo <= min(st.tensions_n) and max(st.tensions_n) <= hi):
-                return False
-            iy, ix, inside = grid.cell_index(xy[:1], xy[1:])
-            if not inside[0] or self.hazard[int(iy[0]), int(ix[0])]:
-                return False
-        return True
+        """Whether the body can go from ``a`` to ``b`` on its map in the planning limits
+        (:func:`way_reason`; each pair judged once per map)."""
+        assert self.z is not None and self.grid is not None and self.ground is not None
+        key = (round(float(a[0]), 4), round(float(a[1]), 4), round(float(b[0]), 4), round(float(b[1]), 4))
+        if key not in self.ways:
+            self.ways[key] = way_reason(self.z, self.grid, self.anchors, a, b, self.plan_tcfg, self.ccfg, self.ground)
+        return not self.ways[key]
 
     def _next_leg(self) -> None:
         self.leg_i += 1

@@ -11,8 +11,12 @@ team mission comes from here and only from the TRUTH:
 * :func:`truth_verdict`: the brute-force reference on the TRUE ground under the same tether
   limits: every node of the planner's lattice judged (``fsw.core.team.face_planner.node_reasons``:
   the same verdict the flight planner gives a node), then an exhaustive shortest-path search
-  (Dijkstra over the whole usable lattice, ``scipy.sparse.csgraph``) from the Cliff-bot's start:
-  each target's reason (``""`` when reachable) and its shortest path length;
+  (Dijkstra over the whole usable lattice, ``scipy.sparse.csgraph``) from the Cliff-bot's start,
+  the way along each edge of a path found judged as the mission drives it
+  (``face_planner.way_reason``: the lengths moved straight, the body settled, judged at every
+  place, ending at the next node) and an edge that fails removed and the search run again until
+  the path holds or none is left: each target's reason (``""`` when reachable) and its
+  shortest path length;
 * :func:`compare_maps`: "the map was enough": the Cliff-bot's planner on the received
   (reduced, decoded) map and on the full-resolution map of the same mission: targets reached
   on each, path length ratio, hazard cells of the full map the received map shows as safe;
@@ -34,7 +38,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid, wrap_angle
-from fsw.core.team.face_planner import USABLE, ClimberConfig, Ground, ground_layers, node_reasons, plan_targets
+from fsw.core.team.face_planner import (
+    USABLE,
+    ClimberConfig,
+    Ground,
+    ground_layers,
+    node_reasons,
+    plan_targets,
+    way_reason,
+)
 from fsw.core.team.tether import TetherConfig, TetherState
 from hil_sim.world.world import World
 
@@ -129,7 +141,7 @@ def _brute_force(world: World, z: F64, grid: MapGrid, anchors: F64, tcfg: Tether
     from scipy.sparse.csgraph import dijkstra
 
     assert world.team is not None
-    rows, cols, reasons, _ = node_reasons(z, grid, anchors, tcfg, ccfg)
+    rows, cols, reasons, g = node_reasons(z, grid, anchors, tcfg, ccfg)
     ny, nx = len(rows), len(cols)
     usable = np.array([r == USABLE for r in reasons]).reshape(ny, nx)
     nz = np.nan_to_num(np.asarray(z, np.float64)[np.ix_(rows, cols)])
@@ -144,9 +156,12 @@ def _brute_force(world: World, z: F64, grid: MapGrid, anchors: F64, tcfg: Tether
         ok = usable.ravel()[a.ravel()] & usable.ravel()[b.ravel()]
         src.append(a.ravel()[ok])
         dst.append(b.ravel()[ok])
-    s_, d_ = np.concatenate(src), np.concatenate(dst)
+    s0, d0 = np.concatenate(src), np.concatenate(dst)
+    s_, d_ = np.concatenate([s0, d0]), np.concatenate([d0, s0])  # both directions: a way is directed
     w = np.linalg.norm(pts[s_] - pts[d_], axis=1)
-    graph = coo_matrix((w, (s_, d_)), shape=(ny * nx, ny * nx)).tocsr()
+    edge = {(int(p), int(q)): i for i, (p, q) in enumerate(zip(s_, d_, strict=True))}
+    alive = np.ones(len(s_), bool)
+    ways: dict[int, str] = {}
     stride = max(1, int(round(ccfg.node_m / grid.cell)))
 
     def node_of(xy: F64) -> int | None:  # the planner's rounding (face_planner.plan_targets)
@@ -157,6 +172,11 @@ def _brute_force(world: World, z: F64, grid: MapGrid, anchors: F64, tcfg: Tether
         cx = min(nx - 1, max(0, int(round((int(ix[0]) - cols[0]) / stride))))
         return cy * nx + cx
 
+    def way_ok(e: int) -> bool:
+        if e not in ways:
+            ways[e] = way_reason(z, grid, anchors, pts[s_[e], :2], pts[d_[e], :2], tcfg, ccfg, g)
+        return not ways[e]
+
     targets = np.asarray(world.team.targets_xyz[:, :2], float)
     start = node_of(np.asarray(world.team.cliffbot_start_xy, float))
     n_usable = int(usable.sum())
@@ -164,7 +184,6 @@ def _brute_force(world: World, z: F64, grid: MapGrid, anchors: F64, tcfg: Tether
         why = "off the map" if start is None else reasons[start]
         return TruthReach(tuple(f"start: {why}" for _ in targets), tuple(math.inf for _ in targets),
                           ny * nx, n_usable)
-    dist = np.asarray(dijkstra(graph, directed=False, indices=start))
     why_not: list[str] = []
     lengths: list[float] = []
     for t in targets:
@@ -172,12 +191,23 @@ def _brute_force(world: World, z: F64, grid: MapGrid, anchors: F64, tcfg: Tether
         if k is None or reasons[k] != USABLE:
             why_not.append("off the map" if k is None else reasons[k])
             lengths.append(math.inf)
-        elif not math.isfinite(float(dist[k])):
-            why_not.append("no safe path")
-            lengths.append(math.inf)
-        else:
-            why_not.append("")
-            lengths.append(float(dist[k]))
+            continue
+        while True:  # the shortest path, its failing ways removed, until it holds or none is left
+            graph = coo_matrix((w[alive], (s_[alive], d_[alive])), shape=(ny * nx, ny * nx)).tocsr()
+            dist, pred = dijkstra(graph, directed=True, indices=start, return_predecessors=True)
+            if not math.isfinite(float(dist[k])):
+                why_not.append("no safe path")
+                lengths.append(math.inf)
+                break
+            chain = [k]
+            while chain[-1] != start:
+                chain.append(int(pred[chain[-1]]))
+            bad = [e for e in (edge[(p, q)] for q, p in zip(chain[:-1], chain[1:], strict=True)) if not way_ok(e)]
+            if not bad:
+                why_not.append("")
+                lengths.append(float(dist[k]))
+                break
+            alive[bad] = False
     return TruthReach(tuple(why_not), tuple(lengths), ny * nx, n_usable)
 
 

@@ -32,6 +32,13 @@ brute-force check of what is reachable at all).
    judged like any node, except with ``start_usable`` (the Cliff-bot stands there, held by
    its tethers, and plans its way out of it); ``blocked`` edges (pairs of places) are not
    taken (the mission's check of the way between waypoints, ``fsw.tasks.cliffbot_mission``).
+4. **The way between nodes** (:func:`way_reason`). The winches move both tether lengths
+   straight from one node's to the next's and the body rests where the statics put it, not on
+   the line between the nodes; every place it passes is judged like a node, and it must end
+   at the next node: the same two lengths can hold it elsewhere (on the face above a ledge
+   whose lengths they are). The mission checks each way it drives on its map; the truth's
+   brute force (``hil_sim.team.team_eval``) checks the edges of its paths on the true ground
+   with the same function and the same limits.
 """
 
 from __future__ import annotations
@@ -47,12 +54,14 @@ from scipy import ndimage
 
 from fsw.core.codec.hazard import relief
 from fsw.core.geometry import MapGrid
-from fsw.core.team.tether import TetherConfig, TetherState, ZMap, tether_state, tether_states
+from fsw.core.team.tether import TetherConfig, TetherState, ZMap, settle, tether_state, tether_states
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
 
 USABLE = "usable"
+WAY_STEP_M = 0.03  # the way between nodes is followed in steps of at most this much tether
+OFF_THE_WAY = "the lengths hold it elsewhere"
 REASONS = ("off the map", "unknown ground", "hazard", "out of tether reach", "tether over unknown ground",
            "tether over a rock", "slack", "over-tension", "off the face", "degenerate")
 
@@ -171,6 +180,41 @@ def _tether_verdict(st: TetherState | None, grid: MapGrid, tcfg: TetherConfig, c
     if st.statics.tilt_deg > ccfg.free_slope_deg and not st.statics.ok:
         return st.statics.reason
     return USABLE
+
+
+def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
+               g: Ground, step_m: float = WAY_STEP_M) -> str:
+    """Why the body cannot go from node ``a`` to node ``b`` (``""``: it can; module docstring,
+    4): both lengths moved straight from ``a``'s to ``b``'s in steps of at most ``step_m`` of
+    tether, the body settled at each (``settle``, from the last place) and judged there like a
+    node (unknown ground, hazard, the tethers and the statics: :func:`_tether_verdict`), ending
+    within a lattice spacing of ``b`` (else :data:`OFF_THE_WAY`). Directed: the way back may differ."""
+    sa = tether_state(z, grid, anchors, np.asarray(a, float), tcfg, ccfg.footprint_m)
+    sb = tether_state(z, grid, anchors, np.asarray(b, float), tcfg, ccfg.footprint_m)
+    if sa is None or sb is None:
+        return "unknown ground"
+    la, lb = np.asarray(sa.lengths_m), np.asarray(sb.lengths_m)
+    n = max(2, int(math.ceil(float(np.max(np.abs(lb - la))) / step_m)))
+    xy = np.asarray(a, float)
+    for f in np.arange(1, n + 1) / n:
+        got = settle(z, grid, anchors, (float(la[0] + f * (lb[0] - la[0])), float(la[1] + f * (lb[1] - la[1]))),
+                     xy, tcfg)
+        if got is None:
+            return "slack"
+        xy = got[0]
+        iy, ix, inside = grid.cell_index(xy[:1], xy[1:])
+        if not inside[0]:
+            return "off the map"
+        if not g.known[int(iy[0]), int(ix[0])]:
+            return "unknown ground"
+        if g.hazard[int(iy[0]), int(ix[0])]:
+            return "hazard"
+        why = _tether_verdict(got[1], grid, tcfg, ccfg, g)
+        if why != USABLE:
+            return why
+    if float(np.hypot(*(xy - np.asarray(b, float)))) > ccfg.node_m:
+        return OFF_THE_WAY
+    return ""
 
 
 def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy: F64,

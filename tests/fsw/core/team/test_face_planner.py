@@ -8,8 +8,18 @@ import numpy as np
 import pytest
 
 from fsw.core.geometry import MapGrid
-from fsw.core.team.face_planner import USABLE, ClimberConfig, Margins, ground_layers, node_reasons, plan_targets
-from fsw.core.team.tether import TetherConfig, anchor_points
+from fsw.core.team.face_planner import (
+    OFF_THE_WAY,
+    USABLE,
+    ClimberConfig,
+    Margins,
+    _tether_verdict,
+    ground_layers,
+    node_reasons,
+    plan_targets,
+    way_reason,
+)
+from fsw.core.team.tether import TetherConfig, anchor_points, tether_state
 
 SLOPE = math.radians(70.0)
 ANCHORS_XY = np.array([[-1.5, 1.5], [1.5, 1.5]])
@@ -120,3 +130,30 @@ def test_a_start_on_a_hazard_is_left_only_when_the_cliffbot_stands_there() -> No
     assert strict.start_reason == "hazard" and strict.reasons == ("start: hazard",)
     out = plan_targets(z, grid, anchors, start, target, TetherConfig(), ClimberConfig(), start_usable=True)
     assert out.start_reason == "" and out.reasons == ("",) and out.paths[0] is not None
+
+
+def _face_with_a_ledge() -> tuple[np.ndarray, MapGrid]:
+    """A 75 deg face, a 0.5 m ledge 1.5 m below the lip, the face again below it."""
+    grid = MapGrid(-1.8, -1.6, 0.03, 120, 110)
+    _, y = grid.centers()
+    s = math.tan(math.radians(75.0))
+    top, foot = -1.5 / s, -1.5 / s - 0.5
+    z = np.where(y > 0, 0.0, np.where(y > top, s * y, np.where(y > foot, -1.5, -1.5 + s * (y - foot))))
+    return z.astype(np.float32), grid
+
+
+@pytest.mark.slow
+def test_the_way_between_nodes_is_judged_where_the_statics_put_the_body() -> None:
+    """On the ledge the tether lengths first shrink outwards (the tethers leave the face's foot):
+    moving them straight from one ledge node's lengths to the next's holds the body on the face
+    above, not on the ledge, though both nodes are usable; down the face the way holds."""
+    z, grid = _face_with_a_ledge()
+    t, c = TetherConfig(), ClimberConfig()
+    anchors = anchor_points(z, grid, ANCHORS_XY, t)
+    g = ground_layers(z, grid, c)
+    on_face, lower, at_foot, mid = (np.array([0.2, y]) for y in (-0.19, -0.28, -0.43, -0.64))
+    for p in (on_face, lower, at_foot, mid):
+        assert _tether_verdict(tether_state(z, grid, anchors, p, t, c.footprint_m), grid, t, c, g) == USABLE
+    assert way_reason(z, grid, anchors, on_face, lower, t, c, g) == ""
+    assert way_reason(z, grid, anchors, at_foot, mid, t, c, g) == OFF_THE_WAY
+    assert way_reason(z, grid, anchors, mid, at_foot, t, c, g) == OFF_THE_WAY
