@@ -36,13 +36,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import ndimage
 
 from fsw.comm.team.fix_packets import Fix
 from fsw.comm.team.team_can import WINCHES
 from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import NavConfig, Navigator
 from fsw.core.team.contact_ground import fill_under_body
-from fsw.core.team.face_planner import ClimberConfig, Ground, Margins, ground_layers, plan_targets, way_reason
+from fsw.core.team.face_planner import (
+    ClimberConfig,
+    Ground,
+    Margins,
+    disc,
+    ground_layers,
+    plan_targets,
+    way_reason,
+)
 from fsw.core.team.tether import TetherConfig, tether_state
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig
@@ -140,7 +149,12 @@ class CliffbotMission:
         flat = max(0.03, 0.5 * error_bound_m) if math.isfinite(error_bound_m) else 0.03
         self.z, filled = fill_under_body(z, grid, self.est.xy, r, body_m=r + BODY_MARGIN_M, max_rms_m=flat)
         self.grid = grid
-        self.ground = ground_layers(self.z, grid, self.ccfg)  # where the way between waypoints may not go
+        # where the way between waypoints may not go: the body starts a way from where the last one
+        # left it (within a lattice spacing of the node), so its tethers' contacts fall up to about
+        # that far from the replay's: the ways keep them a lattice spacing off the map's rocks
+        ground = ground_layers(self.z, grid, self.ccfg)
+        grow = disc(int(round(self.ccfg.node_m / grid.cell)))
+        self.ground = dataclasses.replace(ground, rock=ndimage.binary_dilation(ground.rock, structure=grow))
         self.ways = {}
         self.map_version += 1
         self.event("MAP", f"map {self.map_version}: {int(np.isfinite(self.z).sum())} known cells"

@@ -107,7 +107,7 @@ class Plan:
     start_reason: str  # "" when the start is usable
 
 
-def _disc(radius_cells: int) -> NDArray[np.bool_]:
+def disc(radius_cells: int) -> NDArray[np.bool_]:
     r = max(0, radius_cells)
     yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
     return np.asarray(xx * xx + yy * yy <= r * r)
@@ -118,7 +118,7 @@ def ground_layers(z: ZMap, grid: MapGrid, cfg: ClimberConfig) -> Ground:
     zf = np.asarray(z, np.float64)
     known = np.isfinite(zf)
     fill = np.where(known, zf, np.nanmin(zf) if known.any() else 0.0)
-    foot = _disc(int(round(cfg.footprint_m / grid.cell)))
+    foot = disc(int(round(cfg.footprint_m / grid.cell)))
     # The ground's slope over the footprint (what the Cliff-bot's body stands on).
     gy, gx = np.gradient(fill, grid.cell)
     k = 2 * int(round(cfg.footprint_m / grid.cell)) + 1
