@@ -4,7 +4,8 @@ Each scene (``--scenes`` seeds from ``--seed``, ``--jobs`` processes, seeded: th
 command gives the same table) is judged by :mod:`hil_sim.team.team_eval`:
 
 * **the truth's verdict**: the brute-force planner on the TRUE ground (every lattice node
-  judged, Dijkstra over all of them) says which targets are reachable under the tether limits;
+  judged, Dijkstra over all of them, the way along each edge of a path found judged as the
+  mission drives it) says which targets are reachable under the tether limits;
 * **the map was enough**: the Cliff-bot's planner on the full-resolution map (the truth on
   the flight map grid: a perfect RECON-bot map) and on that map after the link's reduction
   (``fsw.core.codec.mapcodec`` at the flight configuration, its critical length the
