@@ -25,7 +25,7 @@ from fsw.framework.telemetry import Event, Severity
 from hil_sim import cliffbot_receiver as cr
 from hil_sim.cli import main
 from hil_sim.mission import mission_report as mr
-from hil_sim.mission import mission_run, run_dir
+from hil_sim.mission import run_dir, run_spec
 
 FAULTS = [errno.ENOSPC, errno.EIO]
 NAMES = {errno.ENOSPC: "ENOSPC", errno.EIO: "EIO"}
@@ -113,7 +113,7 @@ def test_resume_on_a_full_disk_says_so_in_one_line(tmp_path: Path, monkeypatch: 
     """req(26.4): ``--resume`` on a disk that is still full: exit 1, one line, no traceback."""
     out = tmp_path / "run"
     out.mkdir()
-    mission_run.write_manifest(mission_run.RunSpec(steps=1, out=out))
+    run_spec.write_manifest(run_spec.RunSpec(steps=1, out=out))
 
     def full(directory: Any, need: int) -> None:
         raise StorageError(errno.ENOSPC, f"{directory}: no room for {need} bytes (No space left on device (ENOSPC))")
