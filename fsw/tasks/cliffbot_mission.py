@@ -131,6 +131,7 @@ class CliffbotMission:
         self.fixes_refused = 0
         self.fix_log: list[tuple[float, ...]] = []  # t, fix x y yaw, estimate x y yaw (before), NIS
         self.replan = False
+        self.elsewhere = 0  # re-plans of this leg because a waypoint's lengths held it elsewhere
         self.dwell_until = 0.0
         self.clear_frames = 0
         self.now = 0.0
@@ -383,6 +384,7 @@ class CliffbotMission:
 
     def _next_leg(self) -> None:
         self.leg_i += 1
+        self.elsewhere = 0
         if self.leg_i >= len(self.legs):
             self.state = "DONE"
             self.event("DONE", "all legs driven")
@@ -409,6 +411,15 @@ class CliffbotMission:
             err = np.asarray(st.lengths_m) - np.array([a.paid_out_m, b.paid_out_m])
             if float(np.max(np.abs(err))) > self.cfg.length_tol_m:
                 break
+            off = float(np.hypot(*(self.est.xy - wp)))
+            if off > self.ccfg.node_m and self.elsewhere < MAX_CUT_ROUNDS:
+                # the waypoint's lengths hold it elsewhere (the estimate, from those lengths, says
+                # where): the rest of the leg is planned again from there
+                self.elsewhere += 1
+                self.event("OFF_THE_WAY", f"leg {self.leg_i + 1}: at the lengths of waypoint "
+                           f"{wp.round(2).tolist()}, {off:.2f} m from it; re-planned")
+                self._plan_leg()
+                return self._hold()
             self.wp_i += 1
             if self.wp_i >= len(leg.waypoints):
                 if leg.target is not None:
