@@ -156,9 +156,13 @@ def test_the_team_mission_runs_two_executives_on_one_clock(mission: tuple[dict[s
     assert any(n == "cb_radio.MAP_RECEIVED" for _, n, _ in trace)
     assert any(n == "mission.FIX_UNAVAILABLE" and "busy" in t for _, n, t in trace)  # the RECON-bot is not done
     assert (out / "team.png").stat().st_size > 0
-    # the team figures (hil_sim.team.team_figures): the idle RECON-bot takes no imaging step here
-    assert len(a["views"]) == a["sync_rounds"] and a["cells_by_agent"]["cliffbot"] == 0
+    # the team figures (hil_sim.team.team_figures): the idle RECON-bot takes no imaging step here;
+    # the Cliff-bot looked round before its plan (docs/team.md, "Both agents sense")
+    assert len(a["views"]) == a["sync_rounds"] and a["cells_by_agent"]["cliffbot"] > 300
+    assert [v["agent"] for c in a["views"] for v in c["views"]] == ["cliffbot"] * len(a["views"])
     assert a["sync_full_resends"] == 0 and a["face_rmse_m"] is None and a["face_note"]
+    merged = [t for _, n, t in trace if n == "cb_sense.VIEW_MERGED"]
+    assert len(merged) >= 8 and any(n == "mission.SENSED" for _, n, _ in trace)
 
 
 @pytest.mark.slow
@@ -193,8 +197,11 @@ def test_the_cliffbot_checkpoints_and_continues_from_one(mission: tuple[dict[str
 
 @pytest.mark.slow
 def test_the_team_is_deterministic(world: Any) -> None:
-    a = _team(world, 100)  # the map (about 8 kB at 9600 bit/s), the plan, a fix request and the first moves
-    b = _team(world, 100)
+    # the map (about 8 kB at 9600 bit/s), the Cliff-bot's own views (rendered, fused in slack jobs),
+    # the plan, a fix request and the first moves
+    a = _team(world, 300)
+    b = _team(world, 300)
+    assert any(n == "cb_sense.SENSED" for _, n, _ in a[1]) and a[0]["cells_by_agent"]["cliffbot"] > 0
     assert a[0]["events"] and a == b
 
 
