@@ -143,6 +143,7 @@ def mission(world: Any, tmp_path_factory: pytest.TempPathFactory) -> tuple[dict[
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(900)  # a team mission with the Cliff-bot's own views: minutes on a loaded machine
 def test_the_team_mission_runs_two_executives_on_one_clock(mission: tuple[dict[str, Any], list[Any], Path]) -> None:
     a, trace, out = mission
     assert a["map_received"] and a["agent"] == {"name": "cliffbot-1", "kind": "cliffbot", "mavlink_system_id": 2,
@@ -166,6 +167,7 @@ def test_the_team_mission_runs_two_executives_on_one_clock(mission: tuple[dict[s
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(900)  # a team mission with the Cliff-bot's own views: minutes on a loaded machine
 def test_the_cliffbot_checkpoints_and_continues_from_one(mission: tuple[dict[str, Any], list[Any], Path],
                                                           world: Any) -> None:
     """The last checkpoint (mission DONE) holds the map and the estimate; a Cliff-bot started on
@@ -196,6 +198,7 @@ def test_the_cliffbot_checkpoints_and_continues_from_one(mission: tuple[dict[str
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(900)  # a team mission with the Cliff-bot's own views: minutes on a loaded machine
 def test_the_team_is_deterministic(world: Any) -> None:
     # the map (about 8 kB at 9600 bit/s), the Cliff-bot's own views (rendered, fused in slack jobs),
     # the plan, a fix request and the first moves
