@@ -6,7 +6,8 @@ the RECON-bot, method 5; both flight programs on one stepped clock; docs/team.md
 team mission"), each in ``OUT/seed<S>`` with its ``summary.json`` and ``team.png``. Per scene
 the summary's ``team`` section: whether the delivered map let the Cliff-bot leave its start,
 targets reachable on the truth and reached, tether violations, hazard and unknown cells
-entered, the end state and reason, the bytes each way. Over all scenes the RECON-bot's fixes
+entered, the cells each agent's own views made known (``cells_by_agent``), the end state and
+reason, the bytes each way. Over all scenes the RECON-bot's fixes
 (each FIX against the Cliff-bot's true pose at that instant) by range band: median and worst
 position and heading error, and the fraction whose NEES lies within the chi-square 95 % bound
 (6 dof). Writes OUT/team_mission.csv and ``docs/results/team-mission.md`` with the picture
@@ -37,6 +38,8 @@ COLUMNS = (
     "hazard_cells",
     "unknown_cells",
     "fixes",
+    "recon_cells",
+    "cliffbot_cells",
     "final_state",
     "safe_reason",
     "bytes_down",
@@ -84,6 +87,8 @@ def scene_row(s: dict[str, Any], seed: int) -> dict[str, Any]:
         "hazard_cells": t.get("hazard_cells_entered", 0),
         "unknown_cells": t.get("unknown_cells_entered", 0),
         "fixes": len(t.get("fix_errors_cm", [])),
+        "recon_cells": (t.get("cells_by_agent") or {}).get("recon", 0),
+        "cliffbot_cells": (t.get("cells_by_agent") or {}).get("cliffbot", 0),
         "final_state": t.get("final_state", "-"),
         "safe_reason": t.get("safe_reason", ""),
         "bytes_down": t.get("link_bytes_down", 0),
@@ -156,15 +161,15 @@ def run(args: argparse.Namespace) -> int:
         wr.writerows(rows)
     lines = [
         "| seed | start usable | targets | reachable (truth) | reached | tether violations | hazard cells | "
-        "unknown cells | fixes | end | bytes down / up | per target |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "unknown cells | fixes | cells RECON-bot / Cliff-bot | end | bytes down / up | per target |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         end = r["final_state"] + (f" ({r['safe_reason']})" if r["safe_reason"] else "")
         lines.append(
             f"| {r['seed']} | {'yes' if r['start_usable'] else 'no'} | {r['targets']} | {r['truth_reachable']} | "
             f"{r['reached']} | {r['tether_violations']} | {r['hazard_cells']} | {r['unknown_cells']} | "
-            f"{r['fixes']} | {end} | {r['bytes_down']} / {r['bytes_up']} | {r['map_reasons']} |"
+            f"{r['fixes']} | {r['recon_cells']} / {r['cliffbot_cells']} | {end} | {r['bytes_down']} / {r['bytes_up']} | {r['map_reasons']} |"
         )
     reach = sum(r["truth_reachable"] for r in rows)
     done = sum(min(r["reached"], r["truth_reachable"]) for r in rows)
