@@ -169,7 +169,8 @@ def run(args: argparse.Namespace) -> int:
         lines.append(
             f"| {r['seed']} | {'yes' if r['start_usable'] else 'no'} | {r['targets']} | {r['truth_reachable']} | "
             f"{r['reached']} | {r['tether_violations']} | {r['hazard_cells']} | {r['unknown_cells']} | "
-            f"{r['fixes']} | {r['recon_cells']} / {r['cliffbot_cells']} | {end} | {r['bytes_down']} / {r['bytes_up']} | {r['map_reasons']} |"
+            f"{r['fixes']} | {r['recon_cells']} / {r['cliffbot_cells']} | {end} | "
+            f"{r['bytes_down']} / {r['bytes_up']} | {r['map_reasons']} |"
         )
     reach = sum(r["truth_reachable"] for r in rows)
     done = sum(min(r["reached"], r["truth_reachable"]) for r in rows)
