@@ -18,11 +18,16 @@ not record their misses (§3.4). The face map (§8.1) is fitted on the shared ma
 enough of the face and fed with every view's face share.
 
 The Cliff-bot's corridor is its plan on the true ground on the scenario's map grid
-(``face_planner.plan_targets``: start to every target it reaches, path +- ``corridor_half_m``;
-with no target reachable, the ground around its start). It moves on along that route every cycle (its task
-moves it; team views choose where along the next ``max_travel_m`` it stops to look and where it
-looks); the route is taken as planned beforehand, so where the shared map does not know the
-ground yet its tether lengths come from the route's ground (the truth).
+(``face_planner.plan_targets``: start to every target it reaches, path +- ``corridor_half_m``);
+with no target reachable, the straight way from its start toward the nearest target as far as
+the tethers hold it there on the true ground (:meth:`TeamViewsRun._toward_nearest`: known
+ground, neither slack nor over-tension, on the face where steeper than ``free_slope_deg``), the
+way it would have to map to get closer. Team views choose where on that corridor it stops to
+look (any place on it within ``max_travel_m`` of where it stands, either way) and where it
+looks; its task is to map the corridor. The route is taken as planned beforehand, so where the
+shared map does not know the ground yet its tether lengths come from the route's ground (the
+truth), and before the face map is fitted the rating's face is the plane of the ground under
+the route (``_plan_face``). Both agents' interest is weighted on the corridor.
 """
 
 from __future__ import annotations
@@ -191,7 +196,8 @@ class TeamViewsRun:
         yaw = math.atan2(float(d[1]), float(d[0])) if float(np.hypot(*d)) > 1e-6 else -math.pi / 2
         face = self.face_map or self._plan_face(z)
         cells = None if face is None else face_cells(face, self.map, self.nbv.visibility, self.tv.face_prior_m)
-        return AgentViews("cliffbot", CLIFFBOT_CAMERA, centres, None, (yaw, math.radians(-50.0)), cells)
+        interest = corridor_interest(self.map, self.corridor, self.tv)  # its own task's focus too
+        return AgentViews("cliffbot", CLIFFBOT_CAMERA, centres, interest, (yaw, math.radians(-50.0)), cells)
 
     def _plan_face(self, z: F64) -> FaceMap | None:
         """Before the face map is fitted on the shared map: an empty face map in the plane of the

@@ -16,7 +16,7 @@ KEYS = ("cells_by_agent", "sync_hash_equal", "sync_rounds", "sync_bytes", "sync_
 
 @pytest.mark.slow
 def test_three_team_cycles_fill_every_team_key_with_real_numbers() -> None:
-    run = run_scene("cliff-team", 0, team=True, cycles=3)
+    run = run_scene("cliff-team", 3, team=True, cycles=3)  # a scene whose face is fitted in its first cycle
     sec = json.loads(json.dumps(run.section()))  # what summary.json would hold
     assert all(k in sec for k in KEYS)
     assert sec["cells_by_agent"]["recon"] > 100 and sec["cells_by_agent"]["cliffbot"] > 100
@@ -32,7 +32,7 @@ def test_three_team_cycles_fill_every_team_key_with_real_numbers() -> None:
             assert v["obtained_new_cells"] <= v["obtained_cells"] and math.isfinite(v["expected_new_cells"])
             assert v["why"].startswith(v["agent"])
     # the same seed gives the same cycles
-    again = run_scene("cliff-team", 0, team=True, cycles=1)
+    again = run_scene("cliff-team", 3, team=True, cycles=1)
     assert json.loads(json.dumps(again.records[0].views)) == sec["views"][0]["views"]
 
 
@@ -44,3 +44,24 @@ def test_team_sensing_usage_errors_exit_2(capsys: pytest.CaptureFixture[str]) ->
     assert ok.value.code == 0 and "--cycles" in capsys.readouterr().out
     assert main(["experiment", "team-sensing", "--scenes", "0"]) == 2
     assert "--scenes" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_with_no_target_reachable_the_corridor_leads_toward_the_nearest() -> None:
+    """Scene 7: the tethers reach no target; the corridor is the straight way toward the nearest
+    one as far as the tethers hold the Cliff-bot, not its start alone."""
+    import numpy as np
+
+    from hil_sim.team.team_views_run import TeamViewsRun
+    from hil_sim.world import load_scenario
+
+    world = load_scenario("cliff-team", 7)
+    run = TeamViewsRun(world, 7, team=True)
+    assert not run.reachable
+    start = np.asarray(world.team.cliffbot_start_xy, float)
+    targets = np.asarray(world.team.targets_xyz, float)[:, :2]
+    nearest = targets[int(np.argmin(np.linalg.norm(targets - start, axis=1)))]
+    far = run.path[int(np.argmax(np.linalg.norm(run.path - start, axis=1)))]
+    assert np.linalg.norm(far - start) > 0.3  # it leaves its start
+    assert np.linalg.norm(far - nearest) < np.linalg.norm(start - nearest) - 0.3
+    assert run.corridor.sum() > 0

@@ -5,15 +5,20 @@ tilt) and, per direction, its own motion cost and localization term (§3.3, §3.
 
 * the RECON-bot's: its stations along the edge path with the mast's pan/tilt/lift grid, Eq 9 over
   wheels and mast (:func:`recon_centres`, from the information planner's own candidates);
-* the Cliff-bot's: places along its planned path on the face, its head camera ``head_m`` along the
-  ground's normal, every head pan and tilt; its motion is tether motion: the change of both
-  paid-out lengths (winches, ``a_tether``) plus the head's turn (:func:`cliffbot_centres`).
+* the Cliff-bot's: places on its planned paths (its corridor, either way, within ``max_travel_m``
+  of where it stands, :func:`corridor_places`), its head camera ``head_m`` along the ground's
+  normal, every head pan and tilt; its motion is tether motion: the change of both paid-out
+  lengths (winches, ``a_tether``; every place's tethers in one batch, ``tether_states``) plus the
+  head's turn (:func:`cliffbot_centres`).
 
 Every view is rated on the ONE shared map with §3.2-§3.5 (``nbv.rate_station``: expected
-information with the interest function, minus motion and localization costs). The RECON-bot's
-interest is weighted up on the Cliff-bot's planned corridor (its path +- ``corridor_half_m``, by
-``corridor_weight``, as a task's focus region of §3.4), so it favours what the Cliff-bot will
-drive on.
+information with the interest function, minus motion and localization costs). An agent with a
+face (``AgentViews.face``, ``face_rating.face_cells``) is rated on the face's own cells where
+they lie (§8.2, "A model that sees the face": the gravity grid's prior puts the ground below a
+lip at the lip's height) and on the gravity grid elsewhere, with a floor prior in front of the
+face. The RECON-bot's interest is weighted up on the Cliff-bot's planned corridor (its path +-
+``corridor_half_m``, by ``corridor_weight``, as a task's focus region of §3.4), so it favours
+what the Cliff-bot will drive on.
 
 **Sequential greedy** (:func:`choose_team_views`): every agent not yet served is rated, the one
 whose best view has the highest utility takes it, and the cells that view will see (its P_V on
