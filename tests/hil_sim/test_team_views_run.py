@@ -65,3 +65,24 @@ def test_with_no_target_reachable_the_corridor_leads_toward_the_nearest() -> Non
     assert np.linalg.norm(far - start) > 0.3  # it leaves its start
     assert np.linalg.norm(far - nearest) < np.linalg.norm(start - nearest) - 0.3
     assert run.corridor.sum() > 0
+
+
+def test_the_corridor_ratio_is_bounded_where_the_recon_bot_alone_never_gets_there() -> None:
+    """Team at 95 % in 6 cycles, the RECON-bot alone not within 12: the ratio is at most 6 / 13
+    (its bound row); where both reach it, their plain ratio; a scene the team does not finish
+    has no bound."""
+    from hil_sim.lab.experiments.experiment_team_sensing import COLUMNS, report
+    from hil_sim.lab.results import markdown_table
+
+    def row(seed: int, team: int | None, alone: int | None) -> dict[str, object]:
+        r: dict[str, object] = dict.fromkeys(COLUMNS, 0.5)
+        r.update(seed=seed, corridor_cycles_team=team, corridor_cycles_recon=alone, reachable=True,
+                 corridor_ratio=None if team is None or alone is None else team / alone)
+        return r
+
+    md = report([row(0, 6, None), row(1, 4, 8), row(2, None, None)], markdown_table, 12)
+    bound = next(line for line in md.splitlines() if "an upper bound" in line)
+    cells = [c.strip() for c in bound.split("|")]
+    assert float(cells[2]) == pytest.approx((6 / 13 + 4 / 8) / 2, rel=1e-3) and float(cells[3]) == pytest.approx(0.5)
+    both = next(line for line in md.splitlines() if "(scenes where both reach it)" in line)
+    assert float(both.split("|")[2]) == pytest.approx(0.5)
