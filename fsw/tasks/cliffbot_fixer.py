@@ -33,9 +33,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.comm.team import fix_packets
-from fsw.core.geometry import CameraPose, MapGrid, camera_pose_from_rover
+from fsw.core.geometry import MapGrid, camera_pose_from_rover
 from fsw.core.localization.fiducials import BodyEstimate, CliffbotLocalizer
-from fsw.core.localization.landmarks import anchor_marker_corners, fuse, transport
+from fsw.core.localization.landmarks import Landmark, anchor_marker_corners, camera_from_landmarks
 from fsw.core.localization.localization import PoseEstimate, so3_log
 from fsw.core.map.elevation_map import ElevationMap
 from fsw.core.stereo.rectify import Rectifier
@@ -78,16 +78,6 @@ class Shot:
     kind: str
     view_id: int
     target: tuple[float, float, float]  # what the mast points at (team frame)
-
-
-@dataclasses.dataclass(frozen=True)
-class Landmark:
-    """A view of the plates: the camera resected on them, the camera pose the rover's estimate
-    gave for that view, and the covariance of the mast's joints at it."""
-
-    measured: PoseEstimate
-    predicted: CameraPose
-    joints_cov: NDArray[np.float64]
 
 
 class CliffbotFixerTask(FlightTask):
@@ -340,10 +330,8 @@ class CliffbotFixerTask(FlightTask):
     def camera_estimate(self, fr: CameraFrame, joints_cov: NDArray[np.float64]) -> PoseEstimate:
         """The camera pose of the fix's view: from the views of the plates when there are any
         (each carried to this view, fused), else the rover's estimate with its covariance."""
-        if not self.landmarks:
-            return PoseEstimate(fr.pose, np.asarray(fr.pose_cov, float))
-        return fuse([transport(lm.measured, lm.predicted, fr.pose, lm.joints_cov + joints_cov)
-                     for lm in self.landmarks])
+        est = camera_from_landmarks(self.landmarks, fr.pose, joints_cov)
+        return est if est is not None else PoseEstimate(fr.pose, np.asarray(fr.pose_cov, float))
 
     def _locate(self, fr: CameraFrame, joints_cov: NDArray[np.float64]
                 ) -> Generator[None, None, BodyEstimate | None]:

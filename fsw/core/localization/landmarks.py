@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -100,3 +101,23 @@ def fuse(estimates: Sequence[PoseEstimate]) -> PoseEstimate:
     pose = CameraPose(so3_exp(delta[:3]) @ ref.R, ref.t + delta[3:])
     return PoseEstimate(pose, 0.5 * (cov + cov.T), max(e.rms_px for e in estimates),
                         sum(e.n_points for e in estimates))
+
+
+@dataclass(frozen=True)
+class Landmark:
+    """A view of the plates: the camera resected on them (team frame), the camera pose the rover's
+    estimate gave for that view, and the covariance of the mast's joints at it."""
+
+    measured: PoseEstimate
+    predicted: CameraPose
+    joints_cov: F64
+
+
+def camera_from_landmarks(landmarks: Sequence[Landmark], predicted: CameraPose, joints_cov: F64
+                          ) -> PoseEstimate | None:
+    """The camera pose of a view the rover's estimate puts at ``predicted`` (joints covariance
+    ``joints_cov``) from the views of the plates of the same standing: each carried to it
+    (:func:`transport`), fused; None without any."""
+    if not landmarks:
+        return None
+    return fuse([transport(lm.measured, lm.predicted, predicted, lm.joints_cov + joints_cov) for lm in landmarks])
