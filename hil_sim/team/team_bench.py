@@ -301,6 +301,19 @@ class CliffbotAgent:
         dyaw = math.degrees(wrap_angle(yaw - (truth.yaw - self.frame.yaw0)))
         return round(dyaw, 3), round(100 * math.hypot(x - float(t[0]), y - float(t[1])), 2)
 
+    def _recon_pose(self) -> dict[str, Any] | None:
+        """Where the RECON-bot stands at the end, in the team's frame: its estimate ``(x, y, yaw)``
+        with covariance, and the truth (``safer-hil experiment fiducials --missions``)."""
+        motion = self.bench.exe.tasks.get("motion")
+        odo = getattr(motion, "odo", None)
+        if odo is None or not hasattr(motion, "mcfg"):
+            return None
+        truth = self.bench.rig.rover
+        t = self.frame.to_map(np.array([[truth.x, truth.y]]))[0]
+        return {"estimate": [float(v) for v in odo.pose],
+                "cov": np.asarray(odo.covariance(motion.mcfg), float).tolist(),
+                "truth": [float(t[0]), float(t[1]), float(wrap_angle(truth.yaw - self.frame.yaw0))]}
+
     def _note_cycle(self) -> None:
         """After each of the RECON-bot's imaging steps: its map and its view, for the team figures
         (the Cliff-bot does not image in this mission: its own layer stays empty)."""
@@ -346,6 +359,7 @@ class CliffbotAgent:
             sim_s=self.bench.clock.now() - t0, est_path=self.est_path, out=out,
             setup=TeamSetup(tether=self.cfg.tether, climber=self.cfg.climber), to_map=self.frame.to_map)
         sec["map_received"] = m.z is not None
+        sec["recon_pose"] = self._recon_pose()
         sec["fix_recon_yaw_err_deg"] = [e[0] for e in self.recon_errors]
         sec["fix_recon_pos_err_cm"] = [e[1] for e in self.recon_errors]
         sec.update(self.figures.section(None, "no face map in the lockstep mission: the RECON-bot's flight fuses "
