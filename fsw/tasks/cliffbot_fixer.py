@@ -17,8 +17,9 @@ carries that error over its range. Before the first fix from where it stands, th
 Anchorbots' marker plates (``[localization] anchor_marker_ids``, placed from the tether exits of
 ``[cliffbot_site]``) and resects its camera in the team's frame on each plate it sees
 (docs/algorithm.md §5.2, :mod:`fsw.core.localization.landmarks`); the fix's camera pose is then
-the resected one carried through the mast's joints, with its covariance. While the rover does
-not move, later fixes reuse those views; with no plate seen the fix uses the rover's estimate.
+the resected one carried through the mast's joints, with its covariance. The request waits for
+those views (its answer's deadline starts when they are done); while the rover does not move,
+later fixes reuse them; with no plate seen the fix uses the rover's estimate.
 """
 
 from __future__ import annotations
@@ -135,9 +136,6 @@ class CliffbotFixerTask(FlightTask):
         upd: MapUpdate | None = self.map_box.latest()
         self.snapshot = upd.snapshot if upd is not None else self.snapshot
         ready = self._mission_state() == "DONE" and self.pose is not None
-        if ready and self.current is None and not self.surveying and self.plates and not self._moving() \
-                and self._standing() != self.standing:
-            self._survey(now)  # the mission has ended where it stands: see the plates before a fix needs them
         for req in self.requests.drain():
             if self.current is not None:
                 if req.seq != self.current.seq:
@@ -149,6 +147,9 @@ class CliffbotFixerTask(FlightTask):
                     self._no_fix(req.seq, BUSY)
                 else:
                     self.pending = req  # answered once the plates are seen
+            elif self.plates and self._standing() != self.standing:
+                self.pending = req  # the first fix from here: see the plates first, then answer it
+                self._survey(now)
             else:
                 self._aim(req, now)
         if (self.current is not None or self.surveying) and now > self.deadline:
@@ -200,9 +201,6 @@ class CliffbotFixerTask(FlightTask):
         self.current, self.deadline = req, now + TIMEOUT_S
         self.shots = [Shot("cliffbot", FIX_VIEW_BASE + req.seq, target)]
         self._next_shot()
-
-    def _moving(self) -> bool:
-        return self.pose is not None and self.pose.moving
 
     def _standing(self) -> tuple[float, ...]:
         p = self.pose
