@@ -24,6 +24,9 @@ from fsw.comm.mavlink_dialect import mavlink
 from hil_sim.commands.serve import set_keys
 
 BIN = Path(sys.executable).parent
+# The RECON-bot starts 2.3 m from the Cliff-bot (from the scenario's start, 4 m off, one marker is
+# all it sees of it, and a lone marker that far is refused as ambiguous: docs/team.md)
+SCENE = "cliff-team?rover_start.x_m=0.5&rover_start.y_m=0.2"
 WINDOW_S = 120.0  # the flights' own limit (--duration); the test ends them once the fix is answered (~30 s idle)
 
 
@@ -57,7 +60,7 @@ def test_serve_and_both_flight_programs_cross_the_map_and_answer_a_fix(tmp_path:
     recon_cfg, cb_cfg = tmp_path / "recon.toml", tmp_path / "cliffbot.toml"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     serve = subprocess.Popen(
-        [str(BIN / "safer-hil"), "serve", "--scenario", "cliff-team", "--seed", "3", "--can-port", "0",
+        [str(BIN / "safer-hil"), "serve", "--scenario", SCENE, "--seed", "3", "--can-port", "0",
          "--serial", "pty", "--flight-config", str(recon_cfg), "--cliffbot-config", str(cb_cfg),
          "--duration", "200", "--report-period", "0", "--camera-timeout", "60"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
@@ -119,7 +122,7 @@ def test_serve_and_both_flight_programs_cross_the_map_and_answer_a_fix(tmp_path:
         assert p.returncode == 0, f"{name}: {rest[name][1][-2000:]}"
     recon, cb = out["recon"], out["cliffbot"]
     assert seen[1] == {1} and seen[2] == {2}, seen  # both robots' heartbeats, each with its own system id
-    said = f"RECON-bot:\n{_events(recon)}\nCliff-bot:\n{_events(cb)}"
+    said = f"RECON-bot:\n{_events(recon)}\nCliff-bot:\n{_events(cb)}\nbench:\n{served[-1500:]}"
     assert "radio.DELIVERED" in recon, said  # the map crossed the radio ...
     assert "cb_radio.MAP_RECEIVED" in cb, said  # ... and the Cliff-bot took it
     assert "mission.FIX_REQUEST" in cb, said
