@@ -27,7 +27,7 @@ BIN = Path(sys.executable).parent
 # The RECON-bot starts 2.3 m from the Cliff-bot (from the scenario's start, 4 m off, one marker is
 # all it sees of it, and a lone marker that far is refused as ambiguous: docs/team.md)
 SCENE = "cliff-team?rover_start.x_m=0.5&rover_start.y_m=0.2"
-WINDOW_S = 120.0  # the flights' own limit (--duration); the test ends them once the fix is answered (~30 s idle)
+WINDOW_S = 120.0  # the flights' own limit (--duration); the test ends them once the fix is answered
 
 
 def _udp() -> socket.socket:
