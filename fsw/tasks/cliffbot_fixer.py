@@ -34,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.comm.team import fix_packets
-from fsw.core.geometry import MapGrid, camera_pose_from_rover
+from fsw.core.geometry import MapGrid, point_mast
 from fsw.core.localization.fiducials import BodyEstimate, CliffbotLocalizer
 from fsw.core.localization.landmarks import Landmark, anchor_marker_corners, camera_from_landmarks
 from fsw.core.localization.localization import PoseEstimate, so3_log
@@ -210,16 +210,9 @@ class CliffbotFixerTask(FlightTask):
     def _joints(self, target: tuple[float, float, float]) -> tuple[float, float, float] | None:
         """The mast's joints that point the camera at ``target``; None when out of its reach."""
         assert self.pose is not None
-        p, mast = self.pose, self.ctx.cfg.mast
-        base = camera_pose_from_rover((p.x, p.y, p.yaw), (0.0, 0.0, LIFT_M), mast, ground_z_m=p.z_m).t
-        d = np.asarray(target, float) - base
-        pan = math.atan2(float(d[1]), float(d[0])) - p.yaw
-        pan = math.atan2(math.sin(pan), math.cos(pan))
-        tilt = math.atan2(float(d[2]), math.hypot(float(d[0]), float(d[1])))
-        joints = mast.clamp(pan, tilt, LIFT_M)
-        if abs(joints[0] - pan) > 1e-6 or abs(joints[1] - tilt) > 1e-6:
-            return None
-        return joints
+        p = self.pose
+        joints, reachable = point_mast((p.x, p.y, p.yaw), target, self.ctx.cfg.mast, LIFT_M, ground_z_m=p.z_m)
+        return joints if reachable else None
 
     def _next_shot(self) -> None:
         """Point the mast for the next view (a plate out of the mast's reach is skipped)."""

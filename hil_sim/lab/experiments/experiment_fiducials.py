@@ -137,7 +137,7 @@ def range_rows(scenario: str, seed: int, config: str, index: int, r: float, pose
     ``index``): one row each."""
     import numpy as np
 
-    from fsw.core.geometry import camera_pose_from_rover
+    from fsw.core.geometry import camera_pose_from_rover, point_mast
     from fsw.core.localization.fiducials import CliffbotLocalizer
     from fsw.core.localization.localization import PoseEstimate
     from fsw.settings import load_settings
@@ -175,11 +175,8 @@ def range_rows(scenario: str, seed: int, config: str, index: int, r: float, pose
         cb = build_cliffbot(x, y, zg, yaw, size_m=(cb0.length_m, cb0.width_m, cb0.height_m),
                             marker_size_m=cfg.cliffbot.marker_size_m, seed=seed)
         w = dataclasses.replace(world, cliffbot=cb)
-        d = np.array([x, y, zg + 0.25]) - base
-        pan = math.atan2(d[1], d[0]) - rover[2]
-        tilt = math.atan2(d[2], math.hypot(d[0], d[1]))
-        joints = cfg.mast.clamp(pan, tilt, 0.3)
-        if abs(joints[0] - math.atan2(math.sin(pan), math.cos(pan))) > 1e-6 or abs(joints[1] - tilt) > 1e-6:
+        joints, reachable = point_mast(rover, (x, y, zg + 0.25), cfg.mast, 0.3)
+        if not reachable:
             continue  # the mast cannot point there
         pose = camera_pose_from_rover(rover, joints, cfg.mast)
         rend = StereoRenderer(w, cfg.camera, world.noise_sigma, seed=int(rng.integers(1 << 30)))
@@ -305,7 +302,7 @@ def mission_rows(scenario: str, seed: int, recon: dict[str, Any], config: str, r
     computing with its estimate (team frame = world frame shifted by its start)."""
     import numpy as np
 
-    from fsw.core.geometry import MapGrid, camera_pose_from_rover
+    from fsw.core.geometry import MapGrid, camera_pose_from_rover, point_mast
     from fsw.core.localization.fiducials import CliffbotLocalizer
     from fsw.core.localization.landmarks import Landmark, anchor_marker_corners, camera_from_landmarks
     from fsw.core.localization.localization import PoseEstimate
@@ -340,13 +337,8 @@ def mission_rows(scenario: str, seed: int, recon: dict[str, Any], config: str, r
     plates = anchor_marker_corners(rig.anchors[0], rig.anchors[1], cfg.localization)
 
     def joints_to(target: Any) -> tuple[float, float, float] | None:
-        base = camera_pose_from_rover(est, (0.0, 0.0, 0.3), cfg.mast).t
-        d = np.asarray(target, float) - base
-        pan = math.atan2(d[1], d[0]) - est[2]
-        pan = math.atan2(math.sin(pan), math.cos(pan))
-        tilt = math.atan2(d[2], math.hypot(d[0], d[1]))
-        j = cfg.mast.clamp(pan, tilt, 0.3)
-        return j if abs(j[0] - pan) < 1e-6 and abs(j[1] - tilt) < 1e-6 else None
+        joints, reachable = point_mast(est, target, cfg.mast, 0.3)  # aimed with its estimate, as the fixer does
+        return joints if reachable else None
 
     def view(w: Any, joints: tuple[float, float, float]) -> tuple[Any, Any, Any, Any, Any, Any]:
         rend = StereoRenderer(w, cfg.camera, world.noise_sigma, seed=int(rng.integers(1 << 30)))
