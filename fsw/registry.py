@@ -43,7 +43,7 @@ RECON = AgentTopology(
     sections=frozenset({
         "rover", "camera", "mast", "map", "stereo", "fusion", "registration", "localization", "cliffbot", "edge",
         "geofence", "checkpoint", "mavlink", "codec", "link", "nbv", "devices", "motion", "capture", "mission",
-        "calibration",
+        "calibration", "cliffbot_site",  # the team's site: its mask, and the Anchorbots' plates for its fixer
     }),
 )
 

@@ -184,6 +184,7 @@ class CliffbotAgent:
                         camera=camera)
         self.recon_done = recon_done
         self.errors: list[FixError] = []  # each FIX sent, against the truth
+        self.recon_errors: list[tuple[float, float]] = []  # the RECON-bot's own error at each FIX sent
         self._rendered_at = -1
         self.sent0 = {side: channel.stats(side).air_bytes for side in ("a", "b")}
         self.exe = bench.add_agent(self.cfg, res, before_frame=self.before_frame)
@@ -287,7 +288,9 @@ class CliffbotAgent:
         fr = self.frame
         rz = np.eye(3)
         rz[:2, :2] = fr._r(fr.yaw0)
+        recon = self._recon_error()
         for f in self.watch.sent:
+            self.recon_errors.append(recon)
             p = np.asarray(f.position, float)
             t = np.array([*fr.to_world(p[:2])[0], p[2] + fr.datum_m])
             r = rz @ fix_packets.rotation(f.rotvec)
@@ -295,6 +298,32 @@ class CliffbotAgent:
                                          float(np.linalg.norm(cb.t - cam))))
         self.watch.sent.clear()
 
+
+    def _recon_error(self) -> tuple[float, float]:
+        """The RECON-bot's own pose error now (its estimate against the truth): heading (deg) and
+        place (cm), what a fix would carry without the Anchorbots' plates (docs/algorithm.md §5.2)."""
+        motion = self.bench.exe.tasks.get("motion")
+        odo = getattr(motion, "odo", None)
+        if odo is None:
+            return math.nan, math.nan
+        x, y, yaw = (float(v) for v in odo.pose)
+        truth = self.bench.rig.rover
+        t = self.frame.to_map(np.array([[truth.x, truth.y]]))[0]
+        dyaw = math.degrees(wrap_angle(yaw - (truth.yaw - self.frame.yaw0)))
+        return round(dyaw, 3), round(100 * math.hypot(x - float(t[0]), y - float(t[1])), 2)
+
+    def _recon_pose(self) -> dict[str, Any] | None:
+        """Where the RECON-bot stands at the end, in the team's frame: its estimate ``(x, y, yaw)``
+        with covariance, and the truth (``safer-hil experiment fiducials --missions``)."""
+        motion = self.bench.exe.tasks.get("motion")
+        odo = getattr(motion, "odo", None)
+        if odo is None or not hasattr(motion, "mcfg"):
+            return None
+        truth = self.bench.rig.rover
+        t = self.frame.to_map(np.array([[truth.x, truth.y]]))[0]
+        return {"estimate": [float(v) for v in odo.pose],
+                "cov": np.asarray(odo.covariance(motion.mcfg), float).tolist(),
+                "truth": [float(t[0]), float(t[1]), float(wrap_angle(truth.yaw - self.frame.yaw0))]}
 
     def _note_cycle(self) -> None:
         """After each of the RECON-bot's imaging steps: its map and its view; after each of the
@@ -355,6 +384,9 @@ class CliffbotAgent:
             sim_s=self.bench.clock.now() - t0, est_path=self.est_path, out=out,
             setup=TeamSetup(tether=self.cfg.tether, climber=self.cfg.climber), to_map=self.frame.to_map)
         sec["map_received"] = m.z is not None
+        sec["recon_pose"] = self._recon_pose()
+        sec["fix_recon_yaw_err_deg"] = [e[0] for e in self.recon_errors]
+        sec["fix_recon_pos_err_cm"] = [e[1] for e in self.recon_errors]
         sec.update(self.figures.section(None, "no face map in the lockstep mission: the RECON-bot's flight fuses "
                                               "into the gravity grid only"))
         sec["agent"] = {"name": self.cfg.agent.name, "kind": self.cfg.agent.kind,
