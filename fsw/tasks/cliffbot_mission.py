@@ -50,6 +50,7 @@ from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import NavConfig, Navigator
 from fsw.core.team.contact_ground import fill_under_body
 from fsw.core.team.face_planner import (
+    OFF_THE_WAY,
     ClimberConfig,
     Ground,
     Margins,
@@ -65,6 +66,7 @@ from fsw.sections import CliffbotMissionConfig, CliffbotSensingConfig
 F64 = NDArray[np.float64]
 BODY_MARGIN_M = 0.1  # the body's box as mapped (stereo smear, the estimate's error) beyond the footprint
 MAX_CUT_ROUNDS = 12  # a leg's plan, its impassable edges cut, planned again at most this often
+MAX_ELSEWHERE = 3  # a leg re-planned at most this often because a waypoint's lengths held the body elsewhere
 FAULT_BITS = ("FaultStall", "FaultSlip", "FaultOverTension", "FaultSpool", "FaultTimeout")
 
 
@@ -466,12 +468,19 @@ class CliffbotMission:
             if float(np.max(np.abs(err))) > self.cfg.length_tol_m:
                 break
             off = float(np.hypot(*(self.est.xy - wp)))
-            if off > self.ccfg.node_m and self.elsewhere < MAX_CUT_ROUNDS:
+            if off > self.ccfg.node_m:
                 # the waypoint's lengths hold it elsewhere (the estimate, from those lengths, says
-                # where): the rest of the leg is planned again from there
+                # where): the rest of the leg is planned again from there, or, when that keeps
+                # happening, the leg is given up (never driven on blindly)
                 self.elsewhere += 1
-                self.event("OFF_THE_WAY", f"leg {self.leg_i + 1}: at the lengths of waypoint "
-                           f"{wp.round(2).tolist()}, {off:.2f} m from it; re-planned")
+                text = f"leg {self.leg_i + 1}: at the lengths of waypoint {wp.round(2).tolist()}, {off:.2f} m from it"
+                if self.elsewhere > MAX_ELSEWHERE:
+                    if leg.target is not None:
+                        self.reasons[leg.target] = OFF_THE_WAY
+                    self.event("TARGET_UNREACHABLE", f"{text}: {OFF_THE_WAY}")
+                    self._next_leg()
+                    return self._hold()
+                self.event("OFF_THE_WAY", f"{text}; re-planned")
                 self._plan_leg()
                 return self._hold()
             self.wp_i += 1
