@@ -5,7 +5,10 @@ Generated starts (the ``terrain`` family, hil_sim/world/terrain.py) with the edg
 ``--distances`` from the rover's footprint (its bumper when ahead, its wheels when right, a front
 corner when diagonal) at each of ``--bearings`` (deg from the heading: 0 ahead, -45 ahead-right,
 -90 right), for each ``--seeds``, each run as a full lockstep mission (``hil_sim.mission.mission_run``)
-per method, ``--jobs`` at a time in a process pool. It writes ``close_edge.json`` and
+per method, ``--jobs`` at a time in a process pool. ``--near-edge SPEC`` adds starts on a scenario
+with its own edge (a real DEM through ``file:``): at each bearing and distance, and each of
+``--along`` positions along its edge, the start is placed beside the edge
+(``hil_sim.world.scenarios.start_near_edge``) and run with seed 0. It writes ``close_edge.json`` and
 ``close_edge.md``: per start, each method's odometer and the first reason it stayed; per method,
 the starts it left; the criteria: no start where an information method (3, 4, 5) never moved
 while a raster method (1, 2) moved from it, every stuck mission with a reason in its summary,
@@ -40,6 +43,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=int, default=4, help="imaging steps after the panorama")
     p.add_argument("--jobs", type=int, default=2, help="missions run in parallel (processes)")
     p.add_argument("--out", type=Path, default=Path("out/close_edge"), help="output directory")
+    p.add_argument("--near-edge", action="append", default=[], metavar="SPEC",
+                   help="a scenario with its own edge (e.g. a real DEM, file:dem.npy?cell_m=0.03) whose start "
+                        "is placed beside the edge at each bearing and distance (repeatable)")
+    p.add_argument("--along", default="0", help="with --near-edge: positions along the edge, m from the point "
+                                                "nearest the scenario's own start")
     p.add_argument("--reuse", action="store_true",
                    help="take a mission whose run directory under --out already holds its summary.json "
                         "(an interrupted run goes on) instead of running it again")
@@ -74,24 +82,35 @@ def run(args: argparse.Namespace) -> int:
 
     from hil_sim.world import load_scenario
     from hil_sim.world.config import load_scenario_config
+    from hil_sim.world.scenarios import start_near_edge
 
     try:
-        bearings, distances = _floats(args.bearings), _floats(args.distances)
+        bearings, distances, along = _floats(args.bearings), _floats(args.distances), _floats(args.along)
         seeds = [int(v) for v in args.seeds.split(",") if v.strip()]
     except ValueError as err:
         print(f"safer-hil experiment close-edge: bad list ({err})", file=sys.stderr)
         return 2
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     if (not methods or any(m not in METHODS for m in methods) or not bearings or not distances or not seeds
-            or min(seeds) < 0 or args.steps < 1 or args.jobs < 1 or not all(0.15 <= d <= 2.0 for d in distances)):
+            or min(seeds) < 0 or args.steps < 1 or args.jobs < 1 or not all(0.15 <= d <= 2.0 for d in distances)
+            or (args.near_edge and not along)):
         print("safer-hil experiment close-edge: bad arguments (methods from 1-5; lists not empty; seeds >= 0; "
               "distances 0.15-2 m; steps, jobs >= 1)", file=sys.stderr)
         return 2
-    starts = [(start_spec(args.family, b, d), b, d, s) for b in bearings for d in distances for s in seeds]
-    try:  # a bad family, bearing or distance: one line before any mission
-        load_scenario(starts[0][0], seeds[0])
-        for spec, _, _, _ in starts:
-            load_scenario_config(spec)
+    # (start label, scenario spec, bearing, distance, seed, measured gap or None, run directory name)
+    starts = [(args.family, start_spec(args.family, b, d), b, d, s, None, f"b{b:g}_d{d:g}_seed{s}")
+              for b in bearings for d in distances for s in seeds]
+    try:  # a bad family, bearing, distance or DEM: one line before any mission
+        load_scenario(starts[0][1], seeds[0])
+        for st in starts:
+            load_scenario_config(st[1])
+        for k, base in enumerate(args.near_edge):
+            for a in along:
+                for b in bearings:
+                    for d in distances:
+                        spec, gap = start_near_edge(base, b, d, a)
+                        starts.append((f"{base} at {a:g} m", spec, b, d, 0, round(gap, 3),
+                                       f"near{k}_a{a:g}_b{b:g}_d{d:g}_seed0"))
     except ValueError as err:
         print(f"safer-hil experiment close-edge: {err}", file=sys.stderr)
         return 2
@@ -103,24 +122,25 @@ def run(args: argparse.Namespace) -> int:
         tqdm(total=len(starts) * len(methods), desc="close-edge", unit="mission") as bar,
     ):
         futs = {}
-        for spec, b, d, seed in starts:
+        for label, spec, b, d, seed, gap, name in starts:
+            tags = {"start": label, "bearing_deg": b, "distance_m": d, "gap_m": gap}
             for m in methods:
-                out = args.out / "runs" / f"b{b:g}_d{d:g}_seed{seed}_m{m}"
+                out = args.out / "runs" / f"{name}_m{m}"
                 done = _reused(out, spec, seed) if args.reuse else None
                 if done is not None:
-                    rows.append({**row_of(done, spec, seed, args.steps), "bearing_deg": b, "distance_m": d})
+                    rows.append({**row_of(done, spec, seed, args.steps), **tags})
                     bar.update()
                     continue
-                futs[pool.submit(_one, spec, m, args.steps, seed, str(out), "config")] = (spec, b, d, seed, m)
+                futs[pool.submit(_one, spec, m, args.steps, seed, str(out), "config")] = (spec, seed, m, tags)
         for fut in as_completed(futs):
-            spec, b, d, seed, m = futs[fut]
+            spec, seed, m, tags = futs[fut]
             try:
-                row = row_of(fut.result(), spec, seed, args.steps)
-                rows.append({**row, "bearing_deg": b, "distance_m": d})
+                rows.append({**row_of(fut.result(), spec, seed, args.steps), **tags})
             except Exception as exc:  # noqa: BLE001 - one failed mission is reported, the rest go on
                 failed.append(f"{spec} seed {seed} method {m}: {type(exc).__name__}: {exc}")
             bar.update()
-    rows.sort(key=lambda r: (r["bearing_deg"], r["distance_m"], r["seed"], r["method"]))
+    rows.sort(key=lambda r: (r["start"] != args.family, r["start"], r["bearing_deg"], r["distance_m"], r["seed"],
+                             r["method"]))
     (args.out / "close_edge.json").write_text(json.dumps({"rows": rows, "failed": failed}, indent=1) + "\n")
     md = report(rows, failed, methods)
     (args.out / "close_edge.md").write_text(md)
@@ -131,12 +151,15 @@ def run(args: argparse.Namespace) -> int:
 
 def report(rows: list[dict[str, Any]], failed: list[str], methods: list[str]) -> str:
     """The markdown report: one row per start, the summary per method, the criteria."""
-    by_start: dict[tuple[float, float, int], dict[str, dict[str, Any]]] = {}
+    by_start: dict[tuple[str, float, float, int], dict[str, dict[str, Any]]] = {}
     for r in rows:
-        by_start.setdefault((r["bearing_deg"], r["distance_m"], r["seed"]), {})[r["method"]] = r
+        by_start.setdefault((r.get("start", "terrain"), r["bearing_deg"], r["distance_m"], r["seed"]), {})[
+            r["method"]] = r
     table = []
-    for (b, d, seed), per in sorted(by_start.items()):
-        line: dict[str, Any] = {"bearing deg": b, "edge m": d, "seed": seed}
+    for (label, b, d, seed), per in by_start.items():
+        gap = next((r.get("gap_m") for r in per.values()), None)
+        line: dict[str, Any] = {"start": label, "bearing deg": b, "edge m": d if gap is None else f"{d:g} ({gap:g})",
+                                "seed": seed}
         for m in methods:
             line[f"M{m} moved m"] = round(float(per[m]["odometer_m"]), 2) if m in per else None
         reasons = [f"M{m}: {per[m]['stay_reasons'][0]}" for m in methods
@@ -145,17 +168,20 @@ def report(rows: list[dict[str, Any]], failed: list[str], methods: list[str]) ->
         table.append(line)
     out = ["## Starts (odometer per method, m)", "", markdown_table(table), "", "## Per method", ""]
     summary = []
-    for m in methods:
-        rs = [r for r in rows if r["method"] == m]
-        summary.append({"method": m, "missions": len(rs), "moved": sum(r["moved"] for r in rs),
+    for placed, m in ((p, m) for p in (False, True) for m in methods):
+        kind = "placed beside an edge" if placed else "generated"
+        rs = [r for r in rows if r["method"] == m and (r.get("gap_m") is not None) == placed]
+        if not rs:
+            continue
+        summary.append({"starts": kind, "method": m, "missions": len(rs), "moved": sum(r["moved"] for r in rs),
                         "edge violations": sum(r["edge_violations"] for r in rs),
                         "wheels on unknown ground": sum(r["wheels_on_unknown_ground"] for r in rs),
                         "wheels off terrain": sum(r["wheels_off_terrain"] for r in rs)})
     out += [markdown_table(summary), "", "## Criteria (issue 30 item 1)", ""]
-    frozen = [(k, m) for k, per in sorted(by_start.items()) for m in methods
+    frozen = [(k, m) for k, per in by_start.items() for m in methods
               if m not in RASTER and m in per and not per[m]["moved"]
               and any(per[x]["moved"] for x in RASTER if x in per)]
-    silent = [(k, m) for k, per in sorted(by_start.items()) for m, r in per.items()
+    silent = [(k, m) for k, per in by_start.items() for m, r in per.items()
               if m not in RASTER and not r["moved"] and not r["stay_reasons"]]
     viol = sum(r["edge_violations"] for r in rows)
     unknown = sum(r["wheels_on_unknown_ground"] for r in rows)
@@ -164,8 +190,9 @@ def report(rows: list[dict[str, Any]], failed: list[str], methods: list[str]) ->
         return "\n".join(out + ["- no mission finished: nothing to judge"] +
                          ["", "## Failed missions", ""] + [f"- {f}" for f in failed]) + "\n"
     out.append(f"- starts where an information method never moved while a raster method moved: **{len(frozen)}** "
-               f"(target 0) {met[not frozen]}" + "".join(f"\n  - bearing {k[0]:g}, edge {k[1]:g} m, seed {k[2]}: "
-                                                          f"method {m}" for k, m in frozen))
+               f"(target 0) {met[not frozen]}"
+               + "".join(f"\n  - {k[0]}, bearing {k[1]:g}, edge {k[2]:g} m, seed {k[3]}: method {m}"
+                         for k, m in frozen))
     out.append(f"- information-method missions that never moved without a reason in their summary: "
                f"**{len(silent)}** (target 0) {met[not silent]}")
     out.append(f"- edge violations: **{viol}** (target 0) {met[viol == 0]}")
