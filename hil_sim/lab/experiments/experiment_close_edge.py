@@ -8,7 +8,8 @@ corner when diagonal) at each of ``--bearings`` (deg from the heading: 0 ahead, 
 per method, ``--jobs`` at a time in a process pool. ``--near-edge SPEC`` adds starts on a scenario
 with its own edge (a real DEM through ``file:``): at each bearing and distance, and each of
 ``--along`` positions along its edge, the start is placed beside the edge
-(``hil_sim.world.scenarios.start_near_edge``) and run with seed 0. It writes ``close_edge.json`` and
+(``hil_sim.world.scenarios.start_near_edge``) and run with seed 0. With ``--raster-when-stuck``
+the raster methods run only from the starts an information method stayed at. It writes ``close_edge.json`` and
 ``close_edge.md``: per start, each method's odometer and the first reason it stayed; per method,
 the starts it left; the criteria: no start where an information method (3, 4, 5) never moved
 while a raster method (1, 2) moved from it, every stuck mission with a reason in its summary,
@@ -48,6 +49,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "is placed beside the edge at each bearing and distance (repeatable)")
     p.add_argument("--along", default="0", help="with --near-edge: positions along the edge, m from the point "
                                                 "nearest the scenario's own start")
+    p.add_argument("--raster-when-stuck", action="store_true",
+                   help="run the raster methods (1, 2) only from the starts an information method stayed at "
+                        "(the comparison the criterion needs; the table shows '-' elsewhere)")
     p.add_argument("--reuse", action="store_true",
                    help="take a mission whose run directory under --out already holds its summary.json "
                         "(an interrupted run goes on) instead of running it again")
@@ -117,28 +121,36 @@ def run(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
     failed: list[str] = []
+    phases = [methods]
+    if args.raster_when_stuck:  # the information methods first, then the raster ones where they stayed
+        phases = [[m for m in methods if m not in RASTER], [m for m in methods if m in RASTER]]
     with (
         ProcessPoolExecutor(max_workers=args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool,
         tqdm(total=len(starts) * len(methods), desc="close-edge", unit="mission") as bar,
     ):
-        futs = {}
-        for label, spec, b, d, seed, gap, name in starts:
-            tags = {"start": label, "bearing_deg": b, "distance_m": d, "gap_m": gap}
-            for m in methods:
-                out = args.out / "runs" / f"{name}_m{m}"
-                done = _reused(out, spec, seed) if args.reuse else None
-                if done is not None:
-                    rows.append({**row_of(done, spec, seed, args.steps), **tags})
-                    bar.update()
-                    continue
-                futs[pool.submit(_one, spec, m, args.steps, seed, str(out), "config")] = (spec, seed, m, tags)
-        for fut in as_completed(futs):
-            spec, seed, m, tags = futs[fut]
-            try:
-                rows.append({**row_of(fut.result(), spec, seed, args.steps), **tags})
-            except Exception as exc:  # noqa: BLE001 - one failed mission is reported, the rest go on
-                failed.append(f"{spec} seed {seed} method {m}: {type(exc).__name__}: {exc}")
-            bar.update()
+        for phase, phase_methods in enumerate(phases):
+            stayed = {(r["start"], r["bearing_deg"], r["distance_m"], r["seed"]) for r in rows if not r["moved"]}
+            futs = {}
+            for label, spec, b, d, seed, gap, name in starts:
+                tags = {"start": label, "bearing_deg": b, "distance_m": d, "gap_m": gap}
+                for m in phase_methods:
+                    if phase > 0 and (label, b, d, seed) not in stayed:
+                        bar.update()  # every information method left this start: nothing to compare
+                        continue
+                    out = args.out / "runs" / f"{name}_m{m}"
+                    done = _reused(out, spec, seed) if args.reuse else None
+                    if done is not None:
+                        rows.append({**row_of(done, spec, seed, args.steps), **tags})
+                        bar.update()
+                        continue
+                    futs[pool.submit(_one, spec, m, args.steps, seed, str(out), "config")] = (spec, seed, m, tags)
+            for fut in as_completed(futs):
+                spec, seed, m, tags = futs[fut]
+                try:
+                    rows.append({**row_of(fut.result(), spec, seed, args.steps), **tags})
+                except Exception as exc:  # noqa: BLE001 - one failed mission is reported, the rest go on
+                    failed.append(f"{spec} seed {seed} method {m}: {type(exc).__name__}: {exc}")
+                bar.update()
     rows.sort(key=lambda r: (r["start"] != args.family, r["start"], r["bearing_deg"], r["distance_m"], r["seed"],
                              r["method"]))
     (args.out / "close_edge.json").write_text(json.dumps({"rows": rows, "failed": failed}, indent=1) + "\n")
