@@ -104,17 +104,19 @@ def run(args: argparse.Namespace) -> int:
     # (start label, scenario spec, bearing, distance, seed, measured gap or None, run directory name)
     starts = [(args.family, start_spec(args.family, b, d), b, d, s, None, f"b{b:g}_d{d:g}_seed{s}")
               for b in bearings for d in distances for s in seeds]
-    try:  # a bad family, bearing, distance or DEM: one line before any mission
-        load_scenario(starts[0][1], seeds[0])
-        for st in starts:
-            load_scenario_config(st[1])
+    try:  # a bad DEM, family, bearing or distance: one line before any mission
+        placed = []
         for k, base in enumerate(args.near_edge):
             for a in along:
                 for b in bearings:
                     for d in distances:
                         spec, gap = start_near_edge(base, b, d, a)
-                        starts.append((f"{base} at {a:g} m", spec, b, d, 0, round(gap, 3),
+                        placed.append((f"{base} at {a:g} m", spec, b, d, 0, round(gap, 3),
                                        f"near{k}_a{a:g}_b{b:g}_d{d:g}_seed0"))
+        load_scenario(starts[0][1], seeds[0])
+        for st in starts:
+            load_scenario_config(st[1])
+        starts += placed
     except ValueError as err:
         print(f"safer-hil experiment close-edge: {err}", file=sys.stderr)
         return 2
