@@ -26,7 +26,6 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
-from hil_sim.lab.experiments.experiment_ground import _one
 from hil_sim.lab.ground_report import row_of
 from hil_sim.lab.results import command_line, markdown_table, write_results
 
@@ -55,6 +54,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--reuse", action="store_true",
                    help="take a mission whose run directory under --out already holds its summary.json "
                         "(an interrupted run goes on) instead of running it again")
+
+
+def _one(scenario: str, method: str, steps: int, seed: int, out: str) -> dict[str, Any]:
+    """One mission, afresh: a run directory left by an interrupted run is cleared, not refused."""
+    from hil_sim.mission.mission_run import RunSpec, run_mission
+    from hil_sim.world import load_scenario
+
+    s = run_mission(RunSpec(scenario, method, steps, seed, transmit=False, out=Path(out)), mode="fresh")
+    s["drawn"] = dict(load_scenario(scenario, seed).drawn)
+    return s
 
 
 def start_spec(family: str, bearing_deg: float, distance_m: float) -> str:
@@ -103,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     # (start label, scenario spec, bearing, distance, seed, measured gap or None, run directory name)
     starts = [(args.family, start_spec(args.family, b, d), b, d, s, None, f"b{b:g}_d{d:g}_seed{s}")
-              for b in bearings for d in distances for s in seeds]
+              for s in seeds for b in bearings for d in distances]  # seed by seed: a cut-short run has whole seeds
     try:  # a bad DEM, family, bearing or distance: one line before any mission
         placed = []
         for k, base in enumerate(args.near_edge):
@@ -116,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
         load_scenario(starts[0][1], seeds[0])
         for st in starts:
             load_scenario_config(st[1])
-        starts += placed
+        starts = placed + starts  # the few starts beside a real edge first
     except ValueError as err:
         print(f"safer-hil experiment close-edge: {err}", file=sys.stderr)
         return 2
@@ -145,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
                         rows.append({**row_of(done, spec, seed, args.steps), **tags})
                         bar.update()
                         continue
-                    futs[pool.submit(_one, spec, m, args.steps, seed, str(out), "config")] = (spec, seed, m, tags)
+                    futs[pool.submit(_one, spec, m, args.steps, seed, str(out))] = (spec, seed, m, tags)
             for fut in as_completed(futs):
                 spec, seed, m, tags = futs[fut]
                 try:
