@@ -44,6 +44,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=int, default=20, help="imaging steps after the panorama")
     p.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per method")
     p.add_argument("--methods", default=",".join(METHODS), help="comma-separated subset")
+    p.add_argument("--what-if", action="append", default=[], metavar="KEY=VALUE",
+                   help="also rate the rated views again with this [nbv.visibility] value (repeatable), "
+                        "e.g. prior_corr_len_m=2")
     p.add_argument("--jobs", type=int, default=2, help="missions run in parallel (processes)")
     p.add_argument("--out", type=Path, default=Path("out/coverage"), help="output directory")
 
@@ -63,6 +66,11 @@ def run(args: argparse.Namespace) -> int:
     if bad or not scenarios or args.seeds < 1 or args.steps < 1 or args.jobs < 1:
         why = bad or ("no scenario" if not scenarios else "seeds/steps/jobs must be >= 1")
         print(f"safer-hil experiment coverage: bad arguments ({why})", file=sys.stderr)
+        return 2
+    try:
+        what_if = _what_if(args.what_if)
+    except ValueError as err:
+        print(f"safer-hil experiment coverage: --what-if: {err}", file=sys.stderr)
         return 2
     many = len(scenarios) > 1
     outs = {sc: args.out / _slug(sc) if many else args.out for sc in scenarios}
@@ -107,9 +115,44 @@ def run(args: argparse.Namespace) -> int:
             fig7 = args.out / f"fig7_coverage_{_slug(sc)}.png"
             fig7.write_bytes((outs[sc] / "fig7_coverage.png").read_bytes())
             figures.append(fig7)
-    print(md)
-    write_results("coverage", command_line("coverage"), md, figures)
+    split = prediction_split(outs, scenarios, methods, args.seeds, what_if)
+    (args.out / "coverage.md").write_text(md + split)
+    print(md + split)
+    write_results("coverage", command_line("coverage"), md + split, figures)
     return 0
+
+
+def _what_if(items: list[str]) -> dict[str, dict[str, float]]:
+    """``KEY=VALUE`` items as ``{item: {key: value}}`` of ``[nbv.visibility]``; ValueError if bad."""
+    from dataclasses import fields
+
+    from fsw.core.planning.visibility import VisibilityConfig
+
+    known = {f.name for f in fields(VisibilityConfig)}
+    out: dict[str, dict[str, float]] = {}
+    for item in items:
+        key, eq, value = item.partition("=")
+        if not eq or key.strip() not in known:
+            raise ValueError(f"{item!r} is not KEY=VALUE of [nbv.visibility] ({', '.join(sorted(known))})")
+        out[item.strip()] = {key.strip(): float(value)}
+    return out
+
+
+def prediction_split(outs: dict[str, Path], scenarios: list[str], methods: list[str], seeds: int,
+                     what_if: dict[str, dict[str, float]]) -> str:
+    """Per information method, its rated views' expected and obtained new cells split into the
+    model's parts against the truth (``hil_sim.lab.prediction_check``), over every scenario and seed."""
+    from fsw.settings import load_settings
+    from hil_sim.lab.prediction_check import decompose_run, split_table
+    from hil_sim.mission.mission_run import DEFAULT_CONFIG
+
+    rho = load_settings(str(DEFAULT_CONFIG)).nbv.visibility.stereo_return
+    lines = ["", "## Where the expected new cells part from the obtained (hil_sim.lab.prediction_check)", ""]
+    for m in (m for m in ("3", "4", "5") if m in methods):
+        views = [v for sc in scenarios for s in range(seeds)
+                 for v in decompose_run(outs[sc] / "runs" / f"{m}_seed{s}", sc, s, what_if=what_if)]
+        lines += [f"Method {m}, {', '.join(scenarios)}: " + split_table(views, rho)]
+    return "\n".join(lines) + "\n"
 
 
 def _slug(spec: str) -> str:
