@@ -24,6 +24,9 @@ def test_a_start_left_by_the_raster_but_not_by_method_5_is_not_met() -> None:
     md = report(rows, [], ["5", "1"])
     assert "moved: **1** (target 0) NOT MET" in md and "bearing 0, edge 0.3 m, seed 0: method 5" in md
     assert "without a reason in their summary: **1** (target 0) NOT MET" in md
+    chose = {**_row("5", -90.0, False, []), "reachable_max": 24}  # it could move and viewed from its start
+    assert "M5: chose views from where it stood (24 stations reachable)" in report([chose], [], ["5", "1"])
+    assert "without a reason in their summary: **0**" in report([chose], [], ["5", "1"])
     ok = report([_row("1", 0.0, True, []), _row("5", 0.0, True, [])], [], ["5", "1"])
     assert "moved: **0** (target 0) met" in ok
     assert "nothing to judge" in report([], ["x: BrokenProcessPool"], ["5", "1"])

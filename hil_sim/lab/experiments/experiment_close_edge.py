@@ -172,6 +172,16 @@ def run(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
+def why_stayed(row: dict[str, Any]) -> str:
+    """The first reason in a mission's summary that it stayed: a step the planner found no move
+    for, or (none such) the stations it could reach and left for views from where it stood."""
+    if row["stay_reasons"]:
+        return str(row["stay_reasons"][0])
+    if int(row.get("reachable_max", 0)) > 0:
+        return f"chose views from where it stood ({row['reachable_max']} stations reachable)"
+    return ""
+
+
 def report(rows: list[dict[str, Any]], failed: list[str], methods: list[str]) -> str:
     """The markdown report: one row per start, the summary per method, the criteria."""
     by_start: dict[tuple[str, float, float, int], dict[str, dict[str, Any]]] = {}
@@ -185,8 +195,8 @@ def report(rows: list[dict[str, Any]], failed: list[str], methods: list[str]) ->
                                 "seed": seed}
         for m in methods:
             line[f"M{m} moved m"] = round(float(per[m]["odometer_m"]), 2) if m in per else None
-        reasons = [f"M{m}: {per[m]['stay_reasons'][0]}" for m in methods
-                   if m in per and not per[m]["moved"] and per[m]["stay_reasons"]]
+        reasons = [f"M{m}: {why_stayed(per[m])}" for m in methods
+                   if m in per and not per[m]["moved"] and why_stayed(per[m])]
         line["why a method stayed"] = "; ".join(reasons)
         table.append(line)
     out = ["## Starts (odometer per method, m)", "", markdown_table(table), "", "## Per method", ""]
@@ -205,7 +215,7 @@ def report(rows: list[dict[str, Any]], failed: list[str], methods: list[str]) ->
               if m not in RASTER and m in per and not per[m]["moved"]
               and any(per[x]["moved"] for x in RASTER if x in per)]
     silent = [(k, m) for k, per in by_start.items() for m, r in per.items()
-              if m not in RASTER and not r["moved"] and not r["stay_reasons"]]
+              if m not in RASTER and not r["moved"] and not why_stayed(r)]
     viol = sum(r["edge_violations"] for r in rows)
     unknown = sum(r["wheels_on_unknown_ground"] for r in rows)
     met = {True: "met", False: "NOT MET"}
