@@ -224,3 +224,84 @@ def split_table(views: list[ViewSplit], stereo_return: float) -> str:
              "", "| part | measured | model's value |", "|---|---|---|"]
     lines += [f"| {what} | {value} | {target} |" for what, value, target in rows]
     return "\n".join(lines) + "\n"
+
+
+# ``safer-hil experiment prediction``: the split over finished missions (their run directories).
+HELP = "where the information model's expected new cells part from the obtained, over finished missions"
+
+
+def add_arguments(p: Any) -> None:
+    p.add_argument("runs", nargs="+", type=Path,
+                   help="mission run directories (with summary.json and mission.mcap), or directories holding them")
+    p.add_argument("--methods", default="3,4,5", help="the information methods whose missions are split")
+    p.add_argument("--what-if", action="append", default=[], metavar="KEY=VALUE",
+                   help="also rate the views with this [nbv.visibility] value (repeatable), e.g. prior_corr_len_m=2")
+    p.add_argument("--jobs", type=int, default=2, help="missions split in parallel (processes)")
+
+
+def mission_dirs(paths: list[Path]) -> list[Path]:
+    """The mission run directories in ``paths`` (each one, or the ones directly inside it), sorted."""
+    out: list[Path] = []
+    for p in paths:
+        if (p / "summary.json").is_file():
+            out.append(p)
+        elif p.is_dir():
+            out += sorted(d for d in p.iterdir() if (d / "summary.json").is_file() and (d / "mission.mcap").is_file())
+    return out
+
+
+def _split_one(run: str, what_if: dict[str, dict[str, float]]) -> tuple[str, str, list[ViewSplit]]:
+    s = json.loads((Path(run) / "summary.json").read_text())
+    kind = str(s["scenario"]).split("?")[0].split(":")[0]
+    return str(s["method"]), kind, decompose_run(Path(run), str(s["scenario"]), int(s["seed"]), what_if=what_if)
+
+
+def run(args: Any) -> int:
+    import multiprocessing
+    import sys
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    from tqdm import tqdm
+
+    from fsw.settings import load_settings
+    from hil_sim.lab.experiments.experiment_coverage import _what_if
+    from hil_sim.lab.results import command_line, write_results
+    from hil_sim.mission.mission_run import DEFAULT_CONFIG
+
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    try:
+        what_if = _what_if(args.what_if)
+    except ValueError as err:
+        print(f"safer-hil experiment prediction: --what-if: {err}", file=sys.stderr)
+        return 2
+    runs = mission_dirs(list(args.runs))
+    runs = [r for r in runs if str(json.loads((r / "summary.json").read_text()).get("method")) in methods]
+    if not runs or args.jobs < 1 or not methods:
+        print("safer-hil experiment prediction: no finished mission of those methods in the directories given "
+              "(or --jobs < 1)", file=sys.stderr)
+        return 2
+    by: dict[tuple[str, str], list[ViewSplit]] = {}
+    failed: list[str] = []
+    with (ProcessPoolExecutor(max_workers=args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool,
+          tqdm(total=len(runs), desc="prediction", unit="mission") as bar):
+        futs = {pool.submit(_split_one, str(r), what_if): r for r in runs}
+        for fut in as_completed(futs):
+            try:
+                m, kind, views = fut.result()
+                by.setdefault((m, kind), []).extend(views)
+            except Exception as exc:  # noqa: BLE001 - one unreadable mission is reported, the rest go on
+                failed.append(f"{futs[fut].name}: {type(exc).__name__}: {exc}")
+            bar.update()
+    rho = load_settings(str(DEFAULT_CONFIG)).nbv.visibility.stereo_return
+    lines = [f"{len(runs)} missions ({', '.join(sorted({r.parent.name + '/' for r in runs}))})", ""]
+    for m in methods:
+        kinds = sorted(k for mm, k in by if mm == m)
+        for kind in [*kinds, *(["all"] if len(kinds) > 1 else [])]:
+            views = [v for (mm, k), vs in sorted(by.items()) if mm == m and kind in (k, "all") for v in vs]
+            lines += [f"## Method {m}, {kind}", "", split_table(views, rho)]
+    if failed:
+        lines += ["## Missions not split", ""] + [f"- {f}" for f in failed]
+    md = "\n".join(lines) + "\n"
+    print(md)
+    write_results("prediction", command_line("prediction"), md)
+    return 1 if failed else 0

@@ -72,3 +72,19 @@ def test_the_table_reports_the_parts_and_a_bad_key_is_refused() -> None:
     assert _what_if(["prior_corr_len_m=2"]) == {"prior_corr_len_m=2": {"prior_corr_len_m": 2.0}}
     with pytest.raises(ValueError, match="not KEY=VALUE"):
         _what_if(["no_such_key=1"])
+
+
+def test_the_command_finds_mission_directories_and_refuses_none(tmp_path, capsys) -> None:
+    from hil_sim.cli import main
+    from hil_sim.lab.prediction_check import mission_dirs
+
+    for name in ("a", "b"):
+        (tmp_path / "runs" / name).mkdir(parents=True)
+        (tmp_path / "runs" / name / "summary.json").write_text("{}")
+        (tmp_path / "runs" / name / "mission.mcap").write_bytes(b"")
+    (tmp_path / "runs" / "unfinished").mkdir()
+    assert [d.name for d in mission_dirs([tmp_path / "runs"])] == ["a", "b"]
+    assert mission_dirs([tmp_path / "runs" / "a"]) == [tmp_path / "runs" / "a"]
+    assert main(["experiment", "prediction", str(tmp_path / "runs" / "unfinished")]) == 2
+    assert main(["experiment", "prediction", str(tmp_path), "--what-if", "nope=1"]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 2
