@@ -178,6 +178,20 @@ def decompose_run(run: Path, scenario: str, seed: int, config: str | None = None
     return out
 
 
+def what_if_values(items: list[str]) -> dict[str, dict[str, float]]:
+    """``KEY=VALUE`` items as ``{item: {key: value}}`` of ``[nbv.visibility]``; ValueError if bad."""
+    from fsw.core.planning.visibility import VisibilityConfig
+
+    known = {f.name for f in dataclasses.fields(VisibilityConfig)}
+    out: dict[str, dict[str, float]] = {}
+    for item in items:
+        key, eq, value = item.partition("=")
+        if not eq or key.strip() not in known:
+            raise ValueError(f"{item!r} is not KEY=VALUE of [nbv.visibility] ({', '.join(sorted(known))})")
+        out[item.strip()] = {key.strip(): float(value)}
+    return out
+
+
 def _with(vis: Any, values: dict[str, float]) -> Any:
     """``[nbv.visibility]`` with ``values`` replaced (ValueError on an unknown key)."""
     known = {f.name for f in dataclasses.fields(vis)}
@@ -264,13 +278,12 @@ def run(args: Any) -> int:
     from tqdm import tqdm
 
     from fsw.settings import load_settings
-    from hil_sim.lab.experiments.experiment_coverage import _what_if
     from hil_sim.lab.results import command_line, write_results
     from hil_sim.mission.mission_run import DEFAULT_CONFIG
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     try:
-        what_if = _what_if(args.what_if)
+        what_if = what_if_values(args.what_if)
     except ValueError as err:
         print(f"safer-hil experiment prediction: --what-if: {err}", file=sys.stderr)
         return 2

@@ -67,11 +67,11 @@ def test_the_table_reports_the_parts_and_a_bad_key_is_refused() -> None:
     md = split_table(views, 0.8)
     assert "| obtained / expected (the planner's, at the pose it rated) | 1.20 (1.20-1.20) |" in md
     assert "| occlusion model: sum P_V / cells the truth leaves visible | 1.25 (1.25-1.25) |" in md
-    from hil_sim.lab.experiments.experiment_coverage import _what_if
+    from hil_sim.lab.prediction_check import what_if_values
 
-    assert _what_if(["prior_corr_len_m=2"]) == {"prior_corr_len_m=2": {"prior_corr_len_m": 2.0}}
+    assert what_if_values(["prior_corr_len_m=2"]) == {"prior_corr_len_m=2": {"prior_corr_len_m": 2.0}}
     with pytest.raises(ValueError, match="not KEY=VALUE"):
-        _what_if(["no_such_key=1"])
+        what_if_values(["no_such_key=1"])
 
 
 def test_the_command_finds_mission_directories_and_refuses_none(tmp_path, capsys) -> None:

@@ -111,16 +111,17 @@ def run(args: argparse.Namespace) -> int:
               "distances 0.15-2 m; steps, jobs >= 1)", file=sys.stderr)
         return 2
     # (start label, scenario spec, bearing, distance, seed, measured gap or None, run directory name)
-    starts = [(args.family, start_spec(args.family, b, d), b, d, s, None, f"b{b:g}_d{d:g}_seed{s}")
+    Start = tuple[str, str, float, float, int, float | None, str]
+    starts: list[Start] = [(args.family, start_spec(args.family, b, d), b, d, s, None, f"b{b:g}_d{d:g}_seed{s}")
               for s in seeds for b in bearings for d in distances]  # seed by seed: a cut-short run has whole seeds
     try:  # a bad DEM, family, bearing or distance: one line before any mission
-        placed = []
+        placed: list[Start] = []
         for k, base in enumerate(args.near_edge):
             for a in along:
                 for b in bearings:
                     for d in distances:
-                        spec, gap = start_near_edge(base, b, d, a)
-                        placed.append((f"{base} at {a:g} m", spec, b, d, 0, round(gap, 3),
+                        near_spec, near_gap = start_near_edge(base, b, d, a)
+                        placed.append((f"{base} at {a:g} m", near_spec, b, d, 0, round(near_gap, 3),
                                        f"near{k}_a{a:g}_b{b:g}_d{d:g}_seed0"))
         load_scenario(starts[0][1], seeds[0])
         for st in starts:
@@ -143,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
             stayed = {(r["start"], r["bearing_deg"], r["distance_m"], r["seed"]) for r in rows if not r["moved"]}
             futs = {}
             for label, spec, b, d, seed, gap, name in starts:
-                tags = {"start": label, "bearing_deg": b, "distance_m": d, "gap_m": gap}
+                tags: dict[str, Any] = {"start": label, "bearing_deg": b, "distance_m": d, "gap_m": gap}
                 for m in phase_methods:
                     if phase > 0 and (label, b, d, seed) not in stayed:
                         bar.update()  # every information method left this start: nothing to compare

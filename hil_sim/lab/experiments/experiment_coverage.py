@@ -68,7 +68,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"safer-hil experiment coverage: bad arguments ({why})", file=sys.stderr)
         return 2
     try:
-        what_if = _what_if(args.what_if)
+        from hil_sim.lab.prediction_check import what_if_values
+
+        what_if = what_if_values(args.what_if)
     except ValueError as err:
         print(f"safer-hil experiment coverage: --what-if: {err}", file=sys.stderr)
         return 2
@@ -122,22 +124,6 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _what_if(items: list[str]) -> dict[str, dict[str, float]]:
-    """``KEY=VALUE`` items as ``{item: {key: value}}`` of ``[nbv.visibility]``; ValueError if bad."""
-    from dataclasses import fields
-
-    from fsw.core.planning.visibility import VisibilityConfig
-
-    known = {f.name for f in fields(VisibilityConfig)}
-    out: dict[str, dict[str, float]] = {}
-    for item in items:
-        key, eq, value = item.partition("=")
-        if not eq or key.strip() not in known:
-            raise ValueError(f"{item!r} is not KEY=VALUE of [nbv.visibility] ({', '.join(sorted(known))})")
-        out[item.strip()] = {key.strip(): float(value)}
-    return out
-
-
 def prediction_split(outs: dict[str, Path], scenarios: list[str], methods: list[str], seeds: int,
                      what_if: dict[str, dict[str, float]]) -> str:
     """Per information method, its rated views' expected and obtained new cells split into the
@@ -174,7 +160,7 @@ def pooled_report(out: Path, scenarios: list[str], methods: list[str], seeds: in
     lines = [f"# The information model's prediction over {', '.join(scenarios)} ({seeds} seeds each)", "",
              "| method | scenario | rated views | obtained / expected: median | 10th percentile | 90th percentile | "
              "target (median) |", "|---|---|---|---|---|---|---|"]
-    shown = [m for m in ("3", "4", "5") if m in methods]
+    shown: list[str] = [m for m in ("3", "4", "5") if m in methods]
     for m in shown:
         for sc in [*scenarios, "all"]:
             pick = scenarios if sc == "all" else [sc]
