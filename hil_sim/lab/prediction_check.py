@@ -72,7 +72,15 @@ def _rpy(q: Any) -> tuple[float, float, float]:
 
 
 def read_recording(path: Path, vehicle: str = "recon") -> _Recording:
-    """The maps, poses and capture times of one vehicle in a mission recording."""
+    """The maps, poses and capture times of one vehicle in a mission recording (ValueError with
+    one line if the file is damaged or truncated)."""
+    try:
+        return _read(path, vehicle)
+    except Exception as exc:  # noqa: BLE001 - any damage to the file: one line, not a traceback
+        raise ValueError(f"{path.name}: unreadable recording ({type(exc).__name__}: {str(exc)[:120]})") from None
+
+
+def _read(path: Path, vehicle: str) -> _Recording:
     from mcap.reader import make_reader
     from mcap_protobuf.decoder import DecoderFactory
 
@@ -129,7 +137,7 @@ def decompose_run(run: Path, scenario: str, seed: int, config: str | None = None
     summary = json.loads((run / "summary.json").read_text())
     cfg = load_settings(config or str(DEFAULT_CONFIG))
     cam, mast, vis = cfg.camera, cfg.mast, cfg.nbv.visibility
-    rec = read_recording(run / "mission.mcap")
+    rec = read_recording(run / str((summary.get("files") or {}).get("recording") or "mission.mcap"))
     if not rec.maps or not rec.poses:
         return []
     x0, y0, cell, nx, ny = rec.grid
@@ -260,7 +268,7 @@ def mission_dirs(paths: list[Path]) -> list[Path]:
         if (p / "summary.json").is_file():
             out.append(p)
         elif p.is_dir():
-            out += sorted(d for d in p.iterdir() if (d / "summary.json").is_file() and (d / "mission.mcap").is_file())
+            out += sorted(d for d in p.iterdir() if (d / "summary.json").is_file())
     return out
 
 

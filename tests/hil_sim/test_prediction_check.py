@@ -60,6 +60,9 @@ def test_a_view_is_split_against_the_truth(tmp_path) -> None:
     assert v.ideal > 0 and v.pv_sum > 0 and v.obtained_ideal <= min(v.ideal, v.obtained)
     assert v.what_if["wide"] >= v.pv_sum  # a longer correlation: fewer unknown occluders, P_V no lower
     assert "| stereo return: obtained / cells the truth leaves visible |" in split_table([v], 0.8)
+    (tmp_path / "run" / "mission.mcap").write_bytes(b"\x89MCAP0\r\n" + bytes(40))  # a recording cut short
+    with pytest.raises(ValueError, match="unreadable recording"):
+        decompose_run(tmp_path / "run", spec, 0)
 
 
 def test_the_table_reports_the_parts_and_a_bad_key_is_refused() -> None:
@@ -81,7 +84,6 @@ def test_the_command_finds_mission_directories_and_refuses_none(tmp_path, capsys
     for name in ("a", "b"):
         (tmp_path / "runs" / name).mkdir(parents=True)
         (tmp_path / "runs" / name / "summary.json").write_text("{}")
-        (tmp_path / "runs" / name / "mission.mcap").write_bytes(b"")
     (tmp_path / "runs" / "unfinished").mkdir()
     assert [d.name for d in mission_dirs([tmp_path / "runs"])] == ["a", "b"]
     assert mission_dirs([tmp_path / "runs" / "a"]) == [tmp_path / "runs" / "a"]
