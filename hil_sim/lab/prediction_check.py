@@ -130,8 +130,7 @@ def decompose_run(run: Path, scenario: str, seed: int, config: str | None = None
     from fsw.core.planning.nbv import predicted_visibility
     from fsw.core.planning.visibility import cell_points, in_view, terrain_from_heights
     from fsw.core.planning.visibility_kernel import pv_fast
-    from fsw.settings import load_settings
-    from hil_sim.mission.mission_run import DEFAULT_CONFIG
+    from fsw.settings import DEFAULT_CONFIG, load_settings
     from hil_sim.world import load_scenario
 
     summary = json.loads((run / "summary.json").read_text())
@@ -285,9 +284,8 @@ def run(args: Any) -> int:
 
     from tqdm import tqdm
 
-    from fsw.settings import load_settings
+    from fsw.settings import DEFAULT_CONFIG, load_settings
     from hil_sim.lab.results import command_line, write_results
-    from hil_sim.mission.mission_run import DEFAULT_CONFIG
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     try:

@@ -128,9 +128,8 @@ def prediction_split(outs: dict[str, Path], scenarios: list[str], methods: list[
                      what_if: dict[str, dict[str, float]]) -> str:
     """Per information method, its rated views' expected and obtained new cells split into the
     model's parts against the truth (``hil_sim.lab.prediction_check``), over every scenario and seed."""
-    from fsw.settings import load_settings
+    from fsw.settings import DEFAULT_CONFIG, load_settings
     from hil_sim.lab.prediction_check import decompose_run, split_table
-    from hil_sim.mission.mission_run import DEFAULT_CONFIG
 
     rho = load_settings(str(DEFAULT_CONFIG)).nbv.visibility.stereo_return
     lines = ["", "## Where the expected new cells part from the obtained (hil_sim.lab.prediction_check)", ""]
