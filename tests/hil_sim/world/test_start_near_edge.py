@@ -56,3 +56,23 @@ def test_a_world_without_an_edge_is_refused(tmp_path):
     with pytest.raises(ScenarioError, match="no edge") as err:
         start_near_edge(f"file:{path}?cell_m=0.02&x_min_m=-1&y_min_m=-3&cliffbot.x_m=1.5&cliffbot.y_m=-2.2", 0.0, 0.3)
     assert "\n" not in str(err.value)
+
+
+def test_wheels_on_unknown_ground_are_judged_in_the_flight_map_frame() -> None:
+    """A start away from the world's origin (a start placed beside a DEM's edge): the true wheels
+    are taken into the odometry's frame before the flight's known ground is asked."""
+    from types import SimpleNamespace
+
+    from hil_sim.mission.ground_watch import wheels_on_unknown
+
+    known_box = SimpleNamespace(known_xy=lambda p: (np.abs(p[:, 0]) < 1.0) & (np.abs(p[:, 1]) < 1.0))
+    mission = SimpleNamespace(ground=SimpleNamespace(geofence=SimpleNamespace(known=known_box)))
+    wheels = (np.array([5.3, 5.3, 4.7, 4.7]), np.array([-2.3, -1.7, -2.3, -1.7]))  # around (5, -2) in the world
+
+    def rig(start: tuple[float, float, float]) -> SimpleNamespace:
+        rover = SimpleNamespace(odometer_m=1.0, world_wheel_xy=lambda: wheels)
+        return SimpleNamespace(rover=rover, world=SimpleNamespace(rover_start=start))
+
+    assert wheels_on_unknown(rig((5.0, -2.0, math.radians(90.0))), mission, 0.5) == 0  # the map's origin
+    assert wheels_on_unknown(rig((0.0, 0.0, 0.0)), mission, 0.5) == 1  # 5 m from the known box
+    assert wheels_on_unknown(rig((5.0, -2.0, 0.0)), mission, 1.0) == 0  # did not move
