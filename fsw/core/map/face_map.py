@@ -69,7 +69,7 @@ class FaceMapConfig:
                               doc="rays passing under a cell's surface that flag it (free space, overhang)")
     air_sigma: float = param(3.0, lo=0.0, hi=20.0, units="sigma",
                              doc="a ray counts that far (plus the gap) under the surface")
-    underside_deg: float = param(30.0, lo=0.0, hi=89.0, units="deg",
+    underside_deg: float = param(20.0, lo=0.0, hi=89.0, units="deg",
                                  doc="a view this far under a cell's tangent plane sees its underside: flag (0: off)")
     air_max_rays: int = param(20000, lo=0, hi=10**7, doc="rays per view traced for free space (0: none)")
 
