@@ -94,3 +94,23 @@ def test_the_face_map_flags_a_roof_no_view_saw_under() -> None:
     assert face.overhang[:, 4:6].all() and st.air_new == face.overhang.sum() == 8
     assert (face.air[:, 4:6] >= 3).all() and (face.air_w[:, 4:6] < 0.4 - 0.1).all()
     assert np.allclose(face.map.z[:, 4:6], 0.4, atol=0.01)  # flagged, the roof still held
+
+
+def test_a_surface_seen_from_below_is_flagged_and_a_step_is_not() -> None:
+    """A roof rising toward the camera (w = 0.5 u), seen from under its tangent plane, is the lower
+    side of an overhang: flagged. The same roof seen from above, and a step between two flat
+    levels seen from above both, beyond the step (a central difference would tilt the cells on
+    both sides of it toward the camera; the min-mod gradient tilts neither), are not."""
+    f = _frame()
+    cfg = FaceMapConfig(cell_m=0.1, air_max_rays=5000, air_min_rays=1000)  # the underside test alone
+    rng = np.random.default_rng(1)
+    n = 2000
+    u, v = rng.uniform(0.0, 1.0, n), rng.uniform(0.0, 0.4, n)
+    cov = np.tile(np.eye(3)[None] * 1e-6, (n, 1, 1))
+    for w, eye, flagged in ((0.5 * u, [3.0, 0.2, 0.0], True), (0.5 * u, [-1.0, 0.2, 2.0], False),
+                            (np.where(u < 0.5, 0.0, 0.3), [2.0, 0.2, 1.0], False)):
+        face = FaceMap(f, (0.0, 1.0), (0.0, 0.4), cfg)
+        xyz = f.to_world(np.column_stack([u, v, w + rng.normal(0, 0.001, n)]))
+        face.merge_parts([(xyz, cov, None)], eye=f.to_world(np.array([eye]))[0])
+        # the grid's first and last columns have no slope (one neighbour): only the others tilt
+        assert face.overhang[:, 1:-1].all() if flagged else not face.overhang.any(), (eye, face.overhang.sum())
