@@ -261,17 +261,17 @@ class BusTap:
 
 class CliffbotTap:
     """Feed ``source`` from the Cliff-bot's executive ``exe``: every map its radio delivered
-    (``cliffbot.map``) as ``/<vehicle>/map/elevation``, its navigation estimate (the mission's
-    ``x_m``, ``y_m``, ``yaw_deg``; height from the received map) on ``/tf`` at most every
+    (``cliffbot.map``) as ``/<vehicle>/map/elevation``, its navigation estimate (the navigation
+    task's ``x_m``, ``y_m``, ``yaw_deg``; height from the received map) on ``/tf`` at most every
     ``pose_period_s``, and its events; each of ``mirrors`` (a live view, ``ground.rerun_cli.LiveSource``)
     is fed the same."""
 
-    def __init__(self, exe: Any, source: VehicleSource, pose_period_s: float = 0.2, mission: str = "mission",
+    def __init__(self, exe: Any, source: VehicleSource, pose_period_s: float = 0.2, nav: str = "cb_nav",
                  mirrors: tuple[Any, ...] = ()) -> None:
         from fsw.core.geometry import MapGrid
         from fsw.tasks.cliffbot.messages import CB_MAP
 
-        self.exe, self.source, self.pose_period_s, self.mission = exe, source, pose_period_s, mission
+        self.exe, self.source, self.pose_period_s, self.nav = exe, source, pose_period_s, nav
         self.sinks: tuple[Any, ...] = (source, *mirrors)
         self.grid = MapGrid.from_config(exe.ctx.cfg.map)
         self.maps = exe.bus.subscribe(CB_MAP, f"recorder.{source.vehicle}", depth=4)
@@ -287,7 +287,7 @@ class CliffbotTap:
             for src in self.sinks:
                 src.received_map(now, self._z, self.grid)
         tm = self.exe.telemetry
-        names = [f"{self.mission}.{c}" for c in ("x_m", "y_m", "yaw_deg")]
+        names = [f"{self.nav}.{c}" for c in ("x_m", "y_m", "yaw_deg")]
         if now >= self._next_pose_s and all(n in tm.values for n in names):
             x, y, yaw_deg = (tm.get(n) for n in names)
             if None not in (x, y, yaw_deg):

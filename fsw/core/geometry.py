@@ -214,6 +214,26 @@ def camera_pose_from_rover(
     return CameraPose.from_pan_tilt(bx, by, ground_z_m + mast.base_z_m + lift, yaw + pan, tilt)
 
 
+def point_mast(
+    rover_xy_yaw: tuple[float, float, float],
+    target_xyz: tuple[float, float, float] | F64,
+    mast: MastConfig,
+    lift_m: float,
+    ground_z_m: float = 0.0,
+) -> tuple[tuple[float, float, float], bool]:
+    """Mast joints ``(pan, tilt, lift)`` that put the camera's optical axis through ``target_xyz``
+    (world), for a level rover at ``rover_xy_yaw`` on ground ``ground_z_m`` with the head at
+    ``lift_m``; and whether the mast reaches them. The joints are clamped to the mast's limits
+    (pan wrapped to [-pi, pi] first); ``reachable`` is false when the clamp moved pan or tilt by
+    more than 1e-6 rad (the camera would not look at the target)."""
+    cam = camera_pose_from_rover(rover_xy_yaw, (0.0, 0.0, lift_m), mast, ground_z_m=ground_z_m).t
+    dx, dy, dz = (float(target_xyz[i]) - float(cam[i]) for i in range(3))
+    pan = wrap_angle(math.atan2(dy, dx) - rover_xy_yaw[2])
+    tilt = math.atan2(dz, math.hypot(dx, dy))
+    joints = mast.clamp(pan, tilt, lift_m)
+    return joints, abs(joints[0] - pan) <= 1e-6 and abs(joints[1] - tilt) <= 1e-6
+
+
 @dataclass(frozen=True)
 class MapGrid:
     """Index arithmetic of the map grid (docs/algorithm.md §1)."""

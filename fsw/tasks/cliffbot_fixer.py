@@ -23,7 +23,7 @@ from typing import ClassVar
 import numpy as np
 
 from fsw.comm.team import fix_packets
-from fsw.core.geometry import MapGrid, camera_pose_from_rover
+from fsw.core.geometry import MapGrid, point_mast
 from fsw.core.localization.fiducials import BodyEstimate, CliffbotLocalizer
 from fsw.core.localization.localization import PoseEstimate, so3_log
 from fsw.core.map.elevation_map import ElevationMap
@@ -127,15 +127,11 @@ class CliffbotFixerTask(FlightTask):
         if not (math.isfinite(req.x) and math.isfinite(req.y)):
             self._no_fix(req.seq, OUT_OF_REACH)
             return
-        p, mast = self.pose, self.ctx.cfg.mast
+        p = self.pose
         ground = self._height(req.x, req.y)
-        base = camera_pose_from_rover((p.x, p.y, p.yaw), (0.0, 0.0, LIFT_M), mast, ground_z_m=p.z_m).t
-        d = np.array([req.x, req.y, (ground if math.isfinite(ground) else p.z_m) + BODY_CENTRE_M]) - base
-        pan = math.atan2(float(d[1]), float(d[0])) - p.yaw
-        pan = math.atan2(math.sin(pan), math.cos(pan))
-        tilt = math.atan2(float(d[2]), math.hypot(float(d[0]), float(d[1])))
-        joints = mast.clamp(pan, tilt, LIFT_M)
-        if abs(joints[0] - pan) > 1e-6 or abs(joints[1] - tilt) > 1e-6:
+        target = (req.x, req.y, (ground if math.isfinite(ground) else p.z_m) + BODY_CENTRE_M)
+        joints, reachable = point_mast((p.x, p.y, p.yaw), target, self.ctx.cfg.mast, LIFT_M, ground_z_m=p.z_m)
+        if not reachable:
             self._no_fix(req.seq, OUT_OF_REACH)
             return
         self.current, self.phase, self.deadline = req, "aim", now + TIMEOUT_S

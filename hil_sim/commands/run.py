@@ -56,7 +56,7 @@ def resume_hint(args: argparse.Namespace) -> str:
     out directory holds one."""
     import shlex
 
-    from hil_sim.mission.mission_run import has_mission
+    from hil_sim.mission.run_dir import has_mission
 
     out = getattr(args, "resume", None) or getattr(args, "out", None)
     if out is not None and has_mission(Path(out)):
@@ -69,8 +69,9 @@ def run(args: argparse.Namespace) -> int:
 
     from fsw.framework.params import ConfigError
     from fsw.framework.storage import StorageError, describe
-    from hil_sim.mission.mission_run import RunSpec, read_manifest, run_mission
+    from hil_sim.mission.mission_run import run_mission
     from hil_sim.mission.run_dir import finished, has_mission
+    from hil_sim.mission.run_spec import RunSpec, read_manifest
 
     if args.steps < 0:
         print("safer-hil run: --steps must be >= 0", file=sys.stderr)

@@ -43,7 +43,7 @@ class RecordedView:
 
 
 def record_mission(spec: Any) -> tuple[dict[str, Any], list[RecordedView]]:
-    """Run the mission ``spec`` (:class:`hil_sim.mission.mission_run.RunSpec`) and record its views."""
+    """Run the mission ``spec`` (:class:`hil_sim.mission.run_spec.RunSpec`) and record its views."""
     from hil_sim.mission.mission_run import run_mission
 
     truth: dict[bytes, CameraPose] = {}

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from fsw.core.geometry import CameraPose, MapGrid, camera_pose_from_rover, wrap_angle
+from fsw.core.geometry import CameraPose, MapGrid, camera_pose_from_rover, point_mast
 from fsw.core.map.body_mask import BodyBox, TeamGeometry, TetherLine
 from fsw.core.map.elevation_map import ElevationMap
 from fsw.core.map.face_map import FaceMap, FaceMapConfig, face_band, fit_face_plane, run_merge, split_parts
@@ -241,12 +241,8 @@ class FaceScene:
             rover = (x, t.edge_y_m + 0.7, 0.0 if side < 0 else math.pi)
             depth = float(self.rng.uniform(0.2, 0.8))
             aim = np.array([cx + float(self.rng.uniform(-1.0, 1.0)), t.edge_y_m - depth * run, -depth * t.drop_m])
-            base = camera_pose_from_rover(rover, (0.0, 0.0, 0.3), self.cfg.mast).t
-            d = aim - base
-            pan = math.atan2(d[1], d[0]) - rover[2]
-            pan = wrap_angle(pan)
-            tilt = math.atan2(d[2], math.hypot(d[0], d[1]))
-            out.append((rover, camera_pose_from_rover(rover, self.cfg.mast.clamp(pan, tilt, 0.3), self.cfg.mast)))
+            joints, _reachable = point_mast(rover, aim, self.cfg.mast, 0.3)
+            out.append((rover, camera_pose_from_rover(rover, joints, self.cfg.mast)))
         return out
 
     def measure(self, n_recon: int, n_cliff: int) -> dict[str, Any]:

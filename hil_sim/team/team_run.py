@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from fsw.comm.link_packets import PacketError
 from fsw.comm.team import fix_packets
-from fsw.core.geometry import MapGrid, wrap_angle
+from fsw.core.geometry import MapGrid, point_mast
 from fsw.core.team.cliffbot_nav import NavConfig
 from fsw.core.team.face_planner import ClimberConfig
 from fsw.core.team.tether import TetherConfig
@@ -77,12 +77,8 @@ class ReconFixer:
         from hil_sim.render import StereoRenderer
 
         cb = rig.cliffbot_truth()
-        base = camera_pose_from_rover(self.rover, (0.0, 0.0, 0.3), self.cfg.mast).t
-        d = cb.t + np.array([0.0, 0.0, 0.25]) - base
-        pan = math.atan2(d[1], d[0]) - self.rover[2]
-        tilt = math.atan2(d[2], math.hypot(d[0], d[1]))
-        joints = self.cfg.mast.clamp(pan, tilt, 0.3)
-        if abs(joints[0] - wrap_angle(pan)) > 1e-6 or abs(joints[1] - tilt) > 1e-6:
+        joints, reachable = point_mast(self.rover, cb.t + np.array([0.0, 0.0, 0.25]), self.cfg.mast, 0.3)
+        if not reachable:
             return fix_packets.encode(fix_packets.NoFix(req.seq, 1))
         pose = camera_pose_from_rover(self.rover, joints, self.cfg.mast)
         w = dataclasses.replace(self.world, cliffbot=cb)

@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from fsw.core.geometry import MapGrid, MapGridConfig, MastConfig, camera_pose_from_rover, wrap_angle
+from fsw.core.geometry import MapGrid, MapGridConfig, MastConfig, point_mast
 from hil_sim.team.team_truth import TeamTruth
 from hil_sim.world.cliffbot import CliffbotTruth
 
@@ -184,13 +184,6 @@ def readonly(*arrays: np.ndarray) -> None:
 
 def aim_at(world: World, rover_xy_yaw: tuple[float, float, float], mast: MastConfig) -> tuple[float, float, float]:
     """Mast joints (pan, tilt, lift 0.3 m) that point the camera at the Cliff-bot's centre."""
-    x, y, yaw = rover_xy_yaw
     lift = min(max(0.3, mast.lift_min_m), mast.lift_max_m)
-    cam = camera_pose_from_rover((x, y, yaw), (0.0, 0.0, lift), mast, world.plateau_z).t
     cb = world.cliffbot
-    target = (cb.x, cb.y, cb.z + 0.5 * cb.height_m)
-    dx, dy, dz = target[0] - cam[0], target[1] - cam[1], target[2] - cam[2]
-    pan = math.atan2(dy, dx) - yaw
-    pan = wrap_angle(pan)
-    tilt = math.atan2(dz, math.hypot(dx, dy))
-    return mast.clamp(pan, tilt, lift)
+    return point_mast(rover_xy_yaw, (cb.x, cb.y, cb.z + 0.5 * cb.height_m), mast, lift, world.plateau_z)[0]

@@ -273,3 +273,21 @@ def test_listen_keeps_its_header_filters_channels_and_shows_the_step() -> None:
     assert len(full) > 70  # without a height every channel is listed
     only = render(st, d, "udpin:x", 11.0, Painter(False), channels=("mission.*", "task00?.*"))
     assert "mission.step" in only and "task009.value" in only and "task010.value" not in only
+
+
+@pytest.mark.parametrize("config", ["fsw.toml", "cliffbot.toml"])
+def test_the_links_mode_and_pose_channels_are_channels_the_agent_publishes_once(config: str) -> None:
+    """What the MAVLink task sends as the HEARTBEAT's mode and the vehicle's pose are channels of
+    that agent's dictionary; the Cliff-bot's estimate is its navigation's (``cb_nav``), published
+    by no other task."""
+    from ground.dictionary import load_dictionary
+
+    d = load_dictionary(Path(__file__).resolve().parents[2] / "config" / config)
+    names = {info.name for info in d.channels.values()}
+    mav = d.cfg.mavlink
+    for name in (mav.mission_state_channel, *mav.pose_channels, *mav.mast_channels):
+        assert name == "" or name in names, name
+    if config == "cliffbot.toml":
+        assert mav.pose_channels == ("cb_nav.x_m", "cb_nav.y_m", "", "", "", "cb_nav.yaw_deg")
+        for ch in ("x_m", "y_m", "yaw_deg", "sigma_m"):
+            assert [n for n in names if n.endswith(f".{ch}")] == [f"cb_nav.{ch}"]

@@ -196,7 +196,7 @@ def test_a_team_missions_cliffbot_reaches_the_live_view_as_it_reaches_the_record
     z = np.asarray(_terrain_map(32).z, np.float32)
     maps = [[SimpleNamespace(z=z)]]
     sub = SimpleNamespace(drain=lambda: maps.pop() if maps else [])
-    values = {"mission.x_m": 0.3, "mission.y_m": 0.6, "mission.yaw_deg": 90.0}
+    values = {"cb_nav.x_m": 0.3, "cb_nav.y_m": 0.6, "cb_nav.yaw_deg": 90.0}
     exe = SimpleNamespace(
         ctx=SimpleNamespace(cfg=SimpleNamespace(map=SimpleNamespace(origin_x_m=0.0, origin_y_m=0.0, cell_m=0.03,
                                                                     nx=32, ny=32)),

@@ -1,7 +1,7 @@
 """Full disks and failing devices in the bench's writers (issue 26, item 4): the Cliff-bot's
 received map, the run's pictures and summary, the console copy of storage events, and
 ``safer-hil run --resume`` on a disk that is still full. The slow test runs a whole mission on a
-2 MiB tmpfs (root only) and checks the run ends with one line, never a traceback."""
+1 MiB tmpfs (root only) and checks the run ends with one line, never a traceback."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ from fsw.framework.telemetry import Event, Severity
 from hil_sim import cliffbot_receiver as cr
 from hil_sim.cli import main
 from hil_sim.mission import mission_report as mr
-from hil_sim.mission import mission_run, run_dir
+from hil_sim.mission import run_dir, run_spec
 
 FAULTS = [errno.ENOSPC, errno.EIO]
 NAMES = {errno.ENOSPC: "ENOSPC", errno.EIO: "EIO"}
@@ -113,7 +113,7 @@ def test_resume_on_a_full_disk_says_so_in_one_line(tmp_path: Path, monkeypatch: 
     """req(26.4): ``--resume`` on a disk that is still full: exit 1, one line, no traceback."""
     out = tmp_path / "run"
     out.mkdir()
-    mission_run.write_manifest(mission_run.RunSpec(steps=1, out=out))
+    run_spec.write_manifest(run_spec.RunSpec(steps=1, out=out))
 
     def full(directory: Any, need: int) -> None:
         raise StorageError(errno.ENOSPC, f"{directory}: no room for {need} bytes (No space left on device (ENOSPC))")
@@ -134,16 +134,18 @@ def _tmpfs(path: Path, size: str) -> bool:
 
 @pytest.mark.slow
 @pytest.mark.timeout(1800)
-def test_mission_on_a_2mib_disk_ends_in_one_line_and_resume_refuses(tmp_path: Path) -> None:
-    """req(26.4): the reviewer's case: ``--out`` on a small tmpfs (2 MiB). Checkpoint and .tlog
+def test_mission_on_a_1mib_disk_ends_in_one_line_and_resume_refuses(tmp_path: Path) -> None:
+    """req(26.4): the reviewer's case: ``--out`` on a small tmpfs. Checkpoint and .tlog
     failures are events on the console and (CHECKPOINT_FAILED) in the .tlog, the mission
     reaches its end, the run exits 1 with one line on the summary, never a traceback; a
-    ``--resume`` on the still-full disk is one line, exit 1."""
+    ``--resume`` on the still-full disk is one line, exit 1. One imaging step on 1 MiB: the
+    start has room (two checkpoints' worth), the disk fills before the step's checkpoints
+    (about 0.25 + 0.3 + 0.6 MB) and the .tlog (0.6 MB) are written, so they fail mid-mission."""
     mnt = tmp_path / "disk"
-    if not _tmpfs(mnt, "2m"):
+    if not _tmpfs(mnt, "1m"):
         pytest.skip("needs root and tmpfs to make a small disk")
     try:
-        cmd = [sys.executable, "-m", "hil_sim.cli", "run", "--steps", "4", "--out", str(mnt / "run")]
+        cmd = [sys.executable, "-m", "hil_sim.cli", "run", "--steps", "1", "--out", str(mnt / "run")]
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
         assert "Traceback" not in r.stderr and r.returncode in (0, 1), r.stderr[-2000:]
         lines = [ln for ln in r.stderr.replace("\r", "\n").splitlines() if ln.strip()]

@@ -3,6 +3,8 @@ the stuck / unused-steps criteria computed from the summary fields, and argument
 
 from __future__ import annotations
 
+import json
+
 from hil_sim.cli import main
 from hil_sim.lab.ground_report import report_markdown, row_of
 
@@ -100,3 +102,21 @@ def test_a_lab_command_without_pandas_says_which_extra(monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "pandas", None)  # as if not installed
     assert cli.main([]) == 1
     assert capsys.readouterr().err.splitlines() == ["safer-hil: the lab's tables need pandas: pip install -e '.[lab]'"]
+
+
+def test_reuse_takes_a_finished_mission_of_the_same_spec_and_refuses_another(tmp_path):
+    from hil_sim.lab.experiments.experiment_ground import _reused
+
+    run = tmp_path / "000_m5_seed0"
+    run.mkdir()
+    s = {**_summary(1.0, [1], 3, None), "scenario": "terrain", "seed": 0, "camera": "config",
+         "steps_unused": 1, "edge_violations": 0}
+    (run / "summary.json").write_text(json.dumps(s))
+    got = _reused(run, "terrain", "5", 4, 0, "config")  # 3 steps run + 1 unused = 4 asked
+    assert got is not None and got["odometer_m"] == 1.0 and "slope_deg" in got["drawn"]
+    assert _reused(run, "terrain", "5", 6, 0, "config") is None  # other steps
+    assert _reused(run, "terrain", "1", 4, 0, "config") is None  # other method
+    assert _reused(run, "terrain", "5", 4, 1, "config") is None  # other seed
+    assert _reused(run, "terrain", "5", 4, 0, "ideal") is None  # other camera
+    (run / "summary.json").write_text("{not json")
+    assert _reused(run, "terrain", "5", 4, 0, "config") is None

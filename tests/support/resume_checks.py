@@ -10,7 +10,8 @@ import pytest
 
 from hil_sim.lab.experiments.experiment_resume import compare_maps, newest
 from hil_sim.mission.mission_report import strip_wall_clock
-from hil_sim.mission.mission_run import MissionExistsError, RunSpec, run_mission
+from hil_sim.mission.mission_run import run_mission
+from hil_sim.mission.run_spec import MissionExistsError, RunSpec
 
 # The bench's per-station bookkeeping of the map-quality report (which stations this process saw)
 # is not part of the flight state: a resumed process only sees the stations after the restart.

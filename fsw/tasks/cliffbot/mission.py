@@ -7,7 +7,8 @@ navigation's estimate and its verdicts on the RECON-bot's fixes (``cb_nav``,
 statuses, steps it, publishes its device commands, its fix requests, the map it plans on
 (for the navigation) and the estimate the navigation is to take after a recovery or a
 checkpoint, and turns what it recorded into events (``TARGET_UNREACHABLE`` with the
-planner's reason, ``SAFE`` with the reason, ...) and telemetry (state, estimate, covariance).
+planner's reason, ``SAFE`` with the reason, ...) and telemetry (state, leg, targets reached;
+the estimate and its sigma are the navigation's channels, ``cb_nav``).
 
 SAFE is the mission's (winches braked, wheels stopped; docs/team.md): the task reports it
 (``SAFE``, ``safe_reason``), checkpoints, and leaves it on the ground's ``RECOVER`` (or by
@@ -65,10 +66,6 @@ class CliffbotMissionTask(FlightTask):
     DOC: ClassVar[str] = "Cliff-bot mission: plan on the received map, drive the tethers to each target and home."
     CHANNELS = (
         Channel("state", doc="WAIT_MAP, PLAN, WAIT_FIX, DRIVE, DWELL, DONE, SAFE"),
-        Channel("x_m", "m", doc="navigation estimate"),
-        Channel("y_m", "m"),
-        Channel("yaw_deg", "deg"),
-        Channel("sigma_m", "m", doc="position 1-sigma (largest axis)"),
         Channel("leg", "count"),
         Channel("targets_reached", "count"),
         Channel("safe_reason"),
@@ -192,12 +189,8 @@ class CliffbotMissionTask(FlightTask):
 
     def _telemetry(self) -> None:
         m = self.mission
-        s = m.est.s
-        self.tlm_record({
-            "state": m.state, "x_m": float(s[0]), "y_m": float(s[1]), "yaw_deg": math.degrees(float(s[2])),
-            "sigma_m": math.sqrt(max(float(np.linalg.eigvalsh(m.est.P[:2, :2]).max()), 0.0)),
-            "leg": m.leg_i, "targets_reached": int(sum(m.reached)), "safe_reason": m.safe_reason,
-        })
+        self.tlm_record({"state": m.state, "leg": m.leg_i, "targets_reached": int(sum(m.reached)),
+                         "safe_reason": m.safe_reason})
 
     # -- checkpoints ---------------------------------------------------------------------------
     def _checkpoint(self, now: float) -> None:

@@ -122,7 +122,7 @@ def range_rows(scenario: str, seed: int, config: str, index: int, r: float, pose
     ``index``): one row each."""
     import numpy as np
 
-    from fsw.core.geometry import camera_pose_from_rover
+    from fsw.core.geometry import camera_pose_from_rover, point_mast
     from fsw.core.localization.fiducials import CliffbotLocalizer
     from fsw.core.localization.localization import PoseEstimate
     from fsw.settings import load_settings
@@ -160,11 +160,8 @@ def range_rows(scenario: str, seed: int, config: str, index: int, r: float, pose
         cb = build_cliffbot(x, y, zg, yaw, size_m=(cb0.length_m, cb0.width_m, cb0.height_m),
                             marker_size_m=cfg.cliffbot.marker_size_m, seed=seed)
         w = dataclasses.replace(world, cliffbot=cb)
-        d = np.array([x, y, zg + 0.25]) - base
-        pan = math.atan2(d[1], d[0]) - rover[2]
-        tilt = math.atan2(d[2], math.hypot(d[0], d[1]))
-        joints = cfg.mast.clamp(pan, tilt, 0.3)
-        if abs(joints[0] - math.atan2(math.sin(pan), math.cos(pan))) > 1e-6 or abs(joints[1] - tilt) > 1e-6:
+        joints, reachable = point_mast(rover, (x, y, zg + 0.25), cfg.mast, 0.3)
+        if not reachable:
             continue  # the mast cannot point there
         pose = camera_pose_from_rover(rover, joints, cfg.mast)
         rend = StereoRenderer(w, cfg.camera, world.noise_sigma, seed=int(rng.integers(1 << 30)))

@@ -49,6 +49,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "without calibration effects)")
     p.add_argument("--jobs", type=int, default=2, help="missions run in parallel (processes)")
     p.add_argument("--out", type=Path, default=Path("out/ground"), help="output directory")
+    p.add_argument("--reuse", action="store_true",
+                   help="take a mission whose run directory under --out already holds the summary of the "
+                        "same scenario, seed, method, camera and steps (an interrupted run goes on) instead "
+                        "of running it again")
 
 
 def _one(scenario: str, method: str, steps: int, seed: int, out: str, camera: str) -> dict[str, Any]:
@@ -57,6 +61,24 @@ def _one(scenario: str, method: str, steps: int, seed: int, out: str, camera: st
 
     s = run_mission(RunSpec(scenario, method, steps, seed, transmit=False, out=Path(out), camera=camera))
     s["drawn"] = dict(load_scenario(scenario, seed).drawn)  # the terrain's slope, edge gap
+    return s
+
+
+def _reused(out: Path, spec: str, method: str, steps: int, seed: int, camera: str) -> dict[str, Any] | None:
+    """The summary a run of the same mission left in ``out`` (None: none, unreadable or another mission)."""
+    from hil_sim.world import load_scenario
+
+    try:
+        s = json.loads((out / "summary.json").read_text())
+    except (OSError, ValueError):
+        return None
+    same = (isinstance(s, dict) and s.get("scenario") == spec and str(s.get("method")) == method
+            and s.get("seed") == seed and s.get("camera") == camera
+            and isinstance(s.get("steps"), list)
+            and len(s["steps"]) - 1 + int(s.get("steps_unused", 0)) == steps)
+    if not same:
+        return None
+    s["drawn"] = dict(load_scenario(spec, seed).drawn)
     return s
 
 
@@ -96,6 +118,11 @@ def run(args: argparse.Namespace) -> int:
         futs = {}
         for i, (spec, seed, m) in enumerate(runs):
             out = args.out / "runs" / f"{i:03d}_m{m}_seed{seed}"
+            done = _reused(out, spec, m, args.steps, seed, args.camera) if args.reuse else None
+            if done is not None:
+                rows.append(row_of(done, spec, seed, args.steps))
+                bar.update()
+                continue
             futs[pool.submit(_one, spec, m, args.steps, seed, str(out), args.camera)] = (spec, seed, m)
         for fut in as_completed(futs):
             spec, seed, m = futs[fut]
