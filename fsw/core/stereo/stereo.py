@@ -132,7 +132,7 @@ class StereoConfig:
         doc="1-sigma disparity noise where no per-pixel sigma is given (triangulate of a bare disparity)",
     )
     sigma_graze_gain: float = param(
-        0.2, lo=0.0, hi=5.0,
+        0.0, lo=0.0, hi=5.0,
         doc="per-pixel disparity sigma: gain on the disparity's span over the matching window (grazing incidence)",
     )
     sigma_pixel_px: float = param(
