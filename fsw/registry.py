@@ -43,7 +43,7 @@ RECON = AgentTopology(
     sections=frozenset({
         "rover", "camera", "mast", "map", "stereo", "fusion", "registration", "localization", "cliffbot", "edge",
         "geofence", "checkpoint", "mavlink", "codec", "link", "nbv", "devices", "motion", "capture", "mission",
-        "calibration",
+        "calibration", "cliffbot_site",  # the team's site: its mask, and the Anchorbots' plates for its fixer
     }),
 )
 
@@ -53,6 +53,7 @@ CLIFFBOT_KINDS: dict[str, str] = {
     "cliffbot_radio": "fsw.tasks.cliffbot.radio:CliffbotRadioTask",
     "cliffbot_nav": "fsw.tasks.cliffbot.navigation:CliffbotNavTask",
     "cliffbot_mission": "fsw.tasks.cliffbot.mission:CliffbotMissionTask",
+    "cliffbot_sensing": "fsw.tasks.cliffbot.sensing:CliffbotSensingTask",
 }
 
 CLIFFBOT = AgentTopology(
@@ -61,7 +62,7 @@ CLIFFBOT = AgentTopology(
     task_kinds={**COMMON_KINDS, **CLIFFBOT_KINDS},
     sections=frozenset({
         "map", "link", "mavlink", "checkpoint", "tether", "climber", "cliffbot_nav", "cliffbot_mission",
-        "cliffbot_site", "cliffbot_bus",
+        "cliffbot_site", "cliffbot_bus", "cliffbot_sensing",
     }),
     required_tasks=("cliffbot_mission",),
     flight_kinds=("cliffbot_mission", "health", "console", "mavlink"),

@@ -1,5 +1,5 @@
 """The configuration sections the flight tasks own: ``[capture]``, ``[mission]``, and the
-Cliff-bot's ``[cliffbot_mission]``, ``[cliffbot_site]``, ``[cliffbot_bus]``.
+Cliff-bot's ``[cliffbot_mission]``, ``[cliffbot_site]``, ``[cliffbot_bus]``, ``[cliffbot_sensing]``.
 
 They are declared here, in the settings layer beside ``fsw.settings`` that assembles them, so
 the whole configuration sits below the tasks: a task imports the settings, never the other
@@ -121,3 +121,42 @@ class CliffbotBusConfig:
     can_channel: str = param("cliffbot", doc="virtual: bus name; udp_hub: HOST:PORT; socketcan: can1")
     status_timeout_s: float = param(0.5, lo=0.05, hi=60.0, units="s",
                                     doc="a device whose status stopped this long is named (SAFE)")
+
+
+@dataclass(frozen=True)
+class CliffbotSensingConfig:
+    """The Cliff-bot's own stereo views (config ``[cliffbot_sensing]``; ``fsw.tasks.cliffbot.sensing``,
+    docs/team.md "Both agents sense"): its small stereo pair on a head above the body, the head's
+    scan (one pointing per capture, in order, round the body), and when the mission looks."""
+
+    enabled: bool = param(False, doc="the Cliff-bot takes its own views before planning (needs a camera)")
+    width_px: int = param(320, lo=32, hi=4096, units="px")
+    height_px: int = param(240, lo=32, hi=4096, units="px")
+    hfov_deg: float = param(60.0, lo=10.0, hi=120.0, units="deg")
+    baseline_m: float = param(0.07, lo=0.02, hi=1.0, units="m")
+    min_range_m: float = param(0.3, lo=0.05, hi=50.0, units="m", doc="near end of the usable depth")
+    max_range_m: float = param(2.5, lo=0.5, hi=100.0, units="m", doc="far end of the usable depth")
+    head_m: float = param(0.45, lo=0.0, hi=3.0, units="m", doc="the camera above the body's ground, along its normal")
+    head_end_m: float = param(0.45, lo=0.0, hi=2.0, units="m",
+                              doc="the head at the body's front (looking ahead) or rear end, along its heading")
+    pan_deg: tuple[float, ...] = param((0.0, 45.0, 90.0, 135.0, 180.0, -135.0, -90.0, -45.0), units="deg",
+                                       doc="the head's scan: one pan from the heading per capture, in order")
+    tilt_deg: float = param(-40.0, lo=-89.0, hi=60.0, units="deg", doc="the head's elevation in every view")
+    height_sigma_m: float = param(0.03, lo=0.0, hi=1.0, units="m", doc="the body's ground height on the map, sigma")
+    tilt_sigma_deg: float = param(1.0, lo=0.0, hi=30.0, units="deg", doc="roll and pitch from the attitude sensor")
+    body_half_m: tuple[float, ...] = param((0.31, 0.235, 0.28), units="m",
+                                           doc="its body's box (half sizes: along, across, up), masked from its views")
+    mask_sigma_m: float = param(0.005, lo=0.0, hi=1.0, units="m", doc="the team's known poses' sigma in the mask")
+    move_m: float = param(0.5, lo=0.0, hi=100.0, units="m",
+                          doc="a leg looks again first when the Cliff-bot moved this far since it last looked")
+    capture_timeout_s: float = param(2.0, lo=0.1, hi=60.0, units="s", doc="no pair this long: that view is skipped")
+    sense_timeout_s: float = param(300.0, lo=1.0, hi=3600.0, units="s",
+                                   doc="the mission plans without its views after waiting this long")
+
+    def __post_init__(self) -> None:
+        if not self.pan_deg:
+            raise ValueError("pan_deg: at least one pointing")
+        if len(self.body_half_m) != 3:
+            raise ValueError("body_half_m: three numbers (along, across, up)")
+        if self.min_range_m >= self.max_range_m:
+            raise ValueError("min_range_m must be below max_range_m")

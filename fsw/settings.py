@@ -55,6 +55,7 @@ from fsw.sections import (
     CaptureConfig,
     CliffbotBusConfig,
     CliffbotMissionConfig,
+    CliffbotSensingConfig,
     CliffbotSiteConfig,
     MissionConfig,
 )
@@ -96,6 +97,7 @@ class FswConfig:
     cliffbot_mission: CliffbotMissionConfig = field(default_factory=CliffbotMissionConfig)
     cliffbot_site: CliffbotSiteConfig = field(default_factory=CliffbotSiteConfig)
     cliffbot_bus: CliffbotBusConfig = field(default_factory=CliffbotBusConfig)
+    cliffbot_sensing: CliffbotSensingConfig = field(default_factory=CliffbotSensingConfig)
 
 
 def calibration_path(cfg: FswConfig) -> Path | None:

@@ -10,7 +10,8 @@ right camera is slightly rotated and off the nominal baseline, and the two expos
 
 * the terrain by coarse-to-fine ray casting into the truth heightfield
   (``hil_sim.world.raytrace``; docs/algorithm.md §4 consumes the images);
-* the Cliff-bot (box faces and ArUco plates) and, on request, a calibration target
+* the Cliff-bot (box faces and ArUco plates), the world's ``props`` (the Anchorbots' marker
+  plates) and, on request, a calibration target
   (``hil_sim.world.target``) as planar quads intersected analytically and supersampled
   (``marker_supersample`` squared rays per pixel), so marker corners land with
   sub-pixel accuracy for the PnP of docs/algorithm.md §5;
@@ -171,7 +172,7 @@ class StereoRenderer:
         h, w = image.shape
         plain: list[tuple[Quad, tuple[int, int, int, int]]] = []
         fine: list[tuple[Quad, tuple[int, int, int, int]]] = []
-        for q in (*self.world.cliffbot.quads, *extra):
+        for q in (*self.world.cliffbot.quads, *self.world.props, *extra):
             if not q.two_sided and float((c - q.p0) @ q.normal) <= 0.0:
                 continue  # seen from behind: hidden by the body (back-face culling)
             box = self._bbox(cam, q, c, R, which, w, h)

@@ -27,8 +27,8 @@ from fsw.framework.telemetry import Severity
 #: The RECON-bot's mission sequencer's states (fsw/tasks/mission.py STATES; a test keeps them equal).
 MISSION_STATES = ("IDLE", "INIT", "SELECT", "MOVE", "POINT", "ACQUIRE", "TRANSMIT", "DONE", "SAFE")
 #: The Cliff-bot's mission states that the RECON-bot's do not have (fsw/tasks/cliffbot/checkpoint.py
-#: STATES; its DONE and SAFE are the RECON-bot's).
-CLIFFBOT_STATES = ("WAIT_MAP", "PLAN", "WAIT_FIX", "DRIVE", "DWELL")
+#: STATES; its DONE and SAFE are the RECON-bot's). New states are appended: the modes keep their numbers.
+CLIFFBOT_STATES = ("WAIT_MAP", "PLAN", "WAIT_FIX", "DRIVE", "DWELL", "SENSE")
 #: custom_mode = index in this table, one table for every agent (docs/ground.md, "Modes");
 #: 255 = a state not listed here.
 MODES = MISSION_STATES + CLIFFBOT_STATES

@@ -34,7 +34,7 @@ from fsw.core.edge.roi import roi_mapped_fraction_steps
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid, MapGridConfig
 from fsw.core.localization.localization import point_covariance_parts
 from fsw.core.localization.nav_fix import NavFix
-from fsw.core.map.body_mask import TeamGeometry, team_mask
+from fsw.core.map.body_mask import MaskConfig, TeamGeometry, team_mask
 from fsw.core.map.elevation_map import ElevationMap, FusionConfig, MergeStats
 from fsw.core.map.face_map import FaceMap, split_parts
 from fsw.core.map.reference_frames import ReferenceFrames
@@ -161,6 +161,11 @@ class SensingPipeline:
         # and the robots and tethers at their known poses, masked out of every view (None: none).
         self.face: FaceMap | None = None
         self.team: TeamGeometry | None = None
+        # True: the team's geometry is placed from the same estimate as the camera (the Cliff-bot's
+        # own body and tethers): the pose's error moves both alike, and the mask grows by the
+        # points' stereo covariance only
+        self.team_with_camera = False
+        self.team_mask_cfg: MaskConfig | None = None  # the mask's margins (None: MaskConfig's)
 
     def clear(self) -> None:
         """Forget the map and the registration state (a new survey)."""
@@ -270,7 +275,8 @@ class SensingPipeline:
                 cal = offset_covariance(xyz, placed.pose.t, pts.disparity_px[a:b], off_sigma)
                 cov_p = cal if cov_p is None else cov_p + cal
             if self.team is not None:
-                off = ~team_mask(xyz, cov_s if cov_p is None else cov_s + cov_p, self.team, eye=placed.pose.t)
+                cov_m = cov_s if cov_p is None or self.team_with_camera else cov_s + cov_p
+                off = ~team_mask(xyz, cov_m, self.team, self.team_mask_cfg, eye=placed.pose.t)
                 xyz, cov_s, cov_p = xyz[off], cov_s[off], None if cov_p is None else cov_p[off]
             parts.append(lips.part(xyz, cov_s, cov_p, fus.lip_guard_sigma))
             yield

@@ -11,20 +11,32 @@ slack job with the camera pose estimate and its covariance, and hands the FIX (p
 rotation, 6x6 covariance) or NO_FIX ``no markers seen`` to the radio, which sends it ahead of
 map bytes (``radio.fix_out``). A request that arrives while one is being answered is told
 ``busy``; a step that does not finish within ``TIMEOUT_S`` ends in NO_FIX ``busy``.
+
+The camera pose comes from the RECON-bot's own estimate, which drifts over its mission; a fix
+carries that error over its range. Before the first fix from where it stands, the task views the
+Anchorbots' marker plates (``[localization] anchor_marker_ids``, placed from the tether exits of
+``[cliffbot_site]``) and resects its camera in the team's frame on each plate it sees
+(docs/algorithm.md §5.2, :mod:`fsw.core.localization.landmarks`); the fix's camera pose is then
+the resected one carried through the mast's joints, with its covariance. The request waits for
+those views (its answer's deadline starts when they are done); while the rover does not move,
+later fixes reuse them; with no plate seen the fix uses the rover's estimate.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from collections.abc import Generator
 from typing import ClassVar
 
 import numpy as np
+from numpy.typing import NDArray
 
 from fsw.comm.team import fix_packets
 from fsw.core.geometry import MapGrid, point_mast
 from fsw.core.localization.fiducials import BodyEstimate, CliffbotLocalizer
+from fsw.core.localization.landmarks import Landmark, anchor_marker_corners, camera_from_landmarks
 from fsw.core.localization.localization import PoseEstimate, so3_log
 from fsw.core.map.elevation_map import ElevationMap
 from fsw.core.stereo.rectify import Rectifier
@@ -32,6 +44,7 @@ from fsw.framework.jobs import JobHandle
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.settings import load_stereo_calibration
 from fsw.tasks.base import FlightTask
+from fsw.tasks.camera import camera_pose_covariance
 from fsw.tasks.messages import (
     CAMERA_FRAME,
     CAMERA_REQUEST,
@@ -56,6 +69,16 @@ REQUEST_BASE = 1 << 30  # motion request ids of the fixer (the mission's count f
 TIMEOUT_S = 30.0
 BODY_CENTRE_M = 0.25  # aim this far above the ground under the estimate (the marker band)
 LIFT_M = 0.3
+SURVEY_VIEW = FIX_VIEW_BASE + (1 << 24)  # view ids of the views of the Anchorbots' plates
+
+
+@dataclasses.dataclass(frozen=True)
+class Shot:
+    """One view of a fix: of an Anchorbot's plate (``kind`` ``"anchor"``) or of the Cliff-bot."""
+
+    kind: str
+    view_id: int
+    target: tuple[float, float, float]  # what the mast points at (team frame)
 
 
 class CliffbotFixerTask(FlightTask):
@@ -67,11 +90,14 @@ class CliffbotFixerTask(FlightTask):
         Channel("phase", doc="idle, aim, capture, locate"),
         Channel("fixes", "count", doc="FIX answers sent"),
         Channel("no_fixes", "count", doc="NO_FIX answers sent"),
+        Channel("landmarks", "count", doc="views of the Anchorbots' plates the current standing's fixes use"),
     )
     EVENTS = (
         EventDef("FIX_SENT", Severity.ACTIVITY_HI, "request {seq}: Cliff-bot at {x:.2f}, {y:.2f} m, heading "
                  "{yaw_deg:.1f} deg, sigma {sigma_cm:.1f} cm"),
         EventDef("NO_FIX_SENT", Severity.ACTIVITY_LO, "request {seq}: no fix ({reason})", throttle=10),
+        EventDef("LANDMARKS", Severity.ACTIVITY_LO, "camera resected on {n} of {views} views of the Anchorbots' "
+                 "plates: yaw {dyaw_deg:+.2f} deg, {dxy_cm:.1f} cm from the rover's estimate"),
     )
 
     def setup(self) -> None:
@@ -93,6 +119,15 @@ class CliffbotFixerTask(FlightTask):
         self.deadline = 0.0
         self.request_id = REQUEST_BASE
         self.counts = {"fixes": 0, "no_fixes": 0}
+        site = cfg.cliffbot_site
+        self.plates = anchor_marker_corners(site.anchor_a_xyz, site.anchor_b_xyz, cfg.localization)
+        self.shots: list[Shot] = []
+        self.shot: Shot | None = None
+        self.landmarks: list[Landmark] = []
+        self.standing: tuple[float, ...] | None = None  # the rover's pose the landmarks were seen from
+        self.surveyed = 0
+        self.surveying = False
+        self.pending: fix_packets.FixRequest | None = None  # a request held while the plates are viewed
 
     def run(self, frame: int) -> None:
         now = self.ctx.clock.now()
@@ -100,21 +135,33 @@ class CliffbotFixerTask(FlightTask):
         self.pose = pose if pose is not None else self.pose
         upd: MapUpdate | None = self.map_box.latest()
         self.snapshot = upd.snapshot if upd is not None else self.snapshot
+        ready = self._mission_state() == "DONE" and self.pose is not None
         for req in self.requests.drain():
             if self.current is not None:
                 if req.seq != self.current.seq:
                     self._no_fix(req.seq, BUSY)
-            elif self._mission_state() != "DONE" or self.pose is None:
+            elif not ready:
                 self._no_fix(req.seq, BUSY)
+            elif self.surveying:
+                if self.pending is not None and self.pending.seq != req.seq:
+                    self._no_fix(req.seq, BUSY)
+                else:
+                    self.pending = req  # answered once the plates are seen
+            elif self.plates and self._standing() != self.standing:
+                self.pending = req  # the first fix from here: see the plates first, then answer it
+                self._survey(now)
             else:
                 self._aim(req, now)
-        if self.current is not None and now > self.deadline:
-            self._no_fix(self.current.seq, BUSY)
+        if (self.current is not None or self.surveying) and now > self.deadline:
+            if self.current is not None:
+                self._no_fix(self.current.seq, BUSY)
+            else:
+                self._survey_done()
         elif self.phase == "aim":
             self._aimed()
         elif self.phase == "capture":
             self._captured()
-        self.tlm_record({"phase": self.phase, **self.counts})
+        self.tlm_record({"phase": self.phase, **self.counts, "landmarks": len(self.landmarks)})
 
     def _mission_state(self) -> str:
         try:
@@ -122,21 +169,105 @@ class CliffbotFixerTask(FlightTask):
         except KeyError:
             return ""
 
+    def _survey(self, now: float) -> None:
+        """View each Anchorbot's plate from where the rover stands (§5.2)."""
+        self.landmarks, self.standing = [], self._standing()
+        self.shots = [Shot("anchor", SURVEY_VIEW + (self.surveyed + k) % (1 << 20),
+                           (float(c[:, 0].mean()), float(c[:, 1].mean()), float(c[:, 2].mean())))
+                      for k, c in enumerate(self.plates.values())]
+        self.surveyed += len(self.shots)
+        self.surveying, self.deadline = True, now + TIMEOUT_S
+        self._next_shot()
+
+    def _survey_done(self) -> None:
+        self.surveying, self.shot, self.shots, self.phase = False, None, [], "idle"
+        self._report_landmarks()
+        req, self.pending = self.pending, None
+        if req is not None:
+            self._aim(req, self.ctx.clock.now())
+
     def _aim(self, req: fix_packets.FixRequest, now: float) -> None:
         assert self.pose is not None
         if not (math.isfinite(req.x) and math.isfinite(req.y)):
             self._no_fix(req.seq, OUT_OF_REACH)
             return
-        p = self.pose
         ground = self._height(req.x, req.y)
-        target = (req.x, req.y, (ground if math.isfinite(ground) else p.z_m) + BODY_CENTRE_M)
-        joints, reachable = point_mast((p.x, p.y, p.yaw), target, self.ctx.cfg.mast, LIFT_M, ground_z_m=p.z_m)
-        if not reachable:
+        target = (req.x, req.y, (ground if math.isfinite(ground) else self.pose.z_m) + BODY_CENTRE_M)
+        if self._joints(target) is None:
             self._no_fix(req.seq, OUT_OF_REACH)
             return
-        self.current, self.phase, self.deadline = req, "aim", now + TIMEOUT_S
-        self.request_id += 1
-        self.publish(MOTION_REQUEST, MotionRequest(self.request_id, "mast", joints=joints))
+        if self._standing() != self.standing:
+            self.landmarks = []  # seen from elsewhere: this fix rests on the rover's estimate
+        self.current, self.deadline = req, now + TIMEOUT_S
+        self.shots = [Shot("cliffbot", FIX_VIEW_BASE + req.seq, target)]
+        self._next_shot()
+
+    def _standing(self) -> tuple[float, ...]:
+        p = self.pose
+        assert p is not None
+        return (p.x, p.y, p.yaw, p.z_m, float(p.fix_id))
+
+    def _joints(self, target: tuple[float, float, float]) -> tuple[float, float, float] | None:
+        """The mast's joints that point the camera at ``target``; None when out of its reach."""
+        assert self.pose is not None
+        p = self.pose
+        joints, reachable = point_mast((p.x, p.y, p.yaw), target, self.ctx.cfg.mast, LIFT_M, ground_z_m=p.z_m)
+        return joints if reachable else None
+
+    def _next_shot(self) -> None:
+        """Point the mast for the next view (a plate out of the mast's reach is skipped)."""
+        while self.shots:
+            shot = self.shots.pop(0)
+            joints = self._joints(shot.target)
+            if joints is None:
+                if shot.kind == "cliffbot":
+                    assert self.current is not None
+                    self._no_fix(self.current.seq, OUT_OF_REACH)
+                    return
+                continue
+            self.shot, self.phase = shot, "aim"
+            self.request_id += 1
+            self.publish(MOTION_REQUEST, MotionRequest(self.request_id, "mast", joints=joints))
+            return
+        if self.surveying:
+            self._survey_done()
+
+    def _shot_failed(self, reason: int) -> None:
+        if self.surveying:
+            self._next_shot()  # that plate is not seen
+        elif self.current is not None:
+            self._no_fix(self.current.seq, reason)
+
+    def _aimed(self) -> None:
+        assert self.shot is not None
+        for st in self.motion.drain():
+            if st.request_id != self.request_id:
+                continue
+            if st.state is not MoveOutcome.DONE:
+                self._shot_failed(OUT_OF_REACH)
+                return
+            self.failed.drain()
+            self.frames.drain()
+            self.phase = "capture"
+            self.publish(CAMERA_REQUEST, CaptureRequest(self.shot.view_id))
+
+    def _captured(self) -> None:
+        assert self.shot is not None
+        view, shot = self.shot.view_id, self.shot
+        if any(f.view_id == view for f in self.failed.drain()):
+            self._shot_failed(NO_MARKERS)
+            return
+        fr = next((f for f in self.frames.drain() if f.view_id == view), None)
+        if fr is None:
+            return
+        self.phase = "locate"
+        if shot.kind == "anchor":
+            self.submit_job(self._resect(fr, self._joints_cov()), f"plates{view - SURVEY_VIEW}",
+                            on_done=functools.partial(self._resected, view))
+            return
+        assert self.current is not None
+        self.submit_job(self._locate(fr, self._joints_cov()), f"fix{self.current.seq}",
+                        on_done=functools.partial(self._located, self.current.seq, int(fr.time_s * 1000)))
 
     def _height(self, x: float, y: float) -> float:
         if self.snapshot is None:
@@ -144,40 +275,61 @@ class CliffbotFixerTask(FlightTask):
         iy, ix, inside = self.grid.cell_index(np.array([x]), np.array([y]))
         return float(self.snapshot.z[iy[0], ix[0]]) if inside[0] else math.nan
 
-    def _aimed(self) -> None:
-        assert self.current is not None
-        for st in self.motion.drain():
-            if st.request_id != self.request_id:
-                continue
-            if st.state is not MoveOutcome.DONE:
-                self._no_fix(self.current.seq, OUT_OF_REACH)
-                return
-            self.failed.drain()
-            self.frames.drain()
-            self.phase = "capture"
-            self.publish(CAMERA_REQUEST, CaptureRequest(FIX_VIEW_BASE + self.current.seq))
+    def _joints_cov(self) -> NDArray[np.float64]:
+        """The camera pose covariance of the mast's joints alone at this view (the rover's own
+        pose error is one for all views of a standing: the landmarks measure it)."""
+        assert self.pose is not None
+        cap = self.ctx.cfg.capture
+        js = math.radians(cap.joint_sigma_deg)
+        still = dataclasses.replace(self.pose, cov=np.zeros((3, 3)), att_cov=None)
+        return camera_pose_covariance(still, self.ctx.cfg.mast, (js, js, cap.lift_sigma_m))[1]
 
-    def _captured(self) -> None:
-        assert self.current is not None
-        view = FIX_VIEW_BASE + self.current.seq
-        if any(f.view_id == view for f in self.failed.drain()):
-            self._no_fix(self.current.seq, NO_MARKERS)
-            return
-        fr = next((f for f in self.frames.drain() if f.view_id == view), None)
-        if fr is None:
-            return
-        self.phase = "locate"
-        self.submit_job(self._locate(fr), f"fix{self.current.seq}",
-                        on_done=functools.partial(self._located, self.current.seq, int(fr.time_s * 1000)))
-
-    def _locate(self, fr: CameraFrame) -> Generator[None, None, BodyEstimate | None]:
-        """The slack job: rectify the pair (when the camera has a calibration), find the markers, PnP."""
-        yield
+    def _pair(self, fr: CameraFrame) -> Generator[None, None, tuple[NDArray[np.uint8], NDArray[np.uint8]]]:
         left, right = fr.left, fr.right
         if self.rectifier is not None:
             left, right = self.rectifier.rectify(left, right)
             yield
-        return self.loc.locate(left, PoseEstimate(fr.pose, np.asarray(fr.pose_cov, float)), right)
+        return left, right
+
+    def _resect(self, fr: CameraFrame, joints_cov: NDArray[np.float64]
+                ) -> Generator[None, None, Landmark | None]:
+        """The slack job of a view of the plates: the camera resected on the plates it sees."""
+        yield
+        left, right = yield from self._pair(fr)
+        est = self.loc.resect(self.plates, left, right)
+        if est is None or not np.isfinite(est.cov).all():
+            return None
+        return Landmark(est, fr.pose, joints_cov)
+
+    def _resected(self, view: int, handle: JobHandle) -> None:
+        if not self.surveying or self.shot is None or self.shot.view_id != view:
+            return  # the survey timed out meanwhile
+        got: Landmark | None = handle.result if handle.error is None else None
+        if got is not None:
+            self.landmarks.append(got)
+        self._next_shot()
+
+    def _report_landmarks(self) -> None:
+        if not self.landmarks:
+            return
+        lm = self.landmarks[0]
+        dR = lm.measured.pose.R @ lm.predicted.R.T
+        self.event("LANDMARKS", n=len(self.landmarks), views=len(self.plates),
+                   dyaw_deg=math.degrees(math.atan2(dR[1, 0], dR[0, 0])),
+                   dxy_cm=100 * float(np.linalg.norm((lm.measured.pose.t - lm.predicted.t)[:2])))
+
+    def camera_estimate(self, fr: CameraFrame, joints_cov: NDArray[np.float64]) -> PoseEstimate:
+        """The camera pose of the fix's view: from the views of the plates when there are any
+        (each carried to this view, fused), else the rover's estimate with its covariance."""
+        est = camera_from_landmarks(self.landmarks, fr.pose, joints_cov)
+        return est if est is not None else PoseEstimate(fr.pose, np.asarray(fr.pose_cov, float))
+
+    def _locate(self, fr: CameraFrame, joints_cov: NDArray[np.float64]
+                ) -> Generator[None, None, BodyEstimate | None]:
+        """The slack job: rectify the pair (when the camera has a calibration), find the markers, PnP."""
+        yield
+        left, right = yield from self._pair(fr)
+        return self.loc.locate(left, self.camera_estimate(fr, joints_cov), right)
 
     def _located(self, seq: int, t_ms: int, handle: JobHandle) -> None:
         if self.current is None or self.current.seq != seq:
@@ -207,4 +359,4 @@ class CliffbotFixerTask(FlightTask):
             self._idle()
 
     def _idle(self) -> None:
-        self.current, self.phase = None, "idle"
+        self.current, self.phase, self.shot, self.shots = None, "idle", None, []

@@ -10,7 +10,7 @@ the map the mission filled by contact, judges each fix (the mission stops on a r
 and takes the estimate the mission hands it back (:attr:`CliffbotMission.nav_reset`: after a
 recovery from a refused fix, or a checkpoint). States:
 
-``WAIT_MAP`` (no map yet) -> ``PLAN`` (every target planned from the start on the received
+``WAIT_MAP`` (no map yet) -> [``SENSE``] -> ``PLAN`` (every target planned from the start on the received
 map with :func:`fsw.core.team.face_planner.plan_targets`; a target it cannot reach is
 reported with its reason, event ``TARGET_UNREACHABLE``, and never attempted) ->
 ``WAIT_FIX`` (before each leg: a fiducial fix from the RECON-bot) -> ``DRIVE`` (the leg's
@@ -18,6 +18,12 @@ path, waypoint by waypoint: each waypoint's tether lengths on the map are the wi
 set-points, both tethers paced to arrive together; re-planned from the estimate when a
 fix or a newer map arrives) -> ``DWELL`` (at the target) -> the next leg; after the last
 target, the leg home (the start) -> ``DONE``.
+
+``SENSE`` (with ``[cliffbot_sensing] enabled``; docs/team.md, "Both agents sense"): before its
+first plan, and before a leg when it has moved ``move_m`` since it last looked, the mission
+asks for its own views (``Commands.sense``) and waits, holding still, until the map with them
+arrives (:meth:`CliffbotMission.sensed`: the received map with the cells its own views made
+known) or ``sense_timeout_s`` passes (it then plans on what it has, event ``SENSE_TIMEOUT``).
 
 ``SAFE`` (winches braked, wheels stopped, event ``SAFE`` with the reason) on: a winch fault
 bit (stall, slip, over-tension, spool, timeout), a device whose status stopped, no fix
@@ -45,7 +51,7 @@ from fsw.core.team.contact_ground import fill_under_body
 from fsw.core.team.face_planner import ClimberConfig, Margins, ground_layers, plan_targets
 from fsw.core.team.tether import TetherConfig, settle, tether_state
 from fsw.drivers.cliffbot_devices import CliffbotDevices
-from fsw.sections import CliffbotMissionConfig
+from fsw.sections import CliffbotMissionConfig, CliffbotSensingConfig
 
 F64 = NDArray[np.float64]
 BODY_MARGIN_M = 0.1  # the body's box as mapped (stereo smear, the estimate's error) beyond the footprint
@@ -59,6 +65,7 @@ class Commands:
     clear_faults: bool
     wheels_radps: tuple[float, float]
     request_fix: bool
+    sense: bool = False  # take the Cliff-bot's own views now (docs/team.md, "Both agents sense")
 
 
 @dataclass
@@ -83,8 +90,13 @@ class Leg:
 
 class CliffbotMission:
     def __init__(self, cfg: CliffbotMissionConfig, tcfg: TetherConfig, ccfg: ClimberConfig, ncfg: NavConfig,
-                 anchors: F64, start_xy: F64, start_yaw: float, targets_xy: F64) -> None:
+                 anchors: F64, start_xy: F64, start_yaw: float, targets_xy: F64,
+                 sensing: CliffbotSensingConfig | None = None) -> None:
         self.cfg, self.tcfg, self.ccfg = cfg, tcfg, ccfg
+        self.sensing = sensing if sensing is not None and sensing.enabled else None
+        self.sense_seq = 0  # the views asked for (Commands.sense), each answered by a map (sensed)
+        self.sense_asked_at: float | None = None
+        self.sensed_xy: F64 | None = None  # where it last looked
         # Between waypoints the body is off the lattice and the bench judges every place it passes.
         # Tensions change fast with the place near the lip: the planner keeps them tension_margin_n
         # inside their limits (a hard margin). The footprint's clearance from hazards is soft
@@ -143,9 +155,38 @@ class CliffbotMission:
         self.event("MAP", f"map {self.map_version}: {int(np.isfinite(self.z).sum())} known cells"
                    + (f", {filled} under the body known by contact" if filled else ""))
         if self.state == "WAIT_MAP":
-            self.state = "PLAN"
+            self.state = "PLAN" if self.sensing is None else "SENSE"
         elif self.state == "DRIVE":
             self.replan = True
+
+    def sensed(self, seq: int) -> None:
+        """The map with the views of request ``seq`` has been given (:meth:`set_map`): plan on it."""
+        if self.state != "SENSE" or seq != self.sense_seq or self.sense_asked_at is None:
+            return
+        self.event("SENSED", f"views {seq} in the map")
+        self._after_sense()
+
+    def _after_sense(self) -> None:
+        self.sense_asked_at = None
+        self.sensed_xy = self.est.xy
+        if self.legs:
+            self._plan_leg()
+        else:
+            self.state = "PLAN"
+
+    def _wants_views(self) -> bool:
+        """Before a leg: whether it moved far enough since it last looked to look again."""
+        if self.sensing is None or self.sensed_xy is None:
+            return self.sensing is not None
+        return float(np.linalg.norm(self.est.xy - self.sensed_xy)) >= self.sensing.move_m
+
+    def _leg_ready(self) -> None:
+        """The leg's fix is in (or none will come): look first if it moved, else plan it."""
+        if self._wants_views():
+            self.state = "SENSE"
+            self.sense_asked_at = None
+        else:
+            self._plan_leg()
 
     def set_targets(self, targets_xy: F64) -> None:
         """A ground command: new targets (planned again from where the Cliff-bot is)."""
@@ -180,7 +221,7 @@ class CliffbotMission:
         self.event("FIX", f"fix {fix.seq} fused (NIS {nis:.2f})")
         if self.state == "WAIT_FIX":
             self.fix_asked_at = None
-            self._plan_leg()
+            self._leg_ready()
         elif self.state == "DRIVE":
             self.replan = True
 
@@ -189,7 +230,7 @@ class CliffbotMission:
         self.event("FIX_UNAVAILABLE", f"request {seq}: {reason}")
         if self.state == "WAIT_FIX":
             self.fix_asked_at = None
-            self._plan_leg()
+            self._leg_ready()
 
     def recover(self) -> None:
         """Ground command: leave SAFE (clear the winches' faults, re-plan the leg from the estimate)."""
@@ -253,6 +294,19 @@ class CliffbotMission:
                 self._safe(f"no status from {', '.join(stale)}")
                 return self._hold()
         if self.state == "WAIT_MAP":
+            return self._hold()
+        if self.state == "SENSE":
+            assert self.sensing is not None
+            if self.sense_asked_at is None:
+                self.sense_asked_at = now
+                self.sense_seq += 1
+                self.event("SENSE_REQUEST", f"views {self.sense_seq} before "
+                           + (f"leg {self.leg_i + 1}" if self.legs else "the plan"))
+                return dataclasses.replace(self._hold(), sense=True)
+            if now - self.sense_asked_at > self.sensing.sense_timeout_s:
+                self.event("SENSE_TIMEOUT", f"no map with views {self.sense_seq} after "
+                                            f"{self.sensing.sense_timeout_s:.0f} s: planning on the map it has")
+                self._after_sense()
             return self._hold()
         if self.state == "PLAN":
             self._plan_all()

@@ -239,7 +239,7 @@ def run(args: argparse.Namespace) -> int:
         tables = link_keys(args)
         if team is not None:
             m = fsw.map
-            tables = {**tables, "link": team.recon_link(),
+            tables = {**tables, "link": team.recon_link(), "cliffbot_site": team.recon_site(fsw),
                       "map": {"origin_x_m": m.origin_x_m, "origin_y_m": m.origin_y_m, "cell_m": m.cell_m,
                               "nx": m.nx, "ny": m.ny}}
         write_flight_config(base_cfg, Path(args.flight_config), endpoints, tables)

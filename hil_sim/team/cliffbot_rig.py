@@ -30,6 +30,8 @@ from fsw.comm.e2e import SequenceChecker
 from fsw.comm.rover_can import Bad
 from fsw.comm.team.team_can import WINCHES, TeamCan, WheelCommand
 from fsw.core.geometry import MapGrid
+from fsw.core.localization.landmarks import plate_frames
+from fsw.core.localization.localization import LocalizationConfig
 from fsw.core.team.face_planner import ClimberConfig, ground_layers
 from fsw.core.team.tether import (
     TetherConfig,
@@ -43,7 +45,7 @@ from fsw.core.team.tether import (
 from hil_sim.faults import FaultInjector
 from hil_sim.hw.winch import WinchConfig, WinchNode
 from hil_sim.team.team_eval import judge_pose
-from hil_sim.world.cliffbot import CliffbotTruth, build_cliffbot
+from hil_sim.world.cliffbot import CliffbotTruth, build_cliffbot, marker_plates
 from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]
@@ -95,6 +97,8 @@ class CliffbotRig:
         self.counter = 0
         self.now = 0.0
         self.rx_bad = 0
+        plates = LocalizationConfig()
+        self.plates = marker_plates(plate_frames(self.anchors[0], self.anchors[1], plates), plates.anchor_marker_size_m)
 
     # -- the true pose ----------------------------------------------------------------------
     def _set_tensions(self) -> None:
@@ -129,7 +133,9 @@ class CliffbotRig:
                               marker_size_m=cb.markers[0].size_m if cb.markers else 0.18)
 
     def world_now(self) -> World:
-        return dataclasses.replace(self.world, cliffbot=self.cliffbot_truth())
+        """The world as the RECON-bot's cameras see it now: the Cliff-bot where it stands, and the
+        Anchorbots' marker plates (the as-built ``[localization]`` defaults, docs/algorithm.md §5.2)."""
+        return dataclasses.replace(self.world, cliffbot=self.cliffbot_truth(), props=self.plates)
 
     # -- frames -----------------------------------------------------------------------------
     def to_rig(self, frames: list[tuple[int, bytes]], now: float) -> None:

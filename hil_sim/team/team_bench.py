@@ -35,17 +35,20 @@ from fsw.comm.link_packets import PacketError
 from fsw.comm.team import fix_packets
 from fsw.core.geometry import MapGrid, wrap_angle
 from fsw.core.team.tether import TetherConfig, anchor_points, tether_state
+from fsw.drivers.camera import CameraDriver, make_source
 from fsw.drivers.can_inproc import InprocBus
 from fsw.drivers.resources import Resources
 from fsw.sections import CliffbotSiteConfig
 from fsw.settings import DEFAULT_CONFIG, FswConfig, load_settings
 from fsw.tasks.cliffbot.mission import CliffbotMissionTask
+from fsw.tasks.cliffbot.sensing import CliffbotSensingTask
 from hil_sim.faults import FaultInjector, FaultSpec
 from hil_sim.link.radio_channel import ChannelPort, RadioChannel
 from hil_sim.team.cliffbot_rig import CliffbotRig
 from hil_sim.team.team_eval import FixError, fix_error
 from hil_sim.team.team_figures import TeamFigures
 from hil_sim.team.team_run import TeamSetup, team_section
+from hil_sim.team.team_sensing import CliffbotHeadCamera
 from hil_sim.world.world import World
 
 CLIFFBOT_CONFIG = DEFAULT_CONFIG.parent / "cliffbot.toml"
@@ -172,9 +175,16 @@ class CliffbotAgent:
         self.flight_bus = InprocBus(channel=name, receive_own_messages=False)
         if resume is not None:
             self._write_checkpoint(resume)
-        res = Resources(radio_port=ChannelPort(channel, "b", bench.clock.now), team_can=self.flight_bus)
+        rover = bench.rig.rover
+        self.head = CliffbotHeadCamera(self.rig, self.cfg.cliffbot_sensing, seed,
+                                       recon=lambda: (float(rover.x), float(rover.y), float(rover.yaw)),
+                                       now=bench.clock.now)
+        camera = CameraDriver(make_source("sim", self.head), timeout_s=self.cfg.cliffbot_sensing.capture_timeout_s)
+        res = Resources(radio_port=ChannelPort(channel, "b", bench.clock.now), team_can=self.flight_bus,
+                        camera=camera)
         self.recon_done = recon_done
         self.errors: list[FixError] = []  # each FIX sent, against the truth
+        self.recon_errors: list[tuple[float, float]] = []  # the RECON-bot's own error at each FIX sent
         self._rendered_at = -1
         self.sent0 = {side: channel.stats(side).air_bytes for side in ("a", "b")}
         self.exe = bench.add_agent(self.cfg, res, before_frame=self.before_frame)
@@ -186,6 +196,8 @@ class CliffbotAgent:
         self._t_last = bench.clock.now()
         self.figures = TeamFigures(self.grid.cell, self.cfg.climber.wheel_d_m, seed, channel.cfg)
         self._cycles = 0
+        self._recon_z: NDArray[np.float64] | None = None
+        self._sensed = 0  # the Cliff-bot's answered view requests noted
         if resume is not None:
             self._restore_bench(resume)
 
@@ -276,7 +288,9 @@ class CliffbotAgent:
         fr = self.frame
         rz = np.eye(3)
         rz[:2, :2] = fr._r(fr.yaw0)
+        recon = self._recon_error()
         for f in self.watch.sent:
+            self.recon_errors.append(recon)
             p = np.asarray(f.position, float)
             t = np.array([*fr.to_world(p[:2])[0], p[2] + fr.datum_m])
             r = rz @ fix_packets.rotation(f.rotvec)
@@ -285,20 +299,60 @@ class CliffbotAgent:
         self.watch.sent.clear()
 
 
+    def _recon_error(self) -> tuple[float, float]:
+        """The RECON-bot's own pose error now (its estimate against the truth): heading (deg) and
+        place (cm), what a fix would carry without the Anchorbots' plates (docs/algorithm.md §5.2)."""
+        motion = self.bench.exe.tasks.get("motion")
+        odo = getattr(motion, "odo", None)
+        if odo is None:
+            return math.nan, math.nan
+        x, y, yaw = (float(v) for v in odo.pose)
+        truth = self.bench.rig.rover
+        t = self.frame.to_map(np.array([[truth.x, truth.y]]))[0]
+        dyaw = math.degrees(wrap_angle(yaw - (truth.yaw - self.frame.yaw0)))
+        return round(dyaw, 3), round(100 * math.hypot(x - float(t[0]), y - float(t[1])), 2)
+
+    def _recon_pose(self) -> dict[str, Any] | None:
+        """Where the RECON-bot stands at the end, in the team's frame: its estimate ``(x, y, yaw)``
+        with covariance, and the truth (``safer-hil experiment fiducials --missions``)."""
+        motion = self.bench.exe.tasks.get("motion")
+        odo = getattr(motion, "odo", None)
+        if odo is None or not hasattr(motion, "mcfg"):
+            return None
+        truth = self.bench.rig.rover
+        t = self.frame.to_map(np.array([[truth.x, truth.y]]))[0]
+        return {"estimate": [float(v) for v in odo.pose],
+                "cov": np.asarray(odo.covariance(motion.mcfg), float).tolist(),
+                "truth": [float(t[0]), float(t[1]), float(wrap_angle(truth.yaw - self.frame.yaw0))]}
+
     def _note_cycle(self) -> None:
-        """After each of the RECON-bot's imaging steps: its map and its view, for the team figures
-        (the Cliff-bot does not image in this mission: its own layer stays empty)."""
+        """After each of the RECON-bot's imaging steps: its map and its view; after each of the
+        Cliff-bot's view requests answered: its own map and its views (the team figures)."""
         records = getattr(self.bench.exe.tasks.get("mission"), "records", [])
         perception = self.bench.exe.tasks.get("perception")
-        if len(records) <= self._cycles or perception is None:
+        if len(records) > self._cycles and perception is not None:
+            emap = perception.map
+            z = np.where(emap.mapped, emap.z, np.nan)
+            self._recon_z = z
+            for r in records[self._cycles:]:
+                self.figures.add_cycle({"recon": z}, [{"agent": "recon", "pose": dict(r.pose), "how": r.view,
+                                                       "expected_new_cells": round(float(r.expected_new_cells), 1),
+                                                       "obtained_new_cells": int(r.obtained_new_cells)}])
+            self._cycles = len(records)
+        sense = next((t for t in self.exe.tasks.values() if isinstance(t, CliffbotSensingTask)), None)
+        if sense is None or sense.answered <= self._sensed:
             return
-        emap = perception.map
-        z = np.where(emap.mapped, emap.z, np.nan)
-        for r in records[self._cycles:]:
-            self.figures.add_cycle({"recon": z}, [{"agent": "recon", "pose": dict(r.pose), "how": r.view,
-                                                   "expected_new_cells": round(float(r.expected_new_cells), 1),
-                                                   "obtained_new_cells": int(r.obtained_new_cells)}])
-        self._cycles = len(records)
+        answered = sense.answered
+        self._sensed = answered
+        own = sense.own_map()
+        maps = {"cliffbot": own} if self._recon_z is None else {"recon": self._recon_z, "cliffbot": own}
+        s = self.mission.est.s
+        self.figures.add_cycle(maps, [{"agent": "cliffbot", "request": answered,
+                                       "pose": {"x": round(float(s[0]), 3), "y": round(float(s[1]), 3),
+                                                "yaw_deg": round(math.degrees(float(s[2])), 1)},
+                                       "how": f"head scan, pans {list(self.cfg.cliffbot_sensing.pan_deg)} deg",
+                                       "views_merged": int(sense.merged),
+                                       "own_cells": int(np.isfinite(own).sum())}])
 
     def _render_truth(self) -> None:
         """The RECON-bot's camera sees the Cliff-bot where it truly is."""
@@ -330,6 +384,9 @@ class CliffbotAgent:
             sim_s=self.bench.clock.now() - t0, est_path=self.est_path, out=out,
             setup=TeamSetup(tether=self.cfg.tether, climber=self.cfg.climber), to_map=self.frame.to_map)
         sec["map_received"] = m.z is not None
+        sec["recon_pose"] = self._recon_pose()
+        sec["fix_recon_yaw_err_deg"] = [e[0] for e in self.recon_errors]
+        sec["fix_recon_pos_err_cm"] = [e[1] for e in self.recon_errors]
         sec.update(self.figures.section(None, "no face map in the lockstep mission: the RECON-bot's flight fuses "
                                               "into the gravity grid only"))
         sec["agent"] = {"name": self.cfg.agent.name, "kind": self.cfg.agent.kind,

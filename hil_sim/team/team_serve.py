@@ -91,6 +91,11 @@ class TeamHardware:
             "link": {"transport": f"udp://127.0.0.1:{b}", "peer": f"udp://127.0.0.1:{a}"},
         }
 
+    def recon_site(self, recon_cfg: FswConfig) -> dict[str, Any]:
+        """The RECON-bot's ``[cliffbot_site]``: the Cliff-bot's site, with the team mask on (its fixer
+        reads the Anchorbots' plates from the tether exits, docs/algorithm.md §5.2)."""
+        return {**self.cliffbot_tables(recon_cfg)["cliffbot_site"], "mask_team": True}
+
     def truth(self) -> dict[str, object]:
         w = self.rig.winches
         return {"cliffbot_x_m": round(float(self.rig.xy[0]), 4), "cliffbot_y_m": round(float(self.rig.xy[1]), 4),

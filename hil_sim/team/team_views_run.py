@@ -18,11 +18,16 @@ not record their misses (§3.4). The face map (§8.1) is fitted on the shared ma
 enough of the face and fed with every view's face share.
 
 The Cliff-bot's corridor is its plan on the true ground on the scenario's map grid
-(``face_planner.plan_targets``: start to every target it reaches, path +- ``corridor_half_m``;
-with no target reachable, the ground around its start). It moves on along that route every cycle (its task
-moves it; team views choose where along the next ``max_travel_m`` it stops to look and where it
-looks); the route is taken as planned beforehand, so where the shared map does not know the
-ground yet its tether lengths come from the route's ground (the truth).
+(``face_planner.plan_targets``: start to every target it reaches, path +- ``corridor_half_m``);
+with no target reachable, the straight way from its start toward the nearest target as far as
+the tethers hold it there on the true ground (:meth:`TeamViewsRun._toward_nearest`: known
+ground, neither slack nor over-tension, on the face where steeper than ``free_slope_deg``), the
+way it would have to map to get closer. Team views choose where on that corridor it stops to
+look (any place on it within ``max_travel_m`` of where it stands, either way) and where it
+looks; its task is to map the corridor. The route is taken as planned beforehand, so where the
+shared map does not know the ground yet its tether lengths come from the route's ground (the
+truth), and before the face map is fitted the rating's face is the plane of the ground under
+the route (``_plan_face``). Both agents' interest is weighted on the corridor.
 """
 
 from __future__ import annotations
@@ -37,7 +42,16 @@ from numpy.typing import NDArray
 
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
 from fsw.core.map.elevation_map import ElevationMap
-from fsw.core.map.face_map import FaceMap, FaceMapConfig, face_band, fit_face_plane, run_merge, split_parts
+from fsw.core.map.face_map import (
+    FaceFrame,
+    FaceMap,
+    FaceMapConfig,
+    face_band,
+    fit_face_plane,
+    run_merge,
+    split_parts,
+)
+from fsw.core.planning.face_rating import face_cells
 from fsw.core.planning.info_planners import InformationPlanner
 from fsw.core.planning.nbv import NbvConfig, predicted_visibility
 from fsw.core.planning.planners import PlannerState
@@ -54,7 +68,7 @@ from fsw.core.planning.team_views import (
 from fsw.core.planning.view_candidates import Station
 from fsw.core.planning.visibility import in_view
 from fsw.core.team.face_planner import ClimberConfig, plan_targets
-from fsw.core.team.tether import TetherConfig, anchor_points
+from fsw.core.team.tether import TetherConfig, anchor_points, surface_normal, tether_states
 from hil_sim.team.face_eval import equal_memory_cell
 from hil_sim.team.team_figures import TeamFigures
 from hil_sim.team.team_sensing import CLIFFBOT_CAMERA
@@ -113,12 +127,14 @@ class TeamViewsRun:
                             t.targets_xyz[:, :2], self.tcfg, self.ccfg)
         legs = [p for p in plan.paths if p is not None]
         start = np.asarray(t.cliffbot_start_xy, float).reshape(1, 2)
-        self.route = np.concatenate([start] + [np.vstack([p, p[::-1]]) for p in legs])  # out to each target and back
-        self.corridor = corridor_mask(self.grid, np.concatenate([start] + legs), self.tv.corridor_half_m)
+        self.reachable = bool(legs)
+        if not legs:  # no target reachable: the way toward the nearest, as far as the tethers hold it
+            legs = [self._toward_nearest(start[0], np.asarray(t.targets_xyz, float)[:, :2])]
+        self.path = np.concatenate([start] + [np.vstack([p, p[::-1]]) for p in legs])  # out to each target and back
+        self.corridor = corridor_mask(self.grid, self.path, self.tv.corridor_half_m)
         slope = _slope_deg(self.truth, self.grid.cell)
         self.face = np.isfinite(self.truth) & (slope > 45.0)
         self.cliff_xy = start[0].copy()
-        self.cliff_i = 0
         self.head = (0.0, 0.0)
         edge = np.asarray(world.edge_xy, float)
         self.edge = edge[np.argsort(edge[:, 0])]
@@ -127,9 +143,23 @@ class TeamViewsRun:
         self.joints = (-math.pi / 2, math.radians(-45.0), 0.5)
         self.records: list[CycleRecord] = []
         self.face_map: FaceMap | None = None
+        self._path_face: FaceMap | bool | None = None  # the rating's face before the fit (False: none)
         self._pending: list[tuple[F64, F64, F64 | None]] = []
         self.figures = TeamFigures(self.grid.cell, self.ccfg.wheel_d_m, seed)
         self.events: list[dict[str, object]] = []
+
+    def _toward_nearest(self, start: F64, targets: F64, step_m: float = 0.1) -> F64:
+        """The straight way from the start to the nearest target, up to the first place where the
+        tethers do not hold the Cliff-bot on the true ground (unknown, slack, over-tension, off
+        the face where it is steeper than ``free_slope_deg``): the corridor of a scene with no
+        reachable target (module docstring)."""
+        goal = targets[int(np.argmin(np.linalg.norm(targets - start, axis=1)))]
+        k = max(1, int(math.ceil(float(np.linalg.norm(goal - start)) / step_m)))
+        line = start + (goal - start) * np.linspace(0.0, 1.0, k + 1)[:, None]
+        held = [st is not None and (st.statics.ok or st.statics.tilt_deg <= self.ccfg.free_slope_deg)
+                for st in tether_states(self.truth, self.grid, self.anchors, line, self.tcfg)]
+        n = int(np.argmin(held)) if not all(held) else len(held)
+        return line[:max(n, 1)]
 
     def _edge_y(self, x: float) -> float:
         return float(np.interp(x, self.edge[:, 0], self.edge[:, 1]))
@@ -157,13 +187,50 @@ class TeamViewsRun:
         # its route was planned beforehand (module docstring): where the shared map does not know
         # the ground yet, the tether lengths and the head's place come from the route's own ground
         z = np.where(self.map.mapped, self.map.z, self.truth)
-        centres = cliffbot_centres(z, self.grid, self.anchors, self.route[self.cliff_i:], self.cliff_xy,
-                                   self.head, self.tcfg, self.tv, stay=False)
-        ahead = self.route[min(self.cliff_i + 1, len(self.route) - 1):]
-        step = next((p for p in ahead if np.linalg.norm(p - self.route[self.cliff_i]) > 0.5), ahead[-1])
-        d = step - self.route[self.cliff_i]
+        centres = cliffbot_centres(z, self.grid, self.anchors, self.path, self.cliff_xy, self.head, self.tcfg,
+                                   self.tv, both_ways=True)
+        k = int(np.argmin(np.linalg.norm(self.path - self.cliff_xy, axis=1)))
+        ahead = self.path[min(k + 1, len(self.path) - 1):]
+        step = next((p for p in ahead if np.linalg.norm(p - self.path[k]) > 0.5), ahead[-1])
+        d = step - self.path[k]
         yaw = math.atan2(float(d[1]), float(d[0])) if float(np.hypot(*d)) > 1e-6 else -math.pi / 2
-        return AgentViews("cliffbot", CLIFFBOT_CAMERA, centres, None, (yaw, math.radians(-50.0)))
+        face = self.face_map or self._plan_face(z)
+        cells = None if face is None else face_cells(face, self.map, self.nbv.visibility, self.tv.face_prior_m)
+        interest = corridor_interest(self.map, self.corridor, self.tv)  # its own task's focus too
+        return AgentViews("cliffbot", CLIFFBOT_CAMERA, centres, interest, (yaw, math.radians(-50.0)), cells)
+
+    def _plan_face(self, z: F64) -> FaceMap | None:
+        """Before the face map is fitted on the shared map: an empty face map in the plane of the
+        ground under the Cliff-bot's planned path (where steeper than 45 deg: the mean of its
+        points and of their normals), over that stretch of the dip; None when the path stays off
+        the face."""
+        if self._path_face is None:
+            run = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(self.path, axis=0), axis=1))])
+            s = np.arange(0.0, run[-1] + 1e-9, 0.1)
+            xy = np.column_stack([np.interp(s, run, self.path[:, 0]), np.interp(s, run, self.path[:, 1])])
+            pts, normals = [], []
+            for p in xy:
+                n = surface_normal(z, self.grid, p, 0.3)
+                iy, ix, inside = self.grid.cell_index(p[:1], p[1:2])
+                if n is not None and inside[0] and n[2] < math.cos(math.radians(45.0)):
+                    pts.append([p[0], p[1], float(z[iy[0], ix[0]])])
+                    normals.append(n)
+            if len(pts) < 3:
+                self._path_face = False
+                return None
+            try:
+                frame = FaceFrame.from_normal(np.mean(pts, axis=0), np.mean(normals, axis=0))
+            except ValueError:
+                self._path_face = False
+                return None
+            q = frame.to_face(np.asarray(pts, float))
+            x0, x1, y0, y1 = self.grid.extent
+            cx, cy = np.array([x0, x1, x1, x0]), np.array([y0, y0, y1, y1])
+            corners = frame.to_face(np.column_stack([cx, cy, frame.plane_z(cx, cy)]))
+            fc = dataclasses.replace(FaceMapConfig(), cell_m=equal_memory_cell(self.grid.cell, frame.slope_deg))
+            self._path_face = FaceMap(frame, (float(corners[:, 0].min()), float(corners[:, 0].max())),
+                                      (float(q[:, 1].min()), float(q[:, 1].max()) + fc.cell_m), fc, self.fusion)
+        return self._path_face or None
 
     def truth_at(self, xy: tuple[float, ...]) -> float:
         iy, ix, inside = self.grid.cell_index(np.array([xy[0]]), np.array([xy[1]]))
@@ -172,16 +239,20 @@ class TeamViewsRun:
     # -- one cycle ----------------------------------------------------------------------------
     def cycle(self) -> CycleRecord:
         agents = [self._recon()] + ([self._cliff()] if self.team else [])
+        candidates = {a.agent: sum(c.yaws.size * c.tilts.size for c in a.centres) for a in agents}
         views, _ = choose_team_views(self.map, agents, self.nbv, self.corridor)
         rec = CycleRecord(len(self.records) + 1)
         before = self.map.mapped.copy()
         seen: dict[str, B] = {}
+        start = np.asarray(self.world.team.cliffbot_start_xy if self.world.team else (0.0, 0.0), float)
         for v in views:
             cam = CLIFFBOT_CAMERA if v.agent == "cliffbot" else self.camera
             cells = self._sense(v, cam)
             seen[v.agent] = cells
             new = cells & ~before
-            rec.views.append({**v.event(), "obtained_cells": int(cells.sum()), "obtained_new_cells": int(new.sum())})
+            rec.views.append({**v.event(), "candidates": candidates[v.agent], "obtained_cells": int(cells.sum()),
+                              "obtained_new_cells": int(new.sum()),
+                              "travel_m": round(float(np.hypot(v.place[0] - start[0], v.place[1] - start[1])), 2)})
             self.events.append({"cycle": rec.cycle, "event": "TEAM_VIEW", **v.event()})
             self._move(v)
         rec.new_cells = int((self.map.mapped & ~before).sum())
@@ -206,8 +277,6 @@ class TeamViewsRun:
             self.joints = (v.yaw - v.place[2], v.tilt, v.place[3])
             return
         self.cliff_xy = np.array(v.place[:2])
-        d = np.linalg.norm(self.route[self.cliff_i:] - self.cliff_xy, axis=1)
-        self.cliff_i += int(np.argmin(d))
         self.head = (v.yaw, v.tilt)
 
     def _sense(self, v: TeamView, cam: CameraConfig) -> B:

@@ -210,6 +210,20 @@ def build_cliffbot(
     return CliffbotTruth(x, y, z, yaw, length, width, height, tuple(markers), tuple(quads))
 
 
+def marker_plates(frames: list[tuple[int, F64, F64, F64]], marker_size_m: float) -> tuple[Quad, ...]:
+    """Free-standing marker plates (the Anchorbots', docs/algorithm.md §5.2): each ``(id, centre,
+    right, down)`` in the world, a ``marker_size_m`` black square in its white quiet zone, and the
+    plate's grey back."""
+    panel = marker_size_m * (MARKER_BITS + 4) / (MARKER_BITS + 2)
+    quads: list[Quad] = []
+    for mid, c, right, down in frames:
+        r, d = np.asarray(right, float) * panel, np.asarray(down, float) * panel
+        p0 = np.asarray(c, float) - r / 2 - d / 2
+        quads.append(Quad(p0, r, d, marker_texture(int(mid)), fiducial=True))
+        quads.append(Quad(p0 + r, -r, d, np.full((4, 4), 0.35, np.float32)))
+    return tuple(quads)
+
+
 def marker_texture(marker_id: int) -> F32:
     """The marker with its one-cell white quiet zone, one texel per cell, albedo in [0, 1]."""
     if not 0 <= marker_id < 50:

@@ -25,7 +25,7 @@ from scipy import ndimage
 
 from fsw.core.geometry import MapGrid, MapGridConfig, MastConfig, point_mast
 from hil_sim.team.team_truth import TeamTruth
-from hil_sim.world.cliffbot import CliffbotTruth
+from hil_sim.world.cliffbot import CliffbotTruth, Quad
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
@@ -65,6 +65,7 @@ class World:
     config: Any = field(default=None, repr=False)  # the validated ScenarioConfig
     drawn: dict[str, float] = field(default_factory=dict)  # generator parameters drawn from the seed
     team: TeamTruth | None = None  # anchors, targets and jumble of a team scenario (cliff-team)
+    props: tuple[Quad, ...] = ()  # other planar things the cameras see (the Anchorbots' marker plates)
 
     @property
     def shape(self) -> tuple[int, int]:

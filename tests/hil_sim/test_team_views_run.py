@@ -16,7 +16,7 @@ KEYS = ("cells_by_agent", "sync_hash_equal", "sync_rounds", "sync_bytes", "sync_
 
 @pytest.mark.slow
 def test_three_team_cycles_fill_every_team_key_with_real_numbers() -> None:
-    run = run_scene("cliff-team", 0, team=True, cycles=3)
+    run = run_scene("cliff-team", 3, team=True, cycles=3)  # a scene whose face is fitted in its first cycle
     sec = json.loads(json.dumps(run.section()))  # what summary.json would hold
     assert all(k in sec for k in KEYS)
     assert sec["cells_by_agent"]["recon"] > 100 and sec["cells_by_agent"]["cliffbot"] > 100
@@ -32,7 +32,7 @@ def test_three_team_cycles_fill_every_team_key_with_real_numbers() -> None:
             assert v["obtained_new_cells"] <= v["obtained_cells"] and math.isfinite(v["expected_new_cells"])
             assert v["why"].startswith(v["agent"])
     # the same seed gives the same cycles
-    again = run_scene("cliff-team", 0, team=True, cycles=1)
+    again = run_scene("cliff-team", 3, team=True, cycles=1)
     assert json.loads(json.dumps(again.records[0].views)) == sec["views"][0]["views"]
 
 
@@ -44,3 +44,45 @@ def test_team_sensing_usage_errors_exit_2(capsys: pytest.CaptureFixture[str]) ->
     assert ok.value.code == 0 and "--cycles" in capsys.readouterr().out
     assert main(["experiment", "team-sensing", "--scenes", "0"]) == 2
     assert "--scenes" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_with_no_target_reachable_the_corridor_leads_toward_the_nearest() -> None:
+    """Scene 7: the tethers reach no target; the corridor is the straight way toward the nearest
+    one as far as the tethers hold the Cliff-bot, not its start alone."""
+    import numpy as np
+
+    from hil_sim.team.team_views_run import TeamViewsRun
+    from hil_sim.world import load_scenario
+
+    world = load_scenario("cliff-team", 7)
+    run = TeamViewsRun(world, 7, team=True)
+    assert not run.reachable
+    start = np.asarray(world.team.cliffbot_start_xy, float)
+    targets = np.asarray(world.team.targets_xyz, float)[:, :2]
+    nearest = targets[int(np.argmin(np.linalg.norm(targets - start, axis=1)))]
+    far = run.path[int(np.argmax(np.linalg.norm(run.path - start, axis=1)))]
+    assert np.linalg.norm(far - start) > 0.3  # it leaves its start
+    assert np.linalg.norm(far - nearest) < np.linalg.norm(start - nearest) - 0.3
+    assert run.corridor.sum() > 0
+
+
+def test_the_corridor_ratio_is_bounded_where_the_recon_bot_alone_never_gets_there() -> None:
+    """Team at 95 % in 6 cycles, the RECON-bot alone not within 12: the ratio is at most 6 / 13
+    (its bound row); where both reach it, their plain ratio; a scene the team does not finish
+    has no bound."""
+    from hil_sim.lab.experiments.experiment_team_sensing import COLUMNS, report
+    from hil_sim.lab.results import markdown_table
+
+    def row(seed: int, team: int | None, alone: int | None) -> dict[str, object]:
+        r: dict[str, object] = dict.fromkeys(COLUMNS, 0.5)
+        r.update(seed=seed, corridor_cycles_team=team, corridor_cycles_recon=alone, reachable=True,
+                 corridor_ratio=None if team is None or alone is None else team / alone)
+        return r
+
+    md = report([row(0, 6, None), row(1, 4, 8), row(2, None, None)], markdown_table, 12)
+    bound = next(line for line in md.splitlines() if "an upper bound" in line)
+    cells = [c.strip() for c in bound.split("|")]
+    assert float(cells[2]) == pytest.approx((6 / 13 + 4 / 8) / 2, rel=1e-3) and float(cells[3]) == pytest.approx(0.5)
+    both = next(line for line in md.splitlines() if "(scenes where both reach it)" in line)
+    assert float(both.split("|")[2]) == pytest.approx(0.5)

@@ -9,7 +9,6 @@ import io
 import json
 import math
 import os
-import select
 import signal
 import subprocess
 import sys
@@ -18,7 +17,7 @@ from pathlib import Path
 
 import psutil
 import pytest
-from hil_helpers import only_hw_tasks
+from hil_helpers import only_hw_tasks, read_until
 from loopback import NETNS_ENV, family, in_loopback_namespace, off_machine_sockets, run_in_loopback_namespace
 
 from fsw.app import build_executive
@@ -27,33 +26,6 @@ from fsw.settings import load_settings
 
 BIN = Path(sys.executable).parent
 REPO = Path(__file__).resolve().parents[2]
-
-
-def _read_until(proc: subprocess.Popen[str], marker: str, timeout_s: float) -> list[str]:
-    """Lines of ``proc``'s stdout up to the first one that holds ``marker``.
-
-    Reads the raw descriptor: ``select`` on a buffered text stream misses lines that the
-    stream already pulled into its buffer, so two lines arriving in one chunk would stall."""
-    lines: list[str] = []
-    buf = b""
-    deadline = time.monotonic() + timeout_s
-    assert proc.stdout is not None
-    fd = proc.stdout.fileno()
-    while time.monotonic() < deadline:
-        ready, _, _ = select.select([fd], [], [], 0.2)
-        if not ready:
-            continue
-        chunk = os.read(fd, 4096)
-        if not chunk:
-            break
-        buf += chunk
-        while b"\n" in buf:
-            raw, buf = buf.split(b"\n", 1)
-            line = raw.decode(errors="replace") + "\n"
-            lines.append(line)
-            if marker in line:
-                return lines
-    raise AssertionError(f"no {marker!r} from serve within {timeout_s} s: {''.join(lines)}")
 
 
 @pytest.mark.slow
@@ -84,7 +56,7 @@ def test_serve_and_flight_processes_move_a_motor_and_the_mast(tmp_path: Path) ->
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
     try:
-        head = "".join(_read_until(serve, "READY", 30.0))
+        head = "".join(read_until(serve, "READY", 30.0))
         assert "CAN     udp_hub 127.0.0.1:" in head and "/dev/pts/" in head and flight_cfg.exists()
         # 1) the unchanged flight program connects (events printed by its console task)
         run = subprocess.run(
@@ -100,7 +72,7 @@ def test_serve_and_flight_processes_move_a_motor_and_the_mast(tmp_path: Path) ->
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                env={**os.environ, "PYTHONUNBUFFERED": "1"})
         try:
-            _read_until(fsw, "components at", 30.0)
+            read_until(fsw, "components at", 30.0)
             time.sleep(1.0)  # frames run
             assert off_machine_sockets(family(serve.pid) + family(fsw.pid)) == []
             fsw.send_signal(signal.SIGTERM)

@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import dataclasses
+import os
+import select
 import socket
+import subprocess
+import time
 from typing import Any
 
 from fsw.settings import load_settings
@@ -41,3 +45,29 @@ def free_tcp_port() -> int:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
 
+
+def read_until(proc: subprocess.Popen[str], marker: str, timeout_s: float) -> list[str]:
+    """Lines of ``proc``'s stdout up to the first one that holds ``marker``.
+
+    Reads the raw descriptor: ``select`` on a buffered text stream misses lines that the
+    stream already pulled into its buffer, so two lines arriving in one chunk would stall."""
+    lines: list[str] = []
+    buf = b""
+    deadline = time.monotonic() + timeout_s
+    assert proc.stdout is not None
+    fd = proc.stdout.fileno()
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([fd], [], [], 0.2)
+        if not ready:
+            continue
+        chunk = os.read(fd, 4096)
+        if not chunk:
+            break
+        buf += chunk
+        while b"\n" in buf:
+            raw, buf = buf.split(b"\n", 1)
+            line = raw.decode(errors="replace") + "\n"
+            lines.append(line)
+            if marker in line:
+                return lines
+    raise AssertionError(f"no {marker!r} from serve within {timeout_s} s: {''.join(lines)}")

@@ -118,28 +118,45 @@ class CliffbotLocalizer:
         self.detector = cv2.aruco.ArucoDetector(dictionary, params)
 
     def detect(self, image: NDArray[np.uint8]) -> dict[int, F64]:
-        """``{id: (4, 2) pixel corners}`` of the known markers in one image."""
+        """``{id: (4, 2) pixel corners}`` of the dictionary's markers in one image (the first of an id)."""
         corners, ids, _ = self.detector.detectMarkers(image)
         out: dict[int, F64] = {}
         if ids is None:
             return out
         for c, i in zip(corners, ids.reshape(-1), strict=True):
-            if int(i) in self.corners and int(i) not in out:
+            if int(i) not in out:
                 out[int(i)] = np.asarray(c, dtype=np.float64).reshape(4, 2)
         return out
 
     def locate(self, left: NDArray[np.uint8], camera: PoseEstimate,
                right: NDArray[np.uint8] | None = None) -> BodyEstimate | None:
         """The Cliff-bot body pose in the world, or None when too few corners are seen."""
-        seen_l = self.detect(left)
+        got = self.camera_in(self.corners, left, right)
+        if got is None:
+            return None
+        est, ids, ambiguity = got
+        return dataclasses.replace(_compose(camera, est, ids), ambiguity=ambiguity)
+
+    def resect(self, known: dict[int, F64], left: NDArray[np.uint8],
+               right: NDArray[np.uint8] | None = None) -> PoseEstimate | None:
+        """The camera's pose in the frame of ``known`` (``{id: (4, 3) corners}``, markers whose
+        corners that frame knows: the Anchorbots' plates, §5.2), or None when none is seen well."""
+        got = self.camera_in(known, left, right)
+        return None if got is None else got[0]
+
+    def camera_in(self, known: dict[int, F64], left: NDArray[np.uint8], right: NDArray[np.uint8] | None = None
+                  ) -> tuple[PoseEstimate, tuple[int, ...], float] | None:
+        """The left camera's pose in the frame the corners ``known`` are given in, the marker ids it
+        rests on and its ambiguity (below), or None when too few corners are seen."""
+        seen_l = {i: c for i, c in self.detect(left).items() if i in known}
         if not seen_l:
             return None
         ids = sorted(seen_l)
         if len(ids) == 1 and _side_px(seen_l[ids[0]]) < self.cfg.fiducial_min_marker_px:
             return None  # one marker this small: its pose is not to be trusted (fiducial_min_marker_px)
-        obj = np.concatenate([self.corners[i] for i in ids])
+        obj = np.concatenate([known[i] for i in ids])
         img = np.concatenate([seen_l[i] for i in ids])
-        # Camera pose in the body frame (PnP: the body is the "world" of the problem). One
+        # Camera pose in the markers' frame (PnP: the body is the "world" of the problem). One
         # marker alone is planar and has a mirror solution; the right image usually settles it,
         # and when both still fit (a far, small marker) there is no fix (fiducial_ambiguity_ratio).
         cands = pnp_candidates(obj, img, self.K, self.cfg.corner_sigma_px)
@@ -149,7 +166,7 @@ class CliffbotLocalizer:
         seen_r = self.detect(right) if right is not None else {}
         both = [i for i in ids if i in seen_r]
         if both:
-            obj_r = np.concatenate([self.corners[i] for i in both])
+            obj_r = np.concatenate([known[i] for i in both])
             img_r = np.concatenate([seen_r[i] for i in both])
             cands = [self._refine_stereo(c, obj, img, obj_r, img_r) for c in cands]
         cands = sorted(cands, key=lambda c: c.rms_px)
@@ -164,8 +181,7 @@ class CliffbotLocalizer:
         # on the body) do not, and they dominate a fix of many corners: the covariance stops
         # shrinking at fiducial_shared_residuals residuals (docs/team.md, "Relative localization").
         k = max(1.0, 2.0 * est.n_points / self.cfg.fiducial_shared_residuals)
-        est = PoseEstimate(est.pose, est.cov * k, est.rms_px, est.n_points)
-        return dataclasses.replace(_compose(camera, est, tuple(ids)), ambiguity=ambiguity)
+        return PoseEstimate(est.pose, est.cov * k, est.rms_px, est.n_points), tuple(ids), ambiguity
 
     def _refine_stereo(self, est: PoseEstimate, obj_l: F64, img_l: F64, obj_r: F64,
                        img_r: F64, iters: int = 10) -> PoseEstimate:

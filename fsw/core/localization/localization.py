@@ -62,6 +62,19 @@ class LocalizationConfig:
     gate_chi2: float = param(
         22.46, lo=1.0, hi=1e6, doc="chi-square gate (6 dof) of a pose update; 22.46 = 0.1 %"
     )
+    anchor_marker_ids: tuple[float, ...] = param(
+        (11.0, 12.0), doc="ArUco ids of the marker plates of Anchorbot A and B, the fixer's landmarks "
+                          "(docs/algorithm.md §5.2); () for none"
+    )
+    anchor_marker_size_m: float = param(0.18, lo=0.01, hi=2.0, units="m", doc="their black square's side")
+    anchor_marker_offset_m: tuple[float, ...] = param(
+        (0.0, 0.3, -0.1), units="m",
+        doc="each plate's centre from its tether exit: along A->B, to the left of A->B, up",
+    )
+    anchor_marker_tilt_deg: float = param(
+        45.0, lo=0.0, hi=90.0, units="deg",
+        doc="the plates face to the right of A->B (the face's side), tilted up from vertical by this",
+    )
 
 
 def skew(v: F64) -> F64:

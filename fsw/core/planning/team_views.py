@@ -5,15 +5,20 @@ tilt) and, per direction, its own motion cost and localization term (§3.3, §3.
 
 * the RECON-bot's: its stations along the edge path with the mast's pan/tilt/lift grid, Eq 9 over
   wheels and mast (:func:`recon_centres`, from the information planner's own candidates);
-* the Cliff-bot's: places along its planned path on the face, its head camera ``head_m`` along the
-  ground's normal, every head pan and tilt; its motion is tether motion: the change of both
-  paid-out lengths (winches, ``a_tether``) plus the head's turn (:func:`cliffbot_centres`).
+* the Cliff-bot's: places on its planned paths (its corridor, either way, within ``max_travel_m``
+  of where it stands, :func:`corridor_places`), its head camera ``head_m`` along the ground's
+  normal, every head pan and tilt; its motion is tether motion: the change of both paid-out
+  lengths (winches, ``a_tether``; every place's tethers in one batch, ``tether_states``) plus the
+  head's turn (:func:`cliffbot_centres`).
 
 Every view is rated on the ONE shared map with §3.2-§3.5 (``nbv.rate_station``: expected
-information with the interest function, minus motion and localization costs). The RECON-bot's
-interest is weighted up on the Cliff-bot's planned corridor (its path +- ``corridor_half_m``, by
-``corridor_weight``, as a task's focus region of §3.4), so it favours what the Cliff-bot will
-drive on.
+information with the interest function, minus motion and localization costs). An agent with a
+face (``AgentViews.face``, ``face_rating.face_cells``) is rated on the face's own cells where
+they lie (§8.2, "A model that sees the face": the gravity grid's prior puts the ground below a
+lip at the lip's height) and on the gravity grid elsewhere, with a floor prior in front of the
+face. The RECON-bot's interest is weighted up on the Cliff-bot's planned corridor (its path +-
+``corridor_half_m``, by ``corridor_weight``, as a task's focus region of §3.4), so it favours
+what the Cliff-bot will drive on.
 
 **Sequential greedy** (:func:`choose_team_views`): every agent not yet served is rated, the one
 whose best view has the highest utility takes it, and the cells that view will see (its P_V on
@@ -34,6 +39,13 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
+from fsw.core.planning.face_rating import (
+    FaceCells,
+    face_visibility,
+    gravity_with_floor,
+    rate_face_station,
+    terrain_visibility,
+)
 from fsw.core.planning.info_planners import CentreRow
 from fsw.core.planning.nbv import (
     MapLike,
@@ -45,7 +57,7 @@ from fsw.core.planning.nbv import (
     utility,
 )
 from fsw.core.planning.visibility import F64, Terrain, terrain_from_map
-from fsw.core.team.tether import TetherConfig, ZMap, surface_normal, tether_state
+from fsw.core.team.tether import TetherConfig, ZMap, surface_normal, tether_states
 from fsw.framework.params import param
 
 
@@ -69,6 +81,8 @@ class TeamViewConfig:
     a_tether: float = param(100.0, lo=0.0, hi=1e6, units="s^2/m^2",
                             doc="Eq 9 weight of each paid-out length (1 / winch rate^2)")
     a_head: float = param(3.65, lo=0.0, hi=1e6, units="s^2/rad^2", doc="Eq 9 weight of the head's pan and tilt")
+    face_prior_m: float = param(2.0, lo=0.0, hi=50.0, units="m",
+                                doc="the face rating's plane continued this far down the dip past the face map")
 
 
 @dataclass(frozen=True)
@@ -96,6 +110,9 @@ class AgentViews:
     # (world yaw, tilt) to look along when no view is expected to map anything (the map's prior
     # cannot predict the ground: a face below unknown ground); None: the best utility regardless
     fallback: tuple[float, float] | None = None
+    # the face as the rating sees it (``face_rating.face_cells``): its cells are rated on the face
+    # grid, the gravity cells they stand for left out of the gravity rating; None: gravity grid only
+    face: FaceCells | None = None
 
 
 @dataclass(frozen=True)
@@ -162,39 +179,67 @@ def recon_centres(centres: Sequence[CentreRow]) -> tuple[ViewCentre, ...]:
                             np.asarray(s, float), place) for xyz, y, t, d, s, place in centres)
 
 
+def corridor_places(path_xy: F64, now_xy: F64, spacing_m: float, max_travel_m: float) -> F64:
+    """Places every ``spacing_m`` along the polyline ``path_xy`` (K, 2), either way along it, no
+    farther than ``max_travel_m`` in a straight line from ``now_xy`` (K', 2); the corridor's
+    places where the Cliff-bot may stop to look."""
+    xy = np.asarray(path_xy, float).reshape(-1, 2)
+    if xy.shape[0] == 0:
+        return np.zeros((0, 2))
+    seg = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+    run = np.concatenate([[0.0], np.cumsum(seg)])
+    s = np.arange(0.0, run[-1] + 1e-9, spacing_m)
+    pts = np.column_stack([np.interp(s, run, xy[:, 0]), np.interp(s, run, xy[:, 1])])
+    pts = pts[np.linalg.norm(pts - np.asarray(now_xy, float), axis=1) <= max_travel_m]
+    if len(pts) == 0:
+        return pts
+    _, first = np.unique(np.round(pts / max(spacing_m / 4.0, 1e-6)).astype(np.int64), axis=0, return_index=True)
+    return np.asarray(pts[np.sort(first)], float)  # an out-and-back route passes each place twice
+
+
 def cliffbot_centres(z: ZMap, grid: MapGrid, anchors: F64, path_xy: F64, now_xy: F64,
                      now_head: tuple[float, float], tcfg: TetherConfig, cfg: TeamViewConfig,
-                     sigma_loc_m: float = 0.02, stay: bool = True) -> tuple[ViewCentre, ...]:
+                     sigma_loc_m: float = 0.02, stay: bool = True, both_ways: bool = False
+                     ) -> tuple[ViewCentre, ...]:
     """The Cliff-bot's candidate centres: where it stands (unless ``stay`` is False: its task moves
     it on) and places every ``station_spacing_m`` along its planned path ``path_xy`` up to
-    ``max_travel_m`` from there, each known on the map (``z``; NaN unknown). Motion (Eq 9 over
-    the winches and the head): ``sqrt(a_tether (dl1^2 + dl2^2) + a_head (dpan^2 + dtilt^2))``
-    from the tether lengths where it stands."""
-    here = tether_state(z, grid, anchors, np.asarray(now_xy, float), tcfg)
+    ``max_travel_m`` ahead of where it stands (``both_ways``: anywhere on the path within
+    ``max_travel_m`` of it, :func:`corridor_places`), each known on the map (``z``; NaN unknown).
+    Motion (Eq 9 over the winches and the head): ``sqrt(a_tether (dl1^2 + dl2^2) + a_head (dpan^2
+    + dtilt^2))`` from the tether lengths where it stands (all places' tethers in one batch,
+    ``tether_states``)."""
+    now = np.asarray(now_xy, float).reshape(2)
+    xy = np.asarray(path_xy, float).reshape(-1, 2)
+    if both_ways:
+        ahead = corridor_places(xy, now, cfg.station_spacing_m, cfg.max_travel_m)
+        ahead = ahead[np.linalg.norm(ahead - now, axis=1) > 1e-6]
+        places = [now, *ahead]
+    else:
+        places = [now]
+        if xy.shape[0] >= 1:
+            start = int(np.argmin(np.linalg.norm(xy - now, axis=1)))
+            run = 0.0
+            last = xy[start]
+            for p in xy[start + 1:]:
+                run += float(np.linalg.norm(p - last))
+                last = p
+                if run > cfg.max_travel_m:
+                    break
+                if run >= cfg.station_spacing_m * len(places):
+                    places.append(p)
+    states = tether_states(z, grid, anchors, np.array(places), tcfg)
+    here = states[0]
     if here is None:
         return ()
     l_now = np.asarray(here.lengths_m)
-    xy = np.asarray(path_xy, float).reshape(-1, 2)
-    places = [np.asarray(now_xy, float)]
-    if xy.shape[0] >= 1:
-        start = int(np.argmin(np.linalg.norm(xy - places[0], axis=1)))
-        run = 0.0
-        last = xy[start]
-        for p in xy[start + 1:]:
-            run += float(np.linalg.norm(p - last))
-            last = p
-            if run > cfg.max_travel_m:
-                break
-            if run >= cfg.station_spacing_m * len(places):
-                places.append(p)
     pans = np.radians(np.arange(-180.0, 180.0, cfg.pan_step_deg))
     tilts = np.radians(np.asarray(cfg.tilts_deg, float))
     pp, tt = np.meshgrid(pans, tilts, indexing="ij")
     turn = np.sqrt(cfg.a_head * ((np.angle(np.exp(1j * (pp.ravel() - now_head[0])))) ** 2
                                  + (tt.ravel() - now_head[1]) ** 2))
     out = []
-    for p in places[0 if stay or len(places) == 1 else 1:]:
-        st = tether_state(z, grid, anchors, p, tcfg)
+    first = 0 if stay or len(places) == 1 else 1
+    for p, st in zip(places[first:], states[first:], strict=True):
         n = surface_normal(z, grid, p, 0.3)
         iy, ix, inside = grid.cell_index(p[:1], p[1:2])
         if st is None or n is None or not inside[0]:
@@ -217,10 +262,12 @@ def choose_team_views(emap: MapLike, agents: Sequence[AgentViews], cfg: NbvConfi
     n_max = info_n_max(emap, cfg)
     planned = np.zeros(emap.grid.shape)
     left = [a for a in agents if a.centres]
+    floors = {id(a): gravity_with_floor(a.face, emap, cfg.visibility) for a in left if a.face is not None}
     chosen: list[TeamView] = []
     first: TeamView | None = None
     while left:
-        rated = [_best(emap, terrain, a, n_max, cfg, planned if chosen else None) for a in left]
+        rated = [_best(emap, terrain if a.face is None else floors[id(a)], a, n_max, cfg, planned if chosen else None)
+                 for a in left]
         k = int(np.argmax([r[0] for r in rated]))
         u, a, c, j, bits, new = rated[k]
         blind = a.fallback is not None and new < 1.0
@@ -232,7 +279,12 @@ def choose_team_views(emap: MapLike, agents: Sequence[AgentViews], cfg: NbvConfi
             u = float(utility(np.zeros(1), c.motion[j:j + 1], c.sigma_loc_m[j:j + 1], cfg)[0])
         yaw, tilt = float(c.yaws[j // c.tilts.size]), float(c.tilts[j % c.tilts.size])
         pose = CameraPose.from_pan_tilt(*c.xyz, yaw, tilt)
-        pv = predicted_visibility(emap, pose, a.camera, cfg.visibility)
+        if a.face is None:
+            pv = predicted_visibility(emap, pose, a.camera, cfg.visibility)
+        else:  # on the terrain it was rated on; the face cells' P_V stands for the gravity cells they cover
+            pv = np.maximum(np.where(a.face.owned, 0.0, terrain_visibility(floors[id(a)], pose, a.camera,
+                                                                            cfg.visibility)),
+                            face_visibility(a.face, pose, a.camera, cfg.visibility, emap.grid))
         fresh = pv * (emap.n == 0)
         discounted = float((fresh * np.minimum(planned, 1.0)).sum())
         in_corr = float(fresh[corridor].sum()) if corridor is not None else 0.0
@@ -253,11 +305,16 @@ def _best(emap: MapLike, terrain: Terrain, a: AgentViews, n_max: int, cfg: NbvCo
           planned: F64 | None) -> tuple[float, AgentViews, ViewCentre, int, float, float]:
     """The agent's best view: (utility, agent, centre, flat view index, H, expected new cells)."""
     interest = a.interest if a.interest is not None else np.asarray(emap.interest, float)
+    gravity_interest = interest if a.face is None else np.where(a.face.owned, 0.0, interest)
     best: tuple[float, AgentViews, ViewCentre, int, float, float] | None = None
     for c in a.centres:
-        r = rate_station(terrain, c.xyz, c.yaws, c.tilts, emap.n, n_max, interest, a.camera, cfg.visibility,
-                         planned)
+        r = rate_station(terrain, c.xyz, c.yaws, c.tilts, emap.n, n_max, gravity_interest, a.camera,
+                         cfg.visibility, planned)
         bits, new = r.info_bits.ravel(), r.expected_new_cells.ravel()
+        if a.face is not None:
+            f = rate_face_station(a.face, c.xyz, c.yaws, c.tilts, n_max, interest, a.camera, cfg.visibility,
+                                  planned)
+            bits, new = bits + f.info_bits.ravel(), new + f.expected_new_cells.ravel()
         u = utility(bits, c.motion, c.sigma_loc_m, cfg)
         j = int(np.argmax(u))
         if best is None or float(u[j]) > best[0]:

@@ -26,7 +26,7 @@ from fsw.tasks.cliffbot_mission import CliffbotMission, Estimate, Leg
 
 SCHEMA = 1
 STATE, MAP = "cliffbot_state.json", "cliffbot_map.npy"
-STATES = ("WAIT_MAP", "PLAN", "WAIT_FIX", "DRIVE", "DWELL", "DONE", "SAFE")
+STATES = ("WAIT_MAP", "SENSE", "PLAN", "WAIT_FIX", "DRIVE", "DWELL", "DONE", "SAFE")
 
 
 class CheckpointError(ValueError):
@@ -77,8 +77,10 @@ def restore(m: CliffbotMission, st: dict[str, object], z: NDArray[np.float64] | 
     m.start = np.asarray(st.get("start", m.start), float).reshape(2)
     m.est = Estimate(s, p)  # (the navigation task reads the same checkpoint: nav_estimate)
     m.fix_seq = _int(st.get("fix_seq", 0))
-    if state in ("WAIT_FIX", "DRIVE", "DWELL"):
-        state = "WAIT_FIX"  # the leg goes on from the estimate, after a fix
+    if state in ("WAIT_FIX", "DRIVE", "DWELL") or (state == "SENSE" and legs):
+        state = "WAIT_FIX"  # the leg goes on from the estimate, after a fix (and its views)
+    elif state == "SENSE":
+        state = "SENSE" if m.sensing is not None else "PLAN"  # the views before the plan are asked again
     m.state = state
     m.safe_reason = str(st.get("safe_reason", "")) if state == "SAFE" else ""
     return f"leg {leg_i + 1} of {len(legs)}, {sum(reached)} of {len(targets)} targets reached"

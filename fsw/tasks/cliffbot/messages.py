@@ -6,7 +6,9 @@ requests (:class:`~fsw.comm.team.fix_packets.FixRequest`); ``cb_nav`` runs the n
 (statuses, fixes, the map the mission plans on: :class:`PlanMap`; resets the mission asks
 for: :class:`NavReset`) and publishes its estimate and its verdict on each fix
 (:class:`NavEstimate`); ``cb_mission`` steps the sans-I/O mission and publishes the device
-commands (:class:`~fsw.tasks.cliffbot_mission.Commands`).
+commands (:class:`~fsw.tasks.cliffbot_mission.Commands`) and its requests for views
+(:class:`SenseRequest`); ``cb_sensing`` takes the views, fuses them and publishes the map the
+mission plans on (:class:`SensedMap`: the received map with the cells its own views made known).
 """
 
 from __future__ import annotations
@@ -27,6 +29,8 @@ CB_FIX_REQUEST = "cliffbot.fix_request"
 CB_NAV = "cliffbot.nav"
 CB_NAV_RESET = "cliffbot.nav_reset"
 CB_PLAN_MAP = "cliffbot.plan_map"
+CB_SENSE = "cliffbot.sense"
+CB_SENSED_MAP = "cliffbot.sensed_map"
 
 
 @dataclass(frozen=True)
@@ -90,3 +94,23 @@ class NavEstimate:
     P: NDArray[np.float64]
     resets: int
     verdicts: tuple[FixVerdict, ...] = ()
+
+
+@dataclass(frozen=True)
+class SenseRequest:
+    """The mission asks for its own views now (``seq`` counts the requests)."""
+
+    seq: int
+
+
+@dataclass(frozen=True)
+class SensedMap:
+    """The map the mission plans on when the Cliff-bot senses: the received map (``map_id``,
+    its codec bound) with the unknown cells its own views made known (``own_cells`` of them);
+    ``sense_seq``: the last request whose views are all in it (0: none)."""
+
+    map_id: int
+    z: NDArray[np.float64]
+    error_bound_m: float
+    sense_seq: int
+    own_cells: int

@@ -41,11 +41,14 @@ from fsw.tasks.cliffbot.messages import (
     CB_NAV,
     CB_NAV_RESET,
     CB_PLAN_MAP,
+    CB_SENSE,
+    CB_SENSED_MAP,
     CB_STATUS,
     DeviceStatus,
     NavEstimate,
     NavReset,
     PlanMap,
+    SenseRequest,
 )
 from fsw.tasks.cliffbot_mission import CliffbotMission
 
@@ -55,6 +58,7 @@ MISSION_EVENTS = {
     "MAP": I, "PLAN": A, "FIX_REQUEST": I, "FIX": I, "FIX_REFUSED": W, "FIX_UNAVAILABLE": Severity.WARNING_LO,
     "TARGET_UNREACHABLE": Severity.WARNING_LO, "TARGET_REACHED": A, "HOME": A, "DONE": A, "WINCH_FAULT": W,
     "LINK_LOST": W, "SAFE": W, "RECOVER": A, "TARGETS_REFUSED": Severity.WARNING_LO,
+    "SENSE_REQUEST": I, "SENSED": I, "SENSE_TIMEOUT": Severity.WARNING_LO,
 }
 RENAMED = {"COMMAND_REFUSED": "TARGETS_REFUSED"}  # the framework's own COMMAND_REFUSED is another event
 
@@ -64,8 +68,14 @@ class CliffbotMissionTask(FlightTask):
     RATE_HZ: ClassVar[tuple[float, float]] = (5.0, 50.0)  # winch pacing and timeouts assume ~10 Hz
     REQUIRES: ClassVar[tuple[str, ...]] = ("cliffbot_devices", "cliffbot_radio", "cliffbot_nav", "health")
     DOC: ClassVar[str] = "Cliff-bot mission: plan on the received map, drive the tethers to each target and home."
+
+    @classmethod
+    def required_kinds(cls, cfg: object) -> tuple[str, ...]:  # cfg: the FswConfig
+        """With ``[cliffbot_sensing] enabled`` its views come from the sensing task."""
+        on = bool(getattr(getattr(cfg, "cliffbot_sensing", None), "enabled", False))
+        return (*cls.REQUIRES, "cliffbot_sensing") if on else cls.REQUIRES
     CHANNELS = (
-        Channel("state", doc="WAIT_MAP, PLAN, WAIT_FIX, DRIVE, DWELL, DONE, SAFE"),
+        Channel("state", doc="WAIT_MAP, SENSE, PLAN, WAIT_FIX, DRIVE, DWELL, DONE, SAFE"),
         Channel("leg", "count"),
         Channel("targets_reached", "count"),
         Channel("safe_reason"),
@@ -90,10 +100,13 @@ class CliffbotMissionTask(FlightTask):
         anchors = np.array([site.anchor_a_xyz, site.anchor_b_xyz], float)
         targets = np.asarray(site.targets_xy, float).reshape(-1, 2)
         self.mission = CliffbotMission(cfg.cliffbot_mission, cfg.tether, cfg.climber, cfg.cliffbot_nav, anchors,
-                                       np.asarray(site.start_xy, float), math.radians(site.start_yaw_deg), targets)
+                                       np.asarray(site.start_xy, float), math.radians(site.start_yaw_deg), targets,
+                                       sensing=cfg.cliffbot_sensing)
         self.grid = MapGrid.from_config(cfg.map)
         self.status = self.subscribe(CB_STATUS, depth=1)
-        self.maps = self.subscribe(CB_MAP, depth=2)
+        # with its own views, the sensing task hands it the received map with its own cells
+        self.sensing = self.mission.sensing is not None
+        self.maps = self.subscribe(CB_SENSED_MAP if self.sensing else CB_MAP, depth=2)
         self.fixes = self.subscribe(CB_FIX, depth=4)
         self.nav = self.subscribe(CB_NAV, depth=8)
         self._map_sent = 0
@@ -131,6 +144,8 @@ class CliffbotMissionTask(FlightTask):
             self._estimate(est)
         for got in self.maps.drain():
             m.set_map(got.z, self.grid, got.error_bound_m)
+            if self.sensing:
+                m.sensed(got.sense_seq)
         if m.z is not None and m.map_version != self._map_sent:  # a new map, or a checkpoint's
             self._map_sent = m.map_version
             self.publish(CB_PLAN_MAP, PlanMap(m.map_version, m.z))
@@ -142,6 +157,8 @@ class CliffbotMissionTask(FlightTask):
         if st is not None:
             cmd = m.step(now, st.devices)
             self.publish(CB_COMMANDS, cmd)
+            if cmd.sense:
+                self.publish(CB_SENSE, SenseRequest(m.sense_seq))
             if cmd.request_fix:
                 xy = m.est.xy
                 self.publish(CB_FIX_REQUEST, FixRequest(m.fix_seq, m.leg_i, float(xy[0]), float(xy[1])))

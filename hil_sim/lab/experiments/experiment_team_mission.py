@@ -6,10 +6,12 @@ the RECON-bot, method 5; both flight programs on one stepped clock; docs/team.md
 team mission"), each in ``OUT/seed<S>`` with its ``summary.json`` and ``team.png``. Per scene
 the summary's ``team`` section: whether the delivered map let the Cliff-bot leave its start,
 targets reachable on the truth and reached, tether violations, hazard and unknown cells
-entered, the end state and reason, the bytes each way. Over all scenes the RECON-bot's fixes
+entered, the cells each agent's own views made known (``cells_by_agent``), the end state and
+reason, the bytes each way. Over all scenes the RECON-bot's fixes
 (each FIX against the Cliff-bot's true pose at that instant) by range band: median and worst
 position and heading error, and the fraction whose NEES lies within the chi-square 95 % bound
-(6 dof). Writes OUT/team_mission.csv and ``docs/results/team-mission.md`` with the picture
+(6 dof), and the RECON-bot's own heading error at each (what a fix from its estimate alone would
+carry; docs/algorithm.md §5.2). Writes OUT/team_mission.csv and ``docs/results/team-mission.md`` with the picture
 (``team.png``) of the scene that reached the most targets. ``--report-only`` writes them again
 from the missions stored in OUT (no mission is run).
 """
@@ -37,6 +39,8 @@ COLUMNS = (
     "hazard_cells",
     "unknown_cells",
     "fixes",
+    "recon_cells",
+    "cliffbot_cells",
     "final_state",
     "safe_reason",
     "bytes_down",
@@ -84,6 +88,8 @@ def scene_row(s: dict[str, Any], seed: int) -> dict[str, Any]:
         "hazard_cells": t.get("hazard_cells_entered", 0),
         "unknown_cells": t.get("unknown_cells_entered", 0),
         "fixes": len(t.get("fix_errors_cm", [])),
+        "recon_cells": (t.get("cells_by_agent") or {}).get("recon", 0),
+        "cliffbot_cells": (t.get("cells_by_agent") or {}).get("cliffbot", 0),
         "final_state": t.get("final_state", "-"),
         "safe_reason": t.get("safe_reason", ""),
         "bytes_down": t.get("link_bytes_down", 0),
@@ -96,6 +102,7 @@ def scene_row(s: dict[str, Any], seed: int) -> dict[str, Any]:
             t.get("fix_errors_cm", []),
             t.get("fix_errors_deg", []),
             t.get("fix_nees", []),
+            t.get("fix_recon_yaw_err_deg", [float("nan")] * len(t.get("fix_nees", []))),
             strict=False,
         )
     )
@@ -156,15 +163,16 @@ def run(args: argparse.Namespace) -> int:
         wr.writerows(rows)
     lines = [
         "| seed | start usable | targets | reachable (truth) | reached | tether violations | hazard cells | "
-        "unknown cells | fixes | end | bytes down / up | per target |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "unknown cells | fixes | cells RECON-bot / Cliff-bot | end | bytes down / up | per target |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         end = r["final_state"] + (f" ({r['safe_reason']})" if r["safe_reason"] else "")
         lines.append(
             f"| {r['seed']} | {'yes' if r['start_usable'] else 'no'} | {r['targets']} | {r['truth_reachable']} | "
             f"{r['reached']} | {r['tether_violations']} | {r['hazard_cells']} | {r['unknown_cells']} | "
-            f"{r['fixes']} | {end} | {r['bytes_down']} / {r['bytes_up']} | {r['map_reasons']} |"
+            f"{r['fixes']} | {r['recon_cells']} / {r['cliffbot_cells']} | {end} | "
+            f"{r['bytes_down']} / {r['bytes_up']} | {r['map_reasons']} |"
         )
     reach = sum(r["truth_reachable"] for r in rows)
     done = sum(min(r["reached"], r["truth_reachable"]) for r in rows)
@@ -177,8 +185,8 @@ def run(args: argparse.Namespace) -> int:
     )
     band = [
         "| range (m) | fixes | position error median / worst (cm) | heading error median / worst (deg) | "
-        "NEES within chi2 95 % |",
-        "|---|---|---|---|---|",
+        "NEES within chi2 95 % | the RECON-bot's own heading error then, median (deg) |",
+        "|---|---|---|---|---|---|",
     ]
     for lo, hi in BANDS:
         sel = [f for f in fixes if lo <= f[0] < hi]
@@ -186,9 +194,11 @@ def run(args: argparse.Namespace) -> int:
             continue
         pe, de = np.array([f[1] for f in sel]), np.array([f[2] for f in sel])
         ok = np.mean([f[3] <= CHI2_95_6DOF for f in sel])
+        own = np.array([abs(f[4]) if len(f) > 4 and f[4] is not None else np.nan for f in sel], float)
         band.append(
             f"| {lo:g}-{hi:g} | {len(sel)} | {np.median(pe):.2f} / {pe.max():.2f} | "
-            f"{np.median(de):.2f} / {de.max():.2f} | {100 * ok:.0f} % |"
+            f"{np.median(de):.2f} / {de.max():.2f} | {100 * ok:.0f} % | "
+            f"{'-' if np.isnan(own).all() else f'{np.nanmedian(own):.2f}'} |"
         )
     within = np.mean([f[3] <= CHI2_95_6DOF for f in fixes]) if fixes else float("nan")
     report = (

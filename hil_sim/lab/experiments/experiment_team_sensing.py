@@ -12,7 +12,12 @@ Figures per scene: new cells per imaging cycle (team / RECON-bot alone), the ove
 views of a cycle (cells both measured / cells either measured; and / cells the smaller measured), the cycles until the
 Cliff-bot's corridor (its plan on the true ground, path +- 1 m) is mapped to 95 % (team, alone,
 their ratio), the face (true slope > 45 deg) and corridor mapped after the last cycle, and the
-RMS error on cells both agents mapped: each agent's own map and the fused one. Writes
+RMS error on cells both agents mapped: each agent's own map and the fused one; and why the
+Cliff-bot's views add what they add: whether its corridor leads to a target (else toward the
+nearest, as far as the tethers hold it), its candidate views per cycle, its expected and obtained
+new cells, its share of the team's new cells and its farthest place from its start. Where the
+team maps 95 % of the corridor and the RECON-bot alone does not within ``--cycles``, the ratio
+of their cycles is bounded from above by counting the RECON-bot's as ``--cycles + 1``. Writes
 OUT/team_sensing.csv, OUT/coverage.png (face and corridor coverage per cycle: team, each of its
 agents, the RECON-bot alone; medians over the scenes) and ``docs/results/team-sensing.md``.
 """
@@ -30,7 +35,8 @@ HELP = "team views (both agents) against the RECON-bot alone: cells per cycle, o
 COLUMNS = ("seed", "cycles", "team_cells_per_cycle", "recon_cells_per_cycle", "cells_ratio", "overlap_mean",
            "overlap_max", "overlap_of_smaller_max", "corridor_cycles_team", "corridor_cycles_recon",
            "corridor_ratio", "corridor_team", "corridor_recon", "face_team", "face_recon", "both_cells",
-           "rmse_recon_m", "rmse_cliffbot_m", "rmse_fused_m", "blind_views")
+           "rmse_recon_m", "rmse_cliffbot_m", "rmse_fused_m", "blind_views", "reachable", "cliffbot_candidates",
+           "cliffbot_expected_new", "cliffbot_obtained_new", "cliffbot_new_share", "cliffbot_travel_m")
 GOAL = 0.95
 
 
@@ -123,6 +129,7 @@ def scene(spec: str, seed: int, cycles: int, cell_m: float) -> tuple[dict[str, A
         "face_team": team.records[-1].face_frac, "face_recon": alone.records[-1].face_frac,
         **team.fused_vs_better(),
         "blind_views": sum(1 for r in team.records for v in r.views if "no view is expected" in v["why"]),
+        **_cliffbot_figures(team),
     }
     curve = {
         "face_team": [r.face_frac for r in team.records], "corridor_team": [r.corridor_frac for r in team.records],
@@ -133,6 +140,25 @@ def scene(spec: str, seed: int, cycles: int, cell_m: float) -> tuple[dict[str, A
         curve[f"face_{agent}"] = [r.agent_face_frac[agent] for r in team.records]
         curve[f"corridor_{agent}"] = [r.agent_corridor_frac[agent] for r in team.records]
     return row, curve
+
+
+def _cliffbot_figures(team: Any) -> dict[str, Any]:
+    """Why the Cliff-bot's views add what they add: whether its corridor leads to a target, its
+    candidate views per cycle (median), its expected and obtained new cells (sums over the
+    cycles), its share of the team's new cells and its farthest place from its start."""
+    import numpy as np
+
+    views = [v for r in team.records for v in r.views if v["agent"] == "cliffbot"]
+    new = sum(r.new_cells for r in team.records)
+    got = sum(v["obtained_new_cells"] for v in views)
+    return {
+        "reachable": team.reachable,
+        "cliffbot_candidates": float(np.median([v["candidates"] for v in views])) if views else 0.0,
+        "cliffbot_expected_new": float(sum(v["expected_new_cells"] for v in views)),
+        "cliffbot_obtained_new": got,
+        "cliffbot_new_share": got / new if new else None,
+        "cliffbot_travel_m": max((v["travel_m"] for v in views), default=0.0),
+    }
 
 
 def plot(curves: dict[int, dict[str, list[float]]], path: Path) -> Path:
@@ -192,9 +218,20 @@ def report(rows: list[dict[str, Any]], table: Any, cycles: int) -> str:
         sum(v is not None for v in ct), f"of {len(rows)}", "")
     add(f"scenes with the corridor mapped to 95 % within {cycles} cycles: RECON-bot alone",
         sum(v is not None for v in cr), f"of {len(rows)}", "")
+    for k, who in (("corridor_cycles_team", "team"), ("corridor_cycles_recon", "RECON-bot alone")):
+        v = col(k)
+        add(f"cycles to 95 % of the corridor: {who} (scenes reaching it)", float(np.median(v)) if v.size else None,
+            float(v.max()) if v.size else None, "")
     cratio = col("corridor_ratio")
     add("cycles to 95 % of the corridor, team / alone (scenes where both reach it)",
         float(np.median(cratio)) if cratio.size else None, float(cratio.max()) if cratio.size else None, "<= 0.6")
+    # where the team reaches it and the RECON-bot alone does not, alone needs more than `cycles`:
+    # team / (cycles + 1) bounds the ratio from above
+    bound = np.array([r["corridor_cycles_team"] / (r["corridor_cycles_recon"] or cycles + 1) for r in rows
+                      if r["corridor_cycles_team"] is not None], float)
+    add(f"cycles to 95 % of the corridor, team / alone (alone not within {cycles}: counted as {cycles + 1}, "
+        "an upper bound of the ratio; scenes where the team reaches it)",
+        float(np.median(bound)) if bound.size else None, float(bound.max()) if bound.size else None, "<= 0.6")
     for k, name in (("corridor_team", "corridor mapped after the last cycle: team"),
                     ("corridor_recon", "corridor mapped after the last cycle: RECON-bot alone"),
                     ("face_team", "face mapped after the last cycle: team"),
@@ -206,5 +243,15 @@ def report(rows: list[dict[str, Any]], table: Any, cycles: int) -> str:
         d = np.array([r["rmse_fused_m"] - min(r["rmse_recon_m"], r["rmse_cliffbot_m"]) for r in ok])
         add("fused RMS - better agent's RMS on cells both mapped (m)", float(np.median(d)), float(d.max()), "<= 0")
     add("views chosen blind (no view expected to map anything)", sum(r["blind_views"] for r in rows), "", "")
+    add("scenes where the Cliff-bot reaches no target (corridor: toward the nearest, as far as the tethers hold)",
+        sum(not r["reachable"] for r in rows), f"of {len(rows)}", "")
+    for k, name in (("cliffbot_candidates", "the Cliff-bot's candidate views per cycle"),
+                    ("cliffbot_new_share", "the Cliff-bot's share of the team's new cells"),
+                    ("cliffbot_travel_m", "the Cliff-bot's farthest place from its start (m)")):
+        v = col(k)
+        add(name, float(np.median(v)) if v.size else None, float(v.min()) if v.size else None, "")
+    e, o = col("cliffbot_expected_new"), col("cliffbot_obtained_new")
+    add("the Cliff-bot's obtained / expected new cells (sum over a scene's cycles)",
+        float(np.median(o / np.maximum(e, 1.0))), float(np.min(o / np.maximum(e, 1.0))), "")
     return ("## Summary\n\n" + table(summary, ["figure", "median", "worst", "goal"])
             + "\n\n## Scenes\n\n" + table(rows, list(COLUMNS)) + "\n")

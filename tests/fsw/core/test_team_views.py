@@ -18,6 +18,7 @@ from fsw.core.planning.team_views import (
     cliffbot_centres,
     corridor_interest,
     corridor_mask,
+    corridor_places,
 )
 from fsw.core.team.tether import TetherConfig, anchor_points
 from fsw.settings import load_settings
@@ -100,3 +101,17 @@ def test_the_cliffbots_views_cost_tether_motion() -> None:
     assert least[0] == 0.0 and all(b > a for a, b in zip(least, least[1:], strict=False))
     assert all(c.place[2] > 0 and c.place[3] > 0 for c in cs)  # both tether lengths
     assert len(cliffbot_centres(z, GRID, anchors, path, path[0], (0.0, 0.0), tcfg, cfg, stay=False)) == len(cs) - 1
+
+
+def test_corridor_places_lie_on_the_path_either_way_within_reach() -> None:
+    """Places every spacing along an out-and-back path, either way from where the Cliff-bot
+    stands, none farther than max_travel, each once."""
+    path = np.column_stack([np.full(41, 3.0), np.linspace(1.0, 5.0, 41)])
+    route = np.vstack([path, path[::-1]])
+    now = np.array([3.0, 3.0])
+    p = corridor_places(route, now, 0.5, 1.2)
+    assert np.allclose(p[:, 0], 3.0)
+    assert np.all(np.linalg.norm(p - now, axis=1) <= 1.2 + 1e-9)
+    assert p[:, 1].min() < 2.5 and p[:, 1].max() > 3.5  # behind and ahead of it
+    assert len(np.unique(np.round(p, 3), axis=0)) == len(p) == 5  # 2.0 ... 4.0, the way back adds none
+    assert corridor_places(np.zeros((0, 2)), now, 0.5, 1.2).shape == (0, 2)

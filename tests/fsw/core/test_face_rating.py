@@ -1,0 +1,94 @@
+"""Rating views of a face on the face's own grid (fsw.core.planning.face_rating, docs/algorithm.md
+§8.2): a camera on a 70 deg face expects the face below it that the gravity grid's prior cannot
+predict; a camera behind the plane expects none of it; the chosen view's face cells stand for
+their gravity cells in the team's ``planned``."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
+from fsw.core.map.elevation_map import ElevationMap
+from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig
+from fsw.core.planning.face_rating import face_cells, face_visibility, gravity_with_floor, rate_face_station
+from fsw.core.planning.nbv import NbvConfig, rate_station
+from fsw.core.planning.team_views import AgentViews, ViewCentre, choose_team_views
+from fsw.core.planning.visibility import terrain_from_map
+from fsw.settings import load_settings
+
+GRID = MapGrid(0.0, 0.0, 0.1, 60, 60)  # plateau y > 4 m at z = 0, a 70 deg face below it
+SLOPE = math.radians(70.0)
+CAM = CameraConfig(width_px=160, height_px=120, hfov_deg=60.0, baseline_m=0.07, min_range_m=0.3, max_range_m=4.0)
+VIS = NbvConfig().visibility
+YAWS = np.radians(np.arange(-180.0, 180.0, 30.0))
+TILTS = np.radians([-75.0, -50.0, -25.0, 0.0])
+
+
+def _plateau_only() -> ElevationMap:
+    """The gravity map after a survey from the top: the plateau known, the face unknown."""
+    emap = ElevationMap(GRID, load_settings(check_calibration=False).fusion)
+    _, y = GRID.centers()
+    top = y > 4.0
+    emap.z[top] = 0.0
+    emap.var[top] = 0.01**2
+    emap.n[top] = 1
+    return emap
+
+
+def _face() -> FaceMap:
+    """An empty face map in the face's plane (through the edge line y = 4, z = 0)."""
+    normal = np.array([0.0, -math.sin(SLOPE), math.cos(SLOPE)])
+    frame = FaceFrame.from_normal(np.array([3.0, 4.0, 0.0]), normal)
+    return FaceMap(frame, (-3.0, 3.0), (-3.0, -0.2), FaceMapConfig(cell_m=0.1))
+
+
+def _on_face(depth_m: float, out_m: float = 0.5) -> tuple[float, float, float]:
+    """A camera ``out_m`` off the face, ``depth_m`` below the edge."""
+    n = np.array([0.0, -math.sin(SLOPE), math.cos(SLOPE)])
+    p = np.array([3.0, 4.0 - depth_m / math.tan(SLOPE), -depth_m]) + out_m * n
+    return float(p[0]), float(p[1]), float(p[2])
+
+
+def test_a_camera_on_the_face_expects_the_face_the_gravity_prior_cannot_see() -> None:
+    emap = _plateau_only()
+    fc = face_cells(_face(), emap, VIS, prior_m=1.0)
+    cam = _on_face(1.0)
+    face = rate_face_station(fc, cam, YAWS, TILTS, 2, np.asarray(emap.interest, float), CAM, VIS)
+    down = int(np.argmin(np.abs(YAWS + math.pi / 2)))  # facing out of the face (-y)
+    assert face.expected_new_cells[down, 0] > 40  # 75 deg down: along the face below, at arm's length
+    assert face.expected_new_cells[down, 3] == 0.0  # level, out into the air: none of the face
+    behind = rate_face_station(fc, (3.0, 4.5, 0.45), YAWS, TILTS, 2, None, CAM, VIS)  # on the plateau
+    assert behind.cells_rated == 0 and behind.expected_new_cells.max() == 0.0
+    # the gravity grid alone: its prior puts the unknown face at the plateau's height
+    grav = rate_station(terrain_from_map(emap.z, emap.var, GRID, VIS), cam, YAWS, TILTS, emap.n, 2,
+                        np.asarray(emap.interest, float), CAM, VIS)
+    assert grav.expected_new_cells[down, 0] < 0.5 * face.expected_new_cells[down, 0]
+
+
+def test_the_face_cells_stand_for_their_gravity_cells_and_the_floor_prior_lies_below() -> None:
+    emap = _plateau_only()
+    fc = face_cells(_face(), emap, VIS, prior_m=1.0)
+    _, y = GRID.centers()
+    assert not fc.owned[y > 4.05].any()  # the plateau is the gravity grid's
+    assert fc.owned.sum() > 100 and fc.below.any() and not (fc.owned & fc.below).any()
+    assert fc.floor_z < -3.0  # the plane at the face cells' lowest v (band 3 m + prior 1 m of dip)
+    terrain = gravity_with_floor(fc, emap, VIS)
+    assert np.allclose(terrain.elev_m[fc.below], fc.floor_z)
+    pose = CameraPose.from_pan_tilt(*_on_face(1.0), -math.pi / 2, math.radians(-75.0))
+    pv = face_visibility(fc, pose, CAM, VIS, GRID)
+    assert pv.max() > 0.5 and not (pv > 0)[~fc.owned].any()
+
+
+def test_the_cliffbots_face_view_enters_planned_on_its_gravity_cells() -> None:
+    """Rated on the face cells, the Cliff-bot's view is no blind one, and the cells it will see go
+    into the team's ``planned`` as the gravity cells the next agent's rating reads."""
+    emap = _plateau_only()
+    fc = face_cells(_face(), emap, VIS, prior_m=1.0)
+    k = YAWS.size * TILTS.size
+    cliff = AgentViews("cliffbot", CAM, (ViewCentre(_on_face(1.0), YAWS, TILTS, np.zeros(k), np.zeros(k),
+                                                     (3.0, 3.6, 1.0, 1.0)),), face=fc)
+    views, planned = choose_team_views(emap, [cliff], NbvConfig())
+    assert views[0].expected_new_cells > 40 and "no view is expected" not in views[0].why
+    assert planned[fc.owned].max() > 0.5 and planned[~fc.owned & ~fc.below].max() == 0.0

@@ -1,0 +1,82 @@
+"""The Cliff-bot's mission looks before it plans (fsw.tasks.cliffbot_mission, ``SENSE``; docs/team.md,
+"Both agents sense")."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fsw.core.geometry import MapGrid, MapGridConfig
+from fsw.core.team.cliffbot_nav import NavConfig
+from fsw.core.team.face_planner import ClimberConfig
+from fsw.core.team.tether import TetherConfig
+from fsw.drivers.cliffbot_devices import CliffbotDevices
+from fsw.sections import CliffbotMissionConfig, CliffbotSensingConfig
+from fsw.tasks.cliffbot_mission import CliffbotMission
+
+GRID = MapGrid.from_config(MapGridConfig(origin_x_m=0.0, origin_y_m=-3.0, cell_m=0.1, nx=60, ny=40))
+
+
+class FreshDevices(CliffbotDevices):
+    """Statuses that never go stale (the mission's device supervision is not under test here)."""
+
+    def stale(self, now: float) -> list[str]:
+        return []
+
+
+def _mission(sensing: CliffbotSensingConfig | None) -> CliffbotMission:
+    anchors = np.array([[1.0, 0.6, 0.3], [4.0, 0.6, 0.3]])
+    return CliffbotMission(CliffbotMissionConfig(), TetherConfig(), ClimberConfig(), NavConfig(), anchors,
+                           np.array([2.5, -0.5]), -np.pi / 2, np.array([[2.0, -1.5]]), sensing=sensing)
+
+
+def _names(m: CliffbotMission) -> list[str]:
+    return [name for _, name, _ in m.events]
+
+
+def test_with_sensing_the_first_map_asks_for_views_once_and_their_map_is_planned_on() -> None:
+    m = _mission(CliffbotSensingConfig(enabled=True))
+    dev = FreshDevices()
+    m.set_map(np.zeros(GRID.shape), GRID)
+    assert m.state == "SENSE"
+    first, second = m.step(0.1, dev), m.step(0.2, dev)
+    assert first.sense and not second.sense and m.sense_seq == 1
+    assert first.rates_mps == (0.0, 0.0) and m.state == "SENSE"  # it holds still while it looks
+    m.sensed(0)  # a map without this request's views (say, a newer RECON-bot map) does not end it
+    assert m.state == "SENSE"
+    m.set_map(np.zeros(GRID.shape), GRID)
+    m.sensed(1)
+    assert m.state == "PLAN" and "SENSED" in _names(m)
+    m.step(0.3, dev)
+    assert m.state in ("WAIT_FIX", "DONE") and "PLAN" in _names(m)
+
+
+def test_views_that_never_come_end_in_a_plan_on_the_map_it_has() -> None:
+    m = _mission(CliffbotSensingConfig(enabled=True, sense_timeout_s=5.0))
+    dev = FreshDevices()
+    m.set_map(np.zeros(GRID.shape), GRID)
+    assert m.step(0.1, dev).sense
+    m.step(4.0, dev)
+    assert m.state == "SENSE"
+    m.step(5.2, dev)
+    assert m.state == "PLAN" and "SENSE_TIMEOUT" in _names(m)
+
+
+def test_a_leg_looks_again_only_after_the_cliffbot_moved() -> None:
+    cfg = CliffbotSensingConfig(enabled=True, move_m=0.5)
+    m = _mission(cfg)
+    m.set_map(np.zeros(GRID.shape), GRID)
+    m.step(0.1, CliffbotDevices())
+    m.sensed(1)
+    m.sensed_xy = m.est.xy
+    assert not m._wants_views()
+    m.est.s[:2] += np.array([0.3, 0.0])
+    assert not m._wants_views()
+    m.est.s[:2] += np.array([0.3, 0.0])
+    assert m._wants_views()
+
+
+def test_without_sensing_the_mission_plans_at_once() -> None:
+    for sensing in (None, CliffbotSensingConfig(enabled=False)):
+        m = _mission(sensing)
+        m.set_map(np.zeros(GRID.shape), GRID)
+        assert m.state == "PLAN" and not m.step(0.1, CliffbotDevices()).sense
