@@ -47,6 +47,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("experiment", "sync"): "hil_sim.lab.experiments.experiment_sync",
     ("experiment", "face-map"): "hil_sim.lab.experiments.experiment_face_map",
     ("experiment", "team-sensing"): "hil_sim.lab.experiments.experiment_team_sensing",
+    ("experiment", "prediction"): "hil_sim.lab.prediction_check",
 }
 
 GROUP_HELP = {

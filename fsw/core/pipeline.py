@@ -290,8 +290,9 @@ class SensingPipeline:
         measured remembers the view as its source (``fsw.core.map.reference_frames``). With a
         face map the points are split by its hand-over (§8.1) and its share fused there."""
         if self.face is not None:
+            view = parts  # every point's sight line is free space (the face map's overhang test)
             to_face, parts = split_parts(parts, self.face)
-            self.face.merge_parts(to_face)
+            self.face.merge_parts(to_face, eye=placed.pose.t, rays=view)
             yield
         view_cells = self.map.grid.cell_means(np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3)))
         X, Y = (c.reshape(-1)[view_cells[0]] for c in self.map.grid.centers())

@@ -14,6 +14,7 @@ knows (its latest map and edge fit, its pose estimate) and never touch the fligh
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -43,8 +44,13 @@ def reachable_stations(mission: Any, cfg: Any) -> int:
 
 def wheels_on_unknown(rig: Any, mission: Any, odo_before: float) -> int:
     """1 if the rover moved this frame with a wheel (true position) on ground the flight
-    software's geofence does not know (unmapped, never stood on)."""
+    software's geofence does not know (unmapped, never stood on). The true wheels are taken
+    into the flight map's frame (the odometry's, which starts at the world's ``rover_start``)."""
     if rig.rover.odometer_m <= odo_before + 1e-9:
         return 0
     xs, ys = rig.rover.world_wheel_xy()
-    return int(not mission.ground.geofence.known.known_xy(np.column_stack([xs, ys])).all())
+    x0, y0, yaw0 = (float(v) for v in getattr(rig.world, "rover_start", (0.0, 0.0, 0.0)))
+    c, s = math.cos(yaw0), math.sin(yaw0)
+    dx, dy = np.asarray(xs) - x0, np.asarray(ys) - y0
+    in_map = np.column_stack([c * dx + s * dy, -s * dx + c * dy])
+    return int(not mission.ground.geofence.known.known_xy(in_map).all())

@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 
 from fsw.core.map.elevation_map import ElevationMap
 from fsw.core.map.face_map import FaceMap
+from fsw.core.map.free_space import air_under
 from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]
@@ -88,6 +89,27 @@ def gravity_along_normal(gravity: ElevationMap, face: FaceMap, cells: NDArray[np
     return along_normal(height, face, cells)[0]
 
 
+def overhang_seen(face: FaceMap, cells: NDArray[np.intp], w_true: F64, over: B,
+                  rays: list[tuple[F64, F64]]) -> B:
+    """Which truth overhang cells (``over``, outer surface ``w_true``) some view could show as
+    one: a true sight line (``rays``: true camera centre and the true surface points it sees,
+    world) crosses the cell's column more than the overhang gap below the outer surface, in the
+    air between the two surfaces or ending on the inner one. A cell no sight line reaches under
+    its outer surface looks from every view like a single surface."""
+    g = face.grid
+    z = np.full(g.nx * g.ny, np.nan)
+    z[cells[over]] = w_true[over]
+    total = np.zeros(g.nx * g.ny, np.int64)
+    reach = (-face.cfg.slab_in_m, face.cfg.slab_out_m)
+    for eye, pts in rays:
+        q = face.frame.to_face(pts)
+        n = len(q)
+        r, _ = air_under(g, z, np.zeros_like(z), face.frame.to_face(np.reshape(eye, (1, 3)))[0], q,
+                         np.zeros(n), np.full(n, 1e-3), reach, face.cfg.overhang_gap_m, 0.0, 0.25 * g.cell)
+        total += r
+    return np.asarray(over & (total[cells] > 0), bool)
+
+
 def face_points(face: FaceMap, cells: NDArray[np.intp], w: F64) -> F64:
     """World points ``(N, 3)`` at ``w`` on the normal through each face cell's centre."""
     g = face.grid
@@ -112,11 +134,14 @@ def _rms(e: F64) -> float | None:
 
 
 def face_figures(world: World, face: FaceMap, gravity: ElevationMap,
-                 cells_by_agent: dict[str, int] | None = None) -> dict[str, Any]:
+                 cells_by_agent: dict[str, int] | None = None,
+                 rays: list[tuple[F64, F64]] | None = None) -> dict[str, Any]:
     """The team summary's face figures (module docstring): ``face_rmse_m`` (mapped single-surface
     face cells, the face map), ``face_rmse_gravity_m`` (the same points, queried from
     ``gravity``; only cells both have), ``face_rmse_gravity_normal_m``, ``face_cells``,
-    ``overhang_truth``, ``overhang_flagged``, ``overhang_false`` and ``cells_by_agent``."""
+    ``overhang_truth``, ``overhang_flagged``, ``overhang_false`` and ``cells_by_agent``; with the
+    views' true sight lines ``rays`` also ``overhang_seen`` (truth overhangs some view could
+    show, :func:`overhang_seen`) and ``overhang_seen_flagged``."""
     cells = np.flatnonzero(face.map.mapped.reshape(-1))
     w_true, over = truth_along_normal(world, face, cells)
     e_face = face.map.z.reshape(-1)[cells] - w_true
@@ -124,7 +149,10 @@ def face_figures(world: World, face: FaceMap, gravity: ElevationMap,
     e_norm = gravity_along_normal(gravity, face, cells) - w_true
     both = ~over & np.isfinite(e_face) & np.isfinite(e_grav)
     flagged = face.overhang.reshape(-1)[cells]
+    seen = overhang_seen(face, cells, w_true, over, rays) if rays is not None else None
     return {
+        "overhang_seen": None if seen is None else int(seen.sum()),
+        "overhang_seen_flagged": None if seen is None else int((seen & flagged).sum()),
         "face_rmse_m": _rms(e_face[both]), "face_rmse_gravity_m": _rms(e_grav[both]),
         "face_rmse_gravity_normal_m": _rms(e_norm[both]),
         "face_cells": int(both.sum()), "overhang_truth": int(over.sum()),

@@ -75,6 +75,18 @@ def team_points(pts: StereoPoints, quad: NDArray[np.bool_], terrain: F32, grow_p
     return np.asarray(near[v, u] & (pts.xyz_c[:, 2] < nearest[v, u] - tol), bool)
 
 
+def true_points(pose: CameraPose, K: F64, depth: F32, quad: NDArray[np.bool_], most: int = 20000) -> F64:
+    """World points ``(N, 3)`` of the true terrain a view sees (``depth``: the renderer's terrain
+    depth per pixel, NaN none; pixels showing a robot or a tether left out), at most ``most``
+    of them, evenly spread over the image."""
+    v, u = np.nonzero(np.isfinite(depth) & ~quad)
+    sel = np.unique(np.linspace(0, len(v) - 1, min(len(v), most)).astype(np.intp)) if len(v) else v
+    v, u = v[sel], u[sel]
+    z = depth[v, u].astype(np.float64)
+    pc = np.column_stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z])
+    return np.asarray(pc @ pose.R.T + pose.t, float)
+
+
 class FaceScene:
     def __init__(self, spec: str, seed: int, config: str, mask: bool = True) -> None:
         """``mask``: the team mask on (the flight's way); off shows what it keeps out."""
@@ -99,11 +111,12 @@ class FaceScene:
         self.split_gravity = ElevationMap(self.grid, self.cfg.fusion)
         self.face: FaceMap | None = None
         self.by_agent: dict[str, FaceMap] = {}
-        self.pending: list[tuple[str, list[ViewPart]]] = []
+        self.pending: list[tuple[str, list[ViewPart], F64]] = []  # agent, parts, camera centre
         self.team_points = 0  # stereo points on a robot or a tether (truth): what the mask had to remove
         self.team_points_fused = 0  # of those, the ones that reached the maps
         self.team_cells: set[tuple[int, int]] = set()  # the gravity-grid cells those fell in
         self.views = 0
+        self.true_rays: list[tuple[F64, F64]] = []  # per view: true camera centre, true surface points seen
         self.cells_by_agent = {"recon": 0, "cliffbot": 0}
         self.z_grid = self.world.ground_on_grid(self.grid)
         self.tcfg = TetherConfig()
@@ -164,6 +177,7 @@ class FaceScene:
         w = dataclasses.replace(self.world, cliffbot=body)
         rend = StereoRenderer(w, cfg.camera, self.world.noise_sigma, seed=int(self.rng.integers(1 << 30)))
         left, right, quad, terrain = rend.render_labelled(pose, team_quads(team, pose.t))
+        self.true_rays.append((pose.t.copy(), true_points(pose, cfg.camera.K, terrain, quad)))
         est = perturbed(pose, cov, self.rng)
         pipe = SensingPipeline(cfg, None, emap=self.gravity)
         pipe.team = known if self.mask else None
@@ -183,9 +197,9 @@ class FaceScene:
         self.views += 1
         run_merge(self.gravity, parts, None)
         if self.face is None:
-            self.pending.append((agent, parts))
+            self.pending.append((agent, parts, est.t))
             return
-        self._fuse(agent, parts)
+        self._fuse(agent, parts, est.t)
 
     def _try_fit(self) -> None:
         try:
@@ -197,17 +211,19 @@ class FaceScene:
         self.face = FaceMap(frame, (u[0], u[1]), (v[0], v[1]), fc, self.cfg.fusion)
         for a in ("recon", "cliffbot"):
             self.by_agent[a] = self.face.empty_like()
-        for agent, parts in self.pending:
-            self._fuse(agent, parts)
+        for agent, parts, eye in self.pending:
+            self._fuse(agent, parts, eye)
         self.pending = []
 
-    def _fuse(self, agent: str, parts: list[ViewPart]) -> None:
+    def _fuse(self, agent: str, parts: list[ViewPart], eye: F64) -> None:
+        """One view into the face map and its gravity grid (the hand-over), and into the agent's
+        own face map; ``eye``: the camera centre as estimated (the rays' free space)."""
         assert self.face is not None
         to_face, to_grav = split_parts(parts, self.face)
         before = int(self.face.map.mapped.sum() + self.split_gravity.mapped.sum())
-        self.face.merge_parts(to_face)
+        self.face.merge_parts(to_face, eye=eye, rays=parts)
         run_merge(self.split_gravity, to_grav, None)
-        self.by_agent[agent].merge_parts(to_face)
+        self.by_agent[agent].merge_parts(to_face, eye=eye, rays=parts)
         self.cells_by_agent[agent] += int(self.face.map.mapped.sum() + self.split_gravity.mapped.sum()) - before
 
     def recon_poses(self, n: int) -> list[tuple[tuple[float, float, float], CameraPose]]:
@@ -265,11 +281,13 @@ class FaceScene:
                      "rmse_fused_m", "in2s_recon", "in2s_cliff", "in2s_fused")
             zeros = {f"{k}_{a}": 0 for k in ("cells", "within2s") for a in ("recon", "cliff", "fused")}
             return {**row, **{k: None for k in nones}, **zeros, "overhang_truth": 0, "overhang_flagged": 0,
-                    "overhang_false": 0, "both_cells": 0, "team_points_seen": self.team_points,
+                    "overhang_false": 0, "overhang_seen": 0, "overhang_seen_flagged": 0, "both_cells": 0,
+                    "team_points_seen": self.team_points,
                     "team_points_fused": self.team_points_fused, "team_cells_mapped": len(self.team_cells)}
-        f = face_figures(self.world, self.face, self.gravity, self.cells_by_agent)
+        f = face_figures(self.world, self.face, self.gravity, self.cells_by_agent, self.true_rays)
         row.update({k: f[k] for k in ("face_cells", "face_rmse_m", "face_rmse_gravity_m", "face_rmse_gravity_normal_m",
-                                       "overhang_truth", "overhang_flagged", "overhang_false")})
+                                       "overhang_truth", "overhang_flagged", "overhang_false", "overhang_seen",
+                                       "overhang_seen_flagged")})
         r, g, gn = f["face_rmse_m"], f["face_rmse_gravity_m"], f["face_rmse_gravity_normal_m"]
         row["ratio"] = r / g if r is not None and g else None
         row["ratio_normal"] = r / gn if r is not None and gn else None

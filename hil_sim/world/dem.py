@@ -6,7 +6,8 @@ Accepted files: ``.npy`` (a 2-D float array of metres, ``[iy, ix]`` with row 0 a
 is placed with its corner at ``(x_min_m, y_min_m)``; DEMs coarser than 1 cm are resampled
 (bilinear) to 1 cm or finer. The rover starts at ``[rover_start]``; the plateau is the ground
 connected to it within ``plateau_tol_m`` of its height, and the true edge is that plateau's
-boundary (walked with the plateau on its left). The map grid covers the DEM.
+boundary (walked with the plateau on its left). The map grid covers the DEM, in the flight
+map's frame (the rover's odometry from its start: :func:`start_frame_map`).
 
 Bad files are refused with one line (:class:`ScenarioError`): a file that is not what its
 suffix says (checked by its signature before any parser reads it), a ``.npy`` holding Python
@@ -176,14 +177,30 @@ def build_from_dem(cfg: ScenarioConfig, seed: int) -> World:
     else:
         plateau = plateau_mask(grid, dem, (rs.x_m, rs.y_m), plateau_z, fc.plateau_tol_m)
     edge = plateau_edge(plateau, grid)
-    cell = cfg.map.cell_m
-    map_grid = MapGridConfig(origin_x_m=grid.x0, origin_y_m=grid.y0, cell_m=cell,
-                             nx=max(2, min(8192, int(nx * grid.cell_m / cell))),
-                             ny=max(2, min(8192, int(ny * grid.cell_m / cell))))
+    map_grid = start_frame_map(grid, nx, ny, cfg.map.cell_m, (rs.x_m, rs.y_m, math.radians(rs.yaw_deg)))
     rng = np.random.default_rng([seed, 4])
     return finish_world(cfg, f"file:{Path(fc.path).name}", seed, grid, dem, rng,
                         edge_xy=edge, plateau_z=plateau_z, map_grid=map_grid,
                         plateau=plateau)
+
+
+def start_frame_map(grid: TruthGrid, nx: int, ny: int, cell: float,
+                    start: tuple[float, float, float]) -> MapGridConfig:
+    """The map grid covering the DEM, in the flight map's frame (the rover's odometry, which
+    starts at ``start``: x, y, yaw in rad): the DEM's corners seen from the start, their
+    bounding box (the DEM itself for a start at the origin facing +x)."""
+    x1, y1 = grid.x0 + nx * grid.cell_m, grid.y0 + ny * grid.cell_m
+    c, s = math.cos(start[2]), math.sin(start[2])
+    if abs(s) < 1e-9 and c > 0:  # no turn: the DEM shifted by the start, its size as it is
+        return MapGridConfig(origin_x_m=grid.x0 - start[0], origin_y_m=grid.y0 - start[1], cell_m=cell,
+                             nx=max(2, min(8192, int(nx * grid.cell_m / cell))),
+                             ny=max(2, min(8192, int(ny * grid.cell_m / cell))))
+    dx = np.array([grid.x0, x1, x1, grid.x0]) - start[0]
+    dy = np.array([grid.y0, grid.y0, y1, y1]) - start[1]
+    u, v = c * dx + s * dy, -s * dx + c * dy
+    return MapGridConfig(origin_x_m=float(u.min()), origin_y_m=float(v.min()), cell_m=cell,
+                         nx=max(2, min(8192, int(float(np.ptp(u)) / cell))),
+                         ny=max(2, min(8192, int(float(np.ptp(v)) / cell))))
 
 
 def plateau_edge(plateau: NDArray[np.bool_], grid: TruthGrid) -> F64:

@@ -24,6 +24,9 @@ def test_a_start_left_by_the_raster_but_not_by_method_5_is_not_met() -> None:
     md = report(rows, [], ["5", "1"])
     assert "moved: **1** (target 0) NOT MET" in md and "bearing 0, edge 0.3 m, seed 0: method 5" in md
     assert "without a reason in their summary: **1** (target 0) NOT MET" in md
+    chose = {**_row("5", -90.0, False, []), "reachable_max": 24}  # it could move and viewed from its start
+    assert "M5: chose views from where it stood (24 stations reachable)" in report([chose], [], ["5", "1"])
+    assert "without a reason in their summary: **0**" in report([chose], [], ["5", "1"])
     ok = report([_row("1", 0.0, True, []), _row("5", 0.0, True, [])], [], ["5", "1"])
     assert "moved: **0** (target 0) met" in ok
     assert "nothing to judge" in report([], ["x: BrokenProcessPool"], ["5", "1"])
@@ -35,7 +38,33 @@ def test_start_spec_adds_the_bearing_and_distance_to_the_family() -> None:
     assert spec == "terrain?slope_deg=4&edge_bearing_deg=-45&edge_distance_m=0.2"
 
 
-@pytest.mark.parametrize("args", [["--distances", "0.1"], ["--methods", "7"], ["--bearings", "x"]])
+@pytest.mark.parametrize("args", [["--distances", "0.1"], ["--methods", "7"], ["--bearings", "x"],
+                                  ["--near-edge", "file:no/such/dem.npy"]])
 def test_bad_arguments_exit_2_with_one_line(args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["experiment", "close-edge", *args]) == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def _summary(method: str, odometer: float, stays: list[str]) -> dict[str, Any]:
+    return {"method": method, "odometer_m": odometer, "stays": stays, "steps": [{"step": 0}, {"step": 1}],
+            "edge_violations": 0, "geofence_refusals": 0, "mapped_cells": 100, "map_rmse_m": 0.02,
+            "final_state": "DONE"}
+
+
+def test_raster_when_stuck_runs_the_raster_method_only_where_method_5_stayed(tmp_path, monkeypatch, capsys) -> None:
+    """Seed 0: Method 5 stayed, Method 1 left (both taken from their run directories); seed 1:
+    Method 5 left, so Method 1 is not run there (no directory, no mission: '-' in the table)."""
+    import json
+
+    monkeypatch.setenv("SAFER_RESULTS_DIR", str(tmp_path / "results"))
+    runs = tmp_path / "out" / "runs"
+    for name, s in (("b0_d0.3_seed0_m5", _summary("5", 0.0, ["step 1: no move the geofence allows"])),
+                    ("b0_d0.3_seed0_m1", _summary("1", 1.5, [])), ("b0_d0.3_seed1_m5", _summary("5", 2.0, []))):
+        (runs / name).mkdir(parents=True)
+        (runs / name / "summary.json").write_text(json.dumps(s))
+    argv = ["experiment", "close-edge", "--bearings", "0", "--distances", "0.3", "--seeds", "0,1", "--methods", "5,1",
+            "--steps", "1", "--raster-when-stuck", "--reuse", "--out", str(tmp_path / "out")]
+    assert main(argv) == 0
+    md = (tmp_path / "out" / "close_edge.md").read_text()
+    assert "| terrain | 0 | 0.3 | 0 | 0 | 1.5 |" in md and "| terrain | 0 | 0.3 | 1 | 2 | - |" in md
+    assert "moved: **1** (target 0) NOT MET" in md and not (runs / "b0_d0.3_seed1_m1").exists()

@@ -61,3 +61,29 @@ def test_the_gravity_grid_is_queried_where_a_user_queries_it() -> None:
     en = gravity_along_normal(grav, face, cells)
     en = en[np.isfinite(en)]
     assert float(np.sqrt(np.mean(en * en))) == pytest.approx(rms * math.cos(a), rel=0.35)
+
+
+def test_the_judge_counts_the_overhangs_a_sight_line_reached_under() -> None:
+    """``overhang_seen``: a truth overhang cell counts as one a view could show when a true sight
+    line crosses its column more than the gap under the outer surface; a sight line that stops
+    before the column, or a single-surface cell, does not count."""
+    import math
+
+    import numpy as np
+
+    from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig
+    from hil_sim.team.face_eval import overhang_seen
+
+    a = math.radians(70.0)
+    frame = FaceFrame.from_normal(np.zeros(3), np.array([0.0, -math.sin(a), math.cos(a)]))
+    face = FaceMap(frame, (0.0, 0.3), (0.0, 0.1), FaceMapConfig(cell_m=0.1, overhang_gap_m=0.1))
+    cells = np.array([0, 1, 2])
+    w_true = np.array([0.4, 0.4, 0.0])
+    over = np.array([True, True, False])
+    eye = frame.to_world(np.array([[-1.0, 0.05, 0.1]]))[0]
+    end = frame.to_world(np.array([[0.08, 0.05, 0.1], [0.28, 0.05, 0.1]]))
+    assert overhang_seen(face, cells, w_true, over, [(eye, end[:1])]).tolist() == [True, False, False]
+    assert overhang_seen(face, cells, w_true, over, [(eye, end)]).tolist() == [True, True, False]
+    # along w = 0.35: under the roof, but by less than the gap
+    high = frame.to_world(np.array([[-1.0, 0.05, 0.35], [0.28, 0.05, 0.35]]))
+    assert not overhang_seen(face, cells, w_true, over, [(high[0], high[1:])]).any()

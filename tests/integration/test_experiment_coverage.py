@@ -102,3 +102,16 @@ def test_table_without_the_reference_methods(tmp_path: Path) -> None:
     md = (tmp_path / "coverage.md").read_text()
     assert "| 5 | 13000 | 13000 | 13000 | - | - | 12000 | - | 6.0 |" in md
     assert "nan" not in md
+
+
+def test_prediction_pooled_over_scenarios(tmp_path: Path) -> None:
+    """Several scenarios (--scenario lab,terrain): each scenario's views and all of them pooled,
+    per method, with the pooled median judged; Figure 8 over every scenario."""
+    from hil_sim.lab.experiments.experiment_coverage import pooled_report
+
+    lab = _results(m3_late=5)  # Method 5: 2 views at 1.0, 10 at 1.2
+    far = {k: _run([(1000.0, 2000)] * 6) for k in lab}  # every view obtains 2x its expected
+    md = pooled_report(tmp_path, ["lab", "terrain"], ["3", "5"], 2, {"lab": lab, "terrain": far})
+    assert "| 5 | lab | 12 | 1.20 |" in md and "| 5 | terrain | 12 | 2.00 |" in md
+    assert "| 5 | **all** | 24 | 1.60 |" in md and "0.8-1.25 NOT MET" in md
+    assert (tmp_path / "fig8_expected_vs_obtained.png").stat().st_size > 10_000

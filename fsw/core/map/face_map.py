@@ -30,7 +30,10 @@ height per cell with variance, count, interest, misses) in the face's own frame:
   ``overhang_gap_m`` plus the gate from the cell's fused height. Within a view the outer surface
   (the larger ``w``, what the normal sees from outside) is fused and the inner one goes to
   :attr:`FaceMap.second`; across views the cell keeps what it holds and the new surface goes
-  to :attr:`FaceMap.second`.
+  to :attr:`FaceMap.second`. Free space (:meth:`FaceMap.carve`, given the camera centre): rays
+  that pass under a cell's surface (``fsw.core.map.free_space``), or a camera standing under the
+  cell's tangent plane (it sees the surface's lower side), show air under ground, so a second
+  surface even where no view saw one; the flag is :attr:`FaceMap.overhang` all the same.
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid
 from fsw.core.map.elevation_map import ElevationMap, FusionConfig, MergeStats
+from fsw.core.map.free_space import air_under
 from fsw.core.steps import run_to_end
 from fsw.framework.params import param
 
@@ -61,6 +65,13 @@ class FaceMapConfig:
     slab_in_m: float = param(0.5, lo=0.05, hi=20.0, units="m", doc="points farther behind the plane: gravity grid")
     seam_m: float = param(0.15, lo=0.0, hi=5.0, units="m", doc="strips at the band's ends that feed both grids")
     overhang_gap_m: float = param(0.10, lo=0.01, hi=5.0, units="m", doc="a gap in w this wide splits two surfaces")
+    air_min_rays: int = param(3, lo=1, hi=1000,
+                              doc="rays passing under a cell's surface that flag it (free space, overhang)")
+    air_sigma: float = param(3.0, lo=0.0, hi=20.0, units="sigma",
+                             doc="a ray counts that far (plus the gap) under the surface")
+    underside_deg: float = param(20.0, lo=0.0, hi=89.0, units="deg",
+                                 doc="a view this far under a cell's tangent plane sees its underside: flag (0: off)")
+    air_max_rays: int = param(20000, lo=0, hi=10**7, doc="rays per view traced for free space (0: none)")
 
 
 @dataclass(frozen=True)
@@ -260,6 +271,7 @@ class FaceMergeStats:
     merge: MergeStats
     overhang_new: int  # cells flagged by this view
     second_points: int  # points kept out of the map as a second surface
+    air_new: int = 0  # of those, the cells flagged by free space (rays under the surface, a view from below)
 
 
 class FaceMap:
@@ -275,6 +287,9 @@ class FaceMap:
         self.map: ElevationMap = FaceElevation(MapGrid(float(u_range[0]), float(v_range[0]), c, nx, ny), fusion)
         self.overhang = np.zeros(self.map.grid.shape, bool)
         self.second = np.full(self.map.grid.shape, np.nan)  # the other surface's w where flagged
+        self.air = np.zeros(self.map.grid.shape, np.int32)  # rays that passed under the surface
+        self.air_w = np.full(self.map.grid.shape, np.nan)  # the lowest w they reached (inner surface below)
+        self.under = np.full(self.map.grid.shape, np.nan)  # sine of the deepest view under the tangent plane
 
     def empty_like(self) -> FaceMap:
         """An empty face map on the same frame and grid (e.g. one agent's share)."""
@@ -282,6 +297,9 @@ class FaceMap:
         out.map = FaceElevation(self.map.grid, self.map.cfg)
         out.overhang = np.zeros(self.map.grid.shape, bool)
         out.second = np.full(self.map.grid.shape, np.nan)
+        out.air = np.zeros(self.map.grid.shape, np.int32)
+        out.air_w = np.full(self.map.grid.shape, np.nan)
+        out.under = np.full(self.map.grid.shape, np.nan)
         return out
 
     @property
@@ -342,10 +360,12 @@ class FaceMap:
         return np.where(np.isfinite(w), z, np.nan)
 
     # -- fusion ---------------------------------------------------------------------------------
-    def merge_parts(self, parts: list[ViewPart],
-                    p_visible: F64 | B | None = None) -> FaceMergeStats:
+    def merge_parts(self, parts: list[ViewPart], p_visible: F64 | B | None = None,
+                    eye: F64 | None = None, rays: list[ViewPart] | None = None) -> FaceMergeStats:
         """Fuse one view's world points with covariance (the face-routed ones) through §1 in the
-        face frame, with the overhang test of the module docstring."""
+        face frame, with the overhang tests of the module docstring; with the camera centre
+        ``eye`` (world) the free space along the rays to the view's points (``rays``: all of
+        them, default ``parts``) flags the cells it passes under (:meth:`carve`)."""
         xyz = np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3))
         cov = np.concatenate([p[1] for p in parts]) if parts else np.zeros((0, 3, 3))
         commons = [p[2] for p in parts]
@@ -357,7 +377,72 @@ class FaceMap:
         face_parts: list[tuple[F64, F64, F64 | None]] = [
             (q[keep], cov_f[keep], None if common is None else self.frame.cov_to_face(common[keep]))]
         stats = run_merge(self.map, face_parts, p_visible)
-        return FaceMergeStats(stats, flagged, n_second)
+        air_new = 0
+        if eye is not None:
+            air_new = self.carve(eye, parts if rays is None else rays)
+        return FaceMergeStats(stats, flagged + air_new, n_second, air_new)
+
+    def carve(self, eye: F64, parts: list[ViewPart]) -> int:
+        """The free-space tests of one view (module docstring), after its merge: the rays from the
+        camera centre ``eye`` to the points of ``parts`` (world, at most ``air_max_rays`` of them,
+        evenly spread), each cut short of its point by ``air_sigma`` times the root of its
+        covariance's trace and one cell. A cell is flagged when ``air_min_rays`` rays (of this
+        view and earlier ones) passed under its surface by more than the gap plus ``air_sigma``
+        sigma (``fsw.core.map.free_space``: :attr:`air`, :attr:`air_w`), or when a view with a
+        point in it stood more than ``underside_deg`` under its tangent plane (:attr:`under`).
+        Returns the cells newly flagged."""
+        cfg = self.cfg
+        if cfg.air_max_rays == 0 or not parts:
+            return 0
+        xyz = np.concatenate([p[0] for p in parts])
+        cov = np.concatenate([p[1] for p in parts])
+        if len(xyz) == 0:
+            return 0
+        sel = np.unique(np.linspace(0, len(xyz) - 1, min(len(xyz), cfg.air_max_rays)).astype(np.intp))
+        q = self.frame.to_face(xyz[sel])
+        cov_f = self.frame.cov_to_face(cov[sel])
+        var_w = np.maximum(cov_f[:, 2, 2], 0.0)
+        # cut short of the point: its error along any direction and one cell
+        stop = cfg.air_sigma * np.sqrt(np.maximum(np.trace(cov_f, axis1=1, axis2=2), 0.0)) + self.grid.cell
+        rays, lowest = air_under(self.grid, self.map.z, self.map.var, self.frame.to_face(np.reshape(eye, (1, 3)))[0],
+                                 q, var_w, stop, (-cfg.slab_in_m, cfg.slab_out_m), cfg.overhang_gap_m,
+                                 cfg.air_sigma, 0.5 * self.grid.cell)
+        air, air_w = self.air.reshape(-1), self.air_w.reshape(-1)
+        air += rays.astype(np.int32)
+        hit = np.isfinite(lowest)
+        air_w[hit] = np.fmin(air_w[hit], lowest[hit])
+        if cfg.underside_deg > 0:
+            self.under = np.fmax(self.under, self._seen_from_below(self.frame.to_face(np.reshape(eye, (1, 3)))[0], q))
+        flag = (air >= cfg.air_min_rays).reshape(self.overhang.shape) & ~self.overhang
+        if cfg.underside_deg > 0:
+            flag |= (self.under > np.sin(np.radians(cfg.underside_deg))) & ~self.overhang
+        self.overhang |= flag
+        return int(flag.sum())
+
+    def _seen_from_below(self, eye: F64, q: F64) -> F64:
+        """Per cell holding one of the view's points ``q`` (face frame), the sine of the angle by
+        which the camera ``eye`` (face frame) stands under the cell's tangent plane (the map's
+        height and gradient there; NaN: no point, or not mapped). A camera under the plane sees
+        the surface's lower side: air below it along the normal, ground above."""
+        g, m = self.grid, self.map
+        iu = np.floor((q[:, 0] - g.x0) / g.cell).astype(np.intp)
+        iv = np.floor((q[:, 1] - g.y0) / g.cell).astype(np.intp)
+        ok = (iu >= 0) & (iu < g.nx) & (iv >= 0) & (iv < g.ny)
+        hit = np.zeros(g.nx * g.ny, bool)
+        hit[iv[ok] * g.nx + iu[ok]] = True
+        hit &= m.mapped.reshape(-1)
+        gv, gu = minmod_gradient(m.z, g.cell)
+        c = np.flatnonzero(hit)
+        uc = g.x0 + (c % g.nx + 0.5) * g.cell
+        vc = g.y0 + (c // g.nx + 0.5) * g.cell
+        zc = m.z.reshape(-1)[c]
+        a, b = gu.reshape(-1)[c], gv.reshape(-1)[c]
+        h = eye[2] - (zc + a * (eye[0] - uc) + b * (eye[1] - vc))
+        dist = np.sqrt((eye[0] - uc) ** 2 + (eye[1] - vc) ** 2 + (eye[2] - zc) ** 2)
+        sin_el = h / (dist * np.sqrt(1.0 + a * a + b * b))
+        out = np.full(g.nx * g.ny, np.nan)
+        out[c] = -sin_el
+        return out.reshape(g.shape)
 
     def _two_surfaces(self, q: F64, var_w: F64, min_points: int = 3) -> tuple[B, int, int]:
         """The overhang test of one view (face coordinates ``q``, their variances along the
@@ -427,6 +512,23 @@ class FaceMap:
         flat_over |= far
         keep[idx[order[kept & (far & ~better)[cs]]]] = False
         return keep, new, int(n - keep.sum())
+
+
+def minmod_gradient(z: F64, cell_m: float) -> tuple[F64, F64]:
+    """``(d/dv, d/du)`` of a grid's heights by the min-mod of the two one-sided differences per
+    axis: the smaller where both have one sign, 0 where they differ or a neighbour is unknown. A
+    step between two cells gives neither of them its slope (a central difference would give both
+    half of it); a slope spanning several cells keeps it."""
+    pad = np.pad(z, 1, constant_values=np.nan)
+    c = pad[1:-1, 1:-1]
+    out = []
+    for p, m in ((pad[2:, 1:-1], pad[:-2, 1:-1]), (pad[1:-1, 2:], pad[1:-1, :-2])):
+        fwd, bwd = (p - c) / cell_m, (c - m) / cell_m
+        with np.errstate(invalid="ignore"):
+            same = np.sign(fwd) == np.sign(bwd)
+        g = np.where(same, np.where(np.abs(fwd) < np.abs(bwd), fwd, bwd), 0.0)
+        out.append(np.nan_to_num(g, nan=0.0))
+    return out[0], out[1]
 
 
 def run_merge(emap: ElevationMap, parts: list[tuple[F64, F64, F64 | None]],

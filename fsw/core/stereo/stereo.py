@@ -131,6 +131,10 @@ class StereoConfig:
         0.15, lo=0.01, hi=5.0, units="px",
         doc="1-sigma disparity noise where no per-pixel sigma is given (triangulate of a bare disparity)",
     )
+    sigma_graze_gain: float = param(
+        0.0, lo=0.0, hi=5.0,
+        doc="per-pixel disparity sigma: gain on the disparity's span over the matching window (grazing incidence)",
+    )
     sigma_pixel_px: float = param(
         0.3, lo=0.0, hi=5.0, units="px", doc="1-sigma pixel localisation noise on u and v"
     )
@@ -291,8 +295,11 @@ class StereoMatcher:
         spread = quality.local_spread(disp, cfg.spread_window_px)
         disp[spread > cfg.max_spread_px] = np.nan
         yield None  # the spread gate and the sigma: ~20 ms together here, a slice each
+        span = None
+        if cfg.sigma_graze_gain > 0.0:  # grazing incidence: the window mixes a stretched footprint's depths
+            span = cfg.block_size_px * quality.disparity_gradient(disp, cfg.spread_window_px)
         sigma = quality.disparity_sigma(sigma_ls, spread, cfg.sigma_floor_px, cfg.sigma_ls_gain,
-                                        cfg.sigma_spread_gain)
+                                        cfg.sigma_spread_gain, span, cfg.sigma_graze_gain)
         sigma[~np.isfinite(disp)] = np.nan
         return DisparityImage(disp, sigma, alignment)
 

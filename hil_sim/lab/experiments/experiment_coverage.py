@@ -9,6 +9,12 @@ new cells of every view the planner rated, Methods 3-5: the view's own new cells
 before it in the step). Each run's own summary lands in
 ``DIR/runs/<method>_seed<k>/``.
 
+``--scenario lab,terrain`` runs several scenarios (a generated family takes each seed as a new
+terrain): each gets its own report in ``DIR/<scenario>/`` as above, and ``DIR/coverage.md`` joins
+them with the information model's prediction pooled over every scenario (per method: the median
+and 10th-90th percentile of obtained over expected new cells of every rated view) and Figure 8
+over all of them (``fig8_expected_vs_obtained.png``, one colour per scenario).
+
 ``coverage.md`` and ``coverage.json`` end with the paper's claims (issue 5, "Done when")
 checked against these runs: each claim whose methods were run, its measured value, its
 target and whether it is met (:func:`claims`).
@@ -33,10 +39,14 @@ METHODS = ("1", "2", "3", "4", "5", "oracle")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scenario", default="lab", help="lab, cliff, mars or file:PATH")
+    p.add_argument("--scenario", default="lab",
+                   help="lab, cliff, mars, terrain or file:PATH; several separated by commas (lab,terrain)")
     p.add_argument("--steps", type=int, default=20, help="imaging steps after the panorama")
     p.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per method")
     p.add_argument("--methods", default=",".join(METHODS), help="comma-separated subset")
+    p.add_argument("--what-if", action="append", default=[], metavar="KEY=VALUE",
+                   help="also rate the rated views again with this [nbv.visibility] value (repeatable), "
+                        "e.g. prior_corr_len_m=2")
     p.add_argument("--jobs", type=int, default=2, help="missions run in parallel (processes)")
     p.add_argument("--out", type=Path, default=Path("out/coverage"), help="output directory")
 
@@ -51,43 +61,141 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    scenarios = [s.strip() for s in args.scenario.split(",") if s.strip()]
     bad = [m for m in methods if m not in METHODS]
-    if bad or args.seeds < 1 or args.steps < 1 or args.jobs < 1:
-        print(
-            f"safer-hil experiment coverage: bad arguments ({bad or 'seeds/steps/jobs must be >= 1'})", file=sys.stderr
-        )
+    if bad or not scenarios or args.seeds < 1 or args.steps < 1 or args.jobs < 1:
+        why = bad or ("no scenario" if not scenarios else "seeds/steps/jobs must be >= 1")
+        print(f"safer-hil experiment coverage: bad arguments ({why})", file=sys.stderr)
         return 2
-    args.out.mkdir(parents=True, exist_ok=True)
-    runs = [(m, s) for s in range(args.seeds) for m in methods]
-    results: dict[tuple[str, int], dict[str, Any]] = {}
+    try:
+        from hil_sim.lab.prediction_check import what_if_values
+
+        what_if = what_if_values(args.what_if)
+    except ValueError as err:
+        print(f"safer-hil experiment coverage: --what-if: {err}", file=sys.stderr)
+        return 2
+    many = len(scenarios) > 1
+    outs = {sc: args.out / _slug(sc) if many else args.out for sc in scenarios}
+    for o in outs.values():
+        o.mkdir(parents=True, exist_ok=True)
+    runs = [(sc, m, s) for sc in scenarios for s in range(args.seeds) for m in methods]
+    results: dict[str, dict[tuple[str, int], dict[str, Any]]] = {sc: {} for sc in scenarios}
+    failed: list[str] = []
     with (
         ProcessPoolExecutor(max_workers=args.jobs) as pool,
         tqdm(total=len(runs), desc=f"coverage {args.scenario}", unit="mission") as bar,
     ):
         futs = {
-            pool.submit(_one, args.scenario, m, args.steps, s, str(args.out / "runs" / f"{m}_seed{s}")): (m, s)
-            for m, s in runs
+            pool.submit(_one, sc, m, args.steps, s, str(outs[sc] / "runs" / f"{m}_seed{s}")): (sc, m, s)
+            for sc, m, s in runs
         }
-        failed: list[str] = []
         for fut in as_completed(futs):
-            m, s = futs[fut]
+            sc, m, s = futs[fut]
             try:
-                results[(m, s)] = fut.result()
+                results[sc][(m, s)] = fut.result()
             except Exception as exc:  # noqa: BLE001 - one failed mission is reported, the rest go on
-                failed.append(f"method {m} seed {s}: {type(exc).__name__}: {exc}")
-                bar.set_postfix_str(f"method {m} seed {s}: FAILED")
+                failed.append(f"{sc} method {m} seed {s}: {type(exc).__name__}: {exc}")
+                bar.set_postfix_str(f"{sc} method {m} seed {s}: FAILED")
             else:
-                bar.set_postfix_str(f"method {m} seed {s}: {results[(m, s)]['mapped_cells']} cells")
+                bar.set_postfix_str(f"{sc} method {m} seed {s}: {results[sc][(m, s)]['mapped_cells']} cells")
             bar.update()
     if failed:
         print("safer-hil experiment coverage: missions failed, no report written:\n  " + "\n  ".join(failed),
               file=sys.stderr)
         return 1
-    write_report(args.out, args.scenario, args.steps, methods, args.seeds, results)
-    print((args.out / "coverage.md").read_text())
-    write_results("coverage", command_line("coverage"), (args.out / "coverage.md").read_text(),
-                  [args.out / "fig7_coverage.png", args.out / "fig8_expected_vs_obtained.png"])
+    for sc in scenarios:
+        write_report(outs[sc], sc, args.steps, methods, args.seeds, results[sc])
+    if not many:
+        md = (args.out / "coverage.md").read_text()
+        figures = [args.out / "fig7_coverage.png", args.out / "fig8_expected_vs_obtained.png"]
+    else:
+        md = pooled_report(args.out, scenarios, methods, args.seeds, results)
+        md += "".join("\n" + (outs[sc] / "coverage.md").read_text() for sc in scenarios)
+        (args.out / "coverage.md").write_text(md)
+        figures = [args.out / "fig8_expected_vs_obtained.png"]
+        for sc in scenarios:  # each scenario's Figure 7 under its own name
+            fig7 = args.out / f"fig7_coverage_{_slug(sc)}.png"
+            fig7.write_bytes((outs[sc] / "fig7_coverage.png").read_bytes())
+            figures.append(fig7)
+    split = prediction_split(outs, scenarios, methods, args.seeds, what_if)
+    (args.out / "coverage.md").write_text(md + split)
+    print(md + split)
+    write_results("coverage", command_line("coverage"), md + split, figures)
     return 0
+
+
+def prediction_split(outs: dict[str, Path], scenarios: list[str], methods: list[str], seeds: int,
+                     what_if: dict[str, dict[str, float]]) -> str:
+    """Per information method, its rated views' expected and obtained new cells split into the
+    model's parts against the truth (``hil_sim.lab.prediction_check``), over every scenario and seed."""
+    from fsw.settings import DEFAULT_CONFIG, load_settings
+    from hil_sim.lab.prediction_check import decompose_run, split_table
+
+    rho = load_settings(str(DEFAULT_CONFIG)).nbv.visibility.stereo_return
+    lines = ["", "## Where the expected new cells part from the obtained (hil_sim.lab.prediction_check)", ""]
+    for m in (m for m in ("3", "4", "5") if m in methods):
+        views = [v for sc in scenarios for s in range(seeds)
+                 for v in decompose_run(outs[sc] / "runs" / f"{m}_seed{s}", sc, s, what_if=what_if)]
+        lines += [f"Method {m}, {', '.join(scenarios)}: " + split_table(views, rho)]
+    return "\n".join(lines) + "\n"
+
+
+def _slug(spec: str) -> str:
+    """A file name for a scenario spec."""
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in spec)[:60]
+
+
+def pooled_report(out: Path, scenarios: list[str], methods: list[str], seeds: int,
+                  results: dict[str, dict[tuple[str, int], dict[str, Any]]]) -> str:
+    """The information model's prediction over every scenario (per method and per scenario: rated
+    views, median and 10th-90th percentile of obtained / expected new cells; the pooled median
+    judged against 0.8-1.25) and Figure 8 over all scenarios, written to ``out``; the markdown."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    lines = [f"# The information model's prediction over {', '.join(scenarios)} ({seeds} seeds each)", "",
+             "| method | scenario | rated views | obtained / expected: median | 10th percentile | 90th percentile | "
+             "target (median) |", "|---|---|---|---|---|---|---|"]
+    shown: list[str] = [m for m in ("3", "4", "5") if m in methods]
+    for m in shown:
+        for sc in [*scenarios, "all"]:
+            pick = scenarios if sc == "all" else [sc]
+            pr = prediction_ratios([st for c in pick for s in range(seeds) for st in results[c][(m, s)]["steps"]])
+            if "median_ratio" not in pr:
+                lines.append(f"| {m} | {sc} | 0 | - | - | - | |")
+                continue
+            ok = 0.8 <= pr["median_ratio"] <= 1.25
+            judged = ("met" if ok else "NOT MET") if sc == "all" else ""
+            lines.append(f"| {m} | {'**all**' if sc == 'all' else sc} | {pr['rated_steps']} | "
+                         f"{pr['median_ratio']:.2f} | {pr['p10_ratio']:.2f} | {pr['p90_ratio']:.2f} | "
+                         f"{'0.8-1.25 ' + judged if judged else ''} |")
+    fig, axes = plt.subplots(1, max(len(shown), 1), figsize=(5.2 * max(len(shown), 1), 4.6),
+                             constrained_layout=True, squeeze=False)
+    for ax, m in zip(axes[0], shown or ["5"], strict=True):
+        top = 1.0
+        for sc in scenarios:
+            pairs = _rated_pairs(results[sc], m, seeds) if m in methods else np.zeros((0, 0, 2))
+            e, o = pairs[..., 0].ravel(), pairs[..., 1].ravel()
+            ok = np.isfinite(e)
+            top = max(top, float(np.nanmax(pairs)) if ok.any() else 1.0)
+            ax.scatter(e[ok], o[ok], s=14, label=f"{sc} ({int(ok.sum())} views)")
+        top *= 1.05
+        ax.plot([0, top], [0, top], "k-", lw=1, label="obtained = expected")
+        ax.fill_between([0, top], [0, 0.8 * top], [0, 1.25 * top], color="0.5", alpha=0.15, label="0.8-1.25")
+        ax.set_xlim(0, top)
+        ax.set_ylim(0, top)
+        ax.set_title(f"Method {m}")
+        ax.set_xlabel("expected new cells (model)")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper left")
+    axes[0][0].set_ylabel("obtained new cells (the view's own)")
+    fig.suptitle("Figure 8: expected vs obtained new cells per rated view, every scenario and seed")
+    fig.savefig(out / "fig8_expected_vs_obtained.png", dpi=100)
+    plt.close(fig)
+    return "\n".join(lines) + "\n"
 
 
 @dataclass(frozen=True)

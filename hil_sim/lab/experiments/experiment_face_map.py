@@ -27,7 +27,9 @@ Figures per scene: ``face_rmse_m`` and ``face_rmse_gravity_m`` (``hil_sim.team.f
 map queried at the same true face points in its own coordinates, the distance from the point it
 returns to the true one), their ratio, the gravity grid's distance from the true surface along
 the face normal (``face_rmse_gravity_normal_m``) and that ratio, the truth overhang cells
-flagged, the fused vs single-agent RMS on cells both agents mapped, the fraction of cells
+flagged (and, of them, those a view could show: a true sight line passes under the outer surface,
+``hil_sim.team.face_eval.overhang_seen``), the false flags, the fused vs single-agent RMS on
+cells both agents mapped, the fraction of cells
 within 2 sigma (each agent, fused), the stereo points on a robot or a tether (judged on the
 truth: ``hil_sim.team.face_scene.team_points``, from the renderer's label of each pixel),
 those of them that survive the mask into the map, and the gravity-grid cells they fall in
@@ -46,7 +48,8 @@ from typing import Any
 HELP = "the face-aligned map vs the gravity grid at equal memory, both agents' views, the team mask"
 COLUMNS = ("seed", "slope_deg", "views", "face_cells", "face_rmse_m", "face_rmse_gravity_m", "ratio",
            "face_rmse_gravity_normal_m", "ratio_normal",
-           "overhang_truth", "overhang_flagged", "overhang_false", "both_cells", "rmse_recon_m",
+           "overhang_truth", "overhang_flagged", "overhang_false", "overhang_seen", "overhang_seen_flagged",
+           "both_cells", "rmse_recon_m",
            "rmse_cliff_m", "rmse_fused_m", "in2s_recon", "in2s_cliff", "in2s_fused", "cells_recon",
            "within2s_recon", "cells_cliff", "within2s_cliff", "cells_fused", "within2s_fused", "team_points_seen",
            "team_points_fused", "team_cells_mapped")
@@ -143,6 +146,8 @@ def report(rows: list[dict[str, Any]], table: Any) -> str:
         add("face_rmse_m / face_rmse_gravity_normal_m", float(np.median(rn)), float(rn.max()), "")
     add("overhang cells flagged (pooled)", of / ot if ot else None, f"{of} of {ot}", ">= 0.95")
     add("overhang false flags (pooled cells)", sum(r["overhang_false"] for r in rows), "", "")
+    st, sf = sum(r["overhang_seen"] for r in rows), sum(r["overhang_seen_flagged"] for r in rows)
+    add("overhang cells flagged, of those a view could show (pooled)", sf / st if st else None, f"{sf} of {st}", "")
     if better.size:
         d = fused_b - better
         add("fused RMS - better agent's (m)", float(np.median(d)), float(d.max()), "<= 0")

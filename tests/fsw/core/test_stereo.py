@@ -11,6 +11,7 @@ from step_count import count_steps
 
 from fsw.core.geometry import CameraConfig, CameraPose
 from fsw.core.localization.localization import propagate_point_covariance
+from fsw.core.stereo import stereo_quality as q
 from fsw.core.stereo.stereo import StereoConfig, StereoMatcher, depth_sigma_m, stereo_covariance
 from fsw.framework.params import ConfigError, build
 
@@ -113,3 +114,25 @@ def test_triangulation_slices_are_bounded_by_points_and_change_nothing(plane_pai
             assert np.array_equal(getattr(pts, f), getattr(whole, f)), f
     with pytest.raises(ValueError, match="step_points"):
         next(m.triangulate_steps(dm.disparity_px, step_points=0))
+
+
+def test_grazing_term_follows_the_disparity_gradient() -> None:
+    """docs/algorithm.md §1.2, grazing incidence: the disparity's slope over the window (a plane's
+    ``B tan(theta) / Z``) measured through noise and holes, and its term in the per-pixel sigma."""
+    rng = np.random.default_rng(0)
+    vv, uu = np.mgrid[0:60, 0:80].astype(np.float64)
+    plane = 20.0 + 0.3 * uu + 0.1 * vv + rng.normal(0.0, 0.05, uu.shape)
+    plane[20:25, 30:35] = np.nan  # a hole: its neighbours still fit a plane
+    g = q.disparity_gradient(plane, 5)
+    inner = np.isfinite(plane)
+    inner[:3], inner[-3:], inner[:, :3], inner[:, -3:] = False, False, False, False
+    assert np.median(np.abs(g[inner] - np.hypot(0.3, 0.1))) < 0.01
+    flat = q.disparity_gradient(np.full((30, 30), 12.0) + rng.normal(0.0, 0.05, (30, 30)), 5)
+    assert np.median(flat) < 0.03  # fronto-parallel: no span
+    assert (q.disparity_gradient(np.full((10, 10), np.nan), 5) == 0.0).all()
+    ls, spread = np.full((1, 3), 0.1, np.float32), np.zeros((1, 3), np.float32)
+    span = np.array([[0.0, 1.0, 4.0]])
+    s = q.disparity_sigma(ls, spread, 0.11, 1.0, 6.0, span, 0.29)
+    base = math.hypot(0.11, 0.1)
+    assert s[0, 0] == pytest.approx(base) and s[0, 2] == pytest.approx(math.hypot(base, 0.29 * 4.0))
+    assert (np.diff(s[0]) > 0).all()
