@@ -46,7 +46,6 @@ def _events(sec: dict[str, Any], name: str) -> list[str]:
     return [e[2] for e in sec["events"] if e[1] == name]
 
 
-@pytest.mark.timeout(900)  # the mission twice, each way of its legs followed with the statics
 def test_nominal_reaches_what_the_truth_allows_and_is_deterministic(scene: tuple[Any, np.ndarray]) -> None:
     a = _run(scene)
     assert a["final_state"] == "DONE", a["events"]
