@@ -132,6 +132,21 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _ground_at_range(world: Any, base: Any, bearing: float, r: float) -> tuple[float, float, float] | None:
+    """A ground point at about slant range ``r`` from the camera centre ``base`` along ``bearing``
+    (two passes: a first guess 1 m below the camera, then the ground's height there); None off
+    the terrain."""
+    zg = 0.0
+    for drop in (1.0, None):
+        dz = drop if drop is not None else base[2] - zg
+        horiz = math.sqrt(max(r * r - dz ** 2, 0.25))
+        x, y = base[0] + horiz * math.cos(bearing), base[1] + horiz * math.sin(bearing)
+        zg = float(world.ground_at(x, y))
+        if not math.isfinite(zg):
+            return None
+    return x, y, zg
+
+
 def range_rows(scenario: str, seed: int, config: str, index: int, r: float, poses: int) -> list[dict[str, Any]]:
     """``poses`` placements of the Cliff-bot at range ``r`` (one process; seeded by ``seed`` and
     ``index``): one row each."""
@@ -161,16 +176,10 @@ def range_rows(scenario: str, seed: int, config: str, index: int, r: float, pose
         if len(rows) == poses:
             break
         bearing = rover[2] + math.radians(rng.uniform(-85.0, -5.0))  # the drop is on the right
-        horiz = math.sqrt(max(r * r - 1.0, 0.25))
-        x, y = base[0] + horiz * math.cos(bearing), base[1] + horiz * math.sin(bearing)
-        zg = float(world.ground_at(x, y))
-        if not math.isfinite(zg):
+        spot = _ground_at_range(world, base, bearing, r)
+        if spot is None:
             continue
-        horiz = math.sqrt(max(r * r - (base[2] - zg) ** 2, 0.25))
-        x, y = base[0] + horiz * math.cos(bearing), base[1] + horiz * math.sin(bearing)
-        zg = float(world.ground_at(x, y))
-        if not math.isfinite(zg):
-            continue
+        x, y, zg = spot
         yaw = math.atan2(base[1] - y, base[0] - x) + math.radians(rng.uniform(-60.0, 60.0))
         cb = build_cliffbot(x, y, zg, yaw, size_m=(cb0.length_m, cb0.width_m, cb0.height_m),
                             marker_size_m=cfg.cliffbot.marker_size_m, seed=seed)
@@ -370,17 +379,11 @@ def mission_rows(scenario: str, seed: int, recon: dict[str, Any], config: str, r
             if placed == poses:
                 break
             bearing = math.radians(rng.uniform(-170.0, -10.0))  # toward the face (the drop lies along -y)
-            horiz = math.sqrt(max(r * r - 1.0, 0.25))
-            x, y = base[0] + horiz * math.cos(bearing), base[1] + horiz * math.sin(bearing)
-            zg = float(world.ground_at(x, y))
-            if not math.isfinite(zg):
+            spot = _ground_at_range(world, base, bearing, r)
+            j = joints_to((spot[0], spot[1], spot[2] + 0.25)) if spot is not None else None
+            if spot is None or j is None:
                 continue
-            horiz = math.sqrt(max(r * r - (base[2] - zg) ** 2, 0.25))
-            x, y = base[0] + horiz * math.cos(bearing), base[1] + horiz * math.sin(bearing)
-            zg = float(world.ground_at(x, y))
-            j = joints_to((x, y, zg + 0.25)) if math.isfinite(zg) else None
-            if j is None:
-                continue
+            x, y, zg = spot
             yaw = math.atan2(base[1] - y, base[0] - x) + math.radians(rng.uniform(-60.0, 60.0))
             cb = build_cliffbot(x, y, zg, yaw, size_m=(cb0.length_m, cb0.width_m, cb0.height_m),
                                 marker_size_m=cfg.cliffbot.marker_size_m, seed=seed)
