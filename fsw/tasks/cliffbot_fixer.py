@@ -34,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.comm.team import fix_packets
-from fsw.core.geometry import MapGrid, point_mast
+from fsw.core.geometry import CameraPose, MapGrid, point_mast
 from fsw.core.localization.fiducials import BodyEstimate, CliffbotLocalizer
 from fsw.core.localization.landmarks import Landmark, anchor_marker_corners, camera_from_landmarks
 from fsw.core.localization.localization import PoseEstimate, so3_log
@@ -42,7 +42,7 @@ from fsw.core.map.elevation_map import ElevationMap
 from fsw.core.stereo.rectify import Rectifier
 from fsw.framework.jobs import JobHandle
 from fsw.framework.telemetry import Channel, EventDef, Severity
-from fsw.settings import load_stereo_calibration
+from fsw.settings import FswConfig, load_stereo_calibration
 from fsw.tasks.base import FlightTask
 from fsw.tasks.camera import camera_pose_covariance
 from fsw.tasks.messages import (
@@ -276,13 +276,8 @@ class CliffbotFixerTask(FlightTask):
         return float(self.snapshot.z[iy[0], ix[0]]) if inside[0] else math.nan
 
     def _joints_cov(self) -> NDArray[np.float64]:
-        """The camera pose covariance of the mast's joints alone at this view (the rover's own
-        pose error is one for all views of a standing: the landmarks measure it)."""
         assert self.pose is not None
-        cap = self.ctx.cfg.capture
-        js = math.radians(cap.joint_sigma_deg)
-        still = dataclasses.replace(self.pose, cov=np.zeros((3, 3)), att_cov=None)
-        return camera_pose_covariance(still, self.ctx.cfg.mast, (js, js, cap.lift_sigma_m))[1]
+        return joints_covariance(self.pose, self.ctx.cfg)
 
     def _pair(self, fr: CameraFrame) -> Generator[None, None, tuple[NDArray[np.uint8], NDArray[np.uint8]]]:
         left, right = fr.left, fr.right
@@ -321,8 +316,7 @@ class CliffbotFixerTask(FlightTask):
     def camera_estimate(self, fr: CameraFrame, joints_cov: NDArray[np.float64]) -> PoseEstimate:
         """The camera pose of the fix's view: from the views of the plates when there are any
         (each carried to this view, fused), else the rover's estimate with its covariance."""
-        est = camera_from_landmarks(self.landmarks, fr.pose, joints_cov)
-        return est if est is not None else PoseEstimate(fr.pose, np.asarray(fr.pose_cov, float))
+        return fix_camera(self.landmarks, fr.pose, fr.pose_cov, joints_cov)
 
     def _locate(self, fr: CameraFrame, joints_cov: NDArray[np.float64]
                 ) -> Generator[None, None, BodyEstimate | None]:
@@ -360,3 +354,21 @@ class CliffbotFixerTask(FlightTask):
 
     def _idle(self) -> None:
         self.current, self.phase, self.shot, self.shots = None, "idle", None, []
+
+
+def joints_covariance(pose: NavPose, cfg: FswConfig) -> NDArray[np.float64]:
+    """The camera pose covariance of the mast's joints alone at a view from ``pose`` (the rover's
+    own pose error is one for all views of a standing: the plates measure it)."""
+    cap = cfg.capture
+    js = math.radians(cap.joint_sigma_deg)
+    still = dataclasses.replace(pose, cov=np.zeros((3, 3)), att_cov=None)
+    return camera_pose_covariance(still, cfg.mast, (js, js, cap.lift_sigma_m))[1]
+
+
+def fix_camera(landmarks: list[Landmark], pose: CameraPose, pose_cov: NDArray[np.float64],
+               joints_cov: NDArray[np.float64]) -> PoseEstimate:
+    """The camera pose of a fix's view: from the views of the plates of the same standing when
+    there are any (each carried to this view, fused), else the rover's estimate ``pose`` with
+    its covariance."""
+    est = camera_from_landmarks(landmarks, pose, joints_cov)
+    return est if est is not None else PoseEstimate(pose, np.asarray(pose_cov, float))
