@@ -4,7 +4,9 @@ A FIX_REQUEST the radio received (``radio.fix_request``; it carries the Cliff-bo
 estimate ``x, y``) is answered once the RECON-bot's mission has ended (``mission.state`` is
 ``DONE``; before that the answer is NO_FIX ``busy``): the task points the mast at the
 estimate through the motion task (a ``mast`` request; a pose outside the mast's limits is
-NO_FIX ``out of the mast's reach``), asks the camera task for a pair (view id
+NO_FIX ``out of the mast's reach``; when only the pan's range misses it, the RECON-bot
+also turns its body in place toward it, a small turn through the motion task's checks, and
+answers the next request from there), asks the camera task for a pair (view id
 ``FIX_VIEW_BASE + seq``, which perception leaves out of the map), runs
 :class:`~fsw.core.localization.fiducials.CliffbotLocalizer` (docs/algorithm.md §5) on it in a
 slack job with the camera pose estimate and its covariance, and hands the FIX (position,
@@ -34,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.comm.team import fix_packets
-from fsw.core.geometry import CameraPose, MapGrid, point_mast
+from fsw.core.geometry import CameraPose, MapGrid, camera_pose_from_rover, point_mast, wrap_angle
 from fsw.core.localization.fiducials import BodyEstimate, CliffbotLocalizer
 from fsw.core.localization.landmarks import Landmark, anchor_marker_corners, camera_from_landmarks
 from fsw.core.localization.localization import PoseEstimate, so3_log
@@ -69,6 +71,8 @@ REQUEST_BASE = 1 << 30  # motion request ids of the fixer (the mission's count f
 TIMEOUT_S = 30.0
 BODY_CENTRE_M = 0.25  # aim this far above the ground under the estimate (the marker band)
 LIFT_M = 0.3
+TURN_MARGIN_DEG = 10.0  # a turn toward the Cliff-bot leaves its pan this far inside the mast's range
+MAX_TURN_DEG = 45.0  # a larger turn is not made (the answer stays "out of the mast's reach")
 SURVEY_VIEW = FIX_VIEW_BASE + (1 << 24)  # view ids of the views of the Anchorbots' plates
 
 
@@ -87,7 +91,7 @@ class CliffbotFixerTask(FlightTask):
     REQUIRES: ClassVar[tuple[str, ...]] = ("radio", "motion", "camera")
     DOC: ClassVar[str] = "Relative localization: aims the mast at the Cliff-bot, locates its markers, answers FIX."
     CHANNELS = (
-        Channel("phase", doc="idle, aim, capture, locate"),
+        Channel("phase", doc="idle, aim, capture, locate, turn"),
         Channel("fixes", "count", doc="FIX answers sent"),
         Channel("no_fixes", "count", doc="NO_FIX answers sent"),
         Channel("landmarks", "count", doc="views of the Anchorbots' plates the current standing's fixes use"),
@@ -96,6 +100,9 @@ class CliffbotFixerTask(FlightTask):
         EventDef("FIX_SENT", Severity.ACTIVITY_HI, "request {seq}: Cliff-bot at {x:.2f}, {y:.2f} m, heading "
                  "{yaw_deg:.1f} deg, sigma {sigma_cm:.1f} cm"),
         EventDef("NO_FIX_SENT", Severity.ACTIVITY_LO, "request {seq}: no fix ({reason})", throttle=10),
+        EventDef("TURN_TO_CLIFFBOT", Severity.ACTIVITY_HI, "request {seq}: the Cliff-bot is {pan_deg:.0f} deg "
+                 "off the body, out of the mast's pan: turning {turn_deg:+.1f} deg in place"),
+        EventDef("TURNED", Severity.ACTIVITY_LO, "turn toward the Cliff-bot {outcome}{why}"),
         EventDef("LANDMARKS", Severity.ACTIVITY_LO, "camera resected on {n} of {views} views of the Anchorbots' "
                  "plates: yaw {dyaw_deg:+.2f} deg, {dxy_cm:.1f} cm from the rover's estimate"),
     )
@@ -128,6 +135,7 @@ class CliffbotFixerTask(FlightTask):
         self.surveyed = 0
         self.surveying = False
         self.pending: fix_packets.FixRequest | None = None  # a request held while the plates are viewed
+        self.turn_id: int | None = None  # the motion request of a turn toward the Cliff-bot
 
     def run(self, frame: int) -> None:
         now = self.ctx.clock.now()
@@ -137,7 +145,9 @@ class CliffbotFixerTask(FlightTask):
         self.snapshot = upd.snapshot if upd is not None else self.snapshot
         ready = self._mission_state() == "DONE" and self.pose is not None
         for req in self.requests.drain():
-            if self.current is not None:
+            if self.turn_id is not None:
+                self._no_fix(req.seq, BUSY)  # turning toward it: the next request is answered from there
+            elif self.current is not None:
                 if req.seq != self.current.seq:
                     self._no_fix(req.seq, BUSY)
             elif not ready:
@@ -157,6 +167,8 @@ class CliffbotFixerTask(FlightTask):
                 self._no_fix(self.current.seq, BUSY)
             else:
                 self._survey_done()
+        elif self.turn_id is not None:
+            self._turned(now)
         elif self.phase == "aim":
             self._aimed()
         elif self.phase == "capture":
@@ -195,12 +207,48 @@ class CliffbotFixerTask(FlightTask):
         target = (req.x, req.y, (ground if math.isfinite(ground) else self.pose.z_m) + BODY_CENTRE_M)
         if self._joints(target) is None:
             self._no_fix(req.seq, OUT_OF_REACH)
+            self._turn_toward(req.seq, target, now)
             return
         if self._standing() != self.standing:
             self.landmarks = []  # seen from elsewhere: this fix rests on the rover's estimate
         self.current, self.deadline = req, now + TIMEOUT_S
         self.shots = [Shot("cliffbot", FIX_VIEW_BASE + req.seq, target)]
         self._next_shot()
+
+    def _turn_toward(self, seq: int, target: tuple[float, float, float], now: float) -> None:
+        """Turn the body in place so that the mast's pan reaches ``target`` (the request after the
+        turn is answered from there), when the pan range, not the tilt, is what it misses and the
+        turn is small: the least turn that puts the pan ``TURN_MARGIN_DEG`` inside the range, at
+        most ``MAX_TURN_DEG``. The motion task makes it with its normal checks (it refuses or
+        aborts a turn it may not make; event ``TURNED``)."""
+        assert self.pose is not None
+        p, mast = self.pose, self.ctx.cfg.mast
+        cam = camera_pose_from_rover((p.x, p.y, p.yaw), (0.0, 0.0, LIFT_M), mast, ground_z_m=p.z_m).t
+        dx, dy, dz = (target[i] - float(cam[i]) for i in range(3))
+        pan = wrap_angle(math.atan2(dy, dx) - p.yaw)
+        tilt = math.atan2(dz, math.hypot(dx, dy))
+        if not math.radians(mast.tilt_min_deg) <= tilt <= math.radians(mast.tilt_max_deg):
+            return  # below or above the tilt's range: a turn does not bring it in
+        lo = math.radians(mast.pan_min_deg + TURN_MARGIN_DEG)
+        hi = math.radians(mast.pan_max_deg - TURN_MARGIN_DEG)
+        turn = pan - hi if pan > hi else pan - lo if pan < lo else 0.0
+        if turn == 0.0 or abs(turn) > math.radians(MAX_TURN_DEG):
+            return
+        self.request_id += 1
+        self.turn_id, self.phase, self.deadline = self.request_id, "turn", now + TIMEOUT_S
+        self.motion.drain()
+        self.publish(MOTION_REQUEST, MotionRequest(self.request_id, "turn", angle_rad=turn))
+        self.event("TURN_TO_CLIFFBOT", seq=seq, pan_deg=math.degrees(pan), turn_deg=math.degrees(turn))
+
+    def _turned(self, now: float) -> None:
+        for st in self.motion.drain():
+            if st.request_id == self.turn_id:
+                self.event("TURNED", outcome=str(st.state), why=f": {st.reason}" if st.reason else "")
+                self.turn_id, self.phase = None, "idle"
+                return
+        if now > self.deadline:
+            self.event("TURNED", outcome="not confirmed", why=f" within {TIMEOUT_S:.0f} s")
+            self.turn_id, self.phase = None, "idle"
 
     def _standing(self) -> tuple[float, ...]:
         p = self.pose
