@@ -72,3 +72,19 @@ def test_off_the_way_is_an_offset_beyond_the_estimate_and_the_place_uncertainty(
         assert m._elsewhere(FACE)[0] is expect
     m.on_estimate(np.array([*(FACE + 0.5 * m.ccfg.node_m * tight), 0.0]), P)
     assert m._elsewhere(FACE)[0] is False  # within a lattice spacing
+
+
+def test_a_checkpoint_keeps_the_map_bound_the_margins_rest_on() -> None:
+    from fsw.tasks.cliffbot.checkpoint import restore, snapshot
+
+    z, grid, anchors = _cliff()
+
+    def mission() -> CliffbotMission:
+        return CliffbotMission(CliffbotMissionConfig(), TetherConfig(), ClimberConfig(), NavConfig(), anchors,
+                               np.array([0.0, 0.6]), -math.pi / 2, FACE[None, :])
+
+    m = mission()
+    m.set_map(z, grid, 0.03)
+    back = mission()
+    restore(back, snapshot(m, 1.0), z, grid)
+    assert back.error_bound_m == 0.03 and back._length_sigma() == m._length_sigma() > mission()._length_sigma()
