@@ -1,5 +1,5 @@
 """The tension margins and the off-the-way test the place's uncertainty requires
-(fsw.core.team.face_planner.tension_margins, fsw.tasks.cliffbot_mission; docs/team.md "Margins")."""
+(fsw.core.team.face_planner.tension_margins, fsw.tasks.cliffbot_mission; docs/team.md, "The planner")."""
 
 from __future__ import annotations
 
