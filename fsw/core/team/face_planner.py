@@ -17,7 +17,9 @@ brute-force check of what is reachable at all).
      normal, :func:`fsw.core.team.tether.surface_normal`) is steeper than ``free_slope_deg`` the
      equilibrium must hold with both tensions in ``[T_min, T_max]`` and the wheels on the
      face (below it, the wheels hold the Cliff-bot and the winches only keep the tethers
-     taut).
+     taut); with :class:`Margins` ``length_sigma_m``, each tension the margin where the body
+     may be requires inside them (:func:`tension_margins`: the lengths' error carried to the
+     place through their Jacobian, times the tension's gradient there).
 2. **Edges.** Usable 8-neighbours, weighted by their 3-D distance; with :class:`Margins`, an
    edge within ``clearance_m`` of a hazard cell costs more (up to ``1 + weight`` times its
    length), so a path keeps the clearance the body's tracking and navigation errors need
