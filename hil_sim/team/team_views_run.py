@@ -310,7 +310,10 @@ class TeamViewsRun:
         e = np.einsum("nij,nj->ni", np.linalg.cholesky(cov + 1e-12 * np.eye(3)[None]),
                       self.rng.standard_normal((x.size, 3)))
         xyz = p + e
-        expect = predicted_visibility(self.map, pose, cam, self.nbv.visibility)  # the misses of §3.4
+        # the misses of §3.4, against the visibility the view was chosen with (the face's own cells
+        # for a view rated on the face)
+        expect = v.p_visible if v.p_visible is not None else predicted_visibility(self.map, pose, cam,
+                                                                                   self.nbv.visibility)
         run_merge(self.map, [(xyz.copy(), cov.copy(), None)], expect)
         run_merge(self.by_agent[v.agent], [(xyz.copy(), cov.copy(), None)], None)
         if xyz.size:
