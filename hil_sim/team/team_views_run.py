@@ -368,6 +368,23 @@ class TeamViewsRun:
             out[f"rmse_{name}_m"] = float(np.sqrt(np.mean(e * e))) if e.size else None
         return out
 
+    def corridor_left(self) -> dict[str, int]:
+        """What bounds the corridor's coverage: its cells still unmapped, and how many of them lie
+        in range and in line of sight (on the truth) of some camera centre the agents' next
+        candidates offer (any pointing)."""
+        g = self.grid
+        iy, ix = np.nonzero(self.corridor & ~self.map.mapped & np.isfinite(self.truth))
+        pts = np.column_stack([g.x0 + (ix + 0.5) * g.cell, g.y0 + (iy + 0.5) * g.cell, self.truth[iy, ix]])
+        seen = np.zeros(len(pts), bool)
+        agents = [self._recon()] + ([self._cliff()] if self.team else [])
+        for a in agents:
+            for c in a.centres:
+                r = np.linalg.norm(pts - np.asarray(c.xyz, float), axis=1)
+                k = np.nonzero(~seen & (r >= a.camera.min_range_m) & (r <= a.camera.max_range_m))[0]
+                if k.size:
+                    seen[k[self._line_of_sight(np.asarray(c.xyz, float), pts[k])]] = True
+        return {"corridor_left_cells": int(len(pts)), "corridor_left_seeable": int(seen.sum())}
+
     def cells_by_agent(self) -> dict[str, int]:
         return {k: int(m.mapped.sum()) for k, m in self.by_agent.items()}
 

@@ -211,8 +211,8 @@ def cliffbot_centres(z: ZMap, grid: MapGrid, anchors: F64, path_xy: F64, now_xy:
     ``max_travel_m`` ahead of where it stands (``both_ways``: anywhere on the path within
     ``max_travel_m`` of it, :func:`corridor_places`), each known on the map (``z``; NaN unknown).
     Motion (Eq 9 over the winches and the head): ``sqrt(a_tether max(|dl1|, |dl2|)^2 + a_head
-    (dpan^2 + dtilt^2))`` (both winches run at once, paced to arrive together) from the tether lengths where it stands (all places' tethers in one batch,
-    ``tether_states``)."""
+    (dpan^2 + dtilt^2))`` (both winches run at once, paced to arrive together) from the tether
+    lengths where it stands (all places' tethers in one batch, ``tether_states``)."""
     now = np.asarray(now_xy, float).reshape(2)
     xy = np.asarray(path_xy, float).reshape(-1, 2)
     if both_ways:
