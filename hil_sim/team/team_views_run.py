@@ -27,7 +27,10 @@ look (any place on it within ``max_travel_m`` of where it stands, either way) an
 looks; its task is to map the corridor. The route is taken as planned beforehand, so where the
 shared map does not know the ground yet its tether lengths come from the route's ground (the
 truth), and before the face map is fitted the rating's face is the plane of the ground under
-the route (``_plan_face``). Both agents' interest is weighted on the corridor.
+the route (``_plan_face``). Both agents are rated on the face's own cells where it lies (the
+RECON-bot too: on the gravity grid the lip's height stands for the face below it, and views over
+the lip are rated onto ground that is not there), and both agents' interest is weighted on the
+corridor.
 """
 
 from __future__ import annotations
@@ -51,7 +54,7 @@ from fsw.core.map.face_map import (
     run_merge,
     split_parts,
 )
-from fsw.core.planning.face_rating import face_cells
+from fsw.core.planning.face_rating import FaceCells, face_cells
 from fsw.core.planning.info_planners import InformationPlanner
 from fsw.core.planning.nbv import NbvConfig, predicted_visibility
 from fsw.core.planning.planners import PlannerState
@@ -181,7 +184,13 @@ class TeamViewsRun:
                              float(np.nan_to_num(self.truth_at(self.rover[:2]))))
         centres = recon_centres(planner.view_centres(state, stations))
         interest = corridor_interest(self.map, self.corridor, self.tv)
-        return AgentViews("recon", self.camera, centres, interest)
+        return AgentViews("recon", self.camera, centres, interest, face=self._face_cells())
+
+    def _face_cells(self) -> FaceCells | None:
+        """The face as both agents' ratings see it (``face_rating.face_cells``): the face map once
+        fitted, before that the plane under the Cliff-bot's route (:meth:`_plan_face`)."""
+        face = self.face_map or self._plan_face(np.where(self.map.mapped, self.map.z, self.truth))
+        return None if face is None else face_cells(face, self.map, self.nbv.visibility, self.tv.face_prior_m)
 
     def _cliff(self) -> AgentViews:
         # its route was planned beforehand (module docstring): where the shared map does not know
@@ -194,10 +203,9 @@ class TeamViewsRun:
         step = next((p for p in ahead if np.linalg.norm(p - self.path[k]) > 0.5), ahead[-1])
         d = step - self.path[k]
         yaw = math.atan2(float(d[1]), float(d[0])) if float(np.hypot(*d)) > 1e-6 else -math.pi / 2
-        face = self.face_map or self._plan_face(z)
-        cells = None if face is None else face_cells(face, self.map, self.nbv.visibility, self.tv.face_prior_m)
         interest = corridor_interest(self.map, self.corridor, self.tv)  # its own task's focus too
-        return AgentViews("cliffbot", CLIFFBOT_CAMERA, centres, interest, (yaw, math.radians(-50.0)), cells)
+        return AgentViews("cliffbot", CLIFFBOT_CAMERA, centres, interest, (yaw, math.radians(-50.0)),
+                          self._face_cells())
 
     def _plan_face(self, z: F64) -> FaceMap | None:
         """Before the face map is fitted on the shared map: an empty face map in the plane of the
