@@ -75,8 +75,9 @@ class CliffbotMissionConfig:
     wheel_radius_m: float = param(0.06, lo=0.01, hi=1.0, units="m")
     track_margin_m: float = param(0.08, lo=0.0, hi=2.0, units="m",
                                   doc="paths keep this clear of hazards where the ground leaves room (a soft cost)")
-    tension_margin_n: float = param(10.0, lo=0.0, hi=1000.0, units="N",
-                                    doc="the planner keeps tensions this far inside [T_min, T_max]")
+    margin_sigmas: float = param(2.326, lo=0.0, hi=10.0,
+                                 doc="tension margins and the off-the-way test, in standard deviations of "
+                                     "where the body may be (2.326: one-sided 99 %)")
     safe_recover_s: float = param(0.0, lo=0.0, hi=1e5, units="s",
                                   doc="the task leaves SAFE by itself after this long (0: waits for RECOVER)")
 

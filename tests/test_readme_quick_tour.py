@@ -37,10 +37,14 @@ def tour_commands() -> list[list[str]]:
 def test_the_tour_names_real_commands() -> None:
     cmds = tour_commands()
     assert len(cmds) >= 8
+    helped: set[tuple[str, ...]] = set()
     for argv in cmds:
         exe = BIN / Path(argv[0]).name
         assert exe.exists(), argv[0]
         sub = [a for a in argv[1:2] if not a.startswith("-")]
+        if (key := (exe.name, *sub)) in helped:
+            continue  # the same command's --help (the tour runs `safer-hil run` four ways)
+        helped.add(key)
         out = subprocess.run([str(exe), *sub, "--help"], capture_output=True, text=True, timeout=120)
         assert out.returncode == 0, (argv, out.stderr[-500:])
 

@@ -13,6 +13,7 @@ Each rule is one parametrized case so a failure names the rule and lists every o
 from __future__ import annotations
 
 import ast
+import functools
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,6 +48,18 @@ def module_files(root: Path, packages: Iterable[str]) -> dict[str, Path]:
     return modules
 
 
+def parse(path: Path) -> ast.Module:
+    """The module's syntax tree, parsed once per version of the file (the rules below each walk
+    every module of the project: parsing them once for all the rules is most of their cost)."""
+    st = path.stat()
+    return _parse(path, st.st_mtime_ns, st.st_size)
+
+
+@functools.cache
+def _parse(path: Path, _mtime_ns: int, _size: int) -> ast.Module:
+    return ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+
+
 def _known_prefix(name: str, modules: dict[str, Path]) -> str | None:
     """The longest dotted prefix of ``name`` that is a project module (``a.b.C`` -> ``a.b``)."""
     parts = name.split(".")
@@ -59,7 +72,7 @@ def _known_prefix(name: str, modules: dict[str, Path]) -> str | None:
 
 def imports_of(module: str, path: Path, modules: dict[str, Path]) -> Iterator[Edge]:
     """Every project module that ``module`` imports, wherever the import statement stands."""
-    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    tree = parse(path)
     package = module if path.name == "__init__.py" else module.rpartition(".")[0]
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
@@ -277,7 +290,7 @@ def folder_offenders(root: Path, packages: Iterable[str], allowance: dict[str, i
 
 def _trees(root: Path, packages: Iterable[str]) -> Iterator[tuple[str, ast.Module]]:
     for module, path in module_files(root, packages).items():
-        yield module, ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+        yield module, parse(path)
 
 
 def _is_type_checking(test: ast.expr) -> bool:

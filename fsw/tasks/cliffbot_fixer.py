@@ -4,7 +4,9 @@ A FIX_REQUEST the radio received (``radio.fix_request``; it carries the Cliff-bo
 estimate ``x, y``) is answered once the RECON-bot's mission has ended (``mission.state`` is
 ``DONE``; before that the answer is NO_FIX ``busy``): the task points the mast at the
 estimate through the motion task (a ``mast`` request; a pose outside the mast's limits is
-NO_FIX ``out of the mast's reach``), asks the camera task for a pair (view id
+NO_FIX ``out of the mast's reach``; when only the pan's range misses it, the RECON-bot
+also turns its body in place toward it, a small turn through the motion task's checks, and
+answers the next request from there), asks the camera task for a pair (view id
 ``FIX_VIEW_BASE + seq``, which perception leaves out of the map), runs
 :class:`~fsw.core.localization.fiducials.CliffbotLocalizer` (docs/algorithm.md §5) on it in a
 slack job with the camera pose estimate and its covariance, and hands the FIX (position,
@@ -34,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.comm.team import fix_packets
-from fsw.core.geometry import MapGrid, point_mast
+from fsw.core.geometry import CameraPose, MapGrid, camera_pose_from_rover, point_mast, wrap_angle
 from fsw.core.localization.fiducials import BodyEstimate, CliffbotLocalizer
 from fsw.core.localization.landmarks import Landmark, anchor_marker_corners, camera_from_landmarks
 from fsw.core.localization.localization import PoseEstimate, so3_log
@@ -42,7 +44,7 @@ from fsw.core.map.elevation_map import ElevationMap
 from fsw.core.stereo.rectify import Rectifier
 from fsw.framework.jobs import JobHandle
 from fsw.framework.telemetry import Channel, EventDef, Severity
-from fsw.settings import load_stereo_calibration
+from fsw.settings import FswConfig, load_stereo_calibration
 from fsw.tasks.base import FlightTask
 from fsw.tasks.camera import camera_pose_covariance
 from fsw.tasks.messages import (
@@ -69,6 +71,8 @@ REQUEST_BASE = 1 << 30  # motion request ids of the fixer (the mission's count f
 TIMEOUT_S = 30.0
 BODY_CENTRE_M = 0.25  # aim this far above the ground under the estimate (the marker band)
 LIFT_M = 0.3
+TURN_MARGIN_DEG = 10.0  # a turn toward the Cliff-bot leaves its pan this far inside the mast's range
+MAX_TURN_DEG = 45.0  # a larger turn is not made (the answer stays "out of the mast's reach")
 SURVEY_VIEW = FIX_VIEW_BASE + (1 << 24)  # view ids of the views of the Anchorbots' plates
 
 
@@ -87,7 +91,7 @@ class CliffbotFixerTask(FlightTask):
     REQUIRES: ClassVar[tuple[str, ...]] = ("radio", "motion", "camera")
     DOC: ClassVar[str] = "Relative localization: aims the mast at the Cliff-bot, locates its markers, answers FIX."
     CHANNELS = (
-        Channel("phase", doc="idle, aim, capture, locate"),
+        Channel("phase", doc="idle, aim, capture, locate, turn"),
         Channel("fixes", "count", doc="FIX answers sent"),
         Channel("no_fixes", "count", doc="NO_FIX answers sent"),
         Channel("landmarks", "count", doc="views of the Anchorbots' plates the current standing's fixes use"),
@@ -96,6 +100,9 @@ class CliffbotFixerTask(FlightTask):
         EventDef("FIX_SENT", Severity.ACTIVITY_HI, "request {seq}: Cliff-bot at {x:.2f}, {y:.2f} m, heading "
                  "{yaw_deg:.1f} deg, sigma {sigma_cm:.1f} cm"),
         EventDef("NO_FIX_SENT", Severity.ACTIVITY_LO, "request {seq}: no fix ({reason})", throttle=10),
+        EventDef("TURN_TO_CLIFFBOT", Severity.ACTIVITY_HI, "request {seq}: the Cliff-bot is {pan_deg:.0f} deg "
+                 "off the body, out of the mast's pan: turning {turn_deg:+.1f} deg in place"),
+        EventDef("TURNED", Severity.ACTIVITY_LO, "turn toward the Cliff-bot {outcome}{why}"),
         EventDef("LANDMARKS", Severity.ACTIVITY_LO, "camera resected on {n} of {views} views of the Anchorbots' "
                  "plates: yaw {dyaw_deg:+.2f} deg, {dxy_cm:.1f} cm from the rover's estimate"),
     )
@@ -128,6 +135,7 @@ class CliffbotFixerTask(FlightTask):
         self.surveyed = 0
         self.surveying = False
         self.pending: fix_packets.FixRequest | None = None  # a request held while the plates are viewed
+        self.turn_id: int | None = None  # the motion request of a turn toward the Cliff-bot
 
     def run(self, frame: int) -> None:
         now = self.ctx.clock.now()
@@ -137,7 +145,9 @@ class CliffbotFixerTask(FlightTask):
         self.snapshot = upd.snapshot if upd is not None else self.snapshot
         ready = self._mission_state() == "DONE" and self.pose is not None
         for req in self.requests.drain():
-            if self.current is not None:
+            if self.turn_id is not None:
+                self._no_fix(req.seq, BUSY)  # turning toward it: the next request is answered from there
+            elif self.current is not None:
                 if req.seq != self.current.seq:
                     self._no_fix(req.seq, BUSY)
             elif not ready:
@@ -157,6 +167,8 @@ class CliffbotFixerTask(FlightTask):
                 self._no_fix(self.current.seq, BUSY)
             else:
                 self._survey_done()
+        elif self.turn_id is not None:
+            self._turned(now)
         elif self.phase == "aim":
             self._aimed()
         elif self.phase == "capture":
@@ -195,12 +207,48 @@ class CliffbotFixerTask(FlightTask):
         target = (req.x, req.y, (ground if math.isfinite(ground) else self.pose.z_m) + BODY_CENTRE_M)
         if self._joints(target) is None:
             self._no_fix(req.seq, OUT_OF_REACH)
+            self._turn_toward(req.seq, target, now)
             return
         if self._standing() != self.standing:
             self.landmarks = []  # seen from elsewhere: this fix rests on the rover's estimate
         self.current, self.deadline = req, now + TIMEOUT_S
         self.shots = [Shot("cliffbot", FIX_VIEW_BASE + req.seq, target)]
         self._next_shot()
+
+    def _turn_toward(self, seq: int, target: tuple[float, float, float], now: float) -> None:
+        """Turn the body in place so that the mast's pan reaches ``target`` (the request after the
+        turn is answered from there), when the pan range, not the tilt, is what it misses and the
+        turn is small: the least turn that puts the pan ``TURN_MARGIN_DEG`` inside the range, at
+        most ``MAX_TURN_DEG``. The motion task makes it with its normal checks (it refuses or
+        aborts a turn it may not make; event ``TURNED``)."""
+        assert self.pose is not None
+        p, mast = self.pose, self.ctx.cfg.mast
+        cam = camera_pose_from_rover((p.x, p.y, p.yaw), (0.0, 0.0, LIFT_M), mast, ground_z_m=p.z_m).t
+        dx, dy, dz = (target[i] - float(cam[i]) for i in range(3))
+        pan = wrap_angle(math.atan2(dy, dx) - p.yaw)
+        tilt = math.atan2(dz, math.hypot(dx, dy))
+        if not math.radians(mast.tilt_min_deg) <= tilt <= math.radians(mast.tilt_max_deg):
+            return  # below or above the tilt's range: a turn does not bring it in
+        lo = math.radians(mast.pan_min_deg + TURN_MARGIN_DEG)
+        hi = math.radians(mast.pan_max_deg - TURN_MARGIN_DEG)
+        turn = pan - hi if pan > hi else pan - lo if pan < lo else 0.0
+        if turn == 0.0 or abs(turn) > math.radians(MAX_TURN_DEG):
+            return
+        self.request_id += 1
+        self.turn_id, self.phase, self.deadline = self.request_id, "turn", now + TIMEOUT_S
+        self.motion.drain()
+        self.publish(MOTION_REQUEST, MotionRequest(self.request_id, "turn", angle_rad=turn))
+        self.event("TURN_TO_CLIFFBOT", seq=seq, pan_deg=math.degrees(pan), turn_deg=math.degrees(turn))
+
+    def _turned(self, now: float) -> None:
+        for st in self.motion.drain():
+            if st.request_id == self.turn_id:
+                self.event("TURNED", outcome=str(st.state), why=f": {st.reason}" if st.reason else "")
+                self.turn_id, self.phase = None, "idle"
+                return
+        if now > self.deadline:
+            self.event("TURNED", outcome="not confirmed", why=f" within {TIMEOUT_S:.0f} s")
+            self.turn_id, self.phase = None, "idle"
 
     def _standing(self) -> tuple[float, ...]:
         p = self.pose
@@ -276,13 +324,8 @@ class CliffbotFixerTask(FlightTask):
         return float(self.snapshot.z[iy[0], ix[0]]) if inside[0] else math.nan
 
     def _joints_cov(self) -> NDArray[np.float64]:
-        """The camera pose covariance of the mast's joints alone at this view (the rover's own
-        pose error is one for all views of a standing: the landmarks measure it)."""
         assert self.pose is not None
-        cap = self.ctx.cfg.capture
-        js = math.radians(cap.joint_sigma_deg)
-        still = dataclasses.replace(self.pose, cov=np.zeros((3, 3)), att_cov=None)
-        return camera_pose_covariance(still, self.ctx.cfg.mast, (js, js, cap.lift_sigma_m))[1]
+        return joints_covariance(self.pose, self.ctx.cfg)
 
     def _pair(self, fr: CameraFrame) -> Generator[None, None, tuple[NDArray[np.uint8], NDArray[np.uint8]]]:
         left, right = fr.left, fr.right
@@ -321,8 +364,7 @@ class CliffbotFixerTask(FlightTask):
     def camera_estimate(self, fr: CameraFrame, joints_cov: NDArray[np.float64]) -> PoseEstimate:
         """The camera pose of the fix's view: from the views of the plates when there are any
         (each carried to this view, fused), else the rover's estimate with its covariance."""
-        est = camera_from_landmarks(self.landmarks, fr.pose, joints_cov)
-        return est if est is not None else PoseEstimate(fr.pose, np.asarray(fr.pose_cov, float))
+        return fix_camera(self.landmarks, fr.pose, fr.pose_cov, joints_cov)
 
     def _locate(self, fr: CameraFrame, joints_cov: NDArray[np.float64]
                 ) -> Generator[None, None, BodyEstimate | None]:
@@ -360,3 +402,21 @@ class CliffbotFixerTask(FlightTask):
 
     def _idle(self) -> None:
         self.current, self.phase, self.shot, self.shots = None, "idle", None, []
+
+
+def joints_covariance(pose: NavPose, cfg: FswConfig) -> NDArray[np.float64]:
+    """The camera pose covariance of the mast's joints alone at a view from ``pose`` (the rover's
+    own pose error is one for all views of a standing: the plates measure it)."""
+    cap = cfg.capture
+    js = math.radians(cap.joint_sigma_deg)
+    still = dataclasses.replace(pose, cov=np.zeros((3, 3)), att_cov=None)
+    return camera_pose_covariance(still, cfg.mast, (js, js, cap.lift_sigma_m))[1]
+
+
+def fix_camera(landmarks: list[Landmark], pose: CameraPose, pose_cov: NDArray[np.float64],
+               joints_cov: NDArray[np.float64]) -> PoseEstimate:
+    """The camera pose of a fix's view: from the views of the plates of the same standing when
+    there are any (each carried to this view, fused), else the rover's estimate ``pose`` with
+    its covariance."""
+    est = camera_from_landmarks(landmarks, pose, joints_cov)
+    return est if est is not None else PoseEstimate(pose, np.asarray(pose_cov, float))

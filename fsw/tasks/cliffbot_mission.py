@@ -56,7 +56,9 @@ from fsw.core.team.face_planner import (
     Margins,
     disc,
     ground_layers,
+    place_covariance,
     plan_targets,
+    tension_margins,
     way_reason,
 )
 from fsw.core.team.tether import TetherConfig, tether_state
@@ -66,7 +68,7 @@ from fsw.sections import CliffbotMissionConfig, CliffbotSensingConfig
 F64 = NDArray[np.float64]
 BODY_MARGIN_M = 0.1  # the body's box as mapped (stereo smear, the estimate's error) beyond the footprint
 MAX_CUT_ROUNDS = 12  # a leg's plan, its impassable edges cut, planned again at most this often
-MAX_ELSEWHERE = 3  # a leg re-planned at most this often because a waypoint's lengths held the body elsewhere
+MAX_ELSEWHERE = 3  # a leg re-planned this often in a row, without getting nearer its goal, is given up
 FAULT_BITS = ("FaultStall", "FaultSlip", "FaultOverTension", "FaultSpool", "FaultTimeout")
 
 
@@ -109,13 +111,13 @@ class CliffbotMission:
         self.sense_seq = 0  # the views asked for (Commands.sense), each answered by a map (sensed)
         self.sense_asked_at: float | None = None
         self.sensed_xy: F64 | None = None  # where it last looked
-        # Between waypoints the body is off the lattice and the bench judges every place it passes.
-        # Tensions change fast with the place near the lip: the planner keeps them tension_margin_n
-        # inside their limits (a hard margin). The footprint's clearance from hazards is soft
-        # (face_planner.Margins): paths keep track_margin_m clear where the ground leaves room,
-        # without calling a target the wheels can reach unreachable.
-        self.plan_tcfg = dataclasses.replace(tcfg, t_min_n=tcfg.t_min_n + cfg.tension_margin_n,
-                                             t_max_n=max(tcfg.t_max_n - cfg.tension_margin_n, tcfg.t_min_n + 1.0))
+        # The winches put the body where the lengths hold it, within length_tol_m of a node's
+        # lengths and off by the map's error: the planner keeps each tension its margin inside the
+        # limits, margin_sigmas standard deviations of the tension over where the body may be
+        # (face_planner.tension_margins: the statics' sensitivity times that place's covariance),
+        # hard; the footprint's clearance from hazards is soft (paths keep track_margin_m clear
+        # where the ground leaves room, without calling a target the wheels can reach unreachable).
+        self.plan_tcfg = tcfg
         self.margins = Margins(cfg.track_margin_m)
         self.anchors = np.asarray(anchors, float)
         self.start = np.asarray(start_xy, float)
@@ -128,6 +130,7 @@ class CliffbotMission:
         self.safe_reason = ""
         self.z: F64 | None = None
         self.grid: MapGrid | None = None
+        self.error_bound_m = 0.0  # the received map's height error bound (the codec's)
         self.ground: Ground | None = None  # the map's hazard layers (the way between waypoints)
         self.ways: dict[tuple[float, float, float, float], str] = {}  # way_reason per pair of places, this map
         self.map_version = 0
@@ -145,7 +148,8 @@ class CliffbotMission:
         self.fixes_refused = 0
         self.fix_log: list[tuple[float, ...]] = []  # t, fix x y yaw, estimate x y yaw (before), NIS
         self.replan = False
-        self.elsewhere = 0  # re-plans of this leg because a waypoint's lengths held it elsewhere
+        self.elsewhere = 0  # re-plans of this leg in a row, without progress, because the lengths held it elsewhere
+        self.elsewhere_left = math.inf  # the leg's planned length left at its last such re-plan
         self.dwell_until = 0.0
         self.clear_frames = 0
         self.now = 0.0
@@ -162,6 +166,7 @@ class CliffbotMission:
         r = self.ccfg.footprint_m + self.cfg.track_margin_m + self.ccfg.node_m
         # (a ring is as flat as the map can tell: half the codec's error bound, at least 3 cm)
         flat = max(0.03, 0.5 * error_bound_m) if math.isfinite(error_bound_m) else 0.03
+        self.error_bound_m = error_bound_m if math.isfinite(error_bound_m) else 0.0
         self.z, filled = fill_under_body(z, grid, self.est.xy, r, body_m=r + BODY_MARGIN_M, max_rms_m=flat)
         self.grid = grid
         # where the way between waypoints may not go: the body starts a way from where the last one
@@ -352,7 +357,7 @@ class CliffbotMission:
     def _plan_all(self) -> None:
         assert self.z is not None and self.grid is not None
         plan = plan_targets(self.z, self.grid, self.anchors, self.est.xy, self.targets, self.plan_tcfg, self.ccfg,
-                            self.margins)
+                            self._margins())
         self.legs = []
         for k, why in enumerate(plan.reasons):
             self.reasons[k] = why
@@ -379,9 +384,10 @@ class CliffbotMission:
         # it stands where the leg starts (held by its tethers): the way out of that node is planned;
         # an edge the body cannot pass (the statics between its nodes) is cut and the leg planned again
         cut: list[tuple[F64, F64]] = []
+        margins = self._margins()
         for _ in range(MAX_CUT_ROUNDS):
             plan = plan_targets(self.z, self.grid, self.anchors, self.est.xy, leg.goal[None, :], self.plan_tcfg,
-                                self.ccfg, self.margins, start_usable=True, blocked=cut)
+                                self.ccfg, margins, start_usable=True, blocked=cut)
             path = plan.paths[0]
             if path is None:
                 break
@@ -435,12 +441,53 @@ class CliffbotMission:
         assert self.z is not None and self.grid is not None and self.ground is not None
         key = (round(float(a[0]), 4), round(float(a[1]), 4), round(float(b[0]), 4), round(float(b[1]), 4))
         if key not in self.ways:
-            self.ways[key] = way_reason(self.z, self.grid, self.anchors, a, b, self.plan_tcfg, self.ccfg, self.ground)
+            # every place of the way keeps the larger of its ends' tension margins
+            m = self._margins()
+            ends = [tension_margins(self.z, self.grid, self.anchors, p, self.tcfg, self.ccfg, m) for p in (a, b)]
+            if any(e is None for e in ends):
+                self.ways[key] = "unknown ground"
+            else:
+                mg = max(max(e) for e in ends if e is not None)
+                t = dataclasses.replace(self.tcfg, t_min_n=self.tcfg.t_min_n + mg,
+                                        t_max_n=max(self.tcfg.t_max_n - mg, self.tcfg.t_min_n + mg + 1e-3))
+                self.ways[key] = way_reason(self.z, self.grid, self.anchors, a, b, t, self.ccfg, self.ground)
         return not self.ways[key]
+
+    def _length_sigma(self) -> float:
+        """The error of the lengths that put the body at a place, against the truth's: the
+        winches stop anywhere within ``length_tol_m`` of the set-point, and the map's heights,
+        which the set-point's lengths come from, are within the codec's error bound of the
+        ground's (each uniform)."""
+        return math.sqrt((self.cfg.length_tol_m ** 2 + self.error_bound_m ** 2) / 3.0)
+
+    def _margins(self) -> Margins:
+        """The planner's margins: the soft clearance, and the tension margins of the lengths'
+        error (:func:`fsw.core.team.face_planner.tension_margins`)."""
+        return Margins(self.cfg.track_margin_m, length_sigma_m=self._length_sigma(), z=self.cfg.margin_sigmas)
+
+    def _elsewhere(self, wp: F64) -> tuple[bool, float, float]:
+        """Whether the estimate says, beyond its uncertainty, that the waypoint's lengths hold the
+        body more than a lattice spacing from it (what the check of the next way assumes): the
+        offset past ``node_m`` along its direction over its standard deviation, the estimate's
+        covariance plus the lengths' error carried to the place (``face_planner.place_covariance``),
+        above ``margin_sigmas``. Returns (elsewhere, offset, its standard deviation)."""
+        assert self.z is not None and self.grid is not None
+        d = self.est.xy - wp
+        off = float(np.hypot(*d))
+        if off <= self.ccfg.node_m:
+            return False, off, math.nan
+        got = place_covariance(self.z, self.grid, self.anchors, wp, self.tcfg, self.ccfg, self._length_sigma(),
+                               self.est.P[:2, :2])
+        if got is None:
+            return True, off, math.nan
+        u = d / off
+        sd = math.sqrt(max(float(u @ got[0] @ u), 0.0))
+        return off - self.ccfg.node_m > self.cfg.margin_sigmas * sd, off, sd
 
     def _next_leg(self) -> None:
         self.leg_i += 1
         self.elsewhere = 0
+        self.elsewhere_left = math.inf
         if self.leg_i >= len(self.legs):
             self.state = "DONE"
             self.event("DONE", "all legs driven")
@@ -467,13 +514,14 @@ class CliffbotMission:
             err = np.asarray(st.lengths_m) - np.array([a.paid_out_m, b.paid_out_m])
             if float(np.max(np.abs(err))) > self.cfg.length_tol_m:
                 break
-            off = float(np.hypot(*(self.est.xy - wp)))
-            if off > self.ccfg.node_m:
+            elsewhere, off, sd = self._elsewhere(wp)
+            if elsewhere:
                 # the waypoint's lengths hold it elsewhere (the estimate, from those lengths, says
-                # where): the rest of the leg is planned again from there, or, when that keeps
-                # happening, the leg is given up (never driven on blindly)
+                # where): the rest of the leg is planned again from there; when that keeps
+                # happening without getting nearer the goal, the leg is given up (never driven on blindly)
                 self.elsewhere += 1
-                text = f"leg {self.leg_i + 1}: at the lengths of waypoint {wp.round(2).tolist()}, {off:.2f} m from it"
+                text = (f"leg {self.leg_i + 1}: at the lengths of waypoint {wp.round(2).tolist()}, {off:.2f} m "
+                        f"from it (sigma {sd:.2f} m)")
                 if self.elsewhere > MAX_ELSEWHERE:
                     if leg.target is not None:
                         self.reasons[leg.target] = OFF_THE_WAY
@@ -482,6 +530,10 @@ class CliffbotMission:
                     return self._hold()
                 self.event("OFF_THE_WAY", f"{text}; re-planned")
                 self._plan_leg()
+                if self.state == "DRIVE":
+                    if leg.length_m < self.elsewhere_left - self.ccfg.node_m:
+                        self.elsewhere = 0  # nearer the goal than at the last re-plan: not stuck
+                    self.elsewhere_left = min(self.elsewhere_left, leg.length_m)
                 return self._hold()
             self.wp_i += 1
             if self.wp_i >= len(leg.waypoints):

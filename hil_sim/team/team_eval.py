@@ -255,17 +255,6 @@ def compare_maps(full_z: NDArray[np.floating], received_z: NDArray[np.floating],
     return MapComparison(p_full.reasons, p_got.reasons, p_full.lengths_m, p_got.lengths_m, lost)
 
 
-def planning_limits(tcfg: TetherConfig, ccfg: ClimberConfig, track_margin_m: float,
-                    tension_margin_n: float) -> tuple[TetherConfig, ClimberConfig]:
-    """The limits the Cliff-bot plans with (``fsw.tasks.cliffbot_mission``): tensions kept
-    ``tension_margin_n`` inside their limits, the footprint grown by ``track_margin_m``."""
-    import dataclasses
-
-    t = dataclasses.replace(tcfg, t_min_n=tcfg.t_min_n + tension_margin_n,
-                            t_max_n=max(tcfg.t_max_n - tension_margin_n, tcfg.t_min_n + 1.0))
-    return t, dataclasses.replace(ccfg, footprint_m=ccfg.footprint_m + track_margin_m)
-
-
 def unknown_cells_entered(path: Sequence[tuple[float, float]], z: NDArray[np.floating], grid: MapGrid) -> int:
     """Distinct map cells the Cliff-bot's true path moved onto that its map does not know
     (the start, where it stands before any move, is not counted)."""

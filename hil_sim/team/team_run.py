@@ -16,7 +16,6 @@ and answers FIX (or NO_FIX). Everything is seeded: the same seed gives the same 
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -28,12 +27,14 @@ from numpy.typing import NDArray
 
 from fsw.comm.link_packets import PacketError
 from fsw.comm.team import fix_packets
-from fsw.core.geometry import MapGrid, point_mast
+from fsw.core.geometry import CameraPose, MapGrid, point_mast
+from fsw.core.localization.landmarks import Landmark, anchor_marker_corners
 from fsw.core.team.cliffbot_nav import NavConfig
 from fsw.core.team.face_planner import ClimberConfig
 from fsw.core.team.tether import TetherConfig
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig
+from fsw.tasks.cliffbot_fixer import BODY_CENTRE_M, LIFT_M, NO_MARKERS, OUT_OF_REACH, fix_camera, joints_covariance
 from fsw.tasks.cliffbot_mission import CliffbotMission, fix_xyyaw, navigate, new_navigator
 from hil_sim.faults import FaultInjector, FaultSpec
 from hil_sim.link.radio_channel import RadioChannel
@@ -57,7 +58,14 @@ class TeamSetup:
 
 
 class ReconFixer:
-    """The RECON-bot's side: answers a fix request by localizing the Cliff-bot's fiducials."""
+    """The RECON-bot's side through the flight fixer's code (:mod:`fsw.tasks.cliffbot_fixer`):
+    standing at ``recon_xy_yaw``, before its first answer it points the mast at each Anchorbot's
+    plate and resects its camera on the plates it sees (:mod:`fsw.core.localization.landmarks`);
+    per request it points the mast at the Cliff-bot's estimate (the request's ``x, y``, the
+    ground there plus the marker band), renders the pair of the team (:meth:`CliffbotRig.world_now`:
+    the Cliff-bot at its TRUE pose, the plates) and locates the markers with the camera pose the
+    plates give (or the rover's pose, exact on this bench, when none was seen). NO_FIX reasons as
+    the flight fixer's; ``answers`` counts each."""
 
     def __init__(self, world: World, recon_xy_yaw: tuple[float, float, float], seed: int,
                  fsw_config: Any | None = None) -> None:
@@ -70,27 +78,67 @@ class ReconFixer:
                                      self.cfg.camera.baseline_m)
         self.rng = np.random.default_rng([seed, 2702])
         self.errors: list[FixError] = []
+        self.landmarks: list[Landmark] | None = None  # the plates' views from where it stands
+        self.answers: dict[str, int] = {}
+        self.grid = MapGrid.from_config(world.map_grid)
+        self.ground = np.asarray(world.ground_on_grid(self.grid), np.float64)
 
-    def answer(self, req: fix_packets.FixRequest, rig: CliffbotRig, now: float) -> bytes:
+    def _view(self, rig: CliffbotRig, target: tuple[float, float, float]
+              ) -> tuple[CameraPose, F64, NDArray[np.uint8], NDArray[np.uint8]] | None:
+        """The pair of a view with the mast pointed at ``target`` and its joints' covariance;
+        None when the mast does not reach it."""
         from fsw.core.geometry import camera_pose_from_rover
-        from fsw.core.localization.localization import PoseEstimate, so3_log
+        from fsw.tasks.messages import NavPose
         from hil_sim.render import StereoRenderer
 
-        cb = rig.cliffbot_truth()
-        joints, reachable = point_mast(self.rover, cb.t + np.array([0.0, 0.0, 0.25]), self.cfg.mast, 0.3)
+        joints, reachable = point_mast(self.rover, target, self.cfg.mast, LIFT_M)
         if not reachable:
-            return fix_packets.encode(fix_packets.NoFix(req.seq, 1))
+            return None
         pose = camera_pose_from_rover(self.rover, joints, self.cfg.mast)
-        w = dataclasses.replace(self.world, cliffbot=cb)
-        rend = StereoRenderer(w, self.cfg.camera, self.world.noise_sigma, seed=int(self.rng.integers(1 << 30)))
+        nav = NavPose(0.0, self.rover[0], self.rover[1], self.rover[2], np.zeros((3, 3)), joints)
+        rend = StereoRenderer(rig.world_now(), self.cfg.camera, self.world.noise_sigma,
+                              seed=int(self.rng.integers(1 << 30)))
         left, right = rend.render(pose)
-        est = self.loc.locate(left, PoseEstimate(pose, np.zeros((6, 6))), right)
-        if est is None:
-            return fix_packets.encode(fix_packets.NoFix(req.seq, 0))
+        return pose, joints_covariance(nav, self.cfg), left, right
+
+    def _survey(self, rig: CliffbotRig) -> list[Landmark]:
+        plates = anchor_marker_corners(rig.anchors[0], rig.anchors[1], self.cfg.localization)
+        out: list[Landmark] = []
+        for c in plates.values():
+            view = self._view(rig, (float(c[:, 0].mean()), float(c[:, 1].mean()), float(c[:, 2].mean())))
+            if view is None:
+                continue
+            est = self.loc.resect(plates, view[2], view[3])
+            if est is not None and np.isfinite(est.cov).all():
+                out.append(Landmark(est, view[0], view[1]))
+        return out
+
+    def _no_fix(self, seq: int, reason: int) -> bytes:
+        name = fix_packets.NO_FIX_REASONS[reason]
+        self.answers[name] = self.answers.get(name, 0) + 1
+        return fix_packets.encode(fix_packets.NoFix(seq, reason))
+
+    def answer(self, req: fix_packets.FixRequest, rig: CliffbotRig, now: float) -> bytes:
+        from fsw.core.localization.localization import so3_log
+        from fsw.core.team.tether import height_at
+
+        cb = rig.cliffbot_truth()
+        if self.landmarks is None:
+            self.landmarks = self._survey(rig)
+        if not (math.isfinite(req.x) and math.isfinite(req.y)):
+            return self._no_fix(req.seq, OUT_OF_REACH)
+        ground = height_at(self.ground, self.grid, (req.x, req.y))
+        view = self._view(rig, (req.x, req.y, (ground if math.isfinite(ground) else cb.z) + BODY_CENTRE_M))
+        if view is None:
+            return self._no_fix(req.seq, OUT_OF_REACH)
+        pose, joints_cov, left, right = view
+        est = self.loc.locate(left, fix_camera(self.landmarks, pose, np.zeros((6, 6)), joints_cov), right)
+        if est is None or not np.isfinite(est.cov).all():
+            return self._no_fix(req.seq, NO_MARKERS)
         self.errors.append(fix_error(est.t, so3_log(est.R @ cb.R.T), est.yaw - cb.yaw, est.cov, cb.t,
                                      float(np.linalg.norm(cb.t - pose.t))))
-        fix = fix_packets.Fix(req.seq, int(now * 1000), est.t, so3_log(est.R), est.cov)
-        return fix_packets.encode(fix)
+        self.answers["fix"] = self.answers.get("fix", 0) + 1
+        return fix_packets.encode(fix_packets.Fix(req.seq, int(now * 1000), est.t, so3_log(est.R), est.cov))
 
 
 class TruthFixer:
@@ -176,7 +224,9 @@ def run_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], chan
         mission.on_estimate(nav.nav.s, nav.nav.P)
         cmd = mission.step(now - t0, dev)
         if cmd.request_fix:
-            channel.send(CLIFF, fix_packets.encode(fix_packets.FixRequest(mission.fix_seq, mission.leg_i)), now)
+            req = fix_packets.FixRequest(mission.fix_seq, mission.leg_i, float(mission.est.s[0]),
+                                         float(mission.est.s[1]))  # its estimate: where the mast points
+            channel.send(CLIFF, fix_packets.encode(req), now)
         rig.to_rig(dev.commands(cmd.rates_mps, cmd.enable, cmd.clear_faults, cmd.wheels_radps), now - t0)
         est_path.append((float(mission.est.s[0]), float(mission.est.s[1])))
         if mission.state == "SAFE":

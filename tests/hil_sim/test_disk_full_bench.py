@@ -138,14 +138,16 @@ def test_mission_on_a_1mib_disk_ends_in_one_line_and_resume_refuses(tmp_path: Pa
     """req(26.4): the reviewer's case: ``--out`` on a small tmpfs. Checkpoint and .tlog
     failures are events on the console and (CHECKPOINT_FAILED) in the .tlog, the mission
     reaches its end, the run exits 1 with one line on the summary, never a traceback; a
-    ``--resume`` on the still-full disk is one line, exit 1. One imaging step on 1 MiB: the
-    start has room (two checkpoints' worth), the disk fills before the step's checkpoints
-    (about 0.25 + 0.3 + 0.6 MB) and the .tlog (0.6 MB) are written, so they fail mid-mission."""
+    ``--resume`` on the still-full disk is one line, exit 1. The panorama only (``--steps 0``,
+    the shortest mission that maps and transmits) on 1 MiB: the panorama's two map checkpoints
+    (about 0.2 + 0.25 MB), the .tlog (0.27 MB) and the Cliff-bot's received map (0.3 MB) fill
+    it: the mission's checkpoint after the transfer fails (an event; the mission goes on to its
+    end), then the pictures and the summary."""
     mnt = tmp_path / "disk"
     if not _tmpfs(mnt, "1m"):
         pytest.skip("needs root and tmpfs to make a small disk")
     try:
-        cmd = [sys.executable, "-m", "hil_sim.cli", "run", "--steps", "1", "--out", str(mnt / "run")]
+        cmd = [sys.executable, "-m", "hil_sim.cli", "run", "--steps", "0", "--out", str(mnt / "run")]
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
         assert "Traceback" not in r.stderr and r.returncode in (0, 1), r.stderr[-2000:]
         lines = [ln for ln in r.stderr.replace("\r", "\n").splitlines() if ln.strip()]

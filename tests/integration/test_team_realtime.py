@@ -69,8 +69,9 @@ def test_serve_and_both_flight_programs_cross_the_map_and_answer_a_fix(tmp_path:
     out: dict[str, str] = {"recon": "", "cliffbot": ""}
     try:
         read_until(serve, "READY", 60.0)
-        _edit(recon_cfg, {  # one view, then the map goes to the Cliff-bot
-            "nbv": {"max_steps": 1},
+        _edit(recon_cfg, {  # one view, then the map goes to the Cliff-bot: the region of interest
+            # counts as mapped after the panorama's one view (no next-view search, no second view)
+            "nbv": {"max_steps": 1, "target_mapped_fraction": 0.0},
             "mission": {"panorama_pans_deg": [-90.0], "near_pans_deg": []},
             "mavlink": {"url": f"udpout:127.0.0.1:{gcs[1].getsockname()[1]}"},
             "checkpoint": {"directory": str(tmp_path / "recon_checkpoints")},  # a fresh start, not another run's

@@ -20,6 +20,14 @@ turns the sight line; the window's half width in angle): what a camera sees just
 tether, or just in front of one it hides, is not trusted as terrain. The camera's own robot
 (a box within ``own_m`` of the camera) is rigid in the camera's frame: its sight test has
 neither the pose term nor the extension.
+
+A robot whose ground is known (``BodyBox.ground``: a point of the plane it stands on, its up
+axis the plane's normal) keeps the ground round it: a point outside its footprint (grown by the
+margin) and at or below that plane within the margin plus ``ground_sigma`` times its own error
+along the normal is ground, whatever the two tests say. The robot stands above its ground and a
+stereo point between its outline and the terrain behind lies above that terrain, so neither is
+such a point; the pose error's growth of both tests otherwise takes a band of ground round the
+robot (the tethers run over it).
 """
 
 from __future__ import annotations
@@ -42,6 +50,7 @@ class BodyBox:
     R: F64
     half: F64
     sigma_m: float = 0.0
+    ground: F64 | None = None  # a point of the ground plane it stands on (normal: its up axis), when known
 
 
 def standing_box(ground: F64, yaw: float, body_points: F64, sigma_m: float = 0.0, below_m: float = 0.0) -> BodyBox:
@@ -83,6 +92,7 @@ class MaskConfig:
     behind: float = 2.0  # the sight line is tested out to this multiple of the point's range
     behind_tether: float = 1.5  # the same for a tether
     own_m: float = 1.0  # a box the camera is this close to is its own robot's (a mast's camera too)
+    ground_sigma: float = 1.0  # a point within the margin and this many sigma of a robot's ground is ground
 
 
 def point_sigma(cov: F64) -> F64:
@@ -127,14 +137,17 @@ def team_mask(xyz: F64, cov: F64 | None, team: TeamGeometry, cfg: MaskConfig | N
     for box in team.boxes:
         g = grow + cfg.sigma * box.sigma_m
         local = (p - box.center) @ box.R
-        out |= (np.abs(local) <= box.half[None, :] + g[:, None]).all(axis=1)
+        hit = (np.abs(local) <= box.half[None, :] + g[:, None]).all(axis=1)
         if e is not None:
             g0 = cfg.margin_m + cfg.sigma * box.sigma_m
             if (np.abs((e - box.center) @ box.R) <= box.half + cfg.own_m).all():
                 # the camera's own robot: rigid in the camera's frame, no pose error between them
-                out |= _sight_through_box(e, p, box, g0, cfg.pixel_rad)
+                hit |= _sight_through_box(e, p, box, g0, cfg.pixel_rad)
             else:
-                out |= _sight_through_box(e, far, box, g0, cfg.pixel_rad + lat)
+                hit |= _sight_through_box(e, far, box, g0, cfg.pixel_rad + lat)
+        if box.ground is not None and cov is not None:
+            hit &= ~_at_ground(p, cov, box, cfg)
+        out |= hit
     for t in team.tethers:
         pts = np.asarray(t.points, float)
         if pts.ndim != 2 or pts.shape[0] < 2:
@@ -150,6 +163,23 @@ def team_mask(xyz: F64, cov: F64 | None, team: TeamGeometry, cfg: MaskConfig | N
                 dist, rng = _segment_distance(e, far_t, a, b)
                 out |= dist <= cfg.margin_m + t.radius_m + cfg.sigma * t.sigma_m + cfg.pixel_rad * rng
     return out
+
+
+def _at_ground(p: F64, cov: F64, box: BodyBox, cfg: MaskConfig) -> B:
+    """Points of the ground round ``box``: outside its footprint grown by the margin and
+    ``sigma`` times its pose error, and at or below the ground plane it stands on
+    (``box.ground``, normal its up axis) within the margin plus ``sigma`` times their own error
+    along the normal (NaN: not ground). A robot stands above its ground, and a point between its
+    outline and the terrain behind lies above that terrain."""
+    assert box.ground is not None
+    n = box.R[:, 2]
+    c = np.nan_to_num(np.asarray(cov, float), nan=np.inf, posinf=np.inf)
+    with np.errstate(invalid="ignore"):
+        sn = np.sqrt(np.maximum(np.einsum("i,nij,j->n", n, c, n), 0.0))
+    low = np.isfinite(sn) & ((p - box.ground) @ n <= cfg.margin_m + cfg.ground_sigma * np.nan_to_num(sn, nan=np.inf))
+    local = (p - box.center) @ box.R
+    out = (np.abs(local[:, :2]) > box.half[None, :2] + cfg.margin_m).any(axis=1)
+    return np.asarray(low & out, bool)
 
 
 def _segment_distance(e: F64, p: F64, a: F64, b: F64) -> tuple[F64, F64]:

@@ -124,7 +124,10 @@ def local_spread(disp: F64, window_px: int) -> F32:
     r2 = np.where(ok, (z - mean3) ** 2, 0.0).astype(np.float32)
     win = (window_px, window_px)
     cnt = cv2.boxFilter(okf, -1, win, normalize=False)
-    return np.sqrt(cv2.boxFilter(r2, -1, win, normalize=False) / np.maximum(cnt, 1.0)).astype(np.float32)
+    # OpenCV's box filter keeps running sums: a window of exact zeros (a plane) just past large
+    # squares (an occlusion border, a mismatched patch) sums to a residue like -2e-10, not 0
+    ms = cv2.boxFilter(r2, -1, win, normalize=False) / np.maximum(cnt, 1.0)
+    return np.sqrt(np.maximum(ms, 0.0)).astype(np.float32)
 
 
 def disparity_gradient(disp: F64, window_px: int) -> F64:

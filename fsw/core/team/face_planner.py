@@ -17,7 +17,9 @@ brute-force check of what is reachable at all).
      normal, :func:`fsw.core.team.tether.surface_normal`) is steeper than ``free_slope_deg`` the
      equilibrium must hold with both tensions in ``[T_min, T_max]`` and the wheels on the
      face (below it, the wheels hold the Cliff-bot and the winches only keep the tethers
-     taut).
+     taut); with :class:`Margins` ``length_sigma_m``, each tension the margin where the body
+     may be requires inside them (:func:`tension_margins`: the lengths' error carried to the
+     place through their Jacobian, times the tension's gradient there).
 2. **Edges.** Usable 8-neighbours, weighted by their 3-D distance; with :class:`Margins`, an
    edge within ``clearance_m`` of a hazard cell costs more (up to ``1 + weight`` times its
    length), so a path keeps the clearance the body's tracking and navigation errors need
@@ -81,10 +83,61 @@ class ClimberConfig:
 
 @dataclass(frozen=True)
 class Margins:
-    """A soft margin: the extra cost of passing near a hazard."""
+    """A soft margin: the extra cost of passing near a hazard; and, with ``length_sigma_m``, the
+    tension margin the place's uncertainty requires (:func:`tension_margins`)."""
 
     clearance_m: float = 0.0  # within this of a hazard cell an edge costs more
     weight: float = 4.0  # an edge's cost at its worst: (1 + weight) x its length
+    length_sigma_m: float = 0.0  # the error of the lengths that put the body at a node (0: hard limits only)
+    z: float = 2.326  # the margin in standard deviations (one-sided 99 %)
+
+
+def place_covariance(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
+                     length_sigma_m: float, est_cov: F64 | None = None
+                     ) -> tuple[F64, F64, TetherState] | None:
+    """Where the body may be when the winches hold the lengths of place ``xy``: the lengths'
+    error ``length_sigma_m`` (the winches' tolerance, the map's) carried to the place through
+    the lengths' Jacobian, ``J^+ sigma^2 J^+T``, plus the estimate's covariance ``est_cov``.
+    Returns ``(covariance 2x2, tension gradient 2x2 (dT_i/dxy), state at xy)``; None where the
+    ground round it is not known (central differences over one map cell)."""
+    h = grid.cell
+    pts = np.asarray(xy, float)[None, :] + np.array([[0, 0], [h, 0], [-h, 0], [0, h], [0, -h]], float)
+    ss = tether_states(z, grid, anchors, pts, tcfg, ccfg.footprint_m)
+    if any(s is None for s in ss):
+        return None
+    st = [s for s in ss if s is not None]
+    lengths = np.array([s.lengths_m for s in st])
+    tens = np.array([s.statics.tensions_n for s in st])
+    jl = np.column_stack([lengths[1] - lengths[2], lengths[3] - lengths[4]]) / (2 * h)  # dL_i/dx_k
+    jt = np.column_stack([tens[1] - tens[2], tens[3] - tens[4]]) / (2 * h)
+    if not (np.isfinite(jl).all() and np.isfinite(jt).all()):
+        return None
+    jp = np.linalg.pinv(jl)
+    cov = length_sigma_m ** 2 * jp @ jp.T + (np.zeros((2, 2)) if est_cov is None else np.asarray(est_cov, float))
+    return cov, jt, st[0]
+
+
+def tension_margins(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
+                    m: Margins) -> tuple[float, float] | None:
+    """Each tether's tension margin at ``xy`` (N): ``m.z`` standard deviations of its tension
+    over where the body may be (:func:`place_covariance`), ``sqrt(g^T Sigma g)``; None where
+    it cannot be worked out."""
+    got = place_covariance(z, grid, anchors, xy, tcfg, ccfg, m.length_sigma_m)
+    if got is None:
+        return None
+    return _margins(got[0], got[1], m.z)
+
+
+def within_margins(st: TetherState, margins: tuple[float, float] | None, tcfg: TetherConfig) -> str:
+    """``""`` when both tensions are their margins inside ``[T_min, T_max]``, else the reason."""
+    if margins is None:
+        return "unknown ground"
+    for t, mg in zip(st.statics.tensions_n, margins, strict=True):
+        if t - mg < tcfg.t_min_n:
+            return "slack"
+        if t + mg > tcfg.t_max_n:
+            return "over-tension"
+    return ""
 
 
 @dataclass(frozen=True)
@@ -182,6 +235,23 @@ def _tether_verdict(st: TetherState | None, grid: MapGrid, tcfg: TetherConfig, c
     return USABLE
 
 
+def margin_reason(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
+                  m: Margins) -> str:
+    """Why the tensions at ``xy`` are not their margins (:func:`tension_margins`) inside the
+    limits (``""``: they are); only where the statics hold the body (steeper than ``free_slope_deg``)."""
+    got = place_covariance(z, grid, anchors, xy, tcfg, ccfg, m.length_sigma_m)
+    if got is None:
+        return "unknown ground"
+    cov, jt, st = got
+    if st.statics.tilt_deg <= ccfg.free_slope_deg:
+        return ""
+    return within_margins(st, _margins(cov, jt, m.z), tcfg)
+
+
+def _margins(cov: F64, jt: F64, k: float) -> tuple[float, float]:
+    return (k * math.sqrt(max(float(jt[0] @ cov @ jt[0]), 0.0)), k * math.sqrt(max(float(jt[1] @ cov @ jt[1]), 0.0)))
+
+
 def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
                g: Ground, step_m: float = WAY_STEP_M) -> str:
     """Why the body cannot go from node ``a`` to node ``b`` (``""``: it can; module docstring,
@@ -245,7 +315,11 @@ def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy
 
     def verdict(k: int) -> str:
         if k not in cache:
-            cache[k] = _verdict(zf, grid, anchors, tcfg, ccfg, g, int(rows[k // nx]), int(cols[k % nx]))
+            r, c = int(rows[k // nx]), int(cols[k % nx])
+            cache[k] = _verdict(zf, grid, anchors, tcfg, ccfg, g, r, c)
+            if cache[k] == USABLE and m.length_sigma_m > 0:
+                xy = np.array([grid.x0 + (c + 0.5) * grid.cell, grid.y0 + (r + 0.5) * grid.cell])
+                cache[k] = margin_reason(zf, grid, anchors, xy, tcfg, ccfg, m) or USABLE
         return USABLE if (start_usable and k == start) else cache[k]
 
     def cost(a: int, b: int) -> float:

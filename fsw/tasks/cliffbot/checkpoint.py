@@ -37,7 +37,7 @@ def snapshot(m: CliffbotMission, now: float) -> dict[str, object]:
     """What the checkpoint keeps of the mission (JSON-ready)."""
     return {
         "schema": SCHEMA, "time_s": round(now, 6), "state": m.state, "safe_reason": m.safe_reason,
-        "leg_i": m.leg_i, "fix_seq": m.fix_seq, "map_version": m.map_version,
+        "leg_i": m.leg_i, "fix_seq": m.fix_seq, "map_version": m.map_version, "error_bound_m": m.error_bound_m,
         "start": [float(v) for v in m.start], "targets": m.targets.tolist(), "reached": list(m.reached),
         "reasons": list(m.reasons), "legs": [[float(g.goal[0]), float(g.goal[1]), g.target] for g in m.legs],
         "nav_s": [float(v) for v in m.est.s], "nav_P": m.est.P.tolist(),
@@ -72,6 +72,8 @@ def restore(m: CliffbotMission, st: dict[str, object], z: NDArray[np.float64] | 
         if z.shape != grid.shape:
             raise CheckpointError(f"{MAP}: shape {z.shape}, the map grid is {grid.shape}")
         m.z, m.grid, m.map_version = np.asarray(z, np.float64), grid, _int(st.get("map_version", 1))
+        bound = st.get("error_bound_m", 0.0)  # the map's error bound: the tension margins rest on it
+        m.error_bound_m = float(bound) if isinstance(bound, (int, float)) and math.isfinite(bound) else 0.0
     m.targets, m.reached, m.reasons, m.legs, m.leg_i = targets, reached, reasons, legs, leg_i
     m.planned_lengths = [math.inf for _ in range(len(targets))]
     m.start = np.asarray(st.get("start", m.start), float).reshape(2)

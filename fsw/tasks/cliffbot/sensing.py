@@ -12,7 +12,9 @@ pipeline (:class:`fsw.core.pipeline.SensingPipeline`, the Cliff-bot's camera, re
 the pose covariance carries the navigation's error into every point, §1.2) as a slack job,
 with the team masked out at its known poses: its own body box and the two tethers (anchor
 exits, their contacts on the map, its attachment) at its estimate, the Anchorbots at their
-surveyed ground points (``fsw.core.map.body_mask``).
+surveyed ground points (``fsw.core.map.body_mask``), each with the ground it stands on (its body's
+plane, the Anchorbots' ground points): the ground round them, which the tethers run over, stays
+in the views.
 
 The map the mission plans on (:class:`~fsw.tasks.cliffbot.messages.SensedMap`, published when
 a map arrives over the link and when a request's views are all in): the received map as it
@@ -317,39 +319,48 @@ class CliffbotSensingTask(FlightTask):
 
     # -- the team, masked out of its views (docs/algorithm.md §8.1) -----------------------------
     def _team(self, c: Capture) -> TeamGeometry:
-        """Its body box and the tethers at its estimate, the Anchorbots at their ground points.
-        The body and the camera are one rigid whole: its box is known to the camera within
-        ``BODY_SIGMA_M`` (the head stands outside it). The tethers run from the body (rigid with
-        the camera) to the anchors: they carry ``mask_sigma_m`` (a tube of the estimate's error
-        round the whole tether would hold the camera, next to the attachment); the Anchorbots,
-        placed from the anchors, carry ``mask_sigma_m`` and the estimate's error."""
+        """Its body, the Anchorbots and the tethers as the mask knows them (:func:`cliffbot_team`)."""
         assert self.est is not None
-        s = self.est.s
-        sig = self.sc.mask_sigma_m + math.sqrt(max(float(np.linalg.eigvalsh(self.est.P[:2, :2]).max()), 0.0))
         att = None if self.last_status is None else self.last_status.devices.attitude
         roll = math.radians(att.roll_deg) if att is not None else 0.0
         pitch = math.radians(att.pitch_deg) if att is not None else 0.0
-        n = normal_from_attitude(float(s[2]), roll, pitch)
-        fwd = np.array([math.cos(s[2]), math.sin(s[2]), 0.0])
-        fwd = fwd - float(fwd @ n) * n
-        fwd /= max(float(np.linalg.norm(fwd)), 1e-9)
-        R = np.column_stack([fwd, np.cross(n, fwd), n])
-        half = np.asarray(self.sc.body_half_m, float)
-        ground = np.array([float(s[0]), float(s[1]), c.body_z])
-        # the box from BODY_LIFT_M above its ground up (the ground round its wheels stays in the
-        # views; the box's lowest edge mapped as ground is replaced by contact: fill_under_body)
-        lift = np.array([half[0], half[1], 0.5 * (2 * half[2] - BODY_LIFT_M)])
-        boxes = [BodyBox(ground + (BODY_LIFT_M + lift[2]) * n, R, lift, BODY_SIGMA_M)]
-        for a in self.anchor_ground:
-            boxes.append(BodyBox(a + np.array([0.0, 0.0, ANCHOR_LIFT_M + ANCHOR_HALF_M[2]]), np.eye(3),
-                                 np.asarray(ANCHOR_HALF_M), sig))
-        attach = ground + np.array([0.0, 0.0, self.ctx.cfg.tether.attach_m])
-        ts = None
-        if self.plan_z is not None:
-            ts = tether_state(self.plan_z, self.grid, self.anchors, s[:2], self.ctx.cfg.tether,
-                              self.ctx.cfg.climber.footprint_m)
-        lines = []
-        for k in range(2):
-            mid = np.zeros((0, 3)) if ts is None else np.asarray(ts.paths[k].contacts, float).reshape(-1, 3)
-            lines.append(TetherLine(np.vstack([self.anchors[k], mid, attach]), TETHER_RADIUS_M, self.sc.mask_sigma_m))
-        return TeamGeometry(tuple(boxes), tuple(lines))
+        return cliffbot_team(self.ctx.cfg, self.est.s, self.est.P, roll, pitch, c.body_z, self.anchors,
+                             self.plan_z, self.grid)
+
+
+def cliffbot_team(cfg: FswConfig, s: F64, P: F64, roll: float, pitch: float, body_z: float, anchors: F64,
+                  plan_z: F64 | None, grid: MapGrid) -> TeamGeometry:
+    """The team as the Cliff-bot's mask knows it: its body box and the tethers at its estimate
+    ``s`` (x, y, yaw; covariance ``P``) on the ground ``body_z`` tilted by ``roll`` and ``pitch``,
+    the Anchorbots at their ground points under the tether exits ``anchors`` (``(2, 3)``), the
+    tethers over their contacts on ``plan_z`` (None: straight). The body and the camera are one
+    rigid whole: its box is known to the camera within ``BODY_SIGMA_M`` (the head stands outside
+    it). The tethers run from the body (rigid with the camera) to the anchors: they carry
+    ``mask_sigma_m`` (a tube of the estimate's error round the whole tether would hold the
+    camera, next to the attachment); the Anchorbots, placed from the anchors, carry
+    ``mask_sigma_m`` and the estimate's error."""
+    sc = cfg.cliffbot_sensing
+    sig = sc.mask_sigma_m + math.sqrt(max(float(np.linalg.eigvalsh(P[:2, :2]).max()), 0.0))
+    n = normal_from_attitude(float(s[2]), roll, pitch)
+    fwd = np.array([math.cos(s[2]), math.sin(s[2]), 0.0])
+    fwd = fwd - float(fwd @ n) * n
+    fwd /= max(float(np.linalg.norm(fwd)), 1e-9)
+    R = np.column_stack([fwd, np.cross(n, fwd), n])
+    half = np.asarray(sc.body_half_m, float)
+    ground = np.array([float(s[0]), float(s[1]), body_z])
+    # the box from BODY_LIFT_M above its ground up (the ground round its wheels stays in the
+    # views; the box's lowest edge mapped as ground is replaced by contact: fill_under_body)
+    lift = np.array([half[0], half[1], 0.5 * (2 * half[2] - BODY_LIFT_M)])
+    boxes = [BodyBox(ground + (BODY_LIFT_M + lift[2]) * n, R, lift, BODY_SIGMA_M, ground)]
+    for a in np.asarray(anchors, float) - np.array([0.0, 0.0, cfg.tether.anchor_exit_m]):
+        boxes.append(BodyBox(a + np.array([0.0, 0.0, ANCHOR_LIFT_M + ANCHOR_HALF_M[2]]), np.eye(3),
+                             np.asarray(ANCHOR_HALF_M), sig, a))
+    attach = ground + np.array([0.0, 0.0, cfg.tether.attach_m])
+    ts = None
+    if plan_z is not None:
+        ts = tether_state(plan_z, grid, anchors, s[:2], cfg.tether, cfg.climber.footprint_m)
+    lines = []
+    for k in range(2):
+        mid = np.zeros((0, 3)) if ts is None else np.asarray(ts.paths[k].contacts, float).reshape(-1, 3)
+        lines.append(TetherLine(np.vstack([anchors[k], mid, attach]), TETHER_RADIUS_M, sc.mask_sigma_m))
+    return TeamGeometry(tuple(boxes), tuple(lines))

@@ -26,6 +26,7 @@ import argparse
 import csv
 import json
 import sys
+from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -150,12 +151,6 @@ def pooled_report(out: Path, scenarios: list[str], methods: list[str], seeds: in
     """The information model's prediction over every scenario (per method and per scenario: rated
     views, median and 10th-90th percentile of obtained / expected new cells; the pooled median
     judged against 0.8-1.25) and Figure 8 over all scenarios, written to ``out``; the markdown."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
     lines = [f"# The information model's prediction over {', '.join(scenarios)} ({seeds} seeds each)", "",
              "| method | scenario | rated views | obtained / expected: median | 10th percentile | 90th percentile | "
              "target (median) |", "|---|---|---|---|---|---|---|"]
@@ -172,16 +167,33 @@ def pooled_report(out: Path, scenarios: list[str], methods: list[str], seeds: in
             lines.append(f"| {m} | {'**all**' if sc == 'all' else sc} | {pr['rated_steps']} | "
                          f"{pr['median_ratio']:.2f} | {pr['p10_ratio']:.2f} | {pr['p90_ratio']:.2f} | "
                          f"{'0.8-1.25 ' + judged if judged else ''} |")
-    fig, axes = plt.subplots(1, max(len(shown), 1), figsize=(5.2 * max(len(shown), 1), 4.6),
-                             constrained_layout=True, squeeze=False)
-    for ax, m in zip(axes[0], shown or ["5"], strict=True):
+    figure8(out, shown or ["5"],
+            lambda m: [(f"{sc} ({{n}} views)", _rated_pairs(results[sc], m, seeds) if m in methods else None)
+                       for sc in scenarios],
+            "Figure 8: expected vs obtained new cells per rated view, every scenario and seed")
+    return "\n".join(lines) + "\n"
+
+
+def figure8(out: Path, shown: Sequence[str], series: Any, title: str) -> None:
+    """``fig8_expected_vs_obtained.png`` in ``out``: one panel per method of ``shown``, each
+    series of ``series(method)`` (``(label, pairs)``: ``{n}`` in the label is its number of
+    rated views; ``pairs`` the ``(..., 2)`` expected and obtained new cells, None: none)
+    scattered against the line obtained = expected and the 0.8-1.25 band."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    fig, axes = plt.subplots(1, len(shown), figsize=(5.2 * len(shown), 4.6), constrained_layout=True, squeeze=False)
+    for ax, m in zip(axes[0], shown, strict=True):
         top = 1.0
-        for sc in scenarios:
-            pairs = _rated_pairs(results[sc], m, seeds) if m in methods else np.zeros((0, 0, 2))
+        for label, pairs in series(m):
+            pairs = np.zeros((0, 0, 2)) if pairs is None else pairs
             e, o = pairs[..., 0].ravel(), pairs[..., 1].ravel()
             ok = np.isfinite(e)
             top = max(top, float(np.nanmax(pairs)) if ok.any() else 1.0)
-            ax.scatter(e[ok], o[ok], s=14, label=f"{sc} ({int(ok.sum())} views)")
+            ax.scatter(e[ok], o[ok], s=14, label=label.format(n=int(ok.sum())))
         top *= 1.05
         ax.plot([0, top], [0, top], "k-", lw=1, label="obtained = expected")
         ax.fill_between([0, top], [0, 0.8 * top], [0, 1.25 * top], color="0.5", alpha=0.15, label="0.8-1.25")
@@ -192,10 +204,9 @@ def pooled_report(out: Path, scenarios: list[str], methods: list[str], seeds: in
         ax.grid(alpha=0.3)
         ax.legend(loc="upper left")
     axes[0][0].set_ylabel("obtained new cells (the view's own)")
-    fig.suptitle("Figure 8: expected vs obtained new cells per rated view, every scenario and seed")
+    fig.suptitle(title)
     fig.savefig(out / "fig8_expected_vs_obtained.png", dpi=100)
     plt.close(fig)
-    return "\n".join(lines) + "\n"
 
 
 @dataclass(frozen=True)
@@ -397,25 +408,8 @@ def write_report(
     plt.close(fig)
 
     shown = [m for m in ("3", "4", "5") if m in methods] or ["5"]
-    fig, axes = plt.subplots(1, len(shown), figsize=(5.2 * len(shown), 4.6), constrained_layout=True, squeeze=False)
-    for ax, m in zip(axes[0], shown, strict=True):
-        pairs = _rated_pairs(results, m, seeds) if m in methods else np.zeros((0, 0, 2))
-        e, o = pairs[..., 0].ravel(), pairs[..., 1].ravel()
-        ok = np.isfinite(e)
-        top = max(float(np.nanmax(pairs)) if ok.any() else 1.0, 1.0) * 1.05
-        ax.plot([0, top], [0, top], "k-", lw=1, label="obtained = expected")
-        ax.fill_between([0, top], [0, 0.8 * top], [0, 1.25 * top], color="0.5", alpha=0.15, label="0.8-1.25")
-        ax.scatter(e[ok], o[ok], s=14, label=f"rated views ({int(ok.sum())})")
-        ax.set_xlim(0, top)
-        ax.set_ylim(0, top)
-        ax.set_title(f"Method {m}")
-        ax.set_xlabel("expected new cells (model)")
-        ax.grid(alpha=0.3)
-        ax.legend(loc="upper left")
-    axes[0][0].set_ylabel("obtained new cells (the view's own)")
-    fig.suptitle("Figure 8: expected vs obtained new cells per step (every rated view of every seed)")
-    fig.savefig(out / "fig8_expected_vs_obtained.png", dpi=100)
-    plt.close(fig)
+    figure8(out, shown, lambda m: [("rated views ({n})", _rated_pairs(results, m, seeds) if m in methods else None)],
+            "Figure 8: expected vs obtained new cells per step (every rated view of every seed)")
 
 
 def _rated_pairs(results: dict[tuple[str, int], dict[str, Any]], method: str, seeds: int) -> Any:

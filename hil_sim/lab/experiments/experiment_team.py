@@ -66,7 +66,7 @@ def scene(scenario: str, seed: int, config: str, wheel_m: float, mission: bool, 
     from fsw.core.team.tether import anchor_points
     from fsw.settings import load_settings
     from hil_sim.link.radio_channel import RadioChannel
-    from hil_sim.team.team_eval import compare_maps, planning_limits, truth_verdict
+    from hil_sim.team.team_eval import compare_maps, truth_verdict
     from hil_sim.team.team_run import ReconFixer, TeamSetup, TruthFixer, run_team
     from hil_sim.world import load_scenario
 
@@ -79,19 +79,16 @@ def scene(scenario: str, seed: int, config: str, wheel_m: float, mission: bool, 
     grid = MapGrid.from_config(world.map_grid)
     full = world.ground_on_grid(grid)
     enc = encode_map(full, cell_m=grid.cell, wheel_diameter_m=wheel, cfg=cfg.codec)
-    reduced = np.asarray(decode_map(enc.data).z, np.float64)
+    decoded = decode_map(enc.data)
+    reduced = np.asarray(decoded.z, np.float64)
     anchors = anchor_points(full, grid, world.team.anchors_xy, setup.tether)
     start, targets = world.team.cliffbot_start_xy, world.team.targets_xyz[:, :2]
     truth = truth_verdict(world, grid, anchors, setup.tether, setup.climber)
-    m = setup.mission
-    truth_m = truth_verdict(world, grid, anchors,
-                            *planning_limits(setup.tether, setup.climber, 0.0, m.tension_margin_n))  # hard: tension
     cmp = compare_maps(full, reduced, grid, anchors, start, targets, setup.tether, setup.climber)
     ratio = cmp.path_ratio_max
     row: dict[str, Any] = {
         "seed": seed, "slope_deg": round(world.team.face_slope_deg, 1), "drop_m": round(world.team.drop_m, 2),
         "targets": len(targets), "reachable_truth": sum(1 for r in truth.reasons if not r),
-        "reachable_truth_margins": sum(1 for r in truth_m.reasons if not r),
         "reachable_full": sum(1 for r in cmp.reasons_full if not r),
         "reachable_reduced": sum(1 for r in cmp.reasons_received if not r),
         "verdicts_differ": cmp.verdicts_differ,
@@ -102,9 +99,12 @@ def scene(scenario: str, seed: int, config: str, wheel_m: float, mission: bool, 
     if mission:
         fx: ReconFixer | TruthFixer = (ReconFixer(world, world.rover_start, seed) if fixer == "recon"
                                        else TruthFixer(seed))
-        sec = run_team(world, grid, reduced, RadioChannel(seed=seed), seed, setup, fixer=fx, out=picture)
+        sec = run_team(world, grid, reduced, RadioChannel(seed=seed), seed, setup, fixer=fx, out=picture,
+                       error_bound_m=float(decoded.header.error_bound_m))
         row.update({"reached": sec["targets_reached"], "missed": len(sec["reachable_missed"]),
-                    "missed_margins": sum(1 for k, r in enumerate(truth_m.reasons) if not r and not sec["reached"][k]),
+                    "missed_why": "; ".join(sec["map_reasons"][k] or "not reached" for k in sec["reachable_missed"]),
+                    "off_the_way": sum(1 for e in sec["events"] if e[1] == "OFF_THE_WAY"),
+                    "fix_requests": sum(1 for e in sec["events"] if e[1] == "FIX_REQUEST"),
                     "unconfirmed": sum(1 for a, b in zip(sec["map_reasons"], sec["truth_reasons"], strict=True)
                                        if a and not b),
                     "state": sec["final_state"], "tether_violations": sec["tether_violations"],
@@ -222,6 +222,14 @@ def _mw(values: list[float], worst: str = "max", fmt: str = "{:.3g}") -> str:
     return f"{fmt.format(float(np.median(v)))} / {fmt.format(w)}"
 
 
+def _why(ms: list[dict[str, Any]]) -> str:
+    """``reason: count, ...`` over the scenes' missed targets ("-" when none)."""
+    from collections import Counter
+
+    got = Counter(w.strip() for r in ms for w in str(r.get("missed_why", "")).split(";") if w.strip())
+    return ", ".join(f"{k}: {v}" for k, v in got.most_common()) or "-"
+
+
 def report(rows: list[dict[str, Any]], args: argparse.Namespace) -> str:
     """The done-when table, the fixes against range and the per-scene table."""
     import numpy as np
@@ -252,8 +260,11 @@ def report(rows: list[dict[str, Any]], args: argparse.Namespace) -> str:
             f"{sum(r['reachable_truth'] for r in ms)} |",
             f"| truth-reachable targets not reached (total; scenes) | {sum(r['missed'] for r in ms)}; "
             f"{sum(1 for r in ms if r['missed'])} |",
-            f"| reachable on the truth within the Cliff-bot's tension margin / of them not reached | "
-            f"{sum(r['reachable_truth_margins'] for r in ms)} / {sum(r['missed_margins'] for r in ms)} |",
+            f"| why the truth-reachable targets were missed (mission's reason: count) | {_why(ms)} |",
+            f"| re-plans because the lengths held it elsewhere (OFF_THE_WAY; median / worst) | "
+            f"{_mw([r.get('off_the_way', 0) for r in ms], fmt='{:.0f}')} |",
+            f"| fixes answered / fix requests (total) | {sum(r['fixes'] for r in ms)} / "
+            f"{sum(r.get('fix_requests', 0) for r in ms)} |",
             f"| targets the mission called unreachable that the truth reaches | {sum(r['unconfirmed'] for r in ms)} |",
             f"| tether violations (steps) | {_mw([r['tether_violations'] for r in ms], fmt='{:.0f}')} |",
             f"| hazard cells entered | {_mw([r['hazard_cells_entered'] for r in ms], fmt='{:.0f}')} |",

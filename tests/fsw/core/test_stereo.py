@@ -136,3 +136,18 @@ def test_grazing_term_follows_the_disparity_gradient() -> None:
     base = math.hypot(0.11, 0.1)
     assert s[0, 0] == pytest.approx(base) and s[0, 2] == pytest.approx(math.hypot(base, 0.29 * 4.0))
     assert (np.diff(s[0]) > 0).all()
+
+
+def test_local_spread_of_a_plane_beside_a_mismatched_patch_is_zero_not_nan() -> None:
+    """A plane (constant disparity: spread exactly 0) beside a patch of wild disparities: OpenCV's
+    running box sums leave a residue like -2e-10 in the plane's windows; the spread is 0 there,
+    never the NaN (and the "invalid value in sqrt" warning) its square root gave."""
+    rng = np.random.default_rng(0)
+    d = np.full((120, 160), 20.0)
+    d[:60, :80] += rng.uniform(-200.0, 200.0, (60, 80))
+    d[rng.random(d.shape) < 0.05] = np.nan  # holes, as SGBM leaves
+    with np.errstate(invalid="raise"):
+        s = q.local_spread(d, 9)
+    assert np.isfinite(s).all() and (s >= 0.0).all()
+    assert (s[80:, 100:] == 0.0).all()  # the plane, away from the patch
+    assert np.median(s[10:50, 10:70]) > 10.0  # the patch's own roughness is kept

@@ -1,0 +1,90 @@
+"""The tension margins and the off-the-way test the place's uncertainty requires
+(fsw.core.team.face_planner.tension_margins, fsw.tasks.cliffbot_mission; docs/team.md, "The planner")."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from fsw.core.geometry import MapGrid
+from fsw.core.team.cliffbot_nav import NavConfig
+from fsw.core.team.face_planner import ClimberConfig, Margins, margin_reason, place_covariance, tension_margins
+from fsw.core.team.tether import TetherConfig, anchor_points, tether_state
+from fsw.sections import CliffbotMissionConfig
+from fsw.tasks.cliffbot_mission import CliffbotMission
+
+SLOPE = math.radians(70.0)
+FACE = np.array([0.2, -0.5])  # on the face, 0.5 m below the lip
+
+
+def _cliff() -> tuple[np.ndarray, MapGrid, np.ndarray]:
+    grid = MapGrid(-3.0, -2.0, 0.03, 200, 150)
+    _, y = grid.centers()
+    z = np.where(y > 0, 0.0, np.maximum(math.tan(SLOPE) * y, -2.5)).astype(np.float64)
+    return z, grid, anchor_points(z, grid, np.array([[-1.5, 1.5], [1.5, 1.5]]), TetherConfig())
+
+
+def test_margins_grow_with_the_lengths_error_and_vanish_without_it() -> None:
+    z, grid, anchors = _cliff()
+    t, c = TetherConfig(), ClimberConfig()
+    one = tension_margins(z, grid, anchors, FACE, t, c, Margins(length_sigma_m=0.01))
+    two = tension_margins(z, grid, anchors, FACE, t, c, Margins(length_sigma_m=0.02))
+    assert one is not None and two is not None and min(one) > 0.1
+    np.testing.assert_allclose(two, 2 * np.asarray(one), rtol=1e-9)
+    assert tension_margins(z, grid, anchors, FACE, t, c, Margins(length_sigma_m=0.0)) == (0.0, 0.0)
+    cov, _, st = place_covariance(z, grid, anchors, FACE, t, c, 0.02) or (None, None, None)
+    assert cov is not None and st is not None and np.all(np.linalg.eigvalsh(cov) > 0)
+    # off the map's known ground there is no margin to work out
+    unknown = z.copy()
+    unknown[:, :] = np.nan
+    assert tension_margins(unknown, grid, anchors, FACE, t, c, Margins(length_sigma_m=0.02)) is None
+
+
+def test_a_node_inside_the_hard_limits_but_within_its_margin_is_not_usable() -> None:
+    z, grid, anchors = _cliff()
+    c = ClimberConfig()
+    st = tether_state(z, grid, anchors, FACE, TetherConfig(), c.footprint_m)
+    assert st is not None and st.statics.ok and st.statics.tilt_deg > c.free_slope_deg
+    low = min(st.statics.tensions_n)
+    t = dataclasses.replace(TetherConfig(), t_min_n=low - 0.5)  # held, 0.5 N above slack
+    assert margin_reason(z, grid, anchors, FACE, t, c, Margins(length_sigma_m=0.0)) == ""
+    assert margin_reason(z, grid, anchors, FACE, t, c, Margins(length_sigma_m=0.02)) == "slack"
+    roomy = dataclasses.replace(TetherConfig(), t_min_n=max(0.0, low - 200.0))
+    assert margin_reason(z, grid, anchors, FACE, roomy, c, Margins(length_sigma_m=0.02)) == ""
+
+
+def test_off_the_way_is_an_offset_beyond_the_estimate_and_the_place_uncertainty() -> None:
+    z, grid, anchors = _cliff()
+    m = CliffbotMission(CliffbotMissionConfig(), TetherConfig(), ClimberConfig(), NavConfig(), anchors,
+                        np.array([0.0, 0.6]), -math.pi / 2, FACE[None, :])
+    m.set_map(z, grid, 0.03)
+    got = place_covariance(z, grid, anchors, FACE, m.tcfg, m.ccfg, m._length_sigma())
+    assert got is not None
+    w, v = np.linalg.eigh(got[0])
+    tight = v[:, 0]  # the direction the lengths pin the place best
+    sd = math.sqrt(w[0] + 1e-6)
+    P = np.diag([1e-6, 1e-6, 1e-4])  # an estimate that claims a millimetre
+    for k, expect in ((0.5, False), (4.0, True)):
+        off = m.ccfg.node_m + k * m.cfg.margin_sigmas * sd
+        m.on_estimate(np.array([*(FACE + off * tight), 0.0]), P)
+        assert m._elsewhere(FACE)[0] is expect
+    m.on_estimate(np.array([*(FACE + 0.5 * m.ccfg.node_m * tight), 0.0]), P)
+    assert m._elsewhere(FACE)[0] is False  # within a lattice spacing
+
+
+def test_a_checkpoint_keeps_the_map_bound_the_margins_rest_on() -> None:
+    from fsw.tasks.cliffbot.checkpoint import restore, snapshot
+
+    z, grid, anchors = _cliff()
+
+    def mission() -> CliffbotMission:
+        return CliffbotMission(CliffbotMissionConfig(), TetherConfig(), ClimberConfig(), NavConfig(), anchors,
+                               np.array([0.0, 0.6]), -math.pi / 2, FACE[None, :])
+
+    m = mission()
+    m.set_map(z, grid, 0.03)
+    back = mission()
+    restore(back, snapshot(m, 1.0), z, grid)
+    assert back.error_bound_m == 0.03 and back._length_sigma() == m._length_sigma() > mission()._length_sigma()
