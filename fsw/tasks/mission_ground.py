@@ -289,6 +289,8 @@ class MissionGround:
         )
         self.fence((nav.x, nav.y, nav.yaw))
         sigma = float(np.sqrt(max(0.0, (nav.cov[0, 0] + nav.cov[1, 1]) / 2)))
+        # not left the start: no footprint stood on half a station spacing or more from here
+        at_start = self.geofence.known.stood_only_near(nav.x, nav.y, cfg.nbv.station_spacing_m / 2.0)
         return PlannerState(
             map=latest.snapshot,
             rover=(nav.x, nav.y, nav.yaw),
@@ -298,6 +300,7 @@ class MissionGround:
             edge_xy=None if edge is None else edge.points_xy,
             ground_z_m=float(nav.z_m),  # the ground under the rover (on a slope, not the start's)
             sigma_loc_m=sigma,
+            at_start=at_start,
         )
 
 

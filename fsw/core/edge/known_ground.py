@@ -60,6 +60,11 @@ class KnownGround:
         if not any(g.covers(footprint) for g in self._stood):
             self._stood.append(footprint)
 
+    def stood_only_near(self, x: float, y: float, radius_m: float) -> bool:
+        """Every footprint stood on is centred within ``radius_m`` of ``(x, y)``: the rover has
+        not left this place (its start, until a move)."""
+        return all(math.hypot(g.centroid.x - x, g.centroid.y - y) <= radius_m for g in self._stood)
+
     @property
     def ready(self) -> bool:
         return self._mapped is not None

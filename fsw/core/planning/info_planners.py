@@ -95,6 +95,7 @@ class InformationPlanner(Planner):
                                                   cfg.station_spacing_m, cfg.max_travel_m)
         self.last_stations = len(stations)
         self.last_centres = 0
+        leave = boxed_start(state, cfg)
         pans, tilts, lifts = joint_grid(self.mast, cfg.pan_step_deg, cfg.tilts_deg, cfg.lifts_m)
         n_max = info_n_max(state.map, cfg)
         centres = []
@@ -112,7 +113,7 @@ class InformationPlanner(Planner):
                                                   accuracy=self.accuracy)
                 best.offer(c, c.best(r.info_bits.ravel(), r.expected_new_cells.ravel(), None))
                 self.last_centres += 1
-            return best.choice(stations, path)
+            return best.choice(stations, path, leave, cfg.leave_start_tol)
         cs = prepare(terrain, factor, state.map.n, n_max, interest, self.accuracy)
         vis_coarse = coarse_visibility(cfg.visibility, factor)
         yield None
@@ -126,6 +127,10 @@ class InformationPlanner(Planner):
         per = pans.size * tilts.size
         # a boxed-in rover's escape moves (view_candidates) each get their best view refined too
         escapes = [i * per + int(np.argmax(u_all[i])) for i, c in enumerate(centres) if c.st.escape]
+        moves = [i for i, c in enumerate(centres) if c.st.travel_m > 0.0]
+        if leave and moves:  # a boxed-in start: the best move's best view is rated exactly too
+            j = max(moves, key=lambda i: float(u_all[i].max()))
+            escapes.append(j * per + int(np.argmax(u_all[j])))
         top = np.concatenate([top, np.array(escapes, dtype=top.dtype)])
         for i in sorted(set((top // per).tolist())):
             c = centres[i]
@@ -136,7 +141,7 @@ class InformationPlanner(Planner):
                                              accuracy=self.accuracy)
             best.offer(c, c.best(r2.info_bits, r2.expected_new_cells, views))
             self.last_centres += 1
-        return best.choice(stations, path)
+        return best.choice(stations, path, leave, cfg.leave_start_tol)
 
     def view_centres(self, state: PlannerState, stations: list[Station] | None = None) -> list[CentreRow]:
         """Every candidate camera centre as team views rate it (``team_views.recon_centres``):
@@ -159,28 +164,60 @@ class InformationPlanner(Planner):
         return (float(cam[0]), float(cam[1]), float(cam[2]))
 
 
+def boxed_start(state: PlannerState, cfg: NbvConfig) -> bool:
+    """A start boxed in by a close edge (docs/algorithm.md §3): the rover has not left its start
+    and the fitted edge passes within ``leave_start_edge_m`` of its centre."""
+    if not state.at_start or cfg.leave_start_edge_m <= 0.0 or state.edge_xy is None:
+        return False
+    e = np.asarray(state.edge_xy, dtype=np.float64).reshape(-1, 2)
+    e = e[np.isfinite(e).all(axis=1)]
+    if e.shape[0] == 0:
+        return False
+    d = float(np.hypot(e[:, 0] - state.rover[0], e[:, 1] - state.rover[1]).min())
+    return d <= cfg.leave_start_edge_m
+
+
 class _Best:
-    """The best candidate of a search, and the best escape move of a rover boxed in by a close edge
-    (``view_candidates``: no station along the edge path reachable). A boxed-in rover takes its
-    best escape move whatever the rating of the views from where it stands: those cannot lead on
-    along the edge, and a view from the same place again maps little (issue 30 item 1)."""
+    """The best candidate of a search, the best escape move of a rover boxed in by a close edge
+    (``view_candidates``: no station along the edge path reachable) and the best move (a station
+    some travel away). A boxed-in rover takes its best escape move whatever the rating of the
+    views from where it stands: those cannot lead on along the edge, and a view from the same
+    place again maps little (issue 30 item 1). A boxed-in start (:func:`boxed_start`) is left
+    for the best move unless the best view from the start rates more than ``tol`` above it
+    (docs/algorithm.md §3)."""
 
     def __init__(self) -> None:
         self.any: CandidateView | None = None
         self.escape: CandidateView | None = None
+        self.move: CandidateView | None = None
 
     def offer(self, c: _Centre, cand: CandidateView) -> None:
         if self.any is None or cand.utility > self.any.utility:
             self.any = cand
         if c.st.escape and (self.escape is None or cand.utility > self.escape.utility):
             self.escape = cand
+        if c.st.travel_m > 0.0 and (self.move is None or cand.utility > self.move.utility):
+            self.move = cand
 
-    def choice(self, stations: list[Station], path: F64) -> CandidateView | None:
+    def choice(self, stations: list[Station], path: F64, leave: bool = False,
+               tol: float = 0.0) -> CandidateView | None:
         if self.escape is not None:
             return self.escape
         if self.any is not None and len(stations) == 1 and as_polyline(path).shape[0] >= 2:
             return replace(self.any, note=STUCK_NOTE)
+        if leave and self.any is not None and self.move is not None and self.any is not self.move:
+            return leave_or_stay(self.any, self.move, tol)
         return self.any
+
+
+def leave_or_stay(stay: CandidateView, move: CandidateView, tol: float) -> CandidateView:
+    """At a boxed-in start whose best view is from where it stands (``stay``): the best move,
+    unless ``stay`` rates more than ``tol`` of its utility above it; then ``stay``, with the
+    reason for the mission summary."""
+    if move.utility >= stay.utility - tol * abs(stay.utility):
+        return move
+    return replace(stay, note=f"boxed-in start: the best view from the start rates {stay.utility:.0f}, more "
+                              f"than {tol:.0%} above the best reachable station's ({move.utility:.0f})")
 
 
 STUCK_NOTE = ("no move the geofence allows: every station along the edge path, straight back or ahead, "

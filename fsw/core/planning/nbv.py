@@ -102,6 +102,14 @@ class NbvConfig:
                                  doc="coarse-to-fine search: coarse cell size (0: rate exactly)")
     refine_views: int = param(12, lo=1, hi=100000,
                               doc="coarse-to-fine search: best coarse views rated exactly")
+    leave_start_edge_m: float = param(
+        1.2, lo=0.0, hi=100.0, units="m",
+        doc="a start is boxed in by a close edge when the fitted edge passes within this of the rover's "
+            "centre (the path's setback or nearer, with the fit's error; 0: the rule is off; §3 choice)")
+    leave_start_tol: float = param(
+        0.25, lo=0.0, hi=1.0,
+        doc="a boxed-in start is left for the best reachable station unless the views from the start "
+            "rate more than this share above it (the information model's resolution; §3 choice)")
     accuracy_sigma_m: float = param(
         0.0, lo=0.0, hi=1.0, units="m",
         doc="Method 5: weigh each cell's bits by the share of its variance the view removes, against "

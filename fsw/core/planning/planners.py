@@ -83,6 +83,7 @@ class PlannerState:
     ground_z_m: float = 0.0
     sigma_loc_m: float = 0.0
     landmarks_xyz: F64 = field(default_factory=lambda: np.zeros((0, 3)))
+    at_start: bool = False  # the rover has not left its start (every footprint it stood on is here)
 
 
 SearchGen = Generator[None, None, CandidateView | None]
