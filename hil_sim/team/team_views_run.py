@@ -27,7 +27,10 @@ look (any place on it within ``max_travel_m`` of where it stands, either way) an
 looks; its task is to map the corridor. The route is taken as planned beforehand, so where the
 shared map does not know the ground yet its tether lengths come from the route's ground (the
 truth), and before the face map is fitted the rating's face is the plane of the ground under
-the route (``_plan_face``). Both agents' interest is weighted on the corridor.
+the route (``_plan_face``). Both agents are rated on the face's own cells where it lies (the
+RECON-bot too: on the gravity grid the lip's height stands for the face below it, and views over
+the lip are rated onto ground that is not there), and both agents' interest is weighted on the
+corridor.
 """
 
 from __future__ import annotations
@@ -51,7 +54,7 @@ from fsw.core.map.face_map import (
     run_merge,
     split_parts,
 )
-from fsw.core.planning.face_rating import face_cells
+from fsw.core.planning.face_rating import FaceCells, face_cells
 from fsw.core.planning.info_planners import InformationPlanner
 from fsw.core.planning.nbv import NbvConfig, predicted_visibility
 from fsw.core.planning.planners import PlannerState
@@ -181,7 +184,13 @@ class TeamViewsRun:
                              float(np.nan_to_num(self.truth_at(self.rover[:2]))))
         centres = recon_centres(planner.view_centres(state, stations))
         interest = corridor_interest(self.map, self.corridor, self.tv)
-        return AgentViews("recon", self.camera, centres, interest)
+        return AgentViews("recon", self.camera, centres, interest, face=self._face_cells())
+
+    def _face_cells(self) -> FaceCells | None:
+        """The face as both agents' ratings see it (``face_rating.face_cells``): the face map once
+        fitted, before that the plane under the Cliff-bot's route (:meth:`_plan_face`)."""
+        face = self.face_map or self._plan_face(np.where(self.map.mapped, self.map.z, self.truth))
+        return None if face is None else face_cells(face, self.map, self.nbv.visibility, self.tv.face_prior_m)
 
     def _cliff(self) -> AgentViews:
         # its route was planned beforehand (module docstring): where the shared map does not know
@@ -194,10 +203,9 @@ class TeamViewsRun:
         step = next((p for p in ahead if np.linalg.norm(p - self.path[k]) > 0.5), ahead[-1])
         d = step - self.path[k]
         yaw = math.atan2(float(d[1]), float(d[0])) if float(np.hypot(*d)) > 1e-6 else -math.pi / 2
-        face = self.face_map or self._plan_face(z)
-        cells = None if face is None else face_cells(face, self.map, self.nbv.visibility, self.tv.face_prior_m)
         interest = corridor_interest(self.map, self.corridor, self.tv)  # its own task's focus too
-        return AgentViews("cliffbot", CLIFFBOT_CAMERA, centres, interest, (yaw, math.radians(-50.0)), cells)
+        return AgentViews("cliffbot", CLIFFBOT_CAMERA, centres, interest, (yaw, math.radians(-50.0)),
+                          self._face_cells())
 
     def _plan_face(self, z: F64) -> FaceMap | None:
         """Before the face map is fitted on the shared map: an empty face map in the plane of the
@@ -310,7 +318,10 @@ class TeamViewsRun:
         e = np.einsum("nij,nj->ni", np.linalg.cholesky(cov + 1e-12 * np.eye(3)[None]),
                       self.rng.standard_normal((x.size, 3)))
         xyz = p + e
-        expect = predicted_visibility(self.map, pose, cam, self.nbv.visibility)  # the misses of §3.4
+        # the misses of §3.4, against the visibility the view was chosen with (the face's own cells
+        # for a view rated on the face)
+        expect = v.p_visible if v.p_visible is not None else predicted_visibility(self.map, pose, cam,
+                                                                                   self.nbv.visibility)
         run_merge(self.map, [(xyz.copy(), cov.copy(), None)], expect)
         run_merge(self.by_agent[v.agent], [(xyz.copy(), cov.copy(), None)], None)
         if xyz.size:
@@ -364,6 +375,23 @@ class TeamViewsRun:
             e = m.z[both] - self.truth[both]
             out[f"rmse_{name}_m"] = float(np.sqrt(np.mean(e * e))) if e.size else None
         return out
+
+    def corridor_left(self) -> dict[str, int]:
+        """What bounds the corridor's coverage: its cells still unmapped, and how many of them lie
+        in range and in line of sight (on the truth) of some camera centre the agents' next
+        candidates offer (any pointing)."""
+        g = self.grid
+        iy, ix = np.nonzero(self.corridor & ~self.map.mapped & np.isfinite(self.truth))
+        pts = np.column_stack([g.x0 + (ix + 0.5) * g.cell, g.y0 + (iy + 0.5) * g.cell, self.truth[iy, ix]])
+        seen = np.zeros(len(pts), bool)
+        agents = [self._recon()] + ([self._cliff()] if self.team else [])
+        for a in agents:
+            for c in a.centres:
+                r = np.linalg.norm(pts - np.asarray(c.xyz, float), axis=1)
+                k = np.nonzero(~seen & (r >= a.camera.min_range_m) & (r <= a.camera.max_range_m))[0]
+                if k.size:
+                    seen[k[self._line_of_sight(np.asarray(c.xyz, float), pts[k])]] = True
+        return {"corridor_left_cells": int(len(pts)), "corridor_left_seeable": int(seen.sum())}
 
     def cells_by_agent(self) -> dict[str, int]:
         return {k: int(m.mapped.sum()) for k, m in self.by_agent.items()}

@@ -31,6 +31,13 @@ def test_three_team_cycles_fill_every_team_key_with_real_numbers() -> None:
         for v in c["views"]:
             assert v["obtained_new_cells"] <= v["obtained_cells"] and math.isfinite(v["expected_new_cells"])
             assert v["why"].startswith(v["agent"])
+    # what bounds the corridor: its unmapped cells, some of them seeable from the next candidates
+    left = run.corridor_left()
+    import numpy as np
+
+    unmapped = run.corridor & ~run.map.mapped & np.isfinite(run.truth)
+    assert left["corridor_left_cells"] == int(unmapped.sum()) > 0
+    assert 0 < left["corridor_left_seeable"] <= left["corridor_left_cells"]
     # the same seed gives the same cycles
     again = run_scene("cliff-team", 3, team=True, cycles=1)
     assert json.loads(json.dumps(again.records[0].views)) == sec["views"][0]["views"]

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -78,8 +78,9 @@ class TeamViewConfig:
     pan_step_deg: float = param(30.0, lo=5.0, hi=180.0, units="deg", doc="the Cliff-bot's head pan grid")
     tilts_deg: tuple[float, ...] = param((-75.0, -50.0, -25.0, 0.0, 25.0, 50.0), units="deg",
                                          doc="the Cliff-bot's head tilts (elevation of the axis)")
-    a_tether: float = param(100.0, lo=0.0, hi=1e6, units="s^2/m^2",
-                            doc="Eq 9 weight of each paid-out length (1 / winch rate^2)")
+    a_tether: float = param(69.4, lo=0.0, hi=1e6, units="s^2/m^2",
+                            doc="Eq 9 weight of the larger change of the paid-out lengths (1 / winch rate^2: "
+                                "the mission's 0.12 m/s, [cliffbot_mission] max_rate_mps)")
     a_head: float = param(3.65, lo=0.0, hi=1e6, units="s^2/rad^2", doc="Eq 9 weight of the head's pan and tilt")
     face_prior_m: float = param(2.0, lo=0.0, hi=50.0, units="m",
                                 doc="the face rating's plane continued this far down the dip past the face map")
@@ -132,6 +133,10 @@ class TeamView:
     discounted_cells: float  # expected cells of this view the earlier choices will see (sum P_V * planned)
     corridor_cells: float  # expected new cells inside the Cliff-bot's corridor
     why: str
+    # P_V of every map cell as the view was rated (an agent with a face: its face cells' P_V on the
+    # gravity cells they cover): the p_visible its measurement's misses are recorded with (§3.4),
+    # so a view expected to map cells it cannot see loses their interest like any other view
+    p_visible: F64 | None = field(default=None, repr=False, compare=False)
 
     def pose(self) -> CameraPose:
         return CameraPose.from_pan_tilt(*self.xyz, self.yaw, self.tilt)
@@ -205,9 +210,9 @@ def cliffbot_centres(z: ZMap, grid: MapGrid, anchors: F64, path_xy: F64, now_xy:
     it on) and places every ``station_spacing_m`` along its planned path ``path_xy`` up to
     ``max_travel_m`` ahead of where it stands (``both_ways``: anywhere on the path within
     ``max_travel_m`` of it, :func:`corridor_places`), each known on the map (``z``; NaN unknown).
-    Motion (Eq 9 over the winches and the head): ``sqrt(a_tether (dl1^2 + dl2^2) + a_head (dpan^2
-    + dtilt^2))`` from the tether lengths where it stands (all places' tethers in one batch,
-    ``tether_states``)."""
+    Motion (Eq 9 over the winches and the head): ``sqrt(a_tether max(|dl1|, |dl2|)^2 + a_head
+    (dpan^2 + dtilt^2))`` (both winches run at once, paced to arrive together) from the tether
+    lengths where it stands (all places' tethers in one batch, ``tether_states``)."""
     now = np.asarray(now_xy, float).reshape(2)
     xy = np.asarray(path_xy, float).reshape(-1, 2)
     if both_ways:
@@ -246,7 +251,9 @@ def cliffbot_centres(z: ZMap, grid: MapGrid, anchors: F64, path_xy: F64, now_xy:
             continue
         zg = float(np.asarray(z)[iy[0], ix[0]])
         dl = np.asarray(st.lengths_m) - l_now
-        motion = np.sqrt(cfg.a_tether * float(dl @ dl) + turn**2)
+        # both winches run at once, paced to arrive together (the mission's rates): the move
+        # takes the larger change over the rate
+        motion = np.sqrt(cfg.a_tether * float(np.max(np.abs(dl))) ** 2 + turn**2)
         cam = np.array([p[0], p[1], zg]) + cfg.head_m * n
         out.append(ViewCentre((float(cam[0]), float(cam[1]), float(cam[2])), pans.copy(), tilts.copy(), motion,
                               np.full(motion.size, sigma_loc_m), (float(p[0]), float(p[1]), *st.lengths_m)))
@@ -293,7 +300,7 @@ def choose_team_views(emap: MapLike, agents: Sequence[AgentViews], cfg: NbvConfi
             why = (f"{a.agent}: no view is expected to map anything on this map; it looks along its "
                    f"path (yaw {math.degrees(yaw):.0f} deg, tilt {math.degrees(tilt):.0f} deg)")
         view = TeamView(a.agent, len(chosen), c.place, c.xyz, yaw, tilt, bits, new, float(c.motion[j]), u,
-                        discounted, in_corr, why)
+                        discounted, in_corr, why, np.clip(pv, 0.0, 1.0))
         chosen.append(view)
         first = first or view
         planned += pv

@@ -15,7 +15,11 @@ their ratio), the face (true slope > 45 deg) and corridor mapped after the last 
 RMS error on cells both agents mapped: each agent's own map and the fused one; and why the
 Cliff-bot's views add what they add: whether its corridor leads to a target (else toward the
 nearest, as far as the tethers hold it), its candidate views per cycle, its expected and obtained
-new cells, its share of the team's new cells and its farthest place from its start. Where the
+new cells, its share of the team's new cells and its farthest place from its start; where the
+cycles go (the team's RECON-bot's new cells per cycle against the RECON-bot's alone, and each
+agent's views that mapped fewer than ``EMPTY_VIEW_CELLS`` new cells); and what bounds the
+corridor (its cells still unmapped, and how many of them some candidate camera centre has in
+range and line of sight on the truth, ``TeamViewsRun.corridor_left``). Where the
 team maps 95 % of the corridor and the RECON-bot alone does not within ``--cycles``, the ratio
 of their cycles is bounded from above by counting the RECON-bot's as ``--cycles + 1``. Writes
 OUT/team_sensing.csv, OUT/coverage.png (face and corridor coverage per cycle: team, each of its
@@ -36,7 +40,10 @@ COLUMNS = ("seed", "cycles", "team_cells_per_cycle", "recon_cells_per_cycle", "c
            "overlap_max", "overlap_of_smaller_max", "corridor_cycles_team", "corridor_cycles_recon",
            "corridor_ratio", "corridor_team", "corridor_recon", "face_team", "face_recon", "both_cells",
            "rmse_recon_m", "rmse_cliffbot_m", "rmse_fused_m", "blind_views", "reachable", "cliffbot_candidates",
-           "cliffbot_expected_new", "cliffbot_obtained_new", "cliffbot_new_share", "cliffbot_travel_m")
+           "cliffbot_expected_new", "cliffbot_obtained_new", "cliffbot_new_share", "cliffbot_travel_m",
+           "recon_team_new_per_cycle", "empty_views_recon_team", "empty_views_cliffbot", "empty_views_recon_alone",
+           "corridor_left_cells", "corridor_left_seeable")
+EMPTY_VIEW_CELLS = 10  # a view that maps fewer new cells than this is counted as empty
 GOAL = 0.95
 
 
@@ -130,6 +137,8 @@ def scene(spec: str, seed: int, cycles: int, cell_m: float) -> tuple[dict[str, A
         **team.fused_vs_better(),
         "blind_views": sum(1 for r in team.records for v in r.views if "no view is expected" in v["why"]),
         **_cliffbot_figures(team),
+        **_empty_views(team, alone),
+        **team.corridor_left(),
     }
     curve = {
         "face_team": [r.face_frac for r in team.records], "corridor_team": [r.corridor_frac for r in team.records],
@@ -158,6 +167,23 @@ def _cliffbot_figures(team: Any) -> dict[str, Any]:
         "cliffbot_obtained_new": got,
         "cliffbot_new_share": got / new if new else None,
         "cliffbot_travel_m": max((v["travel_m"] for v in views), default=0.0),
+    }
+
+
+def _empty_views(team: Any, alone: Any) -> dict[str, Any]:
+    """Where the cycles go: the team's RECON-bot's new cells per cycle (new to the map before the
+    cycle) and the views of each agent that mapped fewer than ``EMPTY_VIEW_CELLS`` new cells."""
+    import numpy as np
+
+    def views(run: Any, agent: str) -> list[dict[str, Any]]:
+        return [v for r in run.records for v in r.views if v["agent"] == agent]
+
+    recon = views(team, "recon")
+    return {
+        "recon_team_new_per_cycle": float(np.mean([v["obtained_new_cells"] for v in recon])) if recon else 0.0,
+        "empty_views_recon_team": sum(v["obtained_new_cells"] < EMPTY_VIEW_CELLS for v in recon),
+        "empty_views_cliffbot": sum(v["obtained_new_cells"] < EMPTY_VIEW_CELLS for v in views(team, "cliffbot")),
+        "empty_views_recon_alone": sum(v["obtained_new_cells"] < EMPTY_VIEW_CELLS for v in views(alone, "recon")),
     }
 
 
@@ -250,6 +276,18 @@ def report(rows: list[dict[str, Any]], table: Any, cycles: int) -> str:
                     ("cliffbot_travel_m", "the Cliff-bot's farthest place from its start (m)")):
         v = col(k)
         add(name, float(np.median(v)) if v.size else None, float(v.min()) if v.size else None, "")
+    tr, ar = col("recon_team_new_per_cycle"), col("recon_cells_per_cycle")
+    add("the team's RECON-bot's new cells per cycle / the RECON-bot's alone", float(np.median(tr / ar)),
+        float(np.min(tr / ar)), "")
+    for k, name in (("empty_views_recon_team", "team: RECON-bot"), ("empty_views_cliffbot", "team: Cliff-bot"),
+                    ("empty_views_recon_alone", "RECON-bot alone")):
+        v = col(k)
+        add(f"views mapping < {EMPTY_VIEW_CELLS} new cells per scene, {name} (of {cycles})", float(np.median(v)),
+            float(v.max()), "")
+    left, seeable = col("corridor_left_cells"), col("corridor_left_seeable")
+    add("corridor cells unmapped after the last cycle (team)", float(np.median(left)), float(left.max()), "")
+    add("of them in range and line of sight of a candidate camera centre (truth, any pointing)",
+        float(np.sum(seeable) / max(np.sum(left), 1.0)), "", "")
     e, o = col("cliffbot_expected_new"), col("cliffbot_obtained_new")
     add("the Cliff-bot's obtained / expected new cells (sum over a scene's cycles)",
         float(np.median(o / np.maximum(e, 1.0))), float(np.min(o / np.maximum(e, 1.0))), "")

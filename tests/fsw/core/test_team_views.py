@@ -101,6 +101,24 @@ def test_the_cliffbots_views_cost_tether_motion() -> None:
     assert least[0] == 0.0 and all(b > a for a, b in zip(least, least[1:], strict=False))
     assert all(c.place[2] > 0 and c.place[3] > 0 for c in cs)  # both tether lengths
     assert len(cliffbot_centres(z, GRID, anchors, path, path[0], (0.0, 0.0), tcfg, cfg, stay=False)) == len(cs) - 1
+    # both winches run at once, paced to arrive together: the move takes the larger change of the
+    # two lengths over the winch rate (a_tether = 1 / rate^2), not their root sum of squares
+    dl = np.array([np.abs(np.subtract(c.place[2:], cs[0].place[2:])) for c in cs])
+    assert np.allclose(least, np.sqrt(cfg.a_tether) * dl.max(axis=1))
+    assert np.all(dl.min(axis=1)[1:] > 0.0)  # both lengths change: the sum of squares would cost more
+
+
+def test_each_view_carries_the_visibility_it_was_rated_with() -> None:
+    """The chosen views' P_V (what their misses are recorded against, §3.4) sum to ``planned``:
+    each the view's own prediction on the map, in [0, 1]."""
+    emap = _flat_map()
+    agents = [AgentViews("recon", CAM, (_centre(2.0, 3.0),)), AgentViews("cliffbot", CAM, (_centre(4.0, 3.0),))]
+    views, planned = choose_team_views(emap, agents, NBV)
+    pvs = [v.p_visible for v in views]
+    assert all(p is not None and p.shape == GRID.shape and p.min() >= 0.0 and p.max() <= 1.0 for p in pvs)
+    assert np.allclose(sum(p for p in pvs if p is not None), planned)
+    for v, p in zip(views, pvs, strict=True):
+        assert np.allclose(p, predicted_visibility(emap, v.pose(), CAM, NBV.visibility))
 
 
 def test_corridor_places_lie_on_the_path_either_way_within_reach() -> None:
