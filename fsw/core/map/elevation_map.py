@@ -69,6 +69,9 @@ class FusionConfig:
     view_correlation: float = param(
         0.4, lo=0.0, hi=0.9, doc="part of a view's variance common to all views of a cell"
     )
+    pose_common: bool = param(
+        True, doc="a view's camera-pose part of the variance is common to all views of a cell (the map's frame error)"
+    )
     slope_term: bool = param(True, doc="add the slope term (horizontal error times gradient)")
     footprint_term: bool = param(False, doc="add |gradient|^2 cell^2 / 12 per point")
     subcell_term: bool = param(
@@ -286,13 +289,15 @@ class ElevationMap:
         kc, swc, zm = k[cells], sw[cells], zm_dense[cells]
         swi_c = swi[cells]
         vm = (1.0 + (kc - 1) * self.cfg.point_correlation) / swi_c
+        vm_pose: F64 | None = None
         if has_common:
-            vm += swvc[cells] / swc  # common part: averaged
+            vm_pose = swvc[cells] / swc  # common part: averaged
+            vm += vm_pose
         if self.cfg.subcell_term:
             spread = swdev[cells] / swc  # weighted point spread
             excess = np.maximum(spread - kc / swi_c, 0.0) * kc / np.maximum(kc - 1, 1)
             vm += np.where(kc >= 2, excess, 0.0)
-        new, fused, outl = self._fuse(cells, zm, vm)
+        new, fused, outl = self._fuse(cells, zm, vm, vm_pose if self.cfg.pose_common else None)
         n_miss = 0
         if p_visible is not None:
             n_miss = self.record_misses(p_visible, hit=k.reshape(g.shape) > 0)
@@ -336,15 +341,20 @@ class ElevationMap:
             out += (gx * gx + gy * gy) * (self.grid.cell**2 / 12.0)
         return np.asarray(out)
 
-    def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64) -> tuple[int, int, int]:
+    def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64, vm_pose: F64 | None = None) -> tuple[int, int, int]:
         """Inverse-variance update of the given flat cells with a Mahalanobis gate (§1.1).
 
         The part ``c = view_correlation`` of every view's variance is common to all views
         of the cell and does not average out: the map keeps it apart (``var_common``, the
         smallest seen) and fuses only the independent rest, ``var = var_indep + var_common``.
-        With ``c = 0`` this is exactly the 1-D Kalman update of §1.1.
+        ``vm_pose`` (the camera pose's part of ``vm``, with ``pose_common``) is common as a
+        whole: the views of a map share its frame error (the first view's attitude, every later
+        view registered to it), so it does not average down either (§1.2).
+        With ``c = 0`` and no ``vm_pose`` this is exactly the 1-D Kalman update of §1.1.
         """
         c = self.cfg.view_correlation
+        vm_pose = np.zeros_like(vm) if vm_pose is None else np.clip(vm_pose, 0.0, vm)
+        cm = c * (vm - vm_pose) + vm_pose  # the view's part common to all views of the cell
         z, var, n = self.z.reshape(-1), self.var.reshape(-1), self.n.reshape(-1)
         vcom = self.var_common.reshape(-1)
         z0, v0, n0, vc0 = z[cells], var[cells], n[cells], vcom[cells]
@@ -355,14 +365,14 @@ class ElevationMap:
         inlier = ~empty & ~outlier
         z_new = np.where(empty, zm, z0)
         v_new = np.where(empty, vm, v0)
-        vc_new = np.where(empty, c * vm, vc0)
-        zi, vi, mi, vmi, vci = z0[inlier], v0[inlier], zm[inlier], vm[inlier], vc0[inlier]
-        ind0, ind_m = vi - vci, (1.0 - c) * vmi
-        wi = ind0 / (1.0 - c)  # 1 / (the summed weight of the views fused so far)
-        z_new[inlier] = (vmi * zi + wi * mi) / (wi + vmi)
+        vc_new = np.where(empty, cm, vc0)
+        zi, vi, mi, vmi, vci, cmi = z0[inlier], v0[inlier], zm[inlier], vm[inlier], vc0[inlier], cm[inlier]
+        ind0, ind_m = vi - vci, vmi - cmi
+        tot = ind0 + ind_m  # the independent parts weigh the heights (a common error shifts both alike)
         with np.errstate(invalid="ignore", divide="ignore"):
-            ind = np.where(ind0 + ind_m > 0, ind0 * ind_m / (ind0 + ind_m), 0.0)
-        vc_new[inlier] = np.minimum(vci, c * vmi)
+            z_new[inlier] = np.where(tot > 0, (ind_m * zi + ind0 * mi) / tot, 0.5 * (zi + mi))
+            ind = np.where(tot > 0, ind0 * ind_m / tot, 0.0)
+        vc_new[inlier] = np.minimum(vci, cmi)
         v_new[inlier] = ind + vc_new[inlier]
         v_new[outlier] = v0[outlier] * self.cfg.outlier_var_factor
         vc_new[outlier] = vc0[outlier] * self.cfg.outlier_var_factor

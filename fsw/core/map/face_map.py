@@ -252,15 +252,16 @@ class FaceElevation(ElevationMap):
     wrong) the cell holds the better-supported one, whichever came first, so fusing a second
     agent never leaves a cell worse than the better agent's own."""
 
-    def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64) -> tuple[int, int, int]:
+    def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64, vm_pose: F64 | None = None) -> tuple[int, int, int]:
         z, var, n = self.z.reshape(-1), self.var.reshape(-1), self.n.reshape(-1)
         z0, v0, n0 = z[cells], var[cells], n[cells]
         with np.errstate(invalid="ignore"):
             swap = (n0 > 0) & (np.abs(zm - z0) > self.cfg.gate_sigma * np.sqrt(v0 + vm)) & (vm < v0)
-        out = super()._fuse(cells, zm, vm)
+        out = super()._fuse(cells, zm, vm, vm_pose)
         c = cells[swap]
         z[c], var[c] = zm[swap], vm[swap]
-        self.var_common.reshape(-1)[c] = self.cfg.view_correlation * vm[swap]
+        vp = np.zeros(int(swap.sum())) if vm_pose is None else np.clip(vm_pose[swap], 0.0, vm[swap])
+        self.var_common.reshape(-1)[c] = self.cfg.view_correlation * (vm[swap] - vp) + vp
         return out
 
 

@@ -212,6 +212,30 @@ def test_common_pose_variance_is_not_averaged_away() -> None:
         m.merge(xyz, var_z=np.ones(k), cov_common=common)
 
 
+@pytest.mark.parametrize("pose_common", [True, False])
+def test_views_share_their_pose_variance(pose_common: bool) -> None:
+    """§1.1, §1.2: every view of a map carries its frame error (the first view's attitude, the
+    later ones registered to it), so with ``pose_common`` the pose part of a cell's variance
+    stays whole over views while the stereo part averages down past ``view_correlation``."""
+    c, S, P = 0.4, 1e-4, 4e-4
+    cfg = FusionConfig(point_correlation=0.0, subcell_term=False, slope_term=False, footprint_term=False,
+                       view_correlation=c, pose_common=pose_common, gate_sigma=100.0)
+    xyz = np.array([[0.15, 0.15, 0.0]])
+    cov = np.zeros((1, 3, 3))
+    cov[:, 2, 2] = S + P
+    common = np.zeros((1, 3, 3))
+    common[:, 2, 2] = P
+    m = ElevationMap(GRID, cfg)
+    for z in (0.0, 0.01):
+        m.merge(xyz + [0.0, 0.0, z], cov=cov, cov_common=common)
+    if pose_common:
+        assert m.var[1, 1] == pytest.approx((1 - c) * S / 2 + c * S + P)
+    else:
+        assert m.var[1, 1] == pytest.approx((1 - c) * (S + P) / 2 + c * (S + P))
+        assert m.var[1, 1] < P + S / 2
+    assert m.z[1, 1] == pytest.approx(0.005)
+
+
 def test_subcell_spread_beyond_noise_adds_variance() -> None:
     """A cell whose points spread far more than their noise (a step inside the cell) gets
     that spread as variance; points that agree within their noise add nothing."""
