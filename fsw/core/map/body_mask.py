@@ -166,8 +166,8 @@ def team_mask(xyz: F64, cov: F64 | None, team: TeamGeometry, cfg: MaskConfig | N
 
 
 def _at_ground(p: F64, cov: F64, box: BodyBox, cfg: MaskConfig) -> B:
-    """Points of the ground round ``box``: outside its footprint grown by the margin and
-    ``sigma`` times its pose error, and at or below the ground plane it stands on
+    """Points of the ground round ``box``: outside its footprint grown by the margin (not by its
+    pose error: that growth would take the band this keeps), and at or below the ground plane it stands on
     (``box.ground``, normal its up axis) within the margin plus ``sigma`` times their own error
     along the normal (NaN: not ground). A robot stands above its ground, and a point between its
     outline and the terrain behind lies above that terrain."""
