@@ -226,12 +226,23 @@ def point_mast(
     ``lift_m``; and whether the mast reaches them. The joints are clamped to the mast's limits
     (pan wrapped to [-pi, pi] first); ``reachable`` is false when the clamp moved pan or tilt by
     more than 1e-6 rad (the camera would not look at the target)."""
-    cam = camera_pose_from_rover(rover_xy_yaw, (0.0, 0.0, lift_m), mast, ground_z_m=ground_z_m).t
-    dx, dy, dz = (float(target_xyz[i]) - float(cam[i]) for i in range(3))
-    pan = wrap_angle(math.atan2(dy, dx) - rover_xy_yaw[2])
-    tilt = math.atan2(dz, math.hypot(dx, dy))
+    pan, tilt = mast_angles(rover_xy_yaw, target_xyz, mast, lift_m, ground_z_m)
     joints = mast.clamp(pan, tilt, lift_m)
     return joints, abs(joints[0] - pan) <= 1e-6 and abs(joints[1] - tilt) <= 1e-6
+
+
+def mast_angles(
+    rover_xy_yaw: tuple[float, float, float],
+    target_xyz: tuple[float, float, float] | F64,
+    mast: MastConfig,
+    lift_m: float,
+    ground_z_m: float = 0.0,
+) -> tuple[float, float]:
+    """Pan (wrapped to [-pi, pi]) and tilt that put the camera's optical axis through
+    ``target_xyz``, before the mast's limits (:func:`point_mast` clamps them)."""
+    cam = camera_pose_from_rover(rover_xy_yaw, (0.0, 0.0, lift_m), mast, ground_z_m=ground_z_m).t
+    dx, dy, dz = (float(target_xyz[i]) - float(cam[i]) for i in range(3))
+    return wrap_angle(math.atan2(dy, dx) - rover_xy_yaw[2]), math.atan2(dz, math.hypot(dx, dy))
 
 
 @dataclass(frozen=True)

@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.comm.team import fix_packets
-from fsw.core.geometry import CameraPose, MapGrid, camera_pose_from_rover, point_mast, wrap_angle
+from fsw.core.geometry import CameraPose, MapGrid, mast_angles, point_mast
 from fsw.core.localization.fiducials import BodyEstimate, CliffbotLocalizer
 from fsw.core.localization.landmarks import Landmark, anchor_marker_corners, camera_from_landmarks
 from fsw.core.localization.localization import PoseEstimate, so3_log
@@ -223,10 +223,7 @@ class CliffbotFixerTask(FlightTask):
         aborts a turn it may not make; event ``TURNED``)."""
         assert self.pose is not None
         p, mast = self.pose, self.ctx.cfg.mast
-        cam = camera_pose_from_rover((p.x, p.y, p.yaw), (0.0, 0.0, LIFT_M), mast, ground_z_m=p.z_m).t
-        dx, dy, dz = (target[i] - float(cam[i]) for i in range(3))
-        pan = wrap_angle(math.atan2(dy, dx) - p.yaw)
-        tilt = math.atan2(dz, math.hypot(dx, dy))
+        pan, tilt = mast_angles((p.x, p.y, p.yaw), target, mast, LIFT_M, ground_z_m=p.z_m)
         if not math.radians(mast.tilt_min_deg) <= tilt <= math.radians(mast.tilt_max_deg):
             return  # below or above the tilt's range: a turn does not bring it in
         lo = math.radians(mast.pan_min_deg + TURN_MARGIN_DEG)
