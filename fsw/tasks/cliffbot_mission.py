@@ -111,14 +111,6 @@ class CliffbotMission:
         self.sense_seq = 0  # the views asked for (Commands.sense), each answered by a map (sensed)
         self.sense_asked_at: float | None = None
         self.sensed_xy: F64 | None = None  # where it last looked
-        # The winches put the body where the lengths hold it, within length_tol_m of a node's
-        # lengths and off by the map's error: the planner keeps each tension its margin inside the
-        # limits, margin_sigmas standard deviations of the tension over where the body may be
-        # (face_planner.tension_margins: the statics' sensitivity times that place's covariance),
-        # hard; the footprint's clearance from hazards is soft (paths keep track_margin_m clear
-        # where the ground leaves room, without calling a target the wheels can reach unreachable).
-        self.plan_tcfg = tcfg
-        self.margins = Margins(cfg.track_margin_m)
         self.anchors = np.asarray(anchors, float)
         self.start = np.asarray(start_xy, float)
         self.targets = np.asarray(targets_xy, float).reshape(-1, 2)
@@ -356,7 +348,7 @@ class CliffbotMission:
 
     def _plan_all(self) -> None:
         assert self.z is not None and self.grid is not None
-        plan = plan_targets(self.z, self.grid, self.anchors, self.est.xy, self.targets, self.plan_tcfg, self.ccfg,
+        plan = plan_targets(self.z, self.grid, self.anchors, self.est.xy, self.targets, self.tcfg, self.ccfg,
                             self._margins())
         self.legs = []
         for k, why in enumerate(plan.reasons):
@@ -386,7 +378,7 @@ class CliffbotMission:
         cut: list[tuple[F64, F64]] = []
         margins = self._margins()
         for _ in range(MAX_CUT_ROUNDS):
-            plan = plan_targets(self.z, self.grid, self.anchors, self.est.xy, leg.goal[None, :], self.plan_tcfg,
+            plan = plan_targets(self.z, self.grid, self.anchors, self.est.xy, leg.goal[None, :], self.tcfg,
                                 self.ccfg, margins, start_usable=True, blocked=cut)
             path = plan.paths[0]
             if path is None:
@@ -461,8 +453,13 @@ class CliffbotMission:
         return math.sqrt((self.cfg.length_tol_m ** 2 + self.error_bound_m ** 2) / 3.0)
 
     def _margins(self) -> Margins:
-        """The planner's margins: the soft clearance, and the tension margins of the lengths'
-        error (:func:`fsw.core.team.face_planner.tension_margins`)."""
+        """The planner's margins. The winches put the body where the lengths hold it, within
+        ``length_tol_m`` of a node's lengths and off by the map's error: each tension keeps its
+        margin inside the limits, ``margin_sigmas`` standard deviations of the tension over where
+        the body may be (:func:`fsw.core.team.face_planner.tension_margins`: the statics'
+        sensitivity times that place's covariance), hard; the footprint's clearance from hazards
+        is soft (paths keep ``track_margin_m`` clear where the ground leaves room, without calling
+        a target the wheels can reach unreachable)."""
         return Margins(self.cfg.track_margin_m, length_sigma_m=self._length_sigma(), z=self.cfg.margin_sigmas)
 
     def _elsewhere(self, wp: F64) -> tuple[bool, float, float]:
