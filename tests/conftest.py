@@ -22,18 +22,6 @@ SUPPORT = Path(__file__).resolve().parent / "support"
 sys.path.insert(0, str(SUPPORT))
 
 
-def pytest_configure(config: pytest.Config) -> None:
-    """The flight process's heap top pad (``[executive] malloc_top_pad_kib``, set by every
-    executive at start-up) from the start of the session, for the tests that start none (not in
-    the xdist controller, which runs no test)."""
-    if getattr(config.option, "numprocesses", None) and not hasattr(config, "workerinput"):
-        return
-    from fsw.executive.executive import pad_malloc_heap
-    from fsw.settings import DEFAULT_CONFIG, load_settings
-
-    pad_malloc_heap(load_settings(DEFAULT_CONFIG).executive.malloc_top_pad_kib * 1024)
-
-
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Files with ``slow`` tests run first, the most slow tests first (stable otherwise).
 
