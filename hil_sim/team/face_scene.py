@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from fsw.core.geometry import CameraPose, MapGrid, camera_pose_from_rover, point_mast
-from fsw.core.map.body_mask import BodyBox, TeamGeometry, TetherLine
+from fsw.core.map.body_mask import BodyBox, TeamGeometry, TetherLine, anchorbot_box
 from fsw.core.map.elevation_map import ElevationMap
 from fsw.core.map.face_map import FaceMap, FaceMapConfig, face_band, fit_face_plane, run_merge, split_parts
 from fsw.core.pipeline import RegisteredPose, SensingPipeline, ViewPart
@@ -44,6 +44,7 @@ F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
 RECON_SIGMA = (math.radians(0.2), 0.01)  # camera pose error: rotation (rad), translation (m)
 CLIFF_SIGMA = (math.radians(0.5), 0.02)
+SURVEY_SIGMA_M = 0.03  # the Anchorbots' surveyed ground points (the flight's [cliffbot_site] start sigma)
 
 
 def pose_cov(sigma: tuple[float, float]) -> F64:
@@ -157,17 +158,25 @@ class FaceScene:
         team = TeamPose(box, recon, (anchors[0], anchors[1]), (lines[0], lines[1]))
         return np.array([x, y, zg]), n, team, body
 
-    @staticmethod
-    def known(team: TeamPose, cliff_err: F64) -> TeamGeometry:
+    def known(self, team: TeamPose, cliff_err: F64) -> TeamGeometry:
         """The team's geometry as the flight side knows it: the Cliff-bot (and the tethers' ends
-        at it) off by its navigation error ``cliff_err``; the others as placed."""
+        at it) off by its navigation error ``cliff_err``; the RECON-bot as placed; the Anchorbots
+        as the flight's mask knows them (``anchorbot_box`` on their surveyed ground points, under
+        the tethers' exits); the ground under each tether known over the plateau, from its anchor's
+        ground to its first contact (the lip; on down the face, the line between contacts spans
+        the face's hollows in the air: not known)."""
         sig = CLIFF_SIGMA[1]
         box = BodyBox(team.cliffbot.center + cliff_err, team.cliffbot.R, team.cliffbot.half, sig)
+        exit_m = self.tcfg.anchor_exit_m
+        anchors = tuple(anchorbot_box(a - np.array([0.0, 0.0, exit_m]), SURVEY_SIGMA_M) for a in self.anchors)
         lines = []
         for line in team.tethers:
             s = np.linspace(0.0, 1.0, len(line))[:, None]
-            lines.append(TetherLine(line + s * cliff_err, TETHER_RADIUS_M, sig))
-        return TeamGeometry((box, team.recon, *team.anchors), tuple(lines))
+            ground = np.full(len(line), np.nan)  # over the plateau: from the anchor to its first contact
+            ground[0] = line[0, 2] - exit_m
+            ground[1] = line[1, 2] if len(line) > 2 else np.nan
+            lines.append(TetherLine(line + s * cliff_err, TETHER_RADIUS_M, sig, ground))
+        return TeamGeometry((box, team.recon, *anchors), tuple(lines))
 
     # -- views ------------------------------------------------------------------------------
     def _view(self, agent: str, pose: CameraPose, cov: F64, team: TeamPose, body: Any, known: TeamGeometry) -> None:
