@@ -29,7 +29,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from fsw.core.map.body_mask import TeamGeometry, TetherLine, anchorbot_box, standing_box
+from fsw.core.map.body_mask import MaskConfig, TeamGeometry, TetherLine, anchorbot_box, standing_box
 from fsw.core.map.elevation_map import ElevationMap
 from fsw.core.pipeline import SensingPipeline
 from fsw.core.registration.registration import RegistrationSummary
@@ -56,6 +56,9 @@ from fsw.tasks.mission_state import JsonDict, restore_into
 SITE_SIGMA_M = 0.03  # the surveyed start's position error (the mask grows by sigma times it)
 SITE_BELOW_M = 0.15  # the box reaches this far under the start's ground (its height is the anchors')
 TETHER_RADIUS_M = 0.01
+# the RECON-bot's mask: its views of the team are metres away, a point's 1 sigma is centimetres, so the
+# band kept above a robot's ground is that sigma alone (docs/algorithm.md §8.1)
+SITE_MASK = MaskConfig(ground_band_m=0.0)
 
 
 def site_team(cfg: FswConfig) -> TeamGeometry | None:
@@ -149,6 +152,7 @@ class PerceptionTask(FlightTask):
         # file is missing or inconsistent)
         self.pipeline = SensingPipeline(cfg, load_stereo_calibration(cfg))
         self.pipeline.team = site_team(cfg)
+        self.pipeline.team_mask_cfg = SITE_MASK
         self.frames = self.subscribe(CAMERA_FRAME, depth=2, policy="drop_oldest")
         self.job: JobHandle | None = None
         self.job_view = -1  # the view the job merges

@@ -26,6 +26,7 @@ from fsw.core.registration.registration import Registration
 from fsw.core.steps import run_to_end
 from fsw.core.stereo.stereo import StereoPoints
 from fsw.core.team.tether import TetherConfig, anchor_points, surface_normal, tether_state
+from fsw.tasks.perception import SITE_MASK
 from hil_sim.team.face_eval import equal_memory_cell, face_figures, truth_along_normal
 from hil_sim.team.team_sensing import (
     ANCHOR_HALF_M,
@@ -190,6 +191,8 @@ class FaceScene:
         est = perturbed(pose, cov, self.rng)
         pipe = SensingPipeline(cfg, None, emap=self.gravity)
         pipe.team = known if self.mask else None
+        if agent == "recon":
+            pipe.team_mask_cfg = SITE_MASK  # the RECON-bot's flight mask (fsw.tasks.perception)
         dm = run_to_end(pipe.matcher.match_steps(left, right))
         pts = run_to_end(pipe.matcher.triangulate_steps(dm.disparity_px, sigma_px=dm.sigma_px))
         placed = RegisteredPose(Registration("off", "bench pose"), est, cov, None)

@@ -122,6 +122,9 @@ class MaskConfig:
     behind_tether: float = 1.5  # the same for a tether
     own_m: float = 1.0  # a box the camera is this close to is its own robot's (a mast's camera too)
     ground_sigma: float = 1.0  # a point within the margin and this many sigma of a robot's ground is ground
+    # the band above a robot's ground kept with those sigma (None: the margin); a far camera's 1 sigma
+    # is centimetres, and a window straddling a robot's outline and the ground behind lies that high
+    ground_band_m: float | None = None
 
 
 def point_sigma(cov: F64) -> F64:
@@ -240,7 +243,8 @@ def _at_ground(p: F64, cov: F64, box: BodyBox, cfg: MaskConfig) -> B:
     c = np.nan_to_num(np.asarray(cov, float), nan=np.inf, posinf=np.inf)
     with np.errstate(invalid="ignore"):
         sn = np.sqrt(np.maximum(np.einsum("i,nij,j->n", n, c, n), 0.0))
-    low = np.isfinite(sn) & ((p - box.ground) @ n <= cfg.margin_m + cfg.ground_sigma * np.nan_to_num(sn, nan=np.inf))
+    band = cfg.margin_m if cfg.ground_band_m is None else cfg.ground_band_m
+    low = np.isfinite(sn) & ((p - box.ground) @ n <= band + cfg.ground_sigma * np.nan_to_num(sn, nan=np.inf))
     local = (p - box.center) @ box.R
     out = (np.abs(local[:, :2]) > box.half[None, :2] + cfg.margin_m).any(axis=1)
     return np.asarray(low & out, bool)
