@@ -134,3 +134,37 @@ def test_the_recon_bots_views_keep_the_anchorbots_out() -> None:
     bare = _recon_sees_anchorbot(_NoAnchorbots("cliff-team", 1, "config/fsw.toml"))
     assert bare["seen"] == row["seen"]  # the same view, seeded
     assert bare["fused"] > 0 and bare["cells"] > 0
+
+
+def test_the_judge_tells_a_sliver_of_air_from_an_overhang() -> None:
+    """``air_gap_along_normal``: on a 70 deg face, a ledge block standing out along the normal
+    from 0.15 m to 0.35 m over a cell leaves 0.15 m of air under it (two surfaces a view can tell
+    apart); the same block from 0.01 m leaves a sliver. The truth counts both as overhangs (the
+    first and last crossings are more than the gap apart)."""
+    import math
+
+    import numpy as np
+
+    from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig
+    from hil_sim.team.face_eval import air_gap_along_normal, truth_along_normal
+
+    a = math.radians(70.0)
+    frame = FaceFrame.from_normal(np.zeros(3), np.array([0.0, -math.sin(a), math.cos(a)]))
+    face = FaceMap(frame, (-0.05, 0.15), (-0.05, 0.15), FaceMapConfig(cell_m=0.1, overhang_gap_m=0.1))
+
+    class Ledge:
+        def __init__(self, w0: float, w1: float) -> None:
+            self.y = (-w1 * math.sin(a), -w0 * math.sin(a))  # the block's span along y under the normal
+
+        def ground_at(self, x: object, y: object) -> object:
+            yy = np.asarray(y, float)
+            block = (yy >= self.y[0]) & (yy <= self.y[1])
+            return math.tan(a) * yy + np.where(block, 0.5, 0.0) + 0.0 * np.asarray(x, float)
+
+    cells = np.array([0])
+    for w0, gap in ((0.15, 0.15), (0.01, 0.01)):
+        world = Ledge(w0, 0.35)
+        _, over = truth_along_normal(world, face, cells)  # type: ignore[arg-type]
+        assert over.tolist() == [True]
+        got = air_gap_along_normal(world, face, cells)  # type: ignore[arg-type]
+        assert got[0] == pytest.approx(gap, abs=0.011)
