@@ -22,7 +22,8 @@ from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid
 from fsw.framework.storage import describe
-from fsw.tasks.cliffbot_mission import CliffbotMission, Estimate, Leg
+from fsw.tasks.cliffbot.legs import Leg
+from fsw.tasks.cliffbot_mission import CliffbotMission, Estimate
 
 SCHEMA = 1
 STATE, MAP = "cliffbot_state.json", "cliffbot_map.npy"
