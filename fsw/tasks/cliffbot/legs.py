@@ -162,8 +162,9 @@ class Route:
 
     def approach(self, start: F64, target: F64) -> tuple[F64, Plan, list[F64]] | None:
         """The known, safe, tether-feasible node nearest ``target`` (in the map's plane) that the
-        body can drive to from ``start``, nearer the target than ``start`` by more than a lattice
-        spacing: its place, the plan and the waypoints there; None when there is none.
+        body can drive to from ``start``, nearer the target than ``start`` by more than its
+        footprint's radius (a look from a place only a few centimetres nearer shows little new
+        ground): its place, the plan and the waypoints there; None when there is none.
 
         Candidates are the lattice nodes whose whole footprint is known and free of hazards
         (``Ground.known``, ``Ground.hazard``), the ``APPROACH_CANDIDATES`` nearest the target;
@@ -181,7 +182,7 @@ class Route:
         xy = np.column_stack([grid.x0 + (cc[ok] + 0.5) * grid.cell, grid.y0 + (rr[ok] + 0.5) * grid.cell])
         d = np.hypot(xy[:, 0] - target[0], xy[:, 1] - target[1])
         here = float(np.hypot(start[0] - target[0], start[1] - target[1]))
-        nearer = d < here - self.ccfg.node_m
+        nearer = d < here - self.ccfg.footprint_m
         xy, d = xy[nearer], d[nearer]
         if not len(xy):
             return None
