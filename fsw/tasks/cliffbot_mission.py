@@ -122,6 +122,7 @@ class CliffbotMission:
         self.reasons: list[str] = ["" for _ in range(len(self.targets))]
         self.reached: list[bool] = [False for _ in range(len(self.targets))]
         self.planned_lengths: list[float] = [math.inf for _ in range(len(self.targets))]
+        self.looks: list[int] = [0 for _ in range(len(self.targets))]  # per target, looks taken to approach it
         self.fix_asked_at: float | None = None
         self.fix_wanted = False  # a fix asked for by ground command
         self.fix_seq = 0
@@ -210,6 +211,7 @@ class CliffbotMission:
         self.reasons = ["" for _ in range(len(t))]
         self.reached = [False for _ in range(len(t))]
         self.planned_lengths = [math.inf for _ in range(len(t))]
+        self.looks = [0 for _ in range(len(t))]
         self.start = self.est.xy if self.state not in ("WAIT_MAP",) else self.start
         if self.state != "WAIT_MAP" and self.state != "SAFE":
             self.state = "PLAN"
@@ -422,6 +424,7 @@ class CliffbotMission:
             if here:
                 return False  # it looked from here already: nothing nearer to see from
             leg.looks += 1
+            self.looks[leg.target] = leg.looks
             self.event("LOOK", f"target {k}: {why}; no known ground nearer: look {leg.looks} from here")
             self.look_now = True
             self.state = "SENSE"
@@ -442,6 +445,7 @@ class CliffbotMission:
             leg.via = None
             leg.looks += 1
             assert leg.target is not None
+            self.looks[leg.target] = leg.looks
             self.event("LOOK", f"target {leg.target + 1}: at the approach node, look {leg.looks}")
             self.look_now = True
             self.fix_asked_at = None
