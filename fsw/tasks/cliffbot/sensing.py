@@ -3,9 +3,9 @@ agents sense"; docs/algorithm.md §8.1).
 
 On the mission's request (:class:`~fsw.tasks.cliffbot.messages.SenseRequest`, the mission
 holding still in ``SENSE``) the task takes one pair per pointing of the head's scan
-(``[cliffbot_sensing] pan_deg``, in order: the k-th capture of the camera driver, sequence
-number ``k + 1``, looks along the scan's ``k mod n``-th pan, so the camera head and the flight
-side agree without a head command), each tagged with the head's pose from the navigation
+(``[cliffbot_sensing] pan_deg`` and ``tilts_deg``, in order: the k-th capture of the camera
+driver, sequence number ``k + 1``, looks along the scan's ``k mod n``-th pan and tilt, so the
+camera head and the flight side agree without a head command), each tagged with the head's pose from the navigation
 estimate, the attitude sensor and the ground height on the map the mission plans on, and that
 pose's covariance (:mod:`fsw.core.team.cliffbot_head`). Each pair goes through THE sensing
 pipeline (:class:`fsw.core.pipeline.SensingPipeline`, the Cliff-bot's camera, registration off:
@@ -254,14 +254,14 @@ class CliffbotSensingTask(FlightTask):
             return
         self.asked += 1
         pan = math.radians(self.sc.pan_deg[(seq - 1) % len(self.sc.pan_deg)])
-        placed = self._head_pose(pan)
+        placed = self._head_pose(pan, math.radians(self.sc.tilt_of(seq - 1)))
         if placed is None:
             self.event("VIEW_FAILED", view=seq, error="no navigation estimate or attitude yet")
             return
         pose, cov, body_z = placed
         self.capture = Capture(seq, pan, pose, cov, body_z, now)
 
-    def _head_pose(self, pan: float) -> tuple[CameraPose, F64, float] | None:
+    def _head_pose(self, pan: float, tilt: float) -> tuple[CameraPose, F64, float] | None:
         att = None if self.last_status is None else self.last_status.devices.attitude
         if self.est is None or att is None:
             return None
@@ -270,7 +270,7 @@ class CliffbotSensingTask(FlightTask):
         sc = self.sc
         pose, cov = head_pose_covariance(
             s[:2], z, float(s[2]), math.radians(att.roll_deg), math.radians(att.pitch_deg), pan,
-            math.radians(sc.tilt_deg), sc.head_m, head_end(pan, sc.head_end_m), P, sc.height_sigma_m,
+            tilt, sc.head_m, head_end(pan, sc.head_end_m), P, sc.height_sigma_m,
             math.radians(sc.tilt_sigma_deg))
         return pose, cov, z
 
