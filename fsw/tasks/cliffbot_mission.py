@@ -66,6 +66,7 @@ from fsw.tasks.cliffbot.legs import UNKNOWN_REASONS, Leg, Route
 
 F64 = NDArray[np.float64]
 BODY_MARGIN_M = 0.1  # the body's box as mapped (stereo smear, the estimate's error) beyond the footprint
+VIEW_RANGE_M = 2.0  # a look's far ground: the pose error a point this far carries (sharper: a new look shows more)
 MAX_ELSEWHERE = 3  # a leg re-planned this often in a row, without getting nearer its goal, is given up
 FAULT_BITS = ("FaultStall", "FaultSlip", "FaultOverTension", "FaultSpool", "FaultTimeout")
 
@@ -101,6 +102,7 @@ class CliffbotMission:
         self.sense_seq = 0  # the views asked for (Commands.sense), each answered by a map (sensed)
         self.sense_asked_at: float | None = None
         self.sensed_xy: F64 | None = None  # where it last looked
+        self.look_sigma = math.inf  # the pose error a point VIEW_RANGE_M away carried when it last looked
         self.anchors = np.asarray(anchors, float)
         self.start = np.asarray(start_xy, float)
         self.targets = np.asarray(targets_xy, float).reshape(-1, 2)
@@ -313,6 +315,7 @@ class CliffbotMission:
             assert self.sensing is not None
             if self.sense_asked_at is None:
                 self.sense_asked_at = now
+                self.look_sigma = self._view_sigma()
                 self.sense_seq += 1
                 self.event("SENSE_REQUEST", f"views {self.sense_seq} before "
                            + (f"leg {self.leg_i + 1}" if self.legs else "the plan"))
@@ -408,12 +411,21 @@ class CliffbotMission:
         self.replan = False
         self.state = "DRIVE"
 
+    def _view_sigma(self) -> float:
+        """The pose error a point ``VIEW_RANGE_M`` away carries from the estimate (its place and
+        heading): the sensing pipeline drops points whose error is too large, so a look before a
+        fix (the start's heading is known to 10 deg) keeps the near ground only."""
+        P = self.est.P
+        return math.sqrt(max(float(P[0, 0] + P[1, 1] + VIEW_RANGE_M ** 2 * P[2, 2]), 0.0))
+
     def _approach(self, leg: Leg, why: str) -> bool:
         """The target of ``leg`` is not reachable on the map for ``why`` (a reason a look can
         change): drive to the known, safe, tether-feasible node nearest it
         (:meth:`fsw.tasks.cliffbot.legs.Route.approach`), then look there and plan again; with no
-        such node nearer than where it stands, look from here if it has not yet. False when the
-        budget of looks is spent or a look cannot help (the leg is then given up)."""
+        such node nearer than where it stands, look from here if it has not yet, or if its pose
+        is known twice as well as when it last looked here (:meth:`_view_sigma`: after a fix its
+        far views keep points they lost before). False when the budget of looks is spent or a look
+        cannot help (the leg is then given up)."""
         assert leg.target is not None
         k = leg.target + 1
         if leg.looks >= self.cfg.approach_looks:
@@ -421,8 +433,8 @@ class CliffbotMission:
         got = self.route().approach(self.est.xy, leg.goal)
         if got is None:
             here = self.sensed_xy is not None and float(np.hypot(*(self.est.xy - self.sensed_xy))) <= self.ccfg.node_m
-            if here:
-                return False  # it looked from here already: nothing nearer to see from
+            if here and self._view_sigma() >= 0.5 * self.look_sigma:
+                return False  # it looked from here already, as well placed: nothing nearer to see from
             leg.looks += 1
             self.looks[leg.target] = leg.looks
             self.event("LOOK", f"target {k}: {why}; no known ground nearer: look {leg.looks} from here")

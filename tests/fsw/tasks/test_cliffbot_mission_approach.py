@@ -142,3 +142,22 @@ def test_without_looks_or_on_known_ground_a_target_is_not_approached() -> None:
     m = _mission(tcfg=short)
     _start(m, dev, _ground())
     assert m.reasons[0] == "out of tether reach" and "APPROACH" not in _names(m)
+
+
+def test_with_nothing_nearer_it_looks_again_from_where_it_stands_only_once_its_pose_is_sharper() -> None:
+    for sharper in (True, False):
+        m, dev = _mission(), FreshDevices()
+        wide = np.diag([0.1 ** 2, 0.1 ** 2, np.radians(10.0) ** 2])  # the start's, before a fix
+        m.on_estimate(np.array([2.5, -0.5, -np.pi / 2]), wide)
+        z0 = _unknown_below(-0.75)  # no known ground nearer the target than where it stands
+        m.set_map(z0, GRID)
+        t = _look(m, dev, 0.0, z0)  # its first look, with the start's covariance
+        m.step(t + 0.1, dev)  # PLAN: the target approached
+        assert m.state == "WAIT_FIX" and "APPROACH" in _names(m)
+        assert m.step(t + 0.2, dev).request_fix
+        m.on_estimate(np.array([2.5, -0.5, -np.pi / 2]), P if sharper else wide)  # (a fix fused, or none)
+        m.on_no_fix(m.fix_seq, "busy")
+        if sharper:
+            assert m.state == "SENSE" and _names(m).count("LOOK") == 1 and m.looks == [1]
+        else:
+            assert m.state == "DONE" and m.reasons[0] == "unknown ground" and "LOOK" not in _names(m)
