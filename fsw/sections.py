@@ -80,6 +80,9 @@ class CliffbotMissionConfig:
                                      "where the body may be (2.326: one-sided 99 %)")
     safe_recover_s: float = param(0.0, lo=0.0, hi=1e5, units="s",
                                   doc="the task leaves SAFE by itself after this long (0: waits for RECOVER)")
+    approach_looks: int = param(3, lo=0, hi=20,
+                                doc="looks a target whose ground is not known may take from the known ground "
+                                    "nearest it before it is given up (0: never approached)")
 
 
 @dataclass(frozen=True)
@@ -140,9 +143,14 @@ class CliffbotSensingConfig:
     head_m: float = param(0.45, lo=0.0, hi=3.0, units="m", doc="the camera above the body's ground, along its normal")
     head_end_m: float = param(0.45, lo=0.0, hi=2.0, units="m",
                               doc="the head at the body's front (looking ahead) or rear end, along its heading")
-    pan_deg: tuple[float, ...] = param((0.0, 45.0, 90.0, 135.0, 180.0, -135.0, -90.0, -45.0), units="deg",
+    pan_deg: tuple[float, ...] = param((0.0, 45.0, 90.0, 135.0, 180.0, -135.0, -90.0, -45.0, 25.0, -25.0),
+                                       units="deg",
                                        doc="the head's scan: one pan from the heading per capture, in order")
-    tilt_deg: float = param(-40.0, lo=-89.0, hi=60.0, units="deg", doc="the head's elevation in every view")
+    tilt_deg: float = param(-40.0, lo=-89.0, hi=60.0, units="deg",
+                            doc="the head's elevation in every view (but those tilts_deg sets)")
+    tilts_deg: tuple[float, ...] = param((-40.0,) * 8 + (-75.0, -75.0), units="deg",
+                                         doc="per pan of the scan, its elevation (empty: tilt_deg for all); the "
+                                             "steep ones look down over a lip, the ground below it")
     height_sigma_m: float = param(0.03, lo=0.0, hi=1.0, units="m", doc="the body's ground height on the map, sigma")
     tilt_sigma_deg: float = param(1.0, lo=0.0, hi=30.0, units="deg", doc="roll and pitch from the attitude sensor")
     body_half_m: tuple[float, ...] = param((0.31, 0.235, 0.28), units="m",
@@ -157,7 +165,15 @@ class CliffbotSensingConfig:
     def __post_init__(self) -> None:
         if not self.pan_deg:
             raise ValueError("pan_deg: at least one pointing")
+        if self.tilts_deg and len(self.tilts_deg) != len(self.pan_deg):
+            raise ValueError(f"tilts_deg: one per pan ({len(self.pan_deg)}) or none")
+        if any(not -89.0 <= t <= 60.0 for t in self.tilts_deg):
+            raise ValueError("tilts_deg: each within -89 .. 60 deg")
         if len(self.body_half_m) != 3:
             raise ValueError("body_half_m: three numbers (along, across, up)")
         if self.min_range_m >= self.max_range_m:
             raise ValueError("min_range_m must be below max_range_m")
+
+    def tilt_of(self, k: int) -> float:
+        """The elevation (deg) of the scan's ``k mod n``-th pointing."""
+        return self.tilts_deg[k % len(self.tilts_deg)] if self.tilts_deg else self.tilt_deg

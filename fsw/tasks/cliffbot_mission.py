@@ -25,6 +25,16 @@ asks for its own views (``Commands.sense``) and waits, holding still, until the 
 arrives (:meth:`CliffbotMission.sensed`: the received map with the cells its own views made
 known) or ``sense_timeout_s`` passes (it then plans on what it has, event ``SENSE_TIMEOUT``).
 
+Approach (docs/team.md, "Approach: making the unknown known"): with its own views on, a target
+refused on the map for a reason a look can change (``unknown ground``, ``tether over unknown
+ground``, ``no safe path``) keeps its leg (event ``APPROACH``). The leg drives to the known,
+safe, tether-feasible node nearest the target (:meth:`fsw.tasks.cliffbot.legs.Route.approach`,
+nearer the target than where it stands), asks for a fix there and looks (``LOOK``, then
+``SENSE``), and is planned again on the map with its views: until the target is planned, a
+reason on known ground gives it up, or ``approach_looks`` looks are spent (its reason then says
+how many looks, ``unknown ground (3 looks)``). It never drives onto ground its map does not know.
+The legs' ways, margins and approach nodes are :mod:`fsw.tasks.cliffbot.legs`'.
+
 ``SAFE`` (winches braked, wheels stopped, event ``SAFE`` with the reason) on: a winch fault
 bit (stall, slip, over-tension, spool, timeout), a device whose status stopped, no fix
 within ``fix_timeout_s`` of the request (the link is lost), a fix refused by the
@@ -38,36 +48,25 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import ndimage
 
 from fsw.comm.team.fix_packets import Fix
 from fsw.comm.team.team_can import WINCHES
 from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import NavConfig, Navigator
 from fsw.core.team.contact_ground import fill_under_body
-from fsw.core.team.face_planner import (
-    OFF_THE_WAY,
-    ClimberConfig,
-    Ground,
-    Margins,
-    disc,
-    ground_layers,
-    place_covariance,
-    plan_targets,
-    tension_margins,
-    way_reason,
-)
+from fsw.core.team.face_planner import OFF_THE_WAY, ClimberConfig, plan_targets
 from fsw.core.team.tether import TetherConfig, tether_state
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig, CliffbotSensingConfig
+from fsw.tasks.cliffbot.legs import UNKNOWN_REASONS, Leg, Route
 
 F64 = NDArray[np.float64]
 BODY_MARGIN_M = 0.1  # the body's box as mapped (stereo smear, the estimate's error) beyond the footprint
-MAX_CUT_ROUNDS = 12  # a leg's plan, its impassable edges cut, planned again at most this often
+VIEW_RANGE_M = 2.0  # a look's far ground: the pose error a point this far carries (sharper: a new look shows more)
 MAX_ELSEWHERE = 3  # a leg re-planned this often in a row, without getting nearer its goal, is given up
 FAULT_BITS = ("FaultStall", "FaultSlip", "FaultOverTension", "FaultSpool", "FaultTimeout")
 
@@ -94,14 +93,6 @@ class Estimate:
         return self.s[:2].copy()
 
 
-@dataclass
-class Leg:
-    goal: F64
-    target: int | None  # index into the targets, None for the leg home
-    waypoints: list[F64] = field(default_factory=list)
-    length_m: float = 0.0
-
-
 class CliffbotMission:
     def __init__(self, cfg: CliffbotMissionConfig, tcfg: TetherConfig, ccfg: ClimberConfig, ncfg: NavConfig,
                  anchors: F64, start_xy: F64, start_yaw: float, targets_xy: F64,
@@ -111,6 +102,7 @@ class CliffbotMission:
         self.sense_seq = 0  # the views asked for (Commands.sense), each answered by a map (sensed)
         self.sense_asked_at: float | None = None
         self.sensed_xy: F64 | None = None  # where it last looked
+        self.look_sigma = math.inf  # the pose error a point VIEW_RANGE_M away carried when it last looked
         self.anchors = np.asarray(anchors, float)
         self.start = np.asarray(start_xy, float)
         self.targets = np.asarray(targets_xy, float).reshape(-1, 2)
@@ -123,8 +115,8 @@ class CliffbotMission:
         self.z: F64 | None = None
         self.grid: MapGrid | None = None
         self.error_bound_m = 0.0  # the received map's height error bound (the codec's)
-        self.ground: Ground | None = None  # the map's hazard layers (the way between waypoints)
-        self.ways: dict[tuple[float, float, float, float], str] = {}  # way_reason per pair of places, this map
+        self._route: Route | None = None  # the map as the legs use it (made again for every map)
+        self.look_now = False  # at an approach node: look before the leg is planned again
         self.map_version = 0
         self.legs: list[Leg] = []
         self.leg_i = 0
@@ -132,6 +124,7 @@ class CliffbotMission:
         self.reasons: list[str] = ["" for _ in range(len(self.targets))]
         self.reached: list[bool] = [False for _ in range(len(self.targets))]
         self.planned_lengths: list[float] = [math.inf for _ in range(len(self.targets))]
+        self.looks: list[int] = [0 for _ in range(len(self.targets))]  # per target, looks taken to approach it
         self.fix_asked_at: float | None = None
         self.fix_wanted = False  # a fix asked for by ground command
         self.fix_seq = 0
@@ -161,13 +154,7 @@ class CliffbotMission:
         self.error_bound_m = error_bound_m if math.isfinite(error_bound_m) else 0.0
         self.z, filled = fill_under_body(z, grid, self.est.xy, r, body_m=r + BODY_MARGIN_M, max_rms_m=flat)
         self.grid = grid
-        # where the way between waypoints may not go: the body starts a way from where the last one
-        # left it (within a lattice spacing of the node), so its tethers' contacts fall up to about
-        # that far from the replay's: the ways keep them a lattice spacing off the map's rocks
-        ground = ground_layers(self.z, grid, self.ccfg)
-        grow = disc(int(round(self.ccfg.node_m / grid.cell)))
-        self.ground = dataclasses.replace(ground, rock=ndimage.binary_dilation(ground.rock, structure=grow))
-        self.ways = {}
+        self._route = None
         self.map_version += 1
         self.event("MAP", f"map {self.map_version}: {int(np.isfinite(self.z).sum())} known cells"
                    + (f", {filled} under the body known by contact" if filled else ""))
@@ -183,8 +170,19 @@ class CliffbotMission:
         self.event("SENSED", f"views {seq} in the map")
         self._after_sense()
 
+    def route(self) -> Route:
+        """The map as the legs use it (:class:`fsw.tasks.cliffbot.legs.Route`), made once per map
+        (also for a map a checkpoint put back)."""
+        assert self.z is not None and self.grid is not None
+        r = self._route
+        if r is None or r.z is not self.z or r.grid is not self.grid or r.error_bound_m != self.error_bound_m:
+            r = self._route = Route(self.z, self.grid, self.error_bound_m, self.cfg, self.tcfg, self.ccfg,
+                                    self.anchors)
+        return r
+
     def _after_sense(self) -> None:
         self.sense_asked_at = None
+        self.look_now = False
         self.sensed_xy = self.est.xy
         if self.legs:
             self._plan_leg()
@@ -193,7 +191,7 @@ class CliffbotMission:
 
     def _wants_views(self) -> bool:
         """Before a leg: whether it moved far enough since it last looked to look again."""
-        if self.sensing is None or self.sensed_xy is None:
+        if self.sensing is None or self.sensed_xy is None or self.look_now:
             return self.sensing is not None
         return float(np.linalg.norm(self.est.xy - self.sensed_xy)) >= self.sensing.move_m
 
@@ -215,6 +213,7 @@ class CliffbotMission:
         self.reasons = ["" for _ in range(len(t))]
         self.reached = [False for _ in range(len(t))]
         self.planned_lengths = [math.inf for _ in range(len(t))]
+        self.looks = [0 for _ in range(len(t))]
         self.start = self.est.xy if self.state not in ("WAIT_MAP",) else self.start
         if self.state != "WAIT_MAP" and self.state != "SAFE":
             self.state = "PLAN"
@@ -316,6 +315,7 @@ class CliffbotMission:
             assert self.sensing is not None
             if self.sense_asked_at is None:
                 self.sense_asked_at = now
+                self.look_sigma = self._view_sigma()
                 self.sense_seq += 1
                 self.event("SENSE_REQUEST", f"views {self.sense_seq} before "
                            + (f"leg {self.leg_i + 1}" if self.legs else "the plan"))
@@ -346,15 +346,25 @@ class CliffbotMission:
             return self._drive(dev)
         return self._hold()
 
+    def _approaching(self, why: str) -> bool:
+        """Whether a target refused for ``why`` is approached (its ground made known by looking
+        from the known ground nearest it) rather than given up: a reason a look can change, with
+        the Cliff-bot's own views on and a budget of looks."""
+        return why in UNKNOWN_REASONS and self.sensing is not None and self.cfg.approach_looks > 0
+
     def _plan_all(self) -> None:
         assert self.z is not None and self.grid is not None
         plan = plan_targets(self.z, self.grid, self.anchors, self.est.xy, self.targets, self.tcfg, self.ccfg,
-                            self._margins())
+                            self.route().margins())
         self.legs = []
         for k, why in enumerate(plan.reasons):
             self.reasons[k] = why
             self.planned_lengths[k] = plan.lengths_m[k]
-            if why:
+            if why and not plan.start_reason and self._approaching(why):
+                self.event("APPROACH", f"target {k + 1}: {why} on its map: to the known ground nearest it, "
+                                       f"to look (up to {self.cfg.approach_looks} looks)")
+                self.legs.append(Leg(self.targets[k], k))
+            elif why:
                 self.event("TARGET_UNREACHABLE", f"target {k + 1}: {why}")
             else:
                 self.legs.append(Leg(self.targets[k], k))
@@ -366,120 +376,100 @@ class CliffbotMission:
         self.state = "WAIT_FIX" if self.legs else "DONE"
 
     def _plan_leg(self) -> None:
-        """Plan the current leg from the estimate and start driving it."""
+        """Plan the current leg from the estimate and start driving it; a target whose ground is
+        not known yet is approached (:meth:`_approach`)."""
         assert self.z is not None and self.grid is not None
         if self.leg_i >= len(self.legs):
             self.state = "DONE"
             self.event("DONE", "all legs driven")
             return
         leg = self.legs[self.leg_i]
-        # it stands where the leg starts (held by its tethers): the way out of that node is planned;
-        # an edge the body cannot pass (the statics between its nodes) is cut and the leg planned again
-        cut: list[tuple[F64, F64]] = []
-        margins = self._margins()
-        for _ in range(MAX_CUT_ROUNDS):
-            plan = plan_targets(self.z, self.grid, self.anchors, self.est.xy, leg.goal[None, :], self.tcfg,
-                                self.ccfg, margins, start_usable=True, blocked=cut)
-            path = plan.paths[0]
-            if path is None:
-                break
-            wps, bad = self._waypoints(path)
-            if not bad:
-                break
-            cut += bad
-        else:
-            path = None
-            plan = dataclasses.replace(plan, reasons=("no safe path",))
-        path = plan.paths[0] if path is not None else None
-        if path is None:
+        plan, wps = self.route().plan(self.est.xy, leg.goal)
+        if plan.paths[0] is None:
             why = plan.reasons[0]
             if plan.start_reason:
                 self._safe(f"leg {self.leg_i + 1}: {why}")
                 return
+            if leg.target is not None and self._approaching(why) and self._approach(leg, why):
+                return
             if leg.target is not None:
+                why = f"{why} ({leg.looks} looks)" if leg.looks else why
                 self.reasons[leg.target] = why
             self.event("TARGET_UNREACHABLE", f"leg {self.leg_i + 1}: {why}")
             self._next_leg()
             return
-        leg.waypoints, leg.length_m = wps, plan.lengths_m[0]
+        if leg.target is not None and (leg.via is not None or leg.looks):
+            self.reasons[leg.target] = ""
+            self.planned_lengths[leg.target] = plan.lengths_m[0]
+            self.event("APPROACH", f"target {leg.target + 1}: planned after {leg.looks} looks")
+        leg.via = None
+        self._drive_on(leg, wps, plan.lengths_m[0])
+
+    def _drive_on(self, leg: Leg, wps: list[F64], length_m: float) -> None:
+        leg.waypoints, leg.length_m = wps, length_m
         self.wp_i = 0
         self.replan = False
         self.state = "DRIVE"
 
-    def _waypoints(self, path: F64) -> tuple[list[F64], list[tuple[F64, F64]]]:
-        """Every ``waypoint_every``-th node of the path, or every node where the way between
-        would not hold (:func:`fsw.core.team.face_planner.way_reason` on its map, the planning
-        limits): the winches move both lengths straight from one waypoint's lengths to the
-        next's, and the body follows where the statics put it, not the path's line (near the lip
-        the tensions change by tens of newtons over centimetres; above a ledge the ledge's
-        lengths hold it on the face). Also every edge of the path the body cannot pass."""
-        every = self.cfg.waypoint_every
-        out: list[F64] = []
-        bad: list[tuple[F64, F64]] = []
-        i = 0
-        while i < len(path) - 1:
-            j = min(i + every, len(path) - 1)
-            if j > i + 1 and not self._passable(path[i], path[j]):
-                j = i + 1
-            if j == i + 1 and not self._passable(path[i], path[j]):
-                bad.append((path[i], path[j]))
-            out.append(path[j])
-            i = j
-        return (out or [path[-1]]), bad
+    def _view_sigma(self) -> float:
+        """The pose error a point ``VIEW_RANGE_M`` away carries from the estimate (its place and
+        heading): the sensing pipeline drops points whose error is too large, so a look before a
+        fix (the start's heading is known to 10 deg) keeps the near ground only."""
+        P = self.est.P
+        return math.sqrt(max(float(P[0, 0] + P[1, 1] + VIEW_RANGE_M ** 2 * P[2, 2]), 0.0))
 
-    def _passable(self, a: F64, b: F64) -> bool:
-        """Whether the body can go from ``a`` to ``b`` on its map in the planning limits
-        (:func:`way_reason`; each pair judged once per map)."""
-        assert self.z is not None and self.grid is not None and self.ground is not None
-        key = (round(float(a[0]), 4), round(float(a[1]), 4), round(float(b[0]), 4), round(float(b[1]), 4))
-        if key not in self.ways:
-            # every place of the way keeps the larger of its ends' tension margins
-            m = self._margins()
-            ends = [tension_margins(self.z, self.grid, self.anchors, p, self.tcfg, self.ccfg, m) for p in (a, b)]
-            if any(e is None for e in ends):
-                self.ways[key] = "unknown ground"
-            else:
-                mg = max(max(e) for e in ends if e is not None)
-                t = dataclasses.replace(self.tcfg, t_min_n=self.tcfg.t_min_n + mg,
-                                        t_max_n=max(self.tcfg.t_max_n - mg, self.tcfg.t_min_n + mg + 1e-3))
-                self.ways[key] = way_reason(self.z, self.grid, self.anchors, a, b, t, self.ccfg, self.ground)
-        return not self.ways[key]
-
-    def _length_sigma(self) -> float:
-        """The error of the lengths that put the body at a place, against the truth's: the
-        winches stop anywhere within ``length_tol_m`` of the set-point, and the map's heights,
-        which the set-point's lengths come from, are within the codec's error bound of the
-        ground's (each uniform)."""
-        return math.sqrt((self.cfg.length_tol_m ** 2 + self.error_bound_m ** 2) / 3.0)
-
-    def _margins(self) -> Margins:
-        """The planner's margins. The winches put the body where the lengths hold it, within
-        ``length_tol_m`` of a node's lengths and off by the map's error: each tension keeps its
-        margin inside the limits, ``margin_sigmas`` standard deviations of the tension over where
-        the body may be (:func:`fsw.core.team.face_planner.tension_margins`: the statics'
-        sensitivity times that place's covariance), hard; the footprint's clearance from hazards
-        is soft (paths keep ``track_margin_m`` clear where the ground leaves room, without calling
-        a target the wheels can reach unreachable)."""
-        return Margins(self.cfg.track_margin_m, length_sigma_m=self._length_sigma(), z=self.cfg.margin_sigmas)
-
-    def _elsewhere(self, wp: F64) -> tuple[bool, float, float]:
-        """Whether the estimate says, beyond its uncertainty, that the waypoint's lengths hold the
-        body more than a lattice spacing from it (what the check of the next way assumes): the
-        offset past ``node_m`` along its direction over its standard deviation, the estimate's
-        covariance plus the lengths' error carried to the place (``face_planner.place_covariance``),
-        above ``margin_sigmas``. Returns (elsewhere, offset, its standard deviation)."""
-        assert self.z is not None and self.grid is not None
-        d = self.est.xy - wp
-        off = float(np.hypot(*d))
-        if off <= self.ccfg.node_m:
-            return False, off, math.nan
-        got = place_covariance(self.z, self.grid, self.anchors, wp, self.tcfg, self.ccfg, self._length_sigma(),
-                               self.est.P[:2, :2])
+    def _approach(self, leg: Leg, why: str) -> bool:
+        """The target of ``leg`` is not reachable on the map for ``why`` (a reason a look can
+        change): drive to the known, safe, tether-feasible node nearest it
+        (:meth:`fsw.tasks.cliffbot.legs.Route.approach`), then look there and plan again; with no
+        such node nearer than where it stands, look from here if it has not yet, or if its pose
+        is known twice as well as when it last looked here (:meth:`_view_sigma`: after a fix its
+        far views keep points they lost before). False when the budget of looks is spent or a look
+        cannot help (the leg is then given up)."""
+        assert leg.target is not None
+        k = leg.target + 1
+        if leg.looks >= self.cfg.approach_looks:
+            return False
+        got = self.route().approach(self.est.xy, leg.goal)
         if got is None:
-            return True, off, math.nan
-        u = d / off
-        sd = math.sqrt(max(float(u @ got[0] @ u), 0.0))
-        return off - self.ccfg.node_m > self.cfg.margin_sigmas * sd, off, sd
+            here = self.sensed_xy is not None and float(np.hypot(*(self.est.xy - self.sensed_xy))) <= self.ccfg.node_m
+            if here and self._view_sigma() >= 0.5 * self.look_sigma:
+                return False  # it looked from here already, as well placed: nothing nearer to see from
+            leg.looks += 1
+            self.looks[leg.target] = leg.looks
+            self.event("LOOK", f"target {k}: {why}; no known ground nearer: look {leg.looks} from here")
+            self.look_now = True
+            self.state = "SENSE"
+            self.sense_asked_at = None
+            return True
+        via, plan, wps = got
+        gap = float(np.hypot(*(via - leg.goal)))
+        self.event("APPROACH", f"target {k}: {why}; to {via.round(2).tolist()}, {gap:.2f} m from it "
+                               f"({plan.lengths_m[0]:.2f} m of path)")
+        leg.via = via
+        self._drive_on(leg, wps, plan.lengths_m[0])
+        return True
+
+    def _arrived(self, leg: Leg) -> None:
+        """At the end of a leg's waypoints: the target (dwell), the approach node (look, then
+        plan the leg again), or home."""
+        if leg.via is not None:
+            leg.via = None
+            leg.looks += 1
+            assert leg.target is not None
+            self.looks[leg.target] = leg.looks
+            self.event("LOOK", f"target {leg.target + 1}: at the approach node, look {leg.looks}")
+            self.look_now = True
+            self.fix_asked_at = None
+            self.state = "WAIT_FIX"  # a fix, then its views, then the leg planned again (_leg_ready)
+        elif leg.target is not None:
+            self.reached[leg.target] = True
+            self.event("TARGET_REACHED", f"target {leg.target + 1}")
+            self.state = "DWELL"
+            self.dwell_until = self.now + self.cfg.dwell_s
+        else:
+            self.event("HOME", "back at the start")
+            self._next_leg()
 
     def _next_leg(self) -> None:
         self.leg_i += 1
@@ -511,7 +501,7 @@ class CliffbotMission:
             err = np.asarray(st.lengths_m) - np.array([a.paid_out_m, b.paid_out_m])
             if float(np.max(np.abs(err))) > self.cfg.length_tol_m:
                 break
-            elsewhere, off, sd = self._elsewhere(wp)
+            elsewhere, off, sd = self.route().elsewhere(self.est.xy, self.est.P[:2, :2], wp)
             if elsewhere:
                 # the waypoint's lengths hold it elsewhere (the estimate, from those lengths, says
                 # where): the rest of the leg is planned again from there; when that keeps
@@ -534,14 +524,7 @@ class CliffbotMission:
                 return self._hold()
             self.wp_i += 1
             if self.wp_i >= len(leg.waypoints):
-                if leg.target is not None:
-                    self.reached[leg.target] = True
-                    self.event("TARGET_REACHED", f"target {leg.target + 1}")
-                    self.state = "DWELL"
-                    self.dwell_until = self.now + self.cfg.dwell_s
-                else:
-                    self.event("HOME", "back at the start")
-                    self._next_leg()
+                self._arrived(leg)
                 return self._hold()
         rates = self.cfg.gain_per_s * err
         peak = float(np.max(np.abs(rates)))

@@ -295,6 +295,7 @@ class TeamOutcome:
     safe_reason: str = ""
     events: Sequence[Sequence[Any]] = ()
     sim_s: float = 0.0
+    looks: Sequence[int] = ()  # per target, the looks the mission took to approach it (docs/team.md)
 
 
 @dataclass(frozen=True)
@@ -344,6 +345,7 @@ class TeamVerdict:
             "truth_reasons": list(self.truth_reasons),
             "map_reasons": list(o.map_reasons),
             "reached": [bool(r) for r in o.reached],
+            "target_looks": [int(n) for n in o.looks],
             "reachable_missed": self.missed,
             "tether_violations": self.tether_violations,
             "violations": dict(o.violations),

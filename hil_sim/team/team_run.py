@@ -268,7 +268,8 @@ def team_section(world: World, grid: MapGrid, received_z: NDArray[np.floating], 
         fixes_used=mission.fixes_used, fixes_refused=mission.fixes_refused,
         link_bytes_down=link_bytes_down, link_bytes_up=link_bytes_up,
         link_bad_packets=link_bad_packets, can_bad_frames=can_bad_frames, final_state=mission.state,
-        safe_reason=mission.safe_reason, events=tuple(tuple(e) for e in mission.events), sim_s=sim_s)
+        safe_reason=mission.safe_reason, events=tuple(tuple(e) for e in mission.events), sim_s=sim_s,
+        looks=tuple(mission.looks))
     # the truth's planner on the truth's frame; the unknown cells on the received map's (the path above)
     section = judge_team(world, grid, received_z, rig.anchors, s.tether, s.climber, outcome).section()
     if out is not None:

@@ -124,7 +124,8 @@ class CliffbotHeadCamera:
     """The Cliff-bot's stereo pair on the lockstep bench: a frame source of the flight camera
     driver (``fsw.drivers.camera``, ``sim``). Capture ``seq`` renders the world at the Cliff-bot's
     TRUE pose (``rig``: its place on the true ground, the ground's normal, its heading) from the
-    head looking along the scan's ``(seq - 1) mod n``-th pan (``[cliffbot_sensing] pan_deg``: the
+    head looking along the scan's ``(seq - 1) mod n``-th pan and tilt (``[cliffbot_sensing] pan_deg``,
+    ``tilts_deg``: the
     head steps through its scan once per capture), with the team in the picture: the Cliff-bot's
     box (the world's), the tethers as ribbons over their true contacts, the Anchorbots, and the
     RECON-bot where ``recon`` (x, y, yaw, world) puts it."""
@@ -146,7 +147,7 @@ class CliffbotHeadCamera:
         n = np.array([0.0, 0.0, 1.0]) if n is None else n
         pan = math.radians(sc.pan_deg[(seq - 1) % len(sc.pan_deg)])
         body = np.array([x, y, float(rig.world.ground_at(x, y))])
-        return head_camera_pose(body, n, rig.yaw, pan, math.radians(sc.tilt_deg), sc.head_m,
+        return head_camera_pose(body, n, rig.yaw, pan, math.radians(sc.tilt_of(seq - 1)), sc.head_m,
                                 head_end(pan, sc.head_end_m))
 
     def team_now(self) -> TeamPose:

@@ -41,3 +41,14 @@ def test_the_report_counts_starts_targets_and_fixes_by_range(tmp_path: Path, mon
     assert "| 0-3 | 1 | 0.40 / 0.40 |" in md and "| 4-5 | 1 | 1.00 / 1.00 | 0.30 / 0.30 | 0 % |" in md
     assert "img/team-mission_team.png" in md  # the picture of the scene that reached the most
     assert "NEES within the chi2 95 % bound: 50 %" in capsys.readouterr().out
+
+
+def test_each_target_says_what_became_of_it_its_looks_and_the_truths_verdict() -> None:
+    t = {"map_reasons": ["", "unknown ground (3 looks)", "out of tether reach", ""],
+         "reached": [True, False, False, False], "target_looks": [2, 3, 0, 0],
+         "truth_reasons": ["", "", "out of tether reach", ""]}
+    assert [tm.target_text(t, k) for k in range(4)] == [
+        "reached (2 looks)", "unknown ground (3 looks) / truth: reachable",
+        "out of tether reach / truth: out of tether reach", "planned, not reached / truth: reachable"]
+    row = tm.scene_row({"team": t}, 7)["row"]
+    assert row["looks"] == 5 and row["reached_after_looks"] == 1

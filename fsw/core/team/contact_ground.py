@@ -13,6 +13,12 @@ quadrants, most of the ring's known cells inliers, and an RMS residual within ``
 cells within ``radius_m`` of where the body stands take the plane, and so do the known cells
 within ``body_m`` standing above it by more than ``max_rms_m``: the body's box as the
 RECON-bot mapped it. Other known cells are never changed (the planner judges them).
+
+:func:`body_height` is the height of the ground under the body where the map does not know
+it (what the Cliff-bot's own views are placed on, docs/team.md, "Both agents sense"): the
+median of the known cells within ``ring_m`` when they are enough and all round it; else the
+height at which its two taut tethers on the map, paid out to the winches' lengths, fit
+(:func:`tether_heights`); else that median, else the Anchorbots' ground.
 """
 
 from __future__ import annotations
@@ -21,10 +27,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid
-from fsw.core.team.tether import ZMap
+from fsw.core.team.tether import TetherConfig, ZMap, height_at
+from fsw.core.team.tether_batch import taut_tethers
 
 F64 = NDArray[np.float64]
 B = NDArray[np.bool_]
+TETHER_FIT_M = 0.03  # both tethers' lengths within this of the paid-out ones (winch tolerance and map error)
 
 
 def fill_under_body(z: ZMap, grid: MapGrid, xy: F64, radius_m: float, *, body_m: float = 0.0,
@@ -88,3 +96,71 @@ def _ring_plane(dx: F64, dy: F64, h: F64, min_cells: int, max_rms_m: float, roun
     if len(quadrants) < 3 or not np.isfinite(rms) or rms > max_rms_m:
         return None
     return np.asarray(coef, np.float64)
+
+
+def tether_heights(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, lengths: tuple[float, float], cfg: TetherConfig,
+                   normal: F64, hide_m: float, lo_m: float, hi_m: float, step_m: float = 0.02) -> list[float]:
+    """The ground heights under a body at ``xy`` at which its two tethers, taut over the map
+    (:func:`fsw.core.team.tether.tether_path`; the cells within ``hide_m`` of ``xy``, its own
+    box, hidden), from the exits ``anchors`` to its attachment ``attach_m`` along ``normal``,
+    are the paid-out ``lengths`` within :data:`TETHER_FIT_M`: the local minima of the larger
+    of the two length residuals over heights ``lo_m .. hi_m`` every ``step_m``. Near a level
+    tether two heights fit (above and below the exit); a tether over the lip fits one."""
+    if not (np.isfinite(lo_m) and np.isfinite(hi_m) and hi_m > lo_m and all(map(np.isfinite, lengths))):
+        return []
+    zz = np.array(z, dtype=np.float64, copy=True)
+    X, Y = grid.centers()
+    zz[np.hypot(X - xy[0], Y - xy[1]) <= hide_m] = np.nan
+    hs = np.arange(lo_m, hi_m + 0.5 * step_m, step_m)
+    bots = np.column_stack([np.full(len(hs), float(xy[0])), np.full(len(hs), float(xy[1])), hs]) + cfg.attach_m * normal
+    ends = np.tile(np.asarray(anchors, float)[:2], (len(hs), 1))
+    got = np.array([p[0] for p in taut_tethers(zz, grid, ends, np.repeat(bots, 2, axis=0), cfg.sample_m)])
+    r = np.max(np.abs(got.reshape(-1, 2) - np.asarray(lengths, float)[None, :]), axis=1)
+    pad = np.concatenate([[np.inf], r, [np.inf]])
+    low = (r <= pad[:-2]) & (r <= pad[2:]) & (r <= TETHER_FIT_M)
+    out: list[float] = []
+    k = 0
+    while k < len(hs):  # a run of equal minima (a flat valley) counts once, at its middle
+        if low[k]:
+            j = k
+            while j + 1 < len(hs) and low[j + 1]:
+                j += 1
+            out.append(float(0.5 * (hs[k] + hs[j])))
+            k = j + 1
+        else:
+            k += 1
+    return out
+
+
+def body_height(z: ZMap, grid: MapGrid, xy: F64, anchors: F64, cfg: TetherConfig, *,
+                lengths: tuple[float, float] | None = None, normal: F64 | None = None, hide_m: float = 0.4,
+                ring_m: float = 0.5, min_ring_cells: int = 12) -> tuple[float, str]:
+    """The ground height under a body at ``xy`` and where it came from (module docstring):
+    ``"map"`` (the map knows it there), ``"ring"`` (the median of at least ``min_ring_cells``
+    known cells within ``ring_m``, in at least three of four quadrants), ``"tethers"``
+    (:func:`tether_heights`, the winches' paid-out ``lengths``; of two fits the one nearer the
+    ring's median, or the Anchorbots' ground without one), ``"thin ring"`` (the median of too
+    few cells, no tether fit) or ``"anchors"`` (the mean of the Anchorbots' ground: the exits
+    ``anchors`` less ``anchor_exit_m``)."""
+    h = height_at(z, grid, xy)
+    if np.isfinite(h):
+        return h, "map"
+    X, Y = grid.centers()
+    dx, dy = X - float(xy[0]), Y - float(xy[1])
+    d = np.hypot(dx, dy)
+    zf = np.asarray(z, np.float64)
+    near = (d < ring_m) & np.isfinite(zf)
+    quadrants = {(bool(p), bool(q)) for p, q in zip(dx[near] >= 0, dy[near] >= 0, strict=True)}
+    if int(near.sum()) >= min_ring_cells and len(quadrants) >= 3:
+        return float(np.median(zf[near])), "ring"
+    ground = float(np.mean(np.asarray(anchors, float)[:, 2])) - cfg.anchor_exit_m
+    prior = float(np.median(zf[near])) if near.any() else ground
+    if lengths is not None:
+        around = np.isfinite(zf) & (d < 3.0)
+        lo = min(prior, float(zf[around].min()) if around.any() else prior) - 1.0
+        hi = float(np.max(np.asarray(anchors, float)[:, 2])) + 0.5
+        up = np.array([0.0, 0.0, 1.0]) if normal is None else np.asarray(normal, float)
+        fits = tether_heights(z, grid, anchors, xy, lengths, cfg, up, hide_m, lo, hi)
+        if fits:
+            return min(fits, key=lambda f: abs(f - prior)), "tethers"
+    return prior, ("thin ring" if near.any() else "anchors")

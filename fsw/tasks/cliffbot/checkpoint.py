@@ -22,7 +22,8 @@ from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid
 from fsw.framework.storage import describe
-from fsw.tasks.cliffbot_mission import CliffbotMission, Estimate, Leg
+from fsw.tasks.cliffbot.legs import Leg
+from fsw.tasks.cliffbot_mission import CliffbotMission, Estimate
 
 SCHEMA = 1
 STATE, MAP = "cliffbot_state.json", "cliffbot_map.npy"
@@ -76,6 +77,7 @@ def restore(m: CliffbotMission, st: dict[str, object], z: NDArray[np.float64] | 
         m.error_bound_m = float(bound) if isinstance(bound, (int, float)) and math.isfinite(bound) else 0.0
     m.targets, m.reached, m.reasons, m.legs, m.leg_i = targets, reached, reasons, legs, leg_i
     m.planned_lengths = [math.inf for _ in range(len(targets))]
+    m.looks = [0 for _ in range(len(targets))]
     m.start = np.asarray(st.get("start", m.start), float).reshape(2)
     m.est = Estimate(s, p)  # (the navigation task reads the same checkpoint: nav_estimate)
     m.fix_seq = _int(st.get("fix_seq", 0))

@@ -3,9 +3,9 @@ agents sense"; docs/algorithm.md §8.1).
 
 On the mission's request (:class:`~fsw.tasks.cliffbot.messages.SenseRequest`, the mission
 holding still in ``SENSE``) the task takes one pair per pointing of the head's scan
-(``[cliffbot_sensing] pan_deg``, in order: the k-th capture of the camera driver, sequence
-number ``k + 1``, looks along the scan's ``k mod n``-th pan, so the camera head and the flight
-side agree without a head command), each tagged with the head's pose from the navigation
+(``[cliffbot_sensing] pan_deg`` and ``tilts_deg``, in order: the k-th capture of the camera
+driver, sequence number ``k + 1``, looks along the scan's ``k mod n``-th pan and tilt, so the
+camera head and the flight side agree without a head command), each tagged with the head's pose from the navigation
 estimate, the attitude sensor and the ground height on the map the mission plans on, and that
 pose's covariance (:mod:`fsw.core.team.cliffbot_head`). Each pair goes through THE sensing
 pipeline (:class:`fsw.core.pipeline.SensingPipeline`, the Cliff-bot's camera, registration off:
@@ -35,6 +35,7 @@ from typing import ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
+from fsw.comm.team.team_can import WINCHES
 from fsw.core.edge.edge import EdgeConfig
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid, MapGridConfig
 from fsw.core.map.body_mask import BodyBox, MaskConfig, TeamGeometry, TetherLine, anchorbot_box
@@ -44,7 +45,8 @@ from fsw.core.planning.nbv import NbvConfig
 from fsw.core.registration.registration import RegistrationConfig
 from fsw.core.stereo.stereo import StereoConfig
 from fsw.core.team.cliffbot_head import head_end, head_pose_covariance, normal_from_attitude
-from fsw.core.team.tether import height_at, tether_state
+from fsw.core.team.contact_ground import body_height
+from fsw.core.team.tether import tether_state
 from fsw.framework.jobs import JobHandle
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.sections import CliffbotSensingConfig
@@ -63,6 +65,7 @@ from fsw.tasks.cliffbot.messages import (
     SensedMap,
     SenseRequest,
 )
+from fsw.tasks.cliffbot_mission import BODY_MARGIN_M
 
 F64 = NDArray[np.float64]
 U8 = NDArray[np.uint8]
@@ -142,6 +145,8 @@ class CliffbotSensingTask(FlightTask):
                  "view {view} (pan {pan:.0f} deg): {points} points, {new} new cells, {mapped} mapped"),
         EventDef("VIEW_FAILED", Severity.WARNING_LO, "view {view}: {error}", throttle=5),
         EventDef("SENSED", Severity.ACTIVITY_HI, "views {seq}: {views} of {asked} merged, {own} cells of its own"),
+        EventDef("BODY_HEIGHT", Severity.ACTIVITY_LO,
+                 "views {seq}: the ground under the body from {how}: {z:.2f} m (the map does not know it)"),
         EventDef("NO_CAMERA", Severity.WARNING_HI, "views {seq}: no camera; planning on the received map"),
     )
 
@@ -177,6 +182,7 @@ class CliffbotSensingTask(FlightTask):
         self.job_capture: Capture | None = None
         self.views = 0
         self.answered = 0  # the last request answered with a map
+        self.body_z_at: tuple[tuple[int, float, float], float] | None = None  # (request, place), height
 
     # -- the map the mission plans on -----------------------------------------------------------
     def own_map(self) -> F64:
@@ -245,14 +251,14 @@ class CliffbotSensingTask(FlightTask):
             return
         self.asked += 1
         pan = math.radians(self.sc.pan_deg[(seq - 1) % len(self.sc.pan_deg)])
-        placed = self._head_pose(pan)
+        placed = self._head_pose(pan, math.radians(self.sc.tilt_of(seq - 1)))
         if placed is None:
             self.event("VIEW_FAILED", view=seq, error="no navigation estimate or attitude yet")
             return
         pose, cov, body_z = placed
         self.capture = Capture(seq, pan, pose, cov, body_z, now)
 
-    def _head_pose(self, pan: float) -> tuple[CameraPose, F64, float] | None:
+    def _head_pose(self, pan: float, tilt: float) -> tuple[CameraPose, F64, float] | None:
         att = None if self.last_status is None else self.last_status.devices.attitude
         if self.est is None or att is None:
             return None
@@ -261,24 +267,34 @@ class CliffbotSensingTask(FlightTask):
         sc = self.sc
         pose, cov = head_pose_covariance(
             s[:2], z, float(s[2]), math.radians(att.roll_deg), math.radians(att.pitch_deg), pan,
-            math.radians(sc.tilt_deg), sc.head_m, head_end(pan, sc.head_end_m), P, sc.height_sigma_m,
+            tilt, sc.head_m, head_end(pan, sc.head_end_m), P, sc.height_sigma_m,
             math.radians(sc.tilt_sigma_deg))
         return pose, cov, z
 
     def _body_z(self, xy: F64) -> float:
-        """The ground under the body on the map the mission plans on (filled there by contact),
-        else the median of the known cells within 0.5 m."""
-        for z in (self.plan_z, None if self.received is None else self.received.z):
-            if z is None:
-                continue
-            h = height_at(z, self.grid, xy)
-            if math.isfinite(h):
-                return h
-            X, Y = self.grid.centers()
-            near = (np.hypot(X - xy[0], Y - xy[1]) < 0.5) & np.isfinite(z)
-            if near.any():
-                return float(np.median(z[near]))
-        return float(np.mean(self.anchor_ground[:, 2]))
+        """The ground under the body on the map the mission plans on (filled there by contact;
+        else the received map), or where that map does not know it, from the known cells round
+        it or its tethers' paid-out lengths (:func:`fsw.core.team.contact_ground.body_height`;
+        event ``BODY_HEIGHT`` when not from the map); worked out once per request and place."""
+        z = self.plan_z if self.plan_z is not None else (None if self.received is None else self.received.z)
+        if z is None:
+            return float(np.mean(self.anchor_ground[:, 2]))
+        key = (self.seq, round(float(xy[0]), 3), round(float(xy[1]), 3))
+        if self.body_z_at is not None and self.body_z_at[0] == key:
+            return self.body_z_at[1]
+        dev = None if self.last_status is None else self.last_status.devices
+        a, b = (None, None) if dev is None else (dev.winch.get(WINCHES[0]), dev.winch.get(WINCHES[1]))
+        lengths = None if a is None or b is None else (a.paid_out_m, b.paid_out_m)
+        att = None if dev is None else dev.attitude
+        normal = None if att is None or self.est is None else normal_from_attitude(
+            float(self.est.s[2]), math.radians(att.roll_deg), math.radians(att.pitch_deg))
+        cfg = self.ctx.cfg
+        h, how = body_height(z, self.grid, xy, self.anchors, cfg.tether, lengths=lengths, normal=normal,
+                             hide_m=cfg.climber.footprint_m + BODY_MARGIN_M)
+        if how != "map":
+            self.event("BODY_HEIGHT", seq=self.seq, how=how, z=h)
+        self.body_z_at = (key, h)
+        return h
 
     def _collect(self, now: float) -> None:
         c = self.capture

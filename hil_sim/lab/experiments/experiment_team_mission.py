@@ -46,6 +46,8 @@ COLUMNS = (
     "bytes_down",
     "bytes_up",
     "map_reasons",
+    "looks",
+    "reached_after_looks",
 )
 
 
@@ -73,6 +75,18 @@ def scene(scenario: str, seed: int, steps: int, config: str, out: Path) -> dict[
     return scene_row(run_mission(RunSpec(scenario, "5", steps, seed, config, True, d), mode="fresh"), seed)
 
 
+def target_text(t: dict[str, Any], k: int) -> str:
+    """What became of target ``k`` and the truth's verdict: ``reached (2 looks)``,
+    ``unknown ground (3 looks) / truth: reachable``, ``out of tether reach / truth: out of tether reach``."""
+    reasons, reached = list(t.get("map_reasons", [])), list(t.get("reached", []))
+    looks, truth = list(t.get("target_looks", [])), list(t.get("truth_reasons", []))
+    n = int(looks[k]) if k < len(looks) else 0
+    if k < len(reached) and reached[k]:
+        return "reached" + (f" ({n} looks)" if n else "")
+    why = str(reasons[k]) if k < len(reasons) and reasons[k] else "planned, not reached"
+    return why + (f" / truth: {truth[k] or 'reachable'}" if k < len(truth) else "")
+
+
 def scene_row(s: dict[str, Any], seed: int) -> dict[str, Any]:
     """A scene's row and fixes from its mission summary."""
     t = s.get("team") or {}
@@ -94,7 +108,10 @@ def scene_row(s: dict[str, Any], seed: int) -> dict[str, Any]:
         "safe_reason": t.get("safe_reason", ""),
         "bytes_down": t.get("link_bytes_down", 0),
         "bytes_up": t.get("link_bytes_up", 0),
-        "map_reasons": "; ".join(r or "reached" for r in reasons),
+        "map_reasons": "; ".join(target_text(t, k) for k in range(len(reasons))),
+        "looks": sum(int(n) for n in t.get("target_looks", [])),
+        "reached_after_looks": sum(1 for n, ok in zip(t.get("target_looks", []), t.get("reached", []), strict=False)
+                                   if n and ok),
     }
     fixes = list(
         zip(
@@ -163,7 +180,8 @@ def run(args: argparse.Namespace) -> int:
         wr.writerows(rows)
     lines = [
         "| seed | start usable | targets | reachable (truth) | reached | tether violations | hazard cells | "
-        "unknown cells | fixes | cells RECON-bot / Cliff-bot | end | bytes down / up | per target |",
+        "unknown cells | fixes | cells RECON-bot / Cliff-bot | end | bytes down / up | "
+        "per target (/ the truth's verdict) |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
@@ -181,7 +199,9 @@ def run(args: argparse.Namespace) -> int:
         f"{sum(r['start_usable'] for r in rows)}; targets reached {sum(r['reached'] for r in rows)} "
         f"(of the {reach} the truth reaches: {done}); tether violations {sum(r['tether_violations'] for r in rows)}, "
         f"hazard cells entered {sum(r['hazard_cells'] for r in rows)}, unknown cells entered "
-        f"{sum(r['unknown_cells'] for r in rows)}."
+        f"{sum(r['unknown_cells'] for r in rows)}; looks taken to approach targets on unknown ground "
+        f"{sum(r['looks'] for r in rows)}, targets reached after such looks "
+        f"{sum(r['reached_after_looks'] for r in rows)}."
     )
     band = [
         "| range (m) | fixes | position error median / worst (cm) | heading error median / worst (deg) | "

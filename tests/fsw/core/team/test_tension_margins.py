@@ -1,5 +1,5 @@
 """The tension margins and the off-the-way test the place's uncertainty requires
-(fsw.core.team.face_planner.tension_margins, fsw.tasks.cliffbot_mission; docs/team.md, "The planner")."""
+(fsw.core.team.face_planner.tension_margins, fsw.tasks.cliffbot.legs; docs/team.md, "The planner")."""
 
 from __future__ import annotations
 
@@ -60,7 +60,7 @@ def test_off_the_way_is_an_offset_beyond_the_estimate_and_the_place_uncertainty(
     m = CliffbotMission(CliffbotMissionConfig(), TetherConfig(), ClimberConfig(), NavConfig(), anchors,
                         np.array([0.0, 0.6]), -math.pi / 2, FACE[None, :])
     m.set_map(z, grid, 0.03)
-    got = place_covariance(z, grid, anchors, FACE, m.tcfg, m.ccfg, m._length_sigma())
+    got = place_covariance(z, grid, anchors, FACE, m.tcfg, m.ccfg, m.route().length_sigma())
     assert got is not None
     w, v = np.linalg.eigh(got[0])
     tight = v[:, 0]  # the direction the lengths pin the place best
@@ -69,9 +69,9 @@ def test_off_the_way_is_an_offset_beyond_the_estimate_and_the_place_uncertainty(
     for k, expect in ((0.5, False), (4.0, True)):
         off = m.ccfg.node_m + k * m.cfg.margin_sigmas * sd
         m.on_estimate(np.array([*(FACE + off * tight), 0.0]), P)
-        assert m._elsewhere(FACE)[0] is expect
+        assert m.route().elsewhere(m.est.xy, m.est.P[:2, :2], FACE)[0] is expect
     m.on_estimate(np.array([*(FACE + 0.5 * m.ccfg.node_m * tight), 0.0]), P)
-    assert m._elsewhere(FACE)[0] is False  # within a lattice spacing
+    assert m.route().elsewhere(m.est.xy, m.est.P[:2, :2], FACE)[0] is False  # within a lattice spacing
 
 
 def test_a_checkpoint_keeps_the_map_bound_the_margins_rest_on() -> None:
@@ -87,4 +87,5 @@ def test_a_checkpoint_keeps_the_map_bound_the_margins_rest_on() -> None:
     m.set_map(z, grid, 0.03)
     back = mission()
     restore(back, snapshot(m, 1.0), z, grid)
-    assert back.error_bound_m == 0.03 and back._length_sigma() == m._length_sigma() > mission()._length_sigma()
+    bare = math.sqrt(CliffbotMissionConfig().length_tol_m ** 2 / 3.0)  # the winches' tolerance alone
+    assert back.error_bound_m == 0.03 and back.route().length_sigma() == m.route().length_sigma() > bare

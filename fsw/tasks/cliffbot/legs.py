@@ -1,0 +1,198 @@
+"""A leg of the Cliff-bot's mission on its map: the way it drives, checked before it drives it
+(docs/team.md, "The planner"), and the known place it drives to when the target's own ground
+is not known yet (docs/team.md, "Approach: making the unknown known").
+
+:class:`Route` is the mission's map as its legs use it, made again for every map: the map's
+hazard layers (its rocks grown by a lattice spacing for the tethers' contacts), the planner's
+margins from the map's error bound, each way between two places judged once
+(:func:`fsw.core.team.face_planner.way_reason`), a leg's path planned with the edges the body
+cannot pass cut (:meth:`Route.plan`), the test that the lengths held the body elsewhere
+(:meth:`Route.elsewhere`) and the approach node (:meth:`Route.approach`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import ndimage
+
+from fsw.core.geometry import MapGrid
+from fsw.core.team.face_planner import (
+    ClimberConfig,
+    Margins,
+    Plan,
+    disc,
+    ground_layers,
+    place_covariance,
+    plan_targets,
+    tension_margins,
+    way_reason,
+)
+from fsw.core.team.tether import TetherConfig
+from fsw.sections import CliffbotMissionConfig
+
+F64 = NDArray[np.float64]
+MAX_CUT_ROUNDS = 12  # a leg's plan, its impassable edges cut, planned again at most this often
+APPROACH_CANDIDATES = 24  # known nodes nearest the target tried as the approach node, per plan
+# a target's reasons that a look can change: its ground (or its tethers' ground) is not known, or
+# no path is known (the ground between may be what is not known)
+UNKNOWN_REASONS = ("unknown ground", "tether over unknown ground", "no safe path")
+
+
+@dataclass
+class Leg:
+    goal: F64
+    target: int | None  # index into the targets, None for the leg home
+    waypoints: list[F64] = field(default_factory=list)
+    length_m: float = 0.0
+    via: F64 | None = None  # the known node it drives to first, to look at the target's ground
+    looks: int = 0  # looks taken for this target (approach)
+
+
+class Route:
+    """The mission's map as its legs use it (module docstring)."""
+
+    def __init__(self, z: F64, grid: MapGrid, error_bound_m: float, cfg: CliffbotMissionConfig,
+                 tcfg: TetherConfig, ccfg: ClimberConfig, anchors: F64) -> None:
+        self.z, self.grid, self.error_bound_m = z, grid, error_bound_m
+        self.cfg, self.tcfg, self.ccfg, self.anchors = cfg, tcfg, ccfg, anchors
+        # where the way between waypoints may not go: the body starts a way from where the last one
+        # left it (within a lattice spacing of the node), so its tethers' contacts fall up to about
+        # that far from the replay's: the ways keep them a lattice spacing off the map's rocks
+        ground = ground_layers(z, grid, ccfg)
+        grow = disc(int(round(ccfg.node_m / grid.cell)))
+        self.ground = dataclasses.replace(ground, rock=ndimage.binary_dilation(ground.rock, structure=grow))
+        self.ways: dict[tuple[float, float, float, float], str] = {}  # way_reason per pair of places
+
+    def length_sigma(self) -> float:
+        """The error of the lengths that put the body at a place, against the truth's: the
+        winches stop anywhere within ``length_tol_m`` of the set-point, and the map's heights,
+        which the set-point's lengths come from, are within the codec's error bound of the
+        ground's (each uniform)."""
+        return math.sqrt((self.cfg.length_tol_m ** 2 + self.error_bound_m ** 2) / 3.0)
+
+    def margins(self) -> Margins:
+        """The planner's margins. The winches put the body where the lengths hold it, within
+        ``length_tol_m`` of a node's lengths and off by the map's error: each tension keeps its
+        margin inside the limits, ``margin_sigmas`` standard deviations of the tension over where
+        the body may be (:func:`fsw.core.team.face_planner.tension_margins`: the statics'
+        sensitivity times that place's covariance), hard; the footprint's clearance from hazards
+        is soft (paths keep ``track_margin_m`` clear where the ground leaves room, without calling
+        a target the wheels can reach unreachable)."""
+        return Margins(self.cfg.track_margin_m, length_sigma_m=self.length_sigma(), z=self.cfg.margin_sigmas)
+
+    def plan(self, start: F64, goal: F64) -> tuple[Plan, list[F64]]:
+        """The leg from ``start`` (where it stands, held by its tethers: the way out of that node
+        is planned) to ``goal`` and its waypoints; an edge the body cannot pass (the statics
+        between its nodes) is cut and the leg planned again, at most ``MAX_CUT_ROUNDS`` times
+        (then ``no safe path``)."""
+        cut: list[tuple[F64, F64]] = []
+        margins = self.margins()
+        for _ in range(MAX_CUT_ROUNDS):
+            plan = plan_targets(self.z, self.grid, self.anchors, start, goal[None, :], self.tcfg, self.ccfg,
+                                margins, start_usable=True, blocked=cut)
+            path = plan.paths[0]
+            if path is None:
+                return plan, []
+            wps, bad = self.waypoints(path)
+            if not bad:
+                return plan, wps
+            cut += bad
+        return dataclasses.replace(plan, paths=(None,), lengths_m=(math.inf,), reasons=("no safe path",)), []
+
+    def waypoints(self, path: F64) -> tuple[list[F64], list[tuple[F64, F64]]]:
+        """Every ``waypoint_every``-th node of the path, or every node where the way between
+        would not hold (:func:`fsw.core.team.face_planner.way_reason` on its map, the planning
+        limits): the winches move both lengths straight from one waypoint's lengths to the
+        next's, and the body follows where the statics put it, not the path's line (near the lip
+        the tensions change by tens of newtons over centimetres; above a ledge the ledge's
+        lengths hold it on the face). Also every edge of the path the body cannot pass."""
+        every = self.cfg.waypoint_every
+        out: list[F64] = []
+        bad: list[tuple[F64, F64]] = []
+        i = 0
+        while i < len(path) - 1:
+            j = min(i + every, len(path) - 1)
+            if j > i + 1 and not self.passable(path[i], path[j]):
+                j = i + 1
+            if j == i + 1 and not self.passable(path[i], path[j]):
+                bad.append((path[i], path[j]))
+            out.append(path[j])
+            i = j
+        return (out or [path[-1]]), bad
+
+    def passable(self, a: F64, b: F64) -> bool:
+        """Whether the body can go from ``a`` to ``b`` on its map in the planning limits
+        (:func:`way_reason`; each pair judged once per map)."""
+        key = (round(float(a[0]), 4), round(float(a[1]), 4), round(float(b[0]), 4), round(float(b[1]), 4))
+        if key not in self.ways:
+            # every place of the way keeps the larger of its ends' tension margins
+            m = self.margins()
+            ends = [tension_margins(self.z, self.grid, self.anchors, p, self.tcfg, self.ccfg, m) for p in (a, b)]
+            if any(e is None for e in ends):
+                self.ways[key] = "unknown ground"
+            else:
+                mg = max(max(e) for e in ends if e is not None)
+                t = dataclasses.replace(self.tcfg, t_min_n=self.tcfg.t_min_n + mg,
+                                        t_max_n=max(self.tcfg.t_max_n - mg, self.tcfg.t_min_n + mg + 1e-3))
+                self.ways[key] = way_reason(self.z, self.grid, self.anchors, a, b, t, self.ccfg, self.ground)
+        return not self.ways[key]
+
+    def elsewhere(self, est_xy: F64, est_cov: F64, wp: F64) -> tuple[bool, float, float]:
+        """Whether the estimate says, beyond its uncertainty, that the waypoint's lengths hold the
+        body more than a lattice spacing from it (what the check of the next way assumes): the
+        offset past ``node_m`` along its direction over its standard deviation, the estimate's
+        covariance plus the lengths' error carried to the place (``face_planner.place_covariance``),
+        above ``margin_sigmas``. Returns (elsewhere, offset, its standard deviation)."""
+        d = est_xy - wp
+        off = float(np.hypot(*d))
+        if off <= self.ccfg.node_m:
+            return False, off, math.nan
+        got = place_covariance(self.z, self.grid, self.anchors, wp, self.tcfg, self.ccfg, self.length_sigma(),
+                               est_cov)
+        if got is None:
+            return True, off, math.nan
+        u = d / off
+        sd = math.sqrt(max(float(u @ got[0] @ u), 0.0))
+        return off - self.ccfg.node_m > self.cfg.margin_sigmas * sd, off, sd
+
+    def approach(self, start: F64, target: F64) -> tuple[F64, Plan, list[F64]] | None:
+        """The known, safe, tether-feasible node nearest ``target`` (in the map's plane) that the
+        body can drive to from ``start``, nearer the target than ``start`` by more than its
+        footprint's radius (a look from a place only a few centimetres nearer shows little new
+        ground): its place, the plan and the waypoints there; None when there is none.
+
+        Candidates are the lattice nodes whose whole footprint is known and free of hazards
+        (``Ground.known``, ``Ground.hazard``), the ``APPROACH_CANDIDATES`` nearest the target;
+        they are planned together (:func:`plan_targets` with the leg's margins: each judged like
+        any node, tethers and tension margins included) and the nearest with a path whose ways
+        hold (:meth:`plan`) is the approach node. From there its head's scan covers the ground
+        up to its camera's range round it: the nearest known ground to the target is where a look
+        shows most of the target's unknown neighbourhood."""
+        g, grid = self.ground, self.grid
+        stride = max(1, int(round(self.ccfg.node_m / grid.cell)))
+        rows = np.arange(stride // 2, grid.ny, stride)
+        cols = np.arange(stride // 2, grid.nx, stride)
+        rr, cc = np.meshgrid(rows, cols, indexing="ij")
+        ok = (g.known & ~g.hazard)[rr, cc]
+        xy = np.column_stack([grid.x0 + (cc[ok] + 0.5) * grid.cell, grid.y0 + (rr[ok] + 0.5) * grid.cell])
+        d = np.hypot(xy[:, 0] - target[0], xy[:, 1] - target[1])
+        here = float(np.hypot(start[0] - target[0], start[1] - target[1]))
+        nearer = d < here - self.ccfg.footprint_m
+        xy, d = xy[nearer], d[nearer]
+        if not len(xy):
+            return None
+        cand = xy[np.argsort(d, kind="stable")[:APPROACH_CANDIDATES]]
+        first = plan_targets(self.z, self.grid, self.anchors, start, cand, self.tcfg, self.ccfg, self.margins(),
+                             start_usable=True)
+        for k, path in enumerate(first.paths):
+            if path is None:
+                continue
+            plan, wps = self.plan(start, cand[k])
+            if plan.paths[0] is not None:
+                return cand[k], plan, wps
+        return None

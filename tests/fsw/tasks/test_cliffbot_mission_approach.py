@@ -1,0 +1,163 @@
+"""A target whose ground the Cliff-bot's map does not know yet is approached: the mission drives
+to the known node nearest it, looks, and plans again; it never drives onto unknown ground
+(fsw.tasks.cliffbot_mission, fsw.tasks.cliffbot.legs; docs/team.md, "Approach: making the
+unknown known")."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from fsw.comm.team.team_can import WINCHES, WinchStatus
+from fsw.core.geometry import MapGrid, MapGridConfig
+from fsw.core.team.cliffbot_nav import NavConfig
+from fsw.core.team.face_planner import ClimberConfig, ground_layers
+from fsw.core.team.tether import TetherConfig, tether_state
+from fsw.drivers.cliffbot_devices import CliffbotDevices
+from fsw.sections import CliffbotMissionConfig, CliffbotSensingConfig
+from fsw.tasks.cliffbot_mission import CliffbotMission
+
+GRID = MapGrid.from_config(MapGridConfig(origin_x_m=0.0, origin_y_m=-3.5, cell_m=0.1, nx=50, ny=45))
+TARGET = np.array([2.0, -2.6])
+P = np.diag([1e-4, 1e-4, 1e-4])
+
+
+class FreshDevices(CliffbotDevices):
+    """Statuses that never go stale (the mission's device supervision is not under test here)."""
+
+    def stale(self, now: float) -> list[str]:
+        return []
+
+
+def _ground() -> np.ndarray:
+    return np.zeros(GRID.shape)
+
+
+def _unknown_below(y_m: float) -> np.ndarray:
+    """The ground with every cell below ``y_m`` unknown (the target's neighbourhood among them)."""
+    z = _ground()
+    _, y = GRID.centers()
+    z[y < y_m] = np.nan
+    return z
+
+
+def _mission(looks: int = 3, tcfg: TetherConfig | None = None) -> CliffbotMission:
+    anchors = np.array([[1.0, 0.6, 0.3], [4.0, 0.6, 0.3]])
+    return CliffbotMission(CliffbotMissionConfig(approach_looks=looks, return_home=False), tcfg or TetherConfig(),
+                           ClimberConfig(), NavConfig(), anchors, np.array([2.5, -0.5]), -np.pi / 2,
+                           TARGET[None, :], sensing=CliffbotSensingConfig(enabled=True))
+
+
+def _names(m: CliffbotMission) -> list[str]:
+    return [name for _, name, _ in m.events]
+
+
+def _look(m: CliffbotMission, dev: CliffbotDevices, t: float, z: np.ndarray) -> float:
+    """Answer the mission's next fix request with NO_FIX and its view request with map ``z``."""
+    for _ in range(5):
+        t += 0.1
+        cmd = m.step(t, dev)
+        if cmd.request_fix:
+            m.on_no_fix(m.fix_seq, "busy")
+        if cmd.sense:
+            m.set_map(z, GRID)
+            m.sensed(m.sense_seq)
+            return t
+    raise AssertionError(f"no view request: {m.state}, {m.events[-3:]}")
+
+
+def _drive(m: CliffbotMission, dev: CliffbotDevices, t: float, known: np.ndarray) -> tuple[float, list[np.ndarray]]:
+    """Drive the leg as a perfect body would (the winches at each waypoint's lengths, the estimate
+    on it), checking that every waypoint stands on ground the map the mission held then knows."""
+    places = []
+    while m.state == "DRIVE":
+        wp = m.legs[m.leg_i].waypoints[m.wp_i]
+        assert known[GRID.cell_index(wp[:1], wp[1:])[:2]].all(), f"waypoint {wp} on unknown ground"
+        st = tether_state(m.z, GRID, m.anchors, wp, m.tcfg, m.ccfg.footprint_m)
+        assert st is not None
+        dev.winch = {w: WinchStatus(w, length, 50.0, True, frozenset(), 0)
+                     for w, length in zip(WINCHES, st.lengths_m, strict=True)}
+        m.on_estimate(np.array([wp[0], wp[1], -np.pi / 2]), P)
+        places.append(wp)
+        t += 0.1
+        m.step(t, dev)
+        assert len(places) < 200
+    return t, places
+
+
+def _start(m: CliffbotMission, dev: CliffbotDevices, z: np.ndarray) -> float:
+    m.on_estimate(np.array([2.5, -0.5, -np.pi / 2]), P)
+    m.set_map(z, GRID)
+    t = _look(m, dev, 0.0, z)  # the views before the plan
+    m.step(t + 0.1, dev)  # PLAN
+    return t + 0.1
+
+
+def test_a_target_on_unknown_ground_is_approached_looked_at_and_reached() -> None:
+    m, dev = _mission(), FreshDevices()
+    z0 = _unknown_below(-1.9)
+    t = _start(m, dev, z0)
+    assert "APPROACH" in _names(m) and "TARGET_UNREACHABLE" not in _names(m) and m.state == "WAIT_FIX"
+    t += 0.1
+    assert m.step(t, dev).request_fix
+    m.on_no_fix(m.fix_seq, "busy")  # the leg planned: toward the known node nearest the target
+    leg = m.legs[0]
+    assert m.state == "DRIVE" and leg.via is not None
+    known = ground_layers(m.z, GRID, m.ccfg).known  # the whole footprint known
+    # the approach node is the known ground nearest the target: no known node is nearer by a lattice spacing
+    iy, ix = np.nonzero(known)
+    cx, cy = GRID.x0 + (ix + 0.5) * GRID.cell, GRID.y0 + (iy + 0.5) * GRID.cell
+    nearest = float(np.hypot(cx - TARGET[0], cy - TARGET[1]).min())
+    assert float(np.hypot(*(leg.via - TARGET))) <= nearest + m.ccfg.node_m + GRID.cell
+    via = leg.via.copy()
+    t, places = _drive(m, dev, t, known)
+    assert m.state == "WAIT_FIX" and m.look_now and leg.looks == 1 and "LOOK" in _names(m)
+    assert np.array_equal(places[-1], via)  # it stopped at the approach node to look
+    # the look shows the target's ground: the leg is planned again, to the target, and driven
+    t = _look(m, dev, t, _ground())
+    assert m.state == "DRIVE" and leg.via is None and m.reasons[0] == ""
+    t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg).known)
+    assert m.reached == [True] and "TARGET_REACHED" in _names(m)
+
+
+def test_a_look_that_shows_nothing_new_gives_the_target_up_with_its_looks() -> None:
+    m, dev = _mission(), FreshDevices()
+    z0 = _unknown_below(-1.9)
+    t = _start(m, dev, z0)
+    m.step(t + 0.1, dev)
+    m.on_no_fix(m.fix_seq, "busy")
+    known = ground_layers(m.z, GRID, m.ccfg).known
+    t, _ = _drive(m, dev, t + 0.1, known)
+    t = _look(m, dev, t, z0)  # the views add nothing: nowhere nearer to go, it looked from here
+    assert m.reached == [False] and m.reasons[0] == "unknown ground (1 looks)"
+    assert m.state == "DONE" and _names(m).count("LOOK") == 1
+
+
+def test_without_looks_or_on_known_ground_a_target_is_not_approached() -> None:
+    m, dev = _mission(looks=0), FreshDevices()
+    _start(m, dev, _unknown_below(-1.9))
+    assert m.reasons[0] == "unknown ground" and "APPROACH" not in _names(m) and m.state == "DONE"
+    short = dataclasses.replace(TetherConfig(), spool_m=3.0)  # the target's ground known, out of reach
+    m = _mission(tcfg=short)
+    _start(m, dev, _ground())
+    assert m.reasons[0] == "out of tether reach" and "APPROACH" not in _names(m)
+
+
+def test_with_nothing_nearer_it_looks_again_from_where_it_stands_only_once_its_pose_is_sharper() -> None:
+    for sharper in (True, False):
+        m, dev = _mission(), FreshDevices()
+        wide = np.diag([0.1 ** 2, 0.1 ** 2, np.radians(10.0) ** 2])  # the start's, before a fix
+        m.on_estimate(np.array([2.5, -0.5, -np.pi / 2]), wide)
+        z0 = _unknown_below(-0.75)  # no known ground nearer the target than where it stands
+        m.set_map(z0, GRID)
+        t = _look(m, dev, 0.0, z0)  # its first look, with the start's covariance
+        m.step(t + 0.1, dev)  # PLAN: the target approached
+        assert m.state == "WAIT_FIX" and "APPROACH" in _names(m)
+        assert m.step(t + 0.2, dev).request_fix
+        m.on_estimate(np.array([2.5, -0.5, -np.pi / 2]), P if sharper else wide)  # (a fix fused, or none)
+        m.on_no_fix(m.fix_seq, "busy")
+        if sharper:
+            assert m.state == "SENSE" and _names(m).count("LOOK") == 1 and m.looks == [1]
+        else:
+            assert m.state == "DONE" and m.reasons[0] == "unknown ground" and "LOOK" not in _names(m)
