@@ -29,8 +29,9 @@ shared map does not know the ground yet its tether lengths come from the route's
 truth), and before the face map is fitted the rating's face is the plane of the ground under
 the route (``_plan_face``). Both agents are rated on the face's own cells where it lies (the
 RECON-bot too: on the gravity grid the lip's height stands for the face below it, and views over
-the lip are rated onto ground that is not there), and both agents' interest is weighted on the
-corridor.
+the lip are rated onto ground that is not there). Both agents' bits are weighted on the corridor
+(``team_views.corridor_weights``), and each agent is rated with its own interest, decayed by its
+own misses (``team_views.AgentInterest``, §8.2).
 """
 
 from __future__ import annotations
@@ -59,13 +60,14 @@ from fsw.core.planning.info_planners import InformationPlanner
 from fsw.core.planning.nbv import NbvConfig, predicted_visibility
 from fsw.core.planning.planners import PlannerState
 from fsw.core.planning.team_views import (
+    AgentInterest,
     AgentViews,
     TeamView,
     TeamViewConfig,
     choose_team_views,
     cliffbot_centres,
-    corridor_interest,
     corridor_mask,
+    corridor_weights,
     recon_centres,
 )
 from fsw.core.planning.view_candidates import Station
@@ -122,6 +124,8 @@ class TeamViewsRun:
         self.textured = ~world.textureless_on_grid(self.grid)
         self.map = ElevationMap(self.grid, self.fusion)
         self.by_agent = {a: ElevationMap(self.grid, self.fusion) for a in ("recon", "cliffbot")}
+        # the interest each agent is rated with, decayed by its own misses only (§8.2)
+        self.interest = AgentInterest(self.grid.shape, self.fusion.interest_beta)
         t = world.team
         self.tcfg, self.ccfg = TetherConfig(), ClimberConfig()
         self.anchors = anchor_points(self.truth, self.grid, t.anchors_xy, self.tcfg)
@@ -183,8 +187,8 @@ class TeamViewsRun:
         state = PlannerState(self.map, self.rover, self.joints, np.zeros((0, 2)), lambda *_: None, None,
                              float(np.nan_to_num(self.truth_at(self.rover[:2]))))
         centres = recon_centres(planner.view_centres(state, stations))
-        interest = corridor_interest(self.map, self.corridor, self.tv)
-        return AgentViews("recon", self.camera, centres, interest, face=self._face_cells())
+        return AgentViews("recon", self.camera, centres, self.interest.of("recon"),
+                          weight=corridor_weights(self.corridor, self.tv), face=self._face_cells())
 
     def _face_cells(self) -> FaceCells | None:
         """The face as both agents' ratings see it (``face_rating.face_cells``): the face map once
@@ -203,8 +207,9 @@ class TeamViewsRun:
         step = next((p for p in ahead if np.linalg.norm(p - self.path[k]) > 0.5), ahead[-1])
         d = step - self.path[k]
         yaw = math.atan2(float(d[1]), float(d[0])) if float(np.hypot(*d)) > 1e-6 else -math.pi / 2
-        interest = corridor_interest(self.map, self.corridor, self.tv)  # its own task's focus too
-        return AgentViews("cliffbot", CLIFFBOT_CAMERA, centres, interest, (yaw, math.radians(-50.0)),
+        # the corridor is its own task's focus too
+        return AgentViews("cliffbot", CLIFFBOT_CAMERA, centres, self.interest.of("cliffbot"),
+                          corridor_weights(self.corridor, self.tv), (yaw, math.radians(-50.0)),
                           self._face_cells())
 
     def _plan_face(self, z: F64) -> FaceMap | None:
@@ -323,6 +328,10 @@ class TeamViewsRun:
         expect = v.p_visible if v.p_visible is not None else predicted_visibility(self.map, pose, cam,
                                                                                    self.nbv.visibility)
         run_merge(self.map, [(xyz.copy(), cov.copy(), None)], expect)
+        hy, hx, inside = g.cell_index(xyz[:, 0], xyz[:, 1])
+        hit = np.zeros(g.shape, bool)
+        hit[hy[inside], hx[inside]] = True
+        self.interest.record(v.agent, np.clip(expect, 0.0, 1.0), hit)  # this agent's misses only (§8.2)
         run_merge(self.by_agent[v.agent], [(xyz.copy(), cov.copy(), None)], None)
         if xyz.size:
             self._to_face([(xyz, cov, None)])

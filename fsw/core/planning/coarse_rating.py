@@ -88,12 +88,14 @@ class CoarseSearch:
     n_max: int
     sigma_m: F64 | None = None  # fine elevation sigma of each (with an accuracy model)
     accuracy: AccuracyModel | None = None
+    weight: F64 | None = None  # the task's weight of each one's bits (``nbv.cell_values``)
 
 
 def prepare(terrain: Terrain, factor: int, n: NDArray[np.int32], n_max: int,
-            interest: F64 | None, accuracy: AccuracyModel | None = None) -> CoarseSearch:
+            interest: F64 | None, accuracy: AccuracyModel | None = None,
+            weight: F64 | None = None) -> CoarseSearch:
     """Coarse terrain and the worth-rating fine cells (``n < n_max``, interest > 0), once per
-    search."""
+    search; ``weight``: the task's weight of each cell's bits (``nbv.cell_values``)."""
     g = terrain.grid
     coarse = coarsen_terrain(terrain, factor)
     worth = np.asarray(n) < n_max
@@ -106,7 +108,8 @@ def prepare(terrain: Terrain, factor: int, n: NDArray[np.int32], n_max: int,
     return CoarseSearch(coarse, factor, x_m, y_m,
                         block.astype(np.intp), np.asarray(n)[iy, ix].astype(np.int32),
                         None if interest is None else np.asarray(interest)[iy, ix], n_max,
-                        None if accuracy is None else terrain.sigma_m[iy, ix], accuracy)
+                        None if accuracy is None else terrain.sigma_m[iy, ix], accuracy,
+                        None if weight is None else np.asarray(weight, np.float64)[iy, ix])
 
 
 def rate_station_coarse_steps(cs: CoarseSearch, cam_xyz: tuple[float, float, float], yaws: F64,
@@ -125,7 +128,8 @@ def rate_station_coarse_steps(cs: CoarseSearch, cam_xyz: tuple[float, float, flo
     pv_block = yield from pv_fast_steps(cs.terrain, cam_xyz, by, bx, cfg)
     bits, new = cell_values(pv_block[inverse], cs.n[near], cs.n_max,
                             None if cs.interest is None else cs.interest[near],
-                            stereo_return=cfg.stereo_return)
+                            stereo_return=cfg.stereo_return,
+                            weight=None if cs.weight is None else cs.weight[near])
     if cs.accuracy is not None and cs.sigma_m is not None:
         rel_f = np.column_stack([cs.x_m[near] - cam_xyz[0], cs.y_m[near] - cam_xyz[1],
                                  cs.terrain.elev_m[by, bx][inverse] - cam_xyz[2]])
@@ -162,7 +166,7 @@ class ViewRating:
 def rate_views_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws: F64,
                      tilts: F64, n: NDArray[np.int32], n_max: int, interest: F64 | None,
                      camera: CameraConfig, cfg: VisibilityConfig,
-                     accuracy: AccuracyModel | None = None
+                     accuracy: AccuracyModel | None = None, weight: F64 | None = None
                      ) -> Generator[None, None, ViewRating]:
     """Exact rating (§3.1, §3.2) of the K views ``(yaws[k], tilts[k])`` from one centre: the
     fine kernel runs only on cells worth rating inside at least one of them (step 3)."""
@@ -188,7 +192,8 @@ def rate_views_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws
     pv = yield from pv_fast_steps(terrain, cam_xyz, iy[sel], ix[sel], cfg)
     bits, new = cell_values(pv, np.asarray(n)[iy[sel], ix[sel]], n_max,
                             None if interest is None else np.asarray(interest)[iy[sel], ix[sel]],
-                            stereo_return=cfg.stereo_return)
+                            stereo_return=cfg.stereo_return,
+                            weight=None if weight is None else np.asarray(weight)[iy[sel], ix[sel]])
     if accuracy is not None:
         bits = bits * accuracy.share(pts[sel] - np.asarray(cam_xyz), terrain.sigma_m[iy[sel], ix[sel]])
     info, new_cells = np.zeros(yaws.size), np.zeros(yaws.size)

@@ -196,9 +196,10 @@ def camera_in_face(fc: FaceCells, cam_xyz: tuple[float, float, float]) -> F64:
 
 def rate_face_station(fc: FaceCells, cam_xyz: tuple[float, float, float], yaws: F64, tilts: F64, n_max: int,
                       interest: F64 | None, camera: CameraConfig, cfg: VisibilityConfig,
-                      planned: F64 | None = None) -> StationRating:
+                      planned: F64 | None = None, weight: F64 | None = None) -> StationRating:
     """Bits and expected new face cells of every pointing (world ``yaws`` x ``tilts``) from one
-    camera centre (module docstring); ``interest`` and ``planned`` are gravity-grid arrays."""
+    camera centre (module docstring); ``interest``, ``planned`` and ``weight`` (the task's weight
+    of the bits, ``nbv.cell_values``) are gravity-grid arrays."""
     q = camera_in_face(fc, cam_xyz)
     zero = np.zeros((yaws.size, tilts.size))
     if not q[2] > MIN_W_M:
@@ -214,8 +215,9 @@ def rate_face_station(fc: FaceCells, cam_xyz: tuple[float, float, float], yaws: 
     if iy.size == 0:
         return StationRating(zero, zero.copy(), 0)
     pv = pv_fast(fc.terrain, (float(q[0]), float(q[1]), float(q[2])), iy, ix, cfg)
+    wt = None if weight is None else np.asarray(weight, float)[fc.gy, fc.gx][iy, ix]
     bits, new = cell_values(pv, fc.n[iy, ix], n_max, None if it is None else it[iy, ix],
-                            None if pl is None else pl[iy, ix], cfg.stereo_return)
+                            None if pl is None else pl[iy, ix], cfg.stereo_return, wt)
     keep = (bits > 1e-6) | (new > 1e-6)
     sums = view_sums(rel_all[iy, ix][keep], np.column_stack([bits[keep], new[keep]]), yaws, tilts, camera)
     return StationRating(sums[..., 0], sums[..., 1], int(iy.size))

@@ -65,22 +65,24 @@ class InformationPlanner(Planner):
         # Method 5 weighs bits by the map accuracy a view gives (§3.2 choice; off when 0)
         self.accuracy = AccuracyModel.of(cfg, camera) if use_interest else None
 
-    def _terrain(self, emap: MapLike) -> Generator[None, None, tuple[Terrain, F64 | None]]:
+    def _terrain(self, emap: MapLike) -> Generator[None, None, tuple[Terrain, F64 | None, F64 | None]]:
+        """The terrain rated on, the interest (a probability term) and the task's weights of the
+        bits (the focus regions; None: all 1), ``nbv.cell_values``."""
         if self._truth_z is None:
             terrain = yield from terrain_from_map_steps(emap.z, emap.var, emap.grid,
                                                         self.cfg.visibility)
             if not self.use_interest:
-                return terrain, None
+                return terrain, None, None
             if not self.cfg.focus_regions:
-                return terrain, emap.interest
+                return terrain, emap.interest, None
             if self._focus is None or self._focus.shape != emap.interest.shape:
                 self._focus = focus_weights(emap.grid, self.cfg.focus_regions)
-            return terrain, emap.interest * self._focus
+            return terrain, emap.interest, self._focus
         if self._truth_terrain is None:
             z = np.asarray(self._truth_z, dtype=np.float64)
             z = np.where(np.isfinite(z), z, np.nanmin(z) if np.isfinite(z).any() else 0.0)
             self._truth_terrain = terrain_from_heights(z, emap.grid, self.cfg.oracle_sigma_m)
-        return self._truth_terrain, self._textured
+        return self._truth_terrain, self._textured, None
 
     def search(self, state: PlannerState) -> SearchGen:
         """Rate every reachable camera centre (§3.5), coarse to fine (``coarse_rating``): every
@@ -88,7 +90,7 @@ class InformationPlanner(Planner):
         exactly; the best exact utility wins. With ``coarse_cell_m`` = 0 (or a coarse cell no
         larger than the map's) every centre is rated exactly, view by view, as before."""
         cfg = self.cfg
-        terrain, interest = yield from self._terrain(state.map)
+        terrain, interest, weight = yield from self._terrain(state.map)
         yield None
         path = straighten(state.path) if self.straight_edge else state.path
         stations = yield from path_stations_steps(path, state.rover, state.motion_ok,
@@ -110,11 +112,11 @@ class InformationPlanner(Planner):
             for c in centres:
                 r = yield from rate_station_steps(terrain, c.cam_xyz, c.yaws, tilts, state.map.n,
                                                   n_max, interest, self.camera, cfg.visibility,
-                                                  accuracy=self.accuracy)
+                                                  accuracy=self.accuracy, weight=weight)
                 best.offer(c, c.best(r.info_bits.ravel(), r.expected_new_cells.ravel(), None))
                 self.last_centres += 1
             return best.choice(stations, path, leave, cfg.leave_start_tol)
-        cs = prepare(terrain, factor, state.map.n, n_max, interest, self.accuracy)
+        cs = prepare(terrain, factor, state.map.n, n_max, interest, self.accuracy, weight)
         vis_coarse = coarse_visibility(cfg.visibility, factor)
         yield None
         u_all = []
@@ -138,7 +140,7 @@ class InformationPlanner(Planner):
             r2 = yield from rate_views_steps(terrain, c.cam_xyz, c.yaws[views // tilts.size],
                                              tilts[views % tilts.size], state.map.n, n_max,
                                              interest, self.camera, cfg.visibility,
-                                             accuracy=self.accuracy)
+                                             accuracy=self.accuracy, weight=weight)
             best.offer(c, c.best(r2.info_bits, r2.expected_new_cells, views))
             self.last_centres += 1
         return best.choice(stations, path, leave, cfg.leave_start_tol)

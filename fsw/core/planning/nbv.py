@@ -184,14 +184,18 @@ class AccuracyModel:
 
 
 def cell_values(pv: F64, n: NDArray[np.int32], n_max: int, interest: F64 | None,
-                planned: F64 | None = None, stereo_return: float = 1.0) -> tuple[F64, F64]:
+                planned: F64 | None = None, stereo_return: float = 1.0,
+                weight: F64 | None = None) -> tuple[F64, F64]:
     """Per-cell terms of H (Eq 3, bits) and of the expected new cells, given P_V (§3.2, §3.4).
 
-    The interest multiplies P_V up to 1; an interest above 1 (a task's focus region, weighted
-    by :func:`focus_weights`) multiplies the cell's bits instead. The interest ranks views (H)
-    but is no part of the expected new cells: those are the same quantity as the obtained
-    count, ``P_V`` of each unmapped cell times ``stereo_return`` (the fraction of the cells a
-    view leaves visible that the stereo maps, ``VisibilityConfig.stereo_return``).
+    Two separate factors (§3.4): the interest IF (the map's, decayed by misses; at most 1) is a
+    probability term and multiplies P_V inside ``h2(IF P_V / 2)``; ``weight`` (what the task
+    needs: a focus region, :func:`focus_weights`, or the Cliff-bot's corridor in team views)
+    multiplies the cell's bits. An interest above 1 counts as 1: a weight is no interest. The
+    interest and the weight rank views (H) but are no part of the expected new cells: those are
+    the same quantity as the obtained count, ``P_V`` of each unmapped cell times
+    ``stereo_return`` (the fraction of the cells a view leaves visible that the stereo maps,
+    ``VisibilityConfig.stereo_return``).
     ``planned`` (team views, docs/algorithm.md §8): the expected measurements of each cell by
     views other agents have already chosen this cycle (the sum of their P_V); Eq 3's weight
     counts them as taken, ``(n_max - n - planned) / n_max``, and a cell stays new only with
@@ -202,12 +206,12 @@ def cell_values(pv: F64, n: NDArray[np.int32], n_max: int, interest: F64 | None,
     if planned is not None:
         taken = taken + np.asarray(planned, dtype=np.float64)
         fresh = fresh * np.clip(1.0 - np.asarray(planned, dtype=np.float64), 0.0, 1.0)
-    weight = np.clip((n_max - taken) / float(n_max), 0.0, 1.0)
+    share = np.clip((n_max - taken) / float(n_max), 0.0, 1.0)
     if interest is not None:
-        i = np.asarray(interest, dtype=np.float64)
-        p = p * np.clip(i, 0.0, 1.0)
-        weight = weight * np.maximum(i, 1.0)
-    return weight * h2(p / 2.0), fresh
+        p = p * np.clip(np.asarray(interest, dtype=np.float64), 0.0, 1.0)
+    if weight is not None:
+        share = share * np.maximum(np.asarray(weight, dtype=np.float64), 0.0)
+    return share * h2(p / 2.0), fresh
 
 
 def view_sums(rel: F64, values: F64, yaws: F64, tilts: F64, camera: CameraConfig) -> F64:
@@ -263,18 +267,19 @@ class StationRating:
 def rate_station(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws: F64, tilts: F64,
                  n: NDArray[np.int32], n_max: int, interest: F64 | None, camera: CameraConfig,
                  cfg: VisibilityConfig, planned: F64 | None = None,
-                 accuracy: AccuracyModel | None = None) -> StationRating:
+                 accuracy: AccuracyModel | None = None, weight: F64 | None = None) -> StationRating:
     """Rate all pan/tilt views (world yaws x tilts) from one camera centre (§3.1, §3.2);
-    ``planned``: other agents' chosen views this cycle (:func:`cell_values`); ``accuracy``:
-    Method 5's accuracy weight (:class:`AccuracyModel`)."""
+    ``planned``: other agents' chosen views this cycle, ``weight``: the task's weight of each
+    cell's bits (:func:`cell_values`); ``accuracy``: Method 5's accuracy weight
+    (:class:`AccuracyModel`)."""
     return run_to_end(rate_station_steps(terrain, cam_xyz, yaws, tilts, n, n_max, interest,
-                                         camera, cfg, planned, accuracy))
+                                         camera, cfg, planned, accuracy, weight))
 
 
 def rate_station_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws: F64,
                        tilts: F64, n: NDArray[np.int32], n_max: int, interest: F64 | None,
                        camera: CameraConfig, cfg: VisibilityConfig, planned: F64 | None = None,
-                       accuracy: AccuracyModel | None = None
+                       accuracy: AccuracyModel | None = None, weight: F64 | None = None
                        ) -> Generator[None, None, StationRating]:
     """:func:`rate_station` in bounded steps (for the executive's slack jobs)."""
     g = terrain.grid
@@ -291,7 +296,8 @@ def rate_station_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], ya
         return StationRating(zero, zero.copy(), 0)
     pv = yield from pv_fast_steps(terrain, cam_xyz, iy, ix, cfg)
     bits, new = cell_values(pv, n[iy, ix], n_max, None if interest is None else interest[iy, ix],
-                            None if planned is None else planned[iy, ix], cfg.stereo_return)
+                            None if planned is None else planned[iy, ix], cfg.stereo_return,
+                            None if weight is None else np.asarray(weight)[iy, ix])
     rel = np.column_stack([x_c[ix] - cam_xyz[0], y_c[iy] - cam_xyz[1],
                            terrain.elev_m[iy, ix] - cam_xyz[2]])
     if accuracy is not None:

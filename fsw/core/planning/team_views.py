@@ -16,9 +16,16 @@ information with the interest function, minus motion and localization costs). An
 face (``AgentViews.face``, ``face_rating.face_cells``) is rated on the face's own cells where
 they lie (§8.2, "A model that sees the face": the gravity grid's prior puts the ground below a
 lip at the lip's height) and on the gravity grid elsewhere, with a floor prior in front of the
-face. The RECON-bot's interest is weighted up on the Cliff-bot's planned corridor (its path +-
-``corridor_half_m``, by ``corridor_weight``, as a task's focus region of §3.4), so it favours
-what the Cliff-bot will drive on.
+face. The bits of the Cliff-bot's planned corridor (its path +- ``corridor_half_m``) are weighted
+by ``corridor_weight`` (:func:`corridor_weights`, a task's focus region of §3.4: what the
+receiver's task needs), so the RECON-bot favours what the Cliff-bot will drive on. The weight is
+a factor on the bits, apart from the interest, which stays the probability term of
+``h2(IF P_V / 2)`` (``nbv.cell_values``).
+
+**Interest per agent** (:class:`AgentInterest`, §8.2): the interest function decays with the
+misses of the agent that looked, and each agent is rated with its own. A miss says the agent's
+P_V was wrong for that cell (its prior cannot see it), which says nothing of the other agent's
+view from elsewhere (the Cliff-bot on the face sees what the RECON-bot's prior misses).
 
 **Sequential greedy** (:func:`choose_team_views`): every agent not yet served is rated, the one
 whose best view has the highest utility takes it, and the cells that view will see (its P_V on
@@ -108,6 +115,8 @@ class AgentViews:
     camera: CameraConfig
     centres: tuple[ViewCentre, ...]
     interest: F64 | None = None
+    # the task's weight of each cell's bits (the corridor, focus regions; ``corridor_weights``); None: 1
+    weight: F64 | None = None
     # (world yaw, tilt) to look along when no view is expected to map anything (the map's prior
     # cannot predict the ground: a face below unknown ground); None: the best utility regardless
     fallback: tuple[float, float] | None = None
@@ -169,12 +178,42 @@ def corridor_mask(grid: MapGrid, path_xy: F64, half_m: float) -> NDArray[np.bool
     return np.asarray(ndimage.distance_transform_edt(line) * grid.cell <= half_m, bool)
 
 
-def corridor_interest(emap: MapLike, corridor: NDArray[np.bool_], cfg: TeamViewConfig,
-                      base: F64 | None = None) -> F64:
-    """The RECON-bot's interest: the map's (times ``base``, e.g. the task's focus weights),
-    weighted by ``corridor_weight`` on the corridor (§3.4: a weight above 1 multiplies bits)."""
-    i = np.asarray(emap.interest, float) * (1.0 if base is None else base)
-    return np.where(corridor, i * cfg.corridor_weight, i)
+def corridor_weights(corridor: NDArray[np.bool_], cfg: TeamViewConfig, base: F64 | None = None) -> F64:
+    """The task's weight of each cell's bits (§3.4, ``nbv.cell_values``): ``base`` (e.g. the task's
+    focus weights; None: 1) times ``corridor_weight`` on the Cliff-bot's corridor. A weight, not an
+    interest: it leaves the interest's share of P_V as it is."""
+    w = np.ones(corridor.shape) if base is None else np.asarray(base, float)
+    return np.where(corridor, w * cfg.corridor_weight, w)
+
+
+@dataclass
+class AgentInterest:
+    """The interest function IF per agent (§3.4, §8.2; module docstring): starts at 1; a view's
+    cells expected visible (P_V > 0) that got no point decay the looking agent's interest by
+    ``exp(-beta P_V)`` (the map's rule, ``[map] interest_beta``), and only that agent's."""
+
+    shape: tuple[int, int]
+    beta: float = 1.0
+    by_agent: dict[str, F64] = field(default_factory=dict)
+
+    def of(self, agent: str) -> F64:
+        """The agent's interest of every cell (ones for an agent that has not looked yet)."""
+        return self.by_agent.setdefault(agent, np.ones(self.shape))
+
+    def record(self, agent: str, p_visible: F64, hit: NDArray[np.bool_]) -> int:
+        """Decay ``agent``'s interest where its view expected cells (``p_visible``) and got no
+        point (``hit`` False); the number of cells decayed. A bad ``p_visible`` (shape, NaN,
+        outside [0, 1]) is refused with a ValueError and changes nothing."""
+        pv = np.asarray(p_visible, float)
+        hit = np.asarray(hit, bool)
+        if pv.shape != tuple(self.shape) or hit.shape != tuple(self.shape):
+            raise ValueError(f"p_visible and hit must have shape {tuple(self.shape)}, got {pv.shape} and {hit.shape}")
+        if not np.isfinite(pv).all() or pv.min(initial=0.0) < 0.0 or pv.max(initial=0.0) > 1.0:
+            raise ValueError("p_visible must lie in [0, 1]")
+        empty = ~hit & (pv > 0.0)
+        mine = self.of(agent)
+        mine[empty] *= np.exp(-self.beta * pv[empty])
+        return int(empty.sum())
 
 
 def recon_centres(centres: Sequence[CentreRow]) -> tuple[ViewCentre, ...]:
@@ -319,11 +358,11 @@ def _best(emap: MapLike, terrain: Terrain, a: AgentViews, n_max: int, cfg: NbvCo
     best: tuple[float, AgentViews, ViewCentre, int, float, float] | None = None
     for c in a.centres:
         r = rate_station(terrain, c.xyz, c.yaws, c.tilts, emap.n, n_max, gravity_interest, a.camera,
-                         cfg.visibility, planned)
+                         cfg.visibility, planned, weight=a.weight)
         bits, new = r.info_bits.ravel(), r.expected_new_cells.ravel()
         if a.face is not None:
             f = rate_face_station(a.face, c.xyz, c.yaws, c.tilts, n_max, interest, a.camera, cfg.visibility,
-                                  planned)
+                                  planned, a.weight)
             bits, new = bits + f.info_bits.ravel(), new + f.expected_new_cells.ravel()
         u = utility(bits, np.maximum(c.motion - paid, 0.0), c.sigma_loc_m, cfg)
         j = int(np.argmax(u))
@@ -345,6 +384,6 @@ def _why(agent: str, order: int, bits: float, new: float, motion: float, discoun
 
 def focus_and_corridor(emap: MapLike, regions: tuple[tuple[float, ...], ...], corridor: NDArray[np.bool_],
                        cfg: TeamViewConfig) -> F64:
-    """The RECON-bot's interest with the task's focus regions (``[nbv] focus_regions``) and the
-    Cliff-bot's corridor."""
-    return corridor_interest(emap, corridor, cfg, focus_weights(emap.grid, regions) if regions else None)
+    """The task's weights of the bits: the focus regions (``[nbv] focus_regions``) and the
+    Cliff-bot's corridor (:func:`corridor_weights`)."""
+    return corridor_weights(corridor, cfg, focus_weights(emap.grid, regions) if regions else None)

@@ -21,14 +21,16 @@ def test_focus_weights_cover_the_regions_cells() -> None:
     assert (focus_weights(GRID, ()) == 1.0).all()
 
 
-def test_an_interest_above_one_weights_the_bits_and_below_one_the_visibility() -> None:
+def test_a_weight_multiplies_the_bits_and_the_interest_the_visibility() -> None:
     pv = np.array([0.8, 0.8, 0.8, 0.8])
     n = np.zeros(4, np.int32)
-    bits, new = cell_values(pv, n, 2, np.array([1.0, 3.0, 0.5, 1.5]))
+    bits, new = cell_values(pv, n, 2, np.array([1.0, 1.0, 0.5, 1.0]), weight=np.array([1.0, 3.0, 1.0, 1.5]))
     base, _ = cell_values(pv, n, 2, None)
     assert bits[0] == pytest.approx(base[0])
     assert bits[1] == pytest.approx(3.0 * base[0]) and bits[3] == pytest.approx(1.5 * base[0])
-    assert 0.0 < bits[2] < base[0]  # P_V scaled by 0.5: fewer bits (§3.4 as before)
+    assert 0.0 < bits[2] < base[0]  # P_V scaled by 0.5: fewer bits (§3.4)
+    # an interest above 1 is no weight: it counts as 1
+    assert cell_values(pv, n, 2, np.full(4, 3.0))[0].tolist() == pytest.approx(base.tolist())
     # expected new cells are P_V times the stereo's return, whatever the interest (it ranks, it is no probability)
     assert new.tolist() == pytest.approx([0.8, 0.8, 0.8, 0.8])
     assert cell_values(pv, n, 2, None, stereo_return=0.5)[1].tolist() == pytest.approx([0.4] * 4)

@@ -7,19 +7,21 @@ import dataclasses
 import math
 
 import numpy as np
+import pytest
 
 from fsw.core.geometry import CameraConfig, MapGrid
 from fsw.core.map.elevation_map import ElevationMap
 from fsw.core.planning.nbv import NbvConfig, cell_values, predicted_visibility
 from fsw.core.planning.team_views import (
+    AgentInterest,
     AgentViews,
     TeamViewConfig,
     ViewCentre,
     choose_team_views,
     cliffbot_centres,
-    corridor_interest,
     corridor_mask,
     corridor_places,
+    corridor_weights,
 )
 from fsw.core.team.tether import TetherConfig, anchor_points
 from fsw.settings import load_settings
@@ -82,9 +84,8 @@ def test_the_corridor_is_the_path_grown_by_its_half_width() -> None:
                    np.where((y >= 1.0) & (y <= 5.0), np.abs(x - 4.0), np.hypot(x - 4.0, y - np.clip(y, 1.0, 5.0))))
     inner, outer = d <= 0.5 - GRID.cell, d > 0.5 + GRID.cell  # the path is drawn on cells: one cell of slack
     assert mask[inner].all() and not mask[outer].any()
-    emap = _flat_map()
-    i = corridor_interest(emap, mask, TeamViewConfig(corridor_weight=4.0))
-    assert np.all(i[mask] == 4.0) and np.all(i[~mask] == 1.0)
+    w = corridor_weights(mask, TeamViewConfig(corridor_weight=4.0))
+    assert np.all(w[mask] == 4.0) and np.all(w[~mask] == 1.0)
 
 
 def test_the_cliffbots_views_cost_tether_motion() -> None:
@@ -147,8 +148,50 @@ def test_an_agent_pays_only_for_the_motion_beyond_the_earlier_choices() -> None:
     near = dataclasses.replace(first, xyz=(5.0, 3.0, 1.5), motion=np.full(k, 2.0), place=(5.0, 3.0))
     far = dataclasses.replace(near, motion=np.full(k, 7.0))
     for second, extra in ((near, 0.0), (far, 3.0)):
-        agents = [AgentViews("recon", CAM, (first,), focus), AgentViews("cliffbot", CAM, (second,))]
+        agents = [AgentViews("recon", CAM, (first,), weight=focus), AgentViews("cliffbot", CAM, (second,))]
         views, _ = choose_team_views(emap, agents, NBV)
         assert [v.agent for v in views] == ["recon", "cliffbot"]
         assert math.isclose(views[0].utility, views[0].info_bits - NBV.w_motion * 4.0, rel_tol=1e-9)
         assert math.isclose(views[1].utility, views[1].info_bits - NBV.w_motion * extra, rel_tol=1e-9)
+
+
+def test_the_corridor_weight_leaves_the_interest_inside_h2() -> None:
+    """On a corridor cell the weight multiplies the bits and the decayed interest stays in
+    h2(IF P_V / 2) (§3.4): a corridor cell is worth ``corridor_weight`` times the same cell off
+    the corridor at every interest, so a miss lowers it the same way on and off the corridor."""
+    mask = np.array([True, False])
+    w = corridor_weights(mask, TeamViewConfig(corridor_weight=4.0))
+    pv, n = np.array([0.9, 0.9]), np.zeros(2, np.int32)
+    full = cell_values(pv, n, 2, np.ones(2), weight=w)[0]
+    for i in (0.9, 0.6, 0.3):
+        bits = cell_values(pv, n, 2, np.full(2, i), weight=w)[0]
+        assert math.isclose(bits[0], 4.0 * bits[1], rel_tol=1e-12)
+        assert math.isclose(bits[0] / full[0], bits[1] / full[1], rel_tol=1e-12)  # h2(i P_V / 2) / h2(P_V / 2)
+        assert bits[0] < full[0]
+
+
+def test_an_agents_misses_decay_only_its_own_interest() -> None:
+    """A RECON-bot view expected to see cells it missed (its prior wrong there) lowers the
+    RECON-bot's interest of them, not the Cliff-bot's: the Cliff-bot's best view of those cells
+    keeps its bits while the RECON-bot's same view loses them (§8.2)."""
+    emap = _flat_map()
+    ai = AgentInterest(GRID.shape, beta=2.0)
+    pv = np.zeros(GRID.shape)
+    pv[:, 10:] = 0.9
+    hit = np.zeros(GRID.shape, bool)
+    hit[:, 10:15] = True  # a few cells got points
+    assert ai.record("recon", pv, hit) == 60 * 45
+    assert np.all(ai.of("cliffbot") == 1.0)
+    assert math.isclose(float(ai.of("recon")[30, 30]), math.exp(-1.8)) and ai.of("recon")[30, 12] == 1.0
+    c = _centre(3.0, 3.0)
+    bits = {}
+    for name in ("recon", "cliffbot"):
+        views, _ = choose_team_views(emap, [AgentViews(name, CAM, (c,), ai.of(name))], NBV)
+        bits[name] = views[0].info_bits
+    fresh, _ = choose_team_views(emap, [AgentViews("cliffbot", CAM, (c,))], NBV)
+    assert math.isclose(bits["cliffbot"], fresh[0].info_bits, rel_tol=1e-12)
+    assert bits["recon"] < 0.9 * bits["cliffbot"]
+    for bad in (np.full(GRID.shape, np.nan), np.full(GRID.shape, 1.5), np.zeros((3, 3))):
+        with pytest.raises(ValueError, match="p_visible"):
+            ai.record("cliffbot", bad, np.zeros(GRID.shape, bool))
+    assert np.all(ai.of("cliffbot") == 1.0)
