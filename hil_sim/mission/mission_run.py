@@ -299,6 +299,7 @@ def run_mission(
             "cliffbot": _cliffbot_report(cliffbot, spec.out),
             "start_attitude_deg": list(start_att),
             "registration": list(perception.registrations),
+            "mount_bias": perception.pipeline.bias.summary(perception.ctx.cfg.registration.bias_estimate),
             "map_quality": quality,
             "files": {},
         }
