@@ -39,7 +39,7 @@ from fsw.core.map.elevation_map import ElevationMap, FusionConfig, MergeStats
 from fsw.core.map.face_map import FaceMap, split_parts
 from fsw.core.map.reference_frames import ReferenceFrames
 from fsw.core.planning.nbv import NbvConfig, predicted_visibility_steps
-from fsw.core.registration.mount_bias import Levelling, MountBias
+from fsw.core.registration.mount_bias import Levelling, MountBias, data_only
 from fsw.core.registration.registration import (
     Registration,
     RegistrationConfig,
@@ -279,8 +279,9 @@ class SensingPipeline:
             pose, cov = self.chain.unregistered(view.pose, vp, reg, rcfg)
             return RegisteredPose(reg, pose, cov, None)
         pose, cov, nav = self.chain.registered(view.pose, view.pose_cov, view.nav_fix_id, view.time_s, vp, reg, rcfg)
-        if use_bias:  # the total tilt correction, relative to the map
-            self.bias.update(view.pose, view.body_yaw_rad, reg.correction[:2], (reg.cov - reg.ref_cov)[:2, :2])
+        data = data_only(reg.correction[:2] - vp.d0[:2], (reg.cov - reg.ref_cov)[:2, :2], vp.cov[:2, :2])
+        if use_bias and data is not None:  # the total tilt correction the data give, relative to the map
+            self.bias.update(view.pose, view.body_yaw_rad, vp.d0[:2] + data[0], data[1])
         return RegisteredPose(reg, pose, cov, nav)
 
     def world_parts_steps(self, placed: RegisteredPose, pts: StereoPoints) -> Generator[None, None, list[ViewPart]]:

@@ -100,6 +100,28 @@ def design(psi_v: float, psi_b: float) -> F64:
     return np.array([[-sv, cb, sb], [cv, sb, -cb]])
 
 
+def data_only(moved: F64, cov_post: F64, cov_prior: F64) -> tuple[F64, F64] | None:
+    """The registration's tilt increment ``moved`` (world x, y, rad, from the prior it started
+    at) without its prior: the registration is a posterior (its prior pulls a weakly constrained
+    tilt toward where the view started), the estimator needs the data's own measurement. With
+    the marginal informations ``I_data = C^-1 - S^-1`` the data alone moved the tilt by
+    ``I_data^-1 C^-1 moved``, covariance ``I_data^-1``; None when the data fixed no tilt (or
+    the input is not finite)."""
+    m, C, S = (np.asarray(a, np.float64) for a in (moved, cov_post, cov_prior))
+    if not (np.isfinite(m).all() and np.isfinite(C).all() and np.isfinite(S).all()):
+        return None
+    try:
+        Ci, Si = np.linalg.inv(0.5 * (C + C.T)), np.linalg.inv(0.5 * (S + S.T))
+    except np.linalg.LinAlgError:
+        return None
+    lam, vec = np.linalg.eigh(0.5 * ((Ci - Si) + (Ci - Si).T))
+    if lam[-1] <= 0.0:
+        return None
+    lam = np.maximum(lam, 1e-6 * lam[-1])  # a direction the data did not fix: (almost) no weight
+    cov = (vec / lam) @ vec.T
+    return cov @ Ci @ m, cov
+
+
 def relevel_map(emap: ElevationMap, omega: F64, centre: F64, var_drop: F64) -> None:
     """Rotate the map's heights by the small world rotation ``omega`` (x, y, rad) about
     ``centre``; ``var_drop`` (2x2, rad^2) is the frame variance removed (each cell loses

@@ -13,7 +13,7 @@ import pytest
 from fsw.core.geometry import CameraPose, MapGrid, MastConfig, camera_pose_from_rover
 from fsw.core.localization.localization import so3_log
 from fsw.core.map.elevation_map import ElevationMap
-from fsw.core.registration.mount_bias import MountBias, design, relevel_map
+from fsw.core.registration.mount_bias import MountBias, data_only, design, relevel_map
 
 DEG = math.pi / 180.0
 
@@ -132,3 +132,18 @@ def test_relevel_map_moves_heights_by_the_rotation() -> None:
     relevel_map(emap, np.array([0.01, 0.0]), np.array([1.5, 1.5, 1.0]), np.zeros((2, 2)))
     assert emap.z[2, 1] == pytest.approx(0.01) and emap.z[0, 1] == pytest.approx(-0.01)  # +y rises under +omega_x
     assert np.all(emap.var == 1.0)
+
+
+def test_the_registration_prior_is_taken_out() -> None:
+    """A weakly constrained registration moves the tilt only part of the way from its prior;
+    the data's own measurement is the whole way, with the data's covariance."""
+    S = np.diag([0.2, 0.2]) ** 2
+    D = np.array([[0.1**2, 0.0], [0.0, 0.5**2]])  # the data: well in x, weakly in y
+    C = np.linalg.inv(np.linalg.inv(S) + np.linalg.inv(D))
+    z = np.array([0.3, -0.3])
+    out = data_only(C @ np.linalg.inv(D) @ z, C, S)
+    assert out is not None
+    assert np.allclose(out[0], z) and np.allclose(out[1], D)
+    assert data_only(np.zeros(2), S, S) is None  # the data fixed nothing
+    assert data_only(np.array([math.nan, 0.0]), C, S) is None
+    assert data_only(np.zeros(2), np.zeros((2, 2)), S) is None  # singular
