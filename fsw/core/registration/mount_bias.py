@@ -15,8 +15,8 @@ and the pitch bias about its left axis (body yaw ``psi_b``). The pose's rotation
 The first view of a map defines its frame with its own error ``e_ref``; a view registered to
 the map is corrected by ``e_ref - e_i`` plus the levelling ``F`` applied to the map so far, so
 its total tilt correction ``y_i`` (registration and carried correction together) gives the
-linear measurement ``y_i - F = (H_ref - H_i) x`` with the correction's covariance relative to
-the map (a floor added: the views are not independent). A Kalman filter from the prior
+linear measurement ``y_i - F = (H_ref - H_i) x``, the registration's prior taken out
+(:func:`data_only`) and a floor added to its covariance (the views are not independent). A Kalman filter from the prior
 ``diag(tilt_sigma, attitude_sigma, attitude_sigma)^2`` estimates ``x``; a measurement whose
 innovation fails a chi-square gate is refused (a false registration must not bias it). Views
 at several pans make the tilt offset observable; headings that differ make the attitude biases
