@@ -23,7 +23,9 @@ at several pans make the tilt offset observable; headings that differ make the a
 observable (at one heading they act on every view alike: a frame error no registration sees).
 
 Once the frame's own error ``e_ref = H_ref x`` is known well enough (its posterior trace under
-``bias_apply_ratio`` squared times its prior's), the map is levelled: rotated by
+``bias_apply_ratio`` squared times its prior's) and is significant (``e_ref^T C^-1 e_ref`` of
+its posterior ``C`` at least ``bias_level_chi2``: a frame error within the estimate's own noise
+is not corrected, a correction of noise would tilt a level map), the map is levelled: rotated by
 ``F = -e_ref`` about the reference camera (heights only; the horizontal shift, under a
 millimetre per metre of relief, is left), and later views' priors start from the predicted
 correction ``(H_ref - H_i) x + F``. The frame variance the cells carry (the reference view's
@@ -140,12 +142,13 @@ class MountBias:
     """The estimator of one map (module docstring); cleared with the map."""
 
     def __init__(self, tilt_sigma_deg: float, attitude_sigma_deg: float, floor_deg: float, gate_chi2: float,
-                 apply_ratio: float, min_step_deg: float) -> None:
+                 apply_ratio: float, min_step_deg: float, level_chi2: float = 0.0) -> None:
         s = np.radians([tilt_sigma_deg, attitude_sigma_deg, attitude_sigma_deg])
         self.P0 = np.diag(s * s)
         self.floor2 = math.radians(floor_deg) ** 2
         self.gate_chi2, self.apply_ratio = gate_chi2, apply_ratio
         self.min_step = math.radians(min_step_deg)
+        self.level_chi2 = level_chi2
         self.clear()
 
     def clear(self) -> None:
@@ -224,6 +227,8 @@ class MountBias:
         if not self.confident():
             return None
         e, C = self.frame()
+        if not np.any(self.F) and not float(e @ np.linalg.solve(C, e)) >= self.level_chi2:
+            return None  # no frame error told from the estimate's own noise: nothing invented
         omega = -e - self.F
         if float(np.abs(omega).max()) < self.min_step:
             return None

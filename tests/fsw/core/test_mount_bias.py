@@ -19,7 +19,7 @@ DEG = math.pi / 180.0
 
 
 def _estimator() -> MountBias:
-    return MountBias(0.2, 0.1, 0.03, 13.8, 0.6, 0.02)
+    return MountBias(0.2, 0.1, 0.03, 13.8, 0.6, 0.02, 7.38)
 
 
 def _pose(view_yaw: float) -> CameraPose:
@@ -69,6 +69,10 @@ def test_no_offsets_none_invented() -> None:
     sd = np.sqrt(np.diag(est.P))
     assert np.all(np.abs(est.x) < 3 * sd)
     assert np.all(np.abs(np.degrees(est.x)) < 0.03)
+    emap = ElevationMap(MapGrid(-2.0, -2.0, 0.1, 40, 40))
+    emap.z[:], emap.var[:], emap.var_common[:], emap.n[:] = 0.0, 1e-4, 1e-4, 1
+    assert est.confident() and est.level(emap) is None  # a level map stays level
+    assert np.all(emap.z == 0.0)
 
 
 def test_one_heading_leaves_the_attitude_biases_at_their_prior() -> None:
