@@ -164,7 +164,7 @@ class SensingPipeline:
         self.sources = ReferenceFrames(self.map.grid.shape)  # each cell's view (fsw.core.map.reference_frames)
         r = cfg.registration  # the mast tilt offset and attitude biases (fsw.core.registration.mount_bias)
         self.bias = MountBias(r.bias_tilt_sigma_deg, r.bias_attitude_sigma_deg, r.bias_floor_deg, r.bias_gate_chi2,
-                              r.bias_apply_ratio, r.bias_min_step_deg, r.bias_level_chi2)
+                              r.bias_apply_ratio, r.bias_min_step_deg, r.bias_level_chi2, r.bias_drop_variance)
         # The team (docs/algorithm.md §8.1): the face map beside the gravity grid (None: one grid)
         # and the robots and tethers at their known poses, masked out of every view (None: none).
         self.face: FaceMap | None = None

@@ -28,8 +28,10 @@ its posterior ``C`` at least ``bias_level_chi2``: a frame error within the estim
 is not corrected, a correction of noise would tilt a level map), the map is levelled: rotated by
 ``F = -e_ref`` about the reference camera (heights only; the horizontal shift, under a
 millimetre per metre of relief, is left), and later views' priors start from the predicted
-correction ``(H_ref - H_i) x + F``. The frame variance the cells carry (the reference view's
-attitude variance times the lever) drops to the posterior's. The switch is ``bias_estimate``
+correction ``(H_ref - H_i) x + F``. With ``bias_drop_variance`` the frame variance the cells
+carry (the reference view's attitude variance times the lever) drops to the posterior's;
+without (the default) it stays: the posterior is only as good as the model, and effects it
+leaves out (the stereo head's own calibration) come out as confident, wrong biases. The switch is ``bias_estimate``
 (``[registration]``).
 
 Pan and lift offsets do not enter: a pan offset turns the view about the body's vertical (no
@@ -142,13 +144,14 @@ class MountBias:
     """The estimator of one map (module docstring); cleared with the map."""
 
     def __init__(self, tilt_sigma_deg: float, attitude_sigma_deg: float, floor_deg: float, gate_chi2: float,
-                 apply_ratio: float, min_step_deg: float, level_chi2: float = 0.0) -> None:
+                 apply_ratio: float, min_step_deg: float, level_chi2: float = 0.0, drop_variance: bool = True
+                 ) -> None:
         s = np.radians([tilt_sigma_deg, attitude_sigma_deg, attitude_sigma_deg])
         self.P0 = np.diag(s * s)
         self.floor2 = math.radians(floor_deg) ** 2
         self.gate_chi2, self.apply_ratio = gate_chi2, apply_ratio
         self.min_step = math.radians(min_step_deg)
-        self.level_chi2 = level_chi2
+        self.level_chi2, self.drop_variance = level_chi2, drop_variance
         self.clear()
 
     def clear(self) -> None:
@@ -235,6 +238,8 @@ class MountBias:
         drop = self.frame_cov - C
         lam, vec = np.linalg.eigh(0.5 * (drop + drop.T))
         drop = (vec * np.maximum(lam, 0.0)) @ vec.T  # only what the estimate removed
+        if not self.drop_variance:
+            drop = np.zeros((2, 2))
         relevel_map(emap, omega, self.centre, drop)
         self.F = -e
         self.frame_cov = self.frame_cov - drop

@@ -151,3 +151,15 @@ def test_the_registration_prior_is_taken_out() -> None:
     assert data_only(np.zeros(2), S, S) is None  # the data fixed nothing
     assert data_only(np.array([math.nan, 0.0]), C, S) is None
     assert data_only(np.zeros(2), np.zeros((2, 2)), S) is None  # singular
+
+
+def test_the_cells_keep_their_variance_unless_asked() -> None:
+    x = np.array([-0.3, 0.1, -0.05]) * DEG
+    grid = MapGrid(-2.0, -2.0, 0.1, 40, 40)
+    for drop in (False, True):
+        est, _ = _views(x, np.random.default_rng(3), 0.01)
+        est.drop_variance = drop
+        emap = ElevationMap(grid)
+        emap.z[:], emap.var[:], emap.var_common[:], emap.n[:] = 0.0, 4e-4, 3e-4, 1
+        assert est.level(emap) is not None
+        assert np.all(emap.var == 4e-4) != drop
