@@ -23,9 +23,8 @@ at several pans make the tilt offset observable; headings that differ make the a
 observable (at one heading they act on every view alike: a frame error no registration sees).
 
 Once the frame's own error ``e_ref = H_ref x`` is known well enough (its posterior trace under
-``bias_apply_ratio`` squared times its prior's) and is significant (``e_ref^T C^-1 e_ref`` of
-its posterior ``C`` at least ``bias_level_chi2``: a frame error within the estimate's own noise
-is not corrected, a correction of noise would tilt a level map), the map is levelled: rotated by
+``bias_apply_ratio`` squared times its prior's) and, when ``bias_level_chi2`` > 0, significant
+(``e_ref^T C^-1 e_ref`` of its posterior ``C`` at least that), the map is levelled: rotated by
 ``F = -e_ref`` about the reference camera (heights only; the horizontal shift, under a
 millimetre per metre of relief, is left), and later views' priors start from the predicted
 correction ``(H_ref - H_i) x + F``. With ``bias_drop_variance`` the frame variance the cells

@@ -131,8 +131,8 @@ class RegistrationConfig:
                                                             "(2 dof) above this: not used")
     bias_apply_ratio: float = param(0.6, lo=0.0, hi=1.0, doc="the map frame's tilt sigma under this fraction of "
                                                              "its prior: the map is levelled")
-    bias_level_chi2: float = param(7.38, lo=0.0, hi=1e6, doc="the map frame's estimated tilt against its "
-                                   "posterior (2 dof chi-square) at least this: the map is levelled")
+    bias_level_chi2: float = param(0.0, lo=0.0, hi=1e6, doc="the map frame's estimated tilt against its "
+                                   "posterior (2 dof chi-square) at least this: the map is levelled (0: always)")
     bias_drop_variance: bool = param(False, doc="a levelled map's cells lose the frame variance the estimate "
                                                 "removed (false: they keep the prior's: it may be optimistic)")
     bias_min_step_deg: float = param(0.02, lo=0.0, hi=10.0, units="deg",
