@@ -96,8 +96,8 @@ class CliffbotSiteConfig:
     targets_xy: tuple[float, ...] = param((), units="m", doc="science targets: x1, y1, x2, y2, ...")
     map_datum_m: float = param(0.0, lo=-1e4, hi=1e4, units="m",
                                doc="height of the received map's zero in the team's frame")
-    mask_team: bool = param(False, doc="the RECON-bot keeps the Cliff-bot (at its start) and the tethers "
-                                       "out of its map (docs/algorithm.md §8.1)")
+    mask_team: bool = param(False, doc="the RECON-bot keeps the Cliff-bot (at its start), the Anchorbots and "
+                                       "the tethers out of its map (docs/algorithm.md §8.1)")
 
     def __post_init__(self) -> None:
         for name in ("anchor_a_xyz", "anchor_b_xyz"):

@@ -13,13 +13,15 @@ this task also writes map-only checkpoints through the map store on command and 
 way (the map would be half-merged). At start-up it restores the newest good checkpoint's map.
 
 With ``[cliffbot_site] mask_team`` (a team mission) the pipeline masks the team out of every
-view (docs/algorithm.md §8.1, :func:`site_team`): the Cliff-bot standing at its surveyed start and
-its two tethers, straight from the Anchorbots' exits to its attachment, so its body is not
-mapped as terrain nor the ground just past its outline as a step.
+view (docs/algorithm.md §8.1, :func:`site_team`): the Cliff-bot standing at its surveyed start, the
+two Anchorbots at their surveyed ground points and the two tethers, straight from the Anchorbots'
+exits to its attachment, so no robot is mapped as terrain nor the ground just past its outline as
+a step; the ground round each robot and under the tethers is kept (each one's ground is known).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
 from collections.abc import Generator
@@ -27,7 +29,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from fsw.core.map.body_mask import TeamGeometry, TetherLine, standing_box
+from fsw.core.map.body_mask import MaskConfig, TeamGeometry, TetherLine, anchorbot_box, standing_box
 from fsw.core.map.elevation_map import ElevationMap
 from fsw.core.pipeline import SensingPipeline
 from fsw.core.registration.registration import RegistrationSummary
@@ -54,23 +56,34 @@ from fsw.tasks.mission_state import JsonDict, restore_into
 SITE_SIGMA_M = 0.03  # the surveyed start's position error (the mask grows by sigma times it)
 SITE_BELOW_M = 0.15  # the box reaches this far under the start's ground (its height is the anchors')
 TETHER_RADIUS_M = 0.01
+# the RECON-bot's mask: its views of the team are metres away, a point's 1 sigma is centimetres, so the
+# band kept above a robot's ground is that sigma alone (docs/algorithm.md §8.1)
+SITE_MASK = MaskConfig(ground_band_m=0.0)
 
 
 def site_team(cfg: FswConfig) -> TeamGeometry | None:
     """The team's known geometry from ``[cliffbot_site]`` (None unless ``mask_team``): the
     Cliff-bot's box (its marker layout, ``[cliffbot]``) at its start, level at the anchors' mean
-    height, and the tethers from the anchors' exits to its attachment (``[tether] attach_m``)."""
+    height, the Anchorbots' boxes on their ground points (under the tethers' exits by ``[tether]
+    anchor_exit_m``, ``fsw.core.map.body_mask.anchorbot_box``) and the tethers from the anchors'
+    exits to its attachment (``[tether] attach_m``). Each robot's ground and the ground under each
+    tether (the line between the anchor's ground and the Cliff-bot's) are known: the mask keeps
+    the points at or below them (docs/algorithm.md §8.1)."""
     site = cfg.cliffbot_site
     if not site.mask_team:
         return None
     a, b = np.array(site.anchor_a_xyz, float), np.array(site.anchor_b_xyz, float)
-    ground_z = 0.5 * (a[2] + b[2]) - cfg.tether.anchor_exit_m
+    exit_m = cfg.tether.anchor_exit_m
+    ground_z = 0.5 * (a[2] + b[2]) - exit_m
     ground = np.array([site.start_xy[0], site.start_xy[1], ground_z])
     pts = np.concatenate(list(cfg.cliffbot.corners_body().values()))
     box = standing_box(ground, math.radians(site.start_yaw_deg), pts, SITE_SIGMA_M, SITE_BELOW_M)
+    box = dataclasses.replace(box, ground=ground)
+    anchors = tuple(anchorbot_box(p - np.array([0.0, 0.0, exit_m]), SITE_SIGMA_M) for p in (a, b))
     attach = ground + np.array([0.0, 0.0, cfg.tether.attach_m])
-    lines = tuple(TetherLine(np.vstack([p, attach]), TETHER_RADIUS_M, SITE_SIGMA_M) for p in (a, b))
-    return TeamGeometry((box,), lines)
+    lines = tuple(TetherLine(np.vstack([p, attach]), TETHER_RADIUS_M, SITE_SIGMA_M, np.array([p[2] - exit_m, ground_z]))
+                  for p in (a, b))
+    return TeamGeometry((box, *anchors), lines)
 
 
 class PerceptionTask(FlightTask):
@@ -144,6 +157,7 @@ class PerceptionTask(FlightTask):
         # file is missing or inconsistent)
         self.pipeline = SensingPipeline(cfg, load_stereo_calibration(cfg))
         self.pipeline.team = site_team(cfg)
+        self.pipeline.team_mask_cfg = SITE_MASK
         self.frames = self.subscribe(CAMERA_FRAME, depth=2, policy="drop_oldest")
         self.job: JobHandle | None = None
         self.job_view = -1  # the view the job merges

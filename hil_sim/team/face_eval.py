@@ -71,6 +71,32 @@ def along_normal(height: Callable[[F64, F64], F64], face: FaceMap, cells: NDArra
     return out_w, out_o
 
 
+def air_gap_along_normal(world: World, face: FaceMap, cells: NDArray[np.intp], reach_m: float = 0.25,
+                         step_m: float = 0.005) -> F64:
+    """The widest run of air between the first and the last crossing of the true surface on the
+    line through each face cell's centre along the face normal (0: one crossing). A truth overhang
+    (:func:`along_normal`: first and last crossing more than the gap apart) may hold only a sliver
+    of air between its two surfaces (a rock resting on the face); one whose air is as wide as the
+    gap is two surfaces a view can tell apart."""
+    g = face.grid
+    ws = np.arange(-face.cfg.slab_in_m - reach_m, face.cfg.slab_out_m + reach_m + step_m / 2, step_m)
+    u = g.x0 + (cells % g.nx + 0.5) * g.cell
+    v = g.y0 + (cells // g.nx + 0.5) * g.cell
+    q = np.stack(np.broadcast_arrays(u[:, None], v[:, None], ws[None, :]), axis=-1)
+    p = face.frame.to_world(q.reshape(-1, 3)).reshape(q.shape)
+    air = p[..., 2] - np.nan_to_num(world.ground_at(p[..., 0], p[..., 1]), nan=1e9) > 0
+    out = np.zeros(len(cells))
+    for k in range(len(cells)):
+        a = air[k]
+        up = np.flatnonzero(~a[:-1] & a[1:])
+        if len(up) < 2:
+            continue
+        inner = a[up[0] + 1:up[-1] + 1]  # from the first up-crossing to the last one
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], inner.astype(np.int8), [0]])))
+        out[k] = float((edges[1::2] - edges[::2]).max()) * step_m if len(edges) else 0.0
+    return out
+
+
 def truth_along_normal(world: World, face: FaceMap, cells: NDArray[np.intp]) -> tuple[F64, B]:
     """:func:`along_normal` of the true ground (``(w_true, overhang)``)."""
     return along_normal(lambda x, y: np.nan_to_num(world.ground_at(x, y), nan=1e9), face, cells)
@@ -139,7 +165,9 @@ def face_figures(world: World, face: FaceMap, gravity: ElevationMap,
     """The team summary's face figures (module docstring): ``face_rmse_m`` (mapped single-surface
     face cells, the face map), ``face_rmse_gravity_m`` (the same points, queried from
     ``gravity``; only cells both have), ``face_rmse_gravity_normal_m``, ``face_cells``,
-    ``overhang_truth``, ``overhang_flagged``, ``overhang_false`` and ``cells_by_agent``; with the
+    ``overhang_truth``, ``overhang_flagged``, ``overhang_false``, ``overhang_open`` (truth overhangs
+    with air as wide as the gap between their surfaces, :func:`air_gap_along_normal`),
+    ``overhang_open_flagged`` and ``cells_by_agent``; with the
     views' true sight lines ``rays`` also ``overhang_seen`` (truth overhangs some view could
     show, :func:`overhang_seen`) and ``overhang_seen_flagged``."""
     cells = np.flatnonzero(face.map.mapped.reshape(-1))
@@ -150,7 +178,10 @@ def face_figures(world: World, face: FaceMap, gravity: ElevationMap,
     both = ~over & np.isfinite(e_face) & np.isfinite(e_grav)
     flagged = face.overhang.reshape(-1)[cells]
     seen = overhang_seen(face, cells, w_true, over, rays) if rays is not None else None
+    open_air = np.zeros(len(cells), bool)
+    open_air[over] = air_gap_along_normal(world, face, cells[over]) >= face.cfg.overhang_gap_m
     return {
+        "overhang_open": int(open_air.sum()), "overhang_open_flagged": int((open_air & flagged).sum()),
         "overhang_seen": None if seen is None else int(seen.sum()),
         "overhang_seen_flagged": None if seen is None else int((seen & flagged).sum()),
         "face_rmse_m": _rms(e_face[both]), "face_rmse_gravity_m": _rms(e_grav[both]),

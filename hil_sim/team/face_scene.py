@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from fsw.core.geometry import CameraPose, MapGrid, camera_pose_from_rover, point_mast
-from fsw.core.map.body_mask import BodyBox, TeamGeometry, TetherLine
+from fsw.core.map.body_mask import BodyBox, TeamGeometry, TetherLine, anchorbot_box
 from fsw.core.map.elevation_map import ElevationMap
 from fsw.core.map.face_map import FaceMap, FaceMapConfig, face_band, fit_face_plane, run_merge, split_parts
 from fsw.core.pipeline import RegisteredPose, SensingPipeline, ViewPart
@@ -26,6 +26,7 @@ from fsw.core.registration.registration import Registration
 from fsw.core.steps import run_to_end
 from fsw.core.stereo.stereo import StereoPoints
 from fsw.core.team.tether import TetherConfig, anchor_points, surface_normal, tether_state
+from fsw.tasks.perception import SITE_MASK
 from hil_sim.team.face_eval import equal_memory_cell, face_figures, truth_along_normal
 from hil_sim.team.team_sensing import (
     ANCHOR_HALF_M,
@@ -44,6 +45,7 @@ F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
 RECON_SIGMA = (math.radians(0.2), 0.01)  # camera pose error: rotation (rad), translation (m)
 CLIFF_SIGMA = (math.radians(0.5), 0.02)
+SURVEY_SIGMA_M = 0.03  # the Anchorbots' surveyed ground points (the flight's [cliffbot_site] start sigma)
 
 
 def pose_cov(sigma: tuple[float, float]) -> F64:
@@ -157,17 +159,25 @@ class FaceScene:
         team = TeamPose(box, recon, (anchors[0], anchors[1]), (lines[0], lines[1]))
         return np.array([x, y, zg]), n, team, body
 
-    @staticmethod
-    def known(team: TeamPose, cliff_err: F64) -> TeamGeometry:
+    def known(self, team: TeamPose, cliff_err: F64) -> TeamGeometry:
         """The team's geometry as the flight side knows it: the Cliff-bot (and the tethers' ends
-        at it) off by its navigation error ``cliff_err``; the others as placed."""
+        at it) off by its navigation error ``cliff_err``; the RECON-bot as placed; the Anchorbots
+        as the flight's mask knows them (``anchorbot_box`` on their surveyed ground points, under
+        the tethers' exits); the ground under each tether known over the plateau, from its anchor's
+        ground to its first contact (the lip; on down the face, the line between contacts spans
+        the face's hollows in the air: not known)."""
         sig = CLIFF_SIGMA[1]
         box = BodyBox(team.cliffbot.center + cliff_err, team.cliffbot.R, team.cliffbot.half, sig)
+        exit_m = self.tcfg.anchor_exit_m
+        anchors = tuple(anchorbot_box(a - np.array([0.0, 0.0, exit_m]), SURVEY_SIGMA_M) for a in self.anchors)
         lines = []
         for line in team.tethers:
             s = np.linspace(0.0, 1.0, len(line))[:, None]
-            lines.append(TetherLine(line + s * cliff_err, TETHER_RADIUS_M, sig))
-        return TeamGeometry((box, team.recon, *team.anchors), tuple(lines))
+            ground = np.full(len(line), np.nan)  # over the plateau: from the anchor to its first contact
+            ground[0] = line[0, 2] - exit_m
+            ground[1] = line[1, 2] if len(line) > 2 else np.nan
+            lines.append(TetherLine(line + s * cliff_err, TETHER_RADIUS_M, sig, ground))
+        return TeamGeometry((box, team.recon, *anchors), tuple(lines))
 
     # -- views ------------------------------------------------------------------------------
     def _view(self, agent: str, pose: CameraPose, cov: F64, team: TeamPose, body: Any, known: TeamGeometry) -> None:
@@ -181,6 +191,8 @@ class FaceScene:
         est = perturbed(pose, cov, self.rng)
         pipe = SensingPipeline(cfg, None, emap=self.gravity)
         pipe.team = known if self.mask else None
+        if agent == "recon":
+            pipe.team_mask_cfg = SITE_MASK  # the RECON-bot's flight mask (fsw.tasks.perception)
         dm = run_to_end(pipe.matcher.match_steps(left, right))
         pts = run_to_end(pipe.matcher.triangulate_steps(dm.disparity_px, sigma_px=dm.sigma_px))
         placed = RegisteredPose(Registration("off", "bench pose"), est, cov, None)
@@ -281,13 +293,14 @@ class FaceScene:
                      "rmse_fused_m", "in2s_recon", "in2s_cliff", "in2s_fused")
             zeros = {f"{k}_{a}": 0 for k in ("cells", "within2s") for a in ("recon", "cliff", "fused")}
             return {**row, **{k: None for k in nones}, **zeros, "overhang_truth": 0, "overhang_flagged": 0,
-                    "overhang_false": 0, "overhang_seen": 0, "overhang_seen_flagged": 0, "both_cells": 0,
+                    "overhang_false": 0, "overhang_seen": 0, "overhang_seen_flagged": 0, "overhang_open": 0,
+                    "overhang_open_flagged": 0, "both_cells": 0,
                     "team_points_seen": self.team_points,
                     "team_points_fused": self.team_points_fused, "team_cells_mapped": len(self.team_cells)}
         f = face_figures(self.world, self.face, self.gravity, self.cells_by_agent, self.true_rays)
         row.update({k: f[k] for k in ("face_cells", "face_rmse_m", "face_rmse_gravity_m", "face_rmse_gravity_normal_m",
                                        "overhang_truth", "overhang_flagged", "overhang_false", "overhang_seen",
-                                       "overhang_seen_flagged")})
+                                       "overhang_seen_flagged", "overhang_open", "overhang_open_flagged")})
         r, g, gn = f["face_rmse_m"], f["face_rmse_gravity_m"], f["face_rmse_gravity_normal_m"]
         row["ratio"] = r / g if r is not None and g else None
         row["ratio_normal"] = r / gn if r is not None and gn else None

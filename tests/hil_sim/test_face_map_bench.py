@@ -87,3 +87,84 @@ def test_the_judge_counts_the_overhangs_a_sight_line_reached_under() -> None:
     # along w = 0.35: under the roof, but by less than the gap
     high = frame.to_world(np.array([[-1.0, 0.05, 0.35], [0.28, 0.05, 0.35]]))
     assert not overhang_seen(face, cells, w_true, over, [(high[0], high[1:])]).any()
+
+
+
+def _recon_sees_anchorbot(scene: FaceScene) -> dict[str, int]:
+    """One RECON-bot view from the plateau, 2.5 m beside Anchorbot A, aimed at its foot, with the
+    Cliff-bot on the face and both tethers in the picture; the masked and judged point counts."""
+    import math
+
+    import numpy as np
+
+    from fsw.core.geometry import camera_pose_from_rover, point_mast
+    from hil_sim.team.face_scene import RECON_SIGMA, pose_cov
+
+    t = scene.world.team
+    assert t is not None
+    a = np.asarray(t.anchors_xy[0], float)
+    rover = (float(a[0]) - 2.5, float(a[1]) - 0.3, 0.0)
+    joints, _ = point_mast(rover, np.array([a[0], a[1], 0.0]), scene.cfg.mast, 0.3)
+    pose = camera_pose_from_rover(rover, joints, scene.cfg.mast)
+    _, _, team, body = scene.cliffbot_at(0.45, 0.0, rover)
+    scene._view("recon", pose, pose_cov(RECON_SIGMA), team, body, scene.known(team, np.zeros(3)))
+    assert math.isfinite(float(pose.t[2]))
+    return {"seen": scene.team_points, "fused": scene.team_points_fused, "cells": len(scene.team_cells)}
+
+
+class _NoAnchorbots(FaceScene):
+    """The RECON-bot's mask without the Anchorbots' boxes (its mask before they were known)."""
+
+    def known(self, team, cliff_err):  # type: ignore[no-untyped-def]
+        import dataclasses
+
+        geo = super().known(team, cliff_err)
+        return dataclasses.replace(geo, boxes=geo.boxes[:2])
+
+
+@pytest.mark.slow
+def test_the_recon_bots_views_keep_the_anchorbots_out() -> None:
+    """A RECON-bot view of an Anchorbot, the tethers and the Cliff-bot, masked as the flight knows
+    them (the Anchorbots on their surveyed ground points, the ground under the tethers kept): no
+    point on them (judged on the truth) reaches the map; without the Anchorbots' boxes their
+    points are mapped as terrain."""
+    row = _recon_sees_anchorbot(FaceScene("cliff-team", 1, "config/fsw.toml"))
+    assert row["seen"] >= 100
+    assert row["fused"] == 0 and row["cells"] == 0
+    bare = _recon_sees_anchorbot(_NoAnchorbots("cliff-team", 1, "config/fsw.toml"))
+    assert bare["seen"] == row["seen"]  # the same view, seeded
+    assert bare["fused"] > 0 and bare["cells"] > 0
+
+
+def test_the_judge_tells_a_sliver_of_air_from_an_overhang() -> None:
+    """``air_gap_along_normal``: on a 70 deg face, a ledge block standing out along the normal
+    from 0.15 m to 0.35 m over a cell leaves 0.15 m of air under it (two surfaces a view can tell
+    apart); the same block from 0.01 m leaves a sliver. The truth counts both as overhangs (the
+    first and last crossings are more than the gap apart)."""
+    import math
+
+    import numpy as np
+
+    from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig
+    from hil_sim.team.face_eval import air_gap_along_normal, truth_along_normal
+
+    a = math.radians(70.0)
+    frame = FaceFrame.from_normal(np.zeros(3), np.array([0.0, -math.sin(a), math.cos(a)]))
+    face = FaceMap(frame, (-0.05, 0.15), (-0.05, 0.15), FaceMapConfig(cell_m=0.1, overhang_gap_m=0.1))
+
+    class Ledge:
+        def __init__(self, w0: float, w1: float) -> None:
+            self.y = (-w1 * math.sin(a), -w0 * math.sin(a))  # the block's span along y under the normal
+
+        def ground_at(self, x: object, y: object) -> object:
+            yy = np.asarray(y, float)
+            block = (yy >= self.y[0]) & (yy <= self.y[1])
+            return math.tan(a) * yy + np.where(block, 0.5, 0.0) + 0.0 * np.asarray(x, float)
+
+    cells = np.array([0])
+    for w0, gap in ((0.15, 0.15), (0.01, 0.01)):
+        world = Ledge(w0, 0.35)
+        _, over = truth_along_normal(world, face, cells)  # type: ignore[arg-type]
+        assert over.tolist() == [True]
+        got = air_gap_along_normal(world, face, cells)  # type: ignore[arg-type]
+        assert got[0] == pytest.approx(gap, abs=0.011)

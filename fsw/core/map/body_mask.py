@@ -28,6 +28,17 @@ along the normal is ground, whatever the two tests say. The robot stands above i
 stereo point between its outline and the terrain behind lies above that terrain, so neither is
 such a point; the pose error's growth of both tests otherwise takes a band of ground round the
 robot (the tethers run over it).
+
+A tether whose ground is known (``TetherLine.ground``: the ground's height under each point of its
+polyline; a taut tether is the upper hull of the ground profile, so the ground under a segment lies
+at or below the line between its ends' ground heights) keeps the ground under it the same way: a
+point under the segment (horizontally within the tube's reach of it) whose height is at or below
+that line (at its horizontal place along the segment) within ``ground_sigma`` times its own
+vertical error (no margin: a window straddling the tether and the ground behind places its point a
+few centimetres above that ground), and below the tether there by more than
+its radius, the margin and ``sigma`` times that error, is ground, for that segment's tube and sight
+test. Where the tether lies on its ground (a contact) nothing is kept; segments with an unknown end
+(a face below a contact, whose concave parts the line spans in the air) keep nothing.
 """
 
 from __future__ import annotations
@@ -67,13 +78,31 @@ def standing_box(ground: F64, yaw: float, body_points: F64, sigma_m: float = 0.0
     return BodyBox(center, R, half, sigma_m)
 
 
+# An Anchorbot as a mask knows it (its box is 0.6 x 0.5 x 0.4 m, any heading): from ANCHOR_LIFT_M above
+# its ground to 0.45 m, so the mask's growth stays above the ground round it (the tethers start over that
+# ground), which :attr:`BodyBox.ground` keeps.
+ANCHOR_HALF_M = (0.35, 0.35, 0.15)
+ANCHOR_LIFT_M = 0.15
+
+
+def anchorbot_box(ground: F64, sigma_m: float) -> BodyBox:
+    """An Anchorbot standing at its surveyed ground point ``ground`` (world, under its tether's
+    exit), known to ``sigma_m``: the box from ``ANCHOR_LIFT_M`` above that ground up, any heading,
+    with the ground round it kept."""
+    g = np.asarray(ground, float).reshape(3)
+    return BodyBox(g + np.array([0.0, 0.0, ANCHOR_LIFT_M + ANCHOR_HALF_M[2]]), np.eye(3),
+                   np.asarray(ANCHOR_HALF_M, float), sigma_m, g)
+
+
 @dataclass(frozen=True)
 class TetherLine:
-    """A tether: its polyline ``(K, 3)`` (K >= 2) and radius."""
+    """A tether: its polyline ``(K, 3)`` (K >= 2) and radius; ``ground``, when known, the ground's
+    height ``(K,)`` under each point of the polyline (NaN: unknown there; module docstring)."""
 
     points: F64
     radius_m: float
     sigma_m: float = 0.0
+    ground: F64 | None = None
 
 
 @dataclass(frozen=True)
@@ -93,6 +122,9 @@ class MaskConfig:
     behind_tether: float = 1.5  # the same for a tether
     own_m: float = 1.0  # a box the camera is this close to is its own robot's (a mast's camera too)
     ground_sigma: float = 1.0  # a point within the margin and this many sigma of a robot's ground is ground
+    # the band above a robot's ground kept with those sigma (None: the margin); a far camera's 1 sigma
+    # is centimetres, and a window straddling a robot's outline and the ground behind lies that high
+    ground_band_m: float | None = None
 
 
 def point_sigma(cov: F64) -> F64:
@@ -152,17 +184,52 @@ def team_mask(xyz: F64, cov: F64 | None, team: TeamGeometry, cfg: MaskConfig | N
         pts = np.asarray(t.points, float)
         if pts.ndim != 2 or pts.shape[0] < 2:
             raise ValueError("a tether needs at least two points")
+        gz = None if t.ground is None or cov is None else np.asarray(t.ground, float).reshape(-1)
+        if gz is not None and len(gz) != len(pts):
+            raise ValueError("a tether's ground needs one height per point of its polyline")
         g = grow + t.radius_m + cfg.sigma * t.sigma_m
-        for a, b in zip(pts[:-1], pts[1:], strict=True):
+        for k, (a, b) in enumerate(zip(pts[:-1], pts[1:], strict=True)):
             ab = b - a
             ll = float(ab @ ab)
             s = np.clip(((p - a) @ ab) / ll, 0.0, 1.0) if ll > 0 else np.zeros(n)
             d = np.linalg.norm(p - (a + s[:, None] * ab), axis=1)
-            out |= d <= g
+            hit = d <= g
             if e is not None:
                 dist, rng = _segment_distance(e, far_t, a, b)
-                out |= dist <= cfg.margin_m + t.radius_m + cfg.sigma * t.sigma_m + cfg.pixel_rad * rng
+                hit |= dist <= cfg.margin_m + t.radius_m + cfg.sigma * t.sigma_m + cfg.pixel_rad * rng
+            if gz is not None and cov is not None and np.isfinite(gz[k : k + 2]).all():
+                hit &= ~_under_segment(p, cov, a, b, (float(gz[k]), float(gz[k + 1])), t.radius_m, g, cfg)
+            out |= hit
     return out
+
+
+def _under_segment(p: F64, cov: F64, a: F64, b: F64, ground: tuple[float, float], radius_m: float,
+                   reach: F64, cfg: MaskConfig) -> B:
+    """Points of the ground under the tether segment ``a b``: horizontally between its ends and
+    within ``reach`` (per point: the tube's) of its horizontal line, at or below its ground (heights
+    ``ground`` under its ends, linear between them) within ``ground_sigma`` times their own vertical
+    error (no margin: a stereo point between the tether and the ground behind it, a window
+    straddling both, lies a few centimetres above that ground), and below the tether there by
+    more than its radius, the margin and ``sigma`` times that error (where the tether lies on its
+    ground, at a contact, a point on it and one of the ground cannot be told apart: neither is
+    kept). The ground seen past the tether
+    farther out (its shadow) is not under it. NaN: not ground."""
+    h = (b - a)[:2]
+    hh = float(h @ h)
+    if hh <= 0:
+        return np.zeros(len(p), bool)
+    rel = p[:, :2] - a[:2]
+    s = (rel @ h) / hh
+    side = np.abs(rel[:, 0] * h[1] - rel[:, 1] * h[0]) / np.sqrt(hh)
+    zg = ground[0] + s * (ground[1] - ground[0])
+    zt = a[2] + s * (b[2] - a[2])
+    c = np.nan_to_num(np.asarray(cov, float)[:, 2, 2], nan=np.inf, posinf=np.inf)
+    sz = np.sqrt(np.maximum(c, 0.0))
+    with np.errstate(invalid="ignore"):
+        low = p[:, 2] <= zg + cfg.ground_sigma * sz
+        clear = p[:, 2] < zt - radius_m - cfg.margin_m - cfg.sigma * sz
+        under = (s >= 0.0) & (s <= 1.0) & (side <= reach)
+        return np.asarray(np.isfinite(sz) & under & low & clear, bool)
 
 
 def _at_ground(p: F64, cov: F64, box: BodyBox, cfg: MaskConfig) -> B:
@@ -176,7 +243,8 @@ def _at_ground(p: F64, cov: F64, box: BodyBox, cfg: MaskConfig) -> B:
     c = np.nan_to_num(np.asarray(cov, float), nan=np.inf, posinf=np.inf)
     with np.errstate(invalid="ignore"):
         sn = np.sqrt(np.maximum(np.einsum("i,nij,j->n", n, c, n), 0.0))
-    low = np.isfinite(sn) & ((p - box.ground) @ n <= cfg.margin_m + cfg.ground_sigma * np.nan_to_num(sn, nan=np.inf))
+    band = cfg.margin_m if cfg.ground_band_m is None else cfg.ground_band_m
+    low = np.isfinite(sn) & ((p - box.ground) @ n <= band + cfg.ground_sigma * np.nan_to_num(sn, nan=np.inf))
     local = (p - box.center) @ box.R
     out = (np.abs(local[:, :2]) > box.half[None, :2] + cfg.margin_m).any(axis=1)
     return np.asarray(low & out, bool)

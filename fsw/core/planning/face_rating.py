@@ -28,11 +28,13 @@ satisfies :class:`FaceLike`).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import ndimage
 
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
 from fsw.core.planning.nbv import MapLike, StationRating, cell_values, view_sums
@@ -139,11 +141,46 @@ def face_cells(face: FaceLike, gravity: MapLike, cfg: VisibilityConfig, prior_m:
 
 
 def gravity_with_floor(fc: FaceCells, gravity: MapLike, cfg: VisibilityConfig) -> Terrain:
-    """The gravity grid's terrain with the cells in front of the face (``fc.below``) at the
-    floor prior ``fc.floor_z``, with the prior's sigma."""
+    """The gravity grid's terrain as a view near the face is rated on (docs/algorithm.md §8.2,
+    "The ground beyond the lip"): the cells in front of the face (``fc.below``) at the floor prior
+    ``fc.floor_z``, and every other unknown cell past a lip at most at the face's dip continued
+    from its nearest known cell (:func:`drop_prior`, within the prior's correlation length of
+    nothing known down the dip), with the prior's sigma."""
     z = np.where(fc.below, fc.floor_z, np.asarray(gravity.z, float))
     var = np.where(fc.below, cfg.prior_sigma_m**2, np.asarray(gravity.var, float))
-    return terrain_from_map(z, var, gravity.grid, cfg)
+    terrain = terrain_from_map(z, var, gravity.grid, cfg)
+    mapped = np.isfinite(np.asarray(gravity.z, float)) & np.isfinite(np.asarray(gravity.var, float))
+    unknown = ~(np.isfinite(z) & np.isfinite(var))
+    drop = drop_prior(fc, np.asarray(gravity.z, float), mapped, gravity.grid, cfg.prior_corr_len_m)
+    elev = np.where(unknown, np.minimum(terrain.elev_m, drop), terrain.elev_m)
+    return Terrain(gravity.grid, elev, terrain.sigma_m, terrain.weight)
+
+
+def drop_prior(fc: FaceCells, z: F64, known: NDArray[np.bool_], grid: MapGrid, reach_m: float) -> F64:
+    """Where the ground drops past a lip: for each unknown gravity cell with no known cell within
+    ``reach_m`` down the face's dip (past the lip, not a gap between known ground), the height the
+    ground reaches falling at the face's slope from its nearest known cell,
+    ``z_k - tan(slope) max(d, 0)`` with ``d`` the cell's horizontal offset from that cell down the
+    dip, never below the floor prior ``fc.floor_z`` nor above ``z_k``; elsewhere ``+inf`` (no
+    bound; known cells: their height). The gravity prior (§3.1) puts the ground past a lip at the
+    lip's height, where it in fact drops: views over the lip are rated onto ground that is not there."""
+    out = np.where(known, z, np.inf)
+    normal = fc.R[:, 2]
+    horiz = float(np.hypot(normal[0], normal[1]))
+    if not known.any() or horiz < 1e-6 or normal[2] <= 1e-6:  # no ground known, or no dip to follow
+        return np.asarray(out, float)
+    down = np.asarray(normal[:2], float) / horiz  # the outward normal's horizontal part points down the dip
+    ahead = np.zeros(grid.shape, bool)  # a known cell within reach_m down the dip
+    ny, nx = grid.shape
+    for k in range(1, max(1, int(math.ceil(reach_m / grid.cell))) + 1):
+        dx, dy = (int(v) for v in np.rint(k * down))
+        src = known[max(dy, 0):ny + min(dy, 0), max(dx, 0):nx + min(dx, 0)]
+        ahead[max(-dy, 0):ny + min(-dy, 0), max(-dx, 0):nx + min(-dx, 0)] |= src
+    _, (ky, kx) = ndimage.distance_transform_edt(~known, return_indices=True)
+    zk = np.where(known, z, 0.0)[ky, kx]
+    d = ((np.arange(nx)[None, :] - kx) * down[0] + (np.arange(ny)[:, None] - ky) * down[1]) * grid.cell
+    drop = np.minimum(zk, np.maximum(fc.floor_z, zk - horiz / float(normal[2]) * np.maximum(d, 0.0)))
+    return np.asarray(np.where(~known & ~ahead, drop, out), float)
 
 
 def _plane_z(o: F64, R: F64, x: F64, y: F64) -> F64:

@@ -273,8 +273,11 @@ def choose_team_views(emap: MapLike, agents: Sequence[AgentViews], cfg: NbvConfi
     chosen: list[TeamView] = []
     first: TeamView | None = None
     while left:
-        rated = [_best(emap, terrain if a.face is None else floors[id(a)], a, n_max, cfg, planned if chosen else None)
-                 for a in left]
+        # the agents move at once: a cycle lasts as long as its slowest move, so an agent pays
+        # only for the motion beyond the longest of the views already chosen
+        paid = max((v.motion for v in chosen), default=0.0)
+        rated = [_best(emap, terrain if a.face is None else floors[id(a)], a, n_max, cfg, planned if chosen else None,
+                       paid) for a in left]
         k = int(np.argmax([r[0] for r in rated]))
         u, a, c, j, bits, new = rated[k]
         blind = a.fallback is not None and new < 1.0
@@ -309,7 +312,7 @@ def choose_team_views(emap: MapLike, agents: Sequence[AgentViews], cfg: NbvConfi
 
 
 def _best(emap: MapLike, terrain: Terrain, a: AgentViews, n_max: int, cfg: NbvConfig,
-          planned: F64 | None) -> tuple[float, AgentViews, ViewCentre, int, float, float]:
+          planned: F64 | None, paid: float = 0.0) -> tuple[float, AgentViews, ViewCentre, int, float, float]:
     """The agent's best view: (utility, agent, centre, flat view index, H, expected new cells)."""
     interest = a.interest if a.interest is not None else np.asarray(emap.interest, float)
     gravity_interest = interest if a.face is None else np.where(a.face.owned, 0.0, interest)
@@ -322,7 +325,7 @@ def _best(emap: MapLike, terrain: Terrain, a: AgentViews, n_max: int, cfg: NbvCo
             f = rate_face_station(a.face, c.xyz, c.yaws, c.tilts, n_max, interest, a.camera, cfg.visibility,
                                   planned)
             bits, new = bits + f.info_bits.ravel(), new + f.expected_new_cells.ravel()
-        u = utility(bits, c.motion, c.sigma_loc_m, cfg)
+        u = utility(bits, np.maximum(c.motion - paid, 0.0), c.sigma_loc_m, cfg)
         j = int(np.argmax(u))
         if best is None or float(u[j]) > best[0]:
             best = (float(u[j]), a, c, j, float(bits[j]), float(new[j]))

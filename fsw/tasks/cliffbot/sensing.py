@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 
 from fsw.core.edge.edge import EdgeConfig
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid, MapGridConfig
-from fsw.core.map.body_mask import BodyBox, MaskConfig, TeamGeometry, TetherLine
+from fsw.core.map.body_mask import BodyBox, MaskConfig, TeamGeometry, TetherLine, anchorbot_box
 from fsw.core.map.elevation_map import FusionConfig
 from fsw.core.pipeline import MergedView, SensingPipeline
 from fsw.core.planning.nbv import NbvConfig
@@ -66,11 +66,8 @@ from fsw.tasks.cliffbot.messages import (
 
 F64 = NDArray[np.float64]
 U8 = NDArray[np.uint8]
-# An Anchorbot as the mask knows it (its box is 0.6 x 0.5 x 0.4 m, any heading): from ANCHOR_LIFT_M above
-# its ground to 0.45 m, so the mask's growth stays above the ground round it (the tethers start over that
-# ground); the ground it stands on is known by contact (ANCHOR_FOOT_M round its surveyed ground point).
-ANCHOR_HALF_M = (0.35, 0.35, 0.15)
-ANCHOR_LIFT_M = 0.15
+# An Anchorbot as the mask knows it: fsw.core.map.body_mask.anchorbot_box; the ground it stands on is known
+# by contact (ANCHOR_FOOT_M round its surveyed ground point).
 ANCHOR_FOOT_M = 0.4
 TETHER_RADIUS_M = 0.006
 BODY_SIGMA_M = 0.01  # its own box as its camera knows it (one rigid body)
@@ -354,8 +351,7 @@ def cliffbot_team(cfg: FswConfig, s: F64, P: F64, roll: float, pitch: float, bod
     lift = np.array([half[0], half[1], 0.5 * (2 * half[2] - BODY_LIFT_M)])
     boxes = [BodyBox(ground + (BODY_LIFT_M + lift[2]) * n, R, lift, BODY_SIGMA_M, ground)]
     for a in np.asarray(anchors, float) - np.array([0.0, 0.0, cfg.tether.anchor_exit_m]):
-        boxes.append(BodyBox(a + np.array([0.0, 0.0, ANCHOR_LIFT_M + ANCHOR_HALF_M[2]]), np.eye(3),
-                             np.asarray(ANCHOR_HALF_M), sig, a))
+        boxes.append(anchorbot_box(a, sig))
     attach = ground + np.array([0.0, 0.0, cfg.tether.attach_m])
     ts = None
     if plan_z is not None:

@@ -28,7 +28,9 @@ map queried at the same true face points in its own coordinates, the distance fr
 returns to the true one), their ratio, the gravity grid's distance from the true surface along
 the face normal (``face_rmse_gravity_normal_m``) and that ratio, the truth overhang cells
 flagged (and, of them, those a view could show: a true sight line passes under the outer surface,
-``hil_sim.team.face_eval.overhang_seen``), the false flags, the fused vs single-agent RMS on
+``hil_sim.team.face_eval.overhang_seen``) and those with air as wide as the gap between their
+surfaces (``overhang_open``: the truth counts a cell whose normal's first and last crossing are
+the gap apart, however thin the air between them), the false flags, the fused vs single-agent RMS on
 cells both agents mapped, the fraction of cells
 within 2 sigma (each agent, fused), the stereo points on a robot or a tether (judged on the
 truth: ``hil_sim.team.face_scene.team_points``, from the renderer's label of each pixel),
@@ -49,6 +51,7 @@ HELP = "the face-aligned map vs the gravity grid at equal memory, both agents' v
 COLUMNS = ("seed", "slope_deg", "views", "face_cells", "face_rmse_m", "face_rmse_gravity_m", "ratio",
            "face_rmse_gravity_normal_m", "ratio_normal",
            "overhang_truth", "overhang_flagged", "overhang_false", "overhang_seen", "overhang_seen_flagged",
+           "overhang_open", "overhang_open_flagged",
            "both_cells", "rmse_recon_m",
            "rmse_cliff_m", "rmse_fused_m", "in2s_recon", "in2s_cliff", "in2s_fused", "cells_recon",
            "within2s_recon", "cells_cliff", "within2s_cliff", "cells_fused", "within2s_fused", "team_points_seen",
@@ -148,6 +151,9 @@ def report(rows: list[dict[str, Any]], table: Any) -> str:
     add("overhang false flags (pooled cells)", sum(r["overhang_false"] for r in rows), "", "")
     st, sf = sum(r["overhang_seen"] for r in rows), sum(r["overhang_seen_flagged"] for r in rows)
     add("overhang cells flagged, of those a view could show (pooled)", sf / st if st else None, f"{sf} of {st}", "")
+    ot2, of2 = sum(r["overhang_open"] for r in rows), sum(r["overhang_open_flagged"] for r in rows)
+    add("overhang cells flagged, of those with air as wide as the gap between the surfaces (pooled)",
+        of2 / ot2 if ot2 else None, f"{of2} of {ot2}", "")
     if better.size:
         d = fused_b - better
         add("fused RMS - better agent's (m)", float(np.median(d)), float(d.max()), "<= 0")

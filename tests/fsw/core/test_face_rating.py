@@ -92,3 +92,31 @@ def test_the_cliffbots_face_view_enters_planned_on_its_gravity_cells() -> None:
     views, planned = choose_team_views(emap, [cliff], NbvConfig())
     assert views[0].expected_new_cells > 40 and "no view is expected" not in views[0].why
     assert planned[fc.owned].max() > 0.5 and planned[~fc.owned & ~fc.below].max() == 0.0
+
+
+def test_the_ground_beyond_the_lip_falls_at_the_faces_dip_not_at_the_lips_height() -> None:
+    """Unknown ground past the lip that no face cell stands for (the face map's band starts 1 m
+    down the dip) is rated at most at the face's dip continued from the lip, never below the
+    floor prior; an unknown patch up the dip keeps its known neighbours' height. From the
+    plateau, the view over the lip then expects fewer new cells than on the lip-height prior."""
+    emap = _plateau_only()
+    x, y = GRID.centers()
+    hole = (y > 5.0) & (y < 5.4) & (x > 2.0) & (x < 2.4)
+    emap.z[hole], emap.var[hole], emap.n[hole] = np.nan, np.inf, 0
+    normal = np.array([0.0, -math.sin(SLOPE), math.cos(SLOPE)])
+    face = FaceMap(FaceFrame.from_normal(np.array([3.0, 4.0, 0.0]), normal), (-3.0, 3.0), (-3.0, -1.0),
+                   FaceMapConfig(cell_m=0.1))
+    fc = face_cells(face, emap, VIS, prior_m=1.0)
+    terrain = gravity_with_floor(fc, emap, VIS)
+    plain = terrain_from_map(emap.z, emap.var, GRID, VIS)
+    past = (y < 4.0) & ~fc.owned & ~fc.below
+    assert past.sum() > 100
+    dip = np.maximum(fc.floor_z, -math.tan(SLOPE) * (4.05 - y[past]))  # from the last known row, y = 4.05
+    assert np.allclose(terrain.elev_m[past], np.minimum(plain.elev_m[past], dip), atol=1e-9)
+    assert (terrain.elev_m[past] < plain.elev_m[past] - 0.25).all()  # a cell past the lip: 0.27 m lower
+    assert terrain.elev_m[~np.isnan(emap.z)].tolist() == emap.z[~np.isnan(emap.z)].tolist()
+    assert np.allclose(terrain.elev_m[hole], plain.elev_m[hole]) and (terrain.elev_m >= fc.floor_z - 1e-9).all()
+    cam = (3.0, 5.0, 1.5)  # 1 m behind the lip, 1.5 m up, looking over it (yaw -90 deg) at those cells
+    new = [rate_station(t, cam, YAWS, np.radians([-30.0]), emap.n, 2, past.astype(float), CAM, VIS)
+           .expected_new_cells[3, 0] for t in (terrain, plain)]
+    assert new[1] > 20 and new[0] < 0.7 * new[1]

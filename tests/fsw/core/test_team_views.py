@@ -3,6 +3,7 @@ the corridor, the discount of Eq 3 and the Cliff-bot's tether motion, on small s
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -133,3 +134,21 @@ def test_corridor_places_lie_on_the_path_either_way_within_reach() -> None:
     assert p[:, 1].min() < 2.5 and p[:, 1].max() > 3.5  # behind and ahead of it
     assert len(np.unique(np.round(p, 3), axis=0)) == len(p) == 5  # 2.0 ... 4.0, the way back adds none
     assert corridor_places(np.zeros((0, 2)), now, 0.5, 1.2).shape == (0, 2)
+
+
+def test_an_agent_pays_only_for_the_motion_beyond_the_earlier_choices() -> None:
+    """The agents move at once, so a cycle lasts as long as its slowest move: the first agent's
+    view costs its whole motion, the next agent's only what its move takes beyond that."""
+    emap = _flat_map()
+    focus = np.full(GRID.shape, 4.0)  # the recon's cells weigh 4 times theirs: it chooses first
+    k = 24
+    first = ViewCentre((2.0, 3.0, 1.5), np.radians(np.arange(0.0, 360.0, 30.0)), np.radians([-30.0, -60.0]),
+                       np.full(k, 4.0), np.zeros(k), (2.0, 3.0))
+    near = dataclasses.replace(first, xyz=(5.0, 3.0, 1.5), motion=np.full(k, 2.0), place=(5.0, 3.0))
+    far = dataclasses.replace(near, motion=np.full(k, 7.0))
+    for second, extra in ((near, 0.0), (far, 3.0)):
+        agents = [AgentViews("recon", CAM, (first,), focus), AgentViews("cliffbot", CAM, (second,))]
+        views, _ = choose_team_views(emap, agents, NBV)
+        assert [v.agent for v in views] == ["recon", "cliffbot"]
+        assert math.isclose(views[0].utility, views[0].info_bits - NBV.w_motion * 4.0, rel_tol=1e-9)
+        assert math.isclose(views[1].utility, views[1].info_bits - NBV.w_motion * extra, rel_tol=1e-9)

@@ -1,5 +1,6 @@
 """The RECON-bot's team mask from the surveyed site (docs/algorithm.md §8.1, ``[cliffbot_site]
-mask_team``): the Cliff-bot at its start and its tethers are kept out of the RECON-bot's map."""
+mask_team``): the Cliff-bot at its start, the Anchorbots and the tethers are kept out of the
+RECON-bot's map, the ground round the robots and under the tethers is not."""
 
 from __future__ import annotations
 
@@ -29,7 +30,7 @@ def test_no_mask_unless_the_site_asks() -> None:
 
 def test_the_cliffbot_at_its_start_and_its_tethers_are_masked() -> None:
     team = site_team(_cfg(90.0))
-    assert team is not None and len(team.boxes) == 1 and len(team.tethers) == 2
+    assert team is not None and len(team.boxes) == 3 and len(team.tethers) == 2
     pts = np.array([
         [1.0, 2.0, 0.2],     # the body
         [1.0, 2.0, 0.45],    # its inclined top plate
@@ -46,6 +47,29 @@ def test_the_cliffbot_at_its_start_and_its_tethers_are_masked() -> None:
     # the box reaches under the start's ground (its height is known from the anchors' only)
     assert team_mask(np.array([[1.0, 2.0, -0.1]]), None, team)[0]
     assert not math.isnan(float(team.boxes[0].center[2]))
+
+
+def test_the_anchorbots_are_masked_and_the_ground_under_the_tethers_kept() -> None:
+    team = site_team(_cfg(90.0))
+    assert team is not None
+    # Anchorbot A stands on (-1, 1, 0): its body is masked, the plateau beside it is not
+    body = np.array([[-1.0, 1.0, 0.3], [-0.75, 1.2, 0.1], [-1.0, 1.0, 0.42]])
+    beside = np.array([[-1.0, 0.4, 0.0], [-1.6, 1.0, 0.01]])
+    # under tether A (exit (-1, 1, 0.3) to the attachment (1, 2, 0.15)): the ground, and the
+    # tether itself halfway along (0.225 m up)
+    under = np.array([[0.0, 1.5, 0.0], [0.5, 1.75, 0.005], [-0.5, 1.25, -0.05]])
+    on_tether = np.array([[0.0, 1.5, 0.225], [0.0, 1.5, 0.19]])
+    pts = np.concatenate([body, beside, under, on_tether])
+    cov = np.tile(np.diag([0.01**2] * 3), (len(pts), 1, 1))
+    eye = np.array([0.0, -2.0, 1.5])  # the mast, looking along the tethers
+    masked = team_mask(pts, cov, team, eye=eye)
+    assert masked.tolist() == [True] * 3 + [False] * 5 + [True] * 2
+    # without the ground under the tethers known, their tube and sight test take it
+    bare = dataclasses.replace(team, tethers=tuple(dataclasses.replace(t, ground=None) for t in team.tethers))
+    assert team_mask(under, cov[:3], bare, eye=eye).any()
+    # with a wide point error a point well above the ground line is still the tether's
+    wide = np.tile(np.diag([0.03**2] * 3), (2, 1, 1))
+    assert team_mask(on_tether, wide, team, eye=eye).all()
 
 
 def test_the_recon_bots_site_is_the_cliffbots() -> None:
