@@ -29,11 +29,20 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     whole files in this order, so the long files start early and the many short ones fill in
     behind them, and both workers finish close together. (xdist's default order, the files
     with the most tests first, left the one-test end-to-end files for last: a long pole.)
+
+    Hypothesis tests time out by pytest-timeout's ``thread`` method (stacks dumped, the
+    process ended): the default ``signal`` method raises ``pytest.fail`` inside the running
+    example, Hypothesis takes that for a failure of the example and replays it, the replay
+    does not time out and draws further, and the timeout is reported as
+    ``FlakyStrategyDefinition`` ("the second run drew more data than the first run").
     """
     slow: dict[Path, int] = {}
     for item in items:
         if item.get_closest_marker("slow") is not None:
             slow[item.path] = slow.get(item.path, 0) + 1
+        if getattr(getattr(item, "obj", None), "is_hypothesis_test", False) \
+                and item.get_closest_marker("timeout") is None:
+            item.add_marker(pytest.mark.timeout(method="thread"))
     items.sort(key=lambda item: -slow.get(item.path, 0))
 
 

@@ -97,6 +97,11 @@ class ExecutiveConfig:
     malloc_mmap_threshold_kib: int = param(
         128, lo=0, hi=1 << 20, units="KiB",
         doc="glibc: blocks this large or larger are mmapped and returned when freed (0 = glibc's sliding default)")
+    malloc_top_pad_kib: int = param(
+        65536, lo=0, hi=1 << 20, units="KiB",
+        doc="glibc: the heap grows by this much beyond a request and keeps this much free when trimmed, so "
+            "the blocks below the mmap threshold reuse resident pages instead of faulting fresh ones in every "
+            "cycle (0 = glibc's default)")
 
     def __post_init__(self) -> None:
         if not self.groups or not self.tasks:

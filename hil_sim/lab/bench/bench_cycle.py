@@ -21,7 +21,8 @@ DESCRIPTION = (
     "of each --grids size over the configured area; the foreground cost per task per frame "
     "and the longest slack-job slice (thread CPU, per submitting task, against the 20 ms "
     "bound) from a short lockstep mission; "
-    "and this process's peak RSS. Times are CPU seconds of this process (one core): min and "
+    "and this process's peak RSS, with the flight process's allocator settings ([executive] "
+    "malloc_*) applied first. Times are CPU seconds of this process (one core): min and "
     "median of --repeats runs. In the same run it times a fixed yardstick workload "
     "(hil_sim/lab/bench/yardstick.py) and scales every figure to the reference machine "
     "(x yardstick_ref_s / the yardstick here, config/budget.toml), so figures from different "
@@ -208,6 +209,7 @@ def run(args: argparse.Namespace) -> int:
     import contextlib
     import resource
 
+    from fsw.executive.executive import fix_malloc_thresholds, pad_malloc_heap
     from fsw.framework.params import ConfigError
     from fsw.settings import DEFAULT_CONFIG, load_settings
     from hil_sim.lab.bench.cycle_compare import (
@@ -235,6 +237,9 @@ def run(args: argparse.Namespace) -> int:
     except (ConfigError, ValueError) as err:
         print(f"safer-hil bench cycle: {err}", file=sys.stderr)
         return 2
+    # The flight process's allocator settings (its executive sets them at start-up) before anything is timed.
+    fix_malloc_thresholds(cfg.executive.malloc_mmap_threshold_kib * 1024)
+    pad_malloc_heap(cfg.executive.malloc_top_pad_kib * 1024)
     grids = sorted(set(args.grids))
     k = args.cpu_factor or budget.cpu_factor
     runner = None

@@ -10,6 +10,7 @@ import re
 from collections.abc import Iterator
 from typing import Any, ClassVar
 
+import numpy as np
 import pytest
 
 from fsw import registry
@@ -424,3 +425,30 @@ def test_realtime_slack_starts_a_slice_only_when_a_whole_one_fits() -> None:
         results[reserve] = (exe.slips, handle.slices)
     assert results[0.02][0] == 0 and results[0.02][1] >= 30 * 3  # still 3-4 slices a frame
     assert results[0.0][0] > 0  # without the reserve the fifth slice of a frame overruns it
+
+
+def test_malloc_top_pad_keeps_freed_heap_pages_resident() -> None:
+    """[executive] malloc_top_pad_kib: with the pad, arrays below the mmap threshold allocated
+    and freed again and again reuse resident pages (almost no page faults after the first
+    round); 0 leaves the allocator alone."""
+    import platform
+    import resource
+
+    from fsw.executive.executive import fix_malloc_thresholds, pad_malloc_heap
+
+    assert pad_malloc_heap(0) is False
+    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
+        pytest.skip("glibc's mallopt")
+    assert fix_malloc_thresholds(128 * 1024) is True
+    assert pad_malloc_heap(64 << 20) is True
+
+    def churn() -> None:  # 80 blocks of 96 KiB (below the 128 KiB mmap threshold): 1920 pages
+        blocks = [np.ones(96 * 1024 // 8) for _ in range(80)]
+        del blocks
+
+    churn()
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    for _ in range(5):
+        churn()
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
+    assert faults < 5 * 1920 // 4, faults  # the default 128 KiB pad faults every page in again (~9600)
