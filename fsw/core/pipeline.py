@@ -39,6 +39,7 @@ from fsw.core.map.elevation_map import ElevationMap, FusionConfig, MergeStats
 from fsw.core.map.face_map import FaceMap, split_parts
 from fsw.core.map.reference_frames import ReferenceFrames
 from fsw.core.planning.nbv import NbvConfig, predicted_visibility_steps
+from fsw.core.registration.mount_bias import Levelling, MountBias, data_only
 from fsw.core.registration.registration import (
     Registration,
     RegistrationConfig,
@@ -46,7 +47,7 @@ from fsw.core.registration.registration import (
     reference_cells,
     register_steps,
 )
-from fsw.core.registration.station_chain import StationChain
+from fsw.core.registration.station_chain import StationChain, apply_about
 from fsw.core.steps import run_to_end
 from fsw.core.stereo.occlusion import LipGuard
 from fsw.core.stereo.rectify import Rectifier
@@ -99,6 +100,8 @@ class StereoView(Protocol):
     def ground_z_m(self) -> float: ...  # the ground under the rover at capture
     @property
     def nav_fix_id(self) -> int: ...  # the navigation fix the pose holds
+    @property
+    def body_yaw_rad(self) -> float: ...  # the rover's yaw at capture (NaN: unknown; the mount biases need it)
 
 
 @dataclass(frozen=True)
@@ -120,6 +123,7 @@ class MergedView:
     merge: MergeStats
     view_cells: tuple[NDArray[np.int32], NDArray[np.float32]]  # flat cell index, mean height (m)
     alignment: RigAlignment = field(default_factory=RigAlignment.none)  # the rig-drift correction (§4)
+    levelling: Levelling | None = None  # the map's frame levelled after this view (mount biases, §5.1)
 
 
 @dataclass(frozen=True)
@@ -134,6 +138,7 @@ class SensedView:
     edge: EdgeModel
     roi_mapped_fraction: float
     alignment: RigAlignment = field(default_factory=RigAlignment.none)  # the rig-drift correction (§4)
+    levelling: Levelling | None = None  # the map's frame levelled after this view (mount biases, §5.1)
 
 
 def _no_stage(name: str) -> None:
@@ -157,6 +162,9 @@ class SensingPipeline:
         self.map = ElevationMap(MapGrid.from_config(cfg.map), cfg.fusion) if emap is None else emap
         self.chain = StationChain()  # the registered stations (fsw.core.registration.station_chain)
         self.sources = ReferenceFrames(self.map.grid.shape)  # each cell's view (fsw.core.map.reference_frames)
+        r = cfg.registration  # the mast tilt offset and attitude biases (fsw.core.registration.mount_bias)
+        self.bias = MountBias(r.bias_tilt_sigma_deg, r.bias_attitude_sigma_deg, r.bias_floor_deg, r.bias_gate_chi2,
+                              r.bias_apply_ratio, r.bias_min_step_deg, r.bias_level_chi2, r.bias_drop_variance)
         # The team (docs/algorithm.md §8.1): the face map beside the gravity grid (None: one grid)
         # and the robots and tethers at their known poses, masked out of every view (None: none).
         self.face: FaceMap | None = None
@@ -172,6 +180,7 @@ class SensingPipeline:
         self.map = ElevationMap(self.map.grid, self.cfg.fusion)
         self.chain.clear()
         self.sources.clear()
+        self.bias.clear()
 
     def view(self, view: StereoView) -> SensedView:
         """:meth:`view_steps` run to its end (benches, replays, tests)."""
@@ -198,7 +207,7 @@ class SensingPipeline:
         roi_fraction = yield from roi_mapped_fraction_steps(self.map, poly)
         yield
         return SensedView(view.view_id, merged.placed, merged.merge, merged.view_cells, cells, poly, roi_fraction,
-                          merged.alignment)
+                          merged.alignment, merged.levelling)
 
     def merge_view_steps(self, view: StereoView, stage: Callable[[str], None] = _no_stage
                          ) -> Generator[None, None, MergedView]:
@@ -231,7 +240,15 @@ class SensingPipeline:
                                                               skip=hit)
             yield
         merged = yield from self.fuse_steps(placed, parts, p_visible)
-        return replace(merged, alignment=alignment)
+        merged = replace(merged, alignment=alignment)
+        if cfg.registration.enabled and cfg.registration.bias_estimate and self.face is None:
+            lev = self.bias.level(self.map)
+            if lev is not None:  # the view's own pose moves with the map it is in
+                self.chain.relevel(lev.omega, lev.centre)
+                moved = apply_about(placed.pose, lev.omega, lev.centre)
+                merged = replace(merged, placed=replace(placed, pose=moved), levelling=lev)
+            yield
+        return merged
 
     def register_steps(self, view: StereoView, pts: StereoPoints) -> Generator[None, None, RegisteredPose]:
         """Align the view to the map (§5.1): the corrected pose, the covariance to merge with
@@ -241,6 +258,10 @@ class SensingPipeline:
         if not rcfg.enabled:
             return RegisteredPose(Registration("off", "disabled in config"), view.pose, view.pose_cov, None)
         vp = self.chain.prior(view.pose, view.pose_cov, view.nav_fix_id, rcfg)
+        use_bias = rcfg.bias_estimate and self.face is None
+        tilt = self.bias.predicted(view.pose, view.body_yaw_rad) if use_bias else None
+        if tilt is not None:  # the mount biases known: the view starts from their tilt (§5.1)
+            vp = replace(vp, d0=np.r_[tilt, vp.d0[2:]])
         prior = apply_correction(view.pose, vp.d0)
         n = len(pts)
         sel = np.linspace(0, n - 1, min(n, 4 * rcfg.max_points)).astype(np.intp) if n else np.zeros(0, np.intp)
@@ -251,11 +272,16 @@ class SensingPipeline:
                                         self.map.var, ref, rcfg, self.sources if rcfg.reference_error else None)
         if reg.status == "reference":
             self.chain.reference(view.pose_cov)
+            if use_bias:
+                self.bias.reference(view.pose, view.body_yaw_rad, view.pose_cov)
             return RegisteredPose(reg, view.pose, view.pose_cov, None)
         if reg.status != "registered":
             pose, cov = self.chain.unregistered(view.pose, vp, reg, rcfg)
             return RegisteredPose(reg, pose, cov, None)
         pose, cov, nav = self.chain.registered(view.pose, view.pose_cov, view.nav_fix_id, view.time_s, vp, reg, rcfg)
+        data = data_only(reg.correction[:2] - vp.d0[:2], (reg.cov - reg.ref_cov)[:2, :2], vp.cov[:2, :2])
+        if use_bias and data is not None:  # the total tilt correction the data give, relative to the map
+            self.bias.update(view.pose, view.body_yaw_rad, vp.d0[:2] + data[0], data[1])
         return RegisteredPose(reg, pose, cov, nav)
 
     def world_parts_steps(self, placed: RegisteredPose, pts: StereoPoints) -> Generator[None, None, list[ViewPart]]:

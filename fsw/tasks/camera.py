@@ -137,6 +137,7 @@ class CameraTask(FlightTask):
                 expected_new_cells=req.expected_new_cells,
                 ground_z_m=self.nav.z_m,
                 nav_fix_id=self.nav.fix_id,
+                body_yaw_rad=self.nav.yaw,
             ),
         )
         self.tlm("captures", self.captures)

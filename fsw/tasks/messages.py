@@ -92,6 +92,7 @@ class CameraFrame:
     expected_new_cells: float = float("nan")
     ground_z_m: float = 0.0  # the ground under the rover at capture, map datum (``NavPose.z_m``)
     nav_fix_id: int = 0  # the navigation fix the pose holds (``NavPose.fix_id``)
+    body_yaw_rad: float = float("nan")  # the rover's yaw at capture (``NavPose.yaw``; the mount biases need it)
 
 
 @dataclass(frozen=True)

@@ -135,6 +135,11 @@ class PerceptionTask(FlightTask):
             "view {view}: stereo rows {offset:.1f} px apart (shift {dv:+.2f} px, {matches} matches), beyond "
             "{bound:.1f} px: corrected per pair, recalibrate the stereo head", throttle=5,
         ),
+        EventDef(
+            "MAP_LEVELLED", Severity.ACTIVITY_HI,
+            "view {view}: map frame levelled by roll {rx:+.3f}, pitch {ry:+.3f} deg (sigma {sx:.3f}, {sy:.3f}): "
+            "mast tilt offset {tilt:+.3f}, attitude bias roll {roll:+.3f}, pitch {pitch:+.3f} deg",
+        ),
         EventDef("VIEW_FAILED", Severity.WARNING_HI, "view {view} could not be merged: {error}", throttle=5),
         EventDef("CHECKPOINT_SAVED", Severity.ACTIVITY_LO, "map checkpoint {seq} saved ({kib:.0f} KiB)"),
         EventDef("CHECKPOINT_FAILED", Severity.WARNING_HI, "map checkpoint failed: {error}", throttle=3),
@@ -197,7 +202,7 @@ class PerceptionTask(FlightTask):
         sv = yield from self.pipeline.view_steps(fr)
         self.views += 1
         pose = sv.placed.pose
-        return MapUpdate(
+        update = MapUpdate(
             view_id=fr.view_id,
             time_s=fr.time_s,
             mapped_cells=int(self.map.mapped.sum()),
@@ -217,6 +222,12 @@ class PerceptionTask(FlightTask):
             nav_fix=sv.placed.nav_fix,
             rig=sv.alignment,
         )
+        if sv.levelling is not None:  # the map's frame corrected by the mount biases (§5.1)
+            lv = sv.levelling
+            om, sg, est = np.degrees(lv.omega), np.degrees(lv.sigma), np.degrees(lv.estimate)
+            self.event("MAP_LEVELLED", view=fr.view_id, rx=om[0], ry=om[1], sx=sg[0], sy=sg[1], tilt=est[0],
+                       roll=est[1], pitch=est[2])
+        return update
 
     def _finish(self, h: JobHandle) -> None:
         if h.error is not None:
@@ -313,6 +324,7 @@ class PerceptionTask(FlightTask):
         count and the registration state (the station chain, the per-view reports)."""
         return {"views": self.views, "unregistered": self.unregistered, "partial": self.partial,
                 **self.pipeline.chain.state(), "sources": self.pipeline.sources.state(),
+                "mount_bias": self.pipeline.bias.state(),
                 "registrations": list(self.registrations)}
 
     def restore_state(self, state: JsonDict) -> None:
@@ -321,6 +333,7 @@ class PerceptionTask(FlightTask):
         self.partial = int(state.get("partial", 0))
         self.pipeline.chain.restore(state)
         self.pipeline.sources.restore(state.get("sources", {}))
+        self.pipeline.bias.restore(state.get("mount_bias", {}))
         self.registrations.extend(state.get("registrations", []))
         self.tlm("views", self.views)
 

@@ -17,7 +17,8 @@ COLUMNS = ("scenario", "seed", "slope_deg", "edge_gap_m", "method", "moved", "od
            "geofence_refusals", "wheels_off_terrain", "wheels_on_unknown_ground", "mapped_cells",
            "map_rmse_cm", "error_tilt_deg", "rmse_detilted_cm", "seam_cm", "within_2sigma", "final_state",
            "views_registered", "views_height_tilt_only", "views_unregistered", "views_halves_disagree",
-           "rated_views", "pred_ratio")
+           "rated_views", "pred_ratio", "tilt_offset_deg", "tilt_offset_true_deg", "imu_roll_deg",
+           "imu_roll_true_deg")
 MOVED_M = 0.05  # the rover moved if its true odometer passed this
 MAP_SLOPE_MAX_DEG = 10.0  # the map criteria hold on generated terrains up to this slope
 # issue 13 "Done when", map figures: (column, what, target test on the median, target text)
@@ -58,7 +59,17 @@ def row_of(s: dict[str, Any], spec: str, seed: int, steps: int) -> dict[str, Any
         "final_state": s["final_state"], "stay_reasons": s.get("stays", []),
         **_registration_counts(s.get("registration") or []),
         **_prediction(s.get("steps", [])),
+        **_mount_bias(s),
     }
+
+
+def _mount_bias(s: dict[str, Any]) -> dict[str, Any]:
+    """The flight's estimate of the mast tilt offset and attitude roll bias (``mount_bias``) and
+    the bench's true values."""
+    est = (s.get("mount_bias") or {}).get("estimate_deg") or {}
+    true = s.get("mount_bias_truth_deg") or {}
+    return {"tilt_offset_deg": _r(est.get("mast_tilt"), 3), "tilt_offset_true_deg": _r(true.get("mast_tilt"), 3),
+            "imu_roll_deg": _r(est.get("imu_roll"), 3), "imu_roll_true_deg": _r(true.get("imu_roll"), 3)}
 
 
 def _prediction(steps: list[dict[str, Any]]) -> dict[str, Any]:
@@ -89,8 +100,8 @@ def _registration_counts(records: list[dict[str, Any]]) -> dict[str, int]:
             "views_halves_disagree": sum("halves disagree" in str(r.get("reason", "")) for r in records)}
 
 
-def _r(v: float | None) -> float | None:
-    return None if v is None else round(float(v), 2)
+def _r(v: float | None, digits: int = 2) -> float | None:
+    return None if v is None else round(float(v), digits)
 
 
 def _median_worst(values: pd.Series, worst_high: bool = True) -> str:

@@ -40,6 +40,7 @@ class RecordedView:
     true_pose: CameraPose
     ground_z_m: float = 0.0  # the frame's ground under the rover (``CameraFrame.ground_z_m``)
     nav_fix_id: int = 0  # the navigation fix its pose held (``CameraFrame.nav_fix_id``)
+    body_yaw_rad: float = float("nan")  # the rover's yaw at capture (``CameraFrame.body_yaw_rad``)
 
 
 def record_mission(spec: Any) -> tuple[dict[str, Any], list[RecordedView]]:
@@ -70,7 +71,7 @@ def record_mission(spec: Any) -> tuple[dict[str, Any], list[RecordedView]]:
 
     summary = run_mission(spec, mode="fresh", on_bench=observe)
     views = [RecordedView(fr.view_id, fr.left, fr.right, fr.pose, np.asarray(fr.pose_cov, np.float64),
-                          truth[fr.left.tobytes()], fr.ground_z_m, fr.nav_fix_id)
+                          truth[fr.left.tobytes()], fr.ground_z_m, fr.nav_fix_id, fr.body_yaw_rad)
              for fr in frames if fr.left.tobytes() in truth]
     return summary, views
 
@@ -128,7 +129,8 @@ def replay(views: list[RecordedView], scenario: str, seed: int, factor: Factor,
         left, right = (v.left, v.right) if rend is None else rend.render(v.true_pose)
         pose = v.true_pose if factor.true_pose else v.pose
         sv = pipeline.view(CameraFrame(v.view_id, 0.0, left, right, pose, v.pose_cov,
-                                       ground_z_m=v.ground_z_m, nav_fix_id=v.nav_fix_id))
+                                       ground_z_m=v.ground_z_m, nav_fix_id=v.nav_fix_id,
+                                       body_yaw_rad=v.body_yaw_rad))
         if on_register is not None:
             on_register(v, sv.placed.registration, sv.placed.pose)
         t = sv.placed.pose.t

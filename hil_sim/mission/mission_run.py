@@ -164,6 +164,7 @@ def run_mission(
         last_step = -1
         views: list[Any] = []  # (camera xyz, cell index, z) per merged view, for the seams
         start_att = (round(bench.rig.truth()["roll_deg"], 3), round(bench.rig.truth()["pitch_deg"], 3))
+        mount_truth = mount_bias_truth(bench.rig)
         # the flight map's height origin: the true body height at the start (hil_sim.lab.terrain_eval);
         # kept in the counters so a resumed run keeps the start's, not the resume point's
         datum_m = float(counters.setdefault("datum_m", float(bench.rig.rover.z)))
@@ -299,6 +300,8 @@ def run_mission(
             "cliffbot": _cliffbot_report(cliffbot, spec.out),
             "start_attitude_deg": list(start_att),
             "registration": list(perception.registrations),
+            "mount_bias": perception.pipeline.bias.summary(perception.ctx.cfg.registration.bias_estimate),
+            "mount_bias_truth_deg": mount_truth,
             "map_quality": quality,
             "files": {},
         }
@@ -312,6 +315,14 @@ def run_mission(
                 summary["recording_error"] = recording_error
             summary["files"] = write_outputs(spec.out, summary, emap, truth_f, grid, extra)
     return summary
+
+
+def mount_bias_truth(rig: Any) -> dict[str, float]:
+    """The bench's constant mounting errors (what the flight's ``mount_bias`` estimates, deg):
+    the mast's tilt and pan calibration offsets and the attitude sensor's roll and pitch biases."""
+    off = np.degrees(rig.mast.offset[:2])
+    return {"mast_tilt": round(float(off[1]), 5), "imu_roll": round(float(rig.imu.bias_deg[0]), 5),
+            "imu_pitch": round(float(rig.imu.bias_deg[1]), 5), "mast_pan": round(float(off[0]), 5)}
 
 
 def _poll_taps(taps: list[Any], error: str) -> str:

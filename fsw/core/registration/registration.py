@@ -119,6 +119,24 @@ class RegistrationConfig:
                                   "correction (yaw, x, y, z) with the odometry covariance grown since")
     feed_back: bool = param(True, doc="a registered view's yaw, x, y, z correction also corrects the rover's "
                                       "own pose estimate (odometry and body height; fsw.core.localization.nav_fix)")
+    bias_estimate: bool = param(True, doc="estimate the mast tilt offset and the attitude sensor's roll/pitch "
+                                          "biases from the registered views and level the map's frame with them "
+                                          "(fsw.core.registration.mount_bias)")
+    bias_tilt_sigma_deg: float = param(0.2, lo=0.001, hi=10.0, units="deg", doc="prior sigma of the mast tilt offset")
+    bias_attitude_sigma_deg: float = param(0.1, lo=0.001, hi=10.0, units="deg",
+                                           doc="prior sigma of the attitude sensor's roll and pitch biases")
+    bias_floor_deg: float = param(0.03, lo=0.0, hi=10.0, units="deg",
+                                  doc="added to each view's tilt correction sigma (the views are not independent)")
+    bias_gate_chi2: float = param(13.8, lo=1.0, hi=1e6, doc="a view's tilt correction against the prediction "
+                                                            "(2 dof) above this: not used")
+    bias_apply_ratio: float = param(0.6, lo=0.0, hi=1.0, doc="the map frame's tilt sigma under this fraction of "
+                                                             "its prior: the map is levelled")
+    bias_level_chi2: float = param(0.0, lo=0.0, hi=1e6, doc="the map frame's estimated tilt against its "
+                                   "posterior (2 dof chi-square) at least this: the map is levelled (0: always)")
+    bias_drop_variance: bool = param(False, doc="a levelled map's cells lose the frame variance the estimate "
+                                                "removed (false: they keep the prior's: it may be optimistic)")
+    bias_min_step_deg: float = param(0.02, lo=0.0, hi=10.0, units="deg",
+                                     doc="the map is levelled again when the frame correction moved this much")
 
 
 @dataclass

@@ -26,7 +26,7 @@ it (``base_id``), and the motion task applies it only on that frame.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -93,6 +93,13 @@ def carried_prior(pose: CameraPose, pose_cov: F64, fix: StationFix) -> tuple[F64
     return d0, 0.5 * (out + out.T)
 
 
+def apply_about(pose: CameraPose, omega: F64, centre: F64) -> CameraPose:
+    """The pose moved with the map when the map turns by the small world rotation ``omega``
+    (x, y, rad) about ``centre`` (``fsw.core.registration.mount_bias``)."""
+    Rw = so3_exp(np.r_[np.asarray(omega, np.float64)[:2], 0.0])
+    return CameraPose(Rw @ pose.R, Rw @ (np.asarray(pose.t, np.float64) - centre) + centre)
+
+
 @dataclass(frozen=True)
 class ViewPrior:
     """Where a view's registration starts: the correction ``d0`` applied to its pose, the
@@ -139,6 +146,18 @@ class StationChain:
             return ViewPrior(zero, cov, fix.frame_cov, False)
         d0, carried = carried_prior(pose, cov, fix)
         return ViewPrior(d0, carried, fix.frame_cov, False)
+
+    def relevel(self, omega: F64, centre: F64) -> None:
+        """The map turned by ``omega`` about ``centre`` (levelled, ``fsw.core.registration.mount_bias``):
+        the last station's correction turns with it. A correction fed back keeps its translation
+        (the odometry holds it; the next registration finds the height the turn moved)."""
+        f = self.fix
+        if f is None:
+            return
+        Rw = so3_exp(np.r_[np.asarray(omega, np.float64)[:2], 0.0])
+        rot = so3_log(Rw @ so3_exp(f.correction[:3]))
+        t = f.correction[3:] if f.fix_id > 0 else Rw @ (f.centre + f.correction[3:] - centre) + centre - f.centre
+        self.fix = replace(f, correction=np.r_[rot, t])
 
     def reference(self, pose_cov: F64) -> None:
         if self.anchor_cov is None:

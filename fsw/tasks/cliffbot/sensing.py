@@ -116,6 +116,7 @@ class HeadView:
     pose_cov: F64
     ground_z_m: float
     nav_fix_id: int = -1
+    body_yaw_rad: float = math.nan  # not estimated for the Cliff-bot's head (no mount-bias estimate)
 
 
 @dataclass
