@@ -65,6 +65,12 @@ class FaceMapConfig:
     underside_deg: float = param(20.0, lo=0.0, hi=89.0, units="deg",
                                  doc="a view this far under a cell's tangent plane sees its underside: flag (0: off)")
     air_max_rays: int = param(20000, lo=0, hi=10**7, doc="rays per view traced for free space (0: none)")
+    facing_deg: float = param(12.0, lo=0.0, hi=89.0, units="deg",
+                              doc="a view's local plane facing the face by this much: a second surface")
+    facing_radius_m: float = param(0.06, lo=0.005, hi=1.0, units="m",
+                                   doc="neighbours of a point its plane is fitted to")
+    facing_min_points: int = param(3, lo=1, hi=10**6, doc="points on planes facing the face that flag a cell")
+    facing_max_points: int = param(20000, lo=0, hi=10**7, doc="points per view tested for facing the face (0: none)")
 
 
 @dataclass(frozen=True)
@@ -266,6 +272,7 @@ class FaceMergeStats:
     overhang_new: int  # cells flagged by this view
     second_points: int  # points kept out of the map as a second surface
     air_new: int = 0  # of those, the cells flagged by free space (rays under the surface, a view from below)
+    facing_new: int = 0  # of those, the cells flagged by a surface that faces the face
 
 
 class FaceMap:
@@ -302,6 +309,11 @@ class FaceMap:
     def air(self) -> NDArray[np.int32]:
         """Rays that passed under each cell's surface."""
         return self.overhangs.air
+
+    @property
+    def facing(self) -> NDArray[np.int32]:
+        """View points on a surface that faces the face, per cell."""
+        return self.overhangs.facing
 
     @property
     def air_w(self) -> F64:
@@ -371,7 +383,8 @@ class FaceMap:
         """Fuse one view's world points with covariance (the face-routed ones) through §1 in the
         face frame, with the overhang tests of the module docstring; with the camera centre
         ``eye`` (world) the free space along the rays to the view's points (``rays``: all of
-        them, default ``parts``) flags the cells it passes under (:meth:`carve`)."""
+        them, default ``parts``) flags the cells it passes under (:meth:`carve`), and the view's
+        points on surfaces that face the face flag theirs (``Overhangs.facing_the_face``)."""
         xyz = np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3))
         cov = np.concatenate([p[1] for p in parts]) if parts else np.zeros((0, 3, 3))
         commons = [p[2] for p in parts]
@@ -384,10 +397,12 @@ class FaceMap:
         face_parts: list[tuple[F64, F64, F64 | None]] = [
             (q[keep], cov_f[keep], None if common is None else self.frame.cov_to_face(common[keep]))]
         stats = run_merge(self.map, face_parts, p_visible)
-        air_new = 0
+        air_new = facing_new = 0
         if eye is not None:
             air_new = self.carve(eye, parts if rays is None else rays)
-        return FaceMergeStats(stats, flagged + air_new, n_second, air_new)
+            eye_f = self.frame.to_face(np.reshape(eye, (1, 3)))[0]
+            facing_new = self.overhangs.facing_the_face(self.map.grid, self.cfg, eye_f, q)
+        return FaceMergeStats(stats, flagged + air_new + facing_new, n_second, air_new, facing_new)
 
     def carve(self, eye: F64, parts: list[ViewPart]) -> int:
         """The free-space tests of one view (module docstring), after its merge: the rays from the

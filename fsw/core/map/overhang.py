@@ -15,7 +15,14 @@ crevice behind it) the cell is flagged (:attr:`Overhangs.overhang`), not average
 * free space (:meth:`Overhangs.carve`, given the camera centre): rays that pass under a cell's
   surface (``fsw.core.map.free_space``), or a camera standing under the cell's tangent plane
   (it sees the surface's lower side), show air under ground, so a second surface even where no
-  view saw one.
+  view saw one;
+* a surface facing the face (:meth:`Overhangs.facing`, given the camera centre): a view's
+  points whose local plane (fitted to the view's own points around each, its normal turned to
+  the camera) faces the face (``e_n`` component below ``-sin facing_deg``) lie where the normal,
+  going out, passes from air into ground: the ground above them along the normal ends in air
+  again (the face map's slab ends in air), so their column holds two surfaces. It is the rock's
+  side that faces up the face, seen from above, over the crevice behind it; it needs no fused
+  height (the tests above compare with the cell's height, which may be either surface).
 
 The tests read their parameters from the face map's config (:class:`OverhangParams`, the
 ``[face_map]`` section) and the face map's grid (``emap``); all coordinates are the face
@@ -28,12 +35,18 @@ from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
+from fsw.core.geometry import MapGrid
 from fsw.core.map.elevation_map import ElevationMap
 from fsw.core.map.free_space import air_under
 
 F64 = NDArray[np.float64]
 B = NDArray[np.bool_]
+
+_PLANE_POINTS = 8  # points a local plane is fitted to, at least
+_EDGE_ON = float(np.sin(np.radians(5.0)))  # a sight line closer to its plane sees it edge-on
+_PLANE_NEIGHBOURS = 32  # nearest points looked at, at most
 
 
 class OverhangParams(Protocol):
@@ -53,6 +66,14 @@ class OverhangParams(Protocol):
     def slab_in_m(self) -> float: ...
     @property
     def slab_out_m(self) -> float: ...
+    @property
+    def facing_deg(self) -> float: ...
+    @property
+    def facing_radius_m(self) -> float: ...
+    @property
+    def facing_min_points(self) -> int: ...
+    @property
+    def facing_max_points(self) -> int: ...
 
 
 class Overhangs:
@@ -64,6 +85,7 @@ class Overhangs:
         self.air = np.zeros(shape, np.int32)  # rays that passed under the surface
         self.air_w = np.full(shape, np.nan)  # the lowest w they reached (inner surface below)
         self.under = np.full(shape, np.nan)  # sine of the deepest view under the tangent plane
+        self.facing = np.zeros(shape, np.int32)  # view points on a surface that faces the face
 
     def carve(self, emap: ElevationMap, cfg: OverhangParams, eye: F64, q: F64, cov_f: F64) -> int:
         """The free-space tests of one view, after its merge into ``emap``: the rays from the
@@ -89,6 +111,36 @@ class Overhangs:
         flag = (air >= cfg.air_min_rays).reshape(self.overhang.shape) & ~self.overhang
         if cfg.underside_deg > 0:
             flag |= (self.under > np.sin(np.radians(cfg.underside_deg))) & ~self.overhang
+        self.overhang |= flag
+        return int(flag.sum())
+
+    def facing_the_face(self, grid: MapGrid, cfg: OverhangParams, eye: F64, q: F64) -> int:
+        """The facing test of one view (module docstring): its points ``q`` and camera centre
+        ``eye`` in the face frame, at most ``facing_max_points`` of the points (evenly spread),
+        each with the plane of the view's points within ``facing_radius_m`` of it (at least 8
+        of them, the plane's thickness under a third of its narrower width). A cell is flagged
+        when ``facing_min_points`` points in it (of this view and earlier ones) lie on a plane
+        whose normal, turned to the camera, has an ``e_n`` component below
+        ``-sin(facing_deg)`` and which the camera sees at least ``facing_deg`` off its plane (a
+        plane seen edge-on has no side) (:attr:`facing`). Returns the cells newly flagged."""
+        if cfg.facing_max_points == 0 or len(q) < _PLANE_POINTS:
+            return 0
+        q = q[np.isfinite(q).all(axis=1)]
+        if len(q) < _PLANE_POINTS:
+            return 0
+        sel = np.unique(np.linspace(0, len(q) - 1, min(len(q), cfg.facing_max_points)).astype(np.intp))
+        normal, ok = local_normals(q, q[sel], cfg.facing_radius_m)
+        sight = np.asarray(eye, float).reshape(1, 3) - q[sel]
+        side = np.einsum("ij,ij->i", sight, normal) / np.maximum(np.linalg.norm(sight, axis=1), 1e-9)
+        n_w = np.where(side < 0, -normal[:, 2], normal[:, 2])  # the normal turned to the camera
+        s_min = np.sin(np.radians(cfg.facing_deg))
+        # facing the face, and seen clearly from one side (a plane seen edge-on has no side)
+        hit = ok & (n_w < -s_min) & (np.abs(side) > _EDGE_ON)
+        iy, ix, inside = grid.cell_index(q[sel, 0], q[sel, 1])
+        hit &= inside
+        flat = self.facing.reshape(-1)
+        flat += np.bincount(iy[hit] * grid.nx + ix[hit], minlength=grid.nx * grid.ny).astype(np.int32)
+        flag = (self.facing >= cfg.facing_min_points) & ~self.overhang
         self.overhang |= flag
         return int(flag.sum())
 
@@ -162,6 +214,35 @@ class Overhangs:
         flat_over |= far
         keep[idx[order[kept & (far & ~better)[cs]]]] = False
         return keep, new, int(n - keep.sum())
+
+
+def local_normals(pts: F64, at: F64, radius_m: float) -> tuple[F64, B]:
+    """Per query point of ``at`` ``(M, 3)``, the unit normal ``(M, 3)`` of the total
+    least-squares plane of the nearest of ``pts`` (thinned to one mean per voxel of a quarter of
+    ``radius_m``; at most 32 of those, within ``radius_m``) and whether
+    it is one: at least 8 neighbours and the plane's thickness (root of the smallest eigenvalue
+    of their scatter) under a third of its narrower width (the middle one)."""
+    # one point per voxel of a quarter radius (their mean): the neighbours span the radius
+    key = np.floor(pts / (0.25 * radius_m)).astype(np.int64)
+    _, inv, cnt_v = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    points = np.zeros((len(cnt_v), 3))
+    np.add.at(points, inv, pts)
+    points /= cnt_v[:, None]
+    k = min(_PLANE_NEIGHBOURS, len(points))
+    dist, idx = cKDTree(points).query(at, k=k, distance_upper_bound=radius_m)
+    dist, idx = dist.reshape(len(at), k), idx.reshape(len(at), k)
+    near = np.isfinite(dist)
+    cnt = near.sum(axis=1)
+    nb = points[np.where(near, idx, 0)]  # (M, k, 3); the misses masked below
+    wgt = near[..., None].astype(float)
+    mean = (nb * wgt).sum(axis=1) / np.maximum(cnt, 1)[:, None]
+    d = (nb - mean[:, None, :]) * wgt
+    scatter = np.einsum("mki,mkj->mij", d, d) / np.maximum(cnt, 1)[:, None, None]
+    ev, vec = np.linalg.eigh(scatter)  # ascending eigenvalues
+    ev = np.maximum(ev, 0.0)
+    ok = (cnt >= _PLANE_POINTS) & (np.sqrt(ev[:, 0]) < np.sqrt(ev[:, 1]) / 3.0)
+    return np.asarray(vec[:, :, 0], float), np.asarray(ok, bool)
 
 
 def seen_from_below(emap: ElevationMap, eye: F64, q: F64) -> F64:
