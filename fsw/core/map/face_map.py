@@ -362,18 +362,21 @@ class FaceMap:
 
     def surface_z(self, x: F64, y: F64, iterations: int = 4) -> F64:
         """World height of the face map's surface on the vertical line through each ``(x, y)``
-        (NaN where the face map has no value): ``z = plane_z + w(u, v) / n_z``, with ``(u, v)`` of
-        the point found by fixed-point iteration (the surface is piecewise constant per cell)."""
+        (NaN where the face map has no value, or where its cell is flagged: an overhang holds two
+        surfaces and its height may be either, not a place to stand): ``z = plane_z + w(u, v) /
+        n_z``, with ``(u, v)`` of the point found by fixed-point iteration (the surface is
+        piecewise constant per cell)."""
         x = np.asarray(x, float).ravel()
         y = np.asarray(y, float).ravel()
         z = self.frame.plane_z(x, y)
         nz = float(self.frame.normal[2])
         g = self.map.grid
         w = np.full(x.shape, np.nan)
+        held = np.where(self.overhang, np.nan, self.map.z)
         for _ in range(iterations):
             q = self.frame.to_face(np.column_stack([x, y, z]))
             iy, ix, inside = g.cell_index(q[:, 0], q[:, 1])
-            w = np.where(inside, self.map.z[np.clip(iy, 0, g.ny - 1), np.clip(ix, 0, g.nx - 1)], np.nan)
+            w = np.where(inside, held[np.clip(iy, 0, g.ny - 1), np.clip(ix, 0, g.nx - 1)], np.nan)
             z = self.frame.plane_z(x, y) + np.nan_to_num(w) / nz
         return np.where(np.isfinite(w), z, np.nan)
 
@@ -394,14 +397,18 @@ class FaceMap:
         cov_f = self.frame.cov_to_face(cov)
         keep, flagged, n_second = self.overhangs.two_surfaces(self.map, self.cfg.overhang_gap_m, q,
                                                               cov_f[:, 2, 2])
+        facing_new = 0
+        if eye is not None:
+            eye_f = self.frame.to_face(np.reshape(eye, (1, 3)))[0]
+            facing, facing_new = self.overhangs.facing_the_face(self.map.grid, self.cfg, eye_f, q)
+            n_second += int((keep & facing).sum())
+            keep &= ~facing
         face_parts: list[tuple[F64, F64, F64 | None]] = [
             (q[keep], cov_f[keep], None if common is None else self.frame.cov_to_face(common[keep]))]
         stats = run_merge(self.map, face_parts, p_visible)
-        air_new = facing_new = 0
+        air_new = 0
         if eye is not None:
             air_new = self.carve(eye, parts if rays is None else rays)
-            eye_f = self.frame.to_face(np.reshape(eye, (1, 3)))[0]
-            facing_new = self.overhangs.facing_the_face(self.map.grid, self.cfg, eye_f, q)
         return FaceMergeStats(stats, flagged + air_new + facing_new, n_second, air_new, facing_new)
 
     def carve(self, eye: F64, parts: list[ViewPart]) -> int:

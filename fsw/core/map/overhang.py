@@ -114,7 +114,7 @@ class Overhangs:
         self.overhang |= flag
         return int(flag.sum())
 
-    def facing_the_face(self, grid: MapGrid, cfg: OverhangParams, eye: F64, q: F64) -> int:
+    def facing_the_face(self, grid: MapGrid, cfg: OverhangParams, eye: F64, q: F64) -> tuple[B, int]:
         """The facing test of one view (module docstring): its points ``q`` and camera centre
         ``eye`` in the face frame, at most ``facing_max_points`` of the points (evenly spread),
         each with the plane of the view's points within ``facing_radius_m`` of it (at least 8
@@ -122,12 +122,15 @@ class Overhangs:
         when ``facing_min_points`` points in it (of this view and earlier ones) lie on a plane
         whose normal, turned to the camera, has an ``e_n`` component below
         ``-sin(facing_deg)`` and which the camera sees at least ``facing_deg`` off its plane (a
-        plane seen edge-on has no side) (:attr:`facing`). Returns the cells newly flagged."""
-        if cfg.facing_max_points == 0 or len(q) < _PLANE_POINTS:
-            return 0
-        q = q[np.isfinite(q).all(axis=1)]
-        if len(q) < _PLANE_POINTS:
-            return 0
+        plane seen edge-on has no side) (:attr:`facing`). Returns which points of ``q`` were found
+        on such a plane (they lie on the inner side of the ground along the normal: the caller
+        keeps them out of the cell's height, and their mean ``w`` becomes the cell's
+        :attr:`second` where none is known) and the cells newly flagged."""
+        out = np.zeros(len(q), bool)
+        fin = np.flatnonzero(np.isfinite(q).all(axis=1))
+        if cfg.facing_max_points == 0 or len(fin) < _PLANE_POINTS:
+            return out, 0
+        q = q[fin]
         sel = np.unique(np.linspace(0, len(q) - 1, min(len(q), cfg.facing_max_points)).astype(np.intp))
         normal, ok = local_normals(q, q[sel], cfg.facing_radius_m)
         sight = np.asarray(eye, float).reshape(1, 3) - q[sel]
@@ -138,11 +141,18 @@ class Overhangs:
         hit = ok & (n_w < -s_min) & (np.abs(side) > _EDGE_ON)
         iy, ix, inside = grid.cell_index(q[sel, 0], q[sel, 1])
         hit &= inside
+        size = grid.nx * grid.ny
+        c = iy[hit] * grid.nx + ix[hit]
         flat = self.facing.reshape(-1)
-        flat += np.bincount(iy[hit] * grid.nx + ix[hit], minlength=grid.nx * grid.ny).astype(np.int32)
+        flat += np.bincount(c, minlength=size).astype(np.int32)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = np.bincount(c, q[sel[hit], 2], size) / np.bincount(c, minlength=size)
+        second = self.second.reshape(-1)
+        second[:] = np.where(np.isnan(second), mean, second)
         flag = (self.facing >= cfg.facing_min_points) & ~self.overhang
         self.overhang |= flag
-        return int(flag.sum())
+        out[fin[sel[hit]]] = True
+        return out, int(flag.sum())
 
     def two_surfaces(self, emap: ElevationMap, gap: float, q: F64, var_w: F64,
                      min_points: int = 3) -> tuple[B, int, int]:

@@ -6,7 +6,9 @@ import math
 
 import numpy as np
 
-from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig
+from fsw.core.geometry import MapGrid
+from fsw.core.map.elevation_map import ElevationMap
+from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig, hand_over_z
 from fsw.core.map.overhang import local_normals
 
 
@@ -44,7 +46,9 @@ def test_a_side_facing_the_face_is_an_overhang_and_a_step_is_not() -> None:
     _view(face, np.random.default_rng(0), 3.0, eye)  # w = 0.3 + 3 (v - 0.25): rises up the dip
     assert face.overhang[2, :].all() and (face.facing[2, :] >= cfg.facing_min_points).all()
     assert face.overhang.sum() == face.grid.nx, face.overhang.astype(int)  # the face around: not flagged
-    assert np.allclose(face.map.z[2, :], 0.3, atol=0.05)
+    # the side's points are the inner side of the rock along the normal: kept out of the height
+    assert np.allclose(face.second[2, :], 0.3, atol=0.05)
+    assert np.allclose(face.map.z[6:, :], 0.0, atol=0.01)
     step = FaceMap(f, (0.0, 1.0), (0.0, 1.0), cfg)
     _view(step, np.random.default_rng(0), -3.0, [0.5, 3.0, 1.5])  # falls up the dip: faces outward
     assert not step.overhang.any(), step.overhang.astype(int)
@@ -66,3 +70,24 @@ def test_local_normals_fit_planes_and_refuse_bad_neighbourhoods() -> None:
     lone = np.array([[0.0, 0.0, 0.0], [5.0, 5.0, 5.0]])  # fewer than 8 neighbours
     _, ok = local_normals(np.vstack([lone, p]), lone, 0.08)
     assert not ok.any()
+
+
+def test_an_overhang_is_no_height_in_the_one_heightfield() -> None:
+    """The planners' heightfield (``hand_over_z``) answers a flagged face cell as unknown: an
+    overhang's held height may be either surface, not ground to stand on."""
+    f = _frame()
+    face = FaceMap(f, (-1.0, 1.0), (-1.0, 1.0), FaceMapConfig(cell_m=0.1, seam_m=0.1))
+    face.map.z[:] = 0.05
+    face.map.n[:] = 1
+    face.map.var[:] = 1e-4
+    gravity = ElevationMap(MapGrid(-1.0, -1.0, 0.05, 40, 40))
+    own = face.face_owned(gravity.grid)
+    assert np.isfinite(hand_over_z(gravity, face)[own]).all()
+    face.overhang[8:12, 8:12] = True
+    z = hand_over_z(gravity, face)
+    X, Y = gravity.grid.centers()
+    hole = np.isnan(z[own])
+    assert hole.any() and (~hole).any()
+    q = f.to_face(np.column_stack([X[own][~hole], Y[own][~hole], z[own][~hole]]))
+    iy, ix, inside = face.grid.cell_index(q[:, 0], q[:, 1])
+    assert inside.all() and not face.overhang[iy, ix].any()  # every answer stands on a single surface
