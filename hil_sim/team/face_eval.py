@@ -35,12 +35,14 @@ B = NDArray[np.bool_]
 
 
 def along_normal(height: Callable[[F64, F64], F64], face: FaceMap, cells: NDArray[np.intp],
-                 reach_m: float = 0.25, step_m: float = 0.005, chunk: int = 4000) -> tuple[F64, B]:
+                 reach_m: float = 0.25, step_m: float = 0.005, chunk: int = 4000,
+                 offset: tuple[float, float] = (0.0, 0.0)) -> tuple[F64, B]:
     """``(w, overhang)``: where the line through each face cell's centre (flat indices ``cells``)
     along the face normal leaves the heightfield ``height(x, y)`` for the last time (from below
     the surface to above it; NaN where it does not inside the face map's slab grown by
     ``reach_m``, or where ``height`` is NaN there), and whether it crosses the surface more than
-    once over more than the overhang gap."""
+    once over more than the overhang gap; ``offset``: the line moved from the centre by that
+    ``(du, dv)``."""
     g = face.grid
     ws = np.arange(-face.cfg.slab_in_m - reach_m, face.cfg.slab_out_m + reach_m + step_m / 2, step_m)
     out_w = np.full(len(cells), np.nan)
@@ -48,8 +50,8 @@ def along_normal(height: Callable[[F64, F64], F64], face: FaceMap, cells: NDArra
     gap = face.cfg.overhang_gap_m
     for a in range(0, len(cells), chunk):
         c = cells[a:a + chunk]
-        u = g.x0 + (c % g.nx + 0.5) * g.cell
-        v = g.y0 + (c // g.nx + 0.5) * g.cell
+        u = g.x0 + (c % g.nx + 0.5) * g.cell + offset[0]
+        v = g.y0 + (c // g.nx + 0.5) * g.cell + offset[1]
         q = np.stack(np.broadcast_arrays(u[:, None], v[:, None], ws[None, :]), axis=-1)
         p = face.frame.to_world(q.reshape(-1, 3)).reshape(q.shape)
         f = p[..., 2] - height(p[..., 0], p[..., 1])
@@ -100,6 +102,18 @@ def air_gap_along_normal(world: World, face: FaceMap, cells: NDArray[np.intp], r
 def truth_along_normal(world: World, face: FaceMap, cells: NDArray[np.intp]) -> tuple[F64, B]:
     """:func:`along_normal` of the true ground (``(w_true, overhang)``)."""
     return along_normal(lambda x, y: np.nan_to_num(world.ground_at(x, y), nan=1e9), face, cells)
+
+
+def overhang_in_cell(world: World, face: FaceMap, cells: NDArray[np.intp]) -> B:
+    """Whether the true ground holds two surfaces (:func:`along_normal`) on the normal through
+    any of the four quarter-centres of each cell (``cells``): a cell an overhang covers in part,
+    though not at its centre (where the truth judges it)."""
+    q = 0.25 * face.grid.cell
+    out = np.zeros(len(cells), bool)
+    for du, dv in ((-q, -q), (-q, q), (q, -q), (q, q)):
+        out |= along_normal(lambda x, y: np.nan_to_num(world.ground_at(x, y), nan=1e9), face, cells,
+                            offset=(du, dv))[1]
+    return out
 
 
 def gravity_along_normal(gravity: ElevationMap, face: FaceMap, cells: NDArray[np.intp]) -> F64:
@@ -206,7 +220,9 @@ def face_figures(world: World, face: FaceMap, gravity: ElevationMap,
     """The team summary's face figures (module docstring): ``face_rmse_m`` (mapped single-surface
     face cells, the face map), ``face_rmse_gravity_m`` (the same points, queried from
     ``gravity``; only cells both have), ``face_rmse_gravity_normal_m``, ``face_cells``,
-    ``overhang_truth``, ``overhang_flagged``, ``overhang_false``, ``overhang_open`` (truth overhangs
+    ``overhang_truth``, ``overhang_flagged``, ``overhang_false`` (flags on single-surface cells; of
+    them ``overhang_false_part``: an overhang covers part of the cell, :func:`overhang_in_cell`),
+    ``overhang_open`` (truth overhangs
     with air as wide as the gap between their surfaces, :func:`air_gap_along_normal`),
     ``overhang_open_flagged`` and ``cells_by_agent``; with the
     views' true sight lines ``rays`` also ``overhang_seen`` (truth overhangs some view could
@@ -221,6 +237,9 @@ def face_figures(world: World, face: FaceMap, gravity: ElevationMap,
     flagged = face.overhang.reshape(-1)[cells]
     seen = overhang_seen(face, cells, w_true, over, rays) if rays is not None else None
     shown = overhang_shown(world, face, cells, w_true, over, rays) if rays is not None else None
+    false = flagged & ~over
+    beside = np.zeros(len(cells), bool)
+    beside[false] = overhang_in_cell(world, face, cells[false])
     open_air = np.zeros(len(cells), bool)
     open_air[over] = air_gap_along_normal(world, face, cells[over]) >= face.cfg.overhang_gap_m
     return {
@@ -232,7 +251,8 @@ def face_figures(world: World, face: FaceMap, gravity: ElevationMap,
         "face_rmse_m": _rms(e_face[both]), "face_rmse_gravity_m": _rms(e_grav[both]),
         "face_rmse_gravity_normal_m": _rms(e_norm[both]),
         "face_cells": int(both.sum()), "overhang_truth": int(over.sum()),
-        "overhang_flagged": int((over & flagged).sum()), "overhang_false": int((~over & flagged).sum()),
+        "overhang_flagged": int((over & flagged).sum()), "overhang_false": int(false.sum()),
+        "overhang_false_part": int(beside.sum()),
         "cells_by_agent": dict(cells_by_agent or {}),
     }
 
