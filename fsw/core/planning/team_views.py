@@ -28,10 +28,11 @@ P_V was wrong for that cell (its prior cannot see it), which says nothing of the
 view from elsewhere (the Cliff-bot on the face sees what the RECON-bot's prior misses).
 
 **Sequential greedy** (:func:`choose_team_views`): every agent not yet served is rated, the one
-whose best view has the highest utility takes it, and the cells that view will see (its P_V on
-every cell) are added to ``planned``, which the next agent's rating counts as measurements
-already taken (``nbv.cell_values``); repeat until every agent has a view. So the second agent
-does not pay for, nor aim at, what the first is about to map. Each choice says who looked where
+whose best view has the highest utility takes it, and ``planned``, the probability that some
+chosen view sees each cell, takes in that view's P_V; the next agent's views are rated by what
+they add to the cycle's one measurement of each cell (``nbv.cell_values``: the marginal gain of a
+submodular function of the cycle's views); repeat until every agent has a view. So the second
+agent does not pay for, nor aim at, what the first is about to map. Each choice says who looked where
 and why (:class:`TeamView`, ``why`` and :meth:`TeamView.event`).
 """
 
@@ -303,7 +304,7 @@ def choose_team_views(emap: MapLike, agents: Sequence[AgentViews], cfg: NbvConfi
                       corridor: NDArray[np.bool_] | None = None, terrain: Terrain | None = None
                       ) -> tuple[list[TeamView], F64]:
     """Sequential greedy over the agents (module docstring): the views in the order chosen, and
-    ``planned``, the summed P_V of the chosen views on every cell."""
+    ``planned``, the probability that some chosen view sees each cell, ``1 - prod (1 - P_V)``."""
     terrain = terrain if terrain is not None else terrain_from_map(emap.z, emap.var, emap.grid, cfg.visibility)
     n_max = info_n_max(emap, cfg)
     planned = np.zeros(emap.grid.shape)
@@ -345,7 +346,7 @@ def choose_team_views(emap: MapLike, agents: Sequence[AgentViews], cfg: NbvConfi
                         discounted, in_corr, why, np.clip(pv, 0.0, 1.0))
         chosen.append(view)
         first = first or view
-        planned += pv
+        planned = 1.0 - (1.0 - planned) * (1.0 - np.clip(pv, 0.0, 1.0))  # some chosen view sees the cell
         left.pop(k)
     return chosen, planned
 

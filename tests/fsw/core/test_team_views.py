@@ -11,7 +11,7 @@ import pytest
 
 from fsw.core.geometry import CameraConfig, MapGrid
 from fsw.core.map.elevation_map import ElevationMap
-from fsw.core.planning.nbv import NbvConfig, cell_values, predicted_visibility
+from fsw.core.planning.nbv import NbvConfig, cell_values, h2, predicted_visibility
 from fsw.core.planning.team_views import (
     AgentInterest,
     AgentViews,
@@ -66,14 +66,31 @@ def test_the_second_agent_does_not_look_where_the_first_will() -> None:
     assert planned.max() > 0.5 and f"after {views[0].agent}'s view" in views[1].why
 
 
-def test_planned_cells_count_as_measured_in_eq3() -> None:
+def test_a_cell_an_earlier_view_sees_adds_only_what_this_view_adds() -> None:
+    """The second view's bits are its marginal gain on the cycle's one measurement of the cell
+    (§8.2): nothing where the earlier view surely sees it, the rest of h2 where it may."""
     pv = np.array([1.0, 1.0, 1.0])
-    n = np.array([0, 0, 1], np.int32)
+    n = np.array([0, 0, 0], np.int32)
     bits0, new0 = cell_values(pv, n, 2, None)
-    bits1, new1 = cell_values(pv, n, 2, None, planned=np.array([0.0, 1.0, 1.0]))
+    bits1, new1 = cell_values(pv, n, 2, None, planned=np.array([0.0, 1.0, 0.5]))
     assert bits1[0] == bits0[0] and new1[0] == new0[0] == 1.0
-    assert math.isclose(bits1[1], 0.5 * bits0[1]) and new1[1] == 0.0  # one expected measurement: half
-    assert bits1[2] == 0.0 and new1[2] == 0.0  # n + planned reaches n_max: nothing left
+    assert bits1[1] == 0.0 and new1[1] == 0.0  # the earlier view surely sees it: nothing left
+    assert math.isclose(bits1[2], 1.0 - float(h2(np.array([0.25]))[0])) and new1[2] == 0.5
+
+
+def test_two_views_of_one_cell_are_worth_the_same_in_either_order_and_less_than_two_cells() -> None:
+    """The cycle's bits of a cell are a set function of its views (submodular): the same total in
+    either order of choice, and two views of one cell worth less than one view of each of two."""
+    for a, b in ((0.9, 0.3), (0.6, 0.6), (0.2, 0.7)):
+        for n in (0, 1):
+            nn = np.array([n], np.int32)
+            first_a = cell_values(np.array([a]), nn, 2, None)[0] + cell_values(np.array([b]), nn, 2, None,
+                                                                               planned=np.array([a]))[0]
+            first_b = cell_values(np.array([b]), nn, 2, None)[0] + cell_values(np.array([a]), nn, 2, None,
+                                                                               planned=np.array([b]))[0]
+            assert math.isclose(float(first_a[0]), float(first_b[0]), rel_tol=1e-12)
+            apart = cell_values(np.array([a, b]), np.array([n, n], np.int32), 2, None)[0].sum()
+            assert float(first_a[0]) < float(apart)
 
 
 def test_the_corridor_is_the_path_grown_by_its_half_width() -> None:
@@ -111,14 +128,14 @@ def test_the_cliffbots_views_cost_tether_motion() -> None:
 
 
 def test_each_view_carries_the_visibility_it_was_rated_with() -> None:
-    """The chosen views' P_V (what their misses are recorded against, §3.4) sum to ``planned``:
-    each the view's own prediction on the map, in [0, 1]."""
+    """The chosen views' P_V (what their misses are recorded against, §3.4) make ``planned``, the
+    probability that some view sees each cell: each the view's own prediction on the map, in [0, 1]."""
     emap = _flat_map()
     agents = [AgentViews("recon", CAM, (_centre(2.0, 3.0),)), AgentViews("cliffbot", CAM, (_centre(4.0, 3.0),))]
     views, planned = choose_team_views(emap, agents, NBV)
     pvs = [v.p_visible for v in views]
     assert all(p is not None and p.shape == GRID.shape and p.min() >= 0.0 and p.max() <= 1.0 for p in pvs)
-    assert np.allclose(sum(p for p in pvs if p is not None), planned)
+    assert np.allclose(1.0 - np.prod([1.0 - p for p in pvs if p is not None], axis=0), planned)
     for v, p in zip(views, pvs, strict=True):
         assert np.allclose(p, predicted_visibility(emap, v.pose(), CAM, NBV.visibility))
 
