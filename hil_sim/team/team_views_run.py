@@ -22,8 +22,9 @@ The Cliff-bot's corridor is its plan on the true ground on the scenario's map gr
 with no target reachable, the straight way from its start toward the nearest target as far as
 the tethers hold it there on the true ground (:meth:`TeamViewsRun._toward_nearest`: known
 ground, neither slack nor over-tension, on the face where steeper than ``free_slope_deg``), the
-way it would have to map to get closer. Team views choose where on that corridor it stops to
-look (any place on it within ``max_travel_m`` of where it stands, either way) and where it
+way it would have to map to get closer. Team views choose where in that corridor it stops to
+look (any place on the path within ``max_travel_m`` of where it stands, either way, and any
+place across the corridor on ground the shared map knows where the tethers hold it) and where it
 looks; its task is to map the corridor. The route is taken as planned beforehand, so where the
 shared map does not know the ground yet its tether lengths come from the route's ground (the
 truth), and before the face map is fitted the rating's face is the plane of the ground under
@@ -201,7 +202,8 @@ class TeamViewsRun:
         # the ground yet, the tether lengths and the head's place come from the route's own ground
         z = np.where(self.map.mapped, self.map.z, self.truth)
         centres = cliffbot_centres(z, self.grid, self.anchors, self.path, self.cliff_xy, self.head, self.tcfg,
-                                   self.tv, both_ways=True)
+                                   self.tv, both_ways=True, known=self.map.mapped,
+                                   free_slope_deg=self.ccfg.free_slope_deg)
         k = int(np.argmin(np.linalg.norm(self.path - self.cliff_xy, axis=1)))
         ahead = self.path[min(k + 1, len(self.path) - 1):]
         step = next((p for p in ahead if np.linalg.norm(p - self.path[k]) > 0.5), ahead[-1])

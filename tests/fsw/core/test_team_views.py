@@ -19,6 +19,7 @@ from fsw.core.planning.team_views import (
     ViewCentre,
     choose_team_views,
     cliffbot_centres,
+    corridor_lattice,
     corridor_mask,
     corridor_places,
     corridor_weights,
@@ -152,6 +153,39 @@ def test_corridor_places_lie_on_the_path_either_way_within_reach() -> None:
     assert p[:, 1].min() < 2.5 and p[:, 1].max() > 3.5  # behind and ahead of it
     assert len(np.unique(np.round(p, 3), axis=0)) == len(p) == 5  # 2.0 ... 4.0, the way back adds none
     assert corridor_places(np.zeros((0, 2)), now, 0.5, 1.2).shape == (0, 2)
+
+
+def test_corridor_lattice_fills_the_corridor_off_the_path_within_reach() -> None:
+    """Places across the corridor: lattice nodes through where the Cliff-bot stands, within the
+    corridor's half width of the path and more than half a spacing off it, within max_travel."""
+    path = np.column_stack([np.full(41, 3.0), np.linspace(1.0, 5.0, 41)])
+    now = np.array([3.0, 3.0])
+    p = corridor_lattice(path, now, 0.5, 1.2, 1.0)
+    off = np.abs(p[:, 0] - 3.0)
+    assert len(p) > 0 and np.all((off > 0.25) & (off <= 1.0 + 1e-9))
+    assert np.all(np.linalg.norm(p - now, axis=1) <= 1.2 + 1e-9)
+    assert np.allclose((p - now) / 0.5, np.round((p - now) / 0.5))  # on the lattice through now
+    assert {round(float(v), 3) for v in p[:, 0]} == {2.0, 2.5, 3.5, 4.0}  # both sides, to the full half width
+    assert corridor_lattice(path, now, 0.5, 1.2, 0.2).shape == (0, 2)  # a corridor no wider than the path's places
+
+
+def test_the_cliffbots_places_across_its_corridor_are_on_known_ground_only() -> None:
+    """On a 60 deg face the Cliff-bot's candidates include places beside its path inside the
+    corridor, but only where the map knows the ground."""
+    x, y = GRID.centers()
+    z = np.where(y > 4.0, 0.0, -(4.0 - y) * math.tan(math.radians(60.0)))
+    tcfg = TetherConfig()
+    anchors = anchor_points(z, GRID, np.array([[2.0, 5.5], [4.0, 5.5]]), tcfg)
+    path = np.column_stack([np.full(20, 3.0), np.linspace(4.6, 2.7, 20)])
+    cfg = TeamViewConfig(station_spacing_m=0.5, max_travel_m=2.0, corridor_half_m=1.0)
+    known = x < 3.0  # the map knows the ground west of the path only
+    on = cliffbot_centres(z, GRID, anchors, path, path[0], (0.0, 0.0), tcfg, cfg, both_ways=True,
+                          known=known, free_slope_deg=90.0)
+    px = np.array([c.place[0] for c in on])
+    assert np.any(px < 2.75) and not np.any(px > 3.25)  # beside the path, on the known side only
+    narrow = cliffbot_centres(z, GRID, anchors, path, path[0], (0.0, 0.0), tcfg,
+                              dataclasses.replace(cfg, corridor_half_m=0.0), both_ways=True, known=known)
+    assert np.allclose([c.place[0] for c in narrow], 3.0)
 
 
 def test_an_agent_pays_only_for_the_motion_beyond_the_earlier_choices() -> None:
