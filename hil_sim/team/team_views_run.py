@@ -58,7 +58,7 @@ from fsw.core.map.face_map import (
 )
 from fsw.core.planning.face_rating import FaceCells, face_cells
 from fsw.core.planning.info_planners import InformationPlanner
-from fsw.core.planning.nbv import NbvConfig, predicted_visibility
+from fsw.core.planning.nbv import NbvConfig, info_n_max, predicted_visibility
 from fsw.core.planning.planners import PlannerState
 from fsw.core.planning.team_views import (
     AgentInterest,
@@ -95,6 +95,10 @@ class CycleRecord:
     new_cells: int = 0  # cells the cycle mapped for the first time (team)
     overlap: float | None = None  # cells both views measured / cells either measured (two agents)
     overlap_of_smaller: float | None = None  # cells both views measured / cells the smaller view measured
+    # the overlap on the cells with information left for Eq 3 (measured fewer than info_n_max times
+    # before the cycle): a view's rating gives the cells measured that often nothing, so two views
+    # may share them at no cost
+    overlap_open: float | None = None
     face_frac: float = 0.0  # of the face (truth slope > 45 deg) mapped after the cycle
     corridor_frac: float = 0.0  # of the corridor mapped after the cycle
     agent_face_frac: dict[str, float] = field(default_factory=dict)
@@ -258,6 +262,7 @@ class TeamViewsRun:
         views, _ = choose_team_views(self.map, agents, self.nbv, self.corridor)
         rec = CycleRecord(len(self.records) + 1)
         before = self.map.mapped.copy()
+        open_cells = self.map.n < info_n_max(self.map, self.nbv)
         seen: dict[str, B] = {}
         start = np.asarray(self.world.team.cliffbot_start_xy if self.world.team else (0.0, 0.0), float)
         for v in views:
@@ -276,6 +281,8 @@ class TeamViewsRun:
             small, either = min(int(a.sum()), int(b.sum())), int((a | b).sum())
             rec.overlap = float((a & b).sum()) / either if either else 0.0
             rec.overlap_of_smaller = float((a & b).sum()) / small if small else 0.0
+            either_open = int(((a | b) & open_cells).sum())
+            rec.overlap_open = float((a & b & open_cells).sum()) / either_open if either_open else 0.0
         rec.face_frac = _frac(self.map.mapped, self.face)
         rec.corridor_frac = _frac(self.map.mapped, self.corridor)
         for name, m in self.by_agent.items():

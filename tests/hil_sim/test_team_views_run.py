@@ -104,7 +104,8 @@ def test_the_overlap_is_reported_over_every_cycle_each_scenes_worst_and_each_sce
     def row(seed: int, overlaps: list[float]) -> dict[str, object]:
         r: dict[str, object] = dict.fromkeys(COLUMNS, 0.5)
         r.update(seed=seed, corridor_cycles_team=None, corridor_cycles_recon=None, corridor_ratio=None, reachable=True,
-                 overlaps=overlaps, overlap_max=max(overlaps), overlap_mean=sum(overlaps) / len(overlaps))
+                 overlaps=overlaps, overlap_max=max(overlaps), overlap_mean=sum(overlaps) / len(overlaps),
+                 overlaps_open=[o / 10 for o in overlaps])
         return r
 
     md = report([row(0, [0.0, 0.0, 0.6]), row(1, [0.1, 0.0, 0.0])], markdown_table, 3)
@@ -115,6 +116,7 @@ def test_the_overlap_is_reported_over_every_cycle_each_scenes_worst_and_each_sce
     every = cells("every cycle of every scene (median of the cycles")
     assert float(every[2]) == 0.0 and float(every[3]) == pytest.approx(0.6)
     assert cells("overlap more than 0.15")[2:4] == ["1", "of 6"]
+    assert float(cells("with information left")[3]) == pytest.approx(0.06)
     worst = cells("two views, each scene's worst cycle (")
     assert float(worst[2]) == pytest.approx(0.35) and float(worst[3]) == pytest.approx(0.6)
     mean = cells("each scene's mean over its cycles")

@@ -10,7 +10,8 @@ every view and takes minutes of CPU per imaging step.
 
 Figures per scene: new cells per imaging cycle (team / RECON-bot alone), the overlap of the two
 views of a cycle (cells both measured / cells either measured; and / cells the smaller measured; summarised
-over every cycle of every scene, each scene's worst cycle and each scene's mean), the cycles until the
+over every cycle of every scene, each scene's worst cycle and each scene's mean; and on the cells with
+information left, measured fewer than ``info_n_max`` times before the cycle), the cycles until the
 Cliff-bot's corridor (its plan on the true ground, path +- 1 m) is mapped to 95 % (team, alone,
 their ratio), the face (true slope > 45 deg) and corridor mapped after the last cycle, and the
 RMS error on cells both agents mapped: each agent's own map and the fused one; and why the
@@ -38,8 +39,9 @@ from typing import Any
 
 HELP = "team views (both agents) against the RECON-bot alone: cells per cycle, overlap, corridor, fusion"
 COLUMNS = ("seed", "cycles", "team_cells_per_cycle", "recon_cells_per_cycle", "cells_ratio", "overlap_mean",
-           "overlap_median", "overlap_max", "overlap_of_smaller_max", "corridor_cycles_team", "corridor_cycles_recon",
-           "corridor_ratio", "corridor_team", "corridor_recon", "face_team", "face_recon", "both_cells",
+           "overlap_median", "overlap_max", "overlap_open_max", "overlap_of_smaller_max", "corridor_cycles_team",
+           "corridor_cycles_recon", "corridor_ratio", "corridor_team", "corridor_recon", "face_team", "face_recon",
+           "both_cells",
            "rmse_recon_m", "rmse_cliffbot_m", "rmse_fused_m", "blind_views", "reachable", "cliffbot_candidates",
            "cliffbot_expected_new", "cliffbot_obtained_new", "cliffbot_new_share", "cliffbot_travel_m",
            "recon_team_new_per_cycle", "empty_views_recon_team", "empty_views_cliffbot", "empty_views_recon_alone",
@@ -131,6 +133,8 @@ def scene(spec: str, seed: int, cycles: int, cell_m: float) -> tuple[dict[str, A
         "overlap_median": float(np.median(overlaps)) if overlaps else None,
         "overlaps": overlaps,  # every cycle's, for the summary over all cycles (not a column)
         "overlap_max": float(np.max(overlaps)) if overlaps else None,
+        "overlap_open_max": max((r.overlap_open for r in team.records if r.overlap_open is not None), default=None),
+        "overlaps_open": [r.overlap_open for r in team.records if r.overlap_open is not None],
         "overlap_of_smaller_max": max((r.overlap_of_smaller for r in team.records
                                        if r.overlap_of_smaller is not None), default=None),
         "corridor_cycles_team": ct, "corridor_cycles_recon": cr,
@@ -241,6 +245,11 @@ def report(rows: list[dict[str, Any]], table: Any, cycles: int) -> str:
             float(np.median(every)), float(every.max()), "<= 0.15")
         add("cycles whose two views overlap more than 0.15 (of every cycle of every scene)",
             int((every > 0.15).sum()), f"of {every.size}", "")
+    every_open = np.array([o for r in rows for o in r.get("overlaps_open", [])], float)
+    if every_open.size:
+        add("the same on the cells with information left (measured fewer than info_n_max times before the "
+            "cycle; the rest are worth nothing to either view's rating)", float(np.median(every_open)),
+            float(every_open.max()), "")
     ov = col("overlap_max")
     add("overlap of a cycle's two views, each scene's worst cycle (median and worst of the scenes)",
         float(np.median(ov)) if ov.size else None, float(ov.max()) if ov.size else None, "<= 0.15")
