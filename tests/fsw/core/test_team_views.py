@@ -24,7 +24,7 @@ from fsw.core.planning.team_views import (
     corridor_places,
     corridor_weights,
 )
-from fsw.core.team.tether import TetherConfig, anchor_points
+from fsw.core.team.tether import TetherConfig, anchor_points, tether_states
 from fsw.settings import load_settings
 
 GRID = MapGrid(0.0, 0.0, 0.1, 60, 60)
@@ -246,3 +246,23 @@ def test_an_agents_misses_decay_only_its_own_interest() -> None:
         with pytest.raises(ValueError, match="p_visible"):
             ai.record("cliffbot", bad, np.zeros(GRID.shape, bool))
     assert np.all(ai.of("cliffbot") == 1.0)
+
+
+def test_the_cliffbots_places_across_its_corridor_are_where_the_tethers_hold_it() -> None:
+    """Off its path, a place on the face is a candidate only where both tethers hold the Cliff-bot
+    (the statics hold); on ground no steeper than free_slope_deg it stands on its wheels anyway."""
+    x, y = GRID.centers()
+    z = np.where(y > 4.0, 0.0, -(4.0 - y) * math.tan(math.radians(60.0)))
+    tcfg = TetherConfig()
+    anchors = anchor_points(z, GRID, np.array([[2.0, 5.5], [4.0, 5.5]]), tcfg)
+    path = np.column_stack([np.full(20, 3.0), np.linspace(4.6, 2.7, 20)])
+    cfg = TeamViewConfig(station_spacing_m=0.5, max_travel_m=2.0, corridor_half_m=1.0)
+    cs = cliffbot_centres(z, GRID, anchors, path, path[0], (0.0, 0.0), tcfg, cfg, both_ways=True, free_slope_deg=25.0)
+    off = np.array([c.place[:2] for c in cs if abs(c.place[0] - 3.0) > 1e-6])
+    states = tether_states(z, GRID, anchors, off, tcfg)
+    assert all(st is not None and (st.statics.ok or st.statics.tilt_deg <= 25.0) for st in states)
+    lattice = corridor_lattice(path, path[0], 0.5, 2.0, 1.0)
+    slack = [p for p, st in zip(lattice, tether_states(z, GRID, anchors, lattice, tcfg), strict=True)
+             if st is not None and not st.statics.ok and st.statics.tilt_deg > 25.0]
+    assert slack and not any(np.allclose(p, q) for p in slack for q in off)  # slack places on the face left out
+    assert any(st is not None and st.statics.tilt_deg > 25.0 for st in states)  # held places on the face kept
