@@ -74,6 +74,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--jobs", type=int, default=1, help="scenes run in parallel (processes)")
     p.add_argument("--recon-views", type=int, default=4, help="RECON-bot views per scene")
     p.add_argument("--cliff-views", type=int, default=4, help="Cliff-bot views per scene")
+    p.add_argument("--resolve-cells", type=float, default=None,
+                   help="the face map's incidence limit: a point whose matching window spans more face cells "
+                        "than this is not fused (0: off; default: [face_map] resolve_cells)")
     p.add_argument("--config", default=str(DEFAULT_CONFIG), help="flight configuration (TOML)")
     p.add_argument("--out", type=Path, default=Path("out/face-map"), help="output directory")
     p.add_argument("--results-name", default="face-map",
@@ -87,6 +90,9 @@ def run(args: argparse.Namespace) -> int:
     from hil_sim.world import ScenarioError, load_scenario
 
     me = "safer-hil experiment face-map"
+    if args.resolve_cells is not None and not 0.0 <= args.resolve_cells <= 100.0:
+        print(f"{me}: --resolve-cells takes 0 to 100, got {args.resolve_cells}", file=sys.stderr)
+        return 2
     if args.scenes < 1 or args.jobs < 1 or args.recon_views < 1 or args.cliff_views < 0:
         print(f"{me}: --scenes, --jobs and --recon-views must be >= 1, --cliff-views >= 0", file=sys.stderr)
         return 2
@@ -104,7 +110,8 @@ def run(args: argparse.Namespace) -> int:
     seeds = list(range(args.seed, args.seed + args.scenes))
     rows: list[dict[str, Any]] = []
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        futs = {pool.submit(scene, args.scenario, s, args.config, args.recon_views, args.cliff_views): s
+        futs = {pool.submit(scene, args.scenario, s, args.config, args.recon_views, args.cliff_views,
+                            args.resolve_cells): s
                 for s in seeds}
         for fut in as_completed(futs):
             try:
@@ -196,9 +203,10 @@ def report(rows: list[dict[str, Any]], table: Any) -> str:
             + "\n\n## Scenes\n\n" + table(rows, list(COLUMNS)) + "\n")
 
 
-def scene(spec: str, seed: int, config: str, n_recon: int, n_cliff: int) -> dict[str, Any]:
+def scene(spec: str, seed: int, config: str, n_recon: int, n_cliff: int,
+          resolve_cells: float | None = None) -> dict[str, Any]:
     """One scene's figures (module docstring); deterministic per seed."""
     from hil_sim.team.face_scene import FaceScene
 
-    return FaceScene(spec, seed, config).measure(n_recon, n_cliff)
+    return FaceScene(spec, seed, config, resolve_cells=resolve_cells).measure(n_recon, n_cliff)
 
