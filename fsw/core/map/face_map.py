@@ -27,9 +27,10 @@ height per cell with variance, count, interest, misses) in the face's own frame:
   ``fsw.core.map.overhang`` (:class:`~fsw.core.map.overhang.Overhangs`), run on each view by
   :meth:`FaceMap.merge_parts` (before its merge: which points to fuse) and :meth:`FaceMap.carve`
   (after it: free space along the rays).
-* The incidence limit (:func:`window_span`): a view's point whose stereo matching window spans
-  more than ``resolve_cells`` face cells along the face (grazing incidence) is not fused into
-  the face map's heights; it still counts for the overhang tests and its ray for free space.
+* The incidence limit (:func:`window_span`; off by default, ``resolve_cells = 0``): a view's
+  point whose stereo matching window spans more than ``resolve_cells`` face cells along the face
+  (grazing incidence) is not fused into the face map's heights; it still counts for the
+  overhang tests and its ray for free space.
 """
 
 from __future__ import annotations
@@ -74,7 +75,7 @@ class FaceMapConfig:
                                    doc="neighbours of a point its plane is fitted to")
     facing_min_points: int = param(3, lo=1, hi=10**6, doc="points on planes facing the face that flag a cell")
     facing_max_points: int = param(20000, lo=0, hi=10**7, doc="points per view tested for facing the face (0: none)")
-    resolve_cells: float = param(1.0, lo=0.0, hi=100.0, units="cells",
+    resolve_cells: float = param(0.0, lo=0.0, hi=100.0, units="cells",
                                  doc="a point whose matching window spans more face cells is not fused (0: off)")
 
 

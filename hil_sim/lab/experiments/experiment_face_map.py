@@ -41,6 +41,8 @@ truth: ``hil_sim.team.face_scene.team_points``, from the renderer's label of eac
 those of them that survive the mask into the map, and the gravity-grid cells they fall in
 (robot/tether cells mapped as terrain). Writes OUT/face_map.csv and ``docs/results/face-map.md``
 (medians, worst cases; ``--results-name`` names another, e.g. for a held-out run on other seeds).
+``--resolve-cells K`` sets the face map's incidence limit (docs/algorithm.md §8.1: a point whose
+stereo window spans more than K face cells is not fused; 0 off, the default).
 """
 
 from __future__ import annotations

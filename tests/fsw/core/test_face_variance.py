@@ -120,7 +120,7 @@ def test_a_grazing_view_does_not_fuse_the_cells_it_cannot_resolve() -> None:
     measurement) sit out of the face, outside their 2 sigma."""
     a = np.radians(75.0)
     frame = FaceFrame.from_normal(np.zeros(3), np.array([0.0, -np.sin(a), np.cos(a)]))
-    cfg = FaceMapConfig(cell_m=CELL, air_max_rays=0, facing_max_points=0)
+    cfg = FaceMapConfig(cell_m=CELL, air_max_rays=0, facing_max_points=0, resolve_cells=1.0)
     rng = np.random.default_rng(5)
     q = np.column_stack([rng.uniform(0.1, 1.1, 4000), rng.uniform(0.1, 1.1, 4000), np.zeros(4000)])
     cov = np.tile(np.diag([1e-4, 1e-4, 0.005**2]), (len(q), 1, 1))
