@@ -27,7 +27,7 @@ from fsw.core.steps import run_to_end
 from fsw.core.stereo.stereo import StereoPoints
 from fsw.core.team.tether import TetherConfig, anchor_points, surface_normal, tether_state
 from fsw.tasks.perception import SITE_MASK
-from hil_sim.team.face_eval import equal_memory_cell, face_figures, truth_along_normal
+from hil_sim.team.face_eval import equal_memory_cell, face_figures, relief_rise, truth_along_normal
 from hil_sim.team.team_sensing import (
     ANCHOR_HALF_M,
     CLIFFBOT_CAMERA,
@@ -298,7 +298,8 @@ class FaceScene:
             nones = ("face_cells", "face_rmse_m", "face_rmse_gravity_m", "ratio", "face_rmse_gravity_normal_m",
                      "ratio_normal", "rmse_recon_m", "rmse_cliff_m",
                      "rmse_fused_m", "in2s_recon", "in2s_cliff", "in2s_fused")
-            zeros = {f"{k}_{a}": 0 for k in ("cells", "within2s") for a in ("recon", "cliff", "fused")}
+            zeros = {f"{k}_{a}{t}": 0 for k in ("cells", "within2s", "out2s") for a in ("recon", "cliff", "fused")
+                     for t in ("", "_step")}
             return {**row, **{k: None for k in nones}, **zeros, "overhang_truth": 0, "overhang_flagged": 0,
                     "overhang_false": 0, "overhang_false_part": 0, "overhang_seen": 0, "overhang_seen_flagged": 0,
                     "overhang_shown": 0,
@@ -335,13 +336,22 @@ class FaceScene:
             s = np.sqrt(fm.map.var.reshape(-1)[both][ok])
             out[f"rmse_{name}_m"] = float(np.sqrt(np.mean(e * e))) if e.size else None
             out[f"in2s_{name}"] = float(np.mean(np.abs(e) <= 2 * s)) if e.size else None
-        # every cell each map holds (single surface in the truth): cells and how many within 2 sigma
+        # every cell each map holds (single surface in the truth): cells and how many within 2 sigma;
+        # of them, those beside a step: the true surface rises out of the face by the overhang gap
+        # or more within 2 cells (what a grazing view sees in front of the cell)
+        rise = relief_rise(self.world, self.face)
+        gap = self.face.cfg.overhang_gap_m
         for name, fm in (("recon", fr), ("cliff", fc), ("fused", self.face)):
             cells = np.flatnonzero(fm.map.mapped.reshape(-1))
             w_true, over = truth_along_normal(self.world, self.face, cells)
             ok = ~over & np.isfinite(w_true)
             e = fm.map.z.reshape(-1)[cells][ok] - w_true[ok]
             s = np.sqrt(fm.map.var.reshape(-1)[cells][ok])
+            step = rise[cells][ok] >= gap
             out[f"cells_{name}"] = int(ok.sum())
             out[f"within2s_{name}"] = int(np.sum(np.abs(e) <= 2 * s))
+            out[f"cells_{name}_step"] = int(step.sum())
+            out[f"within2s_{name}_step"] = int(np.sum(step & (np.abs(e) <= 2 * s)))
+            out[f"out2s_{name}_step"] = int(np.sum(step & (e > 2 * s)))
+            out[f"out2s_{name}"] = int(np.sum(e > 2 * s))
         return out

@@ -36,7 +36,9 @@ normal's first and last crossing are the gap apart, however thin the air between
 false flags (and of them those where an overhang covers part of the cell, off its centre:
 ``overhang_false_part``), the fused vs single-agent RMS on
 cells both agents mapped, the fraction of cells
-within 2 sigma (each agent, fused), the stereo points on a robot or a tether (judged on the
+within 2 sigma (each agent, fused; of them the cells beside a step of the true relief, a rise out
+of the face of ``overhang_gap_m`` or more within 2 cells, ``*_step``; ``out2s_*``: the cells more
+than 2 sigma out of the face), the stereo points on a robot or a tether (judged on the
 truth: ``hil_sim.team.face_scene.team_points``, from the renderer's label of each pixel),
 those of them that survive the mask into the map, and the gravity-grid cells they fall in
 (robot/tether cells mapped as terrain). Writes OUT/face_map.csv and ``docs/results/face-map.md``
@@ -63,7 +65,9 @@ COLUMNS = ("seed", "slope_deg", "views", "face_cells", "face_rmse_m", "face_rmse
            "overhang_open", "overhang_open_flagged",
            "both_cells", "rmse_recon_m",
            "rmse_cliff_m", "rmse_fused_m", "in2s_recon", "in2s_cliff", "in2s_fused", "cells_recon",
-           "within2s_recon", "cells_cliff", "within2s_cliff", "cells_fused", "within2s_fused", "team_points_seen",
+           "within2s_recon", "cells_cliff", "within2s_cliff", "cells_fused", "within2s_fused",
+           "out2s_recon", "cells_recon_step", "within2s_recon_step", "out2s_recon_step",
+           "cells_cliff_step", "within2s_cliff_step", "cells_fused_step", "within2s_fused_step", "team_points_seen",
            "team_points_fused", "team_cells_mapped")
 
 
@@ -195,6 +199,16 @@ def report(rows: list[dict[str, Any]], table: Any) -> str:
         per = np.array([r[f"within2s_{a}"] / r[f"cells_{a}"] for r in rows if r[f"cells_{a}"]])
         add(f"{a}: all its cells within 2 sigma (pooled; worst scene)", n_in / n_c if n_c else None,
             float(per[np.argmax(np.abs(per - 0.945))]) if per.size else None, "0.90-0.99")
+    for a in ("recon", "cliff", "fused"):  # beside a step of the true relief, and elsewhere
+        n_s, in_s = sum(r[f"cells_{a}_step"] for r in rows), sum(r[f"within2s_{a}_step"] for r in rows)
+        n_o = sum(r[f"cells_{a}"] for r in rows) - n_s
+        in_o = sum(r[f"within2s_{a}"] for r in rows) - in_s
+        add(f"{a}: cells beside a step (true rise >= overhang gap within 2 cells) within 2 sigma (pooled)",
+            in_s / n_s if n_s else None, f"{in_s} of {n_s}", "")
+        add(f"{a}: cells elsewhere within 2 sigma (pooled)", in_o / n_o if n_o else None, f"{in_o} of {n_o}", "")
+    o_all, o_s = sum(r["out2s_recon"] for r in rows), sum(r["out2s_recon_step"] for r in rows)
+    add("recon: cells more than 2 sigma out of the face, of them beside a step (pooled)",
+        o_s / o_all if o_all else None, f"{o_s} of {o_all}", "")
     add("views", sum(r["views"] for r in rows), "", ">= 200")
     add("robot/tether points from stereo (truth)", sum(r["team_points_seen"] for r in rows), "", "")
     add("robot/tether points fused after the mask", sum(r["team_points_fused"] for r in rows),
