@@ -67,7 +67,8 @@ COLUMNS = ("seed", "slope_deg", "views", "face_cells", "face_rmse_m", "face_rmse
            "rmse_cliff_m", "rmse_fused_m", "in2s_recon", "in2s_cliff", "in2s_fused", "cells_recon",
            "within2s_recon", "cells_cliff", "within2s_cliff", "cells_fused", "within2s_fused",
            "out2s_recon", "cells_recon_step", "within2s_recon_step", "out2s_recon_step",
-           "cells_cliff_step", "within2s_cliff_step", "cells_fused_step", "within2s_fused_step", "team_points_seen",
+           "out2s_cliff", "cells_cliff_step", "within2s_cliff_step", "out2s_cliff_step",
+           "out2s_fused", "cells_fused_step", "within2s_fused_step", "out2s_fused_step", "team_points_seen",
            "team_points_fused", "team_cells_mapped")
 
 
