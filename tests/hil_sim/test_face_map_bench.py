@@ -27,7 +27,10 @@ def test_the_team_is_masked_and_the_judge_sees_it_without() -> None:
     """A view from the Cliff-bot on the face with its own body, the tethers, the RECON-bot and
     the Anchorbots in the picture: masked, no point on them (judged on the truth) reaches the
     map and no cell of them is mapped; unmasked, the same view fuses such points."""
+    from hil_sim.lab.experiments.experiment_face_map import COLUMNS
+
     row = FaceScene("cliff-team", 3, "config/fsw.toml").measure(0, 1)
+    assert set(row) == set(COLUMNS)  # the experiment's CSV writes every figure a scene returns
     assert row["views"] == 1 and row["team_points_seen"] >= 10
     assert row["team_points_fused"] == 0 and row["team_cells_mapped"] == 0
     bare = FaceScene("cliff-team", 3, "config/fsw.toml", mask=False).measure(0, 1)
