@@ -145,3 +145,14 @@ def test_a_grazing_view_does_not_fuse_the_cells_it_cannot_resolve() -> None:
         m = fm.map.mapped
         out[limit] = float(np.mean(np.abs(fm.map.z[m]) <= 2 * np.sqrt(fm.map.var[m])))
     assert out[True] >= 0.9 and out[False] < 0.6
+
+
+def test_the_matchers_window_angle_is_its_block_over_the_focal_length() -> None:
+    """The RECON-bot's pair (640 px over 50 deg, f = 686 px) and a 5 px block: 7.3 mrad; a
+    7 px block on the Cliff-bot's (320 px over 60 deg, f = 277 px): 25 mrad."""
+    from fsw.core.geometry import CameraConfig
+    from fsw.core.stereo.stereo import StereoConfig, StereoMatcher
+
+    assert StereoMatcher(StereoConfig(), CameraConfig()).window_rad == pytest.approx(5 / 686.2, rel=1e-3)
+    small = CameraConfig(width_px=320, height_px=240, hfov_deg=60.0, baseline_m=0.07)
+    assert StereoMatcher(StereoConfig(block_size_px=7), small).window_rad == pytest.approx(7 / 277.1, rel=1e-3)
