@@ -54,7 +54,8 @@ class CodecConfig:
         1.0, lo=0.01, hi=10.0, units="wheel diameters",
         doc="guaranteed max |decoded - original| on every known cell")
     quant_step_fraction: float = param(
-        0.5, lo=0.05, hi=1.0, doc="leaf value lattice step as a fraction of the error bound")
+        0.5, lo=0.05, hi=1.0, doc="leaf value lattice step as a fraction of the error bound (with hazard "
+                                  "on, at most 0.5: a hazard's one-sided interval must hold a lattice value)")
     lowpass_sigma_cells: float = param(1.0, lo=0.0, hi=20.0, units="cells",
                                        doc="Gaussian low-pass before the reduction (§6.1)")
     decimation_height_wheels: float = param(
@@ -83,6 +84,12 @@ class CodecConfig:
         0.12, lo=0.0, hi=2.0, units="m",
         doc="wheel diameter of the agent the map is sent to (the Cliff-bot: 2 x its 0.06 m wheel radius); "
         "the error bound and the hazard threshold are in these wheel diameters; 0: the sender's [rover] wheel")
+
+    def __post_init__(self) -> None:
+        if self.hazard and self.quant_step_fraction > 0.5:
+            raise ValueError(f"quant_step_fraction {self.quant_step_fraction} is over 0.5 with hazard on: a "
+                             "hazard's cell may only rise (or only fall) within the bound, an interval half "
+                             "as wide, which a coarser lattice can miss")
 
     def wheel_m(self, own_wheel_m: float) -> float:
         """The wheel diameter the map is reduced for: the receiver's, or ``own_wheel_m`` (the
