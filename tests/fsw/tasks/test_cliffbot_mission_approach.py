@@ -129,9 +129,14 @@ def test_a_look_that_shows_nothing_new_gives_the_target_up_with_its_looks() -> N
     m.on_no_fix(m.fix_seq, "busy")
     known = ground_layers(m.z, GRID, m.ccfg).known
     t, _ = _drive(m, dev, t + 0.1, known)
-    t = _look(m, dev, t, z0)  # the views add nothing: nowhere nearer to go, it looked from here
-    assert m.reached == [False] and m.reasons[0] == "unknown ground (1 looks)"
-    assert m.state == "DONE" and _names(m).count("LOOK") == 1
+    # the views add nothing: it edges up to what known ground is left nearer the target (each step
+    # more than a lattice spacing), looks there, and gives the target up when nothing nearer is left
+    while m.state != "DONE":
+        t = _look(m, dev, t, z0)
+        t, _ = _drive(m, dev, t, known)
+    n = m.legs[0].looks
+    assert 1 <= n <= m.cfg.approach_looks and _names(m).count("LOOK") == n
+    assert m.reached == [False] and m.reasons[0] == f"unknown ground ({n} looks)"
 
 
 def test_without_looks_or_on_known_ground_a_target_is_not_approached() -> None:
@@ -161,3 +166,22 @@ def test_with_nothing_nearer_it_looks_again_from_where_it_stands_only_once_its_p
             assert m.state == "SENSE" and _names(m).count("LOOK") == 1 and m.looks == [1]
         else:
             assert m.state == "DONE" and m.reasons[0] == "unknown ground" and "LOOK" not in _names(m)
+
+
+def test_it_edges_up_to_known_ground_a_short_step_nearer_the_target_before_it_looks() -> None:
+    """Known ground that ends a decimetre or two nearer the target than the start (a lip a few
+    decimetres ahead) is an approach node: the head over it sees what the start cannot."""
+    m, dev = _mission(), FreshDevices()
+    z0 = _unknown_below(-1.0)
+    t = _start(m, dev, z0)
+    assert m.step(t + 0.1, dev).request_fix
+    m.on_no_fix(m.fix_seq, "busy")
+    leg = m.legs[0]
+    assert m.state == "DRIVE" and leg.via is not None, m.events[-2:]
+    here = float(np.hypot(*(np.array([2.5, -0.5]) - TARGET)))
+    gain = here - float(np.hypot(*(leg.via - TARGET)))
+    assert m.ccfg.node_m < gain < m.ccfg.footprint_m  # a short step, all it has
+    via = leg.via.copy()
+    known = ground_layers(z0, GRID, m.ccfg).known
+    _, places = _drive(m, dev, t + 0.2, known)  # never onto ground the map does not know
+    assert m.state == "WAIT_FIX" and m.look_now and np.array_equal(places[-1], via)
