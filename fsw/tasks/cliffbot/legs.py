@@ -183,9 +183,10 @@ class Route:
         its footprint toward the target, ``carried``: each look would carry it on again), the
         ``APPROACH_CANDIDATES`` nearest the target; they are planned together (:func:`plan_targets`
         with the leg's margins: each judged like any node, tethers and tension margins included)
-        and the nearest with a path whose ways hold (:meth:`plan`) is the approach node. From there its head's scan covers the ground
-        up to its camera's range round it: the nearest known ground to the target is where a look
-        shows most of the target's unknown neighbourhood."""
+        and the nearest with a path whose ways hold (:meth:`plan`) is the approach node. From
+        there its head's scan covers the ground up to its camera's range round it: the nearest
+        known ground to the target is where a look shows most of the target's unknown
+        neighbourhood."""
         g, grid = self.ground, self.grid
         stride = max(1, int(round(self.ccfg.node_m / grid.cell)))
         rows = np.arange(stride // 2, grid.ny, stride)
