@@ -453,7 +453,7 @@ class CliffbotMission:
         k = leg.target + 1
         if leg.looks >= self.cfg.approach_looks:
             return False
-        got = self.route().approach(self.est.xy, leg.goal)
+        got = self.route().approach(self.est.xy, leg.goal, looked=leg.looks > 0)
         if got is None:
             here = self.sensed_xy is not None and float(np.hypot(*(self.est.xy - self.sensed_xy))) <= self.ccfg.node_m
             if here and self._view_sigma() >= 0.5 * self.look_sigma:

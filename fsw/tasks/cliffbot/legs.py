@@ -168,7 +168,7 @@ class Route:
         sd = math.sqrt(max(float(u @ got[0] @ u), 0.0))
         return off - self.ccfg.node_m > self.cfg.margin_sigmas * sd, off, sd
 
-    def approach(self, start: F64, target: F64) -> tuple[F64, Plan, list[F64]] | None:
+    def approach(self, start: F64, target: F64, looked: bool = False) -> tuple[F64, Plan, list[F64]] | None:
         """The known, safe, tether-feasible node nearest ``target`` (in the map's plane) that the
         body can drive to from ``start``, nearer the target than ``start`` by more than a
         lattice spacing (``APPROACH_STEP_NODES``): its place, the plan and the waypoints there;
@@ -179,8 +179,9 @@ class Route:
         safety rule of any node.
 
         Candidates are the lattice nodes whose whole footprint is known and free of hazards
-        (``Ground.known``, ``Ground.hazard``; not by the ground under its body carried on beyond
-        its footprint toward the target, ``carried``: each look would carry it on again), the
+        (``Ground.known``, ``Ground.hazard``; once it ``looked`` for this target, not by the ground
+        under its body carried on beyond its footprint toward the target, ``carried``: each look
+        would carry it on again; the first step may use it, as any leg does), the
         ``APPROACH_CANDIDATES`` nearest the target; they are planned together (:func:`plan_targets`
         with the leg's margins: each judged like any node, tethers and tension margins included)
         and the nearest with a path whose ways hold (:meth:`plan`) is the approach node. From
@@ -193,9 +194,10 @@ class Route:
         cols = np.arange(stride // 2, grid.nx, stride)
         rr, cc = np.meshgrid(rows, cols, indexing="ij")
         known = g.known
-        if self.carried is not None and self.carried.any():
-            # the plane under the body carried on toward the target is no ground to edge up onto:
-            # each look would carry it on again (the ground ahead is known by sight or not at all)
+        if looked and self.carried is not None and self.carried.any():
+            # after a look for this target, the plane under the body carried on toward it is no
+            # ground to edge up onto: each look would carry it on again (the ground ahead is known
+            # by sight or not at all)
             X, Y = grid.centers()
             ahead = np.hypot(X - target[0], Y - target[1]) < float(np.hypot(*(self.carried_from - target)))
             seen = np.isfinite(self.z) & ~(self.carried & ahead)

@@ -155,6 +155,8 @@ def test_with_nothing_nearer_it_looks_again_from_where_it_stands_only_once_its_p
         wide = np.diag([0.1 ** 2, 0.1 ** 2, np.radians(10.0) ** 2])  # the start's, before a fix
         m.on_estimate(np.array([2.5, -0.5, -np.pi / 2]), wide)
         z0 = _unknown_below(-0.75)  # no known ground nearer the target than where it stands
+        x, y = GRID.centers()
+        z0[(np.abs(x - 2.5) > 0.45) & (y < -0.2)] = np.nan  # (nor ground round it to carry its plane onto)
         m.set_map(z0, GRID)
         t = _look(m, dev, 0.0, z0)  # its first look, with the start's covariance
         m.step(t + 0.1, dev)  # PLAN: the target approached
