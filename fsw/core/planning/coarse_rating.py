@@ -16,8 +16,10 @@ the few centres whose best coarse utility is highest are rated exactly:
    new cells) are computed per *fine* cell with that P_V, with the fine cell's own ``n`` and
    interest, then summed per block; the field-of-view sums run on the block centres. Cost:
    ``f^2`` fewer targets, rays ``f`` times shorter.
-3. The planner (``info_planners``) refines the best ``refine_centres`` centres with the exact
-   rating and chooses among those: the chosen view's H and P_V are the exact kernel's.
+3. The planner (``info_planners``) refines the best ``refine_views`` views with the exact
+   rating and chooses among those: the chosen view's H and P_V are the exact kernel's. On a
+   map finer than ``[nbv] fine_cell_m`` the refinement runs the kernel on blocks pooled to it
+   (:func:`rate_views_pooled_steps`), the cell terms still per map cell.
 
 The coarse cell size is fixed in metres, so the coarse stage costs the same whatever the map's
 resolution; only the refined centres grow with it. Measured figures: docs/nbv.md.
@@ -44,6 +46,14 @@ def coarse_factor(cell_m: float, coarse_cell_m: float) -> int:
     if not (coarse_cell_m > 0.0 and math.isfinite(coarse_cell_m)):
         return 1
     return max(1, int(round(coarse_cell_m / cell_m)))
+
+
+def fine_factor(cell_m: float, fine_cell_m: float) -> int:
+    """Map cells per side of the refining pass's pooled cell: the most whose block is still no
+    larger than ``fine_cell_m`` (``floor(fine_cell_m / cell_m)``), at least 1 (0: the map's cell)."""
+    if not (fine_cell_m > 0.0 and math.isfinite(fine_cell_m)):
+        return 1
+    return max(1, int(math.floor(fine_cell_m / cell_m + 1e-9)))
 
 
 def _blocks(a: F64, f: int, mode: str) -> F64:
@@ -89,6 +99,7 @@ class CoarseSearch:
     sigma_m: F64 | None = None  # fine elevation sigma of each (with an accuracy model)
     accuracy: AccuracyModel | None = None
     weight: F64 | None = None  # the task's weight of each one's bits (``nbv.cell_values``)
+    z_m: F64 | None = None  # fine elevation of each (the refining pass's field-of-view test)
 
 
 def prepare(terrain: Terrain, factor: int, n: NDArray[np.int32], n_max: int,
@@ -109,7 +120,8 @@ def prepare(terrain: Terrain, factor: int, n: NDArray[np.int32], n_max: int,
                         block.astype(np.intp), np.asarray(n)[iy, ix].astype(np.int32),
                         None if interest is None else np.asarray(interest)[iy, ix], n_max,
                         None if accuracy is None else terrain.sigma_m[iy, ix], accuracy,
-                        None if weight is None else np.asarray(weight, np.float64)[iy, ix])
+                        None if weight is None else np.asarray(weight, np.float64)[iy, ix],
+                        np.asarray(terrain.elev_m[iy, ix], dtype=np.float64))
 
 
 def rate_station_coarse_steps(cs: CoarseSearch, cam_xyz: tuple[float, float, float], yaws: F64,
@@ -201,4 +213,45 @@ def rate_views_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws
         m = masks[k, sel]
         info[k], new_cells[k] = bits[m].sum(), new[m].sum()
     yield None  # the sums are a step of their own, apart from what the caller does next
+    return ViewRating(info, new_cells, int(sel.size))
+
+
+def rate_views_pooled_steps(cs: CoarseSearch, cam_xyz: tuple[float, float, float], yaws: F64,
+                            tilts: F64, camera: CameraConfig, cfg: VisibilityConfig
+                            ) -> Generator[None, None, ViewRating]:
+    """:func:`rate_views_steps` on a map finer than ``[nbv] fine_cell_m`` (step 3 at a bounded
+    resolution): P_V is the kernel's on the pooled terrain of ``cs`` (blocks of ``fine_cell_m``),
+    and Eq 3's terms, the expected new cells and the field-of-view sums stay per map cell, with
+    the cell's own ``n``, interest, weight and elevation. A P_V of blocks a stereo pixel does
+    not resolve costs 8x per halving of the cell and changes no choice the pixel could."""
+    reach = horizontal_reach_m(camera)
+    near = np.flatnonzero((cs.x_m - cam_xyz[0]) ** 2 + (cs.y_m - cam_xyz[1]) ** 2 <= reach**2)
+    if near.size == 0 or cs.z_m is None:
+        return ViewRating(np.zeros(yaws.size), np.zeros(yaws.size), 0)
+    pts = np.column_stack([cs.x_m[near], cs.y_m[near], cs.z_m[near]])
+    masks = np.zeros((yaws.size, near.size), bool)
+    for k in range(yaws.size):
+        yield None
+        pose = CameraPose.from_pan_tilt(*cam_xyz, float(yaws[k]), float(tilts[k]))
+        masks[k] = in_view(pose, camera, pts)
+    yield None
+    sel = np.flatnonzero(masks.any(axis=0))
+    if sel.size == 0:
+        return ViewRating(np.zeros(yaws.size), np.zeros(yaws.size), 0)
+    cells = near[sel]
+    cg = cs.terrain.grid
+    blocks, inverse = unique_inverse(cs.block[cells], cg.nx * cg.ny)
+    by, bx = np.divmod(blocks, cg.nx)
+    pv_block = yield from pv_fast_steps(cs.terrain, cam_xyz, by, bx, cfg)
+    bits, new = cell_values(pv_block[inverse], cs.n[cells], cs.n_max,
+                            None if cs.interest is None else cs.interest[cells],
+                            stereo_return=cfg.stereo_return,
+                            weight=None if cs.weight is None else cs.weight[cells])
+    if cs.accuracy is not None and cs.sigma_m is not None:
+        bits = bits * cs.accuracy.share(pts[sel] - np.asarray(cam_xyz), cs.sigma_m[cells])
+    info, new_cells = np.zeros(yaws.size), np.zeros(yaws.size)
+    for k in range(yaws.size):
+        m = masks[k, sel]
+        info[k], new_cells[k] = bits[m].sum(), new[m].sum()
+    yield None
     return ViewRating(info, new_cells, int(sel.size))

@@ -17,8 +17,10 @@ from fsw.core.geometry import CameraConfig, CameraPose, MastConfig, camera_pose_
 from fsw.core.planning.coarse_rating import (
     coarse_factor,
     coarse_visibility,
+    fine_factor,
     prepare,
     rate_station_coarse_steps,
+    rate_views_pooled_steps,
     rate_views_steps,
 )
 from fsw.core.planning.nbv import (
@@ -134,13 +136,22 @@ class InformationPlanner(Planner):
             j = max(moves, key=lambda i: float(u_all[i].max()))
             escapes.append(j * per + int(np.argmax(u_all[j])))
         top = np.concatenate([top, np.array(escapes, dtype=top.dtype)])
+        # the refining pass resolves P_V down to fine_cell_m: a finer map is pooled to it there
+        f_fine = fine_factor(terrain.grid.cell, cfg.fine_cell_m)
+        fs = None if f_fine <= 1 else prepare(terrain, f_fine, state.map.n, n_max, interest,
+                                              self.accuracy, weight)
         for i in sorted(set((top // per).tolist())):
             c = centres[i]
             views = np.unique(top[top // per == i] % per)
-            r2 = yield from rate_views_steps(terrain, c.cam_xyz, c.yaws[views // tilts.size],
-                                             tilts[views % tilts.size], state.map.n, n_max,
-                                             interest, self.camera, cfg.visibility,
-                                             accuracy=self.accuracy, weight=weight)
+            if fs is not None:
+                r2 = yield from rate_views_pooled_steps(fs, c.cam_xyz, c.yaws[views // tilts.size],
+                                                        tilts[views % tilts.size], self.camera,
+                                                        coarse_visibility(cfg.visibility, f_fine))
+            else:
+                r2 = yield from rate_views_steps(terrain, c.cam_xyz, c.yaws[views // tilts.size],
+                                                 tilts[views % tilts.size], state.map.n, n_max,
+                                                 interest, self.camera, cfg.visibility,
+                                                 accuracy=self.accuracy, weight=weight)
             best.offer(c, c.best(r2.info_bits, r2.expected_new_cells, views))
             self.last_centres += 1
         return best.choice(stations, path, leave, cfg.leave_start_tol)

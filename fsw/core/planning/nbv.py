@@ -102,6 +102,10 @@ class NbvConfig:
                                  doc="coarse-to-fine search: coarse cell size (0: rate exactly)")
     refine_views: int = param(12, lo=1, hi=100000,
                               doc="coarse-to-fine search: best coarse views rated exactly")
+    fine_cell_m: float = param(
+        0.03, lo=0.0, hi=10.0, units="m",
+        doc="coarse-to-fine search: the finest cell the refining pass resolves P_V on; a finer map is "
+            "pooled to it there (its cells keep their own n, interest and weight; 0: the map's cell; §3.5 choice)")
     leave_start_edge_m: float = param(
         1.2, lo=0.0, hi=100.0, units="m",
         doc="a start is boxed in by a close edge when the fitted edge passes within this of the rover's "

@@ -13,8 +13,10 @@ from fsw.core.planning.coarse_rating import (
     coarse_factor,
     coarse_visibility,
     coarsen_terrain,
+    fine_factor,
     prepare,
     rate_station_coarse_steps,
+    rate_views_pooled_steps,
     rate_views_steps,
 )
 from fsw.core.planning.info_planners import InformationPlanner
@@ -26,12 +28,13 @@ from hil_sim.lab.nbv_scene import edge_offset_path, panorama_map, synthetic_edge
 
 GRID = MapGrid(x0=-0.5, y0=-3.5, cell=0.04, nx=110, ny=100)
 CAM, MAST, VIS = CameraConfig(), MastConfig(), VisibilityConfig()
+FINE_GRID = MapGrid(x0=-0.5, y0=-3.5, cell=0.015, nx=293, ny=267)  # GRID's area at 1.5 cm
 FAST = NbvConfig(max_travel_m=1.0, pan_step_deg=30.0, tilts_deg=(-30.0, -50.0))
 
 
-def _state() -> PlannerState:
-    truth, textured = synthetic_terrain(GRID, seed=7)
-    emap = panorama_map(truth, textured, GRID, CAM, MAST, (1.0, 0.0, 0.0), seed=7)
+def _state(grid: MapGrid = GRID) -> PlannerState:
+    truth, textured = synthetic_terrain(grid, seed=7)
+    emap = panorama_map(truth, textured, grid, CAM, MAST, (1.0, 0.0, 0.0), seed=7)
     path = edge_offset_path(synthetic_edge(), 0.75)
     return PlannerState(emap, (1.0, 0.0, 0.0), (0.0, 0.0, 0.5), path, lambda a, b: True,
                         edge_xy=synthetic_edge())
@@ -128,3 +131,40 @@ def test_coarse_to_fine_search_matches_exact_search() -> None:
     assert a.info_bits == pytest.approx(b.info_bits, rel=2e-3)
     assert a.utility == pytest.approx(b.utility, rel=2e-3)
     assert c2f.last_centres <= 3 < exact.last_centres  # centres refined, centres rated
+
+
+def test_fine_factor_never_pools_past_the_fine_cell() -> None:
+    assert fine_factor(0.015, 0.03) == 2 and fine_factor(0.01, 0.03) == 3
+    assert fine_factor(0.03, 0.03) == 1 and fine_factor(0.02, 0.03) == 1 and fine_factor(0.04, 0.03) == 1
+    for off in (0.0, -1.0, math.nan, math.inf):
+        assert fine_factor(0.01, off) == 1
+
+
+def test_pooled_refinement_tracks_the_exact_one() -> None:
+    """On a map finer than fine_cell_m the refining pass pools P_V to it and keeps every map
+    cell's own terms: H and expected new cells near the exact kernel's (a block's spread of
+    heights softens its occlusion: a single view differs by up to ~5 % of the best view's), and the
+    search chooses the exact search's view (a 1.5 cm map pooled to 3 cm, as a 512 x 512
+    lab map is)."""
+    st = _state(FINE_GRID)
+    terrain = terrain_from_map(st.map.z, st.map.var, FINE_GRID, VIS)
+    cam = (1.3, 0.0, 1.5)
+    yaws, tilts = np.radians([-90.0, -60.0, 0.0, -30.0]), np.radians([-30.0, -50.0, -30.0, -50.0])
+    n_max = info_n_max(st.map, FAST)
+    exact = run_to_end(rate_views_steps(terrain, cam, yaws, tilts, st.map.n, n_max, st.map.interest,
+                                        CAM, VIS))
+    cs = prepare(terrain, 2, st.map.n, n_max, st.map.interest)
+    pooled = run_to_end(rate_views_pooled_steps(cs, cam, yaws, tilts, CAM, coarse_visibility(VIS, 2)))
+    assert exact.info_bits.min() > 10.0
+    assert pooled.cells_rated == exact.cells_rated  # the same map cells in view
+    for got, want in ((pooled.info_bits, exact.info_bits),
+                      (pooled.expected_new_cells, exact.expected_new_cells)):
+        np.testing.assert_allclose(got, want, atol=0.05 * want.max())
+        assert got.sum() == pytest.approx(want.sum(), rel=0.05)
+    base = dataclasses.replace(FAST, coarse_cell_m=0.12, refine_views=3)
+    fine = InformationPlanner("5", dataclasses.replace(base, fine_cell_m=0.03), CAM, MAST, use_interest=True)
+    full = InformationPlanner("5", dataclasses.replace(base, fine_cell_m=0.0), CAM, MAST, use_interest=True)
+    a, b = fine.next_view(st), full.next_view(st)
+    assert a is not None and b is not None
+    assert a.rover == b.rover and a.joints == b.joints
+    assert a.utility == pytest.approx(b.utility, rel=0.05) and a.utility != b.utility  # pooled, not exact
