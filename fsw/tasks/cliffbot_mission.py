@@ -116,7 +116,6 @@ class CliffbotMission:
         self.safe_reason = ""
         self.z: F64 | None = None
         self.carried: NDArray[np.bool_] | None = None  # cells of z known by contact beyond its footprint
-        self.stood: F64 | None = None  # heights known by contact where it stood (NaN elsewhere)
         self.carried_from = self.start.copy()  # where it stood when they were filled
         self.grid: MapGrid | None = None
         self.error_bound_m = 0.0  # the received map's height error bound (the codec's)
@@ -158,21 +157,12 @@ class CliffbotMission:
         # (a ring is as flat as the map can tell: half the codec's error bound, at least 3 cm)
         flat = max(0.03, 0.5 * error_bound_m) if math.isfinite(error_bound_m) else 0.03
         self.error_bound_m = error_bound_m if math.isfinite(error_bound_m) else 0.0
-        # the ground it stood on stays known by contact where the new map does not know it (the
-        # map a camera sees never shows the ground under the body, nor its box's shadow)
-        z = np.asarray(z, np.float64)
-        if self.stood is not None and self.stood.shape == z.shape:
-            z = np.where(np.isfinite(z), z, self.stood)
         self.z, filled = fill_under_body(z, grid, self.est.xy, r, body_m=r + BODY_MARGIN_M, max_rms_m=flat)
-        touched = np.isfinite(self.z) & ~np.isfinite(z)
-        if self.stood is None or self.stood.shape != z.shape:
-            self.stood = np.full(z.shape, np.nan)
-        self.stood[touched] = self.z[touched]
         # the cells filled beyond its own footprint are the plane carried on, not ground it stood on
         # (legs.Route.approach: an approach node's footprint does not count those toward its target)
         X, Y = grid.centers()
         away = np.hypot(X - self.est.s[0], Y - self.est.s[1]) > self.ccfg.footprint_m
-        self.carried = touched & away
+        self.carried = np.isfinite(self.z) & ~np.isfinite(np.asarray(z, np.float64)) & away
         self.carried_from = self.est.xy
         self.grid = grid
         self._route = None

@@ -187,23 +187,3 @@ def test_it_edges_up_to_known_ground_a_short_step_nearer_the_target_before_it_lo
     known = ground_layers(z0, GRID, m.ccfg).known
     _, places = _drive(m, dev, t + 0.2, known)  # never onto ground the map does not know
     assert m.state == "WAIT_FIX" and m.look_now and np.array_equal(places[-1], via)
-
-
-def test_the_ground_it_stood_on_stays_known_after_it_moved_on() -> None:
-    """A camera's map never shows the ground under the body (the RECON-bot's leaves out its box):
-    the cells known by contact where it stood stay known in the next map, so the way home is known."""
-    m = _mission()
-    x, y = GRID.centers()
-    z = _ground()
-    under = np.hypot(x - 2.5, y + 0.5) <= 0.35  # its box, left out of the map it receives
-    z[under] = np.nan
-    m.on_estimate(np.array([2.5, -0.5, -np.pi / 2]), P)
-    m.set_map(z, GRID)
-    assert m.z is not None and np.isfinite(m.z[under]).all()  # known by contact where it stands
-    m.on_estimate(np.array([1.5, -1.5, -np.pi / 2]), P)  # moved on; the next map leaves out its box again
-    z2 = _ground()
-    z2[np.hypot(x - 1.5, y + 1.5) <= 0.35] = np.nan
-    z2[under] = np.nan
-    m.set_map(z2, GRID)
-    assert np.isfinite(m.z[under]).all()
-    assert ground_layers(m.z, GRID, m.ccfg).known[np.hypot(x - 2.5, y + 0.5) < 0.05].all()  # its start a node
