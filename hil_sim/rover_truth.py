@@ -124,13 +124,43 @@ class RoverTruth:
 
     # -- integration ------------------------------------------------------------------------
     def step(self, dt_s: float) -> None:
-        """Advance ``dt_s`` seconds in sub-steps of at most ``substep_s``."""
+        """Advance ``dt_s`` seconds in sub-steps of at most ``substep_s``.
+
+        At rest (no drive commanded or turning, and a sub-step that left the actuators and
+        encoders exactly as they were) the remaining sub-steps are :meth:`_rest_substeps`: the
+        same arithmetic on what still changes (the slip noise's random draws, the pose), so the
+        result is bit for bit that of full sub-steps."""
         n = max(1, math.ceil(dt_s / self.cfg.substep_s - 1e-9))
-        for _ in range(n):
-            self._substep(dt_s / n)
+        dt = dt_s / n
+        for i in range(n):
+            resting = not self.omega_cmd.any() and not self.omega.any()
+            before = self._actuator_bytes() if resting else b""
+            motion = self._substep(dt)
+            if resting and i + 1 < n and not self.omega.any() and self._actuator_bytes() == before:
+                self._rest_substeps(dt, n - i - 1, motion)
+                break
         self._settle()  # terrain contact once per step: the body moves millimetres per sub-step
 
-    def _substep(self, dt: float) -> None:
+    def _actuator_bytes(self) -> bytes:
+        return b"".join(a.tobytes() for a in (self.omega, self.steer, self.shoulder, self.drive_angle))
+
+    def _rest_substeps(self, dt: float, n: int, motion: F64) -> None:
+        """``n`` sub-steps of a rover at rest whose last sub-step was a fixed point of the
+        actuators and encoders: those and the currents stay as they are, every wheel rolls an
+        exact zero (so ``motion`` repeats), and only the slip noise (``n`` draws of four, the
+        generator's stream as in :meth:`_substep`) and the pose integration advance."""
+        c = self.cfg
+        a = math.exp(-dt / c.slip_corr_time_s)
+        noise = c.slip_noise_sigma * math.sqrt(1 - a * a) * self._rng.standard_normal((n, 4))
+        pose = (self.x, self.y, self.yaw)
+        step_m = math.hypot(float(motion[0]), float(motion[1]))
+        for k in range(n):
+            self.slip_noise = a * self.slip_noise + noise[k]
+            pose = integrate_pose(pose, motion)
+            self.odometer_m += step_m
+        self.x, self.y, self.yaw = pose
+
+    def _substep(self, dt: float) -> F64:
         c = self.cfg
         prev = self.omega.copy()
         accel = np.clip(self.omega_cmd - self.omega, -c.wheel_accel_radps2 * dt, c.wheel_accel_radps2 * dt)
@@ -170,6 +200,7 @@ class RoverTruth:
         )
         self.steer_current = np.where(np.abs(steer_step) > 1e-9, 1.7, 0.2)  # slewing vs holding, A
         self.shoulder_current = np.where(np.abs(sh_step) > 1e-9, 2.5, 0.5)
+        return motion
 
     def _settle(self) -> None:
         """Body height, pitch and roll from the terrain under the four wheels."""

@@ -95,7 +95,7 @@ class ExecutiveConfig:
         1, lo=1, hi=64, doc="OpenCV worker threads for the whole process (cv2.setNumThreads), set at start-up"
     )
     malloc_mmap_threshold_kib: int = param(
-        128, lo=0, hi=1 << 20, units="KiB",
+        8192, lo=0, hi=1 << 20, units="KiB",
         doc="glibc: blocks this large or larger are mmapped and returned when freed (0 = glibc's sliding default)")
     malloc_top_pad_kib: int = param(
         65536, lo=0, hi=1 << 20, units="KiB",

@@ -69,7 +69,6 @@ import numpy as np
 from fsw.comm.mavlink_telemetry import VEHICLE_NAMES
 from fsw.core.geometry import MapGrid
 from fsw.drivers.resources import OracleTruth, Resources
-from fsw.settings import FswConfig
 from hil_sim.lab.terrain_eval import map_quality
 from hil_sim.mission.ground_watch import reachable_stations, wheels_on_unknown
 from hil_sim.mission.mission_report import (
@@ -194,6 +193,7 @@ def run_mission(
             counters.setdefault(key, 0)
         was_safe = False
         left_safe_at: int | None = None  # the step a recovery left SAFE at, until it proves itself
+        wheel_watch = _WheelWatch(world, cfg.edge.step_m)
         bench.exe.freeze_heap()  # as the flight start-up does (safer-fsw run)
         try:
             while bench.clock.now() < limit_s:
@@ -205,8 +205,9 @@ def run_mission(
                     cliffbot.originals[1] = perception.map.z.astype(np.float32)
                 if team is None:  # (a team's Cliff-bot receives the map in its own flight code)
                     cliffbot.step(bench.clock.now())
-                counters["violations"] += _wheels_over_drop(bench.rig, world, cfg)
-                counters["off_map"] += _wheel_off_map(bench.rig, world)
+                over_drop, off_map = wheel_watch(bench.rig)
+                counters["violations"] += over_drop
+                counters["off_map"] += off_map
                 if was_safe and mission.state != "SAFE":
                     counters["recoveries"] += 1
                     left_safe_at = mission.step
@@ -379,14 +380,22 @@ def _recorder(out: Path | None, exe: Any, live: str | None = None,
     return recorder, BusTap(exe, recorder.source("recon"), mirrors=mirrors)
 
 
-def _wheels_over_drop(rig: Any, world: Any, cfg: FswConfig) -> int:
-    """1 if any wheel's contact point is over the drop (true terrain below the nearest
-    plateau ground by more than the edge step: ``World.over_drop``)."""
-    xs, ys = rig.rover.world_wheel_xy()
-    return int(bool(world.over_drop(np.asarray(xs), np.asarray(ys), cfg.edge.step_m).any()))
+class _WheelWatch:
+    """The truth's verdict on the wheels' contact points, each frame: ``(over_drop, off_map)``,
+    1 if any wheel is over the drop (true terrain below the nearest plateau ground by more than
+    the edge step: ``World.over_drop``), 1 if any is off the world's truth grid (no ground known
+    there). The same contact points give the same verdict: a rover standing still is judged once."""
 
+    def __init__(self, world: Any, step_m: float) -> None:
+        self.world, self.step_m = world, step_m
+        self._key = b""
+        self._verdict = (0, 0)
 
-def _wheel_off_map(rig: Any, world: Any) -> int:
-    """1 if any wheel's contact point is off the world's truth grid (no ground known there)."""
-    xs, ys = rig.rover.world_wheel_xy()
-    return int(bool(np.isnan(np.asarray(world.height_at(np.asarray(xs), np.asarray(ys)))).any()))
+    def __call__(self, rig: Any) -> tuple[int, int]:
+        xs, ys = (np.asarray(v, float) for v in rig.rover.world_wheel_xy())
+        key = xs.tobytes() + ys.tobytes()
+        if key != self._key:
+            over = bool(self.world.over_drop(xs, ys, self.step_m).any())
+            off = bool(np.isnan(np.asarray(self.world.height_at(xs, ys))).any())
+            self._key, self._verdict = key, (int(over), int(off))
+        return self._verdict

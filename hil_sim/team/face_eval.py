@@ -35,12 +35,14 @@ B = NDArray[np.bool_]
 
 
 def along_normal(height: Callable[[F64, F64], F64], face: FaceMap, cells: NDArray[np.intp],
-                 reach_m: float = 0.25, step_m: float = 0.005, chunk: int = 4000) -> tuple[F64, B]:
+                 reach_m: float = 0.25, step_m: float = 0.005, chunk: int = 4000,
+                 offset: tuple[float, float] = (0.0, 0.0)) -> tuple[F64, B]:
     """``(w, overhang)``: where the line through each face cell's centre (flat indices ``cells``)
     along the face normal leaves the heightfield ``height(x, y)`` for the last time (from below
     the surface to above it; NaN where it does not inside the face map's slab grown by
     ``reach_m``, or where ``height`` is NaN there), and whether it crosses the surface more than
-    once over more than the overhang gap."""
+    once over more than the overhang gap; ``offset``: the line moved from the centre by that
+    ``(du, dv)``."""
     g = face.grid
     ws = np.arange(-face.cfg.slab_in_m - reach_m, face.cfg.slab_out_m + reach_m + step_m / 2, step_m)
     out_w = np.full(len(cells), np.nan)
@@ -48,8 +50,8 @@ def along_normal(height: Callable[[F64, F64], F64], face: FaceMap, cells: NDArra
     gap = face.cfg.overhang_gap_m
     for a in range(0, len(cells), chunk):
         c = cells[a:a + chunk]
-        u = g.x0 + (c % g.nx + 0.5) * g.cell
-        v = g.y0 + (c // g.nx + 0.5) * g.cell
+        u = g.x0 + (c % g.nx + 0.5) * g.cell + offset[0]
+        v = g.y0 + (c // g.nx + 0.5) * g.cell + offset[1]
         q = np.stack(np.broadcast_arrays(u[:, None], v[:, None], ws[None, :]), axis=-1)
         p = face.frame.to_world(q.reshape(-1, 3)).reshape(q.shape)
         f = p[..., 2] - height(p[..., 0], p[..., 1])
@@ -102,6 +104,18 @@ def truth_along_normal(world: World, face: FaceMap, cells: NDArray[np.intp]) -> 
     return along_normal(lambda x, y: np.nan_to_num(world.ground_at(x, y), nan=1e9), face, cells)
 
 
+def overhang_in_cell(world: World, face: FaceMap, cells: NDArray[np.intp]) -> B:
+    """Whether the true ground holds two surfaces (:func:`along_normal`) on the normal through
+    any of the four quarter-centres of each cell (``cells``): a cell an overhang covers in part,
+    though not at its centre (where the truth judges it)."""
+    q = 0.25 * face.grid.cell
+    out = np.zeros(len(cells), bool)
+    for du, dv in ((-q, -q), (-q, q), (q, -q), (q, q)):
+        out |= along_normal(lambda x, y: np.nan_to_num(world.ground_at(x, y), nan=1e9), face, cells,
+                            offset=(du, dv))[1]
+    return out
+
+
 def gravity_along_normal(gravity: ElevationMap, face: FaceMap, cells: NDArray[np.intp]) -> F64:
     """The gravity grid read along the face normal: :func:`along_normal` of its heightfield
     (one height per cell, as the grid is used; NaN where the crossing meets an unknown cell)."""
@@ -136,6 +150,47 @@ def overhang_seen(face: FaceMap, cells: NDArray[np.intp], w_true: F64, over: B,
     return np.asarray(over & (total[cells] > 0), bool)
 
 
+def overhang_shown(world: World, face: FaceMap, cells: NDArray[np.intp], w_true: F64, over: B,
+                   rays: list[tuple[F64, F64]], step_m: float = 0.01) -> B:
+    """Which truth overhang cells (``over``, outer surface ``w_true``) the views show as two
+    surfaces, from their true sight lines (``rays``: true camera centre and the true surface
+    points it sees, world): some view sees a point in the cell's column on ground that faces the
+    face (the true surface's normal there, from the heightfield's slope over ``step_m``, has a
+    negative component along the face normal: going out along the normal, air then ground), or
+    the views show air and ground above it in the column more than the gap apart (a sight line
+    crosses the column more than the gap below the outer surface, :func:`overhang_seen`, and some
+    view sees a point in the column more than the gap above the lowest such crossing). A cell no
+    view shows so is one surface to every view: its second surface is not observable."""
+    g = face.grid
+    size = g.nx * g.ny
+    z = np.full(size, np.nan)
+    z[cells[over]] = w_true[over]
+    lowest = np.full(size, np.inf)
+    top = np.full(size, -np.inf)
+    facing = np.zeros(size, bool)
+    reach = (-face.cfg.slab_in_m, face.cfg.slab_out_m)
+    e_n = face.frame.normal
+    for eye, pts in rays:
+        if len(pts) == 0:
+            continue
+        q = face.frame.to_face(pts)
+        n = len(q)
+        _, low = air_under(g, z, np.zeros_like(z), face.frame.to_face(np.reshape(eye, (1, 3)))[0], q,
+                           np.zeros(n), np.full(n, 1e-3), reach, face.cfg.overhang_gap_m, 0.0, 0.25 * g.cell)
+        lowest = np.minimum(lowest, low)
+        iy, ix, inside = g.cell_index(q[:, 0], q[:, 1])
+        c = iy[inside] * g.nx + ix[inside]
+        np.maximum.at(top, c, q[inside, 2])
+        x, y = pts[inside, 0], pts[inside, 1]
+        zx = (world.ground_at(x + step_m, y) - world.ground_at(x - step_m, y)) / (2 * step_m)
+        zy = (world.ground_at(x, y + step_m) - world.ground_at(x, y - step_m)) / (2 * step_m)
+        with np.errstate(invalid="ignore"):
+            down = (-zx * e_n[0] - zy * e_n[1] + e_n[2]) < 0  # (-z_x, -z_y, 1) . e_n
+        facing[c[down]] = True
+    shown = facing | (top - lowest > face.cfg.overhang_gap_m)
+    return np.asarray(over & shown[cells], bool)
+
+
 def face_points(face: FaceMap, cells: NDArray[np.intp], w: F64) -> F64:
     """World points ``(N, 3)`` at ``w`` on the normal through each face cell's centre."""
     g = face.grid
@@ -165,11 +220,14 @@ def face_figures(world: World, face: FaceMap, gravity: ElevationMap,
     """The team summary's face figures (module docstring): ``face_rmse_m`` (mapped single-surface
     face cells, the face map), ``face_rmse_gravity_m`` (the same points, queried from
     ``gravity``; only cells both have), ``face_rmse_gravity_normal_m``, ``face_cells``,
-    ``overhang_truth``, ``overhang_flagged``, ``overhang_false``, ``overhang_open`` (truth overhangs
+    ``overhang_truth``, ``overhang_flagged``, ``overhang_false`` (flags on single-surface cells; of
+    them ``overhang_false_part``: an overhang covers part of the cell, :func:`overhang_in_cell`),
+    ``overhang_open`` (truth overhangs
     with air as wide as the gap between their surfaces, :func:`air_gap_along_normal`),
     ``overhang_open_flagged`` and ``cells_by_agent``; with the
     views' true sight lines ``rays`` also ``overhang_seen`` (truth overhangs some view could
-    show, :func:`overhang_seen`) and ``overhang_seen_flagged``."""
+    show, :func:`overhang_seen`), ``overhang_seen_flagged``, ``overhang_shown`` (those the views
+    show as two surfaces, :func:`overhang_shown`) and ``overhang_shown_flagged``."""
     cells = np.flatnonzero(face.map.mapped.reshape(-1))
     w_true, over = truth_along_normal(world, face, cells)
     e_face = face.map.z.reshape(-1)[cells] - w_true
@@ -178,16 +236,23 @@ def face_figures(world: World, face: FaceMap, gravity: ElevationMap,
     both = ~over & np.isfinite(e_face) & np.isfinite(e_grav)
     flagged = face.overhang.reshape(-1)[cells]
     seen = overhang_seen(face, cells, w_true, over, rays) if rays is not None else None
+    shown = overhang_shown(world, face, cells, w_true, over, rays) if rays is not None else None
+    false = flagged & ~over
+    beside = np.zeros(len(cells), bool)
+    beside[false] = overhang_in_cell(world, face, cells[false])
     open_air = np.zeros(len(cells), bool)
     open_air[over] = air_gap_along_normal(world, face, cells[over]) >= face.cfg.overhang_gap_m
     return {
         "overhang_open": int(open_air.sum()), "overhang_open_flagged": int((open_air & flagged).sum()),
         "overhang_seen": None if seen is None else int(seen.sum()),
         "overhang_seen_flagged": None if seen is None else int((seen & flagged).sum()),
+        "overhang_shown": None if shown is None else int(shown.sum()),
+        "overhang_shown_flagged": None if shown is None else int((shown & flagged).sum()),
         "face_rmse_m": _rms(e_face[both]), "face_rmse_gravity_m": _rms(e_grav[both]),
         "face_rmse_gravity_normal_m": _rms(e_norm[both]),
         "face_cells": int(both.sum()), "overhang_truth": int(over.sum()),
-        "overhang_flagged": int((over & flagged).sum()), "overhang_false": int((~over & flagged).sum()),
+        "overhang_flagged": int((over & flagged).sum()), "overhang_false": int(false.sum()),
+        "overhang_false_part": int(beside.sum()),
         "cells_by_agent": dict(cells_by_agent or {}),
     }
 

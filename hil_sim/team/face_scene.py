@@ -293,14 +293,18 @@ class FaceScene:
                      "rmse_fused_m", "in2s_recon", "in2s_cliff", "in2s_fused")
             zeros = {f"{k}_{a}": 0 for k in ("cells", "within2s") for a in ("recon", "cliff", "fused")}
             return {**row, **{k: None for k in nones}, **zeros, "overhang_truth": 0, "overhang_flagged": 0,
-                    "overhang_false": 0, "overhang_seen": 0, "overhang_seen_flagged": 0, "overhang_open": 0,
+                    "overhang_false": 0, "overhang_false_part": 0, "overhang_seen": 0, "overhang_seen_flagged": 0,
+                    "overhang_shown": 0,
+                    "overhang_shown_flagged": 0, "overhang_open": 0,
                     "overhang_open_flagged": 0, "both_cells": 0,
                     "team_points_seen": self.team_points,
                     "team_points_fused": self.team_points_fused, "team_cells_mapped": len(self.team_cells)}
         f = face_figures(self.world, self.face, self.gravity, self.cells_by_agent, self.true_rays)
         row.update({k: f[k] for k in ("face_cells", "face_rmse_m", "face_rmse_gravity_m", "face_rmse_gravity_normal_m",
-                                       "overhang_truth", "overhang_flagged", "overhang_false", "overhang_seen",
-                                       "overhang_seen_flagged", "overhang_open", "overhang_open_flagged")})
+                                       "overhang_truth", "overhang_flagged", "overhang_false",
+                                       "overhang_false_part", "overhang_seen",
+                                       "overhang_seen_flagged", "overhang_shown", "overhang_shown_flagged",
+                                       "overhang_open", "overhang_open_flagged")})
         r, g, gn = f["face_rmse_m"], f["face_rmse_gravity_m"], f["face_rmse_gravity_normal_m"]
         row["ratio"] = r / g if r is not None and g else None
         row["ratio_normal"] = r / gn if r is not None and gn else None

@@ -22,8 +22,9 @@ The Cliff-bot's corridor is its plan on the true ground on the scenario's map gr
 with no target reachable, the straight way from its start toward the nearest target as far as
 the tethers hold it there on the true ground (:meth:`TeamViewsRun._toward_nearest`: known
 ground, neither slack nor over-tension, on the face where steeper than ``free_slope_deg``), the
-way it would have to map to get closer. Team views choose where on that corridor it stops to
-look (any place on it within ``max_travel_m`` of where it stands, either way) and where it
+way it would have to map to get closer. Team views choose where in that corridor it stops to
+look (any place on the path within ``max_travel_m`` of where it stands, either way, and any
+place across the corridor on ground the shared map knows where the tethers hold it) and where it
 looks; its task is to map the corridor. The route is taken as planned beforehand, so where the
 shared map does not know the ground yet its tether lengths come from the route's ground (the
 truth), and before the face map is fitted the rating's face is the plane of the ground under
@@ -57,7 +58,7 @@ from fsw.core.map.face_map import (
 )
 from fsw.core.planning.face_rating import FaceCells, face_cells
 from fsw.core.planning.info_planners import InformationPlanner
-from fsw.core.planning.nbv import NbvConfig, predicted_visibility
+from fsw.core.planning.nbv import NbvConfig, info_n_max, predicted_visibility
 from fsw.core.planning.planners import PlannerState
 from fsw.core.planning.team_views import (
     AgentInterest,
@@ -94,6 +95,10 @@ class CycleRecord:
     new_cells: int = 0  # cells the cycle mapped for the first time (team)
     overlap: float | None = None  # cells both views measured / cells either measured (two agents)
     overlap_of_smaller: float | None = None  # cells both views measured / cells the smaller view measured
+    # the overlap on the cells with information left for Eq 3 (measured fewer than info_n_max times
+    # before the cycle): a view's rating gives the cells measured that often nothing, so two views
+    # may share them at no cost
+    overlap_open: float | None = None
     face_frac: float = 0.0  # of the face (truth slope > 45 deg) mapped after the cycle
     corridor_frac: float = 0.0  # of the corridor mapped after the cycle
     agent_face_frac: dict[str, float] = field(default_factory=dict)
@@ -201,7 +206,8 @@ class TeamViewsRun:
         # the ground yet, the tether lengths and the head's place come from the route's own ground
         z = np.where(self.map.mapped, self.map.z, self.truth)
         centres = cliffbot_centres(z, self.grid, self.anchors, self.path, self.cliff_xy, self.head, self.tcfg,
-                                   self.tv, both_ways=True)
+                                   self.tv, both_ways=True, known=self.map.mapped,
+                                   free_slope_deg=self.ccfg.free_slope_deg)
         k = int(np.argmin(np.linalg.norm(self.path - self.cliff_xy, axis=1)))
         ahead = self.path[min(k + 1, len(self.path) - 1):]
         step = next((p for p in ahead if np.linalg.norm(p - self.path[k]) > 0.5), ahead[-1])
@@ -256,6 +262,7 @@ class TeamViewsRun:
         views, _ = choose_team_views(self.map, agents, self.nbv, self.corridor)
         rec = CycleRecord(len(self.records) + 1)
         before = self.map.mapped.copy()
+        open_cells = self.map.n < info_n_max(self.map, self.nbv)
         seen: dict[str, B] = {}
         start = np.asarray(self.world.team.cliffbot_start_xy if self.world.team else (0.0, 0.0), float)
         for v in views:
@@ -274,6 +281,8 @@ class TeamViewsRun:
             small, either = min(int(a.sum()), int(b.sum())), int((a | b).sum())
             rec.overlap = float((a & b).sum()) / either if either else 0.0
             rec.overlap_of_smaller = float((a & b).sum()) / small if small else 0.0
+            either_open = int(((a | b) & open_cells).sum())
+            rec.overlap_open = float((a & b & open_cells).sum()) / either_open if either_open else 0.0
         rec.face_frac = _frac(self.map.mapped, self.face)
         rec.corridor_frac = _frac(self.map.mapped, self.corridor)
         for name, m in self.by_agent.items():

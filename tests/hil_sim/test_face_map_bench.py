@@ -168,3 +168,71 @@ def test_the_judge_tells_a_sliver_of_air_from_an_overhang() -> None:
         assert over.tolist() == [True]
         got = air_gap_along_normal(world, face, cells)  # type: ignore[arg-type]
         assert got[0] == pytest.approx(gap, abs=0.011)
+
+
+def test_the_judge_counts_the_overhangs_the_views_show_as_two_surfaces() -> None:
+    """``overhang_shown``: the ledge block standing out from 0.15 m to 0.35 m along the normal is
+    shown as two surfaces by a view that sees its inner side (the step facing up the face, where
+    the normal passes from air into the block), not by one that sees only its outer side from
+    straight out along the normal (no sight line under it)."""
+    import math
+
+    import numpy as np
+
+    from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig
+    from hil_sim.team.face_eval import overhang_shown, truth_along_normal
+
+    a = math.radians(70.0)
+    frame = FaceFrame.from_normal(np.zeros(3), np.array([0.0, -math.sin(a), math.cos(a)]))
+    face = FaceMap(frame, (-0.05, 0.15), (-0.05, 0.15), FaceMapConfig(cell_m=0.1, overhang_gap_m=0.1))
+    y_block = (-0.35 * math.sin(a), -0.15 * math.sin(a))
+
+    class Ledge:
+        def ground_at(self, x: object, y: object) -> object:
+            yy = np.asarray(y, float)
+            block = (yy >= y_block[0]) & (yy <= y_block[1])
+            return math.tan(a) * yy + np.where(block, 0.5, 0.0) + 0.0 * np.asarray(x, float)
+
+    world = Ledge()
+    cells = np.array([0])
+    w_true, over = truth_along_normal(world, face, cells)  # type: ignore[arg-type]
+    assert over.tolist() == [True]
+    step = frame.to_world(np.array([[0.0, 0.0, 0.15]]))  # on the block's inner side
+    above = step[0] + np.array([0.0, 1.0, 0.3])  # up the face, out over the crevice
+    outer = frame.to_world(np.array([[0.0, 0.0, 0.35], [0.0, 0.0, 2.0]]))
+    shown = overhang_shown(world, face, cells, w_true, over, [(above, step)])  # type: ignore[arg-type]
+    assert shown.tolist() == [True]
+    shown = overhang_shown(world, face, cells, w_true, over, [(outer[1], outer[:1])])  # type: ignore[arg-type]
+    assert shown.tolist() == [False]
+
+
+def test_the_judge_finds_an_overhang_off_a_cells_centre() -> None:
+    """``overhang_in_cell``: a ledge block that covers only one side of a cell (x > 1 cm) is no
+    truth overhang at the cell's centre but lies under two of its quarter-centres; a cell of
+    plain face holds none."""
+    import math
+
+    import numpy as np
+
+    from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig
+    from hil_sim.team.face_eval import overhang_in_cell, truth_along_normal
+
+    a = math.radians(70.0)
+    frame = FaceFrame.from_normal(np.zeros(3), np.array([0.0, -math.sin(a), math.cos(a)]))
+    face = FaceMap(frame, (-0.05, 0.15), (-0.05, 0.15), FaceMapConfig(cell_m=0.1, overhang_gap_m=0.1))
+    y_block = (-0.35 * math.sin(a), -0.15 * math.sin(a))
+
+    class HalfLedge:
+        def __init__(self, height: float) -> None:
+            self.height = height
+
+        def ground_at(self, x: object, y: object) -> object:
+            xx, yy = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
+            block = (yy >= y_block[0]) & (yy <= y_block[1]) & (xx > 0.01)
+            return math.tan(a) * yy + np.where(block, self.height, 0.0)
+
+    cells = np.array([0])
+    _, over = truth_along_normal(HalfLedge(0.5), face, cells)  # type: ignore[arg-type]
+    assert over.tolist() == [False]
+    assert overhang_in_cell(HalfLedge(0.5), face, cells).tolist() == [True]  # type: ignore[arg-type]
+    assert overhang_in_cell(HalfLedge(0.0), face, cells).tolist() == [False]  # type: ignore[arg-type]

@@ -93,3 +93,31 @@ def test_the_corridor_ratio_is_bounded_where_the_recon_bot_alone_never_gets_ther
     assert float(cells[2]) == pytest.approx((6 / 13 + 4 / 8) / 2, rel=1e-3) and float(cells[3]) == pytest.approx(0.5)
     both = next(line for line in md.splitlines() if "(scenes where both reach it)" in line)
     assert float(both.split("|")[2]) == pytest.approx(0.5)
+
+
+def test_the_overlap_is_reported_over_every_cycle_each_scenes_worst_and_each_scenes_mean() -> None:
+    """The summary's overlap rows: the median and the worst single cycle over every cycle of every
+    scene, the cycles above 0.15, and each scene's worst cycle and mean (median and worst scene)."""
+    from hil_sim.lab.experiments.experiment_team_sensing import COLUMNS, report
+    from hil_sim.lab.results import markdown_table
+
+    def row(seed: int, overlaps: list[float]) -> dict[str, object]:
+        r: dict[str, object] = dict.fromkeys(COLUMNS, 0.5)
+        r.update(seed=seed, corridor_cycles_team=None, corridor_cycles_recon=None, corridor_ratio=None, reachable=True,
+                 overlaps=overlaps, overlap_max=max(overlaps), overlap_mean=sum(overlaps) / len(overlaps),
+                 overlaps_open=[o / 10 for o in overlaps])
+        return r
+
+    md = report([row(0, [0.0, 0.0, 0.6]), row(1, [0.1, 0.0, 0.0])], markdown_table, 3)
+
+    def cells(key: str) -> list[str]:
+        return [c.strip() for c in next(line for line in md.splitlines() if key in line).split("|")]
+
+    every = cells("every cycle of every scene (median of the cycles")
+    assert float(every[2]) == 0.0 and float(every[3]) == pytest.approx(0.6)
+    assert cells("overlap more than 0.15")[2:4] == ["1", "of 6"]
+    assert float(cells("with information left")[3]) == pytest.approx(0.06)
+    worst = cells("two views, each scene's worst cycle (")
+    assert float(worst[2]) == pytest.approx(0.35) and float(worst[3]) == pytest.approx(0.6)
+    mean = cells("each scene's mean over its cycles")
+    assert float(mean[3]) == pytest.approx(0.2)

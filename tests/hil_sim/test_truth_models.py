@@ -100,3 +100,55 @@ def test_truth_is_repeatable_for_a_seed() -> None:
         return r.pose
 
     assert run(3) == run(3) and run(3) != run(4)
+
+
+class _EverySubstep(RoverTruth):
+    """The reference: every sub-step integrated in full, never the rest shortcut."""
+
+    def _rest_substeps(self, dt: float, n: int, motion: np.ndarray) -> None:
+        for _ in range(n):
+            self._substep(dt)
+
+
+class _Counted(RoverTruth):
+    shortcuts = 0
+
+    def _rest_substeps(self, dt: float, n: int, motion: np.ndarray) -> None:
+        self.shortcuts += 1
+        super()._rest_substeps(dt, n, motion)
+
+
+def _truth_state(r: RoverTruth) -> bytes:
+    arrays = (r.omega, r.drive_angle, r.steer, r.shoulder, r.slip_noise, r.drive_current, r.steer_current,
+              r.shoulder_current, np.array([r.x, r.y, r.yaw, r.z, r.pitch, r.roll, r.odometer_m]))
+    return b"".join(np.asarray(a, float).tobytes() for a in arrays) + repr(r._rng.bit_generator.state).encode()
+
+
+def test_the_rest_shortcut_gives_the_same_bits_as_every_substep() -> None:
+    """At rest ``RoverTruth.step`` skips the sub-steps that change nothing but the slip noise
+    and the pose; a seeded drive (moves, stops, steering and shoulders slewing, a stalled and a
+    coasting wheel, negative zeros in the commands) stays bit-identical to integrating every sub-step."""
+    rng = np.random.default_rng(7)
+    fast = _Counted(Slope(), cfg().rover, RoverTruthConfig(), 4, start=(1.0, 0.5, 0.3))
+    ref = _EverySubstep(Slope(), cfg().rover, RoverTruthConfig(), 4, start=(1.0, 0.5, 0.3))
+    for k in range(120):
+        phase = k % 12
+        for r in (fast, ref):
+            r.stalled[:] = [k in (24, 25), False, False, False]
+            r.drive_fault[:] = [False, k in (36, 37, 38), False, False]
+        drive = rng.uniform(1.5, 2.0) * rng.choice([-1.0, 1.0]) + rng.uniform(-0.1, 0.1, 4)
+        cmd_omega = drive if phase < 4 else np.array([0.0, -0.0, 0.0, -0.0])
+        cmd_steer = rng.uniform(-0.5, 0.5, 4) if phase == 5 else None
+        cmd_shoulder = math.radians(30.0 + rng.uniform(-2.0, 2.0)) if phase == 7 else None
+        for r in (fast, ref):
+            r.omega_cmd[:] = cmd_omega
+            if cmd_steer is not None:
+                r.steer_cmd[:] = cmd_steer
+            if cmd_shoulder is not None:
+                r.shoulder_cmd[:] = cmd_shoulder
+        draws = fast._rng.bit_generator.state["state"]["state"]
+        fast.step(0.1)
+        ref.step(0.1)
+        assert _truth_state(fast) == _truth_state(ref), f"step {k}"
+        assert fast._rng.bit_generator.state["state"]["state"] != draws  # the slip noise drew every step
+    assert 30 < fast.shortcuts < 120 and fast.odometer_m > 0.1  # both regimes were exercised

@@ -23,17 +23,10 @@ height per cell with variance, count, interest, misses) in the face's own frame:
   (:meth:`FaceMap.surface_z`, the vertical line intersected with the face map's surface) and by
   the gravity grid elsewhere (:func:`hand_over_z`).
 * Overhangs: a cell with more than one surface along its normal is flagged
-  (:attr:`FaceMap.overhang`), not averaged. A view shows two surfaces in a cell when its points
-  there split at a gap in ``w`` wider than ``overhang_gap_m`` and both parts fall in one of the
-  cell's 2x2 sub-cells (a step inside a cell puts its two levels side by side, an overhang over
-  the same spot). Two views show two surfaces when a view's measurement lies more than
-  ``overhang_gap_m`` plus the gate from the cell's fused height. Within a view the outer surface
-  (the larger ``w``, what the normal sees from outside) is fused and the inner one goes to
-  :attr:`FaceMap.second`; across views the cell keeps what it holds and the new surface goes
-  to :attr:`FaceMap.second`. Free space (:meth:`FaceMap.carve`, given the camera centre): rays
-  that pass under a cell's surface (``fsw.core.map.free_space``), or a camera standing under the
-  cell's tangent plane (it sees the surface's lower side), show air under ground, so a second
-  surface even where no view saw one; the flag is :attr:`FaceMap.overhang` all the same.
+  (:attr:`FaceMap.overhang`), not averaged; the tests and their layers live in
+  ``fsw.core.map.overhang`` (:class:`~fsw.core.map.overhang.Overhangs`), run on each view by
+  :meth:`FaceMap.merge_parts` (before its merge: which points to fuse) and :meth:`FaceMap.carve`
+  (after it: free space along the rays).
 """
 
 from __future__ import annotations
@@ -45,7 +38,7 @@ from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid
 from fsw.core.map.elevation_map import ElevationMap, FusionConfig, MergeStats
-from fsw.core.map.free_space import air_under
+from fsw.core.map.overhang import Overhangs
 from fsw.core.steps import run_to_end
 from fsw.framework.params import param
 
@@ -72,6 +65,12 @@ class FaceMapConfig:
     underside_deg: float = param(20.0, lo=0.0, hi=89.0, units="deg",
                                  doc="a view this far under a cell's tangent plane sees its underside: flag (0: off)")
     air_max_rays: int = param(20000, lo=0, hi=10**7, doc="rays per view traced for free space (0: none)")
+    facing_deg: float = param(12.0, lo=0.0, hi=89.0, units="deg",
+                              doc="a view's local plane facing the face by this much: a second surface")
+    facing_radius_m: float = param(0.06, lo=0.005, hi=1.0, units="m",
+                                   doc="neighbours of a point its plane is fitted to")
+    facing_min_points: int = param(3, lo=1, hi=10**6, doc="points on planes facing the face that flag a cell")
+    facing_max_points: int = param(20000, lo=0, hi=10**7, doc="points per view tested for facing the face (0: none)")
 
 
 @dataclass(frozen=True)
@@ -273,6 +272,7 @@ class FaceMergeStats:
     overhang_new: int  # cells flagged by this view
     second_points: int  # points kept out of the map as a second surface
     air_new: int = 0  # of those, the cells flagged by free space (rays under the surface, a view from below)
+    facing_new: int = 0  # of those, the cells flagged by a surface that faces the face
 
 
 class FaceMap:
@@ -286,22 +286,39 @@ class FaceMap:
         nx = max(2, int(np.ceil((u_range[1] - u_range[0]) / c)))
         ny = max(2, int(np.ceil((v_range[1] - v_range[0]) / c)))
         self.map: ElevationMap = FaceElevation(MapGrid(float(u_range[0]), float(v_range[0]), c, nx, ny), fusion)
-        self.overhang = np.zeros(self.map.grid.shape, bool)
-        self.second = np.full(self.map.grid.shape, np.nan)  # the other surface's w where flagged
-        self.air = np.zeros(self.map.grid.shape, np.int32)  # rays that passed under the surface
-        self.air_w = np.full(self.map.grid.shape, np.nan)  # the lowest w they reached (inner surface below)
-        self.under = np.full(self.map.grid.shape, np.nan)  # sine of the deepest view under the tangent plane
+        self.overhangs = Overhangs(self.map.grid.shape)  # the overhang layers (fsw.core.map.overhang)
 
     def empty_like(self) -> FaceMap:
         """An empty face map on the same frame and grid (e.g. one agent's share)."""
         out = FaceMap(self.frame, (0.0, 1.0), (0.0, 1.0), self.cfg, self.map.cfg)
         out.map = FaceElevation(self.map.grid, self.map.cfg)
-        out.overhang = np.zeros(self.map.grid.shape, bool)
-        out.second = np.full(self.map.grid.shape, np.nan)
-        out.air = np.zeros(self.map.grid.shape, np.int32)
-        out.air_w = np.full(self.map.grid.shape, np.nan)
-        out.under = np.full(self.map.grid.shape, np.nan)
+        out.overhangs = Overhangs(self.map.grid.shape)
         return out
+
+    @property
+    def overhang(self) -> B:
+        """Cells with more than one surface along the normal (flagged, not averaged)."""
+        return self.overhangs.overhang
+
+    @property
+    def second(self) -> F64:
+        """The other surface's ``w`` where a view saw it (NaN elsewhere)."""
+        return self.overhangs.second
+
+    @property
+    def air(self) -> NDArray[np.int32]:
+        """Rays that passed under each cell's surface."""
+        return self.overhangs.air
+
+    @property
+    def facing(self) -> NDArray[np.int32]:
+        """View points on a surface that faces the face, per cell."""
+        return self.overhangs.facing
+
+    @property
+    def air_w(self) -> F64:
+        """The lowest ``w`` those rays reached (the inner surface lies below it)."""
+        return self.overhangs.air_w
 
     @property
     def grid(self) -> MapGrid:
@@ -345,18 +362,21 @@ class FaceMap:
 
     def surface_z(self, x: F64, y: F64, iterations: int = 4) -> F64:
         """World height of the face map's surface on the vertical line through each ``(x, y)``
-        (NaN where the face map has no value): ``z = plane_z + w(u, v) / n_z``, with ``(u, v)`` of
-        the point found by fixed-point iteration (the surface is piecewise constant per cell)."""
+        (NaN where the face map has no value, or where its cell is flagged: an overhang holds two
+        surfaces and its height may be either, not a place to stand): ``z = plane_z + w(u, v) /
+        n_z``, with ``(u, v)`` of the point found by fixed-point iteration (the surface is
+        piecewise constant per cell)."""
         x = np.asarray(x, float).ravel()
         y = np.asarray(y, float).ravel()
         z = self.frame.plane_z(x, y)
         nz = float(self.frame.normal[2])
         g = self.map.grid
         w = np.full(x.shape, np.nan)
+        held = np.where(self.overhang, np.nan, self.map.z)
         for _ in range(iterations):
             q = self.frame.to_face(np.column_stack([x, y, z]))
             iy, ix, inside = g.cell_index(q[:, 0], q[:, 1])
-            w = np.where(inside, self.map.z[np.clip(iy, 0, g.ny - 1), np.clip(ix, 0, g.nx - 1)], np.nan)
+            w = np.where(inside, held[np.clip(iy, 0, g.ny - 1), np.clip(ix, 0, g.nx - 1)], np.nan)
             z = self.frame.plane_z(x, y) + np.nan_to_num(w) / nz
         return np.where(np.isfinite(w), z, np.nan)
 
@@ -366,7 +386,8 @@ class FaceMap:
         """Fuse one view's world points with covariance (the face-routed ones) through §1 in the
         face frame, with the overhang tests of the module docstring; with the camera centre
         ``eye`` (world) the free space along the rays to the view's points (``rays``: all of
-        them, default ``parts``) flags the cells it passes under (:meth:`carve`)."""
+        them, default ``parts``) flags the cells it passes under (:meth:`carve`), and the view's
+        points on surfaces that face the face flag theirs (``Overhangs.facing_the_face``)."""
         xyz = np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3))
         cov = np.concatenate([p[1] for p in parts]) if parts else np.zeros((0, 3, 3))
         commons = [p[2] for p in parts]
@@ -374,14 +395,21 @@ class FaceMap:
             [c for c in commons if c is not None])
         q = self.frame.to_face(xyz)
         cov_f = self.frame.cov_to_face(cov)
-        keep, flagged, n_second = self._two_surfaces(q, cov_f[:, 2, 2])
+        keep, flagged, n_second = self.overhangs.two_surfaces(self.map, self.cfg.overhang_gap_m, q,
+                                                              cov_f[:, 2, 2])
+        facing_new = 0
+        if eye is not None:
+            eye_f = self.frame.to_face(np.reshape(eye, (1, 3)))[0]
+            facing, facing_new = self.overhangs.facing_the_face(self.map.grid, self.cfg, eye_f, q)
+            n_second += int((keep & facing).sum())
+            keep &= ~facing
         face_parts: list[tuple[F64, F64, F64 | None]] = [
             (q[keep], cov_f[keep], None if common is None else self.frame.cov_to_face(common[keep]))]
         stats = run_merge(self.map, face_parts, p_visible)
         air_new = 0
         if eye is not None:
             air_new = self.carve(eye, parts if rays is None else rays)
-        return FaceMergeStats(stats, flagged + air_new, n_second, air_new)
+        return FaceMergeStats(stats, flagged + air_new + facing_new, n_second, air_new, facing_new)
 
     def carve(self, eye: F64, parts: list[ViewPart]) -> int:
         """The free-space tests of one view (module docstring), after its merge: the rays from the
@@ -400,136 +428,9 @@ class FaceMap:
         if len(xyz) == 0:
             return 0
         sel = np.unique(np.linspace(0, len(xyz) - 1, min(len(xyz), cfg.air_max_rays)).astype(np.intp))
-        q = self.frame.to_face(xyz[sel])
-        cov_f = self.frame.cov_to_face(cov[sel])
-        var_w = np.maximum(cov_f[:, 2, 2], 0.0)
-        # cut short of the point: its error along any direction and one cell
-        stop = cfg.air_sigma * np.sqrt(np.maximum(np.trace(cov_f, axis1=1, axis2=2), 0.0)) + self.grid.cell
-        rays, lowest = air_under(self.grid, self.map.z, self.map.var, self.frame.to_face(np.reshape(eye, (1, 3)))[0],
-                                 q, var_w, stop, (-cfg.slab_in_m, cfg.slab_out_m), cfg.overhang_gap_m,
-                                 cfg.air_sigma, 0.5 * self.grid.cell)
-        air, air_w = self.air.reshape(-1), self.air_w.reshape(-1)
-        air += rays.astype(np.int32)
-        hit = np.isfinite(lowest)
-        air_w[hit] = np.fmin(air_w[hit], lowest[hit])
-        if cfg.underside_deg > 0:
-            self.under = np.fmax(self.under, self._seen_from_below(self.frame.to_face(np.reshape(eye, (1, 3)))[0], q))
-        flag = (air >= cfg.air_min_rays).reshape(self.overhang.shape) & ~self.overhang
-        if cfg.underside_deg > 0:
-            flag |= (self.under > np.sin(np.radians(cfg.underside_deg))) & ~self.overhang
-        self.overhang |= flag
-        return int(flag.sum())
-
-    def _seen_from_below(self, eye: F64, q: F64) -> F64:
-        """Per cell holding one of the view's points ``q`` (face frame), the sine of the angle by
-        which the camera ``eye`` (face frame) stands under the cell's tangent plane (the map's
-        height and gradient there; NaN: no point, or not mapped). A camera under the plane sees
-        the surface's lower side: air below it along the normal, ground above."""
-        g, m = self.grid, self.map
-        iu = np.floor((q[:, 0] - g.x0) / g.cell).astype(np.intp)
-        iv = np.floor((q[:, 1] - g.y0) / g.cell).astype(np.intp)
-        ok = (iu >= 0) & (iu < g.nx) & (iv >= 0) & (iv < g.ny)
-        hit = np.zeros(g.nx * g.ny, bool)
-        hit[iv[ok] * g.nx + iu[ok]] = True
-        hit &= m.mapped.reshape(-1)
-        gv, gu = minmod_gradient(m.z, g.cell)
-        c = np.flatnonzero(hit)
-        uc = g.x0 + (c % g.nx + 0.5) * g.cell
-        vc = g.y0 + (c // g.nx + 0.5) * g.cell
-        zc = m.z.reshape(-1)[c]
-        a, b = gu.reshape(-1)[c], gv.reshape(-1)[c]
-        h = eye[2] - (zc + a * (eye[0] - uc) + b * (eye[1] - vc))
-        dist = np.sqrt((eye[0] - uc) ** 2 + (eye[1] - vc) ** 2 + (eye[2] - zc) ** 2)
-        sin_el = h / (dist * np.sqrt(1.0 + a * a + b * b))
-        out = np.full(g.nx * g.ny, np.nan)
-        out[c] = -sin_el
-        return out.reshape(g.shape)
-
-    def _two_surfaces(self, q: F64, var_w: F64, min_points: int = 3) -> tuple[B, int, int]:
-        """The overhang test of one view (face coordinates ``q``, their variances along the
-        normal ``var_w``): flags cells, records their second surface, and returns which points to
-        fuse, the number of newly flagged cells and the points held back. Within the view, each
-        part must hold ``min_points`` points over the shared sub-cell; across views, the view's
-        cell mean (of at least ``min_points`` points) must lie beyond the gap plus the gate
-        (``gate_sigma`` times the root of the cell's variance plus the points' mean variance)."""
-        g, m, gap = self.map.grid, self.map, self.cfg.overhang_gap_m
-        n = len(q)
-        size = g.nx * g.ny
-        keep = np.ones(n, bool)
-        if n == 0:
-            return keep, 0, 0
-        fu = (q[:, 0] - g.x0) / g.cell
-        fv = (q[:, 1] - g.y0) / g.cell
-        inside = (fu >= 0) & (fu < g.nx) & (fv >= 0) & (fv < g.ny) & np.isfinite(q[:, 2])
-        idx = np.flatnonzero(inside)
-        cell = fv[idx].astype(np.intp) * g.nx + fu[idx].astype(np.intp)
-        sub = (2 * (fv[idx] % 1.0)).astype(np.intp) * 2 + (2 * (fu[idx] % 1.0)).astype(np.intp)
-        w = q[idx, 2]
-        order = np.lexsort((w, cell))
-        cs, ws, vs = cell[order], w[order], var_w[idx][order]
-        split = np.zeros(len(cs), bool)
-        split[1:] = (cs[1:] == cs[:-1]) & (np.diff(ws) > gap)
-        # level of each point in its cell (0 lowest); the top level is the outer surface
-        start = np.ones(len(cs), bool)
-        start[1:] = cs[1:] != cs[:-1]
-        lev = np.cumsum(split)
-        lev = lev - np.maximum.accumulate(np.where(start, lev, 0))
-        top = np.zeros(size, np.int64)
-        np.maximum.at(top, cs, lev)
-        outer = lev == top[cs]
-        key = cs * 4 + sub[order]
-        n_out = np.bincount(key, outer, size * 4)
-        n_in = np.bincount(key, ~outer, size * 4)
-        # per cell: an outer and an inner part over one sub-cell
-        two = np.asarray(((n_out >= min_points) & (n_in >= min_points)).reshape(-1, 4).any(axis=1), bool)
-        flat_over = self.overhang.reshape(-1)
-        flat_second = self.second.reshape(-1)
-        inner_pts = two[cs] & ~outer
-        new = int((two & ~flat_over).sum())
-        if inner_pts.any():
-            sw = np.bincount(cs[inner_pts], ws[inner_pts], size)
-            k = np.bincount(cs[inner_pts], minlength=size)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                mean_inner = sw / k
-            flat_second[two] = mean_inner[two]
-        flat_over |= two
-        keep[idx[order[inner_pts]]] = False
-        # across views: this view's mean in a mapped cell beyond the gap plus the gate: the
-        # cell keeps what it holds, the view's surface goes to ``second``
-        kept = ~inner_pts
-        cnt = np.bincount(cs[kept], minlength=size)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            mean = np.bincount(cs[kept], ws[kept], size) / cnt
-            vmean = np.bincount(cs[kept], vs[kept], size) / cnt
-        zf, vf, mapped = m.z.reshape(-1), m.var.reshape(-1), m.mapped.reshape(-1)
-        with np.errstate(invalid="ignore"):
-            far = (cnt >= min_points) & mapped & (
-                np.abs(mean - zf) > gap + m.cfg.gate_sigma * np.sqrt(vf + vmean))
-        # the better-supported surface holds the cell (the gate of FaceElevation swaps them)
-        better = far & (vmean < vf)
-        flat_second[far & ~better] = mean[far & ~better]
-        flat_second[better] = zf[better]
-        new += int((far & ~flat_over).sum())
-        flat_over |= far
-        keep[idx[order[kept & (far & ~better)[cs]]]] = False
-        return keep, new, int(n - keep.sum())
-
-
-def minmod_gradient(z: F64, cell_m: float) -> tuple[F64, F64]:
-    """``(d/dv, d/du)`` of a grid's heights by the min-mod of the two one-sided differences per
-    axis: the smaller where both have one sign, 0 where they differ or a neighbour is unknown. A
-    step between two cells gives neither of them its slope (a central difference would give both
-    half of it); a slope spanning several cells keeps it."""
-    pad = np.pad(z, 1, constant_values=np.nan)
-    c = pad[1:-1, 1:-1]
-    out = []
-    for p, m in ((pad[2:, 1:-1], pad[:-2, 1:-1]), (pad[1:-1, 2:], pad[1:-1, :-2])):
-        fwd, bwd = (p - c) / cell_m, (c - m) / cell_m
-        with np.errstate(invalid="ignore"):
-            same = np.sign(fwd) == np.sign(bwd)
-        g = np.where(same, np.where(np.abs(fwd) < np.abs(bwd), fwd, bwd), 0.0)
-        out.append(np.nan_to_num(g, nan=0.0))
-    return out[0], out[1]
+        eye_f = self.frame.to_face(np.reshape(eye, (1, 3)))[0]
+        return self.overhangs.carve(self.map, cfg, eye_f, self.frame.to_face(xyz[sel]),
+                                    self.frame.cov_to_face(cov[sel]))
 
 
 def run_merge(emap: ElevationMap, parts: list[tuple[F64, F64, F64 | None]],

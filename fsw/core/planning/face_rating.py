@@ -207,7 +207,9 @@ def rate_face_station(fc: FaceCells, cam_xyz: tuple[float, float, float], yaws: 
     rel_all = fc.world - np.asarray(cam_xyz, float)
     near = fc.rated & (np.einsum("ijk,ijk->ij", rel_all, rel_all) <= camera.max_range_m**2)
     pl = None if planned is None else np.where(fc.rated, np.asarray(planned, float)[fc.gy, fc.gx], 0.0)
-    worth = near & ((fc.n < n_max) if pl is None else (fc.n + pl < n_max))
+    worth = near & (fc.n < n_max)
+    if pl is not None:
+        worth &= pl < 1.0
     it = None if interest is None else np.where(fc.rated, np.asarray(interest, float)[fc.gy, fc.gx], 0.0)
     if it is not None:
         worth &= it > 0

@@ -200,22 +200,25 @@ def cell_values(pv: F64, n: NDArray[np.int32], n_max: int, interest: F64 | None,
     the same quantity as the obtained count, ``P_V`` of each unmapped cell times
     ``stereo_return`` (the fraction of the cells a view leaves visible that the stereo maps,
     ``VisibilityConfig.stereo_return``).
-    ``planned`` (team views, docs/algorithm.md §8): the expected measurements of each cell by
-    views other agents have already chosen this cycle (the sum of their P_V); Eq 3's weight
-    counts them as taken, ``(n_max - n - planned) / n_max``, and a cell stays new only with
-    ``1 - planned``."""
+    ``planned`` (team views, docs/algorithm.md §8.2): the probability that a view other agents
+    have already chosen this cycle sees the cell, ``P = 1 - prod_k (1 - P_V,k)``. The cycle's
+    views are one measurement of the cell, seen with ``1 - (1 - P)(1 - IF P_V)``; this view's
+    bits are what it adds to that, ``share * (h2((P + (1 - P) IF P_V) / 2) - h2(P / 2))`` (the
+    marginal gain of a submodular set function of the cycle's views: two views of the same cells
+    are worth less than two views of different cells, and nothing where the earlier view surely
+    sees), and a cell stays new only with ``1 - P``."""
     p = np.asarray(pv, dtype=np.float64)
-    taken = np.asarray(n, dtype=np.float64)
     fresh = np.where(np.asarray(n) == 0, p * float(stereo_return), 0.0)
-    if planned is not None:
-        taken = taken + np.asarray(planned, dtype=np.float64)
-        fresh = fresh * np.clip(1.0 - np.asarray(planned, dtype=np.float64), 0.0, 1.0)
-    share = np.clip((n_max - taken) / float(n_max), 0.0, 1.0)
+    share = np.clip((n_max - np.asarray(n, dtype=np.float64)) / float(n_max), 0.0, 1.0)
     if interest is not None:
         p = p * np.clip(np.asarray(interest, dtype=np.float64), 0.0, 1.0)
     if weight is not None:
         share = share * np.maximum(np.asarray(weight, dtype=np.float64), 0.0)
-    return share * h2(p / 2.0), fresh
+    if planned is None:
+        return share * h2(p / 2.0), fresh
+    before = np.clip(np.asarray(planned, dtype=np.float64), 0.0, 1.0)
+    gain = h2((before + (1.0 - before) * np.clip(p, 0.0, 1.0)) / 2.0) - h2(before / 2.0)
+    return share * np.maximum(gain, 0.0), fresh * (1.0 - before)
 
 
 def view_sums(rel: F64, values: F64, yaws: F64, tilts: F64, camera: CameraConfig) -> F64:
@@ -291,7 +294,9 @@ def rate_station_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], ya
     x_c = g.x0 + (np.arange(g.nx) + 0.5) * g.cell
     y_c = g.y0 + (np.arange(g.ny) + 0.5) * g.cell
     near = ((x_c[None, :] - cam_xyz[0]) ** 2 + (y_c[:, None] - cam_xyz[1]) ** 2) <= reach**2
-    worth = near & ((n < n_max) if planned is None else (n + planned < n_max))
+    worth = near & (n < n_max)
+    if planned is not None:  # a cell an earlier view surely sees adds nothing (``cell_values``)
+        worth &= planned < 1.0
     if interest is not None:
         worth &= interest > 0
     iy, ix = np.nonzero(worth)

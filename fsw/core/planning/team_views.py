@@ -5,8 +5,9 @@ tilt) and, per direction, its own motion cost and localization term (§3.3, §3.
 
 * the RECON-bot's: its stations along the edge path with the mast's pan/tilt/lift grid, Eq 9 over
   wheels and mast (:func:`recon_centres`, from the information planner's own candidates);
-* the Cliff-bot's: places on its planned paths (its corridor, either way, within ``max_travel_m``
-  of where it stands, :func:`corridor_places`), its head camera ``head_m`` along the ground's
+* the Cliff-bot's: places on its planned paths (either way, within ``max_travel_m`` of where it
+  stands, :func:`corridor_places`) and across its corridor (:func:`corridor_lattice`, on known
+  ground where the tethers hold it), its head camera ``head_m`` along the ground's
   normal, every head pan and tilt; its motion is tether motion: the change of both paid-out
   lengths (winches, ``a_tether``; every place's tethers in one batch, ``tether_states``) plus the
   head's turn (:func:`cliffbot_centres`).
@@ -28,10 +29,11 @@ P_V was wrong for that cell (its prior cannot see it), which says nothing of the
 view from elsewhere (the Cliff-bot on the face sees what the RECON-bot's prior misses).
 
 **Sequential greedy** (:func:`choose_team_views`): every agent not yet served is rated, the one
-whose best view has the highest utility takes it, and the cells that view will see (its P_V on
-every cell) are added to ``planned``, which the next agent's rating counts as measurements
-already taken (``nbv.cell_values``); repeat until every agent has a view. So the second agent
-does not pay for, nor aim at, what the first is about to map. Each choice says who looked where
+whose best view has the highest utility takes it, and ``planned``, the probability that some
+chosen view sees each cell, takes in that view's P_V; the next agent's views are rated by what
+they add to the cycle's one measurement of each cell (``nbv.cell_values``: the marginal gain of a
+submodular function of the cycle's views); repeat until every agent has a view. So the second
+agent does not pay for, nor aim at, what the first is about to map. Each choice says who looked where
 and why (:class:`TeamView`, ``why`` and :meth:`TeamView.event`).
 """
 
@@ -241,14 +243,39 @@ def corridor_places(path_xy: F64, now_xy: F64, spacing_m: float, max_travel_m: f
     return np.asarray(pts[np.sort(first)], float)  # an out-and-back route passes each place twice
 
 
+def corridor_lattice(path_xy: F64, now_xy: F64, spacing_m: float, max_travel_m: float, across_m: float) -> F64:
+    """Places off the path but inside the corridor: the nodes of a square lattice of ``spacing_m``
+    through ``now_xy`` that lie within ``across_m`` of the polyline ``path_xy`` (K, 2), farther
+    than half a spacing from it (:func:`corridor_places` has those), and no farther than
+    ``max_travel_m`` in a straight line from ``now_xy`` (K', 2)."""
+    xy = np.asarray(path_xy, float).reshape(-1, 2)
+    now = np.asarray(now_xy, float).reshape(2)
+    if xy.shape[0] == 0 or across_m <= 0.5 * spacing_m or spacing_m <= 0.0:
+        return np.zeros((0, 2))
+    k = np.arange(-math.floor(max_travel_m / spacing_m), math.floor(max_travel_m / spacing_m) + 1) * spacing_m
+    pts = now + np.stack(np.meshgrid(k, k, indexing="ij"), axis=-1).reshape(-1, 2)
+    pts = pts[np.linalg.norm(pts - now, axis=1) <= max_travel_m + 1e-9]
+    a, b = (xy[:-1], xy[1:]) if xy.shape[0] > 1 else (xy, xy)
+    ab = b - a
+    t = np.clip(np.einsum("pkd,kd->pk", pts[:, None, :] - a[None], ab) / np.maximum((ab**2).sum(axis=1), 1e-12),
+                0.0, 1.0)
+    d = np.linalg.norm(pts[:, None, :] - (a[None] + t[..., None] * ab[None]), axis=-1).min(axis=1)
+    return np.asarray(pts[(d <= across_m) & (d > 0.5 * spacing_m)], float)
+
+
 def cliffbot_centres(z: ZMap, grid: MapGrid, anchors: F64, path_xy: F64, now_xy: F64,
                      now_head: tuple[float, float], tcfg: TetherConfig, cfg: TeamViewConfig,
-                     sigma_loc_m: float = 0.02, stay: bool = True, both_ways: bool = False
+                     sigma_loc_m: float = 0.02, stay: bool = True, both_ways: bool = False,
+                     known: NDArray[np.bool_] | None = None, free_slope_deg: float = 25.0
                      ) -> tuple[ViewCentre, ...]:
     """The Cliff-bot's candidate centres: where it stands (unless ``stay`` is False: its task moves
     it on) and places every ``station_spacing_m`` along its planned path ``path_xy`` up to
     ``max_travel_m`` ahead of where it stands (``both_ways``: anywhere on the path within
-    ``max_travel_m`` of it, :func:`corridor_places`), each known on the map (``z``; NaN unknown).
+    ``max_travel_m`` of it, :func:`corridor_places`, and anywhere in its corridor, the path
+    +- ``corridor_half_m``, on a lattice of the same spacing, :func:`corridor_lattice`), each known
+    on the map (``z``; NaN unknown). A place off the path is kept only on ground the map knows
+    (``known``, the shared map's mapped cells; None: ``z`` finite) where the tethers hold the
+    Cliff-bot (their statics hold, or the ground is no steeper than ``free_slope_deg``: it stands).
     Motion (Eq 9 over the winches and the head): ``sqrt(a_tether max(|dl1|, |dl2|)^2 + a_head
     (dpan^2 + dtilt^2))`` (both winches run at once, paced to arrive together) from the tether
     lengths where it stands (all places' tethers in one batch, ``tether_states``)."""
@@ -257,9 +284,17 @@ def cliffbot_centres(z: ZMap, grid: MapGrid, anchors: F64, path_xy: F64, now_xy:
     if both_ways:
         ahead = corridor_places(xy, now, cfg.station_spacing_m, cfg.max_travel_m)
         ahead = ahead[np.linalg.norm(ahead - now, axis=1) > 1e-6]
+        off = corridor_lattice(xy, now, cfg.station_spacing_m, cfg.max_travel_m, cfg.corridor_half_m)
+        off = off[np.linalg.norm(off - now, axis=1) > 1e-6]
+        iy, ix, inside = grid.cell_index(off[:, 0], off[:, 1])
+        zk = np.isfinite(np.asarray(z, float)) if known is None else np.asarray(known, bool)
+        off = off[inside & zk[np.where(inside, iy, 0), np.where(inside, ix, 0)]]
         places = [now, *ahead]
+        on_path = len(places)
+        places += list(off)
     else:
         places = [now]
+        on_path = 0
         if xy.shape[0] >= 1:
             start = int(np.argmin(np.linalg.norm(xy - now, axis=1)))
             run = 0.0
@@ -271,6 +306,7 @@ def cliffbot_centres(z: ZMap, grid: MapGrid, anchors: F64, path_xy: F64, now_xy:
                     break
                 if run >= cfg.station_spacing_m * len(places):
                     places.append(p)
+        on_path = len(places)
     states = tether_states(z, grid, anchors, np.array(places), tcfg)
     here = states[0]
     if here is None:
@@ -283,11 +319,13 @@ def cliffbot_centres(z: ZMap, grid: MapGrid, anchors: F64, path_xy: F64, now_xy:
                                  + (tt.ravel() - now_head[1]) ** 2))
     out = []
     first = 0 if stay or len(places) == 1 else 1
-    for p, st in zip(places[first:], states[first:], strict=True):
+    for k, (p, st) in enumerate(zip(places[first:], states[first:], strict=True), start=first):
         n = surface_normal(z, grid, p, 0.3)
         iy, ix, inside = grid.cell_index(p[:1], p[1:2])
         if st is None or n is None or not inside[0]:
             continue
+        if k >= on_path and not (st.statics.ok or st.statics.tilt_deg <= free_slope_deg):
+            continue  # off the path, where the tethers would not hold it
         zg = float(np.asarray(z)[iy[0], ix[0]])
         dl = np.asarray(st.lengths_m) - l_now
         # both winches run at once, paced to arrive together (the mission's rates): the move
@@ -303,7 +341,7 @@ def choose_team_views(emap: MapLike, agents: Sequence[AgentViews], cfg: NbvConfi
                       corridor: NDArray[np.bool_] | None = None, terrain: Terrain | None = None
                       ) -> tuple[list[TeamView], F64]:
     """Sequential greedy over the agents (module docstring): the views in the order chosen, and
-    ``planned``, the summed P_V of the chosen views on every cell."""
+    ``planned``, the probability that some chosen view sees each cell, ``1 - prod (1 - P_V)``."""
     terrain = terrain if terrain is not None else terrain_from_map(emap.z, emap.var, emap.grid, cfg.visibility)
     n_max = info_n_max(emap, cfg)
     planned = np.zeros(emap.grid.shape)
@@ -345,7 +383,7 @@ def choose_team_views(emap: MapLike, agents: Sequence[AgentViews], cfg: NbvConfi
                         discounted, in_corr, why, np.clip(pv, 0.0, 1.0))
         chosen.append(view)
         first = first or view
-        planned += pv
+        planned = 1.0 - (1.0 - planned) * (1.0 - np.clip(pv, 0.0, 1.0))  # some chosen view sees the cell
         left.pop(k)
     return chosen, planned
 

@@ -28,9 +28,13 @@ map queried at the same true face points in its own coordinates, the distance fr
 returns to the true one), their ratio, the gravity grid's distance from the true surface along
 the face normal (``face_rmse_gravity_normal_m``) and that ratio, the truth overhang cells
 flagged (and, of them, those a view could show: a true sight line passes under the outer surface,
-``hil_sim.team.face_eval.overhang_seen``) and those with air as wide as the gap between their
-surfaces (``overhang_open``: the truth counts a cell whose normal's first and last crossing are
-the gap apart, however thin the air between them), the false flags, the fused vs single-agent RMS on
+``hil_sim.team.face_eval.overhang_seen``), those the views show as two surfaces (a true point
+on ground facing the face, or air and ground above it in the column more than the gap apart:
+``overhang_shown``; the others are one surface to every view, not observable) and those with
+air as wide as the gap between their surfaces (``overhang_open``: the truth counts a cell whose
+normal's first and last crossing are the gap apart, however thin the air between them), the
+false flags (and of them those where an overhang covers part of the cell, off its centre:
+``overhang_false_part``), the fused vs single-agent RMS on
 cells both agents mapped, the fraction of cells
 within 2 sigma (each agent, fused), the stereo points on a robot or a tether (judged on the
 truth: ``hil_sim.team.face_scene.team_points``, from the renderer's label of each pixel),
@@ -50,7 +54,9 @@ from typing import Any
 HELP = "the face-aligned map vs the gravity grid at equal memory, both agents' views, the team mask"
 COLUMNS = ("seed", "slope_deg", "views", "face_cells", "face_rmse_m", "face_rmse_gravity_m", "ratio",
            "face_rmse_gravity_normal_m", "ratio_normal",
-           "overhang_truth", "overhang_flagged", "overhang_false", "overhang_seen", "overhang_seen_flagged",
+           "overhang_truth", "overhang_flagged", "overhang_false", "overhang_false_part", "overhang_seen",
+           "overhang_seen_flagged",
+           "overhang_shown", "overhang_shown_flagged",
            "overhang_open", "overhang_open_flagged",
            "both_cells", "rmse_recon_m",
            "rmse_cliff_m", "rmse_fused_m", "in2s_recon", "in2s_cliff", "in2s_fused", "cells_recon",
@@ -149,8 +155,14 @@ def report(rows: list[dict[str, Any]], table: Any) -> str:
         add("face_rmse_m / face_rmse_gravity_normal_m", float(np.median(rn)), float(rn.max()), "")
     add("overhang cells flagged (pooled)", of / ot if ot else None, f"{of} of {ot}", ">= 0.95")
     add("overhang false flags (pooled cells)", sum(r["overhang_false"] for r in rows), "", "")
+    add("overhang false flags where an overhang covers part of the cell (pooled cells)",
+        sum(r["overhang_false_part"] for r in rows), "", "")
     st, sf = sum(r["overhang_seen"] for r in rows), sum(r["overhang_seen_flagged"] for r in rows)
     add("overhang cells flagged, of those a view could show (pooled)", sf / st if st else None, f"{sf} of {st}", "")
+    ht, hf = sum(r["overhang_shown"] for r in rows), sum(r["overhang_shown_flagged"] for r in rows)
+    add("overhang cells flagged, of those the views show as two surfaces (pooled)", hf / ht if ht else None,
+        f"{hf} of {ht}", "")
+    add("overhang cells no view shows as two surfaces (pooled)", ot - ht, "", "")
     ot2, of2 = sum(r["overhang_open"] for r in rows), sum(r["overhang_open_flagged"] for r in rows)
     add("overhang cells flagged, of those with air as wide as the gap between the surfaces (pooled)",
         of2 / ot2 if ot2 else None, f"{of2} of {ot2}", "")

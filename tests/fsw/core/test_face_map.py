@@ -179,7 +179,8 @@ def test_the_pipeline_routes_a_view_between_the_grids() -> None:
     floor = np.column_stack([rng.uniform(-1, 1, n), rng.uniform(-2.5, -2.0, n), np.full(n, -3.0)])
     xyz = np.vstack([on_face, floor])
     parts = [(xyz, np.tile(np.eye(3)[None] * 1e-4, (2 * n, 1, 1)), None)]
-    placed = RegisteredPose(Registration("off", "test"), CameraPose(np.eye(3), np.zeros(3)), np.zeros((6, 6)), None)
+    eye = f.to_world(np.array([[0.0, 0.0, 3.0]]))[0]  # in front of the face (it sees the face's outer side)
+    placed = RegisteredPose(Registration("off", "test"), CameraPose(np.eye(3), eye), np.zeros((6, 6)), None)
     run_to_end(pipe.fuse_steps(placed, parts))
     assert pipe.face.map.mapped.sum() > 200 and np.abs(pipe.face.map.z[pipe.face.map.mapped]).max() < 0.02
     X, Y = pipe.map.grid.centers()

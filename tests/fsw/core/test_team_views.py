@@ -11,7 +11,7 @@ import pytest
 
 from fsw.core.geometry import CameraConfig, MapGrid
 from fsw.core.map.elevation_map import ElevationMap
-from fsw.core.planning.nbv import NbvConfig, cell_values, predicted_visibility
+from fsw.core.planning.nbv import NbvConfig, cell_values, h2, predicted_visibility
 from fsw.core.planning.team_views import (
     AgentInterest,
     AgentViews,
@@ -19,11 +19,12 @@ from fsw.core.planning.team_views import (
     ViewCentre,
     choose_team_views,
     cliffbot_centres,
+    corridor_lattice,
     corridor_mask,
     corridor_places,
     corridor_weights,
 )
-from fsw.core.team.tether import TetherConfig, anchor_points
+from fsw.core.team.tether import TetherConfig, anchor_points, tether_states
 from fsw.settings import load_settings
 
 GRID = MapGrid(0.0, 0.0, 0.1, 60, 60)
@@ -66,14 +67,31 @@ def test_the_second_agent_does_not_look_where_the_first_will() -> None:
     assert planned.max() > 0.5 and f"after {views[0].agent}'s view" in views[1].why
 
 
-def test_planned_cells_count_as_measured_in_eq3() -> None:
+def test_a_cell_an_earlier_view_sees_adds_only_what_this_view_adds() -> None:
+    """The second view's bits are its marginal gain on the cycle's one measurement of the cell
+    (§8.2): nothing where the earlier view surely sees it, the rest of h2 where it may."""
     pv = np.array([1.0, 1.0, 1.0])
-    n = np.array([0, 0, 1], np.int32)
+    n = np.array([0, 0, 0], np.int32)
     bits0, new0 = cell_values(pv, n, 2, None)
-    bits1, new1 = cell_values(pv, n, 2, None, planned=np.array([0.0, 1.0, 1.0]))
+    bits1, new1 = cell_values(pv, n, 2, None, planned=np.array([0.0, 1.0, 0.5]))
     assert bits1[0] == bits0[0] and new1[0] == new0[0] == 1.0
-    assert math.isclose(bits1[1], 0.5 * bits0[1]) and new1[1] == 0.0  # one expected measurement: half
-    assert bits1[2] == 0.0 and new1[2] == 0.0  # n + planned reaches n_max: nothing left
+    assert bits1[1] == 0.0 and new1[1] == 0.0  # the earlier view surely sees it: nothing left
+    assert math.isclose(bits1[2], 1.0 - float(h2(np.array([0.25]))[0])) and new1[2] == 0.5
+
+
+def test_two_views_of_one_cell_are_worth_the_same_in_either_order_and_less_than_two_cells() -> None:
+    """The cycle's bits of a cell are a set function of its views (submodular): the same total in
+    either order of choice, and two views of one cell worth less than one view of each of two."""
+    for a, b in ((0.9, 0.3), (0.6, 0.6), (0.2, 0.7)):
+        for n in (0, 1):
+            nn = np.array([n], np.int32)
+            first_a = cell_values(np.array([a]), nn, 2, None)[0] + cell_values(np.array([b]), nn, 2, None,
+                                                                               planned=np.array([a]))[0]
+            first_b = cell_values(np.array([b]), nn, 2, None)[0] + cell_values(np.array([a]), nn, 2, None,
+                                                                               planned=np.array([b]))[0]
+            assert math.isclose(float(first_a[0]), float(first_b[0]), rel_tol=1e-12)
+            apart = cell_values(np.array([a, b]), np.array([n, n], np.int32), 2, None)[0].sum()
+            assert float(first_a[0]) < float(apart)
 
 
 def test_the_corridor_is_the_path_grown_by_its_half_width() -> None:
@@ -111,14 +129,14 @@ def test_the_cliffbots_views_cost_tether_motion() -> None:
 
 
 def test_each_view_carries_the_visibility_it_was_rated_with() -> None:
-    """The chosen views' P_V (what their misses are recorded against, §3.4) sum to ``planned``:
-    each the view's own prediction on the map, in [0, 1]."""
+    """The chosen views' P_V (what their misses are recorded against, §3.4) make ``planned``, the
+    probability that some view sees each cell: each the view's own prediction on the map, in [0, 1]."""
     emap = _flat_map()
     agents = [AgentViews("recon", CAM, (_centre(2.0, 3.0),)), AgentViews("cliffbot", CAM, (_centre(4.0, 3.0),))]
     views, planned = choose_team_views(emap, agents, NBV)
     pvs = [v.p_visible for v in views]
     assert all(p is not None and p.shape == GRID.shape and p.min() >= 0.0 and p.max() <= 1.0 for p in pvs)
-    assert np.allclose(sum(p for p in pvs if p is not None), planned)
+    assert np.allclose(1.0 - np.prod([1.0 - p for p in pvs if p is not None], axis=0), planned)
     for v, p in zip(views, pvs, strict=True):
         assert np.allclose(p, predicted_visibility(emap, v.pose(), CAM, NBV.visibility))
 
@@ -135,6 +153,39 @@ def test_corridor_places_lie_on_the_path_either_way_within_reach() -> None:
     assert p[:, 1].min() < 2.5 and p[:, 1].max() > 3.5  # behind and ahead of it
     assert len(np.unique(np.round(p, 3), axis=0)) == len(p) == 5  # 2.0 ... 4.0, the way back adds none
     assert corridor_places(np.zeros((0, 2)), now, 0.5, 1.2).shape == (0, 2)
+
+
+def test_corridor_lattice_fills_the_corridor_off_the_path_within_reach() -> None:
+    """Places across the corridor: lattice nodes through where the Cliff-bot stands, within the
+    corridor's half width of the path and more than half a spacing off it, within max_travel."""
+    path = np.column_stack([np.full(41, 3.0), np.linspace(1.0, 5.0, 41)])
+    now = np.array([3.0, 3.0])
+    p = corridor_lattice(path, now, 0.5, 1.2, 1.0)
+    off = np.abs(p[:, 0] - 3.0)
+    assert len(p) > 0 and np.all((off > 0.25) & (off <= 1.0 + 1e-9))
+    assert np.all(np.linalg.norm(p - now, axis=1) <= 1.2 + 1e-9)
+    assert np.allclose((p - now) / 0.5, np.round((p - now) / 0.5))  # on the lattice through now
+    assert {round(float(v), 3) for v in p[:, 0]} == {2.0, 2.5, 3.5, 4.0}  # both sides, to the full half width
+    assert corridor_lattice(path, now, 0.5, 1.2, 0.2).shape == (0, 2)  # a corridor no wider than the path's places
+
+
+def test_the_cliffbots_places_across_its_corridor_are_on_known_ground_only() -> None:
+    """On a 60 deg face the Cliff-bot's candidates include places beside its path inside the
+    corridor, but only where the map knows the ground."""
+    x, y = GRID.centers()
+    z = np.where(y > 4.0, 0.0, -(4.0 - y) * math.tan(math.radians(60.0)))
+    tcfg = TetherConfig()
+    anchors = anchor_points(z, GRID, np.array([[2.0, 5.5], [4.0, 5.5]]), tcfg)
+    path = np.column_stack([np.full(20, 3.0), np.linspace(4.6, 2.7, 20)])
+    cfg = TeamViewConfig(station_spacing_m=0.5, max_travel_m=2.0, corridor_half_m=1.0)
+    known = x < 3.0  # the map knows the ground west of the path only
+    on = cliffbot_centres(z, GRID, anchors, path, path[0], (0.0, 0.0), tcfg, cfg, both_ways=True,
+                          known=known, free_slope_deg=90.0)
+    px = np.array([c.place[0] for c in on])
+    assert np.any(px < 2.75) and not np.any(px > 3.25)  # beside the path, on the known side only
+    narrow = cliffbot_centres(z, GRID, anchors, path, path[0], (0.0, 0.0), tcfg,
+                              dataclasses.replace(cfg, corridor_half_m=0.0), both_ways=True, known=known)
+    assert np.allclose([c.place[0] for c in narrow], 3.0)
 
 
 def test_an_agent_pays_only_for_the_motion_beyond_the_earlier_choices() -> None:
@@ -195,3 +246,23 @@ def test_an_agents_misses_decay_only_its_own_interest() -> None:
         with pytest.raises(ValueError, match="p_visible"):
             ai.record("cliffbot", bad, np.zeros(GRID.shape, bool))
     assert np.all(ai.of("cliffbot") == 1.0)
+
+
+def test_the_cliffbots_places_across_its_corridor_are_where_the_tethers_hold_it() -> None:
+    """Off its path, a place on the face is a candidate only where both tethers hold the Cliff-bot
+    (the statics hold); on ground no steeper than free_slope_deg it stands on its wheels anyway."""
+    x, y = GRID.centers()
+    z = np.where(y > 4.0, 0.0, -(4.0 - y) * math.tan(math.radians(60.0)))
+    tcfg = TetherConfig()
+    anchors = anchor_points(z, GRID, np.array([[2.0, 5.5], [4.0, 5.5]]), tcfg)
+    path = np.column_stack([np.full(20, 3.0), np.linspace(4.6, 2.7, 20)])
+    cfg = TeamViewConfig(station_spacing_m=0.5, max_travel_m=2.0, corridor_half_m=1.0)
+    cs = cliffbot_centres(z, GRID, anchors, path, path[0], (0.0, 0.0), tcfg, cfg, both_ways=True, free_slope_deg=25.0)
+    off = np.array([c.place[:2] for c in cs if abs(c.place[0] - 3.0) > 1e-6])
+    states = tether_states(z, GRID, anchors, off, tcfg)
+    assert all(st is not None and (st.statics.ok or st.statics.tilt_deg <= 25.0) for st in states)
+    lattice = corridor_lattice(path, path[0], 0.5, 2.0, 1.0)
+    slack = [p for p, st in zip(lattice, tether_states(z, GRID, anchors, lattice, tcfg), strict=True)
+             if st is not None and not st.statics.ok and st.statics.tilt_deg > 25.0]
+    assert slack and not any(np.allclose(p, q) for p in slack for q in off)  # slack places on the face left out
+    assert any(st is not None and st.statics.tilt_deg > 25.0 for st in states)  # held places on the face kept

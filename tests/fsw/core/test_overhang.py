@@ -1,0 +1,93 @@
+"""Overhang tests of the face map (fsw.core.map.overhang; docs/algorithm.md §8.1)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from fsw.core.geometry import MapGrid
+from fsw.core.map.elevation_map import ElevationMap
+from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig, hand_over_z
+from fsw.core.map.overhang import local_normals
+
+
+def _frame() -> FaceFrame:
+    a = math.radians(70.0)
+    return FaceFrame.from_normal(np.zeros(3), np.array([0.0, -math.sin(a), math.cos(a)]))
+
+
+def _view(face: FaceMap, rng: np.random.Generator, slope: float, eye_f: list[float]) -> None:
+    """One view (camera ``eye_f``, face frame) of the face (w = 0, v in 0.3..1) and, over one row
+    of cells (v in 0.2..0.3), a rock's side whose plane rises ``slope`` in w per metre of v:
+    ``slope > 0`` faces up the dip and toward the face, ``slope < 0`` up the dip and out (a step
+    down the face, one surface). The face below the rock is hidden from the camera."""
+    n = 3000
+    u = rng.uniform(0.0, 1.0, n)
+    v = rng.uniform(0.2, 1.0, n)
+    side = v < 0.3
+    w = np.where(side, 0.3 + slope * (v - 0.25), 0.0) + rng.normal(0.0, 0.004, n)
+    q = np.column_stack([u, v, w])
+    cov = np.tile(np.eye(3)[None] * 1e-5, (n, 1, 1))
+    f = face.frame
+    face.merge_parts([(f.to_world(q), cov, None)], eye=f.to_world(np.array([eye_f]))[0])
+
+
+def test_a_side_facing_the_face_is_an_overhang_and_a_step_is_not() -> None:
+    """The rock's side that faces up the face and toward it, seen from above (a RECON-bot on the
+    plateau, behind the plane), is where the normal passes from air into the rock: its cells
+    hold two surfaces although no view saw the rock's outer side nor passed under it. A step
+    down the face seen from the same place faces outward: one surface, no flag; the face
+    around either is not flagged."""
+    f = _frame()
+    cfg = FaceMapConfig(cell_m=0.1)
+    eye = [0.5, 3.0, 0.3]
+    face = FaceMap(f, (0.0, 1.0), (0.0, 1.0), cfg)
+    _view(face, np.random.default_rng(0), 3.0, eye)  # w = 0.3 + 3 (v - 0.25): rises up the dip
+    assert face.overhang[2, :].all() and (face.facing[2, :] >= cfg.facing_min_points).all()
+    assert face.overhang.sum() == face.grid.nx, face.overhang.astype(int)  # the face around: not flagged
+    # the side's points are the inner side of the rock along the normal: kept out of the height
+    assert np.allclose(face.second[2, :], 0.3, atol=0.05)
+    assert np.allclose(face.map.z[6:, :], 0.0, atol=0.01)
+    step = FaceMap(f, (0.0, 1.0), (0.0, 1.0), cfg)
+    _view(step, np.random.default_rng(0), -3.0, [0.5, 3.0, 1.5])  # falls up the dip: faces outward
+    assert not step.overhang.any(), step.overhang.astype(int)
+    off = FaceMap(f, (0.0, 1.0), (0.0, 1.0), FaceMapConfig(cell_m=0.1, facing_max_points=0))
+    _view(off, np.random.default_rng(0), 3.0, eye)  # the other tests alone miss it
+    assert not off.overhang.any()
+
+
+def test_local_normals_fit_planes_and_refuse_bad_neighbourhoods() -> None:
+    rng = np.random.default_rng(2)
+    p = np.column_stack([rng.uniform(0, 1, 4000), rng.uniform(0, 1, 4000), np.zeros(4000)])
+    p[:, 2] = 0.5 * p[:, 0] + rng.normal(0, 0.002, 4000)
+    n, ok = local_normals(p, p[:50], 0.08)
+    assert ok.all()
+    assert np.allclose(np.abs(n @ np.array([-0.5, 0.0, 1.0]) / math.hypot(0.5, 1.0)), 1.0, atol=0.02)
+    blob = rng.normal(0, 0.05, (500, 3))  # no plane: a ball of points
+    _, ok = local_normals(blob, blob[:50], 0.08)
+    assert ok.mean() < 0.2
+    lone = np.array([[0.0, 0.0, 0.0], [5.0, 5.0, 5.0]])  # fewer than 8 neighbours
+    _, ok = local_normals(np.vstack([lone, p]), lone, 0.08)
+    assert not ok.any()
+
+
+def test_an_overhang_is_no_height_in_the_one_heightfield() -> None:
+    """The planners' heightfield (``hand_over_z``) answers a flagged face cell as unknown: an
+    overhang's held height may be either surface, not ground to stand on."""
+    f = _frame()
+    face = FaceMap(f, (-1.0, 1.0), (-1.0, 1.0), FaceMapConfig(cell_m=0.1, seam_m=0.1))
+    face.map.z[:] = 0.05
+    face.map.n[:] = 1
+    face.map.var[:] = 1e-4
+    gravity = ElevationMap(MapGrid(-1.0, -1.0, 0.05, 40, 40))
+    own = face.face_owned(gravity.grid)
+    assert np.isfinite(hand_over_z(gravity, face)[own]).all()
+    face.overhang[8:12, 8:12] = True
+    z = hand_over_z(gravity, face)
+    X, Y = gravity.grid.centers()
+    hole = np.isnan(z[own])
+    assert hole.any() and (~hole).any()
+    q = f.to_face(np.column_stack([X[own][~hole], Y[own][~hole], z[own][~hole]]))
+    iy, ix, inside = face.grid.cell_index(q[:, 0], q[:, 1])
+    assert inside.all() and not face.overhang[iy, ix].any()  # every answer stands on a single surface
