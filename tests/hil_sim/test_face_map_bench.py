@@ -13,6 +13,7 @@ from hil_sim.team.face_scene import FaceScene
     ["experiment", "face-map", "--scenes", "0"],
     ["experiment", "face-map", "--jobs", "0"],
     ["experiment", "face-map", "--scenes", "1", "--scenario", "nowhere"],
+    ["experiment", "face-map", "--results-name", "../elsewhere"],
 ])
 def test_bad_input_exits_2(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
     assert main(argv) == 2

@@ -262,7 +262,7 @@ class ElevationMap:
             zm_dense = swz / sw
         grad_cells: tuple[F64, F64] | None = None
         if has_cov and any(pt[0].size for pt in parts):
-            gy, gx = _nan_gradient(zm_dense.reshape(g.shape), g.cell)
+            gy, gx = nan_gradient(zm_dense.reshape(g.shape), g.cell)
             grad_cells = (gx.reshape(-1), gy.reshape(-1))
         # pass 2: per point, the variance of the cell height (slope term) and its sums
         swi = np.zeros(size)
@@ -412,7 +412,7 @@ def _rows(a: F64, n: int, name: str) -> F64:
     return arr
 
 
-def _nan_gradient(zc: F64, cell_m: float) -> tuple[F64, F64]:
+def nan_gradient(zc: F64, cell_m: float) -> tuple[F64, F64]:
     """Central-difference gradient (d/dy, d/dx) that falls back to one-sided next to NaNs."""
     pad = np.pad(zc, 1, constant_values=np.nan)
     c = pad[1:-1, 1:-1]

@@ -37,7 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid
-from fsw.core.map.elevation_map import ElevationMap, FusionConfig, MergeStats
+from fsw.core.map.elevation_map import ElevationMap, FusionConfig, MergeStats, nan_gradient
 from fsw.core.map.overhang import Overhangs
 from fsw.core.steps import run_to_end
 from fsw.framework.params import param
@@ -245,18 +245,51 @@ def face_band(gravity: ElevationMap, frame: FaceFrame, min_slope_deg: float = 45
 
 
 class FaceElevation(ElevationMap):
-    """The face map's grid: §1.1 with one change at the gate. A measurement the gate refuses
-    (farther than ``gate_sigma`` from the cell) replaces the cell when its variance is smaller
-    than the cell's: of two inconsistent surfaces (two agents' views of one cell, one of them
-    wrong) the cell holds the better-supported one, whichever came first, so fusing a second
-    agent never leaves a cell worse than the better agent's own."""
+    """The face map's grid: §1.1 with three changes (docs/algorithm.md §8.1).
+
+    *The relief the view cannot resolve.* A view's gradient ``g`` (of its own cell means, the
+    slope term of §1.2) is the face's relief blurred by the points' error along the face: at
+    grazing incidence it is about half the local slope. The slope term takes the slope as
+    uncertain, ``g + dg`` with ``dg`` zero-mean and, per axis, the variance of the resolved
+    gradient (``E[g_i^2] = 2 g_i^2``): each point's variance gains
+    ``g_u^2 P_uu + g_v^2 P_vv`` (:meth:`_vertical_variance`). And a view's points sample a cell
+    where that view sees it (at grazing incidence, the parts facing the camera), not at its
+    centre, once per view: the view's cell measurement gains ``E|g|^2 c^2 / 12 =
+    2 |g|^2 c^2 / 12`` (the variance of a plane of that slope over a cell of side ``c``),
+    independent between views (:meth:`_fuse`).
+
+    *The weights.* Of a cell's height and a view's, each is weighted by its whole variance, not
+    by its independent part alone as in §1.1: the common part (the camera pose's, a share of the
+    view's) is one error within one agent's frame, but two agents' poses err apart, and the face
+    map is where their views meet. The variance is §1.1's (its common part does not average down).
+
+    *The gate.* A measurement the gate refuses (farther than ``gate_sigma`` from the cell)
+    replaces the cell when its variance is smaller than the cell's: of two inconsistent surfaces
+    (two agents' views of one cell, one of them wrong) the cell holds the better-supported one,
+    whichever came first, so fusing a second agent never leaves a cell worse than the better
+    agent's own."""
+
+    def _vertical_variance(self, grad: tuple[F64, F64], c6: tuple[F64, ...], footprint: bool) -> F64:
+        """§1.2's slope term plus the unresolved slope's share, ``g_u^2 P_uu + g_v^2 P_vv``, in a
+        point's whole variance (``footprint``; the view's common part is left as it is)."""
+        out = super()._vertical_variance(grad, c6, footprint)
+        if footprint and self.cfg.slope_term:
+            gx, gy = grad
+            out = out + gx * gx * c6[0] + gy * gy * c6[3]
+        return np.asarray(out)
 
     def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64, vm_pose: F64 | None = None) -> tuple[int, int, int]:
+        if self.cfg.slope_term and cells.size:
+            vm = vm + relief_variance(self.grid, cells, zm)
         z, var, n = self.z.reshape(-1), self.var.reshape(-1), self.n.reshape(-1)
         z0, v0, n0 = z[cells], var[cells], n[cells]
         with np.errstate(invalid="ignore"):
-            swap = (n0 > 0) & (np.abs(zm - z0) > self.cfg.gate_sigma * np.sqrt(v0 + vm)) & (vm < v0)
+            near = np.abs(zm - z0) <= self.cfg.gate_sigma * np.sqrt(v0 + vm)
+        swap = (n0 > 0) & ~near & (vm < v0)
+        inlier = (n0 > 0) & near
         out = super()._fuse(cells, zm, vm, vm_pose)
+        c = cells[inlier]  # the heights by the whole variances (the agents' common parts are not one error)
+        z[c] = (vm[inlier] * z0[inlier] + v0[inlier] * zm[inlier]) / (v0[inlier] + vm[inlier])
         c = cells[swap]
         z[c], var[c] = zm[swap], vm[swap]
         vp = np.zeros(int(swap.sum())) if vm_pose is None else np.clip(vm_pose[swap], 0.0, vm[swap])
@@ -431,6 +464,17 @@ class FaceMap:
         eye_f = self.frame.to_face(np.reshape(eye, (1, 3)))[0]
         return self.overhangs.carve(self.map, cfg, eye_f, self.frame.to_face(xyz[sel]),
                                     self.frame.cov_to_face(cov[sel]))
+
+
+def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64) -> F64:
+    """Per measured cell (flat ``cells``, the view's cell means ``zm``), the variance of a view's
+    sample of the cell against its centre: ``E|g|^2 c^2 / 12`` with ``E|g|^2 = 2 |g|^2`` (``g``
+    the gradient of the view's cell means, its unresolved part as wide again; FaceElevation)."""
+    dense = np.full(grid.nx * grid.ny, np.nan)
+    dense[cells] = zm
+    gy, gx = nan_gradient(dense.reshape(grid.shape), grid.cell)
+    g2 = (gx * gx + gy * gy).reshape(-1)[cells]
+    return np.asarray(2.0 * g2 * grid.cell**2 / 12.0, float)
 
 
 def run_merge(emap: ElevationMap, parts: list[tuple[F64, F64, F64 | None]],

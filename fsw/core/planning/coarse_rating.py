@@ -175,6 +175,25 @@ class ViewRating:
     cells_rated: int
 
 
+def _view_masks_steps(cam_xyz: tuple[float, float, float], yaws: F64, tilts: F64,
+                      camera: CameraConfig, pts: F64) -> Generator[None, None, NDArray[np.bool_]]:
+    """(K, N) which of the points ``pts`` lie inside each of the K views, a step per view."""
+    masks = np.zeros((yaws.size, pts.shape[0]), bool)
+    for k in range(yaws.size):
+        yield None
+        pose = CameraPose.from_pan_tilt(*cam_xyz, float(yaws[k]), float(tilts[k]))
+        masks[k] = in_view(pose, camera, pts)
+    yield None
+    return masks
+
+
+def _view_sums(masks: NDArray[np.bool_], bits: F64, new: F64) -> ViewRating:
+    """H and expected new cells of each view: the sums of the cells' terms inside it."""
+    info = np.array([bits[m].sum() for m in masks], dtype=np.float64).reshape(-1)
+    new_cells = np.array([new[m].sum() for m in masks], dtype=np.float64).reshape(-1)
+    return ViewRating(info, new_cells, int(bits.size))
+
+
 def rate_views_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws: F64,
                      tilts: F64, n: NDArray[np.int32], n_max: int, interest: F64 | None,
                      camera: CameraConfig, cfg: VisibilityConfig,
@@ -192,12 +211,7 @@ def rate_views_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws
         worth &= np.asarray(interest) > 0
     iy, ix = np.nonzero(worth)
     pts = np.column_stack([x_c[ix], y_c[iy], terrain.elev_m[iy, ix]])
-    masks = np.zeros((yaws.size, iy.size), bool)
-    for k in range(yaws.size):
-        yield None
-        pose = CameraPose.from_pan_tilt(*cam_xyz, float(yaws[k]), float(tilts[k]))
-        masks[k] = in_view(pose, camera, pts)
-    yield None
+    masks = yield from _view_masks_steps(cam_xyz, yaws, tilts, camera, pts)
     sel = np.flatnonzero(masks.any(axis=0))
     if sel.size == 0:
         return ViewRating(np.zeros(yaws.size), np.zeros(yaws.size), 0)
@@ -208,12 +222,8 @@ def rate_views_steps(terrain: Terrain, cam_xyz: tuple[float, float, float], yaws
                             weight=None if weight is None else np.asarray(weight)[iy[sel], ix[sel]])
     if accuracy is not None:
         bits = bits * accuracy.share(pts[sel] - np.asarray(cam_xyz), terrain.sigma_m[iy[sel], ix[sel]])
-    info, new_cells = np.zeros(yaws.size), np.zeros(yaws.size)
-    for k in range(yaws.size):
-        m = masks[k, sel]
-        info[k], new_cells[k] = bits[m].sum(), new[m].sum()
     yield None  # the sums are a step of their own, apart from what the caller does next
-    return ViewRating(info, new_cells, int(sel.size))
+    return _view_sums(masks[:, sel], bits, new)
 
 
 def rate_views_pooled_steps(cs: CoarseSearch, cam_xyz: tuple[float, float, float], yaws: F64,
@@ -229,12 +239,7 @@ def rate_views_pooled_steps(cs: CoarseSearch, cam_xyz: tuple[float, float, float
     if near.size == 0 or cs.z_m is None:
         return ViewRating(np.zeros(yaws.size), np.zeros(yaws.size), 0)
     pts = np.column_stack([cs.x_m[near], cs.y_m[near], cs.z_m[near]])
-    masks = np.zeros((yaws.size, near.size), bool)
-    for k in range(yaws.size):
-        yield None
-        pose = CameraPose.from_pan_tilt(*cam_xyz, float(yaws[k]), float(tilts[k]))
-        masks[k] = in_view(pose, camera, pts)
-    yield None
+    masks = yield from _view_masks_steps(cam_xyz, yaws, tilts, camera, pts)
     sel = np.flatnonzero(masks.any(axis=0))
     if sel.size == 0:
         return ViewRating(np.zeros(yaws.size), np.zeros(yaws.size), 0)
@@ -249,9 +254,5 @@ def rate_views_pooled_steps(cs: CoarseSearch, cam_xyz: tuple[float, float, float
                             weight=None if cs.weight is None else cs.weight[cells])
     if cs.accuracy is not None and cs.sigma_m is not None:
         bits = bits * cs.accuracy.share(pts[sel] - np.asarray(cam_xyz), cs.sigma_m[cells])
-    info, new_cells = np.zeros(yaws.size), np.zeros(yaws.size)
-    for k in range(yaws.size):
-        m = masks[k, sel]
-        info[k], new_cells[k] = bits[m].sum(), new[m].sum()
-    yield None
-    return ViewRating(info, new_cells, int(sel.size))
+    yield None  # the sums are a step of their own, apart from what the caller does next
+    return _view_sums(masks[:, sel], bits, new)

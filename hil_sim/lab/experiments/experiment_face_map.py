@@ -39,7 +39,8 @@ cells both agents mapped, the fraction of cells
 within 2 sigma (each agent, fused), the stereo points on a robot or a tether (judged on the
 truth: ``hil_sim.team.face_scene.team_points``, from the renderer's label of each pixel),
 those of them that survive the mask into the map, and the gravity-grid cells they fall in
-(robot/tether cells mapped as terrain). Writes OUT/face_map.csv and ``docs/results/face-map.md`` (medians, worst cases).
+(robot/tether cells mapped as terrain). Writes OUT/face_map.csv and ``docs/results/face-map.md``
+(medians, worst cases; ``--results-name`` names another, e.g. for a held-out run on other seeds).
 """
 
 from __future__ import annotations
@@ -75,6 +76,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cliff-views", type=int, default=4, help="Cliff-bot views per scene")
     p.add_argument("--config", default=str(DEFAULT_CONFIG), help="flight configuration (TOML)")
     p.add_argument("--out", type=Path, default=Path("out/face-map"), help="output directory")
+    p.add_argument("--results-name", default="face-map",
+                   help="results file docs/results/NAME.md (e.g. a held-out run on other seeds)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -86,6 +89,9 @@ def run(args: argparse.Namespace) -> int:
     me = "safer-hil experiment face-map"
     if args.scenes < 1 or args.jobs < 1 or args.recon_views < 1 or args.cliff_views < 0:
         print(f"{me}: --scenes, --jobs and --recon-views must be >= 1, --cliff-views >= 0", file=sys.stderr)
+        return 2
+    if not args.results_name.replace("-", "").replace("_", "").isalnum():
+        print(f"{me}: --results-name takes letters, digits, - and _, got {args.results_name!r}", file=sys.stderr)
         return 2
     try:
         load_settings(args.config, check_calibration=False)
@@ -120,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
         wr.writerows(rows)
     md = report(rows, markdown_table)
     print(md)
-    write_results("face-map", command_line("face-map"), md)
+    write_results(args.results_name, command_line("face-map"), md)
     return 0 if len(rows) == len(seeds) else 1
 
 
