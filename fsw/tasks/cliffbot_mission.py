@@ -115,7 +115,7 @@ class CliffbotMission:
         self.events: list[tuple[float, str, str]] = []
         self.safe_reason = ""
         self.z: F64 | None = None
-        self.carried: NDArray[np.bool_] | None = None  # cells of z known by contact beyond its footprint
+        self.carried: NDArray[np.bool_] | None = None  # cells of z no sensor measured (the plane carried on)
         self.carried_from = self.start.copy()  # where it stood when they were filled
         self.grid: MapGrid | None = None
         self.error_bound_m = 0.0  # the received map's height error bound (the codec's)
@@ -158,11 +158,15 @@ class CliffbotMission:
         flat = max(0.03, 0.5 * error_bound_m) if math.isfinite(error_bound_m) else 0.03
         self.error_bound_m = error_bound_m if math.isfinite(error_bound_m) else 0.0
         self.z, filled = fill_under_body(z, grid, self.est.xy, r, body_m=r + BODY_MARGIN_M, max_rms_m=flat)
-        # the cells filled beyond its own footprint are the plane carried on, not ground it stood on
-        # (legs.Route.approach: an approach node's footprint does not count those toward its target)
+        # the cells filled beyond where its wheels stand are the plane carried on, not ground a
+        # sensor measured: no node a leg ends on or crosses counts them as known (legs.Route,
+        # face_planner.ground_layers). Where the wheels stand: the footprint of the lattice node
+        # it stands at, within half a lattice diagonal of its estimate
         X, Y = grid.centers()
-        away = np.hypot(X - self.est.s[0], Y - self.est.s[1]) > self.ccfg.footprint_m
-        self.carried = np.isfinite(self.z) & ~np.isfinite(np.asarray(z, np.float64)) & away
+        away = np.hypot(X - self.est.s[0], Y - self.est.s[1]) > self.ccfg.footprint_m + self.ccfg.node_m / math.sqrt(2)
+        z_in = np.asarray(z, np.float64)
+        filled_here = np.isfinite(self.z) & ~(np.isfinite(z_in) & (z_in == self.z))
+        self.carried = filled_here & away
         self.carried_from = self.est.xy
         self.grid = grid
         self._route = None
@@ -378,7 +382,7 @@ class CliffbotMission:
     def _plan_all(self) -> None:
         assert self.z is not None and self.grid is not None
         plan = plan_targets(self.z, self.grid, self.anchors, self.est.xy, self.targets, self.tcfg, self.ccfg,
-                            self.route().margins())
+                            self.route().margins(), unseen=self.carried)
         self.legs = []
         for k, why in enumerate(plan.reasons):
             self.reasons[k] = why
@@ -453,7 +457,7 @@ class CliffbotMission:
         k = leg.target + 1
         if leg.looks >= self.cfg.approach_looks:
             return False
-        got = self.route().approach(self.est.xy, leg.goal, looked=leg.looks > 0)
+        got = self.route().approach(self.est.xy, leg.goal)
         if got is None:
             here = self.sensed_xy is not None and float(np.hypot(*(self.est.xy - self.sensed_xy))) <= self.ccfg.node_m
             if here and self._view_sigma() >= 0.5 * self.look_sigma:

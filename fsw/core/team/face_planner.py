@@ -166,8 +166,11 @@ def disc(radius_cells: int) -> NDArray[np.bool_]:
     return np.asarray(xx * xx + yy * yy <= r * r)
 
 
-def ground_layers(z: ZMap, grid: MapGrid, cfg: ClimberConfig) -> Ground:
-    """Rocks, hazards, known footprints and slope of every cell."""
+def ground_layers(z: ZMap, grid: MapGrid, cfg: ClimberConfig, unseen: NDArray[np.bool_] | None = None) -> Ground:
+    """Rocks, hazards, known footprints and slope of every cell. ``unseen``: cells with a height
+    that no sensor measured (the plane under the Cliff-bot's body carried on beyond where its
+    wheels stand): their heights shape the slope and the tethers, but a footprint that holds
+    one is not known."""
     zf = np.asarray(z, np.float64)
     known = np.isfinite(zf)
     fill = np.where(known, zf, np.nanmin(zf) if known.any() else 0.0)
@@ -183,7 +186,8 @@ def ground_layers(z: ZMap, grid: MapGrid, cfg: ClimberConfig) -> Ground:
     steep = slope > cfg.max_slope_deg
     raw = rock | steep
     hazard = ndimage.binary_dilation(raw, structure=foot) & known
-    known_foot = ndimage.binary_erosion(known, structure=foot, border_value=0)
+    sensed = known if unseen is None or unseen.shape != known.shape else known & ~unseen
+    known_foot = ndimage.binary_erosion(sensed, structure=foot, border_value=0)
     return Ground(rock, hazard, known_foot, slope.astype(np.float32))
 
 
@@ -289,8 +293,10 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
 
 def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy: F64,
                  tcfg: TetherConfig, ccfg: ClimberConfig, margins: Margins | None = None,
-                 start_usable: bool = False, blocked: Sequence[tuple[F64, F64]] = ()) -> Plan:
-    """Shortest usable paths from ``start_xy`` to each target (module docstring).
+                 start_usable: bool = False, blocked: Sequence[tuple[F64, F64]] = (),
+                 unseen: NDArray[np.bool_] | None = None) -> Plan:
+    """Shortest usable paths from ``start_xy`` to each target (module docstring); ``unseen``
+    as for :func:`ground_layers` (no node's footprint, nor a way's place, holds such a cell).
 
     A* per target over the 8-connected lattice, with the 3-D straight distance as its
     (admissible) heuristic; a node's verdict is worked out when the search first reaches it
@@ -299,7 +305,7 @@ def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy
     and the statics) costs far more than a graph step, and most of the lattice is never
     needed."""
     zf = np.asarray(z, np.float64)
-    g = ground_layers(zf, grid, ccfg)
+    g = ground_layers(zf, grid, ccfg, unseen)
     stride = max(1, int(round(ccfg.node_m / grid.cell)))
     rows = np.arange(stride // 2, grid.ny, stride)
     cols = np.arange(stride // 2, grid.nx, stride)

@@ -61,17 +61,16 @@ class Route:
                  tcfg: TetherConfig, ccfg: ClimberConfig, anchors: F64,
                  carried: NDArray[np.bool_] | None = None, carried_from: F64 | None = None) -> None:
         self.z, self.grid, self.error_bound_m = z, grid, error_bound_m
-        # cells known only by the ground under the body (standing at carried_from) carried on
-        # beyond its footprint (CliffbotMission.set_map): an approach node does not count those
-        # that lie toward its target
-        ok = carried is not None and carried.shape == z.shape and carried_from is not None
+        # cells known only by the plane under the body carried on beyond where its wheels stand
+        # (CliffbotMission.set_map): no node a leg ends on or crosses counts them as known
+        ok = carried is not None and carried.shape == z.shape
         self.carried = carried if ok else None
-        self.carried_from = np.asarray(carried_from, float) if ok else np.zeros(2)
+        self.carried_from = np.asarray(carried_from, float) if carried_from is not None else np.zeros(2)
         self.cfg, self.tcfg, self.ccfg, self.anchors = cfg, tcfg, ccfg, anchors
         # where the way between waypoints may not go: the body starts a way from where the last one
         # left it (within a lattice spacing of the node), so its tethers' contacts fall up to about
         # that far from the replay's: the ways keep them a lattice spacing off the map's rocks
-        ground = ground_layers(z, grid, ccfg)
+        ground = ground_layers(z, grid, ccfg, self.carried)
         grow = disc(int(round(ccfg.node_m / grid.cell)))
         self.ground = dataclasses.replace(ground, rock=ndimage.binary_dilation(ground.rock, structure=grow))
         self.ways: dict[tuple[float, float, float, float], str] = {}  # way_reason per pair of places
@@ -102,7 +101,7 @@ class Route:
         margins = self.margins()
         for _ in range(MAX_CUT_ROUNDS):
             plan = plan_targets(self.z, self.grid, self.anchors, start, goal[None, :], self.tcfg, self.ccfg,
-                                margins, start_usable=True, blocked=cut)
+                                margins, start_usable=True, blocked=cut, unseen=self.carried)
             path = plan.paths[0]
             if path is None:
                 return plan, []
@@ -168,7 +167,7 @@ class Route:
         sd = math.sqrt(max(float(u @ got[0] @ u), 0.0))
         return off - self.ccfg.node_m > self.cfg.margin_sigmas * sd, off, sd
 
-    def approach(self, start: F64, target: F64, looked: bool = False) -> tuple[F64, Plan, list[F64]] | None:
+    def approach(self, start: F64, target: F64) -> tuple[F64, Plan, list[F64]] | None:
         """The known, safe, tether-feasible node nearest ``target`` (in the map's plane) that the
         body can drive to from ``start``, nearer the target than ``start`` by more than a
         lattice spacing (``APPROACH_STEP_NODES``): its place, the plan and the waypoints there;
@@ -179,9 +178,8 @@ class Route:
         safety rule of any node.
 
         Candidates are the lattice nodes whose whole footprint is known and free of hazards
-        (``Ground.known``, ``Ground.hazard``; once it ``looked`` for this target, not by the ground
-        under its body carried on beyond its footprint toward the target, ``carried``: each look
-        would carry it on again; the first step may use it, as any leg does), the
+        (``Ground.known``, ``Ground.hazard``; never by the plane under its body carried on beyond
+        where its wheels stand, ``carried``: the first step too, as any leg), the
         ``APPROACH_CANDIDATES`` nearest the target; they are planned together (:func:`plan_targets`
         with the leg's margins: each judged like any node, tethers and tension margins included)
         and the nearest with a path whose ways hold (:meth:`plan`) is the approach node. From
@@ -193,17 +191,7 @@ class Route:
         rows = np.arange(stride // 2, grid.ny, stride)
         cols = np.arange(stride // 2, grid.nx, stride)
         rr, cc = np.meshgrid(rows, cols, indexing="ij")
-        known = g.known
-        if looked and self.carried is not None and self.carried.any():
-            # after a look for this target, the plane under the body carried on toward it is no
-            # ground to edge up onto: each look would carry it on again (the ground ahead is known
-            # by sight or not at all)
-            X, Y = grid.centers()
-            ahead = np.hypot(X - target[0], Y - target[1]) < float(np.hypot(*(self.carried_from - target)))
-            seen = np.isfinite(self.z) & ~(self.carried & ahead)
-            known = ndimage.binary_erosion(seen, structure=disc(int(round(self.ccfg.footprint_m / grid.cell))),
-                                           border_value=0)
-        ok = (known & ~g.hazard)[rr, cc]
+        ok = (g.known & ~g.hazard)[rr, cc]
         xy = np.column_stack([grid.x0 + (cc[ok] + 0.5) * grid.cell, grid.y0 + (rr[ok] + 0.5) * grid.cell])
         d = np.hypot(xy[:, 0] - target[0], xy[:, 1] - target[1])
         here = float(np.hypot(start[0] - target[0], start[1] - target[1]))
@@ -213,7 +201,7 @@ class Route:
             return None
         cand = xy[np.argsort(d, kind="stable")[:APPROACH_CANDIDATES]]
         first = plan_targets(self.z, self.grid, self.anchors, start, cand, self.tcfg, self.ccfg, self.margins(),
-                             start_usable=True)
+                             start_usable=True, unseen=self.carried)
         for k, path in enumerate(first.paths):
             if path is None:
                 continue

@@ -187,3 +187,29 @@ def test_it_edges_up_to_known_ground_a_short_step_nearer_the_target_before_it_lo
     known = ground_layers(z0, GRID, m.ccfg).known
     _, places = _drive(m, dev, t + 0.2, known)  # never onto ground the map does not know
     assert m.state == "WAIT_FIX" and m.look_now and np.array_equal(places[-1], via)
+
+
+def test_the_plane_carried_beyond_where_its_wheels_stand_is_no_ground_to_step_onto() -> None:
+    """The camera's ground ends a quarter metre ahead of the start, inside the disc the plane
+    under the body is carried over: the first approach step, like any leg, neither ends on nor
+    crosses a node whose footprint holds a cell of that plane beyond where its wheels stand."""
+    m, dev = _mission(), FreshDevices()
+    z0 = _unknown_below(-0.75)
+    t = _start(m, dev, z0)
+    x, y = GRID.centers()
+    contact = np.hypot(x - 2.5, y + 0.5) <= m.ccfg.footprint_m + m.ccfg.node_m / np.sqrt(2)
+    assert m.carried is not None and m.carried.any() and not (m.carried & contact).any()
+    assert np.isfinite(m.z[m.carried]).all() and not np.isfinite(z0[m.carried]).any()
+    sensed = np.isfinite(z0) | contact  # the camera's ground and the wheels' own
+    known = ground_layers(np.where(sensed, 0.0, np.nan), GRID, m.ccfg).known
+    if m.state == "WAIT_FIX":
+        assert m.step(t + 0.1, dev).request_fix
+        m.on_no_fix(m.fix_seq, "busy")
+    assert m.state in ("DRIVE", "DONE"), m.events[-3:]
+    if m.state == "DRIVE":
+        leg = m.legs[0]
+        assert leg.via is None or known[GRID.cell_index(leg.via[:1], leg.via[1:])[:2]].all()
+        _drive(m, dev, t + 0.2, known)  # every waypoint's whole footprint sensed
+    # the planner's own layers say the same: no usable node on the carried plane
+    g = ground_layers(m.z, GRID, m.ccfg, m.carried)
+    assert not (g.known & ~known).any()
