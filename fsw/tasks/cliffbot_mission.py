@@ -60,7 +60,7 @@ from fsw.comm.team.team_can import WINCHES
 from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import NavConfig, Navigator
 from fsw.core.team.contact_ground import fill_under_body
-from fsw.core.team.face_planner import OFF_THE_WAY, ClimberConfig, plan_targets
+from fsw.core.team.face_planner import OFF_THE_WAY, ClimberConfig, plan_targets, standing_cells
 from fsw.core.team.tether import TetherConfig, tether_state
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig, CliffbotSensingConfig
@@ -160,13 +160,11 @@ class CliffbotMission:
         self.z, filled = fill_under_body(z, grid, self.est.xy, r, body_m=r + BODY_MARGIN_M, max_rms_m=flat)
         # the cells filled beyond where its wheels stand are the plane carried on, not ground a
         # sensor measured: no node a leg ends on or crosses counts them as known (legs.Route,
-        # face_planner.ground_layers). Where the wheels stand: the footprint of the lattice node
-        # it stands at, within half a lattice diagonal of its estimate
-        X, Y = grid.centers()
-        away = np.hypot(X - self.est.s[0], Y - self.est.s[1]) > self.ccfg.footprint_m + self.ccfg.node_m / math.sqrt(2)
+        # face_planner.ground_layers). Where the wheels stand: its footprint round its estimate and
+        # the footprint of the lattice node nearest it (the node it stands at)
         z_in = np.asarray(z, np.float64)
         filled_here = np.isfinite(self.z) & ~(np.isfinite(z_in) & (z_in == self.z))
-        self.carried = filled_here & away
+        self.carried = filled_here & ~standing_cells(grid, self.est.xy, self.ccfg)
         self.carried_from = self.est.xy
         self.grid = grid
         self._route = None

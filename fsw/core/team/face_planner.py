@@ -167,6 +167,25 @@ def disc(radius_cells: int) -> NDArray[np.bool_]:
     return np.asarray(xx * xx + yy * yy <= r * r)
 
 
+def standing_cells(grid: MapGrid, xy: F64, cfg: ClimberConfig) -> NDArray[np.bool_]:
+    """The cells where the Cliff-bot's wheels stand at ``xy``: its footprint round ``xy`` and
+    the footprint (the planner's disc) of the lattice node nearest it, the node it stands at."""
+    X, Y = grid.centers()
+    out = np.hypot(X - xy[0], Y - xy[1]) <= cfg.footprint_m
+    stride = max(1, int(round(cfg.node_m / grid.cell)))
+    r = int(round(cfg.footprint_m / grid.cell))
+    iy, ix, inside = grid.cell_index(np.array([xy[0]]), np.array([xy[1]]))
+    if not bool(inside[0]):
+        return out
+    # the lattice's rows and columns are stride // 2 + k * stride (plan_targets' node_of)
+    rows, cols = np.arange(stride // 2, grid.ny, stride), np.arange(stride // 2, grid.nx, stride)
+    ky = min(len(rows) - 1, max(0, int(round((int(iy[0]) - int(rows[0])) / stride))))
+    kx = min(len(cols) - 1, max(0, int(round((int(ix[0]) - int(cols[0])) / stride))))
+    node = np.zeros(grid.shape, bool)
+    node[int(rows[ky]), int(cols[kx])] = True
+    return out | ndimage.binary_dilation(node, structure=disc(r))
+
+
 FOOT_COS_LEVELS = 4  # the footprint's cos(slope) rounded up to quarters (a larger ellipse: the safe side)
 FOOT_DIP_BINS = 8  # dip directions over 180 deg; each bin's ellipse is the union over the bin
 

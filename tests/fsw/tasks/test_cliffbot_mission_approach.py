@@ -12,7 +12,7 @@ import numpy as np
 from fsw.comm.team.team_can import WINCHES, WinchStatus
 from fsw.core.geometry import MapGrid, MapGridConfig
 from fsw.core.team.cliffbot_nav import NavConfig
-from fsw.core.team.face_planner import ClimberConfig, ground_layers
+from fsw.core.team.face_planner import ClimberConfig, ground_layers, standing_cells
 from fsw.core.team.tether import TetherConfig, tether_state
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig, CliffbotSensingConfig
@@ -196,9 +196,9 @@ def test_the_plane_carried_beyond_where_its_wheels_stand_is_no_ground_to_step_on
     m, dev = _mission(), FreshDevices()
     z0 = _unknown_below(-0.75)
     t = _start(m, dev, z0)
-    x, y = GRID.centers()
-    contact = np.hypot(x - 2.5, y + 0.5) <= m.ccfg.footprint_m + m.ccfg.node_m / np.sqrt(2)
+    contact = standing_cells(GRID, np.array([2.5, -0.5]), m.ccfg)
     assert m.carried is not None and m.carried.any() and not (m.carried & contact).any()
+    assert m.reasons[0] == "unknown ground" or not m.reasons[0]  # the start itself is usable ground
     assert np.isfinite(m.z[m.carried]).all() and not np.isfinite(z0[m.carried]).any()
     sensed = np.isfinite(z0) | contact  # the camera's ground and the wheels' own
     known = ground_layers(np.where(sensed, 0.0, np.nan), GRID, m.ccfg).known
