@@ -262,3 +262,20 @@ def equal_memory_cell(gravity_cell_m: float, slope_deg: float) -> float:
     over its horizontal footprint: ``c_g / sqrt(cos a)`` (the strike is common, the dip is
     ``1 / cos a`` longer)."""
     return gravity_cell_m / math.sqrt(max(math.cos(math.radians(slope_deg)), 1e-3))
+
+
+def relief_rise(world: World, face: FaceMap, reach: int = 2) -> F64:
+    """Per face cell (flat), how far the true surface rises out of the face (along the normal,
+    at the cell centres) within ``reach`` cells of it, above its own height: the step a view at
+    grazing incidence sees in front of, or beside, the cell (NaN where the truth has no single
+    surface anywhere in reach)."""
+    g = face.grid
+    w, over = truth_along_normal(world, face, np.arange(g.nx * g.ny))
+    W = np.where(over | ~np.isfinite(w), np.nan, w).reshape(g.shape)
+    pad = np.pad(W, reach, constant_values=np.nan)
+    near = np.stack([pad[reach + dy: reach + dy + g.ny, reach + dx: reach + dx + g.nx]
+                     for dy in range(-reach, reach + 1) for dx in range(-reach, reach + 1)])
+    top = np.full(g.shape, np.nan)
+    seen = np.isfinite(near).any(axis=0)
+    top[seen] = np.nanmax(near[:, seen], axis=0)
+    return np.asarray((top - W).reshape(-1), float)

@@ -27,7 +27,7 @@ from fsw.core.steps import run_to_end
 from fsw.core.stereo.stereo import StereoPoints
 from fsw.core.team.tether import TetherConfig, anchor_points, surface_normal, tether_state
 from fsw.tasks.perception import SITE_MASK
-from hil_sim.team.face_eval import equal_memory_cell, face_figures, truth_along_normal
+from hil_sim.team.face_eval import equal_memory_cell, face_figures, relief_rise, truth_along_normal
 from hil_sim.team.team_sensing import (
     ANCHOR_HALF_M,
     CLIFFBOT_CAMERA,
@@ -90,8 +90,11 @@ def true_points(pose: CameraPose, K: F64, depth: F32, quad: NDArray[np.bool_], m
 
 
 class FaceScene:
-    def __init__(self, spec: str, seed: int, config: str, mask: bool = True) -> None:
-        """``mask``: the team mask on (the flight's way); off shows what it keeps out."""
+    def __init__(self, spec: str, seed: int, config: str, mask: bool = True,
+                 resolve_cells: float | None = None) -> None:
+        """``mask``: the team mask on (the flight's way); off shows what it keeps out.
+        ``resolve_cells``: the face map's incidence limit (``FaceMapConfig.resolve_cells``;
+        None: its default)."""
         from fsw.settings import load_settings
         from hil_sim.world import load_scenario
 
@@ -100,6 +103,7 @@ class FaceScene:
             raise ValueError(f"{spec} has no team")
         self.seed = seed
         self.mask = mask
+        self.resolve_cells = resolve_cells
         self.rng = np.random.default_rng([seed, 2801])
         cfg = load_settings(config, check_calibration=False)
         off = dataclasses.replace(cfg.registration, enabled=False)
@@ -113,7 +117,7 @@ class FaceScene:
         self.split_gravity = ElevationMap(self.grid, self.cfg.fusion)
         self.face: FaceMap | None = None
         self.by_agent: dict[str, FaceMap] = {}
-        self.pending: list[tuple[str, list[ViewPart], F64]] = []  # agent, parts, camera centre
+        self.pending: list[tuple[str, list[ViewPart], F64, float]] = []  # agent, parts, camera centre, window
         self.team_points = 0  # stereo points on a robot or a tether (truth): what the mask had to remove
         self.team_points_fused = 0  # of those, the ones that reached the maps
         self.team_cells: set[tuple[int, int]] = set()  # the gravity-grid cells those fell in
@@ -209,9 +213,9 @@ class FaceScene:
         self.views += 1
         run_merge(self.gravity, parts, None)
         if self.face is None:
-            self.pending.append((agent, parts, est.t))
+            self.pending.append((agent, parts, est.t, pipe.matcher.window_rad))
             return
-        self._fuse(agent, parts, est.t)
+        self._fuse(agent, parts, est.t, pipe.matcher.window_rad)
 
     def _try_fit(self) -> None:
         try:
@@ -220,22 +224,25 @@ class FaceScene:
         except ValueError:
             return
         fc = dataclasses.replace(FaceMapConfig(), cell_m=equal_memory_cell(self.grid.cell, frame.slope_deg))
+        if self.resolve_cells is not None:
+            fc = dataclasses.replace(fc, resolve_cells=self.resolve_cells)
         self.face = FaceMap(frame, (u[0], u[1]), (v[0], v[1]), fc, self.cfg.fusion)
         for a in ("recon", "cliffbot"):
             self.by_agent[a] = self.face.empty_like()
-        for agent, parts, eye in self.pending:
-            self._fuse(agent, parts, eye)
+        for agent, parts, eye, window in self.pending:
+            self._fuse(agent, parts, eye, window)
         self.pending = []
 
-    def _fuse(self, agent: str, parts: list[ViewPart], eye: F64) -> None:
+    def _fuse(self, agent: str, parts: list[ViewPart], eye: F64, window_rad: float) -> None:
         """One view into the face map and its gravity grid (the hand-over), and into the agent's
-        own face map; ``eye``: the camera centre as estimated (the rays' free space)."""
+        own face map; ``eye``: the camera centre as estimated (the rays' free space, the
+        incidence limit); ``window_rad``: its stereo matching window's angle (the limit)."""
         assert self.face is not None
         to_face, to_grav = split_parts(parts, self.face)
         before = int(self.face.map.mapped.sum() + self.split_gravity.mapped.sum())
-        self.face.merge_parts(to_face, eye=eye, rays=parts)
+        self.face.merge_parts(to_face, eye=eye, rays=parts, window_rad=window_rad)
         run_merge(self.split_gravity, to_grav, None)
-        self.by_agent[agent].merge_parts(to_face, eye=eye, rays=parts)
+        self.by_agent[agent].merge_parts(to_face, eye=eye, rays=parts, window_rad=window_rad)
         self.cells_by_agent[agent] += int(self.face.map.mapped.sum() + self.split_gravity.mapped.sum()) - before
 
     def recon_poses(self, n: int) -> list[tuple[tuple[float, float, float], CameraPose]]:
@@ -291,7 +298,8 @@ class FaceScene:
             nones = ("face_cells", "face_rmse_m", "face_rmse_gravity_m", "ratio", "face_rmse_gravity_normal_m",
                      "ratio_normal", "rmse_recon_m", "rmse_cliff_m",
                      "rmse_fused_m", "in2s_recon", "in2s_cliff", "in2s_fused")
-            zeros = {f"{k}_{a}": 0 for k in ("cells", "within2s") for a in ("recon", "cliff", "fused")}
+            zeros = {f"{k}_{a}{t}": 0 for k in ("cells", "within2s", "out2s") for a in ("recon", "cliff", "fused")
+                     for t in ("", "_step")}
             return {**row, **{k: None for k in nones}, **zeros, "overhang_truth": 0, "overhang_flagged": 0,
                     "overhang_false": 0, "overhang_false_part": 0, "overhang_seen": 0, "overhang_seen_flagged": 0,
                     "overhang_shown": 0,
@@ -328,13 +336,22 @@ class FaceScene:
             s = np.sqrt(fm.map.var.reshape(-1)[both][ok])
             out[f"rmse_{name}_m"] = float(np.sqrt(np.mean(e * e))) if e.size else None
             out[f"in2s_{name}"] = float(np.mean(np.abs(e) <= 2 * s)) if e.size else None
-        # every cell each map holds (single surface in the truth): cells and how many within 2 sigma
+        # every cell each map holds (single surface in the truth): cells and how many within 2 sigma;
+        # of them, those beside a step: the true surface rises out of the face by the overhang gap
+        # or more within 2 cells (what a grazing view sees in front of the cell)
+        rise = relief_rise(self.world, self.face)
+        gap = self.face.cfg.overhang_gap_m
         for name, fm in (("recon", fr), ("cliff", fc), ("fused", self.face)):
             cells = np.flatnonzero(fm.map.mapped.reshape(-1))
             w_true, over = truth_along_normal(self.world, self.face, cells)
             ok = ~over & np.isfinite(w_true)
             e = fm.map.z.reshape(-1)[cells][ok] - w_true[ok]
             s = np.sqrt(fm.map.var.reshape(-1)[cells][ok])
+            step = rise[cells][ok] >= gap
             out[f"cells_{name}"] = int(ok.sum())
             out[f"within2s_{name}"] = int(np.sum(np.abs(e) <= 2 * s))
+            out[f"cells_{name}_step"] = int(step.sum())
+            out[f"within2s_{name}_step"] = int(np.sum(step & (np.abs(e) <= 2 * s)))
+            out[f"out2s_{name}_step"] = int(np.sum(step & (e > 2 * s)))
+            out[f"out2s_{name}"] = int(np.sum(e > 2 * s))
         return out

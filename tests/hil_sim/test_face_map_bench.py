@@ -14,6 +14,8 @@ from hil_sim.team.face_scene import FaceScene
     ["experiment", "face-map", "--jobs", "0"],
     ["experiment", "face-map", "--scenes", "1", "--scenario", "nowhere"],
     ["experiment", "face-map", "--results-name", "../elsewhere"],
+    ["experiment", "face-map", "--resolve-cells", "nan"],
+    ["experiment", "face-map", "--resolve-cells", "-1"],
 ])
 def test_bad_input_exits_2(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
     assert main(argv) == 2
@@ -25,7 +27,10 @@ def test_the_team_is_masked_and_the_judge_sees_it_without() -> None:
     """A view from the Cliff-bot on the face with its own body, the tethers, the RECON-bot and
     the Anchorbots in the picture: masked, no point on them (judged on the truth) reaches the
     map and no cell of them is mapped; unmasked, the same view fuses such points."""
+    from hil_sim.lab.experiments.experiment_face_map import COLUMNS
+
     row = FaceScene("cliff-team", 3, "config/fsw.toml").measure(0, 1)
+    assert set(row) == set(COLUMNS)  # the experiment's CSV writes every figure a scene returns
     assert row["views"] == 1 and row["team_points_seen"] >= 10
     assert row["team_points_fused"] == 0 and row["team_cells_mapped"] == 0
     bare = FaceScene("cliff-team", 3, "config/fsw.toml", mask=False).measure(0, 1)
@@ -237,3 +242,28 @@ def test_the_judge_finds_an_overhang_off_a_cells_centre() -> None:
     assert over.tolist() == [False]
     assert overhang_in_cell(HalfLedge(0.5), face, cells).tolist() == [True]  # type: ignore[arg-type]
     assert overhang_in_cell(HalfLedge(0.0), face, cells).tolist() == [False]  # type: ignore[arg-type]
+
+
+def test_relief_rise_finds_the_cells_beside_a_step_of_the_truth() -> None:
+    """A 45 deg face with a ledge raised 0.2 m (0.14 m along the normal) across a strip: the
+    cells within 2 cells of its top see the rise, those on its top and 3 cells or more from it
+    see none; the cell whose normal crosses the ledge's vertical wall twice is no single surface."""
+    import numpy as np
+
+    from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig
+    from hil_sim.team.face_eval import relief_rise
+
+    frame = FaceFrame.from_normal(np.zeros(3), np.array([0.0, -1.0, 1.0]))
+    face = FaceMap(frame, (0.0, 1.2), (0.0, 1.2), FaceMapConfig(cell_m=0.1))
+
+    class Ledge:
+        def ground_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+            v = frame.to_face(np.column_stack([np.ravel(x), np.ravel(y), np.ravel(frame.plane_z(x, y))]))[:, 1]
+            on = ((v >= 0.6) & (v < 0.8)).reshape(np.shape(x))
+            return np.asarray(frame.plane_z(x, y) + np.where(on, 0.2, 0.0))
+
+    rise = relief_rise(Ledge(), face).reshape(face.grid.shape)  # type: ignore[arg-type]
+    col = rise[:, 5]  # one column along the dip; row 7 on the ledge's top, row 6 partly
+    assert np.all(col[[5, 9]] >= 0.1)  # within 2 cells of the top, below and above it
+    assert np.all(np.abs(col[[0, 1, 2, 3, 7, 10, 11]]) < 0.02)  # on the top, and 3 or more cells off
+    assert np.isnan(col[8])

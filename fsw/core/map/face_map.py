@@ -27,6 +27,10 @@ height per cell with variance, count, interest, misses) in the face's own frame:
   ``fsw.core.map.overhang`` (:class:`~fsw.core.map.overhang.Overhangs`), run on each view by
   :meth:`FaceMap.merge_parts` (before its merge: which points to fuse) and :meth:`FaceMap.carve`
   (after it: free space along the rays).
+* The incidence limit (:func:`window_span`; off by default, ``resolve_cells = 0``): a view's
+  point whose stereo matching window spans more than ``resolve_cells`` face cells along the face
+  (grazing incidence) is not fused into the face map's heights; it still counts for the
+  overhang tests and its ray for free space.
 """
 
 from __future__ import annotations
@@ -71,6 +75,8 @@ class FaceMapConfig:
                                    doc="neighbours of a point its plane is fitted to")
     facing_min_points: int = param(3, lo=1, hi=10**6, doc="points on planes facing the face that flag a cell")
     facing_max_points: int = param(20000, lo=0, hi=10**7, doc="points per view tested for facing the face (0: none)")
+    resolve_cells: float = param(0.0, lo=0.0, hi=100.0, units="cells",
+                                 doc="a point whose matching window spans more face cells is not fused (0: off)")
 
 
 @dataclass(frozen=True)
@@ -306,6 +312,7 @@ class FaceMergeStats:
     second_points: int  # points kept out of the map as a second surface
     air_new: int = 0  # of those, the cells flagged by free space (rays under the surface, a view from below)
     facing_new: int = 0  # of those, the cells flagged by a surface that faces the face
+    grazing: int = 0  # points not fused: their matching window spans more than resolve_cells cells
 
 
 class FaceMap:
@@ -415,12 +422,16 @@ class FaceMap:
 
     # -- fusion ---------------------------------------------------------------------------------
     def merge_parts(self, parts: list[ViewPart], p_visible: F64 | B | None = None,
-                    eye: F64 | None = None, rays: list[ViewPart] | None = None) -> FaceMergeStats:
+                    eye: F64 | None = None, rays: list[ViewPart] | None = None,
+                    window_rad: float | None = None) -> FaceMergeStats:
         """Fuse one view's world points with covariance (the face-routed ones) through §1 in the
         face frame, with the overhang tests of the module docstring; with the camera centre
         ``eye`` (world) the free space along the rays to the view's points (``rays``: all of
         them, default ``parts``) flags the cells it passes under (:meth:`carve`), and the view's
-        points on surfaces that face the face flag theirs (``Overhangs.facing_the_face``)."""
+        points on surfaces that face the face flag theirs (``Overhangs.facing_the_face``). With
+        ``eye`` and ``window_rad`` (the matching window's angle, ``block_size_px / focal_px``)
+        the points whose window spans more than ``resolve_cells`` cells of face
+        (:func:`window_span`) are left out of the heights (the incidence limit)."""
         xyz = np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3))
         cov = np.concatenate([p[1] for p in parts]) if parts else np.zeros((0, 3, 3))
         commons = [p[2] for p in parts]
@@ -436,13 +447,19 @@ class FaceMap:
             facing, facing_new = self.overhangs.facing_the_face(self.map.grid, self.cfg, eye_f, q)
             n_second += int((keep & facing).sum())
             keep &= ~facing
+        grazing = 0
+        if eye is not None and window_rad is not None and self.cfg.resolve_cells > 0:
+            span = window_span(self.frame, np.reshape(eye, 3), xyz, window_rad)
+            wide = keep & ~(span <= self.cfg.resolve_cells * self.cfg.cell_m)
+            grazing = int(wide.sum())
+            keep &= ~wide
         face_parts: list[tuple[F64, F64, F64 | None]] = [
             (q[keep], cov_f[keep], None if common is None else self.frame.cov_to_face(common[keep]))]
         stats = run_merge(self.map, face_parts, p_visible)
         air_new = 0
         if eye is not None:
             air_new = self.carve(eye, parts if rays is None else rays)
-        return FaceMergeStats(stats, flagged + air_new + facing_new, n_second, air_new, facing_new)
+        return FaceMergeStats(stats, flagged + air_new + facing_new, n_second, air_new, facing_new, grazing)
 
     def carve(self, eye: F64, parts: list[ViewPart]) -> int:
         """The free-space tests of one view (module docstring), after its merge: the rays from the
@@ -464,6 +481,19 @@ class FaceMap:
         eye_f = self.frame.to_face(np.reshape(eye, (1, 3)))[0]
         return self.overhangs.carve(self.map, cfg, eye_f, self.frame.to_face(xyz[sel]),
                                     self.frame.cov_to_face(cov[sel]))
+
+
+def window_span(frame: FaceFrame, eye: F64, xyz: F64, window_rad: float) -> F64:
+    """The length of face, along the sight line's trace on the face plane, that a stereo matching
+    window of angle ``window_rad`` covers at each world point ``(N, 3)`` seen from ``eye``:
+    ``window_rad r / cos t`` with ``r`` the range and ``t`` the incidence, the angle between the
+    sight line and the face normal (inf for a sight line along the plane)."""
+    d = np.asarray(xyz, float) - np.asarray(eye, float).reshape(1, 3)
+    r = np.linalg.norm(d, axis=1)
+    along_n = np.abs(d @ frame.normal)  # r cos t
+    with np.errstate(divide="ignore", invalid="ignore"):
+        span = window_rad * r * r / along_n
+    return np.asarray(np.where(np.isfinite(span), span, np.inf), float)
 
 
 def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64) -> F64:

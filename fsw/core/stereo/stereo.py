@@ -209,6 +209,13 @@ class StereoMatcher:
             mode=_MODES[cfg.mode],
         )
 
+    @property
+    def window_rad(self) -> float:
+        """The matching window's angle, ``block_size_px / focal_px`` (of the rectified camera when
+        there is one): the width of scene one disparity mixes, per metre of range."""
+        f = self.camera.focal_px if self.rectified is None else self.rectified.focal_px
+        return float(self.cfg.block_size_px / f)
+
     def disparity(self, left: U8, right: U8) -> F64:
         """Disparity in pixels for each left pixel; NaN where no trustworthy match."""
         return run_to_end(self.match_steps(left, right)).disparity_px

@@ -36,11 +36,15 @@ normal's first and last crossing are the gap apart, however thin the air between
 false flags (and of them those where an overhang covers part of the cell, off its centre:
 ``overhang_false_part``), the fused vs single-agent RMS on
 cells both agents mapped, the fraction of cells
-within 2 sigma (each agent, fused), the stereo points on a robot or a tether (judged on the
+within 2 sigma (each agent, fused; of them the cells beside a step of the true relief, a rise out
+of the face of ``overhang_gap_m`` or more within 2 cells, ``*_step``; ``out2s_*``: the cells more
+than 2 sigma out of the face), the stereo points on a robot or a tether (judged on the
 truth: ``hil_sim.team.face_scene.team_points``, from the renderer's label of each pixel),
 those of them that survive the mask into the map, and the gravity-grid cells they fall in
 (robot/tether cells mapped as terrain). Writes OUT/face_map.csv and ``docs/results/face-map.md``
 (medians, worst cases; ``--results-name`` names another, e.g. for a held-out run on other seeds).
+``--resolve-cells K`` sets the face map's incidence limit (docs/algorithm.md §8.1: a point whose
+stereo window spans more than K face cells is not fused; 0 off, the default).
 """
 
 from __future__ import annotations
@@ -61,7 +65,10 @@ COLUMNS = ("seed", "slope_deg", "views", "face_cells", "face_rmse_m", "face_rmse
            "overhang_open", "overhang_open_flagged",
            "both_cells", "rmse_recon_m",
            "rmse_cliff_m", "rmse_fused_m", "in2s_recon", "in2s_cliff", "in2s_fused", "cells_recon",
-           "within2s_recon", "cells_cliff", "within2s_cliff", "cells_fused", "within2s_fused", "team_points_seen",
+           "within2s_recon", "cells_cliff", "within2s_cliff", "cells_fused", "within2s_fused",
+           "out2s_recon", "cells_recon_step", "within2s_recon_step", "out2s_recon_step",
+           "out2s_cliff", "cells_cliff_step", "within2s_cliff_step", "out2s_cliff_step",
+           "out2s_fused", "cells_fused_step", "within2s_fused_step", "out2s_fused_step", "team_points_seen",
            "team_points_fused", "team_cells_mapped")
 
 
@@ -74,6 +81,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--jobs", type=int, default=1, help="scenes run in parallel (processes)")
     p.add_argument("--recon-views", type=int, default=4, help="RECON-bot views per scene")
     p.add_argument("--cliff-views", type=int, default=4, help="Cliff-bot views per scene")
+    p.add_argument("--resolve-cells", type=float, default=None,
+                   help="the face map's incidence limit: a point whose matching window spans more face cells "
+                        "than this is not fused (0: off; default: [face_map] resolve_cells)")
     p.add_argument("--config", default=str(DEFAULT_CONFIG), help="flight configuration (TOML)")
     p.add_argument("--out", type=Path, default=Path("out/face-map"), help="output directory")
     p.add_argument("--results-name", default="face-map",
@@ -87,6 +97,9 @@ def run(args: argparse.Namespace) -> int:
     from hil_sim.world import ScenarioError, load_scenario
 
     me = "safer-hil experiment face-map"
+    if args.resolve_cells is not None and not 0.0 <= args.resolve_cells <= 100.0:
+        print(f"{me}: --resolve-cells takes 0 to 100, got {args.resolve_cells}", file=sys.stderr)
+        return 2
     if args.scenes < 1 or args.jobs < 1 or args.recon_views < 1 or args.cliff_views < 0:
         print(f"{me}: --scenes, --jobs and --recon-views must be >= 1, --cliff-views >= 0", file=sys.stderr)
         return 2
@@ -104,7 +117,8 @@ def run(args: argparse.Namespace) -> int:
     seeds = list(range(args.seed, args.seed + args.scenes))
     rows: list[dict[str, Any]] = []
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        futs = {pool.submit(scene, args.scenario, s, args.config, args.recon_views, args.cliff_views): s
+        futs = {pool.submit(scene, args.scenario, s, args.config, args.recon_views, args.cliff_views,
+                            args.resolve_cells): s
                 for s in seeds}
         for fut in as_completed(futs):
             try:
@@ -186,6 +200,16 @@ def report(rows: list[dict[str, Any]], table: Any) -> str:
         per = np.array([r[f"within2s_{a}"] / r[f"cells_{a}"] for r in rows if r[f"cells_{a}"]])
         add(f"{a}: all its cells within 2 sigma (pooled; worst scene)", n_in / n_c if n_c else None,
             float(per[np.argmax(np.abs(per - 0.945))]) if per.size else None, "0.90-0.99")
+    for a in ("recon", "cliff", "fused"):  # beside a step of the true relief, and elsewhere
+        n_s, in_s = sum(r[f"cells_{a}_step"] for r in rows), sum(r[f"within2s_{a}_step"] for r in rows)
+        n_o = sum(r[f"cells_{a}"] for r in rows) - n_s
+        in_o = sum(r[f"within2s_{a}"] for r in rows) - in_s
+        add(f"{a}: cells beside a step (true rise >= overhang gap within 2 cells) within 2 sigma (pooled)",
+            in_s / n_s if n_s else None, f"{in_s} of {n_s}", "")
+        add(f"{a}: cells elsewhere within 2 sigma (pooled)", in_o / n_o if n_o else None, f"{in_o} of {n_o}", "")
+    o_all, o_s = sum(r["out2s_recon"] for r in rows), sum(r["out2s_recon_step"] for r in rows)
+    add("recon: cells more than 2 sigma out of the face, of them beside a step (pooled)",
+        o_s / o_all if o_all else None, f"{o_s} of {o_all}", "")
     add("views", sum(r["views"] for r in rows), "", ">= 200")
     add("robot/tether points from stereo (truth)", sum(r["team_points_seen"] for r in rows), "", "")
     add("robot/tether points fused after the mask", sum(r["team_points_fused"] for r in rows),
@@ -196,9 +220,10 @@ def report(rows: list[dict[str, Any]], table: Any) -> str:
             + "\n\n## Scenes\n\n" + table(rows, list(COLUMNS)) + "\n")
 
 
-def scene(spec: str, seed: int, config: str, n_recon: int, n_cliff: int) -> dict[str, Any]:
+def scene(spec: str, seed: int, config: str, n_recon: int, n_cliff: int,
+          resolve_cells: float | None = None) -> dict[str, Any]:
     """One scene's figures (module docstring); deterministic per seed."""
     from hil_sim.team.face_scene import FaceScene
 
-    return FaceScene(spec, seed, config).measure(n_recon, n_cliff)
+    return FaceScene(spec, seed, config, resolve_cells=resolve_cells).measure(n_recon, n_cliff)
 

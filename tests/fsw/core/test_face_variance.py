@@ -6,9 +6,18 @@ cell must not leave the fused cell worse than that view alone."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from fsw.core.geometry import MapGrid
-from fsw.core.map.face_map import FaceElevation, relief_variance, run_merge
+from fsw.core.map.face_map import (
+    FaceElevation,
+    FaceFrame,
+    FaceMap,
+    FaceMapConfig,
+    relief_variance,
+    run_merge,
+    window_span,
+)
 
 CELL = 0.06
 
@@ -87,3 +96,63 @@ def test_two_views_of_a_cell_are_weighted_by_their_whole_variances() -> None:
         z, v = float(fm.z.reshape(-1)[4]), float(fm.var.reshape(-1)[4])
         assert abs(z - 0.0) < abs(z - 0.05) / 2
         assert v <= 0.02**2 + 1e-12
+
+
+def test_the_window_span_grows_as_the_sight_line_grazes_the_face() -> None:
+    """``window_rad r / cos t``: a 5 px window of a 686 px focal length at 2.4 m spans 0.1 m of
+    face at 80 deg incidence, 0.018 m head-on; a sight line along the plane spans all of it."""
+    frame = FaceFrame.from_normal(np.zeros(3), np.array([0.0, -np.sin(np.radians(75)), np.cos(np.radians(75))]))
+    w = 5.0 / 686.0
+    p = np.zeros((1, 3))
+    for t_deg, span in ((80.0, 0.1007), (0.0, 0.0175)):
+        t = np.radians(t_deg)
+        eye = 2.4 * (np.cos(t) * frame.normal + np.sin(t) * frame.R[:, 1])
+        assert window_span(frame, eye, p, w)[0] == pytest.approx(span, rel=1e-2)
+    assert window_span(frame, 2.4 * frame.R[:, 1], p, w)[0] > 1e3
+
+
+def test_a_grazing_view_does_not_fuse_the_cells_it_cannot_resolve() -> None:
+    """A view at 86 deg from the face normal, 3 m away, whose points sit 4 cm out of the face
+    (the window mixes the relief turned towards it), and one at 40 deg, 1 m away, on the face:
+    the first spans 0.3 m of face per window, five 6 cm cells, and is left out of the heights
+    (the cells hold the second view, on the true surface); without the limit its points are
+    fused and about half the cells (those where the gate swapped in its equally tight
+    measurement) sit out of the face, outside their 2 sigma."""
+    a = np.radians(75.0)
+    frame = FaceFrame.from_normal(np.zeros(3), np.array([0.0, -np.sin(a), np.cos(a)]))
+    cfg = FaceMapConfig(cell_m=CELL, air_max_rays=0, facing_max_points=0, resolve_cells=1.0)
+    rng = np.random.default_rng(5)
+    q = np.column_stack([rng.uniform(0.1, 1.1, 4000), rng.uniform(0.1, 1.1, 4000), np.zeros(4000)])
+    cov = np.tile(np.diag([1e-4, 1e-4, 0.005**2]), (len(q), 1, 1))
+
+    def eye_at(t_deg: float, r: float) -> np.ndarray:
+        t = np.radians(t_deg)
+        at = frame.to_world(np.array([[0.6, 0.6, 0.0]]))[0]
+        return at + r * (np.cos(t) * frame.normal + np.sin(t) * frame.R[:, 1])
+
+    window = 5.0 / 686.0
+    grazing = frame.to_world(q + [0.0, 0.0, 0.04] + rng.normal(0, 0.005, q.shape) * [0, 0, 1])
+    near = frame.to_world(q + rng.normal(0, 0.005, q.shape) * [0, 0, 1])
+    out = {}
+    for limit in (True, False):
+        fm = FaceMap(frame, (0.0, 1.2), (0.0, 1.2), cfg)
+        wr = window if limit else None
+        st = fm.merge_parts([(grazing, cov, None)], eye=eye_at(86.0, 3.0), window_rad=wr)
+        assert st.grazing == (len(q) if limit else 0)
+        assert (fm.map.mapped.sum() == 0) == limit
+        st = fm.merge_parts([(near, cov, None)], eye=eye_at(40.0, 1.0), window_rad=wr)
+        assert st.grazing == 0
+        m = fm.map.mapped
+        out[limit] = float(np.mean(np.abs(fm.map.z[m]) <= 2 * np.sqrt(fm.map.var[m])))
+    assert out[True] >= 0.9 and out[False] < 0.6
+
+
+def test_the_matchers_window_angle_is_its_block_over_the_focal_length() -> None:
+    """The RECON-bot's pair (640 px over 50 deg, f = 686 px) and a 5 px block: 7.3 mrad; a
+    7 px block on the Cliff-bot's (320 px over 60 deg, f = 277 px): 25 mrad."""
+    from fsw.core.geometry import CameraConfig
+    from fsw.core.stereo.stereo import StereoConfig, StereoMatcher
+
+    assert StereoMatcher(StereoConfig(), CameraConfig()).window_rad == pytest.approx(5 / 686.2, rel=1e-3)
+    small = CameraConfig(width_px=320, height_px=240, hfov_deg=60.0, baseline_m=0.07)
+    assert StereoMatcher(StereoConfig(block_size_px=7), small).window_rad == pytest.approx(7 / 277.1, rel=1e-3)
