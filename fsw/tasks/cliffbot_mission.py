@@ -10,8 +10,8 @@ the map the mission filled by contact, judges each fix (the mission stops on a r
 and takes the estimate the mission hands it back (:attr:`CliffbotMission.nav_reset`: after a
 recovery from a refused fix, or a checkpoint). States:
 
-``WAIT_MAP`` (no map yet) -> [``SENSE``] -> ``PLAN`` (every target planned from the start on the received
-map with :func:`fsw.core.team.face_planner.plan_targets`; a target it cannot reach is
+``WAIT_MAP`` (no map yet) -> [``WAIT_FIX`` -> ``SENSE``] -> ``PLAN`` (every target planned from the
+start on the received map with :func:`fsw.core.team.face_planner.plan_targets`; a target it cannot reach is
 reported with its reason, event ``TARGET_UNREACHABLE``, and never attempted) ->
 ``WAIT_FIX`` (before each leg: a fiducial fix from the RECON-bot) -> ``DRIVE`` (the leg's
 path, waypoint by waypoint: each waypoint's tether lengths on the map are the winches'
@@ -20,7 +20,9 @@ fix or a newer map arrives) -> ``DWELL`` (at the target) -> the next leg; after 
 target, the leg home (the start) -> ``DONE``.
 
 ``SENSE`` (with ``[cliffbot_sensing] enabled``; docs/team.md, "Both agents sense"): before its
-first plan, and before a leg when it has moved ``move_m`` since it last looked, the mission
+first plan (after a first fix: before it the start's heading is known to 10 deg, and the sensing
+pipeline drops the far and steep ground a look exists for; the first leg, where it stands, needs
+no other fix), and before a leg when it has moved ``move_m`` since it last looked, the mission
 asks for its own views (``Commands.sense``) and waits, holding still, until the map with them
 arrives (:meth:`CliffbotMission.sensed`: the received map with the cells its own views made
 known) or ``sense_timeout_s`` passes (it then plans on what it has, event ``SENSE_TIMEOUT``).
@@ -58,7 +60,7 @@ from fsw.comm.team.team_can import WINCHES
 from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import NavConfig, Navigator
 from fsw.core.team.contact_ground import fill_under_body
-from fsw.core.team.face_planner import OFF_THE_WAY, ClimberConfig, plan_targets
+from fsw.core.team.face_planner import OFF_THE_WAY, ClimberConfig, plan_targets, standing_cells
 from fsw.core.team.tether import TetherConfig, tether_state
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig, CliffbotSensingConfig
@@ -113,6 +115,8 @@ class CliffbotMission:
         self.events: list[tuple[float, str, str]] = []
         self.safe_reason = ""
         self.z: F64 | None = None
+        self.carried: NDArray[np.bool_] | None = None  # cells of z no sensor measured (the plane carried on)
+        self.carried_from = self.start.copy()  # where it stood when they were filled
         self.grid: MapGrid | None = None
         self.error_bound_m = 0.0  # the received map's height error bound (the codec's)
         self._route: Route | None = None  # the map as the legs use it (made again for every map)
@@ -132,6 +136,7 @@ class CliffbotMission:
         self.fixes_used = 0
         self.fixes_refused = 0
         self.fix_log: list[tuple[float, ...]] = []  # t, fix x y yaw, estimate x y yaw (before), NIS
+        self.fixed_xy: F64 | None = None  # the estimate when the last fix was fused (a leg there needs no other)
         self.replan = False
         self.elsewhere = 0  # re-plans of this leg in a row, without progress, because the lengths held it elsewhere
         self.elsewhere_left = math.inf  # the leg's planned length left at its last such re-plan
@@ -153,13 +158,23 @@ class CliffbotMission:
         flat = max(0.03, 0.5 * error_bound_m) if math.isfinite(error_bound_m) else 0.03
         self.error_bound_m = error_bound_m if math.isfinite(error_bound_m) else 0.0
         self.z, filled = fill_under_body(z, grid, self.est.xy, r, body_m=r + BODY_MARGIN_M, max_rms_m=flat)
+        # the cells filled beyond where its wheels stand are the plane carried on, not ground a
+        # sensor measured: no node a leg ends on or crosses counts them as known (legs.Route,
+        # face_planner.ground_layers). Where the wheels stand: its footprint round its estimate and
+        # the footprint of the lattice node nearest it (the node it stands at)
+        z_in = np.asarray(z, np.float64)
+        filled_here = np.isfinite(self.z) & ~(np.isfinite(z_in) & (z_in == self.z))
+        self.carried = filled_here & ~standing_cells(grid, self.est.xy, self.ccfg)
+        self.carried_from = self.est.xy
         self.grid = grid
         self._route = None
         self.map_version += 1
         self.event("MAP", f"map {self.map_version}: {int(np.isfinite(self.z).sum())} known cells"
                    + (f", {filled} under the body known by contact" if filled else ""))
         if self.state == "WAIT_MAP":
-            self.state = "PLAN" if self.sensing is None else "SENSE"
+            # with its own views: a fix first, then the look (_leg_ready), then the plan
+            self.state = "PLAN" if self.sensing is None else "WAIT_FIX"
+            self.fix_asked_at = None
         elif self.state == "DRIVE":
             self.replan = True
 
@@ -177,7 +192,7 @@ class CliffbotMission:
         r = self._route
         if r is None or r.z is not self.z or r.grid is not self.grid or r.error_bound_m != self.error_bound_m:
             r = self._route = Route(self.z, self.grid, self.error_bound_m, self.cfg, self.tcfg, self.ccfg,
-                                    self.anchors)
+                                    self.anchors, carried=self.carried, carried_from=self.carried_from)
         return r
 
     def _after_sense(self) -> None:
@@ -234,6 +249,7 @@ class CliffbotMission:
             self._safe(f"fix disagrees with the estimate (NIS {nis:.1f})")
             return
         self.fixes_used += 1
+        self.fixed_xy = self.est.xy
         self.event("FIX", f"fix {fix.seq} fused (NIS {nis:.2f})")
         if self.state == "WAIT_FIX":
             self.fix_asked_at = None
@@ -257,6 +273,7 @@ class CliffbotMission:
             self.est = Estimate(np.array([xy[0], xy[1], yaw]), cov3)
             self.nav_reset = self.est
         self.event("RECOVER", f"leaving SAFE ({self.safe_reason})")
+        self.fixed_xy = None
         self.safe_reason = ""
         self.clear_frames = 3
         self.fix_asked_at = None
@@ -330,9 +347,13 @@ class CliffbotMission:
             return self._hold()
         if self.state == "WAIT_FIX":
             if self.fix_asked_at is None:
+                if self.legs and self._fixed_here():
+                    self._leg_ready()  # a fix was fused where it stands (before the look that preceded the plan)
+                    return self._hold()
                 self.fix_asked_at = now
                 self.fix_seq += 1
-                self.event("FIX_REQUEST", f"request {self.fix_seq} before leg {self.leg_i + 1}")
+                self.event("FIX_REQUEST", f"request {self.fix_seq} before "
+                           + (f"leg {self.leg_i + 1}" if self.legs else "the first look"))
                 return self._hold(request=True)
             if now - self.fix_asked_at > self.cfg.fix_timeout_s:
                 self.event("LINK_LOST", f"no fix {self.cfg.fix_timeout_s:.0f} s after request {self.fix_seq}")
@@ -346,6 +367,10 @@ class CliffbotMission:
             return self._drive(dev)
         return self._hold()
 
+    def _fixed_here(self) -> bool:
+        """Whether a fix was fused where it stands (within a lattice spacing)."""
+        return self.fixed_xy is not None and float(np.hypot(*(self.est.xy - self.fixed_xy))) <= self.ccfg.node_m
+
     def _approaching(self, why: str) -> bool:
         """Whether a target refused for ``why`` is approached (its ground made known by looking
         from the known ground nearest it) rather than given up: a reason a look can change, with
@@ -355,7 +380,7 @@ class CliffbotMission:
     def _plan_all(self) -> None:
         assert self.z is not None and self.grid is not None
         plan = plan_targets(self.z, self.grid, self.anchors, self.est.xy, self.targets, self.tcfg, self.ccfg,
-                            self.route().margins())
+                            self.route().margins(), unseen=self.carried)
         self.legs = []
         for k, why in enumerate(plan.reasons):
             self.reasons[k] = why

@@ -45,7 +45,7 @@ from fsw.tasks.cliffbot.sensing import CliffbotSensingTask
 from hil_sim.faults import FaultInjector, FaultSpec
 from hil_sim.link.radio_channel import ChannelPort, RadioChannel
 from hil_sim.team.cliffbot_rig import CliffbotRig
-from hil_sim.team.team_eval import FixError, fix_error
+from hil_sim.team.team_eval import FixError, fix_error, unknown_at_entry
 from hil_sim.team.team_figures import TeamFigures
 from hil_sim.team.team_run import TeamSetup, team_section
 from hil_sim.team.team_sensing import CliffbotHeadCamera
@@ -193,6 +193,7 @@ class CliffbotAgent:
             raise ValueError("the Cliff-bot's schedule has no task 'mission' of kind 'cliffbot_mission'")
         self.task = task
         self.est_path: list[tuple[float, float]] = []
+        self.unknown_at_entry: set[tuple[int, int]] = set()  # cells entered unknown (_note_entered)
         self._t_last = bench.clock.now()
         self.figures = TeamFigures(self.grid.cell, self.cfg.climber.wheel_d_m, seed, channel.cfg)
         self._cycles = 0
@@ -222,6 +223,7 @@ class CliffbotAgent:
             "hazard_cells": [list(c) for c in sorted(rig.hazard_cells)],
             "wheel_rad": list(rig.wheel_rad), "sent0": dict(self.sent0), "frame": self.exe.frame,
             "est_path": [list(p) for p in self.est_path],
+            "unknown_at_entry": sorted([int(a), int(b)] for a, b in self.unknown_at_entry),
         }
 
     def _write_checkpoint(self, st: dict[str, Any]) -> None:
@@ -252,6 +254,7 @@ class CliffbotAgent:
             self.sent0 = {str(k): int(v) for k, v in st["sent0"].items()}
             self.exe.frame = int(st["frame"])
             self.est_path = [(float(x), float(y)) for x, y in st["est_path"]]
+            self.unknown_at_entry = {(int(a), int(b)) for a, b in st.get("unknown_at_entry", [])}
         except (KeyError, TypeError, ValueError) as exc:
             raise BenchStateError(f"the team's bench state is malformed ({type(exc).__name__}: {exc})") from None
         self._rendered_at = -1
@@ -266,7 +269,9 @@ class CliffbotAgent:
         while (msg := self.sim_bus.recv(timeout=0.0)) is not None:
             frames.append((int(msg.arbitration_id), bytes(msg.data)))
         self.rig.to_rig(frames, now)
+        n0 = len(self.rig.path)
         self.rig.step(now - self._t_last, now)
+        self._note_entered(n0)
         self._t_last = now
         for fid, data in self.rig.poll(now):
             self.sim_bus.send(can.Message(arbitration_id=fid, data=data, is_extended_id=False))
@@ -275,6 +280,20 @@ class CliffbotAgent:
         self._note_cycle()
         s = self.mission.est.s
         self.est_path.append((float(s[0]), float(s[1])))
+
+    def _note_entered(self, n0: int) -> None:
+        """The cells the rig's true path entered this step that the Cliff-bot's map did not know
+        from a sensor then (its map now: the plane under its body carried on does not count)."""
+        new = self.rig.path[max(n0, 1):]
+        if not new:
+            return
+        m = self.mission
+        known = None
+        if m.z is not None and m.z.shape == self.grid.shape:
+            known = np.isfinite(m.z)
+            if m.carried is not None and m.carried.shape == known.shape:
+                known &= ~m.carried
+        self.unknown_at_entry |= unknown_at_entry(self.frame.to_map(np.asarray(new, float)), known, self.grid)
 
     def _judge_fixes(self) -> None:
         """Each FIX the RECON-bot sent, against the Cliff-bot's true pose now (flight heights are
@@ -382,7 +401,8 @@ class CliffbotAgent:
             link_bad_packets=int(getattr(radio, "counts", {}).get("bad_packets", 0)),
             can_bad_frames=int(getattr(getattr(drv, "dev", None), "bad_frames", 0)),
             sim_s=self.bench.clock.now() - t0, est_path=self.est_path, out=out,
-            setup=TeamSetup(tether=self.cfg.tether, climber=self.cfg.climber), to_map=self.frame.to_map)
+            setup=TeamSetup(tether=self.cfg.tether, climber=self.cfg.climber), to_map=self.frame.to_map,
+            unknown_at_entry=frozenset(self.unknown_at_entry))
         sec["map_received"] = m.z is not None
         sec["recon_pose"] = self._recon_pose()
         sec["fix_recon_yaw_err_deg"] = [e[0] for e in self.recon_errors]

@@ -21,7 +21,10 @@ team mission comes from here and only from the TRUTH:
   (reduced, decoded) map and on the full-resolution map of the same mission: targets reached
   on each, path length ratio, hazard cells of the full map the received map shows as safe;
 * :func:`unknown_cells_entered`: the distinct cells of the true path the received map did
-  not know;
+  not know; :func:`unknown_at_entry`: the cells the true path entered that the Cliff-bot's map
+  did not know from a sensor WHEN it entered them (what the bench records step by step, and
+  what the summary counts when the driver recorded it: a cell its camera showed later was
+  still unknown ground when it drove onto it);
 * :func:`judge_team`: all of it for one mission, from a :class:`TeamOutcome` (what the driver
   observed), as a :class:`TeamVerdict` whose :meth:`TeamVerdict.section` is the summary's
   ``team`` section.
@@ -268,6 +271,19 @@ def unknown_cells_entered(path: Sequence[tuple[float, float]], z: NDArray[np.flo
     return len(cells)
 
 
+def unknown_at_entry(points: NDArray[np.floating], known: NDArray[np.bool_] | None, grid: MapGrid) -> set[Cell]:
+    """The cells of ``points`` (N, 2, in the map's frame: the true positions the Cliff-bot just
+    moved to) that ``known`` (the Cliff-bot's map at that moment: a height from a sensor, not
+    the plane under its body carried on; None: no map yet) does not hold."""
+    p = np.asarray(points, float).reshape(-1, 2)
+    iy, ix, inside = grid.cell_index(p[:, 0], p[:, 1])
+    out: set[Cell] = set()
+    for a, b, ok in zip(iy, ix, inside, strict=True):
+        if not ok or known is None or known.shape != grid.shape or not bool(known[a, b]):
+            out.add((int(a), int(b)))
+    return out
+
+
 def path_length_m(path: Sequence[tuple[float, float]]) -> float:
     """The horizontal length of a path."""
     if len(path) < 2:
@@ -296,6 +312,9 @@ class TeamOutcome:
     events: Sequence[Sequence[Any]] = ()
     sim_s: float = 0.0
     looks: Sequence[int] = ()  # per target, the looks the mission took to approach it (docs/team.md)
+    # the cells entered that its map did not know then (unknown_at_entry, step by step); None: not
+    # recorded, the path is judged against the final map (unknown_cells_entered)
+    unknown_at_entry: frozenset[Cell] | None = None
 
 
 @dataclass(frozen=True)
@@ -375,8 +394,11 @@ class TeamVerdict:
 def judge_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], anchors: F64,
                tcfg: TetherConfig, ccfg: ClimberConfig, outcome: TeamOutcome) -> TeamVerdict:
     """One team mission judged on the truth: the brute-force reachability, the cells of the
-    true path the received map did not know, and the bench's violations."""
+    true path the Cliff-bot's map did not know (when it entered them, if the driver recorded
+    it; else on ``received_z``), and the bench's violations."""
     truth = truth_verdict(world, grid, anchors, tcfg, ccfg)
-    return TeamVerdict(outcome, truth.reasons, unknown_cells_entered(outcome.true_path, received_z, grid),
+    unknown = (len(outcome.unknown_at_entry) if outcome.unknown_at_entry is not None
+               else unknown_cells_entered(outcome.true_path, received_z, grid))
+    return TeamVerdict(outcome, truth.reasons, unknown,
                        {"truth_lengths_m": [round(x, 3) if math.isfinite(x) else None for x in truth.lengths_m],
                         "truth_nodes": truth.nodes, "truth_usable_nodes": truth.usable})

@@ -254,11 +254,13 @@ def team_section(world: World, grid: MapGrid, received_z: NDArray[np.floating], 
                  mission: CliffbotMission, fixes: Sequence[FixError], *, link_bytes_down: int, link_bytes_up: int,
                  link_bad_packets: int, can_bad_frames: int, sim_s: float, est_path: list[tuple[float, float]],
                  out: Path | None = None, setup: TeamSetup | None = None, to_map: ToMap | None = None,
-                 ) -> dict[str, Any]:
+                 unknown_at_entry: frozenset[tuple[int, int]] | None = None) -> dict[str, Any]:
     """The summary's ``team`` section of a Cliff-bot mission (sequential, or on its own executive:
     ``hil_sim.team.team_bench``), judged on the truth by :mod:`hil_sim.team.team_eval`;
     ``team.png`` drawn in ``out``. ``to_map``: world points (N, 2) to the received map's frame
-    (the RECON-bot's; None: the same frame); ``est_path`` is in the map's frame."""
+    (the RECON-bot's; None: the same frame); ``est_path`` is in the map's frame;
+    ``unknown_at_entry``: the cells the driver saw the path enter unknown (None: judged on
+    ``received_z``)."""
     s = setup or TeamSetup()
     to_map = to_map or _same
     outcome = TeamOutcome(
@@ -269,7 +271,7 @@ def team_section(world: World, grid: MapGrid, received_z: NDArray[np.floating], 
         link_bytes_down=link_bytes_down, link_bytes_up=link_bytes_up,
         link_bad_packets=link_bad_packets, can_bad_frames=can_bad_frames, final_state=mission.state,
         safe_reason=mission.safe_reason, events=tuple(tuple(e) for e in mission.events), sim_s=sim_s,
-        looks=tuple(mission.looks))
+        looks=tuple(mission.looks), unknown_at_entry=unknown_at_entry)
     # the truth's planner on the truth's frame; the unknown cells on the received map's (the path above)
     section = judge_team(world, grid, received_z, rig.anchors, s.tether, s.climber, outcome).section()
     if out is not None:

@@ -14,6 +14,7 @@ from hil_sim.team.team_eval import (
     TeamVerdict,
     fix_error,
     path_length_m,
+    unknown_at_entry,
     unknown_cells_entered,
 )
 
@@ -28,6 +29,21 @@ def test_unknown_cells_counts_distinct_cells_after_the_start() -> None:
     assert unknown_cells_entered(path[:1], z, GRID) == 0
     assert unknown_cells_entered(path, z, GRID) == 1
     assert unknown_cells_entered([(0.25, 0.25), (5.0, 5.0)], z, GRID) == 1  # off the map is unknown
+
+
+def test_a_cell_is_judged_against_the_map_held_when_it_was_entered() -> None:
+    """A cell the Cliff-bot drove onto unknown and whose ground its camera showed later counts:
+    the final map knows it, the map it held then did not (nor does the plane carried under its
+    body, which the bench leaves out of ``known``)."""
+    then = np.ones((10, 10), bool)
+    then[5, 6] = False
+    final = np.zeros((10, 10))  # the final map knows every cell
+    step = np.array([[0.65, 0.55]])
+    assert unknown_cells_entered([(0.55, 0.55), (0.65, 0.55)], final, GRID) == 0
+    assert unknown_at_entry(step, then, GRID) == {(5, 6)}
+    assert unknown_at_entry(np.array([[0.55, 0.55]]), then, GRID) == set()
+    assert unknown_at_entry(step, None, GRID) == {(5, 6)}  # no map yet: nothing known
+    assert unknown_at_entry(np.array([[5.0, 5.0]]), then, GRID) == {(50, 50)}  # off the map
 
 
 def test_fix_error_nees_follows_the_covariance() -> None:

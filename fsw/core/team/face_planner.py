@@ -45,6 +45,7 @@ brute-force check of what is reachable at all).
 
 from __future__ import annotations
 
+import functools
 import heapq
 import math
 from collections.abc import Callable, Sequence
@@ -166,8 +167,97 @@ def disc(radius_cells: int) -> NDArray[np.bool_]:
     return np.asarray(xx * xx + yy * yy <= r * r)
 
 
-def ground_layers(z: ZMap, grid: MapGrid, cfg: ClimberConfig) -> Ground:
-    """Rocks, hazards, known footprints and slope of every cell."""
+def standing_cells(grid: MapGrid, xy: F64, cfg: ClimberConfig) -> NDArray[np.bool_]:
+    """The cells where the Cliff-bot's wheels stand at ``xy``: its footprint round ``xy`` and
+    the footprint (the planner's disc) of the lattice node nearest it, the node it stands at."""
+    X, Y = grid.centers()
+    out = np.hypot(X - xy[0], Y - xy[1]) <= cfg.footprint_m
+    stride = max(1, int(round(cfg.node_m / grid.cell)))
+    r = int(round(cfg.footprint_m / grid.cell))
+    iy, ix, inside = grid.cell_index(np.array([xy[0]]), np.array([xy[1]]))
+    if not bool(inside[0]):
+        return out
+    # the lattice's rows and columns are stride // 2 + k * stride (plan_targets' node_of)
+    rows, cols = np.arange(stride // 2, grid.ny, stride), np.arange(stride // 2, grid.nx, stride)
+    ky = min(len(rows) - 1, max(0, int(round((int(iy[0]) - int(rows[0])) / stride))))
+    kx = min(len(cols) - 1, max(0, int(round((int(ix[0]) - int(cols[0])) / stride))))
+    node = np.zeros(grid.shape, bool)
+    node[int(rows[ky]), int(cols[kx])] = True
+    return out | ndimage.binary_dilation(node, structure=disc(r))
+
+
+FOOT_COS_LEVELS = 4  # the footprint's cos(slope) rounded up to quarters (a larger ellipse: the safe side)
+FOOT_DIP_BINS = 8  # dip directions over 180 deg; each bin's ellipse is the union over the bin
+
+
+@functools.lru_cache(maxsize=256)
+def tilted_disc(radius_cells: int, cos_level: int, dip_bin: int) -> NDArray[np.bool_]:
+    """The footprint disc of ``radius_cells`` laid in a plane whose slope has cos
+    ``cos_level / FOOT_COS_LEVELS``, seen from above: an ellipse, the radius times that cos along
+    the dip, the radius across; the union over the dip bin's directions (``dip_bin`` of
+    ``FOOT_DIP_BINS`` over 180 deg). ``cos_level == FOOT_COS_LEVELS``: the level disc."""
+    if cos_level >= FOOT_COS_LEVELS:
+        return disc(radius_cells)
+    r = max(0, radius_cells)
+    yy, xx = np.mgrid[-r:r + 1, -r:r + 1].astype(np.float64)
+    c = max(cos_level, 1) / FOOT_COS_LEVELS
+    width = math.pi / FOOT_DIP_BINS
+    out = np.zeros(xx.shape, bool)
+    for phi in (dip_bin + 0.5) * width + np.linspace(-0.5, 0.5, 5) * width:
+        along = xx * math.cos(phi) + yy * math.sin(phi)
+        across = -xx * math.sin(phi) + yy * math.cos(phi)
+        out |= (along / (r * c + 0.5)) ** 2 + (across / max(r, 1e-9)) ** 2 <= 1.0
+    out[r, r] = True
+    return out & disc(r)
+
+
+def _cos_level(grad: NDArray[np.float64]) -> NDArray[np.intp]:
+    """cos(slope) of a gradient's norm in quarters, rounded up."""
+    cos = 1.0 / np.sqrt(1.0 + grad * grad)
+    return np.minimum(np.ceil(cos * FOOT_COS_LEVELS - 1e-9), FOOT_COS_LEVELS).astype(np.intp)
+
+
+def footprint_known(z_sensed: ZMap, grid: MapGrid, footprint_m: float) -> NDArray[np.bool_]:
+    """The cells whose footprint is known: the Cliff-bot's footprint disc (``footprint_m``) laid
+    in the ground's own plane, which from above is an ellipse shortened along the dip by the
+    slope's cos (at 77 deg a 0.3 m disc spans 0.07 m of the map along the dip, where the level
+    disc would need 1.3 m of face along the slope), all on cells with a height from a sensor
+    (``z_sensed``, NaN elsewhere). The slope and dip are a cell's (from the known cells round it,
+    3 x 3); the cos is rounded up to quarters and the dip's direction binned, each bin's ellipse
+    the union over its directions, and an ellipse that holds a flatter cell (a lip, a ledge)
+    gives way to the level disc (the safe side of each)."""
+    zs = np.asarray(z_sensed, np.float64)
+    sensed = np.isfinite(zs)
+    r = int(round(footprint_m / grid.cell))
+    if r < 1 or not sensed.any():
+        return ndimage.binary_erosion(sensed, structure=disc(r), border_value=0)
+    gy, gx = np.gradient(zs, grid.cell)
+    ok = np.isfinite(gx) & np.isfinite(gy)
+    n = ndimage.uniform_filter(ok.astype(np.float64), 3)
+    mx = ndimage.uniform_filter(np.where(ok, gx, 0.0), 3) / np.maximum(n, 1e-9)
+    my = ndimage.uniform_filter(np.where(ok, gy, 0.0), 3) / np.maximum(n, 1e-9)
+    local = np.where(n >= 5.0 / 9.0 - 1e-9, np.hypot(mx, my), np.inf)  # the gradient's norm; inf: too few cells
+    level = _cos_level(np.where(np.isfinite(local), local, 0.0))
+    dip = np.mod(np.arctan2(my, mx), math.pi)
+    dbin = np.minimum((dip / (math.pi / FOOT_DIP_BINS)).astype(np.intp), FOOT_DIP_BINS - 1)
+    level_disc = ndimage.binary_erosion(sensed, structure=disc(r), border_value=0)
+    out = sensed & (level >= FOOT_COS_LEVELS) & level_disc
+    tilted = sensed & (level < FOOT_COS_LEVELS)
+    for lv, b in {(int(a), int(d)) for a, d in zip(level[tilted], dbin[tilted], strict=True)}:
+        foot = tilted_disc(r, lv, b)
+        here = tilted & (level == lv) & (dbin == b)
+        # the ellipse holds no flatter ground (a lip, a ledge): else the level disc, the safe side
+        least = ndimage.minimum_filter(local, footprint=foot, mode="constant", cval=np.inf)
+        fits = _cos_level(np.where(np.isfinite(least), least, 0.0)) <= lv
+        out |= here & np.where(fits, ndimage.binary_erosion(sensed, structure=foot, border_value=0), level_disc)
+    return out
+
+
+def ground_layers(z: ZMap, grid: MapGrid, cfg: ClimberConfig, unseen: NDArray[np.bool_] | None = None) -> Ground:
+    """Rocks, hazards, known footprints and slope of every cell. ``unseen``: cells with a height
+    that no sensor measured (the plane under the Cliff-bot's body carried on beyond where its
+    wheels stand): their heights shape the slope and the tethers, but a footprint that holds
+    one is not known."""
     zf = np.asarray(z, np.float64)
     known = np.isfinite(zf)
     fill = np.where(known, zf, np.nanmin(zf) if known.any() else 0.0)
@@ -183,7 +273,8 @@ def ground_layers(z: ZMap, grid: MapGrid, cfg: ClimberConfig) -> Ground:
     steep = slope > cfg.max_slope_deg
     raw = rock | steep
     hazard = ndimage.binary_dilation(raw, structure=foot) & known
-    known_foot = ndimage.binary_erosion(known, structure=foot, border_value=0)
+    sensed = known if unseen is None or unseen.shape != known.shape else known & ~unseen
+    known_foot = footprint_known(np.where(sensed, zf, np.nan), grid, cfg.footprint_m)
     return Ground(rock, hazard, known_foot, slope.astype(np.float32))
 
 
@@ -289,8 +380,10 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
 
 def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy: F64,
                  tcfg: TetherConfig, ccfg: ClimberConfig, margins: Margins | None = None,
-                 start_usable: bool = False, blocked: Sequence[tuple[F64, F64]] = ()) -> Plan:
-    """Shortest usable paths from ``start_xy`` to each target (module docstring).
+                 start_usable: bool = False, blocked: Sequence[tuple[F64, F64]] = (),
+                 unseen: NDArray[np.bool_] | None = None) -> Plan:
+    """Shortest usable paths from ``start_xy`` to each target (module docstring); ``unseen``
+    as for :func:`ground_layers` (no node's footprint, nor a way's place, holds such a cell).
 
     A* per target over the 8-connected lattice, with the 3-D straight distance as its
     (admissible) heuristic; a node's verdict is worked out when the search first reaches it
@@ -299,7 +392,7 @@ def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy
     and the statics) costs far more than a graph step, and most of the lattice is never
     needed."""
     zf = np.asarray(z, np.float64)
-    g = ground_layers(zf, grid, ccfg)
+    g = ground_layers(zf, grid, ccfg, unseen)
     stride = max(1, int(round(ccfg.node_m / grid.cell)))
     rows = np.arange(stride // 2, grid.ny, stride)
     cols = np.arange(stride // 2, grid.nx, stride)

@@ -42,6 +42,8 @@ def snapshot(m: CliffbotMission, now: float) -> dict[str, object]:
         "start": [float(v) for v in m.start], "targets": m.targets.tolist(), "reached": list(m.reached),
         "reasons": list(m.reasons), "legs": [[float(g.goal[0]), float(g.goal[1]), g.target] for g in m.legs],
         "nav_s": [float(v) for v in m.est.s], "nav_P": m.est.P.tolist(),
+        # the map's cells no sensor measured (the plane carried under its body): flat indices
+        "carried": [] if m.carried is None else np.flatnonzero(m.carried).tolist(),
     }
 
 
@@ -75,6 +77,14 @@ def restore(m: CliffbotMission, st: dict[str, object], z: NDArray[np.float64] | 
         m.z, m.grid, m.map_version = np.asarray(z, np.float64), grid, _int(st.get("map_version", 1))
         bound = st.get("error_bound_m", 0.0)  # the map's error bound: the tension margins rest on it
         m.error_bound_m = float(bound) if isinstance(bound, (int, float)) and math.isfinite(bound) else 0.0
+        try:
+            flat = np.asarray(st.get("carried", []), np.int64).reshape(-1)
+        except (TypeError, ValueError) as exc:
+            raise CheckpointError(f"{STATE}: carried: {type(exc).__name__}: {exc}") from None
+        if flat.size and (flat.min() < 0 or flat.max() >= z.size):
+            raise CheckpointError(f"{STATE}: carried cells outside the map")
+        m.carried = np.zeros(grid.shape, bool)
+        m.carried.flat[flat] = True
     m.targets, m.reached, m.reasons, m.legs, m.leg_i = targets, reached, reasons, legs, leg_i
     m.planned_lengths = [math.inf for _ in range(len(targets))]
     m.looks = [0 for _ in range(len(targets))]

@@ -38,6 +38,7 @@ from fsw.sections import CliffbotMissionConfig
 F64 = NDArray[np.float64]
 MAX_CUT_ROUNDS = 12  # a leg's plan, its impassable edges cut, planned again at most this often
 APPROACH_CANDIDATES = 24  # known nodes nearest the target tried as the approach node, per plan
+APPROACH_STEP_NODES = 1  # an approach node is nearer the target than where it stands by more than this many spacings
 # a target's reasons that a look can change: its ground (or its tethers' ground) is not known, or
 # no path is known (the ground between may be what is not known)
 UNKNOWN_REASONS = ("unknown ground", "tether over unknown ground", "no safe path")
@@ -57,13 +58,19 @@ class Route:
     """The mission's map as its legs use it (module docstring)."""
 
     def __init__(self, z: F64, grid: MapGrid, error_bound_m: float, cfg: CliffbotMissionConfig,
-                 tcfg: TetherConfig, ccfg: ClimberConfig, anchors: F64) -> None:
+                 tcfg: TetherConfig, ccfg: ClimberConfig, anchors: F64,
+                 carried: NDArray[np.bool_] | None = None, carried_from: F64 | None = None) -> None:
         self.z, self.grid, self.error_bound_m = z, grid, error_bound_m
+        # cells known only by the plane under the body carried on beyond where its wheels stand
+        # (CliffbotMission.set_map): no node a leg ends on or crosses counts them as known
+        ok = carried is not None and carried.shape == z.shape
+        self.carried = carried if ok else None
+        self.carried_from = np.asarray(carried_from, float) if carried_from is not None else np.zeros(2)
         self.cfg, self.tcfg, self.ccfg, self.anchors = cfg, tcfg, ccfg, anchors
         # where the way between waypoints may not go: the body starts a way from where the last one
         # left it (within a lattice spacing of the node), so its tethers' contacts fall up to about
         # that far from the replay's: the ways keep them a lattice spacing off the map's rocks
-        ground = ground_layers(z, grid, ccfg)
+        ground = ground_layers(z, grid, ccfg, self.carried)
         grow = disc(int(round(ccfg.node_m / grid.cell)))
         self.ground = dataclasses.replace(ground, rock=ndimage.binary_dilation(ground.rock, structure=grow))
         self.ways: dict[tuple[float, float, float, float], str] = {}  # way_reason per pair of places
@@ -94,7 +101,7 @@ class Route:
         margins = self.margins()
         for _ in range(MAX_CUT_ROUNDS):
             plan = plan_targets(self.z, self.grid, self.anchors, start, goal[None, :], self.tcfg, self.ccfg,
-                                margins, start_usable=True, blocked=cut)
+                                margins, start_usable=True, blocked=cut, unseen=self.carried)
             path = plan.paths[0]
             if path is None:
                 return plan, []
@@ -162,17 +169,23 @@ class Route:
 
     def approach(self, start: F64, target: F64) -> tuple[F64, Plan, list[F64]] | None:
         """The known, safe, tether-feasible node nearest ``target`` (in the map's plane) that the
-        body can drive to from ``start``, nearer the target than ``start`` by more than its
-        footprint's radius (a look from a place only a few centimetres nearer shows little new
-        ground): its place, the plan and the waypoints there; None when there is none.
+        body can drive to from ``start``, nearer the target than ``start`` by more than a
+        lattice spacing (``APPROACH_STEP_NODES``): its place, the plan and the waypoints there;
+        None when there is none. The step may be short: a steep face below a lip is seen only by
+        a head out over the lip (the head is ``head_end_m`` ahead of the body), and the known
+        ground round a start a few decimetres behind the lip often ends a decimetre or two
+        nearer the target (a node is known when its whole footprint is); the node keeps every
+        safety rule of any node.
 
         Candidates are the lattice nodes whose whole footprint is known and free of hazards
-        (``Ground.known``, ``Ground.hazard``), the ``APPROACH_CANDIDATES`` nearest the target;
-        they are planned together (:func:`plan_targets` with the leg's margins: each judged like
-        any node, tethers and tension margins included) and the nearest with a path whose ways
-        hold (:meth:`plan`) is the approach node. From there its head's scan covers the ground
-        up to its camera's range round it: the nearest known ground to the target is where a look
-        shows most of the target's unknown neighbourhood."""
+        (``Ground.known``, ``Ground.hazard``; never by the plane under its body carried on beyond
+        where its wheels stand, ``carried``: the first step too, as any leg), the
+        ``APPROACH_CANDIDATES`` nearest the target; they are planned together (:func:`plan_targets`
+        with the leg's margins: each judged like any node, tethers and tension margins included)
+        and the nearest with a path whose ways hold (:meth:`plan`) is the approach node. From
+        there its head's scan covers the ground up to its camera's range round it: the nearest
+        known ground to the target is where a look shows most of the target's unknown
+        neighbourhood."""
         g, grid = self.ground, self.grid
         stride = max(1, int(round(self.ccfg.node_m / grid.cell)))
         rows = np.arange(stride // 2, grid.ny, stride)
@@ -182,13 +195,13 @@ class Route:
         xy = np.column_stack([grid.x0 + (cc[ok] + 0.5) * grid.cell, grid.y0 + (rr[ok] + 0.5) * grid.cell])
         d = np.hypot(xy[:, 0] - target[0], xy[:, 1] - target[1])
         here = float(np.hypot(start[0] - target[0], start[1] - target[1]))
-        nearer = d < here - self.ccfg.footprint_m
+        nearer = d < here - APPROACH_STEP_NODES * self.ccfg.node_m
         xy, d = xy[nearer], d[nearer]
         if not len(xy):
             return None
         cand = xy[np.argsort(d, kind="stable")[:APPROACH_CANDIDATES]]
         first = plan_targets(self.z, self.grid, self.anchors, start, cand, self.tcfg, self.ccfg, self.margins(),
-                             start_usable=True)
+                             start_usable=True, unseen=self.carried)
         for k, path in enumerate(first.paths):
             if path is None:
                 continue

@@ -12,7 +12,7 @@ import numpy as np
 from fsw.comm.team.team_can import WINCHES, WinchStatus
 from fsw.core.geometry import MapGrid, MapGridConfig
 from fsw.core.team.cliffbot_nav import NavConfig
-from fsw.core.team.face_planner import ClimberConfig, ground_layers
+from fsw.core.team.face_planner import ClimberConfig, ground_layers, standing_cells
 from fsw.core.team.tether import TetherConfig, tether_state
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig, CliffbotSensingConfig
@@ -129,9 +129,14 @@ def test_a_look_that_shows_nothing_new_gives_the_target_up_with_its_looks() -> N
     m.on_no_fix(m.fix_seq, "busy")
     known = ground_layers(m.z, GRID, m.ccfg).known
     t, _ = _drive(m, dev, t + 0.1, known)
-    t = _look(m, dev, t, z0)  # the views add nothing: nowhere nearer to go, it looked from here
-    assert m.reached == [False] and m.reasons[0] == "unknown ground (1 looks)"
-    assert m.state == "DONE" and _names(m).count("LOOK") == 1
+    # the views add nothing: it edges up to what known ground is left nearer the target (each step
+    # more than a lattice spacing), looks there, and gives the target up when nothing nearer is left
+    while m.state != "DONE":
+        t = _look(m, dev, t, z0)
+        t, _ = _drive(m, dev, t, known)
+    n = m.legs[0].looks
+    assert 1 <= n <= m.cfg.approach_looks and _names(m).count("LOOK") == n
+    assert m.reached == [False] and m.reasons[0] == f"unknown ground ({n} looks)"
 
 
 def test_without_looks_or_on_known_ground_a_target_is_not_approached() -> None:
@@ -150,6 +155,8 @@ def test_with_nothing_nearer_it_looks_again_from_where_it_stands_only_once_its_p
         wide = np.diag([0.1 ** 2, 0.1 ** 2, np.radians(10.0) ** 2])  # the start's, before a fix
         m.on_estimate(np.array([2.5, -0.5, -np.pi / 2]), wide)
         z0 = _unknown_below(-0.75)  # no known ground nearer the target than where it stands
+        x, y = GRID.centers()
+        z0[(np.abs(x - 2.5) > 0.45) & (y < -0.2)] = np.nan  # (nor ground round it to carry its plane onto)
         m.set_map(z0, GRID)
         t = _look(m, dev, 0.0, z0)  # its first look, with the start's covariance
         m.step(t + 0.1, dev)  # PLAN: the target approached
@@ -161,3 +168,48 @@ def test_with_nothing_nearer_it_looks_again_from_where_it_stands_only_once_its_p
             assert m.state == "SENSE" and _names(m).count("LOOK") == 1 and m.looks == [1]
         else:
             assert m.state == "DONE" and m.reasons[0] == "unknown ground" and "LOOK" not in _names(m)
+
+
+def test_it_edges_up_to_known_ground_a_short_step_nearer_the_target_before_it_looks() -> None:
+    """Known ground that ends a decimetre or two nearer the target than the start (a lip a few
+    decimetres ahead) is an approach node: the head over it sees what the start cannot."""
+    m, dev = _mission(), FreshDevices()
+    z0 = _unknown_below(-1.0)
+    t = _start(m, dev, z0)
+    assert m.step(t + 0.1, dev).request_fix
+    m.on_no_fix(m.fix_seq, "busy")
+    leg = m.legs[0]
+    assert m.state == "DRIVE" and leg.via is not None, m.events[-2:]
+    here = float(np.hypot(*(np.array([2.5, -0.5]) - TARGET)))
+    gain = here - float(np.hypot(*(leg.via - TARGET)))
+    assert m.ccfg.node_m < gain < m.ccfg.footprint_m  # a short step, all it has
+    via = leg.via.copy()
+    known = ground_layers(z0, GRID, m.ccfg).known
+    _, places = _drive(m, dev, t + 0.2, known)  # never onto ground the map does not know
+    assert m.state == "WAIT_FIX" and m.look_now and np.array_equal(places[-1], via)
+
+
+def test_the_plane_carried_beyond_where_its_wheels_stand_is_no_ground_to_step_onto() -> None:
+    """The camera's ground ends a quarter metre ahead of the start, inside the disc the plane
+    under the body is carried over: the first approach step, like any leg, neither ends on nor
+    crosses a node whose footprint holds a cell of that plane beyond where its wheels stand."""
+    m, dev = _mission(), FreshDevices()
+    z0 = _unknown_below(-0.75)
+    t = _start(m, dev, z0)
+    contact = standing_cells(GRID, np.array([2.5, -0.5]), m.ccfg)
+    assert m.carried is not None and m.carried.any() and not (m.carried & contact).any()
+    assert m.reasons[0] == "unknown ground" or not m.reasons[0]  # the start itself is usable ground
+    assert np.isfinite(m.z[m.carried]).all() and not np.isfinite(z0[m.carried]).any()
+    sensed = np.isfinite(z0) | contact  # the camera's ground and the wheels' own
+    known = ground_layers(np.where(sensed, 0.0, np.nan), GRID, m.ccfg).known
+    if m.state == "WAIT_FIX":
+        assert m.step(t + 0.1, dev).request_fix
+        m.on_no_fix(m.fix_seq, "busy")
+    assert m.state in ("DRIVE", "DONE"), m.events[-3:]
+    if m.state == "DRIVE":
+        leg = m.legs[0]
+        assert leg.via is None or known[GRID.cell_index(leg.via[:1], leg.via[1:])[:2]].all()
+        _drive(m, dev, t + 0.2, known)  # every waypoint's whole footprint sensed
+    # the planner's own layers say the same: no usable node on the carried plane
+    g = ground_layers(m.z, GRID, m.ccfg, m.carried)
+    assert not (g.known & ~known).any()

@@ -1,10 +1,11 @@
-"""The Cliff-bot's mission looks before it plans (fsw.tasks.cliffbot_mission, ``SENSE``; docs/team.md,
-"Both agents sense")."""
+"""The Cliff-bot's mission looks before it plans, after its first fix (fsw.tasks.cliffbot_mission,
+``SENSE``; docs/team.md, "Both agents sense")."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from fsw.comm.team.fix_packets import Fix
 from fsw.core.geometry import MapGrid, MapGridConfig
 from fsw.core.team.cliffbot_nav import NavConfig
 from fsw.core.team.face_planner import ClimberConfig
@@ -33,10 +34,17 @@ def _names(m: CliffbotMission) -> list[str]:
     return [name for _, name, _ in m.events]
 
 
+def _first_fix_answered(m: CliffbotMission, dev: CliffbotDevices) -> None:
+    """The first map asks for a fix before the first look; answered NO_FIX."""
+    assert m.state == "WAIT_FIX" and m.step(0.05, dev).request_fix
+    m.on_no_fix(m.fix_seq, "busy")
+
+
 def test_with_sensing_the_first_map_asks_for_views_once_and_their_map_is_planned_on() -> None:
     m = _mission(CliffbotSensingConfig(enabled=True))
     dev = FreshDevices()
     m.set_map(np.zeros(GRID.shape), GRID)
+    _first_fix_answered(m, dev)
     assert m.state == "SENSE"
     first, second = m.step(0.1, dev), m.step(0.2, dev)
     assert first.sense and not second.sense and m.sense_seq == 1
@@ -54,6 +62,7 @@ def test_views_that_never_come_end_in_a_plan_on_the_map_it_has() -> None:
     m = _mission(CliffbotSensingConfig(enabled=True, sense_timeout_s=5.0))
     dev = FreshDevices()
     m.set_map(np.zeros(GRID.shape), GRID)
+    _first_fix_answered(m, dev)
     assert m.step(0.1, dev).sense
     m.step(4.0, dev)
     assert m.state == "SENSE"
@@ -65,6 +74,7 @@ def test_a_leg_looks_again_only_after_the_cliffbot_moved() -> None:
     cfg = CliffbotSensingConfig(enabled=True, move_m=0.5)
     m = _mission(cfg)
     m.set_map(np.zeros(GRID.shape), GRID)
+    _first_fix_answered(m, FreshDevices())
     m.step(0.1, CliffbotDevices())
     m.sensed(1)
     m.sensed_xy = m.est.xy
@@ -73,6 +83,27 @@ def test_a_leg_looks_again_only_after_the_cliffbot_moved() -> None:
     assert not m._wants_views()
     m.est.s[:2] += np.array([0.3, 0.0])
     assert m._wants_views()
+
+
+def test_the_first_look_comes_after_the_first_fix_and_the_first_leg_needs_no_other() -> None:
+    m = _mission(CliffbotSensingConfig(enabled=True))
+    dev = FreshDevices()
+    m.set_map(np.zeros(GRID.shape), GRID)
+    assert m.state == "WAIT_FIX" and not m.step(0.1, dev).sense  # no look before the fix
+    assert m.sense_seq == 0 and m.fix_seq == 1
+    sharp = np.diag([1e-4, 1e-4, 1e-4])
+    m.on_estimate(m.est.s, sharp)  # the navigation fused it
+    fix = Fix(1, 100, np.array([2.5, -0.5, 0.0]), np.array([0.0, 0.0, -np.pi / 2]), np.eye(6) * 1e-4)
+    m.on_fix(fix, True, 0.1)
+    assert m.state == "SENSE" and m.step(0.2, dev).sense and m.look_sigma < 0.05  # looked with the fix's pose
+    m.set_map(np.zeros(GRID.shape), GRID)
+    m.sensed(1)
+    m.step(0.3, dev)  # PLAN
+    cmd = m.step(0.4, dev)  # leg 1 from where the fix was fused: no second request
+    assert not cmd.request_fix and m.fix_seq == 1 and m.state == "DRIVE"
+    m.est.s[:2] += np.array([0.3, 0.0])  # moved: the next leg asks again
+    m.state, m.fix_asked_at = "WAIT_FIX", None
+    assert m.step(0.5, dev).request_fix and m.fix_seq == 2
 
 
 def test_without_sensing_the_mission_plans_at_once() -> None:

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from fsw.core.geometry import MapGrid
 from fsw.core.team.face_planner import (
@@ -14,6 +15,8 @@ from fsw.core.team.face_planner import (
     ClimberConfig,
     Margins,
     _tether_verdict,
+    disc,
+    footprint_known,
     ground_layers,
     node_reasons,
     plan_targets,
@@ -157,3 +160,24 @@ def test_the_way_between_nodes_is_judged_where_the_statics_put_the_body() -> Non
     assert way_reason(z, grid, anchors, on_face, lower, t, c, g) == ""
     assert way_reason(z, grid, anchors, at_foot, mid, t, c, g) == OFF_THE_WAY
     assert way_reason(z, grid, anchors, mid, at_foot, t, c, g) == OFF_THE_WAY
+
+
+def test_the_footprint_is_laid_in_the_grounds_plane() -> None:
+    """On a 77 deg face a 0.3 m footprint spans 0.3 cos 77 = 0.07 m of the map along the dip:
+    a band of face 0.4 m wide on the map (1.8 m along the slope) holds such nodes, which the
+    level disc (0.6 m across on the map) never finds; across the dip it keeps its full radius,
+    and flat ground keeps the level disc."""
+    g = MapGrid(0.0, 0.0, 0.08, 40, 40)
+    x, y = g.centers()
+    face = np.tan(np.radians(77.0)) * y
+    band = np.where(np.abs(y - 1.6) <= 0.2, face, np.nan)
+    got = footprint_known(band, g, 0.3)
+    level = ndimage.binary_erosion(np.isfinite(band), structure=disc(4), border_value=0)
+    assert got.any() and not level.any()
+    assert not (got & (np.abs(y - 1.6) > 0.12)).any()  # along the dip: within the band less the ellipse
+    assert not (got & ((x < 0.3) | (x > 3.2 - 0.3))).any()  # across the dip: the full radius from the band's ends
+    # the same band on flat ground: nothing known; a flat strip within an ellipse: the level disc there
+    flat = np.where(np.isfinite(band), 0.0, np.nan)
+    assert not footprint_known(flat, g, 0.3).any()
+    ledge = np.where(np.isfinite(band) & (y > 1.7), 1.64 * np.tan(np.radians(77.0)), band)  # the band's top flat
+    assert got.any() and not footprint_known(ledge, g, 0.3).any()

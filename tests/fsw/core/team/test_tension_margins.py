@@ -7,6 +7,7 @@ import dataclasses
 import math
 
 import numpy as np
+import pytest
 
 from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import NavConfig
@@ -89,3 +90,27 @@ def test_a_checkpoint_keeps_the_map_bound_the_margins_rest_on() -> None:
     restore(back, snapshot(m, 1.0), z, grid)
     bare = math.sqrt(CliffbotMissionConfig().length_tol_m ** 2 / 3.0)  # the winches' tolerance alone
     assert back.error_bound_m == 0.03 and back.route().length_sigma() == m.route().length_sigma() > bare
+
+
+def test_a_checkpoint_keeps_the_cells_no_sensor_measured() -> None:
+    """The plane carried under the body stays unknown ground for the planner after a restart."""
+    from fsw.tasks.cliffbot.checkpoint import CheckpointError, restore, snapshot
+
+    z, grid, anchors = _cliff()
+    hole = z.copy()
+    x, y = grid.centers()
+    hole[(np.hypot(x, y - 0.6) > 0.36) & (np.hypot(x, y - 0.6) < 0.45)] = np.nan  # a ring round the start, unseen
+
+    def mission() -> CliffbotMission:
+        return CliffbotMission(CliffbotMissionConfig(), TetherConfig(), ClimberConfig(), NavConfig(), anchors,
+                               np.array([0.0, 0.6]), -math.pi / 2, FACE[None, :])
+
+    m = mission()
+    m.set_map(hole, grid, 0.03)
+    assert m.carried is not None and m.carried.any()
+    back = mission()
+    restore(back, snapshot(m, 1.0), m.z, grid)
+    assert back.carried is not None and np.array_equal(back.carried, m.carried)
+    bad = snapshot(m, 1.0) | {"carried": [z.size]}
+    with pytest.raises(CheckpointError, match="outside the map"):
+        restore(mission(), bad, m.z, grid)
