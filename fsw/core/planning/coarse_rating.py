@@ -124,6 +124,22 @@ def prepare(terrain: Terrain, factor: int, n: NDArray[np.int32], n_max: int,
                         np.asarray(terrain.elev_m[iy, ix], dtype=np.float64))
 
 
+def _block_values_steps(cs: CoarseSearch, cam_xyz: tuple[float, float, float], cells: NDArray[np.intp],
+                        cfg: VisibilityConfig
+                        ) -> Generator[None, None, tuple[F64, F64, NDArray[np.int64], NDArray[np.intp]]]:
+    """Eq 3's bits and the expected new cells of the map cells ``cells`` of ``cs``, each with its
+    block's P_V (the kernel on the pooled terrain): (bits, new, the blocks, each cell's block)."""
+    cg = cs.terrain.grid
+    blocks, inverse = unique_inverse(cs.block[cells], cg.nx * cg.ny)
+    by, bx = np.divmod(blocks, cg.nx)
+    pv_block = yield from pv_fast_steps(cs.terrain, cam_xyz, by, bx, cfg)
+    bits, new = cell_values(pv_block[inverse], cs.n[cells], cs.n_max,
+                            None if cs.interest is None else cs.interest[cells],
+                            stereo_return=cfg.stereo_return,
+                            weight=None if cs.weight is None else cs.weight[cells])
+    return bits, new, blocks, inverse
+
+
 def rate_station_coarse_steps(cs: CoarseSearch, cam_xyz: tuple[float, float, float], yaws: F64,
                               tilts: F64, camera: CameraConfig, cfg: VisibilityConfig
                               ) -> Generator[None, None, StationRating]:
@@ -135,13 +151,8 @@ def rate_station_coarse_steps(cs: CoarseSearch, cam_xyz: tuple[float, float, flo
         zero = np.zeros((yaws.size, tilts.size))
         return StationRating(zero, zero.copy(), 0)
     cg = cs.terrain.grid
-    blocks, inverse = unique_inverse(cs.block[near], cg.nx * cg.ny)
+    bits, new, blocks, inverse = yield from _block_values_steps(cs, cam_xyz, near, cfg)
     by, bx = np.divmod(blocks, cg.nx)
-    pv_block = yield from pv_fast_steps(cs.terrain, cam_xyz, by, bx, cfg)
-    bits, new = cell_values(pv_block[inverse], cs.n[near], cs.n_max,
-                            None if cs.interest is None else cs.interest[near],
-                            stereo_return=cfg.stereo_return,
-                            weight=None if cs.weight is None else cs.weight[near])
     if cs.accuracy is not None and cs.sigma_m is not None:
         rel_f = np.column_stack([cs.x_m[near] - cam_xyz[0], cs.y_m[near] - cam_xyz[1],
                                  cs.terrain.elev_m[by, bx][inverse] - cam_xyz[2]])
@@ -244,14 +255,7 @@ def rate_views_pooled_steps(cs: CoarseSearch, cam_xyz: tuple[float, float, float
     if sel.size == 0:
         return ViewRating(np.zeros(yaws.size), np.zeros(yaws.size), 0)
     cells = near[sel]
-    cg = cs.terrain.grid
-    blocks, inverse = unique_inverse(cs.block[cells], cg.nx * cg.ny)
-    by, bx = np.divmod(blocks, cg.nx)
-    pv_block = yield from pv_fast_steps(cs.terrain, cam_xyz, by, bx, cfg)
-    bits, new = cell_values(pv_block[inverse], cs.n[cells], cs.n_max,
-                            None if cs.interest is None else cs.interest[cells],
-                            stereo_return=cfg.stereo_return,
-                            weight=None if cs.weight is None else cs.weight[cells])
+    bits, new, _, _ = yield from _block_values_steps(cs, cam_xyz, cells, cfg)
     if cs.accuracy is not None and cs.sigma_m is not None:
         bits = bits * cs.accuracy.share(pts[sel] - np.asarray(cam_xyz), cs.sigma_m[cells])
     yield None  # the sums are a step of their own, apart from what the caller does next
