@@ -169,15 +169,21 @@ def test_corridor_lattice_fills_the_corridor_off_the_path_within_reach() -> None
     assert corridor_lattice(path, now, 0.5, 1.2, 0.2).shape == (0, 2)  # a corridor no wider than the path's places
 
 
-def test_the_cliffbots_places_across_its_corridor_are_on_known_ground_only() -> None:
-    """On a 60 deg face the Cliff-bot's candidates include places beside its path inside the
-    corridor, but only where the map knows the ground."""
+def _corridor_face() -> tuple[np.ndarray, np.ndarray, TetherConfig, np.ndarray, np.ndarray, TeamViewConfig]:
+    """A 60 deg face below y = 4 m, two anchors above it, a path down it at x = 3 m, a 1 m corridor:
+    the cells' x, the heights, the tether config, the anchors, the path and the team view config."""
     x, y = GRID.centers()
     z = np.where(y > 4.0, 0.0, -(4.0 - y) * math.tan(math.radians(60.0)))
     tcfg = TetherConfig()
     anchors = anchor_points(z, GRID, np.array([[2.0, 5.5], [4.0, 5.5]]), tcfg)
     path = np.column_stack([np.full(20, 3.0), np.linspace(4.6, 2.7, 20)])
-    cfg = TeamViewConfig(station_spacing_m=0.5, max_travel_m=2.0, corridor_half_m=1.0)
+    return x, z, tcfg, anchors, path, TeamViewConfig(station_spacing_m=0.5, max_travel_m=2.0, corridor_half_m=1.0)
+
+
+def test_the_cliffbots_places_across_its_corridor_are_on_known_ground_only() -> None:
+    """On a 60 deg face the Cliff-bot's candidates include places beside its path inside the
+    corridor, but only where the map knows the ground."""
+    x, z, tcfg, anchors, path, cfg = _corridor_face()
     known = x < 3.0  # the map knows the ground west of the path only
     on = cliffbot_centres(z, GRID, anchors, path, path[0], (0.0, 0.0), tcfg, cfg, both_ways=True,
                           known=known, free_slope_deg=90.0)
@@ -251,12 +257,7 @@ def test_an_agents_misses_decay_only_its_own_interest() -> None:
 def test_the_cliffbots_places_across_its_corridor_are_where_the_tethers_hold_it() -> None:
     """Off its path, a place on the face is a candidate only where both tethers hold the Cliff-bot
     (the statics hold); on ground no steeper than free_slope_deg it stands on its wheels anyway."""
-    x, y = GRID.centers()
-    z = np.where(y > 4.0, 0.0, -(4.0 - y) * math.tan(math.radians(60.0)))
-    tcfg = TetherConfig()
-    anchors = anchor_points(z, GRID, np.array([[2.0, 5.5], [4.0, 5.5]]), tcfg)
-    path = np.column_stack([np.full(20, 3.0), np.linspace(4.6, 2.7, 20)])
-    cfg = TeamViewConfig(station_spacing_m=0.5, max_travel_m=2.0, corridor_half_m=1.0)
+    x, z, tcfg, anchors, path, cfg = _corridor_face()
     cs = cliffbot_centres(z, GRID, anchors, path, path[0], (0.0, 0.0), tcfg, cfg, both_ways=True, free_slope_deg=25.0)
     off = np.array([c.place[:2] for c in cs if abs(c.place[0] - 3.0) > 1e-6])
     states = tether_states(z, GRID, anchors, off, tcfg)
