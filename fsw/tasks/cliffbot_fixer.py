@@ -83,6 +83,7 @@ class Shot:
     kind: str
     view_id: int
     target: tuple[float, float, float]  # what the mast points at (team frame)
+    plate: int = -1  # the plate's marker id (a view of a plate)
 
 
 class CliffbotFixerTask(FlightTask):
@@ -98,13 +99,15 @@ class CliffbotFixerTask(FlightTask):
     )
     EVENTS = (
         EventDef("FIX_SENT", Severity.ACTIVITY_HI, "request {seq}: Cliff-bot at {x:.2f}, {y:.2f} m, heading "
-                 "{yaw_deg:.1f} deg, sigma {sigma_cm:.1f} cm"),
+                 "{yaw_deg:.1f} deg, sigma {sigma_cm:.1f} cm, {basis}"),
         EventDef("NO_FIX_SENT", Severity.ACTIVITY_LO, "request {seq}: no fix ({reason})", throttle=10),
         EventDef("TURN_TO_CLIFFBOT", Severity.ACTIVITY_HI, "request {seq}: the Cliff-bot is {pan_deg:.0f} deg "
                  "off the body, out of the mast's pan: turning {turn_deg:+.1f} deg in place"),
         EventDef("TURNED", Severity.ACTIVITY_LO, "turn toward the Cliff-bot {outcome}{why}"),
-        EventDef("LANDMARKS", Severity.ACTIVITY_LO, "camera resected on {n} of {views} views of the Anchorbots' "
-                 "plates: yaw {dyaw_deg:+.2f} deg, {dxy_cm:.1f} cm from the rover's estimate"),
+        EventDef("LANDMARKS", Severity.ACTIVITY_LO, "camera resected on plates {ids} ({n} of {views} views): yaw "
+                 "{dyaw_deg:+.2f} deg, {dxy_cm:.1f} cm from the rover's estimate{missed}"),
+        EventDef("NO_LANDMARKS", Severity.WARNING_LO, "no Anchorbot plate resected ({missed}): this standing's "
+                 "fixes rest on the rover's estimate"),
     )
 
     def setup(self) -> None:
@@ -134,6 +137,7 @@ class CliffbotFixerTask(FlightTask):
         self.standing: tuple[float, ...] | None = None  # the rover's pose the landmarks were seen from
         self.surveyed = 0
         self.surveying = False
+        self.missed: dict[int, str] = {}  # the plates of the last survey not resected, and why
         self.pending: fix_packets.FixRequest | None = None  # a request held while the plates are viewed
         self.turn_id: int | None = None  # the motion request of a turn toward the Cliff-bot
 
@@ -183,10 +187,10 @@ class CliffbotFixerTask(FlightTask):
 
     def _survey(self, now: float) -> None:
         """View each Anchorbot's plate from where the rover stands (§5.2)."""
-        self.landmarks, self.standing = [], self._standing()
+        self.landmarks, self.standing, self.missed = [], self._standing(), {}
         self.shots = [Shot("anchor", SURVEY_VIEW + (self.surveyed + k) % (1 << 20),
-                           (float(c[:, 0].mean()), float(c[:, 1].mean()), float(c[:, 2].mean())))
-                      for k, c in enumerate(self.plates.values())]
+                           (float(c[:, 0].mean()), float(c[:, 1].mean()), float(c[:, 2].mean())), mid)
+                      for k, (mid, c) in enumerate(self.plates.items())]
         self.surveyed += len(self.shots)
         self.surveying, self.deadline = True, now + TIMEOUT_S
         self._next_shot()
@@ -223,7 +227,7 @@ class CliffbotFixerTask(FlightTask):
         aborts a turn it may not make; event ``TURNED``)."""
         assert self.pose is not None
         p, mast = self.pose, self.ctx.cfg.mast
-        pan, tilt = mast_angles((p.x, p.y, p.yaw), target, mast, LIFT_M, ground_z_m=p.z_m)
+        pan, tilt = mast_angles((p.x, p.y, p.yaw), target, mast, LIFT_M, p.z_m, (p.roll, p.pitch))
         if not math.radians(mast.tilt_min_deg) <= tilt <= math.radians(mast.tilt_max_deg):
             return  # below or above the tilt's range: a turn does not bring it in
         lo = math.radians(mast.pan_min_deg + TURN_MARGIN_DEG)
@@ -253,10 +257,13 @@ class CliffbotFixerTask(FlightTask):
         return (p.x, p.y, p.yaw, p.z_m, float(p.fix_id))
 
     def _joints(self, target: tuple[float, float, float]) -> tuple[float, float, float] | None:
-        """The mast's joints that point the camera at ``target``; None when out of its reach."""
+        """The mast's joints that point the camera at ``target`` from the rover's estimate, its body
+        attitude included (a rover standing tilted, e.g. a wheel over the lip, aims as it stands);
+        None when out of its reach."""
         assert self.pose is not None
         p = self.pose
-        joints, reachable = point_mast((p.x, p.y, p.yaw), target, self.ctx.cfg.mast, LIFT_M, ground_z_m=p.z_m)
+        joints, reachable = point_mast((p.x, p.y, p.yaw), target, self.ctx.cfg.mast, LIFT_M, p.z_m,
+                                       (p.roll, p.pitch))
         return joints if reachable else None
 
     def _next_shot(self) -> None:
@@ -269,6 +276,7 @@ class CliffbotFixerTask(FlightTask):
                     assert self.current is not None
                     self._no_fix(self.current.seq, OUT_OF_REACH)
                     return
+                self.missed[shot.plate] = "out of the mast's reach"
                 continue
             self.shot, self.phase = shot, "aim"
             self.request_id += 1
@@ -279,6 +287,8 @@ class CliffbotFixerTask(FlightTask):
 
     def _shot_failed(self, reason: int) -> None:
         if self.surveying:
+            if self.shot is not None:
+                self.missed[self.shot.plate] = "no view" if reason == NO_MARKERS else "mast not pointed"
             self._next_shot()  # that plate is not seen
         elif self.current is not None:
             self._no_fix(self.current.seq, reason)
@@ -311,8 +321,10 @@ class CliffbotFixerTask(FlightTask):
                             on_done=functools.partial(self._resected, view))
             return
         assert self.current is not None
+        ids = self.plate_ids()
+        basis = f"on plates {ids}" if ids else "on the rover's estimate"
         self.submit_job(self._locate(fr, self._joints_cov()), f"fix{self.current.seq}",
-                        on_done=functools.partial(self._located, self.current.seq, int(fr.time_s * 1000)))
+                        on_done=functools.partial(self._located, self.current.seq, int(fr.time_s * 1000), basis))
 
     def _height(self, x: float, y: float) -> float:
         if self.snapshot is None:
@@ -336,10 +348,10 @@ class CliffbotFixerTask(FlightTask):
         """The slack job of a view of the plates: the camera resected on the plates it sees."""
         yield
         left, right = yield from self._pair(fr)
-        est = self.loc.resect(self.plates, left, right)
-        if est is None or not np.isfinite(est.cov).all():
+        got = self.loc.camera_in(self.plates, left, right)
+        if got is None or not np.isfinite(got[0].cov).all():
             return None
-        return Landmark(est, fr.pose, joints_cov)
+        return Landmark(got[0], fr.pose, joints_cov, got[1])
 
     def _resected(self, view: int, handle: JobHandle) -> None:
         if not self.surveying or self.shot is None or self.shot.view_id != view:
@@ -347,16 +359,26 @@ class CliffbotFixerTask(FlightTask):
         got: Landmark | None = handle.result if handle.error is None else None
         if got is not None:
             self.landmarks.append(got)
+        else:
+            self.missed[self.shot.plate] = "not detected"
         self._next_shot()
 
     def _report_landmarks(self) -> None:
+        missed = ", ".join(f"{mid} {why}" for mid, why in sorted(self.missed.items())
+                           if not any(mid in lm.ids for lm in self.landmarks))
         if not self.landmarks:
+            self.event("NO_LANDMARKS", missed=missed or "no plate configured")
             return
         lm = self.landmarks[0]
         dR = lm.measured.pose.R @ lm.predicted.R.T
-        self.event("LANDMARKS", n=len(self.landmarks), views=len(self.plates),
+        self.event("LANDMARKS", ids=self.plate_ids(), n=len(self.landmarks), views=len(self.plates),
                    dyaw_deg=math.degrees(math.atan2(dR[1, 0], dR[0, 0])),
-                   dxy_cm=100 * float(np.linalg.norm((lm.measured.pose.t - lm.predicted.t)[:2])))
+                   dxy_cm=100 * float(np.linalg.norm((lm.measured.pose.t - lm.predicted.t)[:2])),
+                   missed=f"; not {missed}" if missed else "")
+
+    def plate_ids(self) -> str:
+        """The plates this standing's fixes rest on (``"11, 12"``; empty: none)."""
+        return ", ".join(str(i) for i in sorted({i for lm in self.landmarks for i in lm.ids}))
 
     def camera_estimate(self, fr: CameraFrame, joints_cov: NDArray[np.float64]) -> PoseEstimate:
         """The camera pose of the fix's view: from the views of the plates when there are any
@@ -370,7 +392,7 @@ class CliffbotFixerTask(FlightTask):
         left, right = yield from self._pair(fr)
         return self.loc.locate(left, self.camera_estimate(fr, joints_cov), right)
 
-    def _located(self, seq: int, t_ms: int, handle: JobHandle) -> None:
+    def _located(self, seq: int, t_ms: int, basis: str, handle: JobHandle) -> None:
         if self.current is None or self.current.seq != seq:
             return  # timed out meanwhile: already answered
         est: BodyEstimate | None = handle.result if handle.error is None else None
@@ -387,7 +409,7 @@ class CliffbotFixerTask(FlightTask):
         self.counts["fixes"] += 1
         sigma = math.sqrt(max(float(np.trace(est.cov[3:5, 3:5])), 0.0))
         self.event("FIX_SENT", seq=seq, x=float(est.t[0]), y=float(est.t[1]), yaw_deg=math.degrees(est.yaw),
-                   sigma_cm=100 * sigma)
+                   sigma_cm=100 * sigma, basis=basis)
         self._idle()
 
     def _no_fix(self, seq: int, reason: int) -> None:
