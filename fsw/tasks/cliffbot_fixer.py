@@ -323,7 +323,9 @@ class CliffbotFixerTask(FlightTask):
         assert self.current is not None
         ids = self.plate_ids()
         basis = f"on plates {ids}" if ids else "on the rover's estimate"
-        self.submit_job(self._locate(fr, self._joints_cov()), f"fix{self.current.seq}",
+        assert self.pose is not None
+        self.submit_job(self._locate(fr, self._joints_cov(), frame_extra(self.pose, self.ctx.cfg)),
+                        f"fix{self.current.seq}",
                         on_done=functools.partial(self._located, self.current.seq, int(fr.time_s * 1000), basis))
 
     def _height(self, x: float, y: float) -> float:
@@ -380,17 +382,19 @@ class CliffbotFixerTask(FlightTask):
         """The plates this standing's fixes rest on (``"11, 12"``; empty: none)."""
         return ", ".join(str(i) for i in sorted({i for lm in self.landmarks for i in lm.ids}))
 
-    def camera_estimate(self, fr: CameraFrame, joints_cov: NDArray[np.float64]) -> PoseEstimate:
+    def camera_estimate(self, fr: CameraFrame, joints_cov: NDArray[np.float64],
+                        extra: NDArray[np.float64] | None = None) -> PoseEstimate:
         """The camera pose of the fix's view: from the views of the plates when there are any
-        (each carried to this view, fused), else the rover's estimate with its covariance."""
-        return fix_camera(self.landmarks, fr.pose, fr.pose_cov, joints_cov)
+        (each carried to this view, fused), else the rover's estimate with its covariance against
+        the team's frame (``extra``: :func:`frame_extra`)."""
+        return fix_camera(self.landmarks, fr.pose, fr.pose_cov, joints_cov, extra)
 
-    def _locate(self, fr: CameraFrame, joints_cov: NDArray[np.float64]
+    def _locate(self, fr: CameraFrame, joints_cov: NDArray[np.float64], extra: NDArray[np.float64]
                 ) -> Generator[None, None, BodyEstimate | None]:
         """The slack job: rectify the pair (when the camera has a calibration), find the markers, PnP."""
         yield
         left, right = yield from self._pair(fr)
-        return self.loc.locate(left, self.camera_estimate(fr, joints_cov), right)
+        return self.loc.locate(left, self.camera_estimate(fr, joints_cov, extra), right)
 
     def _located(self, seq: int, t_ms: int, basis: str, handle: JobHandle) -> None:
         if self.current is None or self.current.seq != seq:
@@ -432,10 +436,28 @@ def joints_covariance(pose: NavPose, cfg: FswConfig) -> NDArray[np.float64]:
     return camera_pose_covariance(still, cfg.mast, (js, js, cap.lift_sigma_m))[1]
 
 
+def frame_extra(pose: NavPose, cfg: FswConfig) -> NDArray[np.float64]:
+    """What the camera pose covariance of a view from ``pose`` lacks against the team's frame: the
+    errors of the map the rover registered on (``NavPose.frame_cov`` minus ``cov``, the
+    corrections before the last, ``fsw.core.localization.odometry``) carried through the mast's
+    chain at its joints (docs/algorithm.md §5.2, "A fix without a plate"). Zero without it."""
+    if pose.frame_cov is None:
+        return np.zeros((6, 6))
+    d = np.asarray(pose.frame_cov, float) - np.asarray(pose.cov, float)[:3, :3]
+    if not np.isfinite(d).all():
+        return np.zeros((6, 6))
+    still = dataclasses.replace(pose, cov=0.5 * (d + d.T), att_cov=None)
+    return camera_pose_covariance(still, cfg.mast, (0.0, 0.0, 0.0))[1]
+
+
 def fix_camera(landmarks: list[Landmark], pose: CameraPose, pose_cov: NDArray[np.float64],
-               joints_cov: NDArray[np.float64]) -> PoseEstimate:
+               joints_cov: NDArray[np.float64], extra: NDArray[np.float64] | None = None) -> PoseEstimate:
     """The camera pose of a fix's view: from the views of the plates of the same standing when
     there are any (each carried to this view, fused), else the rover's estimate ``pose`` with
-    its covariance."""
+    its covariance ``pose_cov`` plus ``extra`` (what it lacks against the team's frame,
+    :func:`frame_extra`)."""
     est = camera_from_landmarks(landmarks, pose, joints_cov)
-    return est if est is not None else PoseEstimate(pose, np.asarray(pose_cov, float))
+    if est is not None:
+        return est
+    cov = np.asarray(pose_cov, float) + (0.0 if extra is None else np.asarray(extra, float))
+    return PoseEstimate(pose, cov)
