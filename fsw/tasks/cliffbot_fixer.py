@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.comm.team import fix_packets
-from fsw.core.geometry import CameraPose, MapGrid, mast_angles, point_mast
+from fsw.core.geometry import CameraPose, MapGrid, mast_angles, point_mast, wrap_angle
 from fsw.core.localization.fiducials import BodyEstimate, CliffbotLocalizer
 from fsw.core.localization.landmarks import Landmark, anchor_marker_corners, camera_from_landmarks
 from fsw.core.localization.localization import PoseEstimate, so3_log
@@ -103,7 +103,9 @@ class CliffbotFixerTask(FlightTask):
         EventDef("NO_FIX_SENT", Severity.ACTIVITY_LO, "request {seq}: no fix ({reason})", throttle=10),
         EventDef("TURN_TO_CLIFFBOT", Severity.ACTIVITY_HI, "request {seq}: the Cliff-bot is {pan_deg:.0f} deg "
                  "off the body, out of the mast's pan: turning {turn_deg:+.1f} deg in place"),
-        EventDef("TURNED", Severity.ACTIVITY_LO, "turn toward the Cliff-bot {outcome}{why}"),
+        EventDef("TURNED", Severity.ACTIVITY_LO, "turn {outcome}{why}"),
+        EventDef("TURN_TO_PLATE", Severity.ACTIVITY_HI, "no plate resected; plate {plate} is out of the mast's "
+                 "pan: turning {turn_deg:+.1f} deg in place, then viewing the plates again"),
         EventDef("LANDMARKS", Severity.ACTIVITY_LO, "camera resected on plates {ids} ({n} of {views} views): yaw "
                  "{dyaw_deg:+.2f} deg, {dxy_cm:.1f} cm from the rover's estimate{missed}"),
         EventDef("NO_LANDMARKS", Severity.WARNING_LO, "no Anchorbot plate resected ({missed}): this standing's "
@@ -138,6 +140,7 @@ class CliffbotFixerTask(FlightTask):
         self.surveyed = 0
         self.surveying = False
         self.missed: dict[int, str] = {}  # the plates of the last survey not resected, and why
+        self.plate_turned = -1  # the request a turn toward a plate was made for (one per request)
         self.pending: fix_packets.FixRequest | None = None  # a request held while the plates are viewed
         self.turn_id: int | None = None  # the motion request of a turn toward the Cliff-bot
 
@@ -150,7 +153,8 @@ class CliffbotFixerTask(FlightTask):
         ready = self._mission_state() == "DONE" and self.pose is not None
         for req in self.requests.drain():
             if self.turn_id is not None:
-                self._no_fix(req.seq, BUSY)  # turning toward it: the next request is answered from there
+                if self.pending is None or self.pending.seq != req.seq:  # (a turn toward a plate: it waits)
+                    self._no_fix(req.seq, BUSY)  # turning toward it: the next request is answered from there
             elif self.current is not None:
                 if req.seq != self.current.seq:
                     self._no_fix(req.seq, BUSY)
@@ -199,16 +203,46 @@ class CliffbotFixerTask(FlightTask):
         self.surveying, self.shot, self.shots, self.phase = False, None, [], "idle"
         self._report_landmarks()
         req, self.pending = self.pending, None
-        if req is not None:
+        if req is not None and not self.landmarks and self._turn_to_plate(req):
+            self.pending = req  # answered from the new standing, once its plates are viewed
+        elif req is not None:
             self._aim(req, self.ctx.clock.now())
+
+    def _turn_to_plate(self, req: fix_packets.FixRequest) -> bool:
+        """With no plate resected and a plate beyond the mast's pan only: turn the body in place
+        the least that brings it ``TURN_MARGIN_DEG`` inside the pan's range (at most
+        ``MAX_TURN_DEG``), when the Cliff-bot stays within the pan's range after it; once per
+        request (``plate_turned``). True when the turn was asked for."""
+        if self.plate_turned == req.seq or self.pose is None:
+            return False
+        cb = self._target(req)
+        if cb is None:
+            return False
+        mast = self.ctx.cfg.mast
+        lo, hi = math.radians(mast.pan_min_deg), math.radians(mast.pan_max_deg)
+        cb_pan = self._angles(cb)[0]
+        best: tuple[float, int] | None = None
+        for mid, c in self.plates.items():
+            if self.missed.get(mid) != "out of the mast's reach":
+                continue
+            turn = self._least_turn((float(c[:, 0].mean()), float(c[:, 1].mean()), float(c[:, 2].mean())))
+            if turn is None or not lo <= wrap_angle(cb_pan - turn) <= hi:
+                continue
+            if best is None or abs(turn) < abs(best[0]):
+                best = (turn, mid)
+        if best is None:
+            return False
+        self.plate_turned = req.seq
+        self._start_turn(best[0], self.ctx.clock.now())
+        self.event("TURN_TO_PLATE", plate=best[1], turn_deg=math.degrees(best[0]))
+        return True
 
     def _aim(self, req: fix_packets.FixRequest, now: float) -> None:
         assert self.pose is not None
-        if not (math.isfinite(req.x) and math.isfinite(req.y)):
+        target = self._target(req)
+        if target is None:
             self._no_fix(req.seq, OUT_OF_REACH)
             return
-        ground = self._height(req.x, req.y)
-        target = (req.x, req.y, (ground if math.isfinite(ground) else self.pose.z_m) + BODY_CENTRE_M)
         if self._joints(target) is None:
             self._no_fix(req.seq, OUT_OF_REACH)
             self._turn_toward(req.seq, target, now)
@@ -219,37 +253,64 @@ class CliffbotFixerTask(FlightTask):
         self.shots = [Shot("cliffbot", FIX_VIEW_BASE + req.seq, target)]
         self._next_shot()
 
-    def _turn_toward(self, seq: int, target: tuple[float, float, float], now: float) -> None:
-        """Turn the body in place so that the mast's pan reaches ``target`` (the request after the
-        turn is answered from there), when the pan range, not the tilt, is what it misses and the
-        turn is small: the least turn that puts the pan ``TURN_MARGIN_DEG`` inside the range, at
-        most ``MAX_TURN_DEG``. The motion task makes it with its normal checks (it refuses or
-        aborts a turn it may not make; event ``TURNED``)."""
+    def _target(self, req: fix_packets.FixRequest) -> tuple[float, float, float] | None:
+        """Where the mast aims for a request: its estimate, ``BODY_CENTRE_M`` above the map's ground
+        there (the rover's height off the map); None for a non-finite estimate."""
         assert self.pose is not None
-        p, mast = self.pose, self.ctx.cfg.mast
-        pan, tilt = mast_angles((p.x, p.y, p.yaw), target, mast, LIFT_M, p.z_m, (p.roll, p.pitch))
+        if not (math.isfinite(req.x) and math.isfinite(req.y)):
+            return None
+        ground = self._height(req.x, req.y)
+        return req.x, req.y, (ground if math.isfinite(ground) else self.pose.z_m) + BODY_CENTRE_M
+
+    def _angles(self, target: tuple[float, float, float]) -> tuple[float, float]:
+        assert self.pose is not None
+        p = self.pose
+        return mast_angles((p.x, p.y, p.yaw), target, self.ctx.cfg.mast, LIFT_M, p.z_m, (p.roll, p.pitch))
+
+    def _least_turn(self, target: tuple[float, float, float]) -> float | None:
+        """The least turn in place that puts the pan to ``target`` ``TURN_MARGIN_DEG`` inside the
+        mast's range, when the pan range, not the tilt, is what it misses and the turn is at most
+        ``MAX_TURN_DEG``; None otherwise (or when the pan reaches it already)."""
+        mast = self.ctx.cfg.mast
+        pan, tilt = self._angles(target)
         if not math.radians(mast.tilt_min_deg) <= tilt <= math.radians(mast.tilt_max_deg):
-            return  # below or above the tilt's range: a turn does not bring it in
+            return None  # below or above the tilt's range: a turn does not bring it in
         lo = math.radians(mast.pan_min_deg + TURN_MARGIN_DEG)
         hi = math.radians(mast.pan_max_deg - TURN_MARGIN_DEG)
         turn = pan - hi if pan > hi else pan - lo if pan < lo else 0.0
-        if turn == 0.0 or abs(turn) > math.radians(MAX_TURN_DEG):
-            return
+        return None if turn == 0.0 or abs(turn) > math.radians(MAX_TURN_DEG) else turn
+
+    def _start_turn(self, turn: float, now: float) -> None:
         self.request_id += 1
         self.turn_id, self.phase, self.deadline = self.request_id, "turn", now + TIMEOUT_S
         self.motion.drain()
         self.publish(MOTION_REQUEST, MotionRequest(self.request_id, "turn", angle_rad=turn))
-        self.event("TURN_TO_CLIFFBOT", seq=seq, pan_deg=math.degrees(pan), turn_deg=math.degrees(turn))
+
+    def _turn_toward(self, seq: int, target: tuple[float, float, float], now: float) -> None:
+        """Turn the body in place so that the mast's pan reaches ``target`` (the request after the
+        turn is answered from there): :meth:`_least_turn`. The motion task makes it with its normal
+        checks (it refuses or aborts a turn it may not make; event ``TURNED``)."""
+        turn = self._least_turn(target)
+        if turn is None:
+            return
+        self._start_turn(turn, now)
+        self.event("TURN_TO_CLIFFBOT", seq=seq, pan_deg=math.degrees(self._angles(target)[0]),
+                   turn_deg=math.degrees(turn))
 
     def _turned(self, now: float) -> None:
         for st in self.motion.drain():
             if st.request_id == self.turn_id:
                 self.event("TURNED", outcome=str(st.state), why=f": {st.reason}" if st.reason else "")
-                self.turn_id, self.phase = None, "idle"
+                self._turn_ended(now)
                 return
         if now > self.deadline:
             self.event("TURNED", outcome="not confirmed", why=f" within {TIMEOUT_S:.0f} s")
-            self.turn_id, self.phase = None, "idle"
+            self._turn_ended(now)
+
+    def _turn_ended(self, now: float) -> None:
+        self.turn_id, self.phase = None, "idle"
+        if self.pending is not None:  # a turn toward a plate: view the plates from here, then answer
+            self._survey(now)
 
     def _standing(self) -> tuple[float, ...]:
         p = self.pose
