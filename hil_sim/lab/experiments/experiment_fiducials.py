@@ -196,6 +196,8 @@ def range_rows(scenario: str, seed: int, config: str, index: int, r: float, pose
         if not reachable:
             continue  # the mast cannot point there
         pose = camera_pose_from_rover(rover, joints, cfg.mast)
+        if abs(float(np.linalg.norm(cb.t - pose.t)) - r) > 0.1 * r:
+            continue  # no ground at that range along this bearing (the drop is deeper than r)
         rend = StereoRenderer(w, cfg.camera, world.noise_sigma, seed=int(rng.integers(1 << 30)))
         left, right = rend.render(pose)
         row: dict[str, Any] = {"range_m": r, "pose": len(rows), "true_range_m": float(np.linalg.norm(cb.t - pose.t)),
@@ -407,6 +409,8 @@ def mission_rows(scenario: str, seed: int, recon: dict[str, Any], config: str, r
             yaw = math.atan2(base[1] - y, base[0] - x) + math.radians(rng.uniform(-60.0, 60.0))
             cb = build_cliffbot(x, y, zg, yaw, size_m=(cb0.length_m, cb0.width_m, cb0.height_m),
                                 marker_size_m=cfg.cliffbot.marker_size_m, seed=seed)
+            if abs(float(np.linalg.norm(cb.t - camera_pose_from_rover(truth, j, cfg.mast).t)) - r) > 0.1 * r:
+                continue  # no ground at that range along this bearing
             left, right, pred, pred_cov, q, true_pose = view(dataclasses.replace(seen, cliffbot=cb), j)
             row: dict[str, Any] = {"seed": seed, "range_m": r, "pose": placed,
                                    "true_range_m": float(np.linalg.norm(cb.t - true_pose.t)), "raw_fix": 0,
