@@ -204,7 +204,7 @@ def range_rows(scenario: str, seed: int, config: str, index: int, r: float, pose
                                "fix": 0, "ambiguous": 0}
         rows.append(row)
 
-        seen = [_side_px(c) for i, c in loc.detect(left).items() if i in loc.corners]
+        seen = [_side_px(c) for c in loc.detect_known(loc.corners, left)[0].values()]
         row["marker_px"] = max(seen) if seen else 0.0  # the largest Cliff-bot marker detected (0: none)
         est = loc.locate(left, PoseEstimate(pose, exact), right)
         if est is not None:
