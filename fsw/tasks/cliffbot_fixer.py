@@ -141,6 +141,7 @@ class CliffbotFixerTask(FlightTask):
         self.surveying = False
         self.missed: dict[int, str] = {}  # the plates of the last survey not resected, and why
         self.plate_turned = -1  # the request a turn toward a plate was made for (one per request)
+        self.resurveyed = -1  # the request whose plates were viewed again (the estimate moved meanwhile)
         self.pending: fix_packets.FixRequest | None = None  # a request held while the plates are viewed
         self.turn_id: int | None = None  # the motion request of a turn toward the Cliff-bot
 
@@ -201,6 +202,12 @@ class CliffbotFixerTask(FlightTask):
 
     def _survey_done(self) -> None:
         self.surveying, self.shot, self.shots, self.phase = False, None, [], "idle"
+        if self.pending is not None and self._standing() != self.standing and self.resurveyed != self.pending.seq:
+            # the rover's estimate changed while its plates were viewed (a turn's last odometry came
+            # after the survey began): the views are of no one standing; view them again, once
+            self.resurveyed = self.pending.seq
+            self._survey(self.ctx.clock.now())
+            return
         self._report_landmarks()
         req, self.pending = self.pending, None
         if req is not None and not self.landmarks and self._turn_to_plate(req):

@@ -95,11 +95,15 @@ def test_with_no_plate_resected_it_turns_toward_one_beyond_the_pan_and_views_aga
     rig.publish(RADIO_FIX_REQUEST, fix_packets.FixRequest(1, 0, 2.5, -2.0))  # asked again meanwhile: it waits
     rig.run(2)
     assert not out.drain()  # the request waits for the turn and the plates, no answer yet
-    rig.publish(NAV_POSE, NavPose(1.0, *turned, np.zeros((3, 3)), (0.0, 0.0, LIFT_M)))
     rig.publish(MOTION_STATUS, MotionStatus(turn.request_id, "turn", MoveOutcome.DONE))
-    rig.run(2)
-    (req,) = [m for m in moves.drain() if m.kind == "mast"]  # from the new standing: plate 11 first
+    rig.run(2)  # the turn's last pose not in yet: the plates are viewed from the old estimate
+    (req,) = [m for m in moves.drain() if m.kind == "mast"]
+    rig.publish(NAV_POSE, NavPose(1.0, *turned, np.zeros((3, 3)), (0.0, 0.0, LIFT_M)))
+    rig.publish(MOTION_STATUS, MotionStatus(req.request_id, "mast", MoveOutcome.REFUSED, "test"))
+    rig.run(2)  # the estimate moved during that survey: viewed again, from the new standing, plate 11 first
+    (req,) = [m for m in moves.drain() if m.kind == "mast"]
     assert _axis_miss_deg_level(cfg, turned, req.joints, a) < 0.01
+    assert not out.drain()
 
 
 def _axis_miss_deg_level(cfg, pose: tuple[float, float, float], joints, target) -> float:  # noqa: ANN001
