@@ -15,9 +15,10 @@ reads as a target 1-2 cm too far at 3 m; ``apriltag`` (edge-line fit) is unbiase
 
 A far marker is small: an 18 cm one is 12-15 px on a side at 8-10 m, 2-2.5 px per cell of its
 grid, and the detector's thresholding and quad fit lose most of them. When fewer than two known
-markers are found, the image is searched again enlarged ``fiducial_upsample`` times (bicubic)
-by a detector tuned for small quads (finer adaptive-threshold windows, a looser polygon fit,
-8 px per cell when reading the bits); its corners are scaled back. The pass with more known
+markers are found (none of them ``SMALL_PX`` or more on a side), the image is searched again
+enlarged ``fiducial_upsample`` times (bicubic) by a detector tuned for small quads (finer
+adaptive-threshold windows, a looser polygon fit, 8 px per cell when reading the bits); its
+corners are scaled back. The pass with more known
 markers is used, and the right image is searched the same way.
 """
 
@@ -45,6 +46,7 @@ from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
 _S45 = float(np.sqrt(0.5))
+SMALL_PX = 30.0  # a marker this large on a side is found without the enlarged pass
 _REFINE = {"none": cv2.aruco.CORNER_REFINE_NONE, "subpix": cv2.aruco.CORNER_REFINE_SUBPIX,
            "contour": cv2.aruco.CORNER_REFINE_CONTOUR, "apriltag": cv2.aruco.CORNER_REFINE_APRILTAG}
 
@@ -153,11 +155,11 @@ class CliffbotLocalizer:
     def detect_known(self, known: dict[int, F64], left: NDArray[np.uint8]) -> tuple[dict[int, F64], int]:
         """The markers of ``known`` in ``left`` and the scale they were found at: the image as it is,
         or enlarged ``fiducial_upsample`` times when that finds more of them and fewer than two
-        were found as it is (module docstring)."""
+        were found as it is, none of them ``SMALL_PX`` or more on a side (module docstring)."""
         seen = {i: c for i, c in self.detect(left).items() if i in known}
         up = int(self.cfg.fiducial_upsample)
-        if len(seen) >= 2 or up <= 1:
-            return seen, 1
+        if len(seen) >= 2 or up <= 1 or any(_side_px(c) >= SMALL_PX for c in seen.values()):
+            return seen, 1  # (one marker found large: the others, as near, were not missed for size)
         big = {i: c for i, c in self.detect(left, up).items() if i in known}
         return (big, up) if len(big) > len(seen) else (seen, 1)
 
