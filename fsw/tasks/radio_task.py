@@ -14,8 +14,9 @@ then reports the link's events and counters. The Cliff-bot's fix requests
 The radio is the ``radio_port`` resource, or ``[link] transport`` opened here.
 
 With ``[map_sync] enabled`` (a team mission) it also runs the RECON-bot's end of the two-way map
-sync (``fsw.comm.team.sync_end``, docs/sync.md "In flight") on the same radio: each map update
-(one per imaging step) is one sync round of its map, published in a slack job; the Cliff-bot's
+sync (``fsw.comm.team.sync_end``, docs/sync.md "In flight") on the same radio: its map at the
+end of each imaging step (when the mission asks for the next view, ``nbv.request``) and the map
+it is asked to send are each one sync round, published in a slack job; the Cliff-bot's
 tiles are held as the other layer (for the team's hash and summary; not fused into its own
 map); new tiles go out nearest the Cliff-bot's corridor first (from where its last fix request
 said it stood through its targets, ``[cliffbot_site]``); sync packets go after fixes and map
@@ -41,7 +42,15 @@ from fsw.framework.commands import Arg, CommandDef
 from fsw.framework.jobs import JobHandle
 from fsw.framework.telemetry import Channel, EventDef, Severity
 from fsw.tasks.base import FlightTask
-from fsw.tasks.messages import MAP_UPDATED, RADIO_FIX_OUT, RADIO_FIX_REQUEST, RADIO_SEND, RADIO_STATUS, RadioStatus
+from fsw.tasks.messages import (
+    MAP_UPDATED,
+    NBV_REQUEST,
+    RADIO_FIX_OUT,
+    RADIO_FIX_REQUEST,
+    RADIO_SEND,
+    RADIO_STATUS,
+    RadioStatus,
+)
 from fsw.tasks.mission_state import restore_into
 from fsw.tasks.state_json import JsonObject
 
@@ -112,7 +121,9 @@ class RadioTask(FlightTask):
         self.map_box = self.subscribe(MAP_UPDATED, depth=1)
         self.send_box = self.subscribe(RADIO_SEND, depth=4)
         self.fix_box = self.subscribe(RADIO_FIX_OUT, depth=4)
+        self.step_box = self.subscribe(NBV_REQUEST, depth=2)
         self._published_state: SenderState | None = None
+        self._offered: ElevationMap | None = None
         self.sync: FlightSync | None = None
         self.sync_ignored = 0  # sync packets heard without a sync end
         if cfg.map_sync.enabled:
@@ -159,11 +170,11 @@ class RadioTask(FlightTask):
         upd = self.map_box.latest()
         if upd is not None:
             self.snapshot = upd.snapshot
-            if self.sync is not None:  # one sync round per imaging step
-                snap = upd.snapshot
-                self.sync.offer(np.where(snap.mapped, snap.z, np.nan))
         for req in self.send_box.drain():
             self._request(req.map_id, req.snapshot)
+            self._offer(req.snapshot if req.snapshot is not None else self.snapshot)
+        if self.step_box.drain():  # an imaging step ended: its map is a sync round
+            self._offer(self.snapshot)
         d = self.port.recv(0.0, now)
         while d is not None:
             if fix_packets.is_fix_packet(d):
@@ -203,6 +214,13 @@ class RadioTask(FlightTask):
         if self.sync is not None:
             self.sync.charge(len(pkt), now)
         return len(pkt)
+
+    def _offer(self, snap: ElevationMap | None) -> None:
+        """A map for the next sync round (once per map)."""
+        if self.sync is None or snap is None or snap is self._offered:
+            return
+        self._offered = snap
+        self.sync.offer(np.where(snap.mapped, snap.z, np.nan))
 
     def _sync_round(self, now: float) -> None:
         assert self.sync is not None

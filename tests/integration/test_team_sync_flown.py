@@ -1,5 +1,5 @@
 """The map sync flown by both flight programs in the lockstep team (docs/sync.md, "In flight"):
-the RECON-bot's radio task publishes a round per map update, the Cliff-bot's one per look, over
+the RECON-bot's radio task publishes a round per imaging step, the Cliff-bot's one per look, over
 the bench's radio beside the map link and the fixes; both replicas end equal, nothing is sent
 whole again, and the team section's figures are the flown ends'. The RECON-bot is idle (no
 camera) and its map update is a few tiles of the true ground; the Cliff-bot's look is handed
@@ -19,7 +19,7 @@ from fsw.core.geometry import MapGrid
 from fsw.drivers.resources import Resources
 from fsw.settings import load_settings
 from fsw.tasks.cliffbot.messages import SensedMap
-from fsw.tasks.messages import MAP_UPDATED
+from fsw.tasks.messages import MAP_UPDATED, NBV_REQUEST
 
 SEED = 3
 pytestmark = pytest.mark.slow  # two executives on the bench (about 4 s to set up)
@@ -49,6 +49,7 @@ def test_both_flight_programs_keep_one_map_in_step() -> None:
             mine = np.zeros(z.shape, bool)
             mine[:48, :48] = True  # 9 tiles of the RECON-bot's (those the world reaches)
             b.exe.ctx.bus.publish(MAP_UPDATED, SimpleNamespace(snapshot=SimpleNamespace(z=z, mapped=mine, grid=grid)))
+            b.exe.ctx.bus.publish(NBV_REQUEST, None)  # the imaging step ended: its map is a sync round
             radio = team.exe.tasks["cb_radio"]
             own = np.where(~mine, z + 0.01, np.nan)
             own[:, 80:] = np.nan
