@@ -70,8 +70,8 @@ class TeamFigures:
                                          cell_m=self.cell_m, wheel_m=self.wheel_m))
             out["sync_source"] = "replay"
         else:
-            out.update({"sync_hash_equal": None, "sync_rounds": 0, "sync_bytes": 0, "sync_minimal_bytes": 0,
-                        "sync_full_resends": 0, "sync_air_bytes": 0})
+            out.update({"sync_source": "none", "sync_hash_equal": None, "sync_rounds": 0, "sync_bytes": 0,
+                        "sync_minimal_bytes": 0, "sync_full_resends": 0, "sync_air_bytes": 0})
         if face is not None:
             f = face_figures(face[0], face[1], face[2], cells)
             out.update({k: f[k] for k in ("face_rmse_m", "face_rmse_gravity_m", "face_cells")})
