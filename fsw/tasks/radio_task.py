@@ -16,7 +16,7 @@ The radio is the ``radio_port`` resource, or ``[link] transport`` opened here.
 With ``[map_sync] enabled`` (a team mission) it also runs the RECON-bot's end of the two-way map
 sync (``fsw.comm.team.sync_end``, docs/sync.md "In flight") on the same radio: its map at the
 end of each imaging step (when the mission asks for the next view, ``nbv.request``) and the map
-it is asked to send are each one sync round, published in a slack job; the Cliff-bot's
+it is asked to send are each one sync round, published in a background slack job; the Cliff-bot's
 tiles are held as the other layer (for the team's hash and summary; not fused into its own
 map); new tiles go out nearest the Cliff-bot's corridor first (from where its last fix request
 said it stood through its targets, ``[cliffbot_site]``); sync packets go after fixes and map
@@ -226,7 +226,7 @@ class RadioTask(FlightTask):
         assert self.sync is not None
         job = self.sync.round_job(now)
         if job is not None:
-            self.submit_job(job, "sync_round", on_done=lambda h: self._round_done(h))
+            self.submit_job(job, "sync_round", on_done=lambda h: self._round_done(h), background=True)
 
     def _round_done(self, h: JobHandle) -> None:
         assert self.sync is not None

@@ -11,7 +11,7 @@ requests first, then the link's own packets (acknowledgements).
 With ``[map_sync] enabled`` it runs the Cliff-bot's end of the two-way map sync
 (``fsw.comm.team.sync_end``, docs/sync.md "In flight") on the same radio, after the other
 packets and within the same budget: its own map after each of its looks (the sensing task's
-``own``) is one sync round (a slack job), new tiles nearest its corridor first (where it
+``own``) is one sync round (a background slack job), new tiles nearest its corridor first (where it
 stands, then its targets). Once the link's map is in, the RECON-bot's tiles that arrive newer
 than it and say something new (a cell the map does not know, or one moved by more than both
 maps' error bounds) win over the link's map on every cell they know: the map handed on again
@@ -134,7 +134,7 @@ class CliffbotRadioTask(FlightTask):
             self._own_round(sm)
         job = sync.round_job(now)
         if job is not None:
-            self.submit_job(job, "sync_round", on_done=lambda h: self._round_done(h))
+            self.submit_job(job, "sync_round", on_done=lambda h: self._round_done(h), background=True)
         sent = 0
         for pkt in sync.poll(now, budget):
             if self.port.send(pkt, now):
