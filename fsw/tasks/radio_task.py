@@ -124,6 +124,7 @@ class RadioTask(FlightTask):
         self.step_box = self.subscribe(NBV_REQUEST, depth=2)
         self._published_state: SenderState | None = None
         self._offered: ElevationMap | None = None
+        self._resume_round = False
         self.sync: FlightSync | None = None
         self.sync_ignored = 0  # sync packets heard without a sync end
         if cfg.map_sync.enabled:
@@ -149,6 +150,9 @@ class RadioTask(FlightTask):
             self.sync.restore(st["sync"])
         except ValueError as exc:
             self.event("SYNC_STATE_REFUSED", error=str(exc))
+        # the checkpoint was taken as the step ended, before that step's round: the restored
+        # map (the mission publishes it again) is that round
+        self._resume_round = True
 
     def _divisor(self) -> int:
         cfg = self.ctx.cfg.executive
@@ -173,7 +177,9 @@ class RadioTask(FlightTask):
         for req in self.send_box.drain():
             self._request(req.map_id, req.snapshot)
             self._offer(req.snapshot if req.snapshot is not None else self.snapshot)
-        if self.step_box.drain():  # an imaging step ended: its map is a sync round
+        step = bool(self.step_box.drain())  # an imaging step ended: its map is a sync round
+        if (step or self._resume_round) and self.snapshot is not None:
+            self._resume_round = False
             self._offer(self.snapshot)
         d = self.port.recv(0.0, now)
         while d is not None:
