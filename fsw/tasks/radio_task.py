@@ -226,7 +226,9 @@ class RadioTask(FlightTask):
         if self.sync is None or snap is None or snap is self._offered:
             return
         self._offered = snap
-        self.sync.offer(np.where(snap.mapped, snap.z, np.nan))
+        z = np.asarray(snap.z, np.float32)
+        mapped = getattr(snap, "mapped", None)  # (a bare height map: its finite cells)
+        self.sync.offer(z if mapped is None else np.where(mapped, z, np.nan))
 
     def _sync_round(self, now: float) -> None:
         assert self.sync is not None
