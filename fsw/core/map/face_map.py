@@ -77,6 +77,9 @@ class FaceMapConfig:
     facing_max_points: int = param(20000, lo=0, hi=10**7, doc="points per view tested for facing the face (0: none)")
     resolve_cells: float = param(0.0, lo=0.0, hi=100.0, units="cells",
                                  doc="a point whose matching window spans more face cells is not fused (0: off)")
+    step_cells: int = param(2, lo=0, hi=10, units="cells",
+                            doc="a view's cell means this near rising above or falling below a cell's add "
+                                "the step's variance to its measurement (0: off)")
 
 
 @dataclass(frozen=True)
@@ -251,7 +254,7 @@ def face_band(gravity: ElevationMap, frame: FaceFrame, min_slope_deg: float = 45
 
 
 class FaceElevation(ElevationMap):
-    """The face map's grid: §1.1 with three changes (docs/algorithm.md §8.1).
+    """The face map's grid: §1.1 with four changes (docs/algorithm.md §8.1).
 
     *The relief the view cannot resolve.* A view's gradient ``g`` (of its own cell means, the
     slope term of §1.2) is the face's relief blurred by the points' error along the face: at
@@ -264,6 +267,16 @@ class FaceElevation(ElevationMap):
     2 |g|^2 c^2 / 12`` (the variance of a plane of that slope over a cell of side ``c``),
     independent between views (:meth:`_fuse`).
 
+    *The steps beside a cell.* At grazing incidence a view's matching windows and its sight
+    lines mix a cell with the relief beside it: next to a step out of the face the view sees the
+    step's side and its top, not the cell's own ground behind it, and a cell on a step's top
+    gets the lower ground beyond its edge. The view's cell measurement gains
+    ``(r_up^2 + r_down^2) / 3``, with ``r_up`` (``r_down``) how far the view's own cell means
+    within ``step_cells`` cells rise above (fall below) the cell's tangent plane (its min-mod
+    gradient: a plane gives none) beyond their noise: the sample
+    lies anywhere between the cell's ground and the step's, the second moment of a uniform
+    error over the step (:func:`relief_variance`).
+
     *The weights.* Of a cell's height and a view's, each is weighted by its whole variance, not
     by its independent part alone as in §1.1: the common part (the camera pose's, a share of the
     view's) is one error within one agent's frame, but two agents' poses err apart, and the face
@@ -274,6 +287,10 @@ class FaceElevation(ElevationMap):
     (two agents' views of one cell, one of them wrong) the cell holds the better-supported one,
     whichever came first, so fusing a second agent never leaves a cell worse than the better
     agent's own."""
+
+    def __init__(self, grid: MapGrid, cfg: FusionConfig | None = None, step_cells: int = 2) -> None:
+        super().__init__(grid, cfg)
+        self.step_cells = step_cells
 
     def _vertical_variance(self, grad: tuple[F64, F64], c6: tuple[F64, ...], footprint: bool) -> F64:
         """§1.2's slope term plus the unresolved slope's share, ``g_u^2 P_uu + g_v^2 P_vv``, in a
@@ -286,7 +303,8 @@ class FaceElevation(ElevationMap):
 
     def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64, vm_pose: F64 | None = None) -> tuple[int, int, int]:
         if self.cfg.slope_term and cells.size:
-            vm = vm + relief_variance(self.grid, cells, zm)
+            indep = vm if vm_pose is None else np.maximum(vm - vm_pose, 0.0)
+            vm = vm + relief_variance(self.grid, cells, zm, self.step_cells, indep)
         z, var, n = self.z.reshape(-1), self.var.reshape(-1), self.n.reshape(-1)
         z0, v0, n0 = z[cells], var[cells], n[cells]
         with np.errstate(invalid="ignore"):
@@ -325,13 +343,14 @@ class FaceMap:
         c = self.cfg.cell_m
         nx = max(2, int(np.ceil((u_range[1] - u_range[0]) / c)))
         ny = max(2, int(np.ceil((v_range[1] - v_range[0]) / c)))
-        self.map: ElevationMap = FaceElevation(MapGrid(float(u_range[0]), float(v_range[0]), c, nx, ny), fusion)
+        self.map: ElevationMap = FaceElevation(MapGrid(float(u_range[0]), float(v_range[0]), c, nx, ny), fusion,
+                                               self.cfg.step_cells)
         self.overhangs = Overhangs(self.map.grid.shape)  # the overhang layers (fsw.core.map.overhang)
 
     def empty_like(self) -> FaceMap:
         """An empty face map on the same frame and grid (e.g. one agent's share)."""
         out = FaceMap(self.frame, (0.0, 1.0), (0.0, 1.0), self.cfg, self.map.cfg)
-        out.map = FaceElevation(self.map.grid, self.map.cfg)
+        out.map = FaceElevation(self.map.grid, self.map.cfg, self.cfg.step_cells)
         out.overhangs = Overhangs(self.map.grid.shape)
         return out
 
@@ -496,15 +515,61 @@ def window_span(frame: FaceFrame, eye: F64, xyz: F64, window_rad: float) -> F64:
     return np.asarray(np.where(np.isfinite(span), span, np.inf), float)
 
 
-def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64) -> F64:
+def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells: int = 0,
+                    noise_var: F64 | None = None) -> F64:
     """Per measured cell (flat ``cells``, the view's cell means ``zm``), the variance of a view's
     sample of the cell against its centre: ``E|g|^2 c^2 / 12`` with ``E|g|^2 = 2 |g|^2`` (``g``
-    the gradient of the view's cell means, its unresolved part as wide again; FaceElevation)."""
+    the gradient of the view's cell means, its unresolved part as wide again), plus, with
+    ``step_cells > 0``, ``(r_up^2 + r_down^2) / 3`` for the steps beside the cell: ``r_up``
+    (``r_down``) how far the view's cell means within ``step_cells`` cells rise above (fall
+    below) the cell's tangent plane (:func:`step_heights`), less twice the noise of a
+    difference of two cell means (``noise_var``: each cell mean's variance apart from the
+    view's pose, which two cells of one view share; None: no allowance) (FaceElevation)."""
     dense = np.full(grid.nx * grid.ny, np.nan)
     dense[cells] = zm
-    gy, gx = nan_gradient(dense.reshape(grid.shape), grid.cell)
+    z = dense.reshape(grid.shape)
+    gy, gx = nan_gradient(z, grid.cell)
     g2 = (gx * gx + gy * gy).reshape(-1)[cells]
-    return np.asarray(2.0 * g2 * grid.cell**2 / 12.0, float)
+    out = 2.0 * g2 * grid.cell**2 / 12.0
+    if step_cells > 0:
+        up, down = step_heights(z, step_cells)
+        allow = 0.0 if noise_var is None else 2.0 * np.sqrt(2.0 * np.maximum(noise_var, 0.0))
+        up = np.maximum(up.reshape(-1)[cells] - allow, 0.0)
+        down = np.maximum(down.reshape(-1)[cells] - allow, 0.0)
+        out = out + (up * up + down * down) / 3.0
+    return np.asarray(out, float)
+
+
+def step_heights(z: F64, reach: int) -> tuple[F64, F64]:
+    """Per cell of a heightfield ``z`` (NaN unknown), how far the known cells within ``reach``
+    cells (the square around it) rise above and fall below the cell's tangent plane (``(up,
+    down)``, both >= 0; 0 for unknown cells). The plane's gradient is, per axis, the min-mod of
+    the two one-sided differences over ``2 reach`` cells (the smaller, 0 where they differ in
+    sign; the one known where the other is not): a plane gives 0, a step beside the cell about
+    its height (a view's cell means beside a step ramp up to it; the difference across the ramp
+    and the step is the larger one)."""
+    ny, nx = z.shape
+    span = 2 * reach
+    p = np.pad(z, span, constant_values=np.nan)
+
+    def at(dy: int, dx: int) -> F64:
+        return np.asarray(p[span + dy: span + dy + ny, span + dx: span + dx + nx], float)
+
+    def slope(a: F64, b: F64) -> F64:
+        with np.errstate(invalid="ignore"):
+            m = np.where(a * b > 0, np.sign(a) * np.minimum(np.abs(a), np.abs(b)), 0.0)
+            m = np.where(np.isnan(a), b, np.where(np.isnan(b), a, m))
+        return np.asarray(np.nan_to_num(m), float)
+
+    gx = slope((at(0, span) - z) / span, (z - at(0, -span)) / span)
+    gy = slope((at(span, 0) - z) / span, (z - at(-span, 0)) / span)
+    up, down = np.zeros(z.shape), np.zeros(z.shape)
+    for dy in range(-reach, reach + 1):
+        for dx in range(-reach, reach + 1):
+            d = at(dy, dx) - z - gx * dx - gy * dy
+            up = np.fmax(up, d)
+            down = np.fmax(down, -d)
+    return np.asarray(np.nan_to_num(up), float), np.asarray(np.nan_to_num(down), float)
 
 
 def run_merge(emap: ElevationMap, parts: list[tuple[F64, F64, F64 | None]],
