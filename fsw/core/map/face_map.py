@@ -273,7 +273,7 @@ class FaceElevation(ElevationMap):
     gets the lower ground beyond its edge. The view's cell measurement gains
     ``(r_up^2 + r_down^2) / 3``, with ``r_up`` (``r_down``) how far the view's own cell means
     within ``step_cells`` cells rise above (fall below) the cell's tangent plane (its min-mod
-    gradient: a plane gives none) beyond their noise: the sample
+    gradient: a plane gives none): the sample
     lies anywhere between the cell's ground and the step's, the second moment of a uniform
     error over the step (:func:`relief_variance`).
 
@@ -303,8 +303,7 @@ class FaceElevation(ElevationMap):
 
     def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64, vm_pose: F64 | None = None) -> tuple[int, int, int]:
         if self.cfg.slope_term and cells.size:
-            indep = vm if vm_pose is None else np.maximum(vm - vm_pose, 0.0)
-            vm = vm + relief_variance(self.grid, cells, zm, self.step_cells, indep)
+            vm = vm + relief_variance(self.grid, cells, zm, self.step_cells)
         z, var, n = self.z.reshape(-1), self.var.reshape(-1), self.n.reshape(-1)
         z0, v0, n0 = z[cells], var[cells], n[cells]
         with np.errstate(invalid="ignore"):
@@ -515,16 +514,13 @@ def window_span(frame: FaceFrame, eye: F64, xyz: F64, window_rad: float) -> F64:
     return np.asarray(np.where(np.isfinite(span), span, np.inf), float)
 
 
-def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells: int = 0,
-                    noise_var: F64 | None = None) -> F64:
+def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells: int = 0) -> F64:
     """Per measured cell (flat ``cells``, the view's cell means ``zm``), the variance of a view's
     sample of the cell against its centre: ``E|g|^2 c^2 / 12`` with ``E|g|^2 = 2 |g|^2`` (``g``
     the gradient of the view's cell means, its unresolved part as wide again), plus, with
     ``step_cells > 0``, ``(r_up^2 + r_down^2) / 3`` for the steps beside the cell: ``r_up``
     (``r_down``) how far the view's cell means within ``step_cells`` cells rise above (fall
-    below) the cell's tangent plane (:func:`step_heights`), less twice the noise of a
-    difference of two cell means (``noise_var``: each cell mean's variance apart from the
-    view's pose, which two cells of one view share; None: no allowance) (FaceElevation)."""
+    below) the cell's tangent plane (:func:`step_heights`) (FaceElevation)."""
     dense = np.full(grid.nx * grid.ny, np.nan)
     dense[cells] = zm
     z = dense.reshape(grid.shape)
@@ -533,9 +529,7 @@ def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells:
     out = 2.0 * g2 * grid.cell**2 / 12.0
     if step_cells > 0:
         up, down = step_heights(z, step_cells)
-        allow = 0.0 if noise_var is None else 2.0 * np.sqrt(2.0 * np.maximum(noise_var, 0.0))
-        up = np.maximum(up.reshape(-1)[cells] - allow, 0.0)
-        down = np.maximum(down.reshape(-1)[cells] - allow, 0.0)
+        up, down = up.reshape(-1)[cells], down.reshape(-1)[cells]
         out = out + (up * up + down * down) / 3.0
     return np.asarray(out, float)
 
@@ -544,16 +538,13 @@ def step_heights(z: F64, reach: int) -> tuple[F64, F64]:
     """Per cell of a heightfield ``z`` (NaN unknown), how far the known cells within ``reach``
     cells (the square around it) rise above and fall below the cell's tangent plane (``(up,
     down)``, both >= 0; 0 for unknown cells). The plane's gradient is, per axis, the min-mod of
-    the two one-sided differences over ``2 reach`` cells (the smaller, 0 where they differ in
-    sign; the one known where the other is not): a plane gives 0, a step beside the cell about
-    its height (a view's cell means beside a step ramp up to it; the difference across the ramp
-    and the step is the larger one)."""
+    the two one-sided differences to the next cells (the smaller, 0 where they differ in sign;
+    the one known where the other is not): a plane gives 0, a step beside the cell its height."""
     ny, nx = z.shape
-    span = 2 * reach
-    p = np.pad(z, span, constant_values=np.nan)
+    p = np.pad(z, reach, constant_values=np.nan)
 
     def at(dy: int, dx: int) -> F64:
-        return np.asarray(p[span + dy: span + dy + ny, span + dx: span + dx + nx], float)
+        return np.asarray(p[reach + dy: reach + dy + ny, reach + dx: reach + dx + nx], float)
 
     def slope(a: F64, b: F64) -> F64:
         with np.errstate(invalid="ignore"):
@@ -561,8 +552,8 @@ def step_heights(z: F64, reach: int) -> tuple[F64, F64]:
             m = np.where(np.isnan(a), b, np.where(np.isnan(b), a, m))
         return np.asarray(np.nan_to_num(m), float)
 
-    gx = slope((at(0, span) - z) / span, (z - at(0, -span)) / span)
-    gy = slope((at(span, 0) - z) / span, (z - at(-span, 0)) / span)
+    gx = slope(at(0, 1) - z, z - at(0, -1))
+    gy = slope(at(1, 0) - z, z - at(-1, 0))
     up, down = np.zeros(z.shape), np.zeros(z.shape)
     for dy in range(-reach, reach + 1):
         for dx in range(-reach, reach + 1):
