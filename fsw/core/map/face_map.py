@@ -273,9 +273,11 @@ class FaceElevation(ElevationMap):
     gets the lower ground beyond its edge. The view's cell measurement gains
     ``(r_up^2 + r_down^2) / 3``, with ``r_up`` (``r_down``) how far the view's own cell means
     within ``step_cells`` cells rise above (fall below) the cell's tangent plane (its min-mod
-    gradient: a plane gives none): the sample
-    lies anywhere between the cell's ground and the step's, the second moment of a uniform
-    error over the step (:func:`relief_variance`).
+    gradient: a plane gives none): the sample lies anywhere between the cell's ground and the
+    step's, the second moment of a uniform error over the step (:func:`relief_variance`). It is
+    a grazing view's: the term is scaled by ``h tan t`` over one cell, at most 1, with ``h`` the
+    step and ``t`` the incidence of the view's sight line to the cell (the face a step hides or
+    mixes in; a view head-on mixes none).
 
     *The weights.* Of a cell's height and a view's, each is weighted by its whole variance, not
     by its independent part alone as in §1.1: the common part (the camera pose's, a share of the
@@ -291,6 +293,9 @@ class FaceElevation(ElevationMap):
     def __init__(self, grid: MapGrid, cfg: FusionConfig | None = None, step_cells: int = 2) -> None:
         super().__init__(grid, cfg)
         self.step_cells = step_cells
+        # the camera centre (face frame) of the view being merged, or None (unknown: the steps'
+        # term in full); FaceMap.merge_parts sets it for one merge
+        self.eye: F64 | None = None
 
     def _vertical_variance(self, grad: tuple[F64, F64], c6: tuple[F64, ...], footprint: bool) -> F64:
         """§1.2's slope term plus the unresolved slope's share, ``g_u^2 P_uu + g_v^2 P_vv``, in a
@@ -303,7 +308,7 @@ class FaceElevation(ElevationMap):
 
     def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64, vm_pose: F64 | None = None) -> tuple[int, int, int]:
         if self.cfg.slope_term and cells.size:
-            vm = vm + relief_variance(self.grid, cells, zm, self.step_cells)
+            vm = vm + relief_variance(self.grid, cells, zm, self.step_cells, self.eye)
         z, var, n = self.z.reshape(-1), self.var.reshape(-1), self.n.reshape(-1)
         z0, v0, n0 = z[cells], var[cells], n[cells]
         with np.errstate(invalid="ignore"):
@@ -473,7 +478,14 @@ class FaceMap:
             keep &= ~wide
         face_parts: list[tuple[F64, F64, F64 | None]] = [
             (q[keep], cov_f[keep], None if common is None else self.frame.cov_to_face(common[keep]))]
-        stats = run_merge(self.map, face_parts, p_visible)
+        fe = self.map if isinstance(self.map, FaceElevation) else None
+        if fe is not None and eye is not None:
+            fe.eye = self.frame.to_face(np.reshape(eye, (1, 3)))[0]
+        try:
+            stats = run_merge(self.map, face_parts, p_visible)
+        finally:
+            if fe is not None:
+                fe.eye = None
         air_new = 0
         if eye is not None:
             air_new = self.carve(eye, parts if rays is None else rays)
@@ -514,13 +526,17 @@ def window_span(frame: FaceFrame, eye: F64, xyz: F64, window_rad: float) -> F64:
     return np.asarray(np.where(np.isfinite(span), span, np.inf), float)
 
 
-def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells: int = 0) -> F64:
+def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells: int = 0,
+                    eye: F64 | None = None) -> F64:
     """Per measured cell (flat ``cells``, the view's cell means ``zm``), the variance of a view's
     sample of the cell against its centre: ``E|g|^2 c^2 / 12`` with ``E|g|^2 = 2 |g|^2`` (``g``
     the gradient of the view's cell means, its unresolved part as wide again), plus, with
     ``step_cells > 0``, ``(r_up^2 + r_down^2) / 3`` for the steps beside the cell: ``r_up``
     (``r_down``) how far the view's cell means within ``step_cells`` cells rise above (fall
-    below) the cell's tangent plane (:func:`step_heights`) (FaceElevation)."""
+    below) the cell's tangent plane (:func:`step_heights`), scaled by the share of a step
+    ``h = max(r_up, r_down)`` a view from ``eye`` (face frame; None: in full) mixes into the
+    cell: ``h tan t`` (the length of face a step of that height hides or mixes in at the
+    incidence ``t`` of the sight line to the cell) over one cell, at most 1 (FaceElevation)."""
     dense = np.full(grid.nx * grid.ny, np.nan)
     dense[cells] = zm
     z = dense.reshape(grid.shape)
@@ -530,7 +546,16 @@ def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells:
     if step_cells > 0:
         up, down = step_heights(z, step_cells)
         up, down = up.reshape(-1)[cells], down.reshape(-1)[cells]
-        out = out + (up * up + down * down) / 3.0
+        share = np.ones(len(cells))
+        if eye is not None:
+            q = np.column_stack([grid.x0 + (cells % grid.nx + 0.5) * grid.cell,
+                                 grid.y0 + (cells // grid.nx + 0.5) * grid.cell, zm])
+            d = q - np.reshape(eye, (1, 3))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                tan_t = np.hypot(d[:, 0], d[:, 1]) / np.abs(d[:, 2])
+                share = np.clip(np.nan_to_num(np.maximum(up, down) * tan_t / grid.cell, nan=1.0, posinf=1.0),
+                                0.0, 1.0)
+        out = out + share * (up * up + down * down) / 3.0
     return np.asarray(out, float)
 
 
