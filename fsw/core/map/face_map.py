@@ -79,6 +79,9 @@ class FaceMapConfig:
                                       doc="facing points that flag a cell beside a flagged one (0: off)")
     resolve_cells: float = param(0.0, lo=0.0, hi=100.0, units="cells",
                                  doc="a point whose matching window spans more face cells is not fused (0: off)")
+    step_cells: int = param(2, lo=0, hi=10, units="cells",
+                            doc="a view's cell means this near rising above or falling below a cell's add "
+                                "the step's variance to its measurement (0: off)")
 
 
 @dataclass(frozen=True)
@@ -253,7 +256,7 @@ def face_band(gravity: ElevationMap, frame: FaceFrame, min_slope_deg: float = 45
 
 
 class FaceElevation(ElevationMap):
-    """The face map's grid: §1.1 with three changes (docs/algorithm.md §8.1).
+    """The face map's grid: §1.1 with four changes (docs/algorithm.md §8.1).
 
     *The relief the view cannot resolve.* A view's gradient ``g`` (of its own cell means, the
     slope term of §1.2) is the face's relief blurred by the points' error along the face: at
@@ -266,6 +269,18 @@ class FaceElevation(ElevationMap):
     2 |g|^2 c^2 / 12`` (the variance of a plane of that slope over a cell of side ``c``),
     independent between views (:meth:`_fuse`).
 
+    *The steps beside a cell.* At grazing incidence a view's matching windows and its sight
+    lines mix a cell with the relief beside it: next to a step out of the face the view sees the
+    step's side and its top, not the cell's own ground behind it, and a cell on a step's top
+    gets the lower ground beyond its edge. The view's cell measurement gains
+    ``(r_up^2 + r_down^2) / 3``, with ``r_up`` (``r_down``) how far the view's own cell means
+    within ``step_cells`` cells rise above (fall below) the cell's tangent plane (its min-mod
+    gradient: a plane gives none): the sample lies anywhere between the cell's ground and the
+    step's, the second moment of a uniform error over the step (:func:`relief_variance`). It is
+    a grazing view's: the term is scaled by ``h tan t`` over one cell, at most 1, with ``h`` the
+    step and ``t`` the incidence of the view's sight line to the cell (the face a step hides or
+    mixes in; a view head-on mixes none).
+
     *The weights.* Of a cell's height and a view's, each is weighted by its whole variance, not
     by its independent part alone as in §1.1: the common part (the camera pose's, a share of the
     view's) is one error within one agent's frame, but two agents' poses err apart, and the face
@@ -276,6 +291,13 @@ class FaceElevation(ElevationMap):
     (two agents' views of one cell, one of them wrong) the cell holds the better-supported one,
     whichever came first, so fusing a second agent never leaves a cell worse than the better
     agent's own."""
+
+    def __init__(self, grid: MapGrid, cfg: FusionConfig | None = None, step_cells: int = 2) -> None:
+        super().__init__(grid, cfg)
+        self.step_cells = step_cells
+        # the camera centre (face frame) of the view being merged, or None (unknown: the steps'
+        # term in full); FaceMap.merge_parts sets it for one merge
+        self.eye: F64 | None = None
 
     def _vertical_variance(self, grad: tuple[F64, F64], c6: tuple[F64, ...], footprint: bool) -> F64:
         """§1.2's slope term plus the unresolved slope's share, ``g_u^2 P_uu + g_v^2 P_vv``, in a
@@ -288,7 +310,7 @@ class FaceElevation(ElevationMap):
 
     def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64, vm_pose: F64 | None = None) -> tuple[int, int, int]:
         if self.cfg.slope_term and cells.size:
-            vm = vm + relief_variance(self.grid, cells, zm)
+            vm = vm + relief_variance(self.grid, cells, zm, self.step_cells, self.eye)
         z, var, n = self.z.reshape(-1), self.var.reshape(-1), self.n.reshape(-1)
         z0, v0, n0 = z[cells], var[cells], n[cells]
         with np.errstate(invalid="ignore"):
@@ -327,13 +349,14 @@ class FaceMap:
         c = self.cfg.cell_m
         nx = max(2, int(np.ceil((u_range[1] - u_range[0]) / c)))
         ny = max(2, int(np.ceil((v_range[1] - v_range[0]) / c)))
-        self.map: ElevationMap = FaceElevation(MapGrid(float(u_range[0]), float(v_range[0]), c, nx, ny), fusion)
+        self.map: ElevationMap = FaceElevation(MapGrid(float(u_range[0]), float(v_range[0]), c, nx, ny), fusion,
+                                               self.cfg.step_cells)
         self.overhangs = Overhangs(self.map.grid.shape)  # the overhang layers (fsw.core.map.overhang)
 
     def empty_like(self) -> FaceMap:
         """An empty face map on the same frame and grid (e.g. one agent's share)."""
         out = FaceMap(self.frame, (0.0, 1.0), (0.0, 1.0), self.cfg, self.map.cfg)
-        out.map = FaceElevation(self.map.grid, self.map.cfg)
+        out.map = FaceElevation(self.map.grid, self.map.cfg, self.cfg.step_cells)
         out.overhangs = Overhangs(self.map.grid.shape)
         return out
 
@@ -457,7 +480,14 @@ class FaceMap:
             keep &= ~wide
         face_parts: list[tuple[F64, F64, F64 | None]] = [
             (q[keep], cov_f[keep], None if common is None else self.frame.cov_to_face(common[keep]))]
-        stats = run_merge(self.map, face_parts, p_visible)
+        fe = self.map if isinstance(self.map, FaceElevation) else None
+        if fe is not None and eye is not None:
+            fe.eye = self.frame.to_face(np.reshape(eye, (1, 3)))[0]
+        try:
+            stats = run_merge(self.map, face_parts, p_visible)
+        finally:
+            if fe is not None:
+                fe.eye = None
         air_new = 0
         if eye is not None:
             air_new = self.carve(eye, parts if rays is None else rays)
@@ -499,15 +529,66 @@ def window_span(frame: FaceFrame, eye: F64, xyz: F64, window_rad: float) -> F64:
     return np.asarray(np.where(np.isfinite(span), span, np.inf), float)
 
 
-def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64) -> F64:
+def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells: int = 0,
+                    eye: F64 | None = None) -> F64:
     """Per measured cell (flat ``cells``, the view's cell means ``zm``), the variance of a view's
     sample of the cell against its centre: ``E|g|^2 c^2 / 12`` with ``E|g|^2 = 2 |g|^2`` (``g``
-    the gradient of the view's cell means, its unresolved part as wide again; FaceElevation)."""
+    the gradient of the view's cell means, its unresolved part as wide again), plus, with
+    ``step_cells > 0``, ``(r_up^2 + r_down^2) / 3`` for the steps beside the cell: ``r_up``
+    (``r_down``) how far the view's cell means within ``step_cells`` cells rise above (fall
+    below) the cell's tangent plane (:func:`step_heights`), scaled by the share of a step
+    ``h = max(r_up, r_down)`` a view from ``eye`` (face frame; None: in full) mixes into the
+    cell: ``h tan t`` (the length of face a step of that height hides or mixes in at the
+    incidence ``t`` of the sight line to the cell) over one cell, at most 1 (FaceElevation)."""
     dense = np.full(grid.nx * grid.ny, np.nan)
     dense[cells] = zm
-    gy, gx = nan_gradient(dense.reshape(grid.shape), grid.cell)
+    z = dense.reshape(grid.shape)
+    gy, gx = nan_gradient(z, grid.cell)
     g2 = (gx * gx + gy * gy).reshape(-1)[cells]
-    return np.asarray(2.0 * g2 * grid.cell**2 / 12.0, float)
+    out = 2.0 * g2 * grid.cell**2 / 12.0
+    if step_cells > 0:
+        up, down = step_heights(z, step_cells)
+        up, down = up.reshape(-1)[cells], down.reshape(-1)[cells]
+        share = np.ones(len(cells))
+        if eye is not None:
+            q = np.column_stack([grid.x0 + (cells % grid.nx + 0.5) * grid.cell,
+                                 grid.y0 + (cells // grid.nx + 0.5) * grid.cell, zm])
+            d = q - np.reshape(eye, (1, 3))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                tan_t = np.hypot(d[:, 0], d[:, 1]) / np.abs(d[:, 2])
+                share = np.clip(np.nan_to_num(np.maximum(up, down) * tan_t / grid.cell, nan=1.0, posinf=1.0),
+                                0.0, 1.0)
+        out = out + share * (up * up + down * down) / 3.0
+    return np.asarray(out, float)
+
+
+def step_heights(z: F64, reach: int) -> tuple[F64, F64]:
+    """Per cell of a heightfield ``z`` (NaN unknown), how far the known cells within ``reach``
+    cells (the square around it) rise above and fall below the cell's tangent plane (``(up,
+    down)``, both >= 0; 0 for unknown cells). The plane's gradient is, per axis, the min-mod of
+    the two one-sided differences to the next cells (the smaller, 0 where they differ in sign;
+    the one known where the other is not): a plane gives 0, a step beside the cell its height."""
+    ny, nx = z.shape
+    p = np.pad(z, reach, constant_values=np.nan)
+
+    def at(dy: int, dx: int) -> F64:
+        return np.asarray(p[reach + dy: reach + dy + ny, reach + dx: reach + dx + nx], float)
+
+    def slope(a: F64, b: F64) -> F64:
+        with np.errstate(invalid="ignore"):
+            m = np.where(a * b > 0, np.sign(a) * np.minimum(np.abs(a), np.abs(b)), 0.0)
+            m = np.where(np.isnan(a), b, np.where(np.isnan(b), a, m))
+        return np.asarray(np.nan_to_num(m), float)
+
+    gx = slope(at(0, 1) - z, z - at(0, -1))
+    gy = slope(at(1, 0) - z, z - at(-1, 0))
+    up, down = np.zeros(z.shape), np.zeros(z.shape)
+    for dy in range(-reach, reach + 1):
+        for dx in range(-reach, reach + 1):
+            d = at(dy, dx) - z - gx * dx - gy * dy
+            up = np.fmax(up, d)
+            down = np.fmax(down, -d)
+    return np.asarray(np.nan_to_num(up), float), np.asarray(np.nan_to_num(down), float)
 
 
 def run_merge(emap: ElevationMap, parts: list[tuple[F64, F64, F64 | None]],
