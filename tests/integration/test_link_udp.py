@@ -14,6 +14,7 @@ from hil_sim.cli import main
 from hil_sim.lab.link_udp_experiment import UdpRunSpec, run_udp
 
 
+@pytest.mark.slow  # seconds of CPU
 def test_small_map_over_the_udp_relay_with_an_outage() -> None:
     spec = UdpRunSpec(loss=0.1, seed=2, ber=1e-5, duplicate=0.1, reorder=0.1, reorder_delay_s=0.2,
                       outage=(0.5, 1.0), rate_bps=64000.0, latency_s=0.01, payload_bytes=12000,
