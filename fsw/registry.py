@@ -44,6 +44,7 @@ RECON = AgentTopology(
         "rover", "camera", "mast", "map", "stereo", "fusion", "registration", "localization", "cliffbot", "edge",
         "geofence", "checkpoint", "mavlink", "codec", "link", "nbv", "devices", "motion", "capture", "mission",
         "calibration", "cliffbot_site",  # the team's site: its mask, and the Anchorbots' plates for its fixer
+        "map_sync",  # the team's two-way map sync (off unless a team mission turns it on)
     }),
 )
 
@@ -61,7 +62,7 @@ CLIFFBOT = AgentTopology(
     doc="Cliff-bot: lowered on two tethers, plans and drives to science targets on the map it received",
     task_kinds={**COMMON_KINDS, **CLIFFBOT_KINDS},
     sections=frozenset({
-        "map", "link", "mavlink", "checkpoint", "tether", "climber", "cliffbot_nav", "cliffbot_mission",
+        "map", "link", "map_sync", "mavlink", "checkpoint", "tether", "climber", "cliffbot_nav", "cliffbot_mission",
         "cliffbot_site", "cliffbot_bus", "cliffbot_sensing",
     }),
     required_tasks=("cliffbot_mission",),

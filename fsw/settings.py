@@ -27,6 +27,7 @@ from pathlib import Path
 
 from fsw.comm.link import LinkConfig
 from fsw.comm.mavlink_config import MavlinkConfig
+from fsw.comm.team.map_sync import SyncConfig
 from fsw.core.codec.mapcodec import CodecConfig
 from fsw.core.edge.edge import EdgeConfig
 from fsw.core.edge.geofence import GeofenceConfig
@@ -84,6 +85,7 @@ class FswConfig:
     mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
     codec: CodecConfig = field(default_factory=CodecConfig)
     link: LinkConfig = field(default_factory=LinkConfig)
+    map_sync: SyncConfig = field(default_factory=SyncConfig)  # the team's two-way map sync (docs/sync.md)
     nbv: NbvConfig = field(default_factory=NbvConfig)
     devices: DevicesConfig = field(default_factory=DevicesConfig)
     motion: MotionConfig = field(default_factory=MotionConfig)

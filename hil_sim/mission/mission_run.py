@@ -235,6 +235,9 @@ def run_mission(
                 while not team.finished() and bench.clock.now() < team_end:
                     bench.run(1)
                     recording_error = _poll_taps(taps, recording_error)
+                settle_end = bench.clock.now() + SYNC_SETTLE_S  # the last look's tiles cross the radio
+                while not team.sync_settled() and bench.clock.now() < settle_end:
+                    bench.run(1)
         finally:
             bench.exe.thaw_heap()
             for tp in taps:
@@ -340,6 +343,7 @@ def _poll_taps(taps: list[Any], error: str) -> str:
 
 
 RECORDING_MIN_FREE = 512 * 2**20
+SYNC_SETTLE_S = 120.0  # then the map sync may go on this long until both replicas are equal (bench s)
 TEAM_MAX_S = 1800.0  # the Cliff-bot's mission may go on this long after the RECON-bot's (bench s)
 
 

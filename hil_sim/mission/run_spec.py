@@ -59,14 +59,16 @@ def mission_config(spec: RunSpec, world: Any) -> FswConfig:
     camera = cfg.camera
     if spec.camera in ("ideal", "raw"):
         camera = dataclasses.replace(camera, calibration_file="")
-    site = cfg.cliffbot_site
+    site, sync = cfg.cliffbot_site, cfg.map_sync
     if world.team is not None:  # a team scenario: the RECON-bot keeps the Cliff-bot out of its map
         from hil_sim.team.team_bench import recon_site
 
         site = recon_site(world, MapGrid.from_config(world.map_grid), cfg.tether)
+        sync = dataclasses.replace(sync, enabled=True)  # and keeps the team's map in step (docs/sync.md)
     return dataclasses.replace(
         cfg,
         cliffbot_site=site,
+        map_sync=sync,
         camera=camera,
         map=world.map_grid,
         mavlink=mav,

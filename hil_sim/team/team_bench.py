@@ -33,6 +33,8 @@ from numpy.typing import NDArray
 
 from fsw.comm.link_packets import PacketError
 from fsw.comm.team import fix_packets
+from fsw.comm.team.sync_end import FlightSync
+from fsw.comm.team.sync_end import team_figures as sync_team_figures
 from fsw.core.geometry import MapGrid, wrap_angle
 from fsw.core.team.tether import TetherConfig, anchor_points, tether_state
 from fsw.drivers.camera import CameraDriver, make_source
@@ -135,9 +137,10 @@ def recon_site(world: World, grid: MapGrid, tcfg: TetherConfig) -> CliffbotSiteC
 
 
 def cliffbot_config(path: str | Path, world: World, rig: CliffbotRig, frame: TeamFrame,
-                    out: Path | None) -> FswConfig:
+                    out: Path | None, sync: bool = True) -> FswConfig:
     """The Cliff-bot's flight file with the scenario's site (in the team's frame), the map grid and
-    the run's files."""
+    the run's files; its map sync on only if ``sync`` (the RECON-bot's is: a team syncs both ends
+    or neither)."""
     cfg = load_settings(path)
     if cfg.agent.kind != "cliffbot":
         raise ValueError(f"{path}: agent kind {cfg.agent.kind!r}, a team mission needs a 'cliffbot' file")
@@ -148,6 +151,7 @@ def cliffbot_config(path: str | Path, world: World, rig: CliffbotRig, frame: Tea
         ckpt = str(out / "cliffbot_checkpoints")
     return dataclasses.replace(
         cfg, map=world.map_grid, cliffbot_site=site,
+        map_sync=dataclasses.replace(cfg.map_sync, enabled=cfg.map_sync.enabled and sync),
         checkpoint=dataclasses.replace(cfg.checkpoint, directory=ckpt),
         mavlink=dataclasses.replace(cfg.mavlink, tlog_path=str(out / "cliffbot.tlog") if out is not None else ""),
     )
@@ -169,7 +173,7 @@ class CliffbotAgent:
         self.grid = MapGrid.from_config(world.map_grid)
         self.rig = CliffbotRig(world, self.grid, base.tether, base.climber, faults=FaultInjector(seed, faults),
                                seed=seed)
-        self.cfg = cliffbot_config(config, world, self.rig, self.frame, out)
+        self.cfg = cliffbot_config(config, world, self.rig, self.frame, out, sync=bench.cfg.map_sync.enabled)
         name = f"{bench.channel}-team"
         self.sim_bus = InprocBus(channel=name, receive_own_messages=False)
         self.flight_bus = InprocBus(channel=name, receive_own_messages=False)
@@ -224,6 +228,7 @@ class CliffbotAgent:
             "wheel_rad": list(rig.wheel_rad), "sent0": dict(self.sent0), "frame": self.exe.frame,
             "est_path": [list(p) for p in self.est_path],
             "unknown_at_entry": sorted([int(a), int(b)] for a, b in self.unknown_at_entry),
+            "sync": None if (s := self._sync("cb_radio")) is None else s.state(),
         }
 
     def _write_checkpoint(self, st: dict[str, Any]) -> None:
@@ -233,6 +238,8 @@ class CliffbotAgent:
         store = checkpoint.CheckpointFile(self.cfg.checkpoint.directory)
         z = None if st.get("map") is None else np.asarray(st["map"], np.float64)
         err = store.save(dict(st["cliffbot"]), z)
+        if not err and isinstance(st.get("sync"), dict):  # its map sync end's state
+            err = store.save_sync(st["sync"])
         if err:
             raise ValueError(f"the Cliff-bot's checkpoint cannot be written: {err}")
 
@@ -258,6 +265,17 @@ class CliffbotAgent:
         except (KeyError, TypeError, ValueError) as exc:
             raise BenchStateError(f"the team's bench state is malformed ({type(exc).__name__}: {exc})") from None
         self._rendered_at = -1
+
+    def _sync(self, task: str) -> FlightSync | None:
+        """The map sync end of a radio task (``radio``: the RECON-bot's, ``cb_radio``: the Cliff-bot's)."""
+        t = (self.bench.exe if task == "radio" else self.exe).tasks.get(task)
+        s = getattr(t, "sync", None)
+        return s if isinstance(s, FlightSync) else None
+
+    def sync_settled(self) -> bool:
+        """Both agents' replicas of the team's map are equal (or the team does not sync)."""
+        a, b = self._sync("radio"), self._sync("cb_radio")
+        return a is None or b is None or a.end.replica_hash() == b.end.replica_hash()
 
     @property
     def mission(self) -> Any:
@@ -333,7 +351,8 @@ class CliffbotAgent:
 
     def _recon_pose(self) -> dict[str, Any] | None:
         """Where the RECON-bot stands at the end, in the team's frame: its estimate ``(x, y, yaw)``
-        with covariance, and the truth (``safer-hil experiment fiducials --missions``)."""
+        with covariance (relative to its map, and ``frame_cov`` against its start), and the truth
+        (``safer-hil experiment fiducials --missions``)."""
         motion = self.bench.exe.tasks.get("motion")
         odo = getattr(motion, "odo", None)
         if odo is None or not hasattr(motion, "mcfg"):
@@ -342,6 +361,7 @@ class CliffbotAgent:
         t = self.frame.to_map(np.array([[truth.x, truth.y]]))[0]
         return {"estimate": [float(v) for v in odo.pose],
                 "cov": np.asarray(odo.covariance(motion.mcfg), float).tolist(),
+                "frame_cov": np.asarray(odo.frame_covariance(motion.mcfg), float).tolist(),
                 "truth": [float(t[0]), float(t[1]), float(wrap_angle(truth.yaw - self.frame.yaw0))]}
 
     def _note_cycle(self) -> None:
@@ -408,7 +428,8 @@ class CliffbotAgent:
         sec["fix_recon_yaw_err_deg"] = [e[0] for e in self.recon_errors]
         sec["fix_recon_pos_err_cm"] = [e[1] for e in self.recon_errors]
         sec.update(self.figures.section(None, "no face map in the lockstep mission: the RECON-bot's flight fuses "
-                                              "into the gravity grid only"))
+                                              "into the gravity grid only",
+                                        sync=sync_team_figures(self._sync("radio"), self._sync("cb_radio"))))
         sec["agent"] = {"name": self.cfg.agent.name, "kind": self.cfg.agent.kind,
                         "mavlink_system_id": self.cfg.mavlink.system_id, "frames": self.exe.frame}
         if sec.get("picture") and out is not None:

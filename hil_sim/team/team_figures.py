@@ -6,8 +6,11 @@ the summary's ``team`` section gains:
 
 * ``cells_by_agent``: the cells each agent's own views made known;
 * ``sync_hash_equal``, ``sync_rounds``, ``sync_bytes``, ``sync_minimal_bytes``, ``sync_full_resends``
-  (and ``sync_air_bytes``): both agents' maps synced one round per cycle over the bench's radio
-  channel (``hil_sim.team.team_sync.team_sync_figures``);
+  (and ``sync_air_bytes``, ``sync_source``): the map sync's figures. A caller whose agents flew
+  the sync gives them (``sync``: the lockstep team mission, ``sync_source`` "flown",
+  ``fsw.comm.team.sync_end.team_figures``); without them both agents' maps are synced after the
+  fact, one round per cycle, over the bench's radio channel (``sync_source`` "replay",
+  ``hil_sim.team.team_sync.team_sync_figures``: the team-views harness, which has no radio);
 * ``face_rmse_m``, ``face_rmse_gravity_m`` (and ``face_cells``): the face map against the truth and
   the gravity grid on the same cells (``hil_sim.team.face_eval.face_figures``), None when the
   mission keeps no face map (``face_note`` says why);
@@ -52,20 +55,23 @@ class TeamFigures:
         self.views.append({"cycle": len(self.views) + 1, "views": views, "overlap": overlap})
 
     def section(self, face: tuple[World, FaceMap, ElevationMap] | None = None,
-                face_note: str = "") -> dict[str, Any]:
+                face_note: str = "", sync: dict[str, object] | None = None) -> dict[str, Any]:
         """The summary keys (module docstring); ``face``: the truth, the face map and the gravity
-        grid of the same mission, in the world's frame."""
+        grid of the same mission, in the world's frame; ``sync``: the flown sync's figures."""
         from hil_sim.team.face_eval import face_figures
         from hil_sim.team.team_sync import team_sync_figures
 
         cells = {a: int(np.isfinite(ms[-1]).sum()) if ms else 0 for a, ms in self.maps.items()}
         out: dict[str, Any] = {"cells_by_agent": cells}
-        if self.views:
+        if sync is not None:
+            out.update(sync)
+        elif self.views:
             out.update(team_sync_figures(self.maps["recon"], self.maps["cliffbot"], self.channel, self.seed,
                                          cell_m=self.cell_m, wheel_m=self.wheel_m))
+            out["sync_source"] = "replay"
         else:
-            out.update({"sync_hash_equal": None, "sync_rounds": 0, "sync_bytes": 0, "sync_minimal_bytes": 0,
-                        "sync_full_resends": 0, "sync_air_bytes": 0})
+            out.update({"sync_source": "none", "sync_hash_equal": None, "sync_rounds": 0, "sync_bytes": 0,
+                        "sync_minimal_bytes": 0, "sync_full_resends": 0, "sync_air_bytes": 0})
         if face is not None:
             f = face_figures(face[0], face[1], face[2], cells)
             out.update({k: f[k] for k in ("face_rmse_m", "face_rmse_gravity_m", "face_cells")})

@@ -267,3 +267,38 @@ def test_relief_rise_finds_the_cells_beside_a_step_of_the_truth() -> None:
     assert np.all(col[[5, 9]] >= 0.1)  # within 2 cells of the top, below and above it
     assert np.all(np.abs(col[[0, 1, 2, 3, 7, 10, 11]]) < 0.02)  # on the top, and 3 or more cells off
     assert np.isnan(col[8])
+
+
+def test_the_miss_diagnostic_finds_the_inner_surface_under_a_ledge() -> None:
+    """``overhang_why.first_crossing``: under the ledge block standing out from 0.15 m to 0.35 m
+    along the normal of a 70 deg face, the normal first leaves the ground at the face (w = 0, the
+    inner surface) and last at the block's outer side; with no block, both are the face."""
+    import math
+
+    import numpy as np
+
+    from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig
+    from hil_sim.team.face_eval import truth_along_normal
+    from hil_sim.team.overhang_why import first_crossing
+
+    a = math.radians(70.0)
+    frame = FaceFrame.from_normal(np.zeros(3), np.array([0.0, -math.sin(a), math.cos(a)]))
+    face = FaceMap(frame, (-0.05, 0.15), (-0.05, 0.15), FaceMapConfig(cell_m=0.1, overhang_gap_m=0.1))
+
+    class Ledge:
+        def __init__(self, height: float) -> None:
+            self.height = height
+
+        def ground_at(self, x: object, y: object) -> object:
+            yy = np.asarray(y, float)
+            block = (yy >= -0.35 * math.sin(a)) & (yy <= -0.15 * math.sin(a))
+            return math.tan(a) * yy + np.where(block, self.height, 0.0) + 0.0 * np.asarray(x, float)
+
+    cells = np.array([0])
+    for height, over_true in ((0.5, True), (0.0, False)):
+        world = Ledge(height)
+        w_out, over = truth_along_normal(world, face, cells)  # type: ignore[arg-type]
+        w_in = first_crossing(world, face, cells)  # type: ignore[arg-type]
+        assert over.tolist() == [over_true]
+        assert w_in[0] == pytest.approx(0.0, abs=0.006)
+        assert (w_out[0] - w_in[0] > 0.1) == over_true

@@ -98,9 +98,11 @@ def world() -> Any:
 
 
 def _recon_cfg(world: Any) -> FswConfig:
-    """The RECON-bot idle, its map link reduced for the Cliff-bot as the flight file says."""
+    """The RECON-bot idle, its map link reduced for the Cliff-bot as the flight file says, its map
+    sync on as in a team mission (docs/sync.md, "In flight")."""
     cfg = load_settings()
-    return dataclasses.replace(cfg, map=world.map_grid, mission=dataclasses.replace(cfg.mission, auto_start=False))
+    return dataclasses.replace(cfg, map=world.map_grid, mission=dataclasses.replace(cfg.mission, auto_start=False),
+                               map_sync=dataclasses.replace(cfg.map_sync, enabled=True))
 
 
 def _team(world: Any, frames: int, faults: tuple[Any, ...] = (), out: Path | None = None,
@@ -168,7 +170,9 @@ def test_the_team_mission_runs_two_executives_on_one_clock(mission: tuple[dict[s
     assert (out / "team.png").stat().st_size > 0
     # the team figures (hil_sim.team.team_figures): the idle RECON-bot takes no imaging step here;
     # the Cliff-bot looked round before its plan (docs/team.md, "Both agents sense")
-    assert len(a["views"]) == a["sync_rounds"] and a["cells_by_agent"]["cliffbot"] > 300
+    assert a["cells_by_agent"]["cliffbot"] > 300 and a["sync_source"] == "flown"
+    # the map sync: the RECON-bot's round of the map it sent, the Cliff-bot's one per look
+    assert [e["rounds"] for e in a["sync_ends"]] == [1, len(a["views"])] and a["sync_ends"][1]["tiles_published"] > 0
     assert [v["agent"] for c in a["views"] for v in c["views"]] == ["cliffbot"] * len(a["views"])
     assert a["sync_full_resends"] == 0 and a["face_rmse_m"] is None and a["face_note"]
     merged = [t for _, n, t in trace if n == "cb_sense.VIEW_MERGED"]

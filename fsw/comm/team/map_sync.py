@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import json
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,8 +57,10 @@ RESTART_VERSION_STEP = 1 << 20
 
 @dataclass(frozen=True)
 class SyncConfig:
-    """Two-way map sync parameters (docs/sync.md)."""
+    """Two-way map sync parameters (docs/sync.md; ``[map_sync]`` in the flight files)."""
 
+    enabled: bool = param(False, doc="the agent's radio task runs a sync end (both agents of a team; "
+                                     "docs/sync.md, \"In flight\")")
     rate_bps: float = param(9600.0, lo=300.0, hi=1e8, units="bit/s", doc="pacing of every packet")
     pacing_catchup_s: float = param(0.05, lo=0.0, hi=1.0, units="s")
     tile_cells: int = param(16, lo=4, hi=256, units="cells", doc="tile side")
@@ -206,6 +208,18 @@ class MapSync:
     def publish(self, z: NDArray[np.float32] | NDArray[np.float64], now_s: float) -> int:
         """One sync round: new versions of the tiles of ``z`` (the agent's map, NaN unknown)
         that changed beyond the error bound; returns how many."""
+        steps = self.publish_steps(z, now_s)
+        while True:
+            try:
+                next(steps)
+            except StopIteration as stop:
+                return int(stop.value)
+
+    def publish_steps(self, z: NDArray[np.float32] | NDArray[np.float64],
+                      now_s: float) -> Generator[None, None, int]:
+        """:meth:`publish` as a slack job (``fsw.framework.jobs``): it yields after each tile it
+        encodes, and returns how many it published. The protocol may run between the steps:
+        each tile is whole when it is published."""
         a = np.asarray(z, np.float32)
         if a.shape != self.rep.shape:
             raise ValueError(f"map of shape {a.shape} is not the sync's {self.rep.shape}")
@@ -217,8 +231,9 @@ class MapSync:
         n = 0
         for t in range(self.rep.n_tiles):
             sub = a[self.rep.tile_slice(t)]
-            if self.rep.changed(t, sub) and self._publish_tile(t, sub, now_s):
-                n += 1
+            if self.rep.changed(t, sub):
+                n += int(self._publish_tile(t, sub, now_s))
+                yield
         return n
 
     def _publish_tile(self, t: int, sub: F32, now_s: float) -> bool:
@@ -497,17 +512,23 @@ class MapSync:
         return sp.encode(sp.Tile(self.agent, self.frame, self._stamp(now_s), owner, t, rec.version,
                                  rec.digest, rec.blob))
 
-    def poll(self, now_s: float) -> list[bytes]:
-        """The datagrams to send now, paced to ``rate_bps``."""
+    def poll(self, now_s: float, max_bytes: int | None = None) -> list[bytes]:
+        """The datagrams to send now, paced to ``rate_bps``; with ``max_bytes`` (a radio shared
+        with other traffic: what is left of its budget) a packet is made only while one of
+        ``mtu_bytes`` still fits."""
         if self._started_s is None:
             self._started_s = now_s
         self._now = now_s
         out: list[bytes] = []
+        used = 0
         while self.pacer.ready(now_s):
+            if max_bytes is not None and used + self.cfg.mtu_bytes > max_bytes:
+                break
             pkt = self._next_packet(now_s)
             if pkt is None:
                 break
             self.pacer.consume(len(pkt), now_s)
+            used += len(pkt)
             self.stats.packets_out += 1
             self.stats.bytes_out += len(pkt)
             self._last_tx_s = now_s

@@ -75,6 +75,8 @@ class FaceMapConfig:
                                    doc="neighbours of a point its plane is fitted to")
     facing_min_points: int = param(3, lo=1, hi=10**6, doc="points on planes facing the face that flag a cell")
     facing_max_points: int = param(20000, lo=0, hi=10**7, doc="points per view tested for facing the face (0: none)")
+    facing_beside_points: int = param(1, lo=0, hi=10**6,
+                                      doc="facing points that flag a cell beside a flagged one (0: off)")
     resolve_cells: float = param(0.0, lo=0.0, hi=100.0, units="cells",
                                  doc="a point whose matching window spans more face cells is not fused (0: off)")
 
@@ -459,6 +461,7 @@ class FaceMap:
         air_new = 0
         if eye is not None:
             air_new = self.carve(eye, parts if rays is None else rays)
+            facing_new += self.overhangs.beside_flags(self.cfg)
         return FaceMergeStats(stats, flagged + air_new + facing_new, n_second, air_new, facing_new, grazing)
 
     def carve(self, eye: F64, parts: list[ViewPart]) -> int:

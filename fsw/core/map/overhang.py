@@ -22,7 +22,12 @@ crevice behind it) the cell is flagged (:attr:`Overhangs.overhang`), not average
   going out, passes from air into ground: the ground above them along the normal ends in air
   again (the face map's slab ends in air), so their column holds two surfaces. It is the rock's
   side that faces up the face, seen from above, over the crevice behind it; it needs no fused
-  height (the tests above compare with the cell's height, which may be either surface).
+  height (the tests above compare with the cell's height, which may be either surface);
+* beside a flag (:meth:`Overhangs.beside_flags`): a cell next to a flagged one with fewer facing
+  points than the facing test needs (``facing_beside_points``, one by default) is flagged: the
+  overhang's surfaces run on past the cell where a view counted enough of its facing ground
+  (a view resolves a rock's facing side at a few points of a cell near its edge, where the
+  local plane's neighbours straddle the edge and no plane is fitted).
 
 The tests read their parameters from the face map's config (:class:`OverhangParams`, the
 ``[face_map]`` section) and the face map's grid (``emap``); all coordinates are the face
@@ -35,6 +40,7 @@ from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from fsw.core.geometry import MapGrid
@@ -47,6 +53,7 @@ B = NDArray[np.bool_]
 _PLANE_POINTS = 8  # points a local plane is fitted to, at least
 _EDGE_ON = float(np.sin(np.radians(5.0)))  # a sight line closer to its plane sees it edge-on
 _PLANE_NEIGHBOURS = 32  # nearest points looked at, at most
+_PLANE_THIN = 1.0 / 3.0  # a plane's thickness under this share of its narrower width
 
 
 class OverhangParams(Protocol):
@@ -74,6 +81,8 @@ class OverhangParams(Protocol):
     def facing_min_points(self) -> int: ...
     @property
     def facing_max_points(self) -> int: ...
+    @property
+    def facing_beside_points(self) -> int: ...
 
 
 class Overhangs:
@@ -153,6 +162,20 @@ class Overhangs:
         self.overhang |= flag
         out[fin[sel[hit]]] = True
         return out, int(flag.sum())
+
+    def beside_flags(self, cfg: OverhangParams) -> int:
+        """The facing test beside a flag (module docstring): a cell holding ``facing_beside_points``
+        points on planes facing the face (fewer than ``facing_min_points``), next to a flagged cell
+        (of its eight neighbours), is flagged. An overhang's inner and outer surfaces run on past
+        the cell where a view counted enough of the facing ground between them; one such point
+        beside them is that ground seen in part. Run once per view, after its tests (a flag
+        spreads one cell per view at most). Returns the cells newly flagged."""
+        if cfg.facing_beside_points <= 0:
+            return 0
+        near = ndimage.binary_dilation(self.overhang, structure=np.ones((3, 3), bool))
+        flag = near & (self.facing >= cfg.facing_beside_points) & ~self.overhang
+        self.overhang |= flag
+        return int(flag.sum())
 
     def two_surfaces(self, emap: ElevationMap, gap: float, q: F64, var_w: F64,
                      min_points: int = 3) -> tuple[B, int, int]:
@@ -251,7 +274,7 @@ def local_normals(pts: F64, at: F64, radius_m: float) -> tuple[F64, B]:
     scatter = np.einsum("mki,mkj->mij", d, d) / np.maximum(cnt, 1)[:, None, None]
     ev, vec = np.linalg.eigh(scatter)  # ascending eigenvalues
     ev = np.maximum(ev, 0.0)
-    ok = (cnt >= _PLANE_POINTS) & (np.sqrt(ev[:, 0]) < np.sqrt(ev[:, 1]) / 3.0)
+    ok = (cnt >= _PLANE_POINTS) & (np.sqrt(ev[:, 0]) < _PLANE_THIN * np.sqrt(ev[:, 1]))
     return np.asarray(vec[:, :, 0], float), np.asarray(ok, bool)
 
 

@@ -4,7 +4,9 @@ Two files in ``[checkpoint] directory``: ``cliffbot_state.json`` (schema 1: the 
 state, legs, targets with what became of them, the estimate and its covariance) and
 ``cliffbot_map.npy`` (the received map, heights in the team's frame). Each is written to a
 temporary name and renamed over the old one, the map first, so a crash leaves the previous
-pair or the new one. A file that is missing, unreadable or inconsistent is refused with one
+pair or the new one. The radio task keeps a third, ``cliffbot_sync.json``: its map sync end's
+state (``fsw.comm.team.sync_end.FlightSync.state``), written after each sync round of its own
+and as the RECON-bot's tiles arrive. A file that is missing, unreadable or inconsistent is refused with one
 line (:class:`CheckpointError`), never a traceback; the mission then starts afresh.
 """
 
@@ -26,7 +28,7 @@ from fsw.tasks.cliffbot.legs import Leg
 from fsw.tasks.cliffbot_mission import CliffbotMission, Estimate
 
 SCHEMA = 1
-STATE, MAP = "cliffbot_state.json", "cliffbot_map.npy"
+STATE, MAP, SYNC = "cliffbot_state.json", "cliffbot_map.npy", "cliffbot_sync.json"
 STATES = ("WAIT_MAP", "SENSE", "PLAN", "WAIT_FIX", "DRIVE", "DWELL", "DONE", "SAFE")
 
 
@@ -160,6 +162,29 @@ class CheckpointFile:
         except OSError as exc:
             return describe(exc)
         return ""
+
+    def save_sync(self, state: dict[str, object]) -> str:
+        """Write the map sync end's state; returns "" or the one-line reason it was not written."""
+        if self.dir is None:
+            return ""
+        try:
+            self.dir.mkdir(parents=True, exist_ok=True)
+            self._atomic(SYNC, lambda f: f.write(json.dumps(state).encode()))
+        except OSError as exc:
+            return describe(exc)
+        return ""
+
+    def load_sync(self) -> dict[str, object] | None:
+        """The map sync end's state (None: there is none); :class:`CheckpointError` if unreadable."""
+        if self.dir is None or not (self.dir / SYNC).exists():
+            return None
+        try:
+            st = json.loads((self.dir / SYNC).read_text())
+            if not isinstance(st, dict):
+                raise ValueError("not a JSON object")
+        except (OSError, ValueError) as exc:
+            raise CheckpointError(f"{self.dir / SYNC}: {type(exc).__name__}: {exc}") from None
+        return st
 
     def _atomic(self, name: str, write: Callable[[BinaryIO], object]) -> None:
         assert self.dir is not None

@@ -114,3 +114,4 @@ class SensedMap:
     error_bound_m: float
     sense_seq: int
     own_cells: int
+    own: NDArray[np.float64] | None = None  # its own map alone (its views; NaN unknown): its map sync layer

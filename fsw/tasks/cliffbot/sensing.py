@@ -204,7 +204,8 @@ class CliffbotSensingTask(FlightTask):
             foot = (np.abs(X - a[0]) <= ANCHOR_FOOT_M) & (np.abs(Y - a[1]) <= ANCHOR_FOOT_M) & ~np.isfinite(z)
             z[foot] = a[2]
         self.tlm("own_cells", n)
-        self.publish(CB_SENSED_MAP, SensedMap(self.received.map_id, z, self.received.error_bound_m, self.answered, n))
+        self.publish(CB_SENSED_MAP, SensedMap(self.received.map_id, z, self.received.error_bound_m, self.answered, n,
+                                              own))
 
     # -- the work ------------------------------------------------------------------------------
     def run(self, frame: int) -> None:

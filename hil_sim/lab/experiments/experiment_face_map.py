@@ -43,6 +43,9 @@ truth: ``hil_sim.team.face_scene.team_points``, from the renderer's label of eac
 those of them that survive the mask into the map, and the gravity-grid cells they fall in
 (robot/tether cells mapped as terrain). Writes OUT/face_map.csv and ``docs/results/face-map.md``
 (medians, worst cases; ``--results-name`` names another, e.g. for a held-out run on other seeds).
+``--why`` runs the same scenes and, instead of the figures, sorts each missed truth overhang
+cell by what the views gave the detector there (``hil_sim.team.overhang_why``; writes
+``docs/results/NAME-overhang-misses.md``).
 ``--resolve-cells K`` sets the face map's incidence limit (docs/algorithm.md §8.1: a point whose
 stereo window spans more than K face cells is not fused; 0 off, the default).
 """
@@ -86,6 +89,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "than this is not fused (0: off; default: [face_map] resolve_cells)")
     p.add_argument("--config", default=str(DEFAULT_CONFIG), help="flight configuration (TOML)")
     p.add_argument("--out", type=Path, default=Path("out/face-map"), help="output directory")
+    p.add_argument("--why", action="store_true",
+                   help="instead of the figures: why each missed truth overhang cell was missed "
+                        "(hil_sim.team.overhang_why), written to docs/results/NAME-overhang-misses.md")
     p.add_argument("--results-name", default="face-map",
                    help="results file docs/results/NAME.md (e.g. a held-out run on other seeds)")
 
@@ -115,6 +121,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"{me}: {exc}", file=sys.stderr)
         return 2
     seeds = list(range(args.seed, args.seed + args.scenes))
+    if args.why:
+        return _why(args, seeds)
     rows: list[dict[str, Any]] = []
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         futs = {pool.submit(scene, args.scenario, s, args.config, args.recon_views, args.cliff_views,
@@ -141,6 +149,33 @@ def run(args: argparse.Namespace) -> int:
     md = report(rows, markdown_table)
     print(md)
     write_results(args.results_name, command_line("face-map"), md)
+    return 0 if len(rows) == len(seeds) else 1
+
+
+def _why(args: argparse.Namespace, seeds: list[int]) -> int:
+    """``--why``: the missed overhang cells' reasons per scene, in parallel, and the results file."""
+    from hil_sim.lab.results import command_line, markdown_table, write_results
+    from hil_sim.team.overhang_why import why_report, why_scene
+
+    rows: list[dict[str, Any]] = []
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        futs = {pool.submit(why_scene, args.scenario, s, args.config, args.recon_views, args.cliff_views,
+                            args.resolve_cells): s for s in seeds}
+        for fut in as_completed(futs):
+            try:
+                rows.append(fut.result())
+            except Exception as exc:  # noqa: BLE001 - one failed scene is reported, the rest go on
+                print(f"seed {futs[fut]}: FAILED {type(exc).__name__}: {exc}", file=sys.stderr)
+                continue
+            r = rows[-1]
+            print(f"[{len(rows)}/{len(seeds)}] seed {r['seed']}: overhangs {r['flagged']}/{r['truth']}, "
+                  f"missed {r['missed']}, false {r['false']}", flush=True)
+    rows.sort(key=lambda r: r["seed"])
+    if not rows:
+        return 1
+    md = why_report(rows, markdown_table)
+    print(md)
+    write_results(f"{args.results_name}-overhang-misses", command_line("face-map"), md)
     return 0 if len(rows) == len(seeds) else 1
 
 

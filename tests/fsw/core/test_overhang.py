@@ -91,3 +91,40 @@ def test_an_overhang_is_no_height_in_the_one_heightfield() -> None:
     q = f.to_face(np.column_stack([X[own][~hole], Y[own][~hole], z[own][~hole]]))
     iy, ix, inside = face.grid.cell_index(q[:, 0], q[:, 1])
     assert inside.all() and not face.overhang[iy, ix].any()  # every answer stands on a single surface
+
+
+def test_a_flag_spreads_to_the_cells_beside_it_that_show_some_facing_ground() -> None:
+    """A rock's side that faces the face over two rows of cells, seen densely over the lower row
+    and at two points per cell over the upper one (the view resolves its edge in part): the upper
+    row's cells hold fewer facing points than the facing test needs, but those with one lie
+    beside a flagged cell and are flagged too. The face beyond (no facing point) stays unflagged, and
+    with the spread off the upper row is missed."""
+    f = _frame()
+    eye = [0.5, 3.0, 0.3]
+
+    def view(cfg: FaceMapConfig) -> FaceMap:
+        rng = np.random.default_rng(5)
+        face = FaceMap(f, (0.0, 1.0), (0.0, 1.0), cfg)
+        n = 2000
+        u = rng.uniform(0.0, 1.0, n)
+        v = np.where(np.arange(n) < 600, rng.uniform(0.2, 0.25, n), rng.uniform(0.3, 1.0, n))
+        uc = np.repeat(np.arange(20) * 0.05 + 0.025, 2) + np.tile([-0.01, 0.01], 20)  # two per upper cell
+        vc = np.tile([0.26, 0.28], 20)
+        u, v = np.concatenate([u, uc]), np.concatenate([v, vc])
+        side = v < 0.3
+        w = np.where(side, 0.3 + 3.0 * (v - 0.25), 0.0) + rng.normal(0.0, 0.002, len(u))
+        q = np.column_stack([u, v, w])
+        cov = np.tile(np.eye(3)[None] * 1e-5, (len(q), 1, 1))
+        face.merge_parts([(f.to_world(q), cov, None)], eye=f.to_world(np.array([eye]))[0])
+        return face
+
+    cfg = FaceMapConfig(cell_m=0.05)
+    face = view(cfg)
+    lower, upper = face.overhang[4, 1:-1], face.overhang[5, 1:-1]  # the rows' inner cells
+    assert lower.all() and (face.facing[4, 1:-1] >= cfg.facing_min_points).all()
+    some = face.facing[5, 1:-1] >= 1  # the upper cells where a point's plane was fitted
+    assert (face.facing[5, 1:-1] < cfg.facing_min_points).all() and some.sum() >= 5
+    assert (upper == some).all(), face.overhang.astype(int)
+    assert not face.overhang[6:, :].any()  # the face beyond: no facing ground, no flag
+    off = view(FaceMapConfig(cell_m=0.05, facing_beside_points=0))
+    assert off.overhang[4, 1:-1].all() and not off.overhang[5, :].any()

@@ -1,0 +1,190 @@
+"""Why a truth overhang cell was not flagged: ``safer-hil experiment face-map --why``.
+
+:class:`WhyScene` is the face-map experiment's scene (``hil_sim.team.face_scene.FaceScene``) that
+also keeps each view's points in the face frame as they reach the face map (and those the
+hand-over sent to the gravity grid). :func:`miss_reasons` then looks at every truth overhang cell
+(``hil_sim.team.face_eval``: the normal through the cell's centre crosses the true surface more
+than once, first and last crossing more than the gap apart) the face map did not flag, and
+records what the views gave the detector there:
+
+* ``unobservable``: no true sight line shows the cell as two surfaces
+  (``face_eval.overhang_shown``);
+* ``no_inner``: no measured point lies near the inner surface (the first crossing, within half
+  the gap) and no facing point or ray under it was counted;
+* ``both_one_view``: one view has points near both surfaces in the cell (the within-view test's
+  sub-cell or point count refused them);
+* ``both_across``: the points near both surfaces come from different views only (the pooling:
+  the across-view test's gate refused them);
+* ``facing_few``, ``air_few``: the facing or the free-space test counted some evidence, below
+  its threshold;
+* ``neighbour_flagged``: a neighbouring cell is flagged (the flag lies a cell off: resolution);
+* ``handed_over``: points near either surface in the cell's column went to the gravity grid
+  only (the hand-over);
+* ``spread``: the points in the cell, pooled over views, spread along the normal by more than
+  the gap plus 3 sigma of their noise.
+
+A missed cell may have several; ``primary`` is the first of the order above that holds.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fsw.core.map.face_map import FaceMap
+from hil_sim.team.face_eval import overhang_shown, truth_along_normal
+from hil_sim.team.face_scene import FaceScene
+from hil_sim.world.world import World
+
+F64 = NDArray[np.float64]
+REASONS = ("unobservable", "no_inner", "both_one_view", "both_across", "facing_few", "air_few",
+           "neighbour_flagged", "handed_over", "spread")
+
+
+class WhyScene(FaceScene):
+    """A :class:`FaceScene` that keeps each fused view's points in the face frame."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.kept: list[tuple[F64, F64, F64]] = []  # per view: face q (N, 3), var_w (N,), routed to face (N,)
+
+    def _fuse(self, agent: str, parts: Any, eye: F64, window_rad: float) -> None:
+        assert self.face is not None
+        if parts:
+            xyz = np.concatenate([p[0] for p in parts])
+            cov = np.concatenate([p[1] for p in parts])
+            q = self.face.frame.to_face(xyz)
+            var_w = self.face.frame.cov_to_face(cov)[:, 2, 2]
+            to_face, _ = self.face.routes(xyz)
+            self.kept.append((q, var_w, to_face))
+        super()._fuse(agent, parts, eye, window_rad)
+
+
+def first_crossing(world: World, face: FaceMap, cells: NDArray[np.intp], reach_m: float = 0.25,
+                   step_m: float = 0.005) -> F64:
+    """Where the normal through each cell centre first leaves the true ground (the inner surface
+    of an overhang; NaN: none)."""
+    g = face.grid
+    ws = np.arange(-face.cfg.slab_in_m - reach_m, face.cfg.slab_out_m + reach_m + step_m / 2, step_m)
+    u = g.x0 + (cells % g.nx + 0.5) * g.cell
+    v = g.y0 + (cells // g.nx + 0.5) * g.cell
+    q = np.stack(np.broadcast_arrays(u[:, None], v[:, None], ws[None, :]), axis=-1)
+    p = face.frame.to_world(q.reshape(-1, 3)).reshape(q.shape)
+    air = p[..., 2] - np.nan_to_num(world.ground_at(p[..., 0], p[..., 1]), nan=1e9) > 0
+    up = ~air[:, :-1] & air[:, 1:]
+    has = up.any(axis=1)
+    return np.where(has, ws[np.argmax(up, axis=1)] + 0.5 * step_m, np.nan)
+
+
+def miss_reasons(scene: WhyScene) -> dict[str, Any]:
+    """Counts of the reasons (module docstring) over the scene's missed truth overhang cells, and
+    the truth, flagged and missed counts."""
+    face = scene.face
+    out: dict[str, Any] = {"seed": scene.seed, "truth": 0, "flagged": 0, "missed": 0}
+    out.update({f"has_{r}": 0 for r in REASONS})
+    out.update({f"primary_{r}": 0 for r in REASONS})
+    if face is None:
+        return out
+    g = face.grid
+    cells = np.flatnonzero(face.map.mapped.reshape(-1))
+    w_out, over = truth_along_normal(scene.world, face, cells)
+    flagged = face.overhang.reshape(-1)[cells]
+    shown = overhang_shown(scene.world, face, cells, w_out, over, scene.true_rays)
+    out["truth"], out["flagged"] = int(over.sum()), int((over & flagged).sum())
+    miss = over & ~flagged
+    out["missed"] = int(miss.sum())
+    mc = cells[miss]
+    if mc.size == 0:
+        return out
+    w_in = first_crossing(scene.world, face, mc)
+    w_o = w_out[miss]
+    gap = face.cfg.overhang_gap_m
+    half = 0.5 * gap
+    index = {int(c): k for k, c in enumerate(mc)}
+    m = len(mc)
+    near_in = np.zeros((len(scene.kept), m), bool)
+    near_out = np.zeros((len(scene.kept), m), bool)
+    grav_in = np.zeros(m, bool)
+    grav_out = np.zeros(m, bool)
+    face_in = np.zeros(m, bool)
+    face_out = np.zeros(m, bool)
+    ws: list[list[float]] = [[] for _ in range(m)]
+    vs: list[list[float]] = [[] for _ in range(m)]
+    for k, (q, var_w, to_face) in enumerate(scene.kept):
+        iy, ix, inside = g.cell_index(q[:, 0], q[:, 1])
+        c = np.where(inside, iy * g.nx + ix, -1)
+        for j in np.flatnonzero(np.isin(c, mc)):
+            i = index[int(c[j])]
+            a_in = abs(q[j, 2] - w_in[i]) < half
+            a_out = abs(q[j, 2] - w_o[i]) < half
+            near_in[k, i] |= a_in
+            near_out[k, i] |= a_out
+            if to_face[j]:
+                face_in[i] |= a_in
+                face_out[i] |= a_out
+                ws[i].append(float(q[j, 2]))
+                vs[i].append(float(var_w[j]))
+            else:
+                grav_in[i] |= a_in
+                grav_out[i] |= a_out
+    flag2 = face.overhang
+    pad = np.pad(flag2, 1)
+    nb = np.zeros(g.shape, bool)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dy or dx:
+                nb |= pad[1 + dy:1 + dy + g.ny, 1 + dx:1 + dx + g.nx]
+    facing = face.facing.reshape(-1)[mc]
+    air = face.air.reshape(-1)[mc]
+    has: dict[str, NDArray[np.bool_]] = {}
+    has["unobservable"] = ~shown[miss]
+    has["no_inner"] = ~near_in.any(axis=0) & (facing == 0) & (air == 0)
+    has["both_one_view"] = (near_in & near_out).any(axis=0)
+    has["both_across"] = near_in.any(axis=0) & near_out.any(axis=0) & ~has["both_one_view"]
+    has["facing_few"] = (facing > 0) & (facing < face.cfg.facing_min_points)
+    has["air_few"] = (air > 0) & (air < face.cfg.air_min_rays)
+    has["neighbour_flagged"] = nb.reshape(-1)[mc]
+    has["handed_over"] = (grav_in & ~face_in) | (grav_out & ~face_out)
+    spread = np.zeros(m, bool)
+    for i in range(m):
+        if len(ws[i]) >= 2:
+            w = np.asarray(ws[i])
+            s = 3.0 * np.sqrt(np.median(vs[i]))
+            spread[i] = np.percentile(w, 95) - np.percentile(w, 5) > gap + s
+    has["spread"] = spread
+    taken = np.zeros(m, bool)
+    for r in REASONS:
+        out[f"has_{r}"] = int(has[r].sum())
+        out[f"primary_{r}"] = int((has[r] & ~taken).sum())
+        taken |= has[r]
+    out["primary_none"] = int((~taken).sum())
+    return out
+
+
+def why_scene(spec: str, seed: int, config: str, n_recon: int, n_cliff: int,
+              resolve_cells: float | None = None) -> dict[str, Any]:
+    """One scene's miss reasons and its false flags (deterministic per seed)."""
+    s = WhyScene(spec, seed, config, resolve_cells=resolve_cells)
+    row = s.measure(n_recon, n_cliff)
+    return {**miss_reasons(s), "false": row["overhang_false"], "false_part": row["overhang_false_part"]}
+
+
+def why_report(rows: list[dict[str, Any]], table: Any) -> str:
+    """The pooled reasons (each reason: the missed cells that have it, and those for which it is
+    the first in the order of the module docstring) and the per-scene table."""
+    missed = sum(r["missed"] for r in rows)
+    summary = [{"figure": "truth overhang cells", "cells": sum(r["truth"] for r in rows)},
+               {"figure": "flagged", "cells": sum(r["flagged"] for r in rows)},
+               {"figure": "missed", "cells": missed},
+               {"figure": "false flags (of them, an overhang covers part of the cell)",
+                "cells": f"{sum(r['false'] for r in rows)} ({sum(r['false_part'] for r in rows)})"}]
+    for k in REASONS:
+        summary.append({"figure": f"missed: {k}", "cells": sum(r[f"has_{k}"] for r in rows),
+                        "first reason": sum(r[f"primary_{k}"] for r in rows)})
+    summary.append({"figure": "missed: none of these", "cells": "",
+                    "first reason": sum(r.get("primary_none", 0) for r in rows)})
+    cols = ["seed", "truth", "flagged", "missed", "false", "false_part", *(f"primary_{k}" for k in REASONS)]
+    return ("## Why truth overhang cells were missed\n\n" + table(summary, ["figure", "cells", "first reason"])
+            + "\n\n## Scenes (first reason per missed cell)\n\n" + table(rows, cols) + "\n")
