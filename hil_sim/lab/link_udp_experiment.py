@@ -152,6 +152,7 @@ def _row(spec: UdpRunSpec, rover: list[dict[str, Any]], cb: list[dict[str, Any]]
                                spec.rate_bps, spec.loss, spec.ber, seg), 1), "ratio": None,
                            "sender": result.get("result", "?"), "close": closed.get("how", "-"),
                            "exit_codes": "/".join(map(str, rcs)), "run_wall_s": round(wall_s, 1),
+                           "relay_stopped": rel.get("stopped", "-"),  # "idle" after the traffic, or "duration"
                            "retransmits": result.get("stats", {}).get("retransmits"),
                            "realised_loss": None, "realised_answer_loss": None, "ratio_realised": None}
     if start and report:

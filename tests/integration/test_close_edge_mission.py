@@ -13,7 +13,7 @@ import pytest
 
 from hil_sim.mission.mission_run import RunSpec, run_mission
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]  # a lockstep mission each: minutes on a loaded machine
 
 
 def test_close_edge_mission_moves_safely():

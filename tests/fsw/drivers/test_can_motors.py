@@ -63,9 +63,10 @@ class Rig:
             self.drv.poll(self.t)
             self.events += self.drv.drain_events()
 
-    def settle(self, timeout_s: float = 10.0) -> None:
+    def settle(self, timeout_s: float = 60.0) -> None:
         """Over ``udp_hub``: wait until the hub knows both nodes and has relayed every frame sent
-        (loopback delivery is complete when the hub's ``sendto`` returns)."""
+        (loopback delivery is complete when the hub's ``sendto`` returns). Returns as soon as it
+        has; the limit only ends a hang (a loaded machine may not run the hub's thread for seconds)."""
         if self.hub is None:
             return
         hub, sent = self.hub, lambda: self.sim_bus.frames_sent + self.fsw_bus.frames_sent

@@ -21,7 +21,9 @@ from hil_sim.hw.can_hub import CanHub
 pytestmark = pytest.mark.req("31.1")
 
 
-def wait_for(pred, timeout_s: float = 5.0) -> None:  # type: ignore[no-untyped-def]
+def wait_for(pred, timeout_s: float = 60.0) -> None:  # type: ignore[no-untyped-def]
+    """Until ``pred()`` holds: returns as soon as it does; the limit only ends a hang (a loaded
+    machine may not run the hub's thread for seconds)."""
     deadline = time.monotonic() + timeout_s
     while not pred():
         assert time.monotonic() < deadline, "timed out"

@@ -201,6 +201,7 @@ def test_every_numeric_key_refuses_nan_inf_and_minus_inf_in_the_loader() -> None
             assert err.value.key == _dotted(key) and "\n" not in str(err.value), (_dotted(key), value, err.value)
 
 
+@pytest.mark.slow  # seconds of CPU
 def test_every_numeric_key_is_refused_by_its_cli_with_exit_2_and_one_line(tmp_path: Path, capsys: Any) -> None:
     """req(12.2): through the command-line tool that reads the file: exit 2, one line, file and key."""
     for i, (root, _cls, base, key) in enumerate(CASES):
