@@ -230,7 +230,7 @@ def test_a_long_drive_keeps_its_drift_away_from_unknown_ground():
     assert off.check((0.0, 0.0, 0.0), (3.0, 0.0, 0.0)).allowed
 
 
-def test_with_no_edge_fitted_the_wheels_keep_the_margin_from_the_maps_frontier():
+def test_the_wheels_keep_the_margin_from_the_maps_frontier_where_a_lip_may_hide():
     """cliff-team seeds 1 and 2: the face below the lip is hidden from the plateau, so no drop
     cell is mapped near it and no edge is fitted; the plateau is mapped to the lip (the last
     cell straddles it) and known ground reaches known_fill_m past that. A rover backing toward
@@ -251,3 +251,9 @@ def test_with_no_edge_fitted_the_wheels_keep_the_margin_from_the_maps_frontier()
     assert not gf.check(close, (0.0, -0.62, math.pi / 2)).allowed
     # the planner's edge-only check is unchanged (the mission's check is the one that refuses)
     assert gf.check(here, (0.0, -0.65, math.pi / 2), known_ground=False).allowed
+    # an edge fitted elsewhere (cliff-team seed 2, step 4: fitted where the face shows, its end
+    # short of the rover) does not vouch for the unmapped ground behind the rover either
+    fitted = fence(mapped_box(-1.0, 3.0, -1.06, 1.0), edge_along_x(-2.5, 2.0, 5.0), stand=here)
+    v = fitted.check(here, (0.0, -0.65, math.pi / 2))
+    assert not v.allowed and "rear" in v.reason and "unknown ground" in v.reason
+    assert fitted.check(here, (0.0, -0.45, math.pi / 2)).allowed
