@@ -220,13 +220,15 @@ def point_mast(
     mast: MastConfig,
     lift_m: float,
     ground_z_m: float = 0.0,
+    attitude: tuple[float, float] = (0.0, 0.0),
 ) -> tuple[tuple[float, float, float], bool]:
     """Mast joints ``(pan, tilt, lift)`` that put the camera's optical axis through ``target_xyz``
-    (world), for a level rover at ``rover_xy_yaw`` on ground ``ground_z_m`` with the head at
-    ``lift_m``; and whether the mast reaches them. The joints are clamped to the mast's limits
-    (pan wrapped to [-pi, pi] first); ``reachable`` is false when the clamp moved pan or tilt by
-    more than 1e-6 rad (the camera would not look at the target)."""
-    pan, tilt = mast_angles(rover_xy_yaw, target_xyz, mast, lift_m, ground_z_m)
+    (world), for a rover at ``rover_xy_yaw`` on ground ``ground_z_m`` with the body attitude
+    ``(roll, pitch)`` (level by default) and the head at ``lift_m``; and whether the mast reaches
+    them. The joints are clamped to the mast's limits (pan wrapped to [-pi, pi] first);
+    ``reachable`` is false when the clamp moved pan or tilt by more than 1e-6 rad (the camera
+    would not look at the target)."""
+    pan, tilt = mast_angles(rover_xy_yaw, target_xyz, mast, lift_m, ground_z_m, attitude)
     joints = mast.clamp(pan, tilt, lift_m)
     return joints, abs(joints[0] - pan) <= 1e-6 and abs(joints[1] - tilt) <= 1e-6
 
@@ -237,11 +239,19 @@ def mast_angles(
     mast: MastConfig,
     lift_m: float,
     ground_z_m: float = 0.0,
+    attitude: tuple[float, float] = (0.0, 0.0),
 ) -> tuple[float, float]:
     """Pan (wrapped to [-pi, pi]) and tilt that put the camera's optical axis through
-    ``target_xyz``, before the mast's limits (:func:`point_mast` clamps them)."""
-    cam = camera_pose_from_rover(rover_xy_yaw, (0.0, 0.0, lift_m), mast, ground_z_m=ground_z_m).t
-    dx, dy, dz = (float(target_xyz[i]) - float(cam[i]) for i in range(3))
+    ``target_xyz``, before the mast's limits (:func:`point_mast` clamps them). With a body
+    attitude ``(roll, pitch)`` the direction is taken in the body's frame (the joints turn the
+    head relative to the body, :func:`camera_pose_from_rover`)."""
+    cam = camera_pose_from_rover(rover_xy_yaw, (0.0, 0.0, lift_m), mast, ground_z_m, attitude).t
+    d = np.asarray(target_xyz, dtype=float)[:3] - cam
+    roll, pitch = attitude
+    if roll != 0.0 or pitch != 0.0:
+        db = body_rotation(rover_xy_yaw[2], pitch, roll).T @ d
+        return wrap_angle(math.atan2(db[1], db[0])), math.atan2(db[2], math.hypot(db[0], db[1]))
+    dx, dy, dz = (float(v) for v in d)
     return wrap_angle(math.atan2(dy, dx) - rover_xy_yaw[2]), math.atan2(dz, math.hypot(dx, dy))
 
 

@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.comm.team import fix_packets
-from fsw.core.geometry import CameraPose, MapGrid, mast_angles, point_mast
+from fsw.core.geometry import CameraPose, MapGrid, mast_angles, point_mast, wrap_angle
 from fsw.core.localization.fiducials import BodyEstimate, CliffbotLocalizer
 from fsw.core.localization.landmarks import Landmark, anchor_marker_corners, camera_from_landmarks
 from fsw.core.localization.localization import PoseEstimate, so3_log
@@ -83,6 +83,7 @@ class Shot:
     kind: str
     view_id: int
     target: tuple[float, float, float]  # what the mast points at (team frame)
+    plate: int = -1  # the plate's marker id (a view of a plate)
 
 
 class CliffbotFixerTask(FlightTask):
@@ -98,13 +99,17 @@ class CliffbotFixerTask(FlightTask):
     )
     EVENTS = (
         EventDef("FIX_SENT", Severity.ACTIVITY_HI, "request {seq}: Cliff-bot at {x:.2f}, {y:.2f} m, heading "
-                 "{yaw_deg:.1f} deg, sigma {sigma_cm:.1f} cm"),
+                 "{yaw_deg:.1f} deg, sigma {sigma_cm:.1f} cm, {basis}"),
         EventDef("NO_FIX_SENT", Severity.ACTIVITY_LO, "request {seq}: no fix ({reason})", throttle=10),
         EventDef("TURN_TO_CLIFFBOT", Severity.ACTIVITY_HI, "request {seq}: the Cliff-bot is {pan_deg:.0f} deg "
                  "off the body, out of the mast's pan: turning {turn_deg:+.1f} deg in place"),
-        EventDef("TURNED", Severity.ACTIVITY_LO, "turn toward the Cliff-bot {outcome}{why}"),
-        EventDef("LANDMARKS", Severity.ACTIVITY_LO, "camera resected on {n} of {views} views of the Anchorbots' "
-                 "plates: yaw {dyaw_deg:+.2f} deg, {dxy_cm:.1f} cm from the rover's estimate"),
+        EventDef("TURNED", Severity.ACTIVITY_LO, "turn {outcome}{why}"),
+        EventDef("TURN_TO_PLATE", Severity.ACTIVITY_HI, "no plate resected; plate {plate} is out of the mast's "
+                 "pan: turning {turn_deg:+.1f} deg in place, then viewing the plates again"),
+        EventDef("LANDMARKS", Severity.ACTIVITY_LO, "camera resected on plates {ids} ({n} of {views} views): yaw "
+                 "{dyaw_deg:+.2f} deg, {dxy_cm:.1f} cm from the rover's estimate{missed}"),
+        EventDef("NO_LANDMARKS", Severity.WARNING_LO, "no Anchorbot plate resected ({missed}): this standing's "
+                 "fixes rest on the rover's estimate"),
     )
 
     def setup(self) -> None:
@@ -134,6 +139,9 @@ class CliffbotFixerTask(FlightTask):
         self.standing: tuple[float, ...] | None = None  # the rover's pose the landmarks were seen from
         self.surveyed = 0
         self.surveying = False
+        self.missed: dict[int, str] = {}  # the plates of the last survey not resected, and why
+        self.plate_turned = -1  # the request a turn toward a plate was made for (one per request)
+        self.resurveyed = -1  # the request whose plates were viewed again (the estimate moved meanwhile)
         self.pending: fix_packets.FixRequest | None = None  # a request held while the plates are viewed
         self.turn_id: int | None = None  # the motion request of a turn toward the Cliff-bot
 
@@ -146,7 +154,8 @@ class CliffbotFixerTask(FlightTask):
         ready = self._mission_state() == "DONE" and self.pose is not None
         for req in self.requests.drain():
             if self.turn_id is not None:
-                self._no_fix(req.seq, BUSY)  # turning toward it: the next request is answered from there
+                if self.pending is None or self.pending.seq != req.seq:  # (a turn toward a plate: it waits)
+                    self._no_fix(req.seq, BUSY)  # turning toward it: the next request is answered from there
             elif self.current is not None:
                 if req.seq != self.current.seq:
                     self._no_fix(req.seq, BUSY)
@@ -183,28 +192,64 @@ class CliffbotFixerTask(FlightTask):
 
     def _survey(self, now: float) -> None:
         """View each Anchorbot's plate from where the rover stands (§5.2)."""
-        self.landmarks, self.standing = [], self._standing()
+        self.landmarks, self.standing, self.missed = [], self._standing(), {}
         self.shots = [Shot("anchor", SURVEY_VIEW + (self.surveyed + k) % (1 << 20),
-                           (float(c[:, 0].mean()), float(c[:, 1].mean()), float(c[:, 2].mean())))
-                      for k, c in enumerate(self.plates.values())]
+                           (float(c[:, 0].mean()), float(c[:, 1].mean()), float(c[:, 2].mean())), mid)
+                      for k, (mid, c) in enumerate(self.plates.items())]
         self.surveyed += len(self.shots)
         self.surveying, self.deadline = True, now + TIMEOUT_S
         self._next_shot()
 
     def _survey_done(self) -> None:
         self.surveying, self.shot, self.shots, self.phase = False, None, [], "idle"
+        if self.pending is not None and self._standing() != self.standing and self.resurveyed != self.pending.seq:
+            # the rover's estimate changed while its plates were viewed (a turn's last odometry came
+            # after the survey began): the views are of no one standing; view them again, once
+            self.resurveyed = self.pending.seq
+            self._survey(self.ctx.clock.now())
+            return
         self._report_landmarks()
         req, self.pending = self.pending, None
-        if req is not None:
+        if req is not None and not self.landmarks and self._turn_to_plate(req):
+            self.pending = req  # answered from the new standing, once its plates are viewed
+        elif req is not None:
             self._aim(req, self.ctx.clock.now())
+
+    def _turn_to_plate(self, req: fix_packets.FixRequest) -> bool:
+        """With no plate resected and a plate beyond the mast's pan only: turn the body in place
+        the least that brings it ``TURN_MARGIN_DEG`` inside the pan's range (at most
+        ``MAX_TURN_DEG``), when the Cliff-bot stays within the pan's range after it; once per
+        request (``plate_turned``). True when the turn was asked for."""
+        if self.plate_turned == req.seq or self.pose is None:
+            return False
+        cb = self._target(req)
+        if cb is None:
+            return False
+        mast = self.ctx.cfg.mast
+        lo, hi = math.radians(mast.pan_min_deg), math.radians(mast.pan_max_deg)
+        cb_pan = self._angles(cb)[0]
+        best: tuple[float, int] | None = None
+        for mid, c in self.plates.items():
+            if self.missed.get(mid) != "out of the mast's reach":
+                continue
+            turn = self._least_turn((float(c[:, 0].mean()), float(c[:, 1].mean()), float(c[:, 2].mean())))
+            if turn is None or not lo <= wrap_angle(cb_pan - turn) <= hi:
+                continue
+            if best is None or abs(turn) < abs(best[0]):
+                best = (turn, mid)
+        if best is None:
+            return False
+        self.plate_turned = req.seq
+        self._start_turn(best[0], self.ctx.clock.now())
+        self.event("TURN_TO_PLATE", plate=best[1], turn_deg=math.degrees(best[0]))
+        return True
 
     def _aim(self, req: fix_packets.FixRequest, now: float) -> None:
         assert self.pose is not None
-        if not (math.isfinite(req.x) and math.isfinite(req.y)):
+        target = self._target(req)
+        if target is None:
             self._no_fix(req.seq, OUT_OF_REACH)
             return
-        ground = self._height(req.x, req.y)
-        target = (req.x, req.y, (ground if math.isfinite(ground) else self.pose.z_m) + BODY_CENTRE_M)
         if self._joints(target) is None:
             self._no_fix(req.seq, OUT_OF_REACH)
             self._turn_toward(req.seq, target, now)
@@ -215,37 +260,64 @@ class CliffbotFixerTask(FlightTask):
         self.shots = [Shot("cliffbot", FIX_VIEW_BASE + req.seq, target)]
         self._next_shot()
 
-    def _turn_toward(self, seq: int, target: tuple[float, float, float], now: float) -> None:
-        """Turn the body in place so that the mast's pan reaches ``target`` (the request after the
-        turn is answered from there), when the pan range, not the tilt, is what it misses and the
-        turn is small: the least turn that puts the pan ``TURN_MARGIN_DEG`` inside the range, at
-        most ``MAX_TURN_DEG``. The motion task makes it with its normal checks (it refuses or
-        aborts a turn it may not make; event ``TURNED``)."""
+    def _target(self, req: fix_packets.FixRequest) -> tuple[float, float, float] | None:
+        """Where the mast aims for a request: its estimate, ``BODY_CENTRE_M`` above the map's ground
+        there (the rover's height off the map); None for a non-finite estimate."""
         assert self.pose is not None
-        p, mast = self.pose, self.ctx.cfg.mast
-        pan, tilt = mast_angles((p.x, p.y, p.yaw), target, mast, LIFT_M, ground_z_m=p.z_m)
+        if not (math.isfinite(req.x) and math.isfinite(req.y)):
+            return None
+        ground = self._height(req.x, req.y)
+        return req.x, req.y, (ground if math.isfinite(ground) else self.pose.z_m) + BODY_CENTRE_M
+
+    def _angles(self, target: tuple[float, float, float]) -> tuple[float, float]:
+        assert self.pose is not None
+        p = self.pose
+        return mast_angles((p.x, p.y, p.yaw), target, self.ctx.cfg.mast, LIFT_M, p.z_m, (p.roll, p.pitch))
+
+    def _least_turn(self, target: tuple[float, float, float]) -> float | None:
+        """The least turn in place that puts the pan to ``target`` ``TURN_MARGIN_DEG`` inside the
+        mast's range, when the pan range, not the tilt, is what it misses and the turn is at most
+        ``MAX_TURN_DEG``; None otherwise (or when the pan reaches it already)."""
+        mast = self.ctx.cfg.mast
+        pan, tilt = self._angles(target)
         if not math.radians(mast.tilt_min_deg) <= tilt <= math.radians(mast.tilt_max_deg):
-            return  # below or above the tilt's range: a turn does not bring it in
+            return None  # below or above the tilt's range: a turn does not bring it in
         lo = math.radians(mast.pan_min_deg + TURN_MARGIN_DEG)
         hi = math.radians(mast.pan_max_deg - TURN_MARGIN_DEG)
         turn = pan - hi if pan > hi else pan - lo if pan < lo else 0.0
-        if turn == 0.0 or abs(turn) > math.radians(MAX_TURN_DEG):
-            return
+        return None if turn == 0.0 or abs(turn) > math.radians(MAX_TURN_DEG) else turn
+
+    def _start_turn(self, turn: float, now: float) -> None:
         self.request_id += 1
         self.turn_id, self.phase, self.deadline = self.request_id, "turn", now + TIMEOUT_S
         self.motion.drain()
         self.publish(MOTION_REQUEST, MotionRequest(self.request_id, "turn", angle_rad=turn))
-        self.event("TURN_TO_CLIFFBOT", seq=seq, pan_deg=math.degrees(pan), turn_deg=math.degrees(turn))
+
+    def _turn_toward(self, seq: int, target: tuple[float, float, float], now: float) -> None:
+        """Turn the body in place so that the mast's pan reaches ``target`` (the request after the
+        turn is answered from there): :meth:`_least_turn`. The motion task makes it with its normal
+        checks (it refuses or aborts a turn it may not make; event ``TURNED``)."""
+        turn = self._least_turn(target)
+        if turn is None:
+            return
+        self._start_turn(turn, now)
+        self.event("TURN_TO_CLIFFBOT", seq=seq, pan_deg=math.degrees(self._angles(target)[0]),
+                   turn_deg=math.degrees(turn))
 
     def _turned(self, now: float) -> None:
         for st in self.motion.drain():
             if st.request_id == self.turn_id:
                 self.event("TURNED", outcome=str(st.state), why=f": {st.reason}" if st.reason else "")
-                self.turn_id, self.phase = None, "idle"
+                self._turn_ended(now)
                 return
         if now > self.deadline:
             self.event("TURNED", outcome="not confirmed", why=f" within {TIMEOUT_S:.0f} s")
-            self.turn_id, self.phase = None, "idle"
+            self._turn_ended(now)
+
+    def _turn_ended(self, now: float) -> None:
+        self.turn_id, self.phase = None, "idle"
+        if self.pending is not None:  # a turn toward a plate: view the plates from here, then answer
+            self._survey(now)
 
     def _standing(self) -> tuple[float, ...]:
         p = self.pose
@@ -253,10 +325,13 @@ class CliffbotFixerTask(FlightTask):
         return (p.x, p.y, p.yaw, p.z_m, float(p.fix_id))
 
     def _joints(self, target: tuple[float, float, float]) -> tuple[float, float, float] | None:
-        """The mast's joints that point the camera at ``target``; None when out of its reach."""
+        """The mast's joints that point the camera at ``target`` from the rover's estimate, its body
+        attitude included (a rover standing tilted, e.g. a wheel over the lip, aims as it stands);
+        None when out of its reach."""
         assert self.pose is not None
         p = self.pose
-        joints, reachable = point_mast((p.x, p.y, p.yaw), target, self.ctx.cfg.mast, LIFT_M, ground_z_m=p.z_m)
+        joints, reachable = point_mast((p.x, p.y, p.yaw), target, self.ctx.cfg.mast, LIFT_M, p.z_m,
+                                       (p.roll, p.pitch))
         return joints if reachable else None
 
     def _next_shot(self) -> None:
@@ -269,6 +344,7 @@ class CliffbotFixerTask(FlightTask):
                     assert self.current is not None
                     self._no_fix(self.current.seq, OUT_OF_REACH)
                     return
+                self.missed[shot.plate] = "out of the mast's reach"
                 continue
             self.shot, self.phase = shot, "aim"
             self.request_id += 1
@@ -279,6 +355,8 @@ class CliffbotFixerTask(FlightTask):
 
     def _shot_failed(self, reason: int) -> None:
         if self.surveying:
+            if self.shot is not None:
+                self.missed[self.shot.plate] = "no view" if reason == NO_MARKERS else "mast not pointed"
             self._next_shot()  # that plate is not seen
         elif self.current is not None:
             self._no_fix(self.current.seq, reason)
@@ -311,8 +389,12 @@ class CliffbotFixerTask(FlightTask):
                             on_done=functools.partial(self._resected, view))
             return
         assert self.current is not None
-        self.submit_job(self._locate(fr, self._joints_cov()), f"fix{self.current.seq}",
-                        on_done=functools.partial(self._located, self.current.seq, int(fr.time_s * 1000)))
+        ids = self.plate_ids()
+        basis = f"on plates {ids}" if ids else "on the rover's estimate"
+        assert self.pose is not None
+        self.submit_job(self._locate(fr, self._joints_cov(), frame_extra(self.pose, self.ctx.cfg)),
+                        f"fix{self.current.seq}",
+                        on_done=functools.partial(self._located, self.current.seq, int(fr.time_s * 1000), basis))
 
     def _height(self, x: float, y: float) -> float:
         if self.snapshot is None:
@@ -336,10 +418,10 @@ class CliffbotFixerTask(FlightTask):
         """The slack job of a view of the plates: the camera resected on the plates it sees."""
         yield
         left, right = yield from self._pair(fr)
-        est = self.loc.resect(self.plates, left, right)
-        if est is None or not np.isfinite(est.cov).all():
+        got = self.loc.camera_in(self.plates, left, right)
+        if got is None or not np.isfinite(got[0].cov).all():
             return None
-        return Landmark(est, fr.pose, joints_cov)
+        return Landmark(got[0], fr.pose, joints_cov, got[1])
 
     def _resected(self, view: int, handle: JobHandle) -> None:
         if not self.surveying or self.shot is None or self.shot.view_id != view:
@@ -347,30 +429,42 @@ class CliffbotFixerTask(FlightTask):
         got: Landmark | None = handle.result if handle.error is None else None
         if got is not None:
             self.landmarks.append(got)
+        else:
+            self.missed[self.shot.plate] = "not detected"
         self._next_shot()
 
     def _report_landmarks(self) -> None:
+        missed = ", ".join(f"{mid} {why}" for mid, why in sorted(self.missed.items())
+                           if not any(mid in lm.ids for lm in self.landmarks))
         if not self.landmarks:
+            self.event("NO_LANDMARKS", missed=missed or "no plate configured")
             return
         lm = self.landmarks[0]
         dR = lm.measured.pose.R @ lm.predicted.R.T
-        self.event("LANDMARKS", n=len(self.landmarks), views=len(self.plates),
+        self.event("LANDMARKS", ids=self.plate_ids(), n=len(self.landmarks), views=len(self.plates),
                    dyaw_deg=math.degrees(math.atan2(dR[1, 0], dR[0, 0])),
-                   dxy_cm=100 * float(np.linalg.norm((lm.measured.pose.t - lm.predicted.t)[:2])))
+                   dxy_cm=100 * float(np.linalg.norm((lm.measured.pose.t - lm.predicted.t)[:2])),
+                   missed=f"; not {missed}" if missed else "")
 
-    def camera_estimate(self, fr: CameraFrame, joints_cov: NDArray[np.float64]) -> PoseEstimate:
+    def plate_ids(self) -> str:
+        """The plates this standing's fixes rest on (``"11, 12"``; empty: none)."""
+        return ", ".join(str(i) for i in sorted({i for lm in self.landmarks for i in lm.ids}))
+
+    def camera_estimate(self, fr: CameraFrame, joints_cov: NDArray[np.float64],
+                        extra: NDArray[np.float64] | None = None) -> PoseEstimate:
         """The camera pose of the fix's view: from the views of the plates when there are any
-        (each carried to this view, fused), else the rover's estimate with its covariance."""
-        return fix_camera(self.landmarks, fr.pose, fr.pose_cov, joints_cov)
+        (each carried to this view, fused), else the rover's estimate with its covariance against
+        the team's frame (``extra``: :func:`frame_extra`)."""
+        return fix_camera(self.landmarks, fr.pose, fr.pose_cov, joints_cov, extra)
 
-    def _locate(self, fr: CameraFrame, joints_cov: NDArray[np.float64]
+    def _locate(self, fr: CameraFrame, joints_cov: NDArray[np.float64], extra: NDArray[np.float64]
                 ) -> Generator[None, None, BodyEstimate | None]:
         """The slack job: rectify the pair (when the camera has a calibration), find the markers, PnP."""
         yield
         left, right = yield from self._pair(fr)
-        return self.loc.locate(left, self.camera_estimate(fr, joints_cov), right)
+        return self.loc.locate(left, self.camera_estimate(fr, joints_cov, extra), right)
 
-    def _located(self, seq: int, t_ms: int, handle: JobHandle) -> None:
+    def _located(self, seq: int, t_ms: int, basis: str, handle: JobHandle) -> None:
         if self.current is None or self.current.seq != seq:
             return  # timed out meanwhile: already answered
         est: BodyEstimate | None = handle.result if handle.error is None else None
@@ -387,7 +481,7 @@ class CliffbotFixerTask(FlightTask):
         self.counts["fixes"] += 1
         sigma = math.sqrt(max(float(np.trace(est.cov[3:5, 3:5])), 0.0))
         self.event("FIX_SENT", seq=seq, x=float(est.t[0]), y=float(est.t[1]), yaw_deg=math.degrees(est.yaw),
-                   sigma_cm=100 * sigma)
+                   sigma_cm=100 * sigma, basis=basis)
         self._idle()
 
     def _no_fix(self, seq: int, reason: int) -> None:
@@ -410,10 +504,28 @@ def joints_covariance(pose: NavPose, cfg: FswConfig) -> NDArray[np.float64]:
     return camera_pose_covariance(still, cfg.mast, (js, js, cap.lift_sigma_m))[1]
 
 
+def frame_extra(pose: NavPose, cfg: FswConfig) -> NDArray[np.float64]:
+    """What the camera pose covariance of a view from ``pose`` lacks against the team's frame: the
+    errors of the map the rover registered on (``NavPose.frame_cov`` minus ``cov``, the
+    corrections before the last, ``fsw.core.localization.odometry``) carried through the mast's
+    chain at its joints (docs/algorithm.md §5.2, "A fix without a plate"). Zero without it."""
+    if pose.frame_cov is None:
+        return np.zeros((6, 6))
+    d = np.asarray(pose.frame_cov, float) - np.asarray(pose.cov, float)[:3, :3]
+    if not np.isfinite(d).all():
+        return np.zeros((6, 6))
+    still = dataclasses.replace(pose, cov=0.5 * (d + d.T), att_cov=None)
+    return camera_pose_covariance(still, cfg.mast, (0.0, 0.0, 0.0))[1]
+
+
 def fix_camera(landmarks: list[Landmark], pose: CameraPose, pose_cov: NDArray[np.float64],
-               joints_cov: NDArray[np.float64]) -> PoseEstimate:
+               joints_cov: NDArray[np.float64], extra: NDArray[np.float64] | None = None) -> PoseEstimate:
     """The camera pose of a fix's view: from the views of the plates of the same standing when
     there are any (each carried to this view, fused), else the rover's estimate ``pose`` with
-    its covariance."""
+    its covariance ``pose_cov`` plus ``extra`` (what it lacks against the team's frame,
+    :func:`frame_extra`)."""
     est = camera_from_landmarks(landmarks, pose, joints_cov)
-    return est if est is not None else PoseEstimate(pose, np.asarray(pose_cov, float))
+    if est is not None:
+        return est
+    cov = np.asarray(pose_cov, float) + (0.0 if extra is None else np.asarray(extra, float))
+    return PoseEstimate(pose, cov)

@@ -43,7 +43,8 @@ class NavPose:
     body attitude (roll, pitch, rad), height ``z_m`` and their 3x3 covariance ``att_cov``
     (docs/algorithm.md §5.1; None: level at z = 0, as before the attitude sensor). ``fix_id``: the
     last navigation fix applied to the pose (``fsw.core.localization.nav_fix``; 0: none), ``fix_seen`` the
-    last one received (applied or refused)."""
+    last one received (applied or refused). ``cov`` is relative to the map the rover registers on;
+    ``frame_cov`` against its start, the team's frame (``Odometry.frame_covariance``)."""
 
     time_s: float
     x: float
@@ -59,6 +60,7 @@ class NavPose:
     attitude_valid: bool = False
     fix_id: int = 0
     fix_seen: int = 0
+    frame_cov: NDArray[np.float64] | None = None  # (x, y, yaw) against the start, not the map (None: ``cov``)
 
 
 @dataclass(frozen=True)

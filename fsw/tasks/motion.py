@@ -319,6 +319,7 @@ class MotionTask(FlightTask):
                 attitude_valid=att.valid,
                 fix_id=self.fix_id,
                 fix_seen=self.fix_seen,
+                frame_cov=self.odo.frame_covariance(self.mcfg),
             ),
         )
 

@@ -82,6 +82,7 @@ class NavFixTerms:
     path0: float
     turned0: float
     lever: tuple[float, float]
+    frame_cov: NDArray[np.float64] | None = None  # the corrections' sum (older checkpoints: None)
 
 
 @dataclass(frozen=True)
@@ -136,8 +137,10 @@ class MotionSection:
         if "base_cov" not in o:
             return None
         lever = floats(o.get("lever", [0.0, 0.0]), "lever", 2)
+        frame = o.get("frame_cov")
         return NavFixTerms(np.asarray(matrix(o["base_cov"], "base_cov", 3, 3), dtype=np.float64),
-                           get_float(o, "path0"), get_float(o, "turned0"), (lever[0], lever[1]))
+                           get_float(o, "path0"), get_float(o, "turned0"), (lever[0], lever[1]),
+                           None if frame is None else np.asarray(matrix(frame, "frame_cov", 3, 3), dtype=np.float64))
 
     def apply_odometry(self, odo: Odometry) -> None:
         o = self.odometry
@@ -145,7 +148,7 @@ class MotionSection:
                     self.last_drive())
         fix = self.fix_terms()
         if fix is not None:
-            odo.restore_correction(fix.base_cov, fix.path0, fix.turned0, fix.lever)
+            odo.restore_correction(fix.base_cov, fix.path0, fix.turned0, fix.lever, fix.frame_cov)
 
 
 def section(v: object) -> MotionSection:

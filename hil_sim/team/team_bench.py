@@ -333,7 +333,8 @@ class CliffbotAgent:
 
     def _recon_pose(self) -> dict[str, Any] | None:
         """Where the RECON-bot stands at the end, in the team's frame: its estimate ``(x, y, yaw)``
-        with covariance, and the truth (``safer-hil experiment fiducials --missions``)."""
+        with covariance (relative to its map, and ``frame_cov`` against its start), and the truth
+        (``safer-hil experiment fiducials --missions``)."""
         motion = self.bench.exe.tasks.get("motion")
         odo = getattr(motion, "odo", None)
         if odo is None or not hasattr(motion, "mcfg"):
@@ -342,6 +343,7 @@ class CliffbotAgent:
         t = self.frame.to_map(np.array([[truth.x, truth.y]]))[0]
         return {"estimate": [float(v) for v in odo.pose],
                 "cov": np.asarray(odo.covariance(motion.mcfg), float).tolist(),
+                "frame_cov": np.asarray(odo.frame_covariance(motion.mcfg), float).tolist(),
                 "truth": [float(t[0]), float(t[1]), float(wrap_angle(truth.yaw - self.frame.yaw0))]}
 
     def _note_cycle(self) -> None:

@@ -12,6 +12,14 @@ Detection uses ``cv2.aruco.ArucoDetector``. Corner refinement matters: on the be
 the ``subpix`` and ``contour`` refinements put corners 0.3-0.8 px inside the marker, which
 reads as a target 1-2 cm too far at 3 m; ``apriltag`` (edge-line fit) is unbiased to
 0.05 px and is the default (docs/perception.md, "Localization").
+
+A far marker is small: an 18 cm one is 12-15 px on a side at 8-10 m, 2-2.5 px per cell of its
+grid, and the detector's thresholding and quad fit lose most of them. When fewer than two known
+markers are found (none of them ``SMALL_PX`` or more on a side), the image is searched again
+enlarged ``fiducial_upsample`` times (bicubic) by a detector tuned for small quads (finer
+adaptive-threshold windows, a looser polygon fit, 8 px per cell when reading the bits); its
+corners are scaled back. The pass with more known
+markers is used, and the right image is searched the same way.
 """
 
 from __future__ import annotations
@@ -38,6 +46,7 @@ from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
 _S45 = float(np.sqrt(0.5))
+SMALL_PX = 30.0  # a marker this large on a side is found without the enlarged pass
 _REFINE = {"none": cv2.aruco.CORNER_REFINE_NONE, "subpix": cv2.aruco.CORNER_REFINE_SUBPIX,
            "contour": cv2.aruco.CORNER_REFINE_CONTOUR, "apriltag": cv2.aruco.CORNER_REFINE_APRILTAG}
 
@@ -116,17 +125,43 @@ class CliffbotLocalizer:
         params = cv2.aruco.DetectorParameters()
         params.cornerRefinementMethod = _REFINE[cfg.corner_refinement]
         self.detector = cv2.aruco.ArucoDetector(dictionary, params)
+        small = cv2.aruco.DetectorParameters()  # the enlarged pass (module docstring)
+        small.cornerRefinementMethod = _REFINE[cfg.corner_refinement]
+        small.polygonalApproxAccuracyRate = 0.06
+        small.perspectiveRemovePixelPerCell = 8
+        small.adaptiveThreshWinSizeMin, small.adaptiveThreshWinSizeMax, small.adaptiveThreshWinSizeStep = 3, 15, 2
+        small.adaptiveThreshConstant = 5
+        small.minCornerDistanceRate = small.minMarkerDistanceRate = 0.02
+        self.small_detector = cv2.aruco.ArucoDetector(dictionary, small)
 
-    def detect(self, image: NDArray[np.uint8]) -> dict[int, F64]:
-        """``{id: (4, 2) pixel corners}`` of the dictionary's markers in one image (the first of an id)."""
-        corners, ids, _ = self.detector.detectMarkers(image)
+    def detect(self, image: NDArray[np.uint8], scale: int = 1) -> dict[int, F64]:
+        """``{id: (4, 2) pixel corners}`` of the dictionary's markers in one image (the first of an
+        id); ``scale`` > 1: searched enlarged that many times (the small-marker pass), corners in
+        the image's own pixels."""
+        if scale > 1:
+            big = cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_CUBIC)
+            corners, ids, _ = self.small_detector.detectMarkers(big)
+        else:
+            corners, ids, _ = self.detector.detectMarkers(image)
         out: dict[int, F64] = {}
         if ids is None:
             return out
         for c, i in zip(corners, ids.reshape(-1), strict=True):
             if int(i) not in out:
-                out[int(i)] = np.asarray(c, dtype=np.float64).reshape(4, 2)
+                # pixel centres: x_big = scale * (x + 0.5) - 0.5
+                out[int(i)] = (np.asarray(c, dtype=np.float64).reshape(4, 2) + 0.5) / scale - 0.5
         return out
+
+    def detect_known(self, known: dict[int, F64], left: NDArray[np.uint8]) -> tuple[dict[int, F64], int]:
+        """The markers of ``known`` in ``left`` and the scale they were found at: the image as it is,
+        or enlarged ``fiducial_upsample`` times when that finds more of them and fewer than two
+        were found as it is, none of them ``SMALL_PX`` or more on a side (module docstring)."""
+        seen = {i: c for i, c in self.detect(left).items() if i in known}
+        up = int(self.cfg.fiducial_upsample)
+        if len(seen) >= 2 or up <= 1 or any(_side_px(c) >= SMALL_PX for c in seen.values()):
+            return seen, 1  # (one marker found large: the others, as near, were not missed for size)
+        big = {i: c for i, c in self.detect(left, up).items() if i in known}
+        return (big, up) if len(big) > len(seen) else (seen, 1)
 
     def locate(self, left: NDArray[np.uint8], camera: PoseEstimate,
                right: NDArray[np.uint8] | None = None) -> BodyEstimate | None:
@@ -148,7 +183,7 @@ class CliffbotLocalizer:
                   ) -> tuple[PoseEstimate, tuple[int, ...], float] | None:
         """The left camera's pose in the frame the corners ``known`` are given in, the marker ids it
         rests on and its ambiguity (below), or None when too few corners are seen."""
-        seen_l = {i: c for i, c in self.detect(left).items() if i in known}
+        seen_l, scale = self.detect_known(known, left)
         if not seen_l:
             return None
         ids = sorted(seen_l)
@@ -163,7 +198,7 @@ class CliffbotLocalizer:
         cands = [c for c in cands if c.rms_px <= self.cfg.max_reproj_px]
         if not cands:
             return None
-        seen_r = self.detect(right) if right is not None else {}
+        seen_r = self.detect(right, scale) if right is not None else {}
         both = [i for i in ids if i in seen_r]
         if both:
             obj_r = np.concatenate([known[i] for i in both])

@@ -111,6 +111,7 @@ class Landmark:
     measured: PoseEstimate
     predicted: CameraPose
     joints_cov: F64
+    ids: tuple[int, ...] = ()  # the plates it rests on
 
 
 def camera_from_landmarks(landmarks: Sequence[Landmark], predicted: CameraPose, joints_cov: F64

@@ -59,6 +59,11 @@ class LocalizationConfig:
         15.0, lo=0.0, hi=1000.0, units="px",
         doc="a fix from one marker is refused when its mean side in the image is shorter than this",
     )
+    fiducial_upsample: int = param(
+        2, lo=1, hi=4,
+        doc="when fewer than two known markers are found, the image is searched again enlarged this many times "
+            "(small, far markers; 1: off)",
+    )
     gate_chi2: float = param(
         22.46, lo=1.0, hi=1e6, doc="chi-square gate (6 dof) of a pose update; 22.46 = 0.1 %"
     )

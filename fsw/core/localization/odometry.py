@@ -10,6 +10,14 @@ per-metre term, from the last correction (``correct``: a registered view fed bac
 on into position as the rover drives (a wheel that slips more on one side bends the path):
 the position sigma also grows by the heading sigma integrated over the distance driven,
 ``integral sigma_yaw(s) ds`` (:func:`drift_sigma`; the errors are systematic, so sigmas add).
+
+A correction's covariance is relative to the map the view registered on, not to the rover's
+start (the team's frame): the map there holds the pose error of the views that built it, which
+were registered in turn on the map before them. :meth:`Odometry.frame_covariance` is the
+covariance against the start: the corrections' covariances summed along that chain (each
+registration's error is independent of the one before, so variances add; taking every
+correction as a link is the upper end) plus the growth since the last one
+(docs/algorithm.md §5.2, "A fix without a plate").
 """
 
 from __future__ import annotations
@@ -41,6 +49,7 @@ class Odometry:
         # covariance()'s last inputs (the arrays held, so identity is safe) and result
         self._cov: tuple[tuple[float, ...], NDArray[np.float64], MotionConfig, NDArray[np.float64]] | None = None
         self.base_cov = np.zeros((3, 3))  # (x, y, yaw) covariance at the last correction
+        self.frame_cov = np.zeros((3, 3))  # the corrections' covariances summed (frame_covariance)
         self.path0 = self.turned0 = 0.0  # path and turn at the last correction (growth since)
         self.lever_path = self.lever_turn = 0.0  # integrals of (path, turn) since it over distance
 
@@ -76,6 +85,7 @@ class Odometry:
         self.path_m = self.turned_rad = self.path0 = self.turned0 = 0.0
         self.lever_path = self.lever_turn = 0.0
         self.base_cov = np.zeros((3, 3))
+        self.frame_cov = np.zeros((3, 3))
 
     def correct(self, pose: Pose3, cov: NDArray[np.float64]) -> None:
         """Take a corrected pose and its (x, y, yaw) covariance; the error grows from there.
@@ -84,6 +94,7 @@ class Odometry:
         self.yaw_acc += math.remainder(pose[2] - self.pose[2], math.tau)
         self.pose = pose
         self.base_cov = 0.5 * (np.asarray(cov, np.float64) + np.asarray(cov, np.float64).T)
+        self.frame_cov = self.frame_cov + self.base_cov
         self.path0, self.turned0 = self.path_m, self.turned_rad
         self.lever_path = self.lever_turn = 0.0
 
@@ -92,7 +103,8 @@ class Odometry:
         last = None if self._last_drive is None else self._last_drive.tolist()
         return {"pose": list(self.pose), "path_m": self.path_m, "turned_rad": self.turned_rad,
                 "yaw_acc": self.yaw_acc, "last_drive": last, "base_cov": self.base_cov.tolist(),
-                "path0": self.path0, "turned0": self.turned0, "lever": [self.lever_path, self.lever_turn]}
+                "path0": self.path0, "turned0": self.turned0, "lever": [self.lever_path, self.lever_turn],
+                "frame_cov": self.frame_cov.tolist()}
 
     def restore(self, pose: Pose3, path_m: float, turned_rad: float, yaw_acc: float,
                 last_drive: NDArray[np.float64] | None) -> None:
@@ -104,9 +116,12 @@ class Odometry:
         self._resume_drive = last_drive
 
     def restore_correction(self, base_cov: NDArray[np.float64], path0: float, turned0: float,
-                           lever: tuple[float, float] = (0.0, 0.0)) -> None:
-        """The last correction of a checkpointed dead reckoning (see ``correct``)."""
+                           lever: tuple[float, float] = (0.0, 0.0), frame_cov: NDArray[np.float64] | None = None
+                           ) -> None:
+        """The last correction of a checkpointed dead reckoning (see ``correct``); ``frame_cov``
+        the corrections' sum (None: a checkpoint without it, the last correction's alone)."""
         self.base_cov = np.asarray(base_cov, np.float64).reshape(3, 3)
+        self.frame_cov = self.base_cov.copy() if frame_cov is None else np.asarray(frame_cov, np.float64).reshape(3, 3)
         self.path0, self.turned0 = path0, turned0
         self.lever_path, self.lever_turn = lever
 
@@ -125,6 +140,11 @@ class Odometry:
         cov.setflags(write=False)
         self._cov = (key, self.base_cov, cfg, cov)
         return cov
+
+    def frame_covariance(self, cfg: MotionConfig) -> NDArray[np.float64]:
+        """3x3 covariance of (x, y, yaw) against the rover's start, not its map (module
+        docstring): :meth:`covariance` plus the earlier corrections' covariances."""
+        return self.covariance(cfg) + (self.frame_cov - self.base_cov)
 
 
 def position_sigma(path_m: F64 | float, sigma_yaw0: float, lever_path: F64 | float, lever_turn: F64 | float,

@@ -5,7 +5,8 @@ The RECON-bot localizes the Cliff-bot from its ArUco markers (docs/algorithm.md 
 (metres from the mast camera) the Cliff-bot is placed ``--poses`` times on the scenario's
 ground at a random bearing below the plateau, turned a random ``+-60`` deg away from facing
 the RECON-bot; the mast aims at it, the bench renders the stereo pair (sensor noise of the
-scenario, a new noise draw per pose) and the localizer solves the body pose. Per range:
+scenario, a new noise draw per pose) and the localizer solves the body pose. Per range: the
+placements where a Cliff-bot marker was detected and the largest one's side in the image (px),
 fixes obtained, median and worst position error (cm) and heading error (deg), and the
 fraction of fixes whose NEES (6-dof pose error normalised by the fix's own covariance) is
 within the chi-square 95 % bound (12.59). A fix from one marker whose mirror pose fits
@@ -24,7 +25,9 @@ team-mission --out DIR``; the summary's ``team.recon_pose``: the RECON-bot's est
 ended, its covariance and the truth) the RECON-bot stands at its TRUE end pose and aims and
 computes with its ESTIMATE, as the flight fixer does; the Cliff-bot is placed at each range
 toward the face. Each placement gives two fixes from the same pair: from the rover's estimate
-(with its covariance) and through the Anchorbots' plates (both plates viewed once from where
+(with its covariance against its start, as the flight's fix without a plate:
+``fsw.tasks.cliffbot_fixer.frame_extra``; a mission stored without ``frame_cov`` gives the
+map-relative one) and through the Anchorbots' plates (both plates viewed once from where
 it stands, ``fsw.core.localization.landmarks``). One process per mission (``--jobs``); writes
 OUT/fiducials_missions.csv and ``docs/results/fiducials-missions.md``.
 """
@@ -98,34 +101,39 @@ def run(args: argparse.Namespace) -> int:
     rows.sort(key=lambda r: (r["range_m"], r["pose"]))
     args.out.mkdir(parents=True, exist_ok=True)
     keys = ["range_m", "pose", "true_range_m", "fix", "pos_err_cm", "yaw_err_deg", "nees", "markers", "ambiguous",
-            "ambiguous_pos_err_cm", "ambiguous_yaw_err_deg"]
+            "ambiguous_pos_err_cm", "ambiguous_yaw_err_deg", "marker_px"]
     with open(args.out / "fiducials.csv", "w", newline="") as fh:
         wr = csv.DictWriter(fh, fieldnames=keys)
         wr.writeheader()
         wr.writerows(rows)
-    lines = ["| range (m) | placed | fixes | position error median / worst (cm) | heading error median / "
-             "worst (deg) | NEES within chi2 95 % | refused as ambiguous (their worst error, cm / deg) |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| range (m) | placed | markers detected: placements, largest side median (px) | fixes | position "
+             "error median / worst (cm) | heading error median / worst (deg) | NEES within chi2 95 % | refused as "
+             "ambiguous (their worst error, cm / deg) |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in ranges:
         sel = [row for row in rows if row["range_m"] == r]
         fx = [row for row in sel if row["fix"]]
         amb = [row for row in sel if row["ambiguous"]]
+        px = [row["marker_px"] for row in sel if row["marker_px"] > 0]
+        px_s = f"{len(px)}, {np.median(px):.1f}" if px else "0, -"
         amb_s = (f"{len(amb)} ({max(a['ambiguous_pos_err_cm'] for a in amb):.2f} / "
                  f"{max(a['ambiguous_yaw_err_deg'] for a in amb):.2f})" if amb else "0")
         if not fx:
-            lines.append(f"| {r:g} | {len(sel)} | 0 | - | - | - | {amb_s} |")
+            lines.append(f"| {r:g} | {len(sel)} | {px_s} | 0 | - | - | - | {amb_s} |")
             continue
         pe = np.array([row["pos_err_cm"] for row in fx])
         ye = np.array([row["yaw_err_deg"] for row in fx])
         ok = np.mean([row["nees"] <= CHI2_95_6DOF for row in fx])
-        lines.append(f"| {r:g} | {len(sel)} | {len(fx)} | {np.median(pe):.2f} / {pe.max():.2f} | "
+        lines.append(f"| {r:g} | {len(sel)} | {px_s} | {len(fx)} | {np.median(pe):.2f} / {pe.max():.2f} | "
                      f"{np.median(ye):.2f} / {ye.max():.2f} | {100 * ok:.0f} % | {amb_s} |")
     fx_all = [row for row in rows if row["fix"]]
     within = np.mean([row["nees"] <= CHI2_95_6DOF for row in fx_all]) if fx_all else float("nan")
     table = "\n".join(lines)
+    f_px = load_settings(args.config).camera.K[0, 0]
     report = (f"Scenario `{args.scenario}`, seed {args.seed}, {args.poses} placements per range; the camera "
               f"pose given exactly. NEES within the chi2 95 % bound over all {len(fx_all)} fixes: "
-              f"{100 * within:.0f} %.\n\n{table}\n")
+              f"{100 * within:.0f} %. A marker's side in the image is at most f s / r ({f_px:.0f} px x "
+              f"the marker's side over the range), less when it is seen obliquely.\n\n{table}\n")
     (args.out / "fiducials.md").write_text(f"# Relative localization against range\n\n{report}")
     write_results("fiducials", command_line("fiducials"), report)
     print(table)
@@ -153,7 +161,7 @@ def range_rows(scenario: str, seed: int, config: str, index: int, r: float, pose
     import numpy as np
 
     from fsw.core.geometry import camera_pose_from_rover, point_mast
-    from fsw.core.localization.fiducials import CliffbotLocalizer
+    from fsw.core.localization.fiducials import CliffbotLocalizer, _side_px
     from fsw.core.localization.localization import PoseEstimate
     from fsw.settings import load_settings
     from hil_sim.render import StereoRenderer
@@ -188,12 +196,16 @@ def range_rows(scenario: str, seed: int, config: str, index: int, r: float, pose
         if not reachable:
             continue  # the mast cannot point there
         pose = camera_pose_from_rover(rover, joints, cfg.mast)
+        if abs(float(np.linalg.norm(cb.t - pose.t)) - r) > 0.1 * r:
+            continue  # no ground at that range along this bearing (the drop is deeper than r)
         rend = StereoRenderer(w, cfg.camera, world.noise_sigma, seed=int(rng.integers(1 << 30)))
         left, right = rend.render(pose)
         row: dict[str, Any] = {"range_m": r, "pose": len(rows), "true_range_m": float(np.linalg.norm(cb.t - pose.t)),
                                "fix": 0, "ambiguous": 0}
         rows.append(row)
 
+        seen = [_side_px(c) for c in loc.detect_known(loc.corners, left)[0].values()]
+        row["marker_px"] = max(seen) if seen else 0.0  # the largest Cliff-bot marker detected (0: none)
         est = loc.locate(left, PoseEstimate(pose, exact), right)
         if est is not None:
             pe, ye, nees = _errors(est, cb)
@@ -268,11 +280,14 @@ def run_missions(args: argparse.Namespace, ranges: list[float]) -> int:
         wr = csv.DictWriter(fh, fieldnames=MISSION_KEYS, restval="")
         wr.writeheader()
         wr.writerows(rows)
-    own = ["| mission seed | RECON-bot heading error (deg) | its sigma (deg) | place error (cm) | its sigma (cm) | "
-           "plates resected |", "|---|---|---|---|---|---|"]
+    own = ["| mission seed | RECON-bot heading error (deg) | its sigma: on its map / against its start (deg) | "
+           "place error (cm) | its sigma: on its map / against its start (cm) | plates resected |",
+           "|---|---|---|---|---|---|"]
     for h in heads:
-        own.append(f"| {h['seed']} | {h['yaw_err_deg']:+.2f} | {h['yaw_sigma_deg']:.2f} | {h['pos_err_cm']:.1f} | "
-                   f"{h['pos_sigma_cm']:.1f} | {h['plates']} of 2 |")
+        star = "" if h["has_frame"] else " (not stored)"
+        own.append(f"| {h['seed']} | {h['yaw_err_deg']:+.2f} | {h['yaw_sigma_deg']:.2f} / "
+                   f"{h['frame_yaw_sigma_deg']:.2f}{star} | {h['pos_err_cm']:.1f} | {h['pos_sigma_cm']:.1f} / "
+                   f"{h['frame_pos_sigma_cm']:.1f}{star} | {h['plates']} of 2 |")
     lines = ["| range (m) | placed | from the rover's estimate: fixes, position median / worst (cm), heading "
              "median / worst (deg), NEES within | through the plates: fixes, position median / worst (cm), "
              "heading median / worst (deg), NEES within |", "|---|---|---|---|"]
@@ -317,6 +332,7 @@ def mission_rows(scenario: str, seed: int, recon: dict[str, Any], config: str, r
     from fsw.core.localization.localization import PoseEstimate
     from fsw.settings import load_settings
     from fsw.tasks.camera import camera_pose_covariance
+    from fsw.tasks.cliffbot_fixer import frame_extra
     from fsw.tasks.messages import NavPose
     from hil_sim.render import StereoRenderer
     from hil_sim.team.cliffbot_rig import CliffbotRig
@@ -339,6 +355,8 @@ def mission_rows(scenario: str, seed: int, recon: dict[str, Any], config: str, r
     c, s_ = math.cos(yaw0), math.sin(yaw0)
     rot = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
     nav_cov = rot @ np.asarray(recon["cov"], float) @ rot.T
+    # against the start (the flight's fix without a plate carries it, frame_extra); older missions: the map's
+    frame_cov = rot @ np.asarray(recon.get("frame_cov", recon["cov"]), float) @ rot.T
     rng = np.random.default_rng([draw_seed, 56, seed])
     loc = CliffbotLocalizer(cfg.localization, cfg.cliffbot, cfg.camera.K, cfg.camera.baseline_m)
     js = math.radians(cfg.capture.joint_sigma_deg)
@@ -353,9 +371,10 @@ def mission_rows(scenario: str, seed: int, recon: dict[str, Any], config: str, r
         rend = StereoRenderer(w, cfg.camera, world.noise_sigma, seed=int(rng.integers(1 << 30)))
         true_pose = camera_pose_from_rover(truth, joints, cfg.mast)
         left, right = rend.render(true_pose)
-        pred, pred_cov = camera_pose_covariance(NavPose(0.0, *est, nav_cov, joints), cfg.mast, (js, js, 0.002))
+        nav = NavPose(0.0, *est, nav_cov, joints, frame_cov=frame_cov)
+        pred, pred_cov = camera_pose_covariance(nav, cfg.mast, (js, js, 0.002))
         q = camera_pose_covariance(NavPose(0.0, *est, np.zeros((3, 3)), joints), cfg.mast, (js, js, 0.002))[1]
-        return left, right, pred, pred_cov, q, true_pose
+        return left, right, pred, pred_cov + frame_extra(nav, cfg), q, true_pose
 
     landmarks = []
     for corners in plates.values():
@@ -369,7 +388,10 @@ def mission_rows(scenario: str, seed: int, recon: dict[str, Any], config: str, r
     dyaw = math.degrees(math.atan2(math.sin(est[2] - truth[2]), math.cos(est[2] - truth[2])))
     head = {"seed": seed, "yaw_err_deg": dyaw, "yaw_sigma_deg": math.degrees(math.sqrt(max(nav_cov[2, 2], 0.0))),
             "pos_err_cm": 100 * math.hypot(est[0] - truth[0], est[1] - truth[1]),
-            "pos_sigma_cm": 100 * math.sqrt(max(nav_cov[0, 0] + nav_cov[1, 1], 0.0)), "plates": len(landmarks)}
+            "pos_sigma_cm": 100 * math.sqrt(max(nav_cov[0, 0] + nav_cov[1, 1], 0.0)), "plates": len(landmarks),
+            "frame_yaw_sigma_deg": math.degrees(math.sqrt(max(frame_cov[2, 2], 0.0))),
+            "frame_pos_sigma_cm": 100 * math.sqrt(max(frame_cov[0, 0] + frame_cov[1, 1], 0.0)),
+            "has_frame": "frame_cov" in recon}
     cb0 = world.cliffbot
     base = camera_pose_from_rover(truth, (0.0, 0.0, 0.3), cfg.mast).t
     rows: list[dict[str, Any]] = []
@@ -387,6 +409,8 @@ def mission_rows(scenario: str, seed: int, recon: dict[str, Any], config: str, r
             yaw = math.atan2(base[1] - y, base[0] - x) + math.radians(rng.uniform(-60.0, 60.0))
             cb = build_cliffbot(x, y, zg, yaw, size_m=(cb0.length_m, cb0.width_m, cb0.height_m),
                                 marker_size_m=cfg.cliffbot.marker_size_m, seed=seed)
+            if abs(float(np.linalg.norm(cb.t - camera_pose_from_rover(truth, j, cfg.mast).t)) - r) > 0.1 * r:
+                continue  # no ground at that range along this bearing
             left, right, pred, pred_cov, q, true_pose = view(dataclasses.replace(seen, cliffbot=cb), j)
             row: dict[str, Any] = {"seed": seed, "range_m": r, "pose": placed,
                                    "true_range_m": float(np.linalg.norm(cb.t - true_pose.t)), "raw_fix": 0,

@@ -1,0 +1,112 @@
+"""The RECON-bot's fixer task (fsw/tasks/cliffbot_fixer.py) views the Anchorbots' plates from
+where it stands: a rover standing tilted (a wheel over the lip) aims the mast with its body
+attitude, so the camera looks at each plate; a survey that resects no plate says so and which
+(event NO_LANDMARKS), and the fix then rests on the rover's estimate."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from task_rig import TaskRig, task_config
+
+from fsw.comm.team import fix_packets
+from fsw.core.geometry import camera_pose_from_rover, point_mast
+from fsw.core.localization.landmarks import anchor_marker_corners
+from fsw.framework.telemetry import Channel
+from fsw.tasks.cliffbot_fixer import LIFT_M
+from fsw.tasks.messages import (
+    MOTION_REQUEST,
+    MOTION_STATUS,
+    NAV_POSE,
+    RADIO_FIX_OUT,
+    RADIO_FIX_REQUEST,
+    MotionStatus,
+    MoveOutcome,
+    NavPose,
+)
+
+ROLL, PITCH, Z = math.radians(25.0), math.radians(-30.0), -0.1
+
+
+def _axis_miss_deg(cfg, pose: tuple[float, float, float], joints, target) -> float:  # noqa: ANN001
+    cam = camera_pose_from_rover(pose, joints, cfg.mast, Z, (ROLL, PITCH))
+    d = np.asarray(target, float) - cam.t
+    return math.degrees(math.acos(min(1.0, float(d @ cam.R[:, 2]) / float(np.linalg.norm(d)))))
+
+
+def test_a_tilted_rover_aims_at_each_plate_and_reports_none_resected() -> None:
+    rig = TaskRig(task_config(("cliffbot_fixer", "cliffbot_fixer")))
+    cfg = rig.exe.cfg
+    rig.exe.telemetry.register("mission.state", Channel("state"))
+    rig.exe.telemetry.write("mission.state", "DONE", 0.0)
+    pose = (2.3, -0.8, math.radians(80.0))
+    rig.publish(NAV_POSE, NavPose(0.0, *pose, np.zeros((3, 3)), (0.0, 0.0, LIFT_M), roll=ROLL, pitch=PITCH, z_m=Z,
+                                  att_cov=np.diag([1e-4, 1e-4, 1e-4]), attitude_valid=True))
+    site = cfg.cliffbot_site
+    plates = anchor_marker_corners(site.anchor_a_xyz, site.anchor_b_xyz, cfg.localization)
+    moves, out = rig.tap(MOTION_REQUEST), rig.tap(RADIO_FIX_OUT)
+    rig.publish(RADIO_FIX_REQUEST, fix_packets.FixRequest(1, 0, 2.6, 2.5))
+    aimed = []
+    for _ in range(len(plates)):
+        rig.run(2)
+        (req,) = [m for m in moves.drain() if m.kind == "mast"]
+        aimed.append(req.joints)
+        rig.publish(MOTION_STATUS, MotionStatus(req.request_id, "mast", MoveOutcome.REFUSED, "test"))
+    for joints, corners in zip(aimed, plates.values(), strict=True):
+        centre = corners.mean(axis=0)
+        assert _axis_miss_deg(cfg, pose, joints, centre) < 0.01
+        level, _ = point_mast(pose, centre, cfg.mast, LIFT_M, Z)  # as if the body stood level: tens of deg off
+        assert _axis_miss_deg(cfg, pose, level, centre) > 10.0
+    rig.run(2)
+    (ev,) = rig.events("cliffbot_fixer.NO_LANDMARKS")
+    assert "11 mast not pointed" in ev.text and "12 mast not pointed" in ev.text
+    # the fix's own view is aimed next, also with the attitude; refused: NO_FIX, never a traceback
+    (req,) = [m for m in moves.drain() if m.kind == "mast"]
+    assert _axis_miss_deg(cfg, pose, req.joints, (2.6, 2.5, Z + 0.25)) < 0.01
+    rig.publish(MOTION_STATUS, MotionStatus(req.request_id, "mast", MoveOutcome.REFUSED, "test"))
+    rig.run(2)
+    got = [fix_packets.decode(b) for b in out.drain()]
+    assert len(got) == 1 and isinstance(got[0], fix_packets.NoFix)
+
+
+def test_with_no_plate_resected_it_turns_toward_one_beyond_the_pan_and_views_again() -> None:
+    rig = TaskRig(task_config(("cliffbot_fixer", "cliffbot_fixer")))
+    cfg = rig.exe.cfg
+    rig.exe.telemetry.register("mission.state", Channel("state"))
+    rig.exe.telemetry.write("mission.state", "DONE", 0.0)
+    site = cfg.cliffbot_site
+    plates = anchor_marker_corners(site.anchor_a_xyz, site.anchor_b_xyz, cfg.localization)
+    a = plates[11].mean(axis=0)
+    yaw = math.atan2(a[1] + 0.8, a[0] - 2.3) - math.radians(176.0)  # plate 11 about 176 deg off: past the pan
+    pose = (2.3, -0.8, yaw)
+    assert not point_mast(pose, a, cfg.mast, LIFT_M)[1]
+    rig.publish(NAV_POSE, NavPose(0.0, *pose, np.zeros((3, 3)), (0.0, 0.0, LIFT_M)))
+    moves, out = rig.tap(MOTION_REQUEST), rig.tap(RADIO_FIX_OUT)
+    rig.publish(RADIO_FIX_REQUEST, fix_packets.FixRequest(1, 0, 2.5, -2.0))
+    rig.run(2)
+    (req,) = [m for m in moves.drain() if m.kind == "mast"]  # plate 12 only
+    rig.publish(MOTION_STATUS, MotionStatus(req.request_id, "mast", MoveOutcome.REFUSED, "test"))
+    rig.run(2)
+    assert rig.events("cliffbot_fixer.NO_LANDMARKS") and rig.events("cliffbot_fixer.TURN_TO_PLATE")
+    (turn,) = [m for m in moves.drain() if m.kind == "turn"]
+    turned = (pose[0], pose[1], pose[2] + turn.angle_rad)
+    assert point_mast(turned, a, cfg.mast, LIFT_M)[1] and abs(math.degrees(turn.angle_rad)) < 20.0
+    rig.publish(RADIO_FIX_REQUEST, fix_packets.FixRequest(1, 0, 2.5, -2.0))  # asked again meanwhile: it waits
+    rig.run(2)
+    assert not out.drain()  # the request waits for the turn and the plates, no answer yet
+    rig.publish(MOTION_STATUS, MotionStatus(turn.request_id, "turn", MoveOutcome.DONE))
+    rig.run(2)  # the turn's last pose not in yet: the plates are viewed from the old estimate
+    (req,) = [m for m in moves.drain() if m.kind == "mast"]
+    rig.publish(NAV_POSE, NavPose(1.0, *turned, np.zeros((3, 3)), (0.0, 0.0, LIFT_M)))
+    rig.publish(MOTION_STATUS, MotionStatus(req.request_id, "mast", MoveOutcome.REFUSED, "test"))
+    rig.run(2)  # the estimate moved during that survey: viewed again, from the new standing, plate 11 first
+    (req,) = [m for m in moves.drain() if m.kind == "mast"]
+    assert _axis_miss_deg_level(cfg, turned, req.joints, a) < 0.01
+    assert not out.drain()
+
+
+def _axis_miss_deg_level(cfg, pose: tuple[float, float, float], joints, target) -> float:  # noqa: ANN001
+    cam = camera_pose_from_rover(pose, joints, cfg.mast)
+    d = np.asarray(target, float) - cam.t
+    return math.degrees(math.acos(min(1.0, float(d @ cam.R[:, 2]) / float(np.linalg.norm(d)))))
