@@ -52,3 +52,27 @@ def test_each_target_says_what_became_of_it_its_looks_and_the_truths_verdict() -
         "out of tether reach / truth: out of tether reach", "planned, not reached / truth: reachable"]
     row = tm.scene_row({"team": t}, 7)["row"]
     assert row["looks"] == 5 and row["reached_after_looks"] == 1
+
+
+def test_the_recon_bots_own_safety_figures_are_in_the_table_and_an_edge_violation_fails(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setenv("SAFER_RESULTS_DIR", str(tmp_path / "results"))
+    own = {0: (0, 0, 0.021), 1: (641, 0, 0.42), 2: (0, 47, 0.43)}  # edge violations, unknown ground, RMSE m
+    for seed, (viol, unknown, rmse) in own.items():
+        s = _summary(1, ["", "hazard"], []) | {"edge_violations": viol, "wheels_on_unknown_ground": unknown,
+                                               "map_rmse_m": rmse}
+        (tmp_path / f"seed{seed}").mkdir()
+        (tmp_path / f"seed{seed}" / "summary.json").write_text(json.dumps(s))
+        (tmp_path / f"seed{seed}" / "team.png").write_bytes(b"png")
+    args = argparse.Namespace(scenario="cliff-team", scenes=3, seed=0, steps=10, jobs=1, config="config/fsw.toml",
+                              out=tmp_path, report_only=True)
+    assert tm.run(args) == 1
+    out = capsys.readouterr()
+    assert "FAILED: the RECON-bot had a wheel over the drop (641 frames) in seed(s) 1" in out.err
+    md = (tmp_path / "results" / "team-mission.md").read_text()
+    assert "| 641 | 0 | 42.00 |" in md and "| 0 | 47 | 43.00 |" in md and "| 0 | 0 | 2.10 |" in md
+    assert "edge violations (frames with a wheel over the drop) 641" in md and "unknown ground 47" in md
+    assert "map RMSE median 42.00 cm, worst 43.00 cm" in md
+    (tmp_path / "seed1" / "summary.json").write_text(json.dumps(
+        _summary(1, ["", "hazard"], []) | {"edge_violations": 0, "wheels_on_unknown_ground": 0, "map_rmse_m": 0.02}))
+    assert tm.run(args) == 0

@@ -36,6 +36,15 @@ ground and on the map grid. Unknown ground, where a drop may hide, is never driv
 mission looks at it first, and what the look maps as lower ground joins the drop cells. With
 no drop map either, the geofence refuses (unless ``allow_without_edge``).
 
+Unmapped ground nearby (with known ground required, edge or no edge): the frontier of the map
+is a lip as often as not (a steep face is hidden below it, so no drop cell is mapped near it,
+no edge is fitted there, or only past a fitted edge's open end, and the last mapped cell
+straddles the lip), and known ground reaches ``known_fill_m`` past that cell. So every swept
+wheel patch also keeps ``margin_m`` from unmapped ground (the mapped cells with holes up to
+``known_fill_m`` closed, not grown; ground stood on is known). A rover already closer than
+that may make a move along which no wheel patch comes closer to unmapped ground than it is at
+the start. The mission looks at that ground first (``unknown_points``).
+
 Pose drift (``drift_k``): the check is made on the pose estimate, and dead reckoning drifts
 as the rover drives (a heading error bends the path; ``fsw.core.localization.odometry``). For the ground
 checks (unknown ground, off the map, near a mapped drop), each swept wheel patch is widened by
@@ -133,6 +142,7 @@ class Geofence:
         self._barrier: BaseGeometry | None = None
         self.known = KnownGround(cfg.known_fill_m)
         self.clear = KnownGround(0.0)  # cells at least margin_m from any mapped drop cell
+        self.mapped = KnownGround(0.0)  # measured cells, small holes closed, not grown (a lip may lie past them)
         self.rejections = 0
         self._drift: tuple[float, MotionConfig] | None = None  # heading sigma now, the odometry model
 
@@ -165,6 +175,12 @@ class Geofence:
     def set_map(self, grid: MapGrid, n: NDArray[np.int32]) -> None:
         """The map's measurement counts: where the ground is known."""
         self.known.set_map(grid, n)
+        mapped = np.asarray(np.asarray(n) >= 1, dtype=np.uint8)
+        r = int(round(self.cfg.known_fill_m / grid.cell))
+        if r > 0 and mapped.any():  # holes closed; the border not grown (cv2 pads a closing neutrally)
+            k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+            mapped = np.asarray(cv2.morphologyEx(mapped, cv2.MORPH_CLOSE, k), dtype=np.uint8)
+        self.mapped.set_map(grid, mapped.astype(np.int32))
 
     def set_drop(self, grid: MapGrid, drop: NDArray[np.bool_]) -> None:
         """The mapped drop cells (``fsw.core.edge.edge.EdgeCells.drop``): while no edge is fitted,
@@ -235,8 +251,8 @@ class Geofence:
             if self.cfg.allow_without_edge:
                 return Verdict(True, "allowed: no cliff edge mapped", math.inf)
             if self.cfg.explore_without_edge and self.clear.ready and self.known.ready:
-                return self._clear_of_drops(self.swept_wheels(tuple(pa), tuple(pb), drift=True), tuple(pb),
-                                            known_ground)
+                return self._clear_of_drops(self.swept_wheels(tuple(pa), tuple(pb), drift=True), tuple(pa),
+                                            tuple(pb), known_ground)
             self.rejections += 1
             return Verdict(False, "rejected: no cliff edge mapped yet", math.inf)
         swept = self.swept_wheels(tuple(pa), tuple(pb))
@@ -257,7 +273,8 @@ class Geofence:
             away = clear >= start - RECOVERY_TOL_M if clear > 0.0 else (
                 start == 0.0 and self._backs_away(tuple(pa), tuple(pb)))
             if away and end >= self.cfg.margin_m:
-                unknown = self._ground_refusal(self._drifted(swept, pa, pb, known_ground), tuple(pb), known_ground)
+                unknown = self._ground_refusal(self._drifted(swept, pa, pb, known_ground), tuple(pa), tuple(pb),
+                                               known_ground)
                 if unknown is not None:
                     self.rejections += 1
                     return Verdict(False, unknown, clear, WHEELS[w])
@@ -270,7 +287,8 @@ class Geofence:
                 f"comes within {clear:.3f} m of the edge")
             return Verdict(False, f"rejected: wheel {WHEELS[w]} {where} "
                            f"(margin {self.cfg.margin_m:.2f} m)", clear, WHEELS[w])
-        unknown = self._ground_refusal(self._drifted(swept, pa, pb, known_ground), tuple(pb), known_ground)
+        unknown = self._ground_refusal(self._drifted(swept, pa, pb, known_ground), tuple(pa), tuple(pb),
+                                               known_ground)
         if unknown is not None:
             self.rejections += 1
             return Verdict(False, unknown, clear, WHEELS[w])
@@ -285,7 +303,7 @@ class Geofence:
             return swept
         return self.swept_wheels(tuple(a), tuple(b), drift=True)
 
-    def _clear_of_drops(self, swept: list[BaseGeometry], b: Pose3, known_ground: bool) -> Verdict:
+    def _clear_of_drops(self, swept: list[BaseGeometry], a: Pose3, b: Pose3, known_ground: bool) -> Verdict:
         """No edge fitted yet: every swept wheel patch ``margin_m`` from every mapped drop cell,
         then the ground checks of a move with an edge."""
         grid = self.clear.grid
@@ -297,12 +315,43 @@ class Geofence:
 
         refusal = _wheel_refusal(swept, near_drop, "rejected: no cliff edge mapped yet; wheel {wheel} would "
                                  f"come within {self.cfg.margin_m:.2f} m of a drop ({{n}} cells)")
-        refusal = refusal or self._ground_refusal(swept, b, known_ground)
+        refusal = refusal or self._ground_refusal(swept, a, b, known_ground)
         if refusal is not None:
             self.rejections += 1
             return Verdict(False, refusal, math.inf)
         return Verdict(True, "allowed: no cliff edge mapped yet; every wheel keeps "
                        f"{self.cfg.margin_m:.2f} m from the mapped drop", math.inf)
+
+    def _unmapped_near(self, geom: BaseGeometry) -> F64:
+        """(N, 2) centres of the on-grid unmapped cells (``self.mapped``; ground stood on is
+        known) within ``margin_m`` of ``geom``."""
+        self.mapped._stood = self.known._stood
+        grid = self.mapped.grid
+        pts = self.mapped.unknown_points(shapely.buffer(geom, self.cfg.margin_m, quad_segs=4))
+        if grid is None or len(pts) == 0:
+            return np.zeros((0, 2))
+        return pts[grid.cell_index(pts[:, 0], pts[:, 1])[2]]
+
+    def _near_unmapped(self, a: Pose3, b: Pose3) -> str | None:
+        """The refusal if a swept wheel patch comes within ``margin_m`` of unmapped ground (a
+        hidden lip may lie there: past the ends of a fitted edge, or with none fitted), or closer
+        than its patch at the start ``a`` is (a rover already that close may move along or away,
+        never closer), else None. The patches are not widened by the drift (the known-ground
+        check is): the comparison with the start is like for like."""
+        if not (self.cfg.require_known_ground and self.mapped.ready):
+            return None
+        swept, start = self.swept_wheels(a, b), self.swept_wheels(a, a)
+        for w, geom in enumerate(swept):
+            pts = self._unmapped_near(geom)
+            if len(pts) == 0:
+                continue
+            near = float(shapely.distance(geom, shapely.points(pts)).min())
+            here = self._unmapped_near(start[w])
+            was = float(shapely.distance(start[w], shapely.points(here)).min()) if len(here) else math.inf
+            if near < min(self.cfg.margin_m, was - RECOVERY_TOL_M):
+                return (f"rejected: wheel {WHEELS[w]} would come within {near:.3f} m "
+                        f"of unknown ground (margin {self.cfg.margin_m:.2f} m: a lip may be hidden there)")
+        return None
 
     def _backs_away(self, a: Pose3, b: Pose3) -> bool:
         """For a rover whose wheels already touch the fitted edge where it stands (a fit error
@@ -316,7 +365,10 @@ class Geofence:
 
     def unknown_points(self, a: Pose3, b: Pose3) -> F64:
         """(N, 2) centres of the unknown map cells the wheels would sweep from ``a`` to ``b``."""
-        pts = [self.known.unknown_points(g) for g in self.swept_wheels(a, b, drift=True)]
+        swept = self.swept_wheels(a, b, drift=True)
+        pts = [self.known.unknown_points(g) for g in swept]
+        if self.cfg.require_known_ground and self.mapped.ready:
+            pts += [self._unmapped_near(g) for g in swept]  # the ground within the margin too
         return np.concatenate(pts) if pts else np.zeros((0, 2))
 
     def _unknown_ground(self, swept: list[BaseGeometry]) -> str | None:
@@ -326,13 +378,14 @@ class Geofence:
         return _wheel_refusal(swept, self.known.unknown_cells,
                               "rejected: wheel {wheel} would cross unknown ground ({n} unmapped cells)")
 
-    def _ground_refusal(self, swept: list[BaseGeometry], b: Pose3, known_ground: bool) -> str | None:
-        """The mission's check (``known_ground``): every swept wheel patch on the grid and on
-        known ground. A planner's station (edge only): its wheels must not REST off the grid
-        (no look can ever map that ground); a turn on the way that clips the grid's border is
-        the mission's check to refuse, or to drive part of the way."""
+    def _ground_refusal(self, swept: list[BaseGeometry], a: Pose3, b: Pose3, known_ground: bool) -> str | None:
+        """The mission's check (``known_ground``): every swept wheel patch on the grid, on
+        known ground and ``margin_m`` from unmapped ground (``_near_unmapped``). A planner's
+        station (edge only): its wheels must not REST off the grid (no look can ever map that
+        ground); a turn on the way that clips the grid's border is the mission's check to
+        refuse, or to drive part of the way."""
         if known_ground:
-            return self._off_map(swept) or self._unknown_ground(swept)
+            return self._off_map(swept) or self._unknown_ground(swept) or self._near_unmapped(a, b)
         return self._off_map(self.swept_wheels(b, b))
 
     def _off_map(self, swept: list[BaseGeometry]) -> str | None:

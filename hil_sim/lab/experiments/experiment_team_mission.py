@@ -7,7 +7,9 @@ team mission"), each in ``OUT/seed<S>`` with its ``summary.json`` and ``team.png
 the summary's ``team`` section: whether the delivered map let the Cliff-bot leave its start,
 targets reachable on the truth and reached, tether violations, hazard and unknown cells
 entered, the cells each agent's own views made known (``cells_by_agent``), the end state and
-reason, the bytes each way. Over all scenes the RECON-bot's fixes
+reason, the bytes each way, and the RECON-bot's own safety and map figures (frames with a wheel
+over the drop, frames it moved with a wheel on ground its geofence did not know, map RMSE). Any
+edge violation is a failure: the command says so on one line and exits 1. Over all scenes the RECON-bot's fixes
 (each FIX against the Cliff-bot's true pose at that instant) by range band: median and worst
 position and heading error, and the fraction whose NEES lies within the chi-square 95 % bound
 (6 dof), and the RECON-bot's own heading error at each (what a fix from its estimate alone would
@@ -48,6 +50,9 @@ COLUMNS = (
     "map_reasons",
     "looks",
     "reached_after_looks",
+    "recon_edge_violations",
+    "recon_unknown_ground",
+    "recon_map_rmse_cm",
 )
 
 
@@ -123,6 +128,12 @@ def scene_row(s: dict[str, Any], seed: int) -> dict[str, Any]:
             strict=False,
         )
     )
+    rmse = s.get("map_rmse_m")
+    row |= {
+        "recon_edge_violations": int(s.get("edge_violations", 0)),
+        "recon_unknown_ground": int(s.get("wheels_on_unknown_ground", 0)),
+        "recon_map_rmse_cm": round(100.0 * float(rmse), 2) if rmse is not None else float("nan"),
+    }
     return {"row": row, "fixes": fixes}
 
 
@@ -166,7 +177,8 @@ def run(args: argparse.Namespace) -> int:
             print(
                 f"[{len(got)}/{len(seeds)}] seed {r['seed']}: start {'usable' if r['start_usable'] else 'NOT usable'}, "
                 f"reached {r['reached']} of {r['truth_reachable']} the truth reaches, {r['final_state']} "
-                f"{r['safe_reason']}",
+                f"{r['safe_reason']}; RECON-bot edge violations {r['recon_edge_violations']}, "
+                f"wheels on unknown ground {r['recon_unknown_ground']}, map RMSE {r['recon_map_rmse_cm']:.2f} cm",
                 flush=True,
             )
     if not got:
@@ -181,8 +193,9 @@ def run(args: argparse.Namespace) -> int:
     lines = [
         "| seed | start usable | targets | reachable (truth) | reached | tether violations | hazard cells | "
         "unknown cells | fixes | cells RECON-bot / Cliff-bot | end | bytes down / up | "
-        "per target (/ the truth's verdict) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "per target (/ the truth's verdict) | RECON-bot edge violations | RECON-bot wheels on unknown ground | "
+        "RECON-bot map RMSE (cm) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         end = r["final_state"] + (f" ({r['safe_reason']})" if r["safe_reason"] else "")
@@ -190,9 +203,12 @@ def run(args: argparse.Namespace) -> int:
             f"| {r['seed']} | {'yes' if r['start_usable'] else 'no'} | {r['targets']} | {r['truth_reachable']} | "
             f"{r['reached']} | {r['tether_violations']} | {r['hazard_cells']} | {r['unknown_cells']} | "
             f"{r['fixes']} | {r['recon_cells']} / {r['cliffbot_cells']} | {end} | "
-            f"{r['bytes_down']} / {r['bytes_up']} | {r['map_reasons']} |"
+            f"{r['bytes_down']} / {r['bytes_up']} | {r['map_reasons']} | {r['recon_edge_violations']} | "
+            f"{r['recon_unknown_ground']} | {r['recon_map_rmse_cm']:.2f} |"
         )
     reach = sum(r["truth_reachable"] for r in rows)
+    rmse = np.array([r["recon_map_rmse_cm"] for r in rows], float)
+    rmse = rmse[np.isfinite(rmse)]
     done = sum(min(r["reached"], r["truth_reachable"]) for r in rows)
     summary = (
         f"{len(rows)} scenes, {args.steps} imaging steps each: the start usable on the delivered map in "
@@ -201,7 +217,10 @@ def run(args: argparse.Namespace) -> int:
         f"hazard cells entered {sum(r['hazard_cells'] for r in rows)}, unknown cells entered "
         f"{sum(r['unknown_cells'] for r in rows)}; looks taken to approach targets on unknown ground "
         f"{sum(r['looks'] for r in rows)}, targets reached after such looks "
-        f"{sum(r['reached_after_looks'] for r in rows)}."
+        f"{sum(r['reached_after_looks'] for r in rows)}. The RECON-bot: edge violations (frames with a wheel "
+        f"over the drop) {sum(r['recon_edge_violations'] for r in rows)}, frames moved with a wheel on unknown "
+        f"ground {sum(r['recon_unknown_ground'] for r in rows)}, map RMSE "
+        + (f"median {float(np.median(rmse)):.2f} cm, worst {float(np.max(rmse)):.2f} cm." if len(rmse) else "-.")
     )
     band = [
         "| range (m) | fixes | position error median / worst (cm) | heading error median / worst (deg) | "
@@ -232,4 +251,9 @@ def run(args: argparse.Namespace) -> int:
     write_results("team-mission", command_line("team-mission"), report,
                   figures=[args.out / f"seed{best['seed']}" / "team.png"])
     print(report)
+    over = [r["seed"] for r in rows if r["recon_edge_violations"] > 0]
+    if over:
+        print(f"{me}: FAILED: the RECON-bot had a wheel over the drop ({sum(r['recon_edge_violations'] for r in rows)} "
+              f"frames) in seed(s) {', '.join(map(str, over))}", file=sys.stderr)
+        return 1
     return 0

@@ -228,3 +228,32 @@ def test_a_long_drive_keeps_its_drift_away_from_unknown_ground():
     off = fence(strip, edge_along_x(-2.5), drift_k=0.0)
     off.set_drift(math.radians(10.0), MotionConfig())  # drift_k = 0: no widening
     assert off.check((0.0, 0.0, 0.0), (3.0, 0.0, 0.0)).allowed
+
+
+def test_the_wheels_keep_the_margin_from_the_maps_frontier_where_a_lip_may_hide():
+    """cliff-team seeds 1 and 2: the face below the lip is hidden from the plateau, so no drop
+    cell is mapped near it and no edge is fitted; the plateau is mapped to the lip (the last
+    cell straddles it) and known ground reaches known_fill_m past that. A rover backing toward
+    the lip must keep margin_m from the unmapped ground, not merely stay on known ground; one
+    already closer may drive away, never closer."""
+    no_edge = EdgeModel("polygon", np.zeros((0, 2)), MultiLineString(), None)
+    gf = fence(mapped_box(-1.0, 3.0, -1.06, 1.0), no_edge, stand=(0.0, -0.3, math.pi / 2))
+    gf.set_drop(GRID, np.zeros(GRID.shape, bool))  # the face hidden: no drop cell mapped
+    here = (0.0, -0.3, math.pi / 2)  # facing +y, the lip 0.31 m behind its rear wheels
+    v = gf.check(here, (0.0, -0.65, math.pi / 2))  # backing up: rear patches 0.04 m past the mapped cells
+    assert not v.allowed and "rear" in v.reason and "unknown ground" in v.reason
+    assert len(gf.unknown_points(here, (0.0, -0.65, math.pi / 2))) > 0  # the mission looks there first
+    assert gf.check(here, (0.0, -0.45, math.pi / 2)).allowed  # 0.165 m from the first unmapped cell
+    assert gf.check(here, (1.0, -0.3, math.pi / 2)).allowed  # along the frontier, well inside
+    close = (0.0, -0.55, math.pi / 2)  # left (by a pose error) 0.065 m from it: may leave, never closer
+    gf.set_edge(no_edge, close)
+    assert gf.check(close, (0.0, -0.3, math.pi / 2)).allowed
+    assert not gf.check(close, (0.0, -0.62, math.pi / 2)).allowed
+    # the planner's edge-only check is unchanged (the mission's check is the one that refuses)
+    assert gf.check(here, (0.0, -0.65, math.pi / 2), known_ground=False).allowed
+    # an edge fitted elsewhere (cliff-team seed 2, step 4: fitted where the face shows, its end
+    # short of the rover) does not vouch for the unmapped ground behind the rover either
+    fitted = fence(mapped_box(-1.0, 3.0, -1.06, 1.0), edge_along_x(-2.5, 2.0, 5.0), stand=here)
+    v = fitted.check(here, (0.0, -0.65, math.pi / 2))
+    assert not v.allowed and "rear" in v.reason and "unknown ground" in v.reason
+    assert fitted.check(here, (0.0, -0.45, math.pi / 2)).allowed
