@@ -33,10 +33,12 @@ def test_rover_off_the_edge_path_moves_at_its_first_step():
     one, so a piece's straight continuation ran across mapped plateau past the rover and no
     station was reachable; the rover stood still for every step. Now every plateau piece
     clips the continuation, and a rover off the edge path also has stations straight ahead
-    and behind (no turn in place): it moves at its first step, safely."""
+    and behind (no turn in place): it moves at its first step, safely. Its wheels keep the
+    geofence's margin from ground the map has not measured (a hidden lip may lie there), so that
+    first move is a short part-way one."""
     s = run_mission(RunSpec("terrain?slope_deg=-1", "5", steps=1, seed=10, transmit=False))
     assert s["reachable_stations"][1] > 0
-    assert s["odometer_m"] > 0.5, s["stays"]
+    assert s["odometer_m"] > 0.1, s["stays"]
     assert s["edge_violations"] == 0 and s["wheels_off_terrain"] == 0
     assert s["wheels_on_unknown_ground"] == 0
     assert s["steps_unused"] == 0 and s["final_state"] == "DONE"
