@@ -73,6 +73,20 @@ def along_normal(height: Callable[[F64, F64], F64], face: FaceMap, cells: NDArra
     return out_w, out_o
 
 
+def air_along_normal(world: World, face: FaceMap, cells: NDArray[np.intp], reach_m: float = 0.25,
+                     step_m: float = 0.005) -> tuple[F64, NDArray[np.bool_]]:
+    """Samples ``step_m`` apart along the face normal through each face cell's centre, from
+    ``reach_m`` inside the face map's slab to ``reach_m`` outside it: their offsets along the
+    normal (m), and per cell and sample whether it lies in the air above the true ground."""
+    g = face.grid
+    ws = np.arange(-face.cfg.slab_in_m - reach_m, face.cfg.slab_out_m + reach_m + step_m / 2, step_m)
+    u = g.x0 + (cells % g.nx + 0.5) * g.cell
+    v = g.y0 + (cells // g.nx + 0.5) * g.cell
+    q = np.stack(np.broadcast_arrays(u[:, None], v[:, None], ws[None, :]), axis=-1)
+    p = face.frame.to_world(q.reshape(-1, 3)).reshape(q.shape)
+    return ws, p[..., 2] - np.nan_to_num(world.ground_at(p[..., 0], p[..., 1]), nan=1e9) > 0
+
+
 def air_gap_along_normal(world: World, face: FaceMap, cells: NDArray[np.intp], reach_m: float = 0.25,
                          step_m: float = 0.005) -> F64:
     """The widest run of air between the first and the last crossing of the true surface on the
@@ -80,13 +94,7 @@ def air_gap_along_normal(world: World, face: FaceMap, cells: NDArray[np.intp], r
     (:func:`along_normal`: first and last crossing more than the gap apart) may hold only a sliver
     of air between its two surfaces (a rock resting on the face); one whose air is as wide as the
     gap is two surfaces a view can tell apart."""
-    g = face.grid
-    ws = np.arange(-face.cfg.slab_in_m - reach_m, face.cfg.slab_out_m + reach_m + step_m / 2, step_m)
-    u = g.x0 + (cells % g.nx + 0.5) * g.cell
-    v = g.y0 + (cells // g.nx + 0.5) * g.cell
-    q = np.stack(np.broadcast_arrays(u[:, None], v[:, None], ws[None, :]), axis=-1)
-    p = face.frame.to_world(q.reshape(-1, 3)).reshape(q.shape)
-    air = p[..., 2] - np.nan_to_num(world.ground_at(p[..., 0], p[..., 1]), nan=1e9) > 0
+    _, air = air_along_normal(world, face, cells, reach_m, step_m)
     out = np.zeros(len(cells))
     for k in range(len(cells)):
         a = air[k]

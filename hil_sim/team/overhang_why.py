@@ -34,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.map.face_map import FaceMap
-from hil_sim.team.face_eval import overhang_shown, truth_along_normal
+from hil_sim.team.face_eval import air_along_normal, overhang_shown, truth_along_normal
 from hil_sim.team.face_scene import FaceScene
 from hil_sim.world.world import World
 
@@ -66,13 +66,7 @@ def first_crossing(world: World, face: FaceMap, cells: NDArray[np.intp], reach_m
                    step_m: float = 0.005) -> F64:
     """Where the normal through each cell centre first leaves the true ground (the inner surface
     of an overhang; NaN: none)."""
-    g = face.grid
-    ws = np.arange(-face.cfg.slab_in_m - reach_m, face.cfg.slab_out_m + reach_m + step_m / 2, step_m)
-    u = g.x0 + (cells % g.nx + 0.5) * g.cell
-    v = g.y0 + (cells // g.nx + 0.5) * g.cell
-    q = np.stack(np.broadcast_arrays(u[:, None], v[:, None], ws[None, :]), axis=-1)
-    p = face.frame.to_world(q.reshape(-1, 3)).reshape(q.shape)
-    air = p[..., 2] - np.nan_to_num(world.ground_at(p[..., 0], p[..., 1]), nan=1e9) > 0
+    ws, air = air_along_normal(world, face, cells, reach_m, step_m)
     up = ~air[:, :-1] & air[:, 1:]
     has = up.any(axis=1)
     return np.where(has, ws[np.argmax(up, axis=1)] + 0.5 * step_m, np.nan)
