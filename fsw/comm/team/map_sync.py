@@ -144,6 +144,7 @@ class MapSync:
         self.stats = SyncStats(minimal_bytes=PROFILE_BYTES)  # my profile, once per session
         self.peer_profile: TileProfile | None = None  # the peer's tile profile, once it sent it
         self.attach_profile = True  # my DIGESTs asking for holdings carry my profile
+        self._peer_profile_stale = False  # its holdings named another profile of mine
         self._refused_profiles: set[int] = set()
         self.belief: dict[int, tuple[int, int]] = {}  # what the peer holds of my layer
         self.peer_boot: int | None = None
@@ -156,12 +157,10 @@ class MapSync:
         self._lost: set[int] = set()
         self._last_rx_s: float | None = None
         self._started_s: float | None = None
-        self._peer_dseq: int | None = None
-        self._peer_serial: int | None = None
+        self._peer_serial: int | None = None  # the peer's last packet accepted (the echo)
+        self._rx_serials: OrderedDict[int, None] = OrderedDict()  # the peer's packets accepted, recent
+        self._sent_tiles: OrderedDict[int, tuple[int, int]] = OrderedDict()  # serial -> (tile, version) of mine
         self._recent: OrderedDict[tuple[int, int, bytes], None] = OrderedDict()
-        self._dseq = 0
-        self._digest_log: OrderedDict[int, tuple[tuple[int, int], ...]] = OrderedDict()
-        self._unconfirmed: dict[int, int] = {}  # peer tiles received, acks not yet confirmed
         self._digest_due: float | None = None
         self._answer = False
         self._last_digest_s = float("-inf")
@@ -176,7 +175,6 @@ class MapSync:
         self._returned_at: dict[int, float] = {}
         self._mismatches = 0
         self._now = 0.0
-        self._acks_cut = False
         self._ack_first_s: float | None = None  # first and last tile not yet acknowledged
         self._ack_last_s = 0.0
         self._last_tx_s = float("-inf")
@@ -292,7 +290,6 @@ class MapSync:
         if self._last_rx_s is not None and now_s - self._last_rx_s > self.cfg.stall_s:
             self.events.emit(now_s, "LINK_BACK", silent_s=round(now_s - self._last_rx_s, 3))
         self._last_rx_s = now_s
-        self._peer_serial = p.serial
         if isinstance(p, sp.Tile):
             stale = self.stats.stale_tiles
             self._on_tile(p, now_s)
@@ -363,10 +360,21 @@ class MapSync:
             self.stats.tiles_in += 1
         else:
             self.stats.stale_tiles += 1
-        self._unconfirmed[p.tile] = self.rep.held[p.tile].version
+        self._accepted(p.serial)
         if self._ack_first_s is None:
             self._ack_first_s = now_s
         self._ack_last_s = now_s
+
+    def _accepted(self, serial: int) -> None:
+        """A packet of the peer taken in: my next DIGEST echoes it (and acknowledges its tile)."""
+        self._peer_serial = serial
+        self._rx_serials[serial] = None
+        self._rx_serials.move_to_end(serial)
+        if len(self._rx_serials) > 4 * sp.ACK_WINDOW:
+            self._rx_serials.popitem(last=False)
+
+    def _ack_bits(self, echo: int) -> int:
+        return sum(1 << i for i in range(sp.ACK_WINDOW) if (echo - 1 - i) & 0xFFFF in self._rx_serials)
 
     def _ack_due(self) -> float | None:
         """When the acknowledgement of the tiles received is due: ``ack_delay_s`` after the last
@@ -399,19 +407,19 @@ class MapSync:
         elif self.peer_boot is None and now_s - self._last_holdings_s >= self.cfg.holdings_retry_s:
             self._queue_holdings(now_s)  # first contact since my start: the peer will ask for them
         self.peer_boot = p.boot
-        self._peer_dseq = p.dseq
-        if p.flags & sp.ECHO_VALID:
-            for t, v in self._digest_log.pop(p.echo_dseq, ()):
-                if self._unconfirmed.get(t) == v:
-                    del self._unconfirmed[t]
-        for t, v in p.acks:
-            rec = self.rep.own.get(t)
-            if rec is not None and v == rec.version & 0xFFFF:  # acknowledgements carry 16 bits
-                self.belief[t] = (rec.version, rec.digest)
-                self._inflight.pop(t, None)
-                self._lost.discard(t)
-        synced = p.held_hash == self.rep.layer_hash(self.agent)
-        if synced:
+        self._accepted(p.serial)
+        if p.flags & sp.KNOWS_PROFILE and not self._peer_profile_stale:  # it holds my profile
+            self.attach_profile = False
+        for s in p.acked():
+            sent = self._sent_tiles.get(s)
+            rec = self.rep.own.get(sent[0]) if sent is not None else None
+            if sent is not None and rec is not None and sent[1] == rec.version:  # it holds my latest version
+                self.belief[sent[0]] = (rec.version, rec.digest)
+                self._inflight.pop(sent[0], None)
+                self._lost.discard(sent[0])
+        if p.held_hash is None:
+            pass  # an acknowledgement alone: what it proves is above
+        elif p.held_hash == self.rep.layer_hash(self.agent):
             self.belief = {t: (r.version, r.digest) for t, r in self.rep.own.items()}
             self._inflight.clear()
             self._lost.clear()
@@ -431,15 +439,13 @@ class MapSync:
             if t in self.rep.held and now_s - self._returned_at.get(t, float("-inf")) >= self.cfg.holdings_retry_s:
                 self._returns.add(t)
         self._probe_gap = self.cfg.probe_s
-        if p.flags & sp.ECHO_VALID and not p.flags & sp.ACKS_CUT:
+        if p.flags & sp.ECHO_VALID:
             echo_t = self._sent_at.get(p.echo_serial)
             if echo_t is not None:
                 for t, (v, ts) in list(self._inflight.items()):
                     if ts + self.cfg.reorder_slack_s <= echo_t and self.rep.own[t].version == v and self._needed(t):
                         self._lost.add(t)
                         del self._inflight[t]
-        if self._unconfirmed and self._acks_cut:  # the rest of the acknowledgements
-            self._schedule_digest(now_s + self.cfg.ack_delay_s)
 
     def _on_holdings(self, p: sp.Holdings, now_s: float) -> None:
         per = self._holdings_per_page()
@@ -451,7 +457,7 @@ class MapSync:
         if not self.want_holdings:
             return
         if p.profile != self.rep.profile.pid:  # the peer cannot decode my tiles yet
-            self.attach_profile = True
+            self.attach_profile = self._peer_profile_stale = True
             return
         self._holdings_in[p.page] = p.entries  # pages of any set combine: each is its tiles' state
         if len(self._holdings_in) < p.n_pages:
@@ -459,7 +465,7 @@ class MapSync:
         entries = [e for page in sorted(self._holdings_in) for e in self._holdings_in[page]]
         self._holdings_in.clear()
         self.want_holdings = False
-        self.attach_profile = False
+        self.attach_profile = self._peer_profile_stale = False
         self.fresh = False
         self.belief = {t: (v, d) for t, v, d in entries}
         self._inflight.clear()
@@ -528,25 +534,24 @@ class MapSync:
         return self._serial
 
     def _make_digest(self, now_s: float) -> bytes:
-        self._dseq = (self._dseq + 1) & 0xFF
         prof = self.rep.profile if self.want_holdings and self.attach_profile else None
-        fixed = sp.DIGEST_BASE + (PROFILE_BYTES if prof is not None else 0)
-        wants = tuple(sorted(self.wants))[: (self.cfg.mtu_bytes - fixed) // 4 // sp.WANT_BYTES]
-        room = (self.cfg.mtu_bytes - fixed - (1 + sp.WANT_BYTES * len(wants) if wants else 0)) // sp.ACK_BYTES
-        acks = tuple(sorted(self._unconfirmed.items()))[: min(room, 255)]
+        fixed = sp.DIGEST_BASE + sp.HASH_BYTES + 1 + (PROFILE_BYTES if prof is not None else 0)
+        wants = tuple(sorted(self.wants))[: min(255, (self.cfg.mtu_bytes - fixed) // sp.WANT_BYTES)]
         probe = (self._probe_due() or float("inf")) <= now_s
         stalled = self._stalled(now_s)
-        self._acks_cut = len(acks) < len(self._unconfirmed)
         ask = probe or stalled
+        echo = self._peer_serial
+        # An acknowledgement or a probe of tiles in flight leaves the layer hash out (the serials
+        # acknowledged prove what they prove; a probe's answer carries the hash): every other
+        # DIGEST (answers, keepalives, probes of a silent link, asks for holdings) carries it.
+        ack_only = (self._ack_first_s is not None or probe) and not (
+            stalled or self._answer or self.want_holdings or self.wants)
         flags = ((sp.WANT_HOLDINGS if self.want_holdings else 0) | (sp.FRESH if self.fresh else 0)
-                 | (sp.ANSWER_NOW if ask else 0)
-                 | (sp.ACKS_CUT if len(acks) < len(self._unconfirmed) else 0)
-                 | (sp.ECHO_VALID if self._peer_dseq is not None else 0))
-        self._digest_log[self._dseq] = acks
-        if len(self._digest_log) > 64:
-            self._digest_log.popitem(last=False)
-        d = sp.Digest(self.agent, self.frame, self._stamp(now_s), self.boot, self._dseq, self._peer_dseq or 0,
-                      self._peer_serial or 0, flags, self.rep.layer_hash(self.peer), acks, wants[:255], prof)
+                 | (sp.ANSWER_NOW if ask else 0) | (sp.ECHO_VALID if echo is not None else 0)
+                 | (sp.KNOWS_PROFILE if self.peer_profile is not None else 0))
+        d = sp.Digest(self.agent, self.frame, self._stamp(now_s), self.boot, echo or 0,
+                      self._ack_bits(echo) if echo is not None else 0, flags,
+                      None if ack_only else self.rep.layer_hash(self.peer), wants, prof)
         answer = self._answer
         self._digest_due = None
         self._ack_first_s = None
@@ -571,6 +576,10 @@ class MapSync:
         pkt = sp.encode(sp.Tile(self.agent, self.frame, self._stamp(now_s), owner, t, rec.version, pid, rec.blob))
         self.stats.tile_bytes_out += len(pkt)
         self.stats.tile_body_bytes_out += len(rec.blob)
+        if owner == self.agent:
+            self._sent_tiles[self._serial] = (t, rec.version)
+            if len(self._sent_tiles) > 4096:
+                self._sent_tiles.popitem(last=False)
         return pkt
 
     def poll(self, now_s: float, max_bytes: int | None = None) -> list[bytes]:

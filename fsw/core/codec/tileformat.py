@@ -115,7 +115,8 @@ def profile_from_bytes(data: bytes) -> TileProfile:
                        thr, disc)
 
 
-def _varint(n: int) -> bytes:
+def put_varint(n: int) -> bytes:
+    """``n`` (>= 0) as a LEB128 varint."""
     out = bytearray()
     while True:
         b = n & 0x7F
@@ -127,7 +128,8 @@ def _varint(n: int) -> bytes:
             return bytes(out)
 
 
-def _read_varint(data: bytes, pos: int) -> tuple[int, int]:
+def get_varint(data: bytes, pos: int) -> tuple[int, int]:
+    """(the varint at ``pos``, the position after it); ``MapCodecError`` if truncated or over-long."""
     n = shift = 0
     while True:
         if pos >= len(data) or shift > 35:
@@ -148,7 +150,7 @@ def pack_tile(has_unknown: bool, offset_steps: int, streams: list[bytes], level:
     coded = compressor(level).compress(raw) if raw else b""
     packed = len(coded) < len(raw)
     flags = (HAS_UNKNOWN if has_unknown else 0) | (COMPRESSED if packed else 0)
-    return bytes([flags]) + _varint(zz) + b"".join(_varint(n) for n in lens) + (coded if packed else raw)
+    return bytes([flags]) + put_varint(zz) + b"".join(put_varint(n) for n in lens) + (coded if packed else raw)
 
 
 def unpack_tile(data: bytes, max_cells: int) -> tuple[bool, int, list[bytes]]:
@@ -160,12 +162,12 @@ def unpack_tile(data: bytes, max_cells: int) -> tuple[bool, int, list[bytes]]:
     flags = data[0]
     if flags > HAS_UNKNOWN | COMPRESSED:
         raise MapCodecError(f"unknown tile flags {flags:#x}")
-    zz, pos = _read_varint(data, 1)
+    zz, pos = get_varint(data, 1)
     off = (zz >> 1) ^ -(zz & 1)
     has_unknown = bool(flags & HAS_UNKNOWN)
     lens = []
     for _ in range(3 if has_unknown else 2):
-        n, pos = _read_varint(data, pos)
+        n, pos = get_varint(data, pos)
         lens.append(n)
     split_n, small_n = lens[0], lens[-1]
     known_n = lens[1] if has_unknown else 0

@@ -46,9 +46,9 @@ def pump(a: MapSync, b: MapSync, t0: float, t1: float, drop: float = 0.0, seed: 
 def test_packets_round_trip_and_every_corruption_is_a_packet_error() -> None:
     pkts: list[sp.SyncPacket] = [
         sp.Tile(1, 0, 7, 1, 5, 42, 0xDEADBEEF, b"tile bytes"),
-        sp.Digest(0, 2, 9, 3, 4, 5, 6, sp.WANT_HOLDINGS | sp.ECHO_VALID | sp.HAS_WANTS, b"\x01" * 6, ((1, 2), (3, 4)),
+        sp.Digest(0, 2, 9, 3, 6, 0b101, sp.WANT_HOLDINGS | sp.ECHO_VALID | sp.HAS_WANTS | sp.HAS_HASH, b"\x01" * 6,
                   (7, 8)),
-        sp.Digest(0, 2, 9, 3, 4, 5, 6, sp.WANT_HOLDINGS | sp.HAS_PROFILE, b"\x01" * 6, (), (), end(0).profile),
+        sp.Digest(0, 2, 9, 3, 6, 0, sp.WANT_HOLDINGS | sp.HAS_PROFILE, None, (), end(0).profile),
         sp.Holdings(1, 0, 3, 4, 0, 2, 0xFEEDF00D, ((1, 2, 3), (4, 5, 6))),
     ]
     for p in pkts:
@@ -103,9 +103,30 @@ def test_a_profile_of_another_frame_or_grid_is_refused_and_its_tiles_never_merge
     assert not a.held and a.peer_profile is None
     assert a.stats.profile_mismatches == 1 + len(tiles) and a.stats.bad_packets == 0
     assert [e for e in a.events.pop_all() if e.name == "FRAME_MISMATCH"]
-    a.receive(sp.encode(sp.Digest(1, 0, 99, 0, 1, 0, 0, sp.WANT_HOLDINGS, bytes(6), (), ())), 4.0)
+    a.receive(sp.encode(sp.Digest(1, 0, 99, 0, 0, 0, sp.WANT_HOLDINGS, bytes(6))), 4.0)
     holdings = [sp.decode(d) for t in (4.0, 5.0) for d in a.poll(t) if isinstance(sp.decode(d), sp.Holdings)]
     assert holdings and all(h.profile == 0 for h in holdings)  # it names no profile of the peer
+
+
+def test_a_digest_acknowledges_the_serials_it_received() -> None:
+    d = sp.Digest(0, 0, 1, 0, 100, 0b1001, sp.ECHO_VALID, None)
+    assert sp.decode(sp.encode(d)) == d and d.acked() == [100, 99, 96]
+    assert sp.Digest(0, 0, 1, 0, 100, 0b1, 0, None).acked() == []  # no echo: nothing acknowledged
+    a, b = end(0), end(1)
+    a.publish(terrain(0), 0.0)
+    b.receive(a.poll(0.0)[0], 0.1)  # a's DIGEST with its profile
+    a.want_holdings = b.want_holdings = False  # both know what the other holds
+    tiles = [d for t in (1.0, 2.0, 3.0) for d in a.poll(t) if isinstance(sp.decode(d), sp.Tile)]
+    assert len(tiles) >= 3
+    for d in tiles[:-2] + tiles[-1:]:  # the one before last is lost
+        b.receive(d, 3.5)
+    ack = next(sp.decode(d) for t in (4.0, 5.0) for d in b.poll(t) if isinstance(sp.decode(d), sp.Digest))
+    assert isinstance(ack, sp.Digest) and ack.held_hash is None  # an acknowledgement alone
+    a.receive(sp.encode(ack), 5.1)
+    lost = sp.decode(tiles[-2])
+    assert isinstance(lost, sp.Tile)
+    assert set(a.belief) == {t for t in (sp.decode(d).tile for d in tiles) if t != lost.tile}  # type: ignore[union-attr]
+    assert lost.tile not in a.belief
 
 
 def test_only_tiles_changed_beyond_the_wheel_bound_are_published() -> None:
@@ -152,7 +173,7 @@ def test_bad_and_foreign_packets_are_counted_and_dropped() -> None:
     h = a.replica_hash()
     good = sp.encode(sp.Tile(1, 0, 999, 1, 0, 10**6, b.profile.pid, b"not a tile body"))
     junk = [b"", b"\xa5", bytes(300), good, sp.encode(sp.Tile(2, 0, 5, 2, 0, 1, b.profile.pid, b"x")),
-            sp.encode(sp.Digest(1, 9, 1, 0, 1, 0, 0, 0, bytes(6), (), ())),
+            sp.encode(sp.Digest(1, 9, 1, 0, 0, 0, 0, bytes(6))),
             sp.encode(sp.Holdings(1, 0, 1, 1, 0, 7, a.profile.pid, ((0, 1, 2),)))]
     for d in junk:
         a.receive(d, 6.0)
@@ -196,8 +217,8 @@ def test_forged_packets_with_valid_checksums_never_raise() -> None:
             blob[int(rng.integers(0, len(blob)))] = int(rng.integers(0, 256))
         forged = sp.Tile(1, 0, 1000 + i, 1, int(rng.integers(0, 12)), 5000 + i, t.profile, bytes(blob))
         a.receive(sp.encode(forged), 2.0)
-        d = sp.encode(sp.Digest(1, 0, 2000 + i, 0, i, 0, 0, int(rng.integers(0, 32)),
-                                rng.bytes(6), ((int(rng.integers(0, 99)), i),), (int(rng.integers(0, 99)),)))
+        d = sp.encode(sp.Digest(1, 0, 2000 + i, 0, int(rng.integers(0, 1 << 16)), int(rng.integers(0, 1 << 32)),
+                                int(rng.integers(0, 32)), rng.bytes(6), (int(rng.integers(0, 99)),)))
         a.receive(d, 2.0)
         h = sp.encode(sp.Holdings(1, 0, 3000 + i, 0, int(rng.integers(0, 2)), 1, a.profile.pid,
                                   ((int(rng.integers(0, 99)), i, 0),)))
