@@ -541,11 +541,11 @@ class MapSync:
         stalled = self._stalled(now_s)
         ask = probe or stalled
         echo = self._peer_serial
-        # An acknowledgement or a probe of tiles in flight leaves the layer hash out (the serials
-        # acknowledged prove what they prove; a probe's answer carries the hash): every other
-        # DIGEST (answers, keepalives, probes of a silent link, asks for holdings) carries it.
-        ack_only = (self._ack_first_s is not None or probe) and not (
-            stalled or self._answer or self.want_holdings or self.wants)
+        # Acknowledgements, probes of tiles in flight and their answers leave the layer hash out:
+        # the serials acknowledged prove what they prove. Keepalives, probes of a silent link and
+        # asks for holdings carry it (what proves the peer holds all of my layer, or not).
+        ack_only = (self._ack_first_s is not None or probe or self._answer or self._digest_due is not None) and not (
+            stalled or self.want_holdings or self.wants)
         flags = ((sp.WANT_HOLDINGS if self.want_holdings else 0) | (sp.FRESH if self.fresh else 0)
                  | (sp.ANSWER_NOW if ask else 0) | (sp.ECHO_VALID if echo is not None else 0)
                  | (sp.KNOWS_PROFILE if self.peer_profile is not None else 0))
