@@ -9,9 +9,11 @@ versioned map-codec tiles, the agent's own and its copy of the peer's, and their
   with the map tile its last version was made from and publishes a new version only where a
   cell became known or unknown or moved by more than the error bound (one wheel diameter by
   default).
-* New versions go out as TILE packets, highest ``priority(ty, tx)`` first (the receiver's task:
-  e.g. its corridor), paced to ``rate_bps``. The peer acknowledges them in its DIGESTs (every
-  acknowledgement is repeated until the peer's own DIGEST echoes the digest that carried it).
+* New versions go out as TILE packets (compact tile bodies of my tile profile, which the peer
+  holds before any goes: it rides on my DIGESTs asking for holdings until the peer says it
+  holds it), highest ``priority(ty, tx)`` first (the receiver's task: e.g. its corridor),
+  paced to ``rate_bps``. The peer acknowledges them in its DIGESTs by the serials it took in
+  (the echo and a window of the 32 before it; I keep which tile version each serial carried).
   A tile is sent again only when a DIGEST proves it lost: the peer had received a packet sent
   ``reorder_slack_s`` after it, and does not hold it (as TCP RACK). After the last tile a DIGEST
   asking for an answer probes the tail.
@@ -146,6 +148,7 @@ class MapSync:
         self.attach_profile = True  # my DIGESTs asking for holdings carry my profile
         self._peer_profile_stale = False  # its holdings named another profile of mine
         self._refused_profiles: set[int] = set()
+        self._bad_event_s, self._bad_since = float("-inf"), 0
         self.belief: dict[int, tuple[int, int]] = {}  # what the peer holds of my layer
         self.peer_boot: int | None = None
         self.want_holdings = True  # every start asks: the peer may hold what I lost
@@ -271,8 +274,8 @@ class MapSync:
         """One datagram from the radio; anything invalid is counted and dropped."""
         try:
             p = sp.decode(datagram)
-        except PacketError:
-            self.stats.bad_packets += 1
+        except PacketError as exc:
+            self._bad(now_s, str(exc))
             return
         self._now = now_s
         if p.agent != self.peer or p.frame != self.frame:
@@ -302,6 +305,14 @@ class MapSync:
         else:
             self.stats.holdings_bytes_in += len(datagram)
             self._on_holdings(p, now_s)
+
+    def _bad(self, now_s: float, reason: str) -> None:
+        """A datagram dropped: counted, and an event (at most one a second, with the count)."""
+        self.stats.bad_packets += 1
+        self._bad_since += 1
+        if now_s - self._bad_event_s >= 1.0:
+            self.events.emit(now_s, "BAD_PACKET", dropped=self._bad_since, last=reason)
+            self._bad_event_s, self._bad_since = now_s, 0
 
     def _on_profile(self, prof: TileProfile, now_s: float) -> None:
         if not prof.same_grid(self.rep.profile):  # another frame or grid: never merged
@@ -335,7 +346,7 @@ class MapSync:
             return
         z = self.rep.decode_tile(p.tile, p.blob, prof)
         if z is None:
-            self.stats.bad_packets += 1
+            self._bad(now_s, f"TILE {p.tile}: its body is not a tile of the map")
             return
         rec = TileRec(p.version, p.digest, p.blob, z)
         if p.owner == self.agent:  # one of mine, given back after my restart
@@ -452,7 +463,7 @@ class MapSync:
         n = self.rep.n_tiles
         if p.n_pages != -(-n // per) or any(not p.page * per <= t < min((p.page + 1) * per, n)
                                             for t, _v, _d in p.entries):
-            self.stats.bad_packets += 1
+            self._bad(now_s, "HOLDINGS page does not fit the map")
             return
         if not self.want_holdings:
             return

@@ -175,10 +175,15 @@ def test_bad_and_foreign_packets_are_counted_and_dropped() -> None:
     junk = [b"", b"\xa5", bytes(300), good, sp.encode(sp.Tile(2, 0, 5, 2, 0, 1, b.profile.pid, b"x")),
             sp.encode(sp.Digest(1, 9, 1, 0, 0, 0, 0, bytes(6))),
             sp.encode(sp.Holdings(1, 0, 1, 1, 0, 7, a.profile.pid, ((0, 1, 2),)))]
+    a.events.pop_all()
     for d in junk:
         a.receive(d, 6.0)
     assert a.replica_hash() == h
     assert a.stats.bad_packets == 5 and a.stats.foreign_packets == 2
+    bad = [e for e in a.events.pop_all() if e.name == "BAD_PACKET"]
+    assert len(bad) == 1 and "too short" in bad[0].args["last"]  # one event a second, with the reason
+    a.receive(bytes(300), 7.5)
+    assert [e.args["dropped"] for e in a.events.pop_all() if e.name == "BAD_PACKET"] == [5]
 
 
 def test_two_ends_converge_and_a_checkpoint_restores_the_same_replica() -> None:
