@@ -149,6 +149,7 @@ class MapSync:
         self._peer_profile_stale = False  # its holdings named another profile of mine
         self._refused_profiles: set[int] = set()
         self._bad_event_s, self._bad_since = float("-inf"), 0
+        self._peer_synced = False  # the peer's last hash of my layer equalled mine, nothing published since
         self.belief: dict[int, tuple[int, int]] = {}  # what the peer holds of my layer
         self.peer_boot: int | None = None
         self.want_holdings = True  # every start asks: the peer may hold what I lost
@@ -258,6 +259,7 @@ class MapSync:
             self.events.emit(now_s, "TILE_TOO_LARGE", tile=t, bytes=len(blob))
             return False
         self.rep.new_version(t, blob, sub)
+        self._peer_synced = False
         self.wants.discard(t)
         self._lost.discard(t)
         self.stats.tiles_published += 1
@@ -412,6 +414,7 @@ class MapSync:
                 self.events.emit(now_s, "FULL_RESEND", tiles=len(self.rep.own))
             self.attach_profile = self.attach_profile or bool(p.flags & sp.FRESH)
             self.want_holdings = True
+            self._peer_synced = False
             self._inflight.clear()
             self._last_holdings_s = float("-inf")
             self._digest_due = now_s  # ask for its holdings at once
@@ -428,6 +431,8 @@ class MapSync:
                 self.belief[sent[0]] = (rec.version, rec.digest)
                 self._inflight.pop(sent[0], None)
                 self._lost.discard(sent[0])
+        if p.held_hash is not None:
+            self._peer_synced = p.held_hash == self.rep.layer_hash(self.agent)
         if p.held_hash is None:
             pass  # an acknowledgement alone: what it proves is above
         elif p.held_hash == self.rep.layer_hash(self.agent):
@@ -532,9 +537,17 @@ class MapSync:
         for due in (self._digest_due, self._ack_due(), self._probe_due()):
             if due is not None and now_s >= due:
                 return True
-        if now_s >= max(self._last_digest_s, self._last_tx_s) + self.cfg.keepalive_s:
+        if now_s >= max(self._last_digest_s, self._last_tx_s) + self._keepalive_s():
             return True
         return bool((self.want_holdings or self.wants) and now_s >= self._last_digest_s + self.cfg.holdings_retry_s)
+
+    def _keepalive_s(self) -> float:
+        """``keepalive_s`` while anything is unsettled; while the peer holds all of my layer as I
+        believe and nothing of its is owed an acknowledgement, ``0.8 stall_s`` (still inside the
+        peer's stall time: an idle team keeps its link alive at a fraction of the bytes)."""
+        settled = (not self.want_holdings and not self.wants and not self._inflight and self._ack_first_s is None
+                   and self._peer_synced)
+        return max(self.cfg.keepalive_s, 0.8 * self.cfg.stall_s) if settled else self.cfg.keepalive_s
 
     def _stamp(self, now_s: float) -> int:
         self._serial = (self._serial + 1) & 0xFFFF
@@ -663,7 +676,7 @@ class MapSync:
         free = self.pacer.free_at_s
         if self._stalled(self._now):
             return max(self._last_digest_s + self.cfg.probe_max_s, free)
-        cands = [max(self._last_digest_s, self._last_tx_s) + self.cfg.keepalive_s]
+        cands = [max(self._last_digest_s, self._last_tx_s) + self._keepalive_s()]
         cands += [d for d in (self._digest_due, self._ack_due(), self._probe_due()) if d is not None]
         if self.want_holdings or self.wants:
             cands.append(self._last_digest_s + self.cfg.holdings_retry_s)

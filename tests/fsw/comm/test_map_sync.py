@@ -129,6 +129,22 @@ def test_a_digest_acknowledges_the_serials_it_received() -> None:
     assert lost.tile not in a.belief
 
 
+def test_a_settled_idle_pair_keeps_its_link_alive_at_a_slower_pace() -> None:
+    a, b = end(0), end(1)
+    a.publish(terrain(0), 0.0)
+    b.publish(terrain(1), 0.0)
+    pump(a, b, 0.0, 30.0)
+    assert a.replica_hash() == b.replica_hash()
+    sent = a.stats.digests_out + b.stats.digests_out
+    pump(a, b, 30.0, 130.0)  # 100 s with nothing new
+    idle = a.stats.digests_out + b.stats.digests_out - sent
+    assert 2 * 100 / (0.8 * a.cfg.stall_s) - 2 <= idle <= 2 * 100 / (0.8 * a.cfg.stall_s) + 2  # not every 10 s
+    assert not a._stalled(130.0) and not b._stalled(130.0)
+    b.publish(terrain(1) + np.float32(3 * WHEEL), 130.0)  # something new: settled no more
+    pump(a, b, 130.0, 160.0)
+    assert a.replica_hash() == b.replica_hash()
+
+
 def test_only_tiles_changed_beyond_the_wheel_bound_are_published() -> None:
     s = end()
     z = terrain()
