@@ -111,10 +111,10 @@ class MissionGround:
 
     def stood_on_wkb(self) -> list[str]:
         """The ground the rover stood on (known ground of the geofence), as WKB hex (a checkpoint)."""
-        return [str(shapely.to_wkb(g, hex=True)) for g in self.geofence.known._stood]
+        return [str(shapely.to_wkb(g, hex=True)) for g in self.geofence.stood.footprints]
 
     def set_stood_on(self, stood: list[BaseGeometry]) -> None:
-        self.geofence.known._stood = list(stood)
+        self.geofence.stood.replace(stood)
 
     # -- the geofence work of a move, as a slack job ----------------------------------------------
     def in_slack(self, work: Generator[None, None, object], then: Callable[[JobHandle], None]) -> None:
