@@ -19,6 +19,9 @@ issue 13 item 3): a part of :class:`fsw.tasks.mission.MissionTask`.
   one check a slice (``MissionGround.in_slack``); the mission's activations wait for it and then go on
   with its result. Done in the foreground it took 10-50 ms an activation (up to 590 ms for a
   part-way search on lab seed 2), 0.3-1.5 s on a flight computer 30x slower (issue 15).
+- Another task's wheel move (the fixer's turns in place) is checked the same way
+  (:func:`check_move`): on what the mission's geofence stands on, which the mission publishes on
+  ``mission.ground`` at each change of its state (:meth:`MissionGround.shared`).
 """
 
 from __future__ import annotations
