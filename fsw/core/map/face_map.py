@@ -39,6 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import ndimage
 
 from fsw.core.geometry import MapGrid
 from fsw.core.map.elevation_map import ElevationMap, FusionConfig, MergeStats, nan_gradient
@@ -310,7 +311,7 @@ class FaceElevation(ElevationMap):
 
     def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64, vm_pose: F64 | None = None) -> tuple[int, int, int]:
         if self.cfg.slope_term and cells.size:
-            vm = vm + relief_variance(self.grid, cells, zm, self.step_cells, self.eye)
+            vm = vm + relief_variance(self.grid, cells, zm, self.step_cells, self.eye, self.cfg.hidden_relief)
         z, var, n = self.z.reshape(-1), self.var.reshape(-1), self.n.reshape(-1)
         z0, v0, n0 = z[cells], var[cells], n[cells]
         with np.errstate(invalid="ignore"):
@@ -530,7 +531,7 @@ def window_span(frame: FaceFrame, eye: F64, xyz: F64, window_rad: float) -> F64:
 
 
 def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells: int = 0,
-                    eye: F64 | None = None) -> F64:
+                    eye: F64 | None = None, hidden: bool = False) -> F64:
     """Per measured cell (flat ``cells``, the view's cell means ``zm``), the variance of a view's
     sample of the cell against its centre: ``E|g|^2 c^2 / 12`` with ``E|g|^2 = 2 |g|^2`` (``g``
     the gradient of the view's cell means, its unresolved part as wide again), plus, with
@@ -539,7 +540,12 @@ def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells:
     below) the cell's tangent plane (:func:`step_heights`), scaled by the share of a step
     ``h = max(r_up, r_down)`` a view from ``eye`` (face frame; None: in full) mixes into the
     cell: ``h tan t`` (the length of face a step of that height hides or mixes in at the
-    incidence ``t`` of the sight line to the cell) over one cell, at most 1 (FaceElevation)."""
+    incidence ``t`` of the sight line to the cell) over one cell, at most 1 (FaceElevation).
+    With ``hidden`` (and ``step_cells > 0``), a cell next to a cell the view did not measure
+    (of its eight neighbours inside the grid) also gains the view's
+    mean steps' variance ``rho^2`` (:func:`hidden_relief`), scaled by the same share with
+    ``h = sqrt(3 rho^2)``: the step the view could not see beside it taken as large as the
+    steps it saw."""
     dense = np.full(grid.nx * grid.ny, np.nan)
     dense[cells] = zm
     z = dense.reshape(grid.shape)
@@ -548,18 +554,59 @@ def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells:
     out = 2.0 * g2 * grid.cell**2 / 12.0
     if step_cells > 0:
         up, down = step_heights(z, step_cells)
+        steps = ((up * up + down * down) / 3.0).reshape(-1)[cells]
         up, down = up.reshape(-1)[cells], down.reshape(-1)[cells]
-        share = np.ones(len(cells))
+        tan_t: F64 | None = None
         if eye is not None:
             q = np.column_stack([grid.x0 + (cells % grid.nx + 0.5) * grid.cell,
                                  grid.y0 + (cells // grid.nx + 0.5) * grid.cell, zm])
             d = q - np.reshape(eye, (1, 3))
             with np.errstate(divide="ignore", invalid="ignore"):
-                tan_t = np.hypot(d[:, 0], d[:, 1]) / np.abs(d[:, 2])
-                share = np.clip(np.nan_to_num(np.maximum(up, down) * tan_t / grid.cell, nan=1.0, posinf=1.0),
-                                0.0, 1.0)
-        out = out + share * (up * up + down * down) / 3.0
+                tan_t = np.asarray(np.hypot(d[:, 0], d[:, 1]) / np.abs(d[:, 2]), float)
+        out = out + _step_share(np.maximum(up, down), tan_t, grid.cell) * steps
+        if hidden:
+            beside, rho2 = hidden_relief(z, step_cells)
+            h = np.full(len(cells), np.sqrt(3.0 * rho2))
+            out = out + beside.reshape(-1)[cells] * _step_share(h, tan_t, grid.cell) * rho2
     return np.asarray(out, float)
+
+
+def _step_share(h: F64, tan_t: F64 | None, cell_m: float) -> F64:
+    """The share of a step ``h`` high a view mixes into a cell at the incidence ``t`` of its
+    sight line: ``h tan t`` over one cell, at most 1 (None: the incidence is unknown, 1)."""
+    if tan_t is None:
+        return np.ones(len(h))
+    with np.errstate(invalid="ignore"):
+        share = np.nan_to_num(h * tan_t / cell_m, nan=1.0, posinf=1.0)
+    return np.asarray(np.clip(share, 0.0, 1.0), float)
+
+
+def hidden_relief(z: F64, reach: int) -> tuple[B, float]:
+    """``(beside, rho^2)`` for one view's heightfield of cell means ``z`` (NaN: the view put no
+    point there): the cells it measured with a neighbour it did not (of their eight inside the
+    grid: beyond it the ground is the gravity grid's, not hidden), and the view's mean steps'
+    variance ``(r_up^2 + r_down^2) / 3`` (:func:`step_heights` within ``reach``) over the cells
+    whose whole reach it measured (over all its cells when it measured no such cell; 0 when
+    none).
+
+    At grazing incidence a view misses the ground the relief hides from it (behind a rise, in
+    front of a step turned away) and puts a cell's points on what it sees of the cell: the top of
+    the rise. Beside a neighbour it did not see, its own cell means show no step and the steps'
+    term adds nothing, yet the cell's ground may lie as far below its sample as the relief
+    reaches; the relief the view could not see is taken as large as the relief it saw."""
+    known = np.isfinite(z)
+    if not known.any():
+        return np.zeros(z.shape, bool), 0.0
+    k = np.ones((3, 3))
+    ring = ndimage.convolve(known.astype(np.float64), k, mode="constant", cval=1.0)
+    beside = known & (ring < 8.5)
+    size = 2 * reach + 1
+    full = known & (ndimage.convolve(known.astype(np.float64), np.ones((size, size)), mode="constant",
+                                     cval=1.0) > size * size - 0.5)
+    up, down = step_heights(z, reach)
+    steps = (up * up + down * down) / 3.0
+    rho2 = float(np.mean(steps[full])) if full.any() else float(np.mean(steps[known]))
+    return np.asarray(beside, bool), rho2
 
 
 def step_heights(z: F64, reach: int) -> tuple[F64, F64]:
