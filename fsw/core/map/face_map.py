@@ -542,10 +542,11 @@ def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells:
     cell: ``h tan t`` (the length of face a step of that height hides or mixes in at the
     incidence ``t`` of the sight line to the cell) over one cell, at most 1 (FaceElevation).
     With ``hidden`` (and ``step_cells > 0``), a cell next to a cell the view did not measure
-    (of its eight neighbours inside the grid) also gains the view's
-    mean steps' variance ``rho^2`` (:func:`hidden_relief`), scaled by the same share with
-    ``h = sqrt(3 rho^2)``: the step the view could not see beside it taken as large as the
-    steps it saw."""
+    (of its eight neighbours inside the grid) also gains ``h^2 / 3`` for a step of
+    ``h^2 = max(3 rho^2, zm^2)``, scaled by the same share: the step the view could not see
+    beside it taken as large as the steps it saw (``rho^2``, the view's mean steps' variance,
+    :func:`hidden_relief`) or as the cell's own height out of the fitted plane (the face beside
+    a rock's top the view saw alone lies on the plane)."""
     dense = np.full(grid.nx * grid.ny, np.nan)
     dense[cells] = zm
     z = dense.reshape(grid.shape)
@@ -566,8 +567,8 @@ def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells:
         out = out + _step_share(np.maximum(up, down), tan_t, grid.cell) * steps
         if hidden:
             beside, rho2 = hidden_relief(z, step_cells)
-            h = np.full(len(cells), np.sqrt(3.0 * rho2))
-            out = out + beside.reshape(-1)[cells] * _step_share(h, tan_t, grid.cell) * rho2
+            h2 = np.maximum(3.0 * rho2, zm * zm)
+            out = out + beside.reshape(-1)[cells] * _step_share(np.sqrt(h2), tan_t, grid.cell) * h2 / 3.0
     return np.asarray(out, float)
 
 
