@@ -542,11 +542,12 @@ def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells:
     cell: ``h tan t`` (the length of face a step of that height hides or mixes in at the
     incidence ``t`` of the sight line to the cell) over one cell, at most 1 (FaceElevation).
     With ``hidden`` (and ``step_cells > 0``), a cell next to a cell the view did not measure
-    (of its eight neighbours inside the grid) also gains ``h^2 / 3`` for a step of
-    ``h^2 = max(3 rho^2, zm^2)``, scaled by the same share: the step the view could not see
-    beside it taken as large as the steps it saw (``rho^2``, the view's mean steps' variance,
-    :func:`hidden_relief`) or as the cell's own height out of the fitted plane (the face beside
-    a rock's top the view saw alone lies on the plane)."""
+    (of its eight neighbours inside the grid) also gains ``h^2 / 3``, scaled by the same share,
+    for the step the view could not see beside it: as large as the steps it saw (``h^2 = 3
+    rho^2``, ``rho^2`` the view's mean steps' variance over the cells whose whole reach it
+    measured, :func:`hidden_relief`), or, when it measured no such cell and so shows no relief
+    of its own, as the cell's own height out of the fitted plane (``h = zm``: the face beside a
+    rock's top the view saw alone lies on the plane)."""
     dense = np.full(grid.nx * grid.ny, np.nan)
     dense[cells] = zm
     z = dense.reshape(grid.shape)
@@ -567,7 +568,7 @@ def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells:
         out = out + _step_share(np.maximum(up, down), tan_t, grid.cell) * steps
         if hidden:
             beside, rho2 = hidden_relief(z, step_cells)
-            h2 = np.maximum(3.0 * rho2, zm * zm)
+            h2 = np.full(len(cells), 3.0 * rho2) if rho2 is not None else zm * zm
             out = out + beside.reshape(-1)[cells] * _step_share(np.sqrt(h2), tan_t, grid.cell) * h2 / 3.0
     return np.asarray(out, float)
 
@@ -582,13 +583,12 @@ def _step_share(h: F64, tan_t: F64 | None, cell_m: float) -> F64:
     return np.asarray(np.clip(share, 0.0, 1.0), float)
 
 
-def hidden_relief(z: F64, reach: int) -> tuple[B, float]:
+def hidden_relief(z: F64, reach: int) -> tuple[B, float | None]:
     """``(beside, rho^2)`` for one view's heightfield of cell means ``z`` (NaN: the view put no
     point there): the cells it measured with a neighbour it did not (of their eight inside the
     grid: beyond it the ground is the gravity grid's, not hidden), and the view's mean steps'
     variance ``(r_up^2 + r_down^2) / 3`` (:func:`step_heights` within ``reach``) over the cells
-    whose whole reach it measured (over all its cells when it measured no such cell; 0 when
-    none).
+    whose whole reach it measured (None when it measured no such cell).
 
     At grazing incidence a view misses the ground the relief hides from it (behind a rise, in
     front of a step turned away) and puts a cell's points on what it sees of the cell: the top of
@@ -597,7 +597,7 @@ def hidden_relief(z: F64, reach: int) -> tuple[B, float]:
     reaches; the relief the view could not see is taken as large as the relief it saw."""
     known = np.isfinite(z)
     if not known.any():
-        return np.zeros(z.shape, bool), 0.0
+        return np.zeros(z.shape, bool), None
     k = np.ones((3, 3))
     ring = ndimage.convolve(known.astype(np.float64), k, mode="constant", cval=1.0)
     beside = known & (ring < 8.5)
@@ -606,7 +606,7 @@ def hidden_relief(z: F64, reach: int) -> tuple[B, float]:
                                      cval=1.0) > size * size - 0.5)
     up, down = step_heights(z, reach)
     steps = (up * up + down * down) / 3.0
-    rho2 = float(np.mean(steps[full])) if full.any() else float(np.mean(steps[known]))
+    rho2 = float(np.mean(steps[full])) if full.any() else None
     return np.asarray(beside, bool), rho2
 
 

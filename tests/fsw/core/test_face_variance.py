@@ -254,24 +254,25 @@ def test_a_cell_beside_ground_the_view_did_not_see_keeps_its_error_within_two_si
 
 
 def test_a_rock_top_seen_alone_is_not_taken_for_the_face_beside_it() -> None:
-    """A view from the plateau sees only a rock's top standing 0.4 m out of the face (a 5 x 5
+    """A view from the plateau sees only a rock's top standing 0.4 m out of the face (a 4 x 4
     patch of cells, flat): the rock overhangs the face around it, so under the patch's outer
-    ring the face itself lies near the plane. The view's cells show no step and its relief is
-    nil, yet those cells stand 0.4 m out of the fitted plane beside ground it did not see: with
-    ``hidden_relief`` every ring cell holds the face's height within 2 sigma; without it none."""
+    ring the face itself lies near the plane. The view resolves no neighbourhood of its own (no
+    relief to measure), yet those cells stand 0.4 m out of the fitted plane beside ground it did
+    not see: with ``hidden_relief`` every ring cell holds the face's height within 2 sigma;
+    without it none does."""
     from fsw.core.map.elevation_map import FusionConfig
 
     rng = np.random.default_rng(5)
     n, top = 15, 0.4
-    u = rng.uniform(5 * CELL, 10 * CELL, 2000)
-    v = rng.uniform(5 * CELL, 10 * CELL, 2000)
+    u = rng.uniform(5 * CELL, 9 * CELL, 2000)
+    v = rng.uniform(5 * CELL, 9 * CELL, 2000)
     xyz = np.column_stack([u, v, top + rng.normal(0, 0.005, len(u))])
     cov = np.tile(np.diag([1e-4, 1e-4, 0.005**2]), (len(u), 1, 1))
     truth = np.zeros((n, n))
-    truth[6:9, 6:9] = top  # the rock's body; the ring around it is its overhanging rim
+    truth[6:8, 6:8] = top  # the rock's body; the ring around it is its overhanging rim
     ring = np.zeros((n, n), bool)
-    ring[5:10, 5:10] = True
-    ring[6:9, 6:9] = False
+    ring[5:9, 5:9] = True
+    ring[6:8, 6:8] = False
     for hidden, want in ((True, 1.0), (False, 0.0)):
         fm = FaceElevation(MapGrid(0.0, 0.0, CELL, n, n), FusionConfig(hidden_relief=hidden), step_cells=2)
         run_merge(fm, [(xyz.copy(), cov.copy(), None)], None)
