@@ -257,7 +257,7 @@ def face_band(gravity: ElevationMap, frame: FaceFrame, min_slope_deg: float = 45
 
 
 class FaceElevation(ElevationMap):
-    """The face map's grid: §1.1 with four changes (docs/algorithm.md §8.1).
+    """The face map's grid: §1.1 with five changes (docs/algorithm.md §8.1).
 
     *The relief the view cannot resolve.* A view's gradient ``g`` (of its own cell means, the
     slope term of §1.2) is the face's relief blurred by the points' error along the face: at
@@ -281,6 +281,11 @@ class FaceElevation(ElevationMap):
     a grazing view's: the term is scaled by ``h tan t`` over one cell, at most 1, with ``h`` the
     step and ``t`` the incidence of the view's sight line to the cell (the face a step hides or
     mixes in; a view head-on mixes none).
+
+    *The steps a view did not see* (``[fusion] hidden_relief``). Beside a cell the view did not
+    measure (the relief hid it) the steps' term finds no step; the cell gains the variance of a
+    step as large as the steps the view saw elsewhere, or, in a view that resolved no relief of
+    its own, as the cell's height out of the plane (:func:`hidden_relief`).
 
     *The weights.* Of a cell's height and a view's, each is weighted by its whole variance, not
     by its independent part alone as in §1.1: the common part (the camera pose's, a share of the
