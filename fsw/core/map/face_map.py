@@ -304,6 +304,9 @@ class FaceElevation(ElevationMap):
         # the camera centre (face frame) of the view being merged, or None (unknown: the steps'
         # term in full); FaceMap.merge_parts sets it for one merge
         self.eye: F64 | None = None
+        # the cells the view being merged looked at (:func:`in_view`), or None (all of them);
+        # FaceMap.merge_parts sets it for one merge
+        self.in_view: B | None = None
 
     def _vertical_variance(self, grad: tuple[F64, F64], c6: tuple[F64, ...], footprint: bool) -> F64:
         """§1.2's slope term plus the unresolved slope's share, ``g_u^2 P_uu + g_v^2 P_vv``, in a
@@ -316,7 +319,8 @@ class FaceElevation(ElevationMap):
 
     def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64, vm_pose: F64 | None = None) -> tuple[int, int, int]:
         if self.cfg.slope_term and cells.size:
-            vm = vm + relief_variance(self.grid, cells, zm, self.step_cells, self.eye, self.cfg.hidden_relief)
+            vm = vm + relief_variance(self.grid, cells, zm, self.step_cells, self.eye, self.cfg.hidden_relief,
+                                      self.in_view)
         z, var, n = self.z.reshape(-1), self.var.reshape(-1), self.n.reshape(-1)
         z0, v0, n0 = z[cells], var[cells], n[cells]
         with np.errstate(invalid="ignore"):
@@ -489,11 +493,15 @@ class FaceMap:
         fe = self.map if isinstance(self.map, FaceElevation) else None
         if fe is not None and eye is not None:
             fe.eye = self.frame.to_face(np.reshape(eye, (1, 3)))[0]
+            if fe.cfg.hidden_relief:
+                ray_xyz = np.concatenate([p[0] for p in (parts if rays is None else rays)]) if parts else xyz
+                fe.in_view = in_view(self, np.reshape(eye, 3), ray_xyz)
         try:
             stats = run_merge(self.map, face_parts, p_visible)
         finally:
             if fe is not None:
                 fe.eye = None
+                fe.in_view = None
         air_new = 0
         if eye is not None:
             air_new = self.carve(eye, parts if rays is None else rays)
@@ -535,8 +543,51 @@ def window_span(frame: FaceFrame, eye: F64, xyz: F64, window_rad: float) -> F64:
     return np.asarray(np.where(np.isfinite(span), span, np.inf), float)
 
 
+def in_view(face: FaceMap, eye: F64, xyz: F64, most: int = 4000) -> B:
+    """The face cells (``(ny, nx)``) one view looked at: the centre of the cell on the plane
+    lies, seen from the camera centre ``eye`` (world), inside the angular hull of the view's
+    points ``xyz`` (world; at most ``most`` of them, evenly spread: its image's extent where it
+    matched) and no farther than the farthest of them (its range). A cell the view looked at and
+    put no point in was hidden from it (or its points were masked); one outside was not seen."""
+    from scipy.spatial import Delaunay, QhullError
+
+    g = face.grid
+    p = np.asarray(xyz, float).reshape(-1, 3)
+    p = p[np.isfinite(p).all(axis=1)]
+    out = np.zeros(g.shape, bool)
+    if len(p) < 3:
+        return out
+    p = p[np.unique(np.linspace(0, len(p) - 1, min(len(p), most)).astype(np.intp))]
+    d = p - np.reshape(eye, (1, 3))
+    r = np.linalg.norm(d, axis=1)
+    axis = d.sum(axis=0)
+    axis /= max(float(np.linalg.norm(axis)), 1e-12)
+    a = np.cross(axis, [0.0, 0.0, 1.0] if abs(axis[2]) < 0.9 else [1.0, 0.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(axis, a)
+
+    def gnomonic(v: F64) -> tuple[F64, F64]:
+        along = v @ axis
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.column_stack([v @ a, v @ b]) / along[:, None], along
+
+    pts, along = gnomonic(d)
+    pts = pts[along > 0]
+    try:
+        hull = Delaunay(pts)
+    except (QhullError, ValueError):
+        return out
+    X, Y = g.centers()
+    c = face.frame.to_world(np.column_stack([X.ravel(), Y.ravel(), np.zeros(X.size)])) - np.reshape(eye, (1, 3))
+    q, ahead = gnomonic(c)
+    inside = np.zeros(len(c), bool)
+    ok = (ahead > 0) & (np.linalg.norm(c, axis=1) <= r.max())
+    inside[ok] = hull.find_simplex(q[ok]) >= 0
+    return np.asarray(inside.reshape(g.shape), bool)
+
+
 def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells: int = 0,
-                    eye: F64 | None = None, hidden: bool = False) -> F64:
+                    eye: F64 | None = None, hidden: bool = False, looked: B | None = None) -> F64:
     """Per measured cell (flat ``cells``, the view's cell means ``zm``), the variance of a view's
     sample of the cell against its centre: ``E|g|^2 c^2 / 12`` with ``E|g|^2 = 2 |g|^2`` (``g``
     the gradient of the view's cell means, its unresolved part as wide again), plus, with
@@ -547,7 +598,8 @@ def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells:
     cell: ``h tan t`` (the length of face a step of that height hides or mixes in at the
     incidence ``t`` of the sight line to the cell) over one cell, at most 1 (FaceElevation).
     With ``hidden`` (and ``step_cells > 0``), a cell next to a cell the view did not measure
-    (of its eight neighbours inside the grid) also gains ``h^2 / 3``, scaled by the same share,
+    though it looked at it (of its eight neighbours inside the grid and in ``looked``,
+    :func:`in_view`; None: all of them) also gains ``h^2 / 3``, scaled by the same share,
     for the step the view could not see beside it: as large as the steps it saw (``h^2 = 3
     rho^2``, ``rho^2`` the view's mean steps' variance over the cells whose whole reach it
     measured, :func:`hidden_relief`), or, when it measured no such cell and so shows no relief
@@ -572,7 +624,7 @@ def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells:
                 tan_t = np.asarray(np.hypot(d[:, 0], d[:, 1]) / np.abs(d[:, 2]), float)
         out = out + _step_share(np.maximum(up, down), tan_t, grid.cell) * steps
         if hidden:
-            beside, rho2 = hidden_relief(z, step_cells)
+            beside, rho2 = hidden_relief(z, step_cells, looked)
             h2 = np.full(len(cells), 3.0 * rho2) if rho2 is not None else zm * zm
             out = out + beside.reshape(-1)[cells] * _step_share(np.sqrt(h2), tan_t, grid.cell) * h2 / 3.0
     return np.asarray(out, float)
@@ -588,10 +640,11 @@ def _step_share(h: F64, tan_t: F64 | None, cell_m: float) -> F64:
     return np.asarray(np.clip(share, 0.0, 1.0), float)
 
 
-def hidden_relief(z: F64, reach: int) -> tuple[B, float | None]:
+def hidden_relief(z: F64, reach: int, looked: B | None = None) -> tuple[B, float | None]:
     """``(beside, rho^2)`` for one view's heightfield of cell means ``z`` (NaN: the view put no
-    point there): the cells it measured with a neighbour it did not (of their eight inside the
-    grid: beyond it the ground is the gravity grid's, not hidden), and the view's mean steps'
+    point there): the cells it measured with a neighbour it did not though it looked at it (of
+    their eight inside the grid, beyond which the ground is the gravity grid's, and in
+    ``looked``, None: all; a cell outside the view's image or range was not hidden), and the view's mean steps'
     variance ``(r_up^2 + r_down^2) / 3`` (:func:`step_heights` within ``reach``) over the cells
     whose whole reach it measured (None when it measured no such cell).
 
@@ -603,9 +656,9 @@ def hidden_relief(z: F64, reach: int) -> tuple[B, float | None]:
     known = np.isfinite(z)
     if not known.any():
         return np.zeros(z.shape, bool), None
-    k = np.ones((3, 3))
-    ring = ndimage.convolve(known.astype(np.float64), k, mode="constant", cval=1.0)
-    beside = known & (ring < 8.5)
+    missed = ~known if looked is None else ~known & looked
+    ring = ndimage.convolve(missed.astype(np.float64), np.ones((3, 3)), mode="constant", cval=0.0)
+    beside = known & (ring > 0.5)
     size = 2 * reach + 1
     full = known & (ndimage.convolve(known.astype(np.float64), np.ones((size, size)), mode="constant",
                                      cval=1.0) > size * size - 0.5)

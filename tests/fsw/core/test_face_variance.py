@@ -278,3 +278,30 @@ def test_a_rock_top_seen_alone_is_not_taken_for_the_face_beside_it() -> None:
         run_merge(fm, [(xyz.copy(), cov.copy(), None)], None)
         e = fm.z[ring] - truth[ring]
         assert float(np.mean(np.abs(e) <= 2 * np.sqrt(fm.var[ring]))) == want, hidden
+
+
+def test_only_the_ground_a_view_looked_at_and_missed_counts_as_hidden() -> None:
+    """A view that put points on the face's square ``[0.3, 0.6]^2`` from a camera 1.5 m out in
+    front of it looked at that square (and up to its range) and at nothing far outside it: the
+    ring beyond the square is out of the view (its image's edge), not hidden. A patch the view
+    measured inside ground it looked at is beside hidden ground; the same patch with nothing
+    looked at around it is not."""
+    from fsw.core.map.face_map import hidden_relief, in_view
+
+    frame = FaceFrame.from_normal(np.zeros(3), np.array([0.0, -np.sin(1.2), np.cos(1.2)]))
+    face = FaceMap(frame, (0.0, 0.9), (0.0, 0.9), FaceMapConfig(cell_m=CELL))
+    rng = np.random.default_rng(2)
+    q = np.column_stack([rng.uniform(0.3, 0.6, 3000), rng.uniform(0.3, 0.6, 3000), np.zeros(3000)])
+    eye = frame.to_world(np.array([[0.45, 0.45, 1.5]]))[0]
+    looked = in_view(face, eye, frame.to_world(q))
+    g = face.grid
+    X, Y = g.centers()
+    inner = (X > 0.33) & (X < 0.57) & (Y > 0.33) & (Y < 0.57)
+    outer = (X < 0.2) | (X > 0.7) | (Y < 0.2) | (Y > 0.7)
+    assert looked[inner].all() and not looked[outer].any()
+    z = np.full(g.shape, np.nan)
+    z[6:9, 6:9] = 0.0  # a patch the view measured, inside the square it looked at
+    beside, _ = hidden_relief(z, 2, looked)
+    assert beside[6:9, 6:9].sum() == 8 and not beside[7, 7]
+    beside, _ = hidden_relief(z, 2, np.isfinite(z))
+    assert not beside.any()
