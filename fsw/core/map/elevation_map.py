@@ -86,7 +86,7 @@ class FusionConfig:
     )
     interest_beta: float = param(1.0, lo=0.0, hi=100.0, doc="interest decay rate beta (§3.4)")
     hidden_relief: bool = param(
-        True, doc="face map (docs/algorithm.md §8.1): a view's cell beside a cell the view did not measure "
+        True, doc="face map (docs/algorithm.md §8.1): a view's cell beside one it looked at and did not measure "
                   "gains the variance of a step as large as the view's mean step (none measured: the cell's height out "
                   "of the plane)"
     )
