@@ -458,7 +458,7 @@ class FaceMap:
     # -- fusion ---------------------------------------------------------------------------------
     def merge_parts(self, parts: list[ViewPart], p_visible: F64 | B | None = None,
                     eye: F64 | None = None, rays: list[ViewPart] | None = None,
-                    window_rad: float | None = None) -> FaceMergeStats:
+                    window_rad: float | None = None, max_range_m: float | None = None) -> FaceMergeStats:
         """Fuse one view's world points with covariance (the face-routed ones) through §1 in the
         face frame, with the overhang tests of the module docstring; with the camera centre
         ``eye`` (world) the free space along the rays to the view's points (``rays``: all of
@@ -495,7 +495,7 @@ class FaceMap:
             fe.eye = self.frame.to_face(np.reshape(eye, (1, 3)))[0]
             if fe.cfg.hidden_relief:
                 ray_xyz = np.concatenate([p[0] for p in (parts if rays is None else rays)]) if parts else xyz
-                fe.in_view = in_view(self, np.reshape(eye, 3), ray_xyz)
+                fe.in_view = in_view(self, np.reshape(eye, 3), ray_xyz, max_range_m)
         try:
             stats = run_merge(self.map, face_parts, p_visible)
         finally:
@@ -543,12 +543,14 @@ def window_span(frame: FaceFrame, eye: F64, xyz: F64, window_rad: float) -> F64:
     return np.asarray(np.where(np.isfinite(span), span, np.inf), float)
 
 
-def in_view(face: FaceMap, eye: F64, xyz: F64, most: int = 4000) -> B:
+def in_view(face: FaceMap, eye: F64, xyz: F64, max_range_m: float | None = None, most: int = 4000) -> B:
     """The face cells (``(ny, nx)``) one view looked at: the centre of the cell on the plane
     lies, seen from the camera centre ``eye`` (world), inside the angular hull of the view's
     points ``xyz`` (world; at most ``most`` of them, evenly spread: its image's extent where it
-    matched) and no farther than the farthest of them (its range). A cell the view looked at and
-    put no point in was hidden from it (or its points were masked); one outside was not seen."""
+    matched) and within the camera's usable depth ``max_range_m`` along the view's mean sight
+    line (None: the farthest point's range). A cell the view looked at and put no point in was
+    hidden from it (or its points were masked); one outside was not seen. The range is the
+    camera's, not the farthest point's: past a lip the face the lip hides is hidden, not far."""
     from scipy.spatial import Delaunay, QhullError
 
     g = face.grid
@@ -581,7 +583,7 @@ def in_view(face: FaceMap, eye: F64, xyz: F64, most: int = 4000) -> B:
     c = face.frame.to_world(np.column_stack([X.ravel(), Y.ravel(), np.zeros(X.size)])) - np.reshape(eye, (1, 3))
     q, ahead = gnomonic(c)
     inside = np.zeros(len(c), bool)
-    ok = (ahead > 0) & (np.linalg.norm(c, axis=1) <= r.max())
+    ok = (ahead > 0) & ((np.linalg.norm(c, axis=1) <= r.max()) if max_range_m is None else (ahead <= max_range_m))
     inside[ok] = hull.find_simplex(q[ok]) >= 0
     return np.asarray(inside.reshape(g.shape), bool)
 

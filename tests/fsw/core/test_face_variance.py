@@ -294,6 +294,8 @@ def test_only_the_ground_a_view_looked_at_and_missed_counts_as_hidden() -> None:
     q = np.column_stack([rng.uniform(0.3, 0.6, 3000), rng.uniform(0.3, 0.6, 3000), np.zeros(3000)])
     eye = frame.to_world(np.array([[0.45, 0.45, 1.5]]))[0]
     looked = in_view(face, eye, frame.to_world(q))
+    assert (in_view(face, eye, frame.to_world(q), max_range_m=5.0) == looked).all()
+    assert not in_view(face, eye, frame.to_world(q), max_range_m=1.0).any()  # the face lies 1.5 m off
     g = face.grid
     X, Y = g.centers()
     inner = (X > 0.33) & (X < 0.57) & (Y > 0.33) & (Y < 0.57)
