@@ -10,7 +10,7 @@ entered, the cells each agent's own views made known (``cells_by_agent``), the e
 reason, the bytes each way, and the RECON-bot's own safety and map figures (frames with a wheel
 over the drop, frames it moved with a wheel on ground its geofence did not know, map RMSE, and
 its mapped cells within 1 m past the lip with how many lie more than 20 cm above the truth:
-docs/algorithm.md §1.3). Any
+docs/perception.md "Occluding lips"). Any
 edge violation is a failure: the command says so on one line and exits 1. Over all scenes the RECON-bot's fixes
 (each FIX against the Cliff-bot's true pose at that instant) by range band: median and worst
 position and heading error, and the fraction whose NEES lies within the chi-square 95 % bound
@@ -89,7 +89,7 @@ def scene(scenario: str, seed: int, steps: int, config: str, out: Path) -> dict[
 
 
 def past_lip(scenario: str, seed: int, d: Path) -> dict[str, int]:
-    """The RECON-bot's map just past the lip (docs/algorithm.md §1.3): its mapped cells off the
+    """The RECON-bot's map just past the lip (docs/perception.md "Occluding lips"): its mapped cells off the
     plateau within ``PAST_LIP_M`` of it (on the truth) and how many of them lie more than ``OFF_M``
     above the truth (``map_error.npy``; -1 each without it)."""
     import numpy as np
