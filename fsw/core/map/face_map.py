@@ -54,7 +54,7 @@ ViewPart = tuple[F64, F64, F64 | None]  # world xyz, total covariance, the view'
 
 @dataclass(frozen=True)
 class FaceMapConfig:
-    """The face map (config ``[face_map]``)."""
+    """The face map's parameters (no config section: the benches that build a face map use these defaults)."""
 
     cell_m: float = param(0.06, lo=0.005, hi=2.0, units="m", doc="face cell side, in the face plane")
     min_slope_deg: float = param(45.0, lo=20.0, hi=89.0, units="deg",
