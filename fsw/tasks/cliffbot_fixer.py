@@ -5,8 +5,8 @@ estimate ``x, y``) is answered once the RECON-bot's mission has ended (``mission
 ``DONE``; before that the answer is NO_FIX ``busy``): the task points the mast at the
 estimate through the motion task (a ``mast`` request; a pose outside the mast's limits is
 NO_FIX ``out of the mast's reach``; when only the pan's range misses it, the RECON-bot
-also turns its body in place toward it, a small turn through the motion task's checks, and
-answers the next request from there), asks the camera task for a pair (view id
+also turns its body in place toward it, a small turn, and answers the next request from there),
+asks the camera task for a pair (view id
 ``FIX_VIEW_BASE + seq``, which perception leaves out of the map), runs
 :class:`~fsw.core.localization.fiducials.CliffbotLocalizer` (docs/algorithm.md §5) on it in a
 slack job with the camera pose estimate and its covariance, and hands the FIX (position,
@@ -22,6 +22,13 @@ Anchorbots' marker plates (``[localization] anchor_marker_ids``, placed from the
 the resected one carried through the mast's joints, with its covariance. The request waits for
 those views (its answer's deadline starts when they are done); while the rover does not move,
 later fixes reuse them; with no plate seen the fix uses the rover's estimate.
+
+Every turn in place (toward the Cliff-bot or a plate) is first checked by the geofence as the
+mission checks its own moves, on the mission's ground (``mission.ground``:
+:func:`fsw.tasks.mission_ground.check_move`, a slack job): a turn sweeps the wheels over arcs
+that can reach past the lip or onto unmapped ground. A refused turn is event ``TURN_REFUSED``
+with the geofence's reason, never a move: the Cliff-bot stays ``out of the mast's reach``, and
+a fix waiting for a turn toward a plate is made without it (on the rover's estimate).
 """
 
 from __future__ import annotations
@@ -36,6 +43,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.comm.team import fix_packets
+from fsw.core.edge.geofence import Verdict
 from fsw.core.geometry import CameraPose, MapGrid, mast_angles, point_mast, wrap_angle
 from fsw.core.localization.fiducials import BodyEstimate, CliffbotLocalizer
 from fsw.core.localization.landmarks import Landmark, anchor_marker_corners, camera_from_landmarks
@@ -52,6 +60,7 @@ from fsw.tasks.messages import (
     CAMERA_REQUEST,
     FIX_VIEW_BASE,
     MAP_UPDATED,
+    MISSION_GROUND,
     MOTION_REQUEST,
     MOTION_STATUS,
     NAV_POSE,
@@ -61,10 +70,12 @@ from fsw.tasks.messages import (
     CameraFrame,
     CaptureRequest,
     MapUpdate,
+    MissionGroundState,
     MotionRequest,
     MoveOutcome,
     NavPose,
 )
+from fsw.tasks.mission_ground import check_move
 
 NO_MARKERS, OUT_OF_REACH, BUSY = 0, 1, 2  # fix_packets.NO_FIX_REASONS
 REQUEST_BASE = 1 << 30  # motion request ids of the fixer (the mission's count from 1)
@@ -104,6 +115,8 @@ class CliffbotFixerTask(FlightTask):
         EventDef("TURN_TO_CLIFFBOT", Severity.ACTIVITY_HI, "request {seq}: the Cliff-bot is {pan_deg:.0f} deg "
                  "off the body, out of the mast's pan: turning {turn_deg:+.1f} deg in place"),
         EventDef("TURNED", Severity.ACTIVITY_LO, "turn {outcome}{why}"),
+        EventDef("TURN_REFUSED", Severity.WARNING_LO, "turn {turn_deg:+.1f} deg in place not made: {reason}",
+                 throttle=10),
         EventDef("TURN_TO_PLATE", Severity.ACTIVITY_HI, "no plate resected; plate {plate} is out of the mast's "
                  "pan: turning {turn_deg:+.1f} deg in place, then viewing the plates again"),
         EventDef("LANDMARKS", Severity.ACTIVITY_LO, "camera resected on plates {ids} ({n} of {views} views): yaw "
@@ -124,6 +137,8 @@ class CliffbotFixerTask(FlightTask):
         self.failed = self.subscribe(VIEW_FAILED, depth=4)
         self.nav_box = self.subscribe(NAV_POSE, depth=1)
         self.map_box = self.subscribe(MAP_UPDATED, depth=1)
+        self.ground_box = self.subscribe(MISSION_GROUND, depth=1)
+        self.ground: MissionGroundState | None = None  # what the mission's geofence stands on
         self.pose: NavPose | None = None
         self.snapshot: ElevationMap | None = None
         self.current: fix_packets.FixRequest | None = None
@@ -151,6 +166,7 @@ class CliffbotFixerTask(FlightTask):
         self.pose = pose if pose is not None else self.pose
         upd: MapUpdate | None = self.map_box.latest()
         self.snapshot = upd.snapshot if upd is not None else self.snapshot
+        self.ground = self.ground_box.latest() or self.ground
         ready = self._mission_state() == "DONE" and self.pose is not None
         for req in self.requests.drain():
             if self.turn_id is not None:
@@ -288,15 +304,31 @@ class CliffbotFixerTask(FlightTask):
         return None if turn == 0.0 or abs(turn) > math.radians(MAX_TURN_DEG) else turn
 
     def _start_turn(self, turn: float, now: float) -> None:
+        """Check the turn in place with the geofence (module docstring), in slack; made once allowed."""
+        assert self.pose is not None
+        p = self.pose
         self.request_id += 1
         self.turn_id, self.phase, self.deadline = self.request_id, "turn", now + TIMEOUT_S
         self.motion.drain()
-        self.publish(MOTION_REQUEST, MotionRequest(self.request_id, "turn", angle_rad=turn))
+        self.submit_job(check_move(self.ctx.cfg, self.ground, p, (p.x, p.y, p.yaw + turn)), f"turn{self.turn_id}",
+                        on_done=functools.partial(self._turn_checked, self.turn_id, turn))
+
+    def _turn_checked(self, turn_id: int, turn: float, handle: JobHandle) -> None:
+        if self.turn_id != turn_id:
+            return  # timed out meanwhile
+        verdict: Verdict | None = handle.result if handle.error is None else None
+        if verdict is not None and verdict.allowed:
+            self.publish(MOTION_REQUEST, MotionRequest(turn_id, "turn", angle_rad=turn))
+            return
+        reason = verdict.reason if verdict is not None else f"geofence check failed: {handle.error!r}"
+        self.event("TURN_REFUSED", turn_deg=math.degrees(turn), reason=reason)
+        self._turn_ended(self.ctx.clock.now(), turned=False)
 
     def _turn_toward(self, seq: int, target: tuple[float, float, float], now: float) -> None:
         """Turn the body in place so that the mast's pan reaches ``target`` (the request after the
-        turn is answered from there): :meth:`_least_turn`. The motion task makes it with its normal
-        checks (it refuses or aborts a turn it may not make; event ``TURNED``)."""
+        turn is answered from there): :meth:`_least_turn`. The geofence checks it first
+        (:meth:`_start_turn`), then the motion task makes it with its own checks (it refuses or
+        aborts a turn it may not make; event ``TURNED``)."""
         turn = self._least_turn(target)
         if turn is None:
             return
@@ -314,10 +346,13 @@ class CliffbotFixerTask(FlightTask):
             self.event("TURNED", outcome="not confirmed", why=f" within {TIMEOUT_S:.0f} s")
             self._turn_ended(now)
 
-    def _turn_ended(self, now: float) -> None:
+    def _turn_ended(self, now: float, turned: bool = True) -> None:
         self.turn_id, self.phase = None, "idle"
-        if self.pending is not None:  # a turn toward a plate: view the plates from here, then answer
+        if self.pending is not None and turned:  # a turn toward a plate: view the plates from here, then answer
             self._survey(now)
+        elif self.pending is not None:  # not turned: the fix from here, without the plate
+            req, self.pending = self.pending, None
+            self._aim(req, now)
 
     def _standing(self) -> tuple[float, ...]:
         p = self.pose

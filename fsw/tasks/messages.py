@@ -12,6 +12,7 @@ from enum import StrEnum
 
 import numpy as np
 from numpy.typing import NDArray
+from shapely.geometry.base import BaseGeometry
 
 from fsw.comm.link_sender import SenderState
 from fsw.core.edge.edge import EdgeModel
@@ -124,6 +125,19 @@ class MapUpdate:
 # Motion (fsw/tasks/motion.py): requests from the sequencer, one status per request outcome.
 MOTION_REQUEST = "motion.request"
 MOTION_STATUS = "motion.status"
+# The mission's ground (fsw/tasks/mission_ground.py): what its geofence stands on, after each change of
+# its state, so a wheel move of another task (the fixer's turns in place) is checked the same way.
+MISSION_GROUND = "mission.ground"
+
+
+@dataclass(frozen=True)
+class MissionGroundState:
+    """The inputs of the mission's geofence besides the pose: its latest map update (known ground,
+    drop cells), its edge fit (the last non-empty one) and the footprints the rover stood on."""
+
+    latest: MapUpdate | None
+    edge: EdgeModel | None
+    stood_on: tuple[BaseGeometry, ...]
 
 
 @dataclass(frozen=True)

@@ -52,6 +52,7 @@ from fsw.tasks.base import FlightTask
 from fsw.tasks.messages import (
     CAMERA_REQUEST,
     MAP_UPDATED,
+    MISSION_GROUND,
     MOTION_REQUEST,
     MOTION_STATUS,
     NAV_POSE,
@@ -142,6 +143,7 @@ class MissionTask(FlightTask):
         self.retries = 0
         self.end: str | None = None
         self.t_wall0 = time.perf_counter()
+        self._share_ground = False  # a resumed mission: mission.ground goes out again in its first activation
         self.ground = MissionGround(cfg, self)  # geofence, looks, stays (fsw.tasks.mission_ground)
         self.safe = SafeMode(self.mcfg, self)  # SAFE and its recovery (fsw.tasks.mission_safe)
         self.delivery = MapDelivery(self.mcfg, self)  # TRANSMIT (fsw.tasks.mission_transmit)
@@ -158,6 +160,7 @@ class MissionTask(FlightTask):
         if new != self.state:
             self.event("STATE", old=str(self.state), new=str(new))
             self.state = new
+            self.publish(MISSION_GROUND, self.ground.shared())  # for another task's wheel move (the fixer's)
         self.tlm("state", str(new))
         self.tlm("state_code", STATES.index(new))
 
@@ -243,6 +246,7 @@ class MissionTask(FlightTask):
         self.event("RESUMED", step=self.step, seq=loaded.seq, phase=str(s.phase))
         self._auto_start = False
         self._republish = self.latest
+        self._share_ground = True
         self.goto(s.phase)
         if s.phase is MissionPhase.SELECT:
             self.next_view()  # the next-view request goes out in the frame it did before the stop
@@ -283,6 +287,9 @@ class MissionTask(FlightTask):
         if self._republish is not None:  # a resumed mission's map, for the radio task
             self.publish(MAP_UPDATED, self._republish)
             self._republish = None
+        if self._share_ground:  # (published in set-up, before every task had subscribed)
+            self._share_ground = False
+            self.publish(MISSION_GROUND, self.ground.shared())
         self.nav = self.nav_box.latest() or self.nav
         now = self.ctx.clock.now()
         self.maps.extend((now, up) for up in self.map_box.drain())

@@ -19,6 +19,9 @@ issue 13 item 3): a part of :class:`fsw.tasks.mission.MissionTask`.
   one check a slice (``MissionGround.in_slack``); the mission's activations wait for it and then go on
   with its result. Done in the foreground it took 10-50 ms an activation (up to 590 ms for a
   part-way search on lab seed 2), 0.3-1.5 s on a flight computer 30x slower (issue 15).
+- Another task's wheel move (the fixer's turns in place) is checked the same way
+  (:func:`check_move`): on what the mission's geofence stands on, which the mission publishes on
+  ``mission.ground`` at each change of its state (:meth:`MissionGround.shared`).
 """
 
 from __future__ import annotations
@@ -40,7 +43,7 @@ from fsw.core.planning.planners import PlannerState
 from fsw.core.planning.view_candidates import CandidateView
 from fsw.framework.jobs import Job, JobHandle
 from fsw.settings import FswConfig
-from fsw.tasks.messages import MapUpdate, NavPose
+from fsw.tasks.messages import MapUpdate, MissionGroundState, NavPose
 
 Pose3 = tuple[float, float, float]
 MIN_MOVE_M = 0.1  # stations closer than this (and turned less than MIN_TURN_RAD) are "here"
@@ -111,10 +114,10 @@ class MissionGround:
 
     def stood_on_wkb(self) -> list[str]:
         """The ground the rover stood on (known ground of the geofence), as WKB hex (a checkpoint)."""
-        return [str(shapely.to_wkb(g, hex=True)) for g in self.geofence.known._stood]
+        return [str(shapely.to_wkb(g, hex=True)) for g in self.geofence.stood.footprints]
 
     def set_stood_on(self, stood: list[BaseGeometry]) -> None:
-        self.geofence.known._stood = list(stood)
+        self.geofence.stood.replace(stood)
 
     # -- the geofence work of a move, as a slack job ----------------------------------------------
     def in_slack(self, work: Generator[None, None, object], then: Callable[[JobHandle], None]) -> None:
@@ -272,10 +275,12 @@ class MissionGround:
     # -- the fence and the planner's inputs -----------------------------------------------------
     def fence(self, here: Pose3) -> None:
         """The geofence on the latest edge fit and map, and the ground the rover stands on."""
-        nav = self.host.nav
-        fence_on(self.geofence, self.host.latest, self.host.edge, here)
-        yaw_var = math.nan if nav is None else float(nav.cov[2, 2])
-        self.geofence.set_drift(math.sqrt(yaw_var) if yaw_var >= 0.0 else math.nan, self.cfg.motion)
+        set_fence(self.geofence, self.host.latest, self.host.edge, here, self.host.nav, self.cfg)
+
+    def shared(self) -> MissionGroundState:
+        """What the geofence stands on besides the pose (``mission.ground``: another task's wheel
+        move is checked on it, :func:`check_move`)."""
+        return MissionGroundState(self.host.latest, self.host.edge, tuple(self.geofence.stood.footprints))
 
     def planner_state(self) -> PlannerState:
         """The next-view request: the latest map, the pose, the edge path and the move check."""
@@ -302,6 +307,33 @@ class MissionGround:
             sigma_loc_m=sigma,
             at_start=at_start,
         )
+
+
+def set_fence(fence: Geofence, latest: MapUpdate | None, edge: EdgeModel | None, here: Pose3,
+              nav: NavPose | None, cfg: FswConfig) -> None:
+    """The mission's geofence set-up before a check: :func:`fence_on`, and the pose drift from the
+    heading sigma of ``nav`` (none without a pose estimate)."""
+    fence_on(fence, latest, edge, here)
+    yaw_var = math.nan if nav is None else float(nav.cov[2, 2])
+    fence.set_drift(math.sqrt(yaw_var) if yaw_var >= 0.0 else math.nan, cfg.motion)
+
+
+def check_move(cfg: FswConfig, ground: MissionGroundState | None, nav: NavPose, there: Pose3
+               ) -> Generator[None, None, Verdict]:
+    """A wheel move of another task than the mission (the fixer's turns in place) from where the
+    rover stands (``nav``) to ``there``, checked as the mission checks its own moves: a geofence
+    set up the same way (:func:`set_fence`) on the mission's ground (``mission.ground``, its
+    footprints stood on included) and :meth:`Geofence.check` (the swept wheel patches, the edge,
+    known ground, the margin from unmapped ground). Refused while the mission has not shared its
+    ground (no map: nothing is known). A slack job: the set-up, then the check."""
+    if ground is None:
+        return Verdict(False, "rejected: the mission's ground is not known (no map yet)", math.nan)
+    fence = Geofence(cfg.geofence, cfg.rover)
+    fence.stood.replace(ground.stood_on)
+    here = (float(nav.x), float(nav.y), float(nav.yaw))
+    set_fence(fence, ground.latest, ground.edge, here, nav, cfg)
+    yield
+    return fence.check(here, there)
 
 
 def fence_on(fence: Geofence, latest: MapUpdate | None, edge: EdgeModel | None, here: Pose3) -> None:

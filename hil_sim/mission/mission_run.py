@@ -4,7 +4,8 @@ The flight executive with its full schedule (config/fsw.toml) runs against the h
 in lockstep (``hil_sim.bench.LockstepBench``); the radio runs through the seeded channel
 model to the Cliff-bot receiver. The runner only watches: it never steers the flight code.
 It records, per imaging step, what the mission task recorded, and from the world truth the
-map error and any wheel over the drop (an edge violation).
+map error and any wheel over the drop (an edge violation), over the whole run: in a team run
+also after the RECON-bot's mission, while its fixer may turn it in place.
 
 ``summary.json`` schema (stable; docs/experiments.md): ``schema`` (1), ``scenario``,
 ``method``, ``seed``, ``camera`` (config | ideal | raw), ``steps`` (list of ``{step, mapped_cells, expected_new_cells,
@@ -194,20 +195,27 @@ def run_mission(
         was_safe = False
         left_safe_at: int | None = None  # the step a recovery left SAFE at, until it proves itself
         wheel_watch = _WheelWatch(world, cfg.edge.step_m)
+
+        def frame() -> None:
+            """One frame of the run, the RECON-bot's wheels watched (over the drop, off the map, on
+            ground its geofence does not know) during its mission and after it (the fixer's turns)."""
+            nonlocal recording_error
+            odo = bench.rig.rover.odometer_m
+            bench.run(1)
+            recording_error = _poll_taps(taps, recording_error)
+            counters["unknown_frames"] += wheels_on_unknown(bench.rig, mission, odo)
+            over_drop, off_map = wheel_watch(bench.rig)
+            counters["violations"] += over_drop
+            counters["off_map"] += off_map
+
         bench.exe.freeze_heap()  # as the flight start-up does (safer-fsw run)
         try:
             while bench.clock.now() < limit_s:
-                odo = bench.rig.rover.odometer_m
-                bench.run(1)
-                recording_error = _poll_taps(taps, recording_error)
-                counters["unknown_frames"] += wheels_on_unknown(bench.rig, mission, odo)
+                frame()
                 if mission.state == "TRANSMIT" and 1 not in cliffbot.originals:
                     cliffbot.originals[1] = perception.map.z.astype(np.float32)
                 if team is None:  # (a team's Cliff-bot receives the map in its own flight code)
                     cliffbot.step(bench.clock.now())
-                over_drop, off_map = wheel_watch(bench.rig)
-                counters["violations"] += over_drop
-                counters["off_map"] += off_map
                 if was_safe and mission.state != "SAFE":
                     counters["recoveries"] += 1
                     left_safe_at = mission.step
@@ -233,11 +241,10 @@ def run_mission(
             if team is not None and mission.state in ("DONE", "SAFE"):  # the Cliff-bot's goes on after it
                 team_end = bench.clock.now() + TEAM_MAX_S
                 while not team.finished() and bench.clock.now() < team_end:
-                    bench.run(1)
-                    recording_error = _poll_taps(taps, recording_error)
+                    frame()
                 settle_end = bench.clock.now() + SYNC_SETTLE_S  # the last look's tiles cross the radio
                 while not team.sync_settled() and bench.clock.now() < settle_end:
-                    bench.run(1)
+                    frame()
         finally:
             bench.exe.thaw_heap()
             for tp in taps:

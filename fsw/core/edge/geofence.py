@@ -79,7 +79,7 @@ from numpy.typing import NDArray
 from shapely.geometry.base import BaseGeometry
 
 from fsw.core.edge.edge import EdgeModel
-from fsw.core.edge.known_ground import KnownGround, Pose3, rover_footprint
+from fsw.core.edge.known_ground import KnownGround, Pose3, StoodOn, rover_footprint
 from fsw.core.geometry import MapGrid, RoverConfig, wrap_angle
 from fsw.core.localization.odometry import drift_sigma
 from fsw.core.motion.motion_profile import MotionConfig
@@ -140,9 +140,11 @@ class Geofence:
         self.rover = rover
         self._edge: EdgeModel | None = None
         self._barrier: BaseGeometry | None = None
-        self.known = KnownGround(cfg.known_fill_m)
+        self.stood = StoodOn()  # the ground stood on: known to ``known`` and ``mapped`` alike
+        self.known = KnownGround(cfg.known_fill_m, self.stood)
         self.clear = KnownGround(0.0)  # cells at least margin_m from any mapped drop cell
-        self.mapped = KnownGround(0.0)  # measured cells, small holes closed, not grown (a lip may lie past them)
+        # measured cells, small holes closed, not grown (a lip may lie past them)
+        self.mapped = KnownGround(0.0, self.stood)
         self.rejections = 0
         self._drift: tuple[float, MotionConfig] | None = None  # heading sigma now, the odometry model
 
@@ -325,7 +327,6 @@ class Geofence:
     def _unmapped_near(self, geom: BaseGeometry) -> F64:
         """(N, 2) centres of the on-grid unmapped cells (``self.mapped``; ground stood on is
         known) within ``margin_m`` of ``geom``."""
-        self.mapped._stood = self.known._stood
         grid = self.mapped.grid
         pts = self.mapped.unknown_points(shapely.buffer(geom, self.cfg.margin_m, quad_segs=4))
         if grid is None or len(pts) == 0:

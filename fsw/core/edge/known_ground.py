@@ -37,14 +37,32 @@ def rover_footprint(pose: Pose3, rover: RoverConfig, wheel_width_m: float) -> Po
     return Polygon(xy)
 
 
-class KnownGround:
-    """The map's known cells plus the ground the rover has stood on."""
+class StoodOn:
+    """The footprints the rover has stood on (known ground needing no view): one list, shared by
+    every :class:`KnownGround` of a geofence, kept whole by a checkpoint."""
 
-    def __init__(self, fill_m: float) -> None:
+    def __init__(self) -> None:
+        self.footprints: list[BaseGeometry] = []
+
+    def add(self, footprint: BaseGeometry) -> None:
+        """A footprint stood on (one already covered by an earlier one adds nothing)."""
+        if not any(g.covers(footprint) for g in self.footprints):
+            self.footprints.append(footprint)
+
+    def replace(self, footprints: list[BaseGeometry] | tuple[BaseGeometry, ...]) -> None:
+        """All the ground stood on (a resumed mission's, another task's copy of the mission's)."""
+        self.footprints[:] = list(footprints)
+
+
+class KnownGround:
+    """The map's known cells plus the ground the rover has stood on (``stood``: shared with
+    other views of the same ground; a new, empty one by default)."""
+
+    def __init__(self, fill_m: float, stood: StoodOn | None = None) -> None:
         self.fill_m = fill_m
         self.grid: MapGrid | None = None
         self._mapped: NDArray[np.bool_] | None = None
-        self._stood: list[BaseGeometry] = []
+        self.stood = stood if stood is not None else StoodOn()
 
     def set_map(self, grid: MapGrid, n: NDArray[np.int32]) -> None:
         """Take the map's measured cells (``n >= 1``), grown by ``fill_m``."""
@@ -57,13 +75,12 @@ class KnownGround:
 
     def stood_on(self, footprint: BaseGeometry) -> None:
         """Ground the rover's wheels have stood on is known."""
-        if not any(g.covers(footprint) for g in self._stood):
-            self._stood.append(footprint)
+        self.stood.add(footprint)
 
     def stood_only_near(self, x: float, y: float, radius_m: float) -> bool:
         """Every footprint stood on is centred within ``radius_m`` of ``(x, y)``: the rover has
         not left this place (its start, until a move)."""
-        return all(math.hypot(g.centroid.x - x, g.centroid.y - y) <= radius_m for g in self._stood)
+        return all(math.hypot(g.centroid.x - x, g.centroid.y - y) <= radius_m for g in self.stood.footprints)
 
     @property
     def ready(self) -> bool:
@@ -76,7 +93,7 @@ class KnownGround:
         if self.grid is not None and self._mapped is not None:
             iy, ix, inside = self.grid.cell_index(pts[:, 0], pts[:, 1])
             out[inside] = self._mapped[iy[inside], ix[inside]]
-        for fp in self._stood:
+        for fp in self.stood.footprints:
             out |= shapely.contains_xy(fp, pts[:, 0], pts[:, 1])
         return out
 
@@ -117,7 +134,7 @@ class KnownGround:
         on_map = (jx >= 0) & (jx < g.nx) & (jy >= 0) & (jy < g.ny)
         known = np.zeros(jx.shape, bool)
         known[on_map] = self._mapped[jy[on_map], jx[on_map]]
-        for fp in self._stood:
+        for fp in self.stood.footprints:
             todo = ~known
             if not todo.any():
                 break

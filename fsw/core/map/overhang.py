@@ -29,8 +29,8 @@ crevice behind it) the cell is flagged (:attr:`Overhangs.overhang`), not average
   (a view resolves a rock's facing side at a few points of a cell near its edge, where the
   local plane's neighbours straddle the edge and no plane is fitted).
 
-The tests read their parameters from the face map's config (:class:`OverhangParams`, the
-``[face_map]`` section) and the face map's grid (``emap``); all coordinates are the face
+The tests read their parameters from the face map's (:class:`OverhangParams`, from
+``FaceMapConfig``) and the face map's grid (``emap``); all coordinates are the face
 frame's ``(u, v, w)``.
 """
 

@@ -86,7 +86,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cliff-views", type=int, default=4, help="Cliff-bot views per scene")
     p.add_argument("--resolve-cells", type=float, default=None,
                    help="the face map's incidence limit: a point whose matching window spans more face cells "
-                        "than this is not fused (0: off; default: [face_map] resolve_cells)")
+                        "than this is not fused (0: off; default: FaceMapConfig.resolve_cells)")
     p.add_argument("--config", default=str(DEFAULT_CONFIG), help="flight configuration (TOML)")
     p.add_argument("--out", type=Path, default=Path("out/face-map"), help="output directory")
     p.add_argument("--why", action="store_true",

@@ -257,3 +257,17 @@ def test_the_wheels_keep_the_margin_from_the_maps_frontier_where_a_lip_may_hide(
     v = fitted.check(here, (0.0, -0.65, math.pi / 2))
     assert not v.allowed and "rear" in v.reason and "unknown ground" in v.reason
     assert fitted.check(here, (0.0, -0.45, math.pi / 2)).allowed
+
+
+def test_the_ground_stood_on_is_one_list_for_known_and_mapped_ground():
+    """A resumed mission's footprints (``StoodOn.replace``) are known ground and mapped ground alike,
+    at once: a move across the unmapped strip they cover is allowed, none of it stays within the margin."""
+    n = mapped_box(-1.5, 3.0, -0.9, 1.0)
+    n[:, 100:110] = 0  # an unmapped strip 0.3 m wide across the way (x = 1.0 .. 1.3)
+    gf = fence(n, edge_along_x(-1.0))
+    assert not gf.check((0.0, 0.0, 0.0), (2.0, 0.0, 0.0)).allowed
+    strip = [gf.footprint((x, y, 0.0)) for x in (0.9, 1.2, 1.5) for y in (-0.3, 0.0, 0.3)]
+    gf.stood.replace(strip)  # (the footprint where it stands, from set_edge, is replaced too)
+    centre = np.array([[1.15, 0.0]])
+    assert gf.known.known_xy(centre).all() and gf.mapped.known_xy(centre).all()
+    assert gf.check((0.0, 0.0, 0.0), (2.0, 0.0, 0.0)).allowed
