@@ -86,6 +86,17 @@ def _slug(experiment: str) -> str:
     return experiment
 
 
+def _title(command: str, kind: str, name: str) -> str:
+    """The file's title: the command group and experiment that wrote it, and the file's own name
+    when another (``--results-name``, e.g. a held-out run of the same experiment)."""
+    try:
+        words = shlex.split(command)
+    except ValueError:
+        words = []
+    ran = words[2] if len(words) >= 3 and words[:2] == ["safer-hil", kind] else name
+    return f"`safer-hil {kind} {ran}`" + ("" if ran == name else f" ({name})")
+
+
 def write_results(experiment: str, command: str, markdown: str, figures: Sequence[Path] = (), *,
                   now: dt.datetime | None = None, directory: Path | None = None,
                   kind: str = "experiment") -> Path | None:
@@ -103,7 +114,7 @@ def write_results(experiment: str, command: str, markdown: str, figures: Sequenc
     out.mkdir(parents=True, exist_ok=True)
     when = (now or dt.datetime.now(dt.UTC)).strftime("%Y-%m-%d %H:%M UTC")
     lines = [
-        f"# Results: `safer-hil {kind} {name}`",
+        f"# Results: {_title(command, kind, name)}",
         "",
         "Written by the command below; rerun it to regenerate this file (do not edit by hand).",
         "",

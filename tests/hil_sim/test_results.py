@@ -19,6 +19,7 @@ def test_result_file_has_date_commit_command_table_and_figures(tmp_path: Path) -
                                  now=when, directory=tmp_path / "res")
     assert path == tmp_path / "res" / "coverage.md"
     text = path.read_text()
+    assert text.startswith("# Results: `safer-hil experiment coverage`\n")
     assert "- date: 2030-01-02 03:04 UTC" in text
     assert "- command: `safer-hil experiment coverage --seeds 3`" in text
     commit = text.split("- commit: `", 1)[1].split("`", 1)[0]
@@ -35,6 +36,13 @@ def test_rerun_replaces_the_file(tmp_path: Path) -> None:
     results.write_results("link", "b", "| x |\n|---|\n| 2 |", directory=tmp_path)
     text = (tmp_path / "link.md").read_text()
     assert "`b`" in text and "| 2 |" in text and "| 1 |" not in text
+
+
+def test_a_file_named_apart_from_its_experiment_names_both(tmp_path: Path) -> None:
+    path = results.write_results("face-map-heldout", "safer-hil experiment face-map --seed 30", "| x |\n|---|",
+                                 directory=tmp_path)
+    assert path is not None
+    assert path.read_text().startswith("# Results: `safer-hil experiment face-map` (face-map-heldout)\n")
 
 
 def test_bad_name_is_refused(tmp_path: Path) -> None:
