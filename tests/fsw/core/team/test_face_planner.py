@@ -23,6 +23,7 @@ from fsw.core.team.face_planner import (
     way_reason,
 )
 from fsw.core.team.tether import TetherConfig, anchor_points, tether_state
+from hil_sim.lab.bench.bench_planner import footprint_known_whole_map
 
 SLOPE = math.radians(70.0)
 ANCHORS_XY = np.array([[-1.5, 1.5], [1.5, 1.5]])
@@ -183,39 +184,12 @@ def test_the_footprint_is_laid_in_the_grounds_plane() -> None:
     assert got.any() and not footprint_known(ledge, g, 0.3).any()
 
 
-def _footprint_known_by_whole_map_filters(z: np.ndarray, g: MapGrid, footprint_m: float) -> np.ndarray:
-    """footprint_known's definition as whole-map filters (each ellipse's minimum filter and
-    erosion over every cell of the map, kept where that ellipse applies)."""
-    from fsw.core.team.face_planner import FOOT_COS_LEVELS, FOOT_DIP_BINS, _cos_level, tilted_disc
-
-    sensed = np.isfinite(z)
-    r = int(round(footprint_m / g.cell))
-    gy, gx = np.gradient(np.asarray(z, np.float64), g.cell)
-    ok = np.isfinite(gx) & np.isfinite(gy)
-    n = ndimage.uniform_filter(ok.astype(np.float64), 3)
-    mx = ndimage.uniform_filter(np.where(ok, gx, 0.0), 3) / np.maximum(n, 1e-9)
-    my = ndimage.uniform_filter(np.where(ok, gy, 0.0), 3) / np.maximum(n, 1e-9)
-    local = np.where(n >= 5.0 / 9.0 - 1e-9, np.hypot(mx, my), np.inf)
-    level = _cos_level(np.where(np.isfinite(local), local, 0.0))
-    dbin = np.minimum((np.mod(np.arctan2(my, mx), math.pi) / (math.pi / FOOT_DIP_BINS)).astype(np.intp),
-                      FOOT_DIP_BINS - 1)
-    level_disc = ndimage.binary_erosion(sensed, structure=disc(r), border_value=0)
-    out = sensed & (level >= FOOT_COS_LEVELS) & level_disc
-    tilted = sensed & (level < FOOT_COS_LEVELS)
-    for lv, b in {(int(a), int(d)) for a, d in zip(level[tilted], dbin[tilted], strict=True)}:
-        foot = tilted_disc(r, lv, b)
-        least = ndimage.minimum_filter(local, footprint=foot, mode="constant", cval=np.inf)
-        fits = _cos_level(np.where(np.isfinite(least), least, 0.0)) <= lv
-        out |= tilted & (level == lv) & (dbin == b) & np.where(
-            fits, ndimage.binary_erosion(sensed, structure=foot, border_value=0), level_disc)
-    return out
-
-
 @pytest.mark.parametrize("seed", range(4))
 def test_footprint_known_gathers_what_whole_map_filters_give(seed: int) -> None:
     """footprint_known judges each tilted cell with its own ellipse only: the same cells as
-    each ellipse's minimum filter and erosion over the whole map, unknown cells and the
-    map's borders included (rough random ground: every slope level and dip bin)."""
+    each ellipse's minimum filter and erosion over the whole map (``safer-hil bench planner``'s
+    reference), unknown cells and the map's borders included (rough random ground: every
+    slope level and dip bin)."""
     rng = np.random.default_rng(seed)
     g = MapGrid(0.0, 0.0, 0.03, int(rng.integers(30, 70)), int(rng.integers(30, 70)))
     z = np.cumsum(rng.normal(0.0, 0.05, g.shape), axis=int(seed % 2)) * rng.uniform(0.3, 3.0)
@@ -223,5 +197,5 @@ def test_footprint_known_gathers_what_whole_map_filters_give(seed: int) -> None:
     z[5:12, 3:20] = np.nan
     for footprint_m in (0.3, 0.1):
         got = footprint_known(z, g, footprint_m)
-        assert np.array_equal(got, _footprint_known_by_whole_map_filters(z, g, footprint_m))
+        assert np.array_equal(got, footprint_known_whole_map(z, g, footprint_m))
     assert got.any() and not got.all()
