@@ -318,7 +318,8 @@ class SensingPipeline:
         if self.face is not None:
             view = parts  # every point's sight line is free space (the face map's overhang test)
             to_face, parts = split_parts(parts, self.face)
-            self.face.merge_parts(to_face, eye=placed.pose.t, rays=view, window_rad=self.matcher.window_rad)
+            self.face.merge_parts(to_face, eye=placed.pose.t, rays=view, window_rad=self.matcher.window_rad,
+                                  max_range_m=self.cfg.camera.max_range_m)
             yield
         view_cells = self.map.grid.cell_means(np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3)))
         X, Y = (c.reshape(-1)[view_cells[0]] for c in self.map.grid.centers())

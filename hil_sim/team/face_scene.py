@@ -240,9 +240,10 @@ class FaceScene:
         assert self.face is not None
         to_face, to_grav = split_parts(parts, self.face)
         before = int(self.face.map.mapped.sum() + self.split_gravity.mapped.sum())
-        self.face.merge_parts(to_face, eye=eye, rays=parts, window_rad=window_rad)
+        reach = (self.cfg if agent == "recon" else self.cfg_cliff).camera.max_range_m
+        self.face.merge_parts(to_face, eye=eye, rays=parts, window_rad=window_rad, max_range_m=reach)
         run_merge(self.split_gravity, to_grav, None)
-        self.by_agent[agent].merge_parts(to_face, eye=eye, rays=parts, window_rad=window_rad)
+        self.by_agent[agent].merge_parts(to_face, eye=eye, rays=parts, window_rad=window_rad, max_range_m=reach)
         self.cells_by_agent[agent] += int(self.face.map.mapped.sum() + self.split_gravity.mapped.sum()) - before
 
     def recon_poses(self, n: int) -> list[tuple[tuple[float, float, float], CameraPose]]:

@@ -85,6 +85,11 @@ class FusionConfig:
         0.5, lo=0.0, hi=1.0, doc="P_V at or above which a cell without a point counts a miss"
     )
     interest_beta: float = param(1.0, lo=0.0, hi=100.0, doc="interest decay rate beta (§3.4)")
+    hidden_relief: bool = param(
+        True, doc="face map (docs/algorithm.md §8.1): a view's cell beside one it looked at and did not measure "
+                  "gains the variance of a step as large as the view's mean step (none measured: the cell's height out "
+                  "of the plane)"
+    )
     lip_guard_sigma: float = param(2.0, lo=0.0, hi=10.0, units="sigma", doc="withhold points closer to a lip (0: off)")
     lip_min_drop_m: float = param(0.30, lo=0.0, hi=100.0, units="m", doc="a lip counts when it drops by more")
 

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import ndimage
 
 from fsw.core.geometry import MapGrid
 from fsw.core.map.elevation_map import ElevationMap, FusionConfig, MergeStats, nan_gradient
@@ -256,7 +257,7 @@ def face_band(gravity: ElevationMap, frame: FaceFrame, min_slope_deg: float = 45
 
 
 class FaceElevation(ElevationMap):
-    """The face map's grid: §1.1 with four changes (docs/algorithm.md §8.1).
+    """The face map's grid: §1.1 with five changes (docs/algorithm.md §8.1).
 
     *The relief the view cannot resolve.* A view's gradient ``g`` (of its own cell means, the
     slope term of §1.2) is the face's relief blurred by the points' error along the face: at
@@ -281,6 +282,11 @@ class FaceElevation(ElevationMap):
     step and ``t`` the incidence of the view's sight line to the cell (the face a step hides or
     mixes in; a view head-on mixes none).
 
+    *The steps a view did not see* (``[fusion] hidden_relief``). Beside a cell the view did not
+    measure (the relief hid it) the steps' term finds no step; the cell gains the variance of a
+    step as large as the steps the view saw elsewhere, or, in a view that resolved no relief of
+    its own, as the cell's height out of the plane (:func:`hidden_relief`).
+
     *The weights.* Of a cell's height and a view's, each is weighted by its whole variance, not
     by its independent part alone as in §1.1: the common part (the camera pose's, a share of the
     view's) is one error within one agent's frame, but two agents' poses err apart, and the face
@@ -298,6 +304,9 @@ class FaceElevation(ElevationMap):
         # the camera centre (face frame) of the view being merged, or None (unknown: the steps'
         # term in full); FaceMap.merge_parts sets it for one merge
         self.eye: F64 | None = None
+        # the cells the view being merged looked at (:func:`in_view`), or None (all of them);
+        # FaceMap.merge_parts sets it for one merge
+        self.in_view: B | None = None
 
     def _vertical_variance(self, grad: tuple[F64, F64], c6: tuple[F64, ...], footprint: bool) -> F64:
         """§1.2's slope term plus the unresolved slope's share, ``g_u^2 P_uu + g_v^2 P_vv``, in a
@@ -310,7 +319,8 @@ class FaceElevation(ElevationMap):
 
     def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64, vm_pose: F64 | None = None) -> tuple[int, int, int]:
         if self.cfg.slope_term and cells.size:
-            vm = vm + relief_variance(self.grid, cells, zm, self.step_cells, self.eye)
+            vm = vm + relief_variance(self.grid, cells, zm, self.step_cells, self.eye, self.cfg.hidden_relief,
+                                      self.in_view)
         z, var, n = self.z.reshape(-1), self.var.reshape(-1), self.n.reshape(-1)
         z0, v0, n0 = z[cells], var[cells], n[cells]
         with np.errstate(invalid="ignore"):
@@ -448,7 +458,7 @@ class FaceMap:
     # -- fusion ---------------------------------------------------------------------------------
     def merge_parts(self, parts: list[ViewPart], p_visible: F64 | B | None = None,
                     eye: F64 | None = None, rays: list[ViewPart] | None = None,
-                    window_rad: float | None = None) -> FaceMergeStats:
+                    window_rad: float | None = None, max_range_m: float | None = None) -> FaceMergeStats:
         """Fuse one view's world points with covariance (the face-routed ones) through §1 in the
         face frame, with the overhang tests of the module docstring; with the camera centre
         ``eye`` (world) the free space along the rays to the view's points (``rays``: all of
@@ -483,11 +493,15 @@ class FaceMap:
         fe = self.map if isinstance(self.map, FaceElevation) else None
         if fe is not None and eye is not None:
             fe.eye = self.frame.to_face(np.reshape(eye, (1, 3)))[0]
+            if fe.cfg.hidden_relief:
+                ray_xyz = np.concatenate([p[0] for p in (parts if rays is None else rays)]) if parts else xyz
+                fe.in_view = in_view(self, np.reshape(eye, 3), ray_xyz, max_range_m)
         try:
             stats = run_merge(self.map, face_parts, p_visible)
         finally:
             if fe is not None:
                 fe.eye = None
+                fe.in_view = None
         air_new = 0
         if eye is not None:
             air_new = self.carve(eye, parts if rays is None else rays)
@@ -529,8 +543,53 @@ def window_span(frame: FaceFrame, eye: F64, xyz: F64, window_rad: float) -> F64:
     return np.asarray(np.where(np.isfinite(span), span, np.inf), float)
 
 
+def in_view(face: FaceMap, eye: F64, xyz: F64, max_range_m: float | None = None, most: int = 4000) -> B:
+    """The face cells (``(ny, nx)``) one view looked at: the centre of the cell on the plane
+    lies, seen from the camera centre ``eye`` (world), inside the angular hull of the view's
+    points ``xyz`` (world; at most ``most`` of them, evenly spread: its image's extent where it
+    matched) and within the camera's usable depth ``max_range_m`` along the view's mean sight
+    line (None: the farthest point's range). A cell the view looked at and put no point in was
+    hidden from it (or its points were masked); one outside was not seen. The range is the
+    camera's, not the farthest point's: past a lip the face the lip hides is hidden, not far."""
+    from scipy.spatial import Delaunay, QhullError
+
+    g = face.grid
+    p = np.asarray(xyz, float).reshape(-1, 3)
+    p = p[np.isfinite(p).all(axis=1)]
+    out = np.zeros(g.shape, bool)
+    if len(p) < 3:
+        return out
+    p = p[np.unique(np.linspace(0, len(p) - 1, min(len(p), most)).astype(np.intp))]
+    d = p - np.reshape(eye, (1, 3))
+    r = np.linalg.norm(d, axis=1)
+    axis = d.sum(axis=0)
+    axis /= max(float(np.linalg.norm(axis)), 1e-12)
+    a = np.cross(axis, [0.0, 0.0, 1.0] if abs(axis[2]) < 0.9 else [1.0, 0.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(axis, a)
+
+    def gnomonic(v: F64) -> tuple[F64, F64]:
+        along = v @ axis
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.column_stack([v @ a, v @ b]) / along[:, None], along
+
+    pts, along = gnomonic(d)
+    pts = pts[along > 0]
+    try:
+        hull = Delaunay(pts)
+    except (QhullError, ValueError):
+        return out
+    X, Y = g.centers()
+    c = face.frame.to_world(np.column_stack([X.ravel(), Y.ravel(), np.zeros(X.size)])) - np.reshape(eye, (1, 3))
+    q, ahead = gnomonic(c)
+    inside = np.zeros(len(c), bool)
+    ok = (ahead > 0) & ((np.linalg.norm(c, axis=1) <= r.max()) if max_range_m is None else (ahead <= max_range_m))
+    inside[ok] = hull.find_simplex(q[ok]) >= 0
+    return np.asarray(inside.reshape(g.shape), bool)
+
+
 def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells: int = 0,
-                    eye: F64 | None = None) -> F64:
+                    eye: F64 | None = None, hidden: bool = False, looked: B | None = None) -> F64:
     """Per measured cell (flat ``cells``, the view's cell means ``zm``), the variance of a view's
     sample of the cell against its centre: ``E|g|^2 c^2 / 12`` with ``E|g|^2 = 2 |g|^2`` (``g``
     the gradient of the view's cell means, its unresolved part as wide again), plus, with
@@ -539,7 +598,15 @@ def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells:
     below) the cell's tangent plane (:func:`step_heights`), scaled by the share of a step
     ``h = max(r_up, r_down)`` a view from ``eye`` (face frame; None: in full) mixes into the
     cell: ``h tan t`` (the length of face a step of that height hides or mixes in at the
-    incidence ``t`` of the sight line to the cell) over one cell, at most 1 (FaceElevation)."""
+    incidence ``t`` of the sight line to the cell) over one cell, at most 1 (FaceElevation).
+    With ``hidden`` (and ``step_cells > 0``), a cell next to a cell the view did not measure
+    though it looked at it (of its eight neighbours inside the grid and in ``looked``,
+    :func:`in_view`; None: all of them) also gains ``h^2 / 3``, scaled by the same share,
+    for the step the view could not see beside it: as large as the steps it saw (``h^2 = 3
+    rho^2``, ``rho^2`` the view's mean steps' variance over the cells whose whole reach it
+    measured, :func:`hidden_relief`), or, when it measured no such cell and so shows no relief
+    of its own, as the cell's own height out of the fitted plane (``h = zm``: the face beside a
+    rock's top the view saw alone lies on the plane)."""
     dense = np.full(grid.nx * grid.ny, np.nan)
     dense[cells] = zm
     z = dense.reshape(grid.shape)
@@ -548,18 +615,59 @@ def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells:
     out = 2.0 * g2 * grid.cell**2 / 12.0
     if step_cells > 0:
         up, down = step_heights(z, step_cells)
+        steps = ((up * up + down * down) / 3.0).reshape(-1)[cells]
         up, down = up.reshape(-1)[cells], down.reshape(-1)[cells]
-        share = np.ones(len(cells))
+        tan_t: F64 | None = None
         if eye is not None:
             q = np.column_stack([grid.x0 + (cells % grid.nx + 0.5) * grid.cell,
                                  grid.y0 + (cells // grid.nx + 0.5) * grid.cell, zm])
             d = q - np.reshape(eye, (1, 3))
             with np.errstate(divide="ignore", invalid="ignore"):
-                tan_t = np.hypot(d[:, 0], d[:, 1]) / np.abs(d[:, 2])
-                share = np.clip(np.nan_to_num(np.maximum(up, down) * tan_t / grid.cell, nan=1.0, posinf=1.0),
-                                0.0, 1.0)
-        out = out + share * (up * up + down * down) / 3.0
+                tan_t = np.asarray(np.hypot(d[:, 0], d[:, 1]) / np.abs(d[:, 2]), float)
+        out = out + _step_share(np.maximum(up, down), tan_t, grid.cell) * steps
+        if hidden:
+            beside, rho2 = hidden_relief(z, step_cells, looked)
+            h2 = np.full(len(cells), 3.0 * rho2) if rho2 is not None else zm * zm
+            out = out + beside.reshape(-1)[cells] * _step_share(np.sqrt(h2), tan_t, grid.cell) * h2 / 3.0
     return np.asarray(out, float)
+
+
+def _step_share(h: F64, tan_t: F64 | None, cell_m: float) -> F64:
+    """The share of a step ``h`` high a view mixes into a cell at the incidence ``t`` of its
+    sight line: ``h tan t`` over one cell, at most 1 (None: the incidence is unknown, 1)."""
+    if tan_t is None:
+        return np.ones(len(h))
+    with np.errstate(invalid="ignore"):
+        share = np.nan_to_num(h * tan_t / cell_m, nan=1.0, posinf=1.0)
+    return np.asarray(np.clip(share, 0.0, 1.0), float)
+
+
+def hidden_relief(z: F64, reach: int, looked: B | None = None) -> tuple[B, float | None]:
+    """``(beside, rho^2)`` for one view's heightfield of cell means ``z`` (NaN: the view put no
+    point there): the cells it measured with a neighbour it did not though it looked at it (of
+    their eight inside the grid, beyond which the ground is the gravity grid's, and in
+    ``looked``, None: all; a cell outside the view's image or range was not hidden), and the view's mean steps'
+    variance ``(r_up^2 + r_down^2) / 3`` (:func:`step_heights` within ``reach``) over the cells
+    whose whole reach it measured (None when it measured no such cell).
+
+    At grazing incidence a view misses the ground the relief hides from it (behind a rise, in
+    front of a step turned away) and puts a cell's points on what it sees of the cell: the top of
+    the rise. Beside a neighbour it did not see, its own cell means show no step and the steps'
+    term adds nothing, yet the cell's ground may lie as far below its sample as the relief
+    reaches; the relief the view could not see is taken as large as the relief it saw."""
+    known = np.isfinite(z)
+    if not known.any():
+        return np.zeros(z.shape, bool), None
+    missed = ~known if looked is None else ~known & looked
+    ring = ndimage.convolve(missed.astype(np.float64), np.ones((3, 3)), mode="constant", cval=0.0)
+    beside = known & (ring > 0.5)
+    size = 2 * reach + 1
+    full = known & (ndimage.convolve(known.astype(np.float64), np.ones((size, size)), mode="constant",
+                                     cval=1.0) > size * size - 0.5)
+    up, down = step_heights(z, reach)
+    steps = (up * up + down * down) / 3.0
+    rho2 = float(np.mean(steps[full])) if full.any() else None
+    return np.asarray(beside, bool), rho2
 
 
 def step_heights(z: F64, reach: int) -> tuple[F64, F64]:

@@ -211,12 +211,12 @@ def test_sight_lines_carry_the_pose_error_and_reach_past_the_point() -> None:
 
 
 def test_inconsistent_views_keep_the_better_supported_surface() -> None:
-    """Two views of one face cell 20 cm apart (beyond the gate): whichever comes first, the
+    """Two views of a flat face 20 cm apart (beyond the gate): whichever comes first, the
     cell ends with the one of smaller variance (the other agent's wrong surface never wins)."""
     for order in ((0, 1), (1, 0)):
         face = FaceMap(_face_frame(), (0.0, 0.2), (0.0, 0.2), FaceMapConfig(cell_m=0.1, overhang_gap_m=0.5))
         rng = np.random.default_rng(5)
-        u, v = rng.uniform(0.0, 0.1, 30), rng.uniform(0.0, 0.1, 30)
+        u, v = rng.uniform(0.0, 0.2, 30), rng.uniform(0.0, 0.2, 30)  # each view sees the whole (flat) grid
         views = [(0.2, 4e-4), (0.0, 1e-5)]  # (w, point variance): the second is the better
         for k in order:
             w, var = views[k]
