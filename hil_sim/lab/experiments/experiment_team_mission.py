@@ -8,7 +8,9 @@ the summary's ``team`` section: whether the delivered map let the Cliff-bot leav
 targets reachable on the truth and reached, tether violations, hazard and unknown cells
 entered, the cells each agent's own views made known (``cells_by_agent``), the end state and
 reason, the bytes each way, and the RECON-bot's own safety and map figures (frames with a wheel
-over the drop, frames it moved with a wheel on ground its geofence did not know, map RMSE). Any
+over the drop, frames it moved with a wheel on ground its geofence did not know, map RMSE, and
+its mapped cells within 1 m past the lip with how many lie more than 20 cm above the truth:
+docs/algorithm.md §1.3). Any
 edge violation is a failure: the command says so on one line and exits 1. Over all scenes the RECON-bot's fixes
 (each FIX against the Cliff-bot's true pose at that instant) by range band: median and worst
 position and heading error, and the fraction whose NEES lies within the chi-square 95 % bound
@@ -53,7 +55,11 @@ COLUMNS = (
     "recon_edge_violations",
     "recon_unknown_ground",
     "recon_map_rmse_cm",
+    "recon_past_lip_cells",
+    "recon_past_lip_off",
 )
+PAST_LIP_M = 1.0  # the band past the lip the map figures look at (m, off the plateau)
+OFF_M = 0.20  # a cell there "off" when its height is above the truth by more (m)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -77,7 +83,35 @@ def scene(scenario: str, seed: int, steps: int, config: str, out: Path) -> dict[
 
     d = out / f"seed{seed}"
     shutil.rmtree(d, ignore_errors=True)
-    return scene_row(run_mission(RunSpec(scenario, "5", steps, seed, config, True, d), mode="fresh"), seed)
+    got = scene_row(run_mission(RunSpec(scenario, "5", steps, seed, config, True, d), mode="fresh"), seed)
+    got["row"] |= past_lip(scenario, seed, d)
+    return got
+
+
+def past_lip(scenario: str, seed: int, d: Path) -> dict[str, int]:
+    """The RECON-bot's map just past the lip (docs/algorithm.md §1.3): its mapped cells off the
+    plateau within ``PAST_LIP_M`` of it (on the truth) and how many of them lie more than ``OFF_M``
+    above the truth (``map_error.npy``; -1 each without it)."""
+    import numpy as np
+    from scipy import ndimage
+
+    from fsw.core.geometry import MapGrid
+    from hil_sim.mission.run_spec import RunSpec, mission_config
+    from hil_sim.world import load_scenario
+
+    try:
+        err = np.load(d / "map_error.npy")
+    except (OSError, ValueError):
+        return {"recon_past_lip_cells": -1, "recon_past_lip_off": -1}
+    world = load_scenario(scenario, seed)
+    grid = MapGrid.from_config(mission_config(RunSpec(scenario, seed=seed), world).map)
+    x0, y0, yaw = (float(v) for v in world.rover_start)  # the flight map's frame: odometry from the start
+    X, Y = grid.centers()
+    wx, wy = x0 + np.cos(yaw) * X - np.sin(yaw) * Y, y0 + np.sin(yaw) * X + np.cos(yaw) * Y
+    off_plateau = ~world.on_plateau(wx, wy)
+    band = off_plateau & (ndimage.distance_transform_edt(off_plateau) * grid.cell <= PAST_LIP_M)
+    band &= np.isfinite(err) if err.shape == grid.shape else np.zeros(grid.shape, bool)
+    return {"recon_past_lip_cells": int(band.sum()), "recon_past_lip_off": int(np.count_nonzero(err[band] > OFF_M))}
 
 
 def target_text(t: dict[str, Any], k: int) -> str:
@@ -162,6 +196,7 @@ def run(args: argparse.Namespace) -> int:
         for sd in seeds:
             try:
                 got.append(scene_row(json.loads((args.out / f"seed{sd}" / "summary.json").read_text()), sd))
+                got[-1]["row"] |= past_lip(args.scenario, sd, args.out / f"seed{sd}")
             except (OSError, ValueError) as exc:
                 print(f"seed {sd}: no stored mission ({type(exc).__name__}: {exc})", file=sys.stderr)
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
@@ -178,7 +213,8 @@ def run(args: argparse.Namespace) -> int:
                 f"[{len(got)}/{len(seeds)}] seed {r['seed']}: start {'usable' if r['start_usable'] else 'NOT usable'}, "
                 f"reached {r['reached']} of {r['truth_reachable']} the truth reaches, {r['final_state']} "
                 f"{r['safe_reason']}; RECON-bot edge violations {r['recon_edge_violations']}, "
-                f"wheels on unknown ground {r['recon_unknown_ground']}, map RMSE {r['recon_map_rmse_cm']:.2f} cm",
+                f"wheels on unknown ground {r['recon_unknown_ground']}, map RMSE {r['recon_map_rmse_cm']:.2f} cm, "
+                f"cells past the lip {r['recon_past_lip_cells']} ({r['recon_past_lip_off']} > 20 cm above the truth)",
                 flush=True,
             )
     if not got:
@@ -194,8 +230,8 @@ def run(args: argparse.Namespace) -> int:
         "| seed | start usable | targets | reachable (truth) | reached | tether violations | hazard cells | "
         "unknown cells | fixes | cells RECON-bot / Cliff-bot | end | bytes down / up | "
         "per target (/ the truth's verdict) | RECON-bot edge violations | RECON-bot wheels on unknown ground | "
-        "RECON-bot map RMSE (cm) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "RECON-bot map RMSE (cm) | RECON-bot cells past the lip (> 20 cm above the truth) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         end = r["final_state"] + (f" ({r['safe_reason']})" if r["safe_reason"] else "")
@@ -204,7 +240,8 @@ def run(args: argparse.Namespace) -> int:
             f"{r['reached']} | {r['tether_violations']} | {r['hazard_cells']} | {r['unknown_cells']} | "
             f"{r['fixes']} | {r['recon_cells']} / {r['cliffbot_cells']} | {end} | "
             f"{r['bytes_down']} / {r['bytes_up']} | {r['map_reasons']} | {r['recon_edge_violations']} | "
-            f"{r['recon_unknown_ground']} | {r['recon_map_rmse_cm']:.2f} |"
+            f"{r['recon_unknown_ground']} | {r['recon_map_rmse_cm']:.2f} | "
+            f"{r['recon_past_lip_cells']} ({r['recon_past_lip_off']}) |"
         )
     reach = sum(r["truth_reachable"] for r in rows)
     rmse = np.array([r["recon_map_rmse_cm"] for r in rows], float)
@@ -220,7 +257,10 @@ def run(args: argparse.Namespace) -> int:
         f"{sum(r['reached_after_looks'] for r in rows)}. The RECON-bot: edge violations (frames with a wheel "
         f"over the drop) {sum(r['recon_edge_violations'] for r in rows)}, frames moved with a wheel on unknown "
         f"ground {sum(r['recon_unknown_ground'] for r in rows)}, map RMSE "
-        + (f"median {float(np.median(rmse)):.2f} cm, worst {float(np.max(rmse)):.2f} cm." if len(rmse) else "-.")
+        + (f"median {float(np.median(rmse)):.2f} cm, worst {float(np.max(rmse)):.2f} cm" if len(rmse) else "-")
+        + f"; its cells within {PAST_LIP_M:g} m past the lip more than {100 * OFF_M:.0f} cm above the truth "
+        f"{sum(max(r['recon_past_lip_off'], 0) for r in rows)} (of "
+        f"{sum(max(r['recon_past_lip_cells'], 0) for r in rows)} mapped there)."
     )
     band = [
         "| range (m) | fixes | position error median / worst (cm) | heading error median / worst (deg) | "
