@@ -218,6 +218,23 @@ def _cos_level(grad: NDArray[np.float64]) -> NDArray[np.intp]:
     return np.minimum(np.ceil(cos * FOOT_COS_LEVELS - 1e-9), FOOT_COS_LEVELS).astype(np.intp)
 
 
+def slope_levels(zs: NDArray[np.float64], cell: float
+                 ) -> tuple[NDArray[np.float64], NDArray[np.intp], NDArray[np.intp]]:
+    """Each cell's slope from the known cells round it (3 x 3): the gradient's norm (inf with
+    too few known cells), its cos in quarters rounded up (:func:`_cos_level`) and the dip's bin
+    of ``FOOT_DIP_BINS`` over 180 deg."""
+    gy, gx = np.gradient(zs, cell)
+    ok = np.isfinite(gx) & np.isfinite(gy)
+    n = ndimage.uniform_filter(ok.astype(np.float64), 3)
+    mx = ndimage.uniform_filter(np.where(ok, gx, 0.0), 3) / np.maximum(n, 1e-9)
+    my = ndimage.uniform_filter(np.where(ok, gy, 0.0), 3) / np.maximum(n, 1e-9)
+    local = np.where(n >= 5.0 / 9.0 - 1e-9, np.hypot(mx, my), np.inf)
+    level = _cos_level(np.where(np.isfinite(local), local, 0.0))
+    dip = np.mod(np.arctan2(my, mx), math.pi)
+    dbin = np.minimum((dip / (math.pi / FOOT_DIP_BINS)).astype(np.intp), FOOT_DIP_BINS - 1)
+    return local, level, dbin
+
+
 def footprint_known(z_sensed: ZMap, grid: MapGrid, footprint_m: float) -> NDArray[np.bool_]:
     """The cells whose footprint is known: the Cliff-bot's footprint disc (``footprint_m``) laid
     in the ground's own plane, which from above is an ellipse shortened along the dip by the
@@ -232,15 +249,7 @@ def footprint_known(z_sensed: ZMap, grid: MapGrid, footprint_m: float) -> NDArra
     r = int(round(footprint_m / grid.cell))
     if r < 1 or not sensed.any():
         return ndimage.binary_erosion(sensed, structure=disc(r), border_value=0)
-    gy, gx = np.gradient(zs, grid.cell)
-    ok = np.isfinite(gx) & np.isfinite(gy)
-    n = ndimage.uniform_filter(ok.astype(np.float64), 3)
-    mx = ndimage.uniform_filter(np.where(ok, gx, 0.0), 3) / np.maximum(n, 1e-9)
-    my = ndimage.uniform_filter(np.where(ok, gy, 0.0), 3) / np.maximum(n, 1e-9)
-    local = np.where(n >= 5.0 / 9.0 - 1e-9, np.hypot(mx, my), np.inf)  # the gradient's norm; inf: too few cells
-    level = _cos_level(np.where(np.isfinite(local), local, 0.0))
-    dip = np.mod(np.arctan2(my, mx), math.pi)
-    dbin = np.minimum((dip / (math.pi / FOOT_DIP_BINS)).astype(np.intp), FOOT_DIP_BINS - 1)
+    local, level, dbin = slope_levels(zs, grid.cell)
     level_disc = ndimage.binary_erosion(sensed, structure=disc(r), border_value=0)
     out = sensed & (level >= FOOT_COS_LEVELS) & level_disc
     ty, tx = np.nonzero(sensed & (level < FOOT_COS_LEVELS))

@@ -12,7 +12,6 @@ call: the median and best of ``--repeat`` runs after a warm-up.
 from __future__ import annotations
 
 import argparse
-import math
 from typing import Any
 
 HELP = "the Cliff-bot planner's ground layers: CPU ms a call, footprint_known against whole-map filters"
@@ -31,22 +30,14 @@ def footprint_known_whole_map(z_sensed: Any, grid: Any, footprint_m: float) -> A
     import numpy as np
     from scipy import ndimage
 
-    from fsw.core.team.face_planner import FOOT_COS_LEVELS, FOOT_DIP_BINS, _cos_level, disc, tilted_disc
+    from fsw.core.team.face_planner import FOOT_COS_LEVELS, _cos_level, disc, slope_levels, tilted_disc
 
     zs = np.asarray(z_sensed, np.float64)
     sensed = np.isfinite(zs)
     r = int(round(footprint_m / grid.cell))
     if r < 1 or not sensed.any():
         return ndimage.binary_erosion(sensed, structure=disc(r), border_value=0)
-    gy, gx = np.gradient(zs, grid.cell)
-    ok = np.isfinite(gx) & np.isfinite(gy)
-    n = ndimage.uniform_filter(ok.astype(np.float64), 3)
-    mx = ndimage.uniform_filter(np.where(ok, gx, 0.0), 3) / np.maximum(n, 1e-9)
-    my = ndimage.uniform_filter(np.where(ok, gy, 0.0), 3) / np.maximum(n, 1e-9)
-    local = np.where(n >= 5.0 / 9.0 - 1e-9, np.hypot(mx, my), np.inf)
-    level = _cos_level(np.where(np.isfinite(local), local, 0.0))
-    dbin = np.minimum((np.mod(np.arctan2(my, mx), math.pi) / (math.pi / FOOT_DIP_BINS)).astype(np.intp),
-                      FOOT_DIP_BINS - 1)
+    local, level, dbin = slope_levels(zs, grid.cell)
     level_disc = ndimage.binary_erosion(sensed, structure=disc(r), border_value=0)
     out = sensed & (level >= FOOT_COS_LEVELS) & level_disc
     tilted = sensed & (level < FOOT_COS_LEVELS)
