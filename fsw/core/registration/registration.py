@@ -372,20 +372,19 @@ def _curvature_check(fit: _Fit, C: F64, q0: F64, t: F64, grid: MapGrid, z: F64, 
     3.7 deg, the truth's cost no higher than the fit's). Along each principal direction ``v`` of
     the fitted directions' posterior (sigma ``s``), the points are moved by ``+-k s v``
     (``k = curvature_sigma``) and the data's cost (the fit's weights and scale, the points that
-    stay on the reference at both, each normalised square capped at the residual gate) compared
+    stay on the reference at both) compared
     with the rise ``k^2 s^2 v^T N v`` the fit predicts; a direction whose predicted rise is
     under 1 (the prior holds it: its sigma stays near the prior's) is not checked. A rise under
     ``curvature_ratio`` of the prediction: the reason (empty: the fit holds)."""
     f = np.ix_(free, free)
     lam, V = np.linalg.eigh(C[f])
-    cap = cfg.gate_sigma**2
     u = fit.used
 
     def cost(d: F64) -> tuple[F64, NDArray[np.bool_]]:
         q = q0[u] @ so3_exp(d[:3]).T
         p = q + t + d[3:]
         h, _, _, _, ok = _surface(grid, z, var, ref, p[:, 0], p[:, 1])
-        return np.minimum(fit.w * (p[:, 2] - h) ** 2, cap), ok & np.isfinite(h)
+        return fit.w * (p[:, 2] - h) ** 2, ok & np.isfinite(h)
 
     c0, ok0 = cost(fit.d)
     for j in range(len(free)):
