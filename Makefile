@@ -7,6 +7,9 @@ STAMP := $(VENV)/.installed
 # the ranges. `make lock` refreshes it from the newest versions the ranges allow.
 LOCK := constraints.txt
 LOCK_VENV := $(VENV)-lock
+# Python caches compiled modules (__pycache__, git-ignored): the suite's workers and the processes its tests
+# start import the same code, and an environment that turns the cache off compiles it again in each of them.
+unexport PYTHONDONTWRITEBYTECODE
 
 .PHONY: demo test lint typecheck unit unit-loopback bench clean venv lock
 

@@ -32,6 +32,7 @@ COMMANDS: dict[tuple[str, str], str] = {
     ("bench", "calibration"): "hil_sim.lab.bench.bench_calibration",
     ("bench", "stereo-real"): "hil_sim.lab.bench.bench_stereo_real",
     ("bench", "cycle"): "hil_sim.lab.bench.bench_cycle",
+    ("bench", "planner"): "hil_sim.lab.bench.bench_planner",
     ("experiment", "coverage"): "hil_sim.lab.experiments.experiment_coverage",
     ("experiment", "reduction"): "hil_sim.lab.experiments.experiment_reduction",
     ("experiment", "link"): "hil_sim.lab.experiments.experiment_link",

@@ -241,7 +241,9 @@ def run(args: argparse.Namespace) -> int:
             m = fsw.map
             tables = {**tables, "link": team.recon_link(), "cliffbot_site": team.recon_site(fsw),
                       "map": {"origin_x_m": m.origin_x_m, "origin_y_m": m.origin_y_m, "cell_m": m.cell_m,
-                              "nx": m.nx, "ny": m.ny}}
+                              "nx": m.nx, "ny": m.ny},
+                      # a team keeps its map in step both ways, as the lockstep team mission does
+                      "map_sync": {"enabled": True}}
         write_flight_config(base_cfg, Path(args.flight_config), endpoints, tables)
         print(f"  flight  safer-fsw run --config {args.flight_config}")
     if team is not None and args.cliffbot_config:

@@ -67,26 +67,36 @@ def test_task_ms_per_frame_sums_foreground_tasks_only() -> None:
     assert "task_ms_per_frame" in WALL_CLOCK_FIELDS  # not compared between seeded runs
 
 
+@pytest.fixture(scope="module")
+def small_run() -> str:
+    """One small ``bench cycle`` run (a 16 x 16 map, one timed run per stage, then the short
+    lockstep mission) whose output both tests below read."""
+    import contextlib
+    import io
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert main(["bench", "cycle", "--grids", "16", "--repeats", "1", "--mission-steps", "1"]) == 0
+    return buf.getvalue()
+
+
 @pytest.mark.slow
-def test_bench_cycle_prints_breakdown(capsys: pytest.CaptureFixture[str]) -> None:
+def test_bench_cycle_prints_breakdown(small_run: str) -> None:
     """A small run: every stage, the projection and the verdicts are printed."""
-    assert main(["bench", "cycle", "--grids", "64", "--repeats", "1",
-                 "--mission-steps", "0"]) == 0
-    out = capsys.readouterr().out
+    out = small_run
     for word in ("capture", "rectify", "stereo", "register", "merge", "edge", "next_view", "cycle",
                  "peak RSS", "target", "the flown pipeline", "yardstick"):
         assert word in out
     stages = parse_stages(out)  # what a later --baseline run reads back from this version
-    assert list(stages) == [64] and set(stages[64]) == set(CYCLE_STAGES)
-    assert all(v is None or v > 0 for v in stages[64].values())
+    assert list(stages) == [16] and set(stages[16]) == set(CYCLE_STAGES)
+    assert all(v is None or v > 0 for v in stages[16].values())
 
 
 @pytest.mark.slow
-def test_bench_cycle_prints_the_longest_slice(capsys: pytest.CaptureFixture[str]) -> None:
+def test_bench_cycle_prints_the_longest_slice(small_run: str) -> None:
     """Issue 15: the short lockstep mission reports the foreground per task and the longest
     slack-job slice per submitting task against the 20 ms bound."""
-    assert main(["bench", "cycle", "--grids", "16", "--repeats", "1", "--mission-steps", "1"]) == 0
-    out = capsys.readouterr().out
+    out = small_run
     line = next(ln for ln in out.splitlines() if "longest slack-job slice" in ln)
     assert "perception" in line and "bound 20 ms here" in line
     assert "motion" in out and "total" in out

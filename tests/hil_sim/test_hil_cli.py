@@ -96,3 +96,14 @@ def test_serve_link_options_go_into_the_flight_config(tmp_path: Path, capsys: py
     assert main(["serve", "--tlog", "x.tlog", "--duration", "1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--flight-config" in err[0]
+
+
+def test_bench_planner_times_the_flight_footprints_against_whole_map_filters(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "planner", "--repeat", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "ground_layers (flight)" in out and "footprint_known by whole-map filters" in out
+    assert "same cells: yes" in out
+    assert main(["bench", "planner", "--repeat", "0"]) == 2
+    assert main(["bench", "planner", "--scenario", "lab"]) == 2  # no team there
+    assert "no team" in capsys.readouterr().out

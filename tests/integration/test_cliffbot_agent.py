@@ -350,3 +350,38 @@ def test_navigation_is_its_own_task_and_takes_the_checkpoints_estimate(tmp_path:
         exe.tasks["mavlink"].close()  # type: ignore[attr-defined]
     finally:
         radio.close()
+
+
+def test_a_cliffbot_restarted_on_a_checkpoint_senses_on_its_map(tmp_path: Path) -> None:
+    """No map comes over the link after a restart: the sensing task takes the checkpoint's map
+    (the mission's, less the plane carried on beyond where its wheels stood) as the received
+    one, so a request for views is answered on it (the mission never waits out its timeout)."""
+    from fsw.app import build_executive
+    from fsw.drivers.radio import open_radio
+    from fsw.framework.clock import SteppedClock
+    from fsw.tasks.cliffbot.checkpoint import SCHEMA, CheckpointFile
+
+    cfg = load_settings(CLIFFBOT_TOML)
+    z = np.zeros((cfg.map.ny, cfg.map.nx))
+    z[:10] = np.nan
+    carried = [cfg.map.nx * 20 + 5, cfg.map.nx * 21 + 7]
+    CheckpointFile(str(tmp_path)).save({
+        "schema": SCHEMA, "time_s": 5.0, "state": "WAIT_FIX", "safe_reason": "", "leg_i": 0, "fix_seq": 1,
+        "map_version": 2, "error_bound_m": 0.03, "start": [2.5, -0.5], "targets": [[2.0, -1.5]],
+        "reached": [False], "reasons": ["unknown ground"], "legs": [[2.0, -1.5, 0]], "nav_s": [2.5, -0.5, -1.57],
+        "nav_P": np.diag([1e-4, 1e-4, 1e-4]).tolist(), "carried": carried}, z)
+    cfg = dataclasses.replace(cfg, checkpoint=dataclasses.replace(cfg.checkpoint, directory=str(tmp_path)),
+                              cliffbot_bus=dataclasses.replace(cfg.cliffbot_bus, can_interface="none"))
+    radio = open_radio("inproc://cliffbot-sense-resume")
+    try:
+        exe = build_executive(cfg, SteppedClock(), Resources(radio_port=radio), map_store=False)
+        for _ in range(4):
+            exe.step()
+        got = exe.tasks["cb_sense"].received  # type: ignore[attr-defined]
+        assert got is not None and got.error_bound_m == pytest.approx(0.03)
+        held = np.isfinite(got.z)
+        assert not held[:10].any() and not held.flat[carried].any()  # unknown, and the plane carried on
+        assert held.sum() == z.size - 10 * cfg.map.nx - len(carried)
+        exe.tasks["mavlink"].close()  # type: ignore[attr-defined]
+    finally:
+        radio.close()

@@ -3,7 +3,8 @@
 their own (``safer-fsw run``, the RECON-bot and the Cliff-bot) on 127.0.0.1. The RECON-bot flies a
 one-view mission so its map crosses the radio within the window; the Cliff-bot receives it, plans,
 asks for a fix; the RECON-bot views the Anchorbots' plates and answers it (docs/algorithm.md §5.2).
-Both send MAVLink heartbeats with their own system ids, and both exit cleanly on SIGTERM."""
+Both radio tasks run the two-way map sync (docs/sync.md). Both send MAVLink heartbeats with their
+own system ids, and both exit cleanly on SIGTERM."""
 
 from __future__ import annotations
 
@@ -132,6 +133,9 @@ def test_serve_and_both_flight_programs_cross_the_map_and_answer_a_fix(tmp_path:
     assert "mission.FIX_REQUEST" in cb, said
     assert "fixer.LANDMARKS" in recon and "fixer.FIX_SENT" in recon, said  # through the plates
     assert _answered(cb), said  # fused or refused, the answer arrived
+    # Both radio tasks fly the map sync (serve turns it on in the RECON-bot's file): each took the
+    # other's tile profile (docs/sync.md, "Tiles")
+    assert "radio.SYNC" in recon and "PEER_PROFILE" in recon and "PEER_PROFILE" in cb, said
     truth = json.loads(next(ln for ln in served.splitlines() if ln.startswith("TRUTH "))[6:])
     assert truth["winch_bad"] == 0 and truth["can_bad"] == 0
 

@@ -2,8 +2,9 @@
 
 The shared map is two layers of square tiles (``tile_cells`` a side, on the map grid): the
 agent's own layer, which only it writes, and its copy of the peer's layer. Each layer tile
-is a map-codec container (``fsw.core.codec.mapcodec``: the quadtree reduction within the
-wheel-diameter error bound), versioned by its owner's counter. Both replicas hold the same
+is a tile body in the compact tile format (``fsw.core.codec.tileformat``: the map codec's
+quadtree reduction within the wheel-diameter error bound, without the container header) of
+its owner's tile profile, versioned by its owner's counter. Both replicas hold the same
 bytes of every tile, so the same content; :meth:`MapReplica.replica_hash` hashes the decoded
 tiles of both layers. What travels, and when, is the protocol's business
 (:mod:`fsw.comm.team.map_sync`); this module only keeps the tiles and says what changed.
@@ -20,7 +21,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.comm.team import sync_packets as sp
-from fsw.core.codec.mapcodec import CodecConfig, MapCodecError, decode_map, encode_map
+from fsw.core.codec.mapcodec import (
+    CodecConfig,
+    MapCodecError,
+    TileProfile,
+    decode_tile,
+    encode_tile,
+    tile_profile,
+)
 
 F32 = NDArray[np.float32]
 
@@ -41,13 +49,16 @@ class MapReplica:
     """Both layers of one agent's replica: ``own`` (its tiles) and ``held`` (its copy of the peer's)."""
 
     def __init__(self, agent: int, peer: int, shape: tuple[int, int], tile_cells: int, cell_m: float,
-                 wheel_diameter_m: float, codec: CodecConfig | None = None) -> None:
+                 wheel_diameter_m: float, codec: CodecConfig | None = None, *, frame: int = 0,
+                 origin: tuple[float, float] = (0.0, 0.0)) -> None:
         self.agent, self.peer = agent, peer
         self.shape = (int(shape[0]), int(shape[1]))
         self.tile_cells = tile_cells
         self.cell_m, self.wheel_m = cell_m, wheel_diameter_m
         self.codec = codec or CodecConfig()
         self.bound_m = self.codec.error_bound_wheels * wheel_diameter_m
+        self.profile = tile_profile(self.codec, cell_m=cell_m, wheel_diameter_m=wheel_diameter_m, frame=frame,
+                                    shape=self.shape, origin=origin, tile_cells=tile_cells)
         self.nty, self.ntx = -(-self.shape[0] // tile_cells), -(-self.shape[1] // tile_cells)
         self.own: dict[int, TileRec] = {}
         self.held: dict[int, TileRec] = {}
@@ -69,9 +80,9 @@ class MapReplica:
         return self.own if owner == self.agent else self.held
 
     def layer_hash(self, owner: int) -> bytes:
-        """8-byte hash of a layer's (tile, digest) pairs (what DIGESTs compare)."""
+        """A hash of a layer's (tile, digest) pairs (what DIGESTs compare; ``HASH_BYTES`` bytes)."""
         if owner not in self._hash_cache:
-            h = hashlib.blake2b(digest_size=8)
+            h = hashlib.blake2b(digest_size=sp.HASH_BYTES)
             for t, rec in sorted(self.layer(owner).items()):
                 h.update(t.to_bytes(2, "little") + rec.digest.to_bytes(4, "little"))
             self._hash_cache[owner] = h.digest()
@@ -120,27 +131,28 @@ class MapReplica:
             known.any() and float(np.max(np.abs(sub[known] - src[known]))) > self.bound_m)
 
     def encode(self, sub: F32) -> bytes:
-        """A tile's map-codec container."""
-        return encode_map(sub, cell_m=self.cell_m, wheel_diameter_m=self.wheel_m, cfg=self.codec).data
+        """A tile's body in the compact tile format of the agent's profile."""
+        return encode_tile(sub, self.profile, self.codec)
 
     def new_version(self, t: int, blob: bytes, sub: F32) -> TileRec:
         """Tile ``t`` of the own layer becomes ``blob`` (made from ``sub``) under the next version."""
         self.counter += 1
-        rec = TileRec(self.counter, sp.blob_digest(blob), blob, decode_map(blob).z)
+        rec = TileRec(self.counter, sp.blob_digest(blob), blob, decode_tile(blob, self.profile, sub.shape))
         self.own[t] = rec
         self.source[t] = np.array(sub, np.float32)
         self.touch(self.agent)
         return rec
 
-    def decode_tile(self, t: int, blob: bytes) -> F32 | None:
-        """The cells of a received tile, or None when the blob is not a valid tile ``t``."""
+    def decode_tile(self, t: int, blob: bytes, profile: TileProfile) -> F32 | None:
+        """The cells of a received tile of ``profile`` (its grid this replica's), or None when
+        the blob is not a valid tile ``t``."""
         if t >= self.n_tiles:
             return None
         ys, xs = self.tile_slice(t)
         try:
             with np.errstate(over="ignore", invalid="ignore"):
-                z = decode_map(blob, max_cells=self.tile_cells ** 2).z
-        except (MapCodecError, ValueError, MemoryError):  # zstandard: a frame larger than announced
+                z = decode_tile(blob, profile, (ys.stop - ys.start, xs.stop - xs.start))
+        except (MapCodecError, ValueError, MemoryError):
             return None
         if z.shape != (ys.stop - ys.start, xs.stop - xs.start) or np.isinf(z).any():
             return None
@@ -148,7 +160,7 @@ class MapReplica:
 
     # ---------------------------------------------------------------- checkpoint
     def layers_state(self) -> dict[str, dict[str, list[int | str]] | dict[str, str]]:
-        """Both layers (version, base64 container per tile) and the own tiles' sources, for a
+        """Both layers (version, base64 tile body per tile) and the own tiles' sources, for a
         JSON checkpoint (``fsw.comm.team.map_sync.MapSync.checkpoint``)."""
         def layer(d: dict[int, TileRec]) -> dict[str, list[int | str]]:
             return {str(t): [r.version, base64.b64encode(r.blob).decode()] for t, r in d.items()}
@@ -156,15 +168,23 @@ class MapReplica:
                 "source": {str(t): base64.b64encode(z.tobytes()).decode() for t, z in self.source.items()}}
 
     def load_layers(self, own: Mapping[str, Sequence[int | str]], held: Mapping[str, Sequence[int | str]],
-                    source: Mapping[str, str]) -> None:
-        """The layers and sources of :meth:`layers_state` (raises ``KeyError``, ``TypeError``,
-        ``ValueError`` or ``MapCodecError`` on a malformed state)."""
-        for layer, d in ((own, self.own), (held, self.held)):
+                    source: Mapping[str, str], peer_profile: TileProfile | None) -> None:
+        """The layers and sources of :meth:`layers_state`, the held layer's tiles of
+        ``peer_profile`` (raises ``KeyError``, ``TypeError``, ``ValueError`` or
+        ``MapCodecError`` on a malformed state)."""
+        if held and peer_profile is None:
+            raise ValueError("the held layer has tiles but the state has no peer tile profile")
+        for layer, d, prof in ((own, self.own, self.profile), (held, self.held, peer_profile)):
             for key, (ver, b64) in layer.items():
                 if not isinstance(b64, str):
-                    raise TypeError(f"tile {key}: its container is not base64 text")
+                    raise TypeError(f"tile {key}: its body is not base64 text")
                 blob = base64.b64decode(b64)
-                d[int(key)] = TileRec(int(ver), sp.blob_digest(blob), blob, decode_map(blob).z)
+                t = int(key)
+                if not 0 <= t < self.n_tiles or prof is None:
+                    raise ValueError(f"tile {key} is not a tile of the map")
+                ys, xs = self.tile_slice(t)
+                z = decode_tile(blob, prof, (ys.stop - ys.start, xs.stop - xs.start))
+                d[t] = TileRec(int(ver), sp.blob_digest(blob), blob, z)
         for key, b64s in source.items():
             t = int(key)
             ys, xs = self.tile_slice(t)

@@ -9,9 +9,11 @@ versioned map-codec tiles, the agent's own and its copy of the peer's, and their
   with the map tile its last version was made from and publishes a new version only where a
   cell became known or unknown or moved by more than the error bound (one wheel diameter by
   default).
-* New versions go out as TILE packets, highest ``priority(ty, tx)`` first (the receiver's task:
-  e.g. its corridor), paced to ``rate_bps``. The peer acknowledges them in its DIGESTs (every
-  acknowledgement is repeated until the peer's own DIGEST echoes the digest that carried it).
+* New versions go out as TILE packets (compact tile bodies of my tile profile, which the peer
+  holds before any goes: it rides on my DIGESTs asking for holdings until the peer says it
+  holds it), highest ``priority(ty, tx)`` first (the receiver's task: e.g. its corridor),
+  paced to ``rate_bps``. The peer acknowledges them in its DIGESTs by the serials it took in
+  (the echo and a window of the 32 before it; I keep which tile version each serial carried).
   A tile is sent again only when a DIGEST proves it lost: the peer had received a packet sent
   ``reorder_slack_s`` after it, and does not hold it (as TCP RACK). After the last tile a DIGEST
   asking for an answer probes the tail.
@@ -44,12 +46,13 @@ from fsw.comm.link import Pacer
 from fsw.comm.link_packets import PacketError
 from fsw.comm.team import sync_packets as sp
 from fsw.comm.team.map_replica import F32, MapReplica, TileRec
-from fsw.core.codec.mapcodec import CodecConfig, MapCodecError
+from fsw.core.codec.mapcodec import CodecConfig, MapCodecError, TileProfile
+from fsw.core.codec.tileformat import PROFILE_BYTES, profile_from_bytes
 from fsw.framework.events import EventSink
 from fsw.framework.params import param
 
 Priority = Callable[[int, int], float]
-CHECKPOINT_VERSION = 1
+CHECKPOINT_VERSION = 2  # 2: tiles in the compact tile format with their profiles
 # A restored end numbers its versions from its checkpoint's counter plus this, so nothing it
 # publishes reuses a version it published after the checkpoint (4096 restarts fit in u32).
 RESTART_VERSION_STEP = 1 << 20
@@ -83,10 +86,16 @@ class SyncConfig:
 class SyncStats:
     rounds: int = 0
     tiles_published: int = 0
-    minimal_bytes: int = 0  # TILE packet bytes of every published version, once
+    minimal_bytes: int = 0  # TILE packet bytes of every published version, once; a fresh end's profile once
     packets_out: int = 0
     bytes_out: int = 0  # everything put on the air
     tiles_out: int = 0
+    tile_bytes_out: int = 0  # of bytes_out: TILEs (the own layer's and tiles given back)
+    tile_body_bytes_out: int = 0  # of which the tile bodies (the rest: packet headers)
+    resent_bytes_out: int = 0  # of tile_bytes_out: versions sent again
+    holdings_bytes_out: int = 0
+    profiles_out: int = 0  # DIGESTs that carried my tile profile
+    profile_bytes_out: int = 0  # of digest_bytes_out: the profiles they carried
     resent_tiles: int = 0  # a version sent again (proved lost)
     returns_out: int = 0  # the peer's own tiles given back to it
     digests_out: int = 0
@@ -102,6 +111,8 @@ class SyncStats:
     dup_packets: int = 0
     bad_packets: int = 0
     foreign_packets: int = 0
+    unknown_profile_tiles: int = 0  # TILEs naming a tile profile not (yet) known: dropped
+    profile_mismatches: int = 0  # profiles of another frame or grid refused, and the TILEs naming them
     tiles_in: int = 0
     stale_tiles: int = 0  # a version already held or older
     adopted: int = 0  # own tiles given back by the peer after a restart
@@ -116,11 +127,13 @@ class MapSync:
 
     def __init__(self, cfg: SyncConfig, agent: int, peer: int, shape: tuple[int, int], cell_m: float,
                  wheel_diameter_m: float, *, frame: int = 0, boot: int = 0, codec: CodecConfig | None = None,
-                 priority: Priority | None = None, on_adopt: Callable[[int, F32], None] | None = None) -> None:
+                 priority: Priority | None = None, on_adopt: Callable[[int, F32], None] | None = None,
+                 origin: tuple[float, float] = (0.0, 0.0)) -> None:
         if agent == peer or not (0 <= agent < 256 and 0 <= peer < 256):
             raise ValueError(f"agent {agent} and peer {peer} must be distinct ids 0..255")
         self.cfg, self.agent, self.peer, self.frame = cfg, agent, peer, frame & 0xFF
-        self.rep = MapReplica(agent, peer, shape, cfg.tile_cells, cell_m, wheel_diameter_m, codec)
+        self.rep = MapReplica(agent, peer, shape, cfg.tile_cells, cell_m, wheel_diameter_m, codec, frame=frame,
+                              origin=origin)
         if self.rep.n_tiles > 0xFFFF:
             raise ValueError(f"a {self.rep.shape} map has more than 65535 tiles of {cfg.tile_cells} cells")
         if -(-self.rep.n_tiles // ((cfg.mtu_bytes - sp.HOLDINGS_BASE) // sp.ENTRY_BYTES)) > 255:
@@ -130,7 +143,13 @@ class MapSync:
         self.boot = boot & 0xFFFF
         self.pacer = Pacer(cfg.rate_bps, cfg.pacing_catchup_s)
         self.events = EventSink()
-        self.stats = SyncStats()
+        self.stats = SyncStats(minimal_bytes=PROFILE_BYTES)  # my profile, once per session
+        self.peer_profile: TileProfile | None = None  # the peer's tile profile, once it sent it
+        self.attach_profile = True  # my DIGESTs asking for holdings carry my profile
+        self._peer_profile_stale = False  # its holdings named another profile of mine
+        self._refused_profiles: set[int] = set()
+        self._bad_event_s, self._bad_since = float("-inf"), 0
+        self._peer_synced = False  # the peer's last hash of my layer equalled mine, nothing published since
         self.belief: dict[int, tuple[int, int]] = {}  # what the peer holds of my layer
         self.peer_boot: int | None = None
         self.want_holdings = True  # every start asks: the peer may hold what I lost
@@ -142,12 +161,10 @@ class MapSync:
         self._lost: set[int] = set()
         self._last_rx_s: float | None = None
         self._started_s: float | None = None
-        self._peer_dseq: int | None = None
-        self._peer_serial: int | None = None
+        self._peer_serial: int | None = None  # the peer's last packet accepted (the echo)
+        self._rx_serials: OrderedDict[int, None] = OrderedDict()  # the peer's packets accepted, recent
+        self._sent_tiles: OrderedDict[int, tuple[int, int]] = OrderedDict()  # serial -> (tile, version) of mine
         self._recent: OrderedDict[tuple[int, int, bytes], None] = OrderedDict()
-        self._dseq = 0
-        self._digest_log: OrderedDict[int, tuple[tuple[int, int], ...]] = OrderedDict()
-        self._unconfirmed: dict[int, int] = {}  # peer tiles received, acks not yet confirmed
         self._digest_due: float | None = None
         self._answer = False
         self._last_digest_s = float("-inf")
@@ -162,7 +179,6 @@ class MapSync:
         self._returned_at: dict[int, float] = {}
         self._mismatches = 0
         self._now = 0.0
-        self._acks_cut = False
         self._ack_first_s: float | None = None  # first and last tile not yet acknowledged
         self._ack_last_s = 0.0
         self._last_tx_s = float("-inf")
@@ -243,19 +259,25 @@ class MapSync:
             self.events.emit(now_s, "TILE_TOO_LARGE", tile=t, bytes=len(blob))
             return False
         self.rep.new_version(t, blob, sub)
+        self._peer_synced = False
         self.wants.discard(t)
         self._lost.discard(t)
         self.stats.tiles_published += 1
         self.stats.minimal_bytes += len(blob) + sp.TILE_OVERHEAD
         return True
 
+    @property
+    def profile(self) -> TileProfile:
+        """My tile profile: the frame, grid and codec settings of my layer's tiles."""
+        return self.rep.profile
+
     # ---------------------------------------------------------------- receiving
     def receive(self, datagram: bytes, now_s: float) -> None:
         """One datagram from the radio; anything invalid is counted and dropped."""
         try:
             p = sp.decode(datagram)
-        except PacketError:
-            self.stats.bad_packets += 1
+        except PacketError as exc:
+            self._bad(now_s, str(exc))
             return
         self._now = now_s
         if p.agent != self.peer or p.frame != self.frame:
@@ -273,25 +295,60 @@ class MapSync:
         if self._last_rx_s is not None and now_s - self._last_rx_s > self.cfg.stall_s:
             self.events.emit(now_s, "LINK_BACK", silent_s=round(now_s - self._last_rx_s, 3))
         self._last_rx_s = now_s
-        self._peer_serial = p.serial
         if isinstance(p, sp.Tile):
             stale = self.stats.stale_tiles
             self._on_tile(p, now_s)
             self.stats.stale_bytes_in += len(datagram) if self.stats.stale_tiles > stale else 0
         elif isinstance(p, sp.Digest):
             self.stats.digest_bytes_in += len(datagram)
+            if p.profile is not None:
+                self._on_profile(p.profile, now_s)
             self._on_digest(p, now_s)
         else:
             self.stats.holdings_bytes_in += len(datagram)
             self._on_holdings(p, now_s)
 
+    def _bad(self, now_s: float, reason: str) -> None:
+        """A datagram dropped: counted, and an event (at most one a second, with the count)."""
+        self.stats.bad_packets += 1
+        self._bad_since += 1
+        if now_s - self._bad_event_s >= 1.0:
+            self.events.emit(now_s, "BAD_PACKET", dropped=self._bad_since, last=reason)
+            self._bad_event_s, self._bad_since = now_s, 0
+
+    def _on_profile(self, prof: TileProfile, now_s: float) -> None:
+        if not prof.same_grid(self.rep.profile):  # another frame or grid: never merged
+            self.stats.profile_mismatches += 1
+            if prof.pid not in self._refused_profiles:
+                self._refused_profiles.add(prof.pid)
+                self.events.emit(now_s, "FRAME_MISMATCH", profile=f"{prof.pid:08x}", frame=prof.frame,
+                                 grid=f"{prof.ny}x{prof.nx}@{prof.cell_m:.4g}m/{prof.tile_cells}")
+            return
+        if self.peer_profile is None or self.peer_profile.pid != prof.pid:
+            self.events.emit(now_s, "PEER_PROFILE", profile=f"{prof.pid:08x}")
+        self.peer_profile = prof
+
+    def _tile_profile(self, p: sp.Tile) -> TileProfile | None:
+        """The profile a tile names, if it is the one its owner's tiles have here."""
+        prof = self.rep.profile if p.owner == self.agent else self.peer_profile
+        if prof is not None and prof.pid == p.profile:
+            return prof
+        if p.profile in self._refused_profiles:
+            self.stats.profile_mismatches += 1
+        else:
+            self.stats.unknown_profile_tiles += 1
+        return None
+
     def _on_tile(self, p: sp.Tile, now_s: float) -> None:
         if p.owner not in (self.agent, self.peer):
             self.stats.foreign_packets += 1
             return
-        z = self.rep.decode_tile(p.tile, p.blob)
+        prof = self._tile_profile(p)
+        if prof is None:  # not decodable here: not acknowledged, so the sender sends it again
+            return
+        z = self.rep.decode_tile(p.tile, p.blob, prof)
         if z is None:
-            self.stats.bad_packets += 1
+            self._bad(now_s, f"TILE {p.tile}: its body is not a tile of the map")
             return
         rec = TileRec(p.version, p.digest, p.blob, z)
         if p.owner == self.agent:  # one of mine, given back after my restart
@@ -316,10 +373,21 @@ class MapSync:
             self.stats.tiles_in += 1
         else:
             self.stats.stale_tiles += 1
-        self._unconfirmed[p.tile] = self.rep.held[p.tile].version
+        self._accepted(p.serial)
         if self._ack_first_s is None:
             self._ack_first_s = now_s
         self._ack_last_s = now_s
+
+    def _accepted(self, serial: int) -> None:
+        """A packet of the peer taken in: my next DIGEST echoes it (and acknowledges its tile)."""
+        self._peer_serial = serial
+        self._rx_serials[serial] = None
+        self._rx_serials.move_to_end(serial)
+        if len(self._rx_serials) > 4 * sp.ACK_WINDOW:
+            self._rx_serials.popitem(last=False)
+
+    def _ack_bits(self, echo: int) -> int:
+        return sum(1 << i for i in range(sp.ACK_WINDOW) if (echo - 1 - i) & 0xFFFF in self._rx_serials)
 
     def _ack_due(self) -> float | None:
         """When the acknowledgement of the tiles received is due: ``ack_delay_s`` after the last
@@ -344,26 +412,30 @@ class MapSync:
             if p.flags & sp.FRESH and self.belief:  # its replica is lost: all of my layer goes again
                 self.stats.full_resends += 1
                 self.events.emit(now_s, "FULL_RESEND", tiles=len(self.rep.own))
+            self.attach_profile = self.attach_profile or bool(p.flags & sp.FRESH)
             self.want_holdings = True
+            self._peer_synced = False
             self._inflight.clear()
             self._last_holdings_s = float("-inf")
             self._digest_due = now_s  # ask for its holdings at once
         elif self.peer_boot is None and now_s - self._last_holdings_s >= self.cfg.holdings_retry_s:
             self._queue_holdings(now_s)  # first contact since my start: the peer will ask for them
         self.peer_boot = p.boot
-        self._peer_dseq = p.dseq
-        if p.flags & sp.ECHO_VALID:
-            for t, v in self._digest_log.pop(p.echo_dseq, ()):
-                if self._unconfirmed.get(t) == v:
-                    del self._unconfirmed[t]
-        for t, v in p.acks:
-            rec = self.rep.own.get(t)
-            if rec is not None and v == rec.version & 0xFFFF:  # acknowledgements carry 16 bits
-                self.belief[t] = (rec.version, rec.digest)
-                self._inflight.pop(t, None)
-                self._lost.discard(t)
-        synced = p.held_hash == self.rep.layer_hash(self.agent) and p.held_count == len(self.rep.own)
-        if synced:
+        self._accepted(p.serial)
+        if p.flags & sp.KNOWS_PROFILE and not self._peer_profile_stale:  # it holds my profile
+            self.attach_profile = False
+        for s in p.acked():
+            sent = self._sent_tiles.get(s)
+            rec = self.rep.own.get(sent[0]) if sent is not None else None
+            if sent is not None and rec is not None and sent[1] == rec.version:  # it holds my latest version
+                self.belief[sent[0]] = (rec.version, rec.digest)
+                self._inflight.pop(sent[0], None)
+                self._lost.discard(sent[0])
+        if p.held_hash is not None:
+            self._peer_synced = p.held_hash == self.rep.layer_hash(self.agent)
+        if p.held_hash is None:
+            pass  # an acknowledgement alone: what it proves is above
+        elif p.held_hash == self.rep.layer_hash(self.agent):
             self.belief = {t: (r.version, r.digest) for t, r in self.rep.own.items()}
             self._inflight.clear()
             self._lost.clear()
@@ -383,24 +455,25 @@ class MapSync:
             if t in self.rep.held and now_s - self._returned_at.get(t, float("-inf")) >= self.cfg.holdings_retry_s:
                 self._returns.add(t)
         self._probe_gap = self.cfg.probe_s
-        if p.flags & sp.ECHO_VALID and not p.flags & sp.ACKS_CUT:
+        if p.flags & sp.ECHO_VALID:
             echo_t = self._sent_at.get(p.echo_serial)
             if echo_t is not None:
                 for t, (v, ts) in list(self._inflight.items()):
                     if ts + self.cfg.reorder_slack_s <= echo_t and self.rep.own[t].version == v and self._needed(t):
                         self._lost.add(t)
                         del self._inflight[t]
-        if self._unconfirmed and self._acks_cut:  # the rest of the acknowledgements
-            self._schedule_digest(now_s + self.cfg.ack_delay_s)
 
     def _on_holdings(self, p: sp.Holdings, now_s: float) -> None:
         per = self._holdings_per_page()
         n = self.rep.n_tiles
         if p.n_pages != -(-n // per) or any(not p.page * per <= t < min((p.page + 1) * per, n)
                                             for t, _v, _d in p.entries):
-            self.stats.bad_packets += 1
+            self._bad(now_s, "HOLDINGS page does not fit the map")
             return
         if not self.want_holdings:
+            return
+        if p.profile != self.rep.profile.pid:  # the peer cannot decode my tiles yet
+            self.attach_profile = self._peer_profile_stale = True
             return
         self._holdings_in[p.page] = p.entries  # pages of any set combine: each is its tiles' state
         if len(self._holdings_in) < p.n_pages:
@@ -408,6 +481,7 @@ class MapSync:
         entries = [e for page in sorted(self._holdings_in) for e in self._holdings_in[page]]
         self._holdings_in.clear()
         self.want_holdings = False
+        self.attach_profile = self._peer_profile_stale = False
         self.fresh = False
         self.belief = {t: (v, d) for t, v, d in entries}
         self._inflight.clear()
@@ -438,7 +512,9 @@ class MapSync:
         for k in range(n_pages):
             held = sorted(self.rep.held.items())
             pg = tuple((t, r.version, r.digest) for t, r in held if k * per <= t < (k + 1) * per)
-            self._holdings_out.append(sp.encode(sp.Holdings(self.agent, self.frame, 0, self._set_id, k, n_pages, pg)))
+            pid = self.peer_profile.pid if self.peer_profile is not None else 0
+            self._holdings_out.append(sp.encode(sp.Holdings(self.agent, self.frame, 0, self._set_id, k, n_pages, pid,
+                                                            pg)))
         self._last_holdings_s = now_s
 
     # ---------------------------------------------------------------- sending
@@ -461,9 +537,17 @@ class MapSync:
         for due in (self._digest_due, self._ack_due(), self._probe_due()):
             if due is not None and now_s >= due:
                 return True
-        if now_s >= max(self._last_digest_s, self._last_tx_s) + self.cfg.keepalive_s:
+        if now_s >= max(self._last_digest_s, self._last_tx_s) + self._keepalive_s():
             return True
         return bool((self.want_holdings or self.wants) and now_s >= self._last_digest_s + self.cfg.holdings_retry_s)
+
+    def _keepalive_s(self) -> float:
+        """``keepalive_s`` while anything is unsettled; while the peer holds all of my layer as I
+        believe and nothing of its is owed an acknowledgement, ``0.8 stall_s`` (still inside the
+        peer's stall time: an idle team keeps its link alive at a fraction of the bytes)."""
+        settled = (not self.want_holdings and not self.wants and not self._inflight and self._ack_first_s is None
+                   and self._peer_synced)
+        return max(self.cfg.keepalive_s, 0.8 * self.cfg.stall_s) if settled else self.cfg.keepalive_s
 
     def _stamp(self, now_s: float) -> int:
         self._serial = (self._serial + 1) & 0xFFFF
@@ -474,25 +558,24 @@ class MapSync:
         return self._serial
 
     def _make_digest(self, now_s: float) -> bytes:
-        self._dseq = (self._dseq + 1) & 0xFFFF
-        fixed = sp.DIGEST_BASE
-        wants = tuple(sorted(self.wants))[: (self.cfg.mtu_bytes - fixed) // 4 // sp.WANT_BYTES]
-        room = (self.cfg.mtu_bytes - fixed - sp.WANT_BYTES * len(wants)) // sp.ACK_BYTES
-        acks = tuple(sorted(self._unconfirmed.items()))[: min(room, 255)]
+        prof = self.rep.profile if self.want_holdings and self.attach_profile else None
+        fixed = sp.DIGEST_BASE + sp.HASH_BYTES + 1 + (PROFILE_BYTES if prof is not None else 0)
+        wants = tuple(sorted(self.wants))[: min(255, (self.cfg.mtu_bytes - fixed) // sp.WANT_BYTES)]
         probe = (self._probe_due() or float("inf")) <= now_s
         stalled = self._stalled(now_s)
-        self._acks_cut = len(acks) < len(self._unconfirmed)
         ask = probe or stalled
+        echo = self._peer_serial
+        # Acknowledgements, probes of tiles in flight and their answers leave the layer hash out:
+        # the serials acknowledged prove what they prove. Keepalives, probes of a silent link and
+        # asks for holdings carry it (what proves the peer holds all of my layer, or not).
+        ack_only = (self._ack_first_s is not None or probe or self._answer or self._digest_due is not None) and not (
+            stalled or self.want_holdings or self.wants)
         flags = ((sp.WANT_HOLDINGS if self.want_holdings else 0) | (sp.FRESH if self.fresh else 0)
-                 | (sp.ANSWER_NOW if ask else 0)
-                 | (sp.ACKS_CUT if len(acks) < len(self._unconfirmed) else 0)
-                 | (sp.ECHO_VALID if self._peer_dseq is not None else 0))
-        self._digest_log[self._dseq] = acks
-        if len(self._digest_log) > 64:
-            self._digest_log.popitem(last=False)
-        d = sp.Digest(self.agent, self.frame, self._stamp(now_s), self.boot, self._dseq, self._peer_dseq or 0,
-                      self._peer_serial or 0, flags, len(self.rep.held), self.rep.layer_hash(self.peer), acks,
-                      wants[:255])
+                 | (sp.ANSWER_NOW if ask else 0) | (sp.ECHO_VALID if echo is not None else 0)
+                 | (sp.KNOWS_PROFILE if self.peer_profile is not None else 0))
+        d = sp.Digest(self.agent, self.frame, self._stamp(now_s), self.boot, echo or 0,
+                      self._ack_bits(echo) if echo is not None else 0, flags,
+                      None if ack_only else self.rep.layer_hash(self.peer), wants, prof)
         answer = self._answer
         self._digest_due = None
         self._ack_first_s = None
@@ -506,11 +589,22 @@ class MapSync:
         self.stats.digests_probe += int(probe or stalled)
         pkt = sp.encode(d)
         self.stats.digest_bytes_out += len(pkt)
+        if prof is not None:
+            self.stats.profiles_out += 1
+            self.stats.profile_bytes_out += PROFILE_BYTES
         return pkt
 
     def _tile_packet(self, owner: int, t: int, rec: TileRec, now_s: float) -> bytes:
-        return sp.encode(sp.Tile(self.agent, self.frame, self._stamp(now_s), owner, t, rec.version,
-                                 rec.digest, rec.blob))
+        prof = self.rep.profile if owner == self.agent else self.peer_profile
+        pid = prof.pid if prof is not None else 0
+        pkt = sp.encode(sp.Tile(self.agent, self.frame, self._stamp(now_s), owner, t, rec.version, pid, rec.blob))
+        self.stats.tile_bytes_out += len(pkt)
+        self.stats.tile_body_bytes_out += len(rec.blob)
+        if owner == self.agent:
+            self._sent_tiles[self._serial] = (t, rec.version)
+            if len(self._sent_tiles) > 4096:
+                self._sent_tiles.popitem(last=False)
+        return pkt
 
     def poll(self, now_s: float, max_bytes: int | None = None) -> list[bytes]:
         """The datagrams to send now, paced to ``rate_bps``; with ``max_bytes`` (a radio shared
@@ -549,7 +643,9 @@ class MapSync:
             return self._make_digest(now_s)
         if self._holdings_out:
             self.stats.holdings_out += 1
-            return self._holdings_out.pop(0)
+            pkt = self._holdings_out.pop(0)
+            self.stats.holdings_bytes_out += len(pkt)
+            return pkt
         if self._returns:
             t = min(self._returns)
             self._returns.discard(t)
@@ -563,21 +659,24 @@ class MapSync:
             return None
         rec = self.rep.own[t2]
         prev = self._inflight.get(t2)
-        if t2 in self._lost or (prev is not None and prev[0] == rec.version):
-            self.stats.resent_tiles += 1
+        resent = t2 in self._lost or (prev is not None and prev[0] == rec.version)
         self._lost.discard(t2)
         self._inflight[t2] = (rec.version, now_s)
         self._last_tile_s = now_s
         self._next_probe_s = None
         self.stats.tiles_out += 1
-        return self._tile_packet(self.agent, t2, rec, now_s)
+        pkt = self._tile_packet(self.agent, t2, rec, now_s)
+        if resent:
+            self.stats.resent_tiles += 1
+            self.stats.resent_bytes_out += len(pkt)
+        return pkt
 
     def next_deadline_s(self) -> float | None:
         """When :meth:`poll` next has work (None: only a datagram or a publish can make some)."""
         free = self.pacer.free_at_s
         if self._stalled(self._now):
             return max(self._last_digest_s + self.cfg.probe_max_s, free)
-        cands = [max(self._last_digest_s, self._last_tx_s) + self.cfg.keepalive_s]
+        cands = [max(self._last_digest_s, self._last_tx_s) + self._keepalive_s()]
         cands += [d for d in (self._digest_due, self._ack_due(), self._probe_due()) if d is not None]
         if self.want_holdings or self.wants:
             cands.append(self._last_digest_s + self.cfg.holdings_retry_s)
@@ -595,14 +694,16 @@ class MapSync:
         return json.dumps({
             "v": CHECKPOINT_VERSION, "agent": self.agent, "peer": self.peer, "frame": self.frame,
             "shape": list(self.rep.shape), "tile_cells": self.cfg.tile_cells, "counter": self.rep.counter,
-            "rounds": self.stats.rounds, **self.rep.layers_state(),
+            "rounds": self.stats.rounds, **self.rep.layers_state(), "profile": self.rep.profile.pid,
+            "peer_profile": None if self.peer_profile is None else self.peer_profile.to_bytes().hex(),
             "belief": {str(t): list(b) for t, b in self.belief.items()},
         }).encode()
 
     @classmethod
     def restore(cls, state: bytes, cfg: SyncConfig, cell_m: float, wheel_diameter_m: float, *, boot: int,
                 codec: CodecConfig | None = None, priority: Priority | None = None,
-                on_adopt: Callable[[int, F32], None] | None = None) -> MapSync:
+                on_adopt: Callable[[int, F32], None] | None = None,
+                origin: tuple[float, float] = (0.0, 0.0)) -> MapSync:
         """An end rebuilt from :meth:`checkpoint` (raises ``ValueError`` with one line if the
         state is not a valid sync checkpoint for ``cfg``)."""
         try:
@@ -611,11 +712,17 @@ class MapSync:
                 raise ValueError("checkpoint of another version or tile size")
             m = cls(cfg, int(s["agent"]), int(s["peer"]), (int(s["shape"][0]), int(s["shape"][1])), cell_m,
                     wheel_diameter_m, frame=int(s["frame"]), boot=boot, codec=codec, priority=priority,
-                    on_adopt=on_adopt)
-            m.rep.load_layers(s["own"], s["held"], s["source"])
+                    on_adopt=on_adopt, origin=origin)
+            if int(s["profile"]) != m.rep.profile.pid:
+                raise ValueError("its tiles are of another tile profile (frame, grid or codec settings)")
+            peer = s["peer_profile"]
+            m.peer_profile = None if peer is None else profile_from_bytes(bytes.fromhex(str(peer)))
+            m.rep.load_layers(s["own"], s["held"], s["source"], m.peer_profile)
             m.rep.counter = int(s["counter"]) + RESTART_VERSION_STEP
             m.fresh = False
             m.stats.rounds = int(s["rounds"])
+            m.stats.minimal_bytes = 0  # the peer kept my profile (its holdings say so, or not)
+            m.attach_profile = False
             m.belief = {int(t): (int(b[0]), int(b[1])) for t, b in s["belief"].items()}
         except (KeyError, TypeError, IndexError, json.JSONDecodeError, MapCodecError, ValueError) as exc:
             raise ValueError(f"not a usable map-sync checkpoint: {exc}") from None

@@ -69,6 +69,7 @@ class FlightSync:
         self.cfg, self.agent, self.peer, self.grid = cfg, agent, peer, grid
         self.wheel_m, self.codec = wheel_m, codec
         self.air = Pacer(rate_bps, catchup_s)  # every packet of the radio, the sync's included
+        self.origin = (float(grid.x0), float(grid.y0))
         self.boot = 0
         self.end = self._make(None)
         self.before = SyncStats()  # the counters of the end's earlier boots
@@ -81,10 +82,10 @@ class FlightSync:
     def _make(self, state: bytes | None) -> MapSync:
         if state is None:
             end = MapSync(self.cfg, self.agent, self.peer, self.grid.shape, self.grid.cell, self.wheel_m,
-                          boot=self.boot, codec=self.codec, priority=self._priority)
+                          boot=self.boot, codec=self.codec, priority=self._priority, origin=self.origin)
         else:
             end = MapSync.restore(state, self.cfg, self.grid.cell, self.wheel_m, boot=self.boot, codec=self.codec,
-                                  priority=self._priority)
+                                  priority=self._priority, origin=self.origin)
             if end.agent != self.agent or end.peer != self.peer or end.shape != self.grid.shape:
                 raise ValueError(f"a sync checkpoint of agent {end.agent} on a {end.shape} map, not agent "
                                  f"{self.agent} on {self.grid.shape}")
@@ -197,7 +198,11 @@ class FlightSync:
         return {"agent": self.agent, "boot": self.boot, "rounds": s.rounds, "tiles_published": s.tiles_published,
                 "bytes_in": s.bytes_in, "bytes_out": s.bytes_out, "minimal_bytes": s.minimal_bytes,
                 "resent_tiles": s.resent_tiles, "full_resends": s.full_resends, "peer_restarts": s.peer_restarts,
-                "bad_packets": s.bad_packets, "hash": self.end.replica_hash()}
+                "bad_packets": s.bad_packets, "hash": self.end.replica_hash(),
+                "bytes_out_by_kind": {"tile": s.tile_bytes_out, "tile_body": s.tile_body_bytes_out,
+                                      "tile_resent": s.resent_bytes_out, "digest": s.digest_bytes_out,
+                                      "holdings": s.holdings_bytes_out, "profile": s.profile_bytes_out},
+                "profile": f"{self.end.profile.pid:08x}"}
 
 
 def team_figures(a: FlightSync | None, b: FlightSync | None) -> dict[str, object]:

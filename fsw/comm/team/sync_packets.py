@@ -8,21 +8,29 @@ byte) and the map frame (low byte); every body starts with the sender's transmis
 (u16), so a copy the protocol sent again differs from a copy the channel duplicated.
 
 TILE (10): ``serial`` u16, ``owner`` u8 (whose map layer), ``tile`` u16, ``version`` u32,
-``digest`` u32 (:func:`blob_digest`: 4 bytes of BLAKE2b of the tile's codec bytes), then the tile's codec container
-(``fsw.core.codec.mapcodec``), which decodes alone.
+``profile`` u32 (the id of the owner's tile profile, ``fsw.core.codec.tileformat``: frame,
+grid and codec settings), then the tile's body in the compact tile format (it decodes alone
+with that profile). Its digest (:func:`blob_digest`: 4 bytes of BLAKE2b of the body) is
+computed, not sent.
 
-DIGEST (11): ``serial`` u16, ``boot`` u16, ``dseq`` u16 (this digest's number), ``echo_dseq``
-u16 (the peer's last digest received), ``echo_serial`` u16 (the peer's last packet received),
-``flags`` u8 (bit 0: send me your holdings of my layer; bit 1: answer with a digest now; bit 2:
-the ack list is cut short; bit 3: an echo is valid; bit 4: started with no replica),
-``held_count`` u16, ``held_hash`` 8 bytes (:meth:`~fsw.comm.team.map_sync.MapSync.layer_hash` of
-the sender's copy of the receiver's layer), ``n_acks`` u8 and ``n_acks`` x (``tile`` u16,
-``version`` u16: the low 16 bits), ``n_wants`` u8 and ``n_wants`` x ``tile`` u16 (tiles of the sender's own layer
-it asks to be given back).
+DIGEST (11): ``serial`` u16, ``boot`` u8 (the low byte of the sender's boot id),
+``echo_serial`` u16 (the peer's last packet received), ``ack_bits`` u32 (bit ``i``: the peer's
+packet ``echo_serial - 1 - i`` was received too; with ``echo_serial`` these acknowledge the
+tiles those packets carried), ``flags`` u8 (bit 0: send me your holdings of my layer; bit 1:
+answer with a digest now; bit 2: a hash follows; bit 3: the echo is valid; bit 4: started with
+no replica; bit 5: my tile profile follows; bit 6: wants follow; bit 7: I hold your tile
+profile), with bit 2 ``held_hash`` 6
+bytes (:meth:`~fsw.comm.team.map_sync.MapSync.layer_hash` of the sender's copy of the
+receiver's layer), with bit 6 ``n_wants`` u8 and ``n_wants`` x ``tile`` u16 (tiles of the
+sender's own layer it asks to be given back), then with bit 5 the sender's tile profile
+(``TileProfile.to_bytes``, 51 bytes): a DIGEST that asks for holdings carries it until the
+peer's DIGESTs (bit 7) or holdings name it.
 
-HOLDINGS (15): ``serial`` u16, ``set_id`` u16, ``page`` u8, ``n_pages`` u8, then entries
-(``tile`` u16, ``version`` u32, ``digest`` u32) of the sender's copy of the receiver's layer,
-for the tiles ``page * per`` up to ``(page + 1) * per`` (``per`` entries fit the MTU).
+HOLDINGS (15): ``serial`` u16, ``set_id`` u16, ``page`` u8, ``n_pages`` u8, ``profile`` u32
+(the id of the receiver's tile profile the sender holds, 0: none), then entries (``tile``: a
+varint, the step from the last entry's tile, the first from the page's first tile;
+``version``: a varint; ``digest`` u32) of the sender's copy of the receiver's layer, for the
+tiles ``page * per`` up to ``(page + 1) * per`` (``per`` entries of the largest size fit the MTU).
 
 :func:`decode` raises :class:`~fsw.comm.link_packets.PacketError` with a one-line reason.
 """
@@ -35,21 +43,24 @@ import zlib
 from dataclasses import dataclass
 
 from fsw.comm.link_packets import MAGIC, VERSION, PacketError
+from fsw.core.codec.mapformat import MapCodecError
+from fsw.core.codec.tileformat import PROFILE_BYTES, TileProfile, get_varint, profile_from_bytes, put_varint
 
 TILE, DIGEST, HOLDINGS = 10, 11, 15
 SYNC_TYPES = frozenset({TILE, DIGEST, HOLDINGS})
 FRAME_BYTES = 8  # header 4 + CRC 4
 _TILE = struct.Struct("<HBHII")
-_DIGEST = struct.Struct("<HHHHHBH8sB")
-_ACK = struct.Struct("<HH")
-_HOLD = struct.Struct("<HHBB")
-_ENTRY = struct.Struct("<HII")
+_DIGEST = struct.Struct("<HBHIB")
+HASH_BYTES = 6
+ACK_WINDOW = 32  # packets acknowledged by ack_bits before the echo
+_HOLD = struct.Struct("<HHBBI")
 TILE_OVERHEAD = FRAME_BYTES + _TILE.size
-DIGEST_BASE = FRAME_BYTES + _DIGEST.size + 1
-ACK_BYTES, WANT_BYTES, ENTRY_BYTES = _ACK.size, 2, _ENTRY.size
+DIGEST_BASE = FRAME_BYTES + _DIGEST.size
+WANT_BYTES, ENTRY_BYTES = 2, 3 + 5 + 4  # a HOLDINGS entry at most: tile step and version varints, digest
 HOLDINGS_BASE = FRAME_BYTES + _HOLD.size
 
-WANT_HOLDINGS, ANSWER_NOW, ACKS_CUT, ECHO_VALID, FRESH = 1, 2, 4, 8, 16
+WANT_HOLDINGS, ANSWER_NOW, HAS_HASH, ECHO_VALID, FRESH, HAS_PROFILE, HAS_WANTS, KNOWS_PROFILE = (
+    1, 2, 4, 8, 16, 32, 64, 128)
 
 
 @dataclass(frozen=True)
@@ -60,8 +71,12 @@ class Tile:
     owner: int  # whose layer the tile belongs to
     tile: int
     version: int
-    digest: int
+    profile: int  # the id of the owner's tile profile
     blob: bytes
+
+    @property
+    def digest(self) -> int:
+        return blob_digest(self.blob)
 
 
 @dataclass(frozen=True)
@@ -70,14 +85,19 @@ class Digest:
     frame: int
     serial: int
     boot: int
-    dseq: int
-    echo_dseq: int
     echo_serial: int
+    ack_bits: int
     flags: int
-    held_count: int
-    held_hash: bytes
-    acks: tuple[tuple[int, int], ...]
-    wants: tuple[int, ...]
+    held_hash: bytes | None  # with flag HAS_HASH
+    wants: tuple[int, ...] = ()
+    profile: TileProfile | None = None  # the sender's, with flag HAS_PROFILE
+
+    def acked(self) -> list[int]:
+        """The serials of the peer's packets this DIGEST acknowledges (none without an echo)."""
+        if not self.flags & ECHO_VALID:
+            return []
+        return [self.echo_serial] + [(self.echo_serial - 1 - i) & 0xFFFF for i in range(ACK_WINDOW)
+                                     if self.ack_bits >> i & 1]
 
 
 @dataclass(frozen=True)
@@ -88,6 +108,7 @@ class Holdings:
     set_id: int
     page: int
     n_pages: int
+    profile: int  # the id of the receiver's tile profile the sender holds (0: none)
     entries: tuple[tuple[int, int, int], ...]  # (tile, version, digest)
 
 
@@ -95,8 +116,7 @@ SyncPacket = Tile | Digest | Holdings
 
 
 def blob_digest(blob: bytes) -> int:
-    """A tile's content digest. (Not CRC-32: a codec container ends with its own CRC-32, and the
-    CRC-32 of any such message is the same constant.)"""
+    """A tile's content digest (what DIGESTs and HOLDINGS name a tile version's content by)."""
     return int.from_bytes(hashlib.blake2b(blob, digest_size=4).digest(), "little")
 
 
@@ -108,15 +128,25 @@ def _frame(ptype: int, agent: int, frame: int, body: bytes) -> bytes:
 def encode(p: SyncPacket) -> bytes:
     if isinstance(p, Tile):
         return _frame(TILE, p.agent, p.frame, _TILE.pack(p.serial & 0xFFFF, p.owner, p.tile, p.version,
-                                                          p.digest) + p.blob)
+                                                          p.profile) + p.blob)
     if isinstance(p, Digest):
-        head = _DIGEST.pack(p.serial & 0xFFFF, p.boot & 0xFFFF, p.dseq & 0xFFFF, p.echo_dseq & 0xFFFF,
-                            p.echo_serial & 0xFFFF, p.flags, p.held_count, p.held_hash, len(p.acks))
-        acks = b"".join(_ACK.pack(t, v & 0xFFFF) for t, v in p.acks)
-        wants = struct.pack(f"<B{len(p.wants)}H", len(p.wants), *p.wants)
-        return _frame(DIGEST, p.agent, p.frame, head + acks + wants)
-    body = _HOLD.pack(p.serial & 0xFFFF, p.set_id & 0xFFFF, p.page, p.n_pages)
-    return _frame(HOLDINGS, p.agent, p.frame, body + b"".join(_ENTRY.pack(*e) for e in p.entries))
+        if p.held_hash is not None and len(p.held_hash) != HASH_BYTES:
+            raise ValueError(f"a DIGEST's hash is {HASH_BYTES} bytes")
+        flags = ((p.flags & ~(HAS_PROFILE | HAS_WANTS | HAS_HASH)) | (HAS_PROFILE if p.profile is not None else 0)
+                 | (HAS_WANTS if p.wants else 0) | (HAS_HASH if p.held_hash is not None else 0))
+        head = _DIGEST.pack(p.serial & 0xFFFF, p.boot & 0xFF, p.echo_serial & 0xFFFF, p.ack_bits & 0xFFFFFFFF, flags)
+        held = p.held_hash or b""
+        wants = struct.pack(f"<B{len(p.wants)}H", len(p.wants), *p.wants) if p.wants else b""
+        prof = p.profile.to_bytes() if p.profile is not None else b""
+        return _frame(DIGEST, p.agent, p.frame, head + held + wants + prof)
+    body = bytearray(_HOLD.pack(p.serial & 0xFFFF, p.set_id & 0xFFFF, p.page, p.n_pages, p.profile))
+    prev = -1
+    for t, v, dig in p.entries:
+        if t <= prev:
+            raise ValueError("HOLDINGS entries go by increasing tile")
+        body += put_varint(t - prev - 1) + put_varint(v) + struct.pack("<I", dig)
+        prev = t
+    return _frame(HOLDINGS, p.agent, p.frame, bytes(body))
 
 
 def is_sync_packet(datagram: bytes) -> bool:
@@ -135,33 +165,60 @@ def decode(datagram: bytes) -> SyncPacket:
     ptype, frame, agent, body = d[1] & 0xF, d[2], d[3], d[4:-4]
     try:
         if ptype == TILE:
-            serial, owner, tile, version, digest = _TILE.unpack_from(body)
+            serial, owner, tile, version, profile = _TILE.unpack_from(body)
             blob = body[_TILE.size:]
-            if not blob or blob_digest(blob) != digest:
-                raise PacketError("TILE digest does not match its bytes")
-            return Tile(agent, frame, serial, owner, tile, version, digest, blob)
+            if not blob:
+                raise PacketError("TILE without a body")
+            return Tile(agent, frame, serial, owner, tile, version, profile, blob)
         if ptype == DIGEST:
             return _digest(agent, frame, body)
         if ptype == HOLDINGS:
-            serial, set_id, page, n_pages = _HOLD.unpack_from(body)
-            rest = body[_HOLD.size:]
-            if len(rest) % _ENTRY.size or page >= n_pages:
+            serial, set_id, page, n_pages, profile = _HOLD.unpack_from(body)
+            if page >= n_pages:
                 raise PacketError("HOLDINGS page is malformed")
-            entries = tuple(_ENTRY.unpack_from(rest, i) for i in range(0, len(rest), _ENTRY.size))
-            return Holdings(agent, frame, serial, set_id, page, n_pages, entries)
+            return Holdings(agent, frame, serial, set_id, page, n_pages, profile, _entries(body, _HOLD.size))
     except struct.error:
         raise PacketError(f"sync packet type {ptype} with a {len(body)}-byte body is malformed") from None
     raise PacketError(f"type {ptype} is not a sync packet")
 
 
+def _entries(body: bytes, off: int) -> tuple[tuple[int, int, int], ...]:
+    out = []
+    prev = -1
+    try:
+        while off < len(body):
+            step, off = get_varint(body, off)
+            version, off = get_varint(body, off)
+            (dig,) = struct.unpack_from("<I", body, off)
+            off += 4
+            prev += step + 1
+            if prev > 0xFFFF or version > 0xFFFFFFFF:
+                raise PacketError("HOLDINGS entry out of range")
+            out.append((prev, version, dig))
+    except MapCodecError:
+        raise PacketError("HOLDINGS page is malformed") from None
+    return tuple(out)
+
+
 def _digest(agent: int, frame: int, body: bytes) -> Digest:
-    serial, boot, dseq, echo_dseq, echo_serial, flags, held_count, held_hash, n_acks = _DIGEST.unpack_from(body)
+    serial, boot, echo_serial, ack_bits, flags = _DIGEST.unpack_from(body)
     off = _DIGEST.size
-    acks = tuple(_ACK.unpack_from(body, off + i * _ACK.size) for i in range(n_acks))
-    off += n_acks * _ACK.size
-    (n_wants,) = struct.unpack_from("<B", body, off)
-    wants = struct.unpack_from(f"<{n_wants}H", body, off + 1)
-    if off + 1 + 2 * n_wants != len(body) or flags > 31:
+    held: bytes | None = None
+    if flags & HAS_HASH:
+        held = body[off:off + HASH_BYTES]
+        off += HASH_BYTES
+    wants: tuple[int, ...] = ()
+    if flags & HAS_WANTS:
+        (n_wants,) = struct.unpack_from("<B", body, off)
+        wants = struct.unpack_from(f"<{n_wants}H", body, off + 1)
+        off += 1 + 2 * n_wants
+    tail = PROFILE_BYTES if flags & HAS_PROFILE else 0
+    if off + tail != len(body) or (flags & HAS_WANTS and not wants):
         raise PacketError("DIGEST fields are inconsistent")
-    return Digest(agent, frame, serial, boot, dseq, echo_dseq, echo_serial, flags, held_count, held_hash, acks,
-                  tuple(wants))
+    profile = None
+    if tail:
+        try:
+            profile = profile_from_bytes(body[off:])
+        except MapCodecError as exc:
+            raise PacketError(f"DIGEST: {exc}") from None
+    return Digest(agent, frame, serial, boot, echo_serial, ack_bits, flags, held, tuple(wants), profile)

@@ -35,12 +35,14 @@ from fsw.core.codec import hazard as hz
 from fsw.core.codec import hint
 from fsw.core.codec.mapformat import Header, MapCodecError, compressor, pack, unpack
 from fsw.core.codec.quadtree import Quadtree, build_quadtree, tree_depth
+from fsw.core.codec.tileformat import TileProfile, pack_tile, unpack_tile
 from fsw.framework.params import param
 
 F32 = NDArray[np.float32]
 I64 = NDArray[np.int64]
 
-__all__ = ["CodecConfig", "DecodedMap", "EncodedMap", "MapCodecError", "decode_map", "encode_map"]
+__all__ = ["CodecConfig", "DecodedMap", "EncodedMap", "MapCodecError", "TileProfile", "decode_map", "decode_tile",
+           "encode_map", "encode_tile", "tile_profile"]
 
 LEAF_VALUE_MODES = ("predictive", "mean")
 SPLIT_RULES = ("entropy", "bound")
@@ -119,6 +121,19 @@ def encode_map(
 ) -> EncodedMap:
     """Encode an elevation map (metres, NaN = unknown). ``error_bound_m`` overrides the config."""
     cfg = cfg or CodecConfig()
+    header, streams, tree, max_err, rms = _reduce(z, cell_m=cell_m, wheel_diameter_m=wheel_diameter_m, cfg=cfg,
+                                                  error_bound_m=error_bound_m, lattice_offset=False)
+    data = pack(header, streams, compressor(cfg.zstd_level))
+    return EncodedMap(data=data, tree=tree, max_error_m=max_err, rms_error_m=rms)
+
+
+def _reduce(
+    z: NDArray[np.floating], *, cell_m: float, wheel_diameter_m: float, cfg: CodecConfig,
+    error_bound_m: float | None, lattice_offset: bool,
+) -> tuple[Header, list[bytes], Quadtree, float, float]:
+    """The reduction and coding of :func:`encode_map` up to the raw streams: (header, the four
+    streams, the tree, max and RMS error). ``lattice_offset``: the height offset is a whole
+    number of lattice steps (the compact tile format sends that number)."""
     z32 = np.asarray(z, dtype=np.float32)
     if z32.ndim != 2 or z32.size == 0:
         raise ValueError(f"expected a non-empty 2-D map, got shape {z32.shape}")
@@ -158,6 +173,8 @@ def encode_map(
                          "relief_loss_hazard_m": 0.0, "relief_loss_any_m": 2.0 * bound}
     else:
         q = cfg.quant_step_fraction * bound
+    if lattice_offset:
+        offset = round(offset / q) * q
     tree = build_quadtree(
         z32, wheel_diameter_m=wheel_diameter_m, cell_m=cell_m, error_bound_m=bound - margin,
         quant_step_m=q, z_offset_m=offset, lowpass_sigma_cells=cfg.lowpass_sigma_cells,
@@ -189,9 +206,8 @@ def encode_map(
         has_unknown=bool((~known).any()), split_rule=cfg.split_rule, leaf_value=cfg.leaf_value,
         hazard=cfg.hazard, **hazard_fields)
     streams = _streams(tree, residuals, header.has_unknown)
-    data = pack(header, streams, compressor(cfg.zstd_level))
     rms = float(np.sqrt(np.mean(err**2))) if err.size else 0.0
-    return EncodedMap(data=data, tree=tree, max_error_m=max_err, rms_error_m=rms)
+    return header, streams, tree, max_err, rms
 
 
 def _run_prediction(
@@ -257,8 +273,16 @@ def _streams(tree: Quadtree, residuals: I64, has_unknown: bool) -> list[bytes]:
 def decode_map(data: bytes, *, max_cells: int = CodecConfig().max_cells) -> DecodedMap:
     """Rebuild the map from container bytes; bad or truncated input raises MapCodecError."""
     header, streams = unpack(data, max_cells=max_cells)
+    z = _rebuild(streams, (header.ny, header.nx), has_unknown=header.has_unknown, leaf_value=header.leaf_value,
+                 q=header.quant_step_m, off=header.z_offset_m, n_leaves=header.n_leaves)
+    return DecodedMap(z=z, header=header)
+
+
+def _rebuild(streams: list[bytes], shape: tuple[int, int], *, has_unknown: bool, leaf_value: str, q: float,
+             off: float, n_leaves: int | None) -> F32:
+    """The map from its four raw streams (``n_leaves``: the count the tree must have, if known)."""
     split_b, known_b, small_b, esc_b = streams
-    ny, nx = header.ny, header.nx
+    ny, nx = shape
     L = tree_depth((ny, nx))
     split_bits = np.unpackbits(np.frombuffer(split_b, np.uint8))
     exists: list[NDArray[np.bool_]] = [np.zeros(0, bool)] * (L + 1)
@@ -284,10 +308,10 @@ def decode_map(data: bytes, *, max_cells: int = CodecConfig().max_cells) -> Deco
         iy_l.append(iy)
         ix_l.append(ix)
     leaf_level = np.concatenate(lv_l)
+    if n_leaves is not None and leaf_level.size != n_leaves:
+        raise MapCodecError(f"tree has {leaf_level.size} leaves, header says {n_leaves}")
     n_leaves = leaf_level.size
-    if n_leaves != header.n_leaves:
-        raise MapCodecError(f"tree has {n_leaves} leaves, header says {header.n_leaves}")
-    if header.has_unknown:
+    if has_unknown:
         kb = np.unpackbits(np.frombuffer(known_b, np.uint8))
         if kb.size < n_leaves or kb.size - n_leaves >= 8:
             raise MapCodecError("known-leaf stream has the wrong length")
@@ -308,12 +332,53 @@ def decode_map(data: bytes, *, max_cells: int = CodecConfig().max_cells) -> Deco
                     leaf_ix=np.concatenate(ix_l).astype(np.int64), leaf_known=leaf_known,
                     leaf_mean_m=nan, leaf_lo_m=nan, leaf_hi_m=nan)
     lid = tree.leaf_id_map()
-    codes, _ = _run_prediction(tree, lid, mode=header.leaf_value, residuals=residuals)
-    q, off = header.quant_step_m, header.z_offset_m
+    codes, _ = _run_prediction(tree, lid, mode=leaf_value, residuals=residuals)
     with np.errstate(over="ignore", invalid="ignore"):
         heights = (off + codes[lid] * q).astype(np.float32)
     known_cells = leaf_known[lid]
     if not np.isfinite(heights[known_cells]).all():
         raise MapCodecError("decoded heights overflow: the header's offset and step do not fit the codes")
-    z = np.where(known_cells, heights, np.float32(np.nan))
-    return DecodedMap(z=z.astype(np.float32), header=header)
+    return np.where(known_cells, heights, np.float32(np.nan)).astype(np.float32)
+
+
+# ------------------------------------------------------------------ the compact tile format
+def tile_profile(cfg: CodecConfig, *, cell_m: float, wheel_diameter_m: float, frame: int, shape: tuple[int, int],
+                 origin: tuple[float, float], tile_cells: int) -> TileProfile:
+    """The profile of the tiles an agent reduces with ``cfg`` for a wheel of ``wheel_diameter_m``
+    on the grid ``shape`` / ``cell_m`` / ``origin`` of map frame ``frame`` (docs/sync.md)."""
+    f32 = np.float32
+    wheel = float(f32(wheel_diameter_m))
+    bound = float(f32(cfg.error_bound_wheels * wheel))  # as the profile's bytes hold it
+    if cfg.hazard:  # the lattice step exactly as _reduce makes it from that bound
+        q = cfg.quant_step_fraction * (bound - cfg.support_rise_fraction * bound)
+    else:
+        q = cfg.quant_step_fraction * bound
+    return TileProfile(frame=frame, ny=shape[0], nx=shape[1], cell_m=cell_m, x0=origin[0], y0=origin[1],
+                       tile_cells=tile_cells, wheel_diameter_m=wheel, error_bound_m=bound, quant_step_m=q,
+                       hazard=cfg.hazard, split_rule=cfg.split_rule, leaf_value=cfg.leaf_value,
+                       hazard_threshold_m=cfg.hazard_relief_wheels * wheel,
+                       relief_disc_m=cfg.relief_disc_m).rounded()
+
+
+def encode_tile(z: NDArray[np.floating], profile: TileProfile, cfg: CodecConfig) -> bytes:
+    """One tile (at most ``tile_cells`` a side) in the compact tile format of ``profile``: the
+    same reduction and bound as :func:`encode_map`, without the container header."""
+    header, streams, _tree, _e, _r = _reduce(z, cell_m=profile.cell_m, wheel_diameter_m=profile.wheel_diameter_m,
+                                             cfg=cfg, error_bound_m=profile.error_bound_m, lattice_offset=True)
+    if header.quant_step_m != profile.quant_step_m:
+        raise ValueError(f"the codec's lattice step {header.quant_step_m} is not its tile profile's "
+                         f"{profile.quant_step_m}")
+    steps = round(header.z_offset_m / header.quant_step_m)
+    return pack_tile(header.has_unknown, steps, streams, cfg.zstd_level)
+
+
+def decode_tile(data: bytes, profile: TileProfile, shape: tuple[int, int]) -> F32:
+    """A tile of ``shape`` cells from its compact bytes and its profile; bad input raises
+    ``MapCodecError`` (one line)."""
+    ny, nx = shape
+    if not (1 <= ny <= profile.tile_cells and 1 <= nx <= profile.tile_cells):
+        raise MapCodecError(f"a {ny}x{nx} tile is not one of the profile's {profile.tile_cells}-cell tiles")
+    has_unknown, steps, streams = unpack_tile(data, ny * nx)
+    q = profile.quant_step_m
+    return _rebuild(streams, (ny, nx), has_unknown=has_unknown, leaf_value=profile.leaf_value, q=q,
+                    off=steps * q, n_leaves=None)

@@ -188,6 +188,7 @@ def standing_cells(grid: MapGrid, xy: F64, cfg: ClimberConfig) -> NDArray[np.boo
 
 FOOT_COS_LEVELS = 4  # the footprint's cos(slope) rounded up to quarters (a larger ellipse: the safe side)
 FOOT_DIP_BINS = 8  # dip directions over 180 deg; each bin's ellipse is the union over the bin
+FOOT_GATHER = 1 << 20  # cells x ellipse offsets gathered at once by footprint_known (bounds its memory)
 
 
 @functools.lru_cache(maxsize=256)
@@ -217,6 +218,23 @@ def _cos_level(grad: NDArray[np.float64]) -> NDArray[np.intp]:
     return np.minimum(np.ceil(cos * FOOT_COS_LEVELS - 1e-9), FOOT_COS_LEVELS).astype(np.intp)
 
 
+def slope_levels(zs: NDArray[np.float64], cell: float
+                 ) -> tuple[NDArray[np.float64], NDArray[np.intp], NDArray[np.intp]]:
+    """Each cell's slope from the known cells round it (3 x 3): the gradient's norm (inf with
+    too few known cells), its cos in quarters rounded up (:func:`_cos_level`) and the dip's bin
+    of ``FOOT_DIP_BINS`` over 180 deg."""
+    gy, gx = np.gradient(zs, cell)
+    ok = np.isfinite(gx) & np.isfinite(gy)
+    n = ndimage.uniform_filter(ok.astype(np.float64), 3)
+    mx = ndimage.uniform_filter(np.where(ok, gx, 0.0), 3) / np.maximum(n, 1e-9)
+    my = ndimage.uniform_filter(np.where(ok, gy, 0.0), 3) / np.maximum(n, 1e-9)
+    local = np.where(n >= 5.0 / 9.0 - 1e-9, np.hypot(mx, my), np.inf)
+    level = _cos_level(np.where(np.isfinite(local), local, 0.0))
+    dip = np.mod(np.arctan2(my, mx), math.pi)
+    dbin = np.minimum((dip / (math.pi / FOOT_DIP_BINS)).astype(np.intp), FOOT_DIP_BINS - 1)
+    return local, level, dbin
+
+
 def footprint_known(z_sensed: ZMap, grid: MapGrid, footprint_m: float) -> NDArray[np.bool_]:
     """The cells whose footprint is known: the Cliff-bot's footprint disc (``footprint_m``) laid
     in the ground's own plane, which from above is an ellipse shortened along the dip by the
@@ -231,25 +249,33 @@ def footprint_known(z_sensed: ZMap, grid: MapGrid, footprint_m: float) -> NDArra
     r = int(round(footprint_m / grid.cell))
     if r < 1 or not sensed.any():
         return ndimage.binary_erosion(sensed, structure=disc(r), border_value=0)
-    gy, gx = np.gradient(zs, grid.cell)
-    ok = np.isfinite(gx) & np.isfinite(gy)
-    n = ndimage.uniform_filter(ok.astype(np.float64), 3)
-    mx = ndimage.uniform_filter(np.where(ok, gx, 0.0), 3) / np.maximum(n, 1e-9)
-    my = ndimage.uniform_filter(np.where(ok, gy, 0.0), 3) / np.maximum(n, 1e-9)
-    local = np.where(n >= 5.0 / 9.0 - 1e-9, np.hypot(mx, my), np.inf)  # the gradient's norm; inf: too few cells
-    level = _cos_level(np.where(np.isfinite(local), local, 0.0))
-    dip = np.mod(np.arctan2(my, mx), math.pi)
-    dbin = np.minimum((dip / (math.pi / FOOT_DIP_BINS)).astype(np.intp), FOOT_DIP_BINS - 1)
+    local, level, dbin = slope_levels(zs, grid.cell)
     level_disc = ndimage.binary_erosion(sensed, structure=disc(r), border_value=0)
     out = sensed & (level >= FOOT_COS_LEVELS) & level_disc
-    tilted = sensed & (level < FOOT_COS_LEVELS)
-    for lv, b in {(int(a), int(d)) for a, d in zip(level[tilted], dbin[tilted], strict=True)}:
-        foot = tilted_disc(r, lv, b)
-        here = tilted & (level == lv) & (dbin == b)
-        # the ellipse holds no flatter ground (a lip, a ledge): else the level disc, the safe side
-        least = ndimage.minimum_filter(local, footprint=foot, mode="constant", cval=np.inf)
-        fits = _cos_level(np.where(np.isfinite(least), least, 0.0)) <= lv
-        out |= here & np.where(fits, ndimage.binary_erosion(sensed, structure=foot, border_value=0), level_disc)
+    ty, tx = np.nonzero(sensed & (level < FOOT_COS_LEVELS))
+    if not len(ty):
+        return out
+    # Each tilted cell's own ellipse, gathered at that cell only (a whole-map filter per
+    # ellipse would judge every cell of the map with every ellipse): off the map is no ground.
+    width = grid.nx + 2 * r
+    flat_local = np.pad(local, r, constant_values=np.inf).ravel()
+    flat_sensed = np.pad(sensed, r, constant_values=False).ravel()
+    at = (ty + r) * width + (tx + r)
+    group = level[ty, tx] * FOOT_DIP_BINS + dbin[ty, tx]
+    for key in np.unique(group):
+        lv, b = divmod(int(key), FOOT_DIP_BINS)
+        dy, dx = np.nonzero(tilted_disc(r, lv, b))
+        offsets = (dy - r) * width + (dx - r)
+        sel = np.flatnonzero(group == key)
+        chunk = max(1, FOOT_GATHER // len(offsets))
+        for k in range(0, len(sel), chunk):
+            cells = sel[k:k + chunk]
+            idx = at[cells, None] + offsets
+            # the ellipse holds no flatter ground (a lip, a ledge): else the level disc, the safe side
+            least = flat_local[idx].min(axis=1)
+            fits = _cos_level(np.where(np.isfinite(least), least, 0.0)) <= lv
+            y, x = ty[cells], tx[cells]
+            out[y, x] = np.where(fits, flat_sensed[idx].all(axis=1), level_disc[y, x])
     return out
 
 

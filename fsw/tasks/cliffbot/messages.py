@@ -60,10 +60,14 @@ class FixAnswer:
 
 @dataclass(frozen=True)
 class PlanMap:
-    """The map the mission plans on (the received one, the ground under the body filled by contact)."""
+    """The map the mission plans on (the received one, the ground under the body filled by contact):
+    ``carried``, its cells no sensor measured (the plane under the body carried on), and the
+    received map's error bound (a sensing task started from a checkpoint takes the map from here)."""
 
     version: int
     z: NDArray[np.float64]
+    carried: NDArray[np.bool_] | None = None
+    error_bound_m: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -149,7 +149,7 @@ class CliffbotMissionTask(FlightTask):
                 m.sensed(got.sense_seq)
         if m.z is not None and m.map_version != self._map_sent:  # a new map, or a checkpoint's
             self._map_sent = m.map_version
-            self.publish(CB_PLAN_MAP, PlanMap(m.map_version, m.z))
+            self.publish(CB_PLAN_MAP, PlanMap(m.map_version, m.z, m.carried, m.error_bound_m))
         for ans in self.fixes.drain():
             if not isinstance(ans.answer, Fix):
                 m.on_no_fix(ans.answer.seq, ans.reason)

@@ -215,6 +215,11 @@ class CliffbotSensingTask(FlightTask):
             self._publish()
         for pm in self.plan_maps.drain():
             self.plan_z = np.asarray(pm.z, np.float64)
+            if self.received is None:  # started from a checkpoint: its map, less the plane carried on
+                z = self.plan_z.copy()
+                if pm.carried is not None and pm.carried.shape == z.shape:
+                    z[pm.carried] = np.nan
+                self.received = ReceivedMap(0, z, pm.error_bound_m)
         for est in self.nav.drain():
             self.est = est
         st: DeviceStatus | None = self.status.latest()

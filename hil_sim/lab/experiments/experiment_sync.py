@@ -133,7 +133,8 @@ def run(args: argparse.Namespace) -> int:
         f"{args.outage_at_s:g} s. `rounds`: from the link's return (or the restart, if later) until the "
         "replicas' hashes are first equal, in sync rounds (at least 1); `bytes / minimal`: sync bytes that reached "
         "the other agent (both ways, digests and holdings included, channel duplicates not) over the bytes "
-        "of the minimal deltas (every published tile version's packet once); `air / minimal`: every byte "
+        "of the minimal deltas (every published tile version's TILE packet once, its compact tile body "
+        "included, and each fresh end's tile profile once); `air / minimal`: every byte "
         "put on the air over the same.",
         "",
         markdown_table(summary),

@@ -11,12 +11,14 @@ import math
 import numpy as np
 import pytest
 from fence_ground import mission_ground
+from numpy.typing import NDArray
 from task_rig import TaskRig, task_config
 
 from fsw.comm.team import fix_packets
 from fsw.core.geometry import camera_pose_from_rover, point_mast
 from fsw.core.localization.landmarks import anchor_marker_corners
 from fsw.framework.telemetry import Channel
+from fsw.settings import FswConfig
 from fsw.tasks.cliffbot_fixer import LIFT_M
 from fsw.tasks.messages import (
     MISSION_GROUND,
@@ -74,17 +76,23 @@ def test_a_tilted_rover_aims_at_each_plate_and_reports_none_resected() -> None:
     assert len(got) == 1 and isinstance(got[0], fix_packets.NoFix)
 
 
-def test_with_no_plate_resected_it_turns_toward_one_beyond_the_pan_and_views_again() -> None:
+def _past_a_plate() -> tuple[TaskRig, FswConfig, NDArray[np.float64], tuple[float, float, float]]:
+    """A fixer after the mission, the rover standing with plate 11 about 176 deg off its heading
+    (past the mast's pan): the rig, its config, the plate's centre, the pose."""
     rig = TaskRig(task_config(("cliffbot_fixer", "cliffbot_fixer")))
-    rig.publish(MISSION_GROUND, mission_ground(rig.exe.cfg))  # mapped all round: the geofence allows the turn
     cfg = rig.exe.cfg
     rig.exe.telemetry.register("mission.state", Channel("state"))
     rig.exe.telemetry.write("mission.state", "DONE", 0.0)
     site = cfg.cliffbot_site
     plates = anchor_marker_corners(site.anchor_a_xyz, site.anchor_b_xyz, cfg.localization)
     a = plates[11].mean(axis=0)
-    yaw = math.atan2(a[1] + 0.8, a[0] - 2.3) - math.radians(176.0)  # plate 11 about 176 deg off: past the pan
-    pose = (2.3, -0.8, yaw)
+    yaw = math.atan2(a[1] + 0.8, a[0] - 2.3) - math.radians(176.0)
+    return rig, cfg, a, (2.3, -0.8, yaw)
+
+
+def test_with_no_plate_resected_it_turns_toward_one_beyond_the_pan_and_views_again() -> None:
+    rig, cfg, a, pose = _past_a_plate()
+    rig.publish(MISSION_GROUND, mission_ground(cfg))  # mapped all round: the geofence allows the turn
     assert not point_mast(pose, a, cfg.mast, LIFT_M)[1]
     rig.publish(NAV_POSE, NavPose(0.0, *pose, np.zeros((3, 3)), (0.0, 0.0, LIFT_M)))
     moves, out = rig.tap(MOTION_REQUEST), rig.tap(RADIO_FIX_OUT)
@@ -120,15 +128,8 @@ def _axis_miss_deg_level(cfg, pose: tuple[float, float, float], joints, target) 
 
 @pytest.mark.parametrize("near_lip", [False, True])
 def test_a_turn_toward_a_plate_near_a_lip_is_not_made_and_the_fix_goes_on_without_it(near_lip: bool) -> None:
-    rig = TaskRig(task_config(("cliffbot_fixer", "cliffbot_fixer")))
-    cfg = rig.exe.cfg
-    rig.exe.telemetry.register("mission.state", Channel("state"))
-    rig.exe.telemetry.write("mission.state", "DONE", 0.0)
-    site = cfg.cliffbot_site
-    plates = anchor_marker_corners(site.anchor_a_xyz, site.anchor_b_xyz, cfg.localization)
-    a = plates[11].mean(axis=0)
-    yaw = math.atan2(a[1] + 0.8, a[0] - 2.3) - math.radians(176.0)
-    pose = (2.3, -0.8, yaw)
+    rig, cfg, a, pose = _past_a_plate()
+    yaw = pose[2]
     # the map's frontier (a hidden lip) 0.16 m ahead of the footprint's front: a turn swings its corners closer
     front = (cfg.rover.wheelbase_m + cfg.rover.wheel_diameter_m) / 2
     lip = front + 0.16 if near_lip else 3.0

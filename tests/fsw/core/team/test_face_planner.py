@@ -23,6 +23,7 @@ from fsw.core.team.face_planner import (
     way_reason,
 )
 from fsw.core.team.tether import TetherConfig, anchor_points, tether_state
+from hil_sim.lab.bench.bench_planner import footprint_known_whole_map
 
 SLOPE = math.radians(70.0)
 ANCHORS_XY = np.array([[-1.5, 1.5], [1.5, 1.5]])
@@ -181,3 +182,20 @@ def test_the_footprint_is_laid_in_the_grounds_plane() -> None:
     assert not footprint_known(flat, g, 0.3).any()
     ledge = np.where(np.isfinite(band) & (y > 1.7), 1.64 * np.tan(np.radians(77.0)), band)  # the band's top flat
     assert got.any() and not footprint_known(ledge, g, 0.3).any()
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_footprint_known_gathers_what_whole_map_filters_give(seed: int) -> None:
+    """footprint_known judges each tilted cell with its own ellipse only: the same cells as
+    each ellipse's minimum filter and erosion over the whole map (``safer-hil bench planner``'s
+    reference), unknown cells and the map's borders included (rough random ground: every
+    slope level and dip bin)."""
+    rng = np.random.default_rng(seed)
+    g = MapGrid(0.0, 0.0, 0.03, int(rng.integers(30, 70)), int(rng.integers(30, 70)))
+    z = np.cumsum(rng.normal(0.0, 0.05, g.shape), axis=int(seed % 2)) * rng.uniform(0.3, 3.0)
+    z[rng.random(g.shape) < 0.08] = np.nan
+    z[5:12, 3:20] = np.nan
+    for footprint_m in (0.3, 0.1):
+        got = footprint_known(z, g, footprint_m)
+        assert np.array_equal(got, footprint_known_whole_map(z, g, footprint_m))
+    assert got.any() and not got.all()

@@ -1,0 +1,102 @@
+"""``safer-hil bench planner``: the Cliff-bot planner's ground layers, timed (docs/algorithm.md §8).
+
+On a cliff-team scene's true ground on the flight map grid (the map the planner and the
+bench's team runs judge), times ``fsw.core.team.face_planner.ground_layers`` (rocks, hazards,
+known footprints, slope) and within it ``footprint_known`` (each tilted cell's footprint
+ellipse gathered at that cell), against :func:`footprint_known_whole_map`, the same
+definition as whole-map filters (a minimum filter and an erosion over every cell of the map
+for each ellipse), and says whether both give the same cells. CPU time (process time) per
+call: the median and best of ``--repeat`` runs after a warm-up.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+HELP = "the Cliff-bot planner's ground layers: CPU ms a call, footprint_known against whole-map filters"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenario", default="cliff-team", help="a cliff-team scenario (its true ground is timed)")
+    p.add_argument("--seed", type=int, default=3, help="scenario seed")
+    p.add_argument("--repeat", type=int, default=5, help="timed runs of each")
+
+
+def footprint_known_whole_map(z_sensed: Any, grid: Any, footprint_m: float) -> Any:
+    """``footprint_known``'s definition as whole-map filters: each ellipse's minimum filter of
+    the local slope and its erosion of the sensed cells over the whole map, kept on the cells
+    that ellipse is for (the reference the flight function must equal)."""
+    import numpy as np
+    from scipy import ndimage
+
+    from fsw.core.team.face_planner import FOOT_COS_LEVELS, _cos_level, disc, slope_levels, tilted_disc
+
+    zs = np.asarray(z_sensed, np.float64)
+    sensed = np.isfinite(zs)
+    r = int(round(footprint_m / grid.cell))
+    if r < 1 or not sensed.any():
+        return ndimage.binary_erosion(sensed, structure=disc(r), border_value=0)
+    local, level, dbin = slope_levels(zs, grid.cell)
+    level_disc = ndimage.binary_erosion(sensed, structure=disc(r), border_value=0)
+    out = sensed & (level >= FOOT_COS_LEVELS) & level_disc
+    tilted = sensed & (level < FOOT_COS_LEVELS)
+    for lv, b in {(int(a), int(d)) for a, d in zip(level[tilted], dbin[tilted], strict=True)}:
+        foot = tilted_disc(r, lv, b)
+        least = ndimage.minimum_filter(local, footprint=foot, mode="constant", cval=np.inf)
+        fits = _cos_level(np.where(np.isfinite(least), least, 0.0)) <= lv
+        out |= tilted & (level == lv) & (dbin == b) & np.where(
+            fits, ndimage.binary_erosion(sensed, structure=foot, border_value=0), level_disc)
+    return out
+
+
+def _cpu_ms(fn: Any, repeat: int) -> tuple[float, float, Any]:
+    """Median and best CPU ms of ``repeat`` calls after a warm-up; the last result."""
+    import statistics
+    import time
+
+    got = fn()
+    times = []
+    for _ in range(repeat):
+        t0 = time.process_time()
+        got = fn()
+        times.append((time.process_time() - t0) * 1e3)
+    return statistics.median(times), min(times), got
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from fsw.core.geometry import MapGrid
+    from fsw.core.team.face_planner import ClimberConfig, footprint_known, ground_layers
+    from fsw.framework.params import ConfigError
+    from hil_sim.world import load_scenario
+    from hil_sim.world.config import ScenarioError
+
+    if args.repeat < 1:
+        print("safer-hil: error: need --repeat >= 1")
+        return 2
+    try:
+        world = load_scenario(args.scenario, args.seed)
+    except (ScenarioError, ConfigError, ValueError) as exc:
+        print(f"safer-hil: error: scenario {args.scenario!r}: {exc}")
+        return 2
+    if world.team is None:
+        print(f"safer-hil: error: scenario {args.scenario!r} has no team (use a cliff-team scenario)")
+        return 2
+    grid = MapGrid.from_config(world.map_grid)
+    z = np.asarray(world.ground_on_grid(grid), np.float64)
+    ccfg = ClimberConfig()
+    print(f"{args.scenario} seed {args.seed}: true ground on the flight map grid, {grid.ny}x{grid.nx} cells of "
+          f"{grid.cell:g} m ({int(np.isfinite(z).sum())} known), footprint {ccfg.footprint_m:g} m; "
+          f"CPU ms a call, median (best) of {args.repeat}")
+    med, best, _ = _cpu_ms(lambda: ground_layers(z, grid, ccfg), args.repeat)
+    print(f"  ground_layers (flight)                 {med:8.1f} ({best:8.1f})")
+    med, best, flight = _cpu_ms(lambda: footprint_known(z, grid, ccfg.footprint_m), args.repeat)
+    print(f"  footprint_known (flight)               {med:8.1f} ({best:8.1f})")
+    ref_med, ref_best, ref = _cpu_ms(lambda: footprint_known_whole_map(z, grid, ccfg.footprint_m), args.repeat)
+    print(f"  footprint_known by whole-map filters   {ref_med:8.1f} ({ref_best:8.1f})")
+    same = bool(np.array_equal(flight, ref))
+    print(f"  same cells: {'yes' if same else 'NO'} ({int(flight.sum())} known footprints); "
+          f"the flight function {ref_med / max(med, 1e-9):.1f}x faster")
+    return 0 if same else 1
