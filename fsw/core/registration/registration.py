@@ -37,7 +37,8 @@ checked the same way; the record's ``reason`` says so.
 A flat minimum (issue 27: cliff-team seed 1, a view on near-level ground 4.8 deg off in yaw
 registered to a 1.1 deg sigma, 3.7 deg left) is caught by the cost itself: the normal matrix
 takes the map's millimetre relief as information in yaw, x and y, the cost does not rise
-there (:func:`_curvature_check`); height, roll and pitch alone are fitted then, as above.
+there (:func:`_curvature_check`); that information is dropped from the covariance (yaw, x and
+y keep about the prior's sigma) and the record's ``reason`` says so.
 
 Refused (the view is merged with its pose covariance inflated instead): fewer than
 ``min_points`` points on reference cells (too little overlap), data that do not fix height,
@@ -118,8 +119,8 @@ class RegistrationConfig:
     curvature_sigma: float = param(2.0, lo=0.0, hi=10.0, units="sigma", doc="the fit's cost is evaluated this "
                                    "many posterior sigmas along each of its principal directions (0: no check)")
     curvature_ratio: float = param(0.25, lo=0.0, hi=1.0, doc="the data's cost there rising by less than this "
-                                   "fraction of what the linearised fit predicts: a flat minimum, refit in "
-                                   "height and tilt only (or refused)")
+                                   "fraction of what the linearised fit predicts: a flat minimum, the data's "
+                                   "information along it dropped (under 0.8: scaled by the ratio)")
     split_alpha: float = param(0.001, lo=0.0, hi=0.5, doc="two disjoint halves of the overlap fitted apart disagree "
                                "beyond this chi-square tail (dof: the directions fitted; 0: no check): refit "
                                "in height and tilt only, or refused")
@@ -312,7 +313,7 @@ def register_steps(pts_w: F64, cov_w: F64, pose: CameraPose, pose_cov: F64, grid
     S = np.asarray(pose_cov, dtype=np.float64)
     P_inv = np.linalg.inv(S + np.diag(np.r_[np.full(3, 1e-10), np.full(3, 1e-8)]))
     out = yield from _solve(q0, cov_p, pose.t, S, P_inv, grid, z, var, ref, cfg, ALL, pts_w[idx], frames)
-    if out.status != "registered" and out.reason.startswith(("halves disagree", "unchecked", "flat cost")):
+    if out.status != "registered" and out.reason.startswith(("halves disagree", "unchecked")):
         full = out  # ambiguous in yaw, x, y: height and tilt alone (what any overlap fixes)
         out = yield from _solve(q0, cov_p, pose.t, S, P_inv, grid, z, var, ref, cfg, HEIGHT_TILT, pts_w[idx],
                                 frames)
@@ -350,8 +351,6 @@ def _solve(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid, z: F6
         out.status, out.reason = "unregistered", f"residual {res_sigma:.1f} sigma after the fit"
     elif float(d @ P_inv @ d) > cfg.gate_chi2:
         out.status, out.reason = "unregistered", f"correction implausible (chi2 {float(d @ P_inv @ d):.0f})"
-    elif flat:
-        out.status, out.reason = "unregistered", flat
     elif cfg.split_alpha > 0:
         out.split_chi2 = yield from _split_check(q0[used], cov_p[used], t, S, P_inv, grid, z, var, ref, cfg, free)
         # the chi-square quantile from scipy.special (loaded with the visibility kernel); never
@@ -363,6 +362,8 @@ def _solve(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid, z: F6
             out.status = "unregistered"
             out.reason = (f"halves disagree (chi2 {out.split_chi2:.0f} > {limit:.1f}, {len(free)} dof): "
                           "a false or ambiguous minimum")
+    if out.status == "registered" and flat:
+        out.reason = f"{flat}: the data's information there dropped"
     return out
 
 
@@ -378,11 +379,13 @@ def _curvature_check(fit: _Fit, P_inv: F64, q0: F64, t: F64, grid: MapGrid, z: F
     (``k = curvature_sigma``) and the data's cost (the fit's weights and scale, the points that
     stay on the reference at both) compared
     with the rise ``k^2 s^2 v^T N v`` the fit predicts; a direction whose predicted rise is
-    under 1 (the prior holds it: its sigma stays near the prior's) is not checked. A rise under
-    ``curvature_ratio`` of the prediction is a flat minimum: the reason. A rise between that and
-    ``CURVATURE_OK`` of the prediction scales the data's information along ``v`` by the ratio
-    (the cost's own curvature at that scale), and the check is repeated at the new sigmas (at
-    most ``CURVATURE_PASSES`` times). Returns the reason (empty: the fit holds) and the normal
+    under 1 (the prior holds it: its sigma stays near the prior's) is not checked. A rise between
+    ``curvature_ratio`` and ``CURVATURE_OK`` of the prediction scales the data's information
+    along ``v`` by the ratio (the cost's own curvature at that scale); under ``curvature_ratio``
+    it is a flat minimum and the information along ``v`` is dropped (the prior's sigma there).
+    The fit's correction is kept: height and tilt were fitted jointly with the rest, so they
+    carry no error of a direction held at the prior. The check is repeated at the new sigmas
+    (at most ``CURVATURE_PASSES`` times). Returns what was flat (empty: nothing) and the normal
     matrix to take the covariance from."""
     u = fit.used
     f, held = np.ix_(free, free), [i for i in range(6) if i not in free]
@@ -395,6 +398,7 @@ def _curvature_check(fit: _Fit, P_inv: F64, q0: F64, t: F64, grid: MapGrid, z: F
         return fit.w * (p[:, 2] - h) ** 2, ok & np.isfinite(h)
 
     c0, ok0 = cost(fit.d)
+    flat = ""
     for _ in range(CURVATURE_PASSES):
         lam, V = np.linalg.eigh(np.linalg.inv(N[f] + P_inv[f]))
         rho = np.ones(len(free))
@@ -408,11 +412,13 @@ def _curvature_check(fit: _Fit, P_inv: F64, q0: F64, t: F64, grid: MapGrid, z: F
             both = ok0 & okp & okm
             rise = 0.5 * fit.scale * float(np.sum(cp[both] + cm[both] - 2.0 * c0[both]))
             rise *= u.size / max(int(both.sum()), 1)  # the points that left the reference counted as the rest
-            if rise < cfg.curvature_ratio * predicted:
+            if rise < cfg.curvature_ratio * predicted:  # flat: the data say nothing along v
+                rho[j] = 0.0
                 main = ("roll", "pitch", "yaw", "x", "y", "z")[free[int(np.argmax(np.abs(V[:, j])))]]
-                return (f"flat cost: a rise of {rise:.1f} where the fit predicts {predicted:.1f}, "
-                        f"{cfg.curvature_sigma:g} sigma along its direction mostly in {main}"), N
-            rho[j] = min(1.0, rise / predicted) if rise < CURVATURE_OK * predicted else 1.0
+                flat = (f"flat cost: a rise of {rise:.1f} where the fit predicts {predicted:.1f}, "
+                        f"{cfg.curvature_sigma:g} sigma along its direction mostly in {main}")
+            elif rise < CURVATURE_OK * predicted:
+                rho[j] = rise / predicted
         if rho.min() >= 1.0:
             break
         D = V * np.sqrt(rho)[None, :] @ V.T  # the information along each v scaled by its ratio
@@ -421,7 +427,7 @@ def _curvature_check(fit: _Fit, P_inv: F64, q0: F64, t: F64, grid: MapGrid, z: F
             fh = np.ix_(free, held)
             N[fh] = D @ N[fh]
             N[np.ix_(held, free)] = N[fh].T
-    return "", N
+    return flat, N
 
 
 def _split_check(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid, z: F64, var: F64,
