@@ -34,6 +34,12 @@ in all six directions, height, roll and pitch alone are fitted (yaw, x and y hel
 prior with its covariance: :func:`fsw.core.registration.registration_stats.posterior`), and
 checked the same way; the record's ``reason`` says so.
 
+A flat minimum (issue 27: cliff-team seed 1, a view on near-level ground 4.8 deg off in yaw
+registered to a 1.1 deg sigma, 3.7 deg left) is caught by the cost itself: the normal matrix
+takes the map's millimetre relief as information in yaw, x and y, the cost does not rise
+there (:func:`_curvature_check`); that information is dropped from the covariance (yaw, x and
+y keep about the prior's sigma) and the record's ``reason`` says so.
+
 Refused (the view is merged with its pose covariance inflated instead): fewer than
 ``min_points`` points on reference cells (too little overlap), data that do not fix height,
 roll and pitch (ill-conditioned: the normal matrix of height and tilt times the lever arm
@@ -67,6 +73,8 @@ from fsw.core.steps import run_to_end
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
+CURVATURE_PASSES = 3  # the curvature check repeated at the sigmas it scaled (choice: converged in 2-3 on the benches)
+CURVATURE_OK = 0.8  # a rise this close to the predicted one: the direction's information kept as it is
 
 
 class RegistrationSummary(TypedDict):
@@ -108,6 +116,11 @@ class RegistrationConfig:
     max_residual_sigma: float = param(3.0, lo=0.5, hi=100.0, units="sigma",
                                       doc="RMS normalised residual of the fit above this: refused")
     gate_chi2: float = param(50.0, lo=1.0, hi=1e9, doc="correction against the prior (6 dof) above this: refused")
+    curvature_sigma: float = param(2.0, lo=0.0, hi=10.0, units="sigma", doc="the fit's cost is evaluated this "
+                                   "many posterior sigmas along each of its principal directions (0: no check)")
+    curvature_ratio: float = param(0.25, lo=0.0, hi=1.0, doc="the data's cost there rising by less than this "
+                                   "fraction of what the linearised fit predicts: a flat minimum, the data's "
+                                   "information along it dropped (under 0.8: scaled by the ratio)")
     split_alpha: float = param(0.001, lo=0.0, hi=0.5, doc="two disjoint halves of the overlap fitted apart disagree "
                                "beyond this chi-square tail (dof: the directions fitted; 0: no check): refit "
                                "in height and tilt only, or refused")
@@ -318,7 +331,9 @@ def _solve(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid, z: F6
     fit = yield from _fit(q0, cov_p, t, P_inv, grid, z, var, ref, cfg, cfg.n_eff, cfg.min_points, free)
     if isinstance(fit, tuple):
         return Registration("unregistered", fit[0], points=fit[1])
-    d, N, used = fit.d, fit.N, fit.used
+    d, used = fit.d, fit.used
+    flat, N = _curvature_check(fit, P_inv, q0, t, grid, z, var, ref, cfg, free) if cfg.curvature_sigma > 0 else (
+        "", fit.N)
     C, Cf = posterior(N, P_inv, S, free)
     ref_cov = np.zeros((6, 6)) if frames is None else reference_covariance(N, Cf, free, pts[used], t, grid, frames)
     res_sigma = float(np.sqrt(np.mean(fit.r[used] ** 2 / fit.sig2[used])))  # against the predicted sigmas
@@ -347,7 +362,72 @@ def _solve(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid, z: F6
             out.status = "unregistered"
             out.reason = (f"halves disagree (chi2 {out.split_chi2:.0f} > {limit:.1f}, {len(free)} dof): "
                           "a false or ambiguous minimum")
+    if out.status == "registered" and flat:
+        out.reason = f"{flat}: the data's information there dropped"
     return out
+
+
+def _curvature_check(fit: _Fit, P_inv: F64, q0: F64, t: F64, grid: MapGrid, z: F64, var: F64,
+                     ref: NDArray[np.bool_], cfg: RegistrationConfig, free: list[int]) -> tuple[str, F64]:
+    """Does the data's cost rise as the linearised fit says (issue 27)? The normal matrix takes
+    the map's local gradients at face value; on near-level ground they are the map's own
+    millimetre relief, and a shift of a few centimetres in yaw, x or y lands the points on other
+    relief of the same size: the cost stays flat where the normal matrix claims information
+    (cliff-team seed 1: a view 4.8 deg off in yaw, registered to 1.1 deg sigma with its error
+    3.7 deg, the truth's cost no higher than the fit's). Along each principal direction ``v`` of
+    the fitted directions' posterior given the held ones (``Cf``, sigma ``s``), the points are moved by ``+-k s v``
+    (``k = curvature_sigma``) and the data's cost (the fit's weights and scale, the points that
+    stay on the reference at both) compared
+    with the rise ``k^2 s^2 v^T N v`` the fit predicts; a direction whose predicted rise is
+    under 1 (the prior holds it: its sigma stays near the prior's) is not checked. A rise between
+    ``curvature_ratio`` and ``CURVATURE_OK`` of the prediction scales the data's information
+    along ``v`` by the ratio (the cost's own curvature at that scale); under ``curvature_ratio``
+    it is a flat minimum and the information along ``v`` is dropped (the prior's sigma there).
+    The fit's correction is kept: height and tilt were fitted jointly with the rest, so they
+    carry no error of a direction held at the prior. The check is repeated at the new sigmas
+    (at most ``CURVATURE_PASSES`` times). Returns what was flat (empty: nothing) and the normal
+    matrix to take the covariance from."""
+    u = fit.used
+    f, held = np.ix_(free, free), [i for i in range(6) if i not in free]
+    N = fit.N.copy()
+
+    def cost(d: F64) -> tuple[F64, NDArray[np.bool_]]:
+        q = q0[u] @ so3_exp(d[:3]).T
+        p = q + t + d[3:]
+        h, _, _, _, ok = _surface(grid, z, var, ref, p[:, 0], p[:, 1])
+        return fit.w * (p[:, 2] - h) ** 2, ok & np.isfinite(h)
+
+    c0, ok0 = cost(fit.d)
+    flat = ""
+    for _ in range(CURVATURE_PASSES):
+        lam, V = np.linalg.eigh(np.linalg.inv(N[f] + P_inv[f]))
+        rho = np.ones(len(free))
+        for j in range(len(free)):
+            step = np.zeros(6)
+            step[free] = V[:, j] * cfg.curvature_sigma * math.sqrt(max(float(lam[j]), 0.0))
+            predicted = float(step @ N @ step)
+            if predicted < 1.0:
+                continue
+            (cp, okp), (cm, okm) = cost(fit.d + step), cost(fit.d - step)
+            both = ok0 & okp & okm
+            rise = 0.5 * fit.scale * float(np.sum(cp[both] + cm[both] - 2.0 * c0[both]))
+            rise *= u.size / max(int(both.sum()), 1)  # the points that left the reference counted as the rest
+            if rise < cfg.curvature_ratio * predicted:  # flat: the data say nothing along v
+                rho[j] = 0.0
+                main = ("roll", "pitch", "yaw", "x", "y", "z")[free[int(np.argmax(np.abs(V[:, j])))]]
+                flat = (f"flat cost: a rise of {rise:.1f} where the fit predicts {predicted:.1f}, "
+                        f"{cfg.curvature_sigma:g} sigma along its direction mostly in {main}")
+            elif rise < CURVATURE_OK * predicted:
+                rho[j] = rise / predicted
+        if rho.min() >= 1.0:
+            break
+        D = V * np.sqrt(rho)[None, :] @ V.T  # the information along each v scaled by its ratio
+        N[f] = D @ N[f] @ D.T
+        if held:
+            fh = np.ix_(free, held)
+            N[fh] = D @ N[fh]
+            N[np.ix_(held, free)] = N[fh].T
+    return flat, N
 
 
 def _split_check(q0: F64, cov_p: F64, t: F64, S: F64, P_inv: F64, grid: MapGrid, z: F64, var: F64,

@@ -304,3 +304,41 @@ def test_halves_that_disagree_only_horizontally_keep_height_and_tilt() -> None:
     assert abs(reg.correction[5]) < 0.005 and abs(reg.correction[1]) < math.radians(0.05)
     # roll absorbs what y held at the prior may be off by: its sigma says so
     assert abs(reg.correction[0]) < 2 * math.sqrt(reg.cov[0, 0])
+
+
+def test_a_flat_cost_in_yaw_on_level_ground_keeps_the_prior_sigma() -> None:
+    """Issue 27 (cliff-team seed 1): level ground with only millimetre relief at the cell scale
+    (the map's own), a view 4 deg off in yaw and 3 cm in x and y with a prior that says so. The
+    normal matrix takes the relief's gradients at face value and claims yaw and x, y to a
+    fraction of the prior, while the cost is as low at the truth as at the fit: the claimed
+    sigma would be several times too small. The curvature check sees the flat cost and drops
+    that information (yaw keeps about the prior's sigma), so the view's error stays within 2
+    sigma; height and tilt are still registered. With the check off the old over-confident fit comes back."""
+    rng = np.random.default_rng(3)
+    field = rng.normal(0.0, 0.002, GRID.shape)  # relief at cell centres: independent per cell
+    from scipy.ndimage import map_coordinates
+
+    def relief(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        cx, cy = (np.asarray(x) - GRID.x0) / GRID.cell - 0.5, (np.asarray(y) - GRID.y0) / GRID.cell - 0.5
+        return np.asarray(map_coordinates(field, [cy.ravel(), cx.ravel()], order=1, mode="nearest")).reshape(cx.shape)
+
+    d_err = np.r_[np.radians([0.1, -0.1, 4.0]), 0.03, -0.03, 0.01]
+    prior = np.diag(np.r_[np.radians([0.15, 0.15, 4.5]) ** 2, 0.035**2, 0.035**2, 0.015**2])
+    true = looking_down_x()
+    wrong = with_error(true, d_err)
+    z, var, n = make_map(relief, 0.003)
+    pts, cov = view_points(relief, true, wrong, (1.0, 3.2, 0.6, 3.0), noise_m=0.002)
+    ref = reference_cells(z, var, n, CFG)
+
+    def miss(r: Registration) -> np.ndarray:  # the remaining error of yaw, x, y in its sigmas
+        return np.abs(d_err[2:5] - r.correction[2:5]) / np.sqrt(np.diag(r.cov)[2:5])
+
+    blind = register_points(pts, cov, wrong, prior, GRID, z, var, ref, dataclasses.replace(CFG, curvature_sigma=0.0))
+    assert blind.status == "registered" and blind.reason == ""
+    assert miss(blind).max() > 3.0  # the old fit: confident and wrong
+    reg = register_points(pts, cov, wrong, prior, GRID, z, var, ref, CFG)
+    assert reg.status == "registered" and reg.reason.startswith("flat cost"), reg.reason
+    assert miss(reg).max() < 2.0 and np.sqrt(reg.cov[2, 2]) > 0.5 * np.sqrt(prior[2, 2])
+    assert "Y" not in reg.summary()["constrained"]
+    fixed = apply_correction(wrong, reg.correction)
+    np.testing.assert_allclose(fixed.R[2], true.R[2], atol=math.radians(0.05))  # tilt still registered
