@@ -55,6 +55,7 @@ from __future__ import annotations
 import argparse
 import csv
 import sys
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
@@ -123,22 +124,9 @@ def run(args: argparse.Namespace) -> int:
     seeds = list(range(args.seed, args.seed + args.scenes))
     if args.why:
         return _why(args, seeds)
-    rows: list[dict[str, Any]] = []
-    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        futs = {pool.submit(scene, args.scenario, s, args.config, args.recon_views, args.cliff_views,
-                            args.resolve_cells): s
-                for s in seeds}
-        for fut in as_completed(futs):
-            try:
-                rows.append(fut.result())
-            except Exception as exc:  # noqa: BLE001 - one failed scene is reported, the rest go on
-                print(f"seed {futs[fut]}: FAILED {type(exc).__name__}: {exc}", file=sys.stderr)
-                continue
-            r = rows[-1]
-            print(f"[{len(rows)}/{len(seeds)}] seed {r['seed']}: face {_f(r['face_rmse_m'])} m, gravity "
-                  f"{_f(r['face_rmse_gravity_m'])} m, overhangs {r['overhang_flagged']}/{r['overhang_truth']}, "
-                  f"team cells {r['team_cells_mapped']}", flush=True)
-    rows.sort(key=lambda r: r["seed"])
+    rows = _scenes(scene, args, seeds, lambda r: (
+        f"face {_f(r['face_rmse_m'])} m, gravity {_f(r['face_rmse_gravity_m'])} m, overhangs "
+        f"{r['overhang_flagged']}/{r['overhang_truth']}, team cells {r['team_cells_mapped']}"))
     if not rows:
         return 1
     args.out.mkdir(parents=True, exist_ok=True)
@@ -152,14 +140,14 @@ def run(args: argparse.Namespace) -> int:
     return 0 if len(rows) == len(seeds) else 1
 
 
-def _why(args: argparse.Namespace, seeds: list[int]) -> int:
-    """``--why``: the missed overhang cells' reasons per scene, in parallel, and the results file."""
-    from hil_sim.lab.results import command_line, markdown_table, write_results
-    from hil_sim.team.overhang_why import why_report, why_scene
-
+def _scenes(fn: Callable[..., dict[str, Any]], args: argparse.Namespace, seeds: list[int],
+            line: Callable[[dict[str, Any]], str]) -> list[dict[str, Any]]:
+    """``fn(scenario, seed, config, recon_views, cliff_views, resolve_cells)`` for every seed in
+    ``args.jobs`` processes, a progress line per scene (``line``), sorted by seed; a scene that
+    fails is reported on stderr and left out."""
     rows: list[dict[str, Any]] = []
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        futs = {pool.submit(why_scene, args.scenario, s, args.config, args.recon_views, args.cliff_views,
+        futs = {pool.submit(fn, args.scenario, s, args.config, args.recon_views, args.cliff_views,
                             args.resolve_cells): s for s in seeds}
         for fut in as_completed(futs):
             try:
@@ -167,10 +155,17 @@ def _why(args: argparse.Namespace, seeds: list[int]) -> int:
             except Exception as exc:  # noqa: BLE001 - one failed scene is reported, the rest go on
                 print(f"seed {futs[fut]}: FAILED {type(exc).__name__}: {exc}", file=sys.stderr)
                 continue
-            r = rows[-1]
-            print(f"[{len(rows)}/{len(seeds)}] seed {r['seed']}: overhangs {r['flagged']}/{r['truth']}, "
-                  f"missed {r['missed']}, false {r['false']}", flush=True)
-    rows.sort(key=lambda r: r["seed"])
+            print(f"[{len(rows)}/{len(seeds)}] seed {rows[-1]['seed']}: {line(rows[-1])}", flush=True)
+    return sorted(rows, key=lambda r: r["seed"])
+
+
+def _why(args: argparse.Namespace, seeds: list[int]) -> int:
+    """``--why``: the missed overhang cells' reasons per scene, in parallel, and the results file."""
+    from hil_sim.lab.results import command_line, markdown_table, write_results
+    from hil_sim.team.overhang_why import why_report, why_scene
+
+    rows = _scenes(why_scene, args, seeds, lambda r: (
+        f"overhangs {r['flagged']}/{r['truth']}, missed {r['missed']}, false {r['false']}"))
     if not rows:
         return 1
     md = why_report(rows, markdown_table)
