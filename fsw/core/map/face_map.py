@@ -35,6 +35,7 @@ height per cell with variance, count, interest, misses) in the face's own frame:
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -307,6 +308,9 @@ class FaceElevation(ElevationMap):
         # the cells the view being merged looked at (:func:`in_view`), or None (all of them);
         # FaceMap.merge_parts sets it for one merge
         self.in_view: B | None = None
+        # the stereo matching window's angle of the view being merged (rad), or None (unknown:
+        # no bound on how far a step mixes in); FaceMap.merge_parts sets it for one merge
+        self.window_rad: float | None = None
 
     def _vertical_variance(self, grad: tuple[F64, F64], c6: tuple[F64, ...], footprint: bool) -> F64:
         """§1.2's slope term plus the unresolved slope's share, ``g_u^2 P_uu + g_v^2 P_vv``, in a
@@ -320,7 +324,7 @@ class FaceElevation(ElevationMap):
     def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64, vm_pose: F64 | None = None) -> tuple[int, int, int]:
         if self.cfg.slope_term and cells.size:
             vm = vm + relief_variance(self.grid, cells, zm, self.step_cells, self.eye, self.cfg.hidden_relief,
-                                      self.in_view)
+                                      self.in_view, self.window_rad)
         z, var, n = self.z.reshape(-1), self.var.reshape(-1), self.n.reshape(-1)
         z0, v0, n0 = z[cells], var[cells], n[cells]
         with np.errstate(invalid="ignore"):
@@ -493,6 +497,7 @@ class FaceMap:
         fe = self.map if isinstance(self.map, FaceElevation) else None
         if fe is not None and eye is not None:
             fe.eye = self.frame.to_face(np.reshape(eye, (1, 3)))[0]
+            fe.window_rad = window_rad
             if fe.cfg.hidden_relief:
                 ray_xyz = np.concatenate([p[0] for p in (parts if rays is None else rays)]) if parts else xyz
                 fe.in_view = in_view(self, np.reshape(eye, 3), ray_xyz, max_range_m)
@@ -502,6 +507,7 @@ class FaceMap:
             if fe is not None:
                 fe.eye = None
                 fe.in_view = None
+                fe.window_rad = None
         air_new = 0
         if eye is not None:
             air_new = self.carve(eye, parts if rays is None else rays)
@@ -589,24 +595,27 @@ def in_view(face: FaceMap, eye: F64, xyz: F64, max_range_m: float | None = None,
 
 
 def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells: int = 0,
-                    eye: F64 | None = None, hidden: bool = False, looked: B | None = None) -> F64:
+                    eye: F64 | None = None, hidden: bool = False, looked: B | None = None,
+                    window_rad: float | None = None) -> F64:
     """Per measured cell (flat ``cells``, the view's cell means ``zm``), the variance of a view's
     sample of the cell against its centre: ``E|g|^2 c^2 / 12`` with ``E|g|^2 = 2 |g|^2`` (``g``
     the gradient of the view's cell means, its unresolved part as wide again), plus, with
     ``step_cells > 0``, ``(r_up^2 + r_down^2) / 3`` for the steps beside the cell: ``r_up``
     (``r_down``) how far the view's cell means within ``step_cells`` cells rise above (fall
-    below) the cell's tangent plane (:func:`step_heights`), scaled by the share of a step
-    ``h = max(r_up, r_down)`` a view from ``eye`` (face frame; None: in full) mixes into the
-    cell: ``h tan t`` (the length of face a step of that height hides or mixes in at the
-    incidence ``t`` of the sight line to the cell) over one cell, at most 1 (FaceElevation).
+    below) the cell's tangent plane, each step scaled by the share of the cell it reaches seen
+    from ``eye`` (face frame; None: in full, :func:`step_variance`): ``h tan t`` (the length of
+    face a step ``h`` high hides or mixes in at the incidence ``t`` of the sight line to the
+    cell) over one cell, at most 1; a step that does not rise between the camera and the cell
+    casts no shadow on it and reaches it only through the stereo matching windows (of angle
+    ``window_rad``; None: unknown, no such bound), within two window spans of the step.
     With ``hidden`` (and ``step_cells > 0``), a cell next to a cell the view did not measure
     though it looked at it (of its eight neighbours inside the grid and in ``looked``,
-    :func:`in_view`; None: all of them) also gains ``h^2 / 3``, scaled by the same share,
-    for the step the view could not see beside it: as large as the steps it saw (``h^2 = 3
-    rho^2``, ``rho^2`` the view's mean steps' variance over the cells whose whole reach it
-    measured, :func:`hidden_relief`), or, when it measured no such cell and so shows no relief
-    of its own, as the cell's own height out of the fitted plane (``h = zm``: the face beside a
-    rock's top the view saw alone lies on the plane)."""
+    :func:`in_view`; None: all of them) also gains ``h^2 / 3``, scaled by ``h tan t`` over one
+    cell, at most 1, for the step the view could not see beside it: as large as the steps it saw
+    (``h^2 = 3 rho^2``, ``rho^2`` the view's mean steps' variance over the cells whose whole
+    reach it measured, :func:`hidden_relief`), or, when it measured no such cell and so shows no
+    relief of its own, as the cell's own height out of the fitted plane (``h = zm``: the face
+    beside a rock's top the view saw alone lies on the plane)."""
     dense = np.full(grid.nx * grid.ny, np.nan)
     dense[cells] = zm
     z = dense.reshape(grid.shape)
@@ -614,22 +623,38 @@ def relief_variance(grid: MapGrid, cells: NDArray[np.intp], zm: F64, step_cells:
     g2 = (gx * gx + gy * gy).reshape(-1)[cells]
     out = 2.0 * g2 * grid.cell**2 / 12.0
     if step_cells > 0:
-        up, down = step_heights(z, step_cells)
-        steps = ((up * up + down * down) / 3.0).reshape(-1)[cells]
-        up, down = up.reshape(-1)[cells], down.reshape(-1)[cells]
-        tan_t: F64 | None = None
-        if eye is not None:
-            q = np.column_stack([grid.x0 + (cells % grid.nx + 0.5) * grid.cell,
-                                 grid.y0 + (cells // grid.nx + 0.5) * grid.cell, zm])
-            d = q - np.reshape(eye, (1, 3))
-            with np.errstate(divide="ignore", invalid="ignore"):
-                tan_t = np.asarray(np.hypot(d[:, 0], d[:, 1]) / np.abs(d[:, 2]), float)
-        out = out + _step_share(np.maximum(up, down), tan_t, grid.cell) * steps
+        sight = None if eye is None else _sight_lines(grid, z, eye, window_rad)
+        out = out + step_variance(z, step_cells, grid.cell, sight).reshape(-1)[cells]
         if hidden:
+            tan_t = None if sight is None else sight[2].reshape(-1)[cells]
             beside, rho2 = hidden_relief(z, step_cells, looked)
             h2 = np.full(len(cells), 3.0 * rho2) if rho2 is not None else zm * zm
             out = out + beside.reshape(-1)[cells] * _step_share(np.sqrt(h2), tan_t, grid.cell) * h2 / 3.0
     return np.asarray(out, float)
+
+
+Sight = tuple[F64, F64, F64, F64]  # per cell: the unit direction to the camera in (u, v), tan t, window span
+
+
+def _sight_lines(grid: MapGrid, z: F64, eye: F64, window_rad: float | None) -> Sight:
+    """Per cell of a view's heightfield ``z`` (face frame, NaN unknown: taken on the plane), seen
+    from the camera centre ``eye``: the unit direction ``(du, dv)`` from the cell towards the
+    camera along the face, ``tan t`` (``t`` the incidence of the sight line on the face) and the
+    length of face one matching window of angle ``window_rad`` covers there along the sight
+    line's trace, ``window_rad r / cos t`` (:func:`window_span`; inf when ``window_rad`` is
+    None)."""
+    X, Y = grid.centers()
+    e = np.reshape(eye, 3)
+    d = np.stack([X - e[0], Y - e[1], np.nan_to_num(z) - e[2]])
+    across = np.hypot(d[0], d[1])
+    along_n = np.abs(d[2])
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        du, dv = np.nan_to_num(-d[0] / across), np.nan_to_num(-d[1] / across)
+        tan_t = across / along_n
+        span = (np.full(z.shape, np.inf) if window_rad is None
+                else window_rad * (across * across + along_n * along_n) / along_n)
+    return (np.asarray(du, float), np.asarray(dv, float), np.asarray(tan_t, float),
+            np.asarray(np.nan_to_num(span, nan=np.inf), float))
 
 
 def _step_share(h: F64, tan_t: F64 | None, cell_m: float) -> F64:
@@ -670,12 +695,12 @@ def hidden_relief(z: F64, reach: int, looked: B | None = None) -> tuple[B, float
     return np.asarray(beside, bool), rho2
 
 
-def step_heights(z: F64, reach: int) -> tuple[F64, F64]:
-    """Per cell of a heightfield ``z`` (NaN unknown), how far the known cells within ``reach``
-    cells (the square around it) rise above and fall below the cell's tangent plane (``(up,
-    down)``, both >= 0; 0 for unknown cells). The plane's gradient is, per axis, the min-mod of
-    the two one-sided differences to the next cells (the smaller, 0 where they differ in sign;
-    the one known where the other is not): a plane gives 0, a step beside the cell its height."""
+def _deviations(z: F64, reach: int) -> Iterator[tuple[int, int, F64]]:
+    """``(dy, dx, d)`` for every offset within ``reach`` cells (the square around each cell, the
+    cell itself included): how far the known cell there lies above the cell's tangent plane (NaN
+    where either is unknown). The plane's gradient is, per axis, the min-mod of the two one-sided
+    differences to the next cells (the smaller, 0 where they differ in sign; the one known where
+    the other is not): a plane gives 0, a step beside the cell its height."""
     ny, nx = z.shape
     p = np.pad(z, reach, constant_values=np.nan)
 
@@ -690,13 +715,55 @@ def step_heights(z: F64, reach: int) -> tuple[F64, F64]:
 
     gx = slope(at(0, 1) - z, z - at(0, -1))
     gy = slope(at(1, 0) - z, z - at(-1, 0))
-    up, down = np.zeros(z.shape), np.zeros(z.shape)
     for dy in range(-reach, reach + 1):
         for dx in range(-reach, reach + 1):
-            d = at(dy, dx) - z - gx * dx - gy * dy
-            up = np.fmax(up, d)
-            down = np.fmax(down, -d)
+            yield dy, dx, at(dy, dx) - z - gx * dx - gy * dy
+
+
+def step_heights(z: F64, reach: int) -> tuple[F64, F64]:
+    """Per cell of a heightfield ``z`` (NaN unknown), how far the known cells within ``reach``
+    cells (the square around it) rise above and fall below the cell's tangent plane (``(up,
+    down)``, both >= 0; 0 for unknown cells; the plane of :func:`_deviations`)."""
+    up, down = np.zeros(z.shape), np.zeros(z.shape)
+    for _, _, d in _deviations(z, reach):
+        up = np.fmax(up, d)
+        down = np.fmax(down, -d)
     return np.asarray(np.nan_to_num(up), float), np.asarray(np.nan_to_num(down), float)
+
+
+def step_variance(z: F64, reach: int, cell_m: float, sight: Sight | None = None) -> F64:
+    """Per cell of a view's heightfield ``z`` (NaN unknown), the steps' variance ``(r_up^2 +
+    r_down^2) / 3`` (docs/algorithm.md §8.1): ``r_up^2`` (``r_down^2``) the largest ``s d^2``
+    over the cells within ``reach`` that rise above (fall below) the cell's tangent plane by
+    ``d`` (:func:`_deviations`), ``s`` the share of the cell that step reaches, seen along
+    ``sight`` (:func:`_sight_lines`; None: 1). A step ``h = |d|`` high hides or mixes in ``h tan
+    t`` of face at the incidence ``t``; a rise between the camera and the cell (its offset
+    towards the camera along the face, less than a cell across the sight line's trace) shadows
+    the cell by that much, ``s = h tan t / c``; any other step (a rise beyond the cell, turned to
+    the camera; a fall; a rise off to the side) casts no shadow on the cell and reaches it only
+    through the stereo matching windows that straddle it and the depth they mix, taken as two
+    window spans ``w`` (:func:`window_span`; a bound set on the face-map experiment's tuning
+    scenes): ``s = min(h tan t, 2 w - gap) / c`` with ``gap`` the face between the two cells;
+    both at most 1. A view far off at grazing incidence (the RECON-bot's, windows several cells
+    long on the face) keeps every step within reach; a view close to the face (the Cliff-bot's)
+    keeps the steps that shadow the cell and the ones next to it."""
+    up, down = np.zeros(z.shape), np.zeros(z.shape)
+    for dy, dx, d in _deviations(z, reach):
+        if sight is None:
+            share: F64 | float = 1.0
+        else:
+            du, dv, tan_t, span = sight
+            with np.errstate(invalid="ignore", over="ignore"):
+                mixed = np.abs(d) * tan_t
+                across = np.abs(dx * dv - dy * du)  # the step's offset across the sight line, in cells
+                shadow = (d > 0) & (dx * du + dy * dv > 0) & (across < 1.0)
+                gap = cell_m * (max(abs(dx), abs(dy)) - 1)
+                reach_m = np.where(shadow, mixed, np.minimum(mixed, 2.0 * span - gap))
+            share = np.clip(np.nan_to_num(reach_m / cell_m, nan=1.0, posinf=1.0), 0.0, 1.0)
+        with np.errstate(invalid="ignore"):
+            up = np.fmax(up, np.where(d > 0, share * d * d, 0.0))
+            down = np.fmax(down, np.where(d < 0, share * d * d, 0.0))
+    return np.asarray((np.nan_to_num(up) + np.nan_to_num(down)) / 3.0, float)
 
 
 def run_merge(emap: ElevationMap, parts: list[tuple[F64, F64, F64 | None]],

@@ -307,3 +307,81 @@ def test_only_the_ground_a_view_looked_at_and_missed_counts_as_hidden() -> None:
     assert beside[6:9, 6:9].sum() == 8 and not beside[7, 7]
     beside, _ = hidden_relief(z, 2, np.isfinite(z))
     assert not beside.any()
+
+
+def step_face(n: int = 20, step_row: int = 10, height: float = 0.15) -> tuple[MapGrid, np.ndarray]:
+    """A view's cell means on a face with a step ``height`` out of it across the dip, from
+    ``step_row`` up (face frame, 6 cm cells)."""
+    g = MapGrid(0.0, 0.0, CELL, n, n)
+    return g, np.where(np.arange(n) >= step_row, height, 0.0)[:, None] * np.ones((1, n))
+
+
+def test_a_step_reaches_a_cell_through_its_shadow_or_the_matching_windows() -> None:
+    """The steps' term of the cells below a 0.15 m step, by where the camera stands (docs/
+    algorithm.md §8.1). Seen from the Cliff-bot's head 0.45 m off the face and below the step
+    (the step rises beyond the cells, turned to the camera; its 25 mrad windows span 1.4 cm of
+    face there), the step casts no shadow on them and its windows reach one cell in: the row
+    next to the step gains part of the step's variance, the row beyond it none. Seen from
+    above the step, those rows lie in its shadow, and seen at grazing incidence from 3.6 m (the
+    RECON-bot's 7 mrad windows span 15 cm of face) the windows reach both rows: either way they
+    gain the step's whole variance, as they do with no camera known."""
+    g, z = step_face()
+    cells = np.arange(g.nx * g.ny)
+    zm = z.reshape(-1)
+    full = 0.15**2 / 3.0
+    extra = {}
+    for name, eye, window in (("below", (0.6, 0.3, 0.45), 0.025), ("above", (0.6, 1.5, 0.45), 0.025),
+                              ("grazing", (0.6, -3.0, 0.6), 0.0073), ("unknown", None, None)):
+        steps = relief_variance(g, cells, zm, 2, None if eye is None else np.array(eye), window_rad=window)
+        extra[name] = (steps - relief_variance(g, cells, zm, 0)).reshape(g.shape)[:, 8:12]
+    assert np.allclose(extra["below"][8], 0.0)  # two rows below the step: beyond the windows' reach
+    assert 0.2 * full < extra["below"][9].min() and extra["below"][9].max() < 0.8 * full
+    for name in ("above", "grazing", "unknown"):
+        assert np.allclose(extra[name][8:10], full), name
+
+
+def test_a_close_view_beside_a_step_is_not_outweighed_by_a_grazing_one() -> None:
+    """Two agents' views of a face with a 0.15 m step: the Cliff-bot's from 0.45 m off the face
+    below the step, whose points lie on the true surface (5 mm noise, its pose 2 cm), and the
+    RECON-bot's at grazing incidence from above, whose points on the two rows below the step
+    (the step's shadow) hold the step's mixed depth, a share of its height per cell. In the row
+    two cells below the step the fused cells are within 5 mm of the Cliff-bot's alone (the
+    grazing view's weight there is its honest few per cent), and every map's cells there hold
+    their error within 2 sigma. With the step's variance given in full to every cell within two
+    of it, the close view's cells there weigh no more than the grazing view's and the fused row
+    sits centimetres out."""
+    a = np.radians(75.0)
+    frame = FaceFrame.from_normal(np.zeros(3), np.array([0.0, -np.sin(a), np.cos(a)]))
+    cfg = FaceMapConfig(cell_m=CELL, air_max_rays=0, facing_max_points=0)
+    rng = np.random.default_rng(13)
+    n, step_row, height = 20, 10, 0.15
+    m = 20 * n * n
+    u, v = rng.uniform(0, n * CELL, m), rng.uniform(0, n * CELL, m)
+    row = (v // CELL).astype(int)
+    truth = np.where(row >= step_row, height, 0.0)
+    pose = np.array([0.0, 0.0, 0.02 * rng.standard_normal()])
+    close = np.column_stack([u, v, truth + rng.normal(0, 0.005, m)]) + pose
+    share = rng.uniform(0.0, 1.0, (n, n))
+    shadow = (row == step_row - 1) | (row == step_row - 2)
+    far_w = np.where(shadow, height * share[row, (u // CELL).astype(int)], truth) + rng.normal(0, 0.005, m)
+    far = np.column_stack([u, v, far_w])
+    pose_cov = np.tile(np.diag([0.02**2] * 3), (m, 1, 1))  # the Cliff-bot's pose: common to its view
+    cov_close = pose_cov + np.diag([1e-6, 1e-6, 0.005**2])
+    cov_far = np.tile(np.diag([1e-4, 0.03**2, 0.005**2]), (m, 1, 1))
+    maps = {name: FaceMap(frame, (0.0, n * CELL), (0.0, n * CELL), cfg) for name in ("cliff", "recon", "fused")}
+
+    def world(cov: np.ndarray) -> np.ndarray:
+        return np.asarray(np.einsum("ij,njk,lk->nil", frame.R, cov, frame.R))
+
+    views = {"cliff": ((frame.to_world(close), world(cov_close), world(pose_cov)), (0.6, 0.3, 0.45), 0.025),
+             "recon": ((frame.to_world(far), world(cov_far), None), (0.6, 4.6, 0.9), 0.0073)}
+    for agent in ("recon", "cliff"):
+        part, eye, window = views[agent]
+        for name in (agent, "fused"):
+            maps[name].merge_parts([part], eye=frame.to_world(np.array([eye]))[0], window_rad=window)
+    r = step_row - 2
+    err = {k: fm.map.z[r, 2:-2] for k, fm in maps.items()}
+    rms = {k: float(np.sqrt(np.mean(e * e))) for k, e in err.items()}
+    assert rms["fused"] <= rms["cliff"] + 0.005, rms
+    for k, fm in maps.items():
+        assert np.mean(np.abs(err[k]) <= 2 * np.sqrt(fm.map.var[r, 2:-2])) >= 0.9, k
