@@ -279,9 +279,11 @@ class FaceElevation(ElevationMap):
     within ``step_cells`` cells rise above (fall below) the cell's tangent plane (its min-mod
     gradient: a plane gives none): the sample lies anywhere between the cell's ground and the
     step's, the second moment of a uniform error over the step (:func:`relief_variance`). It is
-    a grazing view's: the term is scaled by ``h tan t`` over one cell, at most 1, with ``h`` the
-    step and ``t`` the incidence of the view's sight line to the cell (the face a step hides or
-    mixes in; a view head-on mixes none).
+    a grazing view's: each step counts by the share of the cell it reaches (:func:`step_variance`),
+    ``h tan t`` over one cell, at most 1, with ``h`` the step and ``t`` the incidence of the view's
+    sight line to the cell (the face a step hides or mixes in; a view head-on mixes none), and a
+    step that does not rise between the camera and the cell (no shadow on it) only as far as
+    two of the view's matching windows reach (``window_rad``).
 
     *The steps a view did not see* (``[fusion] hidden_relief``). Beside a cell the view did not
     measure (the relief hid it) the steps' term finds no step; the cell gains the variance of a
