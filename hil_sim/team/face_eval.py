@@ -158,26 +158,48 @@ def overhang_seen(face: FaceMap, cells: NDArray[np.intp], w_true: F64, over: B,
     return np.asarray(over & (total[cells] > 0), bool)
 
 
+def facing_seen(world: World, face: FaceMap, rays: list[tuple[F64, F64]], step_m: float = 0.01) -> B:
+    """Per face cell (flat), whether some view's true sight lines (``rays``: true camera centre and
+    the true surface points it sees, world) end in the cell on ground that faces the face: the true
+    surface's normal there (from the heightfield's slope over ``step_m``) has a negative component
+    along the face normal, so going out along the normal the column passes from air into ground
+    (a second surface above it). What a view shows, before stereo: the face map's own facing test
+    (``fsw.core.map.overhang``) sees it only where the view's points resolve that ground's plane."""
+    g = face.grid
+    out = np.zeros(g.nx * g.ny, bool)
+    e_n = face.frame.normal
+    for _, pts in rays:
+        if len(pts) == 0:
+            continue
+        q = face.frame.to_face(pts)
+        iy, ix, inside = g.cell_index(q[:, 0], q[:, 1])
+        c = iy[inside] * g.nx + ix[inside]
+        x, y = pts[inside, 0], pts[inside, 1]
+        zx = (world.ground_at(x + step_m, y) - world.ground_at(x - step_m, y)) / (2 * step_m)
+        zy = (world.ground_at(x, y + step_m) - world.ground_at(x, y - step_m)) / (2 * step_m)
+        with np.errstate(invalid="ignore"):
+            down = (-zx * e_n[0] - zy * e_n[1] + e_n[2]) < 0  # (-z_x, -z_y, 1) . e_n
+        out[c[down]] = True
+    return out
+
+
 def overhang_shown(world: World, face: FaceMap, cells: NDArray[np.intp], w_true: F64, over: B,
                    rays: list[tuple[F64, F64]], step_m: float = 0.01) -> B:
     """Which truth overhang cells (``over``, outer surface ``w_true``) the views show as two
     surfaces, from their true sight lines (``rays``: true camera centre and the true surface
     points it sees, world): some view sees a point in the cell's column on ground that faces the
-    face (the true surface's normal there, from the heightfield's slope over ``step_m``, has a
-    negative component along the face normal: going out along the normal, air then ground), or
-    the views show air and ground above it in the column more than the gap apart (a sight line
-    crosses the column more than the gap below the outer surface, :func:`overhang_seen`, and some
-    view sees a point in the column more than the gap above the lowest such crossing). A cell no
-    view shows so is one surface to every view: its second surface is not observable."""
+    face (:func:`facing_seen`), or the views show air and ground above it in the column more than
+    the gap apart (a sight line crosses the column more than the gap below the outer surface,
+    :func:`overhang_seen`, and some view sees a point in the column more than the gap above the
+    lowest such crossing). A cell no view shows so is one surface to every view: its second
+    surface is not observable."""
     g = face.grid
     size = g.nx * g.ny
     z = np.full(size, np.nan)
     z[cells[over]] = w_true[over]
     lowest = np.full(size, np.inf)
     top = np.full(size, -np.inf)
-    facing = np.zeros(size, bool)
     reach = (-face.cfg.slab_in_m, face.cfg.slab_out_m)
-    e_n = face.frame.normal
     for eye, pts in rays:
         if len(pts) == 0:
             continue
@@ -187,16 +209,23 @@ def overhang_shown(world: World, face: FaceMap, cells: NDArray[np.intp], w_true:
                            np.zeros(n), np.full(n, 1e-3), reach, face.cfg.overhang_gap_m, 0.0, 0.25 * g.cell)
         lowest = np.minimum(lowest, low)
         iy, ix, inside = g.cell_index(q[:, 0], q[:, 1])
-        c = iy[inside] * g.nx + ix[inside]
-        np.maximum.at(top, c, q[inside, 2])
-        x, y = pts[inside, 0], pts[inside, 1]
-        zx = (world.ground_at(x + step_m, y) - world.ground_at(x - step_m, y)) / (2 * step_m)
-        zy = (world.ground_at(x, y + step_m) - world.ground_at(x, y - step_m)) / (2 * step_m)
-        with np.errstate(invalid="ignore"):
-            down = (-zx * e_n[0] - zy * e_n[1] + e_n[2]) < 0  # (-z_x, -z_y, 1) . e_n
-        facing[c[down]] = True
-    shown = facing | (top - lowest > face.cfg.overhang_gap_m)
+        np.maximum.at(top, iy[inside] * g.nx + ix[inside], q[inside, 2])
+    shown = facing_seen(world, face, rays, step_m) | (top - lowest > face.cfg.overhang_gap_m)
     return np.asarray(over & shown[cells], bool)
+
+
+def frame_off_deg(world: World, face: FaceMap) -> float | None:
+    """The angle between the face map's fitted normal and the scenario's nominal face normal
+    (the face falls toward -y at ``team.face_slope_deg``; the edge's wiggle turns the true face
+    locally by some degrees either way). None without a team. A frame tens of degrees off is a
+    plane fitted to something other than the face (a rock jumble's sides): along its normal the
+    face's ordinary relief crosses a cell's column more than once."""
+    t = world.team
+    if t is None:
+        return None
+    a = math.radians(t.face_slope_deg)
+    nominal = np.array([0.0, -math.sin(a), math.cos(a)])
+    return float(np.degrees(np.arccos(np.clip(float(face.frame.normal @ nominal), -1.0, 1.0))))
 
 
 def face_points(face: FaceMap, cells: NDArray[np.intp], w: F64) -> F64:

@@ -9,6 +9,10 @@ records what the views gave the detector there:
 
 * ``unobservable``: no true sight line shows the cell as two surfaces
   (``face_eval.overhang_shown``);
+* ``facing_unresolved``: a view's true sight lines end in the cell on ground that faces the face
+  (``face_eval.facing_seen``) and the face map's facing test counted no point there: the view
+  showed the second surface, its stereo points did not resolve that ground's plane (a rock's
+  side a few centimetres across, seen with centimetres of depth noise);
 * ``no_inner``: no measured point lies near the inner surface (the first crossing, within half
   the gap) and no facing point or ray under it was counted;
 * ``both_one_view``: one view has points near both surfaces in the cell (the within-view test's
@@ -23,7 +27,10 @@ records what the views gave the detector there:
 * ``spread``: the points in the cell, pooled over views, spread along the normal by more than
   the gap plus 3 sigma of their noise.
 
-A missed cell may have several; ``primary`` is the first of the order above that holds.
+A missed cell may have several; ``primary`` is the first of the order above that holds. Per
+scene, ``frame_off_deg`` (``face_eval.frame_off_deg``) says how far the fitted face plane's normal
+lies from the scenario's face: a plane fitted to a rock jumble's sides turns the face's ordinary
+relief into columns that cross the ground more than once.
 """
 
 from __future__ import annotations
@@ -34,12 +41,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.map.face_map import FaceMap
-from hil_sim.team.face_eval import air_along_normal, overhang_shown, truth_along_normal
+from hil_sim.team.face_eval import air_along_normal, facing_seen, frame_off_deg, overhang_shown, truth_along_normal
 from hil_sim.team.face_scene import FaceScene
 from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]
-REASONS = ("unobservable", "no_inner", "both_one_view", "both_across", "facing_few", "air_few",
+FRAME_OFF_DEG = 20.0  # a fitted face normal farther than this from the scenario's face: not the face
+REASONS = ("unobservable", "facing_unresolved", "no_inner", "both_one_view", "both_across", "facing_few", "air_few",
            "neighbour_flagged", "handed_over", "spread")
 
 
@@ -76,11 +84,13 @@ def miss_reasons(scene: WhyScene) -> dict[str, Any]:
     """Counts of the reasons (module docstring) over the scene's missed truth overhang cells, and
     the truth, flagged and missed counts."""
     face = scene.face
-    out: dict[str, Any] = {"seed": scene.seed, "truth": 0, "flagged": 0, "missed": 0}
+    out: dict[str, Any] = {"seed": scene.seed, "truth": 0, "flagged": 0, "missed": 0, "frame_off_deg": None}
     out.update({f"has_{r}": 0 for r in REASONS})
     out.update({f"primary_{r}": 0 for r in REASONS})
     if face is None:
         return out
+    off = frame_off_deg(scene.world, face)
+    out["frame_off_deg"] = None if off is None else round(off, 1)
     g = face.grid
     cells = np.flatnonzero(face.map.mapped.reshape(-1))
     w_out, over = truth_along_normal(scene.world, face, cells)
@@ -134,6 +144,7 @@ def miss_reasons(scene: WhyScene) -> dict[str, Any]:
     air = face.air.reshape(-1)[mc]
     has: dict[str, NDArray[np.bool_]] = {}
     has["unobservable"] = ~shown[miss]
+    has["facing_unresolved"] = np.asarray(facing_seen(scene.world, face, scene.true_rays)[mc] & (facing == 0), bool)
     has["no_inner"] = ~near_in.any(axis=0) & (facing == 0) & (air == 0)
     has["both_one_view"] = (near_in & near_out).any(axis=0)
     has["both_across"] = near_in.any(axis=0) & near_out.any(axis=0) & ~has["both_one_view"]
@@ -167,7 +178,8 @@ def why_scene(spec: str, seed: int, config: str, n_recon: int, n_cliff: int,
 
 def why_report(rows: list[dict[str, Any]], table: Any) -> str:
     """The pooled reasons (each reason: the missed cells that have it, and those for which it is
-    the first in the order of the module docstring) and the per-scene table."""
+    the first in the order of the module docstring), the cells in scenes whose fitted frame is
+    not the face's (``FRAME_OFF_DEG``) and the per-scene table."""
     missed = sum(r["missed"] for r in rows)
     summary = [{"figure": "truth overhang cells", "cells": sum(r["truth"] for r in rows)},
                {"figure": "flagged", "cells": sum(r["flagged"] for r in rows)},
@@ -179,6 +191,12 @@ def why_report(rows: list[dict[str, Any]], table: Any) -> str:
                         "first reason": sum(r[f"primary_{k}"] for r in rows)})
     summary.append({"figure": "missed: none of these", "cells": "",
                     "first reason": sum(r.get("primary_none", 0) for r in rows)})
-    cols = ["seed", "truth", "flagged", "missed", "false", "false_part", *(f"primary_{k}" for k in REASONS)]
+    off = [r for r in rows if r["frame_off_deg"] is not None and r["frame_off_deg"] > FRAME_OFF_DEG]
+    summary.append({"figure": f"truth overhang cells in scenes whose fitted face normal is more than "
+                              f"{FRAME_OFF_DEG:g} deg off the face (flagged, missed)",
+                    "cells": f"{sum(r['truth'] for r in off)} ({sum(r['flagged'] for r in off)}, "
+                             f"{sum(r['missed'] for r in off)})"})
+    cols = ["seed", "frame_off_deg", "truth", "flagged", "missed", "false", "false_part",
+            *(f"primary_{k}" for k in REASONS)]
     return ("## Why truth overhang cells were missed\n\n" + table(summary, ["figure", "cells", "first reason"])
             + "\n\n## Scenes (first reason per missed cell)\n\n" + table(rows, cols) + "\n")

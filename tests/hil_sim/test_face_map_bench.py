@@ -302,3 +302,63 @@ def test_the_miss_diagnostic_finds_the_inner_surface_under_a_ledge() -> None:
         assert over.tolist() == [over_true]
         assert w_in[0] == pytest.approx(0.0, abs=0.006)
         assert (w_out[0] - w_in[0] > 0.1) == over_true
+
+
+def test_the_judge_finds_the_ground_facing_the_face_a_view_sees() -> None:
+    """``facing_seen``: a view whose true sight line ends on the ledge block's inner side (the step
+    facing up the face, where the normal passes from air into the block) shows the cell's facing
+    ground; one that sees only the block's outer side does not, nor does a view of plain face."""
+    import math
+
+    import numpy as np
+
+    from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig
+    from hil_sim.team.face_eval import facing_seen
+
+    a = math.radians(70.0)
+    frame = FaceFrame.from_normal(np.zeros(3), np.array([0.0, -math.sin(a), math.cos(a)]))
+    face = FaceMap(frame, (-0.05, 0.15), (-0.05, 0.15), FaceMapConfig(cell_m=0.1, overhang_gap_m=0.1))
+    y_block = (-0.35 * math.sin(a), -0.15 * math.sin(a))
+
+    class Ledge:
+        def __init__(self, height: float) -> None:
+            self.height = height
+
+        def ground_at(self, x: object, y: object) -> object:
+            yy = np.asarray(y, float)
+            block = (yy >= y_block[0]) & (yy <= y_block[1])
+            return math.tan(a) * yy + np.where(block, self.height, 0.0) + 0.0 * np.asarray(x, float)
+
+    step = frame.to_world(np.array([[0.0, 0.0, 0.15]]))  # on the block's inner side
+    above = step[0] + np.array([0.0, 1.0, 0.3])  # up the face, out over the crevice
+    outer = frame.to_world(np.array([[0.0, 0.0, 0.35], [0.0, 0.0, 2.0]]))
+    block = Ledge(0.5)
+    # per cell of the face map's grid (flat); the points lie in cell 0
+    assert facing_seen(block, face, [(above, step)]).tolist() == [True, False, False, False]  # type: ignore[arg-type]
+    assert not facing_seen(block, face, [(outer[1], outer[:1])]).any()  # type: ignore[arg-type]
+    plain = frame.to_world(np.array([[0.0, 0.0, 0.0]]))
+    assert not facing_seen(Ledge(0.0), face, [(above, plain)]).any()  # type: ignore[arg-type]
+
+
+def test_the_misses_name_a_face_plane_fitted_off_the_face() -> None:
+    """``frame_off_deg``: 0 for a face map laid in the scenario's face (falling toward -y at its
+    slope), the angle between the normals for a plane turned about the vertical, None without a
+    team."""
+    import math
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig
+    from hil_sim.team.face_eval import frame_off_deg
+
+    a, turn = math.radians(70.0), math.radians(30.0)
+    world = SimpleNamespace(team=SimpleNamespace(face_slope_deg=70.0))
+    on = FaceFrame.from_normal(np.zeros(3), np.array([0.0, -math.sin(a), math.cos(a)]))
+    off = FaceFrame.from_normal(np.zeros(3), np.array([math.sin(a) * math.sin(turn),
+                                                       -math.sin(a) * math.cos(turn), math.cos(a)]))
+    cfg = FaceMapConfig(cell_m=0.1)
+    assert frame_off_deg(world, FaceMap(on, (0.0, 1.0), (0.0, 1.0), cfg)) == pytest.approx(0.0, abs=1e-6)  # type: ignore[arg-type]
+    expected = math.degrees(math.acos(math.sin(a) ** 2 * math.cos(turn) + math.cos(a) ** 2))
+    assert frame_off_deg(world, FaceMap(off, (0.0, 1.0), (0.0, 1.0), cfg)) == pytest.approx(expected, abs=1e-6)  # type: ignore[arg-type]
+    assert frame_off_deg(SimpleNamespace(team=None), FaceMap(on, (0.0, 1.0), (0.0, 1.0), cfg)) is None  # type: ignore[arg-type]
