@@ -47,6 +47,9 @@ from fsw.framework.params import param
 F64 = NDArray[np.float64]
 _S45 = float(np.sqrt(0.5))
 SMALL_PX = 30.0  # a marker this large on a side is found without the enlarged pass
+# a mirror pose whose corners' chi-square (in the corners' noise, corner_sigma_px) is within this
+# of the chosen pose's is as likely (likelihood ratio exp(-1/2) or more): no fix
+MIRROR_CHI2 = 1.0
 _REFINE = {"none": cv2.aruco.CORNER_REFINE_NONE, "subpix": cv2.aruco.CORNER_REFINE_SUBPIX,
            "contour": cv2.aruco.CORNER_REFINE_CONTOUR, "apriltag": cv2.aruco.CORNER_REFINE_APRILTAG}
 
@@ -211,6 +214,10 @@ class CliffbotLocalizer:
         ambiguity = _ambiguity(cands)
         if ambiguity < self.cfg.fiducial_ambiguity_ratio:
             return None  # one marker, both mirror poses fit: no fix rather than maybe the wrong one
+        if math.isfinite(ambiguity) and _chi2_gap(cands, self.cfg.corner_sigma_px) < MIRROR_CHI2:
+            # both residuals far under the corners' noise: their ratio says nothing (a 20 px marker
+            # at 5.5 m, 0.05 against 0.10 px, passed the ratio with its mirror 57 deg off)
+            return None
         # (J^T J)^-1 treats every corner's error as independent, so the covariance shrinks as
         # 1/corners; the errors the corners share (the camera model, the markers' placement
         # on the body) do not, and they dominate a fix of many corners: the covariance stops
@@ -262,6 +269,13 @@ def _ambiguity(cands: list[PoseEstimate], same_deg: float = 1.0, same_m: float =
     if dr <= same_deg and float(np.linalg.norm(a.pose.t - b.pose.t)) <= same_m:
         return math.inf
     return b.rms_px / max(a.rms_px, 1e-9)
+
+
+def _chi2_gap(cands: list[PoseEstimate], sigma_px: float) -> float:
+    """How much worse the second candidate fits than the best (``cands`` sorted by RMS), as the
+    difference of their chi-squares over the corners' noise ``sigma_px`` (two residuals per point)."""
+    a, b = cands[0], cands[1]
+    return 2.0 * (b.n_points * b.rms_px ** 2 - a.n_points * a.rms_px ** 2) / max(sigma_px, 1e-9) ** 2
 
 
 def _project(pose: CameraPose, pts: F64, K: F64) -> F64:

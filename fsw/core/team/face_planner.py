@@ -370,12 +370,14 @@ def _margins(cov: F64, jt: F64, k: float) -> tuple[float, float]:
 
 
 def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
-               g: Ground, step_m: float = WAY_STEP_M) -> str:
+               g: Ground, step_m: float = WAY_STEP_M, margins: tuple[float, float] = (0.0, 0.0)) -> str:
     """Why the body cannot go from node ``a`` to node ``b`` (``""``: it can; module docstring,
     4): both lengths moved straight from ``a``'s to ``b``'s in steps of at most ``step_m`` of
     tether, the body settled at each (``settle``, from the last place) and judged there like a
-    node (unknown ground, hazard, the tethers and the statics: :func:`_tether_verdict`), ending
-    within a lattice spacing of ``b`` (else :data:`OFF_THE_WAY`). Directed: the way back may differ."""
+    node (unknown ground, hazard, the tethers and the statics: :func:`_tether_verdict`; where the
+    statics hold the body, each tension its own margin of ``margins`` inside the limits:
+    :func:`within_margins`), ending within a lattice spacing of ``b`` (else :data:`OFF_THE_WAY`).
+    Directed: the way back may differ."""
     sa = tether_state(z, grid, anchors, np.asarray(a, float), tcfg, ccfg.footprint_m)
     sb = tether_state(z, grid, anchors, np.asarray(b, float), tcfg, ccfg.footprint_m)
     if sa is None or sb is None:
@@ -397,6 +399,8 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
         if g.hazard[int(iy[0]), int(ix[0])]:
             return "hazard"
         why = _tether_verdict(got[1], grid, tcfg, ccfg, g)
+        if why == USABLE and any(margins) and got[1].statics.tilt_deg > ccfg.free_slope_deg:
+            why = within_margins(got[1], margins, tcfg) or USABLE
         if why != USABLE:
             return why
     if float(np.hypot(*(xy - np.asarray(b, float)))) > ccfg.node_m:
@@ -407,9 +411,14 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
 def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy: F64,
                  tcfg: TetherConfig, ccfg: ClimberConfig, margins: Margins | None = None,
                  start_usable: bool = False, blocked: Sequence[tuple[F64, F64]] = (),
-                 unseen: NDArray[np.bool_] | None = None) -> Plan:
+                 unseen: NDArray[np.bool_] | None = None, ground: Ground | None = None) -> Plan:
     """Shortest usable paths from ``start_xy`` to each target (module docstring); ``unseen``
     as for :func:`ground_layers` (no node's footprint, nor a way's place, holds such a cell).
+    ``ground``: the layers the nodes are judged on (default ``ground_layers(z, grid, ccfg,
+    unseen)``); the mission's legs pass the layers their ways are judged on
+    (``fsw.tasks.cliffbot.legs.Route``), since a way ends at its node's place and is judged
+    there: a node that fails on them is the end of no way, and a search through it only finds
+    edges to cut.
 
     A* per target over the 8-connected lattice, with the 3-D straight distance as its
     (admissible) heuristic; a node's verdict is worked out when the search first reaches it
@@ -418,7 +427,7 @@ def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy
     and the statics) costs far more than a graph step, and most of the lattice is never
     needed."""
     zf = np.asarray(z, np.float64)
-    g = ground_layers(zf, grid, ccfg, unseen)
+    g = ground if ground is not None else ground_layers(zf, grid, ccfg, unseen)
     stride = max(1, int(round(ccfg.node_m / grid.cell)))
     rows = np.arange(stride // 2, grid.ny, stride)
     cols = np.arange(stride // 2, grid.nx, stride)

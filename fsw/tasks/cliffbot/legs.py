@@ -101,7 +101,7 @@ class Route:
         margins = self.margins()
         for _ in range(MAX_CUT_ROUNDS):
             plan = plan_targets(self.z, self.grid, self.anchors, start, goal[None, :], self.tcfg, self.ccfg,
-                                margins, start_usable=True, blocked=cut, unseen=self.carried)
+                                margins, start_usable=True, blocked=cut, unseen=self.carried, ground=self.ground)
             path = plan.paths[0]
             if path is None:
                 return plan, []
@@ -137,16 +137,16 @@ class Route:
         (:func:`way_reason`; each pair judged once per map)."""
         key = (round(float(a[0]), 4), round(float(a[1]), 4), round(float(b[0]), 4), round(float(b[1]), 4))
         if key not in self.ways:
-            # every place of the way keeps the larger of its ends' tension margins
+            # every place of the way keeps, for each tether, the larger of its ends' margins for that
+            # tether (a margin is one tether's: the other's tension may sit far nearer its limit)
             m = self.margins()
             ends = [tension_margins(self.z, self.grid, self.anchors, p, self.tcfg, self.ccfg, m) for p in (a, b)]
-            if any(e is None for e in ends):
+            if ends[0] is None or ends[1] is None:
                 self.ways[key] = "unknown ground"
             else:
-                mg = max(max(e) for e in ends if e is not None)
-                t = dataclasses.replace(self.tcfg, t_min_n=self.tcfg.t_min_n + mg,
-                                        t_max_n=max(self.tcfg.t_max_n - mg, self.tcfg.t_min_n + mg + 1e-3))
-                self.ways[key] = way_reason(self.z, self.grid, self.anchors, a, b, t, self.ccfg, self.ground)
+                mg = (max(ends[0][0], ends[1][0]), max(ends[0][1], ends[1][1]))
+                self.ways[key] = way_reason(self.z, self.grid, self.anchors, a, b, self.tcfg, self.ccfg, self.ground,
+                                            margins=mg)
         return not self.ways[key]
 
     def elsewhere(self, est_xy: F64, est_cov: F64, wp: F64) -> tuple[bool, float, float]:
@@ -201,7 +201,7 @@ class Route:
             return None
         cand = xy[np.argsort(d, kind="stable")[:APPROACH_CANDIDATES]]
         first = plan_targets(self.z, self.grid, self.anchors, start, cand, self.tcfg, self.ccfg, self.margins(),
-                             start_usable=True, unseen=self.carried)
+                             start_usable=True, unseen=self.carried, ground=self.ground)
         for k, path in enumerate(first.paths):
             if path is None:
                 continue

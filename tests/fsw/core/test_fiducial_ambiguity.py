@@ -68,3 +68,34 @@ def test_one_marker_too_small_in_the_image_gives_no_fix() -> None:
         got[r] = (_side_px(px), loc.locate(np.zeros((4, 4), np.uint8), PoseEstimate(pose, np.zeros((6, 6)))))
     assert got[2.0][0] >= CFG.localization.fiducial_min_marker_px and got[2.0][1] is not None
     assert got[11.0][0] < CFG.localization.fiducial_min_marker_px and got[11.0][1] is None
+
+
+def test_one_marker_whose_mirror_fits_within_the_corners_noise_gives_no_fix() -> None:
+    """Both mirror poses of a 20 px marker fit to hundredths of a pixel: their RMS ratio passes
+    ``fiducial_ambiguity_ratio``, but in the corners' noise (``corner_sigma_px``) the mirror is as
+    likely, and the pose chosen may be tens of degrees off: no fix. The same marker near and
+    oblique (its mirror many chi-square units worse) is a fix."""
+    from fsw.core.localization.fiducials import CliffbotLocalizer, _side_px
+    from fsw.core.localization.localization import PoseEstimate
+
+    corners = CliffbotLayout().corners_body()[1]
+    K = np.asarray(CFG.camera.K, float)
+    loc = CliffbotLocalizer(CFG.localization, CliffbotLayout(), K, CFG.camera.baseline_m)
+    c = corners.mean(axis=0)
+    got = {}
+    for r, yaw in ((5.5, 20.0), (2.0, 40.0)):
+        a = math.radians(yaw)
+        eye = c + r * np.array([math.cos(a), math.sin(a), 0.15])
+        fwd = (c - eye) / np.linalg.norm(c - eye)
+        right = np.cross(fwd, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        pose = CameraPose(np.column_stack([right, np.cross(fwd, right), fwd]), eye)
+        px = _project(pose, corners, K) + np.random.default_rng(1).normal(0.0, 0.05, (4, 2))
+        cands = sorted(pnp_candidates(corners, px, K, CFG.localization.corner_sigma_px), key=lambda e: e.rms_px)
+        loc.detect = lambda image, scale=1, px=px: {1: px}  # type: ignore[method-assign]
+        got[r] = (_side_px(px), _ambiguity(cands),
+                  loc.locate(np.zeros((4, 4), np.uint8), PoseEstimate(pose, np.zeros((6, 6)))))
+    side, ratio, fix = got[5.5]
+    assert side >= CFG.localization.fiducial_min_marker_px and ratio >= CFG.localization.fiducial_ambiguity_ratio
+    assert fix is None
+    assert got[2.0][2] is not None

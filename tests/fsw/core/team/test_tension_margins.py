@@ -11,9 +11,17 @@ import pytest
 
 from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import NavConfig
-from fsw.core.team.face_planner import ClimberConfig, Margins, margin_reason, place_covariance, tension_margins
+from fsw.core.team.face_planner import (
+    ClimberConfig,
+    Margins,
+    margin_reason,
+    place_covariance,
+    tension_margins,
+    way_reason,
+)
 from fsw.core.team.tether import TetherConfig, anchor_points, tether_state
 from fsw.sections import CliffbotMissionConfig
+from fsw.tasks.cliffbot.legs import Route
 from fsw.tasks.cliffbot_mission import CliffbotMission
 
 SLOPE = math.radians(70.0)
@@ -114,3 +122,53 @@ def test_a_checkpoint_keeps_the_cells_no_sensor_measured() -> None:
     bad = snapshot(m, 1.0) | {"carried": [z.size]}
     with pytest.raises(CheckpointError, match="outside the map"):
         restore(mission(), bad, m.z, grid)
+
+
+def _route(z: np.ndarray, grid: MapGrid, anchors: np.ndarray, tcfg: TetherConfig) -> Route:
+    return Route(z, grid, 0.03, CliffbotMissionConfig(), tcfg, ClimberConfig(), anchors)
+
+
+def test_a_way_keeps_each_tethers_own_margin() -> None:
+    """Every place of a way keeps, per tether, the larger of its ends' margins for THAT tether:
+    tether A, the slack one here, keeps its own margin, not tether B's larger one."""
+    z, grid, anchors = _cliff()
+    t, c = TetherConfig(), ClimberConfig()
+    a, b = np.array([1.2, -0.8]), np.array([1.2, -0.86])  # tether A at about 11 N, B at 95 N
+    r = _route(z, grid, anchors, t)
+    ends = [tension_margins(z, grid, anchors, p, t, c, r.margins()) for p in (a, b)]
+    assert ends[0] is not None and ends[1] is not None
+    own = max(ends[0][0], ends[1][0])
+    other = max(ends[0][1], ends[1][1])
+    assert other > own + 0.1  # B's margin is the larger here
+
+    def passes(t_min: float) -> bool:  # the way with no margins, at a lower tension limit
+        return way_reason(z, grid, anchors, a, b, dataclasses.replace(t, t_min_n=t_min), c, r.ground) == ""
+
+    lo, hi = 0.0, 50.0  # the least tension along the way, to 0.01 N
+    assert passes(lo) and not passes(hi)
+    while hi - lo > 0.01:
+        lo, hi = ((lo + hi) / 2, hi) if passes((lo + hi) / 2) else (lo, (lo + hi) / 2)
+    # the limit where tether A's own margin holds along the way and B's would not
+    limit = lo - 0.5 * (own + other)
+    held = _route(z, grid, anchors, dataclasses.replace(t, t_min_n=limit))
+    assert held.passable(a, b)
+    assert not _route(z, grid, anchors, dataclasses.replace(t, t_min_n=lo - own + 0.05)).passable(a, b)
+
+
+def test_a_legs_nodes_are_judged_on_the_ground_its_ways_are() -> None:
+    """A target whose tethers touch the rocks the ways keep clear of (the map's rocks grown by a
+    lattice spacing) is the end of no way: the leg refuses it for its tethers at once instead of
+    cutting the ways into it one by one until it gives up with ``no safe path``."""
+    z, grid, anchors = _cliff()
+    t, c = TetherConfig(), ClimberConfig()
+    r = _route(z, grid, anchors, t)
+    st = tether_state(z, grid, anchors, FACE, t, c.footprint_m)
+    assert st is not None
+    cy, cx, inside = grid.cell_index(st.paths[1].contacts[:, 0], st.paths[1].contacts[:, 1])
+    assert inside.all()
+    rock = r.ground.rock.copy()
+    rock[cy, cx] = True  # tether B's contacts on the lip, as near a rock as the ways allow
+    r.ground = dataclasses.replace(r.ground, rock=rock)
+    plan, wps = r.plan(np.array([0.0, 0.6]), FACE)
+    assert plan.reasons == ("tether over a rock",) and wps == []
+    assert not r.ways  # no way was judged to find it out
