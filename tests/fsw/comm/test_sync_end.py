@@ -85,12 +85,12 @@ def test_the_corridor_goes_first() -> None:
     while len(tiles) < 3 and t < 10.0:  # (the ends first learn what the other holds)
         for d in a.poll(t, 512):
             p = sp.decode(d)
-            tiles += [p.tile] if isinstance(p, sp.Tile) else []
+            tiles += [e.tile for e in p.tiles] if isinstance(p, sp.Tile) else []
             b.receive(d, t)
         for d in b.poll(t, 512):
             a.receive(d, t)
         t += 0.1
-    assert tiles == [15, 11, 14]
+    assert tiles[:3] == [15, 11, 14]
 
 
 def test_both_ends_converge_and_a_restart_from_the_checkpoint_resends_nothing_whole() -> None:
