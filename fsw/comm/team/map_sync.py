@@ -633,10 +633,11 @@ class MapSync:
                 self._sent_tiles.popitem(last=False)
         return pkt
 
-    def poll(self, now_s: float, max_bytes: int | None = None) -> list[bytes]:
+    def poll(self, now_s: float, max_bytes: int | None = None, hold_tiles: bool = False) -> list[bytes]:
         """The datagrams to send now, paced to ``rate_bps``; with ``max_bytes`` (a radio shared
         with other traffic: what is left of its budget) a packet is made only while one of
-        ``mtu_bytes`` still fits."""
+        ``mtu_bytes`` still fits. ``hold_tiles``: my tiles wait (a round is being published in
+        steps: its tiles go when it ends, sharing TILEs); the rest goes."""
         if self._started_s is None:
             self._started_s = now_s
         self._now = now_s
@@ -645,7 +646,7 @@ class MapSync:
         while self.pacer.ready(now_s):
             if max_bytes is not None and used + self.cfg.mtu_bytes > max_bytes:
                 break
-            pkt = self._next_packet(now_s)
+            pkt = self._next_packet(now_s, hold_tiles)
             if pkt is None:
                 break
             self.pacer.consume(len(pkt), now_s)
@@ -659,7 +660,7 @@ class MapSync:
             self._next_probe_s = max(last, self._last_digest_s) + self._probe_gap
         return out
 
-    def _next_packet(self, now_s: float) -> bytes | None:
+    def _next_packet(self, now_s: float, hold_tiles: bool) -> bytes | None:
         stalled = self._stalled(now_s)
         if stalled:
             self._next_probe_s = None
@@ -680,8 +681,8 @@ class MapSync:
                 self._returned_at[e.tile] = now_s
             self.stats.returns_out += len(back)
             return self._tile_packet(self.peer, back, now_s)
-        if self.want_holdings:
-            return None  # what the peer holds of my layer is unknown: nothing to send yet
+        if self.want_holdings or hold_tiles:
+            return None  # what the peer holds of my layer is unknown, or a round is under way
         entries = self._batch(self._to_send(), self.rep.own)
         if not entries:
             return None
