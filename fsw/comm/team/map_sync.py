@@ -394,7 +394,7 @@ class MapSync:
             self.stats.stale_bytes_in += e.size
 
     def _accepted(self, serial: int) -> None:
-        """A packet of the peer taken in: my next DIGEST echoes it (and acknowledges its tile)."""
+        """A packet of the peer taken in: my next DIGEST echoes it (and acknowledges its tiles)."""
         self._peer_serial = serial
         self._rx_serials[serial] = None
         self._rx_serials.move_to_end(serial)

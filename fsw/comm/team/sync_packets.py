@@ -4,9 +4,10 @@ They share the map link's framing (``fsw.comm.link_packets``: magic 0xA5, a vers
 type nibble, a 16-bit word, the body, a CRC-32 of everything before it) with type numbers that
 neither the map link (1-9) nor the fix packets (12-14) use, so one radio carries all three and
 a receiver tells them apart by the type nibble. Their version is :data:`SYNC_VERSION` (2: a
-TILE carries several tiles); a sync packet of another version is refused. The 16-bit word names the sending agent (high
-byte) and the map frame (low byte); every body starts with the sender's transmission serial
-(u16), so a copy the protocol sent again differs from a copy the channel duplicated.
+TILE carries several tiles); a sync packet of another version is refused. The 16-bit word
+names the sending agent (high byte) and the map frame (low byte); every body starts with the
+sender's transmission serial (u16), so a copy the protocol sent again differs from a copy the
+channel duplicated.
 
 TILE (10): ``serial`` u16, ``owner`` u8 (whose map layer), ``profile`` u32 (the id of the
 owner's tile profile, ``fsw.core.codec.tileformat``: frame, grid and codec settings), then one
