@@ -21,7 +21,9 @@ def test_three_team_cycles_fill_every_team_key_with_real_numbers() -> None:
     assert all(k in sec for k in KEYS)
     assert sec["cells_by_agent"]["recon"] > 100 and sec["cells_by_agent"]["cliffbot"] > 100
     assert sec["sync_hash_equal"] is True and sec["sync_rounds"] == 3 and sec["sync_full_resends"] == 0
-    assert 0 < sec["sync_minimal_bytes"] <= sec["sync_bytes"]
+    # the tiles of a round share TILEs, so the bytes delivered may be below the minimal deltas
+    # (one tile a packet), never above what was put on the air
+    assert 0 < sec["sync_bytes"] <= min(1.2 * sec["sync_minimal_bytes"], sec["sync_air_bytes"])
     for k in ("face_rmse_m", "face_rmse_gravity_m"):
         assert isinstance(sec[k], float) and 0.0 < sec[k] < 1.0, sec.get("face_note")
     assert [c["cycle"] for c in sec["views"]] == [1, 2, 3]

@@ -12,8 +12,9 @@ versioned map-codec tiles, the agent's own and its copy of the peer's, and their
 * New versions go out as TILE packets (compact tile bodies of my tile profile, which the peer
   holds before any goes: it rides on my DIGESTs asking for holdings until the peer says it
   holds it), highest ``priority(ty, tx)`` first (the receiver's task: e.g. its corridor),
-  paced to ``rate_bps``. The peer acknowledges them in its DIGESTs by the serials it took in
-  (the echo and a window of the 32 before it; I keep which tile version each serial carried).
+  as many in one TILE as fit ``mtu_bytes`` (they share its header and its serial), paced to
+  ``rate_bps``. The peer acknowledges them in its DIGESTs by the serials it took in (the echo
+  and a window of the 32 before it; I keep which tile versions each serial carried).
   A tile is sent again only when a DIGEST proves it lost: the peer had received a packet sent
   ``reorder_slack_s`` after it, and does not hold it (as TCP RACK). After the last tile a DIGEST
   asking for an answer probes the tail.
@@ -92,7 +93,7 @@ class SyncStats:
     tiles_out: int = 0
     tile_bytes_out: int = 0  # of bytes_out: TILEs (the own layer's and tiles given back)
     tile_body_bytes_out: int = 0  # of which the tile bodies (the rest: packet headers)
-    resent_bytes_out: int = 0  # of tile_bytes_out: versions sent again
+    resent_bytes_out: int = 0  # of tile_bytes_out: the entries of versions sent again
     holdings_bytes_out: int = 0
     profiles_out: int = 0  # DIGESTs that carried my tile profile
     profile_bytes_out: int = 0  # of digest_bytes_out: the profiles they carried
@@ -107,7 +108,7 @@ class SyncStats:
     bytes_in: int = 0  # valid packets received, channel duplicates excepted
     digest_bytes_in: int = 0  # of which DIGESTs
     holdings_bytes_in: int = 0  # of which HOLDINGS
-    stale_bytes_in: int = 0  # of which TILEs of a version already held
+    stale_bytes_in: int = 0  # of which the entries of tiles of a version already held
     dup_packets: int = 0
     bad_packets: int = 0
     foreign_packets: int = 0
@@ -163,7 +164,8 @@ class MapSync:
         self._started_s: float | None = None
         self._peer_serial: int | None = None  # the peer's last packet accepted (the echo)
         self._rx_serials: OrderedDict[int, None] = OrderedDict()  # the peer's packets accepted, recent
-        self._sent_tiles: OrderedDict[int, tuple[int, int]] = OrderedDict()  # serial -> (tile, version) of mine
+        # serial -> the (tile, version) of mine it carried
+        self._sent_tiles: OrderedDict[int, tuple[tuple[int, int], ...]] = OrderedDict()
         self._recent: OrderedDict[tuple[int, int, bytes], None] = OrderedDict()
         self._digest_due: float | None = None
         self._answer = False
@@ -254,7 +256,7 @@ class MapSync:
 
     def _publish_tile(self, t: int, sub: F32, now_s: float) -> bool:
         blob = self.rep.encode(sub)
-        if len(blob) + sp.TILE_OVERHEAD > self.cfg.mtu_bytes:
+        if sp.TILE_BASE + sp.TileEntry(t, 0xFFFFFFFF, blob).size > self.cfg.mtu_bytes:
             self.stats.oversize_tiles += 1
             self.events.emit(now_s, "TILE_TOO_LARGE", tile=t, bytes=len(blob))
             return False
@@ -263,7 +265,7 @@ class MapSync:
         self.wants.discard(t)
         self._lost.discard(t)
         self.stats.tiles_published += 1
-        self.stats.minimal_bytes += len(blob) + sp.TILE_OVERHEAD
+        self.stats.minimal_bytes += len(blob) + sp.MINIMAL_TILE_OVERHEAD
         return True
 
     @property
@@ -296,9 +298,7 @@ class MapSync:
             self.events.emit(now_s, "LINK_BACK", silent_s=round(now_s - self._last_rx_s, 3))
         self._last_rx_s = now_s
         if isinstance(p, sp.Tile):
-            stale = self.stats.stale_tiles
-            self._on_tile(p, now_s)
-            self.stats.stale_bytes_in += len(datagram) if self.stats.stale_tiles > stale else 0
+            self._on_tiles(p, now_s)
         elif isinstance(p, sp.Digest):
             self.stats.digest_bytes_in += len(datagram)
             if p.profile is not None:
@@ -329,7 +329,7 @@ class MapSync:
         self.peer_profile = prof
 
     def _tile_profile(self, p: sp.Tile) -> TileProfile | None:
-        """The profile a tile names, if it is the one its owner's tiles have here."""
+        """The profile a TILE names, if it is the one its owner's tiles have here."""
         prof = self.rep.profile if p.owner == self.agent else self.peer_profile
         if prof is not None and prof.pid == p.profile:
             return prof
@@ -339,47 +339,62 @@ class MapSync:
             self.stats.unknown_profile_tiles += 1
         return None
 
-    def _on_tile(self, p: sp.Tile, now_s: float) -> None:
+    def _on_tiles(self, p: sp.Tile, now_s: float) -> None:
+        """A TILE: every tile decoded first, so the packet is taken in (and acknowledged) whole
+        or not at all."""
         if p.owner not in (self.agent, self.peer):
             self.stats.foreign_packets += 1
             return
         prof = self._tile_profile(p)
         if prof is None:  # not decodable here: not acknowledged, so the sender sends it again
             return
-        z = self.rep.decode_tile(p.tile, p.blob, prof)
-        if z is None:
-            self._bad(now_s, f"TILE {p.tile}: its body is not a tile of the map")
-            return
-        rec = TileRec(p.version, p.digest, p.blob, z)
-        if p.owner == self.agent:  # one of mine, given back after my restart
-            mine = self.rep.own.get(p.tile)
-            if p.tile in self.wants and (mine is None or p.version > mine.version):
-                self.rep.own[p.tile] = rec
-                self.rep.source.pop(p.tile, None)
-                self.rep.counter = max(self.rep.counter, p.version)
-                self.belief[p.tile] = (p.version, p.digest)
-                self.rep.touch(self.agent)
-                self.stats.adopted += 1
-                if self.on_adopt is not None:
-                    self.on_adopt(p.tile, z)
+        recs = []
+        for e in p.tiles:
+            z = self.rep.decode_tile(e.tile, e.blob, prof)
+            if z is None:
+                self._bad(now_s, f"TILE {e.tile}: its body is not a tile of the map")
+                return
+            recs.append((e, TileRec(e.version, e.digest, e.blob, z)))
+        for e, rec in recs:
+            if p.owner == self.agent:
+                self._on_own_tile(e.tile, rec)
             else:
-                self.stats.stale_tiles += 1
-            self.wants.discard(p.tile)
+                self._on_peer_tile(e, rec)
+        if p.owner == self.agent:
             return
-        held = self.rep.held.get(p.tile)
-        if held is None or p.version > held.version or (p.version == held.version and p.digest != held.digest):
-            self.rep.held[p.tile] = rec
-            self.rep.touch(self.peer)
-            self.stats.tiles_in += 1
-        else:
-            self.stats.stale_tiles += 1
         self._accepted(p.serial)
         if self._ack_first_s is None:
             self._ack_first_s = now_s
         self._ack_last_s = now_s
 
+    def _on_own_tile(self, t: int, rec: TileRec) -> None:
+        """One of my tiles, given back after my restart: adopted if I asked for it."""
+        mine = self.rep.own.get(t)
+        if t in self.wants and (mine is None or rec.version > mine.version):
+            self.rep.own[t] = rec
+            self.rep.source.pop(t, None)
+            self.rep.counter = max(self.rep.counter, rec.version)
+            self.belief[t] = (rec.version, rec.digest)
+            self.rep.touch(self.agent)
+            self.stats.adopted += 1
+            if self.on_adopt is not None:
+                self.on_adopt(t, rec.z)
+        else:
+            self.stats.stale_tiles += 1
+        self.wants.discard(t)
+
+    def _on_peer_tile(self, e: sp.TileEntry, rec: TileRec) -> None:
+        held = self.rep.held.get(e.tile)
+        if held is None or rec.version > held.version or (rec.version == held.version and rec.digest != held.digest):
+            self.rep.held[e.tile] = rec
+            self.rep.touch(self.peer)
+            self.stats.tiles_in += 1
+        else:
+            self.stats.stale_tiles += 1
+            self.stats.stale_bytes_in += e.size
+
     def _accepted(self, serial: int) -> None:
-        """A packet of the peer taken in: my next DIGEST echoes it (and acknowledges its tile)."""
+        """A packet of the peer taken in: my next DIGEST echoes it (and acknowledges its tiles)."""
         self._peer_serial = serial
         self._rx_serials[serial] = None
         self._rx_serials.move_to_end(serial)
@@ -425,12 +440,12 @@ class MapSync:
         if p.flags & sp.KNOWS_PROFILE and not self._peer_profile_stale:  # it holds my profile
             self.attach_profile = False
         for s in p.acked():
-            sent = self._sent_tiles.get(s)
-            rec = self.rep.own.get(sent[0]) if sent is not None else None
-            if sent is not None and rec is not None and sent[1] == rec.version:  # it holds my latest version
-                self.belief[sent[0]] = (rec.version, rec.digest)
-                self._inflight.pop(sent[0], None)
-                self._lost.discard(sent[0])
+            for t, v in self._sent_tiles.get(s, ()):
+                rec = self.rep.own.get(t)
+                if rec is not None and v == rec.version:  # it holds my latest version
+                    self.belief[t] = (rec.version, rec.digest)
+                    self._inflight.pop(t, None)
+                    self._lost.discard(t)
         if p.held_hash is not None:
             self._peer_synced = p.held_hash == self.rep.layer_hash(self.agent)
         if p.held_hash is None:
@@ -522,16 +537,28 @@ class MapSync:
         ref = self._last_rx_s if self._last_rx_s is not None else self._started_s
         return ref is not None and now_s - ref > self.cfg.stall_s
 
-    def _next_tile(self, now_s: float) -> int | None:
+    def _to_send(self) -> list[int]:
+        """My tiles to send now (needed, and not in flight or proved lost), highest priority first."""
         cands = [t for t in self.rep.own if t not in self.wants and self._needed(t)
                  and (t in self._lost or t not in self._inflight or self._inflight[t][0] != self.rep.own[t].version)]
-        if not cands:
-            return None
 
         def key(t: int) -> tuple[float, int]:
             ty, tx = divmod(t, self.rep.ntx)
             return (-(self.priority(ty, tx) if self.priority is not None else 0.0), t)
-        return min(cands, key=key)
+        return sorted(cands, key=key)
+
+    def _batch(self, tiles: list[int], layer: dict[int, TileRec]) -> list[sp.TileEntry]:
+        """The first of ``tiles`` (in order) that fit one TILE of ``mtu_bytes``."""
+        out: list[sp.TileEntry] = []
+        room = self.cfg.mtu_bytes - sp.TILE_BASE
+        for t in tiles:
+            rec = layer[t]
+            e = sp.TileEntry(t, rec.version, rec.blob)
+            if e.size > room:
+                break
+            out.append(e)
+            room -= e.size
+        return out
 
     def _digest_reason(self, now_s: float) -> bool:
         for due in (self._digest_due, self._ack_due(), self._probe_due()):
@@ -594,22 +621,23 @@ class MapSync:
             self.stats.profile_bytes_out += PROFILE_BYTES
         return pkt
 
-    def _tile_packet(self, owner: int, t: int, rec: TileRec, now_s: float) -> bytes:
+    def _tile_packet(self, owner: int, entries: list[sp.TileEntry], now_s: float) -> bytes:
         prof = self.rep.profile if owner == self.agent else self.peer_profile
         pid = prof.pid if prof is not None else 0
-        pkt = sp.encode(sp.Tile(self.agent, self.frame, self._stamp(now_s), owner, t, rec.version, pid, rec.blob))
+        pkt = sp.encode(sp.Tile(self.agent, self.frame, self._stamp(now_s), owner, pid, tuple(entries)))
         self.stats.tile_bytes_out += len(pkt)
-        self.stats.tile_body_bytes_out += len(rec.blob)
+        self.stats.tile_body_bytes_out += sum(len(e.blob) for e in entries)
         if owner == self.agent:
-            self._sent_tiles[self._serial] = (t, rec.version)
+            self._sent_tiles[self._serial] = tuple((e.tile, e.version) for e in entries)
             if len(self._sent_tiles) > 4096:
                 self._sent_tiles.popitem(last=False)
         return pkt
 
-    def poll(self, now_s: float, max_bytes: int | None = None) -> list[bytes]:
+    def poll(self, now_s: float, max_bytes: int | None = None, hold_tiles: bool = False) -> list[bytes]:
         """The datagrams to send now, paced to ``rate_bps``; with ``max_bytes`` (a radio shared
         with other traffic: what is left of its budget) a packet is made only while one of
-        ``mtu_bytes`` still fits."""
+        ``mtu_bytes`` still fits. ``hold_tiles``: my tiles wait (a round is being published in
+        steps: its tiles go when it ends, sharing TILEs); the rest goes."""
         if self._started_s is None:
             self._started_s = now_s
         self._now = now_s
@@ -618,7 +646,7 @@ class MapSync:
         while self.pacer.ready(now_s):
             if max_bytes is not None and used + self.cfg.mtu_bytes > max_bytes:
                 break
-            pkt = self._next_packet(now_s)
+            pkt = self._next_packet(now_s, hold_tiles)
             if pkt is None:
                 break
             self.pacer.consume(len(pkt), now_s)
@@ -632,7 +660,7 @@ class MapSync:
             self._next_probe_s = max(last, self._last_digest_s) + self._probe_gap
         return out
 
-    def _next_packet(self, now_s: float) -> bytes | None:
+    def _next_packet(self, now_s: float, hold_tiles: bool) -> bytes | None:
         stalled = self._stalled(now_s)
         if stalled:
             self._next_probe_s = None
@@ -647,28 +675,28 @@ class MapSync:
             self.stats.holdings_bytes_out += len(pkt)
             return pkt
         if self._returns:
-            t = min(self._returns)
-            self._returns.discard(t)
-            self._returned_at[t] = now_s
-            self.stats.returns_out += 1
-            return self._tile_packet(self.peer, t, self.rep.held[t], now_s)
-        if self.want_holdings:
-            return None  # what the peer holds of my layer is unknown: nothing to send yet
-        t2 = self._next_tile(now_s)
-        if t2 is None:
+            back = self._batch(sorted(self._returns), self.rep.held)
+            for e in back:
+                self._returns.discard(e.tile)
+                self._returned_at[e.tile] = now_s
+            self.stats.returns_out += len(back)
+            return self._tile_packet(self.peer, back, now_s)
+        if self.want_holdings or hold_tiles:
+            return None  # what the peer holds of my layer is unknown, or a round is under way
+        entries = self._batch(self._to_send(), self.rep.own)
+        if not entries:
             return None
-        rec = self.rep.own[t2]
-        prev = self._inflight.get(t2)
-        resent = t2 in self._lost or (prev is not None and prev[0] == rec.version)
-        self._lost.discard(t2)
-        self._inflight[t2] = (rec.version, now_s)
-        self._last_tile_s = now_s
+        for e in entries:
+            prev = self._inflight.get(e.tile)
+            if e.tile in self._lost or (prev is not None and prev[0] == e.version):
+                self.stats.resent_tiles += 1
+                self.stats.resent_bytes_out += e.size
+            self._lost.discard(e.tile)
+            self._inflight[e.tile] = (e.version, now_s)
         self._next_probe_s = None
-        self.stats.tiles_out += 1
-        pkt = self._tile_packet(self.agent, t2, rec, now_s)
-        if resent:
-            self.stats.resent_tiles += 1
-            self.stats.resent_bytes_out += len(pkt)
+        self.stats.tiles_out += len(entries)
+        pkt = self._tile_packet(self.agent, entries, now_s)
+        self._last_tile_s = now_s + 8.0 * len(pkt) / self.cfg.rate_bps  # the probe counts from its end on the air
         return pkt
 
     def next_deadline_s(self) -> float | None:
@@ -684,7 +712,7 @@ class MapSync:
         if ref is not None:
             cands.append(ref + self.cfg.stall_s + 1e-6)
         if self._answer or self._holdings_out or self._returns or (
-                not self.want_holdings and self._next_tile(self._now) is not None):
+                not self.want_holdings and self._to_send()):
             cands.append(free)
         return max(min(cands), free)
 

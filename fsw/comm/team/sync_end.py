@@ -7,7 +7,8 @@ needs round it, sans-I/O like the end itself:
 * **Rounds.** :meth:`FlightSync.offer` takes the agent's own map once per round (the RECON-bot's
   after each imaging step, the Cliff-bot's after each look); :meth:`FlightSync.round_job` is the
   round as a slack job (each tile encoded is a step). A map offered while a round is under way
-  waits, and only the newest waits. A cell the agent's map no longer knows (its map was lost
+  waits, and only the newest waits; while a round runs its tiles wait for its end (they share
+  TILEs), the rest of the end's packets go. A cell the agent's map no longer knows (its map was lost
   in a restart) keeps the height its layer last had: the layer forgets nothing it sent.
 * **Order.** New tiles go out by their value to the receiver's task (:func:`corridor_priority`:
   nearest the Cliff-bot's corridor first, the polyline from where it stands through its
@@ -135,7 +136,9 @@ class FlightSync:
         self.air.consume(nbytes, now_s)
 
     def poll(self, now_s: float, max_bytes: int) -> list[bytes]:
-        return self.end.poll(now_s, max_bytes=max_bytes)
+        """The end's packets; while a round is under way its tiles wait for the round's end, so
+        the round's tiles share TILEs (one tile is published per slack step)."""
+        return self.end.poll(now_s, max_bytes=max_bytes, hold_tiles=self.busy)
 
     def peer_tiles_since(self) -> bool:
         """Whether tiles of the peer's layer arrived since the last call."""

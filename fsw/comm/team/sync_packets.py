@@ -1,17 +1,20 @@
 """Packets of the two-way map sync (docs/sync.md; the protocol: ``fsw.comm.team.map_sync``).
 
-They share the map link's framing (``fsw.comm.link_packets``: magic 0xA5, version 1, a type
-nibble, a 16-bit word, the body, a CRC-32 of everything before it) with type numbers that
+They share the map link's framing (``fsw.comm.link_packets``: magic 0xA5, a version nibble, a
+type nibble, a 16-bit word, the body, a CRC-32 of everything before it) with type numbers that
 neither the map link (1-9) nor the fix packets (12-14) use, so one radio carries all three and
-a receiver tells them apart by the type nibble. The 16-bit word names the sending agent (high
-byte) and the map frame (low byte); every body starts with the sender's transmission serial
-(u16), so a copy the protocol sent again differs from a copy the channel duplicated.
+a receiver tells them apart by the type nibble. Their version is :data:`SYNC_VERSION` (2: a
+TILE carries several tiles); a sync packet of another version is refused. The 16-bit word
+names the sending agent (high byte) and the map frame (low byte); every body starts with the
+sender's transmission serial (u16), so a copy the protocol sent again differs from a copy the
+channel duplicated.
 
-TILE (10): ``serial`` u16, ``owner`` u8 (whose map layer), ``tile`` u16, ``version`` u32,
-``profile`` u32 (the id of the owner's tile profile, ``fsw.core.codec.tileformat``: frame,
-grid and codec settings), then the tile's body in the compact tile format (it decodes alone
-with that profile). Its digest (:func:`blob_digest`: 4 bytes of BLAKE2b of the body) is
-computed, not sent.
+TILE (10): ``serial`` u16, ``owner`` u8 (whose map layer), ``profile`` u32 (the id of the
+owner's tile profile, ``fsw.core.codec.tileformat``: frame, grid and codec settings), then one
+or more tiles, each ``tile`` u16, ``version`` (varint), the body's length (varint) and the
+body in the compact tile format (it decodes alone with that profile). The tiles of one packet
+share its header and its serial (one acknowledgement covers them all). A tile's digest
+(:func:`blob_digest`: 4 bytes of BLAKE2b of the body) is computed, not sent.
 
 DIGEST (11): ``serial`` u16, ``boot`` u8 (the low byte of the sender's boot id),
 ``echo_serial`` u16 (the peer's last packet received), ``ack_bits`` u32 (bit ``i``: the peer's
@@ -42,19 +45,24 @@ import struct
 import zlib
 from dataclasses import dataclass
 
-from fsw.comm.link_packets import MAGIC, VERSION, PacketError
+from fsw.comm.link_packets import MAGIC, PacketError
 from fsw.core.codec.mapformat import MapCodecError
 from fsw.core.codec.tileformat import PROFILE_BYTES, TileProfile, get_varint, profile_from_bytes, put_varint
 
+SYNC_VERSION = 2  # 2: a TILE carries several tiles
 TILE, DIGEST, HOLDINGS = 10, 11, 15
 SYNC_TYPES = frozenset({TILE, DIGEST, HOLDINGS})
 FRAME_BYTES = 8  # header 4 + CRC 4
-_TILE = struct.Struct("<HBHII")
+_TILE = struct.Struct("<HBI")
 _DIGEST = struct.Struct("<HBHIB")
 HASH_BYTES = 6
 ACK_WINDOW = 32  # packets acknowledged by ack_bits before the echo
 _HOLD = struct.Struct("<HHBBI")
-TILE_OVERHEAD = FRAME_BYTES + _TILE.size
+TILE_BASE = FRAME_BYTES + _TILE.size  # a TILE's bytes besides its tiles
+# The minimal deltas count each published tile version as its body plus this: a packet of its
+# own with fixed-width fields (frame 8, serial 2, owner 1, tile 2, version u32, profile id u32;
+# docs/sync.md, "Figures"). A TILE of one tile is about as large; tiles sharing a TILE, less.
+MINIMAL_TILE_OVERHEAD = 21
 DIGEST_BASE = FRAME_BYTES + _DIGEST.size
 WANT_BYTES, ENTRY_BYTES = 2, 3 + 5 + 4  # a HOLDINGS entry at most: tile step and version varints, digest
 HOLDINGS_BASE = FRAME_BYTES + _HOLD.size
@@ -64,19 +72,31 @@ WANT_HOLDINGS, ANSWER_NOW, HAS_HASH, ECHO_VALID, FRESH, HAS_PROFILE, HAS_WANTS, 
 
 
 @dataclass(frozen=True)
-class Tile:
-    agent: int  # the sender
-    frame: int
-    serial: int
-    owner: int  # whose layer the tile belongs to
+class TileEntry:
+    """One tile of a TILE packet: its number, version and compact body."""
+
     tile: int
     version: int
-    profile: int  # the id of the owner's tile profile
     blob: bytes
 
     @property
     def digest(self) -> int:
         return blob_digest(self.blob)
+
+    @property
+    def size(self) -> int:
+        """Its bytes in a TILE packet."""
+        return 2 + len(put_varint(self.version)) + len(put_varint(len(self.blob))) + len(self.blob)
+
+
+@dataclass(frozen=True)
+class Tile:
+    agent: int  # the sender
+    frame: int
+    serial: int
+    owner: int  # whose layer the tiles belong to
+    profile: int  # the id of the owner's tile profile
+    tiles: tuple[TileEntry, ...]
 
 
 @dataclass(frozen=True)
@@ -121,14 +141,18 @@ def blob_digest(blob: bytes) -> int:
 
 
 def _frame(ptype: int, agent: int, frame: int, body: bytes) -> bytes:
-    msg = struct.pack("<BBBB", MAGIC, (VERSION << 4) | ptype, frame & 0xFF, agent & 0xFF) + body
+    msg = struct.pack("<BBBB", MAGIC, (SYNC_VERSION << 4) | ptype, frame & 0xFF, agent & 0xFF) + body
     return msg + struct.pack("<I", zlib.crc32(msg))
 
 
 def encode(p: SyncPacket) -> bytes:
     if isinstance(p, Tile):
-        return _frame(TILE, p.agent, p.frame, _TILE.pack(p.serial & 0xFFFF, p.owner, p.tile, p.version,
-                                                          p.profile) + p.blob)
+        if not p.tiles or any(not e.blob for e in p.tiles):
+            raise ValueError("a TILE carries one or more tiles, each with a body")
+        body = bytearray(_TILE.pack(p.serial & 0xFFFF, p.owner, p.profile))
+        for e in p.tiles:
+            body += struct.pack("<H", e.tile) + put_varint(e.version) + put_varint(len(e.blob)) + e.blob
+        return _frame(TILE, p.agent, p.frame, bytes(body))
     if isinstance(p, Digest):
         if p.held_hash is not None and len(p.held_hash) != HASH_BYTES:
             raise ValueError(f"a DIGEST's hash is {HASH_BYTES} bytes")
@@ -158,18 +182,15 @@ def decode(datagram: bytes) -> SyncPacket:
     d = bytes(datagram)
     if len(d) < FRAME_BYTES + 2:
         raise PacketError(f"sync packet of {len(d)} bytes is too short")
-    if d[0] != MAGIC or d[1] >> 4 != VERSION:
-        raise PacketError("not a version-1 link packet")
+    if d[0] != MAGIC or d[1] >> 4 != SYNC_VERSION:
+        raise PacketError(f"not a version-{SYNC_VERSION} sync packet")
     if struct.unpack("<I", d[-4:])[0] != zlib.crc32(d[:-4]):
         raise PacketError("sync packet CRC mismatch")
     ptype, frame, agent, body = d[1] & 0xF, d[2], d[3], d[4:-4]
     try:
         if ptype == TILE:
-            serial, owner, tile, version, profile = _TILE.unpack_from(body)
-            blob = body[_TILE.size:]
-            if not blob:
-                raise PacketError("TILE without a body")
-            return Tile(agent, frame, serial, owner, tile, version, profile, blob)
+            serial, owner, profile = _TILE.unpack_from(body)
+            return Tile(agent, frame, serial, owner, profile, _tile_entries(body, _TILE.size))
         if ptype == DIGEST:
             return _digest(agent, frame, body)
         if ptype == HOLDINGS:
@@ -180,6 +201,22 @@ def decode(datagram: bytes) -> SyncPacket:
     except struct.error:
         raise PacketError(f"sync packet type {ptype} with a {len(body)}-byte body is malformed") from None
     raise PacketError(f"type {ptype} is not a sync packet")
+
+
+def _tile_entries(body: bytes, off: int) -> tuple[TileEntry, ...]:
+    out: list[TileEntry] = []
+    try:
+        while off < len(body) or not out:
+            (tile,) = struct.unpack_from("<H", body, off)
+            version, off = get_varint(body, off + 2)
+            n, off = get_varint(body, off)
+            if n == 0 or off + n > len(body) or version > 0xFFFFFFFF:
+                raise PacketError("TILE entry is malformed")
+            out.append(TileEntry(tile, version, body[off:off + n]))
+            off += n
+    except MapCodecError:
+        raise PacketError("TILE entry is malformed") from None
+    return tuple(out)
 
 
 def _entries(body: bytes, off: int) -> tuple[tuple[int, int, int], ...]:

@@ -9,7 +9,8 @@ checkpoint), ``kill-cliff`` (the Cliff-bot killed after the outage, restarted fr
 checkpoint) and ``replica-lost`` (the Cliff-bot restarted with nothing: the one case where a
 full resend is expected). Per run: the replicas' hashes equal at the end, sync rounds from the
 link's return (or the restart, whichever is later) to equal hashes, sync bytes over the bytes
-of the minimal deltas, air bytes over them, full resends. Runs go in ``--jobs`` processes;
+of the minimal deltas, the DIGEST and HOLDINGS bytes of those over them, air bytes over them,
+full resends. Runs go in ``--jobs`` processes;
 the table goes to ``--out``/sync.md and docs/results/sync.md.
 """
 
@@ -69,8 +70,10 @@ def one(case: str, seed: int, args: dict[str, float]) -> Row:
     res = run_sync(scene, ch, seed, cfg=replace(SyncConfig(), rate_bps=args["rate_bps"]),
                    round_s=args["round_s"], kills=kills)
     minimal = max(1, res.minimal_bytes)
+    control = sum(s.digest_bytes_in + s.holdings_bytes_in for s in res.stats.values())
     return {"case": case, "seed": seed, "hash_equal": res.hash_equal, "extra_rounds": res.extra_rounds,
             "rounds_to_equal": res.rounds_to_equal_after(since), "bytes_ratio": round(res.sync_bytes / minimal, 4),
+            "control_ratio": round(control / minimal, 4),
             "air_ratio": round(res.air_bytes / minimal, 4), "sync_bytes": res.sync_bytes,
             "minimal_bytes": res.minimal_bytes, "full_resends": res.full_resends,
             "resent_tiles": sum(s.resent_tiles for s in res.stats.values()),
@@ -89,6 +92,7 @@ def summarise(rows: list[Row], cases: list[str]) -> list[Row]:
         rte = [r["rounds_to_equal"] for r in rs]
         conv = [float(x) for x in rte if isinstance(x, int)]
         ratio = np.array([float(r["bytes_ratio"] or 0) for r in rs])
+        control = np.array([float(r["control_ratio"] or 0) for r in rs])
         air = np.array([float(r["air_ratio"] or 0) for r in rs])
         within = sum(1 for x in rte if isinstance(x, int) and x <= 3)
         out.append({
@@ -96,6 +100,7 @@ def summarise(rows: list[Row], cases: list[str]) -> list[Row]:
             "equal within 3 rounds": within, "rounds median": float(np.median(conv)) if conv else None,
             "rounds worst": max(conv) if len(conv) == len(rs) else None,
             "bytes / minimal median": float(np.median(ratio)), "bytes / minimal worst": float(ratio.max()),
+            "control / minimal median": float(np.median(control)), "control / minimal worst": float(control.max()),
             "air / minimal median": float(np.median(air)),
             "full resends": sum(int(r["full_resends"] or 0) for r in rs),
             "bad packets dropped": sum(int(r["bad_packets"] or 0) for r in rs)})
@@ -134,8 +139,9 @@ def run(args: argparse.Namespace) -> int:
         "replicas' hashes are first equal, in sync rounds (at least 1); `bytes / minimal`: sync bytes that reached "
         "the other agent (both ways, digests and holdings included, channel duplicates not) over the bytes "
         "of the minimal deltas (every published tile version's TILE packet once, its compact tile body "
-        "included, and each fresh end's tile profile once); `air / minimal`: every byte "
-        "put on the air over the same.",
+        "included, and each fresh end's tile profile once; the sync puts a burst's tiles in one packet, so its "
+        "tile bytes are below that); `control / minimal`: of the sync bytes, the DIGESTs and HOLDINGS, over the "
+        "same; `air / minimal`: every byte put on the air over the same.",
         "",
         markdown_table(summary),
         "",

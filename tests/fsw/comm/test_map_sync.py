@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import zlib
+
 import numpy as np
 import pytest
 
@@ -20,8 +22,10 @@ def terrain(seed: int = 0) -> np.ndarray:
     return z.astype(np.float32)
 
 
-def end(agent: int = 0, **kw: object) -> MapSync:
-    return MapSync(SyncConfig(), agent, 1 - agent, SHAPE, CELL, WHEEL, **kw)  # type: ignore[arg-type]
+def end(agent: int = 0, mtu: int = 512, **kw: object) -> MapSync:
+    """One end; a small ``mtu`` puts the tiles (about 50 bytes each) in several TILEs."""
+    cfg = SyncConfig(mtu_bytes=mtu)
+    return MapSync(cfg, agent, 1 - agent, SHAPE, CELL, WHEEL, **kw)  # type: ignore[arg-type]
 
 
 def pump(a: MapSync, b: MapSync, t0: float, t1: float, drop: float = 0.0, seed: int = 0) -> float:
@@ -45,7 +49,8 @@ def pump(a: MapSync, b: MapSync, t0: float, t1: float, drop: float = 0.0, seed: 
 
 def test_packets_round_trip_and_every_corruption_is_a_packet_error() -> None:
     pkts: list[sp.SyncPacket] = [
-        sp.Tile(1, 0, 7, 1, 5, 42, 0xDEADBEEF, b"tile bytes"),
+        sp.Tile(1, 0, 7, 1, 0xDEADBEEF, (sp.TileEntry(5, 42, b"tile bytes"),)),
+        sp.Tile(1, 0, 8, 0, 0xDEADBEEF, (sp.TileEntry(5, 42, b"tile"), sp.TileEntry(9, 3 << 20, b"b" * 200))),
         sp.Digest(0, 2, 9, 3, 6, 0b101, sp.WANT_HOLDINGS | sp.ECHO_VALID | sp.HAS_WANTS | sp.HAS_HASH, b"\x01" * 6,
                   (7, 8)),
         sp.Digest(0, 2, 9, 3, 6, 0, sp.WANT_HOLDINGS | sp.HAS_PROFILE, None, (), end(0).profile),
@@ -63,6 +68,13 @@ def test_packets_round_trip_and_every_corruption_is_a_packet_error() -> None:
         for n in range(len(d)):
             with pytest.raises(PacketError):
                 sp.decode(d[:n])
+    old = bytearray(sp.encode(pkts[0]))
+    old[1] = 0x10 | sp.TILE  # the version-1 TILE (one tile, fixed-width fields) is another format
+    old[-4:] = zlib.crc32(bytes(old[:-4])).to_bytes(4, "little")
+    with pytest.raises(PacketError, match="version-2"):
+        sp.decode(bytes(old))
+    with pytest.raises(ValueError):
+        sp.encode(sp.Tile(1, 0, 7, 1, 0, ()))  # a TILE carries at least one tile
 
 
 def test_a_tile_decodes_alone_with_its_profile_and_waits_for_the_holdings_to_name_it() -> None:
@@ -81,18 +93,19 @@ def test_a_tile_decodes_alone_with_its_profile_and_waits_for_the_holdings_to_nam
     assert isinstance(p, sp.Tile) and p.profile == b.profile.pid
     a.receive(pkts[0], 2.1)  # its profile is not known yet: dropped, not acknowledged
     assert not a.held and a.stats.unknown_profile_tiles == 1
-    a.receive(first[0], 2.2)  # the DIGEST with the profile, then the same tile (sent again) decodes alone
-    a.receive(sp.encode(sp.Tile(1, 0, p.serial + 100, 1, p.tile, p.version, p.profile, p.blob)), 2.3)
+    a.receive(first[0], 2.2)  # the DIGEST with the profile, then one tile (sent again) decodes alone
+    e = p.tiles[0]
+    a.receive(sp.encode(sp.Tile(1, 0, p.serial + 100, 1, p.profile, (e,))), 2.3)
     assert a.peer_profile == b.profile
-    assert np.array_equal(a.held[p.tile].z, b.own[p.tile].z, equal_nan=True)
-    ys, xs = a.tile_slice(p.tile)
-    assert np.nanmax(np.abs(a.held[p.tile].z - terrain(1)[ys, xs])) <= WHEEL
+    assert np.array_equal(a.held[e.tile].z, b.own[e.tile].z, equal_nan=True)
+    ys, xs = a.tile_slice(e.tile)
+    assert np.nanmax(np.abs(a.held[e.tile].z - terrain(1)[ys, xs])) <= WHEEL
     assert a.stats.bad_packets == 0
 
 
 def test_a_profile_of_another_frame_or_grid_is_refused_and_its_tiles_never_merged() -> None:
     a = end(0)
-    other = MapSync(SyncConfig(), 1, 0, SHAPE, CELL, WHEEL, origin=(0.5, 0.0))  # the grid shifted 0.5 m
+    other = MapSync(SyncConfig(mtu_bytes=128), 1, 0, SHAPE, CELL, WHEEL, origin=(0.5, 0.0))  # the grid shifted 0.5 m
     other.publish(terrain(1), 0.0)
     ask = other.poll(0.0)[0]
     other.want_holdings = False
@@ -112,21 +125,34 @@ def test_a_digest_acknowledges_the_serials_it_received() -> None:
     d = sp.Digest(0, 0, 1, 0, 100, 0b1001, sp.ECHO_VALID, None)
     assert sp.decode(sp.encode(d)) == d and d.acked() == [100, 99, 96]
     assert sp.Digest(0, 0, 1, 0, 100, 0b1, 0, None).acked() == []  # no echo: nothing acknowledged
-    a, b = end(0), end(1)
+    a, b = end(0, mtu=128), end(1, mtu=128)
     a.publish(terrain(0), 0.0)
     b.receive(a.poll(0.0)[0], 0.1)  # a's DIGEST with its profile
     a.want_holdings = b.want_holdings = False  # both know what the other holds
-    tiles = [d for t in (1.0, 2.0, 3.0) for d in a.poll(t) if isinstance(sp.decode(d), sp.Tile)]
-    assert len(tiles) >= 3
-    for d in tiles[:-2] + tiles[-1:]:  # the one before last is lost
-        b.receive(d, 3.5)
+    tiles = [p for t in (1.0, 2.0, 3.0) for p in map(sp.decode, a.poll(t)) if isinstance(p, sp.Tile)]
+    assert len(tiles) >= 3 and all(len(p.tiles) == 2 for p in tiles[:-1])  # two tiles a packet
+    for p in tiles[:-2] + tiles[-1:]:  # the one before last is lost
+        b.receive(sp.encode(p), 3.5)
     ack = next(sp.decode(d) for t in (4.0, 5.0) for d in b.poll(t) if isinstance(sp.decode(d), sp.Digest))
     assert isinstance(ack, sp.Digest) and ack.held_hash is None  # an acknowledgement alone
     a.receive(sp.encode(ack), 5.1)
-    lost = sp.decode(tiles[-2])
-    assert isinstance(lost, sp.Tile)
-    assert set(a.belief) == {t for t in (sp.decode(d).tile for d in tiles) if t != lost.tile}  # type: ignore[union-attr]
-    assert lost.tile not in a.belief
+    lost = {e.tile for e in tiles[-2].tiles}
+    assert set(a.belief) == {e.tile for p in tiles for e in p.tiles} - lost  # one serial acknowledges a packet
+    assert lost.isdisjoint(a.belief) and lost <= a._lost  # the echo of a later packet proves them lost
+
+
+def test_a_tile_with_a_body_that_does_not_decode_drops_its_whole_packet() -> None:
+    a, b = end(0), end(1)
+    b.publish(terrain(1), 0.0)
+    a.receive(b.poll(0.0)[0], 0.5)  # b's DIGEST with its profile
+    b.want_holdings = False
+    p = next(p for p in map(sp.decode, b.poll(1.0)) if isinstance(p, sp.Tile))
+    assert len(p.tiles) == 9  # every tile of the map in one TILE
+    forged = sp.Tile(1, 0, p.serial, 1, p.profile, (*p.tiles[:-1], sp.TileEntry(p.tiles[-1].tile, 7, b"junk")))
+    a.receive(sp.encode(forged), 1.5)
+    assert not a.held and a.stats.bad_packets == 1 and p.serial not in a._rx_serials  # nothing taken in or acknowledged
+    a.receive(sp.encode(p), 1.6)
+    assert set(a.held) == {e.tile for e in p.tiles} and a._peer_serial == p.serial
 
 
 def test_a_settled_idle_pair_keeps_its_link_alive_at_a_slower_pace() -> None:
@@ -168,18 +194,19 @@ def test_tiles_go_out_in_the_receivers_priority_order() -> None:
     def prio(ty: int, tx: int) -> float:
         return -float(np.hypot(2 - ty, 2 - tx))
 
-    s = end(priority=prio)
-    s.publish(terrain(), 0.0)
-    s.want_holdings = False  # the peer's holdings are known (empty): tiles may go
-    order = []
-    t = 0.0
-    while len(order) < 9:
-        for d in s.poll(t):
-            p = sp.decode(d)
-            if isinstance(p, sp.Tile):
-                order.append(p.tile)
-        t = s.next_deadline_s() or t + 0.1
-    assert order == want
+    for mtu in (512, 128):  # in one TILE, or two tiles a TILE
+        s = end(priority=prio, mtu=mtu)
+        s.publish(terrain(), 0.0)
+        s.want_holdings = False  # the peer's holdings are known (empty): tiles may go
+        order = []
+        t = 0.0
+        while len(order) < 9:
+            for d in s.poll(t):
+                p = sp.decode(d)
+                if isinstance(p, sp.Tile):
+                    order += [e.tile for e in p.tiles]
+            t = s.next_deadline_s() or t + 0.1
+        assert order == want
 
 
 def test_bad_and_foreign_packets_are_counted_and_dropped() -> None:
@@ -187,8 +214,8 @@ def test_bad_and_foreign_packets_are_counted_and_dropped() -> None:
     b.publish(terrain(1), 0.0)
     pump(a, b, 0.0, 5.0)
     h = a.replica_hash()
-    good = sp.encode(sp.Tile(1, 0, 999, 1, 0, 10**6, b.profile.pid, b"not a tile body"))
-    junk = [b"", b"\xa5", bytes(300), good, sp.encode(sp.Tile(2, 0, 5, 2, 0, 1, b.profile.pid, b"x")),
+    good = sp.encode(sp.Tile(1, 0, 999, 1, b.profile.pid, (sp.TileEntry(0, 10**6, b"not a tile body"),)))
+    junk = [b"", b"\xa5", bytes(300), good, sp.encode(sp.Tile(2, 0, 5, 2, b.profile.pid, (sp.TileEntry(0, 1, b"x"),))),
             sp.encode(sp.Digest(1, 9, 1, 0, 0, 0, 0, bytes(6))),
             sp.encode(sp.Holdings(1, 0, 1, 1, 0, 7, a.profile.pid, ((0, 1, 2),)))]
     a.events.pop_all()
@@ -227,16 +254,16 @@ def test_forged_packets_with_valid_checksums_never_raise() -> None:
     assert a.peer_profile == b.profile
     b.want_holdings = False
     pkts = [d for d in b.poll(1.0) + b.poll(2.0)]
-    tiles = [sp.decode(d) for d in pkts if isinstance(sp.decode(d), sp.Tile)]
+    tiles = [e for p in map(sp.decode, pkts) if isinstance(p, sp.Tile) for e in p.tiles]
     assert tiles
     rng = np.random.default_rng(7)
     for i in range(300):
         t = tiles[i % len(tiles)]
-        assert isinstance(t, sp.Tile)
         blob = bytearray(t.blob)
         for _ in range(int(rng.integers(1, 4))):
             blob[int(rng.integers(0, len(blob)))] = int(rng.integers(0, 256))
-        forged = sp.Tile(1, 0, 1000 + i, 1, int(rng.integers(0, 12)), 5000 + i, t.profile, bytes(blob))
+        entry = sp.TileEntry(int(rng.integers(0, 12)), 5000 + i, bytes(blob))
+        forged = sp.Tile(1, 0, 1000 + i, 1, b.profile.pid, (entry,))
         a.receive(sp.encode(forged), 2.0)
         d = sp.encode(sp.Digest(1, 0, 2000 + i, 0, int(rng.integers(0, 1 << 16)), int(rng.integers(0, 1 << 32)),
                                 int(rng.integers(0, 32)), rng.bytes(6), (int(rng.integers(0, 99)),)))
