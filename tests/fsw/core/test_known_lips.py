@@ -1,0 +1,170 @@
+"""The lips the map already knows (fsw.core.map.known_lips) and the rims of a view
+(fsw.core.stereo.occlusion): a view that finds no lip of its own along a drop the map knows,
+merged with a horizontal pose error, places none of its plateau heights past it (issue 27)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from fsw.core.geometry import CameraPose, MapGrid, MapGridConfig
+from fsw.core.map.known_lips import KnownLips, drop_edges
+from fsw.core.pipeline import RegisteredPose, SensingPipeline
+from fsw.core.registration.registration import Registration
+from fsw.core.steps import run_to_end
+from fsw.core.stereo.occlusion import LipGuard, rim_pixels
+from fsw.core.stereo.stereo import StereoMatcher, StereoPoints
+from fsw.settings import FswConfig, load_settings
+
+CELL = 0.03
+CAMERA = CameraPose(np.eye(3), np.array([0.0, 1.0, 2.0]))  # axes along the world's: camera = world - t
+
+
+@pytest.fixture(scope="module")
+def cfg() -> FswConfig:
+    grid = MapGridConfig(origin_x_m=-1.5, origin_y_m=-1.5, cell_m=CELL, nx=100, ny=100)
+    return dataclasses.replace(load_settings(), map=grid)
+
+
+def _plateau(n: int, y0: float, y1: float, z: float, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.column_stack([rng.uniform(-1.0, 1.0, n), rng.uniform(y0, y1, n), z + rng.normal(0, 0.003, n)])
+
+
+def _view(xyz_w: np.ndarray, sigma_xy: float, near_w: np.ndarray | None = None,
+          far_w: np.ndarray | None = None) -> tuple[RegisteredPose, StereoPoints]:
+    """A view of world points (with its lips) whose pose is known to ``sigma_xy`` horizontally."""
+    n = xyz_w.shape[0]
+    cov_c = np.tile(np.diag([1e-6, 1e-6, 1e-6]), (n, 1, 1))
+    lips = {} if near_w is None or far_w is None else {
+        "lip_near_c": CAMERA.world_to_camera(near_w), "lip_far_c": CAMERA.world_to_camera(far_w)}
+    pts = StereoPoints(CAMERA.world_to_camera(xyz_w), cov_c, np.zeros((n, 2)), np.ones(n), np.ones((1, n), bool),
+                       **lips)
+    cov = np.zeros((6, 6))
+    cov[3, 3] = cov[4, 4] = sigma_xy**2
+    return RegisteredPose(Registration("off", "test"), CAMERA, cov, None), pts
+
+
+def _seed(pipe: SensingPipeline, xyz: np.ndarray) -> None:
+    """Merge points into the pipeline's map (1 cm sigma)."""
+    pipe.map.merge(xyz, var_z=np.full(xyz.shape[0], 1e-4))
+
+
+def _merged_points(pipe: SensingPipeline, placed: RegisteredPose, pts: StereoPoints) -> np.ndarray:
+    parts = run_to_end(pipe.world_parts_steps(placed, pts))
+    return np.concatenate([p[0] for p in parts])
+
+
+def _past_and_high(xyz: np.ndarray) -> int:
+    """Points over the hidden face (0.015 < -y < 0.27 m) at about the plateau's height."""
+    return int(np.count_nonzero((xyz[:, 1] < -0.015) & (xyz[:, 1] > -0.27) & (xyz[:, 2] > -0.1)))
+
+
+def test_a_view_without_lips_places_nothing_past_a_drop_the_map_knows(cfg: FswConfig) -> None:
+    """The map holds the plateau (y > 0) and the ground 1 m below from y = -1.2 m on, the face
+    between unknown; a view 15 cm off towards the drop, with no lip of its own, keeps its plateau
+    heights off the face and the rest of the plateau."""
+    pipe = SensingPipeline(cfg, None)
+    _seed(pipe, np.concatenate([_plateau(30000, 0.0, 1.2, 0.0, 1), _plateau(8000, -1.45, -1.2, -1.0, 2)]))
+    shifted = _plateau(12000, 0.0, 1.2, 0.0, 3) - [0.0, 0.15, 0.0]
+    placed, pts = _view(shifted, sigma_xy=0.1)
+    kept = _merged_points(pipe, placed, pts)
+    assert _past_and_high(shifted) > 1000  # what the view would put there
+    assert _past_and_high(kept) == 0
+    assert kept.shape[0] > 0.8 * shifted.shape[0]
+    # withheld only within 2 sigma past the lip (y = 0)
+    gone = shifted[~np.isin(np.round(shifted[:, 1], 9), np.round(kept[:, 1], 9))]  # through the camera and back
+    assert np.all(gone[:, 1] <= CELL / 2 + 1e-9) and np.all(gone[:, 1] >= -0.2 - CELL)
+
+
+def test_a_lip_an_earlier_view_found_guards_a_later_view(cfg: FswConfig) -> None:
+    """No lower ground in the map: the first view (accurate) finds the lip at y = 0 with the
+    ground 1 m below behind it; a later view, 15 cm off and finding no lip, is kept off the face."""
+    pipe = SensingPipeline(cfg, None)
+    lx = np.linspace(-1.0, 1.0, 200)
+    near = np.column_stack([lx, np.zeros(200), np.zeros(200)])
+    far = np.column_stack([lx, np.full(200, -1.3), np.full(200, -1.0)])
+    placed, pts = _view(_plateau(6000, 0.0, 1.2, 0.0, 1), 0.002, near, far)
+    first = _merged_points(pipe, placed, pts)
+    _seed(pipe, first)
+    assert pipe.lips.cells > 50
+    shifted = _plateau(12000, 0.0, 1.2, 0.0, 3) - [0.0, 0.15, 0.0]
+    placed, pts = _view(shifted, sigma_xy=0.1)
+    assert _past_and_high(_merged_points(pipe, placed, pts)) == 0
+    # the lips are kept with the map's state and gone with a new survey
+    again = KnownLips(pipe.map.grid)
+    again.restore(pipe.lips.state())
+    np.testing.assert_array_equal(again.var, pipe.lips.var)
+    np.testing.assert_array_equal(again.xyz, pipe.lips.xyz)
+    pipe.clear()
+    assert pipe.lips.cells == 0
+
+
+def test_ground_below_a_known_lip_and_the_plateau_before_it_are_kept(cfg: FswConfig) -> None:
+    """Past the lip, points more than the lip's min drop below it are ground below it, whatever
+    their horizontal error; points on the plateau side are plateau."""
+    pipe = SensingPipeline(cfg, None)
+    _seed(pipe, np.concatenate([_plateau(30000, 0.0, 1.2, 0.0, 1), _plateau(8000, -1.45, -1.2, -1.0, 2)]))
+    face = _plateau(3000, -0.25, -0.02, -0.6, 4)  # below the lip, 0.6 m down
+    plateau = _plateau(3000, 0.0, 1.2, 0.0, 5)
+    placed, pts = _view(np.concatenate([face, plateau]), sigma_xy=0.1)
+    assert _merged_points(pipe, placed, pts).shape[0] == 6000
+
+
+def test_drop_edges_need_lower_ground_not_just_the_map_frontier() -> None:
+    z = np.full((40, 40), np.nan)
+    z[20:, :] = 0.0  # the plateau, rows 20 up; nothing known below row 20
+    mapped = np.isfinite(z)
+    assert drop_edges(z, mapped, 0.3, 20)[0].size == 0  # a frontier is not a drop
+    z[:8, :] = -0.2  # lower, but by less than the min drop
+    assert drop_edges(z, np.isfinite(z), 0.3, 20)[0].size == 0
+    z[:8, :] = -1.0  # 1 m lower, 12 unknown rows away: the plateau's first row is a drop edge
+    iy, ix, way = drop_edges(z, np.isfinite(z), 0.3, 20)
+    assert set(iy.tolist()) == {20} and ix.size == 40
+    np.testing.assert_allclose(way[14:-14], np.tile([0.0, -1.0], (12, 1)), atol=1e-12)  # towards -y (mid-row)
+    assert np.all(way[:, 1] < -0.9)
+    assert drop_edges(z, np.isfinite(z), 0.3, 10)[0].size == 0  # beyond the search
+
+
+def test_a_broken_lips_state_restores_no_lips(cfg: FswConfig) -> None:
+    lips = KnownLips(SensingPipeline(cfg, None).map.grid)
+    for bad in ({}, {"cells": "??", "lips": ""}, {"cells": 3, "lips": None}):
+        lips.restore(bad)
+        assert lips.cells == 0
+
+
+def _ground_disparity(matcher: StereoMatcher, cfg: FswConfig, pose: CameraPose, end_m: float) -> np.ndarray:
+    """The disparity of level ground (z = 0) seen from ``pose``, unmatched beyond ``end_m``."""
+    cam = cfg.camera
+    f, cx, cy = cam.focal_px, cam.K[0, 2], cam.K[1, 2]
+    v, u = np.mgrid[0:cam.height_px, 0:cam.width_px].astype(float)
+    ray = np.stack([(u - cx) / f, (v - cy) / f, np.ones_like(u)], axis=-1) @ pose.R.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        depth = np.where(ray[..., 2] < 0, -pose.t[2] / ray[..., 2], np.nan)
+        disp = f * cam.baseline_m / depth
+    disp[~(depth <= end_m)] = np.nan
+    disp[: cfg.stereo.border_px] = np.nan
+    return np.asarray(disp)
+
+
+def test_a_rim_short_of_the_depth_limit_is_a_lip_and_one_at_it_is_not(cfg: FswConfig) -> None:
+    """Level ground seen from 1.6 m up: matched up to 3 m and nothing above (ground dropping away)
+    the rim is a drop; matched up to the camera's depth limit it is not."""
+    cam = dataclasses.replace(cfg.camera, calibration_file="")
+    matcher = StereoMatcher(cfg.stereo, cam, None)
+    pose = CameraPose.from_pan_tilt(0.0, 0.0, 1.6, math.pi / 2, math.radians(-20.0))
+    grid = MapGrid(x0=-5.0, y0=-1.0, cell=CELL, nx=340, ny=300)
+    short = _ground_disparity(matcher, cfg, pose, 3.0)
+    v, u = rim_pixels(short, cfg.stereo.lip_rows_px, cfg.stereo.border_px)
+    assert u.size > 0.9 * cam.width_px
+    pts = matcher.triangulate(short)
+    guard = LipGuard.of_view(grid, pose, pts.lip_near_c, pts.lip_far_c, cfg.fusion.lip_min_drop_m)
+    assert guard.lips > 0.5 * cam.width_px and np.all(guard.toward[:, 1] > 0.85)  # the drop side: away
+    full = _ground_disparity(matcher, cfg, pose, cam.max_range_m)
+    pts = matcher.triangulate(full)
+    assert LipGuard.of_view(grid, pose, pts.lip_near_c, pts.lip_far_c, cfg.fusion.lip_min_drop_m).lips == 0
+    top = _ground_disparity(matcher, cfg, pose, np.inf)  # ground up to the image's top border: no rim
+    assert rim_pixels(top, cfg.stereo.lip_rows_px, cfg.stereo.border_px)[0].size == 0
