@@ -297,7 +297,8 @@ class SensingPipeline:
         fus = self.cfg.fusion
         off_sigma = 0.0 if self.rectifier is None else self.rectifier.camera.offset_sigma_px
         lips = LipGuard.of_view(self.map.grid, placed.pose, pts.lip_near_c, pts.lip_far_c, fus.lip_min_drop_m)
-        known = self.lips.guard(self.map.z, self.map.mapped, fus.lip_min_drop_m, self.cfg.edge.search_m)
+        known = self.lips.guard(self.map.z, self.map.mapped, fus.lip_min_drop_m, self.cfg.edge.search_m,
+                                self.cfg.edge.max_slope_deg)
         pose_cov = placed.cov if np.any(placed.cov) else None  # an exact pose (a bench's true one): no pose part
         yield
         parts: list[ViewPart] = []

@@ -12,9 +12,10 @@ knows that lip already:
   lip). A cell keeps the best-placed lip that fell in it (:meth:`KnownLips.add`);
 - **the map's own drop edges** (:func:`drop_edges`): mapped cells where, looking outward in one
   of the eight grid directions, the first mapped cell within ``search_m`` (unknown cells
-  between: the face below a lip is hidden from the plateau) lies more than ``min_drop_m`` lower;
-  the way to the drop side is the mean of those directions. Their variance is the map's own,
-  none added.
+  between: the face below a lip is hidden from the plateau) lies more than ``min_drop_m`` lower
+  than a plateau as steep as the edge's ``max_slope_deg`` falls across the gap (on a slope an
+  occlusion gap is no drop); the way to the drop side is the mean of those directions. Their
+  variance is the map's own, none added.
 
 A point of a new view is **withheld** (:meth:`PastLips.clear`) when it lies within ``k``
 sigma of the nearest known lip (the point's horizontal 1-sigma from the view's common, pose,
@@ -28,6 +29,7 @@ a plateau cell and is kept.
 from __future__ import annotations
 
 import base64
+import math
 import zlib
 from collections.abc import Mapping
 from typing import TypedDict
@@ -61,10 +63,13 @@ def horizontal_variance(cov: F64) -> F64:
     return np.asarray(0.5 * (a + d) + np.sqrt(0.25 * (a - d) ** 2 + b * b))
 
 
-def drop_edges(z: F64, mapped: B, min_drop_m: float, search_cells: int) -> tuple[I64, I64, F64]:
+def drop_edges(z: F64, mapped: B, min_drop_m: float, search_cells: int, fall_per_cell: float = 0.0
+               ) -> tuple[I64, I64, F64]:
     """The map's own drop edges: rows, columns and the unit ``(x, y)`` way to the drop side of
     each mapped cell whose first mapped cell outward, in one of the eight grid directions within
-    ``search_cells`` cells (unknown cells between), lies more than ``min_drop_m`` lower. Only
+    ``search_cells`` cells (unknown cells between), lies more than ``min_drop_m`` lower than
+    ground falling ``fall_per_cell`` metres per cell (the steepest plateau) would across the gap
+    (a slope seen across an occlusion gap is not a drop). Only
     cells beside an unknown or a lower cell are searched (the others' first outward cell is a
     neighbour no lower)."""
     ny, nx = z.shape
@@ -90,7 +95,7 @@ def drop_edges(z: F64, mapped: B, min_drop_m: float, search_cells: int) -> tuple
             at[on] = zz[yy[on], xx[on]]
             seen = np.isfinite(at)
             with np.errstate(invalid="ignore"):
-                found |= open_ & seen & (at < zc - min_drop_m)
+                found |= open_ & seen & (at < zc - min_drop_m - fall_per_cell * k * norm)
             open_ &= on & ~seen
             if not open_.any():
                 break
@@ -169,13 +174,15 @@ class KnownLips:
         self.toward.reshape(-1, 2)[cells] = toward[pick]
         self.var.reshape(-1)[cells] = var[pick]
 
-    def guard(self, z: F64, mapped: B, min_drop_m: float, search_m: float) -> PastLips | None:
+    def guard(self, z: F64, mapped: B, min_drop_m: float, search_m: float, max_slope_deg: float
+              ) -> PastLips | None:
         """The guard of the next view: these lips and the map's own drop edges (:func:`drop_edges`
-        of heights ``z``; they take a cell from a view's lip, their variance none added). None:
-        no lip known."""
+        of heights ``z``, beyond a plateau as steep as ``max_slope_deg``; they take a cell from a
+        view's lip, their variance none added). None: no lip known."""
         g = self.grid
         xyz, toward, var = self.xyz.copy(), self.toward.copy(), self.var.copy()
-        iy, ix, way = drop_edges(z, mapped, min_drop_m, max(1, int(round(search_m / g.cell))))
+        iy, ix, way = drop_edges(z, mapped, min_drop_m, max(1, int(round(search_m / g.cell))),
+                                 g.cell * math.tan(math.radians(max_slope_deg)))
         if iy.size:  # the lip at the cell's outer side, toward the drop
             xyz[iy, ix, 0] = g.x0 + (ix + 0.5 + 0.5 * way[:, 0]) * g.cell
             xyz[iy, ix, 1] = g.y0 + (iy + 0.5 + 0.5 * way[:, 1]) * g.cell

@@ -127,6 +127,11 @@ def test_drop_edges_need_lower_ground_not_just_the_map_frontier() -> None:
     np.testing.assert_allclose(way[14:-14], np.tile([0.0, -1.0], (12, 1)), atol=1e-12)  # towards -y (mid-row)
     assert np.all(way[:, 1] < -0.9)
     assert drop_edges(z, np.isfinite(z), 0.3, 10)[0].size == 0  # beyond the search
+    fall = 0.03 * math.tan(math.radians(15.0))  # a 15 deg plateau on 3 cm cells
+    assert drop_edges(z, np.isfinite(z), 0.3, 20, fall)[0].size == 40  # 1 m lower: still a drop
+    z[:8, :] = -0.35  # lower by the min drop and a little: a slope across the 12-cell gap explains it
+    assert drop_edges(z, np.isfinite(z), 0.3, 20)[0].size == 40
+    assert drop_edges(z, np.isfinite(z), 0.3, 20, fall)[0].size == 0
 
 
 def test_a_broken_lips_state_restores_no_lips(cfg: FswConfig) -> None:
