@@ -292,13 +292,12 @@ class SensingPipeline:
         slices: the stereo part per point; the pose part and the calibration's disparity offset
         common to the whole view (it must not average down in a cell); the points too near one
         of the view's own occluding lips for that common error withheld, and those past a lip the
-        map knows (its drop edges, earlier views' lips: ``fsw.core.map.known_lips``). The view's
-        own lips join the known ones."""
+        map knows (the lips earlier views found: ``fsw.core.map.known_lips``). The view's own
+        lips join the known ones."""
         fus = self.cfg.fusion
         off_sigma = 0.0 if self.rectifier is None else self.rectifier.camera.offset_sigma_px
         lips = LipGuard.of_view(self.map.grid, placed.pose, pts.lip_near_c, pts.lip_far_c, fus.lip_min_drop_m)
-        known = self.lips.guard(self.map.z, self.map.mapped, fus.lip_min_drop_m, self.cfg.edge.search_m,
-                                self.cfg.edge.max_slope_deg)
+        known = self.lips.guard(fus.lip_min_drop_m)
         pose_cov = placed.cov if np.any(placed.cov) else None  # an exact pose (a bench's true one): no pose part
         yield
         parts: list[ViewPart] = []

@@ -1,21 +1,13 @@
 """The lips the map already knows, and the points of a new view that land past them
 (docs/algorithm.md §4, "Choice: the lip guard"; docs/perception.md "Occluding lips").
 
-A view guards its points against its own lips (``fsw.core.stereo.occlusion.LipGuard``), but
-along a stretch of edge where it sees no ground behind the drop it finds no lip there, and a
-view merged with a poor heading then lays the plateau's height over the hidden face. The map
-knows that lip already:
-
-- **the lips earlier views found** (their counted lips and rims, placed with their registered
-  pose), kept per cell: the lip's point, the horizontal way to its drop side and the lip's own
-  horizontal variance (the larger eigenvalue of the ``xy`` block of its view's pose part at the
-  lip). A cell keeps the best-placed lip that fell in it (:meth:`KnownLips.add`);
-- **the map's own drop edges** (:func:`drop_edges`): mapped cells where, looking outward in one
-  of the eight grid directions, the first mapped cell within ``search_m`` (unknown cells
-  between: the face below a lip is hidden from the plateau) lies more than ``min_drop_m`` lower
-  than a plateau as steep as the edge's ``max_slope_deg`` falls across the gap (on a slope an
-  occlusion gap is no drop); the way to the drop side is the mean of those directions. Their
-  variance is the map's own, none added.
+A view guards its points against its own lips and rims (``fsw.core.stereo.occlusion.LipGuard``),
+but along a stretch of edge where it sees no ground behind the drop it finds no lip there, and a
+view merged with a poor heading then lays the plateau's height over the hidden face. The views
+merged before it may have found that lip: the map keeps, per cell, the best-placed lip its views
+found (their counted lips and rims, placed with their registered pose): the lip's point, the
+horizontal way to its drop side and the lip's own horizontal variance (the larger eigenvalue of
+the ``xy`` block of its view's pose part at the lip; :meth:`KnownLips.add`).
 
 A point of a new view is **withheld** (:meth:`PastLips.clear`) when it lies within ``k``
 sigma of the nearest known lip (the point's horizontal 1-sigma from the view's common, pose,
@@ -29,7 +21,6 @@ a plateau cell and is kept.
 from __future__ import annotations
 
 import base64
-import math
 import zlib
 from collections.abc import Mapping
 from typing import TypedDict
@@ -42,7 +33,6 @@ from fsw.core.geometry import MapGrid
 
 F64 = NDArray[np.float64]
 B = NDArray[np.bool_]
-I64 = NDArray[np.intp]
 
 
 class KnownLipsState(TypedDict):
@@ -53,56 +43,11 @@ class KnownLipsState(TypedDict):
     lips: str
 
 
-_DIRS = ((0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1), (-1, 0), (-1, 1))  # (dy, dx)
-
-
 def horizontal_variance(cov: F64) -> F64:
     """The larger eigenvalue of the ``xy`` block of each covariance (N, 3, 3): the horizontal
     variance along the worst direction."""
     a, b, d = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
     return np.asarray(0.5 * (a + d) + np.sqrt(0.25 * (a - d) ** 2 + b * b))
-
-
-def drop_edges(z: F64, mapped: B, min_drop_m: float, search_cells: int, fall_per_cell: float = 0.0
-               ) -> tuple[I64, I64, F64]:
-    """The map's own drop edges: rows, columns and the unit ``(x, y)`` way to the drop side of
-    each mapped cell whose first mapped cell outward, in one of the eight grid directions within
-    ``search_cells`` cells (unknown cells between), lies more than ``min_drop_m`` lower than
-    ground falling ``fall_per_cell`` metres per cell (the steepest plateau) would across the gap
-    (a slope seen across an occlusion gap is not a drop). Only
-    cells beside an unknown or a lower cell are searched (the others' first outward cell is a
-    neighbour no lower)."""
-    ny, nx = z.shape
-    known = mapped & np.isfinite(z)
-    zz = np.where(known, z, np.nan)
-    padded = np.pad(zz, 1, constant_values=np.nan)
-    near_low = np.zeros(z.shape, bool)
-    for dy, dx in _DIRS:
-        nb = padded[1 + dy:1 + dy + ny, 1 + dx:1 + dx + nx]
-        with np.errstate(invalid="ignore"):
-            near_low |= np.isnan(nb) | (nb < zz - min_drop_m)
-    cy, cx = np.nonzero(known & near_low)
-    zc = zz[cy, cx]
-    way = np.zeros((cy.size, 2))
-    for dy, dx in _DIRS:
-        norm = float(np.hypot(dy, dx))
-        open_ = np.ones(cy.size, bool)
-        found = np.zeros(cy.size, bool)
-        for k in range(1, max(1, int(round(search_cells / norm))) + 1):
-            yy, xx = cy + k * dy, cx + k * dx
-            on = (yy >= 0) & (yy < ny) & (xx >= 0) & (xx < nx)
-            at = np.full(cy.size, np.nan)
-            at[on] = zz[yy[on], xx[on]]
-            seen = np.isfinite(at)
-            with np.errstate(invalid="ignore"):
-                found |= open_ & seen & (at < zc - min_drop_m - fall_per_cell * k * norm)
-            open_ &= on & ~seen
-            if not open_.any():
-                break
-        way[found] += (dx / norm, dy / norm)
-    norm = np.linalg.norm(way, axis=1)
-    edge = norm > 1e-9
-    return cy[edge], cx[edge], way[edge] / norm[edge, None]
 
 
 class PastLips:
@@ -174,24 +119,12 @@ class KnownLips:
         self.toward.reshape(-1, 2)[cells] = toward[pick]
         self.var.reshape(-1)[cells] = var[pick]
 
-    def guard(self, z: F64, mapped: B, min_drop_m: float, search_m: float, max_slope_deg: float
-              ) -> PastLips | None:
-        """The guard of the next view: these lips and the map's own drop edges (:func:`drop_edges`
-        of heights ``z``, beyond a plateau as steep as ``max_slope_deg``; they take a cell from a
-        view's lip, their variance none added). None: no lip known."""
-        g = self.grid
-        xyz, toward, var = self.xyz.copy(), self.toward.copy(), self.var.copy()
-        iy, ix, way = drop_edges(z, mapped, min_drop_m, max(1, int(round(search_m / g.cell))),
-                                 g.cell * math.tan(math.radians(max_slope_deg)))
-        if iy.size:  # the lip at the cell's outer side, toward the drop
-            xyz[iy, ix, 0] = g.x0 + (ix + 0.5 + 0.5 * way[:, 0]) * g.cell
-            xyz[iy, ix, 1] = g.y0 + (iy + 0.5 + 0.5 * way[:, 1]) * g.cell
-            xyz[iy, ix, 2] = z[iy, ix]
-            toward[iy, ix] = way
-            var[iy, ix] = 0.0
-        if not np.isfinite(var).any():
+    def guard(self, min_drop_m: float) -> PastLips | None:
+        """The guard of the next view: points past these lips and no more than ``min_drop_m``
+        below them (None: no lip known)."""
+        if not np.isfinite(self.var).any():
             return None
-        return PastLips(g, xyz, toward, var, min_drop_m)
+        return PastLips(self.grid, self.xyz, self.toward, self.var, min_drop_m)
 
     def state(self) -> KnownLipsState:
         """The lips for a checkpoint: per lip cell its flat index, point, way and variance."""

@@ -32,8 +32,8 @@ So, per view:
    the ``xy`` block of its world covariance, stereo plus pose). A view with an accurate pose
    loses the points within a few cm of its lips; a view with a large pose uncertainty gives no
    heights near a drop it cannot place (docs/perception.md, "Occluding lips"). The lips the map
-   already knows (earlier views' and the map's own drop edges, ``fsw.core.map.known_lips``)
-   guard the view's points past them as well.
+   already knows (those earlier views found, ``fsw.core.map.known_lips``) guard the view's
+   points past them as well.
 """
 
 from __future__ import annotations

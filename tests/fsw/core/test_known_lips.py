@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from fsw.core.geometry import CameraPose, MapGrid, MapGridConfig
-from fsw.core.map.known_lips import KnownLips, drop_edges
+from fsw.core.map.known_lips import KnownLips
 from fsw.core.pipeline import RegisteredPose, SensingPipeline
 from fsw.core.registration.registration import Registration
 from fsw.core.steps import run_to_end
@@ -63,12 +63,22 @@ def _past_and_high(xyz: np.ndarray) -> int:
     return int(np.count_nonzero((xyz[:, 1] < -0.015) & (xyz[:, 1] > -0.27) & (xyz[:, 2] > -0.1)))
 
 
-def test_a_view_without_lips_places_nothing_past_a_drop_the_map_knows(cfg: FswConfig) -> None:
-    """The map holds the plateau (y > 0) and the ground 1 m below from y = -1.2 m on, the face
-    between unknown; a view 15 cm off towards the drop, with no lip of its own, keeps its plateau
-    heights off the face and the rest of the plateau."""
+def _knows_the_lip(pipe: SensingPipeline) -> None:
+    """A first, accurate view of the plateau (y > 0) finds the lip at y = 0 with the ground 1 m
+    below behind it; its points go into the map."""
+    lx = np.linspace(-1.0, 1.0, 200)
+    near = np.column_stack([lx, np.zeros(200), np.zeros(200)])
+    far = np.column_stack([lx, np.full(200, -1.3), np.full(200, -1.0)])
+    placed, pts = _view(_plateau(30000, 0.0, 1.2, 0.0, 1), 0.002, near, far)
+    _seed(pipe, _merged_points(pipe, placed, pts))
+
+
+def test_a_view_without_lips_places_nothing_past_a_lip_an_earlier_view_found(cfg: FswConfig) -> None:
+    """A later view 15 cm off towards the drop, finding no lip of its own, keeps its plateau
+    heights off the hidden face, and the rest of the plateau."""
     pipe = SensingPipeline(cfg, None)
-    _seed(pipe, np.concatenate([_plateau(30000, 0.0, 1.2, 0.0, 1), _plateau(8000, -1.45, -1.2, -1.0, 2)]))
+    _knows_the_lip(pipe)
+    assert pipe.lips.cells > 50
     shifted = _plateau(12000, 0.0, 1.2, 0.0, 3) - [0.0, 0.15, 0.0]
     placed, pts = _view(shifted, sigma_xy=0.1)
     kept = _merged_points(pipe, placed, pts)
@@ -77,23 +87,7 @@ def test_a_view_without_lips_places_nothing_past_a_drop_the_map_knows(cfg: FswCo
     assert kept.shape[0] > 0.8 * shifted.shape[0]
     # withheld only within 2 sigma past the lip (y = 0)
     gone = shifted[~np.isin(np.round(shifted[:, 1], 9), np.round(kept[:, 1], 9))]  # through the camera and back
-    assert np.all(gone[:, 1] <= CELL / 2 + 1e-9) and np.all(gone[:, 1] >= -0.2 - CELL)
-
-
-def test_a_lip_an_earlier_view_found_guards_a_later_view(cfg: FswConfig) -> None:
-    """No lower ground in the map: the first view (accurate) finds the lip at y = 0 with the
-    ground 1 m below behind it; a later view, 15 cm off and finding no lip, is kept off the face."""
-    pipe = SensingPipeline(cfg, None)
-    lx = np.linspace(-1.0, 1.0, 200)
-    near = np.column_stack([lx, np.zeros(200), np.zeros(200)])
-    far = np.column_stack([lx, np.full(200, -1.3), np.full(200, -1.0)])
-    placed, pts = _view(_plateau(6000, 0.0, 1.2, 0.0, 1), 0.002, near, far)
-    first = _merged_points(pipe, placed, pts)
-    _seed(pipe, first)
-    assert pipe.lips.cells > 50
-    shifted = _plateau(12000, 0.0, 1.2, 0.0, 3) - [0.0, 0.15, 0.0]
-    placed, pts = _view(shifted, sigma_xy=0.1)
-    assert _past_and_high(_merged_points(pipe, placed, pts)) == 0
+    assert np.all(gone[:, 1] <= 1e-9) and np.all(gone[:, 1] >= -0.2 - 1e-9)
     # the lips are kept with the map's state and gone with a new survey
     again = KnownLips(pipe.map.grid)
     again.restore(pipe.lips.state())
@@ -107,31 +101,22 @@ def test_ground_below_a_known_lip_and_the_plateau_before_it_are_kept(cfg: FswCon
     """Past the lip, points more than the lip's min drop below it are ground below it, whatever
     their horizontal error; points on the plateau side are plateau."""
     pipe = SensingPipeline(cfg, None)
-    _seed(pipe, np.concatenate([_plateau(30000, 0.0, 1.2, 0.0, 1), _plateau(8000, -1.45, -1.2, -1.0, 2)]))
+    _knows_the_lip(pipe)
     face = _plateau(3000, -0.25, -0.02, -0.6, 4)  # below the lip, 0.6 m down
     plateau = _plateau(3000, 0.0, 1.2, 0.0, 5)
     placed, pts = _view(np.concatenate([face, plateau]), sigma_xy=0.1)
     assert _merged_points(pipe, placed, pts).shape[0] == 6000
 
 
-def test_drop_edges_need_lower_ground_not_just_the_map_frontier() -> None:
-    z = np.full((40, 40), np.nan)
-    z[20:, :] = 0.0  # the plateau, rows 20 up; nothing known below row 20
-    mapped = np.isfinite(z)
-    assert drop_edges(z, mapped, 0.3, 20)[0].size == 0  # a frontier is not a drop
-    z[:8, :] = -0.2  # lower, but by less than the min drop
-    assert drop_edges(z, np.isfinite(z), 0.3, 20)[0].size == 0
-    z[:8, :] = -1.0  # 1 m lower, 12 unknown rows away: the plateau's first row is a drop edge
-    iy, ix, way = drop_edges(z, np.isfinite(z), 0.3, 20)
-    assert set(iy.tolist()) == {20} and ix.size == 40
-    np.testing.assert_allclose(way[14:-14], np.tile([0.0, -1.0], (12, 1)), atol=1e-12)  # towards -y (mid-row)
-    assert np.all(way[:, 1] < -0.9)
-    assert drop_edges(z, np.isfinite(z), 0.3, 10)[0].size == 0  # beyond the search
-    fall = 0.03 * math.tan(math.radians(15.0))  # a 15 deg plateau on 3 cm cells
-    assert drop_edges(z, np.isfinite(z), 0.3, 20, fall)[0].size == 40  # 1 m lower: still a drop
-    z[:8, :] = -0.35  # lower by the min drop and a little: a slope across the 12-cell gap explains it
-    assert drop_edges(z, np.isfinite(z), 0.3, 20)[0].size == 40
-    assert drop_edges(z, np.isfinite(z), 0.3, 20, fall)[0].size == 0
+def test_a_badly_placed_lip_guards_as_far_as_its_own_sigma_reaches(cfg: FswConfig) -> None:
+    """A lip's own horizontal variance adds to the view's: an accurate view is guarded past a
+    lip placed with a 10 cm sigma, and within 2 sigma of both only."""
+    pipe = SensingPipeline(cfg, None)
+    pipe.lips.add(np.array([[0.0, 0.0, 0.0]]), np.array([[0.0, -1.0]]), np.array([0.1**2]))
+    pts_w = np.array([[0.0, -0.15, 0.0], [0.0, -0.25, 0.0], [0.0, -0.15, -0.5], [0.0, 0.15, 0.0]])
+    placed, pts = _view(pts_w, sigma_xy=0.001)
+    kept = _merged_points(pipe, placed, pts)
+    np.testing.assert_allclose(np.sort(kept[:, 1]), [-0.25, -0.15, 0.15], atol=1e-9)
 
 
 def test_a_broken_lips_state_restores_no_lips(cfg: FswConfig) -> None:
