@@ -248,6 +248,7 @@ class SensingPipeline:
             lev = self.bias.level(self.map)
             if lev is not None:  # the view's own pose moves with the map it is in
                 self.chain.relevel(lev.omega, lev.centre)
+                self.lips.relevel(lev.omega, lev.centre)
                 moved = apply_about(placed.pose, lev.omega, lev.centre)
                 merged = replace(merged, placed=replace(placed, pose=moved), levelling=lev)
             yield

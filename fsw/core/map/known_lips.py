@@ -119,6 +119,12 @@ class KnownLips:
         self.toward.reshape(-1, 2)[cells] = toward[pick]
         self.var.reshape(-1)[cells] = var[pick]
 
+    def relevel(self, omega: F64, centre: F64) -> None:
+        """The map's heights turned by the small world rotation ``omega`` (x, y, rad) about
+        ``centre`` (levelled, ``fsw.core.registration.mount_bias``): the lips' heights turn alike."""
+        x, y = self.xyz[..., 0], self.xyz[..., 1]
+        self.xyz[..., 2] += omega[0] * (y - centre[1]) - omega[1] * (x - centre[0])
+
     def guard(self, min_drop_m: float) -> PastLips | None:
         """The guard of the next view: points past these lips and no more than ``min_drop_m``
         below them (None: no lip known)."""

@@ -97,6 +97,14 @@ def test_a_view_without_lips_places_nothing_past_a_lip_an_earlier_view_found(cfg
     assert pipe.lips.cells == 0
 
 
+def test_the_lips_heights_turn_with_the_levelled_map(cfg: FswConfig) -> None:
+    lips = KnownLips(SensingPipeline(cfg, None).map.grid)
+    lips.add(np.array([[1.0, 0.5, 0.2], [-1.0, -0.5, 0.2]]), np.array([[0.0, -1.0], [0.0, -1.0]]), np.zeros(2))
+    lips.relevel(np.array([0.01, -0.02]), np.array([0.0, 0.0, 1.0]))
+    z = lips.xyz[..., 2][np.isfinite(lips.var)]
+    np.testing.assert_allclose(np.sort(z), np.sort([0.2 + 0.01 * 0.5 + 0.02 * 1.0, 0.2 - 0.01 * 0.5 - 0.02 * 1.0]))
+
+
 def test_ground_below_a_known_lip_and_the_plateau_before_it_are_kept(cfg: FswConfig) -> None:
     """Past the lip, points more than the lip's min drop below it are ground below it, whatever
     their horizontal error; points on the plateau side are plateau."""
