@@ -231,6 +231,7 @@ class SensingPipeline:
         placed = yield from self.register_steps(view, pts)
         stage("merge")
         parts = yield from self.world_parts_steps(placed, pts)
+        self.remember_lips(placed, pts)  # the view's lips guard the views after it
         del pts  # the camera-frame points: every use is above
         # Which cells this view was expected to see (P_V on the map before the merge, §3.1):
         # those that get no point count a miss and lose interest (§3.4, §4). Only those need
@@ -293,8 +294,7 @@ class SensingPipeline:
         slices: the stereo part per point; the pose part and the calibration's disparity offset
         common to the whole view (it must not average down in a cell); the points too near one
         of the view's own occluding lips for that common error withheld, and those past a lip the
-        map knows (the lips earlier views found: ``fsw.core.map.known_lips``). The view's own
-        lips join the known ones."""
+        map knows (the lips earlier views found: ``fsw.core.map.known_lips``)."""
         fus = self.cfg.fusion
         off_sigma = 0.0 if self.rectifier is None else self.rectifier.camera.offset_sigma_px
         lips = LipGuard.of_view(self.map.grid, placed.pose, pts.lip_near_c, pts.lip_far_c, fus.lip_min_drop_m)
@@ -314,17 +314,18 @@ class SensingPipeline:
                 xyz, cov_s, cov_p = xyz[off], cov_s[off], None if cov_p is None else cov_p[off]
             parts.append(lips.part(xyz, cov_s, cov_p, fus.lip_guard_sigma, known))
             yield
-        self.lips.add(lips.near, lips.toward, self._lip_variance(placed, pose_cov, lips.near))
         return parts
 
-    @staticmethod
-    def _lip_variance(placed: RegisteredPose, pose_cov: F64 | None, near: F64) -> F64:
-        """The horizontal variance of the view's lip points from its pose (§1.2): how well the
-        map knows where they are."""
-        n = near.shape[0]
-        _, _, cov_p = point_covariance_parts(placed.pose, pose_cov, placed.pose.world_to_camera(near),
+    def remember_lips(self, placed: RegisteredPose, pts: StereoPoints) -> None:
+        """The view's counted lips join the lips the map knows (``fsw.core.map.known_lips``), each
+        with its horizontal variance from the view's pose (§1.2): how well the map knows where it is."""
+        lips = LipGuard.of_view(self.map.grid, placed.pose, pts.lip_near_c, pts.lip_far_c,
+                                self.cfg.fusion.lip_min_drop_m)
+        n = lips.near.shape[0]
+        pose_cov = placed.cov if np.any(placed.cov) else None
+        _, _, cov_p = point_covariance_parts(placed.pose, pose_cov, placed.pose.world_to_camera(lips.near),
                                              np.zeros((n, 3, 3)))
-        return np.zeros(n) if cov_p is None else horizontal_variance(cov_p)
+        self.lips.add(lips.near, lips.toward, np.zeros(n) if cov_p is None else horizontal_variance(cov_p))
 
     def fuse_steps(self, placed: RegisteredPose, parts: list[ViewPart],
                    p_visible: NDArray[np.float32] | NDArray[np.float64] | NDArray[np.bool_] | None = None

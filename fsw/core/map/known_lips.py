@@ -1,11 +1,11 @@
 """The lips the map already knows, and the points of a new view that land past them
 (docs/algorithm.md §4, "Choice: the lip guard"; docs/perception.md "Occluding lips").
 
-A view guards its points against its own lips and rims (``fsw.core.stereo.occlusion.LipGuard``),
+A view guards its points against its own lips (``fsw.core.stereo.occlusion.LipGuard``),
 but along a stretch of edge where it sees no ground behind the drop it finds no lip there, and a
 view merged with a poor heading then lays the plateau's height over the hidden face. The views
 merged before it may have found that lip: the map keeps, per cell, the best-placed lip its views
-found (their counted lips and rims, placed with their registered pose): the lip's point, the
+found (their counted lips, placed with their registered pose): the lip's point, the
 horizontal way to its drop side and the lip's own horizontal variance (the larger eigenvalue of
 the ``xy`` block of its view's pose part at the lip; :meth:`KnownLips.add`).
 

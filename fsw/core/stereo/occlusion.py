@@ -17,14 +17,6 @@ So, per view:
    depth jump). A textureless patch spans many rows and a continuous surface changes little
    over a few rows, so neither is a lip. The lip's near point and the far point behind it
    are triangulated (``StereoMatcher.triangulate``).
-   A **rim** (:func:`rim_pixels`) is a lip too: the topmost valid pixel of its column, with
-   ``rows`` matchable but unmatched rows above it (nothing behind the drop matched at all: too
-   far, too dark, below the image's reach). Its far point is the next ray up at the camera's
-   depth limit (``max_range_m``): ground there continuing the near point's level, nearer than
-   that limit, would have been matched, so what lies behind the rim along that ray is at least
-   as low. Where the ground does continue to the depth limit (an ordinary view's far rim) the
-   bound is no drop and the rim is no lip; what it costs is a textureless patch that reaches
-   the top of the image, whose rim counts as a drop it may not be.
 2. **Drops** (:class:`LipGuard`, world frame, after the pose): a lip counts when its near
    point lies more than ``min_drop_m`` above the far one.
 3. **Guard**: a point of the view is not merged when its horizontal distance to the nearest
@@ -63,17 +55,6 @@ def lip_pixels(disp: F64, jump_px: float, rows: int) -> tuple[I64, I64, I64]:
         v, u = np.nonzero(ok & (d - far > jump_px))  # inf - inf is NaN: no valid pixel above
     cand = np.stack([np.where(v >= k, d[np.maximum(v - k, 0), u], np.inf) for k in reach]) if v.size else None
     return v, u, v - 1 - (np.argmin(cand, axis=0) if cand is not None else v)  # the nearest such row
-
-
-def rim_pixels(disp: F64, rows: int, border: int) -> tuple[I64, I64]:
-    """Rims of a disparity image (NaN = no match): rows and columns of each column's topmost
-    valid pixel that has at least ``rows`` unmatched rows above it below the image's unmatchable
-    top ``border`` (a column matched up to that border is not a rim: the image ends there)."""
-    ok = np.isfinite(disp)
-    any_ = ok.any(axis=0)
-    top = np.argmax(ok, axis=0)
-    u = np.flatnonzero(any_ & (top >= border + rows))
-    return top[u].astype(np.intp), u.astype(np.intp)
 
 
 class LipGuard:

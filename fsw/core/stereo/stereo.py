@@ -48,7 +48,7 @@ from numpy.typing import NDArray
 from fsw.core.geometry import CameraConfig
 from fsw.core.steps import run_to_end
 from fsw.core.stereo import stereo_quality as quality
-from fsw.core.stereo.occlusion import lip_pixels, rim_pixels
+from fsw.core.stereo.occlusion import lip_pixels
 from fsw.core.stereo.rectify import RectifiedCamera
 from fsw.core.stereo.rig_drift import RigAlignment
 from fsw.core.stereo.rig_drift import correct_for as correct_drift_steps
@@ -167,8 +167,7 @@ class StereoPoints:
     uv: F64  # (N, 2) left-image pixel (u = column, v = row)
     disparity_px: F64  # (N,)
     valid: NDArray[np.bool_]  # (H, W) which pixels produced a point
-    # occluding lips and rims (fsw.core.stereo.occlusion): the lip's point and the farther point above it
-    # (a rim's: the next ray up at the depth limit), (M, 3)
+    # occluding lips (fsw.core.stereo.occlusion): the lip's point and the farther point above it, (M, 3)
     lip_near_c: F64 = field(default_factory=lambda: np.zeros((0, 3)))
     lip_far_c: F64 = field(default_factory=lambda: np.zeros((0, 3)))
 
@@ -372,18 +371,13 @@ class StereoMatcher:
             uv_all[i:j, 0], uv_all[i:j, 1] = u, v
             yield None
         lv, lu, lfar = lip_pixels(disp, self.cfg.lip_jump_px, self.cfg.lip_rows_px)
-        rv, ru = rim_pixels(disp, self.cfg.lip_rows_px, self.cfg.border_px)
-        zr = f * B / disp[rv, ru]
-        rim = zr < cam.max_range_m  # a rim beyond the depth limit places no point it could guard
-        rv, ru, zr = rv[rim], ru[rim], zr[rim]
-        zfar = np.full(rv.shape, cam.max_range_m)  # the next ray up at the depth limit: the highest the ground
-        lips = []                                 # behind a rim can lie (fsw.core.stereo.occlusion)
-        for rows, cols, zl in ((lv, lu, f * B / disp[lv, lu]), (lfar, lu, f * B / disp[lfar, lu]),
-                               (rv, ru, zr), (rv - 1, ru, zfar)):
-            p = np.column_stack([(cols - cx) * zl / f, (rows - cy) * zl / f, zl])
+        lips = []
+        for rows in (lv, lfar):  # the lip's near point and the far ground behind it
+            dl = disp[rows, lu]
+            zl = f * B / dl
+            p = np.column_stack([(lu - cx) * zl / f, (rows - cy) * zl / f, zl])
             lips.append(p if rect is None else p @ rect.R_rect)
-        near, far = np.concatenate([lips[0], lips[2]]), np.concatenate([lips[1], lips[3]])
-        return StereoPoints(xyz_all, cov_all, uv_all, d_all, valid, near, far)
+        return StereoPoints(xyz_all, cov_all, uv_all, d_all, valid, lips[0], lips[1])
 
     def _check_pair(self, left: U8, right: U8) -> None:
         shape = (self.camera.height_px, self.camera.width_px)

@@ -1,22 +1,20 @@
-"""The lips the map already knows (fsw.core.map.known_lips) and the rims of a view
-(fsw.core.stereo.occlusion): a view that finds no lip of its own along a drop the map knows,
-merged with a horizontal pose error, places none of its plateau heights past it (issue 27)."""
+"""The lips the map already knows (fsw.core.map.known_lips): a view that finds no lip of its own
+along a drop the map knows, merged with a horizontal pose error, places none of its plateau
+heights past it (issue 27)."""
 
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 import pytest
 
-from fsw.core.geometry import CameraPose, MapGrid, MapGridConfig
+from fsw.core.geometry import CameraPose, MapGridConfig
 from fsw.core.map.known_lips import KnownLips
 from fsw.core.pipeline import RegisteredPose, SensingPipeline
 from fsw.core.registration.registration import Registration
 from fsw.core.steps import run_to_end
-from fsw.core.stereo.occlusion import LipGuard, rim_pixels
-from fsw.core.stereo.stereo import StereoMatcher, StereoPoints
+from fsw.core.stereo.stereo import StereoPoints
 from fsw.settings import FswConfig, load_settings
 
 CELL = 0.03
@@ -71,6 +69,7 @@ def _knows_the_lip(pipe: SensingPipeline) -> None:
     far = np.column_stack([lx, np.full(200, -1.3), np.full(200, -1.0)])
     placed, pts = _view(_plateau(30000, 0.0, 1.2, 0.0, 1), 0.002, near, far)
     _seed(pipe, _merged_points(pipe, placed, pts))
+    pipe.remember_lips(placed, pts)
 
 
 def test_a_view_without_lips_places_nothing_past_a_lip_an_earlier_view_found(cfg: FswConfig) -> None:
@@ -132,37 +131,3 @@ def test_a_broken_lips_state_restores_no_lips(cfg: FswConfig) -> None:
     for bad in ({}, {"cells": "??", "lips": ""}, {"cells": 3, "lips": None}):
         lips.restore(bad)
         assert lips.cells == 0
-
-
-def _ground_disparity(matcher: StereoMatcher, cfg: FswConfig, pose: CameraPose, end_m: float) -> np.ndarray:
-    """The disparity of level ground (z = 0) seen from ``pose``, unmatched beyond ``end_m``."""
-    cam = cfg.camera
-    f, cx, cy = cam.focal_px, cam.K[0, 2], cam.K[1, 2]
-    v, u = np.mgrid[0:cam.height_px, 0:cam.width_px].astype(float)
-    ray = np.stack([(u - cx) / f, (v - cy) / f, np.ones_like(u)], axis=-1) @ pose.R.T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        depth = np.where(ray[..., 2] < 0, -pose.t[2] / ray[..., 2], np.nan)
-        disp = f * cam.baseline_m / depth
-    disp[~(depth <= end_m)] = np.nan
-    disp[: cfg.stereo.border_px] = np.nan
-    return np.asarray(disp)
-
-
-def test_a_rim_short_of_the_depth_limit_is_a_lip_and_one_at_it_is_not(cfg: FswConfig) -> None:
-    """Level ground seen from 1.6 m up: matched up to 3 m and nothing above (ground dropping away)
-    the rim is a drop; matched up to the camera's depth limit it is not."""
-    cam = dataclasses.replace(cfg.camera, calibration_file="")
-    matcher = StereoMatcher(cfg.stereo, cam, None)
-    pose = CameraPose.from_pan_tilt(0.0, 0.0, 1.6, math.pi / 2, math.radians(-20.0))
-    grid = MapGrid(x0=-5.0, y0=-1.0, cell=CELL, nx=340, ny=300)
-    short = _ground_disparity(matcher, cfg, pose, 3.0)
-    v, u = rim_pixels(short, cfg.stereo.lip_rows_px, cfg.stereo.border_px)
-    assert u.size > 0.9 * cam.width_px
-    pts = matcher.triangulate(short)
-    guard = LipGuard.of_view(grid, pose, pts.lip_near_c, pts.lip_far_c, cfg.fusion.lip_min_drop_m)
-    assert guard.lips > 0.5 * cam.width_px and np.all(guard.toward[:, 1] > 0.85)  # the drop side: away
-    full = _ground_disparity(matcher, cfg, pose, cam.max_range_m)
-    pts = matcher.triangulate(full)
-    assert LipGuard.of_view(grid, pose, pts.lip_near_c, pts.lip_far_c, cfg.fusion.lip_min_drop_m).lips == 0
-    top = _ground_disparity(matcher, cfg, pose, np.inf)  # ground up to the image's top border: no rim
-    assert rim_pixels(top, cfg.stereo.lip_rows_px, cfg.stereo.border_px)[0].size == 0
