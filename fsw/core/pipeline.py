@@ -37,6 +37,7 @@ from fsw.core.localization.nav_fix import NavFix
 from fsw.core.map.body_mask import MaskConfig, TeamGeometry, team_mask
 from fsw.core.map.elevation_map import ElevationMap, FusionConfig, MergeStats
 from fsw.core.map.face_map import FaceMap, split_parts
+from fsw.core.map.known_lips import KnownLips, horizontal_variance
 from fsw.core.map.reference_frames import ReferenceFrames
 from fsw.core.planning.nbv import NbvConfig, predicted_visibility_steps
 from fsw.core.registration.mount_bias import Levelling, MountBias, data_only
@@ -162,6 +163,7 @@ class SensingPipeline:
         self.map = ElevationMap(MapGrid.from_config(cfg.map), cfg.fusion) if emap is None else emap
         self.chain = StationChain()  # the registered stations (fsw.core.registration.station_chain)
         self.sources = ReferenceFrames(self.map.grid.shape)  # each cell's view (fsw.core.map.reference_frames)
+        self.lips = KnownLips(self.map.grid)  # the lips the views found (fsw.core.map.known_lips)
         r = cfg.registration  # the mast tilt offset and attitude biases (fsw.core.registration.mount_bias)
         self.bias = MountBias(r.bias_tilt_sigma_deg, r.bias_attitude_sigma_deg, r.bias_floor_deg, r.bias_gate_chi2,
                               r.bias_apply_ratio, r.bias_min_step_deg, r.bias_level_chi2, r.bias_drop_variance)
@@ -180,6 +182,7 @@ class SensingPipeline:
         self.map = ElevationMap(self.map.grid, self.cfg.fusion)
         self.chain.clear()
         self.sources.clear()
+        self.lips.clear()
         self.bias.clear()
 
     def view(self, view: StereoView) -> SensedView:
@@ -228,6 +231,7 @@ class SensingPipeline:
         placed = yield from self.register_steps(view, pts)
         stage("merge")
         parts = yield from self.world_parts_steps(placed, pts)
+        self.remember_lips(placed, pts)  # the view's lips guard the views after it
         del pts  # the camera-frame points: every use is above
         # Which cells this view was expected to see (P_V on the map before the merge, §3.1):
         # those that get no point count a miss and lose interest (§3.4, §4). Only those need
@@ -245,6 +249,7 @@ class SensingPipeline:
             lev = self.bias.level(self.map)
             if lev is not None:  # the view's own pose moves with the map it is in
                 self.chain.relevel(lev.omega, lev.centre)
+                self.lips.relevel(lev.omega, lev.centre)
                 moved = apply_about(placed.pose, lev.omega, lev.centre)
                 merged = replace(merged, placed=replace(placed, pose=moved), levelling=lev)
             yield
@@ -288,11 +293,14 @@ class SensingPipeline:
         """The view's points in the world with their covariance (§1.2), in ``PROPAGATE_CHUNK``
         slices: the stereo part per point; the pose part and the calibration's disparity offset
         common to the whole view (it must not average down in a cell); the points too near one
-        of the view's own occluding lips for that common error withheld."""
+        of the view's own occluding lips for that common error withheld, and those past a lip the
+        map knows (the lips earlier views found: ``fsw.core.map.known_lips``)."""
         fus = self.cfg.fusion
         off_sigma = 0.0 if self.rectifier is None else self.rectifier.camera.offset_sigma_px
         lips = LipGuard.of_view(self.map.grid, placed.pose, pts.lip_near_c, pts.lip_far_c, fus.lip_min_drop_m)
+        known = self.lips.guard(fus.lip_min_drop_m)
         pose_cov = placed.cov if np.any(placed.cov) else None  # an exact pose (a bench's true one): no pose part
+        yield
         parts: list[ViewPart] = []
         for a in range(0, len(pts), PROPAGATE_CHUNK):
             b = a + PROPAGATE_CHUNK
@@ -304,9 +312,20 @@ class SensingPipeline:
                 cov_m = cov_s if cov_p is None or self.team_with_camera else cov_s + cov_p
                 off = ~team_mask(xyz, cov_m, self.team, self.team_mask_cfg, eye=placed.pose.t)
                 xyz, cov_s, cov_p = xyz[off], cov_s[off], None if cov_p is None else cov_p[off]
-            parts.append(lips.part(xyz, cov_s, cov_p, fus.lip_guard_sigma))
+            parts.append(lips.part(xyz, cov_s, cov_p, fus.lip_guard_sigma, known))
             yield
         return parts
+
+    def remember_lips(self, placed: RegisteredPose, pts: StereoPoints) -> None:
+        """The view's counted lips join the lips the map knows (``fsw.core.map.known_lips``), each
+        with its horizontal variance from the view's pose (§1.2): how well the map knows where it is."""
+        lips = LipGuard.of_view(self.map.grid, placed.pose, pts.lip_near_c, pts.lip_far_c,
+                                self.cfg.fusion.lip_min_drop_m)
+        n = lips.near.shape[0]
+        pose_cov = placed.cov if np.any(placed.cov) else None
+        _, _, cov_p = point_covariance_parts(placed.pose, pose_cov, placed.pose.world_to_camera(lips.near),
+                                             np.zeros((n, 3, 3)))
+        self.lips.add(lips.near, lips.toward, np.zeros(n) if cov_p is None else horizontal_variance(cov_p))
 
     def fuse_steps(self, placed: RegisteredPose, parts: list[ViewPart],
                    p_visible: NDArray[np.float32] | NDArray[np.float64] | NDArray[np.bool_] | None = None

@@ -321,10 +321,11 @@ class PerceptionTask(FlightTask):
 
     def checkpoint_state(self) -> JsonDict:
         """What a resumed mission needs besides the map (``fsw.tasks.mission_state``): the view
-        count and the registration state (the station chain, the per-view reports)."""
+        count, the registration state (the station chain, the per-view reports) and the lips the
+        views found (``fsw.core.map.known_lips``)."""
         return {"views": self.views, "unregistered": self.unregistered, "partial": self.partial,
                 **self.pipeline.chain.state(), "sources": self.pipeline.sources.state(),
-                "mount_bias": self.pipeline.bias.state(),
+                "mount_bias": self.pipeline.bias.state(), "lips": self.pipeline.lips.state(),
                 "registrations": list(self.registrations)}
 
     def restore_state(self, state: JsonDict) -> None:
@@ -334,6 +335,7 @@ class PerceptionTask(FlightTask):
         self.pipeline.chain.restore(state)
         self.pipeline.sources.restore(state.get("sources", {}))
         self.pipeline.bias.restore(state.get("mount_bias", {}))
+        self.pipeline.lips.restore(state.get("lips", {}))
         self.registrations.extend(state.get("registrations", []))
         self.tlm("views", self.views)
 

@@ -16,14 +16,16 @@ So, per view:
    ground, with at most a few unmatched rows between: the width of the matching windows at a
    depth jump). A textureless patch spans many rows and a continuous surface changes little
    over a few rows, so neither is a lip. The lip's near point and the far point behind it
-   are triangulated (:func:`lip_points`).
+   are triangulated (``StereoMatcher.triangulate``).
 2. **Drops** (:class:`LipGuard`, world frame, after the pose): a lip counts when its near
    point lies more than ``min_drop_m`` above the far one.
 3. **Guard**: a point of the view is not merged when its horizontal distance to the nearest
    lip of the same view is below ``k`` times its horizontal 1-sigma (the larger eigenvalue of
    the ``xy`` block of its world covariance, stereo plus pose). A view with an accurate pose
    loses the points within a few cm of its lips; a view with a large pose uncertainty gives no
-   heights near a drop it cannot place (docs/perception.md, "Occluding lips").
+   heights near a drop it cannot place (docs/perception.md, "Occluding lips"). The lips the map
+   already knows (those earlier views found, ``fsw.core.map.known_lips``) guard the view's
+   points past them as well.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from fsw.core.geometry import CameraPose, MapGrid
+from fsw.core.map.known_lips import PastLips, horizontal_variance
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.intp]
@@ -60,11 +63,17 @@ class LipGuard:
     def __init__(self, grid: MapGrid, near_w: F64, far_w: F64, min_drop_m: float) -> None:
         self.grid = grid
         drop = near_w[:, 2] - far_w[:, 2]
-        near = near_w[np.isfinite(drop) & (drop > min_drop_m)]
+        counted = np.isfinite(drop) & (drop > min_drop_m)
+        near, far = near_w[counted], far_w[counted]
         ix = np.floor((near[:, 0] - grid.x0) / grid.cell).astype(np.intp)
         iy = np.floor((near[:, 1] - grid.y0) / grid.cell).astype(np.intp)
         inside = (ix >= 0) & (ix < grid.nx) & (iy >= 0) & (iy < grid.ny)
         self.lips = int(np.count_nonzero(inside))
+        # the counted lips in the grid: their near point and the horizontal way to the far side
+        # (the drop side), what the map keeps of them (fsw.core.map.known_lips)
+        self.near = near[inside]
+        way = far[inside, :2] - self.near[:, :2]
+        self.toward = way / np.maximum(np.linalg.norm(way, axis=1, keepdims=True), 1e-12)
         self._nearest: tuple[F64, F64] | None = None
         if self.lips:
             ix, iy, near = ix[inside], iy[inside], near[inside]
@@ -81,13 +90,16 @@ class LipGuard:
         ``lip_far_c``) and its camera pose (after registration)."""
         return cls(grid, pose.camera_to_world(near_c), pose.camera_to_world(far_c), min_drop_m)
 
-    def part(self, xyz_w: F64, cov_stereo: F64, cov_common: F64 | None, k_sigma: float
-             ) -> tuple[F64, F64, F64 | None]:
+    def part(self, xyz_w: F64, cov_stereo: F64, cov_common: F64 | None, k_sigma: float,
+             known: PastLips | None = None) -> tuple[F64, F64, F64 | None]:
         """One part of the view for the merge, ``(xyz, cov, cov_common)``, without the points
-        too near a lip given the view's common covariance (None: an exact pose, nothing held)."""
+        too near one of its lips given the view's common covariance (None: an exact pose,
+        nothing held), nor those past a lip the map ``known`` already (``fsw.core.map.known_lips``)."""
         if cov_common is None:
             return xyz_w, cov_stereo, None
         keep = self.clear(xyz_w, cov_common, k_sigma)
+        if known is not None:
+            keep &= known.clear(xyz_w, cov_common, k_sigma)
         return xyz_w[keep], (cov_stereo + cov_common)[keep], cov_common[keep]
 
     def clear(self, xyz_w: F64, cov_w: F64, k_sigma: float) -> NDArray[np.bool_]:
@@ -105,8 +117,5 @@ class LipGuard:
         ii, jj = iy[inside].astype(np.intp), ix[inside].astype(np.intp)
         dx = xyz_w[inside, 0] - self._nearest[0][ii, jj]
         dy = xyz_w[inside, 1] - self._nearest[1][ii, jj]
-        c = cov_w[inside]
-        a, b, d = c[:, 0, 0], c[:, 0, 1], c[:, 1, 1]
-        lam = 0.5 * (a + d) + np.sqrt(0.25 * (a - d) ** 2 + b * b)  # larger eigenvalue of P_xy
-        out[inside] = dx * dx + dy * dy > k_sigma * k_sigma * lam
+        out[inside] = dx * dx + dy * dy > k_sigma * k_sigma * horizontal_variance(cov_w[inside])
         return out

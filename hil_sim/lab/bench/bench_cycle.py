@@ -161,6 +161,7 @@ def _cycle(cfg: Any, world: Any, n: int, repeats: int, seed: int) -> dict[str, A
         pipeline = SensingPipeline(cfg, cal, start.map.copy())  # the same state each time
         pipeline.chain.restore(start.chain.state())
         pipeline.sources.restore(start.sources.state())
+        pipeline.lips.restore(start.lips.state())
         clock = StageClock()
         steps = pipeline.view_steps(timed, clock)
         while True:
