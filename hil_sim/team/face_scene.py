@@ -20,7 +20,8 @@ from scipy import ndimage
 from fsw.core.geometry import CameraPose, MapGrid, camera_pose_from_rover, point_mast
 from fsw.core.map.body_mask import BodyBox, TeamGeometry, TetherLine, anchorbot_box
 from fsw.core.map.elevation_map import ElevationMap
-from fsw.core.map.face_map import FaceMap, FaceMapConfig, face_band, fit_face_plane, run_merge, split_parts
+from fsw.core.map.face_map import FaceMap, FaceMapConfig, face_band, run_merge, split_parts
+from fsw.core.map.face_plane import fit_face_plane
 from fsw.core.pipeline import RegisteredPose, SensingPipeline, ViewPart
 from fsw.core.registration.registration import Registration
 from fsw.core.steps import run_to_end
@@ -219,7 +220,7 @@ class FaceScene:
 
     def _try_fit(self) -> None:
         try:
-            frame = fit_face_plane(self.gravity, None, FaceMapConfig().min_slope_deg)
+            frame = fit_face_plane(self.gravity, FaceMapConfig().min_slope_deg)
             u, v = face_band(self.gravity, frame)
         except ValueError:
             return
