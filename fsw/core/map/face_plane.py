@@ -131,9 +131,11 @@ def fit_face_plane(gravity: ElevationMap, min_slope_deg: float = 45.0, min_cells
     taken again, three times. Origin: their centroid. The strike (``e_u``) is the plane's
     horizontal line.
 
-    Raises ``ValueError`` (the caller fits again when the map holds more) with fewer than
-    ``min_cells`` steep cells or cells on the plane, a plane that ends less steep than
-    ``plane_slope_deg``, or cells on it spanning less than ``min_span_m`` along the strike or
+    The refined plane may be less steep than ``plane_slope_deg``: a face broken by ledges falls
+    less steeply, lip to foot, than between its ledges, and the face map's plane is that of the
+    whole face. Raises ``ValueError`` (the caller fits again when the map holds more) with fewer
+    than ``min_cells`` steep cells or cells on the plane, a plane that ends less steep than the
+    steep cells themselves (``min_slope_deg``), or cells on it spanning less than ``min_span_m`` along the strike or
     the dip (between their 5th and 95th percentiles): the sides of a few rocks that line up, or
     one strip of the face, whose strike or slope the cells do not hold."""
     cells, down = steep_points(gravity, min_slope_deg)
@@ -153,8 +155,8 @@ def fit_face_plane(gravity: ElevationMap, min_slope_deg: float = 45.0, min_cells
     if int(inl.sum()) < min_cells:
         raise ValueError(f"only {int(inl.sum())} steep cells on one plane: no face to fit")
     slope = float(np.degrees(np.arccos(np.clip(normal[2], -1.0, 1.0))))
-    if slope < plane_slope_deg:
-        raise ValueError(f"the steep cells' plane slopes {slope:.0f} deg, under {plane_slope_deg:.0f}: "
+    if slope < min_slope_deg:
+        raise ValueError(f"the steep cells' plane slopes {slope:.0f} deg, under {min_slope_deg:.0f}: "
                          "no face to fit")
     frame = FaceFrame.from_normal(centre, normal)
     q = frame.to_face(cells[inl])
