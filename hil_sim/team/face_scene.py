@@ -28,7 +28,14 @@ from fsw.core.steps import run_to_end
 from fsw.core.stereo.stereo import StereoPoints
 from fsw.core.team.tether import TetherConfig, anchor_points, surface_normal, tether_state
 from fsw.tasks.perception import SITE_MASK
-from hil_sim.team.face_eval import equal_memory_cell, face_figures, frame_off_deg, relief_rise, truth_along_normal
+from hil_sim.team.face_eval import (
+    equal_memory_cell,
+    face_figures,
+    frame_off_deg,
+    frame_off_true_deg,
+    relief_rise,
+    truth_along_normal,
+)
 from hil_sim.team.team_sensing import (
     ANCHOR_HALF_M,
     CLIFFBOT_CAMERA,
@@ -300,7 +307,7 @@ class FaceScene:
         row: dict[str, Any] = {"seed": self.seed, "slope_deg": round(float(t.face_slope_deg), 1), "views": self.views,
                                "fit_views": self.fit_views}
         if self.face is None:  # no face fitted: only the team mask's figures
-            nones = ("frame_off_deg", "face_cells", "face_rmse_m", "face_rmse_gravity_m", "ratio",
+            nones = ("frame_off_deg", "frame_off_true_deg", "face_cells", "face_rmse_m", "face_rmse_gravity_m", "ratio",
                      "face_rmse_gravity_normal_m",
                      "ratio_normal", "rmse_recon_m", "rmse_cliff_m",
                      "rmse_fused_m", "in2s_recon", "in2s_cliff", "in2s_fused")
@@ -315,6 +322,8 @@ class FaceScene:
                     "team_points_fused": self.team_points_fused, "team_cells_mapped": len(self.team_cells)}
         off = frame_off_deg(self.world, self.face)
         row["frame_off_deg"] = None if off is None else round(off, 1)
+        off = frame_off_true_deg(self.world, self.face)
+        row["frame_off_true_deg"] = None if off is None else round(off, 1)
         f = face_figures(self.world, self.face, self.gravity, self.cells_by_agent, self.true_rays)
         row.update({k: f[k] for k in ("face_cells", "face_rmse_m", "face_rmse_gravity_m", "face_rmse_gravity_normal_m",
                                        "overhang_truth", "overhang_flagged", "overhang_false",

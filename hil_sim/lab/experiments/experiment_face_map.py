@@ -25,10 +25,12 @@ given), then into:
 
 Figures per scene: ``fit_views``, the views fused when the face plane was first accepted
 (``fit_face_plane`` refuses a plane its steep cells do not yet hold; none: no face map in the
-scene), and ``frame_off_deg``, its normal's angle from the scenario's nominal face
-(``hil_sim.team.face_eval.frame_off_deg``; the ledges and the edge's wiggle turn the true face by
-some degrees); ``face_rmse_m`` and ``face_rmse_gravity_m`` (``hil_sim.team.face_eval``: each
-map queried at the same true face points in its own coordinates, the distance from the point it
+scene); ``frame_off_deg``, its normal's angle from the scenario's nominal face
+(``hil_sim.team.face_eval.frame_off_deg``) and ``frame_off_true_deg``, from the plane of the
+true face lip to foot (``true_face_normal``: ledges make a face fall less steeply than the
+scenario's slope between them); ``face_rmse_m`` and ``face_rmse_gravity_m``
+(``hil_sim.team.face_eval``: each map queried at the same true face points in its own
+coordinates, the distance from the point it
 returns to the true one), their ratio, the gravity grid's distance from the true surface along
 the face normal (``face_rmse_gravity_normal_m``) and that ratio, the truth overhang cells
 flagged (and, of them, those a view could show: a true sight line passes under the outer surface,
@@ -65,8 +67,8 @@ from pathlib import Path
 from typing import Any
 
 HELP = "the face-aligned map vs the gravity grid at equal memory, both agents' views, the team mask"
-COLUMNS = ("seed", "slope_deg", "views", "fit_views", "frame_off_deg", "face_cells", "face_rmse_m",
-           "face_rmse_gravity_m", "ratio",
+COLUMNS = ("seed", "slope_deg", "views", "fit_views", "frame_off_deg", "frame_off_true_deg", "face_cells",
+           "face_rmse_m", "face_rmse_gravity_m", "ratio",
            "face_rmse_gravity_normal_m", "ratio_normal",
            "overhang_truth", "overhang_flagged", "overhang_false", "overhang_false_part", "overhang_seen",
            "overhang_seen_flagged",
@@ -208,6 +210,8 @@ def report(rows: list[dict[str, Any]], table: Any) -> str:
     if fitted:
         add("fitted face normal from the scenario's face (deg)", float(np.median(col("frame_off_deg"))),
             float(col("frame_off_deg").max()), "")
+        add("fitted face normal from the true face's plane (deg)", float(np.median(col("frame_off_true_deg"))),
+            float(col("frame_off_true_deg").max()), "")
     if ratio.size:
         add("face_rmse_m / face_rmse_gravity_m", float(np.median(ratio)), float(ratio.max()), "<= 0.5")
         add("face_rmse_m", float(np.median(col("face_rmse_m"))), float(col("face_rmse_m").max()), "")
