@@ -23,15 +23,15 @@ def _cliff(face_x: tuple[float, float] = (-2.0, 2.0), ramps: bool = False) -> El
     falls toward -x and outnumbers the face's cells."""
     rng = np.random.default_rng(1)
     grid = MapGrid(-2.0, -4.0, 0.04, 100, 125)
-    X, Y = grid.centers()
+    x, y = grid.centers()
     run = 3.0 / math.tan(math.radians(SLOPE))
-    z = np.where(Y > 0, 0.0, np.where(-run < Y, Y * math.tan(math.radians(SLOPE)), -3.0))
+    z = np.where(y > 0, 0.0, np.where(-run < y, y * math.tan(math.radians(SLOPE)), -3.0))
     if ramps:
-        z = np.where(Y < -run - 0.2, z + math.tan(math.radians(50.0)) * np.mod(X, 0.3), z)
+        z = np.where(y < -run - 0.2, z + math.tan(math.radians(50.0)) * np.mod(x, 0.3), z)
     for _ in range(12):  # boxes on the floor: steep sides facing every way
         cx, cy = rng.uniform(-1.8, 1.8), rng.uniform(-3.8, -run - 0.3)
-        z = np.where((np.abs(X - cx) < 0.12) & (np.abs(Y - cy) < 0.12), z + 0.3, z)
-    known = ~((Y <= 0) & (Y >= -run) & ((X < face_x[0]) | (X > face_x[1])))
+        z = np.where((np.abs(x - cx) < 0.12) & (np.abs(y - cy) < 0.12), z + 0.3, z)
+    known = ~((y <= 0) & (y >= -run) & ((x < face_x[0]) | (x > face_x[1])))
     m = ElevationMap(grid)
     m.z = np.where(known, z + rng.normal(0, 0.01, z.shape), np.nan)
     m.n[:] = known
