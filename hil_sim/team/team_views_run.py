@@ -52,10 +52,10 @@ from fsw.core.map.face_map import (
     FaceMap,
     FaceMapConfig,
     face_band,
-    fit_face_plane,
     run_merge,
     split_parts,
 )
+from fsw.core.map.face_plane import fit_face_plane
 from fsw.core.planning.face_rating import FaceCells, face_cells
 from fsw.core.planning.info_planners import InformationPlanner
 from fsw.core.planning.nbv import NbvConfig, info_n_max, predicted_visibility
@@ -353,7 +353,7 @@ class TeamViewsRun:
         if self.face_map is None:
             self._pending += parts
             try:
-                frame = fit_face_plane(self.map, None, FaceMapConfig().min_slope_deg)
+                frame = fit_face_plane(self.map, FaceMapConfig().min_slope_deg)
                 u, v = face_band(self.map, frame)
             except ValueError:
                 return
