@@ -102,6 +102,7 @@ def test_the_corridor_ratio_is_bounded_where_the_recon_bot_alone_never_gets_ther
     assert cells("within 12 cycles: RECON-bot alone")[2] == "1"
     assert cells("within 40 cycles: RECON-bot alone")[2] == "2"
     assert float(cells("cycles to 95 % of the corridor: RECON-bot alone")[3]) == 25
+    assert "12 cycles, or on to 95 % or 40 cycles" in cells("when the RECON-bot alone stopped")[1]
 
 
 def test_a_run_goes_on_past_its_cycles_until_the_corridor_is_mapped_or_the_cap() -> None:

@@ -46,8 +46,8 @@ from typing import Any
 HELP = "team views (both agents) against the RECON-bot alone: cells per cycle, overlap, corridor, fusion"
 COLUMNS = ("seed", "cycles", "team_cells_per_cycle", "recon_cells_per_cycle", "cells_ratio", "overlap_mean",
            "overlap_median", "overlap_max", "overlap_open_max", "overlap_of_smaller_max", "corridor_cycles_team",
-           "corridor_cycles_recon", "corridor_ratio", "corridor_team", "corridor_recon", "face_team", "face_recon",
-           "both_cells",
+           "corridor_cycles_recon", "corridor_ratio", "corridor_recon_at_stop", "corridor_team", "corridor_recon",
+           "face_team", "face_recon", "both_cells",
            "rmse_recon_m", "rmse_cliffbot_m", "rmse_fused_m", "blind_views", "reachable", "cliffbot_candidates",
            "cliffbot_expected_new", "cliffbot_obtained_new", "cliffbot_new_share", "cliffbot_travel_m",
            "recon_team_new_per_cycle", "empty_views_recon_team", "empty_views_cliffbot", "empty_views_recon_alone",
@@ -170,7 +170,8 @@ def scene(spec: str, seed: int, cycles: int, cell_m: float, cap: int) -> tuple[d
     # the figures above are the first `cycles` cycles'; now each run goes on to 95 % of the corridor
     ct, cr = team.cycles_to_corridor(GOAL, cap), alone.cycles_to_corridor(GOAL, cap)
     row.update(corridor_cycles_team=ct, corridor_cycles_recon=cr,
-               corridor_ratio=ct / cr if ct is not None and cr is not None else None)
+               corridor_ratio=ct / cr if ct is not None and cr is not None else None,
+               corridor_recon_at_stop=alone.records[-1].corridor_frac)
     return row, curve
 
 
@@ -284,6 +285,9 @@ def report(rows: list[dict[str, Any]], table: Any, cycles: int, cap: int) -> str
         add(f"scenes with the corridor mapped to 95 % within {cap} cycles: {who}", len(got), f"of {len(rows)}", "")
         add(f"cycles to 95 % of the corridor: {who} (scenes reaching it within {cap})",
             float(np.median(got)) if got else None, max(got) if got else None, "")
+    at_stop = col("corridor_recon_at_stop")
+    add(f"corridor mapped when the RECON-bot alone stopped ({cycles} cycles, or on to 95 % or {cap} cycles)",
+        float(np.median(at_stop)), float(at_stop.min()), "")
     cratio = col("corridor_ratio")
     add(f"cycles to 95 % of the corridor, team / alone (scenes where both reach it within {cap})",
         float(np.median(cratio)) if cratio.size else None, float(cratio.max()) if cratio.size else None, "<= 0.6")
