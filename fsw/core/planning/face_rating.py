@@ -156,22 +156,18 @@ def face_cells(face: FaceLike, gravity: MapLike, cfg: VisibilityConfig, prior_m:
 
 def gravity_with_floor(fc: FaceCells, gravity: MapLike, cfg: VisibilityConfig) -> Terrain:
     """The gravity grid's terrain as a view near the face is rated on (docs/algorithm.md §8.2,
-    "The ground beyond the lip"): §3.1's prior from the mapped cells, then the cells in front of
-    the face (``fc.below``) at the floor prior ``fc.floor_z`` with the prior's sigma, and every
-    other unknown cell past a lip at most at the face's dip continued from its nearest known cell
-    (:func:`drop_prior`, within the prior's correlation length of nothing known down the dip).
-    The floor is a prior, not ground: §3.1's prior of the other unknown cells is their known
-    neighbours' height, never the floor's (taken as known, the floor cells were the only ground
-    of an empty map and put all of it, the plateau included, at the foot of the face)."""
-    z, var = np.asarray(gravity.z, float), np.asarray(gravity.var, float)
+    "The ground beyond the lip"): the cells in front of the face (``fc.below``) at the floor prior
+    ``fc.floor_z``, and every other unknown cell past a lip at most at the face's dip continued
+    from its nearest known cell (:func:`drop_prior`, within the prior's correlation length of
+    nothing known down the dip), with the prior's sigma."""
+    z = np.where(fc.below, fc.floor_z, np.asarray(gravity.z, float))
+    var = np.where(fc.below, cfg.prior_sigma_m**2, np.asarray(gravity.var, float))
     terrain = terrain_from_map(z, var, gravity.grid, cfg)
-    mapped = np.isfinite(z) & np.isfinite(var)
-    drop = drop_prior(fc, z, mapped, gravity.grid, cfg.prior_corr_len_m)
-    elev = np.where(mapped, terrain.elev_m, np.minimum(terrain.elev_m, drop))
-    elev = np.where(fc.below, fc.floor_z, elev)
-    sigma = np.where(fc.below, cfg.prior_sigma_m, terrain.sigma_m)
-    weight = np.where(fc.below, 1.0, terrain.weight)
-    return Terrain(gravity.grid, elev, sigma, weight)
+    mapped = np.isfinite(np.asarray(gravity.z, float)) & np.isfinite(np.asarray(gravity.var, float))
+    unknown = ~(np.isfinite(z) & np.isfinite(var))
+    drop = drop_prior(fc, np.asarray(gravity.z, float), mapped, gravity.grid, cfg.prior_corr_len_m)
+    elev = np.where(unknown, np.minimum(terrain.elev_m, drop), terrain.elev_m)
+    return Terrain(gravity.grid, elev, terrain.sigma_m, terrain.weight)
 
 
 def drop_prior(fc: FaceCells, z: F64, known: NDArray[np.bool_], grid: MapGrid, reach_m: float) -> F64:

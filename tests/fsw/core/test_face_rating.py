@@ -147,20 +147,3 @@ def test_a_known_face_cell_stands_for_the_gravity_cell_under_its_own_point() -> 
     tilt = math.atan2(point[2] - cam[2], math.hypot(point[0] - cam[0], point[1] - cam[1]))
     pv = face_visibility(fc, CameraPose.from_pan_tilt(*cam, yaw, tilt), CAM, VIS, GRID)
     assert pv[int(under[0][0]), int(under[1][0])] > 0.5
-
-
-def test_the_floor_prior_is_no_ground_for_the_other_unknown_cells() -> None:
-    """On an empty map (a team's first cycle) the cells in front of the face lie at the floor
-    prior, and every other unknown cell keeps §3.1's prior (the default elevation): taken as
-    known ground, the floor cells put the whole map, the plateau included, at the foot of the
-    face, and a view from the plateau was rated onto ground metres below it."""
-    emap = ElevationMap(GRID, load_settings(check_calibration=False).fusion)
-    fc = face_cells(_face(), emap, VIS, prior_m=1.0)
-    terrain = gravity_with_floor(fc, emap, VIS)
-    plain = terrain_from_map(emap.z, emap.var, GRID, VIS)
-    rest = ~fc.below & ~fc.owned
-    _, y = GRID.centers()
-    assert fc.below.any() and (rest & (y > 4.0)).sum() > 100
-    assert np.allclose(terrain.elev_m[fc.below], fc.floor_z)
-    assert np.allclose(terrain.elev_m[rest], plain.elev_m[rest])
-    assert np.allclose(terrain.elev_m[rest & (y > 4.0)], VIS.default_elevation_m)
