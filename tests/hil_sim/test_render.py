@@ -307,3 +307,42 @@ def test_subpixel_rays_through_a_lens_are_the_uncached_rays_bit_for_bit(ss: int)
             assert got.shape == ((v1 - v0) * ss, (u1 - u0) * ss, 3)
             np.testing.assert_array_equal(got, want)
         np.testing.assert_array_equal(subpixel_rays(R, K, None, box, ss), pixel_rays(R, K, us, vs))
+
+
+@pytest.mark.parametrize("model", ["ideal", "hardware"])
+def test_a_quad_across_the_camera_plane_is_drawn_as_over_the_whole_image(lab, model: str,
+                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """A plate reaching behind the camera is drawn over the box of its part in front: the view
+    is the one drawn testing every pixel (the whole image as its box), and a plate beside the
+    camera, out of the picture, gets no box at all."""
+    from hil_sim.camera_model import TrueCameras
+    from hil_sim.rig import load_hardware
+    from hil_sim.world.cliffbot import Quad
+
+    cam = CameraConfig(width_px=320, height_px=240)
+    cams = None if model == "ideal" else TrueCameras.from_config(cam, load_hardware().camera)
+    mast = MastConfig()
+    pose = camera_pose_from_rover(lab.rover_start, aim_at(lab, lab.rover_start, mast), mast, lab.plateau_z)
+    c, R = np.asarray(pose.t, float), np.asarray(pose.R, float)
+
+    def plate(x_c: float) -> Quad:  # from 0.1 m behind the camera plane to 0.4 m in front, at x_c
+        p0 = c + R @ np.array([x_c, -0.05, -0.1])
+        return Quad(p0, R @ np.array([0.0, 0.1, 0.0]), R @ np.array([0.0, 0.0, 0.5]),
+                    np.tile(np.array([[0.1, 0.9], [0.9, 0.1]], np.float32), (4, 4)), two_sided=True, fiducial=True)
+
+    seen, beside = plate(0.05), plate(1.0)
+    r = StereoRenderer(lab, cam, 0.0, 0, cameras=cams)
+    rc = r._sampled if r.cameras.pixel_samples > 1 else r.cameras
+    w, h = rc.width_px, rc.height_px
+    assert r._bbox(rc, beside, c, R, 0, w, h) is None
+    box = r._bbox(rc, seen, c, R, 0, w, h)
+    assert box is not None and box != (0, 0, w, h)
+    plain = r.render_view(pose, 0)
+    drawn = r.render_view(pose, 0, (seen,))
+    assert (drawn[0] != plain[0]).sum() > 100  # the plate is in the picture
+    bbox = StereoRenderer._bbox
+    monkeypatch.setattr(StereoRenderer, "_bbox", lambda self, cam_, q, *a: (0, 0, w, h) if q is seen
+                        else bbox(self, cam_, q, *a))
+    whole = r.render_view(pose, 0, (seen,))
+    np.testing.assert_array_equal(drawn[0], whole[0])
+    np.testing.assert_array_equal(drawn[1], whole[1])
