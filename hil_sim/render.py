@@ -240,11 +240,7 @@ class StereoRenderer:
         if (pc[:, 2] <= 1e-3).all():
             return None
         if (pc[:, 2] <= 1e-3).any():
-            # straddles the camera plane: the box of its part in front (a ray meets the quad at
-            # z > 0 only); a side-on plate beside the mast fell outside the picture, but testing
-            # every ray of every pixel for it cost more than the view's terrain
-            front = _in_front((q.corners - c) @ R)
-            pc = front if cam.dist[which] is None else _edge_points(front)
+            return (0, 0, w, h)  # straddles the camera plane: test every pixel
         if cam.dist[which] is not None:
             # the lens polynomial is only meaningful near the field of view: clamp far points
             # to a border beyond the image (a box reaching the image edge stays one)
@@ -262,26 +258,3 @@ class StereoRenderer:
             noise = self._rng.standard_normal(image.shape, dtype=np.float32)
             image = image + np.float32(self.noise_sigma) * noise
         return np.clip(np.rint(image), 0, 255).astype(np.uint8)
-
-
-_Z_CLIP_M = 1e-9  # a quad is cut this far in front of the camera plane (its part nearer projects off the image)
-
-
-def _edge_points(poly: F64) -> F64:
-    """Nine points along each edge of the polygon ``poly`` (vertices in order): through a lens
-    a straight edge bows, so its box is taken over points along it, not over its ends."""
-    s = np.linspace(0.0, 1.0, 9)[:, None]
-    nxt = np.roll(poly, -1, axis=0)
-    return np.concatenate([a + s * (b - a) for a, b in zip(poly, nxt, strict=True)])
-
-
-def _in_front(poly: F64) -> F64:
-    """The part of the convex polygon ``poly`` (camera frame, vertices in order) with
-    ``z >= _Z_CLIP_M`` (Sutherland-Hodgman against that one plane); its vertices in order."""
-    out = []
-    for a, b in zip(poly, np.roll(poly, -1, axis=0), strict=True):
-        if a[2] >= _Z_CLIP_M:
-            out.append(a)
-        if (a[2] >= _Z_CLIP_M) != (b[2] >= _Z_CLIP_M):
-            out.append(a + (_Z_CLIP_M - a[2]) / (b[2] - a[2]) * (b - a))
-    return np.array(out)
