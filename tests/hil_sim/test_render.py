@@ -291,13 +291,13 @@ def test_other_scenarios_render(name):
 @pytest.mark.parametrize("ss", [1, 2, 4])
 def test_subpixel_rays_through_a_lens_are_the_uncached_rays_bit_for_bit(ss: int) -> None:
     """The markers' rays over a box come from cached tiles of undistorted points: boxes inside
-    one tile, across tile borders, at the image's edge and the whole image give exactly the
+    one tile, across tile borders, at the image's edge and over nine tiles give exactly the
     rays of one uncached ``pixel_rays`` over the same sub-pixel grid, and again from the cache."""
     K = np.array([[686.0, 0.0, 319.5], [0.0, 686.0, 239.5], [0.0, 0.0, 1.0]])
     dist = np.array([-0.12, 0.05, 0.0008, -0.0005, -0.01])
     R = cv2.Rodrigues(np.array([0.3, -1.2, 0.4]))[0]  # any rotation
     sub = (np.arange(ss) + 0.5) / ss - 0.5
-    for box in [(3, 5, 20, 30), (50, 60, 140, 70), (600, 400, 640, 480), (0, 0, 640, 480), (60, 60, 70, 130)]:
+    for box in [(3, 5, 20, 30), (50, 60, 140, 70), (600, 400, 640, 480), (100, 90, 230, 210), (60, 60, 70, 130)]:
         u0, v0, u1, v1 = box
         us = (np.arange(u0, u1)[:, None] + sub[None, :]).reshape(-1)
         vs = (np.arange(v0, v1)[:, None] + sub[None, :]).reshape(-1)
