@@ -101,6 +101,8 @@ class CliffbotMission:
                  sensing: CliffbotSensingConfig | None = None) -> None:
         self.cfg, self.tcfg, self.ccfg = cfg, tcfg, ccfg
         self.sensing = sensing if sensing is not None and sensing.enabled else None
+        # its body's outline (half length, half width): the ground under it is where it stands
+        self.body_half = (float(sensing.body_half_m[0]), float(sensing.body_half_m[1])) if sensing is not None else None
         self.sense_seq = 0  # the views asked for (Commands.sense), each answered by a map (sensed)
         self.sense_asked_at: float | None = None
         self.sensed_xy: F64 | None = None  # where it last looked
@@ -158,13 +160,14 @@ class CliffbotMission:
         flat = max(0.03, 0.5 * error_bound_m) if math.isfinite(error_bound_m) else 0.03
         self.error_bound_m = error_bound_m if math.isfinite(error_bound_m) else 0.0
         self.z, filled = fill_under_body(z, grid, self.est.xy, r, body_m=r + BODY_MARGIN_M, max_rms_m=flat)
-        # the cells filled beyond where its wheels stand are the plane carried on, not ground a
-        # sensor measured: no node a leg ends on or crosses counts them as known (legs.Route,
-        # face_planner.ground_layers). Where the wheels stand: its footprint round its estimate and
-        # the footprint of the lattice node nearest it (the node it stands at)
+        # the cells filled beyond where it stands are the plane carried on, not ground a sensor
+        # measured: no node a leg ends on or crosses counts them as known (legs.Route,
+        # face_planner.ground_layers). Where it stands: its footprint round its estimate, the
+        # footprint of the lattice node nearest it (the node it stands at) and its body's outline
         z_in = np.asarray(z, np.float64)
         filled_here = np.isfinite(self.z) & ~(np.isfinite(z_in) & (z_in == self.z))
-        self.carried = filled_here & ~standing_cells(grid, self.est.xy, self.ccfg)
+        body = None if self.body_half is None else (float(self.est.s[2]), *self.body_half)
+        self.carried = filled_here & ~standing_cells(grid, self.est.xy, self.ccfg, body)
         self.carried_from = self.est.xy
         self.grid = grid
         self._route = None
