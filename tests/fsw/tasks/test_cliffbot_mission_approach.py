@@ -239,3 +239,25 @@ def test_the_ground_under_its_body_outline_is_where_it_stands_so_the_first_step_
     sensed = np.isfinite(z0) | standing_cells(GRID, start, m.ccfg, (-np.pi / 2, half_len, half_wid))
     _drive(m, dev, t + 0.2, ground_layers(np.where(sensed, 0.0, np.nan), GRID, m.ccfg).known)
 
+
+def test_the_look_budget_counts_looks_without_progress_so_a_long_approach_goes_on() -> None:
+    """Each look shows the ground a little further down (as a head over a lip sees the face
+    below it): every approach node is nearer the target than the last, so the approach goes on
+    past ``approach_looks`` looks in all, and the target is reached; it never steps onto ground
+    its map does not know."""
+    m, dev = _mission(looks=1), FreshDevices()
+    views = [_unknown_below(y) for y in (-1.2, -1.6, -2.0)] + [_ground()]
+    t = _start(m, dev, _unknown_below(-0.9))
+    assert m.step(t + 0.1, dev).request_fix
+    m.on_no_fix(m.fix_seq, "busy")
+    t += 0.2
+    shown = _unknown_below(-0.9)
+    for z in views:
+        assert m.state == "DRIVE" and m.legs[0].via is not None, m.events[-2:]
+        t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried).known)
+        assert m.state == "WAIT_FIX" and m.look_now, m.events[-2:]
+        shown = z
+        t = _look(m, dev, t, shown)
+    assert m.state == "DRIVE" and m.legs[0].via is None and m.reasons[0] == "", m.events[-2:]
+    t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried).known)
+    assert m.reached == [True] and m.looks == [len(views)] > [m.cfg.approach_looks]
