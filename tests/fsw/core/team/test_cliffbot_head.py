@@ -43,31 +43,3 @@ def test_the_pose_covariance_carries_the_estimates_error() -> None:
     assert np.allclose(zero, 0.0) and np.allclose(pose.t[2], 0.95)
     tilted = head_pose_covariance(xy, 0.5, 0.3, 0.0, 0.0, 0.0, -0.7, 0.45, 0.4, cov3, 0.05, 0.0)[1]
     assert tilted[5, 5] == pytest.approx(0.05 ** 2, rel=1e-3)
-
-
-def test_the_default_scan_sees_the_ground_beside_the_bodys_front_end() -> None:
-    """On a lip the body stands over, the ground beside its front end is where the lip runs on;
-    the side views from the rear end do not reach it, and a hole there (the mast's shadow of the
-    body) makes the lip's edge read as rock: some pointing of the default scan sees it, on
-    both sides (flat ground, heading +x; the head camera's field of view and usable depth)."""
-    from fsw.core.geometry import CameraConfig
-    from fsw.sections import CliffbotSensingConfig
-
-    sc = CliffbotSensingConfig()
-    cam = CameraConfig(width_px=sc.width_px, height_px=sc.height_px, hfov_deg=sc.hfov_deg,
-                       baseline_m=sc.baseline_m, min_range_m=sc.min_range_m, max_range_m=sc.max_range_m)
-    half_w, half_h = math.tan(math.radians(sc.hfov_deg) / 2), math.tan(cam.vfov_rad / 2)
-
-    def seen(p: np.ndarray) -> bool:
-        for k, pan_deg in enumerate(sc.pan_deg):
-            pan = math.radians(pan_deg)
-            pose = head_camera_pose(np.zeros(3), np.array([0.0, 0.0, 1.0]), 0.0, pan, math.radians(sc.tilt_of(k)),
-                                    sc.head_m, head_end(pan, sc.head_end_m))
-            x, y, z = pose.R.T @ (p - pose.t)  # camera frame: right, down, forward
-            rng = float(np.linalg.norm(p - pose.t))
-            if z > 0 and abs(x / z) <= half_w and abs(y / z) <= half_h and sc.min_range_m <= rng <= sc.max_range_m:
-                return True
-        return False
-
-    for side in (1.0, -1.0):
-        assert seen(np.array([sc.head_end_m, side * 0.5, 0.0]))
