@@ -224,8 +224,12 @@ def frame_off_deg(world: World, face: FaceMap) -> float | None:
     if t is None:
         return None
     a = math.radians(t.face_slope_deg)
-    nominal = np.array([0.0, -math.sin(a), math.cos(a)])
-    return float(np.degrees(np.arccos(np.clip(float(face.frame.normal @ nominal), -1.0, 1.0))))
+    return _angle_deg(face.frame.normal, np.array([0.0, -math.sin(a), math.cos(a)]))
+
+
+def _angle_deg(a: F64, b: F64) -> float:
+    """The angle between the unit vectors ``a`` and ``b``, degrees."""
+    return float(np.degrees(np.arccos(np.clip(float(a @ b), -1.0, 1.0))))
 
 
 def true_face_normal(world: World, step_m: float = 0.04, margin_m: float = 0.1) -> F64 | None:
@@ -268,9 +272,7 @@ def frame_off_true_deg(world: World, face: FaceMap) -> float | None:
     """The angle between the face map's fitted normal and the true face's plane
     (:func:`true_face_normal`); None without one."""
     n = true_face_normal(world)
-    if n is None:
-        return None
-    return float(np.degrees(np.arccos(np.clip(float(face.frame.normal @ n), -1.0, 1.0))))
+    return None if n is None else _angle_deg(face.frame.normal, n)
 
 
 def face_points(face: FaceMap, cells: NDArray[np.intp], w: F64) -> F64:

@@ -105,11 +105,8 @@ def subpixel_rays(R: F64, K: F64, dist: F64 | None, box: tuple[int, int, int, in
     was most of the renderer's time. Each point is undistorted alone, so a tile's points are
     the ones an uncached call gives bit for bit."""
     u0, v0, u1, v1 = box
-    sub = (np.arange(ss) + 0.5) / ss - 0.5
     if dist is None:
-        us = (np.arange(u0, u1)[:, None] + sub[None, :]).reshape(-1)
-        vs = (np.arange(v0, v1)[:, None] + sub[None, :]).reshape(-1)
-        return pixel_rays(R, K, us, vs)
+        return pixel_rays(R, K, _subpixels(u0, u1, ss), _subpixels(v0, v1, ss))
     tiles = _tile_cache(K, dist, ss)
     xn = np.empty(((v1 - v0) * ss, (u1 - u0) * ss), np.float32)
     yn = np.empty_like(xn)
@@ -117,8 +114,8 @@ def subpixel_rays(R: F64, K: F64, dist: F64 | None, box: tuple[int, int, int, in
         for tx in range(u0 // _TILE_PX, -(-u1 // _TILE_PX)):
             tile = tiles.get((ty, tx))
             if tile is None:
-                us = (np.arange(tx * _TILE_PX, (tx + 1) * _TILE_PX)[:, None] + sub[None, :]).reshape(-1)
-                vs = (np.arange(ty * _TILE_PX, (ty + 1) * _TILE_PX)[:, None] + sub[None, :]).reshape(-1)
+                us = _subpixels(tx * _TILE_PX, (tx + 1) * _TILE_PX, ss)
+                vs = _subpixels(ty * _TILE_PX, (ty + 1) * _TILE_PX, ss)
                 tile = tiles[(ty, tx)] = _undistorted_grid(K, dist, us, vs, cache=False)
             # the part of the tile inside the box, in pixels, then in rays
             a_u, b_u = max(u0, tx * _TILE_PX), min(u1, (tx + 1) * _TILE_PX)
@@ -129,6 +126,12 @@ def subpixel_rays(R: F64, K: F64, dist: F64 | None, box: tuple[int, int, int, in
             xn[dst] = tile[0][src]
             yn[dst] = tile[1][src]
     return _world_rays(R, xn, yn)
+
+
+def _subpixels(a: int, b: int, ss: int) -> F64:
+    """The ``ss`` ray coordinates per pixel of pixels ``a .. b - 1``: ``p + (i + 0.5) / ss - 0.5``."""
+    sub = (np.arange(ss) + 0.5) / ss - 0.5
+    return np.asarray((np.arange(a, b)[:, None] + sub[None, :]).reshape(-1), np.float64)
 
 
 def _world_rays(R: F64, xn: F32, yn: F32) -> F32:
