@@ -349,9 +349,16 @@ class MavlinkTask(FlightTask):
         self.event("BUDGET_SET", budget_bytes=budget_bytes)
 
     def close(self) -> None:
-        """Flush and close the .tlog and the transport (end of a bench run)."""
+        """Flush and close the .tlog and the transport (end of a bench run). The .tlog is written
+        in one-second batches: a full disk that refuses the last batch is a TLOG_ERROR like any
+        other (the records it held are lost, and said so), not a silent end."""
         if self.tlog is not None:
+            running, errors = not self.tlog.stopped, self.tlog.errors
+            self.tlog.flush()
             self.tlog.close()
+            if running and self.tlog.errors > errors:  # (a stopped log said so when it stopped)
+                self.event("TLOG_ERROR", path=str(getattr(self.tlog.stream, "name", "?")),
+                           error=self.tlog.last_error or "close failed")
             self.tlog = None
         if self.link is not None:
             self.link.close()

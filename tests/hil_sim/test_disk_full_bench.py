@@ -135,33 +135,53 @@ def _tmpfs(path: Path, size: str) -> bool:
 @pytest.mark.slow
 @pytest.mark.timeout(1800)
 def test_mission_on_a_1mib_disk_ends_in_one_line_and_resume_refuses(tmp_path: Path) -> None:
-    """req(26.4): the reviewer's case: ``--out`` on a small tmpfs. Checkpoint and .tlog
-    failures are events on the console and (CHECKPOINT_FAILED) in the .tlog, the mission
-    reaches its end, the run exits 1 with one line on the summary, never a traceback; a
-    ``--resume`` on the still-full disk is one line, exit 1. The panorama only (``--steps 0``,
-    the shortest mission that maps and transmits) on 1 MiB: the panorama's two map checkpoints
-    (about 0.2 + 0.25 MB), the .tlog (0.27 MB) and the Cliff-bot's received map (0.3 MB) fill
-    it: the mission's checkpoint after the transfer fails (an event; the mission goes on to its
-    end), then the pictures and the summary."""
+    """req(26.4): the reviewer's case: ``--out`` on a small tmpfs. The panorama only (``--steps
+    0``, the shortest mission that maps and transmits) on 1 MiB: the panorama's map checkpoints,
+    the .tlog and the Cliff-bot's received map fill it mid-mission. Which flight writer meets the
+    full disk first (a checkpoint or a batch of the .tlog) depends on the .tlog's length, which
+    the run's timing telemetry varies; what holds either way:
+
+    * every flight writer the disk refused said so: one console line each, ENOSPC named;
+    * nothing written is lost or corrupt: the newest good checkpoint loads, no temporary is
+      left; a .tlog never stopped holds every CHECKPOINT_FAILED the console printed, whole; a
+      stopped one reads back up to where it stopped;
+    * the mission goes on to its end: the run reaches its report, which lists what it could not
+      write, or says in one last line that the summary did not fit (exit 1), never a traceback;
+    * ``--resume`` on the still-full disk is one line, exit 1."""
     mnt = tmp_path / "disk"
     if not _tmpfs(mnt, "1m"):
         pytest.skip("needs root and tmpfs to make a small disk")
     try:
-        cmd = [sys.executable, "-m", "hil_sim.cli", "run", "--steps", "0", "--out", str(mnt / "run")]
+        run = mnt / "run"
+        cmd = [sys.executable, "-m", "hil_sim.cli", "run", "--steps", "0", "--out", str(run)]
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
         assert "Traceback" not in r.stderr and r.returncode in (0, 1), r.stderr[-2000:]
         lines = [ln for ln in r.stderr.replace("\r", "\n").splitlines() if ln.strip()]
-        assert any("CHECKPOINT_FAILED" in ln and "ENOSPC" in ln for ln in lines)
-        summary = mnt / "run" / "summary.json"
+        failed_checkpoints = [ln for ln in lines if "mission.CHECKPOINT_FAILED" in ln]
+        tlog_errors = [ln for ln in lines if "mavlink.TLOG_ERROR" in ln]
+        assert failed_checkpoints or tlog_errors, r.stderr[-2000:]  # the disk filled under a flight writer
+        assert all("ENOSPC" in ln for ln in failed_checkpoints + tlog_errors), r.stderr[-2000:]
+
+        from fsw.comm.mavlink_tlog import read_tlog
+        from fsw.core.map.checkpoint import CheckpointConfig
+        from fsw.drivers.map_store import MapStore
+
+        latest = MapStore(CheckpointConfig(directory=str(run / "checkpoints"))).load_latest()
+        assert latest.meta is not None and not latest.skipped, latest.skipped
+        assert not list((run / "checkpoints").glob(".map_*.tmp"))
+        records, tail = read_tlog(run / "fsw.tlog")
+        assert records
+        if not tlog_errors:  # the .tlog was never refused: all of it, whole
+            assert tail is None
+            assert bool(failed_checkpoints) == any(b"CHECKPOINT_FAILED" in f for _, f in records)
+
+        summary = run / "summary.json"
         if r.returncode == 1:  # no room left for the summary: said in one last line
             assert lines[-1].startswith("safer-hil run: ") and "summary.json not written" in lines[-1]
-        else:  # the summary fitted: it lists what did not
+        else:  # the summary fitted: the mission's end, and what did not fit
             s = json.loads(summary.read_text())
-            assert s["write_errors"] or s["cliffbot"]["save_error"]
-        from fsw.comm.mavlink_tlog import read_tlog
-
-        records, _tail = read_tlog(mnt / "run" / "fsw.tlog")
-        assert any(b"CHECKPOINT_FAILED" in f for _, f in records)
+            assert s["final_state"] == "DONE"
+            assert s["write_errors"] or s["cliffbot"]["save_error"] or failed_checkpoints
         summary.unlink(missing_ok=True)  # not finished: --resume must try
         with (mnt / "filler").open("wb") as fh:  # the disk stays full
             try:
@@ -170,7 +190,7 @@ def test_mission_on_a_1mib_disk_ends_in_one_line_and_resume_refuses(tmp_path: Pa
                     fh.flush()
             except OSError:
                 pass
-        r2 = subprocess.run([sys.executable, "-m", "hil_sim.cli", "run", "--resume", str(mnt / "run")],
+        r2 = subprocess.run([sys.executable, "-m", "hil_sim.cli", "run", "--resume", str(run)],
                             capture_output=True, text=True, timeout=300)
         err = [ln for ln in r2.stderr.splitlines() if ln.strip()]
         assert r2.returncode == 1 and len(err) == 1 and "disk is full" in err[0], r2.stderr

@@ -147,3 +147,42 @@ def test_probe_says_a_full_disk_in_one_line(tmp_path: Path, monkeypatch: pytest.
         probe(tmp_path / "ok", 4096)
     assert "ENOSPC" in str(err.value) and "\n" not in str(err.value) and "Errno" not in str(err.value)
     assert not list((tmp_path / "ok").iterdir())
+
+
+class _FullRaw(io.RawIOBase):
+    """A raw device that takes ``room`` bytes, then fails every write with ``code``."""
+
+    def __init__(self, room: int, code: int) -> None:
+        super().__init__()
+        self.data, self.room, self.code = bytearray(), room, code
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, b: Any) -> int:
+        if len(self.data) + len(b) > self.room:
+            raise OSError(self.code, os.strerror(self.code))
+        self.data += bytes(b)
+        return len(b)
+
+
+@pytest.mark.parametrize("code", FAULTS, ids=NAMES.get)
+def test_tlog_batch_refused_at_close_is_an_event(code: int) -> None:
+    """req(26.4): the .tlog goes to the device in one-second batches; the last batch, written when
+    the run closes the task, meets a full disk: TLOG_ERROR (the console copies it), not a silent
+    loss of that second's records."""
+    from ground_demo import MemoryLink
+    from task_rig import TaskRig, task_config
+
+    from fsw.drivers.resources import Resources
+
+    raw = _FullRaw(1 << 20, code)
+    rig = TaskRig(task_config(("mavlink", "mavlink")),
+                  Resources(mavlink_link=MemoryLink(), mavlink_tlog=io.BufferedWriter(raw, 1 << 16)))
+    rig.run(5)  # frames logged, the first batch written at once; the rest wait in the buffer
+    task = rig.task("mavlink")
+    assert task.tlog.records > 0 and not rig.events("mavlink.TLOG_ERROR")
+    raw.room = len(raw.data)  # the disk is full now
+    task.close()
+    (ev,) = rig.events("mavlink.TLOG_ERROR")
+    assert NAMES[code] in ev.text and "\n" not in ev.text
