@@ -27,7 +27,7 @@ from pathlib import Path
 
 from fsw.comm.link import LinkConfig
 from fsw.comm.mavlink_config import MavlinkConfig
-from fsw.comm.team.map_sync import SyncConfig
+from fsw.comm.team.sync_config import SyncConfig
 from fsw.core.codec.mapcodec import CodecConfig
 from fsw.core.edge.edge import EdgeConfig
 from fsw.core.edge.geofence import GeofenceConfig

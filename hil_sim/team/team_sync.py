@@ -23,7 +23,9 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.comm.team.map_sync import F32, MapSync, Priority, SyncConfig, SyncStats
+from fsw.comm.team import sync_checkpoint
+from fsw.comm.team.map_sync import F32, MapSync, Priority
+from fsw.comm.team.sync_config import SyncConfig, SyncStats
 from hil_sim.link.radio_channel import RadioChannel, RadioChannelConfig
 
 F64 = NDArray[np.float64]
@@ -215,7 +217,7 @@ def run_sync(scene: SyncScene, channel: RadioChannelConfig, seed: int = 0, *, cf
             ck = checkpoints.get(a) if k.from_checkpoint else None
             if ck is not None:
                 agents[a].z = ck[1].copy()
-                ends[a] = MapSync.restore(ck[0], cfg, scene.cell_m, scene.wheel_m, boot=boots[a],
+                ends[a] = sync_checkpoint.restore(ck[0], cfg, scene.cell_m, scene.wheel_m, boot=boots[a],
                                           priority=priority_for(a),
                                           on_adopt=lambda tt, z, a=a: agents[a].adopt(ends[a], tt, z))
             else:
@@ -232,7 +234,7 @@ def run_sync(scene: SyncScene, channel: RadioChannelConfig, seed: int = 0, *, cf
                     agents[a].look(rnd)
                 ends[a].publish(agents[a].z, t)
                 if rnd % checkpoint_every == 0:
-                    checkpoints[a] = (ends[a].checkpoint(), agents[a].z.copy())
+                    checkpoints[a] = (sync_checkpoint.save(ends[a]), agents[a].z.copy())
             rnd += 1
             lags.append(None)
             t_pub = t

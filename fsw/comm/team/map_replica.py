@@ -161,7 +161,7 @@ class MapReplica:
     # ---------------------------------------------------------------- checkpoint
     def layers_state(self) -> dict[str, dict[str, list[int | str]] | dict[str, str]]:
         """Both layers (version, base64 tile body per tile) and the own tiles' sources, for a
-        JSON checkpoint (``fsw.comm.team.map_sync.MapSync.checkpoint``)."""
+        JSON checkpoint (``fsw.comm.team.sync_checkpoint.save``)."""
         def layer(d: dict[int, TileRec]) -> dict[str, list[int | str]]:
             return {str(t): [r.version, base64.b64encode(r.blob).decode()] for t, r in d.items()}
         return {"own": layer(self.own), "held": layer(self.held),

@@ -28,17 +28,16 @@ versioned map-codec tiles, the agent's own and its copy of the peer's, and their
   only when the peer started with no replica (its DIGESTs say so): ``stats.full_resends``.
 * No packet from the peer for ``stall_s``: tiles pause, a probing DIGEST every ``probe_max_s``.
 
-:meth:`checkpoint` serialises the whole sync state (both layers, versions, beliefs);
-:meth:`MapSync.restore` rebuilds an end from it after a restart. Bad packets are counted and
-dropped (``stats.bad_packets``), never raised.
+Its parameters and counters are :mod:`fsw.comm.team.sync_config`'s; its checkpoint (the whole
+sync state, both layers, versions, beliefs) and the restore after a restart are
+:mod:`fsw.comm.team.sync_checkpoint`'s. Bad packets are counted and dropped
+(``stats.bad_packets``), never raised.
 """
 
 from __future__ import annotations
 
-import json
 from collections import OrderedDict
 from collections.abc import Callable, Generator
-from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -47,80 +46,12 @@ from fsw.comm.link import Pacer
 from fsw.comm.link_packets import PacketError
 from fsw.comm.team import sync_packets as sp
 from fsw.comm.team.map_replica import F32, MapReplica, TileRec
-from fsw.core.codec.mapcodec import CodecConfig, MapCodecError, TileProfile
-from fsw.core.codec.tileformat import PROFILE_BYTES, profile_from_bytes
+from fsw.comm.team.sync_config import SyncConfig, SyncStats
+from fsw.core.codec.mapcodec import CodecConfig, TileProfile
+from fsw.core.codec.tileformat import PROFILE_BYTES
 from fsw.framework.events import EventSink
-from fsw.framework.params import param
 
 Priority = Callable[[int, int], float]
-CHECKPOINT_VERSION = 2  # 2: tiles in the compact tile format with their profiles
-# A restored end numbers its versions from its checkpoint's counter plus this, so nothing it
-# publishes reuses a version it published after the checkpoint (4096 restarts fit in u32).
-RESTART_VERSION_STEP = 1 << 20
-
-
-@dataclass(frozen=True)
-class SyncConfig:
-    """Two-way map sync parameters (docs/sync.md; ``[map_sync]`` in the flight files)."""
-
-    enabled: bool = param(False, doc="the agent's radio task runs a sync end (both agents of a team; "
-                                     "docs/sync.md, \"In flight\")")
-    rate_bps: float = param(9600.0, lo=300.0, hi=1e8, units="bit/s", doc="pacing of every packet")
-    pacing_catchup_s: float = param(0.05, lo=0.0, hi=1.0, units="s")
-    tile_cells: int = param(16, lo=4, hi=256, units="cells", doc="tile side")
-    mtu_bytes: int = param(512, lo=128, hi=8192, units="B", doc="largest datagram")
-    ack_delay_s: float = param(0.3, lo=0.0, hi=30.0, units="s", doc="DIGEST this long after new tiles")
-    min_digest_interval_s: float = param(0.5, lo=0.0, hi=60.0, units="s",
-                                         doc="DIGESTs at most this often (answers excepted)")
-    keepalive_s: float = param(10.0, lo=0.5, hi=600.0, units="s", doc="DIGEST at least this often")
-    probe_s: float = param(0.8, lo=0.05, hi=60.0, units="s",
-                           doc="after the last tile: a DIGEST asking for an answer; doubles")
-    probe_max_s: float = param(1.0, lo=0.1, hi=600.0, units="s", doc="longest probe interval")
-    reorder_slack_s: float = param(0.5, lo=0.0, hi=60.0, units="s",
-                                   doc="a tile is lost once one sent this much later arrived")
-    stall_s: float = param(25.0, lo=0.5, hi=600.0, units="s", doc="no packet this long: tiles pause")
-    holdings_retry_s: float = param(1.5, lo=0.1, hi=600.0, units="s",
-                                    doc="HOLDINGS asked for or sent again at most this often")
-
-
-@dataclass
-class SyncStats:
-    rounds: int = 0
-    tiles_published: int = 0
-    minimal_bytes: int = 0  # TILE packet bytes of every published version, once; a fresh end's profile once
-    packets_out: int = 0
-    bytes_out: int = 0  # everything put on the air
-    tiles_out: int = 0
-    tile_bytes_out: int = 0  # of bytes_out: TILEs (the own layer's and tiles given back)
-    tile_body_bytes_out: int = 0  # of which the tile bodies (the rest: packet headers)
-    resent_bytes_out: int = 0  # of tile_bytes_out: the entries of versions sent again
-    holdings_bytes_out: int = 0
-    profiles_out: int = 0  # DIGESTs that carried my tile profile
-    profile_bytes_out: int = 0  # of digest_bytes_out: the profiles they carried
-    resent_tiles: int = 0  # a version sent again (proved lost)
-    returns_out: int = 0  # the peer's own tiles given back to it
-    digests_out: int = 0
-    digests_answer: int = 0  # of which answers to a probe
-    digests_probe: int = 0  # of which probes (tiles in flight unacknowledged, or the link silent)
-    digest_bytes_out: int = 0
-    holdings_out: int = 0
-    packets_in: int = 0
-    bytes_in: int = 0  # valid packets received, channel duplicates excepted
-    digest_bytes_in: int = 0  # of which DIGESTs
-    holdings_bytes_in: int = 0  # of which HOLDINGS
-    stale_bytes_in: int = 0  # of which the entries of tiles of a version already held
-    dup_packets: int = 0
-    bad_packets: int = 0
-    foreign_packets: int = 0
-    unknown_profile_tiles: int = 0  # TILEs naming a tile profile not (yet) known: dropped
-    profile_mismatches: int = 0  # profiles of another frame or grid refused, and the TILEs naming them
-    tiles_in: int = 0
-    stale_tiles: int = 0  # a version already held or older
-    adopted: int = 0  # own tiles given back by the peer after a restart
-    full_resends: int = 0
-    peer_restarts: int = 0
-    oversize_tiles: int = 0
-    nonfinite_cells: int = 0
 
 
 class MapSync:
@@ -715,43 +646,3 @@ class MapSync:
                 not self.want_holdings and self._to_send()):
             cands.append(free)
         return max(min(cands), free)
-
-    # ---------------------------------------------------------------- checkpoint
-    def checkpoint(self) -> bytes:
-        """The sync state as bytes (JSON): both layers, the counter, the beliefs."""
-        return json.dumps({
-            "v": CHECKPOINT_VERSION, "agent": self.agent, "peer": self.peer, "frame": self.frame,
-            "shape": list(self.rep.shape), "tile_cells": self.cfg.tile_cells, "counter": self.rep.counter,
-            "rounds": self.stats.rounds, **self.rep.layers_state(), "profile": self.rep.profile.pid,
-            "peer_profile": None if self.peer_profile is None else self.peer_profile.to_bytes().hex(),
-            "belief": {str(t): list(b) for t, b in self.belief.items()},
-        }).encode()
-
-    @classmethod
-    def restore(cls, state: bytes, cfg: SyncConfig, cell_m: float, wheel_diameter_m: float, *, boot: int,
-                codec: CodecConfig | None = None, priority: Priority | None = None,
-                on_adopt: Callable[[int, F32], None] | None = None,
-                origin: tuple[float, float] = (0.0, 0.0)) -> MapSync:
-        """An end rebuilt from :meth:`checkpoint` (raises ``ValueError`` with one line if the
-        state is not a valid sync checkpoint for ``cfg``)."""
-        try:
-            s = json.loads(state)
-            if s["v"] != CHECKPOINT_VERSION or s["tile_cells"] != cfg.tile_cells:
-                raise ValueError("checkpoint of another version or tile size")
-            m = cls(cfg, int(s["agent"]), int(s["peer"]), (int(s["shape"][0]), int(s["shape"][1])), cell_m,
-                    wheel_diameter_m, frame=int(s["frame"]), boot=boot, codec=codec, priority=priority,
-                    on_adopt=on_adopt, origin=origin)
-            if int(s["profile"]) != m.rep.profile.pid:
-                raise ValueError("its tiles are of another tile profile (frame, grid or codec settings)")
-            peer = s["peer_profile"]
-            m.peer_profile = None if peer is None else profile_from_bytes(bytes.fromhex(str(peer)))
-            m.rep.load_layers(s["own"], s["held"], s["source"], m.peer_profile)
-            m.rep.counter = int(s["counter"]) + RESTART_VERSION_STEP
-            m.fresh = False
-            m.stats.rounds = int(s["rounds"])
-            m.stats.minimal_bytes = 0  # the peer kept my profile (its holdings say so, or not)
-            m.attach_profile = False
-            m.belief = {int(t): (int(b[0]), int(b[1])) for t, b in s["belief"].items()}
-        except (KeyError, TypeError, IndexError, json.JSONDecodeError, MapCodecError, ValueError) as exc:
-            raise ValueError(f"not a usable map-sync checkpoint: {exc}") from None
-        return m

@@ -17,7 +17,7 @@ needs round it, sans-I/O like the end itself:
   (:meth:`FlightSync.charge`), and the sync's packets are made only while that pacer is free and
   a packet of ``mtu_bytes`` fits what is left of the activation's byte budget: the traffic sent
   before it (fixes, then the map link) goes first.
-* **Checkpoint.** :meth:`FlightSync.state` is the end's checkpoint (``MapSync.checkpoint``), its
+* **Checkpoint.** :meth:`FlightSync.state` is the end's checkpoint (``sync_checkpoint.save``), its
   boot id and its counters; :meth:`FlightSync.restore` restarts the end from one with the next
   boot id (the peer learns of the restart and the two exchange holdings: no full resend).
 """
@@ -31,8 +31,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.comm.link import Pacer
+from fsw.comm.team import sync_checkpoint
 from fsw.comm.team import sync_packets as sp
-from fsw.comm.team.map_sync import F32, MapSync, SyncConfig, SyncStats
+from fsw.comm.team.map_sync import F32, MapSync
+from fsw.comm.team.sync_config import SyncConfig, SyncStats
 from fsw.core.codec.mapcodec import CodecConfig
 from fsw.core.geometry import MapGrid
 
@@ -85,8 +87,8 @@ class FlightSync:
             end = MapSync(self.cfg, self.agent, self.peer, self.grid.shape, self.grid.cell, self.wheel_m,
                           boot=self.boot, codec=self.codec, priority=self._priority, origin=self.origin)
         else:
-            end = MapSync.restore(state, self.cfg, self.grid.cell, self.wheel_m, boot=self.boot, codec=self.codec,
-                                  priority=self._priority, origin=self.origin)
+            end = sync_checkpoint.restore(state, self.cfg, self.grid.cell, self.wheel_m, boot=self.boot,
+                                          codec=self.codec, priority=self._priority, origin=self.origin)
             if end.agent != self.agent or end.peer != self.peer or end.shape != self.grid.shape:
                 raise ValueError(f"a sync checkpoint of agent {end.agent} on a {end.shape} map, not agent "
                                  f"{self.agent} on {self.grid.shape}")
@@ -168,7 +170,7 @@ class FlightSync:
 
     def state(self) -> dict[str, object]:
         """The end's checkpoint (JSON-able): the sync state, its boot id, its counters."""
-        return {"v": STATE_VERSION, "boot": self.boot, "sync": self.end.checkpoint().decode(),
+        return {"v": STATE_VERSION, "boot": self.boot, "sync": sync_checkpoint.save(self.end).decode(),
                 "stats": asdict(self.stats())}
 
     def restore(self, st: object) -> None:

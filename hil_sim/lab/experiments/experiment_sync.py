@@ -49,7 +49,7 @@ def one(case: str, seed: int, args: dict[str, float]) -> Row:
     """One run (a process of its own under ``--jobs``)."""
     from dataclasses import replace
 
-    from fsw.comm.team.map_sync import SyncConfig
+    from fsw.comm.team.sync_config import SyncConfig
     from hil_sim.link.radio_channel import RadioChannelConfig
     from hil_sim.team.team_sync import Kill, make_scene, run_sync
 

@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 
 from fsw.comm.link_packets import PacketError
+from fsw.comm.team import sync_checkpoint
 from fsw.comm.team import sync_packets as sp
-from fsw.comm.team.map_sync import MapSync, SyncConfig
+from fsw.comm.team.map_sync import MapSync
+from fsw.comm.team.sync_config import SyncConfig
 
 CELL, WHEEL = 0.03, 0.2
 SHAPE = (48, 48)  # 3 x 3 tiles of 16 cells
@@ -237,12 +239,13 @@ def test_two_ends_converge_and_a_checkpoint_restores_the_same_replica() -> None:
     assert a.replica_hash() == b.replica_hash()
     assert np.array_equal(a.replica_map(1), b.replica_map(1), equal_nan=True)
     assert np.isfinite(a.fused_map()).sum() == SHAPE[0] * SHAPE[1]
-    r = MapSync.restore(a.checkpoint(), SyncConfig(), CELL, WHEEL, boot=1)
+    r = sync_checkpoint.restore(sync_checkpoint.save(a), SyncConfig(), CELL, WHEEL, boot=1)
     assert r.replica_hash() == a.replica_hash() and r.counter > a.counter
     with pytest.raises(ValueError, match="not a usable map-sync checkpoint"):
-        MapSync.restore(b"{not json", SyncConfig(), CELL, WHEEL, boot=1)
+        sync_checkpoint.restore(b"{not json", SyncConfig(), CELL, WHEEL, boot=1)
     with pytest.raises(ValueError, match="not a usable map-sync checkpoint"):
-        MapSync.restore(a.checkpoint().replace(b'"v": 2', b'"v": 9'), SyncConfig(), CELL, WHEEL, boot=1)
+        sync_checkpoint.restore(sync_checkpoint.save(a).replace(b'"v": 2', b'"v": 9'), SyncConfig(), CELL, WHEEL,
+                                boot=1)
 
 
 def test_forged_packets_with_valid_checksums_never_raise() -> None:

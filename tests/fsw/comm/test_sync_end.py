@@ -11,7 +11,7 @@ import pytest
 from fsw.comm import link_packets
 from fsw.comm.team import fix_packets
 from fsw.comm.team import sync_packets as sp
-from fsw.comm.team.map_sync import SyncConfig
+from fsw.comm.team.sync_config import SyncConfig
 from fsw.comm.team.sync_end import FlightSync, corridor_priority, overlay_newer, team_figures
 from fsw.core.codec.mapcodec import CodecConfig
 from fsw.core.geometry import MapGrid
