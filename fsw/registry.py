@@ -30,7 +30,7 @@ RECON_KINDS: dict[str, str] = {
     "perception": "fsw.tasks.perception:PerceptionTask",
     "nbv": "fsw.tasks.nbv:NbvTask",
     "mission": "fsw.tasks.mission:MissionTask",
-    "cliffbot_fixer": "fsw.tasks.cliffbot_fixer:CliffbotFixerTask",
+    "cliffbot_fixer": "fsw.tasks.fixer.task:CliffbotFixerTask",
 }
 
 # The RECON-bot's task kinds (the common ones and its own); tests add their task kinds here.

@@ -269,7 +269,7 @@ MAX_FOLDER_MODULES = 15
 # Folders over the limit today, with the most modules they may hold until they are split:
 # hil_sim/world's terrain and rendering parts, fsw/comm's MAVLink files, fsw/drivers's CAN
 # transports and fsw/tasks's mission and motion parts to packages of their own (issue 24, item 2).
-FOLDER_ALLOWANCE = {"hil_sim/world": 23, "fsw/comm": 25, "fsw/drivers": 17, "fsw/tasks": 26}
+FOLDER_ALLOWANCE = {"hil_sim/world": 23, "fsw/comm": 25, "fsw/drivers": 17, "fsw/tasks": 25}
 
 
 def folders(root: Path, packages: Iterable[str]) -> dict[str, int]:

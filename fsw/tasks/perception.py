@@ -184,7 +184,7 @@ class PerceptionTask(FlightTask):
         if self.job is None:
             msg = self.frames.get()
             if msg is not None and msg.view_id >= FIX_VIEW_BASE:
-                msg = None  # a pair of the Cliff-bot for the fixer (fsw.tasks.cliffbot_fixer), not a view
+                msg = None  # a pair of the Cliff-bot for the fixer (fsw.tasks.fixer.task), not a view
             if msg is not None:
                 self.job = self.submit_job(self.merge_view(msg), f"view{msg.view_id}")
                 self.job_view = msg.view_id

@@ -11,7 +11,7 @@ as a ground crew would before the mission.
 Before each of its frames the rig takes the commands the flight side sent, moves the winches,
 settles the Cliff-bot on the TRUE ground, judges it and puts the statuses on the bus.
 
-The RECON-bot answers the fix requests in its flight code (``fsw.tasks.cliffbot_fixer``); the
+The RECON-bot answers the fix requests in its flight code (``fsw.tasks.fixer.task``); the
 bench renders the Cliff-bot at its TRUE pose in the RECON-bot's camera pairs, and
 :class:`FixWatch` (the RECON-bot's radio end) notes every FIX it sends so the run judges it
 against the truth at that instant (position and heading error, NEES against its covariance).

@@ -34,8 +34,9 @@ from fsw.core.team.face_planner import ClimberConfig
 from fsw.core.team.tether import TetherConfig
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig
-from fsw.tasks.cliffbot_fixer import BODY_CENTRE_M, LIFT_M, NO_MARKERS, OUT_OF_REACH, fix_camera, joints_covariance
 from fsw.tasks.cliffbot_mission import CliffbotMission, fix_xyyaw, navigate, new_navigator
+from fsw.tasks.fixer.fix_pose import fix_camera, joints_covariance
+from fsw.tasks.fixer.task import BODY_CENTRE_M, LIFT_M, NO_MARKERS, OUT_OF_REACH
 from hil_sim.faults import FaultInjector, FaultSpec
 from hil_sim.link.radio_channel import RadioChannel
 from hil_sim.team.cliffbot_rig import CliffbotRig
@@ -58,7 +59,7 @@ class TeamSetup:
 
 
 class ReconFixer:
-    """The RECON-bot's side through the flight fixer's code (:mod:`fsw.tasks.cliffbot_fixer`):
+    """The RECON-bot's side through the flight fixer's code (:mod:`fsw.tasks.fixer.task`):
     standing at ``recon_xy_yaw``, before its first answer it points the mast at each Anchorbot's
     plate and resects its camera on the plates it sees (:mod:`fsw.core.localization.landmarks`);
     per request it points the mast at the Cliff-bot's estimate (the request's ``x, y``, the

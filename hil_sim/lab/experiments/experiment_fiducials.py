@@ -26,7 +26,7 @@ ended, its covariance and the truth) the RECON-bot stands at its TRUE end pose a
 computes with its ESTIMATE, as the flight fixer does; the Cliff-bot is placed at each range
 toward the face. Each placement gives two fixes from the same pair: from the rover's estimate
 (with its covariance against its start, as the flight's fix without a plate:
-``fsw.tasks.cliffbot_fixer.frame_extra``; a mission stored without ``frame_cov`` gives the
+``fsw.tasks.fixer.fix_pose.frame_extra``; a mission stored without ``frame_cov`` gives the
 map-relative one) and through the Anchorbots' plates (both plates viewed once from where
 it stands, ``fsw.core.localization.landmarks``). One process per mission (``--jobs``); writes
 OUT/fiducials_missions.csv and ``docs/results/fiducials-missions.md``.
@@ -332,7 +332,7 @@ def mission_rows(scenario: str, seed: int, recon: dict[str, Any], config: str, r
     from fsw.core.localization.localization import PoseEstimate
     from fsw.settings import load_settings
     from fsw.tasks.camera import camera_pose_covariance
-    from fsw.tasks.cliffbot_fixer import frame_extra
+    from fsw.tasks.fixer.fix_pose import frame_extra
     from fsw.tasks.messages import NavPose
     from hil_sim.render import StereoRenderer
     from hil_sim.team.cliffbot_rig import CliffbotRig

@@ -1,7 +1,7 @@
 """The rover's covariance against its start (fsw/core/localization/odometry.py): a correction's
 covariance is relative to the map it registered on; ``frame_covariance`` adds the corrections
 before it (the map's own errors), survives a checkpoint, and the fixer carries it into the
-camera pose of a fix that rests on the rover's estimate (fsw/tasks/cliffbot_fixer.py)."""
+camera pose of a fix that rests on the rover's estimate (fsw/tasks/fixer/fix_pose.py)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from fsw.core.geometry import MastConfig
 from fsw.core.localization.odometry import Odometry
 from fsw.core.motion import wheel_kinematics as wk
 from fsw.core.motion.motion_profile import MotionConfig
-from fsw.tasks.cliffbot_fixer import fix_camera, frame_extra
+from fsw.tasks.fixer.fix_pose import fix_camera, frame_extra
 from fsw.tasks.messages import NavPose
 from fsw.tasks.motion_state import MotionSection
 

@@ -1,4 +1,4 @@
-"""The RECON-bot's fixer task (fsw/tasks/cliffbot_fixer.py) views the Anchorbots' plates from
+"""The RECON-bot's fixer task (fsw/tasks/fixer/task.py) views the Anchorbots' plates from
 where it stands: a rover standing tilted (a wheel over the lip) aims the mast with its body
 attitude, so the camera looks at each plate; a survey that resects no plate says so and which
 (event NO_LANDMARKS), and the fix then rests on the rover's estimate. A turn toward a plate past
@@ -19,7 +19,7 @@ from fsw.core.geometry import camera_pose_from_rover, point_mast
 from fsw.core.localization.landmarks import anchor_marker_corners
 from fsw.framework.telemetry import Channel
 from fsw.settings import FswConfig
-from fsw.tasks.cliffbot_fixer import LIFT_M
+from fsw.tasks.fixer.task import LIFT_M
 from fsw.tasks.messages import (
     MISSION_GROUND,
     MOTION_REQUEST,

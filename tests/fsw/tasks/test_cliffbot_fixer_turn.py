@@ -1,4 +1,4 @@
-"""The RECON-bot's fixer task (fsw/tasks/cliffbot_fixer.py): a Cliff-bot behind the mast's pan
+"""The RECON-bot's fixer task (fsw/tasks/fixer/task.py): a Cliff-bot behind the mast's pan
 range is answered NO_FIX "out of the mast's reach" and the RECON-bot turns its body toward it in
 place (a small turn through the motion task) when the geofence allows it, on the mission's ground:
 near a hidden lip (the map's frontier) or a mapped drop the turn is refused with an event and not
