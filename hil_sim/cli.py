@@ -57,7 +57,11 @@ GROUP_HELP = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: tuple[str, str] | None = None) -> argparse.ArgumentParser:
+    """The command line of every subcommand, or of ``only`` (``(group, name)``) alone: its module
+    is then the only one imported. :func:`main` builds that when the arguments name a command, so
+    a mission's start does not import the forty command modules (the lab's pandas among them) to
+    parse its own options; the help of the whole tool and a misspelt command get every one."""
     parser = argparse.ArgumentParser(
         prog="safer-hil",
         description="MIT-SAFER hardware-in-the-loop bench: simulated worlds and hardware, "
@@ -66,6 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
     top = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     groups: dict[str, argparse._SubParsersAction[argparse.ArgumentParser]] = {}
     for (group, name), modname in COMMANDS.items():
+        if only is not None and (group, name) != only:
+            continue
         try:
             mod = importlib.import_module(modname)
         except ModuleNotFoundError as exc:
@@ -101,7 +107,7 @@ class DefaultsOnce(argparse.ArgumentDefaultsHelpFormatter):
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args = build_parser(named_command(sys.argv[1:] if argv is None else argv)).parse_args(argv)
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt:
@@ -112,6 +118,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         print("safer-hil: the lab's tables need pandas: pip install -e '.[lab]'", file=sys.stderr)
         return 1
+
+
+def named_command(argv: Sequence[str]) -> tuple[str, str] | None:
+    """The ``(group, name)`` of :data:`COMMANDS` that the arguments begin with, if any."""
+    if argv and ("", argv[0]) in COMMANDS:
+        return "", argv[0]
+    if len(argv) > 1 and (argv[0], argv[1]) in COMMANDS:
+        return argv[0], argv[1]
+    return None
 
 
 def _resume_hint(args: argparse.Namespace) -> str:

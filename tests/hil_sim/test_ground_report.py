@@ -98,7 +98,7 @@ def test_a_lab_command_without_pandas_says_which_extra(monkeypatch, capsys):
 
     parser = argparse.ArgumentParser()
     parser.set_defaults(_run=lab_command)
-    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    monkeypatch.setattr(cli, "build_parser", lambda only=None: parser)
     monkeypatch.setitem(sys.modules, "pandas", None)  # as if not installed
     assert cli.main([]) == 1
     assert capsys.readouterr().err.splitlines() == ["safer-hil: the lab's tables need pandas: pip install -e '.[lab]'"]

@@ -107,3 +107,24 @@ def test_bench_planner_times_the_flight_footprints_against_whole_map_filters(
     assert main(["bench", "planner", "--repeat", "0"]) == 2
     assert main(["bench", "planner", "--scenario", "lab"]) == 2  # no team there
     assert "no team" in capsys.readouterr().out
+
+
+def test_a_named_command_imports_its_module_alone() -> None:
+    """``safer-hil run ...`` parses its options without importing the other command modules (the
+    lab's tables and pandas among them): each start of a mission, a bench or a one-line refusal
+    is that much shorter. The whole tool's help still lists every command."""
+    import subprocess
+    import sys
+
+    probe = ("import sys\nfrom hil_sim import cli\nassert cli.main(['run', '--steps', '-1']) == 2\n"
+             "print(sorted(m for m in sys.modules if m.startswith(('hil_sim.commands.', 'hil_sim.lab.experiments',\n"
+             "                                                     'hil_sim.lab.bench', 'pandas'))))")
+    r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip() == "['hil_sim.commands.run']"
+    from hil_sim import cli
+
+    assert cli.named_command(["bench", "cycle", "--help"]) == ("bench", "cycle")
+    assert cli.named_command(["bench", "--help"]) is None and cli.named_command([]) is None
+    listed = cli.build_parser().format_help()
+    assert all(name in listed for group, name in cli.COMMANDS if not group)
