@@ -51,6 +51,8 @@ U8 = NDArray[np.uint8]
 SKY_DN = 190.0           # grey level where a ray meets no terrain
 DETAIL_CELL_M = 0.0025   # detail texture cell
 DETAIL_TILE = 512        # detail texture tile side (cells); it repeats every 1.28 m
+NEAR_Z_M = 1e-3          # a quad's points nearer the camera plane than this are not projected
+CLEAR_M = 0.05           # a straddling quad's plane this far from the camera: its front part is boxed
 
 
 class StereoRenderer:
@@ -237,10 +239,13 @@ class StereoRenderer:
             pts = np.concatenate([q.p0 + s * q.eu, q.p0 + q.ev + s * q.eu, q.p0 + s * q.ev,
                                   q.p0 + q.eu + s * q.ev])
         pc = (pts - c) @ R
-        if (pc[:, 2] <= 1e-3).all():
+        if (pc[:, 2] <= NEAR_Z_M).all():
             return None
-        if (pc[:, 2] <= 1e-3).any():
-            return (0, 0, w, h)  # straddles the camera plane: test every pixel
+        if (pc[:, 2] <= NEAR_Z_M).any():  # straddles the camera plane: the part in front
+            front = self._front_part(q, c, R)
+            if front is None:
+                return (0, 0, w, h)  # the camera stands on the quad's plane: test every pixel
+            pc = front
         if cam.dist[which] is not None:
             # the lens polynomial is only meaningful near the field of view: clamp far points
             # to a border beyond the image (a box reaching the image edge stays one)
@@ -251,6 +256,28 @@ class StereoRenderer:
         u0, u1 = max(0, int(math.floor(u.min())) - 1), min(w, int(math.ceil(u.max())) + 2)
         v0, v1 = max(0, int(math.floor(v.min())) - 1), min(h, int(math.ceil(v.max())) + 2)
         return None if u0 >= u1 or v0 >= v1 else (u0, v0, u1, v1)
+
+    @staticmethod
+    def _front_part(q: Quad, c: F64, R: F64) -> F64 | None:
+        """Camera coordinates of the outline of a quad that straddles the camera plane, cut to
+        ``z >= NEAR_Z_M`` (its edges at nine points each, as :meth:`_bbox` samples a quad), or
+        None when the camera's centre is within ``CLEAR_M`` of the quad's plane.
+
+        A pixel's ray meets points ``t * (x, y, 1)`` with ``|x|, |y|`` the tangents of the field
+        of view (below 10 for any lens), so a point it meets nearer than ``NEAR_Z_M`` lies within
+        ``15 NEAR_Z_M`` of the centre: none of the cut-off part is ever met while the plane is
+        ``CLEAR_M`` away, and the box of the outline holds every pixel the quad can cover."""
+        if abs(float((c - q.p0) @ q.normal)) < CLEAR_M:
+            return None
+        corners = (q.corners - c) @ R
+        ring: list[F64] = []
+        for a, b in zip(corners, np.roll(corners, -1, axis=0), strict=True):  # Sutherland-Hodgman, one plane
+            if a[2] >= NEAR_Z_M:
+                ring.append(a)
+            if (a[2] >= NEAR_Z_M) != (b[2] >= NEAR_Z_M):
+                ring.append(a + (NEAR_Z_M - a[2]) / (b[2] - a[2]) * (b - a))
+        s = np.linspace(0.0, 1.0, 9)[:, None]
+        return np.concatenate([a + s * (b - a) for a, b in zip(ring, ring[1:] + ring[:1], strict=True)])
 
     # -- sensor -----------------------------------------------------------------------
     def _to_u8(self, image: F32) -> U8:

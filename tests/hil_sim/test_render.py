@@ -307,3 +307,38 @@ def test_subpixel_rays_through_a_lens_are_the_uncached_rays_bit_for_bit(ss: int)
             assert got.shape == ((v1 - v0) * ss, (u1 - u0) * ss, 3)
             np.testing.assert_array_equal(got, want)
         np.testing.assert_array_equal(subpixel_rays(R, K, None, box, ss), pixel_rays(R, K, us, vs))
+
+
+@pytest.mark.parametrize("k1", [0.0, -0.2], ids=["pinhole", "lens"])
+def test_a_plate_across_the_camera_plane_is_drawn_over_its_front_parts_box_only(lab, monkeypatch, k1):
+    """A fiducial plate that reaches behind the camera (a plate lying beside the mast) is
+    supersampled over the box of its part in front of the camera, not over every pixel: the
+    same image and depth bit for bit as over the whole image (the rays outside the box miss it),
+    at a fraction of the rays; with the camera's centre on the plate's plane, every pixel."""
+    from hil_sim.camera_model import CameraModelConfig, TrueCameras
+    from hil_sim.world.cliffbot import Quad
+
+    cam = CameraConfig(width_px=320, height_px=240)
+    cams = TrueCameras.from_config(cam, dataclasses.replace(CameraModelConfig(), model="ideal", k1=k1,
+                                                            pixel_samples=1))
+    r = StereoRenderer(lab, cam, 0.0, 0, marker_supersample=2, cameras=cams)
+    pose = CameraPose.from_pan_tilt(0.0, 0.0, 1.2, 0.0, math.radians(-25.0))
+    c = np.asarray(pose.t, float)
+    ahead, side, down = pose.R[:, 2], pose.R[:, 0], pose.R[:, 1]
+    tex = np.tile(np.array([[0.2, 0.9], [0.9, 0.2]], np.float32), (4, 4))
+    # 0.4 m to the right of the camera, from 0.5 m behind its plane to 1.5 m in front, facing it
+    plate = Quad(c + 0.4 * side - 0.5 * ahead - 0.3 * down, 2.0 * ahead, 0.6 * down, tex, fiducial=True)
+    if float((c - plate.p0) @ plate.normal) < 0:
+        plate = Quad(plate.p0 + 0.6 * down, 2.0 * ahead, -0.6 * down, tex, fiducial=True)
+    box = r._bbox(cams, plate, c, np.asarray(pose.R, float), 0, 320, 240)
+    assert box is not None and (box[2] - box[0]) * (box[3] - box[1]) < 0.6 * 320 * 240
+    image, depth = r.render_view(pose, 0, (plate,))
+    assert np.isfinite(depth).any() and (depth < 1.0).any()  # the plate is in view, near
+    monkeypatch.setattr(StereoRenderer, "_front_part", staticmethod(lambda q, c, R: None))  # every pixel
+    assert r._bbox(cams, plate, c, np.asarray(pose.R, float), 0, 320, 240) == (0, 0, 320, 240)
+    image_all, depth_all = r.render_view(pose, 0, (plate,))
+    np.testing.assert_array_equal(image, image_all)
+    np.testing.assert_array_equal(depth, depth_all)
+    monkeypatch.undo()
+    on_plane = Quad(c - 0.5 * ahead - 0.3 * down, 2.0 * ahead, 0.6 * down, tex, fiducial=True)
+    assert r._bbox(cams, on_plane, c, np.asarray(pose.R, float), 0, 320, 240) == (0, 0, 320, 240)
