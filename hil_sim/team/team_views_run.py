@@ -5,7 +5,8 @@ A cycle: the agents' candidate views are rated on the one shared map and chosen 
 team planner (``fsw.core.planning.team_views``: sequential greedy, the RECON-bot favouring the
 Cliff-bot's corridor, the Cliff-bot paying tether motion); each chosen view is then *sensed* on
 the TRUE ground and fused into the shared map and into that agent's own map with the flight's
-fusion (``ElevationMap.merge_parts_steps``, §1).
+fusion (``ElevationMap.merge_parts_steps``, §1; the shared map a ``TeamElevation``, §8: of two
+inconsistent heights of a cell it keeps the better-supported one).
 
 The sensing is a model, not a rendering (so 30 scenes x two runs fit in minutes): a cell is
 measured when its centre lies in the view's field and depth of field, its texture allows stereo
@@ -50,7 +51,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
-from fsw.core.map.elevation_map import ElevationMap
+from fsw.core.map.elevation_map import ElevationMap, TeamElevation
 from fsw.core.map.face_map import (
     FaceFrame,
     FaceMap,
@@ -133,7 +134,7 @@ class TeamViewsRun:
         self.grid = MapGrid(g0.x0, g0.y0, g0.cell * k, g0.nx // k, g0.ny // k)
         self.truth = np.asarray(world.ground_on_grid(self.grid), float)
         self.textured = ~world.textureless_on_grid(self.grid)
-        self.map = ElevationMap(self.grid, self.fusion)
+        self.map: ElevationMap = TeamElevation(self.grid, self.fusion)  # both agents' views meet here (§8)
         self.by_agent = {a: ElevationMap(self.grid, self.fusion) for a in ("recon", "cliffbot")}
         # the lips each map's views found: the shared map's ("team") and each agent's own
         self.lips = {a: KnownLips(self.grid) for a in ("team", "recon", "cliffbot")}

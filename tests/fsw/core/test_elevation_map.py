@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fsw.core.geometry import MapGrid
-from fsw.core.map.elevation_map import ElevationMap, FusionConfig
+from fsw.core.map.elevation_map import ElevationMap, FusionConfig, TeamElevation
 
 GRID = MapGrid(0.0, 0.0, 0.1, 4, 3)
 CELL_XY = (0.15, 0.15)  # cell [1, 1]
@@ -89,6 +89,31 @@ def test_repeated_outliers_eventually_accept_a_real_change() -> None:
     for _ in range(6):
         one_point_merge(m, 0.3, 1e-4)
     assert m.z[1, 1] > 0.25 and m.outliers[1, 1] >= 1
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(-1, 1), st.floats(1e-4, 0.05), st.floats(0.01, 0.99), st.floats(3.2, 50.0),
+       st.sampled_from([-1.0, 1.0]))
+def test_where_agents_meet_a_refused_measurement_holds_the_cell_when_it_is_better_supported(
+        z0: float, v0: float, ratio: float, k: float, sign: float) -> None:
+    """§8, fusion from several agents: one agent's view of a cell, wrong and overconfident (the
+    face under a lip, seen from below), then the other's, beyond the gate and with a smaller
+    variance: the shared grid holds the second, a one-agent grid keeps the first (§1.1); a
+    refused measurement with a larger variance changes a shared cell as it does any other."""
+    cfg = FusionConfig(gate_sigma=3.0, outlier_var_factor=4.0)
+    vm = ratio * v0
+    zm = z0 + sign * k * math.sqrt(v0 + vm)
+    shared, alone = TeamElevation(GRID, cfg), ElevationMap(GRID, cfg)
+    for m in (shared, alone):
+        one_point_merge(m, z0, v0)
+        one_point_merge(m, zm, vm)
+        assert m.n[1, 1] == 1 and m.outliers[1, 1] == 1
+    assert shared.z[1, 1] == pytest.approx(zm, abs=1e-12) and shared.var[1, 1] == pytest.approx(vm)
+    assert alone.z[1, 1] == pytest.approx(z0, abs=1e-12) and alone.var[1, 1] == pytest.approx(4.0 * v0)
+    worse = TeamElevation(GRID, cfg)
+    one_point_merge(worse, zm, vm)
+    one_point_merge(worse, z0, v0)
+    assert worse.z[1, 1] == pytest.approx(zm, abs=1e-12) and worse.var[1, 1] == pytest.approx(4.0 * vm)
 
 
 @settings(max_examples=30, deadline=None)
