@@ -6,7 +6,7 @@ team planner (``fsw.core.planning.team_views``: sequential greedy, the RECON-bot
 Cliff-bot's corridor, the Cliff-bot paying tether motion); each chosen view is then *sensed* on
 the TRUE ground and fused into the shared map and into that agent's own map with the flight's
 fusion (``ElevationMap.merge_parts_steps``, §1; the shared map a ``TeamElevation``, §8: of two
-inconsistent heights of a cell it keeps the better-supported one).
+inconsistent heights of a cell a tighter one above displaces the other).
 
 The sensing is a model, not a rendering (so 30 scenes x two runs fit in minutes): a cell is
 measured when its centre lies in the view's field and depth of field, its texture allows stereo

@@ -31,8 +31,8 @@ The view's measurement is fused into the map by the 1-D Kalman update of §1.1; 
 measurement whose Mahalanobis distance ``|zm - z| / sqrt(var + vm)`` exceeds ``gate_sigma``
 is not averaged in: the cell's ``outliers`` count goes up and its ``var`` is multiplied by
 ``outlier_var_factor`` so that a real change is accepted after a few views. Where several
-agents' views meet in one grid (:class:`TeamElevation`) a refused measurement with a smaller
-variance than the cell's replaces its content instead (docs/algorithm.md §8).
+agents' views meet in one grid (:class:`TeamElevation`) a refused measurement above the cell's
+height with a smaller variance than the cell's replaces its content instead (docs/algorithm.md §8).
 
 Misses (§4, §3.4): given the visibility probability ``P_V`` of each cell for this view (or a
 boolean mask, ``P_V = 1``), every cell with ``P_V > 0`` that got no point has its interest
@@ -409,19 +409,18 @@ class ElevationMap:
 class TeamElevation(ElevationMap):
     """A gravity grid that several agents' views enter (docs/algorithm.md §8, "Fusion from
     several agents"): §1.1, except that a measurement the gate refuses replaces the cell's content
-    when its variance is smaller than the cell's. Of two inconsistent heights of a cell (one
-    agent's view of it wrong: a view from below the lip that put the face there, a mixed pixel),
-    the cell holds the better-supported one whichever agent saw it first, where §1.1 keeps the
-    first and lets a change win only after a few views (within one agent's views a refused
-    measurement is more often the odd one). So another agent's views cannot leave a cell worse
-    than the better agent's own map unless the variances are wrong. (The face map's grid does
-    the same, ``fsw.core.map.face_map.FaceElevation``, §8.1.)"""
+    when it lies above it and its variance is smaller than the cell's. A gravity cell holds its
+    upper surface (the face map keeps the outer one, §8.1): a cell that straddles a lip, seen
+    first from below (the Cliff-bot's view of the face under it), is given the lip's height when
+    a tighter view from above comes, whichever agent saw it first, where §1.1 keeps the first
+    until a change has outvoted it over a few views; a lower height never displaces a cell's.
+    Within one agent's views §1.1 holds (a refused measurement is more often the odd one)."""
 
     def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64, vm_pose: F64 | None = None) -> tuple[int, int, int]:
         z0, v0, n0 = self.z.reshape(-1)[cells], self.var.reshape(-1)[cells], self.n.reshape(-1)[cells]
         with np.errstate(invalid="ignore"):
             refused = np.abs(zm - z0) > self.cfg.gate_sigma * np.sqrt(v0 + vm)
-        better = (n0 > 0) & refused & (vm < v0)
+        better = (n0 > 0) & refused & (vm < v0) & (zm > z0)
         out = super()._fuse(cells, zm, vm, vm_pose)
         c = cells[better]
         self.z.reshape(-1)[c], self.var.reshape(-1)[c] = zm[better], vm[better]
