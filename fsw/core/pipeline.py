@@ -333,13 +333,18 @@ class SensingPipeline:
         """Fuse a view's world points (:meth:`world_parts_steps`, consumed) into the map with
         the misses of the cells in ``p_visible`` that get none (§1.1, §3.4); each cell the view
         measured remembers the view as its source (``fsw.core.map.reference_frames``). With a
-        face map the points are split by its hand-over (§8.1) and its share fused there."""
+        face map the points are split by its hand-over (§8.1) and its share fused there. The
+        points under a lip the map knows (its own lips included) stay out of the gravity grid
+        (§4, the lip guard: the lip's cell keeps the lip's height, not the face's under it)."""
         if self.face is not None:
             view = parts  # every point's sight line is free space (the face map's overhang test)
             to_face, parts = split_parts(parts, self.face)
             self.face.merge_parts(to_face, eye=placed.pose.t, rays=view, window_rad=self.matcher.window_rad,
                                   max_range_m=self.cfg.camera.max_range_m)
             yield
+        known = self.lips.guard(self.cfg.fusion.lip_min_drop_m)
+        if known is not None:
+            parts = known.gravity_parts(parts, self.cfg.fusion.lip_guard_sigma)
         view_cells = self.map.grid.cell_means(np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3)))
         X, Y = (c.reshape(-1)[view_cells[0]] for c in self.map.grid.centers())
         self.sources.add(view_cells[0], np.column_stack([X, Y, view_cells[1]]), placed.pose.t, placed.cov)

@@ -5,7 +5,8 @@ A cycle: the agents' candidate views are rated on the one shared map and chosen 
 team planner (``fsw.core.planning.team_views``: sequential greedy, the RECON-bot favouring the
 Cliff-bot's corridor, the Cliff-bot paying tether motion); each chosen view is then *sensed* on
 the TRUE ground and fused into the shared map and into that agent's own map with the flight's
-fusion (``ElevationMap.merge_parts_steps``, §1).
+fusion (``ElevationMap.merge_parts_steps``, §1; the shared map a ``TeamElevation``, §8: of two
+inconsistent heights of a cell a tighter one above displaces the other).
 
 The sensing is a model, not a rendering (so 30 scenes x two runs fit in minutes): a cell is
 measured when its centre lies in the view's field and depth of field, its texture allows stereo
@@ -15,7 +16,11 @@ the cell (jittered), each displaced by an error drawn from the stereo covariance
 deviation ``range^2 sigma_d / (f B)`` along the ray, ``range sigma_d / f`` across it, ``sigma_d``
 = ``SIGMA_D_PX``) and fused with that covariance; the cells a view was expected to see and did
 not record their misses (§3.4). The face map (§8.1) is fitted on the shared map once it holds
-enough of the face and fed with every view's face share.
+enough of the face and fed with every view's face share. Each map keeps the lips its views found
+(``fsw.core.map.known_lips``; a view's lips as its stereo would find them:
+:meth:`TeamViewsRun._lips`) and, as the flight's pipeline does, keeps the points under them out of
+its gravity grid (docs/algorithm.md §4, the lip guard): a view from below the lip sees the face
+under it, which the lip's cell must not average with the lip.
 
 The Cliff-bot's corridor is its plan on the true ground on the scenario's map grid
 (``face_planner.plan_targets``: start to every target it reaches, path +- ``corridor_half_m``);
@@ -46,7 +51,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
-from fsw.core.map.elevation_map import ElevationMap
+from fsw.core.map.elevation_map import ElevationMap, TeamElevation
 from fsw.core.map.face_map import (
     FaceFrame,
     FaceMap,
@@ -56,6 +61,7 @@ from fsw.core.map.face_map import (
     split_parts,
 )
 from fsw.core.map.face_plane import fit_face_plane
+from fsw.core.map.known_lips import KnownLips
 from fsw.core.planning.face_rating import FaceCells, face_cells
 from fsw.core.planning.info_planners import InformationPlanner
 from fsw.core.planning.nbv import NbvConfig, info_n_max, predicted_visibility
@@ -73,6 +79,7 @@ from fsw.core.planning.team_views import (
 )
 from fsw.core.planning.view_candidates import Station
 from fsw.core.planning.visibility import in_view
+from fsw.core.stereo.occlusion import LipGuard
 from fsw.core.team.face_planner import ClimberConfig, plan_targets
 from fsw.core.team.tether import TetherConfig, anchor_points, surface_normal, tether_states
 from hil_sim.team.face_eval import equal_memory_cell
@@ -127,8 +134,10 @@ class TeamViewsRun:
         self.grid = MapGrid(g0.x0, g0.y0, g0.cell * k, g0.nx // k, g0.ny // k)
         self.truth = np.asarray(world.ground_on_grid(self.grid), float)
         self.textured = ~world.textureless_on_grid(self.grid)
-        self.map = ElevationMap(self.grid, self.fusion)
+        self.map: ElevationMap = TeamElevation(self.grid, self.fusion)  # both agents' views meet here (§8)
         self.by_agent = {a: ElevationMap(self.grid, self.fusion) for a in ("recon", "cliffbot")}
+        # the lips each map's views found: the shared map's ("team") and each agent's own
+        self.lips = {a: KnownLips(self.grid) for a in ("team", "recon", "cliffbot")}
         # the interest each agent is rated with, decayed by its own misses only (§8.2)
         self.interest = AgentInterest(self.grid.shape, self.fusion.interest_beta)
         t = world.team
@@ -313,6 +322,7 @@ class TeamViewsRun:
         ok = self._line_of_sight(pose.t, pts[vis]) if vis.any() else np.zeros(0, bool)
         iy, ix = iy[vis][ok], ix[vis][ok]
         out[iy, ix] = True
+        lips = LipGuard(g, *self._lips(pose, cam, pts[vis][ok]), self.fusion.lip_min_drop_m)
         sub = np.array([0.25, 0.75])  # four points per cell, one in each quarter (jittered)
         fx = (sub[None, :, None] + 0.2 * (self.rng.random((ix.size, 2, 2)) - 0.5)).reshape(ix.size, 4)
         fy = (sub[None, None, :] + 0.2 * (self.rng.random((ix.size, 2, 2)) - 0.5)).reshape(ix.size, 4)
@@ -336,15 +346,68 @@ class TeamViewsRun:
         # for a view rated on the face)
         expect = v.p_visible if v.p_visible is not None else predicted_visibility(self.map, pose, cam,
                                                                                    self.nbv.visibility)
-        run_merge(self.map, [(xyz.copy(), cov.copy(), None)], expect)
+        self._merge(self.map, "team", lips, xyz, cov, expect)
         hy, hx, inside = g.cell_index(xyz[:, 0], xyz[:, 1])
         hit = np.zeros(g.shape, bool)
         hit[hy[inside], hx[inside]] = True
         self.interest.record(v.agent, np.clip(expect, 0.0, 1.0), hit)  # this agent's misses only (§8.2)
-        run_merge(self.by_agent[v.agent], [(xyz.copy(), cov.copy(), None)], None)
+        self._merge(self.by_agent[v.agent], v.agent, lips, xyz, cov, None)
         if xyz.size:
             self._to_face([(xyz, cov, None)])
         return out
+
+    def _merge(self, emap: ElevationMap, owner: str, lips: LipGuard, xyz: F64, cov: F64,
+               p_visible: F64 | B | None) -> None:
+        """A view's points into one gravity grid, as the flight's pipeline fuses them
+        (``SensingPipeline.remember_lips`` and ``fuse_steps``): the view's lips join the lips that
+        map knows (the harness's poses are exact: no pose variance), and the points under them stay
+        out of it."""
+        known = self.lips[owner]
+        known.add(lips.near, lips.toward, np.zeros(lips.near.shape[0]))
+        parts = [(xyz.copy(), cov.copy(), None)]
+        guard = known.guard(self.fusion.lip_min_drop_m)
+        run_merge(emap, parts if guard is None else guard.gravity_parts(parts, self.fusion.lip_guard_sigma), p_visible)
+
+    def _lips(self, pose: CameraPose, cam: CameraConfig, pts: F64, step_m: float = 0.02,
+              tol_m: float = 0.02) -> tuple[F64, F64]:
+        """The view's occluding lips as its stereo finds them (``fsw.core.stereo.occlusion``): of
+        the cell centres it sees (``pts``), those whose sight line, continued past the centre, runs
+        on through air (it is not in the ground one cell further) and meets textured ground again
+        inside the image and the depth range, as the pixels just above the cell's see it: ``(near,
+        far)``, the centre and that ground (``LipGuard`` counts those that drop more than
+        ``lip_min_drop_m``)."""
+        near: list[F64] = []
+        far: list[F64] = []
+        g, eye = self.grid, pose.t
+        for a in range(0, len(pts), 2000):
+            p = pts[a:a + 2000]
+            ray = p - eye
+            rng_m = np.linalg.norm(ray, axis=1)
+            q1 = p + ray * (g.cell / rng_m)[:, None]
+            go_on = ~(q1[:, 2] < np.asarray(self.world.ground_at(q1[:, 0], q1[:, 1]), float) - tol_m)
+            p, ray, rng_m = p[go_on], ray[go_on], rng_m[go_on]
+            if not p.size:
+                continue
+            s_max = cam.max_range_m / np.einsum("ij,j->i", ray, pose.R[:, 2])  # depth grows with s
+            k = int(np.ceil(float(np.max((s_max - 1.0) * rng_m)) / step_m))
+            if k < 1:
+                continue
+            s = 1.0 + np.arange(1, k + 1)[None, :] * (step_m / rng_m)[:, None]
+            q = eye[None, None, :] + s[:, :, None] * ray[:, None, :]
+            ground = np.asarray(self.world.ground_at(q[..., 0], q[..., 1]), float)
+            hit = (q[..., 2] < ground - tol_m) & (s <= s_max[:, None])
+            first = np.argmax(hit, axis=1)
+            rows = np.nonzero(hit.any(axis=1))[0]
+            f = q[rows, first[rows]]
+            fy, fx, inside = g.cell_index(f[:, 0], f[:, 1])
+            seen = np.zeros(rows.size, bool)
+            seen[inside] = self.textured[fy[inside], fx[inside]]
+            seen &= in_view(pose, cam, f)
+            near.append(p[rows[seen]])
+            far.append(f[seen])
+        if not near:
+            return np.zeros((0, 3)), np.zeros((0, 3))
+        return np.concatenate(near), np.concatenate(far)
 
     def _to_face(self, parts: list[tuple[F64, F64, F64 | None]]) -> None:
         """The face map beside the gravity grid (docs/algorithm.md §8.1): fitted on the shared map

@@ -155,3 +155,40 @@ def test_the_overlap_is_reported_over_every_cycle_each_scenes_worst_and_each_sce
     assert float(worst[2]) == pytest.approx(0.35) and float(worst[3]) == pytest.approx(0.6)
     mean = cells("each scene's mean over its cycles")
     assert float(mean[3]) == pytest.approx(0.2)
+
+
+@pytest.mark.slow
+def test_the_harness_finds_a_views_lips_as_its_stereo_would_and_keeps_the_points_under_them_out() -> None:
+    """From the plateau over a drop whose ground behind lies within the camera's depth, a view
+    finds lips (near point more than lip_min_drop_m above the far one, the drop away from the
+    camera); from the face below, looking up at the lip, it finds none (the ground behind the lip
+    is out of its sight). A point under a lip the map knows stays out of that map's gravity grid."""
+    import numpy as np
+
+    from fsw.core.geometry import CameraConfig, CameraPose
+    from fsw.core.map.elevation_map import ElevationMap
+    from fsw.core.planning.visibility import in_view
+    from fsw.core.stereo.occlusion import LipGuard
+    from hil_sim.team.team_sensing import CLIFFBOT_CAMERA
+    from hil_sim.team.team_views_run import TeamViewsRun
+    from hil_sim.world import load_scenario
+
+    run = TeamViewsRun(load_scenario("cliff-team", 0), 0, team=True)
+    g = run.grid
+    iy, ix = np.nonzero(np.isfinite(run.truth) & run.textured)
+    cells = np.column_stack([g.x0 + (ix + 0.5) * g.cell, g.y0 + (iy + 0.5) * g.cell, run.truth[iy, ix]])
+
+    def lips(pose: CameraPose, cam: CameraConfig) -> LipGuard:
+        vis = in_view(pose, cam, cells)
+        seen = cells[vis][run._line_of_sight(pose.t, cells[vis])]
+        return LipGuard(g, *run._lips(pose, cam, seen), run.fusion.lip_min_drop_m)
+
+    above = lips(CameraPose.from_pan_tilt(2.8, -0.9, 1.5, -math.pi / 2, math.radians(-60.0)), run.camera)
+    assert above.lips >= 2 and np.all(above.toward[:, 1] < 0.0)
+    below = lips(CameraPose.from_pan_tilt(3.02, -4.32, -4.75, math.pi / 2, math.radians(25.0)), CLIFFBOT_CAMERA)
+    assert below.lips == 0
+    emap = ElevationMap(g, run.fusion)
+    lip = above.near[0]
+    point = np.array([[lip[0], lip[1], lip[2] - 1.0], [lip[0] + 1.0, lip[1] + 1.0, lip[2] - 1.0]])
+    run._merge(emap, "team", above, point, np.tile(np.eye(3) * 1e-4, (2, 1, 1)), None)
+    assert emap.n.sum() == 1 and not emap.mapped[g.cell_index(point[:1, 0], point[:1, 1])[:2]][0]

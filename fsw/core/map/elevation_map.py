@@ -30,7 +30,9 @@ A view's points near its own occluding lips never get here (``fsw.core.stereo.oc
 The view's measurement is fused into the map by the 1-D Kalman update of §1.1; a
 measurement whose Mahalanobis distance ``|zm - z| / sqrt(var + vm)`` exceeds ``gate_sigma``
 is not averaged in: the cell's ``outliers`` count goes up and its ``var`` is multiplied by
-``outlier_var_factor`` so that a real change is accepted after a few views.
+``outlier_var_factor`` so that a real change is accepted after a few views. Where several
+agents' views meet in one grid (:class:`TeamElevation`) a refused measurement above the cell's
+height with a smaller variance than the cell's replaces its content instead (docs/algorithm.md §8).
 
 Misses (§4, §3.4): given the visibility probability ``P_V`` of each cell for this view (or a
 boolean mask, ``P_V = 1``), every cell with ``P_V > 0`` that got no point has its interest
@@ -402,6 +404,29 @@ class ElevationMap:
         missed = empty & (pv >= self.cfg.miss_pv_threshold)
         self.misses[missed] += 1
         return int(missed.sum())
+
+
+class TeamElevation(ElevationMap):
+    """A gravity grid that several agents' views enter (docs/algorithm.md §8, "Fusion from
+    several agents"): §1.1, except that a measurement the gate refuses replaces the cell's content
+    when it lies above it and its variance is smaller than the cell's. A gravity cell holds its
+    upper surface (the face map keeps the outer one, §8.1): a cell that straddles a lip, seen
+    first from below (the Cliff-bot's view of the face under it), is given the lip's height when
+    a tighter view from above comes, whichever agent saw it first, where §1.1 keeps the first
+    until a change has outvoted it over a few views; a lower height never displaces a cell's.
+    Within one agent's views §1.1 holds (a refused measurement is more often the odd one)."""
+
+    def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64, vm_pose: F64 | None = None) -> tuple[int, int, int]:
+        z0, v0, n0 = self.z.reshape(-1)[cells], self.var.reshape(-1)[cells], self.n.reshape(-1)[cells]
+        with np.errstate(invalid="ignore"):
+            refused = np.abs(zm - z0) > self.cfg.gate_sigma * np.sqrt(v0 + vm)
+        better = (n0 > 0) & refused & (vm < v0) & (zm > z0)
+        out = super()._fuse(cells, zm, vm, vm_pose)
+        c = cells[better]
+        self.z.reshape(-1)[c], self.var.reshape(-1)[c] = zm[better], vm[better]
+        vp = np.zeros(c.size) if vm_pose is None else np.clip(vm_pose[better], 0.0, vm[better])
+        self.var_common.reshape(-1)[c] = self.cfg.view_correlation * (vm[better] - vp) + vp  # as a first view's
+        return out
 
 
 def _sym6(cov: F64) -> tuple[F64, ...]:

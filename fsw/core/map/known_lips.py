@@ -16,6 +16,15 @@ below the lip's height: a point the view's pose error may have carried over the 
 plateau, which it cannot be told from. A point past a lip and lower than that is ground below
 the lip, whatever its horizontal error, and is kept; a point on the plateau side of a lip is in
 a plateau cell and is kept.
+
+A view from below the lip (the Cliff-bot's, on the face) sees the face under it, and the gravity
+grid's cell that straddles the lip holds two heights: the lip's and the face's under it. A point
+more than ``min_drop_m`` below the nearest known lip is kept out of the gravity grid
+(:meth:`PastLips.under`, :meth:`PastLips.gravity_parts`; the face map, where there is one, takes
+it) when it lies in the lip's own cell, or on the lip's plateau side within ``k`` sigma of it (the
+point's whole horizontal covariance, stereo and pose, and the lip's own): the face below the lip,
+carried behind it by its error (seen from below at grazing incidence, a point's depth error runs
+into the face). So the lip's cell keeps the lip's height and the plateau behind it the plateau's.
 """
 
 from __future__ import annotations
@@ -33,6 +42,7 @@ from fsw.core.geometry import MapGrid
 
 F64 = NDArray[np.float64]
 B = NDArray[np.bool_]
+ViewPart = tuple[F64, F64, F64 | None]  # world xyz, total covariance, the view's common (pose) covariance
 
 
 class KnownLipsState(TypedDict):
@@ -58,7 +68,8 @@ class PastLips:
         where the cell holds no lip."""
         self.grid = grid
         self.min_drop_m = min_drop_m
-        idx = ndimage.distance_transform_edt(np.isnan(xyz[..., 0]), return_distances=False, return_indices=True)
+        self._holds = ~np.isnan(xyz[..., 0])  # the cells that hold a lip of their own
+        idx = ndimage.distance_transform_edt(~self._holds, return_distances=False, return_indices=True)
         iy, ix = idx[0], idx[1]
         self._xyz, self._toward, self._var = xyz[iy, ix], toward[iy, ix], var[iy, ix]
 
@@ -80,6 +91,40 @@ class PastLips:
         high = p[:, 2] > lip[:, 2] - self.min_drop_m
         near = np.einsum("ij,ij->i", off, off) <= k_sigma * k_sigma * var
         out[inside] = ~(past & high & near)
+        return out
+
+    def under(self, xyz_w: F64, cov_w: F64, k_sigma: float) -> B:
+        """Points the gravity grid must not take (module docstring): more than ``min_drop_m``
+        below the nearest known lip, and in the lip's own cell or on its plateau side within
+        ``k_sigma`` sigma of it (``cov_w``: the point's whole covariance, and the lip's horizontal
+        variance). Points off the grid, and every point with ``k_sigma <= 0`` (the guard off): False."""
+        n = xyz_w.shape[0]
+        out = np.zeros(n, bool)
+        if k_sigma <= 0.0 or n == 0:
+            return out
+        with np.errstate(invalid="ignore"):  # a NaN point falls off the grid
+            iy, ix, inside = self.grid.cell_index(xyz_w[:, 0], xyz_w[:, 1])
+        iy, ix = iy[inside], ix[inside]
+        p = xyz_w[inside]
+        lip = self._xyz[iy, ix]
+        off = p[:, :2] - lip[:, :2]
+        low = p[:, 2] < lip[:, 2] - self.min_drop_m
+        behind = np.einsum("ij,ij->i", off, self._toward[iy, ix]) <= 0.0
+        var = horizontal_variance(cov_w[inside]) + self._var[iy, ix]
+        near = np.einsum("ij,ij->i", off, off) <= k_sigma * k_sigma * var
+        out[inside] = low & (self._holds[iy, ix] | (behind & near))
+        return out
+
+    def gravity_parts(self, parts: list[ViewPart], k_sigma: float) -> list[ViewPart]:
+        """A view's parts ``(xyz, cov, cov_common)`` without the points :meth:`under` a known lip:
+        the gravity grid's share."""
+        out: list[ViewPart] = []
+        for xyz, cov, common in parts:
+            keep = ~self.under(xyz, cov, k_sigma)
+            if keep.all():
+                out.append((xyz, cov, common))
+            elif keep.any():
+                out.append((xyz[keep], cov[keep], None if common is None else common[keep]))
         return out
 
 

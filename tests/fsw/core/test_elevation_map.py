@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fsw.core.geometry import MapGrid
-from fsw.core.map.elevation_map import ElevationMap, FusionConfig
+from fsw.core.map.elevation_map import ElevationMap, FusionConfig, TeamElevation
 
 GRID = MapGrid(0.0, 0.0, 0.1, 4, 3)
 CELL_XY = (0.15, 0.15)  # cell [1, 1]
@@ -89,6 +89,31 @@ def test_repeated_outliers_eventually_accept_a_real_change() -> None:
     for _ in range(6):
         one_point_merge(m, 0.3, 1e-4)
     assert m.z[1, 1] > 0.25 and m.outliers[1, 1] >= 1
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(-1, 1), st.floats(1e-4, 0.05), st.floats(0.01, 0.99), st.floats(3.2, 50.0))
+def test_where_agents_meet_a_tighter_refused_height_above_holds_the_cell(
+        z0: float, v0: float, ratio: float, k: float) -> None:
+    """§8, fusion from several agents: one agent's view of a cell, low and overconfident (the
+    face under a lip, seen from below), then the other's, beyond the gate, above it and with a
+    smaller variance: the shared grid holds the second, a one-agent grid keeps the first (§1.1).
+    Refused as §1.1 everywhere: the same measurement below the cell, or one with a larger variance."""
+    cfg = FusionConfig(gate_sigma=3.0, outlier_var_factor=4.0)
+    vm = ratio * v0
+    zm = z0 + k * math.sqrt(v0 + vm)
+    shared, alone = TeamElevation(GRID, cfg), ElevationMap(GRID, cfg)
+    for m in (shared, alone):
+        one_point_merge(m, z0, v0)
+        one_point_merge(m, zm, vm)
+        assert m.n[1, 1] == 1 and m.outliers[1, 1] == 1
+    assert shared.z[1, 1] == pytest.approx(zm, abs=1e-12) and shared.var[1, 1] == pytest.approx(vm)
+    assert alone.z[1, 1] == pytest.approx(z0, abs=1e-12) and alone.var[1, 1] == pytest.approx(4.0 * v0)
+    for first, second in (((z0, v0), (2 * z0 - zm, vm)), ((zm, vm), (z0, v0)), ((z0, vm), (zm, v0))):
+        m = TeamElevation(GRID, cfg)
+        one_point_merge(m, *first)
+        one_point_merge(m, *second)
+        assert m.z[1, 1] == pytest.approx(first[0], abs=1e-12) and m.var[1, 1] == pytest.approx(4.0 * first[1])
 
 
 @settings(max_examples=30, deadline=None)

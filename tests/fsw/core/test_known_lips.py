@@ -131,3 +131,41 @@ def test_a_broken_lips_state_restores_no_lips(cfg: FswConfig) -> None:
     for bad in ({}, {"cells": "??", "lips": ""}, {"cells": 3, "lips": None}):
         lips.restore(bad)
         assert lips.cells == 0
+
+
+def test_a_lip_cell_seen_from_below_keeps_the_lips_height_not_the_faces(cfg: FswConfig) -> None:
+    """A view from below the lip (the Cliff-bot's, on the face) puts the face under the lip into
+    the gravity grid's lip cell, and, by its error along its sight lines, behind the lip into the
+    plateau's cells: the lip's cell keeps the lip's height, the plateau's cell stays unknown, the
+    face below keeps the face's heights and the plateau beyond the points' reach is not guarded."""
+    pipe = SensingPipeline(cfg, None)
+    pipe.lips.add(np.array([[0.0, 0.015, 0.0]]), np.array([[0.0, -1.0]]), np.zeros(1))  # lip cell: 0 <= y < 0.03
+    rng = np.random.default_rng(6)
+
+    def at(n: int, y0: float, y1: float, z: float) -> np.ndarray:
+        return np.column_stack([rng.uniform(0.001, 0.029, n), rng.uniform(y0, y1, n), np.full(n, z)])
+
+    rim = at(20, 0.016, 0.029, 0.0)  # the lip itself, seen from below
+    under = at(20, 0.001, 0.014, -1.0)  # the face under it, in the lip's cell
+    behind = at(20, 0.061, 0.089, -1.2)  # the face carried behind the lip by the points' error
+    face = at(20, -0.29, -0.21, -1.0)  # the face below the lip
+    far = at(20, 0.61, 0.69, -1.2)  # a hollow in the plateau, out of the points' reach of the lip
+    placed, pts = _view(np.concatenate([rim, under, behind, face, far]), sigma_xy=0.05)
+    parts = run_to_end(pipe.world_parts_steps(placed, pts))
+    run_to_end(pipe.fuse_steps(placed, parts))
+    m, g = pipe.map, pipe.map.grid
+
+    def cell(y: float) -> tuple[int, int]:
+        iy, ix, _ = g.cell_index(np.array([0.015]), np.array([y]))
+        return int(iy[0]), int(ix[0])
+
+    assert abs(m.z[cell(0.02)]) < 0.01  # the lip's height, not the mean with the face's
+    assert not m.mapped[cell(0.075)]
+    assert m.z[cell(-0.25)] == pytest.approx(-1.0, abs=0.01)
+    assert m.z[cell(0.65)] == pytest.approx(-1.2, abs=0.01)
+    # the guard off (lip_guard_sigma 0) takes them all
+    off = dataclasses.replace(cfg, fusion=dataclasses.replace(cfg.fusion, lip_guard_sigma=0.0))
+    pipe = SensingPipeline(off, None)
+    pipe.lips.add(np.array([[0.0, 0.015, 0.0]]), np.array([[0.0, -1.0]]), np.zeros(1))
+    run_to_end(pipe.fuse_steps(placed, run_to_end(pipe.world_parts_steps(placed, pts))))
+    assert pipe.map.z[cell(0.02)] < -0.4 and pipe.map.mapped[cell(0.075)]
