@@ -17,10 +17,9 @@ plane, the Anchorbots' ground points): the ground round them, which the tethers 
 in the views.
 
 The map the mission plans on (:class:`~fsw.tasks.cliffbot.messages.SensedMap`, published when
-a map arrives over the link and when a request's views are all in): the received map (the
-RECON-bot's, within the codec's bound) and the Cliff-bot's own map fused by variance
-(:func:`fsw.core.team.team_map.merge_received`, docs/algorithm.md §8), and under each
-Anchorbot (its footprint round its surveyed ground point,
+a map arrives over the link and when a request's views are all in): the received map as it
+came (the RECON-bot's, within the codec's bound), and, on the cells it does not know, the
+Cliff-bot's own map, and under each Anchorbot (its footprint round its surveyed ground point,
 which no camera sees) that ground point's height: known by contact. A request without a
 camera, or whose captures all fail, is answered with the map as it stands (events say why):
 the mission never waits on a broken camera.
@@ -47,7 +46,6 @@ from fsw.core.registration.registration import RegistrationConfig
 from fsw.core.stereo.stereo import StereoConfig
 from fsw.core.team.cliffbot_head import head_end, head_pose_covariance, normal_from_attitude
 from fsw.core.team.contact_ground import body_height
-from fsw.core.team.team_map import merge_received
 from fsw.core.team.tether import tether_state
 from fsw.framework.jobs import JobHandle
 from fsw.framework.telemetry import Channel, EventDef, Severity
@@ -139,9 +137,6 @@ class CliffbotSensingTask(FlightTask):
     CHANNELS = (
         Channel("views", "count", doc="views merged into its own map"),
         Channel("own_cells", "cells", doc="cells of its own map the received map does not know"),
-        Channel("fused_cells", "cells", doc="cells both maps know, within the gate: fused by variance"),
-        Channel("disputed_cells", "cells",
-                doc="cells both maps know, beyond the gate: its own height kept (the received variance is a floor)"),
         Channel("last_points", "points"),
         Channel("last_new_cells", "cells"),
         Channel("pending", "count", doc="captures left of the request under way"),
@@ -199,19 +194,16 @@ class CliffbotSensingTask(FlightTask):
     def _publish(self) -> None:
         if self.received is None:
             return
+        z = np.asarray(self.received.z, np.float64).copy()
         own = self.own_map()
-        # the received map and its own, fused by variance (docs/algorithm.md §8, §1.1)
-        merged = merge_received(self.received.z, self.received.error_bound_m, own, self.pipe.map.var,
-                                self.pipe.map.cfg.gate_sigma)
-        z = merged.z
-        n = int(merged.own_only.sum())
+        fill = ~np.isfinite(z) & np.isfinite(own)
+        z[fill] = own[fill]
+        n = int(fill.sum())
         X, Y = self.grid.centers()
         for a in self.anchor_ground:  # the ground under each Anchorbot, known by contact
             foot = (np.abs(X - a[0]) <= ANCHOR_FOOT_M) & (np.abs(Y - a[1]) <= ANCHOR_FOOT_M) & ~np.isfinite(z)
             z[foot] = a[2]
         self.tlm("own_cells", n)
-        self.tlm("fused_cells", int(merged.fused.sum()))
-        self.tlm("disputed_cells", int(merged.disputed.sum()))
         self.publish(CB_SENSED_MAP, SensedMap(self.received.map_id, z, self.received.error_bound_m, self.answered, n,
                                               own))
 
