@@ -61,7 +61,7 @@ from fsw.comm.team.fix_packets import Fix
 from fsw.comm.team.team_can import WINCHES
 from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import NavConfig, Navigator
-from fsw.core.team.contact_ground import fill_under_body
+from fsw.core.team.contact_ground import StoodGround, fill_under_body
 from fsw.core.team.face_planner import OFF_THE_WAY, ClimberConfig, plan_targets, standing_cells
 from fsw.core.team.tether import TetherConfig, tether_state
 from fsw.drivers.cliffbot_devices import CliffbotDevices
@@ -121,6 +121,7 @@ class CliffbotMission:
         self.z: F64 | None = None
         self.carried: NDArray[np.bool_] | None = None  # cells of z no sensor measured (the plane carried on)
         self.carried_from = self.start.copy()  # where it stood when they were filled
+        self.stood: StoodGround | None = None  # the ground under every pose it held when a map came
         self.grid: MapGrid | None = None
         self.error_bound_m = 0.0  # the received map's height error bound (the codec's)
         self._route: Route | None = None  # the map as the legs use it (made again for every map)
@@ -161,21 +162,31 @@ class CliffbotMission:
         # (a ring is as flat as the map can tell: half the codec's error bound, at least 3 cm)
         flat = max(0.03, 0.5 * error_bound_m) if math.isfinite(error_bound_m) else 0.03
         self.error_bound_m = error_bound_m if math.isfinite(error_bound_m) else 0.0
-        self.z, filled = fill_under_body(z, grid, self.est.xy, r, body_m=r + BODY_MARGIN_M, max_rms_m=flat)
+        z_in = np.asarray(z, np.float64)
+        # the ground it stood on before, which it measured by standing there (no camera saw it
+        # the while): given back where this map does not know it or holds its box there
+        if self.stood is None or self.stood.z.shape != z_in.shape:
+            self.stood = StoodGround.empty(z_in.shape)
+        z_back, stood_on = self.stood.restore(z_in, flat)
+        self.z, filled = fill_under_body(z_back, grid, self.est.xy, r, body_m=r + BODY_MARGIN_M, max_rms_m=flat)
         # the cells filled beyond where it stands are the plane carried on, not ground a sensor
         # measured: no node a leg ends on or crosses counts them as known (legs.Route,
         # face_planner.ground_layers). Where it stands: its footprint round its estimate, the
         # footprint of the lattice node nearest it (the node it stands at) and its body's outline
-        z_in = np.asarray(z, np.float64)
         filled_here = np.isfinite(self.z) & ~(np.isfinite(z_in) & (z_in == self.z))
         body = None if self.body_half is None else (float(self.est.s[2]), *self.body_half)
-        self.carried = filled_here & ~standing_cells(grid, self.est.xy, self.ccfg, body)
+        under = standing_cells(grid, self.est.xy, self.ccfg, body)
+        self.carried = filled_here & ~under & ~stood_on
         self.carried_from = self.est.xy
+        # (a cell given back keeps how it was known then: a sensor's height stays a sensor's)
+        self.stood.record(self.z, under, filled_here & ~(stood_on & ~self.stood.by_contact))
         self.grid = grid
         self._route = None
         self.map_version += 1
+        back = int(stood_on.sum())
         self.event("MAP", f"map {self.map_version}: {int(np.isfinite(self.z).sum())} known cells"
-                   + (f", {filled} under the body known by contact" if filled else ""))
+                   + (f", {filled} under the body known by contact" if filled else "")
+                   + (f", {back} stood on before" if back else ""))
         if self.state == "WAIT_MAP":
             # with its own views: a fix first, then the look (_leg_ready), then the plan
             self.state = "PLAN" if self.sensing is None else "WAIT_FIX"

@@ -19,9 +19,19 @@ it (what the Cliff-bot's own views are placed on, docs/team.md, "Both agents sen
 median of the known cells within ``ring_m`` when they are enough and all round it; else the
 height at which its two taut tethers on the map, paid out to the winches' lengths, fit
 (:func:`tether_heights`); else that median, else the Anchorbots' ground.
+
+:class:`StoodGround` keeps the ground the body has stood on once it has moved on: the body
+measured it by standing on it, and no camera sees it the while (the RECON-bot's map holds the
+body's box or nothing there, and its own head looks past its body). Each pose it held gives
+the cells under it (``fsw.core.team.face_planner.standing_cells``) with the heights its map gave
+them then, those filled by contact marked so; a later map gets them back where it does not know
+them, and a cell known by contact also where the later map stands above it by more than the
+flatness the contact was trusted to (the body's box, mapped while it stood there).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -164,3 +174,34 @@ def body_height(z: ZMap, grid: MapGrid, xy: F64, anchors: F64, cfg: TetherConfig
         if fits:
             return min(fits, key=lambda f: abs(f - prior)), "tethers"
     return prior, ("thin ring" if near.any() else "anchors")
+
+
+@dataclass
+class StoodGround:
+    """The ground under every pose the body held (module docstring): a height per cell (NaN
+    where it never stood) and whether that height came from contact (the plane under its body)
+    rather than from a sensor's map."""
+
+    z: F64
+    by_contact: B
+
+    @staticmethod
+    def empty(shape: tuple[int, int]) -> StoodGround:
+        return StoodGround(np.full(shape, np.nan), np.zeros(shape, bool))
+
+    def record(self, z: ZMap, under: B, contact: B) -> None:
+        """The body stands on ``under`` (cells) of map ``z``, whose cells ``contact`` were filled by
+        contact: remember their heights (the latest pose wins where two overlap)."""
+        zf = np.asarray(z, np.float64)
+        at = under & np.isfinite(zf)
+        self.z[at] = zf[at]
+        self.by_contact[at] = contact[at]
+
+    def restore(self, z: ZMap, max_rms_m: float) -> tuple[F64, B]:
+        """``z`` with the ground stood on given back (module docstring), and the cells given."""
+        out = np.array(z, dtype=np.float64, copy=True)
+        stood = np.isfinite(self.z)
+        with np.errstate(invalid="ignore"):
+            give = stood & (~np.isfinite(out) | (self.by_contact & (out > self.z + max_rms_m)))
+        out[give] = self.z[give]
+        return out, give

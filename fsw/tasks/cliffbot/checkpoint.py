@@ -1,7 +1,8 @@
 """The Cliff-bot mission's checkpoint: its state, its navigation estimate and the received map.
 
 Two files in ``[checkpoint] directory``: ``cliffbot_state.json`` (schema 1: the mission's
-state, legs, targets with what became of them, the estimate and its covariance) and
+state, legs, targets with what became of them, the estimate and its covariance, the ground it
+stood on) and
 ``cliffbot_map.npy`` (the received map, heights in the team's frame). Each is written to a
 temporary name and renamed over the old one, the map first, so a crash leaves the previous
 pair or the new one. The radio task keeps a third, ``cliffbot_sync.json``: its map sync end's
@@ -23,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid
+from fsw.core.team.contact_ground import StoodGround
 from fsw.framework.storage import describe
 from fsw.tasks.cliffbot.legs import Leg
 from fsw.tasks.cliffbot_mission import CliffbotMission, Estimate
@@ -46,7 +48,15 @@ def snapshot(m: CliffbotMission, now: float) -> dict[str, object]:
         "nav_s": [float(v) for v in m.est.s], "nav_P": m.est.P.tolist(),
         # the map's cells no sensor measured (the plane carried under its body): flat indices
         "carried": [] if m.carried is None else np.flatnonzero(m.carried).tolist(),
+        # the ground it stood on (fsw.core.team.contact_ground.StoodGround): flat indices, heights,
+        # and which of them it knew by contact
+        "stood": [] if m.stood is None else _stood(m.stood),
     }
+
+
+def _stood(g: StoodGround) -> list[list[float]]:
+    at = np.flatnonzero(np.isfinite(g.z))
+    return [[int(i), float(g.z.flat[i]), int(g.by_contact.flat[i])] for i in at]
 
 
 def restore(m: CliffbotMission, st: dict[str, object], z: NDArray[np.float64] | None, grid: MapGrid) -> str:
@@ -87,6 +97,7 @@ def restore(m: CliffbotMission, st: dict[str, object], z: NDArray[np.float64] | 
             raise CheckpointError(f"{STATE}: carried cells outside the map")
         m.carried = np.zeros(grid.shape, bool)
         m.carried.flat[flat] = True
+        m.stood = _restore_stood(st.get("stood", []), grid)
     m.targets, m.reached, m.reasons, m.legs, m.leg_i = targets, reached, reasons, legs, leg_i
     m.planned_lengths = [math.inf for _ in range(len(targets))]
     m.looks = [0 for _ in range(len(targets))]
@@ -100,6 +111,23 @@ def restore(m: CliffbotMission, st: dict[str, object], z: NDArray[np.float64] | 
     m.state = state
     m.safe_reason = str(st.get("safe_reason", "")) if state == "SAFE" else ""
     return f"leg {leg_i + 1} of {len(legs)}, {sum(reached)} of {len(targets)} targets reached"
+
+
+def _restore_stood(v: object, grid: MapGrid) -> StoodGround:
+    """The ground stood on, from its checkpoint form (``[index, height, by contact]`` per cell)."""
+    g = StoodGround.empty(grid.shape)
+    try:
+        rows = np.asarray(v, np.float64).reshape(-1, 3)
+    except (TypeError, ValueError) as exc:
+        raise CheckpointError(f"{STATE}: stood: {type(exc).__name__}: {exc}") from None
+    if not np.isfinite(rows).all():
+        raise CheckpointError(f"{STATE}: stood: non-finite values")
+    idx = rows[:, 0].astype(np.int64)
+    if len(idx) and (idx.min() < 0 or idx.max() >= g.z.size or not np.array_equal(idx, rows[:, 0])):
+        raise CheckpointError(f"{STATE}: stood cells outside the map")
+    g.z.flat[idx] = rows[:, 1]
+    g.by_contact.flat[idx] = rows[:, 2] != 0
+    return g
 
 
 def nav_estimate(st: dict[str, object]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

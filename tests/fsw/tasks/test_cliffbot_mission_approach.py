@@ -261,3 +261,62 @@ def test_the_look_budget_counts_looks_without_progress_so_a_long_approach_goes_o
     assert m.state == "DRIVE" and m.legs[0].via is None and m.reasons[0] == "", m.events[-2:]
     t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried).known)
     assert m.reached == [True] and m.looks == [len(views)] > [m.cfg.approach_looks]
+
+
+def test_the_ground_it_stood_on_stays_known_so_the_leg_home_reaches_its_start() -> None:
+    """No camera ever sees the ground under the start (the RECON-bot's map leaves it unknown,
+    and so does every later map): the body measured it by standing there, so once it has moved
+    to the approach node and looked, the leg home is still planned onto it and driven (were it
+    forgotten, the start's footprint would be unknown ground and the leg home refused)."""
+    start = np.array([2.55, -0.45])
+    anchors = np.array([[1.0, 0.6, 0.3], [4.0, 0.6, 0.3]])
+    m = CliffbotMission(CliffbotMissionConfig(approach_looks=1, return_home=True), TetherConfig(), ClimberConfig(),
+                        NavConfig(), anchors, start, -np.pi / 2, TARGET[None, :],
+                        sensing=CliffbotSensingConfig(enabled=True))
+    dev = FreshDevices()
+    z0 = _unknown_below(-1.9)
+    x, y = GRID.centers()
+    half_len, half_wid = CliffbotSensingConfig().body_half_m[:2]
+    under = standing_cells(GRID, start, m.ccfg, (-np.pi / 2, half_len, half_wid))
+    z0[under] = np.nan
+    t = _start(m, dev, z0)
+    assert m.step(t + 0.1, dev).request_fix
+    m.on_no_fix(m.fix_seq, "busy")
+    assert m.state == "DRIVE" and m.legs[0].via is not None, m.events[-2:]
+    t, _ = _drive(m, dev, t + 0.2, ground_layers(m.z, GRID, m.ccfg, m.carried).known)
+    assert m.state == "WAIT_FIX" and float(np.hypot(*(m.est.xy - start))) > 1.0
+    t = _look(m, dev, t, z0)  # the look shows nothing new; the map there still does not know the start
+    assert np.isfinite(m.z[under]).all() and not (m.carried & under).any()
+    assert m.legs[m.leg_i].target is None and m.state == "WAIT_FIX", m.events[-3:]  # the leg home
+    assert m.step(t + 0.1, dev).request_fix
+    m.on_no_fix(m.fix_seq, "busy")
+    assert m.state == "DRIVE", m.events[-3:]  # planned onto the ground it stood on
+    t, places = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried).known)
+    assert "HOME" in _names(m) and m.state == "DONE"
+    assert float(np.hypot(*(places[-1] - start))) <= m.ccfg.node_m
+
+
+def test_a_checkpoint_keeps_the_ground_it_stood_on_and_a_bad_one_is_refused() -> None:
+    """A Cliff-bot restarted from its checkpoint still knows the ground under the poses it held:
+    the next map gets it back as before the restart."""
+    import pytest
+
+    from fsw.tasks.cliffbot.checkpoint import CheckpointError, restore, snapshot
+
+    z0 = _unknown_below(-1.9)
+    under = standing_cells(GRID, START, ClimberConfig())
+    z0[under] = np.nan
+    m = _mission()
+    m.on_estimate(np.array([*START, -np.pi / 2]), P)
+    m.set_map(z0, GRID)
+    m.on_estimate(np.array([2.5, -1.5, -np.pi / 2]), P)
+    back = _mission()
+    restore(back, snapshot(m, 1.0), m.z, GRID)
+    back.on_estimate(np.array([2.5, -1.5, -np.pi / 2]), P)
+    back.set_map(z0, GRID)
+    m.set_map(z0, GRID)
+    assert np.isfinite(back.z[under]).all() and np.array_equal(back.z, m.z, equal_nan=True)
+    for bad, why in (([[z0.size, 0.0, 1]], "outside the map"), ([[3, float("nan"), 1]], "non-finite"),
+                     ("nope", "stood")):
+        with pytest.raises(CheckpointError, match=why):
+            restore(_mission(), snapshot(m, 1.0) | {"stood": bad}, m.z, GRID)
