@@ -382,3 +382,48 @@ def _settle_search(z: ZMap, grid: MapGrid, anchors: F64, target: F64, xy0: F64, 
     if st is not None and float(np.max(np.abs(np.asarray(st.lengths_m) - target))) < accept_m:
         return xy, st
     return None
+
+
+def settle_many(z: ZMap, grid: MapGrid, anchors: F64, lengths: F64, guesses_xy: F64, cfg: TetherConfig,
+                iterations: int = 6, tol_m: float = 1e-3) -> list[tuple[F64, TetherState] | None]:
+    """:func:`settle` of many pairs of lengths ``lengths`` (M, 2), each from its guess
+    ``guesses_xy`` (M, 2): the Gauss-Newton steps of all of them in one batch of
+    :func:`tether_states` per iteration (each place and its four Jacobian probes). A place whose
+    residual is not within ``tol_m`` after ``iterations`` full steps (a contact appearing or
+    vanishing: the lengths kink, and a full step can cycle across the kink) is settled again by
+    :func:`settle` from its guess, with its backtracking and search: the answers are
+    :func:`settle`'s in kind (both tethers taut within ``tol_m``, or None)."""
+    target = np.asarray(lengths, float).reshape(-1, 2)
+    xy = np.asarray(guesses_xy, float).reshape(-1, 2).copy()
+    h = grid.cell
+    probes = np.array([[0.0, 0.0], [h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
+    out: list[tuple[F64, TetherState] | None] = [None] * len(xy)
+    active = np.arange(len(xy))
+    for _ in range(iterations):
+        if not len(active):
+            break
+        states = tether_states(z, grid, anchors, (xy[active, None, :] + probes).reshape(-1, 2), cfg)
+        going: list[int] = []
+        for j, i in enumerate(active.tolist()):
+            st = [s for s in states[5 * j: 5 * j + 5] if s is not None]
+            if len(st) < 5:
+                continue  # off the known ground: :func:`settle` decides below
+            here = np.asarray(st[0].lengths_m) - target[i]
+            if float(np.max(np.abs(here))) < tol_m:
+                out[i] = (xy[i].copy(), st[0])
+                continue
+            ls = np.array([s.lengths_m for s in st[1:]])
+            jac = np.column_stack([ls[0] - ls[1], ls[2] - ls[3]]) / (2 * h)
+            if abs(np.linalg.det(jac)) < 1e-9:
+                continue
+            step = np.linalg.solve(jac, here)
+            n = float(np.linalg.norm(step))
+            xy[i] -= step * (0.5 / n if n > 0.5 else 1.0)  # damped as :func:`settle`'s steps
+            going.append(i)
+        active = np.asarray(going, dtype=np.intp)
+    guesses = np.asarray(guesses_xy, float).reshape(-1, 2)
+    for i in range(len(xy)):
+        if out[i] is None:
+            out[i] = settle(z, grid, anchors, (float(target[i, 0]), float(target[i, 1])), guesses[i], cfg,
+                            tol_m=tol_m)
+    return out
