@@ -58,14 +58,8 @@ from scipy import ndimage
 
 from fsw.core.codec.hazard import relief
 from fsw.core.geometry import MapGrid
-from fsw.core.team.held_tension import (
-    LengthErrors,
-    held_reason,
-    length_covariance,
-    length_offsets,
-    statics_reason,
-)
-from fsw.core.team.tether import TetherConfig, TetherState, ZMap, settle, settle_many, tether_state, tether_states
+from fsw.core.team.held_tension import LengthErrors, held_at, held_reason, length_covariance, length_offsets
+from fsw.core.team.tether import TetherConfig, TetherState, ZMap, settle, tether_state, tether_states
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
@@ -342,11 +336,10 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
     tether, the body settled at each (``settle``, from the last place) and judged there like a
     node (unknown ground, hazard, the tethers and the statics: :func:`_tether_verdict`), ending
     within a lattice spacing of ``b`` (else :data:`OFF_THE_WAY`). With ``errors``, where the
-    statics hold the body (steeper than ``free_slope_deg``) it is also settled at the lengths
-    off by each of the errors' offsets (:func:`fsw.core.team.held_tension.length_offsets`, each
-    moving from ``a``'s offset to ``b``'s along the way, each from its own last place) and
-    judged there (:func:`fsw.core.team.held_tension.statics_reason`). Directed: the way back
-    may differ."""
+    statics hold the body (steeper than ``free_slope_deg``) the tethers must also hold it at the
+    lengths off by each of the errors' offsets (:func:`fsw.core.team.held_tension.length_offsets`,
+    each moving from ``a``'s offset to ``b``'s along the way; :func:`fsw.core.team.held_tension.held_at`).
+    Directed: the way back may differ."""
     sa = tether_state(z, grid, anchors, np.asarray(a, float), tcfg, ccfg.footprint_m)
     sb = tether_state(z, grid, anchors, np.asarray(b, float), tcfg, ccfg.footprint_m)
     if sa is None or sb is None:
@@ -358,7 +351,6 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
     if errors is not None and held:
         off_a = length_offsets(length_covariance(sa, errors), errors.z)
         off_b = length_offsets(length_covariance(sb, errors), errors.z)
-        off_xy = np.repeat(xy[None, :], len(off_a), axis=0)  # where each offset's body last rested
     for f in np.arange(1, n + 1) / n:
         lengths = la + f * (lb - la)
         got = settle(z, grid, anchors, (float(lengths[0]), float(lengths[1])), xy, tcfg)
@@ -376,12 +368,9 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
         if why != USABLE:
             return why
         if held and got[1].statics.tilt_deg > ccfg.free_slope_deg:
-            places = settle_many(z, grid, anchors, lengths + (1.0 - f) * off_a + f * off_b, off_xy, tcfg)
-            for k, p in enumerate(places):
-                why = statics_reason(None if p is None else p[1], tcfg, ccfg.free_slope_deg)
-                if why or p is None:
-                    return why or "slack"
-                off_xy[k] = p[0]
+            why = held_at(z, grid, anchors, xy, got[1], (1.0 - f) * off_a + f * off_b, tcfg, ccfg.free_slope_deg)
+            if why:
+                return why
     if float(np.hypot(*(xy - np.asarray(b, float)))) > ccfg.node_m:
         return OFF_THE_WAY
     return ""

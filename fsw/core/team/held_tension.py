@@ -23,7 +23,9 @@ rest: a place that is not held (the lengths cannot both be taut: ``slack``) or w
 leaves ``[T_min, T_max]`` where the ground is steeper than ``free_slope_deg`` is the node's
 reason. Unlike a linear margin (the tension's gradient times where the body may be), this
 follows the body over a contact appearing, the lip's kink, a ledge, where the tensions are far
-from linear in the lengths.
+from linear in the lengths. Its cost is kept to a linear margin's where the tensions are far
+from their limits: a place whose tensions keep ``SCREEN`` (3) times their largest linear change
+over the offsets inside the limits is held without settling (:func:`held_at`).
 """
 
 from __future__ import annotations
@@ -35,10 +37,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid
-from fsw.core.team.tether import TetherConfig, TetherState, ZMap, settle_many
+from fsw.core.team.tether import TetherConfig, TetherState, ZMap, settle_many, tether_states
 
 F64 = NDArray[np.float64]
 OFFSETS = 8  # length errors round the ellipse judged per place
+SCREEN = 3.0  # a place whose tensions keep this many times their linear change inside the limits is held
+_PROBES = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])  # central differences, in cells
 
 
 @dataclass(frozen=True)
@@ -88,17 +92,47 @@ def statics_reason(st: TetherState | None, tcfg: TetherConfig, free_slope_deg: f
     return ""
 
 
-def held_reason(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, st: TetherState, tcfg: TetherConfig,
-                free_slope_deg: float, err: LengthErrors) -> str:
-    """Why the tethers may not hold the body at the node ``xy`` (its state ``st`` on the map)
-    when its lengths are off by the errors ``err`` allows (``""``: they hold it at every offset
-    of :func:`length_offsets`; module docstring)."""
-    offsets = length_offsets(length_covariance(st, err), err.z)
+def held_at(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, st: TetherState, offsets: F64, tcfg: TetherConfig,
+            free_slope_deg: float) -> str:
+    """Why the tethers may not hold the body that rests at ``xy`` (its state ``st``) when its
+    lengths are off by each of ``offsets`` (n, 2) (``""``: they hold it at every one).
+
+    The lengths' Jacobian and the tensions' gradient at ``xy`` (central differences over a map
+    cell, one batch) predict where each offset moves the body and how each tension changes
+    there. Where both tensions keep ``SCREEN`` times the largest predicted change inside
+    their limits, no offset can take them out unless the statics are that far from linear over
+    a few centimetres, and the place is held; elsewhere the body is settled at every offset from
+    its predicted place (:func:`fsw.core.team.tether.settle_many`) and the statics re-solved
+    where it rests (:func:`statics_reason`)."""
+    h = grid.cell
     lengths = np.asarray(st.lengths_m, float) + offsets
-    got = settle_many(z, grid, anchors, lengths, np.repeat(np.asarray(xy, float)[None, :], len(offsets), axis=0),
-                      tcfg)
-    for g in got:
+    around = tether_states(z, grid, anchors, np.asarray(xy, float) + _PROBES * h, tcfg)
+    guesses = np.repeat(np.asarray(xy, float)[None, :], len(offsets), axis=0)
+    if all(a is not None for a in around):
+        ls = np.array([a.lengths_m for a in around if a is not None])
+        ts = np.array([a.statics.tensions_n for a in around if a is not None])
+        jl = np.column_stack([ls[0] - ls[1], ls[2] - ls[3]]) / (2 * h)  # dL_i/dx_k
+        jt = np.column_stack([ts[0] - ts[1], ts[2] - ts[3]]) / (2 * h)  # dT_i/dx_k
+        if np.isfinite(jl).all() and np.isfinite(jt).all() and abs(np.linalg.det(jl)) > 1e-9:
+            moves = offsets @ np.linalg.inv(jl).T  # each offset's place, predicted
+            change = moves @ jt.T  # each offset's tensions, predicted (n, 2)
+            t = np.asarray(st.statics.tensions_n, float)
+            drop = np.maximum(0.0, -change.min(axis=0))
+            rise = np.maximum(0.0, change.max(axis=0))
+            if np.all(t - tcfg.t_min_n >= SCREEN * drop) and np.all(tcfg.t_max_n - t >= SCREEN * rise):
+                return ""
+            guesses = guesses + moves
+    for g in settle_many(z, grid, anchors, lengths, guesses, tcfg):
         why = statics_reason(None if g is None else g[1], tcfg, free_slope_deg)
         if why:
             return why
     return ""
+
+
+def held_reason(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, st: TetherState, tcfg: TetherConfig,
+                free_slope_deg: float, err: LengthErrors) -> str:
+    """Why the tethers may not hold the body at the node ``xy`` (its state ``st`` on the map)
+    when its lengths are off by the errors ``err`` allows (``""``: they hold it at every offset
+    of :func:`length_offsets`; :func:`held_at`)."""
+    return held_at(z, grid, anchors, xy, st, length_offsets(length_covariance(st, err), err.z), tcfg,
+                   free_slope_deg)

@@ -246,3 +246,27 @@ def test_a_legs_nodes_are_judged_on_the_ground_its_ways_are() -> None:
     plan, wps = r.plan(np.array([0.0, 0.6]), FACE)
     assert plan.reasons == ("tether over a rock",) and wps == []
     assert not r.ways  # no way was judged to find it out
+
+
+def test_the_screen_gives_the_verdicts_the_settled_statics_give(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A place whose tensions keep SCREEN times their linear change inside the limits is held
+    without settling: over places of the face and tension limits from roomy to tight, the
+    verdicts equal those of settling at every offset, and some places were settled."""
+    import fsw.core.team.held_tension as ht
+
+    z, grid, anchors = _cliff()
+    c = ClimberConfig()
+    rng = np.random.default_rng(3)
+    cases = []
+    for xy in rng.uniform([-1.5, -1.6], [1.5, -0.2], size=(12, 2)):
+        st = tether_state(z, grid, anchors, xy, TetherConfig(), c.footprint_m)
+        if st is None or not st.statics.ok:
+            continue
+        low = min(st.statics.tensions_n)
+        for room in (0.3, 1.0, 3.0, 30.0):
+            cases.append((xy, st, dataclasses.replace(TetherConfig(), t_min_n=max(0.0, low - room))))
+    screened = [held_reason(z, grid, anchors, xy, st, t, c.free_slope_deg, ERRORS) for xy, st, t in cases]
+    monkeypatch.setattr(ht, "SCREEN", math.inf)  # every place settled at every offset
+    settled = [held_reason(z, grid, anchors, xy, st, t, c.free_slope_deg, ERRORS) for xy, st, t in cases]
+    assert len(cases) >= 20 and screened == settled
+    assert "slack" in settled and "" in settled
