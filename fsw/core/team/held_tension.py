@@ -1,5 +1,6 @@
 """Whether the tethers hold the Cliff-bot where its lengths are off by what the planner must
-tolerate (docs/algorithm.md §8, "Tension under the lengths' error"; docs/team.md, "Margins").
+tolerate (docs/algorithm.md §8, "Tension under the lengths' error"; docs/team.md, "The
+planner", its margins).
 
 The mission drives a node by paying out the two tether lengths its map gives there, and the
 body rests where the TRUE ground and the winches' TRUE lengths put it. Two errors part them:

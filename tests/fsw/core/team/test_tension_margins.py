@@ -1,5 +1,5 @@
 """The Cliff-bot is held where the lengths' errors may put it (fsw.core.team.held_tension,
-fsw.core.team.face_planner, fsw.tasks.cliffbot.legs; docs/team.md, "The planner", "Margins"),
+fsw.core.team.face_planner, fsw.tasks.cliffbot.legs; docs/team.md, "The planner"),
 and the off-the-way test the place's uncertainty requires."""
 
 from __future__ import annotations
