@@ -81,8 +81,8 @@ class CliffbotMissionConfig:
     safe_recover_s: float = param(0.0, lo=0.0, hi=1e5, units="s",
                                   doc="the task leaves SAFE by itself after this long (0: waits for RECOVER)")
     approach_looks: int = param(3, lo=0, hi=20,
-                                doc="looks a target whose ground is not known may take from the known ground "
-                                    "nearest it before it is given up (0: never approached)")
+                                doc="looks in a row a target whose ground is not known may take without an "
+                                    "approach node nearer it before it is given up (0: never approached)")
 
 
 @dataclass(frozen=True)

@@ -40,7 +40,7 @@ from hil_sim.camera_model import CameraModelConfig, TrueCameras
 from hil_sim.world.cliffbot import Quad
 from hil_sim.world.config import TextureConfig
 from hil_sim.world.noise import fractal_noise
-from hil_sim.world.raytrace import Heightfield, cast_image, pixel_rays, sample
+from hil_sim.world.raytrace import Heightfield, cast_image, sample, subpixel_rays
 from hil_sim.world.texture import sun_vector
 from hil_sim.world.world import World
 
@@ -190,10 +190,7 @@ class StereoRenderer:
                            box: tuple[int, int, int, int], c: F64, R: F64, which: int, exposure: float) -> None:
         """Draw one quad with ``ss**2`` rays per pixel of ``cam`` over its pixel box."""
         u0, v0, u1, v1 = box
-        sub = (np.arange(ss) + 0.5) / ss - 0.5
-        us = (np.arange(u0, u1)[:, None] + sub[None, :]).reshape(-1)
-        vs = (np.arange(v0, v1)[:, None] + sub[None, :]).reshape(-1)
-        rays = pixel_rays(R, cam.K[which], us, vs, cam.dist[which], cache=False)
+        rays = subpixel_rays(R, cam.K[which], cam.dist[which], box, ss)
         t_q, v_q = self._hit_quad(q, c, rays, exposure)
         hh, ww = v1 - v0, u1 - u0
         t_under = np.repeat(np.repeat(np.nan_to_num(depth[v0:v1, u0:u1], nan=np.inf), ss, 0),

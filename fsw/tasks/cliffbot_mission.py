@@ -33,8 +33,10 @@ ground``, ``no safe path``) keeps its leg (event ``APPROACH``). The leg drives t
 safe, tether-feasible node nearest the target (:meth:`fsw.tasks.cliffbot.legs.Route.approach`,
 nearer the target than where it stands), asks for a fix there and looks (``LOOK``, then
 ``SENSE``), and is planned again on the map with its views: until the target is planned, a
-reason on known ground gives it up, or ``approach_looks`` looks are spent (its reason then says
-how many looks, ``unknown ground (3 looks)``). It never drives onto ground its map does not know.
+reason on known ground gives it up, or ``approach_looks`` looks in a row leave it no nearer the
+target (its reason then says how many looks it took in all, ``unknown ground (7 looks)``): each
+approach node is nearer the target than the last by more than a lattice spacing, so the approach
+ends. It never drives onto ground its map does not know.
 The legs' ways, margins and approach nodes are :mod:`fsw.tasks.cliffbot.legs`'.
 
 ``SAFE`` (winches braked, wheels stopped, event ``SAFE`` with the reason) on: a winch fault
@@ -101,6 +103,8 @@ class CliffbotMission:
                  sensing: CliffbotSensingConfig | None = None) -> None:
         self.cfg, self.tcfg, self.ccfg = cfg, tcfg, ccfg
         self.sensing = sensing if sensing is not None and sensing.enabled else None
+        # its body's outline (half length, half width): the ground under it is where it stands
+        self.body_half = (float(sensing.body_half_m[0]), float(sensing.body_half_m[1])) if sensing is not None else None
         self.sense_seq = 0  # the views asked for (Commands.sense), each answered by a map (sensed)
         self.sense_asked_at: float | None = None
         self.sensed_xy: F64 | None = None  # where it last looked
@@ -158,13 +162,14 @@ class CliffbotMission:
         flat = max(0.03, 0.5 * error_bound_m) if math.isfinite(error_bound_m) else 0.03
         self.error_bound_m = error_bound_m if math.isfinite(error_bound_m) else 0.0
         self.z, filled = fill_under_body(z, grid, self.est.xy, r, body_m=r + BODY_MARGIN_M, max_rms_m=flat)
-        # the cells filled beyond where its wheels stand are the plane carried on, not ground a
-        # sensor measured: no node a leg ends on or crosses counts them as known (legs.Route,
-        # face_planner.ground_layers). Where the wheels stand: its footprint round its estimate and
-        # the footprint of the lattice node nearest it (the node it stands at)
+        # the cells filled beyond where it stands are the plane carried on, not ground a sensor
+        # measured: no node a leg ends on or crosses counts them as known (legs.Route,
+        # face_planner.ground_layers). Where it stands: its footprint round its estimate, the
+        # footprint of the lattice node nearest it (the node it stands at) and its body's outline
         z_in = np.asarray(z, np.float64)
         filled_here = np.isfinite(self.z) & ~(np.isfinite(z_in) & (z_in == self.z))
-        self.carried = filled_here & ~standing_cells(grid, self.est.xy, self.ccfg)
+        body = None if self.body_half is None else (float(self.est.s[2]), *self.body_half)
+        self.carried = filled_here & ~standing_cells(grid, self.est.xy, self.ccfg, body)
         self.carried_from = self.est.xy
         self.grid = grid
         self._route = None
@@ -387,7 +392,8 @@ class CliffbotMission:
             self.planned_lengths[k] = plan.lengths_m[k]
             if why and not plan.start_reason and self._approaching(why):
                 self.event("APPROACH", f"target {k + 1}: {why} on its map: to the known ground nearest it, "
-                                       f"to look (up to {self.cfg.approach_looks} looks)")
+                                       f"to look (up to {self.cfg.approach_looks} looks in a row "
+                                       f"without getting nearer)")
                 self.legs.append(Leg(self.targets[k], k))
             elif why:
                 self.event("TARGET_UNREACHABLE", f"target {k + 1}: {why}")
@@ -449,18 +455,25 @@ class CliffbotMission:
         (:meth:`fsw.tasks.cliffbot.legs.Route.approach`), then look there and plan again; with no
         such node nearer than where it stands, look from here if it has not yet, or if its pose
         is known twice as well as when it last looked here (:meth:`_view_sigma`: after a fix its
-        far views keep points they lost before). False when the budget of looks is spent or a look
-        cannot help (the leg is then given up)."""
+        far views keep points they lost before). False when ``approach_looks`` looks in a row have
+        found no approach node nearer the target than the nearest before (by more than a lattice
+        spacing: the budget of looks without progress), or a look cannot help (the leg is then
+        given up)."""
         assert leg.target is not None
         k = leg.target + 1
-        if leg.looks >= self.cfg.approach_looks:
-            return False
         got = self.route().approach(self.est.xy, leg.goal)
+        gap = math.inf if got is None else float(np.hypot(*(got[0] - leg.goal)))
+        if gap < leg.nearest_m - self.ccfg.node_m:
+            leg.idle = 0  # progress: its looks brought it nearer
+            leg.nearest_m = gap
+        if leg.idle >= self.cfg.approach_looks:
+            return False
         if got is None:
             here = self.sensed_xy is not None and float(np.hypot(*(self.est.xy - self.sensed_xy))) <= self.ccfg.node_m
             if here and self._view_sigma() >= 0.5 * self.look_sigma:
                 return False  # it looked from here already, as well placed: nothing nearer to see from
             leg.looks += 1
+            leg.idle += 1
             self.looks[leg.target] = leg.looks
             self.event("LOOK", f"target {k}: {why}; no known ground nearer: look {leg.looks} from here")
             self.look_now = True
@@ -468,7 +481,6 @@ class CliffbotMission:
             self.sense_asked_at = None
             return True
         via, plan, wps = got
-        gap = float(np.hypot(*(via - leg.goal)))
         self.event("APPROACH", f"target {k}: {why}; to {via.round(2).tolist()}, {gap:.2f} m from it "
                                f"({plan.lengths_m[0]:.2f} m of path)")
         leg.via = via
@@ -481,6 +493,7 @@ class CliffbotMission:
         if leg.via is not None:
             leg.via = None
             leg.looks += 1
+            leg.idle += 1
             assert leg.target is not None
             self.looks[leg.target] = leg.looks
             self.event("LOOK", f"target {leg.target + 1}: at the approach node, look {leg.looks}")

@@ -224,8 +224,55 @@ def frame_off_deg(world: World, face: FaceMap) -> float | None:
     if t is None:
         return None
     a = math.radians(t.face_slope_deg)
-    nominal = np.array([0.0, -math.sin(a), math.cos(a)])
-    return float(np.degrees(np.arccos(np.clip(float(face.frame.normal @ nominal), -1.0, 1.0))))
+    return _angle_deg(face.frame.normal, np.array([0.0, -math.sin(a), math.cos(a)]))
+
+
+def _angle_deg(a: F64, b: F64) -> float:
+    """The angle between the unit vectors ``a`` and ``b``, degrees."""
+    return float(np.degrees(np.arccos(np.clip(float(a @ b), -1.0, 1.0))))
+
+
+def true_face_normal(world: World, step_m: float = 0.04, margin_m: float = 0.1) -> F64 | None:
+    """The normal (``e_n . z > 0``) of the total least-squares plane of the true face: the
+    ground on a ``step_m`` lattice over the world's width, from ``margin_m`` below the plateau
+    to ``margin_m`` above the floor and above the face's foot in each column (the floor's rocks
+    left out), the rock jumble (grown by 0.3 m) left out, each sample weighted by the area of
+    surface it stands for (a lattice over the ground samples a wall more sparsely than a
+    ledge). A face broken by ledges falls less steeply, lip to foot, than ``team.face_slope_deg``
+    between its ledges; this is the plane a fit to the whole face should find. None without a
+    team or a face."""
+    t = world.team
+    if t is None:
+        return None
+    x0, x1, y0, y1 = world.extent
+    xs = np.arange(x0 + step_m / 2, x1, step_m)
+    ys = np.arange(y0 + step_m / 2, y1, step_m)
+    px, py = np.meshgrid(xs, ys)
+    pz = world.ground_at(px, py)
+    floor = pz <= -t.drop_m + 0.05
+    # the face's foot per column: the highest y at which the floor is reached
+    foot = np.where(floor.any(axis=0), np.max(np.where(floor, py, -np.inf), axis=0), -np.inf)
+    jx, jy, jax, jay = t.jumble_xy_r
+    jumble = ((px - jx) / (jax + 0.3)) ** 2 + ((py - jy) / (jay + 0.3)) ** 2 < 1.0
+    with np.errstate(invalid="ignore"):
+        sel = (pz < world.plateau_z - margin_m) & (pz > -t.drop_m + margin_m) & (py > foot[None, :])
+        sel &= ~jumble & np.isfinite(pz)
+    if int(sel.sum()) < 3:
+        return None
+    gy, gx = np.gradient(pz, step_m)
+    area = np.sqrt(1.0 + gx[sel] ** 2 + gy[sel] ** 2)  # each sample's share of the surface, not of the lattice
+    area = np.where(np.isfinite(area), area, 1.0)
+    p = np.column_stack([px[sel], py[sel], pz[sel]])
+    c = (area[:, None] * p).sum(axis=0) / area.sum()
+    _, _, vt = np.linalg.svd(np.sqrt(area)[:, None] * (p - c), full_matrices=False)
+    return np.asarray(vt[2] if vt[2][2] >= 0 else -vt[2], float)
+
+
+def frame_off_true_deg(world: World, face: FaceMap) -> float | None:
+    """The angle between the face map's fitted normal and the true face's plane
+    (:func:`true_face_normal`); None without one."""
+    n = true_face_normal(world)
+    return None if n is None else _angle_deg(face.frame.normal, n)
 
 
 def face_points(face: FaceMap, cells: NDArray[np.intp], w: F64) -> F64:

@@ -20,14 +20,22 @@ from scipy import ndimage
 from fsw.core.geometry import CameraPose, MapGrid, camera_pose_from_rover, point_mast
 from fsw.core.map.body_mask import BodyBox, TeamGeometry, TetherLine, anchorbot_box
 from fsw.core.map.elevation_map import ElevationMap
-from fsw.core.map.face_map import FaceMap, FaceMapConfig, face_band, fit_face_plane, run_merge, split_parts
+from fsw.core.map.face_map import FaceMap, FaceMapConfig, face_band, run_merge, split_parts
+from fsw.core.map.face_plane import fit_face_plane
 from fsw.core.pipeline import RegisteredPose, SensingPipeline, ViewPart
 from fsw.core.registration.registration import Registration
 from fsw.core.steps import run_to_end
 from fsw.core.stereo.stereo import StereoPoints
 from fsw.core.team.tether import TetherConfig, anchor_points, surface_normal, tether_state
 from fsw.tasks.perception import SITE_MASK
-from hil_sim.team.face_eval import equal_memory_cell, face_figures, relief_rise, truth_along_normal
+from hil_sim.team.face_eval import (
+    equal_memory_cell,
+    face_figures,
+    frame_off_deg,
+    frame_off_true_deg,
+    relief_rise,
+    truth_along_normal,
+)
 from hil_sim.team.team_sensing import (
     ANCHOR_HALF_M,
     CLIFFBOT_CAMERA,
@@ -116,6 +124,7 @@ class FaceScene:
         self.gravity = ElevationMap(self.grid, self.cfg.fusion)  # every point: the one-grid map
         self.split_gravity = ElevationMap(self.grid, self.cfg.fusion)
         self.face: FaceMap | None = None
+        self.fit_views: int | None = None  # the views fused when the face plane was fitted
         self.by_agent: dict[str, FaceMap] = {}
         self.pending: list[tuple[str, list[ViewPart], F64, float]] = []  # agent, parts, camera centre, window
         self.team_points = 0  # stereo points on a robot or a tether (truth): what the mask had to remove
@@ -219,7 +228,7 @@ class FaceScene:
 
     def _try_fit(self) -> None:
         try:
-            frame = fit_face_plane(self.gravity, None, FaceMapConfig().min_slope_deg)
+            frame = fit_face_plane(self.gravity, FaceMapConfig().min_slope_deg)
             u, v = face_band(self.gravity, frame)
         except ValueError:
             return
@@ -227,6 +236,7 @@ class FaceScene:
         if self.resolve_cells is not None:
             fc = dataclasses.replace(fc, resolve_cells=self.resolve_cells)
         self.face = FaceMap(frame, (u[0], u[1]), (v[0], v[1]), fc, self.cfg.fusion)
+        self.fit_views = self.views
         for a in ("recon", "cliffbot"):
             self.by_agent[a] = self.face.empty_like()
         for agent, parts, eye, window in self.pending:
@@ -294,9 +304,11 @@ class FaceScene:
     def figures(self) -> dict[str, Any]:
         t = self.world.team
         assert t is not None
-        row: dict[str, Any] = {"seed": self.seed, "slope_deg": round(float(t.face_slope_deg), 1), "views": self.views}
+        row: dict[str, Any] = {"seed": self.seed, "slope_deg": round(float(t.face_slope_deg), 1), "views": self.views,
+                               "fit_views": self.fit_views}
         if self.face is None:  # no face fitted: only the team mask's figures
-            nones = ("face_cells", "face_rmse_m", "face_rmse_gravity_m", "ratio", "face_rmse_gravity_normal_m",
+            nones = ("frame_off_deg", "frame_off_true_deg", "face_cells", "face_rmse_m", "face_rmse_gravity_m", "ratio",
+                     "face_rmse_gravity_normal_m",
                      "ratio_normal", "rmse_recon_m", "rmse_cliff_m",
                      "rmse_fused_m", "in2s_recon", "in2s_cliff", "in2s_fused")
             zeros = {f"{k}_{a}{t}": 0 for k in ("cells", "within2s", "out2s") for a in ("recon", "cliff", "fused")
@@ -308,6 +320,10 @@ class FaceScene:
                     "overhang_open_flagged": 0, "both_cells": 0,
                     "team_points_seen": self.team_points,
                     "team_points_fused": self.team_points_fused, "team_cells_mapped": len(self.team_cells)}
+        off = frame_off_deg(self.world, self.face)
+        row["frame_off_deg"] = None if off is None else round(off, 1)
+        off = frame_off_true_deg(self.world, self.face)
+        row["frame_off_true_deg"] = None if off is None else round(off, 1)
         f = face_figures(self.world, self.face, self.gravity, self.cells_by_agent, self.true_rays)
         row.update({k: f[k] for k in ("face_cells", "face_rmse_m", "face_rmse_gravity_m", "face_rmse_gravity_normal_m",
                                        "overhang_truth", "overhang_flagged", "overhang_false",

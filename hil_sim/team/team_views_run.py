@@ -52,10 +52,10 @@ from fsw.core.map.face_map import (
     FaceMap,
     FaceMapConfig,
     face_band,
-    fit_face_plane,
     run_merge,
     split_parts,
 )
+from fsw.core.map.face_plane import fit_face_plane
 from fsw.core.planning.face_rating import FaceCells, face_cells
 from fsw.core.planning.info_planners import InformationPlanner
 from fsw.core.planning.nbv import NbvConfig, info_n_max, predicted_visibility
@@ -353,7 +353,7 @@ class TeamViewsRun:
         if self.face_map is None:
             self._pending += parts
             try:
-                frame = fit_face_plane(self.map, None, FaceMapConfig().min_slope_deg)
+                frame = fit_face_plane(self.map, FaceMapConfig().min_slope_deg)
                 u, v = face_band(self.map, frame)
             except ValueError:
                 return
@@ -411,6 +411,17 @@ class TeamViewsRun:
                     seen[k[self._line_of_sight(np.asarray(c.xyz, float), pts[k])]] = True
         return {"corridor_left_cells": int(len(pts)), "corridor_left_seeable": int(seen.sum())}
 
+    def cycles_to_corridor(self, frac: float, cap: int) -> int | None:
+        """The first cycle after which the corridor is mapped to ``frac``: the cycles run so far,
+        then more cycles (the same choice and sensing) until it is or ``cap`` cycles have run
+        (None: not within ``cap``). A run that reached it stops there, so a slow arm costs
+        cycles only until it gets there."""
+        hit = next((r.cycle for r in self.records if r.corridor_frac >= frac), None)
+        while hit is None and len(self.records) < cap:
+            rec = self.cycle()
+            hit = rec.cycle if rec.corridor_frac >= frac else None
+        return hit
+
     def cells_by_agent(self) -> dict[str, int]:
         return {k: int(m.mapped.sum()) for k, m in self.by_agent.items()}
 
@@ -425,15 +436,11 @@ def _slope_deg(z: F64, cell: float) -> F64:
     return np.asarray(np.degrees(np.arctan(np.hypot(gx, gy))), float)
 
 
-def run_scene(spec: str, seed: int, *, team: bool, cycles: int, cell_m: float = 0.08,
-              until_corridor: float | None = None) -> TeamViewsRun:
-    """``cycles`` imaging cycles of one seeded scene (stopping early once the corridor is mapped to
-    ``until_corridor``)."""
+def run_scene(spec: str, seed: int, *, team: bool, cycles: int, cell_m: float = 0.08) -> TeamViewsRun:
+    """``cycles`` imaging cycles of one seeded scene."""
     from hil_sim.world import load_scenario
 
     run = TeamViewsRun(load_scenario(spec, seed), seed, team=team, cell_m=cell_m)
     for _ in range(cycles):
-        rec = run.cycle()
-        if until_corridor is not None and rec.corridor_frac >= until_corridor:
-            break
+        run.cycle()
     return run

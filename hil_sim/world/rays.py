@@ -1,7 +1,8 @@
 """Camera rays and heightfield lookups for the ray caster (docs/world.md, "Renderer").
 
 ``Heightfield`` (a terrain grid and its height range), ``pixel_rays`` (world directions of
-pixel rays for a pinhole camera, ``fsw.core.geometry`` conventions), ``ray_intervals`` (the
+pixel rays for a pinhole camera, ``fsw.core.geometry`` conventions), ``subpixel_rays`` (the
+same for several rays per pixel over a box of the image), ``ray_intervals`` (the
 part of each ray inside the terrain's slab and box) and ``sample`` (bilinear lookups with
 ``cv2.remap``, packed for speed).
 """
@@ -90,6 +91,51 @@ def pixel_rays(R: F64, K: F64, us: F64, vs: F64, dist: F64 | None = None, cache:
         yn: F32 = ((vs - cy) / K[1, 1]).astype(np.float32)[:, None]
     else:
         xn, yn = _undistorted_grid(K, dist, us, vs, cache)
+    return _world_rays(R, xn, yn)
+
+
+def subpixel_rays(R: F64, K: F64, dist: F64 | None, box: tuple[int, int, int, int], ss: int) -> F32:
+    """:func:`pixel_rays` of ``ss x ss`` rays per pixel over the pixel box ``(u0, v0, u1, v1)``:
+    the rays at ``u + (i + 0.5) / ss - 0.5`` for each pixel ``u`` of the box (and alike in
+    ``v``), ``((v1 - v0) * ss, (u1 - u0) * ss, 3)``.
+
+    Through a lens the undistorted points are cached in tiles of ``_TILE_PX`` pixels a side
+    (per camera and ``ss``): the renderer draws markers and targets this way in every view, in
+    boxes that overlap from one view to the next, and undistorting their points afresh each time
+    was most of the renderer's time. Each point is undistorted alone, so a tile's points are
+    the ones an uncached call gives bit for bit."""
+    u0, v0, u1, v1 = box
+    if dist is None:
+        return pixel_rays(R, K, _subpixels(u0, u1, ss), _subpixels(v0, v1, ss))
+    tiles = _tile_cache(K, dist, ss)
+    xn = np.empty(((v1 - v0) * ss, (u1 - u0) * ss), np.float32)
+    yn = np.empty_like(xn)
+    for ty in range(v0 // _TILE_PX, -(-v1 // _TILE_PX)):
+        for tx in range(u0 // _TILE_PX, -(-u1 // _TILE_PX)):
+            tile = tiles.get((ty, tx))
+            if tile is None:
+                us = _subpixels(tx * _TILE_PX, (tx + 1) * _TILE_PX, ss)
+                vs = _subpixels(ty * _TILE_PX, (ty + 1) * _TILE_PX, ss)
+                tile = tiles[(ty, tx)] = _undistorted_grid(K, dist, us, vs, cache=False)
+            # the part of the tile inside the box, in pixels, then in rays
+            a_u, b_u = max(u0, tx * _TILE_PX), min(u1, (tx + 1) * _TILE_PX)
+            a_v, b_v = max(v0, ty * _TILE_PX), min(v1, (ty + 1) * _TILE_PX)
+            dst = (slice((a_v - v0) * ss, (b_v - v0) * ss), slice((a_u - u0) * ss, (b_u - u0) * ss))
+            src = (slice((a_v - ty * _TILE_PX) * ss, (b_v - ty * _TILE_PX) * ss),
+                   slice((a_u - tx * _TILE_PX) * ss, (b_u - tx * _TILE_PX) * ss))
+            xn[dst] = tile[0][src]
+            yn[dst] = tile[1][src]
+    return _world_rays(R, xn, yn)
+
+
+def _subpixels(a: int, b: int, ss: int) -> F64:
+    """The ``ss`` ray coordinates per pixel of pixels ``a .. b - 1``: ``p + (i + 0.5) / ss - 0.5``."""
+    sub = (np.arange(ss) + 0.5) / ss - 0.5
+    return np.asarray((np.arange(a, b)[:, None] + sub[None, :]).reshape(-1), np.float64)
+
+
+def _world_rays(R: F64, xn: F32, yn: F32) -> F32:
+    """World directions of the normalised points ``xn, yn`` (broadcast to ``(rows, cols)``)."""
     r = R.astype(np.float32)
     out = np.empty((3, yn.shape[0], xn.shape[1]), np.float32)
     for k in range(3):
@@ -102,6 +148,20 @@ def pixel_rays(R: F64, K: F64, us: F64, vs: F64, dist: F64 | None = None, cache:
 _GRID_CACHE: dict[bytes, tuple[F32, F32]] = {}
 _GRID_CACHE_SIZE = 12
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
+_TILE_PX = 64
+_TILE_CACHE: dict[bytes, dict[tuple[int, int], tuple[F32, F32]]] = {}
+_TILE_CACHE_SIZE = 4  # cameras x ray counts; a whole image's tiles at 2560 x 1920 rays are 39 MB
+
+
+def _tile_cache(K: F64, dist: F64, ss: int) -> dict[tuple[int, int], tuple[F32, F32]]:
+    """The undistorted tiles of one camera at ``ss`` rays per pixel side (filled as used)."""
+    key = b"".join(np.ascontiguousarray(a, np.float64).tobytes() for a in (K, dist, np.array([ss])))
+    tiles = _TILE_CACHE.get(key)
+    if tiles is None:
+        if len(_TILE_CACHE) >= _TILE_CACHE_SIZE:
+            _TILE_CACHE.pop(next(iter(_TILE_CACHE)))
+        tiles = _TILE_CACHE[key] = {}
+    return tiles
 
 
 def _undistorted_grid(K: F64, dist: F64, us: F64, vs: F64, cache: bool) -> tuple[F32, F32]:

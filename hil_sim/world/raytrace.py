@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from hil_sim.world.rays import Heightfield, pixel_rays, ray_intervals, sample
+from hil_sim.world.rays import Heightfield, pixel_rays, ray_intervals, sample, subpixel_rays
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
@@ -261,4 +261,4 @@ def cast_rays(hf: Heightfield, c: F64, d: F32, samples: int = 1024) -> F32:
     return _first_hits(_Rays(hf, c, d), lo, hi, fixed=samples)
 
 
-__all__ = ["Heightfield", "cast_image", "cast_rays", "pixel_rays", "ray_intervals", "sample"]
+__all__ = ["Heightfield", "cast_image", "cast_rays", "pixel_rays", "ray_intervals", "sample", "subpixel_rays"]

@@ -362,3 +362,19 @@ def test_the_misses_name_a_face_plane_fitted_off_the_face() -> None:
     expected = math.degrees(math.acos(math.sin(a) ** 2 * math.cos(turn) + math.cos(a) ** 2))
     assert frame_off_deg(world, FaceMap(off, (0.0, 1.0), (0.0, 1.0), cfg)) == pytest.approx(expected, abs=1e-6)  # type: ignore[arg-type]
     assert frame_off_deg(SimpleNamespace(team=None), FaceMap(on, (0.0, 1.0), (0.0, 1.0), cfg)) is None  # type: ignore[arg-type]
+
+
+def test_the_true_face_plane_is_the_whole_faces() -> None:
+    """``true_face_normal``: on a plain face (no ledges, relief or jumble) the plane of the truth
+    is the scenario's slope; ledges make the face, lip to foot, fall less steeply than that."""
+    import math
+
+    from hil_sim.team.face_eval import true_face_normal
+    from hil_sim.world import load_scenario
+
+    plain = true_face_normal(load_scenario("cliff-team?ledges=0&face_slope_deg=70&face_roughness_m=0&jumble_k=0", 4))
+    ledged = true_face_normal(load_scenario("cliff-team?ledges=3&face_slope_deg=70", 4))
+    assert plain is not None and ledged is not None
+    assert math.degrees(math.acos(plain[2])) == pytest.approx(70.0, abs=1.0)
+    assert plain[1] < -0.9  # falling toward -y
+    assert math.degrees(math.acos(ledged[2])) < 67.0

@@ -18,7 +18,7 @@ import pytest
 from fsw.core.geometry import CameraConfig, CameraPose, MastConfig, camera_pose_from_rover
 from hil_sim.render import StereoRenderer
 from hil_sim.world import load_scenario
-from hil_sim.world.raytrace import Heightfield, cast_rays, pixel_rays
+from hil_sim.world.raytrace import Heightfield, cast_rays, pixel_rays, subpixel_rays
 from hil_sim.world.world import aim_at
 
 WALL = (2.0, 2.1, -0.5, 0.5, 0.3)  # x0, x1, y0, y1, height (m)
@@ -286,3 +286,24 @@ def test_other_scenarios_render(name):
     depth = r.render_depth(pose)
     assert np.isfinite(depth).mean() > 0.95 and np.nanmin(depth) > 0.5
     assert left.std() > 10 and not np.array_equal(left, right)
+
+
+@pytest.mark.parametrize("ss", [1, 2, 4])
+def test_subpixel_rays_through_a_lens_are_the_uncached_rays_bit_for_bit(ss: int) -> None:
+    """The markers' rays over a box come from cached tiles of undistorted points: boxes inside
+    one tile, across tile borders, at the image's edge and over nine tiles give exactly the
+    rays of one uncached ``pixel_rays`` over the same sub-pixel grid, and again from the cache."""
+    K = np.array([[686.0, 0.0, 319.5], [0.0, 686.0, 239.5], [0.0, 0.0, 1.0]])
+    dist = np.array([-0.12, 0.05, 0.0008, -0.0005, -0.01])
+    R = cv2.Rodrigues(np.array([0.3, -1.2, 0.4]))[0]  # any rotation
+    sub = (np.arange(ss) + 0.5) / ss - 0.5
+    for box in [(3, 5, 20, 30), (50, 60, 140, 70), (600, 400, 640, 480), (100, 90, 230, 210), (60, 60, 70, 130)]:
+        u0, v0, u1, v1 = box
+        us = (np.arange(u0, u1)[:, None] + sub[None, :]).reshape(-1)
+        vs = (np.arange(v0, v1)[:, None] + sub[None, :]).reshape(-1)
+        want = pixel_rays(R, K, us, vs, dist, cache=False)
+        for _ in range(2):  # the tiles computed, then read back
+            got = subpixel_rays(R, K, dist, box, ss)
+            assert got.shape == ((v1 - v0) * ss, (u1 - u0) * ss, 3)
+            np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(subpixel_rays(R, K, None, box, ss), pixel_rays(R, K, us, vs))

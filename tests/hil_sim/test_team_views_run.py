@@ -77,9 +77,9 @@ def test_with_no_target_reachable_the_corridor_leads_toward_the_nearest() -> Non
 
 
 def test_the_corridor_ratio_is_bounded_where_the_recon_bot_alone_never_gets_there() -> None:
-    """Team at 95 % in 6 cycles, the RECON-bot alone not within 12: the ratio is at most 6 / 13
-    (its bound row); where both reach it, their plain ratio; a scene the team does not finish
-    has no bound."""
+    """Team at 95 % in 6 cycles, the RECON-bot alone not within the cap of 40: the ratio is at
+    most 6 / 41 (its bound row); where both reach it, past the 12 cycles of the other figures
+    too, their plain ratio; a scene the team does not finish has no bound."""
     from hil_sim.lab.experiments.experiment_team_sensing import COLUMNS, report
     from hil_sim.lab.results import markdown_table
 
@@ -89,12 +89,44 @@ def test_the_corridor_ratio_is_bounded_where_the_recon_bot_alone_never_gets_ther
                  corridor_ratio=None if team is None or alone is None else team / alone)
         return r
 
-    md = report([row(0, 6, None), row(1, 4, 8), row(2, None, None)], markdown_table, 12)
-    bound = next(line for line in md.splitlines() if "an upper bound" in line)
-    cells = [c.strip() for c in bound.split("|")]
-    assert float(cells[2]) == pytest.approx((6 / 13 + 4 / 8) / 2, rel=1e-3) and float(cells[3]) == pytest.approx(0.5)
-    both = next(line for line in md.splitlines() if "(scenes where both reach it)" in line)
-    assert float(both.split("|")[2]) == pytest.approx(0.5)
+    md = report([row(0, 6, None), row(1, 4, 8), row(2, None, None), row(3, 10, 25)], markdown_table, 12, 40)
+
+    def cells(key: str) -> list[str]:
+        return [c.strip() for c in next(line for line in md.splitlines() if key in line).split("|")]
+
+    bound = cells("an upper bound")
+    assert "counted as 41" in bound[1]
+    assert float(bound[2]) == pytest.approx(0.4) and float(bound[3]) == pytest.approx(0.5)
+    both = cells("(scenes where both reach it within 40)")
+    assert float(both[2]) == pytest.approx((0.5 + 0.4) / 2) and float(both[3]) == pytest.approx(0.5)
+    assert cells("within 12 cycles: RECON-bot alone")[2] == "1"
+    assert cells("within 40 cycles: RECON-bot alone")[2] == "2"
+    assert float(cells("cycles to 95 % of the corridor: RECON-bot alone")[3]) == 25
+    assert "12 cycles, or on to 95 % or 40 cycles" in cells("when the RECON-bot alone stopped")[1]
+
+
+def test_a_run_goes_on_past_its_cycles_until_the_corridor_is_mapped_or_the_cap() -> None:
+    """``cycles_to_corridor``: the first cycle at the fraction among the cycles run, else more
+    cycles until it is reached (the run stops there) or the cap (None)."""
+    from hil_sim.team.team_views_run import CycleRecord, TeamViewsRun
+
+    class Fake:
+        cycles_to_corridor = TeamViewsRun.cycles_to_corridor
+
+        def __init__(self, fracs: list[float]) -> None:
+            self.fracs = fracs
+            self.records: list[CycleRecord] = []
+
+        def cycle(self) -> CycleRecord:
+            rec = CycleRecord(len(self.records) + 1, corridor_frac=self.fracs[len(self.records)])
+            self.records.append(rec)
+            return rec
+
+    run = Fake([0.5, 0.9, 0.96, 0.97, 0.99])
+    run.cycle()
+    assert run.cycles_to_corridor(0.95, 5) == 3 and len(run.records) == 3
+    assert run.cycles_to_corridor(0.95, 5) == 3 and len(run.records) == 3  # already there: no more cycles
+    assert Fake([0.5] * 6).cycles_to_corridor(0.95, 4) is None
 
 
 def test_the_overlap_is_reported_over_every_cycle_each_scenes_worst_and_each_scenes_mean() -> None:
@@ -110,7 +142,7 @@ def test_the_overlap_is_reported_over_every_cycle_each_scenes_worst_and_each_sce
                  overlaps_open=[o / 10 for o in overlaps])
         return r
 
-    md = report([row(0, [0.0, 0.0, 0.6]), row(1, [0.1, 0.0, 0.0])], markdown_table, 3)
+    md = report([row(0, [0.0, 0.0, 0.6]), row(1, [0.1, 0.0, 0.0])], markdown_table, 3, 40)
 
     def cells(key: str) -> list[str]:
         return [c.strip() for c in next(line for line in md.splitlines() if key in line).split("|")]

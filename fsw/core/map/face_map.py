@@ -4,11 +4,12 @@ A gravity-aligned grid samples a face of slope ``a`` at ``1 / cos a`` of its are
 (3.9x at 75 deg) and stores the height of a wall. The face map stores the same model (§1: a
 height per cell with variance, count, interest, misses) in the face's own frame:
 
-* :class:`FaceFrame` is the fitted plane: origin ``o`` and the right-handed axes ``e_u``
-  (along the strike, horizontal), ``e_v`` (up the dip, in the plane) and ``e_n`` (the normal,
-  out of the face, ``e_n . z > 0``). A world point ``p`` has face coordinates
-  ``q = R^T (p - o)`` with ``R = [e_u e_v e_n]``, its covariance ``R^T P R``.
-  :func:`fit_face_plane` fits it to the steep cells of a gravity map (total least squares).
+* :class:`~fsw.core.map.face_plane.FaceFrame` is the fitted plane: origin ``o`` and the
+  right-handed axes ``e_u`` (along the strike, horizontal), ``e_v`` (up the dip, in the plane)
+  and ``e_n`` (the normal, out of the face, ``e_n . z > 0``). A world point ``p`` has face
+  coordinates ``q = R^T (p - o)`` with ``R = [e_u e_v e_n]``, its covariance ``R^T P R``.
+  :func:`~fsw.core.map.face_plane.fit_face_plane` fits it to the steep cells of a gravity map
+  (``fsw.core.map.face_plane``).
 * :class:`FaceMap` is an ``ElevationMap`` on a grid over ``(u, v)`` whose height is ``w``, the
   distance along ``e_n``; fusion, the slope term, the gate, misses, the interest function, the
   quadtree reduction and the codec all work on it unchanged (its arrays are a map's arrays).
@@ -44,6 +45,7 @@ from scipy import ndimage
 
 from fsw.core.geometry import MapGrid
 from fsw.core.map.elevation_map import ElevationMap, FusionConfig, MergeStats, nan_gradient
+from fsw.core.map.face_plane import FaceFrame, steep_points
 from fsw.core.map.overhang import Overhangs
 from fsw.core.steps import run_to_end
 from fsw.framework.params import param
@@ -84,140 +86,6 @@ class FaceMapConfig:
     step_cells: int = param(2, lo=0, hi=10, units="cells",
                             doc="a view's cell means this near rising above or falling below a cell's add "
                                 "the step's variance to its measurement (0: off)")
-
-
-@dataclass(frozen=True)
-class FaceFrame:
-    """The fitted face plane: origin and axes (columns ``e_u, e_v, e_n`` of ``R``)."""
-
-    origin: F64
-    R: F64
-
-    @staticmethod
-    def from_normal(origin: F64, normal: F64) -> FaceFrame:
-        """The frame of the plane through ``origin`` with ``normal`` (turned out of the face:
-        ``e_n . z > 0``); ``e_u`` horizontal. A vertical or horizontal normal is refused."""
-        n = np.asarray(normal, float)
-        n = n / np.linalg.norm(n)
-        if n[2] < 0:
-            n = -n
-        h = float(np.hypot(n[0], n[1]))
-        if not (1e-3 < h < 1.0 - 1e-6) or not np.isfinite(n).all():
-            raise ValueError(f"a face plane needs a normal neither vertical nor horizontal, got {n}")
-        eu = np.cross([0.0, 0.0, 1.0], n)
-        eu /= np.linalg.norm(eu)
-        ev = np.cross(n, eu)
-        return FaceFrame(np.asarray(origin, float).reshape(3), np.column_stack([eu, ev, n]))
-
-    @property
-    def normal(self) -> F64:
-        return np.asarray(self.R[:, 2], float)
-
-    @property
-    def slope_deg(self) -> float:
-        """The plane's slope: the angle between its normal and the vertical."""
-        return float(np.degrees(np.arccos(np.clip(self.R[2, 2], -1.0, 1.0))))
-
-    def to_face(self, p: F64) -> F64:
-        """World points ``(N, 3)`` to face coordinates ``(u, v, w)``."""
-        return np.asarray((np.asarray(p, float) - self.origin) @ self.R, float)
-
-    def to_world(self, q: F64) -> F64:
-        return np.asarray(np.asarray(q, float) @ self.R.T + self.origin, float)
-
-    def cov_to_face(self, cov: F64) -> F64:
-        """Covariances ``(N, 3, 3)`` from the world to the face frame: ``R^T P R``."""
-        return np.asarray(np.einsum("ji,njk,kl->nil", self.R, np.asarray(cov, float), self.R), float)
-
-    def plane_z(self, x: F64, y: F64) -> F64:
-        """The plane's height over ``(x, y)``."""
-        n, o = self.normal, self.origin
-        return np.asarray(o[2] - (n[0] * (np.asarray(x) - o[0]) + n[1] * (np.asarray(y) - o[1])) / n[2], float)
-
-
-def steep_points(gravity: ElevationMap, min_slope_deg: float = 45.0) -> tuple[F64, F64]:
-    """The centres ``(N, 3)`` of the mapped cells of ``gravity`` steeper than ``min_slope_deg``
-    and their downhill directions ``(N, 2)`` (unit vectors, ``-grad z / |grad z|``)."""
-    g = gravity.grid
-    gy, gx = np.gradient(gravity.z, g.cell)
-    slope = np.hypot(gx, gy)
-    with np.errstate(invalid="ignore"):
-        steep = gravity.mapped & (slope > np.tan(np.radians(min_slope_deg)))
-    X, Y = g.centers()
-    down = -np.column_stack([gx[steep], gy[steep]]) / slope[steep][:, None]
-    return np.column_stack([X[steep], Y[steep], gravity.z[steep]]), down
-
-
-def _ransac_line(s: F64, z: F64, inlier_m: float, tries: int, lo_deg: float, hi_deg: float) -> B:
-    """Inliers of the line in the ``(s, z)`` plane through two samples, falling at an angle in
-    ``[lo_deg, hi_deg]`` as ``s`` grows, with the most samples within ``inlier_m`` of it (pairs
-    drawn from a fixed seed)."""
-    rng = np.random.default_rng(0)
-    pair = rng.integers(0, len(s), (tries, 2))
-    ds = s[pair[:, 1]] - s[pair[:, 0]]
-    dz = z[pair[:, 1]] - z[pair[:, 0]]
-    sign = np.where(ds < 0, -1.0, 1.0)
-    ang = np.degrees(np.arctan2(-dz * sign, np.abs(ds)))
-    ok = (ang >= lo_deg) & (ang <= hi_deg)
-    if not ok.any():
-        raise ValueError("no steep line through the steep cells")
-    ln = np.hypot(ds[ok], dz[ok])
-    ns, nz = -dz[ok] / ln, ds[ok] / ln  # a normal of each line
-    s0, z0 = s[pair[ok, 0]], z[pair[ok, 0]]
-    near = np.abs(np.outer(s, ns) + np.outer(z, nz) - (s0 * ns + z0 * nz)) <= inlier_m
-    return np.asarray(near[:, int(np.argmax(near.sum(axis=0)))], bool)
-
-
-def fit_face_plane(gravity: ElevationMap, points: F64 | None = None, min_slope_deg: float = 45.0,
-                   min_cells: int = 50, inlier_m: float = 0.15, tries: int = 400,
-                   plane_slope_deg: float = 55.0) -> FaceFrame:
-    """The face plane, from the steep mapped cells of ``gravity`` (:func:`steep_points`) and,
-    when given, the survey's measured ``points`` ``(N, 3)`` inside those cells (a cell's mean
-    height on a wall is blurred; its points are not). The strike is horizontal, across the
-    cells' mean downhill direction ``h``; in the vertical plane along ``h`` (``s = p . h``, ``z``)
-    the face is the line falling at ``plane_slope_deg`` to 89 deg with the most cells within
-    ``inlier_m`` (RANSAC from a fixed seed: a rock's sides are steep too, but short); ``h`` is
-    then taken again from that line's cells alone and the line found again; then the total
-    least-squares line of its inliers (cells, or the points in them), three times. Origin: the inliers' centroid. Raises
-    ``ValueError`` with fewer than ``min_cells`` steep cells or inliers."""
-    cells, down = steep_points(gravity, min_slope_deg)
-    if len(cells) < min_cells:
-        raise ValueError(f"only {len(cells)} mapped cells steeper than {min_slope_deg} deg: no face to fit")
-    h = down.mean(axis=0)
-    if float(np.linalg.norm(h)) < 0.3:
-        raise ValueError("the steep cells face every way: no face to fit")
-    h = h / np.linalg.norm(h)
-    for _ in range(2):  # the strike from the face's own cells once the line is found
-        s = cells[:, :2] @ h
-        inl = _ransac_line(s, cells[:, 2], inlier_m, tries, plane_slope_deg, 89.0)
-        hm = down[inl].mean(axis=0) if inl.any() else h
-        h = hm / max(float(np.linalg.norm(hm)), 1e-12)
-    s = cells[:, :2] @ h
-    pts = cells
-    if points is not None:  # the points inside the inlier cells
-        g = gravity.grid
-        on = np.zeros(g.shape, bool)
-        iy, ix, _ = g.cell_index(cells[inl, 0], cells[inl, 1])
-        on[iy, ix] = True
-        p = np.asarray(points, float).reshape(-1, 3)
-        p = p[np.isfinite(p).all(axis=1)]
-        py, px, inside = g.cell_index(p[:, 0], p[:, 1])
-        p = p[inside][on[py[inside], px[inside]]]
-        if len(p) >= 3 * min_cells:
-            pts = p[:: max(1, len(p) // 20000)]
-            s = pts[:, :2] @ h
-            inl = np.ones(len(pts), bool)
-    normal = np.array([h[0], h[1], 1.0])
-    for _ in range(3):
-        if int(inl.sum()) < min_cells:
-            raise ValueError(f"only {int(inl.sum())} steep cells or points on one plane: no face to fit")
-        sz = np.column_stack([s[inl], pts[inl, 2]])
-        c2 = sz.mean(axis=0)
-        _, _, vt = np.linalg.svd(sz - c2, full_matrices=False)
-        ns, nz = vt[1] if vt[1][0] >= 0 else -vt[1]
-        normal = np.array([ns * h[0], ns * h[1], nz])
-        inl = np.abs((s - c2[0]) * ns + (pts[:, 2] - c2[1]) * nz) <= inlier_m
-    return FaceFrame.from_normal(pts[inl].mean(axis=0), normal)
 
 
 def face_band(gravity: ElevationMap, frame: FaceFrame, min_slope_deg: float = 45.0,

@@ -13,7 +13,8 @@ map's cells:
   the best guess of the face); per cell ``w`` (the face map's, else the gravity grid's height
   turned into ``w`` where the gravity grid knows the ground under the cell, else 0), its
   variance, its count (the face map's, else the gravity cell's: a face cell whose gravity cell
-  is mapped is not new), its world point and its gravity cell. Cells below the band over
+  is mapped is not new), its world point and its gravity cell (the one under its point: for a
+  cell the face map knows, off the plane by its measured ``w``). Cells below the band over
   gravity cells already mapped (the floor) are left to the gravity grid.
 * :func:`rate_face_station` is ``nbv.rate_station`` on those cells: P_V by the same kernel on the
   face grid (the camera in face coordinates; a camera behind the plane sees none of it), Eq 3's
@@ -118,13 +119,26 @@ def face_cells(face: FaceLike, gravity: MapLike, cfg: VisibilityConfig, prior_m:
     w[fill] = w_g[fill]
     var[fill] = (gvar * nz * nz).reshape(shape)[fill]
     n = np.where(n > 0, n, np.where(known_g, gn, 0).reshape(shape)).astype(np.int32)
-    keep = inside.reshape(shape).copy()
-    keep[:pad] &= ~known_g.reshape(shape)[:pad]  # below the band: mapped gravity ground stays there
     known = np.isfinite(w)
     elev = np.where(known, w, 0.0)
     sigma = np.where(known, np.sqrt(np.maximum(np.where(known, var, 0.0), cfg.min_sigma_m**2)), cfg.prior_sigma_m)
     weight = np.where(known, 1.0, min(1.0, grid.cell / cfg.prior_corr_len_m))
     world = (np.column_stack([U.ravel(), V.ravel(), elev.ravel()]) @ R.T + o).reshape(*shape, 3)
+    # the gravity cell a face cell stands for: the one under its own point. Where the face map
+    # knows the cell that point lies its measured w off the plane, and on a steep face a few
+    # centimetres of w are a column several cells away from the plane's foot, whose own ground
+    # may lie metres up or down the face: standing for that column, the known cell would take it
+    # out of the gravity rating while adding nothing itself (it is measured), and a view of the
+    # known cell would record a miss on ground it never had in its field (§3.4)
+    own = np.zeros(shape, bool)
+    own[pad:] = known_f
+    wy, wx, w_in = g.cell_index(world[..., 0].ravel(), world[..., 1].ravel())
+    own_flat = own.ravel()
+    iy = np.where(own_flat, np.where(w_in, wy, 0), iy)
+    ix = np.where(own_flat, np.where(w_in, wx, 0), ix)
+    inside = np.where(own_flat, w_in, inside)
+    keep = inside.reshape(shape).copy()
+    keep[:pad] &= ~known_g.reshape(shape)[:pad]  # below the band: mapped gravity ground stays there
     gy = np.where(keep, iy.reshape(shape), -1).astype(np.intp)
     gx = np.where(keep, ix.reshape(shape), -1).astype(np.intp)
     owned = np.zeros(g.shape, bool)

@@ -144,11 +144,21 @@ def disc(radius_cells: int) -> NDArray[np.bool_]:
     return np.asarray(xx * xx + yy * yy <= r * r)
 
 
-def standing_cells(grid: MapGrid, xy: F64, cfg: ClimberConfig) -> NDArray[np.bool_]:
-    """The cells where the Cliff-bot's wheels stand at ``xy``: its footprint round ``xy`` and
-    the footprint (the planner's disc) of the lattice node nearest it, the node it stands at."""
+def standing_cells(grid: MapGrid, xy: F64, cfg: ClimberConfig,
+                   body: tuple[float, float, float] | None = None) -> NDArray[np.bool_]:
+    """The cells where the Cliff-bot stands at ``xy``: its footprint round ``xy``, the footprint
+    (the planner's disc) of the lattice node nearest it, the node it stands at, and with ``body``
+    (its heading, half length and half width) the cells its body's outline covers, a cell partly
+    under it included (the body rests on that ground; its corners reach beyond the footprint's
+    radius, and no camera sees under it)."""
     X, Y = grid.centers()
     out = np.hypot(X - xy[0], Y - xy[1]) <= cfg.footprint_m
+    if body is not None:
+        yaw, half_len, half_wid = body
+        dx, dy = X - xy[0], Y - xy[1]
+        along = dx * math.cos(yaw) + dy * math.sin(yaw)
+        across = -dx * math.sin(yaw) + dy * math.cos(yaw)
+        out |= (np.abs(along) <= half_len + 0.5 * grid.cell) & (np.abs(across) <= half_wid + 0.5 * grid.cell)
     stride = max(1, int(round(cfg.node_m / grid.cell)))
     r = int(round(cfg.footprint_m / grid.cell))
     iy, ix, inside = grid.cell_index(np.array([xy[0]]), np.array([xy[1]]))

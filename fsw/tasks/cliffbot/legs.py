@@ -52,6 +52,8 @@ class Leg:
     length_m: float = 0.0
     via: F64 | None = None  # the known node it drives to first, to look at the target's ground
     looks: int = 0  # looks taken for this target (approach)
+    idle: int = 0  # of those, looks since the approach last got nearer the target (its budget)
+    nearest_m: float = math.inf  # the nearest an approach node has come to the target
 
 
 class Route:

@@ -18,13 +18,19 @@ given), then into:
 
 * ``gravity``: the scenario's gravity grid, every point (the one-grid map of today);
 * ``face`` + its gravity grid: the face map fitted on the gravity grid after the RECON-bot's
-  views, or after the first Cliff-bot views when those do not show enough of the face
-  (``fit_face_plane``; cell at equal memory: ``c_g / sqrt(cos a)``), and the hand-over of
+  views, or after the first Cliff-bot view at which the fit accepts a plane
+  (``fsw.core.map.face_plane.fit_face_plane``; cell at equal memory: ``c_g / sqrt(cos a)``), and the hand-over of
   docs/algorithm.md §8.1 (the views before the fit are fused once it is there);
 * ``face_recon``, ``face_cliff``: the same face map fed by one agent only.
 
-Figures per scene: ``face_rmse_m`` and ``face_rmse_gravity_m`` (``hil_sim.team.face_eval``: each
-map queried at the same true face points in its own coordinates, the distance from the point it
+Figures per scene: ``fit_views``, the views fused when the face plane was first accepted
+(``fit_face_plane`` refuses a plane its steep cells do not yet hold; none: no face map in the
+scene); ``frame_off_deg``, its normal's angle from the scenario's nominal face
+(``hil_sim.team.face_eval.frame_off_deg``) and ``frame_off_true_deg``, from the plane of the
+true face lip to foot (``true_face_normal``: ledges make a face fall less steeply than the
+scenario's slope between them); ``face_rmse_m`` and ``face_rmse_gravity_m``
+(``hil_sim.team.face_eval``: each map queried at the same true face points in its own
+coordinates, the distance from the point it
 returns to the true one), their ratio, the gravity grid's distance from the true surface along
 the face normal (``face_rmse_gravity_normal_m``) and that ratio, the truth overhang cells
 flagged (and, of them, those a view could show: a true sight line passes under the outer surface,
@@ -61,7 +67,8 @@ from pathlib import Path
 from typing import Any
 
 HELP = "the face-aligned map vs the gravity grid at equal memory, both agents' views, the team mask"
-COLUMNS = ("seed", "slope_deg", "views", "face_cells", "face_rmse_m", "face_rmse_gravity_m", "ratio",
+COLUMNS = ("seed", "slope_deg", "views", "fit_views", "frame_off_deg", "frame_off_true_deg", "face_cells",
+           "face_rmse_m", "face_rmse_gravity_m", "ratio",
            "face_rmse_gravity_normal_m", "ratio_normal",
            "overhang_truth", "overhang_flagged", "overhang_false", "overhang_false_part", "overhang_seen",
            "overhang_seen_flagged",
@@ -196,6 +203,15 @@ def report(rows: list[dict[str, Any]], table: Any) -> str:
     def add(name: str, v: Any, worst: Any, goal: str) -> None:
         summary.append({"figure": name, "median": v, "worst": worst, "goal": goal})
 
+    fitted = [r for r in rows if r["fit_views"] is not None]
+    add("scenes with a face plane fitted (views fused at the fit: median, most)",
+        f"{len(fitted)} of {len(rows)}", (f"{float(np.median(col('fit_views'))):g}, {int(col('fit_views').max())}"
+                                           if fitted else ""), "")
+    if fitted:
+        add("fitted face normal from the scenario's face (deg)", float(np.median(col("frame_off_deg"))),
+            float(col("frame_off_deg").max()), "")
+        add("fitted face normal from the true face's plane (deg)", float(np.median(col("frame_off_true_deg"))),
+            float(col("frame_off_true_deg").max()), "")
     if ratio.size:
         add("face_rmse_m / face_rmse_gravity_m", float(np.median(ratio)), float(ratio.max()), "<= 0.5")
         add("face_rmse_m", float(np.median(col("face_rmse_m"))), float(col("face_rmse_m").max()), "")

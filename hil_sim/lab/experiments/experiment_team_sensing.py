@@ -13,7 +13,7 @@ views of a cycle (cells both measured / cells either measured; and / cells the s
 over every cycle of every scene, each scene's worst cycle and each scene's mean; and on the cells with
 information left, measured fewer than ``info_n_max`` times before the cycle), the cycles until the
 Cliff-bot's corridor (its plan on the true ground, path +- 1 m) is mapped to 95 % (team, alone,
-their ratio), the face (true slope > 45 deg) and corridor mapped after the last cycle, and the
+their ratio), the face (true slope > 45 deg) and corridor mapped after ``--cycles``, and the
 RMS error on cells both agents mapped: each agent's own map and the fused one; and why the
 Cliff-bot's views add what they add: whether its corridor leads to a target (else toward the
 nearest, as far as the tethers hold it), its candidate views per cycle, its expected and obtained
@@ -21,17 +21,23 @@ new cells, its share of the team's new cells and its farthest place from its sta
 cycles go (the team's RECON-bot's new cells per cycle against the RECON-bot's alone, and each
 agent's views that mapped fewer than ``EMPTY_VIEW_CELLS`` new cells); and what bounds the
 corridor (its cells still unmapped, and how many of them some candidate camera centre has in
-range and line of sight on the truth, ``TeamViewsRun.corridor_left``). Where the
-team maps 95 % of the corridor and the RECON-bot alone does not within ``--cycles``, the ratio
-of their cycles is bounded from above by counting the RECON-bot's as ``--cycles + 1``. Writes
-OUT/team_sensing.csv, OUT/coverage.png (face and corridor coverage per cycle: team, each of its
-agents, the RECON-bot alone; medians over the scenes) and ``docs/results/team-sensing.md``.
+range and line of sight on the truth, ``TeamViewsRun.corridor_left``). Every figure but the
+cycles to 95 % of the corridor is taken after ``--cycles`` cycles; for that one each run goes on
+past ``--cycles`` until the corridor is mapped to 95 % or ``--corridor-cap`` cycles have run
+(``TeamViewsRun.cycles_to_corridor``), so the ratio team / alone has a measured denominator;
+a run that does not get there within the cap is reported as not within it (and where only the
+RECON-bot alone does not, the ratio is bounded from above by counting its cycles as the cap + 1).
+Writes OUT/team_sensing.csv, OUT/coverage.png (face and corridor coverage per cycle over the
+first ``--cycles``: team, each of its agents, the RECON-bot alone; medians over the scenes) and
+``docs/results/team-sensing.md`` (``--results-name`` names another, e.g. a held-out run on other
+seeds).
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import re
 import sys
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
@@ -40,8 +46,8 @@ from typing import Any
 HELP = "team views (both agents) against the RECON-bot alone: cells per cycle, overlap, corridor, fusion"
 COLUMNS = ("seed", "cycles", "team_cells_per_cycle", "recon_cells_per_cycle", "cells_ratio", "overlap_mean",
            "overlap_median", "overlap_max", "overlap_open_max", "overlap_of_smaller_max", "corridor_cycles_team",
-           "corridor_cycles_recon", "corridor_ratio", "corridor_team", "corridor_recon", "face_team", "face_recon",
-           "both_cells",
+           "corridor_cycles_recon", "corridor_ratio", "corridor_recon_at_stop", "corridor_team", "corridor_recon",
+           "face_team", "face_recon", "both_cells",
            "rmse_recon_m", "rmse_cliffbot_m", "rmse_fused_m", "blind_views", "reachable", "cliffbot_candidates",
            "cliffbot_expected_new", "cliffbot_obtained_new", "cliffbot_new_share", "cliffbot_travel_m",
            "recon_team_new_per_cycle", "empty_views_recon_team", "empty_views_cliffbot", "empty_views_recon_alone",
@@ -56,8 +62,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="first seed")
     p.add_argument("--jobs", type=int, default=1, help="scenes run in parallel (processes)")
     p.add_argument("--cycles", type=int, default=12, help="imaging cycles per run")
+    p.add_argument("--corridor-cap", type=int, default=40,
+                   help="each run goes on past --cycles until the corridor is mapped to 95 %% or this many cycles")
     p.add_argument("--cell", type=float, default=0.08, help="map cell of the harness (m)")
     p.add_argument("--out", type=Path, default=Path("out/team-sensing"), help="output directory")
+    p.add_argument("--results-name", default="team-sensing",
+                   help="results file docs/results/NAME.md (e.g. a held-out run on other seeds)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -67,6 +77,13 @@ def run(args: argparse.Namespace) -> int:
     me = "safer-hil experiment team-sensing"
     if args.scenes < 1 or args.jobs < 1 or args.cycles < 1 or not 0.01 <= args.cell <= 0.5:
         print(f"{me}: --scenes, --jobs and --cycles must be >= 1, --cell within 0.01-0.5 m", file=sys.stderr)
+        return 2
+    if args.corridor_cap < args.cycles:
+        print(f"{me}: --corridor-cap must be >= --cycles, got {args.corridor_cap} < {args.cycles}", file=sys.stderr)
+        return 2
+    if not re.fullmatch(r"[a-z0-9][a-z0-9_-]*", args.results_name):
+        print(f"{me}: --results-name takes lower-case letters, digits, - and _, got {args.results_name!r}",
+              file=sys.stderr)
         return 2
     try:
         if load_scenario(args.scenario, args.seed).team is None:
@@ -78,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     rows: list[dict[str, Any]] = []
     curves: dict[int, dict[str, list[float]]] = {}
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        futs = {pool.submit(scene, args.scenario, s, args.cycles, args.cell): s for s in seeds}
+        futs = {pool.submit(scene, args.scenario, s, args.cycles, args.cell, args.corridor_cap): s for s in seeds}
         for fut in as_completed(futs):
             try:
                 row, curve = fut.result()
@@ -99,9 +116,9 @@ def run(args: argparse.Namespace) -> int:
         wr.writeheader()
         wr.writerows(rows)
     png = plot(curves, args.out / "coverage.png")
-    md = report(rows, markdown_table, args.cycles)
+    md = report(rows, markdown_table, args.cycles, args.corridor_cap)
     print(md)
-    write_results("team-sensing", command_line("team-sensing"), md, [png])
+    write_results(args.results_name, command_line("team-sensing"), md, [png])
     return 0 if len(rows) == len(seeds) else 1
 
 
@@ -109,12 +126,10 @@ def _f(v: Any) -> str:
     return "-" if v is None else f"{v:.2f}"
 
 
-def _first(fracs: list[float]) -> int | None:
-    return next((k + 1 for k, v in enumerate(fracs) if v >= GOAL), None)
-
-
-def scene(spec: str, seed: int, cycles: int, cell_m: float) -> tuple[dict[str, Any], dict[str, list[float]]]:
-    """One scene's row and coverage curves (module docstring); deterministic per seed."""
+def scene(spec: str, seed: int, cycles: int, cell_m: float, cap: int) -> tuple[dict[str, Any], dict[str, list[float]]]:
+    """One scene's row and coverage curves (module docstring): every figure after ``cycles``
+    cycles, then both runs go on for the cycles to 95 % of the corridor (up to ``cap``);
+    deterministic per seed."""
     import numpy as np
 
     from hil_sim.team.team_views_run import run_scene
@@ -124,7 +139,6 @@ def scene(spec: str, seed: int, cycles: int, cell_m: float) -> tuple[dict[str, A
     tc = [r.new_cells for r in team.records]
     rc = [r.new_cells for r in alone.records]
     overlaps = [r.overlap for r in team.records if r.overlap is not None]
-    ct, cr = _first([r.corridor_frac for r in team.records]), _first([r.corridor_frac for r in alone.records])
     row: dict[str, Any] = {
         "seed": seed, "cycles": cycles,
         "team_cells_per_cycle": float(np.mean(tc)), "recon_cells_per_cycle": float(np.mean(rc)),
@@ -137,8 +151,6 @@ def scene(spec: str, seed: int, cycles: int, cell_m: float) -> tuple[dict[str, A
         "overlaps_open": [r.overlap_open for r in team.records if r.overlap_open is not None],
         "overlap_of_smaller_max": max((r.overlap_of_smaller for r in team.records
                                        if r.overlap_of_smaller is not None), default=None),
-        "corridor_cycles_team": ct, "corridor_cycles_recon": cr,
-        "corridor_ratio": ct / cr if ct is not None and cr is not None else None,
         "corridor_team": team.records[-1].corridor_frac, "corridor_recon": alone.records[-1].corridor_frac,
         "face_team": team.records[-1].face_frac, "face_recon": alone.records[-1].face_frac,
         **team.fused_vs_better(),
@@ -155,6 +167,11 @@ def scene(spec: str, seed: int, cycles: int, cell_m: float) -> tuple[dict[str, A
     for agent in ("recon", "cliffbot"):
         curve[f"face_{agent}"] = [r.agent_face_frac[agent] for r in team.records]
         curve[f"corridor_{agent}"] = [r.agent_corridor_frac[agent] for r in team.records]
+    # the figures above are the first `cycles` cycles'; now each run goes on to 95 % of the corridor
+    ct, cr = team.cycles_to_corridor(GOAL, cap), alone.cycles_to_corridor(GOAL, cap)
+    row.update(corridor_cycles_team=ct, corridor_cycles_recon=cr,
+               corridor_ratio=ct / cr if ct is not None and cr is not None else None,
+               corridor_recon_at_stop=alone.records[-1].corridor_frac)
     return row, curve
 
 
@@ -221,8 +238,9 @@ def plot(curves: dict[int, dict[str, list[float]]], path: Path) -> Path:
     return path
 
 
-def report(rows: list[dict[str, Any]], table: Any, cycles: int) -> str:
-    """The summary (medians, worst cases, goals) and the per-scene table."""
+def report(rows: list[dict[str, Any]], table: Any, cycles: int, cap: int) -> str:
+    """The summary (medians, worst cases, goals) and the per-scene table; ``cap``: the cycles the
+    runs went on to for the corridor (``scene``)."""
     import numpy as np
 
     def col(k: str) -> Any:
@@ -259,30 +277,31 @@ def report(rows: list[dict[str, Any]], table: Any, cycles: int) -> str:
     ovm = col("overlap_mean")
     add("overlap of a cycle's two views, each scene's mean over its cycles (median and worst of the scenes)",
         float(np.median(ovm)) if ovm.size else None, float(ovm.max()) if ovm.size else None, "<= 0.15")
-    ct = [r["corridor_cycles_team"] for r in rows]
-    cr = [r["corridor_cycles_recon"] for r in rows]
-    add(f"scenes with the corridor mapped to 95 % within {cycles} cycles: team",
-        sum(v is not None for v in ct), f"of {len(rows)}", "")
-    add(f"scenes with the corridor mapped to 95 % within {cycles} cycles: RECON-bot alone",
-        sum(v is not None for v in cr), f"of {len(rows)}", "")
+    # the cycles to 95 % of the corridor: each run went on past `cycles` until it got there or `cap`
     for k, who in (("corridor_cycles_team", "team"), ("corridor_cycles_recon", "RECON-bot alone")):
-        v = col(k)
-        add(f"cycles to 95 % of the corridor: {who} (scenes reaching it)", float(np.median(v)) if v.size else None,
-            float(v.max()) if v.size else None, "")
+        got = [r[k] for r in rows if r[k] is not None]
+        add(f"scenes with the corridor mapped to 95 % within {cycles} cycles: {who}",
+            sum(v <= cycles for v in got), f"of {len(rows)}", "")
+        add(f"scenes with the corridor mapped to 95 % within {cap} cycles: {who}", len(got), f"of {len(rows)}", "")
+        add(f"cycles to 95 % of the corridor: {who} (scenes reaching it within {cap})",
+            float(np.median(got)) if got else None, max(got) if got else None, "")
+    at_stop = col("corridor_recon_at_stop")
+    add(f"corridor mapped when the RECON-bot alone stopped ({cycles} cycles, or on to 95 % or {cap} cycles)",
+        float(np.median(at_stop)), float(at_stop.min()), "")
     cratio = col("corridor_ratio")
-    add("cycles to 95 % of the corridor, team / alone (scenes where both reach it)",
+    add(f"cycles to 95 % of the corridor, team / alone (scenes where both reach it within {cap})",
         float(np.median(cratio)) if cratio.size else None, float(cratio.max()) if cratio.size else None, "<= 0.6")
-    # where the team reaches it and the RECON-bot alone does not, alone needs more than `cycles`:
-    # team / (cycles + 1) bounds the ratio from above
-    bound = np.array([r["corridor_cycles_team"] / (r["corridor_cycles_recon"] or cycles + 1) for r in rows
+    # where the team reaches it and the RECON-bot alone does not within the cap, alone needs more
+    # than `cap`: team / (cap + 1) bounds the ratio from above
+    bound = np.array([r["corridor_cycles_team"] / (r["corridor_cycles_recon"] or cap + 1) for r in rows
                       if r["corridor_cycles_team"] is not None], float)
-    add(f"cycles to 95 % of the corridor, team / alone (alone not within {cycles}: counted as {cycles + 1}, "
+    add(f"cycles to 95 % of the corridor, team / alone (alone not within {cap}: counted as {cap + 1}, "
         "an upper bound of the ratio; scenes where the team reaches it)",
         float(np.median(bound)) if bound.size else None, float(bound.max()) if bound.size else None, "<= 0.6")
-    for k, name in (("corridor_team", "corridor mapped after the last cycle: team"),
-                    ("corridor_recon", "corridor mapped after the last cycle: RECON-bot alone"),
-                    ("face_team", "face mapped after the last cycle: team"),
-                    ("face_recon", "face mapped after the last cycle: RECON-bot alone")):
+    for k, name in (("corridor_team", f"corridor mapped after cycle {cycles}: team"),
+                    ("corridor_recon", f"corridor mapped after cycle {cycles}: RECON-bot alone"),
+                    ("face_team", f"face mapped after cycle {cycles}: team"),
+                    ("face_recon", f"face mapped after cycle {cycles}: RECON-bot alone")):
         v = col(k)
         add(name, float(np.median(v)), float(v.min()), "")
     ok = [r for r in rows if None not in (r["rmse_recon_m"], r["rmse_cliffbot_m"], r["rmse_fused_m"])]
@@ -306,7 +325,7 @@ def report(rows: list[dict[str, Any]], table: Any, cycles: int) -> str:
         add(f"views mapping < {EMPTY_VIEW_CELLS} new cells per scene, {name} (of {cycles})", float(np.median(v)),
             float(v.max()), "")
     left, seeable = col("corridor_left_cells"), col("corridor_left_seeable")
-    add("corridor cells unmapped after the last cycle (team)", float(np.median(left)), float(left.max()), "")
+    add(f"corridor cells unmapped after cycle {cycles} (team)", float(np.median(left)), float(left.max()), "")
     add("of them in range and line of sight of a candidate camera centre (truth, any pointing)",
         float(np.sum(seeable) / max(np.sum(left), 1.0)), "", "")
     e, o = col("cliffbot_expected_new"), col("cliffbot_obtained_new")

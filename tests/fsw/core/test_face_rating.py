@@ -120,3 +120,30 @@ def test_the_ground_beyond_the_lip_falls_at_the_faces_dip_not_at_the_lips_height
     new = [rate_station(t, cam, YAWS, np.radians([-30.0]), emap.n, 2, past.astype(float), CAM, VIS)
            .expected_new_cells[3, 0] for t in (terrain, plain)]
     assert new[1] > 20 and new[0] < 0.7 * new[1]
+
+
+def test_a_known_face_cell_stands_for_the_gravity_cell_under_its_own_point() -> None:
+    """A face cell the face map knows 0.3 m off the plane (a ledge): on the 70 deg face its point
+    lies columns away from the plane's foot, and it stands for the gravity cell under its point.
+    Standing for the plane's foot, it took that unmapped column out of the gravity rating while
+    adding nothing (it is measured), and a view of the ledge recorded a miss there (§3.4)."""
+    emap = _plateau_only()
+    face = _face()
+    fm = face.map
+    ky, kx = fm.grid.ny // 2, fm.grid.nx // 2
+    fm.z[ky, kx], fm.var[ky, kx], fm.n[ky, kx] = 0.3, 0.01**2, 2
+    fc = face_cells(face, emap, VIS, prior_m=1.0)
+    pad = fc.grid.ny - fm.grid.ny
+    point = fc.world[pad + ky, kx]
+    under = GRID.cell_index(point[:1], point[1:2])
+    assert (fc.gy[pad + ky, kx], fc.gx[pad + ky, kx]) == (int(under[0][0]), int(under[1][0]))
+    u, v = fm.grid.centers()
+    foot = face.frame.origin + face.frame.R @ np.array([u[ky, kx], v[ky, kx], 0.0])
+    fy, fx, _ = GRID.cell_index(foot[:1], foot[1:2])
+    assert abs(int(fy[0]) - int(under[0][0])) >= 2  # the ledge is not over the plane's foot
+    # a view of the ledge expects its own column there, not the plane's foot
+    cam = point + 1.0 * face.frame.R[:, 2] + 0.6 * face.frame.R[:, 1]  # out of the face, up its dip
+    yaw = math.atan2(point[1] - cam[1], point[0] - cam[0])
+    tilt = math.atan2(point[2] - cam[2], math.hypot(point[0] - cam[0], point[1] - cam[1]))
+    pv = face_visibility(fc, CameraPose.from_pan_tilt(*cam, yaw, tilt), CAM, VIS, GRID)
+    assert pv[int(under[0][0]), int(under[1][0])] > 0.5

@@ -20,6 +20,7 @@ from fsw.tasks.cliffbot_mission import CliffbotMission
 
 GRID = MapGrid.from_config(MapGridConfig(origin_x_m=0.0, origin_y_m=-3.5, cell_m=0.1, nx=50, ny=45))
 TARGET = np.array([2.0, -2.6])
+START = np.array([2.5, -0.5])
 P = np.diag([1e-4, 1e-4, 1e-4])
 
 
@@ -42,10 +43,10 @@ def _unknown_below(y_m: float) -> np.ndarray:
     return z
 
 
-def _mission(looks: int = 3, tcfg: TetherConfig | None = None) -> CliffbotMission:
+def _mission(looks: int = 3, tcfg: TetherConfig | None = None, start: np.ndarray = START) -> CliffbotMission:
     anchors = np.array([[1.0, 0.6, 0.3], [4.0, 0.6, 0.3]])
     return CliffbotMission(CliffbotMissionConfig(approach_looks=looks, return_home=False), tcfg or TetherConfig(),
-                           ClimberConfig(), NavConfig(), anchors, np.array([2.5, -0.5]), -np.pi / 2,
+                           ClimberConfig(), NavConfig(), anchors, start, -np.pi / 2,
                            TARGET[None, :], sensing=CliffbotSensingConfig(enabled=True))
 
 
@@ -87,7 +88,7 @@ def _drive(m: CliffbotMission, dev: CliffbotDevices, t: float, known: np.ndarray
 
 
 def _start(m: CliffbotMission, dev: CliffbotDevices, z: np.ndarray) -> float:
-    m.on_estimate(np.array([2.5, -0.5, -np.pi / 2]), P)
+    m.on_estimate(np.array([*m.start, -np.pi / 2]), P)
     m.set_map(z, GRID)
     t = _look(m, dev, 0.0, z)  # the views before the plan
     m.step(t + 0.1, dev)  # PLAN
@@ -190,13 +191,15 @@ def test_it_edges_up_to_known_ground_a_short_step_nearer_the_target_before_it_lo
 
 
 def test_the_plane_carried_beyond_where_its_wheels_stand_is_no_ground_to_step_onto() -> None:
-    """The camera's ground ends a quarter metre ahead of the start, inside the disc the plane
+    """The camera's ground ends three decimetres ahead of the start, inside the disc the plane
     under the body is carried over: the first approach step, like any leg, neither ends on nor
-    crosses a node whose footprint holds a cell of that plane beyond where its wheels stand."""
-    m, dev = _mission(), FreshDevices()
+    crosses a node whose footprint holds a cell of that plane beyond where it stands."""
+    start = np.array([2.55, -0.45])  # a cell's centre: the plane is carried beyond the body's outline
+    m, dev = _mission(start=start), FreshDevices()
     z0 = _unknown_below(-0.75)
     t = _start(m, dev, z0)
-    contact = standing_cells(GRID, np.array([2.5, -0.5]), m.ccfg)
+    half_len, half_wid = CliffbotSensingConfig().body_half_m[:2]
+    contact = standing_cells(GRID, start, m.ccfg, (-np.pi / 2, half_len, half_wid))
     assert m.carried is not None and m.carried.any() and not (m.carried & contact).any()
     assert m.reasons[0] == "unknown ground" or not m.reasons[0]  # the start itself is usable ground
     assert np.isfinite(m.z[m.carried]).all() and not np.isfinite(z0[m.carried]).any()
@@ -213,3 +216,48 @@ def test_the_plane_carried_beyond_where_its_wheels_stand_is_no_ground_to_step_on
     # the planner's own layers say the same: no usable node on the carried plane
     g = ground_layers(m.z, GRID, m.ccfg, m.carried)
     assert not (g.known & ~known).any()
+
+
+def test_the_ground_under_its_body_outline_is_where_it_stands_so_the_first_step_is_known() -> None:
+    """No camera sees the ground under the body (the RECON-bot's map leaves it unknown), and the
+    body's corners reach beyond its footprint's radius: the ground under its outline is where it
+    stands, so the first step is onto known ground (were the corners the plane carried on, every
+    node next to the start would hold one in its footprint and the target would be given up)."""
+    start = np.array([2.55, -0.45])  # a cell's centre: the outline's corner cells lie beyond the footprint
+    m, dev = _mission(start=start), FreshDevices()
+    z0 = _unknown_below(-1.9)
+    x, y = GRID.centers()
+    half_len, half_wid = CliffbotSensingConfig().body_half_m[:2]
+    under = (np.abs(y - start[1]) <= half_len) & (np.abs(x - start[0]) <= half_wid)  # heading -90 deg: along is -y
+    assert not standing_cells(GRID, start, m.ccfg)[under].all()
+    z0[under] = np.nan
+    t = _start(m, dev, z0)
+    assert m.step(t + 0.1, dev).request_fix
+    m.on_no_fix(m.fix_seq, "busy")
+    assert m.state == "DRIVE" and m.legs[0].via is not None, m.events[-2:]
+    assert m.carried is not None and not (m.carried & under).any()
+    sensed = np.isfinite(z0) | standing_cells(GRID, start, m.ccfg, (-np.pi / 2, half_len, half_wid))
+    _drive(m, dev, t + 0.2, ground_layers(np.where(sensed, 0.0, np.nan), GRID, m.ccfg).known)
+
+
+def test_the_look_budget_counts_looks_without_progress_so_a_long_approach_goes_on() -> None:
+    """Each look shows the ground a little further down (as a head over a lip sees the face
+    below it): every approach node is nearer the target than the last, so the approach goes on
+    past ``approach_looks`` looks in all, and the target is reached; it never steps onto ground
+    its map does not know."""
+    m, dev = _mission(looks=1), FreshDevices()
+    views = [_unknown_below(y) for y in (-1.2, -1.6, -2.0)] + [_ground()]
+    t = _start(m, dev, _unknown_below(-0.9))
+    assert m.step(t + 0.1, dev).request_fix
+    m.on_no_fix(m.fix_seq, "busy")
+    t += 0.2
+    shown = _unknown_below(-0.9)
+    for z in views:
+        assert m.state == "DRIVE" and m.legs[0].via is not None, m.events[-2:]
+        t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried).known)
+        assert m.state == "WAIT_FIX" and m.look_now, m.events[-2:]
+        shown = z
+        t = _look(m, dev, t, shown)
+    assert m.state == "DRIVE" and m.legs[0].via is None and m.reasons[0] == "", m.events[-2:]
+    t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried).known)
+    assert m.reached == [True] and m.looks == [len(views)] > [m.cfg.approach_looks]
