@@ -389,14 +389,17 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
 def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy: F64,
                  tcfg: TetherConfig, ccfg: ClimberConfig, margins: Margins | None = None,
                  start_usable: bool = False, blocked: Sequence[tuple[F64, F64]] = (),
-                 unseen: NDArray[np.bool_] | None = None, ground: Ground | None = None) -> Plan:
+                 unseen: NDArray[np.bool_] | None = None, ground: Ground | None = None,
+                 verdicts: dict[int, str] | None = None) -> Plan:
     """Shortest usable paths from ``start_xy`` to each target (module docstring); ``unseen``
     as for :func:`ground_layers` (no node's footprint, nor a way's place, holds such a cell).
     ``ground``: the layers the nodes are judged on (default ``ground_layers(z, grid, ccfg,
     unseen)``); the mission's legs pass the layers their ways are judged on
     (``fsw.tasks.cliffbot.legs.Route``), since a way ends at its node's place and is judged
     there: a node that fails on them is the end of no way, and a search through it only finds
-    edges to cut.
+    edges to cut. ``verdicts``: the nodes' verdicts already worked out on the same map, ground
+    and margins (lattice index -> its verdict, :data:`USABLE` or the reason), read and filled; a caller that plans
+    again on them (a leg's edges cut, its approach) judges each node once.
 
     A* per target over the 8-connected lattice, with the 3-D straight distance as its
     (admissible) heuristic; a node's verdict is worked out when the search first reaches it
@@ -413,7 +416,7 @@ def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy
     node_z = np.nan_to_num(zf[np.ix_(rows, cols)])
     node_x = grid.x0 + (cols + 0.5) * grid.cell
     node_y = grid.y0 + (rows + 0.5) * grid.cell
-    cache: dict[int, str] = {}
+    cache: dict[int, str] = verdicts if verdicts is not None else {}
     m = margins or Margins()
     clear = (ndimage.distance_transform_edt(~g.hazard) * grid.cell if m.clearance_m > 0 and g.hazard.any()
              else None)

@@ -93,6 +93,9 @@ def statics_reason(st: TetherState | None, tcfg: TetherConfig, free_slope_deg: f
     return ""
 
 
+NOT_HELD = "tension not held"  # an offset whose bounded settling ended undecided: refused
+
+
 def held_at(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, st: TetherState, offsets: F64, tcfg: TetherConfig,
             free_slope_deg: float) -> str:
     """Why the tethers may not hold the body that rests at ``xy`` (its state ``st``) when its
@@ -100,11 +103,14 @@ def held_at(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, st: TetherState, offs
 
     The lengths' Jacobian and the tensions' gradient at ``xy`` (central differences over a map
     cell, one batch) predict where each offset moves the body and how each tension changes
-    there. Where both tensions keep ``SCREEN`` times the largest predicted change inside
-    their limits, no offset can take them out unless the statics are that far from linear over
-    a few centimetres, and the place is held; elsewhere the body is settled at every offset from
-    its predicted place (:func:`fsw.core.team.tether.settle_many`) and the statics re-solved
-    where it rests (:func:`statics_reason`)."""
+    there. Where both tensions keep ``SCREEN`` times the largest predicted change inside their
+    limits, no offset can take them out unless the statics are that far from linear over a few
+    centimetres, and the place is held; elsewhere the body is settled at every offset from its
+    predicted place in one bounded batch (:func:`fsw.core.team.tether.settle_many`) and the
+    statics re-solved where it rests (:func:`statics_reason`). An offset whose settling ends
+    undecided (neither taut within the acceptance nor shown slack within the batch's steps) is
+    :data:`NOT_HELD`: a place the check cannot show held is refused, never accepted. The first
+    offset's reason, in the offsets' order, is the answer."""
     h = grid.cell
     lengths = np.asarray(st.lengths_m, float) + offsets
     around = tether_states(z, grid, anchors, np.asarray(xy, float) + _PROBES * h, tcfg)
@@ -123,8 +129,9 @@ def held_at(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, st: TetherState, offs
             if np.all(t - tcfg.t_min_n >= SCREEN * drop) and np.all(tcfg.t_max_n - t >= SCREEN * rise):
                 return ""
             guesses = guesses + moves
-    for g in settle_many(z, grid, anchors, lengths, guesses, tcfg):
-        why = statics_reason(None if g is None else g[1], tcfg, free_slope_deg)
+    got = settle_many(z, grid, anchors, lengths, guesses, tcfg)
+    for place, unsettled in zip(got.places, got.unsettled, strict=True):
+        why = NOT_HELD if unsettled else statics_reason(None if place is None else place[1], tcfg, free_slope_deg)
         if why:
             return why
     return ""

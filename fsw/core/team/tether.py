@@ -384,46 +384,136 @@ def _settle_search(z: ZMap, grid: MapGrid, anchors: F64, target: F64, xy0: F64, 
     return None
 
 
+@dataclass(frozen=True)
+class SettledMany:
+    """What :func:`settle_many` found for each pair of lengths: ``places[i]`` the place and its
+    state where both tethers are taut (None: they cannot both be, as :func:`settle`'s None),
+    ``unsettled[i]`` True where its budget ended with neither (the place is not decided)."""
+
+    places: list[tuple[F64, TetherState] | None]
+    unsettled: NDArray[np.bool_]
+
+
+FULL_STEPS = 6  # settle_many's first pass: Gauss-Newton steps taken whole (damped only)
+SETTLE_MANY_ITERATIONS = 30  # its second pass, backtracking, as many steps as :func:`settle`
+_BACKTRACK = 6  # halvings of a step that does not shrink the residual, as :func:`settle`'s
+
+
 def settle_many(z: ZMap, grid: MapGrid, anchors: F64, lengths: F64, guesses_xy: F64, cfg: TetherConfig,
-                iterations: int = 6, tol_m: float = 1e-3) -> list[tuple[F64, TetherState] | None]:
+                iterations: int = SETTLE_MANY_ITERATIONS, tol_m: float = 1e-3) -> SettledMany:
     """:func:`settle` of many pairs of lengths ``lengths`` (M, 2), each from its guess
-    ``guesses_xy`` (M, 2): the Gauss-Newton steps of all of them in one batch of
-    :func:`tether_states` per iteration (each place and its four Jacobian probes). A place whose
-    residual is not within ``tol_m`` after ``iterations`` full steps (a contact appearing or
-    vanishing: the lengths kink, and a full step can cycle across the kink) is settled again by
-    :func:`settle` from its guess, with its backtracking and search: the answers are
-    :func:`settle`'s in kind (both tethers taut within ``tol_m``, or None)."""
+    ``guesses_xy`` (M, 2), in batches: each Gauss-Newton step evaluates every place still going
+    and its four Jacobian probes in one :func:`tether_states` batch and solves all the 2 x 2
+    steps at once. Two passes: ``FULL_STEPS`` whole steps (a full step can jump a kink of the
+    lengths, a contact appearing or vanishing, that a backtracking step stops at), then, from
+    their guesses again, the places still going with ``iterations`` steps each halved until the
+    residual shrinks (at most ``_BACKTRACK`` times, one batch per halving, as :func:`settle`'s).
+
+    A place off the known ground or with a singular Jacobian is None, as in :func:`settle`; one
+    within ``tol_m`` is settled, and after the second pass one within :func:`settle`'s
+    acceptance (``10 tol_m`` plus a quarter cell) at the best place it reached. The rest are
+    *unsettled*: no per-place search follows (:func:`settle`'s Nelder-Mead), so the batch costs
+    at most ``5 FULL_STEPS + (5 + _BACKTRACK) iterations`` tether states per place, and the
+    caller decides what an undecided place means."""
     target = np.asarray(lengths, float).reshape(-1, 2)
-    xy = np.asarray(guesses_xy, float).reshape(-1, 2).copy()
+    guesses = np.asarray(guesses_xy, float).reshape(-1, 2)
+    out = _Batch(len(target))
+    _gauss_newton(z, grid, anchors, target, guesses, cfg, np.arange(len(target)), FULL_STEPS, 0, tol_m, out)
+    again = np.flatnonzero(out.going)
+    out.best_res[again] = math.inf
+    _gauss_newton(z, grid, anchors, target, guesses, cfg, again, iterations, _BACKTRACK, tol_m, out)
+    accept = 10 * tol_m + 0.25 * grid.cell
+    unsettled = out.going.copy()  # the budget ended: settled where its best place is within acceptance
+    for i in np.flatnonzero(out.going):
+        st = out.best_st[i]
+        if out.best_res[i] < accept and st is not None:
+            out.places[int(i)] = (out.best_xy[i].copy(), st)
+            unsettled[i] = False
+    return SettledMany(out.places, unsettled)
+
+
+class _Batch:
+    """The state of :func:`settle_many`'s places: what each found, whether it is still going,
+    the best place each reached."""
+
+    def __init__(self, m: int) -> None:
+        self.places: list[tuple[F64, TetherState] | None] = [None] * m
+        self.going = np.ones(m, bool)  # neither settled nor refused yet
+        self.best_res = np.full(m, math.inf)
+        self.best_xy = np.zeros((m, 2))
+        self.best_st: list[TetherState | None] = [None] * m
+
+
+def _gauss_newton(z: ZMap, grid: MapGrid, anchors: F64, target: F64, guesses: F64, cfg: TetherConfig,
+                  which: NDArray[np.intp], iterations: int, backtrack: int, tol_m: float, out: _Batch) -> None:
+    """``iterations`` batched Gauss-Newton steps of the places ``which`` from their guesses
+    (:func:`settle_many`), each step halved at most ``backtrack`` times until the residual
+    shrinks (0: whole steps, a pass whose places that leave the known ground or meet a singular
+    Jacobian are left going, for the backtracking pass to decide); records in ``out``."""
+    xy = guesses.copy()
     h = grid.cell
     probes = np.array([[0.0, 0.0], [h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
-    out: list[tuple[F64, TetherState] | None] = [None] * len(xy)
-    active = np.arange(len(xy))
-    for _ in range(iterations):
+    active = np.asarray(which, np.intp)
+    whole = backtrack == 0
+    for it in range(iterations + 1):
         if not len(active):
-            break
+            return
         states = tether_states(z, grid, anchors, (xy[active, None, :] + probes).reshape(-1, 2), cfg)
-        going: list[int] = []
-        for j, i in enumerate(active.tolist()):
-            st = [s for s in states[5 * j: 5 * j + 5] if s is not None]
-            if len(st) < 5:
-                continue  # off the known ground: :func:`settle` decides below
-            here = np.asarray(st[0].lengths_m) - target[i]
-            if float(np.max(np.abs(here))) < tol_m:
-                out[i] = (xy[i].copy(), st[0])
-                continue
-            ls = np.array([s.lengths_m for s in st[1:]])
-            jac = np.column_stack([ls[0] - ls[1], ls[2] - ls[3]]) / (2 * h)
-            if abs(np.linalg.det(jac)) < 1e-9:
-                continue
-            step = np.linalg.solve(jac, here)
-            n = float(np.linalg.norm(step))
-            xy[i] -= step * (0.5 / n if n > 0.5 else 1.0)  # damped as :func:`settle`'s steps
-            going.append(i)
-        active = np.asarray(going, dtype=np.intp)
-    guesses = np.asarray(guesses_xy, float).reshape(-1, 2)
-    for i in range(len(xy)):
-        if out[i] is None:
-            out[i] = settle(z, grid, anchors, (float(target[i, 0]), float(target[i, 1])), guesses[i], cfg,
-                            tol_m=tol_m)
+        lens = _lengths_of(states).reshape(len(active), 5, 2)
+        on = np.isfinite(lens).all(axis=(1, 2))
+        out.going[active[~on]] = not whole  # off the known ground: None, as settle's
+        centre = [states[5 * j] for j in np.flatnonzero(on)]
+        active, lens = active[on], lens[on]
+        r = lens[:, 0] - target[active]
+        worst = np.max(np.abs(r), axis=1)
+        for j in np.flatnonzero(worst < out.best_res[active]):
+            i = int(active[j])
+            out.best_res[i], out.best_xy[i], out.best_st[i] = worst[j], xy[i].copy(), centre[j]
+        done = worst < tol_m
+        for j in np.flatnonzero(done):
+            st = centre[j]
+            if st is not None:  # its lengths are finite: it has a state
+                out.places[int(active[j])] = (xy[active[j]].copy(), st)
+        out.going[active[done]] = False
+        if it == iterations:
+            return
+        active, lens, r = active[~done], lens[~done], r[~done]
+        jac = np.stack([lens[:, 1] - lens[:, 2], lens[:, 3] - lens[:, 4]], axis=2) / (2 * h)  # dL_i/dx_k
+        singular = np.abs(np.linalg.det(jac)) < 1e-9
+        out.going[active[singular]] = not whole  # None, as settle's
+        active, jac, r = active[~singular], jac[~singular], r[~singular]
+        if not len(active):
+            return
+        step = np.linalg.solve(jac, r[:, :, None])[:, :, 0]
+        n = np.linalg.norm(step, axis=1)
+        step *= np.where(n > 0.5, 0.5 / np.maximum(n, 1e-300), 1.0)[:, None]  # damped as settle's steps
+        if backtrack:
+            step = _backtracked(z, grid, anchors, xy[active], step, target[active], r, cfg, backtrack)
+        xy[active] -= step
+
+
+def _lengths_of(states: list[TetherState | None]) -> F64:
+    """Both lengths of each state (N, 2), NaN where there is none."""
+    out = np.full((len(states), 2), np.nan)
+    for k, s in enumerate(states):
+        if s is not None:
+            out[k] = s.lengths_m
     return out
+
+
+def _backtracked(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, step: F64, target: F64, r: F64,
+                 cfg: TetherConfig, halvings: int) -> F64:
+    """Each place's step, halved until the residual at ``xy - step`` shrinks (one batch per
+    halving, of the places still halving); after ``halvings`` halvings the step is what is left
+    of it (:func:`settle`'s backtracking, batched)."""
+    step = step.copy()
+    r_norm = np.linalg.norm(r, axis=1)
+    halving = np.arange(len(xy))
+    for _ in range(halvings):
+        trial = _lengths_of(tether_states(z, grid, anchors, xy[halving] - step[halving], cfg))
+        shrank = np.isfinite(trial).all(axis=1) & (np.linalg.norm(trial - target[halving], axis=1) < r_norm[halving])
+        halving = halving[~shrank]
+        if not len(halving):
+            break
+        step[halving] *= 0.5
+    return step

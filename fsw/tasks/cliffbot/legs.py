@@ -76,6 +76,7 @@ class Route:
         grow = disc(int(round(ccfg.node_m / grid.cell)))
         self.ground = dataclasses.replace(ground, rock=ndimage.binary_dilation(ground.rock, structure=grow))
         self.ways: dict[tuple[float, float, float, float], str] = {}  # way_reason per pair of places
+        self.nodes: dict[int, str] = {}  # the lattice's verdicts on this map (plan_targets' verdicts)
 
     def errors(self) -> LengthErrors:
         """What parts the lengths that put the body at a place from the map's lengths there: the
@@ -103,7 +104,8 @@ class Route:
         margins = self.margins()
         for _ in range(MAX_CUT_ROUNDS):
             plan = plan_targets(self.z, self.grid, self.anchors, start, goal[None, :], self.tcfg, self.ccfg,
-                                margins, start_usable=True, blocked=cut, unseen=self.carried, ground=self.ground)
+                                margins, start_usable=True, blocked=cut, unseen=self.carried, ground=self.ground,
+                                verdicts=self.nodes)
             path = plan.paths[0]
             if path is None:
                 return plan, []
@@ -194,7 +196,7 @@ class Route:
             return None
         cand = xy[np.argsort(d, kind="stable")[:APPROACH_CANDIDATES]]
         first = plan_targets(self.z, self.grid, self.anchors, start, cand, self.tcfg, self.ccfg, self.margins(),
-                             start_usable=True, unseen=self.carried, ground=self.ground)
+                             start_usable=True, unseen=self.carried, ground=self.ground, verdicts=self.nodes)
         for k, path in enumerate(first.paths):
             if path is None:
                 continue

@@ -81,7 +81,9 @@ def test_many_places_settle_where_one_at_a_time_does() -> None:
     lengths = np.asarray(st.lengths_m) + length_offsets(length_covariance(st, ERRORS), 2.326)
     lengths = np.vstack([lengths, [st.lengths_m[0] + 3.0, st.lengths_m[1] - 3.0]])  # not both taut
     guesses = np.repeat(FACE[None, :], len(lengths), axis=0)
-    many = settle_many(z, grid, anchors, lengths, guesses, t)
+    got_many = settle_many(z, grid, anchors, lengths, guesses, t)
+    assert not got_many.unsettled.any()
+    many = got_many.places
     for (l1, l2), got in zip(lengths, many, strict=True):
         one = settle(z, grid, anchors, (float(l1), float(l2)), FACE, t)
         assert (got is None) == (one is None)
@@ -118,7 +120,8 @@ def test_the_check_judges_the_statics_where_the_body_settles_not_a_linear_margin
     st = tether_state(z, grid, anchors, FACE, t, c.footprint_m)
     assert st is not None
     off = length_offsets(length_covariance(st, ERRORS), ERRORS.z)
-    got = settle_many(z, grid, anchors, np.asarray(st.lengths_m) + off, np.repeat(FACE[None, :], len(off), 0), t)
+    got = settle_many(z, grid, anchors, np.asarray(st.lengths_m) + off, np.repeat(FACE[None, :], len(off), 0),
+                      t).places
     least = min(min(g[1].statics.tensions_n) for g in got if g is not None)
     assert least < min(st.statics.tensions_n) - 0.1  # the errors move the tension
     ok = dataclasses.replace(t, t_min_n=least - 0.05)
@@ -266,7 +269,80 @@ def test_the_screen_gives_the_verdicts_the_settled_statics_give(monkeypatch: pyt
         for room in (0.3, 1.0, 3.0, 30.0):
             cases.append((xy, st, dataclasses.replace(TetherConfig(), t_min_n=max(0.0, low - room))))
     screened = [held_reason(z, grid, anchors, xy, st, t, c.free_slope_deg, ERRORS) for xy, st, t in cases]
-    monkeypatch.setattr(ht, "SCREEN", math.inf)  # every place settled at every offset
+    monkeypatch.setattr(ht, "SCREEN", 1e12)  # every place settled at every offset
     settled = [held_reason(z, grid, anchors, xy, st, t, c.free_slope_deg, ERRORS) for xy, st, t in cases]
     assert len(cases) >= 20 and screened == settled
     assert "slack" in settled and "" in settled
+
+
+def test_a_place_whose_settling_ends_undecided_is_refused_as_not_held_at_a_bounded_cost(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """At the foot of the face one length error leaves the body neither settled within its
+    acceptance nor shown slack: the node is refused as ``tension not held`` (not called slack,
+    never accepted), and settling its eight errors costs at most the batch's bound of tether
+    states per error (no per-place search after it)."""
+    import fsw.core.team.held_tension as ht
+    import fsw.core.team.tether as tether_mod
+
+    z, grid, anchors = _cliff()
+    t = TetherConfig()
+    xy = np.array([-0.60, -1.16])
+    st = tether_state(z, grid, anchors, xy, t, ClimberConfig().footprint_m)
+    assert st is not None and st.statics.ok
+    off = length_offsets(length_covariance(st, ERRORS), ERRORS.z)
+    got = settle_many(z, grid, anchors, np.asarray(st.lengths_m) + off, np.repeat(xy[None, :], len(off), 0), t)
+    assert got.unsettled.any() and not got.unsettled.all()
+    assert all(p is None for p, u in zip(got.places, got.unsettled, strict=True) if u)
+
+    evaluated = [0]
+    real = tether_mod.tether_states
+
+    def counted(*args: object, **kw: object) -> list[object]:
+        evaluated[0] += len(np.asarray(args[3]).reshape(-1, 2))
+        return real(*args, **kw)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(tether_mod, "tether_states", counted)
+    monkeypatch.setattr(ht, "tether_states", counted)
+    roomy = dataclasses.replace(t, t_min_n=min(st.statics.tensions_n) - 30.0)  # no settled error is slack
+    assert held_reason(z, grid, anchors, xy, st, roomy, 0.0, ERRORS) == ht.NOT_HELD
+    steps = tether_mod.SETTLE_MANY_ITERATIONS
+    per_error = 5 * (tether_mod.FULL_STEPS + 1) + 5 * (steps + 1) + tether_mod._BACKTRACK * steps
+    assert 4 < evaluated[0] <= 4 + len(off) * per_error
+
+
+def test_a_legs_plans_judge_each_node_once_and_the_kept_verdicts_are_the_same(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A leg planned again (its edges cut, its approach) reads the node verdicts its map already
+    has: planning with the kept verdicts gives the same plan as planning afresh, and judges no
+    node a second time."""
+    import fsw.core.team.face_planner as fp
+
+    z, grid, anchors = _cliff()
+    t, c = TetherConfig(), ClimberConfig()
+    start, goal = np.array([0.0, 0.6]), np.array([0.6, -0.9])
+    judged: list[tuple[int, int]] = []
+    real = fp._verdict
+
+    def counted(*args: object) -> str:
+        judged.append((int(args[-2]), int(args[-1])))  # type: ignore[call-overload]
+        return real(*args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(fp, "_verdict", counted)
+    r = _route(z, grid, anchors, t)
+    fresh = fp.plan_targets(z, grid, anchors, start, goal[None, :], t, c, r.margins(), start_usable=True,
+                            ground=r.ground)
+    n_fresh = len(judged)
+    kept: dict[int, str] = {}
+    first = fp.plan_targets(z, grid, anchors, start, goal[None, :], t, c, r.margins(), start_usable=True,
+                            ground=r.ground, verdicts=kept)
+    judged.clear()
+    again = fp.plan_targets(z, grid, anchors, start, goal[None, :], t, c, r.margins(), start_usable=True,
+                            ground=r.ground, verdicts=kept)
+    assert n_fresh > 10 and len(kept) == n_fresh and judged == []
+    for p in (first, again):
+        assert p.reasons == fresh.reasons and p.lengths_m == fresh.lengths_m
+        np.testing.assert_array_equal(p.paths[0], fresh.paths[0])
+    judged.clear()
+    plan, _ = r.plan(start, goal)
+    r.plan(start, goal)
+    assert plan.reasons == fresh.reasons and len(judged) == len(set(judged)) == len(r.nodes)
