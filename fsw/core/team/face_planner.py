@@ -20,7 +20,8 @@ brute-force check of what is reachable at all).
      taut); with :class:`Margins` ``errors``, the tethers must also hold it where the lengths'
      errors may put it: settled at the node's lengths off by each error the planner tolerates
      (the winches' own, the map's height error shared by both tethers), the statics re-solved
-     there (:func:`fsw.core.team.held_tension.held_reason`).
+     there (:func:`fsw.core.team.held_tension.held_reason`; ``tension not held`` where that
+     settling, bounded, ends undecided).
 2. **Edges.** Usable 8-neighbours, weighted by their 3-D distance; with :class:`Margins`, an
    edge within ``clearance_m`` of a hazard cell costs more (up to ``1 + weight`` times its
    length), so a path keeps the clearance the body's tracking and navigation errors need
@@ -30,8 +31,8 @@ brute-force check of what is reachable at all).
    reaches them (:func:`plan_targets` says why not a whole-lattice graph search). A target
    that is not reached gets the reason of its own node (``unknown ground``, ``hazard``,
    ``out of tether reach``, ``slack``,
-   ``over-tension``, ``off the face``, ``tether over a rock``, ``tether over unknown
-   ground``, ``off the map``) or, when its node is usable, ``no safe path``. The start is
+   ``over-tension``, ``tension not held``, ``off the face``, ``tether over a rock``, ``tether
+   over unknown ground``, ``off the map``) or, when its node is usable, ``no safe path``. The start is
    judged like any node, except with ``start_usable`` (the Cliff-bot stands there, held by
    its tethers, and plans its way out of it); ``blocked`` edges (pairs of places) are not
    taken (the mission's check of the way between waypoints, ``fsw.tasks.cliffbot_mission``).
@@ -58,7 +59,7 @@ from scipy import ndimage
 
 from fsw.core.codec.hazard import relief
 from fsw.core.geometry import MapGrid
-from fsw.core.team.held_tension import LengthErrors, held_at, held_reason, length_covariance, length_offsets
+from fsw.core.team.held_tension import NOT_HELD, LengthErrors, held_at, held_reason, length_covariance, length_offsets
 from fsw.core.team.tether import TetherConfig, TetherState, ZMap, settle, tether_state, tether_states
 from fsw.framework.params import param
 
@@ -68,7 +69,7 @@ USABLE = "usable"
 WAY_STEP_M = 0.03  # the way between nodes is followed in steps of at most this much tether
 OFF_THE_WAY = "the lengths hold it elsewhere"
 REASONS = ("off the map", "unknown ground", "hazard", "out of tether reach", "tether over unknown ground",
-           "tether over a rock", "slack", "over-tension", "off the face", "degenerate")
+           "tether over a rock", "slack", "over-tension", "off the face", "degenerate", NOT_HELD)
 
 
 @dataclass(frozen=True)
