@@ -76,8 +76,8 @@ class CliffbotMissionConfig:
     track_margin_m: float = param(0.08, lo=0.0, hi=2.0, units="m",
                                   doc="paths keep this clear of hazards where the ground leaves room (a soft cost)")
     margin_sigmas: float = param(2.326, lo=0.0, hi=10.0,
-                                 doc="tension margins and the off-the-way test, in standard deviations of "
-                                     "where the body may be (2.326: one-sided 99 %)")
+                                 doc="the length errors the tethers must hold the body at, and the off-the-way "
+                                     "test, in standard deviations (2.326: one-sided 99 %)")
     safe_recover_s: float = param(0.0, lo=0.0, hi=1e5, units="s",
                                   doc="the task leaves SAFE by itself after this long (0: waits for RECOVER)")
     approach_looks: int = param(3, lo=0, hi=20,

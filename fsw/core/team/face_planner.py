@@ -17,9 +17,11 @@ brute-force check of what is reachable at all).
      normal, :func:`fsw.core.team.tether.surface_normal`) is steeper than ``free_slope_deg`` the
      equilibrium must hold with both tensions in ``[T_min, T_max]`` and the wheels on the
      face (below it, the wheels hold the Cliff-bot and the winches only keep the tethers
-     taut); with :class:`Margins` ``length_sigma_m``, each tension the margin where the body
-     may be requires inside them (:func:`tension_margins`: the lengths' error carried to the
-     place through their Jacobian, times the tension's gradient there).
+     taut); with :class:`Margins` ``errors``, the tethers must also hold it where the lengths'
+     errors may put it: settled at the node's lengths off by each error the planner tolerates
+     (the winches' own, the map's height error shared by both tethers), the statics re-solved
+     there (:func:`fsw.core.team.held_tension.held_reason`; ``tension not held`` where that
+     settling, bounded, ends undecided).
 2. **Edges.** Usable 8-neighbours, weighted by their 3-D distance; with :class:`Margins`, an
    edge within ``clearance_m`` of a hazard cell costs more (up to ``1 + weight`` times its
    length), so a path keeps the clearance the body's tracking and navigation errors need
@@ -29,8 +31,8 @@ brute-force check of what is reachable at all).
    reaches them (:func:`plan_targets` says why not a whole-lattice graph search). A target
    that is not reached gets the reason of its own node (``unknown ground``, ``hazard``,
    ``out of tether reach``, ``slack``,
-   ``over-tension``, ``off the face``, ``tether over a rock``, ``tether over unknown
-   ground``, ``off the map``) or, when its node is usable, ``no safe path``. The start is
+   ``over-tension``, ``tension not held``, ``off the face``, ``tether over a rock``, ``tether
+   over unknown ground``, ``off the map``) or, when its node is usable, ``no safe path``. The start is
    judged like any node, except with ``start_usable`` (the Cliff-bot stands there, held by
    its tethers, and plans its way out of it); ``blocked`` edges (pairs of places) are not
    taken (the mission's check of the way between waypoints, ``fsw.tasks.cliffbot_mission``).
@@ -57,6 +59,7 @@ from scipy import ndimage
 
 from fsw.core.codec.hazard import relief
 from fsw.core.geometry import MapGrid
+from fsw.core.team.held_tension import NOT_HELD, LengthErrors, held_at, held_reason, length_covariance, length_offsets
 from fsw.core.team.tether import TetherConfig, TetherState, ZMap, settle, tether_state, tether_states
 from fsw.framework.params import param
 
@@ -66,7 +69,7 @@ USABLE = "usable"
 WAY_STEP_M = 0.03  # the way between nodes is followed in steps of at most this much tether
 OFF_THE_WAY = "the lengths hold it elsewhere"
 REASONS = ("off the map", "unknown ground", "hazard", "out of tether reach", "tether over unknown ground",
-           "tether over a rock", "slack", "over-tension", "off the face", "degenerate")
+           "tether over a rock", "slack", "over-tension", "off the face", "degenerate", NOT_HELD)
 
 
 @dataclass(frozen=True)
@@ -84,23 +87,23 @@ class ClimberConfig:
 
 @dataclass(frozen=True)
 class Margins:
-    """A soft margin: the extra cost of passing near a hazard; and, with ``length_sigma_m``, the
-    tension margin the place's uncertainty requires (:func:`tension_margins`)."""
+    """A soft margin: the extra cost of passing near a hazard; and, with ``errors``, the hard
+    check that the tethers hold the body where the lengths' errors may put it
+    (:mod:`fsw.core.team.held_tension`)."""
 
     clearance_m: float = 0.0  # within this of a hazard cell an edge costs more
     weight: float = 4.0  # an edge's cost at its worst: (1 + weight) x its length
-    length_sigma_m: float = 0.0  # the error of the lengths that put the body at a node (0: hard limits only)
-    z: float = 2.326  # the margin in standard deviations (one-sided 99 %)
+    errors: LengthErrors = LengthErrors()  # what parts the body's lengths from the map's (none: hard limits only)
 
 
 def place_covariance(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
-                     length_sigma_m: float, est_cov: F64 | None = None
-                     ) -> tuple[F64, F64, TetherState] | None:
+                     errors: LengthErrors, est_cov: F64 | None = None) -> tuple[F64, TetherState] | None:
     """Where the body may be when the winches hold the lengths of place ``xy``: the lengths'
-    error ``length_sigma_m`` (the winches' tolerance, the map's) carried to the place through
-    the lengths' Jacobian, ``J^+ sigma^2 J^+T``, plus the estimate's covariance ``est_cov``.
-    Returns ``(covariance 2x2, tension gradient 2x2 (dT_i/dxy), state at xy)``; None where the
-    ground round it is not known (central differences over one map cell)."""
+    covariance (:func:`fsw.core.team.held_tension.length_covariance`: the winches' own errors,
+    the map's height error shared by both tethers) carried to the place through the lengths'
+    Jacobian, ``J^+ S J^+T``, plus the estimate's covariance ``est_cov``. Returns
+    ``(covariance 2x2, state at xy)``; None where the ground round it is not known (central
+    differences over one map cell)."""
     h = grid.cell
     pts = np.asarray(xy, float)[None, :] + np.array([[0, 0], [h, 0], [-h, 0], [0, h], [0, -h]], float)
     ss = tether_states(z, grid, anchors, pts, tcfg, ccfg.footprint_m)
@@ -108,37 +111,12 @@ def place_covariance(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, tcfg: Tether
         return None
     st = [s for s in ss if s is not None]
     lengths = np.array([s.lengths_m for s in st])
-    tens = np.array([s.statics.tensions_n for s in st])
     jl = np.column_stack([lengths[1] - lengths[2], lengths[3] - lengths[4]]) / (2 * h)  # dL_i/dx_k
-    jt = np.column_stack([tens[1] - tens[2], tens[3] - tens[4]]) / (2 * h)
-    if not (np.isfinite(jl).all() and np.isfinite(jt).all()):
+    if not np.isfinite(jl).all():
         return None
     jp = np.linalg.pinv(jl)
-    cov = length_sigma_m ** 2 * jp @ jp.T + (np.zeros((2, 2)) if est_cov is None else np.asarray(est_cov, float))
-    return cov, jt, st[0]
-
-
-def tension_margins(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
-                    m: Margins) -> tuple[float, float] | None:
-    """Each tether's tension margin at ``xy`` (N): ``m.z`` standard deviations of its tension
-    over where the body may be (:func:`place_covariance`), ``sqrt(g^T Sigma g)``; None where
-    it cannot be worked out."""
-    got = place_covariance(z, grid, anchors, xy, tcfg, ccfg, m.length_sigma_m)
-    if got is None:
-        return None
-    return _margins(got[0], got[1], m.z)
-
-
-def within_margins(st: TetherState, margins: tuple[float, float] | None, tcfg: TetherConfig) -> str:
-    """``""`` when both tensions are their margins inside ``[T_min, T_max]``, else the reason."""
-    if margins is None:
-        return "unknown ground"
-    for t, mg in zip(st.statics.tensions_n, margins, strict=True):
-        if t - mg < tcfg.t_min_n:
-            return "slack"
-        if t + mg > tcfg.t_max_n:
-            return "over-tension"
-    return ""
+    cov = jp @ length_covariance(st[0], errors) @ jp.T
+    return cov + (np.zeros((2, 2)) if est_cov is None else np.asarray(est_cov, float)), st[0]
 
 
 @dataclass(frozen=True)
@@ -362,31 +340,16 @@ def _tether_verdict(st: TetherState | None, grid: MapGrid, tcfg: TetherConfig, c
     return USABLE
 
 
-def margin_reason(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
-                  m: Margins) -> str:
-    """Why the tensions at ``xy`` are not their margins (:func:`tension_margins`) inside the
-    limits (``""``: they are); only where the statics hold the body (steeper than ``free_slope_deg``)."""
-    got = place_covariance(z, grid, anchors, xy, tcfg, ccfg, m.length_sigma_m)
-    if got is None:
-        return "unknown ground"
-    cov, jt, st = got
-    if st.statics.tilt_deg <= ccfg.free_slope_deg:
-        return ""
-    return within_margins(st, _margins(cov, jt, m.z), tcfg)
-
-
-def _margins(cov: F64, jt: F64, k: float) -> tuple[float, float]:
-    return (k * math.sqrt(max(float(jt[0] @ cov @ jt[0]), 0.0)), k * math.sqrt(max(float(jt[1] @ cov @ jt[1]), 0.0)))
-
-
 def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
-               g: Ground, step_m: float = WAY_STEP_M, margins: tuple[float, float] = (0.0, 0.0)) -> str:
+               g: Ground, step_m: float = WAY_STEP_M, errors: LengthErrors | None = None) -> str:
     """Why the body cannot go from node ``a`` to node ``b`` (``""``: it can; module docstring,
     4): both lengths moved straight from ``a``'s to ``b``'s in steps of at most ``step_m`` of
     tether, the body settled at each (``settle``, from the last place) and judged there like a
-    node (unknown ground, hazard, the tethers and the statics: :func:`_tether_verdict`; where the
-    statics hold the body, each tension its own margin of ``margins`` inside the limits:
-    :func:`within_margins`), ending within a lattice spacing of ``b`` (else :data:`OFF_THE_WAY`).
+    node (unknown ground, hazard, the tethers and the statics: :func:`_tether_verdict`), ending
+    within a lattice spacing of ``b`` (else :data:`OFF_THE_WAY`). With ``errors``, where the
+    statics hold the body (steeper than ``free_slope_deg``) the tethers must also hold it at the
+    lengths off by each of the errors' offsets (:func:`fsw.core.team.held_tension.length_offsets`,
+    each moving from ``a``'s offset to ``b``'s along the way; :func:`fsw.core.team.held_tension.held_at`).
     Directed: the way back may differ."""
     sa = tether_state(z, grid, anchors, np.asarray(a, float), tcfg, ccfg.footprint_m)
     sb = tether_state(z, grid, anchors, np.asarray(b, float), tcfg, ccfg.footprint_m)
@@ -395,9 +358,13 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
     la, lb = np.asarray(sa.lengths_m), np.asarray(sb.lengths_m)
     n = max(2, int(math.ceil(float(np.max(np.abs(lb - la))) / step_m)))
     xy = np.asarray(a, float)
+    held = errors is not None and errors.any
+    if errors is not None and held:
+        off_a = length_offsets(length_covariance(sa, errors), errors.z)
+        off_b = length_offsets(length_covariance(sb, errors), errors.z)
     for f in np.arange(1, n + 1) / n:
-        got = settle(z, grid, anchors, (float(la[0] + f * (lb[0] - la[0])), float(la[1] + f * (lb[1] - la[1]))),
-                     xy, tcfg)
+        lengths = la + f * (lb - la)
+        got = settle(z, grid, anchors, (float(lengths[0]), float(lengths[1])), xy, tcfg)
         if got is None:
             return "slack"
         xy = got[0]
@@ -409,10 +376,12 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
         if g.hazard[int(iy[0]), int(ix[0])]:
             return "hazard"
         why = _tether_verdict(got[1], grid, tcfg, ccfg, g)
-        if why == USABLE and any(margins) and got[1].statics.tilt_deg > ccfg.free_slope_deg:
-            why = within_margins(got[1], margins, tcfg) or USABLE
         if why != USABLE:
             return why
+        if held and got[1].statics.tilt_deg > ccfg.free_slope_deg:
+            why = held_at(z, grid, anchors, xy, got[1], (1.0 - f) * off_a + f * off_b, tcfg, ccfg.free_slope_deg)
+            if why:
+                return why
     if float(np.hypot(*(xy - np.asarray(b, float)))) > ccfg.node_m:
         return OFF_THE_WAY
     return ""
@@ -421,14 +390,17 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
 def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy: F64,
                  tcfg: TetherConfig, ccfg: ClimberConfig, margins: Margins | None = None,
                  start_usable: bool = False, blocked: Sequence[tuple[F64, F64]] = (),
-                 unseen: NDArray[np.bool_] | None = None, ground: Ground | None = None) -> Plan:
+                 unseen: NDArray[np.bool_] | None = None, ground: Ground | None = None,
+                 verdicts: dict[int, str] | None = None) -> Plan:
     """Shortest usable paths from ``start_xy`` to each target (module docstring); ``unseen``
     as for :func:`ground_layers` (no node's footprint, nor a way's place, holds such a cell).
     ``ground``: the layers the nodes are judged on (default ``ground_layers(z, grid, ccfg,
     unseen)``); the mission's legs pass the layers their ways are judged on
     (``fsw.tasks.cliffbot.legs.Route``), since a way ends at its node's place and is judged
     there: a node that fails on them is the end of no way, and a search through it only finds
-    edges to cut.
+    edges to cut. ``verdicts``: the nodes' verdicts already worked out on the same map, ground
+    and margins (lattice index -> its verdict, :data:`USABLE` or the reason), read and filled; a caller that plans
+    again on them (a leg's edges cut, its approach) judges each node once.
 
     A* per target over the 8-connected lattice, with the 3-D straight distance as its
     (admissible) heuristic; a node's verdict is worked out when the search first reaches it
@@ -445,7 +417,7 @@ def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy
     node_z = np.nan_to_num(zf[np.ix_(rows, cols)])
     node_x = grid.x0 + (cols + 0.5) * grid.cell
     node_y = grid.y0 + (rows + 0.5) * grid.cell
-    cache: dict[int, str] = {}
+    cache: dict[int, str] = verdicts if verdicts is not None else {}
     m = margins or Margins()
     clear = (ndimage.distance_transform_edt(~g.hazard) * grid.cell if m.clearance_m > 0 and g.hazard.any()
              else None)
@@ -455,10 +427,17 @@ def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy
         if k not in cache:
             r, c = int(rows[k // nx]), int(cols[k % nx])
             cache[k] = _verdict(zf, grid, anchors, tcfg, ccfg, g, r, c)
-            if cache[k] == USABLE and m.length_sigma_m > 0:
-                xy = np.array([grid.x0 + (c + 0.5) * grid.cell, grid.y0 + (r + 0.5) * grid.cell])
-                cache[k] = margin_reason(zf, grid, anchors, xy, tcfg, ccfg, m) or USABLE
+            if cache[k] == USABLE and m.errors.any:
+                cache[k] = _held(r, c) or USABLE
         return USABLE if (start_usable and k == start) else cache[k]
+
+    def _held(r: int, c: int) -> str:
+        """A usable node where the statics hold the body: held at its lengths' offsets too."""
+        xy = np.array([grid.x0 + (c + 0.5) * grid.cell, grid.y0 + (r + 0.5) * grid.cell])
+        st = tether_state(zf, grid, anchors, xy, tcfg, ccfg.footprint_m)
+        if st is None or st.statics.tilt_deg <= ccfg.free_slope_deg:
+            return ""
+        return held_reason(zf, grid, anchors, xy, st, tcfg, ccfg.free_slope_deg, m.errors)
 
     def cost(a: int, b: int) -> float:
         """An edge's cost over its length: 1 with room, up to 1 + weight at a hazard's edge;

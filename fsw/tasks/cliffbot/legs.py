@@ -29,9 +29,9 @@ from fsw.core.team.face_planner import (
     ground_layers,
     place_covariance,
     plan_targets,
-    tension_margins,
     way_reason,
 )
+from fsw.core.team.held_tension import LengthErrors
 from fsw.core.team.tether import TetherConfig
 from fsw.sections import CliffbotMissionConfig
 
@@ -76,23 +76,24 @@ class Route:
         grow = disc(int(round(ccfg.node_m / grid.cell)))
         self.ground = dataclasses.replace(ground, rock=ndimage.binary_dilation(ground.rock, structure=grow))
         self.ways: dict[tuple[float, float, float, float], str] = {}  # way_reason per pair of places
+        self.nodes: dict[int, str] = {}  # the lattice's verdicts on this map (plan_targets' verdicts)
 
-    def length_sigma(self) -> float:
-        """The error of the lengths that put the body at a place, against the truth's: the
+    def errors(self) -> LengthErrors:
+        """What parts the lengths that put the body at a place from the map's lengths there: the
         winches stop anywhere within ``length_tol_m`` of the set-point, and the map's heights,
         which the set-point's lengths come from, are within the codec's error bound of the
-        ground's (each uniform)."""
-        return math.sqrt((self.cfg.length_tol_m ** 2 + self.error_bound_m ** 2) / 3.0)
+        ground's (each uniform; the map's shared by both tethers under the body); judged at
+        ``margin_sigmas`` (:mod:`fsw.core.team.held_tension`)."""
+        return LengthErrors(self.cfg.length_tol_m, self.error_bound_m, self.cfg.margin_sigmas)
 
     def margins(self) -> Margins:
         """The planner's margins. The winches put the body where the lengths hold it, within
-        ``length_tol_m`` of a node's lengths and off by the map's error: each tension keeps its
-        margin inside the limits, ``margin_sigmas`` standard deviations of the tension over where
-        the body may be (:func:`fsw.core.team.face_planner.tension_margins`: the statics'
-        sensitivity times that place's covariance), hard; the footprint's clearance from hazards
-        is soft (paths keep ``track_margin_m`` clear where the ground leaves room, without calling
-        a target the wheels can reach unreachable)."""
-        return Margins(self.cfg.track_margin_m, length_sigma_m=self.length_sigma(), z=self.cfg.margin_sigmas)
+        ``length_tol_m`` of a node's lengths and off by the map's error: the tethers must hold it
+        (both tensions inside their limits, the statics re-solved where it settles) at every
+        length error of :meth:`errors`, hard; the footprint's clearance from hazards is soft
+        (paths keep ``track_margin_m`` clear where the ground leaves room, without calling a
+        target the wheels can reach unreachable)."""
+        return Margins(self.cfg.track_margin_m, errors=self.errors())
 
     def plan(self, start: F64, goal: F64) -> tuple[Plan, list[F64]]:
         """The leg from ``start`` (where it stands, held by its tethers: the way out of that node
@@ -103,7 +104,8 @@ class Route:
         margins = self.margins()
         for _ in range(MAX_CUT_ROUNDS):
             plan = plan_targets(self.z, self.grid, self.anchors, start, goal[None, :], self.tcfg, self.ccfg,
-                                margins, start_usable=True, blocked=cut, unseen=self.carried, ground=self.ground)
+                                margins, start_usable=True, blocked=cut, unseen=self.carried, ground=self.ground,
+                                verdicts=self.nodes)
             path = plan.paths[0]
             if path is None:
                 return plan, []
@@ -139,16 +141,8 @@ class Route:
         (:func:`way_reason`; each pair judged once per map)."""
         key = (round(float(a[0]), 4), round(float(a[1]), 4), round(float(b[0]), 4), round(float(b[1]), 4))
         if key not in self.ways:
-            # every place of the way keeps, for each tether, the larger of its ends' margins for that
-            # tether (a margin is one tether's: the other's tension may sit far nearer its limit)
-            m = self.margins()
-            ends = [tension_margins(self.z, self.grid, self.anchors, p, self.tcfg, self.ccfg, m) for p in (a, b)]
-            if ends[0] is None or ends[1] is None:
-                self.ways[key] = "unknown ground"
-            else:
-                mg = (max(ends[0][0], ends[1][0]), max(ends[0][1], ends[1][1]))
-                self.ways[key] = way_reason(self.z, self.grid, self.anchors, a, b, self.tcfg, self.ccfg, self.ground,
-                                            margins=mg)
+            self.ways[key] = way_reason(self.z, self.grid, self.anchors, a, b, self.tcfg, self.ccfg, self.ground,
+                                        errors=self.errors())
         return not self.ways[key]
 
     def elsewhere(self, est_xy: F64, est_cov: F64, wp: F64) -> tuple[bool, float, float]:
@@ -161,8 +155,7 @@ class Route:
         off = float(np.hypot(*d))
         if off <= self.ccfg.node_m:
             return False, off, math.nan
-        got = place_covariance(self.z, self.grid, self.anchors, wp, self.tcfg, self.ccfg, self.length_sigma(),
-                               est_cov)
+        got = place_covariance(self.z, self.grid, self.anchors, wp, self.tcfg, self.ccfg, self.errors(), est_cov)
         if got is None:
             return True, off, math.nan
         u = d / off
@@ -203,7 +196,7 @@ class Route:
             return None
         cand = xy[np.argsort(d, kind="stable")[:APPROACH_CANDIDATES]]
         first = plan_targets(self.z, self.grid, self.anchors, start, cand, self.tcfg, self.ccfg, self.margins(),
-                             start_usable=True, unseen=self.carried, ground=self.ground)
+                             start_usable=True, unseen=self.carried, ground=self.ground, verdicts=self.nodes)
         for k, path in enumerate(first.paths):
             if path is None:
                 continue
