@@ -77,37 +77,36 @@ class PastLips:
         """Points not withheld: those farther than ``k_sigma`` sigma from the nearest known lip
         (the point's common and the lip's horizontal variance), on its plateau side, or more than
         ``min_drop_m`` below it (points off the grid: True, the merge drops them anyway)."""
-        n = xyz_w.shape[0]
-        out = np.ones(n, bool)
-        if k_sigma <= 0.0 or n == 0:
+        out = np.ones(xyz_w.shape[0], bool)
+        if k_sigma <= 0.0 or xyz_w.shape[0] == 0:
             return out
-        with np.errstate(invalid="ignore"):  # a NaN point falls off the grid
-            iy, ix, inside = self.grid.cell_index(xyz_w[:, 0], xyz_w[:, 1])
-        p = xyz_w[inside]
-        lip = self._xyz[iy[inside], ix[inside]]
-        off = p[:, :2] - lip[:, :2]
-        var = horizontal_variance(cov_common[inside]) + self._var[iy[inside], ix[inside]]
-        past = np.einsum("ij,ij->i", off, self._toward[iy[inside], ix[inside]]) > 0.0
+        inside, iy, ix, p, lip, off = self._nearest(xyz_w)
+        var = horizontal_variance(cov_common[inside]) + self._var[iy, ix]
+        past = np.einsum("ij,ij->i", off, self._toward[iy, ix]) > 0.0
         high = p[:, 2] > lip[:, 2] - self.min_drop_m
         near = np.einsum("ij,ij->i", off, off) <= k_sigma * k_sigma * var
         out[inside] = ~(past & high & near)
         return out
+
+    def _nearest(self, xyz_w: F64) -> tuple[B, NDArray[np.intp], NDArray[np.intp], F64, F64, F64]:
+        """The points on the grid (mask), their cells, the points, the nearest known lip to each
+        and the horizontal offset from it (a NaN point falls off the grid)."""
+        with np.errstate(invalid="ignore"):
+            iy, ix, inside = self.grid.cell_index(xyz_w[:, 0], xyz_w[:, 1])
+        iy, ix = iy[inside], ix[inside]
+        p = xyz_w[inside]
+        lip = self._xyz[iy, ix]
+        return inside, iy, ix, p, lip, p[:, :2] - lip[:, :2]
 
     def under(self, xyz_w: F64, cov_w: F64, k_sigma: float) -> B:
         """Points the gravity grid must not take (module docstring): more than ``min_drop_m``
         below the nearest known lip, and in the lip's own cell or on its plateau side within
         ``k_sigma`` sigma of it (``cov_w``: the point's whole covariance, and the lip's horizontal
         variance). Points off the grid, and every point with ``k_sigma <= 0`` (the guard off): False."""
-        n = xyz_w.shape[0]
-        out = np.zeros(n, bool)
-        if k_sigma <= 0.0 or n == 0:
+        out = np.zeros(xyz_w.shape[0], bool)
+        if k_sigma <= 0.0 or xyz_w.shape[0] == 0:
             return out
-        with np.errstate(invalid="ignore"):  # a NaN point falls off the grid
-            iy, ix, inside = self.grid.cell_index(xyz_w[:, 0], xyz_w[:, 1])
-        iy, ix = iy[inside], ix[inside]
-        p = xyz_w[inside]
-        lip = self._xyz[iy, ix]
-        off = p[:, :2] - lip[:, :2]
+        inside, iy, ix, p, lip, off = self._nearest(xyz_w)
         low = p[:, 2] < lip[:, 2] - self.min_drop_m
         behind = np.einsum("ij,ij->i", off, self._toward[iy, ix]) <= 0.0
         var = horizontal_variance(cov_w[inside]) + self._var[iy, ix]
