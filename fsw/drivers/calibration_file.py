@@ -142,6 +142,15 @@ def _read_int(fs: cv2.FileStorage, path: Path, key: str) -> int:
     return value
 
 
+def _text(node: cv2.FileNode) -> str | None:
+    """A string node's text, or None where its bytes are not UTF-8 (OpenCV hands them on as they
+    are in the file, and decoding them would raise)."""
+    try:
+        return node.string()
+    except UnicodeDecodeError:
+        return None
+
+
 def _check_matrix_node(node: cv2.FileNode, path: Path, key: str) -> None:
     """A well-formed ``!!opencv-matrix``: small integer ``rows`` and ``cols``, a real ``dt``
     and exactly ``rows * cols`` numbers in ``data``."""
@@ -150,7 +159,7 @@ def _check_matrix_node(node: cv2.FileNode, path: Path, key: str) -> None:
     rows, cols, dt, data = (node.getNode(k) for k in ("rows", "cols", "dt", "data"))
     if not (rows.isInt() and cols.isInt() and 1 <= rows.real() <= 16 and 1 <= cols.real() <= 16):
         raise CalibrationError(f"{path}: {key} is not a matrix (rows and cols must be small integers)")
-    if not (dt.isString() and dt.string() in ("d", "f")):
+    if not (dt.isString() and _text(dt) in ("d", "f")):
         raise CalibrationError(f"{path}: {key} is not a matrix of reals (dt must be d or f)")
     n = int(rows.real()) * int(cols.real())
     if not (data.isSeq() and data.size() == n):

@@ -237,3 +237,18 @@ def test_fuzzed_calibration_files_load_or_fail_cleanly(cams: TrueCameras, tmp_pa
     # the loader's rotation check (np.allclose: atol 1e-6 plus rtol 1e-5), not a stricter one
     np.testing.assert_allclose(cal.R @ cal.R.T, np.eye(3), rtol=1e-5, atol=1e-6)
     Rectifier(cal, CAM.K)  # usable: the maps build
+
+
+def test_a_matrix_type_that_is_not_utf8_text_is_refused_cleanly(cams: TrueCameras, tmp_path: Path) -> None:
+    """A flipped high bit in a matrix's ``dt`` (a byte OpenCV passes on undecoded) is a
+    CalibrationError naming the file, not a UnicodeDecodeError."""
+    good = tmp_path / "good.yaml"
+    save_calibration(good, cams.truth())
+    raw = good.read_bytes()
+    at = raw.index(b"K2:")
+    dt = raw.index(b"dt: d", at) + len(b"dt: ")
+    bad = tmp_path / "bad.yaml"
+    bad.write_bytes(raw[:dt] + b"\xa0" + raw[dt + 1:])
+    with pytest.raises(CalibrationError, match="K2 is not a matrix of reals") as err:
+        load_calibration(bad, 640, 480)
+    assert str(bad) in str(err.value) and "\n" not in str(err.value)
