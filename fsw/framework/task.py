@@ -6,7 +6,7 @@ dictionary is generated from them. Every task also has the common ones below (cF
 RESET_COUNTERS; F Prime: execution-time channels, throttled overrun events). A task's
 handler for command ``X`` is its method ``cmd_X``.
 
-A task's timing comes in two kinds (docs/architecture.md, "Budgets, overruns, slips"): the
+A task's timing comes in two kinds (docs/architecture.md, "The cyclic executive"): the
 *schedule's* (``last_s``, ``max_s``, ``overruns``: its channels, OVERRUN events), measured on
 the executive's schedule timer, which in lockstep is the stepped clock, so telemetry is
 deterministic; and the *host's* (:class:`HostTiming`), what the work cost on this computer, a
