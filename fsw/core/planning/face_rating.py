@@ -157,9 +157,10 @@ def face_cells(face: FaceLike, gravity: MapLike, cfg: VisibilityConfig, prior_m:
 def gravity_with_floor(fc: FaceCells, gravity: MapLike, cfg: VisibilityConfig) -> Terrain:
     """The gravity grid's terrain as a view near the face is rated on (docs/algorithm.md §8.2,
     "The ground beyond the lip"): the cells in front of the face (``fc.below``) at the floor prior
-    ``fc.floor_z``, and every other unknown cell past a lip at most at the face's dip continued
-    from its nearest known cell (:func:`drop_prior`, within the prior's correlation length of
-    nothing known down the dip), with the prior's sigma."""
+    ``fc.floor_z`` (a prior: the unknown cells' sigma and exponent of §3.1), and every other
+    unknown cell past a lip at most at the face's dip continued from its nearest known cell
+    (:func:`drop_prior`, within the prior's correlation length of nothing known down the dip),
+    with the prior's sigma."""
     z = np.where(fc.below, fc.floor_z, np.asarray(gravity.z, float))
     var = np.where(fc.below, cfg.prior_sigma_m**2, np.asarray(gravity.var, float))
     terrain = terrain_from_map(z, var, gravity.grid, cfg)
@@ -167,7 +168,10 @@ def gravity_with_floor(fc: FaceCells, gravity: MapLike, cfg: VisibilityConfig) -
     unknown = ~(np.isfinite(z) & np.isfinite(var))
     drop = drop_prior(fc, np.asarray(gravity.z, float), mapped, gravity.grid, cfg.prior_corr_len_m)
     elev = np.where(unknown, np.minimum(terrain.elev_m, drop), terrain.elev_m)
-    return Terrain(gravity.grid, elev, terrain.sigma_m, terrain.weight)
+    # the floor prior is a prior, not ground: its factors take the unknown cells' exponent (§3.1),
+    # else a ray over a metre of it multiplies a dozen factors near one half and reads as hidden
+    weight = np.where(fc.below, min(1.0, gravity.grid.cell / cfg.prior_corr_len_m), terrain.weight)
+    return Terrain(gravity.grid, elev, terrain.sigma_m, weight)
 
 
 def drop_prior(fc: FaceCells, z: F64, known: NDArray[np.bool_], grid: MapGrid, reach_m: float) -> F64:
