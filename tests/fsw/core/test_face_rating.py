@@ -176,3 +176,18 @@ def test_the_floor_prior_is_a_prior_not_ground() -> None:
     pv = terrain_visibility(terrain, pose, CAM, VIS)
     assert pv[target][0] > 0.5
 
+
+def test_the_ground_in_front_of_the_face_continues_the_known_ground_there() -> None:
+    """Where ground in front of the face is known (a talus 0.76 m above the floor prior), the
+    unknown ground beside it is rated at its height as §3.1 continues known ground, not at the
+    foot of the face cells; with none known it is the foot."""
+    emap = _plateau_only()
+    x, y = GRID.centers()
+    talus = (y > 1.6) & (y < 2.2)
+    emap.z[talus], emap.var[talus], emap.n[talus] = -3.0, 0.02**2, 1
+    fc = face_cells(_face(), emap, VIS, prior_m=1.0)
+    terrain = gravity_with_floor(fc, emap, VIS)
+    front = fc.below & (y < 1.6)
+    assert front.sum() > 100 and fc.floor_z < -3.5
+    assert np.allclose(terrain.elev_m[front], -3.0, atol=0.01)
+    assert np.allclose(gravity_with_floor(fc, _plateau_only(), VIS).elev_m[fc.below], fc.floor_z)
