@@ -137,3 +137,63 @@ def test_a_flag_spreads_to_the_cells_beside_it_that_show_some_facing_ground() ->
     assert not face.overhang[6:, :].any()  # the face beyond: no facing ground, no flag
     off = view(FaceMapConfig(cell_m=0.05, facing_beside_points=0))
     assert off.overhang[4, 1:-1].all() and not off.overhang[5, :].any()
+
+
+def _stereo_view(face: FaceMap, q: np.ndarray, eye: np.ndarray, rng: np.random.Generator,
+                 depth_per_m2: float, lateral_m: float = 0.0015) -> None:
+    """One view of the face-frame points ``q`` from ``eye`` (face frame) as stereo measures them:
+    each point off along its sight line by ``depth_per_m2 r^2`` (one sigma, range ``r``) and
+    across it by ``lateral_m``, with that covariance."""
+    d = q - eye
+    r = np.linalg.norm(d, axis=1, keepdims=True)
+    s = d / r
+    sd = depth_per_m2 * r[:, 0] ** 2
+    a = np.cross(s, [0.0, 0.0, 1.0])
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    b = np.cross(s, a)
+    n = len(q)
+    pts = q + s * (rng.normal(0.0, 1.0, n) * sd)[:, None] + lateral_m * (
+        a * rng.normal(0.0, 1.0, (n, 1)) + b * rng.normal(0.0, 1.0, (n, 1)))
+    cov = (sd[:, None, None] ** 2 * np.einsum("ni,nj->nij", s, s)
+           + lateral_m**2 * (np.einsum("ni,nj->nij", a, a) + np.einsum("ni,nj->nij", b, b)))
+    f = face.frame
+    face.merge_parts([(f.to_world(pts), f.R @ cov @ f.R.T, None)], eye=f.to_world(eye[None])[0])
+
+
+def test_ground_facing_the_face_seen_through_depth_noise_is_counted_and_kept_out_of_the_height() -> None:
+    """A rock's side facing the face (its normal 63 deg past the face plane), seen from the
+    plateau through a stereo pair's depth noise (about 1 cm at 2 m, along the sight line): its
+    local planes, fitted in that noise, face the face, so its cells are flagged by the facing
+    test and its points held out of their heights as the second surface. An unweighted fit
+    made the patch as thick as its depth noise and counted none of them."""
+    f = FaceFrame.from_normal(np.zeros(3), np.array([0.0, -math.sin(math.radians(75.0)), math.cos(math.radians(75.0))]))
+    rng = np.random.default_rng(0)
+    cfg = FaceMapConfig(cell_m=0.06)
+    face = FaceMap(f, (0.0, 1.2), (0.0, 1.2), cfg)
+    n = 6000
+    u, v = rng.uniform(0.3, 0.9, n), rng.uniform(0.5, 0.6, n)
+    side = np.column_stack([u, v, 0.25 + 0.5 * (v - 0.5)])  # rises towards the camera: faces the face
+    _stereo_view(face, side, np.array([0.6, 2.0, -0.4]), rng, 0.003)
+    cells = face.overhang[8:10, 5:15]  # the side's cells, away from its ends
+    assert cells.all() and (face.facing[8:10, 5:15] >= cfg.facing_min_points).all()
+    assert np.isfinite(face.second[8:10, 5:15]).all()
+    held = face.map.mapped[8:10, 5:15]
+    assert not held.all(), "the side's points are the second surface, not the cells' height"
+
+
+def test_a_plain_face_seen_through_heavy_depth_noise_shows_no_ground_facing_the_face() -> None:
+    """A plane face, seen at grazing incidence from the plateau through heavy depth noise
+    (1 cm at 1 m, 9 cm at 3 m, along the sight line): the noise smears the points along the
+    sight lines, and no local plane may come out facing the face. None of its points counts as
+    facing it and no cell is flagged (the unweighted fit counted some of the smear as facing
+    the face)."""
+    f = FaceFrame.from_normal(np.zeros(3), np.array([0.0, -math.sin(math.radians(75.0)), math.cos(math.radians(75.0))]))
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        face = FaceMap(f, (0.0, 1.2), (0.0, 1.2), FaceMapConfig(cell_m=0.06))
+        n = 20000
+        plane = np.column_stack([rng.uniform(0.0, 1.2, n), rng.uniform(0.0, 1.2, n), np.zeros(n)])
+        _stereo_view(face, plane, np.array([0.6, 3.0, 0.3]), rng, 0.01)
+        assert face.map.mapped.sum() > 300
+        assert not face.facing.any(), face.facing
+        assert not face.overhang.any(), face.overhang.astype(int)
