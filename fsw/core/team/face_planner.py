@@ -20,8 +20,8 @@ brute-force check of what is reachable at all).
      taut); with :class:`Margins` ``errors``, the tethers must also hold it where the lengths'
      errors may put it: settled at the node's lengths off by each error the planner tolerates
      (the winches' own, the map's height error shared by both tethers), the statics re-solved
-     there (:func:`fsw.core.team.held_tension.held_reason`; ``tension not held`` where neither
-     the bounded batch nor :func:`fsw.core.team.tether.settle` finds the body taut).
+     there (:func:`fsw.core.team.held_tension.held_reason`; ``tension not held`` where that
+     settling, bounded, ends undecided).
 2. **Edges.** Usable 8-neighbours, weighted by their 3-D distance; with :class:`Margins`, an
    edge within ``clearance_m`` of a hazard cell costs more (up to ``1 + weight`` times its
    length), so a path keeps the clearance the body's tracking and navigation errors need

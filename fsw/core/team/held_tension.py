@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid
-from fsw.core.team.tether import TetherConfig, TetherState, ZMap, settle, settle_many, tether_states
+from fsw.core.team.tether import TetherConfig, TetherState, ZMap, settle_many, tether_states
 
 F64 = NDArray[np.float64]
 OFFSETS = 8  # length errors round the ellipse judged per place
@@ -93,7 +93,7 @@ def statics_reason(st: TetherState | None, tcfg: TetherConfig, free_slope_deg: f
     return ""
 
 
-NOT_HELD = "tension not held"  # an offset neither the batch nor settle could settle: refused
+NOT_HELD = "tension not held"  # an offset whose bounded settling ended undecided: refused
 
 
 def held_at(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, st: TetherState, offsets: F64, tcfg: TetherConfig,
@@ -107,14 +107,10 @@ def held_at(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, st: TetherState, offs
     limits, no offset can take them out unless the statics are that far from linear over a few
     centimetres, and the place is held; elsewhere the body is settled at every offset from its
     predicted place in one bounded batch (:func:`fsw.core.team.tether.settle_many`) and the
-    statics re-solved where it rests (:func:`statics_reason`). An offset the batch leaves
-    undecided (neither taut within the acceptance nor shown slack within its steps) is settled
-    by :func:`fsw.core.team.tether.settle` from the same predicted place: the forward kinematics
-    the body's place is defined by (its own Gauss-Newton, then its Nelder-Mead, each bounded),
-    which decides places the batch's compass search does not (on a reduced map's flat leaves the
-    lengths are rough functions of the place over a few cells). Where that too finds no taut
-    place the offset is :data:`NOT_HELD`: a place the check cannot show held is refused, never
-    accepted. The first offset's reason, in the offsets' order, is the answer."""
+    statics re-solved where it rests (:func:`statics_reason`). An offset whose settling ends
+    undecided (neither taut within the acceptance nor shown slack within the batch's steps) is
+    :data:`NOT_HELD`: a place the check cannot show held is refused, never accepted. The first
+    offset's reason, in the offsets' order, is the answer."""
     h = grid.cell
     lengths = np.asarray(st.lengths_m, float) + offsets
     around = tether_states(z, grid, anchors, np.asarray(xy, float) + _PROBES * h, tcfg)
@@ -134,12 +130,8 @@ def held_at(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, st: TetherState, offs
                 return ""
             guesses = guesses + moves
     got = settle_many(z, grid, anchors, lengths, guesses, tcfg)
-    for k, (place, unsettled) in enumerate(zip(got.places, got.unsettled, strict=True)):
-        if unsettled:
-            place = settle(z, grid, anchors, (float(lengths[k, 0]), float(lengths[k, 1])), guesses[k], tcfg)
-            why = NOT_HELD if place is None else statics_reason(place[1], tcfg, free_slope_deg)
-        else:
-            why = statics_reason(None if place is None else place[1], tcfg, free_slope_deg)
+    for place, unsettled in zip(got.places, got.unsettled, strict=True):
+        why = NOT_HELD if unsettled else statics_reason(None if place is None else place[1], tcfg, free_slope_deg)
         if why:
             return why
     return ""
