@@ -1,5 +1,5 @@
-"""A lockstep run's .tlog is the same, byte for byte, every time (docs/architecture.md, "Budgets,
-overruns, slips"): budgets, overruns, slips and every timing channel and event are measured on the
+"""A lockstep run's .tlog is the same, byte for byte, every time (docs/architecture.md, "The cyclic executive",
+budgets, overruns, slips): budgets, overruns, slips and every timing channel and event are measured on the
 stepped clock, the records are stamped with the bench's Unix time, and what the work cost on this
 computer is kept apart (``Task.host``), out of the telemetry."""
 
