@@ -95,6 +95,49 @@ class EdgeCells:
 
 
 @dataclass(frozen=True)
+class EdgeSegments:
+    """An edge's barrier (``EdgeModel.barrier``) as segments ``a[k] -> b[k]``, with the side
+    normals at their starts and ends (``na``, ``nb``) and which of them start or end a line
+    (``ends``, (K, 2))."""
+
+    a: F64
+    b: F64
+    na: F64
+    nb: F64
+    ends: NDArray[np.bool_]
+    open_ends: bool  # as the model's: ground past a line's end is not beyond the edge
+
+    def signed_distance(self, xy: F64) -> F64:
+        """Distance of points to the segments, positive on the safe side (§2).
+
+        The side is that of the nearest point of the edge: the segment's left normal, or at
+        a vertex the mean of its two segments' normals, so bays and capes of a non-convex
+        edge are classified correctly (a one-sided buffer would spill across a narrow bay).
+        At a line's end the normal is that of its overall end direction (over
+        ``END_TANGENT_M``, as the extension's): a short hook at the end of a fit must not turn
+        the ground beyond the end to the other side.
+        """
+        pts = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        a, na, nb = self.a, self.na, self.nb
+        ab = self.b - a
+        L2 = np.maximum((ab**2).sum(1), 1e-18)
+        ap = pts[:, None, :] - a[None]
+        t = np.clip((ap * ab[None]).sum(2) / L2[None], 0.0, 1.0)  # (M, K)
+        near = a[None] + t[..., None] * ab[None]
+        d2 = ((pts[:, None, :] - near) ** 2).sum(2)
+        j = np.argmin(d2, axis=1)
+        m = np.arange(pts.shape[0])
+        tj = t[m, j]
+        seg_n = np.column_stack([-ab[j, 1], ab[j, 0]])
+        n = np.where((tj <= 0.0)[:, None], na[j], np.where((tj >= 1.0)[:, None], nb[j], seg_n))
+        side = np.sign(((pts - near[m, j]) * n).sum(1))
+        side[side == 0] = 1.0
+        if self.open_ends:  # past a line's end the fit says nothing: not beyond the edge
+            side[((tj <= 0.0) & self.ends[j, 0]) | ((tj >= 1.0) & self.ends[j, 1])] = 1.0
+        return np.asarray(side * np.sqrt(d2[m, j]))
+
+
+@dataclass(frozen=True)
 class EdgeModel:
     """A fitted edge. ``lines`` run with the safe side on their left."""
 
@@ -143,18 +186,18 @@ class EdgeModel:
         return MultiLineString(out)
 
     def signed_distance(self, xy: F64, extend_m: float = 0.0) -> F64:
-        """Distance of points to the (extended) edge, positive on the safe side (§2).
-
-        The side is that of the nearest point of the edge: the segment's left normal, or at
-        a vertex the mean of its two segments' normals, so bays and capes of a non-convex
-        edge are classified correctly (a one-sided buffer would spill across a narrow bay).
-        At a line's end the normal is that of its overall end direction (over
-        ``END_TANGENT_M``, as the extension's): a short hook at the end of a fit must not turn
-        the ground beyond the end to the other side.
-        """
+        """Distance of points to the (extended) edge, positive on the safe side (§2):
+        :meth:`EdgeSegments.signed_distance` on this edge's :meth:`segments`."""
         pts = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         if self.empty:
             return np.full(pts.shape[0], np.inf)
+        return self.segments(extend_m).signed_distance(pts)
+
+    def segments(self, extend_m: float) -> EdgeSegments:
+        """The segments of :meth:`barrier` with their side normals, for
+        :meth:`EdgeSegments.signed_distance` (a caller that tests many points against one
+        barrier keeps them instead of extending the edge again at each call). Not for an
+        empty edge."""
         a_l, b_l, na_l, nb_l, end_l = [], [], [], [], []
         for ln in self.barrier(extend_m).geoms:
             c = np.asarray(ln.coords)
@@ -169,25 +212,8 @@ class EdgeModel:
             ends = np.zeros((len(seg), 2), bool)  # segment starts / ends the line
             ends[0, 0] = ends[-1, 1] = True
             end_l.append(ends)
-        a, b = np.concatenate(a_l), np.concatenate(b_l)
-        na, nb = np.concatenate(na_l), np.concatenate(nb_l)
-        ab = b - a
-        L2 = np.maximum((ab**2).sum(1), 1e-18)
-        ap = pts[:, None, :] - a[None]
-        t = np.clip((ap * ab[None]).sum(2) / L2[None], 0.0, 1.0)  # (M, K)
-        near = a[None] + t[..., None] * ab[None]
-        d2 = ((pts[:, None, :] - near) ** 2).sum(2)
-        j = np.argmin(d2, axis=1)
-        m = np.arange(pts.shape[0])
-        tj = t[m, j]
-        seg_n = np.column_stack([-ab[j, 1], ab[j, 0]])
-        n = np.where((tj <= 0.0)[:, None], na[j], np.where((tj >= 1.0)[:, None], nb[j], seg_n))
-        side = np.sign(((pts - near[m, j]) * n).sum(1))
-        side[side == 0] = 1.0
-        if self.open_ends:  # past a line's end the fit says nothing: not beyond the edge
-            ends = np.concatenate(end_l)
-            side[((tj <= 0.0) & ends[j, 0]) | ((tj >= 1.0) & ends[j, 1])] = 1.0
-        return np.asarray(side * np.sqrt(d2[m, j]))
+        return EdgeSegments(np.concatenate(a_l), np.concatenate(b_l), np.concatenate(na_l), np.concatenate(nb_l),
+                            np.concatenate(end_l), self.open_ends)
 
     def mean_distance_to(self, truth_xy: F64, step_m: float) -> float:
         """Mean distance from points sampled every ``step_m`` along the fit to a polyline."""

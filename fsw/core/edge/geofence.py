@@ -78,7 +78,7 @@ import shapely
 from numpy.typing import NDArray
 from shapely.geometry.base import BaseGeometry
 
-from fsw.core.edge.edge import EdgeModel
+from fsw.core.edge.edge import EdgeModel, EdgeSegments
 from fsw.core.edge.known_ground import KnownGround, Pose3, StoodOn, rover_footprint
 from fsw.core.geometry import MapGrid, RoverConfig, wrap_angle
 from fsw.core.localization.odometry import drift_sigma
@@ -140,6 +140,8 @@ class Geofence:
         self.rover = rover
         self._edge: EdgeModel | None = None
         self._barrier: BaseGeometry | None = None
+        # the edge's barrier as segments, for the known ground of version key (see _edge_side)
+        self._segments: tuple[tuple[int, int], EdgeSegments] | None = None
         self.stood = StoodOn()  # the ground stood on: known to ``known`` and ``mapped`` alike
         self.known = KnownGround(cfg.known_fill_m, self.stood)
         self.clear = KnownGround(0.0)  # cells at least margin_m from any mapped drop cell
@@ -161,6 +163,7 @@ class Geofence:
             self.known.stood_on(self.footprint(stand))
         if model is None or model.empty:
             self._edge = self._barrier = None
+            self._segments = None
         else:
             if stand is not None:
                 model = dataclasses.replace(model, stand=self.footprint(stand))
@@ -172,7 +175,18 @@ class Geofence:
                                             open_ends=True)
             self._edge = model
             self._barrier = model.barrier(self.cfg.extend_m)
+            self._segments = None
             shapely.prepare(self._barrier)
+
+    def _edge_side(self, xy: F64) -> F64:
+        """``EdgeModel.signed_distance`` of points to the edge extended by ``extend_m``. Its
+        continuation stops at unknown ground (``set_edge``), so it is that of the known ground
+        now: the segments are kept while the known ground stays as it was."""
+        assert self._edge is not None
+        key = self.known.version
+        if self._segments is None or self._segments[0] != key:
+            self._segments = key, self._edge.segments(self.cfg.extend_m)
+        return self._segments[1].signed_distance(xy)
 
     def set_map(self, grid: MapGrid, n: NDArray[np.int32]) -> None:
         """The map's measurement counts: where the ground is known."""
@@ -263,7 +277,7 @@ class Geofence:
             if dist[w] > 0.0:  # wholly on one side: test one point of each part
                 parts = getattr(geom, "geoms", [geom])
                 reps = shapely.get_coordinates([p.representative_point() for p in parts])
-                if (self._edge.signed_distance(reps, self.cfg.extend_m) < 0).any():
+                if (self._edge_side(reps) < 0).any():
                     self.rejections += 1
                     return Verdict(False, f"rejected: wheel {WHEELS[w]} is beyond the edge",
                                    -float(dist[w]), WHEELS[w])
@@ -360,7 +374,7 @@ class Geofence:
         distance to the edge never decreases along the move."""
         assert self._edge is not None
         centres = self.wheel_centres(self._samples(a, b))  # (S, 4, 2)
-        sd = self._edge.signed_distance(centres.reshape(-1, 2), self.cfg.extend_m)
+        sd = self._edge_side(centres.reshape(-1, 2))
         sd = sd.reshape(centres.shape[:2])
         return bool((np.diff(sd, axis=0) >= -RECOVERY_TOL_M).all())
 

@@ -43,15 +43,18 @@ class StoodOn:
 
     def __init__(self) -> None:
         self.footprints: list[BaseGeometry] = []
+        self.version = 0  # counts the changes of ``footprints``
 
     def add(self, footprint: BaseGeometry) -> None:
         """A footprint stood on (one already covered by an earlier one adds nothing)."""
         if not any(g.covers(footprint) for g in self.footprints):
             self.footprints.append(footprint)
+            self.version += 1
 
     def replace(self, footprints: list[BaseGeometry] | tuple[BaseGeometry, ...]) -> None:
         """All the ground stood on (a resumed mission's, another task's copy of the mission's)."""
         self.footprints[:] = list(footprints)
+        self.version += 1
 
 
 class KnownGround:
@@ -63,6 +66,7 @@ class KnownGround:
         self.grid: MapGrid | None = None
         self._mapped: NDArray[np.bool_] | None = None
         self.stood = stood if stood is not None else StoodOn()
+        self._map_version = 0  # counts the calls of set_map
 
     def set_map(self, grid: MapGrid, n: NDArray[np.int32]) -> None:
         """Take the map's measured cells (``n >= 1``), grown by ``fill_m``."""
@@ -72,6 +76,12 @@ class KnownGround:
             k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
             mapped = cv2.dilate(mapped.astype(np.uint8), k).astype(bool)
         self.grid, self._mapped = grid, mapped
+        self._map_version += 1
+
+    @property
+    def version(self) -> tuple[int, int]:
+        """Changes when the known ground may have: a new map or a footprint stood on."""
+        return self._map_version, self.stood.version
 
     def stood_on(self, footprint: BaseGeometry) -> None:
         """Ground the rover's wheels have stood on is known."""
@@ -93,8 +103,10 @@ class KnownGround:
         if self.grid is not None and self._mapped is not None:
             iy, ix, inside = self.grid.cell_index(pts[:, 0], pts[:, 1])
             out[inside] = self._mapped[iy[inside], ix[inside]]
-        for fp in self.stood.footprints:
-            out |= shapely.contains_xy(fp, pts[:, 0], pts[:, 1])
+        if self.stood.footprints and len(pts):  # every footprint against every point in one call
+            fps = np.empty((len(self.stood.footprints), 1), dtype=object)
+            fps[:, 0] = self.stood.footprints
+            out |= shapely.contains_xy(fps, pts[None, :, 0], pts[None, :, 1]).any(axis=0)
         return out
 
     def unknown_cells(self, geom: BaseGeometry) -> int:
