@@ -271,3 +271,26 @@ def test_the_ground_stood_on_is_one_list_for_known_and_mapped_ground():
     centre = np.array([[1.15, 0.0]])
     assert gf.known.known_xy(centre).all() and gf.mapped.known_xy(centre).all()
     assert gf.check((0.0, 0.0, 0.0), (2.0, 0.0, 0.0)).allowed
+
+
+def test_the_side_of_the_edge_follows_the_known_ground_its_continuation_stops_at():
+    """The edge's continuation stops at unknown ground, so a point past the end of the edge is
+    judged against the continuation as the known ground is now: a new map or a footprint stood
+    on lengthens it. (The geofence keeps the barrier's segments between checks while the known
+    ground is unchanged, and builds them again once it has changed.)"""
+    edge = edge_along_x(-1.0, 0.0, 2.0)
+    gf = fence(mapped_box(-0.3, 2.5, -2.0, 1.0), edge, stand=(1.0, 0.0, 0.0))
+    west = np.array([[-0.8, -1.1], [-0.5, -1.05]])  # west of the fit, on the drop's side of its line
+    before = gf._edge_side(west)
+    assert (before > 0).all()  # past the continuation's end (unknown beyond x = -0.36): the fit says nothing
+    gf.set_map(GRID, mapped_box(-2.0, 2.5, -2.0, 1.0))
+    after = gf._edge_side(west)
+    assert (after < 0).all()  # the continuation now runs on to x = -1: beyond it
+    np.testing.assert_array_equal(after, gf._edge.signed_distance(west, gf.cfg.extend_m))
+
+    gf = fence(mapped_box(-0.3, 2.5, -2.0, 1.0), edge, stand=(1.0, 0.0, 0.0))
+    assert (gf._edge_side(west) == before).all()
+    gf.known.stood_on(gf.footprint((-0.7, -0.8, 0.0)))  # the ground west of the fit stood on
+    stood = gf._edge_side(west)
+    assert (stood < 0).any()
+    np.testing.assert_array_equal(stood, gf._edge.signed_distance(west, gf.cfg.extend_m))
