@@ -454,13 +454,17 @@ class TeamViewsRun:
     # -- figures ------------------------------------------------------------------------------
     def fused_vs_better(self) -> dict[str, float | int | None]:
         """RMS error against the truth on the cells both agents mapped: each agent's own map and the
-        shared (fused) one."""
+        shared (fused) one; and the share of cells whose error is within 2 sigma of the map's own
+        variance, on those cells (``in2sig_*``) and on every cell each map holds (``in2sig_*_own``):
+        a map whose variance is too small there leans the fused estimate its way."""
         a, b = self.by_agent["recon"], self.by_agent["cliffbot"]
         both = a.mapped & b.mapped & self.map.mapped & np.isfinite(self.truth)
         out: dict[str, float | int | None] = {"both_cells": int(both.sum())}
         for name, m in (("recon", a), ("cliffbot", b), ("fused", self.map)):
             e = m.z[both] - self.truth[both]
             out[f"rmse_{name}_m"] = float(np.sqrt(np.mean(e * e))) if e.size else None
+            out[f"in2sig_{name}"] = _within_2_sigma(m, self.truth, both)
+            out[f"in2sig_{name}_own"] = _within_2_sigma(m, self.truth, m.mapped & np.isfinite(self.truth))
         return out
 
     def corridor_left(self) -> dict[str, int]:
@@ -511,6 +515,13 @@ class TeamViewsRun:
 
     def cells_by_agent(self) -> dict[str, int]:
         return {k: int(m.mapped.sum()) for k, m in self.by_agent.items()}
+
+
+def _within_2_sigma(m: ElevationMap, truth: F64, cells: B) -> float | None:
+    """The share of ``cells`` whose height in ``m`` is within 2 sigma (its own variance) of the truth."""
+    if not cells.any():
+        return None
+    return float(np.mean(np.abs(m.z[cells] - truth[cells]) <= 2.0 * np.sqrt(m.var[cells])))
 
 
 def _frac(mapped: B, region: B) -> float:

@@ -241,3 +241,34 @@ def test_the_cells_ratio_is_also_reported_over_the_first_quarter_and_half_of_the
     assert [float(v) for v in cells("over the first 4 cycles")[2:4]] == [pytest.approx(1.6), pytest.approx(1.4)]
     assert [float(v) for v in cells("behind the edge (truth, any pointing): team")[2:4]] == [170, 300]
     assert [float(v) for v in cells("behind the edge (truth, any pointing): RECON-bot alone")[2:4]] == [510, 900]
+
+
+def test_each_maps_share_within_2_sigma_is_taken_on_its_own_variance_and_reported() -> None:
+    """``_within_2_sigma``: a cell counts when its error is within 2 sigma of the map's own
+    variance; the summary gives each map's share (median, lowest and highest scene) against
+    the 90-99 % band."""
+    import numpy as np
+
+    from fsw.core.geometry import MapGrid
+    from fsw.core.map.elevation_map import ElevationMap
+    from hil_sim.lab.experiments.experiment_team_sensing import COLUMNS, report
+    from hil_sim.lab.results import markdown_table
+    from hil_sim.team.team_views_run import _within_2_sigma
+
+    m = ElevationMap(MapGrid(0.0, 0.0, 0.1, 4, 1))
+    m.z[0] = [0.0, 0.19, 0.21, np.nan]
+    m.var[0] = [0.01, 0.01, 0.01, np.inf]
+    m.n[0] = [1, 1, 1, 0]
+    truth = np.zeros((1, 4))
+    assert _within_2_sigma(m, truth, m.mapped) == pytest.approx(2 / 3)  # 0.21 is beyond 2 x 0.1
+    assert _within_2_sigma(m, truth, np.zeros((1, 4), bool)) is None
+
+    def row(seed: int, share: float) -> dict[str, object]:
+        r: dict[str, object] = dict.fromkeys(COLUMNS, 0.5)
+        r.update(seed=seed, corridor_cycles_team=None, corridor_cycles_recon=None, corridor_ratio=None, reachable=True,
+                 in2sig_recon=share)
+        return r
+
+    md = report([row(0, 0.8), row(1, 0.95), row(2, 1.0)], markdown_table, 12, 40)
+    line = next(line for line in md.splitlines() if "the RECON-bot's map, cells both mapped" in line)
+    assert [c.strip() for c in line.split("|")][2:5] == ["0.95", "0.800 / 1.000", "0.90-0.99"]

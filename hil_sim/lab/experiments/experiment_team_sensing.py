@@ -17,7 +17,9 @@ over every cycle of every scene, each scene's worst cycle and each scene's mean;
 information left, measured fewer than ``info_n_max`` times before the cycle), the cycles until the
 Cliff-bot's corridor (its plan on the true ground, path +- 1 m) is mapped to 95 % (team, alone,
 their ratio), the face (true slope > 45 deg) and corridor mapped after ``--cycles``, and the
-RMS error on cells both agents mapped: each agent's own map and the fused one; and why the
+RMS error on cells both agents mapped: each agent's own map and the fused one, with the share of
+cells within 2 sigma of the truth (each map's own variance) on those cells and on all of each
+map's cells; and why the
 Cliff-bot's views add what they add: whether its corridor leads to a target (else toward the
 nearest, as far as the tethers hold it), its candidate views per cycle, its expected and obtained
 new cells, its share of the team's new cells and its farthest place from its start; where the
@@ -52,7 +54,9 @@ COLUMNS = ("seed", "cycles", "team_cells_per_cycle", "recon_cells_per_cycle", "c
            "overlap_median", "overlap_max", "overlap_open_max", "overlap_of_smaller_max", "corridor_cycles_team",
            "corridor_cycles_recon", "corridor_ratio", "corridor_recon_at_stop", "corridor_team", "corridor_recon",
            "face_team", "face_recon", "both_cells",
-           "rmse_recon_m", "rmse_cliffbot_m", "rmse_fused_m", "blind_views", "reachable", "cliffbot_candidates",
+           "rmse_recon_m", "rmse_cliffbot_m", "rmse_fused_m", "in2sig_recon", "in2sig_cliffbot", "in2sig_fused",
+           "in2sig_recon_own", "in2sig_cliffbot_own", "in2sig_fused_own", "blind_views", "reachable",
+           "cliffbot_candidates",
            "cliffbot_expected_new", "cliffbot_obtained_new", "cliffbot_new_share", "cliffbot_travel_m",
            "recon_team_new_per_cycle", "empty_views_recon_team", "empty_views_cliffbot", "empty_views_recon_alone",
            "corridor_left_cells", "corridor_left_seeable")
@@ -331,6 +335,16 @@ def report(rows: list[dict[str, Any]], table: Any, cycles: int, cap: int) -> str
     if ok:
         d = np.array([r["rmse_fused_m"] - min(r["rmse_recon_m"], r["rmse_cliffbot_m"]) for r in ok])
         add("fused RMS - better agent's RMS on cells both mapped (m)", float(np.median(d)), float(d.max()), "<= 0")
+    for k, what in (("in2sig_recon", "the RECON-bot's map, cells both mapped"),
+                    ("in2sig_cliffbot", "the Cliff-bot's map, cells both mapped"),
+                    ("in2sig_fused", "the fused map, cells both mapped"),
+                    ("in2sig_recon_own", "the RECON-bot's map, all its cells"),
+                    ("in2sig_cliffbot_own", "the Cliff-bot's map, all its cells"),
+                    ("in2sig_fused_own", "the fused map, all its cells")):
+        v = col(k)
+        if v.size:
+            add(f"cells within 2 sigma of the truth: {what} (median; worst: lowest / highest scene)",
+                float(np.median(v)), f"{v.min():.3f} / {v.max():.3f}", "0.90-0.99")
     add("views chosen blind (no view expected to map anything)", sum(r["blind_views"] for r in rows), "", "")
     add("scenes where the Cliff-bot reaches no target (corridor: toward the nearest, as far as the tethers hold)",
         sum(not r["reachable"] for r in rows), f"of {len(rows)}", "")
