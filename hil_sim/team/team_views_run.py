@@ -71,6 +71,7 @@ from fsw.core.planning.team_views import (
     AgentViews,
     TeamView,
     TeamViewConfig,
+    ViewCentre,
     choose_team_views,
     cliffbot_centres,
     corridor_mask,
@@ -191,18 +192,23 @@ class TeamViewsRun:
         heading along the edge (either way), the mast's grid at each."""
         cfg = self.nbv
         xs = self.rover[0] + np.arange(-cfg.max_travel_m, cfg.max_travel_m + 1e-9, cfg.station_spacing_m)
+        return AgentViews("recon", self.camera, self._recon_centres(xs), self.interest.of("recon"),
+                          weight=corridor_weights(self.corridor, self.tv), face=self._face_cells())
+
+    def _recon_centres(self, xs: F64) -> tuple[ViewCentre, ...]:
+        """The RECON-bot's camera centres at stations behind the edge at ``xs`` (those on the grid,
+        a metre in from its sides), heading along the edge away from the rover, the mast's grid at
+        each, each with its motion from where the rover stands."""
         lo, hi = self.grid.x0 + 1.0, self.grid.x0 + self.grid.nx * self.grid.cell - 1.0
         stations = []
         for x in xs[(xs >= lo) & (xs <= hi)]:
             y = self._edge_y(float(x)) + RECON_SETBACK_M
             travel = math.hypot(float(x) - self.rover[0], y - self.rover[1])
             stations.append(Station((float(x), y, 0.0 if x >= self.rover[0] else math.pi), travel))
-        planner = InformationPlanner("team", cfg, self.camera, self.mast, use_interest=True)
+        planner = InformationPlanner("team", self.nbv, self.camera, self.mast, use_interest=True)
         state = PlannerState(self.map, self.rover, self.joints, np.zeros((0, 2)), lambda *_: None, None,
                              float(np.nan_to_num(self.truth_at(self.rover[:2]))))
-        centres = recon_centres(planner.view_centres(state, stations))
-        return AgentViews("recon", self.camera, centres, self.interest.of("recon"),
-                          weight=corridor_weights(self.corridor, self.tv), face=self._face_cells())
+        return recon_centres(planner.view_centres(state, stations))
 
     def _face_cells(self) -> FaceCells | None:
         """The face as both agents' ratings see it (``face_rating.face_cells``): the face map once
@@ -448,13 +454,17 @@ class TeamViewsRun:
     # -- figures ------------------------------------------------------------------------------
     def fused_vs_better(self) -> dict[str, float | int | None]:
         """RMS error against the truth on the cells both agents mapped: each agent's own map and the
-        shared (fused) one."""
+        shared (fused) one; and the share of cells whose error is within 2 sigma of the map's own
+        variance, on those cells (``in2sig_*``) and on every cell each map holds (``in2sig_*_own``):
+        a map whose variance is too small there leans the fused estimate its way."""
         a, b = self.by_agent["recon"], self.by_agent["cliffbot"]
         both = a.mapped & b.mapped & self.map.mapped & np.isfinite(self.truth)
         out: dict[str, float | int | None] = {"both_cells": int(both.sum())}
         for name, m in (("recon", a), ("cliffbot", b), ("fused", self.map)):
             e = m.z[both] - self.truth[both]
             out[f"rmse_{name}_m"] = float(np.sqrt(np.mean(e * e))) if e.size else None
+            out[f"in2sig_{name}"] = _within_2_sigma(m, self.truth, both)
+            out[f"in2sig_{name}_own"] = _within_2_sigma(m, self.truth, m.mapped & np.isfinite(self.truth))
         return out
 
     def corridor_left(self) -> dict[str, int]:
@@ -474,6 +484,24 @@ class TeamViewsRun:
                     seen[k[self._line_of_sight(np.asarray(c.xyz, float), pts[k])]] = True
         return {"corridor_left_cells": int(len(pts)), "corridor_left_seeable": int(seen.sum())}
 
+    def recon_reach_left(self) -> int:
+        """The ground left within the RECON-bot's reach: the unmapped cells stereo could map (on
+        the grid, textured) that some camera centre of a RECON-bot station anywhere behind the
+        edge (every ``station_spacing_m`` along it) has in range and in line of sight on the
+        truth, any pointing. Where it is small the scene is used up for the RECON-bot: its views
+        can add few new cells wherever it goes, whichever agent mapped the rest."""
+        g, cam = self.grid, self.camera
+        iy, ix = np.nonzero(~self.map.mapped & np.isfinite(self.truth) & self.textured)
+        pts = np.column_stack([g.x0 + (ix + 0.5) * g.cell, g.y0 + (iy + 0.5) * g.cell, self.truth[iy, ix]])
+        seen = np.zeros(len(pts), bool)
+        xs = np.arange(g.x0, g.x0 + g.nx * g.cell, self.nbv.station_spacing_m)
+        for c in self._recon_centres(xs):
+            r = np.linalg.norm(pts - np.asarray(c.xyz, float), axis=1)
+            k = np.nonzero(~seen & (r >= cam.min_range_m) & (r <= cam.max_range_m))[0]
+            if k.size:
+                seen[k[self._line_of_sight(np.asarray(c.xyz, float), pts[k])]] = True
+        return int(seen.sum())
+
     def cycles_to_corridor(self, frac: float, cap: int) -> int | None:
         """The first cycle after which the corridor is mapped to ``frac``: the cycles run so far,
         then more cycles (the same choice and sensing) until it is or ``cap`` cycles have run
@@ -487,6 +515,13 @@ class TeamViewsRun:
 
     def cells_by_agent(self) -> dict[str, int]:
         return {k: int(m.mapped.sum()) for k, m in self.by_agent.items()}
+
+
+def _within_2_sigma(m: ElevationMap, truth: F64, cells: B) -> float | None:
+    """The share of ``cells`` whose height in ``m`` is within 2 sigma (its own variance) of the truth."""
+    if not cells.any():
+        return None
+    return float(np.mean(np.abs(m.z[cells] - truth[cells]) <= 2.0 * np.sqrt(m.var[cells])))
 
 
 def _frac(mapped: B, region: B) -> float:

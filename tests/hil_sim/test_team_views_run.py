@@ -192,3 +192,83 @@ def test_the_harness_finds_a_views_lips_as_its_stereo_would_and_keeps_the_points
     point = np.array([[lip[0], lip[1], lip[2] - 1.0], [lip[0] + 1.0, lip[1] + 1.0, lip[2] - 1.0]])
     run._merge(emap, "team", above, point, np.tile(np.eye(3) * 1e-4, (2, 1, 1)), None)
     assert emap.n.sum() == 1 and not emap.mapped[g.cell_index(point[:1, 0], point[:1, 1])[:2]][0]
+
+
+@pytest.mark.slow
+def test_the_ground_left_in_the_recon_bots_reach_counts_only_unmapped_cells_it_can_see() -> None:
+    """``recon_reach_left``: of the unmapped textured cells, those some RECON-bot station behind
+    the edge has in range and line of sight; the far floor is beyond it, a mapped cell never
+    counts, and a cycle's views use some of it up."""
+    import numpy as np
+
+    from hil_sim.team.team_views_run import TeamViewsRun
+    from hil_sim.world import load_scenario
+
+    run = TeamViewsRun(load_scenario("cliff-team", 4), 4, team=False)
+    mappable = int((np.isfinite(run.truth) & run.textured).sum())
+    left = run.recon_reach_left()
+    assert 0 < left < mappable  # the floor farther than the camera's range from the edge is out of reach
+    run.cycle()
+    after = run.recon_reach_left()
+    assert after <= left - run.records[0].new_cells // 2
+    run.map.n[:] = 1
+    assert run.recon_reach_left() == 0
+
+
+def test_the_cells_ratio_is_also_reported_over_the_first_quarter_and_half_of_the_cycles() -> None:
+    """Before a scene is used up: the new cells per cycle, team / RECON-bot alone, over the first
+    cycles (``_ratio_first``), and the summary's rows of them and of the ground left in reach."""
+    from hil_sim.lab.experiments.experiment_team_sensing import COLUMNS, _ratio_first, report
+    from hil_sim.lab.results import markdown_table
+
+    team, alone = [900, 800, 700, 100, 50, 10, 0, 0], [400, 400, 400, 400, 300, 200, 100, 100]
+    assert _ratio_first(team, alone, 2) == pytest.approx(1700 / 800)
+    assert _ratio_first(team, alone, 4) == pytest.approx(2500 / 1600)
+    assert _ratio_first(team, [0, 0], 2) is None
+
+    def row(seed: int, quarter: float, half: float, left: int) -> dict[str, object]:
+        r: dict[str, object] = dict.fromkeys(COLUMNS, 0.5)
+        r.update(seed=seed, corridor_cycles_team=None, corridor_cycles_recon=None, corridor_ratio=None, reachable=True,
+                 cells_ratio_quarter=quarter, cells_ratio_half=half, reach_left_team=left, reach_left_alone=3 * left)
+        return r
+
+    md = report([row(0, 2.0, 1.8, 40), row(1, 1.5, 1.4, 300)], markdown_table, 8, 40)
+
+    def cells(key: str) -> list[str]:
+        return [c.strip() for c in next(line for line in md.splitlines() if key in line).split("|")]
+
+    assert [float(v) for v in cells("over the first 2 cycles")[2:4]] == [pytest.approx(1.75), pytest.approx(1.5)]
+    assert [float(v) for v in cells("over the first 4 cycles")[2:4]] == [pytest.approx(1.6), pytest.approx(1.4)]
+    assert [float(v) for v in cells("behind the edge (truth, any pointing): team")[2:4]] == [170, 300]
+    assert [float(v) for v in cells("behind the edge (truth, any pointing): RECON-bot alone")[2:4]] == [510, 900]
+
+
+def test_each_maps_share_within_2_sigma_is_taken_on_its_own_variance_and_reported() -> None:
+    """``_within_2_sigma``: a cell counts when its error is within 2 sigma of the map's own
+    variance; the summary gives each map's share (median, lowest and highest scene) against
+    the 90-99 % band."""
+    import numpy as np
+
+    from fsw.core.geometry import MapGrid
+    from fsw.core.map.elevation_map import ElevationMap
+    from hil_sim.lab.experiments.experiment_team_sensing import COLUMNS, report
+    from hil_sim.lab.results import markdown_table
+    from hil_sim.team.team_views_run import _within_2_sigma
+
+    m = ElevationMap(MapGrid(0.0, 0.0, 0.1, 4, 1))
+    m.z[0] = [0.0, 0.19, 0.21, np.nan]
+    m.var[0] = [0.01, 0.01, 0.01, np.inf]
+    m.n[0] = [1, 1, 1, 0]
+    truth = np.zeros((1, 4))
+    assert _within_2_sigma(m, truth, m.mapped) == pytest.approx(2 / 3)  # 0.21 is beyond 2 x 0.1
+    assert _within_2_sigma(m, truth, np.zeros((1, 4), bool)) is None
+
+    def row(seed: int, share: float) -> dict[str, object]:
+        r: dict[str, object] = dict.fromkeys(COLUMNS, 0.5)
+        r.update(seed=seed, corridor_cycles_team=None, corridor_cycles_recon=None, corridor_ratio=None, reachable=True,
+                 in2sig_recon=share)
+        return r
+
+    md = report([row(0, 0.8), row(1, 0.95), row(2, 1.0)], markdown_table, 12, 40)
+    line = next(line for line in md.splitlines() if "the RECON-bot's map, cells both mapped" in line)
+    assert [c.strip() for c in line.split("|")][2:5] == ["0.95", "0.800 / 1.000", "0.90-0.99"]

@@ -8,13 +8,18 @@ one agent: the same interest, the same corridor weighting). Both run in the team
 with the flight's fusion), not in lockstep missions: a lockstep mission renders and matches
 every view and takes minutes of CPU per imaging step.
 
-Figures per scene: new cells per imaging cycle (team / RECON-bot alone), the overlap of the two
+Figures per scene: new cells per imaging cycle (team / RECON-bot alone; over every cycle, and over
+the first quarter and half of them: on a scene the team uses up, the cells left in the RECON-bot's
+reach, ``TeamViewsRun.recon_reach_left``, team and alone, the later cycles map little for want of
+ground, not of views), the overlap of the two
 views of a cycle (cells both measured / cells either measured; and / cells the smaller measured; summarised
 over every cycle of every scene, each scene's worst cycle and each scene's mean; and on the cells with
 information left, measured fewer than ``info_n_max`` times before the cycle), the cycles until the
 Cliff-bot's corridor (its plan on the true ground, path +- 1 m) is mapped to 95 % (team, alone,
 their ratio), the face (true slope > 45 deg) and corridor mapped after ``--cycles``, and the
-RMS error on cells both agents mapped: each agent's own map and the fused one; and why the
+RMS error on cells both agents mapped: each agent's own map and the fused one, with the share of
+cells within 2 sigma of the truth (each map's own variance) on those cells and on all of each
+map's cells; and why the
 Cliff-bot's views add what they add: whether its corridor leads to a target (else toward the
 nearest, as far as the tethers hold it), its candidate views per cycle, its expected and obtained
 new cells, its share of the team's new cells and its farthest place from its start; where the
@@ -44,11 +49,14 @@ from pathlib import Path
 from typing import Any
 
 HELP = "team views (both agents) against the RECON-bot alone: cells per cycle, overlap, corridor, fusion"
-COLUMNS = ("seed", "cycles", "team_cells_per_cycle", "recon_cells_per_cycle", "cells_ratio", "overlap_mean",
+COLUMNS = ("seed", "cycles", "team_cells_per_cycle", "recon_cells_per_cycle", "cells_ratio", "cells_ratio_quarter",
+           "cells_ratio_half", "reach_left_team", "reach_left_alone", "overlap_mean",
            "overlap_median", "overlap_max", "overlap_open_max", "overlap_of_smaller_max", "corridor_cycles_team",
            "corridor_cycles_recon", "corridor_ratio", "corridor_recon_at_stop", "corridor_team", "corridor_recon",
            "face_team", "face_recon", "both_cells",
-           "rmse_recon_m", "rmse_cliffbot_m", "rmse_fused_m", "blind_views", "reachable", "cliffbot_candidates",
+           "rmse_recon_m", "rmse_cliffbot_m", "rmse_fused_m", "in2sig_recon", "in2sig_cliffbot", "in2sig_fused",
+           "in2sig_recon_own", "in2sig_cliffbot_own", "in2sig_fused_own", "blind_views", "reachable",
+           "cliffbot_candidates",
            "cliffbot_expected_new", "cliffbot_obtained_new", "cliffbot_new_share", "cliffbot_travel_m",
            "recon_team_new_per_cycle", "empty_views_recon_team", "empty_views_cliffbot", "empty_views_recon_alone",
            "corridor_left_cells", "corridor_left_seeable")
@@ -143,6 +151,9 @@ def scene(spec: str, seed: int, cycles: int, cell_m: float, cap: int) -> tuple[d
         "seed": seed, "cycles": cycles,
         "team_cells_per_cycle": float(np.mean(tc)), "recon_cells_per_cycle": float(np.mean(rc)),
         "cells_ratio": float(np.mean(tc) / np.mean(rc)) if np.mean(rc) > 0 else None,
+        "cells_ratio_quarter": _ratio_first(tc, rc, max(1, cycles // 4)),
+        "cells_ratio_half": _ratio_first(tc, rc, max(1, cycles // 2)),
+        "reach_left_team": team.recon_reach_left(), "reach_left_alone": alone.recon_reach_left(),
         "overlap_mean": float(np.mean(overlaps)) if overlaps else None,
         "overlap_median": float(np.median(overlaps)) if overlaps else None,
         "overlaps": overlaps,  # every cycle's, for the summary over all cycles (not a column)
@@ -173,6 +184,14 @@ def scene(spec: str, seed: int, cycles: int, cell_m: float, cap: int) -> tuple[d
                corridor_ratio=ct / cr if ct is not None and cr is not None else None,
                corridor_recon_at_stop=alone.records[-1].corridor_frac)
     return row, curve
+
+
+def _ratio_first(team: list[int], alone: list[int], k: int) -> float | None:
+    """New cells per cycle over the first ``k`` cycles, team / RECON-bot alone: the rate before a
+    scene is used up (the ratio over every cycle falls once the team has mapped what its agents
+    reach and maps little more per cycle, ``TeamViewsRun.recon_reach_left``)."""
+    a = sum(alone[:k])
+    return sum(team[:k]) / a if a > 0 else None
 
 
 def _cliffbot_figures(team: Any) -> dict[str, Any]:
@@ -254,6 +273,14 @@ def report(rows: list[dict[str, Any]], table: Any, cycles: int, cap: int) -> str
     ratio = col("cells_ratio")
     add("new cells per imaging cycle, team / RECON-bot alone", float(np.median(ratio)) if ratio.size else None,
         float(ratio.min()) if ratio.size else None, ">= 1.6")
+    for k, part in (("cells_ratio_quarter", max(1, cycles // 4)), ("cells_ratio_half", max(1, cycles // 2))):
+        v = col(k)
+        add(f"the same over the first {part} cycles", float(np.median(v)) if v.size else None,
+            float(v.min()) if v.size else None, "")
+    for k, who in (("reach_left_team", "team"), ("reach_left_alone", "RECON-bot alone")):
+        v = col(k)
+        add(f"cells left unmapped after cycle {cycles} in range and line of sight of a RECON-bot station anywhere "
+            f"behind the edge (truth, any pointing): {who}", float(np.median(v)), float(v.max()), "")
     # the overlap of a cycle's two views (cells both measured / cells either measured), three ways:
     # every cycle of every scene, each scene's worst cycle, each scene's mean
     every = np.array([o for r in rows for o in r.get("overlaps", [])], float)
@@ -308,6 +335,16 @@ def report(rows: list[dict[str, Any]], table: Any, cycles: int, cap: int) -> str
     if ok:
         d = np.array([r["rmse_fused_m"] - min(r["rmse_recon_m"], r["rmse_cliffbot_m"]) for r in ok])
         add("fused RMS - better agent's RMS on cells both mapped (m)", float(np.median(d)), float(d.max()), "<= 0")
+    for k, what in (("in2sig_recon", "the RECON-bot's map, cells both mapped"),
+                    ("in2sig_cliffbot", "the Cliff-bot's map, cells both mapped"),
+                    ("in2sig_fused", "the fused map, cells both mapped"),
+                    ("in2sig_recon_own", "the RECON-bot's map, all its cells"),
+                    ("in2sig_cliffbot_own", "the Cliff-bot's map, all its cells"),
+                    ("in2sig_fused_own", "the fused map, all its cells")):
+        v = col(k)
+        if v.size:
+            add(f"cells within 2 sigma of the truth: {what} (median; worst: lowest / highest scene)",
+                float(np.median(v)), f"{v.min():.3f} / {v.max():.3f}", "0.90-0.99")
     add("views chosen blind (no view expected to map anything)", sum(r["blind_views"] for r in rows), "", "")
     add("scenes where the Cliff-bot reaches no target (corridor: toward the nearest, as far as the tethers hold)",
         sum(not r["reachable"] for r in rows), f"of {len(rows)}", "")
