@@ -349,6 +349,7 @@ class SensingPipeline:
         X, Y = (c.reshape(-1)[view_cells[0]] for c in self.map.grid.centers())
         self.sources.add(view_cells[0], np.column_stack([X, Y, view_cells[1]]), placed.pose.t, placed.cov)
         yield
-        stats = yield from self.map.merge_parts_steps(parts, p_visible=p_visible, step_points=MERGE_STEP_POINTS)
+        stats = yield from self.map.merge_parts_steps(parts, p_visible=p_visible, step_points=MERGE_STEP_POINTS,
+                                                      eye=placed.pose.t)
         yield
         return MergedView(placed, stats, view_cells)
