@@ -13,7 +13,6 @@ import math
 from dataclasses import dataclass
 
 from fsw.core.planning.planners import METHODS
-from fsw.core.team.cliffbot_head import head_end
 from fsw.framework.params import param
 
 
@@ -144,19 +143,14 @@ class CliffbotSensingConfig:
     head_m: float = param(0.45, lo=0.0, hi=3.0, units="m", doc="the camera above the body's ground, along its normal")
     head_end_m: float = param(0.45, lo=0.0, hi=2.0, units="m",
                               doc="the head at the body's front (looking ahead) or rear end, along its heading")
-    pan_deg: tuple[float, ...] = param((0.0, 45.0, 90.0, 135.0, 180.0, -135.0, -90.0, -45.0, 25.0, -25.0, 85.0, -85.0,
-                                        115.0, -115.0, 65.0, -65.0),
+    pan_deg: tuple[float, ...] = param((0.0, 45.0, 90.0, 135.0, 180.0, -135.0, -90.0, -45.0, 25.0, -25.0),
                                        units="deg",
                                        doc="the head's scan: one pan from the heading per capture, in order")
     tilt_deg: float = param(-40.0, lo=-89.0, hi=60.0, units="deg",
                             doc="the head's elevation in every view (but those tilts_deg sets)")
-    tilts_deg: tuple[float, ...] = param((-40.0,) * 8 + (-75.0, -75.0, -40.0, -40.0) + (-70.0,) * 4, units="deg",
+    tilts_deg: tuple[float, ...] = param((-40.0,) * 8 + (-75.0, -75.0), units="deg",
                                          doc="per pan of the scan, its elevation (empty: tilt_deg for all); the "
-                                             "steep ones look down over a lip, the ground below it, or beside an end")
-    head_ends: tuple[float, ...] = param((0.0,) * 12 + (1.0, 1.0, -1.0, -1.0),
-                                         doc="per pan of the scan, the end of the body the head looks from: 1 its "
-                                             "front end, -1 its rear end, 0 by the pan (the front end for a pan under "
-                                             "90 deg, else the rear); empty: by the pan for all")
+                                             "steep ones look down over a lip, the ground below it")
     height_sigma_m: float = param(0.03, lo=0.0, hi=1.0, units="m", doc="the body's ground height on the map, sigma")
     tilt_sigma_deg: float = param(1.0, lo=0.0, hi=30.0, units="deg", doc="roll and pitch from the attitude sensor")
     body_half_m: tuple[float, ...] = param((0.31, 0.235, 0.28), units="m",
@@ -175,10 +169,6 @@ class CliffbotSensingConfig:
             raise ValueError(f"tilts_deg: one per pan ({len(self.pan_deg)}) or none")
         if any(not -89.0 <= t <= 60.0 for t in self.tilts_deg):
             raise ValueError("tilts_deg: each within -89 .. 60 deg")
-        if self.head_ends and len(self.head_ends) != len(self.pan_deg):
-            raise ValueError(f"head_ends: one per pan ({len(self.pan_deg)}) or none")
-        if any(e not in (-1.0, 0.0, 1.0) for e in self.head_ends):
-            raise ValueError("head_ends: each 1 (front end), -1 (rear end) or 0 (by the pan)")
         if len(self.body_half_m) != 3:
             raise ValueError("body_half_m: three numbers (along, across, up)")
         if self.min_range_m >= self.max_range_m:
@@ -187,12 +177,3 @@ class CliffbotSensingConfig:
     def tilt_of(self, k: int) -> float:
         """The elevation (deg) of the scan's ``k mod n``-th pointing."""
         return self.tilts_deg[k % len(self.tilts_deg)] if self.tilts_deg else self.tilt_deg
-
-    def end_of(self, k: int) -> float:
-        """The head's place along the body (m, + toward its front end) for the scan's ``k mod
-        n``-th pointing: the end ``head_ends`` names, or by its pan
-        (:func:`fsw.core.team.cliffbot_head.head_end`)."""
-        end = self.head_ends[k % len(self.head_ends)] if self.head_ends else 0.0
-        if end == 0.0:
-            return head_end(math.radians(self.pan_deg[k % len(self.pan_deg)]), self.head_end_m)
-        return end * self.head_end_m

@@ -26,7 +26,7 @@ from fsw.comm import camera_frames
 from fsw.comm.camera_frames import CameraReply
 from fsw.core.geometry import CameraConfig, CameraPose, rotation_from_yaw_tilt
 from fsw.core.map.body_mask import BodyBox, TeamGeometry, TetherLine
-from fsw.core.team.cliffbot_head import head_camera_pose
+from fsw.core.team.cliffbot_head import head_camera_pose, head_end
 from fsw.core.team.tether import surface_normal
 from fsw.sections import CliffbotSensingConfig
 from hil_sim.team.cliffbot_rig import CliffbotRig
@@ -148,7 +148,7 @@ class CliffbotHeadCamera:
         pan = math.radians(sc.pan_deg[(seq - 1) % len(sc.pan_deg)])
         body = np.array([x, y, float(rig.world.ground_at(x, y))])
         return head_camera_pose(body, n, rig.yaw, pan, math.radians(sc.tilt_of(seq - 1)), sc.head_m,
-                                sc.end_of(seq - 1))
+                                head_end(pan, sc.head_end_m))
 
     def team_now(self) -> TeamPose:
         rig = self.rig

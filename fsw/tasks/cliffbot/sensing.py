@@ -44,7 +44,7 @@ from fsw.core.pipeline import MergedView, SensingPipeline
 from fsw.core.planning.nbv import NbvConfig
 from fsw.core.registration.registration import RegistrationConfig
 from fsw.core.stereo.stereo import StereoConfig
-from fsw.core.team.cliffbot_head import head_pose_covariance, normal_from_attitude
+from fsw.core.team.cliffbot_head import head_end, head_pose_covariance, normal_from_attitude
 from fsw.core.team.contact_ground import body_height
 from fsw.core.team.tether import tether_state
 from fsw.framework.jobs import JobHandle
@@ -258,14 +258,14 @@ class CliffbotSensingTask(FlightTask):
             return
         self.asked += 1
         pan = math.radians(self.sc.pan_deg[(seq - 1) % len(self.sc.pan_deg)])
-        placed = self._head_pose(pan, math.radians(self.sc.tilt_of(seq - 1)), self.sc.end_of(seq - 1))
+        placed = self._head_pose(pan, math.radians(self.sc.tilt_of(seq - 1)))
         if placed is None:
             self.event("VIEW_FAILED", view=seq, error="no navigation estimate or attitude yet")
             return
         pose, cov, body_z = placed
         self.capture = Capture(seq, pan, pose, cov, body_z, now)
 
-    def _head_pose(self, pan: float, tilt: float, end_m: float) -> tuple[CameraPose, F64, float] | None:
+    def _head_pose(self, pan: float, tilt: float) -> tuple[CameraPose, F64, float] | None:
         att = None if self.last_status is None else self.last_status.devices.attitude
         if self.est is None or att is None:
             return None
@@ -274,7 +274,7 @@ class CliffbotSensingTask(FlightTask):
         sc = self.sc
         pose, cov = head_pose_covariance(
             s[:2], z, float(s[2]), math.radians(att.roll_deg), math.radians(att.pitch_deg), pan,
-            tilt, sc.head_m, end_m, P, sc.height_sigma_m,
+            tilt, sc.head_m, head_end(pan, sc.head_end_m), P, sc.height_sigma_m,
             math.radians(sc.tilt_sigma_deg))
         return pose, cov, z
 
