@@ -87,7 +87,7 @@ class FusionConfig:
     slope_term: bool = param(True, doc="add the slope term (horizontal error times gradient)")
     footprint_term: bool = param(False, doc="add |gradient|^2 cell^2 / 12 per point")
     source_reach_sigma: float = param(
-        2.0, lo=0.0, hi=10.0, units="sigma",
+        0.0, lo=0.0, hi=10.0, units="sigma",
         doc="a point's lateral error (across its line of sight) may carry it this many sigma from the surface it "
             "came from: its variance takes the steepest slope of the view's cells within that reach (0: off)"
     )

@@ -278,6 +278,9 @@ def test_subcell_spread_beyond_noise_adds_variance() -> None:
 
 
 
+REACH = FusionConfig(source_reach_sigma=2.0)  # as the Cliff-bot's views use it (fsw.tasks.cliffbot.sensing)
+
+
 def _along_the_foot(lateral_sigma: float, strays: bool = True) -> tuple[MapGrid, np.ndarray, np.ndarray, np.ndarray,
                                                                         tuple[int, int]]:
     """A view along a face's foot (docs/algorithm.md §1.2): the camera looks along +x beside a face
@@ -313,9 +316,9 @@ def test_a_point_off_a_steep_surface_takes_that_surfaces_slope() -> None:
     (flat: the view measured nothing beside them) put them tens of sigma off (the old variance:
     ``source_reach_sigma = 0``, or no eye)."""
     grid, pts, cov, eye, cell = _along_the_foot(lateral_sigma=0.08)
-    honest = ElevationMap(grid)
+    honest = ElevationMap(grid, REACH)
     honest.merge(pts, cov=cov, eye=eye)
-    old = ElevationMap(grid)
+    old = ElevationMap(grid, REACH)
     old.merge(pts, cov=cov)
     off = ElevationMap(grid, FusionConfig(source_reach_sigma=0.0))
     off.merge(pts, cov=cov, eye=eye)
@@ -334,7 +337,7 @@ def test_a_tight_lateral_error_reaches_no_steeper_surface() -> None:
     loose = _along_the_foot(lateral_sigma=0.08, strays=False)
     got = []
     for grid, pts, cov, eye, _ in (tight, loose):
-        a, b = ElevationMap(grid), ElevationMap(grid)
+        a, b = ElevationMap(grid, REACH), ElevationMap(grid)
         a.merge(pts, cov=cov, eye=eye)
         b.merge(pts, cov=cov)
         got.append(a.var[3, 40] / b.var[3, 40])
@@ -344,4 +347,4 @@ def test_a_tight_lateral_error_reaches_no_steeper_surface() -> None:
 def test_a_camera_centre_that_is_not_finite_is_refused() -> None:
     grid, pts, cov, _, _ = _along_the_foot(lateral_sigma=0.05)
     with pytest.raises(ValueError, match="eye"):
-        ElevationMap(grid).merge(pts, cov=cov, eye=np.array([np.nan, 0.0, 0.0]))
+        ElevationMap(grid, REACH).merge(pts, cov=cov, eye=np.array([np.nan, 0.0, 0.0]))
