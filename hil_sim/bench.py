@@ -15,10 +15,13 @@ runs. Nothing is shared but the wires:
 Faults of the flight software itself come through the same backdoor (``hil_sim.faults``):
 ``stuck_task`` wraps the executive's activation of its target task, so while it is active the
 task either does not complete (``hang``: no work, no answer to the health pings) or is charged
-``delay_s`` more than it took (``overrun``: the bench's timer jumps by that much during the
-activation). The watchdog and the health task see exactly what they would on the rover.
+``delay_s`` more than it took (``overrun``: the executive's timers, the schedule's and the
+host's, jump by that much during the activation). The watchdog and the health task see exactly
+what they would on the rover.
 
-Runs are deterministic for a seed (virtual-bus order, seeded faults and truth). All CAN
+Runs are deterministic for a seed (virtual-bus order, seeded faults and truth; the executive's
+budgets, overruns and slips on the stepped clock, the host's time of the work only a metric:
+``fsw.executive.executive``). All CAN
 traffic can be recorded with python-can's ``can.Logger`` (``.log``, ``.asc``, ``.blf``) with
 bench-clock timestamps; ``cantools decode config/rover.dbc < run.log`` reads it.
 """
@@ -48,6 +51,9 @@ from hil_sim.hw.serial_pair import memory_serial_pair
 from hil_sim.rig import HardwareConfig, HardwareRig, load_hardware
 
 _ids = itertools.count(1)
+#: Unix time of the stepped clock's zero (2026-01-01T00:00:00Z): the Unix time a lockstep run's
+#: flight software sees, for MAVLink signing and the .tlog's stamps, unless its resources bring one.
+LOCKSTEP_UNIX_EPOCH_S = 1_767_225_600.0
 
 
 class _Sink:
@@ -126,7 +132,7 @@ class LockstepBench(ExecutiveDriver):
         self.cfg = dataclasses.replace(fsw, devices=devices)
         self.clock = SteppedClock(start[0] if start is not None else 0.0)
         # No map store unless the caller brings one: a bench run never restores another's map.
-        res = resources or Resources()
+        res = self._on_clock(resources or Resources())
         # A radio of its own (unless the caller brings one), so benches never share an end.
         self._own_radio = None
         if res.radio_port is None:
@@ -156,9 +162,11 @@ class LockstepBench(ExecutiveDriver):
         if unknown:
             raise ValueError(f"stuck_task target {unknown[0]!r} is not a flight task ({', '.join(sorted(exe.tasks))})")
         self.faults.task_names = tuple(exe.tasks)
-        self.base_timer: Callable[[], float] = exe.timer  # mission_run may swap it (CPU time)
+        schedule_timer = exe.timer  # the stepped clock
+        self.base_host_timer: Callable[[], float] = exe.host_timer  # mission_run may swap it (CPU time)
         self._extra_s = 0.0  # time charged by overrun faults
-        exe.timer = lambda: self.base_timer() + self._extra_s
+        exe.timer = lambda: schedule_timer() + self._extra_s
+        exe.host_timer = lambda: self.base_host_timer() + self._extra_s
         activate = exe._activate
 
         def faulty_activate(task: Any, k: int) -> None:
@@ -185,9 +193,11 @@ class LockstepBench(ExecutiveDriver):
 
         exe._activate = faulty_activate  # type: ignore[method-assign]
 
-    def set_timer(self, timer: Callable[[], float]) -> None:
-        """Time the tasks with ``timer`` (e.g. ``time.thread_time``), overrun faults still charged."""
-        self.base_timer = timer
+    def set_host_timer(self, timer: Callable[[], float]) -> None:
+        """Measure the host's time of the tasks' activations and the slack-job slices with
+        ``timer`` (e.g. ``time.thread_time``), overrun faults still charged."""
+        self.base_host_timer = timer
+        self.exe.jobs.host_timer = timer
 
     # -- stepping ---------------------------------------------------------------------------
     def before_frame(self, k: int) -> None:
@@ -226,7 +236,7 @@ class LockstepBench(ExecutiveDriver):
         taken = {e.cfg.mavlink.system_id: n for n, e in self._agents.items()}
         if sysid in taken:
             raise ValueError(f"agent {name!r}: MAVLink system id {sysid} is already agent {taken[sysid]!r}'s")
-        exe = build_executive(cfg, self.clock, resources or Resources(), map_store=False)
+        exe = build_executive(cfg, self.clock, self._on_clock(resources or Resources()), map_store=False)
         self.lockstep.add(exe, before_frame)
         self._agents[name] = exe
         if self.quiet:
@@ -234,6 +244,14 @@ class LockstepBench(ExecutiveDriver):
                 if hasattr(task, "out"):
                     task.out = _Sink()  # type: ignore[attr-defined]
         return exe
+
+    def _on_clock(self, res: Resources) -> Resources:
+        """``res`` with the bench's Unix time (:data:`LOCKSTEP_UNIX_EPOCH_S` + the stepped clock)
+        unless it brings its own: the host's would make every run's .tlog differ."""
+        if res.unix_time is None:
+            clock = self.clock
+            res.unix_time = lambda: LOCKSTEP_UNIX_EPOCH_S + clock.now()
+        return res
 
     def agent(self, name: str) -> Executive:
         """The executive of the bench's agent ``name``."""

@@ -9,7 +9,6 @@ says so (its events), never with a ``KeyError``.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, BinaryIO
@@ -61,7 +60,9 @@ class Resources:
     watchdog: Watchdog | None = None
     mavlink_link: BytePort | None = None  # the ground link (fsw.drivers.mavlink_transport)
     mavlink_tlog: str | BinaryIO | None = None  # None: the configured path
-    unix_time: Callable[[], float] = field(default=time.time)
+    # Unix seconds for MAVLink signing and the .tlog's stamps; None: the host's (time.time). A
+    # lockstep bench gives its stepped clock's, so a lockstep run's .tlog is the same every time.
+    unix_time: Callable[[], float] | None = None
     oracle_truth: OracleTruth | None = None
     team_can: can.BusABC | None = None  # the Cliff-bot's bus to its winches, wheels, IMU (a bench's end)
     # Extra sections a mission checkpoint carries (``fsw.tasks.mission_state``): a bench puts its

@@ -12,6 +12,14 @@ that the executive skips ahead and says so (cFS SCH). Overruns and slips are cou
 later ones, of every task, are summarised by at most one ``exec.TIMING`` event per period
 (``fsw.framework.summary``); the OVERRUN/SLIP events are throttled besides (a slot reopens
 every ``throttle_decay_frames`` good frames).
+
+Two timers time the work. The *schedule's* ``timer`` decides budgets, overruns and slips and
+gives every timing channel and event: on the real-time clock it is the real clock; in lockstep
+it is the stepped clock, which does not move while a frame runs, so a lockstep run's telemetry
+and events (and its .tlog) are the same every time and only time a bench charges (an injected
+overrun) counts. The *host's* ``host_timer`` measures what the work cost on this computer, as
+a metric (``Task.host``, ``host_slips``, ``host_frame_max_s``, the jobs' ``host_max_slice_*``)
+for the bench's reports; it never reaches telemetry.
 """
 
 from __future__ import annotations
@@ -81,10 +89,15 @@ class Executive:
         cfg: FswConfig,
         clock: Clock,
         resources: Resources | None = None,
-        timer: Callable[[], float] = time.perf_counter,
+        timer: Callable[[], float] | None = None,
+        host_timer: Callable[[], float] = time.perf_counter,
     ) -> None:
+        """``timer``: the schedule's (module docstring); by default the real clock on a real-time
+        clock and the stepped clock's time in lockstep. ``host_timer``: the host's measure."""
         ecfg = cfg.executive
-        self.cfg, self.ecfg, self.clock, self.timer = cfg, ecfg, clock, timer
+        self.cfg, self.ecfg, self.clock = cfg, ecfg, clock
+        self.timer: Callable[[], float] = timer or (time.perf_counter if clock.realtime else clock.now)
+        self.host_timer = host_timer
         # OpenCV's worker pool is process-wide: the flight computer has one core, and two bench
         # missions sharing a 2-core machine must not each spread a slice over both cores.
         cv2.setNumThreads(ecfg.opencv_threads)
@@ -94,7 +107,7 @@ class Executive:
         self.telemetry = TelemetryStore()
         self.events = EventLog(clock.now)
         self.commands = CommandDispatcher(on_response=self._on_response)
-        self.jobs = JobScheduler(timer=timer)
+        self.jobs = JobScheduler(timer=self.timer, host_timer=host_timer)
         self.bus = SoftwareBus(ecfg.queue_depth, on_drop=self._on_drop)
         self.ctx = FlightContext(
             clock=clock,
@@ -111,6 +124,8 @@ class Executive:
         self.frame = 0
         self.slips = 0
         self.frame_max_s = 0.0  # longest frame's work (foreground + slack), s
+        self.host_slips = 0  # frames whose work took longer than the period on the host timer
+        self.host_frame_max_s = 0.0  # longest frame's work on the host timer, s
         self.skipped_frames = 0
         self.lateness_s: list[float] = []
         self.tasks: dict[str, Task] = {}
@@ -169,8 +184,8 @@ class Executive:
         return sum(g.last_s for g in self.groups if g.group is not None and g.group.due(frame))
 
     def reset_counters(self) -> None:
-        self.skipped_frames = self.slips = 0
-        self.frame_max_s = 0.0
+        self.skipped_frames = self.slips = self.host_slips = 0
+        self.frame_max_s = self.host_frame_max_s = 0.0
         self.jobs.reset_max()
 
     # -- registration ---------------------------------------------------------------------
@@ -210,24 +225,28 @@ class Executive:
         k = self.frame
         self.ctx.frame = k
         period = self.period_s
-        t0 = self.timer()
+        t0, h0 = self.timer(), self.host_timer()
         slip_group: RateGroupComponent | None = None
         for rg in self.groups:
             assert rg.group is not None
             if not rg.group.due(k) or not self.enabled[rg.name]:
                 continue
-            g0 = self.timer()
+            g0, gh0 = self.timer(), self.host_timer()
             for task in rg.members:
                 if self.enabled[task.name]:
                     self._activate(task, k)
             rg.last_s = self.timer() - g0
+            rg.host.add(self.host_timer() - gh0, rg.budget_s)
             rg.max_s = max(rg.max_s, rg.last_s)
             rg.activations += 1
             if slip_group is None and self.timer() - t0 > period:
                 slip_group = rg
         self._run_slack(t0)
-        elapsed = self.timer() - t0
+        elapsed, host_elapsed = self.timer() - t0, self.host_timer() - h0
         self.frame_max_s = max(self.frame_max_s, elapsed)
+        self.host_frame_max_s = max(self.host_frame_max_s, host_elapsed)
+        if host_elapsed > period:
+            self.host_slips += 1
         if slip_group is None and elapsed > period:
             slip_group = self.groups[-1] if self.groups else None
         self._account_slip(slip_group, k, elapsed)
@@ -235,7 +254,7 @@ class Executive:
         self.frame = k + 1
 
     def _activate(self, task: Task, k: int) -> None:
-        a0 = self.timer()
+        a0, h0 = self.timer(), self.host_timer()
         try:
             task.run(k)
         except Exception as exc:  # noqa: BLE001 - a task fault is an event, never a crash
@@ -244,8 +263,8 @@ class Executive:
         else:
             task.answer_ping()
         task.last_s = self.timer() - a0
+        task.host.add(self.host_timer() - h0, task.budget_s)
         task.max_s = max(task.max_s, task.last_s)
-        task.total_s += task.last_s
         task.activations += 1
         if task.last_s > task.budget_s:
             task.overruns += 1

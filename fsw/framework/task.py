@@ -5,6 +5,12 @@ registers them under the instance name (``stereo.points``, ``stereo.NOOP``) and 
 dictionary is generated from them. Every task also has the common ones below (cFS: NOOP,
 RESET_COUNTERS; F Prime: execution-time channels, throttled overrun events). A task's
 handler for command ``X`` is its method ``cmd_X``.
+
+A task's timing comes in two kinds (docs/architecture.md, "The cyclic executive"): the
+*schedule's* (``last_s``, ``max_s``, ``overruns``: its channels, OVERRUN events), measured on
+the executive's schedule timer, which in lockstep is the stepped clock, so telemetry is
+deterministic; and the *host's* (:class:`HostTiming`), what the work cost on this computer, a
+metric for the bench's reports and never telemetry.
 """
 
 from __future__ import annotations
@@ -51,6 +57,33 @@ class Runtime(Protocol):
         """Zero the executive's slip, skip, frame and slice maxima (RESET_COUNTERS on ``exec``)."""
         ...
 
+
+
+@dataclass
+class HostTiming:
+    """Execution time of a task's activations on the executive's host timer: what the work cost
+    on this computer (real time, or the thread's CPU time on a bench that asks for it). On the
+    real-time clock it is the time the schedule sees; in lockstep the schedule runs on the
+    stepped clock, and this is the only place the host's speed shows (a mission's
+    ``summary.json``: ``task_max_ms``, ``task_ms_per_frame``, ``overruns``)."""
+
+    last_s: float = 0.0
+    max_s: float = 0.0
+    total_s: float = 0.0  # summed over all activations (the foreground cost)
+    overruns: int = 0  # activations over the task's budget on this timer
+
+    def add(self, dt: float, budget_s: float) -> None:
+        """Count one activation that took ``dt`` on the host timer."""
+        self.last_s = dt
+        self.max_s = max(self.max_s, dt)
+        self.total_s += dt
+        if dt > budget_s:
+            self.overruns += 1
+
+    def reset(self) -> None:
+        """Forget the maximum and the overruns (RESET_COUNTERS)."""
+        self.max_s = 0.0
+        self.overruns = 0
 
 
 @dataclass(kw_only=True)
@@ -112,10 +145,10 @@ class Task:
         self.ctx = ctx
         self.budget_s = budget_s
         self.activations = 0
-        self.last_s = 0.0
+        self.last_s = 0.0  # on the schedule's timer (the stepped clock in lockstep)
         self.max_s = 0.0
-        self.total_s = 0.0  # summed execution time of all activations (foreground cost)
         self.overruns = 0
+        self.host = HostTiming()  # on the host's timer: a metric, never telemetry
         self.cmd_count = 0
         self.cmd_errors = 0
         self.exceptions = 0
@@ -210,5 +243,6 @@ class Task:
     def cmd_RESET_COUNTERS(self) -> None:
         self.cmd_count = self.cmd_errors = self.overruns = self.exceptions = 0
         self.max_s = 0.0
+        self.host.reset()
         self.ctx.events.reset_throttle(f"{self.name}.OVERRUN")
         self.event("COUNTERS_RESET")

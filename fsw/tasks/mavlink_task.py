@@ -13,11 +13,13 @@ commands are counted and summarised by at most one AUTH_REJECTED event per
 
 Resources (optional, injected by the app or a test): ``mavlink_link`` (a transport; else
 the task opens ``[mavlink] url``), ``mavlink_tlog`` (a path or binary stream; else
-``tlog_path``), ``unix_time`` (a callable giving Unix seconds for signing and the .tlog).
+``tlog_path``), ``unix_time`` (a callable giving Unix seconds for signing and the .tlog; else
+the host's ``time.time``).
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Generator
 from pathlib import Path
 from typing import BinaryIO, ClassVar
@@ -117,7 +119,7 @@ class MavlinkTask(FlightTask):
     def setup(self) -> None:
         cfg = self.cfg = self.ctx.cfg.mavlink
         res = self.ctx.res
-        self._unix = res.unix_time
+        self._unix = res.unix_time or time.time
         self._epoch_s = float(self._unix()) - self.ctx.clock.now()
         # events so far (other tasks' start-up) and our own until the adapter exists go down first
         self._early: list[Event] | None = list(self.ctx.events.history)

@@ -28,12 +28,13 @@ WALL_CLOCK_FIELDS = ("wall_s", "task_max_ms", "task_ms_per_frame", "slips", "ove
 
 
 def task_ms_per_frame(exe: Any) -> dict[str, float]:
-    """Foreground cost: each task's summed execution time over the frames run, ms per frame,
-    plus ``total`` (every task); slack-job slices are not foreground and not counted."""
+    """Foreground cost: each task's summed execution time on the host timer over the frames
+    run, ms per frame, plus ``total`` (every task); slack-job slices are not foreground and not
+    counted."""
     frames = max(1, int(exe.frame))
     tasks = [t for rg in exe.groups for t in rg.members]
-    out = {t.name: round(t.total_s * 1e3 / frames, 4) for t in tasks}
-    out["total"] = round(sum(t.total_s for t in tasks) * 1e3 / frames, 4)
+    out = {t.name: round(t.host.total_s * 1e3 / frames, 4) for t in tasks}
+    out["total"] = round(sum(t.host.total_s for t in tasks) * 1e3 / frames, 4)
     return out
 
 
@@ -49,13 +50,13 @@ def error_plane(grid: MapGrid, err: Any, mapped: Any) -> tuple[float | None, flo
 
 
 def task_max_ms(exe: Any) -> dict[str, float]:
-    """Max execution time per task and rate group, plus the longest frame (``frame``:
+    """Max execution time on the host timer per task, plus the longest frame (``frame``:
     foreground and slack) and the longest slack-job slice overall (``slack_slice``) and per
     submitting task (``slack_slice.<task>``), ms."""
-    out = {n: round(t.max_s * 1e3, 3) for n, t in exe.tasks.items()}
-    out["frame"] = round(exe.frame_max_s * 1e3, 3)
-    out["slack_slice"] = round(exe.jobs.max_slice_s * 1e3, 3)
-    for owner, s in sorted(exe.jobs.max_slice_by_owner.items()):
+    out = {n: round(t.host.max_s * 1e3, 3) for n, t in exe.tasks.items()}
+    out["frame"] = round(exe.host_frame_max_s * 1e3, 3)
+    out["slack_slice"] = round(exe.jobs.host_max_slice_s * 1e3, 3)
+    for owner, s in sorted(exe.jobs.host_max_slice_by_owner.items()):
         out[f"slack_slice.{owner}"] = round(s * 1e3, 3)
     return out
 

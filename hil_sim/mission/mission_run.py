@@ -150,8 +150,7 @@ def run_mission(
             except BenchStateError as exc:
                 raise ValueError(f"checkpoint cannot be resumed: {exc}") from None
         if spec.cpu_timer:  # foreground figures without the preemption of a shared machine
-            bench.set_timer(time.thread_time)
-            bench.exe.jobs.timer = time.thread_time  # slack-job slices too (task_max_ms slack_slice)
+            bench.set_host_timer(time.thread_time)  # slack-job slices too (task_max_ms slack_slice)
         cliffbot = Cliffbot(cfg.link, ChannelPort(channel, "b", now), out_dir=spec.out)
         mission = bench.exe.tasks["mission"]
         perception = bench.exe.tasks["perception"]
@@ -287,8 +286,8 @@ def run_mission(
             "steps_unused": max(0, spec.steps - (len(mission.records) - 1)),
             "steps_unused_reason": None if len(mission.records) - 1 >= spec.steps else (
                 mission.end or mission.safe.reason or f"stopped in {mission.state}"),
-            "slips": exe.slips,
-            "overruns": sum(t.overruns for t in exe.tasks.values()),
+            "slips": exe.host_slips,
+            "overruns": sum(t.host.overruns for t in exe.tasks.values()),
             "task_max_ms": task_max_ms(exe),
             "task_ms_per_frame": task_ms_per_frame(exe),
             "end_reason": mission.end,

@@ -55,10 +55,10 @@ def test_budget_table_defaults_and_rejects_bad_values(tmp_path: Path) -> None:
 
 
 def test_task_ms_per_frame_sums_foreground_tasks_only() -> None:
-    """Per task: summed execution time over the frames run; rate-group and executive
-    components (not activated as tasks) are left out; ``total`` is the sum."""
-    a = SimpleNamespace(name="devices", total_s=0.010)
-    b = SimpleNamespace(name="motion", total_s=0.030)
+    """Per task: summed execution time on the host timer over the frames run; rate-group and
+    executive components (not activated as tasks) are left out; ``total`` is the sum."""
+    a = SimpleNamespace(name="devices", host=SimpleNamespace(total_s=0.010))
+    b = SimpleNamespace(name="motion", host=SimpleNamespace(total_s=0.030))
     exe = SimpleNamespace(frame=20, groups=[SimpleNamespace(members=[a]),
                                             SimpleNamespace(members=[b])],
                           tasks={"rg_fast": None})

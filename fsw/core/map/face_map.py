@@ -81,6 +81,8 @@ class FaceMapConfig:
     facing_max_points: int = param(20000, lo=0, hi=10**7, doc="points per view tested for facing the face (0: none)")
     facing_beside_points: int = param(1, lo=0, hi=10**6,
                                       doc="facing points that flag a cell beside a flagged one (0: off)")
+    facing_sigma: float = param(3.0, lo=0.0, hi=20.0, units="sigma",
+                                doc="a local plane faces the face at this many sigma of its fit's normal")
     resolve_cells: float = param(0.0, lo=0.0, hi=100.0, units="cells",
                                  doc="a point whose matching window spans more face cells is not fused (0: off)")
     step_cells: int = param(2, lo=0, hi=10, units="cells",
@@ -353,7 +355,8 @@ class FaceMap:
         facing_new = 0
         if eye is not None:
             eye_f = self.frame.to_face(np.reshape(eye, (1, 3)))[0]
-            facing, facing_new = self.overhangs.facing_the_face(self.map.grid, self.cfg, eye_f, q)
+            noise = cov_f if common is None else cov_f - self.frame.cov_to_face(common)
+            facing, facing_new = self.overhangs.facing_the_face(self.map.grid, self.cfg, eye_f, q, noise)
             n_second += int((keep & facing).sum())
             keep &= ~facing
         grazing = 0

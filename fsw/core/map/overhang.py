@@ -17,8 +17,9 @@ crevice behind it) the cell is flagged (:attr:`Overhangs.overhang`), not average
   (it sees the surface's lower side), show air under ground, so a second surface even where no
   view saw one;
 * a surface facing the face (:meth:`Overhangs.facing`, given the camera centre): a view's
-  points whose local plane (fitted to the view's own points around each, its normal turned to
-  the camera) faces the face (``e_n`` component below ``-sin facing_deg``) lie where the normal,
+  points whose local plane (fitted to the view's own points around each in the point's noise,
+  :func:`facing_cones`, its normal turned to the camera) faces the face (``e_n`` component below
+  ``-sin facing_deg`` at ``facing_sigma`` sigma of the fit either way) lie where the normal,
   going out, passes from air into ground: the ground above them along the normal ends in air
   again (the face map's slab ends in air), so their column holds two surfaces. It is the rock's
   side that faces up the face, seen from above, over the crevice behind it; it needs no fused
@@ -53,7 +54,7 @@ B = NDArray[np.bool_]
 _PLANE_POINTS = 8  # points a local plane is fitted to, at least
 _EDGE_ON = float(np.sin(np.radians(5.0)))  # a sight line closer to its plane sees it edge-on
 _PLANE_NEIGHBOURS = 32  # nearest points looked at, at most
-_PLANE_THIN = 1.0 / 3.0  # a plane's thickness under this share of its narrower width
+_NOISE_FLOOR = 1e-3  # m: the least error a point is taken to have along any axis (the fit's whitening)
 
 
 class OverhangParams(Protocol):
@@ -83,6 +84,8 @@ class OverhangParams(Protocol):
     def facing_max_points(self) -> int: ...
     @property
     def facing_beside_points(self) -> int: ...
+    @property
+    def facing_sigma(self) -> float: ...
 
 
 class Overhangs:
@@ -123,31 +126,34 @@ class Overhangs:
         self.overhang |= flag
         return int(flag.sum())
 
-    def facing_the_face(self, grid: MapGrid, cfg: OverhangParams, eye: F64, q: F64) -> tuple[B, int]:
-        """The facing test of one view (module docstring): its points ``q`` and camera centre
-        ``eye`` in the face frame, at most ``facing_max_points`` of the points (evenly spread),
-        each with the plane of the view's points within ``facing_radius_m`` of it (at least 8
-        of them, the plane's thickness under a third of its narrower width). A cell is flagged
-        when ``facing_min_points`` points in it (of this view and earlier ones) lie on a plane
-        whose normal, turned to the camera, has an ``e_n`` component below
-        ``-sin(facing_deg)`` and which the camera sees at least ``facing_deg`` off its plane (a
-        plane seen edge-on has no side) (:attr:`facing`). Returns which points of ``q`` were found
-        on such a plane (they lie on the inner side of the ground along the normal: the caller
-        keeps them out of the cell's height, and their mean ``w`` becomes the cell's
-        :attr:`second` where none is known) and the cells newly flagged."""
+    def facing_the_face(self, grid: MapGrid, cfg: OverhangParams, eye: F64, q: F64,
+                        noise: F64) -> tuple[B, int]:
+        """The facing test of one view (module docstring): its points ``q`` (their covariances
+        without the view's common part ``noise``) and camera centre ``eye`` in the face frame, at
+        most ``facing_max_points`` of the points (evenly spread), each with the plane of the
+        view's points within ``facing_radius_m`` of it fitted in the point's noise
+        (:func:`facing_cones`). A cell is flagged when ``facing_min_points`` points in it (of
+        this view and earlier ones) lie on a plane whose normal, turned to the camera, has an
+        ``e_n`` component below ``-sin(facing_deg)`` at ``facing_sigma`` sigma of the fit either
+        way, and which the camera sees more than 5 deg off edge-on (a plane seen edge-on has no
+        side) (:attr:`facing`). Returns which points of ``q`` were found on such a plane (they lie
+        on the inner side of the ground along the normal: the caller keeps them out of the cell's
+        height, and their mean ``w`` becomes the cell's :attr:`second` where none is known) and
+        the cells newly flagged."""
         out = np.zeros(len(q), bool)
-        fin = np.flatnonzero(np.isfinite(q).all(axis=1))
+        fin = np.flatnonzero(np.isfinite(q).all(axis=1) & np.isfinite(noise).all(axis=(1, 2)))
         if cfg.facing_max_points == 0 or len(fin) < _PLANE_POINTS:
             return out, 0
         q = q[fin]
         sel = np.unique(np.linspace(0, len(q) - 1, min(len(q), cfg.facing_max_points)).astype(np.intp))
-        normal, ok = local_normals(q, q[sel], cfg.facing_radius_m)
+        cone, ok = facing_cones(q, q[sel], noise[fin[sel]], cfg.facing_radius_m, cfg.facing_sigma)
         sight = np.asarray(eye, float).reshape(1, 3) - q[sel]
-        side = np.einsum("ij,ij->i", sight, normal) / np.maximum(np.linalg.norm(sight, axis=1), 1e-9)
-        n_w = np.where(side < 0, -normal[:, 2], normal[:, 2])  # the normal turned to the camera
+        sight /= np.maximum(np.linalg.norm(sight, axis=1, keepdims=True), 1e-9)
+        side = np.einsum("ij,icj->ic", sight, cone)
+        n_w = np.where(side < 0, -cone[:, :, 2], cone[:, :, 2])  # each normal turned to the camera
         s_min = np.sin(np.radians(cfg.facing_deg))
-        # facing the face, and seen clearly from one side (a plane seen edge-on has no side)
-        hit = ok & (n_w < -s_min) & (np.abs(side) > _EDGE_ON)
+        # facing the face however the fit errs, and seen clearly from one side (edge-on: no side)
+        hit = ok & (n_w < -s_min).all(axis=1) & (np.abs(side[:, 0]) > _EDGE_ON)
         iy, ix, inside = grid.cell_index(q[sel, 0], q[sel, 1])
         hit &= inside
         size = grid.nx * grid.ny
@@ -249,13 +255,23 @@ class Overhangs:
         return keep, new, int(n - keep.sum())
 
 
-def local_normals(pts: F64, at: F64, radius_m: float) -> tuple[F64, B]:
-    """Per query point of ``at`` ``(M, 3)``, the unit normal ``(M, 3)`` of the total
-    least-squares plane of the nearest of ``pts`` (thinned to one mean per voxel of a quarter of
-    ``radius_m``; at most 32 of those, within ``radius_m``) and whether
-    it is one: at least 8 neighbours and the plane's thickness (root of the smallest eigenvalue
-    of their scatter) under a third of its narrower width (the middle one)."""
-    # one point per voxel of a quarter radius (their mean): the neighbours span the radius
+def facing_cones(pts: F64, at: F64, noise: F64, radius_m: float, k_sigma: float) -> tuple[F64, B]:
+    """Per query point of ``at`` ``(M, 3)``, the normals ``(M, 5, 3)`` of the plane of the nearest
+    of ``pts`` (thinned to one mean per voxel of a quarter of ``radius_m``; at most 32 of those,
+    within ``radius_m``) fitted in the query point's noise (``noise`` ``(M, 3, 3)``, its covariance
+    without the view's common part), the fitted normal first, then the normals ``k_sigma`` of the
+    fit's uncertainty away from it either way about the plane's two axes, and whether there is a
+    plane: at least 8 neighbours and its normal known, ``k_sigma`` of it within 45 deg.
+
+    The fit is total least squares after whitening by the noise (the maximum-likelihood plane
+    when the neighbours err as the query point does): a stereo point errs mostly along its sight
+    line, so a patch seen head-on is thick along its normal and one seen at grazing incidence is
+    smeared within its plane; unweighted, either may lose its normal to the smear. In whitened
+    units the residual across the plane is 1 when the neighbourhood is a plane within the noise;
+    a normal of ``n`` neighbours spread ``s_i`` along axis ``i`` is uncertain about it by
+    ``sqrt(r s_i^2 / n) / (s_i^2 - r)`` radians, ``r`` the residual (at least 1; the eigenvector's
+    first-order perturbation): a thick neighbourhood (an edge, a corner, a blob of noise) gets a
+    wide cone or none, a plane well within the noise a narrow one."""
     key = np.floor(pts / (0.25 * radius_m)).astype(np.int64)
     _, inv, cnt_v = np.unique(key, axis=0, return_inverse=True, return_counts=True)
     inv = inv.reshape(-1)
@@ -271,11 +287,27 @@ def local_normals(pts: F64, at: F64, radius_m: float) -> tuple[F64, B]:
     wgt = near[..., None].astype(float)
     mean = (nb * wgt).sum(axis=1) / np.maximum(cnt, 1)[:, None]
     d = (nb - mean[:, None, :]) * wgt
-    scatter = np.einsum("mki,mkj->mij", d, d) / np.maximum(cnt, 1)[:, None, None]
+    lam, vec_p = np.linalg.eigh(np.asarray(noise, float) + _NOISE_FLOOR**2 * np.eye(3))
+    white = np.einsum("mij,mj,mkj->mik", vec_p, 1.0 / np.sqrt(np.maximum(lam, _NOISE_FLOOR**2)), vec_p)
+    y = np.einsum("mki,mij->mkj", d, white)  # the offsets in units of the noise
+    scatter = np.einsum("mki,mkj->mij", y, y) / np.maximum(cnt, 1)[:, None, None]
     ev, vec = np.linalg.eigh(scatter)  # ascending eigenvalues
-    ev = np.maximum(ev, 0.0)
-    ok = (cnt >= _PLANE_POINTS) & (np.sqrt(ev[:, 0]) < _PLANE_THIN * np.sqrt(ev[:, 1]))
-    return np.asarray(vec[:, :, 0], float), np.asarray(ok, bool)
+    resid = np.maximum(ev[:, 0], 1.0)
+    m = vec[:, :, 0]
+    cone = [m]
+    known = cnt >= _PLANE_POINTS
+    for i in (1, 2):
+        # the eigenvector's perturbation: sqrt(r s_i^2 / n) / (s_i^2 - r), unbounded as s_i^2 -> r
+        over = ev[:, i] - resid
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tilt = k_sigma * np.sqrt(resid * ev[:, i] / np.maximum(cnt, 1)) / over
+        known &= (over > 0) & (tilt < 1.0)
+        tilt = np.where(known, tilt, 0.0)
+        cone += [m + tilt[:, None] * vec[:, :, i], m - tilt[:, None] * vec[:, :, i]]
+    # a plane m . y = c in whitened units is (W m) . x = c: its normal is W m
+    normals = np.einsum("mij,mcj->mci", white, np.stack(cone, axis=1))
+    normals /= np.maximum(np.linalg.norm(normals, axis=2, keepdims=True), 1e-300)
+    return np.asarray(normals, float), np.asarray(known, bool)
 
 
 def seen_from_below(emap: ElevationMap, eye: F64, q: F64) -> F64:

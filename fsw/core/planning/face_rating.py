@@ -39,7 +39,7 @@ from scipy import ndimage
 
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
 from fsw.core.planning.nbv import MapLike, StationRating, cell_values, view_sums
-from fsw.core.planning.visibility import F64, Terrain, VisibilityConfig, in_view, terrain_from_map
+from fsw.core.planning.visibility import F64, Terrain, VisibilityConfig, in_view, prior_elevation, terrain_from_map
 from fsw.core.planning.visibility_kernel import pv_fast
 
 MIN_W_M = 0.05  # a camera closer to the plane than this (or behind it) rates no face cell
@@ -157,17 +157,43 @@ def face_cells(face: FaceLike, gravity: MapLike, cfg: VisibilityConfig, prior_m:
 def gravity_with_floor(fc: FaceCells, gravity: MapLike, cfg: VisibilityConfig) -> Terrain:
     """The gravity grid's terrain as a view near the face is rated on (docs/algorithm.md §8.2,
     "The ground beyond the lip"): the cells in front of the face (``fc.below``) at the floor prior
-    ``fc.floor_z``, and every other unknown cell past a lip at most at the face's dip continued
-    from its nearest known cell (:func:`drop_prior`, within the prior's correlation length of
-    nothing known down the dip), with the prior's sigma."""
-    z = np.where(fc.below, fc.floor_z, np.asarray(gravity.z, float))
+    (:func:`floor_prior`; a prior: the unknown cells' sigma and exponent of §3.1), and every other
+    unknown cell past a lip at most at the face's dip continued from its nearest known cell
+    (:func:`drop_prior`, within the prior's correlation length of nothing known down the dip),
+    with the prior's sigma."""
+    z = np.where(fc.below, floor_prior(fc, gravity, cfg), np.asarray(gravity.z, float))
     var = np.where(fc.below, cfg.prior_sigma_m**2, np.asarray(gravity.var, float))
     terrain = terrain_from_map(z, var, gravity.grid, cfg)
     mapped = np.isfinite(np.asarray(gravity.z, float)) & np.isfinite(np.asarray(gravity.var, float))
     unknown = ~(np.isfinite(z) & np.isfinite(var))
     drop = drop_prior(fc, np.asarray(gravity.z, float), mapped, gravity.grid, cfg.prior_corr_len_m)
     elev = np.where(unknown, np.minimum(terrain.elev_m, drop), terrain.elev_m)
-    return Terrain(gravity.grid, elev, terrain.sigma_m, terrain.weight)
+    # the floor prior is a prior, not ground: its factors take the unknown cells' exponent (§3.1),
+    # else a ray over a metre of it multiplies a dozen factors near one half and reads as hidden
+    weight = np.where(fc.below, min(1.0, gravity.grid.cell / cfg.prior_corr_len_m), terrain.weight)
+    return Terrain(gravity.grid, elev, terrain.sigma_m, weight)
+
+
+def floor_prior(fc: FaceCells, gravity: MapLike, cfg: VisibilityConfig) -> F64:
+    """The prior height of the unknown ground in front of the face (``fc.below``): where some
+    ground in front of the face is known (mapped gravity cells farther down the dip than the face
+    cells, lower than the face cells' top by more than the prior's sigma: not a plateau beside
+    the face), that ground continued as §3.1 continues known ground
+    (:func:`visibility.prior_elevation` of those cells alone: smoothed near them, the nearest
+    farther out); with none known, the foot of the face cells ``fc.floor_z``. The foot is the
+    plane ``prior_m`` of dip below the face map, a guess the ground of a short face may lie metres
+    above: rated at the foot, the ground a view of it maps is out of its depth of field."""
+    g = gravity.grid
+    z = np.asarray(gravity.z, float)
+    known = np.isfinite(z) & np.isfinite(np.asarray(gravity.var, float)) & (np.asarray(gravity.n) > 0)
+    X, Y = g.centers()
+    front = ((np.column_stack([X.ravel(), Y.ravel(), _plane_z(fc.origin, fc.R, X.ravel(), Y.ravel())]) - fc.origin)
+             @ fc.R[:, 1]).reshape(g.shape) < fc.grid.y0
+    top_z = float((np.array([0.0, fc.grid.y0 + fc.grid.ny * fc.grid.cell, 0.0]) @ fc.R.T + fc.origin)[2])
+    ground = known & front & (np.where(known, z, np.inf) < top_z - cfg.prior_sigma_m)
+    if not ground.any():
+        return np.full(g.shape, fc.floor_z)
+    return prior_elevation(np.where(ground, z, np.nan), g, cfg)
 
 
 def drop_prior(fc: FaceCells, z: F64, known: NDArray[np.bool_], grid: MapGrid, reach_m: float) -> F64:

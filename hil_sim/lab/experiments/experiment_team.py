@@ -19,7 +19,8 @@ command gives the same table) is judged by :mod:`hil_sim.team.team_eval`:
 * **the link**: map bytes, fix bytes down and up, and their seconds on the 9600 bit/s radio.
 
 Writes OUT/team.csv, OUT/team.png (the first scene's mission), the result file
-``docs/results/team.md`` (``hil_sim.lab.results``) and prints the table.
+``docs/results/team.md`` (``hil_sim.lab.results``; ``--results-name`` names another, e.g. a
+held-out run on other seeds) and prints the table.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ import argparse
 import csv
 import json
 import math
+import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -54,6 +56,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=Path("out/team"), help="output directory")
     p.add_argument("--rows", type=Path, default=None,
                    help="report the scenes a run already finished (its OUT/team_rows.jsonl) instead of running")
+    p.add_argument("--results-name", default="team",
+                   help="results file docs/results/NAME.md (e.g. a held-out run on other seeds)")
 
 
 def scene(scenario: str, seed: int, config: str, wheel_m: float, mission: bool, fixer: str, max_s: float,
@@ -128,6 +132,10 @@ def run(args: argparse.Namespace) -> int:
     from hil_sim.world import ScenarioError, load_scenario
 
     me = "safer-hil experiment team"
+    if not re.fullmatch(r"[a-z0-9][a-z0-9_-]*", args.results_name):
+        print(f"{me}: --results-name takes lower-case letters, digits, - and _, got {args.results_name!r}",
+              file=sys.stderr)
+        return 2
     if args.rows is not None:
         args.out.mkdir(parents=True, exist_ok=True)
         return _report_rows(args)
@@ -195,7 +203,7 @@ def _write(ordered: list[dict[str, Any]], args: argparse.Namespace) -> int:
         wr.writeheader()
         wr.writerows(ordered)
     pics = [args.out / "team.png"] if (args.out / "team.png").exists() else []
-    write_results("team", command_line("team"), table, pics)
+    write_results(args.results_name, command_line("team"), table, pics)
     print(table)
     return 0
 

@@ -12,7 +12,13 @@ import numpy as np
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
 from fsw.core.map.elevation_map import ElevationMap
 from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig
-from fsw.core.planning.face_rating import face_cells, face_visibility, gravity_with_floor, rate_face_station
+from fsw.core.planning.face_rating import (
+    face_cells,
+    face_visibility,
+    gravity_with_floor,
+    rate_face_station,
+    terrain_visibility,
+)
 from fsw.core.planning.nbv import NbvConfig, rate_station
 from fsw.core.planning.team_views import AgentViews, ViewCentre, choose_team_views
 from fsw.core.planning.visibility import terrain_from_map
@@ -147,3 +153,41 @@ def test_a_known_face_cell_stands_for_the_gravity_cell_under_its_own_point() -> 
     tilt = math.atan2(point[2] - cam[2], math.hypot(point[0] - cam[0], point[1] - cam[1]))
     pv = face_visibility(fc, CameraPose.from_pan_tilt(*cam, yaw, tilt), CAM, VIS, GRID)
     assert pv[int(under[0][0]), int(under[1][0])] > 0.5
+
+
+def _on_face_looking_out(depth_m: float, tilt_deg: float) -> CameraPose:
+    """A camera 0.5 m off the face, ``depth_m`` below the edge, looking out of it (-y) and down."""
+    return CameraPose.from_pan_tilt(*_on_face(depth_m), -math.pi / 2, math.radians(tilt_deg))
+
+
+def test_the_floor_prior_is_a_prior_not_ground() -> None:
+    """The unknown ground in front of the face takes the unknown cells' exponent of §3.1, not a
+    known cell's: from the face, a floor cell past a metre of floor prior is expected visible
+    (with the known cells' exponent a dozen factors near one half hide it)."""
+    emap = _plateau_only()
+    fc = face_cells(_face(), emap, VIS, prior_m=1.0)
+    terrain = gravity_with_floor(fc, emap, VIS)
+    assert np.allclose(terrain.weight[fc.below], GRID.cell / VIS.prior_corr_len_m)
+    assert np.all(terrain.weight[~np.isnan(emap.z)] == 1.0)
+    pose = _on_face_looking_out(3.0, -35.0)
+    x, y = GRID.centers()
+    target = fc.below & (np.abs(x - 3.0) < 0.05) & (np.abs(y - 1.05) < 0.05)  # 1.4 m out, on the floor prior
+    assert target.sum() == 1
+    pv = terrain_visibility(terrain, pose, CAM, VIS)
+    assert pv[target][0] > 0.5
+
+
+def test_the_ground_in_front_of_the_face_continues_the_known_ground_there() -> None:
+    """Where ground in front of the face is known (a talus 0.76 m above the floor prior), the
+    unknown ground beside it is rated at its height as §3.1 continues known ground, not at the
+    foot of the face cells; with none known it is the foot."""
+    emap = _plateau_only()
+    x, y = GRID.centers()
+    talus = (y > 1.6) & (y < 2.2)
+    emap.z[talus], emap.var[talus], emap.n[talus] = -3.0, 0.02**2, 1
+    fc = face_cells(_face(), emap, VIS, prior_m=1.0)
+    terrain = gravity_with_floor(fc, emap, VIS)
+    front = fc.below & (y < 1.6)
+    assert front.sum() > 100 and fc.floor_z < -3.5
+    assert np.allclose(terrain.elev_m[front], -3.0, atol=0.01)
+    assert np.allclose(gravity_with_floor(fc, _plateau_only(), VIS).elev_m[fc.below], fc.floor_z)

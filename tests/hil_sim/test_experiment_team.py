@@ -1,0 +1,47 @@
+"""``safer-hil experiment team``: its input checks and where its report goes (the scenes
+themselves are the experiment's run; docs/team.md, "Running a team mission")."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from hil_sim.cli import main
+
+
+@pytest.mark.parametrize("argv", [
+    ["experiment", "team", "--scenes", "0"],
+    ["experiment", "team", "--jobs", "0"],
+    ["experiment", "team", "--max-s", "nan"],
+    ["experiment", "team", "--results-name", "../elsewhere"],
+    ["experiment", "team", "--results-name", "Team"],
+])
+def test_bad_input_exits_2(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(argv) == 2
+    assert "Traceback" not in capsys.readouterr().err
+
+
+def _row(seed: int) -> dict[str, object]:
+    """A scene's row as :func:`hil_sim.lab.experiments.experiment_team.scene` writes it, without
+    a mission (the report's map and truth figures only)."""
+    return {"seed": seed, "slope_deg": 70.0, "drop_m": 5.0, "targets": 3, "reachable_truth": 2,
+            "reachable_full": 2, "reachable_reduced": 1, "verdicts_differ": 1, "path_ratio_max": 1.02,
+            "hazard_cells_lost": 0, "map_bytes": 9000, "truth_reasons": "-; slack; -", "_fixes": []}
+
+
+def test_a_held_out_run_writes_its_own_results_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``--results-name`` writes ``NAME.md`` beside the others and leaves ``team.md`` alone."""
+    results = tmp_path / "results"
+    results.mkdir()
+    monkeypatch.setenv("SAFER_RESULTS_DIR", str(results))
+    rows = tmp_path / "team_rows.jsonl"
+    rows.write_text("".join(json.dumps(_row(s)) + "\n" for s in (31, 30)))
+    argv = ["experiment", "team", "--rows", str(rows), "--out", str(tmp_path / "out"),
+            "--results-name", "team-heldout"]
+    assert main(argv) == 0
+    assert not (results / "team.md").exists()
+    text = (results / "team-heldout.md").read_text()
+    assert "(team-heldout)" in text  # the title names the file, the command its experiment
+    assert "| scenes (seeds) / targets | 2 (30-31) / 6 |" in text
