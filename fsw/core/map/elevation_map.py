@@ -109,6 +109,10 @@ class FusionConfig:
     )
     lip_guard_sigma: float = param(2.0, lo=0.0, hi=10.0, units="sigma", doc="withhold points closer to a lip (0: off)")
     lip_min_drop_m: float = param(0.30, lo=0.0, hi=100.0, units="m", doc="a lip counts when it drops by more")
+    lip_sight_line: bool = param(
+        False, doc="a lip withholds only the points it can hide from the view's camera (docs/algorithm.md §4; "
+                   "on for the Cliff-bot's own views)"
+    )
 
 
 @dataclass(frozen=True)
