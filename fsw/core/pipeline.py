@@ -300,6 +300,7 @@ class SensingPipeline:
         lips = LipGuard.of_view(self.map.grid, placed.pose, pts.lip_near_c, pts.lip_far_c, fus.lip_min_drop_m)
         known = self.lips.guard(fus.lip_min_drop_m)
         pose_cov = placed.cov if np.any(placed.cov) else None  # an exact pose (a bench's true one): no pose part
+        eye = placed.pose.t if fus.lip_sight_line else None  # only lips that can hide a point withhold it (§4)
         yield
         parts: list[ViewPart] = []
         for a in range(0, len(pts), PROPAGATE_CHUNK):
@@ -312,7 +313,7 @@ class SensingPipeline:
                 cov_m = cov_s if cov_p is None or self.team_with_camera else cov_s + cov_p
                 off = ~team_mask(xyz, cov_m, self.team, self.team_mask_cfg, eye=placed.pose.t)
                 xyz, cov_s, cov_p = xyz[off], cov_s[off], None if cov_p is None else cov_p[off]
-            parts.append(lips.part(xyz, cov_s, cov_p, fus.lip_guard_sigma, known))
+            parts.append(lips.part(xyz, cov_s, cov_p, fus.lip_guard_sigma, known, eye=eye))
             yield
         return parts
 
@@ -349,6 +350,7 @@ class SensingPipeline:
         X, Y = (c.reshape(-1)[view_cells[0]] for c in self.map.grid.centers())
         self.sources.add(view_cells[0], np.column_stack([X, Y, view_cells[1]]), placed.pose.t, placed.cov)
         yield
-        stats = yield from self.map.merge_parts_steps(parts, p_visible=p_visible, step_points=MERGE_STEP_POINTS)
+        stats = yield from self.map.merge_parts_steps(parts, p_visible=p_visible, step_points=MERGE_STEP_POINTS,
+                                                      eye=placed.pose.t)
         yield
         return MergedView(placed, stats, view_cells)

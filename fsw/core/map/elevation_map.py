@@ -21,6 +21,15 @@ moves the point to terrain of another height, so the error in the cell's height 
 ``dz - g.dxy`` with ``g`` the local gradient (from this view's own cell means, so a view's
 measurement does not depend on the map it is fused into), ``P_zz - 2 g.P_xyz + g^T P_xy g``.
 (On a slope facing the camera that is below ``P_zz``; a noisy gradient may not lower it.)
+That is the error of a point that stays on the surface of its own cell. A point's error across
+its line of sight may carry it off that surface: a face point seen along the face's foot lands in
+a flat cell beside it at the face's height, and the flat cell's gradient says nothing of that.
+Given the camera's centre (``eye``), the lateral part of the covariance (``P`` without its
+component along the ray) reaches ``source_reach_sigma`` of its horizontal sigma round the point,
+and the point may have come from the steepest surface within that reach (the view's own cell
+means, square windows of 1, 2, 4, ... cells): its variance is at least ``P_zz + |g_s|^2
+lambda_max(P_lat,xy)`` with ``g_s`` that steepest gradient (no credit for the cross term: which
+way the other surface leans against the error is not known).
 Optionally the footprint term ``|g|^2 cell^2 / 12`` (one point samples one spot of a sloping
 cell); off by default because the sub-cell term measures it from the points: the spread of a
 view's points in a cell beyond their noise is added to the cell's measurement variance (a
@@ -46,6 +55,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import ndimage
 
 from fsw.core.geometry import MapGrid
 from fsw.core.steps import run_to_end
@@ -76,6 +86,11 @@ class FusionConfig:
     )
     slope_term: bool = param(True, doc="add the slope term (horizontal error times gradient)")
     footprint_term: bool = param(False, doc="add |gradient|^2 cell^2 / 12 per point")
+    source_reach_sigma: float = param(
+        0.0, lo=0.0, hi=10.0, units="sigma",
+        doc="a point's lateral error (across its line of sight) may carry it this many sigma from the surface it "
+            "came from: its variance takes the steepest slope of the view's cells within that reach (0: off)"
+    )
     subcell_term: bool = param(
         True, doc="add the points' spread in the cell beyond their noise (sub-cell relief)"
     )
@@ -94,6 +109,10 @@ class FusionConfig:
     )
     lip_guard_sigma: float = param(2.0, lo=0.0, hi=10.0, units="sigma", doc="withhold points closer to a lip (0: off)")
     lip_min_drop_m: float = param(0.30, lo=0.0, hi=100.0, units="m", doc="a lip counts when it drops by more")
+    lip_sight_line: bool = param(
+        False, doc="a lip withholds only the points it can hide from the view's camera (docs/algorithm.md §4; "
+                   "on for the Cliff-bot's own views)"
+    )
 
 
 @dataclass(frozen=True)
@@ -146,6 +165,7 @@ class ElevationMap:
         cov: F64 | None = None,
         p_visible: NDArray[np.float32] | NDArray[np.float64] | NDArray[np.bool_] | None = None,
         cov_common: F64 | None = None,
+        eye: F64 | None = None,
     ) -> MergeStats:
         """Fuse one view's world points (§1.1) and record its misses (§4).
 
@@ -153,9 +173,11 @@ class ElevationMap:
         (N, 3, 3) world covariances (enables the slope term). ``cov_common`` (N, 3, 3) is
         the part of ``cov`` shared by every point of the view (the camera pose term of
         §1.2); it is averaged, not reduced, within a cell. ``p_visible`` (ny, nx): the
-        probability that each cell was visible in this view, or a boolean mask.
+        probability that each cell was visible in this view, or a boolean mask. ``eye`` (3,):
+        the camera's centre (with ``cov``: the slope of the surface a point may have come
+        from, module docstring; None: its own cell's only).
         """
-        return run_to_end(self.merge_steps(xyz, var_z, cov, p_visible, cov_common))
+        return run_to_end(self.merge_steps(xyz, var_z, cov, p_visible, cov_common, eye=eye))
 
     def merge_steps(
         self,
@@ -165,6 +187,7 @@ class ElevationMap:
         p_visible: NDArray[np.float32] | NDArray[np.float64] | NDArray[np.bool_] | None = None,
         cov_common: F64 | None = None,
         chunk: int | None = None,
+        eye: F64 | None = None,
     ) -> Generator[None, None, MergeStats]:
         """:meth:`merge` for a slack job: the points go through in chunks of ``chunk``
         (None: all at once), yielding after each, in two passes (the per-cell means, then
@@ -193,18 +216,20 @@ class ElevationMap:
             sl = slice(a, a + step)
             chunks.append((xyz[sl], v_all[sl], None if c6 is None else tuple(c[sl] for c in c6),
                            None if cc6 is None else tuple(c[sl] for c in cc6)))
-        return (yield from self._merge_chunks(chunks, n_in, p_visible, chunk))
+        return (yield from self._merge_chunks(chunks, n_in, p_visible, chunk, eye))
 
     def merge_parts_steps(
         self,
         parts: list[tuple[F64, F64, F64 | None]],
         p_visible: NDArray[np.float32] | NDArray[np.float64] | NDArray[np.bool_] | None = None,
         step_points: int = 50000,
+        eye: F64 | None = None,
     ) -> Generator[None, None, MergeStats]:
         """:meth:`merge` of one view in parts ``(xyz, cov, cov_common)`` (as a slack job propagates
         them), not joined first; yields once ``step_points`` points went through a pass since the
         last yield. ``cov_common``: in every part or none. ``parts`` is emptied as its covariances
-        go to 6 components (one form at a time: both were the flight peak, +25 MB; issue 15)."""
+        go to 6 components (one form at a time: both were the flight peak, +25 MB; issue 15).
+        ``eye``: the camera's centre, as in :meth:`merge`."""
         chunks, n_in = [], 0
         if len({pc is None for _, _, pc in parts}) > 1:
             raise ValueError("cov_common must be given for every part or for none")
@@ -219,7 +244,7 @@ class ElevationMap:
             n_in += n
         if not chunks:
             chunks.append((np.zeros((0, 3)), np.zeros(0), tuple(np.zeros(0) for _ in range(6)), None))
-        return (yield from self._merge_chunks(chunks, n_in, p_visible, step_points))
+        return (yield from self._merge_chunks(chunks, n_in, p_visible, step_points, eye))
 
     def _merge_chunks(
         self,
@@ -227,9 +252,12 @@ class ElevationMap:
         n_in: int,
         p_visible: NDArray[np.float32] | NDArray[np.float64] | NDArray[np.bool_] | None,
         step_points: int | None,
+        eye: F64 | None = None,
     ) -> Generator[None, None, MergeStats]:
         """The merge proper over chunks ``(xyz, P_zz or var_z, cov6 or None, common6 or None)``;
         yields once ``step_points`` points went through since the last yield (None: never)."""
+        if eye is not None and not np.all(np.isfinite(np.asarray(eye, float))):
+            raise ValueError("eye must be three finite numbers")
         budget = [0]
 
         def due(n: int) -> bool:
@@ -247,7 +275,7 @@ class ElevationMap:
         k = np.zeros(size, np.int64)
         sw = np.zeros(size)
         swz = np.zeros(size)
-        parts: list[tuple[NDArray[np.intp], F64, F64, F64, tuple[F64, ...] | None,
+        parts: list[tuple[NDArray[np.intp], F64, F64, F64, F64, tuple[F64, ...] | None,
                           tuple[F64, ...] | None]] = []
         for p, v, pc6, pcc6 in chunks:
             fx, fy, ok = self._usable(p, v)
@@ -262,29 +290,37 @@ class ElevationMap:
             k += np.bincount(flat, minlength=size)
             sw += np.bincount(flat, w, size)
             swz += np.bincount(flat, w * z, size)
-            parts.append((flat, z, v, w, pc6, pcc6))
+            parts.append((flat, p, z, v, w, pc6, pcc6))
             if due(p.shape[0]):
                 yield None
         with np.errstate(invalid="ignore", divide="ignore"):
             zm_dense = swz / sw
         grad_cells: tuple[F64, F64] | None = None
+        steepest: SteepestWithin | None = None
         if has_cov and any(pt[0].size for pt in parts):
             gy, gx = nan_gradient(zm_dense.reshape(g.shape), g.cell)
             grad_cells = (gx.reshape(-1), gy.reshape(-1))
+            if eye is not None and self.cfg.source_reach_sigma > 0.0:
+                steepest = SteepestWithin(gx * gx + gy * gy)
         # pass 2: per point, the variance of the cell height (slope term) and its sums
         swi = np.zeros(size)
         swvc = np.zeros(size)
         swdev = np.zeros(size)
         n_used = 0
-        for flat, z, v, w, pc6, pcc6 in parts:
+        for flat, p, z, v, w, pc6, pcc6 in parts:
             n_used += flat.size
             vc: F64 | float = 0.0
             if pc6 is not None and grad_cells is not None:
                 grad = (grad_cells[0][flat], grad_cells[1][flat])
+                src = None if steepest is None or eye is None else (_unit_rays(p, eye), steepest)
                 v = self._vertical_variance(grad, pc6, footprint=True)
+                if src is not None:
+                    v = np.maximum(v, self._source_variance(flat, src[0], pc6, src[1]))
                 if pcc6 is not None:
-                    vc = np.minimum(self._vertical_variance(grad, pcc6, footprint=False),
-                                    v - self.cfg.min_var_m2)
+                    v_common = self._vertical_variance(grad, pcc6, footprint=False)
+                    if src is not None:
+                        v_common = np.maximum(v_common, self._source_variance(flat, src[0], pcc6, src[1]))
+                    vc = np.minimum(v_common, v - self.cfg.min_var_m2)
             swi += np.bincount(flat, 1.0 / (v - vc), size)  # the independent (stereo) part
             if has_common:
                 swvc += np.bincount(flat, w * vc, size)
@@ -347,6 +383,16 @@ class ElevationMap:
         if footprint and self.cfg.footprint_term:
             out += (gx * gx + gy * gy) * (self.grid.cell**2 / 12.0)
         return np.asarray(out)
+
+    def _source_variance(self, flat: NDArray[np.intp], ray: F64, c6: tuple[F64, ...],
+                         steepest: SteepestWithin) -> F64:
+        """Per-point variance of the cell height when the point's lateral error (``c6`` without
+        its part along the unit ``ray``) may have carried it off the steepest surface of the
+        view within ``source_reach_sigma`` of that error: ``P_zz + |g_s|^2 lambda_max(P_lat,xy)``
+        (module docstring)."""
+        lam = _lateral_horizontal_variance(ray, c6)
+        reach = self.cfg.source_reach_sigma * np.sqrt(lam) / self.grid.cell
+        return np.asarray(c6[5] + steepest.at(flat, reach) * lam)
 
     def _fuse(self, cells: NDArray[np.intp], zm: F64, vm: F64, vm_pose: F64 | None = None) -> tuple[int, int, int]:
         """Inverse-variance update of the given flat cells with a Mahalanobis gate (§1.1).
@@ -427,6 +473,57 @@ class TeamElevation(ElevationMap):
         vp = np.zeros(c.size) if vm_pose is None else np.clip(vm_pose[better], 0.0, vm[better])
         self.var_common.reshape(-1)[c] = self.cfg.view_correlation * (vm[better] - vp) + vp  # as a first view's
         return out
+
+
+class SteepestWithin:
+    """The steepest squared gradient of a view's cells within a square window round each cell,
+    for windows of half-size 0, 1, 2, 4, ... cells (each built when first asked for; a reach is
+    rounded up to the next, so a point is never given a flatter neighbourhood than its reach)."""
+
+    def __init__(self, slope2: F64) -> None:
+        self.shape = slope2.shape
+        self.levels: dict[int, F64] = {0: np.asarray(slope2, float).reshape(-1)}
+
+    def at(self, flat: NDArray[np.intp], reach_cells: F64) -> F64:
+        """The steepest squared gradient within ``reach_cells`` (per point) of each point's cell ``flat``."""
+        r = np.ceil(np.nan_to_num(np.asarray(reach_cells, float), nan=0.0, posinf=0.0))
+        cap = max(self.shape)
+        r = np.minimum(np.maximum(r, 0.0), cap)
+        half = np.where(r > 0, 2.0 ** np.ceil(np.log2(np.maximum(r, 1.0))), 0.0).astype(np.int64)
+        out = np.empty(flat.shape[0])
+        for h in np.unique(half):
+            sel = half == h
+            out[sel] = self._level(int(h))[flat[sel]]
+        return out
+
+    def _level(self, half: int) -> F64:
+        if half not in self.levels:
+            base = self.levels[0].reshape(self.shape)
+            self.levels[half] = ndimage.maximum_filter(base, size=2 * half + 1, mode="constant", cval=0.0).reshape(-1)
+        return self.levels[half]
+
+
+def _unit_rays(p: F64, eye: F64) -> F64:
+    """Unit lines of sight from the camera's centre ``eye`` to the points ``p`` (N, 3)."""
+    d = p - np.asarray(eye, float).reshape(1, 3)
+    n = np.linalg.norm(d, axis=1, keepdims=True)
+    return np.asarray(d / np.maximum(n, 1e-9))
+
+
+def _lateral_horizontal_variance(u: F64, c6: tuple[F64, ...]) -> F64:
+    """The largest horizontal variance of the error across the line of sight: ``lambda_max`` of the
+    xy block of ``(I - u u^T) P (I - u u^T)`` per point (``u`` unit rays, ``P`` as xx xy xz yy yz zz)."""
+    xx, xy, xz, yy, yz, zz = c6
+    ux, uy, uz = u[:, 0], u[:, 1], u[:, 2]
+    pux = xx * ux + xy * uy + xz * uz
+    puy = xy * ux + yy * uy + yz * uz
+    puz = xz * ux + yz * uy + zz * uz
+    upu = ux * pux + uy * puy + uz * puz
+    lxx = xx - 2.0 * ux * pux + upu * ux * ux
+    lyy = yy - 2.0 * uy * puy + upu * uy * uy
+    lxy = xy - ux * puy - pux * uy + upu * ux * uy
+    mid = 0.5 * (lxx + lyy)
+    return np.asarray(np.maximum(mid + np.sqrt(0.25 * (lxx - lyy) ** 2 + lxy * lxy), 0.0))
 
 
 def _sym6(cov: F64) -> tuple[F64, ...]:

@@ -60,6 +60,40 @@ def horizontal_variance(cov: F64) -> F64:
     return np.asarray(0.5 * (a + d) + np.sqrt(0.25 * (a - d) ** 2 + b * b))
 
 
+def largest_variance(cov: F64) -> F64:
+    """The largest eigenvalue of each covariance (N, 3, 3): the variance along the worst direction."""
+    if cov.shape[0] == 0:
+        return np.zeros(0)
+    return np.asarray(np.linalg.eigvalsh(cov)[:, -1])
+
+
+def on_sight_line(eye: F64 | None, xyz_w: F64, lip: F64, toward: F64, reach2: F64) -> B:
+    """Whether each lip (``lip``, its near point, and ``toward``, the unit horizontal way to its
+    drop side; one per point) can hide its point (``xyz_w``, (N, 3)) from the camera ``eye``, or
+    be the edge the point was carried over along its sight line, within ``sqrt(reach2)``: the
+    lip lies within that of the segment from the camera to the point (the point included), or the
+    segment crosses the lip's edge (the vertical plane through the lip across its drop way)
+    between the camera and the point lower than that above the lip (the lip stands in the way).
+    A sight line that passes the lip higher, or never crosses its edge (a camera over or beyond
+    the lip looking down past it), is not hidden by it (docs/algorithm.md §4, "Choice: the lip
+    guard"). Without the camera (None): every lip (True)."""
+    if eye is None:
+        return np.ones(xyz_w.shape[0], bool)
+    d = xyz_w - eye
+    to_lip = lip - eye
+    n2 = np.einsum("ij,ij->i", d, d)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = np.nan_to_num(np.clip(np.einsum("ij,ij->i", to_lip, d) / n2, 0.0, 1.0))
+        off = to_lip - t[:, None] * d
+        close = np.einsum("ij,ij->i", off, off) <= reach2
+        # where the sight line crosses the lip's edge: (eye + s d - lip) . toward = 0, horizontally
+        across = np.einsum("ij,ij->i", d[:, :2], toward)
+        s = np.einsum("ij,ij->i", to_lip[:, :2], toward) / across
+        over = eye[2] + s * d[:, 2] - lip[:, 2]  # the sight line's height over the lip there
+        under = (s > 0.0) & (s < 1.0) & (over * np.abs(over) < reach2)
+    return np.asarray(close | under)
+
+
 class PastLips:
     """The known lips nearest each map cell, for one view's guard (:meth:`KnownLips.guard`)."""
 
@@ -73,10 +107,13 @@ class PastLips:
         iy, ix = idx[0], idx[1]
         self._xyz, self._toward, self._var = xyz[iy, ix], toward[iy, ix], var[iy, ix]
 
-    def clear(self, xyz_w: F64, cov_common: F64, k_sigma: float) -> B:
+    def clear(self, xyz_w: F64, cov_common: F64, k_sigma: float, eye: F64 | None = None) -> B:
         """Points not withheld: those farther than ``k_sigma`` sigma from the nearest known lip
-        (the point's common and the lip's horizontal variance), on its plateau side, or more than
-        ``min_drop_m`` below it (points off the grid: True, the merge drops them anyway)."""
+        (the point's common and the lip's horizontal variance), on its plateau side, more than
+        ``min_drop_m`` below it, or, with the camera centre ``eye``, that the lip does not hide
+        from it within ``k_sigma`` sigma (the largest of the point's common covariance, in any
+        direction, and the lip's variance: :func:`on_sight_line`) (points off the grid: True, the
+        merge drops them anyway)."""
         out = np.ones(xyz_w.shape[0], bool)
         if k_sigma <= 0.0 or xyz_w.shape[0] == 0:
             return out
@@ -85,7 +122,11 @@ class PastLips:
         past = np.einsum("ij,ij->i", off, self._toward[iy, ix]) > 0.0
         high = p[:, 2] > lip[:, 2] - self.min_drop_m
         near = np.einsum("ij,ij->i", off, off) <= k_sigma * k_sigma * var
-        out[inside] = ~(past & high & near)
+        held = past & high & near
+        if eye is not None and held.any():  # the point's noise in any direction and the lip's
+            reach2 = k_sigma * k_sigma * (largest_variance(cov_common[inside][held]) + self._var[iy, ix][held])
+            held[held] = on_sight_line(eye, p[held], lip[held], self._toward[iy, ix][held], reach2)
+        out[inside] = ~held
         return out
 
     def _nearest(self, xyz_w: F64) -> tuple[B, NDArray[np.intp], NDArray[np.intp], F64, F64, F64]:

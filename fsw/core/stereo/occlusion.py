@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from fsw.core.geometry import CameraPose, MapGrid
-from fsw.core.map.known_lips import PastLips, horizontal_variance
+from fsw.core.map.known_lips import PastLips, horizontal_variance, largest_variance, on_sight_line
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.intp]
@@ -74,15 +74,14 @@ class LipGuard:
         self.near = near[inside]
         way = far[inside, :2] - self.near[:, :2]
         self.toward = way / np.maximum(np.linalg.norm(way, axis=1, keepdims=True), 1e-12)
-        self._nearest: tuple[F64, F64] | None = None
+        self._nearest: F64 | None = None  # per cell, the nearest lip's near point and way to its drop
         if self.lips:
             ix, iy, near = ix[inside], iy[inside], near[inside]
-            lip_x = np.full(grid.shape, np.nan)
-            lip_y = np.full(grid.shape, np.nan)
-            lip_x[iy, ix], lip_y[iy, ix] = near[:, 0], near[:, 1]  # one lip point per cell
-            idx = ndimage.distance_transform_edt(np.isnan(lip_x), return_distances=False,
+            lip = np.full(grid.shape + (5,), np.nan)
+            lip[iy, ix] = np.column_stack([near, self.toward])  # one lip per cell
+            idx = ndimage.distance_transform_edt(np.isnan(lip[..., 0]), return_distances=False,
                                                  return_indices=True)
-            self._nearest = (lip_x[idx[0], idx[1]], lip_y[idx[0], idx[1]])
+            self._nearest = lip[idx[0], idx[1]]
 
     @classmethod
     def of_view(cls, grid: MapGrid, pose: CameraPose, near_c: F64, far_c: F64, min_drop_m: float) -> LipGuard:
@@ -91,20 +90,24 @@ class LipGuard:
         return cls(grid, pose.camera_to_world(near_c), pose.camera_to_world(far_c), min_drop_m)
 
     def part(self, xyz_w: F64, cov_stereo: F64, cov_common: F64 | None, k_sigma: float,
-             known: PastLips | None = None) -> tuple[F64, F64, F64 | None]:
+             known: PastLips | None = None, eye: F64 | None = None) -> tuple[F64, F64, F64 | None]:
         """One part of the view for the merge, ``(xyz, cov, cov_common)``, without the points
         too near one of its lips given the view's common covariance (None: an exact pose,
-        nothing held), nor those past a lip the map ``known`` already (``fsw.core.map.known_lips``)."""
+        nothing held), nor those past a lip the map ``known`` already (``fsw.core.map.known_lips``);
+        with the camera centre ``eye``, only lips on a point's sight line withhold it."""
         if cov_common is None:
             return xyz_w, cov_stereo, None
-        keep = self.clear(xyz_w, cov_common, k_sigma)
+        keep = self.clear(xyz_w, cov_common, k_sigma, eye)
         if known is not None:
-            keep &= known.clear(xyz_w, cov_common, k_sigma)
+            keep &= known.clear(xyz_w, cov_common, k_sigma, eye)
         return xyz_w[keep], (cov_stereo + cov_common)[keep], cov_common[keep]
 
-    def clear(self, xyz_w: F64, cov_w: F64, k_sigma: float) -> NDArray[np.bool_]:
+    def clear(self, xyz_w: F64, cov_w: F64, k_sigma: float, eye: F64 | None = None) -> NDArray[np.bool_]:
         """Points whose horizontal distance to the nearest lip exceeds ``k_sigma`` times
-        their horizontal 1-sigma (points off the grid: True, the merge drops them anyway)."""
+        their horizontal 1-sigma, or, with the camera centre ``eye``, that the lip does not hide
+        from it within ``k_sigma`` times their largest 1-sigma in any direction
+        (``fsw.core.map.known_lips.on_sight_line``) (points off the grid: True, the merge drops
+        them anyway)."""
         n = xyz_w.shape[0]
         if self._nearest is None or k_sigma <= 0.0 or n == 0:
             return np.ones(n, bool)
@@ -115,7 +118,13 @@ class LipGuard:
             inside = (ix >= 0) & (ix < g.nx) & (iy >= 0) & (iy < g.ny)
         out = np.ones(n, bool)
         ii, jj = iy[inside].astype(np.intp), ix[inside].astype(np.intp)
-        dx = xyz_w[inside, 0] - self._nearest[0][ii, jj]
-        dy = xyz_w[inside, 1] - self._nearest[1][ii, jj]
-        out[inside] = dx * dx + dy * dy > k_sigma * k_sigma * horizontal_variance(cov_w[inside])
+        p, nearest = xyz_w[inside], self._nearest[ii, jj]
+        lip, toward = nearest[:, :3], nearest[:, 3:]
+        dx, dy = p[:, 0] - lip[:, 0], p[:, 1] - lip[:, 1]
+        cov_in = cov_w[inside]
+        held = dx * dx + dy * dy <= k_sigma * k_sigma * horizontal_variance(cov_in)
+        if eye is not None and held.any():  # the point's noise in any direction
+            reach2 = k_sigma * k_sigma * largest_variance(cov_in[held])
+            held[held] = on_sight_line(eye, p[held], lip[held], toward[held], reach2)
+        out[inside] = ~held
         return out

@@ -77,6 +77,10 @@ BODY_SIGMA_M = 0.01  # its own box as its camera knows it (one rigid body)
 BODY_LIFT_M = 0.05  # the mask's box of its body starts this far above its ground
 MARGIN_M = 0.015  # the mask's margin (5 px windows at 1 m: 1.8 cm; fsw.core.map.body_mask.MaskConfig)
 BEHIND_TETHER = 1.25  # the tether mask's sight-line reach, times a point's range (fsw.core.map.body_mask.MaskConfig)
+# Its views look along the face from a head on it: a point's error across the sight line may carry it
+# off the steep surface it came from; its variance takes that surface's slope within this many sigma
+# (fsw.core.map.elevation_map.FusionConfig.source_reach_sigma, docs/algorithm.md §1.2)
+SOURCE_REACH_SIGMA = 2.0
 
 
 @dataclass(frozen=True)
@@ -101,7 +105,11 @@ class CliffbotPipelineSettings:
         # the disparity search reaches the nearest usable range (a multiple of 16)
         need = cam.baseline_m * cam.focal_px / cam.min_range_m
         ndisp = int(min(max(16 * math.ceil(need / 16.0), 16), 16 * ((cam.width_px // 2) // 16)))
-        return CliffbotPipelineSettings(cam, cfg.map, stereo=replace(StereoConfig(), num_disparities_px=ndisp))
+        # a head over the lip looks down the face past the lips it finds there (its steps and ledges): a
+        # lip withholds only the points it can hide from the head (FusionConfig.lip_sight_line, §4)
+        fusion = FusionConfig(source_reach_sigma=SOURCE_REACH_SIGMA, lip_sight_line=True)
+        return CliffbotPipelineSettings(cam, cfg.map, stereo=replace(StereoConfig(), num_disparities_px=ndisp),
+                                        fusion=fusion)
 
 
 @dataclass(frozen=True)

@@ -275,3 +275,76 @@ def test_subcell_spread_beyond_noise_adds_variance() -> None:
     assert b.z[1, 1] == pytest.approx(0.1)
     spread = 0.1**2 * 10 / 9
     assert b.var[1, 1] == pytest.approx(1e-4 + spread - 1e-4 * 10 / 9, rel=1e-6)
+
+
+
+REACH = FusionConfig(source_reach_sigma=2.0)  # as the Cliff-bot's views use it (fsw.tasks.cliffbot.sensing)
+
+
+def _along_the_foot(lateral_sigma: float, strays: bool = True) -> tuple[MapGrid, np.ndarray, np.ndarray, np.ndarray,
+                                                                        tuple[int, int]]:
+    """A view along a face's foot (docs/algorithm.md §1.2): the camera looks along +x beside a face
+    that rises at slope 4 (76 deg) from the floor at y = 0.3 m; it sees the floor up to y = 0.12 m
+    and the face. Its points carry a range error along the ray and a lateral one across it,
+    horizontal (the pose's heading error at range). With ``strays``, face points from y = 0.36 m
+    (0.24 m up the face) land 16.5 cm across the sight line, in a row of floor cells (y = 0.18 to
+    0.21 m, truth 0) whose neighbours across the row the view did not measure: their own gradient
+    is flat. Returns the grid, points, covariances, the eye and one stray cell."""
+    grid = MapGrid(0.0, 0.0, 0.03, 80, 30)
+    eye = np.array([-1.0, 0.2, 0.45])
+    xs = np.arange(0.6, 2.0, 0.01)
+    rows = [np.column_stack([xs, np.full(xs.size, y), np.zeros(xs.size)]) for y in np.arange(0.005, 0.12, 0.03)]
+    rows += [np.column_stack([xs, np.full(xs.size, y), np.full(xs.size, 4.0 * (y - 0.3))])
+             for y in np.arange(0.305, 0.6, 0.03)]
+    if strays:
+        sx = np.arange(1.0, 1.4, 0.01)
+        rows.append(np.column_stack([sx, np.full(sx.size, 0.195), np.full(sx.size, 0.24)]))
+    pts = np.vstack(rows)
+    u = pts - eye
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    h = np.column_stack([-u[:, 1], u[:, 0], np.zeros(len(u))])
+    h /= np.linalg.norm(h, axis=1, keepdims=True)
+    cov = (0.02**2 * u[:, :, None] * u[:, None, :] + lateral_sigma**2 * h[:, :, None] * h[:, None, :]
+           + 0.005**2 * np.eye(3)[None])
+    return grid, pts, cov, eye, (6, 40)
+
+
+def test_a_point_off_a_steep_surface_takes_that_surfaces_slope() -> None:
+    """§1.2: face points carried across the line of sight onto floor cells keep the face's height
+    there: their variance takes the slope of the steepest surface their lateral error reaches, so
+    those cells' heights are within the gate of their truth (0). The floor cells' own gradient
+    (flat: the view measured nothing beside them) put them tens of sigma off (the old variance:
+    ``source_reach_sigma = 0``, or no eye)."""
+    grid, pts, cov, eye, cell = _along_the_foot(lateral_sigma=0.08)
+    honest = ElevationMap(grid, REACH)
+    honest.merge(pts, cov=cov, eye=eye)
+    old = ElevationMap(grid, REACH)
+    old.merge(pts, cov=cov)
+    off = ElevationMap(grid, FusionConfig(source_reach_sigma=0.0))
+    off.merge(pts, cov=cov, eye=eye)
+    assert old.z[cell] == pytest.approx(0.24) and honest.z[cell] == pytest.approx(0.24)
+    assert old.var[cell] == off.var[cell]
+    assert old.z[cell] / math.sqrt(old.var[cell]) > 10.0
+    assert honest.z[cell] / math.sqrt(honest.var[cell]) < 2.0
+    # far from any steep surface of the view the floor's variance is what it was
+    assert honest.var[1, 40] == pytest.approx(old.var[1, 40])
+
+
+def test_a_tight_lateral_error_reaches_no_steeper_surface() -> None:
+    """The reach scales with the lateral error: floor points whose error across the sight line is
+    a millimetre do not take the face seven cells away; with 8 cm they do."""
+    tight = _along_the_foot(lateral_sigma=0.001, strays=False)
+    loose = _along_the_foot(lateral_sigma=0.08, strays=False)
+    got = []
+    for grid, pts, cov, eye, _ in (tight, loose):
+        a, b = ElevationMap(grid, REACH), ElevationMap(grid)
+        a.merge(pts, cov=cov, eye=eye)
+        b.merge(pts, cov=cov)
+        got.append(a.var[3, 40] / b.var[3, 40])
+    assert got[0] == pytest.approx(1.0) and got[1] > 10.0
+
+
+def test_a_camera_centre_that_is_not_finite_is_refused() -> None:
+    grid, pts, cov, _, _ = _along_the_foot(lateral_sigma=0.05)
+    with pytest.raises(ValueError, match="eye"):
+        ElevationMap(grid, REACH).merge(pts, cov=cov, eye=np.array([np.nan, 0.0, 0.0]))

@@ -169,3 +169,39 @@ def test_a_lip_cell_seen_from_below_keeps_the_lips_height_not_the_faces(cfg: Fsw
     pipe.lips.add(np.array([[0.0, 0.015, 0.0]]), np.array([[0.0, -1.0]]), np.zeros(1))
     run_to_end(pipe.fuse_steps(placed, run_to_end(pipe.world_parts_steps(placed, pts))))
     assert pipe.map.z[cell(0.02)] < -0.4 and pipe.map.mapped[cell(0.075)]
+
+
+
+def _withheld_from(cfg: FswConfig, eye: np.ndarray, pts_w: np.ndarray, sigma_m: float,
+                   sight_line: bool = True) -> np.ndarray:
+    """Which of ``pts_w`` a view from a camera at ``eye`` withholds past the known lip along
+    ``y = 0``, ``z = 0`` (drop side -y), the camera's place known to ``sigma_m`` (``sight_line``:
+    ``[fusion] lip_sight_line``)."""
+    pipe = SensingPipeline(dataclasses.replace(cfg, fusion=dataclasses.replace(cfg.fusion, lip_sight_line=sight_line)),
+                           None)
+    lx = np.arange(-0.3, 0.31, CELL)
+    pipe.lips.add(np.column_stack([lx, np.zeros_like(lx), np.zeros_like(lx)]),
+                  np.tile([0.0, -1.0], (lx.size, 1)), np.zeros(lx.size))
+    camera = CameraPose(np.eye(3), eye)
+    n = pts_w.shape[0]
+    pts = StereoPoints(camera.world_to_camera(pts_w), np.tile(np.eye(3) * 1e-6, (n, 1, 1)), np.zeros((n, 2)),
+                       np.ones(n), np.ones((1, n), bool))
+    cov = np.zeros((6, 6))
+    cov[3, 3] = cov[4, 4] = cov[5, 5] = sigma_m**2
+    kept = _merged_points(pipe, RegisteredPose(Registration("off", "test"), camera, cov, None), pts)
+    return ~np.isin(pts_w[:, 0], kept[:, 0])
+
+
+def test_a_known_lip_withholds_only_what_it_can_hide_from_that_camera(cfg: FswConfig) -> None:
+    """The face just under a known lip (past it, less than the lip's min drop below it, within the
+    guard's reach of it): from a camera on the plateau behind the lip, whose sight lines to it
+    pass under the lip, it is withheld (the lip hides that ground: such a point was carried over
+    the edge); from a camera beyond the lip looking back down at the face, no lip stands in the
+    way and it is kept (docs/algorithm.md §4)."""
+    face = np.column_stack([np.linspace(-0.2, 0.2, 5), np.linspace(-0.035, -0.045, 5), np.linspace(-0.1, -0.2, 5)])
+    assert _withheld_from(cfg, np.array([0.0, 3.0, 0.8]), face, sigma_m=0.03).all()
+    assert not _withheld_from(cfg, np.array([0.0, -0.3, 0.45]), face, sigma_m=0.03).any()
+    # a sight line over the lip within the reach (a camera behind it looking down past it) is withheld
+    assert _withheld_from(cfg, np.array([0.0, 0.3, 1.5]), face, sigma_m=0.03).all()
+    # lip_sight_line off (the RECON-bot's views): every point near the lip past it, from any camera
+    assert _withheld_from(cfg, np.array([0.0, -0.3, 0.45]), face, sigma_m=0.03, sight_line=False).all()

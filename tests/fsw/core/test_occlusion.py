@@ -95,3 +95,23 @@ def test_a_small_step_is_not_a_drop_and_no_lips_keep_everything() -> None:
     empty = np.zeros((0, 3))
     assert LipGuard(GRID, empty, empty, 0.1).clear(xyz, cov, 2.0).all()
     assert LipGuard(GRID, near, far, 0.1).clear(xyz, cov, 0.0).all()  # k = 0: guard off
+
+
+def test_a_views_own_lip_withholds_only_what_it_can_hide_from_its_camera() -> None:
+    """A view's own lip along y = 0 (the plateau, z = 0, drops to ground 1 m lower) and points of
+    the face just past it, within the guard's reach: from the camera behind the lip, whose sight
+    lines pass under it, they are withheld; from a camera beyond the lip looking back at the face,
+    which no lip hides, they are kept; points at the lip itself are withheld from both."""
+    lx = np.linspace(-1.0, 1.0, 200)
+    near = np.column_stack([lx, np.zeros(200), np.zeros(200)])
+    far = np.column_stack([lx, np.full(200, -1.2), np.full(200, -1.0)])
+    guard = LipGuard(GRID, near, far, min_drop_m=0.1)
+    face = np.column_stack([lx[50:150:10], np.full(10, -0.03), np.full(10, -0.25)])
+    rim = np.column_stack([lx[50:150:10], np.full(10, 0.01), np.zeros(10)])
+    xyz = np.concatenate([face, rim])
+    cov = np.tile(np.eye(3) * 0.02**2, (xyz.shape[0], 1, 1))
+    behind = guard.clear(xyz, cov, 2.0, eye=np.array([0.0, 3.0, 1.0]))
+    beyond = guard.clear(xyz, cov, 2.0, eye=np.array([0.0, -0.4, 0.45]))
+    assert not behind.any()
+    assert beyond[:10].all() and not beyond[10:].any()
+    assert not guard.clear(xyz, cov, 2.0).any()  # without the camera: every point near a lip
