@@ -267,6 +267,21 @@ def footprint_known(z_sensed: ZMap, grid: MapGrid, footprint_m: float) -> NDArra
     return out
 
 
+def footprint_slope(z: F64, cell_m: float, k: int) -> F64:
+    """The ground's slope (deg) over a ``k`` x ``k`` footprint round each cell (what the
+    Cliff-bot's body stands on): the mean of the gradients inside it that known cells give
+    (central differences; none beside an unknown cell), 90 (too steep) where it holds none.
+    Unknown cells do not enter it (as in :func:`slope_levels`): filled with any height, a hole
+    in the map would read as a cliff and the known ground round it as too steep to stand on."""
+    gy, gx = np.gradient(z, cell_m)
+    ok = np.isfinite(gx) & np.isfinite(gy)
+    w = ndimage.uniform_filter(ok.astype(np.float64), k)
+    mx = ndimage.uniform_filter(np.where(ok, gx, 0.0), k)
+    my = ndimage.uniform_filter(np.where(ok, gy, 0.0), k)
+    safe = np.where(w > 1e-9, w, 1.0)
+    return np.where(w > 1e-9, np.degrees(np.arctan(np.hypot(mx / safe, my / safe))), 90.0)
+
+
 def ground_layers(z: ZMap, grid: MapGrid, cfg: ClimberConfig, unseen: NDArray[np.bool_] | None = None) -> Ground:
     """Rocks, hazards, known footprints and slope of every cell. ``unseen``: cells with a height
     that no sensor measured (the plane under the Cliff-bot's body carried on beyond where its
@@ -274,12 +289,9 @@ def ground_layers(z: ZMap, grid: MapGrid, cfg: ClimberConfig, unseen: NDArray[np
     one is not known."""
     zf = np.asarray(z, np.float64)
     known = np.isfinite(zf)
-    fill = np.where(known, zf, np.nanmin(zf) if known.any() else 0.0)
     foot = disc(int(round(cfg.footprint_m / grid.cell)))
-    # The ground's slope over the footprint (what the Cliff-bot's body stands on).
-    gy, gx = np.gradient(fill, grid.cell)
     k = 2 * int(round(cfg.footprint_m / grid.cell)) + 1
-    slope = np.degrees(np.arctan(np.hypot(ndimage.uniform_filter(gx, k), ndimage.uniform_filter(gy, k))))
+    slope = footprint_slope(zf, grid.cell, k)
     # Relief above a flat opening, measured across the ground (times cos slope): on a steep
     # face a bump's height in z is its height off the face over cos(slope).
     tophat = np.nan_to_num(relief(zf, grid.cell, cfg.rock_disc_m), nan=0.0)  # the codec's relief (§6)

@@ -199,3 +199,23 @@ def test_footprint_known_gathers_what_whole_map_filters_give(seed: int) -> None:
         got = footprint_known(z, g, footprint_m)
         assert np.array_equal(got, footprint_known_whole_map(z, g, footprint_m))
     assert got.any() and not got.all()
+
+
+def test_a_hole_in_the_map_is_not_a_cliff_beside_it() -> None:
+    """A gently sloping plateau (10 deg, under the Cliff-bot's slope limit) with a hole the size
+    of a footprint: the known ground round the hole keeps its slope and is no hazard (filled
+    with the map's lowest height, the hole read as a drop and made a band two footprints wide
+    round it too steep); where the same hole is a known shaft 20 m deep, the ground round it is
+    too steep to stand on."""
+    ccfg = ClimberConfig()
+    grid = MapGrid(0.0, 0.0, 0.03, 120, 120)
+    x, y = grid.centers()
+    z = (np.tan(np.radians(10.0)) * y - 2.0).astype(np.float64)
+    hole = np.hypot(x - 1.8, y - 1.8) < ccfg.footprint_m
+    holed = np.where(hole, np.nan, z)
+    g = ground_layers(holed, grid, ccfg)
+    ring = ~hole & (np.hypot(x - 1.8, y - 1.8) < ccfg.footprint_m + 0.3)
+    assert np.abs(g.slope_deg[ring] - 10.0).max() < 0.5
+    assert not g.hazard.any() and not g.rock.any()
+    pit = ground_layers(np.where(hole, z - 20.0, z), grid, ccfg)
+    assert pit.hazard[ring].any() and (pit.slope_deg[ring] > ccfg.max_slope_deg).any()
