@@ -16,7 +16,12 @@ team mission comes from here and only from the TRUTH:
   (``face_planner.way_reason``: the lengths moved straight, the body settled, judged at every
   place, ending at the next node) and an edge that fails removed and the search run again until
   the path holds or none is left: each target's reason (``""`` when reachable) and its
-  shortest path length;
+  shortest path length. With the winches' length tolerance (:func:`winch_errors`, one of the
+  tether limits: a winch stops anywhere within ``length_tol_m`` of its set-point) each node of
+  a path and each way is also judged as the flight planner judges them under that error
+  (``face_planner.node_held_reason``, ``way_reason(errors=...)``: the body settled at the
+  lengths off by each error, the statics re-solved there), the truth's ground having no map
+  error; without it, at the exact lengths;
 * :func:`compare_maps`: "the map was enough": the Cliff-bot's planner on the received
   (reduced, decoded) map and on the full-resolution map of the same mission: targets reached
   on each, path length ratio, hazard cells of the full map the received map shows as safe;
@@ -46,10 +51,12 @@ from fsw.core.team.face_planner import (
     ClimberConfig,
     Ground,
     ground_layers,
+    node_held_reason,
     node_reasons,
     plan_targets,
     way_reason,
 )
+from fsw.core.team.held_tension import LengthErrors
 from fsw.core.team.tether import TetherConfig, TetherState
 from hil_sim.world.world import World
 
@@ -120,9 +127,19 @@ class TruthReach:
 _TRUTH_CACHE: dict[bytes, TruthReach] = {}  # a few seconds per scene: each scene judged once per process
 
 
+def winch_errors(length_tol_m: float, margin_sigmas: float) -> LengthErrors:
+    """The length errors the truth judges under: the winches' own (each stops within
+    ``length_tol_m`` of its set-point), at the flight's ``margin_sigmas``, with no map error
+    (the truth's lengths are the true ground's). The flight planner's error model
+    (:mod:`fsw.core.team.held_tension`) with the map's part zero."""
+    return LengthErrors(length_tol_m, 0.0, margin_sigmas)
+
+
 def truth_verdict(world: World, grid: MapGrid, anchors: F64, tcfg: TetherConfig,
-                  ccfg: ClimberConfig) -> TruthReach:
-    """The brute-force planner on the TRUE ground (module docstring)."""
+                  ccfg: ClimberConfig, errors: LengthErrors | None = None) -> TruthReach:
+    """The brute-force planner on the TRUE ground (module docstring); ``errors``: the length
+    errors every node of a path and every way must be held at (:func:`winch_errors`; None:
+    the exact lengths)."""
     import hashlib
 
     if world.team is None:
@@ -130,23 +147,27 @@ def truth_verdict(world: World, grid: MapGrid, anchors: F64, tcfg: TetherConfig,
     z = np.asarray(world.ground_on_grid(grid), np.float64)
     key = hashlib.sha256(b"".join([
         z.tobytes(), np.asarray(anchors, float).tobytes(), np.asarray(world.team.cliffbot_start_xy, float).tobytes(),
-        np.asarray(world.team.targets_xyz, float).tobytes(), repr((grid, tcfg, ccfg)).encode()])).digest()
+        np.asarray(world.team.targets_xyz, float).tobytes(), repr((grid, tcfg, ccfg, errors)).encode()])).digest()
     if key not in _TRUTH_CACHE:
         if len(_TRUTH_CACHE) >= 8:
             _TRUTH_CACHE.pop(next(iter(_TRUTH_CACHE)))
-        _TRUTH_CACHE[key] = _brute_force(world, z, grid, anchors, tcfg, ccfg)
+        _TRUTH_CACHE[key] = _brute_force(world, z, grid, anchors, tcfg, ccfg, errors)
     return _TRUTH_CACHE[key]
 
 
 def _brute_force(world: World, z: F64, grid: MapGrid, anchors: F64, tcfg: TetherConfig,
-                 ccfg: ClimberConfig) -> TruthReach:
+                 ccfg: ClimberConfig, errors: LengthErrors | None) -> TruthReach:
+    """Dijkstra over the usable lattice, each path found judged and its failing parts removed
+    (module docstring). A node's held check under ``errors`` is made when a path first passes
+    it (a node that fails loses its edges, and the search is run again): the same verdicts as
+    judging every node first, at the cost of the nodes the paths reach."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import dijkstra
 
     assert world.team is not None
-    rows, cols, reasons, g = node_reasons(z, grid, anchors, tcfg, ccfg)
+    rows, cols, base, g = node_reasons(z, grid, anchors, tcfg, ccfg)
     ny, nx = len(rows), len(cols)
-    usable = np.array([r == USABLE for r in reasons]).reshape(ny, nx)
+    usable = np.array([r == USABLE for r in base]).reshape(ny, nx)
     nz = np.nan_to_num(np.asarray(z, np.float64)[np.ix_(rows, cols)])
     px = np.broadcast_to(grid.x0 + (cols + 0.5) * grid.cell, (ny, nx))
     py = np.broadcast_to((grid.y0 + (rows + 0.5) * grid.cell)[:, None], (ny, nx))
@@ -175,24 +196,35 @@ def _brute_force(world: World, z: F64, grid: MapGrid, anchors: F64, tcfg: Tether
         cx = min(nx - 1, max(0, int(round((int(ix[0]) - cols[0]) / stride))))
         return cy * nx + cx
 
+    held = errors is not None and errors.any
+    held_why: dict[int, str] = {}
+
+    def reason(k: int) -> str:
+        """The node's verdict: ``node_reasons``', and where usable, held at the lengths' errors."""
+        if base[k] != USABLE or not held or errors is None:
+            return base[k]
+        if k not in held_why:
+            held_why[k] = node_held_reason(z, grid, anchors, pts[k, :2], tcfg, ccfg, errors) or USABLE
+        return held_why[k]
+
     def way_ok(e: int) -> bool:
         if e not in ways:
-            ways[e] = way_reason(z, grid, anchors, pts[s_[e], :2], pts[d_[e], :2], tcfg, ccfg, g)
+            ways[e] = way_reason(z, grid, anchors, pts[s_[e], :2], pts[d_[e], :2], tcfg, ccfg, g, errors=errors)
         return not ways[e]
 
     targets = np.asarray(world.team.targets_xyz[:, :2], float)
     start = node_of(np.asarray(world.team.cliffbot_start_xy, float))
     n_usable = int(usable.sum())
-    if start is None or reasons[start] != USABLE:
-        why = "off the map" if start is None else reasons[start]
+    if start is None or reason(start) != USABLE:
+        why = "off the map" if start is None else reason(start)
         return TruthReach(tuple(f"start: {why}" for _ in targets), tuple(math.inf for _ in targets),
                           ny * nx, n_usable)
     why_not: list[str] = []
     lengths: list[float] = []
     for t in targets:
         k = node_of(t)
-        if k is None or reasons[k] != USABLE:
-            why_not.append("off the map" if k is None else reasons[k])
+        if k is None or reason(k) != USABLE:
+            why_not.append("off the map" if k is None else reason(k))
             lengths.append(math.inf)
             continue
         while True:  # the shortest path, its failing ways removed, until it holds or none is left
@@ -205,6 +237,10 @@ def _brute_force(world: World, z: F64, grid: MapGrid, anchors: F64, tcfg: Tether
             chain = [k]
             while chain[-1] != start:
                 chain.append(int(pred[chain[-1]]))
+            weak = [n for n in chain if reason(n) != USABLE]
+            if weak:  # a node not held at the lengths' errors: no way enters or leaves it
+                alive[np.isin(s_, weak) | np.isin(d_, weak)] = False
+                continue
             bad = [e for e in (edge[(p, q)] for q, p in zip(chain[:-1], chain[1:], strict=True)) if not way_ok(e)]
             if not bad:
                 why_not.append("")
@@ -392,11 +428,12 @@ class TeamVerdict:
 
 
 def judge_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], anchors: F64,
-               tcfg: TetherConfig, ccfg: ClimberConfig, outcome: TeamOutcome) -> TeamVerdict:
-    """One team mission judged on the truth: the brute-force reachability, the cells of the
-    true path the Cliff-bot's map did not know (when it entered them, if the driver recorded
-    it; else on ``received_z``), and the bench's violations."""
-    truth = truth_verdict(world, grid, anchors, tcfg, ccfg)
+               tcfg: TetherConfig, ccfg: ClimberConfig, outcome: TeamOutcome,
+               errors: LengthErrors | None = None) -> TeamVerdict:
+    """One team mission judged on the truth: the brute-force reachability (under ``errors``,
+    :func:`truth_verdict`), the cells of the true path the Cliff-bot's map did not know (when it
+    entered them, if the driver recorded it; else on ``received_z``), and the bench's violations."""
+    truth = truth_verdict(world, grid, anchors, tcfg, ccfg, errors)
     unknown = (len(outcome.unknown_at_entry) if outcome.unknown_at_entry is not None
                else unknown_cells_entered(outcome.true_path, received_z, grid))
     return TeamVerdict(outcome, truth.reasons, unknown,

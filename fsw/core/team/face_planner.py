@@ -352,6 +352,19 @@ def _tether_verdict(st: TetherState | None, grid: MapGrid, tcfg: TetherConfig, c
     return USABLE
 
 
+def node_held_reason(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
+                     errors: LengthErrors) -> str:
+    """Why the tethers may not hold the body at the usable node ``xy`` when its lengths are off
+    by what ``errors`` allows (``""``: they hold it, or the ground there is no steeper than
+    ``free_slope_deg`` and the wheels hold it; :func:`fsw.core.team.held_tension.held_reason`).
+    The planner's check of a node; the truth's judge (``hil_sim.team.team_eval``) applies the
+    same one with the winches' tolerance."""
+    st = tether_state(z, grid, anchors, np.asarray(xy, float), tcfg, ccfg.footprint_m)
+    if st is None or st.statics.tilt_deg <= ccfg.free_slope_deg:
+        return ""
+    return held_reason(z, grid, anchors, np.asarray(xy, float), st, tcfg, ccfg.free_slope_deg, errors)
+
+
 def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
                g: Ground, step_m: float = WAY_STEP_M, errors: LengthErrors | None = None) -> str:
     """Why the body cannot go from node ``a`` to node ``b`` (``""``: it can; module docstring,
@@ -444,12 +457,8 @@ def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy
         return USABLE if (start_usable and k == start) else cache[k]
 
     def _held(r: int, c: int) -> str:
-        """A usable node where the statics hold the body: held at its lengths' offsets too."""
         xy = np.array([grid.x0 + (c + 0.5) * grid.cell, grid.y0 + (r + 0.5) * grid.cell])
-        st = tether_state(zf, grid, anchors, xy, tcfg, ccfg.footprint_m)
-        if st is None or st.statics.tilt_deg <= ccfg.free_slope_deg:
-            return ""
-        return held_reason(zf, grid, anchors, xy, st, tcfg, ccfg.free_slope_deg, m.errors)
+        return node_held_reason(zf, grid, anchors, xy, tcfg, ccfg, m.errors)
 
     def cost(a: int, b: int) -> float:
         """An edge's cost over its length: 1 with room, up to 1 + weight at a hazard's edge;

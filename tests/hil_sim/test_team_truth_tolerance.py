@@ -1,0 +1,34 @@
+"""The truth's brute force under the winches' length tolerance (hil_sim.team.team_eval,
+docs/team.md, "The truth's verdict"): a target the tethers hold at the exact lengths but not
+where the winches may stop is not reachable under the same tether limits."""
+
+from __future__ import annotations
+
+import pytest
+
+from fsw.core.geometry import MapGrid
+from fsw.core.team.face_planner import ClimberConfig
+from fsw.core.team.tether import TetherConfig, anchor_points
+from fsw.sections import CliffbotMissionConfig
+from hil_sim.team.team_eval import truth_verdict, winch_errors
+from hil_sim.world import load_scenario
+
+pytestmark = pytest.mark.slow
+
+
+def test_a_target_held_at_the_exact_lengths_but_slack_within_the_winches_tolerance_is_slack() -> None:
+    """Seed 13's third target: its tether A holds about 5.4 N against the 5 N floor at the
+    exact lengths, and goes slack where a winch stops within its tolerance."""
+    world = load_scenario("cliff-team", 13)
+    assert world.team is not None
+    grid = MapGrid.from_config(world.map_grid)
+    t, c, m = TetherConfig(), ClimberConfig(), CliffbotMissionConfig()
+    anchors = anchor_points(world.ground_on_grid(grid), grid, world.team.anchors_xy, t)
+    exact = truth_verdict(world, grid, anchors, t, c)
+    tol = truth_verdict(world, grid, anchors, t, c, winch_errors(m.length_tol_m, m.margin_sigmas))
+    assert exact.reasons[2] == "" and tol.reasons[2] == "slack"
+    # the tolerance only takes away: what it reaches, the exact lengths reach too, no shorter
+    for a, b, la, lb in zip(exact.reasons, tol.reasons, exact.lengths_m, tol.lengths_m, strict=True):
+        assert not b or b == a or not a
+        if not b:
+            assert not a and la <= lb
