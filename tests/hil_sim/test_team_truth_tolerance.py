@@ -1,5 +1,5 @@
 """The truth's brute force under the winches' length tolerance (hil_sim.team.team_eval,
-docs/team.md, "The truth's verdict"): a target the tethers hold at the exact lengths but not
+docs/team.md, "The planner": the truth's verdict): a target the tethers hold at the exact lengths but not
 where the winches may stop is not reachable under the same tether limits."""
 
 from __future__ import annotations
