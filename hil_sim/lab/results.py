@@ -80,8 +80,18 @@ def demote(markdown: str) -> str:
     return re.sub(r"^(#+) ", r"#\1 ", markdown, flags=re.MULTILINE)
 
 
+RESULTS_NAME = re.compile(r"[a-z0-9][a-z0-9_-]*")  # a results file's name: docs/results/NAME.md
+
+
+def bad_results_name(name: str) -> str | None:
+    """Why ``name`` cannot name a results file (None: it can), for a command's usage error."""
+    if RESULTS_NAME.fullmatch(name):
+        return None
+    return f"--results-name takes lower-case letters, digits, - and _, got {name!r}"
+
+
 def _slug(experiment: str) -> str:
-    if not re.fullmatch(r"[a-z0-9][a-z0-9_-]*", experiment):
+    if not RESULTS_NAME.fullmatch(experiment):
         raise ValueError(f"experiment name {experiment!r}: lower-case letters, digits, '-' and '_' only")
     return experiment
 

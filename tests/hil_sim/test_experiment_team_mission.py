@@ -32,7 +32,7 @@ def test_the_report_counts_starts_targets_and_fixes_by_range(tmp_path: Path, mon
         (tmp_path / f"seed{seed}" / "summary.json").write_text(json.dumps(s))
         (tmp_path / f"seed{seed}" / "team.png").write_bytes(b"png")
     args = argparse.Namespace(scenario="cliff-team", scenes=2, seed=0, steps=10, jobs=1, config="config/fsw.toml",
-                              out=tmp_path, report_only=True)
+                              out=tmp_path, report_only=True, results_name="team-mission")
     assert tm.run(args) == 0
     rows = (tmp_path / "team_mission.csv").read_text().splitlines()
     assert rows[1].startswith("0,1,3,2,2,") and rows[2].startswith("1,0,3,2,0,")  # seed, start usable, targets...
@@ -65,7 +65,7 @@ def test_the_recon_bots_own_safety_figures_are_in_the_table_and_an_edge_violatio
         (tmp_path / f"seed{seed}" / "summary.json").write_text(json.dumps(s))
         (tmp_path / f"seed{seed}" / "team.png").write_bytes(b"png")
     args = argparse.Namespace(scenario="cliff-team", scenes=3, seed=0, steps=10, jobs=1, config="config/fsw.toml",
-                              out=tmp_path, report_only=True)
+                              out=tmp_path, report_only=True, results_name="team-mission")
     assert tm.run(args) == 1
     out = capsys.readouterr()
     assert "FAILED: the RECON-bot had a wheel over the drop (641 frames) in seed(s) 1" in out.err
@@ -76,3 +76,25 @@ def test_the_recon_bots_own_safety_figures_are_in_the_table_and_an_edge_violatio
     (tmp_path / "seed1" / "summary.json").write_text(json.dumps(
         _summary(1, ["", "hazard"], []) | {"edge_violations": 0, "wheels_on_unknown_ground": 0, "map_rmse_m": 0.02}))
     assert tm.run(args) == 0
+
+
+def test_a_held_out_run_writes_its_own_results_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``--results-name`` writes ``NAME.md`` beside the others and leaves ``team-mission.md`` alone."""
+    monkeypatch.setenv("SAFER_RESULTS_DIR", str(tmp_path / "results"))
+    (tmp_path / "seed30").mkdir()
+    (tmp_path / "seed30" / "summary.json").write_text(json.dumps(_summary(1, ["", "hazard"], [])))
+    (tmp_path / "seed30" / "team.png").write_bytes(b"png")
+    args = argparse.Namespace(scenario="cliff-team", scenes=1, seed=30, steps=10, jobs=1, config="config/fsw.toml",
+                              out=tmp_path, report_only=True, results_name="team-mission-heldout")
+    assert tm.run(args) == 0
+    assert (tmp_path / "results" / "team-mission-heldout.md").is_file()
+    assert not (tmp_path / "results" / "team-mission.md").exists()
+
+
+@pytest.mark.parametrize("name", ["../elsewhere", "Team", ""])
+def test_a_results_name_that_is_no_file_name_exits_2(name: str, capsys: pytest.CaptureFixture[str]) -> None:
+    from hil_sim.cli import main
+
+    assert main(["experiment", "team-mission", "--results-name", name]) == 2
+    err = capsys.readouterr().err
+    assert "--results-name takes lower-case letters" in err and "Traceback" not in err

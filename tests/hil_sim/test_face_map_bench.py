@@ -14,6 +14,7 @@ from hil_sim.team.face_scene import FaceScene
     ["experiment", "face-map", "--jobs", "0"],
     ["experiment", "face-map", "--scenes", "1", "--scenario", "nowhere"],
     ["experiment", "face-map", "--results-name", "../elsewhere"],
+    ["experiment", "face-map", "--results-name", "Face"],  # upper case: no results file name
     ["experiment", "face-map", "--resolve-cells", "nan"],
     ["experiment", "face-map", "--resolve-cells", "-1"],
 ])

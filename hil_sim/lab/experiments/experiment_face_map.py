@@ -107,7 +107,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from fsw.framework.params import ConfigError
     from fsw.settings import load_settings
-    from hil_sim.lab.results import command_line, markdown_table, write_results
+    from hil_sim.lab.results import bad_results_name, command_line, markdown_table, write_results
     from hil_sim.world import ScenarioError, load_scenario
 
     me = "safer-hil experiment face-map"
@@ -117,8 +117,8 @@ def run(args: argparse.Namespace) -> int:
     if args.scenes < 1 or args.jobs < 1 or args.recon_views < 1 or args.cliff_views < 0:
         print(f"{me}: --scenes, --jobs and --recon-views must be >= 1, --cliff-views >= 0", file=sys.stderr)
         return 2
-    if not args.results_name.replace("-", "").replace("_", "").isalnum():
-        print(f"{me}: --results-name takes letters, digits, - and _, got {args.results_name!r}", file=sys.stderr)
+    if (bad := bad_results_name(args.results_name)) is not None:
+        print(f"{me}: {bad}", file=sys.stderr)
         return 2
     try:
         load_settings(args.config, check_calibration=False)

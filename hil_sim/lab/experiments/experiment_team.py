@@ -32,7 +32,6 @@ import argparse
 import csv
 import json
 import math
-import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -136,12 +135,12 @@ def run(args: argparse.Namespace) -> int:
 
     from fsw.framework.params import ConfigError
     from fsw.settings import load_settings
+    from hil_sim.lab.results import bad_results_name
     from hil_sim.world import ScenarioError, load_scenario
 
     me = "safer-hil experiment team"
-    if not re.fullmatch(r"[a-z0-9][a-z0-9_-]*", args.results_name):
-        print(f"{me}: --results-name takes lower-case letters, digits, - and _, got {args.results_name!r}",
-              file=sys.stderr)
+    if (bad := bad_results_name(args.results_name)) is not None:
+        print(f"{me}: {bad}", file=sys.stderr)
         return 2
     if args.rows is not None:
         args.out.mkdir(parents=True, exist_ok=True)

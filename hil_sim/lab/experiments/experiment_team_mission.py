@@ -73,6 +73,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", default=str(DEFAULT_CONFIG), help="the RECON-bot's flight configuration (TOML)")
     p.add_argument("--out", type=Path, default=Path("out/team-mission"), help="output directory")
     p.add_argument("--report-only", action="store_true", help="write the report from the missions stored in --out")
+    p.add_argument("--results-name", default="team-mission",
+                   help="results file docs/results/NAME.md (e.g. a held-out run on other seeds)")
 
 
 def scene(scenario: str, seed: int, steps: int, config: str, out: Path) -> dict[str, Any]:
@@ -174,10 +176,13 @@ def scene_row(s: dict[str, Any], seed: int) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from hil_sim.lab.results import command_line, write_results
+    from hil_sim.lab.results import bad_results_name, command_line, write_results
     from hil_sim.world import ScenarioError, load_scenario
 
     me = "safer-hil experiment team-mission"
+    if (bad := bad_results_name(args.results_name)) is not None:
+        print(f"{me}: {bad}", file=sys.stderr)
+        return 2
     if args.scenes < 1 or args.jobs < 1 or args.steps < 0:
         print(f"{me}: --scenes and --jobs must be >= 1, --steps >= 0", file=sys.stderr)
         return 2
@@ -288,7 +293,7 @@ def run(args: argparse.Namespace) -> int:
     )
     (args.out / "team_mission.md").write_text(f"# The team mission end to end\n\n{report}")
     best = max(rows, key=lambda r: (r["reached"], -r["seed"]))
-    write_results("team-mission", command_line("team-mission"), report,
+    write_results(args.results_name, command_line("team-mission"), report,
                   figures=[args.out / f"seed{best['seed']}" / "team.png"])
     print(report)
     over = [r["seed"] for r in rows if r["recon_edge_violations"] > 0]

@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import re
 import sys
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
@@ -79,7 +78,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hil_sim.lab.results import command_line, markdown_table, write_results
+    from hil_sim.lab.results import bad_results_name, command_line, markdown_table, write_results
     from hil_sim.world import ScenarioError, load_scenario
 
     me = "safer-hil experiment team-sensing"
@@ -89,9 +88,8 @@ def run(args: argparse.Namespace) -> int:
     if args.corridor_cap < args.cycles:
         print(f"{me}: --corridor-cap must be >= --cycles, got {args.corridor_cap} < {args.cycles}", file=sys.stderr)
         return 2
-    if not re.fullmatch(r"[a-z0-9][a-z0-9_-]*", args.results_name):
-        print(f"{me}: --results-name takes lower-case letters, digits, - and _, got {args.results_name!r}",
-              file=sys.stderr)
+    if (bad := bad_results_name(args.results_name)) is not None:
+        print(f"{me}: {bad}", file=sys.stderr)
         return 2
     try:
         if load_scenario(args.scenario, args.seed).team is None:
