@@ -206,16 +206,24 @@ def _cos_level(grad: NDArray[np.float64]) -> NDArray[np.intp]:
     return np.minimum(np.ceil(cos * FOOT_COS_LEVELS - 1e-9), FOOT_COS_LEVELS).astype(np.intp)
 
 
+def known_gradient_mean(z: F64, cell_m: float, k: int) -> tuple[F64, F64, F64]:
+    """The mean height gradient (``mx``, ``my``, per metre) over a ``k`` x ``k`` window round
+    each cell, of the central differences known cells give (none beside an unknown cell), and
+    the share ``n`` of the window that gave one (the means are 0 where it is 0)."""
+    gy, gx = np.gradient(z, cell_m)
+    ok = np.isfinite(gx) & np.isfinite(gy)
+    n = ndimage.uniform_filter(ok.astype(np.float64), k)
+    mx = ndimage.uniform_filter(np.where(ok, gx, 0.0), k) / np.maximum(n, 1e-9)
+    my = ndimage.uniform_filter(np.where(ok, gy, 0.0), k) / np.maximum(n, 1e-9)
+    return mx, my, n
+
+
 def slope_levels(zs: NDArray[np.float64], cell: float
                  ) -> tuple[NDArray[np.float64], NDArray[np.intp], NDArray[np.intp]]:
     """Each cell's slope from the known cells round it (3 x 3): the gradient's norm (inf with
     too few known cells), its cos in quarters rounded up (:func:`_cos_level`) and the dip's bin
     of ``FOOT_DIP_BINS`` over 180 deg."""
-    gy, gx = np.gradient(zs, cell)
-    ok = np.isfinite(gx) & np.isfinite(gy)
-    n = ndimage.uniform_filter(ok.astype(np.float64), 3)
-    mx = ndimage.uniform_filter(np.where(ok, gx, 0.0), 3) / np.maximum(n, 1e-9)
-    my = ndimage.uniform_filter(np.where(ok, gy, 0.0), 3) / np.maximum(n, 1e-9)
+    mx, my, n = known_gradient_mean(zs, cell, 3)
     local = np.where(n >= 5.0 / 9.0 - 1e-9, np.hypot(mx, my), np.inf)
     level = _cos_level(np.where(np.isfinite(local), local, 0.0))
     dip = np.mod(np.arctan2(my, mx), math.pi)
@@ -273,13 +281,8 @@ def footprint_slope(z: F64, cell_m: float, k: int) -> F64:
     (central differences; none beside an unknown cell), 90 (too steep) where it holds none.
     Unknown cells do not enter it (as in :func:`slope_levels`): filled with any height, a hole
     in the map would read as a cliff and the known ground round it as too steep to stand on."""
-    gy, gx = np.gradient(z, cell_m)
-    ok = np.isfinite(gx) & np.isfinite(gy)
-    w = ndimage.uniform_filter(ok.astype(np.float64), k)
-    mx = ndimage.uniform_filter(np.where(ok, gx, 0.0), k)
-    my = ndimage.uniform_filter(np.where(ok, gy, 0.0), k)
-    safe = np.where(w > 1e-9, w, 1.0)
-    return np.where(w > 1e-9, np.degrees(np.arctan(np.hypot(mx / safe, my / safe))), 90.0)
+    mx, my, w = known_gradient_mean(z, cell_m, k)
+    return np.where(w > 1e-9, np.degrees(np.arctan(np.hypot(mx, my))), 90.0)
 
 
 def ground_layers(z: ZMap, grid: MapGrid, cfg: ClimberConfig, unseen: NDArray[np.bool_] | None = None) -> Ground:
