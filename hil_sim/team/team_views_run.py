@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -477,12 +478,19 @@ class TeamViewsRun:
         seen = np.zeros(len(pts), bool)
         agents = [self._recon()] + ([self._cliff()] if self.team else [])
         for a in agents:
-            for c in a.centres:
-                r = np.linalg.norm(pts - np.asarray(c.xyz, float), axis=1)
-                k = np.nonzero(~seen & (r >= a.camera.min_range_m) & (r <= a.camera.max_range_m))[0]
-                if k.size:
-                    seen[k[self._line_of_sight(np.asarray(c.xyz, float), pts[k])]] = True
+            seen |= self._seen_from(pts, a.centres, a.camera)
         return {"corridor_left_cells": int(len(pts)), "corridor_left_seeable": int(seen.sum())}
+
+    def _seen_from(self, pts: F64, centres: Sequence[ViewCentre], cam: CameraConfig) -> B:
+        """Which of ``pts`` some of the camera ``centres`` has in range and in line of sight on
+        the truth (any pointing)."""
+        seen = np.zeros(len(pts), bool)
+        for c in centres:
+            r = np.linalg.norm(pts - np.asarray(c.xyz, float), axis=1)
+            k = np.nonzero(~seen & (r >= cam.min_range_m) & (r <= cam.max_range_m))[0]
+            if k.size:
+                seen[k[self._line_of_sight(np.asarray(c.xyz, float), pts[k])]] = True
+        return seen
 
     def recon_reach_left(self) -> int:
         """The ground left within the RECON-bot's reach: the unmapped cells stereo could map (on
@@ -493,14 +501,8 @@ class TeamViewsRun:
         g, cam = self.grid, self.camera
         iy, ix = np.nonzero(~self.map.mapped & np.isfinite(self.truth) & self.textured)
         pts = np.column_stack([g.x0 + (ix + 0.5) * g.cell, g.y0 + (iy + 0.5) * g.cell, self.truth[iy, ix]])
-        seen = np.zeros(len(pts), bool)
         xs = np.arange(g.x0, g.x0 + g.nx * g.cell, self.nbv.station_spacing_m)
-        for c in self._recon_centres(xs):
-            r = np.linalg.norm(pts - np.asarray(c.xyz, float), axis=1)
-            k = np.nonzero(~seen & (r >= cam.min_range_m) & (r <= cam.max_range_m))[0]
-            if k.size:
-                seen[k[self._line_of_sight(np.asarray(c.xyz, float), pts[k])]] = True
-        return int(seen.sum())
+        return int(self._seen_from(pts, self._recon_centres(xs), cam).sum())
 
     def cycles_to_corridor(self, frac: float, cap: int) -> int | None:
         """The first cycle after which the corridor is mapped to ``frac``: the cycles run so far,
