@@ -120,6 +120,13 @@ class RoverCan:
             m = self._codec[f"{a}_CMD"]
             sig = "VelocityCmd" if a.startswith("DRIVE") else "PositionCmd"
             self._command_packers[a] = (m.frame_id, m.packer((sig, "Enable", "ClearFaults", "Counter")))
+        # frame id and a STATUS's packer (position, velocity, current, Enabled, Counter, faults...):
+        # the bench's twelve controllers send one each a frame
+        self._status_packers = {}
+        for a in AXES:
+            m = self._codec[f"{a}_STATUS"]
+            self._status_packers[a] = (m.frame_id, m.packer(
+                ("Position", "Velocity", "Current", "Enabled", "Counter", *FAULT_BITS)))
         for axis in AXES:
             for kind in ("CMD", "STATUS", "HEARTBEAT"):
                 m = self._codec[f"{axis}_{kind}"]
@@ -170,14 +177,11 @@ class RoverCan:
         faults: set[str] | frozenset[str],
         counter: int,
     ) -> tuple[int, bytes]:
-        sig: dict[str, Any] = {
-            "Position": wrap_position(position_rad),
-            "Velocity": max(-32.768, min(32.767, velocity_radps)),
-            "Current": max(-12.8, min(12.7, current_a)),
-            "Enabled": int(enabled),
-        }
-        sig.update({b: int(b in faults) for b in FAULT_BITS})
-        return self._protected(f"{axis}_STATUS", sig, counter)
+        frame_id, pack = self._status_packers[axis]
+        data = pack(wrap_position(position_rad), max(-32.768, min(32.767, velocity_radps)),
+                    max(-12.8, min(12.7, current_a)), int(enabled), counter & 0xF,
+                    *[int(b in faults) for b in FAULT_BITS])
+        return frame_id, self.e2e[frame_id].seal(data, counter >> 4)
 
     def encode_heartbeat(self, node: str, state: int, counter: int) -> tuple[int, bytes]:
         return self._protected("FSW_HEARTBEAT" if node == "FSW" else f"{node}_HEARTBEAT", {"State": state}, counter)
