@@ -81,6 +81,8 @@ class CliffbotRig:
         if st is None:
             raise ValueError("the Cliff-bot's start is not on known ground")
         self.state: TetherState = st
+        # the last settle's (lengths, pose) and its answer (_settle)
+        self._last_settle: tuple[tuple[tuple[float, float], bytes], tuple[F64, TetherState] | None] | None = None
         w = wcfg or WinchConfig(spool_m=tcfg.spool_m)
         self.winches = {name: WinchNode(name, self.codec, w, st.lengths_m[i], self.faults)
                         for i, name in enumerate(WINCHES)}
@@ -175,7 +177,7 @@ class CliffbotRig:
         lengths = (self.winches["WINCH_A"].paid_out_m, self.winches["WINCH_B"].paid_out_m)
         if max(lengths) > self.tcfg.spool_m:
             self.violations["spool"] += 1
-        got = settle(self.z, self.grid, self.anchors, lengths, self.xy, self.tcfg)
+        got = self._settle(lengths)
         if got is None:
             self.violations["slack"] += 1
         else:
@@ -192,6 +194,17 @@ class CliffbotRig:
                 self.wheel_rad = [w + sign * along / r for w in self.wheel_rad]
             self._set_tensions()
             self._judge()
+
+    def _settle(self, lengths: tuple[float, float]) -> tuple[F64, TetherState] | None:
+        """Where the tethers at ``lengths`` hold the Cliff-bot, from its pose (``settle``). On
+        the rig's fixed ground, anchors and tethers that is a function of the lengths and the
+        pose alone, and a Cliff-bot at rest (waiting for the map, sensing, planning: most of
+        its frames) asks the same question every frame: the last answer is given again."""
+        key = (lengths, self.xy.tobytes())
+        if self._last_settle is None or self._last_settle[0] != key:
+            self._last_settle = (key, settle(self.z, self.grid, self.anchors, lengths, self.xy, self.tcfg))
+        got = self._last_settle[1]
+        return None if got is None else (got[0].copy(), got[1])
 
     def _judge(self) -> None:
         found, cell = judge_pose(self.state, self.xy, self.truth_ground, self.grid, self.tcfg, self.ccfg)

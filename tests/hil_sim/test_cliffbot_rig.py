@@ -71,3 +71,35 @@ def test_bad_wheel_frames_are_counted(world: Any) -> None:
     rig.to_rig([(fid, data[:-1] + bytes([data[-1] ^ 0xFF]))], 0.1)  # a bad checksum: refused by the sequence check
     assert rig.rx_bad == 1 and rig.wheel_cmd == (0.0, 0.0) and not rig.wheels_enabled
     assert np.isfinite(rig.xy).all()
+
+
+def test_a_cliffbot_at_rest_is_settled_once_where_settle_puts_it(world: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Winches holding still ask ``settle`` the same question (lengths, pose) every frame: the rig
+    asks it once and keeps the answer; the pose and the tethers are still ``settle``'s, and new
+    lengths are settled afresh."""
+    import hil_sim.team.cliffbot_rig as rig_module
+
+    real = rig_module.settle
+    calls: list[tuple[float, float]] = []
+
+    def counted(*args: Any, **kw: Any) -> Any:
+        calls.append(args[3])
+        return real(*args, **kw)
+
+    monkeypatch.setattr(rig_module, "settle", counted)
+    rig = CliffbotRig(world, GRID, TetherConfig(), ClimberConfig())
+    codec = TeamCan()
+    now = _drive(rig, codec, 0.1, 1.0)
+    assert len(calls) == 10  # paying out: new lengths every frame
+    now = _drive(rig, codec, 0.0, 1.0, now)  # the winches stop
+    asked, xy = len(calls), rig.xy.copy()
+    now = _drive(rig, codec, 0.0, 2.0, now)
+    assert len(calls) == asked and np.array_equal(rig.xy, xy)
+    lengths = (rig.winches["WINCH_A"].paid_out_m, rig.winches["WINCH_B"].paid_out_m)
+    want = real(rig.z, rig.grid, rig.anchors, lengths, rig.xy, rig.tcfg)
+    assert want is not None and np.array_equal(want[0], rig.xy)
+    assert want[1].lengths_m == rig.state.lengths_m and want[1].statics == rig.state.statics
+    rig.winches["WINCH_A"].paid_out_m += 0.05
+    _drive(rig, codec, 0.0, 0.1, now)
+    assert len(calls) == asked + 1 and calls[-1][0] == lengths[0] + 0.05
+    assert rig.state.lengths_m[0] == pytest.approx(lengths[0] + 0.05, abs=2e-3)
