@@ -2,9 +2,10 @@
 
 :class:`FaceScene` places the team (RECON-bot mast poses behind the edge, the Cliff-bot on the
 face on its two tethers), renders each view with the team in the picture, runs it through the
-sensing pipeline with the team mask at the estimated poses and fuses it into the gravity-only
-grid, the face map with its gravity grid, and the one-agent face maps; :meth:`FaceScene.measure`
-returns the figures (``hil_sim.lab.experiments.experiment_face_map``).
+sensing pipeline on its agent's flight settings (``hil_sim.team.agent_fusion``) with the team
+mask at the estimated poses and fuses it into the gravity-only grid, the face map with its
+gravity grid, and the one-agent face maps; :meth:`FaceScene.measure` returns the figures
+(``hil_sim.lab.experiments.experiment_face_map``).
 """
 
 from __future__ import annotations

@@ -5,7 +5,8 @@ A cycle: the agents' candidate views are rated on the one shared map and chosen 
 team planner (``fsw.core.planning.team_views``: sequential greedy, the RECON-bot favouring the
 Cliff-bot's corridor, the Cliff-bot paying tether motion); each chosen view is then *sensed* on
 the TRUE ground and fused into the shared map and into that agent's own map with the flight's
-fusion (``ElevationMap.merge_parts_steps``, §1; the shared map a ``TeamElevation``, §8: of two
+fusion (``ElevationMap.merge_parts_steps``, §1, with that agent's flight fusion settings from its
+camera centre: ``hil_sim.team.agent_fusion``; the shared map a ``TeamElevation``, §8: of two
 inconsistent heights of a cell a tighter one above displaces the other).
 
 The sensing is a model, not a rendering (so 30 scenes x two runs fit in minutes): a cell is
