@@ -2,9 +2,10 @@
 
 :class:`FaceScene` places the team (RECON-bot mast poses behind the edge, the Cliff-bot on the
 face on its two tethers), renders each view with the team in the picture, runs it through the
-sensing pipeline with the team mask at the estimated poses and fuses it into the gravity-only
-grid, the face map with its gravity grid, and the one-agent face maps; :meth:`FaceScene.measure`
-returns the figures (``hil_sim.lab.experiments.experiment_face_map``).
+sensing pipeline on its agent's flight settings (``hil_sim.team.agent_fusion``) with the team
+mask at the estimated poses and fuses it into the gravity-only grid, the face map with its
+gravity grid, and the one-agent face maps; :meth:`FaceScene.measure` returns the figures
+(``hil_sim.lab.experiments.experiment_face_map``).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from scipy import ndimage
 from fsw.core.geometry import CameraPose, MapGrid, camera_pose_from_rover, point_mast
 from fsw.core.map.body_mask import BodyBox, TeamGeometry, TetherLine, anchorbot_box
 from fsw.core.map.elevation_map import ElevationMap
-from fsw.core.map.face_map import FaceMap, FaceMapConfig, face_band, run_merge, split_parts
+from fsw.core.map.face_map import FaceMap, FaceMapConfig, face_band, split_parts
 from fsw.core.map.face_plane import fit_face_plane
 from fsw.core.pipeline import RegisteredPose, SensingPipeline, ViewPart
 from fsw.core.registration.registration import Registration
@@ -28,6 +29,7 @@ from fsw.core.steps import run_to_end
 from fsw.core.stereo.stereo import StereoPoints
 from fsw.core.team.tether import TetherConfig, anchor_points, surface_normal, tether_state
 from fsw.tasks.perception import SITE_MASK
+from hil_sim.team.agent_fusion import agent_settings, merge_as
 from hil_sim.team.face_eval import (
     equal_memory_cell,
     face_figures,
@@ -38,7 +40,6 @@ from hil_sim.team.face_eval import (
 )
 from hil_sim.team.team_sensing import (
     ANCHOR_HALF_M,
-    CLIFFBOT_CAMERA,
     RECON_HALF_M,
     TETHER_RADIUS_M,
     TeamPose,
@@ -117,7 +118,9 @@ class FaceScene:
         off = dataclasses.replace(cfg.registration, enabled=False)
         self.cfg = dataclasses.replace(cfg, camera=dataclasses.replace(cfg.camera, calibration_file=""),
                                        registration=off)
-        self.cfg_cliff = dataclasses.replace(self.cfg, camera=CLIFFBOT_CAMERA)
+        # each agent's views through its own flight pipeline's settings (the Cliff-bot's camera,
+        # disparity search and fusion: fsw.tasks.cliffbot.sensing.CliffbotPipelineSettings)
+        self.settings = agent_settings(self.cfg)
         sc = self.world.config
         assert sc is not None
         self.grid = MapGrid.from_config(sc.map)
@@ -196,7 +199,7 @@ class FaceScene:
     def _view(self, agent: str, pose: CameraPose, cov: F64, team: TeamPose, body: Any, known: TeamGeometry) -> None:
         from hil_sim.render import StereoRenderer
 
-        cfg = self.cfg if agent == "recon" else self.cfg_cliff
+        cfg = self.settings[agent]
         w = dataclasses.replace(self.world, cliffbot=body)
         rend = StereoRenderer(w, cfg.camera, self.world.noise_sigma, seed=int(self.rng.integers(1 << 30)))
         left, right, quad, terrain = rend.render_labelled(pose, team_quads(team, pose.t))
@@ -220,7 +223,7 @@ class FaceScene:
                 self.team_cells |= set(zip(iy[inside].tolist(), ix[inside].tolist(), strict=True))
         parts = run_to_end(pipe.world_parts_steps(placed, pts))
         self.views += 1
-        run_merge(self.gravity, parts, None)
+        merge_as(self.gravity, parts, cfg.fusion, est.t)
         if self.face is None:
             self.pending.append((agent, parts, est.t, pipe.matcher.window_rad))
             return
@@ -250,9 +253,10 @@ class FaceScene:
         assert self.face is not None
         to_face, to_grav = split_parts(parts, self.face)
         before = int(self.face.map.mapped.sum() + self.split_gravity.mapped.sum())
-        reach = (self.cfg if agent == "recon" else self.cfg_cliff).camera.max_range_m
+        settings = self.settings[agent]
+        reach = settings.camera.max_range_m
         self.face.merge_parts(to_face, eye=eye, rays=parts, window_rad=window_rad, max_range_m=reach)
-        run_merge(self.split_gravity, to_grav, None)
+        merge_as(self.split_gravity, to_grav, settings.fusion, eye)
         self.by_agent[agent].merge_parts(to_face, eye=eye, rays=parts, window_rad=window_rad, max_range_m=reach)
         self.cells_by_agent[agent] += int(self.face.map.mapped.sum() + self.split_gravity.mapped.sum()) - before
 

@@ -9,10 +9,15 @@ records what the views gave the detector there:
 
 * ``unobservable``: no true sight line shows the cell as two surfaces
   (``face_eval.overhang_shown``);
-* ``facing_unresolved``: a view's true sight lines end in the cell on ground that faces the face
-  (``face_eval.facing_seen``) and the face map's facing test counted no point there: the view
-  showed the second surface, its stereo points did not resolve that ground's plane (a rock's
-  side a few centimetres across, seen with centimetres of depth noise);
+* ``facing_far``: a view's true sight lines end in the cell on ground that faces the face
+  (``face_eval.facing_seen``), the face map's facing test counted no point there, and the only
+  views that showed that ground are the RECON-bot's, from the plateau metres away: a rock's side a
+  few centimetres across under centimetres of depth noise along the sight line has no plane the
+  view's points resolve (the fitted normal is uncertain by tens of degrees and the test's cone at
+  ``facing_sigma`` refuses it; within that noise the fitted normal alone faces the face as often
+  on a patch that does not);
+* ``facing_unresolved``: as ``facing_far``, but a Cliff-bot view showed it too, and its stereo
+  points did not resolve that ground's plane;
 * ``no_inner``: no measured point lies near the inner surface (the first crossing, within half
   the gap) and no facing point or ray under it was counted;
 * ``both_one_view``: one view has points near both surfaces in the cell (the within-view test's
@@ -47,16 +52,22 @@ from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]
 FRAME_OFF_DEG = 20.0  # a fitted face normal farther than this from the scenario's face: not the face
-REASONS = ("unobservable", "facing_unresolved", "no_inner", "both_one_view", "both_across", "facing_few", "air_few",
-           "neighbour_flagged", "handed_over", "spread")
+REASONS = ("unobservable", "facing_far", "facing_unresolved", "no_inner", "both_one_view", "both_across",
+           "facing_few", "air_few", "neighbour_flagged", "handed_over", "spread")
 
 
 class WhyScene(FaceScene):
-    """A :class:`FaceScene` that keeps each fused view's points in the face frame."""
+    """A :class:`FaceScene` that keeps each fused view's points in the face frame, and which
+    agent took each view."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self.kept: list[tuple[F64, F64, F64]] = []  # per view: face q (N, 3), var_w (N,), routed to face (N,)
+        self.agents: list[str] = []  # per view (as ``true_rays``): the agent that took it
+
+    def _view(self, agent: str, *args: Any) -> None:
+        self.agents.append(agent)
+        super()._view(agent, *args)
 
     def _fuse(self, agent: str, parts: Any, eye: F64, window_rad: float) -> None:
         assert self.face is not None
@@ -68,6 +79,15 @@ class WhyScene(FaceScene):
             to_face, _ = self.face.routes(xyz)
             self.kept.append((q, var_w, to_face))
         super()._fuse(agent, parts, eye, window_rad)
+
+
+def facing_seen_by(world: World, face: FaceMap, rays: list[tuple[F64, F64]], agents: list[str]
+                   ) -> dict[str, NDArray[np.bool_]]:
+    """Per agent (``recon``, ``cliffbot``), per face cell (flat), whether one of its views' true
+    sight lines ends in the cell on ground that faces the face (``face_eval.facing_seen`` on that
+    agent's views; ``agents``: the agent of each of ``rays``)."""
+    return {a: facing_seen(world, face, [r for r, who in zip(rays, agents, strict=True) if who == a])
+            for a in ("recon", "cliffbot")}
 
 
 def first_crossing(world: World, face: FaceMap, cells: NDArray[np.intp], reach_m: float = 0.25,
@@ -144,7 +164,10 @@ def miss_reasons(scene: WhyScene) -> dict[str, Any]:
     air = face.air.reshape(-1)[mc]
     has: dict[str, NDArray[np.bool_]] = {}
     has["unobservable"] = ~shown[miss]
-    has["facing_unresolved"] = np.asarray(facing_seen(scene.world, face, scene.true_rays)[mc] & (facing == 0), bool)
+    seen = facing_seen_by(scene.world, face, scene.true_rays, scene.agents)
+    unresolved = (seen["recon"] | seen["cliffbot"])[mc] & (facing == 0)
+    has["facing_far"] = unresolved & ~seen["cliffbot"][mc]
+    has["facing_unresolved"] = unresolved & seen["cliffbot"][mc]
     has["no_inner"] = ~near_in.any(axis=0) & (facing == 0) & (air == 0)
     has["both_one_view"] = (near_in & near_out).any(axis=0)
     has["both_across"] = near_in.any(axis=0) & near_out.any(axis=0) & ~has["both_one_view"]

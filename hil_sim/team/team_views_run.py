@@ -5,7 +5,8 @@ A cycle: the agents' candidate views are rated on the one shared map and chosen 
 team planner (``fsw.core.planning.team_views``: sequential greedy, the RECON-bot favouring the
 Cliff-bot's corridor, the Cliff-bot paying tether motion); each chosen view is then *sensed* on
 the TRUE ground and fused into the shared map and into that agent's own map with the flight's
-fusion (``ElevationMap.merge_parts_steps``, §1; the shared map a ``TeamElevation``, §8: of two
+fusion (``ElevationMap.merge_parts_steps``, §1, with that agent's flight fusion settings from its
+camera centre: ``hil_sim.team.agent_fusion``; the shared map a ``TeamElevation``, §8: of two
 inconsistent heights of a cell a tighter one above displaces the other).
 
 The sensing is a model, not a rendering (so 30 scenes x two runs fit in minutes): a cell is
@@ -58,7 +59,6 @@ from fsw.core.map.face_map import (
     FaceMap,
     FaceMapConfig,
     face_band,
-    run_merge,
     split_parts,
 )
 from fsw.core.map.face_plane import fit_face_plane
@@ -84,6 +84,7 @@ from fsw.core.planning.visibility import in_view
 from fsw.core.stereo.occlusion import LipGuard
 from fsw.core.team.face_planner import ClimberConfig, plan_targets
 from fsw.core.team.tether import TetherConfig, anchor_points, surface_normal, tether_states
+from hil_sim.team.agent_fusion import agent_settings, merge_as
 from hil_sim.team.face_eval import equal_memory_cell
 from hil_sim.team.team_figures import TeamFigures
 from hil_sim.team.team_sensing import CLIFFBOT_CAMERA
@@ -126,7 +127,8 @@ class TeamViewsRun:
         self.world, self.seed, self.team = world, seed, team
         self.rng = np.random.default_rng([seed, 2806, int(team)])
         cfg = load_settings(check_calibration=False)
-        self.fusion = cfg.fusion
+        self.fusion = cfg.fusion  # the shared maps' own; each view is fused with its agent's (agent_settings)
+        self.agent_fusion = {a: s.fusion for a, s in agent_settings(cfg).items()}
         self.camera: CameraConfig = dataclasses.replace(cfg.camera, calibration_file="")
         self.mast = cfg.mast
         self.nbv = nbv or dataclasses.replace(cfg.nbv, station_spacing_m=0.5, coarse_cell_m=0.0)
@@ -353,27 +355,30 @@ class TeamViewsRun:
         # for a view rated on the face)
         expect = v.p_visible if v.p_visible is not None else predicted_visibility(self.map, pose, cam,
                                                                                    self.nbv.visibility)
-        self._merge(self.map, "team", lips, xyz, cov, expect)
+        self._merge(self.map, "team", v.agent, pose.t, lips, xyz, cov, expect)
         hy, hx, inside = g.cell_index(xyz[:, 0], xyz[:, 1])
         hit = np.zeros(g.shape, bool)
         hit[hy[inside], hx[inside]] = True
         self.interest.record(v.agent, np.clip(expect, 0.0, 1.0), hit)  # this agent's misses only (§8.2)
-        self._merge(self.by_agent[v.agent], v.agent, lips, xyz, cov, None)
+        self._merge(self.by_agent[v.agent], v.agent, v.agent, pose.t, lips, xyz, cov, None)
         if xyz.size:
             self._to_face([(xyz, cov, None)])
         return out
 
-    def _merge(self, emap: ElevationMap, owner: str, lips: LipGuard, xyz: F64, cov: F64,
+    def _merge(self, emap: ElevationMap, owner: str, agent: str, eye: F64, lips: LipGuard, xyz: F64, cov: F64,
                p_visible: F64 | B | None) -> None:
-        """A view's points into one gravity grid, as the flight's pipeline fuses them
-        (``SensingPipeline.remember_lips`` and ``fuse_steps``): the view's lips join the lips that
-        map knows (the harness's poses are exact: no pose variance), and the points under them stay
+        """A view of ``agent`` (camera centre ``eye``) into one gravity grid, as that agent's flight
+        pipeline fuses it (``SensingPipeline.remember_lips`` and ``fuse_steps``, with the agent's
+        fusion settings: ``hil_sim.team.agent_fusion``): the view's lips join the lips that map
+        knows (the harness's poses are exact: no pose variance), and the points under them stay
         out of it."""
+        fusion = self.agent_fusion[agent]
         known = self.lips[owner]
         known.add(lips.near, lips.toward, np.zeros(lips.near.shape[0]))
         parts = [(xyz.copy(), cov.copy(), None)]
-        guard = known.guard(self.fusion.lip_min_drop_m)
-        run_merge(emap, parts if guard is None else guard.gravity_parts(parts, self.fusion.lip_guard_sigma), p_visible)
+        guard = known.guard(fusion.lip_min_drop_m)
+        merge_as(emap, parts if guard is None else guard.gravity_parts(parts, fusion.lip_guard_sigma), fusion, eye,
+                 p_visible)
 
     def _lips(self, pose: CameraPose, cam: CameraConfig, pts: F64, step_m: float = 0.02,
               tol_m: float = 0.02) -> tuple[F64, F64]:

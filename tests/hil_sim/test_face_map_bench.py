@@ -379,3 +379,72 @@ def test_the_true_face_plane_is_the_whole_faces() -> None:
     assert math.degrees(math.acos(plain[2])) == pytest.approx(70.0, abs=1.0)
     assert plain[1] < -0.9  # falling toward -y
     assert math.degrees(math.acos(ledged[2])) < 67.0
+
+
+
+
+def test_the_facing_test_takes_facing_ground_seen_close_and_refuses_it_seen_far() -> None:
+    """The facing test on a patch 5 cm across facing the face (its normal 45 deg into it, up the
+    dip), seen from up the dip: with 2 mm of depth noise (a view at arm's length) it counts the
+    patch's points, with 4 cm (the RECON-bot's from the plateau, metres away) none: the plane's
+    normal is then uncertain by tens of degrees (the missed cells' ``facing_far``). A patch facing
+    out of the face is counted at neither."""
+    import numpy as np
+
+    from fsw.core.geometry import MapGrid
+    from fsw.core.map.face_map import FaceMapConfig
+    from fsw.core.map.overhang import Overhangs
+
+    cfg = FaceMapConfig(cell_m=0.06)
+    g = MapGrid(-0.12, -0.12, 0.06, 4, 4)
+    iy, ix, _ = g.cell_index(np.array([0.0]), np.array([0.0]))
+    cell = int(iy[0]) * g.nx + int(ix[0])
+    rng = np.random.default_rng(3)
+    eye = np.array([0.0, 1.5, 0.1])  # face frame: up the dip, just out of the face
+    ab = rng.uniform(-0.025, 0.025, (400, 2))
+    for n_w, facing in ((-0.71, True), (0.71, False)):
+        n = np.array([0.0, 0.71, n_w])
+        n /= np.linalg.norm(n)
+        e1 = np.array([1.0, 0.0, 0.0])
+        e2 = np.cross(n, e1)
+        clean = np.array([0.0, 0.0, 0.3]) + ab[:, :1] * e1 + ab[:, 1:] * e2
+        d = eye - clean
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        counts = {}
+        for sd in (0.04, 0.002):
+            noise = sd**2 * d[:, :, None] * d[:, None, :] + 0.001**2 * np.eye(3)[None]
+            q = clean + d * rng.normal(0.0, sd, (len(clean), 1)) + rng.normal(0.0, 0.001, clean.shape)
+            jy, jx, _ = g.cell_index(q[:, 0], q[:, 1])
+            hits, _ = Overhangs(g.shape).facing_the_face(g, cfg, eye, q, noise)
+            counts[sd] = int((hits & (jy * g.nx + jx == cell)).sum())
+        assert counts[0.04] == 0
+        assert (counts[0.002] >= cfg.facing_min_points) if facing else (counts[0.002] == 0)
+
+
+def test_the_misses_say_which_agent_showed_the_facing_ground() -> None:
+    """``facing_seen_by``: the ledge's facing step seen by the RECON-bot's view only is the
+    RECON-bot's, not the Cliff-bot's (whose view sees plain face)."""
+    import math
+
+    import numpy as np
+
+    from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig
+    from hil_sim.team.overhang_why import facing_seen_by
+
+    a = math.radians(70.0)
+    frame = FaceFrame.from_normal(np.zeros(3), np.array([0.0, -math.sin(a), math.cos(a)]))
+    face = FaceMap(frame, (-0.05, 0.15), (-0.05, 0.15), FaceMapConfig(cell_m=0.1, overhang_gap_m=0.1))
+
+    class Ledge:
+        def ground_at(self, x: object, y: object) -> object:
+            yy = np.asarray(y, float)
+            block = (yy >= -0.35 * math.sin(a)) & (yy <= -0.15 * math.sin(a))
+            return math.tan(a) * yy + np.where(block, 0.5, 0.0) + 0.0 * np.asarray(x, float)
+
+    step = frame.to_world(np.array([[0.0, 0.0, 0.15]]))  # on the block's inner side
+    outer = frame.to_world(np.array([[0.0, 0.0, 0.35], [0.0, 0.0, 2.0]]))
+    rays = [(step[0] + np.array([0.0, 1.0, 0.3]), step), (outer[1], outer[:1])]
+    seen = facing_seen_by(Ledge(), face, rays, ["recon", "cliffbot"])  # type: ignore[arg-type]
+    assert seen["recon"].tolist() == [True, False, False, False] and not seen["cliffbot"].any()
+    seen = facing_seen_by(Ledge(), face, rays[::-1], ["recon", "cliffbot"])  # type: ignore[arg-type]
+    assert seen["cliffbot"].tolist() == [True, False, False, False] and not seen["recon"].any()

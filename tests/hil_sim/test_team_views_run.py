@@ -190,7 +190,8 @@ def test_the_harness_finds_a_views_lips_as_its_stereo_would_and_keeps_the_points
     emap = ElevationMap(g, run.fusion)
     lip = above.near[0]
     point = np.array([[lip[0], lip[1], lip[2] - 1.0], [lip[0] + 1.0, lip[1] + 1.0, lip[2] - 1.0]])
-    run._merge(emap, "team", above, point, np.tile(np.eye(3) * 1e-4, (2, 1, 1)), None)
+    eye = np.array([2.8, -0.9, 1.5])
+    run._merge(emap, "team", "recon", eye, above, point, np.tile(np.eye(3) * 1e-4, (2, 1, 1)), None)
     assert emap.n.sum() == 1 and not emap.mapped[g.cell_index(point[:1, 0], point[:1, 1])[:2]][0]
 
 

@@ -18,7 +18,8 @@ height per cell with variance, count, interest, misses) in the face's own frame:
   ``-slab_in_m <= w <= slab_out_m`` (rocks stand out of a face; behind it, within half a metre,
   lies only the plateau beyond the edge); otherwise to the gravity grid. In the ``seam_m`` wide
   strips at both ends of the band a point goes to both grids, so each side of the seam is
-  mapped up to it. A gravity cell is *handed to the face*
+  mapped up to it. A view that sees a cell's column mostly outside the slab leaves the cell to
+  other views (:meth:`FaceMap.beyond_slab`). A gravity cell is *handed to the face*
   when the fitted plane over its centre lies inside the band minus the seams
   (:meth:`FaceMap.face_owned`); a query at ``(x, y)`` is answered by the face map there
   (:meth:`FaceMap.surface_z`, the vertical line intersected with the face map's surface) and by
@@ -223,6 +224,7 @@ class FaceMergeStats:
     air_new: int = 0  # of those, the cells flagged by free space (rays under the surface, a view from below)
     facing_new: int = 0  # of those, the cells flagged by a surface that faces the face
     grazing: int = 0  # points not fused: their matching window spans more than resolve_cells cells
+    beyond_slab: int = 0  # points not fused: the view sees their cell's column mostly outside the slab
 
 
 class FaceMap:
@@ -350,6 +352,12 @@ class FaceMap:
             [c for c in commons if c is not None])
         q = self.frame.to_face(xyz)
         cov_f = self.frame.cov_to_face(cov)
+        beyond = 0
+        if rays is not None:
+            cut = self.beyond_slab(rays)[self._flat_cells(q)]
+            beyond = int(cut.sum())
+            xyz, cov, q, cov_f = xyz[~cut], cov[~cut], q[~cut], cov_f[~cut]
+            common = None if common is None else common[~cut]
         keep, flagged, n_second = self.overhangs.two_surfaces(self.map, self.cfg.overhang_gap_m, q,
                                                               cov_f[:, 2, 2])
         facing_new = 0
@@ -385,7 +393,34 @@ class FaceMap:
         if eye is not None:
             air_new = self.carve(eye, parts if rays is None else rays)
             facing_new += self.overhangs.beside_flags(self.cfg)
-        return FaceMergeStats(stats, flagged + air_new + facing_new, n_second, air_new, facing_new, grazing)
+        return FaceMergeStats(stats, flagged + air_new + facing_new, n_second, air_new, facing_new, grazing, beyond)
+
+    def _flat_cells(self, q: F64) -> NDArray[np.intp]:
+        """The flat cell of each face point ``q`` (N, 3), ``-1`` off the grid (or not finite)."""
+        g = self.map.grid
+        with np.errstate(invalid="ignore"):
+            iy, ix, inside = g.cell_index(q[:, 0], q[:, 1])
+        return np.where(inside & np.isfinite(q[:, 2]), iy * g.nx + ix, -1).astype(np.intp)
+
+    def beyond_slab(self, rays: list[ViewPart]) -> NDArray[np.bool_]:
+        """Per flat cell, plus one last entry for points off the grid (always False), whether the
+        view (all its points, ``rays``) sees the cell's column mostly outside the slab: more of its
+        points over the cell lie behind ``-slab_in_m`` or out beyond ``slab_out_m`` than within
+        it. Its points inside the slab there are the tail of its noise, or a sliver of something
+        else, not the cell's surface: the surface lies where the hand-over sends it to the gravity
+        grid (a plane fitted across a face's ledges stands off the true face by decimetres near
+        the band's ends), and the face map leaves the cell to other views."""
+        g = self.map.grid
+        size = g.nx * g.ny
+        xyz = np.concatenate([p[0] for p in rays]) if rays else np.zeros((0, 3))
+        q = self.frame.to_face(xyz)
+        cell = self._flat_cells(q)
+        on = cell >= 0
+        with np.errstate(invalid="ignore"):
+            inside = (q[on, 2] >= -self.cfg.slab_in_m) & (q[on, 2] <= self.cfg.slab_out_m)
+        n_in = np.bincount(cell[on][inside], minlength=size)
+        n_out = np.bincount(cell[on][~inside], minlength=size)
+        return np.append(n_out > n_in, False)
 
     def carve(self, eye: F64, parts: list[ViewPart]) -> int:
         """The free-space tests of one view (module docstring), after its merge: the rays from the

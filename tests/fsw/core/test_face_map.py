@@ -225,3 +225,28 @@ def test_inconsistent_views_keep_the_better_supported_surface() -> None:
             face.merge_parts([(_points_on(face, u, v, np.full(30, w)), cov, None)])
         assert face.map.z[0, 0] == pytest.approx(0.0, abs=1e-6)
         assert face.map.var[0, 0] < 1e-4
+
+
+def test_a_column_a_view_sees_mostly_beyond_the_slab_is_left_to_other_views() -> None:
+    """Where the fitted plane stands off the true ground by more than the slab (the ground 0.6 m
+    behind it), a view's points over the cell fall mostly behind the slab and go to the gravity
+    grid; the few its noise carries into the slab are not the cell's surface and are not fused
+    (``FaceMergeStats.beyond_slab``). A cell whose ground lies in the slab keeps every point,
+    and without the view's whole points (``rays``) nothing is held back."""
+    rng = np.random.default_rng(4)
+    face = FaceMap(_face_frame(), (0.0, 0.2), (0.0, 0.1), FaceMapConfig(cell_m=0.1))
+    k = 200
+    u = np.concatenate([rng.uniform(0.0, 0.1, k), rng.uniform(0.1, 0.2, k)])
+    v = rng.uniform(0.0, 0.1, 2 * k)
+    w = np.concatenate([np.full(k, -0.6), np.full(k, 0.0)]) + rng.normal(0.0, 0.05, 2 * k)
+    xyz = _points_on(face, u, v, w)
+    cov = np.tile(np.eye(3)[None] * 0.05**2, (2 * k, 1, 1))
+    view = [(xyz, cov, None)]
+    to_face, _ = split_parts(view, face)
+    assert 0 < len(to_face[0][0]) - k < k // 4  # the noise's tail of the far column reaches the slab
+    st = face.merge_parts(to_face, eye=_points_on(face, np.array([0.1]), np.array([0.05]), np.array([3.0]))[0],
+                          rays=view)
+    assert not face.map.mapped[0, 0] and face.map.mapped[0, 1]
+    assert st.beyond_slab == len(to_face[0][0]) - k
+    alone = face.empty_like()
+    assert alone.merge_parts(to_face).beyond_slab == 0 and alone.map.mapped[0, 0]
