@@ -160,9 +160,6 @@ class CliffbotSensingConfig:
                                        doc="the received map's horizontal error (the RECON-bot's pose and stereo): "
                                            "a received cell on a slope s has s times it of height error, and its "
                                            "own views, fused by variance, decide there (fsw.core.team.own_views)")
-    received_max_sigma_m: float = param(0.06, lo=0.0, hi=5.0, units="m",
-                                        doc="a received cell less sure than this (half a wheel: it cannot tell a "
-                                            "rock from the ground) is not known where its own views do not know it")
     move_m: float = param(0.5, lo=0.0, hi=100.0, units="m",
                           doc="a leg looks again first when the Cliff-bot moved this far since it last looked")
     capture_timeout_s: float = param(2.0, lo=0.1, hi=60.0, units="s", doc="no pair this long: that view is skipped")

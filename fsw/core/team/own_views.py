@@ -46,7 +46,7 @@ def received_variance(z: F64, cell_m: float, error_bound_m: float, xy_sigma_m: f
 
 
 def merge_own(received: F64, own: F64, own_var: F64, cell_m: float, error_bound_m: float,
-              xy_sigma_m: float, max_sigma_m: float = np.inf) -> tuple[F64, NDArray[np.bool_]]:
+              xy_sigma_m: float) -> tuple[F64, NDArray[np.bool_]]:
     """The map to plan on: the received heights, the Cliff-bot's own where the received map does
     not know the cell, and both fused by inverse variance where both know it (module docstring).
     Returns the map and the cells its own views set or moved (own known, finite variance)."""
@@ -61,5 +61,4 @@ def merge_own(received: F64, own: F64, own_var: F64, cell_m: float, error_bound_
     both = mine & np.isfinite(rz)
     w_r, w_o = 1.0 / rv[both], 1.0 / ov[both]
     out[both] = (w_r * rz[both] + w_o * oz[both]) / (w_r + w_o)
-    out[~mine & (rv > max_sigma_m ** 2)] = np.nan
     return out, mine

@@ -207,7 +207,7 @@ class CliffbotSensingTask(FlightTask):
             return
         own = self.own_map()
         z, mine = merge_own(self.received.z, own, self.pipe.map.var, self.grid.cell, self.received.error_bound_m,
-                            self.sc.received_xy_sigma_m, self.sc.received_max_sigma_m)
+                            self.sc.received_xy_sigma_m)
         n = int((mine & ~np.isfinite(self.received.z)).sum())
         X, Y = self.grid.centers()
         for a in self.anchor_ground:  # the ground under each Anchorbot, known by contact

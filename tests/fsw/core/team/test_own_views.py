@@ -57,19 +57,3 @@ def test_own_cells_fill_unknown_cells_and_leave_the_rest() -> None:
     assert np.array_equal(np.isfinite(merged), np.isfinite(received) | np.isfinite(own))
     assert np.array_equal(merged[:30], received[:30])  # no own cell there: the received map as it came
     assert int(mine.sum()) == 12
-
-
-def test_a_received_cell_too_unsure_to_tell_a_rock_is_not_known_without_its_own_views() -> None:
-    """On the face a horizontal error of 8 cm moves a received height by decimetres: with no view
-    of its own there the cell is not known (a rock could not be told from the ground); on level
-    ground, and where its own views know the cell, the map keeps it."""
-    truth, received = lip_scene()
-    own = np.full(truth.shape, np.nan)
-    own[26:30] = truth[26:30]
-    own_var = np.where(np.isfinite(own), 0.05 ** 2, np.inf)
-    merged, _ = merge_own(received, own, own_var, CELL, E, 0.08, max_sigma_m=0.06)
-    assert np.isfinite(merged[:18]).all()  # level ground: the received map stands
-    assert not np.isfinite(merged[30:]).any() and not np.isfinite(merged[20:25]).any()
-    assert np.isfinite(merged[26:30]).all()  # its own views know these
-    assert np.array_equal(np.isfinite(merge_own(received, own, own_var, CELL, E, 0.08)[0]),
-                          np.isfinite(received))  # without the bound, no cell is dropped
