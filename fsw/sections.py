@@ -156,10 +156,6 @@ class CliffbotSensingConfig:
     body_half_m: tuple[float, ...] = param((0.31, 0.235, 0.28), units="m",
                                            doc="its body's box (half sizes: along, across, up), masked from its views")
     mask_sigma_m: float = param(0.005, lo=0.0, hi=1.0, units="m", doc="the team's known poses' sigma in the mask")
-    received_xy_sigma_m: float = param(0.08, lo=0.0, hi=5.0, units="m",
-                                       doc="the received map's horizontal error (the RECON-bot's pose and stereo): "
-                                           "a received cell on a slope s has s times it of height error, and its "
-                                           "own views, fused by variance, decide there (fsw.core.team.own_views)")
     move_m: float = param(0.5, lo=0.0, hi=100.0, units="m",
                           doc="a leg looks again first when the Cliff-bot moved this far since it last looked")
     capture_timeout_s: float = param(2.0, lo=0.1, hi=60.0, units="s", doc="no pair this long: that view is skipped")

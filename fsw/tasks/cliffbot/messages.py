@@ -110,8 +110,7 @@ class SenseRequest:
 @dataclass(frozen=True)
 class SensedMap:
     """The map the mission plans on when the Cliff-bot senses: the received map (``map_id``,
-    its codec bound) with its own views fused in (``fsw.core.team.own_views``; ``own_cells``: the
-    unknown cells they made known);
+    its codec bound) with the unknown cells its own views made known (``own_cells`` of them);
     ``sense_seq``: the last request whose views are all in it (0: none)."""
 
     map_id: int

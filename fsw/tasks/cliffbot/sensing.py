@@ -17,12 +17,10 @@ plane, the Anchorbots' ground points): the ground round them, which the tethers 
 in the views.
 
 The map the mission plans on (:class:`~fsw.tasks.cliffbot.messages.SensedMap`, published when
-a map arrives over the link and when a request's views are all in): the received map (the
-RECON-bot's, within the codec's bound) with the Cliff-bot's own map in it, fused by variance
-(:func:`fsw.core.team.own_views.merge_own`: on level ground the received height stands, past a
-lip its nearer views decide; its own height fills a cell the received map does not know), and
-under each Anchorbot (its footprint round its surveyed ground point, which no camera sees) that
-ground point's height: known by contact. A request without a
+a map arrives over the link and when a request's views are all in): the received map as it
+came (the RECON-bot's, within the codec's bound), and, on the cells it does not know, the
+Cliff-bot's own map, and under each Anchorbot (its footprint round its surveyed ground point,
+which no camera sees) that ground point's height: known by contact. A request without a
 camera, or whose captures all fail, is answered with the map as it stands (events say why):
 the mission never waits on a broken camera.
 """
@@ -48,7 +46,6 @@ from fsw.core.registration.registration import RegistrationConfig
 from fsw.core.stereo.stereo import StereoConfig
 from fsw.core.team.cliffbot_head import head_end, head_pose_covariance, normal_from_attitude
 from fsw.core.team.contact_ground import body_height
-from fsw.core.team.own_views import merge_own
 from fsw.core.team.tether import tether_state
 from fsw.framework.jobs import JobHandle
 from fsw.framework.telemetry import Channel, EventDef, Severity
@@ -205,10 +202,11 @@ class CliffbotSensingTask(FlightTask):
     def _publish(self) -> None:
         if self.received is None:
             return
+        z = np.asarray(self.received.z, np.float64).copy()
         own = self.own_map()
-        z, mine = merge_own(self.received.z, own, self.pipe.map.var, self.grid.cell, self.received.error_bound_m,
-                            self.sc.received_xy_sigma_m)
-        n = int((mine & ~np.isfinite(self.received.z)).sum())
+        fill = ~np.isfinite(z) & np.isfinite(own)
+        z[fill] = own[fill]
+        n = int(fill.sum())
         X, Y = self.grid.centers()
         for a in self.anchor_ground:  # the ground under each Anchorbot, known by contact
             foot = (np.abs(X - a[0]) <= ANCHOR_FOOT_M) & (np.abs(Y - a[1]) <= ANCHOR_FOOT_M) & ~np.isfinite(z)
