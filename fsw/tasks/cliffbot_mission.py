@@ -32,7 +32,10 @@ refused on the map for a reason a look can change (``unknown ground``, ``tether 
 ground``, ``no safe path``) keeps its leg (event ``APPROACH``). The leg drives to the known,
 safe, tether-feasible node nearest the target (:meth:`fsw.tasks.cliffbot.legs.Route.approach`,
 nearer the target than where it stands), asks for a fix there and looks (``LOOK``, then
-``SENSE``), and is planned again on the map with its views: until the target is planned, a
+``SENSE``), and is planned again on the map with its views; with no such node and a look
+taken from where it stands, it looks from elsewhere along its known ground (``EXPLORE``,
+:meth:`fsw.tasks.cliffbot.legs.Route.vantage`: each standing leaves blind spots of the head's
+scan): until the target is planned, a
 reason on known ground gives it up, or ``approach_looks`` looks in a row leave it no nearer the
 target (its reason then says how many looks it took in all, ``unknown ground (7 looks)``): each
 approach node is nearer the target than the last by more than a lattice spacing, so the approach
@@ -71,6 +74,9 @@ from fsw.tasks.cliffbot.legs import UNKNOWN_REASONS, Leg, Route
 F64 = NDArray[np.float64]
 BODY_MARGIN_M = 0.1  # the body's box as mapped (stereo smear, the estimate's error) beyond the footprint
 VIEW_RANGE_M = 2.0  # a look's far ground: the pose error a point this far carries (sharper: a new look shows more)
+# a look from at least this far from every earlier one (about the body's half width) sees the ground
+# beside the body and below the lip beside the head that the head's fixed scan did not reach from there
+LOOK_APART_M = 0.25
 MAX_ELSEWHERE = 3  # a leg re-planned this often in a row, without getting nearer its goal, is given up
 FAULT_BITS = ("FaultStall", "FaultSlip", "FaultOverTension", "FaultSpool", "FaultTimeout")
 
@@ -109,6 +115,7 @@ class CliffbotMission:
         self.sense_asked_at: float | None = None
         self.sensed_xy: F64 | None = None  # where it last looked
         self.look_sigma = math.inf  # the pose error a point VIEW_RANGE_M away carried when it last looked
+        self.looked_from: list[F64] = []  # every place it looked from (an approach looks next from elsewhere)
         self.anchors = np.asarray(anchors, float)
         self.start = np.asarray(start_xy, float)
         self.targets = np.asarray(targets_xy, float).reshape(-1, 2)
@@ -215,6 +222,7 @@ class CliffbotMission:
         self.sense_asked_at = None
         self.look_now = False
         self.sensed_xy = self.est.xy
+        self.looked_from.append(self.est.xy)
         if self.legs:
             self._plan_leg()
         else:
@@ -482,7 +490,9 @@ class CliffbotMission:
         if got is None:
             here = self.sensed_xy is not None and float(np.hypot(*(self.est.xy - self.sensed_xy))) <= self.ccfg.node_m
             if here and self._view_sigma() >= 0.5 * self.look_sigma:
-                return False  # it looked from here already, as well placed: nothing nearer to see from
+                # it looked from here already, as well placed: a look from elsewhere sees the blind
+                # spots of its scan here (the ground beside the body, just below the lip beside the head)
+                return self._explore(leg, why)
             leg.looks += 1
             leg.idle += 1
             self.looks[leg.target] = leg.looks
@@ -494,6 +504,24 @@ class CliffbotMission:
         via, plan, wps = got
         self.event("APPROACH", f"target {k}: {why}; to {via.round(2).tolist()}, {gap:.2f} m from it "
                                f"({plan.lengths_m[0]:.2f} m of path)")
+        leg.via = via
+        self._drive_on(leg, wps, plan.lengths_m[0])
+        return True
+
+    def _explore(self, leg: Leg, why: str) -> bool:
+        """No known node is nearer the target of ``leg`` than where it stands and it looked from
+        here: drive to the known node nearest the target at least ``LOOK_APART_M`` from every place
+        it looked from (:meth:`fsw.tasks.cliffbot.legs.Route.vantage`) and look there (the look
+        counts against ``approach_looks`` unless it brings an approach node nearer). False when
+        there is none (the leg is then given up)."""
+        assert leg.target is not None
+        got = self.route().vantage(self.est.xy, leg.goal, self.looked_from, LOOK_APART_M)
+        if got is None:
+            return False
+        via, plan, wps = got
+        self.event("EXPLORE", f"target {leg.target + 1}: {why}; no known ground nearer: to look from "
+                              f"{via.round(2).tolist()} ({plan.lengths_m[0]:.2f} m of path), "
+                              f"{float(np.hypot(*(via - leg.goal))):.2f} m from it")
         leg.via = via
         self._drive_on(leg, wps, plan.lengths_m[0])
         return True

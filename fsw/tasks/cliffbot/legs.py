@@ -181,6 +181,30 @@ class Route:
         there its head's scan covers the ground up to its camera's range round it: the nearest
         known ground to the target is where a look shows most of the target's unknown
         neighbourhood."""
+        xy, d = self.known_nodes(target)
+        here = float(np.hypot(start[0] - target[0], start[1] - target[1]))
+        nearer = d < here - APPROACH_STEP_NODES * self.ccfg.node_m
+        return self._nearest_driven(start, xy[nearer], d[nearer])
+
+    def vantage(self, start: F64, target: F64, looked: list[F64], apart_m: float
+                ) -> tuple[F64, Plan, list[F64]] | None:
+        """Where to look from next when no known node is nearer ``target`` than ``start``: the
+        known, safe, tether-feasible node nearest the target that the body can drive to, no farther
+        from the target than ``start`` by more than ``apart_m`` (along the known ground's edge, not
+        back up) and at least ``apart_m`` from every place in ``looked`` (where it looked from);
+        None when there is none. A look from one standing leaves blind spots its fixed scan does not reach
+        (the flanks beside the body, the ground just below the lip beside the head); a look from
+        another standing sees them from elsewhere. Candidates and their plans as
+        :meth:`approach`."""
+        xy, d = self.known_nodes(target)
+        far = d <= float(np.hypot(start[0] - target[0], start[1] - target[1])) + apart_m
+        for p in looked:
+            far &= np.hypot(xy[:, 0] - p[0], xy[:, 1] - p[1]) >= apart_m
+        return self._nearest_driven(start, xy[far], d[far])
+
+    def known_nodes(self, target: F64) -> tuple[F64, F64]:
+        """The lattice nodes whose whole footprint is known and free of hazards (never by the
+        plane carried on, ``carried``) and their distance to ``target`` in the map's plane."""
         g, grid = self.ground, self.grid
         stride = max(1, int(round(self.ccfg.node_m / grid.cell)))
         rows = np.arange(stride // 2, grid.ny, stride)
@@ -188,10 +212,12 @@ class Route:
         rr, cc = np.meshgrid(rows, cols, indexing="ij")
         ok = (g.known & ~g.hazard)[rr, cc]
         xy = np.column_stack([grid.x0 + (cc[ok] + 0.5) * grid.cell, grid.y0 + (rr[ok] + 0.5) * grid.cell])
-        d = np.hypot(xy[:, 0] - target[0], xy[:, 1] - target[1])
-        here = float(np.hypot(start[0] - target[0], start[1] - target[1]))
-        nearer = d < here - APPROACH_STEP_NODES * self.ccfg.node_m
-        xy, d = xy[nearer], d[nearer]
+        return xy, np.hypot(xy[:, 0] - target[0], xy[:, 1] - target[1])
+
+    def _nearest_driven(self, start: F64, xy: F64, d: F64) -> tuple[F64, Plan, list[F64]] | None:
+        """Of the nodes ``xy`` (distances ``d`` to the target), the ``APPROACH_CANDIDATES``
+        nearest planned together with the leg's margins, then the nearest with a path whose ways
+        hold (:meth:`plan`): its place, plan and waypoints; None when none."""
         if not len(xy):
             return None
         cand = xy[np.argsort(d, kind="stable")[:APPROACH_CANDIDATES]]

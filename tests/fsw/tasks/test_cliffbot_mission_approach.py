@@ -16,7 +16,7 @@ from fsw.core.team.face_planner import ClimberConfig, ground_layers, standing_ce
 from fsw.core.team.tether import TetherConfig, tether_state
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig, CliffbotSensingConfig
-from fsw.tasks.cliffbot_mission import CliffbotMission
+from fsw.tasks.cliffbot_mission import LOOK_APART_M, CliffbotMission
 
 GRID = MapGrid.from_config(MapGridConfig(origin_x_m=0.0, origin_y_m=-3.5, cell_m=0.1, nx=50, ny=45))
 TARGET = np.array([2.0, -2.6])
@@ -168,7 +168,9 @@ def test_with_nothing_nearer_it_looks_again_from_where_it_stands_only_once_its_p
         if sharper:
             assert m.state == "SENSE" and _names(m).count("LOOK") == 1 and m.looks == [1]
         else:
-            assert m.state == "DONE" and m.reasons[0] == "unknown ground" and "LOOK" not in _names(m)
+            # not from where it stands: from elsewhere along its known ground (EXPLORE, below)
+            assert "LOOK" not in _names(m) and m.state == "DRIVE" and "EXPLORE" in _names(m)
+            assert float(np.hypot(*(m.legs[0].via - START))) >= LOOK_APART_M
 
 
 def test_it_edges_up_to_known_ground_a_short_step_nearer_the_target_before_it_looks() -> None:
@@ -320,3 +322,44 @@ def test_a_checkpoint_keeps_the_ground_it_stood_on_and_a_bad_one_is_refused() ->
                      ("nope", "stood")):
         with pytest.raises(CheckpointError, match=why):
             restore(_mission(), snapshot(m, 1.0) | {"stood": bad}, m.z, GRID)
+
+
+def test_with_nothing_nearer_it_looks_again_from_elsewhere_along_the_known_ground() -> None:
+    """Its known ground ends level with where it stands (no node nearer the target by a lattice
+    spacing) and it looked from there: it drives along that edge to the known node nearest the
+    target, no farther from it than where it stands by more than ``LOOK_APART_M`` and at least
+    ``LOOK_APART_M`` from every place it looked from (event ``EXPLORE``), looks there, and
+    reaches the target when that look shows its ground; when the looks show nothing new, it
+    gives the target up with its looks once no such place is left. Never onto unknown ground."""
+    for shows in (True, False):
+        m, dev = _mission(), FreshDevices()
+        z0 = _unknown_below(-0.75)
+        t = _start(m, dev, z0)
+        assert m.step(t + 0.1, dev).request_fix
+        m.on_no_fix(m.fix_seq, "busy")
+        t += 0.2
+        for _ in range(10):  # the approach's short steps, each looking at nothing new
+            if "EXPLORE" in _names(m) or m.state != "DRIVE":
+                break
+            t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried).known)
+            t = _look(m, dev, t, z0)
+        leg = m.legs[0]
+        assert m.state == "DRIVE" and leg.via is not None and "EXPLORE" in _names(m), m.events[-3:]
+        looked, here = list(m.looked_from), m.est.xy
+        assert all(float(np.hypot(*(leg.via - p))) >= LOOK_APART_M for p in looked)
+        assert float(np.hypot(*(leg.via - TARGET))) <= float(np.hypot(*(here - TARGET))) + LOOK_APART_M
+        t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried).known)
+        assert m.state == "WAIT_FIX" and m.look_now, m.events[-2:]
+        t = _look(m, dev, t, _ground() if shows else z0)
+        if shows:
+            assert m.state == "DRIVE" and m.reasons[0] == "", m.events[-2:]
+            _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried).known)
+            assert m.reached == [True]
+            continue
+        for _ in range(20):
+            if m.state == "DONE":
+                break
+            t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried).known)
+            t = _look(m, dev, t, z0)
+        n = m.legs[0].looks
+        assert m.state == "DONE" and m.reached == [False] and m.reasons[0] == f"unknown ground ({n} looks)"
