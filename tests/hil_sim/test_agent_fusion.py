@@ -110,3 +110,18 @@ def test_the_face_map_bench_runs_the_cliffbots_views_through_its_flight_pipeline
     assert built[0].fusion == scene.cfg.fusion and built[0].camera == scene.cfg.camera
     assert built[1].fusion == flight.fusion and built[1].fusion.lip_sight_line
     assert built[1].camera == flight.camera and built[1].stereo == flight.stereo
+
+
+def test_the_cliffbots_pipeline_settings_build_on_the_configurations_fusion_and_stereo() -> None:
+    """``CliffbotPipelineSettings.of``: the Cliff-bot's two fusion overrides and its disparity
+    search sit on top of the configuration's ``[fusion]`` and ``[stereo]``, so a key set there
+    reaches the Cliff-bot's views too (built on the library defaults, it was silently ignored)."""
+    from dataclasses import replace
+
+    cfg = load_settings("config/fsw.toml", check_calibration=False)
+    cfg = replace(cfg, fusion=replace(cfg.fusion, gate_sigma=cfg.fusion.gate_sigma + 1.0),
+                  stereo=replace(cfg.stereo, uniqueness_ratio_pct=cfg.stereo.uniqueness_ratio_pct + 5))
+    settings = CliffbotPipelineSettings.of(cfg)
+    assert settings.fusion.gate_sigma == cfg.fusion.gate_sigma
+    assert settings.stereo.uniqueness_ratio_pct == cfg.stereo.uniqueness_ratio_pct
+    assert settings.fusion.lip_sight_line and settings.fusion.source_reach_sigma > 0

@@ -106,9 +106,10 @@ class CliffbotPipelineSettings:
         need = cam.baseline_m * cam.focal_px / cam.min_range_m
         ndisp = int(min(max(16 * math.ceil(need / 16.0), 16), 16 * ((cam.width_px // 2) // 16)))
         # a head over the lip looks down the face past the lips it finds there (its steps and ledges): a
-        # lip withholds only the points it can hide from the head (FusionConfig.lip_sight_line, §4)
-        fusion = FusionConfig(source_reach_sigma=SOURCE_REACH_SIGMA, lip_sight_line=True)
-        return CliffbotPipelineSettings(cam, cfg.map, stereo=replace(StereoConfig(), num_disparities_px=ndisp),
+        # lip withholds only the points it can hide from the head (FusionConfig.lip_sight_line, §4); the
+        # rest of the fusion and stereo settings are the configuration's own ([fusion], [stereo])
+        fusion = replace(cfg.fusion, source_reach_sigma=SOURCE_REACH_SIGMA, lip_sight_line=True)
+        return CliffbotPipelineSettings(cam, cfg.map, stereo=replace(cfg.stereo, num_disparities_px=ndisp),
                                         fusion=fusion)
 
 
