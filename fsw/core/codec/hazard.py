@@ -62,7 +62,7 @@ F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
 B = NDArray[np.bool_]
 
-HOLD_ROUNDS = 4  # rounds of the relief hold (cell_offsets): each narrows, few cells are left after 3
+HOLD_ROUNDS = 4  # rounds of the relief hold, and tries of its step solve per round (cell_offsets)
 
 
 @dataclass(frozen=True)
@@ -213,21 +213,36 @@ def cell_offsets(z: NDArray[np.floating], cells: HazardCells, *, bound_m: float,
             break
         floor = limits[0] if floor is None else np.maximum(floor, limits[0])
         ceiling = limits[1] if ceiling is None else np.minimum(ceiling, limits[1])
-        for attempt in range(HOLD_ROUNDS):  # the third frees every step cell: the fourth holds
+        for attempt in range(HOLD_ROUNDS):  # the last try frees every step cell: the rule's own solve
             lo, hi = step_offsets(cells, bound_m=bound_m, rise_m=rise_m, step_slack_m=step_slack_m,
                                   threshold_m=threshold_m, floor=floor, ceiling=ceiling)
-            # The steps come first: a step the limits cut short frees its top and foot of them
-            # (and, if that is not enough, every step cell: the step solve is then the rule's own).
+            # The steps come first: a step the limits cut short frees its top and the chain of
+            # feet below it of them (and, if that is not enough, every step cell).
             cut = _short_steps(cells, lo, hi, threshold_m, step_slack_m) & ~short0
             if not cut.any():
                 break
             assert cells.step_top is not None and cells.step_foot is not None
-            if attempt >= 2:
-                cut = np.ones_like(cut)
-            freed = np.concatenate([cells.step_top[cut], cells.step_foot[cut]])
+            freed = _chains_below(cells, cut) if attempt < HOLD_ROUNDS - 2 else \
+                np.concatenate([cells.step_top, cells.step_foot])
             floor.ravel()[freed] = -np.inf
             ceiling.ravel()[freed] = np.inf
     return lo, hi
+
+
+def _chains_below(cells: HazardCells, pairs: B) -> NDArray[np.int64]:
+    """Flat indices of the tops of the step ``pairs`` and of every foot down their chains (a
+    foot that is itself a top, its foot, ...)."""
+    assert cells.step_top is not None and cells.step_foot is not None
+    foot_of = np.full(cells.relief.size, -1, np.int64)
+    foot_of[cells.step_top] = cells.step_foot
+    seen = np.zeros(cells.relief.size, bool)
+    cur = cells.step_top[pairs]
+    while cur.size:
+        seen[cur] = True
+        cur = foot_of[cur]
+        cur = cur[cur >= 0]
+        cur = cur[~seen[cur]]
+    return np.flatnonzero(seen)
 
 
 def _short_steps(cells: HazardCells, lo: F64, hi: F64, threshold_m: float, slack_m: float) -> B:
