@@ -82,6 +82,10 @@ class CodecConfig:
     support_rise_fraction: float = param(
         0.0, lo=0.0, hi=0.9, doc="support cells rise at most, relief hazards rise at least, "
         "this fraction of the error bound")
+    relief_ceiling: bool = param(
+        False, doc="hold relief both ways: a cell under the hazard threshold across the ground (relief x "
+        "cos(slope), as the receiver's planner reads it) decodes under it too, where the steps leave room "
+        "(fsw.core.codec.hazard.hold_limits)")
     receiver_wheel_diameter_m: float = param(
         0.12, lo=0.0, hi=2.0, units="m",
         doc="wheel diameter of the agent the map is sent to (the Cliff-bot: 2 x its 0.06 m wheel radius); "
@@ -163,11 +167,12 @@ def _reduce(
                              relief_disc_m=cfg.relief_disc_m,
                              step_disc_m=cfg.step_disc_wheels * wheel_diameter_m)
         cells = hz.classify(z32, cell_m, rule)
-        lo_c, hi_c = hz.cell_intervals(z32, cells, bound_m=bound, rise_m=rise, step_slack_m=slack,
-                                       margin_m=margin, threshold_m=rule.threshold_m)
-        # What the decoded float32 values must meet (the margins above absorb their rounding).
-        lo_chk, hi_chk = hz.cell_intervals(z32, cells, bound_m=bound, rise_m=rise, step_slack_m=slack,
-                                           margin_m=0.0, threshold_m=rule.threshold_m)
+        lo_off, hi_off = hz.cell_offsets(
+            z32, cells, bound_m=bound, rise_m=rise, step_slack_m=slack, threshold_m=rule.threshold_m, cell_m=cell_m,
+            relief_disc=hz.disc(rule.relief_disc_m, cell_m) if cfg.relief_ceiling else None, guard_m=margin)
+        z64 = z32.astype(np.float64)
+        lo_c, hi_c = z64 + lo_off + margin, z64 + hi_off - margin  # the margins absorb float32 rounding
+        lo_chk, hi_chk = z64 + lo_off, z64 + hi_off  # what the decoded float32 values must meet
         hazard_fields = {"hazard_threshold_m": rule.threshold_m, "relief_disc_m": rule.relief_disc_m,
                          "step_disc_m": rule.step_disc_m, "support_rise_m": rise, "step_slack_m": slack,
                          "relief_loss_hazard_m": 0.0, "relief_loss_any_m": 2.0 * bound}

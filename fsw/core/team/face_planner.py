@@ -60,13 +60,23 @@ from scipy import ndimage
 from fsw.core.codec.hazard import relief
 from fsw.core.geometry import MapGrid
 from fsw.core.team.held_tension import NOT_HELD, LengthErrors, held_at, held_reason, length_covariance, length_offsets
-from fsw.core.team.tether import TetherConfig, TetherState, ZMap, settle, tether_state, tether_states
+from fsw.core.team.tether import (
+    TetherConfig,
+    TetherState,
+    ZMap,
+    attach_point,
+    clearance_over,
+    settle,
+    tether_state,
+    tether_states,
+)
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
 
 USABLE = "usable"
 WAY_STEP_M = 0.03  # the way between nodes is followed in steps of at most this much tether
+ROCK_SUB_STEPS = 8  # a way's step where a tether passes over a rock is judged again at this many sub-steps
 OFF_THE_WAY = "the lengths hold it elsewhere"
 REASONS = ("off the map", "unknown ground", "hazard", "out of tether reach", "tether over unknown ground",
            "tether over a rock", "slack", "over-tension", "off the face", "degenerate", NOT_HELD)
@@ -368,6 +378,33 @@ def node_held_reason(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, tcfg: Tether
     return held_reason(z, grid, anchors, np.asarray(xy, float), st, tcfg, ccfg.free_slope_deg, errors)
 
 
+def _over_rock(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
+               near: NDArray[np.bool_]) -> bool:
+    """Whether a tether, with the body at ``xy``, passes over a cell of ``near`` (the map's
+    rocks grown by a cell)."""
+    bot = attach_point(z, grid, np.asarray(xy, float), tcfg, ccfg.footprint_m)
+    return bot is not None and any(math.isfinite(clearance_over(z, grid, an, bot, tcfg, near)) for an in anchors)
+
+
+def _swept_rock(z: ZMap, grid: MapGrid, anchors: F64, la: F64, lb: F64, f0: float, df: float, xy: F64,
+                tcfg: TetherConfig, ccfg: ClimberConfig, g: Ground) -> str:
+    """``"tether over a rock"`` where, between the way's steps at ``f0`` (the body at ``xy``)
+    and ``f0 + df``, a tether touches a rock at one of :data:`ROCK_SUB_STEPS` sub-steps: a
+    tether sweeps over a rock of a cell or two between two steps 3 cm of tether apart."""
+    for j in range(1, ROCK_SUB_STEPS):
+        lengths = la + (f0 + df * j / ROCK_SUB_STEPS) * (lb - la)
+        got = settle(z, grid, anchors, (float(lengths[0]), float(lengths[1])), xy, tcfg)
+        if got is None:
+            return "slack"
+        xy = got[0]
+        for p in got[1].paths:
+            if len(p.contacts):
+                cy, cx, inside = grid.cell_index(p.contacts[:, 0], p.contacts[:, 1])
+                if (inside & g.rock[np.clip(cy, 0, grid.ny - 1), np.clip(cx, 0, grid.nx - 1)]).any():
+                    return "tether over a rock"
+    return ""
+
+
 def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
                g: Ground, step_m: float = WAY_STEP_M, errors: LengthErrors | None = None) -> str:
     """Why the body cannot go from node ``a`` to node ``b`` (``""``: it can; module docstring,
@@ -378,6 +415,8 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
     statics hold the body (steeper than ``free_slope_deg``) the tethers must also hold it at the
     lengths off by each of the errors' offsets (:func:`fsw.core.team.held_tension.length_offsets`,
     each moving from ``a``'s offset to ``b``'s along the way; :func:`fsw.core.team.held_tension.held_at`).
+    A step at either end of which a tether passes over a rock or a cell next to one is judged again at
+    :data:`ROCK_SUB_STEPS` sub-steps (:func:`_swept_rock`): no tether may touch the rock between them.
     Directed: the way back may differ."""
     sa = tether_state(z, grid, anchors, np.asarray(a, float), tcfg, ccfg.footprint_m)
     sb = tether_state(z, grid, anchors, np.asarray(b, float), tcfg, ccfg.footprint_m)
@@ -390,8 +429,12 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
     if errors is not None and held:
         off_a = length_offsets(length_covariance(sa, errors), errors.z)
         off_b = length_offsets(length_covariance(sb, errors), errors.z)
+    rocky = bool(g.rock.any())
+    near = ndimage.binary_dilation(g.rock, structure=np.ones((3, 3), bool)) if rocky else g.rock
+    over = rocky and _over_rock(z, grid, anchors, xy, tcfg, ccfg, near)
     for f in np.arange(1, n + 1) / n:
         lengths = la + f * (lb - la)
+        last = xy
         got = settle(z, grid, anchors, (float(lengths[0]), float(lengths[1])), xy, tcfg)
         if got is None:
             return "slack"
@@ -406,6 +449,11 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
         why = _tether_verdict(got[1], grid, tcfg, ccfg, g)
         if why != USABLE:
             return why
+        was, over = over, rocky and _over_rock(z, grid, anchors, xy, tcfg, ccfg, near)
+        if was or over:
+            why = _swept_rock(z, grid, anchors, la, lb, float(f) - 1.0 / n, 1.0 / n, last, tcfg, ccfg, g)
+            if why:
+                return why
         if held and got[1].statics.tilt_deg > ccfg.free_slope_deg:
             why = held_at(z, grid, anchors, xy, got[1], (1.0 - f) * off_a + f * off_b, tcfg, ccfg.free_slope_deg)
             if why:

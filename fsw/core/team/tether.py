@@ -145,6 +145,43 @@ def tether_path(z: ZMap, grid: MapGrid, anchor: F64, bot: F64, cfg: TetherConfig
     return TetherPath(float(seg.sum()), contacts, pull / norm if norm > 0 else pull, unknown)
 
 
+
+def attach_point(z: ZMap, grid: MapGrid, xy: F64, cfg: TetherConfig, footprint_m: float = 0.3) -> F64 | None:
+    """The tethers' attachment point (x y z) with the Cliff-bot standing at ``xy``, as
+    :func:`tether_state` puts it; None where the map does not know the ground under it."""
+    iy, ix, inside = grid.cell_index(np.array([xy[0]]), np.array([xy[1]]))
+    if not inside[0]:
+        return None
+    px, py = _ring(footprint_m, grid)
+    h = heights_at(z, grid, float(xy[0]) + px, float(xy[1]) + py)
+    normal = _plane_normal(px, py, h)
+    if normal is None:
+        return None
+    return np.array([xy[0], xy[1], h[0]]) + cfg.attach_m * normal
+
+
+def clearance_over(z: ZMap, grid: MapGrid, anchor: F64, bot: F64, cfg: TetherConfig, cells: NDArray[np.bool_]) -> float:
+    """The least height of the taut tether from ``anchor`` to ``bot`` (as :func:`tether_path`
+    lays it) above the ground, over its profile's samples on the ``cells`` (a mask of the map);
+    0 where it touches one of them, ``inf`` where it passes over none."""
+    anchor = np.asarray(anchor, float)
+    bot = np.asarray(bot, float)
+    s, h, _ = ground_profile(z, grid, anchor[:2], bot[:2], cfg.sample_m)
+    if not len(s):
+        return math.inf
+    span = float(math.hypot(*(bot[:2] - anchor[:2])))
+    ix = np.floor((anchor[0] + (bot[0] - anchor[0]) * s / span - grid.x0) / grid.cell)  # as ground_profile
+    iy = np.floor((anchor[1] + (bot[1] - anchor[1]) * s / span - grid.y0) / grid.cell)
+    inside = (ix >= 0) & (ix < grid.nx) & (iy >= 0) & (iy < grid.ny)
+    on = inside & cells[np.where(inside, iy, 0).astype(np.intp), np.where(inside, ix, 0).astype(np.intp)]
+    if not on.any():
+        return math.inf
+    ss = np.concatenate([[0.0], s, [span]])
+    hh = np.concatenate([[anchor[2]], h, [bot[2]]])
+    idx = upper_hull(ss, hh)
+    above = np.interp(s[on], ss[idx], hh[idx]) - h[on]
+    return float(max(0.0, above.min()))
+
 _RING = np.arange(8) * (np.pi / 4)
 _RING_COS, _RING_SIN = np.cos(_RING), np.sin(_RING)
 

@@ -35,7 +35,7 @@ def _rocky(seed: int, shape: tuple[int, int], cell_m: float, n_rocks: int, relie
     return z.astype(np.float32)
 
 
-def _assert_bounds(z: np.ndarray, cell_m: float, enc_data: bytes) -> None:
+def _assert_bounds(z: np.ndarray, cell_m: float, enc_data: bytes, check_steps: bool = True) -> None:
     dec = decode_map(enc_data)
     h, zd = dec.header, dec.z
     known = np.isfinite(z)
@@ -51,18 +51,29 @@ def _assert_bounds(z: np.ndarray, cell_m: float, enc_data: bytes) -> None:
     if haz.any():
         assert (r0 - r1)[haz].max() <= h.relief_loss_hazard_m + 1e-6, "a hazard lost relief"
         assert (zd[haz] >= z[haz]).all(), "a hazard decoded lower"
+    if check_steps:
+        assert _steps_kept(z, cell_m, dec).all(), "a step was lost"
+        cells = hz.classify(z, cell_m, hz.HazardRule(h.hazard_threshold_m, h.relief_disc_m, h.step_disc_m))
+        assert cells.step_top is not None
+        if cells.step_top.size:
+            s0 = cells.step.ravel()[cells.step_top].astype(np.float64)
+            s1 = hz.step(dec.z, cell_m, h.step_disc_m).ravel()[cells.step_top].astype(np.float64)
+            # ... a rock on a rock at most the bound less the rise, plus the slack
+            assert (s0 - s1).max() <= h.error_bound_m - h.support_rise_m + h.step_slack_m + 1e-6
+
+
+def _steps_kept(z: np.ndarray, cell_m: float, dec) -> np.ndarray:
+    """Per step from ground (top and foot no relief hazard), whether it keeps a decoded drop
+    >= the threshold and loses at most the slack."""
+    h = dec.header
     cells = hz.classify(z, cell_m, hz.HazardRule(h.hazard_threshold_m, h.relief_disc_m, h.step_disc_m))
     assert cells.step_top is not None and cells.step_foot is not None
-    if cells.step_top.size:
-        s0 = cells.step.ravel()[cells.step_top].astype(np.float64)
-        s1 = hz.step(zd, cell_m, h.step_disc_m).ravel()[cells.step_top].astype(np.float64)
-        rh = cells.relief_hazard.ravel()
-        on_ground = ~rh[cells.step_top] & ~rh[cells.step_foot]
-        # a step from ground keeps a drop >= the threshold and loses at most the slack ...
-        kept = s1 >= np.maximum(h.hazard_threshold_m, s0 - h.step_slack_m) - 1e-6
-        assert kept[on_ground].all(), "a step was lost"
-        # ... a rock on a rock at most the bound less the rise, plus the slack
-        assert (s0 - s1).max() <= h.error_bound_m - h.support_rise_m + h.step_slack_m + 1e-6
+    s0 = cells.step.ravel()[cells.step_top].astype(np.float64)
+    s1 = hz.step(dec.z, cell_m, h.step_disc_m).ravel()[cells.step_top].astype(np.float64)
+    rh = cells.relief_hazard.ravel()
+    on_ground = ~rh[cells.step_top] & ~rh[cells.step_foot]
+    kept = s1 >= np.maximum(h.hazard_threshold_m, s0 - h.step_slack_m) - 1e-6
+    return np.asarray(kept[on_ground])
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -182,3 +193,98 @@ def test_relief_is_the_top_hat_and_ignores_unknown_cells():
     wide[10:50, 10:50] = 0.5  # a 2 m table: wider than the disc, no relief but a step
     assert hz.relief(wide, 0.05, 1.05)[30, 30] == 0
     assert hz.step(wide, 0.05, 0.2)[10, 30] == pytest.approx(0.5)
+
+
+# ---------------------------------------------------------------- relief held both ways (issue 27)
+TEAM_WHEEL = 0.12  # the Cliff-bot's wheel, a quarter-wheel bound and its planner's 0.6 m rock disc
+TEAM_CODEC = CodecConfig(relief_disc_m=0.6, relief_ceiling=True)
+
+
+def test_a_cell_just_under_the_threshold_beside_low_ground_is_held_under_it():
+    """A bump 5 mm under the threshold on flat ground: the hazard rule alone lets it rise a
+    bound and its ground drop a bound (its relief ceiling 2e over it: a rock to the receiver);
+    the hold keeps the ceiling under the threshold, the bump lower and its ground no lower."""
+    cell, e = 0.04, 0.25 * TEAM_WHEEL
+    z = np.zeros((41, 41), np.float32)
+    z[20, 20] = TEAM_WHEEL - 0.005
+    kernel = hz.disc(0.6, cell)
+    rule = hz.HazardRule(TEAM_WHEEL, 0.6, TEAM_WHEEL)
+    cells = hz.classify(z, cell, rule)
+    assert not cells.relief_hazard.any()
+    args = {"bound_m": e, "rise_m": 0.0, "step_slack_m": 0.5 * e + 1e-6, "threshold_m": TEAM_WHEEL}
+    lo, hi = hz.step_offsets(cells, **args)
+    assert hz.relief_ceiling(z, lo, hi, kernel)[20, 20] >= TEAM_WHEEL + 0.05  # what the bound allows
+    lo, hi = hz.cell_offsets(z, cells, cell_m=cell, relief_disc=kernel, guard_m=1e-7, **args)
+    assert hz.relief_ceiling(z, lo, hi, kernel)[20, 20] < TEAM_WHEEL
+    assert hi[20, 20] < 0 and lo[20, 24] > -e  # the bump held lower, the ground beside it no lower
+    assert (hi - lo).min() >= args["step_slack_m"] - 1e-12  # every interval still holds a lattice value
+    dec = decode_map(encode_map(z, cell_m=cell, wheel_diameter_m=TEAM_WHEEL, cfg=TEAM_CODEC).data)
+    assert float(hz.relief(dec.z, cell, 0.6).max()) < TEAM_WHEEL
+
+
+def _tilted(z: np.ndarray, cell_m: float, slope_deg: float) -> np.ndarray:
+    """``z`` on a plane rising along y at ``slope_deg`` (a face the receiver reads across)."""
+    rise = np.arange(z.shape[0], dtype=np.float64)[:, None] * cell_m * np.tan(np.radians(slope_deg))
+    return (z + rise).astype(np.float32)
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 10_000), ny=st.integers(8, 48), nx=st.integers(8, 48),
+       rocks=st.integers(0, 30), relief=st.floats(0.05, 0.4), noise=st.sampled_from([0.0, 0.01, 0.03]),
+       unknown=st.sampled_from([0.0, 0.1]), slope_deg=st.sampled_from([0.0, 30.0, 60.0]),
+       bound_wheels=st.sampled_from([0.25, 0.5]))
+def test_the_hold_keeps_every_hazard_and_brings_no_cell_to_the_threshold(seed, ny, nx, rocks, relief, noise,
+                                                                      unknown, slope_deg, bound_wheels):
+    """On random maps (rocks on rolling ground or on a face, noise, holes): every hazard
+    guarantee of the header holds (never a hazard lost), every step the rule alone keeps is
+    kept, and no cell the receiver reads
+    under the threshold across the ground (relief x cos(slope) of the original map) by more
+    than two lattice steps decodes at or over it, unless the hold gave way to a step (a step
+    cell within the reach of the discs its relief depends on: the steps come first)."""
+    cell = 0.04
+    z = _tilted(_rocky(seed, (ny, nx), cell, rocks, relief, noise, unknown), cell, slope_deg)
+    enc = encode_map(z, cell_m=cell, wheel_diameter_m=TEAM_WHEEL, cfg=TEAM_CODEC,
+                     error_bound_m=bound_wheels * TEAM_WHEEL)
+    _assert_bounds(z, cell, enc.data, check_steps=False)
+    dec = decode_map(enc.data)
+    rule_alone = encode_map(z, cell_m=cell, wheel_diameter_m=TEAM_WHEEL, cfg=CodecConfig(relief_disc_m=0.6),
+                            error_bound_m=bound_wheels * TEAM_WHEEL)
+    kept, kept_alone = _steps_kept(z, cell, dec), _steps_kept(z, cell, decode_map(rule_alone.data))
+    assert not (kept_alone & ~kept).any(), "the hold lost a step the rule alone keeps"
+    known = np.isfinite(z)
+    if not known.any():
+        return
+    brought, near_step = _brought_to_threshold(z, cell, dec)
+    assert not (brought & ~near_step).any(), "the reduction brought a cell to the threshold"
+
+
+def _brought_to_threshold(z: np.ndarray, cell_m: float, dec) -> tuple[np.ndarray, np.ndarray]:
+    """Known cells more than two lattice steps under the threshold across the ground (relief x
+    cos(slope), the original map's) that decode at or over it; and the cells whose hold may give
+    way to a step (a step cell within the reach of the discs their relief depends on)."""
+    import cv2
+
+    h = dec.header
+    kernel = hz.disc(h.relief_disc_m, cell_m)
+    limit = h.hazard_threshold_m / hz.across_ground(z, cell_m, kernel.shape[0])
+    r0, r1 = hz.relief(z, cell_m, h.relief_disc_m), hz.relief(dec.z, cell_m, h.relief_disc_m)
+    cells = hz.classify(z, cell_m, hz.HazardRule(h.hazard_threshold_m, h.relief_disc_m, h.step_disc_m))
+    assert cells.step_top is not None and cells.step_foot is not None
+    steps = np.zeros(z.size, np.uint8)
+    steps[np.concatenate([cells.step_top, cells.step_foot])] = 1
+    reach = cv2.dilate(cv2.dilate(steps.reshape(z.shape), kernel), kernel).astype(bool)
+    with np.errstate(invalid="ignore"):
+        return np.asarray(np.isfinite(z) & (r0 < limit - 2.0 * h.step_slack_m) & (r1 >= limit)), reach
+
+
+def test_the_hold_removes_the_rocks_the_bound_alone_makes():
+    """Rocky ground reduced with the hazard rule alone shows rocks the original does not have,
+    cells more than two lattice steps under the threshold brought over it; with the hold none."""
+    cell = 0.04
+    z = _rocky(7, (32, 32), cell, 12, 0.3, 0.01, 0.0)
+    brought = {}
+    for on in (False, True):
+        cfg = CodecConfig(relief_disc_m=0.6, relief_ceiling=on)
+        enc = encode_map(z, cell_m=cell, wheel_diameter_m=TEAM_WHEEL, cfg=cfg, error_bound_m=0.25 * TEAM_WHEEL)
+        brought[on] = int(_brought_to_threshold(z, cell, decode_map(enc.data))[0].sum())
+    assert brought[False] > 0 and brought[True] == 0

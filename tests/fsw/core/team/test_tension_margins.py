@@ -14,6 +14,7 @@ from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import NavConfig
 from fsw.core.team.face_planner import (
     ClimberConfig,
+    ground_layers,
     place_covariance,
     way_reason,
 )
@@ -24,7 +25,14 @@ from fsw.core.team.held_tension import (
     length_offsets,
     statics_reason,
 )
-from fsw.core.team.tether import TetherConfig, anchor_points, settle, settle_many, tether_state
+from fsw.core.team.tether import (
+    TetherConfig,
+    anchor_points,
+    attach_point,
+    settle,
+    settle_many,
+    tether_state,
+)
 from fsw.sections import CliffbotMissionConfig
 from fsw.tasks.cliffbot.legs import Route
 from fsw.tasks.cliffbot_mission import CliffbotMission
@@ -347,3 +355,37 @@ def test_a_legs_plans_judge_each_node_once_and_the_kept_verdicts_are_the_same(
     plan, _ = r.plan(start, goal)
     r.plan(start, goal)
     assert plan.reasons == fresh.reasons and len(judged) == len(set(judged)) == len(r.nodes)
+
+
+
+def test_a_way_whose_tether_touches_a_rock_between_two_of_its_steps_is_refused() -> None:
+    """The way is judged at steps of tether; a tether that sweeps over a rock of a cell touches
+    it between two steps and not at either (seed 27 of ``experiment team``: tether A touched a
+    one-cell rock 0.7 of the way between two waypoints, between two steps 3 cm of tether apart,
+    and the bench counted it). Where a step's ends pass over a rock or next to one, the step is
+    judged again at sub-steps and the way is refused."""
+    grid = MapGrid(-1.5, -1.5, 0.03, 100, 100)
+    z = np.zeros((100, 100))
+    t, c = TetherConfig(), ClimberConfig()
+    anchors = anchor_points(z, grid, np.array([[-1.2, 1.3], [1.2, 1.3]]), t)
+    p = anchors[0, :2] + 0.3 * (np.array([-0.3, -0.6]) - anchors[0, :2])
+    iy, ix, _ = grid.cell_index(p[:1], p[1:])
+    r, k = int(iy[0]), int(ix[0])
+    centre = np.array([grid.x0 + (k + 0.5) * grid.cell, grid.y0 + (r + 0.5) * grid.cell])
+    d = centre - anchors[0, :2]
+    mid = anchors[0, :2] + d * (-0.6 - anchors[0, 1]) / d[1]  # tether A right over the rock with the body here
+    a, b = mid - np.array([0.075, 0.0]), mid + np.array([0.225, 0.0])  # flat; mid a quarter of the way
+    bot = attach_point(z, grid, mid, t, c.footprint_m)
+    assert bot is not None
+    f = float(np.hypot(*(centre - anchors[0, :2])) / np.hypot(*(bot[:2] - anchors[0, :2])))
+    z[r, k] = anchors[0, 2] + f * (bot[2] - anchors[0, 2]) + 0.02  # one cell, 2 cm above the tether's line
+    g = ground_layers(z, grid, c)
+    assert g.rock[r, k]
+    step = 0.2  # two steps: at half the way and at its end, the rock swept between the start and the first
+    for xy in (a, a + 0.5 * (b - a), b):
+        st = tether_state(z, grid, anchors, xy, t, c.footprint_m)
+        assert st is not None and not len(st.paths[0].contacts)  # the tether misses the rock at every step
+    st = tether_state(z, grid, anchors, mid, t, c.footprint_m)
+    assert st is not None and len(st.paths[0].contacts)  # and touches it between them
+    assert way_reason(z, grid, anchors, a, b, t, c, g, step_m=step) == "tether over a rock"
+    assert way_reason(z, grid, anchors, a, b, t, c, g, step_m=step, errors=ERRORS) == "tether over a rock"
