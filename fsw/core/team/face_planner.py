@@ -355,11 +355,8 @@ def _tether_verdict(st: TetherState | None, grid: MapGrid, tcfg: TetherConfig, c
         return "out of tether reach"
     if any(p.unknown for p in st.paths):
         return "tether over unknown ground"
-    for p in st.paths:
-        if len(p.contacts):
-            cy, cx, inside = grid.cell_index(p.contacts[:, 0], p.contacts[:, 1])
-            if (inside & g.rock[np.clip(cy, 0, grid.ny - 1), np.clip(cx, 0, grid.nx - 1)]).any():
-                return "tether over a rock"
+    if _contact_on_rock(st, grid, g):
+        return "tether over a rock"
     if st.statics.tilt_deg > ccfg.free_slope_deg and not st.statics.ok:
         return st.statics.reason
     return USABLE
@@ -376,6 +373,16 @@ def node_held_reason(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, tcfg: Tether
     if st is None or st.statics.tilt_deg <= ccfg.free_slope_deg:
         return ""
     return held_reason(z, grid, anchors, np.asarray(xy, float), st, tcfg, ccfg.free_slope_deg, errors)
+
+
+def _contact_on_rock(st: TetherState, grid: MapGrid, g: Ground) -> bool:
+    """Whether a tether of ``st`` touches the ground on one of the map's rocks."""
+    for p in st.paths:
+        if len(p.contacts):
+            cy, cx, inside = grid.cell_index(p.contacts[:, 0], p.contacts[:, 1])
+            if (inside & g.rock[np.clip(cy, 0, grid.ny - 1), np.clip(cx, 0, grid.nx - 1)]).any():
+                return True
+    return False
 
 
 def _over_rock(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
@@ -397,11 +404,8 @@ def _swept_rock(z: ZMap, grid: MapGrid, anchors: F64, la: F64, lb: F64, f0: floa
         if got is None:
             return "slack"
         xy = got[0]
-        for p in got[1].paths:
-            if len(p.contacts):
-                cy, cx, inside = grid.cell_index(p.contacts[:, 0], p.contacts[:, 1])
-                if (inside & g.rock[np.clip(cy, 0, grid.ny - 1), np.clip(cx, 0, grid.nx - 1)]).any():
-                    return "tether over a rock"
+        if _contact_on_rock(got[1], grid, g):
+            return "tether over a rock"
     return ""
 
 

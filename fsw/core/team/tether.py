@@ -145,20 +145,25 @@ def tether_path(z: ZMap, grid: MapGrid, anchor: F64, bot: F64, cfg: TetherConfig
     return TetherPath(float(seg.sum()), contacts, pull / norm if norm > 0 else pull, unknown)
 
 
-
 def attach_point(z: ZMap, grid: MapGrid, xy: F64, cfg: TetherConfig, footprint_m: float = 0.3) -> F64 | None:
     """The tethers' attachment point (x y z) with the Cliff-bot standing at ``xy``, as
     :func:`tether_state` puts it; None where the map does not know the ground under it."""
+    got = _standing(z, grid, xy, cfg, footprint_m)
+    return None if got is None else got[0]
+
+
+def _standing(z: ZMap, grid: MapGrid, xy: F64, cfg: TetherConfig, footprint_m: float) -> tuple[F64, F64] | None:
+    """The attachment point and the ground's upward normal with the Cliff-bot at ``xy`` (the
+    plane of :func:`surface_normal` round it); None where the map does not know the ground."""
     iy, ix, inside = grid.cell_index(np.array([xy[0]]), np.array([xy[1]]))
     if not inside[0]:
         return None
     px, py = _ring(footprint_m, grid)
-    h = heights_at(z, grid, float(xy[0]) + px, float(xy[1]) + py)
+    h = heights_at(z, grid, float(xy[0]) + px, float(xy[1]) + py)  # h[0]: the ground under it (height_at)
     normal = _plane_normal(px, py, h)
     if normal is None:
         return None
-    return np.array([xy[0], xy[1], h[0]]) + cfg.attach_m * normal
-
+    return np.array([xy[0], xy[1], h[0]]) + cfg.attach_m * normal, normal
 
 def clearance_over(z: ZMap, grid: MapGrid, anchor: F64, bot: F64, cfg: TetherConfig, cells: NDArray[np.bool_]) -> float:
     """The least height of the taut tether from ``anchor`` to ``bot`` (as :func:`tether_path`
@@ -181,6 +186,7 @@ def clearance_over(z: ZMap, grid: MapGrid, anchor: F64, bot: F64, cfg: TetherCon
     idx = upper_hull(ss, hh)
     above = np.interp(s[on], ss[idx], hh[idx]) - h[on]
     return float(max(0.0, above.min()))
+
 
 _RING = np.arange(8) * (np.pi / 4)
 _RING_COS, _RING_SIN = np.cos(_RING), np.sin(_RING)
@@ -297,15 +303,10 @@ def tether_state(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, cfg: TetherConfi
                  footprint_m: float = 0.3) -> TetherState | None:
     """Both tethers and the statics with the Cliff-bot standing at ``xy``; None where the map
     does not know the ground under it."""
-    iy, ix, inside = grid.cell_index(np.array([xy[0]]), np.array([xy[1]]))
-    if not inside[0]:
+    got = _standing(z, grid, xy, cfg, footprint_m)
+    if got is None:
         return None
-    px, py = _ring(footprint_m, grid)
-    h = heights_at(z, grid, float(xy[0]) + px, float(xy[1]) + py)  # h[0]: the ground under it (height_at)
-    normal = _plane_normal(px, py, h)
-    if normal is None:
-        return None
-    bot = np.array([xy[0], xy[1], h[0]]) + cfg.attach_m * normal
+    bot, normal = got
     p1 = tether_path(z, grid, anchors[0], bot, cfg)
     p2 = tether_path(z, grid, anchors[1], bot, cfg)
     return TetherState((p1, p2), statics(p1.pull, p2.pull, normal, cfg))
