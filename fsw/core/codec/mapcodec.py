@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 
 from fsw.core.codec import hazard as hz
 from fsw.core.codec import hint
+from fsw.core.codec import relief_hold as rh
 from fsw.core.codec.mapformat import Header, MapCodecError, compressor, pack, unpack
 from fsw.core.codec.quadtree import Quadtree, build_quadtree, tree_depth
 from fsw.core.codec.tileformat import TileProfile, pack_tile, unpack_tile
@@ -85,7 +86,7 @@ class CodecConfig:
     relief_ceiling: bool = param(
         False, doc="hold relief both ways: a cell under the hazard threshold across the ground (relief x "
         "cos(slope), as the receiver's planner reads it) decodes under it too, where the steps leave room "
-        "(fsw.core.codec.hazard.hold_limits)")
+        "(fsw.core.codec.relief_hold)")
     receiver_wheel_diameter_m: float = param(
         0.12, lo=0.0, hi=2.0, units="m",
         doc="wheel diameter of the agent the map is sent to (the Cliff-bot: 2 x its 0.06 m wheel radius); "
@@ -167,7 +168,7 @@ def _reduce(
                              relief_disc_m=cfg.relief_disc_m,
                              step_disc_m=cfg.step_disc_wheels * wheel_diameter_m)
         cells = hz.classify(z32, cell_m, rule)
-        lo_off, hi_off = hz.cell_offsets(
+        lo_off, hi_off = rh.cell_offsets(
             z32, cells, bound_m=bound, rise_m=rise, step_slack_m=slack, threshold_m=rule.threshold_m, cell_m=cell_m,
             relief_disc=hz.disc(rule.relief_disc_m, cell_m) if cfg.relief_ceiling else None, guard_m=margin)
         z64 = z32.astype(np.float64)

@@ -11,6 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from fsw.core.codec import hazard as hz
+from fsw.core.codec import relief_hold as rh
 from fsw.core.codec.mapcodec import CodecConfig, MapCodecError, decode_map, encode_map
 from fsw.core.codec.mapformat import HEADER_BYTES
 
@@ -70,8 +71,8 @@ def _steps_kept(z: np.ndarray, cell_m: float, dec) -> np.ndarray:
     assert cells.step_top is not None and cells.step_foot is not None
     s0 = cells.step.ravel()[cells.step_top].astype(np.float64)
     s1 = hz.step(dec.z, cell_m, h.step_disc_m).ravel()[cells.step_top].astype(np.float64)
-    rh = cells.relief_hazard.ravel()
-    on_ground = ~rh[cells.step_top] & ~rh[cells.step_foot]
+    hazard_at = cells.relief_hazard.ravel()
+    on_ground = ~hazard_at[cells.step_top] & ~hazard_at[cells.step_foot]
     kept = s1 >= np.maximum(h.hazard_threshold_m, s0 - h.step_slack_m) - 1e-6
     return np.asarray(kept[on_ground])
 
@@ -213,9 +214,9 @@ def test_a_cell_just_under_the_threshold_beside_low_ground_is_held_under_it():
     assert not cells.relief_hazard.any()
     args = {"bound_m": e, "rise_m": 0.0, "step_slack_m": 0.5 * e + 1e-6, "threshold_m": TEAM_WHEEL}
     lo, hi = hz.step_offsets(cells, **args)
-    assert hz.relief_ceiling(z, lo, hi, kernel)[20, 20] >= TEAM_WHEEL + 0.05  # what the bound allows
-    lo, hi = hz.cell_offsets(z, cells, cell_m=cell, relief_disc=kernel, guard_m=1e-7, **args)
-    assert hz.relief_ceiling(z, lo, hi, kernel)[20, 20] < TEAM_WHEEL
+    assert rh.relief_ceiling(z, lo, hi, kernel)[20, 20] >= TEAM_WHEEL + 0.05  # what the bound allows
+    lo, hi = rh.cell_offsets(z, cells, cell_m=cell, relief_disc=kernel, guard_m=1e-7, **args)
+    assert rh.relief_ceiling(z, lo, hi, kernel)[20, 20] < TEAM_WHEEL
     assert hi[20, 20] < 0 and lo[20, 24] > -e  # the bump held lower, the ground beside it no lower
     assert (hi - lo).min() >= args["step_slack_m"] - 1e-12  # every interval still holds a lattice value
     dec = decode_map(encode_map(z, cell_m=cell, wheel_diameter_m=TEAM_WHEEL, cfg=TEAM_CODEC).data)
@@ -266,7 +267,7 @@ def _brought_to_threshold(z: np.ndarray, cell_m: float, dec) -> tuple[np.ndarray
 
     h = dec.header
     kernel = hz.disc(h.relief_disc_m, cell_m)
-    limit = h.hazard_threshold_m / hz.across_ground(z, cell_m, kernel.shape[0])
+    limit = h.hazard_threshold_m / rh.across_ground(z, cell_m, kernel.shape[0])
     r0, r1 = hz.relief(z, cell_m, h.relief_disc_m), hz.relief(dec.z, cell_m, h.relief_disc_m)
     cells = hz.classify(z, cell_m, hz.HazardRule(h.hazard_threshold_m, h.relief_disc_m, h.step_disc_m))
     assert cells.step_top is not None and cells.step_foot is not None
