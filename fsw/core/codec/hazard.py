@@ -48,6 +48,7 @@ does not.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import cv2
@@ -114,6 +115,14 @@ class HazardCells:
     relief_support: B | None = None  # the lowest cell of a relief disc covering a relief hazard
     step_top: NDArray[np.int64] | None = None  # flat index of every cell with step >= threshold
     step_foot: NDArray[np.int64] | None = None  # flat index of its foot: one lowest known cell of its disc
+
+    @cached_property
+    def step_nodes(self) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+        """The cells the steps involve (flat indices, sorted) and, per step pair, the places of
+        its top and its foot among them: worked out once, for every solve of :func:`step_offsets`."""
+        assert self.step_top is not None and self.step_foot is not None
+        nodes, inv = np.unique(np.concatenate([self.step_top, self.step_foot]), return_inverse=True)
+        return nodes, inv[:self.step_top.size], inv[self.step_top.size:]
 
 
 def _argmins(z32: F32, eroded: F32, centres: B, kernel: NDArray[np.uint8]) -> B:
@@ -221,8 +230,7 @@ def step_offsets(cells: HazardCells, *, bound_m: float, rise_m: float, step_slac
     if threshold_m is None or cells.step_top is None or cells.step_foot is None or cells.step_top.size == 0:
         return lo.reshape(shape), hi.reshape(shape)
     # Work on the cells the steps involve only (tops and feet).
-    nodes, inv = np.unique(np.concatenate([cells.step_top, cells.step_foot]), return_inverse=True)
-    t, f = inv[:cells.step_top.size], inv[cells.step_top.size:]
+    nodes, t, f = cells.step_nodes
     n_rh, n_sh = rh[nodes], sh[nodes]
     n_rsup = (cells.relief_support if cells.relief_support is not None else cells.support).ravel()[nodes]
     n_lo, n_hi = lo[nodes], hi[nodes]

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.core.codec.hazard import HazardCells, erode, opening, step_offsets
+from fsw.core.codec.hazard import HazardCells, erode, step_offsets
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
@@ -26,6 +26,7 @@ B = NDArray[np.bool_]
 Heights = NDArray[np.float32] | NDArray[np.float64]  # an elevation map, metres (NaN: unknown)
 
 HOLD_ROUNDS = 4  # rounds of the relief hold, and tries of its step solve per round (cell_offsets)
+RESTING_BLOCK = 2048  # cells whose resting discs are searched at once (_resting_disc; memory ~ block x disc)
 
 
 def cell_offsets(z: Heights, cells: HazardCells, *, bound_m: float, rise_m: float,
@@ -39,6 +40,7 @@ def cell_offsets(z: Heights, cells: HazardCells, *, bound_m: float, rise_m: floa
     chain's windows, which moves the relief it reads)."""
     floor = ceiling = None
     under: F64 | None = None
+    last: tuple[F64, F64] | None = None  # a round's limits before its solve freed any step cell
     lo, hi = step_offsets(cells, bound_m=bound_m, rise_m=rise_m, step_slack_m=step_slack_m, threshold_m=threshold_m)
     short0 = _short_steps(cells, lo, hi, threshold_m, step_slack_m)
     for _ in range(HOLD_ROUNDS):
@@ -52,6 +54,9 @@ def cell_offsets(z: Heights, cells: HazardCells, *, bound_m: float, rise_m: floa
             break
         floor = limits[0] if floor is None else np.maximum(floor, limits[0])
         ceiling = limits[1] if ceiling is None else np.minimum(ceiling, limits[1])
+        if last is not None and np.array_equal(floor, last[0]) and np.array_equal(ceiling, last[1]):
+            break  # the limits of the last round again: its solve, and every later round, would repeat it
+        last = (floor.copy(), ceiling.copy())
         for attempt in range(HOLD_ROUNDS):  # the last try frees every step cell: the rule's own solve
             lo, hi = step_offsets(cells, bound_m=bound_m, rise_m=rise_m, step_slack_m=step_slack_m,
                                   threshold_m=threshold_m, floor=floor, ceiling=ceiling)
@@ -111,7 +116,8 @@ def hold_limits(z: Heights, relief_m: F32, lo: F64, hi: F64, *, kernel: NDArray[
     """
     z64 = np.asarray(z, np.float64)
     known = np.isfinite(z64)
-    ceil = relief_ceiling(z64, lo, hi, kernel).astype(np.float64)
+    lowest, opened = _ground(z64, lo, kernel)
+    ceil = _ceiling(z64, hi, known, opened).astype(np.float64)
     with np.errstate(invalid="ignore"):
         over = known & (relief_m < threshold_m) & (ceil >= threshold_m - guard_m)
     if not over.any():
@@ -123,9 +129,7 @@ def hold_limits(z: Heights, relief_m: F32, lo: F64, hi: F64, *, kernel: NDArray[
     floor = np.full(z64.shape, -np.inf)
     if short.any():
         # Its ground: the disc its opening rests on held no lower than (top - threshold).
-        level = (z64 + lo).astype(np.float32)
-        lowest = np.where(known, erode(level, kernel), np.float32(-np.inf))  # discs centred on known cells
-        centre = _resting_disc(lowest, short, kernel)
+        centre = _resting_disc(lowest, opened, short, kernel)
         target = np.full(z64.size, -np.inf)
         sy, sx = np.nonzero(short)
         np.maximum.at(target, centre, (z64 + top - threshold_m + 2.0 * guard_m)[sy, sx])
@@ -142,8 +146,26 @@ def relief_ceiling(z: Heights, lo: F64, hi: F64, kernel: NDArray[np.uint8]) -> F
     inside an interval lies between the float32 roundings of its ends, so the decoded map's
     relief, computed as :func:`relief` computes it, is never above this."""
     z64 = np.asarray(z, np.float64)
+    return _ceiling(z64, hi, np.isfinite(z64), _ground(z64, lo, kernel)[1])
+
+
+def _ground(z64: F64, lo: F64, kernel: NDArray[np.uint8]) -> tuple[F32, F32]:
+    """The map at its lowest (``z + lo``) under ``kernel``: per cell, the lowest known cell of the
+    disc centred there (-inf where no disc is centred: unknown cells), and the highest of those
+    over the discs covering it (the opening, before unknown cells are masked). One erosion and
+    one dilation serve both the relief ceiling and the resting discs of a round."""
+    level = (z64 + lo).astype(np.float32)
+    lowest = erode(level, kernel)
+    lowest[~np.isfinite(level)] = -np.inf
+    opened = cv2.dilate(lowest, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=float("-inf"))
+    return lowest, np.asarray(opened, np.float32)
+
+
+def _ceiling(z64: F64, hi: F64, known: B, opened: F32) -> F32:
+    """The relief ceiling from the map at its highest (``z + hi``) and the opening at its lowest
+    (:func:`_ground`), as :func:`fsw.core.codec.hazard.opening` would mask it (NaN unknown)."""
     top = (z64 + hi).astype(np.float32)
-    ground = opening((z64 + lo).astype(np.float32), kernel)
+    ground = np.where(known, opened, np.float32(np.nan)).astype(np.float32)
     return (top - ground).astype(np.float32)
 
 
@@ -165,23 +187,24 @@ def across_ground(z: Heights, cell_m: float, k: int) -> F64:
     return np.asarray(1.0 / np.sqrt(1.0 + mx * mx + my * my), np.float64)
 
 
-def _resting_disc(lowest: F32, cells: B, kernel: NDArray[np.uint8]) -> NDArray[np.int64]:
+def _resting_disc(lowest: F32, opened: F32, cells: B, kernel: NDArray[np.uint8]) -> NDArray[np.int64]:
     """Per cell of ``cells`` (row-major order), the flat index of the centre of the disc its
-    opening rests on: the nearest centre within the disc around it whose disc's lowest known
-    cell (``lowest``, -inf where no disc is centred) is the highest."""
+    opening rests on: the nearest centre within the disc around it (offsets in order of
+    distance, ties in raster order) whose disc's lowest known cell (``lowest``, -inf where no
+    disc is centred) is the highest (``opened``, that highest value: :func:`_ground`). Every
+    cell's offsets are read at once, a block of cells at a time."""
     ny, nx = lowest.shape
     cy, cx = np.nonzero(cells)
-    best = np.full(cy.size, -np.inf)
-    at = np.full(cy.size, -1, np.int64)
     r = (kernel.shape[0] - 1) // 2
     dy, dx = np.nonzero(kernel)
     dy, dx = dy - r, dx - r
-    for k in np.argsort(dy * dy + dx * dx, kind="stable"):
-        yy, xx = cy + dy[k], cx + dx[k]
+    order = np.argsort(dy * dy + dx * dx, kind="stable")
+    dy, dx = dy[order], dx[order]
+    at = np.empty(cy.size, np.int64)
+    for b in range(0, cy.size, RESTING_BLOCK):
+        yy, xx = cy[b:b + RESTING_BLOCK, None] + dy, cx[b:b + RESTING_BLOCK, None] + dx
         inside = (yy >= 0) & (yy < ny) & (xx >= 0) & (xx < nx)
-        val = np.full(cy.size, -np.inf)
-        val[inside] = lowest[yy[inside], xx[inside]]
-        better = val > best
-        best[better] = val[better]
-        at[better] = (yy * nx + xx)[better]
+        flat = np.where(inside, yy * nx + xx, 0)
+        hit = inside & (lowest.ravel()[flat] == opened[cy[b:b + RESTING_BLOCK], cx[b:b + RESTING_BLOCK], None])
+        at[b:b + RESTING_BLOCK] = flat[np.arange(flat.shape[0]), hit.argmax(axis=1)]
     return at
