@@ -42,7 +42,9 @@ chain of three or more relief hazards (a rock on a rock on a rock) whose steps a
 **Relief both ways** (``[codec] relief_ceiling``): the rule lets any other cell's relief grow
 by up to ``2e``, so ground just under the threshold could reach the receiver as a rock; the
 relief hold (:mod:`fsw.core.codec.relief_hold`) narrows the intervals this module gives so it
-does not.
+does not; with it the relief hazards are read as the receiver reads a rock, across the ground
+(``classify(..., relief_threshold=...)``): a cell under that threshold held never lower, on
+ground held never higher, could still gain up to two lattice steps of relief.
 """
 
 from __future__ import annotations
@@ -156,12 +158,16 @@ def _feet(z32: F32, eroded: F32, tops: B, kernel: NDArray[np.uint8]) -> tuple[ND
     return (ty * nx + tx)[keep].astype(np.int64), foot[keep]
 
 
-def classify(z: NDArray[np.floating], cell_m: float, rule: HazardRule) -> HazardCells:
+def classify(z: NDArray[np.floating], cell_m: float, rule: HazardRule,
+             relief_threshold: F64 | None = None) -> HazardCells:
     """Relief, step, and the hazard and support cells of ``z`` (see the module docstring).
 
     Support cells are only those a hazard's relief or step depends on: the lowest cell of a
     relief disc covering a relief hazard, or the foot of a step (one lowest cell of the step
-    disc around it).
+    disc around it). ``relief_threshold`` (per cell): the relief that makes a cell a relief
+    hazard, where the receiver reads relief across the ground (the relief hold,
+    :func:`fsw.core.codec.relief_hold.across_ground`); default the rule's threshold everywhere.
+    Steps are always against the rule's threshold.
     """
     z32 = np.asarray(z, np.float32)
     known = np.isfinite(z32)
@@ -174,7 +180,7 @@ def classify(z: NDArray[np.floating], cell_m: float, rule: HazardRule) -> Hazard
     es = erode(z32, sk)
     stp = (z32 - es).astype(np.float32)
     with np.errstate(invalid="ignore"):
-        rel_h = known & (rel >= rule.threshold_m)
+        rel_h = known & (rel >= (rule.threshold_m if relief_threshold is None else relief_threshold))
         steps = known & (stp >= rule.threshold_m)
     # Centres of the relief discs that cover a relief hazard: within the disc's radius of one.
     r = (rk.shape[0] - 1) // 2
@@ -306,15 +312,22 @@ class ObstacleCheck:
 
 def check_obstacles(z: NDArray[np.floating], decoded: NDArray[np.floating], cell_m: float,
                     threshold_m: float, disc_m: float, step_disc_m: float | None = None,
-                    reference: tuple[F32, F32] | None = None) -> ObstacleCheck:
+                    reference: tuple[F32, F32] | None = None,
+                    relief_threshold: F64 | None = None) -> ObstacleCheck:
     """Count the input's obstacles and those the decoded map kept (the issue's measure), and
     the step cells (``step_disc_m``, default the threshold: one wheel diameter) kept.
-    ``reference``: the input's (relief, step), when already computed."""
+    ``reference``: the input's (relief, step), when already computed. ``relief_threshold``
+    (per cell, as :func:`classify` takes it: a reduction whose relief hazards are read across
+    the ground): reliefs are read across the ground, ``relief x threshold / relief_threshold``
+    (the original map's slope for both maps), obstacles and losses included."""
     from scipy import ndimage
 
     sd = threshold_m if step_disc_m is None else step_disc_m
     r0, s0 = reference if reference is not None else (relief(z, cell_m, disc_m), step(z, cell_m, sd))
     r1 = relief(decoded, cell_m, disc_m)
+    if relief_threshold is not None:
+        across = threshold_m / np.asarray(relief_threshold, np.float64)
+        r0, r1 = (r0 * across).astype(np.float32), (r1 * across).astype(np.float32)
     s1 = step(decoded, cell_m, sd)
     with np.errstate(invalid="ignore"):
         haz0 = r0 >= threshold_m

@@ -1,5 +1,6 @@
 """The relief hold: no cell the receiver reads under the hazard threshold decodes at or over it
-(docs/algorithm.md §6.3, docs/quadtree.md "Relief both ways"; ``[codec] relief_ceiling``).
+(docs/algorithm.md §6.3; docs/quadtree.md, "Hazards: what the wheel must not lose", its relief both ways;
+``[codec] relief_ceiling``).
 
 The hazard rule (:mod:`fsw.core.codec.hazard`) keeps every hazard's relief but lets any other
 cell's relief grow by up to ``2e`` (the cell a bound higher, the lowest ground of its disc a
@@ -31,15 +32,16 @@ RESTING_BLOCK = 2048  # cells whose resting discs are searched at once (_resting
 
 def cell_offsets(z: Heights, cells: HazardCells, *, bound_m: float, rise_m: float,
                  step_slack_m: float, threshold_m: float, cell_m: float,
-                 relief_disc: NDArray[np.uint8] | None = None, guard_m: float = 0.0) -> tuple[F64, F64]:
+                 relief_disc: NDArray[np.uint8] | None = None, guard_m: float = 0.0,
+                 under: F64 | None = None) -> tuple[F64, F64]:
     """Per known cell, how far below and above its height its decoded height may lie: the
     hazard and step rule (:func:`step_offsets`) and, given the ``relief_disc`` kernel, the
     relief held both ways: no cell the receiver reads under ``threshold_m`` across the ground
     (:func:`across_ground`) brought to it (:func:`hold_limits`, ``guard_m`` below it). The hold
     only narrows intervals and is solved with the steps, a few rounds (each may raise a step
-    chain's windows, which moves the relief it reads)."""
+    chain's windows, which moves the relief it reads). ``under``: that threshold per cell in
+    height, ``threshold_m / across_ground`` (:func:`relief_threshold`), when already worked out."""
     floor = ceiling = None
-    under: F64 | None = None
     last: tuple[F64, F64] | None = None  # a round's limits before its solve freed any step cell
     lo, hi = step_offsets(cells, bound_m=bound_m, rise_m=rise_m, step_slack_m=step_slack_m, threshold_m=threshold_m)
     short0 = _short_steps(cells, lo, hi, threshold_m, step_slack_m)
@@ -47,7 +49,7 @@ def cell_offsets(z: Heights, cells: HazardCells, *, bound_m: float, rise_m: floa
         if relief_disc is None:
             break
         if under is None:
-            under = threshold_m / across_ground(z, cell_m, relief_disc.shape[0])
+            under = relief_threshold(z, cell_m, threshold_m, relief_disc)
         limits = hold_limits(z, cells.relief, lo, hi, kernel=relief_disc, threshold_m=under,
                              step_slack_m=step_slack_m, guard_m=guard_m)
         if limits is None:
@@ -167,6 +169,14 @@ def _ceiling(z64: F64, hi: F64, known: B, opened: F32) -> F32:
     top = (z64 + hi).astype(np.float32)
     ground = np.where(known, opened, np.float32(np.nan)).astype(np.float32)
     return (top - ground).astype(np.float32)
+
+
+def relief_threshold(z: Heights, cell_m: float, threshold_m: float, kernel: NDArray[np.uint8]) -> F64:
+    """Per cell, the relief in height that the receiver reads as ``threshold_m`` across the
+    ground (``threshold_m / cos(slope)``, :func:`across_ground` over the relief disc): the relief
+    hazards of a reduction with the hold (``hazard.classify(..., relief_threshold=...)``) and
+    the threshold the hold keeps every other cell under."""
+    return threshold_m / across_ground(z, cell_m, kernel.shape[0])
 
 
 def across_ground(z: Heights, cell_m: float, k: int) -> F64:
