@@ -22,8 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from fsw.core.codec.hazard import check_obstacles
+from fsw.core.codec.hazard import check_obstacles, disc
 from fsw.core.codec.mapcodec import CodecConfig, MapCodecError, decode_map, encode_map
+from fsw.core.codec.relief_hold import relief_threshold
 from fsw.core.geometry import MapGridConfig, RoverConfig
 from fsw.core.map import checkpoint
 from fsw.core.map.elevation_map import ElevationMap
@@ -121,9 +122,12 @@ def cmd_encode(args: argparse.Namespace) -> int:
           f"{t.n_leaves} leaves (reduction {t.reduction_factor:.1f}x); max error "
           f"{enc.max_error_m:.4f} m (bound {args.max_error or codec.error_bound_wheels * wheel:.4f} m)")
     threshold = codec.hazard_relief_wheels * wheel
-    c = check_obstacles(np.asarray(z, np.float32), decode_map(enc.data).z, cell, threshold,
-                        codec.relief_disc_m)
-    print(f"obstacles (relief >= {threshold:.3f} m over a {codec.relief_disc_m:g} m disc): "
+    z32 = np.asarray(z, np.float32)
+    across = codec.hazard and codec.relief_ceiling  # the reduction's hazards are read across the ground
+    c = check_obstacles(z32, decode_map(enc.data).z, cell, threshold, codec.relief_disc_m, relief_threshold=(
+        relief_threshold(z32, cell, threshold, disc(codec.relief_disc_m, cell)) if across else None))
+    print(f"obstacles (relief {'x cos(slope) ' if across else ''}>= {threshold:.3f} m over a "
+          f"{codec.relief_disc_m:g} m disc): "
           f"{c.n} given, {c.kept} kept; >= {2 * threshold:.3f} m: {c.n_2x} given, {c.kept_2x} kept; "
           f"worst relief loss on them {max(c.worst_relief_loss_m, 0.0):.4f} m; "
           f"steps >= {threshold:.3f} m: {c.step_cells} cells, {c.step_kept:.1%} kept")
@@ -218,7 +222,8 @@ def cmd_info(args: argparse.Namespace) -> int:
     if h.hazard:
         rows += [("hazard_threshold_m", f"{h.hazard_threshold_m:.4g}"),
                  ("relief_disc_m", f"{h.relief_disc_m:.4g}"), ("step_disc_m", f"{h.step_disc_m:.4g}"),
-                 ("relief_loss_bound_hazards_m", f"{h.relief_loss_hazard_m:.4g} (relief >= threshold)"),
+                 ("relief_loss_bound_hazards_m", f"{h.relief_loss_hazard_m:.4g} (relief "
+                  f"{'x cos(slope) ' if h.hazard_across_ground else ''}>= threshold)"),
                  ("relief_loss_bound_m", f"{h.relief_loss_any_m:.4g} (any known cell)"),
                  ("support_rise_m", f"{h.support_rise_m:.4g}"), ("step_slack_m", f"{h.step_slack_m:.4g}")]
     else:

@@ -94,7 +94,11 @@ class StepRecord:
     expected_new_cells: float
     obtained_new_cells: int
     pose: dict[str, float]
-    wall_s: float
+    # Host seconds from the mission task's start to the step's view, as this run of the flight
+    # software measured them (the summary's wall-clock field); None for a step restored from a
+    # checkpoint, which keeps no wall-clock time: a lockstep run writes the same checkpoints,
+    # byte for byte, every time.
+    wall_s: float | None
     sim_s: float
     # how the step's view came: the planner's method (rated: expected_new_cells is its prediction),
     # "look" (unknown ground a move would cross), "part-way" or "stay" (a refused move; the
@@ -176,11 +180,13 @@ def nav_from_json(d: JsonObject | None) -> NavPose | None:
 
 
 def records_to_json(records: list[StepRecord]) -> list[JsonObject]:
-    """Each record; ``view`` and ``view_new_cells`` only when set, so a checkpoint written
-    before they existed reads back and writes out unchanged."""
+    """Each record, without its wall-clock time (``StepRecord.wall_s``: what the host took is
+    no part of the mission's state); ``view`` and ``view_new_cells`` only when set, so a
+    checkpoint written before they existed reads back and writes out unchanged."""
     out = []
     for r in records:
         d = asdict(r)
+        del d["wall_s"]
         if r.view == "":
             del d["view"]
         if r.view_new_cells == -1:
@@ -196,7 +202,7 @@ def records_from_json(rows: list[object]) -> list[StepRecord]:
         step, cells, expected = get_int(r, "step"), get_int(r, "mapped_cells"), get_float(r, "expected_new_cells")
         obtained = get_int(r, "obtained_new_cells")
         pose = {str(k): as_float(v, "records[].pose") for k, v in as_object(r.get("pose"), "records[].pose").items()}
-        out.append(StepRecord(step, cells, expected, obtained, pose, get_float(r, "wall_s"), get_float(r, "sim_s"),
+        out.append(StepRecord(step, cells, expected, obtained, pose, None, get_float(r, "sim_s"),
                               get_str(r, "view", ""), get_int(r, "view_new_cells", -1)))
     return out
 

@@ -38,9 +38,9 @@ events), ``watchdog_expired_frames`` (frames the watchdog was expired), ``map_tr
 mapping to the end of the transfer), ``faults`` (the injected
 :class:`hil_sim.faults.FaultSpec` rows),
 ``wall_s``, ``cliffbot`` (the Cliff-bot's report, or null), ``files``. Wall-clock fields:
-``wall_s`` (top level and per step), ``task_max_ms``, ``task_ms_per_frame``, and ``slips`` and ``overruns`` (both
-compare measured execution time with the period and budgets); everything else is a
-function of the inputs and the seed.
+``wall_s`` (top level and per step; null for a step restored from a checkpoint), ``task_max_ms``,
+``task_ms_per_frame``, and ``slips`` and ``overruns`` (both compare measured execution time with the
+period and budgets); everything else is a function of the inputs and the seed.
 
 Resuming (docs/hil.md, "Resuming a mission"; the spec, the manifest and the out directory are
 ``hil_sim.mission.run_spec``): the run writes ``run.json`` (its ``RunSpec``)

@@ -24,7 +24,8 @@ team mission comes from here and only from the TRUTH:
   error; without it, at the exact lengths;
 * :func:`compare_maps`: "the map was enough": the Cliff-bot's planner on the received
   (reduced, decoded) map and on the full-resolution map of the same mission: targets reached
-  on each, path length ratio, hazard cells of the full map the received map shows as safe;
+  on each, path length ratio, hazard and rock cells of the full map the received map shows as
+  safe;
 * :func:`unknown_cells_entered`: the distinct cells of the true path the received map did
   not know; :func:`unknown_at_entry`: the cells the true path entered that the Cliff-bot's map
   did not know from a sensor WHEN it entered them (what the bench records step by step, and
@@ -258,7 +259,9 @@ class MapComparison:
     reasons_received: tuple[str, ...]
     lengths_full_m: tuple[float, ...]
     lengths_received_m: tuple[float, ...]
-    hazard_cells_lost: int  # hazard on the full map, known and not a hazard on the received map
+    # cells the full map reads as a hazard (a rock or steep ground, grown by the footprint) or as
+    # a rock (what a tether may not touch), known on the received map and not read so there
+    hazard_cells_lost: int
 
     @property
     def verdicts_differ(self) -> int:
@@ -288,9 +291,9 @@ def compare_maps(full_z: NDArray[np.floating], received_z: NDArray[np.floating],
     got = np.asarray(received_z, np.float64)
     p_full = plan_targets(full, grid, anchors, start_xy, targets_xy, tcfg, ccfg)
     p_got = plan_targets(got, grid, anchors, start_xy, targets_xy, tcfg, ccfg)
-    h_full = ground_layers(full, grid, ccfg).hazard
-    h_got = ground_layers(got, grid, ccfg).hazard
-    lost = int((h_full & ~h_got & np.isfinite(got)).sum())
+    g_full, g_got = ground_layers(full, grid, ccfg), ground_layers(got, grid, ccfg)
+    # A rock is lost too when it lies inside another's grown hazard (a tether may not touch it).
+    lost = int((((g_full.hazard & ~g_got.hazard) | (g_full.rock & ~g_got.rock)) & np.isfinite(got)).sum())
     return MapComparison(p_full.reasons, p_got.reasons, p_full.lengths_m, p_got.lengths_m, lost)
 
 

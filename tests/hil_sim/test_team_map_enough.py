@@ -26,3 +26,22 @@ def test_flight_codec_keeps_the_planners_hazards_and_adds_few_rocks() -> None:
     assert g_full.rock.sum() > 100  # the scene has rocks (a jumble) to keep
     assert not (g_full.hazard & ~g_got.hazard & np.isfinite(got)).any()  # no hazard lost
     assert g_got.rock.sum() <= 1.2 * g_full.rock.sum()  # flat ground does not read as rocks
+
+
+def test_a_rock_lost_inside_another_rocks_hazard_counts_as_lost() -> None:
+    """The measure of the map's hazards lost (``compare_maps``) counts a rock the received map
+    no longer reads even where the grown hazard round the rocks beside it hides it: a tether may
+    not touch a rock, whatever the hazard layer says."""
+    from fsw.core.team.tether import TetherConfig
+    from hil_sim.team.team_eval import compare_maps
+
+    grid, climber = MapGrid(0.0, 0.0, 0.04, 40, 40), ClimberConfig()
+    full = np.zeros((40, 40))
+    full[19:22, 19:22] = 0.2  # a 12 cm block: nine rock cells
+    got = full.copy()
+    got[20, 20] = 0.1  # its middle no longer reads as rock; the ring round it grows the same hazard
+    g_full, g_got = ground_layers(full, grid, climber), ground_layers(got, grid, climber)
+    assert np.array_equal(g_full.hazard, g_got.hazard) and int((g_full.rock & ~g_got.rock).sum()) == 1
+    off_map = np.array([-1.0, -1.0])  # no plan: the measure only
+    cmp = compare_maps(full, got, grid, np.zeros((2, 3)), off_map, off_map[None, :], TetherConfig(), climber)
+    assert cmp.hazard_cells_lost == 1

@@ -39,19 +39,18 @@ Every step keeps a drop >= the threshold and loses at most ``step_slack``, excep
 chain of three or more relief hazards (a rock on a rock on a rock) whose steps are within
 ``step_slack`` of the threshold: at most ``e - rise + step_slack``.
 
-**Relief both ways** (``[codec] relief_ceiling``, :func:`cell_offsets`). The rule above lets
-any cell's relief grow by up to ``2e``, so ground just under the threshold reaches the
-receiver as a rock. The receiver's planner reads relief across the ground, ``relief x
-cos(slope)`` over its footprint (:func:`across_ground`): a bump on a steep face is a hazard
-here (its relief in height is over the threshold) but not a rock there. Where a cell under
-that threshold could decode at or over it (:func:`relief_ceiling`), the cell is held lower
-and the ground its opening rests on no lower (:func:`hold_limits`); the hold only narrows
-intervals, never a hazard's, its support's or a step's own, and gives way to a step.
+**Relief both ways** (``[codec] relief_ceiling``): the rule lets any other cell's relief grow
+by up to ``2e``, so ground just under the threshold could reach the receiver as a rock; the
+relief hold (:mod:`fsw.core.codec.relief_hold`) narrows the intervals this module gives so it
+does not; with it the relief hazards are read as the receiver reads a rock, across the ground
+(``classify(..., relief_threshold=...)``): a cell under that threshold held never lower, on
+ground held never higher, could still gain up to two lattice steps of relief.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import cv2
@@ -61,9 +60,6 @@ from numpy.typing import NDArray
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
 B = NDArray[np.bool_]
-
-HOLD_ROUNDS = 4  # rounds of the relief hold, and tries of its step solve per round (cell_offsets)
-
 
 @dataclass(frozen=True)
 class HazardRule:
@@ -122,6 +118,14 @@ class HazardCells:
     step_top: NDArray[np.int64] | None = None  # flat index of every cell with step >= threshold
     step_foot: NDArray[np.int64] | None = None  # flat index of its foot: one lowest known cell of its disc
 
+    @cached_property
+    def step_nodes(self) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+        """The cells the steps involve (flat indices, sorted) and, per step pair, the places of
+        its top and its foot among them: worked out once, for every solve of :func:`step_offsets`."""
+        assert self.step_top is not None and self.step_foot is not None
+        nodes, inv = np.unique(np.concatenate([self.step_top, self.step_foot]), return_inverse=True)
+        return nodes, inv[:self.step_top.size], inv[self.step_top.size:]
+
 
 def _argmins(z32: F32, eroded: F32, centres: B, kernel: NDArray[np.uint8]) -> B:
     """Cells that are the lowest known cell of a disc centred on one of ``centres``
@@ -154,12 +158,16 @@ def _feet(z32: F32, eroded: F32, tops: B, kernel: NDArray[np.uint8]) -> tuple[ND
     return (ty * nx + tx)[keep].astype(np.int64), foot[keep]
 
 
-def classify(z: NDArray[np.floating], cell_m: float, rule: HazardRule) -> HazardCells:
+def classify(z: NDArray[np.floating], cell_m: float, rule: HazardRule,
+             relief_threshold: F64 | None = None) -> HazardCells:
     """Relief, step, and the hazard and support cells of ``z`` (see the module docstring).
 
     Support cells are only those a hazard's relief or step depends on: the lowest cell of a
     relief disc covering a relief hazard, or the foot of a step (one lowest cell of the step
-    disc around it).
+    disc around it). ``relief_threshold`` (per cell): the relief that makes a cell a relief
+    hazard, where the receiver reads relief across the ground (the relief hold,
+    :func:`fsw.core.codec.relief_hold.across_ground`); default the rule's threshold everywhere.
+    Steps are always against the rule's threshold.
     """
     z32 = np.asarray(z, np.float32)
     known = np.isfinite(z32)
@@ -172,7 +180,7 @@ def classify(z: NDArray[np.floating], cell_m: float, rule: HazardRule) -> Hazard
     es = erode(z32, sk)
     stp = (z32 - es).astype(np.float32)
     with np.errstate(invalid="ignore"):
-        rel_h = known & (rel >= rule.threshold_m)
+        rel_h = known & (rel >= (rule.threshold_m if relief_threshold is None else relief_threshold))
         steps = known & (stp >= rule.threshold_m)
     # Centres of the relief discs that cover a relief hazard: within the disc's radius of one.
     r = (rk.shape[0] - 1) // 2
@@ -187,71 +195,6 @@ def classify(z: NDArray[np.floating], cell_m: float, rule: HazardRule) -> Hazard
     is_foot[feet] = True
     support = rel_support | (~rel_h & is_foot.reshape(z32.shape))
     return HazardCells(rel, stp, rel_h, steps & ~rel_h, support, rel_support, tops, feet)
-
-
-def cell_offsets(z: NDArray[np.floating], cells: HazardCells, *, bound_m: float, rise_m: float,
-                 step_slack_m: float, threshold_m: float, cell_m: float,
-                 relief_disc: NDArray[np.uint8] | None = None, guard_m: float = 0.0) -> tuple[F64, F64]:
-    """Per known cell, how far below and above its height its decoded height may lie: the
-    hazard and step rule (:func:`step_offsets`) and, given the ``relief_disc`` kernel, the
-    relief held both ways: no cell the receiver reads under ``threshold_m`` across the ground
-    (:func:`across_ground`) brought to it (:func:`hold_limits`, ``guard_m`` below it). The hold
-    only narrows intervals and is solved with the steps, a few rounds (each may raise a step
-    chain's windows, which moves the relief it reads)."""
-    floor = ceiling = None
-    under: F64 | None = None
-    lo, hi = step_offsets(cells, bound_m=bound_m, rise_m=rise_m, step_slack_m=step_slack_m, threshold_m=threshold_m)
-    short0 = _short_steps(cells, lo, hi, threshold_m, step_slack_m)
-    for _ in range(HOLD_ROUNDS):
-        if relief_disc is None:
-            break
-        if under is None:
-            under = threshold_m / across_ground(z, cell_m, relief_disc.shape[0])
-        limits = hold_limits(z, cells.relief, lo, hi, kernel=relief_disc, threshold_m=under,
-                             step_slack_m=step_slack_m, guard_m=guard_m)
-        if limits is None:
-            break
-        floor = limits[0] if floor is None else np.maximum(floor, limits[0])
-        ceiling = limits[1] if ceiling is None else np.minimum(ceiling, limits[1])
-        for attempt in range(HOLD_ROUNDS):  # the last try frees every step cell: the rule's own solve
-            lo, hi = step_offsets(cells, bound_m=bound_m, rise_m=rise_m, step_slack_m=step_slack_m,
-                                  threshold_m=threshold_m, floor=floor, ceiling=ceiling)
-            # The steps come first: a step the limits cut short frees its top and the chain of
-            # feet below it of them (and, if that is not enough, every step cell).
-            cut = _short_steps(cells, lo, hi, threshold_m, step_slack_m) & ~short0
-            if not cut.any():
-                break
-            assert cells.step_top is not None and cells.step_foot is not None
-            freed = _chains_below(cells, cut) if attempt < HOLD_ROUNDS - 2 else \
-                np.concatenate([cells.step_top, cells.step_foot])
-            floor.ravel()[freed] = -np.inf
-            ceiling.ravel()[freed] = np.inf
-    return lo, hi
-
-
-def _chains_below(cells: HazardCells, pairs: B) -> NDArray[np.int64]:
-    """Flat indices of the tops of the step ``pairs`` and of every foot down their chains (a
-    foot that is itself a top, its foot, ...)."""
-    assert cells.step_top is not None and cells.step_foot is not None
-    foot_of = np.full(cells.relief.size, -1, np.int64)
-    foot_of[cells.step_top] = cells.step_foot
-    seen = np.zeros(cells.relief.size, bool)
-    cur = cells.step_top[pairs]
-    while cur.size:
-        seen[cur] = True
-        cur = foot_of[cur]
-        cur = cur[cur >= 0]
-        cur = cur[~seen[cur]]
-    return np.flatnonzero(seen)
-
-
-def _short_steps(cells: HazardCells, lo: F64, hi: F64, threshold_m: float, slack_m: float) -> B:
-    """Per step pair of ``cells``, whether the offsets leave its decoded drop short of
-    ``max(threshold, step - slack)`` (:func:`step_offsets`)."""
-    if cells.step_top is None or cells.step_foot is None:
-        return np.zeros(0, bool)
-    need = np.maximum(threshold_m - cells.step.ravel()[cells.step_top].astype(np.float64), -slack_m)
-    return np.asarray(lo.ravel()[cells.step_top] < hi.ravel()[cells.step_foot] + need - 1e-12)
 
 
 def step_offsets(cells: HazardCells, *, bound_m: float, rise_m: float, step_slack_m: float,
@@ -293,8 +236,7 @@ def step_offsets(cells: HazardCells, *, bound_m: float, rise_m: float, step_slac
     if threshold_m is None or cells.step_top is None or cells.step_foot is None or cells.step_top.size == 0:
         return lo.reshape(shape), hi.reshape(shape)
     # Work on the cells the steps involve only (tops and feet).
-    nodes, inv = np.unique(np.concatenate([cells.step_top, cells.step_foot]), return_inverse=True)
-    t, f = inv[:cells.step_top.size], inv[cells.step_top.size:]
+    nodes, t, f = cells.step_nodes
     n_rh, n_sh = rh[nodes], sh[nodes]
     n_rsup = (cells.relief_support if cells.relief_support is not None else cells.support).ravel()[nodes]
     n_lo, n_hi = lo[nodes], hi[nodes]
@@ -370,15 +312,22 @@ class ObstacleCheck:
 
 def check_obstacles(z: NDArray[np.floating], decoded: NDArray[np.floating], cell_m: float,
                     threshold_m: float, disc_m: float, step_disc_m: float | None = None,
-                    reference: tuple[F32, F32] | None = None) -> ObstacleCheck:
+                    reference: tuple[F32, F32] | None = None,
+                    relief_threshold: F64 | None = None) -> ObstacleCheck:
     """Count the input's obstacles and those the decoded map kept (the issue's measure), and
     the step cells (``step_disc_m``, default the threshold: one wheel diameter) kept.
-    ``reference``: the input's (relief, step), when already computed."""
+    ``reference``: the input's (relief, step), when already computed. ``relief_threshold``
+    (per cell, as :func:`classify` takes it: a reduction whose relief hazards are read across
+    the ground): reliefs are read across the ground, ``relief x threshold / relief_threshold``
+    (the original map's slope for both maps), obstacles and losses included."""
     from scipy import ndimage
 
     sd = threshold_m if step_disc_m is None else step_disc_m
     r0, s0 = reference if reference is not None else (relief(z, cell_m, disc_m), step(z, cell_m, sd))
     r1 = relief(decoded, cell_m, disc_m)
+    if relief_threshold is not None:
+        across = threshold_m / np.asarray(relief_threshold, np.float64)
+        r0, r1 = (r0 * across).astype(np.float32), (r1 * across).astype(np.float32)
     s1 = step(decoded, cell_m, sd)
     with np.errstate(invalid="ignore"):
         haz0 = r0 >= threshold_m
@@ -413,97 +362,3 @@ def check_obstacles(z: NDArray[np.floating], decoded: NDArray[np.floating], cell
                          worst_peak_loss_m=float((peak0 - peak1).max()),
                          worst_relief_loss_m=float(loss.max()) if loss.size else 0.0,
                          footprint_kept=float(haz1[haz0].mean()), position_error_cells=pos_err, **steps)
-
-
-def relief_ceiling(z: NDArray[np.floating], lo: F64, hi: F64, kernel: NDArray[np.uint8]) -> F32:
-    """The highest relief (top-hat over ``kernel``) any map inside the offsets ``[lo, hi]`` can
-    decode with, per cell (NaN on unknown cells): the cell at its highest against the opening
-    of every cell at its lowest. The opening is monotone in the heights, and a float32 value
-    inside an interval lies between the float32 roundings of its ends, so the decoded map's
-    relief, computed as :func:`relief` computes it, is never above this."""
-    z64 = np.asarray(z, np.float64)
-    top = (z64 + hi).astype(np.float32)
-    ground = opening((z64 + lo).astype(np.float32), kernel)
-    return (top - ground).astype(np.float32)
-
-
-def across_ground(z: NDArray[np.floating], cell_m: float, k: int) -> F64:
-    """Per cell, the cos of the ground's slope over a ``k`` x ``k`` window round it, from the mean
-    of the central-difference gradients its known cells give (1 where none): what the receiver's
-    planner multiplies a relief by to read it across the ground (``fsw.core.team.face_planner``,
-    its footprint's slope: a bump on a steep face stands ``relief x cos(slope)`` off it)."""
-    from scipy import ndimage
-
-    z64 = np.asarray(z, np.float64)
-    if min(z64.shape) < 2:  # no gradient along a single row or column: read as level
-        return np.ones(z64.shape)
-    gy, gx = np.gradient(z64, cell_m)
-    ok = np.isfinite(gx) & np.isfinite(gy)
-    n = np.maximum(ndimage.uniform_filter(ok.astype(np.float64), k), 1e-9)
-    mx = ndimage.uniform_filter(np.where(ok, gx, 0.0), k) / n
-    my = ndimage.uniform_filter(np.where(ok, gy, 0.0), k) / n
-    return np.asarray(1.0 / np.sqrt(1.0 + mx * mx + my * my), np.float64)
-
-
-def hold_limits(z: NDArray[np.floating], relief_m: F32, lo: F64, hi: F64, *, kernel: NDArray[np.uint8],
-                threshold_m: F64, step_slack_m: float, guard_m: float) -> tuple[F64, F64] | None:
-    """One round of the relief hold (docs/algorithm.md §6.3, "Relief both ways"): the floors and
-    ceilings (offsets) under which no cell whose relief (``relief_m``) is under its threshold
-    (``threshold_m``, per cell) can decode at or over it, as far as the current offsets
-    ``[lo, hi]`` leave room; None when none is needed.
-
-    A cell's relief may grow by up to ``2e`` (itself ``e`` higher, the lowest ground of its disc
-    ``e`` lower). Where its :func:`relief_ceiling` reaches the threshold, the cell is held lower
-    by the excess, as far as a lattice step of interval (``step_slack_m``) allows; what remains
-    holds the ground of the disc its opening rests on (the disc, among those covering it, whose
-    lowest cell is highest) no lower than the cell's top less the threshold. Limits only narrow
-    intervals (:func:`step_offsets` keeps every hazard's, support's and step's own), so where a
-    cell's interval and its ground's are already a lattice step wide (a hazard that is never
-    lower on ground a step chain holds low) the relief may still grow past its threshold.
-    """
-    z64 = np.asarray(z, np.float64)
-    known = np.isfinite(z64)
-    ceil = relief_ceiling(z64, lo, hi, kernel).astype(np.float64)
-    with np.errstate(invalid="ignore"):
-        over = known & (relief_m < threshold_m) & (ceil >= threshold_m - guard_m)
-    if not over.any():
-        return None
-    # The cell itself: its top lowered by the excess, keeping a lattice step of interval.
-    top = np.maximum(lo + step_slack_m, hi - (ceil - threshold_m + 2.0 * guard_m))
-    ceiling = np.where(over, top, np.inf)
-    short = over & (hi - top < ceil - threshold_m + 2.0 * guard_m)  # the cell alone is not enough
-    floor = np.full(z64.shape, -np.inf)
-    if short.any():
-        # Its ground: the disc its opening rests on held no lower than (top - threshold).
-        level = (z64 + lo).astype(np.float32)
-        lowest = np.where(known, erode(level, kernel), np.float32(-np.inf))  # discs centred on known cells
-        centre = _resting_disc(lowest, short, kernel)
-        target = np.full(z64.size, -np.inf)
-        sy, sx = np.nonzero(short)
-        np.maximum.at(target, centre, (z64 + top - threshold_m + 2.0 * guard_m)[sy, sx])
-        need = cv2.dilate(target.reshape(z64.shape), kernel, borderType=cv2.BORDER_CONSTANT,
-                          borderValue=float("-inf"))
-        floor = np.where(known, need - np.where(known, z64, 0.0), -np.inf)
-    return floor, ceiling
-
-
-def _resting_disc(lowest: F32, cells: B, kernel: NDArray[np.uint8]) -> NDArray[np.int64]:
-    """Per cell of ``cells`` (row-major order), the flat index of the centre of the disc its
-    opening rests on: the nearest centre within the disc around it whose disc's lowest known
-    cell (``lowest``, -inf where no disc is centred) is the highest."""
-    ny, nx = lowest.shape
-    cy, cx = np.nonzero(cells)
-    best = np.full(cy.size, -np.inf)
-    at = np.full(cy.size, -1, np.int64)
-    r = (kernel.shape[0] - 1) // 2
-    dy, dx = np.nonzero(kernel)
-    dy, dx = dy - r, dx - r
-    for k in np.argsort(dy * dy + dx * dx, kind="stable"):
-        yy, xx = cy + dy[k], cx + dx[k]
-        inside = (yy >= 0) & (yy < ny) & (xx >= 0) & (xx < nx)
-        val = np.full(cy.size, -np.inf)
-        val[inside] = lowest[yy[inside], xx[inside]]
-        better = val > best
-        best[better] = val[better]
-        at[better] = (yy * nx + xx)[better]
-    return at

@@ -11,7 +11,8 @@ rebuilds the elevation map on the Cliff-bot.
 original (default one wheel diameter); every unknown cell decodes as NaN. With ``hazard =
 true`` (default) every cell also has its own interval (``fsw.core.codec.hazard``): a cell
 whose relief (top-hat over ``relief_disc_m``) is at least one wheel diameter decodes with
-its relief and height never lower, so no obstacle is flattened from both sides; the
+its relief and height never lower (with ``relief_ceiling``, relief across the ground:
+``fsw.core.codec.relief_hold``), so no obstacle is flattened from both sides; the
 relief loss bounds are in the container header. The quadtree only accepts a leaf whose
 known cells' intervals share a lattice value, the encoder picks the leaf's value from that
 feasible set, and ``encode_map`` checks every cell against its interval before it returns.
@@ -33,6 +34,7 @@ from numpy.typing import NDArray
 
 from fsw.core.codec import hazard as hz
 from fsw.core.codec import hint
+from fsw.core.codec import relief_hold as rh
 from fsw.core.codec.mapformat import Header, MapCodecError, compressor, pack, unpack
 from fsw.core.codec.quadtree import Quadtree, build_quadtree, tree_depth
 from fsw.core.codec.tileformat import TileProfile, pack_tile, unpack_tile
@@ -83,9 +85,9 @@ class CodecConfig:
         0.0, lo=0.0, hi=0.9, doc="support cells rise at most, relief hazards rise at least, "
         "this fraction of the error bound")
     relief_ceiling: bool = param(
-        False, doc="hold relief both ways: a cell under the hazard threshold across the ground (relief x "
-        "cos(slope), as the receiver's planner reads it) decodes under it too, where the steps leave room "
-        "(fsw.core.codec.hazard.hold_limits)")
+        False, doc="hold relief both ways: relief hazards are read across the ground (relief x cos(slope), as "
+        "the receiver's planner reads a rock) and a cell under that threshold decodes under it too, where the "
+        "steps leave room (fsw.core.codec.relief_hold)")
     receiver_wheel_diameter_m: float = param(
         0.12, lo=0.0, hi=2.0, units="m",
         doc="wheel diameter of the agent the map is sent to (the Cliff-bot: 2 x its 0.06 m wheel radius); "
@@ -166,16 +168,20 @@ def _reduce(
         rule = hz.HazardRule(threshold_m=cfg.hazard_relief_wheels * wheel_diameter_m,
                              relief_disc_m=cfg.relief_disc_m,
                              step_disc_m=cfg.step_disc_wheels * wheel_diameter_m)
-        cells = hz.classify(z32, cell_m, rule)
-        lo_off, hi_off = hz.cell_offsets(
+        # With the hold, a relief hazard is what the receiver reads as one: relief across the ground.
+        kernel = hz.disc(rule.relief_disc_m, cell_m) if cfg.relief_ceiling else None
+        under = None if kernel is None else rh.relief_threshold(z32, cell_m, rule.threshold_m, kernel)
+        cells = hz.classify(z32, cell_m, rule, relief_threshold=under)
+        lo_off, hi_off = rh.cell_offsets(
             z32, cells, bound_m=bound, rise_m=rise, step_slack_m=slack, threshold_m=rule.threshold_m, cell_m=cell_m,
-            relief_disc=hz.disc(rule.relief_disc_m, cell_m) if cfg.relief_ceiling else None, guard_m=margin)
+            relief_disc=kernel, guard_m=margin, under=under)
         z64 = z32.astype(np.float64)
         lo_c, hi_c = z64 + lo_off + margin, z64 + hi_off - margin  # the margins absorb float32 rounding
         lo_chk, hi_chk = z64 + lo_off, z64 + hi_off  # what the decoded float32 values must meet
         hazard_fields = {"hazard_threshold_m": rule.threshold_m, "relief_disc_m": rule.relief_disc_m,
                          "step_disc_m": rule.step_disc_m, "support_rise_m": rise, "step_slack_m": slack,
-                         "relief_loss_hazard_m": 0.0, "relief_loss_any_m": 2.0 * bound}
+                         "relief_loss_hazard_m": 0.0, "relief_loss_any_m": 2.0 * bound,
+                         "hazard_across_ground": cfg.relief_ceiling}
     else:
         q = cfg.quant_step_fraction * bound
     if lattice_offset:

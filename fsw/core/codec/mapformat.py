@@ -5,7 +5,8 @@ Layout (little-endian; docs/quadtree.md has the same table)::
     off  size  field
     0    4     magic b"SQMC"
     4    1     version (2; version 1 containers, without the hazard fields, still decode)
-    5    1     flags: bit 0 = map has unknown cells, bit 1 = hazard-preserving reduction
+    5    1     flags: bit 0 = map has unknown cells, bit 1 = hazard-preserving reduction,
+               bit 2 = its relief hazards read across the ground (relief x cos(slope))
     6    1     split rule: 0 entropy, 1 bound
     7    1     leaf value mode: 0 predictive, 1 mean
     8    4     ny (u32)             12  4  nx (u32)
@@ -73,6 +74,9 @@ class Header:
     support_rise_m: float = float("nan")
     step_slack_m: float = float("nan")
     relief_loss_hazard_m: float = float("nan")  # bound on cells with relief >= the threshold
+    # the threshold is across the ground: relief x cos(slope) over the relief disc
+    # (fsw.core.codec.relief_hold.across_ground), as the receiver's planner reads a rock
+    hazard_across_ground: bool = False
     relief_loss_any_m: float = float("nan")  # bound on every known cell
     version: int = VERSION
 
@@ -91,7 +95,7 @@ def compressor(level: int) -> zstandard.ZstdCompressor:
 def pack(header: Header, streams: list[bytes], cctx: zstandard.ZstdCompressor) -> bytes:
     """Container bytes for ``header`` and the four raw streams."""
     coded = [cctx.compress(s) if s else b"" for s in streams]
-    flags = (1 if header.has_unknown else 0) | (2 if header.hazard else 0)
+    flags = (1 if header.has_unknown else 0) | (2 if header.hazard else 0) | (4 if header.hazard_across_ground else 0)
     head = _HEAD.pack(
         MAGIC, VERSION, flags, _RULES.index(header.split_rule),
         _MODES.index(header.leaf_value), header.ny, header.nx, header.cell_m,
@@ -128,8 +132,10 @@ def unpack(data: bytes, *, max_cells: int) -> tuple[Header, list[bytes]]:
     (crc,) = struct.unpack_from("<I", data, want - 4)
     if zlib.crc32(data[: want - 4]) != crc:
         raise MapCodecError("CRC-32 mismatch: the container is corrupted")
-    if flags > (3 if version == VERSION else 1) or rule >= len(_RULES) or mode >= len(_MODES):
+    if flags > (7 if version == VERSION else 1) or rule >= len(_RULES) or mode >= len(_MODES):
         raise MapCodecError("unknown flag or mode values in the header")
+    if flags & 4 and not flags & 2:
+        raise MapCodecError("hazards read across the ground without the hazard rule in the header")
     if ny < 1 or nx < 1 or ny * nx > max_cells:
         raise MapCodecError(f"map size {ny}x{nx} outside 1..{max_cells} cells")
     if not (q > 0 and math.isfinite(q) and math.isfinite(off) and bound_m > 0):
@@ -160,5 +166,5 @@ def unpack(data: bytes, *, max_cells: int) -> tuple[Header, list[bytes]]:
                     split_rule=_RULES[rule], leaf_value=_MODES[mode], hazard=bool(flags & 2),
                     hazard_threshold_m=hazard[0], relief_disc_m=hazard[1], step_disc_m=hazard[2],
                     support_rise_m=hazard[3], step_slack_m=hazard[4], relief_loss_hazard_m=hazard[5],
-                    relief_loss_any_m=hazard[6], version=version)
+                    relief_loss_any_m=hazard[6], hazard_across_ground=bool(flags & 4), version=version)
     return header, streams

@@ -8,7 +8,11 @@ time of each, against the 100 ms encode target:
 * the demo's mission map (``--scenario``, default ``lab``, the scenario ``safer-hil demo``
   flies): the world's truth on the flight map grid (256 x 256 cells of 3 cm), 1.5 cm of height
   noise and unknown textureless ground, as the experiment's mission-like maps, reduced for the
-  receiving rover's wheel (``[codec] receiver_wheel_diameter_m``); ``--scenario ""`` skips it.
+  receiving rover's wheel (``[codec] receiver_wheel_diameter_m``); ``--scenario ""`` skips it;
+* the team's maps (``--team-seeds``, default 3 ``cliff-team`` scenes from seed 0): the ground of
+  the cliff scene on the flight map grid, the full-resolution map ``safer-hil experiment team``
+  reduces, encoded as the RECON-bot's radio encodes it for the Cliff-bot (the flight ``[codec]``
+  with its relief hold); ``--team-seeds 0`` skips them.
 
 The first run of each is a warm-up and not counted. Timings on a shared machine are noisy;
 the median is the figure to quote, the CPU time the one least disturbed by other load.
@@ -32,6 +36,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default="lab",
                    help="scenario of the mission-size map (the demo flies lab; terrain:N = terrain family "
                    "seed N); empty to skip")
+    p.add_argument("--team-seeds", type=int, default=3, help="cliff-team scenes timed, from seed --team-seed")
+    p.add_argument("--team-seed", type=int, default=0, help="first cliff-team seed")
     p.add_argument("--repeat", type=int, default=20, help="timed runs per map")
     p.add_argument("--config", default=None, help="flight config for [codec], [rover] (default config/fsw.toml)")
 
@@ -69,11 +75,14 @@ def _time(label: str, z: Any, cell_m: float, wheel: float, codec: Any, repeat: i
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from fsw.core.codec.mapcodec import CodecConfig
-    from fsw.core.geometry import RoverConfig
+    from fsw.core.geometry import MapGrid, RoverConfig
     from fsw.framework.params import ConfigError, build, load_toml
     from fsw.settings import DEFAULT_CONFIG
     from hil_sim.lab.experiments.experiment_reduction import _mission_like
+    from hil_sim.world import load_scenario
     from hil_sim.world.config import ScenarioError
     from hil_sim.world.mars import viking_heightfield
 
@@ -85,8 +94,8 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"safer-hil: error: {exc}")
         return 2
-    if args.size < 8 or args.repeat < 1 or args.dh <= 0:
-        print("safer-hil: error: need --size >= 8, --repeat >= 1 and --dh > 0")
+    if args.size < 8 or args.repeat < 1 or args.dh <= 0 or args.team_seeds < 0:
+        print("safer-hil: error: need --size >= 8, --repeat >= 1, --dh > 0 and --team-seeds >= 0")
         return 2
     mission = None
     if args.scenario:
@@ -101,4 +110,9 @@ def run(args: argparse.Namespace) -> int:
         name, zm, cell = mission
         _time(f"mission map ({name}, as the demo's)", zm, cell, codec.wheel_m(rover.wheel_diameter_m), codec,
               args.repeat)
+    for seed in range(args.team_seed, args.team_seed + args.team_seeds):
+        world = load_scenario("cliff-team", seed)
+        grid = MapGrid.from_config(world.map_grid)
+        _time(f"team map (cliff-team seed {seed})", world.ground_on_grid(grid).astype(np.float32), grid.cell,
+              codec.wheel_m(rover.wheel_diameter_m), codec, args.repeat)
     return 0

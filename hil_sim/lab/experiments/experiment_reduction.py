@@ -77,10 +77,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=Path("out/experiments/reduction"), help="output dir")
 
 
-def jpegls_for_hazards(z: Any, w: float, bound: float, cell_m: float, disc_m: float) -> dict[str, Any]:
+def jpegls_for_hazards(z: Any, w: float, bound: float, cell_m: float, disc_m: float,
+                       relief_threshold: Any = None) -> dict[str, Any]:
     """JPEG-LS near-lossless on a 1 mm grid: bytes at the largest NEAR that keeps the input's
     obstacles (all kept at >= w, as ours; and the issue's bar, >= 99 % of them and all >= 2w)
-    within the height bound, and at the bound alone."""
+    within the height bound, and at the bound alone; obstacles read as ours are
+    (``relief_threshold``: across the ground, ``check_obstacles``)."""
     import imagecodecs
     import numpy as np
     import zstandard
@@ -102,7 +104,8 @@ def jpegls_for_hazards(z: Any, w: float, bound: float, cell_m: float, disc_m: fl
         back = imagecodecs.jpegls_decode(enc).astype(np.float64) * unit + zmin
         zd = np.where(known, back, np.nan).astype(np.float32)
         err = float(np.abs(zd[known].astype(np.float64) - z[known]).max()) if known.any() else 0.0
-        return len(enc) + mask_bytes, check_obstacles(z, zd, cell_m, w, disc_m, reference=ref), err
+        return len(enc) + mask_bytes, check_obstacles(z, zd, cell_m, w, disc_m, reference=ref,
+                                                  relief_threshold=relief_threshold), err
 
     n_max = max(0, int(np.floor((bound - 0.5 * unit) / unit)))
     n_max = min(n_max, 255)
@@ -203,6 +206,18 @@ def _map_file(path: Path, default_cell_m: float) -> tuple[Any, float]:
     return z.astype(np.float32), default_cell_m
 
 
+def _across(z: Any, cell_m: float, threshold_m: float, codec: Any) -> Any:
+    """The per-cell relief threshold a reduction with the relief hold reads its hazards by
+    (relief across the ground, the container's ``hazard_across_ground``), or None: the
+    obstacles are counted as the reduction promises to keep them."""
+    from fsw.core.codec.hazard import disc
+    from fsw.core.codec.relief_hold import relief_threshold
+
+    if not (codec.hazard and codec.relief_ceiling):
+        return None
+    return relief_threshold(z, cell_m, threshold_m, disc(codec.relief_disc_m, cell_m))
+
+
 def check_map(name: str, kind: str, z: Any, cell: float, wheel: float, dh: float | None, codec: Any,
               want_figure: bool = False) -> tuple[dict[str, Any], Any]:
     """The per-map hazard check (module docstring); with ``want_figure`` also the Figure 13
@@ -218,13 +233,14 @@ def check_map(name: str, kind: str, z: Any, cell: float, wheel: float, dh: float
     dec, dec_old = decode_map(enc.data), decode_map(old.data)
     h = dec.header
     thr, step_disc = codec.hazard_relief_wheels * wheel, codec.step_disc_wheels * wheel
-    c = check_obstacles(z, dec.z, cell, thr, codec.relief_disc_m, step_disc)
-    co = check_obstacles(z, dec_old.z, cell, thr, codec.relief_disc_m, step_disc)
+    across = _across(z, cell, thr, codec)
+    c = check_obstacles(z, dec.z, cell, thr, codec.relief_disc_m, step_disc, relief_threshold=across)
+    co = check_obstacles(z, dec_old.z, cell, thr, codec.relief_disc_m, step_disc, relief_threshold=across)
     known = np.isfinite(z)
     r0, r1 = relief(z, cell, codec.relief_disc_m), relief(dec.z, cell, codec.relief_disc_m)
     loss_any = float((r0 - r1)[known].max()) if known.any() else 0.0
     s0, s1 = step(z, cell, step_disc), step(dec.z, cell, step_disc)
-    jls = jpegls_for_hazards(z, wheel, h.error_bound_m, cell, codec.relief_disc_m)
+    jls = jpegls_for_hazards(z, wheel, h.error_bound_m, cell, codec.relief_disc_m, across)
     row = {
         "map": name, "kind": kind, "cells": int(z.size), "known": int(known.sum()),
         "wheel_m": round(wheel, 4), "dH": dh, "obst": c.n, "kept": c.kept, "obst_2w": c.n_2x,
@@ -268,7 +284,8 @@ def _viking_job(i: int, k: float, args: argparse.Namespace, dhs: list[float], co
         dt = time.process_time() - tic
         old = encode_map(z, cell_m=args.cell_m, wheel_diameter_m=wheel, cfg=height_only)
         dz = decode_map(enc.data).z
-        c = check_obstacles(z, dz, args.cell_m, wheel, codec.relief_disc_m)
+        c = check_obstacles(z, dz, args.cell_m, wheel, codec.relief_disc_m,
+                            relief_threshold=_across(z, args.cell_m, wheel, codec))
         rows.append({"map": i, "k": round(float(k), 4), "seed": args.seed + i, "relief_m": round(relief_m, 4),
                      "dH": dh, "wheel_m": round(wheel, 5), "bound_m": codec.error_bound_wheels * wheel,
                      "leaves": enc.tree.n_leaves, "reduction": round(enc.tree.reduction_factor, 2),

@@ -13,7 +13,8 @@ command gives the same table) is judged by :mod:`hil_sim.team.team_eval`:
   the flight map grid: a perfect RECON-bot map) and on that map after the link's reduction
   (``fsw.core.codec.mapcodec`` at the flight configuration, its critical length the
   receiver's wheel, ``--wheel``, default the Cliff-bot's ``ClimberConfig.wheel_d_m``): targets
-  reached on each, path length ratio, full-map hazard cells the reduced map shows as safe;
+  reached on each, path length ratio, full-map hazard and rock cells the reduced map shows as
+  safe;
 * **the mission**: the Cliff-bot's mission on the bench on the reduced map
   (:func:`hil_sim.team.team_run.run_team`) with fixes from the RECON-bot standing at the
   scenario's start (rendered stereo pair, flight ``CliffbotLocalizer``; ``--fixer truth``: the
@@ -269,7 +270,7 @@ def report(rows: list[dict[str, Any]], args: argparse.Namespace) -> str:
              f"{sum(r['verdicts_differ'] for r in rows)}; {sum(1 for r in rows if r['verdicts_differ'])} |",
              f"| path length reduced / full | {_mw(ratios, fmt='{:.3f}')} |",
              f"| scenes with a path over 10 % longer on the reduced map | {sum(1 for x in ratios if x > 1.1)} |",
-             f"| full-map hazard cells the reduced map shows as safe | "
+             f"| full-map hazard or rock cells the reduced map shows as safe | "
              f"{_mw([r['hazard_cells_lost'] for r in rows], fmt='{:.0f}')} |",
              f"| map bytes (s at 9600 bit/s, worst) | {_mw([r['map_bytes'] for r in rows], fmt='{:.0f}')} "
              f"({max(r['map_bytes'] for r in rows) * 8 / LINK_BPS:.1f} s) |"]

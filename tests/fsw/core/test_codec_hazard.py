@@ -11,6 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from fsw.core.codec import hazard as hz
+from fsw.core.codec import relief_hold as rh
 from fsw.core.codec.mapcodec import CodecConfig, MapCodecError, decode_map, encode_map
 from fsw.core.codec.mapformat import HEADER_BYTES
 
@@ -35,6 +36,21 @@ def _rocky(seed: int, shape: tuple[int, int], cell_m: float, n_rocks: int, relie
     return z.astype(np.float32)
 
 
+def _hazard_threshold(z: np.ndarray, cell_m: float, h) -> np.ndarray | float:
+    """The relief that makes a cell a relief hazard, as the header states it: the threshold, or
+    with ``hazard_across_ground`` the threshold across the ground (per cell, in height)."""
+    if not h.hazard_across_ground:
+        return float(h.hazard_threshold_m)
+    return rh.relief_threshold(z, cell_m, h.hazard_threshold_m, hz.disc(h.relief_disc_m, cell_m))
+
+
+def _classify(z: np.ndarray, cell_m: float, h) -> hz.HazardCells:
+    """The input's hazard cells as the header's rule reads them."""
+    threshold = _hazard_threshold(z, cell_m, h)
+    return hz.classify(z, cell_m, hz.HazardRule(h.hazard_threshold_m, h.relief_disc_m, h.step_disc_m),
+                       relief_threshold=None if isinstance(threshold, float) else threshold)
+
+
 def _assert_bounds(z: np.ndarray, cell_m: float, enc_data: bytes, check_steps: bool = True) -> None:
     dec = decode_map(enc_data)
     h, zd = dec.header, dec.z
@@ -45,7 +61,8 @@ def _assert_bounds(z: np.ndarray, cell_m: float, enc_data: bytes, check_steps: b
     assert float(np.abs(zd[known].astype(np.float64) - z[known]).max()) <= h.error_bound_m
     r0 = hz.relief(z, cell_m, h.relief_disc_m)
     r1 = hz.relief(zd, cell_m, h.relief_disc_m)
-    haz = known & (r0 >= h.hazard_threshold_m)
+    with np.errstate(invalid="ignore"):
+        haz = known & (r0 >= _hazard_threshold(z, cell_m, h))
     loss = (r0 - r1)[known].astype(np.float64)
     assert loss.max() <= h.relief_loss_any_m + 1e-6, "relief loss beyond the stated bound"
     if haz.any():
@@ -53,7 +70,7 @@ def _assert_bounds(z: np.ndarray, cell_m: float, enc_data: bytes, check_steps: b
         assert (zd[haz] >= z[haz]).all(), "a hazard decoded lower"
     if check_steps:
         assert _steps_kept(z, cell_m, dec).all(), "a step was lost"
-        cells = hz.classify(z, cell_m, hz.HazardRule(h.hazard_threshold_m, h.relief_disc_m, h.step_disc_m))
+        cells = _classify(z, cell_m, h)
         assert cells.step_top is not None
         if cells.step_top.size:
             s0 = cells.step.ravel()[cells.step_top].astype(np.float64)
@@ -62,16 +79,17 @@ def _assert_bounds(z: np.ndarray, cell_m: float, enc_data: bytes, check_steps: b
             assert (s0 - s1).max() <= h.error_bound_m - h.support_rise_m + h.step_slack_m + 1e-6
 
 
-def _steps_kept(z: np.ndarray, cell_m: float, dec) -> np.ndarray:
+def _steps_kept(z: np.ndarray, cell_m: float, dec, header=None) -> np.ndarray:
     """Per step from ground (top and foot no relief hazard), whether it keeps a decoded drop
-    >= the threshold and loses at most the slack."""
-    h = dec.header
-    cells = hz.classify(z, cell_m, hz.HazardRule(h.hazard_threshold_m, h.relief_disc_m, h.step_disc_m))
+    >= the threshold and loses at most the slack; the steps and hazards as ``header`` (default
+    the decoded map's) reads them."""
+    h = dec.header if header is None else header
+    cells = _classify(z, cell_m, h)
     assert cells.step_top is not None and cells.step_foot is not None
     s0 = cells.step.ravel()[cells.step_top].astype(np.float64)
     s1 = hz.step(dec.z, cell_m, h.step_disc_m).ravel()[cells.step_top].astype(np.float64)
-    rh = cells.relief_hazard.ravel()
-    on_ground = ~rh[cells.step_top] & ~rh[cells.step_foot]
+    hazard_at = cells.relief_hazard.ravel()
+    on_ground = ~hazard_at[cells.step_top] & ~hazard_at[cells.step_foot]
     kept = s1 >= np.maximum(h.hazard_threshold_m, s0 - h.step_slack_m) - 1e-6
     return np.asarray(kept[on_ground])
 
@@ -198,6 +216,7 @@ def test_relief_is_the_top_hat_and_ignores_unknown_cells():
 # ---------------------------------------------------------------- relief held both ways (issue 27)
 TEAM_WHEEL = 0.12  # the Cliff-bot's wheel, a quarter-wheel bound and its planner's 0.6 m rock disc
 TEAM_CODEC = CodecConfig(relief_disc_m=0.6, relief_ceiling=True)
+FLOAT_MARGIN_M = 1e-5  # a relief's float32 rounding at these heights, and the hold's guard
 
 
 def test_a_cell_just_under_the_threshold_beside_low_ground_is_held_under_it():
@@ -213,9 +232,9 @@ def test_a_cell_just_under_the_threshold_beside_low_ground_is_held_under_it():
     assert not cells.relief_hazard.any()
     args = {"bound_m": e, "rise_m": 0.0, "step_slack_m": 0.5 * e + 1e-6, "threshold_m": TEAM_WHEEL}
     lo, hi = hz.step_offsets(cells, **args)
-    assert hz.relief_ceiling(z, lo, hi, kernel)[20, 20] >= TEAM_WHEEL + 0.05  # what the bound allows
-    lo, hi = hz.cell_offsets(z, cells, cell_m=cell, relief_disc=kernel, guard_m=1e-7, **args)
-    assert hz.relief_ceiling(z, lo, hi, kernel)[20, 20] < TEAM_WHEEL
+    assert rh.relief_ceiling(z, lo, hi, kernel)[20, 20] >= TEAM_WHEEL + 0.05  # what the bound allows
+    lo, hi = rh.cell_offsets(z, cells, cell_m=cell, relief_disc=kernel, guard_m=1e-7, **args)
+    assert rh.relief_ceiling(z, lo, hi, kernel)[20, 20] < TEAM_WHEEL
     assert hi[20, 20] < 0 and lo[20, 24] > -e  # the bump held lower, the ground beside it no lower
     assert (hi - lo).min() >= args["step_slack_m"] - 1e-12  # every interval still holds a lattice value
     dec = decode_map(encode_map(z, cell_m=cell, wheel_diameter_m=TEAM_WHEEL, cfg=TEAM_CODEC).data)
@@ -236,21 +255,19 @@ def _tilted(z: np.ndarray, cell_m: float, slope_deg: float) -> np.ndarray:
 def test_the_hold_keeps_every_hazard_and_brings_no_cell_to_the_threshold(seed, ny, nx, rocks, relief, noise,
                                                                       unknown, slope_deg, bound_wheels):
     """On random maps (rocks on rolling ground or on a face, noise, holes): every hazard
-    guarantee of the header holds (never a hazard lost), every step the rule alone keeps is
-    kept, and no cell the receiver reads
-    under the threshold across the ground (relief x cos(slope) of the original map) by more
-    than two lattice steps decodes at or over it, unless the hold gave way to a step (a step
-    cell within the reach of the discs its relief depends on: the steps come first)."""
+    guarantee of the header holds (never a hazard lost, hazards read across the ground), every
+    step the rule keeps is kept, and no cell the receiver reads under the threshold across the
+    ground (relief x cos(slope) of the original map) decodes at or over it, unless the hold gave
+    way to a step (a step cell within the reach of the discs its relief depends on: the steps
+    come first)."""
     cell = 0.04
     z = _tilted(_rocky(seed, (ny, nx), cell, rocks, relief, noise, unknown), cell, slope_deg)
     enc = encode_map(z, cell_m=cell, wheel_diameter_m=TEAM_WHEEL, cfg=TEAM_CODEC,
                      error_bound_m=bound_wheels * TEAM_WHEEL)
     _assert_bounds(z, cell, enc.data, check_steps=False)
     dec = decode_map(enc.data)
-    rule_alone = encode_map(z, cell_m=cell, wheel_diameter_m=TEAM_WHEEL, cfg=CodecConfig(relief_disc_m=0.6),
-                            error_bound_m=bound_wheels * TEAM_WHEEL)
-    kept, kept_alone = _steps_kept(z, cell, dec), _steps_kept(z, cell, decode_map(rule_alone.data))
-    assert not (kept_alone & ~kept).any(), "the hold lost a step the rule alone keeps"
+    kept = _steps_kept(z, cell, dec)
+    assert not (_steps_the_rule_keeps(z, cell, dec.header) & ~kept).any(), "the hold lost a step the rule keeps"
     known = np.isfinite(z)
     if not known.any():
         return
@@ -258,15 +275,31 @@ def test_the_hold_keeps_every_hazard_and_brings_no_cell_to_the_threshold(seed, n
     assert not (brought & ~near_step).any(), "the reduction brought a cell to the threshold"
 
 
-def _brought_to_threshold(z: np.ndarray, cell_m: float, dec) -> tuple[np.ndarray, np.ndarray]:
-    """Known cells more than two lattice steps under the threshold across the ground (relief x
-    cos(slope), the original map's) that decode at or over it; and the cells whose hold may give
-    way to a step (a step cell within the reach of the discs their relief depends on)."""
+def _steps_the_rule_keeps(z: np.ndarray, cell_m: float, h) -> np.ndarray:
+    """Per step from ground (as :func:`_steps_kept` lists them), whether the hazard rule's own
+    intervals (``step_offsets`` on the header's hazards, no hold) keep its drop, with a margin
+    for the header's float32 fields: any map inside them keeps it."""
+    cells = _classify(z, cell_m, h)
+    assert cells.step_top is not None and cells.step_foot is not None
+    lo, hi = hz.step_offsets(cells, bound_m=h.error_bound_m, rise_m=h.support_rise_m, step_slack_m=h.step_slack_m,
+                             threshold_m=h.hazard_threshold_m)
+    need = np.maximum(h.hazard_threshold_m - cells.step.ravel()[cells.step_top].astype(np.float64), -h.step_slack_m)
+    keeps = lo.ravel()[cells.step_top] >= hi.ravel()[cells.step_foot] + need + 1e-6
+    hazard_at = cells.relief_hazard.ravel()
+    return np.asarray(keeps[~hazard_at[cells.step_top] & ~hazard_at[cells.step_foot]])
+
+
+def _brought_to_threshold(z: np.ndarray, cell_m: float, dec,
+                          margin_m: float = FLOAT_MARGIN_M) -> tuple[np.ndarray, np.ndarray]:
+    """Known cells under the threshold across the ground (relief x cos(slope), the original
+    map's) by more than ``margin_m`` (default the float32 rounding of a relief) that decode at
+    or over it; and the cells whose hold may give way to a step (a step cell within the reach
+    of the discs their relief depends on)."""
     import cv2
 
     h = dec.header
     kernel = hz.disc(h.relief_disc_m, cell_m)
-    limit = h.hazard_threshold_m / hz.across_ground(z, cell_m, kernel.shape[0])
+    limit = h.hazard_threshold_m / rh.across_ground(z, cell_m, kernel.shape[0])
     r0, r1 = hz.relief(z, cell_m, h.relief_disc_m), hz.relief(dec.z, cell_m, h.relief_disc_m)
     cells = hz.classify(z, cell_m, hz.HazardRule(h.hazard_threshold_m, h.relief_disc_m, h.step_disc_m))
     assert cells.step_top is not None and cells.step_foot is not None
@@ -274,17 +307,41 @@ def _brought_to_threshold(z: np.ndarray, cell_m: float, dec) -> tuple[np.ndarray
     steps[np.concatenate([cells.step_top, cells.step_foot])] = 1
     reach = cv2.dilate(cv2.dilate(steps.reshape(z.shape), kernel), kernel).astype(bool)
     with np.errstate(invalid="ignore"):
-        return np.asarray(np.isfinite(z) & (r0 < limit - 2.0 * h.step_slack_m) & (r1 >= limit)), reach
+        return np.asarray(np.isfinite(z) & (r0 < limit - margin_m) & (r1 >= limit)), reach
 
 
 def test_the_hold_removes_the_rocks_the_bound_alone_makes():
     """Rocky ground reduced with the hazard rule alone shows rocks the original does not have,
-    cells more than two lattice steps under the threshold brought over it; with the hold none."""
+    cells more than two lattice steps under the threshold brought over it; with the hold none,
+    steps or not."""
     cell = 0.04
     z = _rocky(7, (32, 32), cell, 12, 0.3, 0.01, 0.0)
     brought = {}
     for on in (False, True):
         cfg = CodecConfig(relief_disc_m=0.6, relief_ceiling=on)
         enc = encode_map(z, cell_m=cell, wheel_diameter_m=TEAM_WHEEL, cfg=cfg, error_bound_m=0.25 * TEAM_WHEEL)
-        brought[on] = int(_brought_to_threshold(z, cell, decode_map(enc.data))[0].sum())
+        dec = decode_map(enc.data)
+        brought[on] = int(_brought_to_threshold(z, cell, dec, 2.0 * dec.header.step_slack_m)[0].sum())
     assert brought[False] > 0 and brought[True] == 0
+
+
+@pytest.mark.parametrize("slope_deg", [45.0, 60.0])
+def test_a_face_reaches_the_receiver_with_the_rocks_its_planner_reads_there_and_no_other(slope_deg):
+    """A plain face: by the map's upper edge, where the relief disc is cut by the edge, the
+    top-hat stands up from the face. Rows whose relief in height reaches the threshold but
+    whose relief across the ground does not are no rock to the Cliff-bot's planner; were they
+    relief hazards (never lower, on ground never higher) the bound could still lift them into
+    rocks (at 45 deg a whole row did). With the hold the relief hazards are the planner's rocks,
+    and the decoded map's rocks, as its planner reads them, are exactly the original's."""
+    from fsw.core.geometry import MapGrid
+    from fsw.core.team.face_planner import ClimberConfig, ground_layers
+
+    cell = 0.04
+    z = (np.mgrid[0:40, 0:40][0] * cell * np.tan(np.radians(slope_deg))).astype(np.float32)
+    grid, climber = MapGrid(0.0, 0.0, cell, 40, 40), ClimberConfig(wheel_d_m=TEAM_WHEEL, rock_disc_m=0.6)
+    enc = encode_map(z, cell_m=cell, wheel_diameter_m=TEAM_WHEEL, cfg=TEAM_CODEC, error_bound_m=0.25 * TEAM_WHEEL)
+    dec = decode_map(enc.data)
+    assert int((hz.relief(z, cell, 0.6) >= TEAM_WHEEL).sum()) > int(ground_layers(z, grid, climber).rock.sum()) > 0
+    assert np.array_equal(ground_layers(dec.z, grid, climber).rock, ground_layers(z, grid, climber).rock)
+    assert dec.header.hazard_across_ground
+    _assert_bounds(z, cell, enc.data)

@@ -256,3 +256,19 @@ def test_the_drop_mask_survives_a_checkpoint_and_a_corrupt_one_is_refused() -> N
     for bits in ("!!!not base64", bad["bits"][:-8]):
         with pytest.raises(StateError):
             mask_from_json({"shape": [37, 53], "bits": bits}, (37, 53))
+
+
+def test_a_checkpoint_holds_no_wall_clock_time() -> None:
+    """A lockstep run's checkpoints are the same bytes every time (docs/architecture.md, "The
+    cyclic executive"): two runs whose steps took the host different times write the same
+    mission section, and a step read back has no wall time (the summary says null)."""
+    from fsw.tasks.mission_state import StepRecord, records_from_json, records_to_json
+
+    def record(wall_s: float) -> StepRecord:
+        return StepRecord(2, 1500, 80.0, 95, {"x": 0.1, "y": -0.2, "yaw": 0.3, "pan": 0.0, "tilt": -0.4, "lift": 0.5},
+                          wall_s, 41.5, "5", 60)
+
+    fast, slow = json.dumps(records_to_json([record(3.2)])), json.dumps(records_to_json([record(187.25)]))
+    assert fast == slow and "wall_s" not in fast
+    (back,) = records_from_json(json.loads(fast))
+    assert back == dataclasses.replace(record(0.0), wall_s=None)
