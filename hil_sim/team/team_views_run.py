@@ -87,7 +87,6 @@ from fsw.core.team.tether import TetherConfig, anchor_points, surface_normal, te
 from hil_sim.team.agent_fusion import agent_settings, merge_as
 from hil_sim.team.face_eval import equal_memory_cell
 from hil_sim.team.team_figures import TeamFigures
-from hil_sim.team.team_sensing import CLIFFBOT_CAMERA
 from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]
@@ -130,6 +129,9 @@ class TeamViewsRun:
         self.fusion = cfg.fusion  # the shared maps' own; each view is fused with its agent's (agent_settings)
         self.agent_fusion = {a: s.fusion for a, s in agent_settings(cfg).items()}
         self.camera: CameraConfig = dataclasses.replace(cfg.camera, calibration_file="")
+        # the Cliff-bot's camera as its flight program has it ([cliffbot_sensing]: its usable depth
+        # among the rest), for its candidates' rating and its views' sensing alike
+        self.cliff_camera: CameraConfig = agent_settings(cfg)["cliffbot"].camera
         self.mast = cfg.mast
         self.nbv = nbv or dataclasses.replace(cfg.nbv, station_spacing_m=0.5, coarse_cell_m=0.0)
         self.tv = tv or TeamViewConfig()
@@ -232,7 +234,7 @@ class TeamViewsRun:
         d = step - self.path[k]
         yaw = math.atan2(float(d[1]), float(d[0])) if float(np.hypot(*d)) > 1e-6 else -math.pi / 2
         # the corridor is its own task's focus too
-        return AgentViews("cliffbot", CLIFFBOT_CAMERA, centres, self.interest.of("cliffbot"),
+        return AgentViews("cliffbot", self.cliff_camera, centres, self.interest.of("cliffbot"),
                           corridor_weights(self.corridor, self.tv), (yaw, math.radians(-50.0)),
                           self._face_cells())
 
@@ -284,7 +286,7 @@ class TeamViewsRun:
         seen: dict[str, B] = {}
         start = np.asarray(self.world.team.cliffbot_start_xy if self.world.team else (0.0, 0.0), float)
         for v in views:
-            cam = CLIFFBOT_CAMERA if v.agent == "cliffbot" else self.camera
+            cam = self.cliff_camera if v.agent == "cliffbot" else self.camera
             cells = self._sense(v, cam)
             seen[v.agent] = cells
             new = cells & ~before
