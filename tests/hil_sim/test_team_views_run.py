@@ -299,3 +299,27 @@ def test_the_cliff_bot_is_rated_and_senses_with_its_flight_camera() -> None:
     pts = np.column_stack([g.x0 + (ix + 0.5) * g.cell, g.y0 + (iy + 0.5) * g.cell, run.truth[iy, ix]])
     depth = (pts - pose.t) @ pose.R[:, 2]
     assert len(pts) > 0 and depth.max() <= flight.max_range_m + g.cell
+
+
+@pytest.mark.slow
+def test_the_face_map_takes_each_view_on_its_own_with_its_camera_centre(monkeypatch: pytest.MonkeyPatch) -> None:
+    """As the flight's pipeline feeds it: one merge per view (the views before the plane's fit,
+    too, not pooled into one), each with its camera centre and all its points, so the face
+    map's free-space, facing and slab tests run on the harness's views."""
+    import numpy as np
+
+    from fsw.core.map.face_map import FaceMap
+
+    calls: list[tuple[object, object]] = []
+    merge = FaceMap.merge_parts
+
+    def spy(self: FaceMap, parts: object, *args: object, **kw: object) -> object:
+        calls.append((kw.get("eye"), kw.get("rays")))
+        return merge(self, parts, *args, **kw)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(FaceMap, "merge_parts", spy)
+    run = run_scene("cliff-team", 3, team=True, cycles=3)
+    assert run.face_map is not None
+    views = [v for r in run.records for v in r.views]
+    assert len(calls) == len(views) == 6
+    assert all(eye is not None and np.shape(eye) == (3,) and rays for eye, rays in calls)
