@@ -1,8 +1,8 @@
 """Both agents' cameras on the bench (docs/team.md, "Both agents sense"; docs/algorithm.md §8.1).
 
-* The Cliff-bot's stereo pair (:data:`CLIFFBOT_CAMERA`): smaller and shorter-based than the
-  RECON-bot's (320 x 240, 60 deg, 7 cm), on a short head above the body: its pose follows the
-  body on the face (:func:`cliffbot_camera_pose`) with a head pan and tilt.
+* The Cliff-bot's stereo pair (its flight program's ``[cliffbot_sensing]`` camera): smaller and
+  shorter-based than the RECON-bot's (320 x 240, 60 deg, 7 cm), on a short head above the body:
+  its pose follows the body on the face (:func:`cliffbot_camera_pose`) with a head pan and tilt.
 * What the cameras see of the team besides the Cliff-bot's box (the renderer draws that one):
   the tethers as ribbons turned to face the camera, the RECON-bot and the Anchorbots as boxes
   (:func:`team_quads`), all occluded against the terrain like every quad.
@@ -35,8 +35,6 @@ from hil_sim.world.cliffbot import Quad
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
 
-CLIFFBOT_CAMERA = CameraConfig(width_px=320, height_px=240, hfov_deg=60.0, baseline_m=0.07,
-                               min_range_m=0.3, max_range_m=4.0)
 HEAD_M = 0.45  # the Cliff-bot's camera above its ground, along the ground's normal
 TETHER_RADIUS_M = 0.006
 RECON_HALF_M = (0.45, 0.35, 0.3)  # the RECON-bot's body box (half sizes, m), centre 0.3 m up

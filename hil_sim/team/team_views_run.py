@@ -17,8 +17,9 @@ the cell (jittered), each displaced by an error drawn from the stereo covariance
 deviation ``range^2 sigma_d / (f B)`` along the ray, ``range sigma_d / f`` across it, ``sigma_d``
 = ``SIGMA_D_PX``) and fused with that covariance; the cells a view was expected to see and did
 not record their misses (§3.4). The face map (§8.1) is fitted on the shared map once it holds
-enough of the face and fed with every view's face share. Each map keeps the lips its views found
-(``fsw.core.map.known_lips``; a view's lips as its stereo would find them:
+enough of the face and fed with every view's face share, one view at a time with its camera
+centre, as the flight's pipeline feeds it (its free-space, facing and slab tests). Each map
+keeps the lips its views found (``fsw.core.map.known_lips``; a view's lips as its stereo would find them:
 :meth:`TeamViewsRun._lips`) and, as the flight's pipeline does, keeps the points under them out of
 its gravity grid (docs/algorithm.md §4, the lip guard): a view from below the lip sees the face
 under it, which the lip's cell must not average with the lip.
@@ -87,7 +88,6 @@ from fsw.core.team.tether import TetherConfig, anchor_points, surface_normal, te
 from hil_sim.team.agent_fusion import agent_settings, merge_as
 from hil_sim.team.face_eval import equal_memory_cell
 from hil_sim.team.team_figures import TeamFigures
-from hil_sim.team.team_sensing import CLIFFBOT_CAMERA
 from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]
@@ -130,6 +130,9 @@ class TeamViewsRun:
         self.fusion = cfg.fusion  # the shared maps' own; each view is fused with its agent's (agent_settings)
         self.agent_fusion = {a: s.fusion for a, s in agent_settings(cfg).items()}
         self.camera: CameraConfig = dataclasses.replace(cfg.camera, calibration_file="")
+        # the Cliff-bot's camera as its flight program has it ([cliffbot_sensing]: its usable depth
+        # among the rest), for its candidates' rating and its views' sensing alike
+        self.cliff_camera: CameraConfig = agent_settings(cfg)["cliffbot"].camera
         self.mast = cfg.mast
         self.nbv = nbv or dataclasses.replace(cfg.nbv, station_spacing_m=0.5, coarse_cell_m=0.0)
         self.tv = tv or TeamViewConfig()
@@ -169,7 +172,7 @@ class TeamViewsRun:
         self.records: list[CycleRecord] = []
         self.face_map: FaceMap | None = None
         self._path_face: FaceMap | bool | None = None  # the rating's face before the fit (False: none)
-        self._pending: list[tuple[F64, F64, F64 | None]] = []
+        self._pending: list[tuple[list[tuple[F64, F64, F64 | None]], F64, float]] = []  # views before the fit
         self.figures = TeamFigures(self.grid.cell, self.ccfg.wheel_d_m, seed)
         self.events: list[dict[str, object]] = []
 
@@ -232,7 +235,7 @@ class TeamViewsRun:
         d = step - self.path[k]
         yaw = math.atan2(float(d[1]), float(d[0])) if float(np.hypot(*d)) > 1e-6 else -math.pi / 2
         # the corridor is its own task's focus too
-        return AgentViews("cliffbot", CLIFFBOT_CAMERA, centres, self.interest.of("cliffbot"),
+        return AgentViews("cliffbot", self.cliff_camera, centres, self.interest.of("cliffbot"),
                           corridor_weights(self.corridor, self.tv), (yaw, math.radians(-50.0)),
                           self._face_cells())
 
@@ -284,7 +287,7 @@ class TeamViewsRun:
         seen: dict[str, B] = {}
         start = np.asarray(self.world.team.cliffbot_start_xy if self.world.team else (0.0, 0.0), float)
         for v in views:
-            cam = CLIFFBOT_CAMERA if v.agent == "cliffbot" else self.camera
+            cam = self.cliff_camera if v.agent == "cliffbot" else self.camera
             cells = self._sense(v, cam)
             seen[v.agent] = cells
             new = cells & ~before
@@ -362,7 +365,7 @@ class TeamViewsRun:
         self.interest.record(v.agent, np.clip(expect, 0.0, 1.0), hit)  # this agent's misses only (§8.2)
         self._merge(self.by_agent[v.agent], v.agent, v.agent, pose.t, lips, xyz, cov, None)
         if xyz.size:
-            self._to_face([(xyz, cov, None)])
+            self._to_face([(xyz, cov, None)], pose.t, cam.max_range_m)
         return out
 
     def _merge(self, emap: ElevationMap, owner: str, agent: str, eye: F64, lips: LipGuard, xyz: F64, cov: F64,
@@ -421,12 +424,14 @@ class TeamViewsRun:
             return np.zeros((0, 3)), np.zeros((0, 3))
         return np.concatenate(near), np.concatenate(far)
 
-    def _to_face(self, parts: list[tuple[F64, F64, F64 | None]]) -> None:
+    def _to_face(self, parts: list[tuple[F64, F64, F64 | None]], eye: F64, reach_m: float) -> None:
         """The face map beside the gravity grid (docs/algorithm.md §8.1): fitted on the shared map
-        once it holds enough of the face (the views before the fit are fused then), fed with the
-        face's share of every view."""
+        once it holds enough of the face (the views before the fit are fused then, one by one),
+        fed with the face's share of every view as the flight's pipeline feeds it: one view at a
+        time, with its camera centre ``eye`` (the free space and facing tests, the steps' term)
+        and all its points (the slab test), ``reach_m`` its camera's usable depth."""
         if self.face_map is None:
-            self._pending += parts
+            self._pending.append((parts, eye, reach_m))
             try:
                 frame = fit_face_plane(self.map, FaceMapConfig().min_slope_deg)
                 u, v = face_band(self.map, frame)
@@ -434,8 +439,11 @@ class TeamViewsRun:
                 return
             fc = dataclasses.replace(FaceMapConfig(), cell_m=equal_memory_cell(self.grid.cell, frame.slope_deg))
             self.face_map = FaceMap(frame, (u[0], u[1]), (v[0], v[1]), fc, self.fusion)
-            parts, self._pending = self._pending, []
-        self.face_map.merge_parts(split_parts(parts, self.face_map)[0])
+            views, self._pending = self._pending, []
+        else:
+            views = [(parts, eye, reach_m)]
+        for view, at, reach in views:
+            self.face_map.merge_parts(split_parts(view, self.face_map)[0], eye=at, rays=view, max_range_m=reach)
 
     def section(self) -> dict[str, Any]:
         """The team figures of the summary (``hil_sim.team.team_figures``) for this run."""

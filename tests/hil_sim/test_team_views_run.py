@@ -169,7 +169,6 @@ def test_the_harness_finds_a_views_lips_as_its_stereo_would_and_keeps_the_points
     from fsw.core.map.elevation_map import ElevationMap
     from fsw.core.planning.visibility import in_view
     from fsw.core.stereo.occlusion import LipGuard
-    from hil_sim.team.team_sensing import CLIFFBOT_CAMERA
     from hil_sim.team.team_views_run import TeamViewsRun
     from hil_sim.world import load_scenario
 
@@ -185,7 +184,7 @@ def test_the_harness_finds_a_views_lips_as_its_stereo_would_and_keeps_the_points
 
     above = lips(CameraPose.from_pan_tilt(2.8, -0.9, 1.5, -math.pi / 2, math.radians(-60.0)), run.camera)
     assert above.lips >= 2 and np.all(above.toward[:, 1] < 0.0)
-    below = lips(CameraPose.from_pan_tilt(3.02, -4.32, -4.75, math.pi / 2, math.radians(25.0)), CLIFFBOT_CAMERA)
+    below = lips(CameraPose.from_pan_tilt(3.02, -4.32, -4.75, math.pi / 2, math.radians(25.0)), run.cliff_camera)
     assert below.lips == 0
     emap = ElevationMap(g, run.fusion)
     lip = above.near[0]
@@ -273,3 +272,54 @@ def test_each_maps_share_within_2_sigma_is_taken_on_its_own_variance_and_reporte
     md = report([row(0, 0.8), row(1, 0.95), row(2, 1.0)], markdown_table, 12, 40)
     line = next(line for line in md.splitlines() if "the RECON-bot's map, cells both mapped" in line)
     assert [c.strip() for c in line.split("|")][2:5] == ["0.95", "0.800 / 1.000", "0.90-0.99"]
+
+
+@pytest.mark.slow
+def test_the_cliff_bot_is_rated_and_senses_with_its_flight_camera() -> None:
+    """The Cliff-bot's candidates are rated, and its views sensed, with the camera its flight
+    program has (``[cliffbot_sensing]``: its usable depth among the rest), not a bench camera that
+    reaches farther: no cell its view measures lies beyond that depth."""
+    import numpy as np
+
+    from fsw.core.geometry import CameraPose
+    from fsw.settings import load_settings
+    from hil_sim.team.team_views_run import TeamViewsRun
+    from hil_sim.world import load_scenario
+
+    flight = load_settings(check_calibration=False).cliffbot_sensing
+    run = TeamViewsRun(load_scenario("cliff-team", 4), 4, team=True)
+    cam = run._cliff().camera
+    assert (cam.max_range_m, cam.min_range_m, cam.width_px, cam.hfov_deg, cam.baseline_m) == (
+        flight.max_range_m, flight.min_range_m, flight.width_px, flight.hfov_deg, flight.baseline_m)
+    rec = run.cycle()
+    view = next(v for v in rec.views if v["agent"] == "cliffbot")
+    pose = CameraPose.from_pan_tilt(*view["xyz"], math.radians(view["yaw_deg"]), math.radians(view["tilt_deg"]))
+    g = run.grid
+    iy, ix = np.nonzero(run.by_agent["cliffbot"].mapped)  # its first view's cells
+    pts = np.column_stack([g.x0 + (ix + 0.5) * g.cell, g.y0 + (iy + 0.5) * g.cell, run.truth[iy, ix]])
+    depth = (pts - pose.t) @ pose.R[:, 2]
+    assert len(pts) > 0 and depth.max() <= flight.max_range_m + g.cell
+
+
+@pytest.mark.slow
+def test_the_face_map_takes_each_view_on_its_own_with_its_camera_centre(monkeypatch: pytest.MonkeyPatch) -> None:
+    """As the flight's pipeline feeds it: one merge per view (the views before the plane's fit,
+    too, not pooled into one), each with its camera centre and all its points, so the face
+    map's free-space, facing and slab tests run on the harness's views."""
+    import numpy as np
+
+    from fsw.core.map.face_map import FaceMap
+
+    calls: list[tuple[object, object]] = []
+    merge = FaceMap.merge_parts
+
+    def spy(self: FaceMap, parts: object, *args: object, **kw: object) -> object:
+        calls.append((kw.get("eye"), kw.get("rays")))
+        return merge(self, parts, *args, **kw)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(FaceMap, "merge_parts", spy)
+    run = run_scene("cliff-team", 3, team=True, cycles=3)
+    assert run.face_map is not None
+    views = [v for r in run.records for v in r.views]
+    assert len(calls) == len(views) == 6
+    assert all(eye is not None and np.shape(eye) == (3,) and rays for eye, rays in calls)

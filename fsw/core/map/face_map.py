@@ -18,9 +18,9 @@ height per cell with variance, count, interest, misses) in the face's own frame:
   ``-slab_in_m <= w <= slab_out_m`` (rocks stand out of a face; behind it, within half a metre,
   lies only the plateau beyond the edge); otherwise to the gravity grid. In the ``seam_m`` wide
   strips at both ends of the band a point goes to both grids, so each side of the seam is
-  mapped up to it. A view that sees a cell's column mostly outside the slab leaves the cell to
-  other views (:meth:`FaceMap.beyond_slab`). A gravity cell is *handed to the face*
-  when the fitted plane over its centre lies inside the band minus the seams
+  mapped up to it. A view that sees a cell's column mostly outside the slab, or comes after views
+  that together did, leaves the cell to other views (:meth:`FaceMap.beyond_slab`). A gravity
+  cell is *handed to the face* when the fitted plane over its centre lies inside the band minus the seams
   (:meth:`FaceMap.face_owned`); a query at ``(x, y)`` is answered by the face map there
   (:meth:`FaceMap.surface_z`, the vertical line intersected with the face map's surface) and by
   the gravity grid elsewhere (:func:`hand_over_z`).
@@ -240,12 +240,21 @@ class FaceMap:
         self.map: ElevationMap = FaceElevation(MapGrid(float(u_range[0]), float(v_range[0]), c, nx, ny), fusion,
                                                self.cfg.step_cells)
         self.overhangs = Overhangs(self.map.grid.shape)  # the overhang layers (fsw.core.map.overhang)
+        self._column_counts()
+
+    def _column_counts(self) -> None:
+        """Per flat cell, the views' points over it (all views so far) inside the slab and outside
+        it (:meth:`beyond_slab`)."""
+        size = self.map.grid.nx * self.map.grid.ny
+        self.column_in = np.zeros(size, np.int64)
+        self.column_out = np.zeros(size, np.int64)
 
     def empty_like(self) -> FaceMap:
         """An empty face map on the same frame and grid (e.g. one agent's share)."""
         out = FaceMap(self.frame, (0.0, 1.0), (0.0, 1.0), self.cfg, self.map.cfg)
         out.map = FaceElevation(self.map.grid, self.map.cfg, self.cfg.step_cells)
         out.overhangs = Overhangs(self.map.grid.shape)
+        out._column_counts()
         return out
 
     @property
@@ -406,10 +415,15 @@ class FaceMap:
         """Per flat cell, plus one last entry for points off the grid (always False), whether the
         view (all its points, ``rays``) sees the cell's column mostly outside the slab: more of its
         points over the cell lie behind ``-slab_in_m`` or out beyond ``slab_out_m`` than within
-        it. Its points inside the slab there are the tail of its noise, or a sliver of something
-        else, not the cell's surface: the surface lies where the hand-over sends it to the gravity
-        grid (a plane fitted across a face's ledges stands off the true face by decimetres near
-        the band's ends), and the face map leaves the cell to other views."""
+        it, or more of all the views' points so far (this one's included, :attr:`column_in`,
+        :attr:`column_out`). Its points inside the slab there are the tail of its noise, or a
+        sliver of something else, not the cell's surface: the surface lies where the hand-over
+        sends it to the gravity grid (a plane fitted across a face's ledges stands off the true
+        face by decimetres near the band's ends), and the face map leaves the cell to other
+        views. Pooled, because a view that sees only a sliver of the column (a step's top, the
+        rest hidden behind it) puts its few points inside the slab, all of them, where the views
+        that see the whole column put most of theirs outside. The counts grow with every call:
+        one call per view."""
         g = self.map.grid
         size = g.nx * g.ny
         xyz = np.concatenate([p[0] for p in rays]) if rays else np.zeros((0, 3))
@@ -420,7 +434,9 @@ class FaceMap:
             inside = (q[on, 2] >= -self.cfg.slab_in_m) & (q[on, 2] <= self.cfg.slab_out_m)
         n_in = np.bincount(cell[on][inside], minlength=size)
         n_out = np.bincount(cell[on][~inside], minlength=size)
-        return np.append(n_out > n_in, False)
+        self.column_in += n_in
+        self.column_out += n_out
+        return np.append((n_out > n_in) | (self.column_out > self.column_in), False)
 
     def carve(self, eye: F64, parts: list[ViewPart]) -> int:
         """The free-space tests of one view (module docstring), after its merge: the rays from the

@@ -250,3 +250,34 @@ def test_a_column_a_view_sees_mostly_beyond_the_slab_is_left_to_other_views() ->
     assert st.beyond_slab == len(to_face[0][0]) - k
     alone = face.empty_like()
     assert alone.merge_parts(to_face).beyond_slab == 0 and alone.map.mapped[0, 0]
+
+
+def test_a_column_the_views_see_mostly_beyond_the_slab_is_left_to_a_view_that_sees_a_sliver() -> None:
+    """A view that sees a cell's whole column puts most of its points behind the slab (the ground
+    0.6 m behind the plane); a later view that sees only a sliver of the column (a step's top
+    inside the slab, the rest hidden) has all of its few points there. Counted per view, the
+    second view's points would hold the cell 0.4 m off its ground; counted over the views so
+    far (``FaceMap.column_in``, ``column_out``), the column lies mostly beyond the slab and the
+    cell is left to the gravity grid, while its neighbour on the plane is mapped by both."""
+    rng = np.random.default_rng(6)
+    face = FaceMap(_face_frame(), (0.0, 0.2), (0.0, 0.1), FaceMapConfig(cell_m=0.1))
+    eye = _points_on(face, np.array([0.1]), np.array([0.05]), np.array([3.0]))[0]
+    k = 200
+    u = np.concatenate([rng.uniform(0.0, 0.1, k), rng.uniform(0.1, 0.2, k)])
+    v = rng.uniform(0.0, 0.1, 2 * k)
+    w = np.concatenate([np.full(k, -0.6), np.full(k, 0.0)]) + rng.normal(0.0, 0.02, 2 * k)
+    whole = [(_points_on(face, u, v, w), np.tile(np.eye(3)[None] * 0.02**2, (2 * k, 1, 1)), None)]
+    m = 20  # the sliver: a step's top at w = -0.2 over the first cell, and the plane over the second
+    u2 = np.concatenate([rng.uniform(0.0, 0.1, m), rng.uniform(0.1, 0.2, k)])
+    v2 = rng.uniform(0.0, 0.1, m + k)
+    w2 = np.concatenate([np.full(m, -0.2), np.full(k, 0.0)]) + rng.normal(0.0, 0.02, m + k)
+    sliver = [(_points_on(face, u2, v2, w2), np.tile(np.eye(3)[None] * 0.02**2, (m + k, 1, 1)), None)]
+    for view in (whole, sliver):
+        to_face, _ = split_parts(view, face)
+        face.merge_parts(to_face, eye=eye, rays=view)
+    assert face.column_out[0] > face.column_in[0] >= m
+    assert not face.map.mapped[0, 0] and face.map.mapped[0, 1]
+    alone = face.empty_like()  # the sliver's view alone: its points are the cell's
+    to_face, _ = split_parts(sliver, alone)
+    alone.merge_parts(to_face, eye=eye, rays=sliver)
+    assert alone.map.mapped[0, 0] and alone.map.z[0, 0] == pytest.approx(-0.2, abs=0.03)
