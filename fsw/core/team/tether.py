@@ -34,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid
-from fsw.core.team.tether_batch import heights_at, taut_tethers
+from fsw.core.team.tether_batch import heights_at, taut_tethers, vector_norm
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
@@ -142,7 +142,7 @@ def tether_path(z: ZMap, grid: MapGrid, anchor: F64, bot: F64, cfg: TetherConfig
     last = idx[-2]  # the hull vertex the last segment comes from
     back = ss[-1] - ss[last]
     pull = np.array([-direction[0] * back, -direction[1] * back, hh[last] - bot[2]])
-    norm = float(np.linalg.norm(pull))
+    norm = vector_norm(pull)
     return TetherPath(float(seg.sum()), contacts, pull / norm if norm > 0 else pull, unknown)
 
 
@@ -228,7 +228,7 @@ def _plane_normal(design: F64, h: F64) -> F64 | None:
         a, hk = design[ok], h[ok]
     (gx, gy, _), *_ = np.linalg.lstsq(a, hk, rcond=None)
     n = np.array([-gx, -gy, 1.0])
-    return n / np.linalg.norm(n)
+    return n / vector_norm(n)
 
 
 def surface_normal(z: ZMap, grid: MapGrid, xy: F64, radius_m: float) -> F64 | None:
@@ -243,7 +243,7 @@ def surface_normal(z: ZMap, grid: MapGrid, xy: F64, radius_m: float) -> F64 | No
 def statics(pull1: F64, pull2: F64, normal: F64, cfg: TetherConfig) -> Statics:
     """Solve ``T1 u1 + T2 u2 + N n = m g e_z`` and judge it against the tension limits."""
     a = np.column_stack([pull1, pull2, normal])
-    tilt = math.degrees(math.acos(max(-1.0, min(1.0, float(normal[2]) / float(np.linalg.norm(normal))))))
+    tilt = math.degrees(math.acos(max(-1.0, min(1.0, float(normal[2]) / vector_norm(normal)))))
     weight = np.array([0.0, 0.0, cfg.mass_kg * cfg.gravity_mps2])
     if abs(np.linalg.det(a)) < 1e-9:
         return Statics((math.nan, math.nan), math.nan, False, "degenerate", tilt)
@@ -276,7 +276,7 @@ def statics_many(pull1: F64, pull2: F64, normal: F64, cfg: TetherConfig) -> list
     out = []
     for k in range(len(a)):
         nk = normal[k]
-        tilt = math.degrees(math.acos(max(-1.0, min(1.0, float(nk[2]) / float(np.linalg.norm(nk))))))
+        tilt = math.degrees(math.acos(max(-1.0, min(1.0, float(nk[2]) / vector_norm(nk)))))
         if not ok[k]:
             out.append(Statics((math.nan, math.nan), math.nan, False, "degenerate", tilt))
             continue
@@ -399,15 +399,15 @@ def settle(z: ZMap, grid: MapGrid, anchors: F64, lengths: tuple[float, float], g
         if abs(np.linalg.det(jac)) < 1e-9:
             return None
         step = np.linalg.solve(jac, r)
-        n = float(np.linalg.norm(step))
+        n = vector_norm(step)
         if n > 0.5:  # a damped step: the ground under the Cliff-bot is only known locally
             step *= 0.5 / n
         # Backtracking: a contact appearing or vanishing makes the lengths kink, and a full
         # Gauss-Newton step can cycle across the kink; halve it until the residual shrinks.
-        r_norm = float(np.linalg.norm(r))
+        r_norm = vector_norm(r)
         for _ in range(6):
             trial = tether_state(z, grid, anchors, xy - step, cfg)
-            if trial is not None and float(np.linalg.norm(np.asarray(trial.lengths_m) - target)) < r_norm:
+            if trial is not None and vector_norm(np.asarray(trial.lengths_m) - target) < r_norm:
                 known = trial
                 break
             step = 0.5 * step
