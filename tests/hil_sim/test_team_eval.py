@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from fsw.core.geometry import MapGrid
 from hil_sim.team.team_eval import (
@@ -76,6 +77,7 @@ def _face_with_a_rock() -> tuple[np.ndarray, MapGrid]:
     return z.astype(np.float64), grid
 
 
+@pytest.mark.slow
 def test_the_truths_settle_memo_gives_settles_answers_and_works_each_out_once(monkeypatch) -> None:
     """The ways judged through the memo (the truth's brute force) get the verdicts of the ways
     judged with ``settle`` itself, at the exact lengths and under the winches' tolerance; the
