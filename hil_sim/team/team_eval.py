@@ -58,7 +58,7 @@ from fsw.core.team.face_planner import (
     way_reason,
 )
 from fsw.core.team.held_tension import LengthErrors
-from fsw.core.team.tether import TetherConfig, TetherState
+from fsw.core.team.tether import TetherConfig, TetherState, ZMap, settle
 from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]
@@ -128,6 +128,47 @@ class TruthReach:
 _TRUTH_CACHE: dict[bytes, TruthReach] = {}  # a few seconds per scene: each scene judged once per process
 
 
+class _SettleMemo:
+    """:func:`fsw.core.team.tether.settle` on one ground, each pair of lengths from each place
+    worked out once. The truth judges the same ground at the exact lengths and under the
+    winches' tolerance (``safer-hil experiment team``, a mission's judge beside a check at the
+    exact lengths), and each judges the ways of its paths: a way at both follows the same steps
+    from the same places (``way_reason`` settles before it judges the tolerance), so the second
+    gets the first's answers (settle is a function of its arguments)."""
+
+    def __init__(self, z: F64, grid: MapGrid, anchors: F64, tcfg: TetherConfig) -> None:
+        self._ground = (z, grid, anchors, tcfg)
+        self._got: dict[tuple[float, float, float, float], tuple[F64, TetherState] | None] = {}
+
+    def __call__(self, z: ZMap, grid: MapGrid, anchors: F64, lengths: tuple[float, float], guess_xy: F64,
+                 cfg: TetherConfig) -> tuple[F64, TetherState] | None:
+        mz, mgrid, manchors, mcfg = self._ground
+        if not (z is mz and grid == mgrid and anchors is manchors and cfg == mcfg):
+            return settle(z, grid, anchors, lengths, guess_xy, cfg)
+        key = (float(lengths[0]), float(lengths[1]), float(guess_xy[0]), float(guess_xy[1]))
+        if key not in self._got:
+            self._got[key] = settle(z, grid, anchors, lengths, guess_xy, cfg)
+        got = self._got[key]
+        return None if got is None else (got[0].copy(), got[1])
+
+
+@dataclass(frozen=True)
+class _TruthGround:
+    """What the truth's verdicts on one ground share, whatever the errors they judge under:
+    the lattice's verdicts and the ground's layers (``node_reasons``), the settled places."""
+
+    z: F64
+    anchors: F64
+    rows: NDArray[np.intp]
+    cols: NDArray[np.intp]
+    base: list[str]
+    ground: Ground
+    settle_at: _SettleMemo
+
+
+_GROUND_CACHE: dict[bytes, _TruthGround] = {}  # the last few grounds judged in this process
+
+
 def winch_errors(length_tol_m: float, margin_sigmas: float) -> LengthErrors:
     """The length errors the truth judges under: the winches' own (each stops within
     ``length_tol_m`` of its set-point), at the flight's ``margin_sigmas``, with no map error
@@ -146,17 +187,25 @@ def truth_verdict(world: World, grid: MapGrid, anchors: F64, tcfg: TetherConfig,
     if world.team is None:
         raise ValueError("the scenario has no team (use a cliff-team scenario)")
     z = np.asarray(world.ground_on_grid(grid), np.float64)
+    anchors = np.asarray(anchors, float)
+    ground_key = hashlib.sha256(b"".join([z.tobytes(), anchors.tobytes(), repr((grid, tcfg, ccfg)).encode()])).digest()
     key = hashlib.sha256(b"".join([
-        z.tobytes(), np.asarray(anchors, float).tobytes(), np.asarray(world.team.cliffbot_start_xy, float).tobytes(),
-        np.asarray(world.team.targets_xyz, float).tobytes(), repr((grid, tcfg, ccfg, errors)).encode()])).digest()
+        ground_key, np.asarray(world.team.cliffbot_start_xy, float).tobytes(),
+        np.asarray(world.team.targets_xyz, float).tobytes(), repr(errors).encode()])).digest()
     if key not in _TRUTH_CACHE:
         if len(_TRUTH_CACHE) >= 8:
             _TRUTH_CACHE.pop(next(iter(_TRUTH_CACHE)))
-        _TRUTH_CACHE[key] = _brute_force(world, z, grid, anchors, tcfg, ccfg, errors)
+        if ground_key not in _GROUND_CACHE:
+            if len(_GROUND_CACHE) >= 2:
+                _GROUND_CACHE.pop(next(iter(_GROUND_CACHE)))
+            rows, cols, base, g = node_reasons(z, grid, anchors, tcfg, ccfg)
+            _GROUND_CACHE[ground_key] = _TruthGround(z, anchors, rows, cols, base, g,
+                                                     _SettleMemo(z, grid, anchors, tcfg))
+        _TRUTH_CACHE[key] = _brute_force(world, _GROUND_CACHE[ground_key], grid, tcfg, ccfg, errors)
     return _TRUTH_CACHE[key]
 
 
-def _brute_force(world: World, z: F64, grid: MapGrid, anchors: F64, tcfg: TetherConfig,
+def _brute_force(world: World, truth: _TruthGround, grid: MapGrid, tcfg: TetherConfig,
                  ccfg: ClimberConfig, errors: LengthErrors | None) -> TruthReach:
     """Dijkstra over the usable lattice, each path found judged and its failing parts removed
     (module docstring). A node's held check under ``errors`` is made when a path first passes
@@ -166,7 +215,7 @@ def _brute_force(world: World, z: F64, grid: MapGrid, anchors: F64, tcfg: Tether
     from scipy.sparse.csgraph import dijkstra
 
     assert world.team is not None
-    rows, cols, base, g = node_reasons(z, grid, anchors, tcfg, ccfg)
+    z, anchors, rows, cols, base, g = truth.z, truth.anchors, truth.rows, truth.cols, truth.base, truth.ground
     ny, nx = len(rows), len(cols)
     usable = np.array([r == USABLE for r in base]).reshape(ny, nx)
     nz = np.nan_to_num(np.asarray(z, np.float64)[np.ix_(rows, cols)])
@@ -210,7 +259,8 @@ def _brute_force(world: World, z: F64, grid: MapGrid, anchors: F64, tcfg: Tether
 
     def way_ok(e: int) -> bool:
         if e not in ways:
-            ways[e] = way_reason(z, grid, anchors, pts[s_[e], :2], pts[d_[e], :2], tcfg, ccfg, g, errors=errors)
+            ways[e] = way_reason(z, grid, anchors, pts[s_[e], :2], pts[d_[e], :2], tcfg, ccfg, g, errors=errors,
+                                 settle_at=truth.settle_at)
         return not ways[e]
 
     targets = np.asarray(world.team.targets_xyz[:, :2], float)

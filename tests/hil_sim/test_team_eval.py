@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from fsw.core.geometry import MapGrid
 from hil_sim.team.team_eval import (
@@ -65,3 +66,57 @@ def test_verdict_names_reachable_targets_missed() -> None:
     assert s["targets_reachable_by_truth"] == 2 and s["targets_unreachable_by_truth"] == 1
     assert s["tether_violations"] == 2 and s["hazard_cells_entered"] == 1
     assert s["fix_nees_within_chi2_95"] == 0.5 and s["path_m"] == 5.0 == path_length_m(o.true_path)
+
+
+def _face_with_a_rock() -> tuple[np.ndarray, MapGrid]:
+    """A 70 deg face below a lip, a rock on the face beside the Cliff-bot's ways."""
+    grid = MapGrid(-1.8, -1.6, 0.03, 120, 110)
+    gx, gy = grid.centers()
+    z = np.where(gy > 0, 0.0, math.tan(math.radians(70.0)) * gy)
+    z[np.hypot(gx + 0.4, gy + 0.3) < 0.08] += 0.6
+    return z.astype(np.float64), grid
+
+
+@pytest.mark.slow
+def test_the_truths_settle_memo_gives_settles_answers_and_works_each_out_once(monkeypatch) -> None:
+    """The ways judged through the memo (the truth's brute force) get the verdicts of the ways
+    judged with ``settle`` itself, at the exact lengths and under the winches' tolerance; the
+    second judging of the same ways settles nothing again; another ground is not answered from it."""
+    from fsw.core.team import tether
+    from fsw.core.team.face_planner import ClimberConfig, ground_layers, way_reason
+    from hil_sim.team import team_eval
+
+    z, grid = _face_with_a_rock()
+    t, c = tether.TetherConfig(), ClimberConfig()
+    anchors = tether.anchor_points(z, grid, np.array([[-1.5, 1.5], [1.5, 1.5]]), t)
+    g = ground_layers(z, grid, c)
+    calls: list[tuple[float, float]] = []
+
+    def counted(*args, **kw):
+        calls.append(args[3])
+        return tether.settle(*args, **kw)
+
+    monkeypatch.setattr(team_eval, "settle", counted)
+    memo = team_eval._SettleMemo(z, grid, anchors, t)
+    ways = [(np.array([x, -0.78]), np.array([x + dx, -0.84])) for x in (-0.06, 0.2) for dx in (-0.06, 0.0)]
+    ways += [(b, a) for a, b in ways]
+    tol = team_eval.winch_errors(0.01, 2.326)
+    for errors in (None, tol):
+        plain = [way_reason(z, grid, anchors, a, b, t, c, g, errors=errors) for a, b in ways]
+        memo_got = [way_reason(z, grid, anchors, a, b, t, c, g, errors=errors, settle_at=memo) for a, b in ways]
+        assert memo_got == plain
+        if errors is None:
+            first = len(calls)
+            assert first > len(ways) and len(set(plain)) > 1, plain  # the ways settled, and not all alike
+    assert len(calls) == first  # under the tolerance every way's steps were settled at the exact lengths
+    for key, got in list(memo._got.items())[:20]:  # each kept answer is settle's own, bit for bit
+        again = tether.settle(z, grid, anchors, key[:2], np.array(key[2:]), t)
+        assert (got is None) == (again is None)
+        if got is not None and again is not None:
+            assert got[0].tobytes() == again[0].tobytes() and got[1].lengths_m == again[1].lengths_m
+    other = z.copy()
+    other[np.hypot(*grid.centers()) < 0.5] -= 0.05  # another ground: settled on it, not answered from the memo
+    a, b = ways[0]
+    assert way_reason(other, grid, anchors, a, b, t, c, g, settle_at=memo) == way_reason(other, grid, anchors, a, b,
+                                                                                         t, c, g)
+    assert len(calls) > first

@@ -78,6 +78,9 @@ USABLE = "usable"
 WAY_STEP_M = 0.03  # the way between nodes is followed in steps of at most this much tether
 ROCK_SUB_STEPS = 8  # a way's step where a tether passes over a rock is judged again at this many sub-steps
 OFF_THE_WAY = "the lengths hold it elsewhere"
+Settle = Callable[[ZMap, MapGrid, F64, tuple[float, float], F64, TetherConfig], tuple[F64, TetherState] | None]
+"""Where the lengths put the body (:func:`fsw.core.team.tether.settle`'s signature): what
+:func:`way_reason` follows a way with."""
 REASONS = ("off the map", "unknown ground", "hazard", "out of tether reach", "tether over unknown ground",
            "tether over a rock", "slack", "over-tension", "off the face", "degenerate", NOT_HELD)
 
@@ -394,13 +397,13 @@ def _over_rock(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, tcfg: TetherConfig
 
 
 def _swept_rock(z: ZMap, grid: MapGrid, anchors: F64, la: F64, lb: F64, f0: float, df: float, xy: F64,
-                tcfg: TetherConfig, ccfg: ClimberConfig, g: Ground) -> str:
+                tcfg: TetherConfig, ccfg: ClimberConfig, g: Ground, settle_at: Settle) -> str:
     """``"tether over a rock"`` where, between the way's steps at ``f0`` (the body at ``xy``)
     and ``f0 + df``, a tether touches a rock at one of :data:`ROCK_SUB_STEPS` sub-steps: a
     tether sweeps over a rock of a cell or two between two steps 3 cm of tether apart."""
     for j in range(1, ROCK_SUB_STEPS):
         lengths = la + (f0 + df * j / ROCK_SUB_STEPS) * (lb - la)
-        got = settle(z, grid, anchors, (float(lengths[0]), float(lengths[1])), xy, tcfg)
+        got = settle_at(z, grid, anchors, (float(lengths[0]), float(lengths[1])), xy, tcfg)
         if got is None:
             return "slack"
         xy = got[0]
@@ -410,7 +413,8 @@ def _swept_rock(z: ZMap, grid: MapGrid, anchors: F64, la: F64, lb: F64, f0: floa
 
 
 def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
-               g: Ground, step_m: float = WAY_STEP_M, errors: LengthErrors | None = None) -> str:
+               g: Ground, step_m: float = WAY_STEP_M, errors: LengthErrors | None = None,
+               settle_at: Settle = settle) -> str:
     """Why the body cannot go from node ``a`` to node ``b`` (``""``: it can; module docstring,
     4): both lengths moved straight from ``a``'s to ``b``'s in steps of at most ``step_m`` of
     tether, the body settled at each (``settle``, from the last place) and judged there like a
@@ -421,7 +425,8 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
     each moving from ``a``'s offset to ``b``'s along the way; :func:`fsw.core.team.held_tension.held_at`).
     A step at either end of which a tether passes over a rock or a cell next to one is judged again at
     :data:`ROCK_SUB_STEPS` sub-steps (:func:`_swept_rock`): no tether may touch the rock between them.
-    Directed: the way back may differ."""
+    ``settle_at``: :func:`fsw.core.team.tether.settle` or one that gives its answers (the truth's
+    brute force keeps them, ``hil_sim.team.team_eval``). Directed: the way back may differ."""
     sa = tether_state(z, grid, anchors, np.asarray(a, float), tcfg, ccfg.footprint_m)
     sb = tether_state(z, grid, anchors, np.asarray(b, float), tcfg, ccfg.footprint_m)
     if sa is None or sb is None:
@@ -439,7 +444,7 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
     for f in np.arange(1, n + 1) / n:
         lengths = la + f * (lb - la)
         last = xy
-        got = settle(z, grid, anchors, (float(lengths[0]), float(lengths[1])), xy, tcfg)
+        got = settle_at(z, grid, anchors, (float(lengths[0]), float(lengths[1])), xy, tcfg)
         if got is None:
             return "slack"
         xy = got[0]
@@ -455,7 +460,7 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
             return why
         was, over = over, rocky and _over_rock(z, grid, anchors, xy, tcfg, ccfg, near)
         if was or over:
-            why = _swept_rock(z, grid, anchors, la, lb, float(f) - 1.0 / n, 1.0 / n, last, tcfg, ccfg, g)
+            why = _swept_rock(z, grid, anchors, la, lb, float(f) - 1.0 / n, 1.0 / n, last, tcfg, ccfg, g, settle_at)
             if why:
                 return why
         if held and got[1].statics.tilt_deg > ccfg.free_slope_deg:

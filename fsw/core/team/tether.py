@@ -26,6 +26,7 @@ the same code runs on the truth (the bench) and on the Cliff-bot's own map (its 
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -33,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid
-from fsw.core.team.tether_batch import heights_at, taut_tethers
+from fsw.core.team.tether_batch import heights_at, taut_tethers, vector_norm
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
@@ -141,7 +142,7 @@ def tether_path(z: ZMap, grid: MapGrid, anchor: F64, bot: F64, cfg: TetherConfig
     last = idx[-2]  # the hull vertex the last segment comes from
     back = ss[-1] - ss[last]
     pull = np.array([-direction[0] * back, -direction[1] * back, hh[last] - bot[2]])
-    norm = float(np.linalg.norm(pull))
+    norm = vector_norm(pull)
     return TetherPath(float(seg.sum()), contacts, pull / norm if norm > 0 else pull, unknown)
 
 
@@ -158,9 +159,9 @@ def _standing(z: ZMap, grid: MapGrid, xy: F64, cfg: TetherConfig, footprint_m: f
     iy, ix, inside = grid.cell_index(np.array([xy[0]]), np.array([xy[1]]))
     if not inside[0]:
         return None
-    px, py = _ring(footprint_m, grid)
+    px, py, design = _ring(footprint_m, grid)
     h = heights_at(z, grid, float(xy[0]) + px, float(xy[1]) + py)  # h[0]: the ground under it (height_at)
-    normal = _plane_normal(px, py, h)
+    normal = _plane_normal(design, h)
     if normal is None:
         return None
     return np.array([xy[0], xy[1], h[0]]) + cfg.attach_m * normal, normal
@@ -192,26 +193,42 @@ _RING = np.arange(8) * (np.pi / 4)
 _RING_COS, _RING_SIN = np.cos(_RING), np.sin(_RING)
 
 
-def _ring(radius_m: float, grid: MapGrid) -> tuple[F64, F64]:
-    """The footprint's centre and eight points on the circle of ``radius_m`` (at least a cell)."""
-    r = max(radius_m, grid.cell)
+def _ring(radius_m: float, grid: MapGrid) -> tuple[F64, F64, F64]:
+    """The footprint's centre and eight points on the circle of ``radius_m`` (at least a cell),
+    and the plane fit's design matrix over them (columns x, y, 1): read-only, made once per
+    radius (every tether state fits a plane over the same ring)."""
+    return _ring_of(max(radius_m, grid.cell))
+
+
+@functools.lru_cache(maxsize=16)
+def _ring_of(r: float) -> tuple[F64, F64, F64]:
     px = np.empty(9)
     py = np.empty(9)
     px[0], px[1:] = 0.0, r * _RING_COS
     py[0], py[1:] = 0.0, r * _RING_SIN
-    return px, py
+    design = np.column_stack([px, py, np.ones_like(px)])
+    for a in (px, py, design):
+        a.flags.writeable = False
+    return px, py, design
 
 
-def _plane_normal(px: F64, py: F64, h: F64) -> F64 | None:
-    """The upward unit normal of the plane fitted to the heights ``h`` at ``(px, py)`` (NaN:
-    left out); None when the centre or more than half of the circle is unknown."""
+def _plane_normal(design: F64, h: F64) -> F64 | None:
+    """The upward unit normal of the plane fitted to the heights ``h`` at the ring's points
+    (``design``, :func:`_ring`; NaN: left out); None when the centre or more than half of the
+    circle is unknown. Where every height is known (most places) the whole design matrix is the
+    fit's, with no selection."""
     ok = np.isfinite(h)
-    if not ok[0] or ok.sum() < 5:
+    if not ok[0]:
         return None
-    a = np.column_stack([px, py, np.ones_like(px)])[ok]
-    (gx, gy, _), *_ = np.linalg.lstsq(a, h[ok], rcond=None)
+    if ok.all():
+        a, hk = design, h
+    elif ok.sum() < 5:
+        return None
+    else:
+        a, hk = design[ok], h[ok]
+    (gx, gy, _), *_ = np.linalg.lstsq(a, hk, rcond=None)
     n = np.array([-gx, -gy, 1.0])
-    return n / np.linalg.norm(n)
+    return n / vector_norm(n)
 
 
 def surface_normal(z: ZMap, grid: MapGrid, xy: F64, radius_m: float) -> F64 | None:
@@ -219,14 +236,14 @@ def surface_normal(z: ZMap, grid: MapGrid, xy: F64, radius_m: float) -> F64 | No
     the circle of ``radius_m`` around it (bilinear heights, :func:`height_at`, so the normal
     and the attachment point move continuously with the Cliff-bot); points on unknown ground
     or off the map are left out; None when the centre or more than half of the circle is."""
-    px, py = _ring(radius_m, grid)
-    return _plane_normal(px, py, heights_at(z, grid, float(xy[0]) + px, float(xy[1]) + py))
+    px, py, design = _ring(radius_m, grid)
+    return _plane_normal(design, heights_at(z, grid, float(xy[0]) + px, float(xy[1]) + py))
 
 
 def statics(pull1: F64, pull2: F64, normal: F64, cfg: TetherConfig) -> Statics:
     """Solve ``T1 u1 + T2 u2 + N n = m g e_z`` and judge it against the tension limits."""
     a = np.column_stack([pull1, pull2, normal])
-    tilt = math.degrees(math.acos(max(-1.0, min(1.0, float(normal[2]) / float(np.linalg.norm(normal))))))
+    tilt = math.degrees(math.acos(max(-1.0, min(1.0, float(normal[2]) / vector_norm(normal)))))
     weight = np.array([0.0, 0.0, cfg.mass_kg * cfg.gravity_mps2])
     if abs(np.linalg.det(a)) < 1e-9:
         return Statics((math.nan, math.nan), math.nan, False, "degenerate", tilt)
@@ -259,7 +276,7 @@ def statics_many(pull1: F64, pull2: F64, normal: F64, cfg: TetherConfig) -> list
     out = []
     for k in range(len(a)):
         nk = normal[k]
-        tilt = math.degrees(math.acos(max(-1.0, min(1.0, float(nk[2]) / float(np.linalg.norm(nk))))))
+        tilt = math.degrees(math.acos(max(-1.0, min(1.0, float(nk[2]) / vector_norm(nk)))))
         if not ok[k]:
             out.append(Statics((math.nan, math.nan), math.nan, False, "degenerate", tilt))
             continue
@@ -326,10 +343,10 @@ def tether_states(z: ZMap, grid: MapGrid, anchors: F64, xys: F64, cfg: TetherCon
                 for st in tether_states(z, grid, anchors, xys[k:k + BATCH_PLACES], cfg, footprint_m)]
     with np.errstate(invalid="ignore"):  # a place that is not finite is off the map
         _, _, inside = grid.cell_index(xys[:, 0], xys[:, 1])
-    px, py = _ring(footprint_m, grid)
+    px, py, design = _ring(footprint_m, grid)
     h = heights_at(z, grid, (xys[:, :1] + px).ravel(), (xys[:, 1:] + py).ravel()).reshape(-1, 9)
     out: list[TetherState | None] = [None] * len(xys)
-    normals = {int(k): _plane_normal(px, py, h[k]) for k in np.flatnonzero(inside)}
+    normals = {int(k): _plane_normal(design, h[k]) for k in np.flatnonzero(inside)}
     held = [k for k, n in normals.items() if n is not None]
     if not held:
         return out
@@ -382,15 +399,15 @@ def settle(z: ZMap, grid: MapGrid, anchors: F64, lengths: tuple[float, float], g
         if abs(np.linalg.det(jac)) < 1e-9:
             return None
         step = np.linalg.solve(jac, r)
-        n = float(np.linalg.norm(step))
+        n = vector_norm(step)
         if n > 0.5:  # a damped step: the ground under the Cliff-bot is only known locally
             step *= 0.5 / n
         # Backtracking: a contact appearing or vanishing makes the lengths kink, and a full
         # Gauss-Newton step can cycle across the kink; halve it until the residual shrinks.
-        r_norm = float(np.linalg.norm(r))
+        r_norm = vector_norm(r)
         for _ in range(6):
             trial = tether_state(z, grid, anchors, xy - step, cfg)
-            if trial is not None and float(np.linalg.norm(np.asarray(trial.lengths_m) - target)) < r_norm:
+            if trial is not None and vector_norm(np.asarray(trial.lengths_m) - target) < r_norm:
                 known = trial
                 break
             step = 0.5 * step

@@ -42,6 +42,15 @@ def heights_at(z: ZMap, grid: MapGrid, x: F64, y: F64) -> F64:
     return np.where(ok, h, np.nan)
 
 
+def vector_norm(v: F64) -> float:
+    """``np.linalg.norm`` of a 1-D vector, the same value (for a float64 vector it is the square
+    root of ``v . v``) without its dispatch: the statics take a few hundred thousand a mission."""
+    v = np.asarray(v)
+    if v.dtype != np.float64 or v.ndim != 1:
+        return float(np.linalg.norm(v))
+    return math.sqrt(float(v.dot(v)))
+
+
 def _ranges(lengths: IntP) -> tuple[IntP, IntP]:
     """For segments of ``lengths``: each element's segment and its position in it."""
     seg = np.repeat(np.arange(len(lengths)), lengths)
@@ -130,6 +139,6 @@ def taut_tethers(z: ZMap, grid: MapGrid, ends_a: F64, ends_b: F64, step_m: float
         contacts[:, 2] = hh[inner]
         back = ss[last[k]] - ss[idx[-2]]  # from the hull vertex the last segment comes from
         pull = np.array([-direction[0] * back, -direction[1] * back, hh[idx[-2]] - b[k, 2]])
-        norm = float(np.linalg.norm(pull))
+        norm = vector_norm(pull)
         out.append((float(seg.sum()), contacts, pull / norm if norm > 0 else pull, bool(unknown[k])))
     return out
