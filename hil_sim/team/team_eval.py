@@ -288,8 +288,8 @@ def compare_maps(full_z: NDArray[np.floating], received_z: NDArray[np.floating],
     got = np.asarray(received_z, np.float64)
     p_full = plan_targets(full, grid, anchors, start_xy, targets_xy, tcfg, ccfg)
     p_got = plan_targets(got, grid, anchors, start_xy, targets_xy, tcfg, ccfg)
-    h_full = ground_layers(full, grid, ccfg).hazard
-    h_got = ground_layers(got, grid, ccfg).hazard
+    h_full = ground_layers(full, grid, ccfg, anchors=anchors).hazard
+    h_got = ground_layers(got, grid, ccfg, anchors=anchors).hazard
     lost = int((h_full & ~h_got & np.isfinite(got)).sum())
     return MapComparison(p_full.reasons, p_got.reasons, p_full.lengths_m, p_got.lengths_m, lost)
 
