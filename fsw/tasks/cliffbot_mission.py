@@ -182,7 +182,7 @@ class CliffbotMission:
         # footprint of the lattice node nearest it (the node it stands at) and its body's outline
         filled_here = np.isfinite(self.z) & ~(np.isfinite(z_in) & (z_in == self.z))
         body = None if self.body_half is None else (float(self.est.s[2]), *self.body_half)
-        under = standing_cells(grid, self.est.xy, self.ccfg, body)
+        under = standing_cells(grid, self.est.xy, self.ccfg, self.anchors, body)
         self.carried = filled_here & ~under & ~stood_on
         self.carried_from = self.est.xy
         # (a cell given back keeps how it was known then: a sensor's height stays a sensor's)

@@ -341,7 +341,8 @@ def compare_maps(full_z: NDArray[np.floating], received_z: NDArray[np.floating],
     got = np.asarray(received_z, np.float64)
     p_full = plan_targets(full, grid, anchors, start_xy, targets_xy, tcfg, ccfg)
     p_got = plan_targets(got, grid, anchors, start_xy, targets_xy, tcfg, ccfg)
-    g_full, g_got = ground_layers(full, grid, ccfg), ground_layers(got, grid, ccfg)
+    g_full = ground_layers(full, grid, ccfg, anchors=anchors)
+    g_got = ground_layers(got, grid, ccfg, anchors=anchors)
     # A rock is lost too when it lies inside another's grown hazard (a tether may not touch it).
     lost = int((((g_full.hazard & ~g_got.hazard) | (g_full.rock & ~g_got.rock)) & np.isfinite(got)).sum())
     return MapComparison(p_full.reasons, p_got.reasons, p_full.lengths_m, p_got.lengths_m, lost)

@@ -72,7 +72,7 @@ class Route:
         # where the way between waypoints may not go: the body starts a way from where the last one
         # left it (within a lattice spacing of the node), so its tethers' contacts fall up to about
         # that far from the replay's: the ways keep them a lattice spacing off the map's rocks
-        ground = ground_layers(z, grid, ccfg, self.carried)
+        ground = ground_layers(z, grid, ccfg, self.carried, anchors)
         grow = disc(int(round(ccfg.node_m / grid.cell)))
         self.ground = dataclasses.replace(ground, rock=ndimage.binary_dilation(ground.rock, structure=grow))
         self.ways: dict[tuple[float, float, float, float], str] = {}  # way_reason per pair of places

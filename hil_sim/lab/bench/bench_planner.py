@@ -2,10 +2,11 @@
 
 On a cliff-team scene's true ground on the flight map grid (the map the planner and the
 bench's team runs judge), times ``fsw.core.team.face_planner.ground_layers`` (rocks, hazards,
-known footprints, slope) and within it ``footprint_known`` (each tilted cell's footprint
-ellipse gathered at that cell), against :func:`footprint_known_whole_map`, the same
-definition as whole-map filters (a minimum filter and an erosion over every cell of the map
-for each ellipse), and says whether both give the same cells. CPU time (process time) per
+known footprints, slope) and within it ``footprint_known`` (each cell's footprint, the
+wheels' outline at the heading held there, gathered at that cell), against
+:func:`footprint_known_whole_map`, the same definition as whole-map filters (a minimum filter
+and an erosion over every cell of the map for each footprint), and says whether both give the
+same cells. CPU time (process time) per
 call: the median and best of ``--repeat`` runs after a warm-up.
 """
 
@@ -23,30 +24,34 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--repeat", type=int, default=5, help="timed runs of each")
 
 
-def footprint_known_whole_map(z_sensed: Any, grid: Any, footprint_m: float) -> Any:
-    """``footprint_known``'s definition as whole-map filters: each ellipse's minimum filter of
+def footprint_known_whole_map(z_sensed: Any, grid: Any, cfg: Any, anchors: Any) -> Any:
+    """``footprint_known``'s definition as whole-map filters: each footprint's minimum filter of
     the local slope and its erosion of the sensed cells over the whole map, kept on the cells
-    that ellipse is for (the reference the flight function must equal)."""
+    that footprint is for (the reference the flight function must equal)."""
     import numpy as np
     from scipy import ndimage
 
-    from fsw.core.team.face_planner import FOOT_COS_LEVELS, _cos_level, disc, slope_levels, tilted_disc
+    from fsw.core.team.face_planner import FOOT_COS_LEVELS, _cos_level, footprint_box, map_yaw_bins, slope_levels
 
     zs = np.asarray(z_sensed, np.float64)
     sensed = np.isfinite(zs)
-    r = int(round(footprint_m / grid.cell))
-    if r < 1 or not sensed.any():
-        return ndimage.binary_erosion(sensed, structure=disc(r), border_value=0)
+    hl, hw = cfg.body_half_length_m / grid.cell, cfg.body_half_width_m / grid.cell
     local, level, dbin = slope_levels(zs, grid.cell)
-    level_disc = ndimage.binary_erosion(sensed, structure=disc(r), border_value=0)
-    out = sensed & (level >= FOOT_COS_LEVELS) & level_disc
+    ybin = map_yaw_bins(grid, anchors)
+    level_known = np.zeros(sensed.shape, bool)
+    for y in np.unique(ybin):
+        eroded = ndimage.binary_erosion(sensed, structure=footprint_box(hl, hw, FOOT_COS_LEVELS, 0, int(y)),
+                                        border_value=0)
+        level_known |= (ybin == y) & eroded
+    out = sensed & (level >= FOOT_COS_LEVELS) & level_known
     tilted = sensed & (level < FOOT_COS_LEVELS)
-    for lv, b in {(int(a), int(d)) for a, d in zip(level[tilted], dbin[tilted], strict=True)}:
-        foot = tilted_disc(r, lv, b)
+    for lv, b, y in {(int(a), int(d), int(h)) for a, d, h in zip(level[tilted], dbin[tilted], ybin[tilted],
+                                                                   strict=True)}:
+        foot = footprint_box(hl, hw, lv, b, y)
         least = ndimage.minimum_filter(local, footprint=foot, mode="constant", cval=np.inf)
         fits = _cos_level(np.where(np.isfinite(least), least, 0.0)) <= lv
-        out |= tilted & (level == lv) & (dbin == b) & np.where(
-            fits, ndimage.binary_erosion(sensed, structure=foot, border_value=0), level_disc)
+        out |= tilted & (level == lv) & (dbin == b) & (ybin == y) & np.where(
+            fits, ndimage.binary_erosion(sensed, structure=foot, border_value=0), level_known)
     return out
 
 
@@ -69,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
 
     from fsw.core.geometry import MapGrid
     from fsw.core.team.face_planner import ClimberConfig, footprint_known, ground_layers
+    from fsw.core.team.tether import TetherConfig, anchor_points
     from fsw.framework.params import ConfigError
     from hil_sim.world import load_scenario
     from hil_sim.world.config import ScenarioError
@@ -87,14 +93,16 @@ def run(args: argparse.Namespace) -> int:
     grid = MapGrid.from_config(world.map_grid)
     z = np.asarray(world.ground_on_grid(grid), np.float64)
     ccfg = ClimberConfig()
+    anchors = anchor_points(z, grid, world.team.anchors_xy, TetherConfig())
     print(f"{args.scenario} seed {args.seed}: true ground on the flight map grid, {grid.ny}x{grid.nx} cells of "
-          f"{grid.cell:g} m ({int(np.isfinite(z).sum())} known), footprint {ccfg.footprint_m:g} m; "
+          f"{grid.cell:g} m ({int(np.isfinite(z).sum())} known), footprint "
+          f"{2 * ccfg.body_half_length_m:g} x {2 * ccfg.body_half_width_m:g} m; "
           f"CPU ms a call, median (best) of {args.repeat}")
-    med, best, _ = _cpu_ms(lambda: ground_layers(z, grid, ccfg), args.repeat)
+    med, best, _ = _cpu_ms(lambda: ground_layers(z, grid, ccfg, anchors=anchors), args.repeat)
     print(f"  ground_layers (flight)                 {med:8.1f} ({best:8.1f})")
-    med, best, flight = _cpu_ms(lambda: footprint_known(z, grid, ccfg.footprint_m), args.repeat)
+    med, best, flight = _cpu_ms(lambda: footprint_known(z, grid, ccfg, anchors), args.repeat)
     print(f"  footprint_known (flight)               {med:8.1f} ({best:8.1f})")
-    ref_med, ref_best, ref = _cpu_ms(lambda: footprint_known_whole_map(z, grid, ccfg.footprint_m), args.repeat)
+    ref_med, ref_best, ref = _cpu_ms(lambda: footprint_known_whole_map(z, grid, ccfg, anchors), args.repeat)
     print(f"  footprint_known by whole-map filters   {ref_med:8.1f} ({ref_best:8.1f})")
     same = bool(np.array_equal(flight, ref))
     print(f"  same cells: {'yes' if same else 'NO'} ({int(flight.sum())} known footprints); "

@@ -105,7 +105,7 @@ def test_a_target_on_unknown_ground_is_approached_looked_at_and_reached() -> Non
     m.on_no_fix(m.fix_seq, "busy")  # the leg planned: toward the known node nearest the target
     leg = m.legs[0]
     assert m.state == "DRIVE" and leg.via is not None
-    known = ground_layers(m.z, GRID, m.ccfg).known  # the whole footprint known
+    known = ground_layers(m.z, GRID, m.ccfg, anchors=m.anchors).known  # the whole footprint known
     # the approach node is the known ground nearest the target: no known node is nearer by a lattice spacing
     iy, ix = np.nonzero(known)
     cx, cy = GRID.x0 + (ix + 0.5) * GRID.cell, GRID.y0 + (iy + 0.5) * GRID.cell
@@ -118,7 +118,7 @@ def test_a_target_on_unknown_ground_is_approached_looked_at_and_reached() -> Non
     # the look shows the target's ground: the leg is planned again, to the target, and driven
     t = _look(m, dev, t, _ground())
     assert m.state == "DRIVE" and leg.via is None and m.reasons[0] == ""
-    t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg).known)
+    t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, anchors=m.anchors).known)
     assert m.reached == [True] and "TARGET_REACHED" in _names(m)
 
 
@@ -128,7 +128,7 @@ def test_a_look_that_shows_nothing_new_gives_the_target_up_with_its_looks() -> N
     t = _start(m, dev, z0)
     m.step(t + 0.1, dev)
     m.on_no_fix(m.fix_seq, "busy")
-    known = ground_layers(m.z, GRID, m.ccfg).known
+    known = ground_layers(m.z, GRID, m.ccfg, anchors=m.anchors).known
     t, _ = _drive(m, dev, t + 0.1, known)
     # the views add nothing: it edges up to what known ground is left nearer the target (each step
     # more than a lattice spacing), looks there, and gives the target up when nothing nearer is left
@@ -187,7 +187,7 @@ def test_it_edges_up_to_known_ground_a_short_step_nearer_the_target_before_it_lo
     gain = here - float(np.hypot(*(leg.via - TARGET)))
     assert m.ccfg.node_m < gain < m.ccfg.footprint_m  # a short step, all it has
     via = leg.via.copy()
-    known = ground_layers(z0, GRID, m.ccfg).known
+    known = ground_layers(z0, GRID, m.ccfg, anchors=m.anchors).known
     _, places = _drive(m, dev, t + 0.2, known)  # never onto ground the map does not know
     assert m.state == "WAIT_FIX" and m.look_now and np.array_equal(places[-1], via)
 
@@ -201,12 +201,12 @@ def test_the_plane_carried_beyond_where_its_wheels_stand_is_no_ground_to_step_on
     z0 = _unknown_below(-0.75)
     t = _start(m, dev, z0)
     half_len, half_wid = CliffbotSensingConfig().body_half_m[:2]
-    contact = standing_cells(GRID, start, m.ccfg, (-np.pi / 2, half_len, half_wid))
+    contact = standing_cells(GRID, start, m.ccfg, m.anchors, (-np.pi / 2, half_len, half_wid))
     assert m.carried is not None and m.carried.any() and not (m.carried & contact).any()
     assert m.reasons[0] == "unknown ground" or not m.reasons[0]  # the start itself is usable ground
     assert np.isfinite(m.z[m.carried]).all() and not np.isfinite(z0[m.carried]).any()
     sensed = np.isfinite(z0) | contact  # the camera's ground and the wheels' own
-    known = ground_layers(np.where(sensed, 0.0, np.nan), GRID, m.ccfg).known
+    known = ground_layers(np.where(sensed, 0.0, np.nan), GRID, m.ccfg, anchors=m.anchors).known
     if m.state == "WAIT_FIX":
         assert m.step(t + 0.1, dev).request_fix
         m.on_no_fix(m.fix_seq, "busy")
@@ -216,30 +216,29 @@ def test_the_plane_carried_beyond_where_its_wheels_stand_is_no_ground_to_step_on
         assert leg.via is None or known[GRID.cell_index(leg.via[:1], leg.via[1:])[:2]].all()
         _drive(m, dev, t + 0.2, known)  # every waypoint's whole footprint sensed
     # the planner's own layers say the same: no usable node on the carried plane
-    g = ground_layers(m.z, GRID, m.ccfg, m.carried)
+    g = ground_layers(m.z, GRID, m.ccfg, m.carried, m.anchors)
     assert not (g.known & ~known).any()
 
 
 def test_the_ground_under_its_body_outline_is_where_it_stands_so_the_first_step_is_known() -> None:
-    """No camera sees the ground under the body (the RECON-bot's map leaves it unknown), and the
-    body's corners reach beyond its footprint's radius: the ground under its outline is where it
-    stands, so the first step is onto known ground (were the corners the plane carried on, every
-    node next to the start would hold one in its footprint and the target would be given up)."""
-    start = np.array([2.55, -0.45])  # a cell's centre: the outline's corner cells lie beyond the footprint
+    """No camera sees the ground under the body (the RECON-bot's map leaves it unknown): the ground
+    under its outline is where it stands, so the first step is onto known ground (were its corners
+    the plane carried on, every node next to the start would hold one in its footprint and the
+    target would be given up)."""
+    start = np.array([2.55, -0.45])  # a cell's centre
     m, dev = _mission(start=start), FreshDevices()
     z0 = _unknown_below(-1.9)
     x, y = GRID.centers()
     half_len, half_wid = CliffbotSensingConfig().body_half_m[:2]
     under = (np.abs(y - start[1]) <= half_len) & (np.abs(x - start[0]) <= half_wid)  # heading -90 deg: along is -y
-    assert not standing_cells(GRID, start, m.ccfg)[under].all()
     z0[under] = np.nan
     t = _start(m, dev, z0)
     assert m.step(t + 0.1, dev).request_fix
     m.on_no_fix(m.fix_seq, "busy")
     assert m.state == "DRIVE" and m.legs[0].via is not None, m.events[-2:]
     assert m.carried is not None and not (m.carried & under).any()
-    sensed = np.isfinite(z0) | standing_cells(GRID, start, m.ccfg, (-np.pi / 2, half_len, half_wid))
-    _drive(m, dev, t + 0.2, ground_layers(np.where(sensed, 0.0, np.nan), GRID, m.ccfg).known)
+    sensed = np.isfinite(z0) | standing_cells(GRID, start, m.ccfg, m.anchors, (-np.pi / 2, half_len, half_wid))
+    _drive(m, dev, t + 0.2, ground_layers(np.where(sensed, 0.0, np.nan), GRID, m.ccfg, anchors=m.anchors).known)
 
 
 def test_the_look_budget_counts_looks_without_progress_so_a_long_approach_goes_on() -> None:
@@ -256,12 +255,12 @@ def test_the_look_budget_counts_looks_without_progress_so_a_long_approach_goes_o
     shown = _unknown_below(-0.9)
     for z in views:
         assert m.state == "DRIVE" and m.legs[0].via is not None, m.events[-2:]
-        t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried).known)
+        t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried, m.anchors).known)
         assert m.state == "WAIT_FIX" and m.look_now, m.events[-2:]
         shown = z
         t = _look(m, dev, t, shown)
     assert m.state == "DRIVE" and m.legs[0].via is None and m.reasons[0] == "", m.events[-2:]
-    t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried).known)
+    t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried, m.anchors).known)
     assert m.reached == [True] and m.looks == [len(views)] > [m.cfg.approach_looks]
 
 
@@ -279,13 +278,13 @@ def test_the_ground_it_stood_on_stays_known_so_the_leg_home_reaches_its_start() 
     z0 = _unknown_below(-1.9)
     x, y = GRID.centers()
     half_len, half_wid = CliffbotSensingConfig().body_half_m[:2]
-    under = standing_cells(GRID, start, m.ccfg, (-np.pi / 2, half_len, half_wid))
+    under = standing_cells(GRID, start, m.ccfg, m.anchors, (-np.pi / 2, half_len, half_wid))
     z0[under] = np.nan
     t = _start(m, dev, z0)
     assert m.step(t + 0.1, dev).request_fix
     m.on_no_fix(m.fix_seq, "busy")
     assert m.state == "DRIVE" and m.legs[0].via is not None, m.events[-2:]
-    t, _ = _drive(m, dev, t + 0.2, ground_layers(m.z, GRID, m.ccfg, m.carried).known)
+    t, _ = _drive(m, dev, t + 0.2, ground_layers(m.z, GRID, m.ccfg, m.carried, m.anchors).known)
     assert m.state == "WAIT_FIX" and float(np.hypot(*(m.est.xy - start))) > 1.0
     t = _look(m, dev, t, z0)  # the look shows nothing new; the map there still does not know the start
     assert np.isfinite(m.z[under]).all() and not (m.carried & under).any()
@@ -293,7 +292,7 @@ def test_the_ground_it_stood_on_stays_known_so_the_leg_home_reaches_its_start() 
     assert m.step(t + 0.1, dev).request_fix
     m.on_no_fix(m.fix_seq, "busy")
     assert m.state == "DRIVE", m.events[-3:]  # planned onto the ground it stood on
-    t, places = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried).known)
+    t, places = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried, m.anchors).known)
     assert "HOME" in _names(m) and m.state == "DONE"
     assert float(np.hypot(*(places[-1] - start))) <= m.ccfg.node_m
 
@@ -306,9 +305,9 @@ def test_a_checkpoint_keeps_the_ground_it_stood_on_and_a_bad_one_is_refused() ->
     from fsw.tasks.cliffbot.checkpoint import CheckpointError, restore, snapshot
 
     z0 = _unknown_below(-1.9)
-    under = standing_cells(GRID, START, ClimberConfig())
-    z0[under] = np.nan
     m = _mission()
+    under = standing_cells(GRID, START, m.ccfg, m.anchors)
+    z0[under] = np.nan
     m.on_estimate(np.array([*START, -np.pi / 2]), P)
     m.set_map(z0, GRID)
     m.on_estimate(np.array([2.5, -1.5, -np.pi / 2]), P)
@@ -341,25 +340,25 @@ def test_with_nothing_nearer_it_looks_again_from_elsewhere_along_the_known_groun
         for _ in range(10):  # the approach's short steps, each looking at nothing new
             if "EXPLORE" in _names(m) or m.state != "DRIVE":
                 break
-            t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried).known)
+            t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried, m.anchors).known)
             t = _look(m, dev, t, z0)
         leg = m.legs[0]
         assert m.state == "DRIVE" and leg.via is not None and "EXPLORE" in _names(m), m.events[-3:]
         looked, here = list(m.looked_from), m.est.xy
         assert all(float(np.hypot(*(leg.via - p))) >= LOOK_APART_M for p in looked)
         assert float(np.hypot(*(leg.via - TARGET))) <= float(np.hypot(*(here - TARGET))) + LOOK_APART_M
-        t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried).known)
+        t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried, m.anchors).known)
         assert m.state == "WAIT_FIX" and m.look_now, m.events[-2:]
         t = _look(m, dev, t, _ground() if shows else z0)
         if shows:
             assert m.state == "DRIVE" and m.reasons[0] == "", m.events[-2:]
-            _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried).known)
+            _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried, m.anchors).known)
             assert m.reached == [True]
             continue
         for _ in range(20):
             if m.state == "DONE":
                 break
-            t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried).known)
+            t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried, m.anchors).known)
             t = _look(m, dev, t, z0)
         n = m.legs[0].looks
         assert m.state == "DONE" and m.reached == [False] and m.reasons[0] == f"unknown ground ({n} looks)"

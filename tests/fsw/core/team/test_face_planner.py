@@ -57,7 +57,7 @@ def test_reaches_a_face_target_and_never_leaves_usable_ground() -> None:
     assert p.start_reason == ""
     assert p.reasons[0] == "" and p.paths[0] is not None
     assert p.reasons[1] == "hazard" and p.paths[1] is None
-    g = ground_layers(z, grid, ClimberConfig())
+    g = ground_layers(z, grid, ClimberConfig(), anchors=anchor_points(z, grid, ANCHORS_XY, TetherConfig()))
     iy, ix, inside = grid.cell_index(p.paths[0][:, 0], p.paths[0][:, 1])
     assert inside.all() and not g.hazard[iy, ix].any() and g.known[iy, ix].all()
     # The path goes down the face: it ends well below the lip.
@@ -111,7 +111,7 @@ def test_soft_margins_keep_clear_without_changing_what_is_reachable() -> None:
     hard = plan_targets(z, grid, anchors, start, target, TetherConfig(), ClimberConfig())
     soft = plan_targets(z, grid, anchors, start, target, TetherConfig(), ClimberConfig(), Margins(0.3))
     assert hard.reasons == soft.reasons == ("",)
-    g = ground_layers(z, grid, ClimberConfig())
+    g = ground_layers(z, grid, ClimberConfig(), anchors=anchors)
     from scipy import ndimage
 
     clear = ndimage.distance_transform_edt(~g.hazard) * grid.cell
@@ -164,40 +164,61 @@ def test_the_way_between_nodes_is_judged_where_the_statics_put_the_body() -> Non
 
 
 def test_the_footprint_is_laid_in_the_grounds_plane() -> None:
-    """On a 77 deg face a 0.3 m footprint spans 0.3 cos 77 = 0.07 m of the map along the dip:
-    a band of face 0.4 m wide on the map (1.8 m along the slope) holds such nodes, which the
-    level disc (0.6 m across on the map) never finds; across the dip it keeps its full radius,
-    and flat ground keeps the level disc."""
+    """On a 77 deg face a body 0.6 m long, heading down the dip, spans 0.6 cos 77 = 0.14 m of the
+    map along the dip: a band of face 0.4 m wide on the map (1.8 m along the slope) holds such
+    nodes, which the level footprint (0.6 m long on the map) never finds; across the dip it keeps
+    its full half width, and flat ground keeps the level footprint."""
     g = MapGrid(0.0, 0.0, 0.08, 40, 40)
     x, y = g.centers()
     face = np.tan(np.radians(77.0)) * y
+    anchors = np.array([[1.1, 6.0, 30.0], [2.1, 6.0, 30.0]])  # above the face: it heads down the dip
+    c = ClimberConfig()
     band = np.where(np.abs(y - 1.6) <= 0.2, face, np.nan)
-    got = footprint_known(band, g, 0.3)
-    level = ndimage.binary_erosion(np.isfinite(band), structure=disc(4), border_value=0)
+    got = footprint_known(band, g, c, anchors)
+    level = ndimage.binary_erosion(np.isfinite(band), structure=np.ones((9, 1), bool), border_value=0)
     assert got.any() and not level.any()
-    assert not (got & (np.abs(y - 1.6) > 0.12)).any()  # along the dip: within the band less the ellipse
-    assert not (got & ((x < 0.3) | (x > 3.2 - 0.3))).any()  # across the dip: the full radius from the band's ends
-    # the same band on flat ground: nothing known; a flat strip within an ellipse: the level disc there
+    assert not (got & (np.abs(y - 1.6) > 0.125)).any()  # along the dip: within the band less the footprint
+    assert not (got & ((x < c.body_half_width_m) | (x > 3.2 - c.body_half_width_m))).any()  # across: its half width
+    # the same band on flat ground: nothing known; a flat strip within a footprint: the level one there
     flat = np.where(np.isfinite(band), 0.0, np.nan)
-    assert not footprint_known(flat, g, 0.3).any()
+    assert not footprint_known(flat, g, c, anchors).any()
     ledge = np.where(np.isfinite(band) & (y > 1.7), 1.64 * np.tan(np.radians(77.0)), band)  # the band's top flat
-    assert got.any() and not footprint_known(ledge, g, 0.3).any()
+    assert got.any() and not footprint_known(ledge, g, c, anchors).any()
+
+
+def test_the_footprint_is_the_wheels_outline_at_the_heading_held() -> None:
+    """The footprint is the body's box at the heading it holds (away from the anchors), not the
+    disc round it: a strip of unknown ground 0.28 m beside the body's middle, where no camera
+    sees, leaves a node a step ahead or behind along the heading known (the disc of the body's
+    half length would hold the strip), and one a step across it not."""
+    g = MapGrid(-1.5, -1.5, 0.03, 100, 100)
+    x, y = g.centers()
+    anchors = np.array([[-1.0, 1.5, 0.5], [1.0, 1.5, 0.5]])  # it heads down -y
+    z = np.where((np.abs(x) >= 0.28) & (np.abs(x) <= 0.44) & (np.abs(y) < 0.6), np.nan, 0.0)
+    known = footprint_known(z, g, ClimberConfig(), anchors)
+    at = {p: bool(known[g.cell_index(np.array([p[0]]), np.array([p[1]]))[:2]][0])
+          for p in ((0.0, 0.0), (0.0, -0.12), (0.0, 0.12), (0.1, 0.0))}
+    assert at[(0.0, 0.0)] and at[(0.0, -0.12)] and at[(0.0, 0.12)] and not at[(0.1, 0.0)]
+    disc_known = ndimage.binary_erosion(np.isfinite(z), structure=disc(10), border_value=0)
+    assert not disc_known[g.cell_index(np.array([0.0]), np.array([-0.12]))[:2]][0]
 
 
 @pytest.mark.parametrize("seed", range(4))
 def test_footprint_known_gathers_what_whole_map_filters_give(seed: int) -> None:
-    """footprint_known judges each tilted cell with its own ellipse only: the same cells as
-    each ellipse's minimum filter and erosion over the whole map (``safer-hil bench planner``'s
+    """footprint_known judges each cell with its own footprint only: the same cells as each
+    footprint's minimum filter and erosion over the whole map (``safer-hil bench planner``'s
     reference), unknown cells and the map's borders included (rough random ground: every
-    slope level and dip bin)."""
+    slope level, dip bin and heading bin)."""
     rng = np.random.default_rng(seed)
     g = MapGrid(0.0, 0.0, 0.03, int(rng.integers(30, 70)), int(rng.integers(30, 70)))
     z = np.cumsum(rng.normal(0.0, 0.05, g.shape), axis=int(seed % 2)) * rng.uniform(0.3, 3.0)
     z[rng.random(g.shape) < 0.08] = np.nan
     z[5:12, 3:20] = np.nan
-    for footprint_m in (0.3, 0.1):
-        got = footprint_known(z, g, footprint_m)
-        assert np.array_equal(got, footprint_known_whole_map(z, g, footprint_m))
+    anchors = np.array([[0.2, 0.5, 1.0], [1.0, 1.2, 1.0]])  # among the cells: every heading
+    for half in ((0.3, 0.225), (0.1, 0.07)):
+        c = ClimberConfig(body_half_length_m=half[0], body_half_width_m=half[1])
+        got = footprint_known(z, g, c, anchors)
+        assert np.array_equal(got, footprint_known_whole_map(z, g, c, anchors))
     assert got.any() and not got.all()
 
 
