@@ -38,6 +38,8 @@ from fsw.core.team.tether_batch import heights_at, taut_tethers, vector_norm
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
+# the gufunc np.linalg.lstsq calls (numpy >= 2.0), for fitting many planes in one call (_plane_normals)
+_GELSD: np.ufunc | None = getattr(np.linalg._umath_linalg, "lstsq", None)  # type: ignore[attr-defined]
 ZMap = NDArray[np.float32 | np.float64]  # a 2.5D map: heights, NaN unknown
 BATCH_PLACES = 256  # places per batch of :func:`tether_states` (~2 x 256 ground profiles of a few hundred samples)
 G = 9.81  # m/s^2 (the planet's value belongs in config when the bench plays Mars: TetherConfig.gravity_mps2)
@@ -231,6 +233,27 @@ def _plane_normal(design: F64, h: F64) -> F64 | None:
     return n / vector_norm(n)
 
 
+def _plane_normals(design: F64, h: F64) -> list[F64 | None]:
+    """:func:`_plane_normal` of each row of ``h`` (N, 9), the same values: the rows whose every
+    height is known (most places) fitted in one call of the gufunc ``np.linalg.lstsq`` wraps
+    (LAPACK's ``gelsd`` on each matrix, with lstsq's default ``rcond``), the others one at a
+    time. A batch of tether states fits a plane per place, and lstsq's checks and wrapping cost
+    several times its solve for a 9 x 3 fit."""
+    gelsd = _GELSD
+    full = np.isfinite(h).all(axis=1) if gelsd is not None else np.zeros(len(h), bool)
+    out: list[F64 | None] = [None] * len(h)
+    if gelsd is not None and full.any():
+        rcond = np.finfo(np.float64).eps * max(design.shape)
+        with np.errstate(over="ignore", divide="ignore", under="ignore"):
+            fits: F64 = gelsd(design, h[full][:, :, None], rcond, signature="ddd->ddid")[0][:, :, 0]
+        for k, (gx, gy, _) in zip(np.flatnonzero(full), fits, strict=True):
+            n = np.array([-gx, -gy, 1.0])
+            out[int(k)] = n / vector_norm(n)
+    for k in np.flatnonzero(~full):
+        out[int(k)] = _plane_normal(design, h[k])
+    return out
+
+
 def surface_normal(z: ZMap, grid: MapGrid, xy: F64, radius_m: float) -> F64 | None:
     """Unit upward normal of the plane fitted to the ground at ``xy`` and at eight points on
     the circle of ``radius_m`` around it (bilinear heights, :func:`height_at`, so the normal
@@ -346,7 +369,8 @@ def tether_states(z: ZMap, grid: MapGrid, anchors: F64, xys: F64, cfg: TetherCon
     px, py, design = _ring(footprint_m, grid)
     h = heights_at(z, grid, (xys[:, :1] + px).ravel(), (xys[:, 1:] + py).ravel()).reshape(-1, 9)
     out: list[TetherState | None] = [None] * len(xys)
-    normals = {int(k): _plane_normal(design, h[k]) for k in np.flatnonzero(inside)}
+    at = np.flatnonzero(inside)
+    normals = dict(zip(at.tolist(), _plane_normals(design, h[at]), strict=True))
     held = [k for k, n in normals.items() if n is not None]
     if not held:
         return out
@@ -404,18 +428,31 @@ def settle(z: ZMap, grid: MapGrid, anchors: F64, lengths: tuple[float, float], g
             step *= 0.5 / n
         # Backtracking: a contact appearing or vanishing makes the lengths kink, and a full
         # Gauss-Newton step can cycle across the kink; halve it until the residual shrinks.
-        r_norm = vector_norm(r)
-        for _ in range(6):
-            trial = tether_state(z, grid, anchors, xy - step, cfg)
-            if trial is not None and vector_norm(np.asarray(trial.lengths_m) - target) < r_norm:
-                known = trial
-                break
-            step = 0.5 * step
-        xy = xy - step
+        xy, known = _backtrack(z, grid, anchors, xy, step, target, vector_norm(r), cfg)
     st = known if known is not None else tether_state(z, grid, anchors, xy, cfg)
     if st is not None and np.max(np.abs(np.asarray(st.lengths_m) - target)) < accept:
         return xy, st
     return _settle_search(z, grid, anchors, target, best[1], cfg, accept)
+
+
+_HALVINGS = 0.5 ** np.arange(7)  # settle's step and its six halvings (exact: powers of two)
+
+
+def _backtrack(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, step: F64, target: F64, r_norm: float,
+               cfg: TetherConfig) -> tuple[F64, TetherState | None]:
+    """:func:`settle`'s backtracking step from ``xy``: the step, halved until the residual at
+    ``xy - step`` is below ``r_norm`` (at most six times; after the sixth the step is halved
+    once more and taken), and the state there. Every trial place is worked out in one
+    :func:`tether_states` batch (the same values as one at a time), the last one included: on
+    a rough face most steps are halved a few times, and a batch costs about as much as two
+    places one at a time."""
+    places = xy - _HALVINGS[:, None] * step  # the trials, then the place taken when none shrinks
+    states = tether_states(z, grid, anchors, places, cfg)
+    for k in range(len(places) - 1):
+        trial = states[k]
+        if trial is not None and vector_norm(np.asarray(trial.lengths_m) - target) < r_norm:
+            return places[k], trial
+    return places[-1], states[-1]
 
 
 def _settle_search(z: ZMap, grid: MapGrid, anchors: F64, target: F64, xy0: F64, cfg: TetherConfig,
