@@ -32,7 +32,12 @@ records what the views gave the detector there:
 * ``spread``: the points in the cell, pooled over views, spread along the normal by more than
   the gap plus 3 sigma of their noise.
 
-A missed cell may have several; ``primary`` is the first of the order above that holds. Per
+A missed cell may have several; ``primary`` is the first of the order above that holds.
+:func:`false_flags` sorts the flags on single-surface cells (false flags) by the test that set
+each (the face map's ``flagged_by``), the agent whose view did, and what the truth holds there,
+the first of :data:`FALSE_CLASSES` that applies: ``part`` (an overhang covers part of the cell,
+off its centre), ``wrong_surface`` (the map's height lies more than the gap off the true
+surface), ``step`` (a true rise of the gap or more within 2 cells), ``other``. Per
 scene, ``frame_off_deg`` (``face_eval.frame_off_deg``) says how far the fitted face plane's normal
 lies from the scenario's face: a plane fitted to a rock jumble's sides turns the face's ordinary
 relief into columns that cross the ground more than once.
@@ -46,12 +51,22 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.map.face_map import FaceMap
-from hil_sim.team.face_eval import air_along_normal, facing_seen, frame_off_deg, overhang_shown, truth_along_normal
+from fsw.core.map.overhang import FLAG_TESTS
+from hil_sim.team.face_eval import (
+    air_along_normal,
+    facing_seen,
+    frame_off_deg,
+    overhang_in_cell,
+    overhang_shown,
+    relief_rise,
+    truth_along_normal,
+)
 from hil_sim.team.face_scene import FaceScene
 from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]
 FRAME_OFF_DEG = 20.0  # a fitted face normal farther than this from the scenario's face: not the face
+FALSE_CLASSES = ("part", "wrong_surface", "step", "other")  # what the truth holds under a false flag
 REASONS = ("unobservable", "facing_far", "facing_unresolved", "no_inner", "both_one_view", "both_across",
            "facing_few", "air_few", "neighbour_flagged", "handed_over", "spread")
 
@@ -64,6 +79,7 @@ class WhyScene(FaceScene):
         super().__init__(*args, **kwargs)
         self.kept: list[tuple[F64, F64, F64]] = []  # per view: face q (N, 3), var_w (N,), routed to face (N,)
         self.agents: list[str] = []  # per view (as ``true_rays``): the agent that took it
+        self.flag_agent: NDArray[np.object_] | None = None  # per face cell: the agent whose view flagged it
 
     def _view(self, agent: str, *args: Any) -> None:
         self.agents.append(agent)
@@ -71,6 +87,9 @@ class WhyScene(FaceScene):
 
     def _fuse(self, agent: str, parts: Any, eye: F64, window_rad: float) -> None:
         assert self.face is not None
+        if self.flag_agent is None:
+            self.flag_agent = np.full(self.face.grid.shape, "", object)
+        before = self.face.overhang.copy()
         if parts:
             xyz = np.concatenate([p[0] for p in parts])
             cov = np.concatenate([p[1] for p in parts])
@@ -79,6 +98,7 @@ class WhyScene(FaceScene):
             to_face, _ = self.face.routes(xyz)
             self.kept.append((q, var_w, to_face))
         super()._fuse(agent, parts, eye, window_rad)
+        self.flag_agent[self.face.overhang & ~before] = agent
 
 
 def facing_seen_by(world: World, face: FaceMap, rays: list[tuple[F64, F64]], agents: list[str]
@@ -191,12 +211,63 @@ def miss_reasons(scene: WhyScene) -> dict[str, Any]:
     return out
 
 
+def false_flags(scene: WhyScene) -> dict[str, int]:
+    """The scene's false flags (flagged face cells whose normal through the centre crosses the
+    true ground once) sorted by the test that flagged each (``fsw.core.map.overhang.FLAG_TESTS``:
+    ``ff_<test>``), the agent whose view did (``ff_<test>_<agent>``) and what the truth holds
+    there, the first that applies (``ff_<test>_<class>``, :data:`FALSE_CLASSES`)."""
+    out = {f"ff_{t}{k}": 0 for t in FLAG_TESTS[1:]
+           for k in ("", "_recon", "_cliffbot", *(f"_{c}" for c in FALSE_CLASSES))}
+    face = scene.face
+    if face is None or scene.flag_agent is None:
+        return out
+    cells = np.flatnonzero(face.map.mapped.reshape(-1))
+    w_true, over = truth_along_normal(scene.world, face, cells)
+    false = face.overhang.reshape(-1)[cells] & ~over
+    fc = cells[false]
+    if fc.size == 0:
+        return out
+    gap = face.cfg.overhang_gap_m
+    part = overhang_in_cell(scene.world, face, fc)
+    off = ~(np.abs(face.map.z.reshape(-1)[fc] - w_true[false]) <= gap)
+    step = relief_rise(scene.world, face)[fc] >= gap
+    cls = np.where(part, 0, np.where(off, 1, np.where(step, 2, 3)))
+    test = face.flagged_by.reshape(-1)[fc]
+    agent = scene.flag_agent.reshape(-1)[fc]
+    for k in range(len(fc)):
+        t = FLAG_TESTS[int(test[k])]
+        out[f"ff_{t}"] += 1
+        out[f"ff_{t}_{FALSE_CLASSES[int(cls[k])]}"] += 1
+        if agent[k] in ("recon", "cliffbot"):
+            out[f"ff_{t}_{agent[k]}"] += 1
+    return out
+
+
 def why_scene(spec: str, seed: int, config: str, n_recon: int, n_cliff: int,
               resolve_cells: float | None = None) -> dict[str, Any]:
     """One scene's miss reasons and its false flags (deterministic per seed)."""
     s = WhyScene(spec, seed, config, resolve_cells=resolve_cells)
     row = s.measure(n_recon, n_cliff)
-    return {**miss_reasons(s), "false": row["overhang_false"], "false_part": row["overhang_false_part"]}
+    return {**miss_reasons(s), "false": row["overhang_false"], "false_part": row["overhang_false_part"],
+            **false_flags(s)}
+
+
+def false_report(rows: list[dict[str, Any]], table: Any) -> str:
+    """The pooled false flags by the test that flagged them, the agent and the truth's class."""
+    out = []
+    for t in FLAG_TESTS[1:]:
+        n = sum(r.get(f"ff_{t}", 0) for r in rows)
+        row: dict[str, Any] = {"test": t, "false flags": n}
+        for k in ("recon", "cliffbot", *FALSE_CLASSES):
+            row[k] = sum(r.get(f"ff_{t}_{k}", 0) for r in rows)
+        out.append(row)
+    return ("## False flags by the test that flagged them\n\n"
+            "Per test, the agent whose view flagged the cell and what the truth holds there (the first "
+            "that applies): `part`, an overhang covers part of the cell off its centre; `wrong_surface`, "
+            "the map's height lies more than the gap off the true surface (the cell holds a surface "
+            "the ground does not have there); `step`, a true rise of the gap or more within 2 cells; "
+            "`other`, none of these.\n\n"
+            + table(out, ["test", "false flags", "recon", "cliffbot", *FALSE_CLASSES]) + "\n\n")
 
 
 def why_report(rows: list[dict[str, Any]], table: Any) -> str:
@@ -222,4 +293,5 @@ def why_report(rows: list[dict[str, Any]], table: Any) -> str:
     cols = ["seed", "frame_off_deg", "truth", "flagged", "missed", "false", "false_part",
             *(f"primary_{k}" for k in REASONS)]
     return ("## Why truth overhang cells were missed\n\n" + table(summary, ["figure", "cells", "first reason"])
-            + "\n\n## Scenes (first reason per missed cell)\n\n" + table(rows, cols) + "\n")
+            + "\n\n" + false_report(rows, table)
+            + "## Scenes (first reason per missed cell)\n\n" + table(rows, cols) + "\n")

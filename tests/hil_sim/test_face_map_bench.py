@@ -448,3 +448,38 @@ def test_the_misses_say_which_agent_showed_the_facing_ground() -> None:
     assert seen["recon"].tolist() == [True, False, False, False] and not seen["cliffbot"].any()
     seen = facing_seen_by(Ledge(), face, rays[::-1], ["recon", "cliffbot"])  # type: ignore[arg-type]
     assert seen["cliffbot"].tolist() == [True, False, False, False] and not seen["recon"].any()
+
+
+def test_the_false_flags_are_sorted_by_test_agent_and_what_the_truth_holds() -> None:
+    """``overhang_why.false_flags`` on a plain 70 deg face (one surface everywhere): a cell flagged
+    by the facing test from a RECON-bot view whose height lies 0.3 m out of the face holds a wrong
+    surface; one flagged from below by a Cliff-bot view, its height on the face, is none of the
+    truth's classes; a truly flagged cell would not count (there is none on a plain face)."""
+    import math
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig
+    from fsw.core.map.overhang import FLAG_TESTS
+    from hil_sim.team.overhang_why import false_flags
+
+    a = math.radians(70.0)
+    frame = FaceFrame.from_normal(np.zeros(3), np.array([0.0, -math.sin(a), math.cos(a)]))
+    face = FaceMap(frame, (0.0, 0.5), (0.0, 0.5), FaceMapConfig(cell_m=0.1, overhang_gap_m=0.1))
+    world = SimpleNamespace(ground_at=lambda x, y: math.tan(a) * np.asarray(y, float) + 0.0 * np.asarray(x, float))
+    face.map.z[:] = 0.0
+    face.map.var[:] = 1e-4
+    face.map.n[:] = 1
+    face.map.z[1, 1] = 0.3
+    agent = np.full(face.grid.shape, "", object)
+    for (iy, ix), test, who in (((1, 1), "facing", "recon"), ((3, 2), "underside", "cliffbot")):
+        cell = np.zeros(face.grid.shape, bool)
+        cell[iy, ix] = True
+        face.overhangs.flag(cell, test)
+        agent[iy, ix] = who
+    assert face.flagged_by[1, 1] == FLAG_TESTS.index("facing") and face.overhang.sum() == 2
+    out = false_flags(SimpleNamespace(face=face, flag_agent=agent, world=world))  # type: ignore[arg-type]
+    assert out["ff_facing"] == 1 and out["ff_facing_recon"] == 1 and out["ff_facing_wrong_surface"] == 1
+    assert out["ff_underside"] == 1 and out["ff_underside_cliffbot"] == 1 and out["ff_underside_other"] == 1
+    assert sum(out[f"ff_{t}"] for t in FLAG_TESTS[1:]) == 2  # the two flags, each under its test

@@ -263,6 +263,11 @@ class FaceMap:
         return self.overhangs.overhang
 
     @property
+    def flagged_by(self) -> NDArray[np.int8]:
+        """The test that flagged each cell first (``fsw.core.map.overhang.FLAG_TESTS``; 0: not flagged)."""
+        return self.overhangs.flagged_by
+
+    @property
     def second(self) -> F64:
         """The other surface's ``w`` where a view saw it (NaN elsewhere)."""
         return self.overhangs.second

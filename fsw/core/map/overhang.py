@@ -30,6 +30,10 @@ crevice behind it) the cell is flagged (:attr:`Overhangs.overhang`), not average
   (a view resolves a rock's facing side at a few points of a cell near its edge, where the
   local plane's neighbours straddle the edge and no plane is fitted).
 
+Each flag keeps the test that set it first (:attr:`Overhangs.flagged_by`, an index into
+:data:`FLAG_TESTS`): what the flag rests on, for an operator judging it and for the face-map
+experiment sorting its false flags.
+
 The tests read their parameters from the face map's (:class:`OverhangParams`, from
 ``FaceMapConfig``) and the face map's grid (``emap``); all coordinates are the face
 frame's ``(u, v, w)``.
@@ -88,16 +92,34 @@ class OverhangParams(Protocol):
     def facing_sigma(self) -> float: ...
 
 
+FLAG_TESTS = ("", "within_view", "across_views", "free_space", "underside", "facing", "beside_flag")
+"""The tests that flag a cell (module docstring), by their code in :attr:`Overhangs.flagged_by`
+(0: not flagged): two surfaces within one view's points, a view's surface beyond the cell's by
+more than the gap, rays under the surface, a camera under its tangent plane, ground facing the
+face, facing ground beside a flag."""
+
+
 class Overhangs:
     """The overhang layers of a face map grid of ``shape`` and the tests that set them."""
 
     def __init__(self, shape: tuple[int, int]) -> None:
         self.overhang = np.zeros(shape, bool)
+        # the test that flagged each cell first (its index in FLAG_TESTS; 0 not flagged): what a
+        # flag rests on, for the operators judging it and the experiments sorting false flags
+        self.flagged_by = np.zeros(shape, np.int8)
         self.second = np.full(shape, np.nan)  # the other surface's w where flagged
         self.air = np.zeros(shape, np.int32)  # rays that passed under the surface
         self.air_w = np.full(shape, np.nan)  # the lowest w they reached (inner surface below)
         self.under = np.full(shape, np.nan)  # sine of the deepest view under the tangent plane
         self.facing = np.zeros(shape, np.int32)  # view points on a surface that faces the face
+
+    def flag(self, cells: B, test: str) -> int:
+        """Flag ``cells`` (a mask of the grid, flat or not) by ``test`` (of :data:`FLAG_TESTS`);
+        the cells already flagged keep their first test. Returns the cells newly flagged."""
+        new = np.asarray(cells, bool).reshape(self.overhang.shape) & ~self.overhang
+        self.flagged_by[new] = FLAG_TESTS.index(test)
+        self.overhang |= new
+        return int(new.sum())
 
     def carve(self, emap: ElevationMap, cfg: OverhangParams, eye: F64, q: F64, cov_f: F64) -> int:
         """The free-space tests of one view, after its merge into ``emap``: the rays from the
@@ -120,11 +142,10 @@ class Overhangs:
         air_w[hit] = np.fmin(air_w[hit], lowest[hit])
         if cfg.underside_deg > 0:
             self.under = np.fmax(self.under, seen_from_below(emap, eye, q))
-        flag = (air >= cfg.air_min_rays).reshape(self.overhang.shape) & ~self.overhang
+        new = self.flag(air >= cfg.air_min_rays, "free_space")
         if cfg.underside_deg > 0:
-            flag |= (self.under > np.sin(np.radians(cfg.underside_deg))) & ~self.overhang
-        self.overhang |= flag
-        return int(flag.sum())
+            new += self.flag(self.under > np.sin(np.radians(cfg.underside_deg)), "underside")
+        return new
 
     def facing_the_face(self, grid: MapGrid, cfg: OverhangParams, eye: F64, q: F64,
                         noise: F64) -> tuple[B, int]:
@@ -164,10 +185,9 @@ class Overhangs:
             mean = np.bincount(c, q[sel[hit], 2], size) / np.bincount(c, minlength=size)
         second = self.second.reshape(-1)
         second[:] = np.where(np.isnan(second), mean, second)
-        flag = (self.facing >= cfg.facing_min_points) & ~self.overhang
-        self.overhang |= flag
+        new = self.flag(self.facing >= cfg.facing_min_points, "facing")
         out[fin[sel[hit]]] = True
-        return out, int(flag.sum())
+        return out, new
 
     def beside_flags(self, cfg: OverhangParams) -> int:
         """The facing test beside a flag (module docstring): a cell holding ``facing_beside_points``
@@ -179,9 +199,7 @@ class Overhangs:
         if cfg.facing_beside_points <= 0:
             return 0
         near = ndimage.binary_dilation(self.overhang, structure=np.ones((3, 3), bool))
-        flag = near & (self.facing >= cfg.facing_beside_points) & ~self.overhang
-        self.overhang |= flag
-        return int(flag.sum())
+        return self.flag(near & (self.facing >= cfg.facing_beside_points), "beside_flag")
 
     def two_surfaces(self, emap: ElevationMap, gap: float, q: F64, var_w: F64,
                      min_points: int = 3) -> tuple[B, int, int]:
@@ -222,17 +240,15 @@ class Overhangs:
         n_in = np.bincount(key, ~outer, size * 4)
         # per cell: an outer and an inner part over one sub-cell
         two = np.asarray(((n_out >= min_points) & (n_in >= min_points)).reshape(-1, 4).any(axis=1), bool)
-        flat_over = self.overhang.reshape(-1)
         flat_second = self.second.reshape(-1)
         inner_pts = two[cs] & ~outer
-        new = int((two & ~flat_over).sum())
         if inner_pts.any():
             sw = np.bincount(cs[inner_pts], ws[inner_pts], size)
             k = np.bincount(cs[inner_pts], minlength=size)
             with np.errstate(invalid="ignore", divide="ignore"):
                 mean_inner = sw / k
             flat_second[two] = mean_inner[two]
-        flat_over |= two
+        new = self.flag(two, "within_view")
         keep[idx[order[inner_pts]]] = False
         # across views: this view's mean in a mapped cell beyond the gap plus the gate: the
         # cell keeps what it holds, the view's surface goes to ``second``
@@ -249,8 +265,7 @@ class Overhangs:
         better = far & (vmean < vf)
         flat_second[far & ~better] = mean[far & ~better]
         flat_second[better] = zf[better]
-        new += int((far & ~flat_over).sum())
-        flat_over |= far
+        new += self.flag(far, "across_views")
         keep[idx[order[kept & (far & ~better)[cs]]]] = False
         return keep, new, int(n - keep.sum())
 

@@ -50,7 +50,8 @@ those of them that survive the mask into the map, and the gravity-grid cells the
 (robot/tether cells mapped as terrain). Writes OUT/face_map.csv and ``docs/results/face-map.md``
 (medians, worst cases; ``--results-name`` names another, e.g. for a held-out run on other seeds).
 ``--why`` runs the same scenes and, instead of the figures, sorts each missed truth overhang
-cell by what the views gave the detector there (``hil_sim.team.overhang_why``; writes
+cell by what the views gave the detector there, and each false flag by the test that set it,
+the agent whose view did and what the truth holds there (``hil_sim.team.overhang_why``; writes
 ``docs/results/NAME-overhang-misses.md``).
 ``--resolve-cells K`` sets the face map's incidence limit (docs/algorithm.md §8.1: a point whose
 stereo window spans more than K face cells is not fused; 0 off, the default).

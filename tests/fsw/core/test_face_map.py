@@ -14,6 +14,7 @@ from fsw.core.map.body_mask import BodyBox, MaskConfig, TeamGeometry, TetherLine
 from fsw.core.map.elevation_map import ElevationMap
 from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig, face_band, hand_over_z, split_parts
 from fsw.core.map.face_plane import fit_face_plane
+from fsw.core.map.overhang import FLAG_TESTS
 
 SLOPE = 70.0
 
@@ -113,6 +114,10 @@ def test_an_overhang_is_flagged_not_averaged() -> None:
     assert face.overhang[3, 3] and st.overhang_new == 1 and face.map.z[3, 3] == z_before
     assert st.second_points == k
     assert face.second[3, 3] == pytest.approx(-0.4, abs=1e-6)
+    # each flag says which test set it: two surfaces within a view, then across views
+    assert face.flagged_by[0, 0] == FLAG_TESTS.index("within_view")
+    assert face.flagged_by[3, 3] == FLAG_TESTS.index("across_views")
+    assert (face.flagged_by[~face.overhang] == 0).all()
 
 
 def test_hand_over_routes_and_answers_across_the_seam() -> None:

@@ -10,6 +10,7 @@ import numpy as np
 from fsw.core.geometry import MapGrid
 from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig
 from fsw.core.map.free_space import air_under
+from fsw.core.map.overhang import FLAG_TESTS
 
 GRID = MapGrid(0.0, 0.0, 0.1, 10, 4)  # u 0..1, v 0..0.4
 
@@ -93,6 +94,7 @@ def test_the_face_map_flags_a_roof_no_view_saw_under() -> None:
     st = face.merge_parts(parts, eye=eye_side)
     assert face.overhang[:, 4:6].all() and st.air_new == face.overhang.sum() == 8
     assert (face.air[:, 4:6] >= 3).all() and (face.air_w[:, 4:6] < 0.4 - 0.1).all()
+    assert (face.flagged_by[:, 4:6] == FLAG_TESTS.index("free_space")).all()
     assert np.allclose(face.map.z[:, 4:6], 0.4, atol=0.01)  # flagged, the roof still held
 
 
@@ -102,7 +104,9 @@ def test_a_surface_seen_from_below_is_flagged_and_a_step_is_not() -> None:
     levels seen from above both, beyond the step (a central difference would tilt the cells on
     both sides of it toward the camera; the min-mod gradient tilts neither), are not."""
     f = _frame()
-    cfg = FaceMapConfig(cell_m=0.1, air_max_rays=5000, air_min_rays=1000)  # the underside test alone
+    # the underside test alone (the roof's lower side also faces the face: the facing test, which
+    # runs first, would flag it by itself)
+    cfg = FaceMapConfig(cell_m=0.1, air_max_rays=5000, air_min_rays=1000, facing_max_points=0)
     rng = np.random.default_rng(1)
     n = 2000
     u, v = rng.uniform(0.0, 1.0, n), rng.uniform(0.0, 0.4, n)
@@ -114,3 +118,4 @@ def test_a_surface_seen_from_below_is_flagged_and_a_step_is_not() -> None:
         face.merge_parts([(xyz, cov, None)], eye=f.to_world(np.array([eye]))[0])
         # the grid's first and last columns have no slope (one neighbour): only the others tilt
         assert face.overhang[:, 1:-1].all() if flagged else not face.overhang.any(), (eye, face.overhang.sum())
+        assert (face.flagged_by[face.overhang] == FLAG_TESTS.index("underside")).all()

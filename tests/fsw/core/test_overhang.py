@@ -9,7 +9,7 @@ import numpy as np
 from fsw.core.geometry import MapGrid
 from fsw.core.map.elevation_map import ElevationMap
 from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig, hand_over_z
-from fsw.core.map.overhang import facing_cones
+from fsw.core.map.overhang import FLAG_TESTS, facing_cones
 
 
 def _frame() -> FaceFrame:
@@ -45,6 +45,7 @@ def test_a_side_facing_the_face_is_an_overhang_and_a_step_is_not() -> None:
     face = FaceMap(f, (0.0, 1.0), (0.0, 1.0), cfg)
     _view(face, np.random.default_rng(0), 3.0, eye)  # w = 0.3 + 3 (v - 0.25): rises up the dip
     assert face.overhang[2, :].all() and (face.facing[2, :] >= cfg.facing_min_points).all()
+    assert (face.flagged_by[2, :] == FLAG_TESTS.index("facing")).all()
     assert face.overhang.sum() == face.grid.nx, face.overhang.astype(int)  # the face around: not flagged
     # the side's points are the inner side of the rock along the normal: kept out of the height;
     # the second surface is their mean, on the side (w 0.15..0.45; the points whose neighbours
@@ -134,6 +135,7 @@ def test_a_flag_spreads_to_the_cells_beside_it_that_show_some_facing_ground() ->
     some = face.facing[5, 1:-1] >= 1  # the upper cells where a point's plane was fitted
     assert (face.facing[5, 1:-1] < cfg.facing_min_points).all() and some.sum() >= 5
     assert (upper == some).all(), face.overhang.astype(int)
+    assert (face.flagged_by[5, 1:-1][upper] == FLAG_TESTS.index("beside_flag")).all()
     assert not face.overhang[6:, :].any()  # the face beyond: no facing ground, no flag
     off = view(FaceMapConfig(cell_m=0.05, facing_beside_points=0))
     assert off.overhang[4, 1:-1].all() and not off.overhang[5, :].any()
