@@ -143,13 +143,13 @@ class CliffbotSensingConfig:
     head_m: float = param(0.45, lo=0.0, hi=3.0, units="m", doc="the camera above the body's ground, along its normal")
     head_end_m: float = param(0.45, lo=0.0, hi=2.0, units="m",
                               doc="the head at the body's front (looking ahead) or rear end, along its heading")
-    pan_deg: tuple[float, ...] = param((0.0, 45.0, 90.0, 135.0, 180.0, -135.0, -90.0, -45.0, 25.0, -25.0, 0.0, 85.0,
+    pan_deg: tuple[float, ...] = param((0.0, 45.0, 90.0, 135.0, 180.0, -135.0, -90.0, -45.0, 25.0, -25.0, 180.0, 85.0,
                                         -85.0, 180.0, 60.0, -60.0),
                                        units="deg",
                                        doc="the head's scan: one pan from the heading per capture, in order")
     tilt_deg: float = param(-40.0, lo=-89.0, hi=60.0, units="deg",
                             doc="the head's elevation in every view (but those tilts_deg sets)")
-    tilts_deg: tuple[float, ...] = param((-40.0,) * 8 + (-75.0, -75.0, -89.0, -60.0, -60.0, -89.0, -45.0, -45.0),
+    tilts_deg: tuple[float, ...] = param((-40.0,) * 8 + (-75.0, -75.0, -75.0, -60.0, -60.0, -89.0, -45.0, -45.0),
                                          units="deg",
                                          doc="per pan of the scan, its elevation (empty: tilt_deg for all); the "
                                              "steep ones look down over a lip, the ground below it")
