@@ -67,10 +67,10 @@ from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import NavConfig, Navigator
 from fsw.core.team.contact_ground import StoodGround, fill_under_body
 from fsw.core.team.face_planner import OFF_THE_WAY, ClimberConfig, plan_targets, standing_cells
-from fsw.core.team.head_sight import needed_cells, scan_sees
 from fsw.core.team.tether import TetherConfig, tether_state
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig, CliffbotSensingConfig
+from fsw.tasks.cliffbot.head_sight import needed_cells, scan_sees
 from fsw.tasks.cliffbot.legs import UNKNOWN_REASONS, Leg, Route
 
 F64 = NDArray[np.float64]
@@ -532,8 +532,8 @@ class CliffbotMission:
 
     def _look_rating(self, goal: F64) -> Callable[[F64], tuple[int, int]]:
         """A place to look from, rated for the unknown ground the next step toward ``goal`` needs
-        (:func:`fsw.core.team.head_sight.needed_cells`): how many of those cells the head's scan
-        would see from there (:func:`fsw.core.team.head_sight.scan_sees`) and from no place it
+        (:func:`fsw.tasks.cliffbot.head_sight.needed_cells`): how many of those cells the head's scan
+        would see from there (:func:`fsw.tasks.cliffbot.head_sight.scan_sees`) and from no place it
         looked from; then, from a place at least ``LOOK_APART_M`` from every one (a new sight
         line: a cell a look should have shown may have been hidden by the ground), how many of
         them at all."""

@@ -195,7 +195,7 @@ class Route:
         that the body can drive to, the nearer the target of two rated alike; None when none rates
         above (0, 0) or none can be driven to. A rating is (the unknown ground the next step needs
         that its head's scan would show from there and from no place it looked from, that which it
-        would show from a place a new sight line away: :mod:`fsw.core.team.head_sight`), compared
+        would show from a place a new sight line away: :mod:`fsw.tasks.cliffbot.head_sight`), compared
         in that order. A look from one standing leaves blind spots its scan does not reach (the
         body's box hides the ground beside its middle, the ground just below the lip beside the
         head), and ground a scan should have shown may stay unknown (hidden by the ground itself):

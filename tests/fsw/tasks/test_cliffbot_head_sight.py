@@ -1,5 +1,5 @@
 """What the Cliff-bot's head scan sees from a standing and the ground its next step needs
-(fsw.core.team.head_sight; docs/team.md, "Approach: making the unknown known")."""
+(fsw.tasks.cliffbot.head_sight; docs/team.md, "Approach: making the unknown known")."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import numpy as np
 
 from fsw.core.geometry import MapGrid, MapGridConfig
 from fsw.core.team.face_planner import ClimberConfig
-from fsw.core.team.head_sight import needed_cells, scan_sees
 from fsw.sections import CliffbotSensingConfig
+from fsw.tasks.cliffbot.head_sight import needed_cells, scan_sees
 
 GRID = MapGrid.from_config(MapGridConfig(origin_x_m=-2.0, origin_y_m=-2.0, cell_m=0.04, nx=100, ny=100))
 # anchors up the +y side: the body hangs heading -y (body_yaw), its front toward -y
