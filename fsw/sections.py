@@ -143,14 +143,19 @@ class CliffbotSensingConfig:
     head_m: float = param(0.45, lo=0.0, hi=3.0, units="m", doc="the camera above the body's ground, along its normal")
     head_end_m: float = param(0.45, lo=0.0, hi=2.0, units="m",
                               doc="the head at the body's front (looking ahead) or rear end, along its heading")
-    pan_deg: tuple[float, ...] = param((0.0, 45.0, 90.0, 135.0, 180.0, -135.0, -90.0, -45.0, 25.0, -25.0),
+    pan_deg: tuple[float, ...] = param((0.0, 45.0, 90.0, 135.0, 180.0, -135.0, -90.0, -45.0, 25.0, -25.0, 180.0, 85.0,
+                                        -85.0, 180.0, 60.0, -60.0),
                                        units="deg",
                                        doc="the head's scan: one pan from the heading per capture, in order")
     tilt_deg: float = param(-40.0, lo=-89.0, hi=60.0, units="deg",
                             doc="the head's elevation in every view (but those tilts_deg sets)")
-    tilts_deg: tuple[float, ...] = param((-40.0,) * 8 + (-75.0, -75.0), units="deg",
+    tilts_deg: tuple[float, ...] = param((-40.0,) * 8 + (-75.0, -75.0, -75.0, -60.0, -60.0, -89.0, -45.0, -45.0),
+                                         units="deg",
                                          doc="per pan of the scan, its elevation (empty: tilt_deg for all); the "
                                              "steep ones look down over a lip, the ground below it")
+    places: tuple[str, ...] = param(("front", "front") + ("rear",) * 5 + ("front",) * 6 + ("rear",) * 3,
+                                    doc="per pan of the scan, where the head takes it: the body's 'front' or 'rear' "
+                                        "end (empty: the front end when it looks ahead, the rear end else)")
     height_sigma_m: float = param(0.03, lo=0.0, hi=1.0, units="m", doc="the body's ground height on the map, sigma")
     tilt_sigma_deg: float = param(1.0, lo=0.0, hi=30.0, units="deg", doc="roll and pitch from the attitude sensor")
     body_half_m: tuple[float, ...] = param((0.31, 0.235, 0.28), units="m",
@@ -169,10 +174,19 @@ class CliffbotSensingConfig:
             raise ValueError(f"tilts_deg: one per pan ({len(self.pan_deg)}) or none")
         if any(not -89.0 <= t <= 60.0 for t in self.tilts_deg):
             raise ValueError("tilts_deg: each within -89 .. 60 deg")
+        if self.places and len(self.places) != len(self.pan_deg):
+            raise ValueError(f"places: one per pan ({len(self.pan_deg)}) or none")
+        if any(p not in ("front", "rear") for p in self.places):
+            raise ValueError("places: each 'front' or 'rear'")
         if len(self.body_half_m) != 3:
             raise ValueError("body_half_m: three numbers (along, across, up)")
         if self.min_range_m >= self.max_range_m:
             raise ValueError("min_range_m must be below max_range_m")
+
+    def place_of(self, k: int) -> str:
+        """Where the head takes the scan's ``k mod n``-th pointing: ``front``, ``rear``, or ``""`` (by its
+        pan: ``fsw.core.team.cliffbot_head.head_end``)."""
+        return self.places[k % len(self.places)] if self.places else ""
 
     def tilt_of(self, k: int) -> float:
         """The elevation (deg) of the scan's ``k mod n``-th pointing."""

@@ -55,6 +55,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,13 +70,15 @@ from fsw.core.team.face_planner import OFF_THE_WAY, ClimberConfig, plan_targets,
 from fsw.core.team.tether import TetherConfig, tether_state
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig, CliffbotSensingConfig
+from fsw.tasks.cliffbot.head_sight import needed_cells, scan_sees
 from fsw.tasks.cliffbot.legs import UNKNOWN_REASONS, Leg, Route
 
 F64 = NDArray[np.float64]
 BODY_MARGIN_M = 0.1  # the body's box as mapped (stereo smear, the estimate's error) beyond the footprint
 VIEW_RANGE_M = 2.0  # a look's far ground: the pose error a point this far carries (sharper: a new look shows more)
-# a look from at least this far from every earlier one (about the body's half width) sees the ground
-# beside the body and below the lip beside the head that the head's fixed scan did not reach from there
+# a place to look from elsewhere lies no farther from the target than where it stands by more than
+# this (about the body's half width: along the known ground's edge, not back up); a place this far
+# from every place it looked from gives a new sight line on ground a look should have shown
 LOOK_APART_M = 0.25
 MAX_ELSEWHERE = 3  # a leg re-planned this often in a row, without getting nearer its goal, is given up
 FAULT_BITS = ("FaultStall", "FaultSlip", "FaultOverTension", "FaultSpool", "FaultTimeout")
@@ -510,12 +513,13 @@ class CliffbotMission:
 
     def _explore(self, leg: Leg, why: str) -> bool:
         """No known node is nearer the target of ``leg`` than where it stands and it looked from
-        here: drive to the known node nearest the target at least ``LOOK_APART_M`` from every place
-        it looked from (:meth:`fsw.tasks.cliffbot.legs.Route.vantage`) and look there (the look
-        counts against ``approach_looks`` unless it brings an approach node nearer). False when
-        there is none (the leg is then given up)."""
+        here: drive to the known node whose look would show the most of the unknown ground the
+        next step needs that no look it took showed (:meth:`_look_rating`,
+        :meth:`fsw.tasks.cliffbot.legs.Route.vantage`) and look there (the look counts against
+        ``approach_looks`` unless it brings an approach node nearer). False when no node rates
+        above 0 or none can be driven to (the leg is then given up)."""
         assert leg.target is not None
-        got = self.route().vantage(self.est.xy, leg.goal, self.looked_from, LOOK_APART_M)
+        got = self.route().vantage(self.est.xy, leg.goal, self._look_rating(leg.goal), LOOK_APART_M)
         if got is None:
             return False
         via, plan, wps = got
@@ -525,6 +529,27 @@ class CliffbotMission:
         leg.via = via
         self._drive_on(leg, wps, plan.lengths_m[0])
         return True
+
+    def _look_rating(self, goal: F64) -> Callable[[F64], tuple[int, int]]:
+        """A place to look from, rated for the unknown ground the next step toward ``goal`` needs
+        (:func:`fsw.tasks.cliffbot.head_sight.needed_cells`): how many of those cells the head's scan
+        would see from there (:func:`fsw.tasks.cliffbot.head_sight.scan_sees`) and from no place it
+        looked from; then, from a place at least ``LOOK_APART_M`` from every one (a new sight
+        line: a cell a look should have shown may have been hidden by the ground), how many of
+        them at all."""
+        assert self.z is not None and self.grid is not None and self.sensing is not None
+        z, grid, sc, looked = self.z, self.grid, self.sensing, list(self.looked_from)
+        unseen = self.carried if self.carried is not None else np.zeros(z.shape, bool)
+        need = needed_cells(z, unseen, grid, self.ccfg, self.anchors, self.est.xy, goal)
+        new = need.copy()
+        for p in looked:
+            new &= ~scan_sees(z, grid, self.ccfg, self.anchors, sc, p, need)
+
+        def rating(xy: F64) -> tuple[int, int]:
+            apart = all(float(np.hypot(*(xy - p))) >= LOOK_APART_M for p in looked)
+            seen = scan_sees(z, grid, self.ccfg, self.anchors, sc, xy, need)
+            return int((seen & new).sum()), int(seen.sum()) if apart else 0
+        return rating
 
     def _arrived(self, leg: Leg) -> None:
         """At the end of a leg's waypoints: the target (dwell), the approach node (look, then

@@ -146,7 +146,7 @@ class CliffbotHeadCamera:
         pan = math.radians(sc.pan_deg[(seq - 1) % len(sc.pan_deg)])
         body = np.array([x, y, float(rig.world.ground_at(x, y))])
         return head_camera_pose(body, n, rig.yaw, pan, math.radians(sc.tilt_of(seq - 1)), sc.head_m,
-                                head_end(pan, sc.head_end_m))
+                                head_end(pan, sc.head_end_m, sc.place_of(seq - 1)))
 
     def team_now(self) -> TeamPose:
         rig = self.rig

@@ -61,7 +61,7 @@ def test_the_cliffbots_start_views_know_the_ground_under_its_tethers() -> None:
         rend = StereoRenderer(rig.world_now(), cam.camera, w.noise_sigma, seed=k)
         left, right, quad, terrain = rend.render_labelled(true_pose, team_quads(cam.team_now(), true_pose.t))
         pose, cov = head_pose_covariance(s[:2], body_z, float(s[2]), 0.0, 0.0, pan, math.radians(sc.tilt_of(k)),
-                                         sc.head_m, head_end(pan, sc.head_end_m), P, sc.height_sigma_m,
+                                         sc.head_m, head_end(pan, sc.head_end_m, sc.place_of(k)), P, sc.height_sigma_m,
                                          math.radians(sc.tilt_sigma_deg))
         placed = RegisteredPose(Registration("off", "test"), pose, cov, None)
         pipe0 = pipes[True]

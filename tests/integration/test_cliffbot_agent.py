@@ -216,8 +216,8 @@ def test_the_cliffbot_checkpoints_and_continues_from_one(mission: tuple[dict[str
 def test_the_team_is_deterministic(world: Any) -> None:
     # the map (about 8 kB at 9600 bit/s), the Cliff-bot's own views (rendered, fused in slack jobs),
     # the plan, a fix request and the first moves
-    a = _team(world, 450)
-    b = _team(world, 450)
+    a = _team(world, 650)
+    b = _team(world, 650)
     assert any(n == "cb_sense.SENSED" for _, n, _ in a[1]) and a[0]["cells_by_agent"]["cliffbot"] > 0
     assert a[0]["events"] and a == b
 

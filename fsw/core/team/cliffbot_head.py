@@ -2,10 +2,10 @@
 (docs/team.md, "Both agents sense"; docs/algorithm.md §8.1).
 
 The head stands ``head_m`` above the body's ground point along the ground's normal, at the
-body's front end when it looks ahead and at its rear end when it looks back or sideways
-(``end_m`` along the heading; the heading points down the tethers, so on the face the front
-is the lower end), and points along the body's heading turned by a pan and tilted by a tilt
-(a levelled head: world angles). The bench renders the views at the TRUE pose with
+body's front end when it looks ahead and at its rear end when it looks back or sideways, unless
+the scan names the end for a pointing (``end_m`` along the heading; the heading points down the
+tethers, so on the face the front is the lower end), and points along the body's heading
+turned by a pan and tilted by a tilt (a levelled head: world angles). The bench renders the views at the TRUE pose with
 :func:`head_camera_pose`; the flight side tags each pair with the pose from its navigation
 estimate and the attitude sensor, and with that pose's 6x6 covariance
 (:func:`head_pose_covariance`: rotation vector, then translation, as every view's,
@@ -50,11 +50,16 @@ def head_camera_pose(body: F64, normal: F64, yaw: float, pan: float, tilt: float
     return CameraPose(rotation_from_yaw_tilt(yaw + pan, tilt), t)
 
 
-def head_end(pan: float, end_m: float) -> float:
-    """The head's place along the body for a view turned ``pan`` from the heading: its front
-    end (``+end_m``) when it looks ahead, its rear end when it looks back or sideways (the body
-    out of view; the tethers run back from the body, and a side view from the rear sees the
-    ground under them)."""
+def head_end(pan: float, end_m: float, place: str = "") -> float:
+    """The head's place along the body for a view turned ``pan`` from the heading: the end
+    ``place`` names (``"front"``: ``+end_m``, ``"rear"``: ``-end_m``), else by the pan: its front
+    end when it looks ahead, its rear end when it looks back or sideways (the body out of view;
+    the tethers run back from the body, and a side view from the rear sees the ground under
+    them). A view from the other end sees what those leave out: the ground beside the body's
+    front corners (from the front end, looking sideways), beside its rear half (from the rear end,
+    looking ahead and sideways)."""
+    if place in ("front", "rear"):
+        return end_m if place == "front" else -end_m
     return end_m if abs(math.remainder(pan, 2 * math.pi)) < math.pi / 2 - 1e-9 else -end_m
 
 

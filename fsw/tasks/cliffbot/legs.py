@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -184,23 +185,28 @@ class Route:
         xy, d = self.known_nodes(target)
         here = float(np.hypot(start[0] - target[0], start[1] - target[1]))
         nearer = d < here - APPROACH_STEP_NODES * self.ccfg.node_m
-        return self._nearest_driven(start, xy[nearer], d[nearer])
+        return self._nearest_driven(start, xy[nearer], np.argsort(d[nearer], kind="stable"))
 
-    def vantage(self, start: F64, target: F64, looked: list[F64], apart_m: float
+    def vantage(self, start: F64, target: F64, rating: Callable[[F64], tuple[int, int]], apart_m: float
                 ) -> tuple[F64, Plan, list[F64]] | None:
-        """Where to look from next when no known node is nearer ``target`` than ``start``: the
-        known, safe, tether-feasible node nearest the target that the body can drive to, no farther
-        from the target than ``start`` by more than ``apart_m`` (along the known ground's edge, not
-        back up) and at least ``apart_m`` from every place in ``looked`` (where it looked from);
-        None when there is none. A look from one standing leaves blind spots its fixed scan does not reach
-        (the flanks beside the body, the ground just below the lip beside the head); a look from
-        another standing sees them from elsewhere. Candidates and their plans as
-        :meth:`approach`."""
+        """Where to look from next when no known node is nearer ``target`` than ``start``: of the
+        known, safe, tether-feasible nodes no farther from the target than ``start`` by more than
+        ``apart_m`` (along the known ground's edge, not back up), the one ``rating`` rates highest
+        that the body can drive to, the nearer the target of two rated alike; None when none rates
+        above (0, 0) or none can be driven to. A rating is (the unknown ground the next step needs
+        that its head's scan would show from there and from no place it looked from, that which it
+        would show from a place a new sight line away: :mod:`fsw.tasks.cliffbot.head_sight`), compared
+        in that order. A look from one standing leaves blind spots its scan does not reach (the
+        body's box hides the ground beside its middle, the ground just below the lip beside the
+        head), and ground a scan should have shown may stay unknown (hidden by the ground itself):
+        a look from another standing sees some of it. Candidates are planned as
+        :meth:`approach`'s."""
         xy, d = self.known_nodes(target)
         far = d <= float(np.hypot(start[0] - target[0], start[1] - target[1])) + apart_m
-        for p in looked:
-            far &= np.hypot(xy[:, 0] - p[0], xy[:, 1] - p[1]) >= apart_m
-        return self._nearest_driven(start, xy[far], d[far])
+        xy, d = xy[far], d[far]
+        score = np.array([rating(p) for p in xy], float).reshape(-1, 2)
+        worth = score.max(axis=1) > 0
+        return self._nearest_driven(start, xy[worth], np.lexsort((d[worth], -score[worth, 1], -score[worth, 0])))
 
     def known_nodes(self, target: F64) -> tuple[F64, F64]:
         """The lattice nodes whose whole footprint is known and free of hazards (never by the
@@ -214,13 +220,13 @@ class Route:
         xy = np.column_stack([grid.x0 + (cc[ok] + 0.5) * grid.cell, grid.y0 + (rr[ok] + 0.5) * grid.cell])
         return xy, np.hypot(xy[:, 0] - target[0], xy[:, 1] - target[1])
 
-    def _nearest_driven(self, start: F64, xy: F64, d: F64) -> tuple[F64, Plan, list[F64]] | None:
-        """Of the nodes ``xy`` (distances ``d`` to the target), the ``APPROACH_CANDIDATES``
-        nearest planned together with the leg's margins, then the nearest with a path whose ways
-        hold (:meth:`plan`): its place, plan and waypoints; None when none."""
+    def _nearest_driven(self, start: F64, xy: F64, order: NDArray[np.intp]) -> tuple[F64, Plan, list[F64]] | None:
+        """Of the nodes ``xy`` taken in ``order`` (best first), the first ``APPROACH_CANDIDATES``
+        planned together with the leg's margins, then the first with a path whose ways hold
+        (:meth:`plan`): its place, plan and waypoints; None when none."""
         if not len(xy):
             return None
-        cand = xy[np.argsort(d, kind="stable")[:APPROACH_CANDIDATES]]
+        cand = xy[order[:APPROACH_CANDIDATES]]
         first = plan_targets(self.z, self.grid, self.anchors, start, cand, self.tcfg, self.ccfg, self.margins(),
                              start_usable=True, unseen=self.carried, ground=self.ground, verdicts=self.nodes)
         for k, path in enumerate(first.paths):

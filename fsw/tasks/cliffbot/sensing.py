@@ -267,14 +267,14 @@ class CliffbotSensingTask(FlightTask):
             return
         self.asked += 1
         pan = math.radians(self.sc.pan_deg[(seq - 1) % len(self.sc.pan_deg)])
-        placed = self._head_pose(pan, math.radians(self.sc.tilt_of(seq - 1)))
+        placed = self._head_pose(pan, math.radians(self.sc.tilt_of(seq - 1)), self.sc.place_of(seq - 1))
         if placed is None:
             self.event("VIEW_FAILED", view=seq, error="no navigation estimate or attitude yet")
             return
         pose, cov, body_z = placed
         self.capture = Capture(seq, pan, pose, cov, body_z, now)
 
-    def _head_pose(self, pan: float, tilt: float) -> tuple[CameraPose, F64, float] | None:
+    def _head_pose(self, pan: float, tilt: float, place: str) -> tuple[CameraPose, F64, float] | None:
         att = None if self.last_status is None else self.last_status.devices.attitude
         if self.est is None or att is None:
             return None
@@ -283,7 +283,7 @@ class CliffbotSensingTask(FlightTask):
         sc = self.sc
         pose, cov = head_pose_covariance(
             s[:2], z, float(s[2]), math.radians(att.roll_deg), math.radians(att.pitch_deg), pan,
-            tilt, sc.head_m, head_end(pan, sc.head_end_m), P, sc.height_sigma_m,
+            tilt, sc.head_m, head_end(pan, sc.head_end_m, place), P, sc.height_sigma_m,
             math.radians(sc.tilt_sigma_deg))
         return pose, cov, z
 

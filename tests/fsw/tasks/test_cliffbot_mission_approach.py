@@ -170,7 +170,8 @@ def test_with_nothing_nearer_it_looks_again_from_where_it_stands_only_once_its_p
         else:
             # not from where it stands: from elsewhere along its known ground (EXPLORE, below)
             assert "LOOK" not in _names(m) and m.state == "DRIVE" and "EXPLORE" in _names(m)
-            assert float(np.hypot(*(m.legs[0].via - START))) >= LOOK_APART_M
+            # a place its scan shows some of the unknown ground the next step needs that none of its looks showed
+            assert max(m._look_rating(TARGET)(m.legs[0].via)) > 0 and not np.allclose(m.legs[0].via, START)
 
 
 def test_it_edges_up_to_known_ground_a_short_step_nearer_the_target_before_it_looks() -> None:
@@ -325,9 +326,10 @@ def test_a_checkpoint_keeps_the_ground_it_stood_on_and_a_bad_one_is_refused() ->
 
 def test_with_nothing_nearer_it_looks_again_from_elsewhere_along_the_known_ground() -> None:
     """Its known ground ends level with where it stands (no node nearer the target by a lattice
-    spacing) and it looked from there: it drives along that edge to the known node nearest the
-    target, no farther from it than where it stands by more than ``LOOK_APART_M`` and at least
-    ``LOOK_APART_M`` from every place it looked from (event ``EXPLORE``), looks there, and
+    spacing) and it looked from there: it drives along that edge, no farther from the target than
+    where it stands by more than ``LOOK_APART_M``, to the known node whose scan would show the
+    most of the unknown ground the next step needs that no look it took showed (event
+    ``EXPLORE``), looks there, and
     reaches the target when that look shows its ground; when the looks show nothing new, it
     gives the target up with its looks once no such place is left. Never onto unknown ground."""
     for shows in (True, False):
@@ -345,7 +347,7 @@ def test_with_nothing_nearer_it_looks_again_from_elsewhere_along_the_known_groun
         leg = m.legs[0]
         assert m.state == "DRIVE" and leg.via is not None and "EXPLORE" in _names(m), m.events[-3:]
         looked, here = list(m.looked_from), m.est.xy
-        assert all(float(np.hypot(*(leg.via - p))) >= LOOK_APART_M for p in looked)
+        assert max(m._look_rating(TARGET)(leg.via)) > 0 and not any(np.allclose(leg.via, p) for p in looked)
         assert float(np.hypot(*(leg.via - TARGET))) <= float(np.hypot(*(here - TARGET))) + LOOK_APART_M
         t, _ = _drive(m, dev, t, ground_layers(m.z, GRID, m.ccfg, m.carried, m.anchors).known)
         assert m.state == "WAIT_FIX" and m.look_now, m.events[-2:]

@@ -116,8 +116,19 @@ def test_without_sensing_the_mission_plans_at_once() -> None:
 def test_the_heads_scan_has_a_tilt_per_pan_or_one_for_all() -> None:
     import pytest
 
-    sc = CliffbotSensingConfig(pan_deg=(0.0, 90.0), tilts_deg=(-40.0, -75.0))
+    sc = CliffbotSensingConfig(pan_deg=(0.0, 90.0), tilts_deg=(-40.0, -75.0), places=())
     assert [sc.tilt_of(k) for k in range(3)] == [-40.0, -75.0, -40.0]  # the k-th capture's, round the scan
-    assert CliffbotSensingConfig(pan_deg=(0.0,), tilts_deg=(), tilt_deg=-30.0).tilt_of(5) == -30.0
+    assert CliffbotSensingConfig(pan_deg=(0.0,), tilts_deg=(), tilt_deg=-30.0, places=()).tilt_of(5) == -30.0
     with pytest.raises(ValueError, match="tilts_deg"):
-        CliffbotSensingConfig(pan_deg=(0.0, 90.0), tilts_deg=(-40.0,))
+        CliffbotSensingConfig(pan_deg=(0.0, 90.0), tilts_deg=(-40.0,), places=())
+
+
+def test_the_heads_scan_names_where_each_pointing_is_taken_from_or_none() -> None:
+    import pytest
+
+    sc = CliffbotSensingConfig(pan_deg=(0.0, 90.0), tilts_deg=(), places=("rear", "front"))
+    assert [sc.place_of(k) for k in range(3)] == ["rear", "front", "rear"]
+    assert CliffbotSensingConfig(pan_deg=(0.0,), tilts_deg=(), places=()).place_of(4) == ""  # by the pan
+    for bad in (("rear",), ("rear", "middle")):
+        with pytest.raises(ValueError, match="places"):
+            CliffbotSensingConfig(pan_deg=(0.0, 90.0), tilts_deg=(), places=bad)

@@ -31,6 +31,13 @@ def test_the_head_looks_ahead_from_the_front_and_back_or_sideways_from_the_rear(
     assert np.allclose(p.t, expect) and p.R[:, 2] @ np.array([1.0, 0.0, 0.0]) > 0.7 and p.R[2, 2] < -0.6
 
 
+def test_a_pointing_of_the_scan_may_name_the_end_it_is_taken_from() -> None:
+    """Looking ahead and sideways from the rear end (the ground beside the body's rear half), and
+    back and sideways from the front end (beside its front corners): the pan alone does not say."""
+    assert head_end(math.radians(60), 0.4, "rear") == -0.4 and head_end(math.radians(-120), 0.4, "front") == 0.4
+    assert head_end(math.radians(60), 0.4, "") == 0.4 and head_end(math.radians(-120), 0.4, "") == -0.4
+
+
 def test_the_pose_covariance_carries_the_estimates_error() -> None:
     xy, cov3 = np.array([1.0, 2.0]), np.diag([0.02 ** 2, 0.03 ** 2, math.radians(2.0) ** 2])
     pose, cov = head_pose_covariance(xy, 0.5, 0.3, 0.0, 0.0, 0.0, -0.7, 0.45, 0.4, cov3, 0.0, 0.0)
