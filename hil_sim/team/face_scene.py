@@ -27,7 +27,8 @@ from fsw.core.pipeline import RegisteredPose, SensingPipeline, ViewPart
 from fsw.core.registration.registration import Registration
 from fsw.core.steps import run_to_end
 from fsw.core.stereo.stereo import StereoPoints
-from fsw.core.team.tether import TetherConfig, anchor_points, surface_normal, tether_state
+from fsw.core.team.standing_plane import surface_normal
+from fsw.core.team.tether import TetherConfig, anchor_points, tether_state
 from fsw.tasks.perception import SITE_MASK
 from hil_sim.team.agent_fusion import agent_settings, merge_as
 from hil_sim.team.face_eval import (

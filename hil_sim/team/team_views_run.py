@@ -84,7 +84,8 @@ from fsw.core.planning.view_candidates import Station
 from fsw.core.planning.visibility import in_view
 from fsw.core.stereo.occlusion import LipGuard
 from fsw.core.team.face_planner import ClimberConfig, plan_targets
-from fsw.core.team.tether import TetherConfig, anchor_points, surface_normal, tether_states
+from fsw.core.team.standing_plane import surface_normal
+from fsw.core.team.tether import TetherConfig, anchor_points, tether_states
 from hil_sim.team.agent_fusion import agent_settings, merge_as
 from hil_sim.team.face_eval import equal_memory_cell
 from hil_sim.team.team_figures import TeamFigures
