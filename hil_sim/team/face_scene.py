@@ -21,8 +21,8 @@ from scipy import ndimage
 from fsw.core.geometry import CameraPose, MapGrid, camera_pose_from_rover, point_mast
 from fsw.core.map.body_mask import BodyBox, TeamGeometry, TetherLine, anchorbot_box
 from fsw.core.map.elevation_map import ElevationMap
-from fsw.core.map.face_map import FaceMap, FaceMapConfig, face_band, split_parts
-from fsw.core.map.face_plane import fit_face_plane
+from fsw.core.map.face_map import FaceMap, FaceMapConfig, split_parts
+from fsw.core.map.face_plane import face_band, fit_face_plane
 from fsw.core.pipeline import RegisteredPose, SensingPipeline, ViewPart
 from fsw.core.registration.registration import Registration
 from fsw.core.steps import run_to_end

@@ -55,14 +55,8 @@ from numpy.typing import NDArray
 
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
 from fsw.core.map.elevation_map import ElevationMap, TeamElevation
-from fsw.core.map.face_map import (
-    FaceFrame,
-    FaceMap,
-    FaceMapConfig,
-    face_band,
-    split_parts,
-)
-from fsw.core.map.face_plane import fit_face_plane
+from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig, split_parts
+from fsw.core.map.face_plane import face_band, fit_face_plane
 from fsw.core.map.known_lips import KnownLips
 from fsw.core.planning.face_rating import FaceCells, face_cells
 from fsw.core.planning.info_planners import InformationPlanner
