@@ -4,7 +4,7 @@
 (:class:`hil_sim.hw.winch.WinchNode`), the Cliff-bot's wheels and attitude sensor, and the
 Cliff-bot's true pose. The pose is quasi-static: after every step the Cliff-bot rests where
 both tethers, paid out to the winches' true lengths, are taut on the TRUE ground
-(:func:`fsw.core.team.tether.settle` on the truth sampled on the map grid); its heading
+(:func:`fsw.core.team.tether_settle.settle` on the truth sampled on the map grid); its heading
 points away from the anchors (the body hangs down the tethers' bisector) and its roll and
 pitch follow the ground under it. The rig sets each winch's true tension from the statics.
 
@@ -33,15 +33,9 @@ from fsw.core.geometry import MapGrid
 from fsw.core.localization.landmarks import plate_frames
 from fsw.core.localization.localization import LocalizationConfig
 from fsw.core.team.face_planner import ClimberConfig, ground_layers
-from fsw.core.team.tether import (
-    TetherConfig,
-    TetherState,
-    anchor_points,
-    height_at,
-    settle,
-    surface_normal,
-    tether_state,
-)
+from fsw.core.team.standing_plane import surface_normal
+from fsw.core.team.tether import TetherConfig, TetherState, anchor_points, height_at, tether_state
+from fsw.core.team.tether_settle import settle
 from hil_sim.faults import FaultInjector
 from hil_sim.hw.winch import WinchConfig, WinchNode
 from hil_sim.team.team_eval import judge_pose

@@ -21,13 +21,14 @@ from scipy import ndimage
 from fsw.core.geometry import CameraPose, MapGrid, camera_pose_from_rover, point_mast
 from fsw.core.map.body_mask import BodyBox, TeamGeometry, TetherLine, anchorbot_box
 from fsw.core.map.elevation_map import ElevationMap
-from fsw.core.map.face_map import FaceMap, FaceMapConfig, face_band, split_parts
-from fsw.core.map.face_plane import fit_face_plane
+from fsw.core.map.face_map import FaceMap, FaceMapConfig, split_parts
+from fsw.core.map.face_plane import face_band, fit_face_plane
 from fsw.core.pipeline import RegisteredPose, SensingPipeline, ViewPart
 from fsw.core.registration.registration import Registration
 from fsw.core.steps import run_to_end
 from fsw.core.stereo.stereo import StereoPoints
-from fsw.core.team.tether import TetherConfig, anchor_points, surface_normal, tether_state
+from fsw.core.team.standing_plane import surface_normal
+from fsw.core.team.tether import TetherConfig, anchor_points, tether_state
 from fsw.tasks.perception import SITE_MASK
 from hil_sim.team.agent_fusion import agent_settings, merge_as
 from hil_sim.team.face_eval import (

@@ -58,7 +58,8 @@ from fsw.core.team.face_planner import (
     way_reason,
 )
 from fsw.core.team.held_tension import LengthErrors
-from fsw.core.team.tether import TetherConfig, TetherState, ZMap, settle
+from fsw.core.team.tether import TetherConfig, TetherState, ZMap
+from fsw.core.team.tether_settle import settle
 from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]
@@ -129,7 +130,7 @@ _TRUTH_CACHE: dict[bytes, TruthReach] = {}  # a few seconds per scene: each scen
 
 
 class _SettleMemo:
-    """:func:`fsw.core.team.tether.settle` on one ground, each pair of lengths from each place
+    """:func:`fsw.core.team.tether_settle.settle` on one ground, each pair of lengths from each place
     worked out once. The truth judges the same ground at the exact lengths and under the
     winches' tolerance (``safer-hil experiment team``, a mission's judge beside a check at the
     exact lengths), and each judges the ways of its paths: a way at both follows the same steps

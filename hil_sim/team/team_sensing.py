@@ -27,7 +27,7 @@ from fsw.comm.camera_frames import CameraReply
 from fsw.core.geometry import CameraConfig, CameraPose, rotation_from_yaw_tilt
 from fsw.core.map.body_mask import BodyBox, TeamGeometry, TetherLine
 from fsw.core.team.cliffbot_head import head_camera_pose, head_end
-from fsw.core.team.tether import surface_normal
+from fsw.core.team.standing_plane import surface_normal
 from fsw.sections import CliffbotSensingConfig
 from hil_sim.team.cliffbot_rig import CliffbotRig
 from hil_sim.world.cliffbot import Quad

@@ -55,14 +55,8 @@ from numpy.typing import NDArray
 
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
 from fsw.core.map.elevation_map import ElevationMap, TeamElevation
-from fsw.core.map.face_map import (
-    FaceFrame,
-    FaceMap,
-    FaceMapConfig,
-    face_band,
-    split_parts,
-)
-from fsw.core.map.face_plane import fit_face_plane
+from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig, split_parts
+from fsw.core.map.face_plane import face_band, fit_face_plane
 from fsw.core.map.known_lips import KnownLips
 from fsw.core.planning.face_rating import FaceCells, face_cells
 from fsw.core.planning.info_planners import InformationPlanner
@@ -84,7 +78,8 @@ from fsw.core.planning.view_candidates import Station
 from fsw.core.planning.visibility import in_view
 from fsw.core.stereo.occlusion import LipGuard
 from fsw.core.team.face_planner import ClimberConfig, plan_targets
-from fsw.core.team.tether import TetherConfig, anchor_points, surface_normal, tether_states
+from fsw.core.team.standing_plane import surface_normal
+from fsw.core.team.tether import TetherConfig, anchor_points, tether_states
 from hil_sim.team.agent_fusion import agent_settings, merge_as
 from hil_sim.team.face_eval import equal_memory_cell
 from hil_sim.team.team_figures import TeamFigures

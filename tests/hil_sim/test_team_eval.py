@@ -82,7 +82,7 @@ def test_the_truths_settle_memo_gives_settles_answers_and_works_each_out_once(mo
     """The ways judged through the memo (the truth's brute force) get the verdicts of the ways
     judged with ``settle`` itself, at the exact lengths and under the winches' tolerance; the
     second judging of the same ways settles nothing again; another ground is not answered from it."""
-    from fsw.core.team import tether
+    from fsw.core.team import tether, tether_settle
     from fsw.core.team.face_planner import ClimberConfig, ground_layers, way_reason
     from hil_sim.team import team_eval
 
@@ -94,7 +94,7 @@ def test_the_truths_settle_memo_gives_settles_answers_and_works_each_out_once(mo
 
     def counted(*args, **kw):
         calls.append(args[3])
-        return tether.settle(*args, **kw)
+        return tether_settle.settle(*args, **kw)
 
     monkeypatch.setattr(team_eval, "settle", counted)
     memo = team_eval._SettleMemo(z, grid, anchors, t)
@@ -110,7 +110,7 @@ def test_the_truths_settle_memo_gives_settles_answers_and_works_each_out_once(mo
             assert first > len(ways) and len(set(plain)) > 1, plain  # the ways settled, and not all alike
     assert len(calls) == first  # under the tolerance every way's steps were settled at the exact lengths
     for key, got in list(memo._got.items())[:20]:  # each kept answer is settle's own, bit for bit
-        again = tether.settle(z, grid, anchors, key[:2], np.array(key[2:]), t)
+        again = tether_settle.settle(z, grid, anchors, key[:2], np.array(key[2:]), t)
         assert (got is None) == (again is None)
         if got is not None and again is not None:
             assert got[0].tobytes() == again[0].tobytes() and got[1].lengths_m == again[1].lengths_m

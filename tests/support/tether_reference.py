@@ -127,7 +127,7 @@ def tether_state(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, cfg: TetherConfi
 
 def settle(z: ZMap, grid: MapGrid, anchors: F64, lengths: tuple[float, float], guess_xy: F64,
            cfg: TetherConfig, iterations: int = 30, tol_m: float = 1e-3) -> tuple[F64, TetherState] | None:
-    from fsw.core.team.tether import _settle_search
+    from fsw.core.team.tether_settle import _settle_search
 
     xy = np.asarray(guess_xy, float).copy()
     h = grid.cell

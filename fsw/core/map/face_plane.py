@@ -1,7 +1,8 @@
 """The face plane: its frame and its fit to the steep cells of a gravity map (docs/algorithm.md §8.1).
 
 :class:`FaceFrame` is the plane with its axes; :func:`fit_face_plane` finds it among the steep
-mapped cells of a gravity grid. The steep cells of a cliff scene are not all face: a rock's
+mapped cells of a gravity grid; :func:`face_band` bounds the face map on it (along the strike
+and along the dip). The steep cells of a cliff scene are not all face: a rock's
 sides are steep and face every way, the jumble's rocks stand out of the face, the floor's rocks
 stand on the floor, and early in a mission the face itself may be almost unmapped (from the
 plateau the RECON-bot looks down a face at grazing incidence). The fit is therefore a consensus
@@ -166,3 +167,40 @@ def fit_face_plane(gravity: ElevationMap, min_slope_deg: float = 45.0, min_cells
             raise ValueError(f"the {int(inl.sum())} steep cells on the best plane span {hi - lo:.2f} m along its "
                              f"{name}, under {min_span_m:.2f}: not yet a face")
     return frame
+
+
+def face_band(gravity: ElevationMap, frame: FaceFrame, min_slope_deg: float = 45.0,
+              inlier_m: float = 0.15, margin_m: float = 0.3) -> tuple[F64, F64]:
+    """``((u_min, u_max), (v_min, v_max))`` of the face map. Along the strike, the gravity grid's
+    whole extent (its corners on the plane). Along the dip, from ``margin_m`` (vertical) above
+    the floor to ``margin_m`` below the plateau, where the plane meets their heights (the
+    medians of the mapped gentle cells out in front of the plane and below its centre, and of
+    those behind it and above); the transitions stay in the gravity grid, where the ground
+    turns away from the plane. Without a floor or a plateau mapped, that end is the 1st (99th)
+    percentile of the steep cells within ``inlier_m`` of the plane."""
+    q = frame.to_face(steep_points(gravity, min_slope_deg)[0])
+    q = q[np.abs(q[:, 2]) <= inlier_m]
+    if len(q) == 0:
+        raise ValueError("no steep mapped cells on the plane")
+    x0, x1, y0, y1 = gravity.grid.extent
+    cx, cy = np.array([x0, x1, x1, x0]), np.array([y0, y0, y1, y1])
+    corners = frame.to_face(np.column_stack([cx, cy, frame.plane_z(cx, cy)]))
+    u = np.array([corners[:, 0].min(), corners[:, 0].max()])
+    v = np.percentile(q[:, 1], [1.0, 99.0])
+    g = gravity.grid
+    gy, gx = np.gradient(gravity.z, g.cell)
+    with np.errstate(invalid="ignore"):
+        gentle = gravity.mapped & (np.hypot(gx, gy) < np.tan(np.radians(min_slope_deg)))
+    X, Y = g.centers()
+    z = gravity.z[gentle]
+    qg = frame.to_face(np.column_stack([X[gentle], Y[gentle], z]))
+    ev_z = float(frame.R[2, 1])
+    floor = (qg[:, 2] > 0) & (qg[:, 1] < 0)
+    top = (qg[:, 2] < 0) & (qg[:, 1] > 0)
+    if floor.sum() >= 10:
+        v[0] = max(v[0], (float(np.median(z[floor])) + margin_m - frame.origin[2]) / ev_z)
+    if top.sum() >= 10:
+        v[1] = min(v[1], (float(np.median(z[top])) - margin_m - frame.origin[2]) / ev_z)
+    if v[1] <= v[0]:
+        raise ValueError("the face band is empty")
+    return u, np.asarray(v, float)

@@ -66,7 +66,8 @@ from fsw.core.planning.nbv import (
     utility,
 )
 from fsw.core.planning.visibility import F64, Terrain, terrain_from_map
-from fsw.core.team.tether import TetherConfig, ZMap, surface_normal, tether_states
+from fsw.core.team.standing_plane import surface_normal
+from fsw.core.team.tether import TetherConfig, ZMap, tether_states
 from fsw.framework.params import param
 
 

@@ -15,7 +15,7 @@ brute-force check of what is reachable at all).
      lip are not hazards: the tethers carry the Cliff-bot over them;
    - *tethers*: both taut paths (:mod:`fsw.core.team.tether`) within the spool, over known
      ground, with no contact on a rock; where the plane the Cliff-bot stands on (the statics'
-     normal, :func:`fsw.core.team.tether.surface_normal`) is steeper than ``free_slope_deg`` the
+     normal, :func:`fsw.core.team.standing_plane.surface_normal`) is steeper than ``free_slope_deg`` the
      equilibrium must hold with both tensions in ``[T_min, T_max]`` and the wheels on the
      face (below it, the wheels hold the Cliff-bot and the winches only keep the tethers
      taut); with :class:`Margins` ``errors``, the tethers must also hold it where the lengths'
@@ -67,10 +67,10 @@ from fsw.core.team.tether import (
     ZMap,
     attach_point,
     clearance_over,
-    settle,
     tether_state,
     tether_states,
 )
+from fsw.core.team.tether_settle import settle
 from fsw.framework.params import param
 
 F64 = NDArray[np.float64]
@@ -80,7 +80,7 @@ WAY_STEP_M = 0.03  # the way between nodes is followed in steps of at most this 
 ROCK_SUB_STEPS = 8  # a way's step where a tether passes over a rock is judged again at this many sub-steps
 OFF_THE_WAY = "the lengths hold it elsewhere"
 Settle = Callable[[ZMap, MapGrid, F64, tuple[float, float], F64, TetherConfig], tuple[F64, TetherState] | None]
-"""Where the lengths put the body (:func:`fsw.core.team.tether.settle`'s signature): what
+"""Where the lengths put the body (:func:`fsw.core.team.tether_settle.settle`'s signature): what
 :func:`way_reason` follows a way with."""
 REASONS = ("off the map", "unknown ground", "hazard", "out of tether reach", "tether over unknown ground",
            "tether over a rock", "slack", "over-tension", "off the face", "degenerate", NOT_HELD)
@@ -528,7 +528,7 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
     each moving from ``a``'s offset to ``b``'s along the way; :func:`fsw.core.team.held_tension.held_at`).
     A step at either end of which a tether passes over a rock or a cell next to one is judged again at
     :data:`ROCK_SUB_STEPS` sub-steps (:func:`_swept_rock`): no tether may touch the rock between them.
-    ``settle_at``: :func:`fsw.core.team.tether.settle` or one that gives its answers (the truth's
+    ``settle_at``: :func:`fsw.core.team.tether_settle.settle` or one that gives its answers (the truth's
     brute force keeps them, ``hil_sim.team.team_eval``). Directed: the way back may differ."""
     sa = tether_state(z, grid, anchors, np.asarray(a, float), tcfg, ccfg.footprint_m)
     sb = tether_state(z, grid, anchors, np.asarray(b, float), tcfg, ccfg.footprint_m)

@@ -19,7 +19,7 @@ body rests where the TRUE ground and the winches' TRUE lengths put it. Two error
 errors on the ``z``-sigma ellipse of it (on the polygon circumscribing the ellipse, so any
 linear function of the error reaches at least its ``z``-sigma value at one of them).
 :func:`held_reason` settles the body at the node's lengths plus each offset
-(:func:`fsw.core.team.tether.settle_many`, one batch) and judges the statics where it comes to
+(:func:`fsw.core.team.tether_settle.settle_many`, one batch) and judges the statics where it comes to
 rest: a place that is not held (the lengths cannot both be taut: ``slack``) or whose tension
 leaves ``[T_min, T_max]`` where the ground is steeper than ``free_slope_deg`` is the node's
 reason. Unlike a linear margin (the tension's gradient times where the body may be), this
@@ -38,7 +38,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid
-from fsw.core.team.tether import TetherConfig, TetherState, ZMap, settle_many, tether_states
+from fsw.core.team.tether import TetherConfig, TetherState, ZMap, tether_states
+from fsw.core.team.tether_settle import settle_many
 
 F64 = NDArray[np.float64]
 OFFSETS = 8  # length errors round the ellipse judged per place
@@ -106,7 +107,7 @@ def held_at(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, st: TetherState, offs
     there. Where both tensions keep ``SCREEN`` times the largest predicted change inside their
     limits, no offset can take them out unless the statics are that far from linear over a few
     centimetres, and the place is held; elsewhere the body is settled at every offset from its
-    predicted place in one bounded batch (:func:`fsw.core.team.tether.settle_many`) and the
+    predicted place in one bounded batch (:func:`fsw.core.team.tether_settle.settle_many`) and the
     statics re-solved where it rests (:func:`statics_reason`). An offset whose settling ends
     undecided (neither taut within the acceptance nor shown slack within the batch's steps) is
     :data:`NOT_HELD`: a place the check cannot show held is refused, never accepted. The first

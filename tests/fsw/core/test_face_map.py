@@ -12,8 +12,8 @@ from fsw.core.codec.mapcodec import decode_map, encode_map
 from fsw.core.geometry import MapGrid
 from fsw.core.map.body_mask import BodyBox, MaskConfig, TeamGeometry, TetherLine, team_mask
 from fsw.core.map.elevation_map import ElevationMap
-from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig, face_band, hand_over_z, split_parts
-from fsw.core.map.face_plane import fit_face_plane
+from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig, hand_over_z, split_parts
+from fsw.core.map.face_plane import face_band, fit_face_plane
 from fsw.core.map.overhang import FLAG_TESTS
 
 SLOPE = 70.0

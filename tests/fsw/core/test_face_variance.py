@@ -9,16 +9,8 @@ import numpy as np
 import pytest
 
 from fsw.core.geometry import MapGrid
-from fsw.core.map.face_map import (
-    FaceElevation,
-    FaceFrame,
-    FaceMap,
-    FaceMapConfig,
-    relief_variance,
-    run_merge,
-    step_heights,
-    window_span,
-)
+from fsw.core.map.face_elevation import FaceElevation, relief_variance, step_heights
+from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig, run_merge, window_span
 
 CELL = 0.06
 
@@ -286,7 +278,8 @@ def test_only_the_ground_a_view_looked_at_and_missed_counts_as_hidden() -> None:
     ring beyond the square is out of the view (its image's edge), not hidden. A patch the view
     measured inside ground it looked at is beside hidden ground; the same patch with nothing
     looked at around it is not."""
-    from fsw.core.map.face_map import hidden_relief, in_view
+    from fsw.core.map.face_elevation import hidden_relief
+    from fsw.core.map.face_map import in_view
 
     frame = FaceFrame.from_normal(np.zeros(3), np.array([0.0, -np.sin(1.2), np.cos(1.2)]))
     face = FaceMap(frame, (0.0, 0.9), (0.0, 0.9), FaceMapConfig(cell_m=CELL))

@@ -25,14 +25,8 @@ from fsw.core.team.held_tension import (
     length_offsets,
     statics_reason,
 )
-from fsw.core.team.tether import (
-    TetherConfig,
-    anchor_points,
-    attach_point,
-    settle,
-    settle_many,
-    tether_state,
-)
+from fsw.core.team.tether import TetherConfig, anchor_points, attach_point, tether_state
+from fsw.core.team.tether_settle import settle, settle_many
 from fsw.sections import CliffbotMissionConfig
 from fsw.tasks.cliffbot.legs import Route
 from fsw.tasks.cliffbot_mission import CliffbotMission
@@ -291,6 +285,7 @@ def test_a_place_whose_settling_ends_undecided_is_refused_as_not_held_at_a_bound
     states per error (no unbounded per-place search after it)."""
     import fsw.core.team.held_tension as ht
     import fsw.core.team.tether as tether_mod
+    import fsw.core.team.tether_settle as settle_mod
 
     z, grid, anchors = _cliff()
     t = TetherConfig()
@@ -310,12 +305,13 @@ def test_a_place_whose_settling_ends_undecided_is_refused_as_not_held_at_a_bound
         return real(*args, **kw)  # type: ignore[arg-type]
 
     monkeypatch.setattr(tether_mod, "tether_states", counted)
+    monkeypatch.setattr(settle_mod, "tether_states", counted)
     monkeypatch.setattr(ht, "tether_states", counted)
     roomy = dataclasses.replace(t, t_min_n=min(st.statics.tensions_n) - 30.0)  # no settled error is slack
     assert held_reason(z, grid, anchors, xy, st, roomy, 0.0, ERRORS) == ht.NOT_HELD
-    steps = tether_mod.SETTLE_MANY_ITERATIONS
-    per_error = (5 * (tether_mod.FULL_STEPS + 1) + 5 * (steps + 1) + tether_mod._BACKTRACK * steps
-                 + 16 * len(tether_mod.SEARCH_RADII))
+    steps = settle_mod.SETTLE_MANY_ITERATIONS
+    per_error = (5 * (settle_mod.FULL_STEPS + 1) + 5 * (steps + 1) + settle_mod._BACKTRACK * steps
+                 + 16 * len(settle_mod.SEARCH_RADII))
     assert 4 < evaluated[0] <= 4 + len(off) * per_error
 
 

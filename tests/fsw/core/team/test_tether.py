@@ -8,15 +8,8 @@ import numpy as np
 import pytest
 
 from fsw.core.geometry import MapGrid
-from fsw.core.team.tether import (
-    TetherConfig,
-    anchor_points,
-    settle,
-    statics,
-    tether_path,
-    tether_state,
-    upper_hull,
-)
+from fsw.core.team.tether import TetherConfig, anchor_points, statics, tether_path, tether_state, upper_hull
+from fsw.core.team.tether_settle import settle
 
 SLOPE = math.radians(75.0)
 

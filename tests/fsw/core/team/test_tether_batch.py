@@ -11,9 +11,10 @@ import pytest
 import tether_reference as ref
 
 from fsw.core.geometry import MapGrid
-from fsw.core.team.tether import TetherConfig, TetherState, anchor_points, settle, statics, statics_many, tether_state
+from fsw.core.team.tether import TetherConfig, TetherState, anchor_points, statics, statics_many, tether_state
 from fsw.core.team.tether import tether_states as batched_states
 from fsw.core.team.tether_batch import upper_hulls
+from fsw.core.team.tether_settle import settle
 
 
 def rough_cliff(seed: int) -> tuple[np.ndarray, MapGrid]:
