@@ -28,7 +28,8 @@ from numpy.typing import NDArray
 from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_head import head_camera_pose, head_end
 from fsw.core.team.face_planner import ClimberConfig, body_yaw, standing_cells
-from fsw.core.team.tether import height_at, surface_normal
+from fsw.core.team.standing_plane import surface_normal
+from fsw.core.team.tether import height_at
 from fsw.sections import CliffbotSensingConfig
 
 F64 = NDArray[np.float64]
