@@ -50,7 +50,7 @@ def test_the_cliffbot_is_system_2_and_a_source_of_the_recording(tmp_path: Path) 
         try:
             z = np.asarray(truth_map(world, grid, team.frame), np.float32)
             b.exe.ctx.bus.publish(RADIO_SEND, RadioSendRequest(1, SimpleNamespace(z=z, grid=grid)))  # type: ignore[arg-type]
-            for _ in range(400):  # the map down the link (about 8 kB at 9600 bit/s), its views, the plan, the moves
+            for _ in range(600):  # the map down the link (about 8 kB at 9600 bit/s), its 16 views, the plan, the moves
                 b.run(1)
                 for tap in taps:
                     tap.poll()

@@ -21,9 +21,9 @@ from fsw.tasks.messages import RADIO_SEND, RadioSendRequest
 
 pytestmark = pytest.mark.slow  # two short team runs (an idle RECON-bot, no rendering)
 SEED = 3
-# the map (the quarter-wheel bound) arrives about 72 frames after it is sent; the Cliff-bot's ten
-# views (its head's scan) take about 275 more
-CUT, FRAMES = 5, 400
+# the map (the quarter-wheel bound) arrives about 72 frames after it is sent; the Cliff-bot's
+# sixteen views (its head's scan) take about 440 more
+CUT, FRAMES = 5, 600
 
 
 def _run(world: Any, out: Path, resume: tuple[tuple[float, int], dict[str, Any]] | None = None,
