@@ -28,7 +28,11 @@ OFFERING`` again when the receiver has lost the session (a restart).
   DELIVERED), whatever else is still in flight. DONE has no timer: it only answers each FIN
   with a FIN_ACK, at most ``close_tries`` of them; a FIN after that gives up the close (event
   CLOSE_GIVEN_UP) and is ignored, the receiver ends its linger by itself. FIN(HASH_MISMATCH)
-  restarts the transfer, at most ``max_restarts`` times.
+  restarts the transfer, at most ``max_restarts`` times. The FIN is sent once: if it is lost,
+  the receiver's next STATUS gives the mismatch away, as a STATUS is generated after every
+  segment the sender counts as held was reported held (it echoes a packet sent after the last
+  new acknowledgement arrived) yet reports fewer segments held: the receiver discarded them,
+  and the transfer restarts the same way (event HASH_MISMATCH_RESEND, ``inferred``).
 
 Memory: the map itself plus a few bytes per segment and a 1024-entry serial ring.
 """
@@ -83,6 +87,7 @@ class LinkSender:
         self.srtt_s: float | None = None
         self._n_acked = 0
         self._cum = 0
+        self._acked_news_s = _NEVER  # arrival of the last STATUS that acknowledged a new segment
         self._restarts = 0
         self._start_s = 0.0
         self._last_feedback_s = 0.0
@@ -223,6 +228,7 @@ class LinkSender:
         self._next_new = 0
         self._n_acked = 0
         self._cum = 0
+        self._acked_news_s = _NEVER
         self._rack_s = _NEVER
         self._data_since_ping = False
         self._tail_ptr = 0
@@ -345,6 +351,17 @@ class LinkSender:
         if st.highest > self._n:
             self.stats.foreign_packets += 1
             return
+        echo_s = None
+        if st.echo_serial is not None and self._ring_serial[st.echo_serial % _RING] == st.echo_serial:
+            echo_s = self._ring_time[st.echo_serial % _RING]
+        if echo_s is not None and echo_s > self._acked_news_s and st.n_received < self._n_acked \
+                and self.state is SenderState.SENDING:
+            # Generated after every acknowledgement counted here, yet holding fewer segments:
+            # the receiver discarded its buffer (a hash mismatch whose FIN was lost).
+            self._restart(now_s, inferred=True)
+            if self.state is not SenderState.SENDING:
+                return
+        acked = self._n_acked
         for seq in range(self._cum, st.cum):
             self._ack(seq)
         self._cum = max(self._cum, st.cum)
@@ -352,10 +369,11 @@ class LinkSender:
         for i in range(window_end - st.cum):
             if st.bitmap[i >> 3] >> (i & 7) & 1:
                 self._ack(st.cum + i)
-        if st.echo_serial is not None and self._ring_serial[st.echo_serial % _RING] == st.echo_serial:
-            sent_s = self._ring_time[st.echo_serial % _RING]
-            self._rack_s = max(self._rack_s, sent_s)
-            rtt = now_s - sent_s
+        if self._n_acked > acked:
+            self._acked_news_s = now_s
+        if echo_s is not None:
+            self._rack_s = max(self._rack_s, echo_s)
+            rtt = now_s - echo_s
             self.srtt_s = rtt if self.srtt_s is None else 0.875 * self.srtt_s + 0.125 * rtt
         limit = self._rack_s - self.cfg.reorder_slack_s
         for seq in range(st.cum, self._next_new):
@@ -390,11 +408,16 @@ class LinkSender:
         elif self.state is SenderState.SENDING and self._next_new >= self._n:
             # A mismatch needs every segment at the receiver, so one reported before this
             # attempt sent every segment is a duplicate or stale copy of the last one.
-            self._restarts += 1
-            if self._restarts > self.cfg.max_restarts:
-                self.state = SenderState.FAILED
-                self.events.emit(now_s, "HASH_MISMATCH_GIVE_UP", map_id=self._map_id)
-            else:
-                self._reset_progress()
-                self.events.emit(now_s, "HASH_MISMATCH_RESEND", map_id=self._map_id,
-                                 attempt=self._restarts)
+            self._restart(now_s, inferred=False)
+
+    def _restart(self, now_s: float, inferred: bool) -> None:
+        """The receiver discarded the map (hash mismatch): send it again, at most
+        ``max_restarts`` times. ``inferred``: from a STATUS, the FIN being lost."""
+        self._restarts += 1
+        if self._restarts > self.cfg.max_restarts:
+            self.state = SenderState.FAILED
+            self.events.emit(now_s, "HASH_MISMATCH_GIVE_UP", map_id=self._map_id)
+        else:
+            self._reset_progress()
+            self.events.emit(now_s, "HASH_MISMATCH_RESEND", map_id=self._map_id,
+                             attempt=self._restarts, inferred=inferred)

@@ -88,7 +88,8 @@ class RadioTask(FlightTask):
         EventDef("REOFFERED", Severity.WARNING_LO, "map {map_id}: offered again as session {session} "
                  "({reason})", throttle=5),
         EventDef("LINK_LOST", Severity.WARNING_HI, "map {map_id}: no answer for {silent_s} s, transfer failed"),
-        EventDef("HASH_MISMATCH_RESEND", Severity.WARNING_LO, "map {map_id}: hash mismatch, resend {attempt}"),
+        EventDef("HASH_MISMATCH_RESEND", Severity.WARNING_LO,
+                 "map {map_id}: hash mismatch, resend {attempt} (inferred from a STATUS: {inferred})"),
         EventDef("HASH_MISMATCH_GIVE_UP", Severity.WARNING_HI, "map {map_id}: hash mismatch, gave up"),
         EventDef("RADIO_ERROR", Severity.WARNING_LO, "radio: {text}", throttle=5),
         EventDef("SYNC", Severity.ACTIVITY_LO, "map sync: {what} {detail}", throttle=5),

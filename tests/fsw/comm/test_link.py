@@ -137,6 +137,42 @@ def test_resume_with_a_new_session_sends_only_what_is_missing():
     assert any(e.name == "RESUMED" for e in rx.events.pop_all())
 
 
+@pytest.mark.parametrize("fin_lost", [False, True])
+def test_a_hash_mismatch_resends_the_map_even_when_its_fin_is_lost(fin_lost):
+    """A segment forged past CRC-32 fails the whole-map SHA-256: the receiver discards its
+    buffer and sends FIN(HASH_MISMATCH) once. The sender sends the map again, on the FIN or,
+    when the FIN is lost, on the next STATUS, which holds fewer segments than were
+    acknowledged (before, a lost FIN left the sender pinging until it gave up)."""
+    cfg = LinkConfig()  # at the flight rate, STATUS acknowledges segments while the map goes out
+    n = 20
+    data = _payload(n * cfg.segment_bytes)
+    rx = LinkReceiver(cfg)
+    tx = LinkSender(cfg, session=1)
+    tx.start(5, data, 0.0)
+    forged = dropped = 0
+    t = 0.0
+    while rx.state is not ReceiverState.COMPLETE and t < 60:
+        for d in tx.poll(t):
+            pkt = lp.decode(d)
+            if isinstance(pkt, lp.Data) and pkt.seq == n - 1 and not forged:  # the mismatch at the end
+                forged += 1  # one bit flipped, the CRC recomputed: only the SHA-256 can tell
+                d = lp.encode(lp.Data(pkt.session, pkt.seq, pkt.serial, bytes([pkt.payload[0] ^ 1]) + pkt.payload[1:]))
+            rx.receive(d, t)
+        for d in rx.poll(t):
+            pkt = lp.decode(d)
+            if fin_lost and isinstance(pkt, lp.Fin) and pkt.status is lp.FinStatus.HASH_MISMATCH:
+                dropped += 1
+                continue
+            tx.receive(d, t)
+        t += 0.01
+    assert forged == 1 and dropped == int(fin_lost)
+    assert rx.take_map() == (5, data)
+    resends = [e for e in tx.events.pop_all() if e.name == "HASH_MISMATCH_RESEND"]
+    assert [e.args["inferred"] for e in resends] == [fin_lost]
+    first_pass_s = n * (cfg.segment_bytes + 12) * 8 / cfg.rate_bps
+    assert t < 2.5 * first_pass_s  # sent twice and a round trip, no time-out waited for
+
+
 def test_receiver_rejects_oversized_offers_and_bounds_memory():
     """Issue 6, item 5: bounded memory: offers above max_map_bytes are rejected."""
     cfg = LinkConfig(max_map_bytes=4096, segment_bytes=64)

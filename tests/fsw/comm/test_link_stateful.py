@@ -162,9 +162,9 @@ class LinkPair(RuleBasedStateMachine):
                 else self.t + 1e-3
         event(f"settle: had map {had_map}, forged {self.forged}, sender {self.tx.state.value}")
         if self.forged and not had_map:
-            # A forgery that passes CRC-32 (a 2**-32 event per corrupted packet) in an OFFER,
-            # or a lost FIN(HASH_MISMATCH), can stall a transfer before delivery
-            # (docs/link.md, limits); safety is still checked after every step.
+            # A forgery that passes CRC-32 (a 2**-32 event per corrupted packet) in an OFFER
+            # can stall a transfer before delivery (docs/link.md, limits); safety is still
+            # checked after every step.
             self.forged_stall = self.tx.state is not SenderState.DONE
             return
         assert self.tx.state is SenderState.DONE, f"sender {self.tx.state} after healing"
