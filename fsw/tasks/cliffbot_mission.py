@@ -445,18 +445,37 @@ class CliffbotMission:
                 return
             if leg.target is not None and self._approaching(why) and self._approach(leg, why):
                 return
+            retry = leg.target is not None and self._retry_later(leg, why)
             if leg.target is not None:
                 why = f"{why} ({leg.looks} looks)" if leg.looks else why
                 self.reasons[leg.target] = why
-            self.event("TARGET_UNREACHABLE", f"leg {self.leg_i + 1}: {why}")
+            self.event("TARGET_UNREACHABLE", f"leg {self.leg_i + 1}: {why}"
+                       + ("; tried again after the other targets" if retry else ""))
             self._next_leg()
             return
-        if leg.target is not None and (leg.via is not None or leg.looks):
+        if leg.target is not None and self.reasons[leg.target]:
+            # a target refused before (approached, or given up and tried again) is planned now
             self.reasons[leg.target] = ""
             self.planned_lengths[leg.target] = plan.lengths_m[0]
             self.event("APPROACH", f"target {leg.target + 1}: planned after {leg.looks} looks")
         leg.via = None
         self._drive_on(leg, wps, plan.lengths_m[0])
+
+    def _retry_later(self, leg: Leg, why: str) -> bool:
+        """The target of ``leg`` is given up for ``why``: when a look can change that reason and
+        another target's leg comes before the leg home, the target is tried again once after the
+        other targets (a leg for it before the leg home, its looks carried on), on the map their
+        legs' looks have grown meanwhile; with no other target left between, the map would be
+        the same. A target is tried again at most once: a leg is its retry when an earlier leg is
+        for the same target (so a mission resumed from its checkpoint's legs retries the same way)."""
+        if not self._approaching(why) or any(g.target == leg.target for i, g in enumerate(self.legs)
+                                             if i != self.leg_i):
+            return False
+        end = len(self.legs) - 1 if self.legs[-1].target is None else len(self.legs)  # before the leg home
+        if not any(g.target is not None for g in self.legs[self.leg_i + 1:end]):
+            return False
+        self.legs.insert(end, Leg(leg.goal.copy(), leg.target, looks=leg.looks))
+        return True
 
     def _drive_on(self, leg: Leg, wps: list[F64], length_m: float) -> None:
         leg.waypoints, leg.length_m = wps, length_m
