@@ -39,7 +39,8 @@ scan): until the target is planned, a
 reason on known ground gives it up, or ``approach_looks`` looks in a row leave it no nearer the
 target (its reason then says how many looks it took in all, ``unknown ground (7 looks)``): each
 approach node is nearer the target than the last by more than a lattice spacing, so the approach
-ends. It never drives onto ground its map does not know.
+ends. A target given up so is tried again once, after the other targets, on the map their looks
+have grown (:meth:`CliffbotMission._retry_later`). It never drives onto ground its map does not know.
 The legs' ways, margins and approach nodes are :mod:`fsw.tasks.cliffbot.legs`'.
 
 ``SAFE`` (winches braked, wheels stopped, event ``SAFE`` with the reason) on: a winch fault
