@@ -32,9 +32,10 @@ KNOWN_TARGET = np.array([3.5, -0.9])  # a target on the ground known from the st
 Map = Callable[[CliffbotMission], np.ndarray]
 
 
-def _mission(targets: np.ndarray, return_home: bool = False) -> CliffbotMission:
+def _mission(targets: np.ndarray, return_home: bool = False, retry: bool = True) -> CliffbotMission:
     anchors = np.array([[1.0, 0.6, 0.3], [4.0, 0.6, 0.3]])
-    return CliffbotMission(CliffbotMissionConfig(approach_looks=1, return_home=return_home), TetherConfig(),
+    return CliffbotMission(CliffbotMissionConfig(approach_looks=1, return_home=return_home,
+                                                 retry_given_up=retry), TetherConfig(),
                            ClimberConfig(), NavConfig(), anchors, START, -np.pi / 2, targets,
                            sensing=CliffbotSensingConfig(enabled=True))
 
@@ -96,6 +97,15 @@ def test_a_target_with_no_other_target_after_it_is_not_tried_again() -> None:
     # the map would be the same: the target is given up once, its reason kept
     assert m.state == "DONE" and [leg.target for leg in m.legs] == [0, 1, None]
     assert m.reasons[1].startswith("unknown ground (") and _names(m).count("TARGET_UNREACHABLE") == 1
+
+
+def test_without_retry_given_up_a_target_given_up_stays_given_up() -> None:
+    m, dev = _mission(_targets(), retry=False), FreshDevices()
+    z0 = _unknown_below(-1.9)
+    t = _start(m, dev, z0)
+    _run(m, dev, t, lambda mm: z0 if mm.leg_i == 0 else _ground())  # the default: the grown map is not used
+    assert m.state == "DONE" and [leg.target for leg in m.legs] == [0, 1] and m.reached == [False, True]
+    assert m.reasons[0].startswith("unknown ground (")
 
 
 def test_a_mission_resumed_from_its_checkpoint_retries_the_same_way() -> None:
