@@ -83,6 +83,8 @@ class CliffbotMissionConfig:
     approach_looks: int = param(3, lo=0, hi=20,
                                 doc="looks in a row a target whose ground is not known may take without an "
                                     "approach node nearer it before it is given up (0: never approached)")
+    retry_given_up: bool = param(False, doc="a target given up for a reason a look can change is tried again once, "
+                                            "after the other targets, on the map their looks have grown")
 
 
 @dataclass(frozen=True)

@@ -39,7 +39,9 @@ scan): until the target is planned, a
 reason on known ground gives it up, or ``approach_looks`` looks in a row leave it no nearer the
 target (its reason then says how many looks it took in all, ``unknown ground (7 looks)``): each
 approach node is nearer the target than the last by more than a lattice spacing, so the approach
-ends. It never drives onto ground its map does not know.
+ends. With ``retry_given_up``, a target given up so is tried again once, after the other targets,
+on the map their looks have grown (:meth:`CliffbotMission._retry_later`). It never drives onto
+ground its map does not know.
 The legs' ways, margins and approach nodes are :mod:`fsw.tasks.cliffbot.legs`'.
 
 ``SAFE`` (winches braked, wheels stopped, event ``SAFE`` with the reason) on: a winch fault
@@ -445,18 +447,41 @@ class CliffbotMission:
                 return
             if leg.target is not None and self._approaching(why) and self._approach(leg, why):
                 return
+            retry = leg.target is not None and self._retry_later(leg, why)
             if leg.target is not None:
                 why = f"{why} ({leg.looks} looks)" if leg.looks else why
                 self.reasons[leg.target] = why
-            self.event("TARGET_UNREACHABLE", f"leg {self.leg_i + 1}: {why}")
+            self.event("TARGET_UNREACHABLE", f"leg {self.leg_i + 1}: {why}"
+                       + ("; tried again after the other targets" if retry else ""))
             self._next_leg()
             return
-        if leg.target is not None and (leg.via is not None or leg.looks):
+        if leg.target is not None and self.reasons[leg.target]:
+            # a target refused before (approached, or given up and tried again) is planned now
             self.reasons[leg.target] = ""
             self.planned_lengths[leg.target] = plan.lengths_m[0]
             self.event("APPROACH", f"target {leg.target + 1}: planned after {leg.looks} looks")
         leg.via = None
         self._drive_on(leg, wps, plan.lengths_m[0])
+
+    def _retry_later(self, leg: Leg, why: str) -> bool:
+        """The target of ``leg`` is given up for ``why``: with ``retry_given_up``, when a look can
+        change that reason and another target's leg comes before the leg home, the target is tried
+        again once after the other targets (a leg for it before the leg home, its looks carried
+        on), on the map their legs' looks have grown meanwhile; with no other target left between,
+        the map would be the same. A target is tried again at most once: a leg is its retry when an
+        earlier leg is for the same target (so a mission resumed from its checkpoint's legs retries
+        the same way). Off by default: a retry takes the approach (its looks, its steps down the
+        face on the map) where the first attempt stopped, and each of those carries the approach's
+        own risks (a look's map that turns the node it stands on into a hazard leaves no way home)."""
+        if not self.cfg.retry_given_up or not self._approaching(why):
+            return False
+        if any(g.target == leg.target for i, g in enumerate(self.legs) if i != self.leg_i):
+            return False
+        end = len(self.legs) - 1 if self.legs[-1].target is None else len(self.legs)  # before the leg home
+        if not any(g.target is not None for g in self.legs[self.leg_i + 1:end]):
+            return False
+        self.legs.insert(end, Leg(leg.goal.copy(), leg.target, looks=leg.looks))
+        return True
 
     def _drive_on(self, leg: Leg, wps: list[F64], length_m: float) -> None:
         leg.waypoints, leg.length_m = wps, length_m
