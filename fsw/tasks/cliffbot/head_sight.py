@@ -13,9 +13,13 @@ pointing's pan, tilt and end of the body, :func:`fsw.core.team.cliffbot_head.hea
 see from a standing: the cell in the pointing's field of view, within the camera's usable
 range, its sight line not through the body's box (``body_half_m``, from ``BODY_LIFT_M`` above
 its ground: the head stands lower than the box's top, so the box hides the ground beside the
-body's middle from both ends). An unknown cell is taken on the body's ground plane there (the
-map's normal at the standing), a carried one at its carried height: a rating of the standing,
-not a promise (stereo may still fail on a cell, or the ground may hide itself).
+body's middle from both ends). An unknown cell is taken at the mean height of the known ground
+round it (the cells within ``HOLE_RADIUS_CELLS``, when at least ``HOLE_MIN_KNOWN`` of them are
+known: a hole in ground the views mapped, such as a cell on a steep drop past a ledge, lies
+where its neighbours lie, metres below the ledge a body stands on), else on the body's ground
+plane there (the map's normal at the standing: the unknown ground beyond the known ground's
+edge), a carried one at its carried height: a rating of the standing, not a promise (stereo may
+still fail on a cell, or the ground may hide itself).
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ import math
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import ndimage
 
 from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_head import head_camera_pose, head_end
@@ -37,6 +42,10 @@ B = NDArray[np.bool_]
 BODY_LIFT_M = 0.05  # the body's box starts this far above its ground (fsw.tasks.cliffbot.sensing)
 NEXT_RADIUS_NODES = 3  # the next step's nodes: within this many lattice spacings of the standing
 OCCLUSION_SAMPLES = 32  # points along a sight line tested against the body's box
+# an unknown cell with at least HOLE_MIN_KNOWN known cells within HOLE_RADIUS_CELLS (a square window)
+# is a hole in mapped ground: it is rated at their mean height, not on the body's ground plane
+HOLE_RADIUS_CELLS = 2
+HOLE_MIN_KNOWN = 3
 
 
 def needed_cells(z: F64, unseen: B, grid: MapGrid, ccfg: ClimberConfig, anchors: F64, here: F64,
@@ -83,7 +92,9 @@ def scan_sees(z: F64, grid: MapGrid, ccfg: ClimberConfig, anchors: F64, sc: Clif
     iy, ix = np.nonzero(cells)
     X, Y = grid.x0 + (ix + 0.5) * grid.cell, grid.y0 + (iy + 0.5) * grid.cell
     on_plane = gz - (n[0] * (X - xy[0]) + n[1] * (Y - xy[1])) / n[2]
-    pts = np.column_stack([X, Y, np.where(np.isfinite(z[iy, ix]), z[iy, ix], on_plane)])
+    around, count = _known_round(z)
+    unknown_z = np.where(count[iy, ix] >= HOLE_MIN_KNOWN, around[iy, ix], on_plane)
+    pts = np.column_stack([X, Y, np.where(np.isfinite(z[iy, ix]), z[iy, ix], unknown_z)])
     ground = np.array([float(xy[0]), float(xy[1]), gz])
     focal = (sc.width_px / 2.0) / math.tan(math.radians(sc.hfov_deg) / 2.0)
     half_w, half_h = (sc.width_px / 2.0) / focal, (sc.height_px / 2.0) / focal
@@ -101,6 +112,17 @@ def scan_sees(z: F64, grid: MapGrid, ccfg: ClimberConfig, anchors: F64, sc: Clif
         got |= inside & (rng >= sc.min_range_m) & (rng <= sc.max_range_m) & ~hidden[k]
     seen[iy[got], ix[got]] = True
     return seen
+
+
+def _known_round(z: F64) -> tuple[F64, F64]:
+    """Per cell, the mean height of the known cells within ``HOLE_RADIUS_CELLS`` (a square window)
+    and how many they are (0: the mean is meaningless)."""
+    known = np.isfinite(z)
+    size = 2 * HOLE_RADIUS_CELLS + 1
+    count = ndimage.uniform_filter(known.astype(np.float64), size, mode="constant") * size * size
+    total = ndimage.uniform_filter(np.where(known, z, 0.0), size, mode="constant") * size * size
+    count = np.rint(count)
+    return total / np.maximum(count, 1.0), count
 
 
 def _behind_body(pts: F64, ground: F64, n: F64, yaw: float, sc: CliffbotSensingConfig) -> B:

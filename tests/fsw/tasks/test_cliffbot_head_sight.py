@@ -76,3 +76,19 @@ def test_the_next_step_needs_the_unknown_ground_of_its_footprints_and_tethers() 
     assert needed_cells(z, carried, GRID, CCFG, ANCHORS, HERE, target).sum() == need.sum()
     # a target behind: the nodes nearer it are up the slope, their footprints known
     assert not needed_cells(ahead, none, GRID, CCFG, ANCHORS, HERE, np.array([0.0, 1.5])).any()
+
+
+def test_a_hole_in_mapped_ground_is_rated_where_its_neighbours_lie() -> None:
+    """A cell the views left unknown among ground they mapped (a cell on a drop past a ledge) lies
+    with its neighbours, not on the body's ground plane: 2.5 m down the drop it is beyond the
+    camera's range from the ledge, 1 m down it is in the steep view; an unknown cell with no
+    known ground round it is still rated on the body's plane."""
+    sc = CliffbotSensingConfig()
+    _, Y = GRID.centers()
+    hole = _cells([(0.0, -1.1)])
+    for drop_m, seen in ((2.5, 0), (1.0, 1)):
+        z = np.where(Y > -0.7, 0.0, -drop_m)
+        z[hole] = np.nan
+        assert scan_sees(z, GRID, CCFG, ANCHORS, sc, HERE, hole).sum() == seen
+    beyond = np.where(Y > -0.7, 0.0, np.nan)  # all of the drop unknown: the body's plane carried on
+    assert scan_sees(beyond, GRID, CCFG, ANCHORS, sc, HERE, hole).sum() == 1
