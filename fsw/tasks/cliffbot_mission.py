@@ -67,8 +67,9 @@ from fsw.comm.team.fix_packets import Fix
 from fsw.comm.team.team_can import WINCHES
 from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import NavConfig, Navigator
+from fsw.core.team.climber_ground import ClimberConfig, standing_cells
 from fsw.core.team.contact_ground import StoodGround, fill_under_body
-from fsw.core.team.face_planner import OFF_THE_WAY, ClimberConfig, plan_targets, standing_cells
+from fsw.core.team.face_planner import OFF_THE_WAY, plan_targets
 from fsw.core.team.tether import TetherConfig, tether_state
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig, CliffbotSensingConfig
@@ -183,7 +184,7 @@ class CliffbotMission:
         self.z, filled = fill_under_body(z_back, grid, self.est.xy, r, body_m=r + BODY_MARGIN_M, max_rms_m=flat)
         # the cells filled beyond where it stands are the plane carried on, not ground a sensor
         # measured: no node a leg ends on or crosses counts them as known (legs.Route,
-        # face_planner.ground_layers). Where it stands: its footprint round its estimate, the
+        # climber_ground.ground_layers). Where it stands: its footprint round its estimate, the
         # footprint of the lattice node nearest it (the node it stands at) and its body's outline
         filled_here = np.isfinite(self.z) & ~(np.isfinite(z_in) & (z_in == self.z))
         body = None if self.body_half is None else (float(self.est.s[2]), *self.body_half)

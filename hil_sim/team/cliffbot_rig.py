@@ -32,7 +32,7 @@ from fsw.comm.team.team_can import WINCHES, TeamCan, WheelCommand
 from fsw.core.geometry import MapGrid
 from fsw.core.localization.landmarks import plate_frames
 from fsw.core.localization.localization import LocalizationConfig
-from fsw.core.team.face_planner import ClimberConfig, ground_layers
+from fsw.core.team.climber_ground import ClimberConfig, ground_layers
 from fsw.core.team.standing_plane import surface_normal
 from fsw.core.team.tether import TetherConfig, TetherState, anchor_points, height_at, tether_state
 from fsw.core.team.tether_settle import settle

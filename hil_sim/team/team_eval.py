@@ -47,16 +47,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid, wrap_angle
-from fsw.core.team.face_planner import (
-    USABLE,
-    ClimberConfig,
-    Ground,
-    ground_layers,
-    node_held_reason,
-    node_reasons,
-    plan_targets,
-    way_reason,
-)
+from fsw.core.team.climber_ground import ClimberConfig, Ground, ground_layers
+from fsw.core.team.face_planner import USABLE, node_held_reason, node_reasons, plan_targets, way_reason
 from fsw.core.team.held_tension import LengthErrors
 from fsw.core.team.tether import TetherConfig, TetherState, ZMap
 from fsw.core.team.tether_settle import settle

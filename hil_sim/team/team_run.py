@@ -30,7 +30,7 @@ from fsw.comm.team import fix_packets
 from fsw.core.geometry import CameraPose, MapGrid, point_mast
 from fsw.core.localization.landmarks import Landmark, anchor_marker_corners
 from fsw.core.team.cliffbot_nav import NavConfig
-from fsw.core.team.face_planner import ClimberConfig
+from fsw.core.team.climber_ground import ClimberConfig
 from fsw.core.team.tether import TetherConfig
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig

@@ -77,7 +77,8 @@ from fsw.core.planning.team_views import (
 from fsw.core.planning.view_candidates import Station
 from fsw.core.planning.visibility import in_view
 from fsw.core.stereo.occlusion import LipGuard
-from fsw.core.team.face_planner import ClimberConfig, plan_targets
+from fsw.core.team.climber_ground import ClimberConfig
+from fsw.core.team.face_planner import plan_targets
 from fsw.core.team.standing_plane import surface_normal
 from fsw.core.team.tether import TetherConfig, anchor_points, tether_states
 from hil_sim.team.agent_fusion import agent_settings, merge_as

@@ -9,7 +9,7 @@ import pytest
 
 from fsw.comm.team.team_can import Attitude, TeamCan, WinchStatus
 from fsw.core.geometry import MapGrid
-from fsw.core.team.face_planner import ClimberConfig
+from fsw.core.team.climber_ground import ClimberConfig
 from fsw.core.team.tether import TetherConfig
 from hil_sim.team.cliffbot_rig import CliffbotRig
 from hil_sim.world import load_scenario

@@ -83,7 +83,8 @@ def test_the_truths_settle_memo_gives_settles_answers_and_works_each_out_once(mo
     judged with ``settle`` itself, at the exact lengths and under the winches' tolerance; the
     second judging of the same ways settles nothing again; another ground is not answered from it."""
     from fsw.core.team import tether, tether_settle
-    from fsw.core.team.face_planner import ClimberConfig, ground_layers, way_reason
+    from fsw.core.team.climber_ground import ClimberConfig, ground_layers
+    from fsw.core.team.face_planner import way_reason
     from hil_sim.team import team_eval
 
     z, grid = _face_with_a_rock()

@@ -8,7 +8,7 @@ import numpy as np
 
 from fsw.core.codec.mapcodec import decode_map, encode_map
 from fsw.core.geometry import MapGrid
-from fsw.core.team.face_planner import ClimberConfig, ground_layers
+from fsw.core.team.climber_ground import ClimberConfig, ground_layers
 from fsw.settings import DEFAULT_CONFIG, load_settings
 from hil_sim.world import load_scenario
 

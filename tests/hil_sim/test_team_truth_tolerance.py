@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from fsw.core.geometry import MapGrid
-from fsw.core.team.face_planner import ClimberConfig
+from fsw.core.team.climber_ground import ClimberConfig
 from fsw.core.team.tether import TetherConfig, anchor_points
 from fsw.sections import CliffbotMissionConfig
 from hil_sim.team.team_eval import truth_verdict, winch_errors

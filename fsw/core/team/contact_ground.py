@@ -23,7 +23,7 @@ height at which its two taut tethers on the map, paid out to the winches' length
 :class:`StoodGround` keeps the ground the body has stood on once it has moved on: the body
 measured it by standing on it, and no camera sees it the while (the RECON-bot's map holds the
 body's box or nothing there, and its own head looks past its body). Each pose it held gives
-the cells under it (``fsw.core.team.face_planner.standing_cells``) with the heights its map gave
+the cells under it (``fsw.core.team.climber_ground.standing_cells``) with the heights its map gave
 them then, those filled by contact marked so; a later map gets them back where it does not know
 them, and a cell known by contact also where the later map stands above it by more than the
 flatness the contact was trusted to (the body's box, mapped while it stood there).

@@ -3,7 +3,7 @@
 
 A place to look from is worth as much as the unknown ground it shows that the next step needs.
 :func:`needed_cells` is that ground: the cells no sensor measured (unknown, or the plane under
-the body carried on) in the footprints (:func:`fsw.core.team.face_planner.standing_cells`: the
+the body carried on) in the footprints (:func:`fsw.core.team.climber_ground.standing_cells`: the
 wheels' outline at the heading held there) of the lattice nodes next to a standing on the way
 to a target, and under the straight lines in plan from those nodes to the two anchors (the
 tethers' ground, which a node's verdict needs known: ``tether over unknown ground``).
@@ -32,7 +32,7 @@ from scipy import ndimage
 
 from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_head import head_camera_pose, head_end
-from fsw.core.team.face_planner import ClimberConfig, body_yaw, standing_cells
+from fsw.core.team.climber_ground import ClimberConfig, body_yaw, standing_cells
 from fsw.core.team.standing_plane import surface_normal
 from fsw.core.team.tether import height_at
 from fsw.sections import CliffbotSensingConfig

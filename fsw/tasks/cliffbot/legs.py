@@ -22,16 +22,8 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from fsw.core.geometry import MapGrid
-from fsw.core.team.face_planner import (
-    ClimberConfig,
-    Margins,
-    Plan,
-    disc,
-    ground_layers,
-    place_covariance,
-    plan_targets,
-    way_reason,
-)
+from fsw.core.team.climber_ground import ClimberConfig, disc, ground_layers
+from fsw.core.team.face_planner import Margins, Plan, place_covariance, plan_targets, way_reason
 from fsw.core.team.held_tension import LengthErrors
 from fsw.core.team.tether import TetherConfig
 from fsw.sections import CliffbotMissionConfig

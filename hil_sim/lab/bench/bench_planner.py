@@ -1,7 +1,7 @@
 """``safer-hil bench planner``: the Cliff-bot planner's ground layers, timed (docs/algorithm.md §8).
 
 On a cliff-team scene's true ground on the flight map grid (the map the planner and the
-bench's team runs judge), times ``fsw.core.team.face_planner.ground_layers`` (rocks, hazards,
+bench's team runs judge), times ``fsw.core.team.climber_ground.ground_layers`` (rocks, hazards,
 known footprints, slope) and within it ``footprint_known`` (each cell's footprint, the
 wheels' outline at the heading held there, gathered at that cell), against
 :func:`footprint_known_whole_map`, the same definition as whole-map filters (a minimum filter
@@ -31,7 +31,7 @@ def footprint_known_whole_map(z_sensed: Any, grid: Any, cfg: Any, anchors: Any) 
     import numpy as np
     from scipy import ndimage
 
-    from fsw.core.team.face_planner import FOOT_COS_LEVELS, _cos_level, footprint_box, map_yaw_bins, slope_levels
+    from fsw.core.team.climber_ground import FOOT_COS_LEVELS, _cos_level, footprint_box, map_yaw_bins, slope_levels
 
     zs = np.asarray(z_sensed, np.float64)
     sensed = np.isfinite(zs)
@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from fsw.core.geometry import MapGrid
-    from fsw.core.team.face_planner import ClimberConfig, footprint_known, ground_layers
+    from fsw.core.team.climber_ground import ClimberConfig, footprint_known, ground_layers
     from fsw.core.team.tether import TetherConfig, anchor_points
     from fsw.framework.params import ConfigError
     from hil_sim.world import load_scenario

@@ -334,7 +334,7 @@ def test_a_face_reaches_the_receiver_with_the_rocks_its_planner_reads_there_and_
     rocks (at 45 deg a whole row did). With the hold the relief hazards are the planner's rocks,
     and the decoded map's rocks, as its planner reads them, are exactly the original's."""
     from fsw.core.geometry import MapGrid
-    from fsw.core.team.face_planner import ClimberConfig, ground_layers
+    from fsw.core.team.climber_ground import ClimberConfig, ground_layers
 
     cell = 0.04
     z = (np.mgrid[0:40, 0:40][0] * cell * np.tan(np.radians(slope_deg))).astype(np.float32)

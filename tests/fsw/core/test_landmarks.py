@@ -19,7 +19,7 @@ from fsw.core.localization.landmarks import (
     transport,
 )
 from fsw.core.localization.localization import LocalizationConfig, PoseEstimate, so3_exp, so3_log
-from fsw.core.team.face_planner import ClimberConfig
+from fsw.core.team.climber_ground import ClimberConfig
 from fsw.core.team.tether import TetherConfig
 from fsw.settings import load_settings
 from fsw.tasks.camera import camera_pose_covariance

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from fsw.core.geometry import MapGrid, MapGridConfig
-from fsw.core.team.face_planner import ClimberConfig
+from fsw.core.team.climber_ground import ClimberConfig
 from fsw.sections import CliffbotSensingConfig
 from fsw.tasks.cliffbot.head_sight import needed_cells, scan_sees
 

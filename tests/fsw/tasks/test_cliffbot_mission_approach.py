@@ -12,7 +12,7 @@ import numpy as np
 from fsw.comm.team.team_can import WINCHES, WinchStatus
 from fsw.core.geometry import MapGrid, MapGridConfig
 from fsw.core.team.cliffbot_nav import NavConfig
-from fsw.core.team.face_planner import ClimberConfig, ground_layers, standing_cells
+from fsw.core.team.climber_ground import ClimberConfig, ground_layers, standing_cells
 from fsw.core.team.tether import TetherConfig, tether_state
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig, CliffbotSensingConfig

@@ -10,7 +10,7 @@ from collections.abc import Callable
 import numpy as np
 
 from fsw.core.team.cliffbot_nav import NavConfig
-from fsw.core.team.face_planner import ClimberConfig, ground_layers
+from fsw.core.team.climber_ground import ClimberConfig, ground_layers
 from fsw.core.team.tether import TetherConfig
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig, CliffbotSensingConfig

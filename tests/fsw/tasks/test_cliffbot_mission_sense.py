@@ -8,7 +8,7 @@ import numpy as np
 from fsw.comm.team.fix_packets import Fix
 from fsw.core.geometry import MapGrid, MapGridConfig
 from fsw.core.team.cliffbot_nav import NavConfig
-from fsw.core.team.face_planner import ClimberConfig
+from fsw.core.team.climber_ground import ClimberConfig
 from fsw.core.team.tether import TetherConfig
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig, CliffbotSensingConfig

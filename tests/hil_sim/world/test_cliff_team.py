@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from fsw.core.geometry import MapGrid
-from fsw.core.team.face_planner import ClimberConfig, plan_targets
+from fsw.core.team.climber_ground import ClimberConfig
+from fsw.core.team.face_planner import plan_targets
 from fsw.core.team.tether import TetherConfig, anchor_points
 from fsw.framework.params import ConfigError
 from hil_sim.world import ScenarioError, load_scenario

@@ -9,15 +9,12 @@ import pytest
 from scipy import ndimage
 
 from fsw.core.geometry import MapGrid
+from fsw.core.team.climber_ground import ClimberConfig, disc, footprint_known, ground_layers
 from fsw.core.team.face_planner import (
     OFF_THE_WAY,
     USABLE,
-    ClimberConfig,
     Margins,
     _tether_verdict,
-    disc,
-    footprint_known,
-    ground_layers,
     node_reasons,
     plan_targets,
     way_reason,

@@ -12,12 +12,8 @@ import pytest
 
 from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import NavConfig
-from fsw.core.team.face_planner import (
-    ClimberConfig,
-    ground_layers,
-    place_covariance,
-    way_reason,
-)
+from fsw.core.team.climber_ground import ClimberConfig, ground_layers
+from fsw.core.team.face_planner import place_covariance, way_reason
 from fsw.core.team.held_tension import (
     LengthErrors,
     held_reason,

@@ -107,7 +107,8 @@ def test_batches_in_chunks_and_node_verdicts_match_one_at_a_time(monkeypatch: py
     """The planner's lattice verdicts (node_reasons, batched) are the one-node-at-a-time verdicts,
     with the batch cut into chunks of a few places."""
     import fsw.core.team.tether as tether_mod
-    from fsw.core.team.face_planner import ClimberConfig, _verdict, node_reasons
+    from fsw.core.team.climber_ground import ClimberConfig
+    from fsw.core.team.face_planner import _verdict, node_reasons
 
     monkeypatch.setattr(tether_mod, "BATCH_PLACES", 7)
     tcfg, ccfg = TetherConfig(), ClimberConfig()
