@@ -473,7 +473,7 @@ class CliffbotMission:
         earlier leg is for the same target (so a mission resumed from its checkpoint's legs retries
         the same way). Off by default: a retry takes the approach (its looks, its steps down the
         face on the map) where the first attempt stopped, and each of those carries the approach's
-        own risks (a look's map that turns the node it stands on into a hazard leaves no way home)."""
+        own risks (ways judged on the map near a lip, whose heights the truth may not share)."""
         if not self.cfg.retry_given_up or not self._approaching(why):
             return False
         if any(g.target == leg.target for i, g in enumerate(self.legs) if i != self.leg_i):

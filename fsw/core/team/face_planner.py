@@ -224,7 +224,7 @@ def _swept_rock(z: ZMap, grid: MapGrid, anchors: F64, la: F64, lb: F64, f0: floa
 
 def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
                g: Ground, step_m: float = WAY_STEP_M, errors: LengthErrors | None = None,
-               settle_at: Settle = settle) -> str:
+               settle_at: Settle = settle, leaving: bool = False) -> str:
     """Why the body cannot go from node ``a`` to node ``b`` (``""``: it can; module docstring,
     4): both lengths moved straight from ``a``'s to ``b``'s in steps of at most ``step_m`` of
     tether, the body settled at each (``settle``, from the last place) and judged there like a
@@ -236,7 +236,12 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
     A step at either end of which a tether passes over a rock or a cell next to one is judged again at
     :data:`ROCK_SUB_STEPS` sub-steps (:func:`_swept_rock`): no tether may touch the rock between them.
     ``settle_at``: :func:`fsw.core.team.tether_settle.settle` or one that gives its answers (the truth's
-    brute force keeps them, ``hil_sim.team.team_eval``). Directed: the way back may differ."""
+    brute force keeps them, ``hil_sim.team.team_eval``). Directed: the way back may differ.
+
+    ``leaving``: the body stands at ``a``, which a newer map may have made a hazard (a rock
+    measured beside it): the way's first places may lie in that hazard as long as each is no
+    nearer a rock or a wall cell than ``a`` is (:func:`raw_hazard_distance`); from the first
+    place out of it on, every place is judged as above."""
     sa = tether_state(z, grid, anchors, np.asarray(a, float), tcfg, ccfg.footprint_m)
     sb = tether_state(z, grid, anchors, np.asarray(b, float), tcfg, ccfg.footprint_m)
     if sa is None or sb is None:
@@ -248,6 +253,9 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
     if errors is not None and held:
         off_a = length_offsets(length_covariance(sa, errors), errors.z)
         off_b = length_offsets(length_covariance(sb, errors), errors.z)
+    ia, ja, _ = grid.cell_index(np.asarray(a, float)[:1], np.asarray(a, float)[1:])
+    leave_d = raw_hazard_distance(grid, g, ccfg, np.asarray(a, float)) \
+        if leaving and bool(g.hazard[int(ia[0]), int(ja[0])]) else None
     rocky = bool(g.rock.any())
     near = ndimage.binary_dilation(g.rock, structure=np.ones((3, 3), bool)) if rocky else g.rock
     over = rocky and _over_rock(z, grid, anchors, xy, tcfg, ccfg, near)
@@ -264,7 +272,10 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
         if not g.known[int(iy[0]), int(ix[0])]:
             return "unknown ground"
         if g.hazard[int(iy[0]), int(ix[0])]:
-            return "hazard"
+            if leave_d is None or raw_hazard_distance(grid, g, ccfg, xy) < leave_d - 1e-9:
+                return "hazard"
+        else:
+            leave_d = None  # out of the hazard it stood in: judged as any place from here on
         why = _tether_verdict(got[1], grid, tcfg, ccfg, g)
         if why != USABLE:
             return why
@@ -280,6 +291,22 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
     if float(np.hypot(*(xy - np.asarray(b, float)))) > ccfg.node_m:
         return OFF_THE_WAY
     return ""
+
+
+def raw_hazard_distance(grid: MapGrid, g: Ground, ccfg: ClimberConfig, xy: F64) -> float:
+    """The distance (m) from place ``xy`` to the nearest raw hazard cell (a rock, ground steeper
+    than ``max_slope_deg``: what ``g.hazard`` grows by the footprint) within the footprint's
+    reach of it (its diagonal and a cell); inf with none there (the place is no hazard)."""
+    reach = math.hypot(ccfg.body_half_length_m, ccfg.body_half_width_m) + grid.cell
+    k = int(math.ceil(reach / grid.cell)) + 1
+    iy, ix, _ = grid.cell_index(np.array([xy[0]]), np.array([xy[1]]))
+    r0, r1 = max(0, int(iy[0]) - k), min(grid.ny, int(iy[0]) + k + 1)
+    c0, c1 = max(0, int(ix[0]) - k), min(grid.nx, int(ix[0]) + k + 1)
+    ry, rx = np.nonzero(g.rock[r0:r1, c0:c1] | (g.slope_deg[r0:r1, c0:c1] > ccfg.max_slope_deg))
+    if not len(ry):
+        return math.inf
+    d = np.hypot(grid.x0 + (c0 + rx + 0.5) * grid.cell - xy[0], grid.y0 + (r0 + ry + 0.5) * grid.cell - xy[1])
+    return float(d.min())
 
 
 def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy: F64,
@@ -313,6 +340,9 @@ def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy
     node_x = grid.x0 + (cols + 0.5) * grid.cell
     node_y = grid.y0 + (rows + 0.5) * grid.cell
     cache: dict[int, str] = verdicts if verdicts is not None else {}
+    leaving: dict[int, str] = {}  # hazard nodes judged for the way out of a hazard start (this start's)
+    leave_d: float | None = None  # the start's distance from its nearest raw hazard cell (it stands in one)
+    blob: NDArray[np.bool_] | None = None  # the hazard's cells connected to the start's
     m = margins or Margins()
     clear = (ndimage.distance_transform_edt(~g.hazard) * grid.cell if m.clearance_m > 0 and g.hazard.any()
              else None)
@@ -324,7 +354,25 @@ def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy
             cache[k] = _verdict(zf, grid, anchors, tcfg, ccfg, g, r, c)
             if cache[k] == USABLE and m.errors.any:
                 cache[k] = _held(r, c) or USABLE
-        return USABLE if (start_usable and k == start) else cache[k]
+        if start_usable and k == start:
+            return USABLE
+        if leave_d is not None and cache[k] == "hazard":
+            return leaving[k] if k in leaving else _leavable(k)
+        return cache[k]
+
+    def _leavable(k: int) -> str:
+        """A hazard node on the way out of the hazard the start stands in: judged as a node
+        without its hazard when it lies in that hazard (connected to the start's cell) no nearer
+        a raw hazard cell than the start."""
+        r, c = int(rows[k // nx]), int(cols[k % nx])
+        xy = np.array([grid.x0 + (c + 0.5) * grid.cell, grid.y0 + (r + 0.5) * grid.cell])
+        assert leave_d is not None and blob is not None
+        if not blob[r, c] or raw_hazard_distance(grid, g, ccfg, xy) < leave_d - 1e-9:
+            leaving[k] = "hazard"
+        else:
+            why = _tether_verdict(tether_state(zf, grid, anchors, xy, tcfg, ccfg.footprint_m), grid, tcfg, ccfg, g)
+            leaving[k] = (_held(r, c) or USABLE) if why == USABLE and m.errors.any else why
+        return leaving[k]
 
     def _held(r: int, c: int) -> str:
         xy = np.array([grid.x0 + (c + 0.5) * grid.cell, grid.y0 + (r + 0.5) * grid.cell])
@@ -359,6 +407,14 @@ def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy
             cut |= {(a, b), (b, a)}
     targets = np.asarray(targets_xy, float).reshape(-1, 2)
     start = node_of(np.asarray(start_xy, float))
+    if start is not None and start_usable and verdict(start) == USABLE and cache[start] == "hazard":
+        # it stands in a hazard (a newer map measured a rock beside it): the way out of it may
+        # cross hazard nodes that are no nearer a rock than the start (docs/team.md)
+        r0, c0 = int(rows[start // nx]), int(cols[start % nx])
+        labels, _ = ndimage.label(g.hazard)
+        blob = labels == labels[r0, c0]
+        leave_d = raw_hazard_distance(grid, g, ccfg, np.array([grid.x0 + (c0 + 0.5) * grid.cell,
+                                                               grid.y0 + (r0 + 0.5) * grid.cell]))
     if start is None or verdict(start) != USABLE:
         why = "off the map" if start is None else verdict(start)
         return Plan(tuple(None for _ in targets), tuple(math.inf for _ in targets),

@@ -68,7 +68,7 @@ class Route:
         ground = ground_layers(z, grid, ccfg, self.carried, anchors)
         grow = disc(int(round(ccfg.node_m / grid.cell)))
         self.ground = dataclasses.replace(ground, rock=ndimage.binary_dilation(ground.rock, structure=grow))
-        self.ways: dict[tuple[float, float, float, float], str] = {}  # way_reason per pair of places
+        self.ways: dict[tuple[float, float, float, float, float], str] = {}  # way_reason per pair of places (leaving)
         self.nodes: dict[int, str] = {}  # the lattice's verdicts on this map (plan_targets' verdicts)
 
     def errors(self) -> LengthErrors:
@@ -114,28 +114,34 @@ class Route:
         limits): the winches move both lengths straight from one waypoint's lengths to the
         next's, and the body follows where the statics put it, not the path's line (near the lip
         the tensions change by tens of newtons over centimetres; above a ledge the ledge's
-        lengths hold it on the face). Also every edge of the path the body cannot pass."""
+        lengths hold it on the face). Also every edge of the path the body cannot pass. A way from
+        a node in a hazard (the path's way out of a hazard the body stands in, ``plan_targets``
+        with ``start_usable``) is judged as leaving it (``way_reason(leaving=True)``)."""
         every = self.cfg.waypoint_every
         out: list[F64] = []
         bad: list[tuple[F64, F64]] = []
+        iy, ix, _ = self.grid.cell_index(path[:, 0], path[:, 1])
+        in_hazard = self.ground.hazard[iy, ix]
         i = 0
         while i < len(path) - 1:
             j = min(i + every, len(path) - 1)
-            if j > i + 1 and not self.passable(path[i], path[j]):
+            leaving = bool(in_hazard[i])
+            if j > i + 1 and not self.passable(path[i], path[j], leaving):
                 j = i + 1
-            if j == i + 1 and not self.passable(path[i], path[j]):
+            if j == i + 1 and not self.passable(path[i], path[j], leaving):
                 bad.append((path[i], path[j]))
             out.append(path[j])
             i = j
         return (out or [path[-1]]), bad
 
-    def passable(self, a: F64, b: F64) -> bool:
+    def passable(self, a: F64, b: F64, leaving: bool = False) -> bool:
         """Whether the body can go from ``a`` to ``b`` on its map in the planning limits
-        (:func:`way_reason`; each pair judged once per map)."""
-        key = (round(float(a[0]), 4), round(float(a[1]), 4), round(float(b[0]), 4), round(float(b[1]), 4))
+        (:func:`way_reason`, ``leaving`` as there; each pair judged once per map)."""
+        key = (round(float(a[0]), 4), round(float(a[1]), 4), round(float(b[0]), 4), round(float(b[1]), 4),
+               float(leaving))
         if key not in self.ways:
             self.ways[key] = way_reason(self.z, self.grid, self.anchors, a, b, self.tcfg, self.ccfg, self.ground,
-                                        errors=self.errors())
+                                        errors=self.errors(), leaving=leaving)
         return not self.ways[key]
 
     def elsewhere(self, est_xy: F64, est_cov: F64, wp: F64) -> tuple[bool, float, float]:

@@ -17,6 +17,7 @@ from fsw.core.team.face_planner import (
     _tether_verdict,
     node_reasons,
     plan_targets,
+    raw_hazard_distance,
     way_reason,
 )
 from fsw.core.team.tether import TetherConfig, anchor_points, tether_state
@@ -131,6 +132,33 @@ def test_a_start_on_a_hazard_is_left_only_when_the_cliffbot_stands_there() -> No
     assert strict.start_reason == "hazard" and strict.reasons == ("start: hazard",)
     out = plan_targets(z, grid, anchors, start, target, TetherConfig(), ClimberConfig(), start_usable=True)
     assert out.start_reason == "" and out.reasons == ("",) and out.paths[0] is not None
+
+
+def test_the_way_out_of_a_start_in_a_hazard_gets_no_nearer_the_rock() -> None:
+    """A newer map may put a rock beside where the Cliff-bot stands: its node, and the nodes round
+    it, are then hazards. Standing there (``start_usable``) it plans its way out through hazard
+    nodes no nearer a rock than its own (before: ``no safe path``, stranded), and a way judged as
+    leaving (``way_reason(leaving=True)``) may not go nearer the rock."""
+    z, grid, anchors = _flat_with_a_rock()  # a rock at (0, -0.6), 0.15 m round
+    start, target = np.array([0.0, -0.3]), np.array([[0.0, 0.5]])
+    c, t = ClimberConfig(), TetherConfig()
+    g = ground_layers(z, grid, c, anchors=anchors)
+    iy, ix, _ = grid.cell_index(start[:1], start[1:])
+    assert g.hazard[iy[0], ix[0]]
+    assert plan_targets(z, grid, anchors, start, target, t, c).reasons == ("start: hazard",)
+    out = plan_targets(z, grid, anchors, start, target, t, c, start_usable=True)
+    assert out.reasons == ("",) and out.paths[0] is not None
+    d0 = raw_hazard_distance(grid, g, c, out.paths[0][0])
+    assert all(raw_hazard_distance(grid, g, c, p) >= d0 - 1e-9 for p in out.paths[0])
+    away, toward = np.array([0.0, -0.24]), np.array([0.0, -0.36])
+    assert way_reason(z, grid, anchors, start, away, t, c, g) == "hazard"  # not leaving: judged as any way
+    assert way_reason(z, grid, anchors, start, away, t, c, g, leaving=True) == ""
+    assert way_reason(z, grid, anchors, start, toward, t, c, g, leaving=True) == "hazard"
+    # a target beyond the rock: the way round it crosses the hazard no nearer the rock than the start
+    beyond = plan_targets(z, grid, anchors, start, np.array([[0.6, -1.0]]), t, c, start_usable=True)
+    assert beyond.reasons == ("",) and beyond.paths[0] is not None
+    py, px, _ = grid.cell_index(beyond.paths[0][:, 0], beyond.paths[0][:, 1])
+    assert all(raw_hazard_distance(grid, g, c, p) >= d0 - 1e-9 for p in beyond.paths[0][g.hazard[py, px]])
 
 
 def _face_with_a_ledge() -> tuple[np.ndarray, MapGrid]:
