@@ -562,14 +562,9 @@ class CliffbotMission:
         would see from there (:func:`fsw.tasks.cliffbot.head_sight.scan_sees`) and from no place it
         looked from; then, from a place at least ``LOOK_APART_M`` from every one (a new sight
         line: a cell a look should have shown may have been hidden by the ground), how many of
-        them at all. A place within a lattice spacing of one it looked from is that standing (the
-        mission's own test of where it looked, :meth:`_approach`): its scan repeats the views taken
-        there, and the cells the model gives it beyond them are the model's own difference (the
-        map's height and normal under a place a few centimetres off), not ground a look would
-        show: it rates nothing."""
+        them at all."""
         assert self.z is not None and self.grid is not None and self.sensing is not None
         z, grid, sc, looked = self.z, self.grid, self.sensing, list(self.looked_from)
-        same = self.ccfg.node_m
         unseen = self.carried if self.carried is not None else np.zeros(z.shape, bool)
         need = needed_cells(z, unseen, grid, self.ccfg, self.anchors, self.est.xy, goal)
         new = need.copy()
@@ -577,8 +572,6 @@ class CliffbotMission:
             new &= ~scan_sees(z, grid, self.ccfg, self.anchors, sc, p, need)
 
         def rating(xy: F64) -> tuple[int, int]:
-            if any(float(np.hypot(*(xy - p))) <= same for p in looked):
-                return 0, 0
             apart = all(float(np.hypot(*(xy - p))) >= LOOK_APART_M for p in looked)
             seen = scan_sees(z, grid, self.ccfg, self.anchors, sc, xy, need)
             return int((seen & new).sum()), int(seen.sum()) if apart else 0

@@ -16,7 +16,6 @@ from fsw.core.team.climber_ground import ClimberConfig, ground_layers, standing_
 from fsw.core.team.tether import TetherConfig, tether_state
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig, CliffbotSensingConfig
-from fsw.tasks.cliffbot.head_sight import needed_cells, scan_sees
 from fsw.tasks.cliffbot_mission import LOOK_APART_M, CliffbotMission
 
 GRID = MapGrid.from_config(MapGridConfig(origin_x_m=0.0, origin_y_m=-3.5, cell_m=0.1, nx=50, ny=45))
@@ -365,23 +364,3 @@ def test_with_nothing_nearer_it_looks_again_from_elsewhere_along_the_known_groun
             t = _look(m, dev, t, z0)
         n = m.legs[0].looks
         assert m.state == "DONE" and m.reached == [False] and m.reasons[0] == f"unknown ground ({n} looks)"
-
-
-def test_a_place_within_a_lattice_spacing_of_where_it_looked_rates_nothing() -> None:
-    """A place a few centimetres from one it looked from is that standing: its scan repeats the
-    views taken there. The model may still give it a cell the look there did not (here the map's
-    height steps by 10 cm between the two places, and with it the head's height): no place to
-    look from elsewhere is rated for that. A place a new standing away still is."""
-    m, dev = _mission(), FreshDevices()
-    x, _ = GRID.centers()
-    z0 = _unknown_below(-0.75)
-    z0 = np.where(x > START[0] + 0.02, z0 + 0.1, z0)
-    _start(m, dev, z0)  # it looked from its start
-    assert len(m.looked_from) == 1 and np.allclose(m.looked_from[0], START)
-    near = START + np.array([0.05, 0.0])
-    need = needed_cells(m.z, m.carried, GRID, m.ccfg, m.anchors, START, TARGET)
-    looked = scan_sees(m.z, GRID, m.ccfg, m.anchors, m.sensing, START, need)
-    assert (scan_sees(m.z, GRID, m.ccfg, m.anchors, m.sensing, near, need) & ~looked).any()
-    rating = m._look_rating(TARGET)
-    assert rating(near) == (0, 0)
-    assert max(rating(START + np.array([-0.3, 0.0]))) > 0
