@@ -85,20 +85,25 @@ def erode(z: F32, kernel: NDArray[np.uint8]) -> F32:
     return np.asarray(out, np.float32)
 
 
-def opening(z: F32, kernel: NDArray[np.uint8]) -> F32:
+def opening(z: F32, kernel: NDArray[np.uint8], unknown_centres: bool = False) -> F32:
     """Grey opening ignoring unknown cells: per cell, the highest over the discs covering it
-    of the disc's lowest known cell (NaN on unknown cells)."""
+    of the disc's lowest known cell (NaN on unknown cells). The discs are those centred on
+    known cells, or with ``unknown_centres`` on any cell of the map: a disc centred on unknown
+    ground still holds the known cells it covers (the cell itself among them), and the ground a
+    disc could rest on there is no lower than its lowest known cell as far as the map knows."""
     known = np.isfinite(z)
     e = erode(z, kernel)
-    e[~known] = -np.inf
+    if not unknown_centres:
+        e[~known] = -np.inf
     o = cv2.dilate(e, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=float("-inf"))
     return np.where(known, o, np.float32(np.nan)).astype(np.float32)
 
 
-def relief(z: NDArray[np.floating], cell_m: float, disc_m: float) -> F32:
-    """White top-hat of ``z`` over a disc of ``disc_m`` (>= 0; NaN on unknown cells)."""
+def relief(z: NDArray[np.floating], cell_m: float, disc_m: float, unknown_centres: bool = False) -> F32:
+    """White top-hat of ``z`` over a disc of ``disc_m`` (>= 0; NaN on unknown cells);
+    ``unknown_centres`` as for :func:`opening` (the same on a map that knows every cell)."""
     z32 = np.asarray(z, np.float32)
-    return (z32 - opening(z32, disc(disc_m, cell_m))).astype(np.float32)
+    return (z32 - opening(z32, disc(disc_m, cell_m), unknown_centres)).astype(np.float32)
 
 
 def step(z: NDArray[np.floating], cell_m: float, disc_m: float) -> F32:

@@ -310,8 +310,13 @@ def ground_layers(z: ZMap, grid: MapGrid, cfg: ClimberConfig, unseen: NDArray[np
     k = 2 * int(round(cfg.footprint_m / grid.cell)) + 1
     slope = footprint_slope(zf, grid.cell, k)
     # Relief above a flat opening, measured across the ground (times cos slope): on a steep
-    # face a bump's height in z is its height off the face over cos(slope).
-    tophat = np.nan_to_num(relief(zf, grid.cell, cfg.rock_disc_m), nan=0.0)  # the codec's relief (§6)
+    # face a bump's height in z is its height off the face over cos(slope). The opening takes
+    # the discs centred on unknown cells too (their known cells): with only the discs centred on
+    # known ground, a cell at the edge of the known ground above a drop (the plateau's last
+    # decimetres before a lip, the ground beyond them not yet seen) sits on no disc but those
+    # reaching down the drop and reads as a rock of the drop's height; on a map that knows every
+    # cell (the truth) it is the codec's relief (§6).
+    tophat = np.nan_to_num(relief(zf, grid.cell, cfg.rock_disc_m, unknown_centres=True), nan=0.0)
     rock = known & (tophat * np.cos(np.radians(slope)) >= cfg.wheel_d_m)
     steep = slope > cfg.max_slope_deg
     raw = rock | steep

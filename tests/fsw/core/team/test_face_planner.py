@@ -265,3 +265,31 @@ def test_a_hole_in_the_map_is_not_a_cliff_beside_it() -> None:
     assert not g.hazard.any() and not g.rock.any()
     pit = ground_layers(np.where(hole, z - 20.0, z), grid, ccfg)
     assert pit.hazard[ring].any() and (pit.slope_deg[ring] > ccfg.max_slope_deg).any()
+
+
+def test_the_known_grounds_edge_above_a_drop_is_no_rock_and_a_rock_there_still_is() -> None:
+    """The plateau's last decimetres before a lip, the plateau behind them not yet seen: every
+    disc centred on known ground over them reaches down the drop, and on those alone they read
+    as rocks of the drop's height; the discs centred on the unseen plateau (their known cells)
+    hold them. A boulder on that strip, with its ground known round it, is still a rock, and the
+    map that knows every cell reads as the codec's relief."""
+    grid = MapGrid(-1.5, -1.5, 0.03, 100, 100)
+    x, y = grid.centers()
+    z = np.where(y > 0, 0.0, np.maximum(-0.8, math.tan(math.radians(80.0)) * y))  # a 0.8 m drop at y = 0
+    seen = z.copy()
+    seen[y > 0.2] = np.nan  # the plateau more than 0.2 m behind the lip unseen
+    cfg = ClimberConfig()
+    strip = (y > 0.0) & (y <= 0.2)
+    assert not ground_layers(seen, grid, cfg).rock[strip].any()
+    from fsw.core.codec.hazard import relief
+    old = np.nan_to_num(relief(seen, grid.cell, cfg.rock_disc_m), nan=0.0)  # discs on known centres only
+    assert (old[strip] >= 0.5).any()  # what the strip read as: rocks of the drop's height
+    bump = np.hypot(x - 0.3, y - 0.1) < 0.08
+    whole = z.copy()
+    whole[bump] += 0.6  # a boulder on the strip (near the lip the rock test reads it across the steep footprint)
+    rock = np.where(np.isfinite(seen), whole, np.nan)
+    full_rock = ground_layers(whole, grid, cfg).rock
+    assert full_rock[bump].any()
+    assert np.array_equal(ground_layers(rock, grid, cfg).rock[bump], full_rock[bump])
+    assert np.array_equal(np.nan_to_num(relief(whole, grid.cell, cfg.rock_disc_m, unknown_centres=True)),
+                          np.nan_to_num(relief(whole, grid.cell, cfg.rock_disc_m)))
