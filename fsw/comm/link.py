@@ -64,6 +64,9 @@ class LinkConfig:
     max_bitmap_bytes: int = param(64, lo=1, hi=255, units="B",
                                   doc="selective-ack window in a STATUS (8 segments per byte)")
     max_restarts: int = param(3, lo=0, hi=100, doc="sender: resends after a hash mismatch")
+    misfit_limit: int = param(8, lo=1, hi=65535,
+                              doc="receiver: this many DATA in a row that do not fit the session held "
+                              "(a forged OFFER) drop it; NO_SESSION makes the sender offer again")
 
     def __post_init__(self) -> None:
         if self.max_backoff_s < self.offer_retry_s:

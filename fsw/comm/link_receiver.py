@@ -29,6 +29,13 @@ States: ``IDLE -> RECEIVING -> COMPLETE -> IDLE``.
   session after ``give_up_s``) is answered with NO_SESSION, at most once per
   ``min_status_interval_s`` per session (event UNKNOWN_SESSION once per session), so the
   sender offers again instead of pinging into the void.
+* A session whose data cannot be the map it holds is dropped the same way (event
+  SESSION_DROPPED): ``misfit_limit`` DATA of it in a row that do not fit it (segment out of
+  range, wrong length), or a second hash mismatch in it. Both mean the parameters it holds are
+  not the sender's (a forged OFFER that passed CRC-32: another size, segment size or
+  SHA-256); the NO_SESSION that answers makes the sender offer again under a new session, and
+  that OFFER's parameters are taken afresh. The first hash mismatch still gets
+  FIN(HASH_MISMATCH) (a corrupted DATA is the likelier cause).
 
 Memory: one buffer of the offered size (at most ``max_map_bytes``) and one byte per segment.
 """
@@ -83,6 +90,8 @@ class LinkReceiver:
         self._verified: deque[tuple[int, int, bytes]] = deque(maxlen=4)
         self._unknown: dict[int, float] = {}  # session -> last NO_SESSION answer (bounded)
         self._start_s = 0.0
+        self._misfits = 0  # DATA in a row that did not fit the session held
+        self._mismatches = 0  # hash mismatches in the session held
 
     # -- public API ------------------------------------------------------------------------
     def take_map(self) -> tuple[int, bytes] | None:
@@ -109,6 +118,7 @@ class LinkReceiver:
                 or pkt.session != self._offer.session:
             if isinstance(pkt, (lp.Data, lp.Ping)):
                 if not self._answer_verified(pkt.session):
+                    self.stats.foreign_packets += 1
                     self._answer_unknown(pkt.session, now_s)
             else:
                 self.stats.foreign_packets += 1
@@ -205,6 +215,7 @@ class LinkReceiver:
         self._n_rx = self._cum = self._highest = 0
         self._echo = None
         self._all_sent = False
+        self._misfits = self._mismatches = 0
         self._start_s = now_s
         self.state = ReceiverState.RECEIVING
         self.events.emit(now_s, "OFFER_ACCEPTED", map_id=offer.map_id, size=offer.size)
@@ -218,7 +229,11 @@ class LinkReceiver:
         want = seg if d.seq < n - 1 else offer.size - seg * (n - 1)
         if d.seq >= n or len(d.payload) != want:
             self.stats.foreign_packets += 1
+            self._misfits += 1
+            if self._misfits >= self.cfg.misfit_limit:
+                self._drop(now_s, f"{self._misfits} DATA in a row do not fit the offer")
             return
+        self._misfits = 0
         self._echo = d.serial
         if self._have[d.seq]:
             self.stats.duplicates += 1
@@ -246,10 +261,14 @@ class LinkReceiver:
             self.events.emit(now_s, "MAP_VERIFIED", map_id=offer.map_id, size=offer.size,
                              seconds=round(now_s - self._start_s, 3))
         else:
+            self.events.emit(now_s, "HASH_MISMATCH", map_id=offer.map_id)
+            self._mismatches += 1
+            if self._mismatches >= 2:  # its SHA-256 is not the sender's (a forged OFFER)
+                self._drop(now_s, "a second hash mismatch")
+                return
             self._fin = lp.Fin(offer.session, offer.map_id, lp.FinStatus.HASH_MISMATCH)
             self._have = bytearray(offer.n_segments)
             self._n_rx = self._cum = self._highest = 0
-            self.events.emit(now_s, "HASH_MISMATCH", map_id=offer.map_id)
         self._buf = bytearray(offer.size) if self.state is ReceiverState.RECEIVING else bytearray()
         self._fin_until_s = now_s + self.cfg.fin_linger_s
         self._status_now = True
@@ -262,6 +281,20 @@ class LinkReceiver:
             self._buf, self._have = bytearray(), bytearray()
         if self.state is ReceiverState.COMPLETE and now_s >= self._fin_until_s - _EPS:
             self._close(now_s, "linger")
+
+    def _drop(self, now_s: float, reason: str) -> None:
+        """Drop a session whose data cannot be the map it holds (its OFFER was not the sender's)
+        and answer NO_SESSION, so the sender offers again under a new session."""
+        offer = self._offer
+        assert offer is not None
+        self.events.emit(now_s, "SESSION_DROPPED", map_id=offer.map_id, held=self._n_rx, reason=reason)
+        self.state = ReceiverState.IDLE
+        self._offer = None
+        self._buf, self._have = bytearray(), bytearray()
+        self._n_rx = self._cum = self._highest = 0
+        self._fin = None
+        self._status_now = self._status_due = self._new_data = False
+        self._answer_unknown(offer.session, now_s, report=False)
 
     def _close(self, now_s: float, how: str) -> None:
         """End the linger of a verified map (FIN_ACK came, or ``fin_linger_s`` passed)."""
@@ -279,16 +312,17 @@ class LinkReceiver:
                 return True
         return False
 
-    def _answer_unknown(self, session: int, now_s: float) -> None:
-        """NO_SESSION to a sender whose session this receiver does not hold (rate-limited)."""
-        self.stats.foreign_packets += 1
+    def _answer_unknown(self, session: int, now_s: float, report: bool = True) -> None:
+        """NO_SESSION to a sender whose session this receiver does not hold (rate-limited);
+        ``report``: event UNKNOWN_SESSION the first time (a dropped session has its own)."""
         last = self._unknown.get(session)
         if last is not None and now_s - last < self.cfg.min_status_interval_s - _EPS:
             return
         if last is None:
             if len(self._unknown) >= 16:
                 self._unknown.pop(next(iter(self._unknown)))
-            self.events.emit(now_s, "UNKNOWN_SESSION", session=session)
+            if report:
+                self.events.emit(now_s, "UNKNOWN_SESSION", session=session)
         self._unknown[session] = now_s
         self.stats.no_session += 1
         self._replies.append(lp.encode(lp.NoSession(session)))

@@ -15,7 +15,8 @@ OFFERING`` again when the receiver has lost the session (a restart).
   carries a copy of an unacknowledged segment (round robin, oldest first), so the link
   never idles while the tail's fate is unknown: retransmission is driven by the gaps the
   STATUS reports and by otherwise idle air time, never by a per-segment timer.
-* Restart of the receiver: its NO_SESSION answer to DATA or PING makes the sender offer
+* Restart of the receiver (or a session it dropped, its data not fitting the parameters
+  it held: a forged OFFER): its NO_SESSION answer to DATA or PING makes the sender offer
   again at once under a new session (progress cleared: the receiver's ACCEPT or STATUS says
   what it holds; event REOFFERED); after ``reoffer_s`` of silence, an OFFER of the same
   session takes the place of a PING every ``reoffer_s`` (an ACCEPT to it = the receiver
