@@ -19,7 +19,9 @@ def _summary(reached: int, reasons: list[str], fixes: list[tuple[float, float, f
         "final_state": "DONE" if reached else "SAFE", "safe_reason": "" if reached else "leg 1: start: hazard",
         "link_bytes_down": 3000, "link_bytes_up": 200, "map_reasons": reasons,
         "fix_ranges_m": [f[0] for f in fixes], "fix_errors_cm": [f[1] for f in fixes],
-        "fix_errors_deg": [f[2] for f in fixes], "fix_nees": [f[3] for f in fixes]}}
+        "fix_errors_deg": [f[2] for f in fixes], "fix_nees": [f[3] for f in fixes],
+        "events": [[900.0, "HOME", "back at the start"], [900.0, "DONE", "all legs driven"]] if reached else
+        [[900.0, "TARGET_UNREACHABLE", "leg 4: no safe path"]]}}
 
 
 def test_the_report_counts_starts_targets_and_fixes_by_range(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
@@ -38,6 +40,8 @@ def test_the_report_counts_starts_targets_and_fixes_by_range(tmp_path: Path, mon
     assert rows[1].startswith("0,1,3,2,2,") and rows[2].startswith("1,0,3,2,0,")  # seed, start usable, targets...
     md = (tmp_path / "results" / "team-mission.md").read_text()
     assert "the start usable on the delivered map in 1" in md and "targets reached 2 (of the 4" in md
+    assert "the Cliff-bot back at its start at the end in 1;" in md
+    assert "| DONE, at its start |" in md and "SAFE (leg 1: start: hazard), away from its start" in md
     assert "| 0-3 | 1 | 0.40 / 0.40 |" in md and "| 4-5 | 1 | 1.00 / 1.00 | 0.30 / 0.30 | 0 % |" in md
     assert "img/team-mission_team.png" in md  # the picture of the scene that reached the most
     assert "NEES within the chi2 95 % bound: 50 %" in capsys.readouterr().out

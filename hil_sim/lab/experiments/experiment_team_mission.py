@@ -6,12 +6,12 @@ the RECON-bot, method 5; both flight programs on one stepped clock; docs/team.md
 team mission"), each in ``OUT/seed<S>`` with its ``summary.json`` and ``team.png``. Per scene
 the summary's ``team`` section: whether the delivered map let the Cliff-bot leave its start,
 targets reachable on the truth and reached, tether violations, hazard and unknown cells
-entered, the cells each agent's own views made known (``cells_by_agent``), the end state and
-reason, the bytes each way, and the RECON-bot's own safety and map figures (frames with a wheel
-over the drop, frames it moved with a wheel on ground its geofence did not know, map RMSE, and
-its mapped cells within 1 m past the lip with how many lie more than 20 cm above the truth:
-docs/perception.md "Occluding lips"). Any
-edge violation is a failure: the command says so on one line and exits 1. Over all scenes the RECON-bot's fixes
+entered, the cells each agent's own views made known (``cells_by_agent``), whether it ended
+back at its start (its ``HOME`` event), the end state and reason, the bytes each way, and the
+RECON-bot's own safety and map figures (frames with a wheel over the drop, frames it moved with
+a wheel on ground its geofence did not know, map RMSE, and its mapped cells within 1 m past the
+lip with how many lie more than 20 cm above the truth: docs/perception.md "Occluding lips").
+Any edge violation is a failure: the command says so on one line and exits 1. Over all scenes the RECON-bot's fixes
 (each FIX against the Cliff-bot's true pose at that instant) by range band: median and worst
 position and heading error, and the fraction whose NEES lies within the chi-square 95 % bound
 (6 dof), and the RECON-bot's own heading error at each (what a fix from its estimate alone would
@@ -47,6 +47,7 @@ COLUMNS = (
     "cliffbot_cells",
     "final_state",
     "safe_reason",
+    "back_home",
     "bytes_down",
     "bytes_up",
     "map_reasons",
@@ -147,6 +148,7 @@ def scene_row(s: dict[str, Any], seed: int) -> dict[str, Any]:
         "cliffbot_cells": (t.get("cells_by_agent") or {}).get("cliffbot", 0),
         "final_state": t.get("final_state", "-"),
         "safe_reason": t.get("safe_reason", ""),
+        "back_home": int(any(len(e) > 1 and e[1] == "HOME" for e in t.get("events", []))),
         "bytes_down": t.get("link_bytes_down", 0),
         "bytes_up": t.get("link_bytes_up", 0),
         "map_reasons": "; ".join(target_text(t, k) for k in range(len(reasons))),
@@ -217,6 +219,7 @@ def run(args: argparse.Namespace) -> int:
             print(
                 f"[{len(got)}/{len(seeds)}] seed {r['seed']}: start {'usable' if r['start_usable'] else 'NOT usable'}, "
                 f"reached {r['reached']} of {r['truth_reachable']} the truth reaches, {r['final_state']} "
+                f"{'at its start' if r['back_home'] else 'AWAY from its start'} "
                 f"{r['safe_reason']}; RECON-bot edge violations {r['recon_edge_violations']}, "
                 f"wheels on unknown ground {r['recon_unknown_ground']}, map RMSE {r['recon_map_rmse_cm']:.2f} cm, "
                 f"cells past the lip {r['recon_past_lip_cells']} ({r['recon_past_lip_off']} > 20 cm above the truth)",
@@ -239,7 +242,8 @@ def run(args: argparse.Namespace) -> int:
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        end = r["final_state"] + (f" ({r['safe_reason']})" if r["safe_reason"] else "")
+        end = (r["final_state"] + (f" ({r['safe_reason']})" if r["safe_reason"] else "")
+               + (", at its start" if r["back_home"] else ", away from its start"))
         lines.append(
             f"| {r['seed']} | {'yes' if r['start_usable'] else 'no'} | {r['targets']} | {r['truth_reachable']} | "
             f"{r['reached']} | {r['tether_violations']} | {r['hazard_cells']} | {r['unknown_cells']} | "
@@ -254,7 +258,8 @@ def run(args: argparse.Namespace) -> int:
     done = sum(min(r["reached"], r["truth_reachable"]) for r in rows)
     summary = (
         f"{len(rows)} scenes, {args.steps} imaging steps each: the start usable on the delivered map in "
-        f"{sum(r['start_usable'] for r in rows)}; targets reached {sum(r['reached'] for r in rows)} "
+        f"{sum(r['start_usable'] for r in rows)}, the Cliff-bot back at its start at the end in "
+        f"{sum(r['back_home'] for r in rows)}; targets reached {sum(r['reached'] for r in rows)} "
         f"(of the {reach} the truth reaches: {done}); tether violations {sum(r['tether_violations'] for r in rows)}, "
         f"hazard cells entered {sum(r['hazard_cells'] for r in rows)}, unknown cells entered "
         f"{sum(r['unknown_cells'] for r in rows)}; looks taken to approach targets on unknown ground "
