@@ -9,7 +9,7 @@ its variance, §1.2). Where only one knows a cell, that one's height stands. Whe
   on the ground the Cliff-bot works on) plus the codec's ``bound**2 / 3`` (a height within
   ``±bound`` of the RECON-bot's, uniform);
 * when the two agree within ``gate_sigma`` standard deviations of their difference, the cell
-  takes their inverse-variance mean (§1.1, the same rule a view's height meets in the map);
+  takes their inverse-variance mean (§1.3, the same rule a view's height meets in the map);
 * when they disagree, one of them is wrong by more than its noise (a lip's mixed pixels put
   the face's heights on the ground behind the lip, seen from the top; a view across a step
   smears it) and the mean would carry that error on: the height with the smaller variance
