@@ -168,12 +168,6 @@ class CliffbotSensingConfig:
     capture_timeout_s: float = param(2.0, lo=0.1, hi=60.0, units="s", doc="no pair this long: that view is skipped")
     sense_timeout_s: float = param(300.0, lo=1.0, hi=3600.0, units="s",
                                    doc="the mission plans without its views after waiting this long")
-    received_sigma_m: float = param(0.05, lo=0.0, hi=10.0, units="m",
-                                    doc="the received map's height error, sigma, where its own views know a cell "
-                                        "too (fsw.core.map.agent_heights)")
-    agree_sigma: float = param(3.0, lo=0.5, hi=100.0, units="sigma",
-                               doc="two agents' heights of a cell agree within this many sigma of their "
-                                   "difference: their inverse-variance mean; else the one with the smaller variance")
 
     def __post_init__(self) -> None:
         if not self.pan_deg:

@@ -110,9 +110,8 @@ class SenseRequest:
 @dataclass(frozen=True)
 class SensedMap:
     """The map the mission plans on when the Cliff-bot senses: the received map (``map_id``,
-    its codec bound) and its own views' heights (``fsw.core.map.agent_heights``: the unknown
-    cells they made known, ``own_cells`` of them, and the cells both know); ``sense_seq``: the
-    last request whose views are all in it (0: none)."""
+    its codec bound) with the unknown cells its own views made known (``own_cells`` of them);
+    ``sense_seq``: the last request whose views are all in it (0: none)."""
 
     map_id: int
     z: NDArray[np.float64]

@@ -17,13 +17,10 @@ plane, the Anchorbots' ground points): the ground round them, which the tethers 
 in the views.
 
 The map the mission plans on (:class:`~fsw.tasks.cliffbot.messages.SensedMap`, published when
-a map arrives over the link and when a request's views are all in): the received map (the
-RECON-bot's, within the codec's bound) and the Cliff-bot's own, each cell's height chosen by
-:func:`fsw.core.map.agent_heights.plan_heights` (its own where the received map does not know
-the cell; where both do, their inverse-variance mean when they agree, else the one with the
-smaller variance: ``[cliffbot_sensing] received_sigma_m``, ``agree_sigma``), and under each
-Anchorbot (its footprint round its surveyed ground point, which no camera sees) that ground
-point's height: known by contact. A request without a
+a map arrives over the link and when a request's views are all in): the received map as it
+came (the RECON-bot's, within the codec's bound), and, on the cells it does not know, the
+Cliff-bot's own map, and under each Anchorbot (its footprint round its surveyed ground point,
+which no camera sees) that ground point's height: known by contact. A request without a
 camera, or whose captures all fail, is answered with the map as it stands (events say why):
 the mission never waits on a broken camera.
 """
@@ -41,7 +38,6 @@ from numpy.typing import NDArray
 from fsw.comm.team.team_can import WINCHES
 from fsw.core.edge.edge import EdgeConfig
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid, MapGridConfig
-from fsw.core.map.agent_heights import plan_heights
 from fsw.core.map.body_mask import BodyBox, MaskConfig, TeamGeometry, TetherLine, anchorbot_box
 from fsw.core.map.elevation_map import FusionConfig
 from fsw.core.pipeline import MergedView, SensingPipeline
@@ -150,8 +146,6 @@ class CliffbotSensingTask(FlightTask):
     CHANNELS = (
         Channel("views", "count", doc="views merged into its own map"),
         Channel("own_cells", "cells", doc="cells of its own map the received map does not know"),
-        Channel("own_over_received", "cells",
-                doc="cells both maps know, disagreeing, where its own height stands (fsw.core.map.agent_heights)"),
         Channel("last_points", "points"),
         Channel("last_new_cells", "cells"),
         Channel("pending", "count", doc="captures left of the request under way"),
@@ -209,18 +203,16 @@ class CliffbotSensingTask(FlightTask):
     def _publish(self) -> None:
         if self.received is None:
             return
+        z = np.asarray(self.received.z, np.float64).copy()
         own = self.own_map()
-        m = self.pipe.map
-        got = plan_heights(self.received.z, self.received.error_bound_m, own,
-                           np.where(m.mapped, m.var, np.nan).astype(np.float64), self.sc.received_sigma_m,
-                           self.sc.agree_sigma)
-        z, n = got.z, got.filled
+        fill = ~np.isfinite(z) & np.isfinite(own)
+        z[fill] = own[fill]
+        n = int(fill.sum())
         X, Y = self.grid.centers()
         for a in self.anchor_ground:  # the ground under each Anchorbot, known by contact
             foot = (np.abs(X - a[0]) <= ANCHOR_FOOT_M) & (np.abs(Y - a[1]) <= ANCHOR_FOOT_M) & ~np.isfinite(z)
             z[foot] = a[2]
         self.tlm("own_cells", n)
-        self.tlm("own_over_received", got.own_won)
         self.publish(CB_SENSED_MAP, SensedMap(self.received.map_id, z, self.received.error_bound_m, self.answered, n,
                                               own))
 
