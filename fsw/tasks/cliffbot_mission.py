@@ -17,7 +17,8 @@ reported with its reason, event ``TARGET_UNREACHABLE``, and never attempted) ->
 path, waypoint by waypoint: each waypoint's tether lengths on the map are the winches'
 set-points, both tethers paced to arrive together; re-planned from the estimate when a
 fix or a newer map arrives) -> ``DWELL`` (at the target) -> the next leg; after the last
-target, the leg home (the start) -> ``DONE``.
+target, the leg home (the start) -> ``DONE``. A leg home with no way home on the map retraces
+the way it came by the tether lengths it held (:meth:`CliffbotMission._retrace`, event ``RETRACE``).
 
 ``SENSE`` (with ``[cliffbot_sensing] enabled``; docs/team.md, "Both agents sense"): before its
 first plan (after a first fix: before it the start's heading is known to 10 deg, and the sensing
@@ -161,6 +162,11 @@ class CliffbotMission:
         self.dwell_until = 0.0
         self.clear_frames = 0
         self.now = 0.0
+        # the way it came since it left its start: (tether lengths, estimate) where each driven
+        # stretch began and at each waypoint it reached; the leg home retraces it when its map
+        # shows no way home (:meth:`_retrace`)
+        self.trail: list[tuple[float, float, float, float]] = []
+        self.trail_from_here = False  # the next drive step notes where it begins
 
     # -- inputs -----------------------------------------------------------------------------
     def event(self, name: str, text: str) -> None:
@@ -443,6 +449,8 @@ class CliffbotMission:
         plan, wps = self.route().plan(self.est.xy, leg.goal)
         if plan.paths[0] is None:
             why = plan.reasons[0]
+            if leg.target is None and self._retrace(leg, why):
+                return
             if plan.start_reason:
                 self._safe(f"leg {self.leg_i + 1}: {why}")
                 return
@@ -486,9 +494,41 @@ class CliffbotMission:
 
     def _drive_on(self, leg: Leg, wps: list[F64], length_m: float) -> None:
         leg.waypoints, leg.length_m = wps, length_m
+        leg.lengths = None
         self.wp_i = 0
         self.replan = False
         self.state = "DRIVE"
+        self.trail_from_here = True
+
+    def _retrace(self, leg: Leg, why: str) -> bool:
+        """The leg home finds no way home on its map (``why``): back the way it came, by the
+        tether lengths it held (:attr:`trail`, last first). Each stretch it drove moved both
+        lengths straight from one set-point to the next and the body rested where the statics put
+        it; the same lengths in reverse put it back through the places it passed (quasi-static
+        equilibrium depends on the lengths, not on the way there), on ground it stood on, its
+        tethers over the contacts they had, whatever its map has come to show since (a view near
+        the lip can put false rocks on the way it came up). False with no trail (it is at its
+        start, or never left it)."""
+        back = [t for t in reversed(self.trail)]
+        if not back:
+            return False
+        leg.waypoints = [np.array([t[2], t[3]]) for t in back]
+        leg.lengths = [(t[0], t[1]) for t in back]
+        leg.length_m = 0.0
+        self.wp_i = 0
+        self.replan = False
+        self.state = "DRIVE"
+        self.event("RETRACE", f"leg {self.leg_i + 1} (home): {why} on its map: back the way it came, "
+                              f"{len(back)} set-points of its tethers' lengths")
+        return True
+
+    def _note_trail(self, a: float, b: float) -> None:
+        """Where a driven stretch begins or a waypoint was reached: its lengths and the estimate
+        (a repeat of the last, within the winches' tolerance, is not noted again)."""
+        if self.trail and max(abs(self.trail[-1][0] - a), abs(self.trail[-1][1] - b)) <= self.cfg.length_tol_m:
+            return
+        xy = self.est.xy
+        self.trail.append((float(a), float(b), float(xy[0]), float(xy[1])))
 
     def _view_sigma(self) -> float:
         """The pose error a point ``VIEW_RANGE_M`` away carries from the estimate (its place and
@@ -597,6 +637,7 @@ class CliffbotMission:
             self.dwell_until = self.now + self.cfg.dwell_s
         else:
             self.event("HOME", "back at the start")
+            self.trail.clear()
             self._next_leg()
 
     def _next_leg(self) -> None:
@@ -620,6 +661,11 @@ class CliffbotMission:
         a, b = dev.winch.get(WINCHES[0]), dev.winch.get(WINCHES[1])
         if a is None or b is None:
             return self._hold()
+        if leg.lengths is not None:
+            return self._drive_back(leg, a.paid_out_m, b.paid_out_m)
+        if self.trail_from_here:
+            self.trail_from_here = False
+            self._note_trail(a.paid_out_m, b.paid_out_m)
         while True:
             wp = leg.waypoints[self.wp_i]
             st = tether_state(self.z, self.grid, self.anchors, wp, self.tcfg, self.ccfg.footprint_m)
@@ -651,9 +697,28 @@ class CliffbotMission:
                     self.elsewhere_left = min(self.elsewhere_left, leg.length_m)
                 return self._hold()
             self.wp_i += 1
+            self._note_trail(a.paid_out_m, b.paid_out_m)
             if self.wp_i >= len(leg.waypoints):
                 self._arrived(leg)
                 return self._hold()
+        return self._winch_rates(err)
+
+    def _drive_back(self, leg: Leg, la: float, lb: float) -> Commands:
+        """A retrace (:meth:`_retrace`): the winches to each set-point in turn; each one reached
+        leaves the trail (a restart goes back from where it is)."""
+        assert leg.lengths is not None
+        while True:
+            err = np.asarray(leg.lengths[self.wp_i]) - np.array([la, lb])
+            if float(np.max(np.abs(err))) > self.cfg.length_tol_m:
+                return self._winch_rates(err)
+            if self.trail:
+                self.trail.pop()
+            self.wp_i += 1
+            if self.wp_i >= len(leg.lengths):
+                self._arrived(leg)
+                return self._hold()
+
+    def _winch_rates(self, err: F64) -> Commands:
         rates = self.cfg.gain_per_s * err
         peak = float(np.max(np.abs(rates)))
         if peak > self.cfg.max_rate_mps:

@@ -2,7 +2,7 @@
 
 Two files in ``[checkpoint] directory``: ``cliffbot_state.json`` (schema 1: the mission's
 state, legs, targets with what became of them, the estimate and its covariance, the ground it
-stood on) and
+stood on, the way it came since it left its start) and
 ``cliffbot_map.npy`` (the received map, heights in the team's frame). Each is written to a
 temporary name and renamed over the old one, the map first, so a crash leaves the previous
 pair or the new one. The radio task keeps a third, ``cliffbot_sync.json``: its map sync end's
@@ -51,6 +51,8 @@ def snapshot(m: CliffbotMission, now: float) -> dict[str, object]:
         # the ground it stood on (fsw.core.team.contact_ground.StoodGround): flat indices, heights,
         # and which of them it knew by contact
         "stood": [] if m.stood is None else _stood(m.stood),
+        # the way it came since it left its start (CliffbotMission.trail): lengths and estimate
+        "trail": [list(t) for t in m.trail],
     }
 
 
@@ -98,6 +100,7 @@ def restore(m: CliffbotMission, st: dict[str, object], z: NDArray[np.float64] | 
         m.carried = np.zeros(grid.shape, bool)
         m.carried.flat[flat] = True
         m.stood = _restore_stood(st.get("stood", []), grid)
+    m.trail = _restore_trail(st.get("trail", []))
     m.targets, m.reached, m.reasons, m.legs, m.leg_i = targets, reached, reasons, legs, leg_i
     m.planned_lengths = [math.inf for _ in range(len(targets))]
     m.looks = [0 for _ in range(len(targets))]
@@ -111,6 +114,17 @@ def restore(m: CliffbotMission, st: dict[str, object], z: NDArray[np.float64] | 
     m.state = state
     m.safe_reason = str(st.get("safe_reason", "")) if state == "SAFE" else ""
     return f"leg {leg_i + 1} of {len(legs)}, {sum(reached)} of {len(targets)} targets reached"
+
+
+def _restore_trail(v: object) -> list[tuple[float, float, float, float]]:
+    """The way it came, from its checkpoint form (``[length a, length b, x, y]`` per entry)."""
+    try:
+        rows = np.asarray(v, np.float64).reshape(-1, 4)
+    except (TypeError, ValueError) as exc:
+        raise CheckpointError(f"{STATE}: trail: {type(exc).__name__}: {exc}") from None
+    if not np.isfinite(rows).all() or (rows[:, :2] < 0.0).any():
+        raise CheckpointError(f"{STATE}: trail: non-finite values or a negative length")
+    return [(float(r[0]), float(r[1]), float(r[2]), float(r[3])) for r in rows]
 
 
 def _restore_stood(v: object, grid: MapGrid) -> StoodGround:

@@ -47,6 +47,9 @@ class Leg:
     looks: int = 0  # looks taken for this target (approach)
     idle: int = 0  # of those, looks since the approach last got nearer the target (its budget)
     nearest_m: float = math.inf  # the nearest an approach node has come to the target
+    # a leg home that retraces the way it came: the winches' set-points, one per waypoint, in the
+    # order driven (the lengths it held on the way out, last first); None: set-points from the map
+    lengths: list[tuple[float, float]] | None = None
 
 
 class Route:
