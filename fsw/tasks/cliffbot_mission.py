@@ -509,7 +509,7 @@ class CliffbotMission:
         tethers over the contacts they had, whatever its map has come to show since (a view near
         the lip can put false rocks on the way it came up). False with no trail (it is at its
         start, or never left it)."""
-        back = [t for t in reversed(self.trail)]
+        back = list(reversed(self.trail))
         if not back:
             return False
         leg.waypoints = [np.array([t[2], t[3]]) for t in back]
