@@ -79,6 +79,18 @@ class CliffbotRadioTask(FlightTask):
         EventDef("SYNC", Severity.ACTIVITY_LO, "map sync: {what} {detail}", throttle=5),
         EventDef("SYNC_MAP", Severity.ACTIVITY_HI, "map {map_id}: {tiles} newer tiles of the RECON-bot's in it"),
         EventDef("SYNC_STATE", Severity.WARNING_LO, "map sync state: {text}"),
+        # the map link's receiver (fsw.comm.link_receiver; docs/link.md)
+        EventDef("OFFER_ACCEPTED", Severity.ACTIVITY_LO, "map {map_id}: offer of {size} B accepted"),
+        EventDef("OFFER_REJECTED", Severity.WARNING_HI, "map {map_id}: offer of {size} B refused (over max_map_bytes)"),
+        EventDef("RESUMED", Severity.ACTIVITY_LO, "map {map_id}: transfer resumed with {held} segments held"),
+        EventDef("MAP_VERIFIED", Severity.ACTIVITY_LO, "map {map_id}: {size} B verified (SHA-256) in {seconds} s"),
+        EventDef("HASH_MISMATCH", Severity.WARNING_LO, "map {map_id}: SHA-256 mismatch, its segments discarded"),
+        EventDef("SESSION_TIMEOUT", Severity.WARNING_LO, "map transfer given up: {held} of {of} segments held"),
+        EventDef("SESSION_DROPPED", Severity.WARNING_HI,
+                 "map {map_id}: session dropped ({reason}; {held} segments held): its offer was not the sender's"),
+        EventDef("CLOSED", Severity.ACTIVITY_LO, "map {map_id}: session closed ({how})"),
+        EventDef("UNKNOWN_SESSION", Severity.WARNING_LO, "map link: session {session} unknown, NO_SESSION sent",
+                 throttle=5),
     )
 
     def setup(self) -> None:
@@ -201,6 +213,8 @@ class CliffbotRadioTask(FlightTask):
                 self.rx.receive(d, now)
         for pkt in self.rx.poll(now):
             self._send(pkt, now)
+        for ev in self.rx.events.pop_all():
+            self.event(ev.name, **ev.args)
         got = self.rx.take_map()
         while got is not None:
             self._map(*got)
