@@ -1,7 +1,8 @@
 """Sending end of the map link (RECON-bot), sans-I/O (docs/algorithm.md §6.6; docs/link.md).
 
 States: ``IDLE -> OFFERING -> SENDING -> DONE``, or ``REJECTED`` / ``FAILED``; ``SENDING ->
-OFFERING`` again when the receiver has lost the session (a restart).
+OFFERING`` again when the receiver has lost the session (a restart), or when a REJECT comes
+while no OFFER of this sender is out (the receiver refused a forged one).
 
 * OFFERING: OFFER (map id, size, segment size, SHA-256) repeated with exponential backoff
   until ACCEPT (or a STATUS, if the ACCEPT was lost) or REJECT.
@@ -173,8 +174,13 @@ class LinkSender:
                 self.events.emit(now_s, "ACCEPTED", map_id=self._map_id)
             self._on_accept(now_s)
         elif isinstance(pkt, lp.Reject) and pkt.map_id == self._map_id:
-            self.state = SenderState.REJECTED
-            self.events.emit(now_s, "REJECTED", map_id=self._map_id, reason=pkt.reason.name)
+            if self.state is SenderState.SENDING and not self._probing:
+                # no OFFER of ours is out (it was accepted; no probe since): the receiver refused an
+                # OFFER this sender did not send (a forgery past CRC-32) and may hold nothing now
+                self._reoffer(now_s, "a REJECT of an OFFER this sender did not send")
+            else:
+                self.state = SenderState.REJECTED
+                self.events.emit(now_s, "REJECTED", map_id=self._map_id, reason=pkt.reason.name)
         elif isinstance(pkt, lp.Status):
             if self.state is SenderState.OFFERING:
                 self._on_accept(now_s)

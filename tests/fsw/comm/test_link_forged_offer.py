@@ -121,6 +121,41 @@ def test_a_forged_offer_mid_transfer_does_not_stall_the_transfer():
     assert "SESSION_DROPPED" in _names(rx)
 
 
+def test_a_forged_offer_too_large_mid_transfer_does_not_end_the_transfer_rejected():
+    """A forged OFFER of the running session above ``max_map_bytes`` is refused by the receiver;
+    its REJECT reaches a sender that has no OFFER out (its own was accepted): it offers again
+    instead of ending REJECTED, and the map arrives bit-exact."""
+    sent: list[float] = []
+
+    def tamper(d: bytes, t: float) -> list[bytes]:
+        if lp.packet_type(d) is lp.Ptype.DATA:
+            sent.append(t)
+            if len(sent) == N_SEG // 2:
+                offer = lp.encode(lp.Offer(5, 3, len(DATA), CFG.segment_bytes, hashlib.sha256(DATA).digest()))
+                return [_forge(offer, size=CFG.max_map_bytes + 1), d]
+        return [d]
+
+    tx, rx, t, got = _run(tamper, t_max_s=120.0)
+    assert got == DATA and tx.state is SenderState.DONE
+    assert t <= 3.5 * PASS_S
+    assert "OFFER_REJECTED" in _names(rx) and "REOFFERED" in _names(tx)
+
+
+def test_a_reject_of_its_own_offer_still_ends_the_transfer_rejected():
+    """A map over the receiver's ``max_map_bytes``: the REJECT answers the sender's own OFFER."""
+    small = LinkConfig(max_map_bytes=N_SEG * CFG.segment_bytes // 2)
+    tx, rx = LinkSender(CFG, session=5), LinkReceiver(small)
+    tx.start(3, DATA, 0.0)
+    t = 0.0
+    while t < 10.0 and not tx.finished:
+        for d in tx.poll(t):
+            rx.receive(d, t)
+        for d in rx.poll(t):
+            tx.receive(d, t)
+        t += STEP_S
+    assert tx.state is SenderState.REJECTED and "REOFFERED" not in _names(tx)
+
+
 def test_a_forged_offer_with_a_wrong_sha256_does_not_fail_the_transfer():
     """A forged SHA-256 fits every DATA: each pass ends in a hash mismatch. The first is the
     usual resend (FIN(HASH_MISMATCH)); the second in the same session drops it, and the new
