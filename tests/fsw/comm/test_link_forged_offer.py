@@ -102,9 +102,9 @@ def test_a_forged_offer_accepted_first_does_not_stall_the_transfer(change):
     assert tx_names.count("REOFFERED") == 1 and tx.session == 6
 
 
-def test_a_forged_offer_mid_transfer_does_not_stall_the_transfer():
-    """A forged OFFER of the running session with another segment size resets the receiver to
-    it half-way through; the transfer recovers by itself and the map arrives bit-exact."""
+def _mid_transfer(**change: object) -> Callable[[bytes, float], list[bytes]]:
+    """A tamper that slips a forged OFFER of the running session (its fields ``change``d) in
+    before the DATA half-way through the first pass."""
     sent: list[float] = []
 
     def tamper(d: bytes, t: float) -> list[bytes]:
@@ -112,10 +112,15 @@ def test_a_forged_offer_mid_transfer_does_not_stall_the_transfer():
             sent.append(t)
             if len(sent) == N_SEG // 2:
                 offer = lp.encode(lp.Offer(5, 3, len(DATA), CFG.segment_bytes, hashlib.sha256(DATA).digest()))
-                return [_forge(offer, segment_bytes=CFG.segment_bytes + 8), d]
+                return [_forge(offer, **change), d]
         return [d]
+    return tamper
 
-    tx, rx, t, got = _run(tamper, t_max_s=120.0)
+
+def test_a_forged_offer_mid_transfer_does_not_stall_the_transfer():
+    """A forged OFFER of the running session with another segment size resets the receiver to
+    it half-way through; the transfer recovers by itself and the map arrives bit-exact."""
+    tx, rx, t, got = _run(_mid_transfer(segment_bytes=CFG.segment_bytes + 8), t_max_s=120.0)
     assert got == DATA and tx.state is SenderState.DONE
     assert t <= 3.5 * PASS_S
     assert "SESSION_DROPPED" in _names(rx)
@@ -125,17 +130,7 @@ def test_a_forged_offer_too_large_mid_transfer_does_not_end_the_transfer_rejecte
     """A forged OFFER of the running session above ``max_map_bytes`` is refused by the receiver;
     its REJECT reaches a sender that has no OFFER out (its own was accepted): it offers again
     instead of ending REJECTED, and the map arrives bit-exact."""
-    sent: list[float] = []
-
-    def tamper(d: bytes, t: float) -> list[bytes]:
-        if lp.packet_type(d) is lp.Ptype.DATA:
-            sent.append(t)
-            if len(sent) == N_SEG // 2:
-                offer = lp.encode(lp.Offer(5, 3, len(DATA), CFG.segment_bytes, hashlib.sha256(DATA).digest()))
-                return [_forge(offer, size=CFG.max_map_bytes + 1), d]
-        return [d]
-
-    tx, rx, t, got = _run(tamper, t_max_s=120.0)
+    tx, rx, t, got = _run(_mid_transfer(size=CFG.max_map_bytes + 1), t_max_s=120.0)
     assert got == DATA and tx.state is SenderState.DONE
     assert t <= 3.5 * PASS_S
     assert "OFFER_REJECTED" in _names(rx) and "REOFFERED" in _names(tx)
