@@ -276,11 +276,15 @@ class LinkReceiver:
     def _check_timeouts(self, now_s: float) -> None:
         if self.state is ReceiverState.RECEIVING and now_s - self._last_rx_s > self.cfg.give_up_s:
             self.events.emit(now_s, "SESSION_TIMEOUT", held=self._n_rx, of=self.progress[1])
-            self.state = ReceiverState.IDLE
-            self._offer = None
-            self._buf, self._have = bytearray(), bytearray()
+            self._forget_session()
         if self.state is ReceiverState.COMPLETE and now_s >= self._fin_until_s - _EPS:
             self._close(now_s, "linger")
+
+    def _forget_session(self) -> None:
+        """Hold no session: its offer and buffers go (a timeout, or a session dropped)."""
+        self.state = ReceiverState.IDLE
+        self._offer = None
+        self._buf, self._have = bytearray(), bytearray()
 
     def _drop(self, now_s: float, reason: str) -> None:
         """Drop a session whose data cannot be the map it holds (its OFFER was not the sender's)
@@ -288,9 +292,7 @@ class LinkReceiver:
         offer = self._offer
         assert offer is not None
         self.events.emit(now_s, "SESSION_DROPPED", map_id=offer.map_id, held=self._n_rx, reason=reason)
-        self.state = ReceiverState.IDLE
-        self._offer = None
-        self._buf, self._have = bytearray(), bytearray()
+        self._forget_session()
         self._n_rx = self._cum = self._highest = 0
         self._fin = None
         self._status_now = self._status_due = self._new_data = False
