@@ -99,6 +99,20 @@ def opening(z: F32, kernel: NDArray[np.uint8], unknown_centres: bool = False) ->
     return np.where(known, o, np.float32(np.nan)).astype(np.float32)
 
 
+def known_gradient_mean(z: F64, cell_m: float, k: int) -> tuple[F64, F64, F64]:
+    """The mean height gradient (``mx``, ``my``, per metre) over a ``k`` x ``k`` window round
+    each cell, of the central differences known cells give (none beside an unknown cell), and
+    the share ``n`` of the window that gave one (the means are 0 where it is 0)."""
+    from scipy import ndimage
+
+    gy, gx = np.gradient(z, cell_m)
+    ok = np.isfinite(gx) & np.isfinite(gy)
+    n = ndimage.uniform_filter(ok.astype(np.float64), k)
+    mx = ndimage.uniform_filter(np.where(ok, gx, 0.0), k) / np.maximum(n, 1e-9)
+    my = ndimage.uniform_filter(np.where(ok, gy, 0.0), k) / np.maximum(n, 1e-9)
+    return mx, my, n
+
+
 def relief(z: NDArray[np.floating], cell_m: float, disc_m: float, unknown_centres: bool = False) -> F32:
     """White top-hat of ``z`` over a disc of ``disc_m`` (>= 0; NaN on unknown cells);
     ``unknown_centres`` as for :func:`opening` (the same on a map that knows every cell)."""

@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.core.codec.hazard import HazardCells, erode, step_offsets
+from fsw.core.codec.hazard import HazardCells, erode, known_gradient_mean, step_offsets
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
@@ -184,16 +184,10 @@ def across_ground(z: Heights, cell_m: float, k: int) -> F64:
     of the central-difference gradients its known cells give (1 where none): what the receiver's
     planner multiplies a relief by to read it across the ground (``fsw.core.team.face_planner``,
     its footprint's slope: a bump on a steep face stands ``relief x cos(slope)`` off it)."""
-    from scipy import ndimage
-
     z64 = np.asarray(z, np.float64)
     if min(z64.shape) < 2:  # no gradient along a single row or column: read as level
         return np.ones(z64.shape)
-    gy, gx = np.gradient(z64, cell_m)
-    ok = np.isfinite(gx) & np.isfinite(gy)
-    n = np.maximum(ndimage.uniform_filter(ok.astype(np.float64), k), 1e-9)
-    mx = ndimage.uniform_filter(np.where(ok, gx, 0.0), k) / n
-    my = ndimage.uniform_filter(np.where(ok, gy, 0.0), k) / n
+    mx, my, _ = known_gradient_mean(z64, cell_m, k)
     return np.asarray(1.0 / np.sqrt(1.0 + mx * mx + my * my), np.float64)
 
 

@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from fsw.core.codec.hazard import relief
+from fsw.core.codec.hazard import known_gradient_mean, relief
 from fsw.core.geometry import MapGrid
 from fsw.core.team.tether import ZMap
 from fsw.framework.params import param
@@ -160,18 +160,6 @@ def _cos_level(grad: NDArray[np.float64]) -> NDArray[np.intp]:
     """cos(slope) of a gradient's norm in quarters, rounded up."""
     cos = 1.0 / np.sqrt(1.0 + grad * grad)
     return np.minimum(np.ceil(cos * FOOT_COS_LEVELS - 1e-9), FOOT_COS_LEVELS).astype(np.intp)
-
-
-def known_gradient_mean(z: F64, cell_m: float, k: int) -> tuple[F64, F64, F64]:
-    """The mean height gradient (``mx``, ``my``, per metre) over a ``k`` x ``k`` window round
-    each cell, of the central differences known cells give (none beside an unknown cell), and
-    the share ``n`` of the window that gave one (the means are 0 where it is 0)."""
-    gy, gx = np.gradient(z, cell_m)
-    ok = np.isfinite(gx) & np.isfinite(gy)
-    n = ndimage.uniform_filter(ok.astype(np.float64), k)
-    mx = ndimage.uniform_filter(np.where(ok, gx, 0.0), k) / np.maximum(n, 1e-9)
-    my = ndimage.uniform_filter(np.where(ok, gy, 0.0), k) / np.maximum(n, 1e-9)
-    return mx, my, n
 
 
 def slope_levels(zs: NDArray[np.float64], cell: float
