@@ -40,7 +40,7 @@ from fsw.tasks.fixer.task import BODY_CENTRE_M, LIFT_M, NO_MARKERS, OUT_OF_REACH
 from hil_sim.faults import FaultInjector, FaultSpec
 from hil_sim.link.radio_channel import RadioChannel
 from hil_sim.team.cliffbot_rig import CliffbotRig
-from hil_sim.team.team_eval import FixError, TeamOutcome, fix_error, judge_team, winch_errors
+from hil_sim.team.team_eval import FixError, TeamOutcome, fix_error, judge_team, truth_way_unknown, winch_errors
 from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]
@@ -276,6 +276,7 @@ def team_section(world: World, grid: MapGrid, received_z: NDArray[np.floating], 
     # the truth's planner on the truth's frame; the unknown cells on the received map's (the path above)
     section = judge_team(world, grid, received_z, rig.anchors, s.tether, s.climber, outcome,
                          winch_errors(s.mission.length_tol_m, s.mission.margin_sigmas)).section()
+    section["truth_way"] = truth_way_unknown(world, grid, received_z, rig.anchors, s.tether, s.climber, to_map)
     if out is not None:
         section["picture"] = str(draw_team(out / "team.png", world, grid, received_z, rig, mission, est_path,
                                            to_map))

@@ -102,3 +102,16 @@ def test_a_results_name_that_is_no_file_name_exits_2(name: str, capsys: pytest.C
     assert main(["experiment", "team-mission", "--results-name", name]) == 2
     err = capsys.readouterr().err
     assert "--results-name takes lower-case letters" in err and "Traceback" not in err
+
+
+def test_a_missed_target_the_truth_reaches_says_where_its_way_on_the_truth_meets_unknown_ground() -> None:
+    t = {"map_reasons": ["unknown ground (3 looks)", "unknown ground", "hazard"], "reached": [False] * 3,
+         "target_looks": [3, 0, 0], "truth_reasons": ["", "", "hazard"],
+         "truth_way": [{"nodes": 17, "first_unknown": 12, "unknown_cells": 2, "footprint_cells": 177,
+                        "slope_deg": 71.4}, {"nodes": 9, "first_unknown": None}, None]}
+    assert [tm.target_text(t, k) for k in range(3)] == [
+        "unknown ground (3 looks) / truth: reachable (its way on the truth: unknown from node 13 of 17, "
+        "2 of 177 cells, 71 deg)",
+        "unknown ground / truth: reachable (its way on the truth: known at all 9 nodes)",
+        "hazard / truth: hazard"]
+    assert tm.target_text({k: v for k, v in t.items() if k != "truth_way"}, 0).endswith("/ truth: reachable")

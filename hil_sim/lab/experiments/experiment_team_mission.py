@@ -126,7 +126,21 @@ def target_text(t: dict[str, Any], k: int) -> str:
     if k < len(reached) and reached[k]:
         return "reached" + (f" ({n} looks)" if n else "")
     why = str(reasons[k]) if k < len(reasons) and reasons[k] else "planned, not reached"
-    return why + (f" / truth: {truth[k] or 'reachable'}" if k < len(truth) else "")
+    return why + (f" / truth: {truth[k] or 'reachable'}" if k < len(truth) else "") + way_text(t, k)
+
+
+def way_text(t: dict[str, Any], k: int) -> str:
+    """For a target the truth reaches: where the flight planner's way on the true ground first
+    needs ground the mission's map does not know (the team section's ``truth_way``), as
+    `` (its way on the truth: unknown from node 13 of 17, 2 of 177 cells, 71 deg)``; empty without it."""
+    truth, ways = list(t.get("truth_reasons", [])), list(t.get("truth_way") or [])
+    if k >= len(truth) or truth[k] or k >= len(ways) or not ways[k]:
+        return ""
+    w = ways[k]
+    if w.get("first_unknown") is None:
+        return f" (its way on the truth: known at all {w['nodes']} nodes)"
+    return (f" (its way on the truth: unknown from node {w['first_unknown'] + 1} of {w['nodes']}, "
+            f"{w['unknown_cells']} of {w['footprint_cells']} cells, {w['slope_deg']:.0f} deg)")
 
 
 def scene_row(s: dict[str, Any], seed: int) -> dict[str, Any]:
