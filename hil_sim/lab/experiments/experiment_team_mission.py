@@ -5,7 +5,9 @@ lockstep team mission of ``safer-hil run --scenario cliff-team`` (``--steps`` im
 the RECON-bot, method 5; both flight programs on one stepped clock; docs/team.md, "Running a
 team mission"), each in ``OUT/seed<S>`` with its ``summary.json`` and ``team.png``. Per scene
 the summary's ``team`` section: whether the delivered map let the Cliff-bot leave its start,
-targets reachable on the truth and reached, tether violations, hazard and unknown cells
+targets reachable on the truth and reached (for a missed one the truth reaches, where the flight
+planner's way on the true ground first meets ground the mission's map does not know: the
+``truth_way`` of the team section), tether violations, hazard and unknown cells
 entered, the cells each agent's own views made known (``cells_by_agent``), whether it ended
 back at its start (its ``HOME`` event), the end state and reason, the bytes each way, and the
 RECON-bot's own safety and map figures (frames with a wheel over the drop, frames it moved with
