@@ -31,9 +31,6 @@ team mission comes from here and only from the TRUTH:
   did not know from a sensor WHEN it entered them (what the bench records step by step, and
   what the summary counts when the driver recorded it: a cell its camera showed later was
   still unknown ground when it drove onto it);
-* :func:`truth_way_unknown`: where the flight planner's shortest way on the TRUE ground (its A*
-  at the exact lengths) first needs ground the mission's map does not know: why an approach
-  stopped, in terms of the ground;
 * :func:`judge_team`: all of it for one mission, from a :class:`TeamOutcome` (what the driver
   observed), as a :class:`TeamVerdict` whose :meth:`TeamVerdict.section` is the summary's
   ``team`` section.
@@ -42,7 +39,7 @@ team mission comes from here and only from the TRUTH:
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -475,41 +472,6 @@ class TeamVerdict:
         }
         out.update(self.extra)
         return out
-
-
-def truth_way_unknown(world: World, grid: MapGrid, map_z: NDArray[np.floating], anchors: F64,
-                      tcfg: TetherConfig, ccfg: ClimberConfig,
-                      to_map: Callable[[F64], F64]) -> list[dict[str, Any] | None]:
-    """Per target, the flight planner's shortest way from the Cliff-bot's start on the TRUE
-    ground (:func:`fsw.core.team.face_planner.plan_targets` at the exact lengths, world frame;
-    None where it finds none) and where along it the mission's map ``map_z`` (its frame:
-    ``to_map`` takes world points to it) first lacks a cell within the footprint's radius of a
-    node: ``{"nodes", "first_unknown" (the node's index, None: every node's ground known),
-    "unknown_cells", "footprint_cells", "slope_deg" (the true ground's median slope there)}``."""
-    assert world.team is not None
-    z = np.asarray(world.ground_on_grid(grid), np.float64)
-    start = np.asarray(world.team.cliffbot_start_xy, float)
-    plan = plan_targets(z, grid, np.asarray(anchors, float), start, world.team.targets_xyz[:, :2], tcfg, ccfg)
-    gy, gx = np.gradient(z, grid.cell)
-    slope = np.degrees(np.arctan(np.hypot(gx, gy)))
-    known = np.isfinite(np.asarray(map_z, np.float64))
-    X, Y = grid.centers()
-    out: list[dict[str, Any] | None] = []
-    for path in plan.paths:
-        if path is None:
-            out.append(None)
-            continue
-        way: dict[str, Any] = {"nodes": len(path), "first_unknown": None}
-        for i, (w, m) in enumerate(zip(path, to_map(np.asarray(path, float)), strict=True)):
-            foot = np.hypot(X - m[0], Y - m[1]) <= ccfg.footprint_m
-            unknown = int(np.count_nonzero(foot & ~known))
-            if unknown:
-                on_truth = np.hypot(X - w[0], Y - w[1]) <= ccfg.footprint_m
-                way.update(first_unknown=i, unknown_cells=unknown, footprint_cells=int(foot.sum()),
-                           slope_deg=round(float(np.nanmedian(slope[on_truth])), 1))
-                break
-        out.append(way)
-    return out
 
 
 def judge_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], anchors: F64,

@@ -40,7 +40,8 @@ from fsw.tasks.fixer.task import BODY_CENTRE_M, LIFT_M, NO_MARKERS, OUT_OF_REACH
 from hil_sim.faults import FaultInjector, FaultSpec
 from hil_sim.link.radio_channel import RadioChannel
 from hil_sim.team.cliffbot_rig import CliffbotRig
-from hil_sim.team.team_eval import FixError, TeamOutcome, fix_error, judge_team, truth_way_unknown, winch_errors
+from hil_sim.team.team_eval import FixError, TeamOutcome, fix_error, judge_team, winch_errors
+from hil_sim.team.truth_way import truth_way_unknown
 from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]

@@ -39,7 +39,7 @@ def test_the_truths_way_is_found_where_its_map_first_lacks_ground() -> None:
     a band of unknown cells across the way, the first node that reaches the band is named."""
     import numpy as np
 
-    from hil_sim.team.team_eval import truth_way_unknown
+    from hil_sim.team.truth_way import truth_way_unknown
 
     world = load_scenario("cliff-team", 3)
     assert world.team is not None
