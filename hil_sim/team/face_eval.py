@@ -341,13 +341,6 @@ def face_figures(world: World, face: FaceMap, gravity: ElevationMap,
     }
 
 
-def equal_memory_cell(gravity_cell_m: float, slope_deg: float) -> float:
-    """The face cell side with as many cells over a face of ``slope_deg`` as the gravity grid's
-    over its horizontal footprint: ``c_g / sqrt(cos a)`` (the strike is common, the dip is
-    ``1 / cos a`` longer)."""
-    return gravity_cell_m / math.sqrt(max(math.cos(math.radians(slope_deg)), 1e-3))
-
-
 def relief_rise(world: World, face: FaceMap, reach: int = 2) -> F64:
     """Per face cell (flat), how far the true surface rises out of the face (along the normal,
     at the cell centres) within ``reach`` cells of it, above its own height: the step a view at

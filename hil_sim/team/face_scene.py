@@ -21,8 +21,7 @@ from scipy import ndimage
 from fsw.core.geometry import CameraPose, MapGrid, camera_pose_from_rover, point_mast
 from fsw.core.map.body_mask import BodyBox, TeamGeometry, TetherLine, anchorbot_box
 from fsw.core.map.elevation_map import ElevationMap
-from fsw.core.map.face_map import FaceMap, FaceMapConfig, split_parts
-from fsw.core.map.face_plane import face_band, fit_face_plane
+from fsw.core.map.face_map import FaceMap, FaceMapConfig, fit_face_map, split_parts
 from fsw.core.pipeline import RegisteredPose, SensingPipeline, ViewPart
 from fsw.core.registration.registration import Registration
 from fsw.core.steps import run_to_end
@@ -32,7 +31,6 @@ from fsw.core.team.tether import TetherConfig, anchor_points, tether_state
 from fsw.tasks.perception import SITE_MASK
 from hil_sim.team.agent_fusion import agent_settings, merge_as
 from hil_sim.team.face_eval import (
-    equal_memory_cell,
     face_figures,
     frame_off_deg,
     frame_off_true_deg,
@@ -231,15 +229,13 @@ class FaceScene:
         self._fuse(agent, parts, est.t, pipe.matcher.window_rad)
 
     def _try_fit(self) -> None:
+        base = FaceMapConfig()
+        if self.resolve_cells is not None:
+            base = dataclasses.replace(base, resolve_cells=self.resolve_cells)
         try:
-            frame = fit_face_plane(self.gravity, FaceMapConfig().min_slope_deg)
-            u, v = face_band(self.gravity, frame)
+            self.face = fit_face_map(self.gravity, self.cfg.fusion, base)
         except ValueError:
             return
-        fc = dataclasses.replace(FaceMapConfig(), cell_m=equal_memory_cell(self.grid.cell, frame.slope_deg))
-        if self.resolve_cells is not None:
-            fc = dataclasses.replace(fc, resolve_cells=self.resolve_cells)
-        self.face = FaceMap(frame, (u[0], u[1]), (v[0], v[1]), fc, self.cfg.fusion)
         self.fit_views = self.views
         for a in ("recon", "cliffbot"):
             self.by_agent[a] = self.face.empty_like()

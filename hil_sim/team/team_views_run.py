@@ -55,8 +55,8 @@ from numpy.typing import NDArray
 
 from fsw.core.geometry import CameraConfig, CameraPose, MapGrid
 from fsw.core.map.elevation_map import ElevationMap, TeamElevation
-from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig, split_parts
-from fsw.core.map.face_plane import face_band, fit_face_plane
+from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig, fit_face_map, split_parts
+from fsw.core.map.face_plane import equal_memory_cell
 from fsw.core.map.known_lips import KnownLips
 from fsw.core.planning.face_rating import FaceCells, face_cells
 from fsw.core.planning.info_planners import InformationPlanner
@@ -82,7 +82,6 @@ from fsw.core.team.face_planner import plan_targets
 from fsw.core.team.standing_plane import surface_normal
 from fsw.core.team.tether import TetherConfig, anchor_points, tether_states
 from hil_sim.team.agent_fusion import agent_settings, merge_as
-from hil_sim.team.face_eval import equal_memory_cell
 from hil_sim.team.team_figures import TeamFigures
 from hil_sim.world.world import World
 
@@ -429,12 +428,9 @@ class TeamViewsRun:
         if self.face_map is None:
             self._pending.append((parts, eye, reach_m))
             try:
-                frame = fit_face_plane(self.map, FaceMapConfig().min_slope_deg)
-                u, v = face_band(self.map, frame)
+                self.face_map = fit_face_map(self.map, self.fusion)
             except ValueError:
                 return
-            fc = dataclasses.replace(FaceMapConfig(), cell_m=equal_memory_cell(self.grid.cell, frame.slope_deg))
-            self.face_map = FaceMap(frame, (u[0], u[1]), (v[0], v[1]), fc, self.fusion)
             views, self._pending = self._pending, []
         else:
             views = [(parts, eye, reach_m)]

@@ -40,7 +40,7 @@ height per cell with variance, count, interest, misses) in the face's own frame:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -48,7 +48,7 @@ from numpy.typing import NDArray
 from fsw.core.geometry import MapGrid
 from fsw.core.map.elevation_map import ElevationMap, FusionConfig, MergeStats
 from fsw.core.map.face_elevation import FaceElevation
-from fsw.core.map.face_plane import FaceFrame
+from fsw.core.map.face_plane import FaceFrame, equal_memory_cell, face_band, fit_face_plane
 from fsw.core.map.overhang import Overhangs
 from fsw.core.steps import run_to_end
 from fsw.framework.params import param
@@ -428,3 +428,17 @@ def hand_over_z(gravity: ElevationMap, face: FaceMap) -> F64:
     X, Y = gravity.grid.centers()
     out[own] = face.surface_z(X[own], Y[own])
     return out
+
+
+def fit_face_map(gravity: ElevationMap, fusion: FusionConfig | None = None,
+                 cfg: FaceMapConfig | None = None) -> FaceMap:
+    """An empty face map on the face of ``gravity``: the plane fitted to its steep cells
+    (:func:`~fsw.core.map.face_plane.fit_face_plane`), its band
+    (:func:`~fsw.core.map.face_plane.face_band`), cells as many over the face as the gravity
+    grid's over its footprint (:func:`~fsw.core.map.face_plane.equal_memory_cell`; ``cfg``'s
+    other settings as given). Raises ``ValueError`` where ``gravity`` holds no face yet."""
+    base = cfg or FaceMapConfig()
+    frame = fit_face_plane(gravity, base.min_slope_deg)
+    u, v = face_band(gravity, frame, base.min_slope_deg)
+    fc = replace(base, cell_m=equal_memory_cell(gravity.grid.cell, frame.slope_deg))
+    return FaceMap(frame, (float(u[0]), float(u[1])), (float(v[0]), float(v[1])), fc, fusion)

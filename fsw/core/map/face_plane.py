@@ -13,6 +13,7 @@ caller tries again when the map holds more of the face.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -204,3 +205,10 @@ def face_band(gravity: ElevationMap, frame: FaceFrame, min_slope_deg: float = 45
     if v[1] <= v[0]:
         raise ValueError("the face band is empty")
     return u, np.asarray(v, float)
+
+
+def equal_memory_cell(gravity_cell_m: float, slope_deg: float) -> float:
+    """The face cell side with as many cells over a face of ``slope_deg`` as the gravity grid's
+    over its horizontal footprint: ``c_g / sqrt(cos a)`` (the strike is common, the dip is
+    ``1 / cos a`` longer)."""
+    return gravity_cell_m / math.sqrt(max(math.cos(math.radians(slope_deg)), 1e-3))

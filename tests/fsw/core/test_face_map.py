@@ -12,8 +12,8 @@ from fsw.core.codec.mapcodec import decode_map, encode_map
 from fsw.core.geometry import MapGrid
 from fsw.core.map.body_mask import BodyBox, MaskConfig, TeamGeometry, TetherLine, team_mask
 from fsw.core.map.elevation_map import ElevationMap
-from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig, hand_over_z, split_parts
-from fsw.core.map.face_plane import face_band, fit_face_plane
+from fsw.core.map.face_map import FaceFrame, FaceMap, FaceMapConfig, fit_face_map, hand_over_z, split_parts
+from fsw.core.map.face_plane import equal_memory_cell, face_band, fit_face_plane
 from fsw.core.map.overhang import FLAG_TESTS
 
 SLOPE = 70.0
@@ -66,6 +66,15 @@ def test_fit_finds_the_face_among_rocks() -> None:
     empty = ElevationMap(m.grid)
     with pytest.raises(ValueError, match="no face"):
         fit_face_plane(empty)
+    # the face map on it: that plane and band, cells of equal memory, the rest of its settings as given
+    face = fit_face_map(m, cfg=FaceMapConfig(seam_m=0.2))
+    assert np.allclose(face.frame.R, f.R)
+    for got, want in ((face.u_range, u), (face.v_range, v)):  # the band, in whole cells
+        assert got[0] == pytest.approx(want[0]) and want[1] <= got[1] < want[1] + face.cfg.cell_m
+    assert face.cfg.cell_m == pytest.approx(equal_memory_cell(m.grid.cell, f.slope_deg)) and face.cfg.seam_m == 0.2
+    assert not face.map.mapped.any()
+    with pytest.raises(ValueError, match="no face"):
+        fit_face_map(empty)
 
 
 def _points_on(face: FaceMap, u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
