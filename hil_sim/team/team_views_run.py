@@ -232,7 +232,7 @@ class TeamViewsRun:
         # the corridor is its own task's focus too
         return AgentViews("cliffbot", self.cliff_camera, centres, self.interest.of("cliffbot"),
                           corridor_weights(self.corridor, self.tv), (yaw, math.radians(-50.0)),
-                          self._face_cells())
+                          self._face_cells(), views=self.tv.cliffbot_views)
 
     def _plan_face(self, z: F64) -> FaceMap | None:
         """Before the face map is fitted on the shared map: an empty face map in the plane of the
@@ -284,7 +284,7 @@ class TeamViewsRun:
         for v in views:
             cam = self.cliff_camera if v.agent == "cliffbot" else self.camera
             cells = self._sense(v, cam)
-            seen[v.agent] = cells
+            seen[v.agent] = seen[v.agent] | cells if v.agent in seen else cells  # an agent's views together
             new = cells & ~before
             rec.views.append({**v.event(), "candidates": candidates[v.agent], "obtained_cells": int(cells.sum()),
                               "obtained_new_cells": int(new.sum()),

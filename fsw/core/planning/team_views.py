@@ -29,7 +29,9 @@ P_V was wrong for that cell (its prior cannot see it), which says nothing of the
 view from elsewhere (the Cliff-bot on the face sees what the RECON-bot's prior misses).
 
 **Sequential greedy** (:func:`choose_team_views`): every agent not yet served is rated, the one
-whose best view has the highest utility takes it, and ``planned``, the probability that some
+whose best view has the highest utility takes it (an agent with ``AgentViews.views`` above one is
+served that many times, the views after its first from the same centre: the Cliff-bot's head
+scan, ``TeamViewConfig.cliffbot_views``), and ``planned``, the probability that some
 chosen view sees each cell, takes in that view's P_V; the next agent's views are rated by what
 they add to the cycle's one measurement of each cell (``nbv.cell_values``: the marginal gain of a
 submodular function of the cycle's views); repeat until every agent has a view. So the second
@@ -41,7 +43,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -94,6 +96,10 @@ class TeamViewConfig:
     a_head: float = param(3.65, lo=0.0, hi=1e6, units="s^2/rad^2", doc="Eq 9 weight of the head's pan and tilt")
     face_prior_m: float = param(2.0, lo=0.0, hi=50.0, units="m",
                                 doc="the face rating's plane continued this far down the dip past the face map")
+    cliffbot_views: int = param(16, lo=1, hi=64,
+                                doc="the Cliff-bot's views per imaging cycle, all from the place of its first: its "
+                                    "head's scan (its flight takes a 16-view scan in less time than the RECON-bot's "
+                                    "imaging step: docs/team.md, Team views)")
 
 
 @dataclass(frozen=True)
@@ -126,6 +132,9 @@ class AgentViews:
     # the face as the rating sees it (``face_rating.face_cells``): its cells are rated on the face
     # grid, the gravity cells they stand for left out of the gravity rating; None: gravity grid only
     face: FaceCells | None = None
+    # the views it takes in the cycle: the first from any of its centres, the rest from that
+    # centre (a head's scan: they pay no motion), each chosen in the sequential greedy
+    views: int = 1
 
 
 @dataclass(frozen=True)
@@ -347,14 +356,14 @@ def choose_team_views(emap: MapLike, agents: Sequence[AgentViews], cfg: NbvConfi
     n_max = info_n_max(emap, cfg)
     planned = np.zeros(emap.grid.shape)
     left = [a for a in agents if a.centres]
-    floors = {id(a): gravity_with_floor(a.face, emap, cfg.visibility) for a in left if a.face is not None}
+    floors = {a.agent: gravity_with_floor(a.face, emap, cfg.visibility) for a in left if a.face is not None}
     chosen: list[TeamView] = []
     first: TeamView | None = None
     while left:
         # the agents move at once: a cycle lasts as long as its slowest move, so an agent pays
         # only for the motion beyond the longest of the views already chosen
         paid = max((v.motion for v in chosen), default=0.0)
-        rated = [_best(emap, terrain if a.face is None else floors[id(a)], a, n_max, cfg, planned if chosen else None,
+        rated = [_best(emap, terrain if a.face is None else floors[a.agent], a, n_max, cfg, planned if chosen else None,
                        paid) for a in left]
         k = int(np.argmax([r[0] for r in rated]))
         u, a, c, j, bits, new = rated[k]
@@ -370,7 +379,7 @@ def choose_team_views(emap: MapLike, agents: Sequence[AgentViews], cfg: NbvConfi
         if a.face is None:
             pv = predicted_visibility(emap, pose, a.camera, cfg.visibility)
         else:  # on the terrain it was rated on; the face cells' P_V stands for the gravity cells they cover
-            pv = np.maximum(np.where(a.face.owned, 0.0, terrain_visibility(floors[id(a)], pose, a.camera,
+            pv = np.maximum(np.where(a.face.owned, 0.0, terrain_visibility(floors[a.agent], pose, a.camera,
                                                                             cfg.visibility)),
                             face_visibility(a.face, pose, a.camera, cfg.visibility, emap.grid))
         fresh = pv * (emap.n == 0)
@@ -385,7 +394,10 @@ def choose_team_views(emap: MapLike, agents: Sequence[AgentViews], cfg: NbvConfi
         chosen.append(view)
         first = first or view
         planned = 1.0 - (1.0 - planned) * (1.0 - np.clip(pv, 0.0, 1.0))  # some chosen view sees the cell
-        left.pop(k)
+        if a.views > 1:  # the rest of its scan, from where this view is taken
+            left[k] = replace(a, centres=(replace(c, motion=np.zeros_like(c.motion)),), views=a.views - 1)
+        else:
+            left.pop(k)
     return chosen, planned
 
 
