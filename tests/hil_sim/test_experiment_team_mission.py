@@ -115,3 +115,26 @@ def test_a_missed_target_the_truth_reaches_says_where_its_way_on_the_truth_meets
         "unknown ground / truth: reachable (its way on the truth: known at all 9 nodes)",
         "hazard / truth: hazard"]
     assert tm.target_text({k: v for k, v in t.items() if k != "truth_way"}, 0).endswith("/ truth: reachable")
+
+
+def test_each_agents_sensing_time_is_read_from_the_mission_and_reported(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The RECON-bot's imaging steps (``steps[].sim_s``) and the Cliff-bot's looks (``SENSE_REQUEST``
+    to ``SENSED``) in flight time: what a team imaging cycle holds (docs/team.md, Team views)."""
+    s = _summary(1, ["", "hazard"], [])
+    s["steps"] = [{"step": k, "sim_s": t} for k, t in enumerate((60.0, 140.0, 190.0, 260.0))]
+    s["team"]["events"] = [[900.0, "SENSE_REQUEST", "views 1"], [948.5, "SENSED", "views 1 in the map"],
+                           [950.0, "LOOK", "look"], [960.0, "SENSE_REQUEST", "views 2"],
+                           [1011.5, "SENSED", "views 2 in the map"], [1012.0, "SENSE_REQUEST", "views 3"]]
+    times = tm.scene_row(s, 0)["times"]
+    assert times == {"recon_step_s": [80.0, 50.0, 70.0], "cliffbot_look_s": [48.5, 51.5]}  # the last unanswered
+    monkeypatch.setenv("SAFER_RESULTS_DIR", str(tmp_path / "results"))
+    (tmp_path / "seed0").mkdir()
+    (tmp_path / "seed0" / "summary.json").write_text(json.dumps(s))
+    (tmp_path / "seed0" / "team.png").write_bytes(b"png")
+    args = argparse.Namespace(scenario="cliff-team", scenes=1, seed=0, steps=10, jobs=1, config="config/fsw.toml",
+                              out=tmp_path, report_only=True, results_name="team-mission")
+    assert tm.run(args) == 0
+    md = (tmp_path / "results" / "team-mission.md").read_text()
+    assert "a RECON-bot imaging step took median 70.0 s (shortest 50.0 s, 3 steps)" in md
+    assert "median 50.0 s (longest 51.5 s, 2 looks)" in md

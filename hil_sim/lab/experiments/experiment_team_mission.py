@@ -182,13 +182,33 @@ def scene_row(s: dict[str, Any], seed: int) -> dict[str, Any]:
             strict=False,
         )
     )
+    return {"row": row | recon_row(s), "fixes": fixes, "times": flight_times(s)}
+
+
+def flight_times(s: dict[str, Any]) -> dict[str, list[float]]:
+    """How long each agent's sensing took in the mission's (simulated) flight time: every
+    RECON-bot imaging step (motion, view, fusion, planning) and every look of the Cliff-bot (its
+    head's scan, ``SENSE_REQUEST`` to ``SENSED``)."""
+    t = [float(x["sim_s"]) for x in s.get("steps", []) if isinstance(x, dict) and "sim_s" in x]
+    looks: list[float] = []
+    asked: float | None = None
+    for e in (s.get("team") or {}).get("events", []):
+        if len(e) > 1 and e[1] == "SENSE_REQUEST":
+            asked = float(e[0])
+        elif len(e) > 1 and e[1] == "SENSED" and asked is not None:
+            looks.append(round(float(e[0]) - asked, 3))
+            asked = None
+    return {"recon_step_s": [round(b - a, 3) for a, b in zip(t, t[1:], strict=False)], "cliffbot_look_s": looks}
+
+
+def recon_row(s: dict[str, Any]) -> dict[str, Any]:
+    """The RECON-bot's figures of a scene's row."""
     rmse = s.get("map_rmse_m")
-    row |= {
+    return {
         "recon_edge_violations": int(s.get("edge_violations", 0)),
         "recon_unknown_ground": int(s.get("wheels_on_unknown_ground", 0)),
         "recon_map_rmse_cm": round(100.0 * float(rmse), 2) if rmse is not None else float("nan"),
     }
-    return {"row": row, "fixes": fixes}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -288,6 +308,15 @@ def run(args: argparse.Namespace) -> int:
         f"{sum(max(r['recon_past_lip_off'], 0) for r in rows)} (of "
         f"{sum(max(r['recon_past_lip_cells'], 0) for r in rows)} mapped there)."
     )
+    steps_s = [x for g in got for x in g.get("times", {}).get("recon_step_s", [])]
+    looks_s = [x for g in got for x in g.get("times", {}).get("cliffbot_look_s", [])]
+    if steps_s and looks_s:  # what an imaging cycle of the team is (docs/team.md, Team views)
+        summary += (
+            f" In the flight programs' own (simulated) time a RECON-bot imaging step took median "
+            f"{float(np.median(steps_s)):.1f} s (shortest {min(steps_s):.1f} s, {len(steps_s)} steps) and a look "
+            "of the Cliff-bot (its head's scan, one pair per pointing of `[cliffbot_sensing] pan_deg`) median "
+            f"{float(np.median(looks_s)):.1f} s (longest {max(looks_s):.1f} s, {len(looks_s)} looks)."
+        )
     band = [
         "| range (m) | fixes | position error median / worst (cm) | heading error median / worst (deg) | "
         "NEES within chi2 95 % | the RECON-bot's own heading error then, median (deg) |",

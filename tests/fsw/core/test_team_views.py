@@ -267,3 +267,29 @@ def test_the_cliffbots_places_across_its_corridor_are_where_the_tethers_hold_it(
              if st is not None and not st.statics.ok and st.statics.tilt_deg > 25.0]
     assert slack and not any(np.allclose(p, q) for p in slack for q in off)  # slack places on the face left out
     assert any(st is not None and st.statics.tilt_deg > 25.0 for st in states)  # held places on the face kept
+
+
+def test_an_agent_with_a_scan_takes_its_views_from_one_place_each_where_the_others_are_not() -> None:
+    """``AgentViews.views``: the Cliff-bot's head scan per cycle. Its first view from any of its
+    centres, the rest from that centre at no motion, each chosen in the sequential greedy: every
+    view turns away from what the views before it will see."""
+    emap = _flat_map()
+    k = 24
+    here = ViewCentre((2.0, 3.0, 1.5), np.radians(np.arange(0.0, 360.0, 30.0)), np.radians([-30.0, -60.0]),
+                      np.full(k, 1.0), np.zeros(k), (2.0, 3.0))
+    there = dataclasses.replace(here, xyz=(4.0, 3.0, 1.5), place=(4.0, 3.0), motion=np.full(k, 3.0))
+    n = 4
+    agents = [AgentViews("recon", CAM, (_centre(3.0, 1.5),)), AgentViews("cliffbot", CAM, (here, there), views=n)]
+    views, planned = choose_team_views(emap, agents, NBV)
+    scan = [v for v in views if v.agent == "cliffbot"]
+    assert len(views) == n + 1 and len(scan) == n and [v.order for v in views] == list(range(n + 1))
+    assert len({v.place for v in scan}) == 1  # one place: the first view's
+    assert all(v.motion == 0.0 for v in scan[1:])  # the rest of the scan pays no tether motion
+    assert len({(v.yaw, v.tilt) for v in scan}) == n  # each view looks elsewhere
+    seen = [predicted_visibility(emap, v.pose(), CAM, NBV.visibility) > 0.5 for v in views]
+    for i in range(1, len(seen)):  # no view looks mostly where the views before it will
+        before = np.logical_or.reduce(seen[:i])
+        assert float((seen[i] & before).sum()) < 0.5 * max(1, int(seen[i].sum()))
+    assert np.allclose(planned, 1.0 - np.prod([1.0 - np.clip(v.p_visible, 0.0, 1.0) for v in views], axis=0))
+    one = choose_team_views(emap, [dataclasses.replace(agents[1], views=1)], NBV)[0]
+    assert len(one) == 1  # the default: one view per agent
