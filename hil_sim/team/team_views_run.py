@@ -283,11 +283,14 @@ class TeamViewsRun:
         start = np.asarray(self.world.team.cliffbot_start_xy if self.world.team else (0.0, 0.0), float)
         for v in views:
             cam = self.cliff_camera if v.agent == "cliffbot" else self.camera
+            known = self.map.mapped.copy()
             cells = self._sense(v, cam)
             seen[v.agent] = seen[v.agent] | cells if v.agent in seen else cells  # an agent's views together
             new = cells & ~before
             rec.views.append({**v.event(), "candidates": candidates[v.agent], "obtained_cells": int(cells.sum()),
                               "obtained_new_cells": int(new.sum()),
+                              # what this view itself made known (the views before it in the cycle taken)
+                              "added_cells": int((self.map.mapped & ~known).sum()),
                               "travel_m": round(float(np.hypot(v.place[0] - start[0], v.place[1] - start[1])), 2)})
             self.events.append({"cycle": rec.cycle, "event": "TEAM_VIEW", **v.event()})
             self._move(v)

@@ -133,7 +133,8 @@ class AgentViews:
     # grid, the gravity cells they stand for left out of the gravity rating; None: gravity grid only
     face: FaceCells | None = None
     # the views it takes in the cycle: the first from any of its centres, the rest from that
-    # centre (a head's scan: they pay no motion), each chosen in the sequential greedy
+    # centre (a head's scan: they pay no motion, each pointing once, rated by utility with no
+    # fallback), each chosen in the sequential greedy
     views: int = 1
 
 
@@ -394,8 +395,12 @@ def choose_team_views(emap: MapLike, agents: Sequence[AgentViews], cfg: NbvConfi
         chosen.append(view)
         first = first or view
         planned = 1.0 - (1.0 - planned) * (1.0 - np.clip(pv, 0.0, 1.0))  # some chosen view sees the cell
-        if a.views > 1:  # the rest of its scan, from where this view is taken
-            left[k] = replace(a, centres=(replace(c, motion=np.zeros_like(c.motion)),), views=a.views - 1)
+        if a.views > 1:  # the rest of its scan, from where this view is taken: no motion, never the same
+            # pointing twice, each the best by what it adds (no fallback: the scan looks round)
+            taken = np.zeros(c.motion.shape, bool)
+            taken[j] = True
+            rest = replace(c, motion=np.where(taken | ~np.isfinite(c.motion), np.inf, 0.0))
+            left[k] = replace(a, centres=(rest,), views=a.views - 1, fallback=None)
         else:
             left.pop(k)
     return chosen, planned
@@ -415,7 +420,9 @@ def _best(emap: MapLike, terrain: Terrain, a: AgentViews, n_max: int, cfg: NbvCo
             f = rate_face_station(a.face, c.xyz, c.yaws, c.tilts, n_max, interest, a.camera, cfg.visibility,
                                   planned, a.weight)
             bits, new = bits + f.info_bits.ravel(), new + f.expected_new_cells.ravel()
-        u = utility(bits, np.maximum(c.motion - paid, 0.0), c.sigma_loc_m, cfg)
+        with np.errstate(invalid="ignore"):
+            u = utility(bits, np.maximum(c.motion - paid, 0.0), c.sigma_loc_m, cfg)
+        u = np.where(np.isfinite(c.motion), u, -np.inf)  # a pointing it cannot take (taken in its scan)
         j = int(np.argmax(u))
         if best is None or float(u[j]) > best[0]:
             best = (float(u[j]), a, c, j, float(bits[j]), float(new[j]))

@@ -200,7 +200,7 @@ def _cliffbot_figures(team: Any) -> dict[str, Any]:
 
     views = [v for r in team.records for v in r.views if v["agent"] == "cliffbot"]
     new = sum(r.new_cells for r in team.records)
-    got = sum(v["obtained_new_cells"] for v in views)
+    got = sum(v["added_cells"] for v in views)  # its scan's views overlap: what each added
     return {
         "reachable": team.reachable,
         "cliffbot_candidates": float(np.median([v["candidates"] for v in views])) if views else 0.0,
@@ -223,7 +223,7 @@ def _empty_views(team: Any, alone: Any) -> dict[str, Any]:
     return {
         "recon_team_new_per_cycle": float(np.mean([v["obtained_new_cells"] for v in recon])) if recon else 0.0,
         "empty_views_recon_team": sum(v["obtained_new_cells"] < EMPTY_VIEW_CELLS for v in recon),
-        "empty_views_cliffbot": sum(v["obtained_new_cells"] < EMPTY_VIEW_CELLS for v in views(team, "cliffbot")),
+        "empty_views_cliffbot": sum(v["added_cells"] < EMPTY_VIEW_CELLS for v in views(team, "cliffbot")),
         "empty_views_recon_alone": sum(v["obtained_new_cells"] < EMPTY_VIEW_CELLS for v in views(alone, "recon")),
     }
 
@@ -259,6 +259,8 @@ def report(rows: list[dict[str, Any]], table: Any, cycles: int, cap: int) -> str
     """The summary (medians, worst cases, goals) and the per-scene table; ``cap``: the cycles the
     runs went on to for the corridor (``scene``)."""
     import numpy as np
+
+    from fsw.core.planning.team_views import TeamViewConfig
 
     def col(k: str) -> Any:
         return np.array([r[k] for r in rows if r[k] is not None], float)
@@ -354,10 +356,12 @@ def report(rows: list[dict[str, Any]], table: Any, cycles: int, cap: int) -> str
     tr, ar = col("recon_team_new_per_cycle"), col("recon_cells_per_cycle")
     add("the team's RECON-bot's new cells per cycle / the RECON-bot's alone", float(np.median(tr / ar)),
         float(np.min(tr / ar)), "")
-    for k, name in (("empty_views_recon_team", "team: RECON-bot"), ("empty_views_cliffbot", "team: Cliff-bot"),
-                    ("empty_views_recon_alone", "RECON-bot alone")):
+    scan = TeamViewConfig().cliffbot_views
+    for k, name in (("empty_views_recon_team", f"team: RECON-bot (of {cycles})"),
+                    ("empty_views_cliffbot", f"team: Cliff-bot (of {cycles * scan}; what each view added)"),
+                    ("empty_views_recon_alone", f"RECON-bot alone (of {cycles})")):
         v = col(k)
-        add(f"views mapping < {EMPTY_VIEW_CELLS} new cells per scene, {name} (of {cycles})", float(np.median(v)),
+        add(f"views mapping < {EMPTY_VIEW_CELLS} new cells per scene, {name}", float(np.median(v)),
             float(v.max()), "")
     left, seeable = col("corridor_left_cells"), col("corridor_left_seeable")
     add(f"corridor cells unmapped after cycle {cycles} (team)", float(np.median(left)), float(left.max()), "")
