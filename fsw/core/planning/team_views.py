@@ -134,8 +134,11 @@ class AgentViews:
     face: FaceCells | None = None
     # the views it takes in the cycle: the first from any of its centres, the rest from that
     # centre (a head's scan: they pay no motion, each pointing once, rated by utility with no
-    # fallback), each chosen in the sequential greedy
+    # fallback, none once no pointing is expected to map a new cell), each chosen in the
+    # sequential greedy
     views: int = 1
+    # the rest of a scan (its views after the first): it ends when its best view expects no new cell
+    scanning: bool = False
 
 
 @dataclass(frozen=True)
@@ -368,6 +371,9 @@ def choose_team_views(emap: MapLike, agents: Sequence[AgentViews], cfg: NbvConfi
                        paid) for a in left]
         k = int(np.argmax([r[0] for r in rated]))
         u, a, c, j, bits, new = rated[k]
+        if a.scanning and new < 1.0:  # no pointing left is expected to map a new cell: the scan ends
+            left.pop(k)
+            continue
         blind = a.fallback is not None and new < 1.0
         if blind and a.fallback is not None:
             c = a.centres[0]
@@ -400,7 +406,7 @@ def choose_team_views(emap: MapLike, agents: Sequence[AgentViews], cfg: NbvConfi
             taken = np.zeros(c.motion.shape, bool)
             taken[j] = True
             rest = replace(c, motion=np.where(taken | ~np.isfinite(c.motion), np.inf, 0.0))
-            left[k] = replace(a, centres=(rest,), views=a.views - 1, fallback=None)
+            left[k] = replace(a, centres=(rest,), views=a.views - 1, fallback=None, scanning=True)
         else:
             left.pop(k)
     return chosen, planned

@@ -293,3 +293,6 @@ def test_an_agent_with_a_scan_takes_its_views_from_one_place_each_where_the_othe
     assert np.allclose(planned, 1.0 - np.prod([1.0 - np.clip(v.p_visible, 0.0, 1.0) for v in views], axis=0))
     one = choose_team_views(emap, [dataclasses.replace(agents[1], views=1)], NBV)[0]
     assert len(one) == 1  # the default: one view per agent
+    emap.n[:] = 1  # every cell mapped: after its first view no pointing is expected to map a new cell
+    done = choose_team_views(emap, agents, NBV)[0]
+    assert [v.agent for v in done].count("cliffbot") == 1  # the scan ends there
