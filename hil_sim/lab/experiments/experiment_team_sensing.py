@@ -55,7 +55,7 @@ COLUMNS = ("seed", "cycles", "team_cells_per_cycle", "recon_cells_per_cycle", "c
            "face_team", "face_recon", "both_cells",
            "rmse_recon_m", "rmse_cliffbot_m", "rmse_fused_m", "in2sig_recon", "in2sig_cliffbot", "in2sig_fused",
            "in2sig_recon_own", "in2sig_cliffbot_own", "in2sig_fused_own", "blind_views", "reachable",
-           "cliffbot_candidates",
+           "cliffbot_candidates", "cliffbot_views_per_cycle",
            "cliffbot_expected_new", "cliffbot_obtained_new", "cliffbot_new_share", "cliffbot_travel_m",
            "recon_team_new_per_cycle", "empty_views_recon_team", "empty_views_cliffbot", "empty_views_recon_alone",
            "corridor_left_cells", "corridor_left_seeable")
@@ -204,6 +204,7 @@ def _cliffbot_figures(team: Any) -> dict[str, Any]:
     return {
         "reachable": team.reachable,
         "cliffbot_candidates": float(np.median([v["candidates"] for v in views])) if views else 0.0,
+        "cliffbot_views_per_cycle": len(views) / max(len(team.records), 1),
         "cliffbot_expected_new": float(sum(v["expected_new_cells"] for v in views)),
         "cliffbot_obtained_new": got,
         "cliffbot_new_share": got / new if new else None,
@@ -349,6 +350,8 @@ def report(rows: list[dict[str, Any]], table: Any, cycles: int, cap: int) -> str
     add("scenes where the Cliff-bot reaches no target (corridor: toward the nearest, as far as the tethers hold)",
         sum(not r["reachable"] for r in rows), f"of {len(rows)}", "")
     for k, name in (("cliffbot_candidates", "the Cliff-bot's candidate views per cycle"),
+                    ("cliffbot_views_per_cycle", "the Cliff-bot's views per cycle (its scan, "
+                                                 f"up to {TeamViewConfig().cliffbot_views}; mean over the cycles)"),
                     ("cliffbot_new_share", "the Cliff-bot's share of the team's new cells"),
                     ("cliffbot_travel_m", "the Cliff-bot's farthest place from its start (m)")):
         v = col(k)
@@ -358,7 +361,7 @@ def report(rows: list[dict[str, Any]], table: Any, cycles: int, cap: int) -> str
         float(np.min(tr / ar)), "")
     scan = TeamViewConfig().cliffbot_views
     for k, name in (("empty_views_recon_team", f"team: RECON-bot (of {cycles})"),
-                    ("empty_views_cliffbot", f"team: Cliff-bot (of {cycles * scan}; what each view added)"),
+                    ("empty_views_cliffbot", f"team: Cliff-bot (of up to {cycles * scan}; what each view added)"),
                     ("empty_views_recon_alone", f"RECON-bot alone (of {cycles})")):
         v = col(k)
         add(f"views mapping < {EMPTY_VIEW_CELLS} new cells per scene, {name}", float(np.median(v)),
