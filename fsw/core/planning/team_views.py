@@ -98,8 +98,8 @@ class TeamViewConfig:
                                 doc="the face rating's plane continued this far down the dip past the face map")
     cliffbot_views: int = param(16, lo=1, hi=64,
                                 doc="the Cliff-bot's views per imaging cycle, all from the place of its first: its "
-                                    "head's scan (its flight takes a 16-view scan in less time than the RECON-bot's "
-                                    "imaging step: docs/team.md, Team views)")
+                                    "head's scan (its flight takes a 16-view look in less time than the RECON-bot's "
+                                    "median imaging step: docs/team.md, Team views)")
 
 
 @dataclass(frozen=True)
