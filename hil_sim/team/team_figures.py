@@ -15,7 +15,7 @@ the summary's ``team`` section gains:
   the gravity grid on the same cells (``hil_sim.team.face_eval.face_figures``), None when the
   mission keeps no face map (``face_note`` says why);
 * ``views``: per cycle, each view's agent, pose, expected and obtained new cells, and the cycle's
-  overlap (cells both views measured / cells either measured; None with one view).
+  overlap (cells both agents' views measured / cells either measured; None with one agent).
 """
 
 from __future__ import annotations

@@ -98,8 +98,8 @@ class CycleRecord:
     cycle: int
     views: list[dict[str, Any]] = field(default_factory=list)
     new_cells: int = 0  # cells the cycle mapped for the first time (team)
-    overlap: float | None = None  # cells both views measured / cells either measured (two agents)
-    overlap_of_smaller: float | None = None  # cells both views measured / cells the smaller view measured
+    overlap: float | None = None  # cells both agents' views measured / cells either measured (two agents)
+    overlap_of_smaller: float | None = None  # cells both agents' views measured / the smaller agent's cells
     # the overlap on the cells with information left for Eq 3 (measured fewer than info_n_max times
     # before the cycle): a view's rating gives the cells measured that often nothing, so two views
     # may share them at no cost

@@ -34,7 +34,7 @@ served that many times, the views after its first from the same centre: the Clif
 scan, ``TeamViewConfig.cliffbot_views``), and ``planned``, the probability that some
 chosen view sees each cell, takes in that view's P_V; the next agent's views are rated by what
 they add to the cycle's one measurement of each cell (``nbv.cell_values``: the marginal gain of a
-submodular function of the cycle's views); repeat until every agent has a view. So the second
+submodular function of the cycle's views); repeat until every agent has its views. So the second
 agent does not pay for, nor aim at, what the first is about to map. Each choice says who looked where
 and why (:class:`TeamView`, ``why`` and :meth:`TeamView.event`).
 """
