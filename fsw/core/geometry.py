@@ -301,3 +301,15 @@ class MapGrid:
         xs = self.x0 + (np.arange(self.nx) + 0.5) * self.cell
         ys = self.y0 + (np.arange(self.ny) + 0.5) * self.cell
         return np.meshgrid(xs, ys)
+
+
+def normal_from_attitude(yaw: float, roll: float, pitch: float) -> F64:
+    """The ground's upward unit normal under a body with heading ``yaw``, ``roll`` (left side
+    up +) and ``pitch`` (nose up +), radians: the attitude sensor's convention
+    (``hil_sim.team.cliffbot_rig``: ``sin pitch = -n . forward``, ``sin roll = n . left``)."""
+    fwd = np.array([math.cos(yaw), math.sin(yaw), 0.0])
+    left = np.array([-math.sin(yaw), math.cos(yaw), 0.0])
+    a, b = -math.sin(pitch), math.sin(roll)
+    up = math.sqrt(max(1.0 - a * a - b * b, 1e-6))
+    n = a * fwd + b * left + np.array([0.0, 0.0, up])
+    return n / float(np.linalg.norm(n))

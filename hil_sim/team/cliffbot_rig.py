@@ -121,12 +121,15 @@ class CliffbotRig:
         return roll, pitch, math.degrees(yaw)
 
     def cliffbot_truth(self) -> CliffbotTruth:
-        """The world's Cliff-bot body at the true pose (for the renderer)."""
+        """The world's Cliff-bot body at the true pose (for the renderer), standing on the ground
+        under it: tilted by the roll and pitch its attitude sensor measures (without the noise)."""
         cb = self.world.cliffbot
         zg = float(self.world.ground_at(float(self.xy[0]), float(self.xy[1])))
+        roll, pitch, _ = self.attitude_deg()
         return build_cliffbot(float(self.xy[0]), float(self.xy[1]), zg, self.yaw,
                               size_m=(cb.length_m, cb.width_m, cb.height_m),
-                              marker_size_m=cb.markers[0].size_m if cb.markers else 0.18)
+                              marker_size_m=cb.markers[0].size_m if cb.markers else 0.18,
+                              roll=math.radians(roll), pitch=math.radians(pitch))
 
     def world_now(self) -> World:
         """The world as the RECON-bot's cameras see it now: the Cliff-bot where it stands, and the

@@ -134,7 +134,9 @@ class ReconFixer:
         if view is None:
             return self._no_fix(req.seq, OUT_OF_REACH)
         pose, joints_cov, left, right = view
-        est = self.loc.locate(left, fix_camera(self.landmarks, pose, np.zeros((6, 6)), joints_cov), right)
+        attitude = ((math.radians(req.roll_deg), math.radians(req.pitch_deg))
+                    if math.isfinite(req.roll_deg) and math.isfinite(req.pitch_deg) else None)
+        est = self.loc.locate(left, fix_camera(self.landmarks, pose, np.zeros((6, 6)), joints_cov), right, attitude)
         if est is None or not np.isfinite(est.cov).all():
             return self._no_fix(req.seq, NO_MARKERS)
         self.errors.append(fix_error(est.t, so3_log(est.R @ cb.R.T), est.yaw - cb.yaw, est.cov, cb.t,
@@ -226,8 +228,10 @@ def run_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], chan
         mission.on_estimate(nav.nav.s, nav.nav.P)
         cmd = mission.step(now - t0, dev)
         if cmd.request_fix:
+            att = dev.attitude  # its estimate (where the mast points) and its attitude sensor's roll and pitch
             req = fix_packets.FixRequest(mission.fix_seq, mission.leg_i, float(mission.est.s[0]),
-                                         float(mission.est.s[1]))  # its estimate: where the mast points
+                                         float(mission.est.s[1]), *((float(att.roll_deg), float(att.pitch_deg))
+                                                                    if att is not None else (math.nan, math.nan)))
             channel.send(CLIFF, fix_packets.encode(req), now)
         rig.to_rig(dev.commands(cmd.rates_mps, cmd.enable, cmd.clear_faults, cmd.wheels_radps), now - t0)
         est_path.append((float(mission.est.s[0]), float(mission.est.s[1])))

@@ -23,6 +23,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from fsw.core.geometry import normal_from_attitude
+
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
 
@@ -93,12 +95,21 @@ class CliffbotTruth:
     markers: tuple[ArucoMarker, ...]
     quads: tuple[Quad, ...]
     dictionary: str = ARUCO_DICT
+    roll: float = 0.0  # rad, the attitude sensor's convention (fsw.core.geometry.normal_from_attitude)
+    pitch: float = 0.0  # rad, nose up +
 
     @property
     def R(self) -> F64:
-        """Body-to-world rotation."""
+        """Body-to-world rotation: heading ``yaw``; on tilted ground its up axis is the ground's
+        normal that ``roll`` and ``pitch`` give, its forward axis the one across that normal in
+        the vertical plane of the heading (so the heading read from the rotation is ``yaw``)."""
         c, s = math.cos(self.yaw), math.sin(self.yaw)
-        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        if self.roll == 0.0 and self.pitch == 0.0:
+            return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        n = normal_from_attitude(self.yaw, self.roll, self.pitch)
+        fwd = max(float(n[2]), 1e-6) * np.array([c, s, 0.0]) - (c * n[0] + s * n[1]) * np.array([0.0, 0.0, 1.0])
+        fwd /= float(np.linalg.norm(fwd))
+        return np.column_stack([fwd, np.cross(n, fwd), n])
 
     @property
     def t(self) -> F64:
@@ -155,8 +166,11 @@ def build_cliffbot(
     marker_size_m: float = 0.18,
     marker_ids: tuple[int, int, int, int] = (1, 2, 3, 4),
     seed: int = 0,
+    roll: float = 0.0,
+    pitch: float = 0.0,
 ) -> CliffbotTruth:
-    """A Cliff-bot whose footprint centre stands at ``(x, y, z)`` heading ``yaw`` (rad).
+    """A Cliff-bot whose footprint centre stands at ``(x, y, z)`` heading ``yaw`` (rad), tilted
+    by ``roll`` and ``pitch`` (rad) with the ground it stands on (:attr:`CliffbotTruth.R`).
 
     Markers: ``marker_ids`` = (front, left, right, top plate). The body needs faces at least
     a panel (``marker_size_m * 8 / 6``) wide and high.
@@ -166,7 +180,7 @@ def build_cliffbot(
     if min(width, height) < panel or length < panel:
         raise ValueError(f"Cliff-bot faces {size_m} m are too small for {marker_size_m} m markers")
     rng = np.random.default_rng(seed + 7919)
-    rot = CliffbotTruth(x, y, z, yaw, length, width, height, (), ()).R
+    rot = CliffbotTruth(x, y, z, yaw, length, width, height, (), (), roll=roll, pitch=pitch).R
     origin = np.array([x, y, z])
 
     def to_world(p: F64) -> F64:
@@ -207,7 +221,7 @@ def build_cliffbot(
     plate = quads[-1]
     quads.append(Quad(plate.p0 + plate.eu, -plate.eu, plate.ev,
                       np.full((4, 4), 0.35, np.float32)))
-    return CliffbotTruth(x, y, z, yaw, length, width, height, tuple(markers), tuple(quads))
+    return CliffbotTruth(x, y, z, yaw, length, width, height, tuple(markers), tuple(quads), roll=roll, pitch=pitch)
 
 
 def marker_plates(frames: list[tuple[int, F64, F64, F64]], marker_size_m: float) -> tuple[Quad, ...]:

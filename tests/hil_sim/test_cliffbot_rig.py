@@ -103,3 +103,22 @@ def test_a_cliffbot_at_rest_is_settled_once_where_settle_puts_it(world: Any, mon
     _drive(rig, codec, 0.0, 0.1, now)
     assert len(calls) == asked + 1 and calls[-1][0] == lengths[0] + 0.05
     assert rig.state.lengths_m[0] == pytest.approx(lengths[0] + 0.05, abs=2e-3)
+
+
+def test_the_body_the_cameras_see_stands_as_its_attitude_sensor_says(world: Any) -> None:
+    """Lowered over the lip, the body the RECON-bot's cameras render (and its fixes are judged
+    against) is tilted with the ground under it: its up axis is the attitude sensor's (noise
+    aside), its heading the rig's; at the start on the plateau it stands level."""
+    from fsw.core.geometry import normal_from_attitude
+
+    rig = CliffbotRig(world, GRID, TetherConfig(), ClimberConfig())
+    level = rig.cliffbot_truth()
+    assert abs(level.R[2, 2] - 1.0) < 0.02
+    _drive(rig, TeamCan(), 0.1, 6.0)
+    roll, pitch, yaw = rig.attitude_deg()
+    body = rig.cliffbot_truth()
+    assert pitch < -20.0
+    np.testing.assert_allclose(body.R[:, 2], normal_from_attitude(np.radians(yaw), np.radians(roll), np.radians(pitch)),
+                               atol=1e-9)
+    assert abs(np.degrees(np.arctan2(body.R[1, 0], body.R[0, 0])) - yaw) < 1e-6
+    np.testing.assert_allclose(body.R.T @ body.R, np.eye(3), atol=1e-12)

@@ -8,8 +8,10 @@ receiver tells them apart by the type nibble. A fix is small (122 bytes) and is 
 of map bytes. :func:`decode` raises :class:`~fsw.comm.link_packets.PacketError` with a
 one-line reason on anything that is not an intact fix packet.
 
-FIX_REQUEST body: ``seq`` u16, ``leg`` u16, and the Cliff-bot's estimate ``x y`` f32 (where the
-RECON-bot aims its mast; a 4-byte body without it is still read: NaN). NO_FIX body: ``seq`` u16, ``reason`` u8.
+FIX_REQUEST body: ``seq`` u16, ``leg`` u16, the Cliff-bot's estimate ``x y`` f32 (where the
+RECON-bot aims its mast) and its attitude sensor's ``roll pitch`` f32 in degrees (the gravity
+the fix's attitude must agree with, docs/algorithm.md §5.3); a 12-byte body without the attitude and
+a 4-byte body without either are still read (NaN). NO_FIX body: ``seq`` u16, ``reason`` u8.
 FIX body: ``seq`` u16 (the request answered), ``t_ms`` u32 (RECON-bot clock), position
 ``x y z`` and rotation vector ``rx ry rz`` (body to world) as f32, and the fix's 6x6
 covariance (rotation first, then position; docs/algorithm.md §5) as its 21-value upper triangle, f32.
@@ -31,6 +33,7 @@ F64 = NDArray[np.float64]
 FIX_REQUEST, FIX, NO_FIX = 12, 13, 14
 _REQ = struct.Struct("<HH")
 _REQ_XY = struct.Struct("<HHff")
+_REQ_ATT = struct.Struct("<HHffff")
 _NO = struct.Struct("<HB")
 NO_FIX_REASONS = ("no markers seen", "out of the mast's reach", "busy")
 _FIX = struct.Struct("<HI6f21f")
@@ -43,6 +46,8 @@ class FixRequest:
     leg: int
     x: float = math.nan  # the Cliff-bot's estimate (map frame, m); NaN: not given
     y: float = math.nan
+    roll_deg: float = math.nan  # its attitude sensor's roll (left side up +) and pitch (nose up +); NaN: not given
+    pitch_deg: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -90,7 +95,9 @@ def encode(p: Fix | FixRequest | NoFix) -> bytes:
     if isinstance(p, FixRequest):
         if not (math.isfinite(p.x) and math.isfinite(p.y)):
             return _frame(FIX_REQUEST, _REQ.pack(p.seq & 0xFFFF, p.leg & 0xFFFF))
-        return _frame(FIX_REQUEST, _REQ_XY.pack(p.seq & 0xFFFF, p.leg & 0xFFFF, p.x, p.y))
+        if not (math.isfinite(p.roll_deg) and math.isfinite(p.pitch_deg)):
+            return _frame(FIX_REQUEST, _REQ_XY.pack(p.seq & 0xFFFF, p.leg & 0xFFFF, p.x, p.y))
+        return _frame(FIX_REQUEST, _REQ_ATT.pack(p.seq & 0xFFFF, p.leg & 0xFFFF, p.x, p.y, p.roll_deg, p.pitch_deg))
     vals = [*np.asarray(p.position, float), *np.asarray(p.rotvec, float), *np.asarray(p.cov, float)[_IU]]
     if not all(math.isfinite(v) for v in vals):
         raise ValueError("a fix with a non-finite value is not sent")
@@ -119,6 +126,13 @@ def decode(datagram: bytes) -> Fix | FixRequest | NoFix:
         if not (math.isfinite(x) and math.isfinite(y)):
             raise PacketError("fix request with a non-finite estimate")
         return FixRequest(seq, leg, float(x), float(y))
+    if ptype == FIX_REQUEST and len(body) == _REQ_ATT.size:
+        seq, leg, x, y, roll, pitch = _REQ_ATT.unpack(body)
+        if not all(math.isfinite(v) for v in (x, y, roll, pitch)):
+            raise PacketError("fix request with a non-finite estimate or attitude")
+        if abs(roll) > 90.0 or abs(pitch) > 90.0:
+            raise PacketError(f"fix request with an attitude out of range (roll {roll:.1f}, pitch {pitch:.1f} deg)")
+        return FixRequest(seq, leg, float(x), float(y), float(roll), float(pitch))
     if ptype == NO_FIX and len(body) == _NO.size:
         seq, why = _NO.unpack(body)
         return NoFix(seq, why)

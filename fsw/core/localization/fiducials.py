@@ -20,19 +20,28 @@ enlarged ``fiducial_upsample`` times (bicubic) by a detector tuned for small qua
 adaptive-threshold windows, a looser polygon fit, 8 px per cell when reading the bits); its
 corners are scaled back. The pass with more known
 markers is used, and the right image is searched the same way.
+
+One marker is a planar target with two mirror poses; far and small, both fit its corners and
+the marker alone cannot tell them apart. The mirror pose tilts the body by tens of degrees
+(the reflection of the marker's normal about the line of sight: a side marker seen 15 deg from
+above comes out tilted about 30 deg). A fix request that carries the Cliff-bot's roll and pitch
+(its attitude sensor) therefore settles it: a candidate whose tilt disagrees with that gravity
+beyond the chi-square gate is no fix of the body (docs/algorithm.md §5.3, :func:`tilt_agrees`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.core.geometry import CameraPose
+from fsw.core.geometry import CameraPose, normal_from_attitude
 from fsw.core.localization.localization import (
     LocalizationConfig,
     PoseEstimate,
@@ -167,9 +176,18 @@ class CliffbotLocalizer:
         return (big, up) if len(big) > len(seen) else (seen, 1)
 
     def locate(self, left: NDArray[np.uint8], camera: PoseEstimate,
-               right: NDArray[np.uint8] | None = None) -> BodyEstimate | None:
-        """The Cliff-bot body pose in the world, or None when too few corners are seen."""
-        got = self.camera_in(self.corners, left, right)
+               right: NDArray[np.uint8] | None = None,
+               attitude: tuple[float, float] | None = None) -> BodyEstimate | None:
+        """The Cliff-bot body pose in the world, or None when too few corners are seen.
+        ``attitude``: its roll and pitch (rad, its attitude sensor's convention), when known:
+        a pose whose tilt disagrees with them is not the body's (:func:`tilt_agrees`)."""
+        agrees = None
+        if attitude is not None:
+            sigma = math.radians(self.cfg.fiducial_tilt_sigma_deg)
+            gate = -2.0 * math.log(1.0 - self.cfg.fiducial_gravity_gate)  # chi-square, 2 dof
+            normal = normal_from_attitude(0.0, attitude[0], attitude[1])
+            agrees = functools.partial(tilt_agrees, camera, normal, sigma, gate)
+        got = self.camera_in(self.corners, left, right, agrees)
         if got is None:
             return None
         est, ids, ambiguity = got
@@ -182,10 +200,13 @@ class CliffbotLocalizer:
         got = self.camera_in(known, left, right)
         return None if got is None else got[0]
 
-    def camera_in(self, known: dict[int, F64], left: NDArray[np.uint8], right: NDArray[np.uint8] | None = None
+    def camera_in(self, known: dict[int, F64], left: NDArray[np.uint8], right: NDArray[np.uint8] | None = None,
+                  agrees: Callable[[PoseEstimate], bool] | None = None
                   ) -> tuple[PoseEstimate, tuple[int, ...], float] | None:
         """The left camera's pose in the frame the corners ``known`` are given in, the marker ids it
-        rests on and its ambiguity (below), or None when too few corners are seen."""
+        rests on and its ambiguity (below), or None when too few corners are seen. ``agrees``: a
+        test each candidate pose must pass (the gravity of the request, :meth:`locate`); of two
+        mirror poses one that fails it is no rival, and none passing is no fix."""
         seen_l, scale = self.detect_known(known, left)
         if not seen_l:
             return None
@@ -208,6 +229,10 @@ class CliffbotLocalizer:
             img_r = np.concatenate([seen_r[i] for i in both])
             cands = [self._refine_stereo(c, obj, img, obj_r, img_r) for c in cands]
         cands = sorted(cands, key=lambda c: c.rms_px)
+        if agrees is not None:
+            cands = [c for c in cands if agrees(c)]
+            if not cands:
+                return None  # no pose of the markers stands as gravity says the body does
         est = cands[0]
         if not np.isfinite(est.rms_px) or est.rms_px > self.cfg.max_reproj_px:
             return None
@@ -256,6 +281,30 @@ def _side_px(corners: F64) -> float:
     """The mean side of a marker's four image corners (px)."""
     c = np.asarray(corners, float).reshape(4, 2)
     return float(np.mean(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1)))
+
+
+def tilt_agrees(camera: PoseEstimate, normal: F64, sigma_rad: float, gate: float, cam_in_body: PoseEstimate) -> bool:
+    """Whether the body pose of ``cam_in_body`` (the camera in the body's frame, seen from
+    ``camera`` in the world) stands tilted as the attitude sensor says: ``normal`` is the
+    sensor's up in the body's level heading frame (``normal_from_attitude(0, roll, pitch)``).
+    The two horizontal components of the rotation between the pose's up axis and the sensor's,
+    in the covariance of the pose (the camera's and the PnP's, carried to the body) plus the
+    sensor's ``sigma_rad`` on each, within the chi-square ``gate`` (2 dof)."""
+    body = _compose(camera, cam_in_body, ())
+    up = body.R[:, 2]
+    yaw = math.atan2(float(body.R[1, 0]), float(body.R[0, 0]))
+    c, s_ = math.cos(yaw), math.sin(yaw)
+    n = np.asarray(normal, float)
+    measured = np.array([c * n[0] - s_ * n[1], s_ * n[0] + c * n[1], n[2]])  # the sensor's up in the world
+    err = np.cross(up, measured)  # the small rotation from the pose's up to the sensor's (world frame)
+    b1 = np.cross(up, [0.0, 0.0, 1.0] if abs(up[2]) < 0.9 else [1.0, 0.0, 0.0])
+    b1 /= float(np.linalg.norm(b1))
+    basis = np.column_stack([b1, np.cross(up, b1)])  # the two rotations that tilt the up axis
+    S = basis.T @ body.cov[:3, :3] @ basis + sigma_rad ** 2 * np.eye(2)
+    e = basis.T @ err
+    if not (np.isfinite(S).all() and np.isfinite(e).all()):
+        return False
+    return float(e @ np.linalg.solve(S, e)) <= gate
 
 
 def _ambiguity(cands: list[PoseEstimate], same_deg: float = 1.0, same_m: float = 0.01) -> float:

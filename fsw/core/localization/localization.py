@@ -59,6 +59,15 @@ class LocalizationConfig:
         15.0, lo=0.0, hi=1000.0, units="px",
         doc="a fix from one marker is refused when its mean side in the image is shorter than this",
     )
+    fiducial_tilt_sigma_deg: float = param(
+        1.0, lo=0.01, hi=30.0, units="deg",
+        doc="sigma of the Cliff-bot's roll and pitch as a fix request carries them (its attitude sensor): "
+            "the gravity a fix's attitude must agree with (docs/algorithm.md §5.3)",
+    )
+    fiducial_gravity_gate: float = param(
+        0.999, lo=0.5, hi=0.999999,
+        doc="chi-square probability (2 dof) within which a fix's tilt must agree with the request's attitude",
+    )
     fiducial_upsample: int = param(
         2, lo=1, hi=4,
         doc="when fewer than two known markers are found, the image is searched again enlarged this many times "

@@ -19,22 +19,10 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.core.geometry import CameraPose, rotation_from_yaw_tilt
+from fsw.core.geometry import CameraPose, normal_from_attitude, rotation_from_yaw_tilt
 from fsw.core.localization.localization import so3_log
 
 F64 = NDArray[np.float64]
-
-
-def normal_from_attitude(yaw: float, roll: float, pitch: float) -> F64:
-    """The ground's upward unit normal under a body with heading ``yaw``, ``roll`` (left side
-    up +) and ``pitch`` (nose up +), radians: the attitude sensor's convention
-    (``hil_sim.team.cliffbot_rig``: ``sin pitch = -n . forward``, ``sin roll = n . left``)."""
-    fwd = np.array([math.cos(yaw), math.sin(yaw), 0.0])
-    left = np.array([-math.sin(yaw), math.cos(yaw), 0.0])
-    a, b = -math.sin(pitch), math.sin(roll)
-    up = math.sqrt(max(1.0 - a * a - b * b, 1e-6))
-    n = a * fwd + b * left + np.array([0.0, 0.0, up])
-    return n / float(np.linalg.norm(n))
 
 
 def head_camera_pose(body: F64, normal: F64, yaw: float, pan: float, tilt: float, head_m: float,

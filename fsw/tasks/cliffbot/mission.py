@@ -162,7 +162,10 @@ class CliffbotMissionTask(FlightTask):
                 self.publish(CB_SENSE, SenseRequest(m.sense_seq))
             if cmd.request_fix:
                 xy = m.est.xy
-                self.publish(CB_FIX_REQUEST, FixRequest(m.fix_seq, m.leg_i, float(xy[0]), float(xy[1])))
+                att = st.devices.attitude  # its roll and pitch: the gravity the fix must agree with
+                roll, pitch = (att.roll_deg, att.pitch_deg) if att is not None else (math.nan, math.nan)
+                self.publish(CB_FIX_REQUEST, FixRequest(m.fix_seq, m.leg_i, float(xy[0]), float(xy[1]),
+                                                        float(roll), float(pitch)))
         self._auto_recover(now)
         self._reset_nav()
         self._events()

@@ -37,14 +37,14 @@ from numpy.typing import NDArray
 
 from fsw.comm.team.team_can import WINCHES
 from fsw.core.edge.edge import EdgeConfig
-from fsw.core.geometry import CameraConfig, CameraPose, MapGrid, MapGridConfig
+from fsw.core.geometry import CameraConfig, CameraPose, MapGrid, MapGridConfig, normal_from_attitude
 from fsw.core.map.body_mask import BodyBox, MaskConfig, TeamGeometry, TetherLine, anchorbot_box
 from fsw.core.map.elevation_map import FusionConfig
 from fsw.core.pipeline import MergedView, SensingPipeline
 from fsw.core.planning.nbv import NbvConfig
 from fsw.core.registration.registration import RegistrationConfig
 from fsw.core.stereo.stereo import StereoConfig
-from fsw.core.team.cliffbot_head import head_end, head_pose_covariance, normal_from_attitude
+from fsw.core.team.cliffbot_head import head_end, head_pose_covariance
 from fsw.core.team.contact_ground import body_height
 from fsw.core.team.tether import tether_state
 from fsw.framework.jobs import JobHandle

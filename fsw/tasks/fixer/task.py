@@ -427,7 +427,10 @@ class CliffbotFixerTask(FlightTask):
         ids = self.plate_ids()
         basis = f"on plates {ids}" if ids else "on the rover's estimate"
         assert self.pose is not None
-        self.submit_job(self._locate(fr, self._joints_cov(), frame_extra(self.pose, self.ctx.cfg)),
+        req = self.current
+        attitude = ((math.radians(req.roll_deg), math.radians(req.pitch_deg))
+                    if math.isfinite(req.roll_deg) and math.isfinite(req.pitch_deg) else None)
+        self.submit_job(self._locate(fr, self._joints_cov(), frame_extra(self.pose, self.ctx.cfg), attitude),
                         f"fix{self.current.seq}",
                         on_done=functools.partial(self._located, self.current.seq, int(fr.time_s * 1000), basis))
 
@@ -492,12 +495,13 @@ class CliffbotFixerTask(FlightTask):
         the team's frame (``extra``: :func:`frame_extra`)."""
         return fix_camera(self.landmarks, fr.pose, fr.pose_cov, joints_cov, extra)
 
-    def _locate(self, fr: CameraFrame, joints_cov: NDArray[np.float64], extra: NDArray[np.float64]
-                ) -> Generator[None, None, BodyEstimate | None]:
-        """The slack job: rectify the pair (when the camera has a calibration), find the markers, PnP."""
+    def _locate(self, fr: CameraFrame, joints_cov: NDArray[np.float64], extra: NDArray[np.float64],
+                attitude: tuple[float, float] | None) -> Generator[None, None, BodyEstimate | None]:
+        """The slack job: rectify the pair (when the camera has a calibration), find the markers, PnP
+        (the pose whose tilt agrees with the request's ``attitude``, roll and pitch, when it has one)."""
         yield
         left, right = yield from self._pair(fr)
-        return self.loc.locate(left, self.camera_estimate(fr, joints_cov, extra), right)
+        return self.loc.locate(left, self.camera_estimate(fr, joints_cov, extra), right, attitude)
 
     def _located(self, seq: int, t_ms: int, basis: str, handle: JobHandle) -> None:
         if self.current is None or self.current.seq != seq:

@@ -171,6 +171,7 @@ def range_rows(scenario: str, seed: int, config: str, index: int, r: float, pose
     cfg = load_settings(config)
     world = load_scenario(scenario, seed)
     rng = np.random.default_rng([seed, 55, index])
+    sensor = np.random.default_rng([seed, 57, index])  # the attitude sensor's noise (its own stream)
     loc = CliffbotLocalizer(cfg.localization, cfg.cliffbot, cfg.camera.K, cfg.camera.baseline_m)
     # the same localizer without the ambiguity refusal: what a refused fix would have been
     loose = CliffbotLocalizer(dataclasses.replace(cfg.localization, fiducial_ambiguity_ratio=1.0), cfg.cliffbot,
@@ -206,7 +207,9 @@ def range_rows(scenario: str, seed: int, config: str, index: int, r: float, pose
 
         seen = [_side_px(c) for c in loc.detect_known(loc.corners, left)[0].values()]
         row["marker_px"] = max(seen) if seen else 0.0  # the largest Cliff-bot marker detected (0: none)
-        est = loc.locate(left, PoseEstimate(pose, exact), right)
+        # the level body's roll and pitch as its attitude sensor reads them: the request carries them
+        attitude = _sensed_attitude(sensor)
+        est = loc.locate(left, PoseEstimate(pose, exact), right, attitude)
         if est is not None:
             pe, ye, nees = _errors(est, cb)
             row.update(fix=1, pos_err_cm=pe, yaw_err_deg=ye, nees=nees, markers=len(est.marker_ids))
@@ -216,6 +219,15 @@ def range_rows(scenario: str, seed: int, config: str, index: int, r: float, pose
             pe, ye, _ = _errors(alt, cb)
             row.update(ambiguous=1, ambiguous_pos_err_cm=pe, ambiguous_yaw_err_deg=ye, markers=len(alt.marker_ids))
     return rows
+
+
+def _sensed_attitude(rng: Any) -> tuple[float, float]:
+    """A level Cliff-bot's roll and pitch (rad) as its attitude sensor reads them (the bench's
+    noise, ``CliffbotHw.imu_noise_deg``): what its fix request carries (docs/algorithm.md §5.3)."""
+    from hil_sim.team.cliffbot_rig import CliffbotHw
+
+    roll, pitch = (math.radians(float(v)) for v in CliffbotHw().imu_noise_deg * rng.standard_normal(2))
+    return roll, pitch
 
 
 def _errors(est: Any, cb: Any) -> tuple[float, float, float]:
@@ -358,6 +370,7 @@ def mission_rows(scenario: str, seed: int, recon: dict[str, Any], config: str, r
     # against the start (the flight's fix without a plate carries it, frame_extra); older missions: the map's
     frame_cov = rot @ np.asarray(recon.get("frame_cov", recon["cov"]), float) @ rot.T
     rng = np.random.default_rng([draw_seed, 56, seed])
+    sensor = np.random.default_rng([draw_seed, 58, seed])  # the attitude sensor's noise (its own stream)
     loc = CliffbotLocalizer(cfg.localization, cfg.cliffbot, cfg.camera.K, cfg.camera.baseline_m)
     js = math.radians(cfg.capture.joint_sigma_deg)
     seen = rig.world_now()
@@ -419,7 +432,7 @@ def mission_rows(scenario: str, seed: int, recon: dict[str, Any], config: str, r
             rows.append(row)
             cams = {"raw": PoseEstimate(pred, pred_cov), "plates": camera_from_landmarks(landmarks, pred, q)}
             for k, cam in cams.items():
-                got = loc.locate(left, cam, right) if cam is not None else None
+                got = loc.locate(left, cam, right, _sensed_attitude(sensor)) if cam is not None else None
                 if got is not None:
                     pe, ye, nees = _errors(got, cb)
                     row.update({f"{k}_fix": 1, f"{k}_pos_err_cm": pe, f"{k}_yaw_err_deg": ye, f"{k}_nees": nees})

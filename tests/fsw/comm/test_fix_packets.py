@@ -52,3 +52,19 @@ def test_a_non_finite_fix_is_not_sent() -> None:
     bad = fp.Fix(f.seq, f.t_ms, np.array([math.nan, 0.0, 0.0]), f.rotvec, f.cov)
     with pytest.raises(ValueError):
         fp.encode(bad)
+
+
+def test_a_request_carries_the_estimate_and_the_attitude_or_reads_without_them() -> None:
+    """A request with the Cliff-bot's roll and pitch (the gravity its fix must agree with) round
+    trips; the shorter forms still read, with NaN for what they lack; a request whose attitude is
+    not finite or beyond a right angle is refused in one line, as the framing is."""
+    full = fp.FixRequest(5, 2, 1.25, -0.5, 3.5, -71.25)
+    assert fp.decode(fp.encode(full)) == full
+    xy = fp.decode(fp.encode(fp.FixRequest(5, 2, 1.25, -0.5)))
+    assert isinstance(xy, fp.FixRequest) and (xy.x, xy.y) == (1.25, -0.5) and math.isnan(xy.roll_deg)
+    assert len(fp.encode(full)) == len(fp.encode(fp.FixRequest(5, 2, 1.25, -0.5))) + 8
+    for roll, pitch in ((math.inf, 0.0), (0.0, 95.0), (-91.0, 0.0)):
+        d = fp._frame(fp.FIX_REQUEST, fp._REQ_ATT.pack(5, 2, 1.25, -0.5, roll, pitch))
+        with pytest.raises(PacketError) as exc:
+            fp.decode(d)
+        assert "\n" not in str(exc.value)

@@ -99,3 +99,48 @@ def test_one_marker_whose_mirror_fits_within_the_corners_noise_gives_no_fix() ->
     assert side >= CFG.localization.fiducial_min_marker_px and ratio >= CFG.localization.fiducial_ambiguity_ratio
     assert fix is None
     assert got[2.0][2] is not None
+
+
+
+def _far_marker(seed: int, r: float = 4.0, yaw_deg: float = 5.0, rise: float = 0.3
+                ) -> tuple[CameraPose, np.ndarray, np.ndarray]:
+    """Marker 1 of a level body at the origin seen from ``r`` m, ``yaw_deg`` off its normal and
+    ``rise`` x ``r`` above it (a RECON-bot's mast looking down at it): the left camera's pose and
+    the corners in the left and right images, with 0.3 px noise."""
+    corners = CliffbotLayout().corners_body()[1]
+    c = corners.mean(axis=0)
+    a = math.radians(yaw_deg)
+    eye = c + r * np.array([math.cos(a), math.sin(a), rise])
+    fwd = (c - eye) / np.linalg.norm(c - eye)
+    right = np.cross(fwd, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    pose = CameraPose(np.column_stack([right, np.cross(fwd, right), fwd]), eye)
+    K = np.asarray(CFG.camera.K, float)
+    noise = np.random.default_rng(seed).normal(0.0, 0.3, (2, 4, 2))
+    return (pose, _project(pose, corners, K) + noise[0],
+            _project(pose.right(CFG.camera.baseline_m), corners, K) + noise[1])
+
+
+def test_the_requests_gravity_settles_the_mirror_pose_of_one_far_marker() -> None:
+    """One far marker's two mirror poses fit its corners alike (left and right images): without
+    the Cliff-bot's attitude no fix; with its roll and pitch the pose that stands as gravity says
+    is the fix (within its sigma of the truth), and an attitude that neither pose agrees with
+    gives none, never the mirror (docs/algorithm.md §5.3)."""
+    from fsw.core.localization.fiducials import CliffbotLocalizer
+    from fsw.core.localization.localization import PoseEstimate, so3_log
+
+    K = np.asarray(CFG.camera.K, float)
+    loc = CliffbotLocalizer(CFG.localization, CliffbotLayout(), K, CFG.camera.baseline_m)
+    left, right = np.zeros((4, 4), np.uint8), np.ones((4, 4), np.uint8)
+    blind = 0
+    for seed in range(12):
+        pose, px_l, px_r = _far_marker(seed)
+        loc.detect = lambda image, scale=1, a=px_l, b=px_r: {1: a if image is left else b}  # type: ignore[method-assign]
+        cam = PoseEstimate(pose, np.zeros((6, 6)))
+        blind += loc.locate(left, cam, right) is None
+        fix = loc.locate(left, cam, right, attitude=(0.0, 0.0))  # the body stands level: so says its sensor
+        assert fix is not None, seed
+        # the body's pose (within its sigma of about 5 deg), not its mirror (30-36 deg off)
+        assert math.degrees(float(np.linalg.norm(so3_log(fix.R)))) < 12.0, seed
+        assert loc.locate(left, cam, right, attitude=(math.radians(20.0), 0.0)) is None, seed  # neither stands so
+    assert blind >= 6, blind  # most of these are refused without the attitude

@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from fsw.core.team.cliffbot_head import head_camera_pose, head_end, head_pose_covariance, normal_from_attitude
+from fsw.core.geometry import normal_from_attitude
+from fsw.core.team.cliffbot_head import head_camera_pose, head_end, head_pose_covariance
 
 
 @pytest.mark.parametrize(("yaw", "roll", "pitch"), [(0.0, 0.0, 0.0), (-1.2, 0.1, -0.6), (2.5, -0.3, 0.4)])
