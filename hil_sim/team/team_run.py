@@ -134,9 +134,8 @@ class ReconFixer:
         if view is None:
             return self._no_fix(req.seq, OUT_OF_REACH)
         pose, joints_cov, left, right = view
-        attitude = ((math.radians(req.roll_deg), math.radians(req.pitch_deg))
-                    if math.isfinite(req.roll_deg) and math.isfinite(req.pitch_deg) else None)
-        est = self.loc.locate(left, fix_camera(self.landmarks, pose, np.zeros((6, 6)), joints_cov), right, attitude)
+        est = self.loc.locate(left, fix_camera(self.landmarks, pose, np.zeros((6, 6)), joints_cov), right,
+                              req.attitude)
         if est is None or not np.isfinite(est.cov).all():
             return self._no_fix(req.seq, NO_MARKERS)
         self.errors.append(fix_error(est.t, so3_log(est.R @ cb.R.T), est.yaw - cb.yaw, est.cov, cb.t,

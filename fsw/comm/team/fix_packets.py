@@ -49,6 +49,13 @@ class FixRequest:
     roll_deg: float = math.nan  # its attitude sensor's roll (left side up +) and pitch (nose up +); NaN: not given
     pitch_deg: float = math.nan
 
+    @property
+    def attitude(self) -> tuple[float, float] | None:
+        """Its roll and pitch in radians (the gravity its fix must agree with), None when not given."""
+        if not (math.isfinite(self.roll_deg) and math.isfinite(self.pitch_deg)):
+            return None
+        return math.radians(self.roll_deg), math.radians(self.pitch_deg)
+
 
 @dataclass(frozen=True)
 class NoFix:
@@ -95,7 +102,7 @@ def encode(p: Fix | FixRequest | NoFix) -> bytes:
     if isinstance(p, FixRequest):
         if not (math.isfinite(p.x) and math.isfinite(p.y)):
             return _frame(FIX_REQUEST, _REQ.pack(p.seq & 0xFFFF, p.leg & 0xFFFF))
-        if not (math.isfinite(p.roll_deg) and math.isfinite(p.pitch_deg)):
+        if p.attitude is None:
             return _frame(FIX_REQUEST, _REQ_XY.pack(p.seq & 0xFFFF, p.leg & 0xFFFF, p.x, p.y))
         return _frame(FIX_REQUEST, _REQ_ATT.pack(p.seq & 0xFFFF, p.leg & 0xFFFF, p.x, p.y, p.roll_deg, p.pitch_deg))
     vals = [*np.asarray(p.position, float), *np.asarray(p.rotvec, float), *np.asarray(p.cov, float)[_IU]]

@@ -185,8 +185,7 @@ class CliffbotLocalizer:
         if attitude is not None:
             sigma = math.radians(self.cfg.fiducial_tilt_sigma_deg)
             gate = -2.0 * math.log(1.0 - self.cfg.fiducial_gravity_gate)  # chi-square, 2 dof
-            normal = normal_from_attitude(0.0, attitude[0], attitude[1])
-            agrees = functools.partial(tilt_agrees, camera, normal, sigma, gate)
+            agrees = functools.partial(tilt_agrees, camera, attitude, sigma, gate)
         got = self.camera_in(self.corners, left, right, agrees)
         if got is None:
             return None
@@ -283,19 +282,17 @@ def _side_px(corners: F64) -> float:
     return float(np.mean(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1)))
 
 
-def tilt_agrees(camera: PoseEstimate, normal: F64, sigma_rad: float, gate: float, cam_in_body: PoseEstimate) -> bool:
+def tilt_agrees(camera: PoseEstimate, attitude: tuple[float, float], sigma_rad: float, gate: float,
+                cam_in_body: PoseEstimate) -> bool:
     """Whether the body pose of ``cam_in_body`` (the camera in the body's frame, seen from
-    ``camera`` in the world) stands tilted as the attitude sensor says: ``normal`` is the
-    sensor's up in the body's level heading frame (``normal_from_attitude(0, roll, pitch)``).
-    The two horizontal components of the rotation between the pose's up axis and the sensor's,
-    in the covariance of the pose (the camera's and the PnP's, carried to the body) plus the
-    sensor's ``sigma_rad`` on each, within the chi-square ``gate`` (2 dof)."""
+    ``camera`` in the world) stands tilted as the attitude sensor's ``attitude`` (roll, pitch,
+    rad) says: the two horizontal components of the rotation between the pose's up axis and the
+    sensor's (:func:`~fsw.core.geometry.normal_from_attitude` at the pose's heading), in the
+    covariance of the pose (the camera's and the PnP's, carried to the body) plus the sensor's
+    ``sigma_rad`` on each, within the chi-square ``gate`` (2 dof)."""
     body = _compose(camera, cam_in_body, ())
     up = body.R[:, 2]
-    yaw = math.atan2(float(body.R[1, 0]), float(body.R[0, 0]))
-    c, s_ = math.cos(yaw), math.sin(yaw)
-    n = np.asarray(normal, float)
-    measured = np.array([c * n[0] - s_ * n[1], s_ * n[0] + c * n[1], n[2]])  # the sensor's up in the world
+    measured = normal_from_attitude(body.yaw, attitude[0], attitude[1])  # the sensor's up in the world
     err = np.cross(up, measured)  # the small rotation from the pose's up to the sensor's (world frame)
     b1 = np.cross(up, [0.0, 0.0, 1.0] if abs(up[2]) < 0.9 else [1.0, 0.0, 0.0])
     b1 /= float(np.linalg.norm(b1))

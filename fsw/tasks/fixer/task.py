@@ -427,10 +427,8 @@ class CliffbotFixerTask(FlightTask):
         ids = self.plate_ids()
         basis = f"on plates {ids}" if ids else "on the rover's estimate"
         assert self.pose is not None
-        req = self.current
-        attitude = ((math.radians(req.roll_deg), math.radians(req.pitch_deg))
-                    if math.isfinite(req.roll_deg) and math.isfinite(req.pitch_deg) else None)
-        self.submit_job(self._locate(fr, self._joints_cov(), frame_extra(self.pose, self.ctx.cfg), attitude),
+        self.submit_job(self._locate(fr, self._joints_cov(), frame_extra(self.pose, self.ctx.cfg),
+                                     self.current.attitude),
                         f"fix{self.current.seq}",
                         on_done=functools.partial(self._located, self.current.seq, int(fr.time_s * 1000), basis))
 
