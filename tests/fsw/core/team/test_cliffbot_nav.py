@@ -45,3 +45,39 @@ def test_a_non_finite_length_is_not_used() -> None:
     nav = CliffbotNav(np.array([0.0, -0.5]), -math.pi / 2, NavConfig())
     assert not nav.lengths((math.nan, 3.0), z, grid, anchors, cfg, 0.3)
     assert np.isfinite(nav.s).all()
+
+
+def test_a_length_model_error_that_holds_while_it_stands_is_not_averaged_away() -> None:
+    """The taut-tether model on the map is a few cm off at this place (its error holds while the
+    Cliff-bot stands): 600 length readings leave a covariance that still covers the estimate's
+    error; a fix at the truth is fused and calibrates the model, so the lengths that follow keep
+    the estimate there."""
+    z, grid = cliff()
+    cfg = TetherConfig()
+    anchors = anchor_points(z, grid, np.array([[-1.5, 1.5], [1.5, 1.5]]), cfg)
+    truth = np.array([0.3, -0.5])
+    st = tether_state(z, grid, anchors, truth, cfg)
+    assert st is not None
+    rng = np.random.default_rng(4)
+    model_error = np.array([0.035, 0.02])
+    nav = CliffbotNav(truth + np.array([0.02, -0.01]), -math.pi / 2, NavConfig(init_sigma_m=0.05))
+
+    def read() -> tuple[float, float]:
+        got = np.asarray(st.lengths_m) + model_error + rng.normal(0.0, 0.005, 2)
+        return float(got[0]), float(got[1])
+
+    for _ in range(600):
+        nav.predict(0.0, 0.0, 0.1)
+        assert nav.lengths(read(), z, grid, anchors, cfg, 0.3)
+    err = nav.xy - truth
+    assert np.linalg.norm(err) > 0.01  # the lengths alone put it off (the model's error)
+    nees = float(err @ np.linalg.solve(nav.P[:2, :2], err))
+    assert nees < 13.8  # chi2(2 dof, 0.999): its covariance says so
+    ok, nis = nav.fix(truth, -math.pi / 2, np.diag([0.01 ** 2, 0.01 ** 2, math.radians(0.5) ** 2]))
+    assert ok, nis
+    for _ in range(600):
+        nav.predict(0.0, 0.0, 0.1)
+        assert nav.lengths(read(), z, grid, anchors, cfg, 0.3)
+    assert np.linalg.norm(nav.xy - truth) < 0.012
+    err = nav.xy - truth
+    assert float(err @ np.linalg.solve(nav.P[:2, :2], err)) < 13.8
