@@ -78,6 +78,9 @@ class CliffbotMissionConfig:
     margin_sigmas: float = param(2.326, lo=0.0, hi=10.0,
                                  doc="the length errors the tethers must hold the body at, and the off-the-way "
                                      "test, in standard deviations (2.326: one-sided 99 %)")
+    plane_error_deg: float = param(8.0, lo=0.0, hi=45.0, units="deg",
+                                   doc="the plane the map puts under the body may lean this far from the ground's: "
+                                       "the tensions must stay inside their limits at every such lean")
     safe_recover_s: float = param(0.0, lo=0.0, hi=1e5, units="s",
                                   doc="the task leaves SAFE by itself after this long (0: waits for RECOVER)")
     approach_looks: int = param(3, lo=0, hi=20,

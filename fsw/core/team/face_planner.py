@@ -61,7 +61,15 @@ from scipy import ndimage
 
 from fsw.core.geometry import MapGrid
 from fsw.core.team.climber_ground import ClimberConfig, Ground, ground_layers
-from fsw.core.team.held_tension import NOT_HELD, LengthErrors, held_at, held_reason, length_covariance, length_offsets
+from fsw.core.team.held_tension import (
+    NOT_HELD,
+    LengthErrors,
+    held_at,
+    held_reason,
+    leaned_reason,
+    length_covariance,
+    length_offsets,
+)
 from fsw.core.team.tether import (
     TetherConfig,
     TetherState,
@@ -183,7 +191,7 @@ def node_held_reason(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, tcfg: Tether
     The planner's check of a node; the truth's judge (``hil_sim.team.team_eval``) applies the
     same one with the winches' tolerance."""
     st = tether_state(z, grid, anchors, np.asarray(xy, float), tcfg, ccfg.footprint_m)
-    if st is None or st.statics.tilt_deg <= ccfg.free_slope_deg:
+    if st is None or st.statics.tilt_deg + errors.plane_error_deg <= ccfg.free_slope_deg:
         return ""
     return held_reason(z, grid, anchors, np.asarray(xy, float), st, tcfg, ccfg.free_slope_deg, errors)
 
@@ -284,8 +292,9 @@ def way_reason(z: ZMap, grid: MapGrid, anchors: F64, a: F64, b: F64, tcfg: Tethe
             why = _swept_rock(z, grid, anchors, la, lb, float(f) - 1.0 / n, 1.0 / n, last, tcfg, ccfg, g, settle_at)
             if why:
                 return why
-        if held and got[1].statics.tilt_deg > ccfg.free_slope_deg:
-            why = held_at(z, grid, anchors, xy, got[1], (1.0 - f) * off_a + f * off_b, tcfg, ccfg.free_slope_deg)
+        if held and errors is not None and got[1].statics.tilt_deg + errors.plane_error_deg > ccfg.free_slope_deg:
+            why = leaned_reason(got[1], tcfg, ccfg.free_slope_deg, errors.plane_error_deg) or held_at(
+                z, grid, anchors, xy, got[1], (1.0 - f) * off_a + f * off_b, tcfg, ccfg.free_slope_deg)
             if why:
                 return why
     if float(np.hypot(*(xy - np.asarray(b, float)))) > ccfg.node_m:

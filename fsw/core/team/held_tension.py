@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid
-from fsw.core.team.tether import TetherConfig, TetherState, ZMap, tether_states
+from fsw.core.team.tether import TetherConfig, TetherState, ZMap, statics_many, tether_states
 from fsw.core.team.tether_settle import settle_many
 
 F64 = NDArray[np.float64]
@@ -54,10 +54,11 @@ class LengthErrors:
     length_tol_m: float = 0.0  # the winches stop within this of a set-point (each its own)
     map_error_m: float = 0.0  # the map's heights within this of the ground's (shared under the body)
     z: float = 2.326  # the ellipse's size in standard deviations (one-sided 99 %)
+    plane_error_deg: float = 0.0  # the plane the map puts under the body leans up to this from the ground's
 
     @property
     def any(self) -> bool:
-        return self.length_tol_m > 0.0 or self.map_error_m > 0.0
+        return self.length_tol_m > 0.0 or self.map_error_m > 0.0 or self.plane_error_deg > 0.0
 
 
 def length_covariance(st: TetherState, err: LengthErrors) -> F64:
@@ -91,6 +92,38 @@ def statics_reason(st: TetherState | None, tcfg: TetherConfig, free_slope_deg: f
         return "slack"
     if max(t1, t2) > tcfg.t_max_n:
         return "over-tension"
+    return ""
+
+
+def leaned_reason(st: TetherState, tcfg: TetherConfig, free_slope_deg: float, lean_deg: float) -> str:
+    """Why the body resting where ``st`` puts it may not be held when the plane it stands on
+    leans up to ``lean_deg`` from the map's (``""``: it is held at every such lean). The map's
+    plane under the footprint comes from heights that are least sure where the ground is
+    steep, and the tensions split the body's weight by that plane's fall line: a tether that
+    carries little on the map's plane can go slack on the ground's. The equilibrium is solved
+    again, with the same pulls, for the plane's normal turned by ``lean_deg`` toward and away
+    from the fall line and to either side of it (the normal recovered from the equilibrium,
+    ``N n = m g e_z - T1 u1 - T2 u2``); a lean steeper than ``free_slope_deg`` must keep both
+    tensions inside their limits."""
+    if lean_deg <= 0.0 or st.statics.tilt_deg + lean_deg <= free_slope_deg:
+        return ""
+    u1, u2 = st.paths[0].pull, st.paths[1].pull
+    t1, t2 = st.statics.tensions_n
+    force = np.array([0.0, 0.0, tcfg.mass_kg * tcfg.gravity_mps2]) - t1 * u1 - t2 * u2
+    if not (math.isfinite(st.statics.normal_n) and st.statics.normal_n > 1e-9) or not np.isfinite(force).all():
+        return ""  # (no plane to lean: the statics' own verdict stands)
+    n = force / float(np.linalg.norm(force))
+    across = np.cross(n, [0.0, 0.0, 1.0])  # horizontal, across the fall line
+    if float(np.linalg.norm(across)) < 1e-9:
+        across = np.array([1.0, 0.0, 0.0])
+    across /= float(np.linalg.norm(across))
+    down = np.cross(across, n)
+    a = math.radians(lean_deg)
+    leaned = np.array([math.cos(a) * n + math.sin(a) * d for d in (across, -across, down, -down)])
+    judged = statics_many(np.repeat(u1[None], 4, axis=0), np.repeat(u2[None], 4, axis=0), leaned, tcfg)
+    for s in judged:
+        if s.tilt_deg > free_slope_deg and not s.ok and s.reason in ("slack", "over-tension"):
+            return s.reason
     return ""
 
 
@@ -142,6 +175,7 @@ def held_reason(z: ZMap, grid: MapGrid, anchors: F64, xy: F64, st: TetherState, 
                 free_slope_deg: float, err: LengthErrors) -> str:
     """Why the tethers may not hold the body at the node ``xy`` (its state ``st`` on the map)
     when its lengths are off by the errors ``err`` allows (``""``: they hold it at every offset
-    of :func:`length_offsets`; :func:`held_at`)."""
-    return held_at(z, grid, anchors, xy, st, length_offsets(length_covariance(st, err), err.z), tcfg,
-                   free_slope_deg)
+    of :func:`length_offsets`; :func:`held_at`) or when the plane under it leans as ``err``
+    allows (:func:`leaned_reason`)."""
+    return leaned_reason(st, tcfg, free_slope_deg, err.plane_error_deg) or held_at(
+        z, grid, anchors, xy, st, length_offsets(length_covariance(st, err), err.z), tcfg, free_slope_deg)

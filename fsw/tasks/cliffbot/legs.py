@@ -79,8 +79,10 @@ class Route:
         winches stop anywhere within ``length_tol_m`` of the set-point, and the map's heights,
         which the set-point's lengths come from, are within the codec's error bound of the
         ground's (each uniform; the map's shared by both tethers under the body); judged at
-        ``margin_sigmas`` (:mod:`fsw.core.team.held_tension`)."""
-        return LengthErrors(self.cfg.length_tol_m, self.error_bound_m, self.cfg.margin_sigmas)
+        ``margin_sigmas`` (:mod:`fsw.core.team.held_tension`); and the plane the map puts under
+        the body leans up to ``plane_error_deg`` from the ground's."""
+        return LengthErrors(self.cfg.length_tol_m, self.error_bound_m, self.cfg.margin_sigmas,
+                            self.cfg.plane_error_deg)
 
     def margins(self) -> Margins:
         """The planner's margins. The winches put the body where the lengths hold it, within

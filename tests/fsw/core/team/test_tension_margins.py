@@ -17,6 +17,7 @@ from fsw.core.team.face_planner import place_covariance, way_reason
 from fsw.core.team.held_tension import (
     LengthErrors,
     held_reason,
+    leaned_reason,
     length_covariance,
     length_offsets,
     statics_reason,
@@ -199,8 +200,9 @@ def test_a_checkpoint_keeps_the_cells_no_sensor_measured() -> None:
         restore(mission(), bad, m.z, grid)
 
 
-def _route(z: np.ndarray, grid: MapGrid, anchors: np.ndarray, tcfg: TetherConfig) -> Route:
-    return Route(z, grid, 0.03, CliffbotMissionConfig(), tcfg, ClimberConfig(), anchors)
+def _route(z: np.ndarray, grid: MapGrid, anchors: np.ndarray, tcfg: TetherConfig, lean_deg: float = 0.0) -> Route:
+    """The mission's route on ``z``; the plane's lean (``plane_error_deg``) off unless asked."""
+    return Route(z, grid, 0.03, CliffbotMissionConfig(plane_error_deg=lean_deg), tcfg, ClimberConfig(), anchors)
 
 
 def test_a_way_is_judged_where_the_body_settles_at_its_lengths_errors() -> None:
@@ -381,3 +383,27 @@ def test_a_way_whose_tether_touches_a_rock_between_two_of_its_steps_is_refused()
     assert st is not None and len(st.paths[0].contacts)  # and touches it between them
     assert way_reason(z, grid, anchors, a, b, t, c, g, step_m=step) == "tether over a rock"
     assert way_reason(z, grid, anchors, a, b, t, c, g, step_m=step, errors=ERRORS) == "tether over a rock"
+
+
+def test_a_tether_that_carries_little_on_the_maps_plane_must_hold_at_its_lean() -> None:
+    """The tensions split the weight by the fall line of the plane the map puts under the body,
+    and that plane leans from the ground's where the face is steep. A way whose least tension
+    keeps its limit on the map's plane but not with the plane leaned by ``plane_error_deg`` is
+    refused (the lean's reason), and the refusal grows with the lean; a lean of 0 is the old
+    check, and the truth's judge (no map, no lean) is unchanged by it."""
+    z, grid, anchors = _cliff()
+    t = TetherConfig()
+    a, b = np.array([1.2, -0.8]), np.array([1.2, -0.86])  # tether A at about 11 N, B at 95 N
+    assert _route(z, grid, anchors, t).passable(a, b)
+    assert not _route(z, grid, anchors, t, lean_deg=8.0).passable(a, b)
+    st = tether_state(z, grid, anchors, a, t, ClimberConfig().footprint_m)
+    assert st is not None and st.statics.ok
+    assert leaned_reason(st, t, ClimberConfig().free_slope_deg, 0.0) == ""
+    assert leaned_reason(st, t, ClimberConfig().free_slope_deg, 8.0) == "slack"
+    # The lean that refuses it: the least tension over the leans falls as the lean grows.
+    refused = [leaned_reason(st, t, ClimberConfig().free_slope_deg, d) != "" for d in (0.5, 2.0, 4.0, 8.0, 16.0)]
+    assert refused == sorted(refused) and refused[-1]
+    # A place both tethers pull hard: held at the same lean.
+    mid = tether_state(z, grid, anchors, FACE, t, ClimberConfig().footprint_m)
+    assert mid is not None and min(mid.statics.tensions_n) > 30.0
+    assert leaned_reason(mid, t, ClimberConfig().free_slope_deg, 8.0) == ""
