@@ -81,3 +81,18 @@ def test_a_length_model_error_that_holds_while_it_stands_is_not_averaged_away() 
     assert np.linalg.norm(nav.xy - truth) < 0.012
     err = nav.xy - truth
     assert float(err @ np.linalg.solve(nav.P[:2, :2], err)) < 13.8
+
+
+def test_a_drives_noise_does_not_depend_on_how_often_the_wheels_are_read() -> None:
+    """0.5 m driven read in 1, 10 or 100 steps leaves the same covariance, the length model's
+    error included (random walks and a Gauss-Markov process in the distance driven)."""
+    got = []
+    for steps in (1, 10, 100):
+        nav = CliffbotNav(np.array([0.0, -0.5]), -math.pi / 2, NavConfig(drift_mps=0.0))
+        for _ in range(steps):
+            nav.predict(0.5 / steps, 0.0, 0.0, -math.pi / 2)
+        got.append(nav.P_full.copy())
+        assert np.allclose(nav.xy, [0.0, -1.0], atol=1e-9)
+    for p in got[1:]:
+        np.testing.assert_allclose(p, got[0], rtol=1e-9, atol=1e-12)
+    assert math.isclose(got[0][0, 0], 0.1 ** 2 + 0.5 ** 2 * 0.5, rel_tol=1e-9)  # init 0.1 m; 0.5 m/sqrt(m) over 0.5 m
