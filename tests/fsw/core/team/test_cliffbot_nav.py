@@ -6,18 +6,25 @@ import math
 
 import numpy as np
 
+from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import CliffbotNav, NavConfig
-from fsw.core.team.tether import TetherConfig, anchor_points, tether_state
+from fsw.core.team.tether import TetherConfig, TetherState, anchor_points, tether_state
 from tests.fsw.core.team.test_tether import cliff
 
 
-def test_tether_lengths_pull_the_estimate_to_the_truth() -> None:
+def _on_the_face() -> tuple[np.ndarray, MapGrid, TetherConfig, np.ndarray, np.ndarray, TetherState]:
+    """The test cliff, its anchors, a place on the face and the tethers' state there."""
     z, grid = cliff()
     cfg = TetherConfig()
     anchors = anchor_points(z, grid, np.array([[-1.5, 1.5], [1.5, 1.5]]), cfg)
     truth = np.array([0.3, -0.5])
     st = tether_state(z, grid, anchors, truth, cfg)
     assert st is not None
+    return z, grid, cfg, anchors, truth, st
+
+
+def test_tether_lengths_pull_the_estimate_to_the_truth() -> None:
+    z, grid, cfg, anchors, truth, st = _on_the_face()
     nav = CliffbotNav(truth + np.array([0.12, -0.08]), -math.pi / 2, NavConfig(init_sigma_m=0.2))
     for _ in range(10):
         assert nav.lengths(st.lengths_m, z, grid, anchors, cfg, 0.3)
@@ -50,14 +57,9 @@ def test_a_non_finite_length_is_not_used() -> None:
 def test_a_length_model_error_that_holds_while_it_stands_is_not_averaged_away() -> None:
     """The taut-tether model on the map is a few cm off at this place (its error holds while the
     Cliff-bot stands): 600 length readings leave a covariance that still covers the estimate's
-    error; a fix at the truth is fused and calibrates the model, so the lengths that follow keep
-    the estimate there."""
-    z, grid = cliff()
-    cfg = TetherConfig()
-    anchors = anchor_points(z, grid, np.array([[-1.5, 1.5], [1.5, 1.5]]), cfg)
-    truth = np.array([0.3, -0.5])
-    st = tether_state(z, grid, anchors, truth, cfg)
-    assert st is not None
+    error; a fix at the truth is fused and takes the model's error with it, so the lengths that
+    follow keep the estimate near the truth, and its covariance covers what is left."""
+    z, grid, cfg, anchors, truth, st = _on_the_face()
     rng = np.random.default_rng(4)
     model_error = np.array([0.035, 0.02])
     nav = CliffbotNav(truth + np.array([0.02, -0.01]), -math.pi / 2, NavConfig(init_sigma_m=0.05))
