@@ -78,7 +78,7 @@ class CliffbotMissionConfig:
     margin_sigmas: float = param(2.326, lo=0.0, hi=10.0,
                                  doc="the length errors the tethers must hold the body at, and the off-the-way "
                                      "test, in standard deviations (2.326: one-sided 99 %)")
-    plane_error_deg: float = param(8.0, lo=0.0, hi=45.0, units="deg",
+    plane_error_deg: float = param(2.0, lo=0.0, hi=45.0, units="deg",
                                    doc="the plane the map puts under the body may lean this far from the ground's: "
                                        "the tensions must stay inside their limits at every such lean")
     safe_recover_s: float = param(0.0, lo=0.0, hi=1e5, units="s",
