@@ -94,8 +94,9 @@ class CliffbotNav:
         """Wheel odometry: ``wheel_m`` along the ground in the direction ``heading`` (the IMU's,
         an input: the state's yaw is not coupled to the place). On a face the tethers, not the
         wheels, choose where the body goes, so it may slide sideways to its heading: the
-        process noise is ``odo_sigma_frac`` of the distance across and along as well. The
-        length model's error decorrelates over the distance driven."""
+        process noise, across and along alike, is a random walk of ``odo_sigma_frac`` per
+        square root of a metre driven. The length model's error decorrelates over the distance
+        driven."""
         c = self.cfg
         d = wheel_m * math.cos(math.radians(pitch_deg))
         yaw = self.x[2] if heading is None else heading
