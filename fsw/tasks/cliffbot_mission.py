@@ -64,7 +64,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from fsw.comm.team.fix_packets import Fix
+from fsw.comm.team.fix_packets import Fix, FixRequest
 from fsw.comm.team.team_can import WINCHES
 from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import NavConfig, Navigator
@@ -745,3 +745,13 @@ def navigate(nav: Navigator, dev: CliffbotDevices, dt: float, wheel_radius_m: fl
     a, b = dev.winch.get(WINCHES[0]), dev.winch.get(WINCHES[1])
     nav.step(wheel, att.pitch_deg if att is not None else None, att.yaw_deg if att is not None else None,
              (a.paid_out_m, b.paid_out_m) if a is not None and b is not None else None, dt)
+
+
+def fix_request(m: CliffbotMission, dev: CliffbotDevices) -> FixRequest:
+    """The fix request mission ``m`` sends: its sequence number and leg, its estimate (where the
+    RECON-bot points its mast) and its attitude sensor's roll and pitch (the gravity the fix
+    must agree with; NaN when the sensor has not reported)."""
+    att = dev.attitude
+    roll, pitch = (att.roll_deg, att.pitch_deg) if att is not None else (math.nan, math.nan)
+    xy = m.est.xy
+    return FixRequest(m.fix_seq, m.leg_i, float(xy[0]), float(xy[1]), float(roll), float(pitch))

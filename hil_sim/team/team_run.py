@@ -34,7 +34,7 @@ from fsw.core.team.climber_ground import ClimberConfig
 from fsw.core.team.tether import TetherConfig
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig
-from fsw.tasks.cliffbot_mission import CliffbotMission, fix_xyyaw, navigate, new_navigator
+from fsw.tasks.cliffbot_mission import CliffbotMission, fix_request, fix_xyyaw, navigate, new_navigator
 from fsw.tasks.fixer.fix_pose import fix_camera, joints_covariance
 from fsw.tasks.fixer.task import BODY_CENTRE_M, LIFT_M, NO_MARKERS, OUT_OF_REACH
 from hil_sim.faults import FaultInjector, FaultSpec
@@ -227,11 +227,7 @@ def run_team(world: World, grid: MapGrid, received_z: NDArray[np.floating], chan
         mission.on_estimate(nav.nav.s, nav.nav.P)
         cmd = mission.step(now - t0, dev)
         if cmd.request_fix:
-            att = dev.attitude  # its estimate (where the mast points) and its attitude sensor's roll and pitch
-            req = fix_packets.FixRequest(mission.fix_seq, mission.leg_i, float(mission.est.s[0]),
-                                         float(mission.est.s[1]), *((float(att.roll_deg), float(att.pitch_deg))
-                                                                    if att is not None else (math.nan, math.nan)))
-            channel.send(CLIFF, fix_packets.encode(req), now)
+            channel.send(CLIFF, fix_packets.encode(fix_request(mission, dev)), now)
         rig.to_rig(dev.commands(cmd.rates_mps, cmd.enable, cmd.clear_faults, cmd.wheels_radps), now - t0)
         est_path.append((float(mission.est.s[0]), float(mission.est.s[1])))
         if mission.state == "SAFE":

@@ -27,7 +27,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from fsw.comm.team.fix_packets import Fix, FixRequest
+from fsw.comm.team.fix_packets import Fix
 from fsw.core.geometry import MapGrid
 from fsw.framework.commands import Arg, CommandDef
 from fsw.framework.telemetry import Channel, EventDef, Severity
@@ -50,7 +50,7 @@ from fsw.tasks.cliffbot.messages import (
     PlanMap,
     SenseRequest,
 )
-from fsw.tasks.cliffbot_mission import CliffbotMission
+from fsw.tasks.cliffbot_mission import CliffbotMission, fix_request
 
 A, I, W = Severity.ACTIVITY_HI, Severity.ACTIVITY_LO, Severity.WARNING_HI
 # the sans-I/O mission's events, as this task's (name -> severity)
@@ -161,11 +161,7 @@ class CliffbotMissionTask(FlightTask):
             if cmd.sense:
                 self.publish(CB_SENSE, SenseRequest(m.sense_seq))
             if cmd.request_fix:
-                xy = m.est.xy
-                att = st.devices.attitude  # its roll and pitch: the gravity the fix must agree with
-                roll, pitch = (att.roll_deg, att.pitch_deg) if att is not None else (math.nan, math.nan)
-                self.publish(CB_FIX_REQUEST, FixRequest(m.fix_seq, m.leg_i, float(xy[0]), float(xy[1]),
-                                                        float(roll), float(pitch)))
+                self.publish(CB_FIX_REQUEST, fix_request(m, st.devices))
         self._auto_recover(now)
         self._reset_nav()
         self._events()
