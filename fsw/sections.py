@@ -81,6 +81,13 @@ class CliffbotMissionConfig:
     plane_error_deg: float = param(2.0, lo=0.0, hi=45.0, units="deg",
                                    doc="the plane the map puts under the body may lean this far from the ground's: "
                                        "the tensions must stay inside their limits at every such lean")
+    tension_guard_n: float = param(5.0, lo=0.0, hi=1e4, units="N",
+                                   doc="while it drives on ground steeper than free_slope_deg, a measured tension "
+                                       "this near a limit stops the way: it backs off to where it last stood and "
+                                       "plans round the place (0: off)")
+    guard_radius_m: float = param(0.1, lo=0.0, hi=5.0, units="m",
+                                  doc="the planner's nodes within this of where the tension guard stopped it "
+                                      "are refused")
     safe_recover_s: float = param(0.0, lo=0.0, hi=1e5, units="s",
                                   doc="the task leaves SAFE by itself after this long (0: waits for RECOVER)")
     approach_looks: int = param(3, lo=0, hi=20,

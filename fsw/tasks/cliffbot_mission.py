@@ -78,6 +78,7 @@ from fsw.tasks.cliffbot.head_sight import needed_cells, scan_sees
 from fsw.tasks.cliffbot.legs import UNKNOWN_REASONS, Leg, Route
 
 F64 = NDArray[np.float64]
+MAX_GUARDS = 4  # ways of one leg the tension guard may stop before the leg is given up
 BODY_MARGIN_M = 0.1  # the body's box as mapped (stereo smear, the estimate's error) beyond the footprint
 VIEW_RANGE_M = 2.0  # a look's far ground: the pose error a point this far carries (sharper: a new look shows more)
 # a place to look from elsewhere lies no farther from the target than where it stands by more than
@@ -167,6 +168,9 @@ class CliffbotMission:
         # shows no way home (:meth:`_retrace`)
         self.trail: list[tuple[float, float, float, float]] = []
         self.trail_from_here = False  # the next drive step notes where it begins
+        # places where the winches' measured tensions stopped a way (:meth:`_guard`) and the limit
+        # they neared ("slack", "over-tension"): every plan after refuses the lattice round them
+        self.refused: list[tuple[F64, str]] = []
 
     # -- inputs -----------------------------------------------------------------------------
     def event(self, name: str, text: str) -> None:
@@ -227,7 +231,8 @@ class CliffbotMission:
         r = self._route
         if r is None or r.z is not self.z or r.grid is not self.grid or r.error_bound_m != self.error_bound_m:
             r = self._route = Route(self.z, self.grid, self.error_bound_m, self.cfg, self.tcfg, self.ccfg,
-                                    self.anchors, carried=self.carried, carried_from=self.carried_from)
+                                    self.anchors, carried=self.carried, carried_from=self.carried_from,
+                                    refused=self.refused)
         return r
 
     def _after_sense(self) -> None:
@@ -454,7 +459,9 @@ class CliffbotMission:
             if plan.start_reason:
                 self._safe(f"leg {self.leg_i + 1}: {why}")
                 return
-            if leg.target is not None and self._approaching(why) and self._approach(leg, why):
+            # (a leg the tension guard stopped finds no path round the places it refused: no look helps)
+            looks_help = self._approaching(why) and not (leg.guards and why == "no safe path")
+            if leg.target is not None and looks_help and self._approach(leg, why):
                 return
             retry = leg.target is not None and self._retry_later(leg, why)
             if leg.target is not None:
@@ -663,6 +670,9 @@ class CliffbotMission:
             return self._hold()
         if leg.lengths is not None:
             return self._drive_back(leg, a.paid_out_m, b.paid_out_m)
+        near = self._near_limit(dev)
+        if near:
+            return self._guard(leg, near, a.paid_out_m, b.paid_out_m)
         if self.trail_from_here:
             self.trail_from_here = False
             self._note_trail(a.paid_out_m, b.paid_out_m)
@@ -711,12 +721,71 @@ class CliffbotMission:
             err = np.asarray(leg.lengths[self.wp_i]) - np.array([la, lb])
             if float(np.max(np.abs(err))) > self.cfg.length_tol_m:
                 return self._winch_rates(err)
+            if leg.back_to is not None:
+                # backed off from where the tension guard stopped it: the trail keeps the place it
+                # is back at, and the leg is planned again round the refused place
+                del self.trail[leg.back_to + 1:]
+                leg.back_to, leg.lengths = None, None
+                self._plan_leg()
+                return self._hold()
             if self.trail:
                 self.trail.pop()
             self.wp_i += 1
             if self.wp_i >= len(leg.lengths):
                 self._arrived(leg)
                 return self._hold()
+
+    def _near_limit(self, dev: CliffbotDevices) -> str:
+        """The tension guard: the limit ("slack", "over-tension") a winch's measured tension is
+        within ``tension_guard_n`` of, ``""`` when none is. The lower limit counts where the body
+        stands on ground steeper than ``free_slope_deg`` (its attitude sensor's roll and pitch;
+        without them it is taken as steep), where the tethers alone hold it."""
+        g = self.cfg.tension_guard_n
+        if g <= 0.0:
+            return ""
+        t = [w.tension_n for w in (dev.winch.get(WINCHES[0]), dev.winch.get(WINCHES[1])) if w is not None]
+        if not t or not all(math.isfinite(v) for v in t):
+            return ""
+        if max(t) > self.tcfg.t_max_n - g:
+            return "over-tension"
+        att = dev.attitude
+        tilt = (math.inf if att is None else
+                math.degrees(math.acos(max(-1.0, min(1.0, math.cos(math.radians(att.roll_deg))
+                                                      * math.cos(math.radians(att.pitch_deg)))))))
+        if tilt > self.ccfg.free_slope_deg and min(t) < self.tcfg.t_min_n + g:
+            return "slack"
+        return ""
+
+    def _guard(self, leg: Leg, why: str, la: float, lb: float) -> Commands:
+        """The tension guard stopped the way (:meth:`_near_limit`): the place is refused to every
+        plan after (:attr:`refused`), and the body backs off to the last place of its trail it
+        stood at (the lengths it held there: it passed there within the limits), then the leg is
+        planned again round the place (:meth:`_drive_back`). ``MAX_GUARDS`` stops in one leg give
+        the leg up for ``why``; the leg home then retraces the way it came (:meth:`_retrace`)."""
+        leg.guards += 1
+        self.refused.append((self.est.xy, why))
+        self._route = None
+        self.event("TENSION_GUARD", f"leg {self.leg_i + 1}: a tension within {self.cfg.tension_guard_n:g} N of its "
+                                    f"{why} limit at {self.est.xy.round(2).tolist()}: backs off, that place refused")
+        tol = self.cfg.length_tol_m
+        back = [i for i, t in enumerate(self.trail) if max(abs(t[0] - la), abs(t[1] - lb)) > tol]
+        if leg.guards > MAX_GUARDS:
+            if leg.target is not None:
+                self.reasons[leg.target] = why
+                self.event("TARGET_UNREACHABLE", f"leg {self.leg_i + 1}: {why} (the tension guard stopped it "
+                                                 f"{leg.guards} times)")
+                self._next_leg()
+            elif not self._retrace(leg, why):
+                self._safe(f"leg {self.leg_i + 1} (home): {why} and no way back")
+            return self._hold()
+        if not back:
+            self._plan_leg()
+            return self._hold()
+        i = back[-1]
+        leg.back_to, leg.lengths = i, [self.trail[i][:2]]
+        leg.waypoints = [np.array(self.trail[i][2:])]
+        self.wp_i = 0
+        return self._hold()
 
     def _winch_rates(self, err: F64) -> Commands:
         rates = self.cfg.gain_per_s * err

@@ -453,6 +453,22 @@ def plan_targets(z: ZMap, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy
     return Plan(tuple(paths), tuple(lengths), tuple(why_not), "")
 
 
+def lattice_nodes_near(grid: MapGrid, ccfg: ClimberConfig, xy: F64, radius_m: float) -> list[int]:
+    """The planner's lattice nodes (:func:`plan_targets`' indices, its ``verdicts`` keys) within
+    ``radius_m`` of ``xy``, the nearest one always; none when ``xy`` is off the map."""
+    p = np.asarray(xy, float).reshape(2)
+    _, _, inside = grid.cell_index(p[:1], p[1:])
+    if not inside[0]:
+        return []
+    stride = max(1, int(round(ccfg.node_m / grid.cell)))
+    rows, cols = np.arange(stride // 2, grid.ny, stride), np.arange(stride // 2, grid.nx, stride)
+    d = np.hypot(*np.meshgrid(grid.x0 + (cols + 0.5) * grid.cell - p[0],
+                              grid.y0 + (rows + 0.5) * grid.cell - p[1]))  # (rows, cols)
+    near = d <= radius_m
+    near.flat[int(np.argmin(d))] = True
+    return np.flatnonzero(near).tolist()
+
+
 _STEPS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
 
 

@@ -53,6 +53,8 @@ def snapshot(m: CliffbotMission, now: float) -> dict[str, object]:
         "stood": [] if m.stood is None else _stood(m.stood),
         # the way it came since it left its start (CliffbotMission.trail): lengths and estimate
         "trail": [list(t) for t in m.trail],
+        # places the tension guard refused (CliffbotMission.refused): x, y and the limit neared
+        "refused": [[float(xy[0]), float(xy[1]), why] for xy, why in m.refused],
     }
 
 
@@ -101,6 +103,7 @@ def restore(m: CliffbotMission, st: dict[str, object], z: NDArray[np.float64] | 
         m.carried.flat[flat] = True
         m.stood = _restore_stood(st.get("stood", []), grid)
     m.trail = _restore_trail(st.get("trail", []))
+    m.refused = _restore_refused(st.get("refused", []))
     m.targets, m.reached, m.reasons, m.legs, m.leg_i = targets, reached, reasons, legs, leg_i
     m.planned_lengths = [math.inf for _ in range(len(targets))]
     m.looks = [0 for _ in range(len(targets))]
@@ -114,6 +117,23 @@ def restore(m: CliffbotMission, st: dict[str, object], z: NDArray[np.float64] | 
     m.state = state
     m.safe_reason = str(st.get("safe_reason", "")) if state == "SAFE" else ""
     return f"leg {leg_i + 1} of {len(legs)}, {sum(reached)} of {len(targets)} targets reached"
+
+
+def _restore_refused(v: object) -> list[tuple[NDArray[np.float64], str]]:
+    if not isinstance(v, list):
+        raise CheckpointError(f"{STATE}: refused: expected a list, got {type(v).__name__}")
+    out = []
+    for row in v:
+        if not isinstance(row, list) or len(row) != 3 or row[2] not in ("slack", "over-tension"):
+            raise CheckpointError(f"{STATE}: refused: expected [x, y, 'slack' or 'over-tension'], got {row!r}")
+        try:
+            xy = np.array([float(row[0]), float(row[1])])
+        except (TypeError, ValueError) as exc:
+            raise CheckpointError(f"{STATE}: refused: {type(exc).__name__}: {exc}") from None
+        if not np.isfinite(xy).all():
+            raise CheckpointError(f"{STATE}: refused: a non-finite place")
+        out.append((xy, str(row[2])))
+    return out
 
 
 def _restore_trail(v: object) -> list[tuple[float, float, float, float]]:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -23,7 +23,7 @@ from scipy import ndimage
 
 from fsw.core.geometry import MapGrid
 from fsw.core.team.climber_ground import ClimberConfig, disc, ground_layers
-from fsw.core.team.face_planner import Margins, Plan, place_covariance, plan_targets, way_reason
+from fsw.core.team.face_planner import Margins, Plan, lattice_nodes_near, place_covariance, plan_targets, way_reason
 from fsw.core.team.held_tension import LengthErrors
 from fsw.core.team.tether import TetherConfig
 from fsw.sections import CliffbotMissionConfig
@@ -50,6 +50,8 @@ class Leg:
     # a leg home that retraces the way it came: the winches' set-points, one per waypoint, in the
     # order driven (the lengths it held on the way out, last first); None: set-points from the map
     lengths: list[tuple[float, float]] | None = None
+    guards: int = 0  # ways of this leg the tension guard stopped
+    back_to: int | None = None  # backing off (the tension guard): the trail's index it drives back to
 
 
 class Route:
@@ -57,7 +59,8 @@ class Route:
 
     def __init__(self, z: F64, grid: MapGrid, error_bound_m: float, cfg: CliffbotMissionConfig,
                  tcfg: TetherConfig, ccfg: ClimberConfig, anchors: F64,
-                 carried: NDArray[np.bool_] | None = None, carried_from: F64 | None = None) -> None:
+                 carried: NDArray[np.bool_] | None = None, carried_from: F64 | None = None,
+                 refused: Sequence[tuple[F64, str]] = ()) -> None:
         self.z, self.grid, self.error_bound_m = z, grid, error_bound_m
         # cells known only by the plane under the body carried on beyond where its wheels stand
         # (CliffbotMission.set_map): no node a leg ends on or crosses counts them as known
@@ -73,6 +76,13 @@ class Route:
         self.ground = dataclasses.replace(ground, rock=ndimage.binary_dilation(ground.rock, structure=grow))
         self.ways: dict[tuple[float, float, float, float, float], str] = {}  # way_reason per pair of places (leaving)
         self.nodes: dict[int, str] = {}  # the lattice's verdicts on this map (plan_targets' verdicts)
+        # places where the winches' measured tensions stopped a way (the tension guard,
+        # CliffbotMission.refused): the nodes round each are refused for the reason measured there,
+        # and no way between waypoints passes nearer than guard_radius_m
+        self.refused = [(np.asarray(xy, float).reshape(2), why) for xy, why in refused]
+        for xy, why in self.refused:
+            for k in lattice_nodes_near(grid, ccfg, xy, cfg.guard_radius_m):
+                self.nodes[k] = why
 
     def errors(self) -> LengthErrors:
         """What parts the lengths that put the body at a place from the map's lengths there: the
@@ -131,13 +141,24 @@ class Route:
         while i < len(path) - 1:
             j = min(i + every, len(path) - 1)
             leaving = bool(in_hazard[i])
-            if j > i + 1 and not self.passable(path[i], path[j], leaving):
+            if j > i + 1 and (self.near_refused(path[i], path[j]) or not self.passable(path[i], path[j], leaving)):
                 j = i + 1
             if j == i + 1 and not self.passable(path[i], path[j], leaving):
                 bad.append((path[i], path[j]))
             out.append(path[j])
             i = j
         return (out or [path[-1]]), bad
+
+    def near_refused(self, a: F64, b: F64) -> bool:
+        """Whether the straight way from ``a`` to ``b`` passes within ``guard_radius_m`` of a place
+        the tension guard refused."""
+        ab = np.asarray(b, float) - np.asarray(a, float)
+        n2 = float(ab @ ab)
+        for xy, _ in self.refused:
+            t = 0.0 if n2 <= 0.0 else min(1.0, max(0.0, float((xy - a) @ ab) / n2))
+            if float(np.hypot(*(a + t * ab - xy))) <= self.cfg.guard_radius_m:
+                return True
+        return False
 
     def passable(self, a: F64, b: F64, leaving: bool = False) -> bool:
         """Whether the body can go from ``a`` to ``b`` on its map in the planning limits
