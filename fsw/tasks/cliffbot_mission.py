@@ -74,8 +74,9 @@ from fsw.core.team.face_planner import OFF_THE_WAY, plan_targets
 from fsw.core.team.tether import TetherConfig, tether_state
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig, CliffbotSensingConfig
-from fsw.tasks.cliffbot.head_sight import needed_cells, scan_sees
+from fsw.tasks.cliffbot.head_sight import look_rating
 from fsw.tasks.cliffbot.legs import UNKNOWN_REASONS, Leg, Route
+from fsw.tasks.cliffbot.winches import near_limit, winch_rates
 
 F64 = NDArray[np.float64]
 MAX_GUARDS = 4  # ways of one leg the tension guard may stop before the leg is given up
@@ -605,24 +606,11 @@ class CliffbotMission:
 
     def _look_rating(self, goal: F64) -> Callable[[F64], tuple[int, int]]:
         """A place to look from, rated for the unknown ground the next step toward ``goal`` needs
-        (:func:`fsw.tasks.cliffbot.head_sight.needed_cells`): how many of those cells the head's scan
-        would see from there (:func:`fsw.tasks.cliffbot.head_sight.scan_sees`) and from no place it
-        looked from; then, from a place at least ``LOOK_APART_M`` from every one (a new sight
-        line: a cell a look should have shown may have been hidden by the ground), how many of
-        them at all."""
+        (:func:`fsw.tasks.cliffbot.head_sight.look_rating`, from every place it looked from)."""
         assert self.z is not None and self.grid is not None and self.sensing is not None
-        z, grid, sc, looked = self.z, self.grid, self.sensing, list(self.looked_from)
-        unseen = self.carried if self.carried is not None else np.zeros(z.shape, bool)
-        need = needed_cells(z, unseen, grid, self.ccfg, self.anchors, self.est.xy, goal)
-        new = need.copy()
-        for p in looked:
-            new &= ~scan_sees(z, grid, self.ccfg, self.anchors, sc, p, need)
-
-        def rating(xy: F64) -> tuple[int, int]:
-            apart = all(float(np.hypot(*(xy - p))) >= LOOK_APART_M for p in looked)
-            seen = scan_sees(z, grid, self.ccfg, self.anchors, sc, xy, need)
-            return int((seen & new).sum()), int(seen.sum()) if apart else 0
-        return rating
+        unseen = self.carried if self.carried is not None else np.zeros(self.z.shape, bool)
+        return look_rating(self.z, unseen, self.grid, self.ccfg, self.anchors, self.sensing, self.est.xy, goal,
+                           list(self.looked_from), LOOK_APART_M)
 
     def _arrived(self, leg: Leg) -> None:
         """At the end of a leg's waypoints: the target (dwell), the approach node (look, then
@@ -670,7 +658,7 @@ class CliffbotMission:
             return self._hold()
         if leg.lengths is not None:
             return self._drive_back(leg, a.paid_out_m, b.paid_out_m)
-        near = self._near_limit(dev)
+        near = near_limit(dev, self.cfg, self.tcfg, self.ccfg)
         if near:
             return self._guard(leg, near, a.paid_out_m, b.paid_out_m)
         if self.trail_from_here:
@@ -735,33 +723,13 @@ class CliffbotMission:
                 self._arrived(leg)
                 return self._hold()
 
-    def _near_limit(self, dev: CliffbotDevices) -> str:
-        """The tension guard: the limit ("slack", "over-tension") a winch's measured tension is
-        within ``tension_guard_n`` of, ``""`` when none is. The lower limit counts where the body
-        stands on ground steeper than ``free_slope_deg`` (its attitude sensor's roll and pitch;
-        without them it is taken as steep), where the tethers alone hold it."""
-        g = self.cfg.tension_guard_n
-        if g <= 0.0:
-            return ""
-        t = [w.tension_n for w in (dev.winch.get(WINCHES[0]), dev.winch.get(WINCHES[1])) if w is not None]
-        if not t or not all(math.isfinite(v) for v in t):
-            return ""
-        if max(t) > self.tcfg.t_max_n - g:
-            return "over-tension"
-        att = dev.attitude
-        tilt = (math.inf if att is None else
-                math.degrees(math.acos(max(-1.0, min(1.0, math.cos(math.radians(att.roll_deg))
-                                                      * math.cos(math.radians(att.pitch_deg)))))))
-        if tilt > self.ccfg.free_slope_deg and min(t) < self.tcfg.t_min_n + g:
-            return "slack"
-        return ""
-
     def _guard(self, leg: Leg, why: str, la: float, lb: float) -> Commands:
-        """The tension guard stopped the way (:meth:`_near_limit`): the place is refused to every
-        plan after (:attr:`refused`), and the body backs off to the last place of its trail it
-        stood at (the lengths it held there: it passed there within the limits), then the leg is
-        planned again round the place (:meth:`_drive_back`). ``MAX_GUARDS`` stops in one leg give
-        the leg up for ``why``; the leg home then retraces the way it came (:meth:`_retrace`)."""
+        """The tension guard stopped the way (:func:`fsw.tasks.cliffbot.winches.near_limit`): the
+        place is refused to every plan after (:attr:`refused`), and the body backs off to the last
+        place of its trail it stood at (the lengths it held there: it passed there within the
+        limits), then the leg is planned again round the place (:meth:`_drive_back`). ``MAX_GUARDS``
+        stops in one leg give the leg up for ``why``; the leg home then retraces the way it came
+        (:meth:`_retrace`)."""
         leg.guards += 1
         self.refused.append((self.est.xy, why))
         self._route = None
@@ -788,12 +756,8 @@ class CliffbotMission:
         return self._hold()
 
     def _winch_rates(self, err: F64) -> Commands:
-        rates = self.cfg.gain_per_s * err
-        peak = float(np.max(np.abs(rates)))
-        if peak > self.cfg.max_rate_mps:
-            rates *= self.cfg.max_rate_mps / peak  # both tethers paced to arrive together
-        v = float(np.linalg.norm(rates)) / max(self.cfg.wheel_radius_m, 1e-3)
-        return Commands((float(rates[0]), float(rates[1])), True, False, (v, v), False)
+        rates, wheels = winch_rates(err, self.cfg)
+        return Commands(rates, True, False, wheels, False)
 
 
 def fix_xyyaw(fix: Fix) -> tuple[F64, float, F64]:

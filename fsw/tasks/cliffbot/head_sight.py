@@ -25,6 +25,7 @@ still fail on a cell, or the ground may hide itself).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -112,6 +113,25 @@ def scan_sees(z: F64, grid: MapGrid, ccfg: ClimberConfig, anchors: F64, sc: Clif
         got |= inside & (rng >= sc.min_range_m) & (rng <= sc.max_range_m) & ~hidden[k]
     seen[iy[got], ix[got]] = True
     return seen
+
+
+def look_rating(z: F64, unseen: B, grid: MapGrid, ccfg: ClimberConfig, anchors: F64, sc: CliffbotSensingConfig,
+                here: F64, goal: F64, looked: list[F64], apart_m: float) -> Callable[[F64], tuple[int, int]]:
+    """A place to look from, rated for the unknown ground the next step from ``here`` toward
+    ``goal`` needs (:func:`needed_cells`): how many of those cells the head's scan would see
+    from there (:func:`scan_sees`) and from no place in ``looked``; then, from a place at least
+    ``apart_m`` from every one (a new sight line: a cell a look should have shown may have been
+    hidden by the ground), how many of them at all."""
+    need = needed_cells(z, unseen, grid, ccfg, anchors, here, goal)
+    new = need.copy()
+    for p in looked:
+        new &= ~scan_sees(z, grid, ccfg, anchors, sc, p, need)
+
+    def rating(xy: F64) -> tuple[int, int]:
+        apart = all(float(np.hypot(*(xy - p))) >= apart_m for p in looked)
+        seen = scan_sees(z, grid, ccfg, anchors, sc, xy, need)
+        return int((seen & new).sum()), int(seen.sum()) if apart else 0
+    return rating
 
 
 def _known_round(z: F64) -> tuple[F64, F64]:
