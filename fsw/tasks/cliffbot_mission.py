@@ -421,8 +421,9 @@ class CliffbotMission:
 
     def _plan_all(self) -> None:
         assert self.z is not None and self.grid is not None
+        route = self.route()
         plan = plan_targets(self.z, self.grid, self.anchors, self.est.xy, self.targets, self.tcfg, self.ccfg,
-                            self.route().margins(), unseen=self.carried)
+                            route.margins(), unseen=self.carried, ground=route.ground)
         self.legs = []
         for k, why in enumerate(plan.reasons):
             self.reasons[k] = why

@@ -68,12 +68,14 @@ class Route:
         self.carried = carried if ok else None
         self.carried_from = np.asarray(carried_from, float) if carried_from is not None else np.zeros(2)
         self.cfg, self.tcfg, self.ccfg, self.anchors = cfg, tcfg, ccfg, anchors
-        # where the way between waypoints may not go: the body starts a way from where the last one
-        # left it (within a lattice spacing of the node), so its tethers' contacts fall up to about
-        # that far from the replay's: the ways keep them a lattice spacing off the map's rocks
+        # the body stands within a lattice spacing of the node whose lengths hold it (a way from
+        # there is judged from where it stands, Route.elsewhere), so its footprint and its tethers'
+        # contacts fall up to about that far from the node's: the nodes keep their footprints, and
+        # the ways their tethers, a lattice spacing off the map's hazards and rocks
         ground = ground_layers(z, grid, ccfg, self.carried, anchors)
         grow = disc(int(round(ccfg.node_m / grid.cell)))
-        self.ground = dataclasses.replace(ground, rock=ndimage.binary_dilation(ground.rock, structure=grow))
+        self.ground = dataclasses.replace(ground, rock=ndimage.binary_dilation(ground.rock, structure=grow),
+                                          hazard=ndimage.binary_dilation(ground.hazard, structure=grow))
         self.ways: dict[tuple[float, float, float, float, float], str] = {}  # way_reason per pair of places (leaving)
         self.nodes: dict[int, str] = {}  # the lattice's verdicts on this map (plan_targets' verdicts)
         # places where the winches' measured tensions stopped a way (the tension guard,
