@@ -503,7 +503,7 @@ class CliffbotMission:
 
     def _drive_on(self, leg: Leg, wps: list[F64], length_m: float) -> None:
         leg.waypoints, leg.length_m = wps, length_m
-        leg.lengths = None
+        leg.lengths, leg.back_to = None, None
         self.wp_i = 0
         self.replan = False
         self.state = "DRIVE"
@@ -649,7 +649,7 @@ class CliffbotMission:
 
     def _drive(self, dev: CliffbotDevices) -> Commands:
         assert self.z is not None and self.grid is not None
-        if self.replan:
+        if self.replan and self.legs[self.leg_i].back_to is None:  # (a back-off ends in a plan)
             self._plan_leg()
             if self.state != "DRIVE":
                 return self._hold()

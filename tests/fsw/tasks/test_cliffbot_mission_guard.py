@@ -82,8 +82,10 @@ def test_a_tension_near_its_limit_stops_the_way_backs_off_and_the_leg_goes_round
     assert len(m.refused) == 1 and m.refused[0][1] == "slack" and np.allclose(m.refused[0][0], here)
     # it backs off to the last place it stood at, by the lengths it held there
     assert leg.back_to == len(stood) - 1 and leg.lengths == [stood[-1][:2]]
+    m.set_map(FLAT, GRID)  # a newer map while it backs off: the back-off ends first (its end plans the leg)
     t += 0.1
     cmd = m.step(t, dev)
+    assert leg.back_to == len(stood) - 1 and leg.lengths == [stood[-1][:2]]
     back = np.sign(np.asarray(stood[-1][:2]) - np.array([w.paid_out_m for w in dev.winch.values()]))
     assert np.array_equal(np.sign(cmd.rates_mps), back)  # the winches drive toward those lengths
     _stand(m, dev, np.array(stood[-1][2:]))  # back there: the leg is planned again, round the place
