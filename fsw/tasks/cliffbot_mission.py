@@ -45,6 +45,12 @@ on the map their looks have grown (:meth:`CliffbotMission._retry_later`). It nev
 ground its map does not know.
 The legs' ways, margins and approach nodes are :mod:`fsw.tasks.cliffbot.legs`'.
 
+The tension guard (docs/team.md, "The Cliff-bot's flight code"): while it drives a way, a winch's
+measured tension near its limit (:func:`fsw.tasks.cliffbot.winches.near_limit`) stops it (event
+``TENSION_GUARD``); the place joins :attr:`CliffbotMission.refused`, which every later plan
+refuses, it backs off to the last place of its trail and the leg is planned again from there
+(:meth:`CliffbotMission._guard`).
+
 ``SAFE`` (winches braked, wheels stopped, event ``SAFE`` with the reason) on: a winch fault
 bit (stall, slip, over-tension, spool, timeout), a device whose status stopped, no fix
 within ``fix_timeout_s`` of the request (the link is lost), a fix refused by the
