@@ -34,6 +34,7 @@ from fsw.core.team.climber_ground import ClimberConfig
 from fsw.core.team.tether import TetherConfig
 from fsw.drivers.cliffbot_devices import CliffbotDevices
 from fsw.sections import CliffbotMissionConfig
+from fsw.settings import FswConfig
 from fsw.tasks.cliffbot_mission import CliffbotMission, fix_request, fix_xyyaw, navigate, new_navigator
 from fsw.tasks.fixer.fix_pose import fix_camera, joints_covariance
 from fsw.tasks.fixer.task import BODY_CENTRE_M, LIFT_M, NO_MARKERS, OUT_OF_REACH
@@ -57,6 +58,12 @@ class TeamSetup:
     nav: NavConfig = field(default_factory=NavConfig)
     dt_s: float = 0.1
     max_s: float = 1800.0
+
+    @classmethod
+    def from_settings(cls, cfg: FswConfig, max_s: float = 1800.0) -> TeamSetup:
+        """The Cliff-bot's tether, ground, navigation and mission sections of its flight file
+        (``config/cliffbot.toml``, :func:`fsw.settings.load_settings`)."""
+        return cls(cfg.tether, cfg.climber, cfg.cliffbot_mission, cfg.cliffbot_nav, max_s=max_s)
 
 
 class ReconFixer:

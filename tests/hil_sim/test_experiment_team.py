@@ -17,6 +17,7 @@ from hil_sim.cli import main
     ["experiment", "team", "--max-s", "nan"],
     ["experiment", "team", "--results-name", "../elsewhere"],
     ["experiment", "team", "--results-name", "Team"],
+    ["experiment", "team", "--cliffbot-config", "/nonexistent/cliffbot.toml"],
 ])
 def test_bad_input_exits_2(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
     assert main(argv) == 2
@@ -45,3 +46,18 @@ def test_a_held_out_run_writes_its_own_results_file(tmp_path: Path, monkeypatch:
     text = (results / "team-heldout.md").read_text()
     assert "(team-heldout)" in text  # the title names the file, the command its experiment
     assert "| scenes (seeds) / targets | 2 (30-31) / 6 |" in text
+
+
+def test_the_scenes_fly_the_cliffbots_flight_file(tmp_path: Path) -> None:
+    """The bench missions take the Cliff-bot's tether, ground, navigation and mission sections from
+    its flight file (``--cliffbot-config``, default ``config/cliffbot.toml``), not the defaults."""
+    from fsw.settings import DEFAULT_CONFIG, load_settings
+    from hil_sim.team.team_run import TeamSetup
+
+    text = (DEFAULT_CONFIG.parent / "cliffbot.toml").read_text()
+    assert "tension_guard_n = 5.0" in text
+    changed = tmp_path / "cliffbot.toml"
+    changed.write_text(text.replace("tension_guard_n = 5.0", "tension_guard_n = 2.5"))
+    setup = TeamSetup.from_settings(load_settings(changed), max_s=60.0)
+    assert setup.mission.tension_guard_n == 2.5 and setup.max_s == 60.0
+    assert setup.tether == load_settings(changed).tether and setup.nav == load_settings(changed).cliffbot_nav

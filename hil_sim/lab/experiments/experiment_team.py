@@ -56,6 +56,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the reduction's critical length (m); -1: the Cliff-bot's wheel diameter")
     p.add_argument("--max-s", type=float, default=900.0, help="a mission's simulated time limit (s)")
     p.add_argument("--config", default=str(DEFAULT_CONFIG), help="flight configuration (TOML)")
+    p.add_argument("--cliffbot-config", default=str(DEFAULT_CONFIG.parent / "cliffbot.toml"),
+                   help="the Cliff-bot's flight file (TOML): its tether, ground, navigation and mission sections")
     p.add_argument("--out", type=Path, default=Path("out/team"), help="output directory")
     p.add_argument("--rows", type=Path, default=None,
                    help="report the scenes a run already finished (its OUT/team_rows.jsonl) instead of running")
@@ -64,7 +66,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def scene(scenario: str, seed: int, config: str, wheel_m: float, mission: bool, fixer: str, max_s: float,
-          picture: Path | None) -> dict[str, Any]:
+          picture: Path | None, cliffbot_config: str | None = None) -> dict[str, Any]:
     """One scene's row (and its fixes as ``_fixes``: range, cm, deg, NEES)."""
     import numpy as np
 
@@ -81,7 +83,8 @@ def scene(scenario: str, seed: int, config: str, wheel_m: float, mission: bool, 
     world = load_scenario(scenario, seed)
     if world.team is None:
         raise ValueError(f"scenario {scenario!r} has no team")
-    setup = TeamSetup(max_s=max_s)
+    setup = (TeamSetup(max_s=max_s) if cliffbot_config is None
+             else TeamSetup.from_settings(load_settings(cliffbot_config), max_s=max_s))
     wheel = wheel_m if wheel_m > 0 else setup.climber.wheel_d_m
     grid = MapGrid.from_config(world.map_grid)
     full = world.ground_on_grid(grid)
@@ -151,6 +154,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         load_settings(args.config)
+        load_settings(args.cliffbot_config)
         world = load_scenario(args.scenario, args.seed)
     except (ConfigError, ScenarioError, ValueError) as exc:
         print(f"{me}: {exc}", file=sys.stderr)
@@ -166,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
     with ProcessPoolExecutor(max_workers=args.jobs) as pool, \
             tqdm(total=args.scenes, desc="team scenes", unit="scene") as bar:
         futs = {pool.submit(scene, args.scenario, args.seed + k, args.config, args.wheel, k < missions,
-                            args.fixer, args.max_s, args.out if k == 0 else None): args.seed + k
+                            args.fixer, args.max_s, args.out if k == 0 else None, args.cliffbot_config): args.seed + k
                 for k in range(args.scenes)}
         for fut in as_completed(futs):
             seed = futs[fut]
