@@ -71,7 +71,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.comm.team.fix_packets import Fix, FixRequest
-from fsw.comm.team.team_can import WINCHES
+from fsw.comm.team.team_can import WINCHES, WinchStatus
 from fsw.core.geometry import MapGrid
 from fsw.core.team.cliffbot_nav import NavConfig, Navigator
 from fsw.core.team.climber_ground import ClimberConfig, standing_cells
@@ -667,7 +667,7 @@ class CliffbotMission:
             return self._drive_back(leg, a.paid_out_m, b.paid_out_m)
         near = near_limit(dev, self.cfg, self.tcfg, self.ccfg)
         if near:
-            return self._guard(leg, near, a.paid_out_m, b.paid_out_m)
+            return self._guard(leg, near, a, b)
         if self.trail_from_here:
             self.trail_from_here = False
             self._note_trail(a.paid_out_m, b.paid_out_m)
@@ -730,7 +730,7 @@ class CliffbotMission:
                 self._arrived(leg)
                 return self._hold()
 
-    def _guard(self, leg: Leg, why: str, la: float, lb: float) -> Commands:
+    def _guard(self, leg: Leg, why: str, a: WinchStatus, b: WinchStatus) -> Commands:
         """The tension guard stopped the way (:func:`fsw.tasks.cliffbot.winches.near_limit`): the
         place is refused to every plan after (:attr:`refused`), and the body backs off to the last
         place of its trail it stood at (the lengths it held there: it passed there within the
@@ -740,8 +740,10 @@ class CliffbotMission:
         leg.guards += 1
         self.refused.append((self.est.xy, why))
         self._route = None
-        self.event("TENSION_GUARD", f"leg {self.leg_i + 1}: a tension within {self.cfg.tension_guard_n:g} N of its "
-                                    f"{why} limit at {self.est.xy.round(2).tolist()}: backs off, that place refused")
+        self.event("TENSION_GUARD", f"leg {self.leg_i + 1}: tensions {a.tension_n:.1f} / {b.tension_n:.1f} N, within "
+                                    f"{self.cfg.tension_guard_n:g} N of the {why} limit, at "
+                                    f"{self.est.xy.round(2).tolist()}: backs off, that place refused")
+        la, lb = a.paid_out_m, b.paid_out_m
         tol = self.cfg.length_tol_m
         back = [i for i, t in enumerate(self.trail) if max(abs(t[0] - la), abs(t[1] - lb)) > tol]
         if leg.guards > MAX_GUARDS:

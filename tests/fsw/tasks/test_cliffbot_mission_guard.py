@@ -79,6 +79,7 @@ def test_a_tension_near_its_limit_stops_the_way_backs_off_and_the_leg_goes_round
     t += 0.1
     cmd = m.step(t, dev)
     assert _names(m)[-1] == "TENSION_GUARD" and cmd.rates_mps == (0.0, 0.0)
+    assert f"tensions {OK_N:.1f} / {NEAR_N:.1f} N" in m.events[-1][2]  # what the load cells measured
     assert len(m.refused) == 1 and m.refused[0][1] == "slack" and np.allclose(m.refused[0][0], here)
     # it backs off to the last place it stood at, by the lengths it held there
     assert leg.back_to == len(stood) - 1 and leg.lengths == [stood[-1][:2]]
