@@ -86,6 +86,7 @@ from fsw.tasks.cliffbot.winches import near_limit, winch_rates
 
 F64 = NDArray[np.float64]
 MAX_GUARDS = 4  # ways of one leg the tension guard may stop before the leg is given up
+BACK_OFF_TOL = 0.25  # a back-off ends within this fraction of length_tol_m of the place it backs off to
 BODY_MARGIN_M = 0.1  # the body's box as mapped (stereo smear, the estimate's error) beyond the footprint
 VIEW_RANGE_M = 2.0  # a look's far ground: the pose error a point this far carries (sharper: a new look shows more)
 # a place to look from elsewhere lies no farther from the target than where it stands by more than
@@ -712,9 +713,12 @@ class CliffbotMission:
         """A retrace (:meth:`_retrace`): the winches to each set-point in turn; each one reached
         leaves the trail (a restart goes back from where it is)."""
         assert leg.lengths is not None
+        # a back-off returns to the place itself (a place a tolerance away from the one it tripped
+        # at can be as bad); a retrace's set-points are reached within the tolerance
+        tol = self.cfg.length_tol_m * (BACK_OFF_TOL if leg.back_to is not None else 1.0)
         while True:
             err = np.asarray(leg.lengths[self.wp_i]) - np.array([la, lb])
-            if float(np.max(np.abs(err))) > self.cfg.length_tol_m:
+            if float(np.max(np.abs(err))) > tol:
                 return self._winch_rates(err)
             if leg.back_to is not None:
                 # backed off from where the tension guard stopped it: the trail keeps the place it
@@ -733,8 +737,9 @@ class CliffbotMission:
     def _guard(self, leg: Leg, why: str, a: WinchStatus, b: WinchStatus) -> Commands:
         """The tension guard stopped the way (:func:`fsw.tasks.cliffbot.winches.near_limit`): the
         place is refused to every plan after (:attr:`refused`), and the body backs off to the last
-        place of its trail it stood at (the lengths it held there: it passed there within the
-        limits), then the leg is planned again round the place (:meth:`_drive_back`). ``MAX_GUARDS``
+        place of its trail it stood at (the lengths it held there, to a quarter of the tolerance:
+        it passed there within the limits; at that place itself, the one before), then the leg is
+        planned again round the place (:meth:`_drive_back`). ``MAX_GUARDS``
         stops in one leg give the leg up for ``why``; the leg home then retraces the way it came
         (:meth:`_retrace`)."""
         leg.guards += 1

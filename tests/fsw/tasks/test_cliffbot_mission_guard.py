@@ -89,6 +89,10 @@ def test_a_tension_near_its_limit_stops_the_way_backs_off_and_the_leg_goes_round
     assert leg.back_to == len(stood) - 1 and leg.lengths == [stood[-1][:2]]
     back = np.sign(np.asarray(stood[-1][:2]) - np.array([w.paid_out_m for w in dev.winch.values()]))
     assert np.array_equal(np.sign(cmd.rates_mps), back)  # the winches drive toward those lengths
+    near = {w: s._replace(paid_out_m=stood[-1][k] + 0.01) for k, (w, s) in enumerate(dev.winch.items())}
+    dev.winch = near  # 1 cm short of the place (within length_tol_m): not back yet
+    t += 0.1
+    assert m.step(t, dev).rates_mps != (0.0, 0.0) and leg.back_to is not None
     _stand(m, dev, np.array(stood[-1][2:]))  # back there: the leg is planned again, round the place
     t += 0.1
     m.step(t, dev)
