@@ -81,7 +81,7 @@ class CliffbotMissionConfig:
     plane_error_deg: float = param(2.0, lo=0.0, hi=45.0, units="deg",
                                    doc="the plane the map puts under the body may lean this far from the ground's: "
                                        "the tensions must stay inside their limits at every such lean")
-    tension_guard_n: float = param(5.0, lo=0.0, hi=1e4, units="N",
+    tension_guard_n: float = param(2.0, lo=0.0, hi=1e4, units="N",
                                    doc="while it drives on ground steeper than free_slope_deg, a measured tension "
                                        "this near a limit stops the way: it backs off to where it last stood and "
                                        "plans round the place (0: off)")

@@ -55,9 +55,9 @@ def test_the_scenes_fly_the_cliffbots_flight_file(tmp_path: Path) -> None:
     from hil_sim.team.team_run import TeamSetup
 
     text = (DEFAULT_CONFIG.parent / "cliffbot.toml").read_text()
-    assert "tension_guard_n = 5.0" in text
+    assert "tension_guard_n = 2.0" in text
     changed = tmp_path / "cliffbot.toml"
-    changed.write_text(text.replace("tension_guard_n = 5.0", "tension_guard_n = 2.5"))
+    changed.write_text(text.replace("tension_guard_n = 2.0", "tension_guard_n = 2.5"))
     setup = TeamSetup.from_settings(load_settings(changed), max_s=60.0)
     assert setup.mission.tension_guard_n == 2.5 and setup.max_s == 60.0
     assert setup.tether == load_settings(changed).tether and setup.nav == load_settings(changed).cliffbot_nav
