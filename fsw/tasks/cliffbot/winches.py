@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.comm.team.team_can import WINCHES
+from fsw.core.geometry import normal_from_attitude
 from fsw.core.team.climber_ground import ClimberConfig
 from fsw.core.team.tether import TetherConfig
 from fsw.drivers.cliffbot_devices import CliffbotDevices
@@ -32,9 +33,10 @@ def winch_rates(err: F64, cfg: CliffbotMissionConfig) -> tuple[tuple[float, floa
 
 
 def tilt_deg(roll_deg: float, pitch_deg: float) -> float:
-    """The body's tilt from level: ``cos(tilt) = cos(roll) cos(pitch)``."""
-    c = math.cos(math.radians(roll_deg)) * math.cos(math.radians(pitch_deg))
-    return math.degrees(math.acos(max(-1.0, min(1.0, c))))
+    """The slope of the ground under the body, from its attitude sensor's roll and pitch (the
+    normal of :func:`fsw.core.geometry.normal_from_attitude`, the sensor's convention)."""
+    n = normal_from_attitude(0.0, math.radians(roll_deg), math.radians(pitch_deg))
+    return math.degrees(math.acos(max(-1.0, min(1.0, float(n[2])))))
 
 
 def near_limit(dev: CliffbotDevices, cfg: CliffbotMissionConfig, tcfg: TetherConfig, ccfg: ClimberConfig) -> str:
