@@ -690,6 +690,8 @@ class CliffbotMission:
                 text = (f"leg {self.leg_i + 1}: at the lengths of waypoint {wp.round(2).tolist()}, {off:.2f} m "
                         f"from it (sigma {sd:.2f} m)")
                 if self.elsewhere > MAX_ELSEWHERE:
+                    if leg.target is None and self._retrace(leg, OFF_THE_WAY):
+                        return self._hold()  # the leg home: back the way it came, not left on the face
                     if leg.target is not None:
                         self.reasons[leg.target] = OFF_THE_WAY
                     self.event("TARGET_UNREACHABLE", f"{text}: {OFF_THE_WAY}")

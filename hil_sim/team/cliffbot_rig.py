@@ -4,7 +4,9 @@
 (:class:`hil_sim.hw.winch.WinchNode`), the Cliff-bot's wheels and attitude sensor, and the
 Cliff-bot's true pose. The pose is quasi-static: after every step the Cliff-bot rests where
 both tethers, paid out to the winches' true lengths, are taut on the TRUE ground
-(:func:`fsw.core.team.tether_settle.settle` on the truth sampled on the map grid); its heading
+(:func:`fsw.core.team.tether_settle.settle` on the truth sampled on the map grid, from the
+last pose; where that equilibrium vanished at a step of the face, the nearest one the body
+slides or is pulled to, :func:`slide`); its heading
 points away from the anchors (the body hangs down the tethers' bisector) and its roll and
 pitch follow the ground under it. The rig sets each winch's true tension from the statics.
 
@@ -35,7 +37,7 @@ from fsw.core.localization.localization import LocalizationConfig
 from fsw.core.team.climber_ground import ClimberConfig, ground_layers
 from fsw.core.team.standing_plane import surface_normal
 from fsw.core.team.tether import TetherConfig, TetherState, anchor_points, height_at, tether_state
-from fsw.core.team.tether_settle import settle
+from fsw.core.team.tether_settle import settle, settle_many
 from hil_sim.faults import FaultInjector
 from hil_sim.hw.winch import WinchConfig, WinchNode
 from hil_sim.team.team_eval import judge_pose
@@ -199,7 +201,11 @@ class CliffbotRig:
         its frames) asks the same question every frame: the last answer is given again."""
         key = (lengths, self.xy.tobytes())
         if self._last_settle is None or self._last_settle[0] != key:
-            self._last_settle = (key, settle(self.z, self.grid, self.anchors, lengths, self.xy, self.tcfg))
+            held = self._last_settle is None or self._last_settle[1] is not None
+            got = settle(self.z, self.grid, self.anchors, lengths, self.xy, self.tcfg)
+            if got is None and held:
+                got = slide(self.z, self.grid, self.anchors, lengths, self.xy, self.tcfg)
+            self._last_settle = (key, got)
         got = self._last_settle[1]
         return None if got is None else (got[0].copy(), got[1])
 
@@ -209,3 +215,27 @@ class CliffbotRig:
             self.violations[kind] += 1
         if cell is not None:
             self.hazard_cells.add(cell)
+
+
+SLIDE_RADII_M = (0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5)  # where :func:`slide` looks from, round the last pose
+SLIDE_AZIMUTHS = 12
+
+
+def slide(z: F64, grid: MapGrid, anchors: F64, lengths: tuple[float, float], xy: F64,
+          cfg: TetherConfig) -> tuple[F64, TetherState] | None:
+    """Where the body goes when the equilibrium it rested in vanishes (:func:`settle` from its
+    last pose finds none): the lengths moved past a fold of the statics, at a step of the face,
+    and the body slides down it (tethers paid out) or is pulled up over it (tethers hauled in) to
+    the nearest place where both tethers are taut at ``lengths``. The search settles from rings
+    round the last pose (``SLIDE_RADII_M``, ``SLIDE_AZIMUTHS`` guesses each, one
+    :func:`~fsw.core.team.tether_settle.settle_many` batch) and keeps the settled place nearest
+    the last pose. None when none lies within the largest ring: the tethers cannot both be taut
+    there (slack; a taut place farther off is a fall, not a slide)."""
+    a = 2.0 * math.pi * np.arange(SLIDE_AZIMUTHS) / SLIDE_AZIMUTHS
+    ring = np.stack([np.cos(a), np.sin(a)], axis=1)
+    guesses = np.concatenate([np.asarray(xy, float) + r * ring for r in SLIDE_RADII_M])
+    got = settle_many(z, grid, anchors, np.tile(np.asarray(lengths, float), (len(guesses), 1)), guesses, cfg)
+    far = SLIDE_RADII_M[-1]  # a taut place farther off is a fall, not a slide
+    found = [(float(np.hypot(*(p[0] - xy))), p) for p in got.places if p is not None]
+    near = [f for f in found if f[0] <= far]
+    return min(near, key=lambda f: f[0])[1] if near else None

@@ -468,6 +468,9 @@ class TeamVerdict:
             "safe_reason": o.safe_reason,
             "events": [list(e) for e in o.events],
             "path_m": round(path_length_m(o.true_path), 3),
+            "back_home": any(len(e) > 1 and e[1] == "HOME" for e in o.events),
+            "home_off_m": (round(float(np.hypot(*np.subtract(o.true_path[-1], o.true_path[0]))), 3)
+                           if o.true_path else 0.0),
             "sim_s": round(o.sim_s, 3),
         }
         out.update(self.extra)

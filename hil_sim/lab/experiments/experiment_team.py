@@ -121,7 +121,8 @@ def scene(scenario: str, seed: int, config: str, wheel_m: float, mission: bool, 
                     "fix_requests": sum(1 for e in sec["events"] if e[1] == "FIX_REQUEST"),
                     "unconfirmed": sum(1 for a, b in zip(sec["map_reasons"], sec["truth_reasons"], strict=True)
                                        if a and not b),
-                    "state": sec["final_state"], "tether_violations": sec["tether_violations"],
+                    "state": sec["final_state"], "back_home": int(sec["back_home"]),
+                    "home_off_m": sec["home_off_m"], "tether_violations": sec["tether_violations"],
                     "hazard_cells_entered": sec["hazard_cells_entered"],
                     "unknown_cells_entered": sec["unknown_cells_entered"],
                     "fixes": len(fx.errors), "fix_bytes_down": sec["link_bytes_down"],
@@ -296,6 +297,8 @@ def report(rows: list[dict[str, Any]], args: argparse.Namespace) -> str:
             f"| hazard cells entered | {_mw([r['hazard_cells_entered'] for r in ms], fmt='{:.0f}')} |",
             f"| unknown cells entered | {_mw([r['unknown_cells_entered'] for r in ms], fmt='{:.0f}')} |",
             f"| missions ending DONE | {sum(1 for r in ms if r['state'] == 'DONE')} |",
+            f"| missions back at the start (HOME) / its true distance from the start at the end, m | "
+            f"{_total(ms, 'back_home')} / {_mw([r.get('home_off_m', '') for r in ms], fmt='{:.3f}')} |",
             f"| fix bytes down / up | {_mw([r['fix_bytes_down'] for r in ms], fmt='{:.0f}')} / "
             f"{_mw([r['fix_bytes_up'] for r in ms], fmt='{:.0f}')} |",
             f"| bytes down per mission, map + fixes (s at 9600 bit/s, worst) | "

@@ -121,3 +121,31 @@ def test_a_restart_mid_retrace_goes_back_from_where_it_is_and_a_bad_trail_is_ref
     for bad in ([[1.0, 2.0, 3.0]], [[1.0, float("nan"), 0.0, 0.0]], [[-1.0, 2.0, 0.0, 0.0]], "x"):
         with pytest.raises(CheckpointError, match="trail"):
             restore(_mission(), {**st, "trail": bad}, m.z, GRID)
+
+
+def test_a_leg_home_whose_lengths_keep_holding_it_elsewhere_retraces() -> None:
+    """On the way home, the waypoints' lengths hold the body 0.3 m off the way, again and again
+    (the map's ground is not the ground's there): the leg home is not given up with the body left
+    on the face; it goes back the way it came."""
+    m, dev = _mission(), FreshDevices()
+    t = _out_to_the_target_and_rocks_behind(m, dev)
+    m.set_map(np.zeros(GRID.shape), GRID)  # a way home on the map
+    came = [(a, b) for a, b, _, _ in m.trail]
+    assert m.step(t + 0.1, dev).request_fix
+    m.on_no_fix(m.fix_seq, "busy")
+    assert m.state == "DRIVE" and m.legs[m.leg_i].lengths is None  # planned home, not retraced
+    for _ in range(20):
+        if m.state != "DRIVE" or m.legs[m.leg_i].lengths is not None:
+            break
+        leg = m.legs[m.leg_i]
+        wp = leg.waypoints[m.wp_i]
+        st = tether_state(m.z, GRID, m.anchors, wp, m.tcfg, m.ccfg.footprint_m)
+        assert st is not None
+        _set(m, dev, st.lengths_m, wp + np.array([0.3, 0.0]))  # at the waypoint's lengths, 0.3 m off it
+        t += 0.1
+        m.step(t, dev)
+    names = [name for _, name, _ in m.events]
+    assert names.count("OFF_THE_WAY") >= 2 and "RETRACE" in names, names[-8:]
+    leg = m.legs[m.leg_i]
+    assert m.state == "DRIVE" and leg.target is None and leg.lengths is not None
+    assert leg.lengths[-1] == pytest.approx(came[0])  # back to the lengths it left its start with
