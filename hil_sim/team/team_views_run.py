@@ -544,11 +544,12 @@ def _slope_deg(z: F64, cell: float) -> F64:
     return np.asarray(np.degrees(np.arctan(np.hypot(gx, gy))), float)
 
 
-def run_scene(spec: str, seed: int, *, team: bool, cycles: int, cell_m: float = 0.08) -> TeamViewsRun:
-    """``cycles`` imaging cycles of one seeded scene."""
+def run_scene(spec: str, seed: int, *, team: bool, cycles: int, cell_m: float = 0.08,
+              tv: TeamViewConfig | None = None) -> TeamViewsRun:
+    """``cycles`` imaging cycles of one seeded scene (``tv``: the team views' configuration)."""
     from hil_sim.world import load_scenario
 
-    run = TeamViewsRun(load_scenario(spec, seed), seed, team=team, cell_m=cell_m)
+    run = TeamViewsRun(load_scenario(spec, seed), seed, team=team, cell_m=cell_m, tv=tv)
     for _ in range(cycles):
         run.cycle()
     return run

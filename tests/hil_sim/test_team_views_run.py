@@ -60,6 +60,9 @@ def test_team_sensing_usage_errors_exit_2(capsys: pytest.CaptureFixture[str]) ->
     assert ok.value.code == 0 and "--cycles" in capsys.readouterr().out
     assert main(["experiment", "team-sensing", "--scenes", "0"]) == 2
     assert "--scenes" in capsys.readouterr().err
+    for w in ("0.5", "101", "nan"):
+        assert main(["experiment", "team-sensing", "--corridor-weight", w]) == 2
+        assert "--corridor-weight must be within 1-100" in capsys.readouterr().err
 
 
 @pytest.mark.slow

@@ -72,6 +72,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--corridor-cap", type=int, default=40,
                    help="each run goes on past --cycles until the corridor is mapped to 95 %% or this many cycles")
     p.add_argument("--cell", type=float, default=0.08, help="map cell of the harness (m)")
+    p.add_argument("--corridor-weight", type=float, default=None,
+                   help="both agents' weight of the bits on the Cliff-bot's corridor, 1-100 "
+                        "(default: TeamViewConfig's, docs/team.md \"Team views\")")
     p.add_argument("--out", type=Path, default=Path("out/team-sensing"), help="output directory")
     p.add_argument("--results-name", default="team-sensing",
                    help="results file docs/results/NAME.md (e.g. a held-out run on other seeds)")
@@ -88,6 +91,9 @@ def run(args: argparse.Namespace) -> int:
     if args.corridor_cap < args.cycles:
         print(f"{me}: --corridor-cap must be >= --cycles, got {args.corridor_cap} < {args.cycles}", file=sys.stderr)
         return 2
+    if args.corridor_weight is not None and not 1.0 <= args.corridor_weight <= 100.0:
+        print(f"{me}: --corridor-weight must be within 1-100, got {args.corridor_weight:g}", file=sys.stderr)
+        return 2
     if (bad := bad_results_name(args.results_name)) is not None:
         print(f"{me}: {bad}", file=sys.stderr)
         return 2
@@ -101,7 +107,8 @@ def run(args: argparse.Namespace) -> int:
     rows: list[dict[str, Any]] = []
     curves: dict[int, dict[str, list[float]]] = {}
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        futs = {pool.submit(scene, args.scenario, s, args.cycles, args.cell, args.corridor_cap): s for s in seeds}
+        futs = {pool.submit(scene, args.scenario, s, args.cycles, args.cell, args.corridor_cap,
+                            args.corridor_weight): s for s in seeds}
         for fut in as_completed(futs):
             try:
                 row, curve = fut.result()
@@ -132,16 +139,19 @@ def _f(v: Any) -> str:
     return "-" if v is None else f"{v:.2f}"
 
 
-def scene(spec: str, seed: int, cycles: int, cell_m: float, cap: int) -> tuple[dict[str, Any], dict[str, list[float]]]:
+def scene(spec: str, seed: int, cycles: int, cell_m: float, cap: int, corridor_weight: float | None = None,
+          ) -> tuple[dict[str, Any], dict[str, list[float]]]:
     """One scene's row and coverage curves (module docstring): every figure after ``cycles``
     cycles, then both runs go on for the cycles to 95 % of the corridor (up to ``cap``);
-    deterministic per seed."""
+    deterministic per seed. ``corridor_weight``: the team views' (None: ``TeamViewConfig``'s)."""
     import numpy as np
 
+    from fsw.core.planning.team_views import TeamViewConfig
     from hil_sim.team.team_views_run import run_scene
 
-    team = run_scene(spec, seed, team=True, cycles=cycles, cell_m=cell_m)
-    alone = run_scene(spec, seed, team=False, cycles=cycles, cell_m=cell_m)
+    tv = TeamViewConfig() if corridor_weight is None else TeamViewConfig(corridor_weight=corridor_weight)
+    team = run_scene(spec, seed, team=True, cycles=cycles, cell_m=cell_m, tv=tv)
+    alone = run_scene(spec, seed, team=False, cycles=cycles, cell_m=cell_m, tv=tv)
     tc = [r.new_cells for r in team.records]
     rc = [r.new_cells for r in alone.records]
     overlaps = [r.overlap for r in team.records if r.overlap is not None]
