@@ -61,3 +61,38 @@ def test_the_scenes_fly_the_cliffbots_flight_file(tmp_path: Path) -> None:
     setup = TeamSetup.from_settings(load_settings(changed), max_s=60.0)
     assert setup.mission.tension_guard_n == 2.5 and setup.max_s == 60.0
     assert setup.tether == load_settings(changed).tether and setup.nav == load_settings(changed).cliffbot_nav
+
+
+def _scene_or_refused(spec: str, seed: int, *args: object) -> dict[str, object]:
+    """The experiment's ``scene`` for the test below: seed 39 is refused as the scenario refuses it."""
+    from hil_sim.world import ScenarioError
+
+    if seed == 39:
+        raise ScenarioError("cliff-team: the Cliff-bot's start y = -0.5 m is not on the plateau")
+    return _row(seed)
+
+
+def _broken_scene(spec: str, seed: int, *args: object) -> dict[str, object]:
+    raise RuntimeError("a bug")
+
+
+def test_seeds_the_scenario_refuses_are_named_and_the_rest_reported(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """A seed whose scene the scenario refuses to build is no failed scene: the report is written
+    for the others and names the refused seed with why; a scene that fails still writes none."""
+    from hil_sim.lab.experiments import experiment_team
+
+    monkeypatch.setenv("SAFER_RESULTS_DIR", str(tmp_path / "results"))
+    monkeypatch.setattr(experiment_team, "scene", _scene_or_refused)
+    argv = ["experiment", "team", "--scenes", "3", "--seed", "38", "--out", str(tmp_path / "out"),
+            "--results-name", "team-heldout"]
+    assert main(argv) == 0
+    text = (tmp_path / "results" / "team-heldout.md").read_text()
+    assert "| scenes (seeds) / targets | 2 (38, 40) / 6 |" in text
+    assert "- 39: cliff-team: the Cliff-bot's start y = -0.5 m is not on the plateau" in text
+    assert "seed 39 not run, the scenario refuses it" in capsys.readouterr().err
+    monkeypatch.setattr(experiment_team, "scene", _broken_scene)
+    (tmp_path / "results" / "team-heldout.md").unlink()
+    assert main(argv) == 1
+    assert not (tmp_path / "results" / "team-heldout.md").exists()
+    assert "seed 38: RuntimeError: a bug" in capsys.readouterr().err

@@ -22,6 +22,9 @@ command gives the same table) is judged by :mod:`hil_sim.team.team_eval`:
   violations, hazard and unknown cells entered, fix errors against range with their NEES;
 * **the link**: map bytes, fix bytes down and up, and their seconds on the 9600 bit/s radio.
 
+A seed the scenario refuses to build (``ScenarioError``) is named under the table and the other
+scenes are reported; any other failure of a scene writes no report (exit 1).
+
 Writes OUT/team.csv, OUT/team.png (the first scene's mission), the result file
 ``docs/results/team.md`` (``hil_sim.lab.results``; ``--results-name`` names another, e.g. a
 held-out run on other seeds) and prints the table.
@@ -168,6 +171,7 @@ def run(args: argparse.Namespace) -> int:
     missions = args.scenes if args.missions < 0 else args.missions
     rows: dict[int, dict[str, Any]] = {}
     failed: list[str] = []
+    refused: dict[int, str] = {}  # seeds whose scene the scenario refuses to build: no scene, not a failure
     with ProcessPoolExecutor(max_workers=args.jobs) as pool, \
             tqdm(total=args.scenes, desc="team scenes", unit="scene") as bar:
         futs = {pool.submit(scene, args.scenario, args.seed + k, args.config, args.wheel, k < missions,
@@ -177,6 +181,9 @@ def run(args: argparse.Namespace) -> int:
             seed = futs[fut]
             try:
                 rows[seed] = fut.result()
+            except ScenarioError as exc:
+                refused[seed] = str(exc)
+                bar.set_postfix_str(f"seed {seed}: refused by the scenario")
             except Exception as exc:  # noqa: BLE001 - one failed scene is reported, the rest go on
                 failed.append(f"seed {seed}: {type(exc).__name__}: {exc}")
                 bar.set_postfix_str(f"seed {seed}: FAILED")
@@ -189,7 +196,13 @@ def run(args: argparse.Namespace) -> int:
     if failed:
         print(f"{me}: scenes failed, no report written:\n  " + "\n  ".join(failed), file=sys.stderr)
         return 1
-    return _write([rows[s] for s in sorted(rows)], args)
+    if not rows:
+        print(f"{me}: the scenario refuses every seed:\n  "
+              + "\n  ".join(f"seed {k}: {v}" for k, v in sorted(refused.items())), file=sys.stderr)
+        return 1
+    for k, v in sorted(refused.items()):
+        print(f"{me}: seed {k} not run, the scenario refuses it: {v}", file=sys.stderr)
+    return _write([rows[s] for s in sorted(rows)], args, refused)
 
 
 def _report_rows(args: argparse.Namespace) -> int:
@@ -205,10 +218,10 @@ def _report_rows(args: argparse.Namespace) -> int:
     return _write(sorted(rows, key=lambda r: r["seed"]), args)
 
 
-def _write(ordered: list[dict[str, Any]], args: argparse.Namespace) -> int:
+def _write(ordered: list[dict[str, Any]], args: argparse.Namespace, refused: dict[int, str] | None = None) -> int:
     from hil_sim.lab.results import command_line, write_results
 
-    table = report(ordered, args)
+    table = report(ordered, args, refused)
     with open(args.out / "team.csv", "w", newline="") as fh:
         keys = [k for k in ordered[-1] if k != "_fixes"]
         wr = csv.DictWriter(fh, fieldnames=keys, extrasaction="ignore")
@@ -255,8 +268,9 @@ def _why(ms: list[dict[str, Any]]) -> str:
     return ", ".join(f"{k}: {v}" for k, v in got.most_common()) or "-"
 
 
-def report(rows: list[dict[str, Any]], args: argparse.Namespace) -> str:
-    """The done-when table, the fixes against range and the per-scene table."""
+def report(rows: list[dict[str, Any]], args: argparse.Namespace, refused: dict[int, str] | None = None) -> str:
+    """The done-when table, the fixes against range and the per-scene table; ``refused``: the
+    seeds the scenario refused to build (named under the table, with why)."""
     import numpy as np
 
     from hil_sim.lab.results import markdown_table
@@ -318,5 +332,8 @@ def report(rows: list[dict[str, Any]], args: argparse.Namespace) -> str:
             fl.append(f"| {label} | {len(sel)} | {_mw([f[1] for f in sel], fmt='{:.2f}')} | "
                       f"{_mw([f[2] for f in sel], fmt='{:.2f}')} | {100 * within:.0f} % |")
         out += "\n\nFixes against range (all missions):\n\n" + "\n".join(fl)
+    if refused:
+        out += "\n\nSeeds the scenario refuses (no scene to run):\n\n" + "\n".join(
+            f"- {k}: {v}" for k, v in sorted(refused.items()))
     per = [{k: v for k, v in r.items() if k != "_fixes"} for r in rows]
     return out + "\n\nPer scene:\n\n" + markdown_table(per)
