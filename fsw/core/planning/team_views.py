@@ -81,7 +81,7 @@ class TeamViewConfig:
     corridor_half_m: float = param(1.0, lo=0.0, hi=20.0, units="m",
                                    doc="the Cliff-bot's corridor: its planned path +- this")
     corridor_weight: float = param(2.0, lo=1.0, hi=100.0,
-                                   doc="the RECON-bot's interest weight of corridor cells (§3.4)")
+                                   doc="both agents' weight of the bits on the Cliff-bot's corridor (§3.4)")
     head_m: float = param(0.45, lo=0.0, hi=3.0, units="m", doc="the Cliff-bot's camera above its ground")
     station_spacing_m: float = param(0.5, lo=0.05, hi=10.0, units="m",
                                      doc="the Cliff-bot's candidate places along its path")
