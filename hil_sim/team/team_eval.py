@@ -23,9 +23,9 @@ team mission comes from here and only from the TRUTH:
   lengths off by each error, the statics re-solved there), the truth's ground having no map
   error; without it, at the exact lengths;
 * :func:`compare_maps`: "the map was enough": the Cliff-bot's planner on the received
-  (reduced, decoded) map and on the full-resolution map of the same mission: targets reached
-  on each, path length ratio, hazard and rock cells of the full map the received map shows as
-  safe;
+  (reduced, decoded) map and on the full-resolution map of the same mission (the legs as its
+  mission plans them, given its configuration): targets reached on each, path length ratio,
+  hazard and rock cells of the full map the received map shows as safe;
 * :func:`unknown_cells_entered`: the distinct cells of the true path the received map did
   not know; :func:`unknown_at_entry`: the cells the true path entered that the Cliff-bot's map
   did not know from a sensor WHEN it entered them (what the bench records step by step, and
@@ -52,6 +52,7 @@ from fsw.core.team.face_planner import USABLE, node_held_reason, node_reasons, p
 from fsw.core.team.held_tension import LengthErrors
 from fsw.core.team.tether import TetherConfig, TetherState, ZMap
 from fsw.core.team.tether_settle import settle
+from fsw.sections import CliffbotMissionConfig
 from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]
@@ -328,17 +329,39 @@ class MapComparison:
 
 
 def compare_maps(full_z: NDArray[np.floating], received_z: NDArray[np.floating], grid: MapGrid, anchors: F64,
-                 start_xy: F64, targets_xy: F64, tcfg: TetherConfig, ccfg: ClimberConfig) -> MapComparison:
-    """The same planner on both maps (module docstring)."""
+                 start_xy: F64, targets_xy: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
+                 mission: CliffbotMissionConfig | None = None, error_bound_m: float = 0.0) -> MapComparison:
+    """The same planner on both maps (module docstring). With ``mission``, the planner is the one
+    the mission flies: each target's leg from the start (:meth:`fsw.tasks.cliffbot.legs.Route.plan`:
+    the mission's margins, its ways between nodes judged as it drives them, the edges it cannot
+    pass cut), on the received map with the codec's ``error_bound_m`` and on the full map with
+    none; without it, the lattice search alone (:func:`plan_targets`, no margins, no ways)."""
     full = np.asarray(full_z, np.float64)
     got = np.asarray(received_z, np.float64)
-    p_full = plan_targets(full, grid, anchors, start_xy, targets_xy, tcfg, ccfg)
-    p_got = plan_targets(got, grid, anchors, start_xy, targets_xy, tcfg, ccfg)
+    if mission is None:
+        p_full = plan_targets(full, grid, anchors, start_xy, targets_xy, tcfg, ccfg)
+        p_got = plan_targets(got, grid, anchors, start_xy, targets_xy, tcfg, ccfg)
+        plans = ((p_full.reasons, p_full.lengths_m), (p_got.reasons, p_got.lengths_m))
+    else:
+        plans = tuple(_legs(z, bound, grid, anchors, start_xy, targets_xy, tcfg, ccfg, mission)
+                      for z, bound in ((full, 0.0), (got, error_bound_m)))
     g_full = ground_layers(full, grid, ccfg, anchors=anchors)
     g_got = ground_layers(got, grid, ccfg, anchors=anchors)
     # A rock is lost too when it lies inside another's grown hazard (a tether may not touch it).
     lost = int((((g_full.hazard & ~g_got.hazard) | (g_full.rock & ~g_got.rock)) & np.isfinite(got)).sum())
-    return MapComparison(p_full.reasons, p_got.reasons, p_full.lengths_m, p_got.lengths_m, lost)
+    return MapComparison(tuple(plans[0][0]), tuple(plans[1][0]), tuple(plans[0][1]), tuple(plans[1][1]), lost)
+
+
+def _legs(z: F64, error_bound_m: float, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy: F64,
+          tcfg: TetherConfig, ccfg: ClimberConfig, mission: CliffbotMissionConfig,
+          ) -> tuple[tuple[str, ...], tuple[float, ...]]:
+    """Each target's leg from the start as the mission plans it on ``z``: its reason and length."""
+    from fsw.tasks.cliffbot.legs import Route
+
+    route = Route(z, grid, error_bound_m, mission, tcfg, ccfg, np.asarray(anchors, float))
+    got = [route.plan(np.asarray(start_xy, float), np.asarray(t, float))[0]
+           for t in np.asarray(targets_xy, float).reshape(-1, 2)]
+    return tuple(p.reasons[0] for p in got), tuple(float(p.lengths_m[0]) for p in got)
 
 
 def unknown_cells_entered(path: Sequence[tuple[float, float]], z: NDArray[np.floating], grid: MapGrid) -> int:

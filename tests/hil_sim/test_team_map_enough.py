@@ -45,3 +45,30 @@ def test_a_rock_lost_inside_another_rocks_hazard_counts_as_lost() -> None:
     off_map = np.array([-1.0, -1.0])  # no plan: the measure only
     cmp = compare_maps(full, got, grid, np.zeros((2, 3)), off_map, off_map[None, :], TetherConfig(), climber)
     assert cmp.hazard_cells_lost == 1
+
+
+def test_the_map_is_judged_by_the_legs_the_mission_plans() -> None:
+    """Held-out scene 36: on the reduced map the lattice search still finds target 1 (no margins,
+    no ways), but the leg the mission plans does not: one way near the lip, a couple of
+    centimetres of the reduction off, is slack at the winches' length errors. "The map was
+    enough" is judged by the mission's own leg planner (``compare_maps(mission=...)``), so this
+    target counts as a verdict the reduction changed."""
+    from fsw.core.team.tether import anchor_points
+    from hil_sim.team.team_eval import compare_maps
+    from hil_sim.team.team_run import TeamSetup
+
+    cfg = load_settings(DEFAULT_CONFIG)
+    setup = TeamSetup.from_settings(load_settings(DEFAULT_CONFIG.parent / "cliffbot.toml"))
+    world = load_scenario("cliff-team", 36)
+    assert world.team is not None
+    grid = MapGrid.from_config(world.map_grid)
+    full = world.ground_on_grid(grid)
+    dec = decode_map(encode_map(full, cell_m=grid.cell, wheel_diameter_m=setup.climber.wheel_d_m, cfg=cfg.codec).data)
+    got = np.asarray(dec.z, np.float64)
+    anchors = anchor_points(full, grid, world.team.anchors_xy, setup.tether)
+    start, target = world.team.cliffbot_start_xy, world.team.targets_xyz[:1, :2]
+    lattice = compare_maps(full, got, grid, anchors, start, target, setup.tether, setup.climber)
+    legs = compare_maps(full, got, grid, anchors, start, target, setup.tether, setup.climber,
+                        mission=setup.mission, error_bound_m=float(dec.header.error_bound_m))
+    assert lattice.reasons_full == ("",) and lattice.reasons_received == ("",) and lattice.verdicts_differ == 0
+    assert legs.reasons_full == ("",) and legs.reasons_received == ("no safe path",) and legs.verdicts_differ == 1

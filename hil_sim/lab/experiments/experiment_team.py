@@ -9,7 +9,8 @@ command gives the same table) is judged by :mod:`hil_sim.team.team_eval`:
   length tolerance among them (``team_eval.winch_errors``: the tethers hold the body wherever
   the winches may stop); the same search at the exact lengths is reported beside it, so the
   table shows what the tolerance takes away. The mission is judged against the first;
-* **the map was enough**: the Cliff-bot's planner on the full-resolution map (the truth on
+* **the map was enough**: the legs the Cliff-bot's mission plans from its start to each target
+  (its margins, its ways judged as it drives them) on the full-resolution map (the truth on
   the flight map grid: a perfect RECON-bot map) and on that map after the link's reduction
   (``fsw.core.codec.mapcodec`` at the flight configuration, its critical length the
   receiver's wheel, ``--wheel``, default the Cliff-bot's ``ClimberConfig.wheel_d_m``): targets
@@ -99,7 +100,8 @@ def scene(scenario: str, seed: int, config: str, wheel_m: float, mission: bool, 
     exact = truth_verdict(world, grid, anchors, setup.tether, setup.climber)
     truth = truth_verdict(world, grid, anchors, setup.tether, setup.climber,
                           winch_errors(setup.mission.length_tol_m, setup.mission.margin_sigmas))
-    cmp = compare_maps(full, reduced, grid, anchors, start, targets, setup.tether, setup.climber)
+    cmp = compare_maps(full, reduced, grid, anchors, start, targets, setup.tether, setup.climber,
+                       mission=setup.mission, error_bound_m=float(decoded.header.error_bound_m))
     ratio = cmp.path_ratio_max
     row: dict[str, Any] = {
         "seed": seed, "slope_deg": round(world.team.face_slope_deg, 1), "drop_m": round(world.team.drop_m, 2),
