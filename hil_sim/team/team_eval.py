@@ -22,10 +22,6 @@ team mission comes from here and only from the TRUTH:
   (``face_planner.node_held_reason``, ``way_reason(errors=...)``: the body settled at the
   lengths off by each error, the statics re-solved there), the truth's ground having no map
   error; without it, at the exact lengths;
-* :func:`compare_maps`: "the map was enough": the Cliff-bot's planner on the received
-  (reduced, decoded) map and on the full-resolution map of the same mission (the legs as its
-  mission plans them, given its configuration): targets reached on each, path length ratio,
-  hazard and rock cells of the full map the received map shows as safe;
 * :func:`unknown_cells_entered`: the distinct cells of the true path the received map did
   not know; :func:`unknown_at_entry`: the cells the true path entered that the Cliff-bot's map
   did not know from a sensor WHEN it entered them (what the bench records step by step, and
@@ -47,12 +43,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fsw.core.geometry import MapGrid, wrap_angle
-from fsw.core.team.climber_ground import ClimberConfig, Ground, ground_layers
-from fsw.core.team.face_planner import USABLE, node_held_reason, node_reasons, plan_targets, way_reason
+from fsw.core.team.climber_ground import ClimberConfig, Ground
+from fsw.core.team.face_planner import USABLE, node_held_reason, node_reasons, way_reason
 from fsw.core.team.held_tension import LengthErrors
 from fsw.core.team.tether import TetherConfig, TetherState, ZMap
 from fsw.core.team.tether_settle import settle
-from fsw.sections import CliffbotMissionConfig
 from hil_sim.world.world import World
 
 F64 = NDArray[np.float64]
@@ -295,73 +290,9 @@ def _brute_force(world: World, truth: _TruthGround, grid: MapGrid, tcfg: TetherC
     return TruthReach(tuple(why_not), tuple(lengths), ny * nx, n_usable)
 
 
-@dataclass(frozen=True)
-class MapComparison:
-    """Plans on the received map against plans on the full-resolution map (same start, targets)."""
-
-    reasons_full: tuple[str, ...]
-    reasons_received: tuple[str, ...]
-    lengths_full_m: tuple[float, ...]
-    lengths_received_m: tuple[float, ...]
-    # cells the full map reads as a hazard (a rock or steep ground, grown by the footprint) or as
-    # a rock (what a tether may not touch), known on the received map and not read so there
-    hazard_cells_lost: int
-
-    @property
-    def verdicts_differ(self) -> int:
-        return sum(1 for a, b in zip(self.reasons_full, self.reasons_received, strict=True) if bool(a) != bool(b))
-
-    @property
-    def path_ratio_max(self) -> float:
-        """The largest received/full path length over targets reachable on both (NaN: none)."""
-        r = [b / a for a, b in zip(self.lengths_full_m, self.lengths_received_m, strict=True)
-             if math.isfinite(a) and math.isfinite(b) and a > 0]
-        return max(r) if r else math.nan
-
-    def section(self) -> dict[str, Any]:
-        ratio = self.path_ratio_max
-        return {"map_targets_full": sum(1 for r in self.reasons_full if not r),
-                "map_targets_received": sum(1 for r in self.reasons_received if not r),
-                "map_verdicts_differ": self.verdicts_differ,
-                "map_path_ratio_max": round(ratio, 4) if math.isfinite(ratio) else None,
-                "map_hazard_cells_lost": self.hazard_cells_lost,
-                "map_reasons_full": list(self.reasons_full)}
-
-
-def compare_maps(full_z: NDArray[np.floating], received_z: NDArray[np.floating], grid: MapGrid, anchors: F64,
-                 start_xy: F64, targets_xy: F64, tcfg: TetherConfig, ccfg: ClimberConfig,
-                 mission: CliffbotMissionConfig | None = None, error_bound_m: float = 0.0) -> MapComparison:
-    """The same planner on both maps (module docstring). With ``mission``, the planner is the one
-    the mission flies: each target's leg from the start (:meth:`fsw.tasks.cliffbot.legs.Route.plan`:
-    the mission's margins, its ways between nodes judged as it drives them, the edges it cannot
-    pass cut), on the received map with the codec's ``error_bound_m`` and on the full map with
-    none; without it, the lattice search alone (:func:`plan_targets`, no margins, no ways)."""
-    full = np.asarray(full_z, np.float64)
-    got = np.asarray(received_z, np.float64)
-    if mission is None:
-        p_full = plan_targets(full, grid, anchors, start_xy, targets_xy, tcfg, ccfg)
-        p_got = plan_targets(got, grid, anchors, start_xy, targets_xy, tcfg, ccfg)
-        plans = ((p_full.reasons, p_full.lengths_m), (p_got.reasons, p_got.lengths_m))
-    else:
-        plans = tuple(_legs(z, bound, grid, anchors, start_xy, targets_xy, tcfg, ccfg, mission)
-                      for z, bound in ((full, 0.0), (got, error_bound_m)))
-    g_full = ground_layers(full, grid, ccfg, anchors=anchors)
-    g_got = ground_layers(got, grid, ccfg, anchors=anchors)
-    # A rock is lost too when it lies inside another's grown hazard (a tether may not touch it).
-    lost = int((((g_full.hazard & ~g_got.hazard) | (g_full.rock & ~g_got.rock)) & np.isfinite(got)).sum())
-    return MapComparison(tuple(plans[0][0]), tuple(plans[1][0]), tuple(plans[0][1]), tuple(plans[1][1]), lost)
-
-
-def _legs(z: F64, error_bound_m: float, grid: MapGrid, anchors: F64, start_xy: F64, targets_xy: F64,
-          tcfg: TetherConfig, ccfg: ClimberConfig, mission: CliffbotMissionConfig,
-          ) -> tuple[tuple[str, ...], tuple[float, ...]]:
-    """Each target's leg from the start as the mission plans it on ``z``: its reason and length."""
-    from fsw.tasks.cliffbot.legs import Route
-
-    route = Route(z, grid, error_bound_m, mission, tcfg, ccfg, np.asarray(anchors, float))
-    got = [route.plan(np.asarray(start_xy, float), np.asarray(t, float))[0]
-           for t in np.asarray(targets_xy, float).reshape(-1, 2)]
-    return tuple(p.reasons[0] for p in got), tuple(float(p.lengths_m[0]) for p in got)
+def came_home(events: Sequence[Sequence[Any]]) -> bool:
+    """Whether a mission's events (time, name, text) hold its ``HOME``: it reached its start."""
+    return any(len(e) > 1 and e[1] == "HOME" for e in events)
 
 
 def unknown_cells_entered(path: Sequence[tuple[float, float]], z: NDArray[np.floating], grid: MapGrid) -> int:
@@ -491,7 +422,7 @@ class TeamVerdict:
             "safe_reason": o.safe_reason,
             "events": [list(e) for e in o.events],
             "path_m": round(path_length_m(o.true_path), 3),
-            "back_home": any(len(e) > 1 and e[1] == "HOME" for e in o.events),
+            "back_home": came_home(o.events),
             "home_off_m": (round(float(np.hypot(*np.subtract(o.true_path[-1], o.true_path[0]))), 3)
                            if o.true_path else 0.0),
             "sim_s": round(o.sim_s, 3),

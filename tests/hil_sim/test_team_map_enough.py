@@ -33,7 +33,7 @@ def test_a_rock_lost_inside_another_rocks_hazard_counts_as_lost() -> None:
     no longer reads even where the grown hazard round the rocks beside it hides it: a tether may
     not touch a rock, whatever the hazard layer says."""
     from fsw.core.team.tether import TetherConfig
-    from hil_sim.team.team_eval import compare_maps
+    from hil_sim.lab.map_enough import compare_maps
 
     grid, climber = MapGrid(0.0, 0.0, 0.04, 40, 40), ClimberConfig()
     full = np.zeros((40, 40))
@@ -54,7 +54,7 @@ def test_the_map_is_judged_by_the_legs_the_mission_plans() -> None:
     enough" is judged by the mission's own leg planner (``compare_maps(mission=...)``), so this
     target counts as a verdict the reduction changed."""
     from fsw.core.team.tether import anchor_points
-    from hil_sim.team.team_eval import compare_maps
+    from hil_sim.lab.map_enough import compare_maps
     from hil_sim.team.team_run import TeamSetup
 
     cfg = load_settings(DEFAULT_CONFIG)

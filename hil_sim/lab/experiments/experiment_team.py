@@ -78,8 +78,9 @@ def scene(scenario: str, seed: int, config: str, wheel_m: float, mission: bool, 
     from fsw.core.geometry import MapGrid
     from fsw.core.team.tether import anchor_points
     from fsw.settings import load_settings
+    from hil_sim.lab.map_enough import compare_maps
     from hil_sim.link.radio_channel import RadioChannel
-    from hil_sim.team.team_eval import compare_maps, truth_verdict, winch_errors
+    from hil_sim.team.team_eval import truth_verdict, winch_errors
     from hil_sim.team.team_run import ReconFixer, TeamSetup, TruthFixer, run_team
     from hil_sim.world import load_scenario
 

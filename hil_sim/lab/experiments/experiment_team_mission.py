@@ -147,6 +147,8 @@ def way_text(t: dict[str, Any], k: int) -> str:
 
 def scene_row(s: dict[str, Any], seed: int) -> dict[str, Any]:
     """A scene's row and fixes from its mission summary."""
+    from hil_sim.team.team_eval import came_home
+
     t = s.get("team") or {}
     reasons = [str(r) for r in t.get("map_reasons", [])]
     row = {
@@ -164,7 +166,7 @@ def scene_row(s: dict[str, Any], seed: int) -> dict[str, Any]:
         "cliffbot_cells": (t.get("cells_by_agent") or {}).get("cliffbot", 0),
         "final_state": t.get("final_state", "-"),
         "safe_reason": t.get("safe_reason", ""),
-        "back_home": int(t.get("back_home", any(len(e) > 1 and e[1] == "HOME" for e in t.get("events", [])))),
+        "back_home": int(t.get("back_home", came_home(t.get("events", [])))),
         "bytes_down": t.get("link_bytes_down", 0),
         "bytes_up": t.get("link_bytes_up", 0),
         "map_reasons": "; ".join(target_text(t, k) for k in range(len(reasons))),
